@@ -1,0 +1,1 @@
+"""Command-line shell of eol-cal: parses, calls the library, prints. No algorithms live here."""

@@ -1,0 +1,30 @@
+"""Exceptions shared by the library; the CLI maps them to exit codes.
+
+Exit codes: 0 ok, 1 a check or limit failed (:class:`CheckFailed`), 2 bad input or usage
+(:class:`InputError` and every other :class:`EolCalError`).
+"""
+
+from __future__ import annotations
+
+
+class EolCalError(Exception):
+    """Base class of every error the tool reports to its user."""
+
+    exit_code = 2
+
+
+class InputError(EolCalError):
+    """Input that cannot be trusted: names the file, the field (channel, key) and the reason."""
+
+    def __init__(self, file: str | None, field: str | None, reason: str) -> None:
+        self.file = file
+        self.field = field
+        self.reason = reason
+        where = ", ".join(p for p in (f"file {file}" if file else "", f"field {field!r}" if field else "") if p)
+        super().__init__(f"{where}: {reason}" if where else reason)
+
+
+class CheckFailed(EolCalError):
+    """A check or limit did not hold (exit code 1); the run itself worked."""
+
+    exit_code = 1

@@ -1,0 +1,138 @@
+"""Motor parameters (seed paper Table I) and the small unit helpers every module shares."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+
+from eol_cal.errors import InputError
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    """SPMSM and drive parameters.
+
+    Attributes
+    ----------
+    name : str
+        Preset name.
+    poles : int
+        Number of poles P (pole pairs = P/2).
+    R_s : float
+        Stator resistance at ``T_ref_degC`` (ohm).
+    T_ref_degC : float
+        Temperature at which ``R_s`` is given (degC).
+    alpha_cu : float
+        Temperature coefficient of ``R_s`` (1/K).
+    L_d, L_q : float
+        d- and q-axis inductance (H).
+    psi_f : float
+        Magnet flux linkage, the paper's back-EMF constant phi_f (V*s).
+    J : float
+        Rotor moment of inertia (kg*m^2).
+    B : float
+        Viscous friction coefficient (N*m*s).
+    u_dc : float
+        DC-link voltage (V).
+    N_enc : int
+        Encoder pulses per mechanical revolution of channel A.
+    f_pwm, f_cc, f_cmd : float
+        PWM / estimator tick, current-control and command rates (Hz).
+    """
+
+    name: str = "paper"
+    poles: int = 6
+    R_s: float = 0.023
+    T_ref_degC: float = 70.0
+    alpha_cu: float = 0.00393
+    L_d: float = 68e-6
+    L_q: float = 68e-6
+    psi_f: float = 0.0109
+    J: float = 0.00011
+    B: float = 0.00021
+    u_dc: float = 12.0
+    N_enc: int = 64
+    f_pwm: float = 20000.0
+    f_cc: float = 1680.0
+    f_cmd: float = 420.0
+
+    @property
+    def kt(self) -> float:
+        """Torque constant 3P/4 * psi_f (N*m/A of i_q), seed eq. (3)."""
+        return 0.75 * self.poles * self.psi_f
+
+    @property
+    def pole_pairs(self) -> int:
+        return self.poles // 2
+
+    def R_s_at(self, temp_degC: float) -> float:
+        """Stator resistance at ``temp_degC`` (ohm), linear copper model."""
+        return self.R_s * (1.0 + self.alpha_cu * (temp_degC - self.T_ref_degC))
+
+
+_FIELDS = {f.name: f.type for f in dataclasses.fields(MotorParams)}
+
+
+def motor_from_mapping(data: dict, source: str = "<mapping>") -> MotorParams:
+    """Build :class:`MotorParams` from a mapping; unknown keys and bad values are refused."""
+    kwargs = {}
+    for key, value in data.items():
+        if key not in _FIELDS:
+            raise InputError(source, key, f"unknown motor parameter; known: {', '.join(sorted(_FIELDS))}")
+        want = _FIELDS[key]
+        if want == "str":
+            if not isinstance(value, str):
+                raise InputError(source, key, "must be a string")
+        elif want == "int":
+            if not isinstance(value, int) or isinstance(value, bool) or value <= 0:
+                raise InputError(source, key, f"must be a positive integer, got {value!r}")
+        else:
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                raise InputError(source, key, f"must be a finite number, got {value!r}")
+            if key != "T_ref_degC" and key != "alpha_cu" and value <= 0:
+                raise InputError(source, key, f"must be positive, got {value!r}")
+            value = float(value)
+        kwargs[key] = value
+    params = MotorParams(**kwargs)
+    if params.poles % 2:
+        raise InputError(source, "poles", f"must be even, got {params.poles}")
+    return params
+
+
+def load_motor(preset: str = "paper", toml_file: str | Path | None = None) -> MotorParams:
+    """Motor parameters from a built-in preset, overridden by the keys of a TOML file.
+
+    Parameters
+    ----------
+    preset : str
+        Name of a built-in preset (``eol_cal/presets/NAME.toml``).
+    toml_file : path, optional
+        TOML file whose top-level keys override the preset.
+    """
+    try:
+        text = resources.files("eol_cal.presets").joinpath(f"{preset}.toml").read_text()
+    except FileNotFoundError:
+        raise InputError(None, "preset", f"unknown motor preset {preset!r}") from None
+    data = tomllib.loads(text)
+    source = f"preset {preset}"
+    if toml_file is not None:
+        path = Path(toml_file)
+        try:
+            override = tomllib.loads(path.read_text())
+        except FileNotFoundError:
+            raise InputError(str(path), None, "file not found") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise InputError(str(path), None, f"not valid TOML: {exc}") from None
+        data.update(override)
+        source = str(path)
+    return motor_from_mapping(data, source)
+
+
+def rpm_to_omega_m(rpm: float) -> float:
+    """Mechanical speed from rpm to rad/s."""
+    return rpm * 2.0 * math.pi / 60.0
+
