@@ -42,6 +42,9 @@ class MotorParams:
         Encoder pulses per mechanical revolution of channel A.
     f_pwm, f_cc, f_cmd : float
         PWM / estimator tick, current-control and command rates (Hz).
+    current_bw_hz : float
+        Closed-loop bandwidth the ECU's PI current controller is tuned for (Hz); the plant's
+        controller and the compensator's lead both derive from it.
     """
 
     name: str = "paper"
@@ -59,6 +62,7 @@ class MotorParams:
     f_pwm: float = 20000.0
     f_cc: float = 1680.0
     f_cmd: float = 420.0
+    current_bw_hz: float = 200.0
 
     @property
     def kt(self) -> float:
