@@ -1,0 +1,465 @@
+"""Ripple metrics: the paper's ripple index eta and peak-to-peak torque ripple over steady windows.
+
+The definition of the peak-to-peak figure is in ``docs/metrics.md``; in short:
+
+- Electrical revolutions are cut from the reconstructed angle theta_r. A revolution is steady
+  when its mean speed and its mean i_qo stay within a tolerance of the first revolution of the
+  run it belongs to, and i_qo varies inside it by no more than the same tolerance.
+- In each steady run the revolutions that start within ``settle_s`` of the run's start are
+  dropped; the rest is cut into consecutive, non-overlapping windows of ``window_revs`` whole
+  electrical revolutions (default P/2: one mechanical revolution, the paper's 1 s scope view
+  at 60 rpm).
+- Spikes are removed with a Hampel filter before anything else; "filtered" adds a zero-phase
+  Butterworth low-pass at ``cutoff_order`` times the electrical frequency of the run.
+- Per window ``pp% = (max - min) / |mean| * 100`` with the mean of the despiked raw torque;
+  the reported figure is the median over all windows (the max is reported too).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from eol_cal.capture.model import Capture
+from eol_cal.errors import InputError
+
+TWO_PI = 2.0 * np.pi
+
+
+def eta_percent(N_enc: np.ndarray | float, poles: np.ndarray | float) -> np.ndarray | float:
+    """Ripple index of encoder quantisation, seed eq. (12): ``100 * (1 - cos(P*pi/N_enc))``.
+
+    Parameters
+    ----------
+    N_enc : array_like
+        Encoder pulses per mechanical revolution (channel A).
+    poles : array_like
+        Number of poles P.
+
+    Returns
+    -------
+    eta : ndarray or float
+        Torque ripple caused by the quantised angle, percent of the average torque (%);
+        4.3 % at 64 PPR and 0.44 % at 200 PPR for P = 6. Elementwise (broadcasts).
+    """
+    N_enc = np.asarray(N_enc, dtype=float)
+    poles = np.asarray(poles, dtype=float)
+    eta = 100.0 * (1.0 - np.cos(poles * np.pi / N_enc))
+    return float(eta) if eta.ndim == 0 else eta
+
+
+def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65536) -> tuple[np.ndarray, np.ndarray]:
+    """Hampel filter: replace samples far from their window median by that median.
+
+    A sample ``x[i]`` is a spike when ``|x[i] - m_i| > n_sigma * 1.4826 * MAD_i``, where
+    ``m_i`` is the median and ``MAD_i`` the median absolute deviation from ``m_i`` of the
+    ``2*half_width + 1`` samples centred on ``i`` (edges reflected).
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal (any unit).
+    half_width : int
+        Half window length (samples), at least 1.
+    n_sigma : float
+        Threshold in robust standard deviations.
+    chunk : int
+        Samples per block (bounds memory to ``chunk * (2*half_width+1)`` floats).
+
+    Returns
+    -------
+    y : ndarray
+        Signal with spikes replaced (same unit as ``x``).
+    spikes : ndarray of bool
+        Which samples were replaced.
+    """
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    x = np.asarray(x, dtype=float)
+    k = max(int(half_width), 1)
+    padded = np.pad(x, k, mode="reflect") if len(x) > k else np.pad(x, k, mode="edge")
+    y = x.copy()
+    spikes = np.zeros(len(x), dtype=bool)
+    for s in range(0, len(x), chunk):
+        e = min(s + chunk, len(x))
+        win = sliding_window_view(padded[s : e + 2 * k], 2 * k + 1)
+        med = np.median(win, axis=1)
+        mad = np.median(np.abs(win - med[:, None]), axis=1)
+        bad = np.abs(x[s:e] - med) > n_sigma * 1.4826 * mad
+        y[s:e][bad] = med[bad]
+        spikes[s:e] = bad
+    return y, spikes
+
+
+def lowpass_zero_phase(x: np.ndarray, fs_hz: float, cutoff_hz: float, order: int = 6) -> np.ndarray:
+    """Zero-phase Butterworth low-pass (forward-backward, so the magnitude is squared).
+
+    Parameters
+    ----------
+    x : ndarray
+        Signal (any unit), sampled uniformly at ``fs_hz``.
+    fs_hz : float
+        Sample rate (Hz).
+    cutoff_hz : float
+        -3 dB frequency of one pass (Hz); the forward-backward response is -6 dB there.
+    order : int
+        Order of one pass.
+
+    Returns
+    -------
+    y : ndarray
+        Filtered signal (unit of ``x``); ``x`` unchanged when the cut-off is at or above
+        0.9 times the Nyquist frequency (nothing to remove that the samples can hold).
+    """
+    from scipy.signal import butter, sosfiltfilt
+
+    if cutoff_hz >= 0.45 * fs_hz:
+        return np.asarray(x, dtype=float).copy()
+    sos = butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")
+    return sosfiltfilt(sos, x)
+
+
+@dataclass(frozen=True)
+class SteadyWindow:
+    """One window of whole electrical revolutions at a steady operating point.
+
+    Attributes
+    ----------
+    t_start, t_end : float
+        Window start and end (s).
+    n_revs : int
+        Electrical revolutions in the window.
+    T_avg_nm : float
+        Mean despiked torque (N*m).
+    raw_pp_nm, filtered_pp_nm : float
+        Peak-to-peak torque, despiked and despiked + low-passed (N*m).
+    raw_pct, filtered_pct : float
+        Peak-to-peak over |T_avg| (%); NaN where |T_avg| is zero.
+    speed_rpm : float
+        Mean mechanical speed (rpm), signed.
+    i_qo_a : float
+        Mean nominal q current (A); NaN when the capture has none.
+    """
+
+    t_start: float
+    t_end: float
+    n_revs: int
+    T_avg_nm: float
+    raw_pp_nm: float
+    filtered_pp_nm: float
+    raw_pct: float
+    filtered_pct: float
+    speed_rpm: float
+    i_qo_a: float
+
+
+@dataclass(frozen=True)
+class RipplePP:
+    """Peak-to-peak torque ripple of a capture (definition in ``docs/metrics.md``).
+
+    Attributes
+    ----------
+    raw_pct, filtered_pct : float
+        Median over the windows of the per-window p-p percent (%), despiked, and despiked +
+        low-passed.
+    raw_pct_max, filtered_pct_max : float
+        Largest per-window value (%).
+    raw_pp_nm, filtered_pp_nm : float
+        Median per-window p-p (N*m).
+    T_avg_nm : float
+        Mean torque over all windows (N*m).
+    speed_rpm : float
+        Mean mechanical speed over all windows (rpm).
+    windows : tuple[SteadyWindow, ...]
+        Every window that counted.
+    window_revs : int
+        Electrical revolutions per window.
+    segments : tuple[tuple[float, float], ...]
+        Steady runs after the settle time (s): where the windows were cut from.
+    cutoff_order : float
+        Low-pass cut-off as a multiple of the electrical frequency.
+    n_spikes : int
+        Samples the Hampel filter replaced in the whole record.
+    """
+
+    raw_pct: float
+    filtered_pct: float
+    raw_pct_max: float
+    filtered_pct_max: float
+    raw_pp_nm: float
+    filtered_pp_nm: float
+    T_avg_nm: float
+    speed_rpm: float
+    windows: tuple[SteadyWindow, ...]
+    window_revs: int
+    segments: tuple[tuple[float, float], ...]
+    cutoff_order: float
+    n_spikes: int
+
+
+def _percent(pp_nm: float, mean_nm: float) -> float:
+    """Peak-to-peak (N*m) as percent of |mean| (N*m); NaN when the mean is zero."""
+    return 100.0 * pp_nm / abs(mean_nm) if mean_nm != 0.0 else float("nan")
+
+
+def revolution_bounds(theta_r: np.ndarray) -> np.ndarray:
+    """Sample indices where each whole electrical revolution starts (and the last one ends).
+
+    Parameters
+    ----------
+    theta_r : ndarray
+        Unwrapped electrical angle (rad); either direction.
+
+    Returns
+    -------
+    idx : ndarray of int
+        ``idx[k]`` is the first sample at which the angle travelled ``2*pi*k`` from its start
+        (running maximum, so a standstill or a reversal only lengthens a revolution).
+    """
+    travel = np.asarray(theta_r, dtype=float) - float(theta_r[0])
+    if travel[-1] < 0:
+        travel = -travel
+    reach = np.maximum.accumulate(travel)
+    n = int(np.floor(reach[-1] / TWO_PI))
+    return np.searchsorted(reach, TWO_PI * np.arange(n + 1), side="left")
+
+
+def steady_runs(
+    t: np.ndarray,
+    bounds: np.ndarray,
+    i_qo: np.ndarray | None,
+    speed_tol: float,
+    iq_tol_a: float,
+    iq_tol_rel: float,
+) -> list[list[int]]:
+    """Group consecutive steady revolutions into runs.
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times (s).
+    bounds : ndarray of int
+        Revolution start indices from :func:`revolution_bounds`.
+    i_qo : ndarray or None
+        Nominal q current per sample (A).
+    speed_tol : float
+        Allowed relative deviation of a revolution's mean speed from the run's first one.
+    iq_tol_a, iq_tol_rel : float
+        i_qo tolerance: ``max(iq_tol_a, iq_tol_rel * |i_qo of the first revolution|)`` (A),
+        for the spread inside a revolution and for the deviation of its mean.
+
+    Returns
+    -------
+    runs : list of list of int
+        Revolution numbers of each run (revolution k spans ``bounds[k]:bounds[k+1]``).
+    """
+    n_rev = len(bounds) - 1
+    dur = t[bounds[1:]] - t[bounds[:-1]]
+    if i_qo is not None:
+        seg = [i_qo[bounds[k] : bounds[k + 1]] for k in range(n_rev)]
+        iq_mean = np.array([s.mean() for s in seg])
+        iq_span = np.array([np.ptp(s) for s in seg])
+    runs: list[list[int]] = []
+    current: list[int] = []
+    for k in range(n_rev):
+        if i_qo is not None:
+            ref_iq = iq_mean[current[0]] if current else iq_mean[k]
+            tol = max(iq_tol_a, iq_tol_rel * abs(ref_iq))
+            steady_in = iq_span[k] <= tol
+        else:
+            steady_in = True
+        if current and steady_in:
+            ok = abs(dur[k] - dur[current[0]]) <= speed_tol * dur[current[0]]
+            if i_qo is not None:
+                ok = ok and abs(iq_mean[k] - iq_mean[current[0]]) <= tol
+            if ok:
+                current.append(k)
+                continue
+        if current:
+            runs.append(current)
+        current = [k] if steady_in else []
+    if current:
+        runs.append(current)
+    return runs
+
+
+def ripple_pp(
+    t: np.ndarray,
+    torque: np.ndarray,
+    theta_r: np.ndarray,
+    *,
+    poles: int,
+    i_qo: np.ndarray | None = None,
+    window_revs: int | None = None,
+    settle_s: float = 0.1,
+    speed_tol: float = 0.02,
+    iq_tol_a: float = 0.5,
+    iq_tol_rel: float = 0.02,
+    cutoff_order: float = 48.0,
+    filter_order: int = 6,
+    hampel_half_width_s: float = 0.5e-3,
+    hampel_sigma: float = 3.0,
+    source: str = "<memory>",
+) -> RipplePP:
+    """Peak-to-peak torque ripple over steady windows, raw and filtered.
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times (s), uniformly sampled.
+    torque : ndarray
+        Shaft torque (N*m).
+    theta_r : ndarray
+        Unwrapped electrical angle (rad), e.g. from :func:`eol_cal.analysis.angle.reconstruct_angle`.
+    poles : int
+        Number of poles P (the default window is one mechanical revolution, P/2 electrical).
+    i_qo : ndarray, optional
+        Nominal q current per sample (A); without it only the speed decides steadiness.
+    window_revs : int, optional
+        Electrical revolutions per window. Default P/2; when no steady run holds P/2
+        revolutions after the settle time, the largest whole number (at least 1) that the
+        longest run holds, for every run.
+    settle_s : float
+        Time dropped at the start of every steady run (s).
+    speed_tol : float
+        Relative speed tolerance between the revolutions of a run.
+    iq_tol_a, iq_tol_rel : float
+        i_qo tolerance ``max(iq_tol_a, iq_tol_rel*|i_qo|)`` (A).
+    cutoff_order : float
+        Low-pass cut-off of the filtered figure as a multiple of the run's electrical
+        frequency (48 = 8 times the 6th harmonic).
+    filter_order : int
+        Butterworth order of one pass of the zero-phase low-pass.
+    hampel_half_width_s : float
+        Half window of the Hampel despiking filter (s); at least one sample.
+    hampel_sigma : float
+        Hampel threshold (robust standard deviations).
+    source : str
+        File name for error messages.
+
+    Returns
+    -------
+    RipplePP
+    """
+    t = np.asarray(t, dtype=float)
+    torque = np.asarray(torque, dtype=float)
+    theta_r = np.asarray(theta_r, dtype=float)
+    i_qo = None if i_qo is None else np.asarray(i_qo, dtype=float)
+    if not (len(t) == len(torque) == len(theta_r)):
+        raise InputError(source, "torque", "torque, time and angle differ in length")
+    if not np.all(np.isfinite(torque)):
+        raise InputError(source, "torque", "torque holds NaN or infinite values")
+    fs = (len(t) - 1) / (t[-1] - t[0])
+    despiked, spikes = hampel(torque, max(1, round(hampel_half_width_s * fs)), hampel_sigma)
+
+    bounds = revolution_bounds(theta_r)
+    if len(bounds) < 2:
+        raise InputError(source, "torque", "the capture does not hold one whole electrical revolution")
+    runs = steady_runs(t, bounds, i_qo, speed_tol, iq_tol_a, iq_tol_rel)
+    end_idx = len(t) - 1
+
+    usable: list[tuple[list[int], float]] = []  # (revolutions after settle, cut-off Hz)
+    for run in runs:
+        t_run0 = t[bounds[run[0]]]
+        f_e = len(run) / (t[bounds[run[-1] + 1]] - t_run0)
+        f_c = cutoff_order * f_e
+        # Away from the capture's end, the low-pass smears the next operating point back
+        # into the run by about its impulse response: keep clear of it.
+        guard = 0.0 if bounds[run[-1] + 1] >= end_idx else 2.0 / f_c
+        t_run1 = t[bounds[run[-1] + 1]] - guard
+        revs = [k for k in run if t[bounds[k]] >= t_run0 + settle_s - 1e-12 and t[bounds[k + 1]] <= t_run1]
+        if revs:
+            usable.append((revs, f_c))
+    longest = max((len(r) for r, _ in usable), default=0)
+    if window_revs is None:
+        n_w = min(poles // 2, longest)
+    else:
+        n_w = int(window_revs)
+    if n_w < 1 or longest < n_w:
+        raise InputError(
+            source, "torque",
+            f"no steady window of {max(n_w, 1)} whole electrical revolution(s) after {settle_s} s settling "
+            f"(speed within {speed_tol:.0%}, i_qo within max({iq_tol_a} A, {iq_tol_rel:.0%}))",
+        )
+
+    windows: list[SteadyWindow] = []
+    segments: list[tuple[float, float]] = []
+    filtered_cache: dict[float, np.ndarray] = {}
+    for revs, f_c in usable:
+        if len(revs) < n_w:
+            continue
+        key = round(f_c, 9)
+        if key not in filtered_cache:
+            filtered_cache[key] = lowpass_zero_phase(despiked, fs, f_c, filter_order)
+        filt = filtered_cache[key]
+        segments.append((float(t[bounds[revs[0]]]), float(t[bounds[revs[-1] + 1]])))
+        for w in range(len(revs) // n_w):
+            k0 = revs[w * n_w]
+            k1 = revs[w * n_w + n_w - 1] + 1
+            sl = slice(bounds[k0], bounds[k1])
+            raw_w, filt_w = despiked[sl], filt[sl]
+            mean = float(raw_w.mean())
+            pp_raw = float(raw_w.max() - raw_w.min())
+            pp_filt = float(filt_w.max() - filt_w.min())
+            dt = t[bounds[k1]] - t[bounds[k0]]
+            dtheta = theta_r[bounds[k1]] - theta_r[bounds[k0]]
+            windows.append(
+                SteadyWindow(
+                    t_start=float(t[bounds[k0]]),
+                    t_end=float(t[bounds[k1]]),
+                    n_revs=n_w,
+                    T_avg_nm=mean,
+                    raw_pp_nm=pp_raw,
+                    filtered_pp_nm=pp_filt,
+                    raw_pct=_percent(pp_raw, mean),
+                    filtered_pct=_percent(pp_filt, mean),
+                    speed_rpm=float(dtheta / dt / (poles / 2) * 60.0 / TWO_PI),
+                    i_qo_a=float(np.mean(i_qo[sl])) if i_qo is not None else float("nan"),
+                )
+            )
+
+    raw = np.array([w.raw_pct for w in windows])
+    filt = np.array([w.filtered_pct for w in windows])
+    weights = np.array([w.t_end - w.t_start for w in windows])
+    return RipplePP(
+        raw_pct=float(np.median(raw)),
+        filtered_pct=float(np.median(filt)),
+        raw_pct_max=float(np.max(raw)),
+        filtered_pct_max=float(np.max(filt)),
+        raw_pp_nm=float(np.median([w.raw_pp_nm for w in windows])),
+        filtered_pp_nm=float(np.median([w.filtered_pp_nm for w in windows])),
+        T_avg_nm=float(np.average([w.T_avg_nm for w in windows], weights=weights)),
+        speed_rpm=float(np.average([w.speed_rpm for w in windows], weights=weights)),
+        windows=tuple(windows),
+        window_revs=n_w,
+        segments=tuple(segments),
+        cutoff_order=float(cutoff_order),
+        n_spikes=int(spikes.sum()),
+    )
+
+
+def capture_ripple_pp(capture: Capture, angle=None, **kwargs) -> RipplePP:
+    """:func:`ripple_pp` on a :class:`~eol_cal.capture.model.Capture`.
+
+    Parameters
+    ----------
+    capture : Capture
+        Needs ``torque``, the angle's channels, and ``iq_ref`` (channel or metadata) if
+        the steadiness of i_qo is to be judged.
+    angle : AngleResult, optional
+        Reconstructed angle; computed with :func:`eol_cal.analysis.angle.capture_angle`
+        when not given.
+    **kwargs
+        Passed to :func:`ripple_pp`.
+    """
+    from eol_cal.analysis.angle import capture_angle
+
+    if not capture.has("torque"):
+        raise InputError(capture.source, "torque", "missing channel")
+    if angle is None:
+        angle = capture_angle(capture)
+    i_qo = capture.iq_ref() if ("iq_ref" in capture.channels or "iq_ref" in capture.metadata) else None
+    return ripple_pp(
+        capture.t, capture["torque"], angle.theta_r, poles=capture.poles, i_qo=i_qo, source=capture.source, **kwargs
+    )
