@@ -1,0 +1,227 @@
+"""ASAM MDF 4 captures (``.mf4``) with asammdf (capture format v1).
+
+Writing: analog channels in one channel group on the capture's time base; the digital
+channels either in that group as sampled levels (``digital="levels"``) or each in a group of
+its own holding only its change events (``digital="events"``: the first row is the level at
+the start, every further row a change at its exact time). Metadata and ``truth.*`` go into the
+header comment's common properties, ``<e name="serial">M-0001</e>``, values as text in the
+encoding of :mod:`eol_cal.capture.metadata`.
+
+Reading: every channel of every group, each on its group's time base; a group of integral
+channels only whose rows each change a level (or whose times are irregular) is read as change
+events, kept exactly in ``Capture.events``. Then the channel map, and everything is put on the
+torque channel's time base (analog: linear interpolation; digital: zero-order hold).
+"""
+
+from __future__ import annotations
+
+import logging
+import xml.etree.ElementTree as ET
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from eol_cal.capture.atomic import atomic_path
+from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
+from eol_cal.capture.columns import Column, assemble, change_events, is_change_list
+from eol_cal.capture.metadata import MetaValue, decode_value, encode_value, join_truth, split_truth
+from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
+from eol_cal.errors import InputError
+
+_MDF_VERSION = "4.10"
+_DESCRIPTION = "eol-cal capture (capture format v1)"
+
+
+def header_comment(properties: dict[str, MetaValue], file: str | None = None) -> str:
+    """The ``<HDcomment>`` XML carrying ``properties`` as common properties."""
+    root = ET.Element("HDcomment")
+    ET.SubElement(root, "TX").text = _DESCRIPTION
+    common = ET.SubElement(root, "common_properties")
+    for key, value in properties.items():
+        ET.SubElement(common, "e", name=key).text = encode_value(key, value, file)
+    return ET.tostring(root, encoding="unicode")
+
+
+def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
+    """Typed properties from an ``<HDcomment>``'s ``common_properties/e`` elements."""
+    if not comment.strip().startswith("<"):
+        return {}
+    try:
+        root = ET.fromstring(comment)
+    except ET.ParseError as exc:
+        raise InputError(file, "header comment", f"not valid XML: {exc}") from None
+    for element in root.iter():  # drop the ASAM namespace if the writer used one
+        if "}" in element.tag:
+            element.tag = element.tag.split("}", 1)[1]
+    properties: dict[str, MetaValue] = {}
+    common = root.find("common_properties")
+    if common is None:
+        return properties
+    for element in common.findall("e"):
+        key = element.get("name")
+        if not key:
+            continue
+        if key in properties:
+            raise InputError(file, key, "metadata key given twice in the header comment")
+        properties[key] = decode_value(key, element.text or "", file)
+    return properties
+
+
+def _initial_and_events(capture: Capture, name: str) -> tuple[np.ndarray, np.ndarray]:
+    levels = np.asarray(capture.channels[name])
+    if name in capture.events:
+        times, new = (np.asarray(a) for a in capture.events[name])
+        inside = times > capture.t[0]
+        times, new = times[inside], new[inside]
+    else:
+        times, new = change_events(capture.t, levels)
+    return (
+        np.concatenate([[float(capture.t[0])], np.asarray(times, dtype=np.float64)]),
+        np.concatenate([[levels[0]], new]).astype(np.uint8),
+    )
+
+
+def write_mdf4(
+    capture: Capture,
+    path: str | Path,
+    digital: Literal["levels", "events"] = "levels",
+    compression: int = 2,
+) -> None:
+    """Write a capture as MDF 4.10, atomically.
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture to write.
+    path : path
+        Target ``.mf4`` file.
+    digital : {"levels", "events"}
+        Digital channels as levels sampled with the analog ones, or as change events, one
+        channel group each (exact times from ``capture.events`` where present, else the sample
+        times at which the level changed).
+    compression : int
+        asammdf compression (0 none, 1 deflate, 2 transposed deflate).
+    """
+    from asammdf import MDF, Signal
+
+    file = str(path)
+    if digital not in ("levels", "events"):
+        raise InputError(file, "digital", f"must be 'levels' or 'events', got {digital!r}")
+    unknown = [n for n in capture.channels if n not in CANONICAL_CHANNELS or n == "t"]
+    if unknown:
+        raise InputError(file, unknown[0], "not a canonical channel name; cannot be written")
+    t = np.asarray(capture.t, dtype=np.float64)
+    mdf = MDF(version=_MDF_VERSION)
+    try:
+        mdf.header.comment = header_comment(join_truth(capture.metadata, capture.truth), file)
+        sampled = [
+            Signal(
+                np.asarray(values, dtype=np.uint8 if name in DIGITAL_CHANNELS else np.float64),
+                t,
+                name=name,
+                unit="" if CANONICAL_CHANNELS[name] == "1" else CANONICAL_CHANNELS[name],
+            )
+            for name, values in capture.channels.items()
+            if digital == "levels" or name not in DIGITAL_CHANNELS
+        ]
+        mdf.append(sampled, acq_name="sampled", comment="channels sampled on the capture's time base")
+        if digital == "events":
+            for name in (n for n in DIGITAL_CHANNELS if n in capture.channels):
+                times, levels = _initial_and_events(capture, name)
+                mdf.append(
+                    [Signal(levels, times, name=name, unit="")],
+                    acq_name=f"{name} events",
+                    comment=f"{name}: level at the start, then every change at its time",
+                )
+        with atomic_path(path) as tmp:
+            mdf.save(tmp, overwrite=True, compression=compression)
+    finally:
+        mdf.close()
+
+
+def _numeric_1d(samples: np.ndarray) -> bool:
+    return samples.ndim == 1 and samples.dtype.names is None and (
+        np.issubdtype(samples.dtype, np.number) or samples.dtype == bool
+    )
+
+
+def read_mdf4_columns(
+    path: str | Path,
+) -> tuple[dict[str, Column], dict[str, MetaValue], dict[str, str]]:
+    """Raw columns (source names, each on its group's time base), header properties, and the
+    channels that cannot be used (name -> reason: ambiguous name, non-numeric).
+
+    Raises
+    ------
+    InputError
+        Missing or unreadable file, not MDF version 4, a malformed header comment.
+    """
+    from asammdf import MDF
+
+    file = str(path)
+    if not Path(path).is_file():
+        raise InputError(file, None, "file not found")
+    logging.getLogger("asammdf").setLevel(logging.ERROR)
+    try:
+        mdf = MDF(str(path))
+    except Exception as exc:  # asammdf raises MdfException, struct.error, ... for bad files
+        raise InputError(file, None, f"not a readable MDF file: {exc.__class__.__name__}: {exc}") from None
+    try:
+        if not str(mdf.version).startswith("4"):
+            raise InputError(file, None, f"MDF version {mdf.version}; capture format v1 takes MDF 4")
+        properties = parse_header_comment(mdf.header.comment or "", file)
+        columns: dict[str, Column] = {}
+        bad: dict[str, str] = {}
+        for gi, group in enumerate(mdf.groups):
+            master = mdf.masters_db.get(gi)
+            found: list[tuple[str, np.ndarray, str | None, np.ndarray]] = []
+            for ci, channel in enumerate(group.channels):
+                if ci == master:
+                    continue
+                signal = mdf.get(group=gi, index=ci)
+                name = channel.name
+                if name in columns or any(name == f[0] for f in found):
+                    bad[name] = "channel name found in more than one channel group; ambiguous"
+                    continue
+                samples = np.asarray(signal.samples)
+                if not _numeric_1d(samples):
+                    bad[name] = f"not a numeric scalar channel (dtype {samples.dtype})"
+                    continue
+                times = np.asarray(signal.timestamps, dtype=np.float64)
+                found.append((name, samples, signal.unit or None, times))
+            if not found:
+                continue
+            events = all(np.array_equal(f[3], found[0][3]) for f in found) and is_change_list(
+                found[0][3], [np.asarray(f[1], dtype=np.float64) for f in found]
+            )
+            for name, samples, unit, times in found:
+                columns[name] = Column(samples, unit, times, events)
+        for name in bad:
+            columns.pop(name, None)
+    finally:
+        mdf.close()
+    return columns, properties, bad
+
+
+def read_mdf4(path: str | Path, channel_map: ChannelMap | None = None) -> Capture:
+    """Read an MDF4 capture into canonical channels and units (not validated; see ``read_capture``).
+
+    Parameters
+    ----------
+    path : path
+        The ``.mf4`` file.
+    channel_map : ChannelMap, optional
+        Map for a foreign file's names and units.
+    """
+    file = str(path)
+    columns, properties, unusable = read_mdf4_columns(path)
+    wanted = set(CANONICAL_CHANNELS) if channel_map is None else set(CANONICAL_CHANNELS).union(
+        *(spec.sources() for spec in channel_map.channels.values())
+    )
+    for name, reason in unusable.items():
+        if name in wanted or channel_map is None:
+            raise InputError(file, name, reason)
+    metadata, truth = split_truth(properties)
+    columns, metadata = apply_channel_map(columns, metadata, channel_map, file)
+    return assemble(columns, metadata, truth, file)

@@ -1,0 +1,227 @@
+"""Refusal of captures that cannot be trusted (capture format v1, "Bad input").
+
+Every check raises :class:`~eol_cal.errors.InputError` with the capture's source file, the
+channel (or metadata key) at fault and the reason, so that nothing is analysed silently.
+
+"Too short" is defined on the hall signal, which is absolute: a capture holds a full
+electrical revolution when its hall state changes at least 7 times (the first and the 7th
+change lie on the same hall edge, one electrical revolution apart, whatever the direction) and
+all six valid states occur. The encoder must also show at least ``ceil(2*N_enc/P)`` rising
+edges of channel A, the number of A pulses in one electrical revolution.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from eol_cal.capture.metadata import METADATA_TYPES
+from eol_cal.capture.model import (
+    CANONICAL_CHANNELS,
+    DIGITAL_CHANNELS,
+    REQUIRED_METADATA,
+    TRUTH_PREFIX,
+    Capture,
+)
+from eol_cal.errors import InputError
+
+#: hall state changes needed to span one full electrical revolution
+MIN_HALL_CHANGES = 7
+
+_DIGITAL_RANGE = {"enc_a": (0, 1), "enc_b": (0, 1), "hall": (0, 7)}
+
+
+def _at(t: np.ndarray, index: int) -> str:
+    return f"t = {float(t[index]):.6g} s (sample {index})"
+
+
+def check_metadata(capture: Capture) -> None:
+    """Required metadata present and of the right type and range; no ``truth.*`` leak."""
+    src, meta = capture.source, capture.metadata
+    for key in meta:
+        if key.startswith(TRUTH_PREFIX):
+            raise InputError(src, key, "simulator truth key found in metadata; truth.* belongs in Capture.truth")
+    for key in REQUIRED_METADATA:
+        if key not in meta or (isinstance(meta[key], str) and not meta[key].strip()):
+            raise InputError(src, key, "required metadata missing")
+    for key, want in METADATA_TYPES.items():
+        if key not in meta:
+            continue
+        value = meta[key]
+        if want is int and (isinstance(value, bool) or not isinstance(value, int)):
+            raise InputError(src, key, f"must be an integer, got {value!r}")
+        if want is float and (isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value)):
+            raise InputError(src, key, f"must be a finite number, got {value!r}")
+    if meta["poles"] <= 0 or meta["poles"] % 2:
+        raise InputError(src, "poles", f"must be a positive even integer, got {meta['poles']}")
+    if meta["encoder_ppr"] <= 0:
+        raise InputError(src, "encoder_ppr", f"must be a positive integer, got {meta['encoder_ppr']}")
+    if "kt" in meta and meta["kt"] <= 0:
+        raise InputError(src, "kt", f"must be positive, got {meta['kt']}")
+
+
+def check_channels_present(capture: Capture) -> None:
+    """Canonical names only, the required channels present, every channel as long as ``t``."""
+    src = capture.source
+    for name in capture.channels:
+        if name == "t" or name not in CANONICAL_CHANNELS:
+            raise InputError(src, name, f"not a canonical channel name; known: {', '.join(CANONICAL_CHANNELS)}")
+    t = np.asarray(capture.t)
+    if t.ndim != 1 or len(t) < 2:
+        raise InputError(src, "t", f"need a 1-D time base with at least 2 samples, got shape {t.shape}")
+    for name in ("torque", "enc_a", "hall"):
+        if name not in capture.channels:
+            raise InputError(src, name, "required channel missing")
+    if "iq_ref" not in capture.channels and "iq_ref" not in capture.metadata:
+        raise InputError(src, "iq_ref", "required channel missing (give the channel, or metadata iq_ref when constant)")
+    for name, values in capture.channels.items():
+        if np.shape(values) != t.shape:
+            raise InputError(src, name, f"has {np.size(values)} samples but t has {len(t)}")
+
+
+def check_finite(capture: Capture) -> None:
+    """No NaN or infinity in ``t`` or any channel."""
+    for name in ("t", *capture.channels):
+        values = np.asarray(capture[name])
+        if not np.issubdtype(values.dtype, np.number):
+            raise InputError(capture.source, name, f"non-numeric values (dtype {values.dtype})")
+        bad = ~np.isfinite(values)
+        if bad.any():
+            first = int(np.argmax(bad))
+            kind = "NaN" if np.isnan(values[first]) else "infinite value"
+            raise InputError(
+                capture.source, name, f"{kind} at {_at(capture.t, first)}; {int(bad.sum())} non-finite samples in all"
+            )
+
+
+def check_time(capture: Capture) -> None:
+    """Strictly increasing sample times."""
+    dt = np.diff(capture.t)
+    bad = dt <= 0
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise InputError(
+            capture.source,
+            "t",
+            f"time not strictly increasing: t[{first + 1}] = {float(capture.t[first + 1]):.9g} s after "
+            f"t[{first}] = {float(capture.t[first]):.9g} s; {int(bad.sum())} such steps",
+        )
+
+
+def check_digital(capture: Capture) -> None:
+    """Digital channels integral and in range; hall states 0 and 7 refused as sensor faults."""
+    for name in DIGITAL_CHANNELS:
+        if name not in capture.channels:
+            continue
+        values = np.asarray(capture.channels[name])
+        lo, hi = _DIGITAL_RANGE[name]
+        bad = (values < lo) | (values > hi) | (values != np.round(values))
+        if bad.any():
+            first = int(np.argmax(bad))
+            raise InputError(
+                capture.source,
+                name,
+                f"value {values[first]!r} at {_at(capture.t, first)} outside {lo}..{hi} (integers); "
+                f"{int(bad.sum())} such samples",
+            )
+    hall = np.asarray(capture.channels["hall"])
+    fault = (hall == 0) | (hall == 7)
+    if fault.any():
+        first = int(np.argmax(fault))
+        raise InputError(
+            capture.source,
+            "hall",
+            f"hall state {int(hall[first])} (a sensor fault; valid states are 1..6) at {_at(capture.t, first)}; "
+            f"{int(fault.sum())} faulty samples in all",
+        )
+
+
+def check_events(capture: Capture) -> None:
+    """Recorded change events: known digital channels, sorted times, levels in range."""
+    for name, (times, levels) in capture.events.items():
+        if name not in DIGITAL_CHANNELS:
+            raise InputError(capture.source, name, "events are kept for digital channels only")
+        times, levels = np.asarray(times), np.asarray(levels)
+        lo, hi = _DIGITAL_RANGE[name]
+        if times.shape != levels.shape or times.ndim != 1:
+            raise InputError(capture.source, name, "event times and levels differ in shape")
+        if not np.all(np.isfinite(times)) or np.any(np.diff(times) < 0):
+            raise InputError(capture.source, name, "event times not finite and sorted")
+        if np.any((levels < lo) | (levels > hi)):
+            raise InputError(capture.source, name, f"event level outside {lo}..{hi}")
+
+
+def hall_changes(hall: np.ndarray) -> int:
+    """Number of hall state changes in a sample sequence."""
+    return int(np.count_nonzero(np.diff(np.asarray(hall)) != 0))
+
+
+def rising_edges(level: np.ndarray) -> int:
+    """Number of 0 -> 1 transitions of a 0/1 sample sequence."""
+    level = np.asarray(level)
+    return int(np.count_nonzero((level[1:] > 0) & (level[:-1] == 0)))
+
+
+def check_activity(capture: Capture) -> None:
+    """Encoders toggle, and the capture spans at least one full electrical revolution."""
+    src = capture.source
+    for name in ("enc_a", "enc_b"):
+        if name in capture.channels:
+            values = np.asarray(capture.channels[name])
+            if np.all(values == values[0]):
+                duration = float(capture.t[-1] - capture.t[0])
+                raise InputError(
+                    src, name, f"encoder never toggles: stuck at {int(values[0])} for the whole {duration:.6g} s"
+                )
+    hall = np.asarray(capture.channels["hall"])
+    changes = hall_changes(hall)
+    seen = sorted(set(np.unique(hall).astype(int).tolist()))
+    if changes < MIN_HALL_CHANGES or len(seen) < 6:
+        raise InputError(
+            src,
+            "hall",
+            f"too short to hold a full electrical revolution: {changes} hall state changes "
+            f"(need {MIN_HALL_CHANGES}) and states {seen} seen (need all of 1..6)",
+        )
+    need = math.ceil(2 * capture.encoder_ppr / capture.poles)
+    edges = rising_edges(capture.channels["enc_a"])
+    if edges < need:
+        raise InputError(
+            src,
+            "enc_a",
+            f"too short to hold a full electrical revolution: {edges} rising edges of A, need "
+            f"{need} (= 2*N_enc/P with N_enc = {capture.encoder_ppr}, P = {capture.poles})",
+        )
+
+
+def validate(capture: Capture) -> Capture:
+    """Refuse a capture that cannot be trusted; return it unchanged when it can.
+
+    Checks, in this order: channel names, presence and lengths; metadata; finite values;
+    strictly increasing time; digital ranges and hall faults (states 0 and 7); recorded events;
+    encoders that never toggle; at least one full electrical revolution (see module docstring).
+
+    Parameters
+    ----------
+    capture : Capture
+        The capture; ``capture.source`` names the file in error messages.
+
+    Returns
+    -------
+    Capture
+        The same object.
+
+    Raises
+    ------
+    InputError
+        On the first problem found, naming file, channel and reason.
+    """
+    check_channels_present(capture)
+    check_metadata(capture)
+    check_finite(capture)
+    check_time(capture)
+    check_digital(capture)
+    check_events(capture)
+    check_activity(capture)
+    return capture
