@@ -357,16 +357,16 @@ def ripple_pp(
     if len(bounds) < 2:
         raise InputError(source, "torque", "the capture does not hold one whole electrical revolution")
     runs = steady_runs(t, bounds, i_qo, speed_tol, iq_tol_a, iq_tol_rel)
-    end_idx = len(t) - 1
+    n_rev = len(bounds) - 1
 
     usable: list[tuple[list[int], float]] = []  # (revolutions after settle, cut-off Hz)
     for run in runs:
         t_run0 = t[bounds[run[0]]]
         f_e = len(run) / (t[bounds[run[-1] + 1]] - t_run0)
         f_c = cutoff_order * f_e
-        # Away from the capture's end, the low-pass smears the next operating point back
-        # into the run by about its impulse response: keep clear of it.
-        guard = 0.0 if bounds[run[-1] + 1] >= end_idx else 2.0 / f_c
+        # When an unsteady revolution follows, the low-pass smears it back into the run by
+        # about its impulse response: keep clear of it.
+        guard = 0.0 if run[-1] == n_rev - 1 else 2.0 / f_c
         t_run1 = t[bounds[run[-1] + 1]] - guard
         revs = [k for k in run if t[bounds[k]] >= t_run0 + settle_s - 1e-12 and t[bounds[k + 1]] <= t_run1]
         if revs:

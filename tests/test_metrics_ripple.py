@@ -1,0 +1,124 @@
+"""Ripple index eta and the steady-window peak-to-peak ripple on signals with known answers."""
+
+import numpy as np
+import pytest
+from _analysis_motion import motion_capture
+
+from eol_cal.analysis.metrics import capture_ripple_pp, eta_percent, hampel, ripple_pp
+from eol_cal.errors import InputError
+
+FS = 20000.0
+T = np.arange(0.0, 3.0, 1.0 / FS)
+THETA = 3 * 2 * np.pi * 1.0 * T + 0.3  # 60 rpm, 6 poles: electrical angle (rad)
+T_AVG, A6 = 3.2, 0.05
+CLEAN = T_AVG + A6 * np.sin(6 * THETA + 0.4)
+TRUE_PCT = 100 * 2 * A6 / T_AVG  # 3.125 %
+
+
+def test_eta_matches_the_paper():
+    assert eta_percent(64, 6) == pytest.approx(4.3, abs=0.01)
+    assert eta_percent(200, 6) == pytest.approx(0.44, abs=0.005)
+    assert eta_percent(500, 6) < 0.1  # "above 500 PPR lower than 0.1 %"
+    got = eta_percent(np.array([64, 200, 2048]), 6)
+    assert got.shape == (3,) and got[0] > got[1] > got[2]
+    assert np.allclose(eta_percent(np.array([64, 128]), np.array([[6], [8]])).shape, (2, 2))
+
+
+def test_hampel_removes_spikes_and_leaves_smooth_signals():
+    x = np.sin(np.linspace(0, 20, 4000))
+    y, spikes = hampel(x, 10)
+    assert not spikes.any() and np.array_equal(x, y)
+    x2 = x.copy()
+    x2[[500, 2000, 2001, 2002]] += 5.0
+    y2, spikes2 = hampel(x2, 10)
+    assert set(np.flatnonzero(spikes2)) == {500, 2000, 2001, 2002}
+    assert np.max(np.abs(y2 - x)) < 0.02  # the median of a slope, 3 of 21 samples hit
+
+
+def test_pp_of_a_sine_is_twice_its_amplitude_over_the_mean():
+    r = ripple_pp(T, CLEAN, THETA, poles=6)
+    assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.005)
+    assert r.filtered_pct == pytest.approx(TRUE_PCT, abs=0.005)
+    assert r.T_avg_nm == pytest.approx(T_AVG, abs=1e-4)
+    assert r.speed_rpm == pytest.approx(60.0, rel=1e-6)
+    assert r.window_revs == 3  # one mechanical revolution
+    # settle: the first revolution (0 .. 0.333 s) starts before 0.1 s and is dropped
+    assert r.windows[0].t_start == pytest.approx(1 / 3, abs=1e-3)
+    assert all(w.t_end - w.t_start == pytest.approx(1.0, abs=1e-3) for w in r.windows)
+    assert r.n_spikes == 0
+
+
+def test_spikes_do_not_count():
+    x = CLEAN.copy()
+    x[30000] += 1.0
+    x[45000:45004] -= 0.8
+    r = ripple_pp(T, x, THETA, poles=6)
+    assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.005)
+    assert r.n_spikes >= 5
+
+
+def test_noise_counts_raw_and_the_filter_removes_it():
+    x = CLEAN + np.random.default_rng(0).normal(0.0, 0.01, len(T))
+    r = ripple_pp(T, x, THETA, poles=6)
+    assert r.raw_pct > TRUE_PCT + 1.0
+    assert r.filtered_pct == pytest.approx(TRUE_PCT, abs=0.25)
+
+
+def test_filter_keeps_the_orders_the_spectrum_reports():
+    # orders 6..36 pass the cut-off at 48 x f_e nearly untouched; order 150 noise does not
+    x = T_AVG + A6 * np.sin(6 * THETA) + 0.01 * np.sin(150 * THETA)
+    r = ripple_pp(T, x, THETA, poles=6)
+    base = ripple_pp(T, T_AVG + A6 * np.sin(6 * THETA), THETA, poles=6)
+    assert r.filtered_pct == pytest.approx(base.filtered_pct, abs=0.01)
+    assert r.raw_pct > base.raw_pct + 0.5
+
+
+def test_windows_stay_inside_steady_load_points():
+    t = np.arange(0.0, 6.0, 1.0 / FS)
+    theta = 3 * 2 * np.pi * 1.0 * t
+    i_qo = np.where(t < 3.05, 30.0, 65.0)
+    kt = 0.049
+    torque = kt * i_qo * (1 + 0.02 * np.sin(6 * theta))
+    r = ripple_pp(t, torque, theta, poles=6, i_qo=i_qo)
+    assert len(r.segments) == 2
+    for w in r.windows:
+        assert not (w.t_start < 3.05 < w.t_end)
+        assert w.t_start >= 0.1 or w.t_start == 0.0
+        assert w.raw_pct == pytest.approx(4.0, abs=0.01)
+        assert w.T_avg_nm == pytest.approx(kt * w.i_qo_a, rel=1e-3)
+    second = r.segments[1]
+    assert second[0] >= 3.05 + 0.1  # settle time after the load step dropped
+    assert {round(w.i_qo_a) for w in r.windows} == {30, 65}
+
+
+def test_speed_change_splits_runs():
+    t = np.arange(0.0, 5.0, 1.0 / FS)
+    rps = np.where(t < 2.5, 1.0, 1.5)
+    theta = 3 * 2 * np.pi * np.cumsum(rps) / FS
+    r = ripple_pp(t, 3.0 + 0.03 * np.sin(6 * theta), theta, poles=6)
+    assert {round(w.speed_rpm) for w in r.windows} == {60, 90}
+    assert r.raw_pct == pytest.approx(2.0, abs=0.01)
+
+
+def test_short_capture_uses_fewer_revolutions_and_too_short_is_refused():
+    t = np.arange(0.0, 1.0, 1.0 / FS)
+    theta = 3 * 2 * np.pi * t
+    r = ripple_pp(t, 3.2 + 0.05 * np.sin(6 * theta), theta, poles=6)
+    # 2 whole revolutions, the first starts inside the settle time: one window of one
+    assert r.window_revs == 1 and len(r.windows) == 1
+    assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.005)
+    t = np.arange(0.0, 0.4, 1.0 / FS)
+    theta = 3 * 2 * np.pi * t
+    with pytest.raises(InputError) as exc:
+        ripple_pp(t, 3.2 + 0 * t, theta, poles=6, source="short.csv")
+    assert exc.value.file == "short.csv" and exc.value.field == "torque"
+    with pytest.raises(InputError):
+        ripple_pp(T, CLEAN, THETA, poles=6, window_revs=12)
+
+
+def test_capture_level_uses_the_reconstructed_angle():
+    cap = motion_capture(T, THETA / 3, torque=CLEAN)
+    r = capture_ripple_pp(cap)
+    assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.01)
+    assert r.filtered_pct == pytest.approx(TRUE_PCT, abs=0.01)
+    assert np.isfinite(r.windows[0].i_qo_a)
