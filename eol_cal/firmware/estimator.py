@@ -1,0 +1,520 @@
+"""Rotor angle and speed estimator of the ECU firmware (seed paper section III.A, eqs. 13-16).
+
+Once per PWM tick (``tick_hz``, 20 kHz on the paper's bench) the firmware samples the encoder
+channels A and B and the three hall sensors and updates its estimate:
+
+* a quadrature counter ``q`` (x4, modulo ``4*N_enc``) tracks the encoder position in quarter
+  pitches, so reversals, bounces and lost pulses keep the edge grid consistent;
+* ``N_c`` (eq. 13) counts ticks between consecutive rising edges of A in the same direction;
+  ``omega_hat = P*pi / (N_enc*N_c*T)`` (eq. 15), its sign from B at A's edge;
+* ``theta_hat`` is re-anchored to the angle of each A rising edge and advanced by
+  ``omega_hat*T`` every tick in between (eq. 16);
+* each hall transition gives the absolute angle (the ``hall_angle`` table) and corrects the
+  encoder grid's offset ``G`` against it ("the absolute rotor position is updated every 60
+  electrical degrees").
+
+:func:`step` is written once with ``xp`` operations only (no Python branch on values), so with
+``xp=numpy`` on scalars it is the bit-exact binary32 reference for the C port
+(``firmware_params/c/eol_est.c``) and the golden vectors, and with ``xp=jax.numpy`` it traces
+inside ``jit``/``vmap``/``lax.scan`` (the plant's ECU). The exact algorithm, state variables,
+constants and order of operations are in ``firmware_params/ESTIMATOR.md``; keep the three in step.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Any, NamedTuple, Sequence
+
+import numpy as np
+
+F32 = np.float32
+I32 = np.int32
+
+PI = F32(math.pi)
+"""pi rounded to binary32 (0x40490fdb)."""
+TWO_PI = F32(2.0 * math.pi)
+"""2*pi rounded to binary32 (0x40c90fdb)."""
+INV_TWO_PI = F32(1.0 / (2.0 * math.pi))
+"""1/(2*pi) rounded to binary32 (0x3e22f983)."""
+HALF = F32(0.5)
+K_LEARN = F32(1.0 / 16.0)
+"""Gain of the learned encoder-grid offset per hall transition (improvement 2)."""
+K_ACC = F32(1.0 / 8.0)
+"""Gain of the first-order filter on the acceleration estimate (improvement 3)."""
+
+# Hall convention (firmware contract section 2): U = bit0, V = bit1, W = bit2; forward rotation
+# steps 5 -> 1 -> 3 -> 2 -> 6 -> 4 -> 5. Indexed by the state; 0 and 7 are faults.
+HALL_NEXT = (0, 3, 6, 2, 5, 1, 4, 0)
+"""Forward successor of hall state s (``HALL_NEXT[s]``); 0 for the fault states 0 and 7."""
+NOMINAL_HALL_ANGLE = tuple(math.radians(d) for d in (60.0, 180.0, 120.0, 300.0, 0.0, 240.0))
+"""Nominal ``hall_angle`` (rad, electrical), contract order: entry s-1 is where state s begins."""
+
+# Status bits of EstimatorOut.status.
+ST_STANDSTILL = 1 << 0
+"""No valid A edge within ``standstill_ticks``: omega_hat = 0, angle held within the hall sector."""
+ST_REVERSE = 1 << 1
+"""The last A rising edge was in reverse rotation (B high at A's rising edge)."""
+ST_HALL_FAULT = 1 << 2
+"""This tick's hall reading is 0 or 7; the last valid state is kept."""
+ST_HALL_SEQ = 1 << 3
+"""This tick's hall state is not adjacent to the previous one; ignored for the angle."""
+ST_NO_ANCHOR = 1 << 4
+"""No hall transition seen yet (start-up): the angle is the hall sector's middle."""
+ST_QEP_ERROR = 1 << 5
+"""A and B both changed in this tick: the step is ambiguous and was not counted."""
+ST_EDGE_REJECT = 1 << 6
+"""This tick's A edge gave no speed: bounce, interval > 1.5x the previous one, or count mismatch."""
+ST_MISSING_EDGE = 1 << 7
+"""This tick's A edge closed an interval with one A pulse missing; count corrected by a pitch."""
+ST_DIR_MISMATCH = 1 << 8
+"""This tick's hall transition runs against the encoder's direction."""
+ST_NO_SPEED = 1 << 9
+"""omega_hat is not (yet) from a measured interval: start-up, after a reversal or standstill."""
+
+STATUS_BITS = {
+    "STANDSTILL": ST_STANDSTILL, "REVERSE": ST_REVERSE, "HALL_FAULT": ST_HALL_FAULT,
+    "HALL_SEQ": ST_HALL_SEQ, "NO_ANCHOR": ST_NO_ANCHOR, "QEP_ERROR": ST_QEP_ERROR,
+    "EDGE_REJECT": ST_EDGE_REJECT, "MISSING_EDGE": ST_MISSING_EDGE,
+    "DIR_MISMATCH": ST_DIR_MISMATCH, "NO_SPEED": ST_NO_SPEED,
+}
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Static configuration of the estimator (hashable: JAX treats it as a static argument).
+
+    Attributes
+    ----------
+    poles : int
+        Number of poles P.
+    N_enc : int
+        Rising edges of channel A per mechanical revolution (pulses per revolution).
+    tick_hz : float
+        Estimator tick rate = PWM frequency (Hz); T = 1/tick_hz.
+    hall_angle : tuple of 6 float
+        Electrical angle (rad) at which hall state s begins in forward rotation, entry s-1.
+    standstill_ticks : int
+        No A edge within this many ticks -> standstill (omega_hat = 0).
+    clamp_to_next_edge : bool
+        Improvement 1: the prediction never passes the next edge's angle, and the reported speed
+        is bounded by what the time since the last edge allows.
+    learn_grid_offset : bool
+        Improvement 2: hall transitions correct the encoder-grid offset by ``K_LEARN`` of the
+        error (a full correction when the error exceeds half a pitch) instead of all of it.
+    accel_prediction : bool
+        Improvement 3: the prediction between edges extrapolates the filtered acceleration.
+    """
+
+    poles: int
+    N_enc: int
+    tick_hz: float
+    hall_angle: tuple[float, ...]
+    standstill_ticks: int
+    clamp_to_next_edge: bool = False
+    learn_grid_offset: bool = False
+    accel_prediction: bool = False
+
+    def __post_init__(self) -> None:
+        if len(self.hall_angle) != 6:
+            raise ValueError(f"hall_angle needs 6 entries, got {len(self.hall_angle)}")
+        if self.poles < 2 or self.poles % 2:
+            raise ValueError(f"poles {self.poles}: needs an even number >= 2")
+        if self.N_enc < 1 or 4 * self.N_enc >= 2**15:
+            raise ValueError(f"N_enc {self.N_enc}: needs 1..8191")
+        if not self.tick_hz > 0:
+            raise ValueError(f"tick_hz {self.tick_hz}: needs > 0")
+        if not 1 <= self.standstill_ticks < 2**30:
+            raise ValueError(f"standstill_ticks {self.standstill_ticks}: needs 1..2**30-1")
+        # Store as binary32 values so the config means exactly what the firmware sees.
+        object.__setattr__(self, "tick_hz", float(F32(self.tick_hz)))
+        object.__setattr__(self, "hall_angle", tuple(float(F32(a)) for a in self.hall_angle))
+
+    @classmethod
+    def paper(cls, poles: int = 6, N_enc: int = 64, tick_hz: float = 20000.0,
+              hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE,
+              standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+        """The paper's bench (6 poles, 64 PPR, 20 kHz, nominal halls).
+
+        Parameters
+        ----------
+        standstill_s : float
+            Standstill bound (s); the default 1 s still measures 1 rpm with 64 PPR.
+        **improvements
+            ``clamp_to_next_edge``, ``learn_grid_offset``, ``accel_prediction`` (bool).
+        """
+        return cls(poles=poles, N_enc=N_enc, tick_hz=tick_hz, hall_angle=tuple(hall_angle),
+                   standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
+
+    @classmethod
+    def best(cls, **kwargs: Any) -> "EstimatorConfig":
+        """The paper's bench with every improvement switched on (the benchmark's best)."""
+        kwargs.setdefault("clamp_to_next_edge", True)
+        kwargs.setdefault("learn_grid_offset", True)
+        kwargs.setdefault("accel_prediction", True)
+        return cls.paper(**kwargs)
+
+    @classmethod
+    def from_block(cls, block: Any, standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+        """Configuration from a parameter block (anything with ``poles``, ``encoder_ppr``,
+        ``tick_hz``, ``hall_angle``, e.g. :class:`eol_cal.firmware.block.ParamBlock`)."""
+        tick_hz = float(block.tick_hz)
+        return cls(poles=int(block.poles), N_enc=int(block.encoder_ppr), tick_hz=tick_hz,
+                   hall_angle=tuple(float(a) for a in block.hall_angle),
+                   standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
+
+
+class Consts(NamedTuple):
+    """Binary32 constants derived from the config once, in the order ESTIMATOR.md gives."""
+
+    T: np.float32            # s, tick period: 1 / tick_hz
+    DELTA: np.float32        # rad, electrical angle of one encoder pitch: (P * pi) / N_enc
+    QUARTER: np.float32      # rad, one quadrature count: DELTA * 0.25
+    HALF_QUARTER: np.float32  # rad: QUARTER * 0.5
+    HALF_DELTA: np.float32   # rad: DELTA * 0.5
+    K_OMEGA: np.float32      # rad/s * ticks: DELTA * tick_hz, omega_hat = K_OMEGA / N_c
+    TWO_TICK_HZ: np.float32  # 1/s: tick_hz * 2
+    M: int                   # quadrature counts per mechanical revolution: 4 * N_enc
+    S: int                   # standstill_ticks
+    H_START: np.ndarray      # f32[8] rad, where state s begins forward (0 for s = 0, 7)
+    H_WIDTH: np.ndarray      # f32[8] rad, sector width wrap(H_START[next] - H_START[s])
+    H_MID: np.ndarray        # f32[8] rad, wrap(H_START + H_WIDTH * 0.5)
+    NEXT: np.ndarray         # i32[8] forward successor
+
+
+def wrap(x: Any, xp: Any = np) -> Any:
+    """Reduce an angle into [0, 2*pi) in binary32 (rad), exactly as the C port does."""
+    r = x - TWO_PI * xp.floor(x * INV_TWO_PI)
+    r = xp.where(r >= TWO_PI, r - TWO_PI, r)
+    return xp.where(r < F32(0.0), r + TWO_PI, r)
+
+
+def wrap_pm(x: Any, xp: Any = np) -> Any:
+    """Reduce an angle into [-pi, pi) in binary32 (rad)."""
+    return wrap(x + PI, xp) - PI
+
+
+@functools.lru_cache(maxsize=64)
+def consts(cfg: EstimatorConfig) -> Consts:
+    """Derive the binary32 constants of ``cfg`` (numpy scalars/arrays; fixed order)."""
+    tick_hz = F32(cfg.tick_hz)
+    T = F32(1.0) / tick_hz
+    DELTA = (F32(cfg.poles) * PI) / F32(cfg.N_enc)
+    QUARTER = DELTA * F32(0.25)
+    start = np.zeros(8, F32)
+    start[1:7] = np.asarray(cfg.hall_angle, F32)
+    nxt = np.asarray(HALL_NEXT, I32)
+    width = np.zeros(8, F32)
+    mid = np.zeros(8, F32)
+    for s in range(1, 7):
+        width[s] = wrap(start[nxt[s]] - start[s])
+        mid[s] = wrap(start[s] + width[s] * HALF)
+    return Consts(T=T, DELTA=DELTA, QUARTER=QUARTER, HALF_QUARTER=QUARTER * HALF,
+                  HALF_DELTA=DELTA * HALF, K_OMEGA=DELTA * tick_hz, TWO_TICK_HZ=tick_hz * F32(2.0),
+                  M=4 * cfg.N_enc, S=cfg.standstill_ticks,
+                  H_START=start, H_WIDTH=width, H_MID=mid, NEXT=nxt)
+
+
+class EstimatorState(NamedTuple):
+    """Everything the estimator keeps between ticks (int32 / float32, scalars or batched).
+
+    phase : quadrature phase of (A, B): (0,0)=0, (1,0)=1, (1,1)=2, (0,1)=3.
+    q : quadrature count, 0 .. 4*N_enc-1.
+    n : ticks since the last A edge event, saturating at standstill_ticks + 1.
+    k_last : quadrature boundary index of the last A edge event (its angle is G + k*QUARTER).
+    dir_last : direction of the last A edge event (+1, -1; 0 before the first).
+    nc_prev : N_c of the last measured interval (ticks; 0 = none).
+    against : a quadrature step against dir_last happened since the last edge event (0/1).
+    omega : omega_hat from the last measured interval (rad/s electrical, signed).
+    alpha : filtered acceleration estimate (rad/s^2 electrical), improvement 3 only.
+    adv : angle advanced since the last edge event (rad electrical).
+    G : encoder-grid offset: electrical angle of quadrature boundary 0 (rad, [0, 2*pi)).
+    hall_last : last valid hall reading (1..6; 0 = none yet).
+    sector : last hall state reached through an adjacent transition or at start-up (0 = none).
+    anchored : a hall transition has set G (0/1).
+    """
+
+    phase: Any
+    q: Any
+    n: Any
+    k_last: Any
+    dir_last: Any
+    nc_prev: Any
+    against: Any
+    omega: Any
+    alpha: Any
+    adv: Any
+    G: Any
+    hall_last: Any
+    sector: Any
+    anchored: Any
+
+
+class EstimatorOut(NamedTuple):
+    """Per-tick outputs.
+
+    theta_hat : estimated electrical angle (rad, [0, 2*pi)).
+    omega_hat : estimated electrical speed (rad/s, signed; + = forward).
+    theta_enc : raw edge-quantised electrical angle, the angle of the last A edge event
+        (rad, [0, 2*pi)); the paper's 'raw' encoder angle.
+    status : ST_* bits (int32).
+    """
+
+    theta_hat: Any
+    omega_hat: Any
+    theta_enc: Any
+    status: Any
+
+
+def _tab(table: np.ndarray, idx: Any, xp: Any) -> Any:
+    """``table[idx]`` for a constant table and a (possibly traced) int32 index."""
+    return xp.asarray(table)[idx]
+
+
+def _phase(enc_a: Any, enc_b: Any) -> Any:
+    return I32(2) * enc_b + (enc_a ^ enc_b)
+
+
+def init_state(cfg: EstimatorConfig, hall0: Any, enc_a0: Any = 0, enc_b0: Any = 0,
+               xp: Any = np) -> EstimatorState:
+    """Power-on state from the first sample of the halls (and the encoder levels).
+
+    Parameters
+    ----------
+    cfg : EstimatorConfig
+    hall0 : int or int array
+        Hall state at power-on (0..7; 0 and 7 leave the sector unknown until a valid reading).
+    enc_a0, enc_b0 : int or int array
+        Encoder levels at power-on (0/1), so the first tick counts no spurious step.
+    xp : numpy or jax.numpy
+    """
+    h = xp.asarray(hall0).astype(xp.int32)
+    a = xp.asarray(enc_a0).astype(xp.int32) + xp.zeros_like(h)
+    b = xp.asarray(enc_b0).astype(xp.int32) + xp.zeros_like(h)
+    valid = (h >= 1) & (h <= 6)
+    h = xp.where(valid, h, xp.zeros_like(h))
+    zi = xp.zeros_like(h)
+    zf = zi.astype(xp.float32)
+    ph = _phase(a, b)
+    return EstimatorState(phase=ph, q=ph, n=zi, k_last=zi, dir_last=zi, nc_prev=zi, against=zi,
+                          omega=zf, alpha=zf, adv=zf, G=zf, hall_last=h, sector=h, anchored=zi)
+
+
+def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, hall: Any,
+         xp: Any = np) -> tuple[EstimatorState, EstimatorOut]:
+    """One PWM tick of the estimator (ESTIMATOR.md, "Per tick").
+
+    Parameters
+    ----------
+    cfg : EstimatorConfig
+        Static; its booleans select code paths at trace time.
+    state : EstimatorState
+    enc_a, enc_b : int (0/1) or int arrays
+        Encoder channel levels sampled this tick.
+    hall : int (0..7) or int array
+        Hall bits U | V<<1 | W<<2 sampled this tick.
+    xp : numpy or jax.numpy
+
+    Returns
+    -------
+    (new state, EstimatorOut)
+    """
+    c = consts(cfg)
+    i32, f32 = xp.int32, xp.float32
+    M, S = c.M, c.S
+    one = I32(1)
+    s = state
+
+    # 1. Quadrature decoding (x4). A rising edge: phase 0->1 forward, 3->2 reverse.
+    a = xp.asarray(enc_a).astype(i32)
+    b = xp.asarray(enc_b).astype(i32)
+    ph = _phase(a, b)
+    d = (ph - s.phase + I32(4)) % I32(4)
+    stp = xp.where(d == 1, one, xp.where(d == 3, -one, I32(0)))
+    qep_err = d == 2
+    q = (s.q + stp + I32(M)) % I32(M)
+    a_rise = ((d == 1) & (ph == 1)) | ((d == 3) & (ph == 2))
+    edir = xp.where(ph == 1, one, -one)
+    k = xp.where(edir > 0, q, (q + one) % I32(M))
+    against = s.against | ((stp != 0) & (stp == -s.dir_last)).astype(i32)
+    n1 = xp.minimum(s.n + one, I32(S + 1))
+
+    # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
+    bounce = a_rise & (k == s.k_last) & (edir == s.dir_last)
+    ev = a_rise & ~bounce
+    same_dir = edir == s.dir_last
+    pitch_ok = k == (s.k_last + I32(4) * edir + I32(M)) % I32(M)
+    interval = ev & same_dir & pitch_ok & (n1 <= I32(S))
+    long_iv = interval & (s.nc_prev > 0) & (I32(2) * n1 > I32(3) * s.nc_prev)
+    missing = long_iv & (against != 0)
+    reject = long_iv & (against == 0)
+    measured = interval & ~long_iv
+    nc_eff = xp.where(missing, n1 // I32(2), n1)
+    omega_new = edir.astype(f32) * (c.K_OMEGA / nc_eff.astype(f32))
+    # A lost A pulse leaves the count one pitch behind: put it back.
+    fix = xp.where(missing, I32(4) * edir, I32(0))
+    q = (q + fix + I32(M)) % I32(M)
+    k = (k + fix + I32(M)) % I32(M)
+    speed_upd = measured | missing
+    omega = xp.where(speed_upd, omega_new,
+                     xp.where(ev & ~same_dir, F32(0.0), s.omega))
+    nc_prev = xp.where(speed_upd, nc_eff,
+                       xp.where(reject, n1, xp.where(ev, I32(0), s.nc_prev)))
+    if cfg.accel_prediction:
+        consecutive = measured & (s.nc_prev > 0)
+        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / (n1 + s.nc_prev).astype(f32))
+        alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
+                         xp.where(ev & ~(missing | reject), F32(0.0), s.alpha))
+    else:
+        alpha = s.alpha
+    n = xp.where(ev, I32(0), n1)
+    k_last = xp.where(ev, k, s.k_last)
+    dir_last = xp.where(ev, edir, s.dir_last)
+    against = xp.where(ev, I32(0), against)
+
+    # 3. Standstill and the prediction between edges (eq. 16).
+    still = n > I32(S)
+    omega = xp.where(still, F32(0.0), omega)
+    nc_prev = xp.where(still, I32(0), nc_prev)
+    alpha = xp.where(still, F32(0.0), alpha)
+    if cfg.accel_prediction:
+        # omega from an interval is the mean over it: the speed at its middle, N_c/2 ticks back.
+        tau = (nc_prev.astype(f32) * HALF + n.astype(f32)) * c.T
+        omega_pred = omega + alpha * tau
+    else:
+        omega_pred = omega
+    adv = xp.where(ev, F32(0.0), s.adv + omega_pred * c.T)
+    if cfg.clamp_to_next_edge:
+        adv = xp.minimum(xp.maximum(adv, -c.DELTA), c.DELTA)
+
+    # 4. Halls: validity, sequence, absolute re-anchor at transitions.
+    h = xp.asarray(hall).astype(i32)
+    hv = (h >= 1) & (h <= 6)
+    hl = s.hall_last
+    trans = hv & (h != hl) & (hl != 0)
+    fwd = trans & (h == _tab(c.NEXT, hl, xp))
+    rev = trans & (hl == _tab(c.NEXT, xp.where(hv, h, I32(0)), xp))
+    adj = fwd | rev
+    jump = trans & ~adj
+    first = hv & (hl == 0)
+    hb = xp.where(fwd, _tab(c.H_START, xp.where(hv, h, I32(0)), xp), _tab(c.H_START, hl, xp))
+    # First anchor without an edge yet: the grid reference is the current count's middle.
+    no_edge = dir_last == 0
+    k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
+    adv = xp.where(adj & (s.anchored == 0) & no_edge, c.HALF_QUARTER, adv)
+    theta_pred = wrap(wrap(s.G + k_last.astype(f32) * c.QUARTER, xp) + adv, xp)
+    e = wrap_pm(hb - theta_pred, xp)
+    if cfg.learn_grid_offset:
+        g = xp.where(xp.abs(e) > c.HALF_DELTA, e, e * K_LEARN)
+    else:
+        g = e
+    rel = k_last.astype(f32) * c.QUARTER + adv
+    G = xp.where(adj & (s.anchored != 0), wrap(s.G + g, xp),
+                 xp.where(adj, wrap(hb - rel, xp), s.G))
+    anchored = xp.where(adj, one, s.anchored)
+    hdir = xp.where(fwd, one, -one)
+    dir_mismatch = adj & (dir_last != 0) & (hdir != dir_last)
+    hall_last = xp.where(hv, h, hl)
+    sector = xp.where(adj | first, h, s.sector)
+
+    # 5. Outputs.
+    theta_enc = wrap(G + k_last.astype(f32) * c.QUARTER, xp)
+    theta = wrap(theta_enc + adv, xp)
+    start = _tab(c.H_START, sector, xp)
+    width = _tab(c.H_WIDTH, sector, xp)
+    dd = wrap(theta - start, xp)
+    outside = dd > width
+    end = wrap(start + width, xp)
+    clamped = xp.where(outside, xp.where(dd - width < TWO_PI - dd, end, start), theta)
+    theta = xp.where(still, clamped, theta)
+    unanchored = anchored == 0
+    mid = _tab(c.H_MID, sector, xp)
+    theta = xp.where(unanchored, mid, theta)
+    theta_enc = xp.where(unanchored, mid, theta_enc)
+    omega_out = omega_pred
+    if cfg.clamp_to_next_edge:
+        # No edge for n ticks: |speed| cannot exceed a pitch per n ticks.
+        bound = c.K_OMEGA / xp.maximum(n, one).astype(f32)
+        omega_out = xp.where(n > 0, xp.minimum(xp.maximum(omega_out, -bound), bound), omega_out)
+    no_speed = (nc_prev == 0) & ~speed_upd
+
+    status = (still.astype(i32) * I32(ST_STANDSTILL)
+              | (dir_last < 0).astype(i32) * I32(ST_REVERSE)
+              | (~hv).astype(i32) * I32(ST_HALL_FAULT)
+              | jump.astype(i32) * I32(ST_HALL_SEQ)
+              | unanchored.astype(i32) * I32(ST_NO_ANCHOR)
+              | qep_err.astype(i32) * I32(ST_QEP_ERROR)
+              | (bounce | reject | (ev & ~speed_upd)).astype(i32) * I32(ST_EDGE_REJECT)
+              | missing.astype(i32) * I32(ST_MISSING_EDGE)
+              | dir_mismatch.astype(i32) * I32(ST_DIR_MISMATCH)
+              | no_speed.astype(i32) * I32(ST_NO_SPEED))
+
+    new = EstimatorState(phase=ph, q=q, n=n, k_last=k_last, dir_last=dir_last, nc_prev=nc_prev,
+                         against=against, omega=omega, alpha=alpha, adv=adv, G=G,
+                         hall_last=hall_last, sector=sector, anchored=anchored)
+    return new, EstimatorOut(theta_hat=theta, omega_hat=omega_out, theta_enc=theta_enc,
+                             status=status)
+
+
+def run(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> EstimatorOut:
+    """Run the estimator over sampled signals with numpy, tick by tick (the bit-exact reference).
+
+    The power-on state takes the first sample's levels (:func:`init_state`), then every sample,
+    the first included, is one tick.
+
+    Parameters
+    ----------
+    cfg : EstimatorConfig
+    enc_a, enc_b : int arrays (n,)
+        Encoder levels per tick (0/1).
+    hall : int array (n,)
+        Hall state per tick (0..7).
+
+    Returns
+    -------
+    EstimatorOut of numpy arrays (n,): float32 theta_hat (rad), omega_hat (rad/s), theta_enc
+    (rad), int32 status.
+    """
+    a = np.asarray(enc_a, dtype=I32)
+    b = np.asarray(enc_b, dtype=I32)
+    h = np.asarray(hall, dtype=I32)
+    n = len(a)
+    th = np.empty(n, F32)
+    om = np.empty(n, F32)
+    te = np.empty(n, F32)
+    st = np.empty(n, I32)
+    if n == 0:
+        return EstimatorOut(th, om, te, st)
+    state = init_state(cfg, h[0], a[0], b[0])
+    for i in range(n):
+        state, out = step(cfg, state, a[i], b[i], h[i])
+        th[i], om[i], te[i], st[i] = out
+    return EstimatorOut(th, om, te, st)
+
+
+def run_jax(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> EstimatorOut:
+    """The same as :func:`run` under ``jax.lax.scan`` (float32 tolerance, not bit-exact).
+
+    Accepts leading batch dimensions before the time axis (vmapped).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    a = jnp.asarray(enc_a, jnp.int32)
+    b = jnp.asarray(enc_b, jnp.int32)
+    h = jnp.asarray(hall, jnp.int32)
+
+    def one(a1, b1, h1):
+        s0 = init_state(cfg, h1[0], a1[0], b1[0], xp=jnp)
+
+        def body(s, x):
+            return step(cfg, s, x[0], x[1], x[2], xp=jnp)
+
+        _, out = jax.lax.scan(body, s0, jnp.stack([a1, b1, h1], axis=-1))
+        return out
+
+    f = one
+    for _ in range(a.ndim - 1):
+        f = jax.vmap(f)
+    return jax.jit(f)(a, b, h)

@@ -1,0 +1,139 @@
+"""Kinematic sensor-signal model: encoder A/B and hall levels from the rotor's mechanical angle.
+
+Shared by the estimator's golden vectors and benchmark and by the plant's sensors, so the ECU
+sees the same signal model everywhere. Pure functions of position (no time, no state), written
+with ``xp`` operations so they run under numpy and trace under ``jax.numpy``:
+
+* Channel A has ``N_enc`` pulses per mechanical revolution, high for half a pitch; pulse ``k``
+  rises at mechanical angle ``grid_offset + 2*pi*k/N_enc + edge_error[k]``. The whole pulse
+  (rising and falling edge) carries the placement error of its magnet pole, and channel B reads
+  the same wheel a quarter pitch later, so in forward rotation A leads B by a quarter pitch.
+* Hall sensor U, V, W (bits 0, 1, 2) is nominally high for electrical angle in
+  [0, 180), [120, 300), [240, 60) degrees (firmware contract section 2); each of its two
+  switching points has its own mounting error ``hall_offset[sensor, 0 rising | 1 falling]``
+  (rad, electrical, "rising"/"falling" as seen in forward rotation).
+* Electrical angle ``theta_e = (P/2) * theta_m``: mechanical angle 0 is electrical angle 0.
+
+Being position-based, the model has no hysteresis and no chatter; glitches (bounce, lost
+pulses, hall states 0/7) are injected on top of the sampled levels where a test needs them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, NamedTuple
+
+import numpy as np
+
+
+class SensorErrors(NamedTuple):
+    """Manufacturing errors of one motor's position sensors.
+
+    edge_error : array (N_enc,)
+        Placement error of encoder pulse k (rad, mechanical), |error| < a quarter pitch.
+    hall_offset : array (3, 2)
+        Switching-point error of hall U, V, W at its rising [., 0] and falling [., 1] point
+        in forward rotation (rad, electrical).
+    grid_offset : float
+        Mechanical angle of pulse 0's nominal rising edge (rad, mechanical).
+    """
+
+    edge_error: Any
+    hall_offset: Any
+    grid_offset: Any
+
+
+def ideal_sensor_errors(N_enc: int, grid_offset: float = 0.0) -> SensorErrors:
+    """Error-free sensors (edges on the nominal grid, halls at their nominal angles)."""
+    return SensorErrors(np.zeros(N_enc), np.zeros((3, 2)), float(grid_offset))
+
+
+def draw_sensor_errors(rng: np.random.Generator, N_enc: int, edge_sigma_mech_deg: float = 0.1,
+                       hall_sigma_elec_deg: float = 2.0 / 3.0, hall_max_elec_deg: float = 2.0,
+                       grid_offset: float | None = None) -> SensorErrors:
+    """Draw one motor's sensor errors.
+
+    Parameters
+    ----------
+    rng : numpy Generator
+    N_enc : int
+        Encoder pulses per mechanical revolution.
+    edge_sigma_mech_deg : float
+        Standard deviation of each pulse's placement error (mechanical degrees), normal.
+    hall_sigma_elec_deg, hall_max_elec_deg : float
+        Hall switching-point errors: normal with this standard deviation, truncated at
+        +-hall_max_elec_deg (electrical degrees) - "within 2 electrical degrees" read as 3 sigma.
+    grid_offset : float, optional
+        Mechanical angle of pulse 0 (rad); uniform over one pitch when omitted.
+
+    Returns
+    -------
+    SensorErrors
+    """
+    pitch = 2.0 * math.pi / N_enc
+    edge = np.radians(edge_sigma_mech_deg) * rng.standard_normal(N_enc)
+    edge = np.clip(edge, -0.2 * pitch, 0.2 * pitch)
+    hall = np.empty(6)
+    for i in range(6):
+        x = rng.standard_normal() * hall_sigma_elec_deg
+        while abs(x) > hall_max_elec_deg:
+            x = rng.standard_normal() * hall_sigma_elec_deg
+        hall[i] = x
+    g = rng.uniform(0.0, pitch) if grid_offset is None else float(grid_offset)
+    return SensorErrors(edge, np.radians(hall).reshape(3, 2), g)
+
+
+def _channel(u: Any, eps_table: Any, N_enc: int, xp: Any) -> Any:
+    # u in pitches; pulse k nominally high on [k, k + 0.5), shifted by its error eps (pitches).
+    k = xp.floor(u + 0.25)
+    kk = xp.mod(k, N_enc).astype(xp.int32)
+    fr = u - k - xp.asarray(eps_table)[kk]
+    return ((fr >= 0.0) & (fr < 0.5)).astype(xp.int32)
+
+
+def encoder_hall_signals(theta_m: Any, poles: int, N_enc: int,
+                         errors: SensorErrors | None = None, xp: Any = np) -> tuple[Any, Any, Any]:
+    """Encoder and hall levels at mechanical rotor angle ``theta_m``.
+
+    Parameters
+    ----------
+    theta_m : array_like
+        Mechanical rotor angle (rad), any shape; + is forward rotation. Under float32 (JAX)
+        pass it reduced to [0, 2*pi) to keep its resolution.
+    poles : int
+        Number of poles P.
+    N_enc : int
+        Pulses per mechanical revolution of channel A.
+    errors : SensorErrors, optional
+        Sensor errors; ideal sensors when omitted.
+    xp : numpy or jax.numpy
+
+    Returns
+    -------
+    enc_a, enc_b : int32 arrays (0/1), hall : int32 array (U | V<<1 | W<<2), all of
+    ``theta_m``'s shape.
+    """
+    if errors is None:
+        errors = ideal_sensor_errors(N_enc)
+    theta_m = xp.asarray(theta_m)
+    scale = N_enc / (2.0 * math.pi)
+    eps = xp.asarray(errors.edge_error) * scale
+    u = (theta_m - errors.grid_offset) * scale
+    enc_a = _channel(u, eps, N_enc, xp)
+    enc_b = _channel(u - 0.25, eps, N_enc, xp)
+
+    theta_e = theta_m * (poles / 2.0)
+    off = xp.asarray(errors.hall_offset)
+    two_pi = 2.0 * math.pi
+    hall = xp.zeros(theta_m.shape, xp.int32)
+    for j in range(3):
+        rise = j * (two_pi / 3.0) + off[j, 0]
+        fall = j * (two_pi / 3.0) + math.pi + off[j, 1]
+        high = xp.mod(theta_e - rise, two_pi) < xp.mod(fall - rise, two_pi)
+        hall = hall + high.astype(xp.int32) * (1 << j)
+    return enc_a, enc_b, hall
+
+
+def electrical_angle(theta_m: Any, poles: int, xp: Any = np) -> Any:
+    """True electrical angle (rad, [0, 2*pi)) of mechanical angle ``theta_m`` (rad)."""
+    return xp.mod(xp.asarray(theta_m) * (poles / 2.0), 2.0 * math.pi)
