@@ -1,0 +1,544 @@
+"""Dyno client: drive a Modbus TCP dyno through a test profile and read the captures.
+
+The sequence per segment: set the load command, direction and speed set point, enable, wait
+until the dyno reports "at speed", start a capture, poll until the buffer is ready, read every
+channel through the paged window (:mod:`.registers`) and check it. The segments are joined into
+one :class:`~eol_cal.capture.model.Capture` whose time axis keeps the real time between the
+segments' starts (so the gaps are visible: the windows are not one continuous recording).
+
+Safety: whatever goes wrong (timeout, lost connection, fault bit, bad data, Ctrl-C) the client
+sets the speed to zero and disables the drive in a ``finally`` and raises :class:`DynoError`;
+the capture file is written (atomically) only after every segment was read and validated.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from eol_cal.capture.model import Capture
+from eol_cal.dyno import registers as rm
+from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
+from eol_cal.errors import EolCalError, InputError
+
+#: channels read by default (the packed digital channel is always read)
+DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed", "temp")
+#: capture rate (Hz) when the profile gives none
+DEFAULT_RATE_HZ = 10000
+
+
+class DynoError(EolCalError):
+    """The dyno run failed; the drive was sent to the safe state (exit code 2)."""
+
+
+@dataclass(frozen=True)
+class DynoSegment:
+    """One steady operating point of a test profile, as the dyno runs it.
+
+    Attributes
+    ----------
+    speed_rpm : float
+        Shaft speed (rpm), signed: negative runs in reverse.
+    seconds : float
+        Capture duration at this point (s).
+    torque_nm : float or None
+        Load as shaft torque command (N*m) ...
+    iq : float or None
+        ... or as nominal q current i_qo (A); exactly one of the two is given.
+    ramp_rpm_s : float
+        Speed ramp rate to reach this point (rpm/s).
+    """
+
+    speed_rpm: float
+    seconds: float
+    torque_nm: float | None = None
+    iq: float | None = None
+    ramp_rpm_s: float = 1000.0
+
+    def command(self) -> tuple[DutCmdKind, float]:
+        """(kind, value) of the load command: torque (N*m) or i_qo (A)."""
+        if self.iq is not None:
+            return DutCmdKind.IQ, float(self.iq)
+        return DutCmdKind.TORQUE, float(self.torque_nm or 0.0)
+
+
+@dataclass(frozen=True)
+class DynoConfig:
+    """How to talk to the dyno.
+
+    Attributes
+    ----------
+    host : str
+        Dyno address.
+    port : int
+        Modbus TCP port.
+    device_id : int
+        Modbus unit id.
+    timeout : float
+        Per-request response timeout (s).
+    retries : int
+        Attempts after the first one for each request before giving up (reconnecting between).
+    retry_delay : float
+        First delay between attempts (s); doubles each time.
+    connections : int
+        Parallel TCP connections used to read the capture buffer.
+    watchdog_ms : int
+        Communication watchdog set on the dyno (ms): it stops the drive by itself when this
+        client goes silent (0 = off).
+    settle_timeout : float
+        Extra time allowed to reach a set point beyond the ramp time (s).
+    capture_timeout : float
+        Extra time allowed for a capture beyond its duration (s).
+    poll_interval : float
+        Status polling period (s).
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 5020
+    device_id: int = 1
+    timeout: float = 1.0
+    retries: int = 3
+    retry_delay: float = 0.1
+    connections: int = 4
+    watchdog_ms: int = 2000
+    settle_timeout: float = 10.0
+    capture_timeout: float = 60.0
+    poll_interval: float = 0.01
+
+
+#: ramp rate (rpm/s) for a segment that gives no ramp time (a step on the plant)
+DEFAULT_RAMP_RPM_S = 1000.0
+
+
+def segments_from_profile(profile) -> list[DynoSegment]:
+    """A plant test profile (:class:`eol_cal.plant.profile.Profile`) as dyno segments.
+
+    The dyno captures only the steady part of a segment: ``seconds - ramp_s``; the ramp rate is
+    the speed change over ``ramp_s`` (or :data:`DEFAULT_RAMP_RPM_S` without a ramp time).
+    """
+    out: list[DynoSegment] = []
+    prev = 0.0
+    for seg in profile.segments:
+        delta = abs(seg.speed_rpm - prev)
+        ramp = delta / seg.ramp_s if seg.ramp_s > 0.0 and delta > 0.0 else DEFAULT_RAMP_RPM_S
+        out.append(DynoSegment(seg.speed_rpm, seg.seconds - seg.ramp_s, seg.torque_nm, seg.iq, ramp))
+        prev = seg.speed_rpm
+    return out
+
+
+def parse_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` -> (host, port); a bad address is an :class:`InputError`."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise InputError(None, "address", f"expected HOST:PORT, got {text!r}")
+    return host, int(port)
+
+
+@dataclass
+class SegmentData:
+    """The samples of one segment as read from the dyno (arrays on the segment's own time)."""
+
+    t0: float
+    rate_hz: float
+    channels: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+ProgressFn = Callable[[str, float, float], None]  # (what, done, total)
+
+
+class DynoClient:
+    """A connection to one dyno; see the module doc for the sequence.
+
+    Parameters
+    ----------
+    config : DynoConfig
+        Address, timeouts and retries.
+    """
+
+    def __init__(self, config: DynoConfig) -> None:
+        from pymodbus.client import ModbusTcpClient
+
+        self.config = config
+        self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
+        self.reconnects = 0
+
+    # ------------------------------------------------------------ transport
+    @property
+    def where(self) -> str:
+        return f"dyno {self.config.host}:{self.config.port}"
+
+    def _call(self, what: str, fn: Callable[[], object]):
+        """Run one request with retries: reconnect on lost connections and timeouts."""
+        from pymodbus.exceptions import ModbusException
+
+        delay = self.config.retry_delay
+        last: Exception | None = None
+        for attempt in range(self.config.retries + 1):
+            if attempt:
+                time.sleep(delay)
+                delay *= 2
+            try:
+                if not self._client.connected:
+                    if attempt:
+                        self.reconnects += 1
+                    if not self._client.connect():
+                        raise ConnectionError("cannot connect")
+                response = fn()
+            except (ModbusException, ConnectionError, OSError) as exc:
+                last = exc
+                # a late answer to a timed-out request would be taken for the next one: start over
+                self._client.close()
+                continue
+            if response.isError():
+                code = getattr(response, "exception_code", None)
+                raise DynoError(f"{self.where}: {what} refused (Modbus exception {code})")
+            return response
+        raise DynoError(f"{self.where}: {what} failed after {self.config.retries + 1} attempts: {last}")
+
+    def connect(self) -> dict[str, float | int | str]:
+        """Connect and read the identification registers."""
+        ident = self.read_block("map_version", "tick_hz")
+        if ident["map_version"] != rm.MAP_VERSION:
+            raise DynoError(f"{self.where}: register map version {ident['map_version']}, this tool speaks {rm.MAP_VERSION}")
+        return ident
+
+    def close(self) -> None:
+        self._client.close()
+
+    def read_block(self, first: str, last: str) -> dict[str, float | int | str]:
+        """Read registers ``first`` ... ``last`` in one request and decode every entry in between."""
+        address, count = rm.span(first, last)
+        r = self._call(f"read {first}..{last}", lambda: self._client.read_holding_registers(address, count=count, device_id=self.config.device_id))
+        names = tuple(reg.name for reg in rm.REGISTERS if address <= reg.address < address + count)
+        return rm.unpack_block(address, r.registers, names)
+
+    def write(self, **values: float | int) -> None:
+        """Write registers by name; neighbours go out in one FC 16 request."""
+        regs = sorted((BY_NAME[n] for n in values), key=lambda r: r.address)
+        run: list[rm.Register] = []
+        for reg in regs + [None]:  # type: ignore[list-item]
+            if run and (reg is None or reg.address != run[-1].address + run[-1].count):
+                words = [w for r in run for w in rm.encode(r.name, values[r.name])]
+                address = run[0].address
+                names = ",".join(r.name for r in run)
+                self._call(f"write {names}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id))
+                run = []
+            if reg is not None:
+                run.append(reg)
+
+    def status(self) -> dict[str, float | int | str]:
+        return self.read_block("speed", "capture_seq")
+
+    def check_faults(self, st: dict, what: str) -> None:
+        faults = int(st["faults"])
+        if faults:
+            names = [f.name for f in Fault if f & faults]
+            raise DynoError(f"{self.where}: fault {'+'.join(names)} while {what} (faults=0x{faults:04x})")
+        if st["drive_state"] == DriveState.TRIPPED:
+            raise DynoError(f"{self.where}: drive tripped while {what}")
+
+    # ------------------------------------------------------------ operations
+    def set_point(self, seg: DynoSegment) -> None:
+        """Command one segment's load, direction and speed; return when the dyno is at speed."""
+        cfg = self.config
+        st = self.status()
+        self.check_faults(st, "preparing")
+        direction = 1 if seg.speed_rpm < 0 else 0
+        kind, value = seg.command()
+        current_dir = 1 if float(st["speed"]) < 0 else 0
+        if abs(float(st["speed"])) > 0.0 and direction != current_dir:
+            # reversing goes through standstill; the dyno refuses a direction flip while spinning
+            self.write(speed_setpoint=0.0)
+            self.wait(lambda s: abs(float(s["speed"])) == 0.0, abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse")
+        self.write(mode=1, direction=direction)
+        self.write(speed_setpoint=abs(seg.speed_rpm), ramp=seg.ramp_rpm_s, dut_cmd_kind=int(kind), dut_cmd=value)
+        self.write(enable=1, watchdog_ms=cfg.watchdog_ms)
+        ramp_time = abs(seg.speed_rpm - float(st["speed"])) / seg.ramp_rpm_s
+        self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+
+    def wait(self, cond: Callable[[dict], bool], timeout: float, what: str) -> dict:
+        end = time.monotonic() + timeout
+        while True:
+            st = self.status()
+            self.check_faults(st, what)
+            if cond(st):
+                return st
+            if time.monotonic() > end:
+                raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, drive state {DriveState(int(st['drive_state'])).name})")
+            time.sleep(self.config.poll_interval)
+
+    def capture(self, n_samples: int, rate_hz: int) -> dict:
+        """Start a capture of ``n_samples`` at ``rate_hz`` (Hz) and wait until it is ready."""
+        self.write(capture_rate=rate_hz, capture_length=n_samples)
+        self.write(capture_start=1)
+
+        def ready(s: dict) -> bool:
+            if s["capture_state"] == CaptureState.ERROR:
+                raise DynoError(f"{self.where}: capture ended in the error state")
+            return s["capture_state"] == CaptureState.READY
+
+        st = self.wait(ready, n_samples / rate_hz + self.config.capture_timeout, "capturing")
+        if int(st["capture_count"]) != n_samples:
+            raise DynoError(f"{self.where}: capture holds {st['capture_count']} samples, {n_samples} requested")
+        return st
+
+    def read_buffer(self, names: Sequence[str], n_samples: int, progress: ProgressFn | None = None) -> dict[str, np.ndarray]:
+        """Read channels ``names`` (canonical names) plus the digital channel from the buffer."""
+        ids = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
+        pages: list[tuple[str, int, int, int]] = []  # (name, channel id, first sample, samples)
+        plan = [(n, ids[n]) for n in names] + [("digital", rm.DIGITAL_CHANNEL_ID)]
+        for name, cid in plan:
+            per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
+            page_samples = rm.WINDOW_REGS // per
+            for first in range(0, n_samples, page_samples):
+                pages.append((name, cid, first, min(page_samples, n_samples - first)))
+        total = sum(s * (1 if c == rm.DIGITAL_CHANNEL_ID else 2) for _, c, _, s in pages)
+        out: dict[str, list[np.ndarray]] = {name: [] for name, _ in plan}
+        done = 0
+        for name, cid, first, samples in pages:
+            per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
+            words = self._read_page(cid, first, samples * per)
+            out[name].append(words)
+            done += samples * per
+            if progress:
+                progress("transfer", done, total)
+        result: dict[str, np.ndarray] = {}
+        for name, parts in out.items():
+            words = np.concatenate(parts)
+            if name == "digital":
+                result["enc_a"], result["enc_b"], result["hall"] = rm.unpack_digital(words)
+            else:
+                result[name] = rm.words_to_f32(words)
+        return result
+
+    def _read_page(self, channel_id: int, first: int, n_regs: int) -> np.ndarray:
+        """Select a page and read ``n_regs`` window registers over parallel connections."""
+        self.write(buf_channel=channel_id, buf_offset=first)
+        blocks = [(rm.WINDOW_ADDR + k, min(rm.MAX_READ_REGS, n_regs - k)) for k in range(0, n_regs, rm.MAX_READ_REGS)]
+        delay = self.config.retry_delay
+        for attempt in range(self.config.retries + 1):
+            try:
+                parts = asyncio.run(_read_blocks(self.config, blocks))
+                return np.concatenate([np.asarray(p, dtype=np.uint16) for p in parts])
+            except _TransferError as exc:
+                last = exc
+                if exc.refused:
+                    break
+                time.sleep(delay)
+                delay *= 2
+                self.reconnects += 1
+                # the page selection may have been lost with the connection: select it again
+                self.write(buf_channel=channel_id, buf_offset=first)
+        raise DynoError(f"{self.where}: reading capture channel {channel_id} failed: {last}")
+
+    def safe_state(self) -> str | None:
+        """Speed set point 0, capture aborted, drive disabled. Returns None or why it failed."""
+        try:
+            self.write(speed_setpoint=0.0)
+            self.write(capture_start=2)
+            self.write(enable=0)
+        except DynoError as exc:
+            return str(exc)
+        return None
+
+
+class _TransferError(Exception):
+    def __init__(self, msg: str, refused: bool = False) -> None:
+        super().__init__(msg)
+        self.refused = refused
+
+
+async def _read_blocks(cfg: DynoConfig, blocks: list[tuple[int, int]]) -> list[list[int]]:
+    """Read window blocks over ``cfg.connections`` parallel connections (pymodbus serves one
+    request per connection at a time, so parallel connections are how requests overlap)."""
+    from pymodbus.client import AsyncModbusTcpClient
+    from pymodbus.exceptions import ModbusException
+
+    k = max(1, min(cfg.connections, len(blocks)))
+    clients = [AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout, retries=0, reconnect_delay=0) for _ in range(k)]
+    results: list[list[int] | None] = [None] * len(blocks)
+
+    async def worker(i: int) -> None:
+        cl = clients[i]
+        if not await cl.connect():
+            raise _TransferError("cannot connect")
+        for j in range(i, len(blocks), k):
+            address, count = blocks[j]
+            r = await cl.read_holding_registers(address, count=count, device_id=cfg.device_id)
+            if r.isError():
+                raise _TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})", refused=True)
+            if len(r.registers) != count:
+                raise _TransferError(f"short read at 0x{address:04x}: {len(r.registers)} of {count} registers")
+            results[j] = r.registers
+
+    try:
+        await asyncio.gather(*(worker(i) for i in range(k)))
+    except (ModbusException, OSError, asyncio.TimeoutError) as exc:
+        raise _TransferError(str(exc) or type(exc).__name__) from None
+    finally:
+        for cl in clients:
+            cl.close()
+    return results  # type: ignore[return-value]
+
+
+def run_profile(
+    client: DynoClient,
+    segments: Sequence[DynoSegment],
+    rate_hz: int = DEFAULT_RATE_HZ,
+    channels: Sequence[str] = DEFAULT_CHANNELS,
+    progress: ProgressFn | None = None,
+    reset_faults: bool = False,
+) -> tuple[list[SegmentData], dict]:
+    """Run every segment and read its capture; the drive is left in the safe state in every case.
+
+    Returns the segments' data and the dyno's identification registers.
+    Raises :class:`DynoError` on any failure (after the safe state was commanded).
+    """
+    unknown = [c for c in channels if c not in rm.ANALOG_CHANNELS.values()]
+    if unknown:
+        raise InputError(None, "channels", f"unknown dyno channel(s) {unknown}; known: {sorted(rm.ANALOG_CHANNELS.values())}")
+    name_to_id = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
+    data: list[SegmentData] = []
+    t_first: float | None = None
+    try:
+        ident = client.connect()
+        if reset_faults:
+            client.write(fault_reset=1)
+        for i, seg in enumerate(segments):
+            if progress:
+                progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
+            n = int(round(seg.seconds * rate_hz))
+            if n < 2:
+                raise InputError(None, f"segment {i + 1}", f"{seg.seconds} s at {rate_hz} Hz is fewer than 2 samples")
+            client.set_point(seg)
+            t_start = time.monotonic()
+            st = client.capture(n, rate_hz)
+            available = int(st["capture_channels"])
+            want = [c for c in channels if available & rm.channel_bit(name_to_id[c])]
+            for required in ("torque", "iq_ref"):
+                if required not in want:
+                    raise DynoError(f"{client.where}: capture has no {required} channel")
+            chans = client.read_buffer(want, n, progress)
+            st = client.status()
+            client.check_faults(st, "reading the capture")
+            if int(st["capture_state"]) != CaptureState.READY:
+                raise DynoError(f"{client.where}: capture buffer changed while it was read")
+            bad = [c for c, v in chans.items() if not np.all(np.isfinite(v))]
+            if bad:
+                raise DynoError(f"{client.where}: segment {i + 1}: non-finite samples in {', '.join(bad)}")
+            t_first = t_start if t_first is None else t_first
+            data.append(SegmentData(t_start - t_first, float(rate_hz), chans))
+        if progress:
+            progress("stopping", len(segments), len(segments))
+        client.write(speed_setpoint=0.0)
+        client.wait(lambda s: abs(float(s["speed"])) == 0.0, client.config.settle_timeout, "stopping")
+    except BaseException as exc:
+        why = client.safe_state()
+        client.close()
+        note = (
+            "speed set to 0 and drive disabled"
+            if why is None
+            else f"safe state NOT confirmed ({why}); the dyno's watchdog stops the drive after {client.config.watchdog_ms} ms"
+        )
+        if isinstance(exc, DynoError):
+            raise DynoError(f"{exc}; {note}") from exc
+        raise
+    why = client.safe_state()
+    client.close()
+    if why is not None:
+        raise DynoError(f"could not disable the drive after the run: {why}")
+    return data, ident
+
+
+def assemble(
+    data: Sequence[SegmentData],
+    ident: dict,
+    serial: str | None = None,
+    extra_metadata: dict | None = None,
+) -> Capture:
+    """Join segment data into one capture (time keeps the real gaps between segment starts)."""
+    if not data:
+        raise DynoError("no segments captured")
+    names = sorted(set.intersection(*(set(d.channels) for d in data)))
+    ts, chans = [], {n: [] for n in names}
+    t_end = -np.inf
+    for d in data:
+        n = len(next(iter(d.channels.values())))
+        t = max(d.t0, t_end + 1.0 / d.rate_hz) + np.arange(n) / d.rate_hz
+        ts.append(t)
+        t_end = t[-1]
+        for name in names:
+            chans[name].append(d.channels[name])
+    starts = [float(t[0]) for t in ts]
+    metadata: dict[str, str | int | float] = {
+        "serial": serial or str(ident.get("dut_serial") or ""),
+        "poles": int(ident["dut_poles"]),
+        "encoder_ppr": int(ident["dut_encoder_ppr"]),
+        "kt": float(ident["dut_kt"]),
+        "source": "dyno",
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "segments": len(data),
+        "segment_starts": ",".join(f"{s:.6f}" for s in starts),
+    }
+    metadata.update(extra_metadata or {})
+    if not metadata["serial"]:
+        raise InputError(None, "serial", "the dyno reports no DUT serial: pass --serial")
+    channels = {}
+    for name in names:
+        v = np.concatenate(chans[name])
+        channels[name] = v.astype(np.int64) if name in ("enc_a", "enc_b", "hall") else v
+    return Capture(np.concatenate(ts), channels, metadata, source="dyno")
+
+
+def acquire(
+    config: DynoConfig,
+    segments: Sequence[DynoSegment],
+    out: str | Path | None = None,
+    *,
+    serial: str | None = None,
+    rate_hz: int = DEFAULT_RATE_HZ,
+    channels: Sequence[str] = DEFAULT_CHANNELS,
+    progress: ProgressFn | None = None,
+    extra_metadata: dict | None = None,
+    reset_faults: bool = False,
+) -> Capture:
+    """Run a profile on the dyno, check the capture and write it atomically to ``out``.
+
+    Parameters
+    ----------
+    config : DynoConfig
+        Dyno address and timing.
+    segments : sequence of DynoSegment
+        The test profile.
+    out : path, optional
+        Capture file (``.csv`` or ``.mf4``); written only when everything succeeded.
+    serial : str, optional
+        Motor serial; default: the serial the dyno reports.
+    rate_hz : int
+        Capture sample rate (Hz).
+    reset_faults : bool
+        Clear faults latched before this run (a fault during the run still stops it).
+
+    Raises
+    ------
+    DynoError
+        Any dyno or transfer failure (the drive was sent to the safe state; no file written).
+    InputError
+        A capture that fails validation (no file written).
+    """
+    if not segments:
+        raise InputError(None, "profile", "no segments")
+    client = DynoClient(config)
+    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults)
+    capture = assemble(data, ident, serial, extra_metadata)
+    from eol_cal.capture import validate, write_capture
+
+    capture = validate(capture)
+    if out is not None:
+        write_capture(capture, out)
+    return capture

@@ -1,0 +1,146 @@
+"""Dyno client against the real pymodbus server of the dyno simulator, on 127.0.0.1.
+
+The simulator's capture source here is a small kinematic model (constant speed, quadrature
+encoder, halls per the contract, a 6th-harmonic ripple) so the tests need no JAX; the plant is
+exercised by the CLI test in test_dyno_cli.py.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eol_cal.capture import read_capture
+from eol_cal.capture.model import Capture
+from eol_cal.dyno import registers as rm
+from eol_cal.dyno.client import DynoConfig, DynoError, DynoSegment, acquire
+from eol_cal.dyno.registers import DriveState, SimFault
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, SegmentRequest
+
+POLES, PPR, KT = 6, 64, 0.04905
+
+
+def kinematic_source(req: SegmentRequest) -> Capture:
+    """Constant-speed recording: encoder A/B, halls (contract convention), torque with a 6th."""
+    n = req.n_samples
+    t = np.arange(n) / req.rate_hz
+    theta_m = 2.0 * math.pi * req.speed_rpm / 60.0 * t + 0.3
+    pitch = 2.0 * math.pi / PPR
+    enc_a = ((np.mod(theta_m, pitch) / pitch) < 0.5).astype(np.int64)
+    enc_b = ((np.mod(theta_m - pitch / 4, pitch) / pitch) < 0.5).astype(np.int64)
+    theta_e = np.mod(POLES / 2 * theta_m, 2 * math.pi)
+    deg = np.degrees(theta_e)
+    u = deg < 180
+    v = (deg >= 120) & (deg < 300)
+    w = (deg >= 240) | (deg < 60)
+    hall = u.astype(np.int64) | (v.astype(np.int64) << 1) | (w.astype(np.int64) << 2)
+    i_qo = req.dut_cmd if req.dut_cmd_kind == rm.DutCmdKind.IQ else req.dut_cmd / KT
+    torque = KT * i_qo - 0.00062 * i_qo * np.sin(6 * theta_e + 0.4)
+    chans = {
+        "torque": torque,
+        "enc_a": enc_a,
+        "enc_b": enc_b,
+        "hall": hall,
+        "iq_ref": np.full(n, i_qo),
+        "speed": np.full(n, req.speed_rpm),
+        "temp": np.full(n, 40.0),
+    }
+    return Capture(t, chans, {"serial": req.serial, "poles": POLES, "encoder_ppr": PPR})
+
+
+PROFILE = [
+    DynoSegment(60.0, 0.35, iq=20.0, ramp_rpm_s=3000.0),
+    DynoSegment(120.0, 0.25, iq=65.0, ramp_rpm_s=3000.0),
+    DynoSegment(-60.0, 0.35, iq=-40.0, ramp_rpm_s=3000.0),
+]
+
+
+def config(port: int, **kw) -> DynoConfig:
+    base = dict(host="127.0.0.1", port=port, timeout=0.5, retries=3, retry_delay=0.05, settle_timeout=3.0, capture_timeout=5.0)
+    base.update(kw)
+    return DynoConfig(**base)
+
+
+@pytest.fixture
+def dyno():
+    sim = DynoSim(kinematic_source, serial="M-TEST-1", poles=POLES, encoder_ppr=PPR, kt=KT)
+    with DynoSimThread(sim) as th:
+        yield th
+
+
+def test_profile_end_to_end_into_a_valid_capture_file(dyno, tmp_path: Path):
+    out = tmp_path / "capture.mf4"
+    cap = acquire(config(dyno.port), PROFILE, out, rate_hz=10000)
+    assert out.exists()
+    back = read_capture(out)
+    n = sum(int(round(s.seconds * 10000)) for s in PROFILE)
+    assert len(back.t) == n
+    assert back.metadata["serial"] == "M-TEST-1"
+    assert back.metadata["source"] == "dyno"
+    assert int(back.metadata["poles"]) == POLES and int(back.metadata["encoder_ppr"]) == PPR
+    assert np.all(np.diff(back.t) > 0)
+    # the samples that went through the window are the ones the dyno recorded (f32 on the wire)
+    last = dyno.sim.last_capture
+    k = int(round(PROFILE[-1].seconds * 10000))
+    np.testing.assert_array_equal(back["hall"][-k:], last["hall"])
+    np.testing.assert_array_equal(back["enc_b"][-k:], last["enc_b"])
+    np.testing.assert_allclose(back["torque"][-k:], last["torque"].astype(np.float32), rtol=0, atol=0)
+    np.testing.assert_allclose(back["iq_ref"][-k:], -40.0)
+    # segments in order, reverse last, and the drive left stopped and disabled
+    assert back["speed"][0] == 60.0 and back["speed"][-1] == -60.0
+    assert cap.metadata["segments"] == 3
+    assert not dyno.sim.enabled and dyno.sim.speed == 0.0 and dyno.sim.setpoint == 0.0
+
+
+def _assert_safe(sim: DynoSim):
+    deadline = time.monotonic() + 3.0
+    while time.monotonic() < deadline and sim.speed != 0.0:
+        time.sleep(0.02)
+    assert not sim.enabled
+    assert sim.setpoint == 0.0
+    assert sim.speed == 0.0
+
+
+@pytest.mark.parametrize("kind", [SimFault.OVER_SPEED, SimFault.TORQUE_SENSOR])
+def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind):
+    sim = DynoSim(kinematic_source, serial="M-TEST-2", faults=[FaultPlan(kind, "capture", 2)])
+    out = tmp_path / "capture.mf4"
+    with DynoSimThread(sim) as th:
+        with pytest.raises(DynoError) as err:
+            acquire(config(th.port), PROFILE, out)
+        _assert_safe(sim)
+        # the client itself commanded the safe state (not only the trip)
+        names = [name for _, name, _ in sim.log]
+        assert "enable" in names[names.index("fault"):]
+    assert "speed set to 0 and drive disabled" in str(err.value)
+    assert ("OVER_SPEED" if kind == SimFault.OVER_SPEED else "TORQUE_SENSOR") in str(err.value)
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_long_disconnect_fails_safe_and_no_file(tmp_path: Path):
+    # the dyno drops off the network for longer than the client's retries: the client gives up,
+    # and the dyno's communication watchdog stops the drive
+    sim = DynoSim(kinematic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 3, 2500)])
+    out = tmp_path / "capture.csv"
+    with DynoSimThread(sim) as th:
+        with pytest.raises(DynoError) as err:
+            acquire(config(th.port, retries=2, watchdog_ms=500), PROFILE, out)
+        _assert_safe(sim)
+    assert not out.exists() and not list(tmp_path.iterdir())
+    assert "failed" in str(err.value)
+
+
+def test_transient_disconnect_is_retried(tmp_path: Path):
+    sim = DynoSim(kinematic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 5, 150)])
+    out = tmp_path / "capture.csv"
+    with DynoSimThread(sim) as th:
+        cap = acquire(config(th.port, retries=4), PROFILE, out)
+    assert out.exists()
+    assert [n for _, n, _ in sim.log].count("fault") == 1
+    back = read_capture(out)
+    assert len(back.t) == len(cap.t)
+    np.testing.assert_array_equal(back["hall"][-len(sim.last_capture.t):], sim.last_capture["hall"])
