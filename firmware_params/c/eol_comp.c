@@ -1,0 +1,39 @@
+/* eol_comp.c: see eol_comp.h and ../COMPENSATOR.md. One statement per rounding step. */
+#include <math.h>
+
+#include "eol_comp.h"
+
+float eol_comp_iqc(float theta_hat, float omega_hat, float i_qo,
+                   const float *table_const, const float *table_per_amp, uint16_t n,
+                   float lead_s, float iqc_limit)
+{
+    const float n_f = (float)n;
+    const float scale = n_f * EOL_COMP_K_6_OVER_2PI; /* exact: n is a power of two */
+    const float recip_n = 1.0f / n_f;                /* exact */
+    const uint16_t mask = (uint16_t)(n - 1u);
+    float a, t, v, q, u, g, f, w, lc, lp, m, s;
+    uint16_t j, j1;
+
+    a = omega_hat * lead_s;
+    t = theta_hat + a;
+    v = t * scale;
+    q = floorf(v * recip_n);
+    u = v - q * n_f;           /* in [0, n]; n only by rounding of a tiny negative v */
+    g = floorf(u);
+    f = u - g;
+    j = (uint16_t)((uint16_t)g & mask);  /* g in [0, n]: j = n maps to entry 0 (f = 0) */
+    j1 = (uint16_t)((uint16_t)(j + 1u) & mask);
+    w = 1.0f - f;
+    lc = w * table_const[j];
+    lc = lc + f * table_const[j1];
+    lp = w * table_per_amp[j];
+    lp = lp + f * table_per_amp[j1];
+    m = i_qo * lp;
+    s = lc + m;
+    if (s > iqc_limit) {
+        s = iqc_limit;
+    } else if (s < -iqc_limit) {
+        s = -iqc_limit;
+    }
+    return s;
+}

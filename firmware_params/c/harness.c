@@ -1,0 +1,467 @@
+/* harness.c: host test harness for the C reference against the golden vectors.
+ *
+ *   harness GOLDEN_DIR
+ *
+ * Reads GOLDEN_DIR/manifest.json, and checks every file it lists with the checker registered for
+ * the file's name (CHECKERS below), bit for bit. A listed file without a checker is a failure.
+ * Exit 0 when every file passes, 1 on any mismatch, 2 on unreadable input.
+ *
+ * Host code: it may use stdio and large static buffers; the firmware sources (eol_*.c) may not.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "eol_block.h"
+#include "eol_comp.h"
+
+/* ---------------------------------------------------------------- CSV reading (shared) ---- */
+
+#define MAX_LINE (1L << 20)
+#define MAX_FIELDS 64
+#define MAX_IMAGE_BYTES (1L << 17)
+#define MAX_REPORTS 10
+
+typedef struct {
+    FILE *fp;
+    char path[1024];
+    char line[MAX_LINE];
+    char header[4096];
+    char *cols[MAX_FIELDS];
+    int ncols;
+    char *f[MAX_FIELDS];
+    int nf;
+    long row; /* 1 = first data row */
+} csv_t;
+
+static int split(char *s, char **out, int max)
+{
+    int n = 0;
+    char *p = s;
+    size_t len = strlen(s);
+    while (len > 0 && (s[len - 1] == '\n' || s[len - 1] == '\r')) {
+        s[--len] = '\0';
+    }
+    out[n++] = p;
+    for (; *p != '\0'; ++p) {
+        if (*p == ',') {
+            *p = '\0';
+            if (n == max) {
+                return -1;
+            }
+            out[n++] = p + 1;
+        }
+    }
+    return n;
+}
+
+static int csv_open(csv_t *c, const char *dir, const char *file)
+{
+    snprintf(c->path, sizeof c->path, "%s/%s", dir, file);
+    c->fp = fopen(c->path, "r");
+    c->row = 0;
+    if (c->fp == NULL || fgets(c->header, sizeof c->header, c->fp) == NULL) {
+        fprintf(stderr, "%s: cannot read\n", c->path);
+        return -1;
+    }
+    c->ncols = split(c->header, c->cols, MAX_FIELDS);
+    return c->ncols > 0 ? 0 : -1;
+}
+
+/* 1: a row was read, 0: end of file, -1: malformed row */
+static int csv_next(csv_t *c)
+{
+    if (fgets(c->line, (int)sizeof c->line, c->fp) == NULL) {
+        return 0;
+    }
+    c->row++;
+    c->nf = split(c->line, c->f, MAX_FIELDS);
+    if (c->nf != c->ncols) {
+        fprintf(stderr, "%s: row %ld has %d fields, the header %d\n", c->path, c->row, c->nf, c->ncols);
+        return -1;
+    }
+    return 1;
+}
+
+static void csv_close(csv_t *c)
+{
+    if (c->fp != NULL) {
+        fclose(c->fp);
+    }
+    c->fp = NULL;
+}
+
+/* index of a column, -1 (with a message) when absent */
+static int csv_col(const csv_t *c, const char *name)
+{
+    int i;
+    for (i = 0; i < c->ncols; ++i) {
+        if (strcmp(c->cols[i], name) == 0) {
+            return i;
+        }
+    }
+    fprintf(stderr, "%s: no column %s\n", c->path, name);
+    return -1;
+}
+
+static uint32_t hex_u32(const char *s)
+{
+    return (uint32_t)strtoul(s, NULL, 16);
+}
+
+static float hex_f32(const char *s)
+{
+    uint32_t u = hex_u32(s);
+    float f;
+    memcpy(&f, &u, sizeof f);
+    return f;
+}
+
+static uint32_t f32_bits(float f)
+{
+    uint32_t u;
+    memcpy(&u, &f, sizeof u);
+    return u;
+}
+
+static int hexval(char ch)
+{
+    if (ch >= '0' && ch <= '9') return ch - '0';
+    if (ch >= 'a' && ch <= 'f') return ch - 'a' + 10;
+    if (ch >= 'A' && ch <= 'F') return ch - 'A' + 10;
+    return -1;
+}
+
+/* hex image -> 16-bit word image as the C28x flash holds it (low byte first); returns the byte
+ * count or -1. An odd trailing byte is padded with 0xFF (erased) in its word. */
+static long image_words(const char *hex, uint16_t *w, long max_bytes)
+{
+    long len = (long)strlen(hex);
+    long nbytes = len / 2;
+    long k;
+    if (len % 2 != 0 || nbytes > max_bytes) {
+        return -1;
+    }
+    for (k = 0; k < (nbytes + 1) / 2; ++k) {
+        w[k] = 0xFFFFu;
+    }
+    for (k = 0; k < nbytes; ++k) {
+        int hi = hexval(hex[2 * k]);
+        int lo = hexval(hex[2 * k + 1]);
+        uint16_t byte;
+        if (hi < 0 || lo < 0) {
+            return -1;
+        }
+        byte = (uint16_t)((hi << 4) | lo);
+        if (k % 2 == 0) {
+            w[k / 2] = (uint16_t)((w[k / 2] & 0xFF00u) | byte);
+        } else {
+            w[k / 2] = (uint16_t)((w[k / 2] & 0x00FFu) | (uint16_t)(byte << 8));
+        }
+    }
+    return nbytes;
+}
+
+static uint16_t g_words[MAX_IMAGE_BYTES / 2 + 1];
+
+typedef struct {
+    long rows;
+    long failures;
+} result_t;
+
+static void fail(result_t *r, const csv_t *c, const char *what, unsigned long want, unsigned long got)
+{
+    r->failures++;
+    if (r->failures <= MAX_REPORTS) {
+        fprintf(stderr, "%s: row %ld: %s: expected 0x%08lx, got 0x%08lx\n", c->path, c->row, what, want, got);
+    }
+}
+
+/* ------------------------------------------------------------- blocks.csv: field values ---- */
+
+static int check_blocks(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    int rc;
+    int i_img, i_ser;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_img = csv_col(&c, "image");
+    i_ser = csv_col(&c, "serial");
+    if (i_img < 0 || i_ser < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        long nbytes = image_words(c.f[i_img], g_words, MAX_IMAGE_BYTES);
+        uint16_t n;
+        int col;
+        uint32_t s;
+        if (nbytes < 0) {
+            fprintf(stderr, "%s: row %ld: bad image\n", c.path, c.row);
+            return -1;
+        }
+        r->rows++;
+        n = EOL_PB_GET_TABLE_LEN(g_words);
+        if (eol_block_check(g_words, (uint32_t)nbytes) != EOL_PB_STATUS_VALID) {
+            fail(r, &c, "check status", EOL_PB_STATUS_VALID, eol_block_check(g_words, (uint32_t)nbytes));
+        }
+        if ((uint32_t)nbytes != EOL_PB_BLOCK_BYTES(n)) {
+            fail(r, &c, "image size", EOL_PB_BLOCK_BYTES(n), (unsigned long)nbytes);
+        }
+        if (eol_crc32_words(g_words, EOL_PB_OFF_CRC32(n)) != EOL_PB_GET_CRC32(g_words, n)) {
+            fail(r, &c, "crc32 of the image", EOL_PB_GET_CRC32(g_words, n),
+                 eol_crc32_words(g_words, EOL_PB_OFF_CRC32(n)));
+        }
+        for (s = 0u; s < EOL_PB_COUNT_SERIAL; ++s) {
+            size_t len = strlen(c.f[i_ser]);
+            uint16_t want = (uint16_t)(s < len ? (unsigned char)c.f[i_ser][s] : 0u);
+            if (EOL_PB_GET_SERIAL(g_words, s) != want) {
+                fail(r, &c, "serial byte", want, EOL_PB_GET_SERIAL(g_words, s));
+            }
+        }
+        for (col = 0; col < c.ncols; ++col) {
+            const char *name = c.cols[col];
+            const char *v = c.f[col];
+            unsigned long want = strtoul(v, NULL, 10);
+            unsigned long got;
+            if (col == i_img || col == i_ser || strcmp(name, "id") == 0) continue;
+#define INT_FIELD(key, expr) else if (strcmp(name, key) == 0) { got = (unsigned long)(expr); if (got != want) fail(r, &c, key, want, got); }
+#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { want = hex_u32(v); got = f32_bits(expr); if (got != want) fail(r, &c, key, want, got); }
+            if (0) {
+            }
+            INT_FIELD("sequence", EOL_PB_GET_SEQUENCE(g_words))
+            INT_FIELD("flags", EOL_PB_GET_FLAGS(g_words))
+            INT_FIELD("calibrated_at", EOL_PB_GET_CALIBRATED_AT(g_words))
+            INT_FIELD("poles", EOL_PB_GET_POLES(g_words))
+            INT_FIELD("encoder_ppr", EOL_PB_GET_ENCODER_PPR(g_words))
+            INT_FIELD("table_len", EOL_PB_GET_TABLE_LEN(g_words))
+            INT_FIELD("block_bytes", EOL_PB_GET_BLOCK_BYTES(g_words))
+            INT_FIELD("crc32", EOL_PB_GET_CRC32(g_words, n))
+            F32_FIELD("tick_hz", EOL_PB_GET_TICK_HZ(g_words))
+            F32_FIELD("kt", EOL_PB_GET_KT(g_words))
+            F32_FIELD("c6", EOL_PB_GET_C6(g_words))
+            F32_FIELD("phase_c6", EOL_PB_GET_PHASE_C6(g_words))
+            F32_FIELD("k6", EOL_PB_GET_K6(g_words))
+            F32_FIELD("phase_k6", EOL_PB_GET_PHASE_K6(g_words))
+            F32_FIELD("lead_s", EOL_PB_GET_LEAD_S(g_words))
+            F32_FIELD("iqc_limit", EOL_PB_GET_IQC_LIMIT(g_words))
+            else if (strncmp(name, "hall_angle_", 11) == 0) {
+                int s_idx = atoi(name + 11);
+                want = hex_u32(v);
+                got = f32_bits(EOL_PB_GET_HALL_ANGLE(g_words, s_idx - 1));
+                if (s_idx < 1 || s_idx > 6 || got != want) fail(r, &c, name, want, got);
+            } else {
+                fprintf(stderr, "%s: unknown column %s\n", c.path, name);
+                return -1;
+            }
+#undef INT_FIELD
+#undef F32_FIELD
+        }
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+/* ---------------------------------------------------- block_checks.csv: check routine ---- */
+
+static int check_block_checks(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    int rc;
+    int i_img, i_status, i_len;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_img = csv_col(&c, "image");
+    i_status = csv_col(&c, "status");
+    i_len = csv_col(&c, "image_bytes");
+    if (i_img < 0 || i_status < 0 || i_len < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        long nbytes = image_words(c.f[i_img], g_words, MAX_IMAGE_BYTES);
+        unsigned long want = strtoul(c.f[i_status], NULL, 10);
+        unsigned long got;
+        if (nbytes < 0 || nbytes != strtol(c.f[i_len], NULL, 10)) {
+            fprintf(stderr, "%s: row %ld: bad image\n", c.path, c.row);
+            return -1;
+        }
+        r->rows++;
+        got = eol_block_check(g_words, (uint32_t)nbytes);
+        if (got != want) fail(r, &c, "check status", want, got);
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+/* ----------------------------------------------------------- compensator.csv: i_qc ---- */
+
+#define MAX_BLOCKS 16
+
+typedef struct {
+    char id[64];
+    uint16_t n;
+    float lead_s, iqc_limit;
+    float table_const[EOL_PB_TABLE_LEN_MAX];
+    float table_per_amp[EOL_PB_TABLE_LEN_MAX];
+} comp_block_t;
+
+static comp_block_t g_blocks[MAX_BLOCKS];
+static int g_nblocks;
+
+/* tables, lead and limit of every block in blocks.csv, read through the header's accessors */
+static int load_blocks(const char *dir)
+{
+    static csv_t c;
+    int rc, i_img, i_id;
+    g_nblocks = 0;
+    if (csv_open(&c, dir, "blocks.csv") != 0) return -1;
+    i_img = csv_col(&c, "image");
+    i_id = csv_col(&c, "id");
+    if (i_img < 0 || i_id < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        comp_block_t *b = &g_blocks[g_nblocks];
+        long nbytes = image_words(c.f[i_img], g_words, MAX_IMAGE_BYTES);
+        uint16_t j;
+        if (nbytes < 0 || g_nblocks == MAX_BLOCKS ||
+            eol_block_check(g_words, (uint32_t)nbytes) != EOL_PB_STATUS_VALID) {
+            fprintf(stderr, "%s: row %ld: not a valid block\n", c.path, c.row);
+            return -1;
+        }
+        snprintf(b->id, sizeof b->id, "%s", c.f[i_id]);
+        b->n = EOL_PB_GET_TABLE_LEN(g_words);
+        b->lead_s = EOL_PB_GET_LEAD_S(g_words);
+        b->iqc_limit = EOL_PB_GET_IQC_LIMIT(g_words);
+        for (j = 0u; j < b->n; ++j) {
+            b->table_const[j] = EOL_PB_GET_TABLE_CONST(g_words, b->n, j);
+            b->table_per_amp[j] = EOL_PB_GET_TABLE_PER_AMP(g_words, b->n, j);
+        }
+        g_nblocks++;
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+static int check_compensator(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    int rc, i_id, i_th, i_om, i_iq, i_out;
+    if (load_blocks(dir) != 0) return -1;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_id = csv_col(&c, "block_id");
+    i_th = csv_col(&c, "theta_hat");
+    i_om = csv_col(&c, "omega_hat");
+    i_iq = csv_col(&c, "i_qo");
+    i_out = csv_col(&c, "i_qc");
+    if (i_id < 0 || i_th < 0 || i_om < 0 || i_iq < 0 || i_out < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        const comp_block_t *b = NULL;
+        int k;
+        float y;
+        for (k = 0; k < g_nblocks; ++k) {
+            if (strcmp(g_blocks[k].id, c.f[i_id]) == 0) b = &g_blocks[k];
+        }
+        if (b == NULL) {
+            fprintf(stderr, "%s: row %ld: unknown block_id %s\n", c.path, c.row, c.f[i_id]);
+            return -1;
+        }
+        r->rows++;
+        y = eol_comp_iqc(hex_f32(c.f[i_th]), hex_f32(c.f[i_om]), hex_f32(c.f[i_iq]), b->table_const,
+                         b->table_per_amp, b->n, b->lead_s, b->iqc_limit);
+        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+/* ==================================================== ESTIMATOR SET (H4) ==== begin ====
+ * The estimator's checker goes here: a function
+ *     static int check_estimator(const char *dir, const char *file, result_t *r);
+ * using csv_open / csv_col / csv_next / hex_f32 / f32_bits / fail above and eol_est.h, plus its
+ * entry in CHECKERS below (prefix match on the file name). The Makefile compiles every eol_*.c.
+ * ===================================================== ESTIMATOR SET (H4) ==== end ====== */
+
+/* ------------------------------------------------------------------------ dispatch ---- */
+
+typedef int (*checker_fn)(const char *dir, const char *file, result_t *r);
+
+typedef struct {
+    const char *prefix; /* the file name starts with this (exact name for the fixed sets) */
+    checker_fn fn;
+} checker_t;
+
+static const checker_t CHECKERS[] = {
+    {"blocks.csv", check_blocks},
+    {"block_checks.csv", check_block_checks},
+    {"compensator.csv", check_compensator},
+    /* ESTIMATOR SET (H4): {"estimator", check_estimator}, */
+};
+
+static char g_manifest[1L << 16];
+
+int main(int argc, char **argv)
+{
+    const char *dir;
+    char path[1024];
+    FILE *fp;
+    size_t len;
+    const char *p;
+    const char *key = "\"name\": \"";
+    int files = 0, bad = 0;
+
+    if (argc != 2) {
+        fprintf(stderr, "usage: %s GOLDEN_DIR\n", argv[0]);
+        return 2;
+    }
+    dir = argv[1];
+    snprintf(path, sizeof path, "%s/manifest.json", dir);
+    fp = fopen(path, "r");
+    if (fp == NULL) {
+        fprintf(stderr, "%s: cannot open\n", path);
+        return 2;
+    }
+    len = fread(g_manifest, 1, sizeof g_manifest - 1, fp);
+    fclose(fp);
+    g_manifest[len] = '\0';
+
+    /* every "name": "FILE" entry of the manifest's file list */
+    for (p = strstr(g_manifest, key); p != NULL; p = strstr(p, key)) {
+        char file[256];
+        const char *end;
+        size_t k, nlen;
+        const checker_t *chk = NULL;
+        result_t r = {0, 0};
+        int rc;
+        p += strlen(key);
+        end = strchr(p, '"');
+        if (end == NULL || (size_t)(end - p) >= sizeof file) {
+            fprintf(stderr, "%s: malformed file name\n", path);
+            return 2;
+        }
+        nlen = (size_t)(end - p);
+        memcpy(file, p, nlen);
+        file[nlen] = '\0';
+        for (k = 0; k < sizeof CHECKERS / sizeof CHECKERS[0]; ++k) {
+            if (strncmp(file, CHECKERS[k].prefix, strlen(CHECKERS[k].prefix)) == 0) {
+                chk = &CHECKERS[k];
+                break;
+            }
+        }
+        files++;
+        if (chk == NULL) {
+            fprintf(stderr, "%s: FAIL: no checker for this file\n", file);
+            bad++;
+            continue;
+        }
+        rc = chk->fn(dir, file, &r);
+        if (rc != 0) {
+            fprintf(stderr, "%s: ERROR: cannot check\n", file);
+            return 2;
+        }
+        if (r.rows == 0 || r.failures != 0) {
+            printf("%s: FAIL: %ld of %ld rows differ\n", file, r.failures, r.rows);
+            bad++;
+        } else {
+            printf("%s: %ld rows ok\n", file, r.rows);
+        }
+    }
+    if (files == 0) {
+        fprintf(stderr, "%s: lists no files\n", path);
+        return 2;
+    }
+    printf("%s: %d files, %d failed\n", bad ? "FAIL" : "PASS", files, bad);
+    return bad ? 1 : 0;
+}
