@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.capture.model import DIGITAL_CHANNELS, Capture
+from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
 from eol_cal.errors import InputError
 
 
@@ -176,4 +176,6 @@ def assemble(
     for name in list(channels):
         if name not in DIGITAL_CHANNELS:
             channels[name] = np.asarray(channels[name], dtype=np.float64)
+    order = {name: k for k, name in enumerate(CANONICAL_CHANNELS)}
+    channels = {name: channels[name] for name in sorted(channels, key=lambda n: order.get(n, len(order)))}
     return Capture(t=t, channels=channels, metadata=metadata, truth=truth, events=events, source=source)
