@@ -1,0 +1,227 @@
+"""``eol-cal flash``, ``eol-cal ecu info|read-block`` and ``eol-cal ecu-sim``.
+
+CAN, ISO-TP and UDS imports stay inside the commands so ``eol-cal --help`` stays fast.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+from typing import Any, Callable
+
+import click
+
+from cli.common import console, err_console, handle_errors, print_json
+from eol_cal.errors import InputError
+
+
+def _bus_options(func: Callable) -> Callable:
+    """--interface/--channel/--bitrate/--can-config, as python-can understands them."""
+
+    @click.option("--can-config", type=click.Path(dir_okay=False),
+                  help="python-can configuration file ([default] section); options given here win.")
+    @click.option("--bitrate", type=int, default=None, help="bit/s (the contract's bus runs 500000).")
+    @click.option("--channel", "-c", default=None,
+                  help="python-can channel: can0, PCAN_USBBUS1, ws://127.0.0.1:54701/ for remote...")
+    @click.option("--interface", "-i", default=None,
+                  help="python-can interface: socketcan, pcan, vector, kvaser, virtual, remote...")
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        return func(*args, **kwargs)
+
+    return wrapper
+
+
+def _open_bus(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None) -> Any:
+    from eol_cal.ecu.transport import open_bus
+
+    return open_bus(interface, channel, bitrate, can_config)
+
+
+def _seed_to_key(key_file: str | None, key_algo: str | None) -> Any:
+    from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
+
+    secret = load_key_file(key_file) if key_file else None
+    if key_algo:
+        module_name, _, func_name = key_algo.partition(":")
+        try:
+            algo = getattr(importlib.import_module(module_name), func_name)
+        except (ImportError, AttributeError, ValueError) as exc:
+            raise InputError(None, "key-algo", f"cannot load {key_algo!r}: {exc}") from exc
+        return lambda seed: bytes(algo(seed, secret))
+    if secret is None:
+        raise InputError(None, "key-file", "security access needs the ECU's secret: give --key-file "
+                                           "(hex; the simulator's is 000102030405060708090a0b0c0d0e0f)")
+    return hmac_seed_to_key(secret)
+
+
+@click.command("flash")
+@click.argument("block_file", metavar="BLOCK", type=click.Path(dir_okay=False))
+@_bus_options
+@click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
+@click.option("--key-algo", metavar="MODULE:FUNC",
+              help="Other seed-to-key algorithm: FUNC(seed: bytes, secret: bytes|None) -> key bytes.")
+@click.option("--verify/--no-verify", default=True, show_default=True, help="Read the block back and compare.")
+@click.option("--dry-run", is_flag=True, help="Identify and unlock the ECU, check the block against it, write nothing.")
+@click.option("--force", is_flag=True, help="Flash even if the block's serial differs from the ECU's (F18C).")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+@handle_errors
+def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitrate: int | None,
+              can_config: str | None, key_file: str | None, key_algo: str | None, verify: bool,
+              dry_run: bool, force: bool, as_json: bool) -> None:
+    """Write parameter BLOCK (raw .bin or Intel .hex) into the ECU's inactive bank.
+
+    Sequence of firmware contract v1 section 3; the block's sequence becomes the ECU's active
+    sequence + 1. The previous block stays active in every failure. Exit 0 flashed and
+    verified, 1 verification failed, 2 error or refused.
+    """
+    from eol_cal.ecu.client import flash_block, read_block_file
+
+    data = read_block_file(block_file)
+    seed_to_key = _seed_to_key(key_file, key_algo)
+    bus = _open_bus(interface, channel, bitrate, can_config)
+    try:
+        report = flash_block(bus, data, seed_to_key=seed_to_key, verify=verify, dry_run=dry_run,
+                             force=force, source=block_file,
+                             progress=None if as_json else lambda s: err_console.print(f"  {s}", style="dim"))
+    finally:
+        bus.shutdown()
+    if as_json:
+        print_json(report.to_dict())
+        return
+    prev = f"bank {report.previous.bank} seq {report.previous.sequence}" if report.previous.has_bank else "none"
+    if report.dry_run:
+        console.print(f"dry run: ECU {report.serial} would get bank {report.bank} seq {report.sequence} "
+                      f"crc {report.crc32:08x} ({report.block_bytes} bytes); active now: {prev}")
+        return
+    console.print(f"flashed ECU {report.serial}: bank {report.bank} seq {report.sequence} crc {report.crc32:08x} "
+                  f"({report.block_bytes} bytes, {report.transfer_blocks} transfer blocks, "
+                  f"{'verified' if report.verified else 'NOT read back'}, {report.seconds:.2f} s, "
+                  f"{report.retries} retries); previous: {prev}")
+
+
+@click.group("ecu")
+def ecu_group() -> None:
+    """Talk to the ECU: identification and read-back (no security access needed)."""
+
+
+@ecu_group.command("info")
+@_bus_options
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@handle_errors
+def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
+             as_json: bool) -> None:
+    """Serial, software version, supported layouts, active bank and sequence, and the active block."""
+    from eol_cal.ecu.client import ecu_info
+
+    bus = _open_bus(interface, channel, bitrate, can_config)
+    try:
+        info = ecu_info(bus)
+    finally:
+        bus.shutdown()
+    doc = info.to_dict()
+    if as_json:
+        print_json(doc)
+        return
+    console.print(f"serial      {doc['serial']}\nsw version  {doc['sw_version']}\n"
+                  f"layouts     {doc['layouts']}")
+    a = doc["active"]
+    if a["bank"] is None:
+        console.print("active      none (no valid bank: the firmware runs uncompensated)")
+        return
+    console.print(f"active      bank {a['bank']} seq {a['sequence']} layout {a['layout_version']} crc {a['crc32']}")
+    blk = doc["block"]
+    if blk and blk["valid"]:
+        console.print(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {blk['k6']:.6g} N*m/A "
+                      f"phase_k6 {blk['phase_k6']:.4f} rad c6 {blk['c6']:.6g} N*m lead {blk['lead_s']:.3g} s "
+                      f"iqc_limit {blk['iqc_limit']:g} A flags 0x{blk['flags']:x} calibrated_at {blk['calibrated_at']}")
+    elif blk:
+        console.print(f"block       INVALID read-back: {'; '.join(blk['reasons'])}")
+
+
+@ecu_group.command("read-block")
+@_bus_options
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (raw).")
+@handle_errors
+def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
+                   output: str) -> None:
+    """Read the active block back from the ECU into a file (written atomically)."""
+    from eol_cal.ecu.client import read_active_block
+    from eol_cal.ecu.flash import write_atomic
+
+    bus = _open_bus(interface, channel, bitrate, can_config)
+    try:
+        data = read_active_block(bus)
+    finally:
+        bus.shutdown()
+    try:
+        write_atomic(output, data)
+    except OSError as exc:
+        raise InputError(output, None, f"cannot write: {exc}") from exc
+    console.print(f"wrote {len(data)} bytes to {output}")
+
+
+def _parse_listen(value: str) -> tuple[str, int]:
+    host, sep, port = value.rpartition(":")
+    if not sep or not host:
+        raise InputError(None, "listen", f"{value!r}: expected HOST:PORT, e.g. 127.0.0.1:54701")
+    try:
+        p = int(port)
+    except ValueError:
+        raise InputError(None, "listen", f"port {port!r} is not a number") from None
+    if not 0 <= p <= 65535:
+        raise InputError(None, "listen", f"port {p} out of range")
+    return host, p
+
+
+@click.command("ecu-sim")
+@click.option("--flash-file", required=True, type=click.Path(dir_okay=False),
+              help="Flash image of both banks (created erased if missing; a restart sees it).")
+@click.option("--listen", default="127.0.0.1:54701", show_default=True,
+              help="HOST:PORT of the python-can-remote server (port 0: any free port).")
+@click.option("--serial", default="SIM-0001", show_default=True, help="Motor serial answered on DID F18C.")
+@click.option("--key-file", type=click.Path(dir_okay=False),
+              help="The simulated ECU's secret (hex); default the contract's development secret.")
+@click.option("--erase-s", type=float, default=0.05, show_default=True, help="Sector erase time, s.")
+@click.option("--s3-s", type=float, default=5.0, show_default=True, help="Session timeout S3, s.")
+@click.option("--lockout-s", type=float, default=10.0, show_default=True, help="Security lock-out delay, s.")
+@handle_errors
+def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None, erase_s: float,
+                s3_s: float, lockout_s: float) -> None:
+    """Run the ECU simulator, served to other processes over python-can-remote.
+
+    Testers connect with ``--interface remote --channel ws://HOST:PORT/``. Stop with Ctrl-C.
+    """
+    import signal
+    import threading
+
+    from eol_cal.ecu import protocol as P
+    from eol_cal.ecu.client import load_key_file
+    from eol_cal.ecu.remote import serve_remote
+    from eol_cal.ecu.sim import SimConfig
+
+    host, port = _parse_listen(listen)
+    try:
+        serial.encode("ascii")
+    except UnicodeEncodeError:
+        raise InputError(None, "serial", f"{serial!r} is not ASCII") from None
+    config = SimConfig(serial=serial, secret=load_key_file(key_file) if key_file else P.DEV_SECRET,
+                       erase_s=erase_s, s3_s=s3_s, lockout_s=lockout_s)
+    try:
+        ecu = serve_remote(flash_file, host=host, port=port, config=config)
+    except OSError as exc:
+        raise InputError(None, "listen", f"cannot listen on {listen}: {exc}") from exc
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    click.echo(f"ecu-sim: ECU {serial} on {ecu.url} (flash {flash_file}); "
+               f"connect with --interface remote --channel {ecu.url}", err=True)
+    click.echo(ecu.url, nl=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        ecu.close()
+
+
+COMMANDS = [flash_cmd, ecu_group, ecu_sim_cmd]
