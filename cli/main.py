@@ -28,8 +28,10 @@ def _register() -> None:
 
 # One line per command module; keep sorted.
 _COMMAND_MODULES: list[str] = [
+    "analyze",
     "capture",
     "ecu",
+    "index",
 ]
 
 _register()
