@@ -88,7 +88,7 @@ def combine_hall_bits(bits: list[Column], file: str, labels: list[str]) -> Colum
         if bad.any():
             first = int(np.argmax(bad))
             raise InputError(
-                file, label, f"hall bit line holds {values[first]!r} at sample {first}; a bit line takes 0 or 1"
+                file, label, f"hall bit line holds {values[first].item()!r} at sample {first}; a bit line takes 0 or 1"
             )
     if all(c.times is None for c in bits) or all(
         c.times is not None and np.array_equal(c.times, bits[0].times) for c in bits

@@ -49,6 +49,8 @@ def _parse_header(line: str, file: str) -> list[tuple[str, str | None]]:
 
 
 def _load_rows(lines: list[str], header: list[tuple[str, str | None]], first_line: int, file: str) -> np.ndarray:
+    if not any(line.strip() and not line.lstrip().startswith("#") for line in lines):
+        raise InputError(file, "t", "no data rows after the header line")
     try:
         data = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2, comments="#")
     except ValueError as exc:

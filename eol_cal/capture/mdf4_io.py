@@ -68,6 +68,15 @@ def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
     return properties
 
 
+def _stored(values: np.ndarray, digital: bool) -> np.ndarray:
+    """uint8 for digital levels that fit; anything else as float64, so that no value changes."""
+    values = np.asarray(values)
+    if digital and values.size and np.all(np.isfinite(values)) and np.array_equal(values, np.round(values)):
+        if values.min() >= 0 and values.max() <= 255:
+            return values.astype(np.uint8)
+    return values.astype(np.float64)
+
+
 def _initial_and_events(capture: Capture, name: str) -> tuple[np.ndarray, np.ndarray]:
     levels = np.asarray(capture.channels[name])
     if name in capture.events:
@@ -78,7 +87,7 @@ def _initial_and_events(capture: Capture, name: str) -> tuple[np.ndarray, np.nda
         times, new = change_events(capture.t, levels)
     return (
         np.concatenate([[float(capture.t[0])], np.asarray(times, dtype=np.float64)]),
-        np.concatenate([[levels[0]], new]).astype(np.uint8),
+        _stored(np.concatenate([[levels[0]], new]), digital=True),
     )
 
 
@@ -117,7 +126,7 @@ def write_mdf4(
         mdf.header.comment = header_comment(join_truth(capture.metadata, capture.truth), file)
         sampled = [
             Signal(
-                np.asarray(values, dtype=np.uint8 if name in DIGITAL_CHANNELS else np.float64),
+                _stored(values, name in DIGITAL_CHANNELS),
                 t,
                 name=name,
                 unit="" if CANONICAL_CHANNELS[name] == "1" else CANONICAL_CHANNELS[name],

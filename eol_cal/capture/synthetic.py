@@ -159,7 +159,6 @@ def synthetic_capture(
         all_levels = np.concatenate([[initial], levels]).astype(np.int8)
         channels[name] = zoh(all_times, all_levels, t).astype(np.int8)
         capture_events[name] = (times, levels.astype(np.int8))
-    channels["speed"] = np.full(n, float(rpm))
     metadata: dict[str, str | int | float] = {
         "serial": serial,
         "poles": P,
@@ -171,6 +170,7 @@ def synthetic_capture(
         channels["iq_ref"] = np.full(n, float(i_qo))
     else:
         metadata["iq_ref"] = float(i_qo)
+    channels["speed"] = np.full(n, float(rpm))
     truth: dict[str, str | int | float] = {
         "model": MODEL_NAME,
         "k6": float(k6),

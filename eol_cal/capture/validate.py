@@ -122,7 +122,7 @@ def check_digital(capture: Capture) -> None:
             raise InputError(
                 capture.source,
                 name,
-                f"value {values[first]!r} at {_at(capture.t, first)} outside {lo}..{hi} (integers); "
+                f"value {values[first].item()!r} at {_at(capture.t, first)} outside {lo}..{hi} (integers); "
                 f"{int(bad.sum())} such samples",
             )
     hall = np.asarray(capture.channels["hall"])
