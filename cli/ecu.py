@@ -11,7 +11,7 @@ from typing import Any, Callable
 
 import click
 
-from cli.common import console, err_console, handle_errors, print_json
+from cli.common import err_console, handle_errors, print_json
 from eol_cal.errors import InputError
 
 
@@ -50,8 +50,7 @@ def _seed_to_key(key_file: str | None, key_algo: str | None) -> Any:
             raise InputError(None, "key-algo", f"cannot load {key_algo!r}: {exc}") from exc
         return lambda seed: bytes(algo(seed, secret))
     if secret is None:
-        raise InputError(None, "key-file", "security access needs the ECU's secret: give --key-file "
-                                           "(hex; the simulator's is 000102030405060708090a0b0c0d0e0f)")
+        raise InputError(None, "key-file", "security access needs the ECU's secret: give --key-file (16 bytes, hex)")
     return hmac_seed_to_key(secret)
 
 
@@ -91,10 +90,10 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
         return
     prev = f"bank {report.previous.bank} seq {report.previous.sequence}" if report.previous.has_bank else "none"
     if report.dry_run:
-        console.print(f"dry run: ECU {report.serial} would get bank {report.bank} seq {report.sequence} "
+        click.echo(f"dry run: ECU {report.serial} would get bank {report.bank} seq {report.sequence} "
                       f"crc {report.crc32:08x} ({report.block_bytes} bytes); active now: {prev}")
         return
-    console.print(f"flashed ECU {report.serial}: bank {report.bank} seq {report.sequence} crc {report.crc32:08x} "
+    click.echo(f"flashed ECU {report.serial}: bank {report.bank} seq {report.sequence} crc {report.crc32:08x} "
                   f"({report.block_bytes} bytes, {report.transfer_blocks} transfer blocks, "
                   f"{'verified' if report.verified else 'NOT read back'}, {report.seconds:.2f} s, "
                   f"{report.retries} retries); previous: {prev}")
@@ -123,20 +122,20 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
     if as_json:
         print_json(doc)
         return
-    console.print(f"serial      {doc['serial']}\nsw version  {doc['sw_version']}\n"
+    click.echo(f"serial      {doc['serial']}\nsw version  {doc['sw_version']}\n"
                   f"layouts     {doc['layouts']}")
     a = doc["active"]
     if a["bank"] is None:
-        console.print("active      none (no valid bank: the firmware runs uncompensated)")
+        click.echo("active      none (no valid bank: the firmware runs uncompensated)")
         return
-    console.print(f"active      bank {a['bank']} seq {a['sequence']} layout {a['layout_version']} crc {a['crc32']}")
+    click.echo(f"active      bank {a['bank']} seq {a['sequence']} layout {a['layout_version']} crc {a['crc32']}")
     blk = doc["block"]
     if blk and blk["valid"]:
-        console.print(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {blk['k6']:.6g} N*m/A "
+        click.echo(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {blk['k6']:.6g} N*m/A "
                       f"phase_k6 {blk['phase_k6']:.4f} rad c6 {blk['c6']:.6g} N*m lead {blk['lead_s']:.3g} s "
                       f"iqc_limit {blk['iqc_limit']:g} A flags 0x{blk['flags']:x} calibrated_at {blk['calibrated_at']}")
     elif blk:
-        console.print(f"block       INVALID read-back: {'; '.join(blk['reasons'])}")
+        click.echo(f"block       INVALID read-back: {'; '.join(blk['reasons'])}")
 
 
 @ecu_group.command("read-block")
@@ -158,7 +157,7 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
         write_atomic(output, data)
     except OSError as exc:
         raise InputError(output, None, f"cannot write: {exc}") from exc
-    console.print(f"wrote {len(data)} bytes to {output}")
+    click.echo(f"wrote {len(data)} bytes to {output}")
 
 
 def _parse_listen(value: str) -> tuple[str, int]:

@@ -57,8 +57,14 @@ class Faults:
         Power fails when a request of this step (one of :data:`STEPS`) arrives. For
         ``erase`` the sector is left with arbitrary words; for ``transfer`` programming is cut
         in the middle of the first TransferData block; other steps change no flash.
+    power_loss_occurrence : int
+        Which request of ``power_loss_step`` fails (1 = the first; the flash reads DIDs
+        before the erase and again after the reset).
     power_loss_byte : int or None
         Power fails while programming this byte offset of the download.
+    corrupt_byte : int or None
+        A worn flash cell: this byte offset of the download is stored with bit 0 cleared, so
+        the check routine reports a CRC mismatch.
     drop_rate : float
         Probability that a frame the ECU sends or receives is lost.
     delay_rate, delay_s : float
@@ -72,7 +78,9 @@ class Faults:
     """
 
     power_loss_step: str | None = None
+    power_loss_occurrence: int = 1
     power_loss_byte: int | None = None
+    corrupt_byte: int | None = None
     drop_rate: float = 0.0
     delay_rate: float = 0.0
     delay_s: float = 0.0
@@ -176,6 +184,7 @@ class EcuSimulator:
         self._failures = 0
         self._lockout_until = 0.0
         self._transfers = 0
+        self._step_counts: dict[str, int] = {}
         self._handlers = {
             services.DiagnosticSessionControl: self._session,
             services.SecurityAccess: self._security,
@@ -260,7 +269,8 @@ class EcuSimulator:
             return
         step = self._step_of(req)
         self.steps_seen.append(step)
-        if self.faults.power_loss_step == step and step not in ("erase", "transfer"):
+        self._step_counts[step] = self._step_counts.get(step, 0) + 1
+        if step not in ("erase", "transfer") and self._power_fails(step):
             raise _PowerLoss
         try:
             if req.service.request_id() in self.faults.nrc:
@@ -272,6 +282,10 @@ class EcuSimulator:
         if data is not None and not req.suppress_positive_response:
             self._send(Response(service=req.service, code=Response.Code.PositiveResponse,
                                 data=data).get_payload())
+
+    def _power_fails(self, step: str) -> bool:
+        return (self.faults.power_loss_step == step
+                and self._step_counts.get(step, 0) == self.faults.power_loss_occurrence)
 
     @staticmethod
     def _step_of(req: Request) -> str:
@@ -413,7 +427,7 @@ class EcuSimulator:
         self._download = None
         self._exited = False
         self._erased.discard(bank)
-        if self.faults.power_loss_step == "erase":
+        if self._power_fails("erase"):
             self.flash.erase(bank, interrupted=True)
             raise _PowerLoss
         # A long erase keeps the tester waiting with repeated 0x78, well inside P2*.
@@ -471,11 +485,16 @@ class EcuSimulator:
         plb = self.faults.power_loss_byte
         if plb is not None and d.offset <= plb < d.offset + len(chunk):
             cut = plb - d.offset
-        elif self.faults.power_loss_step == "transfer":
+        elif self._power_fails("transfer"):
             cut = len(chunk) // 2
         if cut is not None:
             self.flash.program(d.bank, d.offset, chunk, cut_at=cut)
             raise _PowerLoss
+        cb = self.faults.corrupt_byte
+        if cb is not None and d.offset <= cb < d.offset + len(chunk):
+            worn = bytearray(chunk)
+            worn[cb - d.offset] &= 0xFE
+            chunk = bytes(worn)
         try:
             self.flash.program(d.bank, d.offset, chunk)
         except ProgramError:

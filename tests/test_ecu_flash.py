@@ -1,0 +1,293 @@
+"""Flashing client against the ECU simulator, in process on python-can's virtual bus."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import pytest
+from udsoncan import Request, services
+
+from eol_cal.ecu import protocol as P
+from eol_cal.ecu.client import (ClientTiming, EcuError, UdsSession, VerifyFailed, ecu_info, flash_block,
+                                hmac_seed_to_key, load_key_file, read_active_block)
+from eol_cal.ecu.flash import NorFlash, select_active
+from eol_cal.ecu.sim import Faults, SimConfig
+from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
+from eol_cal.errors import InputError
+from eol_cal.firmware import block as B
+
+KEY = hmac_seed_to_key(P.DEV_SECRET)
+BLOCK_A = example_block(seed=1)
+BLOCK_B = example_block(seed=2)
+
+
+def _flash(rig, data=BLOCK_B, timing=FAST_CLIENT, **kw):
+    return flash_block(rig.tester, data, seed_to_key=KEY, timing=timing, **kw)
+
+
+def _check_frames(frames: list) -> int:
+    """Every frame 8 bytes on 0x7E0/0x7E8, ISO-TP payload followed only by 0xCC padding."""
+    remaining = {P.TESTER_ID: 0, P.ECU_ID: 0}
+    for f in frames:
+        assert f.arbitration_id in remaining and not f.is_extended_id, hex(f.arbitration_id)
+        assert f.dlc == 8 and len(f.data) == 8
+        d = bytes(f.data)
+        kind = d[0] >> 4
+        if kind == 0:  # single frame
+            used = 1 + (d[0] & 0x0F)
+        elif kind == 1:  # first frame: 8 bytes of content
+            remaining[f.arbitration_id] = (((d[0] & 0x0F) << 8) | d[1]) - 6
+            used = 8
+        elif kind == 2:  # consecutive frame
+            n = min(7, remaining[f.arbitration_id])
+            remaining[f.arbitration_id] -= n
+            used = 1 + n
+        else:  # flow control
+            assert kind == 3 and d[1] == P.FC_BLOCK_SIZE and d[2] == P.FC_STMIN
+            used = 3
+        assert d[used:] == bytes([P.PADDING]) * (8 - used), d.hex()
+    return len(frames)
+
+
+def test_full_sequence_alternates_banks_and_pads_every_frame(tmp_path):
+    with virtual_rig(tmp_path / "flash.bin", sniff=True) as rig:
+        first = _flash(rig, BLOCK_A)
+        assert (first.bank, first.sequence, first.verified) == (0, 1, True)
+        assert first.active_after == P.ActiveBlock(0, 1, 1, B.check(BLOCK_A).crc_stored)
+        second = _flash(rig, BLOCK_B)
+        assert (second.bank, second.sequence, second.previous.sequence) == (1, 2, 1)
+        third = _flash(rig, BLOCK_A)  # back to bank 0, the old bank 0 content is erased first
+        assert (third.bank, third.sequence) == (0, 3)
+        assert first.seconds < 1.0 and second.seconds < 1.0
+        back = read_active_block(rig.tester, timing=FAST_CLIENT)
+        assert B.unpack(back) == dataclasses.replace(B.unpack(BLOCK_A), sequence=3)
+        info = ecu_info(rig.tester, timing=FAST_CLIENT).to_dict()
+        assert info["serial"] == "SIM-0001" and info["layouts"] == [1]
+        assert info["active"]["bank"] == 0 and info["block"]["valid"] and info["block"]["sequence"] == 3
+        time.sleep(0.05)
+        n = _check_frames(rig.sniffer.frames)
+    # Both banks hold valid blocks; the higher sequence wins at boot.
+    flash = NorFlash(tmp_path / "flash.bin")
+    assert B.check(flash.bank(1)).valid
+    assert select_active(flash)[0].sequence == 3
+    # 3 flashes + 2 read-backs of 2152 bytes: several hundred frames each.
+    assert n > 1500
+
+
+def test_refusals_send_nothing_or_write_nothing(tmp_path):
+    with virtual_rig(tmp_path / "f.bin", config=SimConfig(serial="M-42"), sniff=True) as rig:
+        bad = bytearray(example_block(serial="M-42"))
+        bad[200] ^= 1
+        with pytest.raises(InputError, match="CRC"):
+            _flash(rig, bytes(bad))
+        time.sleep(0.05)
+        assert rig.sniffer.frames == []  # an invalid block never reaches the bus
+        with pytest.raises(EcuError, match="differs from the ECU's 'M-42'") as exc:
+            _flash(rig, BLOCK_A)  # serial SIM-0001
+        assert exc.value.step == "identification"
+        assert "erase" not in rig.sim.steps_seen
+        forced = _flash(rig, BLOCK_A, force=True)
+        assert forced.active_after.sequence == 1
+        dry = _flash(rig, example_block(serial="M-42"), dry_run=True)
+        assert dry.dry_run and (dry.bank, dry.sequence) == (1, 2)
+        assert rig.sim.active.sequence == 1 and not B.check(rig.sim.flash.bank(1)).valid
+    with virtual_rig(config=SimConfig(layouts=(2,))) as rig:
+        with pytest.raises(EcuError, match=r"supports layout versions \[2\]"):
+            _flash(rig, BLOCK_A)
+
+
+def test_no_verify_and_verification_failure_exit_path(tmp_path):
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        report = _flash(rig, BLOCK_A, verify=False)
+        assert not report.verified and report.active_after.sequence == 1
+        # A worn cell (a table byte whose bit 0 is set) : the ECU's CRC check must catch it.
+        rig.sim.faults.corrupt_byte = next(i for i in range(500, 2000) if BLOCK_B[i] & 1)
+        with pytest.raises(VerifyFailed, match="CRC mismatch") as exc:
+            _flash(rig, BLOCK_B)
+        assert exc.value.exit_code == 1
+        assert rig.sim.active.sequence == 1
+        rig.restart()
+        assert rig.sim.active == report.active_after
+
+
+# Each service of the sequence answering a chosen NRC: the client names the step and the
+# NRC, and the previous block stays active.
+NRC_CASES = [
+    (0x10, P.NRC.ConditionsNotCorrect, "session"),
+    (0x27, P.NRC.InvalidKey, "security access"),
+    (0x22, P.NRC.RequestOutOfRange, "read DID"),
+    (0x31, P.NRC.ConditionsNotCorrect, "erase"),
+    (0x34, P.NRC.UploadDownloadNotAccepted, "request download"),
+    (0x36, P.NRC.GeneralProgrammingFailure, "transfer data"),
+    (0x37, P.NRC.RequestSequenceError, "transfer exit"),
+    (0x23, P.NRC.RequestOutOfRange, "read-back"),
+    (0x11, P.NRC.ConditionsNotCorrect, "ECU reset"),
+]
+
+
+def test_every_injected_nrc_fails_clearly_with_old_block_active(tmp_path):
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        good = _flash(rig, BLOCK_A).active_after
+        for sid, nrc, step in NRC_CASES:
+            rig.sim.faults.nrc = {sid: nrc}
+            with pytest.raises(EcuError) as exc:
+                _flash(rig, BLOCK_B)
+            assert exc.value.nrc == nrc and step in exc.value.step, (sid, str(exc.value))
+            assert f"NRC 0x{nrc:02X}" in str(exc.value)
+            rig.sim.faults.nrc = {}
+            assert rig.sim.active == good
+        rig.sim.faults.wrong_block_counter = 1
+        with pytest.raises(EcuError, match="0x73 WrongBlockSequenceCounter"):
+            _flash(rig, BLOCK_B)
+        rig.sim.faults.wrong_block_counter = None
+        rig.restart()
+        assert rig.sim.active == good
+        assert _flash(rig, BLOCK_B).active_after.sequence == 2
+
+
+def _nrc_of(s: UdsSession, func, *args) -> int | None:
+    try:
+        s.call("probe", func, *args, retry=False)
+    except EcuError as exc:
+        return exc.nrc
+    return None
+
+
+def test_ecu_enforces_the_contract(tmp_path):
+    """The ECU's own NRCs: order, security, ranges, NOR rules, counters, unknown requests."""
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        active = _flash(rig, BLOCK_A).active_after  # bank 0 active
+        bank1 = B.BANK_WORD_ADDR[1]
+        loc1 = P.memory_location(bank1, 2152)
+        with UdsSession(rig.tester, seed_to_key=KEY, timing=FAST_CLIENT) as s:
+            c = s.client
+            assert _nrc_of(s, c.change_session, P.SESSION_PROGRAMMING) == P.NRC.SubFunctionNotSupportedInActiveSession
+            assert _nrc_of(s, c.request_seed, 1) == P.NRC.ServiceNotSupportedInActiveSession
+            assert _nrc_of(s, c.read_memory_by_address, loc1) == P.NRC.ServiceNotSupportedInActiveSession
+            assert _nrc_of(s, c.change_session, 0x05) == P.NRC.SubFunctionNotSupported
+            unknown_did = Request(services.ReadDataByIdentifier, data=b"\xf1\x90")
+            assert _nrc_of(s, c.send_request, unknown_did) == P.NRC.RequestOutOfRange
+            assert _nrc_of(s, c.clear_dtc) == P.NRC.ServiceNotSupported
+            assert _nrc_of(s, c.ecu_reset, 0x02) == P.NRC.SubFunctionNotSupported
+            bad_len = Request(services.TesterPresent, subfunction=0, data=b"\x01")
+            assert _nrc_of(s, c.send_request, bad_len) == P.NRC.IncorrectMessageLengthOrInvalidFormat
+            s.session(P.SESSION_EXTENDED)
+            s.session(P.SESSION_PROGRAMMING)
+            # Writing without unlocking: 0x33 for erase and download.
+            assert _nrc_of(s, c.start_routine, P.RID_ERASE, P.location_bytes(bank1, B.BANK_BYTES)) == P.NRC.SecurityAccessDenied
+            assert _nrc_of(s, c.request_download, loc1) == P.NRC.SecurityAccessDenied
+            assert _nrc_of(s, c.send_key, 2, b"\0\0\0\0") == P.NRC.RequestSequenceError  # no seed asked
+            s.unlock()
+            assert bytes(c.request_seed(1).service_data.seed) == bytes(4)  # unlocked: zero seed
+            bank0 = B.BANK_WORD_ADDR[0]
+            assert _nrc_of(s, c.start_routine, P.RID_ERASE, P.location_bytes(bank0, B.BANK_BYTES)) == P.NRC.ConditionsNotCorrect
+            assert _nrc_of(s, c.request_download, P.memory_location(bank0, 2152)) == P.NRC.UploadDownloadNotAccepted
+            assert _nrc_of(s, c.start_routine, 0x1234) == P.NRC.RequestOutOfRange
+            assert _nrc_of(s, c.request_download, P.memory_location(0x100000, 2152)) == P.NRC.RequestOutOfRange
+            assert _nrc_of(s, c.read_memory_by_address, P.memory_location(bank1, 1026)) == P.NRC.RequestOutOfRange
+            assert _nrc_of(s, c.transfer_data, 1, b"\0\0") == P.NRC.RequestSequenceError  # no download
+            assert _nrc_of(s, c.request_transfer_exit) == P.NRC.RequestSequenceError
+            # Bank 1 still holds nothing erased in this session: download first needs the erase.
+            assert _nrc_of(s, c.request_download, loc1) == P.NRC.RequestSequenceError
+            s.routine("erase", P.RID_ERASE, bank1, B.BANK_BYTES)
+            assert _nrc_of(s, c.request_download, P.memory_location(bank1, 2151)) == P.NRC.RequestOutOfRange  # odd
+            c.request_download(loc1)
+            assert _nrc_of(s, c.transfer_data, 2, b"\0\0") == P.NRC.WrongBlockSequenceCounter
+            assert _nrc_of(s, c.transfer_data, 1, b"\0") == P.NRC.IncorrectMessageLengthOrInvalidFormat
+            c.transfer_data(1, b"\x00\x00")  # programs word 0 to 0x0000
+            c.transfer_data(1, b"\x00\x00")  # a repeated block (lost answer) is acknowledged
+            assert _nrc_of(s, c.request_transfer_exit) == P.NRC.RequestSequenceError  # incomplete
+            c.request_download(loc1)  # restart the download over the same, no longer erased, words
+            assert _nrc_of(s, c.transfer_data, 1, b"\xff\xff") == P.NRC.GeneralProgrammingFailure
+            status = s.routine("check", P.RID_CHECK, bank1, 2152)
+            assert status == bytes([P.CHECK_HEADER])
+            # 255 blocks later the counter wraps FF -> 00.
+            s.routine("erase", P.RID_ERASE, bank1, B.BANK_BYTES)
+            c.request_download(P.memory_location(bank1, 2 * 257))
+            for i in range(1, 258):
+                c.transfer_data(i & 0xFF, b"\x12\x34")
+            c.request_transfer_exit()
+            c.request_transfer_exit()  # repeat of an exit whose answer was lost
+        assert rig.sim.active == active
+        assert rig.sim.flash.read(1, 0, 4) == b"\x12\x34\x12\x34"
+
+
+def test_erase_longer_than_p2_is_held_by_response_pending(tmp_path):
+    # P2 of this client is 0.15 s; the erase takes 0.4 s: only NRC 0x78 handling saves it.
+    with virtual_rig(tmp_path / "f.bin", config=SimConfig(erase_s=0.4)) as rig:
+        report = _flash(rig, BLOCK_A)
+        assert report.active_after.sequence == 1 and report.retries == 0
+
+
+def test_three_wrong_keys_lock_out_then_delay_expires(tmp_path):
+    wrong = lambda seed: bytes(4)  # noqa: E731
+    with virtual_rig(config=SimConfig(lockout_s=0.4)) as rig:
+        codes = []
+        for _ in range(4):
+            try:
+                flash_block(rig.tester, BLOCK_A, seed_to_key=wrong, timing=FAST_CLIENT)
+            except EcuError as exc:
+                codes.append(exc.nrc)
+        assert codes == [P.NRC.InvalidKey, P.NRC.InvalidKey, P.NRC.ExceedNumberOfAttempts,
+                         P.NRC.RequiredTimeDelayNotExpired]
+        with pytest.raises(EcuError, match="0x37"):
+            _flash(rig, BLOCK_A)  # even the right key cannot get a seed during the delay
+        time.sleep(0.45)
+        assert _flash(rig, BLOCK_A).active_after.sequence == 1
+
+
+def test_real_contract_timing_values(tmp_path):
+    """The defaults are the contract's; the 0x10 response announces P2 50 ms, P2* 5000 ms;
+    the real 10 s lock-out still refuses a seed after one second."""
+    cfg = SimConfig()
+    assert (cfg.s3_s, cfg.lockout_s, cfg.p2_s, cfg.p2_star_s) == (5.0, 10.0, 0.05, 5.0)
+    with virtual_rig() as rig:
+        with UdsSession(rig.tester, seed_to_key=lambda seed: bytes(4), timing=FAST_CLIENT) as s:
+            resp = s.client.change_session(P.SESSION_EXTENDED)
+            assert resp.service_data.p2_server_max == pytest.approx(0.050)
+            assert resp.service_data.p2_star_server_max == pytest.approx(5.0)
+            for _ in range(3):
+                assert _nrc_of(s, s.client.unlock_security_access, 1) in (P.NRC.InvalidKey, P.NRC.ExceedNumberOfAttempts)
+            time.sleep(1.0)
+            assert _nrc_of(s, s.client.request_seed, 1) == P.NRC.RequiredTimeDelayNotExpired
+
+
+def test_s3_timeout_relocks_and_tester_present_keeps_session():
+    with virtual_rig(config=SimConfig(s3_s=0.3)) as rig:
+        idle = dataclasses.replace(FAST_CLIENT, tester_present_s=10.0)
+        with UdsSession(rig.tester, seed_to_key=KEY, timing=idle) as s:
+            s.session(P.SESSION_EXTENDED)
+            s.session(P.SESSION_PROGRAMMING)
+            s.unlock()
+            time.sleep(0.6)
+            loc = P.location_bytes(B.BANK_WORD_ADDR[0], B.BANK_BYTES)
+            assert _nrc_of(s, s.client.start_routine, P.RID_ERASE, loc) == P.NRC.ServiceNotSupportedInActiveSession
+        busy = dataclasses.replace(FAST_CLIENT, tester_present_s=0.1)
+        with UdsSession(rig.tester, seed_to_key=KEY, timing=busy) as s:
+            s.session(P.SESSION_EXTENDED)
+            s.session(P.SESSION_PROGRAMMING)
+            s.unlock()
+            time.sleep(0.6)  # TesterPresent from the background thread keeps S3 from expiring
+            s.routine("erase", P.RID_ERASE, B.BANK_WORD_ADDR[0], B.BANK_BYTES)
+        assert "tester_present" in rig.sim.steps_seen
+
+
+def test_dead_ecu_times_out_with_a_clear_message():
+    with virtual_rig() as rig:
+        rig.sim.stop()
+        with pytest.raises(EcuError, match=r"extended session .*no response from the ECU"):
+            flash_block(rig.tester, BLOCK_A, seed_to_key=KEY,
+                        timing=dataclasses.replace(FAST_CLIENT, p2_s=0.05, retries=1))
+
+
+def test_key_file(tmp_path):
+    f = tmp_path / "key.hex"
+    f.write_text("0x000102030405060708090A0B0C0D0E0F\n")
+    assert load_key_file(f) == P.DEV_SECRET
+    f.write_text("0011")
+    with pytest.raises(InputError, match="2 bytes"):
+        load_key_file(f)
+    f.write_text("zz")
+    with pytest.raises(InputError, match="not hex"):
+        load_key_file(f)
