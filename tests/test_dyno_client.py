@@ -1,13 +1,11 @@
 """Dyno client against the real pymodbus server of the dyno simulator, on 127.0.0.1.
 
-The simulator's capture source here is a small kinematic model (constant speed, quadrature
-encoder, halls per the contract, a 6th-harmonic ripple) so the tests need no JAX; the plant is
-exercised by the CLI test in test_dyno_cli.py.
+The simulator's capture source here is the analytic model (``synthetic_source``) so these tests
+need no JAX; the plant-backed source is exercised in test_dyno_sim.py.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
@@ -15,41 +13,13 @@ import numpy as np
 import pytest
 
 from eol_cal.capture import read_capture
-from eol_cal.capture.model import Capture
-from eol_cal.dyno import registers as rm
 from eol_cal.dyno.client import DynoConfig, DynoError, DynoSegment, acquire
-from eol_cal.dyno.registers import DriveState, SimFault
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, SegmentRequest
+from eol_cal.dyno.registers import SimFault
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
+from eol_cal.motor import load_motor
 
-POLES, PPR, KT = 6, 64, 0.04905
-
-
-def kinematic_source(req: SegmentRequest) -> Capture:
-    """Constant-speed recording: encoder A/B, halls (contract convention), torque with a 6th."""
-    n = req.n_samples
-    t = np.arange(n) / req.rate_hz
-    theta_m = 2.0 * math.pi * req.speed_rpm / 60.0 * t + 0.3
-    pitch = 2.0 * math.pi / PPR
-    enc_a = ((np.mod(theta_m, pitch) / pitch) < 0.5).astype(np.int64)
-    enc_b = ((np.mod(theta_m - pitch / 4, pitch) / pitch) < 0.5).astype(np.int64)
-    theta_e = np.mod(POLES / 2 * theta_m, 2 * math.pi)
-    deg = np.degrees(theta_e)
-    u = deg < 180
-    v = (deg >= 120) & (deg < 300)
-    w = (deg >= 240) | (deg < 60)
-    hall = u.astype(np.int64) | (v.astype(np.int64) << 1) | (w.astype(np.int64) << 2)
-    i_qo = req.dut_cmd if req.dut_cmd_kind == rm.DutCmdKind.IQ else req.dut_cmd / KT
-    torque = KT * i_qo - 0.00062 * i_qo * np.sin(6 * theta_e + 0.4)
-    chans = {
-        "torque": torque,
-        "enc_a": enc_a,
-        "enc_b": enc_b,
-        "hall": hall,
-        "iq_ref": np.full(n, i_qo),
-        "speed": np.full(n, req.speed_rpm),
-        "temp": np.full(n, 40.0),
-    }
-    return Capture(t, chans, {"serial": req.serial, "poles": POLES, "encoder_ppr": PPR})
+POLES, PPR = 6, 64
+KT = load_motor("paper").kt
 
 
 PROFILE = [
@@ -67,7 +37,7 @@ def config(port: int, **kw) -> DynoConfig:
 
 @pytest.fixture
 def dyno():
-    sim = DynoSim(kinematic_source, serial="M-TEST-1", poles=POLES, encoder_ppr=PPR, kt=KT)
+    sim = DynoSim(synthetic_source, serial="M-TEST-1", poles=POLES, encoder_ppr=PPR, kt=KT)
     with DynoSimThread(sim) as th:
         yield th
 
@@ -107,7 +77,7 @@ def _assert_safe(sim: DynoSim):
 
 @pytest.mark.parametrize("kind", [SimFault.OVER_SPEED, SimFault.TORQUE_SENSOR])
 def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind):
-    sim = DynoSim(kinematic_source, serial="M-TEST-2", faults=[FaultPlan(kind, "capture", 2)])
+    sim = DynoSim(synthetic_source, serial="M-TEST-2", faults=[FaultPlan(kind, "capture", 2)])
     out = tmp_path / "capture.mf4"
     with DynoSimThread(sim) as th:
         with pytest.raises(DynoError) as err:
@@ -124,7 +94,7 @@ def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind
 def test_long_disconnect_fails_safe_and_no_file(tmp_path: Path):
     # the dyno drops off the network for longer than the client's retries: the client gives up,
     # and the dyno's communication watchdog stops the drive
-    sim = DynoSim(kinematic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 3, 2500)])
+    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 3, 2500)])
     out = tmp_path / "capture.csv"
     with DynoSimThread(sim) as th:
         with pytest.raises(DynoError) as err:
@@ -135,7 +105,7 @@ def test_long_disconnect_fails_safe_and_no_file(tmp_path: Path):
 
 
 def test_transient_disconnect_is_retried(tmp_path: Path):
-    sim = DynoSim(kinematic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 5, 150)])
+    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 5, 150)])
     out = tmp_path / "capture.csv"
     with DynoSimThread(sim) as th:
         cap = acquire(config(th.port, retries=4), PROFILE, out)

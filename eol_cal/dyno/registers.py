@@ -307,3 +307,33 @@ def unpack_digital(words: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     """One u16 word per sample -> (enc_a, enc_b, hall) integer levels."""
     w = np.asarray(words, dtype=np.int64)
     return w & 1, (w >> 1) & 1, (w >> 2) & 7
+
+
+def markdown_table() -> str:
+    """The register map as Markdown tables, one per group (``docs/dyno.md`` embeds this text)."""
+    titles = {
+        "identification": "Identification (read-only)",
+        "control": "Control (read/write)",
+        "status": "Status (read-only)",
+        "transfer": "Capture data transfer",
+        "sim": "Simulator only (fault injection)",
+    }
+    lines: list[str] = []
+    for group, title in titles.items():
+        lines += [f"### {title}", "", "| address | name | type | regs | unit | access | meaning |", "|---|---|---|---|---|---|---|"]
+        for r in REGISTERS:
+            if r.group == group:
+                addr = f"{r.address}" if r.count == 1 else f"{r.address}-{r.address + r.count - 1}"
+                lines.append(f"| {addr} | `{r.name}` | {r.type} | {r.count} | {r.unit} | {r.access} | {r.meaning} |")
+        lines.append("")
+    lines += ["### Capture channels (`buf_channel`)", "", "| id | channel | window type | unit |", "|---|---|---|---|"]
+    from eol_cal.capture.model import CANONICAL_CHANNELS
+
+    for cid, name in ANALOG_CHANNELS.items():
+        lines.append(f"| {cid} | `{name}` | f32 | {CANONICAL_CHANNELS[name]} |")
+    lines.append(f"| {DIGITAL_CHANNEL_ID} | `enc_a` bit 0, `enc_b` bit 1, `hall` bits 2-4 | u16 | 1 |")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    print(markdown_table(), end="")

@@ -148,21 +148,86 @@ def block_mode(block: object | None) -> str:
     """ECU mode the parameter block selects: its flags, or :data:`NO_BLOCK_MODE` without one."""
     if block is None:
         return NO_BLOCK_MODE
-    from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
+    from eol_cal.plant.simulate import mode_of_block
 
-    flags = int(getattr(block, "flags"))
-    if flags & FLAG_COMP_ENABLE:
-        return "compensated"
-    return "estimated" if flags & FLAG_INTERP_ENABLE else "raw"
+    return mode_of_block(block)
 
 
 def active_block_from_flash(flash_file: str | Path | None) -> object | None:
-    """The active parameter block in the ECU simulator's flash file, or None without a valid bank."""
+    """The active parameter block in the ECU simulator's flash file, or None without a valid bank
+    (or before the ECU simulator created the file)."""
     if flash_file is None or not Path(flash_file).exists():
         return None
-    from eol_cal.ecu.flash import read_active_block
+    from eol_cal.ecu.flash import active_block_from_file
+    from eol_cal.firmware.block import unpack
 
-    return read_active_block(flash_file)
+    data = active_block_from_file(flash_file)
+    return None if data is None else unpack(data, f"{flash_file} (active bank)")
+
+
+def i_qo_of(req: SegmentRequest, kt: float) -> float:
+    """Nominal q current (A) a segment request asks for."""
+    return req.dut_cmd if req.dut_cmd_kind == DutCmdKind.IQ else req.dut_cmd / kt
+
+
+def synthetic_source(req: SegmentRequest) -> Capture:
+    """Capture source without JAX: the analytic model of :mod:`eol_cal.capture.synthetic`.
+
+    It models quantisation ripple and the 6th harmonic but no ECU: ``req.mode`` and the block do
+    not change what it shows (use :func:`plant_source` for that).
+    """
+    from eol_cal.capture.synthetic import synthetic_capture
+    from eol_cal.motor import load_motor
+
+    motor = load_motor("paper")
+    return synthetic_capture(
+        rpm=req.speed_rpm,
+        i_qo=i_qo_of(req, motor.kt),
+        seconds=req.n_samples / req.rate_hz,
+        fs=req.rate_hz,
+        seed=(req.seed or 0) * 1000 + req.capture_index,
+        theta_r0=0.7 * req.capture_index,
+        serial=req.serial,
+    )
+
+
+def plant_source(spec_for: Callable[[SegmentRequest], object] | None = None) -> CaptureSource:
+    """Capture source backed by the built-in plant (:func:`eol_cal.plant.simulate.simulate`).
+
+    Parameters
+    ----------
+    spec_for : callable, optional
+        ``request -> PlantSpec``: the motor on the dyno (default: the plant's motor drawn from
+        the request's seed and serial). The ECU mode and block come from the request.
+    """
+
+    def source(req: SegmentRequest) -> Capture:
+        from eol_cal.plant.profile import Profile, Segment
+        from eol_cal.plant.simulate import simulate
+
+        spec = (spec_for or default_plant_spec)(req)
+        f_tick = spec.motor.f_pwm
+        step = f_tick / req.rate_hz
+        if abs(step - round(step)) > 1e-9:
+            raise ValueError(f"capture rate {req.rate_hz} Hz does not divide the plant's {f_tick} Hz")
+        step = int(round(step))
+        iq = i_qo_of(req, spec.motor.kt)
+        profile = Profile("dyno", (Segment(speed_rpm=req.speed_rpm, seconds=req.n_samples * step / f_tick, iq=iq),))
+        seed = (req.seed or 0) * 1000 + req.capture_index
+        result = simulate(spec, profile, mode=req.mode, blocks=req.block, seed=seed)[0]
+        cap = result.capture
+        # the plant runs at the PWM tick; the dyno's DAQ keeps every step-th sample
+        channels = {k: v[::step][: req.n_samples] for k, v in cap.channels.items()}
+        return Capture(cap.t[::step][: req.n_samples], channels, dict(cap.metadata), dict(cap.truth), source="<plant>")
+
+    return source
+
+
+def default_plant_spec(req: SegmentRequest):
+    """The plant's motor for a request: drawn from production tolerances by seed (plant module)."""
+    from eol_cal.plant import variation
+
+    return variation.draw_spec(req.seed or 0, serial=req.serial)
 
 
 class DynoSim:

@@ -1,0 +1,134 @@
+"""``eol-cal acquire`` (run a test profile on a Modbus TCP dyno) and ``eol-cal dyno-sim``."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import click
+
+from cli.common import console, err_console, handle_errors, print_json
+
+_SUFFIXES = (".csv", ".mf4")
+
+
+def _quiet_pymodbus() -> None:
+    # pymodbus logs every retried request at ERROR; the command reports failures itself
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+@click.command("acquire")
+@click.option("--dyno", "address", required=True, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile name or a TOML profile file.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Capture file (.csv or .mf4), written atomically.")
+@click.option("--serial", default=None, help="Motor serial (default: the serial the dyno reports).")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True, help="Capture sample rate (Hz).")
+@click.option("--timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request timeout (s).")
+@click.option("--retries", type=click.IntRange(0, 20), default=3, show_default=True, help="Retries per request (reconnecting in between).")
+@click.option("--connections", type=click.IntRange(1, 16), default=4, show_default=True, help="Parallel connections for the capture transfer.")
+@click.option("--all-channels", is_flag=True, help="Also read the phase and dq currents (iq, id, ia, ib, ic).")
+@click.option("--reset-faults", is_flag=True, help="Clear faults latched on the dyno before the run.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
+@handle_errors
+def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults, as_json) -> None:
+    """Run a test profile on the dyno and write the capture.
+
+    Segment by segment: set point, wait until at speed, capture, read the buffer. On any error
+    the speed goes to 0, the drive is disabled and no capture file is written (exit code 2).
+    """
+    import time
+
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from eol_cal.dyno import client as dc
+    from eol_cal.errors import InputError
+    from eol_cal.plant.profile import load_profile
+
+    if output.suffix.lower() not in _SUFFIXES:
+        raise InputError(str(output), None, f"unknown capture format {output.suffix!r}; use .csv or .mf4")
+    if not output.parent.is_dir():
+        raise InputError(str(output), None, "directory does not exist")
+    host, port = dc.parse_address(address)
+    prof = load_profile(profile)
+    segments = dc.segments_from_profile(prof)
+    channels = dc.DEFAULT_CHANNELS + (("iq", "id", "ia", "ib", "ic") if all_channels else ())
+    config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections)
+    _quiet_pymodbus()
+    t0 = time.perf_counter()
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(),
+        console=err_console, transient=True, disable=as_json,
+    ) as bar:
+        seg_task = bar.add_task("profile", total=len(segments))
+        xfer_task = bar.add_task("transfer", total=1)
+
+        def progress(what: str, done: float, total: float) -> None:
+            if what == "transfer":
+                bar.update(xfer_task, completed=done, total=total)
+            else:
+                bar.update(seg_task, description=what, completed=done)
+
+        capture = dc.acquire(config, segments, output, serial=serial, rate_hz=rate_hz, channels=channels,
+                             progress=progress, reset_faults=reset_faults,
+                             extra_metadata={"comment": f"eol-cal acquire, profile {prof.name}"})
+    wall = time.perf_counter() - t0
+    summary = {
+        "output": str(output),
+        "serial": capture.serial,
+        "profile": prof.name,
+        "segments": len(segments),
+        "samples": int(len(capture.t)),
+        "rate_hz": rate_hz,
+        "channels": sorted(capture.channels),
+        "wall_s": round(wall, 3),
+    }
+    if as_json:
+        print_json(summary)
+    else:
+        console.print(f"wrote {output}: {summary['samples']} samples, {len(segments)} segments, "
+                      f"serial {summary['serial']}, {wall:.2f} s")
+
+
+@click.command("dyno-sim")
+@click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT", help="Address to serve Modbus TCP on.")
+@click.option("--ecu-flash", type=click.Path(dir_okay=False, path_type=Path), default=None, help="The ECU simulator's flash file: its active bank sets the motor's compensation.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Motor variation seed (the plant's production tolerances).")
+@click.option("--serial", default="M-0001", show_default=True, help="Serial of the simulated motor.")
+@click.option("--source", type=click.Choice(["plant", "synthetic"]), default="plant", show_default=True, help="plant: the built-in JAX plant with the ECU's mode; synthetic: the analytic model (fast, no ECU).")
+@click.option("--fault", "faults", multiple=True, metavar="KIND[@capture:N|@read:N][/MS]", help="Inject a fault by itself: disconnect, over-speed or torque-sensor, at the N-th capture or window read (repeatable).")
+@handle_errors
+def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
+    """Serve a simulated dyno with the motor on it over Modbus TCP (register map: docs/dyno.md).
+
+    Binds 127.0.0.1 unless told otherwise. Stop with Ctrl-C.
+    """
+    import asyncio
+
+    from eol_cal.dyno import client as dc
+    from eol_cal.dyno import sim as ds
+    from eol_cal.errors import InputError
+    from eol_cal.motor import load_motor
+
+    host, port = dc.parse_address(listen)
+    if not serial or len(serial.encode("ascii", "replace")) > 16:
+        raise InputError(None, "--serial", "1 to 16 ASCII characters")
+    plans = [ds.parse_fault_plan(f) for f in faults]
+    motor = load_motor("paper")
+    capture_source = ds.plant_source() if source == "plant" else ds.synthetic_source
+    sim = ds.DynoSim(capture_source, serial=serial, poles=motor.poles, encoder_ppr=motor.N_enc, kt=motor.kt,
+                     seed=seed, flash_file=ecu_flash, tick_hz=int(motor.f_pwm), faults=plans)
+
+    def started(bound: int) -> None:
+        err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP), motor {serial}, source {source}"
+                          + (f", ECU flash {ecu_flash}" if ecu_flash else ""))
+
+    _quiet_pymodbus()
+    try:
+        asyncio.run(sim.serve(host, port, started))
+    except KeyboardInterrupt:
+        pass
+    except (OSError, RuntimeError) as exc:
+        raise InputError(None, "--listen", f"cannot listen on {listen}: {exc}") from None
+
+
+COMMANDS = [acquire_cmd, dyno_sim_cmd]

@@ -1,0 +1,158 @@
+"""Dyno simulator and register map: the map is defined once and documented, the server enforces
+it, and the ECU's flash file decides what the motor on the dyno runs."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from eol_cal.dyno import registers as rm
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSegment
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, SegmentRequest, parse_fault_plan, synthetic_source
+from eol_cal.firmware import block as B
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+DOC = Path(__file__).resolve().parents[1] / "docs" / "dyno.md"
+
+
+def test_register_map_doc_lists_every_register():
+    text = DOC.read_text()
+    # the doc embeds the generated tables verbatim: regenerate with `python -m eol_cal.dyno.registers`
+    assert rm.markdown_table() in text
+    for reg in rm.REGISTERS:
+        assert f"`{reg.name}`" in text
+    for name in rm.ANALOG_CHANNELS.values():
+        assert f"`{name}`" in text
+
+
+def test_register_encoding_round_trips_and_word_order():
+    assert rm.encode("speed_setpoint", 1.0) == [0x3F80, 0x0000]  # high word first
+    assert rm.encode("capture_length", 0x12345) == [0x0001, 0x2345]
+    assert rm.decode("capture_length", [0x0001, 0x2345]) == 0x12345
+    assert rm.decode("dut_serial", rm.encode("dut_serial", "M-0001")) == "M-0001"
+    x = np.array([0.0, -1.5, 3.25e-3, 65.0])
+    np.testing.assert_array_equal(rm.words_to_f32(rm.f32_to_words(x)), x.astype(np.float32))
+    a, b, h = rm.unpack_digital(rm.pack_digital([1, 0, 1], [0, 1, 1], [5, 1, 6]))
+    assert list(a) == [1, 0, 1] and list(b) == [0, 1, 1] and list(h) == [5, 1, 6]
+    with pytest.raises(ValueError):
+        rm.encode("mode", 70000)
+
+
+@pytest.fixture
+def dyno():
+    sim = DynoSim(synthetic_source, serial="M-MAP")
+    with DynoSimThread(sim) as th:
+        yield th
+
+
+def _client(port: int) -> DynoClient:
+    return DynoClient(DynoConfig(port=port, timeout=0.5, retries=0, settle_timeout=2.0))
+
+
+def test_server_enforces_the_map(dyno):
+    c = _client(dyno.port)
+    ident = c.connect()
+    assert ident["dut_serial"] == "M-MAP" and ident["map_version"] == rm.MAP_VERSION
+    with pytest.raises(DynoError, match="refused"):
+        c.write(speed=10.0)  # status is read-only
+    with pytest.raises(DynoError, match="refused"):
+        c.write(mode=7)
+    with pytest.raises(DynoError, match="refused"):
+        c.write(capture_rate=7000)  # does not divide the 20 kHz tick
+    with pytest.raises(DynoError, match="refused"):
+        c.write(capture_start=1)  # drive not enabled
+    half = rm.BY_NAME["speed_setpoint"].address + 1
+    r = c._client.write_registers(half, [0], device_id=1)  # half of an f32
+    assert r.isError()
+    dyno.sim.interlocks = rm.Interlock.ALL & ~rm.Interlock.GUARD_CLOSED
+    with pytest.raises(DynoError, match="refused"):
+        c.write(enable=1)
+    dyno.sim.interlocks = rm.Interlock.ALL
+    c.write(mode=1, enable=1)
+    c.write(speed_setpoint=300.0, ramp=3000.0)
+    st = c.wait(lambda s: s["drive_state"] == rm.DriveState.AT_SPEED, 3.0, "ramping")
+    assert st["speed"] == pytest.approx(300.0)
+    with pytest.raises(DynoError, match="refused"):
+        c.write(direction=1)  # no reversing while spinning
+    c.write(stop=1)
+    st = c.wait(lambda s: s["drive_state"] == rm.DriveState.DISABLED, 3.0, "stopping")
+    assert st["speed"] == 0.0 and c.read_block("mode", "watchdog_ms")["stop"] == 0
+    c.close()
+
+
+def test_fault_register_trips_and_reset_clears(dyno):
+    c = _client(dyno.port)
+    c.connect()
+    c.write(mode=1, enable=1)
+    c.write(speed_setpoint=100.0, ramp=5000.0)
+    c.write(sim_fault=int(rm.SimFault.TORQUE_SENSOR))
+    st = c.status()
+    assert st["faults"] & rm.Fault.TORQUE_SENSOR and st["drive_state"] == rm.DriveState.TRIPPED
+    assert np.isnan(st["torque"])
+    with pytest.raises(DynoError, match="refused"):
+        c.write(enable=1)  # latched
+    c.write(fault_reset=1)
+    assert c.status()["faults"] == 0
+    c.write(enable=1)
+    c.close()
+
+
+def test_fault_plan_parsing():
+    p = parse_fault_plan("disconnect@read:5/300")
+    assert (p.kind, p.at, p.index, p.arg_ms) == (rm.SimFault.DISCONNECT, "read", 5, 300)
+    assert parse_fault_plan("over-speed").at == "capture"
+    for bad in ("melt", "over-speed@capture:0", "disconnect@later:2", "disconnect/0"):
+        with pytest.raises(Exception, match="--fault"):
+            parse_fault_plan(bad)
+
+
+def _block(flags: int, sequence: int) -> bytes:
+    from eol_cal.motor import load_motor
+
+    m = load_motor("paper")
+    n = 16
+    blk = B.ParamBlock(
+        sequence=sequence, flags=flags, serial="M-FLASH", calibrated_at=0, poles=m.poles, encoder_ppr=m.N_enc,
+        tick_hz=m.f_pwm, kt=m.kt, hall_angle=(1.0, 3.1, 2.1, 5.2, 0.0, 4.2), c6=0.0, phase_c6=0.0, k6=0.00062,
+        phase_k6=0.3, lead_s=1e-3, iqc_limit=6.5, table_const=np.zeros(n, np.float32), table_per_amp=np.zeros(n, np.float32),
+    )
+    return B.pack(blk)
+
+
+def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
+    from eol_cal.ecu.flash import NorFlash
+
+    seen: list[SegmentRequest] = []
+
+    def recording(req: SegmentRequest):
+        seen.append(req)
+        return synthetic_source(req)
+
+    flash_file = tmp_path / "ecu.flash"
+    sim = DynoSim(recording, flash_file=flash_file)
+    seg = DynoSegment(60.0, 0.2, iq=20.0, ramp_rpm_s=5000.0)
+
+    def capture_once() -> SegmentRequest:
+        c = _client(th.port)
+        c.connect()
+        c.set_point(seg)
+        c.capture(2000, 10000)
+        c.safe_state()
+        c.close()
+        return seen[-1]
+
+    with DynoSimThread(sim) as th:
+        assert capture_once().mode == "raw" and seen[-1].block is None  # no flash file yet
+        flash = NorFlash(flash_file)  # erased: no valid bank
+        assert capture_once().mode == "raw"
+        flash.program(0, 0, _block(B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE, 1))
+        req = capture_once()
+        assert req.mode == "compensated" and req.block.sequence == 1 and req.block.serial == "M-FLASH"
+        flash.program(1, 0, _block(B.FLAG_INTERP_ENABLE, 2))  # newer bank, interpolation only
+        req = capture_once()
+        assert req.mode == "estimated" and req.block.sequence == 2
+    assert [r.capture_index for r in seen] == [1, 2, 3, 4]
