@@ -492,20 +492,42 @@ def to_intel_hex(data: bytes, bank: int) -> str:
     return out.getvalue()
 
 
-def from_intel_hex(text: str, bank: int, source: str = "<hex>") -> bytes:
-    """Inverse of :func:`to_intel_hex`: the bytes stored in ``bank``'s address range (gaps as 0xFF)."""
+def from_intel_hex(text: str, bank: int | None = None, source: str = "<hex>") -> tuple[int, bytes]:
+    """Inverse of :func:`to_intel_hex`: (bank, the bytes stored from the bank start; gaps 0xFF).
+
+    ``bank=None`` picks the bank whose address range holds the data.
+    """
     from intelhex import IntelHex, IntelHexError
 
-    if bank not in (0, 1):
-        raise InputError(source, "bank", f"{bank!r}: must be 0 or 1")
     ih = IntelHex()
     try:
         ih.loadhex(io.StringIO(text))
-    except IntelHexError as exc:
+    except (IntelHexError, ValueError) as exc:
         raise InputError(source, "hex", str(exc)) from exc
-    start = 2 * BANK_WORD_ADDR[bank]
     addrs = ih.addresses()
-    if not addrs or addrs[0] < start or addrs[-1] >= start + BANK_BYTES:
-        raise InputError(source, "address", f"data not inside bank {bank} "
-                                            f"(bytes 0x{start:x}..0x{start + BANK_BYTES - 1:x})")
-    return ih.tobinstr(start=start, end=addrs[-1])
+    if not addrs:
+        raise InputError(source, "hex", "no data records")
+    banks = [bank] if bank is not None else [0, 1]
+    for b in banks:
+        if b not in (0, 1):
+            raise InputError(source, "bank", f"{b!r}: must be 0 or 1")
+        start = 2 * BANK_WORD_ADDR[b]
+        if start <= addrs[0] and addrs[-1] < start + BANK_BYTES:
+            return b, ih.tobinstr(start=start, end=addrs[-1])
+    ranges = ", ".join(f"bank {b}: bytes 0x{2 * BANK_WORD_ADDR[b]:x}..0x{2 * BANK_WORD_ADDR[b] + BANK_BYTES - 1:x}"
+                       for b in banks)
+    raise InputError(source, "address", f"data at 0x{addrs[0]:x}..0x{addrs[-1]:x} is not inside one bank ({ranges})")
+
+
+def load_image(path: str, source: str | None = None) -> bytes:
+    """A block image from a file: raw bytes, or Intel HEX (first byte ':') at a bank address."""
+    from eol_cal.firmware._files import read_bytes
+
+    data = read_bytes(path)
+    if data[:1] == b":":
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError as exc:
+            raise InputError(str(path), "hex", "not ASCII text") from exc
+        return from_intel_hex(text, None, source or str(path))[1]
+    return data

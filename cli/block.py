@@ -1,0 +1,166 @@
+"""``eol-cal block show|check|hex``: inspect, validate and export calibration parameter blocks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from cli.common import console, handle_errors, print_json
+
+_STATUS_TEXT = {0: "valid", 1: "CRC mismatch", 2: "header invalid"}
+
+
+def block_report(path: str) -> tuple[dict[str, Any], Any]:
+    """The ``block show --json`` document for a file, and the decoded block (None if undecodable)."""
+    from eol_cal.errors import InputError
+    from eol_cal.firmware import block as pb
+
+    data = pb.load_image(path)
+    res = pb.check(data)
+    try:
+        blk = pb.unpack(data, path)
+        decode_error = None
+    except InputError as exc:
+        blk, decode_error = None, str(exc)
+    doc = {
+        "file": str(path),
+        "bytes": len(data),
+        "valid": res.valid,
+        "status": res.status,
+        "status_text": _STATUS_TEXT[res.status],
+        "reasons": list(res.reasons),
+        "warnings": list(res.warnings),
+        "crc32_stored": None if res.crc_stored is None else f"0x{res.crc_stored:08x}",
+        "crc32_computed": None if res.crc_computed is None else f"0x{res.crc_computed:08x}",
+        "block": None if blk is None else blk.to_dict(),
+        "decode_error": decode_error,
+    }
+    return doc, blk
+
+
+def _print_human(doc: dict[str, Any], blk: Any) -> None:
+    import math
+
+    from rich.table import Table
+
+    style = "green" if doc["valid"] else "red"
+    console.print(f"{doc['file']}: [{style}]{doc['status_text']}[/{style}] (status {doc['status']}), "
+                  f"{doc['bytes']} bytes")
+    for r in doc["reasons"]:
+        console.print(f"  [red]invalid:[/red] {r}")
+    for w in doc["warnings"]:
+        console.print(f"  [yellow]warning:[/yellow] {w}")
+    if doc["crc32_stored"] is not None:
+        console.print(f"  crc32 stored {doc['crc32_stored']}, computed {doc['crc32_computed']}")
+    if blk is None:
+        console.print(f"  not decodable: {doc['decode_error']}")
+        return
+    d = doc["block"]
+    table = Table(show_header=True, header_style="bold")
+    table.add_column("field")
+    table.add_column("value")
+    table.add_column("unit")
+    from eol_cal.firmware.block import FIELDS, FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
+
+    for name, spec in FIELDS.items():
+        if name in ("table_const", "table_per_amp", "crc32"):
+            continue
+        v = d.get(name)
+        if name == "magic":
+            text = f"0x{v:04x}"
+        elif name == "flags":
+            names = [n for bit, n in ((FLAG_COMP_ENABLE, "COMP_ENABLE"), (FLAG_INTERP_ENABLE, "INTERP_ENABLE"))
+                     if v & bit]
+            text = f"0x{v:x} ({'|'.join(names) or 'none'})"
+        elif name == "hall_angle":
+            text = ", ".join(f"{math.degrees(a):.2f}°" for a in v)
+        elif name == "reserved":
+            continue
+        elif isinstance(v, float):
+            text = f"{v:.9g}"
+        else:
+            text = str(v)
+        unit = "deg (electrical)" if name == "hall_angle" else spec.get("unit", "")
+        table.add_row(name, text, unit)
+    for name in ("table_const", "table_per_amp"):
+        arr = getattr(blk, name)
+        table.add_row(name, f"{arr.size} entries, min {arr.min():.6g}, max {arr.max():.6g}",
+                      FIELDS[name].get("unit", ""))
+    console.print(table)
+
+
+@click.group("block")
+def block_group() -> None:
+    """Inspect, check and export calibration parameter blocks (firmware contract, section 2).
+
+    FILE is a raw block or bank image (bytes after the block are allowed), or an Intel HEX file
+    at a bank's address.
+    """
+
+
+@block_group.command("show")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout (tables included)")
+@handle_errors
+def show(file: str, as_json: bool) -> None:
+    """Fields, validity with reasons, and CRC of a block (exit 2 when it cannot be decoded)."""
+    from eol_cal.errors import InputError
+
+    doc, blk = block_report(file)
+    if as_json:
+        print_json(doc)
+    else:
+        _print_human(doc, blk)
+    if blk is None:
+        raise InputError(file, None, "not a decodable parameter block (reason above)")
+
+
+@block_group.command("check")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
+@handle_errors
+def check_cmd(file: str, as_json: bool) -> None:
+    """Apply the firmware's check routine; exit 0 valid, 1 invalid, 2 unreadable."""
+    from eol_cal.errors import CheckFailed
+    from eol_cal.firmware import block as pb
+
+    res = pb.check(pb.load_image(file))
+    if as_json:
+        print_json({"file": file, "valid": res.valid, "status": res.status,
+                    "status_text": _STATUS_TEXT[res.status], "reasons": list(res.reasons),
+                    "warnings": list(res.warnings)})
+    elif res.valid:
+        click.echo(f"{file}: valid" + "".join(f"\n  warning: {w}" for w in res.warnings))
+    if not res.valid:
+        raise CheckFailed(f"{file}: {_STATUS_TEXT[res.status]} (status {res.status}): " + "; ".join(res.reasons))
+
+
+@block_group.command("hex")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--bank", type=click.IntRange(0, 1), required=True, help="target bank: 0 (sector C) or 1 (sector B)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Intel HEX file to write")
+@handle_errors
+def hex_cmd(file: str, bank: int, output: str) -> None:
+    """Write a valid block as Intel HEX at its bank's flash address (byte address = 2 x word address).
+
+    Refuses an invalid block (exit 1). Bytes after the block are not exported.
+    """
+    from eol_cal.errors import CheckFailed
+    from eol_cal.firmware import block as pb
+    from eol_cal.firmware._files import atomic_write
+
+    data = pb.load_image(file)
+    res = pb.check(data)
+    if not res.valid:
+        raise CheckFailed(f"{file}: refusing to export an invalid block: " + "; ".join(res.reasons))
+    n = pb.unpack(data, file).table_len
+    text = pb.to_intel_hex(data[:pb.block_bytes(n)], bank)
+    atomic_write(Path(output), text.encode("ascii"))
+    start = 2 * pb.BANK_WORD_ADDR[bank]
+    click.echo(f"wrote {output}: {pb.block_bytes(n)} bytes at byte address 0x{start:x} "
+               f"(word address 0x{pb.BANK_WORD_ADDR[bank]:x}, bank {bank})")
+
+
+COMMANDS = [block_group]

@@ -1,0 +1,105 @@
+"""``eol-cal block show|check|hex`` and ``eol-cal golden``: outputs and exit codes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+from pathlib import Path
+
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal.firmware import block as pb
+from eol_cal.firmware import golden
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "fixtures" / "block_paper.bin"
+
+
+def _run(*args: str):
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def test_show_json_fields_validity_crc():
+    res = _run("block", "show", str(PAPER), "--json")
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert doc["valid"] is True and doc["status"] == 0 and doc["reasons"] == []
+    data = PAPER.read_bytes()
+    assert doc["crc32_stored"] == doc["crc32_computed"] == f"0x{pb.crc32(data[:-4]):08x}"
+    blk = doc["block"]
+    assert blk["serial"] == "EPS-0001" and blk["table_len"] == 256 and len(blk["table_const"]) == 256
+    assert blk["magic"] == 0xEC6A and blk["block_bytes"] == len(data)
+
+
+def test_show_human_and_invalid_block(tmp_path):
+    res = _run("block", "show", str(PAPER))
+    assert res.exit_code == 0 and "valid" in res.output and "EPS-0001" in res.output
+    bad = bytearray(PAPER.read_bytes())
+    bad[200] ^= 1
+    path = tmp_path / "bad.bin"
+    path.write_bytes(bytes(bad))
+    res = _run("block", "show", str(path), "--json")
+    doc = json.loads(res.output)
+    assert res.exit_code == 0 and doc["status"] == 1 and "CRC mismatch" in doc["reasons"][0]
+    assert doc["block"] is not None  # still decodable: the fields are shown
+
+
+def test_show_undecodable_exits_2(tmp_path):
+    path = tmp_path / "erased.bin"
+    path.write_bytes(b"\xff" * 4096)
+    res = _run("block", "show", str(path))
+    assert res.exit_code == 2 and "erased bank" in res.output
+
+
+def test_check_exit_codes(tmp_path):
+    assert _run("block", "check", str(PAPER)).exit_code == 0
+    buf = bytearray(PAPER.read_bytes())
+    struct.pack_into("<I", buf, 8, 0)
+    bad = tmp_path / "seq0.bin"
+    bad.write_bytes(pb.with_crc(bytes(buf)))
+    res = _run("block", "check", str(bad))
+    assert res.exit_code == 1 and "sequence" in res.output
+    res = _run("block", "check", str(bad), "--json")
+    assert res.exit_code == 1 and json.loads(res.output.split("\nerror")[0])["status"] == 2
+    assert _run("block", "check", str(tmp_path / "missing.bin")).exit_code == 2
+
+
+def test_hex_export_round_trip_and_refusal(tmp_path):
+    out = tmp_path / "b1.hex"
+    res = _run("block", "hex", str(PAPER), "--bank", "1", "-o", str(out))
+    assert res.exit_code == 0, res.output
+    assert "0x660000" in res.output
+    assert pb.from_intel_hex(out.read_text()) == (1, PAPER.read_bytes())
+    # a .hex file is accepted wherever a block file is
+    assert _run("block", "check", str(out)).exit_code == 0
+    # a bank dump exports only the block
+    dump = tmp_path / "bank.bin"
+    dump.write_bytes(PAPER.read_bytes() + b"\xff" * 1000)
+    _run("block", "hex", str(dump), "--bank", "0", "-o", str(tmp_path / "b0.hex"))
+    assert pb.from_intel_hex((tmp_path / "b0.hex").read_text()) == (0, PAPER.read_bytes())
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(PAPER.read_bytes()[:-1] + b"\0")
+    res = _run("block", "hex", str(bad), "--bank", "0", "-o", str(tmp_path / "x.hex"))
+    assert res.exit_code == 1 and not (tmp_path / "x.hex").exists()
+    assert _run("block", "hex", str(PAPER), "--bank", "2", "-o", str(out)).exit_code == 2
+
+
+def test_golden_out_and_check(tmp_path):
+    out = tmp_path / "g"
+    res = _run("golden", "--out", str(out))
+    assert res.exit_code == 0, res.output
+    assert _run("golden", "--check", str(out)).exit_code == 0
+    (out / "blocks.csv").write_text((out / "blocks.csv").read_text().replace("EPS-0001", "EPS-0009"))
+    res = _run("golden", "--check", str(out))
+    assert res.exit_code == 1 and "blocks.csv: row 1 differs in serial" in res.output
+    assert _run("golden").exit_code == 2
+
+
+def test_golden_check_default_dir(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    res = _run("golden", "--check")
+    assert res.exit_code == 0, res.output
+    n = len(golden.vector_sets())
+    assert f"{n} files" in res.output
