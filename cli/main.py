@@ -29,9 +29,11 @@ def _register() -> None:
 # One line per command module; keep sorted.
 _COMMAND_MODULES: list[str] = [
     "analyze",
+    "block",
     "capture",
     "dyno",
     "ecu",
+    "golden",
     "index",
 ]
 
