@@ -46,6 +46,18 @@ def test_show_human_and_invalid_block(tmp_path):
     assert doc["block"] is not None  # still decodable: the fields are shown
 
 
+def test_show_json_of_a_block_holding_nan(tmp_path):
+    buf = bytearray(PAPER.read_bytes())
+    struct.pack_into("<f", buf, pb.field_offset("kt"), float("nan"))
+    struct.pack_into("<f", buf, pb.field_offset("table_const") + 8, float("-inf"))
+    path = tmp_path / "nan.bin"
+    path.write_bytes(pb.with_crc(bytes(buf)))
+    res = _run("block", "show", str(path), "--json")
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.output)
+    assert doc["valid"] and doc["block"]["kt"] == "nan" and doc["block"]["table_const"][2] == "-inf"
+
+
 def test_show_undecodable_exits_2(tmp_path):
     path = tmp_path / "erased.bin"
     path.write_bytes(b"\xff" * 4096)

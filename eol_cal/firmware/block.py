@@ -216,18 +216,28 @@ class ParamBlock:
     __hash__ = None  # type: ignore[assignment]
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-friendly dict of every stored field, derived ones included (tables as lists)."""
+        """JSON-friendly dict of every stored field, derived ones included (tables as lists).
+
+        Non-finite floats (only in blocks that :func:`pack` would refuse) appear as strings.
+        """
         d: dict[str, Any] = {"magic": MAGIC}
         for name in self.__dataclass_fields__:
             v = getattr(self, name)
             if isinstance(v, np.ndarray):
-                v = [float(x) for x in v]
+                v = [_json_float(float(x)) for x in v]
             elif isinstance(v, tuple):
-                v = list(v)
+                v = [_json_float(x) for x in v]
+            elif isinstance(v, float):
+                v = _json_float(v)
             d[name] = v
         d["table_len"] = self.table_len
         d["block_bytes"] = self.block_bytes
         return d
+
+
+def _json_float(x: float) -> float | str:
+    # JSON has no NaN/inf; a corrupted block can hold them, so they become "nan", "inf", "-inf"
+    return x if math.isfinite(x) else str(x)
 
 
 def _bits(v: Any) -> Any:
