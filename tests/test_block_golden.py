@@ -158,3 +158,23 @@ def test_c_crc_table_is_iso_hdlc():
             c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
         assert v == c
     assert pb.crc32(b"123456789") == 0xCBF43926
+
+
+def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):
+    import sys
+    import types
+
+    fake = types.ModuleType("eol_cal.firmware.estimator_golden")
+    fake.vector_sets = lambda: {"estimator_const_60rpm.csv": (["tick", "theta_hat"], [[0, "3f800000"], [1, "40000000"]])}
+    fake.TOLERANCE = {"estimator_const_60rpm.csv": {"theta_hat": {"abs": 1e-6, "unit": "rad"}}}
+    monkeypatch.setitem(sys.modules, "eol_cal.firmware.estimator_golden", fake)
+    sets = golden.vector_sets()
+    est = sets["estimator_const_60rpm.csv"]
+    assert est.rows == [["0", "3f800000"], ["1", "40000000"]]
+    doc = golden.write_golden(tmp_path, sets)
+    assert doc["tolerance"]["estimator_const_60rpm.csv"] == {"theta_hat": {"abs": 1e-6, "unit": "rad"}}
+    assert (tmp_path / "estimator_const_60rpm.csv").read_text() == "tick,theta_hat\n0,3f800000\n1,40000000\n"
+    assert golden.check_golden(tmp_path, sets) == []
+    fake.vector_sets = lambda: {"blocks.csv": (["x"], [])}
+    with pytest.raises(ValueError, match="clashes"):
+        golden.vector_sets()

@@ -18,6 +18,7 @@ import hashlib
 import importlib
 import json
 import math
+import struct
 from pathlib import Path
 from typing import Any, Iterable, Sequence
 
@@ -119,8 +120,6 @@ def _blocks_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
 def _patch(image: bytes, name: str, value: int, n: int = 0, fix_crc: bool = True) -> bytes:
     buf = bytearray(image)
     fmt = {"u16": "<H", "u32": "<I"}[pb.FIELDS[name]["type"]]
-    import struct
-
     struct.pack_into(fmt, buf, pb.field_offset(name, n), value)
     return pb.with_crc(bytes(buf)) if fix_crc else bytes(buf)
 
