@@ -81,6 +81,8 @@ def test_convert_refuses_events_for_csv_and_foreign_without_map(tmp_path):
     r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "daq_export_foreign.csv"), str(tmp_path / "x.mf4")])
     assert r.exit_code == 2 and "'Zeit'" in r.stderr and "--map" in r.stderr
     assert list(tmp_path.iterdir()) == []
+    r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "paper_60rpm.csv"), str(tmp_path / "no" / "x.mf4")])
+    assert r.exit_code == 2 and "cannot write" in r.stderr and "x.mf4" in r.stderr
 
 
 def test_subprocess_info_and_bad_exit_code():

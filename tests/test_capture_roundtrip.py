@@ -12,6 +12,7 @@ from eol_cal.capture import read_capture, write_capture
 from eol_cal.capture.columns import zoh
 from eol_cal.capture.csv_io import read_csv_columns
 from eol_cal.capture.mdf4_io import read_mdf4_columns
+from eol_cal.errors import InputError
 
 
 @pytest.fixture(scope="module")
@@ -188,8 +189,9 @@ def test_writes_are_atomic(capture, tmp_path, monkeypatch, suffix):
 
     # the data is fully written to the temporary file when fsync fails: the target must not change
     monkeypatch.setattr(atomic.os, "fsync", failing_fsync)
-    with pytest.raises(OSError, match="disk gone"):
+    with pytest.raises(InputError, match="cannot write: disk gone") as info:
         write_capture(capture, path)
+    assert info.value.file == str(path)
     assert path.read_bytes() == b"old content\n"
     assert [p.name for p in tmp_path.iterdir()] == [path.name]
     monkeypatch.undo()

@@ -51,14 +51,17 @@ def read_capture(
     suffix = _suffix(path)
     if channel_map is not None and not isinstance(channel_map, ChannelMap):
         channel_map = load_channel_map(channel_map)
-    if suffix == ".csv":
-        from eol_cal.capture.csv_io import read_csv
+    try:
+        if suffix == ".csv":
+            from eol_cal.capture.csv_io import read_csv
 
-        capture = read_csv(path, channel_map)
-    else:
-        from eol_cal.capture.mdf4_io import read_mdf4
+            capture = read_csv(path, channel_map)
+        else:
+            from eol_cal.capture.mdf4_io import read_mdf4
 
-        capture = read_mdf4(path, channel_map)
+            capture = read_mdf4(path, channel_map)
+    except OSError as exc:
+        raise InputError(str(path), None, f"cannot read: {exc.strerror or exc}") from exc
     return _validate(capture) if validate else capture
 
 
@@ -76,6 +79,13 @@ def write_capture(capture: Capture, path: str | Path, **opts: Any) -> None:
         ``.csv`` takes none.
     """
     suffix = _suffix(path)
+    try:
+        _write(capture, path, suffix, opts)
+    except OSError as exc:
+        raise InputError(str(path), None, f"cannot write: {exc.strerror or exc}") from exc
+
+
+def _write(capture: Capture, path: str | Path, suffix: str, opts: dict[str, Any]) -> None:
     if suffix == ".csv":
         from eol_cal.capture.csv_io import write_csv
 

@@ -15,7 +15,6 @@ torque channel's time base (analog: linear interpolation; digital: zero-order ho
 
 from __future__ import annotations
 
-import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Literal
@@ -171,7 +170,6 @@ def read_mdf4_columns(
     file = str(path)
     if not Path(path).is_file():
         raise InputError(file, None, "file not found")
-    logging.getLogger("asammdf").setLevel(logging.ERROR)
     try:
         mdf = MDF(str(path))
     except Exception as exc:  # asammdf raises MdfException, struct.error, ... for bad files

@@ -19,6 +19,7 @@ and kept in ``Capture.events``; the sampled levels are the zero-order hold of th
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -56,7 +57,7 @@ def _crossings(x0: float, rate: float, t0: float, t1: float, step: float) -> np.
 
 
 def _events(
-    level_of: "callable", x0: float, rate: float, t0: float, t1: float, step: float
+    level_of: Callable[[np.ndarray], np.ndarray], x0: float, rate: float, t0: float, t1: float, step: float
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Exact (change times, new levels) and the level at ``t0`` of a function of ``x``."""
     times = _crossings(x0, rate, t0, t1, step)
