@@ -83,14 +83,14 @@ def test_hex_export_round_trip_and_refusal(tmp_path):
     res = _run("block", "hex", str(PAPER), "--bank", "1", "-o", str(out))
     assert res.exit_code == 0, res.output
     assert "0x660000" in res.output
-    assert pb.from_intel_hex(out.read_text()) == (1, PAPER.read_bytes())
+    assert pb.intel_hex_bank(out.read_text()) == (1, PAPER.read_bytes())
     # a .hex file is accepted wherever a block file is
     assert _run("block", "check", str(out)).exit_code == 0
     # a bank dump exports only the block
     dump = tmp_path / "bank.bin"
     dump.write_bytes(PAPER.read_bytes() + b"\xff" * 1000)
     _run("block", "hex", str(dump), "--bank", "0", "-o", str(tmp_path / "b0.hex"))
-    assert pb.from_intel_hex((tmp_path / "b0.hex").read_text()) == (0, PAPER.read_bytes())
+    assert pb.intel_hex_bank((tmp_path / "b0.hex").read_text()) == (0, PAPER.read_bytes())
     bad = tmp_path / "bad.bin"
     bad.write_bytes(PAPER.read_bytes()[:-1] + b"\0")
     res = _run("block", "hex", str(bad), "--bank", "0", "-o", str(tmp_path / "x.hex"))

@@ -234,8 +234,8 @@ def test_intel_hex_round_trip_at_bank_address(bank):
     start = 2 * pb.BANK_WORD_ADDR[bank]
     assert ih.minaddr() == start and ih.maxaddr() == start + len(data) - 1
     assert ih.tobinstr(start=start, size=len(data)) == data
-    assert pb.from_intel_hex(text) == (bank, data)
-    assert pb.from_intel_hex(text, bank) == (bank, data)
+    assert pb.intel_hex_bank(text) == (bank, data)
+    assert pb.from_intel_hex(text, bank) == data
     with pytest.raises(InputError):
         pb.from_intel_hex(text, 1 - bank)
 
@@ -248,7 +248,7 @@ def test_intel_hex_refusals():
     with pytest.raises(InputError):
         pb.to_intel_hex(b"\0" * 3, 0)
     with pytest.raises(InputError):
-        pb.from_intel_hex(":zz\n")
+        pb.intel_hex_bank(":zz\n")
 
 
 # ---- generated and checked-in artefacts ----------------------------------------------------------

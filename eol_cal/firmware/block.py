@@ -502,11 +502,20 @@ def to_intel_hex(data: bytes, bank: int) -> str:
     return out.getvalue()
 
 
-def from_intel_hex(text: str, bank: int | None = None, source: str = "<hex>") -> tuple[int, bytes]:
-    """Inverse of :func:`to_intel_hex`: (bank, the bytes stored from the bank start; gaps 0xFF).
+def from_intel_hex(text: str, bank: int, source: str = "<hex>") -> bytes:
+    """Inverse of :func:`to_intel_hex`: the bytes stored from ``bank``'s start (gaps read 0xFF).
 
-    ``bank=None`` picks the bank whose address range holds the data.
+    Raises :class:`InputError` when the data does not lie inside that bank.
     """
+    return _from_intel_hex(text, (bank,), source)[1]
+
+
+def intel_hex_bank(text: str, source: str = "<hex>") -> tuple[int, bytes]:
+    """(bank, bytes) of an Intel HEX image, the bank being the one whose address range holds it."""
+    return _from_intel_hex(text, (0, 1), source)
+
+
+def _from_intel_hex(text: str, banks: tuple[int, ...], source: str) -> tuple[int, bytes]:
     from intelhex import IntelHex, IntelHexError
 
     ih = IntelHex()
@@ -517,7 +526,6 @@ def from_intel_hex(text: str, bank: int | None = None, source: str = "<hex>") ->
     addrs = ih.addresses()
     if not addrs:
         raise InputError(source, "hex", "no data records")
-    banks = [bank] if bank is not None else [0, 1]
     for b in banks:
         if b not in (0, 1):
             raise InputError(source, "bank", f"{b!r}: must be 0 or 1")
@@ -539,5 +547,5 @@ def load_image(path: str, source: str | None = None) -> bytes:
             text = data.decode("ascii")
         except UnicodeDecodeError as exc:
             raise InputError(str(path), "hex", "not ASCII text") from exc
-        return from_intel_hex(text, None, source or str(path))[1]
+        return intel_hex_bank(text, source or str(path))[1]
     return data
