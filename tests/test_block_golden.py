@@ -178,3 +178,13 @@ def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):
     fake.vector_sets = lambda: {"blocks.csv": (["x"], [])}
     with pytest.raises(ValueError, match="clashes"):
         golden.vector_sets()
+
+
+def test_makefile_builds_and_checks(tmp_path):
+    make = shutil.which("make")
+    if make is None:
+        pytest.fail("no make on PATH: the documented `make -C firmware_params/c check` cannot run")
+    res = subprocess.run([make, "-s", "-C", str(CDIR), f"BUILD={tmp_path}", "check"], capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "PASS" in res.stdout and (tmp_path / "harness").exists()
