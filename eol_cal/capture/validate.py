@@ -36,6 +36,12 @@ def _at(t: np.ndarray, index: int) -> str:
     return f"t = {float(t[index]):.6g} s (sample {index})"
 
 
+def _first(bad: np.ndarray) -> tuple[int, int] | None:
+    """(index of the first True, number of True) or None when all are False."""
+    count = int(np.count_nonzero(bad))
+    return (int(np.argmax(bad)), count) if count else None
+
+
 def check_metadata(capture: Capture) -> None:
     """Required metadata present and of the right type and range; no ``truth.*`` leak."""
     src, meta = capture.source, capture.metadata
@@ -86,26 +92,23 @@ def check_finite(capture: Capture) -> None:
         values = np.asarray(capture[name])
         if not np.issubdtype(values.dtype, np.number):
             raise InputError(capture.source, name, f"non-numeric values (dtype {values.dtype})")
-        bad = ~np.isfinite(values)
-        if bad.any():
-            first = int(np.argmax(bad))
+        found = _first(~np.isfinite(values))
+        if found:
+            first, count = found
             kind = "NaN" if np.isnan(values[first]) else "infinite value"
-            raise InputError(
-                capture.source, name, f"{kind} at {_at(capture.t, first)}; {int(bad.sum())} non-finite samples in all"
-            )
+            raise InputError(capture.source, name, f"{kind} at {_at(capture.t, first)}; {count} non-finite samples in all")
 
 
 def check_time(capture: Capture) -> None:
     """Strictly increasing sample times."""
-    dt = np.diff(capture.t)
-    bad = dt <= 0
-    if bad.any():
-        first = int(np.argmax(bad))
+    found = _first(np.diff(capture.t) <= 0)
+    if found:
+        first, count = found
         raise InputError(
             capture.source,
             "t",
             f"time not strictly increasing: t[{first + 1}] = {float(capture.t[first + 1]):.9g} s after "
-            f"t[{first}] = {float(capture.t[first]):.9g} s; {int(bad.sum())} such steps",
+            f"t[{first}] = {float(capture.t[first]):.9g} s; {count} such steps",
         )
 
 
@@ -116,24 +119,24 @@ def check_digital(capture: Capture) -> None:
             continue
         values = np.asarray(capture.channels[name])
         lo, hi = _DIGITAL_RANGE[name]
-        bad = (values < lo) | (values > hi) | (values != np.round(values))
-        if bad.any():
-            first = int(np.argmax(bad))
+        found = _first((values < lo) | (values > hi) | (values != np.round(values)))
+        if found:
+            first, count = found
             raise InputError(
                 capture.source,
                 name,
                 f"value {values[first].item()!r} at {_at(capture.t, first)} outside {lo}..{hi} (integers); "
-                f"{int(bad.sum())} such samples",
+                f"{count} such samples",
             )
     hall = np.asarray(capture.channels["hall"])
-    fault = (hall == 0) | (hall == 7)
-    if fault.any():
-        first = int(np.argmax(fault))
+    found = _first((hall == 0) | (hall == 7))
+    if found:
+        first, count = found
         raise InputError(
             capture.source,
             "hall",
             f"hall state {int(hall[first])} (a sensor fault; valid states are 1..6) at {_at(capture.t, first)}; "
-            f"{int(fault.sum())} faulty samples in all",
+            f"{count} faulty samples in all",
         )
 
 
