@@ -33,7 +33,13 @@ def _bus_options(func: Callable) -> Callable:
 
 
 def _open_bus(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None) -> Any:
+    import logging
+
     from eol_cal.ecu.transport import open_bus
+
+    # can-isotp and udsoncan log every lost frame and timeout; the error we raise says it once.
+    for name in ("isotp", "UdsClient", "Connection", "can"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
     return open_bus(interface, channel, bitrate, can_config)
 

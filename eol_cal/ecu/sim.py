@@ -142,6 +142,40 @@ class _PowerLoss(Exception):
     pass
 
 
+class _Pending:
+    """Answers NRC 0x78 while a request takes longer than P2 (and again every P2*/2).
+
+    ISO 14229-2: a server that cannot answer within P2 sends responsePending; the final
+    answer goes out under the same lock, so it can never overtake a 0x78.
+    """
+
+    def __init__(self, sim: "EcuSimulator", service: type) -> None:
+        self._sim = sim
+        self._payload = Response(service=service, code=P.NRC.RequestCorrectlyReceived_ResponsePending).get_payload()
+        self._lock = threading.Lock()
+        self._done = False
+        self._arm(0.8 * sim.config.p2_s)
+
+    def _arm(self, delay: float) -> None:
+        self._timer = threading.Timer(delay, self._fire)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _fire(self) -> None:
+        with self._lock:
+            if self._done:
+                return
+            self._sim._send(self._payload)
+            self._arm(0.5 * self._sim.config.p2_star_s)
+
+    def finish(self, final: bytes | None) -> None:
+        with self._lock:
+            self._done = True
+            self._timer.cancel()
+            if final is not None:
+                self._sim._send(final)
+
+
 @dataclass
 class _Download:
     bank: int
@@ -272,16 +306,21 @@ class EcuSimulator:
         self._step_counts[step] = self._step_counts.get(step, 0) + 1
         if step not in ("erase", "transfer") and self._power_fails(step):
             raise _PowerLoss
+        pending = _Pending(self, req.service)
         try:
             if req.service.request_id() in self.faults.nrc:
                 raise Nrc(self.faults.nrc[req.service.request_id()])
             data = self._handlers[req.service](req)
         except Nrc as exc:
-            self._send(Response(service=req.service, code=exc.code).get_payload())
+            pending.finish(Response(service=req.service, code=exc.code).get_payload())
             return
+        except BaseException:
+            pending.finish(None)
+            raise
+        final = None
         if data is not None and not req.suppress_positive_response:
-            self._send(Response(service=req.service, code=Response.Code.PositiveResponse,
-                                data=data).get_payload())
+            final = Response(service=req.service, code=Response.Code.PositiveResponse, data=data).get_payload()
+        pending.finish(final)
 
     def _power_fails(self, step: str) -> bool:
         return (self.faults.power_loss_step == step
@@ -421,21 +460,16 @@ class EcuSimulator:
         return echo + bytes((status,))
 
     def _erase(self, bank: int) -> None:
-        pending = Response(service=services.RoutineControl,
-                           code=P.NRC.RequestCorrectlyReceived_ResponsePending).get_payload()
-        self._send(pending)
+        # Like a real boot loader, announce the erase at once; _Pending repeats 0x78 if it lasts.
+        self._send(Response(service=services.RoutineControl,
+                            code=P.NRC.RequestCorrectlyReceived_ResponsePending).get_payload())
         self._download = None
         self._exited = False
         self._erased.discard(bank)
         if self._power_fails("erase"):
             self.flash.erase(bank, interrupted=True)
             raise _PowerLoss
-        # A long erase keeps the tester waiting with repeated 0x78, well inside P2*.
-        deadline = time.monotonic() + self.config.erase_s
-        while (left := deadline - time.monotonic()) > 0:
-            time.sleep(min(left, self.config.p2_star_s / 2))
-            if deadline - time.monotonic() > 0:
-                self._send(pending)
+        time.sleep(self.config.erase_s)
         self.flash.erase(bank)
         self._erased.add(bank)
 
@@ -447,13 +481,14 @@ class EcuSimulator:
         if data[0] != P.DOWNLOAD_DFI:
             raise Nrc(P.NRC.RequestOutOfRange)
         bank, offset, size = self._location(data[1:])
-        if offset != 0 or size == 0 or size % P.WORD_BYTES:
+        if size == 0 or size % P.WORD_BYTES:
             raise Nrc(P.NRC.RequestOutOfRange)
         if bank == self.active.bank:
             raise Nrc(P.NRC.UploadDownloadNotAccepted)
         if bank not in self._erased:
             raise Nrc(P.NRC.RequestSequenceError)
-        self._download = _Download(bank=bank, size=size)
+        # A download may start anywhere in the erased bank: the tester resumes after losses.
+        self._download = _Download(bank=bank, size=offset + size, offset=offset)
         self._exited = False
         self._transfers = 0
         # lengthFormatIdentifier 0x20: maxNumberOfBlockLength follows in 2 bytes.

@@ -23,8 +23,8 @@ from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
 from eol_cal.ecu.transport import IsoTpTiming
 from eol_cal.firmware import block as B
 
-FAST_CLIENT = ClientTiming(p2_s=0.15, p2_star_s=1.0, retries=3, tester_present_s=2.0,
-                           isotp=IsoTpTiming(n_bs_ms=150, n_cr_ms=150))
+FAST_ISOTP = IsoTpTiming(n_bs_ms=150, n_cr_ms=150)
+FAST_CLIENT = ClientTiming(p2_s=0.15, p2_star_s=1.0, retries=3, tester_present_s=2.0, isotp=FAST_ISOTP)
 """Short timeouts for in-process tests: a dead ECU is detected in about half a second."""
 
 _counter = itertools.count()
@@ -103,7 +103,7 @@ def virtual_rig(flash_path: str | Path | None = None, *, config: SimConfig | Non
     ecu_bus = can.Bus(interface="virtual", channel=channel)
     tester = can.Bus(interface="virtual", channel=channel)
     path = Path(flash_path) if flash_path is not None else None
-    sim = EcuSimulator(ecu_bus, NorFlash(path), config or SimConfig(), faults).start()
+    sim = EcuSimulator(ecu_bus, NorFlash(path), config or SimConfig(isotp_timing=FAST_ISOTP), faults).start()
     rig = Rig(channel, path, sim, tester, sniffer)
     try:
         yield rig
