@@ -33,8 +33,10 @@ _COMMAND_MODULES: list[str] = [
     "capture",
     "dyno",
     "ecu",
+    "fit",
     "golden",
     "index",
+    "table",
 ]
 
 _register()

@@ -491,6 +491,9 @@ class MotorFit:
     converged : bool
     steps : int
     n_samples : int
+    coef : ndarray, (segments, spec.n_cols)
+        Every segment's column coefficients (nuisance then harmonics) for
+        :func:`design_matrix`; the model of segment s is ``mean(y_s) + design_matrix(...) @ coef[s]``.
     """
 
     harmonics: dict
@@ -502,6 +505,7 @@ class MotorFit:
     converged: bool
     steps: int
     n_samples: int
+    coef: np.ndarray | None = None
 
 
 def wrap_phase(phi: float) -> float:
@@ -551,10 +555,12 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     # T_avg: back-substitute the projected nuisance (its first Legendre term is the mean offset)
     g = np.asarray(out["g"], dtype=float)
     t_avg = np.empty(S_valid)
+    coef = np.empty((S_valid, spec.n_cols))
     for s in range(S_valid):
         R = comp.R[s]
         nuis = np.linalg.solve(R[:q, :q], comp.z[s, :q] - R[:q, q:] @ g[s])
         t_avg[s] = comp.ymean[s] + nuis[0]
+        coef[s] = np.concatenate([nuis, g[s]])
     sst = float(comp.sst[valid].sum())
     finite = bool(np.all(np.isfinite(p)) and np.all(np.isfinite(np.diag(cov))))
     return MotorFit(
@@ -567,6 +573,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         converged=bool(out["converged"]) and finite,
         steps=int(out["steps"]),
         n_samples=int(n),
+        coef=coef,
     )
 
 

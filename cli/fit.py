@@ -1,0 +1,185 @@
+"""``eol-cal fit``: per-motor ripple fit from captures, JSON result, optional plots."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from cli.common import console, err_console, handle_errors
+
+
+def enable_jax_cache() -> None:
+    """JAX's persistent compilation cache, so a second ``eol-cal fit`` skips compiling.
+
+    Directory: ``$EOL_CAL_JAX_CACHE`` or ``~/.cache/eol-cal/jax``.
+    """
+    import jax
+
+    path = os.environ.get("EOL_CAL_JAX_CACHE") or str(Path.home() / ".cache" / "eol-cal" / "jax")
+    try:
+        Path(path).mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return  # a read-only home only costs the compile time
+    jax.config.update("jax_compilation_cache_dir", path)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+
+
+def _harmonics(text: str) -> tuple[int, ...]:
+    try:
+        orders = tuple(int(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: comma-separated orders, e.g. 6,12,18") from None
+    return orders
+
+
+def _capture_metrics(capture, angle) -> dict:
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.errors import InputError
+
+    try:
+        pp = capture_ripple_pp(capture, angle)
+    except InputError as exc:
+        return {"source": capture.source, "error": exc.reason}
+    return {
+        "source": capture.source,
+        "pp_raw_pct": pp.raw_pct,
+        "pp_filtered_pct": pp.filtered_pct,
+        "pp_filtered_nm": pp.filtered_pp_nm,
+        "T_avg_nm": pp.T_avg_nm,
+        "speed_rpm": pp.speed_rpm,
+    }
+
+
+def _json_safe(x):
+    import math
+
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_json_safe(v) for v in x]
+    return x
+
+
+@click.command("fit")
+@click.argument("captures", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
+@click.option("--map", "map_file", type=click.Path(dir_okay=False), help="Channel map (TOML) for foreign files.")
+@click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write per-motor PNGs here.")
+@click.option("--harmonics", default="6", show_default=True, help="Orders to fit: 6, optionally 12 and 18.")
+@click.option("--no-c6", is_flag=True, help="Do not fit the load-independent (cogging) part.")
+@click.option("--no-k6", is_flag=True, help="Do not fit the load-proportional part.")
+@click.option("--delay", "delay_s", type=float, help="Known transducer delay (s) instead of fitting it.")
+@click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5), help="Per-segment drift polynomial degree.")
+@click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0), help="Settling time dropped after each step (s).")
+@click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of k6, fraction of k6.")
+@click.option("--max-ci-phase", default=3.0, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of phase_k6 (deg).")
+@click.option("--max-ci-c6", default=0.002, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % cogging phasor error (N*m).")
+@click.option("--max-steps", default=64, show_default=True, type=click.IntRange(1), help="Solver step limit.")
+@click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True, help="Gauss-Newton or Levenberg-Marquardt.")
+@click.option("--batch", type=click.Choice(["auto", "loop", "vmap", "map"]), default="auto", show_default=True,
+              help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
+@click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
+@handle_errors
+def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, drift_degree, settle_s,
+            max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
+    """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
+
+    Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
+    every fit is usable, 1 when a fit did not converge or its interval is too wide, 2 on bad input.
+    """
+    import sys
+
+    from rich.progress import Progress
+    from rich.table import Table
+
+    from eol_cal import __version__
+    from eol_cal.analysis.fit import FitSpec, fit_many
+    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.metrics import eta_percent
+    from eol_cal.analysis.result import STATUS_OK, CiLimits, motor_record, result_document, write_result
+    from eol_cal.capture.io import read_capture
+
+    enable_jax_cache()
+    spec = FitSpec(
+        harmonics=_harmonics(harmonics),
+        fit_c=not no_c6,
+        fit_k=not no_k6,
+        drift_degree=drift_degree,
+        delay_s=delay_s,
+        max_steps=max_steps,
+        solver=solver,
+    )
+    limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
+    caps = [read_capture(p, map_file) for p in captures]
+    inputs = motor_inputs(caps, settle_s=settle_s)
+    mode = batch if batch != "auto" else ("map" if len(inputs) >= 16 else "loop")
+    with Progress(console=err_console, transient=True, disable=len(inputs) < 2) as progress:
+        task = progress.add_task("fitting", total=len(inputs))
+        fits = fit_many(
+            [m.segments for m in inputs],
+            spec,
+            mode=mode,
+            chunk=min(64, len(inputs)),
+            sources=[", ".join(m.sources) for m in inputs],
+            progress=lambda n: progress.update(task, completed=n),
+        )
+    records = []
+    for mi, f in zip(inputs, fits):
+        segments = [
+            {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
+             "T_avg_nm": float(f.t_avg[k])}
+            for k, i in enumerate(mi.info)
+        ]
+        metrics = {
+            "eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles)),
+            "captures": [_capture_metrics(c, a) for c, a in zip(mi.captures, mi.angles)],
+        }
+        records.append(_json_safe(motor_record(
+            mi.serial, f, spec, limits, kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
+            encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics, solver_mode=mode,
+        )))
+        if plot_dir:
+            from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
+
+            Path(plot_dir).mkdir(parents=True, exist_ok=True)
+            safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in mi.serial)
+            plot_fit(Path(plot_dir) / f"{safe}_fit.png", mi, f, spec)
+            plot_residual_spectrum(Path(plot_dir) / f"{safe}_residual.png", mi, f, spec)
+    doc = result_document(records, limits, __version__)
+    write_result(doc, output)
+
+    table = Table(title=f"ripple fit ({len(records)} motor{'s' if len(records) != 1 else ''})")
+    for col in ("serial", "status", "k6 (mN*m/A)", "phase_k6 (deg)", "c6 (mN*m)", "phase_c6 (deg)", "delay (us)", "rms (mN*m)", "R^2", "steps"):
+        table.add_column(col, justify="right" if col not in ("serial", "status") else "left")
+    import math
+
+    def pm(e, scale, deg=False):
+        if e is None or e["value"] is None:
+            return "-"
+        f = (lambda v: math.degrees(v)) if deg else (lambda v: v * scale)
+        return f"{f(e['value']):.4g} ± {f(e['ci95']):.2g}" if e["ci95"] is not None else f"{f(e['value']):.4g}"
+
+    for r in records:
+        table.add_row(
+            r["serial"], r["status"] if r["status"] == STATUS_OK else f"[red]{r['status']}[/red]",
+            pm(r["k6"], 1e3), pm(r["phase_k6"], 1, True), pm(r["c6"], 1e3), pm(r["phase_c6"], 1, True),
+            pm(r["delay_s"], 1e6), f"{r['fit']['rms'] * 1e3:.3g}", f"{r['fit']['r2']:.3f}", str(r["fit"]["steps"]),
+        )
+    (err_console if as_json else console).print(table)
+    for r in records:
+        for reason in r["reasons"]:
+            err_console.print(f"{r['serial']}: {reason}")
+    if as_json:
+        import json
+
+        click.echo(json.dumps(doc, indent=2, allow_nan=False))
+    if any(r["status"] != STATUS_OK for r in records):
+        sys.exit(1)
+
+
+COMMANDS = [fit_cmd]

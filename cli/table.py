@@ -1,0 +1,79 @@
+"""``eol-cal table``: compensator tables from a fit result, packed into a parameter block."""
+
+from __future__ import annotations
+
+import click
+
+from cli.common import console, handle_errors, print_json
+
+
+def _lead(text: str) -> float | None:
+    if text == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: 'auto' or a time in seconds") from None
+    if not (value >= 0.0 and value < 0.1):
+        raise click.BadParameter(f"{value}: a lead in seconds, 0 <= lead < 0.1")
+    return value
+
+
+@click.command("table")
+@click.argument("result", type=click.Path(dir_okay=False))
+@click.option("--serial", help="Motor to take from a result with several.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block image to write (.bin).")
+@click.option("--table-len", default=256, show_default=True, type=int, help="Table entries N (power of two, 16..1024).")
+@click.option("--lead", "lead", default="auto", show_default=True,
+              help="Look-up lead: 'auto' (current-loop lag at the operating speed) or seconds.")
+@click.option("--iqc-limit", type=click.FloatRange(0.0), help="Clamp of |i_qc| (A); default 10 % of the largest |i_qo| fitted.")
+@click.option("--motor", "motor_file", type=click.Path(dir_okay=False), help="Motor TOML overriding the paper preset (current_bw_hz, f_cc, f_pwm).")
+@click.option("--hex", "hex_file", type=click.Path(dir_okay=False), help="Also write Intel HEX at the bank's flash address.")
+@click.option("--bank", default=0, show_default=True, type=click.IntRange(0, 1), help="Bank address for --hex.")
+@click.option("--json", "as_json", is_flag=True, help="Print the block's fields as JSON.")
+@handle_errors
+def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, hex_file, bank, as_json):
+    """Build the compensator tables of one motor and pack them into a valid parameter block.
+
+    Exit 1 when the motor's fit is not usable, 2 on bad input.
+    """
+    from eol_cal.analysis.fit_table import block_from_record, created_unix, select_motor
+    from eol_cal.analysis.result import read_result
+    from eol_cal.capture.atomic import atomic_path
+    from eol_cal.errors import InputError
+    from eol_cal.firmware.block import check, pack, to_intel_hex
+    from eol_cal.motor import load_motor
+
+    lead_s = _lead(lead)
+    doc = read_result(result)
+    rec = select_motor(doc, serial, result)
+    motor = load_motor("paper", motor_file)
+    try:
+        blk = block_from_record(rec, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
+                                calibrated_at=created_unix(doc), source=result)
+    except KeyError as exc:
+        raise InputError(result, str(exc.args[0]), f"missing in motor {rec.get('serial')!r}") from None
+    data = pack(blk)
+    res = check(data)
+    if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
+        raise RuntimeError(f"packed block does not check: {res.reasons}")
+    with atomic_path(output) as tmp:
+        tmp.write_bytes(data)
+    if hex_file:
+        text = to_intel_hex(data, bank)
+        with atomic_path(hex_file) as tmp:
+            tmp.write_text(text)
+    if as_json:
+        d = blk.to_dict()
+        d.pop("table_const")
+        d.pop("table_per_amp")
+        print_json({"file": output, "bytes": len(data), "block": d})
+    else:
+        console.print(
+            f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"
+            f"{' (auto)' if lead_s is None else ''}, iqc_limit {blk.iqc_limit:.3g} A, "
+            f"max |table_per_amp| {abs(blk.table_per_amp).max():.3g} A/A, max |table_const| {abs(blk.table_const).max():.3g} A"
+        )
+
+
+COMMANDS = [table_cmd]

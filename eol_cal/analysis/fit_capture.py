@@ -1,0 +1,213 @@
+"""From captures to the fit's segments: angle, segmentation, grouping by serial.
+
+Segments (documented in ``docs/fit.md``): a capture is split where the direction of rotation
+changes, then into runs of whole electrical revolutions at a steady speed and a steady i_qo
+(:func:`eol_cal.analysis.metrics.steady_runs`, the same rule the p-p metric uses); the first
+``settle_s`` of every run is dropped (current and speed transients after a step). Each run of at
+least ``min_revs`` revolutions is one segment: one load point x speed x direction.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from eol_cal.analysis.fit import SegmentArrays
+from eol_cal.capture.model import Capture
+from eol_cal.errors import InputError
+from eol_cal.motor import MotorParams, load_motor
+
+
+@dataclass
+class SegmentInfo:
+    """Where a segment came from (for the result and the plots)."""
+
+    source: str
+    start: int
+    stop: int
+    t_start: float
+    t_end: float
+    i_qo: float
+    speed_rpm: float
+
+
+@dataclass
+class MotorInput:
+    """Everything the fit needs of one motor, and what the result reports about its inputs."""
+
+    serial: str
+    captures: list[Capture]
+    angles: list
+    segments: SegmentArrays
+    info: list[SegmentInfo]
+    poles: int
+    encoder_ppr: int
+    kt: float
+    kt_source: str
+    capture_of_segment: list[int] = field(default_factory=list)
+
+    @property
+    def sources(self) -> list[str]:
+        return [c.source for c in self.captures]
+
+
+def direction_pieces(omega_r: np.ndarray, min_fraction: float = 0.05) -> list[tuple[int, int]]:
+    """Sample ranges of constant direction of rotation.
+
+    Parameters
+    ----------
+    omega_r : ndarray
+        Electrical speed per sample (rad/s).
+    min_fraction : float
+        Speeds below this fraction of the largest |omega_r| count as standstill (no direction).
+
+    Returns
+    -------
+    list of (start, stop)
+        Half-open sample ranges.
+    """
+    w = np.asarray(omega_r, dtype=float)
+    s = np.sign(w)
+    s[np.abs(w) < min_fraction * max(float(np.abs(w).max()), 1e-12)] = 0
+    edges = np.flatnonzero(np.diff(s) != 0) + 1
+    starts = np.concatenate([[0], edges])
+    stops = np.concatenate([edges, [len(s)]])
+    return [(int(a), int(b)) for a, b in zip(starts, stops) if s[a] != 0 and b - a > 1]
+
+
+def capture_segments(
+    t: np.ndarray,
+    theta_r: np.ndarray,
+    omega_r: np.ndarray,
+    i_qo: np.ndarray,
+    *,
+    settle_s: float = 0.1,
+    min_revs: int = 1,
+    speed_tol: float = 0.02,
+    iq_tol_a: float = 0.5,
+    iq_tol_rel: float = 0.02,
+) -> list[tuple[int, int]]:
+    """Sample ranges of one load point x speed x direction each, whole electrical revolutions.
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times (s).
+    theta_r : ndarray
+        Unwrapped electrical angle (rad).
+    omega_r : ndarray
+        Electrical speed (rad/s), for the direction.
+    i_qo : ndarray
+        Nominal q current per sample (A).
+    settle_s : float
+        Dropped at the start of every steady run (s).
+    min_revs : int
+        Fewest electrical revolutions a segment must keep.
+    speed_tol, iq_tol_a, iq_tol_rel
+        Steadiness tolerances, as in :func:`eol_cal.analysis.metrics.steady_runs`.
+
+    Returns
+    -------
+    list of (start, stop)
+        Half-open sample ranges.
+    """
+    from eol_cal.analysis.metrics import revolution_bounds, steady_runs
+
+    out: list[tuple[int, int]] = []
+    for a, b in direction_pieces(omega_r):
+        bounds = revolution_bounds(theta_r[a:b])
+        if len(bounds) < 2:
+            continue
+        tt = t[a:b]
+        for run in steady_runs(tt, bounds, i_qo[a:b], speed_tol, iq_tol_a, iq_tol_rel):
+            t0 = tt[bounds[run[0]]]
+            kept = [k for k in run if tt[bounds[k]] - t0 >= settle_s - 1e-12]
+            if len(kept) >= min_revs:
+                out.append((a + int(bounds[kept[0]]), a + int(bounds[kept[-1] + 1])))
+    return out
+
+
+def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
+    values = {float(c.metadata["kt"]) for c in captures if "kt" in c.metadata}
+    if len(values) > 1:
+        raise InputError(", ".join(c.source for c in captures), "kt", f"captures of one motor disagree: {sorted(values)}")
+    if values:
+        return values.pop(), "metadata"
+    return motor.kt, f"preset {motor.name}"
+
+
+def motor_inputs(
+    captures: list[Capture],
+    motor: MotorParams | None = None,
+    settle_s: float = 0.1,
+    min_revs: int = 1,
+) -> list[MotorInput]:
+    """Group captures by serial, reconstruct the angle, cut segments.
+
+    Parameters
+    ----------
+    captures : list of Capture
+        Any number of motors, any number of captures each.
+    motor : MotorParams, optional
+        Fallback for kt when the captures carry no ``kt`` metadata (default: the paper preset).
+    settle_s : float
+        Settling time dropped after each step (s).
+    min_revs : int
+        Fewest electrical revolutions per segment.
+
+    Returns
+    -------
+    list of MotorInput
+        In order of first appearance of each serial.
+    """
+    from eol_cal.analysis.angle import capture_angle
+
+    motor = motor or load_motor("paper")
+    groups: dict[str, list[Capture]] = {}
+    for c in captures:
+        if "serial" not in c.metadata:
+            raise InputError(c.source, "serial", "missing metadata: captures are grouped by serial")
+        groups.setdefault(c.serial, []).append(c)
+    out = []
+    for serial, caps in groups.items():
+        poles = {c.poles for c in caps}
+        ppr = {c.encoder_ppr for c in caps}
+        if len(poles) > 1 or len(ppr) > 1:
+            raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
+        P = poles.pop()
+        thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
+        for ci, c in enumerate(caps):
+            if not c.has("torque"):
+                raise InputError(c.source, "torque", "missing channel, needed for the fit")
+            if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
+                raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
+            ang = capture_angle(c)
+            angles.append(ang)
+            i_qo = np.asarray(c.iq_ref(), dtype=float)
+            ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
+            for a, b in ranges:
+                th = ang.theta_r[a:b]
+                tt = c.t[a:b]
+                omega = float(th[-1] - th[0]) / float(tt[-1] - tt[0])
+                thetas.append(th)
+                ts.append(tt)
+                ys.append(np.asarray(c["torque"][a:b], dtype=float))
+                iqs.append(float(i_qo[a:b].mean()))
+                omegas.append(omega)
+                rpm = omega / (P / 2) * 60.0 / (2 * math.pi)
+                labels.append(f"{c.source}[{a}:{b}]")
+                infos.append(SegmentInfo(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
+                cap_idx.append(ci)
+        if not thetas:
+            raise InputError(
+                ", ".join(c.source for c in caps),
+                "segments",
+                f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
+                f"{settle_s} s settling (constant speed, direction and iq_ref)",
+            )
+        kt, kt_source = _kt_of(caps, motor)
+        seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels)
+        out.append(MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx))
+    return out

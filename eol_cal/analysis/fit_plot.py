@@ -1,0 +1,104 @@
+"""Plots of a motor's fit: torque against electrical angle with the fitted curve, residual spectrum."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix
+from eol_cal.analysis.fit_capture import MotorInput
+
+_MAX_PANELS = 8
+_MAX_POINTS = 4000
+
+
+def segment_model(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fitted torque of segment ``s`` at its samples, and the part of it that is drift + mechanical order 1 (N*m)."""
+    seg = mi.segments
+    theta = np.unwrap(seg.theta[s])
+    X = design_matrix(theta, seg.t[s], seg.pole_pairs, spec)
+    mean = float(np.mean(seg.torque[s]))
+    q = spec.n_nuis
+    nuisance = X[:, 1:q] @ fit.coef[s, 1:q]  # drift above the constant, and the mechanical pair
+    return mean + X @ fit.coef[s], nuisance
+
+
+def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> None:
+    """Torque (drift and mechanical order 1 removed) against electrical angle, fitted ripple on top.
+
+    Parameters
+    ----------
+    path : path
+        PNG to write (atomically).
+    mi, fit, spec
+        The motor's inputs, its fit and the model it was fitted with.
+    """
+    from eol_cal.analysis.plots import _pyplot, _save
+
+    plt = _pyplot()
+    n = min(mi.segments.n_segments, _MAX_PANELS)
+    cols = 2 if n > 1 else 1
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 2.6 * rows), squeeze=False)
+    grid = np.linspace(0.0, 2 * math.pi, 721)
+    for s in range(n):
+        ax = axes[s // cols][s % cols]
+        seg = mi.segments
+        model, nuisance = segment_model(mi, fit, spec, s)
+        th = np.mod(seg.theta[s], 2 * math.pi)
+        y = seg.torque[s] - nuisance
+        step = max(1, len(th) // _MAX_POINTS)
+        ax.plot(np.degrees(th[::step]), y[::step], ".", ms=1.5, alpha=0.5, label="measured")
+        # the fitted ripple as the transducer sees it (delayed by delay_s at this segment's speed)
+        seen = grid - seg.omega_e[s] * fit.delay_s
+        curve = np.full_like(grid, fit.t_avg[s])
+        for h, parts in fit.harmonics.items():
+            if "c" in parts:
+                curve -= parts["c"].value * np.sin(h * seen + parts["c"].phase)
+            if "k" in parts:
+                curve -= parts["k"].value * seg.i_qo[s] * np.sin(h * seen + parts["k"].phase)
+        ax.plot(np.degrees(grid), curve, "-", color="C3", lw=1.2, label="fit")
+        info = mi.info[s]
+        ax.set_title(f"{Path(info.source).name}: {info.speed_rpm:.0f} rpm, i_qo {info.i_qo:.1f} A", fontsize=8)
+        ax.set_xlim(0, 360)
+        ax.set_xlabel("electrical angle theta_r (deg)", fontsize=8)
+        ax.set_ylabel("torque (N*m)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    for s in range(n, rows * cols):
+        axes[s // cols][s % cols].axis("off")
+    axes[0][0].legend(fontsize=7, loc="upper right")
+    fig.suptitle(f"{mi.serial}: torque vs electrical angle (drift and mechanical order 1 removed)", fontsize=9)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)
+
+
+def plot_residual_spectrum(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec, max_order: int = 36) -> None:
+    """Order spectrum of the fit's residual, one line per segment (N*m against electrical order)."""
+    from eol_cal.analysis.plots import _pyplot, _save
+    from eol_cal.analysis.spectrum import order_spectrum
+    from eol_cal.errors import InputError
+
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(7, 3.2))
+    seg = mi.segments
+    for s in range(seg.n_segments):
+        model, _ = segment_model(mi, fit, spec, s)
+        try:
+            sp = order_spectrum(seg.theta[s], seg.torque[s] - model, mi.poles, max_order=max_order)
+        except InputError:
+            continue  # less than one electrical revolution one way: no spectrum for this segment
+        info = mi.info[s]
+        ax.plot(sp.orders, sp.amplitude_nm, ".-", ms=3, lw=0.8, label=f"{info.speed_rpm:.0f} rpm, {info.i_qo:.0f} A")
+    for h in spec.harmonics:
+        ax.axvline(h, color="0.8", lw=0.8, zorder=0)
+    ax.set_xlabel("electrical order")
+    ax.set_ylabel("residual amplitude (N*m)")
+    ax.set_title(f"{mi.serial}: residual spectrum (rms {fit.rms:.3g} N*m)", fontsize=9)
+    if seg.n_segments <= 10:
+        ax.legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    _save(fig, path)
+    plt.close(fig)

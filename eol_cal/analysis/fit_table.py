@@ -1,0 +1,134 @@
+"""From a motor's fit result to the firmware's parameter block (contract section 2).
+
+The tables come from :func:`eol_cal.firmware.compensator.make_tables`, the bytes from
+:func:`eol_cal.firmware.block.pack`; this module only decides the block's other fields:
+
+- ``flags`` = COMP_ENABLE | INTERP_ENABLE; ``sequence`` = 1 (the flasher writes the real one);
+- ``hall_angle`` nominal (the frame the fit's phases are expressed in);
+- ``lead_s`` from :mod:`eol_cal.analysis.lead` at the fit's operating speed, or given;
+- ``iqc_limit`` = 10 % of the largest |i_qo| the motor was calibrated at (65 A -> 6.5 A), unless
+  given: a bound on what a wrong table could inject, well above the ~1-2 A the paper needed;
+- ``calibrated_at`` = the result's ``created`` time.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+from typing import Any
+
+from eol_cal.errors import CheckFailed, InputError
+from eol_cal.motor import MotorParams
+
+IQC_LIMIT_FRACTION = 0.10
+
+
+def select_motor(doc: dict[str, Any], serial: str | None, source: str) -> dict[str, Any]:
+    """The motor record for ``serial`` (or the only one)."""
+    motors = doc["motors"]
+    if serial is None:
+        if len(motors) != 1:
+            raise InputError(source, "serial", f"{len(motors)} motors in the result: choose one with --serial "
+                             f"({', '.join(m['serial'] for m in motors)})")
+        return motors[0]
+    for m in motors:
+        if m["serial"] == serial:
+            return m
+    raise InputError(source, "serial", f"{serial!r} not in the result ({', '.join(m['serial'] for m in motors)})")
+
+
+def _value(rec: dict[str, Any], key: str, source: str) -> float:
+    try:
+        v = rec[key]["value"]
+        return float(v)
+    except (KeyError, TypeError, ValueError):
+        raise InputError(source, key, f"missing or not a number in motor {rec.get('serial')!r}") from None
+
+
+def block_from_record(
+    rec: dict[str, Any],
+    motor: MotorParams,
+    *,
+    table_len: int = 256,
+    lead_s: float | None = None,
+    iqc_limit: float | None = None,
+    calibrated_at: int | None = None,
+    source: str = "<result>",
+):
+    """A :class:`~eol_cal.firmware.block.ParamBlock` for one usable motor record.
+
+    Parameters
+    ----------
+    rec : dict
+        One entry of the result's ``motors`` (``status`` must be ``"ok"``).
+    motor : MotorParams
+        Current-loop bandwidth and rates for the automatic lead; ``f_pwm`` becomes ``tick_hz``.
+    table_len : int
+        N, a power of two 16..1024.
+    lead_s : float, optional
+        Look-up lead (s); ``None`` = automatic at the record's operating speed.
+    iqc_limit : float, optional
+        Clamp of |i_qc| (A); ``None`` = 10 % of the largest |i_qo| of the record's segments.
+    calibrated_at : int, optional
+        Unix time (s); default the record's result ``created`` time or now.
+    source : str
+        Result file, for errors.
+
+    Raises
+    ------
+    CheckFailed
+        The motor's fit is not usable (its ``status`` is not ``"ok"``).
+    """
+    from eol_cal.analysis.angle import NOMINAL_HALL_ANGLES
+    from eol_cal.analysis.lead import auto_lead_s
+    from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
+    from eol_cal.firmware.compensator import make_tables
+
+    serial = rec.get("serial")
+    if rec.get("status") != "ok":
+        why = "; ".join(rec.get("reasons") or []) or "no reason recorded"
+        raise CheckFailed(f"motor {serial}: fit status {rec.get('status')!r} ({why}); no table from an unusable fit")
+    c6, phase_c6 = _value(rec, "c6", source), _value(rec, "phase_c6", source)
+    k6, phase_k6 = _value(rec, "k6", source), _value(rec, "phase_k6", source)
+    kt = float(rec["kt"])
+    harmonics = []
+    for h in rec.get("harmonics") or []:
+        def part(name: str) -> float:
+            return float(h[name]["value"]) if h.get(name) else 0.0
+
+        harmonics.append((int(h["order"]), part("c"), part("phase_c"), part("k"), part("phase_k")))
+    tc, tp = make_tables(c6, phase_c6, k6, phase_k6, kt, table_len, harmonics)
+    if lead_s is None:
+        lead_s = auto_lead_s(rec["operating_point"]["speed_rpm"], motor)
+    if iqc_limit is None:
+        iqc_limit = IQC_LIMIT_FRACTION * max(abs(s["i_qo_a"]) for s in rec["segments"])
+    if calibrated_at is None:
+        calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
+    if len(str(serial).encode("ascii", "replace")) > 16:
+        raise InputError(source, "serial", f"{serial!r}: the block holds at most 16 ASCII characters")
+    return ParamBlock(
+        sequence=1,
+        flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE,
+        serial=str(serial),
+        calibrated_at=int(calibrated_at),
+        poles=int(rec["poles"]),
+        encoder_ppr=int(rec["encoder_ppr"]),
+        tick_hz=motor.f_pwm,
+        kt=kt,
+        hall_angle=NOMINAL_HALL_ANGLES,
+        c6=c6,
+        phase_c6=phase_c6,
+        k6=k6,
+        phase_k6=phase_k6,
+        lead_s=float(lead_s),
+        iqc_limit=float(iqc_limit),
+        table_const=tc,
+        table_per_amp=tp,
+    )
+
+
+def created_unix(doc: dict[str, Any]) -> int | None:
+    """The result's ``created`` time as Unix seconds, or None when absent/unreadable."""
+    try:
+        return int(_dt.datetime.fromisoformat(doc["created"]).timestamp())
+    except (KeyError, TypeError, ValueError):
+        return None

@@ -1,0 +1,196 @@
+"""Fit results as JSON (schema ``eol-cal/fit-result/1``, keys in ``docs/json.md``).
+
+A motor whose fit did not converge, or whose 95 % interval is wider than the limits, gets a
+``status`` other than ``"ok"`` and ``null`` in every estimate field (``k6``, ``phase_k6``, ``c6``,
+``phase_c6``, ``delay_s``, ``harmonics``): such a fit is reported, never used.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit
+from eol_cal.errors import InputError
+
+SCHEMA = "eol-cal/fit-result/1"
+STATUS_OK = "ok"
+STATUS_NOT_CONVERGED = "not_converged"
+STATUS_CI_TOO_WIDE = "ci_too_wide"
+
+
+@dataclass(frozen=True)
+class CiLimits:
+    """Widest 95 % intervals a usable fit may have.
+
+    Attributes
+    ----------
+    k6_rel : float
+        ci95(k6) / k6 (fraction).
+    phase_k6_deg : float
+        ci95(phase_k6) (deg).
+    c6_nm : float
+        Cogging phasor error bound max(ci95(c6), c6 * ci95(phase_c6)) (N*m); used when c6 is fitted.
+    """
+
+    k6_rel: float = 0.05
+    phase_k6_deg: float = 3.0
+    c6_nm: float = 0.002
+
+    def to_dict(self) -> dict[str, float]:
+        return {"k6_rel": self.k6_rel, "phase_k6_deg": self.phase_k6_deg, "c6_nm": self.c6_nm}
+
+
+def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits) -> tuple[str, list[str]]:
+    """Status of a fit and the reasons it is not usable (empty when ``"ok"``)."""
+    if not fit.converged:
+        return STATUS_NOT_CONVERGED, [f"solver did not converge in {fit.steps} steps (or produced non-finite values)"]
+    reasons = []
+    six = fit.harmonics[6]
+    if spec.fit_k:
+        k = six["k"]
+        if not (k.value > 0 and k.ci95 <= limits.k6_rel * k.value):
+            reasons.append(f"ci95(k6) = {k.ci95:.3g} N*m/A exceeds {100 * limits.k6_rel:g} % of k6 = {k.value:.3g}")
+        if not (math.degrees(k.phase_ci95) <= limits.phase_k6_deg):
+            reasons.append(f"ci95(phase_k6) = {math.degrees(k.phase_ci95):.3g} deg exceeds {limits.phase_k6_deg:g} deg")
+    if spec.fit_c:
+        c = six["c"]
+        bound = max(c.ci95, c.value * c.phase_ci95)
+        if not (bound <= limits.c6_nm):
+            reasons.append(f"c6 phasor ci95 = {bound:.3g} N*m exceeds {limits.c6_nm:g} N*m")
+    return (STATUS_CI_TOO_WIDE, reasons) if reasons else (STATUS_OK, [])
+
+
+def _num(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def _vc(value: float, ci95: float) -> dict[str, float | None]:
+    return {"value": _num(value), "ci95": _num(ci95)}
+
+
+def _estimates(e: Estimate, amp: str, phase: str) -> dict[str, Any]:
+    return {amp: _vc(e.value, e.ci95), phase: _vc(e.phase, e.phase_ci95)}
+
+
+def motor_record(
+    serial: str,
+    fit: MotorFit,
+    spec: FitSpec,
+    limits: CiLimits,
+    *,
+    kt: float,
+    kt_source: str,
+    poles: int,
+    encoder_ppr: int,
+    sources: list[str],
+    segments: list[dict[str, Any]],
+    metrics: dict[str, Any],
+    solver_mode: str,
+) -> dict[str, Any]:
+    """One entry of ``motors`` (see ``docs/json.md``)."""
+    status, reasons = judge(fit, spec, limits)
+    usable = status == STATUS_OK
+    rec: dict[str, Any] = {"serial": serial, "status": status, "reasons": reasons}
+    six = fit.harmonics[6]
+    for part, amp, phase in (("k", "k6", "phase_k6"), ("c", "c6", "phase_c6")):
+        if usable and part in six:
+            rec.update(_estimates(six[part], amp, phase))
+        elif usable:  # not fitted: the model holds it at 0
+            rec.update({amp: {"value": 0.0, "ci95": 0.0}, phase: {"value": 0.0, "ci95": 0.0}})
+        else:
+            rec.update({amp: None, phase: None})
+    rec["kt"] = float(kt)
+    rec["kt_source"] = kt_source
+    rec["delay_s"] = _vc(fit.delay_s, fit.delay_ci95) if usable else None
+    harmonics = []
+    for h in spec.harmonics[1:]:
+        entry: dict[str, Any] = {"order": h}
+        for part in ("c", "k"):
+            if part in fit.harmonics[h]:
+                entry.update(_estimates(fit.harmonics[h][part], part, f"phase_{part}"))
+        harmonics.append(entry)
+    rec["harmonics"] = harmonics if usable else None
+    rec["metrics"] = metrics
+    rec["fit"] = {
+        "rms": _num(fit.rms),
+        "r2": _num(fit.r2),
+        "converged": fit.converged,
+        "steps": fit.steps,
+        "n_samples": fit.n_samples,
+        "n_segments": len(segments),
+        "solver": spec.solver,
+        "batch": solver_mode,
+    }
+    rec["model"] = {
+        "harmonics": list(spec.harmonics),
+        "fit_c6": spec.fit_c,
+        "fit_k6": spec.fit_k,
+        "delay": "fitted" if spec.fit_delay else "fixed",
+        "drift_degree": spec.drift_degree,
+        "mech_order1": spec.mech_order1,
+        "angle_frame": "hall: theta_r = 0 where hall state 5 begins in forward rotation (docs/angle-frame.md)",
+    }
+    rec["poles"] = poles
+    rec["encoder_ppr"] = encoder_ppr
+    rec["operating_point"] = operating_point(segments)
+    rec["segments"] = segments
+    rec["sources"] = sources
+    return rec
+
+
+def operating_point(segments: list[dict[str, Any]]) -> dict[str, float]:
+    """The segment the compensation is tuned for: the largest |i_qo|, then the lowest |speed|.
+
+    Returns ``{"speed_rpm": ..., "i_qo_a": ...}``; ``eol-cal table --lead auto`` uses the speed.
+    """
+    best = max(segments, key=lambda s: (abs(s["i_qo_a"]), -abs(s["speed_rpm"])))
+    return {"speed_rpm": float(best["speed_rpm"]), "i_qo_a": float(best["i_qo_a"])}
+
+
+def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version: str) -> dict[str, Any]:
+    """The whole result file."""
+    return {
+        "schema": SCHEMA,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "tool": f"eol-cal {tool_version}",
+        "limits": limits.to_dict(),
+        "motors": motors,
+    }
+
+
+def write_result(doc: dict[str, Any], path: str | Path) -> None:
+    """Write the result JSON atomically (temp file in the same directory, fsync, os.replace)."""
+    from eol_cal.capture.atomic import atomic_path
+
+    text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+def read_result(path: str | Path) -> dict[str, Any]:
+    """Read and check a fit result file (schema, motors list)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(str(path), None, "file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(str(path), None, f"not valid JSON: {exc}") from None
+    if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
+        got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
+        raise InputError(str(path), "schema", f"expected {SCHEMA!r}, got {got!r}")
+    if not isinstance(doc.get("motors"), list) or not doc["motors"]:
+        raise InputError(str(path), "motors", "missing or empty list")
+    for i, m in enumerate(doc["motors"]):
+        if not isinstance(m, dict) or not isinstance(m.get("serial"), str) or "status" not in m:
+            raise InputError(str(path), f"motors[{i}]", "needs at least serial and status")
+    return doc
