@@ -19,7 +19,7 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def analyze_capture(capture, ripple_options: dict[str, Any] | None = None) -> tuple[dict, Any]:
+def analyze_capture(capture, ripple_options: dict[str, Any] | None = None, fw_angle: bool = False) -> tuple[dict, Any]:
     """Every figure ``eol-cal analyze`` reports for one capture.
 
     Parameters
@@ -28,6 +28,8 @@ def analyze_capture(capture, ripple_options: dict[str, Any] | None = None) -> tu
         A validated capture.
     ripple_options : dict, optional
         Keyword arguments for :func:`eol_cal.analysis.metrics.ripple_pp`.
+    fw_angle : bool
+        Also run the firmware's estimator (JAX) and report its angle against the offline one.
 
     Returns
     -------
@@ -115,6 +117,19 @@ def analyze_capture(capture, ripple_options: dict[str, Any] | None = None) -> tu
             "direction": angle.direction,
         },
     }
+    if fw_angle:
+        from eol_cal.analysis.angle import firmware_angle_difference
+
+        d = firmware_angle_difference(capture, angle)
+        report["firmware_angle"] = {
+            "mean_deg": d.mean_deg,
+            "rms_deg": d.rms_deg,
+            "max_deg": d.max_deg,
+            "raw_rms_deg": d.raw_rms_deg,
+            "raw_max_deg": d.raw_max_deg,
+            "phase6_shift_deg": d.phase6_shift_deg,
+            "n_ticks": d.n_ticks,
+        }
     plot = CapturePlotData(
         label=f"{capture.source} ({capture.serial})",
         t=capture.t,
@@ -156,6 +171,12 @@ def _print_table(reports: list[dict]) -> None:
          lambda r: f"{r['quantisation']['enc_error_rms_deg']:.2f} / {r['quantisation']['enc_error_max_deg']:.2f}"),
         ("hall residual rms deg", lambda r: f"{r['angle']['hall_residual_rms_deg']:.2f}"),
     ]
+    if any("firmware_angle" in r for r in reports):
+        rows.append(("fw estimator - offline rms/max deg",
+                     lambda r: f"{r['firmware_angle']['rms_deg']:.3f} / {r['firmware_angle']['max_deg']:.3f}"
+                     if "firmware_angle" in r else "-"))
+        rows.append(("fw 6th phase shift deg",
+                     lambda r: f"{r['firmware_angle']['phase6_shift_deg']:.3f}" if "firmware_angle" in r else "-"))
     for label, get in rows:
         table.add_row(label, *[get(r) for r in reports])
     console.print(table)
@@ -167,8 +188,11 @@ def _print_table(reports: list[dict]) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON (keys in docs/json.md).")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False),
               help="Write torque against time and the order spectrum, a row per capture, to this PNG.")
+@click.option("--fw-angle", is_flag=True,
+              help="Also run the firmware's angle estimator (JAX; seconds) and report it against the offline angle.")
 @handle_errors
-def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, plot_file: str | None) -> None:
+def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, plot_file: str | None,
+                fw_angle: bool) -> None:
     """Ripple metrics (p-p % raw and filtered), order spectrum and encoder quantisation per CAPTURE.
 
     Exit code 2 when any capture is refused (the others are still reported).
@@ -182,7 +206,7 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
     for path in captures:
         try:
             capture = read_capture(path, channel_map)
-            report, plot = analyze_capture(capture)
+            report, plot = analyze_capture(capture, fw_angle=fw_angle)
         except InputError as exc:
             errors.append({"file": exc.file or path, "field": exc.field, "reason": exc.reason})
             err_console.print(f"error: {exc}", markup=False, highlight=False)

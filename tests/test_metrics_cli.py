@@ -75,6 +75,13 @@ def test_analyze_recovers_a_synthetic_6th_harmonic(tmp_path):
     assert c["ripple"]["window_revs"] == 3 and c["ripple"]["n_windows"] == 2
 
 
+def test_analyze_reports_the_firmware_angle_on_request():
+    res = CliRunner().invoke(cli, ["analyze", str(FIXTURES / "paper_60rpm.mf4"), "--json", "--fw-angle"])
+    assert res.exit_code == 0, res.output
+    fw = json.loads(res.output)["captures"][0]["firmware_angle"]
+    assert fw["rms_deg"] < 0.5 and fw["raw_rms_deg"] > 9.0 and fw["n_ticks"] > 0
+
+
 def test_analyze_with_a_channel_map_and_refusals(tmp_path):
     res = CliRunner().invoke(cli, ["analyze", str(FIXTURES / "daq_export_foreign.csv"),
                                    "--map", str(FIXTURES / "daq_export_foreign.map.toml"), "--json"])
