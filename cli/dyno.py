@@ -26,7 +26,7 @@ def _quiet_pymodbus() -> None:
 @click.option("--timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request timeout (s).")
 @click.option("--retries", type=click.IntRange(0, 20), default=3, show_default=True, help="Retries per request (reconnecting in between).")
 @click.option("--connections", type=click.IntRange(1, 16), default=4, show_default=True, help="Parallel connections for the capture transfer.")
-@click.option("--all-channels", is_flag=True, help="Also read the phase and dq currents (iq, id, ia, ib, ic).")
+@click.option("--all-channels", is_flag=True, help="Also read temperature and the dq and phase currents (temp, iq, id, ia, ib, ic).")
 @click.option("--reset-faults", is_flag=True, help="Clear faults latched on the dyno before the run.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @handle_errors
@@ -51,7 +51,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
     host, port = dc.parse_address(address)
     prof = load_profile(profile)
     segments = dc.segments_from_profile(prof)
-    channels = dc.DEFAULT_CHANNELS + (("iq", "id", "ia", "ib", "ic") if all_channels else ())
+    channels = dc.DEFAULT_CHANNELS + (dc.EXTRA_CHANNELS if all_channels else ())
     config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections)
     _quiet_pymodbus()
     t0 = time.perf_counter()
@@ -114,7 +114,13 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
         raise InputError(None, "--serial", "1 to 16 ASCII characters")
     plans = [ds.parse_fault_plan(f) for f in faults]
     motor = load_motor("paper")
-    capture_source = ds.plant_source() if source == "plant" else ds.synthetic_source
+    if source == "plant":
+        from cli.fit import enable_jax_cache
+
+        enable_jax_cache()
+        capture_source = ds.plant_source()
+    else:
+        capture_source = ds.synthetic_source
     sim = ds.DynoSim(capture_source, serial=serial, poles=motor.poles, encoder_ppr=motor.N_enc, kt=motor.kt,
                      seed=seed, flash_file=ecu_flash, tick_hz=int(motor.f_pwm), faults=plans)
 

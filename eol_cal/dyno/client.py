@@ -26,8 +26,9 @@ from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
 from eol_cal.errors import EolCalError, InputError
 
-#: channels read by default (the packed digital channel is always read)
-DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed", "temp")
+#: channels read by default (the packed digital channel is always read); the others on request
+DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
+EXTRA_CHANNELS = ("temp", "iq", "id", "ia", "ib", "ic")
 #: capture rate (Hz) when the profile gives none
 DEFAULT_RATE_HZ = 10000
 
@@ -288,53 +289,31 @@ class DynoClient:
         return st
 
     def read_buffer(self, names: Sequence[str], n_samples: int, progress: ProgressFn | None = None) -> dict[str, np.ndarray]:
-        """Read channels ``names`` (canonical names) plus the digital channel from the buffer."""
+        """Read channels ``names`` (canonical names) plus the digital channel from the buffer.
+
+        Returns the analog channels (float64 from f32) and ``enc_a``, ``enc_b``, ``hall``.
+        """
         ids = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
-        pages: list[tuple[str, int, int, int]] = []  # (name, channel id, first sample, samples)
         plan = [(n, ids[n]) for n in names] + [("digital", rm.DIGITAL_CHANNEL_ID)]
-        for name, cid in plan:
+        pages: list[tuple[int, int, int]] = []  # (channel id, first sample, registers)
+        for _name, cid in plan:
             per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
             page_samples = rm.WINDOW_REGS // per
             for first in range(0, n_samples, page_samples):
-                pages.append((name, cid, first, min(page_samples, n_samples - first)))
-        total = sum(s * (1 if c == rm.DIGITAL_CHANNEL_ID else 2) for _, c, _, s in pages)
-        out: dict[str, list[np.ndarray]] = {name: [] for name, _ in plan}
-        done = 0
-        for name, cid, first, samples in pages:
-            per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
-            words = self._read_page(cid, first, samples * per)
-            out[name].append(words)
-            done += samples * per
-            if progress:
-                progress("transfer", done, total)
+                pages.append((cid, first, min(page_samples, n_samples - first) * per))
+        try:
+            words = asyncio.run(_transfer(self.config, pages, progress))
+        except _TransferError as exc:
+            raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
+        self.reconnects += words.pop()  # type: ignore[arg-type]
         result: dict[str, np.ndarray] = {}
-        for name, parts in out.items():
-            words = np.concatenate(parts)
+        for name, cid in plan:
+            w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words) if c == cid])
             if name == "digital":
-                result["enc_a"], result["enc_b"], result["hall"] = rm.unpack_digital(words)
+                result["enc_a"], result["enc_b"], result["hall"] = rm.unpack_digital(w)
             else:
-                result[name] = rm.words_to_f32(words)
+                result[name] = rm.words_to_f32(w)
         return result
-
-    def _read_page(self, channel_id: int, first: int, n_regs: int) -> np.ndarray:
-        """Select a page and read ``n_regs`` window registers over parallel connections."""
-        self.write(buf_channel=channel_id, buf_offset=first)
-        blocks = [(rm.WINDOW_ADDR + k, min(rm.MAX_READ_REGS, n_regs - k)) for k in range(0, n_regs, rm.MAX_READ_REGS)]
-        delay = self.config.retry_delay
-        for attempt in range(self.config.retries + 1):
-            try:
-                parts = asyncio.run(_read_blocks(self.config, blocks))
-                return np.concatenate([np.asarray(p, dtype=np.uint16) for p in parts])
-            except _TransferError as exc:
-                last = exc
-                if exc.refused:
-                    break
-                time.sleep(delay)
-                delay *= 2
-                self.reconnects += 1
-                # the page selection may have been lost with the connection: select it again
-                self.write(buf_channel=channel_id, buf_offset=first)
-        raise DynoError(f"{self.where}: reading capture channel {channel_id} failed: {last}")
 
     def safe_state(self) -> str | None:
         """Speed set point 0, capture aborted, drive disabled. Returns None or why it failed."""
@@ -348,42 +327,84 @@ class DynoClient:
 
 
 class _TransferError(Exception):
-    def __init__(self, msg: str, refused: bool = False) -> None:
-        super().__init__(msg)
-        self.refused = refused
+    pass
 
 
-async def _read_blocks(cfg: DynoConfig, blocks: list[tuple[int, int]]) -> list[list[int]]:
-    """Read window blocks over ``cfg.connections`` parallel connections (pymodbus serves one
-    request per connection at a time, so parallel connections are how requests overlap)."""
+async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress: ProgressFn | None) -> list:
+    """Read capture pages over ``cfg.connections`` parallel connections.
+
+    pymodbus serves one request per connection at a time, so parallel connections are how
+    requests overlap. The page selection is dyno state shared by all connections: each page is
+    selected, then its blocks are read in parallel. A lost connection or timeout restarts the
+    page on fresh connections (``cfg.retries`` times, doubling delays). Returns the pages' words
+    followed by the number of reconnects.
+    """
     from pymodbus.client import AsyncModbusTcpClient
     from pymodbus.exceptions import ModbusException
 
-    k = max(1, min(cfg.connections, len(blocks)))
-    clients = [AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout, retries=0, reconnect_delay=0) for _ in range(k)]
-    results: list[list[int] | None] = [None] * len(blocks)
+    k = max(1, cfg.connections)
+    clients: list = []
+    reconnects = 0
 
-    async def worker(i: int) -> None:
-        cl = clients[i]
-        if not await cl.connect():
-            raise _TransferError("cannot connect")
-        for j in range(i, len(blocks), k):
-            address, count = blocks[j]
-            r = await cl.read_holding_registers(address, count=count, device_id=cfg.device_id)
-            if r.isError():
-                raise _TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})", refused=True)
-            if len(r.registers) != count:
-                raise _TransferError(f"short read at 0x{address:04x}: {len(r.registers)} of {count} registers")
-            results[j] = r.registers
+    async def open_all() -> None:
+        for cl in clients:
+            cl.close()
+        clients.clear()
+        for _ in range(k):
+            cl = AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout, retries=0, reconnect_delay=0)
+            clients.append(cl)
+            if not await cl.connect():
+                raise ConnectionError("cannot connect")
 
+    async def read_page(cid: int, first: int, n_regs: int) -> np.ndarray:
+        sel = await clients[0].write_registers(rm.BY_NAME["buf_channel"].address, [cid] + rm.encode("buf_offset", first), device_id=cfg.device_id)
+        if sel.isError():
+            raise _TransferError(f"page select refused (Modbus exception {getattr(sel, 'exception_code', None)})")
+        blocks = [(rm.WINDOW_ADDR + a, min(rm.MAX_READ_REGS, n_regs - a)) for a in range(0, n_regs, rm.MAX_READ_REGS)]
+        out: list = [None] * len(blocks)
+
+        async def worker(i: int) -> None:
+            for j in range(i, len(blocks), k):
+                address, count = blocks[j]
+                r = await clients[i].read_holding_registers(address, count=count, device_id=cfg.device_id)
+                if r.isError():
+                    raise _TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})")
+                if len(r.registers) != count:
+                    raise ConnectionError(f"short read at 0x{address:04x}: {len(r.registers)} of {count} registers")
+                out[j] = r.registers
+
+        await asyncio.gather(*(worker(i) for i in range(min(k, len(blocks)))))
+        return np.concatenate([np.asarray(b, dtype=np.uint16) for b in out])
+
+    words: list = []
+    total = sum(n for _c, _f, n in pages)
+    done = 0
     try:
-        await asyncio.gather(*(worker(i) for i in range(k)))
-    except (ModbusException, OSError, asyncio.TimeoutError) as exc:
-        raise _TransferError(str(exc) or type(exc).__name__) from None
+        for cid, first, n_regs in pages:
+            delay = cfg.retry_delay
+            for attempt in range(cfg.retries + 1):
+                try:
+                    if len(clients) != k or not all(cl.connected for cl in clients):
+                        if attempt or words:
+                            reconnects += 1
+                        await open_all()
+                    words.append(await read_page(cid, first, n_regs))
+                    break
+                except (ModbusException, ConnectionError, OSError, asyncio.TimeoutError) as exc:
+                    if attempt == cfg.retries:
+                        raise _TransferError(f"channel {cid} at sample {first}: {exc or type(exc).__name__} after {attempt + 1} attempts") from None
+                    for cl in clients:
+                        cl.close()
+                    clients.clear()
+                    await asyncio.sleep(delay)
+                    delay *= 2
+            done += n_regs
+            if progress:
+                progress("transfer", done, total)
     finally:
         for cl in clients:
             cl.close()
-    return results  # type: ignore[return-value]
+    return words + [reconnects]
 
 
 def run_profile(

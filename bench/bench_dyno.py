@@ -1,0 +1,145 @@
+"""Modbus capture transfer rate: registers/s and samples/s, ours against the plain way.
+
+The dyno simulator runs as its own process (``eol-cal dyno-sim --source synthetic``), as a real
+dyno would be another machine; it records one capture, then the same buffer is read
+
+- plain: one pymodbus ``ModbusTcpClient``, one ``read_holding_registers`` of 125 registers after
+  the other (what a user writes first);
+- ours: :meth:`eol_cal.dyno.client.DynoClient.read_buffer`, which overlaps the 125-register reads
+  over several TCP connections (``connections`` = 1, 2, 4, 8; 4 is the default).
+
+Both read the same pages (page select + window reads) and are checked to return identical words.
+Then the end-to-end time of ``eol-cal acquire`` on the default profile is taken.
+
+    python bench/bench_dyno.py [--samples 100000] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import platform
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eol_cal.dyno import registers as rm
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoSegment
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def plain_read(host: str, port: int, channel_ids: list[int], n: int) -> tuple[dict[int, np.ndarray], int]:
+    """The plain way: one synchronous 125-register read after the other on one connection."""
+    from pymodbus.client import ModbusTcpClient
+
+    c = ModbusTcpClient(host, port=port, timeout=2.0, retries=0)
+    c.connect()
+    out, regs = {}, 0
+    for cid in channel_ids:
+        per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
+        page_samples = rm.WINDOW_REGS // per
+        parts = []
+        for first in range(0, n, page_samples):
+            c.write_registers(rm.BY_NAME["buf_channel"].address, [cid] + rm.encode("buf_offset", first), device_id=1)
+            n_regs = min(page_samples, n - first) * per
+            for k in range(0, n_regs, rm.MAX_READ_REGS):
+                cnt = min(rm.MAX_READ_REGS, n_regs - k)
+                r = c.read_holding_registers(rm.WINDOW_ADDR + k, count=cnt, device_id=1)
+                assert not r.isError(), r
+                parts.append(np.asarray(r.registers, dtype=np.uint16))
+                regs += cnt
+        out[cid] = np.concatenate(parts)
+    c.close()
+    return out, regs
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--samples", type=int, default=100_000, help="capture length (samples at 20 kHz)")
+    ap.add_argument("--repeat", type=int, default=3)
+    args = ap.parse_args()
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+    host, port = "127.0.0.1", free_port()
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    server = subprocess.Popen([sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "synthetic"],
+                              stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    try:
+        server.stderr.readline()
+        cfg = DynoConfig(host=host, port=port, timeout=2.0)
+        dc = DynoClient(cfg)
+        dc.connect()
+        dc.set_point(DynoSegment(60.0, args.samples / 20000, iq=65.0, ramp_rpm_s=5000.0))
+        st = dc.capture(args.samples, 20000)
+        names = [name for cid, name in rm.ANALOG_CHANNELS.items() if int(st["capture_channels"]) & rm.channel_bit(cid)]
+        ids = [cid for cid, name in rm.ANALOG_CHANNELS.items() if name in names] + [rm.DIGITAL_CHANNEL_ID]
+        regs_per_sample = 2 * len(names) + 1
+        total_regs = args.samples * regs_per_sample
+        print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load avg {os.getloadavg()[0]:.1f}; "
+              f"python {platform.python_version()}")
+        print(f"capture: {args.samples} samples x ({', '.join(names)} as f32 + digital u16) = {regs_per_sample} registers/sample, "
+              f"{total_regs} registers; dyno simulator in its own process on {host}")
+        print(f"{'method':<34}{'median s':>10}{'registers/s':>14}{'samples/s':>12}{'x plain':>9}")
+        ref = None
+        rows = []
+        times = []
+        for _ in range(args.repeat):
+            t0 = time.perf_counter()
+            words, regs = plain_read(host, port, ids, args.samples)
+            times.append(time.perf_counter() - t0)
+            assert regs == total_regs
+        ref = words
+        plain_s = statistics.median(times)
+        rows.append(("plain: 1 connection, sequential", plain_s))
+        for k in (1, 2, 4, 8):
+            dk = DynoClient(DynoConfig(host=host, port=port, timeout=2.0, connections=k))
+            times = []
+            for _ in range(args.repeat):
+                t0 = time.perf_counter()
+                got = dk.read_buffer(names, args.samples)
+                times.append(time.perf_counter() - t0)
+            for cid, name in rm.ANALOG_CHANNELS.items():
+                if name in names:
+                    np.testing.assert_array_equal(got[name], rm.words_to_f32(ref[cid]))
+            a, b, h = rm.unpack_digital(ref[rm.DIGITAL_CHANNEL_ID])
+            np.testing.assert_array_equal(got["hall"], h)
+            dk.close()
+            rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times)))
+        for label, s in rows:
+            print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}")
+        dc.safe_state()
+        dc.close()
+
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "cap.mf4"
+            t0 = time.perf_counter()
+            r = subprocess.run([sys.executable, "-m", "cli.main", "acquire", "--dyno", f"{host}:{port}", "-o", str(out), "--json"],
+                               capture_output=True, text=True, env=env, cwd=ROOT)
+            wall = time.perf_counter() - t0
+            if r.returncode != 0:
+                print(r.stderr)
+                return 1
+            print(f"eol-cal acquire --profile eol-default (8 segments, 7.7 s of capture at 10 kHz, synthetic source): "
+                  f"{wall:.2f} s wall for the process")
+    finally:
+        server.terminate()
+        server.wait(10)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

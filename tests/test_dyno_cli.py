@@ -1,0 +1,114 @@
+"""``eol-cal acquire`` and ``eol-cal dyno-sim`` through click and as real processes on 127.0.0.1."""
+
+from __future__ import annotations
+
+import logging
+import os
+import re
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal.capture import read_capture
+from eol_cal.dyno.registers import SimFault
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+PROFILE = """
+name = "short"
+[[segment]]
+speed_rpm = 60.0
+iq = 30.0
+seconds = 0.3
+
+[[segment]]
+speed_rpm = -90.0
+torque_nm = -1.5
+seconds = 0.4
+ramp_s = 0.1
+"""
+
+
+@pytest.fixture
+def profile(tmp_path: Path) -> Path:
+    p = tmp_path / "short.toml"
+    p.write_text(PROFILE)
+    return p
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_acquire_writes_a_capture(tmp_path: Path, profile: Path):
+    out = tmp_path / "cap.csv"
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-CLI")) as th:
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(profile), "-o", str(out), "--json"])
+    assert r.exit_code == 0, r.output
+    cap = read_capture(out)
+    assert cap.metadata["serial"] == "M-CLI" and cap.metadata["segments"] == 2
+    assert len(cap.t) == 3000 + 3000  # 0.3 s and 0.4 - 0.1 s at 10 kHz
+    assert '"samples": 6000' in r.output
+
+
+def test_acquire_refuses_bad_output_and_address(tmp_path: Path, profile: Path):
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", "127.0.0.1:5020", "--profile", str(profile), "-o", str(tmp_path / "x.txt")])
+    assert r.exit_code == 2 and "x.txt" in r.output and ".csv or .mf4" in r.output
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", "localhost", "-o", str(tmp_path / "x.csv")])
+    assert r.exit_code == 2 and "HOST:PORT" in r.output
+
+
+def test_acquire_unreachable_dyno_exit_2_no_file(tmp_path: Path, profile: Path):
+    out = tmp_path / "cap.mf4"
+    port = _free_port()  # nothing listens there
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile), "-o", str(out), "--retries", "1", "--timeout", "0.2"])
+    assert r.exit_code == 2
+    assert "failed after 2 attempts" in r.output and "safe state NOT confirmed" in r.output
+    assert not list(tmp_path.glob("cap*")) and not list(tmp_path.glob(".cap*"))
+
+
+def test_acquire_fault_exit_2_no_file(tmp_path: Path, profile: Path):
+    out = tmp_path / "cap.mf4"
+    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.OVER_SPEED, "capture", 2)])
+    with DynoSimThread(sim) as th:
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(profile), "-o", str(out)])
+    assert r.exit_code == 2 and "OVER_SPEED" in r.output and "drive disabled" in r.output
+    assert not sim.enabled and sim.setpoint == 0.0
+    assert not list(tmp_path.glob("cap*")) and not list(tmp_path.glob(".cap*"))
+
+
+def test_dyno_sim_and_acquire_as_processes(tmp_path: Path, profile: Path):
+    exe = [sys.executable, "-m", "cli.main"]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    port = _free_port()
+    server = subprocess.Popen(exe + ["dyno-sim", "--listen", f"127.0.0.1:{port}", "--source", "synthetic", "--serial", "M-PROC"],
+                              stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = server.stderr.readline()
+        assert re.search(rf"on 127\.0\.0\.1:{port}\b", line), line
+        out = tmp_path / "cap.mf4"
+        r = subprocess.run(exe + ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile), "-o", str(out)],
+                           capture_output=True, text=True, timeout=60, env=env)
+        assert r.returncode == 0, r.stderr
+        assert read_capture(out).metadata["serial"] == "M-PROC"
+        # a second simulator on the same port is refused cleanly
+        r2 = subprocess.run(exe + ["dyno-sim", "--listen", f"127.0.0.1:{port}", "--source", "synthetic"],
+                            capture_output=True, text=True, timeout=30, env=env)
+        assert r2.returncode == 2 and "--listen" in r2.stderr
+    finally:
+        server.send_signal(signal.SIGINT)
+        try:
+            server.wait(10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
