@@ -119,3 +119,29 @@ def test_bad_inputs_are_refused_with_the_channel_named():
     with pytest.raises(InputError) as exc:
         capture_angle(cap)
     assert exc.value.field == "hall"
+
+
+@pytest.mark.parametrize("where", ["just after an A edge", "in the sample of a B edge", "mid-cell"])
+def test_single_sample_glitches_on_a_are_collapsed(where):
+    theta_m = 2 * np.pi * T + 0.3
+    a, b, hall = levels_from_angle(theta_m)
+    ea, eb = np.flatnonzero(np.diff(a)), np.flatnonzero(np.diff(b))
+    idx = {"just after an A edge": ea[50] + 3, "in the sample of a B edge": eb[80] + 1,
+           "mid-cell": (ea[90] + eb[90]) // 2}[where]
+    a[idx] ^= 1
+    kept = reconstruct_angle(T, a, hall, 6, 64, enc_b=b, bounce_frac=0.0)
+    res = reconstruct_angle(T, a, hall, 6, 64, enc_b=b)
+    assert _error_deg(res, theta_m).max() < 0.15
+    assert _error_deg(kept, theta_m).max() > 0.5  # without the debounce the glitch shows
+    assert np.rad2deg(res.hall_residual_max_rad) < 0.15  # no count slip
+
+
+def test_reversal_inside_the_record():
+    theta_m = 2 * np.pi * (T - 0.5 * T**2) + 0.3  # 60 rpm forward, turning at t = 1 s, 60 rpm back
+    res = capture_angle(motion_capture(T, theta_m))
+    err = _error_deg(res, theta_m)
+    inside = (T >= res.t_span[0]) & (T <= res.t_span[1])
+    away = np.abs(T[inside] - 1.0) > 0.1
+    assert res.direction == 0
+    assert err[away].max() < 0.1
+    assert err.max() < np.rad2deg(res.edge_step_rad) / 2  # at the turn: within the cell

@@ -202,13 +202,16 @@ def quadrature_boundaries(
     times, chan, lev = times[order], chan[order], lev[order]
     a, b = int(a0), int(b0)
     count = 0
-    last_dir = 1
+    # Direction of the last few steps: one glitch step must not decide an ambiguous double step.
+    recent = [1]
     boundary = np.empty(len(times), dtype=np.int64)
+    out_t = np.empty(len(times))
+    n_out = 0
     i = 0
     n = len(times)
     while i < n:
         # Edges of A and B in the same instant (same sample) are a double step whose order
-        # the samples cannot tell: apply them in the order the last known direction implies.
+        # the samples cannot tell: apply them in the order the recent direction implies.
         j = i + 1
         if j < n and times[j] == times[i] and chan[j] != chan[i]:
             group = [i, j]
@@ -225,7 +228,8 @@ def quadrature_boundaries(
                 else:
                     nb = int(lev[g])
             step = (_QUAD_POS[(na, nb)] - q_old) % 4
-            d = last_dir if step == 2 else (1 if step == 1 else -1 if step == 3 else 0)
+            trend = 1 if sum(recent) >= 0 else -1
+            d = trend if step == 2 else (1 if step == 1 else -1 if step == 3 else 0)
             first = [g for g in group if (chan[g] == 0) == ((d > 0) == (a == b))]
             group = first + [g for g in group if g not in first]
         for g in group:
@@ -235,13 +239,57 @@ def quadrature_boundaries(
             else:
                 b = int(lev[g])
             step = (_QUAD_POS[(a, b)] - q_old) % 4
-            d = 1 if step == 1 else -1 if step == 3 else last_dir
+            d = 1 if step == 1 else -1
             new = count + d
-            boundary[g] = max(count, new)
+            # written in the order applied, so a double step's two edges come out in sequence
+            out_t[n_out] = times[g]
+            boundary[n_out] = max(count, new)
+            n_out += 1
             count = new
-            last_dir = d
+            recent.append(d)
+            if len(recent) > 8:
+                recent.pop(0)
         i = i_next
-    return times, boundary
+    return out_t, boundary
+
+
+def debounce_edges(times: np.ndarray, boundary: np.ndarray, bounce_frac: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """Collapse chatter: consecutive edges on one boundary in quick succession.
+
+    A run of consecutive edges on the same boundary, each within ``bounce_frac`` times the
+    median edge interval of the next, is one crossing when the run is odd (chatter around a
+    real edge: kept once, at the run's mean time) and none when it is even (a glitch pulse
+    that returned to where it was: dropped). A real reversal inside a cell lasts far longer
+    and is kept.
+
+    Parameters
+    ----------
+    times : ndarray
+        Edge times (s), sorted.
+    boundary : ndarray of int
+        Boundary index of each edge.
+    bounce_frac : float
+        Threshold as a fraction of the median edge interval; 0 disables.
+
+    Returns
+    -------
+    times, boundary : ndarray
+        The edges with chatter collapsed.
+    """
+    if bounce_frac <= 0 or len(times) < 3:
+        return times, boundary
+    gap = np.diff(times)
+    limit = bounce_frac * float(np.median(gap))
+    linked = (np.diff(boundary) == 0) & (gap < limit)
+    if not linked.any():
+        return times, boundary
+    # run id: a new run starts wherever an edge is not linked to its predecessor
+    run = np.concatenate(([0], np.cumsum(~linked)))
+    counts = np.bincount(run)
+    mean_t = np.bincount(run, weights=times) / counts
+    first = np.concatenate(([True], ~linked))
+    keep = first & (counts[run] % 2 == 1)
+    return mean_t[run[keep]], boundary[keep]
 
 
 def _direction_at(t_query: np.ndarray, t_hall: np.ndarray, dir_hall: np.ndarray) -> np.ndarray:
@@ -260,6 +308,7 @@ def reconstruct_angle(
     events: dict[str, tuple[np.ndarray, np.ndarray]] | None = None,
     hall_angles: Sequence[float] = NOMINAL_HALL_ANGLES,
     source: str = "<memory>",
+    bounce_frac: float = 0.2,
 ) -> AngleResult:
     """Electrical angle theta_r (rad) at every sample from encoder edges and hall transitions.
 
@@ -284,6 +333,9 @@ def reconstruct_angle(
         Angle (rad) at which hall state s begins in forward rotation, index s-1.
     source : str
         File name for error messages.
+    bounce_frac : float
+        Chatter on one boundary within this fraction of the median edge interval is collapsed
+        (:func:`debounce_edges`); 0 keeps every edge.
 
     Returns
     -------
@@ -333,6 +385,9 @@ def reconstruct_angle(
         t_e = ta
         delta = elec_per_mech * TWO_PI / (2.0 * N_enc)
 
+    t_e, boundary = debounce_edges(t_e, boundary, bounce_frac)
+    if len(t_e) < 2:
+        raise InputError(source, "enc_a", "fewer than two encoder edges after removing bounces")
     rel = boundary.astype(float) * delta
     # Two edges in one instant: keep one point at their mean angle so the knots stay unique.
     t_u, inv = np.unique(t_e, return_inverse=True)
