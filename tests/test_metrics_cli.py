@@ -34,10 +34,12 @@ def test_index_table_highlights_the_ppr_and_json_is_stable(tmp_path):
     assert (tmp_path / "fig4.png").read_bytes()[:8] == PNG_MAGIC
 
 
-@pytest.mark.parametrize("args", [["--poles", "5"], ["--min", "512", "--max", "64"], ["--ppr", "0"]])
+@pytest.mark.parametrize("args", [["--poles", "5"], ["--min", "512", "--max", "64"], ["--ppr", "0"],
+                                  ["--plot", "/nonexistent-dir/fig.png"]])
 def test_index_bad_usage_exits_2(args):
     res = CliRunner().invoke(cli, ["index", *args])
     assert res.exit_code == 2
+    assert "Traceback" not in res.output
 
 
 def test_analyze_fixture_csv_and_mdf4_agree_and_print_pp_and_eta(tmp_path):

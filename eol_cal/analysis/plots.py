@@ -14,6 +14,7 @@ import numpy as np
 from eol_cal.analysis.metrics import RipplePP, eta_percent, lowpass_zero_phase
 from eol_cal.analysis.spectrum import OrderSpectrum
 from eol_cal.capture.atomic import atomic_path
+from eol_cal.errors import InputError
 
 
 def _pyplot():
@@ -26,8 +27,11 @@ def _pyplot():
 
 
 def _save(fig, path: str | Path) -> None:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=110)
+    except OSError as exc:
+        raise InputError(str(path), None, f"cannot write the plot: {exc.strerror or exc}") from None
 
 
 def plot_eta(path: str | Path, poles: int, ppr: int, ppr_min: int, ppr_max: int, table_ppr: np.ndarray) -> None:
