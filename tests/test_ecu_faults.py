@@ -73,7 +73,7 @@ def test_power_loss_at_every_step(base_flash, tmp_path, step, occurrence, expect
     assert active.crc32 == (B.check(OLD).crc_stored if expected[0] == "old" else active.crc32)
 
 
-@pytest.mark.parametrize("offset", [0, 1, 2, 99, 100, 1000, 2147, 2148, 2150, 2151])
+@pytest.mark.parametrize("offset", [0, 1, 99, 1000, 2148, 2151])
 def test_power_loss_at_byte_offsets_over_the_bus(base_flash, tmp_path, offset):
     active, _ = _power_cut(base_flash, tmp_path, Faults(power_loss_byte=offset, seed=offset))
     # Any cut inside the block leaves it incomplete (the CRC sits in the last 4 bytes).

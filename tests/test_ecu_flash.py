@@ -9,10 +9,10 @@ import pytest
 from udsoncan import Request, services
 
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.client import (ClientTiming, EcuError, UdsSession, VerifyFailed, ecu_info, flash_block,
+from eol_cal.ecu.client import (EcuError, UdsSession, VerifyFailed, ecu_info, flash_block,
                                 hmac_seed_to_key, load_key_file, read_active_block)
 from eol_cal.ecu.flash import NorFlash, select_active
-from eol_cal.ecu.sim import Faults, SimConfig
+from eol_cal.ecu.sim import SimConfig
 from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
