@@ -153,16 +153,16 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     doc = result_document(records, limits, __version__)
     write_result(doc, output)
 
-    table = Table(title=f"ripple fit ({len(records)} motor{'s' if len(records) != 1 else ''})")
-    for col in ("serial", "status", "k6 (mN*m/A)", "phase_k6 (deg)", "c6 (mN*m)", "phase_c6 (deg)", "delay (us)", "rms (mN*m)", "R^2", "steps"):
-        table.add_column(col, justify="right" if col not in ("serial", "status") else "left")
+    table = Table(title=f"ripple fit, values ± 95 % ({len(records)} motor{'s' if len(records) != 1 else ''})")
+    for col in ("serial", "status", "k6 mNm/A", "φk6 °", "c6 mNm", "φc6 °", "τ µs", "rms mNm", "R²", "steps"):
+        table.add_column(col, justify="right" if col not in ("serial", "status") else "left", no_wrap=col == "serial")
     import math
 
     def pm(e, scale, deg=False):
         if e is None or e["value"] is None:
             return "-"
         f = (lambda v: math.degrees(v)) if deg else (lambda v: v * scale)
-        return f"{f(e['value']):.4g} ± {f(e['ci95']):.2g}" if e["ci95"] is not None else f"{f(e['value']):.4g}"
+        return f"{f(e['value']):.4g}±{f(e['ci95']):.2g}" if e["ci95"] is not None else f"{f(e['value']):.4g}"
 
     for r in records:
         table.add_row(
