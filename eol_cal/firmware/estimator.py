@@ -39,10 +39,17 @@ TWO_PI = F32(2.0 * math.pi)
 INV_TWO_PI = F32(1.0 / (2.0 * math.pi))
 """1/(2*pi) rounded to binary32 (0x3e22f983)."""
 HALF = F32(0.5)
-K_LEARN = F32(1.0 / 16.0)
-"""Gain of the learned encoder-grid offset per hall transition (improvement 2)."""
+N_LEARN = 16
+"""Improvement 2: the grid offset is the running mean of the first N_LEARN hall corrections,
+then a first-order filter with gain 1/N_LEARN per hall transition."""
 K_ACC = F32(1.0 / 8.0)
 """Gain of the first-order filter on the acceleration estimate (improvement 3)."""
+K_PITCH = F32(1.0 / 2.0)
+"""Gain of the learned per-edge placement correction per revolution (improvement 4)."""
+STEADY_TICKS = 2
+"""Improvement 4 learns only while the revolution time changed by at most this many ticks."""
+TICK_MASK = (1 << 30) - 1
+"""The free-running tick counter of improvement 4 counts modulo 2**30."""
 
 # Hall convention (firmware contract section 2): U = bit0, V = bit1, W = bit2; forward rotation
 # steps 5 -> 1 -> 3 -> 2 -> 6 -> 4 -> 5. Indexed by the state; 0 and 7 are faults.
@@ -72,6 +79,11 @@ ST_DIR_MISMATCH = 1 << 8
 """This tick's hall transition runs against the encoder's direction."""
 ST_NO_SPEED = 1 << 9
 """omega_hat is not (yet) from a measured interval: start-up, after a reversal or standstill."""
+
+FLAG_CLAMP_TO_NEXT_EDGE = 0x1
+FLAG_LEARN_GRID_OFFSET = 0x2
+FLAG_ACCEL_PREDICTION = 0x4
+FLAG_LEARN_PITCH_ERRORS = 0x8
 
 STATUS_BITS = {
     "STANDSTILL": ST_STANDSTILL, "REVERSE": ST_REVERSE, "HALL_FAULT": ST_HALL_FAULT,
@@ -105,6 +117,9 @@ class EstimatorConfig:
         error (a full correction when the error exceeds half a pitch) instead of all of it.
     accel_prediction : bool
         Improvement 3: the prediction between edges extrapolates the filtered acceleration.
+    learn_pitch_errors : bool
+        Improvement 4: learns each A edge's placement error at steady speed from the time the
+        same edge took for a whole revolution, and uses it for the edge angles and the speed.
     """
 
     poles: int
@@ -115,6 +130,15 @@ class EstimatorConfig:
     clamp_to_next_edge: bool = False
     learn_grid_offset: bool = False
     accel_prediction: bool = False
+    learn_pitch_errors: bool = False
+
+    @property
+    def flags(self) -> int:
+        """The improvement switches as the C port's ``flags`` bits (EOL_EST_* in eol_est.h)."""
+        return (FLAG_CLAMP_TO_NEXT_EDGE * self.clamp_to_next_edge
+                | FLAG_LEARN_GRID_OFFSET * self.learn_grid_offset
+                | FLAG_ACCEL_PREDICTION * self.accel_prediction
+                | FLAG_LEARN_PITCH_ERRORS * self.learn_pitch_errors)
 
     def __post_init__(self) -> None:
         if len(self.hall_angle) != 6:
@@ -125,8 +149,9 @@ class EstimatorConfig:
             raise ValueError(f"N_enc {self.N_enc}: needs 1..8191")
         if not self.tick_hz > 0:
             raise ValueError(f"tick_hz {self.tick_hz}: needs > 0")
-        if not 1 <= self.standstill_ticks < 2**30:
-            raise ValueError(f"standstill_ticks {self.standstill_ticks}: needs 1..2**30-1")
+        if not 1 <= self.standstill_ticks < 2**29:
+            # 3 * N_c must fit an int32 (the long-interval test).
+            raise ValueError(f"standstill_ticks {self.standstill_ticks}: needs 1..2**29-1")
         # Store as binary32 values so the config means exactly what the firmware sees.
         object.__setattr__(self, "tick_hz", float(F32(self.tick_hz)))
         object.__setattr__(self, "hall_angle", tuple(float(F32(a)) for a in self.hall_angle))
@@ -142,7 +167,8 @@ class EstimatorConfig:
         standstill_s : float
             Standstill bound (s); the default 1 s still measures 1 rpm with 64 PPR.
         **improvements
-            ``clamp_to_next_edge``, ``learn_grid_offset``, ``accel_prediction`` (bool).
+            ``clamp_to_next_edge``, ``learn_grid_offset``, ``accel_prediction``,
+            ``learn_pitch_errors`` (bool).
         """
         return cls(poles=poles, N_enc=N_enc, tick_hz=tick_hz, hall_angle=tuple(hall_angle),
                    standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
@@ -153,6 +179,7 @@ class EstimatorConfig:
         kwargs.setdefault("clamp_to_next_edge", True)
         kwargs.setdefault("learn_grid_offset", True)
         kwargs.setdefault("accel_prediction", True)
+        kwargs.setdefault("learn_pitch_errors", True)
         return cls.paper(**kwargs)
 
     @classmethod
@@ -175,6 +202,8 @@ class Consts(NamedTuple):
     HALF_DELTA: np.float32   # rad: DELTA * 0.5
     K_OMEGA: np.float32      # rad/s * ticks: DELTA * tick_hz, omega_hat = K_OMEGA / N_c
     TWO_TICK_HZ: np.float32  # 1/s: tick_hz * 2
+    TICK_HZ: np.float32      # 1/s: tick_hz
+    K_NDELTA: np.float32     # rad, one mechanical revolution: N_enc * DELTA
     M: int                   # quadrature counts per mechanical revolution: 4 * N_enc
     S: int                   # standstill_ticks
     H_START: np.ndarray      # f32[8] rad, where state s begins forward (0 for s = 0, 7)
@@ -212,6 +241,7 @@ def consts(cfg: EstimatorConfig) -> Consts:
         mid[s] = wrap(start[s] + width[s] * HALF)
     return Consts(T=T, DELTA=DELTA, QUARTER=QUARTER, HALF_QUARTER=QUARTER * HALF,
                   HALF_DELTA=DELTA * HALF, K_OMEGA=DELTA * tick_hz, TWO_TICK_HZ=tick_hz * F32(2.0),
+                  TICK_HZ=tick_hz, K_NDELTA=F32(cfg.N_enc) * DELTA,
                   M=4 * cfg.N_enc, S=cfg.standstill_ticks,
                   H_START=start, H_WIDTH=width, H_MID=mid, NEXT=nxt)
 
@@ -233,6 +263,13 @@ class EstimatorState(NamedTuple):
     hall_last : last valid hall reading (1..6; 0 = none yet).
     sector : last hall state reached through an adjacent transition or at start-up (0 = none).
     anchored : a hall transition has set G (0/1).
+    n_anchor : hall corrections since the anchor or the last count slip, saturating at N_LEARN.
+    tick : free-running tick counter modulo 2**30 (improvement 4).
+    run : measured intervals in a row in one direction, saturating at N_enc (improvement 4).
+    R_prev : revolution time at the previous measured edge (ticks; improvement 4).
+    c_tab : f32[2*N_enc] learned placement error of each A edge (rad electrical, index k >> 1;
+        improvement 4, else empty).
+    ts : i32[2*N_enc] tick of each A edge's last event (improvement 4, else empty).
     """
 
     phase: Any
@@ -249,6 +286,12 @@ class EstimatorState(NamedTuple):
     hall_last: Any
     sector: Any
     anchored: Any
+    n_anchor: Any
+    tick: Any
+    run: Any
+    R_prev: Any
+    c_tab: Any
+    ts: Any
 
 
 class EstimatorOut(NamedTuple):
@@ -269,7 +312,50 @@ class EstimatorOut(NamedTuple):
 
 def _tab(table: np.ndarray, idx: Any, xp: Any) -> Any:
     """``table[idx]`` for a constant table and a (possibly traced) int32 index."""
-    return xp.asarray(table)[idx]
+    return table[idx] if xp is np or xp is _SCALAR_NP else xp.asarray(table)[idx]
+
+
+class _ScalarNumpy:
+    """numpy for one motor's scalars, minus the 0-d array round trips of ``np.where`` & co.
+
+    Selections and min/max pick one of their (already binary32) operands, so the arithmetic and
+    its results are those of ``xp=numpy`` exactly; :func:`run` uses it for speed only.
+    """
+
+    int32 = np.int32
+    float32 = np.float32
+    floor = staticmethod(np.floor)
+    asarray = staticmethod(np.asarray)
+    zeros = staticmethod(np.zeros)
+    zeros_like = staticmethod(np.zeros_like)
+
+    @staticmethod
+    def where(c: Any, x: Any, y: Any) -> Any:
+        return x if c else y
+
+    @staticmethod
+    def minimum(x: Any, y: Any) -> Any:
+        return x if x < y else y
+
+    @staticmethod
+    def maximum(x: Any, y: Any) -> Any:
+        return x if x > y else y
+
+    @staticmethod
+    def abs(x: Any) -> Any:
+        return -x if x < 0 else x
+
+
+_SCALAR_NP = _ScalarNumpy()
+
+
+def _set(arr: Any, idx: Any, val: Any, xp: Any) -> Any:
+    """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX)."""
+    if not hasattr(arr, "at"):
+        out = arr.copy()
+        out[idx] = val
+        return out
+    return arr.at[idx].set(val)
 
 
 def _phase(enc_a: Any, enc_b: Any) -> Any:
@@ -293,12 +379,16 @@ def init_state(cfg: EstimatorConfig, hall0: Any, enc_a0: Any = 0, enc_b0: Any = 
     a = xp.asarray(enc_a0).astype(xp.int32) + xp.zeros_like(h)
     b = xp.asarray(enc_b0).astype(xp.int32) + xp.zeros_like(h)
     valid = (h >= 1) & (h <= 6)
+    L = 2 * cfg.N_enc if cfg.learn_pitch_errors else 0
     h = xp.where(valid, h, xp.zeros_like(h))
     zi = xp.zeros_like(h)
     zf = zi.astype(xp.float32)
     ph = _phase(a, b)
     return EstimatorState(phase=ph, q=ph, n=zi, k_last=zi, dir_last=zi, nc_prev=zi, against=zi,
-                          omega=zf, alpha=zf, adv=zf, G=zf, hall_last=h, sector=h, anchored=zi)
+                          omega=zf, alpha=zf, adv=zf, G=zf, hall_last=h, sector=h, anchored=zi,
+                          n_anchor=zi, tick=zi, run=zi, R_prev=zi,
+                          c_tab=xp.zeros(h.shape + (L,), xp.float32),
+                          ts=xp.zeros(h.shape + (L,), xp.int32))
 
 
 def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, hall: Any,
@@ -327,8 +417,8 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     s = state
 
     # 1. Quadrature decoding (x4). A rising edge: phase 0->1 forward, 3->2 reverse.
-    a = xp.asarray(enc_a).astype(i32)
-    b = xp.asarray(enc_b).astype(i32)
+    a = i32(enc_a)
+    b = i32(enc_b)
     ph = _phase(a, b)
     d = (ph - s.phase + I32(4)) % I32(4)
     stp = xp.where(d == 1, one, xp.where(d == 3, -one, I32(0)))
@@ -337,7 +427,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     a_rise = ((d == 1) & (ph == 1)) | ((d == 3) & (ph == 2))
     edir = xp.where(ph == 1, one, -one)
     k = xp.where(edir > 0, q, (q + one) % I32(M))
-    against = s.against | ((stp != 0) & (stp == -s.dir_last)).astype(i32)
+    against = s.against | i32(((stp != 0) & (stp == -s.dir_last)))
     n1 = xp.minimum(s.n + one, I32(S + 1))
 
     # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
@@ -351,19 +441,41 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     reject = long_iv & (against == 0)
     measured = interval & ~long_iv
     nc_eff = xp.where(missing, n1 // I32(2), n1)
-    omega_new = edir.astype(f32) * (c.K_OMEGA / nc_eff.astype(f32))
+    omega_new = f32(edir) * (c.K_OMEGA / f32(nc_eff))
     # A lost A pulse leaves the count one pitch behind: put it back.
     fix = xp.where(missing, I32(4) * edir, I32(0))
     q = (q + fix + I32(M)) % I32(M)
     k = (k + fix + I32(M)) % I32(M)
     speed_upd = measured | missing
+    if cfg.learn_pitch_errors:
+        tick = (s.tick + one) & I32(TICK_MASK)
+        i_new = k >> one
+        c_old = s.c_tab[s.k_last >> one]
+        c_new = s.c_tab[i_new]
+        R = xp.maximum((tick - s.ts[i_new]) & I32(TICK_MASK), one)
+        learn = measured & (s.run >= I32(cfg.N_enc)) & (xp.abs(R - s.R_prev) <= I32(STEADY_TICKS))
+        # At steady speed the same edge's revolution time gives the true speed, so this pitch's
+        # real size is N_enc*DELTA * N_c / R; its edge sits that far from the previous one.
+        pitch = f32(n1) * (c.K_NDELTA / f32(R))
+        target = c_old + f32(edir) * (pitch - c.DELTA)
+        c_new = xp.where(learn, c_new + K_PITCH * (target - c_new), c_new)
+        c_tab = _set(s.c_tab, i_new, c_new, xp)
+        ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
+        R_prev = xp.where(measured, R, s.R_prev)
+        run = xp.where(measured, xp.minimum(s.run + one, I32(cfg.N_enc)),
+                       xp.where(ev, I32(0), s.run))
+        omega_new = xp.where(measured, f32(edir)
+                             * (((c.DELTA + f32(edir) * (c_new - c_old)) * c.TICK_HZ)
+                                / f32(n1)), omega_new)
+    else:
+        tick, run, R_prev, c_tab, ts = s.tick, s.run, s.R_prev, s.c_tab, s.ts
     omega = xp.where(speed_upd, omega_new,
                      xp.where(ev & ~same_dir, F32(0.0), s.omega))
     nc_prev = xp.where(speed_upd, nc_eff,
                        xp.where(reject, n1, xp.where(ev, I32(0), s.nc_prev)))
     if cfg.accel_prediction:
         consecutive = measured & (s.nc_prev > 0)
-        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / (n1 + s.nc_prev).astype(f32))
+        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32((n1 + s.nc_prev)))
         alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
                          xp.where(ev & ~(missing | reject), F32(0.0), s.alpha))
     else:
@@ -377,10 +489,11 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     still = n > I32(S)
     omega = xp.where(still, F32(0.0), omega)
     nc_prev = xp.where(still, I32(0), nc_prev)
+    run = xp.where(still, I32(0), run)
     alpha = xp.where(still, F32(0.0), alpha)
     if cfg.accel_prediction:
         # omega from an interval is the mean over it: the speed at its middle, N_c/2 ticks back.
-        tau = (nc_prev.astype(f32) * HALF + n.astype(f32)) * c.T
+        tau = (f32(nc_prev) * HALF + f32(n)) * c.T
         omega_pred = omega + alpha * tau
     else:
         omega_pred = omega
@@ -389,7 +502,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
         adv = xp.minimum(xp.maximum(adv, -c.DELTA), c.DELTA)
 
     # 4. Halls: validity, sequence, absolute re-anchor at transitions.
-    h = xp.asarray(hall).astype(i32)
+    h = i32(hall)
     hv = (h >= 1) & (h <= 6)
     hl = s.hall_last
     trans = hv & (h != hl) & (hl != 0)
@@ -403,23 +516,30 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     no_edge = dir_last == 0
     k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
     adv = xp.where(adj & (s.anchored == 0) & no_edge, c.HALF_QUARTER, adv)
-    theta_pred = wrap(wrap(s.G + k_last.astype(f32) * c.QUARTER, xp) + adv, xp)
+    c_last = c_tab[k_last >> one] if cfg.learn_pitch_errors else F32(0.0)
+    rel = f32(k_last) * c.QUARTER + c_last
+    theta_pred = wrap(wrap(s.G + rel, xp) + adv, xp)
     e = wrap_pm(hb - theta_pred, xp)
+    big = xp.abs(e) > c.HALF_DELTA
     if cfg.learn_grid_offset:
-        g = xp.where(xp.abs(e) > c.HALF_DELTA, e, e * K_LEARN)
+        # Running mean of the corrections over the first N_LEARN transitions, then a first-order
+        # filter; an error over half a pitch is a count slip and is taken whole.
+        gain = F32(1.0) / f32((xp.minimum(s.n_anchor + one, I32(N_LEARN))))
+        g = xp.where(big, e, e * gain)
     else:
         g = e
-    rel = k_last.astype(f32) * c.QUARTER + adv
     G = xp.where(adj & (s.anchored != 0), wrap(s.G + g, xp),
-                 xp.where(adj, wrap(hb - rel, xp), s.G))
+                 xp.where(adj, wrap(hb - (rel + adv), xp), s.G))
     anchored = xp.where(adj, one, s.anchored)
+    n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
+                        xp.where(adj, xp.minimum(s.n_anchor + one, I32(N_LEARN)), s.n_anchor))
     hdir = xp.where(fwd, one, -one)
     dir_mismatch = adj & (dir_last != 0) & (hdir != dir_last)
     hall_last = xp.where(hv, h, hl)
     sector = xp.where(adj | first, h, s.sector)
 
     # 5. Outputs.
-    theta_enc = wrap(G + k_last.astype(f32) * c.QUARTER, xp)
+    theta_enc = wrap(G + rel, xp)
     theta = wrap(theta_enc + adv, xp)
     start = _tab(c.H_START, sector, xp)
     width = _tab(c.H_WIDTH, sector, xp)
@@ -435,24 +555,25 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     omega_out = omega_pred
     if cfg.clamp_to_next_edge:
         # No edge for n ticks: |speed| cannot exceed a pitch per n ticks.
-        bound = c.K_OMEGA / xp.maximum(n, one).astype(f32)
+        bound = c.K_OMEGA / f32(xp.maximum(n, one))
         omega_out = xp.where(n > 0, xp.minimum(xp.maximum(omega_out, -bound), bound), omega_out)
     no_speed = (nc_prev == 0) & ~speed_upd
 
-    status = (still.astype(i32) * I32(ST_STANDSTILL)
-              | (dir_last < 0).astype(i32) * I32(ST_REVERSE)
-              | (~hv).astype(i32) * I32(ST_HALL_FAULT)
-              | jump.astype(i32) * I32(ST_HALL_SEQ)
-              | unanchored.astype(i32) * I32(ST_NO_ANCHOR)
-              | qep_err.astype(i32) * I32(ST_QEP_ERROR)
-              | (bounce | reject | (ev & ~speed_upd)).astype(i32) * I32(ST_EDGE_REJECT)
-              | missing.astype(i32) * I32(ST_MISSING_EDGE)
-              | dir_mismatch.astype(i32) * I32(ST_DIR_MISMATCH)
-              | no_speed.astype(i32) * I32(ST_NO_SPEED))
+    status = (i32(still) * I32(ST_STANDSTILL)
+              | i32((dir_last < 0)) * I32(ST_REVERSE)
+              | i32((~hv)) * I32(ST_HALL_FAULT)
+              | i32(jump) * I32(ST_HALL_SEQ)
+              | i32(unanchored) * I32(ST_NO_ANCHOR)
+              | i32(qep_err) * I32(ST_QEP_ERROR)
+              | i32((bounce | reject | (ev & ~speed_upd))) * I32(ST_EDGE_REJECT)
+              | i32(missing) * I32(ST_MISSING_EDGE)
+              | i32(dir_mismatch) * I32(ST_DIR_MISMATCH)
+              | i32(no_speed) * I32(ST_NO_SPEED))
 
     new = EstimatorState(phase=ph, q=q, n=n, k_last=k_last, dir_last=dir_last, nc_prev=nc_prev,
                          against=against, omega=omega, alpha=alpha, adv=adv, G=G,
-                         hall_last=hall_last, sector=sector, anchored=anchored)
+                         hall_last=hall_last, sector=sector, anchored=anchored,
+                         n_anchor=n_anchor, tick=tick, run=run, R_prev=R_prev, c_tab=c_tab, ts=ts)
     return new, EstimatorOut(theta_hat=theta, omega_hat=omega_out, theta_enc=theta_enc,
                              status=status)
 
@@ -487,8 +608,9 @@ def run(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> EstimatorOut
     if n == 0:
         return EstimatorOut(th, om, te, st)
     state = init_state(cfg, h[0], a[0], b[0])
+    state = EstimatorState(*(x[()] if x.ndim == 0 else x for x in state))
     for i in range(n):
-        state, out = step(cfg, state, a[i], b[i], h[i])
+        state, out = step(cfg, state, a[i], b[i], h[i], xp=_SCALAR_NP)
         th[i], om[i], te[i], st[i] = out
     return EstimatorOut(th, om, te, st)
 

@@ -137,3 +137,33 @@ def encoder_hall_signals(theta_m: Any, poles: int, N_enc: int,
 def electrical_angle(theta_m: Any, poles: int, xp: Any = np) -> Any:
     """True electrical angle (rad, [0, 2*pi)) of mechanical angle ``theta_m`` (rad)."""
     return xp.mod(xp.asarray(theta_m) * (poles / 2.0), 2.0 * math.pi)
+
+
+def speed_profile_angle(segments: Any, tick_hz: float, theta0: float = 0.0) -> np.ndarray:
+    """Mechanical angle at every tick of a piecewise-linear speed profile.
+
+    Parameters
+    ----------
+    segments : sequence of (seconds, rpm_start, rpm_end)
+        Consecutive segments; the speed (rpm, mechanical, signed: + forward) ramps linearly
+        from ``rpm_start`` to ``rpm_end`` over ``seconds``.
+    tick_hz : float
+        Sample rate (Hz); sample n is at t = n / tick_hz.
+    theta0 : float
+        Mechanical angle at t = 0 (rad).
+
+    Returns
+    -------
+    ndarray (float64)
+        theta_m (rad) at each tick, exact for the piecewise-linear speed.
+    """
+    out = []
+    theta = float(theta0)
+    for seconds, rpm0, rpm1 in segments:
+        n = int(round(seconds * tick_hz))
+        tau = np.arange(n) / tick_hz
+        w0 = rpm0 * 2.0 * math.pi / 60.0
+        acc = (rpm1 - rpm0) * 2.0 * math.pi / 60.0 / seconds if seconds > 0 else 0.0
+        out.append(theta + w0 * tau + 0.5 * acc * tau**2)
+        theta = theta + w0 * n / tick_hz + 0.5 * acc * (n / tick_hz) ** 2
+    return np.concatenate(out) if out else np.zeros(0)

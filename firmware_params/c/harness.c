@@ -14,6 +14,7 @@
 
 #include "eol_block.h"
 #include "eol_comp.h"
+#include "eol_est.h" /* H4 */
 
 /* ---------------------------------------------------------------- CSV reading (shared) ---- */
 
@@ -368,11 +369,116 @@ static int check_compensator(const char *dir, const char *file, result_t *r)
 }
 
 /* ==================================================== ESTIMATOR SET (H4) ==== begin ====
- * The estimator's checker goes here: a function
- *     static int check_estimator(const char *dir, const char *file, result_t *r);
- * using csv_open / csv_col / csv_next / hex_f32 / f32_bits / fail above and eol_est.h, plus its
- * entry in CHECKERS below (prefix match on the file name). The Makefile compiles every eol_*.c.
- * ===================================================== ESTIMATOR SET (H4) ==== end ====== */
+ * estimator_configs.csv: each scenario's configuration and the constants eol_est_init derives;
+ * estimator_*.csv: eol_est_init with the first row's inputs, then one eol_est_step per row. */
+
+/* the configuration row of scenario `file` from estimator_configs.csv; with `r` also checks the
+ * derived constants of every row */
+static int est_config(const char *dir, const char *file, eol_est_config_t *cfg, result_t *r)
+{
+    static csv_t c;
+    static eol_est_t e;
+    int rc, found = 0, s;
+    int i_file = -1, i_poles, i_nenc, i_tick, i_ss, i_flags, i_ha[6];
+    char name[32];
+    if (csv_open(&c, dir, "estimator_configs.csv") != 0) return -1;
+    i_file = csv_col(&c, "file");
+    i_poles = csv_col(&c, "poles");
+    i_nenc = csv_col(&c, "N_enc");
+    i_tick = csv_col(&c, "tick_hz");
+    i_ss = csv_col(&c, "standstill_ticks");
+    i_flags = csv_col(&c, "flags");
+    if (i_file < 0 || i_poles < 0 || i_nenc < 0 || i_tick < 0 || i_ss < 0 || i_flags < 0) return -1;
+    for (s = 0; s < 6; ++s) {
+        snprintf(name, sizeof name, "hall_angle_%d", s + 1);
+        if ((i_ha[s] = csv_col(&c, name)) < 0) return -1;
+    }
+    while ((rc = csv_next(&c)) == 1) {
+        eol_est_config_t k;
+        int col;
+        k.poles = (int32_t)strtol(c.f[i_poles], NULL, 10);
+        k.n_enc = (int32_t)strtol(c.f[i_nenc], NULL, 10);
+        k.tick_hz = hex_f32(c.f[i_tick]);
+        for (s = 0; s < 6; ++s) k.hall_angle[s] = hex_f32(c.f[i_ha[s]]);
+        k.standstill_ticks = (int32_t)strtol(c.f[i_ss], NULL, 10);
+        k.flags = (uint16_t)strtoul(c.f[i_flags], NULL, 10);
+        if (file != NULL && strcmp(c.f[i_file], file) == 0) {
+            *cfg = k;
+            found = 1;
+        }
+        if (r == NULL) continue;
+        r->rows++;
+        if (eol_est_init(&e, &k, 0, 0, 0) != 0) {
+            fail(r, &c, "eol_est_init", 0, 1);
+            continue;
+        }
+        for (col = 0; col < c.ncols; ++col) {
+            const char *cn = c.cols[col];
+            float got;
+            if (strcmp(cn, "T") == 0) got = e.T;
+            else if (strcmp(cn, "DELTA") == 0) got = e.DELTA;
+            else if (strcmp(cn, "QUARTER") == 0) got = e.QUARTER;
+            else if (strcmp(cn, "K_OMEGA") == 0) got = e.K_OMEGA;
+            else if (strcmp(cn, "K_NDELTA") == 0) got = e.K_NDELTA;
+            else if (strncmp(cn, "h_width_", 8) == 0) got = e.h_width[atoi(cn + 8)];
+            else if (strncmp(cn, "h_mid_", 6) == 0) got = e.h_mid[atoi(cn + 6)];
+            else continue;
+            if (f32_bits(got) != hex_u32(c.f[col])) fail(r, &c, cn, hex_u32(c.f[col]), f32_bits(got));
+        }
+    }
+    csv_close(&c);
+    if (rc < 0) return -1;
+    if (file != NULL && !found) {
+        fprintf(stderr, "estimator_configs.csv: no row for %s\n", file);
+        return -1;
+    }
+    return 0;
+}
+
+static int check_estimator_configs(const char *dir, const char *file, result_t *r)
+{
+    eol_est_config_t unused;
+    (void)file;
+    return est_config(dir, NULL, &unused, r);
+}
+
+static int check_estimator(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    static eol_est_t e;
+    eol_est_config_t cfg;
+    int rc, i_a, i_b, i_h, i_th, i_om, i_te, i_st;
+    if (est_config(dir, file, &cfg, NULL) != 0) return -1;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_a = csv_col(&c, "enc_a");
+    i_b = csv_col(&c, "enc_b");
+    i_h = csv_col(&c, "hall");
+    i_th = csv_col(&c, "theta_hat");
+    i_om = csv_col(&c, "omega_hat");
+    i_te = csv_col(&c, "theta_enc");
+    i_st = csv_col(&c, "status");
+    if (i_a < 0 || i_b < 0 || i_h < 0 || i_th < 0 || i_om < 0 || i_te < 0 || i_st < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        eol_est_out_t o;
+        int32_t a = (int32_t)strtol(c.f[i_a], NULL, 10);
+        int32_t b = (int32_t)strtol(c.f[i_b], NULL, 10);
+        int32_t h = (int32_t)strtol(c.f[i_h], NULL, 10);
+        unsigned long want_st = strtoul(c.f[i_st], NULL, 10);
+        if (c.row == 1 && eol_est_init(&e, &cfg, h, a, b) != 0) {
+            fprintf(stderr, "%s: configuration refused by eol_est_init\n", c.path);
+            return -1;
+        }
+        r->rows++;
+        eol_est_step(&e, a, b, h, &o);
+        if (f32_bits(o.theta_hat) != hex_u32(c.f[i_th])) fail(r, &c, "theta_hat", hex_u32(c.f[i_th]), f32_bits(o.theta_hat));
+        if (f32_bits(o.omega_hat) != hex_u32(c.f[i_om])) fail(r, &c, "omega_hat", hex_u32(c.f[i_om]), f32_bits(o.omega_hat));
+        if (f32_bits(o.theta_enc) != hex_u32(c.f[i_te])) fail(r, &c, "theta_enc", hex_u32(c.f[i_te]), f32_bits(o.theta_enc));
+        if ((unsigned long)o.status != want_st) fail(r, &c, "status", want_st, (unsigned long)o.status);
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+/* ===================================================== ESTIMATOR SET (H4) ==== end ====== */
 
 /* ------------------------------------------------------------------------ dispatch ---- */
 
@@ -387,7 +493,9 @@ static const checker_t CHECKERS[] = {
     {"blocks.csv", check_blocks},
     {"block_checks.csv", check_block_checks},
     {"compensator.csv", check_compensator},
-    /* ESTIMATOR SET (H4): {"estimator", check_estimator}, */
+    /* ESTIMATOR SET (H4): the configs file first, its prefix is longer */
+    {"estimator_configs.csv", check_estimator_configs},
+    {"estimator_", check_estimator},
 };
 
 static char g_manifest[1L << 16];

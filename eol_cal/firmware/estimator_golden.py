@@ -1,0 +1,193 @@
+"""Golden vectors of the estimator: one CSV per scenario, tick by tick, plus their configurations.
+
+``vector_sets()`` is consumed by :mod:`eol_cal.firmware.golden` (``eol-cal golden``), which
+writes the files and the manifest. Files:
+
+* ``estimator_configs.csv``: one row per scenario file: the configuration (poles, N_enc,
+  tick_hz, hall_angle_1..6, standstill_ticks, flags) and the constants the C port derives from
+  it at init (T, DELTA, QUARTER, K_OMEGA, K_NDELTA, h_width_s, h_mid_s) as binary32 hex;
+* ``estimator_<scenario>.csv``: columns tick, enc_a, enc_b, hall (inputs), theta_hat,
+  omega_hat, theta_enc (binary32 hex), status (decimal). The power-on state takes the first
+  row's inputs (``eol_est_init(cfg, hall, a, b)``), then every row, the first included, is one
+  ``eol_est_step``.
+
+Inputs come from the kinematic signal model (:mod:`eol_cal.firmware.kinematics`) with drawn
+sensor errors (64 PPR, edge placement sigma 0.1 mechanical degree, halls within 2 electrical
+degrees) and, where the scenario says so, injected glitches.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import numpy as np
+
+from eol_cal.firmware import estimator as est
+from eol_cal.firmware.kinematics import draw_sensor_errors, encoder_hall_signals, speed_profile_angle
+
+TICK_HZ = 20000.0
+POLES = 6
+N_ENC = 64
+
+#: Exact on a host build with -ffp-contract=off; targets whose FPU rounds differently compare
+#: angles modulo 2*pi within ``abs`` and speeds within ``abs``; status bits must match.
+TOLERANCE = {
+    "theta_hat": {"abs": 1e-4, "unit": "rad", "modulo": "2*pi"},
+    "omega_hat": {"abs": 1e-3, "unit": "rad/s"},
+    "theta_enc": {"abs": 1e-4, "unit": "rad", "modulo": "2*pi"},
+    "status": "exact",
+}
+
+SCENARIO_COLUMNS = ("tick", "enc_a", "enc_b", "hall", "theta_hat", "omega_hat", "theta_enc", "status")
+CONFIG_COLUMNS = (("file", "poles", "N_enc", "tick_hz")
+                  + tuple(f"hall_angle_{s}" for s in range(1, 7))
+                  + ("standstill_ticks", "flags", "T", "DELTA", "QUARTER", "K_OMEGA", "K_NDELTA")
+                  + tuple(f"h_width_{s}" for s in range(1, 7))
+                  + tuple(f"h_mid_{s}" for s in range(1, 7)))
+
+Signals = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _signals(segments: list[tuple[float, float, float]], seed: int, theta0: float = 0.3) -> Signals:
+    theta_m = speed_profile_angle(segments, TICK_HZ, theta0)
+    errors = draw_sensor_errors(np.random.default_rng(seed), N_ENC)
+    return encoder_hall_signals(theta_m, POLES, N_ENC, errors)
+
+
+def _rising(x: np.ndarray, after: int) -> int:
+    """First tick >= after where x goes 0 -> 1."""
+    idx = np.flatnonzero((x[1:] == 1) & (x[:-1] == 0)) + 1
+    return int(idx[idx >= after][0])
+
+
+def _const_60() -> Signals:
+    return _signals([(0.3, 60.0, 60.0)], seed=1)
+
+
+def _ramp() -> Signals:
+    return _signals([(0.05, 30.0, 30.0), (0.4, 30.0, 85.0)], seed=2)
+
+
+def _creep() -> Signals:
+    # Start just short of a hall boundary (electrical 60 deg = mechanical 20 deg) so the 1.3 s
+    # see the anchor and two A edges 0.94 s apart.
+    return _signals([(1.3, 1.0, 1.0)], seed=3, theta0=math.radians(19.5))
+
+
+def _standstill_restart() -> Signals:
+    return _signals([(0.1, 60.0, 60.0), (0.03, 60.0, 0.0), (0.12, 0.0, 0.0), (0.05, 0.0, 60.0),
+                     (0.1, 60.0, 60.0)], seed=4)
+
+
+def _reversal() -> Signals:
+    return _signals([(0.1, 60.0, 60.0), (0.1, 60.0, -60.0), (0.1, -60.0, -60.0)], seed=5)
+
+
+def _reverse_60() -> Signals:
+    return _signals([(0.2, -60.0, -60.0)], seed=6)
+
+
+def _missing_edge() -> Signals:
+    a, b, h = _signals([(0.15, 60.0, 60.0)], seed=7)
+    r = _rising(a, 1500)
+    f = r + int(np.argmax(a[r:] == 0))
+    a = a.copy()
+    a[r:f] = 0  # one A pulse lost; B still toggles
+    return a, b, h
+
+
+def _edge_bounce() -> Signals:
+    a, b, h = _signals([(0.15, 60.0, 60.0)], seed=8)
+    a, b = a.copy(), b.copy()
+    r = _rising(a, 1200)
+    a[r + 1] = 0  # A: 0 1 0 1 around its rising edge
+    r2 = _rising(a, 2000)
+    a[r2 + 1], a[r2 + 3] = 0, 0  # a longer bounce: 1 0 1 0 1
+    rb = _rising(b, 2400)
+    b[rb + 1] = 0  # B bounces too
+    return a, b, h
+
+
+def _hall_glitch() -> Signals:
+    a, b, h = _signals([(0.15, 60.0, 60.0)], seed=9)
+    h = h.copy()
+    h[700:702] = 0
+    h[1500] = 7
+    h[2200] = 7 - h[2200]  # the opposite sector for one tick: not adjacent
+    return a, b, h
+
+
+def _best_240() -> Signals:
+    # 240 rpm for 0.45 s: almost two revolutions, so improvement 4 learns during the second.
+    return _signals([(0.45, 240.0, 240.0)], seed=10)
+
+
+_PAPER = est.EstimatorConfig.paper(tick_hz=TICK_HZ)
+_PAPER_SHORT = est.EstimatorConfig.paper(tick_hz=TICK_HZ, standstill_s=0.05)
+_BEST = est.EstimatorConfig.best(tick_hz=TICK_HZ)
+_BEST_SHORT = est.EstimatorConfig.best(tick_hz=TICK_HZ, standstill_s=0.05)
+
+#: file name -> (configuration, signal generator, description)
+SCENARIOS: dict[str, tuple[est.EstimatorConfig, Callable[[], Signals], str]] = {
+    "estimator_const_60rpm.csv": (_PAPER, _const_60, "paper estimator, constant 60 rpm forward, 0.3 s"),
+    "estimator_ramp_30_85rpm.csv": (_PAPER, _ramp, "paper estimator, 30 rpm then a ramp to 85 rpm in 0.4 s"),
+    "estimator_creep_1rpm.csv": (_PAPER, _creep, "paper estimator, 1 rpm creep (an edge every 0.94 s), 1.3 s"),
+    "estimator_standstill_restart.csv": (_PAPER_SHORT, _standstill_restart,
+                                         "paper estimator, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+    "estimator_standstill_restart_best.csv": (_BEST_SHORT, _standstill_restart,
+                                              "every improvement, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+    "estimator_reversal.csv": (_PAPER, _reversal, "paper estimator, 60 rpm forward, through zero to 60 rpm reverse"),
+    "estimator_reverse_60rpm.csv": (_PAPER, _reverse_60, "paper estimator, constant 60 rpm in reverse"),
+    "estimator_missing_edge.csv": (_PAPER, _missing_edge, "paper estimator, 60 rpm, one A pulse lost"),
+    "estimator_edge_bounce.csv": (_PAPER, _edge_bounce, "paper estimator, 60 rpm, A bounces twice, B once"),
+    "estimator_hall_glitch.csv": (_PAPER, _hall_glitch,
+                                  "paper estimator, 60 rpm, hall reads 0, 7 and the opposite sector briefly"),
+    "estimator_best_240rpm.csv": (_BEST, _best_240, "every improvement, 240 rpm for 0.45 s (pitch learning starts)"),
+}
+
+DESCRIPTIONS = {name: desc for name, (_, _, desc) in SCENARIOS.items()}
+DESCRIPTIONS["estimator_configs.csv"] = (
+    "configuration of each estimator_*.csv (flags: 1 clamp_to_next_edge, 2 learn_grid_offset, "
+    "4 accel_prediction, 8 learn_pitch_errors) and the constants eol_est_init derives from it")
+
+
+def _hex(x: object) -> str:
+    from eol_cal.firmware.golden import f32hex
+
+    return f32hex(x)
+
+
+def config_row(name: str, cfg: est.EstimatorConfig) -> list[str]:
+    """The ``estimator_configs.csv`` row of scenario file ``name``."""
+    c = est.consts(cfg)
+    return ([name, str(cfg.poles), str(cfg.N_enc), _hex(cfg.tick_hz)]
+            + [_hex(x) for x in cfg.hall_angle]
+            + [str(cfg.standstill_ticks), str(cfg.flags), _hex(c.T), _hex(c.DELTA), _hex(c.QUARTER),
+               _hex(c.K_OMEGA), _hex(c.K_NDELTA)]
+            + [_hex(c.H_WIDTH[s]) for s in range(1, 7)]
+            + [_hex(c.H_MID[s]) for s in range(1, 7)])
+
+
+def scenario_rows(cfg: est.EstimatorConfig, a: np.ndarray, b: np.ndarray, h: np.ndarray) -> list[list[str]]:
+    """Rows of one scenario file: inputs and the numpy reference's outputs, tick by tick."""
+    out = est.run(cfg, a, b, h)
+    th = out.theta_hat.view(np.uint32)
+    om = out.omega_hat.view(np.uint32)
+    te = out.theta_enc.view(np.uint32)
+    return [[str(i), str(int(a[i])), str(int(b[i])), str(int(h[i])), f"{int(th[i]):08x}", f"{int(om[i]):08x}",
+             f"{int(te[i]):08x}", str(int(out.status[i]))] for i in range(len(a))]
+
+
+def vector_sets(names: list[str] | None = None) -> dict[str, tuple[tuple[str, ...], list[list[str]]]]:
+    """Every estimator vector set (or those in ``names``), ``{file name: (columns, rows)}``.
+
+    ``estimator_configs.csv`` always comes first and lists the chosen scenarios.
+    """
+    chosen = list(SCENARIOS) if names is None else [n for n in SCENARIOS if n in names]
+    sets: dict[str, tuple[tuple[str, ...], list[list[str]]]] = {
+        "estimator_configs.csv": (CONFIG_COLUMNS, [config_row(n, SCENARIOS[n][0]) for n in chosen])}
+    for n in chosen:
+        cfg, gen, _ = SCENARIOS[n]
+        sets[n] = (SCENARIO_COLUMNS, scenario_rows(cfg, *gen()))
+    return sets
