@@ -104,6 +104,12 @@ def test_exit_codes_on_the_virtual_bus(files):
         res = runner.invoke(cli, ["flash", str(hexfile), *bus, "--key-file", str(key), "--force", "--json"])
         assert res.exit_code == 0, res.output
         assert json.loads(res.output)["sequence"] == 2
+        ini = tmp / "can.ini"
+        ini.write_text(f"[default]\ninterface = virtual\nchannel = {rig.channel}\n")
+        res = runner.invoke(cli, ["ecu", "info", "--can-config", str(ini), "--json"])
+        assert res.exit_code == 0 and json.loads(res.output)["active"]["sequence"] == 2, res.output
+    res = runner.invoke(cli, ["ecu", "info", "--can-config", str(tmp / "nope.ini")])
+    assert res.exit_code == 2 and "file not found" in res.output
     res = runner.invoke(cli, ["flash", str(block), "-i", "udp_multicast", "-c", "x", "--key-file", str(key)])
     assert res.exit_code == 2 and "udp_multicast" in res.output
     res = runner.invoke(cli, ["ecu-sim", "--flash-file", str(tmp / "x.bin"), "--listen", "nonsense"])

@@ -561,13 +561,11 @@ class EcuSimulator:
             raise Nrc(P.NRC.RequestOutOfRange)
         return self.flash.read(bank, offset, size)
 
-    def _reset(self, req: Request) -> bytes | None:
+    def _reset(self, req: Request) -> bytes:
         if req.subfunction != P.RESET_HARD:
             raise Nrc(P.NRC.SubFunctionNotSupported)
         if req.data:
             raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
-        if not req.suppress_positive_response:
-            self._send(Response(service=services.ECUReset, code=Response.Code.PositiveResponse,
-                                data=bytes((P.RESET_HARD,))).get_payload())
+        # A real ECU answers, then restarts; answering after the re-boot looks the same on the bus.
         self._boot()
-        return None
+        return bytes((P.RESET_HARD,))

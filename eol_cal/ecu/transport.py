@@ -7,6 +7,7 @@ dropped and delayed frames for the reliability tests.
 
 from __future__ import annotations
 
+import os
 import random
 import threading
 import time
@@ -94,6 +95,8 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     """
     overrides = {k: v for k, v in (("interface", interface), ("channel", channel), ("bitrate", bitrate))
                  if v is not None}
+    if can_config is not None and not os.path.isfile(can_config):
+        raise InputError(can_config, "can-config", "file not found")
     try:
         config = can.util.load_config(path=can_config, config=overrides) if can_config else overrides
     except (OSError, ValueError, can.CanInterfaceNotImplementedError) as exc:
