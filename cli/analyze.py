@@ -82,6 +82,7 @@ def analyze_capture(capture, ripple_options: dict[str, Any] | None = None, fw_an
                 {
                     "t_start": w.t_start,
                     "t_end": w.t_end,
+                    "n_revs": w.n_revs,
                     "T_avg_nm": w.T_avg_nm,
                     "raw_pct": _finite(w.raw_pct),
                     "filtered_pct": _finite(w.filtered_pct),

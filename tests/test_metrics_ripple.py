@@ -42,8 +42,9 @@ def test_pp_of_a_sine_is_twice_its_amplitude_over_the_mean():
     assert r.T_avg_nm == pytest.approx(T_AVG, abs=1e-4)
     assert r.speed_rpm == pytest.approx(60.0, rel=1e-6)
     assert r.window_revs == 3  # one mechanical revolution
-    # settle: the first revolution (0 .. 0.333 s) starts before 0.1 s and is dropped
-    assert r.windows[0].t_start == pytest.approx(1 / 3, abs=1e-3)
+    # settle: the windows start 0.1 s after the run's start, whole revolutions from there
+    assert r.windows[0].t_start == pytest.approx(0.1, abs=1e-3)
+    assert len(r.windows) == 2  # 2.9 s usable: two whole mechanical revolutions
     assert all(w.t_end - w.t_start == pytest.approx(1.0, abs=1e-3) for w in r.windows)
     assert r.n_spikes == 0
 
@@ -104,8 +105,9 @@ def test_short_capture_uses_fewer_revolutions_and_too_short_is_refused():
     t = np.arange(0.0, 1.0, 1.0 / FS)
     theta = 3 * 2 * np.pi * t
     r = ripple_pp(t, 3.2 + 0.05 * np.sin(6 * theta), theta, poles=6)
-    # 2 whole revolutions, the first starts inside the settle time: one window of one
-    assert r.window_revs == 1 and len(r.windows) == 1
+    # 17 whole 60-degree units (0.944 s), 0.1 s settling: 2.5 revolutions, one window of two
+    assert r.window_revs == 2 and len(r.windows) == 1
+    assert r.windows[0].t_start == pytest.approx(0.1, abs=1e-3)
     assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.005)
     t = np.arange(0.0, 0.4, 1.0 / FS)
     theta = 3 * 2 * np.pi * t
@@ -122,3 +124,16 @@ def test_capture_level_uses_the_reconstructed_angle():
     assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.01)
     assert r.filtered_pct == pytest.approx(TRUE_PCT, abs=0.01)
     assert np.isfinite(r.windows[0].i_qo_a)
+
+
+def test_each_run_keeps_its_own_window_length():
+    # 0.9 s at 60 rpm, 0.1 s ramp, 0.8 s at 120 rpm (like the eol-default profile's points)
+    t = np.arange(0.0, 1.8, 1.0 / FS)
+    rps = np.interp(t, [0.0, 0.9, 1.0, 1.8], [1.0, 1.0, 2.0, 2.0])
+    theta = 3 * 2 * np.pi * np.cumsum(rps) / FS
+    r = ripple_pp(t, 3.0 + 0.03 * np.sin(6 * theta), theta, poles=6, i_qo=np.full(len(t), 60.0))
+    by_speed = {round(w.speed_rpm): w.n_revs for w in r.windows}
+    assert by_speed == {60: 2, 120: 3}
+    assert r.window_revs == 3
+    assert all(w.raw_pct == pytest.approx(2.0, abs=0.01) for w in r.windows)
+    assert all(not (0.9 < w.t_end and w.t_start < 1.0) for w in r.windows)  # nothing from the ramp

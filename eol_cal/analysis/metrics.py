@@ -2,13 +2,13 @@
 
 The definition of the peak-to-peak figure is in ``docs/metrics.md``; in short:
 
-- Electrical revolutions are cut from the reconstructed angle theta_r. A revolution is steady
-  when its mean speed and its mean i_qo stay within a tolerance of the first revolution of the
-  run it belongs to, and i_qo varies inside it by no more than the same tolerance.
-- In each steady run the revolutions that start within ``settle_s`` of the run's start are
-  dropped; the rest is cut into consecutive, non-overlapping windows of ``window_revs`` whole
-  electrical revolutions (default P/2: one mechanical revolution, the paper's 1 s scope view
-  at 60 rpm).
+- 60-degree units (one period of the 6th harmonic) are cut from the reconstructed angle
+  theta_r. A unit is steady when its mean speed and its mean i_qo stay within a tolerance of
+  the first unit of the run it belongs to, and i_qo varies inside it by no more than that.
+- In each steady run the first ``settle_s`` is dropped; from there the run is cut into
+  consecutive, non-overlapping windows of whole electrical revolutions: P/2 (one mechanical
+  revolution, the paper's 1 s scope view at 60 rpm) where the run holds that many, else as
+  many as it holds (at least one).
 - Spikes are removed with a Hampel filter before anything else; "filtered" adds a zero-phase
   Butterworth low-pass at ``cutoff_order`` times the electrical frequency of the run.
 - Per window ``pp% = (max - min) / |mean| * 100`` with the mean of the despiked raw torque;
@@ -25,6 +25,9 @@ from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 
 TWO_PI = 2.0 * np.pi
+
+#: steadiness is judged per 1/6 electrical revolution (one period of the 6th harmonic)
+UNITS_PER_REV = 6
 
 
 def eta_percent(N_enc: np.ndarray | float, poles: np.ndarray | float) -> np.ndarray | float:
@@ -174,7 +177,7 @@ class RipplePP:
     windows : tuple[SteadyWindow, ...]
         Every window that counted.
     window_revs : int
-        Electrical revolutions per window.
+        Most electrical revolutions in a window (each window has its own ``n_revs``).
     segments : tuple[tuple[float, float], ...]
         Steady runs after the settle time (s): where the windows were cut from.
     cutoff_order : float
@@ -203,26 +206,30 @@ def _percent(pp_nm: float, mean_nm: float) -> float:
     return 100.0 * pp_nm / abs(mean_nm) if mean_nm != 0.0 else float("nan")
 
 
-def revolution_bounds(theta_r: np.ndarray) -> np.ndarray:
-    """Sample indices where each whole electrical revolution starts (and the last one ends).
+def revolution_bounds(theta_r: np.ndarray, per_rev: int = 1) -> np.ndarray:
+    """Sample indices where each whole electrical revolution (or part of one) starts.
 
     Parameters
     ----------
     theta_r : ndarray
         Unwrapped electrical angle (rad); either direction.
+    per_rev : int
+        Units per revolution: 1 for whole revolutions, 6 for 60-degree units.
 
     Returns
     -------
     idx : ndarray of int
-        ``idx[k]`` is the first sample at which the angle travelled ``2*pi*k`` from its start
-        (running maximum, so a standstill or a reversal only lengthens a revolution).
+        ``idx[k]`` is the first sample at which the angle travelled ``2*pi*k/per_rev`` from
+        its start (running maximum, so a standstill or a reversal only lengthens a unit); the
+        last entry ends the last whole unit.
     """
     travel = np.asarray(theta_r, dtype=float) - float(theta_r[0])
     if travel[-1] < 0:
         travel = -travel
     reach = np.maximum.accumulate(travel)
-    n = int(np.floor(reach[-1] / TWO_PI))
-    return np.searchsorted(reach, TWO_PI * np.arange(n + 1), side="left")
+    step = TWO_PI / per_rev
+    n = int(np.floor(reach[-1] / step * (1 + 1e-12)))
+    return np.searchsorted(reach, step * np.arange(n + 1) * (1 - 1e-12), side="left")
 
 
 def steady_runs(
@@ -233,26 +240,26 @@ def steady_runs(
     iq_tol_a: float,
     iq_tol_rel: float,
 ) -> list[list[int]]:
-    """Group consecutive steady revolutions into runs.
+    """Group consecutive steady revolutions (or units, see :func:`revolution_bounds`) into runs.
 
     Parameters
     ----------
     t : ndarray
         Sample times (s).
     bounds : ndarray of int
-        Revolution start indices from :func:`revolution_bounds`.
+        Revolution (or unit) start indices from :func:`revolution_bounds`.
     i_qo : ndarray or None
         Nominal q current per sample (A).
     speed_tol : float
-        Allowed relative deviation of a revolution's mean speed from the run's first one.
+        Allowed relative deviation of a unit's mean speed from the run's first one.
     iq_tol_a, iq_tol_rel : float
-        i_qo tolerance: ``max(iq_tol_a, iq_tol_rel * |i_qo of the first revolution|)`` (A),
-        for the spread inside a revolution and for the deviation of its mean.
+        i_qo tolerance: ``max(iq_tol_a, iq_tol_rel * |i_qo of the first unit|)`` (A),
+        for the spread inside a unit and for the deviation of its mean.
 
     Returns
     -------
     runs : list of list of int
-        Revolution numbers of each run (revolution k spans ``bounds[k]:bounds[k+1]``).
+        Unit numbers of each run (unit k spans ``bounds[k]:bounds[k+1]``).
     """
     n_rev = len(bounds) - 1
     dur = t[bounds[1:]] - t[bounds[:-1]]
@@ -317,9 +324,9 @@ def ripple_pp(
     i_qo : ndarray, optional
         Nominal q current per sample (A); without it only the speed decides steadiness.
     window_revs : int, optional
-        Electrical revolutions per window. Default P/2; when no steady run holds P/2
-        revolutions after the settle time, the largest whole number (at least 1) that the
-        longest run holds, for every run.
+        Electrical revolutions per window, for every run (runs that hold fewer give no
+        window). Default: per run, P/2 where the run holds that many after the settle time,
+        else as many whole revolutions as it holds (at least 1).
     settle_s : float
         Time dropped at the start of every steady run (s).
     speed_tol : float
@@ -353,61 +360,52 @@ def ripple_pp(
     fs = (len(t) - 1) / (t[-1] - t[0])
     despiked, spikes = hampel(torque, max(1, round(hampel_half_width_s * fs)), hampel_sigma)
 
-    bounds = revolution_bounds(theta_r)
-    if len(bounds) < 2:
+    # Steadiness is judged per 60-degree unit: one period of the 6th harmonic, so its speed
+    # ripple does not move a unit's mean speed, and a run starts at most 60 deg after a change.
+    units = revolution_bounds(theta_r, per_rev=UNITS_PER_REV)
+    if len(units) < UNITS_PER_REV + 1:
         raise InputError(source, "torque", "the capture does not hold one whole electrical revolution")
-    runs = steady_runs(t, bounds, i_qo, speed_tol, iq_tol_a, iq_tol_rel)
-    n_rev = len(bounds) - 1
-
-    usable: list[tuple[list[int], float]] = []  # (revolutions after settle, cut-off Hz)
-    for run in runs:
-        t_run0 = t[bounds[run[0]]]
-        f_e = len(run) / (t[bounds[run[-1] + 1]] - t_run0)
-        f_c = cutoff_order * f_e
-        # When an unsteady revolution follows, the low-pass smears it back into the run by
-        # about its impulse response: keep clear of it.
-        guard = 0.0 if run[-1] == n_rev - 1 else 2.0 / f_c
-        t_run1 = t[bounds[run[-1] + 1]] - guard
-        revs = [k for k in run if t[bounds[k]] >= t_run0 + settle_s - 1e-12 and t[bounds[k + 1]] <= t_run1]
-        if revs:
-            usable.append((revs, f_c))
-    longest = max((len(r) for r, _ in usable), default=0)
-    if window_revs is None:
-        n_w = min(poles // 2, longest)
-    else:
-        n_w = int(window_revs)
-    if n_w < 1 or longest < n_w:
-        raise InputError(
-            source, "torque",
-            f"no steady window of {max(n_w, 1)} whole electrical revolution(s) after {settle_s} s settling "
-            f"(speed within {speed_tol:.0%}, i_qo within max({iq_tol_a} A, {iq_tol_rel:.0%}))",
-        )
+    runs = steady_runs(t, units, i_qo, speed_tol, iq_tol_a, iq_tol_rel)
+    n_units = len(units) - 1
 
     windows: list[SteadyWindow] = []
     segments: list[tuple[float, float]] = []
     filtered_cache: dict[float, np.ndarray] = {}
-    for revs, f_c in usable:
-        if len(revs) < n_w:
+    for run in runs:
+        t_run0, t_run1 = t[units[run[0]]], t[units[run[-1] + 1]]
+        f_e = len(run) / UNITS_PER_REV / (t_run1 - t_run0)
+        f_c = cutoff_order * f_e
+        # When an unsteady unit follows, the low-pass smears it back into the run by about
+        # its impulse response: keep clear of it.
+        guard = 0.0 if run[-1] == n_units - 1 else 2.0 / f_c
+        i0 = int(np.searchsorted(t, t_run0 + settle_s - 1e-12, side="left"))
+        i1 = int(np.searchsorted(t, t_run1 - guard + 1e-12, side="right"))
+        if i1 - i0 < 2:
+            continue
+        revs = revolution_bounds(theta_r[i0:i1]) + i0  # whole revolutions from the usable start
+        n_avail = len(revs) - 1
+        n_w = int(window_revs) if window_revs is not None else min(poles // 2, n_avail)
+        if n_w < 1 or n_avail < n_w:
             continue
         key = round(f_c, 9)
         if key not in filtered_cache:
             filtered_cache[key] = lowpass_zero_phase(despiked, fs, f_c, filter_order)
         filt = filtered_cache[key]
-        segments.append((float(t[bounds[revs[0]]]), float(t[bounds[revs[-1] + 1]])))
-        for w in range(len(revs) // n_w):
-            k0 = revs[w * n_w]
-            k1 = revs[w * n_w + n_w - 1] + 1
-            sl = slice(bounds[k0], bounds[k1])
+        n_win = n_avail // n_w
+        segments.append((float(t[revs[0]]), float(t[revs[n_win * n_w]])))
+        for w in range(n_win):
+            k0, k1 = revs[w * n_w], revs[(w + 1) * n_w]
+            sl = slice(k0, k1)
             raw_w, filt_w = despiked[sl], filt[sl]
             mean = float(raw_w.mean())
             pp_raw = float(raw_w.max() - raw_w.min())
             pp_filt = float(filt_w.max() - filt_w.min())
-            dt = t[bounds[k1]] - t[bounds[k0]]
-            dtheta = theta_r[bounds[k1]] - theta_r[bounds[k0]]
+            dt = t[k1] - t[k0]
+            dtheta = theta_r[k1] - theta_r[k0]
             windows.append(
                 SteadyWindow(
-                    t_start=float(t[bounds[k0]]),
-                    t_end=float(t[bounds[k1]]),
+                    t_start=float(t[k0]),
+                    t_end=float(t[k1]),
                     n_revs=n_w,
                     T_avg_nm=mean,
                     raw_pp_nm=pp_raw,
@@ -418,6 +416,13 @@ def ripple_pp(
                     i_qo_a=float(np.mean(i_qo[sl])) if i_qo is not None else float("nan"),
                 )
             )
+    if not windows:
+        need = f"{window_revs}" if window_revs is not None else "one"
+        raise InputError(
+            source, "torque",
+            f"no steady window of {need} whole electrical revolution(s) after {settle_s} s settling "
+            f"(speed within {speed_tol:.0%}, i_qo within max({iq_tol_a} A, {iq_tol_rel:.0%}))",
+        )
 
     raw = np.array([w.raw_pct for w in windows])
     filt = np.array([w.filtered_pct for w in windows])
@@ -432,7 +437,7 @@ def ripple_pp(
         T_avg_nm=float(np.average([w.T_avg_nm for w in windows], weights=weights)),
         speed_rpm=float(np.average([w.speed_rpm for w in windows], weights=weights)),
         windows=tuple(windows),
-        window_revs=n_w,
+        window_revs=max(w.n_revs for w in windows),
         segments=tuple(segments),
         cutoff_order=float(cutoff_order),
         n_spikes=int(spikes.sum()),
