@@ -14,6 +14,7 @@ from eol_cal.ecu.client import (EcuError, UdsSession, VerifyFailed, ecu_info, fl
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import SimConfig
 from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
+from eol_cal.ecu.transport import IsoTpTiming
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 
@@ -271,6 +272,17 @@ def test_s3_timeout_relocks_and_tester_present_keeps_session():
             time.sleep(0.6)  # TesterPresent from the background thread keeps S3 from expiring
             s.routine("erase", P.RID_ERASE, B.BANK_WORD_ADDR[0], B.BANK_BYTES)
         assert "tester_present" in rig.sim.steps_seen
+
+
+def test_client_honours_the_ecus_flow_control_settings():
+    timing = IsoTpTiming(n_bs_ms=150, n_cr_ms=150, blocksize=8, stmin_ms=1)
+    with virtual_rig(config=SimConfig(isotp_timing=timing), sniff=True) as rig:
+        report = _flash(rig, BLOCK_A)
+        assert report.verified
+        time.sleep(0.05)
+        fc = [bytes(f.data[:3]) for f in rig.sniffer.frames if f.arbitration_id == P.ECU_ID and f.data[0] >> 4 == 3]
+        # 2152 bytes in blocks of 8 consecutive frames: about 2152 / 56 flow-control frames.
+        assert len(fc) >= 2152 // 56 and set(fc) == {b"\x30\x08\x01"}
 
 
 def test_dead_ecu_times_out_with_a_clear_message():

@@ -17,7 +17,7 @@ from can_remote import RemoteServer
 
 from eol_cal.ecu.flash import NorFlash
 from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
-from eol_cal.ecu.testing import unique_channel
+from eol_cal.ecu.transport import private_channel_name
 
 
 @dataclass
@@ -53,7 +53,7 @@ def serve_remote(flash_path: str | Path, *, host: str = "127.0.0.1", port: int =
     """
     # can_remote logs every frame at INFO/DEBUG; keep it to warnings.
     logging.getLogger("can_remote").setLevel(logging.WARNING)
-    channel = unique_channel("ecu-sim")
+    channel = private_channel_name("ecu-sim")
     sim = EcuSimulator(can.Bus(interface="virtual", channel=channel), NorFlash(flash_path), config, faults)
     sim.start()
     server = RemoteServer(host, port, interface="virtual", channel=channel)

@@ -5,10 +5,7 @@ and examples (not for production use).
 from __future__ import annotations
 
 import contextlib
-import itertools
-import os
 import threading
-import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -20,19 +17,13 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash
 from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
-from eol_cal.ecu.transport import IsoTpTiming
+from eol_cal.ecu.transport import IsoTpTiming, private_channel_name
 from eol_cal.firmware import block as B
 
 FAST_ISOTP = IsoTpTiming(n_bs_ms=150, n_cr_ms=150)
 FAST_CLIENT = ClientTiming(p2_s=0.15, p2_star_s=1.0, retries=3, tester_present_s=2.0, isotp=FAST_ISOTP)
 """Short timeouts for in-process tests: a dead ECU is detected in about half a second."""
 
-_counter = itertools.count()
-
-
-def unique_channel(prefix: str = "ecu") -> str:
-    """A virtual-bus channel name no other test in this process uses."""
-    return f"{prefix}-{os.getpid()}-{next(_counter)}-{uuid.uuid4().hex[:6]}"
 
 
 def example_block(serial: str = "SIM-0001", table_len: int = 256, sequence: int = 1, seed: int = 0) -> bytes:
@@ -98,7 +89,7 @@ class Rig:
 def virtual_rig(flash_path: str | Path | None = None, *, config: SimConfig | None = None,
                 faults: Faults | None = None, sniff: bool = False) -> Iterator[Rig]:
     """Start an ECU simulator on a fresh virtual channel; yield the rig; stop everything."""
-    channel = unique_channel()
+    channel = private_channel_name()
     sniffer = Sniffer(can.Bus(interface="virtual", channel=channel)) if sniff else None
     ecu_bus = can.Bus(interface="virtual", channel=channel)
     tester = can.Bus(interface="virtual", channel=channel)

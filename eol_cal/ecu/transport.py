@@ -7,10 +7,12 @@ dropped and delayed frames for the reliability tests.
 
 from __future__ import annotations
 
+import itertools
 import os
 import random
 import threading
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,14 +33,20 @@ class IsoTpTiming:
         Sender's wait for a flow-control frame, ms (ISO default 1000).
     n_cr_ms : int
         Receiver's wait for the next consecutive frame, ms (ISO default 1000).
+    blocksize : int
+        BS this side announces in its flow-control frames (contract: 0, no further FC).
+    stmin_ms : int
+        STmin this side announces, ms (contract: 0).
     """
 
     n_bs_ms: int = 1000
     n_cr_ms: int = 1000
+    blocksize: int = P.FC_BLOCK_SIZE
+    stmin_ms: int = P.FC_STMIN
 
 
 def isotp_params(*, blocking_send: bool, timing: IsoTpTiming = IsoTpTiming()) -> dict[str, Any]:
-    """can-isotp parameters for contract section 3: 8-byte frames padded with 0xCC, BS = STmin = 0.
+    """can-isotp parameters for contract section 3: 8-byte frames padded with 0xCC, BS = STmin = 0 by default.
 
     Parameters
     ----------
@@ -49,8 +57,8 @@ def isotp_params(*, blocking_send: bool, timing: IsoTpTiming = IsoTpTiming()) ->
         N_Bs / N_Cr timeouts.
     """
     return {
-        "stmin": P.FC_STMIN,
-        "blocksize": P.FC_BLOCK_SIZE,
+        "stmin": int(timing.stmin_ms),
+        "blocksize": int(timing.blocksize),
         "tx_padding": P.PADDING,
         "tx_data_length": P.FRAME_BYTES,
         "tx_data_min_length": P.FRAME_BYTES,
@@ -168,6 +176,14 @@ class FaultyBus(can.BusABC):
     def shutdown(self) -> None:
         super().shutdown()
         self.inner.shutdown()
+
+
+def private_channel_name(prefix: str = "ecu") -> str:
+    """A python-can ``virtual`` channel name no other bus in this process uses by accident."""
+    return f"{prefix}-{os.getpid()}-{next(_channel_counter)}-{uuid.uuid4().hex[:6]}"
+
+
+_channel_counter = itertools.count()
 
 
 def frame_bits(dlc: int = P.FRAME_BYTES, *, stuffing: bool = True) -> int:
