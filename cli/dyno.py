@@ -28,13 +28,17 @@ def _quiet_pymodbus() -> None:
 @click.option("--connections", type=click.IntRange(1, 16), default=4, show_default=True, help="Parallel connections for the capture transfer.")
 @click.option("--all-channels", is_flag=True, help="Also read temperature and the dq and phase currents (temp, iq, id, ia, ib, ic).")
 @click.option("--reset-faults", is_flag=True, help="Clear faults latched on the dyno before the run.")
+@click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @handle_errors
-def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults, as_json) -> None:
+def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults,
+                split_windows, as_json) -> None:
     """Run a test profile on the dyno and write the capture.
 
     Segment by segment: set point, wait until at speed, capture, read the buffer. On any error
     the speed goes to 0, the drive is disabled and no capture file is written (exit code 2).
+    The segments' windows are joined with gaps in time (metadata segment_starts); they are not
+    one continuous recording.
     """
     import time
 
@@ -71,6 +75,14 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         capture = dc.acquire(config, segments, output, serial=serial, rate_hz=rate_hz, channels=channels,
                              progress=progress, reset_faults=reset_faults,
                              extra_metadata={"comment": f"eol-cal acquire, profile {prof.name}"})
+    windows = []
+    if split_windows:
+        from eol_cal.capture import write_capture
+
+        for i, window in enumerate(dc.split_windows(capture), start=1):
+            path = output.with_name(f"{output.stem}.w{i}{output.suffix}")
+            write_capture(window, path)
+            windows.append(str(path))
     wall = time.perf_counter() - t0
     summary = {
         "output": str(output),
@@ -80,6 +92,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         "samples": int(len(capture.t)),
         "rate_hz": rate_hz,
         "channels": sorted(capture.channels),
+        "windows": windows,
         "wall_s": round(wall, 3),
     }
     if as_json:
@@ -103,9 +116,12 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
     Binds 127.0.0.1 unless told otherwise. Stop with Ctrl-C.
     """
     import asyncio
+    import threading
+    import time
 
     from eol_cal.dyno import client as dc
     from eol_cal.dyno import sim as ds
+    from eol_cal.dyno.registers import DutCmdKind
     from eol_cal.errors import InputError
     from eol_cal.motor import load_motor
 
@@ -127,6 +143,18 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
     def started(bound: int) -> None:
         err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP), motor {serial}, source {source}"
                           + (f", ECU flash {ecu_flash}" if ecu_flash else ""))
+        if source == "plant":
+            threading.Thread(target=warm_up, name="plant-warm-up", daemon=True).start()
+
+    def warm_up() -> None:
+        # compile the plant now rather than in the first capture (the client's capture timeout)
+        t0 = time.perf_counter()
+        try:
+            capture_source(ds.SegmentRequest(60.0, DutCmdKind.IQ, 0.0, 100, 10000.0, serial, seed, 0))
+        except Exception as exc:  # noqa: BLE001 - the first real capture reports it properly
+            err_console.print(f"plant warm-up failed: {exc}")
+            return
+        err_console.print(f"plant ready ({time.perf_counter() - t0:.1f} s)")
 
     _quiet_pymodbus()
     try:

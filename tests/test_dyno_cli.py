@@ -27,7 +27,7 @@ name = "short"
 [[segment]]
 speed_rpm = 60.0
 iq = 30.0
-seconds = 0.3
+seconds = 0.4
 
 [[segment]]
 speed_rpm = -90.0
@@ -53,12 +53,16 @@ def _free_port() -> int:
 def test_acquire_writes_a_capture(tmp_path: Path, profile: Path):
     out = tmp_path / "cap.csv"
     with DynoSimThread(DynoSim(synthetic_source, serial="M-CLI")) as th:
-        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(profile), "-o", str(out), "--json"])
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(profile), "-o", str(out), "--json",
+                                     "--split-windows"])
     assert r.exit_code == 0, r.output
     cap = read_capture(out)
     assert cap.metadata["serial"] == "M-CLI" and cap.metadata["segments"] == 2
-    assert len(cap.t) == 3000 + 3000  # 0.3 s and 0.4 - 0.1 s at 10 kHz
-    assert '"samples": 6000' in r.output
+    assert len(cap.t) == 4000 + 3000  # 0.4 s and 0.4 - 0.1 s at 10 kHz
+    assert '"samples": 7000' in r.output
+    w1, w2 = read_capture(tmp_path / "cap.w1.csv"), read_capture(tmp_path / "cap.w2.csv")
+    assert (len(w1.t), len(w2.t)) == (4000, 3000) and w1.metadata["segments"] == 1
+    assert w1["speed"][0] == 60.0 and w2["speed"][0] == -90.0
 
 
 def test_acquire_refuses_bad_output_and_address(tmp_path: Path, profile: Path):

@@ -114,3 +114,22 @@ def test_transient_disconnect_is_retried(tmp_path: Path):
     back = read_capture(out)
     assert len(back.t) == len(cap.t)
     np.testing.assert_array_equal(back["hall"][-len(sim.last_capture.t):], sim.last_capture["hall"])
+
+
+def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path):
+    from eol_cal.analysis.angle import capture_angle
+    from eol_cal.dyno.client import split_windows
+
+    out = tmp_path / "cap.mf4"
+    acquire(config(dyno.port), PROFILE, out)
+    back = read_capture(out)
+    windows = split_windows(back)
+    assert [len(w.t) for w in windows] == [int(round(s.seconds * 10000)) for s in PROFILE]
+    for w, seg in zip(windows, PROFILE):
+        assert np.all(w["speed"] == seg.speed_rpm)
+        ang = capture_angle(w)  # one continuous motion per window: the halls agree with the encoder
+        assert np.degrees(ang.hall_residual_rms_rad) < 1.0
+        assert ang.speed_rpm == pytest.approx(seg.speed_rpm, rel=1e-3)
+    # the same windows come back from the time gaps alone
+    no_meta = type(back)(back.t, back.channels, {k: v for k, v in back.metadata.items() if k != "segment_starts"})
+    assert [len(w.t) for w in split_windows(no_meta)] == [len(w.t) for w in windows]

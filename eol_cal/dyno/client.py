@@ -29,6 +29,9 @@ from eol_cal.errors import EolCalError, InputError
 #: channels read by default (the packed digital channel is always read); the others on request
 DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
 EXTRA_CHANNELS = ("temp", "iq", "id", "ia", "ib", "ic")
+#: least gap between two windows in the joined capture (sample periods): a simulator captures
+#: faster than real time, and a gap must stay visible to anyone who splits at gaps in ``t``
+WINDOW_GAP_SAMPLES = 100
 #: capture rate (Hz) when the profile gives none
 DEFAULT_RATE_HZ = 10000
 
@@ -482,7 +485,11 @@ def assemble(
     serial: str | None = None,
     extra_metadata: dict | None = None,
 ) -> Capture:
-    """Join segment data into one capture (time keeps the real gaps between segment starts)."""
+    """Join segment data into one capture.
+
+    Window ``i`` starts at the wall-clock time of its capture start after the first one, but at
+    least :data:`WINDOW_GAP_SAMPLES` sample periods after the previous window's last sample.
+    """
     if not data:
         raise DynoError("no segments captured")
     names = sorted(set.intersection(*(set(d.channels) for d in data)))
@@ -490,7 +497,7 @@ def assemble(
     t_end = -np.inf
     for d in data:
         n = len(next(iter(d.channels.values())))
-        t = max(d.t0, t_end + 1.0 / d.rate_hz) + np.arange(n) / d.rate_hz
+        t = max(d.t0, t_end + WINDOW_GAP_SAMPLES / d.rate_hz) + np.arange(n) / d.rate_hz
         ts.append(t)
         t_end = t[-1]
         for name in names:
@@ -514,6 +521,37 @@ def assemble(
         v = np.concatenate(chans[name])
         channels[name] = v.astype(np.int64) if name in ("enc_a", "enc_b", "hall") else v
     return Capture(np.concatenate(ts), channels, metadata, source="dyno")
+
+
+def split_windows(capture: Capture) -> list[Capture]:
+    """The capture windows of a dyno capture as separate captures (one per profile segment).
+
+    The encoder count is not carried across the gap between two windows, so an angle must be
+    reconstructed per window. Windows come from metadata ``segment_starts`` (s) when present,
+    else from gaps in ``t`` longer than 1.5 sample periods. Metadata is copied, with
+    ``segments`` = 1 and ``segment_starts`` dropped; ``source`` gets ``[window i]`` appended.
+    """
+    t = capture.t
+    if "segment_starts" in capture.metadata:
+        starts = [float(x) for x in str(capture.metadata["segment_starts"]).split(",") if x.strip()]
+        idx = sorted({int(np.searchsorted(t, s - 1e-9)) for s in starts} | {0})
+    else:
+        dt = np.diff(t)
+        idx = [0] + [int(i) + 1 for i in np.flatnonzero(dt > 1.5 * float(np.median(dt)))] if len(t) > 2 else [0]
+    idx = [i for i in idx if i < len(t)] + [len(t)]
+    meta = {k: v for k, v in capture.metadata.items() if k != "segment_starts"}
+    meta["segments"] = 1
+    out = []
+    for w, (a, b) in enumerate(zip(idx[:-1], idx[1:])):
+        events = {}
+        for name, (times, levels) in capture.events.items():
+            keep = (times >= t[a]) & (times <= t[b - 1])
+            events[name] = (times[keep], levels[keep])
+        out.append(
+            Capture(t[a:b], {k: v[a:b] for k, v in capture.channels.items()}, dict(meta), dict(capture.truth), events,
+                    source=f"{capture.source}[window {w + 1}]")
+        )
+    return out
 
 
 def acquire(

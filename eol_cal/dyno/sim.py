@@ -224,10 +224,10 @@ def plant_source(spec_for: Callable[[SegmentRequest], object] | None = None) -> 
 
 
 def default_plant_spec(req: SegmentRequest):
-    """The plant's motor for a request: drawn from production tolerances by seed (plant module)."""
-    from eol_cal.plant import variation
+    """The plant's motor for a request: :class:`eol_cal.plant.params.PlantSpec` with its defaults."""
+    from eol_cal.plant.params import PlantSpec
 
-    return variation.draw_spec(req.seed or 0, serial=req.serial)
+    return PlantSpec(serial=req.serial)
 
 
 class DynoSim:
@@ -316,7 +316,6 @@ class DynoSim:
         self._capture_token = 0
         self._server = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self.lock = threading.Lock()  # guards state read by other threads (tests)
 
     # ------------------------------------------------------------------ physics
     def _target(self) -> float:
@@ -386,7 +385,7 @@ class DynoSim:
 
     # ------------------------------------------------------------------ faults
     def inject(self, kind: SimFault, arg_ms: int = 500) -> None:
-        """Inject a fault now (call from the server's event loop, or use :meth:`inject_threadsafe`)."""
+        """Inject a fault now (call on the server's event loop, e.g. ``DynoSimThread.call``)."""
         kind = SimFault(kind)
         if kind == SimFault.DISCONNECT:
             self.disconnect_until = time.monotonic() + arg_ms / 1000.0
@@ -523,7 +522,7 @@ class DynoSim:
             "sim_fault_arg": 0,
         }
 
-    def simdevice(self, device_id: int = 1):
+    def simdevice(self):
         """The pymodbus :class:`SimDevice` backing the server (one shared register space)."""
         from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -537,7 +536,6 @@ class DynoSim:
                     SimData(reg.address, values=rm.encode(reg.name, values[reg.name]), datatype=DataType.REGISTERS, readonly=not reg.writable)
                 )
         # id 0: answer every unit id, as a TCP device usually does
-        _ = device_id
         return SimDevice(0, simdata=data, action=self.action)
 
     async def action(
