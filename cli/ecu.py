@@ -151,8 +151,8 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
                    output: str) -> None:
     """Read the active block back from the ECU into a file (written atomically)."""
+    from eol_cal.capture.atomic import atomic_path
     from eol_cal.ecu.client import read_active_block
-    from eol_cal.ecu.flash import write_atomic
 
     bus = _open_bus(interface, channel, bitrate, can_config)
     try:
@@ -160,7 +160,8 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
     finally:
         bus.shutdown()
     try:
-        write_atomic(output, data)
+        with atomic_path(output) as tmp:
+            tmp.write_bytes(data)
     except OSError as exc:
         raise InputError(output, None, f"cannot write: {exc}") from exc
     click.echo(f"wrote {len(data)} bytes to {output}")

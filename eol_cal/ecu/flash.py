@@ -1,20 +1,20 @@
 """The simulated ECU's two parameter banks: NOR-flash semantics, persisted in a file.
 
 The file is the raw image of both sectors (bank 0 then bank 1, 65536 bytes each, words
-little-endian). Every erase and program writes the whole image through atomically, so a
-simulator started later on the same file (a "restart") sees exactly what the flash held,
-including the damage a power loss left behind.
+little-endian). Every erase and program writes the whole image through atomically
+(:func:`eol_cal.capture.atomic.atomic_path`), so a simulator started later on the same file
+(a "restart") sees exactly what the flash held, including the damage a power loss left behind.
 """
 
 from __future__ import annotations
 
 import os
 import random
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from eol_cal.capture.atomic import atomic_path
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
@@ -25,35 +25,6 @@ ERASED = 0xFF
 
 class ProgramError(Exception):
     """A program operation needed a bit to go from 0 to 1 (NOR flash cannot; erase first)."""
-
-
-def write_atomic(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to ``path`` so that a reader sees the old or the new file, never a mix.
-
-    Temp file in the same directory, fsync, ``os.replace``, then fsync the directory.
-    """
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    try:
-        dir_fd = os.open(path.parent or ".", os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
 
 
 def bank_at(word_address: int, size_bytes: int) -> tuple[int, int]:
@@ -106,7 +77,8 @@ class NorFlash:
     def persist(self) -> None:
         """Write the image through to the file (no-op without a file)."""
         if self.path is not None:
-            write_atomic(self.path, self._mem.tobytes())
+            with atomic_path(self.path) as tmp:
+                tmp.write_bytes(self._mem.tobytes())
 
     def bank(self, bank: int) -> bytes:
         """The whole sector of ``bank`` (65536 bytes)."""
