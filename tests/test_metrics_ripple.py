@@ -35,6 +35,16 @@ def test_hampel_removes_spikes_and_leaves_smooth_signals():
     assert np.max(np.abs(y2 - x)) < 0.02  # the median of a slope, 3 of 21 samples hit
 
 
+def test_hampel_leaves_the_lsb_flicker_of_a_quantised_signal():
+    rng = np.random.default_rng(3)
+    lsb = 1e-3
+    x = np.round((3.2 + 0.0004 * rng.standard_normal(20000)) / lsb) * lsb  # flat, +-1 LSB flicker
+    y, spikes = hampel(x, 10)
+    assert spikes.sum() == 0
+    x[5000] += 0.05
+    assert hampel(x, 10)[1].sum() == 1
+
+
 def test_pp_of_a_sine_is_twice_its_amplitude_over_the_mean():
     r = ripple_pp(T, CLEAN, THETA, poles=6)
     assert r.raw_pct == pytest.approx(TRUE_PCT, abs=0.005)

@@ -55,9 +55,12 @@ def eta_percent(N_enc: np.ndarray | float, poles: np.ndarray | float) -> np.ndar
 def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65536) -> tuple[np.ndarray, np.ndarray]:
     """Hampel filter: replace samples far from their window median by that median.
 
-    A sample ``x[i]`` is a spike when ``|x[i] - m_i| > n_sigma * 1.4826 * MAD_i``, where
-    ``m_i`` is the median and ``MAD_i`` the median absolute deviation from ``m_i`` of the
-    ``2*half_width + 1`` samples centred on ``i`` (edges reflected).
+    A sample ``x[i]`` is a spike when ``|x[i] - m_i| > n_sigma * max(1.4826 * MAD_i, s)``,
+    where ``m_i`` is the median and ``MAD_i`` the median absolute deviation from ``m_i`` of the
+    ``2*half_width + 1`` samples centred on ``i`` (edges reflected). The floor ``s`` is the
+    larger of the record's white-noise estimate ``1.4826 * median(|diff(x)|) / sqrt(2)`` and
+    its resolution (smallest non-zero ``|diff(x)|``, one LSB of a quantised transducer): it
+    keeps the one-LSB flicker of a flat quantised signal (MAD 0) from counting as spikes.
 
     Parameters
     ----------
@@ -84,12 +87,15 @@ def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65
     padded = np.pad(x, k, mode="reflect") if len(x) > k else np.pad(x, k, mode="edge")
     y = x.copy()
     spikes = np.zeros(len(x), dtype=bool)
+    d = np.abs(np.diff(x))
+    step = float(d[d > 0].min()) if (d > 0).any() else 0.0
+    floor = max(1.4826 * float(np.median(d)) / np.sqrt(2.0), step) if len(d) else 0.0
     for s in range(0, len(x), chunk):
         e = min(s + chunk, len(x))
         win = sliding_window_view(padded[s : e + 2 * k], 2 * k + 1)
         med = np.median(win, axis=1)
         mad = np.median(np.abs(win - med[:, None]), axis=1)
-        bad = np.abs(x[s:e] - med) > n_sigma * 1.4826 * mad
+        bad = np.abs(x[s:e] - med) > n_sigma * np.maximum(1.4826 * mad, floor)
         y[s:e][bad] = med[bad]
         spikes[s:e] = bad
     return y, spikes
