@@ -193,13 +193,25 @@ def _legendre(x: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, axis=-1)
 
 
-def design_matrix(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSpec) -> np.ndarray:
-    """Columns of one segment: Legendre(t), cos/sin(theta_m), then sin/cos(h theta) per harmonic.
+def _cpow(e: np.ndarray, n: int) -> np.ndarray:
+    """e**n for a complex array and a positive integer n, by repeated squaring."""
+    out = None
+    while n:
+        if n & 1:
+            out = e if out is None else out * e
+        n >>= 1
+        if n:
+            e = e * e
+    return out
+
+
+def design_matrix_t(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSpec) -> np.ndarray:
+    """Columns of one segment, as rows: Legendre(t), cos/sin(theta_m), then sin/cos(h theta) per harmonic.
 
     Parameters
     ----------
     theta : ndarray
-        Continuous electrical angle (rad).
+        Continuous (unwrapped) electrical angle (rad).
     t : ndarray
         Sample times (s).
     pole_pairs : int
@@ -209,31 +221,37 @@ def design_matrix(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSp
 
     Returns
     -------
-    ndarray, shape (n, spec.n_cols)
-        A mechanical pair the segment cannot resolve (less than one mechanical revolution, or
-        switched off) is left as zero columns; :func:`compress_segment` pins it.
+    ndarray, shape (spec.n_cols, n)
+        The transposed design matrix (row-major, so X^T X is one contiguous product). A mechanical
+        pair the segment cannot resolve (less than one mechanical revolution, or switched off) is
+        left as zero rows; :func:`compress_segment` pins it.
     """
-    tn = 2.0 * (t - t[0]) / (t[-1] - t[0]) - 1.0
-    X = np.empty((len(theta), spec.n_cols))
+    n = len(theta)
     q = spec.n_nuis
-    X[:, : q - 2] = _legendre(tn, spec.drift_degree)
+    XT = np.empty((spec.n_cols, n))
+    tn = (2.0 / (t[-1] - t[0])) * (t - t[0]) - 1.0
+    XT[: q - 2] = _legendre(tn, spec.drift_degree).T
+    # two trig calls per sample: everything else is a power of e^(i theta_m) (exact to ~1e-14)
+    e_m = np.exp(1j * (theta / pole_pairs))
     if spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs:
-        th_m = theta / pole_pairs
-        X[:, q - 2] = np.cos(th_m)
-        X[:, q - 1] = np.sin(th_m)
+        XT[q - 2] = e_m.real
+        XT[q - 1] = e_m.imag
     else:
-        X[:, q - 2 : q] = 0.0
-    s6, c6 = np.sin(6.0 * theta), np.cos(6.0 * theta)
-    # higher multiples of 6 by angle addition: two trig calls per sample instead of 2 per order
-    s, c = s6, c6
+        XT[q - 2 : q] = 0.0
+    e6 = _cpow(e_m, 6 * pole_pairs)
+    e, order = e6, 6
     for i, h in enumerate(spec.harmonics):
-        if i:
-            prev_order = spec.harmonics[i - 1] // 6
-            for _ in range(h // 6 - prev_order):
-                s, c = s * c6 + c * s6, c * c6 - s * s6
-        X[:, q + 2 * i] = s
-        X[:, q + 2 * i + 1] = c
-    return X
+        if h != order:
+            e = e * _cpow(e6, (h - order) // 6)
+            order = h
+        XT[q + 2 * i] = e.imag
+        XT[q + 2 * i + 1] = e.real
+    return XT
+
+
+def design_matrix(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSpec) -> np.ndarray:
+    """:func:`design_matrix_t` transposed: shape (n, spec.n_cols)."""
+    return design_matrix_t(np.asarray(theta, dtype=float), np.asarray(t, dtype=float), pole_pairs, spec).T
 
 
 @dataclass
@@ -272,17 +290,19 @@ class Compressed:
 
 
 def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_pairs: int, spec: FitSpec):
-    """Normal-equation summary of one segment: (R, z, floor, sst, ymean, n, n_nuis)."""
-    theta = np.unwrap(np.asarray(theta, dtype=float))
+    """Normal-equation summary of one segment: (R, z, floor, sst, ymean, n, n_nuis).
+
+    ``theta`` must be continuous (unwrapped), as :mod:`eol_cal.analysis.angle` returns it.
+    """
     y = np.asarray(torque, dtype=float)
     ymean = float(y.mean())
     y = y - ymean
-    X = design_matrix(theta, np.asarray(t, dtype=float), pole_pairs, spec)
-    XtX = X.T @ X
+    XT = design_matrix_t(np.asarray(theta, dtype=float), np.asarray(t, dtype=float), pole_pairs, spec)
+    XtX = XT @ XT.T
     empty = np.diag(XtX) == 0.0
     # a column without data is pinned to 0 by a unit diagonal: its residual row reads 0 - g_j
     XtX[empty, empty] = 1.0
-    Xty = X.T @ y
+    Xty = XT @ y
     Lc = np.linalg.cholesky(XtX)
     z = np.linalg.solve(Lc, Xty)  # triangular, tiny
     yy = float(y @ y)

@@ -1,0 +1,114 @@
+"""Speed of the ripple fit: warm time per capture, batched throughput, against scipy, and the CLI.
+
+Each capture is 1 s at 20 kHz of one motor: 2 load points x 2 speeds, 0.25 s each (20000
+samples), so c6, k6 and the delay are all identifiable from it. The alternative a user would
+write is scipy.optimize.least_squares on the same model over every sample
+(:mod:`eol_cal.analysis.fit_scipy`); both run here on the same data, and the fits are compared.
+
+    python bench/bench_fit.py [--captures 1000] [--scipy 5] [--cli]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--captures", type=int, default=1000)
+    ap.add_argument("--scipy", type=int, default=5, help="captures fitted with scipy (it is slow)")
+    ap.add_argument("--chunk", type=int, default=250)
+    ap.add_argument("--cli", action="store_true", help="also time `eol-cal fit` on one capture file")
+    args = ap.parse_args()
+
+    import jax
+
+    from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
+    from eol_cal.analysis.fit_scipy import fit_segments_scipy
+    from eol_cal.analysis.fit_synth import synthetic_segments
+
+    print(f"jax {jax.__version__} on {jax.devices()[0].platform}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")
+    rng = np.random.default_rng(7)
+    t0 = time.perf_counter()
+    motors = [
+        synthetic_segments(rng, seg_s=0.25, fs_hz=20000.0, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0),
+                           k6=rng.uniform(4e-4, 8e-4), phase_k6=rng.uniform(-3, 3), delay_s=rng.uniform(5e-5, 3e-4))[0]
+        for _ in range(args.captures)
+    ]
+    n_samples = sum(len(a) for a in motors[0].theta)
+    print(f"{args.captures} captures x {n_samples} samples generated in {time.perf_counter() - t0:.1f} s")
+    spec = FitSpec()
+
+    # warm time per capture, one at a time (compile first)
+    fit_segments(motors[0], spec)
+    times = []
+    for m in motors[:50]:
+        t0 = time.perf_counter()
+        fit_segments(m, spec)
+        times.append(time.perf_counter() - t0)
+    warm = statistics.median(times)
+    print(f"warm fit, one capture at a time: median {warm * 1e3:.2f} ms, p90 {np.percentile(times, 90) * 1e3:.2f} ms")
+
+    rows = []
+    for mode in ("loop", "map", "vmap"):
+        fit_many(motors[: args.chunk], spec, mode=mode, chunk=args.chunk)  # compile this shape
+        t0 = time.perf_counter()
+        fits = fit_many(motors, spec, mode=mode, chunk=args.chunk)
+        dt = time.perf_counter() - t0
+        steps = [f.steps for f in fits]
+        rows.append((mode, dt, len(motors) / dt, max(steps), float(np.mean(steps)), all(f.converged for f in fits)))
+    for mode, dt, rate, smax, smean, ok in rows:
+        print(f"batched {mode:5s}: {dt:6.2f} s for {len(motors)} -> {rate:7.1f} captures/s "
+              f"(steps mean {smean:.1f}, max {smax}; all converged: {ok})")
+
+    # where the time goes: compression (numpy) vs the JAX solve
+    from eol_cal.analysis.fit import compress
+
+    t0 = time.perf_counter()
+    for m in motors[:200]:
+        compress(m, spec)
+    print(f"compression alone (1 thread): {(time.perf_counter() - t0) / 200 * 1e3:.2f} ms per capture")
+
+    # scipy on the same model and data
+    sc_times, dk = [], []
+    fast = fit_many(motors[: args.scipy], spec, mode="loop")
+    for m, f in zip(motors[: args.scipy], fast):
+        t0 = time.perf_counter()
+        ref = fit_segments_scipy(m, spec)
+        sc_times.append(time.perf_counter() - t0)
+        dk.append(abs(ref["harmonics"][6]["k"][0] - f.harmonics[6]["k"].value) / f.harmonics[6]["k"].value)
+    sc = statistics.mean(sc_times)
+    best = max(r[2] for r in rows)
+    print(f"scipy least_squares (trf, per-sample residual): {sc * 1e3:.0f} ms per capture -> {1 / sc:.2f} captures/s; "
+          f"max |k6 difference| {max(dk):.1e} (relative)")
+    print(f"throughput ratio, best batched JAX / scipy: {best * sc:.0f}x")
+
+    if args.cli:
+        from eol_cal.capture.io import write_capture
+        from eol_cal.capture.synthetic import synthetic_capture
+
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "one.csv")
+            write_capture(synthetic_capture(rpm=600.0, i_qo=65.0, seconds=1.0, seed=1, serial="B-1"), path)
+            env = dict(os.environ, EOL_CAL_JAX_CACHE=os.path.join(d, "jaxcache"))
+            cmd = [sys.executable, "-m", "cli.main", "fit", path, "-o", os.path.join(d, "r.json"), "--no-c6",
+                   "--delay", "0"]
+            walls = []
+            for _ in range(3):
+                t0 = time.perf_counter()
+                subprocess.run(cmd, env=env, check=False, capture_output=True)
+                walls.append(time.perf_counter() - t0)
+            print(f"`eol-cal fit` one 1 s capture, process start to JSON: cold cache {walls[0]:.2f} s, "
+                  f"warm cache {min(walls[1:]):.2f} s")
+
+
+if __name__ == "__main__":
+    main()
