@@ -1,0 +1,296 @@
+"""``eol-cal run`` (the end-of-line cycle for one motor), ``eol-cal demo`` and ``eol-cal records``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from cli.common import console, err_console, handle_errors, print_json
+
+# what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
+DEMO_LIMITS = """\
+# eol-cal demo: limits of the demo's product variant (units: docs/station.md)
+[variant.EPS-STD]
+max_k6 = 0.0025
+max_pp_before_pct = 12.0
+max_pp_after_pct = 2.0
+min_improvement_pct = 50.0
+min_r2 = 0.3
+max_rms_nm = 0.1
+max_ci_k6_rel = 0.05
+max_ci_phase_k6_deg = 3.0
+max_ci_c6_nm = 0.002
+"""
+
+
+def _quiet_logs() -> None:
+    import logging
+
+    # pymodbus, can-isotp, udsoncan log every retry and timeout; the run reports failures itself
+    for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
+class _StepProgress:
+    """The cycle's steps as a rich progress display (one line per step, with its time)."""
+
+    def __init__(self, serial: str, enabled: bool = True) -> None:
+        from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+        self.serial = serial
+        self.progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
+                                 console=err_console, transient=True, disable=not enabled)
+        self.tasks: dict[str, int] = {}
+
+    def __enter__(self) -> "_StepProgress":
+        self.progress.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.progress.__exit__(*exc)
+
+    def __call__(self, step: str, state: str) -> None:
+        if state == "start":
+            self.tasks[step] = self.progress.add_task(f"{self.serial}: {step}", total=1)
+        elif step in self.tasks:
+            mark = {"done": "[green]ok[/green]", "failed": "[red]failed[/red]"}.get(state, state)
+            self.progress.update(self.tasks[step], completed=1, description=f"{self.serial}: {step} {mark}")
+            self.progress.stop_task(self.tasks[step])
+
+
+def _fmt(x, digits: int = 3, scale: float = 1.0) -> str:
+    import math
+
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{x * scale:.{digits}g}"
+
+
+def _results_table(records: list[dict], title: str):
+    from rich.table import Table
+
+    table = Table(title=title)
+    for col in ("serial", "verdict", "k6 (mN*m/A)", "p-p before %", "p-p after %", "improvement %", "wall s", "started (UTC)"):
+        table.add_column(col, justify="left" if col in ("serial", "verdict", "started (UTC)") else "right")
+    colour = {"pass": "green", "fail": "yellow", "error": "red"}
+    for r in records:
+        fit = r.get("fit") or {}
+        met = r.get("metrics") or {}
+        wall = sum(s["seconds"] or 0.0 for s in r.get("steps") or [])
+        table.add_row(r["serial"], f"[{colour.get(r['verdict'], 'white')}]{r['verdict']}[/]",
+                      _fmt((fit.get("k6") or {}).get("value"), 4, 1e3), _fmt(met.get("pp_before_pct")),
+                      _fmt(met.get("pp_after_pct")), _fmt(met.get("improvement_pct")), f"{wall:.1f}",
+                      str(r.get("started_at", ""))[:19].replace("T", " "))
+    return table
+
+
+def _print_outcome(out, as_json: bool) -> None:
+    rec = out.record
+    if as_json:
+        print_json({"record": rec, "saved": {"where": out.saved.where, "path": out.saved.path, "why": out.saved.why},
+                    "report": str(out.report_html) if out.report_html else None, "exit_code": out.exit_code})
+        return
+    console.print(_results_table([rec], f"eol-cal run: {rec['serial']} ({rec['limits']['variant']})"))
+    for reason in rec["reasons"]:
+        console.print(f"  {rec['verdict']}: {reason}")
+    if rec.get("safe_state"):
+        console.print(f"  dyno safe state: {rec['safe_state']}")
+    steps = ", ".join(f"{s['step']} {s['seconds']:.2f} s" for s in rec["steps"] if s["seconds"] is not None)
+    console.print(f"  steps: {steps}")
+    if out.report_html:
+        console.print(f"  report: {out.report_html}")
+    where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
+    console.print(f"  record {rec['run_id']} -> {where}")
+
+
+def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
+    from eol_cal.station.records import flush_spool
+
+    res = flush_spool(db, spool_dir, timeout)
+    if res.flushed_files:
+        err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db}")
+    elif res.remaining:
+        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db}: {res.error}[/yellow]")
+
+
+@click.command("run")
+@click.option("--dyno", "address", required=True, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--interface", "-i", default=None, help="python-can interface of the ECU's bus (socketcan, pcan, vector, remote...).")
+@click.option("--channel", "-c", default=None, help="python-can channel (can0, PCAN_USBBUS1, ws://127.0.0.1:54701/...).")
+@click.option("--bitrate", type=int, default=None, help="CAN bit rate (bit/s).")
+@click.option("--can-config", type=click.Path(dir_okay=False), help="python-can configuration file; options given here win.")
+@click.option("--limits", "limits_file", required=True, type=click.Path(dir_okay=False), help="Limits TOML ([variant.NAME] tables).")
+@click.option("--variant", default=None, help="Product variant in the limits file (default: its default_variant or only one).")
+@click.option("--db", required=True, type=click.Path(dir_okay=False, path_type=Path), help="SQLite database of run records (WAL).")
+@click.option("--serial", required=True, help="Serial of the motor on the dyno (1-16 ASCII characters).")
+@click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile or a TOML profile file.")
+@click.option("--key-file", type=click.Path(dir_okay=False), envvar="EOL_CAL_KEY_FILE",
+              help="ECU security secret, 16 bytes hex (or $EOL_CAL_KEY_FILE).")
+@click.option("--report-dir", default="reports", show_default=True, type=click.Path(file_okay=False, path_type=Path),
+              help="Each run gets a directory here: captures, fit, block, plots, report.html/json.")
+@click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Where records wait when the database cannot be written [default: $EOL_CAL_SPOOL or ~/.local/state/eol-cal/spool].")
+@click.option("--db-timeout", type=click.FloatRange(0.0, 600.0), default=5.0, show_default=True, help="Seconds to wait for a database lock before spooling.")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True, help="Capture sample rate (Hz).")
+@click.option("--dyno-timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request Modbus timeout (s).")
+@click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
+@handle_errors
+def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, key_file,
+            report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, as_json) -> None:
+    """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
+
+    Exit 0 pass, 1 fail (limits), 2 error (the dyno is left stopped and disabled; the record is
+    written all the same). When the database cannot be written the record goes to the spool and
+    the next run (or `eol-cal records --flush`) writes it in.
+    """
+    from cli.ecu import _seed_to_key
+    from cli.fit import enable_jax_cache
+    from eol_cal.dyno.client import DynoConfig, parse_address
+    from eol_cal.ecu.transport import open_bus
+    from eol_cal.errors import InputError
+    from eol_cal.plant.profile import load_profile
+    from eol_cal.station.limits import load_limits
+    from eol_cal.station.run import StationConfig, run_motor
+
+    host, port = parse_address(address)
+    limits = load_limits(limits_file, variant)
+    load_profile(profile)  # refuse a bad profile before anything moves
+    if key_file is None:
+        raise InputError(None, "key-file", "the flash step needs the ECU's secret: give --key-file (16 bytes, hex) or set EOL_CAL_KEY_FILE")
+    seed_to_key = _seed_to_key(key_file, None)
+    if interface is None and can_config is None:
+        raise InputError(None, "interface", "no CAN interface given (--interface or --can-config)")
+    _quiet_logs()
+    enable_jax_cache()
+    _flush_first(db, spool_dir, db_timeout)
+    cfg = StationConfig(
+        serial=serial, dyno=DynoConfig(host=host, port=port, timeout=dyno_timeout),
+        open_bus=lambda: open_bus(interface, channel, bitrate, can_config), seed_to_key=seed_to_key, limits=limits,
+        db=db, report_dir=report_dir, profile=profile, spool_dir=spool_dir, rate_hz=rate_hz, db_timeout_s=db_timeout,
+        station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
+    )
+    with _StepProgress(serial, enabled=not as_json) as progress:
+        out = run_motor(cfg, progress)
+    _print_outcome(out, as_json)
+    sys.exit(out.exit_code)
+
+
+@click.command("demo")
+@click.option("--motors", type=click.IntRange(1, 100), default=3, show_default=True, help="Motors to calibrate.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("eol-cal-demo"),
+              show_default=True, help="Directory for the database, reports, captures and flash images.")
+@click.option("--profile", default="eol-default", show_default=True, help="Test profile.")
+@click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
+@handle_errors
+def demo_cmd(motors, out_dir, profile, seed) -> None:
+    """Run the end-of-line line on simulators: no hardware, no arguments needed.
+
+    Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
+    python-can-remote) and a dyno simulator (Modbus TCP on 127.0.0.1, the built-in plant, reading
+    the ECU's flash to know the compensation), runs `eol-cal run`'s cycle, and stops both.
+    Then it prints the results table and where the reports are.
+    """
+    import time
+
+    from cli.fit import enable_jax_cache
+    from eol_cal.dyno.client import DynoConfig, parse_address
+    from eol_cal.ecu import protocol as P
+    from eol_cal.ecu.client import hmac_seed_to_key
+    from eol_cal.errors import InputError
+    from eol_cal.station.demo import loopback_station
+    from eol_cal.station.limits import load_limits
+    from eol_cal.station.run import StationConfig, run_motor
+
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        limits_path = out_dir / "limits.toml"
+        limits_path.write_text(DEMO_LIMITS, encoding="utf-8")
+    except OSError as exc:
+        raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
+    limits = load_limits(limits_path)
+    db = out_dir / "results.sqlite"
+    _quiet_logs()
+    enable_jax_cache()
+    t0 = time.perf_counter()
+    err_console.print(f"eol-cal demo: {motors} motor(s), profile {profile}, limits {limits_path} ({limits.variant}); "
+                      "the first motor also compiles the plant and the fit (cached for later runs)")
+    outcomes = []
+    for k in range(motors):
+        serial = f"DEMO-{seed + k:04d}"
+        with loopback_station(serial, seed + k, out_dir / "sim") as st:
+            host, port = parse_address(st.dyno_address)
+            err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
+            cfg = StationConfig(
+                serial=serial, dyno=DynoConfig(host=host, port=port), open_bus=st.open_bus,
+                seed_to_key=hmac_seed_to_key(P.DEV_SECRET), limits=limits, db=db, report_dir=out_dir / "reports",
+                profile=profile, spool_dir=out_dir / "spool",
+                station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},
+            )
+            with _StepProgress(serial) as progress:
+                out = run_motor(cfg, progress)
+        outcomes.append(out)
+        rec = out.record
+        err_console.print(f"{serial}: {rec['verdict']}" + (f" ({'; '.join(rec['reasons'])})" if rec["reasons"] else ""))
+    wall = time.perf_counter() - t0
+    console.print(_results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
+    for o in outcomes:
+        console.print(f"  {o.record['serial']}: {o.report_html}")
+    console.print(f"records: {db} (eol-cal records --db {db}); limits: {limits_path}")
+    console.print("the same cycle on a real station: eol-cal run --dyno HOST:PORT --interface I --channel C "
+                  f"--limits {limits_path} --db results.sqlite --serial S --key-file KEY")
+    sys.exit(max(o.exit_code for o in outcomes))
+
+
+def _day(value: str | None) -> str | None:
+    import datetime as dt
+
+    if value is None:
+        return None
+    try:
+        return dt.date.fromisoformat(value).isoformat()
+    except ValueError:
+        raise click.BadParameter(f"{value!r}: expected YYYY-MM-DD") from None
+
+
+@click.command("records")
+@click.option("--db", default="results.sqlite", show_default=True, type=click.Path(dir_okay=False, path_type=Path), help="Records database.")
+@click.option("--serial", default=None, help="Only this motor.")
+@click.option("--day", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day.")
+@click.option("--json", "as_json", is_flag=True, help="Print the records and the summary as JSON.")
+@click.option("--plot", "plot_file", type=click.Path(dir_okay=False, path_type=Path), help="PNG of k6 and p-p %% across the lot.")
+@click.option("--flush", is_flag=True, help="First write spooled records into the database.")
+@click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Spool directory (as for run).")
+@handle_errors
+def records_cmd(db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
+    """Query run records: by serial or day, the pass rate, and a plot across the lot."""
+    from eol_cal.station.records import flush_spool, query_records, summarise
+
+    day = _day(day)
+    if flush:
+        res = flush_spool(db, spool_dir)
+        msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db}"
+               + (f"; {res.remaining} still waiting: {res.error}" if res.remaining else "")
+               + (f"; {res.other_db} spooled for other databases" if res.other_db else ""))
+        err_console.print(msg)
+        if res.remaining:
+            sys.exit(2)
+    records = query_records(db, serial, day)
+    summary = summarise(records)
+    if plot_file is not None:
+        from eol_cal.station.report import plot_lot
+
+        plot_lot(plot_file, records, title=f"{db.name}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))
+    if as_json:
+        print_json({"summary": summary, "records": records})
+        return
+    console.print(_results_table(records, f"{db}: {summary['runs']} run(s)"))
+    rate = "-" if summary["pass_rate"] is None else f"{100 * summary['pass_rate']:.1f} %"
+    console.print(f"pass {summary['pass']}, fail {summary['fail']}, error {summary['error']}; pass rate {rate} "
+                  f"(of runs that ended pass or fail); motors {summary['motors']}")
+    if plot_file is not None:
+        console.print(f"plot: {plot_file}")
+
+
+COMMANDS = [run_cmd, demo_cmd, records_cmd]

@@ -1,0 +1,1 @@
+"""The end-of-line station: limits per variant, the cycle for one motor, records and reports."""

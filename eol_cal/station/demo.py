@@ -1,0 +1,103 @@
+"""A station on loopback: ECU simulator + dyno simulator per motor, for ``eol-cal demo`` and tests.
+
+Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1, so the
+tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...`` would), and a
+dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
+comes from that same flash file. Both bind free ports and are shut down when the motor is done.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+
+def demo_motor_spec(seed: int, serial: str) -> Any:
+    """A plant motor with 6th-harmonic ripple of the seed paper's order (demo motors).
+
+    k6 in 1.0 ... 2.0 mN*m/A and c6 in 5 ... 15 mN*m with random phases, transducer noise
+    1 mN*m; everything else the plant's defaults. (The plant's production-variation draw,
+    ``eol_cal.plant.variation.draw_spec``, is used instead when it exists.)
+    """
+    try:
+        from eol_cal.plant import variation  # type: ignore[attr-defined]
+    except ImportError:
+        variation = None
+    if variation is not None and hasattr(variation, "draw_spec"):
+        return variation.draw_spec(seed, serial=serial)
+    from eol_cal.plant.params import PlantSpec
+
+    rng = np.random.default_rng(seed)
+    return PlantSpec(serial=serial, k6=float(rng.uniform(1.0e-3, 2.0e-3)), phase_k6=float(rng.uniform(-math.pi, math.pi)),
+                     c6=float(rng.uniform(5e-3, 15e-3)), phase_c6=float(rng.uniform(-math.pi, math.pi)),
+                     tq_noise_nm=1e-3)
+
+
+@dataclass
+class LoopbackStation:
+    """The simulators of one motor and how to reach them."""
+
+    serial: str
+    dyno_address: str
+    can_channel: str
+    flash_file: Path
+    dyno: Any
+    ecu: Any
+
+    def open_bus(self) -> Any:
+        """The tester's bus: python-can ``remote`` to the ECU simulator."""
+        from eol_cal.ecu.transport import open_bus
+
+        return open_bus("remote", self.can_channel)
+
+
+@contextlib.contextmanager
+def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
+                     spec_for: Callable[[Any], Any] | None = None, source: Any = None,
+                     faults: tuple = ()) -> Iterator[LoopbackStation]:
+    """Start the ECU and dyno simulators of one motor on 127.0.0.1; stop them on exit.
+
+    Parameters
+    ----------
+    serial : str
+        Motor serial (the ECU's F18C and the dyno's DUT serial).
+    seed : int
+        Motor draw and noise seed.
+    work_dir : path
+        Where the ECU's flash file lives.
+    spec_for : callable, optional
+        ``SegmentRequest -> PlantSpec`` for the plant source (default :func:`demo_motor_spec`).
+    source : callable, optional
+        A capture source instead of the plant (e.g. ``eol_cal.dyno.sim.synthetic_source``).
+    faults : tuple of FaultPlan
+        Dyno faults that fire by themselves.
+    """
+    import logging
+
+    from eol_cal.dyno import sim as ds
+    from eol_cal.ecu.remote import serve_remote
+    from eol_cal.ecu.sim import SimConfig
+    from eol_cal.motor import load_motor
+
+    for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    flash_file = work_dir / f"{serial}.flash"
+    motor = load_motor("paper")
+    if source is None:
+        spec = demo_motor_spec(seed, serial)
+        source = ds.plant_source(spec_for or (lambda req: spec))
+    ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial))
+    try:
+        sim = ds.DynoSim(source, serial=serial, poles=motor.poles, encoder_ppr=motor.N_enc, kt=motor.kt, seed=seed,
+                         flash_file=flash_file, tick_hz=int(motor.f_pwm), faults=list(faults))
+        with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
+            yield LoopbackStation(serial, f"127.0.0.1:{dyno.port}", ecu.url, flash_file, dyno, ecu)
+    finally:
+        ecu.close()

@@ -1,0 +1,221 @@
+"""Pass/fail limits of the end-of-line station, one set per product variant (TOML).
+
+File format (``docs/station.md``)::
+
+    default_variant = "EPS-A"        # optional; used when --variant is not given
+
+    [variant.EPS-A]
+    max_k6 = 0.0025                  # N*m/A, largest acceptable load-proportional ripple k6
+    max_pp_before_pct = 12.0         # %, p-p ripple at the operating point before compensation
+    max_pp_after_pct = 2.0           # %, p-p ripple at the operating point with compensation
+    min_improvement_pct = 40.0       # %, 100 * (before - after) / before
+    min_r2 = 0.5                     # fit quality: coefficient of determination
+    max_rms_nm = 0.02                # fit quality: residual RMS (N*m)
+    max_ci_k6_rel = 0.05             # widest 95 % interval of k6, fraction of k6
+    max_ci_phase_k6_deg = 3.0        # widest 95 % interval of phase_k6 (deg)
+    max_ci_c6_nm = 0.002             # widest 95 % cogging phasor error (N*m)
+
+Every key is required (a line that forgets one would otherwise pass motors silently); unknown
+keys are refused (a typo such as ``max_pp_afer_pct`` would be a limit that never applies).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+from typing import Any
+
+from eol_cal.errors import InputError
+
+#: key -> (unit, lowest allowed value, highest allowed value)
+_KEYS: dict[str, tuple[str, float, float]] = {
+    "max_k6": ("N*m/A", 0.0, 1.0),
+    "max_pp_before_pct": ("%", 0.0, 1000.0),
+    "max_pp_after_pct": ("%", 0.0, 1000.0),
+    "min_improvement_pct": ("%", -1000.0, 100.0),
+    "min_r2": ("1", -1.0, 1.0),
+    "max_rms_nm": ("N*m", 0.0, 100.0),
+    "max_ci_k6_rel": ("1", 0.0, 10.0),
+    "max_ci_phase_k6_deg": ("deg", 0.0, 180.0),
+    "max_ci_c6_nm": ("N*m", 0.0, 100.0),
+}
+
+
+@dataclass(frozen=True)
+class VariantLimits:
+    """Limits of one product variant (units in the module doc)."""
+
+    variant: str
+    max_k6: float
+    max_pp_before_pct: float
+    max_pp_after_pct: float
+    min_improvement_pct: float
+    min_r2: float
+    max_rms_nm: float
+    max_ci_k6_rel: float
+    max_ci_phase_k6_deg: float
+    max_ci_c6_nm: float
+    source: str = "<memory>"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def ci_limits(self):
+        """The interval limits as the fit's own :class:`~eol_cal.analysis.result.CiLimits`."""
+        from eol_cal.analysis.result import CiLimits
+
+        return CiLimits(k6_rel=self.max_ci_k6_rel, phase_k6_deg=self.max_ci_phase_k6_deg, c6_nm=self.max_ci_c6_nm)
+
+
+def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
+    """All variants of a limits file's text; :class:`InputError` naming file, key and reason."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(file, None, f"not valid TOML: {exc}") from None
+    unknown_top = set(doc) - {"variant", "default_variant"}
+    if unknown_top:
+        raise InputError(file, sorted(unknown_top)[0], "unknown key (expected [variant.NAME] tables and default_variant)")
+    variants = doc.get("variant")
+    if not isinstance(variants, dict) or not variants:
+        raise InputError(file, "variant", "no [variant.NAME] table")
+    out: dict[str, VariantLimits] = {}
+    for name, table in variants.items():
+        where = f"variant.{name}"
+        if not isinstance(table, dict):
+            raise InputError(file, where, "must be a table")
+        unknown = set(table) - set(_KEYS)
+        if unknown:
+            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(_KEYS)}")
+        values: dict[str, float] = {}
+        for key, (unit, lo, hi) in _KEYS.items():
+            if key not in table:
+                raise InputError(file, f"{where}.{key}", f"missing ({unit})")
+            v = table[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise InputError(file, f"{where}.{key}", f"{v!r} is not a finite number ({unit})")
+            if not lo <= v <= hi:
+                raise InputError(file, f"{where}.{key}", f"{v} outside {lo:g} ... {hi:g} {unit}")
+            values[key] = float(v)
+        out[name] = VariantLimits(variant=name, source=file, **values)
+    default = doc.get("default_variant")
+    if default is not None and default not in out:
+        raise InputError(file, "default_variant", f"{default!r} is not one of the variants ({', '.join(out)})")
+    return out
+
+
+def load_limits(path: str | Path, variant: str | None = None) -> VariantLimits:
+    """The limits of ``variant`` from a limits file.
+
+    Parameters
+    ----------
+    path : path
+        Limits TOML file.
+    variant : str, optional
+        Product variant; default the file's ``default_variant``, or its only variant.
+
+    Raises
+    ------
+    InputError
+        Unreadable or invalid file, unknown variant, or no variant given where the file has
+        several and no default.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(str(path), None, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(str(path), None, f"cannot read: {exc}") from None
+    variants = parse_limits(text, str(path))
+    if variant is None:
+        default = tomllib.loads(text).get("default_variant")
+        if default is None and len(variants) > 1:
+            raise InputError(str(path), "variant", f"several variants ({', '.join(variants)}) and no default_variant: "
+                             "choose one with --variant")
+        variant = default or next(iter(variants))
+    if variant not in variants:
+        raise InputError(str(path), "variant", f"{variant!r} not in the file ({', '.join(variants)})")
+    return variants[variant]
+
+
+@dataclass(frozen=True)
+class Measured:
+    """What the cycle measured on one motor, as the limits see it.
+
+    Attributes
+    ----------
+    k6 : float
+        Load-proportional 6th-harmonic coefficient (N*m/A).
+    ci_k6 : float
+        Its 95 % interval half-width (N*m/A).
+    ci_phase_k6_deg : float
+        95 % interval of phase_k6 (deg).
+    ci_c6_nm : float
+        Cogging phasor error bound max(ci95(c6), c6 * ci95(phase_c6)) (N*m).
+    r2 : float
+        Fit R^2 (1).
+    rms_nm : float
+        Fit residual RMS (N*m).
+    pp_before_pct, pp_after_pct : float
+        Filtered p-p ripple at the operating point before and with compensation (%);
+        NaN when not measured.
+    """
+
+    k6: float
+    ci_k6: float
+    ci_phase_k6_deg: float
+    ci_c6_nm: float
+    r2: float
+    rms_nm: float
+    pp_before_pct: float = math.nan
+    pp_after_pct: float = math.nan
+
+    @property
+    def improvement_pct(self) -> float:
+        """100 * (before - after) / before (%)."""
+        if not (self.pp_before_pct > 0.0) or not math.isfinite(self.pp_after_pct):
+            return math.nan
+        return 100.0 * (self.pp_before_pct - self.pp_after_pct) / self.pp_before_pct
+
+
+def fit_reasons(m: Measured, lim: VariantLimits) -> list[str]:
+    """Why the fit's quality or k6 fails ``lim`` (empty: it passes)."""
+    out = []
+    if not m.k6 <= lim.max_k6:
+        out.append(f"k6 = {m.k6:.4g} N*m/A exceeds max_k6 = {lim.max_k6:g}")
+    if not m.r2 >= lim.min_r2:
+        out.append(f"fit R^2 = {m.r2:.4g} below min_r2 = {lim.min_r2:g}")
+    if not m.rms_nm <= lim.max_rms_nm:
+        out.append(f"fit rms = {m.rms_nm:.4g} N*m exceeds max_rms_nm = {lim.max_rms_nm:g}")
+    if not m.ci_k6 <= lim.max_ci_k6_rel * abs(m.k6):
+        out.append(f"ci95(k6) = {m.ci_k6:.3g} N*m/A exceeds {100 * lim.max_ci_k6_rel:g} % of k6")
+    if not m.ci_phase_k6_deg <= lim.max_ci_phase_k6_deg:
+        out.append(f"ci95(phase_k6) = {m.ci_phase_k6_deg:.3g} deg exceeds max_ci_phase_k6_deg = {lim.max_ci_phase_k6_deg:g}")
+    if not m.ci_c6_nm <= lim.max_ci_c6_nm:
+        out.append(f"c6 phasor ci95 = {m.ci_c6_nm:.3g} N*m exceeds max_ci_c6_nm = {lim.max_ci_c6_nm:g}")
+    return out
+
+
+def ripple_reasons(m: Measured, lim: VariantLimits) -> list[str]:
+    """Why the before/after ripple fails ``lim`` (empty: it passes); NaN never passes."""
+    out = []
+    if not m.pp_before_pct <= lim.max_pp_before_pct:
+        out.append(f"p-p before = {m.pp_before_pct:.3g} % exceeds max_pp_before_pct = {lim.max_pp_before_pct:g}")
+    if not m.pp_after_pct <= lim.max_pp_after_pct:
+        out.append(f"p-p after = {m.pp_after_pct:.3g} % exceeds max_pp_after_pct = {lim.max_pp_after_pct:g}")
+    imp = m.improvement_pct
+    if not imp >= lim.min_improvement_pct:
+        out.append(f"improvement = {imp:.3g} % below min_improvement_pct = {lim.min_improvement_pct:g}")
+    return out
+
+
+def verdict(m: Measured, lim: VariantLimits) -> tuple[str, list[str]]:
+    """``("pass", [])`` or ``("fail", reasons)`` of a fully measured motor against ``lim``."""
+    reasons = fit_reasons(m, lim) + ripple_reasons(m, lim)
+    return ("fail", reasons) if reasons else ("pass", [])
+
+
+LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source"))

@@ -1,0 +1,487 @@
+"""The end-of-line cycle for one motor.
+
+acquire (dyno, profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the
+compensation the ECU now runs -> metrics -> verdict against the variant's limits -> report +
+record. Every step is timed. A fit that is not usable, or a motor whose k6 or fit quality is out
+of limits, fails right after the fit (nothing is flashed). Any error ends the cycle with verdict
+``error``: the dyno client has already put the drive in the safe state (speed 0, disabled); the
+cycle commands it once more, best effort, and the record is written all the same.
+
+Exit codes (:attr:`RunOutcome.exit_code`): 0 pass, 1 fail, 2 error.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import math
+import time
+import traceback
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from eol_cal.errors import EolCalError, InputError
+from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
+from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
+
+EXIT = {"pass": 0, "fail": 1, "error": 2}
+STEPS = ("acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
+
+ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
+
+
+@dataclass
+class StationConfig:
+    """Everything one cycle needs.
+
+    Attributes
+    ----------
+    serial : str
+        Motor serial (goes into the captures, the block and the record; the ECU must report it).
+    dyno : DynoConfig
+        Dyno address and timing (:mod:`eol_cal.dyno.client`).
+    open_bus : callable
+        Opens the tester's CAN bus (python-can); closed after the flash.
+    seed_to_key : callable
+        Security access algorithm (seed bytes -> key bytes).
+    limits : VariantLimits
+        The product variant's limits.
+    db : path
+        SQLite database of run records.
+    report_dir : path
+        Each run gets its own directory below it: captures, fit, block, plots, report.
+    profile : str
+        Built-in profile name or TOML file (:func:`eol_cal.plant.profile.load_profile`).
+    spool_dir : path or None
+        Where records go when the database cannot be written (default
+        :func:`eol_cal.station.records.default_spool_dir`).
+    rate_hz : int
+        Capture sample rate (Hz).
+    db_timeout_s : float
+        How long a database write waits for a lock (s) before spooling.
+    station : dict
+        Free-form description of the station for the record (addresses, interface).
+    ecu_timing : ClientTiming or None
+        UDS timing (default the contract's).
+    """
+
+    serial: str
+    dyno: Any
+    open_bus: Callable[[], Any]
+    seed_to_key: Callable[[bytes], bytes]
+    limits: VariantLimits
+    db: Path
+    report_dir: Path
+    profile: str = "eol-default"
+    spool_dir: Path | None = None
+    rate_hz: int = 10000
+    db_timeout_s: float = 5.0
+    station: dict[str, Any] = field(default_factory=dict)
+    ecu_timing: Any = None
+
+
+@dataclass
+class RunOutcome:
+    """What :func:`run_motor` returns: the record, where it went, and the exit code."""
+
+    record: dict[str, Any]
+    saved: SaveResult | None
+    report_html: Path | None
+    exit_code: int
+
+    @property
+    def verdict(self) -> str:
+        return self.record["verdict"]
+
+
+class _Skip(Exception):
+    """Ends the cycle early with a ``fail`` verdict (the reasons are already recorded)."""
+
+
+def sha256_file(path: str | Path) -> str:
+    """SHA-256 of a file's bytes, hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def _safe_name(text: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in text)
+
+
+def _finite(x: Any) -> float | None:
+    return float(x) if x is not None and math.isfinite(float(x)) else None
+
+
+# --------------------------------------------------------------------------- fit
+def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, dict, Any]:
+    """The ripple fit of one motor's capture, as ``eol-cal fit`` does it.
+
+    Returns
+    -------
+    doc, record, extra
+        The result document (schema ``eol-cal/fit-result/1``), its one motor record, and
+        ``(MotorInput, MotorFit, FitSpec)`` for the plots.
+    """
+    from eol_cal.analysis.fit import FitSpec, fit_many
+    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.metrics import eta_percent
+    from eol_cal.analysis.result import motor_record, result_document
+
+    spec = FitSpec()
+    ci = limits.ci_limits()
+    (mi,) = motor_inputs(split_segments(capture))
+    (fit,) = fit_many([mi.segments], spec, mode="loop", sources=[capture.source])
+    segments = [
+        {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
+         "T_avg_nm": float(fit.t_avg[k])}
+        for k, i in enumerate(mi.info)
+    ]
+    metrics = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
+    rec = motor_record(mi.serial, fit, spec, ci, kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
+                       encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
+                       solver_mode="loop")
+    rec = _json_safe(rec)
+    return result_document([rec], ci, tool_version), rec, (mi, fit, spec)
+
+
+def _json_safe(x: Any) -> Any:
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, np.generic):
+        return _json_safe(x.item())
+    return x
+
+
+def measured_from_fit(rec: dict[str, Any]) -> Measured:
+    """The fit's part of :class:`Measured` from a usable motor record (units as in the record)."""
+    k6, c6, pc6 = rec["k6"], rec["c6"], rec["phase_c6"]
+    ci_c6 = max(c6["ci95"], abs(c6["value"]) * pc6["ci95"])
+    return Measured(
+        k6=abs(float(k6["value"])), ci_k6=float(k6["ci95"]), ci_phase_k6_deg=math.degrees(rec["phase_k6"]["ci95"]),
+        ci_c6_nm=float(ci_c6), r2=float(rec["fit"]["r2"]), rms_nm=float(rec["fit"]["rms"]),
+    )
+
+
+# --------------------------------------------------------------------------- metrics
+@dataclass(frozen=True)
+class PointRipple:
+    """Ripple of one capture at the operating point.
+
+    Attributes
+    ----------
+    pp_pct : float
+        Filtered p-p ripple (%), median over the steady windows (``docs/metrics.md``).
+    pp_raw_pct : float
+        Despiked, unfiltered p-p ripple (%).
+    pp_nm : float
+        Filtered p-p (N*m).
+    T_avg_nm : float
+        Mean torque (N*m).
+    amp6_nm : float
+        6th-order amplitude of the order spectrum (N*m).
+    span_s : (float, float)
+        The capture's time span that was analysed (s).
+    """
+
+    pp_pct: float
+    pp_raw_pct: float
+    pp_nm: float
+    T_avg_nm: float
+    amp6_nm: float
+    span_s: tuple[float, float]
+    ripple: Any = None
+    spectrum: Any = None
+    t: Any = None
+    torque: Any = None
+    poles: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        return _json_safe({"pp_pct": self.pp_pct, "pp_raw_pct": self.pp_raw_pct, "pp_nm": self.pp_nm,
+                           "T_avg_nm": self.T_avg_nm, "amp6_nm": self.amp6_nm, "span_s": list(self.span_s)})
+
+
+def segment_spans(capture) -> list[tuple[int, int]]:
+    """Sample ranges of a dyno capture's segments (metadata ``segment_starts``, s)."""
+    starts = [float(s) for s in str(capture.metadata.get("segment_starts", "")).split(",") if s.strip()]
+    if not starts:
+        return [(0, len(capture.t))]
+    idx = [int(np.searchsorted(capture.t, s - 1e-9)) for s in starts] + [len(capture.t)]
+    return [(a, b) for a, b in zip(idx[:-1], idx[1:]) if b > a]
+
+
+def split_segments(capture) -> list:
+    """A dyno capture as one capture per segment (window).
+
+    The dyno's windows are not one continuous recording: the shaft turned an unknown angle
+    between them, so an angle reconstructed across a join is wrong there. Each window on its
+    own is continuous; the fit takes them together as one motor's captures.
+    """
+    from eol_cal.capture.model import Capture
+
+    out = []
+    for k, (a, b) in enumerate(segment_spans(capture)):
+        channels = {name: v[a:b] for name, v in capture.channels.items()}
+        meta = {key: v for key, v in capture.metadata.items() if key not in ("segments", "segment_starts")}
+        out.append(Capture(capture.t[a:b], channels, meta, source=f"{capture.source}#{k + 1}"))
+    return out
+
+
+def nearest_segment(pieces: list, speed_rpm: float, i_qo_a: float) -> int:
+    """Index of the piece whose mean speed (rpm) and i_qo (A) are nearest the operating point."""
+    def distance(c) -> float:
+        iq = float(np.mean(c.iq_ref()))
+        rpm = float(np.mean(c["speed"])) if c.has("speed") else speed_rpm
+        return abs(iq - i_qo_a) / max(abs(i_qo_a), 1.0) + abs(rpm - speed_rpm) / max(abs(speed_rpm), 1.0)
+
+    return min(range(len(pieces)), key=lambda k: distance(pieces[k]))
+
+
+def point_ripple(capture, angle) -> PointRipple:
+    """p-p ripple and 6th-order amplitude of one steady capture (the operating point's window).
+
+    Parameters
+    ----------
+    capture : Capture
+        One window of a dyno capture (:func:`split_segments`).
+    angle : AngleResult
+        Its reconstructed angle.
+    """
+    from eol_cal.analysis.metrics import ripple_pp
+    from eol_cal.analysis.spectrum import order_spectrum
+
+    t, torque, theta = capture.t, np.asarray(capture["torque"], float), angle.theta_r
+    rp = ripple_pp(t, torque, theta, poles=capture.poles, i_qo=np.asarray(capture.iq_ref(), float),
+                   source=capture.source)
+    sp = order_spectrum(theta, torque, capture.poles, t=t, source=capture.source)
+    return PointRipple(rp.filtered_pct, rp.raw_pct, rp.filtered_pp_nm, rp.T_avg_nm, float(sp.amplitude(6)),
+                       (float(t[0]), float(t[-1])), rp, sp, t, torque, capture.poles)
+
+
+# --------------------------------------------------------------------------- the cycle
+def _new_run_dir(report_dir: Path, serial: str, started: _dt.datetime, run_id: str) -> Path:
+    stamp = started.strftime("%Y%m%dT%H%M%SZ")
+    d = report_dir / f"{_safe_name(serial)}_{stamp}_{run_id[:8]}"
+    d.mkdir(parents=True, exist_ok=False)
+    return d
+
+
+def check_config(cfg: StationConfig) -> None:
+    """Refuse what can be known bad before the dyno turns (no record: nothing was run)."""
+    if not cfg.serial or len(cfg.serial.encode("ascii", "replace")) > 16 or not cfg.serial.isascii():
+        raise InputError(None, "serial", f"{cfg.serial!r}: 1 to 16 ASCII characters (the block's serial field)")
+    try:
+        cfg.report_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(str(cfg.report_dir), "report-dir", f"cannot create: {exc}") from None
+
+
+def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutcome:
+    """Run the whole cycle for one motor; see the module doc.
+
+    Raises only :class:`InputError` for a configuration refused before anything ran (and
+    :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
+    record); every failure during the run is recorded with verdict ``error``.
+    """
+    from eol_cal import __version__
+    from eol_cal.dyno import client as dc
+    from eol_cal.firmware.block import LAYOUT_VERSION
+    from eol_cal.plant.profile import load_profile
+
+    check_config(cfg)
+    profile = load_profile(cfg.profile)
+    segments = dc.segments_from_profile(profile)
+    started = _dt.datetime.now(_dt.timezone.utc)
+    run_id = uuid.uuid4().hex
+    run_dir = _new_run_dir(cfg.report_dir, cfg.serial, started, run_id)
+    rec: dict[str, Any] = {
+        "schema": RECORD_SCHEMA, "run_id": run_id, "serial": cfg.serial,
+        "started_at": started.isoformat(timespec="milliseconds"), "ended_at": None,
+        "verdict": "error", "reasons": [], "error": None,
+        "tool_version": __version__, "layout_version": LAYOUT_VERSION,
+        "station": dict(cfg.station, profile=profile.name, rate_hz=cfg.rate_hz),
+        "limits": cfg.limits.to_dict(), "steps": [], "captures": {}, "fit": None, "block": None,
+        "flash": None, "metrics": {}, "report_dir": str(run_dir), "safe_state": None,
+    }
+    if Path(cfg.limits.source).is_file():
+        rec["limits"]["sha256"] = sha256_file(cfg.limits.source)
+    state: dict[str, Any] = {}
+
+    def step(name: str, fn: Callable[[], Any]) -> Any:
+        if progress:
+            progress(name, "start")
+        t0 = time.perf_counter()
+        entry = {"step": name, "seconds": None, "ok": False}
+        rec["steps"].append(entry)
+        try:
+            out = fn()
+        except _Skip:
+            entry["seconds"] = round(time.perf_counter() - t0, 4)
+            entry["ok"] = True
+            if progress:
+                progress(name, "done")
+            raise
+        except BaseException:
+            entry["seconds"] = round(time.perf_counter() - t0, 4)
+            if progress:
+                progress(name, "failed")
+            raise
+        entry["seconds"] = round(time.perf_counter() - t0, 4)
+        entry["ok"] = True
+        if progress:
+            progress(name, "done")
+        return out
+
+    def acquire(which: str) -> Any:
+        path = run_dir / f"{which}.mf4"
+        cap = dc.acquire(cfg.dyno, segments, path, serial=cfg.serial, rate_hz=cfg.rate_hz,
+                         extra_metadata={"comment": f"eol-cal run {run_id}: {which}, profile {profile.name}"})
+        rec["captures"][which] = {"path": str(path), "sha256": sha256_file(path), "samples": int(len(cap.t))}
+        return cap
+
+    def do_fit() -> None:
+        doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__)
+        from eol_cal.analysis.result import write_result
+
+        write_result(doc, run_dir / "fit.json")
+        rec["fit"] = frec
+        state["fit_doc"], state["fit_extra"] = doc, extra
+        if frec["status"] != "ok":
+            rec["verdict"] = "fail"
+            rec["reasons"] = [f"fit {frec['status']}: {r}" for r in frec["reasons"]] or [f"fit {frec['status']}"]
+            raise _Skip
+        m = measured_from_fit(frec)
+        state["measured"] = m
+        reasons = fit_reasons(m, cfg.limits)
+        if reasons:
+            rec["verdict"], rec["reasons"] = "fail", reasons
+            raise _Skip
+
+    def do_table() -> None:
+        from eol_cal.analysis.fit_table import block_from_record, created_unix
+        from eol_cal.capture.atomic import atomic_path
+        from eol_cal.firmware.block import pack
+        from eol_cal.motor import load_motor
+
+        blk = block_from_record(rec["fit"], load_motor("paper"), calibrated_at=created_unix(state["fit_doc"]),
+                                source=str(run_dir / "fit.json"))
+        data = pack(blk)
+        path = run_dir / "block.bin"
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+        state["block"] = data
+        rec["block"] = {"path": str(path), "bytes": len(data), "table_len": blk.table_len,
+                        "lead_s": blk.lead_s, "iqc_limit": blk.iqc_limit, "crc32": None, "sequence": None}
+
+    def do_flash() -> None:
+        from eol_cal.ecu.client import ClientTiming, flash_block
+
+        bus = cfg.open_bus()
+        try:
+            report = flash_block(bus, state["block"], seed_to_key=cfg.seed_to_key, verify=True,
+                                 source=rec["block"]["path"], timing=cfg.ecu_timing or ClientTiming())
+        finally:
+            bus.shutdown()
+        rec["block"].update(crc32=f"{report.crc32:08x}", sequence=report.sequence, bank=report.bank)
+        rec["flash"] = {"seconds": round(report.seconds, 4), "verified": report.verified,
+                        "transfer_blocks": report.transfer_blocks, "retries": report.retries,
+                        "previous": {"bank": report.previous.bank if report.previous.has_bank else None,
+                                     "sequence": report.previous.sequence}}
+
+    def do_metrics() -> None:
+        from eol_cal.analysis.angle import capture_angle
+
+        mi = state["fit_extra"][0]
+        op = rec["fit"]["operating_point"]
+        k = nearest_segment(mi.captures, op["speed_rpm"], op["i_qo_a"])
+        before = point_ripple(mi.captures[k], mi.angles[k])
+        pieces = split_segments(state["after"])
+        after_cap = pieces[nearest_segment(pieces, op["speed_rpm"], op["i_qo_a"])]
+        after = point_ripple(after_cap, capture_angle(after_cap))
+        state["pr"] = (before, after)
+        m = state["measured"]
+        m = Measured(**{**m.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct})
+        rec["metrics"] = _json_safe({
+            "operating_point": op, "pp_before_pct": m.pp_before_pct, "pp_after_pct": m.pp_after_pct,
+            "improvement_pct": m.improvement_pct, "before": before.to_dict(), "after": after.to_dict(),
+            "definition": "filtered p-p % (docs/metrics.md), median over the steady windows of the operating "
+                          "point's segment",
+        })
+        rec["verdict"], rec["reasons"] = verdict(m, cfg.limits)
+
+    try:
+        try:
+            state["before"] = step("acquire", lambda: acquire("before"))
+            step("fit", do_fit)
+            step("table", do_table)
+            step("flash", do_flash)
+            state["after"] = step("acquire compensated", lambda: acquire("after"))
+            step("metrics", do_metrics)
+        except _Skip:
+            pass
+    except BaseException as exc:  # noqa: BLE001 - every failure becomes an error record
+        failed = rec["steps"][-1]["step"] if rec["steps"] else "start"
+        rec["verdict"] = "error"
+        rec["reasons"] = [f"{failed}: {exc}" if str(exc) else f"{failed}: {type(exc).__name__}"]
+        rec["error"] = {"step": failed, "type": type(exc).__name__, "message": str(exc),
+                        "traceback": None if isinstance(exc, EolCalError) else traceback.format_exc(limit=8)}
+        rec["safe_state"] = _safe_state(cfg.dyno)
+        if not isinstance(exc, Exception):  # Ctrl-C: record first, then let it end the process
+            state["reraise"] = exc
+    report_html = None
+    try:
+        report_html = step("report", lambda: _report(rec, run_dir, state))
+    except Exception as exc:  # noqa: BLE001 - the record must still be written
+        rec["report_error"] = f"{type(exc).__name__}: {exc}"
+        if rec["verdict"] != "error":
+            rec["verdict"] = "error"
+            rec["reasons"] = rec["reasons"] + [f"report: {exc}"]
+    rec["ended_at"] = _now()
+    rec = _json_safe(rec)
+    saved = _save(cfg, rec, progress)
+    if "reraise" in state:
+        raise state["reraise"]
+    return RunOutcome(rec, saved, report_html, EXIT[rec["verdict"]])
+
+
+def _save(cfg: StationConfig, rec: dict[str, Any], progress: ProgressFn | None) -> SaveResult:
+    if progress:
+        progress("record", "start")
+    saved = save_record(rec, cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    if progress:
+        progress("record", "done")
+    return saved
+
+
+def _safe_state(dyno_cfg: Any) -> str:
+    """Command the dyno's safe state once more (best effort); say whether it was confirmed."""
+    from eol_cal.dyno.client import DynoClient
+
+    client = DynoClient(dyno_cfg)
+    try:
+        why = client.safe_state()
+    except Exception as exc:  # noqa: BLE001
+        why = str(exc)
+    finally:
+        client.close()
+    return "speed 0, drive disabled (confirmed)" if why is None else f"not confirmed: {why}"
+
+
+def _report(rec: dict[str, Any], run_dir: Path, state: dict[str, Any]) -> Path:
+    from eol_cal.station.report import write_report
+
+    return write_report(rec, run_dir, fit_extra=state.get("fit_extra"), point_ripple=state.get("pr"))
