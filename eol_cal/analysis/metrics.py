@@ -82,22 +82,29 @@ def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65
     """
     from numpy.lib.stride_tricks import sliding_window_view
 
+    from scipy.ndimage import median_filter
+
     x = np.asarray(x, dtype=float)
     k = max(int(half_width), 1)
-    padded = np.pad(x, k, mode="reflect") if len(x) > k else np.pad(x, k, mode="edge")
-    y = x.copy()
-    spikes = np.zeros(len(x), dtype=bool)
+    mode = "mirror" if len(x) > k else "nearest"
+    med = median_filter(x, size=2 * k + 1, mode=mode)
     d = np.abs(np.diff(x))
     step = float(d[d > 0].min()) if (d > 0).any() else 0.0
     floor = max(1.4826 * float(np.median(d)) / np.sqrt(2.0), step) if len(d) else 0.0
-    for s in range(0, len(x), chunk):
-        e = min(s + chunk, len(x))
-        win = sliding_window_view(padded[s : e + 2 * k], 2 * k + 1)
-        med = np.median(win, axis=1)
-        mad = np.median(np.abs(win - med[:, None]), axis=1)
-        bad = np.abs(x[s:e] - med) > n_sigma * np.maximum(1.4826 * mad, floor)
-        y[s:e][bad] = med[bad]
-        spikes[s:e] = bad
+    # Only a sample beyond n_sigma * floor can be a spike: the exact window MAD is needed
+    # for those candidates alone.
+    cand = np.flatnonzero(np.abs(x - med) > n_sigma * floor)
+    y = x.copy()
+    spikes = np.zeros(len(x), dtype=bool)
+    if len(cand):
+        padded = np.pad(x, k, mode="reflect" if mode == "mirror" else "edge")
+        win = sliding_window_view(padded, 2 * k + 1)
+        for s in range(0, len(cand), chunk):
+            c = cand[s : s + chunk]
+            mad = np.median(np.abs(win[c] - med[c, None]), axis=1)
+            bad = c[np.abs(x[c] - med[c]) > n_sigma * np.maximum(1.4826 * mad, floor)]
+            y[bad] = med[bad]
+            spikes[bad] = True
     return y, spikes
 
 
