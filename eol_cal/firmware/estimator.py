@@ -358,6 +358,11 @@ def _set(arr: Any, idx: Any, val: Any, xp: Any) -> Any:
     return arr.at[idx].set(val)
 
 
+def _dq(q: Any, k_last: Any, M: int, xp: Any) -> Any:
+    """Signed quadrature counts from boundary ``k_last`` to count ``q``, in [-M/2, M/2)."""
+    return (q - k_last + I32(M + M // 2)) % I32(M) - I32(M // 2)
+
+
 def _phase(enc_a: Any, enc_b: Any) -> Any:
     return I32(2) * enc_b + (enc_a ^ enc_b)
 
@@ -487,8 +492,10 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
 
     # 3. Standstill and the prediction between edges (eq. 16).
     still = n > I32(S)
-    omega = xp.where(still, F32(0.0), omega)
     nc_prev = xp.where(still, I32(0), nc_prev)
+    # omega_hat is valid exactly while nc_prev > 0 (a measured interval since the last break).
+    speed_ok = nc_prev > 0
+    omega = xp.where(speed_ok, omega, F32(0.0))
     run = xp.where(still, I32(0), run)
     alpha = xp.where(still, F32(0.0), alpha)
     if cfg.accel_prediction:
@@ -499,7 +506,11 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
         omega_pred = omega
     adv = xp.where(ev, F32(0.0), s.adv + omega_pred * c.T)
     if cfg.clamp_to_next_edge:
-        adv = xp.minimum(xp.maximum(adv, -c.DELTA), c.DELTA)
+        # The rotor is inside the current quadrature count: the prediction never passes its far
+        # boundary (so never the next edge) and catches up with its near one. Not after a step
+        # against the direction since the last edge: then the count may be a lost pulse behind.
+        lo = f32(_dq(q, k_last, M, xp)) * c.QUARTER
+        adv = xp.where(against == 0, xp.minimum(xp.maximum(adv, lo), lo + c.QUARTER), adv)
 
     # 4. Halls: validity, sequence, absolute re-anchor at transitions.
     h = i32(hall)
@@ -515,10 +526,12 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     # First anchor without an edge yet: the grid reference is the current count's middle.
     no_edge = dir_last == 0
     k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
-    adv = xp.where(adj & (s.anchored == 0) & no_edge, c.HALF_QUARTER, adv)
     c_last = c_tab[k_last >> one] if cfg.learn_pitch_errors else F32(0.0)
     rel = f32(k_last) * c.QUARTER + c_last
-    theta_pred = wrap(wrap(s.G + rel, xp) + adv, xp)
+    # Without a valid speed the best position is the middle of the current quadrature count.
+    cell = f32(_dq(q, k_last, M, xp)) * c.QUARTER + c.HALF_QUARTER
+    adv_eff = xp.where(speed_ok, adv, cell)
+    theta_pred = wrap(wrap(s.G + rel, xp) + adv_eff, xp)
     e = wrap_pm(hb - theta_pred, xp)
     big = xp.abs(e) > c.HALF_DELTA
     if cfg.learn_grid_offset:
@@ -529,7 +542,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     else:
         g = e
     G = xp.where(adj & (s.anchored != 0), wrap(s.G + g, xp),
-                 xp.where(adj, wrap(hb - (rel + adv), xp), s.G))
+                 xp.where(adj, wrap(hb - (rel + adv_eff), xp), s.G))
     anchored = xp.where(adj, one, s.anchored)
     n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
                         xp.where(adj, xp.minimum(s.n_anchor + one, I32(N_LEARN)), s.n_anchor))
@@ -540,7 +553,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
 
     # 5. Outputs.
     theta_enc = wrap(G + rel, xp)
-    theta = wrap(theta_enc + adv, xp)
+    theta = wrap(theta_enc + adv_eff, xp)
     start = _tab(c.H_START, sector, xp)
     width = _tab(c.H_WIDTH, sector, xp)
     dd = wrap(theta - start, xp)

@@ -40,6 +40,12 @@ static int32_t phase_of(int32_t a, int32_t b)
     return 2 * b + (a ^ b);
 }
 
+/* signed quadrature counts from boundary k_last to count q, in [-M/2, M/2) */
+static int32_t dq_of(int32_t q, int32_t k_last, int32_t M)
+{
+    return (q - k_last + M + M / 2) % M - M / 2;
+}
+
 static float fminf_(float x, float y) { return x < y ? x : y; }
 static float fmaxf_(float x, float y) { return x > y ? x : y; }
 static int32_t imin(int32_t x, int32_t y) { return x < y ? x : y; }
@@ -110,10 +116,10 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     const int32_t S = e->cfg.standstill_ticks;
     int32_t ph, d, stp, qep_err, q, a_rise, edir, k, against, n1;
     int32_t bounce, ev, same_dir, pitch_ok, interval, long_iv, missing, reject, measured, nc_eff;
-    int32_t fix, speed_upd, still, n, k_last, dir_last, nc_prev, run;
+    int32_t fix, speed_upd, still, speed_ok, n, k_last, dir_last, nc_prev, run;
     int32_t hv, hl, trans, fwd, rev, adj, jump, first, anchored_before, big, unanchored;
     int32_t status;
-    float omega_new, omega, alpha, omega_pred, adv, hb, c_last, rel, theta_pred, err, g, G;
+    float omega_new, omega, alpha, omega_pred, adv, adv_eff, hb, c_last, rel, theta_pred, err, g, G;
     float theta_enc, theta, start, width, dd, end, omega_out;
 
     /* 1. quadrature decoding (x4) */
@@ -214,8 +220,13 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     /* 3. standstill and the prediction between edges (eq. 16) */
     still = n > S;
     if (still) {
-        omega = 0.0f;
         nc_prev = 0;
+    }
+    speed_ok = nc_prev > 0; /* omega_hat is valid exactly while nc_prev > 0 */
+    if (!speed_ok) {
+        omega = 0.0f;
+    }
+    if (still) {
         run = 0;
         alpha = 0.0f;
     }
@@ -226,8 +237,9 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         omega_pred = omega;
     }
     adv = ev ? 0.0f : e->adv + omega_pred * e->T;
-    if (fl & EOL_EST_CLAMP_TO_NEXT_EDGE) {
-        adv = fminf_(fmaxf_(adv, -e->DELTA), e->DELTA);
+    if ((fl & EOL_EST_CLAMP_TO_NEXT_EDGE) && against == 0) {
+        float lo = (float)dq_of(q, k_last, M) * e->QUARTER;
+        adv = fminf_(fmaxf_(adv, lo), lo + e->QUARTER);
     }
 
     /* 4. halls */
@@ -243,11 +255,12 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     anchored_before = e->anchored;
     if (adj && anchored_before == 0 && dir_last == 0) {
         k_last = q;
-        adv = e->HALF_QUARTER;
     }
     c_last = (fl & EOL_EST_LEARN_PITCH_ERRORS) ? e->c_tab[k_last >> 1] : 0.0f;
     rel = (float)k_last * e->QUARTER + c_last;
-    theta_pred = eol_est_wrap(eol_est_wrap(e->G + rel) + adv);
+    /* without a valid speed: the middle of the current quadrature count */
+    adv_eff = speed_ok ? adv : (float)dq_of(q, k_last, M) * e->QUARTER + e->HALF_QUARTER;
+    theta_pred = eol_est_wrap(eol_est_wrap(e->G + rel) + adv_eff);
     err = eol_est_wrap_pm(hb - theta_pred);
     big = fabsf(err) > e->HALF_DELTA;
     if (fl & EOL_EST_LEARN_GRID_OFFSET) {
@@ -259,7 +272,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     if (adj && anchored_before != 0) {
         G = eol_est_wrap(e->G + g);
     } else if (adj) {
-        G = eol_est_wrap(hb - (rel + adv));
+        G = eol_est_wrap(hb - (rel + adv_eff));
     } else {
         G = e->G;
     }
@@ -280,7 +293,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
 
     /* 5. outputs */
     theta_enc = eol_est_wrap(G + rel);
-    theta = eol_est_wrap(theta_enc + adv);
+    theta = eol_est_wrap(theta_enc + adv_eff);
     if (still) {
         start = e->h_start[e->sector];
         width = e->h_width[e->sector];
