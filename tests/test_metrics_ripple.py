@@ -35,6 +35,24 @@ def test_hampel_removes_spikes_and_leaves_smooth_signals():
     assert np.max(np.abs(y2 - x)) < 0.02  # the median of a slope, 3 of 21 samples hit
 
 
+def test_hampel_equals_its_definition_window_by_window():
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    rng = np.random.default_rng(5)
+    x = CLEAN[:20000] + 0.005 * rng.standard_normal(20000)
+    x[rng.choice(20000, 30, replace=False)] += rng.choice([-0.2, 0.2], 30)
+    k = 10
+    win = sliding_window_view(np.pad(x, k, mode="reflect"), 2 * k + 1)
+    m = np.median(win, axis=1)
+    mad = np.median(np.abs(win - m[:, None]), axis=1)
+    d = np.abs(np.diff(x))
+    floor = max(1.4826 * np.median(d) / np.sqrt(2), d[d > 0].min())
+    want = np.abs(x - m) > 3.0 * np.maximum(1.4826 * mad, floor)
+    y, spikes = hampel(x, k)
+    assert np.array_equal(spikes, want) and spikes.sum() >= 30
+    assert np.array_equal(y, np.where(want, m, x))
+
+
 def test_hampel_leaves_the_lsb_flicker_of_a_quantised_signal():
     rng = np.random.default_rng(3)
     lsb = 1e-3
