@@ -63,7 +63,7 @@ def test_profile_end_to_end_into_a_valid_capture_file(dyno, tmp_path: Path):
     # segments in order, reverse last, and the drive left stopped and disabled
     assert back["speed"][0] == 60.0 and back["speed"][-1] == -60.0
     assert cap.metadata["segments"] == 3
-    assert not dyno.sim.enabled and dyno.sim.speed == 0.0 and dyno.sim.setpoint == 0.0
+    _assert_safe(dyno.sim)
 
 
 def _assert_safe(sim: DynoSim):

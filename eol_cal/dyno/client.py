@@ -255,10 +255,10 @@ class DynoClient:
         direction = 1 if seg.speed_rpm < 0 else 0
         kind, value = seg.command()
         current_dir = 1 if float(st["speed"]) < 0 else 0
-        if abs(float(st["speed"])) > 0.0 and direction != current_dir:
+        if abs(float(st["speed"])) > rm.STANDSTILL_RPM and direction != current_dir:
             # reversing goes through standstill; the dyno refuses a direction flip while spinning
             self.write(speed_setpoint=0.0)
-            self.wait(lambda s: abs(float(s["speed"])) == 0.0, abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse")
+            self.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse")
         self.write(mode=1, direction=direction)
         self.write(speed_setpoint=abs(seg.speed_rpm), ramp=seg.ramp_rpm_s, dut_cmd_kind=int(kind), dut_cmd=value)
         self.write(enable=1, watchdog_ms=cfg.watchdog_ms)
@@ -460,7 +460,7 @@ def run_profile(
         if progress:
             progress("stopping", len(segments), len(segments))
         client.write(speed_setpoint=0.0)
-        client.wait(lambda s: abs(float(s["speed"])) == 0.0, client.config.settle_timeout, "stopping")
+        client.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, client.config.settle_timeout, "stopping")
     except BaseException as exc:
         why = client.safe_state()
         client.close()

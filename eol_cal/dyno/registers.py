@@ -34,6 +34,8 @@ MAP_VERSION = 1
 MAX_READ_REGS = 125
 #: registers per Modbus write request (FC 16 limit: 123 registers)
 MAX_WRITE_REGS = 123
+#: |speed| at or below this counts as standstill (rpm): direction changes are allowed there
+STANDSTILL_RPM = 1.0
 #: the capture window
 WINDOW_ADDR = 0x8000
 WINDOW_REGS = 0x8000
@@ -182,7 +184,7 @@ REGISTERS: tuple[Register, ...] = (
     Register("mode", 100, "u16", "", "rw", "0 off, 1 speed control (the dyno holds the speed set point, the DUT is loaded by dut_cmd); other values refused", "control"),
     Register("enable", 101, "u16", "", "rw", "1 enable the drive (refused unless all interlocks are met and no fault is latched), 0 disable", "control"),
     Register("stop", 102, "u16", "", "rw", "write 1: ramp to zero speed, then disable; reads back 0", "control"),
-    Register("direction", 103, "u16", "", "rw", "0 forward (positive speed), 1 reverse", "control"),
+    Register("direction", 103, "u16", "", "rw", "0 forward (positive speed), 1 reverse; changes refused above 1 rpm (STANDSTILL_RPM) while enabled", "control"),
     Register("speed_setpoint", 104, "f32", "rpm", "rw", "speed set point magnitude (>= 0); the sign comes from direction", "control"),
     Register("ramp", 106, "f32", "rpm/s", "rw", "speed ramp rate (> 0)", "control"),
     Register("dut_cmd_kind", 108, "u16", "", "rw", "0: dut_cmd is a shaft torque (N*m), 1: dut_cmd is the nominal q current i_qo (A)", "control"),

@@ -628,7 +628,7 @@ class DynoSim:
             return bad
         if "sim_fault" in new and new["sim_fault"] not in tuple(int(k) for k in SimFault):
             return bad
-        if "direction" in new and new["direction"] != self.direction and self.speed != 0.0 and self.enabled:
+        if "direction" in new and new["direction"] != self.direction and abs(self.speed) > rm.STANDSTILL_RPM and self.enabled:
             return bad  # reversing a spinning shaft goes through zero speed: stop first
         now = time.monotonic()
         for name, value in new.items():
