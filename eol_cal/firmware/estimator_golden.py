@@ -19,6 +19,7 @@ degrees) and, where the scenario says so, injected glitches.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -47,12 +48,38 @@ CONFIG_COLUMNS = (("file", "poles", "N_enc", "tick_hz")
                   + tuple(f"h_mid_{s}" for s in range(1, 7)))
 
 Signals = tuple[np.ndarray, np.ndarray, np.ndarray]
+Segments = tuple[tuple[float, float, float], ...]
 
 
-def _signals(segments: list[tuple[float, float, float]], seed: int, theta0: float = 0.3) -> Signals:
-    theta_m = speed_profile_angle(segments, TICK_HZ, theta0)
-    errors = draw_sensor_errors(np.random.default_rng(seed), N_ENC)
-    return encoder_hall_signals(theta_m, POLES, N_ENC, errors)
+@dataclass(frozen=True)
+class Scenario:
+    """One estimator scenario: configuration, motion, sensor errors and injected glitches.
+
+    segments : (seconds, rpm_start, rpm_end) of the mechanical speed profile.
+    theta0 : mechanical angle at tick 0 (rad); seed : of the drawn sensor errors.
+    inject : edits the sampled (enc_a, enc_b, hall) levels (glitches), or None.
+    """
+
+    cfg: est.EstimatorConfig
+    segments: Segments
+    seed: int
+    description: str
+    theta0: float = 0.3
+    inject: Callable[[np.ndarray, np.ndarray, np.ndarray], Signals] | None = None
+
+    def theta_m(self) -> np.ndarray:
+        """True mechanical angle at every tick (rad)."""
+        return speed_profile_angle(self.segments, TICK_HZ, self.theta0)
+
+    def clean_signals(self) -> Signals:
+        """Sampled levels before any glitch is injected."""
+        errors = draw_sensor_errors(np.random.default_rng(self.seed), N_ENC)
+        return encoder_hall_signals(self.theta_m(), POLES, N_ENC, errors)
+
+    def signals(self) -> Signals:
+        """Sampled levels enc_a, enc_b, hall (int32) as the estimator sees them."""
+        a, b, h = self.clean_signals()
+        return (a, b, h) if self.inject is None else self.inject(a.copy(), b.copy(), h.copy())
 
 
 def _rising(x: np.ndarray, after: int) -> int:
@@ -61,45 +88,14 @@ def _rising(x: np.ndarray, after: int) -> int:
     return int(idx[idx >= after][0])
 
 
-def _const_60() -> Signals:
-    return _signals([(0.3, 60.0, 60.0)], seed=1)
-
-
-def _ramp() -> Signals:
-    return _signals([(0.05, 30.0, 30.0), (0.4, 30.0, 85.0)], seed=2)
-
-
-def _creep() -> Signals:
-    # Start just short of a hall boundary (electrical 60 deg = mechanical 20 deg) so the 1.3 s
-    # see the anchor and two A edges 0.94 s apart.
-    return _signals([(1.3, 1.0, 1.0)], seed=3, theta0=math.radians(19.5))
-
-
-def _standstill_restart() -> Signals:
-    return _signals([(0.1, 60.0, 60.0), (0.03, 60.0, 0.0), (0.12, 0.0, 0.0), (0.05, 0.0, 60.0),
-                     (0.1, 60.0, 60.0)], seed=4)
-
-
-def _reversal() -> Signals:
-    return _signals([(0.1, 60.0, 60.0), (0.1, 60.0, -60.0), (0.1, -60.0, -60.0)], seed=5)
-
-
-def _reverse_60() -> Signals:
-    return _signals([(0.2, -60.0, -60.0)], seed=6)
-
-
-def _missing_edge() -> Signals:
-    a, b, h = _signals([(0.15, 60.0, 60.0)], seed=7)
+def _lose_a_pulse(a: np.ndarray, b: np.ndarray, h: np.ndarray) -> Signals:
     r = _rising(a, 1500)
     f = r + int(np.argmax(a[r:] == 0))
-    a = a.copy()
     a[r:f] = 0  # one A pulse lost; B still toggles
     return a, b, h
 
 
-def _edge_bounce() -> Signals:
-    a, b, h = _signals([(0.15, 60.0, 60.0)], seed=8)
-    a, b = a.copy(), b.copy()
+def _bounce(a: np.ndarray, b: np.ndarray, h: np.ndarray) -> Signals:
     r = _rising(a, 1200)
     a[r + 1] = 0  # A: 0 1 0 1 around its rising edge
     r2 = _rising(a, 2000)
@@ -109,44 +105,57 @@ def _edge_bounce() -> Signals:
     return a, b, h
 
 
-def _hall_glitch() -> Signals:
-    a, b, h = _signals([(0.15, 60.0, 60.0)], seed=9)
-    h = h.copy()
-    h[700:702] = 0
-    h[1500] = 7
-    h[2200] = 7 - h[2200]  # the opposite sector for one tick: not adjacent
+HALL_GLITCH_TICKS = {"zero": (700, 701), "seven": (1500,), "opposite": (2200,)}
+
+
+def _hall_glitch(a: np.ndarray, b: np.ndarray, h: np.ndarray) -> Signals:
+    for i in HALL_GLITCH_TICKS["zero"]:
+        h[i] = 0
+    for i in HALL_GLITCH_TICKS["seven"]:
+        h[i] = 7
+    for i in HALL_GLITCH_TICKS["opposite"]:
+        h[i] = 7 - h[i]  # the opposite sector for one tick: not adjacent
     return a, b, h
-
-
-def _best_240() -> Signals:
-    # 240 rpm for 0.45 s: almost two revolutions, so improvement 4 learns during the second.
-    return _signals([(0.45, 240.0, 240.0)], seed=10)
 
 
 _PAPER = est.EstimatorConfig.paper(tick_hz=TICK_HZ)
 _PAPER_SHORT = est.EstimatorConfig.paper(tick_hz=TICK_HZ, standstill_s=0.05)
 _BEST = est.EstimatorConfig.best(tick_hz=TICK_HZ)
 _BEST_SHORT = est.EstimatorConfig.best(tick_hz=TICK_HZ, standstill_s=0.05)
+_STOP_GO = ((0.1, 60.0, 60.0), (0.03, 60.0, 0.0), (0.12, 0.0, 0.0), (0.05, 0.0, 60.0), (0.1, 60.0, 60.0))
 
-#: file name -> (configuration, signal generator, description)
-SCENARIOS: dict[str, tuple[est.EstimatorConfig, Callable[[], Signals], str]] = {
-    "estimator_const_60rpm.csv": (_PAPER, _const_60, "paper estimator, constant 60 rpm forward, 0.3 s"),
-    "estimator_ramp_30_85rpm.csv": (_PAPER, _ramp, "paper estimator, 30 rpm then a ramp to 85 rpm in 0.4 s"),
-    "estimator_creep_1rpm.csv": (_PAPER, _creep, "paper estimator, 1 rpm creep (an edge every 0.94 s), 1.3 s"),
-    "estimator_standstill_restart.csv": (_PAPER_SHORT, _standstill_restart,
-                                         "paper estimator, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
-    "estimator_standstill_restart_best.csv": (_BEST_SHORT, _standstill_restart,
-                                              "every improvement, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
-    "estimator_reversal.csv": (_PAPER, _reversal, "paper estimator, 60 rpm forward, through zero to 60 rpm reverse"),
-    "estimator_reverse_60rpm.csv": (_PAPER, _reverse_60, "paper estimator, constant 60 rpm in reverse"),
-    "estimator_missing_edge.csv": (_PAPER, _missing_edge, "paper estimator, 60 rpm, one A pulse lost"),
-    "estimator_edge_bounce.csv": (_PAPER, _edge_bounce, "paper estimator, 60 rpm, A bounces twice, B once"),
-    "estimator_hall_glitch.csv": (_PAPER, _hall_glitch,
-                                  "paper estimator, 60 rpm, hall reads 0, 7 and the opposite sector briefly"),
-    "estimator_best_240rpm.csv": (_BEST, _best_240, "every improvement, 240 rpm for 0.45 s (pitch learning starts)"),
+#: file name -> scenario
+SCENARIOS: dict[str, Scenario] = {
+    "estimator_const_60rpm.csv": Scenario(_PAPER, ((0.3, 60.0, 60.0),), 1,
+                                          "paper estimator, constant 60 rpm forward, 0.3 s"),
+    "estimator_ramp_30_85rpm.csv": Scenario(_PAPER, ((0.05, 30.0, 30.0), (0.4, 30.0, 85.0)), 2,
+                                            "paper estimator, 30 rpm then a ramp to 85 rpm in 0.4 s"),
+    # Starts just short of a hall boundary (electrical 60 deg = mechanical 20 deg) so the 1.3 s
+    # see the anchor and two A edges 0.94 s apart.
+    "estimator_creep_1rpm.csv": Scenario(_PAPER, ((1.3, 1.0, 1.0),), 3,
+                                         "paper estimator, 1 rpm creep (an edge every 0.94 s), 1.3 s",
+                                         theta0=math.radians(19.5)),
+    "estimator_standstill_restart.csv": Scenario(_PAPER_SHORT, _STOP_GO, 4,
+                                                 "paper estimator, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+    "estimator_standstill_restart_best.csv": Scenario(
+        _BEST_SHORT, _STOP_GO, 4, "every improvement, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+    "estimator_reversal.csv": Scenario(_PAPER, ((0.1, 60.0, 60.0), (0.1, 60.0, -60.0), (0.1, -60.0, -60.0)), 5,
+                                       "paper estimator, 60 rpm forward, through zero to 60 rpm reverse"),
+    "estimator_reverse_60rpm.csv": Scenario(_PAPER, ((0.2, -60.0, -60.0),), 6,
+                                            "paper estimator, constant 60 rpm in reverse"),
+    "estimator_missing_edge.csv": Scenario(_PAPER, ((0.15, 60.0, 60.0),), 7,
+                                           "paper estimator, 60 rpm, one A pulse lost", inject=_lose_a_pulse),
+    "estimator_edge_bounce.csv": Scenario(_PAPER, ((0.15, 60.0, 60.0),), 8,
+                                          "paper estimator, 60 rpm, A bounces twice, B once", inject=_bounce),
+    "estimator_hall_glitch.csv": Scenario(_PAPER, ((0.15, 60.0, 60.0),), 9,
+                                          "paper estimator, 60 rpm, hall reads 0, 7 and the opposite sector briefly",
+                                          inject=_hall_glitch),
+    # 240 rpm for 0.45 s: almost two revolutions, so improvement 4 learns during the second.
+    "estimator_best_240rpm.csv": Scenario(_BEST, ((0.45, 240.0, 240.0),), 10,
+                                          "every improvement, 240 rpm for 0.45 s (pitch learning starts)"),
 }
 
-DESCRIPTIONS = {name: desc for name, (_, _, desc) in SCENARIOS.items()}
+DESCRIPTIONS = {name: sc.description for name, sc in SCENARIOS.items()}
 DESCRIPTIONS["estimator_configs.csv"] = (
     "configuration of each estimator_*.csv (flags: 1 clamp_to_next_edge, 2 learn_grid_offset, "
     "4 accel_prediction, 8 learn_pitch_errors) and the constants eol_est_init derives from it")
@@ -186,8 +195,7 @@ def vector_sets(names: list[str] | None = None) -> dict[str, tuple[tuple[str, ..
     """
     chosen = list(SCENARIOS) if names is None else [n for n in SCENARIOS if n in names]
     sets: dict[str, tuple[tuple[str, ...], list[list[str]]]] = {
-        "estimator_configs.csv": (CONFIG_COLUMNS, [config_row(n, SCENARIOS[n][0]) for n in chosen])}
+        "estimator_configs.csv": (CONFIG_COLUMNS, [config_row(n, SCENARIOS[n].cfg) for n in chosen])}
     for n in chosen:
-        cfg, gen, _ = SCENARIOS[n]
-        sets[n] = (SCENARIO_COLUMNS, scenario_rows(cfg, *gen()))
+        sets[n] = (SCENARIO_COLUMNS, scenario_rows(SCENARIOS[n].cfg, *SCENARIOS[n].signals()))
     return sets
