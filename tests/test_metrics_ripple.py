@@ -165,3 +165,14 @@ def test_each_run_keeps_its_own_window_length():
     assert r.window_revs == 3
     assert all(w.raw_pct == pytest.approx(2.0, abs=0.01) for w in r.windows)
     assert all(not (0.9 < w.t_end and w.t_start < 1.0) for w in r.windows)  # nothing from the ramp
+
+
+def test_both_directions_in_one_capture():
+    # 1.5 s at +60 rpm, 0.2 s reversal ramp, 1.5 s at -60 rpm
+    t = np.arange(0.0, 3.2, 1.0 / FS)
+    rps = np.interp(t, [0.0, 1.5, 1.7, 3.2], [1.0, 1.0, -1.0, -1.0])
+    theta = 3 * 2 * np.pi * np.cumsum(rps) / FS
+    r = ripple_pp(t, 3.0 + 0.03 * np.sin(6 * theta), theta, poles=6)
+    assert {round(w.speed_rpm) for w in r.windows} == {60, -60}
+    assert all(not (1.5 < w.t_end and w.t_start < 1.7) for w in r.windows)
+    assert r.raw_pct == pytest.approx(2.0, abs=0.01)

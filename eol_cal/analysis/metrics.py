@@ -373,24 +373,33 @@ def ripple_pp(
     fs = (len(t) - 1) / (t[-1] - t[0])
     despiked, spikes = hampel(torque, max(1, round(hampel_half_width_s * fs)), hampel_sigma)
 
+    # one implementation of "where does the rotor turn one way": the fit's
+    from eol_cal.analysis.fit_capture import direction_pieces
+
+    if np.ptp(theta_r) < TWO_PI:
+        raise InputError(source, "torque", "the capture does not hold one whole electrical revolution")
+    # Each direction of rotation is judged on its own (a reversal is never steady).
+    pieces = direction_pieces(np.gradient(theta_r, t))
     # Steadiness is judged per 60-degree unit: one period of the 6th harmonic, so its speed
     # ripple does not move a unit's mean speed, and a run starts at most 60 deg after a change.
-    units = revolution_bounds(theta_r, per_rev=UNITS_PER_REV)
-    if len(units) < UNITS_PER_REV + 1:
-        raise InputError(source, "torque", "the capture does not hold one whole electrical revolution")
-    runs = steady_runs(t, units, i_qo, speed_tol, iq_tol_a, iq_tol_rel)
-    n_units = len(units) - 1
+    runs_units: list[tuple[list[int], np.ndarray, bool]] = []  # (run, unit bounds, ends the record)
+    for a, b in pieces:
+        units = revolution_bounds(theta_r[a:b], per_rev=UNITS_PER_REV) + a
+        if len(units) < 2:
+            continue
+        for run in steady_runs(t, units, i_qo, speed_tol, iq_tol_a, iq_tol_rel):
+            runs_units.append((run, units, run[-1] == len(units) - 2 and b == len(t)))
 
     windows: list[SteadyWindow] = []
     segments: list[tuple[float, float]] = []
     filtered_cache: dict[float, np.ndarray] = {}
-    for run in runs:
+    for run, units, at_end in runs_units:
         t_run0, t_run1 = t[units[run[0]]], t[units[run[-1] + 1]]
         f_e = len(run) / UNITS_PER_REV / (t_run1 - t_run0)
         f_c = cutoff_order * f_e
-        # When an unsteady unit follows, the low-pass smears it back into the run by about
-        # its impulse response: keep clear of it.
-        guard = 0.0 if run[-1] == n_units - 1 else 2.0 / f_c
+        # Unless the run ends the record, the low-pass smears what follows (an unsteady unit,
+        # a reversal) back into it by about its impulse response: keep clear of it.
+        guard = 0.0 if at_end else 2.0 / f_c
         i0 = int(np.searchsorted(t, t_run0 + settle_s - 1e-12, side="left"))
         i1 = int(np.searchsorted(t, t_run1 - guard + 1e-12, side="right"))
         if i1 - i0 < 2:
