@@ -116,7 +116,8 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
         for (ax_t, ax_s), row in zip(axes, rows):
             r = row.ripple
             fs = (len(row.t) - 1) / (row.t[-1] - row.t[0])
-            f_e = abs(r.speed_rpm) / 60.0 * row.poles / 2
+            # one trace for the whole record: the windows' typical |speed| sets its cut-off
+            f_e = float(np.median([abs(w.speed_rpm) for w in r.windows])) / 60.0 * row.poles / 2
             filt = lowpass_zero_phase(row.torque, fs, r.cutoff_order * f_e) if f_e > 0 else row.torque
             ax_t.plot(row.t, row.torque, color="0.7", lw=0.5, label="raw")
             ax_t.plot(row.t, filt, color="tab:blue", lw=1.0, label=f"low-pass {r.cutoff_order:g} x f_e")
