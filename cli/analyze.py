@@ -155,7 +155,9 @@ def _print_table(reports: list[dict]) -> None:
         table.add_column(r["file"], justify="right", overflow="fold")
     rows = [
         ("serial", lambda r: r["serial"]),
-        ("speed rpm", lambda r: f"{r['speed_rpm']:.1f}"),
+        # a capture with several speeds (or both directions) shows each
+        ("speed rpm", lambda r: ", ".join(f"{v:g}" for v in sorted({round(w["speed_rpm"], 1)
+                                                                    for w in r["ripple"]["windows"]}))),
         ("T_avg N*m", lambda r: f"{r['T_avg_nm']:.4f}"),
         ("p-p raw %", lambda r: _fmt(r["ripple"]["raw_pct"], ".2f")),
         ("p-p filtered %", lambda r: _fmt(r["ripple"]["filtered_pct"], ".2f")),
