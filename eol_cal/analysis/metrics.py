@@ -2,8 +2,8 @@
 
 The definition of the peak-to-peak figure is in ``docs/metrics.md``; in short:
 
-- 60-degree units (one period of the 6th harmonic) are cut from the reconstructed angle
-  theta_r. A unit is steady when its mean speed and its mean i_qo stay within a tolerance of
+- Each direction of rotation is judged on its own. 60-degree units (one period of the 6th
+  harmonic) are cut from the reconstructed angle theta_r. A unit is steady when its mean speed and its mean i_qo stay within a tolerance of
   the first unit of the run it belongs to, and i_qo varies inside it by no more than that.
 - In each steady run the first ``settle_s`` is dropped; from there the run is cut into
   consecutive, non-overlapping windows of whole electrical revolutions: P/2 (one mechanical
