@@ -415,7 +415,8 @@ def reconstruct_angle(
     if within.sum() >= 2:
         t_h, hall_theta = t_h[within], hall_theta[within]
     # the interpolant itself at the (possibly exact, event) hall times; the samples outside
-    rel_h = np.where((t_h >= t_u[0]) & (t_h <= t_u[-1]), interp(np.clip(t_h, t_u[0], t_u[-1])), np.interp(t_h, t, p))
+    in_span = (t_h >= t_u[0]) & (t_h <= t_u[-1])
+    rel_h = np.where(in_span, interp(np.clip(t_h, t_u[0], t_u[-1])), np.interp(t_h, t, p))
     theta0 = float(np.angle(np.mean(np.exp(1j * (hall_theta - rel_h)))))
     resid = wrap_pi(hall_theta - rel_h - theta0)
     theta0 = float(wrap_pi(theta0 + np.mean(resid)))
