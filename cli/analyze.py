@@ -221,7 +221,8 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
 
         plot_captures(plot_file, plots)
     if as_json:
-        print_json({"schema": "eol-cal/analyze/1", "captures": reports, "errors": errors, "plot": plot_file if plots else None})
+        print_json({"schema": "eol-cal/analyze/1", "captures": reports, "errors": errors,
+                    "plot": plot_file if plots else None})
     elif reports:
         _print_table(reports)
         if plot_file:

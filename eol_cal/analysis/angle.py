@@ -505,7 +505,9 @@ class FirmwareAngleDifference:
     n_ticks: int
 
 
-def firmware_angle_difference(capture: Capture, angle: AngleResult | None = None, config=None) -> FirmwareAngleDifference:
+def firmware_angle_difference(
+    capture: Capture, angle: AngleResult | None = None, config=None
+) -> FirmwareAngleDifference:
     """Run the firmware's estimator over a capture and compare its angle with the offline one.
 
     Every sample is one estimator tick, so this is what the ECU sees when the capture was

@@ -3,8 +3,9 @@
 The definition of the peak-to-peak figure is in ``docs/metrics.md``; in short:
 
 - Each direction of rotation is judged on its own. 60-degree units (one period of the 6th
-  harmonic) are cut from the reconstructed angle theta_r. A unit is steady when its mean speed and its mean i_qo stay within a tolerance of
-  the first unit of the run it belongs to, and i_qo varies inside it by no more than that.
+  harmonic) are cut from the reconstructed angle theta_r. A unit is steady when its mean
+  speed and its mean i_qo stay within a tolerance of the first unit of the run it belongs
+  to, and i_qo varies inside it by no more than that.
 - In each steady run the first ``settle_s`` is dropped; from there the run is cut into
   consecutive, non-overlapping windows of whole electrical revolutions: P/2 (one mechanical
   revolution, the paper's 1 s scope view at 60 rpm) where the run holds that many, else as

@@ -132,7 +132,8 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
             s = row.spectrum
             ax_s.bar(s.orders, s.amplitude_nm, color=["tab:red" if n % 6 == 0 else "tab:blue" for n in s.orders])
             if np.isfinite(s.mech1_amplitude_nm):
-                ax_s.bar([2.0 / row.poles], [s.mech1_amplitude_nm], width=0.25, color="tab:purple", label="mech. order 1")
+                ax_s.bar([2.0 / row.poles], [s.mech1_amplitude_nm], width=0.25, color="tab:purple",
+                         label="mech. order 1")
                 ax_s.legend(fontsize=7)
             ax_s.set_yscale("log")
             ax_s.set_xlabel("electrical order")
