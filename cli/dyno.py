@@ -105,7 +105,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
 @click.command("dyno-sim")
 @click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT", help="Address to serve Modbus TCP on.")
 @click.option("--ecu-flash", type=click.Path(dir_okay=False, path_type=Path), default=None, help="The ECU simulator's flash file: its active bank sets the motor's compensation.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Motor variation seed (the plant's production tolerances).")
+@click.option("--seed", type=click.IntRange(0), default=None, help="Draw the motor from the plant's production tolerances with this seed (default: the preset motor as is).")
 @click.option("--serial", default="M-0001", show_default=True, help="Serial of the simulated motor.")
 @click.option("--source", type=click.Choice(["plant", "synthetic"]), default="plant", show_default=True, help="plant: the built-in JAX plant with the ECU's mode; synthetic: the analytic model (fast, no ECU).")
 @click.option("--fault", "faults", multiple=True, metavar="KIND[@capture:N|@read:N][/MS]", help="Inject a fault by itself: disconnect, over-speed or torque-sensor, at the N-th capture or window read (repeatable).")
@@ -132,6 +132,12 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
     motor = load_motor("paper")
     if source == "plant":
         from cli.fit import enable_jax_cache
+
+        if seed is not None:
+            try:
+                import eol_cal.plant.variation  # noqa: F401
+            except ImportError:
+                raise InputError(None, "--seed", "motor variation (eol_cal.plant.variation) is not available in this build") from None
 
         enable_jax_cache()
         capture_source = ds.plant_source()

@@ -223,11 +223,17 @@ def plant_source(spec_for: Callable[[SegmentRequest], object] | None = None) -> 
     return source
 
 
-def default_plant_spec(req: SegmentRequest):
-    """The plant's motor for a request: :class:`eol_cal.plant.params.PlantSpec` with its defaults."""
-    from eol_cal.plant.params import PlantSpec
+def default_plant_spec(req: SegmentRequest, preset: str = "paper"):
+    """The motor on the dyno: the plant preset, or with a seed a motor drawn from production
+    tolerances around it (:mod:`eol_cal.plant.variation`)."""
+    from eol_cal.plant.presets import preset_spec
 
-    return PlantSpec(serial=req.serial)
+    spec = preset_spec(preset, serial=req.serial)
+    if req.seed is None:
+        return spec
+    from eol_cal.plant import variation
+
+    return variation.vary(spec, req.seed)
 
 
 class DynoSim:
