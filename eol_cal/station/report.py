@@ -116,7 +116,9 @@ block layout {e(str(rec.get('layout_version')))}</p>
 
 
 def write_report(rec: dict[str, Any], run_dir: str | Path, *, fit_extra: Any = None, point_ripple: Any = None) -> Path:
-    """Write the plots, ``report.json`` and ``report.html`` into ``run_dir``; returns the HTML path.
+    """Write the plots and ``report.html`` into ``run_dir``; returns the HTML path.
+
+    ``report.json`` is written by :func:`write_record_json` once the record is final.
 
     Parameters
     ----------
@@ -131,10 +133,16 @@ def write_report(rec: dict[str, Any], run_dir: str | Path, *, fit_extra: Any = N
     """
     run_dir = Path(run_dir)
     figures = plots(run_dir, rec, fit_extra, point_ripple)
-    _write_text(run_dir / "report.json", json.dumps(rec, indent=2, allow_nan=False) + "\n")
     html_path = run_dir / "report.html"
     _write_text(html_path, render_html(rec, figures))
     return html_path
+
+
+def write_record_json(rec: dict[str, Any], run_dir: str | Path) -> Path:
+    """``report.json``: the final run record, the same document the database holds."""
+    path = Path(run_dir) / "report.json"
+    _write_text(path, json.dumps(rec, indent=2, allow_nan=False) + "\n")
+    return path
 
 
 def plot_lot(path: str | Path, records: list[dict[str, Any]], title: str = "") -> None:

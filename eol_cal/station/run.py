@@ -452,6 +452,12 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
             rec["reasons"] = rec["reasons"] + [f"report: {exc}"]
     rec["ended_at"] = _now()
     rec = _json_safe(rec)
+    try:
+        from eol_cal.station.report import write_record_json
+
+        write_record_json(rec, run_dir)
+    except Exception as exc:  # noqa: BLE001 - the database still gets it
+        rec["report_error"] = f"report.json: {type(exc).__name__}: {exc}"
     saved = _save(cfg, rec, progress)
     if "reraise" in state:
         raise state["reraise"]

@@ -1,0 +1,120 @@
+"""Limits per product variant: the fixture's two variants, every refusal, the verdict rules."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import pytest
+
+from eol_cal.errors import InputError
+from eol_cal.station.limits import LIMIT_KEYS, Measured, load_limits, parse_limits, verdict
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURE = ROOT / "fixtures" / "limits.toml"
+
+GOOD = """
+[variant.A]
+max_k6 = 0.002
+max_pp_before_pct = 10.0
+max_pp_after_pct = 1.0
+min_improvement_pct = 50.0
+min_r2 = 0.5
+max_rms_nm = 0.05
+max_ci_k6_rel = 0.05
+max_ci_phase_k6_deg = 3.0
+max_ci_c6_nm = 0.002
+"""
+
+# a motor as the demo measures it (k6 1.5 mN*m/A, 10.7 % -> 0.22 %)
+MOTOR = Measured(k6=1.5e-3, ci_k6=1.5e-5, ci_phase_k6_deg=0.64, ci_c6_nm=6.9e-4, r2=0.52, rms_nm=0.05,
+                 pp_before_pct=10.7, pp_after_pct=0.22)
+
+
+def test_fixture_has_two_variants_and_a_default():
+    std = load_limits(FIXTURE)
+    assert std.variant == "EPS-STD"
+    prem = load_limits(FIXTURE, "EPS-PREMIUM")
+    assert prem.max_pp_after_pct < std.max_pp_after_pct
+    assert prem.source == str(FIXTURE)
+    assert set(LIMIT_KEYS) <= set(std.to_dict())
+
+
+def test_same_data_passes_one_variant_and_fails_the_other():
+    std = load_limits(FIXTURE, "EPS-STD")
+    prem = load_limits(FIXTURE, "EPS-PREMIUM")
+    assert verdict(MOTOR, std) == ("pass", [])
+    v, reasons = verdict(MOTOR, prem)
+    assert v == "fail"
+    text = " ".join(reasons)
+    # the premium variant's k6, p-p before and fit-quality limits are what this motor misses
+    assert "max_k6" in text and "max_pp_before_pct" in text and "min_r2" in text
+    assert "max_pp_after_pct" not in text  # 0.22 % meets the premium 0.8 %
+
+
+def test_each_limit_fails_on_its_own():
+    lim = parse_limits(GOOD, "x.toml")["A"]
+    ok = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01,
+                  pp_before_pct=8.0, pp_after_pct=0.5)
+    assert verdict(ok, lim) == ("pass", [])
+    bad = {
+        "k6": 3e-3, "ci_k6": 1e-4, "ci_phase_k6_deg": 4.0, "ci_c6_nm": 0.01, "r2": 0.1, "rms_nm": 0.1,
+        "pp_before_pct": 12.0, "pp_after_pct": 1.5,
+    }
+    for key, value in bad.items():
+        m = Measured(**{**ok.__dict__, key: value})
+        v, reasons = verdict(m, lim)
+        assert v == "fail", key
+        assert len(reasons) >= 1, key
+    # improvement: 8 % -> 5 % is 37.5 %, below 50 % (after 5 % also exceeds 1 %)
+    m = Measured(**{**ok.__dict__, "pp_after_pct": 5.0})
+    assert math.isclose(m.improvement_pct, 37.5)
+    assert any("improvement" in r for r in verdict(m, lim)[1])
+
+
+def test_unmeasured_ripple_never_passes():
+    lim = parse_limits(GOOD, "x.toml")["A"]
+    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01)
+    v, reasons = verdict(m, lim)
+    assert v == "fail" and len(reasons) == 3  # before, after, improvement are NaN
+
+
+@pytest.mark.parametrize(
+    ("text", "field", "reason"),
+    [
+        (GOOD.replace("max_k6 = 0.002\n", ""), "variant.A.max_k6", "missing"),
+        (GOOD + "max_pp_afer_pct = 1.0\n", "variant.A.max_pp_afer_pct", "unknown key"),
+        (GOOD.replace("max_k6 = 0.002", 'max_k6 = "small"'), "variant.A.max_k6", "not a finite number"),
+        (GOOD.replace("max_k6 = 0.002", "max_k6 = true"), "variant.A.max_k6", "not a finite number"),
+        (GOOD.replace("max_k6 = 0.002", "max_k6 = nan"), "variant.A.max_k6", "not a finite number"),
+        (GOOD.replace("min_r2 = 0.5", "min_r2 = 2.0"), "variant.A.min_r2", "outside"),
+        (GOOD.replace("max_rms_nm = 0.05", "max_rms_nm = -1"), "variant.A.max_rms_nm", "outside"),
+        ("[variant.A\nmax_k6 = 1", None, "not valid TOML"),
+        ("max_k6 = 1\n", "max_k6", "unknown key"),
+        ("default_variant = 'A'\n", "variant", "no [variant.NAME]"),
+        ('default_variant = "B"\n' + GOOD, "default_variant", "not one of the variants"),
+        ("variant = 3\n", "variant", "no [variant.NAME]"),
+    ],
+)
+def test_bad_files_name_file_key_and_reason(tmp_path: Path, text: str, field: str | None, reason: str):
+    path = tmp_path / "limits.toml"
+    path.write_text(text)
+    with pytest.raises(InputError) as err:
+        load_limits(path)
+    assert err.value.file == str(path)
+    assert err.value.field == field
+    assert reason in err.value.reason
+
+
+def test_variant_choice(tmp_path: Path):
+    two = GOOD + GOOD.replace("[variant.A]", "[variant.B]")
+    path = tmp_path / "two.toml"
+    path.write_text(two)
+    with pytest.raises(InputError, match="choose one with --variant") as err:
+        load_limits(path)
+    assert err.value.field == "variant"
+    assert load_limits(path, "B").variant == "B"
+    with pytest.raises(InputError, match="'C' not in the file"):
+        load_limits(path, "C")
+    with pytest.raises(InputError, match="file not found"):
+        load_limits(tmp_path / "missing.toml")

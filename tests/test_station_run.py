@@ -1,0 +1,244 @@
+"""The end-of-line cycle on loopback: a real pymodbus dyno simulator on 127.0.0.1 backed by the
+plant, a real ECU simulator reached over python-can-remote on 127.0.0.1 (ISO-TP, UDS), SQLite.
+
+The full run uses a short profile (three load points, both directions) and a test variant whose
+interval and p-p-before limits suit it; the fault tests use the dyno's analytic capture source
+(no JAX plant) because they end before the ripple matters.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+import time
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal.dyno.registers import SimFault
+from eol_cal.dyno.sim import FaultPlan, synthetic_source
+from eol_cal.ecu import protocol as P
+from eol_cal.ecu.flash import active_block_from_file
+from eol_cal.firmware import block as B
+from eol_cal.station.demo import demo_motor_spec, loopback_station
+from eol_cal.station.limits import Measured, load_limits, verdict
+from eol_cal.station.records import query_records
+from eol_cal.station.run import sha256_file
+
+ROOT = Path(__file__).resolve().parents[1]
+
+PROFILE = """
+name = "station-test"
+description = "short end-of-line profile: two loads forward, one reverse"
+
+[[segment]]
+speed_rpm = 120.0
+iq = 20.0
+seconds = 0.8
+
+[[segment]]
+speed_rpm = 120.0
+iq = 65.0
+seconds = 0.9
+ramp_s = 0.1
+
+[[segment]]
+speed_rpm = -120.0
+iq = -65.0
+seconds = 1.1
+ramp_s = 0.3
+"""
+
+# TEST: the standard variant, with the c6 interval and p-p before that 2.4 s of capture at
+# 120 rpm give; TIGHT: the same motor must fail it on the compensated ripple alone.
+LIMITS = """
+default_variant = "TEST"
+
+[variant.TEST]
+max_k6 = 0.0025
+max_pp_before_pct = 25.0
+max_pp_after_pct = 2.0
+min_improvement_pct = 50.0
+min_r2 = 0.3
+max_rms_nm = 0.1
+max_ci_k6_rel = 0.05
+max_ci_phase_k6_deg = 3.0
+max_ci_c6_nm = 0.01
+
+[variant.TIGHT]
+max_k6 = 0.0025
+max_pp_before_pct = 25.0
+max_pp_after_pct = 0.05
+min_improvement_pct = 99.9
+min_r2 = 0.3
+max_rms_nm = 0.1
+max_ci_k6_rel = 0.05
+max_ci_phase_k6_deg = 3.0
+max_ci_c6_nm = 0.01
+"""
+
+SERIAL = "T-0001"
+SEED = 1  # demo motor 1: k6 = 1.51 mN*m/A
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("station")
+    (d / "profile.toml").write_text(PROFILE)
+    (d / "limits.toml").write_text(LIMITS)
+    (d / "key.hex").write_text(P.DEV_SECRET.hex())
+    return {"dir": d, "profile": d / "profile.toml", "limits": d / "limits.toml", "key": d / "key.hex"}
+
+
+def run_args(files: dict[str, Path], st, serial: str, db: Path, report_dir: Path, *extra: str) -> list[str]:
+    return ["run", "--dyno", st.dyno_address, "--interface", "remote", "--channel", st.can_channel,
+            "--limits", str(files["limits"]), "--db", str(db), "--serial", serial, "--profile", str(files["profile"]),
+            "--key-file", str(files["key"]), "--report-dir", str(report_dir), "--spool-dir", str(files["dir"] / "spool"),
+            "--json", *extra]
+
+
+def wait_stopped(sim, timeout: float = 3.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and sim.speed != 0.0:
+        time.sleep(0.02)
+
+
+@pytest.fixture(scope="module")
+def full_run(files):
+    """``eol-cal run`` once, end to end, on the plant."""
+    db = files["dir"] / "results.sqlite"
+    with loopback_station(SERIAL, SEED, files["dir"] / "sim") as st:
+        res = CliRunner().invoke(cli, run_args(files, st, SERIAL, db, files["dir"] / "reports"))
+        wait_stopped(st.dyno.sim)
+        sim_state = (st.dyno.sim.enabled, st.dyno.sim.setpoint, st.dyno.sim.speed)
+        flash = st.flash_file
+    assert res.exit_code in (0, 1, 2), res.output
+    doc = json.loads(res.stdout)
+    return {"res": res, "doc": doc, "rec": doc["record"], "db": db, "sim_state": sim_state, "flash": flash}
+
+
+def test_full_run_end_to_end(full_run):
+    rec, doc = full_run["rec"], full_run["doc"]
+    assert full_run["res"].exit_code == 0, (rec["verdict"], rec["reasons"], rec.get("error"))
+    assert rec["verdict"] == "pass" and rec["reasons"] == []
+    assert [s["step"] for s in rec["steps"]] == ["acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report"]
+    assert all(s["ok"] and s["seconds"] > 0 for s in rec["steps"])
+    # the fit found the plant motor's ripple
+    truth = demo_motor_spec(SEED, SERIAL)
+    assert abs(rec["fit"]["k6"]["value"] - truth.k6) < 0.05 * truth.k6
+    # the compensation the ECU now runs took the ripple down
+    m = rec["metrics"]
+    assert m["pp_after_pct"] < 0.25 * m["pp_before_pct"]
+    assert m["improvement_pct"] > 75
+    # the block in the ECU's active bank is the one recorded, for this motor
+    active = active_block_from_file(full_run["flash"])
+    blk = B.unpack(active, "active")
+    assert blk.serial == SERIAL and blk.flags & B.FLAG_COMP_ENABLE
+    assert f"{B.check(active).crc_stored:08x}" == rec["block"]["crc32"]
+    assert blk.sequence == rec["block"]["sequence"] == 1
+    # captures on disk with the recorded hashes
+    for which in ("before", "after"):
+        c = rec["captures"][which]
+        assert sha256_file(c["path"]) == c["sha256"] and c["samples"] > 20000
+    # the record is in the database (WAL), identical to the report's JSON
+    assert doc["saved"]["where"] == "db"
+    (stored,) = query_records(full_run["db"], serial=SERIAL)
+    assert stored == rec
+    con = sqlite3.connect(full_run["db"])
+    assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    con.close()
+    run_dir = Path(rec["report_dir"])
+    assert json.loads((run_dir / "report.json").read_text()) == rec
+    html = (run_dir / "report.html").read_text()
+    for png in ("fit.png", "residual.png", "ripple.png"):
+        assert f'src="{png}"' in html
+        assert (run_dir / png).read_bytes()[:4] == b"\x89PNG"
+    assert "PASS" in html and SERIAL in html
+    assert rec["tool_version"] and rec["layout_version"] == B.LAYOUT_VERSION
+    # the dyno is left stopped and disabled
+    assert full_run["sim_state"] == (False, 0.0, 0.0)
+
+
+def test_same_run_passes_one_variant_and_fails_another(full_run, files):
+    rec = full_run["rec"]
+    f = rec["fit"]
+    m = Measured(k6=f["k6"]["value"], ci_k6=f["k6"]["ci95"], ci_phase_k6_deg=math.degrees(f["phase_k6"]["ci95"]),
+                 ci_c6_nm=max(f["c6"]["ci95"], f["c6"]["value"] * f["phase_c6"]["ci95"]), r2=f["fit"]["r2"],
+                 rms_nm=f["fit"]["rms"], pp_before_pct=rec["metrics"]["pp_before_pct"],
+                 pp_after_pct=rec["metrics"]["pp_after_pct"])
+    assert verdict(m, load_limits(files["limits"], "TEST")) == ("pass", [])
+    v, reasons = verdict(m, load_limits(files["limits"], "TIGHT"))
+    assert v == "fail"
+    assert any("max_pp_after_pct" in r for r in reasons) and any("min_improvement_pct" in r for r in reasons)
+    # and the repository's fixture: the premium variant refuses this motor's k6
+    v, reasons = verdict(m, load_limits(ROOT / "fixtures" / "limits.toml", "EPS-PREMIUM"))
+    assert v == "fail" and any("max_k6" in r for r in reasons)
+
+
+@pytest.mark.parametrize(("fault", "at_capture", "failed_step"), [
+    (SimFault.OVER_SPEED, 2, "acquire"),
+    (SimFault.TORQUE_SENSOR, 5, "acquire compensated"),  # 3 segments before, the 2nd of the compensated run
+])
+def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_locked(files, tmp_path, fault, at_capture,
+                                                                                    failed_step):
+    db = tmp_path / "results.sqlite"
+    spool = files["dir"] / "spool"
+    serial = f"F-{int(fault)}"
+    with loopback_station(serial, 7, tmp_path / "sim", source=synthetic_source,
+                          faults=(FaultPlan(fault, "capture", at_capture),)) as st:
+        CliRunner().invoke(cli, ["records", "--db", str(db)])  # nothing yet
+        sqlite3.connect(db).execute("PRAGMA journal_mode=WAL").connection.close()
+        holder = sqlite3.connect(db, isolation_level=None)
+        holder.execute("BEGIN EXCLUSIVE")  # another process holds the database for the whole run
+        try:
+            res = CliRunner().invoke(cli, run_args(files, st, serial, db, tmp_path / "reports", "--db-timeout", "0.2"))
+        finally:
+            holder.execute("ROLLBACK")
+            holder.close()
+        wait_stopped(st.dyno.sim)
+        sim = st.dyno.sim
+        assert not sim.enabled and sim.setpoint == 0.0 and sim.speed == 0.0
+    assert res.exit_code == 2, res.output
+    doc = json.loads(res.stdout)
+    rec = doc["record"]
+    assert rec["verdict"] == "error" and rec["error"]["step"] == failed_step
+    assert "fault" in rec["error"]["message"] and "speed set to 0 and drive disabled" in rec["error"]["message"]
+    assert rec["safe_state"].startswith("speed 0, drive disabled")
+    assert rec["steps"][-2]["step"] == failed_step and not rec["steps"][-2]["ok"]
+    # no capture of the failed acquisition was saved as good
+    which = "before" if failed_step == "acquire" else "after"
+    assert which not in rec["captures"]
+    assert not (Path(rec["report_dir"]) / f"{which}.mf4").exists()
+    if failed_step == "acquire compensated":
+        assert rec["block"]["crc32"] is not None  # it had been flashed; the ECU keeps it
+    # the locked database: the record waited in the spool; the next command writes it in
+    assert doc["saved"]["where"] == "spool"
+    assert Path(doc["saved"]["path"]).exists()
+    res = CliRunner().invoke(cli, ["records", "--db", str(db), "--flush", "--spool-dir", str(spool), "--json"])
+    assert res.exit_code == 0, res.output
+    (stored,) = json.loads(res.stdout)["records"]
+    assert stored == rec
+    assert not Path(doc["saved"]["path"]).exists()
+
+
+def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
+    runner = CliRunner()
+    base = ["run", "--dyno", "127.0.0.1:1", "--interface", "virtual", "--channel", "x", "--db", str(tmp_path / "r.sqlite"),
+            "--serial", "S-1", "--key-file", str(files["key"]), "--report-dir", str(tmp_path / "rep")]
+    bad = tmp_path / "bad.toml"
+    bad.write_text(LIMITS.replace("max_k6 = 0.0025\nmax_pp_before_pct = 25.0\nmax_pp_after_pct = 2.0", "max_pp_after_pct = 2.0", 1))
+    res = runner.invoke(cli, base + ["--limits", str(bad)])
+    assert res.exit_code == 2 and "variant.TEST.max_k6" in res.output and str(bad) in res.output
+    res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--variant", "NOPE"])
+    assert res.exit_code == 2 and "'NOPE' not in the file" in res.output
+    res = runner.invoke(cli, [a for a in base if a not in ("--key-file", str(files["key"]))] + ["--limits", str(files["limits"])],
+                        env={"EOL_CAL_KEY_FILE": ""})
+    assert res.exit_code == 2 and "key-file" in res.output
+    res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--serial", "S" * 17])
+    assert res.exit_code == 2 and "16 ASCII" in res.output
+    res = runner.invoke(cli, base[:2] + ["nohost"] + base[3:] + ["--limits", str(files["limits"])])
+    assert res.exit_code == 2 and "HOST:PORT" in res.output
+    assert not (tmp_path / "r.sqlite").exists() and not (tmp_path / "rep").exists()
