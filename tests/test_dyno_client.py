@@ -133,3 +133,22 @@ def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path):
     # the same windows come back from the time gaps alone
     no_meta = type(back)(back.t, back.channels, {k: v for k, v in back.metadata.items() if k != "segment_starts"})
     assert [len(w.t) for w in split_windows(no_meta)] == [len(w.t) for w in windows]
+
+
+def test_stuck_heartbeat_stops_the_run(tmp_path: Path):
+    holder: dict = {}
+
+    def hangs_at_second_capture(req):
+        if req.capture_index == 2:
+            holder["sim"].heartbeat_frozen = 1234  # the dyno's controller hangs; Modbus still answers
+            time.sleep(1.5)  # ... and the capture never gets ready in time
+        return synthetic_source(req)
+
+    sim = DynoSim(hangs_at_second_capture)
+    holder["sim"] = sim
+    out = tmp_path / "capture.mf4"
+    with DynoSimThread(sim) as th:
+        with pytest.raises(DynoError, match="heartbeat stuck at 1234"):
+            acquire(config(th.port), PROFILE, out)
+        _assert_safe(sim)
+    assert not list(tmp_path.iterdir())

@@ -29,6 +29,8 @@ from eol_cal.errors import EolCalError, InputError
 #: channels read by default (the packed digital channel is always read); the others on request
 DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
 EXTRA_CHANNELS = ("temp", "iq", "id", "ia", "ib", "ic")
+#: a heartbeat that does not change for this long means the dyno's controller stopped (s)
+HEARTBEAT_STALL_S = 1.0
 #: least gap between two windows in the joined capture (sample periods): a simulator captures
 #: faster than real time, and a gap must stay visible to anyone who splits at gaps in ``t``
 WINDOW_GAP_SAMPLES = 100
@@ -170,6 +172,7 @@ class DynoClient:
         self.config = config
         self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
         self.reconnects = 0
+        self._heartbeat = (-1, time.monotonic())
 
     # ------------------------------------------------------------ transport
     @property
@@ -236,7 +239,14 @@ class DynoClient:
                 run.append(reg)
 
     def status(self) -> dict[str, float | int | str]:
-        return self.read_block("speed", "capture_seq")
+        """The status block; raises when the dyno's heartbeat stopped for ``HEARTBEAT_STALL_S``."""
+        st = self.read_block("speed", "capture_seq")
+        now = time.monotonic()
+        if st["heartbeat"] != self._heartbeat[0]:
+            self._heartbeat = (int(st["heartbeat"]), now)
+        elif now - self._heartbeat[1] > HEARTBEAT_STALL_S:
+            raise DynoError(f"{self.where}: dyno controller not running (heartbeat stuck at {st['heartbeat']} for {now - self._heartbeat[1]:.1f} s)")
+        return st
 
     def check_faults(self, st: dict, what: str) -> None:
         faults = int(st["faults"])

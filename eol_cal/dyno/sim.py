@@ -316,6 +316,8 @@ class DynoSim:
         self.log: list[tuple[float, str, float | int | str]] = []
 
         self._t0 = time.monotonic()
+        #: a value here freezes the heartbeat (a hung dyno controller), for tests
+        self.heartbeat_frozen: int | None = None
         self._t_last = self._t0
         self._last_request = self._t0
         self._capture_job: asyncio.Future | None = None
@@ -503,7 +505,7 @@ class DynoSim:
             "capture_state": int(self.capture_state),
             "capture_count": self.buffer_count if self.capture_state == CaptureState.READY else 0,
             "capture_channels": mask,
-            "heartbeat": int((time.monotonic() - self._t0) * 100) & 0xFFFF,
+            "heartbeat": self.heartbeat_frozen if self.heartbeat_frozen is not None else int((time.monotonic() - self._t0) * 100) & 0xFFFF,
             "capture_seq": self.capture_seq,
         }
 
