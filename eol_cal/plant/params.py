@@ -1,0 +1,236 @@
+"""Parameters of one simulated bench: the motor as built, its sensors, the dyno.
+
+:class:`PlantSpec` is the human-readable description (units in the names' docs); it is what a
+preset or :mod:`eol_cal.plant.variation` produces and what goes into a capture's ``truth.*``.
+:class:`PlantParams` is the same bench as float32 arrays with the per-tick coefficients
+precomputed, the pytree the scan closes over (batched along a leading axis for a lot of motors).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from eol_cal.motor import MotorParams, load_motor
+from eol_cal.plant import dyno, motor as motor_model, ripple
+
+
+
+@dataclass(frozen=True)
+class PlantSpec:
+    """One motor on the bench, as built (truth), plus its bench.
+
+    Attributes
+    ----------
+    motor : MotorParams
+        Nominal data sheet values (seed Table I); the ECU's controller is tuned on these.
+    serial : str
+        Motor serial number.
+    R_s_scale : float
+        Production spread of the winding resistance, multiplies ``motor.R_s`` (1).
+    temp_degC : float
+        Winding temperature during the test (degC); R_s follows ``motor.R_s_at``.
+    c6, phase_c6 : float
+        Cogging 6th harmonic amplitude (N*m) and phase (rad).
+    k6, phase_k6 : float
+        Load-proportional 6th harmonic coefficient (N*m/A) and phase (rad).
+    c12, phase_c12, k12, phase_k12, c18, phase_c18, k18, phase_k18 : float
+        Higher multiples of 6, same meaning (N*m, rad, N*m/A, rad).
+    unb1, phase_unb1 : float
+        Mechanical order-1 unbalance torque (N*m) and phase (rad, mechanical).
+    enc_edge_err_deg : tuple of float
+        Placement error of each of the ``N_enc`` encoder pulses (mechanical degrees); empty = 0.
+    grid_offset_deg : float
+        Mechanical angle of pulse 0's nominal rising edge (mechanical degrees).
+    hall_err_deg : tuple of 6 float
+        Switching-point errors of the halls (electrical degrees): U rise, U fall, V rise,
+        V fall, W rise, W fall (as seen in forward rotation).
+    tq_bw_hz, tq_noise_nm, tq_lsb_nm : float
+        Torque transducer bandwidth (Hz), noise (N*m rms), ADC resolution (N*m).
+    i_noise_a, i_lsb_a : float
+        Phase-current sensor noise (A rms) and ADC resolution (A).
+    J_dyno, K_shaft, shaft_zeta, dyno_bw_hz : float
+        Dyno inertia (kg*m^2), shaft stiffness (N*m/rad), damping ratio of the torsion mode (1),
+        dyno speed-loop bandwidth (Hz).
+    dead_time_s : float
+        Inverter dead time (s); 0 switches the dead-time model off.
+    """
+
+    motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
+    serial: str = "SIM-0001"
+    R_s_scale: float = 1.0
+    temp_degC: float = 70.0
+    c6: float = 0.0
+    phase_c6: float = 0.0
+    k6: float = 0.0
+    phase_k6: float = 0.0
+    c12: float = 0.0
+    phase_c12: float = 0.0
+    k12: float = 0.0
+    phase_k12: float = 0.0
+    c18: float = 0.0
+    phase_c18: float = 0.0
+    k18: float = 0.0
+    phase_k18: float = 0.0
+    unb1: float = 0.0
+    phase_unb1: float = 0.0
+    enc_edge_err_deg: tuple[float, ...] = ()
+    grid_offset_deg: float = 0.0
+    hall_err_deg: tuple[float, ...] = (0.0,) * 6
+    tq_bw_hz: float = 2000.0
+    tq_noise_nm: float = 0.0
+    tq_lsb_nm: float = 1e-4
+    i_noise_a: float = 0.0
+    i_lsb_a: float = 0.05
+    J_dyno: float = 0.02
+    K_shaft: float = 2000.0
+    shaft_zeta: float = 0.3
+    dyno_bw_hz: float = 5.0
+    dead_time_s: float = 0.0
+
+    def replace(self, **changes) -> "PlantSpec":
+        return dataclasses.replace(self, **changes)
+
+    @property
+    def R_s_true(self) -> float:
+        """Winding resistance during the test (ohm)."""
+        return self.R_s_scale * self.motor.R_s_at(self.temp_degC)
+
+    def without_ripple(self) -> "PlantSpec":
+        """The same bench with every ripple source set to zero (for torque-balance checks)."""
+        zero = {n: 0.0 for n in ("c6", "k6", "c12", "k12", "c18", "k18", "unb1")}
+        return self.replace(**zero)
+
+    def ripple_harmonics(self) -> tuple[tuple[int, float, float, float, float], ...]:
+        """Higher multiples of 6 as ``(order, c, phase_c, k, phase_k)`` (compensator format)."""
+        return ((12, self.c12, self.phase_c12, self.k12, self.phase_k12),
+                (18, self.c18, self.phase_c18, self.k18, self.phase_k18))
+
+    def truth(self) -> dict[str, str | int | float]:
+        """Everything a test may judge a result against (keys without the ``truth.`` prefix)."""
+        out: dict[str, str | int | float] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("motor", "serial"):
+                continue
+            if isinstance(value, tuple):
+                out[f.name] = " ".join(f"{v:.6g}" for v in value)
+            else:
+                out[f.name] = float(value)
+        out["R_s"] = self.R_s_true
+        out["kt"] = self.motor.kt
+        out["transducer_delay_s"] = 1.0 / (2.0 * math.pi * self.tq_bw_hz)
+        out["transducer_bw_hz"] = self.tq_bw_hz
+        out["motor_preset"] = self.motor.name
+        return out
+
+
+class PlantParams(NamedTuple):
+    """Float32 arrays the scan reads (leading batch axis when vmapped). Units as in PlantSpec."""
+
+    # motor, exact R-L coefficients over one tick
+    a_d: np.ndarray
+    b_d: np.ndarray
+    a_q: np.ndarray
+    b_q: np.ndarray
+    L_d: np.ndarray
+    L_q: np.ndarray
+    psi_f: np.ndarray
+    J: np.ndarray
+    B: np.ndarray
+    # ripple: sin/cos coefficients (see ripple.coefficients)
+    s6c: np.ndarray
+    c6c: np.ndarray
+    s6k: np.ndarray
+    c6k: np.ndarray
+    s12c: np.ndarray
+    c12c: np.ndarray
+    s12k: np.ndarray
+    c12k: np.ndarray
+    s18c: np.ndarray
+    c18c: np.ndarray
+    s18k: np.ndarray
+    c18k: np.ndarray
+    s1u: np.ndarray
+    c1u: np.ndarray
+    # sensors (eol_cal.firmware.kinematics.SensorErrors fields)
+    edge_error: np.ndarray    # (N_enc,) rad mechanical
+    hall_offset: np.ndarray   # (3, 2) rad electrical
+    grid_offset: np.ndarray   # rad mechanical
+    tq_gain: np.ndarray
+    tq_noise_nm: np.ndarray
+    tq_lsb_nm: np.ndarray
+    i_noise_a: np.ndarray
+    i_lsb_a: np.ndarray
+    # inverter
+    u_dc: np.ndarray
+    u_dead: np.ndarray
+    # dyno
+    J_dyno: np.ndarray
+    K_shaft: np.ndarray
+    D_shaft: np.ndarray
+    Kp_dyno: np.ndarray
+    Ki_dyno: np.ndarray
+    # ECU (nominal motor data, as the firmware has them)
+    Kp_d: np.ndarray
+    Kp_q: np.ndarray
+    Ki_d: np.ndarray
+    Ki_q: np.ndarray
+    L_d_nom: np.ndarray
+    L_q_nom: np.ndarray
+    psi_f_nom: np.ndarray
+    # compensator block
+    table_const: np.ndarray
+    table_per_amp: np.ndarray
+    lead_s: np.ndarray
+    iqc_limit: np.ndarray
+
+
+def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarray,
+              lead_s: float, iqc_limit: float) -> PlantParams:
+    """Float32 parameters of one bench, with the ECU's gains and the compensation tables."""
+    m = spec.motor
+    dt = 1.0 / m.f_pwm
+    R = spec.R_s_true
+    a_d, b_d = motor_model.rl_coefficients(R, m.L_d, dt, np)
+    a_q, b_q = motor_model.rl_coefficients(R, m.L_q, dt, np)
+    J_total = m.J + spec.J_dyno
+    Kp_dyno, Ki_dyno = dyno.speed_gains(J_total, spec.dyno_bw_hz)
+    w_c = 2.0 * math.pi * m.current_bw_hz
+    edge = np.zeros(m.N_enc) if not spec.enc_edge_err_deg else np.radians(spec.enc_edge_err_deg)
+    if edge.shape != (m.N_enc,):
+        raise ValueError(f"enc_edge_err_deg needs {m.N_enc} values, got {edge.shape}")
+    hall = np.radians(np.asarray(spec.hall_err_deg, dtype=float)).reshape(3, 2)
+    values = dict(
+        a_d=a_d, b_d=b_d, a_q=a_q, b_q=b_q, L_d=m.L_d, L_q=m.L_q, psi_f=m.psi_f, J=m.J, B=m.B,
+        **ripple.coefficients(spec),
+        edge_error=edge, hall_offset=hall, grid_offset=math.radians(spec.grid_offset_deg),
+        tq_gain=1.0 - math.exp(-2.0 * math.pi * spec.tq_bw_hz * dt),
+        tq_noise_nm=spec.tq_noise_nm, tq_lsb_nm=spec.tq_lsb_nm,
+        i_noise_a=spec.i_noise_a, i_lsb_a=spec.i_lsb_a,
+        u_dc=m.u_dc, u_dead=m.u_dc * spec.dead_time_s * m.f_pwm,
+        J_dyno=spec.J_dyno, K_shaft=spec.K_shaft,
+        D_shaft=dyno.shaft_damping(spec.K_shaft, m.J, spec.J_dyno, spec.shaft_zeta),
+        Kp_dyno=Kp_dyno, Ki_dyno=Ki_dyno,
+        # Internal-model tuning: the PI zero cancels the R-L pole, the loop crosses at w_c.
+        Kp_d=w_c * m.L_d, Kp_q=w_c * m.L_q, Ki_d=w_c * m.R_s, Ki_q=w_c * m.R_s,
+        L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
+        table_const=table_const, table_per_amp=table_per_amp, lead_s=lead_s, iqc_limit=iqc_limit,
+    )
+    return PlantParams(**{k: np.asarray(v, dtype=np.float32) for k, v in values.items()})
+
+
+def sensor_errors(p: PlantParams):
+    """The kinematic sensor model's error record of these parameters."""
+    from eol_cal.firmware.kinematics import SensorErrors
+
+    return SensorErrors(p.edge_error, p.hall_offset, p.grid_offset)
+
+
+def stack_params(params: list[PlantParams]) -> PlantParams:
+    """Stack benches along a new leading axis (a lot of motors for ``vmap``)."""
+    return PlantParams(*(np.stack(fields) for fields in zip(*params)))

@@ -1,0 +1,73 @@
+"""Torque ripple sources of the motor (contract section 2 sign convention).
+
+The electromagnetic torque the rotor sees is ``kt*i_q - ripple`` with
+
+    ripple = c6*sin(6*theta_r + phase_c6) + k6*i_q*sin(6*theta_r + phase_k6)
+           + c12*sin(12*theta_r + phase_c12) + k12*i_q*sin(12*theta_r + phase_k12)
+           + c18*sin(18*theta_r + phase_c18) + k18*i_q*sin(18*theta_r + phase_k18)
+           + unb1*sin(theta_m + phase_unb1)
+
+so that the measured torque reads ``T_avg - c6 sin(6θ+φc) - k6 i_qo sin(6θ+φk) - ...`` exactly as
+the contract's ripple model (seed eq. 17 with phases and a cogging term). The load-proportional
+terms scale with the motor's actual q current: saturation follows the current that flows, and at
+steady state that is the commanded i_qo (plus the small i_qc when compensating).
+
+For speed the scan never calls ``sin`` per harmonic: ``c*sin(n*theta + phi)`` is
+``(c*cos phi)*sin(n*theta) + (c*sin phi)*cos(n*theta)`` with the coefficients precomputed
+(:func:`coefficients`) and ``sin/cos(n*theta)`` from powers of the unit phasor ``e^{j*theta}``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+#: Ripple harmonics of the electrical angle (orders) in the coefficient layout.
+ORDERS = (6, 12, 18)
+
+
+def coefficients(spec: Any) -> dict[str, float]:
+    """Sine/cosine coefficients of every ripple term of a PlantSpec (N*m and N*m/A).
+
+    Keys ``s6c, c6c`` (cogging: coefficient of sin and cos of 6*theta, N*m), ``s6k, c6k``
+    (per ampere of i_q, N*m/A), likewise for 12 and 18, and ``s1u, c1u`` for the unbalance.
+    """
+    out: dict[str, float] = {}
+    for n in ORDERS:
+        c, pc = getattr(spec, f"c{n}"), getattr(spec, f"phase_c{n}")
+        k, pk = getattr(spec, f"k{n}"), getattr(spec, f"phase_k{n}")
+        out[f"s{n}c"], out[f"c{n}c"] = c * math.cos(pc), c * math.sin(pc)
+        out[f"s{n}k"], out[f"c{n}k"] = k * math.cos(pk), k * math.sin(pk)
+    out["s1u"], out["c1u"] = spec.unb1 * math.cos(spec.phase_unb1), spec.unb1 * math.sin(spec.phase_unb1)
+    return out
+
+
+def harmonic_phasors(cos_r: Any, sin_r: Any) -> tuple[tuple[Any, Any], ...]:
+    """``(cos, sin)`` of 6, 12 and 18 times the electrical angle from its own cos and sin."""
+    c2, s2 = cos_r * cos_r - sin_r * sin_r, 2.0 * sin_r * cos_r
+    c3, s3 = c2 * cos_r - s2 * sin_r, s2 * cos_r + c2 * sin_r
+    c6, s6 = c3 * c3 - s3 * s3, 2.0 * s3 * c3
+    c12, s12 = c6 * c6 - s6 * s6, 2.0 * s6 * c6
+    c18, s18 = c12 * c6 - s12 * s6, s12 * c6 + c12 * s6
+    return (c6, s6), (c12, s12), (c18, s18)
+
+
+def ripple_torque(cos_r: Any, sin_r: Any, cos_m: Any, sin_m: Any, i_q: Any, p: Any) -> Any:
+    """Ripple torque to subtract from ``kt*i_q`` (N*m).
+
+    Parameters
+    ----------
+    cos_r, sin_r : array
+        Cosine and sine of the actual electrical angle theta_r.
+    cos_m, sin_m : array
+        Cosine and sine of the actual mechanical angle theta_m (order-1 unbalance).
+    i_q : array
+        Actual q-axis current (A).
+    p : PlantParams or mapping-like
+        The coefficients of :func:`coefficients` as attributes.
+    """
+    (c6, s6), (c12, s12), (c18, s18) = harmonic_phasors(cos_r, sin_r)
+    total = (p.s6c + p.s6k * i_q) * s6 + (p.c6c + p.c6k * i_q) * c6
+    total = total + (p.s12c + p.s12k * i_q) * s12 + (p.c12c + p.c12k * i_q) * c12
+    total = total + (p.s18c + p.s18k * i_q) * s18 + (p.c18c + p.c18k * i_q) * c18
+    return total + p.s1u * sin_m + p.c1u * cos_m

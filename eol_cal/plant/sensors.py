@@ -1,0 +1,45 @@
+"""Measurement chain of the bench and the ECU: torque transducer, phase-current sensors.
+
+The encoder and hall levels come from the firmware reference's kinematic signal model
+(:func:`eol_cal.firmware.kinematics.encoder_hall_signals`, the same edge-placement and
+hall-mounting error model the estimator is tested against), sampled every tick at the rotor's
+actual angle by :mod:`eol_cal.plant.simulate`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+
+def lowpass_gain(bw_hz: Any, dt: float, xp: Any) -> Any:
+    """Per-tick gain of an exact first-order low-pass with corner ``bw_hz`` (Hz)."""
+    return 1.0 - xp.exp(-2.0 * math.pi * bw_hz * dt)
+
+
+def quantise(x: Any, lsb: Any, xp: Any) -> Any:
+    """An ADC's mid-tread quantisation to steps of ``lsb`` (same unit as ``x``)."""
+    return xp.round(x / lsb) * lsb
+
+
+def transducer_step(y: Any, T_shaft: Any, noise: Any, p: Any, xp: Any) -> tuple[Any, Any]:
+    """Torque transducer: first-order bandwidth, additive noise, ADC resolution.
+
+    Parameters
+    ----------
+    y : filtered state (N*m); T_shaft : shaft torque (N*m); noise : a standard normal draw;
+    p : PlantParams with ``tq_gain`` (from :func:`lowpass_gain`), ``tq_noise_nm`` (N*m rms),
+    ``tq_lsb_nm`` (N*m).
+
+    Returns
+    -------
+    (new state, reading) both N*m.
+    """
+    y = y + p.tq_gain * (T_shaft - y)
+    return y, quantise(y + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
+
+
+def current_reading(i_x: Any, noise: Any, p: Any, xp: Any) -> Any:
+    """A phase-current sensor with noise ``i_noise_a`` (A rms) and ADC step ``i_lsb_a`` (A)."""
+    return quantise(i_x + p.i_noise_a * noise, p.i_lsb_a, xp)
+

@@ -1,0 +1,1 @@
+"""Built-in test profiles (TOML), see :mod:`eol_cal.plant.profile`."""
