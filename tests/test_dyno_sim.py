@@ -3,7 +3,6 @@ it, and the ECU's flash file decides what the motor on the dyno runs."""
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from pathlib import Path
 

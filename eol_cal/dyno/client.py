@@ -17,7 +17,7 @@ import asyncio
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -156,6 +156,15 @@ class SegmentData:
 
 ProgressFn = Callable[[str, float, float], None]  # (what, done, total)
 
+#: what the dyno means by each Modbus exception code (docs/dyno.md, "Encoding")
+_EXCEPTION_MEANING = {
+    1: "illegal function",
+    2: "illegal data address: read-only register, part of a value or a gap in the map",
+    3: "illegal data value: out of range or not allowed in the dyno's present state",
+    4: "device failure",
+    6: "device busy",
+}
+
 
 class DynoClient:
     """A connection to one dyno; see the module doc for the sequence.
@@ -203,7 +212,8 @@ class DynoClient:
                 continue
             if response.isError():
                 code = getattr(response, "exception_code", None)
-                raise DynoError(f"{self.where}: {what} refused (Modbus exception {code})")
+                why = _EXCEPTION_MEANING.get(code, "")
+                raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
             return response
         raise DynoError(f"{self.where}: {what} failed after {self.config.retries + 1} attempts: {last}")
 
