@@ -67,3 +67,13 @@ def draw_motor(seed: int, base: PlantSpec | None = None, serial: str | None = No
         hall_err_deg=tuple(float(v) for v in np.degrees(np.asarray(err.hall_offset).ravel())),
         grid_offset_deg=float(np.degrees(err.grid_offset)),
     )
+
+
+def vary(base: PlantSpec, seed: int) -> PlantSpec:
+    """:func:`draw_motor` around ``base``, keeping its serial (the dyno simulator's call)."""
+    return draw_motor(seed, base, serial=base.serial)
+
+
+def draw_spec(seed: int, serial: str | None = None) -> PlantSpec:
+    """:func:`draw_motor` around the ``paper`` bench (the station demo's call)."""
+    return draw_motor(seed, serial=serial)
