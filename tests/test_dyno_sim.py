@@ -155,3 +155,40 @@ def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
         req = capture_once()
         assert req.mode == "estimated" and req.block.sequence == 2
     assert [r.capture_index for r in seen] == [1, 2, 3, 4]
+
+
+def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
+    """The plant behind the dyno runs the block the ECU's flash holds: raw without a valid bank,
+    compensated with the block made from the motor's true ripple once it is programmed."""
+    from eol_cal.analysis.angle import capture_angle
+    from eol_cal.analysis.spectrum import capture_spectrum
+    from eol_cal.ecu.flash import NorFlash
+    from eol_cal.dyno.sim import plant_source
+    from eol_cal.plant.presets import preset_spec
+    from eol_cal.plant.simulate import true_block
+
+    flash_file = tmp_path / "ecu.flash"
+    flash = NorFlash(flash_file)
+    spec = preset_spec("paper", serial="M-PLANT")
+    sim = DynoSim(plant_source(lambda req: spec), serial="M-PLANT", flash_file=flash_file)
+    seg = DynoSegment(60.0, 0.5, iq=65.0, ramp_rpm_s=5000.0)
+
+    def sixth(n: int = 5000) -> float:
+        c = DynoClient(DynoConfig(port=th.port, timeout=2.0, retries=1, capture_timeout=120.0))
+        c.connect()
+        c.set_point(seg)
+        c.capture(n, 10000)
+        chans = c.read_buffer(["torque", "iq_ref"], n)
+        c.safe_state()
+        c.close()
+        from eol_cal.capture.model import Capture
+
+        cap = Capture(np.arange(n) / 10000.0, chans, {"serial": "M-PLANT", "poles": 6, "encoder_ppr": 64})
+        return capture_spectrum(cap, capture_angle(cap)).amplitude(6)
+
+    with DynoSimThread(sim) as th:
+        raw = sixth()
+        flash.program(0, 0, B.pack(true_block(spec)))
+        compensated = sixth()
+    assert raw > 0.03  # k6*i_qo = 0.040 N*m plus cogging
+    assert compensated < 0.2 * raw
