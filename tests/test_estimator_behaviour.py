@@ -107,7 +107,7 @@ def test_creep_1_rpm_is_measured_not_standstill():
     assert np.max(np.abs(_err_deg(out.theta_hat, truth)[mid])) < DELTA_DEG / 4 / 2 + 3.0
 
 
-@pytest.mark.parametrize("name", ["estimator_standstill_restart.csv", "estimator_standstill_restart_best.csv"])
+@pytest.mark.parametrize("name", ["estimator_standstill_restart.csv", "estimator_standstill_restart_all.csv"])
 def test_standstill_and_restart(name):
     a, b, h, out, truth, omega = _run(name)
     cfg = G.SCENARIOS[name].cfg
@@ -132,7 +132,7 @@ def test_standstill_and_restart(name):
 def test_stop_overshoot_paper_vs_clamp():
     """The paper's prediction runs on at the last speed until standstill; improvement 1 does not."""
     _, _, _, paper, truth, _ = _run("estimator_standstill_restart.csv")
-    _, _, _, best, _, _ = _run("estimator_standstill_restart_best.csv")
+    _, _, _, best, _, _ = _run("estimator_standstill_restart_all.csv")
     stop = slice(2000, 5000)  # decelerating and at rest
     e_paper = np.max(np.abs(_err_deg(paper.theta_hat, truth)[stop]))
     e_best = np.max(np.abs(_err_deg(best.theta_hat, truth)[stop]))
@@ -244,7 +244,8 @@ def test_config_validation_and_flags():
     with pytest.raises(ValueError):
         E.EstimatorConfig.paper(standstill_s=1e5)
     assert E.EstimatorConfig.paper().flags == 0
-    assert E.EstimatorConfig.best().flags == 0xF
+    assert E.EstimatorConfig.best().flags == 0xB
+    assert E.EstimatorConfig.all_improvements().flags == 0xF
     assert E.EstimatorConfig.paper(learn_grid_offset=True).flags == E.FLAG_LEARN_GRID_OFFSET
 
 

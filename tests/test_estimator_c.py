@@ -87,7 +87,7 @@ def test_checked_in_vectors_are_the_python_reference(name):
 
 def test_fast_numpy_loop_is_the_numpy_step():
     """E.run's scalar fast path computes exactly what step(xp=numpy) computes."""
-    cfg = E.EstimatorConfig.best(standstill_s=0.05)
+    cfg = E.EstimatorConfig.all_improvements(standstill_s=0.05)
     a, b, h = (x[:2500] for x in G.SCENARIOS["estimator_standstill_restart.csv"].signals())
     ref = E.run(cfg, a, b, h)
     s = E.init_state(cfg, h[0], a[0], b[0])

@@ -34,7 +34,7 @@ def test_numpy_and_jax_scan_agree_paper():
 def test_best_under_jit_vmap_scan_with_the_jax_signal_model():
     # every improvement (learned tables in the scan carry), two motors batched with vmap, the
     # signals made by the signal model under jax.numpy inside the same jit
-    cfg = E.EstimatorConfig.best()
+    cfg = E.EstimatorConfig.all_improvements()
     errors = [draw_sensor_errors(np.random.default_rng(s), 64) for s in (1, 2)]
     t = np.arange(6000) / G.TICK_HZ
     theta_m = np.mod(0.3 + 8 * math.pi * t, 2 * math.pi)  # 240 rpm: learning starts after 0.25 s

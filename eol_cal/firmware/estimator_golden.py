@@ -120,8 +120,8 @@ def _hall_glitch(a: np.ndarray, b: np.ndarray, h: np.ndarray) -> Signals:
 
 _PAPER = est.EstimatorConfig.paper(tick_hz=TICK_HZ)
 _PAPER_SHORT = est.EstimatorConfig.paper(tick_hz=TICK_HZ, standstill_s=0.05)
-_BEST = est.EstimatorConfig.best(tick_hz=TICK_HZ)
-_BEST_SHORT = est.EstimatorConfig.best(tick_hz=TICK_HZ, standstill_s=0.05)
+_ALL = est.EstimatorConfig.all_improvements(tick_hz=TICK_HZ)
+_ALL_SHORT = est.EstimatorConfig.all_improvements(tick_hz=TICK_HZ, standstill_s=0.05)
 _STOP_GO = ((0.1, 60.0, 60.0), (0.03, 60.0, 0.0), (0.12, 0.0, 0.0), (0.05, 0.0, 60.0), (0.1, 60.0, 60.0))
 
 #: file name -> scenario
@@ -137,8 +137,8 @@ SCENARIOS: dict[str, Scenario] = {
                                          theta0=math.radians(19.5)),
     "estimator_standstill_restart.csv": Scenario(_PAPER_SHORT, _STOP_GO, 4,
                                                  "paper estimator, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
-    "estimator_standstill_restart_best.csv": Scenario(
-        _BEST_SHORT, _STOP_GO, 4, "every improvement, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+    "estimator_standstill_restart_all.csv": Scenario(
+        _ALL_SHORT, _STOP_GO, 4, "every improvement, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
     "estimator_reversal.csv": Scenario(_PAPER, ((0.1, 60.0, 60.0), (0.1, 60.0, -60.0), (0.1, -60.0, -60.0)), 5,
                                        "paper estimator, 60 rpm forward, through zero to 60 rpm reverse"),
     "estimator_reverse_60rpm.csv": Scenario(_PAPER, ((0.2, -60.0, -60.0),), 6,
@@ -151,7 +151,7 @@ SCENARIOS: dict[str, Scenario] = {
                                           "paper estimator, 60 rpm, hall reads 0, 7 and the opposite sector briefly",
                                           inject=_hall_glitch),
     # 240 rpm for 0.45 s: almost two revolutions, so improvement 4 learns during the second.
-    "estimator_best_240rpm.csv": Scenario(_BEST, ((0.45, 240.0, 240.0),), 10,
+    "estimator_all_240rpm.csv": Scenario(_ALL, ((0.45, 240.0, 240.0),), 10,
                                           "every improvement, 240 rpm for 0.45 s (pitch learning starts)"),
 }
 
