@@ -1,0 +1,92 @@
+"""Plant models one by one (numpy): rates, motor, inverter, ripple, dyno, variation, truth."""
+
+import math
+
+import numpy as np
+import pytest
+
+from eol_cal.motor import load_motor
+from eol_cal.plant import control, dyno, inverter, motor, ripple
+from eol_cal.plant.params import PlantSpec, to_params
+from eol_cal.plant.presets import paper
+from eol_cal.plant.variation import draw_motor
+
+
+def test_rate_flags_average_exactly_and_jitter_by_one_tick():
+    cc = control.rate_flags(20000, 20000.0, 1680.0)
+    cmd = control.rate_flags(20000, 20000.0, 420.0)
+    assert cc.sum() == 1680 and cmd.sum() == 420
+    assert set(np.diff(np.flatnonzero(cc))) == {11, 12}
+    assert set(np.diff(np.flatnonzero(cmd))) == {47, 48}
+    # a later chunk continues the same schedule
+    assert np.array_equal(control.rate_flags(5000, 20000.0, 1680.0, start=7000), cc[7000:12000])
+
+
+def test_rl_step_is_exact_for_constant_voltage():
+    m = load_motor("paper")
+    dt = 1.0 / m.f_pwm
+    a, b = motor.rl_coefficients(m.R_s, m.L_q, dt, np)
+    i, v = 0.0, 1.5
+    for _ in range(200):
+        i = a * i + b * v
+    t = 200 * dt
+    assert i == pytest.approx(v / m.R_s * (1.0 - math.exp(-m.R_s * t / m.L_q)), rel=1e-9)
+
+
+def test_torque_equation_of_spmsm():
+    p = to_params(PlantSpec(), np.zeros(16), np.zeros(16), 0.0, 0.0)
+    assert float(motor.electromagnetic_torque(0.0, 65.0, p, 6)) == pytest.approx(load_motor("paper").kt * 65.0, rel=1e-6)
+
+
+def test_voltage_limit_keeps_angle():
+    ua, ub = inverter.limit_voltage(np.array(30.0), np.array(40.0), 12.0, np)
+    assert math.hypot(ua, ub) == pytest.approx(12.0 / math.sqrt(3.0), rel=1e-9)
+    assert math.atan2(ub, ua) == pytest.approx(math.atan2(40.0, 30.0))
+    ua, ub = inverter.limit_voltage(np.array(1.0), np.array(-2.0), 12.0, np)
+    assert (ua, ub) == (1.0, -2.0)
+
+
+def test_ripple_phasor_form_matches_contract_formula():
+    spec = paper().replace(c18=0.003, phase_c18=0.7, k12=2e-5, phase_k12=-1.0)
+    p = to_params(spec, np.zeros(16), np.zeros(16), 0.0, 0.0)
+    p = p._replace(**{k: np.float64(v) for k, v in ripple.coefficients(spec).items()})
+    th_m = np.linspace(0.0, 2.0 * math.pi, 997)
+    th_r = 3.0 * th_m
+    i_q = 65.0
+    got = ripple.ripple_torque(np.cos(th_r), np.sin(th_r), np.cos(th_m), np.sin(th_m), i_q, p)
+    want = np.zeros_like(th_r)
+    for n in (6, 12, 18):
+        want += getattr(spec, f"c{n}") * np.sin(n * th_r + getattr(spec, f"phase_c{n}"))
+        want += getattr(spec, f"k{n}") * i_q * np.sin(n * th_r + getattr(spec, f"phase_k{n}"))
+    want += spec.unb1 * np.sin(th_m + spec.phase_unb1)
+    assert np.max(np.abs(got - want)) < 1e-12
+
+
+def test_dyno_speed_loop_holds_speed_against_motor_torque():
+    spec = PlantSpec()
+    p = to_params(spec, np.zeros(16), np.zeros(16), 0.0, 0.0)
+    p = p._replace(**{k: np.float64(getattr(p, k)) for k in ("K_shaft", "D_shaft", "Kp_dyno", "Ki_dyno", "J", "B", "J_dyno")})
+    dt = 1.0 / spec.motor.f_pwm
+    w_ref = 2.0 * math.pi  # 60 rpm
+    st = (0.0, 0.0, w_ref, w_ref, 0.0)
+    for _ in range(40000):  # 2 s, motor torque stepped to 3 N*m at t = 0
+        *st, T_shaft = dyno.mech_step(*st, 3.0, w_ref, p, dt, np)
+    assert st[3] == pytest.approx(w_ref, rel=1e-3)
+    assert T_shaft == pytest.approx(3.0 - spec.motor.B * w_ref, rel=1e-3)
+
+
+def test_variation_is_deterministic_and_spread():
+    a, b, c = draw_motor(7), draw_motor(7), draw_motor(8)
+    assert a == b
+    assert a != c and a.k6 != c.k6
+    assert len(a.enc_edge_err_deg) == 64 and len(a.hall_err_deg) == 6
+    k6 = np.array([draw_motor(s).k6 for s in range(200)])
+    assert 0.00055 < k6.mean() < 0.00069 and 0.00006 < k6.std() < 0.00013
+
+
+def test_truth_holds_the_ripple_and_bench():
+    truth = draw_motor(3).truth()
+    for key in ("k6", "phase_k6", "c6", "phase_c6", "c12", "unb1", "R_s", "temp_degC",
+                "enc_edge_err_deg", "hall_err_deg", "transducer_delay_s", "transducer_bw_hz"):
+        assert key in truth
+    assert not any(k.startswith("truth.") for k in truth)
