@@ -255,6 +255,10 @@ def consts(cfg: EstimatorConfig) -> Consts:
 class EstimatorState(NamedTuple):
     """Everything the estimator keeps between ticks (int32 / float32, scalars or batched).
 
+    Batched states: any leading shape with ``xp=numpy`` (bit-exact per element) as long as
+    ``learn_pitch_errors`` is off; with it on, batch through ``jax.vmap`` (its per-motor tables
+    are indexed per motor).
+
     phase : quadrature phase of (A, B): (0,0)=0, (1,0)=1, (1,1)=2, (0,1)=3.
     q : quadrature count, 0 .. 4*N_enc-1.
     n : ticks since the last A edge event, saturating at standstill_ticks + 1.
