@@ -110,11 +110,13 @@ class EstimatorConfig:
     standstill_ticks : int
         No A edge within this many ticks -> standstill (omega_hat = 0).
     clamp_to_next_edge : bool
-        Improvement 1: the prediction never passes the next edge's angle, and the reported speed
-        is bounded by what the time since the last edge allows.
+        Improvement 1: the prediction stays inside the current quadrature count (so it never
+        passes the next edge's angle), and the reported speed is bounded by what the time since
+        the last edge allows.
     learn_grid_offset : bool
-        Improvement 2: hall transitions correct the encoder-grid offset by ``K_LEARN`` of the
-        error (a full correction when the error exceeds half a pitch) instead of all of it.
+        Improvement 2: the encoder-grid offset is the running mean of the hall corrections (the
+        first N_LEARN, then a 1/N_LEARN filter; a full correction when the error exceeds half a
+        pitch) instead of the last correction whole.
     accel_prediction : bool
         Improvement 3: the prediction between edges extrapolates the filtered acceleration.
     learn_pitch_errors : bool
