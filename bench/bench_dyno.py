@@ -95,34 +95,36 @@ def main() -> int:
               f"python {platform.python_version()}")
         print(f"capture: {args.samples} samples x ({', '.join(names)} as f32 + digital u16) = {regs_per_sample} registers/sample, "
               f"{total_regs} registers; dyno simulator in its own process on {host}")
-        print(f"{'method':<34}{'median s':>10}{'registers/s':>14}{'samples/s':>12}{'x plain':>9}")
+        print(f"{'method':<34}{'median s':>10}{'registers/s':>14}{'samples/s':>12}{'x plain':>9}{'client CPU s':>13}")
         ref = None
         rows = []
-        times = []
+        times, cpus = [], []
         for _ in range(args.repeat):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             words, regs = plain_read(host, port, ids, args.samples)
             times.append(time.perf_counter() - t0)
+            cpus.append(time.process_time() - c0)
             assert regs == total_regs
         ref = words
         plain_s = statistics.median(times)
-        rows.append(("plain: 1 connection, sequential", plain_s))
+        rows.append(("plain: 1 connection, sequential", plain_s, statistics.median(cpus)))
         for k in (1, 2, 4, 8):
             dk = DynoClient(DynoConfig(host=host, port=port, timeout=2.0, connections=k))
-            times = []
+            times, cpus = [], []
             for _ in range(args.repeat):
-                t0 = time.perf_counter()
+                t0, c0 = time.perf_counter(), time.process_time()
                 got = dk.read_buffer(names, args.samples)
                 times.append(time.perf_counter() - t0)
+                cpus.append(time.process_time() - c0)
             for cid, name in rm.ANALOG_CHANNELS.items():
                 if name in names:
                     np.testing.assert_array_equal(got[name], rm.words_to_f32(ref[cid]))
             a, b, h = rm.unpack_digital(ref[rm.DIGITAL_CHANNEL_ID])
             np.testing.assert_array_equal(got["hall"], h)
             dk.close()
-            rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times)))
-        for label, s in rows:
-            print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}")
+            rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times), statistics.median(cpus)))
+        for label, s, cpu in rows:
+            print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}{cpu:>13.2f}")
         dc.safe_state()
         dc.close()
 
