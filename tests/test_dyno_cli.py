@@ -115,3 +115,13 @@ def test_dyno_sim_and_acquire_as_processes(tmp_path: Path, profile: Path):
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+
+
+def test_bad_profile_refused_before_the_shaft_turns(tmp_path: Path):
+    prof = tmp_path / "bad.toml"
+    prof.write_text("[[segment]]\nspeed_rpm = 60.0\niq = 10.0\nseconds = 0.2\nramp_s = 0.2\n")
+    sim = DynoSim(synthetic_source)
+    with DynoSimThread(sim) as th:
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(prof), "-o", str(tmp_path / "c.csv")])
+    assert r.exit_code == 2 and "segment 1" in r.output and "fewer than 2 samples" in r.output
+    assert "enable" not in [name for _, name, _ in sim.log] and sim.captures_started == 0

@@ -446,6 +446,12 @@ def run_profile(
     unknown = [c for c in channels if c not in rm.ANALOG_CHANNELS.values()]
     if unknown:
         raise InputError(None, "channels", f"unknown dyno channel(s) {unknown}; known: {sorted(rm.ANALOG_CHANNELS.values())}")
+    for i, seg in enumerate(segments):
+        # refuse a bad profile before the shaft turns
+        if int(round(seg.seconds * rate_hz)) < 2:
+            raise InputError(None, f"segment {i + 1}", f"{seg.seconds:g} s of steady capture at {rate_hz} Hz is fewer than 2 samples")
+        if seg.ramp_rpm_s <= 0 or not np.isfinite(seg.ramp_rpm_s):
+            raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
     name_to_id = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
     data: list[SegmentData] = []
     t_first: float | None = None
@@ -457,8 +463,6 @@ def run_profile(
             if progress:
                 progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
             n = int(round(seg.seconds * rate_hz))
-            if n < 2:
-                raise InputError(None, f"segment {i + 1}", f"{seg.seconds} s at {rate_hz} Hz is fewer than 2 samples")
             client.set_point(seg)
             t_start = time.monotonic()
             st = client.capture(n, rate_hz)
