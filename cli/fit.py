@@ -70,10 +70,12 @@ def _json_safe(x):
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
 @click.option("--map", "map_file", type=click.Path(dir_okay=False), help="Channel map (TOML) for foreign files.")
 @click.option("--plot", "plot_dir", type=click.Path(file_okay=False), help="Write per-motor PNGs here.")
-@click.option("--harmonics", default="6", show_default=True, help="Orders to fit: 6, optionally 12 and 18.")
+@click.option("--harmonics", default="6,12,18", show_default=True, help="Orders to fit: 6, optionally 12 and 18.")
 @click.option("--no-c6", is_flag=True, help="Do not fit the load-independent (cogging) part.")
 @click.option("--no-k6", is_flag=True, help="Do not fit the load-proportional part.")
-@click.option("--delay", "delay_s", type=float, help="Known transducer delay (s) instead of fitting it.")
+@click.option("--delay", "delay_s", type=float, help="Known transducer delay / time constant (s) instead of fitting it.")
+@click.option("--transducer", type=click.Choice(["delay", "lowpass"]), default="lowpass", show_default=True,
+              help="Torque transducer model: pure delay, or first-order low-pass (gain and phase).")
 @click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5), help="Per-segment drift polynomial degree.")
 @click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0), help="Settling time dropped after each step (s).")
 @click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of k6, fraction of k6.")
@@ -85,7 +87,7 @@ def _json_safe(x):
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
-def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, drift_degree, settle_s,
+def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, drift_degree, settle_s,
             max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
@@ -111,6 +113,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         fit_k=not no_k6,
         drift_degree=drift_degree,
         delay_s=delay_s,
+        transducer=transducer,
         max_steps=max_steps,
         solver=solver,
     )

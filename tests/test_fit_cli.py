@@ -16,6 +16,7 @@ from eol_cal.capture.synthetic import synthetic_capture
 
 # two speeds, two loads, and reverse: the delay, c6 and k6 are all identifiable
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
+# six segments: the same compiled solver shape as most of tests/test_fit_core.py
 TRUTH = dict(k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
 
 
@@ -99,8 +100,10 @@ def test_single_load_point_refused_with_exit_2(files, tmp_path):
     assert "not identifiable from a single load point" in res.output
     assert not (tmp_path / "r.json").exists()
     # k6 alone (the paper's eq. 17) is a fair question for one load point; the generator's cogging
-    # (c6 = 10 % of k6 * 65 A) then leaks into it, hence the looser phase limit and tolerance
-    res = CliRunner().invoke(cli, ["fit", *one_load, "-o", str(tmp_path / "r.json"), "--no-c6", "--max-ci-phase", "10"])
+    # (c6 = 10 % of k6 * 65 A) then leaks into it, hence the looser phase limit and tolerance.
+    # The generator has no transducer lag: --delay 0.
+    res = CliRunner().invoke(cli, ["fit", *one_load, "-o", str(tmp_path / "r.json"), "--no-c6", "--delay", "0",
+                                   "--max-ci-phase", "10"])
     assert res.exit_code == 0, res.output
     m = json.loads((tmp_path / "r.json").read_text())["motors"][0]
     assert abs(m["k6"]["value"] - TRUTH["k6"]) < 0.15 * TRUTH["k6"]
@@ -151,11 +154,14 @@ def test_table_round_trip(fitted, tmp_path):
     assert blk.phase_k6 == pytest.approx(m["phase_k6"]["value"], rel=1e-6)
     assert blk.iqc_limit == pytest.approx(6.5)  # 10 % of the largest |i_qo|
     assert 5e-4 < blk.lead_s < 2e-3  # current loop at 200 Hz plus hold delays
+    higher = [(h["order"], h["c"]["value"], h["phase_c"]["value"], h["k"]["value"], h["phase_k"]["value"])
+              for h in m["harmonics"]]
+    assert [h[0] for h in higher] == [12, 18]
     theta = np.linspace(0, 2 * math.pi, 1000)
     for i_qo in (-65.0, 20.0, 65.0):
-        fw = block_i_qc(blk, theta - 0.0 * blk.lead_s, 0.0, i_qo)  # omega 0: no lead, compare at theta
+        fw = block_i_qc(blk, theta, 0.0, i_qo)  # omega 0: the lead does not move the look-up
         exact = ripple_i_qc(theta, i_qo, m["c6"]["value"], m["phase_c6"]["value"], m["k6"]["value"],
-                            m["phase_k6"]["value"], m["kt"])
+                            m["phase_k6"]["value"], m["kt"], higher)
         assert np.max(np.abs(fw - exact)) < 2e-3 * max(1.0, np.max(np.abs(exact)))
     # a given lead is stored as given
     res = CliRunner().invoke(cli, ["table", str(out), "-o", str(blk_path), "--lead", "0.0001", "--table-len", "64"])

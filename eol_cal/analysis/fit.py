@@ -65,21 +65,28 @@ class FitSpec:
         Include the mechanical order-1 term per segment.
     delay_s : float or None
         Known transducer delay (s); ``None`` estimates it (needs two different signed speeds).
-    delay_max_s : float
-        Upper end of the grid that starts the delay estimate (s).
+    delay_max_s : float or None
+        Upper end of the grid that starts the delay estimate (s); default 5 ms for the low-pass
+        model, 1 ms for the pure delay (whose delay is unique only modulo ``2 pi / (6 d_omega)``,
+        d_omega the difference of two segment speeds: 2.8 ms for +-600 rpm, 6 poles).
+    transducer : {"delay", "lowpass"}
+        How the torque transducer distorts harmonic h at electrical speed omega: a pure delay
+        ``tau`` (phase ``-h omega tau``), or a first-order low-pass of time constant ``tau``
+        (gain and phase of ``1 / (1 + i h omega tau)``).
     max_steps : int
         Levenberg-Marquardt step limit; hitting it means "not converged".
     rtol, atol : float
         Levenberg-Marquardt tolerances.
     """
 
-    harmonics: tuple[int, ...] = (6,)
+    harmonics: tuple[int, ...] = (6, 12, 18)
     fit_c: bool = True
     fit_k: bool = True
     drift_degree: int = 2
     mech_order1: bool = True
     delay_s: float | None = None
-    delay_max_s: float = 2e-3
+    delay_max_s: float | None = None
+    transducer: str = "lowpass"
     max_steps: int = 64
     rtol: float = 1e-6
     atol: float = 1e-8
@@ -100,6 +107,13 @@ class FitSpec:
     def n_glob(self) -> int:
         """Global cos/sin ripple coefficients."""
         return 2 * len(self.harmonics) * (int(self.fit_c) + int(self.fit_k))
+
+    @property
+    def delay_max(self) -> float:
+        """Upper end of the delay start grid (s)."""
+        if self.delay_max_s is not None:
+            return self.delay_max_s
+        return 5e-3 if self.transducer == "lowpass" else 1e-3
 
     @property
     def fit_delay(self) -> bool:
@@ -357,9 +371,14 @@ def _build(spec: FitSpec, S: int):
         if spec.fit_k:
             Zre = Zre + i_qo[:, None] * glob[part, :, 0][None]
             Zim = Zim + i_qo[:, None] * glob[part, :, 1][None]
-        # the transducer sees harmonic h at h*(theta - omega*tau): rotate each segment's phasor
-        rot = -H[None, :] * omega[:, None] * tau
-        cr, sr = jnp.cos(rot), jnp.sin(rot)
+        a = H[None, :] * omega[:, None] * tau
+        if spec.transducer == "lowpass":
+            # first-order transducer: each segment's phasor times 1 / (1 + i h omega tau)
+            den = 1.0 + a * a
+            cr, sr = 1.0 / den, -a / den
+        else:
+            # pure delay: harmonic h is seen at h*(theta - omega*tau), a rotation by -h omega tau
+            cr, sr = jnp.cos(a), -jnp.sin(a)
         Rre = Zre * cr - Zim * sr
         Rim = Zre * sr + Zim * cr
         # T = ... - Re(Z') sin(h theta) - Im(Z') cos(h theta)
@@ -472,14 +491,21 @@ def _solver(spec: FitSpec, S: int, mode: str):
 
 
 def tau_grid(spec: FitSpec, omega_max: float) -> np.ndarray:
-    """Start grid for the delay (s): fine enough that the highest harmonic moves < 0.25 rad a step."""
+    """Start grid for the delay (s) over [0, delay_max_s].
+
+    Spacing: the 6th harmonic at the highest speed moves at most 0.5 rad between grid points
+    (8 to 64 points). With the low-pass model the phase ``atan(h omega tau)`` is monotone and
+    bounded, so the best point is in the basin of the optimum; with the pure delay a shift of
+    ``2 pi / (6 d_omega)`` would alias, which this spacing resolves for delays up to
+    ``spec.delay_max``. Solver steps then refine every harmonic.
+    """
     if not spec.fit_delay:
         return np.zeros(1)
-    span = max(spec.harmonics) * max(omega_max, 1.0) * spec.delay_max_s
-    n = int(min(max(math.ceil(span / 0.25) + 1, 8), 512))
-    # round up to a power of two so that nearby speeds share one compiled solver
+    span = 6 * max(omega_max, 1.0) * spec.delay_max
+    n = int(min(max(math.ceil(span / 0.5) + 1, 8), 64))
+    # a power of two, so that nearby speeds share one compiled solver
     n = 1 << (n - 1).bit_length()
-    return np.linspace(0.0, spec.delay_max_s, n)
+    return np.linspace(0.0, spec.delay_max, n)
 
 
 @dataclass

@@ -52,13 +52,15 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
         step = max(1, len(th) // _MAX_POINTS)
         ax.plot(np.degrees(th[::step]), y[::step], ".", ms=1.5, alpha=0.5, label="measured")
         # the fitted ripple as the transducer sees it (delayed by delay_s at this segment's speed)
-        seen = grid - seg.omega_e[s] * fit.delay_s
         curve = np.full_like(grid, fit.t_avg[s])
         for h, parts in fit.harmonics.items():
+            a = h * seg.omega_e[s] * fit.delay_s
+            gain = 1.0 / (1.0 + 1j * a) if spec.transducer == "lowpass" else np.exp(-1j * a)
+            arg = h * grid + np.angle(gain)
             if "c" in parts:
-                curve -= parts["c"].value * np.sin(h * seen + parts["c"].phase)
+                curve -= abs(gain) * parts["c"].value * np.sin(arg + parts["c"].phase)
             if "k" in parts:
-                curve -= parts["k"].value * seg.i_qo[s] * np.sin(h * seen + parts["k"].phase)
+                curve -= abs(gain) * parts["k"].value * seg.i_qo[s] * np.sin(arg + parts["k"].phase)
         ax.plot(np.degrees(grid), curve, "-", color="C3", lw=1.2, label="fit")
         info = mi.info[s]
         ax.set_title(f"{Path(info.source).name}: {info.speed_rpm:.0f} rpm, i_qo {info.i_qo:.1f} A", fontsize=8)

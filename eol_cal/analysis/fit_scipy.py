@@ -55,7 +55,8 @@ def fit_segments_scipy(seg: SegmentArrays, spec: FitSpec, p0: np.ndarray | None 
                 part += 1
             if spec.fit_k:
                 Z = Z + seg.i_qo[s] * (glob[part, :, 0] + 1j * glob[part, :, 1])
-            Z = Z * np.exp(-1j * H * seg.omega_e[s] * tau)
+            a = H * seg.omega_e[s] * tau
+            Z = Z / (1.0 + 1j * a) if spec.transducer == "lowpass" else Z * np.exp(-1j * a)
             g = np.concatenate([nuis[s], np.stack([-Z.real, -Z.imag], axis=-1).reshape(-1)])
             out.append(ys[s] - Xs[s] @ g)
         return np.concatenate(out)

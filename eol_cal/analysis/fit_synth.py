@@ -33,6 +33,7 @@ def synthetic_segments(
     mech_nm: float = 0.003,
     drift_nm_per_s: float = 0.01,
     extra: dict[int, tuple[float, float, float, float]] | None = None,
+    transducer: str = "lowpass",
 ) -> tuple[SegmentArrays, dict]:
     """One motor's segments: every load x speed x direction, each ``seg_s`` long.
 
@@ -63,6 +64,9 @@ def synthetic_segments(
         Linear torque drift (N*m/s).
     extra : dict, optional
         Higher harmonics: order -> (c, phase_c, k, phase_k).
+    transducer : {"delay", "lowpass"}
+        ``delay``: the torque is seen ``delay_s`` late; ``lowpass``: through a first-order
+        low-pass of time constant ``delay_s`` (each harmonic's steady-state gain and phase).
 
     Returns
     -------
@@ -85,7 +89,12 @@ def synthetic_segments(
                 torque = kt * i_qo + drift_nm_per_s * (t - t_start)
                 torque = torque + mech_nm * np.sin(seen / pole_pairs + rng.uniform(0, 2 * math.pi))
                 for h, (c, pc, k, pk) in terms.items():
-                    torque = torque - c * np.sin(h * seen + pc) - k * i_qo * np.sin(h * seen + pk)
+                    if transducer == "lowpass":
+                        gain = 1.0 / (1.0 + 1j * h * omega_e * delay_s)
+                        arg, g = h * theta + np.angle(gain), abs(gain)
+                    else:
+                        arg, g = h * seen, 1.0
+                    torque = torque - g * c * np.sin(arg + pc) - g * k * i_qo * np.sin(arg + pk)
                 torque = torque + rng.normal(0.0, noise_nm, n)
                 thetas.append(theta)
                 ts.append(t)
@@ -95,5 +104,6 @@ def synthetic_segments(
                 labels.append(f"synthetic {direction:+d} {rpm:g} rpm {i_qo:g} A")
                 t_start = t[-1] + 1.0 / fs_hz
     seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels)
-    truth = {"k6": k6, "phase_k6": phase_k6, "c6": c6, "phase_c6": phase_c6, "delay_s": delay_s}
+    truth = {"k6": k6, "phase_k6": phase_k6, "c6": c6, "phase_c6": phase_c6, "delay_s": delay_s,
+             "transducer": transducer}
     return seg, truth

@@ -132,6 +132,7 @@ def motor_record(
         "fit_c6": spec.fit_c,
         "fit_k6": spec.fit_k,
         "delay": "fitted" if spec.fit_delay else "fixed",
+        "transducer": spec.transducer,
         "drift_degree": spec.drift_degree,
         "mech_order1": spec.mech_order1,
         "angle_frame": "hall: theta_r = 0 where hall state 5 begins in forward rotation (docs/angle-frame.md)",
