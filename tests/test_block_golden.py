@@ -167,7 +167,9 @@ def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):
     fake = types.ModuleType("eol_cal.firmware.estimator_golden")
     fake.vector_sets = lambda: {"estimator_const_60rpm.csv": (["tick", "theta_hat"], [[0, "3f800000"], [1, "40000000"]])}
     fake.TOLERANCE = {"estimator_const_60rpm.csv": {"theta_hat": {"abs": 1e-6, "unit": "rad"}}}
+    fake.DESCRIPTIONS = {}
     monkeypatch.setitem(sys.modules, "eol_cal.firmware.estimator_golden", fake)
+    monkeypatch.setattr(golden, "_estimator_sets", golden._estimator_sets.__wrapped__)
     sets = golden.vector_sets()
     est = sets["estimator_const_60rpm.csv"]
     assert est.rows == [["0", "3f800000"], ["1", "40000000"]]

@@ -6,7 +6,7 @@ binary32 bit patterns as 8 lower-case hex digits, integers decimal. Sets:
 - ``blocks.csv``: valid parameter blocks, every field value and the exact byte image (hex);
 - ``block_checks.csv``: images (valid, deliberately broken, erased) and the check routine's status;
 - ``compensator.csv``: i_qc for a grid of angle, speed and i_qo over each block of ``blocks.csv``;
-- the estimator scenarios, from ``eol_cal.firmware.estimator_golden.vector_sets()`` when present.
+- the estimator scenarios, from ``eol_cal.firmware.estimator_golden.vector_sets()``.
 
 Everything is generated from the Python reference; ``check_golden`` regenerates and compares.
 """
@@ -14,8 +14,9 @@ Everything is generated from the Python reference; ``check_golden`` regenerates 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
+import functools
 import importlib
+import hashlib
 import json
 import math
 import struct
@@ -209,21 +210,18 @@ def _compensator_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
                      COMPENSATOR_TOLERANCE)
 
 
+@functools.cache
 def _estimator_sets() -> dict[str, VectorSet]:
-    try:
-        mod = importlib.import_module("eol_cal.firmware.estimator_golden")
-    except ModuleNotFoundError as exc:
-        if exc.name != "eol_cal.firmware.estimator_golden":
-            raise
-        return {}
-    tolerance = getattr(mod, "TOLERANCE", "exact")
-    descriptions = getattr(mod, "DESCRIPTIONS", {})
+    # Cached: the tick-by-tick numpy reference takes seconds, and its output never changes
+    # within a process (golden --out, --check and the tests all ask for it).
+    mod = importlib.import_module("eol_cal.firmware.estimator_golden")
+
     out = {}
     for name, (columns, rows) in mod.vector_sets().items():
         # TOLERANCE: one spec for every estimator file, or a dict of specs keyed by file name
-        per_file = isinstance(tolerance, dict) and all(str(k).endswith(".csv") for k in tolerance)
-        tol = tolerance.get(name, "exact") if per_file else tolerance
-        out[name] = VectorSet(tuple(columns), [list(map(str, r)) for r in rows], descriptions.get(name, ""),
+        per_file = isinstance(mod.TOLERANCE, dict) and all(str(k).endswith(".csv") for k in mod.TOLERANCE)
+        tol = mod.TOLERANCE.get(name, "exact") if per_file else mod.TOLERANCE
+        out[name] = VectorSet(tuple(columns), [list(map(str, r)) for r in rows], mod.DESCRIPTIONS.get(name, ""),
                               tol)
     return out
 
