@@ -1,0 +1,116 @@
+"""Accuracy of the ripple fit over a lot of plant motors, and the compensated p-p it buys.
+
+Each motor is drawn from the production spread (:func:`eol_cal.plant.variation.draw_motor`,
+seed = motor number), run through the ``eol-default`` profile on the plant (firmware estimator,
+no compensation), fitted with ``eol-cal fit``'s defaults, and its block made as ``eol-cal table``
+makes it (auto lead). Then the motor runs at the paper's operating point (60 rpm, 65 A, 1 s)
+twice, without and with its block, and the p-p ripple (docs/metrics.md, filtered) is measured.
+The alternative compared with: the same compensation built from the plant's true 6th harmonic
+(``true_block``, the paper's compensator given perfect knowledge).
+
+Targets (issue 5, item 6): |k6 error| <= 2 % of k6, phase errors <= 2 deg, |c6 phasor error|
+<= 0.002 N*m, compensated p-p <= 1.0 %.
+
+    python bench/bench_fit_lot.py [--motors 100] [--batch 10]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--motors", type=int, default=100)
+    ap.add_argument("--batch", type=int, default=10, help="motors simulated together (memory)")
+    ap.add_argument("--first-seed", type=int, default=1)
+    args = ap.parse_args()
+
+    from eol_cal.analysis.fit import FitSpec, fit_many, wrap_phase
+    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit_table import block_from_record
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.analysis.result import CiLimits, motor_record
+    from eol_cal.motor import load_motor
+    from eol_cal.plant.profile import load_profile
+    from eol_cal.plant.simulate import simulate, true_block
+    from eol_cal.plant.variation import draw_motor
+
+    print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")
+    motor = load_motor("paper")
+    cal = load_profile("eol-default")
+    point = load_profile("paper")
+    spec = FitSpec()
+    rows = []
+    t_sim = t_fit = 0.0
+    t_start = time.perf_counter()
+    for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
+        seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
+        plants = [draw_motor(s) for s in seeds]
+        t0 = time.perf_counter()
+        runs = simulate(plants, cal, mode="estimated", seed=first)
+        t_sim += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        inputs = [motor_inputs([r.capture])[0] for r in runs]
+        fits = fit_many([m.segments for m in inputs], spec, mode="loop")
+        t_fit += time.perf_counter() - t0
+        blocks, truths = [], []
+        for p, mi, f in zip(plants, inputs, fits):
+            segs = [{"i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm} for i in mi.info]
+            rec = motor_record(mi.serial, f, spec, CiLimits(), kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
+                               encoder_ppr=mi.encoder_ppr, sources=[], segments=segs, metrics={}, solver_mode="loop")
+            six = f.harmonics[6]
+            k, c = six["k"], six["c"]
+            c_err = abs(c.value * np.exp(1j * c.phase) - p.c6 * np.exp(1j * p.phase_c6))
+            rows.append({
+                "seed": p.serial, "status": rec["status"],
+                "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
+                "phase_k6_err_deg": math.degrees(wrap_phase(k.phase - p.phase_k6)),
+                "c6_err_nm": c_err,
+                "phase_c6_err_deg": math.degrees(wrap_phase(c.phase - p.phase_c6)),
+                "ci_k6_pct": 100 * k.ci95 / k.value,
+                "delay_ms": f.delay_s * 1e3, "steps": f.steps,
+            })
+            blocks.append(block_from_record(rec, motor) if rec["status"] == "ok" else None)
+            truths.append(true_block(p))
+        t0 = time.perf_counter()
+        ok = [i for i, b in enumerate(blocks) if b is not None]
+        before = simulate(plants, point, mode="estimated", seed=first + 1000)
+        after = simulate([plants[i] for i in ok], point, mode="compensated", blocks=[blocks[i] for i in ok],
+                         seed=first + 1000)
+        ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
+        t_sim += time.perf_counter() - t0
+        after_by = dict(zip(ok, after))
+        for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
+            rows[i]["pp_before_pct"] = capture_ripple_pp(before[j].capture).filtered_pct
+            rows[i]["pp_after_pct"] = (capture_ripple_pp(after_by[j].capture).filtered_pct
+                                       if j in after_by else float("nan"))
+            rows[i]["pp_true6_pct"] = capture_ripple_pp(ideal[j].capture).filtered_pct
+        print(f"  {len(rows)} motors done, {time.perf_counter() - t_start:.0f} s", flush=True)
+
+    def col(name):
+        return np.array([r[name] for r in rows], dtype=float)
+
+    n = len(rows)
+    usable = sum(r["status"] == "ok" for r in rows)
+    print(f"\n{n} motors (plant seeds {args.first_seed}..{args.first_seed + n - 1}), eol-default profile; "
+          f"usable fits {usable}/{n}; simulation {t_sim:.0f} s, fitting (incl. angle + segments) {t_fit:.0f} s")
+    for name, unit, limit in (("k6_err_pct", "%", 2.0), ("phase_k6_err_deg", "deg", 2.0), ("c6_err_nm", "N*m", 0.002),
+                              ("phase_c6_err_deg", "deg", None)):
+        v = np.abs(col(name))
+        within = "" if limit is None else f", within {limit:g}: {int((v <= limit).sum())}/{n}"
+        print(f"|{name}| ({unit}): median {np.median(v):.3g}, p95 {np.percentile(v, 95):.3g}, max {v.max():.3g}{within}")
+    print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
+    for name in ("pp_before_pct", "pp_after_pct", "pp_true6_pct"):
+        v = col(name)
+        print(f"{name}: median {np.nanmedian(v):.2f} %, p95 {np.nanpercentile(v, 95):.2f} %, max {np.nanmax(v):.2f} %"
+              + (f", <= 1.0 %: {int((v <= 1.0).sum())}/{n}" if name == "pp_after_pct" else ""))
+
+
+if __name__ == "__main__":
+    main()
