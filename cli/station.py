@@ -13,12 +13,12 @@ from cli.common import console, err_console, handle_errors, print_json
 DEMO_LIMITS = """\
 # eol-cal demo: limits of the demo's product variant (units: docs/station.md)
 [variant.EPS-STD]
-max_k6 = 0.0025
-max_pp_before_pct = 12.0
+max_k6 = 0.0012
+max_pp_before_pct = 10.0
 max_pp_after_pct = 2.0
-min_improvement_pct = 50.0
+min_improvement_pct = 60.0
 min_r2 = 0.3
-max_rms_nm = 0.1
+max_rms_nm = 0.05
 max_ci_k6_rel = 0.05
 max_ci_phase_k6_deg = 3.0
 max_ci_c6_nm = 0.002

@@ -38,29 +38,48 @@ def _fmt(x: Any, scale: float = 1.0, digits: int = 4) -> str:
     return f"{float(x) * scale:.{digits}g}"
 
 
-def plots(run_dir: Path, rec: dict[str, Any], fit_extra: Any, point_ripple: Any) -> list[tuple[str, str]]:
-    """Write the run's PNGs; returns ``(file name, caption)`` of each one written."""
-    out: list[tuple[str, str]] = []
-    if fit_extra is not None:
-        from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
+def fit_plots(run_dir: str | Path, fit_extra: Any) -> list[tuple[str, str]]:
+    """Write ``fit.png`` and ``residual.png``; returns ``(file name, caption)`` of each.
 
-        mi, fit, spec = fit_extra
-        plot_fit(run_dir / "fit.png", mi, fit, spec)
-        out.append(("fit.png", "Torque against electrical angle (drift and mechanical order 1 removed) with the fitted ripple"))
-        plot_residual_spectrum(run_dir / "residual.png", mi, fit, spec)
-        out.append(("residual.png", "Order spectrum of the fit residual"))
-    if point_ripple is not None:
-        from eol_cal.analysis.plots import CapturePlotData, plot_captures
+    Parameters
+    ----------
+    run_dir : path
+        The run's directory.
+    fit_extra : (MotorInput, MotorFit, FitSpec)
+        The motor's fit inputs, its fit and the model.
+    """
+    from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
 
-        op = rec["metrics"]["operating_point"]
-        rows = [
-            CapturePlotData(label=f"{rec['serial']} {label} ({op['speed_rpm']:.0f} rpm, {op['i_qo_a']:.0f} A)",
-                            t=pr.t, torque=pr.torque, poles=pr.poles, ripple=pr.ripple, spectrum=pr.spectrum)
-            for label, pr in (("before", point_ripple[0]), ("compensated", point_ripple[1]))
-        ]
-        plot_captures(run_dir / "ripple.png", rows)
-        out.append(("ripple.png", "Torque and order spectrum at the operating point: before, and with the compensation"))
-    return out
+    run_dir = Path(run_dir)
+    mi, fit, spec = fit_extra
+    plot_fit(run_dir / "fit.png", mi, fit, spec)
+    plot_residual_spectrum(run_dir / "residual.png", mi, fit, spec)
+    return [("fit.png", "Torque against electrical angle (drift and mechanical order 1 removed) with the fitted ripple"),
+            ("residual.png", "Order spectrum of the fit residual")]
+
+
+def ripple_plot(run_dir: str | Path, rec: dict[str, Any], point_ripple: Any) -> list[tuple[str, str]]:
+    """Write ``ripple.png``: torque and order spectrum at the operating point, before and compensated.
+
+    Parameters
+    ----------
+    run_dir : path
+        The run's directory.
+    rec : dict
+        The run record (serial, operating point).
+    point_ripple : (PointRipple, PointRipple)
+        Before and compensated (:class:`eol_cal.station.run.PointRipple`).
+    """
+    from eol_cal.analysis.plots import CapturePlotData, plot_captures
+
+    op = rec["metrics"]["operating_point"]
+    rows = [
+        CapturePlotData(label=f"{rec['serial']} {label} ({op['speed_rpm']:.0f} rpm, {op['i_qo_a']:.0f} A)",
+                        t=pr.t, torque=pr.torque, poles=pr.poles, ripple=pr.ripple, spectrum=pr.spectrum)
+        for label, pr in (("before", point_ripple[0]), ("compensated", point_ripple[1]))
+    ]
+    plot_captures(Path(run_dir) / "ripple.png", rows)
+    return [("ripple.png", "Torque and order spectrum at the operating point: before, and with the compensation")]
 
 
 def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
@@ -115,7 +134,8 @@ block layout {e(str(rec.get('layout_version')))}</p>
 """
 
 
-def write_report(rec: dict[str, Any], run_dir: str | Path, *, fit_extra: Any = None, point_ripple: Any = None) -> Path:
+def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: list[tuple[str, str]] | None = None,
+                 fit_extra: Any = None, point_ripple: Any = None) -> Path:
     """Write the plots and ``report.html`` into ``run_dir``; returns the HTML path.
 
     ``report.json`` is written by :func:`write_record_json` once the record is final.
@@ -126,13 +146,19 @@ def write_report(rec: dict[str, Any], run_dir: str | Path, *, fit_extra: Any = N
         The run record (JSON-safe).
     run_dir : path
         The run's directory (exists).
+    figures : list of (file name, caption), optional
+        Plots already written (e.g. :func:`fit_plots` run while the dyno was busy).
     fit_extra : (MotorInput, MotorFit, FitSpec), optional
-        For the fit plots.
+        For the fit plots, when not among ``figures``.
     point_ripple : (PointRipple, PointRipple), optional
         Before and compensated ripple at the operating point, for the ripple plot.
     """
     run_dir = Path(run_dir)
-    figures = plots(run_dir, rec, fit_extra, point_ripple)
+    figures = list(figures or [])
+    if fit_extra is not None:
+        figures += fit_plots(run_dir, fit_extra)
+    if point_ripple is not None:
+        figures += ripple_plot(run_dir, rec, point_ripple)
     html_path = run_dir / "report.html"
     _write_text(html_path, render_html(rec, figures))
     return html_path

@@ -18,6 +18,7 @@ import math
 import time
 import traceback
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -320,6 +321,10 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     if Path(cfg.limits.source).is_file():
         rec["limits"]["sha256"] = sha256_file(cfg.limits.source)
     state: dict[str, Any] = {}
+    # One helper thread: it imports JAX and matplotlib while the dyno spins the first time, and
+    # draws the fit's plots while it spins the second time (the main thread mostly waits there).
+    helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
+    helper.submit(_prewarm)
 
     def step(name: str, fn: Callable[[], Any]) -> Any:
         if progress:
@@ -360,6 +365,9 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         write_result(doc, run_dir / "fit.json")
         rec["fit"] = frec
         state["fit_doc"], state["fit_extra"] = doc, extra
+        from eol_cal.station.report import fit_plots
+
+        state["fit_plots"] = helper.submit(fit_plots, run_dir, extra)
         if frec["status"] != "ok":
             rec["verdict"] = "fail"
             rec["reasons"] = [f"fit {frec['status']}: {r}" for r in frec["reasons"]] or [f"fit {frec['status']}"]
@@ -446,11 +454,13 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     try:
         report_html = step("report", lambda: _report(rec, run_dir, state))
     except Exception as exc:  # noqa: BLE001 - the record must still be written
+        rec["steps"][-1]["error"] = f"{type(exc).__name__}: {exc}"
         rec["report_error"] = f"{type(exc).__name__}: {exc}"
         if rec["verdict"] != "error":
             rec["verdict"] = "error"
             rec["reasons"] = rec["reasons"] + [f"report: {exc}"]
     rec["ended_at"] = _now()
+    helper.shutdown(wait=True)
     rec = _json_safe(rec)
     try:
         from eol_cal.station.report import write_record_json
@@ -490,4 +500,18 @@ def _safe_state(dyno_cfg: Any) -> str:
 def _report(rec: dict[str, Any], run_dir: Path, state: dict[str, Any]) -> Path:
     from eol_cal.station.report import write_report
 
-    return write_report(rec, run_dir, fit_extra=state.get("fit_extra"), point_ripple=state.get("pr"))
+    figures = state["fit_plots"].result() if "fit_plots" in state else []
+    return write_report(rec, run_dir, figures=figures, point_ripple=state.get("pr"))
+
+
+def _prewarm() -> None:
+    """Import what the fit and the plots need (seconds of JAX and matplotlib start-up)."""
+    try:
+        import eol_cal.analysis.fit  # noqa: F401 - jax, equinox, optimistix
+        import eol_cal.analysis.fit_capture  # noqa: F401
+        import eol_cal.analysis.fit_plot  # noqa: F401
+        from eol_cal.analysis.plots import _pyplot
+
+        _pyplot()
+    except Exception:  # noqa: BLE001 - the step that needs it reports a real failure
+        pass
