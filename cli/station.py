@@ -69,11 +69,13 @@ def _fmt(x, digits: int = 3, scale: float = 1.0) -> str:
 
 
 def _results_table(records: list[dict], title: str):
+    from rich import box
     from rich.table import Table
 
-    table = Table(title=title)
-    for col in ("serial", "verdict", "k6 (mN*m/A)", "p-p before %", "p-p after %", "improvement %", "wall s", "started (UTC)"):
-        table.add_column(col, justify="left" if col in ("serial", "verdict", "started (UTC)") else "right")
+    table = Table(title=title, box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False)
+    for col, just in (("serial", "left"), ("verdict", "left"), ("k6\nmN*m/A", "right"), ("p-p %\nbefore", "right"),
+                      ("p-p %\nafter", "right"), ("impr.\n%", "right"), ("wall\ns", "right"), ("started\nUTC", "left")):
+        table.add_column(col, justify=just, no_wrap=True)
     colour = {"pass": "green", "fail": "yellow", "error": "red"}
     for r in records:
         fit = r.get("fit") or {}
@@ -82,7 +84,7 @@ def _results_table(records: list[dict], title: str):
         table.add_row(r["serial"], f"[{colour.get(r['verdict'], 'white')}]{r['verdict']}[/]",
                       _fmt((fit.get("k6") or {}).get("value"), 4, 1e3), _fmt(met.get("pp_before_pct")),
                       _fmt(met.get("pp_after_pct")), _fmt(met.get("improvement_pct")), f"{wall:.1f}",
-                      str(r.get("started_at", ""))[:19].replace("T", " "))
+                      str(r.get("started_at", ""))[5:19].replace("T", " "))
     return table
 
 
@@ -126,6 +128,8 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 @click.option("--db", required=True, type=click.Path(dir_okay=False, path_type=Path), help="SQLite database of run records (WAL).")
 @click.option("--serial", required=True, help="Serial of the motor on the dyno (1-16 ASCII characters).")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile or a TOML profile file.")
+@click.option("--verify", type=click.Choice(["point", "full"]), default="point", show_default=True,
+              help="Compensated acquisition: the profile's segments at the operating point (both directions), or the full profile.")
 @click.option("--key-file", type=click.Path(dir_okay=False), envvar="EOL_CAL_KEY_FILE",
               help="ECU security secret, 16 bytes hex (or $EOL_CAL_KEY_FILE).")
 @click.option("--report-dir", default="reports", show_default=True, type=click.Path(file_okay=False, path_type=Path),
@@ -137,7 +141,7 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 @click.option("--dyno-timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request Modbus timeout (s).")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @handle_errors
-def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, key_file,
+def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, verify, key_file,
             report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, as_json) -> None:
     """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
 
@@ -168,7 +172,8 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     cfg = StationConfig(
         serial=serial, dyno=DynoConfig(host=host, port=port, timeout=dyno_timeout),
         open_bus=lambda: open_bus(interface, channel, bitrate, can_config), seed_to_key=seed_to_key, limits=limits,
-        db=db, report_dir=report_dir, profile=profile, spool_dir=spool_dir, rate_hz=rate_hz, db_timeout_s=db_timeout,
+        db=db, report_dir=report_dir, profile=profile, verify=verify, spool_dir=spool_dir, rate_hz=rate_hz,
+        db_timeout_s=db_timeout,
         station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
     )
     with _StepProgress(serial, enabled=not as_json) as progress:

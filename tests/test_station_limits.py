@@ -118,3 +118,4 @@ def test_variant_choice(tmp_path: Path):
         load_limits(path, "C")
     with pytest.raises(InputError, match="file not found"):
         load_limits(tmp_path / "missing.toml")
+

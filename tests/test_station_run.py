@@ -145,7 +145,11 @@ def test_full_run_end_to_end(full_run):
     # captures on disk with the recorded hashes
     for which in ("before", "after"):
         c = rec["captures"][which]
-        assert sha256_file(c["path"]) == c["sha256"] and c["samples"] > 20000
+        assert sha256_file(c["path"]) == c["sha256"]
+    # verification at the operating point only: 65 A at 120 rpm, forward and reverse
+    assert rec["captures"]["before"]["segments"] == 3 and rec["captures"]["after"]["segments"] == 2
+    assert rec["station"]["verify"] == "point"
+    assert abs(rec["fit"]["operating_point"]["i_qo_a"]) == 65.0
     # the record is in the database (WAL), identical to the report's JSON
     assert doc["saved"]["where"] == "db"
     (stored,) = query_records(full_run["db"], serial=SERIAL)
@@ -242,3 +246,15 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
     res = runner.invoke(cli, base[:2] + ["nohost"] + base[3:] + ["--limits", str(files["limits"])])
     assert res.exit_code == 2 and "HOST:PORT" in res.output
     assert not (tmp_path / "r.sqlite").exists() and not (tmp_path / "rep").exists()
+
+
+def test_verification_segments_are_the_operating_point_in_both_directions():
+    from eol_cal.dyno.client import segments_from_profile
+    from eol_cal.plant.profile import load_profile
+    from eol_cal.station.run import verify_segments
+
+    segs = segments_from_profile(load_profile("eol-default"))
+    chosen = verify_segments(segs, 60.0, 65.0)
+    assert [(s.speed_rpm, s.iq) for s in chosen] == [(60.0, 65.0), (-60.0, -65.0)]
+    assert verify_segments(segs, -60.0, -65.0) == chosen
+    assert verify_segments(segs, 90.0, 65.0) == segs  # no such point: the whole profile

@@ -9,33 +9,17 @@ comes from that same flash file. Both bind free ports and are shut down when the
 from __future__ import annotations
 
 import contextlib
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-import numpy as np
-
 
 def demo_motor_spec(seed: int, serial: str) -> Any:
-    """A plant motor with 6th-harmonic ripple of the seed paper's order (demo motors).
+    """The demo's motor number ``seed``: the plant's production draw around the paper's bench
+    (:func:`eol_cal.plant.variation.draw_spec`)."""
+    from eol_cal.plant.variation import draw_spec
 
-    k6 in 1.0 ... 2.0 mN*m/A and c6 in 5 ... 15 mN*m with random phases, transducer noise
-    1 mN*m; everything else the plant's defaults. (The plant's production-variation draw,
-    ``eol_cal.plant.variation.draw_spec``, is used instead when it exists.)
-    """
-    try:
-        from eol_cal.plant import variation  # type: ignore[attr-defined]
-    except ImportError:
-        variation = None
-    if variation is not None and hasattr(variation, "draw_spec"):
-        return variation.draw_spec(seed, serial=serial)
-    from eol_cal.plant.params import PlantSpec
-
-    rng = np.random.default_rng(seed)
-    return PlantSpec(serial=serial, k6=float(rng.uniform(1.0e-3, 2.0e-3)), phase_k6=float(rng.uniform(-math.pi, math.pi)),
-                     c6=float(rng.uniform(5e-3, 15e-3)), phase_c6=float(rng.uniform(-math.pi, math.pi)),
-                     tq_noise_nm=1e-3)
+    return draw_spec(seed, serial=serial)
 
 
 @dataclass

@@ -57,6 +57,10 @@ class StationConfig:
         Each run gets its own directory below it: captures, fit, block, plots, report.
     profile : str
         Built-in profile name or TOML file (:func:`eol_cal.plant.profile.load_profile`).
+    verify : {"point", "full"}
+        The compensated acquisition: ``point`` runs only the profile's segments at the
+        operating point (both directions where the profile has them), ``full`` the whole
+        profile again.
     spool_dir : path or None
         Where records go when the database cannot be written (default
         :func:`eol_cal.station.records.default_spool_dir`).
@@ -78,6 +82,7 @@ class StationConfig:
     db: Path
     report_dir: Path
     profile: str = "eol-default"
+    verify: str = "point"
     spool_dir: Path | None = None
     rate_hz: int = 10000
     db_timeout_s: float = 5.0
@@ -273,6 +278,29 @@ def point_ripple(capture, angle) -> PointRipple:
                        (float(t[0]), float(t[-1])), rp, sp, t, torque, capture.poles)
 
 
+def verify_segments(segments: list, speed_rpm: float, i_qo_a: float, rel_tol: float = 0.02) -> list:
+    """The profile segments at the operating point, in either direction.
+
+    Parameters
+    ----------
+    segments : list of DynoSegment
+        The test profile as the dyno runs it.
+    speed_rpm, i_qo_a : float
+        Operating point: speed (rpm) and nominal q current (A); matched by magnitude within
+        ``rel_tol``, so the reverse point of the same magnitude is verified too.
+
+    Returns
+    -------
+    list of DynoSegment
+        In profile order; the whole profile when no segment gives the load as i_qo or none matches.
+    """
+    def near(a: float, b: float) -> bool:
+        return abs(abs(a) - abs(b)) <= rel_tol * max(abs(b), 1e-9)
+
+    out = [s for s in segments if s.iq is not None and near(s.speed_rpm, speed_rpm) and near(s.iq, i_qo_a)]
+    return out or list(segments)
+
+
 # --------------------------------------------------------------------------- the cycle
 def _new_run_dir(report_dir: Path, serial: str, started: _dt.datetime, run_id: str) -> Path:
     stamp = started.strftime("%Y%m%dT%H%M%SZ")
@@ -314,7 +342,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         "started_at": started.isoformat(timespec="milliseconds"), "ended_at": None,
         "verdict": "error", "reasons": [], "error": None,
         "tool_version": __version__, "layout_version": LAYOUT_VERSION,
-        "station": dict(cfg.station, profile=profile.name, rate_hz=cfg.rate_hz),
+        "station": dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz),
         "limits": cfg.limits.to_dict(), "steps": [], "captures": {}, "fit": None, "block": None,
         "flash": None, "metrics": {}, "report_dir": str(run_dir), "safe_state": None,
     }
@@ -351,12 +379,22 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
             progress(name, "done")
         return out
 
-    def acquire(which: str) -> Any:
+    def acquire(which: str, segs: list) -> Any:
         path = run_dir / f"{which}.mf4"
-        cap = dc.acquire(cfg.dyno, segments, path, serial=cfg.serial, rate_hz=cfg.rate_hz,
+        cap = dc.acquire(cfg.dyno, segs, path, serial=cfg.serial, rate_hz=cfg.rate_hz,
                          extra_metadata={"comment": f"eol-cal run {run_id}: {which}, profile {profile.name}"})
-        rec["captures"][which] = {"path": str(path), "sha256": sha256_file(path), "samples": int(len(cap.t))}
+        rec["captures"][which] = {"path": str(path), "sha256": sha256_file(path), "samples": int(len(cap.t)),
+                                  "segments": len(segs)}
         return cap
+
+    def acquire_compensated() -> Any:
+        op = rec["fit"]["operating_point"]
+        segs = segments if cfg.verify == "full" else verify_segments(segments, op["speed_rpm"], op["i_qo_a"])
+        # the before-capture's figures are computed meanwhile on the helper thread
+        mi = state["fit_extra"][0]
+        k = nearest_segment(mi.captures, op["speed_rpm"], op["i_qo_a"])
+        state["pr_before"] = helper.submit(point_ripple, mi.captures[k], mi.angles[k])
+        return acquire("after", segs)
 
     def do_fit() -> None:
         doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__)
@@ -413,10 +451,8 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     def do_metrics() -> None:
         from eol_cal.analysis.angle import capture_angle
 
-        mi = state["fit_extra"][0]
         op = rec["fit"]["operating_point"]
-        k = nearest_segment(mi.captures, op["speed_rpm"], op["i_qo_a"])
-        before = point_ripple(mi.captures[k], mi.angles[k])
+        before = state["pr_before"].result()
         pieces = split_segments(state["after"])
         after_cap = pieces[nearest_segment(pieces, op["speed_rpm"], op["i_qo_a"])]
         after = point_ripple(after_cap, capture_angle(after_cap))
@@ -433,11 +469,11 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
 
     try:
         try:
-            state["before"] = step("acquire", lambda: acquire("before"))
+            state["before"] = step("acquire", lambda: acquire("before", segments))
             step("fit", do_fit)
             step("table", do_table)
             step("flash", do_flash)
-            state["after"] = step("acquire compensated", lambda: acquire("after"))
+            state["after"] = step("acquire compensated", acquire_compensated)
             step("metrics", do_metrics)
         except _Skip:
             pass
