@@ -9,7 +9,9 @@ measured inside the dyno simulator: on a real line that time is the shaft turnin
 simulators it is CPU.
 
 - ours: ``eol-cal run ... --json`` in its own process (process start, imports and the JAX
-  persistent cache included); the per-step times come from its record.
+  persistent cache included); the per-step times come from its record. Both verification
+  modes: ``--verify point`` (default: the compensated acquisition runs only the operating
+  point's segments) and ``--verify full`` (the whole profile again).
 - alternative: ``eol-cal acquire``, ``fit``, ``table``, ``flash``, ``acquire``, ``analyze``, one
   process each, stopping at the first failing command.
 
@@ -55,7 +57,7 @@ def timed_source(serial: str, seed: int, spent: list[float]):
     return source
 
 
-def run_ours(work: Path, profile: str, serial: str, seed: int, key: Path, env: dict) -> dict:
+def run_ours(work: Path, profile: str, serial: str, seed: int, key: Path, env: dict, verify: str = "point") -> dict:
     from eol_cal.station.demo import loopback_station
 
     spent: list[float] = []
@@ -64,7 +66,7 @@ def run_ours(work: Path, profile: str, serial: str, seed: int, key: Path, env: d
         p = subprocess.run(eol_cal("run", "--dyno", st.dyno_address, "--interface", "remote", "--channel", st.can_channel,
                                    "--limits", str(LIMITS), "--db", str(work / "results.sqlite"), "--serial", serial,
                                    "--profile", profile, "--key-file", str(key), "--report-dir", str(work / "reports"),
-                                   "--spool-dir", str(work / "spool"), "--json"),
+                                   "--spool-dir", str(work / "spool"), "--verify", verify, "--json"),
                            capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
         wall = time.perf_counter() - t0
     if p.returncode not in (0, 1):
@@ -124,26 +126,29 @@ def main() -> int:
         tmp = Path(tmp)
         key = tmp / "key.hex"
         key.write_text(P.DEV_SECRET.hex())
-        runs = []
+        results: dict[str, list[dict]] = {"point": [], "full": []}
         for i in range(args.repeat + 1):
-            work = tmp / f"run{i}"
-            work.mkdir()
-            r = run_ours(work, args.profile, f"B-{i:04d}", 1, key, env)
-            if i:
-                runs.append(r)
-            print(f"{'warm-up' if i == 0 else f'run {i}'}: {r['wall']:.2f} s wall, verdict {r['verdict']}, "
-                  f"plant {r['plant']:.2f} s over {r['captures']} captures", flush=True)
-        names = list(runs[0]["steps"])
-        print("\n## eol-cal run, median over the repeats (s)")
-        print(f"{'step':<22}{'median':>9}{'min':>9}{'max':>9}")
-        for n in names:
-            v = [r["steps"].get(n, float('nan')) for r in runs]
-            print(f"{n:<22}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
-        for label, key_ in (("sum of steps", "steps_sum"), ("process wall", "wall"), ("plant compute (dyno sim)", "plant")):
-            v = [r[key_] for r in runs]
-            print(f"{label:<22}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
-        tool = [r["wall"] - r["plant"] for r in runs]
-        print(f"{'wall minus plant':<22}{statistics.median(tool):9.2f}{min(tool):9.2f}{max(tool):9.2f}")
+            for verify in ("point", "full"):
+                work = tmp / f"run{i}-{verify}"
+                work.mkdir()
+                r = run_ours(work, args.profile, f"B-{i:04d}", 1, key, env, verify)
+                if i:
+                    results[verify].append(r)
+                print(f"{'warm-up' if i == 0 else f'run {i}'} --verify {verify}: {r['wall']:.2f} s wall, verdict "
+                      f"{r['verdict']}, plant {r['plant']:.2f} s over {r['captures']} captures", flush=True)
+        for verify, runs in results.items():
+            names = list(runs[0]["steps"])
+            print(f"\n## eol-cal run --verify {verify}, median over the repeats (s)")
+            print(f"{'step':<26}{'median':>9}{'min':>9}{'max':>9}")
+            for n in names:
+                v = [r["steps"].get(n, float('nan')) for r in runs]
+                print(f"{n:<26}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
+            for label, key_ in (("sum of steps", "steps_sum"), ("process wall", "wall"),
+                                ("plant compute (dyno sim)", "plant")):
+                v = [r[key_] for r in runs]
+                print(f"{label:<26}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
+            tool = [r["wall"] - r["plant"] for r in runs]
+            print(f"{'wall minus plant':<26}{statistics.median(tool):9.2f}{min(tool):9.2f}{max(tool):9.2f}")
 
         print("\n## alternative: separate eol-cal commands, one process each (s)")
         work = tmp / "alt"

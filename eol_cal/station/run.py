@@ -352,7 +352,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     # One helper thread: it imports JAX and matplotlib while the dyno spins the first time, and
     # draws the fit's plots while it spins the second time (the main thread mostly waits there).
     helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
-    helper.submit(_prewarm)
+    helper.submit(_prewarm, len(segments))
 
     def step(name: str, fn: Callable[[], Any]) -> Any:
         if progress:
@@ -540,14 +540,29 @@ def _report(rec: dict[str, Any], run_dir: Path, state: dict[str, Any]) -> Path:
     return write_report(rec, run_dir, figures=figures, point_ripple=state.get("pr"))
 
 
-def _prewarm() -> None:
-    """Import what the fit and the plots need (seconds of JAX and matplotlib start-up)."""
+def _prewarm(n_segments: int) -> None:
+    """Import what the fit and the plots need, and trace the fit's solver for ``n_segments``
+    segments on an analytic record (JAX traces per shape; tracing costs seconds even when the
+    compiled code comes from the persistent cache). Runs while the dyno spins."""
     try:
-        import eol_cal.analysis.fit  # noqa: F401 - jax, equinox, optimistix
+        import dataclasses
+
+        import numpy as np
+
+        from eol_cal.analysis.fit import FitSpec, fit_many
+        from eol_cal.analysis.fit_synth import synthetic_segments
         import eol_cal.analysis.fit_capture  # noqa: F401
         import eol_cal.analysis.fit_plot  # noqa: F401
         from eol_cal.analysis.plots import _pyplot
 
         _pyplot()
+        loads = tuple(20.0 + 10.0 * k for k in range(max(2, (n_segments + 3) // 4)))
+        seg, _truth = synthetic_segments(np.random.default_rng(0), loads_a=loads, speeds_rpm=(60.0, 120.0),
+                                         directions=(1, -1), seg_s=0.1, fs_hz=10000.0)
+        if len(seg.theta) > n_segments:
+            keep = slice(0, n_segments)
+            seg = dataclasses.replace(seg, **{f.name: getattr(seg, f.name)[keep] for f in dataclasses.fields(seg)
+                                              if isinstance(getattr(seg, f.name), (list, np.ndarray))})
+        fit_many([seg], FitSpec(), mode="loop")
     except Exception:  # noqa: BLE001 - the step that needs it reports a real failure
         pass
