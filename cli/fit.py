@@ -76,6 +76,8 @@ def _json_safe(x):
 @click.option("--delay", "delay_s", type=float, help="Known transducer delay / time constant (s) instead of fitting it.")
 @click.option("--transducer", type=click.Choice(["delay", "lowpass"]), default="lowpass", show_default=True,
               help="Torque transducer model: pure delay, or first-order low-pass (gain and phase).")
+@click.option("--frame", type=click.Choice(["firmware", "offline"]), default="firmware", show_default=True,
+              help="Angle frame of the phases: the firmware estimator's (run over the capture), or the offline hall frame.")
 @click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5), help="Per-segment drift polynomial degree.")
 @click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0), help="Settling time dropped after each step (s).")
 @click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of k6, fraction of k6.")
@@ -87,7 +89,7 @@ def _json_safe(x):
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
-def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, drift_degree, settle_s,
+def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, frame, drift_degree, settle_s,
             max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
@@ -100,7 +102,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from rich.table import Table
 
     from eol_cal import __version__
-    from eol_cal.analysis.fit import FitSpec, fit_many
+    from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.analysis.metrics import eta_percent
     from eol_cal.analysis.result import STATUS_OK, CiLimits, motor_record, result_document, write_result
@@ -119,7 +121,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
     caps = [read_capture(p, map_file) for p in captures]
-    inputs = motor_inputs(caps, settle_s=settle_s)
+    inputs = motor_inputs(caps, settle_s=settle_s, frame=frame)
     mode = batch if batch != "auto" else ("map" if len(inputs) >= 16 else "loop")
     with Progress(console=err_console, transient=True, disable=len(inputs) < 2) as progress:
         task = progress.add_task("fitting", total=len(inputs))
@@ -143,8 +145,9 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
             "captures": [_capture_metrics(c, a) for c, a in zip(mi.captures, mi.angles)],
         }
         records.append(_json_safe(motor_record(
-            mi.serial, f, spec, limits, kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
-            encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics, solver_mode=mode,
+            mi.serial, shift_frame(f, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
+            poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
+            solver_mode=mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
         )))
         if plot_dir:
             from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum

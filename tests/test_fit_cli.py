@@ -73,6 +73,9 @@ def test_fit_recovers_the_generator_and_writes_the_schema(fitted, files):
     assert len(m["segments"]) == len(POINTS)
     assert {round(s["speed_rpm"]) for s in m["segments"]} == {120, 240, -120}
     assert m["kt"] == pytest.approx(0.75 * 6 * 0.0109) and m["kt_source"] == "metadata"
+    # phases in the firmware estimator's frame; the generator's encoder and halls are exact, so the
+    # estimator's frame sits on the hall frame to a small fraction of a degree
+    assert m["model"]["angle_frame"] == "firmware" and abs(m["model"]["frame_offset_deg"]) < 0.2
     assert m["metrics"]["eta_percent"] > 0 and len(m["metrics"]["captures"]) == len(POINTS)
     assert all("pp_filtered_pct" in c or "error" in c for c in m["metrics"]["captures"])
     assert (files["dir"] / "plots" / "M-0007_fit.png").stat().st_size > 10000

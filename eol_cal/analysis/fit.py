@@ -554,6 +554,21 @@ class MotorFit:
     coef: np.ndarray | None = None
 
 
+def shift_frame(fit: MotorFit, offset_rad: float) -> MotorFit:
+    """The same fit with its phases in a frame ``theta' = theta + offset_rad`` (rad, electrical).
+
+    ``sin(h theta + phi) = sin(h theta' - h offset + phi)``: harmonic h's phases move by
+    ``-h * offset_rad``; amplitudes and intervals are unchanged.
+    """
+    import dataclasses
+
+    harmonics = {
+        h: {part: dataclasses.replace(e, phase=wrap_phase(e.phase - h * offset_rad)) for part, e in parts.items()}
+        for h, parts in fit.harmonics.items()
+    }
+    return dataclasses.replace(fit, harmonics=harmonics)
+
+
 def wrap_phase(phi: float) -> float:
     """Wrap an angle (rad) into (-pi, pi]."""
     w = math.atan2(math.sin(phi), math.cos(phi))

@@ -47,6 +47,8 @@ class MotorInput:
     kt: float
     kt_source: str
     capture_of_segment: list[int] = field(default_factory=list)
+    frame: str = "offline"
+    frame_offset_rad: float = 0.0
 
     @property
     def sources(self) -> list[str]:
@@ -138,11 +140,38 @@ def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
     return motor.kt, f"preset {motor.name}"
 
 
+def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]]) -> tuple[complex, int]:
+    """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
+
+    Runs the firmware estimator (:mod:`eol_cal.firmware.estimator`, paper configuration, one
+    tick per sample) over the capture and sums ``exp(i (theta_hat - theta_r))`` over the
+    segment samples at which it is anchored, moving and has a speed.
+
+    Returns
+    -------
+    (complex, int)
+        The sum and the number of samples in it; ``angle(sum)`` is the offset (rad, electrical).
+    """
+    from eol_cal.firmware import estimator as est
+
+    cfg = est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=capture.sample_rate)
+    out = est.run_jax(cfg, capture["enc_a"], capture["enc_b"], capture["hall"])
+    status = np.asarray(out.status)
+    ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
+    in_seg = np.zeros(len(ok), bool)
+    for a, b in ranges:
+        in_seg[a:b] = True
+    ok &= in_seg
+    d = np.asarray(out.theta_hat, float)[ok] - theta_r[ok]
+    return complex(np.exp(1j * d).sum()), int(ok.sum())
+
+
 def motor_inputs(
     captures: list[Capture],
     motor: MotorParams | None = None,
     settle_s: float = 0.1,
     min_revs: int = 1,
+    frame: str = "firmware",
 ) -> list[MotorInput]:
     """Group captures by serial, reconstruct the angle, cut segments.
 
@@ -156,6 +185,11 @@ def motor_inputs(
         Settling time dropped after each step (s).
     min_revs : int
         Fewest electrical revolutions per segment.
+    frame : {"firmware", "offline"}
+        ``firmware``: measure where the firmware estimator's angle frame sits against the offline
+        angle (:func:`firmware_frame_offset`), so that phases can be given in the frame the ECU
+        evaluates its table in; captures without ``enc_b`` fall back to ``offline`` (the hall
+        frame of :mod:`eol_cal.analysis.angle`).
 
     Returns
     -------
@@ -178,6 +212,8 @@ def motor_inputs(
             raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
         P = poles.pop()
         thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
+        use_fw = frame == "firmware" and all(c.has("enc_b") for c in caps)
+        fw_sum, fw_n = 0j, 0
         for ci, c in enumerate(caps):
             if not c.has("torque"):
                 raise InputError(c.source, "torque", "missing channel, needed for the fit")
@@ -187,6 +223,9 @@ def motor_inputs(
             angles.append(ang)
             i_qo = np.asarray(c.iq_ref(), dtype=float)
             ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
+            if use_fw and ranges:
+                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges)
+                fw_sum, fw_n = fw_sum + s_, fw_n + n_
             for a, b in ranges:
                 th = ang.theta_r[a:b]
                 tt = c.t[a:b]
@@ -209,5 +248,10 @@ def motor_inputs(
             )
         kt, kt_source = _kt_of(caps, motor)
         seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels)
-        out.append(MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx))
+        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx)
+        if use_fw and fw_n:
+            mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
+        elif frame == "firmware":
+            mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
+        out.append(mi)
     return out

@@ -92,8 +92,14 @@ def motor_record(
     segments: list[dict[str, Any]],
     metrics: dict[str, Any],
     solver_mode: str,
+    frame: str = "offline",
+    frame_offset_rad: float = 0.0,
 ) -> dict[str, Any]:
-    """One entry of ``motors`` (see ``docs/json.md``)."""
+    """One entry of ``motors`` (see ``docs/json.md``).
+
+    ``fit`` must already be in the frame named by ``frame`` (:func:`eol_cal.analysis.fit.shift_frame`);
+    ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad).
+    """
     status, reasons = judge(fit, spec, limits)
     usable = status == STATUS_OK
     rec: dict[str, Any] = {"serial": serial, "status": status, "reasons": reasons}
@@ -135,7 +141,8 @@ def motor_record(
         "transducer": spec.transducer,
         "drift_degree": spec.drift_degree,
         "mech_order1": spec.mech_order1,
-        "angle_frame": "hall: theta_r = 0 where hall state 5 begins in forward rotation (docs/angle-frame.md)",
+        "angle_frame": frame,
+        "frame_offset_deg": math.degrees(frame_offset_rad),
     }
     rec["poles"] = poles
     rec["encoder_ppr"] = encoder_ppr
