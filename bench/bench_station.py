@@ -63,18 +63,25 @@ def run_ours(work: Path, profile: str, serial: str, seed: int, key: Path, env: d
     spent: list[float] = []
     with loopback_station(serial, seed, work / "sim", source=timed_source(serial, seed, spent)) as st:
         t0 = time.perf_counter()
+        t_spawn = time.time()
         p = subprocess.run(eol_cal("run", "--dyno", st.dyno_address, "--interface", "remote", "--channel", st.can_channel,
                                    "--limits", str(LIMITS), "--db", str(work / "results.sqlite"), "--serial", serial,
                                    "--profile", profile, "--key-file", str(key), "--report-dir", str(work / "reports"),
                                    "--spool-dir", str(work / "spool"), "--verify", verify, "--json"),
                            capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
         wall = time.perf_counter() - t0
+        t_exit = time.time()
     if p.returncode not in (0, 1):
         raise RuntimeError(f"eol-cal run failed ({p.returncode}): {p.stderr[-2000:]}")
     rec = json.loads(p.stdout)["record"]
     steps = {s["step"]: s["seconds"] for s in rec["steps"]}
+    from datetime import datetime
+
+    started = datetime.fromisoformat(rec["started_at"]).timestamp()
+    ended = datetime.fromisoformat(rec["ended_at"]).timestamp()
     return {"wall": wall, "steps": steps, "plant": sum(spent), "verdict": rec["verdict"],
-            "captures": len(spent), "steps_sum": sum(steps.values())}
+            "captures": len(spent), "steps_sum": sum(steps.values()),
+            "startup": started - t_spawn, "teardown": t_exit - ended}
 
 
 def run_alternative(work: Path, profile: str, serial: str, seed: int, key: Path, env: dict) -> list[tuple[str, float, int]]:
@@ -143,7 +150,8 @@ def main() -> int:
             for n in names:
                 v = [r["steps"].get(n, float('nan')) for r in runs]
                 print(f"{n:<26}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
-            for label, key_ in (("sum of steps", "steps_sum"), ("process wall", "wall"),
+            for label, key_ in (("sum of steps", "steps_sum"), ("process start to cycle", "startup"),
+                                ("cycle end to exit", "teardown"), ("process wall", "wall"),
                                 ("plant compute (dyno sim)", "plant")):
                 v = [r[key_] for r in runs]
                 print(f"{label:<26}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")

@@ -176,8 +176,13 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
         db_timeout_s=db_timeout,
         station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
     )
-    with _StepProgress(serial, enabled=not as_json) as progress:
-        out = run_motor(cfg, progress)
+    try:
+        with _StepProgress(serial, enabled=not as_json) as progress:
+            out = run_motor(cfg, progress)
+    except KeyboardInterrupt:
+        # run_motor has recorded the run as an error and commanded the dyno's safe state
+        err_console.print("interrupted: the dyno was sent to its safe state and the run recorded as an error")
+        sys.exit(2)
     _print_outcome(out, as_json)
     sys.exit(out.exit_code)
 
