@@ -10,8 +10,13 @@ write is scipy.optimize.least_squares on the same model over every sample
 
 from __future__ import annotations
 
-import argparse
 import os
+
+# The fit parallelises over captures (a thread pool for the numpy compression); BLAS's own threads
+# only spin against it on small products. Set before numpy loads.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse
 import statistics
 import subprocess
 import sys
@@ -27,6 +32,7 @@ def main() -> None:
     ap.add_argument("--scipy", type=int, default=5, help="captures fitted with scipy (it is slow)")
     ap.add_argument("--chunk", type=int, default=250)
     ap.add_argument("--cli", action="store_true", help="also time `eol-cal fit` on one capture file")
+    ap.add_argument("--harmonics", default="6,12,18", help="orders fitted (eol-cal fit's default 6,12,18)")
     args = ap.parse_args()
 
     import jax
@@ -45,7 +51,8 @@ def main() -> None:
     ]
     n_samples = sum(len(a) for a in motors[0].theta)
     print(f"{args.captures} captures x {n_samples} samples generated in {time.perf_counter() - t0:.1f} s")
-    spec = FitSpec()
+    spec = FitSpec(harmonics=tuple(int(h) for h in args.harmonics.split(",")))
+    print(f"model: harmonics {spec.harmonics}, transducer {spec.transducer}, solver {spec.solver}")
 
     # warm time per capture, one at a time (compile first)
     fit_segments(motors[0], spec)

@@ -64,7 +64,7 @@ def fit_segments_scipy(seg: SegmentArrays, spec: FitSpec, p0: np.ndarray | None 
     if p0 is None:
         p0 = np.zeros(n_tau + G + S * q)
         p0[n_tau + G :: q] = [y.mean() for y in ys]
-    sol = least_squares(residual, p0, method="trf", x_scale="jac", xtol=1e-10, ftol=1e-10)
+    sol = least_squares(residual, p0, method="trf", xtol=1e-10, ftol=1e-10)
     p = sol.x
     harmonics: dict = {h: {} for h in spec.harmonics}
     parts = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
