@@ -258,3 +258,32 @@ def test_verification_segments_are_the_operating_point_in_both_directions():
     assert [(s.speed_rpm, s.iq) for s in chosen] == [(60.0, 65.0), (-60.0, -65.0)]
     assert verify_segments(segs, -60.0, -65.0) == chosen
     assert verify_segments(segs, 90.0, 65.0) == segs  # no such point: the whole profile
+
+
+def test_flash_refused_with_a_wrong_key_is_an_error_and_the_ecu_keeps_no_new_block(files, tmp_path):
+    db = tmp_path / "results.sqlite"
+    wrong = tmp_path / "wrong.hex"
+    wrong.write_text("00" * 16)
+    with loopback_station("K-1", 3, tmp_path / "sim", source=synthetic_source) as st:
+        args = run_args(files, st, "K-1", db, tmp_path / "reports")
+        args[args.index("--key-file") + 1] = str(wrong)
+        res = CliRunner().invoke(cli, args)
+        wait_stopped(st.dyno.sim)
+        assert not st.dyno.sim.enabled and st.dyno.sim.speed == 0.0
+        flash = st.flash_file
+    assert res.exit_code == 2, res.output
+    rec = json.loads(res.stdout)["record"]
+    assert rec["verdict"] == "error" and rec["error"]["step"] == "flash"
+    assert "security" in rec["error"]["message"].lower() or "35" in rec["error"]["message"]
+    assert active_block_from_file(flash) is None  # nothing was written into a bank
+    assert [r["verdict"] for r in query_records(db)] == ["error"]
+
+
+def test_demo_one_motor_from_the_command_line(tmp_path):
+    res = CliRunner().invoke(cli, ["demo", "--motors", "1", "--out", str(tmp_path / "demo")])
+    assert res.exit_code == 0, res.output
+    assert "DEMO-0001" in res.output and "pass" in res.output
+    (rec,) = query_records(tmp_path / "demo" / "results.sqlite")
+    assert rec["verdict"] == "pass" and rec["station"]["demo"] is True
+    assert Path(rec["report_dir"], "report.html").exists()
+    assert (tmp_path / "demo" / "limits.toml").exists()
