@@ -29,7 +29,6 @@ from eol_cal.station.limits import Measured, load_limits, verdict
 from eol_cal.station.records import query_records
 from eol_cal.station.run import sha256_file
 
-ROOT = Path(__file__).resolve().parents[1]
 
 PROFILE = """
 name = "station-test"

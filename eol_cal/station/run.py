@@ -125,10 +125,6 @@ def _safe_name(text: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in text)
 
 
-def _finite(x: Any) -> float | None:
-    return float(x) if x is not None and math.isfinite(float(x)) else None
-
-
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture, as ``eol-cal fit`` does it.
