@@ -106,7 +106,8 @@ def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
     ]
     table = "\n".join(f"<tr><th>{e(a)}</th><td>{e(b)}</td><td>{e(c)}</td></tr>" for a, b, c in rows)
     steps = "\n".join(f"<tr><td>{e(s['step'])}</td><td>{_fmt(s['seconds'], 1, 3)} s</td>"
-                      f"<td>{'ok' if s['ok'] else 'FAILED'}</td></tr>" for s in rec.get("steps", []))
+                      f"<td>{'ok' if s['ok'] else ('writing this page' if s['seconds'] is None else 'FAILED')}</td></tr>"
+                      for s in rec.get("steps", []))
     reasons = "".join(f"<li>{e(r)}</li>" for r in rec.get("reasons") or []) or "<li>all limits met</li>"
     imgs = "\n".join(f'<figure><img src="{e(f)}" alt="{e(c)}" style="max-width:100%"><figcaption>{e(c)}</figcaption></figure>'
                      for f, c in figures)
@@ -123,7 +124,7 @@ def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
 .v{{color:{colour};font-size:2em;font-weight:bold}}</style></head><body>
 <h1>Motor {e(rec['serial'])} <span class="v">{e(v.upper())}</span></h1>
 <p>variant {e(str(lim.get('variant')))} ({e(str(lim.get('source')))}), run {e(rec['run_id'])},
-{e(rec['started_at'])} to {e(str(rec.get('ended_at')))}, eol-cal {e(str(rec.get('tool_version')))},
+started {e(rec['started_at'])} (end time and total: report.json), eol-cal {e(str(rec.get('tool_version')))},
 block layout {e(str(rec.get('layout_version')))}</p>
 {err_html}<ul>{reasons}</ul>
 <table>{table}</table>
