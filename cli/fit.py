@@ -102,10 +102,10 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from rich.table import Table
 
     from eol_cal import __version__
-    from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
+    from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.analysis.metrics import eta_percent
-    from eol_cal.analysis.result import STATUS_OK, CiLimits, motor_record, result_document, write_result
+    from eol_cal.analysis.result import STATUS_OK, CiLimits, record_for_motor, result_document, write_result
     from eol_cal.capture.io import read_capture
 
     enable_jax_cache()
@@ -135,20 +135,11 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         )
     records = []
     for mi, f in zip(inputs, fits):
-        segments = [
-            {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
-             "T_avg_nm": float(f.t_avg[k])}
-            for k, i in enumerate(mi.info)
-        ]
         metrics = {
             "eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles)),
             "captures": [_capture_metrics(c, a) for c, a in zip(mi.captures, mi.angles)],
         }
-        records.append(_json_safe(motor_record(
-            mi.serial, shift_frame(f, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
-            poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
-            solver_mode=mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
-        )))
+        records.append(_json_safe(record_for_motor(mi, f, spec, limits, metrics=metrics, solver_mode=mode)))
         if plot_dir:
             from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
 

@@ -152,6 +152,28 @@ def motor_record(
     return rec
 
 
+def record_for_motor(mi, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
+                     solver_mode: str) -> dict[str, Any]:
+    """:func:`motor_record` for a :class:`~eol_cal.analysis.fit_capture.MotorInput` and its fit.
+
+    Moves the phases into the frame ``motor_inputs`` measured (the firmware's by default,
+    :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
+    stays in the offline frame (the plots draw it against the offline angle).
+    """
+    from eol_cal.analysis.fit import shift_frame
+
+    segments = [
+        {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
+         "T_avg_nm": float(fit.t_avg[k])}
+        for k, i in enumerate(mi.info)
+    ]
+    return motor_record(
+        mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
+        poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
+        solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
+    )
+
+
 def operating_point(segments: list[dict[str, Any]]) -> dict[str, float]:
     """The segment the compensation is tuned for: the largest |i_qo|, then the lowest |speed|.
 
