@@ -111,6 +111,8 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
     from eol_cal.station.records import flush_spool
 
     res = flush_spool(db, spool_dir, timeout)
+    for bad in res.bad_files:
+        err_console.print(f"[yellow]spool: {bad}; left alone[/yellow]")
     if res.flushed_files:
         err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db}")
     elif res.remaining:
@@ -284,6 +286,8 @@ def records_cmd(db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
                + (f"; {res.remaining} still waiting: {res.error}" if res.remaining else "")
                + (f"; {res.other_db} spooled for other databases" if res.other_db else ""))
         err_console.print(msg)
+        for bad in res.bad_files:
+            err_console.print(f"spool: {bad}; left alone")
         if res.remaining:
             sys.exit(2)
     records = query_records(db, serial, day)

@@ -121,6 +121,17 @@ def test_flush_is_idempotent_and_leaves_other_databases_records(tmp_path: Path):
     assert fl.flushed_files == 1 and fl.inserted == 0 and fl.other_db == 1
     assert len(rows(db)) == 1
     assert other_file.exists() and not path.exists()
+    # a stray file in the spool is reported and left alone; it does not stop the flush
+    stray = spool / "notes.json"
+    stray.write_text("{not json")
+    r2 = record("M-9")
+    save_record(r2, db.parent / "nodir" / "x.sqlite", spool)
+    doc = json.loads((spool / f"{r2['run_id']}.json").read_text())
+    doc["db"] = str(db.resolve())
+    (spool / f"{r2['run_id']}.json").write_text(json.dumps(doc))
+    fl = flush_spool(db, spool)
+    assert fl.inserted == 1 and len(fl.bad_files) == 1 and "notes.json" in fl.bad_files[0]
+    assert stray.exists()
 
 
 def test_no_spool_either_is_an_error_naming_both(tmp_path: Path):

@@ -223,19 +223,23 @@ class FlushResult:
     remaining: int
     other_db: int
     error: str | None = None
+    bad_files: tuple[str, ...] = ()
 
 
-def _spooled(spool_dir: Path) -> list[tuple[Path, dict[str, Any]]]:
-    out = []
+def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, dict[str, Any]]], list[str]]:
+    """Readable spooled records, and ``"file: reason"`` for every file that is not one."""
+    out, bad = [], []
     for path in sorted(spool_dir.glob("*.json")):
         try:
             doc = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise InputError(str(path), None, f"spooled record unreadable: {exc}") from None
-        if doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
-            raise InputError(str(path), "schema", f"not a spooled record ({SPOOL_SCHEMA})")
+            bad.append(f"{path}: unreadable ({exc})")
+            continue
+        if not isinstance(doc, dict) or doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
+            bad.append(f"{path}: not a spooled record ({SPOOL_SCHEMA})")
+            continue
         out.append((path, doc))
-    return out
+    return out, bad
 
 
 def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
@@ -243,27 +247,29 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
     """Insert every spooled record meant for ``db`` and remove its spool file.
 
     Records spooled for another database stay. When the database still cannot be written
-    nothing is removed and ``error`` says why.
+    nothing is removed and ``error`` says why. Files in the spool that are not spooled records
+    are left alone and listed in ``bad_files`` (one stray file must not stop the line).
     """
     spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
     if not spool_dir.is_dir():
         return FlushResult(0, 0, 0, 0)
     target = str(Path(db).resolve())
     mine, others = [], 0
-    for path, doc in _spooled(spool_dir):
-        if doc["db"] == target:
+    spooled, bad = _spooled(spool_dir)
+    for path, doc in spooled:
+        if doc.get("db") == target:
             mine.append((path, doc["record"]))
         else:
             others += 1
     if not mine:
-        return FlushResult(0, 0, 0, others)
+        return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
     try:
         n = insert_records(db, [r for _p, r in mine], timeout_s)
-    except (sqlite3.Error, OSError) as exc:
-        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {exc}")
+    except (sqlite3.Error, OSError, KeyError) as exc:
+        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {exc}", tuple(bad))
     for path, _r in mine:
         path.unlink(missing_ok=True)
-    return FlushResult(n, len(mine), 0, others)
+    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad))
 
 
 def query_records(db: str | Path, serial: str | None = None, day: str | None = None,
