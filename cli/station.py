@@ -169,7 +169,6 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     if interface is None and can_config is None:
         raise InputError(None, "interface", "no CAN interface given (--interface or --can-config)")
     _quiet_logs()
-    enable_jax_cache()
     _flush_first(db, spool_dir, db_timeout)
     cfg = StationConfig(
         serial=serial, dyno=DynoConfig(host=host, port=port, timeout=dyno_timeout),
@@ -177,6 +176,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
         db=db, report_dir=report_dir, profile=profile, verify=verify, spool_dir=spool_dir, rate_hz=rate_hz,
         db_timeout_s=db_timeout,
         station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
+        prepare=enable_jax_cache,  # on the helper thread: importing JAX costs a second
     )
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:

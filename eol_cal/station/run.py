@@ -72,6 +72,9 @@ class StationConfig:
         Free-form description of the station for the record (addresses, interface).
     ecu_timing : ClientTiming or None
         UDS timing (default the contract's).
+    prepare : callable or None
+        Called first on the helper thread while the dyno spins, e.g. to switch on JAX's
+        persistent compilation cache (importing JAX costs a second).
     """
 
     serial: str
@@ -88,6 +91,7 @@ class StationConfig:
     db_timeout_s: float = 5.0
     station: dict[str, Any] = field(default_factory=dict)
     ecu_timing: Any = None
+    prepare: Callable[[], None] | None = None
 
 
 @dataclass
@@ -348,7 +352,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     # One helper thread: it imports JAX and matplotlib while the dyno spins the first time, and
     # draws the fit's plots while it spins the second time (the main thread mostly waits there).
     helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
-    helper.submit(_prewarm, len(segments))
+    helper.submit(_prewarm, len(segments), cfg.prepare)
 
     def step(name: str, fn: Callable[[], Any]) -> Any:
         if progress:
@@ -536,11 +540,13 @@ def _report(rec: dict[str, Any], run_dir: Path, state: dict[str, Any]) -> Path:
     return write_report(rec, run_dir, figures=figures, point_ripple=state.get("pr"))
 
 
-def _prewarm(n_segments: int) -> None:
+def _prewarm(n_segments: int, prepare: Callable[[], None] | None = None) -> None:
     """Import what the fit and the plots need, and trace the fit's solver for ``n_segments``
     segments on an analytic record (JAX traces per shape; tracing costs seconds even when the
     compiled code comes from the persistent cache). Runs while the dyno spins."""
     try:
+        if prepare is not None:
+            prepare()
         import dataclasses
 
         import numpy as np
