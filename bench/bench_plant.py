@@ -82,8 +82,14 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds of the plant runs")
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--motulator-seconds", type=float, default=1.0, help="simulated seconds of motulator")
+    ap.add_argument("--no-loop-kernel", action="store_true",
+                    help="leave XLA's small-while-loop threshold at its default (each kernel dispatched)")
     args = ap.parse_args()
     core = _pin_one_core()
+    if not args.no_loop_kernel:
+        from eol_cal.plant.simulate import configure_xla
+
+        configure_xla()
 
     plant = bench_plant(args.seconds, args.batch)
     mot = bench_motulator(args.motulator_seconds)
@@ -91,6 +97,7 @@ def main() -> None:
     def rate(sim_s: float, wall: float) -> float:
         return sim_s / wall
 
+    print(f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}")
     print(f"one CPU core (#{core}); simulated {args.seconds:g} s (plant), {args.motulator_seconds:g} s (motulator)")
     print(f"{'simulator':40s} {'cold x RT':>10s} {'warm x RT':>10s}  (simulated s per wall s)")
     print(f"{'eol-cal plant, 1 motor':40s} {rate(args.seconds, plant['1/cold']):10.2f} {rate(args.seconds, plant['1/warm']):10.2f}")

@@ -21,7 +21,8 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 from __future__ import annotations
 
 import math
-import time
+import os
+import sys
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple, Sequence
 
@@ -163,21 +164,58 @@ def _tick(cfg: SimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple
 
 _COMPILED: dict[tuple, Callable] = {}
 
+#: XLA CPU compiles a while loop into one kernel when the bytes it accesses stay below this
+#: backend option (default 1024); above it, every fused kernel of the body is dispatched on its
+#: own and the tick's ~80 kernels cost ~4 us per iteration instead of ~0.5 us.
+_LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
+_LOOP_BYTES = 1 << 28
+
+
+def configure_xla() -> bool:
+    """Let XLA compile the plant's tick loop into a single kernel (about 8x faster on CPU).
+
+    Adds ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2**28`` to
+    ``XLA_FLAGS``. XLA reads its flags once, when JAX's backend starts, so this must run before
+    the process's first JAX computation; it returns False (and changes nothing) when that has
+    happened already or when ``XLA_FLAGS`` sets backend options of its own. The option applies
+    to every ``while`` loop of the process without custom calls (LAPACK, ...): call it from
+    entry points that mostly simulate (the CLI, benchmarks), not from library code.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if _LOOP_OPTION in flags:
+        return True
+    if "xla_backend_extra_options" in flags:
+        return False
+    if "jax" in sys.modules:
+        try:
+            from jax._src import xla_bridge
+
+            if xla_bridge.backends_are_initialized():
+                return False
+        except (ImportError, AttributeError):
+            return False
+    os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_extra_options={_LOOP_OPTION}={_LOOP_BYTES}".strip()
+    return True
+
 
 def _chunk_fn(cfg: SimConfig, n_ticks: int, unroll: int) -> Callable:
-    """Compiled ``(params, carry, shared_xs, keys) -> (carry, outputs)`` for a batch of motors."""
+    """Compiled ``(params, carry, shared_xs, keys, start) -> (carry, outputs)`` for a batch.
+
+    ``keys`` holds one PRNG key per motor; the chunk's sensor noise is drawn from
+    ``fold_in(key, start)`` so a run does not depend on how it is cut into chunks' dispatches.
+    """
     key = (cfg, n_ticks, unroll)
     if key in _COMPILED:
         return _COMPILED[key]
     import jax
     import jax.numpy as jnp
 
-    def one_motor(p, carry, shared, key):
-        noise = jax.random.normal(key, (n_ticks, 4), dtype=jnp.float32)
+    def one_motor(p, carry, shared, key, start):
+        noise = jax.random.normal(jax.random.fold_in(key, start), (n_ticks, 4), dtype=jnp.float32)
         xs = (*shared, noise)
         return jax.lax.scan(lambda c, x: _tick(cfg, p, c, x), carry, xs, unroll=unroll)
 
-    fn = jax.jit(jax.vmap(one_motor, in_axes=(0, 0, None, 0)))
+    fn = jax.jit(jax.vmap(one_motor, in_axes=(0, 0, None, 0, None)))
     _COMPILED[key] = fn
     return fn
 
@@ -338,12 +376,13 @@ def simulate(
 
     fn = _chunk_fn(cfg, chunk_ticks, unroll)
     out = np.empty((len(specs), n_total, len(OUT_COLUMNS)), np.float32)
+    # The last chunk runs padded (its extra ticks are dropped with the carry after them).
+    pad = -n_total % chunk_ticks
+    inputs = tuple(np.pad(a, (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
     for start in range(0, n_total, chunk_ticks):
         stop = min(start + chunk_ticks, n_total)
-        pad = chunk_ticks - (stop - start)
-        shared = tuple(np.pad(a[start:stop], (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
-        chunk_keys = jax.vmap(lambda k: jax.random.fold_in(k, start))(keys)
-        carry, ys = fn(batch, carry, shared, chunk_keys)
+        shared = tuple(a[start:start + chunk_ticks] for a in inputs)
+        carry, ys = fn(batch, carry, shared, keys, np.int32(start))
         out[:, start:stop] = np.asarray(ys)[:, : stop - start]
         if progress is not None:
             progress(stop / n_total)
