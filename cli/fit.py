@@ -13,15 +13,21 @@ from cli.common import console, err_console, handle_errors
 def enable_jax_cache() -> None:
     """JAX's persistent compilation cache, so a second ``eol-cal fit`` skips compiling.
 
-    Directory: ``$EOL_CAL_JAX_CACHE`` or ``~/.cache/eol-cal/jax``.
+    Directory: ``$EOL_CAL_JAX_CACHE`` or ``~/.cache/eol-cal/jax`` (``off``: no cache); the fit's
+    serialized solvers (:data:`eol_cal.analysis.fit.EXPORT_DIR`) live there too.
     """
     import jax
 
     path = os.environ.get("EOL_CAL_JAX_CACHE") or str(Path.home() / ".cache" / "eol-cal" / "jax")
+    if path == "off":
+        return
     try:
         Path(path).mkdir(parents=True, exist_ok=True)
     except OSError:
         return  # a read-only home only costs the compile time
+    from eol_cal.analysis import fit
+
+    fit.EXPORT_DIR = path
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)

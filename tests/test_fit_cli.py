@@ -21,10 +21,11 @@ TRUTH = dict(k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
 
 
 @pytest.fixture(scope="module", autouse=True)
-def _jax_cache_in_tmp(tmp_path_factory):
-    # the CLI turns on JAX's persistent compilation cache; keep the tests out of ~/.cache
+def _no_jax_cache():
+    # the CLI turns on JAX's persistent caches (writing them costs time; tests/test_fit_core.py
+    # covers the exported solver); keep the tests out of ~/.cache too
     mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", str(tmp_path_factory.mktemp("jaxcache")))
+    mp.setenv("EOL_CAL_JAX_CACHE", "off")
     yield
     mp.undo()
 
@@ -34,7 +35,7 @@ def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("fitcli")
     out = {"csv": [], "mf4": []}
     for i, (rpm, iq) in enumerate(POINTS):
-        c = synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.45, seed=i, theta_r0=0.7 * i, serial="M-0007", **TRUTH)
+        c = synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=i, theta_r0=0.7 * i, serial="M-0007", **TRUTH)
         for ext in ("csv", "mf4"):
             p = d / f"c{i}.{ext}"
             write_capture(c, p)

@@ -166,3 +166,19 @@ def test_batched_equals_single_and_95_percent_intervals_cover_the_truth():
     rates = {k: v / len(fits) for k, v in hits.items()}
     for name, rate in rates.items():
         assert 0.90 <= rate <= 0.99, (name, rates)
+
+
+def test_exported_solver_round_trip(tmp_path, monkeypatch):
+    """The CLI's serialized solver (jax.export) gives the same fit as the jitted one."""
+    from eol_cal.analysis import fit as fit_mod
+
+    seg, _ = synthetic_segments(np.random.default_rng(9), seg_s=0.1, loads_a=(65.0,), c6=0.0, delay_s=0.0)
+    spec = FitSpec(fit_c=False, delay_s=0.0)
+    monkeypatch.setattr(fit_mod, "EXPORT_DIR", str(tmp_path))
+    first = fit_segments(seg, spec)  # jitted; saves the export
+    files = list(tmp_path.glob("fit-*.jaxexport"))
+    assert len(files) == 1 and files[0].stat().st_size > 1000
+    assert fit_mod._exported_solver(spec, seg.n_segments, 1) is not None
+    second = fit_segments(seg, spec)  # deserialized
+    assert second.harmonics[6]["k"].value == first.harmonics[6]["k"].value
+    assert second.harmonics[6]["k"].ci95 == first.harmonics[6]["k"].ci95 and second.steps == first.steps

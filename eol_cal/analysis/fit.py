@@ -470,6 +470,78 @@ def _make_solver(spec: FitSpec):
 
 _SOLVERS: dict = {}
 
+#: Where :func:`fit_many` keeps serialized (``jax.export``) one-motor solvers; ``None`` = off.
+#: The CLI sets it next to JAX's persistent compilation cache: the compilation cache skips XLA
+#: compiling, this skips tracing the solver (and importing optimistix), about 2 s of a short run.
+EXPORT_DIR: str | None = None
+_EXPORT_TAG = "eol-cal-fit-solve-1"
+
+
+def _export_file(spec: FitSpec, S: int, n_grid: int) -> str | None:
+    import hashlib
+    import os
+
+    import jax
+
+    if not EXPORT_DIR:
+        return None
+    key = repr((_EXPORT_TAG, jax.__version__, spec, S, n_grid))
+    return os.path.join(EXPORT_DIR, f"fit-{hashlib.sha256(key.encode()).hexdigest()[:20]}.jaxexport")
+
+
+def _exported_solver(spec: FitSpec, S: int, n_grid: int):
+    """A deserialized one-motor solver from EXPORT_DIR, or None (none yet, or unreadable)."""
+    path = _export_file(spec, S, n_grid)
+    if path is None:
+        return None
+    try:
+        with open(path, "rb") as fh:
+            blob = fh.read()
+        from jax import export
+
+        return export.deserialize(bytearray(blob)).call
+    except Exception:  # noqa: BLE001 - a missing or stale cache entry only costs the tracing
+        return None
+
+
+def _save_exported(fn, spec: FitSpec, S: int, n_grid: int, args: tuple) -> None:
+    """Serialize the jitted one-motor solver for the next process (best effort, atomic)."""
+    import os
+    import re
+    import tempfile
+
+    path = _export_file(spec, S, n_grid)
+    if path is None:
+        return
+    try:
+        from jax import export
+
+        # The LAPACK custom calls carry no cross-version guarantee; the file name holds the jax
+        # version and the entry is only read back on this installation.
+        names: set[str] = set()
+        for _ in range(20):
+            try:
+                checks = [export.DisabledSafetyCheck.custom_call(n) for n in sorted(names)]
+                exp = export.export(fn, disabled_checks=checks)(*args)
+                break
+            except ValueError as exc:
+                new = set(re.findall(r"custom_call @(\w+)", str(exc))) - names
+                if not new:
+                    return
+                names |= new
+        else:
+            return
+        blob = exp.serialize()
+        os.makedirs(EXPORT_DIR, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=EXPORT_DIR, prefix=".fit-", suffix=".tmp")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(blob)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
+        return
+
 
 def _solver(spec: FitSpec, S: int, mode: str):
     """Jitted solver, cached per (spec, S, mode)."""
@@ -705,14 +777,20 @@ def fit_many(
     try:
         with jax.enable_x64(True):
             grid_j = jax.numpy.asarray(grid)
-            solve = _solver(spec, S, "one" if mode == "loop" else mode)
+            exported = _exported_solver(spec, S, len(grid)) if mode == "loop" else None
+            solve = (lambda c, g, _steps: exported(c, g)) if exported else _solver(spec, S, "one" if mode == "loop" else mode)
+            save_export = mode == "loop" and exported is None and EXPORT_DIR is not None
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
                 comps = list(pool.map(lambda m: compress(m, spec, S), block)) if pool else [compress(m, spec, S) for m in block]
                 if mode == "loop":
-                    out = jax.device_get(solve(_as_dict(comps[0]), grid_j, spec.max_steps))
+                    args = (_as_dict(comps[0]), grid_j)
+                    out = jax.device_get(solve(*args, spec.max_steps))
                     outs = [out]
+                    if save_export:
+                        save_export = False
+                        _save_exported(jax.jit(lambda c, g: _build(spec, S)(c, g, spec.max_steps)), spec, S, len(grid), args)
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
