@@ -90,3 +90,12 @@ def test_truth_holds_the_ripple_and_bench():
                 "enc_edge_err_deg", "hall_err_deg", "transducer_delay_s", "transducer_bw_hz"):
         assert key in truth
     assert not any(k.startswith("truth.") for k in truth)
+
+
+def test_dead_time_opposes_phase_currents():
+    i_a, i_b = 40.0, -10.0
+    i_c = -i_a - i_b
+    e_al, e_be = inverter.dead_time_error(np.array(i_a), np.array(i_b), np.array(i_c), 0.1, np)
+    # the lost voltage vector points against the current vector
+    assert e_al * i_a + e_be * (i_b - i_c) / math.sqrt(3.0) < 0.0
+    assert math.hypot(e_al, e_be) <= 2.0 / 3.0 * 0.1 * 2.0 + 1e-12

@@ -115,3 +115,16 @@ def test_cli_refuses_bad_profile(tmp_path):
     assert str(bad) in res.output and "segment[0].seconds" in res.output and "missing" in res.output
     res = CliRunner().invoke(cli, ["simulate", "-o", str(tmp_path / "x.txt")])
     assert res.exit_code == 2 and "x.txt" in res.output
+
+
+def test_cli_lot_with_plot(tmp_path):
+    out = tmp_path / "lot"
+    png = tmp_path / "lot.png"
+    res = CliRunner().invoke(cli, ["simulate", "--motors", "2", "--out-dir", str(out), "--seed", "20",
+                                   "--seconds", "0.6", "--format", "csv", "--plot", str(png), "--json"])
+    assert res.exit_code == 0, res.output
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["SIM-000020.csv", "SIM-000021.csv"]
+    caps = [read_capture(str(out / f)) for f in files]
+    assert caps[0].truth["k6"] != caps[1].truth["k6"]
+    assert png.stat().st_size > 10000
