@@ -213,7 +213,8 @@ def _chunk_fn(cfg: SimConfig, n_ticks: int, unroll: int) -> Callable:
     def one_motor(p, carry, shared, key, start):
         noise = jax.random.normal(jax.random.fold_in(key, start), (n_ticks, 4), dtype=jnp.float32)
         xs = (*shared, noise)
-        return jax.lax.scan(lambda c, x: _tick(cfg, p, c, x), carry, xs, unroll=unroll)
+        carry, ys = jax.lax.scan(lambda c, x: _tick(cfg, p, c, x), carry, xs, unroll=unroll)
+        return carry, ys.T  # channel-major: the host converts contiguous rows
 
     fn = jax.jit(jax.vmap(one_motor, in_axes=(0, 0, None, 0, None)))
     _COMPILED[key] = fn
@@ -375,7 +376,7 @@ def simulate(
     keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
 
     fn = _chunk_fn(cfg, chunk_ticks, unroll)
-    out = np.empty((len(specs), n_total, len(OUT_COLUMNS)), np.float32)
+    out = np.empty((len(specs), len(OUT_COLUMNS), n_total), np.float32)
     # The last chunk runs padded (its extra ticks are dropped with the carry after them).
     pad = -n_total % chunk_ticks
     inputs = tuple(np.pad(a, (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
@@ -383,18 +384,20 @@ def simulate(
         stop = min(start + chunk_ticks, n_total)
         shared = tuple(a[start:start + chunk_ticks] for a in inputs)
         carry, ys = fn(batch, carry, shared, keys, np.int32(start))
-        out[:, start:stop] = np.asarray(ys)[:, : stop - start]
+        out[:, :, start:stop] = np.asarray(ys)[:, :, : stop - start]
         if progress is not None:
             progress(stop / n_total)
-    out = out[:, n_pre:]
-    return [_to_result(out[i], specs[i], cfg, profile, mode, blocks[i]) for i in range(len(specs))]
+    results = []
+    for i in range(len(specs)):
+        results.append(_to_result(out[i, :, n_pre:], specs[i], cfg, profile, mode, blocks[i]))
+    return results
 
 
 def _to_result(y: np.ndarray, spec: PlantSpec, cfg: SimConfig, profile: Profile, mode: str,
                block: ParamBlock | None) -> SimResult:
     m = spec.motor
-    col = {name: y[:, i] for i, name in enumerate(OUT_COLUMNS)}
-    n = len(y)
+    col = dict(zip(OUT_COLUMNS, y))
+    n = y.shape[1]
     t = np.arange(n, dtype=np.float64) / m.f_pwm
     channels: dict[str, np.ndarray] = {}
     for name in ("enc_a", "enc_b", "hall"):
