@@ -101,7 +101,7 @@ def main() -> None:
                 "c6_err_nm": c_err,
                 "phase_c6_err_deg": math.degrees(wrap_phase(c.phase - p.phase_c6)),
                 "ci_k6_pct": 100 * k.ci95 / k.value,
-                "delay_ms": f.delay_s * 1e3, "steps": f.steps,
+                "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
             })
             blocks.append(block_from_record(rec, motor) if rec["status"] == "ok" else None)
             truths.append(true_block(p))
@@ -150,6 +150,9 @@ def main() -> None:
         print(f"|{name}| ({unit}): median {np.median(v):.3g}, p95 {np.percentile(v, 95):.3g}, max {v.max():.3g}{within}")
     print(f"p-p not measurable (no steady window): {int(np.isnan(col('pp_before_pct')).sum())} before, "
           f"{int(np.isnan(col('pp_after_pct')).sum())} after")
+    ci, err = col("ci_k6_pct"), col("k6_err_pct")
+    print(f"k6 95 % interval: median ±{np.median(ci):.2f} %, holds the true k6 for {int((np.abs(err) <= ci).sum())}/{n}; "
+          f"Birge ratio median {np.median(col('birge')):.2f}")
     print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
     for name in ("pp_before_pct", "pp_after_pct", "pp_true6_pct"):
         v = col(name)

@@ -76,7 +76,13 @@ class FitSpec:
     max_steps : int
         Levenberg-Marquardt step limit; hitting it means "not converged".
     rtol, atol : float
-        Levenberg-Marquardt tolerances.
+        Solver tolerances (Jacobi-scaled coordinates).
+    solver : {"gn", "lm"}
+        Gauss-Newton or Levenberg-Marquardt (optimistix).
+    lm_init_step : float
+        Levenberg-Marquardt's initial trust-region step (1 / initial damping).
+    lack_of_fit : bool
+        Widen the intervals by the between-segment lack of fit (Birge ratio) when it exceeds 1.
     """
 
     harmonics: tuple[int, ...] = (6, 12, 18)
@@ -91,6 +97,7 @@ class FitSpec:
     rtol: float = 1e-6
     atol: float = 1e-8
     solver: str = "gn"
+    lack_of_fit: bool = True
     lm_init_step: float = 1e3
 
     @property
@@ -624,6 +631,7 @@ class MotorFit:
     steps: int
     n_samples: int
     coef: np.ndarray | None = None
+    birge: float = 1.0
 
 
 def shift_frame(fit: MotorFit, offset_rad: float) -> MotorFit:
@@ -674,7 +682,13 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     ssr = float(out["ssr_red"]) + float(comp.floor[valid].sum())
     n_par = n_tau + spec.n_glob + float(comp.n_nuis[valid].sum())
     s2 = ssr / max(n - n_par, 1.0)
-    cov = s2 * np.asarray(out["cov_unscaled"], dtype=float)
+    # Lack of fit between segments (Birge ratio): the projected rows hold only what the ripple
+    # model leaves unexplained from one segment to the next; with an exact model their mean
+    # square is s2. More than that widens the intervals by the ratio.
+    dof_red = float(valid.sum()) * 2 * nh - (n_tau + spec.n_glob)
+    birge = float(out["ssr_red"]) / dof_red / s2 if dof_red >= 1 and s2 > 0 else 1.0
+    inflate = max(1.0, birge) if spec.lack_of_fit else 1.0
+    cov = inflate * s2 * np.asarray(out["cov_unscaled"], dtype=float)
     harmonics: dict = {h: {} for h in spec.harmonics}
     parts = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
     for ip, name in enumerate(parts):
@@ -707,6 +721,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         steps=int(out["steps"]),
         n_samples=int(n),
         coef=coef,
+        birge=birge,
     )
 
 

@@ -128,6 +128,7 @@ def motor_record(
         "r2": _num(fit.r2),
         "converged": fit.converged,
         "steps": fit.steps,
+        "birge": _num(fit.birge),
         "n_samples": fit.n_samples,
         "n_segments": len(segments),
         "solver": spec.solver,
