@@ -61,7 +61,7 @@ def _summary(result, mode: str, path: str | None) -> dict:
 @click.option("--preset", default="paper", show_default=True, help="Bench preset (motor, ripple sources, sensors).")
 @click.option("--mode", type=click.Choice(["raw", "estimated", "compensated"]),
               help="ECU control angle: raw encoder edges, estimated angle, or estimated + i_qc compensation. "
-                   "Default: from --block's flags, else estimated.")
+                   "Default: from --block's flags (as the firmware reads them), else estimated.")
 @click.option("--block", "block_file", type=click.Path(dir_okay=False),
               help="Parameter block (binary or Intel HEX) the ECU runs; compensated mode without it "
                    "uses a block made from the plant's true ripple.")
@@ -106,8 +106,6 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     block = _read_block(block_file) if block_file else None
     if mode is None:
         mode = mode_of_block(block) if block is not None else "estimated"
-    if block is not None and mode != "compensated":
-        raise InputError(block_file, "--mode", f"a block's tables are used in compensated mode only (got {mode})")
     base = presets.preset_spec(preset)
 
     enable_jax_cache()

@@ -128,3 +128,24 @@ def test_cli_lot_with_plot(tmp_path):
     caps = [read_capture(str(out / f)) for f in files]
     assert caps[0].truth["k6"] != caps[1].truth["k6"]
     assert png.stat().st_size > 10000
+
+
+def test_cli_runs_a_block_file(tmp_path):
+    from eol_cal.firmware.block import pack
+    from eol_cal.plant.simulate import true_block
+
+    spec = paper()
+    blk = true_block(spec).__class__(**{**true_block(spec).__dict__, "k6": 0.0005})
+    path = tmp_path / "b.bin"
+    path.write_bytes(pack(blk))
+    out = tmp_path / "c.csv"
+    res = CliRunner().invoke(cli, ["simulate", "-o", str(out), "--block", str(path), "--seconds", "0.6"])
+    assert res.exit_code == 0, res.output
+    cap = read_capture(str(out))
+    assert cap.truth["mode"] == "compensated"  # from the block's flags
+    assert cap.truth["block_k6"] == pytest.approx(0.0005)
+    assert np.ptp(cap["iqc"]) > 1.0
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(pack(blk)[:-4] + b"\0\0\0\0")
+    res = CliRunner().invoke(cli, ["simulate", "-o", str(out), "--block", str(bad)])
+    assert res.exit_code == 2 and "bad.bin" in res.output

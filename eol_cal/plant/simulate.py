@@ -350,13 +350,16 @@ def simulate(
             tc = tp = np.zeros(16, np.float32)
             lead = lim = 0.0
         params.append(to_params(spec, tc, tp, lead, lim))
+    halls = {tuple(b.hall_angle) for b in blocks if b is not None}
+    if len(halls) > 1:
+        raise InputError(None, "blocks", "a batch must share one hall_angle table (the estimator's configuration)")
     lens = {len(p.table_const) for p in params}
     if len(lens) != 1:
         raise InputError(None, "blocks", "a batch must share one table length")
     batch = stack_params(params)
 
     cfg = SimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
-                    mode=mode, estimator=estimator_config(specs[0], blocks[0]),
+                    mode=mode, estimator=estimator_config(specs[0], next((b for b in blocks if b is not None), None)),
                     dead_time=any(s.dead_time_s > 0 for s in specs))
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
