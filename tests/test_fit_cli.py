@@ -103,13 +103,20 @@ def test_single_load_point_refused_with_exit_2(files, tmp_path):
     assert res.exit_code == 2
     assert "not identifiable from a single load point" in res.output
     assert not (tmp_path / "r.json").exists()
-    # k6 alone (the paper's eq. 17) is a fair question for one load point; the generator's cogging
-    # (c6 = 10 % of k6 * 65 A) then leaks into it, hence the looser phase limit and tolerance.
-    # The generator has no transducer lag: --delay 0.
-    res = CliRunner().invoke(cli, ["fit", *one_load, "-o", str(tmp_path / "r.json"), "--no-c6", "--delay", "0",
-                                   "--max-ci-phase", "10"])
+    # k6 alone (the paper's eq. 17) is a fair question for one load point, but the generator has
+    # cogging (c6 = 10 % of k6 * 65 A) that then leaks into k6 differently at each speed: the
+    # between-segment lack of fit widens the interval past the default limit, so it is refused...
+    # (the generator has no transducer lag: --delay 0)
+    out = tmp_path / "r.json"
+    args = ["fit", *one_load, "-o", str(out), "--no-c6", "--delay", "0"]
+    res = CliRunner().invoke(cli, args)
+    assert res.exit_code == 1
+    m = json.loads(out.read_text())["motors"][0]
+    assert m["status"] == "ci_too_wide" and m["fit"]["birge"] > 2 and m["k6"] is None
+    # ... and within wider limits it is a result, about as good as those limits say
+    res = CliRunner().invoke(cli, [*args, "--max-ci-k6", "0.3", "--max-ci-phase", "20"])
     assert res.exit_code == 0, res.output
-    m = json.loads((tmp_path / "r.json").read_text())["motors"][0]
+    m = json.loads(out.read_text())["motors"][0]
     assert abs(m["k6"]["value"] - TRUTH["k6"]) < 0.15 * TRUTH["k6"]
     assert m["c6"] == {"value": 0.0, "ci95": 0.0} and m["model"]["fit_c6"] is False
 
