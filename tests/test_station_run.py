@@ -286,3 +286,20 @@ def test_demo_one_motor_from_the_command_line(tmp_path):
     assert rec["verdict"] == "pass" and rec["station"]["demo"] is True
     assert Path(rec["report_dir"], "report.html").exists()
     assert (tmp_path / "demo" / "limits.toml").exists()
+
+
+def test_windows_split_where_the_rounded_segment_starts_say():
+    import numpy as np
+
+    from eol_cal.capture.model import Capture
+    from eol_cal.station.run import split_segments
+
+    # the dyno writes segment_starts to the microsecond: 3.7975246 s is written 3.797525
+    t = np.concatenate([np.arange(100) / 1e4, 3.7975246 + np.arange(120) / 1e4, 5.2000004 + np.arange(80) / 1e4])
+    cap = Capture(t, {"torque": np.arange(300.0)}, {"serial": "S", "segment_starts": "0.000000,3.797525,5.200000",
+                                                      "segments": 3}, source="dyno")
+    pieces = split_segments(cap)
+    assert [len(p.t) for p in pieces] == [100, 120, 80]
+    assert [p["torque"][0] for p in pieces] == [0.0, 100.0, 220.0]
+    assert all(np.ptp(np.diff(p.t)) < 1e-9 for p in pieces)
+    assert "segment_starts" not in pieces[1].metadata and pieces[1].source == "dyno#2"

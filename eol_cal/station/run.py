@@ -224,9 +224,12 @@ class PointRipple:
 def segment_spans(capture) -> list[tuple[int, int]]:
     """Sample ranges of a dyno capture's segments (metadata ``segment_starts``, s)."""
     starts = [float(s) for s in str(capture.metadata.get("segment_starts", "")).split(",") if s.strip()]
-    if not starts:
+    if not starts or len(capture.t) < 2:
         return [(0, len(capture.t))]
-    idx = [int(np.searchsorted(capture.t, s - 1e-9)) for s in starts] + [len(capture.t)]
+    # the starts are written rounded (microseconds): match them within half a sample period, or
+    # a window would begin with the previous window's last sample
+    half = 0.5 * float(np.min(np.diff(capture.t)))
+    idx = [int(np.searchsorted(capture.t, s - half)) for s in starts] + [len(capture.t)]
     return [(a, b) for a, b in zip(idx[:-1], idx[1:]) if b > a]
 
 
@@ -352,7 +355,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     # One helper thread: it imports JAX and matplotlib while the dyno spins the first time, and
     # draws the fit's plots while it spins the second time (the main thread mostly waits there).
     helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
-    helper.submit(_prewarm, len(segments), cfg.prepare)
+    state["prewarm"] = helper.submit(_prewarm, len(segments), cfg.prepare)
 
     def step(name: str, fn: Callable[[], Any]) -> Any:
         if progress:
@@ -397,6 +400,9 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         return acquire("after", segs)
 
     def do_fit() -> None:
+        # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
+        # are shared by the threads, and a cold start compiles the same solver in both
+        state["prewarm"].result()
         doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__)
         from eol_cal.analysis.result import write_result
 
