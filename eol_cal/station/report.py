@@ -220,6 +220,11 @@ def plot_lot(path: str | Path, records: list[dict[str, Any]], title: str = "") -
         ax_p.set_xlabel("run (oldest first); colour: green pass, orange fail, red error")
         ax_p.grid(alpha=0.3)
         ax_p.legend(fontsize=8)
+        from matplotlib.ticker import MaxNLocator
+
+        ax_p.xaxis.set_major_locator(MaxNLocator(integer=True))
+        if 0 < len(records) <= 20:  # few runs: name them
+            ax_p.set_xticks(n, [r["serial"] for r in records], rotation=30, ha="right", fontsize=7)
         n_pass = verdicts.count("pass")
         judged = n_pass + verdicts.count("fail")
         rate = f"{100 * n_pass / judged:.1f} %" if judged else "-"
