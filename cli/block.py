@@ -149,7 +149,7 @@ def hex_cmd(file: str, bank: int, output: str) -> None:
     """
     from eol_cal.errors import CheckFailed
     from eol_cal.firmware import block as pb
-    from eol_cal.firmware._files import atomic_write
+    from eol_cal.atomic import atomic_write
 
     data = pb.load_image(file)
     res = pb.check(data)

@@ -151,7 +151,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
                    output: str) -> None:
     """Read the active block back from the ECU into a file (written atomically)."""
-    from eol_cal.capture.atomic import atomic_path
+    from eol_cal.atomic import atomic_write
     from eol_cal.ecu.client import read_active_block
 
     bus = _open_bus(interface, channel, bitrate, can_config)
@@ -160,8 +160,7 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
     finally:
         bus.shutdown()
     try:
-        with atomic_path(output) as tmp:
-            tmp.write_bytes(data)
+        atomic_write(output, data)
     except OSError as exc:
         raise InputError(output, None, f"cannot write: {exc}") from exc
     click.echo(f"wrote {len(data)} bytes to {output}")

@@ -39,7 +39,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     """
     from eol_cal.analysis.fit_table import block_from_record, created_unix, select_motor
     from eol_cal.analysis.result import read_result
-    from eol_cal.capture.atomic import atomic_path
+    from eol_cal.atomic import atomic_write
     from eol_cal.errors import InputError
     from eol_cal.firmware.block import check, pack, to_intel_hex
     from eol_cal.motor import load_motor
@@ -57,12 +57,9 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
         raise RuntimeError(f"packed block does not check: {res.reasons}")
-    with atomic_path(output) as tmp:
-        tmp.write_bytes(data)
+    atomic_write(output, data)
     if hex_file:
-        text = to_intel_hex(data, bank)
-        with atomic_path(hex_file) as tmp:
-            tmp.write_text(text)
+        atomic_write(hex_file, to_intel_hex(data, bank))
     if as_json:
         d = blk.to_dict()
         d.pop("table_const")

@@ -513,9 +513,7 @@ def _exported_solver(spec: FitSpec, S: int, n_grid: int):
 
 def _save_exported(fn, spec: FitSpec, S: int, n_grid: int, args: tuple) -> None:
     """Serialize the jitted one-motor solver for the next process (best effort, atomic)."""
-    import os
     import re
-    import tempfile
 
     path = _export_file(spec, S, n_grid)
     if path is None:
@@ -539,13 +537,9 @@ def _save_exported(fn, spec: FitSpec, S: int, n_grid: int, args: tuple) -> None:
         else:
             return
         blob = exp.serialize()
-        os.makedirs(EXPORT_DIR, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=EXPORT_DIR, prefix=".fit-", suffix=".tmp")
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(blob)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        from eol_cal.atomic import atomic_write
+
+        atomic_write(path, bytes(blob))
     except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
         return
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from eol_cal.analysis.metrics import RipplePP, eta_percent, lowpass_zero_phase
 from eol_cal.analysis.spectrum import OrderSpectrum
-from eol_cal.capture.atomic import atomic_path
+from eol_cal.atomic import atomic_path
 from eol_cal.errors import InputError
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import math
-import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -197,14 +196,9 @@ def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version
 
 def write_result(doc: dict[str, Any], path: str | Path) -> None:
     """Write the result JSON atomically (temp file in the same directory, fsync, os.replace)."""
-    from eol_cal.capture.atomic import atomic_path
+    from eol_cal.atomic import atomic_write
 
-    text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
+    atomic_write(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
 def read_result(path: str | Path) -> dict[str, Any]:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eol_cal.capture.atomic import atomic_path
+from eol_cal.atomic import atomic_path
 from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, decode_value, encode_value, join_truth, split_truth

@@ -21,7 +21,7 @@ from typing import Literal
 
 import numpy as np
 
-from eol_cal.capture.atomic import atomic_path
+from eol_cal.atomic import atomic_path
 from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble, change_events, is_change_list
 from eol_cal.capture.metadata import MetaValue, decode_value, encode_value, join_truth, split_truth

@@ -2,7 +2,7 @@
 
 The file is the raw image of both sectors (bank 0 then bank 1, 65536 bytes each, words
 little-endian). Every erase and program writes the whole image through atomically
-(:func:`eol_cal.capture.atomic.atomic_path`), so a simulator started later on the same file
+(:func:`eol_cal.atomic.atomic_path`), so a simulator started later on the same file
 (a "restart") sees exactly what the flash held, including the damage a power loss left behind.
 """
 
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eol_cal.capture.atomic import atomic_path
+from eol_cal.atomic import atomic_write
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
@@ -77,8 +77,7 @@ class NorFlash:
     def persist(self) -> None:
         """Write the image through to the file (no-op without a file)."""
         if self.path is not None:
-            with atomic_path(self.path) as tmp:
-                tmp.write_bytes(self._mem.tobytes())
+            atomic_write(self.path, self._mem.tobytes())
 
     def bank(self, bank: int) -> bytes:
         """The whole sector of ``bank`` (65536 bytes)."""

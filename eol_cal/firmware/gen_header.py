@@ -11,7 +11,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from eol_cal.firmware._files import atomic_write
+from eol_cal.atomic import atomic_write
 from eol_cal.firmware.block import LAYOUT
 
 DEFAULT_OUT = Path("firmware_params") / "eol_param_block.h"

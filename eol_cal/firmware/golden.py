@@ -26,7 +26,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 
 from eol_cal.firmware import block as pb
-from eol_cal.firmware._files import atomic_write
+from eol_cal.atomic import atomic_write
 from eol_cal.firmware.compensator import i_qc, make_tables
 
 GOLDEN_FORMAT = 1

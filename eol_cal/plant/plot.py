@@ -7,7 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
-from eol_cal.capture.atomic import atomic_path
+from eol_cal.atomic import atomic_path
 
 
 def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None:

@@ -10,7 +10,6 @@ that the three peak-to-peak figures of ``eol_cal.analysis.metrics`` land on the 
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 

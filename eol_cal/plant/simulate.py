@@ -224,7 +224,6 @@ def _chunk_fn(cfg: SimConfig, n_ticks: int, unroll: int) -> Callable:
 def _initial_carry(cfg: SimConfig, p: PlantParams, spec: PlantSpec, theta_m0: float,
                    omega_m0: float, i_qo0: float) -> tuple:
     """Steady state at the profile's first point: speed, current, shaft twist, controller memory."""
-    import jax.numpy as jnp
 
     from eol_cal.firmware import estimator, kinematics
 

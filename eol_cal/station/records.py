@@ -170,15 +170,13 @@ def insert_records(db: str | Path, records: list[dict[str, Any]], timeout_s: flo
 
 def spool_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path, why: str) -> Path:
     """Write ``record`` into the spool directory (atomically); returns the file."""
-    from eol_cal.capture.atomic import atomic_path
+    from eol_cal.atomic import atomic_write
 
     spool_dir = Path(spool_dir)
     spool_dir.mkdir(parents=True, exist_ok=True)
     doc = {"schema": SPOOL_SCHEMA, "db": str(Path(db).resolve()), "why": why, "record": record}
     path = spool_dir / f"{record['run_id']}.json"
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
     return path
 
 

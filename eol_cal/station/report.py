@@ -17,19 +17,14 @@ from __future__ import annotations
 import html
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
-from eol_cal.capture.atomic import atomic_path
+from eol_cal.atomic import atomic_write
 
 
 def _write_text(path: Path, text: str) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
+    atomic_write(path, text)
 
 
 def _fmt(x: Any, scale: float = 1.0, digits: int = 4) -> str:

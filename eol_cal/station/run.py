@@ -131,7 +131,8 @@ def _safe_name(text: str) -> str:
 
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, dict, Any]:
-    """The ripple fit of one motor's capture, as ``eol-cal fit`` does it.
+    """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit_motors.fit_motors`, as
+    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
     Returns
     -------
@@ -139,26 +140,12 @@ def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, 
         The result document (schema ``eol-cal/fit-result/1``), its one motor record, and
         ``(MotorInput, MotorFit, FitSpec)`` for the plots.
     """
-    from eol_cal.analysis.fit import FitSpec, fit_many
-    from eol_cal.analysis.fit_capture import motor_inputs
-    from eol_cal.analysis.metrics import eta_percent
-    from eol_cal.analysis.result import motor_record, result_document
+    from eol_cal.analysis.fit_motors import FitOptions, fit_motors
 
-    spec = FitSpec()
-    ci = limits.ci_limits()
-    (mi,) = motor_inputs(split_segments(capture))
-    (fit,) = fit_many([mi.segments], spec, mode="loop", sources=[capture.source])
-    segments = [
-        {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
-         "T_avg_nm": float(fit.t_avg[k])}
-        for k, i in enumerate(mi.info)
-    ]
-    metrics = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
-    rec = motor_record(mi.serial, fit, spec, ci, kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
-                       encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
-                       solver_mode="loop")
-    rec = _json_safe(rec)
-    return result_document([rec], ci, tool_version), rec, (mi, fit, spec)
+    options = FitOptions(limits=limits.ci_limits(), batch="loop")
+    res = fit_motors([capture], options, tool_version)
+    (rec,) = res.records
+    return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)
 
 
 def _json_safe(x: Any) -> Any:
@@ -221,35 +208,6 @@ class PointRipple:
                            "T_avg_nm": self.T_avg_nm, "amp6_nm": self.amp6_nm, "span_s": list(self.span_s)})
 
 
-def segment_spans(capture) -> list[tuple[int, int]]:
-    """Sample ranges of a dyno capture's segments (metadata ``segment_starts``, s)."""
-    starts = [float(s) for s in str(capture.metadata.get("segment_starts", "")).split(",") if s.strip()]
-    if not starts or len(capture.t) < 2:
-        return [(0, len(capture.t))]
-    # the starts are written rounded (microseconds): match them within half a sample period, or
-    # a window would begin with the previous window's last sample
-    half = 0.5 * float(np.min(np.diff(capture.t)))
-    idx = [int(np.searchsorted(capture.t, s - half)) for s in starts] + [len(capture.t)]
-    return [(a, b) for a, b in zip(idx[:-1], idx[1:]) if b > a]
-
-
-def split_segments(capture) -> list:
-    """A dyno capture as one capture per segment (window).
-
-    The dyno's windows are not one continuous recording: the shaft turned an unknown angle
-    between them, so an angle reconstructed across a join is wrong there. Each window on its
-    own is continuous; the fit takes them together as one motor's captures.
-    """
-    from eol_cal.capture.model import Capture
-
-    out = []
-    for k, (a, b) in enumerate(segment_spans(capture)):
-        channels = {name: v[a:b] for name, v in capture.channels.items()}
-        meta = {key: v for key, v in capture.metadata.items() if key not in ("segments", "segment_starts")}
-        out.append(Capture(capture.t[a:b], channels, meta, source=f"{capture.source}#{k + 1}"))
-    return out
-
-
 def nearest_segment(pieces: list, speed_rpm: float, i_qo_a: float) -> int:
     """Index of the piece whose mean speed (rpm) and i_qo (A) are nearest the operating point."""
     def distance(c) -> float:
@@ -266,7 +224,7 @@ def point_ripple(capture, angle) -> PointRipple:
     Parameters
     ----------
     capture : Capture
-        One window of a dyno capture (:func:`split_segments`).
+        One window of a dyno capture (:func:`eol_cal.capture.windows.split_windows`).
     angle : AngleResult
         Its reconstructed angle.
     """
@@ -425,7 +383,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
 
     def do_table() -> None:
         from eol_cal.analysis.fit_table import block_from_record, created_unix
-        from eol_cal.capture.atomic import atomic_path
+        from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import pack
         from eol_cal.motor import load_motor
 
@@ -459,7 +417,9 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
 
         op = rec["fit"]["operating_point"]
         before = state["pr_before"].result()
-        pieces = split_segments(state["after"])
+        from eol_cal.capture.windows import split_windows
+
+        pieces = split_windows(state["after"])
         after_cap = pieces[nearest_segment(pieces, op["speed_rpm"], op["i_qo_a"])]
         after = point_ripple(after_cap, capture_angle(after_cap))
         state["pr"] = (before, after)

@@ -1,4 +1,4 @@
-"""Atomic file replacement: a reader never sees a half-written capture."""
+"""Atomic file replacement: a reader never sees a half-written capture, block, record or report."""
 
 from __future__ import annotations
 
@@ -40,3 +40,15 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             os.fsync(dir_fd)
         finally:
             os.close(dir_fd)
+
+
+def atomic_write(path: str | Path, data: bytes | str, encoding: str = "utf-8") -> None:
+    """Write ``data`` to ``path`` so that readers see the old or the new file, never a part.
+
+    Creates missing parent directories.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    raw = data.encode(encoding) if isinstance(data, str) else data
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(raw)
