@@ -198,6 +198,8 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
                 fw_angle: bool) -> None:
     """Ripple metrics (p-p % raw and filtered), order spectrum and encoder quantisation per CAPTURE.
 
+    A joined capture (``eol-cal acquire``: metadata segment_starts) is reported per window (FILE#k).
+
     Exit code 2 when any capture is refused (the others are still reported).
     """
     from eol_cal.capture import load_channel_map, read_capture
@@ -206,16 +208,25 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
     reports: list[dict] = []
     plots = []
     errors: list[dict] = []
+    from eol_cal.capture.windows import split_windows
+
     for path in captures:
         try:
-            capture = read_capture(path, channel_map)
-            report, plot = analyze_capture(capture, fw_angle=fw_angle)
+            windows = split_windows(read_capture(path, channel_map))
         except InputError as exc:
+            windows = []
             errors.append({"file": exc.file or path, "field": exc.field, "reason": exc.reason})
             err_console.print(f"error: {exc}", markup=False, highlight=False)
-            continue
-        reports.append(report)
-        plots.append(plot)
+        # a joined (dyno) capture is reported window by window: no angle across a join
+        for window in windows:
+            try:
+                report, plot = analyze_capture(window, fw_angle=fw_angle)
+            except InputError as exc:
+                errors.append({"file": exc.file or window.source, "field": exc.field, "reason": exc.reason})
+                err_console.print(f"error: {exc}", markup=False, highlight=False)
+                continue
+            reports.append(report)
+            plots.append(plot)
     if plot_file and plots:
         from eol_cal.analysis.plots import plot_captures
 

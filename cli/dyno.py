@@ -78,8 +78,9 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
     windows = []
     if split_windows:
         from eol_cal.capture import write_capture
+        from eol_cal.capture.windows import split_windows as windows_of
 
-        for i, window in enumerate(dc.split_windows(capture), start=1):
+        for i, window in enumerate(windows_of(capture), start=1):
             path = output.with_name(f"{output.stem}.w{i}{output.suffix}")
             write_capture(window, path)
             windows.append(str(path))

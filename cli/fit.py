@@ -41,36 +41,6 @@ def _harmonics(text: str) -> tuple[int, ...]:
     return orders
 
 
-def _capture_metrics(capture, angle) -> dict:
-    from eol_cal.analysis.metrics import capture_ripple_pp
-    from eol_cal.errors import InputError
-
-    try:
-        pp = capture_ripple_pp(capture, angle)
-    except InputError as exc:
-        return {"source": capture.source, "error": exc.reason}
-    return {
-        "source": capture.source,
-        "pp_raw_pct": pp.raw_pct,
-        "pp_filtered_pct": pp.filtered_pct,
-        "pp_filtered_nm": pp.filtered_pp_nm,
-        "T_avg_nm": pp.T_avg_nm,
-        "speed_rpm": pp.speed_rpm,
-    }
-
-
-def _json_safe(x):
-    import math
-
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, list):
-        return [_json_safe(v) for v in x]
-    return x
-
-
 @click.command("fit")
 @click.argument("captures", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Result JSON to write.")
@@ -107,11 +77,9 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from rich.progress import Progress
     from rich.table import Table
 
-    from eol_cal import __version__
-    from eol_cal.analysis.fit import FitSpec, fit_many
-    from eol_cal.analysis.fit_capture import motor_inputs
-    from eol_cal.analysis.metrics import eta_percent
-    from eol_cal.analysis.result import STATUS_OK, CiLimits, record_for_motor, result_document, write_result
+    from eol_cal.analysis.fit import FitSpec
+    from eol_cal.analysis.fit_motors import FitOptions, fit_motors
+    from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
     from eol_cal.capture.io import read_capture
 
     enable_jax_cache()
@@ -126,34 +94,21 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         solver=solver,
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
+    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch)
     caps = [read_capture(p, map_file) for p in captures]
-    inputs = motor_inputs(caps, settle_s=settle_s, frame=frame)
-    mode = batch if batch != "auto" else ("map" if len(inputs) >= 16 else "loop")
-    with Progress(console=err_console, transient=True, disable=len(inputs) < 2) as progress:
-        task = progress.add_task("fitting", total=len(inputs))
-        fits = fit_many(
-            [m.segments for m in inputs],
-            spec,
-            mode=mode,
-            chunk=min(64, len(inputs)),
-            sources=[", ".join(m.sources) for m in inputs],
-            progress=lambda n: progress.update(task, completed=n),
-        )
-    records = []
-    for mi, f in zip(inputs, fits):
-        metrics = {
-            "eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles)),
-            "captures": [_capture_metrics(c, a) for c, a in zip(mi.captures, mi.angles)],
-        }
-        records.append(_json_safe(record_for_motor(mi, f, spec, limits, metrics=metrics, solver_mode=mode)))
-        if plot_dir:
-            from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
+    serials = {c.serial for c in caps if "serial" in c.metadata}
+    with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:
+        task = progress.add_task("fitting", total=len(serials))
+        res = fit_motors(caps, options, progress=lambda n: progress.update(task, completed=n))
+    doc, records = res.doc, res.records
+    if plot_dir:
+        from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
 
-            Path(plot_dir).mkdir(parents=True, exist_ok=True)
+        Path(plot_dir).mkdir(parents=True, exist_ok=True)
+        for mi, f in zip(res.inputs, res.fits):
             safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in mi.serial)
             plot_fit(Path(plot_dir) / f"{safe}_fit.png", mi, f, spec)
             plot_residual_spectrum(Path(plot_dir) / f"{safe}_residual.png", mi, f, spec)
-    doc = result_document(records, limits, __version__)
     write_result(doc, output)
 
     table = Table(title=f"ripple fit, values ± 95 % ({len(records)} motor{'s' if len(records) != 1 else ''})")

@@ -118,7 +118,7 @@ def test_transient_disconnect_is_retried(tmp_path: Path):
 
 def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path):
     from eol_cal.analysis.angle import capture_angle
-    from eol_cal.dyno.client import split_windows
+    from eol_cal.capture.windows import split_windows
 
     out = tmp_path / "cap.mf4"
     acquire(config(dyno.port), PROFILE, out)

@@ -292,7 +292,7 @@ def test_windows_split_where_the_rounded_segment_starts_say():
     import numpy as np
 
     from eol_cal.capture.model import Capture
-    from eol_cal.station.run import split_segments
+    from eol_cal.capture.windows import split_windows as split_segments
 
     # the dyno writes segment_starts to the microsecond: 3.7975246 s is written 3.797525
     t = np.concatenate([np.arange(100) / 1e4, 3.7975246 + np.arange(120) / 1e4, 5.2000004 + np.arange(80) / 1e4])

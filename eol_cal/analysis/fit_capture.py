@@ -173,12 +173,14 @@ def motor_inputs(
     min_revs: int = 1,
     frame: str = "firmware",
 ) -> list[MotorInput]:
-    """Group captures by serial, reconstruct the angle, cut segments.
+    """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
     Parameters
     ----------
     captures : list of Capture
-        Any number of motors, any number of captures each.
+        Any number of motors, any number of captures each. A joined capture (a dyno capture:
+        ``segment_starts``, or gaps in ``t``) is split into its windows first
+        (:func:`eol_cal.capture.windows.split_windows`): no angle is reconstructed across a join.
     motor : MotorParams, optional
         Fallback for kt when the captures carry no ``kt`` metadata (default: the paper preset).
     settle_s : float
@@ -194,9 +196,12 @@ def motor_inputs(
     Returns
     -------
     list of MotorInput
-        In order of first appearance of each serial.
+        In order of first appearance of each serial; ``captures`` and ``angles`` are per window.
     """
     from eol_cal.analysis.angle import capture_angle
+    from eol_cal.capture.windows import split_windows
+
+    captures = [w for c in captures for w in split_windows(c)]
 
     motor = motor or load_motor("paper")
     groups: dict[str, list[Capture]] = {}

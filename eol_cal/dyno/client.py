@@ -547,37 +547,6 @@ def assemble(
     return Capture(np.concatenate(ts), channels, metadata, source="dyno")
 
 
-def split_windows(capture: Capture) -> list[Capture]:
-    """The capture windows of a dyno capture as separate captures (one per profile segment).
-
-    The encoder count is not carried across the gap between two windows, so an angle must be
-    reconstructed per window. Windows come from metadata ``segment_starts`` (s) when present,
-    else from gaps in ``t`` longer than 1.5 sample periods. Metadata is copied, with
-    ``segments`` = 1 and ``segment_starts`` dropped; ``source`` gets ``[window i]`` appended.
-    """
-    t = capture.t
-    if "segment_starts" in capture.metadata:
-        starts = [float(x) for x in str(capture.metadata["segment_starts"]).split(",") if x.strip()]
-        idx = sorted({int(np.searchsorted(t, s - 1e-9)) for s in starts} | {0})
-    else:
-        dt = np.diff(t)
-        idx = [0] + [int(i) + 1 for i in np.flatnonzero(dt > 1.5 * float(np.median(dt)))] if len(t) > 2 else [0]
-    idx = [i for i in idx if i < len(t)] + [len(t)]
-    meta = {k: v for k, v in capture.metadata.items() if k != "segment_starts"}
-    meta["segments"] = 1
-    out = []
-    for w, (a, b) in enumerate(zip(idx[:-1], idx[1:])):
-        events = {}
-        for name, (times, levels) in capture.events.items():
-            keep = (times >= t[a]) & (times <= t[b - 1])
-            events[name] = (times[keep], levels[keep])
-        out.append(
-            Capture(t[a:b], {k: v[a:b] for k, v in capture.channels.items()}, dict(meta), dict(capture.truth), events,
-                    source=f"{capture.source}[window {w + 1}]")
-        )
-    return out
-
-
 def acquire(
     config: DynoConfig,
     segments: Sequence[DynoSegment],

@@ -1,0 +1,167 @@
+"""Captures -> fit-result document: the one path from captures to ``eol-cal/fit-result/1``.
+
+``eol-cal fit`` and the end-of-line station (:mod:`eol_cal.station.run`) both call
+:func:`fit_motors`: captures are split into their windows (:func:`eol_cal.capture.windows.split_windows`,
+a dyno capture's windows are one motor's captures), grouped by serial, segmented, fitted, and
+reported with the phases in the firmware estimator's angle frame unless told otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from eol_cal.analysis.fit import FitSpec, MotorFit
+from eol_cal.analysis.fit_capture import MotorInput
+from eol_cal.analysis.result import CiLimits
+from eol_cal.capture.model import Capture
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """How :func:`fit_motors` fits and judges.
+
+    Attributes
+    ----------
+    spec : FitSpec
+        Model and solver settings.
+    limits : CiLimits
+        Widest intervals of a usable fit.
+    settle_s : float
+        Settling time dropped after each step (s).
+    min_revs : int
+        Fewest electrical revolutions per segment.
+    frame : {"firmware", "offline"}
+        Angle frame the phases are reported in (``firmware``: the frame the ECU evaluates its
+        table in, :func:`eol_cal.analysis.fit_capture.firmware_frame_offset`).
+    batch : {"auto", "loop", "vmap", "map"}
+        How motors are solved in JAX (auto: ``map`` from 16 motors on, else ``loop``).
+    capture_metrics : bool
+        Add each window's p-p ripple to the record's ``metrics.captures``.
+    """
+
+    spec: FitSpec = field(default_factory=FitSpec)
+    limits: CiLimits = field(default_factory=CiLimits)
+    settle_s: float = 0.1
+    min_revs: int = 1
+    frame: str = "firmware"
+    batch: str = "auto"
+    capture_metrics: bool = True
+
+
+@dataclass
+class MotorsFit:
+    """What :func:`fit_motors` returns: the result document and what the plots need.
+
+    Attributes
+    ----------
+    doc : dict
+        The result document (schema ``eol-cal/fit-result/1``, ``docs/json.md``), JSON-safe.
+    inputs : list of MotorInput
+        Per motor, in the order of ``doc["motors"]``.
+    fits : list of MotorFit
+        Per motor, in the offline angle frame (the plots draw them against the offline angle).
+    solver_mode : str
+        The batch mode used.
+    """
+
+    doc: dict[str, Any]
+    inputs: list[MotorInput]
+    fits: list[MotorFit]
+    solver_mode: str
+
+    @property
+    def records(self) -> list[dict[str, Any]]:
+        return self.doc["motors"]
+
+
+def json_safe(x: Any) -> Any:
+    """``x`` with non-finite floats as ``None`` and numpy scalars as Python ones (JSON has no NaN)."""
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [json_safe(v) for v in x]
+    return x
+
+
+def window_metrics(capture: Capture, angle) -> dict[str, Any]:
+    """p-p ripple of one window (``metrics.captures[i]`` of a record); ``error`` when it has none."""
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.errors import InputError
+
+    try:
+        pp = capture_ripple_pp(capture, angle)
+    except InputError as exc:
+        return {"source": capture.source, "error": exc.reason}
+    return {
+        "source": capture.source,
+        "pp_raw_pct": pp.raw_pct,
+        "pp_filtered_pct": pp.filtered_pct,
+        "pp_filtered_nm": pp.filtered_pp_nm,
+        "T_avg_nm": pp.T_avg_nm,
+        "speed_rpm": pp.speed_rpm,
+    }
+
+
+def fit_motors(
+    captures: list[Capture],
+    options: FitOptions = FitOptions(),
+    tool_version: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> MotorsFit:
+    """Fit every motor of ``captures`` and build the result document.
+
+    Parameters
+    ----------
+    captures : list of Capture
+        Any number of motors and captures; joined captures (``segment_starts``, or gaps in ``t``)
+        are split into windows, and all windows of one serial are fitted jointly.
+    options : FitOptions
+        Model, limits, segmentation, frame, batching.
+    tool_version : str, optional
+        For the document's ``tool`` (default: this package's version).
+    progress : callable, optional
+        Called with the number of motors fitted so far.
+
+    Returns
+    -------
+    MotorsFit
+        ``doc["motors"][i]["status"]`` says whether motor i is usable.
+
+    Raises
+    ------
+    InputError
+        A capture without serial, torque, i_qo or any steady segment.
+    """
+    from eol_cal.analysis.fit import fit_many
+    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.metrics import eta_percent
+    from eol_cal.analysis.result import record_for_motor, result_document
+
+    if tool_version is None:
+        from eol_cal import __version__ as tool_version
+    inputs = motor_inputs(captures, settle_s=options.settle_s, min_revs=options.min_revs, frame=options.frame)
+    mode = options.batch if options.batch != "auto" else ("map" if len(inputs) >= 16 else "loop")
+    fits = fit_many(
+        [m.segments for m in inputs],
+        options.spec,
+        mode=mode,
+        chunk=max(1, min(64, len(inputs))),
+        sources=[", ".join(m.sources) for m in inputs],
+        progress=progress,
+    )
+    records = []
+    for mi, f in zip(inputs, fits):
+        metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
+        if options.capture_metrics:
+            metrics["captures"] = [window_metrics(c, a) for c, a in zip(mi.captures, mi.angles)]
+        records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
+                                                  solver_mode=mode)))
+    return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)

@@ -1,0 +1,83 @@
+"""The capture windows of a joined capture (``eol-cal acquire``: one window per profile segment).
+
+A dyno capture is several capture windows joined in one file: metadata ``segment_starts`` gives
+each window's first sample time (s), written rounded to the microsecond. The shaft turned an
+unknown angle between two windows and the encoder count is not carried across the gap, so any
+angle must be reconstructed per window; every analysis of a capture splits it here first.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from eol_cal.capture.model import Capture
+
+#: a step in ``t`` longer than this many median sample periods starts a new window
+GAP_PERIODS = 1.5
+
+
+def window_spans(capture: Capture) -> list[tuple[int, int]]:
+    """Half-open sample ranges of a capture's windows.
+
+    From metadata ``segment_starts`` (s) when present, matched within half a sample period
+    because the starts are written rounded (µs) and a start rounded up would otherwise put the
+    previous window's last sample into the next window. Without it, a window begins after every
+    step in ``t`` longer than :data:`GAP_PERIODS` median sample periods.
+
+    Parameters
+    ----------
+    capture : Capture
+        Any capture; a continuous one gives one span.
+
+    Returns
+    -------
+    list of (start, stop)
+        Non-empty, in time order, covering every sample.
+    """
+    t = np.asarray(capture.t, dtype=float)
+    n = len(t)
+    if n < 3:
+        return [(0, n)] if n else []
+    dt = np.diff(t)
+    starts_meta = [float(s) for s in str(capture.metadata.get("segment_starts", "")).split(",") if s.strip()]
+    if starts_meta:
+        half = 0.5 * float(dt.min())
+        idx = {int(np.searchsorted(t, s - half)) for s in starts_meta} | {0}
+    else:
+        idx = {0} | {int(i) + 1 for i in np.flatnonzero(dt > GAP_PERIODS * float(np.median(dt)))}
+    edges = sorted(i for i in idx if i < n) + [n]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+
+
+def split_windows(capture: Capture) -> list[Capture]:
+    """A capture as one capture per window (:func:`window_spans`).
+
+    A continuous capture comes back as itself (same object). Otherwise metadata is copied with
+    ``segment_starts`` dropped and ``segments`` = 1, truth is copied, events are cut to each
+    window's time span, and ``source`` gets ``#k`` appended (k from 1).
+
+    Parameters
+    ----------
+    capture : Capture
+        Any capture.
+
+    Returns
+    -------
+    list of Capture
+        The windows, in time order; the windows of one capture belong to one motor.
+    """
+    spans = window_spans(capture)
+    if len(spans) <= 1:
+        return [capture]
+    t = capture.t
+    meta = {k: v for k, v in capture.metadata.items() if k != "segment_starts"}
+    meta["segments"] = 1
+    out = []
+    for k, (a, b) in enumerate(spans, start=1):
+        events = {}
+        for name, (times, levels) in capture.events.items():
+            keep = (times >= t[a]) & (times <= t[b - 1])
+            events[name] = (times[keep], levels[keep])
+        out.append(Capture(t[a:b], {name: v[a:b] for name, v in capture.channels.items()}, dict(meta),
+                           dict(capture.truth), events, source=f"{capture.source}#{k}"))
+    return out

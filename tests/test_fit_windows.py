@@ -1,0 +1,108 @@
+"""``eol-cal fit`` / ``eol-cal analyze`` on a joined dyno capture (``eol-cal acquire``): windows, not one angle."""
+
+from __future__ import annotations
+
+import inspect
+import json
+import logging
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal.capture.model import Capture
+from eol_cal.capture.synthetic import synthetic_capture
+from eol_cal.capture.windows import split_windows, window_spans
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+# two loads x both directions: k6, c6 and the transducer delay are all identifiable
+PROFILE = """
+name = "windows"
+[[segment]]
+speed_rpm = 120.0
+iq = 20.0
+seconds = 0.6
+
+[[segment]]
+speed_rpm = 120.0
+iq = 65.0
+seconds = 0.6
+
+[[segment]]
+speed_rpm = -120.0
+iq = 65.0
+seconds = 0.6
+
+[[segment]]
+speed_rpm = -120.0
+iq = 20.0
+seconds = 0.6
+"""
+
+
+@pytest.fixture(scope="module")
+def joined(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("win")
+    prof = d / "p.toml"
+    prof.write_text(PROFILE)
+    out = d / "cap.mf4"
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-WIN")) as th:
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(prof), "-o", str(out),
+                                     "--split-windows", "--json"])
+    assert r.exit_code == 0, r.output
+    return out
+
+
+def _fit(tmp: Path, name: str, files: list[Path]) -> dict:
+    out = tmp / f"{name}.json"
+    # 0.6 s windows: intervals a little wider than the production limits
+    r = CliRunner().invoke(cli, ["fit", *map(str, files), "-o", str(out), "--max-ci-k6", "0.1", "--max-ci-phase", "6"],
+                           env={"EOL_CAL_JAX_CACHE": "off"})
+    assert r.exit_code == 0, r.output
+    (m,) = json.loads(out.read_text())["motors"]
+    return m
+
+
+def test_fit_of_the_joined_capture_matches_the_fit_of_its_windows(joined: Path, tmp_path: Path):
+    windows = sorted(joined.parent.glob("cap.w*.mf4"))
+    assert len(windows) == 4
+    whole = _fit(tmp_path, "whole", [joined])
+    split = _fit(tmp_path, "split", windows)
+    assert whole["status"] == "ok" and whole["fit"]["converged"]
+    assert whole["fit"]["n_segments"] == split["fit"]["n_segments"] == 4
+    assert whole["model"]["angle_frame"] == "firmware"
+    for key in ("k6", "phase_k6", "c6", "phase_c6", "delay_s"):
+        assert whole[key]["value"] == pytest.approx(split[key]["value"], rel=1e-6, abs=1e-9), key
+    assert whole["fit"]["rms"] == pytest.approx(split["fit"]["rms"], rel=1e-6)
+    assert [s["source"] for s in whole["segments"]] == [f"{joined}#{k}" for k in range(1, 5)]
+    # and it finds the k6 the dyno's synthetic source puts in (synthetic_capture's default)
+    truth_k6 = inspect.signature(synthetic_capture).parameters["k6"].default
+    assert abs(whole["k6"]["value"] - truth_k6) <= 2 * whole["k6"]["ci95"]
+
+
+def test_analyze_reports_a_joined_capture_per_window(joined: Path):
+    r = CliRunner().invoke(cli, ["analyze", str(joined), "--json"])
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    assert [c["file"] for c in doc["captures"]] == [f"{joined}#{k}" for k in range(1, 5)]
+    speeds = [c["speed_rpm"] for c in doc["captures"]]
+    assert speeds == pytest.approx([120.0, 120.0, -120.0, -120.0], rel=2e-3)
+    assert all(c["angle"]["hall_residual_rms_deg"] < 1.0 for c in doc["captures"])
+
+
+def test_window_spans_tolerate_the_rounded_starts_and_find_gaps():
+    # starts written to the microsecond, one rounded up by 0.4 us, one down
+    t = np.concatenate([np.arange(100) / 1e4, 3.7975246 + np.arange(120) / 1e4, 5.2000004 + np.arange(80) / 1e4])
+    meta = {"serial": "S", "segment_starts": "0.000000,3.797525,5.200000", "segments": 3}
+    cap = Capture(t, {"torque": np.arange(300.0)}, meta, source="x")
+    assert window_spans(cap) == [(0, 100), (100, 220), (220, 300)]
+    no_meta = Capture(t, cap.channels, {"serial": "S"}, source="x")
+    assert window_spans(no_meta) == [(0, 100), (100, 220), (220, 300)]
+    pieces = split_windows(cap)
+    assert [p.source for p in pieces] == ["x#1", "x#2", "x#3"] and pieces[2].metadata["segments"] == 1
+    continuous = Capture(np.arange(50) / 1e4, {"torque": np.zeros(50)}, {"serial": "S"})
+    assert split_windows(continuous) == [continuous]
