@@ -106,3 +106,22 @@ def test_window_spans_tolerate_the_rounded_starts_and_find_gaps():
     assert [p.source for p in pieces] == ["x#1", "x#2", "x#3"] and pieces[2].metadata["segments"] == 1
     continuous = Capture(np.arange(50) / 1e4, {"torque": np.zeros(50)}, {"serial": "S"})
     assert split_windows(continuous) == [continuous]
+
+
+def test_chunked_estimator_is_run_jax_with_one_program_for_every_length():
+    from eol_cal.analysis.fit_capture import firmware_config
+    from eol_cal.firmware import estimator as est
+
+    caps = [synthetic_capture(rpm=rpm, seconds=s, fs=10000.0, seed=k) for k, (rpm, s) in enumerate([(120.0, 0.3),
+                                                                                                   (-60.0, 0.53)])]
+    cfg = firmware_config(caps[0])
+    assert firmware_config(caps[1]) == cfg  # the mean rates differ in their last bits, the config does not
+    est._scan_chunk.cache_clear()
+    for c in caps:  # 3000 samples: one padded chunk; 5300: a chunk, the state carried, a padded one
+        got = est.run_jax_chunked(cfg, c["enc_a"], c["enc_b"], c["hall"])
+        ref = est.run_jax(cfg, c["enc_a"], c["enc_b"], c["hall"])
+        assert len(got.theta_hat) == len(c.t)
+        np.testing.assert_array_equal(got.status, np.asarray(ref.status))
+        assert np.abs(np.angle(np.exp(1j * (got.theta_hat - np.asarray(ref.theta_hat))))).max() < 1e-4
+        assert got.omega_hat == pytest.approx(np.asarray(ref.omega_hat), rel=1e-5, abs=1e-3)
+    assert est._scan_chunk.cache_info().currsize == 1 and est._scan_chunk(cfg)._cache_size() == 1

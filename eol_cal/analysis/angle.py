@@ -532,9 +532,11 @@ def firmware_angle_difference(
         raise InputError(capture.source, "enc_b", "missing channel, the firmware estimator needs it")
     if angle is None:
         angle = capture_angle(capture)
-    cfg = config or est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr,
-                                              tick_hz=capture.sample_rate)
-    out = est.run_jax(cfg, capture["enc_a"], capture["enc_b"], capture["hall"])
+    if config is None:
+        from eol_cal.analysis.fit_capture import firmware_config
+
+        config = firmware_config(capture)
+    out = est.run_jax_chunked(config, capture["enc_a"], capture["enc_b"], capture["hall"])
     status = np.asarray(out.status)
     judged = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
     judged &= (capture.t >= angle.t_span[0]) & (capture.t <= angle.t_span[1])

@@ -140,12 +140,23 @@ def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
     return motor.kt, f"preset {motor.name}"
 
 
+def firmware_config(capture: Capture):
+    """The paper's estimator configuration at a capture's poles, encoder and sample rate."""
+    from eol_cal.firmware import estimator as est
+
+    # the mean rate differs in its last bits from window to window; the firmware's tick is a
+    # binary32 period, so six significant digits lose nothing and keep one compiled scan per rate
+    tick_hz = float(f"{capture.sample_rate:.6g}")
+    return est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=tick_hz)
+
+
 def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]]) -> tuple[complex, int]:
     """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
 
-    Runs the firmware estimator (:mod:`eol_cal.firmware.estimator`, paper configuration, one
-    tick per sample) over the capture and sums ``exp(i (theta_hat - theta_r))`` over the
-    segment samples at which it is anchored, moving and has a speed.
+    Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_chunked`:
+    one compiled program for every capture length) and sums
+    ``exp(i (theta_hat - theta_r))`` over the segment samples at which it is anchored, moving
+    and has a speed.
 
     Returns
     -------
@@ -154,15 +165,14 @@ def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tu
     """
     from eol_cal.firmware import estimator as est
 
-    cfg = est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=capture.sample_rate)
-    out = est.run_jax(cfg, capture["enc_a"], capture["enc_b"], capture["hall"])
-    status = np.asarray(out.status)
+    out = est.run_jax_chunked(firmware_config(capture), capture["enc_a"], capture["enc_b"], capture["hall"])
+    theta_hat, status = out.theta_hat, out.status
     ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
     in_seg = np.zeros(len(ok), bool)
     for a, b in ranges:
         in_seg[a:b] = True
     ok &= in_seg
-    d = np.asarray(out.theta_hat, float)[ok] - theta_r[ok]
+    d = np.asarray(theta_hat, float)[ok] - theta_r[ok]
     return complex(np.exp(1j * d).sum()), int(ok.sum())
 
 

@@ -665,3 +665,45 @@ def run_jax(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> Estimato
     for _ in range(a.ndim - 1):
         f = jax.vmap(f)
     return jax.jit(f)(a, b, h)
+
+
+#: ticks per call of :func:`run_jax_chunked`'s compiled scan
+JAX_CHUNK = 4096
+
+
+@functools.lru_cache(maxsize=16)
+def _scan_chunk(cfg: EstimatorConfig):
+    """The jitted scan over one chunk of ticks, state carried in and out (one per config)."""
+    import jax
+    import jax.numpy as jnp
+
+    def body(s, x):
+        return step(cfg, s, x[0], x[1], x[2], xp=jnp)
+
+    return jax.jit(lambda s, abh: jax.lax.scan(body, s, abh))
+
+
+def run_jax_chunked(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any, chunk: int = JAX_CHUNK) -> EstimatorOut:
+    """:func:`run_jax` for one capture (1-D inputs) with one compiled program for every length.
+
+    The ticks run in chunks of ``chunk`` under ``jax.lax.scan``, the state carried from chunk to
+    chunk and the last chunk padded with the last sample (its outputs and the final state are
+    discarded): :func:`run_jax` traces and compiles anew for every capture length.
+
+    Returns
+    -------
+    EstimatorOut
+        numpy arrays, one entry per tick.
+    """
+    import jax.numpy as jnp
+
+    abh = np.stack([np.asarray(enc_a), np.asarray(enc_b), np.asarray(hall)], axis=-1).astype(np.int32)
+    n = len(abh)
+    abh = np.concatenate([abh, np.repeat(abh[-1:], (-n) % chunk, axis=0)])
+    scan = _scan_chunk(cfg)
+    state = init_state(cfg, jnp.int32(abh[0, 2]), jnp.int32(abh[0, 0]), jnp.int32(abh[0, 1]), xp=jnp)
+    outs = []
+    for k in range(0, len(abh), chunk):
+        state, out = scan(state, abh[k:k + chunk])
+        outs.append(out)
+    return EstimatorOut(*(np.concatenate([np.asarray(o[i]) for o in outs])[:n] for i in range(len(EstimatorOut._fields))))
