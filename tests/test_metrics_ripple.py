@@ -176,3 +176,30 @@ def test_both_directions_in_one_capture():
     assert {round(w.speed_rpm) for w in r.windows} == {60, -60}
     assert all(not (1.5 < w.t_end and w.t_start < 1.7) for w in r.windows)
     assert r.raw_pct == pytest.approx(2.0, abs=0.01)
+
+
+def test_angle_error_at_the_encoder_order_does_not_break_a_steady_run():
+    # 0.8 s at 120 rpm (an eol-default point): 4.8 electrical revolutions, 3 = one mechanical
+    # revolution after the 0.1 s settling. An angle error of 1 deg (electrical) at mechanical
+    # order 64 (a 64 PPR encoder's edges) moves the 60-degree unit boundaries by up to 3 % of a
+    # unit; the shaft's speed is constant. Judged unit by unit against the run's first one, the
+    # run broke, every piece lost another 0.1 s to settling and no window was left.
+    t = np.arange(0.0, 0.8, 1.0 / FS)
+    theta_true = 3 * 2 * np.pi * 2.0 * t
+    theta = theta_true + np.radians(1.0) * np.sin(64 / 3 * theta_true)
+    r = ripple_pp(t, 3.0 + 0.03 * np.sin(6 * theta_true), theta, poles=6, i_qo=np.full(len(t), 60.0))
+    assert len(r.windows) == 1 and r.window_revs == 3
+    assert r.segments[0][0] == pytest.approx(0.1, abs=0.03)
+    assert r.raw_pct == pytest.approx(2.0, abs=0.01)
+
+
+def test_a_speed_step_of_3_percent_still_ends_the_run():
+    # 0.7 s at 120 rpm, then 123.6 rpm at the same i_qo, with the same encoder-order angle error
+    t = np.arange(0.0, 1.4, 1.0 / FS)
+    rps = np.where(t < 0.7, 2.0, 2.06)
+    theta_true = 3 * 2 * np.pi * np.cumsum(rps) / FS
+    theta = theta_true + np.radians(1.0) * np.sin(64 / 3 * theta_true)
+    r = ripple_pp(t, 3.0 + 0.03 * np.sin(6 * theta_true), theta, poles=6, i_qo=np.full(len(t), 60.0))
+    assert len(r.segments) == 2
+    assert all(not (w.t_start < 0.7 < w.t_end) for w in r.windows)
+    assert sorted(round(w.speed_rpm, 1) for w in r.windows) == [120.0, 123.6]
