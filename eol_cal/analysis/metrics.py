@@ -277,7 +277,6 @@ def steady_runs(
         Unit numbers of each run (unit k spans ``bounds[k]:bounds[k+1]``).
     """
     n_rev = len(bounds) - 1
-    dur = t[bounds[1:]] - t[bounds[:-1]]
     if i_qo is not None:
         seg = [i_qo[bounds[k] : bounds[k + 1]] for k in range(n_rev)]
         iq_mean = np.array([s.mean() for s in seg])
