@@ -125,3 +125,17 @@ def test_chunked_estimator_is_run_jax_with_one_program_for_every_length():
         assert np.abs(np.angle(np.exp(1j * (got.theta_hat - np.asarray(ref.theta_hat))))).max() < 1e-4
         assert got.omega_hat == pytest.approx(np.asarray(ref.omega_hat), rel=1e-5, abs=1e-3)
     assert est._scan_chunk.cache_info().currsize == 1 and est._scan_chunk(cfg)._cache_size() == 1
+
+
+def test_the_angle_of_a_joined_capture_is_refused_not_guessed(joined: Path):
+    from eol_cal.analysis.angle import capture_angle
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.capture import read_capture
+    from eol_cal.errors import InputError
+
+    cap = read_capture(joined)
+    for analysis in (capture_angle, capture_ripple_pp):
+        with pytest.raises(InputError) as err:
+            analysis(cap)
+        assert err.value.field == "segment_starts" and "4 capture windows" in err.value.reason
+    assert all(abs(capture_angle(w).speed_rpm) == pytest.approx(120.0, rel=2e-3) for w in split_windows(cap))

@@ -456,7 +456,8 @@ def capture_angle(capture: Capture, hall_angles: Sequence[float] = NOMINAL_HALL_
     ----------
     capture : Capture
         Needs channels ``enc_a`` and ``hall`` (``enc_b`` used when present) and metadata
-        ``poles`` and ``encoder_ppr``.
+        ``poles`` and ``encoder_ppr``; one continuous window (a joined capture is refused:
+        :func:`eol_cal.capture.windows.split_windows`).
     hall_angles : sequence of 6 float
         Angle (rad) at which hall state s begins in forward rotation, index s-1.
     """
@@ -466,6 +467,14 @@ def capture_angle(capture: Capture, hall_angles: Sequence[float] = NOMINAL_HALL_
     for key in ("poles", "encoder_ppr"):
         if key not in capture.metadata:
             raise InputError(capture.source, key, "missing metadata, needed for the angle")
+    from eol_cal.capture.windows import window_spans
+
+    n_windows = len(window_spans(capture))
+    if n_windows > 1:
+        # the encoder count is lost between two windows: one angle across a join is wrong there
+        raise InputError(capture.source, "segment_starts" if "segment_starts" in capture.metadata else "t",
+                         f"{n_windows} capture windows joined in one capture; reconstruct the angle per window "
+                         "(eol_cal.capture.windows.split_windows)")
     return reconstruct_angle(
         capture.t,
         capture["enc_a"],
