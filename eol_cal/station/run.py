@@ -25,6 +25,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from eol_cal.analysis.fit_motors import json_safe
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
 from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
@@ -148,18 +149,6 @@ def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, 
     return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)
 
 
-def _json_safe(x: Any) -> Any:
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, np.generic):
-        return _json_safe(x.item())
-    return x
-
-
 def measured_from_fit(rec: dict[str, Any]) -> Measured:
     """The fit's part of :class:`Measured` from a usable motor record (units as in the record)."""
     k6, c6, pc6 = rec["k6"], rec["c6"], rec["phase_c6"]
@@ -204,7 +193,7 @@ class PointRipple:
     poles: int = 0
 
     def to_dict(self) -> dict[str, Any]:
-        return _json_safe({"pp_pct": self.pp_pct, "pp_raw_pct": self.pp_raw_pct, "pp_nm": self.pp_nm,
+        return json_safe({"pp_pct": self.pp_pct, "pp_raw_pct": self.pp_raw_pct, "pp_nm": self.pp_nm,
                            "T_avg_nm": self.T_avg_nm, "amp6_nm": self.amp6_nm, "span_s": list(self.span_s)})
 
 
@@ -425,7 +414,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         state["pr"] = (before, after)
         m = state["measured"]
         m = Measured(**{**m.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct})
-        rec["metrics"] = _json_safe({
+        rec["metrics"] = json_safe({
             "operating_point": op, "pp_before_pct": m.pp_before_pct, "pp_after_pct": m.pp_after_pct,
             "improvement_pct": m.improvement_pct, "before": before.to_dict(), "after": after.to_dict(),
             "definition": "filtered p-p % (docs/metrics.md), median over the steady windows of the operating "
@@ -463,7 +452,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
             rec["reasons"] = rec["reasons"] + [f"report: {exc}"]
     rec["ended_at"] = _now()
     helper.shutdown(wait=True)
-    rec = _json_safe(rec)
+    rec = json_safe(rec)
     try:
         from eol_cal.station.report import write_record_json
 
