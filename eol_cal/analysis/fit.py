@@ -204,14 +204,17 @@ def check_identifiable(seg: SegmentArrays, spec: FitSpec, source: str | None = N
             )
 
 
-def _legendre(x: np.ndarray, degree: int) -> np.ndarray:
-    """Legendre polynomials P_0..P_degree at x in [-1, 1], stacked on the last axis."""
-    cols = [np.ones_like(x)]
+def _legendre_rows(x: np.ndarray, degree: int, out: np.ndarray) -> None:
+    """Legendre polynomials P_0..P_degree at x in [-1, 1], written into the rows of ``out``."""
+    out[0] = 1.0
     if degree >= 1:
-        cols.append(x)
+        out[1] = x
     for n in range(1, degree):
-        cols.append(((2 * n + 1) * x * cols[n] - n * cols[n - 1]) / (n + 1))
-    return np.stack(cols, axis=-1)
+        # P_{n+1} = ((2n+1) x P_n - n P_{n-1}) / (n+1), in place (no temporaries of n samples)
+        row = out[n + 1]
+        np.multiply(x, out[n], out=row)
+        row *= (2 * n + 1) / (n + 1)
+        row -= (n / (n + 1)) * out[n - 1]
 
 
 def _cpow(e: np.ndarray, n: int) -> np.ndarray:
@@ -226,7 +229,15 @@ def _cpow(e: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def design_matrix_t(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSpec) -> np.ndarray:
+def design_matrix_t(
+    theta: np.ndarray,
+    t: np.ndarray,
+    pole_pairs: int,
+    spec: FitSpec,
+    t_span: tuple[float, float] | None = None,
+    mech: bool | None = None,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
     """Columns of one segment, as rows: Legendre(t), cos/sin(theta_m), then sin/cos(h theta) per harmonic.
 
     Parameters
@@ -239,6 +250,15 @@ def design_matrix_t(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: Fit
         P/2.
     spec : FitSpec
         Which columns.
+    t_span : (float, float), optional
+        First and last sample time of the whole segment (s), when ``theta``, ``t`` are a block of
+        it (the Legendre time axis spans the segment); default ``(t[0], t[-1])``.
+    mech : bool, optional
+        Whether the segment resolves the mechanical pair; default: ``spec.mech_order1`` and at
+        least one mechanical revolution in ``theta``.
+    out : ndarray, optional
+        Array of at least ``spec.n_cols`` rows and ``len(theta)`` columns to fill (its first
+        ``spec.n_cols`` rows are returned); default: a new one.
 
     Returns
     -------
@@ -249,12 +269,17 @@ def design_matrix_t(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: Fit
     """
     n = len(theta)
     q = spec.n_nuis
-    XT = np.empty((spec.n_cols, n))
-    tn = (2.0 / (t[-1] - t[0])) * (t - t[0]) - 1.0
-    XT[: q - 2] = _legendre(tn, spec.drift_degree).T
-    # two trig calls per sample: everything else is a power of e^(i theta_m) (exact to ~1e-14)
+    XT = np.empty((spec.n_cols, n)) if out is None else out[: spec.n_cols]
+    t_first, t_last = (t[0], t[-1]) if t_span is None else t_span
+    if mech is None:
+        mech = spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs
+    tn = t - t_first
+    tn *= 2.0 / (t_last - t_first)
+    tn -= 1.0
+    _legendre_rows(tn, spec.drift_degree, XT[: q - 2])
+    # one exp(i theta_m) per sample: everything else is a power of it (exact to ~1e-14)
     e_m = np.exp(1j * (theta / pole_pairs))
-    if spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs:
+    if mech:
         XT[q - 2] = e_m.real
         XT[q - 1] = e_m.imag
     else:
@@ -310,24 +335,55 @@ class Compressed:
     omega: np.ndarray
 
 
+#: Samples per block of the compression: the design matrix of a block (13 x 4096 doubles) lives
+#: in one reused per-thread buffer and the temporaries stay under glibc's mmap threshold
+#: (128 KiB): whole-segment arrays were mmap'ed and page-faulted afresh on every call (about 700
+#: faults and 1.5 ms per 20000-sample capture, more than the arithmetic).
+_BLOCK = 4096
+_WORK = __import__("threading").local()
+
+
+def _block_buffer(rows: int) -> np.ndarray:
+    buf = getattr(_WORK, "buf", None)
+    if buf is None or buf.size < rows * _BLOCK:
+        buf = _WORK.buf = np.empty(rows * _BLOCK)
+    return buf
+
+
 def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_pairs: int, spec: FitSpec):
     """Normal-equation summary of one segment: (R, z, floor, sst, ymean, n, n_nuis).
 
     ``theta`` must be continuous (unwrapped), as :mod:`eol_cal.analysis.angle` returns it.
     """
+    from scipy.linalg.blas import dgemm
+
+    theta = np.asarray(theta, dtype=float)
+    t = np.asarray(t, dtype=float)
     y = np.asarray(torque, dtype=float)
+    n = len(y)
+    m = spec.n_cols
     ymean = float(y.mean())
-    y = y - ymean
-    XT = design_matrix_t(np.asarray(theta, dtype=float), np.asarray(t, dtype=float), pole_pairs, spec)
-    XtX = XT @ XT.T
+    mech = spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs
+    buf = _block_buffer(m + 1)
+    # [X y]^T [X y] accumulated block by block: X^T X, X^T y and y^T y in one GEMM per block, on
+    # the (n, m+1) Fortran view (numpy's ``A @ A.T`` dispatches to SYRK, which OpenBLAS runs 2x
+    # slower for these narrow products)
+    G = np.zeros((m + 1, m + 1), order="F")
+    for a in range(0, n, _BLOCK):
+        b = min(a + _BLOCK, n)
+        XTa = buf[: (m + 1) * (b - a)].reshape(m + 1, b - a)
+        design_matrix_t(theta[a:b], t[a:b], pole_pairs, spec, t_span=(t[0], t[-1]), mech=mech, out=XTa)
+        np.subtract(y[a:b], ymean, out=XTa[m])
+        G = dgemm(1.0, XTa.T, XTa.T, beta=1.0, c=G, trans_a=1, overwrite_c=True)
+    XtX = np.array(G[:m, :m], order="C")
+    Xty = np.array(G[:m, m])
+    yy = float(G[m, m])
     empty = np.diag(XtX) == 0.0
     # a column without data is pinned to 0 by a unit diagonal: its residual row reads 0 - g_j
     XtX[empty, empty] = 1.0
-    Xty = XT @ y
     Lc = np.linalg.cholesky(XtX)
     z = np.linalg.solve(Lc, Xty)  # triangular, tiny
-    yy = float(y @ y)
-    return Lc.T, z, yy - float(z @ z), yy, ymean, len(y), spec.n_nuis - int(empty.sum())
+    return Lc.T, z, yy - float(z @ z), yy, ymean, n, spec.n_nuis - int(empty.sum())
 
 
 def compress(seg: SegmentArrays, spec: FitSpec, n_segments: int | None = None) -> Compressed:
@@ -694,14 +750,12 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     else:
         delay, delay_ci = float(spec.delay_s), 0.0
     # T_avg: back-substitute the projected nuisance (its first Legendre term is the mean offset)
-    g = np.asarray(out["g"], dtype=float)
-    t_avg = np.empty(S_valid)
-    coef = np.empty((S_valid, spec.n_cols))
-    for s in range(S_valid):
-        R = comp.R[s]
-        nuis = np.linalg.solve(R[:q, :q], comp.z[s, :q] - R[:q, q:] @ g[s])
-        t_avg[s] = comp.ymean[s] + nuis[0]
-        coef[s] = np.concatenate([nuis, g[s]])
+    g = np.asarray(out["g"], dtype=float)[:S_valid]
+    R = comp.R[:S_valid]
+    rhs = comp.z[:S_valid, :q] - np.einsum("sij,sj->si", R[:, :q, q:], g)
+    nuis = np.linalg.solve(R[:, :q, :q], rhs[..., None])[..., 0]
+    t_avg = comp.ymean[:S_valid] + nuis[:, 0]
+    coef = np.concatenate([nuis, g], axis=1)
     sst = float(comp.sst[valid].sum())
     finite = bool(np.all(np.isfinite(p)) and np.all(np.isfinite(np.diag(cov))))
     return MotorFit(
@@ -738,16 +792,34 @@ def fit_segments(seg: SegmentArrays, spec: FitSpec = FitSpec(), source: str | No
     return fit_many([seg], spec, mode="loop", sources=[source])[0]
 
 
+#: ``fit_many(mode="auto")`` batches the solve from this many motors on (below, the compile of a
+#: batched program costs more than the per-call dispatch it saves)
+AUTO_BATCH_MIN = 16
+
+
+def pick_mode(n_motors: int) -> str:
+    """The batch mode ``fit_many(mode="auto")`` uses for ``n_motors``: ``loop`` or ``map``.
+
+    ``map`` and ``vmap`` measure within a few per cent of each other (docs/benchmarks.md); ``map``
+    is kept because it does not run every member to the slowest one's step count.
+    """
+    return "map" if n_motors >= AUTO_BATCH_MIN else "loop"
+
+
 def fit_many(
     motors: list[SegmentArrays],
     spec: FitSpec = FitSpec(),
-    mode: str = "loop",
+    mode: str = "auto",
     chunk: int = 64,
     sources: list[str | None] | None = None,
     progress=None,
-    threads: int = 2,
+    threads: int | None = None,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy (threads), the nonlinear solve batched in JAX.
+
+    The compression of every motor is queued on a thread pool at once, so the pool compresses
+    the next chunks while this thread runs the JAX solve of the current one (XLA and the numpy
+    kernels release the GIL) and unpacks its results.
 
     Parameters
     ----------
@@ -755,26 +827,33 @@ def fit_many(
         One entry per motor.
     spec : FitSpec
         Shared model and solver settings.
-    mode : {"loop", "vmap", "map"}
+    mode : {"loop", "vmap", "map", "auto"}
         ``loop``: one jitted solve per motor; ``vmap``: one vectorised solve per chunk (every member
-        iterates until the slowest has converged); ``map``: ``jax.lax.map`` inside one jitted call.
+        iterates until the slowest has converged); ``map``: ``jax.lax.map`` inside one jitted call;
+        ``auto``: :func:`pick_mode`.
     chunk : int
         Motors per batched call (vmap/map); also the progress granularity.
     sources : list, optional
         Per motor, named in errors.
     progress : callable, optional
         Called with the number of motors finished after each chunk.
-    threads : int
-        Worker threads for the compression (numpy releases the GIL in its kernels).
+    threads : int, optional
+        Worker threads for the compression (numpy releases the GIL in its kernels); default: the
+        number of CPUs. 1 compresses in this thread, chunk by chunk.
 
     Returns
     -------
     list of MotorFit
     """
+    import os
     from concurrent.futures import ThreadPoolExecutor
 
     import jax
 
+    if mode == "auto":
+        mode = pick_mode(len(motors))
+    if threads is None:
+        threads = os.cpu_count() or 1
     sources = sources or [None] * len(motors)
     for seg, src in zip(motors, sources):
         check_identifiable(seg, spec, src)
@@ -784,6 +863,8 @@ def fit_many(
     results: list[MotorFit] = []
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 and len(motors) > 1 else None
     try:
+        # every compression queued up front (a few kB of result per motor): the workers run ahead
+        futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
         with jax.enable_x64(True):
             grid_j = jax.numpy.asarray(grid)
             exported = _exported_solver(spec, S, len(grid)) if mode == "loop" else None
@@ -792,7 +873,10 @@ def fit_many(
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
-                comps = list(pool.map(lambda m: compress(m, spec, S), block)) if pool else [compress(m, spec, S) for m in block]
+                if futures:
+                    comps = [f.result() for f in futures[start : start + step]]
+                else:
+                    comps = [compress(m, spec, S) for m in block]
                 if mode == "loop":
                     args = (_as_dict(comps[0]), grid_j)
                     out = jax.device_get(solve(*args, spec.max_steps))
@@ -803,7 +887,7 @@ def fit_many(
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
-                    batch = {k: np.stack([_as_dict(c)[k] for c in padded]) for k in _DICT_KEYS}
+                    batch = {k: np.stack([getattr(c, k) for c in padded]) for k in _DICT_KEYS}
                     out = jax.device_get(solve(batch, grid_j, spec.max_steps))
                     outs = [{k: v[j] for k, v in out.items()} for j in range(len(block))]
                 for m, c, o in zip(block, comps, outs):
@@ -812,7 +896,7 @@ def fit_many(
                     progress(len(results))
     finally:
         if pool:
-            pool.shutdown()
+            pool.shutdown(cancel_futures=True)
     return results
 
 
