@@ -5,7 +5,7 @@ samples), so c6, k6 and the delay are all identifiable from it. The alternative 
 write is scipy.optimize.least_squares on the same model over every sample
 (:mod:`eol_cal.analysis.fit_scipy`); both run here on the same data, and the fits are compared.
 
-    python bench/bench_fit.py [--captures 1000] [--scipy 5] [--cli]
+    python bench/bench_fit.py [--captures 1000] [--scipy 5] [--cli] [--threads N]
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ def main() -> None:
     ap.add_argument("--chunk", type=int, default=250)
     ap.add_argument("--cli", action="store_true", help="also time `eol-cal fit` on one capture file")
     ap.add_argument("--harmonics", default="6,12,18", help="orders fitted (eol-cal fit's default 6,12,18)")
+    ap.add_argument("--threads", type=int, default=1, help="compression worker threads (fit_many's default 1)")
     args = ap.parse_args()
 
     import jax
@@ -65,24 +66,34 @@ def main() -> None:
     print(f"warm fit, one capture at a time: median {warm * 1e3:.2f} ms, p90 {np.percentile(times, 90) * 1e3:.2f} ms")
 
     rows = []
-    for mode in ("loop", "map", "vmap"):
-        fit_many(motors[: args.chunk], spec, mode=mode, chunk=args.chunk)  # compile this shape
+    threads = args.threads
+    # fit_many's compression runs in `threads` workers ahead of the solve; 0 = inline, 2 = both cores
+    for mode, th in (("loop", threads), ("map", threads), ("vmap", threads), ("map", 0), ("map", 2)):
+        fit_many(motors[: args.chunk], spec, mode=mode, chunk=args.chunk, threads=th)  # compile this shape
         t0 = time.perf_counter()
-        fits = fit_many(motors, spec, mode=mode, chunk=args.chunk)
+        fits = fit_many(motors, spec, mode=mode, chunk=args.chunk, threads=th)
         dt = time.perf_counter() - t0
         steps = [f.steps for f in fits]
-        rows.append((mode, dt, len(motors) / dt, max(steps), float(np.mean(steps)), all(f.converged for f in fits)))
-    for mode, dt, rate, smax, smean, ok in rows:
-        print(f"batched {mode:5s}: {dt:6.2f} s for {len(motors)} -> {rate:7.1f} captures/s "
+        rows.append((f"{mode}, {th} thr", dt, len(motors) / dt, max(steps), float(np.mean(steps)),
+                     all(f.converged for f in fits)))
+    for name, dt, rate, smax, smean, ok in rows:
+        print(f"batched {name:12s}: {dt:6.2f} s for {len(motors)} -> {rate:7.1f} captures/s "
               f"(steps mean {smean:.1f}, max {smax}; all converged: {ok})")
 
-    # where the time goes: compression (numpy) vs the JAX solve
+    # where the time goes: compression (numpy) vs the JAX solve + unpacking
+    from concurrent.futures import ThreadPoolExecutor
+
     from eol_cal.analysis.fit import compress
 
     t0 = time.perf_counter()
     for m in motors[:200]:
         compress(m, spec)
     print(f"compression alone (1 thread): {(time.perf_counter() - t0) / 200 * 1e3:.2f} ms per capture")
+    with ThreadPoolExecutor(2) as pool:
+        t0 = time.perf_counter()
+        list(pool.map(lambda m: compress(m, spec), motors[:400]))
+    print(f"compression alone (2 threads): {(time.perf_counter() - t0) / 400 * 1e3:.2f} ms per capture "
+          "(the GIL between its short numpy kernels: no gain on this machine)")
 
     # scipy on the same model and data
     sc_times, dk = [], []

@@ -838,8 +838,8 @@ def fit_many(
     progress : callable, optional
         Called with the number of motors finished after each chunk.
     threads : int, optional
-        Worker threads for the compression (numpy releases the GIL in its kernels); default: the
-        number of CPUs. 1 compresses in this thread, chunk by chunk.
+        Worker threads for the compression (numpy releases the GIL in its kernels); 0 compresses
+        in this thread, chunk by chunk. Default: 1.
 
     Returns
     -------
@@ -853,7 +853,7 @@ def fit_many(
     if mode == "auto":
         mode = pick_mode(len(motors))
     if threads is None:
-        threads = os.cpu_count() or 1
+        threads = 1
     sources = sources or [None] * len(motors)
     for seg, src in zip(motors, sources):
         check_identifiable(seg, spec, src)
@@ -861,7 +861,7 @@ def fit_many(
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
     grid = tau_grid(spec, omega_max)
     results: list[MotorFit] = []
-    pool = ThreadPoolExecutor(max_workers=threads) if threads > 1 and len(motors) > 1 else None
+    pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     try:
         # every compression queued up front (a few kB of result per motor): the workers run ahead
         futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
