@@ -335,11 +335,11 @@ class Compressed:
     omega: np.ndarray
 
 
-#: Samples per block of the compression: the design matrix of a block (13 x 4096 doubles) lives
-#: in one reused per-thread buffer and the temporaries stay under glibc's mmap threshold
-#: (128 KiB): whole-segment arrays were mmap'ed and page-faulted afresh on every call (about 700
-#: faults and 1.5 ms per 20000-sample capture, more than the arithmetic).
-_BLOCK = 4096
+#: Samples per block of the compression. The design matrix of a block lives in one reused
+#: per-thread buffer and every temporary (complex: 16 B x 8000 = 125 KiB) stays under glibc's mmap
+#: threshold (128 KiB): whole-segment arrays were mmap'ed and page-faulted afresh on every call
+#: (about 700 faults and 1.5 ms per 20000-sample capture, more than the arithmetic).
+_BLOCK = 8000
 _WORK = __import__("threading").local()
 
 
