@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import os
 
-# The fit parallelises over captures (a thread pool for the numpy compression); BLAS's own threads
-# only spin against it on small products. Set before numpy loads.
+# BLAS's own threads only spin on the fit's small products (and against the optional compression
+# threads). Set before numpy loads.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
@@ -33,7 +33,7 @@ def main() -> None:
     ap.add_argument("--chunk", type=int, default=250)
     ap.add_argument("--cli", action="store_true", help="also time `eol-cal fit` on one capture file")
     ap.add_argument("--harmonics", default="6,12,18", help="orders fitted (eol-cal fit's default 6,12,18)")
-    ap.add_argument("--threads", type=int, default=1, help="compression worker threads (fit_many's default 1)")
+    ap.add_argument("--threads", type=int, default=0, help="compression worker threads (fit_many's default 0: inline)")
     args = ap.parse_args()
 
     import jax
@@ -67,8 +67,8 @@ def main() -> None:
 
     rows = []
     threads = args.threads
-    # fit_many's compression runs in `threads` workers ahead of the solve; 0 = inline, 2 = both cores
-    for mode, th in (("loop", threads), ("map", threads), ("vmap", threads), ("map", 0), ("map", 2)):
+    # fit_many compresses inline (0) or in `threads` workers ahead of the solve
+    for mode, th in (("loop", threads), ("map", threads), ("vmap", threads), ("map", 1), ("map", 2)):
         fit_many(motors[: args.chunk], spec, mode=mode, chunk=args.chunk, threads=th)  # compile this shape
         t0 = time.perf_counter()
         fits = fit_many(motors, spec, mode=mode, chunk=args.chunk, threads=th)

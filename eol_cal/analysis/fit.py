@@ -813,13 +813,13 @@ def fit_many(
     chunk: int = 64,
     sources: list[str | None] | None = None,
     progress=None,
-    threads: int | None = None,
+    threads: int = 0,
 ) -> list[MotorFit]:
-    """Fit many motors: compression in numpy (threads), the nonlinear solve batched in JAX.
+    """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
 
-    The compression of every motor is queued on a thread pool at once, so the pool compresses
-    the next chunks while this thread runs the JAX solve of the current one (XLA and the numpy
-    kernels release the GIL) and unpacks its results.
+    With ``threads`` > 0 the compression of every motor is queued on a thread pool at once, so
+    the pool compresses the next chunks while this thread runs the JAX solve of the current one
+    (XLA and the numpy kernels release the GIL) and unpacks its results.
 
     Parameters
     ----------
@@ -837,23 +837,22 @@ def fit_many(
         Per motor, named in errors.
     progress : callable, optional
         Called with the number of motors finished after each chunk.
-    threads : int, optional
-        Worker threads for the compression (numpy releases the GIL in its kernels); 0 compresses
-        in this thread, chunk by chunk. Default: 1.
+    threads : int
+        Worker threads that compress ahead of the solve (numpy releases the GIL in its kernels);
+        0 (default) compresses in this thread, chunk by chunk. On the 2-core machine of
+        docs/benchmarks.md 1 or 2 workers measured no faster than none: the kernels of an
+        8000-sample block are short and the threads mostly wait for the GIL between them.
 
     Returns
     -------
     list of MotorFit
     """
-    import os
     from concurrent.futures import ThreadPoolExecutor
 
     import jax
 
     if mode == "auto":
         mode = pick_mode(len(motors))
-    if threads is None:
-        threads = 1
     sources = sources or [None] * len(motors)
     for seg, src in zip(motors, sources):
         check_identifiable(seg, spec, src)
