@@ -34,6 +34,7 @@ amplitude + phase with delta-method intervals.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -340,10 +341,11 @@ class Compressed:
 #: threshold (128 KiB): whole-segment arrays were mmap'ed and page-faulted afresh on every call
 #: (about 700 faults and 1.5 ms per 20000-sample capture, more than the arithmetic).
 _BLOCK = 8000
-_WORK = __import__("threading").local()
+_WORK = threading.local()
 
 
 def _block_buffer(rows: int) -> np.ndarray:
+    """This thread's block buffer, at least ``rows * _BLOCK`` doubles (kept for the next call)."""
     buf = getattr(_WORK, "buf", None)
     if buf is None or buf.size < rows * _BLOCK:
         buf = _WORK.buf = np.empty(rows * _BLOCK)
