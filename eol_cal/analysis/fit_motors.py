@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from eol_cal.analysis.fit import FitSpec, MotorFit
+from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit_capture import MotorInput
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
@@ -38,7 +38,7 @@ class FitOptions:
         Angle frame the phases are reported in (``firmware``: the frame the ECU evaluates its
         table in, :func:`eol_cal.analysis.fit_capture.firmware_frame_offset`).
     batch : {"auto", "loop", "vmap", "map"}
-        How motors are solved in JAX (auto: ``map`` from 16 motors on, else ``loop``).
+        How motors are solved in JAX (auto: :func:`eol_cal.analysis.fit.pick_mode`).
     capture_metrics : bool
         Add each window's p-p ripple to the record's ``metrics.captures``.
     """
@@ -148,7 +148,7 @@ def fit_motors(
     if tool_version is None:
         from eol_cal import __version__ as tool_version
     inputs = motor_inputs(captures, settle_s=options.settle_s, min_revs=options.min_revs, frame=options.frame)
-    mode = options.batch if options.batch != "auto" else ("map" if len(inputs) >= 16 else "loop")
+    mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],
         options.spec,
