@@ -104,7 +104,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
 
 
 @click.command("dyno-sim")
-@click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT", help="Address to serve Modbus TCP on.")
+@click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT", help="Address to serve Modbus TCP on (port 0: any free port).")
 @click.option("--ecu-flash", type=click.Path(dir_okay=False, path_type=Path), default=None, help="The ECU simulator's flash file: its active bank sets the motor's compensation.")
 @click.option("--seed", type=click.IntRange(0), default=None, help="Draw the motor from the plant's production tolerances with this seed (default: the preset motor as is).")
 @click.option("--serial", default="M-0001", show_default=True, help="Serial of the simulated motor.")
@@ -120,13 +120,14 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
     import threading
     import time
 
-    from eol_cal.dyno import client as dc
     from eol_cal.dyno import sim as ds
     from eol_cal.dyno.registers import DutCmdKind
     from eol_cal.errors import InputError
     from eol_cal.motor import load_motor
 
-    host, port = dc.parse_address(listen)
+    from eol_cal.address import parse_host_port
+
+    host, port = parse_host_port(listen, "listen", any_port=True)
     if not serial or len(serial.encode("ascii", "replace")) > 16:
         raise InputError(None, "--serial", "1 to 16 ASCII characters")
     plans = [ds.parse_fault_plan(f) for f in faults]

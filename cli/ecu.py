@@ -166,19 +166,6 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
     click.echo(f"wrote {len(data)} bytes to {output}")
 
 
-def _parse_listen(value: str) -> tuple[str, int]:
-    host, sep, port = value.rpartition(":")
-    if not sep or not host:
-        raise InputError(None, "listen", f"{value!r}: expected HOST:PORT, e.g. 127.0.0.1:54701")
-    try:
-        p = int(port)
-    except ValueError:
-        raise InputError(None, "listen", f"port {port!r} is not a number") from None
-    if not 0 <= p <= 65535:
-        raise InputError(None, "listen", f"port {p} out of range")
-    return host, p
-
-
 @click.command("ecu-sim")
 @click.option("--flash-file", required=True, type=click.Path(dir_okay=False),
               help="Flash image of both banks (created erased if missing; a restart sees it).")
@@ -205,7 +192,9 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
     from eol_cal.ecu.remote import serve_remote
     from eol_cal.ecu.sim import SimConfig
 
-    host, port = _parse_listen(listen)
+    from eol_cal.address import parse_host_port
+
+    host, port = parse_host_port(listen, "listen", any_port=True)
     try:
         serial.encode("ascii")
     except UnicodeEncodeError:

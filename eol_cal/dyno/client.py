@@ -21,6 +21,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from eol_cal.address import parse_host_port
 from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
@@ -138,11 +139,8 @@ def segments_from_profile(profile) -> list[DynoSegment]:
 
 
 def parse_address(text: str) -> tuple[str, int]:
-    """``HOST:PORT`` -> (host, port); a bad address is an :class:`InputError`."""
-    host, sep, port = text.rpartition(":")
-    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise InputError(None, "address", f"expected HOST:PORT, got {text!r}")
-    return host, int(port)
+    """The dyno's ``HOST:PORT`` -> (host, port); a bad address is an :class:`InputError`."""
+    return parse_host_port(text, "address")
 
 
 @dataclass
