@@ -33,6 +33,7 @@ import numpy as np
 
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
+from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 
 TWO_PI = 2.0 * np.pi
 
@@ -40,10 +41,8 @@ TWO_PI = 2.0 * np.pi
 HALL_FORWARD_SEQUENCE: tuple[int, ...] = (5, 1, 3, 2, 6, 4)
 
 #: Nominal electrical angle (rad) at which hall state s begins in forward rotation, index s-1
-#: (the contract's nominal ``hall_angle``: 60, 180, 120, 300, 0, 240 degrees).
-NOMINAL_HALL_ANGLES: tuple[float, ...] = tuple(
-    float(np.deg2rad(60.0 * HALL_FORWARD_SEQUENCE.index(s))) for s in range(1, 7)
-)
+#: (the contract's nominal ``hall_angle``, defined once in the firmware reference).
+NOMINAL_HALL_ANGLES: tuple[float, ...] = NOMINAL_HALL_ANGLE
 
 # Gray-code position of the quadrature state (a, b) in forward rotation: 00 -> 10 -> 11 -> 01.
 _QUAD_POS = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}

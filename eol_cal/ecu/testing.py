@@ -19,6 +19,7 @@ from eol_cal.ecu.flash import NorFlash
 from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, private_channel_name
 from eol_cal.firmware import block as B
+from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 
 FAST_ISOTP = IsoTpTiming(n_bs_ms=150, n_cr_ms=150)
 FAST_CLIENT = ClientTiming(p2_s=0.15, p2_star_s=1.0, retries=3, tester_present_s=2.0, isotp=FAST_ISOTP)
@@ -34,7 +35,7 @@ def example_block(serial: str = "SIM-0001", table_len: int = 256, sequence: int 
     blk = B.ParamBlock(
         sequence=sequence, flags=B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE, serial=serial,
         calibrated_at=1_790_000_000 + seed, poles=6, encoder_ppr=64, tick_hz=20000.0, kt=0.049,
-        hall_angle=tuple(np.deg2rad([60, 180, 120, 300, 0, 240])), c6=0.002, phase_c6=0.3,
+        hall_angle=NOMINAL_HALL_ANGLE, c6=0.002, phase_c6=0.3,
         k6=0.00062, phase_k6=phase, lead_s=1e-4, iqc_limit=5.0,
         table_const=0.04 * np.sin(2 * np.pi * j / table_len + 0.3),
         table_per_amp=0.0127 * np.sin(2 * np.pi * j / table_len + phase))

@@ -28,6 +28,7 @@ import numpy as np
 from eol_cal.firmware import block as pb
 from eol_cal.atomic import atomic_write
 from eol_cal.firmware.compensator import i_qc, make_tables
+from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 
 GOLDEN_FORMAT = 1
 GENERATOR = f"eol_cal.firmware.golden format {GOLDEN_FORMAT}"
@@ -61,7 +62,7 @@ def hex_f32(s: str) -> np.float32:
     return np.array([int(s, 16)], dtype=np.uint32).view(np.float32)[0]
 
 
-_HALL_NOMINAL = tuple(math.radians(a) for a in (60.0, 180.0, 120.0, 300.0, 0.0, 240.0))
+_HALL_NOMINAL = NOMINAL_HALL_ANGLE
 
 
 def golden_blocks() -> list[tuple[str, pb.ParamBlock]]:

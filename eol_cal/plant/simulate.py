@@ -32,13 +32,14 @@ from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware import compensator
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
+from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.plant import control, dyno, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.params import PlantParams, PlantSpec, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
 
 TWO_PI = 2.0 * math.pi
 #: Nominal hall_angle table of the contract (rad): state s begins at HALL_ANGLE[s-1].
-HALL_ANGLE = tuple(math.radians(a) for a in (60.0, 180.0, 120.0, 300.0, 0.0, 240.0))
+HALL_ANGLE = NOMINAL_HALL_ANGLE
 #: Per-tick outputs of the scan, in this order (float32 columns).
 OUT_COLUMNS = ("torque", "enc_a", "enc_b", "hall", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic",
                "speed", "theta_r", "theta_hat", "theta_enc")
