@@ -53,6 +53,7 @@ def main() -> None:
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.analysis.fit_table import block_from_record
     from eol_cal.analysis.result import CiLimits, motor_record
+    from eol_cal.bench import load_bench
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate, true_block
@@ -63,6 +64,7 @@ def main() -> None:
     cal = load_profile("eol-default")
     point = load_profile("paper")
     spec = FitSpec()
+    bench = load_bench("paper")  # eol-cal fit's default: the bench the plant models
     rows = []
     t_sim = t_fit = 0.0
     t_start = time.perf_counter()
@@ -73,7 +75,7 @@ def main() -> None:
         runs = simulate(plants, cal, mode="estimated", seed=first)
         t_sim += time.perf_counter() - t0
         t0 = time.perf_counter()
-        inputs = [motor_inputs([r.capture])[0] for r in runs]
+        inputs = [motor_inputs([r.capture], bench=bench)[0] for r in runs]
         fits = fit_many([m.segments for m in inputs], spec, mode="loop")
         t_fit += time.perf_counter() - t0
         blocks, truths = [], []

@@ -73,6 +73,15 @@ class MotorParams:
     def pole_pairs(self) -> int:
         return self.poles // 2
 
+    def current_pi_gains(self) -> tuple[float, float, float, float]:
+        """The ECU's dq current PI gains ``(Kp_d, Ki_d, Kp_q, Ki_q)`` (V/A, V/(A*s)).
+
+        Internal-model tuning: the PI zero cancels the nominal R-L pole and the loop crosses at
+        ``2*pi*current_bw_hz``, so the closed loop is first order at ``current_bw_hz``.
+        """
+        w_c = 2.0 * math.pi * self.current_bw_hz
+        return w_c * self.L_d, w_c * self.R_s, w_c * self.L_q, w_c * self.R_s
+
     def R_s_at(self, temp_degC: float) -> float:
         """Stator resistance at ``temp_degC`` (ohm), linear copper model."""
         return self.R_s * (1.0 + self.alpha_cu * (temp_degC - self.T_ref_degC))

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 import threading
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -148,6 +149,11 @@ class SegmentArrays:
         P/2.
     labels : list of str
         Where each segment came from (file and sample range), for messages and the result.
+    path_response : callable, optional
+        Complex response of the path from the motor's air-gap torque to the shaft torque the
+        transducer sees, at angular frequencies (rad/s, signed): ``omega -> ndarray of complex``
+        (:func:`eol_cal.bench.shaft_response` for a bench). The fitted ripple is the air-gap one;
+        ``None`` takes the coupling as rigid (response 1).
     """
 
     theta: list[np.ndarray]
@@ -157,10 +163,19 @@ class SegmentArrays:
     omega_e: np.ndarray
     pole_pairs: int
     labels: list[str] = field(default_factory=list)
+    path_response: Callable[[np.ndarray], np.ndarray] | None = None
 
     @property
     def n_segments(self) -> int:
         return len(self.theta)
+
+
+def path_gain(seg: SegmentArrays, spec: FitSpec) -> np.ndarray:
+    """``seg.path_response`` at every segment's harmonics, shape (segments, harmonics), complex."""
+    freq = np.outer(seg.omega_e, np.asarray(spec.harmonics, dtype=float))
+    if seg.path_response is None:
+        return np.ones(freq.shape, dtype=complex)
+    return np.asarray(seg.path_response(freq), dtype=complex).reshape(freq.shape)
 
 
 def check_identifiable(seg: SegmentArrays, spec: FitSpec, source: str | None = None) -> None:
@@ -323,6 +338,8 @@ class Compressed:
         Free nuisance parameters per segment.
     i_qo, omega : ndarray, (S,)
         Segment load (A) and electrical speed (rad/s).
+    gain_re, gain_im : ndarray, (S, harmonics)
+        The air-gap-to-shaft response at each segment's harmonics (:func:`path_gain`).
     """
 
     R: np.ndarray
@@ -334,6 +351,8 @@ class Compressed:
     n_nuis: np.ndarray
     i_qo: np.ndarray
     omega: np.ndarray
+    gain_re: np.ndarray
+    gain_im: np.ndarray
 
 
 #: Samples per block of the compression. The design matrix of a block lives in one reused
@@ -399,7 +418,9 @@ def compress(seg: SegmentArrays, spec: FitSpec, n_segments: int | None = None) -
         R[s], z[s], fl, sst, ym, n, nn = compress_segment(seg.theta[s], seg.t[s], seg.torque[s], seg.pole_pairs, spec)
         vec["floor"][s], vec["sst"][s], vec["ymean"][s], vec["n"][s], vec["n_nuis"][s] = fl, sst, ym, n, nn
         vec["i_qo"][s], vec["omega"][s] = seg.i_qo[s], seg.omega_e[s]
-    return Compressed(R=R, z=z, **vec)
+    gain = np.ones((S, len(spec.harmonics)), dtype=complex)
+    gain[: seg.n_segments] = path_gain(seg, spec)
+    return Compressed(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), **vec)
 
 
 def _build(spec: FitSpec, S: int):
@@ -422,7 +443,7 @@ def _build(spec: FitSpec, S: int):
     G = spec.n_glob
     n_tau = int(spec.fit_delay)
 
-    def harm_coef(p, i_qo, omega):
+    def harm_coef(p, i_qo, omega, gre, gim):
         """Coefficients of the sin/cos(h theta) columns per segment, shape (S, 2 nh)."""
         tau = p[0] * TAU_SCALE if n_tau else spec.delay_s
         glob = p[n_tau : n_tau + G].reshape(-1, nh, 2)  # (part, harmonic, cos/sin)
@@ -436,6 +457,8 @@ def _build(spec: FitSpec, S: int):
         if spec.fit_k:
             Zre = Zre + i_qo[:, None] * glob[part, :, 0][None]
             Zim = Zim + i_qo[:, None] * glob[part, :, 1][None]
+        # air gap -> shaft (bench mechanics), then the transducer
+        Zre, Zim = Zre * gre - Zim * gim, Zre * gim + Zim * gre
         a = H[None, :] * omega[:, None] * tau
         if spec.transducer == "lowpass":
             # first-order transducer: each segment's phasor times 1 / (1 + i h omega tau)
@@ -450,8 +473,8 @@ def _build(spec: FitSpec, S: int):
         return jnp.stack([-Rre, -Rim], axis=-1).reshape(S, 2 * nh)
 
     def residual(p, args):
-        Rhh, zh, i_qo, omega, valid = args
-        g = harm_coef(p, i_qo, omega)
+        Rhh, zh, i_qo, omega, gre, gim, valid = args
+        g = harm_coef(p, i_qo, omega, gre, gim)
         r = zh - jnp.einsum("sij,sj->si", Rhh, g)
         return (r * valid[:, None]).reshape(-1)
 
@@ -471,7 +494,7 @@ def _build(spec: FitSpec, S: int):
         Rhh = comp["R"][:, q:, q:]
         zh = comp["z"][:, q:]
         valid = (comp["n"] > 0).astype(zh.dtype)
-        args = (Rhh, zh, comp["i_qo"], comp["omega"], valid)
+        args = (Rhh, zh, comp["i_qo"], comp["omega"], comp["gain_re"], comp["gain_im"], valid)
         if n_tau:
             starts, ssrs = jax.vmap(lambda tau: linear_start(args, tau))(tau_grid)
             p0 = starts[jnp.argmin(ssrs)]
@@ -495,7 +518,7 @@ def _build(spec: FitSpec, S: int):
             "p": p,
             "cov_unscaled": jnp.linalg.inv(J.T @ J),
             "ssr_red": jnp.sum(r * r),
-            "g": harm_coef(p, comp["i_qo"], comp["omega"]),
+            "g": harm_coef(p, comp["i_qo"], comp["omega"], comp["gain_re"], comp["gain_im"]),
             "steps": sol.stats["num_steps"],
             "converged": sol.result == optx.RESULTS.successful,
         }
@@ -539,7 +562,7 @@ _SOLVERS: dict = {}
 #: The CLI sets it next to JAX's persistent compilation cache: the compilation cache skips XLA
 #: compiling, this skips tracing the solver (and importing optimistix), about 2 s of a short run.
 EXPORT_DIR: str | None = None
-_EXPORT_TAG = "eol-cal-fit-solve-1"
+_EXPORT_TAG = "eol-cal-fit-solve-2"
 
 
 def _export_file(spec: FitSpec, S: int, n_grid: int) -> str | None:
@@ -901,7 +924,7 @@ def fit_many(
     return results
 
 
-_DICT_KEYS = ("R", "z", "n", "i_qo", "omega")
+_DICT_KEYS = ("R", "z", "n", "i_qo", "omega", "gain_re", "gain_im")
 
 
 def _as_dict(c: Compressed) -> dict[str, np.ndarray]:

@@ -9,12 +9,14 @@ least ``min_revs`` revolutions is one segment: one load point x speed x directio
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from eol_cal.analysis.fit import SegmentArrays
+from eol_cal.bench import BenchParams, shaft_response
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.motor import MotorParams, load_motor
@@ -49,6 +51,7 @@ class MotorInput:
     capture_of_segment: list[int] = field(default_factory=list)
     frame: str = "offline"
     frame_offset_rad: float = 0.0
+    bench: BenchParams | None = None
 
     @property
     def sources(self) -> list[str]:
@@ -182,6 +185,7 @@ def motor_inputs(
     settle_s: float = 0.1,
     min_revs: int = 1,
     frame: str = "firmware",
+    bench: BenchParams | None = None,
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
@@ -192,7 +196,8 @@ def motor_inputs(
         ``segment_starts``, or gaps in ``t``) is split into its windows first
         (:func:`eol_cal.capture.windows.split_windows`): no angle is reconstructed across a join.
     motor : MotorParams, optional
-        Fallback for kt when the captures carry no ``kt`` metadata (default: the paper preset).
+        Fallback for kt when the captures carry no ``kt`` metadata, and the rotor inertia and
+        friction of the bench's shaft response (default: the paper preset).
     settle_s : float
         Settling time dropped after each step (s).
     min_revs : int
@@ -202,6 +207,9 @@ def motor_inputs(
         angle (:func:`firmware_frame_offset`), so that phases can be given in the frame the ECU
         evaluates its table in; captures without ``enc_b`` fall back to ``offline`` (the hall
         frame of :mod:`eol_cal.analysis.angle`).
+    bench : BenchParams, optional
+        The dyno bench the captures come from; the fit then divides its shaft response
+        (:func:`eol_cal.bench.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
 
     Returns
     -------
@@ -262,8 +270,9 @@ def motor_inputs(
                 f"{settle_s} s settling (constant speed, direction and iq_ref)",
             )
         kt, kt_source = _kt_of(caps, motor)
-        seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels)
-        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx)
+        response = None if bench is None else functools.partial(shaft_response, motor=motor, bench=bench)
+        seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
+        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, bench=bench)
         if use_fw and fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
         elif frame == "firmware":

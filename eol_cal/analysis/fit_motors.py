@@ -17,7 +17,9 @@ import numpy as np
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit_capture import MotorInput
 from eol_cal.analysis.result import CiLimits
+from eol_cal.bench import BenchParams, load_bench
 from eol_cal.capture.model import Capture
+from eol_cal.motor import MotorParams
 
 
 @dataclass(frozen=True)
@@ -41,6 +43,13 @@ class FitOptions:
         How motors are solved in JAX (auto: :func:`eol_cal.analysis.fit.pick_mode`).
     capture_metrics : bool
         Add each window's p-p ripple to the record's ``metrics.captures``.
+    bench : BenchParams or None
+        The dyno bench of the captures (:mod:`eol_cal.bench`; default the built-in ``paper``
+        bench, which the plant and ``eol-cal dyno-sim`` model): its shaft response is divided out
+        of the measured ripple. ``None``: rigid coupling (the measured ripple taken as the motor's).
+    motor : MotorParams or None
+        Rotor inertia and friction for the shaft response, kt when the captures have none
+        (default: the ``paper`` preset).
     """
 
     spec: FitSpec = field(default_factory=FitSpec)
@@ -50,6 +59,8 @@ class FitOptions:
     frame: str = "firmware"
     batch: str = "auto"
     capture_metrics: bool = True
+    bench: BenchParams | None = field(default_factory=lambda: load_bench("paper"))
+    motor: MotorParams | None = None
 
 
 @dataclass
@@ -147,7 +158,8 @@ def fit_motors(
 
     if tool_version is None:
         from eol_cal import __version__ as tool_version
-    inputs = motor_inputs(captures, settle_s=options.settle_s, min_revs=options.min_revs, frame=options.frame)
+    inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
+                          frame=options.frame, bench=options.bench)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eol_cal.analysis.fit import TAU_SCALE, FitSpec, SegmentArrays, design_matrix
+from eol_cal.analysis.fit import TAU_SCALE, FitSpec, SegmentArrays, design_matrix, path_gain
 
 
 def fit_segments_scipy(seg: SegmentArrays, spec: FitSpec, p0: np.ndarray | None = None) -> dict:
@@ -41,6 +41,7 @@ def fit_segments_scipy(seg: SegmentArrays, spec: FitSpec, p0: np.ndarray | None 
     Xs = [design_matrix(np.unwrap(th), t, seg.pole_pairs, spec) for th, t in zip(seg.theta, seg.t)]
     ys = [np.asarray(y, dtype=float) for y in seg.torque]
     H = np.asarray(spec.harmonics, dtype=float)
+    gain = path_gain(seg, spec)
 
     def residual(p):
         tau = p[0] * TAU_SCALE if n_tau else spec.delay_s
@@ -55,6 +56,7 @@ def fit_segments_scipy(seg: SegmentArrays, spec: FitSpec, p0: np.ndarray | None 
                 part += 1
             if spec.fit_k:
                 Z = Z + seg.i_qo[s] * (glob[part, :, 0] + 1j * glob[part, :, 1])
+            Z = Z * gain[s]
             a = H * seg.omega_e[s] * tau
             Z = Z / (1.0 + 1j * a) if spec.transducer == "lowpass" else Z * np.exp(-1j * a)
             g = np.concatenate([nuis[s], np.stack([-Z.real, -Z.imag], axis=-1).reshape(-1)])

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit
 from eol_cal.errors import InputError
 
@@ -93,11 +95,13 @@ def motor_record(
     solver_mode: str,
     frame: str = "offline",
     frame_offset_rad: float = 0.0,
+    bench: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
     ``fit`` must already be in the frame named by ``frame`` (:func:`eol_cal.analysis.fit.shift_frame`);
-    ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad).
+    ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad); ``bench``
+    the bench mechanics divided out of the measured ripple (None: rigid coupling).
     """
     status, reasons = judge(fit, spec, limits)
     usable = status == STATUS_OK
@@ -143,6 +147,7 @@ def motor_record(
         "mech_order1": spec.mech_order1,
         "angle_frame": frame,
         "frame_offset_deg": math.degrees(frame_offset_rad),
+        "bench": bench if bench is not None else "rigid",
     }
     rec["poles"] = poles
     rec["encoder_ppr"] = encoder_ppr
@@ -160,17 +165,22 @@ def record_for_motor(mi, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metr
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
     stays in the offline frame (the plots draw it against the offline angle).
     """
-    from eol_cal.analysis.fit import shift_frame
+    import dataclasses
 
+    from eol_cal.analysis.fit import path_gain, shift_frame
+
+    g6 = path_gain(mi.segments, FitSpec(harmonics=(6,)))[:, 0]
     segments = [
         {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
-         "T_avg_nm": float(fit.t_avg[k])}
+         "T_avg_nm": float(fit.t_avg[k]), "shaft_gain_6": float(abs(g6[k])),
+         "shaft_phase_6_deg": math.degrees(float(np.angle(g6[k])))}
         for k, i in enumerate(mi.info)
     ]
     return motor_record(
         mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
         solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
+        bench=None if mi.bench is None else dataclasses.asdict(mi.bench),
     )
 
 

@@ -7,6 +7,7 @@ dyno). The dyno holds its speed reference with a PI speed controller (its own dr
 compared to the profile, slow compared to the ripple). Integration is semi-implicit Euler at the
 PWM tick, stable for the shaft mode as long as ``omega_n*dt << 2`` (0.1 for the paper bench).
 The twist is a state of its own so that float32 keeps it exact at any absolute angle.
+The gains and the frequency response of this line are in :mod:`eol_cal.bench`.
 """
 
 from __future__ import annotations
@@ -49,15 +50,3 @@ def mech_step(
     theta_m = theta_m + dt * omega_m
     theta_m = theta_m - TWO_PI * xp.floor(theta_m / TWO_PI)
     return theta_m, twist, omega_m, omega_d, x_dyno, T_shaft
-
-
-def speed_gains(J_total: float, bw_hz: float, zeta: float = 0.8) -> tuple[float, float]:
-    """PI gains (N*m*s/rad, N*m/rad) placing the dyno's speed loop at ``bw_hz`` (Hz)."""
-    w = TWO_PI * bw_hz
-    return 2.0 * zeta * w * J_total, w * w * J_total
-
-
-def shaft_damping(K_shaft: float, J: float, J_dyno: float, zeta: float) -> float:
-    """Shaft damping (N*m*s/rad) that gives the torsion mode the damping ratio ``zeta``."""
-    J_eff = J * J_dyno / (J + J_dyno)
-    return 2.0 * zeta * math.sqrt(K_shaft * J_eff)

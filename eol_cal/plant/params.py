@@ -15,9 +15,11 @@ from typing import NamedTuple
 
 import numpy as np
 
+from eol_cal.bench import BenchParams, load_bench, shaft_damping, speed_gains
 from eol_cal.motor import MotorParams, load_motor
-from eol_cal.plant import dyno, motor as motor_model, ripple
+from eol_cal.plant import motor as motor_model, ripple
 
+_BENCH = load_bench("paper")
 
 
 @dataclass(frozen=True)
@@ -53,9 +55,10 @@ class PlantSpec:
         Torque transducer bandwidth (Hz), noise (N*m rms), ADC resolution (N*m).
     i_noise_a, i_lsb_a : float
         Phase-current sensor noise (A rms) and ADC resolution (A).
-    J_dyno, K_shaft, shaft_zeta, dyno_bw_hz : float
+    J_dyno, K_shaft, shaft_zeta, dyno_bw_hz, dyno_zeta : float
         Dyno inertia (kg*m^2), shaft stiffness (N*m/rad), damping ratio of the torsion mode (1),
-        dyno speed-loop bandwidth (Hz).
+        dyno speed-loop bandwidth (Hz) and damping ratio (1); default: the ``paper`` bench
+        (``eol_cal/benches/paper.toml``), the one ``eol-cal fit`` assumes by default.
     dead_time_s : float
         Inverter dead time (s); 0 switches the dead-time model off.
     """
@@ -86,11 +89,18 @@ class PlantSpec:
     tq_lsb_nm: float = 1e-4
     i_noise_a: float = 0.0
     i_lsb_a: float = 0.05
-    J_dyno: float = 0.02
-    K_shaft: float = 2000.0
-    shaft_zeta: float = 0.3
-    dyno_bw_hz: float = 5.0
+    J_dyno: float = _BENCH.J_dyno
+    K_shaft: float = _BENCH.K_shaft
+    shaft_zeta: float = _BENCH.shaft_zeta
+    dyno_bw_hz: float = _BENCH.dyno_bw_hz
+    dyno_zeta: float = _BENCH.dyno_zeta
     dead_time_s: float = 0.0
+
+    @property
+    def bench(self) -> BenchParams:
+        """The bench's mechanics as the fit describes them (:mod:`eol_cal.bench`)."""
+        return BenchParams(name="plant", J_dyno=self.J_dyno, K_shaft=self.K_shaft, shaft_zeta=self.shaft_zeta,
+                           dyno_bw_hz=self.dyno_bw_hz, dyno_zeta=self.dyno_zeta)
 
     def replace(self, **changes) -> "PlantSpec":
         return dataclasses.replace(self, **changes)
@@ -199,8 +209,8 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
     a_d, b_d = motor_model.rl_coefficients(R, m.L_d, dt, np)
     a_q, b_q = motor_model.rl_coefficients(R, m.L_q, dt, np)
     J_total = m.J + spec.J_dyno
-    Kp_dyno, Ki_dyno = dyno.speed_gains(J_total, spec.dyno_bw_hz)
-    w_c = 2.0 * math.pi * m.current_bw_hz
+    Kp_dyno, Ki_dyno = speed_gains(J_total, spec.dyno_bw_hz, spec.dyno_zeta)
+    Kp_d, Ki_d, Kp_q, Ki_q = m.current_pi_gains()
     edge = np.zeros(m.N_enc) if not spec.enc_edge_err_deg else np.radians(spec.enc_edge_err_deg)
     if edge.shape != (m.N_enc,):
         raise ValueError(f"enc_edge_err_deg needs {m.N_enc} values, got {edge.shape}")
@@ -214,10 +224,9 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
         i_noise_a=spec.i_noise_a, i_lsb_a=spec.i_lsb_a,
         u_dc=m.u_dc, u_dead=m.u_dc * spec.dead_time_s * m.f_pwm,
         J_dyno=spec.J_dyno, K_shaft=spec.K_shaft,
-        D_shaft=dyno.shaft_damping(spec.K_shaft, m.J, spec.J_dyno, spec.shaft_zeta),
+        D_shaft=shaft_damping(spec.K_shaft, m.J, spec.J_dyno, spec.shaft_zeta),
         Kp_dyno=Kp_dyno, Ki_dyno=Ki_dyno,
-        # Internal-model tuning: the PI zero cancels the R-L pole, the loop crosses at w_c.
-        Kp_d=w_c * m.L_d, Kp_q=w_c * m.L_q, Ki_d=w_c * m.R_s, Ki_q=w_c * m.R_s,
+        Kp_d=Kp_d, Kp_q=Kp_q, Ki_d=Ki_d, Ki_q=Ki_q,
         L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
         table_const=table_const, table_per_amp=table_per_amp, lead_s=lead_s, iqc_limit=iqc_limit,
     )
