@@ -52,6 +52,9 @@ def _harmonics(text: str) -> tuple[int, ...]:
 @click.option("--delay", "delay_s", type=float, help="Known transducer delay / time constant (s) instead of fitting it.")
 @click.option("--transducer", type=click.Choice(["delay", "lowpass"]), default="lowpass", show_default=True,
               help="Torque transducer model: pure delay, or first-order low-pass (gain and phase).")
+@click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
+              help="Dyno bench of the captures (eol_cal/benches/NAME.toml or a TOML file): its shaft and "
+                   "current-loop response is divided out of the measured ripple; 'none': rigid coupling.")
 @click.option("--frame", type=click.Choice(["firmware", "offline"]), default="firmware", show_default=True,
               help="Angle frame of the phases: the firmware estimator's (run over the capture), or the offline hall frame.")
 @click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5), help="Per-segment drift polynomial degree.")
@@ -65,8 +68,8 @@ def _harmonics(text: str) -> tuple[int, ...]:
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
-def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, frame, drift_degree, settle_s,
-            max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
+def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
+            drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
     Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
@@ -80,6 +83,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit_motors import FitOptions, fit_motors
     from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
+    from eol_cal.bench import load_bench
     from eol_cal.capture.io import read_capture
 
     enable_jax_cache()
@@ -94,7 +98,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         solver=solver,
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
-    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch)
+    bench = None if bench_name == "none" else load_bench(bench_name)
+    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, bench=bench)
     caps = [read_capture(p, map_file) for p in captures]
     serials = {c.serial for c in caps if "serial" in c.metadata}
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:

@@ -52,7 +52,8 @@ def _fit(args, runner=None):
 @pytest.fixture(scope="module")
 def fitted(files):
     out = files["dir"] / "r_csv.json"
-    res = _fit([*files["csv"], "-o", str(out), "--plot", str(files["dir"] / "plots")])
+    # the analytic generator writes the shaft torque straight from the ripple model: no bench
+    res = _fit([*files["csv"], "-o", str(out), "--plot", str(files["dir"] / "plots"), "--bench", "none"])
     return res, out
 
 
@@ -77,6 +78,7 @@ def test_fit_recovers_the_generator_and_writes_the_schema(fitted, files):
     # phases in the firmware estimator's frame; the generator's encoder and halls are exact, so the
     # estimator's frame sits on the hall frame to a small fraction of a degree
     assert m["model"]["angle_frame"] == "firmware" and abs(m["model"]["frame_offset_deg"]) < 0.2
+    assert m["model"]["bench"] == "rigid" and all(s["shaft_gain_6"] == 1.0 for s in m["segments"])
     assert m["metrics"]["eta_percent"] > 0 and len(m["metrics"]["captures"]) == len(POINTS)
     assert all("pp_filtered_pct" in c or "error" in c for c in m["metrics"]["captures"])
     assert (files["dir"] / "plots" / "M-0007_fit.png").stat().st_size > 10000
@@ -86,7 +88,7 @@ def test_fit_recovers_the_generator_and_writes_the_schema(fitted, files):
 def test_same_result_from_csv_and_mdf4(fitted, files):
     _, out_csv = fitted
     out_mf4 = files["dir"] / "r_mf4.json"
-    res = _fit([*files["mf4"], "-o", str(out_mf4)])
+    res = _fit([*files["mf4"], "-o", str(out_mf4), "--bench", "none"])
     assert res.exit_code == 0, res.output
     a = json.loads(out_csv.read_text())["motors"][0]
     b = json.loads(out_mf4.read_text())["motors"][0]
@@ -175,3 +177,34 @@ def test_table_round_trip(fitted, tmp_path):
     assert res.exit_code == 0, res.output
     blk = unpack(blk_path.read_bytes())
     assert blk.lead_s == pytest.approx(1e-4) and blk.table_len == 64
+
+
+def test_bench_response_divided_out(fitted, files, tmp_path):
+    """With the paper bench the fit reports the motor's ripple: the measured one over the bench's
+    shaft response at each segment's 6th (below 1 at 120 rpm, above 1 at 240 rpm: torsion mode)."""
+    from eol_cal.bench import load_bench, shaft_response
+    from eol_cal.motor import load_motor
+
+    _, out_none = fitted
+    out = tmp_path / "r_bench.json"
+    res = _fit([*files["csv"], "-o", str(out), "--bench", "paper"])
+    assert res.exit_code == 0, res.output
+    rigid = json.loads(out_none.read_text())["motors"][0]
+    m = json.loads(out.read_text())["motors"][0]
+    assert m["model"]["bench"]["name"] == "paper" and m["model"]["bench"]["J_dyno"] == pytest.approx(0.02)
+    omega6 = [6 * s["speed_rpm"] * 3 * 2 * math.pi / 60 for s in m["segments"]]
+    g = np.abs(shaft_response(np.array(omega6), load_motor("paper"), load_bench("paper")))
+    assert [s["shaft_gain_6"] for s in m["segments"]] == pytest.approx(list(g), rel=1e-9)
+    assert g.min() < 0.997 and g.max() > 1.003
+    ratio = m["k6"]["value"] / rigid["k6"]["value"]
+    assert 1.0 / g.max() - 1e-3 < ratio < 1.0 / g.min() + 1e-3
+
+
+def test_bad_bench_exits_2(files, tmp_path):
+    res = _fit([*files["csv"], "-o", str(tmp_path / "r.json"), "--bench", "no-such-bench"])
+    assert res.exit_code == 2 and "no-such-bench" in res.output
+    bad = tmp_path / "bench.toml"
+    bad.write_text('J_dyno = 0.02\nK_shaft = -5.0\nshaft_zeta = 0.3\ndyno_bw_hz = 5.0\ndyno_zeta = 0.8\n')
+    res = _fit([*files["csv"], "-o", str(tmp_path / "r.json"), "--bench", str(bad)])
+    assert res.exit_code == 2 and "K_shaft" in res.output and "bench.toml" in res.output
+    assert not (tmp_path / "r.json").exists()

@@ -8,6 +8,7 @@ capture-level generator (encoder, halls, files) is :mod:`eol_cal.capture.synthet
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -34,6 +35,7 @@ def synthetic_segments(
     drift_nm_per_s: float = 0.01,
     extra: dict[int, tuple[float, float, float, float]] | None = None,
     transducer: str = "lowpass",
+    path_response: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[SegmentArrays, dict]:
     """One motor's segments: every load x speed x direction, each ``seg_s`` long.
 
@@ -67,6 +69,9 @@ def synthetic_segments(
     transducer : {"delay", "lowpass"}
         ``delay``: the torque is seen ``delay_s`` late; ``lowpass``: through a first-order
         low-pass of time constant ``delay_s`` (each harmonic's steady-state gain and phase).
+    path_response : callable, optional
+        The bench's air-gap-to-shaft response (:attr:`SegmentArrays.path_response`), applied to
+        every harmonic before the transducer and handed to the fit with the segments.
 
     Returns
     -------
@@ -89,11 +94,12 @@ def synthetic_segments(
                 torque = kt * i_qo + drift_nm_per_s * (t - t_start)
                 torque = torque + mech_nm * np.sin(seen / pole_pairs + rng.uniform(0, 2 * math.pi))
                 for h, (c, pc, k, pk) in terms.items():
+                    path = complex(path_response(np.array([h * omega_e]))[0]) if path_response else 1.0
                     if transducer == "lowpass":
-                        gain = 1.0 / (1.0 + 1j * h * omega_e * delay_s)
+                        gain = path / (1.0 + 1j * h * omega_e * delay_s)
                         arg, g = h * theta + np.angle(gain), abs(gain)
                     else:
-                        arg, g = h * seen, 1.0
+                        arg, g = h * seen + np.angle(path), abs(path)
                     torque = torque - g * c * np.sin(arg + pc) - g * k * i_qo * np.sin(arg + pk)
                 torque = torque + rng.normal(0.0, noise_nm, n)
                 thetas.append(theta)
@@ -103,7 +109,7 @@ def synthetic_segments(
                 omegas.append(omega_e)
                 labels.append(f"synthetic {direction:+d} {rpm:g} rpm {i_qo:g} A")
                 t_start = t[-1] + 1.0 / fs_hz
-    seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels)
+    seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels, path_response)
     truth = {"k6": k6, "phase_k6": phase_k6, "c6": c6, "phase_c6": phase_c6, "delay_s": delay_s,
              "transducer": transducer}
     return seg, truth
