@@ -67,3 +67,35 @@ def test_signal_model_numpy_and_jax_agree():
     for r, g in zip(ref, got):
         # float32 positions may flip a level on the sample nearest a switching point
         assert np.count_nonzero(np.asarray(g) != r) <= 4
+
+
+def test_chunked_hall_table_is_a_dynamic_argument():
+    # a calibrated hall table (two entries moved) runs in the nominal table's compiled program
+    # and gives what the numpy reference gives with a config carrying that table
+    nominal = E.EstimatorConfig.paper()
+    skewed = list(E.NOMINAL_HALL_ANGLE)
+    skewed[0] += math.radians(4.0)
+    skewed[3] -= math.radians(3.0)
+    cfg_skew = E.EstimatorConfig.paper(hall_angle=skewed)
+    err = draw_sensor_errors(np.random.default_rng(3), 64)
+    t = np.arange(6000) / G.TICK_HZ
+    a, b, h = encoder_hall_signals(np.mod(0.3 + 4 * math.pi * t, 2 * math.pi), 6, 64, err)  # 120 rpm
+    ref = E.run(cfg_skew, a, b, h)
+    ref_nominal = E.run(nominal, a, b, h)
+    E._scan_chunk.cache_clear()
+    got_nominal = E.run_jax_chunked(nominal, a, b, h)
+    got = E.run_jax_chunked(nominal, a, b, h, hall_angle=skewed)
+    for out, r in ((got, ref), (got_nominal, ref_nominal)):
+        assert np.max(_ang_diff(out.theta_hat, r.theta_hat)) < 1e-4
+        assert np.max(_ang_diff(out.theta_enc, r.theta_enc)) < 1e-4
+        assert np.max(np.abs(out.omega_hat - r.omega_hat)) < 1e-3
+        assert np.array_equal(out.status, r.status)
+    # the table matters (the moved entries shift the anchor by degrees) ...
+    assert np.max(_ang_diff(got.theta_hat, got_nominal.theta_hat)) > math.radians(2.0)
+    # ... and is not part of the program: one compiled scan for both tables and for cfg_skew's own
+    assert E.run_jax_chunked(cfg_skew, a, b, h).theta_hat == pytest.approx(got.theta_hat, abs=1e-6)
+    assert E._scan_chunk.cache_info().currsize == 1
+    assert E._scan_chunk(E._program_config(cfg_skew))._cache_size() == 1
+    # run_jax takes it the same way
+    out = E.run_jax(nominal, a[:3000], b[:3000], h[:3000], hall_angle=skewed)
+    assert np.max(_ang_diff(out.theta_hat, ref.theta_hat[:3000])) < 1e-4

@@ -22,6 +22,7 @@ constants and order of operations are in ``firmware_params/ESTIMATOR.md``; keep 
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -232,6 +233,50 @@ def wrap_pm(x: Any, xp: Any = np) -> Any:
     return wrap(x + PI, xp) - PI
 
 
+class HallTables(NamedTuple):
+    """The hall lookups of one ``hall_angle`` table, indexed by the hall state (0 and 7: 0).
+
+    numpy binary32 from :func:`hall_tables`; :func:`step` also takes them as (traced) JAX
+    arrays, so one compiled program serves motors with different calibrated tables.
+
+    start : f32[8] rad, where state s begins forward (``Consts.H_START``).
+    width : f32[8] rad, sector width ``wrap(start[next] - start[s])`` (``Consts.H_WIDTH``).
+    mid : f32[8] rad, ``wrap(start + width * 0.5)`` (``Consts.H_MID``).
+    """
+
+    start: Any
+    width: Any
+    mid: Any
+
+
+def hall_tables(hall_angle: Sequence[float]) -> HallTables:
+    """The binary32 hall lookups of a ``hall_angle`` table (ESTIMATOR.md's H_START/H_WIDTH/H_MID).
+
+    Parameters
+    ----------
+    hall_angle : sequence of 6 float
+        Electrical angle (rad) at which hall state s begins in forward rotation, entry s-1
+        (rounded to binary32 first, as the firmware stores it).
+
+    Returns
+    -------
+    HallTables
+        numpy float32 arrays of 8 entries (rad).
+    """
+    angles = np.asarray(hall_angle, F32)
+    if angles.shape != (6,):
+        raise ValueError(f"hall_angle needs 6 entries, got shape {angles.shape}")
+    start = np.zeros(8, F32)
+    start[1:7] = angles
+    nxt = np.asarray(HALL_NEXT, I32)
+    width = np.zeros(8, F32)
+    mid = np.zeros(8, F32)
+    for s in range(1, 7):
+        width[s] = wrap(start[nxt[s]] - start[s])
+        mid[s] = wrap(start[s] + width[s] * HALF)
+    return HallTables(start=start, width=width, mid=mid)
+
+
 @functools.lru_cache(maxsize=64)
 def consts(cfg: EstimatorConfig) -> Consts:
     """Derive the binary32 constants of ``cfg`` (numpy scalars/arrays; fixed order)."""
@@ -239,14 +284,8 @@ def consts(cfg: EstimatorConfig) -> Consts:
     T = F32(1.0) / tick_hz
     DELTA = (F32(cfg.poles) * PI) / F32(cfg.N_enc)
     QUARTER = DELTA * F32(0.25)
-    start = np.zeros(8, F32)
-    start[1:7] = np.asarray(cfg.hall_angle, F32)
+    start, width, mid = hall_tables(cfg.hall_angle)
     nxt = np.asarray(HALL_NEXT, I32)
-    width = np.zeros(8, F32)
-    mid = np.zeros(8, F32)
-    for s in range(1, 7):
-        width[s] = wrap(start[nxt[s]] - start[s])
-        mid[s] = wrap(start[s] + width[s] * HALF)
     return Consts(T=T, DELTA=DELTA, QUARTER=QUARTER, HALF_QUARTER=QUARTER * HALF,
                   HALF_DELTA=DELTA * HALF, K_OMEGA=DELTA * tick_hz, TWO_TICK_HZ=tick_hz * F32(2.0),
                   TICK_HZ=tick_hz, K_NDELTA=F32(cfg.N_enc) * DELTA,
@@ -323,7 +362,7 @@ class EstimatorOut(NamedTuple):
 
 
 def _tab(table: np.ndarray, idx: Any, xp: Any) -> Any:
-    """``table[idx]`` for a constant table and a (possibly traced) int32 index."""
+    """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
     return table[idx] if xp is np or xp is _SCALAR_NP else xp.asarray(table)[idx]
 
 
@@ -409,7 +448,7 @@ def init_state(cfg: EstimatorConfig, hall0: Any, enc_a0: Any = 0, enc_b0: Any = 
 
 
 def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, hall: Any,
-         xp: Any = np) -> tuple[EstimatorState, EstimatorOut]:
+         xp: Any = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick").
 
     Parameters
@@ -422,12 +461,16 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     hall : int (0..7) or int array
         Hall bits U | V<<1 | W<<2 sampled this tick.
     xp : numpy or jax.numpy
+    tables : HallTables, optional
+        One motor's hall lookups (f32[8] each, rad; may be traced), used instead of those of
+        ``cfg.hall_angle``: a calibrated table is data, not a reason to compile again.
 
     Returns
     -------
     (new state, EstimatorOut)
     """
     c = consts(cfg)
+    ht = HallTables(c.H_START, c.H_WIDTH, c.H_MID) if tables is None else tables
     i32, f32 = xp.int32, xp.float32
     M, S = c.M, c.S
     one = I32(1)
@@ -534,7 +577,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     adj = fwd | rev
     jump = trans & ~adj
     first = hv & (hl == 0)
-    hb = xp.where(fwd, _tab(c.H_START, xp.where(hv, h, I32(0)), xp), _tab(c.H_START, hl, xp))
+    hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, I32(0)), xp), _tab(ht.start, hl, xp))
     # First anchor without an edge yet: the grid reference is the current count's middle.
     no_edge = dir_last == 0
     k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
@@ -566,15 +609,15 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     # 5. Outputs.
     theta_enc = wrap(G + rel, xp)
     theta = wrap(theta_enc + adv_eff, xp)
-    start = _tab(c.H_START, sector, xp)
-    width = _tab(c.H_WIDTH, sector, xp)
+    start = _tab(ht.start, sector, xp)
+    width = _tab(ht.width, sector, xp)
     dd = wrap(theta - start, xp)
     outside = dd > width
     end = wrap(start + width, xp)
     clamped = xp.where(outside, xp.where(dd - width < TWO_PI - dd, end, start), theta)
     theta = xp.where(still, clamped, theta)
     unanchored = anchored == 0
-    mid = _tab(c.H_MID, sector, xp)
+    mid = _tab(ht.mid, sector, xp)
     theta = xp.where(unanchored, mid, theta)
     theta_enc = xp.where(unanchored, mid, theta_enc)
     omega_out = omega_pred
@@ -640,10 +683,30 @@ def run(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> EstimatorOut
     return EstimatorOut(th, om, te, st)
 
 
-def run_jax(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> EstimatorOut:
+def _jax_tables(cfg: EstimatorConfig, hall_angle: Sequence[float] | None) -> HallTables:
+    """The hall lookups of ``hall_angle`` (default: the config's) as JAX arrays, a dynamic argument."""
+    import jax.numpy as jnp
+
+    return HallTables(*(jnp.asarray(t) for t in hall_tables(cfg.hall_angle if hall_angle is None else hall_angle)))
+
+
+def _program_config(cfg: EstimatorConfig) -> EstimatorConfig:
+    """``cfg`` with the nominal hall table: the compiled scans get the table as an argument, so
+    configurations that differ only in it share one program."""
+    return dataclasses.replace(cfg, hall_angle=NOMINAL_HALL_ANGLE)
+
+
+def run_jax(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any,
+            hall_angle: Sequence[float] | None = None) -> EstimatorOut:
     """The same as :func:`run` under ``jax.lax.scan`` (float32 tolerance, not bit-exact).
 
     Accepts leading batch dimensions before the time axis (vmapped).
+
+    Parameters
+    ----------
+    hall_angle : sequence of 6 float, optional
+        The ``hall_angle`` table (rad) to run with instead of ``cfg.hall_angle`` (shared by the
+        batch); a dynamic argument of the compiled program.
     """
     import jax
     import jax.numpy as jnp
@@ -651,20 +714,22 @@ def run_jax(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> Estimato
     a = jnp.asarray(enc_a, jnp.int32)
     b = jnp.asarray(enc_b, jnp.int32)
     h = jnp.asarray(hall, jnp.int32)
+    tables = _jax_tables(cfg, hall_angle)
+    pcfg = _program_config(cfg)
 
-    def one(a1, b1, h1):
-        s0 = init_state(cfg, h1[0], a1[0], b1[0], xp=jnp)
+    def one(a1, b1, h1, tb):
+        s0 = init_state(pcfg, h1[0], a1[0], b1[0], xp=jnp)
 
         def body(s, x):
-            return step(cfg, s, x[0], x[1], x[2], xp=jnp)
+            return step(pcfg, s, x[0], x[1], x[2], xp=jnp, tables=tb)
 
         _, out = jax.lax.scan(body, s0, jnp.stack([a1, b1, h1], axis=-1))
         return out
 
     f = one
     for _ in range(a.ndim - 1):
-        f = jax.vmap(f)
-    return jax.jit(f)(a, b, h)
+        f = jax.vmap(f, in_axes=(0, 0, 0, None))
+    return jax.jit(f)(a, b, h, tables)
 
 
 #: ticks per call of :func:`run_jax_chunked`'s compiled scan
@@ -673,22 +738,33 @@ JAX_CHUNK = 4096
 
 @functools.lru_cache(maxsize=16)
 def _scan_chunk(cfg: EstimatorConfig):
-    """The jitted scan over one chunk of ticks, state carried in and out (one per config)."""
+    """The jitted scan over one chunk of ticks, state carried in and out (one per config; the
+    hall tables are an argument, so call it with :func:`_program_config`)."""
     import jax
     import jax.numpy as jnp
 
-    def body(s, x):
-        return step(cfg, s, x[0], x[1], x[2], xp=jnp)
+    def chunk(s, abh, tables):
+        def body(s, x):
+            return step(cfg, s, x[0], x[1], x[2], xp=jnp, tables=tables)
 
-    return jax.jit(lambda s, abh: jax.lax.scan(body, s, abh))
+        return jax.lax.scan(body, s, abh)
+
+    return jax.jit(chunk)
 
 
-def run_jax_chunked(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any, chunk: int = JAX_CHUNK) -> EstimatorOut:
+def run_jax_chunked(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any, chunk: int = JAX_CHUNK,
+                    hall_angle: Sequence[float] | None = None) -> EstimatorOut:
     """:func:`run_jax` for one capture (1-D inputs) with one compiled program for every length.
 
     The ticks run in chunks of ``chunk`` under ``jax.lax.scan``, the state carried from chunk to
     chunk and the last chunk padded with the last sample (its outputs and the final state are
     discarded): :func:`run_jax` traces and compiles anew for every capture length.
+
+    Parameters
+    ----------
+    hall_angle : sequence of 6 float, optional
+        The ``hall_angle`` table (rad) to run with instead of ``cfg.hall_angle``: a dynamic
+        argument, so every table (the config's included) runs in the same compiled program.
 
     Returns
     -------
@@ -700,10 +776,12 @@ def run_jax_chunked(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any, chu
     abh = np.stack([np.asarray(enc_a), np.asarray(enc_b), np.asarray(hall)], axis=-1).astype(np.int32)
     n = len(abh)
     abh = np.concatenate([abh, np.repeat(abh[-1:], (-n) % chunk, axis=0)])
-    scan = _scan_chunk(cfg)
-    state = init_state(cfg, jnp.int32(abh[0, 2]), jnp.int32(abh[0, 0]), jnp.int32(abh[0, 1]), xp=jnp)
+    tables = _jax_tables(cfg, hall_angle)
+    pcfg = _program_config(cfg)
+    scan = _scan_chunk(pcfg)
+    state = init_state(pcfg, jnp.int32(abh[0, 2]), jnp.int32(abh[0, 0]), jnp.int32(abh[0, 1]), xp=jnp)
     outs = []
     for k in range(0, len(abh), chunk):
-        state, out = scan(state, abh[k:k + chunk])
+        state, out = scan(state, abh[k:k + chunk], tables)
         outs.append(out)
     return EstimatorOut(*(np.concatenate([np.asarray(o[i]) for o in outs])[:n] for i in range(len(EstimatorOut._fields))))

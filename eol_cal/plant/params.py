@@ -11,11 +11,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
 from eol_cal.bench import BenchParams, load_bench, shaft_damping, speed_gains
+from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.plant import motor as motor_model, ripple
 
@@ -198,11 +199,20 @@ class PlantParams(NamedTuple):
     table_per_amp: np.ndarray
     lead_s: np.ndarray
     iqc_limit: np.ndarray
+    # the block's hall_angle table as the estimator's lookups (eol_cal.firmware.estimator.HallTables)
+    hall_start: np.ndarray    # (8,) rad electrical
+    hall_width: np.ndarray    # (8,) rad electrical
+    hall_mid: np.ndarray      # (8,) rad electrical
 
 
 def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarray,
-              lead_s: float, iqc_limit: float) -> PlantParams:
-    """Float32 parameters of one bench, with the ECU's gains and the compensation tables."""
+              lead_s: float, iqc_limit: float,
+              hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE) -> PlantParams:
+    """Float32 parameters of one bench, with the ECU's gains and the compensation tables.
+
+    ``hall_angle`` (6 float, rad electrical) is the table of the motor's parameter block, the
+    one its ECU's estimator anchors on (the contract's nominal one when it has no block).
+    """
     m = spec.motor
     dt = 1.0 / m.f_pwm
     R = spec.R_s_true
@@ -229,8 +239,14 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
         Kp_d=Kp_d, Kp_q=Kp_q, Ki_d=Ki_d, Ki_q=Ki_q,
         L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
         table_const=table_const, table_per_amp=table_per_amp, lead_s=lead_s, iqc_limit=iqc_limit,
+        **dict(zip(("hall_start", "hall_width", "hall_mid"), hall_tables(hall_angle))),
     )
     return PlantParams(**{k: np.asarray(v, dtype=np.float32) for k, v in values.items()})
+
+
+def estimator_tables(p: PlantParams) -> HallTables:
+    """The estimator's hall lookups of these parameters (one motor's, or traced under ``vmap``)."""
+    return HallTables(p.hall_start, p.hall_width, p.hall_mid)
 
 
 def sensor_errors(p: PlantParams):

@@ -34,7 +34,7 @@ from eol_cal.firmware import compensator
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.plant import control, dyno, inverter, motor, ripple, sensors, transforms
-from eol_cal.plant.params import PlantParams, PlantSpec, sensor_errors, stack_params, to_params
+from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
 
 TWO_PI = 2.0 * math.pi
@@ -110,7 +110,9 @@ def _tick(cfg: SimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple
 
     # 1-2: sensors and the firmware's estimator
     enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
-    est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp)
+    # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
+    est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
+                                    tables=estimator_tables(p))
     theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
     cos_c, sin_c = jnp.cos(theta_c), jnp.sin(theta_c)
 
@@ -302,8 +304,9 @@ def simulate(
     mode : {"raw", "estimated", "compensated"}
         Control angle and compensation (paper Figs. 10, 11, 12).
     blocks : ParamBlock or sequence, optional
-        Parameter block per motor for ``compensated``; missing ones are made from the plant's
-        true ripple (:func:`true_block`).
+        Parameter block per motor: its tables for ``compensated`` (missing ones are made from the
+        plant's true ripple, :func:`true_block`), its ``hall_angle`` for the ECU's estimator in
+        every mode (nominal without a block). Motors of one batch may carry different tables.
     seed : int
         Seed of the sensor noise.
     pre_roll_s : float
@@ -346,20 +349,20 @@ def simulate(
                 raise InputError(None, "block", f"block is for P={block.poles}, {block.encoder_ppr} PPR; "
                                  f"motor has P={spec.motor.poles}, {spec.motor.N_enc} PPR")
             tc, tp, lead, lim = block.table_const, block.table_per_amp, block.lead_s, block.iqc_limit
+            hall = block.hall_angle
         else:
             tc = tp = np.zeros(16, np.float32)
             lead = lim = 0.0
-        params.append(to_params(spec, tc, tp, lead, lim))
-    halls = {tuple(b.hall_angle) for b in blocks if b is not None}
-    if len(halls) > 1:
-        raise InputError(None, "blocks", "a batch must share one hall_angle table (the estimator's configuration)")
+            hall = HALL_ANGLE
+        params.append(to_params(spec, tc, tp, lead, lim, hall_angle=hall))
     lens = {len(p.table_const) for p in params}
     if len(lens) != 1:
         raise InputError(None, "blocks", "a batch must share one table length")
     batch = stack_params(params)
 
     cfg = SimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
-                    mode=mode, estimator=estimator_config(specs[0], next((b for b in blocks if b is not None), None)),
+                    # nominal table: each motor's own travels in its PlantParams (one program for all)
+                    mode=mode, estimator=estimator_config(specs[0]),
                     dead_time=any(s.dead_time_s > 0 for s in specs))
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
