@@ -177,6 +177,10 @@ def test_batch_of_motors_with_different_hall_tables():
     for n in blocks:
         d = np.angle(np.exp(1j * (batched[n].theta_hat - alone[n].theta_hat)))
         assert np.max(np.abs(d)) < 1e-4, n
+    # one program for every table: no compiled tick loop has a table of its own in its key
+    from eol_cal.plant.simulate import _COMPILED
+
+    assert all(key[0].estimator.hall_angle == nominal.hall_angle for key in _COMPILED)
     apart = np.angle(np.exp(1j * (alone["skewed"].theta_hat - alone["nominal"].theta_hat)))
     assert np.max(np.abs(apart)) > math.radians(2.0)
     # it is the block's table the ECU used: the numpy reference with that table, on the same
