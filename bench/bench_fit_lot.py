@@ -5,8 +5,10 @@ seed = motor number), run through the ``eol-default`` profile on the plant (firm
 no compensation), fitted with ``eol-cal fit``'s defaults, and its block made as ``eol-cal table``
 makes it (auto lead). Then the motor runs at the paper's operating point (60 rpm, 65 A, 1 s)
 twice, without and with its block, and the p-p ripple (docs/metrics.md, filtered) is measured.
-The alternative compared with: the same compensation built from the plant's true 6th harmonic
-(``true_block``, the paper's compensator given perfect knowledge).
+The alternatives compared with: the same compensation built from the plant's true 6th harmonic
+(``true_block``, the paper's compensator given perfect knowledge), and the same fit with the
+contract's nominal hall table in the block instead of the motor's measured one
+(``--hall-angle nominal``, what the tool did before; skip with ``--no-nominal-halls``).
 
 Targets (issue 5, item 6): |k6 error| <= 2 % of k6, phase errors <= 2 deg, |c6 phasor error|
 <= 0.002 N*m, compensated p-p <= 1.0 %. The fitted phases are, as ``eol-cal fit`` writes them,
@@ -47,12 +49,14 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=10, help="motors simulated together (memory)")
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--json", help="write the per-motor rows here")
+    ap.add_argument("--no-nominal-halls", dest="nominal_halls", action="store_false",
+                    help="skip the comparison fit + run with the nominal hall table")
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame, wrap_phase
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.analysis.fit_table import block_from_record
-    from eol_cal.analysis.result import CiLimits, motor_record
+    from eol_cal.analysis.result import CiLimits, record_for_motor
     from eol_cal.bench import load_bench
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
@@ -78,17 +82,22 @@ def main() -> None:
         inputs = [motor_inputs([r.capture], bench=bench)[0] for r in runs]
         fits = fit_many([m.segments for m in inputs], spec, mode="loop")
         t_fit += time.perf_counter() - t0
-        blocks, truths = [], []
+        blocks, truths, blocks_nom = [], [], []
+        if args.nominal_halls:
+            # the alternative: the same fit with the contract's nominal hall table in the block
+            for r in runs:
+                (mi_n,) = motor_inputs([r.capture], bench=bench, hall_angle="nominal")
+                (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
+                rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
+                blocks_nom.append(block_from_record(rec_n, motor) if rec_n["status"] == "ok" else None)
         for p, mi, f, run in zip(plants, inputs, fits, runs):
             # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
             # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
             d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
-            segs = [{"i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm} for i in mi.info]
-            # as eol-cal fit writes it: phases in the firmware estimator's frame
+            # as eol-cal fit writes it (phases in the firmware estimator's frame, measured hall
+            # table); f_fw: the same phases with their uncertainty, also for an unusable fit
+            rec = record_for_motor(mi, f, spec, CiLimits(), metrics={}, solver_mode="loop")
             f_fw = shift_frame(f, mi.frame_offset_rad)
-            rec = motor_record(mi.serial, f_fw, spec, CiLimits(), kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
-                               encoder_ppr=mi.encoder_ppr, sources=[], segments=segs, metrics={}, solver_mode="loop",
-                               frame=mi.frame, frame_offset_rad=mi.frame_offset_rad)
             k_rec = f.harmonics[6]["k"]
             six = f_fw.harmonics[6]
             k, c = six["k"], six["c"]
@@ -104,6 +113,7 @@ def main() -> None:
                 "phase_c6_err_deg": math.degrees(wrap_phase(c.phase - p.phase_c6)),
                 "ci_k6_pct": 100 * k.ci95 / k.value,
                 "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
+                "hall_source": mi.hall.source,
             })
             blocks.append(block_from_record(rec, motor) if rec["status"] == "ok" else None)
             truths.append(true_block(p))
@@ -113,12 +123,16 @@ def main() -> None:
         after = simulate([plants[i] for i in ok], point, mode="compensated", blocks=[blocks[i] for i in ok],
                          seed=first + 1000)
         ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
+        ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
+        after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
+                                            blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000))) if ok_n else {}
         t_sim += time.perf_counter() - t0
         after_by = dict(zip(ok, after))
         for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
-            # the firmware's frame where the compensation works: its estimator at the operating
-            # point (steady 60 rpm after 0.2 s) against the plant's true angle
-            b, p, r = before[j], plants[j], rows[i]
+            # the firmware's frame where the compensation works: its estimator (with the block's
+            # hall table: the compensated run's) at the operating point (steady 60 rpm after 0.2 s)
+            # against the plant's true angle
+            b, p, r = after_by.get(j, before[j]), plants[j], rows[i]
             keep = b.capture.t >= 0.2
             d_fw = float(np.angle(np.mean(np.exp(1j * (b.theta_hat[keep] - b.theta_r[keep])))))
             r["frame_fw_deg"] = math.degrees(d_fw)
@@ -127,6 +141,7 @@ def main() -> None:
             rows[i]["pp_before_pct"] = _pp(before[j].capture)
             rows[i]["pp_after_pct"] = _pp(after_by[j].capture) if j in after_by else float("nan")
             rows[i]["pp_true6_pct"] = _pp(ideal[j].capture)
+            rows[i]["pp_after_nominal_halls_pct"] = _pp(after_nom[j].capture) if j in after_nom else float("nan")
         print(f"  {len(rows)} motors done, {time.perf_counter() - t_start:.0f} s", flush=True)
 
     if args.json:
@@ -156,10 +171,13 @@ def main() -> None:
     print(f"k6 95 % interval: median ±{np.median(ci):.2f} %, holds the true k6 for {int((np.abs(err) <= ci).sum())}/{n}; "
           f"Birge ratio median {np.median(col('birge')):.2f}")
     print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
-    for name in ("pp_before_pct", "pp_after_pct", "pp_true6_pct"):
+    print(f"hall table measured for {sum(r['hall_source'] == 'measured' for r in rows)}/{n} motors")
+    for name in ("pp_before_pct", "pp_after_pct", "pp_after_nominal_halls_pct", "pp_true6_pct"):
         v = col(name)
+        if np.all(np.isnan(v)):
+            continue
         print(f"{name}: median {np.nanmedian(v):.2f} %, p95 {np.nanpercentile(v, 95):.2f} %, max {np.nanmax(v):.2f} %"
-              + (f", <= 1.0 %: {int((v <= 1.0).sum())}/{n}" if name == "pp_after_pct" else ""))
+              + (f", <= 1.0 %: {int((v <= 1.0).sum())}/{n}" if name.startswith("pp_after") else ""))
 
 
 if __name__ == "__main__":

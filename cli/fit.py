@@ -57,6 +57,9 @@ def _harmonics(text: str) -> tuple[int, ...]:
                    "current-loop response is divided out of the measured ripple; 'none': rigid coupling.")
 @click.option("--frame", type=click.Choice(["firmware", "offline"]), default="firmware", show_default=True,
               help="Angle frame of the phases: the firmware estimator's (run over the capture), or the offline hall frame.")
+@click.option("--hall-angle", "hall_angle", type=click.Choice(["measured", "nominal"]), default="measured", show_default=True,
+              help="Hall table for the block (and the frame of the phases): measured from the motor's own hall "
+                   "transitions, or the contract's nominal one.")
 @click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5), help="Per-segment drift polynomial degree.")
 @click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0), help="Settling time dropped after each step (s).")
 @click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of k6, fraction of k6.")
@@ -69,7 +72,7 @@ def _harmonics(text: str) -> tuple[int, ...]:
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
 def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
-            drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
+            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
     Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
@@ -99,7 +102,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
     bench = None if bench_name == "none" else load_bench(bench_name)
-    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, bench=bench)
+    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, bench=bench,
+                         hall_angle=hall_angle)
     caps = [read_capture(p, map_file) for p in captures]
     serials = {c.serial for c in caps if "serial" in c.metadata}
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:

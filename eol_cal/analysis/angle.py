@@ -26,7 +26,7 @@ Steps
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -81,6 +81,12 @@ class AngleResult:
         Mean mechanical speed over the edge span (rpm), signed.
     t_span : tuple[float, float]
         First and last edge time (s); outside, the angle is extrapolated.
+    hall_begins : ndarray of int
+        Per hall transition in the offset fit: the boundary crossed, named by the state that
+        begins there in forward rotation (1..6).
+    hall_theta : ndarray
+        Reconstructed angle at those transitions (rad, [0, 2*pi)): where each boundary sits in
+        this frame (:mod:`eol_cal.analysis.halls`).
     """
 
     theta_r: np.ndarray
@@ -96,6 +102,8 @@ class AngleResult:
     direction: int
     speed_rpm: float
     t_span: tuple[float, float]
+    hall_begins: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    hall_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
 def wrap_pi(x: np.ndarray | float) -> np.ndarray | float:
@@ -355,6 +363,8 @@ def reconstruct_angle(
         raise InputError(source, "hall", "invalid hall state (0 or 7) in the change events")
     hall_theta, hall_dir = hall_transition_angles(s_old, s_new, hall_angles)
     good = hall_dir != 0
+    # the boundary crossed, named by the state that begins there in forward rotation
+    begins = np.where(hall_dir > 0, s_new, s_old)[good]
     t_h, hall_theta, hall_dir = t_h[good], hall_theta[good], hall_dir[good]
     if len(t_h) < 2:
         raise InputError(source, "hall", "fewer than two hall transitions: no absolute angle reference")
@@ -412,7 +422,7 @@ def reconstruct_angle(
     # Hall transitions outside the edge span would be judged against an extrapolated angle.
     within = (t_h >= t_u[0]) & (t_h <= t_u[-1])
     if within.sum() >= 2:
-        t_h, hall_theta = t_h[within], hall_theta[within]
+        t_h, hall_theta, begins = t_h[within], hall_theta[within], begins[within]
     # the interpolant itself at the (possibly exact, event) hall times; the samples outside
     in_span = (t_h >= t_u[0]) & (t_h <= t_u[-1])
     rel_h = np.where(in_span, interp(np.clip(t_h, t_u[0], t_u[-1])), np.interp(t_h, t, p))
@@ -445,6 +455,8 @@ def reconstruct_angle(
         direction=direction,
         speed_rpm=speed_rpm,
         t_span=(float(t_u[0]), float(t_u[-1])),
+        hall_begins=begins.astype(np.int64),
+        hall_theta=np.mod(rel_h + theta0, TWO_PI),
     )
 
 

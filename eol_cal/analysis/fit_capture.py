@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.analysis.fit import SegmentArrays
+from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.bench import BenchParams, shaft_response
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
@@ -52,6 +53,7 @@ class MotorInput:
     frame: str = "offline"
     frame_offset_rad: float = 0.0
     bench: BenchParams | None = None
+    hall: HallAngles | None = None
 
     @property
     def sources(self) -> list[str]:
@@ -153,13 +155,14 @@ def firmware_config(capture: Capture):
     return est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=tick_hz)
 
 
-def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]]) -> tuple[complex, int]:
+def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
+                          hall_angle: tuple[float, ...] | None = None) -> tuple[complex, int]:
     """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
 
     Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_chunked`:
-    one compiled program for every capture length) and sums
-    ``exp(i (theta_hat - theta_r))`` over the segment samples at which it is anchored, moving
-    and has a speed.
+    one compiled program for every capture length and hall table) with the block's ``hall_angle``
+    (rad, entry s-1; default nominal) and sums ``exp(i (theta_hat - theta_r))`` over the segment
+    samples at which it is anchored, moving and has a speed.
 
     Returns
     -------
@@ -168,7 +171,8 @@ def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tu
     """
     from eol_cal.firmware import estimator as est
 
-    out = est.run_jax_chunked(firmware_config(capture), capture["enc_a"], capture["enc_b"], capture["hall"])
+    out = est.run_jax_chunked(firmware_config(capture), capture["enc_a"], capture["enc_b"], capture["hall"],
+                              hall_angle=hall_angle)
     theta_hat, status = out.theta_hat, out.status
     ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
     in_seg = np.zeros(len(ok), bool)
@@ -186,6 +190,7 @@ def motor_inputs(
     min_revs: int = 1,
     frame: str = "firmware",
     bench: BenchParams | None = None,
+    hall_angle: str = "measured",
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
@@ -210,6 +215,10 @@ def motor_inputs(
     bench : BenchParams, optional
         The dyno bench the captures come from; the fit then divides its shaft response
         (:func:`eol_cal.bench.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
+    hall_angle : {"measured", "nominal"}
+        The hall table the block will carry (:mod:`eol_cal.analysis.halls`): ``measured`` from
+        the motor's own transitions (nominal, with the reason, when they do not suffice). The
+        firmware frame is measured with that table, so the phases match the block.
 
     Returns
     -------
@@ -236,7 +245,7 @@ def motor_inputs(
         P = poles.pop()
         thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
         use_fw = frame == "firmware" and all(c.has("enc_b") for c in caps)
-        fw_sum, fw_n = 0j, 0
+        cap_ranges = []
         for ci, c in enumerate(caps):
             if not c.has("torque"):
                 raise InputError(c.source, "torque", "missing channel, needed for the fit")
@@ -246,9 +255,7 @@ def motor_inputs(
             angles.append(ang)
             i_qo = np.asarray(c.iq_ref(), dtype=float)
             ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
-            if use_fw and ranges:
-                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges)
-                fw_sum, fw_n = fw_sum + s_, fw_n + n_
+            cap_ranges.append(ranges)
             for a, b in ranges:
                 th = ang.theta_r[a:b]
                 tt = c.t[a:b]
@@ -269,10 +276,19 @@ def motor_inputs(
                 f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
                 f"{settle_s} s settling (constant speed, direction and iq_ref)",
             )
+        if hall_angle == "measured":
+            hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
+        else:
+            hall = nominal_hall_angles("asked for")
+        fw_sum, fw_n = 0j, 0
+        for c, ang, ranges in zip(caps, angles, cap_ranges):
+            if use_fw and ranges:
+                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle)
+                fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
         response = None if bench is None else functools.partial(shaft_response, motor=motor, bench=bench)
         seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
-        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, bench=bench)
+        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, bench=bench, hall=hall)
         if use_fw and fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
         elif frame == "firmware":

@@ -47,6 +47,9 @@ class FitOptions:
         The dyno bench of the captures (:mod:`eol_cal.bench`; default the built-in ``paper``
         bench, which the plant and ``eol-cal dyno-sim`` model): its shaft response is divided out
         of the measured ripple. ``None``: rigid coupling (the measured ripple taken as the motor's).
+    hall_angle : {"measured", "nominal"}
+        The hall table the record (and ``eol-cal table``'s block) carries: measured from the
+        motor's transitions (:mod:`eol_cal.analysis.halls`) or the contract's nominal one.
     motor : MotorParams or None
         Rotor inertia and friction for the shaft response, kt when the captures have none
         (default: the ``paper`` preset).
@@ -60,6 +63,7 @@ class FitOptions:
     batch: str = "auto"
     capture_metrics: bool = True
     bench: BenchParams | None = field(default_factory=lambda: load_bench("paper"))
+    hall_angle: str = "measured"
     motor: MotorParams | None = None
 
 
@@ -159,7 +163,7 @@ def fit_motors(
     if tool_version is None:
         from eol_cal import __version__ as tool_version
     inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
-                          frame=options.frame, bench=options.bench)
+                          frame=options.frame, bench=options.bench, hall_angle=options.hall_angle)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],

@@ -4,7 +4,8 @@ The tables come from :func:`eol_cal.firmware.compensator.make_tables`, the bytes
 :func:`eol_cal.firmware.block.pack`; this module only decides the block's other fields:
 
 - ``flags`` = COMP_ENABLE | INTERP_ENABLE; ``sequence`` = 1 (the flasher writes the real one);
-- ``hall_angle`` nominal (the frame the fit's phases are expressed in);
+- ``hall_angle`` the record's (measured per motor, or nominal): the table the fit measured the
+  firmware frame of its phases with, so phases and anchoring agree;
 - ``lead_s`` from :mod:`eol_cal.analysis.lead` at the fit's operating speed, or given;
 - ``iqc_limit`` = 10 % of the largest |i_qo| the motor was calibrated at (65 A -> 6.5 A), unless
   given: a bound on what a wrong table could inject, well above the ~1-2 A the paper needed;
@@ -14,6 +15,7 @@ The tables come from :func:`eol_cal.firmware.compensator.make_tables`, the bytes
 from __future__ import annotations
 
 import datetime as _dt
+import math
 from typing import Any
 
 from eol_cal.errors import CheckFailed, InputError
@@ -78,7 +80,6 @@ def block_from_record(
     CheckFailed
         The motor's fit is not usable (its ``status`` is not ``"ok"``).
     """
-    from eol_cal.analysis.angle import NOMINAL_HALL_ANGLES
     from eol_cal.analysis.lead import auto_lead_s
     from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
     from eol_cal.firmware.compensator import make_tables
@@ -97,6 +98,7 @@ def block_from_record(
 
         harmonics.append((int(h["order"]), part("c"), part("phase_c"), part("k"), part("phase_k")))
     tc, tp = make_tables(c6, phase_c6, k6, phase_k6, kt, table_len, harmonics)
+    hall_angle = _hall_angle(rec, source)
     if lead_s is None:
         lead_s = auto_lead_s(rec["operating_point"]["speed_rpm"], motor)
     if iqc_limit is None:
@@ -114,7 +116,7 @@ def block_from_record(
         encoder_ppr=int(rec["encoder_ppr"]),
         tick_hz=motor.f_pwm,
         kt=kt,
-        hall_angle=NOMINAL_HALL_ANGLES,
+        hall_angle=hall_angle,
         c6=c6,
         phase_c6=phase_c6,
         k6=k6,
@@ -124,6 +126,22 @@ def block_from_record(
         table_const=tc,
         table_per_amp=tp,
     )
+
+
+def _hall_angle(rec: dict[str, Any], source: str) -> tuple[float, ...]:
+    """The record's hall table (rad, 6 entries); nominal for records written before it existed."""
+    from eol_cal.analysis.angle import NOMINAL_HALL_ANGLES
+
+    entry = rec.get("hall_angle")
+    if entry is None:
+        return tuple(NOMINAL_HALL_ANGLES)
+    try:
+        values = tuple(float(v) for v in entry["value"])
+    except (KeyError, TypeError, ValueError):
+        raise InputError(source, "hall_angle", f"motor {rec.get('serial')!r}: 'value' must be 6 numbers (rad)") from None
+    if len(values) != 6 or not all(math.isfinite(v) and 0.0 <= v < 2.0 * math.pi for v in values):
+        raise InputError(source, "hall_angle", f"motor {rec.get('serial')!r}: needs 6 angles in [0, 2*pi) rad, got {values}")
+    return values
 
 
 def created_unix(doc: dict[str, Any]) -> int | None:

@@ -96,12 +96,14 @@ def motor_record(
     frame: str = "offline",
     frame_offset_rad: float = 0.0,
     bench: dict[str, Any] | None = None,
+    hall_angle: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
     ``fit`` must already be in the frame named by ``frame`` (:func:`eol_cal.analysis.fit.shift_frame`);
     ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad); ``bench``
-    the bench mechanics divided out of the measured ripple (None: rigid coupling).
+    the bench mechanics divided out of the measured ripple (None: rigid coupling); ``hall_angle``
+    the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal).
     """
     status, reasons = judge(fit, spec, limits)
     usable = status == STATUS_OK
@@ -149,6 +151,11 @@ def motor_record(
         "frame_offset_deg": math.degrees(frame_offset_rad),
         "bench": bench if bench is not None else "rigid",
     }
+    if hall_angle is None:
+        from eol_cal.analysis.halls import nominal_hall_angles
+
+        hall_angle = nominal_hall_angles("not measured").to_dict()
+    rec["hall_angle"] = hall_angle
     rec["poles"] = poles
     rec["encoder_ppr"] = encoder_ppr
     rec["operating_point"] = operating_point(segments)
@@ -181,6 +188,7 @@ def record_for_motor(mi, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metr
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
         solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
         bench=None if mi.bench is None else dataclasses.asdict(mi.bench),
+        hall_angle=None if mi.hall is None else mi.hall.to_dict(),
     )
 
 
