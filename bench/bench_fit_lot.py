@@ -49,6 +49,9 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=10, help="motors simulated together (memory)")
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--json", help="write the per-motor rows here")
+    ap.add_argument("--ecu-estimator", choices=("paper", "best"), default="paper",
+                    help="the ECU's estimator in the operating-point runs: the contract's (paper) or the "
+                         "reference's improvements (a what-if; 1.5 s pre-roll to learn the pitch errors)")
     ap.add_argument("--no-nominal-halls", dest="nominal_halls", action="store_false",
                     help="skip the comparison fit + run with the nominal hall table")
     args = ap.parse_args()
@@ -68,6 +71,8 @@ def main() -> None:
     cal = load_profile("eol-default")
     point = load_profile("paper")
     spec = FitSpec()
+    # the operating-point runs: the ECU's estimator (a what-if with --ecu-estimator best)
+    check = {} if args.ecu_estimator == "paper" else {"ecu_estimator": "best", "pre_roll_s": 1.5}
     bench = load_bench("paper")  # eol-cal fit's default: the bench the plant models
     rows = []
     t_sim = t_fit = 0.0
@@ -119,13 +124,13 @@ def main() -> None:
             truths.append(true_block(p))
         t0 = time.perf_counter()
         ok = [i for i, b in enumerate(blocks) if b is not None]
-        before = simulate(plants, point, mode="estimated", seed=first + 1000)
+        before = simulate(plants, point, mode="estimated", seed=first + 1000, **check)
         after = simulate([plants[i] for i in ok], point, mode="compensated", blocks=[blocks[i] for i in ok],
-                         seed=first + 1000)
-        ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
+                         seed=first + 1000, **check)
+        ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000, **check)
         ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
         after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
-                                            blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000))) if ok_n else {}
+                                            blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000, **check))) if ok_n else {}
         t_sim += time.perf_counter() - t0
         after_by = dict(zip(ok, after))
         for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
@@ -155,7 +160,8 @@ def main() -> None:
 
     n = len(rows)
     usable = sum(r["status"] == "ok" for r in rows)
-    print(f"\n{n} motors (plant seeds {args.first_seed}..{args.first_seed + n - 1}), eol-default profile; "
+    print(f"\n{n} motors (plant seeds {args.first_seed}..{args.first_seed + n - 1}), eol-default profile, "
+          f"ECU estimator at the operating point: {args.ecu_estimator}; "
           f"usable fits {usable}/{n}; simulation {t_sim:.0f} s, fitting (incl. angle + segments) {t_fit:.0f} s")
     for name, unit, limit in (("k6_err_pct", "%", 2.0), ("phase_k6_err_deg", "deg", 2.0),
                               ("phase_k6_err_rec_deg", "deg", 2.0), ("phase_k6_err_fw_deg", "deg", 2.0),

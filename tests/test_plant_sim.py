@@ -192,3 +192,23 @@ def test_batch_of_motors_with_different_hall_tables():
             ref = E.run(E.EstimatorConfig.from_block(blk), c["enc_a"], c["enc_b"], c["hall"])
             d = np.max(np.abs(np.angle(np.exp(1j * (ref.theta_hat[start:] - alone[n].theta_hat[start:])))))
             assert d < 1e-3 if m == n else d > math.radians(2.0), (n, m, d)
+
+
+def test_ecu_estimator_what_if_improves_the_ecu_angle():
+    """``ecu_estimator="best"`` runs the firmware reference's improvements in the ECU: after a
+    revolution of learning its angle error is a fraction of the paper estimator's."""
+    from eol_cal.errors import InputError
+    from eol_cal.plant.profile import Profile, Segment
+    from eol_cal.plant.variation import draw_motor
+
+    spec = draw_motor(7).replace(tq_noise_nm=0.0, i_noise_a=0.0)
+    prof = Profile("p", (Segment(120.0, 0.3, iq=40.0),))
+    rms = {}
+    for name in ("paper", "best"):
+        (run,) = simulate(spec, prof, mode="estimated", seed=1, pre_roll_s=0.8, ecu_estimator=name)
+        d = np.angle(np.exp(1j * (run.theta_hat - run.theta_r)))
+        d = np.angle(np.exp(1j * (d - np.angle(np.mean(np.exp(1j * d))))))
+        rms[name] = float(np.sqrt(np.mean(d**2)))
+    assert rms["best"] < 0.4 * rms["paper"], rms
+    with pytest.raises(InputError, match="ECU estimator"):
+        simulate(spec, prof, ecu_estimator="fancy")

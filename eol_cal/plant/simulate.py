@@ -272,14 +272,19 @@ def mode_of_block(block: ParamBlock) -> str:
     return "estimated" if block.flags & FLAG_INTERP_ENABLE else "raw"
 
 
-def estimator_config(spec: PlantSpec, block: ParamBlock | None = None) -> Any:
-    """The firmware estimator's configuration on this bench (from the block when given)."""
+def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, improved: bool = False) -> Any:
+    """The firmware estimator's configuration on this bench (from the block when given).
+
+    ``improved``: the reference's best improvements (:meth:`EstimatorConfig.best`) instead of the
+    paper's estimator that the contract's firmware runs; a what-if for the firmware team (the
+    block has no switch for them).
+    """
     from eol_cal.firmware import estimator
 
     m = spec.motor
     hall = block.hall_angle if block is not None else HALL_ANGLE
-    return estimator.EstimatorConfig.paper(poles=m.poles, N_enc=m.N_enc, tick_hz=m.f_pwm,
-                                           hall_angle=tuple(float(a) for a in hall))
+    make = estimator.EstimatorConfig.best if improved else estimator.EstimatorConfig.paper
+    return make(poles=m.poles, N_enc=m.N_enc, tick_hz=m.f_pwm, hall_angle=tuple(float(a) for a in hall))
 
 
 def simulate(
@@ -292,6 +297,7 @@ def simulate(
     chunk_ticks: int = CHUNK_TICKS,
     unroll: int = 1,
     progress: Callable[[float], None] | None = None,
+    ecu_estimator: str = "paper",
 ) -> list[SimResult]:
     """Simulate one motor or a lot of motors through a test profile.
 
@@ -316,6 +322,11 @@ def simulate(
         Scan chunk length (ticks) and unroll factor (speed only).
     progress : callable, optional
         Called with the fraction done after each chunk.
+    ecu_estimator : {"paper", "best"}
+        The ECU's angle estimator: the paper's (what the contract's firmware runs), or the
+        firmware reference with its improvements 1, 2 and 4 (:meth:`EstimatorConfig.best`), a
+        what-if that no block can switch on. Its pitch-error learning needs a revolution at steady
+        speed: give it a longer ``pre_roll_s``.
 
     Returns
     -------
@@ -325,6 +336,8 @@ def simulate(
 
     if mode not in control.MODES:
         raise InputError(None, "mode", f"unknown mode {mode!r}; known: {', '.join(control.MODES)}")
+    if ecu_estimator not in ("paper", "best"):
+        raise InputError(None, "ecu_estimator", f"unknown ECU estimator {ecu_estimator!r}; known: paper, best")
     single = isinstance(specs, PlantSpec)
     specs = [specs] if single else list(specs)
     if not specs:
@@ -362,7 +375,7 @@ def simulate(
 
     cfg = SimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
                     # nominal table: each motor's own travels in its PlantParams (one program for all)
-                    mode=mode, estimator=estimator_config(specs[0]),
+                    mode=mode, estimator=estimator_config(specs[0], improved=ecu_estimator == "best"),
                     dead_time=any(s.dead_time_s > 0 for s in specs))
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
