@@ -22,6 +22,7 @@ max_rms_nm = 0.05
 max_ci_k6_rel = 0.05
 max_ci_phase_k6_deg = 3.0
 max_ci_c6_nm = 0.002
+max_hall_deviation_deg = 3.0
 """
 
 

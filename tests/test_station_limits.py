@@ -24,11 +24,12 @@ max_rms_nm = 0.05
 max_ci_k6_rel = 0.05
 max_ci_phase_k6_deg = 3.0
 max_ci_c6_nm = 0.002
+max_hall_deviation_deg = 3.0
 """
 
 # a motor as the demo measures the plant's production draw (k6 0.85 mN*m/A, 7.04 % -> 1.23 %)
 MOTOR = Measured(k6=0.85e-3, ci_k6=8.8e-6, ci_phase_k6_deg=0.5, ci_c6_nm=4.6e-4, r2=0.57, rms_nm=0.021,
-                 pp_before_pct=7.04, pp_after_pct=1.23)
+                 pp_before_pct=7.04, pp_after_pct=1.23, hall_deviation_deg=1.2, hall_source="measured")
 
 
 def test_fixture_has_two_variants_and_a_default():
@@ -55,11 +56,11 @@ def test_same_data_passes_one_variant_and_fails_the_other():
 def test_each_limit_fails_on_its_own():
     lim = parse_limits(GOOD, "x.toml")["A"]
     ok = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01,
-                  pp_before_pct=8.0, pp_after_pct=0.5)
+                  pp_before_pct=8.0, pp_after_pct=0.5, hall_deviation_deg=1.0, hall_source="measured")
     assert verdict(ok, lim) == ("pass", [])
     bad = {
         "k6": 3e-3, "ci_k6": 1e-4, "ci_phase_k6_deg": 4.0, "ci_c6_nm": 0.01, "r2": 0.1, "rms_nm": 0.1,
-        "pp_before_pct": 12.0, "pp_after_pct": 1.5,
+        "pp_before_pct": 12.0, "pp_after_pct": 1.5, "hall_deviation_deg": 3.5,
     }
     for key, value in bad.items():
         m = Measured(**{**ok.__dict__, key: value})
@@ -74,9 +75,19 @@ def test_each_limit_fails_on_its_own():
 
 def test_unmeasured_ripple_never_passes():
     lim = parse_limits(GOOD, "x.toml")["A"]
-    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01)
+    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01,
+                 hall_deviation_deg=1.0, hall_source="measured")
     v, reasons = verdict(m, lim)
     assert v == "fail" and len(reasons) == 3  # before, after, improvement are NaN
+
+
+def test_unmeasured_hall_table_never_passes():
+    lim = parse_limits(GOOD, "x.toml")["A"]
+    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01, pp_before_pct=8.0,
+                 pp_after_pct=0.5, hall_source="nominal (boundary of state 2 measured +39.5 deg from nominal)")
+    v, reasons = verdict(m, lim)
+    assert v == "fail" and reasons == ["hall table not measured: nominal (boundary of state 2 measured +39.5 deg "
+                                       "from nominal)"]
 
 
 @pytest.mark.parametrize(

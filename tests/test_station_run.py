@@ -67,6 +67,7 @@ max_rms_nm = 0.1
 max_ci_k6_rel = 0.05
 max_ci_phase_k6_deg = 3.0
 max_ci_c6_nm = 0.01
+max_hall_deviation_deg = 3.0
 
 [variant.TIGHT]
 max_k6 = 0.0025
@@ -78,6 +79,7 @@ max_rms_nm = 0.1
 max_ci_k6_rel = 0.05
 max_ci_phase_k6_deg = 3.0
 max_ci_c6_nm = 0.01
+max_hall_deviation_deg = 3.0
 """
 
 SERIAL = "T-0001"
@@ -174,7 +176,9 @@ def test_same_run_passes_one_variant_and_fails_another(full_run, files):
     m = Measured(k6=f["k6"]["value"], ci_k6=f["k6"]["ci95"], ci_phase_k6_deg=math.degrees(f["phase_k6"]["ci95"]),
                  ci_c6_nm=max(f["c6"]["ci95"], f["c6"]["value"] * f["phase_c6"]["ci95"]), r2=f["fit"]["r2"],
                  rms_nm=f["fit"]["rms"], pp_before_pct=rec["metrics"]["pp_before_pct"],
-                 pp_after_pct=rec["metrics"]["pp_after_pct"])
+                 pp_after_pct=rec["metrics"]["pp_after_pct"],
+                 hall_deviation_deg=max(abs(d) for d in f["hall_angle"]["deviation_deg"]), hall_source="measured")
+    assert f["hall_angle"]["source"] == "measured"
     assert verdict(m, load_limits(files["limits"], "TEST")) == ("pass", [])
     v, reasons = verdict(m, load_limits(files["limits"], "TIGHT"))
     assert v == "fail"

@@ -14,6 +14,7 @@ File format (``docs/station.md``)::
     max_ci_k6_rel = 0.05             # widest 95 % interval of k6, fraction of k6
     max_ci_phase_k6_deg = 3.0        # widest 95 % interval of phase_k6 (deg)
     max_ci_c6_nm = 0.002             # widest 95 % cogging phasor error (N*m)
+    max_hall_deviation_deg = 3.0     # largest measured hall boundary offset from nominal (deg el.)
 
 Every key is required (a line that forgets one would otherwise pass motors silently); unknown
 keys are refused (a typo such as ``max_pp_afer_pct`` would be a limit that never applies).
@@ -40,6 +41,7 @@ _KEYS: dict[str, tuple[str, float, float]] = {
     "max_ci_k6_rel": ("1", 0.0, 10.0),
     "max_ci_phase_k6_deg": ("deg", 0.0, 180.0),
     "max_ci_c6_nm": ("N*m", 0.0, 100.0),
+    "max_hall_deviation_deg": ("deg", 0.0, 180.0),
 }
 
 
@@ -57,6 +59,7 @@ class VariantLimits:
     max_ci_k6_rel: float
     max_ci_phase_k6_deg: float
     max_ci_c6_nm: float
+    max_hall_deviation_deg: float
     source: str = "<memory>"
 
     def to_dict(self) -> dict[str, Any]:
@@ -162,6 +165,11 @@ class Measured:
     pp_before_pct, pp_after_pct : float
         Filtered p-p ripple at the operating point before and with compensation (%);
         NaN when not measured.
+    hall_deviation_deg : float
+        Largest |measured - nominal| hall boundary angle (deg, electrical); NaN when the table
+        could not be measured (``hall_source`` says why).
+    hall_source : str
+        The record's ``hall_angle.source``.
     """
 
     k6: float
@@ -172,6 +180,8 @@ class Measured:
     rms_nm: float
     pp_before_pct: float = math.nan
     pp_after_pct: float = math.nan
+    hall_deviation_deg: float = math.nan
+    hall_source: str = "not measured"
 
     @property
     def improvement_pct(self) -> float:
@@ -196,6 +206,11 @@ def fit_reasons(m: Measured, lim: VariantLimits) -> list[str]:
         out.append(f"ci95(phase_k6) = {m.ci_phase_k6_deg:.3g} deg exceeds max_ci_phase_k6_deg = {lim.max_ci_phase_k6_deg:g}")
     if not m.ci_c6_nm <= lim.max_ci_c6_nm:
         out.append(f"c6 phasor ci95 = {m.ci_c6_nm:.3g} N*m exceeds max_ci_c6_nm = {lim.max_ci_c6_nm:g}")
+    if math.isnan(m.hall_deviation_deg):
+        out.append(f"hall table not measured: {m.hall_source}")
+    elif not m.hall_deviation_deg <= lim.max_hall_deviation_deg:
+        out.append(f"hall boundary {m.hall_deviation_deg:.3g} deg from nominal exceeds max_hall_deviation_deg = "
+                   f"{lim.max_hall_deviation_deg:g}")
     return out
 
 

@@ -77,6 +77,15 @@ def ripple_plot(run_dir: str | Path, rec: dict[str, Any], point_ripple: Any) -> 
     return [("ripple.png", "Torque and order spectrum at the operating point: before, and with the compensation")]
 
 
+def _hall_text(hall: dict[str, Any] | None) -> str:
+    """The hall table's line: each boundary's offset from nominal (deg), or why it is nominal."""
+    if not hall:
+        return "-"
+    if hall.get("source") != "measured":
+        return str(hall.get("source"))
+    return "measured, offsets " + " ".join(f"{d:+.2f}" for d in hall["deviation_deg"]) + " deg (states 1..6)"
+
+
 def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
     """The report page (self-contained HTML; images by relative file name)."""
     e = html.escape
@@ -91,6 +100,7 @@ def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
          f"max {_fmt(lim.get('max_k6'), 1e3)} mN*m/A"),
         ("phase_k6", f"{_fmt(math.degrees((fit.get('phase_k6') or {}).get('value') or math.nan))} deg", ""),
         ("c6", f"{_fmt((fit.get('c6') or {}).get('value'), 1e3)} mN*m", ""),
+        ("hall boundaries", _hall_text(fit.get("hall_angle")), f"max {_fmt(lim.get('max_hall_deviation_deg'))} deg"),
         ("fit R^2 / rms", f"{_fmt((fit.get('fit') or {}).get('r2'))} / {_fmt((fit.get('fit') or {}).get('rms'), 1e3)} mN*m",
          f"min {_fmt(lim.get('min_r2'))} / max {_fmt(lim.get('max_rms_nm'), 1e3)} mN*m"),
         ("p-p before", f"{_fmt(met.get('pp_before_pct'))} %", f"max {_fmt(lim.get('max_pp_before_pct'))} %"),

@@ -153,9 +153,13 @@ def measured_from_fit(rec: dict[str, Any]) -> Measured:
     """The fit's part of :class:`Measured` from a usable motor record (units as in the record)."""
     k6, c6, pc6 = rec["k6"], rec["c6"], rec["phase_c6"]
     ci_c6 = max(c6["ci95"], abs(c6["value"]) * pc6["ci95"])
+    hall = rec.get("hall_angle") or {"source": "not in the record", "deviation_deg": []}
+    measured = hall["source"] == "measured"
     return Measured(
         k6=abs(float(k6["value"])), ci_k6=float(k6["ci95"]), ci_phase_k6_deg=math.degrees(rec["phase_k6"]["ci95"]),
         ci_c6_nm=float(ci_c6), r2=float(rec["fit"]["r2"]), rms_nm=float(rec["fit"]["rms"]),
+        hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
+        hall_source=str(hall["source"]),
     )
 
 
