@@ -69,7 +69,8 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
         console.print(
             f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"
             f"{' (auto)' if lead_s is None else ''}, iqc_limit {blk.iqc_limit:.3g} A, "
-            f"max |table_per_amp| {abs(blk.table_per_amp).max():.3g} A/A, max |table_const| {abs(blk.table_const).max():.3g} A"
+            f"max |table_per_amp| {abs(blk.table_per_amp).max():.3g} A/A, max |table_const| {abs(blk.table_const).max():.3g} A; "
+            f"hall_angle {(rec.get('hall_angle') or {}).get('source', 'nominal')}"
         )
 
 
