@@ -139,3 +139,39 @@ def test_the_angle_of_a_joined_capture_is_refused_not_guessed(joined: Path):
             analysis(cap)
         assert err.value.field == "segment_starts" and "4 capture windows" in err.value.reason
     assert all(abs(capture_angle(w).speed_rpm) == pytest.approx(120.0, rel=2e-3) for w in split_windows(cap))
+
+
+def _drop(cap: Capture, keep: np.ndarray) -> Capture:
+    return Capture(cap.t[keep], {k: v[keep] for k, v in cap.channels.items()}, dict(cap.metadata), dict(cap.truth),
+                   source=cap.source)
+
+
+def test_a_dropped_sample_is_bridged_a_lost_stretch_is_a_join():
+    from eol_cal.analysis.angle import capture_angle
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    cap = synthetic_capture(rpm=120.0, seconds=0.5, seed=3)
+    n = len(cap.t)
+    # one sample missing, and two missing a little later: a DAQ hiccup, not a join
+    keep = np.ones(n, bool)
+    keep[[4000, 6001, 6002]] = False
+    hiccup = _drop(cap, keep)
+    assert window_spans(hiccup) == [(0, n - 3)]
+    a_full, a_hic = capture_angle(cap), capture_angle(hiccup)
+    assert np.max(np.abs(a_hic.theta_r - a_full.theta_r[keep])) < np.radians(1.0)
+    # 40 ms missing at 120 rpm: about 20 quadrature counts, the count is lost: a join
+    keep = np.ones(n, bool)
+    keep[4000:4800] = False
+    lost = _drop(cap, keep)
+    assert window_spans(lost) == [(0, 4000), (4000, n - 800)]
+    # a short gap across which the encoder moved two counts (ambiguous direction): a join too
+    pos = (cap["enc_a"].astype(int), cap["enc_b"].astype(int))
+    changes = np.flatnonzero((np.diff(pos[0]) != 0) | (np.diff(pos[1]) != 0))
+    c1, c2 = changes[changes > 5000][:2]  # two consecutive count changes
+    keep = np.ones(n, bool)
+    keep[c1 + 1 : c2 + 1] = False  # the samples of the count between them are gone
+    two = _drop(cap, keep)
+    assert len(window_spans(two)) == 2
+    # without the encoder's B channel nothing can be told: every gap is a join
+    no_b = Capture(hiccup.t, {k: v for k, v in hiccup.channels.items() if k != "enc_b"}, dict(hiccup.metadata))
+    assert len(window_spans(no_b)) == 3

@@ -12,8 +12,47 @@ import numpy as np
 
 from eol_cal.capture.model import Capture
 
-#: a step in ``t`` longer than this many median sample periods starts a new window
+#: a step in ``t`` longer than this many median sample periods starts a new window, unless the
+#: encoder shows that the angle is bridged across it (:func:`_bridged`)
 GAP_PERIODS = 1.5
+#: a gap is bridged only when it is shorter than this fraction of the encoder's quadrature-edge
+#: interval around it (so at most one edge can fall inside) and the quadrature state moved by at
+#: most one step across it
+BRIDGE_EDGE_FRACTION = 0.5
+#: samples on each side of a gap in which the edge interval is measured
+_BRIDGE_CONTEXT = 2000
+
+
+def _quad_position(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Gray-code position of (A, B) in forward rotation: 00 -> 10 -> 11 -> 01."""
+    a = np.asarray(a).astype(np.int64) & 1
+    b = np.asarray(b).astype(np.int64) & 1
+    return np.where(b == 0, a, 3 - a)
+
+
+def _bridged(capture: Capture, i: int) -> bool:
+    """Whether the angle can be carried across the gap between samples ``i`` and ``i + 1``.
+
+    A dropped sample or two inside a running capture is not a join: when the gap is much shorter
+    than the quadrature edges' spacing and the encoder state moved at most one count, the edge
+    (if any) inside it is placed at the gap's middle, an error of a fraction of one count.
+    Without both encoder channels nothing can be told, and the gap is a join.
+    """
+    if not (capture.has("enc_a") and capture.has("enc_b")):
+        return False
+    lo, hi = max(0, i - _BRIDGE_CONTEXT), min(len(capture.t), i + 1 + _BRIDGE_CONTEXT)
+    pos = _quad_position(capture["enc_a"][lo:hi], capture["enc_b"][lo:hi])
+    k = i - lo
+    step = (int(pos[k + 1]) - int(pos[k])) % 4
+    if step == 2:
+        return False
+    t = np.asarray(capture.t[lo:hi], dtype=float)
+    changes = np.flatnonzero(np.diff(pos) != 0)
+    changes = changes[changes != k]
+    if len(changes) < 3:
+        return False
+    edge_dt = float(np.median(np.diff(t[changes])))
+    return float(t[k + 1] - t[k]) < BRIDGE_EDGE_FRACTION * edge_dt
 
 
 def window_spans(capture: Capture) -> list[tuple[int, int]]:
@@ -22,7 +61,8 @@ def window_spans(capture: Capture) -> list[tuple[int, int]]:
     From metadata ``segment_starts`` (s) when present, matched within half a sample period
     because the starts are written rounded (µs) and a start rounded up would otherwise put the
     previous window's last sample into the next window. Without it, a window begins after every
-    step in ``t`` longer than :data:`GAP_PERIODS` median sample periods.
+    step in ``t`` longer than :data:`GAP_PERIODS` median sample periods that the encoder cannot
+    bridge (a dropped sample is bridged; :func:`_bridged`).
 
     Parameters
     ----------
@@ -44,7 +84,8 @@ def window_spans(capture: Capture) -> list[tuple[int, int]]:
         half = 0.5 * float(dt.min())
         idx = {int(np.searchsorted(t, s - half)) for s in starts_meta} | {0}
     else:
-        idx = {0} | {int(i) + 1 for i in np.flatnonzero(dt > GAP_PERIODS * float(np.median(dt)))}
+        gaps = np.flatnonzero(dt > GAP_PERIODS * float(np.median(dt)))
+        idx = {0} | {int(i) + 1 for i in gaps if not _bridged(capture, int(i))}
     edges = sorted(i for i in idx if i < n) + [n]
     return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
