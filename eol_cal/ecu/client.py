@@ -275,6 +275,16 @@ class UdsSession:
         resp = self.call(f"read DID {did:04X} (22)", self.client.read_data_by_identifier, did)
         return resp.service_data.values[did]
 
+    def _after_loss(self, exc: EcuError, failures: int) -> None:
+        """Book a lost request of a chunked transfer (the caller shrinks its requests and goes on).
+
+        A negative response is the ECU's answer, never retried; more than ``timing.retries`` losses
+        in a row end the transfer.
+        """
+        if exc.nrc is not None or failures > self.timing.retries:
+            raise exc
+        self.retries_used += 1
+
     def read_memory(self, word_address: int, size: int, step: str = "read memory (23)") -> bytes:
         """Read ``size`` bytes from ``word_address`` in requests of at most 1024 bytes.
 
@@ -291,9 +301,7 @@ class UdsSession:
                 resp = self.call(step, self.client.read_memory_by_address, loc, retry=False)
             except EcuError as exc:
                 failures += 1
-                if exc.nrc is not None or failures > self.timing.retries:
-                    raise
-                self.retries_used += 1
+                self._after_loss(exc, failures)
                 limit = _shrink(limit)
                 continue
             chunk = bytes(resp.service_data.memory_block)
@@ -326,9 +334,7 @@ class UdsSession:
                               retry=False)
                 except EcuError as exc:
                     failures += 1
-                    if exc.nrc is not None or failures > self.timing.retries:
-                        raise
-                    self.retries_used += 1
+                    self._after_loss(exc, failures)
                     limit = _shrink(limit)
                     break
                 offset += len(piece)
