@@ -208,3 +208,32 @@ def test_bad_bench_exits_2(files, tmp_path):
     res = _fit([*files["csv"], "-o", str(tmp_path / "r.json"), "--bench", str(bad)])
     assert res.exit_code == 2 and "K_shaft" in res.output and "bench.toml" in res.output
     assert not (tmp_path / "r.json").exists()
+
+
+def test_hall_table_measured_by_default_nominal_on_request(fitted, files, tmp_path):
+    """The generator's halls are exact: the measured table sits on nominal within the encoder's
+    interpolation; ``--hall-angle nominal`` records the contract's table and the block carries it."""
+    from eol_cal.firmware.block import unpack
+    from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+
+    _, out = fitted
+    m = json.loads(out.read_text())["motors"][0]
+    assert m["hall_angle"]["source"] == "measured" and min(m["hall_angle"]["n_transitions"]) >= 3
+    assert max(abs(d) for d in m["hall_angle"]["deviation_deg"]) < 0.5
+    out_nom = tmp_path / "nom.json"
+    res = _fit([*files["csv"], "-o", str(out_nom), "--bench", "none", "--hall-angle", "nominal"])
+    assert res.exit_code == 0, res.output
+    nom = json.loads(out_nom.read_text())["motors"][0]
+    assert nom["hall_angle"]["source"] == "nominal (asked for)"
+    assert nom["hall_angle"]["value"] == pytest.approx(list(NOMINAL_HALL_ANGLE))
+    blk = tmp_path / "nom.bin"
+    res = CliRunner().invoke(cli, ["table", str(out_nom), "-o", str(blk)], catch_exceptions=False)
+    assert res.exit_code == 0 and "hall_angle nominal (asked for)" in res.output
+    assert unpack(blk.read_bytes()).hall_angle == pytest.approx(list(NOMINAL_HALL_ANGLE), abs=1e-6)
+    # a hand-edited record with a broken table is refused with the field named
+    doc = json.loads(out.read_text())
+    doc["motors"][0]["hall_angle"]["value"] = [0.1, 0.2]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    res = CliRunner().invoke(cli, ["table", str(bad), "-o", str(tmp_path / "bad.bin")])
+    assert res.exit_code == 2 and "hall_angle" in res.output and not (tmp_path / "bad.bin").exists()
