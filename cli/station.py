@@ -14,9 +14,9 @@ DEMO_LIMITS = """\
 # eol-cal demo: limits of the demo's product variant (units: docs/station.md)
 [variant.EPS-STD]
 max_k6 = 0.0012
-max_pp_before_pct = 10.0
+max_pp_before_pct = 6.0
 max_pp_after_pct = 2.0
-min_improvement_pct = 60.0
+min_improvement_pct = 40.0
 min_r2 = 0.3
 max_rms_nm = 0.05
 max_ci_k6_rel = 0.05

@@ -127,7 +127,12 @@ def test_full_run_end_to_end(full_run):
     rec, doc = full_run["rec"], full_run["doc"]
     assert full_run["res"].exit_code == 0, (rec["verdict"], rec["reasons"], rec.get("error"))
     assert rec["verdict"] == "pass" and rec["reasons"] == []
-    assert [s["step"] for s in rec["steps"]] == ["acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report"]
+    assert [s["step"] for s in rec["steps"]] == ["prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated",
+                                                 "metrics", "report"]
+    # the motor was measured under the uncompensated block (field estimator), flashed first
+    prep = rec["ecu_prepared"]
+    assert prep["flags"] == "INTERP_ENABLE" and prep["verified"] and prep["sequence"] == 1
+    assert prep["previous"]["bank"] is None  # a blank ECU
     assert all(s["ok"] and s["seconds"] > 0 for s in rec["steps"])
     # the fit found the plant motor's ripple
     assert abs(rec["fit"]["k6"]["value"] - MOTOR.k6) < 0.05 * MOTOR.k6
@@ -142,7 +147,7 @@ def test_full_run_end_to_end(full_run):
     blk = B.unpack(active, "active")
     assert blk.serial == SERIAL and blk.flags & B.FLAG_COMP_ENABLE
     assert f"{B.check(active).crc_stored:08x}" == rec["block"]["crc32"]
-    assert blk.sequence == rec["block"]["sequence"] == 1
+    assert blk.sequence == rec["block"]["sequence"] == 2 and rec["block"]["bank"] != prep["bank"]
     # captures on disk with the recorded hashes
     for which in ("before", "after"):
         c = rec["captures"][which]
@@ -263,7 +268,7 @@ def test_verification_segments_are_the_operating_point_in_both_directions():
     assert verify_segments(segs, 90.0, 65.0) == segs  # no such point: the whole profile
 
 
-def test_flash_refused_with_a_wrong_key_is_an_error_and_the_ecu_keeps_no_new_block(files, tmp_path):
+def test_flash_refused_with_a_wrong_key_is_an_error_before_the_dyno_turns_and_the_ecu_keeps_no_block(files, tmp_path):
     db = tmp_path / "results.sqlite"
     wrong = tmp_path / "wrong.hex"
     wrong.write_text("00" * 16)
@@ -276,7 +281,9 @@ def test_flash_refused_with_a_wrong_key_is_an_error_and_the_ecu_keeps_no_new_blo
         flash = st.flash_file
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    assert rec["verdict"] == "error" and rec["error"]["step"] == "flash"
+    # the first flash (the uncompensated block) is refused: nothing was captured, nothing written
+    assert rec["verdict"] == "error" and rec["error"]["step"] == "prepare ECU"
+    assert rec["captures"] == {} and [s["step"] for s in rec["steps"]][:1] == ["prepare ECU"]
     assert "security" in rec["error"]["message"].lower() or "35" in rec["error"]["message"]
     assert active_block_from_file(flash) is None  # nothing was written into a bank
     assert [r["verdict"] for r in query_records(db)] == ["error"]

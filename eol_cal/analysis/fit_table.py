@@ -128,6 +128,30 @@ def block_from_record(
     )
 
 
+def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | None = None):
+    """The block a motor is measured under: the field's estimator, no compensation.
+
+    ``flags`` = INTERP_ENABLE only, zero tables (N = 16), nominal ``hall_angle``, no lead, and
+    ``iqc_limit`` 0: whatever the ECU ran before (no valid bank: the raw encoder angle; a motor
+    being re-tested: its old compensation) the calibration capture then sees the motor's own
+    ripple under the angle estimate the ECU will use in the field.
+    """
+    import numpy as np
+
+    from eol_cal.analysis.angle import NOMINAL_HALL_ANGLES
+    from eol_cal.firmware.block import FLAG_INTERP_ENABLE, ParamBlock
+
+    if calibrated_at is None:
+        calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
+    zeros = np.zeros(16, np.float32)
+    return ParamBlock(
+        sequence=1, flags=FLAG_INTERP_ENABLE, serial=str(serial), calibrated_at=int(calibrated_at),
+        poles=motor.poles, encoder_ppr=motor.N_enc, tick_hz=motor.f_pwm, kt=motor.kt,
+        hall_angle=tuple(NOMINAL_HALL_ANGLES), c6=0.0, phase_c6=0.0, k6=0.0, phase_k6=0.0,
+        lead_s=0.0, iqc_limit=0.0, table_const=zeros, table_per_amp=zeros.copy(),
+    )
+
+
 def _hall_angle(rec: dict[str, Any], source: str) -> tuple[float, ...]:
     """The record's hall table (rad, 6 entries); nominal for records written before it existed."""
     from eol_cal.analysis.angle import NOMINAL_HALL_ANGLES

@@ -1,8 +1,12 @@
 """The end-of-line cycle for one motor.
 
-acquire (dyno, profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the
-compensation the ECU now runs -> metrics -> verdict against the variant's limits -> report +
-record. Every step is timed. A fit that is not usable, or a motor whose k6 or fit quality is out
+prepare ECU (flash the uncompensated block: field estimator, no compensation) -> acquire (dyno,
+profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the compensation the
+ECU now runs -> metrics -> verdict against the variant's limits -> report + record. The first
+flash makes the calibration capture independent of what the ECU ran before: a blank ECU would
+run the raw encoder angle (k6 about 1.7 % low and twice the scatter on the plant lot), and a
+motor being re-tested would be measured through its old compensation, whose residual would then
+become its new table. Every step is timed. A fit that is not usable, or a motor whose k6 or fit quality is out
 of limits, fails right after the fit (nothing is flashed). Any error ends the cycle with verdict
 ``error``: the dyno client has already put the drive in the safe state (speed 0, disabled); the
 cycle commands it once more, best effort, and the record is written all the same.
@@ -31,7 +35,7 @@ from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
 from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
-STEPS = ("acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
+STEPS = ("prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
 
 ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
 
@@ -298,7 +302,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         "tool_version": __version__, "layout_version": LAYOUT_VERSION,
         "station": dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz),
         "limits": cfg.limits.to_dict(), "steps": [], "captures": {}, "fit": None, "block": None,
-        "flash": None, "metrics": {}, "report_dir": str(run_dir), "safe_state": None,
+        "flash": None, "ecu_prepared": None, "metrics": {}, "report_dir": str(run_dir), "safe_state": None,
     }
     if Path(cfg.limits.source).is_file():
         rec["limits"]["sha256"] = sha256_file(cfg.limits.source)
@@ -390,15 +394,34 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         rec["block"] = {"path": str(path), "bytes": len(data), "table_len": blk.table_len,
                         "lead_s": blk.lead_s, "iqc_limit": blk.iqc_limit, "crc32": None, "sequence": None}
 
-    def do_flash() -> None:
+    def flash(data: bytes, source: str):
         from eol_cal.ecu.client import ClientTiming, flash_block
 
         bus = cfg.open_bus()
         try:
-            report = flash_block(bus, state["block"], seed_to_key=cfg.seed_to_key, verify=True,
-                                 source=rec["block"]["path"], timing=cfg.ecu_timing or ClientTiming())
+            return flash_block(bus, data, seed_to_key=cfg.seed_to_key, verify=True, source=source,
+                               timing=cfg.ecu_timing or ClientTiming())
         finally:
             bus.shutdown()
+
+    def do_prepare() -> None:
+        from eol_cal.analysis.fit_table import uncompensated_block
+        from eol_cal.atomic import atomic_path
+        from eol_cal.firmware.block import pack
+        from eol_cal.motor import load_motor
+
+        data = pack(uncompensated_block(cfg.serial, load_motor("paper")))
+        path = run_dir / "block_uncompensated.bin"
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(data)
+        report = flash(data, str(path))
+        rec["ecu_prepared"] = {"path": str(path), "flags": "INTERP_ENABLE", "crc32": f"{report.crc32:08x}",
+                               "sequence": report.sequence, "bank": report.bank, "verified": report.verified,
+                               "previous": {"bank": report.previous.bank if report.previous.has_bank else None,
+                                            "sequence": report.previous.sequence}}
+
+    def do_flash() -> None:
+        report = flash(state["block"], rec["block"]["path"])
         rec["block"].update(crc32=f"{report.crc32:08x}", sequence=report.sequence, bank=report.bank)
         rec["flash"] = {"seconds": round(report.seconds, 4), "verified": report.verified,
                         "transfer_blocks": report.transfer_blocks, "retries": report.retries,
@@ -428,6 +451,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
 
     try:
         try:
+            step("prepare ECU", do_prepare)
             state["before"] = step("acquire", lambda: acquire("before", segments))
             step("fit", do_fit)
             step("table", do_table)
