@@ -19,6 +19,16 @@ against the truth moved into the offline reconstruction's frame. The 64 PPR enco
 halls, whose switching points scatter by 2/3 electrical degree (sigma) in the plant: their mean
 error moves every frame, by about 0.3 deg (sigma), i.e. 1.6 deg of 6th-harmonic phase.
 
+Two truths for k6. The plant's ``k6`` is the motor's own load-proportional 6th harmonic. The
+torque the motor makes on the bench also holds a 6th-order part of the ECU's own: its angle
+estimate errs with the encoder's pulse placement, and the current it regulates in that frame
+ripples with it (``kt * i_q``). That part repeats with the motor's encoder, is there in the field
+too, and the compensation has to cancel it with the rest, so the fit is right to see it. The
+bench measures it on a noise-free run of each motor through the same profile (the plant's true
+``i_q``, fitted with the same model) and reports the k6 error against both: ``k6_err_pct``
+(against the plant's k6, the issue's target) and ``k6_eff_err_pct`` (against k6 + that part).
+Skip the extra run with ``--no-effective``.
+
     python bench/bench_fit_lot.py [--motors 100] [--batch 10]
 """
 
@@ -43,6 +53,29 @@ def _pp(capture) -> float:
         return float("nan")
 
 
+def _current_k6(run, spec) -> complex:
+    """The load-proportional 6th harmonic (N*m/A phasor, plant's true angle frame) of ``kt * i_q``.
+
+    ``run`` is a noise-free run: its true q current ripples with the ECU's angle error, and that
+    ripple times kt is torque at the shaft like the motor's own. Fitted with the fit's own model
+    (same segments and harmonics; no transducer, no bench: i_q is the plant's own state).
+    """
+    import dataclasses
+
+    from eol_cal.analysis.fit import fit_many
+    from eol_cal.analysis.fit_capture import motor_inputs
+
+    (mi,) = motor_inputs([run.capture], frame="offline", hall_angle="nominal")
+    kt = float(run.capture.metadata["kt"])
+    iq = np.asarray(run.capture["iq"], dtype=float)
+    seg = dataclasses.replace(mi.segments, torque=[kt * iq[s.start:s.stop] for s in mi.info], path_response=None)
+    (f,) = fit_many([seg], dataclasses.replace(spec, delay_s=1e-9), mode="loop")
+    k = f.harmonics[6]["k"]
+    # the offline frame sits d_rec off the true angle: phase in the true frame = phase + 6 d_rec
+    d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
+    return k.value * np.exp(1j * (k.phase + 6 * d_rec))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--motors", type=int, default=100)
@@ -54,6 +87,8 @@ def main() -> None:
                          "reference's improvements (a what-if; 1.5 s pre-roll to learn the pitch errors)")
     ap.add_argument("--no-nominal-halls", dest="nominal_halls", action="store_false",
                     help="skip the comparison fit + run with the nominal hall table")
+    ap.add_argument("--no-effective", dest="effective", action="store_false",
+                    help="skip the noise-free run that measures the ECU's own 6th-order current ripple")
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame, wrap_phase
@@ -82,6 +117,9 @@ def main() -> None:
         plants = [draw_motor(s) for s in seeds]
         t0 = time.perf_counter()
         runs = simulate(plants, cal, mode="estimated", seed=first)
+        # the same motors, same start angles, without sensor noise: the deterministic current ripple
+        clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], cal, mode="estimated",
+                         seed=first) if args.effective else [None] * len(plants)
         t_sim += time.perf_counter() - t0
         t0 = time.perf_counter()
         inputs = [motor_inputs([r.capture], bench=bench)[0] for r in runs]
@@ -95,7 +133,7 @@ def main() -> None:
                 (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
                 rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
                 blocks_nom.append(block_from_record(rec_n, motor) if rec_n["status"] == "ok" else None)
-        for p, mi, f, run in zip(plants, inputs, fits, runs):
+        for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
             # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
             # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
             d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
@@ -107,9 +145,12 @@ def main() -> None:
             six = f_fw.harmonics[6]
             k, c = six["k"], six["c"]
             c_err = abs(c.value * np.exp(1j * c.phase) - p.c6 * np.exp(1j * p.phase_c6))
+            k_eff = abs(p.k6 * np.exp(1j * p.phase_k6) + (_current_k6(cl, spec) if cl is not None else 0.0))
             rows.append({
                 "seed": p.serial, "status": rec["status"],
                 "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
+                "k6_eff_err_pct": 100 * (k.value - k_eff) / k_eff,
+                "k6_current_pct": 100 * (k_eff - p.k6) / p.k6,
                 "phase_k6_err_deg": math.degrees(wrap_phase(k.phase - p.phase_k6)),
                 "phase_k6_err_rec_deg": math.degrees(wrap_phase(k_rec.phase - (p.phase_k6 - 6 * d_rec))),
                 "frame_rec_deg": math.degrees(d_rec),
@@ -176,6 +217,14 @@ def main() -> None:
     ci, err = col("ci_k6_pct"), col("k6_err_pct")
     print(f"k6 95 % interval: median ±{np.median(ci):.2f} %, holds the true k6 for {int((np.abs(err) <= ci).sum())}/{n}; "
           f"Birge ratio median {np.median(col('birge')):.2f}")
+    if args.effective:
+        eff, cur = col("k6_eff_err_pct"), np.abs(col("k6_current_pct"))
+        print(f"ECU's own 6th-order current ripple (|k6 + it| - k6, % of k6): median {np.median(cur):.2f}, "
+              f"max {cur.max():.2f}")
+        print(f"|k6 error| against k6 + the ECU's current ripple (%): median {np.median(np.abs(eff)):.3g}, "
+              f"p95 {np.percentile(np.abs(eff), 95):.3g}, max {np.abs(eff).max():.3g}, "
+              f"within 2: {int((np.abs(eff) <= 2.0).sum())}/{n}, mean {eff.mean():+.2f} %; "
+              f"the interval holds it for {int((np.abs(eff) <= ci).sum())}/{n}")
     print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
     print(f"hall table measured for {sum(r['hall_source'] == 'measured' for r in rows)}/{n} motors")
     for name in ("pp_before_pct", "pp_after_pct", "pp_after_nominal_halls_pct", "pp_true6_pct"):
