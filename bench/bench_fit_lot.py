@@ -11,7 +11,9 @@ contract's nominal hall table in the block instead of the motor's measured one
 (``--hall-angle nominal``, what the tool did before; skip with ``--no-nominal-halls``).
 
 Targets (issue 5, item 6): |k6 error| <= 2 % of k6, phase errors <= 2 deg, |c6 phasor error|
-<= 0.002 N*m, compensated p-p <= 1.0 %. The fitted phases are, as ``eol-cal fit`` writes them,
+<= 0.002 N*m, compensated p-p <= 1.0 % (``pp_after_pct``; ``pp_after_no_mech1_pct`` is the
+same with the mechanical order 1, the rotor's unbalance, taken out: what the tables can act on,
+docs/metrics.md). The fitted phases are, as ``eol-cal fit`` writes them,
 in the firmware estimator's frame; their errors are given against the truth in the plant's true
 angle frame (``phase_k6_err``) and in the frame of the plant's own estimator ``theta_hat``
 (``_fw``: what the compensation needs); ``_rec`` is the fit's own error before the frame shift,
@@ -42,15 +44,16 @@ import time
 import numpy as np
 
 
-def _pp(capture) -> float:
-    """Filtered p-p (%) or NaN when the metric finds no steady window."""
+def _pp(capture) -> tuple[float, float]:
+    """Filtered p-p (%) and the same with the mechanical order 1 taken out; NaN without a steady window."""
     from eol_cal.analysis.metrics import capture_ripple_pp
     from eol_cal.errors import InputError
 
     try:
-        return capture_ripple_pp(capture).filtered_pct
+        rp = capture_ripple_pp(capture)
     except InputError:
-        return float("nan")
+        return float("nan"), float("nan")
+    return rp.filtered_pct, rp.no_mech1_pct
 
 
 def _current_k6(run, spec) -> complex:
@@ -184,10 +187,12 @@ def main() -> None:
             r["frame_fw_deg"] = math.degrees(d_fw)
             r["phase_k6_err_fw_deg"] = math.degrees(wrap_phase(r["_phase_k6"] - (p.phase_k6 - 6 * d_fw)))
             r["c6_err_fw_nm"] = abs(r["_c6"] * np.exp(1j * r["_phase_c6"]) - p.c6 * np.exp(1j * (p.phase_c6 - 6 * d_fw)))
-            rows[i]["pp_before_pct"] = _pp(before[j].capture)
-            rows[i]["pp_after_pct"] = _pp(after_by[j].capture) if j in after_by else float("nan")
-            rows[i]["pp_true6_pct"] = _pp(ideal[j].capture)
-            rows[i]["pp_after_nominal_halls_pct"] = _pp(after_nom[j].capture) if j in after_nom else float("nan")
+            nan = (float("nan"), float("nan"))
+            rows[i]["pp_before_pct"] = _pp(before[j].capture)[0]
+            rows[i]["pp_after_pct"], rows[i]["pp_after_no_mech1_pct"] = _pp(after_by[j].capture) if j in after_by else nan
+            rows[i]["unb1_nm"] = p.unb1
+            rows[i]["pp_true6_pct"] = _pp(ideal[j].capture)[0]
+            rows[i]["pp_after_nominal_halls_pct"] = _pp(after_nom[j].capture)[0] if j in after_nom else nan[0]
         print(f"  {len(rows)} motors done, {time.perf_counter() - t_start:.0f} s", flush=True)
 
     if args.json:
@@ -227,7 +232,7 @@ def main() -> None:
               f"the interval holds it for {int((np.abs(eff) <= ci).sum())}/{n}")
     print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
     print(f"hall table measured for {sum(r['hall_source'] == 'measured' for r in rows)}/{n} motors")
-    for name in ("pp_before_pct", "pp_after_pct", "pp_after_nominal_halls_pct", "pp_true6_pct"):
+    for name in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct", "pp_after_nominal_halls_pct", "pp_true6_pct"):
         v = col(name)
         if np.all(np.isnan(v)):
             continue

@@ -203,3 +203,27 @@ def test_a_speed_step_of_3_percent_still_ends_the_run():
     assert len(r.segments) == 2
     assert all(not (w.t_start < 0.7 < w.t_end) for w in r.windows)
     assert sorted(round(w.speed_rpm, 1) for w in r.windows) == [120.0, 123.6]
+
+
+def test_no_mech1_takes_out_the_unbalance_and_leaves_the_electrical_ripple():
+    # a 6th ripple plus a mechanical order 1 (unbalance) of a fifth of its size
+    x = CLEAN + 0.2 * A6 * np.sin(THETA / 3 + 1.1)
+    r = ripple_pp(T, x, THETA, poles=6)
+    assert r.filtered_pct > TRUE_PCT + 0.3  # the unbalance counts in the p-p figure
+    assert r.no_mech1_pct == pytest.approx(TRUE_PCT, abs=0.005)
+    assert all(w.no_mech1_pct == pytest.approx(TRUE_PCT, abs=0.005) for w in r.windows)
+    # without an unbalance it changes nothing
+    assert ripple_pp(T, CLEAN, THETA, poles=6).no_mech1_pct == pytest.approx(TRUE_PCT, abs=0.005)
+
+
+def test_no_mech1_over_part_of_a_mechanical_revolution():
+    # the operating-point window of a 1 s capture at 60 rpm: two electrical revolutions, 240 mech. deg
+    t = np.arange(0.0, 1.0, 1.0 / FS)
+    theta = 3 * 2 * np.pi * t
+    x = 3.2 + 0.05 * np.sin(6 * theta) + 0.01 * np.sin(theta / 3 + 0.5)
+    r = ripple_pp(t, x, theta, poles=6)
+    assert r.window_revs == 2
+    assert r.no_mech1_pct == pytest.approx(TRUE_PCT, abs=0.05)
+    # one electrical revolution (120 mech. deg) is too short an arc: not reported
+    r1 = ripple_pp(t, x, theta, poles=6, window_revs=1)
+    assert np.isnan(r1.no_mech1_pct) and all(np.isnan(w.no_mech1_pct) for w in r1.windows)

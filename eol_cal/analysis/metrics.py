@@ -14,6 +14,10 @@ The definition of the peak-to-peak figure is in ``docs/metrics.md``; in short:
   Butterworth low-pass at ``cutoff_order`` times the electrical frequency of the run.
 - Per window ``pp% = (max - min) / |mean| * 100`` with the mean of the despiked raw torque;
   the reported figure is the median over all windows (the max is reported too).
+- ``no_mech1``: the same filtered figure with the window's mechanical order 1 (rotor unbalance,
+  eccentricity: no table of one 6th-harmonic period can cancel it) taken out by least squares;
+  only over windows of at least half a mechanical revolution (over a shorter arc a sinusoid of
+  one mechanical period cannot be told from a slope).
 """
 
 from __future__ import annotations
@@ -157,6 +161,9 @@ class SteadyWindow:
         Mean mechanical speed (rpm), signed.
     i_qo_a : float
         Mean nominal q current (A); NaN when the capture has none.
+    no_mech1_pp_nm, no_mech1_pct : float
+        Filtered peak-to-peak (N*m, %) with the window's mechanical order 1 taken out; NaN when
+        the window holds less than half a mechanical revolution.
     """
 
     t_start: float
@@ -169,6 +176,8 @@ class SteadyWindow:
     filtered_pct: float
     speed_rpm: float
     i_qo_a: float
+    no_mech1_pp_nm: float = float("nan")
+    no_mech1_pct: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -198,6 +207,9 @@ class RipplePP:
         Low-pass cut-off as a multiple of the electrical frequency.
     n_spikes : int
         Samples the Hampel filter replaced in the whole record.
+    no_mech1_pct : float
+        Median over the windows of the filtered p-p with the mechanical order 1 taken out (%);
+        NaN when no window holds half a mechanical revolution.
     """
 
     raw_pct: float
@@ -213,11 +225,32 @@ class RipplePP:
     segments: tuple[tuple[float, float], ...]
     cutoff_order: float
     n_spikes: int
+    no_mech1_pct: float = float("nan")
 
 
 def _percent(pp_nm: float, mean_nm: float) -> float:
     """Peak-to-peak (N*m) as percent of |mean| (N*m); NaN when the mean is zero."""
     return 100.0 * pp_nm / abs(mean_nm) if mean_nm != 0.0 else float("nan")
+
+
+def without_mech1(y: np.ndarray, theta_r: np.ndarray, pole_pairs: int) -> np.ndarray:
+    """``y`` less its least-squares mechanical order 1 against ``theta_r / pole_pairs``.
+
+    Parameters
+    ----------
+    y : ndarray
+        Torque samples (N*m), best over whole mechanical revolutions (over a part of one the
+        order-1 term is fitted on that arc).
+    theta_r : ndarray
+        Electrical angle (rad) at the same samples; its offset does not matter (the phase of
+        the order-1 term is free).
+    pole_pairs : int
+        P/2.
+    """
+    theta_m = np.asarray(theta_r, dtype=float) / pole_pairs
+    X = np.column_stack([np.ones_like(theta_m), np.cos(theta_m), np.sin(theta_m)])
+    coef, *_ = np.linalg.lstsq(X, y, rcond=None)
+    return y - X[:, 1:] @ coef[1:]
 
 
 def revolution_bounds(theta_r: np.ndarray, per_rev: int = 1) -> np.ndarray:
@@ -434,6 +467,10 @@ def ripple_pp(
             pp_filt = float(filt_w.max() - filt_w.min())
             dt = t[k1] - t[k0]
             dtheta = theta_r[k1] - theta_r[k0]
+            pp_nm1 = float("nan")
+            if 2 * n_w >= poles // 2:
+                rest = without_mech1(filt_w, theta_r[sl], poles // 2)
+                pp_nm1 = float(rest.max() - rest.min())
             windows.append(
                 SteadyWindow(
                     t_start=float(t[k0]),
@@ -446,6 +483,8 @@ def ripple_pp(
                     filtered_pct=_percent(pp_filt, mean),
                     speed_rpm=float(dtheta / dt / (poles / 2) * 60.0 / TWO_PI),
                     i_qo_a=float(np.mean(i_qo[sl])) if i_qo is not None else float("nan"),
+                    no_mech1_pp_nm=pp_nm1,
+                    no_mech1_pct=_percent(pp_nm1, mean),
                 )
             )
     if not windows:
@@ -459,6 +498,7 @@ def ripple_pp(
     raw = np.array([w.raw_pct for w in windows])
     filt = np.array([w.filtered_pct for w in windows])
     weights = np.array([w.t_end - w.t_start for w in windows])
+    no_mech1 = [w.no_mech1_pct for w in windows if np.isfinite(w.no_mech1_pct)]
     return RipplePP(
         raw_pct=float(np.median(raw)),
         filtered_pct=float(np.median(filt)),
@@ -473,6 +513,7 @@ def ripple_pp(
         segments=tuple(segments),
         cutoff_order=float(cutoff_order),
         n_spikes=int(spikes.sum()),
+        no_mech1_pct=float(np.median(no_mech1)) if no_mech1 else float("nan"),
     )
 
 

@@ -70,6 +70,7 @@ def analyze_capture(capture, ripple_options: dict[str, Any] | None = None, fw_an
             "filtered_pct": _finite(ripple.filtered_pct),
             "raw_pct_max": _finite(ripple.raw_pct_max),
             "filtered_pct_max": _finite(ripple.filtered_pct_max),
+            "no_mech1_pct": _finite(ripple.no_mech1_pct),
             "raw_pp_nm": ripple.raw_pp_nm,
             "filtered_pp_nm": ripple.filtered_pp_nm,
             "window_revs": ripple.window_revs,
@@ -85,6 +86,7 @@ def analyze_capture(capture, ripple_options: dict[str, Any] | None = None, fw_an
                     "T_avg_nm": w.T_avg_nm,
                     "raw_pct": _finite(w.raw_pct),
                     "filtered_pct": _finite(w.filtered_pct),
+                    "no_mech1_pct": _finite(w.no_mech1_pct),
                     "speed_rpm": w.speed_rpm,
                     "i_qo_a": _finite(w.i_qo_a),
                 }

@@ -105,6 +105,8 @@ def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
          f"min {_fmt(lim.get('min_r2'))} / max {_fmt(lim.get('max_rms_nm'), 1e3)} mN*m"),
         ("p-p before", f"{_fmt(met.get('pp_before_pct'))} %", f"max {_fmt(lim.get('max_pp_before_pct'))} %"),
         ("p-p compensated", f"{_fmt(met.get('pp_after_pct'))} %", f"max {_fmt(lim.get('max_pp_after_pct'))} %"),
+        ("p-p compensated, mech. order 1 taken out", f"{_fmt(met.get('pp_after_no_mech1_pct'))} %",
+         "no limit: what the tables act on (the rest is the rotor's unbalance)"),
         ("improvement", f"{_fmt(met.get('improvement_pct'))} %", f"min {_fmt(lim.get('min_improvement_pct'))} %"),
         ("block", f"crc {blk.get('crc32') or '-'}, sequence {blk.get('sequence') if blk.get('sequence') is not None else '-'}, "
                   f"lead {_fmt(blk.get('lead_s'), 1e6)} us", ""),

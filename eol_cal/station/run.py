@@ -186,6 +186,8 @@ class PointRipple:
         6th-order amplitude of the order spectrum (N*m).
     span_s : (float, float)
         The capture's time span that was analysed (s).
+    pp_no_mech1_pct : float
+        ``pp_pct`` with the mechanical order 1 taken out (%): what the tables can act on.
     """
 
     pp_pct: float
@@ -199,9 +201,11 @@ class PointRipple:
     t: Any = None
     torque: Any = None
     poles: int = 0
+    pp_no_mech1_pct: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         return json_safe({"pp_pct": self.pp_pct, "pp_raw_pct": self.pp_raw_pct, "pp_nm": self.pp_nm,
+                           "pp_no_mech1_pct": self.pp_no_mech1_pct,
                            "T_avg_nm": self.T_avg_nm, "amp6_nm": self.amp6_nm, "span_s": list(self.span_s)})
 
 
@@ -233,7 +237,8 @@ def point_ripple(capture, angle) -> PointRipple:
                    source=capture.source)
     sp = order_spectrum(theta, torque, capture.poles, t=t, source=capture.source)
     return PointRipple(rp.filtered_pct, rp.raw_pct, rp.filtered_pp_nm, rp.T_avg_nm, float(sp.amplitude(6)),
-                       (float(t[0]), float(t[-1])), rp, sp, t, torque, capture.poles)
+                       (float(t[0]), float(t[-1])), rp, sp, t, torque, capture.poles,
+                       pp_no_mech1_pct=rp.no_mech1_pct)
 
 
 def verify_segments(segments: list, speed_rpm: float, i_qo_a: float, rel_tol: float = 0.02) -> list:
@@ -443,7 +448,8 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         m = Measured(**{**m.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct})
         rec["metrics"] = json_safe({
             "operating_point": op, "pp_before_pct": m.pp_before_pct, "pp_after_pct": m.pp_after_pct,
-            "improvement_pct": m.improvement_pct, "before": before.to_dict(), "after": after.to_dict(),
+            "improvement_pct": m.improvement_pct, "pp_after_no_mech1_pct": after.pp_no_mech1_pct,
+            "before": before.to_dict(), "after": after.to_dict(),
             "definition": "filtered p-p % (docs/metrics.md), median over the steady windows of the operating "
                           "point's segment",
         })
