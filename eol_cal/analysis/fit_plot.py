@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix
+from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
 from eol_cal.analysis.fit_capture import MotorInput
 
 _MAX_PANELS = 8
@@ -23,6 +23,42 @@ def segment_model(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int) -> tuple
     q = spec.n_nuis
     nuisance = X[:, 1:q] @ fit.coef[s, 1:q]  # drift above the constant, and the mechanical pair
     return mean + X @ fit.coef[s], nuisance
+
+
+def fitted_ripple(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int, theta: np.ndarray,
+                  gains: np.ndarray | None = None) -> np.ndarray:
+    """T_avg and the fitted ripple of segment ``s`` as the transducer sees it, at angles ``theta``.
+
+    Parameters
+    ----------
+    mi, fit, spec
+        The motor's inputs, its fit and the model it was fitted with.
+    s : int
+        Segment index.
+    theta : ndarray
+        Electrical angles (rad).
+    gains : ndarray, optional
+        :func:`eol_cal.analysis.fit.path_gain` of the segments (computed when not given).
+
+    Returns
+    -------
+    ndarray
+        Torque (N*m): through the bench's response and the transducer's lag at the segment's
+        speed, as in the fit's own model.
+    """
+    seg = mi.segments
+    gains = path_gain(seg, spec) if gains is None else gains
+    curve = np.full_like(np.asarray(theta, dtype=float), fit.t_avg[s])
+    for h, parts in fit.harmonics.items():
+        a = h * seg.omega_e[s] * fit.delay_s
+        gain = 1.0 / (1.0 + 1j * a) if spec.transducer == "lowpass" else np.exp(-1j * a)
+        gain *= gains[s, spec.harmonics.index(h)]
+        arg = h * theta + np.angle(gain)
+        if "c" in parts:
+            curve -= abs(gain) * parts["c"].value * np.sin(arg + parts["c"].phase)
+        if "k" in parts:
+            curve -= abs(gain) * parts["k"].value * seg.i_qo[s] * np.sin(arg + parts["k"].phase)
+    return curve
 
 
 def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> None:
@@ -43,6 +79,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
     rows = math.ceil(n / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(6 * cols, 2.6 * rows), squeeze=False)
     grid = np.linspace(0.0, 2 * math.pi, 721)
+    bench = path_gain(mi.segments, spec)
     for s in range(n):
         ax = axes[s // cols][s % cols]
         seg = mi.segments
@@ -51,16 +88,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
         y = seg.torque[s] - nuisance
         step = max(1, len(th) // _MAX_POINTS)
         ax.plot(np.degrees(th[::step]), y[::step], ".", ms=1.5, alpha=0.5, label="measured")
-        # the fitted ripple as the transducer sees it (delayed by delay_s at this segment's speed)
-        curve = np.full_like(grid, fit.t_avg[s])
-        for h, parts in fit.harmonics.items():
-            a = h * seg.omega_e[s] * fit.delay_s
-            gain = 1.0 / (1.0 + 1j * a) if spec.transducer == "lowpass" else np.exp(-1j * a)
-            arg = h * grid + np.angle(gain)
-            if "c" in parts:
-                curve -= abs(gain) * parts["c"].value * np.sin(arg + parts["c"].phase)
-            if "k" in parts:
-                curve -= abs(gain) * parts["k"].value * seg.i_qo[s] * np.sin(arg + parts["k"].phase)
+        curve = fitted_ripple(mi, fit, spec, s, grid, gains=bench)
         ax.plot(np.degrees(grid), curve, "-", color="C3", lw=1.2, label="fit")
         info = mi.info[s]
         ax.set_title(f"{Path(info.source).name}: {info.speed_rpm:.0f} rpm, i_qo {info.i_qo:.1f} A", fontsize=8)
