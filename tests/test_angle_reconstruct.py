@@ -145,3 +145,19 @@ def test_reversal_inside_the_record():
     assert res.direction == 0
     assert err[away].max() < 0.1
     assert err.max() < np.rad2deg(res.edge_step_rad) / 2  # at the turn: within the cell
+
+
+def test_hall_table_inputs_only_where_the_edges_say_the_angle():
+    # the encoder toggles only between 0.8 and 1.25 s (one hall boundary, state 3 at 120 deg, in
+    # that span); two more transitions outside it still anchor the offset, but their angle is
+    # extrapolated, so they are not handed to the hall table measurement (analysis.halls)
+    theta_m = 2 * np.pi * 0.1 * T + 0.05
+    cap = motion_capture(T, theta_m)
+    i0, i1 = np.flatnonzero((T >= 0.8) & (T <= 1.25))[[0, -1]]
+    for ch in ("enc_a", "enc_b"):
+        x = cap.channels[ch]
+        x[:i0], x[i1:] = x[i0], x[i1]
+    res = capture_angle(cap)
+    assert res.n_hall_edges == 3
+    assert list(res.hall_begins) == [3] and len(res.hall_theta) == 1
+    assert np.rad2deg(res.hall_theta[0]) == pytest.approx(120.0, abs=0.5)

@@ -82,8 +82,8 @@ class AngleResult:
     t_span : tuple[float, float]
         First and last edge time (s); outside, the angle is extrapolated.
     hall_begins : ndarray of int
-        Per hall transition in the offset fit: the boundary crossed, named by the state that
-        begins there in forward rotation (1..6).
+        Per hall transition in the offset fit that lies within the encoder edges' span: the
+        boundary crossed, named by the state that begins there in forward rotation (1..6).
     hall_theta : ndarray
         Reconstructed angle at those transitions (rad, [0, 2*pi)): where each boundary sits in
         this frame (:mod:`eol_cal.analysis.halls`).
@@ -171,10 +171,17 @@ def hall_transition_angles(
         pos[s] = i
     step = np.mod(pos[new_states] - pos[old_states], 6)
     direction = np.where(step == 1, 1, np.where(step == 5, -1, 0))
-    # A boundary is named by the state that begins there in forward rotation.
-    begins = np.where(direction >= 0, new_states, old_states)
-    angle = np.asarray(hall_angles, dtype=float)[begins - 1]
+    angle = np.asarray(hall_angles, dtype=float)[boundary_state(old_states, new_states, direction) - 1]
     return np.where(direction != 0, angle, np.nan), direction
+
+
+def boundary_state(old_states: np.ndarray, new_states: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """The hall boundary each transition crosses, named by the state that begins there going forward.
+
+    ``new_states`` for a forward transition, ``old_states`` for a reverse one (and for a glitch,
+    direction 0, whichever: its angle is not used).
+    """
+    return np.where(direction >= 0, new_states, old_states)
 
 
 def quadrature_boundaries(
@@ -363,8 +370,7 @@ def reconstruct_angle(
         raise InputError(source, "hall", "invalid hall state (0 or 7) in the change events")
     hall_theta, hall_dir = hall_transition_angles(s_old, s_new, hall_angles)
     good = hall_dir != 0
-    # the boundary crossed, named by the state that begins there in forward rotation
-    begins = np.where(hall_dir > 0, s_new, s_old)[good]
+    begins = boundary_state(s_old, s_new, hall_dir)[good]
     t_h, hall_theta, hall_dir = t_h[good], hall_theta[good], hall_dir[good]
     if len(t_h) < 2:
         raise InputError(source, "hall", "fewer than two hall transitions: no absolute angle reference")
@@ -455,8 +461,10 @@ def reconstruct_angle(
         direction=direction,
         speed_rpm=speed_rpm,
         t_span=(float(t_u[0]), float(t_u[-1])),
-        hall_begins=begins.astype(np.int64),
-        hall_theta=np.mod(rel_h + theta0, TWO_PI),
+        # only where the edges say the angle: an extrapolated one is up to a count off, which the
+        # hall table measured from these (analysis.halls) must not average in
+        hall_begins=begins[in_span].astype(np.int64),
+        hall_theta=np.mod(rel_h + theta0, TWO_PI)[in_span],
     )
 
 
