@@ -102,3 +102,15 @@ def test_record_and_block_carry_the_measured_table(plant_motor):
     block = block_from_record(rec, load_motor("paper"))
     assert np.allclose(block.hall_angle, mi.hall.hall_angle)
     assert not np.allclose(block.hall_angle, NOMINAL_HALL_ANGLE, atol=math.radians(0.2))
+
+
+@pytest.mark.parametrize("kwargs", [{"hall_angle": "measure"}, {"frame": "ecu"}])
+def test_unknown_option_values_are_refused_not_taken_as_a_default(kwargs):
+    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.capture.synthetic import synthetic_capture
+    from eol_cal.errors import InputError
+
+    cap = synthetic_capture(rpm=60.0, i_qo=20.0, seconds=0.35, serial="M-1")
+    with pytest.raises(InputError) as exc:
+        motor_inputs([cap], **kwargs)
+    assert exc.value.field == next(iter(kwargs)) and "unknown value" in str(exc.value)

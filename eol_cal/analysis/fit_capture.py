@@ -228,6 +228,9 @@ def motor_inputs(
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.capture.windows import split_windows
 
+    for name, value, known in (("frame", frame, ("firmware", "offline")), ("hall_angle", hall_angle, ("measured", "nominal"))):
+        if value not in known:
+            raise InputError(None, name, f"unknown value {value!r}; known: {', '.join(known)}")
     captures = [w for c in captures for w in split_windows(c)]
 
     motor = motor or load_motor("paper")
