@@ -146,7 +146,7 @@ def _drop(cap: Capture, keep: np.ndarray) -> Capture:
                    source=cap.source)
 
 
-def test_a_dropped_sample_is_bridged_a_lost_stretch_is_a_join():
+def test_a_dropped_sample_is_bridged_a_lost_stretch_is_a_join(monkeypatch):
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.capture.synthetic import synthetic_capture
 
@@ -172,6 +172,12 @@ def test_a_dropped_sample_is_bridged_a_lost_stretch_is_a_join():
     keep[c1 + 1 : c2 + 1] = False  # the samples of the count between them are gone
     two = _drop(cap, keep)
     assert len(window_spans(two)) == 2
+    # ... also where the gap alone would pass for a dropped sample: the two counts decide it
+    import eol_cal.capture.windows as windows
+
+    monkeypatch.setattr(windows, "BRIDGE_EDGE_FRACTION", 10.0)
+    assert len(window_spans(two)) == 2
+    assert window_spans(hiccup) == [(0, n - 3)]
     # without the encoder's B channel nothing can be told: every gap is a join
     no_b = Capture(hiccup.t, {k: v for k, v in hiccup.channels.items() if k != "enc_b"}, dict(hiccup.metadata))
     assert len(window_spans(no_b)) == 3

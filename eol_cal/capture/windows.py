@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from eol_cal.capture.model import Capture
+from eol_cal.firmware.estimator import quadrature_phase
 
 #: a step in ``t`` longer than this many median sample periods starts a new window, unless the
 #: encoder shows that the angle is bridged across it (:func:`_bridged`)
@@ -21,13 +22,6 @@ GAP_PERIODS = 1.5
 BRIDGE_EDGE_FRACTION = 0.5
 #: samples on each side of a gap in which the edge interval is measured
 _BRIDGE_CONTEXT = 2000
-
-
-def _quad_position(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Gray-code position of (A, B) in forward rotation: 00 -> 10 -> 11 -> 01."""
-    a = np.asarray(a).astype(np.int64) & 1
-    b = np.asarray(b).astype(np.int64) & 1
-    return np.where(b == 0, a, 3 - a)
 
 
 def _bridged(capture: Capture, i: int) -> bool:
@@ -41,7 +35,8 @@ def _bridged(capture: Capture, i: int) -> bool:
     if not (capture.has("enc_a") and capture.has("enc_b")):
         return False
     lo, hi = max(0, i - _BRIDGE_CONTEXT), min(len(capture.t), i + 1 + _BRIDGE_CONTEXT)
-    pos = _quad_position(capture["enc_a"][lo:hi], capture["enc_b"][lo:hi])
+    a, b = (np.asarray(capture[ch][lo:hi]).astype(np.int64) & 1 for ch in ("enc_a", "enc_b"))
+    pos = quadrature_phase(a, b)
     k = i - lo
     step = (int(pos[k + 1]) - int(pos[k])) % 4
     if step == 2:

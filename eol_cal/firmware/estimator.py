@@ -414,7 +414,8 @@ def _dq(q: Any, k_last: Any, M: int, xp: Any) -> Any:
     return (q - k_last + I32(M + M // 2)) % I32(M) - I32(M // 2)
 
 
-def _phase(enc_a: Any, enc_b: Any) -> Any:
+def quadrature_phase(enc_a: Any, enc_b: Any) -> Any:
+    """Position of the encoder levels (0/1 integers) in one quadrature cycle, forward: 00 -> 10 -> 11 -> 01 is 0, 1, 2, 3."""
     return I32(2) * enc_b + (enc_a ^ enc_b)
 
 
@@ -439,7 +440,7 @@ def init_state(cfg: EstimatorConfig, hall0: Any, enc_a0: Any = 0, enc_b0: Any = 
     h = xp.where(valid, h, xp.zeros_like(h))
     zi = xp.zeros_like(h)
     zf = zi.astype(xp.float32)
-    ph = _phase(a, b)
+    ph = quadrature_phase(a, b)
     return EstimatorState(phase=ph, q=ph, n=zi, k_last=zi, dir_last=zi, nc_prev=zi, against=zi,
                           omega=zf, alpha=zf, adv=zf, G=zf, hall_last=h, sector=h, anchored=zi,
                           n_anchor=zi, tick=zi, run=zi, R_prev=zi,
@@ -479,7 +480,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
     # 1. Quadrature decoding (x4). A rising edge: phase 0->1 forward, 3->2 reverse.
     a = i32(enc_a)
     b = i32(enc_b)
-    ph = _phase(a, b)
+    ph = quadrature_phase(a, b)
     d = (ph - s.phase + I32(4)) % I32(4)
     stp = xp.where(d == 1, one, xp.where(d == 3, -one, I32(0)))
     qep_err = d == 2
