@@ -100,6 +100,9 @@ def _print_outcome(out, as_json: bool) -> None:
         console.print(f"  {rec['verdict']}: {reason}")
     if rec.get("safe_state"):
         console.print(f"  dyno safe state: {rec['safe_state']}")
+    ecu = rec.get("ecu_active") or {}
+    if ecu.get("block") == "uncompensated":
+        console.print(f"  ECU: the uncompensated block is active (sequence {ecu['sequence']}): the motor is not calibrated")
     steps = ", ".join(f"{s['step']} {s['seconds']:.2f} s" for s in rec["steps"] if s["seconds"] is not None)
     console.print(f"  steps: {steps}")
     if out.report_html:
@@ -142,10 +145,14 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 @click.option("--db-timeout", type=click.FloatRange(0.0, 600.0), default=5.0, show_default=True, help="Seconds to wait for a database lock before spooling.")
 @click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True, help="Capture sample rate (Hz).")
 @click.option("--dyno-timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request Modbus timeout (s).")
+@click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
+              help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm, current_bw_hz, ...): the motor type on the station.")
+@click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
+              help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @handle_errors
 def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, verify, key_file,
-            report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, as_json) -> None:
+            report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, motor_file, bench_name, as_json) -> None:
     """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
 
     Exit 0 pass, 1 fail (limits), 2 error (the dyno is left stopped and disabled; the record is
@@ -154,16 +161,20 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     """
     from cli.ecu import _seed_to_key
     from cli.fit import enable_jax_cache
+    from eol_cal.bench import load_bench
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.ecu.transport import open_bus
     from eol_cal.errors import InputError
+    from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
     from eol_cal.station.run import StationConfig, run_motor
 
     host, port = parse_address(address)
     limits = load_limits(limits_file, variant)
-    load_profile(profile)  # refuse a bad profile before anything moves
+    load_profile(profile)  # refuse a bad profile, motor or bench before anything moves
+    motor = load_motor("paper", motor_file)
+    bench = None if bench_name == "none" else load_bench(bench_name)
     if key_file is None:
         raise InputError(None, "key-file", "the flash step needs the ECU's secret: give --key-file (16 bytes, hex) or set EOL_CAL_KEY_FILE")
     seed_to_key = _seed_to_key(key_file, None)
@@ -178,6 +189,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
         db_timeout_s=db_timeout,
         station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
         prepare=enable_jax_cache,  # on the helper thread: importing JAX costs a second
+        motor=motor, bench=bench,
     )
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:

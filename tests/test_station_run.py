@@ -159,6 +159,9 @@ def test_full_run_end_to_end(full_run):
     # verification at the operating point only: 65 A at 120 rpm, forward and reverse
     assert rec["captures"]["before"]["segments"] == 3 and rec["captures"]["after"]["segments"] == 2
     assert rec["station"]["verify"] == "point"
+    assert rec["station"]["motor"] == "paper" and rec["station"]["bench"] == "paper"
+    # the ECU boots this run's block
+    assert rec["ecu_active"] == {"block": "calibrated", "sequence": 2, "bank": rec["block"]["bank"]}
     assert abs(rec["fit"]["operating_point"]["i_qo_a"]) == 65.0
     # the record is in the database (WAL), identical to the report's JSON
     assert doc["saved"]["where"] == "db"
@@ -217,10 +220,20 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
         wait_stopped(st.dyno.sim)
         sim = st.dyno.sim
         assert not sim.enabled and sim.setpoint == 0.0 and sim.speed == 0.0
+        flash = st.flash_file
     assert res.exit_code == 2, res.output
     doc = json.loads(res.stdout)
     rec = doc["record"]
     assert rec["verdict"] == "error" and rec["error"]["step"] == failed_step
+    # what the ECU boots now, as recorded and as in its flash: the prepared (uncompensated) block
+    # when the cycle ended before the calibrated one was written, else the calibrated one
+    active = B.unpack(active_block_from_file(flash), "active")
+    if failed_step == "acquire":
+        assert rec["ecu_active"] == {"block": "uncompensated", "sequence": 1, "bank": rec["ecu_prepared"]["bank"]}
+        assert active.flags == B.FLAG_INTERP_ENABLE and active.sequence == 1
+    else:
+        assert rec["ecu_active"]["block"] == "calibrated" and rec["ecu_active"]["sequence"] == 2
+        assert active.flags & B.FLAG_COMP_ENABLE and active.sequence == 2
     assert "fault" in rec["error"]["message"] and "speed set to 0 and drive disabled" in rec["error"]["message"]
     assert rec["safe_state"].startswith("speed 0, drive disabled")
     assert rec["steps"][-2]["step"] == failed_step and not rec["steps"][-2]["ok"]
@@ -240,6 +253,25 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
     assert not Path(doc["saved"]["path"]).exists()
 
 
+def test_a_motor_of_another_type_on_the_dyno_is_refused_before_the_fit(files, tmp_path):
+    # the station is set up for an 8-pole motor type; the dyno turns the paper's 6-pole motor
+    motor = tmp_path / "eps8.toml"
+    motor.write_text('name = "eps8"\npoles = 8\n')
+    db = tmp_path / "results.sqlite"
+    with loopback_station("W-1", 7, tmp_path / "sim", source=synthetic_source) as st:
+        res = CliRunner().invoke(cli, run_args(files, st, "W-1", db, tmp_path / "reports", "--motor", str(motor)))
+        wait_stopped(st.dyno.sim)
+        flash = st.flash_file
+    assert res.exit_code == 2, res.output
+    rec = json.loads(res.stdout)["record"]
+    assert rec["verdict"] == "error" and rec["error"]["step"] == "fit"
+    assert "poles" in rec["error"]["message"] and "eps8" in rec["error"]["message"]
+    assert rec["fit"] is None and rec["block"] is None
+    # the block it prepared the ECU with is for the motor type it was given
+    assert B.unpack(active_block_from_file(flash), "active").poles == 8
+    assert rec["ecu_active"]["block"] == "uncompensated"
+
+
 def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
     runner = CliRunner()
     base = ["run", "--dyno", "127.0.0.1:1", "--interface", "virtual", "--channel", "x", "--db", str(tmp_path / "r.sqlite"),
@@ -257,6 +289,12 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
     assert res.exit_code == 2 and "16 ASCII" in res.output
     res = runner.invoke(cli, base[:2] + ["nohost"] + base[3:] + ["--limits", str(files["limits"])])
     assert res.exit_code == 2 and "HOST:PORT" in res.output
+    res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--bench", "nope"])
+    assert res.exit_code == 2 and "nope" in res.output
+    bad_motor = tmp_path / "motor.toml"
+    bad_motor.write_text("poles = -2\n")
+    res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--motor", str(bad_motor)])
+    assert res.exit_code == 2 and str(bad_motor) in res.output and "poles" in res.output
     assert not (tmp_path / "r.sqlite").exists() and not (tmp_path / "rep").exists()
 
 

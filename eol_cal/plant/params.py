@@ -15,7 +15,7 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from eol_cal.bench import BenchParams, load_bench, shaft_damping, speed_gains
+from eol_cal.bench import load_bench, shaft_damping, speed_gains
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.plant import motor as motor_model, ripple
@@ -96,12 +96,6 @@ class PlantSpec:
     dyno_bw_hz: float = _BENCH.dyno_bw_hz
     dyno_zeta: float = _BENCH.dyno_zeta
     dead_time_s: float = 0.0
-
-    @property
-    def bench(self) -> BenchParams:
-        """The bench's mechanics as the fit describes them (:mod:`eol_cal.bench`)."""
-        return BenchParams(name="plant", J_dyno=self.J_dyno, K_shaft=self.K_shaft, shaft_zeta=self.shaft_zeta,
-                           dyno_bw_hz=self.dyno_bw_hz, dyno_zeta=self.dyno_zeta)
 
     def replace(self, **changes) -> "PlantSpec":
         return dataclasses.replace(self, **changes)

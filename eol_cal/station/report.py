@@ -33,6 +33,10 @@ def _fmt(x: Any, scale: float = 1.0, digits: int = 4) -> str:
     return f"{float(x) * scale:.{digits}g}"
 
 
+def _or_dash(x: Any) -> str:
+    return "-" if x is None else str(x)
+
+
 def fit_plots(run_dir: str | Path, fit_extra: Any) -> list[tuple[str, str]]:
     """Write ``fit.png`` and ``residual.png``; returns ``(file name, caption)`` of each.
 
@@ -95,6 +99,7 @@ def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
     met = rec.get("metrics") or {}
     lim = rec.get("limits") or {}
     blk = rec.get("block") or {}
+    ecu = rec.get("ecu_active") or {}
     rows = [
         ("k6", f"{_fmt((fit.get('k6') or {}).get('value'), 1e3)} ± {_fmt((fit.get('k6') or {}).get('ci95'), 1e3, 2)} mN*m/A",
          f"max {_fmt(lim.get('max_k6'), 1e3)} mN*m/A"),
@@ -108,8 +113,9 @@ def render_html(rec: dict[str, Any], figures: list[tuple[str, str]]) -> str:
         ("p-p compensated, mech. order 1 taken out", f"{_fmt(met.get('pp_after_no_mech1_pct'))} %",
          "no limit: what the tables act on (the rest is the rotor's unbalance)"),
         ("improvement", f"{_fmt(met.get('improvement_pct'))} %", f"min {_fmt(lim.get('min_improvement_pct'))} %"),
-        ("block", f"crc {blk.get('crc32') or '-'}, sequence {blk.get('sequence') if blk.get('sequence') is not None else '-'}, "
+        ("block", f"crc {blk.get('crc32') or '-'}, sequence {_or_dash(blk.get('sequence'))}, "
                   f"lead {_fmt(blk.get('lead_s'), 1e6)} us", ""),
+        ("ECU boots", f"{ecu.get('block', '-')} block, sequence {_or_dash(ecu.get('sequence'))}", ""),
     ]
     table = "\n".join(f"<tr><th>{e(a)}</th><td>{e(b)}</td><td>{e(c)}</td></tr>" for a, b, c in rows)
     steps = "\n".join(f"<tr><td>{e(s['step'])}</td><td>{_fmt(s['seconds'], 1, 3)} s</td>"

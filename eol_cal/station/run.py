@@ -30,7 +30,9 @@ from typing import Any, Callable
 import numpy as np
 
 from eol_cal.analysis.fit_motors import json_safe
+from eol_cal.bench import BenchParams, load_bench
 from eol_cal.errors import EolCalError, InputError
+from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
 from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
 
@@ -80,6 +82,13 @@ class StationConfig:
     prepare : callable or None
         Called first on the helper thread while the dyno spins, e.g. to switch on JAX's
         persistent compilation cache (importing JAX costs a second).
+    motor : MotorParams
+        The motor type on the station (default the paper preset): poles and encoder the
+        captures must show, the ECU's tick rate and kt for the blocks, the current loop for the
+        lead, rotor inertia for the bench response.
+    bench : BenchParams or None
+        The dyno bench whose response the fit divides out (default the built-in ``paper``
+        bench, which ``eol-cal dyno-sim`` simulates); ``None``: rigid coupling.
     """
 
     serial: str
@@ -97,6 +106,8 @@ class StationConfig:
     station: dict[str, Any] = field(default_factory=dict)
     ecu_timing: Any = None
     prepare: Callable[[], None] | None = None
+    motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
+    bench: BenchParams | None = field(default_factory=lambda: load_bench("paper"))
 
 
 @dataclass
@@ -135,9 +146,13 @@ def _safe_name(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- fit
-def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, dict, Any]:
+def fit_motor(capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
+              bench: BenchParams | None = None) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit_motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
+
+    ``motor`` (default the paper preset) and ``bench`` (``None``: rigid coupling) as in
+    :class:`eol_cal.analysis.fit_motors.FitOptions`.
 
     Returns
     -------
@@ -147,10 +162,28 @@ def fit_motor(capture, limits: VariantLimits, tool_version: str) -> tuple[dict, 
     """
     from eol_cal.analysis.fit_motors import FitOptions, fit_motors
 
-    options = FitOptions(limits=limits.ci_limits(), batch="loop")
+    options = FitOptions(limits=limits.ci_limits(), batch="loop", bench=bench, motor=motor)
     res = fit_motors([capture], options, tool_version)
     (rec,) = res.records
     return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)
+
+
+def check_motor(capture, motor: MotorParams) -> None:
+    """Refuse a capture whose poles or encoder are not the station's motor type (InputError).
+
+    The blocks the station flashes carry the motor type's poles, encoder and tick rate; a
+    capture of another motor would be fitted and flashed with the wrong ones.
+    """
+    for key, want in (("poles", motor.poles), ("encoder_ppr", motor.N_enc)):
+        got = int(capture.metadata[key])
+        if got != want:
+            raise InputError(capture.source, key, f"the capture says {got}, the station's motor type "
+                             f"{motor.name!r} has {want}: wrong motor on the dyno, or give the station its motor (--motor)")
+
+
+def _previous(report) -> dict[str, Any]:
+    """What the ECU held before a flash (bank None: no valid bank), for the record."""
+    return {"bank": report.previous.bank if report.previous.has_bank else None, "sequence": report.previous.sequence}
 
 
 def measured_from_fit(rec: dict[str, Any]) -> Measured:
@@ -305,7 +338,8 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         "started_at": started.isoformat(timespec="milliseconds"), "ended_at": None,
         "verdict": "error", "reasons": [], "error": None,
         "tool_version": __version__, "layout_version": LAYOUT_VERSION,
-        "station": dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz),
+        "station": dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz,
+                        motor=cfg.motor.name, bench=cfg.bench.name if cfg.bench is not None else "rigid"),
         "limits": cfg.limits.to_dict(), "steps": [], "captures": {}, "fit": None, "block": None,
         "flash": None, "ecu_prepared": None, "metrics": {}, "report_dir": str(run_dir), "safe_state": None,
     }
@@ -362,8 +396,9 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     def do_fit() -> None:
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
+        check_motor(state["before"], cfg.motor)
         state["prewarm"].result()
-        doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__)
+        doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__, cfg.motor, cfg.bench)
         from eol_cal.analysis.result import write_result
 
         write_result(doc, run_dir / "fit.json")
@@ -387,9 +422,8 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         from eol_cal.analysis.fit_table import block_from_record, created_unix
         from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import pack
-        from eol_cal.motor import load_motor
 
-        blk = block_from_record(rec["fit"], load_motor("paper"), calibrated_at=created_unix(state["fit_doc"]),
+        blk = block_from_record(rec["fit"], cfg.motor, calibrated_at=created_unix(state["fit_doc"]),
                                 source=str(run_dir / "fit.json"))
         data = pack(blk)
         path = run_dir / "block.bin"
@@ -413,25 +447,22 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         from eol_cal.analysis.fit_table import uncompensated_block
         from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import pack
-        from eol_cal.motor import load_motor
 
-        data = pack(uncompensated_block(cfg.serial, load_motor("paper")))
+        data = pack(uncompensated_block(cfg.serial, cfg.motor))
         path = run_dir / "block_uncompensated.bin"
         with atomic_path(path) as tmp:
             tmp.write_bytes(data)
         report = flash(data, str(path))
         rec["ecu_prepared"] = {"path": str(path), "flags": "INTERP_ENABLE", "crc32": f"{report.crc32:08x}",
                                "sequence": report.sequence, "bank": report.bank, "verified": report.verified,
-                               "previous": {"bank": report.previous.bank if report.previous.has_bank else None,
-                                            "sequence": report.previous.sequence}}
+                               "previous": _previous(report)}
 
     def do_flash() -> None:
         report = flash(state["block"], rec["block"]["path"])
         rec["block"].update(crc32=f"{report.crc32:08x}", sequence=report.sequence, bank=report.bank)
         rec["flash"] = {"seconds": round(report.seconds, 4), "verified": report.verified,
                         "transfer_blocks": report.transfer_blocks, "retries": report.retries,
-                        "previous": {"bank": report.previous.bank if report.previous.has_bank else None,
-                                     "sequence": report.previous.sequence}}
+                        "previous": _previous(report)}
 
     def do_metrics() -> None:
         from eol_cal.analysis.angle import capture_angle
@@ -475,6 +506,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         rec["safe_state"] = _safe_state(cfg.dyno)
         if not isinstance(exc, Exception):  # Ctrl-C: record first, then let it end the process
             state["reraise"] = exc
+    rec["ecu_active"] = ecu_active(rec)
     report_html = None
     try:
         report_html = step("report", lambda: _report(rec, run_dir, state))
@@ -497,6 +529,20 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     if "reraise" in state:
         raise state["reraise"]
     return RunOutcome(rec, saved, report_html, EXIT[rec["verdict"]])
+
+
+def ecu_active(rec: dict[str, Any]) -> dict[str, Any]:
+    """Which block the ECU boots after this run, from what the run flashed (for the record).
+
+    ``calibrated``: this run's block; ``uncompensated``: the prepare step's block (the cycle
+    ended before the calibrated one was written: the motor runs without compensation, and a
+    calibration it had before is superseded); ``unchanged``: nothing was written.
+    """
+    for key, what in (("block", "calibrated"), ("ecu_prepared", "uncompensated")):
+        done = rec.get(key) or {}
+        if done.get("sequence") is not None:
+            return {"block": what, "sequence": done["sequence"], "bank": done.get("bank")}
+    return {"block": "unchanged", "sequence": None, "bank": None}
 
 
 def _save(cfg: StationConfig, rec: dict[str, Any], progress: ProgressFn | None) -> SaveResult:
