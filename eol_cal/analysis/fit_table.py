@@ -16,10 +16,13 @@ from __future__ import annotations
 
 import datetime as _dt
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from eol_cal.errors import CheckFailed, InputError
 from eol_cal.motor import MotorParams
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.block import ParamBlock
 
 IQC_LIMIT_FRACTION = 0.10
 
@@ -55,7 +58,7 @@ def block_from_record(
     iqc_limit: float | None = None,
     calibrated_at: int | None = None,
     source: str = "<result>",
-):
+) -> ParamBlock:
     """A :class:`~eol_cal.firmware.block.ParamBlock` for one usable motor record.
 
     Parameters
@@ -128,13 +131,22 @@ def block_from_record(
     )
 
 
-def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | None = None):
+def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | None = None) -> ParamBlock:
     """The block a motor is measured under: the field's estimator, no compensation.
 
     ``flags`` = INTERP_ENABLE only, zero tables (N = 16), nominal ``hall_angle``, no lead, and
     ``iqc_limit`` 0: whatever the ECU ran before (no valid bank: the raw encoder angle; a motor
     being re-tested: its old compensation) the calibration capture then sees the motor's own
     ripple under the angle estimate the ECU will use in the field.
+
+    Parameters
+    ----------
+    serial : str
+        Motor serial (at most 16 ASCII characters).
+    motor : MotorParams
+        Motor type: poles, encoder PPR, tick rate (Hz) and kt (N*m/A) of the block.
+    calibrated_at : int, optional
+        Unix time (s, UTC); default now.
     """
     import numpy as np
 
