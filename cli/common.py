@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import sys
 from typing import Any, Callable
 
@@ -12,8 +13,20 @@ from rich.console import Console
 
 from eol_cal.errors import EolCalError
 
-console = Console()
-err_console = Console(stderr=True)
+#: width of tables written to a file or a pipe (a station log, CI) unless $COLUMNS says otherwise:
+#: rich's default of 80 there cut the fit table's values to "0.61..."
+LOG_WIDTH = 160
+
+
+def _console(stderr: bool = False) -> Console:
+    c = Console(stderr=stderr)
+    if not c.is_terminal and "COLUMNS" not in os.environ:
+        c.width = LOG_WIDTH
+    return c
+
+
+console = _console()
+err_console = _console(stderr=True)
 
 
 def handle_errors(func: Callable) -> Callable:
