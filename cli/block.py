@@ -163,4 +163,27 @@ def hex_cmd(file: str, bank: int, output: str) -> None:
                f"(word address 0x{pb.BANK_WORD_ADDR[bank]:x}, bank {bank})")
 
 
+@block_group.command("uncompensated")
+@click.option("--serial", required=True, help="Motor serial (1-16 ASCII characters).")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="block image to write (.bin)")
+@click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
+              help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm).")
+@handle_errors
+def uncompensated_cmd(serial: str, output: str, motor_file: str | None) -> None:
+    """Write the block a motor is measured under: the interpolated angle, no compensation.
+
+    Flash it before the calibration capture (`eol-cal flash`) when running the steps one by one,
+    as `eol-cal run` does in its first step: a blank ECU would run the raw encoder angle, a
+    calibrated one its old compensation.
+    """
+    from eol_cal.analysis.fit_table import uncompensated_block
+    from eol_cal.atomic import atomic_write
+    from eol_cal.firmware import block as pb
+    from eol_cal.motor import load_motor
+
+    data = pb.pack(uncompensated_block(serial, load_motor("paper", motor_file)))
+    atomic_write(Path(output), data)
+    click.echo(f"wrote {output}: {len(data)} bytes, flags INTERP_ENABLE (no compensation), serial {serial}")
+
+
 COMMANDS = [block_group]

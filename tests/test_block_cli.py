@@ -115,3 +115,23 @@ def test_golden_check_default_dir(monkeypatch):
     assert res.exit_code == 0, res.output
     n = len(golden.vector_sets())
     assert f"{n} files" in res.output
+
+
+def test_uncompensated_block_for_the_calibration_capture(tmp_path):
+    out = tmp_path / "prep.bin"
+    res = CliRunner().invoke(cli, ["block", "uncompensated", "--serial", "M-0007", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    data = out.read_bytes()
+    assert pb.check(data).valid
+    blk = pb.unpack(data, str(out))
+    # the field's estimator, no compensation, the contract's nominal hall table
+    assert blk.flags == pb.FLAG_INTERP_ENABLE and blk.serial == "M-0007"
+    assert blk.iqc_limit == 0.0 and not blk.table_const.any() and not blk.table_per_amp.any()
+    assert (blk.poles, blk.encoder_ppr) == (6, 64)
+    motor = tmp_path / "m8.toml"
+    motor.write_text("poles = 8\n")
+    res = CliRunner().invoke(cli, ["block", "uncompensated", "--serial", "M-8", "-o", str(out), "--motor", str(motor)])
+    assert res.exit_code == 0 and pb.unpack(out.read_bytes(), str(out)).poles == 8
+    bad = tmp_path / "bad.bin"
+    res = CliRunner().invoke(cli, ["block", "uncompensated", "--serial", "M" * 17, "-o", str(bad)])
+    assert res.exit_code == 2 and "serial" in res.output and not bad.exists()
