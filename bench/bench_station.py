@@ -12,8 +12,9 @@ simulators it is CPU.
   persistent cache included); the per-step times come from its record. Both verification
   modes: ``--verify point`` (default: the compensated acquisition runs only the operating
   point's segments) and ``--verify full`` (the whole profile again).
-- alternative: ``eol-cal acquire``, ``fit``, ``table``, ``flash``, ``acquire``, ``analyze``, one
-  process each, stopping at the first failing command.
+- alternative: ``eol-cal block uncompensated``, ``flash`` (the run's prepare step), ``acquire``,
+  ``fit``, ``table``, ``flash``, ``acquire``, ``analyze``, one process each, stopping at the first
+  failing command.
 
     python bench/bench_station.py [--profile eol-default] [--repeat 3]
 """
@@ -91,6 +92,10 @@ def run_alternative(work: Path, profile: str, serial: str, seed: int, key: Path,
     spent: list[float] = []
     with loopback_station(serial, seed, work / "sim-alt", source=timed_source(serial, seed, spent)) as st:
         chain = [
+            # the same measurement condition as eol-cal run's prepare step
+            ("block uncompensated", eol_cal("block", "uncompensated", "--serial", serial, "-o", str(work / "prep.bin"))),
+            ("flash uncompensated", eol_cal("flash", str(work / "prep.bin"), "--interface", "remote",
+                                            "--channel", st.can_channel, "--key-file", str(key))),
             ("acquire", eol_cal("acquire", "--dyno", st.dyno_address, "--profile", profile, "--serial", serial,
                                 "-o", str(work / "before.mf4"))),
             ("fit", eol_cal("fit", str(work / "before.mf4"), "-o", str(work / "fit.json"))),
