@@ -18,8 +18,8 @@ from eol_cal.errors import EolCalError
 LOG_WIDTH = 160
 
 
-def _console(stderr: bool = False) -> Console:
-    c = Console(stderr=stderr)
+def _console(stderr: bool = False, file: Any = None) -> Console:
+    c = Console(stderr=stderr, file=file)
     if not c.is_terminal and "COLUMNS" not in os.environ:
         c.width = LOG_WIDTH
     return c

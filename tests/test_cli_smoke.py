@@ -21,10 +21,12 @@ def test_version_as_subprocess():
 
 def test_tables_in_a_log_are_not_cut_to_80_columns(monkeypatch):
     # a station log or CI output is no terminal: rich's 80 columns cut the fit table's values
+    import io
+
     from cli.common import LOG_WIDTH, _console
 
     monkeypatch.delenv("COLUMNS", raising=False)
-    c = _console()
+    c = _console(file=io.StringIO())
     assert not c.is_terminal and c.width == LOG_WIDTH >= 120
     monkeypatch.setenv("COLUMNS", "100")
-    assert _console().width == 100  # the user's word wins
+    assert _console(file=io.StringIO()).width == 100  # the user's word wins
