@@ -129,7 +129,10 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         if e is None or e["value"] is None:
             return "-"
         f = (lambda v: math.degrees(v)) if deg else (lambda v: v * scale)
-        return f"{f(e['value']):.4g}±{f(e['ci95']):.2g}" if e["ci95"] is not None else f"{f(e['value']):.4g}"
+        if e["ci95"] is None:
+            return f"{f(e['value']):.4g}"
+        ci = float(f"{f(e['ci95']):.2g}")  # two significant digits, written out ("100", not "1e+02")
+        return f"{f(e['value']):.4g}±{ci:g}"
 
     for r in records:
         table.add_row(
