@@ -63,6 +63,15 @@ class BenchParams:
 _FIELDS = {f.name: f.type for f in dataclasses.fields(BenchParams)}
 
 
+#: the bench name that means a rigid coupling (no response divided out)
+RIGID = "none"
+
+
+def bench_or_rigid(name_or_file: str | Path) -> BenchParams | None:
+    """:func:`load_bench`, or ``None`` (rigid coupling) for the name ``"none"`` (the CLI's ``--bench none``)."""
+    return None if str(name_or_file) == RIGID else load_bench(name_or_file)
+
+
 def load_bench(name_or_file: str | Path = "paper") -> BenchParams:
     """A bench from a built-in name (``eol_cal/benches/NAME.toml``) or a TOML file.
 
