@@ -1,0 +1,286 @@
+"""Station settings: one TOML file per end-of-line station, every key also an environment variable.
+
+A station is set up once by the test engineer who commissions it and then runs unchanged for
+months, so every key is checked before the dyno moves: a typo in a path, an address or an
+interface name is an :class:`~eol_cal.errors.InputError` naming the file, the key and the reason,
+never a half-run cycle. The file's keys (docs/station.md, "First real station")::
+
+    station_id = "L3-EOL-02"
+    limits = "limits.toml"          # paths are relative to this file
+    variant = "EPS-STD"
+    db = "records.sqlite"           # or postgresql://user@host:5432/eol
+    report_dir = "reports"
+    key_file = "ecu.key"
+    [dyno]
+    address = "192.0.2.10"          # Modbus TCP; port 502 when none is given
+    [can]
+    interface = "pcan"
+    channel = "PCAN_USBBUS1"
+    bitrate = 500000
+
+Environment variables override the file key by key: ``EOL_CAL_`` + the key's dotted path in
+capitals with ``_`` for the dot (``EOL_CAL_DYNO_ADDRESS``, ``EOL_CAL_CAN_CHANNEL``), so that a
+line's deployment can set what differs per station without editing the file.
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping
+
+import can
+
+from eol_cal.address import parse_host_port
+from eol_cal.errors import InputError
+
+#: Modbus TCP's registered port: a dyno address without one uses it
+MODBUS_PORT = 502
+
+ENV_PREFIX = "EOL_CAL_"
+
+
+def env_name(key: str) -> str:
+    """The environment variable of a settings key: ``dyno.address`` -> ``EOL_CAL_DYNO_ADDRESS``."""
+    return ENV_PREFIX + key.replace(".", "_").upper()
+
+
+@dataclass(frozen=True)
+class Key:
+    """One settings key: its dotted name, its TOML type, and its default (``None``: required)."""
+
+    name: str
+    kind: type
+    default: object = None
+    required: bool = False
+    is_path: bool = False
+    choices: tuple[str, ...] = ()
+    bounds: tuple[float, float] | None = None
+
+    @property
+    def env(self) -> str:
+        return env_name(self.name)
+
+
+KEYS: tuple[Key, ...] = (
+    Key("station_id", str, required=True),
+    Key("limits", str, required=True, is_path=True),
+    Key("variant", str),
+    Key("db", str, required=True),
+    Key("report_dir", str, "reports", is_path=True),
+    Key("spool_dir", str, is_path=True),
+    Key("key_file", str, required=True, is_path=True),
+    Key("profile", str, "eol-default"),
+    Key("verify", str, "point", choices=("point", "full")),
+    Key("motor", str, "paper"),
+    Key("bench", str, "paper"),
+    Key("rate_hz", int, 10000, bounds=(1, 1_000_000)),
+    Key("db_timeout_s", float, 5.0, bounds=(0.0, 600.0)),
+    Key("dyno.address", str, required=True),
+    Key("dyno.register_map", str, "default"),
+    Key("dyno.timeout_s", float, 1.0, bounds=(0.01, 60.0)),
+    Key("can.interface", str),
+    Key("can.channel", str),
+    Key("can.bitrate", int, bounds=(10_000, 8_000_000)),
+    Key("can.config", str, is_path=True),
+)
+
+
+@dataclass(frozen=True)
+class StationSettings:
+    """The checked settings of one station; paths are absolute, the dyno port is filled in.
+
+    Attributes
+    ----------
+    source : str
+        The settings file (or ``"environment"`` when every key came from the environment).
+    values : dict
+        Every key of :data:`KEYS` by its dotted name, after defaults and the environment.
+    origin : dict
+        Where each value came from: ``"file"``, ``"env"`` or ``"default"``.
+    dyno_host, dyno_port : str, int
+        The dyno's Modbus TCP address.
+    """
+
+    source: str
+    values: Mapping[str, object]
+    origin: Mapping[str, str]
+    dyno_host: str
+    dyno_port: int
+
+    def __getitem__(self, name: str) -> object:
+        return self.values[name]
+
+    def where(self, name: str) -> str:
+        """The file, or ``$VARIABLE``, that a key's value came from (for error messages)."""
+        return f"${env_name(name)}" if self.origin.get(name) == "env" else self.source
+
+    def path(self, name: str) -> Path | None:
+        """A path-valued key as a :class:`~pathlib.Path` (``None`` when unset)."""
+        value = self.values[name]
+        return None if value is None else Path(str(value))
+
+
+def _flatten(table: Mapping[str, object], prefix: str = "") -> dict[str, object]:
+    out: dict[str, object] = {}
+    for k, v in table.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(_flatten(v, name + "."))
+        else:
+            out[name] = v
+    return out
+
+
+def _read_toml(path: Path) -> dict[str, object]:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise InputError(str(path), None, f"cannot read station settings: {exc.strerror or exc}") from exc
+    try:
+        return tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError as exc:
+        raise InputError(str(path), None, f"not UTF-8 text (byte {exc.start})") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(str(path), None, f"not valid TOML: {exc}") from exc
+
+
+def _from_env(key: Key, text: str, where: str) -> object:
+    if key.kind is str:
+        return text
+    try:
+        return key.kind(text)
+    except ValueError as exc:
+        raise InputError(where, key.name, f"{text!r} is not {'an integer' if key.kind is int else 'a number'}") from exc
+
+
+def _check_value(key: Key, value: object, where: str) -> object:
+    # bool is an int to Python, never a rate or a port to a station
+    ok = isinstance(value, key.kind) and not isinstance(value, bool)
+    if key.kind is float and isinstance(value, int) and not isinstance(value, bool):
+        value, ok = float(value), True
+    if not ok:
+        raise InputError(where, key.name, f"expected {key.kind.__name__}, got {type(value).__name__} {value!r}")
+    if key.kind is str and not str(value).strip():
+        raise InputError(where, key.name, "empty")
+    if key.choices and value not in key.choices:
+        raise InputError(where, key.name, f"{value!r} is not one of {', '.join(key.choices)}")
+    if key.bounds is not None and not key.bounds[0] <= float(value) <= key.bounds[1]:  # type: ignore[arg-type]
+        raise InputError(where, key.name, f"{value} out of range {key.bounds[0]:g}..{key.bounds[1]:g}")
+    return value
+
+
+def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
+    """``HOST`` or ``HOST:PORT`` -> (host, port), port 502 (Modbus TCP) when none is given."""
+    bare_ipv6 = text.startswith("[") and text.endswith("]")
+    if ":" not in text or bare_ipv6:
+        text = f"{text}:{MODBUS_PORT}"
+    try:
+        return parse_host_port(text, "dyno.address")
+    except InputError as exc:
+        raise InputError(where, "dyno.address", exc.reason) from exc
+
+
+def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = None,
+                  validators: Mapping[str, Callable[[StationSettings], None]] | None = None) -> StationSettings:
+    """Read, merge and check a station's settings.
+
+    Parameters
+    ----------
+    path : path or None
+        The station's TOML file; ``None``: every required key must come from the environment.
+    environ : mapping, optional
+        The environment (default ``os.environ``); ``EOL_CAL_*`` variables override file keys.
+    validators : mapping, optional
+        Further checks by name, each called with the merged settings and raising
+        :class:`~eol_cal.errors.InputError` (the station module adds the ones that load the
+        limits, the profile, the motor and the key, so that they run before the dyno moves).
+
+    Returns
+    -------
+    StationSettings
+
+    Raises
+    ------
+    InputError
+        An unknown key (a typo would otherwise be silently ignored), a wrong type, a value out
+        of range, a missing required key or a missing file; the file and the key are named.
+    """
+    environ = os.environ if environ is None else environ
+    source = str(path) if path is not None else "environment"
+    base = Path(path).resolve().parent if path is not None else Path.cwd()
+    file_values = _flatten(_read_toml(Path(path))) if path is not None else {}
+    known = {k.name: k for k in KEYS}
+    for name in file_values:
+        if name not in known:
+            raise InputError(source, name, f"unknown key (known: {', '.join(sorted(known))})")
+    values: dict[str, object] = {}
+    origin: dict[str, str] = {}
+    for key in KEYS:
+        if key.env in environ:
+            value, where, origin[key.name] = _from_env(key, environ[key.env], f"${key.env}"), f"${key.env}", "env"
+        elif key.name in file_values:
+            value, where, origin[key.name] = file_values[key.name], source, "file"
+        elif key.required:
+            raise InputError(source, key.name, f"required (in the file or as ${key.env})")
+        else:
+            values[key.name], origin[key.name] = key.default, "default"
+            if key.is_path and key.default is not None:
+                values[key.name] = str(base / str(key.default))
+            continue
+        value = _check_value(key, value, where)
+        if key.is_path:
+            value = str((base / str(value)).resolve())
+        values[key.name] = value
+    settings = StationSettings(source, values, origin, "", 0)
+    for name in ("limits", "key_file", "can.config"):
+        p = values[name]
+        if p is not None and not Path(str(p)).is_file():
+            raise InputError(settings.where(name), name, f"no such file: {p}")
+    if values["can.interface"] is None and values["can.config"] is None:
+        raise InputError(source, "can.interface", "no CAN interface: set can.interface (and can.channel) or can.config")
+    interface = values["can.interface"]
+    # udp_multicast sends frames out through the network card: never a station's ECU bus
+    if interface is not None and (interface not in can.interfaces.VALID_INTERFACES or interface == "udp_multicast"):
+        raise InputError(settings.where("can.interface"), "can.interface",
+                         f"{interface!r} is not a python-can interface this tool drives")
+    host, port = parse_dyno_address(str(values["dyno.address"]), settings.where("dyno.address"))
+    settings = StationSettings(source, values, origin, host, port)
+    for name, check in (validators or {}).items():
+        check(settings)
+    return settings
+
+
+def _named(settings: StationSettings, name: str, load: Callable[[], object]) -> object:
+    """Run ``load``; its InputError is re-said with the settings key it came from.
+
+    A loader's own field may itself be a settings key (the limits file's ``variant``): then
+    that key is the one named.
+    """
+    try:
+        return load()
+    except InputError as exc:
+        key = exc.field if exc.field in settings.values else name
+        raise InputError(settings.where(key), key, f"{exc}") from exc
+
+
+def check_station(settings: StationSettings) -> None:
+    """Load everything the settings name (limits and variant, profile, motor, bench, key).
+
+    Called by :func:`load_settings`'s callers before the dyno moves; a bad limits file or key
+    file is refused here with the settings key named, not halfway through the first motor.
+    """
+    from eol_cal.bench import bench_or_rigid
+    from eol_cal.ecu.client import load_key_file
+    from eol_cal.motor import load_motor
+    from eol_cal.plant.profile import load_profile
+    from eol_cal.station.limits import load_limits
+
+    _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
+    _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    motor = str(settings["motor"])
+    _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
+    _named(settings, "bench", lambda: bench_or_rigid(str(settings["bench"])))
+    _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))

@@ -1,0 +1,114 @@
+"""Station settings: one TOML file, every key an environment variable, every key checked first."""
+
+from pathlib import Path
+
+import pytest
+
+from eol_cal.errors import InputError
+from eol_cal.station.settings import KEYS, MODBUS_PORT, check_station, env_name, load_settings
+
+FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
+
+GOOD = """\
+station_id = "L3-EOL-02"
+limits = "limits.toml"
+variant = "EPS-STD"
+db = "records.sqlite"
+key_file = "ecu.key"
+[dyno]
+address = "127.0.0.1"
+[can]
+interface = "virtual"
+channel = "eol"
+"""
+
+
+@pytest.fixture
+def station_dir(tmp_path: Path) -> Path:
+    (tmp_path / "ecu.key").write_text("000102030405060708090a0b0c0d0e0f\n")
+    (tmp_path / "limits.toml").write_bytes((FIXTURES / "limits.toml").read_bytes())
+    (tmp_path / "station.toml").write_text(GOOD)
+    return tmp_path
+
+
+def _refused(path, env=None, check=False) -> InputError:
+    with pytest.raises(InputError) as info:
+        s = load_settings(path, env or {})
+        if check:
+            check_station(s)
+    return info.value
+
+
+def test_good_file_loads_with_defaults_and_paths_beside_it(station_dir: Path) -> None:
+    s = load_settings(station_dir / "station.toml", {})
+    check_station(s)
+    assert (s.dyno_host, s.dyno_port) == ("127.0.0.1", MODBUS_PORT)
+    assert s.path("limits") == (station_dir / "limits.toml").resolve()
+    assert s["profile"] == "eol-default" and s.origin["profile"] == "default"
+    assert s.origin["station_id"] == "file"
+
+
+def test_environment_overrides_each_key(station_dir: Path) -> None:
+    env = {env_name("dyno.address"): "10.1.2.3:1502", env_name("rate_hz"): "20000", env_name("station_id"): "L9"}
+    s = load_settings(station_dir / "station.toml", env)
+    assert (s.dyno_host, s.dyno_port, s["rate_hz"], s["station_id"]) == ("10.1.2.3", 1502, 20000, "L9")
+    assert s.origin["rate_hz"] == "env"
+
+
+def test_every_key_has_its_own_variable() -> None:
+    names = [env_name(k.name) for k in KEYS]
+    assert len(set(names)) == len(names)
+    assert "EOL_CAL_CAN_BITRATE" in names
+
+
+@pytest.mark.parametrize("edit, key, words", [
+    ('station_id = "L3-EOL-02"', "station_id", "required"),
+    ('[dyno]\naddress = "127.0.0.1"', "dyno.address", "required"),
+    ('address = "127.0.0.1"', "dyno.address", "out of range"),
+    ('interface = "virtual"', "can.interface", "not a python-can interface"),
+    ('channel = "eol"', "can.channel", "expected str"),
+    ('key_file = "ecu.key"', "key_file", "no such file"),
+    ('db = "records.sqlite"', "dbx", "unknown key"),
+])
+def test_bad_keys_are_named(station_dir: Path, edit: str, key: str, words: str) -> None:
+    replacement = {
+        "station_id": "", "dyno.address": "", "can.interface": 'interface = "kvasr"', "can.channel": "channel = 5",
+        "key_file": 'key_file = "missing.key"', "dbx": 'dbx = "records.sqlite"',
+    }[key]
+    if key == "dyno.address" and words == "out of range":
+        replacement = 'address = "127.0.0.1:70000"'
+    text = GOOD.replace(edit, replacement)
+    (station_dir / "station.toml").write_text(text)
+    err = _refused(station_dir / "station.toml")
+    assert err.field == key and words in err.reason
+    assert err.file == str(station_dir / "station.toml")
+
+
+def test_bad_environment_value_names_the_variable(station_dir: Path) -> None:
+    err = _refused(station_dir / "station.toml", {"EOL_CAL_RATE_HZ": "fast"})
+    assert (err.file, err.field) == ("$EOL_CAL_RATE_HZ", "rate_hz")
+
+
+def test_bool_is_not_a_rate(station_dir: Path) -> None:
+    # a key after a table header belongs to the table: put it at the top
+    (station_dir / "station.toml").write_text("rate_hz = true\n" + GOOD)
+    err = _refused(station_dir / "station.toml")
+    assert err.field == "rate_hz" and "expected int" in err.reason
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("variant", "NOPE", "not in the file"),
+    ("profile", "no-such-profile", "no such profile"),
+    ("bench", "no-such-bench", ""),
+])
+def test_check_station_names_the_key(station_dir: Path, key: str, value: str, words: str) -> None:
+    err = _refused(station_dir / "station.toml", {env_name(key): value}, check=True)
+    assert err.field == key and err.file == f"${env_name(key)}" and words in err.reason
+
+
+def test_non_utf8_and_not_toml(station_dir: Path) -> None:
+    p = station_dir / "station.toml"
+    p.write_bytes(b"station_id = \"\xff\"\n")
+    assert "UTF-8" in _refused(p).reason
+    p.write_text("station_id = \n")
+    assert "TOML" in _refused(p).reason
