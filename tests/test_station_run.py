@@ -173,9 +173,9 @@ def test_full_run_end_to_end(full_run):
     run_dir = Path(rec["report_dir"])
     assert json.loads((run_dir / "report.json").read_text()) == rec
     html = (run_dir / "report.html").read_text()
-    for png in ("fit.png", "residual.png", "ripple.png"):
-        assert f'src="{png}"' in html
-        assert (run_dir / png).read_bytes()[:4] == b"\x89PNG"
+    # one self-contained page: plots inline, nothing fetched from beside it
+    assert html.count("<svg") >= 3 and "src=" not in html.replace("data:image/png;base64", "")
+    assert not list(run_dir.glob("*.png"))
     assert "PASS" in html and SERIAL in html
     assert rec["tool_version"] and rec["layout_version"] == B.LAYOUT_VERSION
     # the dyno is left stopped and disabled
@@ -356,3 +356,35 @@ def test_windows_split_where_the_rounded_segment_starts_say():
     assert [p["torque"][0] for p in pieces] == [0.0, 100.0, 220.0]
     assert all(np.ptp(np.diff(p.t)) < 1e-9 for p in pieces)
     assert "segment_starts" not in pieces[1].metadata and pieces[1].source == "dyno#2"
+
+
+def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
+    """The run's report.html in headless Chromium from file://, network off: nothing fetched
+    but the file itself (and its inline data: images), no console error, every plot drawn,
+    the verdict and every limit row there, at most two A4 pages printed."""
+    from _browser import Browser, element_sizes, group_alive, not_blank, pdf_pages
+
+    from eol_cal.station.limits import LIMIT_KEYS
+
+    rec = full_run["rec"]
+    page = Path(rec["report_dir"]) / "report.html"
+    with Browser() as b:
+        log = b.open(page.as_uri())
+        sizes = element_sizes(b, "svg.plot")
+        verdict_text = b.evaluate("document.getElementById('verdict').textContent")
+        rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row')).map(r => [r.dataset.key, r.lastElementChild.textContent])")
+        residual_panels = b.evaluate("document.querySelectorAll('#fig-residual g[id^=residual-segment-]').length")
+        shot = b.screenshot(tmp_path / "report.png")
+        pages = pdf_pages(b.pdf())
+    assert not group_alive(b.pgid)
+    assert log.console_errors == []
+    assert [u for u in log.requests if not u.startswith("data:")] == [page.as_uri()]
+    assert len(sizes) == 3 and all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
+    assert verdict_text == rec["verdict"].upper()
+    assert [k for k, _ in rows] == list(LIMIT_KEYS)
+    assert all(status in ("PASS", "FAIL") for _, status in rows)
+    # every fitted segment has its residual panel (the record lists them)
+    assert residual_panels == len(rec["fit"]["segments"])
+    colours, spread = not_blank(shot)
+    assert colours > 50 and spread > 10
+    assert 1 <= pages <= 2

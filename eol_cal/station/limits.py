@@ -191,40 +191,105 @@ class Measured:
         return 100.0 * (self.pp_before_pct - self.pp_after_pct) / self.pp_before_pct
 
 
+@dataclass(frozen=True)
+class LimitCheck:
+    """One limit of a variant against what was measured.
+
+    Attributes
+    ----------
+    key : str
+        The limit's key in the limits file (``max_k6``...).
+    quantity : str
+        What is judged, in words.
+    value : float
+        The measured value in ``unit`` (NaN: not measured).
+    limit : float
+        The limit in ``unit``.
+    unit : str
+        Unit of ``value``, ``limit`` and ``margin``.
+    sense : {"max", "min"}
+        ``max``: the value must not exceed the limit; ``min``: it must not fall below it.
+    ok : bool
+        The limit is met (NaN never meets one).
+    reason : str
+        Why it is not met (empty when it is).
+    stage : {"fit", "ripple"}
+        ``fit``: judged right after the fit; ``ripple``: on the compensated run.
+    """
+
+    key: str
+    quantity: str
+    value: float
+    limit: float
+    unit: str
+    sense: str
+    ok: bool
+    reason: str
+    stage: str
+
+    @property
+    def margin(self) -> float:
+        """How far inside the limit the value is (``unit``; negative: outside, NaN: not measured)."""
+        return self.limit - self.value if self.sense == "max" else self.value - self.limit
+
+
+def _check(key: str, quantity: str, value: float, limit: float, unit: str, sense: str, stage: str,
+           reason: str) -> LimitCheck:
+    ok = bool(value <= limit) if sense == "max" else bool(value >= limit)
+    return LimitCheck(key, quantity, float(value), float(limit), unit, sense, ok, "" if ok else reason, stage)
+
+
+def limit_checks(m: Measured, lim: VariantLimits) -> list[LimitCheck]:
+    """Every limit of ``lim`` against ``m``, in the limits file's order (``verdict``'s reasons
+    are the failed checks' reasons)."""
+    k6, imp = abs(m.k6), m.improvement_pct
+    ci_k6_rel = m.ci_k6 / k6 if k6 > 0 else math.inf
+    hall = m.hall_deviation_deg
+    hall_reason = (f"hall table not measured: {m.hall_source}" if math.isnan(hall) else
+                   f"hall boundary {hall:.3g} deg from nominal exceeds max_hall_deviation_deg = {lim.max_hall_deviation_deg:g}")
+    return [
+        _check("max_k6", "k6", m.k6, lim.max_k6, "N*m/A", "max", "fit",
+               f"k6 = {m.k6:.4g} N*m/A exceeds max_k6 = {lim.max_k6:g}"),
+        _check("max_pp_before_pct", "p-p ripple before", m.pp_before_pct, lim.max_pp_before_pct, "%", "max", "ripple",
+               f"p-p before = {m.pp_before_pct:.3g} % exceeds max_pp_before_pct = {lim.max_pp_before_pct:g}"),
+        _check("max_pp_after_pct", "p-p ripple compensated", m.pp_after_pct, lim.max_pp_after_pct, "%", "max", "ripple",
+               f"p-p after = {m.pp_after_pct:.3g} % exceeds max_pp_after_pct = {lim.max_pp_after_pct:g}"),
+        _check("min_improvement_pct", "improvement", imp, lim.min_improvement_pct, "%", "min", "ripple",
+               f"improvement = {imp:.3g} % below min_improvement_pct = {lim.min_improvement_pct:g}"),
+        _check("min_r2", "fit R^2", m.r2, lim.min_r2, "1", "min", "fit",
+               f"fit R^2 = {m.r2:.4g} below min_r2 = {lim.min_r2:g}"),
+        _check("max_rms_nm", "fit residual rms", m.rms_nm, lim.max_rms_nm, "N*m", "max", "fit",
+               f"fit rms = {m.rms_nm:.4g} N*m exceeds max_rms_nm = {lim.max_rms_nm:g}"),
+        _check("max_ci_k6_rel", "95 % interval of k6 / k6", ci_k6_rel, lim.max_ci_k6_rel, "1", "max", "fit",
+               f"ci95(k6) = {m.ci_k6:.3g} N*m/A exceeds {100 * lim.max_ci_k6_rel:g} % of k6"),
+        _check("max_ci_phase_k6_deg", "95 % interval of phase_k6", m.ci_phase_k6_deg, lim.max_ci_phase_k6_deg, "deg",
+               "max", "fit", f"ci95(phase_k6) = {m.ci_phase_k6_deg:.3g} deg exceeds max_ci_phase_k6_deg = "
+               f"{lim.max_ci_phase_k6_deg:g}"),
+        _check("max_ci_c6_nm", "95 % cogging phasor error", m.ci_c6_nm, lim.max_ci_c6_nm, "N*m", "max", "fit",
+               f"c6 phasor ci95 = {m.ci_c6_nm:.3g} N*m exceeds max_ci_c6_nm = {lim.max_ci_c6_nm:g}"),
+        _check("max_hall_deviation_deg", "largest hall boundary offset", hall, lim.max_hall_deviation_deg, "deg", "max",
+               "fit", hall_reason),
+    ]
+
+
+_FIT_ORDER = ("max_k6", "min_r2", "max_rms_nm", "max_ci_k6_rel", "max_ci_phase_k6_deg", "max_ci_c6_nm",
+              "max_hall_deviation_deg")
+_RIPPLE_ORDER = ("max_pp_before_pct", "max_pp_after_pct", "min_improvement_pct")
+
+
+def _reasons(m: Measured, lim: VariantLimits, order: tuple[str, ...]) -> list[str]:
+    by_key = {c.key: c for c in limit_checks(m, lim)}
+    return [by_key[k].reason for k in order if not by_key[k].ok]
+
+
 def fit_reasons(m: Measured, lim: VariantLimits) -> list[str]:
     """Why the fit's quality or k6 fails ``lim`` (empty: it passes)."""
-    out = []
-    if not m.k6 <= lim.max_k6:
-        out.append(f"k6 = {m.k6:.4g} N*m/A exceeds max_k6 = {lim.max_k6:g}")
-    if not m.r2 >= lim.min_r2:
-        out.append(f"fit R^2 = {m.r2:.4g} below min_r2 = {lim.min_r2:g}")
-    if not m.rms_nm <= lim.max_rms_nm:
-        out.append(f"fit rms = {m.rms_nm:.4g} N*m exceeds max_rms_nm = {lim.max_rms_nm:g}")
-    if not m.ci_k6 <= lim.max_ci_k6_rel * abs(m.k6):
-        out.append(f"ci95(k6) = {m.ci_k6:.3g} N*m/A exceeds {100 * lim.max_ci_k6_rel:g} % of k6")
-    if not m.ci_phase_k6_deg <= lim.max_ci_phase_k6_deg:
-        out.append(f"ci95(phase_k6) = {m.ci_phase_k6_deg:.3g} deg exceeds max_ci_phase_k6_deg = {lim.max_ci_phase_k6_deg:g}")
-    if not m.ci_c6_nm <= lim.max_ci_c6_nm:
-        out.append(f"c6 phasor ci95 = {m.ci_c6_nm:.3g} N*m exceeds max_ci_c6_nm = {lim.max_ci_c6_nm:g}")
-    if math.isnan(m.hall_deviation_deg):
-        out.append(f"hall table not measured: {m.hall_source}")
-    elif not m.hall_deviation_deg <= lim.max_hall_deviation_deg:
-        out.append(f"hall boundary {m.hall_deviation_deg:.3g} deg from nominal exceeds max_hall_deviation_deg = "
-                   f"{lim.max_hall_deviation_deg:g}")
-    return out
+    return _reasons(m, lim, _FIT_ORDER)
 
 
 def ripple_reasons(m: Measured, lim: VariantLimits) -> list[str]:
     """Why the before/after ripple fails ``lim`` (empty: it passes); NaN never passes."""
-    out = []
-    if not m.pp_before_pct <= lim.max_pp_before_pct:
-        out.append(f"p-p before = {m.pp_before_pct:.3g} % exceeds max_pp_before_pct = {lim.max_pp_before_pct:g}")
-    if not m.pp_after_pct <= lim.max_pp_after_pct:
-        out.append(f"p-p after = {m.pp_after_pct:.3g} % exceeds max_pp_after_pct = {lim.max_pp_after_pct:g}")
-    imp = m.improvement_pct
-    if not imp >= lim.min_improvement_pct:
-        out.append(f"improvement = {imp:.3g} % below min_improvement_pct = {lim.min_improvement_pct:g}")
-    return out
+    return _reasons(m, lim, _RIPPLE_ORDER)
 
 
 def verdict(m: Measured, lim: VariantLimits) -> tuple[str, list[str]]:

@@ -235,6 +235,7 @@ class PointRipple:
     torque: Any = None
     poles: int = 0
     pp_no_mech1_pct: float = float("nan")
+    theta_r: Any = None  # electrical angle per sample (rad), for the report's torque against angle
 
     def to_dict(self) -> dict[str, Any]:
         return json_safe({"pp_pct": self.pp_pct, "pp_raw_pct": self.pp_raw_pct, "pp_nm": self.pp_nm,
@@ -271,7 +272,7 @@ def point_ripple(capture, angle) -> PointRipple:
     sp = order_spectrum(theta, torque, capture.poles, t=t, source=capture.source)
     return PointRipple(rp.filtered_pct, rp.raw_pct, rp.filtered_pp_nm, rp.T_avg_nm, float(sp.amplitude(6)),
                        (float(t[0]), float(t[-1])), rp, sp, t, torque, capture.poles,
-                       pp_no_mech1_pct=rp.no_mech1_pct)
+                       pp_no_mech1_pct=rp.no_mech1_pct, theta_r=theta)
 
 
 def verify_segments(segments: list, speed_rpm: float, i_qo_a: float, rel_tol: float = 0.02) -> list:
@@ -572,7 +573,7 @@ def _report(rec: dict[str, Any], run_dir: Path, state: dict[str, Any]) -> Path:
     from eol_cal.station.report import write_report
 
     figures = state["fit_plots"].result() if "fit_plots" in state else []
-    return write_report(rec, run_dir, figures=figures, point_ripple=state.get("pr"))
+    return write_report(rec, run_dir, figures=figures, fit_extra=state.get("fit_extra"), point_ripple=state.get("pr"))
 
 
 def _prewarm(n_segments: int, prepare: Callable[[], None] | None = None) -> None:

@@ -1,0 +1,102 @@
+"""The report pages without a station: the same inputs give the same bytes, a record that
+lacks parts (a run that ended early, fields older records do not have) still renders, and
+every limit is a row with its margin."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from eol_cal.station.limits import LIMIT_KEYS, VariantLimits
+
+LIMITS = VariantLimits(variant="T", max_k6=0.0025, max_pp_before_pct=25.0, max_pp_after_pct=2.0,
+                       min_improvement_pct=40.0, min_r2=0.3, max_rms_nm=0.1, max_ci_k6_rel=0.05,
+                       max_ci_phase_k6_deg=3.0, max_ci_c6_nm=0.01, max_hall_deviation_deg=3.0, source="limits.toml")
+
+
+def error_record() -> dict:
+    """A run that ended in the acquisition: no fit, no metrics, no block."""
+    return {"schema": "eol-cal/run-record/1", "run_id": "0" * 32, "serial": "E-1", "started_at": "2026-11-23T10:00:00.000+00:00",
+            "ended_at": "2026-11-23T10:00:05.000+00:00", "verdict": "error", "reasons": ["acquire: dyno fault"],
+            "error": {"step": "acquire", "type": "DynoError", "message": "dyno fault", "traceback": None},
+            "tool_version": "0.1.0", "layout_version": 1, "station": {"dyno": "127.0.0.1:502"},
+            "limits": LIMITS.to_dict(), "steps": [{"step": "acquire", "seconds": 1.0, "ok": False}], "captures": {},
+            "fit": None, "block": None, "flash": None, "ecu_prepared": None, "metrics": {}, "report_dir": "/x",
+            "safe_state": "speed 0, drive disabled (confirmed)", "ecu_active": {"block": "unchanged", "sequence": None, "bank": None}}
+
+
+def test_a_record_without_fit_renders_every_limit_as_not_measured():
+    from eol_cal.report.motor import limit_rows, render_motor_report
+
+    rec = error_record()
+    rows = limit_rows(rec)
+    assert [r.check.key for r in rows] == list(LIMIT_KEYS)
+    assert {r.status for r in rows} == {"not measured"}
+    html = render_motor_report(rec, [])
+    assert 'id="verdict" class="verdict error">ERROR<' in html
+    assert html.count('class="limit-row"') == len(LIMIT_KEYS)
+    assert "dyno fault" in html and 'id="no-plots"' in html
+    assert "operator</th><td>not recorded" in html
+
+
+def test_limit_rows_give_value_limit_margin_and_status():
+    from eol_cal.report.motor import limit_rows
+
+    rec = error_record()
+    rec["verdict"], rec["reasons"] = "fail", ["p-p after = 2.5 % exceeds max_pp_after_pct = 2"]
+    rec["metrics"] = {"pp_before_pct": 5.0, "pp_after_pct": 2.5}
+    rows = {r.check.key: r for r in limit_rows(rec)}
+    after = rows["max_pp_after_pct"]
+    assert (after.check.value, after.check.limit, after.status) == (2.5, 2.0, "FAIL")
+    assert after.check.margin == pytest.approx(-0.5)
+    assert rows["max_pp_before_pct"].status == "PASS" and rows["max_pp_before_pct"].check.margin == pytest.approx(20.0)
+    imp = rows["min_improvement_pct"]  # 50 % against at least 40 %: a min limit's margin is value - limit
+    assert imp.status == "PASS" and imp.check.margin == pytest.approx(10.0)
+    assert rows["max_k6"].status == "not measured" and math.isnan(rows["max_k6"].check.value)
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    """A real fit of synthetic captures (six load points) and the ripple at the 65 A point."""
+    from eol_cal.analysis.fit import FitSpec, fit_many
+    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.capture.synthetic import synthetic_capture
+    from eol_cal.station.run import point_ripple
+
+    points = [(120.0, 20.0), (120.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
+    caps = [synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.5, seed=i, theta_r0=0.7 * i, serial="R-1",
+                              k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1) for i, (rpm, iq) in enumerate(points)]
+    (mi,) = motor_inputs(caps)
+    spec = FitSpec(harmonics=(6, 12))
+    (fit,) = fit_many([mi.segments], spec)
+    before = point_ripple(mi.captures[1], mi.angles[1])
+    flat = synthetic_capture(rpm=120.0, i_qo=65.0, seconds=0.5, seed=9, serial="R-1", k6=0.00003, c6=0.0002)
+    from eol_cal.analysis.angle import capture_angle
+
+    after = point_ripple(flat, capture_angle(flat))
+    return mi, fit, spec, (before, after)
+
+
+def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
+    from eol_cal.station.report import write_report
+
+    mi, fit, spec, pr = fitted
+    rec = error_record()
+    rec.update(verdict="pass", reasons=[], error=None, serial="R-1",
+               metrics={"operating_point": {"speed_rpm": 120.0, "i_qo_a": 65.0}, "pp_before_pct": pr[0].pp_pct,
+                        "pp_after_pct": pr[1].pp_pct})
+    pages = []
+    for d in ("a", "b"):
+        (tmp_path / d).mkdir()
+        pages.append(write_report(rec, tmp_path / d, fit_extra=(mi, fit, spec), point_ripple=pr).read_bytes())
+    assert pages[0] == pages[1]
+    html = pages[0].decode()
+    assert html.count('<svg') == 3
+    assert html.count('id="residual-segment-') == mi.segments.n_segments
+    # ids are unique on the page although every figure defines its own clip paths and glyphs
+    import re
+
+    ids = re.findall(r'\bid="([^"]+)"', html)
+    assert len(ids) == len(set(ids))
