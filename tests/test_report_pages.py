@@ -100,3 +100,46 @@ def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
 
     ids = re.findall(r'\bid="([^"]+)"', html)
     assert len(ids) == len(set(ids))
+
+
+def lot_record(serial: str, started: str, verdict: str, k6: float | None = 1.0e-3, after: float | None = 0.8,
+               station: str = "L1-S1", reasons: list[str] | None = None) -> dict:
+    """A run record as the station writes it, with the parts the lot views read."""
+    rec = error_record()
+    rec.update(run_id=f"{serial}-{started}", serial=serial, started_at=started, verdict=verdict,
+               reasons=reasons if reasons is not None else ([] if verdict == "pass" else ["x"]), error=None,
+               station={"name": station})
+    if k6 is not None:
+        rec["fit"] = {"k6": {"value": k6, "ci95": 2e-5}, "phase_k6": {"value": 0.4, "ci95": 0.01},
+                      "c6": {"value": 0.003, "ci95": 1e-4}, "phase_c6": {"value": 1.0, "ci95": 0.01},
+                      "fit": {"r2": 0.8, "rms": 0.004}, "hall_angle": {"source": "measured", "deviation_deg": [0.5, -0.3]}}
+    if after is not None:
+        rec["metrics"] = {"pp_before_pct": 3.0, "pp_after_pct": after, "improvement_pct": 100 * (3.0 - after) / 3.0}
+    return rec
+
+
+def test_records_plot_is_against_time_with_limits_and_error_runs():
+    from eol_cal.report.lot import timeline_figure
+    from eol_cal.report.svg import pyplot
+
+    recs = [lot_record("A", "2026-11-22T09:00:00+00:00", "pass"),
+            lot_record("B", "2026-11-22T12:00:00+00:00", "error", k6=None, after=None),
+            lot_record("C", "2026-11-22T10:00:00+00:00", "fail", after=2.5),
+            lot_record("D", "2026-11-23T08:00:00+00:00", "error", k6=None, after=None)]
+    fig = timeline_figure(recs, "lot")
+    try:
+        def by_gid(gid):
+            return fig.findobj(lambda a: a.get_gid() == gid)
+
+        (k6,) = by_gid("runs-k6")
+        import matplotlib.dates as mdates
+
+        # x is the start time, in time order (C at 10:00 before B's error at 12:00)
+        x = k6.get_offsets()[:, 0]
+        assert list(mdates.num2date(x[i]).hour for i in range(2)) == [9, 10]
+        assert len(by_gid("error-runs")) == 2
+        (lim,) = by_gid("limit-max_k6")
+        assert set(lim.get_ydata()) == {LIMITS.max_k6 * 1e3}
+        assert by_gid("limit-max_pp_after_pct") and by_gid("limit-max_pp_before_pct")
+    finally:
+        pyplot().close(fig)

@@ -79,63 +79,18 @@ def write_record_json(rec: dict[str, Any], run_dir: str | Path) -> Path:
 
 
 def plot_lot(path: str | Path, records: list[dict[str, Any]], title: str = "") -> None:
-    """k6 and p-p ripple (before, compensated) of every run, in run order, into one PNG.
+    """k6 and p-p ripple (before, compensated) of every run against its start time, with the
+    variants' limits and the error runs, into one PNG (:func:`eol_cal.report.lot.timeline_figure`).
 
     Parameters
     ----------
     path : path
         PNG to write (atomically).
     records : list of dict
-        Run records, oldest first.
+        Run records.
     title : str
         Figure title.
     """
-    import numpy as np
+    from eol_cal.report.lot import save_png, timeline_figure
 
-    from eol_cal.analysis.plots import _pyplot, _save
-
-    plt = _pyplot()
-
-    def values(get) -> np.ndarray:
-        out = []
-        for r in records:
-            try:
-                v = get(r)
-            except (KeyError, TypeError):
-                v = None
-            out.append(np.nan if v is None else float(v))
-        return np.array(out)
-
-    n = np.arange(1, len(records) + 1)
-    k6 = values(lambda r: r["fit"]["k6"]["value"]) * 1e3
-    ci = values(lambda r: r["fit"]["k6"]["ci95"]) * 1e3
-    before = values(lambda r: r["metrics"]["pp_before_pct"])
-    after = values(lambda r: r["metrics"]["pp_after_pct"])
-    verdicts = [r.get("verdict") for r in records]
-    colours = np.array([{"pass": "tab:green", "fail": "tab:orange", "error": "tab:red"}.get(v, "k") for v in verdicts])
-    fig, (ax_k, ax_p) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
-    try:
-        ax_k.errorbar(n, k6, yerr=ci, fmt="none", ecolor="0.6", lw=1)
-        ax_k.scatter(n, k6, c=colours, zorder=3, s=25)
-        ax_k.set_ylabel("k6 (mN*m/A)")
-        ax_k.grid(alpha=0.3)
-        ax_p.plot(n, before, "o-", color="tab:blue", ms=4, lw=0.8, label="p-p before")
-        ax_p.plot(n, after, "s-", color="tab:purple", ms=4, lw=0.8, label="p-p compensated")
-        ax_p.scatter(n, np.where(np.isnan(after), before, after), c=colours, s=8, zorder=3)
-        ax_p.set_ylabel("p-p ripple at the operating point (%)")
-        ax_p.set_xlabel("run (oldest first); colour: green pass, orange fail, red error")
-        ax_p.grid(alpha=0.3)
-        ax_p.legend(fontsize=8)
-        from matplotlib.ticker import MaxNLocator
-
-        ax_p.xaxis.set_major_locator(MaxNLocator(integer=True))
-        if 0 < len(records) <= 20:  # few runs: name them
-            ax_p.set_xticks(n, [r["serial"] for r in records], rotation=30, ha="right", fontsize=7)
-        n_pass = verdicts.count("pass")
-        judged = n_pass + verdicts.count("fail")
-        rate = f"{100 * n_pass / judged:.1f} %" if judged else "-"
-        fig.suptitle(f"{title}: {len(records)} runs, pass rate {rate}")
-        fig.tight_layout()
-        _save(fig, path)
-    finally:
-        plt.close(fig)
+    save_png(timeline_figure(records, title), path)
