@@ -36,6 +36,7 @@ _COMMAND_MODULES: list[str] = [
     "fit",
     "golden",
     "index",
+    "lot",
     "simulate",
     "station",
     "table",

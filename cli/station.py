@@ -260,8 +260,15 @@ def demo_cmd(motors, out_dir, profile, seed) -> None:
         err_console.print(f"{serial}: {rec['verdict']}" + (f" ({'; '.join(rec['reasons'])})" if rec["reasons"] else ""))
     wall = time.perf_counter() - t0
     console.print(_results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
+    from eol_cal.report.lot import write_lot_page
+    from eol_cal.station.records import query_records
+
+    lot_page = write_lot_page(query_records(db), out_dir / "lot.html", title=f"{db.name} (eol-cal demo)",
+                              filters={"variant": None, "since": None, "until": None, "station": None})
+    console.print("per-motor reports (one self-contained file each; open in a browser):")
     for o in outcomes:
         console.print(f"  {o.record['serial']}: {o.report_html}")
+    console.print(f"lot page: {lot_page} (eol-cal lot report --db {db} -o lot.html)")
     console.print(f"records: {db} (eol-cal records --db {db}); limits: {limits_path}")
     console.print("the same cycle on a real station: eol-cal run --dyno HOST:PORT --interface I --channel C "
                   f"--limits {limits_path} --db results.sqlite --serial S --key-file KEY")

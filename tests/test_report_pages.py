@@ -143,3 +143,84 @@ def test_records_plot_is_against_time_with_limits_and_error_runs():
         assert by_gid("limit-max_pp_after_pct") and by_gid("limit-max_pp_before_pct")
     finally:
         pyplot().close(fig)
+
+
+@pytest.fixture(scope="module")
+def lot_db(tmp_path_factory):
+    """A records database of 24 runs on two stations; one motor's report page exists."""
+    from eol_cal.report.motor import render_motor_report
+    from eol_cal.station.records import insert_records
+
+    d = tmp_path_factory.mktemp("lot")
+    rng = np.random.default_rng(3)
+    recs = []
+    for i in range(24):
+        verdict = "error" if i % 11 == 5 else ("fail" if i % 7 == 3 else "pass")
+        has = verdict != "error"
+        recs.append(lot_record(f"M{i:03d}", f"2026-11-{20 + i // 12}T{8 + i % 12:02d}:00:00.000+00:00", verdict,
+                               k6=float(rng.normal(1.0e-3, 1e-4)) if has else None,
+                               after=float(rng.normal(0.9, 0.3)) if has else None, station=f"L1-S{1 + i % 2}"))
+    run_dir = d / "reports" / "M003_run"
+    run_dir.mkdir(parents=True)
+    recs[3]["report_dir"] = str(run_dir)
+    (run_dir / "report.html").write_text(render_motor_report(recs[3], []))
+    insert_records(d / "lot.sqlite", recs)
+    return {"dir": d, "db": d / "lot.sqlite", "records": recs}
+
+
+def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
+    from click.testing import CliRunner
+
+    from cli.main import cli
+
+    out = lot_db["dir"] / "pages"
+    runner = CliRunner()
+    pages = []
+    for name in ("a.html", "b.html"):
+        res = runner.invoke(cli, ["lot", "report", "--db", str(lot_db["db"]), "-o", str(out / name)])
+        assert res.exit_code == 0, res.output
+        pages.append((out / name).read_bytes())
+    assert pages[0] == pages[1]
+    html = pages[0].decode()
+    assert html.count('class="worst-row"') == 15 and 'href="../reports/M003_run/report.html"' in html
+    res = runner.invoke(cli, ["lot", "report", "--db", str(lot_db["db"]), "--station", "L1-S2", "--since", "2026-11-21",
+                              "-o", str(out / "s2.html")])
+    assert res.exit_code == 0 and "(6 runs)" in res.output
+    res = runner.invoke(cli, ["lot", "report", "--db", str(lot_db["db"]), "--since", "21-11-2026", "-o", str(out / "x.html")])
+    assert res.exit_code == 2 and "since" in res.output and "YYYY-MM-DD" in res.output
+    assert not (out / "x.html").exists()
+
+
+def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
+    from _browser import Browser, element_sizes, group_alive, not_blank
+
+    from eol_cal.report.lot import write_lot_page
+
+    page = write_lot_page(lot_db["records"], tmp_path / "lot.html", title="lot.sqlite", filters={"variant": None})
+    with Browser() as b:
+        log = b.open(page.as_uri())
+        sizes = element_sizes(b, "svg.plot")
+        # hover text: one <title> per drawn point, naming the serial
+        k6_titles = b.evaluate("Array.from(document.querySelectorAll('[id=\"timeline-runs-k6\"] use > title')).map(t => t.textContent)")
+        pass_rate = b.evaluate("document.getElementById('pass-rate').textContent")
+        # zoom: a wheel event on a chart narrows its viewBox, a double-click restores it
+        zoom = b.evaluate("""(() => { const s = document.querySelector('#fig-timeline svg'); const r = s.getBoundingClientRect();
+            const before = s.getAttribute('viewBox');
+            s.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, clientX: r.left + r.width / 2, clientY: r.top + r.height / 2, bubbles: true, cancelable: true}));
+            const zoomed = s.getAttribute('viewBox'); s.dispatchEvent(new MouseEvent('dblclick', {bubbles: true}));
+            return [before, zoomed, s.getAttribute('viewBox')]; })()""")
+        shot = b.screenshot(tmp_path / "lot.png")
+        log_after = b.open(page.as_uri())  # events of the zoom script: none may be an error
+    assert not group_alive(b.pgid)
+    assert log.console_errors == [] and log_after.console_errors == []
+    assert set(log.requests) == {page.as_uri()}
+    # timeline, histograms, one control chart per station
+    assert len(sizes) == 4 and all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
+    with_k6 = sorted((r for r in lot_db["records"] if r["fit"]), key=lambda r: r["started_at"])
+    assert len(k6_titles) == len(with_k6) and all(t.startswith(r["serial"]) for t, r in zip(k6_titles, with_k6))
+    judged = [r for r in lot_db["records"] if r["verdict"] != "error"]
+    assert pass_rate == f"{100 * sum(r['verdict'] == 'pass' for r in judged) / len(judged):.1f} %"
+    before, zoomed, back = zoom
+    assert float(zoomed.split()[2]) < float(before.split()[2]) and back == before
+    colours, spread = not_blank(shot)
+    assert colours > 50 and spread > 10

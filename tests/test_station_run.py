@@ -339,6 +339,11 @@ def test_demo_one_motor_from_the_command_line(tmp_path):
     assert rec["verdict"] == "pass" and rec["station"]["demo"] is True
     assert Path(rec["report_dir"], "report.html").exists()
     assert (tmp_path / "demo" / "limits.toml").exists()
+    # it ends pointing at both pages; the lot page links the motor's report relative to itself
+    lot = (tmp_path / "demo" / "lot.html").read_text()
+    rel = Path(rec["report_dir"]).relative_to(tmp_path / "demo").as_posix()
+    assert f'href="{rel}/report.html"' in lot
+    assert "lot page:" in res.output and "report.html" in res.output
 
 
 def test_windows_split_where_the_rounded_segment_starts_say():

@@ -49,6 +49,16 @@ def _limit_steps(ax: Any, times: list[dt.datetime], recs: list[dict[str, Any]], 
 
 
 def timeline_figure(records: list[dict[str, Any]], title: str = "") -> Any:
+    """See :func:`timeline` (the figure alone)."""
+    return timeline(records, title)[0]
+
+
+def point_title(rec: dict[str, Any], text: str) -> str:
+    """Hover text of a run's point: serial, verdict, time, the value."""
+    return f"{rec['serial']} ({rec.get('verdict')}), {str(rec.get('started_at', ''))[:19].replace('T', ' ')}: {text}"
+
+
+def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[Any, dict[str, list[str]]]:
     """k6 and p-p ripple of every run against its start time, with the limits; error runs shown.
 
     Parameters
@@ -60,8 +70,8 @@ def timeline_figure(records: list[dict[str, Any]], title: str = "") -> Any:
 
     Returns
     -------
-    matplotlib.figure.Figure
-        Artists with a ``gid``: ``runs-k6``, ``runs-before``, ``runs-after`` (one marker per
+    matplotlib.figure.Figure, dict of gid -> list of str
+        The figure, and the hover text of each point of its scatters. Artists with a ``gid``: ``runs-k6``, ``runs-before``, ``runs-after`` (one marker per
         run that has the value), ``error-runs`` (one line per error run), ``limit-KEY``.
     """
     plt = pyplot()
@@ -105,7 +115,11 @@ def timeline_figure(records: list[dict[str, Any]], title: str = "") -> Any:
     counts = {v: verdicts.count(v) for v in ("pass", "fail", "error")}
     fig.suptitle(f"{title}: {n} runs, {counts['pass']} pass, {counts['fail']} fail, {counts['error']} error", fontsize=10)
     fig.tight_layout()
-    return fig
+    titles = {"runs-k6": [point_title(r, f"k6 {v:.4g} mN*m/A") for r, v in zip(recs, k6) if math.isfinite(v)]}
+    for key, path in (("before", ("metrics", "pp_before_pct")), ("after", ("metrics", "pp_after_pct"))):
+        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %") for r in recs
+                                 if math.isfinite(v := value_of(r, path))]
+    return fig, titles
 
 
 def save_png(fig: Any, path: Any) -> None:
@@ -116,3 +130,250 @@ def save_png(fig: Any, path: Any) -> None:
         _save(fig, path)
     finally:
         pyplot().close(fig)
+
+
+# --------------------------------------------------------------------------- the lot page
+#: the quantities the lot page shows: (key, title, path in the record, display scale, unit, limit key, sense)
+QUANTITIES: tuple[tuple[str, str, tuple[str, ...], float, str, str | None, str], ...] = (
+    ("k6", "k6", ("fit", "k6", "value"), 1e3, "mN*m/A", "max_k6", "max"),
+    ("phase_k6", "phase_k6", ("fit", "phase_k6", "value"), 180.0 / math.pi, "deg", None, "max"),
+    ("c6", "c6", ("fit", "c6", "value"), 1e3, "mN*m", None, "max"),
+    ("pp_before_pct", "p-p before", ("metrics", "pp_before_pct"), 1.0, "%", "max_pp_before_pct", "max"),
+    ("pp_after_pct", "p-p compensated", ("metrics", "pp_after_pct"), 1.0, "%", "max_pp_after_pct", "max"),
+    ("improvement_pct", "improvement", ("metrics", "improvement_pct"), 1.0, "%", "min_improvement_pct", "min"),
+)
+#: what the control charts follow per station
+CHARTED = ("k6", "pp_after_pct")
+
+
+def station_of(rec: dict[str, Any]) -> str:
+    """The station a run was made on: its id where the record has one."""
+    st = rec.get("station") or {}
+    for value in (rec.get("station_id"), st.get("id"), st.get("station_id"), st.get("name")):
+        if value:
+            return str(value)
+    return "(no station id)"
+
+
+def _limit_values(records: Sequence[dict[str, Any]], key: str | None, scale: float) -> list[float]:
+    """The distinct values of a limit over the records (several: the lot mixes variants)."""
+    if key is None:
+        return []
+    out = sorted({value_of(r, ("limits", key)) for r in records} - {math.nan})
+    return [v * scale for v in out if math.isfinite(v)]
+
+
+def histogram_figure(records: Sequence[dict[str, Any]], notes: dict[str, str] | None = None) -> Any:
+    """Histograms of the measured quantities over the runs that have them, with the limits.
+
+    Parameters
+    ----------
+    records : sequence of dict
+        Run records.
+    notes : dict of quantity key -> str, optional
+        A line under each panel's title (the capability figures).
+    """
+    plt = pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=(10, 5.2))
+    for ax, (key, title, path, scale, unit, lim_key, _sense) in zip(axes.flat, QUANTITIES):
+        x = np.array([value_of(r, path) for r in records]) * scale
+        x = x[np.isfinite(x)]
+        ax.set_gid(f"hist-{key}")
+        if len(x):
+            ax.hist(x, bins=min(30, max(5, int(np.sqrt(len(x))) + 1)), color="tab:blue", alpha=0.8)
+        for i, v in enumerate(_limit_values(records, lim_key, scale)):
+            ax.axvline(v, color="tab:red", ls="--", lw=1.2, label=lim_key if i == 0 else None)
+        if lim_key and ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=6, loc="upper right")
+        note = (notes or {}).get(key)
+        ax.set_title(f"{title}: n = {len(x)}" + (f"\n{note}" if note else ""), fontsize=8)
+        ax.set_xlabel(unit, fontsize=7)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return fig
+
+
+def control_figure(records: Sequence[dict[str, Any]], station: str,
+                   limits: dict[str, dict[str, float]] | None = None) -> tuple[Any, dict[str, list[str]]]:
+    """Individuals and moving-range charts of :data:`CHARTED` against time, for one station.
+
+    Parameters
+    ----------
+    records : sequence of dict
+        The station's runs.
+    station : str
+        Its name (titles, gids).
+    limits : dict of quantity key -> {"center", "ucl", "lcl", "mr_center", "mr_ucl"}, optional
+        The control limits (display units) to draw; none drawn for a quantity not in it.
+
+    Returns
+    -------
+    figure, titles
+        As :func:`timeline`; the points' gids are ``i-KEY`` and ``mr-KEY``.
+    """
+    plt = pyplot()
+    recs = sorted(records, key=run_time)
+    fig, axes = plt.subplots(2, len(CHARTED), figsize=(10, 4.4), sharex=True, squeeze=False)
+    titles: dict[str, list[str]] = {}
+    q = {k: (title, path, scale, unit) for k, title, path, scale, unit, _l, _s in QUANTITIES}
+    for col, key in enumerate(CHARTED):
+        title, path, scale, unit = q[key]
+        pts = [(run_time(r), value_of(r, path) * scale, r) for r in recs]
+        pts = [p for p in pts if math.isfinite(p[1])]
+        t = [p[0] for p in pts]
+        x = np.array([p[1] for p in pts])
+        ax_i, ax_m = axes[0][col], axes[1][col]
+        ax_i.plot(t, x, "-", color="0.6", lw=0.7)
+        ax_i.scatter(t, x, s=14, zorder=3, c=[VERDICT_COLOUR.get(p[2].get("verdict"), "k") for p in pts], gid=f"i-{key}")
+        titles[f"i-{key}"] = [point_title(p[2], f"{title} {p[1]:.4g} {unit}") for p in pts]
+        mr = np.abs(np.diff(x))
+        if len(mr):
+            ax_m.plot(t[1:], mr, "-", color="0.6", lw=0.7)
+            ax_m.scatter(t[1:], mr, s=10, zorder=3, color="tab:blue", gid=f"mr-{key}")
+            titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr)]
+        lim = (limits or {}).get(key)
+        if lim:
+            for ax, names in ((ax_i, ("center", "ucl", "lcl")), (ax_m, ("mr_center", "mr_ucl"))):
+                for name in names:
+                    v = lim.get(name)
+                    if v is not None and math.isfinite(v):
+                        ax.axhline(v, color="tab:red" if name != "center" and name != "mr_center" else "0.3",
+                                   ls="--" if "cl" in name and "center" not in name else "-", lw=1.0,
+                                   gid=f"cl-{key}-{name}")
+        ax_i.set_title(f"{station}: {title} ({unit}), individuals", fontsize=8)
+        ax_m.set_title("moving range", fontsize=8)
+        for ax in (ax_i, ax_m):
+            ax.grid(alpha=0.3)
+            ax.tick_params(labelsize=7)
+    fig.autofmt_xdate()
+    fig.tight_layout()
+    return fig, titles
+
+
+def latest_per_motor(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Each serial's latest run."""
+    latest: dict[str, dict[str, Any]] = {}
+    for r in sorted(records, key=run_time):
+        latest[r["serial"]] = r
+    return list(latest.values())
+
+
+def worst_motors(records: Sequence[dict[str, Any]], page_dir: Any, n: int = 15) -> list[dict[str, Any]]:
+    """The motors nearest their limits (each serial's latest run): errors and fails first, then by
+    the smallest margin as a fraction of its limit.
+
+    Returns
+    -------
+    list of dict
+        ``serial``, ``verdict``, ``started_at``, ``station``, ``key``, ``value``, ``limit``,
+        ``margin``, ``unit``, ``reasons``, ``link`` (the run's report relative to ``page_dir``
+        when that file exists, else None).
+    """
+    import os
+    from pathlib import Path
+
+    from eol_cal.report.motor import limit_rows
+
+    order = {"error": 0, "fail": 1, "pass": 2}
+    rows = []
+    for r in latest_per_motor(records):
+        worst, rel = None, math.inf
+        for row in limit_rows(r):
+            c = row.check
+            if math.isfinite(c.margin) and c.limit != 0 and c.margin / abs(c.limit) < rel:
+                worst, rel = c, c.margin / abs(c.limit)
+        page = Path(str(r.get("report_dir") or "")) / "report.html"
+        link = None
+        if r.get("report_dir") and page.is_file():
+            link = Path(os.path.relpath(page.resolve(), Path(page_dir).resolve())).as_posix()
+        rows.append({"serial": r["serial"], "verdict": r.get("verdict"), "started_at": r.get("started_at"),
+                     "station": station_of(r), "key": worst.key if worst else None,
+                     "value": worst.value if worst else math.nan, "limit": worst.limit if worst else math.nan,
+                     "margin": worst.margin if worst else math.nan, "unit": worst.unit if worst else "",
+                     "reasons": r.get("reasons") or [], "link": link, "_sort": (order.get(r.get("verdict"), 3), rel)})
+    rows.sort(key=lambda x: x["_sort"])
+    return rows[:n]
+
+
+def _safe_id(text: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-") or "x"
+
+
+def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: str,
+                    filters: dict[str, str | None]) -> str:
+    """The lot page (self-contained HTML) of a set of run records.
+
+    Parameters
+    ----------
+    records : sequence of dict
+        The lot's run records (already filtered).
+    page_dir : path
+        The directory the page is written to (links to the per-motor reports are relative to it).
+    title : str
+        Page title (the database, say).
+    filters : dict
+        The filters that selected the lot, shown on the page (None: not filtered).
+    """
+    from eol_cal.report.motor import Figure
+    from eol_cal.report.page import render
+    from eol_cal.report.svg import figure_svg
+    from eol_cal.station.records import summarise
+
+    recs = sorted(records, key=run_time)
+    summary = summarise(recs)
+    figures: list[Figure] = []
+    if recs:
+        fig, titles = timeline(recs, title)
+        figures.append(Figure("timeline", "k6 and p-p ripple of every run against its start time, with the limits; "
+                              "error runs as red dotted lines. Hover on a point: serial, verdict, time, value; wheel: zoom, "
+                              "drag: pan, double-click: back", figure_svg(fig, "timeline", titles, "plot zoom")))
+        figures.append(Figure("histograms", "Distribution of the measured quantities over the runs that have them, "
+                              "with the variant's limits", figure_svg(histogram_figure(recs), "histograms")))
+    stations: dict[str, list[dict[str, Any]]] = {}
+    for r in recs:
+        stations.setdefault(station_of(r), []).append(r)
+    control = []
+    for name, runs in sorted(stations.items()):
+        fig, titles = control_figure(runs, name)
+        fid = f"control-{_safe_id(name)}"
+        control.append(Figure(fid, f"Station {name}: individuals and moving range of k6 and the compensated p-p, "
+                              f"{len(runs)} runs", figure_svg(fig, fid, titles, "plot zoom")))
+    dates = [str(r.get("started_at", ""))[:19].replace("T", " ") for r in recs]
+    return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control,
+                  worst=worst_motors(recs, page_dir), filters=filters, first=dates[0] if dates else "-",
+                  last=dates[-1] if dates else "-", stations=sorted(stations), fmt=_fmt)
+
+
+def _fmt(x: Any, digits: int = 4) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return f"{float(x):.{digits}g}"
+
+
+def select_records(records: Sequence[dict[str, Any]], variant: str | None = None, since: dt.date | None = None,
+                   until: dt.date | None = None, station: str | None = None) -> list[dict[str, Any]]:
+    """The records of one variant, station and UTC day range (``until`` inclusive)."""
+    out = []
+    for r in records:
+        day = run_time(r).date()
+        if variant is not None and (r.get("limits") or {}).get("variant") != variant:
+            continue
+        if station is not None and station_of(r) != station:
+            continue
+        if (since is not None and day < since) or (until is not None and day > until):
+            continue
+        out.append(r)
+    return out
+
+
+def write_lot_page(records: Sequence[dict[str, Any]], path: Any, *, title: str,
+                   filters: dict[str, str | None]) -> Any:
+    """Write the lot page to ``path`` (atomically); returns the path."""
+    from pathlib import Path
+
+    from eol_cal.atomic import atomic_write
+
+    path = Path(path)
+    atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters))
+    return path

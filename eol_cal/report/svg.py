@@ -29,7 +29,7 @@ def pyplot() -> Any:
     return plt
 
 
-def figure_svg(fig: Any, name: str, titles: dict[str, Sequence[str]] | None = None) -> str:
+def figure_svg(fig: Any, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
     """The figure as an ``<svg>`` element for inlining into HTML; closes the figure.
 
     Parameters
@@ -41,6 +41,8 @@ def figure_svg(fig: Any, name: str, titles: dict[str, Sequence[str]] | None = No
     titles : dict of gid -> list of str, optional
         Hover text per point of the artist with that ``gid`` (a scatter: one marker per point,
         in the order of the data), written as SVG ``<title>`` elements.
+    css_class : str
+        The ``<svg>`` element's class (``plot``; ``plot zoom`` for the pages' zoom script).
 
     Returns
     -------
@@ -64,28 +66,43 @@ def figure_svg(fig: Any, name: str, titles: dict[str, Sequence[str]] | None = No
     text = _ID.sub(lambda m: f'id="{name}-{m.group(1)}"', text)
     text = _REF.sub(lambda m: f"{m.group(1)}{name}-{m.group(2)}", text)
     # scale with the page (the viewBox keeps the aspect ratio); printing keeps it on the sheet
-    text = re.sub(r'<svg([^>]*?) width="[^"]+" height="[^"]+"', r'<svg\1 class="plot" style="width:100%;height:auto"',
+    text = re.sub(r'<svg([^>]*?) width="[^"]+" height="[^"]+"', rf'<svg\1 class="{css_class}" style="width:100%;height:auto"',
                   text, count=1)
     return text
+
+
+def _group_end(text: str, start: int) -> int:
+    """Index just past the ``</g>`` that closes the ``<g`` opened at ``start``."""
+    depth = 0
+    for m in _G.finditer(text, start):
+        if m.group(0) == "</g>":
+            depth -= 1
+            if depth == 0:
+                return m.end()
+        elif not m.group(0).endswith("/>"):
+            depth += 1
+    return len(text)
+
+
+_G = re.compile(r"<g\b[^>]*>|</g>")
 
 
 def _add_titles(text: str, titles: dict[str, Sequence[str]]) -> str:
     """Put a ``<title>`` into each point of the groups named in ``titles``.
 
-    matplotlib draws a scatter's points as ``<use>`` elements, in data order, in one clipped
-    group inside ``<g id="gid">`` (non-finite points are not drawn: callers leave them out).
+    matplotlib draws a scatter's points as ``<use>`` elements, in data order, inside
+    ``<g id="gid">`` (one clipped group for all, or one per point when their colours differ);
+    non-finite points are not drawn: callers leave them out.
     """
     for gid, labels in titles.items():
         start = text.find(f'<g id="{gid}"')
         if start < 0:
             raise ValueError(f"no artist with gid {gid!r} in the figure")
-        first = text.find("<use ", start)
-        end = text.find("</g>", first) if first >= 0 else start
+        end = _group_end(text, start)
+        body, drawn = re.subn(r"<use [^>]*?/>", lambda m: m.group(0), text[start:end])
+        if drawn != len(labels):  # a title on the wrong point would name the wrong motor
+            raise ValueError(f"artist {gid!r}: {drawn} points drawn, {len(labels)} titles")
         it = iter(labels)
-
-        def one(m: re.Match) -> str:
-            label = next(it, None)
-            return m.group(0) if label is None else m.group(0)[:-2] + f"><title>{escape(label)}</title></use>"
-
-        text = text[:start] + re.sub(r"<use [^>]*?/>", one, text[start:end]) + text[end:]
+        body = re.sub(r"<use [^>]*?/>", lambda m: m.group(0)[:-2] + f"><title>{escape(next(it))}</title></use>", body)
+        text = text[:start] + body + text[end:]
     return text
