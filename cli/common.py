@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
+import signal
 import sys
-from typing import Any, Callable
+import threading
+from typing import Any, Callable, Iterator
 
 import click
 from rich.console import Console
 
-from eol_cal.errors import EolCalError
+from eol_cal.errors import EolCalError, Interrupted
 
 #: width of tables written to a file or a pipe (a station log, CI) unless $COLUMNS says otherwise:
 #: rich's default of 80 there cut the fit table's values to "0.61..."
@@ -29,16 +32,43 @@ console = _console()
 err_console = _console(stderr=True)
 
 
+@contextlib.contextmanager
+def signals_interrupt() -> Iterator[None]:
+    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread while the command runs.
+
+    SIGTERM's default ends the process without cleanup (no safe state, no record); raised as
+    an exception it unwinds through every ``finally`` like Ctrl-C. Outside the main thread
+    (a test invoking the CLI from a worker) handlers cannot be set and nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_interrupted(signum: int, frame: Any) -> None:
+        raise Interrupted(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
 def handle_errors(func: Callable) -> Callable:
-    """Turn library errors into a one-line message on stderr and the documented exit code."""
+    """Turn library errors and SIGINT/SIGTERM into a one-line message on stderr and the exit code."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
-            return func(*args, **kwargs)
+            with signals_interrupt():
+                return func(*args, **kwargs)
         except EolCalError as exc:
             click.echo(f"error: {exc}", err=True)
             sys.exit(exc.exit_code)
+        except KeyboardInterrupt as exc:  # Interrupted, or Ctrl-C before the handlers were set
+            click.echo(f"error: {exc if isinstance(exc, Interrupted) else Interrupted()}", err=True)
+            sys.exit(Interrupted.exit_code)
 
     return wrapper
 

@@ -28,3 +28,29 @@ class CheckFailed(EolCalError):
     """A check or limit did not hold (exit code 1); the run itself worked."""
 
     exit_code = 1
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT or SIGTERM arrived: the command stops after its own cleanup (exit code 2).
+
+    A :class:`KeyboardInterrupt`, so ``except Exception`` in a library never swallows it and
+    code that already makes a machine safe on Ctrl-C does so for SIGTERM too.
+
+    Parameters
+    ----------
+    signal_name : str
+        ``SIGINT`` or ``SIGTERM``.
+    during : str or None
+        The step that was running.
+    detail : str
+        What the interruption left behind (e.g. which block the ECU boots).
+    """
+
+    exit_code = 2
+
+    def __init__(self, signal_name: str = "SIGINT", during: str | None = None, detail: str = "") -> None:
+        self.signal_name = signal_name
+        self.during = during
+        self.detail = detail
+        text = f"interrupted by {signal_name}" + (f" during {during}" if during else "")
+        super().__init__(text + (f"; {detail}" if detail else ""))

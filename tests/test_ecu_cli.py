@@ -92,13 +92,13 @@ def test_exit_codes_on_the_virtual_bus(files):
         assert res.exit_code == 0 and "NOT read back" in res.output
         rig.sim.faults = Faults(corrupt_byte=next(i for i in range(500, 2000) if block.read_bytes()[i] & 1))
         res = runner.invoke(cli, ["flash", str(block), *bus, "--key-file", str(key)])
-        assert res.exit_code == 1 and "CRC mismatch" in res.output
+        assert res.exit_code == 1 and "differs from the block" in res.output
         assert rig.sim.active.sequence == 1
         rig.sim.faults = Faults()
         other = tmp / "other.bin"
         other.write_bytes(example_block(serial="OTHER-7"))
         res = runner.invoke(cli, ["flash", str(other), *bus, "--key-file", str(key)])
-        assert res.exit_code == 2 and "--force" in res.output
+        assert res.exit_code == 2 and "force" in res.output and "previous block stays active" in res.output
         hexfile = tmp / "other.hex"
         hexfile.write_text(B.to_intel_hex(other.read_bytes(), 1))
         res = runner.invoke(cli, ["flash", str(hexfile), *bus, "--key-file", str(key), "--force", "--json"])

@@ -55,13 +55,15 @@ def _power_cut(base, tmp_path, faults: Faults):
 OLD_ACTIVE = ("old", 0, 1)
 NEW_ACTIVE = ("new", 1, 2)
 
-# (step, occurrence, expected boot): the flash's requests in order. Once the transfer exit
-# is reached every byte is written, so the ECU boots the new block even without the check.
+# (step, occurrence, expected boot): the flash's requests in order. The block becomes valid
+# only with its CRC, the second TransferData, written after the read-back of the rest; once
+# that is in, the ECU boots the new block even without the check routine.
 STEP_CASES = [
     ("session", 1, OLD_ACTIVE), ("session", 2, OLD_ACTIVE), ("security", 1, OLD_ACTIVE),
     ("security", 2, OLD_ACTIVE), ("read_did", 1, OLD_ACTIVE), ("read_did", 3, OLD_ACTIVE),
     ("erase", 1, OLD_ACTIVE), ("download", 1, OLD_ACTIVE), ("transfer", 1, OLD_ACTIVE),
-    ("transfer_exit", 1, NEW_ACTIVE), ("check", 1, NEW_ACTIVE), ("read_memory", 1, NEW_ACTIVE),
+    ("read_memory", 1, OLD_ACTIVE), ("transfer", 2, OLD_ACTIVE),
+    ("transfer_exit", 1, NEW_ACTIVE), ("check", 1, NEW_ACTIVE),
     ("reset", 1, NEW_ACTIVE), ("read_did", 4, NEW_ACTIVE),
 ]
 

@@ -102,10 +102,14 @@ def test_no_verify_and_verification_failure_exit_path(tmp_path):
     with virtual_rig(tmp_path / "f.bin") as rig:
         report = _flash(rig, BLOCK_A, verify=False)
         assert not report.verified and report.active_after.sequence == 1
-        # A worn cell (a table byte whose bit 0 is set) : the ECU's CRC check must catch it.
+        # A worn cell (a table byte whose bit 0 is set): the read-back before the CRC catches it
+        # (the CRC is never written), and without the read-back the ECU's CRC check does.
         rig.sim.faults.corrupt_byte = next(i for i in range(500, 2000) if BLOCK_B[i] & 1)
-        with pytest.raises(VerifyFailed, match="CRC mismatch") as exc:
+        with pytest.raises(VerifyFailed, match="differs from the block at byte .*CRC was not written") as exc:
             _flash(rig, BLOCK_B)
+        assert exc.value.exit_code == 1 and "previous block stays active" in str(exc.value)
+        with pytest.raises(VerifyFailed, match="CRC mismatch.*erased again") as exc:
+            _flash(rig, BLOCK_B, verify=False)
         assert exc.value.exit_code == 1
         assert rig.sim.active.sequence == 1
         rig.restart()
@@ -196,11 +200,18 @@ def test_ecu_enforces_the_contract(tmp_path):
             c.request_download(loc1)
             assert _nrc_of(s, c.transfer_data, 2, b"\0\0") == P.NRC.WrongBlockSequenceCounter
             assert _nrc_of(s, c.transfer_data, 1, b"\0") == P.NRC.IncorrectMessageLengthOrInvalidFormat
+            programmed = rig.sim.banks.programmed_blocks
             c.transfer_data(1, b"\x00\x00")  # programs word 0 to 0x0000
-            c.transfer_data(1, b"\x00\x00")  # a repeated block (lost answer) is acknowledged
+            c.transfer_data(1, b"\x00\x00")  # a repeated block (lost answer) is acknowledged...
+            assert rig.sim.banks.programmed_blocks == programmed + 1  # ...and not programmed twice
             assert _nrc_of(s, c.request_transfer_exit) == P.NRC.RequestSequenceError  # incomplete
-            c.request_download(loc1)  # restart the download over the same, no longer erased, words
-            assert _nrc_of(s, c.transfer_data, 1, b"\xff\xff") == P.NRC.GeneralProgrammingFailure
+            # Revision 1.1: no second download without an erase, and none that starts mid-bank.
+            assert _nrc_of(s, c.request_download, loc1) == P.NRC.RequestSequenceError
+            s.routine("erase", P.RID_ERASE, bank1, B.BANK_BYTES)
+            assert _nrc_of(s, c.request_download, P.memory_location(bank1 + 1, 2150)) == P.NRC.RequestOutOfRange
+            assert _nrc_of(s, c.transfer_data, 1, b"\0\0") == P.NRC.RequestSequenceError  # the erase closed it
+            c.request_download(loc1)
+            c.transfer_data(1, b"\x00\x00")
             status = s.routine("check", P.RID_CHECK, bank1, 2152)
             assert status == bytes([P.CHECK_HEADER])
             # 255 blocks later the counter wraps FF -> 00.

@@ -8,6 +8,7 @@ little-endian). Every erase and program writes the whole image through atomicall
 
 from __future__ import annotations
 
+import json
 import os
 import random
 from pathlib import Path
@@ -165,3 +166,35 @@ def active_block_from_file(path: str | os.PathLike[str]) -> bytes | None:
     if not Path(path).exists():
         raise InputError(str(path), None, "flash image not found")
     return select_active(NorFlash(path))[1]
+
+
+class SecurityMemory:
+    """Security-access state the ECU keeps in non-volatile memory (revision 1.1).
+
+    Wrong keys in a row and whether a lock-out delay is running survive a reset and a power
+    cycle, so neither buys more attempts: at boot a pending lock-out starts its delay again
+    (ISO 14229-1's delay at power-up). Kept beside the flash image as ``<image>.sec`` (JSON),
+    in memory when the flash has no file.
+
+    Parameters
+    ----------
+    flash : NorFlash
+    """
+
+    def __init__(self, flash: NorFlash) -> None:
+        self.path = flash.path.with_name(flash.path.name + ".sec") if flash.path is not None else None
+        self.failed = 0
+        self.lockout_pending = False
+        if self.path is not None and self.path.exists():
+            try:
+                state = json.loads(self.path.read_text("ascii"))
+                self.failed = int(state["failed"])
+                self.lockout_pending = bool(state["lockout_pending"])
+            except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+                # A torn record reads as locked out: failing safe costs one delay, never attempts.
+                self.failed, self.lockout_pending = 0, True
+
+    def save(self) -> None:
+        if self.path is not None:
+            atomic_write(self.path, json.dumps({"failed": self.failed,
+                                                "lockout_pending": self.lockout_pending}).encode("ascii"))

@@ -2,9 +2,15 @@
 
 udsoncan is a client library, so the server side is written here: requests are parsed once
 (``udsoncan.Request.from_payload`` plus :mod:`eol_cal.ecu.protocol`), each service has one
-handler, and negative answers are raised as :class:`Nrc`. The flash lives in
-:class:`eol_cal.ecu.flash.NorFlash`; :class:`Faults` injects power loss, NRCs, a wrong
-block counter and (through :class:`eol_cal.ecu.transport.FaultyBus`) dropped and delayed frames.
+handler, and negative answers are raised as :class:`Nrc`. Programming state and the banks
+are :class:`eol_cal.ecu.programming.BankProgrammer` on :class:`eol_cal.ecu.flash.NorFlash`;
+:class:`Faults` injects power loss, NRCs, lost answers, a wrong block counter and (through
+:class:`eol_cal.ecu.transport.FaultyBus`) dropped and delayed frames.
+
+One tester at a time: while the programming session is held, every session change other
+than back to the default session is refused with NRC 0x22, so a second tester cannot take
+over (or restart) a download. CAN gives the ECU no tester identity; the rest is the tester's
+part (docs/flashing.md, "One tester at a time").
 
 A power loss makes the simulator stop answering for good; a new :class:`EcuSimulator` on the
 same flash file is the restart.
@@ -24,9 +30,12 @@ import can
 from udsoncan import Request, Response, services
 
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.flash import NorFlash, ProgramError, bank_at, select_active
+from eol_cal.ecu.flash import NorFlash, SecurityMemory, select_active
+from eol_cal.ecu.programming import BankProgrammer, Nrc, PowerLoss, parse_location
 from eol_cal.ecu.transport import FaultyBus, IsoTpTiming, make_stack
 from eol_cal.firmware import block as B
+
+__all__ = ["EcuSimulator", "Faults", "Nrc", "STEPS", "SimConfig"]
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +82,9 @@ class Faults:
         Request service ID -> NRC the ECU answers instead of serving it.
     wrong_block_counter : int or None
         The n-th TransferData request (1-based) is answered NRC 0x73.
+    drop_response : dict of str to int
+        Step (one of :data:`STEPS`) -> the n-th request of it (1-based) is served but its
+        answer is lost on the way back.
     seed : int
         Seed of every random choice (dropped frames, arbitrary words, seeds).
     """
@@ -86,11 +98,13 @@ class Faults:
     delay_s: float = 0.0
     nrc: dict[int, int] = field(default_factory=dict)
     wrong_block_counter: int | None = None
+    drop_response: dict[str, int] = field(default_factory=dict)
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.power_loss_step is not None and self.power_loss_step not in STEPS:
-            raise ValueError(f"power_loss_step {self.power_loss_step!r} not one of {STEPS}")
+        for step in (self.power_loss_step, *self.drop_response):
+            if step is not None and step not in STEPS:
+                raise ValueError(f"step {step!r} not one of {STEPS}")
 
 
 @dataclass
@@ -130,18 +144,6 @@ class SimConfig:
     isotp_timing: IsoTpTiming = IsoTpTiming()
 
 
-class Nrc(Exception):
-    """Raised by a handler: answer this negative response code."""
-
-    def __init__(self, code: int) -> None:
-        super().__init__(P.nrc_text(code))
-        self.code = code
-
-
-class _PowerLoss(Exception):
-    pass
-
-
 class _Pending:
     """Answers NRC 0x78 while a request takes longer than P2 (and again every P2*/2).
 
@@ -176,16 +178,6 @@ class _Pending:
                 self._sim._send(final)
 
 
-@dataclass
-class _Download:
-    bank: int
-    size: int
-    offset: int = 0
-    next_bsc: int = 1
-    last_bsc: int | None = None
-    last_len: int = 0
-
-
 class EcuSimulator:
     """The simulated ECU, serving UDS on ``bus`` (IDs 0x7E0 -> 0x7E8) from a thread.
 
@@ -215,10 +207,10 @@ class EcuSimulator:
         self._thread: threading.Thread | None = None
         self.powered_off = threading.Event()
         self.steps_seen: list[str] = []
-        self._failures = 0
+        self.security = SecurityMemory(flash)
         self._lockout_until = 0.0
-        self._transfers = 0
         self._step_counts: dict[str, int] = {}
+        self.banks = BankProgrammer(flash, self.faults, self._power_fails)
         self._handlers = {
             services.DiagnosticSessionControl: self._session,
             services.SecurityAccess: self._security,
@@ -233,19 +225,30 @@ class EcuSimulator:
         }
         self._boot()
 
+    @property
+    def faults(self) -> Faults:
+        """The faults injected; may be replaced between flashes."""
+        return self._faults
+
+    @faults.setter
+    def faults(self, faults: Faults) -> None:
+        self._faults = faults
+        if hasattr(self, "banks"):
+            self.banks.faults = faults
+
     # --- life cycle -------------------------------------------------------------------------
     def _boot(self) -> None:
-        """Power-on / reset: default session, locked, bank re-selected. The lock-out survives."""
+        """Power-on / reset: default session, locked, bank re-selected; a pending lock-out starts again."""
         self.active, _ = select_active(self.flash)
+        if self.security.lockout_pending:
+            self._lockout_until = time.monotonic() + self.config.lockout_s
         self._to_default()
 
     def _to_default(self) -> None:
         self.session = P.SESSION_DEFAULT
         self.unlocked = False
         self._seed: bytes | None = None
-        self._erased: set[int] = set()
-        self._download: _Download | None = None
-        self._exited = False
+        self.banks.forget()
         self._last_activity = time.monotonic()
 
     def start(self) -> "EcuSimulator":
@@ -275,6 +278,9 @@ class EcuSimulator:
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            if self.security.lockout_pending and time.monotonic() >= self._lockout_until:
+                self.security.lockout_pending = False  # the delay ran out while powered
+                self.security.save()
             if (self.session != P.SESSION_DEFAULT
                     and time.monotonic() - self._last_activity > self.config.s3_s):
                 log.info("S3 expired: back to the default session, locked")
@@ -284,7 +290,7 @@ class EcuSimulator:
                 continue
             try:
                 self._serve(bytes(payload))
-            except _PowerLoss:
+            except PowerLoss:
                 log.info("power loss")
                 self.powered_off.set()
                 self._stack.stop()
@@ -305,20 +311,21 @@ class EcuSimulator:
         self.steps_seen.append(step)
         self._step_counts[step] = self._step_counts.get(step, 0) + 1
         if step not in ("erase", "transfer") and self._power_fails(step):
-            raise _PowerLoss
+            raise PowerLoss
+        lost = self.faults.drop_response.get(step) == self._step_counts[step]
         pending = _Pending(self, req.service)
         try:
             if req.service.request_id() in self.faults.nrc:
                 raise Nrc(self.faults.nrc[req.service.request_id()])
             data = self._handlers[req.service](req)
         except Nrc as exc:
-            pending.finish(Response(service=req.service, code=exc.code).get_payload())
+            pending.finish(None if lost else Response(service=req.service, code=exc.code).get_payload())
             return
         except BaseException:
             pending.finish(None)
             raise
         final = None
-        if data is not None and not req.suppress_positive_response:
+        if data is not None and not req.suppress_positive_response and not lost:
             final = Response(service=req.service, code=Response.Code.PositiveResponse, data=data).get_payload()
         pending.finish(final)
 
@@ -339,23 +346,6 @@ class EcuSimulator:
         if unlocked and not self.unlocked:
             raise Nrc(P.NRC.SecurityAccessDenied)
 
-    @staticmethod
-    def _location(data: bytes) -> tuple[int, int, int]:
-        """Parse ``44 addr size`` (nothing after it) into (bank, byte offset, size)."""
-        if not data or data[0] != P.ALFID:
-            raise Nrc(P.NRC.RequestOutOfRange)
-        try:
-            word_address, size, rest = P.parse_location(data)
-        except ValueError:
-            raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat) from None
-        if rest:
-            raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
-        try:
-            bank, offset = bank_at(word_address, size)
-        except ValueError:
-            raise Nrc(P.NRC.RequestOutOfRange) from None
-        return bank, offset, size
-
     # --- services ----------------------------------------------------------------------------------
     def _session(self, req: Request) -> bytes:
         sub = req.subfunction
@@ -365,6 +355,9 @@ class EcuSimulator:
             raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
         if sub == P.SESSION_PROGRAMMING and self.session == P.SESSION_DEFAULT:
             raise Nrc(P.NRC.SubFunctionNotSupportedInActiveSession)
+        if self.session == P.SESSION_PROGRAMMING and sub != P.SESSION_DEFAULT:
+            # One tester at a time: the programming session is not taken over or restarted.
+            raise Nrc(P.NRC.ConditionsNotCorrect)
         if sub != self.session:
             self._to_default()
             self.session = sub
@@ -394,16 +387,19 @@ class EcuSimulator:
                 raise Nrc(P.NRC.RequestSequenceError)
             expected = P.security_key(self.config.secret, self._seed)
             self._seed = None
+            sec = self.security
             if hmac.compare_digest(key, expected):
                 self.unlocked = True
-                self._failures = 0
+                if sec.failed:
+                    sec.failed = 0
+                    sec.save()
                 return bytes((sub,))
-            self._failures += 1
-            if self._failures >= P.LOCKOUT_ATTEMPTS:
-                self._failures = 0
+            sec.failed += 1
+            if sec.failed >= P.LOCKOUT_ATTEMPTS:
+                sec.failed, sec.lockout_pending = 0, True
                 self._lockout_until = time.monotonic() + self.config.lockout_s
-                raise Nrc(P.NRC.ExceedNumberOfAttempts)
-            raise Nrc(P.NRC.InvalidKey)
+            sec.save()  # before the answer: a power cut right after it must not forget the attempt
+            raise Nrc(P.NRC.ExceedNumberOfAttempts if sec.lockout_pending else P.NRC.InvalidKey)
         raise Nrc(P.NRC.SubFunctionNotSupported)
 
     def _tester_present(self, req: Request) -> bytes:
@@ -445,33 +441,21 @@ class EcuSimulator:
         if rid not in (P.RID_ERASE, P.RID_CHECK):
             raise Nrc(P.NRC.RequestOutOfRange)
         self._require(unlocked=True)
-        bank, offset, size = self._location(data[2:])
+        bank, offset, size = parse_location(data[2:])
         echo = bytes((req.subfunction,)) + data[:2]
-        if rid == P.RID_ERASE:
-            if offset != 0 or size == 0:
-                raise Nrc(P.NRC.RequestOutOfRange)
-            if bank == self.active.bank:
-                raise Nrc(P.NRC.ConditionsNotCorrect)
-            self._erase(bank)
-            return echo
-        if size == 0:
+        if rid == P.RID_CHECK:
+            return echo + bytes((self.banks.check(bank, offset, size),))
+        if offset != 0 or size == 0:
             raise Nrc(P.NRC.RequestOutOfRange)
-        status = B.check(self.flash.read(bank, offset, size)).status
-        return echo + bytes((status,))
+        self.banks.erase(bank, self.active.bank, self._erase_starts)
+        return echo
 
-    def _erase(self, bank: int) -> None:
+    def _erase_starts(self) -> None:
         # Like a real boot loader, announce the erase at once; _Pending repeats 0x78 if it lasts.
         self._send(Response(service=services.RoutineControl,
                             code=P.NRC.RequestCorrectlyReceived_ResponsePending).get_payload())
-        self._download = None
-        self._exited = False
-        self._erased.discard(bank)
-        if self._power_fails("erase"):
-            self.flash.erase(bank, interrupted=True)
-            raise _PowerLoss
-        time.sleep(self.config.erase_s)
-        self.flash.erase(bank)
-        self._erased.add(bank)
+        if not self._power_fails("erase"):
+            time.sleep(self.config.erase_s)
 
     def _request_download(self, req: Request) -> bytes:
         self._require(session=(P.SESSION_PROGRAMMING,), unlocked=True)
@@ -480,86 +464,27 @@ class EcuSimulator:
             raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
         if data[0] != P.DOWNLOAD_DFI:
             raise Nrc(P.NRC.RequestOutOfRange)
-        bank, offset, size = self._location(data[1:])
-        if size == 0 or size % P.WORD_BYTES:
-            raise Nrc(P.NRC.RequestOutOfRange)
-        if bank == self.active.bank:
-            raise Nrc(P.NRC.UploadDownloadNotAccepted)
-        if bank not in self._erased:
-            raise Nrc(P.NRC.RequestSequenceError)
-        # A download may start anywhere in the erased bank: the tester resumes after losses.
-        self._download = _Download(bank=bank, size=offset + size, offset=offset)
-        self._exited = False
-        self._transfers = 0
+        bank, offset, size = parse_location(data[1:])
+        self.banks.request_download(bank, offset, size, self.active.bank)
         # lengthFormatIdentifier 0x20: maxNumberOfBlockLength follows in 2 bytes.
         return bytes((0x20,)) + struct.pack(">H", self.config.max_block_length)
 
     def _transfer_data(self, req: Request) -> bytes:
-        d = self._download
-        if d is None:
-            raise Nrc(P.NRC.RequestSequenceError)
         data = req.data or b""
-        if not data:
+        if not data or 1 + len(data) > self.config.max_block_length:
             raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
-        if 1 + len(data) > self.config.max_block_length:
-            raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
-        bsc, chunk = data[0], data[1:]
-        self._transfers += 1
-        if self._transfers == self.faults.wrong_block_counter:
-            raise Nrc(P.NRC.WrongBlockSequenceCounter)
-        if bsc == d.last_bsc and len(chunk) == d.last_len:
-            # ISO 14229-1: a repeated block (its response was lost) is acknowledged, not rewritten.
-            return bytes((bsc,))
-        if bsc != d.next_bsc:
-            raise Nrc(P.NRC.WrongBlockSequenceCounter)
-        if not chunk or len(chunk) % P.WORD_BYTES:
-            raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
-        if d.offset + len(chunk) > d.size:
-            raise Nrc(P.NRC.RequestOutOfRange)
-        cut = None
-        plb = self.faults.power_loss_byte
-        if plb is not None and d.offset <= plb < d.offset + len(chunk):
-            cut = plb - d.offset
-        elif self._power_fails("transfer"):
-            cut = len(chunk) // 2
-        if cut is not None:
-            self.flash.program(d.bank, d.offset, chunk, cut_at=cut)
-            raise _PowerLoss
-        cb = self.faults.corrupt_byte
-        if cb is not None and d.offset <= cb < d.offset + len(chunk):
-            worn = bytearray(chunk)
-            worn[cb - d.offset] &= 0xFE
-            chunk = bytes(worn)
-        try:
-            self.flash.program(d.bank, d.offset, chunk)
-        except ProgramError:
-            self._download = None
-            raise Nrc(P.NRC.GeneralProgrammingFailure) from None
-        d.offset += len(chunk)
-        d.last_bsc, d.last_len = bsc, len(chunk)
-        d.next_bsc = (bsc + 1) & 0xFF
-        return bytes((bsc,))
+        self.banks.transfer(data[0], data[1:])
+        return data[:1]
 
     def _transfer_exit(self, req: Request) -> bytes:
         if req.data:
             raise Nrc(P.NRC.IncorrectMessageLengthOrInvalidFormat)
-        d = self._download
-        if d is None:
-            if self._exited:
-                return b""  # the repeat of an exit whose answer was lost
-            raise Nrc(P.NRC.RequestSequenceError)
-        if d.offset != d.size:
-            raise Nrc(P.NRC.RequestSequenceError)
-        self._download = None
-        self._exited = True
+        self.banks.transfer_exit()
         return b""
 
     def _read_memory(self, req: Request) -> bytes:
         self._require(session=(P.SESSION_EXTENDED, P.SESSION_PROGRAMMING))
-        bank, offset, size = self._location(req.data or b"")
-        if not 0 < size <= P.MAX_READ_BYTES:
-            raise Nrc(P.NRC.RequestOutOfRange)
-        return self.flash.read(bank, offset, size)
+        return self.banks.read(*parse_location(req.data or b""))
 
     def _reset(self, req: Request) -> bytes:
         if req.subfunction != P.RESET_HARD:

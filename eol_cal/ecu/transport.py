@@ -7,9 +7,12 @@ dropped and delayed frames for the reliability tests.
 
 from __future__ import annotations
 
+import errno
 import itertools
+import logging
 import os
 import random
+import socket
 import threading
 import time
 import uuid
@@ -18,9 +21,13 @@ from typing import Any
 
 import can
 import isotp
+from udsoncan.connections import PythonIsoTpV2Connection
+from udsoncan.exceptions import TimeoutException
 
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -83,8 +90,8 @@ def make_stack(bus: can.BusABC, *, tx_id: int, rx_id: int, blocking_send: bool,
 
 
 def open_bus(interface: str | None, channel: str | None, bitrate: int | None = None,
-             can_config: str | None = None) -> can.BusABC:
-    """Open a python-can bus from command-line style options.
+             can_config: str | None = None) -> "GuardedBus":
+    """Open a python-can bus from command-line style options, wrapped in a :class:`GuardedBus`.
 
     Parameters
     ----------
@@ -114,11 +121,25 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     if config.get("interface") == "udp_multicast":
         # Its frames leave through the network card; the project never uses it.
         raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
+    previous_timeout = socket.getdefaulttimeout()
     try:
-        return can.Bus(ignore_config=True, **config)
-    except (can.CanError, ValueError, OSError, ImportError, TypeError) as exc:
+        # python-can-remote's WebSocket handshake has no timeout of its own: a server that accepts
+        # the connection and never answers would hold the command forever.
+        socket.setdefaulttimeout(CONNECT_TIMEOUT_S)
+        bus = can.Bus(ignore_config=True, **config)
+    except (can.CanError, ValueError, OSError, ImportError, TypeError, AssertionError) as exc:
         raise InputError(can_config, "interface",
                          f"cannot open {config.get('interface')} channel {config.get('channel')!r}: {exc}") from exc
+    finally:
+        socket.setdefaulttimeout(previous_timeout)
+    sock = getattr(bus, "socket", None)
+    if isinstance(sock, socket.socket):
+        sock.settimeout(None)  # reads are select()ed with their own timeouts from here on
+    return GuardedBus(bus)
+
+
+CONNECT_TIMEOUT_S = 5.0
+"""Longest wait for a network CAN server (python-can-remote) to accept the bus, s."""
 
 
 class FaultyBus(can.BusABC):
@@ -209,3 +230,119 @@ def isotp_min_frames(payload_bytes: int) -> int:
     if payload_bytes <= 7:
         return 1
     return 1 + -(-(payload_bytes - 6) // 7) + 1
+
+
+class LinkLost(Exception):
+    """The tester's CAN link is gone (remote server closed, adapter unplugged): no frame can pass."""
+
+
+# Send errors that mean "queue full, try later" on a healthy link (socketcan, pcan).
+_TRANSIENT_ERRNOS = {errno.ENOBUFS, errno.EAGAIN}
+
+
+class GuardedBus(can.BusABC):
+    """The tester's bus with every transport failure caught and remembered.
+
+    can-isotp calls ``recv``/``send`` from its own threads; an exception there (python-can-remote's
+    ``WebsocketClosed``, ``BrokenPipeError``, a socketcan ``ENETDOWN``) kills those threads and
+    leaves a blocking send waiting for ever. Here the first such failure sets :attr:`lost`,
+    later frames go nowhere, and :class:`TesterConnection` raises :class:`LinkLost` at once.
+
+    Parameters
+    ----------
+    inner : can.BusABC
+        The bus opened by :func:`open_bus` (or any python-can bus).
+    owns : bool
+        Shut ``inner`` down with this bus (False: the caller keeps using it).
+    """
+
+    def __init__(self, inner: can.BusABC, *, owns: bool = True) -> None:
+        self.inner = inner
+        self.owns = owns
+        self.lost: str | None = None
+        super().__init__(channel=getattr(inner, "channel_info", "guarded"))
+        self.channel_info = getattr(inner, "channel_info", "guarded")
+
+    def _lose(self, exc: BaseException) -> None:
+        if self.lost is None:
+            self.lost = f"{type(exc).__name__}: {exc}".rstrip(": ")
+            log.info("CAN link lost: %s", self.lost)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if self.lost is not None:
+            return
+        try:
+            self.inner.send(msg, timeout)
+        except can.CanOperationError as exc:
+            if exc.error_code not in _TRANSIENT_ERRNOS:
+                self._lose(exc)
+        except Exception as exc:  # noqa: BLE001 - any other failure of the link ends it
+            self._lose(exc)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.lost is not None:
+            time.sleep(timeout or 0.0)
+            return None, False
+        try:
+            return self.inner.recv(timeout), False
+        except Exception as exc:  # noqa: BLE001
+            self._lose(exc)
+            return None, False
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        if not self.owns:
+            return
+        try:
+            self.inner.shutdown()
+        except Exception as exc:  # noqa: BLE001 - closing a dead link fails; nothing is left to close
+            log.debug("closing the CAN bus: %s", exc)
+            can.BusABC.shutdown(self.inner)  # marks it closed, so its __del__ does not try again
+
+
+POLL_S = 0.05
+"""How often a waiting request looks at the link, s (also bounds the reaction to Ctrl-C)."""
+
+
+class TesterConnection(PythonIsoTpV2Connection):
+    """udsoncan's can-isotp connection with every wait bounded and a dead link reported at once.
+
+    Parameters
+    ----------
+    stack : isotp.CanStack
+        On a :class:`GuardedBus`.
+    link : GuardedBus
+    send_timeout_s : float
+        Longest a request may take to leave (all consecutive frames), s.
+    """
+
+    def __init__(self, stack: isotp.CanStack, link: GuardedBus, send_timeout_s: float) -> None:
+        super().__init__(stack)
+        self.link = link
+        self.send_timeout_s = send_timeout_s
+
+    def check_link(self) -> None:
+        """Raise :class:`LinkLost` when the bus failed or the ISO-TP threads are gone."""
+        if self.link.lost is not None:
+            raise LinkLost(self.link.lost)
+        layer = self.isotp_layer
+        if self.opened and not all(t is not None and t.is_alive() for t in (layer.main_thread, layer.relay_thread)):
+            raise LinkLost("the ISO-TP stack stopped")
+
+    def specific_send(self, payload: bytes, timeout: float | None = None) -> None:
+        self.check_link()
+        self.isotp_layer.send(payload, send_timeout=self.send_timeout_s)
+        self.check_link()
+
+    def specific_wait_frame(self, timeout: float | None = None) -> bytes | None:
+        self.check_connection_opened()
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            self.check_link()
+            left = POLL_S if deadline is None else min(POLL_S, deadline - time.monotonic())
+            frame = self.isotp_layer.recv(block=True, timeout=max(left, 0.0))
+            if frame is not None:
+                return bytes(frame)
+            if deadline is not None and time.monotonic() >= deadline:
+                raise TimeoutException(f"Did not receive IsoTP frame from the Transport layer in time "
+                                       f"(timeout={timeout} sec)")

@@ -1,0 +1,329 @@
+"""The flash sequence of firmware contract v1 section 3 (revision 1.1), on a :class:`UdsSession`.
+
+Safety rests on the ECU's rules, which this tester never works around (it only erases and
+writes the inactive bank; the ECU boots the valid bank with the highest sequence), and on
+one rule of its own: **the new block becomes a boot candidate only when the tester has
+checked it.** The ECU takes a bank as complete once its last byte is written (revision 1.1),
+so the tester writes the block without its CRC, reads that back and compares, and only then
+sends the CRC (the last 4 bytes) as the final TransferData. A download that breaks before
+leaves a block whose CRC field is still erased (0xFFFFFFFF, and the tester never sends a
+block whose CRC is 0xFFFFFFFF): it can never be valid. A failure after the CRC went out
+(lost link, Ctrl-C, a refused check) erases the bank again when the ECU still answers, so
+an exit other than 0 leaves the previous block active; when it cannot, the message says
+that the new, checked block boots at the next reset.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import can
+
+from eol_cal.ecu import protocol as P
+from eol_cal.ecu.session import (SESSION_LOST_NRCS, ClientTiming, EcuError, SeedToKey, UdsSession,
+                                 VerifyFailed, shrink)
+from eol_cal.errors import InputError, Interrupted
+from eol_cal.firmware import block as B
+
+TAIL_BYTES = 4
+"""The CRC: the last bytes of a block, written last (the block is valid only with them)."""
+ERASED_CRC = 0xFFFFFFFF
+MAX_RESTARTS = 2
+"""Downloads started again from the erase after losses on the bus (smaller blocks each time)."""
+
+
+@dataclass
+class FlashReport:
+    """Outcome of :func:`flash_block`.
+
+    Attributes
+    ----------
+    serial : str
+        ECU serial (F18C).
+    bank : int
+        Bank written.
+    sequence : int
+        Sequence of the new block (previous active + 1).
+    crc32 : int
+        CRC of the block as written.
+    block_bytes : int
+    previous : protocol.ActiveBlock
+        FD01 before the flash.
+    active_after : protocol.ActiveBlock or None
+        FD01 after the reset (None on a dry run).
+    verified : bool
+        The block without its CRC was read back equal before the CRC was written (False with
+        ``verify=False`` or a dry run).
+    dry_run : bool
+    seconds : float
+        Wall time, s.
+    transfer_blocks : int
+        TransferData requests.
+    retries : int
+        Requests repeated after a timeout.
+    restarts : int
+        Downloads started again from the erase after losses.
+    steps : list of str
+        Steps completed, in order.
+    """
+
+    serial: str
+    bank: int
+    sequence: int
+    crc32: int
+    block_bytes: int
+    previous: P.ActiveBlock
+    active_after: P.ActiveBlock | None = None
+    verified: bool = False
+    dry_run: bool = False
+    seconds: float = 0.0
+    transfer_blocks: int = 0
+    retries: int = 0
+    restarts: int = 0
+    steps: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["crc32"] = f"{self.crc32:08x}"
+        for key in ("previous", "active_after"):
+            if d[key] is not None:
+                d[key]["crc32"] = f"{d[key]['crc32']:08x}"
+        return d
+
+
+@dataclass
+class _Progress:
+    """Where the sequence is, for the message of a failure."""
+
+    steps: list[str]
+    callback: Callable[[str], None] | None
+    bank: int | None = None
+    sequence: int = 0
+    tail: str = "none"  # none | sent | written
+    reset_sent: bool = False
+
+    def step(self, name: str) -> str:
+        self.steps.append(name)
+        if self.callback is not None:
+            self.callback(name)
+        return name
+
+    @property
+    def current(self) -> str:
+        return self.steps[-1] if self.steps else "start"
+
+
+def _refuse(data: bytes, source: str) -> B.ParamBlock:
+    chk = B.check(data)
+    if not chk.valid:
+        raise InputError(source, "block", "invalid parameter block: " + "; ".join(chk.reasons))
+    return B.unpack(data, source)
+
+
+def _image(blk: B.ParamBlock, sequence: int) -> bytes:
+    """The block with its new sequence; a CRC of 0xFFFFFFFF (the erased CRC field, which would
+    make the block valid before its CRC is written) moves ``calibrated_at`` on by a second."""
+    blk = dataclasses.replace(blk, sequence=sequence)
+    image = B.pack(blk)
+    while B.check(image).crc_stored == ERASED_CRC:
+        blk = dataclasses.replace(blk, calibrated_at=blk.calibrated_at + 1)
+        image = B.pack(blk)
+    return image
+
+
+def _send(s: UdsSession, base: int, data: bytes, start: int, limit: int, bsc: int) -> tuple[int, int]:
+    """TransferData of ``data`` (the image from byte ``start``) in pieces of ``limit`` bytes.
+
+    Returns the next block sequence counter and the number of requests.
+    """
+    blocks = 0
+    for offset in range(0, len(data), limit):
+        s.transfer(f"transfer data (36) at byte {start + offset}", bsc, data[offset:offset + limit])
+        bsc = (bsc + 1) & 0xFF
+        blocks += 1
+    return bsc, blocks
+
+
+def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, report: FlashReport) -> int:
+    """Erase, RequestDownload and every byte but the CRC; returns the next block counter.
+
+    After losses on the bus the download starts again from the erase (revision 1.1: never
+    resumed mid-bank) with a quarter the block size.
+    """
+    body = image[:-TAIL_BYTES]
+    limit: int | None = None
+    for restart in range(MAX_RESTARTS + 1):
+        s.routine(prog.step("erase"), P.RID_ERASE, base, B.BANK_BYTES)
+        prog.step("download")
+        max_payload = s.request_download(base, len(image))
+        limit = max_payload if limit is None else min(limit, max_payload)
+        try:
+            bsc, blocks = _send(s, base, body, 0, limit, 1)
+        except EcuError as exc:
+            if exc.cause != "timeout" or restart == MAX_RESTARTS or s.silent_s >= s.timing.s3_s:
+                raise
+            report.restarts += 1
+            limit = shrink(limit)
+            continue
+        report.transfer_blocks += blocks
+        return bsc
+    raise AssertionError("unreachable")
+
+
+def _rollback(s: UdsSession, base: int) -> bool:
+    """Erase the bank just written, re-entering the programming session if it was lost.
+
+    One attempt per request: after a timeout or a dead link nothing more is tried.
+    """
+    try:
+        try:
+            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES, retry=False)
+        except EcuError as exc:
+            if exc.nrc not in SESSION_LOST_NRCS:
+                raise
+            s.enter_programming()
+            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES, retry=False)
+    except EcuError:
+        return False
+    return True
+
+
+def _aftermath(s: UdsSession, prog: _Progress, base: int, rollback: bool) -> str:
+    """Clean up after a failure; returns what the ECU boots now, for the message."""
+    if prog.bank is None or prog.tail == "none":
+        if rollback:
+            s.leave()
+        return "the previous block stays active"
+    new = f"bank {prog.bank} (sequence {prog.sequence})"
+    if prog.reset_sent:
+        return f"the ECU was reset: it boots the new, checked block in {new}"
+    if rollback and s.link.lost is None and _rollback(s, base):
+        s.leave()
+        return f"{new} erased again: the previous block stays active"
+    held = "holds" if prog.tail == "written" else "may hold"
+    return (f"{new} {held} the complete new block, checked before its CRC was written: "
+            "the ECU boots it at its next reset")
+
+
+def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
+                dry_run: bool = False, force: bool = False, source: str = "<block>",
+                timing: ClientTiming = ClientTiming(),
+                progress: Callable[[str], None] | None = None) -> FlashReport:
+    """Write a parameter block into the ECU's inactive bank (contract section 3).
+
+    Parameters
+    ----------
+    bus : can.BusABC
+        The tester's own bus object.
+    data : bytes
+        A valid block image; its ``sequence`` is replaced by the ECU's active sequence + 1.
+    seed_to_key : SeedToKey
+        Security algorithm (:func:`eol_cal.ecu.client.hmac_seed_to_key` for the contract's ECUs).
+    verify : bool
+        Read the block back (all but its CRC) and compare before the CRC makes it valid.
+    dry_run : bool
+        Stop before the erase: sessions, unlock and identification only; nothing is written.
+    force : bool
+        Flash even when the block's serial differs from the ECU's (F18C).
+    source : str
+        File name for error messages.
+    progress : callable or None
+        Called with each step's name as it starts.
+
+    Raises
+    ------
+    InputError
+        The block is invalid (nothing was sent).
+    EcuError
+        Refused (layout, serial), an NRC, a timeout, a lost link; the message ends with what
+        the ECU boots now (the previous block unless the new one was complete and checked).
+    VerifyFailed
+        Written, but the read-back, the check routine or FD01 after the reset disagrees.
+    Interrupted
+        SIGINT/SIGTERM (raised by the caller's handler); same cleanup and message as EcuError.
+    """
+    t0 = time.perf_counter()
+    blk = _refuse(data, source)
+    prog = _Progress([], progress)
+    base = 0
+    with UdsSession(bus, seed_to_key=seed_to_key, timing=timing) as s:
+        try:
+            prog.step("sessions")
+            s.session(P.SESSION_EXTENDED)
+            s.session(P.SESSION_PROGRAMMING)
+            prog.step("security access")
+            s.unlock()
+            prog.step("identification")
+            serial = s.read_did(P.DID_SERIAL)
+            layouts = tuple(s.read_did(P.DID_LAYOUTS))
+            previous = s.read_did(P.DID_ACTIVE_BLOCK)
+            if blk.layout_version not in layouts:
+                raise EcuError("identification", f"the ECU supports layout versions {list(layouts)}, "
+                                                 f"the block is layout {blk.layout_version}")
+            if blk.serial != serial and not force:
+                raise EcuError("identification", f"block serial {blk.serial!r} differs from the ECU's "
+                                                 f"{serial!r} (F18C); flash it anyway only on purpose (force)")
+            bank = 0 if not previous.has_bank else 1 - previous.bank
+            sequence = previous.sequence + 1 if previous.has_bank else 1
+            if sequence >= B.SEQUENCE_INVALID[1]:
+                raise EcuError("identification", f"active sequence {previous.sequence} cannot be incremented")
+            image = _image(blk, sequence)
+            crc = B.check(image).crc_stored or 0
+            report = FlashReport(serial=serial, bank=bank, sequence=sequence, crc32=crc,
+                                 block_bytes=len(image), previous=previous, dry_run=dry_run, steps=prog.steps)
+            base = B.BANK_WORD_ADDR[bank]
+            if dry_run:
+                s.leave()
+                report.seconds = time.perf_counter() - t0
+                return report
+            prog.bank, prog.sequence = bank, sequence
+            bsc = _download_body(s, prog, base, image, report)
+            if verify:
+                body = image[:-TAIL_BYTES]
+                back = s.read_memory(base, len(body), prog.step("read-back before the CRC (23)"))
+                if back != body:
+                    first = next(i for i, (a, b) in enumerate(zip(back, body)) if a != b)
+                    raise VerifyFailed("read-back", f"bank {bank} differs from the block at byte {first}; "
+                                                    "its CRC was not written")
+                report.verified = True
+            prog.step("CRC (36)")
+            prog.tail = "sent"
+            _send(s, base, image[-TAIL_BYTES:], len(image) - TAIL_BYTES, TAIL_BYTES, bsc)
+            prog.tail = "written"
+            report.transfer_blocks += 1
+            prog.step("transfer exit (37)")
+            s.transfer_exit()
+            status = s.routine(prog.step("check routine (31 0202)"), P.RID_CHECK, base, len(image))
+            if not status or status[0] != P.CHECK_VALID:
+                code = status[0] if status else None
+                raise VerifyFailed("check routine", f"ECU reports bank {bank} "
+                                   f"{P.CHECK_STATUS_TEXT.get(code, f'status {code}')}")
+            prog.step("reset")
+            try:
+                s.reset()
+            except EcuError as exc:
+                prog.reset_sent = exc.nrc is None  # refused: not reset; no answer: it may have reset
+                raise
+            prog.reset_sent = True
+            prog.step("confirm (22 FD01)")
+            after = s.read_did(P.DID_ACTIVE_BLOCK)
+            report.active_after = after
+            expected = P.ActiveBlock(bank, sequence, blk.layout_version, crc)
+            if after != expected:
+                raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
+        except (EcuError, VerifyFailed) as exc:
+            exc.args = (f"{exc}; {_aftermath(s, prog, base, rollback=True)}",)
+            raise
+        except KeyboardInterrupt as exc:  # Interrupted (SIGINT/SIGTERM) or a bare Ctrl-C
+            name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
+            try:
+                outcome = _aftermath(s, prog, base, rollback=True)
+            except KeyboardInterrupt:  # a second signal: stop cleaning up
+                outcome = _aftermath(s, prog, base, rollback=False)
+            raise Interrupted(name, f"flash ({prog.current})", outcome) from None
+    report.seconds = time.perf_counter() - t0
+    report.retries = s.retries_used
+    return report
