@@ -224,3 +224,25 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     assert float(zoomed.split()[2]) < float(before.split()[2]) and back == before
     colours, spread = not_blank(shot)
     assert colours > 50 and spread > 10
+
+
+@pytest.mark.parametrize("n", [3, 40])
+def test_hover_titles_go_on_every_point_in_data_order(n):
+    """matplotlib writes few points as paths and many as <use> of one marker; both get their
+    title, in the data's order, and a count that does not match is refused."""
+    import re
+
+    from eol_cal.report.svg import figure_svg, pyplot
+
+    def fig():
+        f, ax = pyplot().subplots(figsize=(3, 2))
+        ax.scatter(np.arange(n), np.arange(n) ** 2, c=(["tab:red", "tab:green"] * n)[:n], gid="pts")
+        return f
+
+    svg = figure_svg(fig(), "f", {"pts": [f"P{i}" for i in range(n)]})
+    assert re.findall(r"<title>(P\d+)</title>", svg) == [f"P{i}" for i in range(n)]
+    xs = [float(x) for x in re.findall(r'<use [^>]*? x="([-\d.]+)"[^>]*><title>', svg)] or \
+         [float(m) for m in re.findall(r'<path d="M ([-\d.]+) [^>]*><title>', svg)]
+    assert xs == sorted(xs) and len(xs) == n
+    with pytest.raises(ValueError, match="points drawn"):
+        figure_svg(fig(), "f", {"pts": ["only one"] * (n + 1)})

@@ -85,24 +85,33 @@ def _group_end(text: str, start: int) -> int:
 
 
 _G = re.compile(r"<g\b[^>]*>|</g>")
+_POINT = re.compile(r"<(use|path) [^>]*?/>")
 
 
 def _add_titles(text: str, titles: dict[str, Sequence[str]]) -> str:
     """Put a ``<title>`` into each point of the groups named in ``titles``.
 
-    matplotlib draws a scatter's points as ``<use>`` elements, in data order, inside
-    ``<g id="gid">`` (one clipped group for all, or one per point when their colours differ);
-    non-finite points are not drawn: callers leave them out.
+    matplotlib draws a scatter's points in data order inside ``<g id="gid">``: as ``<use>`` of
+    a marker defined in the group's ``<defs>`` (one clipped group for all, or one per point when
+    their colours differ), or, for a few points, each as its own ``<path>``. Non-finite points
+    are not drawn: callers leave them out.
     """
     for gid, labels in titles.items():
         start = text.find(f'<g id="{gid}"')
         if start < 0:
             raise ValueError(f"no artist with gid {gid!r} in the figure")
         end = _group_end(text, start)
-        body, drawn = re.subn(r"<use [^>]*?/>", lambda m: m.group(0), text[start:end])
+        # the points outside <defs>: <use> of a marker, or (few points) each its own <path>
+        parts = re.split(r"(<defs>.*?</defs>)", text[start:end], flags=re.S)
+        drawn = sum(len(_POINT.findall(p)) for p in parts[::2])
         if drawn != len(labels):  # a title on the wrong point would name the wrong motor
             raise ValueError(f"artist {gid!r}: {drawn} points drawn, {len(labels)} titles")
         it = iter(labels)
-        body = re.sub(r"<use [^>]*?/>", lambda m: m.group(0)[:-2] + f"><title>{escape(next(it))}</title></use>", body)
+
+        def one(m: re.Match) -> str:
+            return f"{m.group(0)[:-2]}><title>{escape(next(it))}</title></{m.group(1)}>"
+
+        parts[::2] = [_POINT.sub(one, p) for p in parts[::2]]
+        body = "".join(parts)
         text = text[:start] + body + text[end:]
     return text
