@@ -62,7 +62,7 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
     table.add_column("field")
     table.add_column("value")
     table.add_column("unit")
-    from eol_cal.firmware.block import FIELDS, FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
+    from eol_cal.firmware.block import FIELDS, flag_names
 
     for name, spec in FIELDS.items():
         if name in ("table_const", "table_per_amp", "crc32"):
@@ -71,9 +71,7 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
         if name == "magic":
             text = f"0x{v:04x}"
         elif name == "flags":
-            names = [n for bit, n in ((FLAG_COMP_ENABLE, "COMP_ENABLE"), (FLAG_INTERP_ENABLE, "INTERP_ENABLE"))
-                     if v & bit]
-            text = f"0x{v:x} ({'|'.join(names) or 'none'})"
+            text = f"0x{v:x} ({flag_names(v)})"
         elif name == "hall_angle":
             text = ", ".join(f"{math.degrees(a):.2f}°" for a in v)
         elif name == "reserved":

@@ -150,6 +150,7 @@ def test_full_run_end_to_end(full_run):
     active = active_block_from_file(full_run["flash"])
     blk = B.unpack(active, "active")
     assert blk.serial == SERIAL and blk.flags & B.FLAG_COMP_ENABLE
+    assert rec["block"]["flags"] == B.flag_names(blk.flags) == "COMP_ENABLE|INTERP_ENABLE"
     assert f"{B.check(active).crc_stored:08x}" == rec["block"]["crc32"]
     assert blk.sequence == rec["block"]["sequence"] == 2 and rec["block"]["bank"] != prep["bank"]
     # captures on disk with the recorded hashes
@@ -378,6 +379,7 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
         sizes = element_sizes(b, "svg.plot")
         verdict_text = b.evaluate("document.getElementById('verdict').textContent")
         rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row')).map(r => [r.dataset.key, r.lastElementChild.textContent])")
+        b_ecu = b.evaluate("document.getElementById('ecu').textContent")
         residual_panels = b.evaluate("document.querySelectorAll('#fig-residual g[id^=residual-segment-]').length")
         shot = b.screenshot(tmp_path / "report.png")
         pages = pdf_pages(b.pdf())
@@ -388,6 +390,10 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     assert verdict_text == rec["verdict"].upper()
     assert [k for k, _ in rows] == list(LIMIT_KEYS)
     assert all(status in ("PASS", "FAIL") for _, status in rows)
+    # the ECU's state in the record is on the page: CRCs and flags of both blocks
+    ecu = b_ecu
+    for text in (rec["ecu_prepared"]["crc32"], rec["block"]["crc32"], "COMP_ENABLE|INTERP_ENABLE"):
+        assert text in ecu
     # every fitted segment has its residual panel (the record lists them)
     assert residual_panels == len(rec["fit"]["segments"])
     colours, spread = not_blank(shot)

@@ -48,6 +48,12 @@ FLAG_COMP_ENABLE: int = 1 << LAYOUT["flags"]["COMP_ENABLE"]["bit"]
 FLAG_INTERP_ENABLE: int = 1 << LAYOUT["flags"]["INTERP_ENABLE"]["bit"]
 FLAGS_KNOWN: int = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE
 
+
+def flag_names(flags: int) -> str:
+    """The block's flags by name, ``COMP_ENABLE|INTERP_ENABLE`` (``none`` when no bit is set)."""
+    names = [n for bit, n in ((FLAG_COMP_ENABLE, "COMP_ENABLE"), (FLAG_INTERP_ENABLE, "INTERP_ENABLE")) if flags & bit]
+    return "|".join(names) or "none"
+
 STATUS_VALID = 0
 STATUS_CRC_MISMATCH = 1
 STATUS_HEADER_INVALID = 2

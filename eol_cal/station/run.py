@@ -422,7 +422,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     def do_table() -> None:
         from eol_cal.analysis.fit_table import block_from_record, created_unix
         from eol_cal.atomic import atomic_path
-        from eol_cal.firmware.block import pack
+        from eol_cal.firmware.block import flag_names, pack
 
         blk = block_from_record(rec["fit"], cfg.motor, calibrated_at=created_unix(state["fit_doc"]),
                                 source=str(run_dir / "fit.json"))
@@ -432,7 +432,8 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
             tmp.write_bytes(data)
         state["block"] = data
         rec["block"] = {"path": str(path), "bytes": len(data), "table_len": blk.table_len,
-                        "lead_s": blk.lead_s, "iqc_limit": blk.iqc_limit, "crc32": None, "sequence": None}
+                        "lead_s": blk.lead_s, "iqc_limit": blk.iqc_limit, "flags": flag_names(blk.flags),
+                        "crc32": None, "sequence": None}
 
     def flash(data: bytes, source: str):
         from eol_cal.ecu.client import ClientTiming, flash_block
@@ -447,14 +448,15 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
     def do_prepare() -> None:
         from eol_cal.analysis.fit_table import uncompensated_block
         from eol_cal.atomic import atomic_path
-        from eol_cal.firmware.block import pack
+        from eol_cal.firmware.block import flag_names, pack
 
-        data = pack(uncompensated_block(cfg.serial, cfg.motor))
+        blk = uncompensated_block(cfg.serial, cfg.motor)
+        data = pack(blk)
         path = run_dir / "block_uncompensated.bin"
         with atomic_path(path) as tmp:
             tmp.write_bytes(data)
         report = flash(data, str(path))
-        rec["ecu_prepared"] = {"path": str(path), "flags": "INTERP_ENABLE", "crc32": f"{report.crc32:08x}",
+        rec["ecu_prepared"] = {"path": str(path), "flags": flag_names(blk.flags), "crc32": f"{report.crc32:08x}",
                                "sequence": report.sequence, "bank": report.bank, "verified": report.verified,
                                "previous": _previous(report)}
 
