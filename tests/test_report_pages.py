@@ -246,3 +246,12 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
     assert xs == sorted(xs) and len(xs) == n
     with pytest.raises(ValueError, match="points drawn"):
         figure_svg(fig(), "f", {"pts": ["only one"] * (n + 1)})
+
+
+def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, monkeypatch, tmp_path):
+    import eol_cal.report.lot as lot
+
+    monkeypatch.setattr(lot, "MAX_HOVER_POINTS", 5)
+    html = lot.write_lot_page(lot_db["records"], tmp_path / "big.html", title="big", filters={}).read_text()
+    assert "<title>" not in html.split("</head>")[1] and "data:image/png;base64" in html
+    assert "More than 5 runs: points without hover text" in html

@@ -17,6 +17,9 @@ import numpy as np
 from eol_cal.report.svg import pyplot
 
 VERDICT_COLOUR = {"pass": "tab:green", "fail": "tab:orange", "error": "tab:red"}
+#: more points than this in one chart are drawn as an embedded image without hover text (each
+#: SVG point with its title costs about 0.3 kB: 100 000 runs would make a 200 MB page)
+MAX_HOVER_POINTS = 2000
 
 
 def run_time(rec: dict[str, Any]) -> dt.datetime:
@@ -84,8 +87,9 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[Any, dict[
     colours = [VERDICT_COLOUR.get(v, "k") for v in verdicts]
     ok = np.isfinite(k6)
     t_ok = [t for t, o in zip(times, ok) if o]
-    ax_k.errorbar(t_ok, k6[ok], yerr=np.nan_to_num(ci[ok]), fmt="none", ecolor="0.6", lw=1)
-    ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok) if o], s=22, zorder=3, gid="runs-k6",
+    dense = len(recs) > MAX_HOVER_POINTS
+    ax_k.errorbar(t_ok, k6[ok], yerr=np.nan_to_num(ci[ok]), fmt="none", ecolor="0.6", lw=1, rasterized=dense)
+    ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok) if o], s=22, zorder=3, gid="runs-k6", rasterized=dense,
                  label="k6 (green pass, orange fail)")
     _limit_steps(ax_k, times, recs, "max_k6", 1e3, "tab:red", "max_k6")
     ax_k.set_ylabel("k6 (mN*m/A)")
@@ -94,8 +98,8 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[Any, dict[
         y = np.array([value_of(r, path) for r in recs])
         ok_y = np.isfinite(y)
         t_y = [t for t, o in zip(times, ok_y) if o]
-        ax_p.plot(t_y, y[ok_y], "-", color=colour, lw=0.6, alpha=0.6)
-        ax_p.scatter(t_y, y[ok_y], marker=marker, s=18, zorder=3, facecolor=colour,
+        ax_p.plot(t_y, y[ok_y], "-", color=colour, lw=0.6, alpha=0.6, rasterized=dense)
+        ax_p.scatter(t_y, y[ok_y], marker=marker, s=18, zorder=3, facecolor=colour, rasterized=dense,
                      edgecolor=[c for c, o in zip(colours, ok_y) if o], linewidth=1.2,
                      label=f"p-p {'before' if key == 'before' else 'compensated'}", gid=f"runs-{key}")
     _limit_steps(ax_p, times, recs, "max_pp_before_pct", 1.0, "tab:blue", "max_pp_before_pct")
@@ -115,6 +119,8 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[Any, dict[
     counts = {v: verdicts.count(v) for v in ("pass", "fail", "error")}
     fig.suptitle(f"{title}: {n} runs, {counts['pass']} pass, {counts['fail']} fail, {counts['error']} error", fontsize=10)
     fig.tight_layout()
+    if dense:
+        return fig, {}
     titles = {"runs-k6": [point_title(r, f"k6 {v:.4g} mN*m/A") for r, v in zip(recs, k6) if math.isfinite(v)]}
     for key, path in (("before", ("metrics", "pp_before_pct")), ("after", ("metrics", "pp_after_pct"))):
         titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %") for r in recs
@@ -224,14 +230,18 @@ def control_figure(records: Sequence[dict[str, Any]], station: str,
         t = [p[0] for p in pts]
         x = np.array([p[1] for p in pts])
         ax_i, ax_m = axes[0][col], axes[1][col]
-        ax_i.plot(t, x, "-", color="0.6", lw=0.7)
-        ax_i.scatter(t, x, s=14, zorder=3, c=[VERDICT_COLOUR.get(p[2].get("verdict"), "k") for p in pts], gid=f"i-{key}")
-        titles[f"i-{key}"] = [point_title(p[2], f"{title} {p[1]:.4g} {unit}") for p in pts]
+        dense = len(pts) > MAX_HOVER_POINTS
+        ax_i.plot(t, x, "-", color="0.6", lw=0.7, rasterized=dense)
+        ax_i.scatter(t, x, s=14, zorder=3, c=[VERDICT_COLOUR.get(p[2].get("verdict"), "k") for p in pts], gid=f"i-{key}",
+                     rasterized=dense)
+        if not dense:
+            titles[f"i-{key}"] = [point_title(p[2], f"{title} {p[1]:.4g} {unit}") for p in pts]
         mr = np.abs(np.diff(x))
         if len(mr):
-            ax_m.plot(t[1:], mr, "-", color="0.6", lw=0.7)
-            ax_m.scatter(t[1:], mr, s=10, zorder=3, color="tab:blue", gid=f"mr-{key}")
-            titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr)]
+            ax_m.plot(t[1:], mr, "-", color="0.6", lw=0.7, rasterized=dense)
+            ax_m.scatter(t[1:], mr, s=10, zorder=3, color="tab:blue", gid=f"mr-{key}", rasterized=dense)
+            if not dense:
+                titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr)]
         lim = (limits or {}).get(key)
         if lim:
             for ax, names in ((ax_i, ("center", "ucl", "lcl")), (ax_m, ("mr_center", "mr_ucl"))):
@@ -326,8 +336,10 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: 
     if recs:
         fig, titles = timeline(recs, title)
         figures.append(Figure("timeline", "k6 and p-p ripple of every run against its start time, with the limits; "
-                              "error runs as red dotted lines. Hover on a point: serial, verdict, time, value; wheel: zoom, "
-                              "drag: pan, double-click: back", figure_svg(fig, "timeline", titles, "plot zoom")))
+                              "error runs as red dotted lines. "
+                              + ("Hover on a point: serial, verdict, time, value; " if titles else
+                                 f"More than {MAX_HOVER_POINTS} runs: points without hover text; ")
+                              + "wheel: zoom, drag: pan, double-click: back", figure_svg(fig, "timeline", titles, "plot zoom")))
         figures.append(Figure("histograms", "Distribution of the measured quantities over the runs that have them, "
                               "with the variant's limits", figure_svg(histogram_figure(recs), "histograms")))
     stations: dict[str, list[dict[str, Any]]] = {}
