@@ -177,20 +177,41 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
 @click.option("--erase-s", type=float, default=0.05, show_default=True, help="Sector erase time, s.")
 @click.option("--s3-s", type=float, default=5.0, show_default=True, help="Session timeout S3, s.")
 @click.option("--lockout-s", type=float, default=10.0, show_default=True, help="Security lock-out delay, s.")
+@click.option("--die-at", metavar="STEP[:N]",
+              help="Fault test: the process kills itself (SIGKILL) when the N-th request (default 1) of STEP "
+                   "arrives (session, security, read_did, erase, download, transfer, transfer_exit, check, "
+                   "read_memory, reset); erase and transfer leave their damage in the flash first.")
+@click.option("--slow", metavar="STEP:S", help="Fault test: every request of STEP takes S seconds more (0x78 meanwhile).")
 @handle_errors
 def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None, erase_s: float,
-                s3_s: float, lockout_s: float) -> None:
+                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None) -> None:
     """Run the ECU simulator, served to other processes over python-can-remote.
 
     Testers connect with ``--interface remote --channel ws://HOST:PORT/``. Stop with Ctrl-C.
     """
+    import os
     import signal
     import threading
 
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import load_key_file
     from eol_cal.ecu.remote import serve_remote
-    from eol_cal.ecu.sim import SimConfig
+    from eol_cal.ecu.sim import STEPS, Faults, SimConfig
+
+    def step_arg(text: str, option: str, kind: type) -> tuple[str, Any]:
+        step, _, value = text.partition(":")
+        if step not in STEPS:
+            raise InputError(None, option, f"step {step!r} is not one of {', '.join(STEPS)}")
+        try:
+            return step, kind(value) if value else kind(1)
+        except ValueError:
+            raise InputError(None, option, f"{value!r} after the step is not a {kind.__name__}") from None
+
+    faults = Faults()
+    if die_at:
+        faults.power_loss_step, faults.power_loss_occurrence = step_arg(die_at, "die-at", int)
+    if slow:
+        faults.slow_step = dict([step_arg(slow, "slow", float)])
 
     from eol_cal.address import parse_host_port
 
@@ -202,9 +223,11 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
     config = SimConfig(serial=serial, secret=load_key_file(key_file) if key_file else P.DEV_SECRET,
                        erase_s=erase_s, s3_s=s3_s, lockout_s=lockout_s)
     try:
-        ecu = serve_remote(flash_file, host=host, port=port, config=config)
+        ecu = serve_remote(flash_file, host=host, port=port, config=config, faults=faults)
     except OSError as exc:
         raise InputError(None, "listen", f"cannot listen on {listen}: {exc}") from exc
+    if die_at:
+        ecu.sim.on_power_loss = lambda: os.kill(os.getpid(), signal.SIGKILL)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -31,7 +31,7 @@ from eol_cal.firmware import block as B
 TAIL_BYTES = 4
 """The CRC: the last bytes of a block, written last (the block is valid only with them)."""
 ERASED_CRC = 0xFFFFFFFF
-MAX_RESTARTS = 2
+MAX_RESTARTS = 3
 """Downloads started again from the erase after losses on the bus (smaller blocks each time)."""
 
 
@@ -302,12 +302,12 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
                 raise VerifyFailed("check routine", f"ECU reports bank {bank} "
                                    f"{P.CHECK_STATUS_TEXT.get(code, f'status {code}')}")
             prog.step("reset")
+            prog.reset_sent = True  # from here the ECU may have reset (no answer, an interruption)
             try:
                 s.reset()
             except EcuError as exc:
-                prog.reset_sent = exc.nrc is None  # refused: not reset; no answer: it may have reset
+                prog.reset_sent = exc.nrc is None  # refused with an NRC: it did not reset
                 raise
-            prog.reset_sent = True
             prog.step("confirm (22 FD01)")
             after = s.read_did(P.DID_ACTIVE_BLOCK)
             report.active_after = after

@@ -159,6 +159,8 @@ class UdsSession:
         self.timing = timing
         self.seed_to_key = seed_to_key
         self.link = bus if isinstance(bus, GuardedBus) else GuardedBus(bus, owns=False)
+        self.link.watch_id = P.TESTER_ID
+        self.link.foreign_frames = 0
         # Blocking send: udsoncan's P2 timer must start after the last consecutive frame.
         stack = make_stack(self.link, tx_id=P.TESTER_ID, rx_id=P.ECU_ID, blocking_send=True, timing=timing.isotp)
         config = dict(udsoncan.configs.default_client_config)
@@ -182,6 +184,7 @@ class UdsSession:
         self._keepalive: threading.Thread | None = None
         self.in_session = False
         self.programming = False
+        self.unlocked = False
         self.retries_used = 0
 
     def _security_algo(self, level: int, seed: bytes, params: Any = None) -> bytes:
@@ -229,6 +232,11 @@ class UdsSession:
         the same arguments ``timing.retries`` times when ``retry``, and only while the ECU was
         heard less than S3 ago; negative responses never are, a dead link never is.
         """
+        if self.link.foreign_frames and not self.unlocked:
+            # CAN gives the ECU no tester identity: two testers would share one session and
+            # take each other's answers. The one that has not unlocked yet steps back.
+            raise EcuError(step, "another tester is talking to this ECU (requests on 0x7E0 this tester did not "
+                                 "send); nothing was written", cause="refused")
         attempts = 1 + (self.timing.retries if retry else 0)
         last: Exception | None = None
         attempt = 0
@@ -283,6 +291,7 @@ class UdsSession:
         if self.seed_to_key is None:
             raise EcuError("security access (27)", "no seed-to-key algorithm: give the ECU's key")
         self.call("security access (27 01/02)", self.client.unlock_security_access, P.SECURITY_LEVEL)
+        self.unlocked = True
 
     def enter_programming(self) -> None:
         """``10 03``, ``10 02``, ``27 01``/``27 02``: the start of every write (contract section 3)."""
@@ -350,15 +359,16 @@ class UdsSession:
     def leave(self) -> None:
         """Best effort back to the default session, one attempt (after an error the ECU may be gone).
 
-        Only a tester that holds the programming session sends it: a tester that was refused
-        must not end another tester's session.
+        Only a tester that entered the programming session itself (and unlocked it, if another
+        tester showed up) sends it: a tester that was refused must not end another's session.
         """
-        if self.in_session and self.programming and self.link.lost is None:
+        mine = self.unlocked or not self.link.foreign_frames
+        if self.in_session and self.programming and mine and self.link.lost is None:
             try:
                 self.call("default session (10 01)", self.client.change_session, P.SESSION_DEFAULT, retry=False)
             except EcuError as exc:
                 log.debug("leaving the session: %s", exc)
-        self.in_session = self.programming = False
+        self.in_session = self.programming = self.unlocked = False
 
 
 MIN_BLOCK_BYTES = 64

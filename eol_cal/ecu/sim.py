@@ -25,6 +25,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import can
 from udsoncan import Request, Response, services
@@ -82,9 +83,11 @@ class Faults:
         Request service ID -> NRC the ECU answers instead of serving it.
     wrong_block_counter : int or None
         The n-th TransferData request (1-based) is answered NRC 0x73.
-    drop_response : dict of str to int
-        Step (one of :data:`STEPS`) -> the n-th request of it (1-based) is served but its
-        answer is lost on the way back.
+    drop_response : dict of str to int or tuple of int
+        Step (one of :data:`STEPS`) -> the n-th request(s) of it (1-based) are served but their
+        answers are lost on the way back.
+    slow_step : dict of str to float
+        Step -> extra seconds every request of it takes (answered 0x78 meanwhile).
     seed : int
         Seed of every random choice (dropped frames, arbitrary words, seeds).
     """
@@ -98,11 +101,12 @@ class Faults:
     delay_s: float = 0.0
     nrc: dict[int, int] = field(default_factory=dict)
     wrong_block_counter: int | None = None
-    drop_response: dict[str, int] = field(default_factory=dict)
+    drop_response: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
+    slow_step: dict[str, float] = field(default_factory=dict)
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for step in (self.power_loss_step, *self.drop_response):
+        for step in (self.power_loss_step, *self.drop_response, *self.slow_step):
             if step is not None and step not in STEPS:
                 raise ValueError(f"step {step!r} not one of {STEPS}")
 
@@ -206,6 +210,8 @@ class EcuSimulator:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.powered_off = threading.Event()
+        self.on_power_loss: Callable[[], None] | None = None
+        """Called when the injected power loss happens (``ecu-sim`` kills its own process there)."""
         self.steps_seen: list[str] = []
         self.security = SecurityMemory(flash)
         self._lockout_until = 0.0
@@ -293,6 +299,8 @@ class EcuSimulator:
             except PowerLoss:
                 log.info("power loss")
                 self.powered_off.set()
+                if self.on_power_loss is not None:
+                    self.on_power_loss()
                 self._stack.stop()
                 return
             self._last_activity = time.monotonic()
@@ -312,9 +320,11 @@ class EcuSimulator:
         self._step_counts[step] = self._step_counts.get(step, 0) + 1
         if step not in ("erase", "transfer") and self._power_fails(step):
             raise PowerLoss
-        lost = self.faults.drop_response.get(step) == self._step_counts[step]
+        drop = self.faults.drop_response.get(step, ())
+        lost = self._step_counts[step] in (drop if isinstance(drop, tuple) else (drop,))
         pending = _Pending(self, req.service)
         try:
+            time.sleep(self.faults.slow_step.get(step, 0.0))
             if req.service.request_id() in self.faults.nrc:
                 raise Nrc(self.faults.nrc[req.service.request_id()])
             data = self._handlers[req.service](req)

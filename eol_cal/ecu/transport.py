@@ -260,6 +260,9 @@ class GuardedBus(can.BusABC):
         self.inner = inner
         self.owns = owns
         self.lost: str | None = None
+        self.watch_id: int | None = None
+        self.foreign_frames = 0
+        """Frames received with :attr:`watch_id` (the tester's own request ID: another tester)."""
         super().__init__(channel=getattr(inner, "channel_info", "guarded"))
         self.channel_info = getattr(inner, "channel_info", "guarded")
 
@@ -284,10 +287,13 @@ class GuardedBus(can.BusABC):
             time.sleep(timeout or 0.0)
             return None, False
         try:
-            return self.inner.recv(timeout), False
+            msg = self.inner.recv(timeout)
         except Exception as exc:  # noqa: BLE001
             self._lose(exc)
             return None, False
+        if msg is not None and msg.arbitration_id == self.watch_id:
+            self.foreign_frames += 1  # a bus does not echo our own frames: someone else sent it
+        return msg, False
 
     def shutdown(self) -> None:
         super().shutdown()
