@@ -26,6 +26,7 @@ from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
 from eol_cal.errors import EolCalError, InputError
+from eol_cal.retry import RetriesExhausted, retry_async, retry_call
 
 #: channels read by default (the packed digital channel is always read); the others on request
 DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
@@ -187,33 +188,31 @@ class DynoClient:
         return f"dyno {self.config.host}:{self.config.port}"
 
     def _call(self, what: str, fn: Callable[[], object]):
-        """Run one request with retries: reconnect on lost connections and timeouts."""
+        """Run one request with :func:`eol_cal.retry.retry_call`: reconnect on lost connections
+        and timeouts; a Modbus exception answer is a refusal, not retried."""
         from pymodbus.exceptions import ModbusException
 
-        delay = self.config.retry_delay
-        last: Exception | None = None
-        for attempt in range(self.config.retries + 1):
-            if attempt:
-                time.sleep(delay)
-                delay *= 2
-            try:
-                if not self._client.connected:
-                    if attempt:
-                        self.reconnects += 1
-                    if not self._client.connect():
-                        raise ConnectionError("cannot connect")
-                response = fn()
-            except (ModbusException, ConnectionError, OSError) as exc:
-                last = exc
-                # a late answer to a timed-out request would be taken for the next one: start over
-                self._client.close()
-                continue
-            if response.isError():
-                code = getattr(response, "exception_code", None)
-                why = _EXCEPTION_MEANING.get(code, "")
-                raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
-            return response
-        raise DynoError(f"{self.where}: {what} failed after {self.config.retries + 1} attempts: {last}")
+        def attempt(n: int):
+            if not self._client.connected:
+                if n:
+                    self.reconnects += 1
+                if not self._client.connect():
+                    raise ConnectionError("cannot connect")
+            return fn()
+
+        try:
+            # a late answer to a timed-out request would be taken for the next one: start over
+            response = retry_call(attempt, retries=self.config.retries, delay_s=self.config.retry_delay,
+                                  retry_on=(ModbusException, ConnectionError, OSError),
+                                  before_retry=lambda _n, _exc: self._client.close())
+        except RetriesExhausted as exc:
+            self._client.close()
+            raise DynoError(f"{self.where}: {what} failed after {exc.attempts} attempts: {exc.last}") from None
+        if response.isError():
+            code = getattr(response, "exception_code", None)
+            why = _EXCEPTION_MEANING.get(code, "")
+            raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
+        return response
 
     def connect(self) -> dict[str, float | int | str]:
         """Connect and read the identification registers."""
@@ -357,7 +356,7 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
     pymodbus serves one request per connection at a time, so parallel connections are how
     requests overlap. The page selection is dyno state shared by all connections: each page is
     selected, then its blocks are read in parallel. A lost connection or timeout restarts the
-    page on fresh connections (``cfg.retries`` times, doubling delays). Returns the pages' words
+    page on fresh connections (:func:`eol_cal.retry.retry_async`: ``cfg.retries`` times, doubling delays). Returns the pages' words
     followed by the number of reconnects.
     """
     from pymodbus.client import AsyncModbusTcpClient
@@ -402,23 +401,25 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
     done = 0
     try:
         for cid, first, n_regs in pages:
-            delay = cfg.retry_delay
-            for attempt in range(cfg.retries + 1):
-                try:
-                    if len(clients) != k or not all(cl.connected for cl in clients):
-                        if attempt or words:
-                            reconnects += 1
-                        await open_all()
-                    words.append(await read_page(cid, first, n_regs))
-                    break
-                except (ModbusException, ConnectionError, OSError, asyncio.TimeoutError) as exc:
-                    if attempt == cfg.retries:
-                        raise _TransferError(f"channel {cid} at sample {first}: {exc or type(exc).__name__} after {attempt + 1} attempts") from None
-                    for cl in clients:
-                        cl.close()
-                    clients.clear()
-                    await asyncio.sleep(delay)
-                    delay *= 2
+            async def attempt(n: int, cid: int = cid, first: int = first, n_regs: int = n_regs) -> np.ndarray:
+                nonlocal reconnects
+                if len(clients) != k or not all(cl.connected for cl in clients):
+                    if n or words:
+                        reconnects += 1
+                    await open_all()
+                return await read_page(cid, first, n_regs)
+
+            def drop_all(_n: int, _exc: BaseException) -> None:
+                for cl in clients:
+                    cl.close()
+                clients.clear()
+
+            try:
+                words.append(await retry_async(attempt, retries=cfg.retries, delay_s=cfg.retry_delay,
+                                               retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
+                                               before_retry=drop_all))
+            except RetriesExhausted as exc:
+                raise _TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
             done += n_regs
             if progress:
                 progress("transfer", done, total)
