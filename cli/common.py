@@ -34,20 +34,23 @@ err_console = _console(stderr=True)
 
 @contextlib.contextmanager
 def signals_interrupt() -> Iterator[None]:
-    """SIGINT and SIGTERM raise :class:`Interrupted` in the main thread while the command runs.
+    """SIGINT, SIGTERM and SIGHUP raise :class:`Interrupted` in the main thread while the command runs.
 
-    SIGTERM's default ends the process without cleanup (no safe state, no record); raised as
-    an exception it unwinds through every ``finally`` like Ctrl-C. Outside the main thread
+    SIGTERM's (and a closed terminal's SIGHUP's) default ends the process without cleanup (no
+    safe state, no record); raised as an exception it unwinds through every ``finally`` like
+    Ctrl-C. Inside ``eol_cal.interrupts.shielded`` (a record being written) it waits for the end. Outside the main thread
     (a test invoking the CLI from a worker) handlers cannot be set and nothing changes.
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    def raise_interrupted(signum: int, frame: Any) -> None:
-        raise Interrupted(signal.Signals(signum).name)
+    from eol_cal.interrupts import deliver
 
-    previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM)}
+    def raise_interrupted(signum: int, frame: Any) -> None:
+        deliver(signal.Signals(signum).name)
+
+    previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         yield
     finally:

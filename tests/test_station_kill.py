@@ -1,0 +1,114 @@
+"""``eol-cal run`` when the ECU dies or the run is signalled: it ends within the bound, exit 2,
+and the record (database) and the report are written all the same (issue 16, deliverable 1).
+
+Real processes: ``eol-cal run`` and ``eol-cal ecu-sim`` (python-can-remote on 127.0.0.1), the
+dyno simulator (pymodbus on 127.0.0.1, synthetic captures) in this process.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from eol_cal.dyno import sim as ds
+from eol_cal.ecu import protocol as P
+from eol_cal.ecu.client import ClientTiming
+from eol_cal.ecu.flash import active_block_from_file
+from eol_cal.station.records import query_records
+
+BOUND_S = ClientTiming().dead_link_bound_s
+START_S = 8.0  # process start, imports, the JAX warm-up the run waits for on its way out, s
+LIMITS = """
+default_variant = "TEST"
+[variant.TEST]
+max_k6 = 0.0025
+max_pp_before_pct = 25.0
+max_pp_after_pct = 2.0
+min_improvement_pct = 50.0
+min_r2 = 0.3
+max_rms_nm = 0.1
+max_ci_k6_rel = 0.05
+max_ci_phase_k6_deg = 3.0
+max_ci_c6_nm = 0.01
+max_hall_deviation_deg = 3.0
+"""
+
+
+def _cli(*args: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "cli.main", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture
+def station(tmp_path):
+    """An ECU simulator process and a dyno simulator; yields a function that starts ``eol-cal run``."""
+    (tmp_path / "limits.toml").write_text(LIMITS)
+    (tmp_path / "key.hex").write_text(P.DEV_SECRET.hex())
+    flash = tmp_path / "ecu.flash"
+    procs = []
+
+    def start(*ecu_fault: str) -> tuple[subprocess.Popen, subprocess.Popen]:
+        ecu = _cli("ecu-sim", "--flash-file", str(flash), "--listen", "127.0.0.1:0", "--serial", "K-1",
+                   "--s3-s", "1", *ecu_fault)
+        procs.append(ecu)
+        url = ecu.stdout.readline().strip()
+        assert url.startswith("ws://"), ecu.stderr.read()
+        run = _cli("run", "--dyno", f"127.0.0.1:{dyno.port}", "-i", "remote", "-c", url,
+                   "--limits", str(tmp_path / "limits.toml"), "--db", str(tmp_path / "db.sqlite"),
+                   "--serial", "K-1", "--key-file", str(tmp_path / "key.hex"),
+                   "--report-dir", str(tmp_path / "reports"), "--spool-dir", str(tmp_path / "spool"), "--json")
+        procs.append(run)
+        return ecu, run
+
+    sim = ds.DynoSim(ds.synthetic_source, serial="K-1", flash_file=flash)
+    with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
+        try:
+            yield start, tmp_path, sim
+        finally:
+            for p in procs:
+                if p.poll() is None:
+                    p.kill()
+                    p.wait(5)
+
+
+def _recorded(tmp_path, step: str, message: str) -> dict:
+    recs = query_records(tmp_path / "db.sqlite")
+    assert [r["verdict"] for r in recs] == ["error"]
+    rec = recs[0]
+    assert rec["error"]["step"] == step and message in rec["error"]["message"], rec["error"]
+    assert list((tmp_path / "reports").rglob("report.json")), "no report written"
+    return rec
+
+
+def test_run_when_the_ecu_dies_during_the_flash(station):
+    start, tmp_path, dyno = station
+    ecu, run = start("--die-at", "erase")
+    t0 = time.monotonic()
+    _, err = run.communicate(timeout=BOUND_S + START_S + 10)
+    assert run.returncode == 2 and time.monotonic() - t0 < BOUND_S + START_S, err
+    assert ecu.wait(5) == -signal.SIGKILL
+    _recorded(tmp_path, "prepare ECU", "CAN link lost")
+    assert not dyno.enabled and dyno.speed == 0.0
+    assert active_block_from_file(tmp_path / "ecu.flash") is None  # the interrupted erase left nothing valid
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_run_signalled_during_the_flash(station, sig):
+    start, tmp_path, dyno = station
+    ecu, run = start("--slow", "erase:3")
+    end = time.monotonic() + 30
+    # the prepare step writes its block file, then flashes it
+    while not list((tmp_path / "reports").rglob("block_uncompensated.bin")) and time.monotonic() < end:
+        time.sleep(0.05)
+    time.sleep(1.0)  # inside the slowed erase
+    t0 = time.monotonic()
+    run.send_signal(sig)
+    _, err = run.communicate(timeout=BOUND_S + START_S + 10)
+    assert run.returncode == 2 and time.monotonic() - t0 < START_S, err
+    assert "Traceback" not in err
+    _recorded(tmp_path, "prepare ECU", sig.name)
+    assert not dyno.enabled and dyno.speed == 0.0
