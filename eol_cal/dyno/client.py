@@ -25,7 +25,7 @@ from eol_cal.address import parse_host_port
 from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
-from eol_cal.errors import EolCalError, InputError
+from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.retry import RetriesExhausted, retry_async, retry_call
 
 #: channels read by default (the packed digital channel is always read); the others on request
@@ -494,6 +494,8 @@ def run_profile(
         )
         if isinstance(exc, DynoError):
             raise DynoError(f"{exc}; {note}") from exc
+        if isinstance(exc, Interrupted):
+            raise Interrupted(exc.signal_name, "the dyno profile", note) from None
         raise
     why = client.safe_state()
     client.close()
