@@ -26,6 +26,7 @@ import numpy as np
 from eol_cal.firmware import estimator as E
 from eol_cal.firmware.kinematics import (draw_sensor_errors, electrical_angle, encoder_hall_signals,
                                          speed_profile_angle)
+from eol_cal.wrap import wrap_pi
 
 TICK_HZ = 20000.0
 
@@ -59,7 +60,7 @@ def _errors(n: int, hall_uniform: bool) -> list:
 
 
 def _err_deg(x: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    return np.degrees(np.angle(np.exp(1j * (np.asarray(x, np.float64) - truth))))
+    return np.degrees(wrap_pi(np.asarray(x, np.float64) - truth))
 
 
 def main() -> None:

@@ -9,9 +9,9 @@ from eol_cal.analysis.angle import (
     capture_angle,
     hall_transition_angles,
     reconstruct_angle,
-    wrap_pi,
 )
 from eol_cal.capture.model import Capture
+from eol_cal.wrap import wrap_pi
 from eol_cal.errors import InputError
 
 FS = 20000.0

@@ -6,7 +6,7 @@ unlike the firmware's estimator (seed eqs. 13-16) that extrapolates from the las
 Frame (see ``docs/angle-frame.md``): theta_r = 0 rad electrical where hall U rises in forward
 rotation, i.e. where hall state 5 begins; forward rotation steps the halls 5, 1, 3, 2, 6, 4
 and channel A leads channel B (firmware contract, section 2, hall convention). The returned
-angle is unwrapped (continuous); take ``np.mod(theta_r, 2*pi)`` for the wrapped angle.
+angle is unwrapped (continuous); take :func:`eol_cal.wrap.wrap_2pi` of it for the wrapped angle.
 
 Steps
 -----
@@ -34,6 +34,7 @@ import numpy as np
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+from eol_cal.wrap import wrap_2pi, wrap_pi
 
 TWO_PI = 2.0 * np.pi
 
@@ -104,11 +105,6 @@ class AngleResult:
     t_span: tuple[float, float]
     hall_begins: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     hall_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-
-def wrap_pi(x: np.ndarray | float) -> np.ndarray | float:
-    """Wrap an angle (rad) to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(x, dtype=float), TWO_PI)
 
 
 def level_changes(
@@ -464,7 +460,7 @@ def reconstruct_angle(
         # only where the edges say the angle: an extrapolated one is up to a count off, which the
         # hall table measured from these (analysis.halls) must not average in
         hall_begins=begins[in_span].astype(np.int64),
-        hall_theta=np.mod(rel_h + theta0, TWO_PI)[in_span],
+        hall_theta=wrap_2pi(rel_h + theta0)[in_span],
     )
 
 

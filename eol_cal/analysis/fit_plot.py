@@ -9,6 +9,7 @@ import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
 from eol_cal.analysis.fit_capture import MotorInput
+from eol_cal.wrap import wrap_2pi
 
 _MAX_PANELS = 8
 _MAX_POINTS = 4000
@@ -84,7 +85,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
         ax = axes[s // cols][s % cols]
         seg = mi.segments
         model, nuisance = segment_model(mi, fit, spec, s)
-        th = np.mod(seg.theta[s], 2 * math.pi)
+        th = wrap_2pi(seg.theta[s])
         y = seg.torque[s] - nuisance
         step = max(1, len(th) // _MAX_POINTS)
         ax.plot(np.degrees(th[::step]), y[::step], ".", ms=1.5, alpha=0.5, label="measured")

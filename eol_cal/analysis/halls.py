@@ -21,9 +21,7 @@ from typing import Sequence
 import numpy as np
 
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
-
-TWO_PI = 2.0 * math.pi
-
+from eol_cal.wrap import wrap_2pi, wrap_pi
 
 @dataclass(frozen=True)
 class HallAngles:
@@ -107,10 +105,10 @@ def measure_hall_angles(
             scatter.append(float("nan"))
             continue
         mean = float(np.angle(np.mean(np.exp(1j * d))))
-        resid = np.angle(np.exp(1j * (d - mean)))
+        resid = wrap_pi(d - mean)
         dev.append(mean)
         scatter.append(float(np.sqrt(np.mean(resid**2))))
-        table.append(float(np.mod(NOMINAL_HALL_ANGLE[s - 1] + mean, TWO_PI)))
+        table.append(float(wrap_2pi(NOMINAL_HALL_ANGLE[s - 1] + mean)))
     if min(counts) < min_transitions:
         return nominal_hall_angles(f"boundary of state {counts.index(min(counts)) + 1} crossed {min(counts)} "
                                    f"times, fewer than {min_transitions}", counts)

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.angle import AngleResult, capture_angle, wrap_pi
+from eol_cal.analysis.angle import AngleResult, capture_angle
+from eol_cal.wrap import wrap_pi
 from eol_cal.analysis.metrics import eta_percent
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError

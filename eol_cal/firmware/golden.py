@@ -29,6 +29,7 @@ from eol_cal.firmware import block as pb
 from eol_cal.atomic import atomic_write
 from eol_cal.firmware.compensator import i_qc, make_tables
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+from eol_cal.wrap import wrap_2pi
 
 GOLDEN_FORMAT = 1
 GENERATOR = f"eol_cal.firmware.golden format {GOLDEN_FORMAT}"
@@ -82,7 +83,7 @@ def golden_blocks() -> list[tuple[str, pb.ParamBlock]]:
          0xFFFFFFFE),
     ]
     hall_skewed = tuple(a + math.radians(d) for a, d in zip(_HALL_NOMINAL, (1.5, -0.7, 0.3, -1.9, 0.0, 1.1)))
-    hall_skewed = tuple(a % (2 * math.pi) for a in hall_skewed)
+    hall_skewed = tuple(float(wrap_2pi(a)) for a in hall_skewed)
     out = []
     for k, (bid, n, c6, pc6, k6, pk6, harm, lead, lim, flags, serial, seq) in enumerate(specs):
         tc, tp = make_tables(c6, pc6, k6, pk6, kt, n, harmonics=harm)

@@ -12,11 +12,9 @@ The gains and the frequency response of this line are in :mod:`eol_cal.bench`.
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
-TWO_PI = 2.0 * math.pi
-
+from eol_cal.wrap import wrap_2pi
 
 def shaft_torque(twist: Any, omega_m: Any, omega_d: Any, p: Any) -> Any:
     """Torque in the shaft (N*m) from its twist (rad) and the two speeds (rad/s, mechanical)."""
@@ -48,5 +46,5 @@ def mech_step(
     omega_d = omega_d + (dt / p.J_dyno) * (T_shaft + T_dyno)
     twist = twist + dt * (omega_m - omega_d)
     theta_m = theta_m + dt * omega_m
-    theta_m = theta_m - TWO_PI * xp.floor(theta_m / TWO_PI)
+    theta_m = wrap_2pi(theta_m, xp)
     return theta_m, twist, omega_m, omega_d, x_dyno, T_shaft

@@ -36,6 +36,7 @@ from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.plant import control, dyno, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
+from eol_cal.wrap import wrap_2pi
 
 TWO_PI = 2.0 * math.pi
 #: Nominal hall_angle table of the contract (rad): state s begins at HALL_ANGLE[s-1].
@@ -155,7 +156,7 @@ def _tick(cfg: SimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple
     y_tq, torque = sensors.transducer_step(plant.y_tq, T_shaft, noise[0], p, jnp)
 
     f32 = jnp.float32
-    theta_r = jnp.mod(pp * plant.theta_m, TWO_PI)
+    theta_r = wrap_2pi(pp * plant.theta_m, jnp)
     out = jnp.stack([
         torque, enc_a.astype(f32), enc_b.astype(f32), hall.astype(f32), i_qo, ecu.i_qc,
         plant.i_q, plant.i_d, i_a, i_b, i_c, omega_d * (60.0 / TWO_PI),

@@ -18,6 +18,7 @@ import numpy as np
 
 from eol_cal.report.svg import figure_svg, pyplot
 from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_checks
+from eol_cal.wrap import wrap_2pi
 
 _MAX_POINTS = 3000  # points drawn per panel: enough to show the band, small enough to inline
 _ANGLE_BINS = 120  # 3 deg electrical per bin for the mean curve
@@ -188,7 +189,7 @@ def angle_figure(rec: dict[str, Any], point_ripple: Sequence[Any], fit_extra: An
     for ax, pr, label in zip(axes, point_ripple, ("before", "compensated")):
         pole_pairs = max(1, int(pr.poles) // 2)
         y = _without_mech1(pr.theta_r, pr.torque, pr.spectrum, pole_pairs)
-        deg = np.degrees(np.mod(np.asarray(pr.theta_r, float), 2 * math.pi))
+        deg = np.degrees(wrap_2pi(np.asarray(pr.theta_r, float)))
         d_deg, d_y = _decimate(deg, y)
         ax.plot(d_deg, d_y, ".", ms=1.2, color="0.65", alpha=0.6, label="measured", rasterized=True)
         cx, cy = _binned_mean(deg, y)
@@ -276,7 +277,7 @@ def residual_figure(fit_extra: Any, cols: int = 4) -> Figure:
         ax.set_gid(f"segment-{s + 1}")  # one panel per segment, countable on the page
         model, _ = segment_model(mi, fit, spec, s)
         r = np.asarray(seg.torque[s], float) - model
-        deg = np.degrees(np.mod(np.asarray(seg.theta[s], float), 2 * math.pi))
+        deg = np.degrees(wrap_2pi(np.asarray(seg.theta[s], float)))
         d_deg, d_r = _decimate(deg, r, n=1500)
         ax.plot(d_deg, d_r, ".", ms=0.8, color="0.5", rasterized=True)
         rms = float(np.sqrt(np.mean(r ** 2)))
