@@ -112,8 +112,10 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     blk = rec.get("block") or {}
     flash = rec.get("flash") or {}
     before = rec.get("ecu_before") or prep.get("previous") or {}
+    # the prepare step's read of the ECU says bank None when no bank was valid (a blank ECU)
+    before_bank = "none valid" if "bank" in before and before["bank"] is None else before.get("bank")
     cols = [
-        {"label": "before the run", "bank": before.get("bank"), "sequence": before.get("sequence"),
+        {"label": "before the run", "bank": before_bank, "sequence": before.get("sequence"),
          "crc32": before.get("crc32"), "flags": before.get("flags"), "verified": None},
         {"label": "prepared (uncompensated)", "bank": prep.get("bank"), "sequence": prep.get("sequence"),
          "crc32": prep.get("crc32"), "flags": prep.get("flags"), "verified": prep.get("verified")},
