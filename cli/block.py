@@ -17,7 +17,7 @@ def block_report(path: str) -> tuple[dict[str, Any], Any]:
     from eol_cal.errors import InputError
     from eol_cal.firmware import block as pb
 
-    data = pb.load_image(path)
+    data = pb.read_block_file(path)
     res = pb.check(data)
     try:
         blk = pb.unpack(data, path)
@@ -124,7 +124,7 @@ def check_cmd(file: str, as_json: bool) -> None:
     from eol_cal.errors import CheckFailed
     from eol_cal.firmware import block as pb
 
-    res = pb.check(pb.load_image(file))
+    res = pb.check(pb.read_block_file(file))
     if as_json:
         print_json({"file": file, "valid": res.valid, "status": res.status,
                     "status_text": _STATUS_TEXT[res.status], "reasons": list(res.reasons),
@@ -149,7 +149,7 @@ def hex_cmd(file: str, bank: int, output: str) -> None:
     from eol_cal.firmware import block as pb
     from eol_cal.atomic import atomic_write
 
-    data = pb.load_image(file)
+    data = pb.read_block_file(file)
     res = pb.check(data)
     if not res.valid:
         raise CheckFailed(f"{file}: refusing to export an invalid block: " + "; ".join(res.reasons))

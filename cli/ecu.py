@@ -80,7 +80,8 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
     sequence + 1. The previous block stays active in every failure. Exit 0 flashed and
     verified, 1 verification failed, 2 error or refused.
     """
-    from eol_cal.ecu.client import flash_block, read_block_file
+    from eol_cal.ecu.client import flash_block
+    from eol_cal.firmware.block import read_block_file
 
     data = read_block_file(block_file)
     seed_to_key = _seed_to_key(key_file, key_algo)

@@ -15,7 +15,7 @@ _SUFFIXES = (".csv", ".mf4")
 def _read_block(path: str):
     from eol_cal.firmware import block as pb
 
-    data = pb.load_image(path)
+    data = pb.read_block_file(path)
     res = pb.check(data)
     if not res.valid:
         raise InputError(path, "block", "invalid parameter block: " + "; ".join(res.reasons))

@@ -135,3 +135,27 @@ def test_uncompensated_block_for_the_calibration_capture(tmp_path):
     bad = tmp_path / "bad.bin"
     res = CliRunner().invoke(cli, ["block", "uncompensated", "--serial", "M" * 17, "-o", str(bad)])
     assert res.exit_code == 2 and "serial" in res.output and not bad.exists()
+
+
+def test_one_rule_reads_every_block_file(tmp_path):
+    """Intel HEX by content or by name, raw binary otherwise; the same bytes either way."""
+    import pytest
+
+    from eol_cal.errors import InputError
+
+    data = PAPER.read_bytes()
+    text = pb.to_intel_hex(data, 1)
+    as_bin_name = tmp_path / "block.bin"
+    as_bin_name.write_text(text)                      # HEX content under a binary name
+    assert pb.read_block_file(as_bin_name) == data
+    hexfile = tmp_path / "block.hex"
+    hexfile.write_text(text)
+    assert pb.read_block_file(hexfile) == pb.read_block_file(PAPER) == data
+    bad = tmp_path / "bad.hex"
+    bad.write_bytes(data)                              # binary under a HEX name: refused, not guessed
+    with pytest.raises(InputError, match="bad.hex"):
+        pb.read_block_file(bad)
+    with pytest.raises(InputError, match="cannot read"):
+        pb.read_block_file(tmp_path / "missing.bin")
+    for cmd in (("block", "show"), ("block", "check")):   # every command goes through the rule
+        assert _run(*cmd, str(as_bin_name)).exit_code == 0

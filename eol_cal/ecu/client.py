@@ -21,7 +21,7 @@ from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 
 __all__ = ["ClientTiming", "EcuError", "EcuInfo", "FlashReport", "SeedToKey", "UdsSession", "VerifyFailed",
-           "ecu_info", "flash_block", "hmac_seed_to_key", "load_key_file", "read_active_block", "read_block_file"]
+           "ecu_info", "flash_block", "hmac_seed_to_key", "load_key_file", "read_active_block"]
 
 log = logging.getLogger(__name__)
 
@@ -48,25 +48,6 @@ def load_key_file(path: str | Path) -> bytes:
     if len(secret) != P.SECRET_BYTES:
         raise InputError(str(path), "key", f"{len(secret)} bytes, expected {P.SECRET_BYTES}")
     return secret
-
-
-def read_block_file(path: str | Path) -> bytes:
-    """The bytes of a parameter block file: raw binary, or Intel HEX (``.hex``) at either bank."""
-    path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(str(path), None, f"cannot read: {exc}") from exc
-    if path.suffix.lower() not in (".hex", ".ihex"):
-        return raw
-    text = raw.decode("ascii", errors="replace")
-    errors = []
-    for bank in range(len(B.BANK_WORD_ADDR)):
-        try:
-            return B.from_intel_hex(text, bank, str(path))
-        except InputError as exc:
-            errors.append(str(exc))
-    raise InputError(str(path), "address", "; ".join(errors))
 
 
 @dataclass

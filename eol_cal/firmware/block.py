@@ -13,11 +13,13 @@ from __future__ import annotations
 import io
 import math
 import operator
+import os
 import struct
 import tomllib
 import zlib
 from dataclasses import dataclass, field
 from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -543,15 +545,39 @@ def _from_intel_hex(text: str, banks: tuple[int, ...], source: str) -> tuple[int
     raise InputError(source, "address", f"data at 0x{addrs[0]:x}..0x{addrs[-1]:x} is not inside one bank ({ranges})")
 
 
-def load_image(path: str, source: str | None = None) -> bytes:
-    """A block image from a file: raw bytes, or Intel HEX (first byte ':') at a bank address."""
-    from eol_cal.firmware._files import read_bytes
+#: file name endings that mark an Intel HEX block file
+HEX_SUFFIXES = (".hex", ".ihex")
 
-    data = read_bytes(path)
-    if data[:1] == b":":
+
+def read_block_file(path: str | os.PathLike, source: str | None = None) -> bytes:
+    """The image of a parameter block file: the one rule every command reads blocks with.
+
+    A file is Intel HEX when its name ends in ``.hex``/``.ihex`` or its first byte is ``:``
+    (a binary block cannot start with it: its first bytes are the magic 0xEC6A, low byte
+    first); the image is then the bytes stored from the start of the bank whose address range
+    holds the data (:func:`intel_hex_bank`). Anything else is the raw bank image.
+
+    Parameters
+    ----------
+    path : path
+        The block file.
+    source : str, optional
+        Name used in error messages (default ``path``).
+
+    Raises
+    ------
+    InputError
+        The file cannot be read, or its Intel HEX is malformed or lies outside both banks.
+    """
+    source = source or str(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(str(path), "file", f"cannot read: {exc.strerror or exc}") from exc
+    if data[:1] == b":" or Path(path).suffix.lower() in HEX_SUFFIXES:
         try:
             text = data.decode("ascii")
         except UnicodeDecodeError as exc:
-            raise InputError(str(path), "hex", "not ASCII text") from exc
-        return intel_hex_bank(text, source or str(path))[1]
+            raise InputError(source, "hex", "not ASCII text") from exc
+        return intel_hex_bank(text, source)[1]
     return data
