@@ -98,7 +98,7 @@ def main() -> None:
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.analysis.fit_table import block_from_record
     from eol_cal.analysis.result import CiLimits, record_for_motor
-    from eol_cal.bench import load_bench
+    from eol_cal.mechanics import load_mechanics
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate, true_block
@@ -111,7 +111,7 @@ def main() -> None:
     spec = FitSpec()
     # the operating-point runs: the ECU's estimator (a what-if with --ecu-estimator best)
     check = {} if args.ecu_estimator == "paper" else {"ecu_estimator": "best", "pre_roll_s": 1.5}
-    bench = load_bench("paper")  # eol-cal fit's default: the bench the plant models
+    bench = load_mechanics("paper")  # eol-cal fit's default: the bench the plant models
     rows = []
     t_sim = t_fit = 0.0
     t_start = time.perf_counter()

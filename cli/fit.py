@@ -86,7 +86,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit_motors import FitOptions, fit_motors
     from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
-    from eol_cal.bench import bench_or_rigid
+    from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.capture.io import read_capture
 
     enable_jax_cache()
@@ -101,7 +101,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         solver=solver,
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
-    bench = bench_or_rigid(bench_name)
+    bench = mechanics_or_rigid(bench_name)
     options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, bench=bench,
                          hall_angle=hall_angle)
     caps = [read_capture(p, map_file) for p in captures]

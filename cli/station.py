@@ -161,7 +161,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     """
     from cli.ecu import _seed_to_key
     from cli.fit import enable_jax_cache
-    from eol_cal.bench import bench_or_rigid
+    from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.ecu.transport import open_bus
     from eol_cal.errors import InputError
@@ -174,7 +174,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     limits = load_limits(limits_file, variant)
     load_profile(profile)  # refuse a bad profile, motor or bench before anything moves
     motor = load_motor("paper", motor_file)
-    bench = bench_or_rigid(bench_name)
+    bench = mechanics_or_rigid(bench_name)
     if key_file is None:
         raise InputError(None, "key-file", "the flash step needs the ECU's secret: give --key-file (16 bytes, hex) or set EOL_CAL_KEY_FILE")
     seed_to_key = _seed_to_key(key_file, None)

@@ -122,12 +122,12 @@ def load_motor(preset: str = "paper", toml_file: str | Path | None = None) -> Mo
     Parameters
     ----------
     preset : str
-        Name of a built-in preset (``eol_cal/presets/NAME.toml``).
+        Name of a built-in preset (``eol_cal/motors/NAME.toml``).
     toml_file : path, optional
         TOML file whose top-level keys override the preset.
     """
     try:
-        text = resources.files("eol_cal.presets").joinpath(f"{preset}.toml").read_text()
+        text = resources.files("eol_cal.motors").joinpath(f"{preset}.toml").read_text()
     except FileNotFoundError:
         raise InputError(None, "preset", f"unknown motor preset {preset!r}") from None
     data = tomllib.loads(text)

@@ -182,7 +182,7 @@ def test_table_round_trip(fitted, tmp_path):
 def test_bench_response_divided_out(fitted, files, tmp_path):
     """With the paper bench the fit reports the motor's ripple: the measured one over the bench's
     shaft response at each segment's 6th (below 1 at 120 rpm, above 1 at 240 rpm: torsion mode)."""
-    from eol_cal.bench import load_bench, shaft_response
+    from eol_cal.mechanics import load_mechanics, shaft_response
     from eol_cal.motor import load_motor
 
     _, out_none = fitted
@@ -193,7 +193,7 @@ def test_bench_response_divided_out(fitted, files, tmp_path):
     m = json.loads(out.read_text())["motors"][0]
     assert m["model"]["bench"]["name"] == "paper" and m["model"]["bench"]["J_dyno"] == pytest.approx(0.02)
     omega6 = [6 * s["speed_rpm"] * 3 * 2 * math.pi / 60 for s in m["segments"]]
-    g = np.abs(shaft_response(np.array(omega6), load_motor("paper"), load_bench("paper")))
+    g = np.abs(shaft_response(np.array(omega6), load_motor("paper"), load_mechanics("paper")))
     assert [s["shaft_gain_6"] for s in m["segments"]] == pytest.approx(list(g), rel=1e-9)
     assert g.min() < 0.997 and g.max() > 1.003
     ratio = m["k6"]["value"] / rigid["k6"]["value"]

@@ -44,14 +44,14 @@ def test_measure_recovers_offsets_and_refuses_what_it_cannot_measure():
 @pytest.fixture(scope="module")
 def plant_motor():
     from eol_cal.analysis.fit_capture import motor_inputs
-    from eol_cal.bench import load_bench
+    from eol_cal.mechanics import load_mechanics
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.variation import draw_motor
 
     spec = draw_motor(4)  # hall errors about 1 degree RMS
     (run,) = simulate(spec, load_profile("eol-default"), mode="estimated", seed=2)
-    (mi,) = motor_inputs([run.capture], bench=load_bench("paper"))
+    (mi,) = motor_inputs([run.capture], bench=load_mechanics("paper"))
     return spec, run, mi
 
 

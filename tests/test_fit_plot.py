@@ -6,7 +6,7 @@ import pytest
 from eol_cal.analysis.fit import FitSpec, fit_many, path_gain
 from eol_cal.analysis.fit_capture import motor_inputs
 from eol_cal.analysis.fit_plot import fitted_ripple, plot_fit, segment_model
-from eol_cal.bench import load_bench
+from eol_cal.mechanics import load_mechanics
 from eol_cal.capture.synthetic import synthetic_capture
 
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
@@ -16,7 +16,7 @@ def test_plotted_curve_is_the_fitted_model_with_the_bench_response(tmp_path):
     caps = [synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=i, theta_r0=0.7 * i, serial="M-1",
                               k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
             for i, (rpm, iq) in enumerate(POINTS)]
-    (mi,) = motor_inputs(caps, bench=load_bench("paper"))
+    (mi,) = motor_inputs(caps, bench=load_mechanics("paper"))
     spec = FitSpec(harmonics=(6, 12))
     (fit,) = fit_many([mi.segments], spec)
     assert fit.converged

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from eol_cal.motor import load_motor
-from eol_cal.plant import control, dyno, inverter, motor, ripple
+from eol_cal.mechanics import mech_step
+from eol_cal.plant import control, inverter, motor, ripple
 from eol_cal.plant.params import PlantSpec, to_params
 from eol_cal.plant.presets import paper
 from eol_cal.plant.variation import draw_motor
@@ -70,7 +71,7 @@ def test_dyno_speed_loop_holds_speed_against_motor_torque():
     w_ref = 2.0 * math.pi  # 60 rpm
     st = (0.0, 0.0, w_ref, w_ref, 0.0)
     for _ in range(40000):  # 2 s, motor torque stepped to 3 N*m at t = 0
-        *st, T_shaft = dyno.mech_step(*st, 3.0, w_ref, p, dt, np)
+        *st, T_shaft = mech_step(*st, 3.0, w_ref, p, dt, np)
     assert st[3] == pytest.approx(w_ref, rel=1e-3)
     assert T_shaft == pytest.approx(3.0 - spec.motor.B * w_ref, rel=1e-3)
 

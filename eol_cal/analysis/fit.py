@@ -152,7 +152,7 @@ class SegmentArrays:
     path_response : callable, optional
         Complex response of the path from the motor's air-gap torque to the shaft torque the
         transducer sees, at angular frequencies (rad/s, signed): ``omega -> ndarray of complex``
-        (:func:`eol_cal.bench.shaft_response` for a bench). The fitted ripple is the air-gap one;
+        (:func:`eol_cal.mechanics.shaft_response` for a bench). The fitted ripple is the air-gap one;
         ``None`` takes the coupling as rigid (response 1).
     """
 

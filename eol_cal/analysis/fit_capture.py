@@ -17,7 +17,7 @@ import numpy as np
 
 from eol_cal.analysis.fit import SegmentArrays
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
-from eol_cal.bench import BenchParams, shaft_response
+from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.motor import MotorParams, load_motor
@@ -52,7 +52,7 @@ class MotorInput:
     capture_of_segment: list[int] = field(default_factory=list)
     frame: str = "offline"
     frame_offset_rad: float = 0.0
-    bench: BenchParams | None = None
+    bench: BenchMechanics | None = None
     hall: HallAngles | None = None
 
     @property
@@ -189,7 +189,7 @@ def motor_inputs(
     settle_s: float = 0.1,
     min_revs: int = 1,
     frame: str = "firmware",
-    bench: BenchParams | None = None,
+    bench: BenchMechanics | None = None,
     hall_angle: str = "measured",
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
@@ -212,9 +212,9 @@ def motor_inputs(
         angle (:func:`firmware_frame_offset`), so that phases can be given in the frame the ECU
         evaluates its table in; captures without ``enc_b`` fall back to ``offline`` (the hall
         frame of :mod:`eol_cal.analysis.angle`).
-    bench : BenchParams, optional
+    bench : BenchMechanics, optional
         The dyno bench the captures come from; the fit then divides its shaft response
-        (:func:`eol_cal.bench.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
+        (:func:`eol_cal.mechanics.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
     hall_angle : {"measured", "nominal"}
         The hall table the block will carry (:mod:`eol_cal.analysis.halls`): ``measured`` from
         the motor's own transitions (nominal, with the reason, when they do not suffice). The
@@ -289,7 +289,7 @@ def motor_inputs(
                 s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle)
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
-        response = None if bench is None else functools.partial(shaft_response, motor=motor, bench=bench)
+        response = None if bench is None else functools.partial(shaft_response, motor=motor, mechanics=bench)
         seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
         mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, bench=bench, hall=hall)
         if use_fw and fw_n:

@@ -17,7 +17,7 @@ import numpy as np
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit_capture import MotorInput
 from eol_cal.analysis.result import CiLimits
-from eol_cal.bench import BenchParams, load_bench
+from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.capture.model import Capture
 from eol_cal.motor import MotorParams
 
@@ -43,8 +43,8 @@ class FitOptions:
         How motors are solved in JAX (auto: :func:`eol_cal.analysis.fit.pick_mode`).
     capture_metrics : bool
         Add each window's p-p ripple to the record's ``metrics.captures``.
-    bench : BenchParams or None
-        The dyno bench of the captures (:mod:`eol_cal.bench`; default the built-in ``paper``
+    bench : BenchMechanics or None
+        The dyno bench of the captures (:mod:`eol_cal.mechanics`; default the built-in ``paper``
         bench, which the plant and ``eol-cal dyno-sim`` model): its shaft response is divided out
         of the measured ripple. ``None``: rigid coupling (the measured ripple taken as the motor's).
     hall_angle : {"measured", "nominal"}
@@ -62,7 +62,7 @@ class FitOptions:
     frame: str = "firmware"
     batch: str = "auto"
     capture_metrics: bool = True
-    bench: BenchParams | None = field(default_factory=lambda: load_bench("paper"))
+    bench: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     hall_angle: str = "measured"
     motor: MotorParams | None = None
 

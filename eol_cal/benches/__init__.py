@@ -1,1 +1,1 @@
-"""Built-in bench descriptions (``NAME.toml``), read by :func:`eol_cal.bench.load_bench`."""
+"""Built-in bench descriptions (``NAME.toml``), read by :func:`eol_cal.mechanics.load_mechanics`."""

@@ -1,9 +1,12 @@
-"""Parameters of one simulated bench: the motor as built, its sensors, the dyno.
+"""Parameters of one simulated motor on the test bench: the motor as built, its sensors, the
+bench's mechanics.
 
 :class:`PlantSpec` is the human-readable description (units in the names' docs); it is what a
-preset or :mod:`eol_cal.plant.variation` produces and what goes into a capture's ``truth.*``.
-:class:`PlantParams` is the same bench as float32 arrays with the per-tick coefficients
-precomputed, the pytree the scan closes over (batched along a leading axis for a lot of motors).
+plant preset or :mod:`eol_cal.plant.variation` produces and what goes into a capture's
+``truth.*``. It holds the motor's data sheet (:class:`eol_cal.motor.MotorParams`) and the bench's
+mechanics (:class:`eol_cal.mechanics.BenchMechanics`) as objects of their own.
+:class:`PlantParams` is the same as float32 arrays with the per-tick coefficients precomputed,
+the pytree the scan closes over (batched along a leading axis for a lot of motors).
 """
 
 from __future__ import annotations
@@ -15,17 +18,15 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 
-from eol_cal.bench import load_bench, shaft_damping, speed_gains
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
+from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, speed_gains
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.plant import motor as motor_model, ripple
-
-_BENCH = load_bench("paper")
 
 
 @dataclass(frozen=True)
 class PlantSpec:
-    """One motor on the bench, as built (truth), plus its bench.
+    """One motor on the test bench, as built (truth), plus the bench's mechanics.
 
     Attributes
     ----------
@@ -56,10 +57,9 @@ class PlantSpec:
         Torque transducer bandwidth (Hz), noise (N*m rms), ADC resolution (N*m).
     i_noise_a, i_lsb_a : float
         Phase-current sensor noise (A rms) and ADC resolution (A).
-    J_dyno, K_shaft, shaft_zeta, dyno_bw_hz, dyno_zeta : float
-        Dyno inertia (kg*m^2), shaft stiffness (N*m/rad), damping ratio of the torsion mode (1),
-        dyno speed-loop bandwidth (Hz) and damping ratio (1); default: the ``paper`` bench
-        (``eol_cal/benches/paper.toml``), the one ``eol-cal fit`` assumes by default.
+    mechanics : BenchMechanics
+        The shaft and the dyno (inertia kg*m^2, stiffness N*m/rad, speed loop Hz); default: the
+        ``paper`` bench (``eol_cal/benches/paper.toml``), the one the fit assumes by default.
     dead_time_s : float
         Inverter dead time (s); 0 switches the dead-time model off.
     """
@@ -90,11 +90,7 @@ class PlantSpec:
     tq_lsb_nm: float = 1e-4
     i_noise_a: float = 0.0
     i_lsb_a: float = 0.05
-    J_dyno: float = _BENCH.J_dyno
-    K_shaft: float = _BENCH.K_shaft
-    shaft_zeta: float = _BENCH.shaft_zeta
-    dyno_bw_hz: float = _BENCH.dyno_bw_hz
-    dyno_zeta: float = _BENCH.dyno_zeta
+    mechanics: BenchMechanics = field(default_factory=lambda: load_mechanics("paper"))
     dead_time_s: float = 0.0
 
     def replace(self, **changes) -> "PlantSpec":
@@ -121,6 +117,9 @@ class PlantSpec:
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.name in ("motor", "serial"):
+                continue
+            if f.name == "mechanics":
+                out.update({k: float(v) for k, v in dataclasses.asdict(value).items() if k != "name"})
                 continue
             if isinstance(value, tuple):
                 out[f.name] = " ".join(f"{v:.6g}" for v in value)
@@ -202,7 +201,7 @@ class PlantParams(NamedTuple):
 def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarray,
               lead_s: float, iqc_limit: float,
               hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE) -> PlantParams:
-    """Float32 parameters of one bench, with the ECU's gains and the compensation tables.
+    """Float32 parameters of one motor on the bench, with the ECU's gains and the compensation tables.
 
     ``hall_angle`` (6 float, rad electrical) is the table of the motor's parameter block, the
     one its ECU's estimator anchors on (the contract's nominal one when it has no block).
@@ -212,8 +211,8 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
     R = spec.R_s_true
     a_d, b_d = motor_model.rl_coefficients(R, m.L_d, dt, np)
     a_q, b_q = motor_model.rl_coefficients(R, m.L_q, dt, np)
-    J_total = m.J + spec.J_dyno
-    Kp_dyno, Ki_dyno = speed_gains(J_total, spec.dyno_bw_hz, spec.dyno_zeta)
+    mech = spec.mechanics
+    Kp_dyno, Ki_dyno = speed_gains(m.J + mech.J_dyno, mech.dyno_bw_hz, mech.dyno_zeta)
     Kp_d, Ki_d, Kp_q, Ki_q = m.current_pi_gains()
     edge = np.zeros(m.N_enc) if not spec.enc_edge_err_deg else np.radians(spec.enc_edge_err_deg)
     if edge.shape != (m.N_enc,):
@@ -227,8 +226,8 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
         tq_noise_nm=spec.tq_noise_nm, tq_lsb_nm=spec.tq_lsb_nm,
         i_noise_a=spec.i_noise_a, i_lsb_a=spec.i_lsb_a,
         u_dc=m.u_dc, u_dead=m.u_dc * spec.dead_time_s * m.f_pwm,
-        J_dyno=spec.J_dyno, K_shaft=spec.K_shaft,
-        D_shaft=shaft_damping(spec.K_shaft, m.J, spec.J_dyno, spec.shaft_zeta),
+        J_dyno=mech.J_dyno, K_shaft=mech.K_shaft,
+        D_shaft=shaft_damping(mech.K_shaft, m.J, mech.J_dyno, mech.shaft_zeta),
         Kp_dyno=Kp_dyno, Ki_dyno=Ki_dyno,
         Kp_d=Kp_d, Kp_q=Kp_q, Ki_d=Ki_d, Ki_q=Ki_q,
         L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
@@ -251,5 +250,5 @@ def sensor_errors(p: PlantParams):
 
 
 def stack_params(params: list[PlantParams]) -> PlantParams:
-    """Stack benches along a new leading axis (a lot of motors for ``vmap``)."""
+    """Stack the parameters of several motors along a new leading axis (a lot for ``vmap``)."""
     return PlantParams(*(np.stack(fields) for fields in zip(*params)))

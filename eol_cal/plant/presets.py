@@ -1,4 +1,4 @@
-"""Bench presets: complete :class:`PlantSpec` descriptions of a motor on the bench.
+"""Plant presets: complete :class:`PlantSpec` descriptions of a motor on the test bench.
 
 ``paper`` reproduces the seed paper's bench (section IV): Table I motor at 60 rpm and
 i_qo = 65 A (3.2 N*m) with k6 = 0.00062 N*m/A (eq. 18). How its ripple sources were chosen is

@@ -33,7 +33,8 @@ from eol_cal.errors import InputError
 from eol_cal.firmware import compensator
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
-from eol_cal.plant import control, dyno, inverter, motor, ripple, sensors, transforms
+from eol_cal.mechanics import mech_step
+from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
@@ -151,7 +152,7 @@ def _tick(cfg: SimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple
     i_d, i_q = motor.current_step(plant.i_d, plant.i_q, v_d, v_q, omega_r, p)
 
     # 5: shaft, dyno, transducer
-    theta_m, twist, omega_m, omega_d, x_dyno, T_shaft = dyno.mech_step(
+    theta_m, twist, omega_m, omega_d, x_dyno, T_shaft = mech_step(
         theta_m, plant.twist, plant.omega_m, plant.omega_d, plant.x_dyno, T_rotor, omega_ref, p, dt, jnp)
     y_tq, torque = sensors.transducer_step(plant.y_tq, T_shaft, noise[0], p, jnp)
 
@@ -237,7 +238,7 @@ def _initial_carry(cfg: SimConfig, p: PlantParams, spec: PlantSpec, theta_m0: fl
     ps = PlantParams(*(np.asarray(a) for a in p))
     a0, b0, hall0 = kinematics.encoder_hall_signals(np.float64(theta_m0), cfg.poles, cfg.N_enc,
                                                     sensor_errors(ps), xp=np)
-    plant = PlantState(f(theta_m0), f(T0 / spec.K_shaft), f(omega_m0), f(omega_m0), f(-T0),
+    plant = PlantState(f(theta_m0), f(T0 / spec.mechanics.K_shaft), f(omega_m0), f(omega_m0), f(-T0),
                        f(0.0), f(i_qo0), f(T0))
     est_state = estimator.init_state(cfg.estimator, int(hall0), int(a0), int(b0), xp=np)
     ecu = control.initial_ecu(f(i_qo0), f(cfg.poles // 2 * omega_m0), ps, np)

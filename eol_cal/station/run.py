@@ -30,7 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from eol_cal.analysis.fit_motors import json_safe
-from eol_cal.bench import BenchParams, load_bench
+from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
@@ -86,7 +86,7 @@ class StationConfig:
         The motor type on the station (default the paper preset): poles and encoder the
         captures must show, the ECU's tick rate and kt for the blocks, the current loop for the
         lead, rotor inertia for the bench response.
-    bench : BenchParams or None
+    bench : BenchMechanics or None
         The dyno bench whose response the fit divides out (default the built-in ``paper``
         bench, which ``eol-cal dyno-sim`` simulates); ``None``: rigid coupling.
     """
@@ -107,7 +107,7 @@ class StationConfig:
     ecu_timing: Any = None
     prepare: Callable[[], None] | None = None
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
-    bench: BenchParams | None = field(default_factory=lambda: load_bench("paper"))
+    bench: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
 
 
 @dataclass
@@ -147,7 +147,7 @@ def _safe_name(text: str) -> str:
 
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
-              bench: BenchParams | None = None) -> tuple[dict, dict, Any]:
+              bench: BenchMechanics | None = None) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit_motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 

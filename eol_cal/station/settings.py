@@ -272,7 +272,7 @@ def check_station(settings: StationSettings) -> None:
     Called by :func:`load_settings`'s callers before the dyno moves; a bad limits file or key
     file is refused here with the settings key named, not halfway through the first motor.
     """
-    from eol_cal.bench import bench_or_rigid
+    from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.ecu.client import load_key_file
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
@@ -282,5 +282,5 @@ def check_station(settings: StationSettings) -> None:
     _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     motor = str(settings["motor"])
     _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
-    _named(settings, "bench", lambda: bench_or_rigid(str(settings["bench"])))
+    _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))

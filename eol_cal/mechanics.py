@@ -1,4 +1,9 @@
-"""The dyno bench's mechanics, and what they do to the torque the transducer measures.
+"""The test bench's mechanics (:class:`BenchMechanics`): the shaft, the dyno and its speed loop.
+
+One model of the mechanics for the whole library: :func:`shaft_response` is its frequency
+response (what the ripple fit divides out), :func:`mech_step` its time step (what the plant
+integrates at the PWM tick). The plant holds a :class:`BenchMechanics` as it holds the motor's
+:class:`eol_cal.motor.MotorParams`.
 
 The transducer sits in the shaft between the motor's rotor (inertia ``J``) and the dyno (inertia
 ``J_dyno``, held at speed by its drive's PI loop). A ripple torque of the motor reaches the shaft
@@ -6,13 +11,23 @@ only in part: a share of it accelerates the rotor, near the torsion mode the sha
 and the speed ripple it causes moves the back-EMF, which the ECU's current loop does not fully
 reject, so the current (and with it the torque) ripples a little against it.
 :func:`shaft_response` is that transfer, ``T_shaft / T_ripple``, for the linear models the plant
-integrates (:mod:`eol_cal.plant.dyno`, :mod:`eol_cal.plant.motor`, the PI of
+integrates (:func:`mech_step`, :mod:`eol_cal.plant.motor`, the PI of
 :meth:`eol_cal.motor.MotorParams.current_pi_gains`). The ripple fit divides it out, so that k6
 and c6 are the motor's own at constant current (what the compensating current has to cancel),
 not the bench's view of them: on the paper bench the shaft sees 0.4 % less of the 6th at 60 rpm
 than the motor makes, and the current loop takes another 0.3 %.
 
-Benches are TOML files (``eol_cal/benches/NAME.toml`` built in, or a file of the same keys).
+Time step: two inertias (motor rotor ``J``, dyno ``J_dyno``) joined by a shaft of stiffness
+``K_shaft`` (N*m/rad) and damping ``D_shaft`` (N*m*s/rad); the torque transducer sits in that
+shaft and reads ``T_shaft = K_shaft*twist + D_shaft*(omega_m - omega_d)`` (positive when the
+motor drives the dyno). The dyno holds its speed reference with a PI speed controller (its own
+drive, fast compared to the profile, slow compared to the ripple). Integration is semi-implicit
+Euler at the PWM tick, stable for the shaft mode as long as ``omega_n*dt << 2`` (0.1 for the
+paper bench). The twist is a state of its own so that float32 keeps it exact at any absolute
+angle.
+
+A bench's mechanics are a TOML file (``eol_cal/benches/NAME.toml`` built in, or a file of the
+same keys); the name ``none`` means a rigid coupling (no response divided out).
 """
 
 from __future__ import annotations
@@ -24,17 +39,20 @@ from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
+from typing import Any
+
 import numpy as np
 
 from eol_cal.errors import InputError
 from eol_cal.motor import MotorParams
+from eol_cal.wrap import wrap_2pi
 
 TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
-class BenchParams:
-    """Mechanics of a dyno bench.
+class BenchMechanics:
+    """Mechanics of a test bench: the shaft between the motor and the dyno, the dyno's speed loop.
 
     Attributes
     ----------
@@ -60,22 +78,22 @@ class BenchParams:
     dyno_zeta: float = 0.8
 
 
-_FIELDS = {f.name: f.type for f in dataclasses.fields(BenchParams)}
+_FIELDS = {f.name: f.type for f in dataclasses.fields(BenchMechanics)}
 
 
 #: the bench name that means a rigid coupling (no response divided out)
 RIGID = "none"
 
 
-def bench_or_rigid(name_or_file: str | Path) -> BenchParams | None:
-    """:func:`load_bench`, or ``None`` (rigid coupling) for the name ``"none"`` (the CLI's ``--bench none``)."""
-    return None if str(name_or_file) == RIGID else load_bench(name_or_file)
+def mechanics_or_rigid(name_or_file: str | Path) -> BenchMechanics | None:
+    """:func:`load_mechanics`, or ``None`` (rigid coupling) for the name :data:`RIGID`."""
+    return None if str(name_or_file) == RIGID else load_mechanics(name_or_file)
 
 
-def load_bench(name_or_file: str | Path = "paper") -> BenchParams:
-    """A bench from a built-in name (``eol_cal/benches/NAME.toml``) or a TOML file.
+def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
+    """A bench's mechanics from a built-in name (``eol_cal/benches/NAME.toml``) or a TOML file.
 
-    Every key of :class:`BenchParams` must be given; unknown keys and non-positive values are
+    Every key of :class:`BenchMechanics` must be given; unknown keys and non-positive values are
     refused (InputError naming the file and the key).
     """
     path = Path(name_or_file)
@@ -112,22 +130,29 @@ def load_bench(name_or_file: str | Path = "paper") -> BenchParams:
     if missing:
         raise InputError(source, missing[0], f"missing bench parameter(s): {', '.join(missing)}")
     kwargs.setdefault("name", path.stem)
-    return BenchParams(**kwargs)
+    return BenchMechanics(**kwargs)
 
 
 def speed_gains(J_total: float, bw_hz: float, zeta: float = 0.8) -> tuple[float, float]:
-    """PI gains (N*m*s/rad, N*m/rad) placing the dyno's speed loop at ``bw_hz`` (Hz)."""
+    """PI gains (N*m*s/rad, N*m/rad) placing the dyno's speed loop at ``bw_hz`` (Hz).
+
+    ``J_total`` is the inertia the dyno drive turns (kg*m^2: rotor and dyno), ``zeta`` the
+    damping ratio the loop is tuned for (1).
+    """
     w = TWO_PI * bw_hz
     return 2.0 * zeta * w * J_total, w * w * J_total
 
 
 def shaft_damping(K_shaft: float, J: float, J_dyno: float, zeta: float) -> float:
-    """Shaft damping (N*m*s/rad) that gives the torsion mode the damping ratio ``zeta``."""
+    """Shaft damping (N*m*s/rad) that gives the torsion mode the damping ratio ``zeta`` (1).
+
+    ``K_shaft`` in N*m/rad, the inertias ``J`` (rotor) and ``J_dyno`` in kg*m^2.
+    """
     J_eff = J * J_dyno / (J + J_dyno)
     return 2.0 * zeta * math.sqrt(K_shaft * J_eff)
 
 
-def shaft_response(omega: np.ndarray, motor: MotorParams, bench: BenchParams) -> np.ndarray:
+def shaft_response(omega: np.ndarray, motor: MotorParams, mechanics: BenchMechanics) -> np.ndarray:
     """Complex response ``T_shaft / T_ripple`` at angular frequencies ``omega`` (rad/s).
 
     Mechanics: rotor ``(J s + B) w_m = T_airgap - T_shaft``, shaft
@@ -146,17 +171,76 @@ def shaft_response(omega: np.ndarray, motor: MotorParams, bench: BenchParams) ->
         Angular frequency (rad/s, signed, non-zero).
     motor : MotorParams
         Rotor inertia, friction, winding and current-loop data (nominal values).
-    bench : BenchParams
+    mechanics : BenchMechanics
+        The shaft and the dyno.
+
+    Returns
+    -------
+    array of complex
+        ``T_shaft / T_ripple`` (1) at each ``omega``.
     """
     s = 1j * np.asarray(omega, dtype=float)
     J, B = motor.J, motor.B
-    Kp, Ki = speed_gains(J + bench.J_dyno, bench.dyno_bw_hz, bench.dyno_zeta)
-    D = shaft_damping(bench.K_shaft, J, bench.J_dyno, bench.shaft_zeta)
+    Kp, Ki = speed_gains(J + mechanics.J_dyno, mechanics.dyno_bw_hz, mechanics.dyno_zeta)
+    D = shaft_damping(mechanics.K_shaft, J, mechanics.J_dyno, mechanics.shaft_zeta)
     Z_m = J * s + B
-    Z_d = bench.J_dyno * s + Kp + Ki / s
-    Z_s = bench.K_shaft / s + D
+    Z_d = mechanics.J_dyno * s + Kp + Ki / s
+    Z_s = mechanics.K_shaft / s + D
     G = 1.0 / (1.0 + Z_m / Z_d + Z_m / Z_s)
     _, _, Kp_q, Ki_q = motor.current_pi_gains()
     Y = 1.0 / (motor.L_q * s + motor.R_s + Kp_q + Ki_q / s)
     feedback = motor.kt * motor.psi_f * motor.pole_pairs * Y * (1.0 - G) / Z_m
     return G / (1.0 + feedback)
+
+
+def shaft_torque(twist: Any, omega_m: Any, omega_d: Any, p: Any) -> Any:
+    """Torque in the shaft (N*m) from its twist (rad) and the two speeds (rad/s, mechanical).
+
+    ``p`` holds ``K_shaft`` (N*m/rad) and ``D_shaft`` (N*m*s/rad), e.g.
+    :class:`eol_cal.plant.params.PlantParams`.
+    """
+    return p.K_shaft * twist + p.D_shaft * (omega_m - omega_d)
+
+
+def mech_step(
+    theta_m: Any, twist: Any, omega_m: Any, omega_d: Any, x_dyno: Any,
+    T_rotor: Any, omega_ref: Any, p: Any, dt: float, xp: Any,
+) -> tuple[Any, Any, Any, Any, Any, Any]:
+    """Advance the shaft line by one tick (semi-implicit Euler, see the module doc).
+
+    Parameters
+    ----------
+    theta_m : array
+        Mechanical rotor angle (rad, kept in [0, 2*pi)).
+    twist : array
+        Shaft twist (rad).
+    omega_m, omega_d : array
+        Motor and dyno speed (rad/s).
+    x_dyno : array
+        Dyno PI integrator (N*m).
+    T_rotor : array
+        Electromagnetic torque minus ripple acting on the rotor (N*m).
+    omega_ref : array
+        Dyno speed reference (rad/s, signed).
+    p : PlantParams
+        ``J``, ``B``, ``J_dyno``, ``K_shaft``, ``D_shaft``, ``Kp_dyno``, ``Ki_dyno`` (the
+        per-tick float32 form of the motor and its :class:`BenchMechanics`).
+    dt : float
+        Tick (s).
+    xp : module
+        ``numpy`` or ``jax.numpy``.
+
+    Returns
+    -------
+    tuple
+        theta_m, twist, omega_m, omega_d, x_dyno, T_shaft (N*m, at the start of the tick).
+    """
+    T_shaft = shaft_torque(twist, omega_m, omega_d, p)
+    err = omega_ref - omega_d
+    T_dyno = p.Kp_dyno * err + x_dyno
+    x_dyno = x_dyno + p.Ki_dyno * dt * err
+    omega_m = omega_m + (dt / p.J) * (T_rotor - p.B * omega_m - T_shaft)
+    omega_d = omega_d + (dt / p.J_dyno) * (T_shaft + T_dyno)
+    twist = twist + dt * (omega_m - omega_d)
+    theta_m = wrap_2pi(theta_m + dt * omega_m, xp)
+    return theta_m, twist, omega_m, omega_d, x_dyno, T_shaft

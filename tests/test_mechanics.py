@@ -1,4 +1,4 @@
-"""The bench description and its response: presets, refusals, the response against the plant."""
+"""The bench mechanics (eol_cal.mechanics): built-in descriptions, refusals, the response against the plant."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from eol_cal.bench import BenchParams, load_bench, shaft_damping, shaft_response, speed_gains
+from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, shaft_response, speed_gains
 from eol_cal.errors import InputError
 from eol_cal.motor import load_motor
 
@@ -16,10 +16,11 @@ from eol_cal.motor import load_motor
 def test_paper_bench_is_the_plants_default():
     from eol_cal.plant.params import PlantSpec
 
-    bench = load_bench("paper")
-    assert bench == BenchParams(name="paper", J_dyno=0.02, K_shaft=2000.0, shaft_zeta=0.3, dyno_bw_hz=5.0, dyno_zeta=0.8)
+    bench = load_mechanics("paper")
+    assert bench == BenchMechanics(name="paper", J_dyno=0.02, K_shaft=2000.0, shaft_zeta=0.3, dyno_bw_hz=5.0, dyno_zeta=0.8)
     spec = PlantSpec()
-    assert (spec.J_dyno, spec.K_shaft, spec.shaft_zeta, spec.dyno_bw_hz, spec.dyno_zeta) == (
+    mech = spec.mechanics
+    assert (mech.J_dyno, mech.K_shaft, mech.shaft_zeta, mech.dyno_bw_hz, mech.dyno_zeta) == (
         bench.J_dyno, bench.K_shaft, bench.shaft_zeta, bench.dyno_bw_hz, bench.dyno_zeta)
 
 
@@ -33,25 +34,25 @@ def test_bad_bench_file_names_file_and_key(tmp_path, text, field):
     p = tmp_path / "my_bench.toml"
     p.write_text(text)
     with pytest.raises(InputError) as exc:
-        load_bench(p)
+        load_mechanics(p)
     assert exc.value.field == field and "my_bench.toml" in str(exc.value)
 
 
 def test_unknown_bench_name_and_missing_file():
     with pytest.raises(InputError, match="unknown bench 'nope'.*paper"):
-        load_bench("nope")
+        load_mechanics("nope")
     with pytest.raises(InputError, match="not found"):
-        load_bench("/no/such/bench.toml")
+        load_mechanics("/no/such/bench.toml")
 
 
 def test_mechanical_response_matches_the_plants_shaft_line():
     """The plant's own integrator (semi-implicit Euler at 20 kHz) driven by a sinusoidal air-gap
     torque: the shaft torque's amplitude and phase are the two-inertia response. The current-loop
     term is switched off here by an infinite current-loop impedance (a motor with huge L_q)."""
-    from eol_cal.plant.dyno import mech_step
+    from eol_cal.mechanics import mech_step
 
     motor = load_motor("paper")
-    bench = load_bench("paper")
+    bench = load_mechanics("paper")
     Kp, Ki = speed_gains(motor.J + bench.J_dyno, bench.dyno_bw_hz, bench.dyno_zeta)
     p = SimpleNamespace(J=motor.J, B=motor.B, J_dyno=bench.J_dyno, K_shaft=bench.K_shaft,
                         D_shaft=shaft_damping(bench.K_shaft, motor.J, bench.J_dyno, bench.shaft_zeta),
@@ -92,7 +93,7 @@ def test_fit_on_the_plant_recovers_the_motors_own_k6_with_the_bench():
     (run,) = simulate(spec, load_profile("eol-default"), mode="estimated", seed=5)
     fs = FitSpec(harmonics=(6,))
     errs = {}
-    for name, bench in (("bench", load_bench("paper")), ("rigid", None)):
+    for name, bench in (("bench", load_mechanics("paper")), ("rigid", None)):
         (mi,) = motor_inputs([run.capture], bench=bench)
         (f,) = fit_many([mi.segments], fs)
         assert f.converged
