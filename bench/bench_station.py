@@ -40,13 +40,8 @@ def eol_cal(*args: str) -> list[str]:
     return [sys.executable, "-m", "cli.main", *args]
 
 
-def timed_source(serial: str, seed: int, spent: list[float]):
-    """The plant capture source of :func:`loopback_station`, timing each capture."""
-    from eol_cal.dyno import sim as ds
-    from eol_cal.station.demo import demo_motor_spec
-
-    spec = demo_motor_spec(seed, serial)
-    inner = ds.plant_source(lambda req: spec)
+def timed(inner, spent: list[float]):
+    """The dyno simulator's capture source ``inner`` (the rig's plant), timing each capture."""
 
     def source(req):
         t0 = time.perf_counter()
@@ -62,7 +57,8 @@ def run_ours(work: Path, profile: str, serial: str, seed: int, key: Path, env: d
     from eol_cal.station.demo import loopback_station
 
     spent: list[float] = []
-    with loopback_station(serial, seed, work / "sim", source=timed_source(serial, seed, spent)) as st:
+    with loopback_station(serial, seed, work / "sim") as st:
+        st.dyno.sim.source = timed(st.dyno.sim.source, spent)
         t0 = time.perf_counter()
         t_spawn = time.time()
         p = subprocess.run(eol_cal("run", "--dyno", st.dyno_address, "--interface", "remote", "--channel", st.can_channel,
@@ -90,7 +86,8 @@ def run_alternative(work: Path, profile: str, serial: str, seed: int, key: Path,
 
     out: list[tuple[str, float, int]] = []
     spent: list[float] = []
-    with loopback_station(serial, seed, work / "sim-alt", source=timed_source(serial, seed, spent)) as st:
+    with loopback_station(serial, seed, work / "sim-alt") as st:
+        st.dyno.sim.source = timed(st.dyno.sim.source, spent)
         chain = [
             # the same measurement condition as eol-cal run's prepare step
             ("block uncompensated", eol_cal("block", "uncompensated", "--serial", serial, "-o", str(work / "prep.bin"))),

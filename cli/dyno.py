@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from cli.common import console, err_console, handle_errors, print_json
+
+if TYPE_CHECKING:
+    from eol_cal.dyno.sim import FaultPlan
 
 _SUFFIXES = (".csv", ".mf4")
 
@@ -103,6 +107,29 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
                       f"serial {summary['serial']}, {wall:.2f} s")
 
 
+def parse_fault_plan(text: str) -> FaultPlan:
+    """``--fault KIND[@capture:N|@read:N][/MS]`` -> a dyno :class:`~eol_cal.dyno.sim.FaultPlan`
+    (e.g. ``disconnect@read:5/300``)."""
+    from eol_cal.dyno.registers import SimFault
+    from eol_cal.dyno.sim import FaultPlan
+    from eol_cal.errors import InputError
+
+    names = {"disconnect": SimFault.DISCONNECT, "over-speed": SimFault.OVER_SPEED, "torque-sensor": SimFault.TORQUE_SENSOR}
+    spec, _, ms = text.partition("/")
+    kind, _, when = spec.partition("@")
+    if kind not in names:
+        raise InputError(None, "--fault", f"unknown fault {kind!r}; known: {', '.join(names)}")
+    at, index = "capture", 1
+    if when:
+        at, _, n = when.partition(":")
+        if at not in ("capture", "read") or not n.isdigit() or int(n) < 1:
+            raise InputError(None, "--fault", f"bad trigger {when!r}; use capture:N or read:N (N >= 1)")
+        index = int(n)
+    if ms and (not ms.isdigit() or not 0 < int(ms) < 65536):
+        raise InputError(None, "--fault", f"bad duration {ms!r}; milliseconds 1..65535")
+    return FaultPlan(names[kind], at, index, int(ms) if ms else 500)
+
+
 @click.command("dyno-sim")
 @click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT", help="Address to serve Modbus TCP on (port 0: any free port).")
 @click.option("--ecu-flash", type=click.Path(dir_okay=False, path_type=Path), default=None, help="The ECU simulator's flash file: its active bank sets the motor's compensation.")
@@ -130,7 +157,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
     host, port = parse_host_port(listen, "listen", any_port=True)
     if not serial or len(serial.encode("ascii", "replace")) > 16:
         raise InputError(None, "--serial", "1 to 16 ASCII characters")
-    plans = [ds.parse_fault_plan(f) for f in faults]
+    plans = [parse_fault_plan(f) for f in faults]
     motor = load_motor("paper")
     if source == "plant":
         from cli.fit import enable_jax_cache
@@ -141,12 +168,13 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
             except ImportError:
                 raise InputError(None, "--seed", "motor variation (eol_cal.plant.variation) is not available in this build") from None
 
+        from eol_cal.station.rig import plant_source
+
         enable_jax_cache()
-        capture_source = ds.plant_source()
+        capture_source = plant_source(ecu_flash)
     else:
         capture_source = ds.synthetic_source
-    sim = ds.DynoSim(capture_source, serial=serial, poles=motor.poles, encoder_ppr=motor.N_enc, kt=motor.kt,
-                     seed=seed, flash_file=ecu_flash, tick_hz=int(motor.f_pwm), faults=plans)
+    sim = ds.DynoSim(capture_source, serial=serial, motor=motor, seed=seed, faults=plans)
 
     def started(bound: int) -> None:
         err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP), motor {serial}, source {source}"
@@ -158,7 +186,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
         # compile the plant now rather than in the first capture (the client's capture timeout)
         t0 = time.perf_counter()
         try:
-            capture_source(ds.SegmentRequest(60.0, DutCmdKind.IQ, 0.0, 100, 10000.0, serial, seed, 0))
+            capture_source(ds.CaptureRequest(60.0, DutCmdKind.IQ, 0.0, 100, 10000.0, serial, seed, 0))
         except Exception as exc:  # noqa: BLE001 - the first real capture reports it properly
             err_console.print(f"plant warm-up failed: {exc}")
             return

@@ -18,8 +18,8 @@ from eol_cal.dyno.registers import SimFault
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
 from eol_cal.motor import load_motor
 
-POLES, PPR = 6, 64
-KT = load_motor("paper").kt
+MOTOR = load_motor("paper")
+POLES, PPR = MOTOR.poles, MOTOR.N_enc
 
 
 PROFILE = [
@@ -37,7 +37,7 @@ def config(port: int, **kw) -> DynoConfig:
 
 @pytest.fixture
 def dyno():
-    sim = DynoSim(synthetic_source, serial="M-TEST-1", poles=POLES, encoder_ppr=PPR, kt=KT)
+    sim = DynoSim(synthetic_source, serial="M-TEST-1", motor=MOTOR)
     with DynoSimThread(sim) as th:
         yield th
 

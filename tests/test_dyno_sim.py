@@ -11,7 +11,8 @@ import pytest
 
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSegment
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, SegmentRequest, parse_fault_plan, synthetic_source
+from cli.dyno import parse_fault_plan
+from eol_cal.dyno.sim import CaptureRequest, DynoSim, DynoSimThread, synthetic_source
 from eol_cal.firmware import block as B
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -125,29 +126,31 @@ def _block(flags: int, sequence: int) -> bytes:
 
 
 def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
+    """The rig reads the ECU simulator's flash at every capture the dyno makes."""
     from eol_cal.ecu.flash import NorFlash
+    from eol_cal.station.rig import EcuState, with_ecu
 
-    seen: list[SegmentRequest] = []
+    seen: list[tuple[CaptureRequest, EcuState]] = []
 
-    def recording(req: SegmentRequest):
-        seen.append(req)
+    def recording(req: CaptureRequest, ecu: EcuState):
+        seen.append((req, ecu))
         return synthetic_source(req)
 
     flash_file = tmp_path / "ecu.flash"
-    sim = DynoSim(recording, flash_file=flash_file)
+    sim = DynoSim(with_ecu(flash_file, recording))
     seg = DynoSegment(60.0, 0.2, iq=20.0, ramp_rpm_s=5000.0)
 
-    def capture_once() -> SegmentRequest:
+    def capture_once() -> EcuState:
         c = _client(th.port)
         c.connect()
         c.set_point(seg)
         c.capture(2000, 10000)
         c.safe_state()
         c.close()
-        return seen[-1]
+        return seen[-1][1]
 
     with DynoSimThread(sim) as th:
-        assert capture_once().mode == "raw" and seen[-1].block is None  # no flash file yet
+        assert capture_once().mode == "raw" and seen[-1][1].block is None  # no flash file yet
         flash = NorFlash(flash_file)  # erased: no valid bank
         assert capture_once().mode == "raw"
         flash.program(0, 0, _block(B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE, 1))
@@ -156,7 +159,7 @@ def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
         flash.program(1, 0, _block(B.FLAG_INTERP_ENABLE, 2))  # newer bank, interpolation only
         req = capture_once()
         assert req.mode == "estimated" and req.block.sequence == 2
-    assert [r.capture_index for r in seen] == [1, 2, 3, 4]
+    assert [r.capture_index for r, _ in seen] == [1, 2, 3, 4]
 
 
 def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
@@ -165,14 +168,14 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.analysis.spectrum import capture_spectrum
     from eol_cal.ecu.flash import NorFlash
-    from eol_cal.dyno.sim import plant_source
+    from eol_cal.station.rig import plant_source
     from eol_cal.plant.presets import preset_spec
     from eol_cal.plant.simulate import true_block
 
     flash_file = tmp_path / "ecu.flash"
     flash = NorFlash(flash_file)
     spec = preset_spec("paper", serial="M-PLANT")
-    sim = DynoSim(plant_source(lambda req: spec), serial="M-PLANT", flash_file=flash_file)
+    sim = DynoSim(plant_source(flash_file, lambda req: spec), serial="M-PLANT")
     seg = DynoSegment(60.0, 0.5, iq=65.0, ramp_rpm_s=5000.0)
 
     def sixth(n: int = 5000) -> float:

@@ -15,7 +15,7 @@ from eol_cal.analysis.result import CiLimits, motor_record
 from eol_cal.firmware.block import check, pack
 from eol_cal.motor import load_motor
 from eol_cal.plant.presets import paper
-from eol_cal.plant.profile import Profile, Segment
+from eol_cal.plant.profile import Profile, ProfileSegment
 from eol_cal.plant.simulate import simulate, true_block
 
 
@@ -27,8 +27,8 @@ def test_fit_table_and_compensated_plant_close_the_loop():
                               table_per_amp=np.zeros(ideal.table_len, np.float32))
     # short calibration: two loads forward, one load in reverse (the reverse speed makes the
     # transducer lag identifiable)
-    cal = Profile("cal", (Segment(120.0, 0.5, iq=20.0), Segment(120.0, 0.5, iq=65.0, ramp_s=0.05),
-                          Segment(-120.0, 0.6, iq=-65.0, ramp_s=0.15)))
+    cal = Profile("cal", (ProfileSegment(120.0, 0.5, iq=20.0), ProfileSegment(120.0, 0.5, iq=65.0, ramp_s=0.05),
+                          ProfileSegment(-120.0, 0.6, iq=-65.0, ramp_s=0.15)))
     (run,) = simulate(spec, cal, mode="compensated", blocks=off, seed=3)
     (mi,) = motor_inputs([run.capture])
     assert len(mi.info) == 3
@@ -45,7 +45,7 @@ def test_fit_table_and_compensated_plant_close_the_loop():
     block = block_from_record(rec, load_motor("paper"))
     assert check(pack(block)).valid
 
-    point = Profile("check", (Segment(120.0, 0.6, iq=65.0),))
+    point = Profile("check", (ProfileSegment(120.0, 0.6, iq=65.0),))
     (before,) = simulate(spec, point, mode="compensated", blocks=off, seed=4)
     (after,) = simulate(spec, point, mode="compensated", blocks=block, seed=4)
     pp0 = capture_ripple_pp(before.capture).filtered_pct

@@ -198,11 +198,11 @@ def test_ecu_estimator_what_if_improves_the_ecu_angle():
     """``ecu_estimator="best"`` runs the firmware reference's improvements in the ECU: after a
     revolution of learning its angle error is a fraction of the paper estimator's."""
     from eol_cal.errors import InputError
-    from eol_cal.plant.profile import Profile, Segment
+    from eol_cal.plant.profile import Profile, ProfileSegment
     from eol_cal.plant.variation import draw_motor
 
     spec = draw_motor(7).replace(tq_noise_nm=0.0, i_noise_a=0.0)
-    prof = Profile("p", (Segment(120.0, 0.3, iq=40.0),))
+    prof = Profile("p", (ProfileSegment(120.0, 0.3, iq=40.0),))
     rms = {}
     for name in ("paper", "best"):
         (run,) = simulate(spec, prof, mode="estimated", seed=1, pre_roll_s=0.8, ecu_estimator=name)

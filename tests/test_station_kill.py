@@ -64,7 +64,7 @@ def station(tmp_path):
         procs.append(run)
         return ecu, run
 
-    sim = ds.DynoSim(ds.synthetic_source, serial="K-1", flash_file=flash)
+    sim = ds.DynoSim(ds.synthetic_source, serial="K-1")
     with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
         try:
             yield start, tmp_path, sim

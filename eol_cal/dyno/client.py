@@ -13,7 +13,6 @@ the capture file is written (atomically) only after every segment was read and v
 
 from __future__ import annotations
 
-import asyncio
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +25,8 @@ from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
 from eol_cal.errors import EolCalError, InputError, Interrupted
-from eol_cal.retry import RetriesExhausted, retry_async, retry_call
+from eol_cal.dyno.transfer import DynoConfig, ProgressFn, TransferError, read_capture_buffer
+from eol_cal.retry import RetriesExhausted, retry_call
 
 #: channels read by default (the packed digital channel is always read); the others on request
 DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
@@ -75,50 +75,6 @@ class DynoSegment:
         return DutCmdKind.TORQUE, float(self.torque_nm or 0.0)
 
 
-@dataclass(frozen=True)
-class DynoConfig:
-    """How to talk to the dyno.
-
-    Attributes
-    ----------
-    host : str
-        Dyno address.
-    port : int
-        Modbus TCP port.
-    device_id : int
-        Modbus unit id.
-    timeout : float
-        Per-request response timeout (s).
-    retries : int
-        Attempts after the first one for each request before giving up (reconnecting between).
-    retry_delay : float
-        First delay between attempts (s); doubles each time.
-    connections : int
-        Parallel TCP connections used to read the capture buffer.
-    watchdog_ms : int
-        Communication watchdog set on the dyno (ms): it stops the drive by itself when this
-        client goes silent (0 = off).
-    settle_timeout : float
-        Extra time allowed to reach a set point beyond the ramp time (s).
-    capture_timeout : float
-        Extra time allowed for a capture beyond its duration (s).
-    poll_interval : float
-        Status polling period (s).
-    """
-
-    host: str = "127.0.0.1"
-    port: int = 5020
-    device_id: int = 1
-    timeout: float = 1.0
-    retries: int = 3
-    retry_delay: float = 0.1
-    connections: int = 4
-    watchdog_ms: int = 2000
-    settle_timeout: float = 10.0
-    capture_timeout: float = 60.0
-    poll_interval: float = 0.01
-
-
 #: ramp rate (rpm/s) for a segment that gives no ramp time (a step on the plant)
 DEFAULT_RAMP_RPM_S = 1000.0
 
@@ -145,15 +101,15 @@ def parse_address(text: str) -> tuple[str, int]:
 
 
 @dataclass
-class SegmentData:
-    """The samples of one segment as read from the dyno (arrays on the segment's own time)."""
+class DynoWindow:
+    """One capture window as read from the dyno: the samples of one profile segment
+    (arrays on the window's own time; ``t0`` in s from the first window's start)."""
 
     t0: float
     rate_hz: float
     channels: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-ProgressFn = Callable[[str, float, float], None]  # (what, done, total)
 
 #: what the dyno means by each Modbus exception code (docs/dyno.md, "Encoding")
 _EXCEPTION_MEANING = {
@@ -313,26 +269,11 @@ class DynoClient:
 
         Returns the analog channels (float64 from f32) and ``enc_a``, ``enc_b``, ``hall``.
         """
-        ids = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
-        plan = [(n, ids[n]) for n in names] + [("digital", rm.DIGITAL_CHANNEL_ID)]
-        pages: list[tuple[int, int, int]] = []  # (channel id, first sample, registers)
-        for _name, cid in plan:
-            per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
-            page_samples = rm.WINDOW_REGS // per
-            for first in range(0, n_samples, page_samples):
-                pages.append((cid, first, min(page_samples, n_samples - first) * per))
         try:
-            words = asyncio.run(_transfer(self.config, pages, progress))
-        except _TransferError as exc:
+            result, reconnects = read_capture_buffer(self.config, names, n_samples, progress)
+        except TransferError as exc:
             raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
-        self.reconnects += words.pop()  # type: ignore[arg-type]
-        result: dict[str, np.ndarray] = {}
-        for name, cid in plan:
-            w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words) if c == cid])
-            if name == "digital":
-                result["enc_a"], result["enc_b"], result["hall"] = rm.unpack_digital(w)
-            else:
-                result[name] = rm.words_to_f32(w)
+        self.reconnects += reconnects
         return result
 
     def safe_state(self) -> str | None:
@@ -346,89 +287,6 @@ class DynoClient:
         return None
 
 
-class _TransferError(Exception):
-    pass
-
-
-async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress: ProgressFn | None) -> list:
-    """Read capture pages over ``cfg.connections`` parallel connections.
-
-    pymodbus serves one request per connection at a time, so parallel connections are how
-    requests overlap. The page selection is dyno state shared by all connections: each page is
-    selected, then its blocks are read in parallel. A lost connection or timeout restarts the
-    page on fresh connections (:func:`eol_cal.retry.retry_async`: ``cfg.retries`` times, doubling delays). Returns the pages' words
-    followed by the number of reconnects.
-    """
-    from pymodbus.client import AsyncModbusTcpClient
-    from pymodbus.exceptions import ModbusException
-
-    k = max(1, cfg.connections)
-    clients: list = []
-    reconnects = 0
-
-    async def open_all() -> None:
-        for cl in clients:
-            cl.close()
-        clients.clear()
-        for _ in range(k):
-            cl = AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout, retries=0, reconnect_delay=0)
-            clients.append(cl)
-            if not await cl.connect():
-                raise ConnectionError("cannot connect")
-
-    async def read_page(cid: int, first: int, n_regs: int) -> np.ndarray:
-        sel = await clients[0].write_registers(rm.BY_NAME["buf_channel"].address, [cid] + rm.encode("buf_offset", first), device_id=cfg.device_id)
-        if sel.isError():
-            raise _TransferError(f"page select refused (Modbus exception {getattr(sel, 'exception_code', None)})")
-        blocks = [(rm.WINDOW_ADDR + a, min(rm.MAX_READ_REGS, n_regs - a)) for a in range(0, n_regs, rm.MAX_READ_REGS)]
-        out: list = [None] * len(blocks)
-
-        async def worker(i: int) -> None:
-            for j in range(i, len(blocks), k):
-                address, count = blocks[j]
-                r = await clients[i].read_holding_registers(address, count=count, device_id=cfg.device_id)
-                if r.isError():
-                    raise _TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})")
-                if len(r.registers) != count:
-                    raise ConnectionError(f"short read at 0x{address:04x}: {len(r.registers)} of {count} registers")
-                out[j] = r.registers
-
-        await asyncio.gather(*(worker(i) for i in range(min(k, len(blocks)))))
-        return np.concatenate([np.asarray(b, dtype=np.uint16) for b in out])
-
-    words: list = []
-    total = sum(n for _c, _f, n in pages)
-    done = 0
-    try:
-        for cid, first, n_regs in pages:
-            async def attempt(n: int, cid: int = cid, first: int = first, n_regs: int = n_regs) -> np.ndarray:
-                nonlocal reconnects
-                if len(clients) != k or not all(cl.connected for cl in clients):
-                    if n or words:
-                        reconnects += 1
-                    await open_all()
-                return await read_page(cid, first, n_regs)
-
-            def drop_all(_n: int, _exc: BaseException) -> None:
-                for cl in clients:
-                    cl.close()
-                clients.clear()
-
-            try:
-                words.append(await retry_async(attempt, retries=cfg.retries, delay_s=cfg.retry_delay,
-                                               retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
-                                               before_retry=drop_all))
-            except RetriesExhausted as exc:
-                raise _TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
-            done += n_regs
-            if progress:
-                progress("transfer", done, total)
-    finally:
-        for cl in clients:
-            cl.close()
-    return words + [reconnects]
-
-
 def run_profile(
     client: DynoClient,
     segments: Sequence[DynoSegment],
@@ -436,7 +294,7 @@ def run_profile(
     channels: Sequence[str] = DEFAULT_CHANNELS,
     progress: ProgressFn | None = None,
     reset_faults: bool = False,
-) -> tuple[list[SegmentData], dict]:
+) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
 
     Returns the segments' data and the dyno's identification registers.
@@ -452,7 +310,7 @@ def run_profile(
         if seg.ramp_rpm_s <= 0 or not np.isfinite(seg.ramp_rpm_s):
             raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
     name_to_id = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
-    data: list[SegmentData] = []
+    data: list[DynoWindow] = []
     t_first: float | None = None
     try:
         ident = client.connect()
@@ -479,7 +337,7 @@ def run_profile(
             if bad:
                 raise DynoError(f"{client.where}: segment {i + 1}: non-finite samples in {', '.join(bad)}")
             t_first = t_start if t_first is None else t_first
-            data.append(SegmentData(t_start - t_first, float(rate_hz), chans))
+            data.append(DynoWindow(t_start - t_first, float(rate_hz), chans))
         if progress:
             progress("stopping", len(segments), len(segments))
         client.write(speed_setpoint=0.0)
@@ -505,7 +363,7 @@ def run_profile(
 
 
 def assemble(
-    data: Sequence[SegmentData],
+    data: Sequence[DynoWindow],
     ident: dict,
     serial: str | None = None,
     extra_metadata: dict | None = None,
@@ -540,7 +398,7 @@ def assemble(
     }
     metadata.update(extra_metadata or {})
     if not metadata["serial"]:
-        raise InputError(None, "serial", "the dyno reports no DUT serial: pass --serial")
+        raise InputError(None, "serial", "the dyno reports no DUT serial: give the motor's serial")
     channels = {}
     for name in names:
         v = np.concatenate(chans[name])

@@ -36,8 +36,9 @@ _TOP_KEYS = {"name", "description", "segment"}
 
 
 @dataclass(frozen=True)
-class Segment:
-    """One profile segment: speed (rpm, signed), load as i_qo (A) or torque (N*m), time (s)."""
+class ProfileSegment:
+    """One segment of a test profile (``[[segment]]`` in its TOML): speed (rpm, signed), load
+    as i_qo (A) or torque (N*m), duration and ramp time (s)."""
 
     speed_rpm: float
     seconds: float
@@ -55,7 +56,7 @@ class Profile:
     """A named sequence of segments."""
 
     name: str
-    segments: tuple[Segment, ...]
+    segments: tuple[ProfileSegment, ...]
     description: str = ""
 
     @property
@@ -109,7 +110,7 @@ def _number(value: object, file: str, key: str, lo: float, hi: float) -> float:
     return float(value)
 
 
-def _segment(data: dict, file: str, where: str) -> Segment:
+def _segment(data: dict, file: str, where: str) -> ProfileSegment:
     data = {k: v for k, v in data.items() if v is not None}
     for key in data:
         if key not in _SEGMENT_KEYS:
@@ -131,7 +132,7 @@ def _segment(data: dict, file: str, where: str) -> Segment:
         iq = _number(data["iq"], file, f"{where}iq", -MAX_IQ_A, MAX_IQ_A)
     else:
         torque = _number(data["torque_nm"], file, f"{where}torque_nm", -100.0, 100.0)
-    return Segment(speed_rpm=speed, seconds=seconds, iq=iq, torque_nm=torque, ramp_s=ramp)
+    return ProfileSegment(speed_rpm=speed, seconds=seconds, iq=iq, torque_nm=torque, ramp_s=ramp)
 
 
 def parse_profile(text: str, file: str) -> Profile:

@@ -3,7 +3,7 @@
 Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1, so the
 tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...`` would), and a
 dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
-comes from that same flash file. Both bind free ports and are shut down when the motor is done.
+comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind free ports and are shut down when the motor is done.
 """
 
 from __future__ import annotations
@@ -55,9 +55,10 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     work_dir : path
         Where the ECU's flash file lives.
     spec_for : callable, optional
-        ``SegmentRequest -> PlantSpec`` for the plant source (default :func:`demo_motor_spec`).
+        ``CaptureRequest -> PlantSpec`` for the rig's plant source (default :func:`demo_motor_spec`).
     source : callable, optional
-        A capture source instead of the plant (e.g. ``eol_cal.dyno.sim.synthetic_source``).
+        A capture source instead of the rig's plant (e.g. ``eol_cal.dyno.sim.synthetic_source``,
+        which does not see the ECU).
     faults : tuple of FaultPlan
         Dyno faults that fire by themselves.
     """
@@ -65,6 +66,7 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
 
     from eol_cal.dyno import sim as ds
     from eol_cal.ecu.remote import serve_remote
+    from eol_cal.station.rig import plant_source
     from eol_cal.ecu.sim import SimConfig
     from eol_cal.motor import load_motor
 
@@ -76,11 +78,10 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     motor = load_motor("paper")
     if source is None:
         spec = demo_motor_spec(seed, serial)
-        source = ds.plant_source(spec_for or (lambda req: spec))
+        source = plant_source(flash_file, spec_for or (lambda req: spec))
     ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial))
     try:
-        sim = ds.DynoSim(source, serial=serial, poles=motor.poles, encoder_ppr=motor.N_enc, kt=motor.kt, seed=seed,
-                         flash_file=flash_file, tick_hz=int(motor.f_pwm), faults=list(faults))
+        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults))
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
             yield LoopbackStation(serial, f"127.0.0.1:{dyno.port}", ecu.url, flash_file, dyno, ecu)
     finally:

@@ -1,0 +1,253 @@
+"""The dyno simulator's Modbus face: register values, the request hook, the TCP server.
+
+:class:`ModbusFace` is mixed into :class:`eol_cal.dyno.sim.DynoSim`; it turns the simulated
+state into the register map of :mod:`eol_cal.dyno.registers` and every accepted write back into
+state. The pymodbus 3.16 server is fed a :class:`pymodbus.simulator.SimDevice` (the datastore
+API 3.16 recommends; the ``ModbusDeviceContext`` classes are deprecated shims) whose ``action``
+hook sees every request: it validates and applies writes and refreshes what a read returns.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from typing import Callable
+
+from eol_cal.dyno import registers as rm
+from eol_cal.dyno.registers import BY_NAME, CaptureState, Fault, Interlock, SimFault
+
+_FC_READ = (3, 4)
+#: longest capture the buffer holds (samples)
+MAX_CAPTURE_SAMPLES = 4_000_000
+
+
+class ModbusFace:
+    """Registers of the simulated dyno (a mixin: the state lives in :class:`DynoSim`)."""
+
+    _loop: asyncio.AbstractEventLoop | None
+    _server: object | None
+
+    def _serving_loop(self) -> asyncio.AbstractEventLoop:
+        """The server's event loop; a :class:`RuntimeError` before :meth:`serve` started."""
+        if self._loop is None:
+            raise RuntimeError("the dyno simulator is not serving (call serve() or use DynoSimThread)")
+        return self._loop
+
+    def status_values(self) -> dict[str, float | int | str]:
+        """Current value of every read-only register except the window."""
+        mask = 0
+        for cid in self.buffer:
+            mask |= rm.channel_bit(cid)
+        return {
+            "map_version": rm.MAP_VERSION,
+            "dut_serial": self.serial,
+            "dut_poles": self.motor.poles,
+            "dut_encoder_ppr": self.motor.N_enc,
+            "dut_kt": self.motor.kt,
+            "max_speed": self.max_speed,
+            "tick_hz": self.tick_hz,
+            "speed": self.speed,
+            "torque": self.shaft_torque(),
+            "temperature": self.temperature,
+            "faults": int(self.faults),
+            "interlocks": int(self.interlocks),
+            "drive_state": int(self.drive_state()),
+            "capture_state": int(self.capture_state),
+            "capture_count": self.buffer_count if self.capture_state == CaptureState.READY else 0,
+            "capture_channels": mask,
+            "heartbeat": self.heartbeat_frozen if self.heartbeat_frozen is not None else int((time.monotonic() - self._t0) * 100) & 0xFFFF,
+            "capture_seq": self.capture_seq,
+        }
+
+    def control_values(self) -> dict[str, float | int]:
+        return {
+            "mode": int(self.mode),
+            "enable": int(self.enabled),
+            "stop": 0,
+            "direction": self.direction,
+            "speed_setpoint": self.setpoint,
+            "ramp": self.ramp,
+            "dut_cmd_kind": int(self.dut_cmd_kind),
+            "dut_cmd": self.dut_cmd,
+            "capture_rate": self.capture_rate,
+            "capture_length": self.capture_length,
+            "capture_start": 0,
+            "fault_reset": 0,
+            "watchdog_ms": self.watchdog_ms,
+            "buf_channel": self.buf_channel,
+            "buf_offset": self.buf_offset,
+            "sim_fault": 0,
+            "sim_fault_arg": 0,
+        }
+
+    def simdevice(self):
+        """The pymodbus :class:`SimDevice` backing the server (one shared register space)."""
+        from pymodbus.simulator import DataType, SimData, SimDevice
+
+        data = []
+        values = {**self.status_values(), **self.control_values()}
+        for reg in rm.REGISTERS:
+            if reg.type == "words":
+                data.append(SimData(reg.address, count=reg.count, values=0, datatype=DataType.REGISTERS, readonly=True))
+            else:
+                data.append(
+                    SimData(reg.address, values=rm.encode(reg.name, values[reg.name]), datatype=DataType.REGISTERS, readonly=not reg.writable)
+                )
+        # id 0: answer every unit id, as a TCP device usually does
+        return SimDevice(0, simdata=data, action=self.action)
+
+    async def action(
+        self, function_code: int, start_address: int, address: int, count: int, registers: list[int], set_values
+    ):
+        """pymodbus hook, called for every request before it touches ``registers``."""
+        from pymodbus.constants import ExcCodes
+
+        now = time.monotonic()
+        self._last_request = now
+        self.advance(now)
+        end = address + count
+        if function_code in _FC_READ:
+            if address < rm.WINDOW_ADDR + rm.WINDOW_REGS and end > rm.WINDOW_ADDR:
+                self.window_reads += 1
+                self._fire_plans("read", self.window_reads)
+                if time.monotonic() < self.disconnect_until:
+                    return ExcCodes.DEVICE_BUSY  # the connection is being dropped anyway
+                lo = max(address, rm.WINDOW_ADDR) - rm.WINDOW_ADDR
+                hi = min(end, rm.WINDOW_ADDR + rm.WINDOW_REGS) - rm.WINDOW_ADDR
+                chunk = self.page[lo:hi]
+                chunk += [0] * (hi - lo - len(chunk))
+                base = rm.WINDOW_ADDR - start_address
+                registers[base + lo : base + hi] = chunk
+            if address < rm.WINDOW_ADDR:
+                self._refresh(registers, start_address, address, min(end, rm.WINDOW_ADDR), self.status_values())
+            return None
+        if set_values is None:
+            return None
+        return self._write(address, list(set_values), set_values, registers, start_address) or None
+
+    @staticmethod
+    def _refresh(registers: list[int], start: int, lo: int, hi: int, values: dict) -> None:
+        for name, value in values.items():
+            reg = BY_NAME[name]
+            if reg.address < hi and reg.address + reg.count > lo:
+                i = reg.address - start
+                registers[i : i + reg.count] = rm.encode(name, value)
+
+    def _write(self, address: int, words: list[int], set_values, registers: list[int], start: int):
+        from pymodbus.constants import ExcCodes
+
+        end = address + len(words)
+        # A write must cover whole values: half of an f32 would change it to garbage.
+        new: dict[str, float | int | str] = {}
+        for reg in rm.REGISTERS:
+            if reg.address < end and reg.address + reg.count > address:
+                if reg.address < address or reg.address + reg.count > end or not reg.writable:
+                    return ExcCodes.ILLEGAL_ADDRESS
+                i = reg.address - address
+                new[reg.name] = rm.decode(reg.name, words[i : i + reg.count])
+        err = self._apply(new)
+        if err:
+            return err
+        # self-clearing command registers read back 0
+        for name in ("stop", "capture_start", "fault_reset", "sim_fault"):
+            if name in new:
+                set_values[BY_NAME[name].address - address] = 0
+        return None
+
+    def _apply(self, new: dict[str, float | int | str]):
+        """Validate a write as a whole, then apply it; a Modbus exception code on refusal."""
+        from pymodbus.constants import ExcCodes
+
+        bad = ExcCodes.ILLEGAL_VALUE
+        if "mode" in new and new["mode"] not in (0, 1):
+            return bad
+        for name in ("speed_setpoint", "ramp", "dut_cmd"):
+            if name in new and not math.isfinite(float(new[name])):
+                return bad
+        if "speed_setpoint" in new and not 0.0 <= float(new["speed_setpoint"]) <= self.max_speed:
+            return bad
+        if "ramp" in new and float(new["ramp"]) <= 0.0:
+            return bad
+        if "direction" in new and new["direction"] not in (0, 1):
+            return bad
+        if "dut_cmd_kind" in new and new["dut_cmd_kind"] not in (0, 1):
+            return bad
+        if "capture_rate" in new and (int(new["capture_rate"]) <= 0 or self.tick_hz % int(new["capture_rate"])):
+            return bad
+        if "capture_length" in new and not 1 <= int(new["capture_length"]) <= MAX_CAPTURE_SAMPLES:
+            return bad
+        if new.get("enable") == 1 and (self.interlocks != Interlock.ALL or self._tripped()):
+            return bad
+        if new.get("capture_start") not in (None, 0, 1, 2):
+            return bad
+        if new.get("capture_start") == 1 and not self.enabled:
+            return bad
+        if "buf_channel" in new and new["buf_channel"] not in (0, rm.DIGITAL_CHANNEL_ID, *rm.ANALOG_CHANNELS):
+            return bad
+        if "sim_fault" in new and new["sim_fault"] not in tuple(int(k) for k in SimFault):
+            return bad
+        if "direction" in new and new["direction"] != self.direction and abs(self.speed) > rm.STANDSTILL_RPM and self.enabled:
+            return bad  # reversing a spinning shaft goes through zero speed: stop first
+        now = time.monotonic()
+        for name, value in new.items():
+            self.log.append((now, name, value))
+        if new.get("fault_reset") == 1:
+            self.faults = Fault(0)
+            if self.capture_state == CaptureState.ERROR:
+                self.capture_state = CaptureState.IDLE
+        for name in ("mode", "direction", "dut_cmd_kind"):
+            if name in new:
+                setattr(self, name, type(getattr(self, name))(int(new[name])))
+        if "speed_setpoint" in new:
+            self.setpoint = float(new["speed_setpoint"])
+        if "ramp" in new:
+            self.ramp = float(new["ramp"])
+        if "dut_cmd" in new:
+            self.dut_cmd = float(new["dut_cmd"])
+        for name in ("capture_rate", "capture_length", "watchdog_ms"):
+            if name in new:
+                setattr(self, name, int(new[name]))
+        if "enable" in new:
+            self.enabled = bool(new["enable"])
+            self.stopping = False
+            if not self.enabled and self.capture_state in (CaptureState.ARMED, CaptureState.RUNNING):
+                self._capture_failed()
+        if new.get("stop") == 1:
+            self.setpoint = 0.0
+            self.stopping = self.enabled
+        if new.get("capture_start") == 1:
+            self._capture_token += 1
+            self.buffer, self.buffer_count = {}, 0
+            self.capture_state = CaptureState.ARMED
+            self.advance(now)
+        elif new.get("capture_start") == 2 and self.capture_state in (CaptureState.ARMED, CaptureState.RUNNING):
+            self._capture_token += 1
+            self.capture_state = CaptureState.IDLE
+        if "buf_channel" in new or "buf_offset" in new:
+            self.buf_channel = int(new.get("buf_channel", self.buf_channel))
+            self.buf_offset = int(new.get("buf_offset", self.buf_offset))
+            self._fill_page()
+        if new.get("sim_fault"):
+            self.inject(SimFault(int(new["sim_fault"])), int(new.get("sim_fault_arg", 500)) or 500)
+        return None
+
+    # ------------------------------------------------------------------ serving
+    async def serve(self, host: str = "127.0.0.1", port: int = 5020, started: Callable[[int], None] | None = None) -> None:
+        """Run the Modbus TCP server until cancelled; ``started(port)`` once it listens."""
+        from pymodbus.server import ModbusTcpServer
+
+        self._loop = asyncio.get_running_loop()
+        server = ModbusTcpServer(self.simdevice(), address=(host, port), trace_packet=self.trace_packet)
+        self._server = server
+        await server.serve_forever(background=True)
+        bound = server.transport.sockets[0].getsockname()[1]
+        if started is not None:
+            started(bound)
+        try:
+            while True:
+                await asyncio.sleep(0.01)
+                self.advance()
+        finally:
+            await server.shutdown()
+            self._server = None

@@ -1,0 +1,131 @@
+"""The simulated rig: the built-in plant behind the dyno simulator, running what the ECU
+simulator's flash holds.
+
+The dyno simulator (:mod:`eol_cal.dyno.sim`) knows no ECU: at every capture it asks a capture
+source for the recording. The rig's source reads the ECU simulator's flash file at that moment
+(:func:`ecu_state`: the active bank's parameter block and the mode its flags select) and runs
+the plant with it, so a flash changes what the next capture shows, as on a real line where the
+motor's ECU runs the block the tester wrote. :func:`eol_cal.station.demo.loopback_station` puts
+the two simulators together with this source.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from eol_cal.capture.model import Capture
+from eol_cal.dyno.sim import CaptureRequest, CaptureSource, i_qo_of
+from eol_cal.firmware.block import ParamBlock
+from eol_cal.plant.params import PlantSpec
+
+#: firmware mode without a valid parameter bank: the raw encoder angle, no compensation
+NO_BLOCK_MODE = "raw"
+
+
+@dataclass(frozen=True)
+class EcuState:
+    """What the motor's ECU runs at a capture.
+
+    Attributes
+    ----------
+    mode : str
+        ``raw``, ``estimated`` or ``compensated``: the angle source and compensation the block's
+        flags select (:data:`NO_BLOCK_MODE` without a valid bank).
+    block : ParamBlock or None
+        The active parameter block, or None without a valid bank.
+    """
+
+    mode: str = NO_BLOCK_MODE
+    block: ParamBlock | None = None
+
+
+def ecu_state(flash_file: str | Path | None) -> EcuState:
+    """The ECU's state from its simulator's flash file: the active bank and the mode it selects.
+
+    No file (not given, or before the ECU simulator created it) or no valid bank: the raw mode
+    without a block.
+    """
+    if flash_file is None or not Path(flash_file).exists():
+        return EcuState()
+    from eol_cal.ecu.flash import active_block_from_file
+    from eol_cal.firmware.block import unpack
+    from eol_cal.plant.simulate import mode_of_block
+
+    data = active_block_from_file(flash_file)
+    if data is None:
+        return EcuState()
+    block = unpack(data, f"{flash_file} (active bank)")
+    return EcuState(mode_of_block(block), block)
+
+
+#: ``(request, ECU state) -> capture``: a recording that depends on what the ECU runs
+EcuCapture = Callable[[CaptureRequest, EcuState], Capture]
+
+
+def with_ecu(flash_file: str | Path | None, capture: EcuCapture) -> CaptureSource:
+    """A dyno capture source that reads the ECU's state at each capture and hands it on."""
+
+    def source(req: CaptureRequest) -> Capture:
+        return capture(req, ecu_state(flash_file))
+
+    return source
+
+
+def default_plant_spec(req: CaptureRequest, preset: str = "paper") -> PlantSpec:
+    """The motor on the dyno: the plant preset, or with a seed a motor drawn from production
+    tolerances around it (:mod:`eol_cal.plant.variation`)."""
+    from eol_cal.plant.presets import preset_spec
+
+    spec = preset_spec(preset, serial=req.serial)
+    if req.seed is None:
+        return spec
+    from eol_cal.plant import variation
+
+    return variation.vary(spec, req.seed)
+
+
+def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None) -> EcuCapture:
+    """The built-in plant (:func:`eol_cal.plant.simulate.simulate`) recording one capture.
+
+    Parameters
+    ----------
+    spec_for : callable, optional
+        ``request -> PlantSpec``: the motor on the dyno (default :func:`default_plant_spec`).
+    """
+
+    def capture(req: CaptureRequest, ecu: EcuState) -> Capture:
+        from eol_cal.plant.profile import Profile, ProfileSegment
+        from eol_cal.plant.simulate import simulate
+
+        spec = (spec_for or default_plant_spec)(req)
+        f_tick = spec.motor.f_pwm
+        step = f_tick / req.rate_hz
+        if abs(step - round(step)) > 1e-9:
+            raise ValueError(f"capture rate {req.rate_hz} Hz does not divide the plant's {f_tick} Hz")
+        step = int(round(step))
+        iq = i_qo_of(req, spec.motor.kt)
+        profile = Profile("dyno", (ProfileSegment(speed_rpm=req.speed_rpm, seconds=req.n_samples * step / f_tick, iq=iq),))
+        seed = (req.seed or 0) * 1000 + req.capture_index
+        result = simulate(spec, profile, mode=ecu.mode, blocks=ecu.block, seed=seed)[0]
+        cap = result.capture
+        # the plant runs at the PWM tick; the dyno's DAQ keeps every step-th sample
+        channels = {k: v[::step][: req.n_samples] for k, v in cap.channels.items()}
+        return Capture(cap.t[::step][: req.n_samples], channels, dict(cap.metadata), dict(cap.truth), source="<plant>")
+
+    return capture
+
+
+def plant_source(flash_file: str | Path | None,
+                 spec_for: Callable[[CaptureRequest], PlantSpec] | None = None) -> CaptureSource:
+    """The rig's capture source: the plant running the ECU simulator's active bank.
+
+    Parameters
+    ----------
+    flash_file : path or None
+        The ECU simulator's flash file, read at every capture (None: no ECU, raw mode).
+    spec_for : callable, optional
+        ``request -> PlantSpec`` (default :func:`default_plant_spec`).
+    """
+    return with_ecu(flash_file, plant_capture(spec_for))
