@@ -31,7 +31,7 @@ from eol_cal.firmware import block as B
 TAIL_BYTES = 4
 """The CRC: the last bytes of a block, written last (the block is valid only with them)."""
 ERASED_CRC = 0xFFFFFFFF
-MAX_RESTARTS = 3
+MAX_RESTARTS = 5
 """Downloads started again from the erase after losses on the bus (smaller blocks each time)."""
 
 
@@ -158,15 +158,15 @@ def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, repo
     for restart in range(MAX_RESTARTS + 1):
         s.routine(prog.step("erase"), P.RID_ERASE, base, B.BANK_BYTES)
         prog.step("download")
-        max_payload = s.request_download(base, len(image))
-        limit = max_payload if limit is None else min(limit, max_payload)
         try:
+            max_payload = s.request_download(base, len(image))
+            limit = max_payload if limit is None else min(limit, max_payload)
             bsc, blocks = _send(s, base, body, 0, limit, 1)
         except EcuError as exc:
             if exc.cause != "timeout" or restart == MAX_RESTARTS or s.silent_s >= s.timing.s3_s:
                 raise
             report.restarts += 1
-            limit = shrink(limit)
+            limit = shrink(limit) if limit is not None else None
             continue
         report.transfer_blocks += blocks
         return bsc

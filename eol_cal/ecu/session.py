@@ -186,6 +186,8 @@ class UdsSession:
         self.programming = False
         self.unlocked = False
         self.retries_used = 0
+        self.last_attempts = 0
+        """Attempts the last :meth:`call` made (more than 1: an answer was lost)."""
 
     def _security_algo(self, level: int, seed: bytes, params: Any = None) -> bytes:
         assert self.seed_to_key is not None
@@ -241,6 +243,7 @@ class UdsSession:
         last: Exception | None = None
         attempt = 0
         for attempt in range(1, attempts + 1):
+            self.last_attempts = attempt
             with self._lock:
                 try:
                     result = func(*args)
@@ -279,11 +282,17 @@ class UdsSession:
         try:
             self.call(step, self.client.change_session, session)
         except EcuError as exc:
-            if exc.nrc == P.NRC.ConditionsNotCorrect:
+            if (exc.nrc == P.NRC.ConditionsNotCorrect and session == P.SESSION_PROGRAMMING
+                    and self.last_attempts > 1 and not self.link.foreign_frames):
+                # The answer to our own 10 02 was lost and the repeat found the session held: with
+                # no other tester on the bus, it is ours.
+                log.info("%s: the repeat found the programming session held by this tester", step)
+            elif exc.nrc == P.NRC.ConditionsNotCorrect:
                 raise EcuError(step, "ECU answered NRC 0x22 ConditionsNotCorrect: another tester holds the "
                                      f"programming session (or one ended less than S3 = {self.timing.s3_s:g} s ago "
                                      "without leaving it); wait and retry", nrc=exc.nrc) from None
-            raise
+            else:
+                raise
         self.in_session = session != P.SESSION_DEFAULT
         self.programming = session == P.SESSION_PROGRAMMING
 
@@ -308,9 +317,13 @@ class UdsSession:
         return bytes(resp.service_data.routine_status_record)
 
     def request_download(self, word_address: int, size: int) -> int:
-        """RequestDownload; returns the data bytes one TransferData may carry (whole words)."""
+        """RequestDownload; returns the data bytes one TransferData may carry (whole words).
+
+        Not repeated: once the ECU took it, the bank is no longer erased and a repeat gets 0x24
+        (revision 1.1); after a lost answer the caller starts again from the erase.
+        """
         resp = self.call("request download (34)", self.client.request_download,
-                         P.memory_location(word_address, size))
+                         P.memory_location(word_address, size), retry=False)
         max_payload = ((resp.service_data.max_length - 2) // P.WORD_BYTES) * P.WORD_BYTES
         if max_payload <= 0:
             raise EcuError("request download (34)", f"maxNumberOfBlockLength {resp.service_data.max_length}")
