@@ -1,4 +1,4 @@
-"""Every bad input of capture-format.md is refused, naming file, channel and reason (exit code 2)."""
+"""Every bad input of docs/capture-format.md is refused, naming file, channel and reason (exit code 2)."""
 
 from __future__ import annotations
 

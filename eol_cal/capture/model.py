@@ -1,6 +1,6 @@
 """The in-memory capture that every reader produces and every analysis reads.
 
-See ``shared/capture-format.md`` (capture format v1). All channels share one time base ``t``;
+See ``docs/capture-format.md`` (capture format v1). All channels share one time base ``t``;
 encoder and hall channels are levels at those sample times. Where a file stored a digital
 channel as change events, the exact change times are kept in :attr:`Capture.events` as well,
 so that angle reconstruction can use edge times finer than the sample period.

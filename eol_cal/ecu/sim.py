@@ -1,4 +1,5 @@
-"""ECU simulator: a UDS server over ISO-TP on a python-can bus implementing firmware contract v1.
+"""ECU simulator: a UDS server over ISO-TP on a python-can bus implementing firmware contract v1
+(``docs/firmware-contract.md``).
 
 udsoncan is a client library, so the server side is written here: requests are parsed once
 (``udsoncan.Request.from_payload`` plus :mod:`eol_cal.ecu.protocol`), each service has one

@@ -1,4 +1,4 @@
-"""The F28335 calibration parameter block (firmware contract section 2): pack, unpack, check.
+"""The F28335 calibration parameter block (``docs/firmware-contract.md`` section 2): pack, unpack, check.
 
 The byte layout is read from ``layout_v1.toml`` next to this module, the one place it is
 defined; the C header ``firmware_params/eol_param_block.h`` is generated from the same file

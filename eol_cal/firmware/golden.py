@@ -1,4 +1,4 @@
-"""Golden vectors for the firmware's unit tests (firmware contract section 4).
+"""Golden vectors for the firmware's unit tests (``docs/firmware-contract.md`` section 4).
 
 ``firmware_params/golden/`` holds ``manifest.json`` and one CSV per vector set; floats are
 binary32 bit patterns as 8 lower-case hex digits, integers decimal. Sets:
