@@ -107,7 +107,8 @@ def lot_record(serial: str, started: str, verdict: str, k6: float | None = 1.0e-
     """A run record as the station writes it, with the parts the lot views read."""
     rec = error_record()
     rec.update(run_id=f"{serial}-{started}", serial=serial, started_at=started, verdict=verdict,
-               reasons=reasons if reasons is not None else ([] if verdict == "pass" else ["x"]), error=None,
+               reasons=reasons if reasons is not None else ([] if verdict == "pass" else ["x"]),
+               error={"step": "acquire", "type": "DynoError", "message": "x"} if verdict == "error" else None,
                station={"name": station})
     if k6 is not None:
         rec["fit"] = {"k6": {"value": k6, "ci95": 2e-5}, "phase_k6": {"value": 0.4, "ci95": 0.01},
@@ -203,6 +204,10 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
         # hover text: one <title> per drawn point, naming the serial
         k6_titles = b.evaluate("Array.from(document.querySelectorAll('[id=\"timeline-runs-k6\"] use > title')).map(t => t.textContent)")
         pass_rate = b.evaluate("document.getElementById('pass-rate').textContent")
+        fpy = b.evaluate("document.getElementById('fpy').textContent")
+        quantity_rows = b.evaluate("Array.from(document.querySelectorAll('tr.quantity-row')).map(r => r.dataset.key)")
+        causes = b.evaluate("Array.from(document.querySelectorAll('tr.cause-row td:first-child')).map(t => t.textContent)")
+        control_lines = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-cl-k6-ucl]').length")
         # zoom: a wheel event on a chart narrows its viewBox, a double-click restores it
         zoom = b.evaluate("""(() => { const s = document.querySelector('#fig-timeline svg'); const r = s.getBoundingClientRect();
             const before = s.getAttribute('viewBox');
@@ -214,12 +219,21 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     assert not group_alive(b.pgid)
     assert log.console_errors == [] and log_after.console_errors == []
     assert set(log.requests) == {page.as_uri()}
-    # timeline, histograms, one control chart per station
-    assert len(sizes) == 4 and all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
+    # timeline, histograms, Pareto, one control chart per station
+    assert [s["id"] for s in sizes] == ["fig-timeline", "fig-histograms", "fig-pareto", "fig-control-L1-S1",
+                                        "fig-control-L1-S2"]
+    assert all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
     with_k6 = sorted((r for r in lot_db["records"] if r["fit"]), key=lambda r: r["started_at"])
     assert len(k6_titles) == len(with_k6) and all(t.startswith(r["serial"]) for t, r in zip(k6_titles, with_k6))
     judged = [r for r in lot_db["records"] if r["verdict"] != "error"]
     assert pass_rate == f"{100 * sum(r['verdict'] == 'pass' for r in judged) / len(judged):.1f} %"
+    first = {}
+    for r in sorted(lot_db["records"], key=lambda r: r["started_at"]):
+        first.setdefault(r["serial"], r["verdict"])
+    assert fpy == f"{100 * sum(v == 'pass' for v in first.values()) / len(first):.1f} %"
+    assert quantity_rows == ["k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct", "improvement_pct"]
+    assert sorted(causes) == ["error in acquire", "x"]
+    assert control_lines == 2  # each station's k6 chart has its upper control limit
     before, zoomed, back = zoom
     assert float(zoomed.split()[2]) < float(before.split()[2]) and back == before
     colours, spread = not_blank(shot)
@@ -253,5 +267,9 @@ def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, mon
 
     monkeypatch.setattr(lot, "MAX_HOVER_POINTS", 5)
     html = lot.write_lot_page(lot_db["records"], tmp_path / "big.html", title="big", filters={}).read_text()
-    assert "<title>" not in html.split("</head>")[1] and "data:image/png;base64" in html
+    import re
+
+    # only the few points beyond the control limits keep their hover text
+    titles = re.findall(r"<title>([^<]*)</title>", html.split("</head>")[1])
+    assert all(t.endswith("beyond the control limits") for t in titles) and "data:image/png;base64" in html
     assert "More than 5 runs: points without hover text" in html

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -169,6 +170,49 @@ def _limit_values(records: Sequence[dict[str, Any]], key: str | None, scale: flo
     return [v * scale for v in out if math.isfinite(v)]
 
 
+@dataclass(frozen=True)
+class QuantityStats:
+    """One quantity of the lot in display units: summary, the limit and the capability."""
+
+    key: str
+    title: str
+    unit: str
+    summary: Any
+    limit_key: str | None
+    limit: float | None
+    capability: Any | None
+    note: str
+
+    @property
+    def line(self) -> str:
+        """One line for the histogram's title."""
+        s = self.summary
+        text = f"mean {s.mean:.4g}, sd {s.sd:.3g}"
+        if self.capability is not None:
+            text += f"; Cpk {self.capability.cpk:.2f}, Ppk {self.capability.ppk:.2f}"
+        return text
+
+
+def quantity_stats(records: Sequence[dict[str, Any]]) -> list[QuantityStats]:
+    """:data:`QUANTITIES` of the runs (time order) with :mod:`eol_cal.lot.stats`: summary and,
+    where the quantity has a limit and the lot one value of it, the capability against it."""
+    from eol_cal.lot.stats import capability, summary
+
+    recs = sorted(records, key=run_time)
+    out = []
+    for key, title, path, scale, unit, lim_key, sense in QUANTITIES:
+        x = [value_of(r, path) * scale for r in recs]
+        limits = _limit_values(recs, lim_key, scale)
+        cap, limit, note = None, None, ""
+        if len(limits) == 1:
+            limit = limits[0]
+            cap = capability(x, usl=limit) if sense == "max" else capability(x, lsl=limit)
+        elif len(limits) > 1:
+            note = f"{lim_key} differs between the lot's variants: no capability (choose a variant)"
+        out.append(QuantityStats(key, title, unit, summary(x), lim_key, limit, cap, note))
+    return out
+
+
 def histogram_figure(records: Sequence[dict[str, Any]], notes: dict[str, str] | None = None) -> Any:
     """Histograms of the measured quantities over the runs that have them, with the limits.
 
@@ -211,7 +255,8 @@ def control_figure(records: Sequence[dict[str, Any]], station: str,
     station : str
         Its name (titles, gids).
     limits : dict of quantity key -> {"center", "ucl", "lcl", "mr_center", "mr_ucl"}, optional
-        The control limits (display units) to draw; none drawn for a quantity not in it.
+        Control limits (display units) to draw instead of the station's own
+        (:func:`eol_cal.lot.stats.imr_limits` of the points drawn); points beyond them are ringed.
 
     Returns
     -------
@@ -243,6 +288,17 @@ def control_figure(records: Sequence[dict[str, Any]], station: str,
             if not dense:
                 titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr)]
         lim = (limits or {}).get(key)
+        if lim is None and len(x) > 1:
+            from eol_cal.lot.stats import imr_limits
+
+            cl = imr_limits(x)
+            lim = {"center": cl.center, "ucl": cl.ucl, "lcl": cl.lcl, "mr_center": cl.mr_center, "mr_ucl": cl.mr_ucl}
+            beyond = cl.beyond(x)
+            if beyond:
+                ax_i.scatter([t[i] for i in beyond], x[beyond], s=70, facecolor="none", edgecolor="tab:red", lw=1.4,
+                             zorder=4, gid=f"beyond-{key}")
+                titles[f"beyond-{key}"] = [point_title(pts[i][2], f"{title} {x[i]:.4g} {unit}: beyond the control limits")
+                                           for i in beyond]
         if lim:
             for ax, names in ((ax_i, ("center", "ucl", "lcl")), (ax_m, ("mr_center", "mr_ucl"))):
                 for name in names:
@@ -259,6 +315,25 @@ def control_figure(records: Sequence[dict[str, Any]], station: str,
     fig.autofmt_xdate()
     fig.tight_layout()
     return fig, titles
+
+
+def pareto_figure(causes: Sequence[tuple[str, int, float]]) -> Any:
+    """Failure causes as bars, most frequent first, with the cumulative share as a line."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(10, 0.9 + 0.32 * max(1, len(causes))))
+    names = [c for c, _n, _s in causes][::-1]
+    counts = [n for _c, n, _s in causes][::-1]
+    ax.barh(names, counts, color=["tab:red" if c.startswith("error") else "tab:orange" for c in names], gid="pareto-bars")
+    ax.set_xlabel("runs", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.3, axis="x")
+    cum = ax.twiny()
+    cum.plot([100 * s for _c, _n, s in causes][::-1], names, "o-", color="0.3", ms=3, lw=1)
+    cum.set_xlim(0, 105)
+    cum.set_xlabel("cumulative share of the causes (%)", fontsize=8)
+    cum.tick_params(labelsize=7)
+    fig.tight_layout()
+    return fig
 
 
 def latest_per_motor(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -330,8 +405,13 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: 
     from eol_cal.report.svg import figure_svg
     from eol_cal.station.records import summarise
 
+    from eol_cal.lot.stats import first_pass_yield, pareto
+
     recs = sorted(records, key=run_time)
     summary = summarise(recs)
+    fpy, _motors = first_pass_yield(recs)
+    quantities = quantity_stats(recs)
+    causes = pareto(recs)
     figures: list[Figure] = []
     if recs:
         fig, titles = timeline(recs, title)
@@ -340,8 +420,14 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: 
                               + ("Hover on a point: serial, verdict, time, value; " if titles else
                                  f"More than {MAX_HOVER_POINTS} runs: points without hover text; ")
                               + "wheel: zoom, drag: pan, double-click: back", figure_svg(fig, "timeline", titles, "plot zoom")))
+        notes = {q.key: q.line for q in quantities if q.summary.count}
         figures.append(Figure("histograms", "Distribution of the measured quantities over the runs that have them, "
-                              "with the variant's limits", figure_svg(histogram_figure(recs), "histograms")))
+                              "with the variant's limits; Cpk (sigma from the moving range) and Ppk (overall sd) "
+                              "against the limit", figure_svg(histogram_figure(recs, notes), "histograms")))
+    pareto_fig = None
+    if causes:
+        pareto_fig = Figure("pareto", "Why runs did not pass: each limit a failed run names, and the step an error "
+                            "run ended in", figure_svg(pareto_figure(causes), "pareto"))
     stations: dict[str, list[dict[str, Any]]] = {}
     for r in recs:
         stations.setdefault(station_of(r), []).append(r)
@@ -350,9 +436,12 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: 
         fig, titles = control_figure(runs, name)
         fid = f"control-{_safe_id(name)}"
         control.append(Figure(fid, f"Station {name}: individuals and moving range of k6 and the compensated p-p, "
-                              f"{len(runs)} runs", figure_svg(fig, fid, titles, "plot zoom")))
+                              f"{len(runs)} runs; centre line and control limits (mean +- 2.66 MRbar, MR: 3.267 MRbar) "
+                              "of the station's own runs, points beyond them ringed red",
+                              figure_svg(fig, fid, titles, "plot zoom")))
     dates = [str(r.get("started_at", ""))[:19].replace("T", " ") for r in recs]
-    return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control,
+    return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control, fpy=fpy,
+                  quantities=quantities, causes=causes, pareto=pareto_fig,
                   worst=worst_motors(recs, page_dir), filters=filters, first=dates[0] if dates else "-",
                   last=dates[-1] if dates else "-", stations=sorted(stations), fmt=_fmt)
 

@@ -1,0 +1,186 @@
+"""Lot statistics of run records: summaries, process capability, control limits, yield, Pareto.
+
+Pure functions over numbers in time order and over run records (``eol-cal/run-record/1``).
+Definitions (the usual ones of statistical process control, for individual measurements):
+
+- ``sd``: sample standard deviation (ddof 1); percentiles by linear interpolation.
+- Capability: ``sigma_within = mean(|x[i] - x[i-1]|) / d2`` with ``d2 = 1.128`` (the moving
+  range of two, in time order) gives ``Cp = (USL - LSL) / (6 sigma_within)`` (both limits only)
+  and ``Cpk = min((USL - mean) / (3 sigma_within), (mean - LSL) / (3 sigma_within))`` over the
+  limits there are; ``Ppk`` is the same with the overall ``sd``. A one-sided limit (the
+  variants' ``max_...`` / ``min_...``) gives the one-sided index.
+- Individuals / moving-range chart: centre ``mean``, ``UCL/LCL = mean +- 2.66 MRbar``; the
+  moving range's centre ``MRbar`` and ``UCL = 3.267 MRbar`` (``2.66 = 3 / d2``, ``3.267 = D4``).
+- First-pass yield: motors whose first run passed / motors tested (a first run that ended in a
+  station error is not a first pass: the motor had to be run again).
+- Pareto: failed and error runs by cause, most frequent first, with the cumulative share.
+  The cause of a failed run is each limit its reasons name (``max_pp_after_pct``...); of an
+  error run ``error in STEP``.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+
+D2 = 1.128  # E[moving range of two] / sigma
+E2 = 3.0 / D2  # 2.66: individuals' limits from MRbar
+D4 = 3.267  # moving range's upper limit from MRbar
+PERCENTILES = (5.0, 50.0, 95.0)
+
+
+@dataclass(frozen=True)
+class Summary:
+    """Count, mean, sample sd, min, max and :data:`PERCENTILES` of one quantity (its units)."""
+
+    count: int
+    mean: float
+    sd: float
+    minimum: float
+    maximum: float
+    percentiles: dict[float, float]
+
+
+@dataclass(frozen=True)
+class Capability:
+    """Process capability against the limits there are (NaN: not defined).
+
+    Attributes
+    ----------
+    lsl, usl : float or None
+        Lower and upper specification limits (the quantity's units).
+    sigma_within : float
+        ``MRbar / 1.128`` (short-term sigma, time order).
+    sigma_overall : float
+        Sample standard deviation.
+    cp, cpk, ppk : float
+        See the module doc.
+    """
+
+    lsl: float | None
+    usl: float | None
+    sigma_within: float
+    sigma_overall: float
+    cp: float
+    cpk: float
+    ppk: float
+
+
+@dataclass(frozen=True)
+class ControlLimits:
+    """Individuals and moving-range chart limits (the quantity's units)."""
+
+    center: float
+    ucl: float
+    lcl: float
+    mr_center: float
+    mr_ucl: float
+
+    def beyond(self, x: Sequence[float]) -> list[int]:
+        """Indices of the individuals outside ``[lcl, ucl]``."""
+        return [i for i, v in enumerate(x) if v > self.ucl or v < self.lcl]
+
+
+def _finite(x: Iterable[float]) -> np.ndarray:
+    a = np.asarray(list(x), dtype=float)
+    return a[np.isfinite(a)]
+
+
+def summary(x: Iterable[float]) -> Summary:
+    """:class:`Summary` of the finite values of ``x`` (NaN figures when there are none)."""
+    a = _finite(x)
+    nan = math.nan
+    if not len(a):
+        return Summary(0, nan, nan, nan, nan, {p: nan for p in PERCENTILES})
+    return Summary(int(len(a)), float(a.mean()), float(a.std(ddof=1)) if len(a) > 1 else nan, float(a.min()),
+                   float(a.max()), {p: float(np.percentile(a, p)) for p in PERCENTILES})
+
+
+def moving_ranges(x: Iterable[float]) -> np.ndarray:
+    """``|x[i] - x[i-1]|`` of the finite values of ``x`` in their order."""
+    return np.abs(np.diff(_finite(x)))
+
+
+def capability(x: Iterable[float], lsl: float | None = None, usl: float | None = None) -> Capability:
+    """:class:`Capability` of ``x`` (finite values, in time order) against ``lsl`` / ``usl``."""
+    a = _finite(x)
+    nan = math.nan
+    mr = moving_ranges(a)
+    s_w = float(mr.mean()) / D2 if len(mr) else nan
+    s_o = float(a.std(ddof=1)) if len(a) > 1 else nan
+    mean = float(a.mean()) if len(a) else nan
+
+    def index(sigma: float) -> float:
+        if not (sigma > 0.0):  # constant values (or fewer than two): no spread to compare with
+            return nan
+        sides = []
+        if usl is not None:
+            sides.append((usl - mean) / (3.0 * sigma))
+        if lsl is not None:
+            sides.append((mean - lsl) / (3.0 * sigma))
+        return float(min(sides)) if sides else nan
+
+    cp = (usl - lsl) / (6.0 * s_w) if (usl is not None and lsl is not None and s_w > 0.0) else nan
+    return Capability(lsl, usl, s_w, s_o, float(cp), index(s_w), index(s_o))
+
+
+def imr_limits(x: Iterable[float]) -> ControlLimits:
+    """Individuals / moving-range chart limits of ``x`` (finite values, time order)."""
+    a = _finite(x)
+    mr = moving_ranges(a)
+    nan = math.nan
+    center = float(a.mean()) if len(a) else nan
+    mr_bar = float(mr.mean()) if len(mr) else nan
+    return ControlLimits(center, center + E2 * mr_bar, center - E2 * mr_bar, mr_bar, D4 * mr_bar)
+
+
+# --------------------------------------------------------------------------- records
+def _time(rec: dict[str, Any]) -> str:
+    return str(rec.get("started_at") or "")
+
+
+def first_pass_yield(records: Sequence[dict[str, Any]]) -> tuple[float, int]:
+    """(motors whose first run passed / motors, motors); NaN without records."""
+    first: dict[str, str] = {}
+    for r in sorted(records, key=_time):
+        first.setdefault(r["serial"], r.get("verdict"))
+    n = len(first)
+    return (sum(v == "pass" for v in first.values()) / n if n else math.nan), n
+
+
+_LIMIT_KEY = re.compile(r"\b((?:max|min)_[a-z0-9_]+)\b")
+
+
+def failure_causes(rec: dict[str, Any]) -> list[str]:
+    """The causes of a run that did not pass (empty for a pass): see the module doc."""
+    verdict = rec.get("verdict")
+    if verdict == "pass":
+        return []
+    if verdict == "error":
+        step = (rec.get("error") or {}).get("step")
+        return [f"error in {step}" if step else "error"]
+    causes: list[str] = []
+    for reason in rec.get("reasons") or []:
+        keys = _LIMIT_KEY.findall(str(reason))
+        cause = keys[0] if keys else str(reason).split(":")[0].split(" = ")[0].strip()
+        if cause not in causes:
+            causes.append(cause)
+    return causes or ["fail (no reason recorded)"]
+
+
+def pareto(records: Sequence[dict[str, Any]]) -> list[tuple[str, int, float]]:
+    """``(cause, runs, cumulative share of all causes)``, most frequent first (ties by name)."""
+    counts: dict[str, int] = {}
+    for r in records:
+        for c in failure_causes(r):
+            counts[c] = counts.get(c, 0) + 1
+    total = sum(counts.values())
+    out, acc = [], 0
+    for cause, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])):
+        acc += n
+        out.append((cause, n, acc / total))
+    return out
