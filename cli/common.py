@@ -58,6 +58,13 @@ def signals_interrupt() -> Iterator[None]:
             signal.signal(sig, handler)
 
 
+def _option_hint(exc: EolCalError) -> str:
+    """The command-line option that fixes an error the library reports in its own terms."""
+    from eol_cal.capture.channel_map import ForeignChannelError
+
+    return " (give one with --map FILE)" if isinstance(exc, ForeignChannelError) else ""
+
+
 def handle_errors(func: Callable) -> Callable:
     """Turn library errors and SIGINT/SIGTERM into a one-line message on stderr and the exit code."""
 
@@ -67,7 +74,7 @@ def handle_errors(func: Callable) -> Callable:
             with signals_interrupt():
                 return func(*args, **kwargs)
         except EolCalError as exc:
-            click.echo(f"error: {exc}", err=True)
+            click.echo(f"error: {exc}{_option_hint(exc)}", err=True)
             sys.exit(exc.exit_code)
         except KeyboardInterrupt as exc:  # Interrupted, or Ctrl-C before the handlers were set
             click.echo(f"error: {exc if isinstance(exc, Interrupted) else Interrupted()}", err=True)

@@ -122,7 +122,7 @@ def test_variant_choice(tmp_path: Path):
     two = GOOD + GOOD.replace("[variant.A]", "[variant.B]")
     path = tmp_path / "two.toml"
     path.write_text(two)
-    with pytest.raises(InputError, match="choose one with --variant") as err:
+    with pytest.raises(InputError, match="choose one by name") as err:
         load_limits(path)
     assert err.value.field == "variant"
     assert load_limits(path, "B").variant == "B"

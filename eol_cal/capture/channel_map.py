@@ -31,6 +31,10 @@ from eol_cal.capture.units import check_unit, parse_unit, to_canonical
 from eol_cal.errors import InputError
 
 
+class ForeignChannelError(InputError):
+    """A file names a channel in its own way and no channel map says what it is."""
+
+
 @dataclass(frozen=True)
 class ChannelSpec:
     """Where one canonical channel comes from: a source channel (and its unit) or hall bits."""
@@ -188,11 +192,11 @@ def apply_channel_map(
                 )
             out[source_name] = _convert(source_name, column, column.unit, file, source_name)
         elif channel_map is None:
-            raise InputError(
+            raise ForeignChannelError(
                 file,
                 source_name,
                 f"unknown channel name; canonical names are {', '.join(CANONICAL_CHANNELS)} "
-                "(use a channel map, --map, for a foreign file)",
+                "(a foreign file needs a channel map)",
             )
     return out, meta
 

@@ -64,8 +64,10 @@ SEQUENCE_INVALID = (0, 0xFFFFFFFF)
 _STRUCT = {"u16": "<H", "u32": "<I", "f32": "<f"}
 _SIZE = {"u8": 1, "u16": 2, "u32": 4, "f32": 4}
 
-assert MAGIC == 0xEC6A and LAYOUT_VERSION == 1
-assert BANK_BYTES == 2 * BANK_WORDS
+if MAGIC != 0xEC6A or LAYOUT_VERSION != 1 or BANK_BYTES != 2 * BANK_WORDS:
+    # the layout file is package data: a wrong one is a broken installation, not bad input
+    raise ImportError(f"layout_v1.toml is not layout version 1 (magic 0x{MAGIC:04X}, version {LAYOUT_VERSION}, "
+                      f"bank {BANK_BYTES} bytes for {BANK_WORDS} words)")
 
 
 def block_bytes(table_len: int) -> int:

@@ -50,8 +50,9 @@ DEFAULT_TABLE_LEN = 256
 
 
 @dataclass(frozen=True)
-class SimConfig:
-    """Static (compile-time) configuration of a simulation: rates, sizes, mode."""
+class PlantSimConfig:
+    """Static (compile-time) configuration of a plant simulation: rates, sizes, mode (not the
+    ECU simulator's :class:`eol_cal.ecu.simconfig.SimConfig`)."""
 
     poles: int
     N_enc: int
@@ -91,7 +92,7 @@ def _rotate(x: Any, y: Any, c: Any, s: Any) -> tuple[Any, Any]:
     return c * x - s * y, s * x + c * y
 
 
-def _tick(cfg: SimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple, Any]:
+def _tick(cfg: PlantSimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple, Any]:
     import jax.numpy as jnp
 
     from eol_cal.firmware import estimator, kinematics
@@ -203,7 +204,7 @@ def configure_xla() -> bool:
     return True
 
 
-def _chunk_fn(cfg: SimConfig, n_ticks: int, unroll: int) -> Callable:
+def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
     """Compiled ``(params, carry, shared_xs, keys, start) -> (carry, outputs)`` for a batch.
 
     ``keys`` holds one PRNG key per motor; the chunk's sensor noise is drawn from
@@ -226,7 +227,7 @@ def _chunk_fn(cfg: SimConfig, n_ticks: int, unroll: int) -> Callable:
     return fn
 
 
-def _initial_carry(cfg: SimConfig, p: PlantParams, spec: PlantSpec, theta_m0: float,
+def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m0: float,
                    omega_m0: float, i_qo0: float) -> tuple:
     """Steady state at the profile's first point: speed, current, shaft twist, controller memory."""
 
@@ -375,7 +376,7 @@ def simulate(
         raise InputError(None, "blocks", "a batch must share one table length")
     batch = stack_params(params)
 
-    cfg = SimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
+    cfg = PlantSimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
                     # nominal table: each motor's own travels in its PlantParams (one program for all)
                     mode=mode, estimator=estimator_config(specs[0], improved=ecu_estimator == "best"),
                     dead_time=any(s.dead_time_s > 0 for s in specs))
@@ -414,7 +415,7 @@ def simulate(
     return results
 
 
-def _to_result(y: np.ndarray, spec: PlantSpec, cfg: SimConfig, profile: Profile, mode: str,
+def _to_result(y: np.ndarray, spec: PlantSpec, cfg: PlantSimConfig, profile: Profile, mode: str,
                block: ParamBlock | None) -> SimResult:
     m = spec.motor
     col = dict(zip(OUT_COLUMNS, y))

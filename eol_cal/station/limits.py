@@ -2,7 +2,7 @@
 
 File format (``docs/station.md``)::
 
-    default_variant = "EPS-A"        # optional; used when --variant is not given
+    default_variant = "EPS-A"        # optional; used when no variant is chosen
 
     [variant.EPS-A]
     max_k6 = 0.0025                  # N*m/A, largest acceptable load-proportional ripple k6
@@ -137,7 +137,7 @@ def load_limits(path: str | Path, variant: str | None = None) -> VariantLimits:
         default = tomllib.loads(text).get("default_variant")
         if default is None and len(variants) > 1:
             raise InputError(str(path), "variant", f"several variants ({', '.join(variants)}) and no default_variant: "
-                             "choose one with --variant")
+                             "choose one by name")
         variant = default or next(iter(variants))
     if variant not in variants:
         raise InputError(str(path), "variant", f"{variant!r} not in the file ({', '.join(variants)})")
