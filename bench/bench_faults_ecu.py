@@ -180,7 +180,7 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
 
     (work / "limits.toml").write_text(LIMITS)
     flash_file = work / "ecu.flash"
-    sim_dyno = ds.DynoSim(ds.synthetic_source, serial="K-1", flash_file=flash_file)
+    sim_dyno = ds.DynoSim(ds.synthetic_source, serial="K-1")
     with ds.DynoSimThread(sim_dyno, "127.0.0.1", 0) as dyno:
         ecu = _cli(env, "ecu-sim", "--flash-file", str(flash_file), "--listen", "127.0.0.1:0", "--serial", "K-1",
                    "--die-at", die_at)

@@ -31,6 +31,7 @@ from udsoncan.exceptions import (InvalidResponseException, NegativeResponseExcep
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.transport import GuardedBus, IsoTpTiming, LinkLost, TesterConnection, make_stack
 from eol_cal.errors import CheckFailed, EolCalError
+from eol_cal.retry import RetriesExhausted, retry_call
 
 log = logging.getLogger(__name__)
 
@@ -81,6 +82,8 @@ class ClientTiming:
         The ECU's S3, s: no retry once the ECU has been silent this long.
     retries : int
         Extra attempts for a request that timed out (only where repeating is safe).
+    retry_delay_s : float
+        Wait before the first retry, s; doubles for each further one (``eol_cal.retry``).
     tester_present_s : float
         Send TesterPresent when no request went out for this long, s (S3 is 5 s).
     request_s : float
@@ -94,6 +97,7 @@ class ClientTiming:
     p2_star_s: float = 5.5
     s3_s: float = P.S3_S
     retries: int = 3
+    retry_delay_s: float = 0.02
     tester_present_s: float = 2.0
     request_s: float = 30.0
     send_s: float = 10.0
@@ -103,11 +107,12 @@ class ClientTiming:
     def dead_link_bound_s(self) -> float:
         """Longest a command talks on after the ECU's last frame, s.
 
-        The failing request ends at most max(P2*, S3 + P2) after it (a 0x78 followed by
-        silence, or retries up to S3); one cleanup request may wait P2 more; closing the
-        ISO-TP stack takes under a second.
+        The failing request ends at most max(P2*, S3 + back-off + P2) after it (a 0x78 followed
+        by silence, or retries while the silence is shorter than S3); one cleanup request may
+        wait P2 more; closing the ISO-TP stack takes under a second.
         """
-        return max(self.p2_star_s, self.s3_s + self.p2_s) + self.p2_s + 1.0
+        backoff = self.retry_delay_s * 2 ** max(self.retries - 1, 0)
+        return max(self.p2_star_s, self.s3_s + backoff + self.p2_s) + self.p2_s + 1.0
 
 
 class _Codec(DidCodec):
@@ -136,6 +141,14 @@ DID_CODECS = {
 }
 
 _TRANSIENT = (TimeoutException, isotp.errors.BlockingSendFailure, UnexpectedResponseException)
+
+
+class _SilentPastS3(Exception):
+    """No retry: the ECU has been silent for S3 (a living one has left the session anyway)."""
+
+    def __init__(self, last: BaseException) -> None:
+        super().__init__(str(last))
+        self.last = last
 SESSION_NAMES = {P.SESSION_DEFAULT: "default", P.SESSION_EXTENDED: "extended", P.SESSION_PROGRAMMING: "programming"}
 SESSION_LOST_NRCS = (P.NRC.ServiceNotSupportedInActiveSession, P.NRC.SecurityAccessDenied,
                      P.NRC.SubFunctionNotSupportedInActiveSession)
@@ -239,11 +252,9 @@ class UdsSession:
             # take each other's answers. The one that has not unlocked yet steps back.
             raise EcuError(step, "another tester is talking to this ECU (requests on 0x7E0 this tester did not "
                                  "send); nothing was written", cause="refused")
-        attempts = 1 + (self.timing.retries if retry else 0)
-        last: Exception | None = None
-        attempt = 0
-        for attempt in range(1, attempts + 1):
-            self.last_attempts = attempt
+
+        def attempt(n: int) -> Any:
+            self.last_attempts = n + 1
             with self._lock:
                 try:
                     result = func(*args)
@@ -257,15 +268,23 @@ class UdsSession:
                     raise EcuError(step, f"invalid response from the ECU: {exc}", cause="invalid") from None
                 except LinkLost as exc:
                     raise EcuError(step, f"CAN link lost ({exc})", cause="link") from None
-                except _TRANSIENT as exc:
-                    last = exc
                 finally:
                     self._last_request = time.monotonic()
-            if attempt < attempts and self.silent_s < self.timing.s3_s:
-                self.retries_used += 1
-                log.info("%s: %s; retrying (%d/%d)", step, last, attempt, attempts - 1)
-                continue
-            break
+
+        def before_retry(n: int, exc: BaseException) -> None:
+            if self.silent_s >= self.timing.s3_s:
+                raise _SilentPastS3(exc)
+            self.retries_used += 1
+            log.info("%s: %s; retrying (%d/%d)", step, exc, n, self.timing.retries)
+
+        try:
+            return retry_call(attempt, retries=self.timing.retries if retry else 0, delay_s=self.timing.retry_delay_s,
+                              retry_on=_TRANSIENT, before_retry=before_retry)
+        except RetriesExhausted as exc:
+            last = exc.last
+        except _SilentPastS3 as exc:
+            last = exc.last
+        attempt = self.last_attempts
         if isinstance(last, TimeoutException):
             reason = (f"no response from the ECU (P2 {self.timing.p2_s:g} s) after {attempt} attempt(s), "
                       f"silent for {self.silent_s:.1f} s: is it powered and on this bus at 0x7E0/0x7E8?")
