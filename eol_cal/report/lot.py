@@ -15,6 +15,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
 
 VERDICT_COLOUR = {"pass": "tab:green", "fail": "tab:orange", "error": "tab:red"}
@@ -151,15 +152,6 @@ QUANTITIES: tuple[tuple[str, str, tuple[str, ...], float, str, str | None, str],
 )
 #: what the control charts follow per station
 CHARTED = ("k6", "pp_after_pct")
-
-
-def station_of(rec: dict[str, Any]) -> str:
-    """The station a run was made on: its id where the record has one."""
-    st = rec.get("station") or {}
-    for value in (rec.get("station_id"), st.get("id"), st.get("station_id"), st.get("name")):
-        if value:
-            return str(value)
-    return "(no station id)"
 
 
 def _limit_values(records: Sequence[dict[str, Any]], key: str | None, scale: float) -> list[float]:

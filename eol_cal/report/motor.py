@@ -23,6 +23,7 @@ from eol_cal.wrap import wrap_2pi
 _MAX_POINTS = 3000  # points drawn per panel: enough to show the band, small enough to inline
 _ANGLE_BINS = 120  # 3 deg electrical per bin for the mean curve
 _MAX_ORDER = 24
+NO_STATION = "(no station id)"
 
 
 @dataclass(frozen=True)
@@ -97,6 +98,15 @@ def limit_rows(rec: dict[str, Any]) -> list[LimitRow]:
             status = "not measured"
         rows.append(LimitRow(c, status))
     return rows
+
+
+def station_of(rec: dict[str, Any]) -> str:
+    """The station a run was made on: its id where the record has one."""
+    st = rec.get("station") or {}
+    for value in (rec.get("station_id"), st.get("id"), st.get("station_id"), st.get("name")):
+        if value:
+            return str(value)
+    return NO_STATION
 
 
 def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
@@ -327,5 +337,5 @@ def render_motor_report(rec: dict[str, Any], figures: Sequence[Figure]) -> str:
     return render("motor.html.j2", rec=rec, station=st, figures=list(figures), limit_rows=limit_rows(rec),
                   ecu_states=ecu_states(rec), ecu_active=ecu, values=values, fmt=_fmt,
                   operator=rec.get("operator") or st.get("operator"),
-                  station_name=st.get("name") or st.get("station_id") or st.get("dyno"),
+                  station_name=station_of(rec) if station_of(rec) != NO_STATION else st.get("dyno"),
                   captures=captures, total_s=sum(s.get("seconds") or 0.0 for s in rec.get("steps") or []))
