@@ -112,3 +112,19 @@ def test_run_signalled_during_the_flash(station, sig):
     assert "Traceback" not in err
     _recorded(tmp_path, "prepare ECU", sig.name)
     assert not dyno.enabled and dyno.speed == 0.0
+
+
+def test_run_signalled_twice_still_records(station):
+    """SIGTERM, then SIGINT while the run is recording its error: the record waits for neither."""
+    start, tmp_path, dyno = station
+    ecu, run = start("--slow", "erase:3")
+    end = time.monotonic() + 30
+    while not list((tmp_path / "reports").rglob("block_uncompensated.bin")) and time.monotonic() < end:
+        time.sleep(0.05)
+    time.sleep(1.0)
+    run.send_signal(signal.SIGTERM)
+    time.sleep(0.05)  # the run is now commanding the safe state and writing its report
+    run.send_signal(signal.SIGINT)
+    _, err = run.communicate(timeout=BOUND_S + START_S + 10)
+    assert run.returncode == 2 and "Traceback" not in err, err
+    _recorded(tmp_path, "prepare ECU", "SIGTERM")

@@ -32,6 +32,7 @@ import numpy as np
 from eol_cal.analysis.fit_motors import json_safe
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.errors import EolCalError, InputError
+from eol_cal.interrupts import shielded
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
 from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
@@ -489,6 +490,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         })
         rec["verdict"], rec["reasons"] = verdict(m, cfg.limits)
 
+    failure: BaseException | None = None
     try:
         try:
             step("prepare ECU", do_prepare)
@@ -501,34 +503,40 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         except _Skip:
             pass
     except BaseException as exc:  # noqa: BLE001 - every failure becomes an error record
-        failed = rec["steps"][-1]["step"] if rec["steps"] else "start"
-        rec["verdict"] = "error"
-        rec["reasons"] = [f"{failed}: {exc}" if str(exc) else f"{failed}: {type(exc).__name__}"]
-        rec["error"] = {"step": failed, "type": type(exc).__name__, "message": str(exc),
-                        "traceback": None if isinstance(exc, EolCalError) else traceback.format_exc(limit=8)}
-        rec["safe_state"] = _safe_state(cfg.dyno)
-        if not isinstance(exc, Exception):  # Ctrl-C: record first, then let it end the process
-            state["reraise"] = exc
-    rec["ecu_active"] = ecu_active(rec)
-    report_html = None
-    try:
-        report_html = step("report", lambda: _report(rec, run_dir, state))
-    except Exception as exc:  # noqa: BLE001 - the record must still be written
-        rec["steps"][-1]["error"] = f"{type(exc).__name__}: {exc}"
-        rec["report_error"] = f"{type(exc).__name__}: {exc}"
-        if rec["verdict"] != "error":
+        failure = exc
+    # From here on a signal waits until the record is written (eol_cal.interrupts).
+    with shielded():
+        if failure is not None:
+            exc = failure
+            failed = rec["steps"][-1]["step"] if rec["steps"] else "start"
             rec["verdict"] = "error"
-            rec["reasons"] = rec["reasons"] + [f"report: {exc}"]
-    rec["ended_at"] = _now()
-    helper.shutdown(wait=True)
-    rec = json_safe(rec)
-    try:
-        from eol_cal.station.report import write_record_json
+            rec["reasons"] = [f"{failed}: {exc}" if str(exc) else f"{failed}: {type(exc).__name__}"]
+            rec["error"] = {"step": failed, "type": type(exc).__name__, "message": str(exc),
+                            "traceback": None if isinstance(exc, EolCalError)
+                            else "".join(traceback.format_exception(exc, limit=8))}
+            rec["safe_state"] = _safe_state(cfg.dyno)
+            if not isinstance(exc, Exception):  # Ctrl-C: record first, then let it end the process
+                state["reraise"] = exc
+        rec["ecu_active"] = ecu_active(rec)
+        report_html = None
+        try:
+            report_html = step("report", lambda: _report(rec, run_dir, state))
+        except Exception as exc:  # noqa: BLE001 - the record must still be written
+            rec["steps"][-1]["error"] = f"{type(exc).__name__}: {exc}"
+            rec["report_error"] = f"{type(exc).__name__}: {exc}"
+            if rec["verdict"] != "error":
+                rec["verdict"] = "error"
+                rec["reasons"] = rec["reasons"] + [f"report: {exc}"]
+        rec["ended_at"] = _now()
+        helper.shutdown(wait=True)
+        rec = json_safe(rec)
+        try:
+            from eol_cal.station.report import write_record_json
 
-        write_record_json(rec, run_dir)
-    except Exception as exc:  # noqa: BLE001 - the database still gets it
-        rec["report_error"] = f"report.json: {type(exc).__name__}: {exc}"
-    saved = _save(cfg, rec, progress)
+            write_record_json(rec, run_dir)
+        except Exception as exc:  # noqa: BLE001 - the database still gets it
+            rec["report_error"] = f"report.json: {type(exc).__name__}: {exc}"
+        saved = _save(cfg, rec, progress)
     if "reraise" in state:
         raise state["reraise"]
     return RunOutcome(rec, saved, report_html, EXIT[rec["verdict"]])
