@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoSegment
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoSetpoint
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -85,7 +85,7 @@ def main() -> int:
         cfg = DynoConfig(host=host, port=port, timeout=2.0)
         dc = DynoClient(cfg)
         dc.connect()
-        dc.set_point(DynoSegment(60.0, args.samples / 20000, iq=65.0, ramp_rpm_s=5000.0))
+        dc.set_point(DynoSetpoint(60.0, args.samples / 20000, iq=65.0, ramp_rpm_s=5000.0))
         st = dc.capture(args.samples, 20000)
         names = [name for cid, name in rm.ANALOG_CHANNELS.items() if int(st["capture_channels"]) & rm.channel_bit(cid)]
         ids = [cid for cid, name in rm.ANALOG_CHANNELS.items() if name in names] + [rm.DIGITAL_CHANNEL_ID]

@@ -58,7 +58,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         raise InputError(str(output), None, "directory does not exist")
     host, port = dc.parse_address(address)
     prof = load_profile(profile)
-    segments = dc.segments_from_profile(prof)
+    segments = dc.setpoints_from_profile(prof)
     channels = dc.DEFAULT_CHANNELS + (dc.EXTRA_CHANNELS if all_channels else ())
     config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections)
     _quiet_pymodbus()

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from eol_cal.capture import read_capture
-from eol_cal.dyno.client import DynoConfig, DynoError, DynoSegment, acquire
+from eol_cal.dyno.client import DynoConfig, DynoError, DynoSetpoint, acquire
 from eol_cal.dyno.registers import SimFault
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
 from eol_cal.motor import load_motor
@@ -23,9 +23,9 @@ POLES, PPR = MOTOR.poles, MOTOR.N_enc
 
 
 PROFILE = [
-    DynoSegment(60.0, 0.35, iq=20.0, ramp_rpm_s=3000.0),
-    DynoSegment(120.0, 0.25, iq=65.0, ramp_rpm_s=3000.0),
-    DynoSegment(-60.0, 0.35, iq=-40.0, ramp_rpm_s=3000.0),
+    DynoSetpoint(60.0, 0.35, iq=20.0, ramp_rpm_s=3000.0),
+    DynoSetpoint(120.0, 0.25, iq=65.0, ramp_rpm_s=3000.0),
+    DynoSetpoint(-60.0, 0.35, iq=-40.0, ramp_rpm_s=3000.0),
 ]
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSegment
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint
 from cli.dyno import parse_fault_plan
 from eol_cal.dyno.sim import CaptureRequest, DynoSim, DynoSimThread, synthetic_source
 from eol_cal.firmware import block as B
@@ -138,7 +138,7 @@ def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
 
     flash_file = tmp_path / "ecu.flash"
     sim = DynoSim(with_ecu(flash_file, recording))
-    seg = DynoSegment(60.0, 0.2, iq=20.0, ramp_rpm_s=5000.0)
+    seg = DynoSetpoint(60.0, 0.2, iq=20.0, ramp_rpm_s=5000.0)
 
     def capture_once() -> EcuState:
         c = _client(th.port)
@@ -176,7 +176,7 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
     flash = NorFlash(flash_file)
     spec = preset_spec("paper", serial="M-PLANT")
     sim = DynoSim(plant_source(flash_file, lambda req: spec), serial="M-PLANT")
-    seg = DynoSegment(60.0, 0.5, iq=65.0, ramp_rpm_s=5000.0)
+    seg = DynoSetpoint(60.0, 0.5, iq=65.0, ramp_rpm_s=5000.0)
 
     def sixth(n: int = 5000) -> float:
         c = DynoClient(DynoConfig(port=th.port, timeout=2.0, retries=1, capture_timeout=120.0))

@@ -300,11 +300,11 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
 
 
 def test_verification_segments_are_the_operating_point_in_both_directions():
-    from eol_cal.dyno.client import segments_from_profile
+    from eol_cal.dyno.client import setpoints_from_profile
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.run import verify_segments
 
-    segs = segments_from_profile(load_profile("eol-default"))
+    segs = setpoints_from_profile(load_profile("eol-default"))
     chosen = verify_segments(segs, 60.0, 65.0)
     assert [(s.speed_rpm, s.iq) for s in chosen] == [(60.0, 65.0), (-60.0, -65.0)]
     assert verify_segments(segs, -60.0, -65.0) == chosen

@@ -130,8 +130,12 @@ class FitSpec:
 
 
 @dataclass
-class SegmentArrays:
-    """Samples of one motor, segment by segment (the fit's array-level input).
+class SteadySegments:
+    """Samples of one motor, steady segment by steady segment (the fit's array-level input).
+
+    A steady segment is a piece of a capture at one load point, speed and direction, whole
+    electrical revolutions long (:func:`eol_cal.analysis.fit_capture.capture_segments`); not a
+    test profile's segment (:class:`eol_cal.plant.profile.ProfileSegment`).
 
     Attributes
     ----------
@@ -170,7 +174,7 @@ class SegmentArrays:
         return len(self.theta)
 
 
-def path_gain(seg: SegmentArrays, spec: FitSpec) -> np.ndarray:
+def path_gain(seg: SteadySegments, spec: FitSpec) -> np.ndarray:
     """``seg.path_response`` at every segment's harmonics, shape (segments, harmonics), complex."""
     freq = np.outer(seg.omega_e, np.asarray(spec.harmonics, dtype=float))
     if seg.path_response is None:
@@ -178,12 +182,12 @@ def path_gain(seg: SegmentArrays, spec: FitSpec) -> np.ndarray:
     return np.asarray(seg.path_response(freq), dtype=complex).reshape(freq.shape)
 
 
-def check_identifiable(seg: SegmentArrays, spec: FitSpec, source: str | None = None) -> None:
+def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None) -> None:
     """Refuse a request the data cannot answer (InputError naming what is missing).
 
     Parameters
     ----------
-    seg : SegmentArrays
+    seg : SteadySegments
         The motor's segments.
     spec : FitSpec
         The request.
@@ -407,7 +411,7 @@ def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_
     return Lc.T, z, yy - float(z @ z), yy, ymean, n, spec.n_nuis - int(empty.sum())
 
 
-def compress(seg: SegmentArrays, spec: FitSpec, n_segments: int | None = None) -> Compressed:
+def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) -> Compressed:
     """Compress every segment of one motor, padded to ``n_segments`` (padding: R = I, z = 0, n = 0)."""
     S = n_segments or seg.n_segments
     m = spec.n_cols
@@ -798,12 +802,12 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     )
 
 
-def fit_segments(seg: SegmentArrays, spec: FitSpec = FitSpec(), source: str | None = None) -> MotorFit:
+def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None) -> MotorFit:
     """Fit one motor from its segments (all captures jointly).
 
     Parameters
     ----------
-    seg : SegmentArrays
+    seg : SteadySegments
         Electrical angle (rad), time (s), torque (N*m) per segment, with i_qo (A) and omega_e (rad/s).
     spec : FitSpec
         Model and solver settings.
@@ -832,7 +836,7 @@ def pick_mode(n_motors: int) -> str:
 
 
 def fit_many(
-    motors: list[SegmentArrays],
+    motors: list[SteadySegments],
     spec: FitSpec = FitSpec(),
     mode: str = "auto",
     chunk: int = 64,
@@ -848,7 +852,7 @@ def fit_many(
 
     Parameters
     ----------
-    motors : list of SegmentArrays
+    motors : list of SteadySegments
         One entry per motor.
     spec : FitSpec
         Shared model and solver settings.

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from eol_cal.analysis.fit import SegmentArrays
+from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.capture.model import Capture
@@ -24,8 +24,9 @@ from eol_cal.motor import MotorParams, load_motor
 
 
 @dataclass
-class SegmentInfo:
-    """Where a segment came from (for the result and the plots)."""
+class SteadySegmentOrigin:
+    """Where a steady segment came from: capture, sample range [start, stop), times (s), its
+    load point i_qo (A) and speed (rpm); for the result and the plots."""
 
     source: str
     start: int
@@ -43,8 +44,8 @@ class MotorInput:
     serial: str
     captures: list[Capture]
     angles: list
-    segments: SegmentArrays
-    info: list[SegmentInfo]
+    segments: SteadySegments
+    info: list[SteadySegmentOrigin]
     poles: int
     encoder_ppr: int
     kt: float
@@ -270,7 +271,7 @@ def motor_inputs(
                 omegas.append(omega)
                 rpm = omega / (P / 2) * 60.0 / (2 * math.pi)
                 labels.append(f"{c.source}[{a}:{b}]")
-                infos.append(SegmentInfo(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
+                infos.append(SteadySegmentOrigin(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
                 cap_idx.append(ci)
         if not thetas:
             raise InputError(
@@ -290,7 +291,7 @@ def motor_inputs(
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
         response = None if bench is None else functools.partial(shaft_response, motor=motor, mechanics=bench)
-        seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
+        seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
         mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, bench=bench, hall=hall)
         if use_fw and fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))

@@ -10,15 +10,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from eol_cal.analysis.fit import TAU_SCALE, FitSpec, SegmentArrays, design_matrix, path_gain
+from eol_cal.analysis.fit import TAU_SCALE, FitSpec, SteadySegments, design_matrix, path_gain
 
 
-def fit_segments_scipy(seg: SegmentArrays, spec: FitSpec, p0: np.ndarray | None = None) -> dict:
+def fit_segments_scipy(seg: SteadySegments, spec: FitSpec, p0: np.ndarray | None = None) -> dict:
     """Fit one motor with scipy's trust-region least squares on the full per-sample residual.
 
     Parameters
     ----------
-    seg : SegmentArrays
+    seg : SteadySegments
         As for :func:`eol_cal.analysis.fit.fit_segments`.
     spec : FitSpec
         Same model; ``spec.fit_delay`` decides whether the delay is free.

@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from eol_cal.analysis.fit import SegmentArrays
+from eol_cal.analysis.fit import SteadySegments
 
 
 def synthetic_segments(
@@ -36,7 +36,7 @@ def synthetic_segments(
     extra: dict[int, tuple[float, float, float, float]] | None = None,
     transducer: str = "lowpass",
     path_response: Callable[[np.ndarray], np.ndarray] | None = None,
-) -> tuple[SegmentArrays, dict]:
+) -> tuple[SteadySegments, dict]:
     """One motor's segments: every load x speed x direction, each ``seg_s`` long.
 
     Parameters
@@ -70,12 +70,12 @@ def synthetic_segments(
         ``delay``: the torque is seen ``delay_s`` late; ``lowpass``: through a first-order
         low-pass of time constant ``delay_s`` (each harmonic's steady-state gain and phase).
     path_response : callable, optional
-        The bench's air-gap-to-shaft response (:attr:`SegmentArrays.path_response`), applied to
+        The bench's air-gap-to-shaft response (:attr:`SteadySegments.path_response`), applied to
         every harmonic before the transducer and handed to the fit with the segments.
 
     Returns
     -------
-    (SegmentArrays, dict)
+    (SteadySegments, dict)
         The segments and the truth (keys ``k6``, ``phase_k6``, ``c6``, ``phase_c6``, ``delay_s``).
     """
     terms = {6: (c6, phase_c6, k6, phase_k6)}
@@ -109,7 +109,7 @@ def synthetic_segments(
                 omegas.append(omega_e)
                 labels.append(f"synthetic {direction:+d} {rpm:g} rpm {i_qo:g} A")
                 t_start = t[-1] + 1.0 / fs_hz
-    seg = SegmentArrays(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels, path_response)
+    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels, path_response)
     truth = {"k6": k6, "phase_k6": phase_k6, "c6": c6, "phase_c6": phase_c6, "delay_s": delay_s,
              "transducer": transducer}
     return seg, truth

@@ -25,6 +25,7 @@ from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
 from eol_cal.errors import EolCalError, InputError, Interrupted
+from eol_cal.plant.profile import Profile
 from eol_cal.dyno.transfer import DynoConfig, ProgressFn, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
 
@@ -45,8 +46,8 @@ class DynoError(EolCalError):
 
 
 @dataclass(frozen=True)
-class DynoSegment:
-    """One steady operating point of a test profile, as the dyno runs it.
+class DynoSetpoint:
+    """One steady operating point of a test profile (one profile segment), as the dyno runs it.
 
     Attributes
     ----------
@@ -79,18 +80,19 @@ class DynoSegment:
 DEFAULT_RAMP_RPM_S = 1000.0
 
 
-def segments_from_profile(profile) -> list[DynoSegment]:
-    """A plant test profile (:class:`eol_cal.plant.profile.Profile`) as dyno segments.
+def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
+    """A test profile (:class:`eol_cal.plant.profile.Profile`) as the dyno's set points, one per
+    profile segment.
 
     The dyno captures only the steady part of a segment: ``seconds - ramp_s``; the ramp rate is
     the speed change over ``ramp_s`` (or :data:`DEFAULT_RAMP_RPM_S` without a ramp time).
     """
-    out: list[DynoSegment] = []
+    out: list[DynoSetpoint] = []
     prev = 0.0
     for seg in profile.segments:
         delta = abs(seg.speed_rpm - prev)
         ramp = delta / seg.ramp_s if seg.ramp_s > 0.0 and delta > 0.0 else DEFAULT_RAMP_RPM_S
-        out.append(DynoSegment(seg.speed_rpm, seg.seconds - seg.ramp_s, seg.torque_nm, seg.iq, ramp))
+        out.append(DynoSetpoint(seg.speed_rpm, seg.seconds - seg.ramp_s, seg.torque_nm, seg.iq, ramp))
         prev = seg.speed_rpm
     return out
 
@@ -220,7 +222,7 @@ class DynoClient:
             raise DynoError(f"{self.where}: drive tripped while {what}")
 
     # ------------------------------------------------------------ operations
-    def set_point(self, seg: DynoSegment) -> None:
+    def set_point(self, seg: DynoSetpoint) -> None:
         """Command one segment's load, direction and speed; return when the dyno is at speed."""
         cfg = self.config
         st = self.status()
@@ -289,7 +291,7 @@ class DynoClient:
 
 def run_profile(
     client: DynoClient,
-    segments: Sequence[DynoSegment],
+    segments: Sequence[DynoSetpoint],
     rate_hz: int = DEFAULT_RATE_HZ,
     channels: Sequence[str] = DEFAULT_CHANNELS,
     progress: ProgressFn | None = None,
@@ -408,7 +410,7 @@ def assemble(
 
 def acquire(
     config: DynoConfig,
-    segments: Sequence[DynoSegment],
+    segments: Sequence[DynoSetpoint],
     out: str | Path | None = None,
     *,
     serial: str | None = None,
@@ -424,7 +426,7 @@ def acquire(
     ----------
     config : DynoConfig
         Dyno address and timing.
-    segments : sequence of DynoSegment
+    segments : sequence of DynoSetpoint
         The test profile.
     out : path, optional
         Capture file (``.csv`` or ``.mf4``); written only when everything succeeded.

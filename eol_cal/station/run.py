@@ -281,7 +281,7 @@ def verify_segments(segments: list, speed_rpm: float, i_qo_a: float, rel_tol: fl
 
     Parameters
     ----------
-    segments : list of DynoSegment
+    segments : list of DynoSetpoint
         The test profile as the dyno runs it.
     speed_rpm, i_qo_a : float
         Operating point: speed (rpm) and nominal q current (A); matched by magnitude within
@@ -289,7 +289,7 @@ def verify_segments(segments: list, speed_rpm: float, i_qo_a: float, rel_tol: fl
 
     Returns
     -------
-    list of DynoSegment
+    list of DynoSetpoint
         In profile order; the whole profile when no segment gives the load as i_qo or none matches.
     """
     def near(a: float, b: float) -> bool:
@@ -331,7 +331,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
 
     check_config(cfg)
     profile = load_profile(cfg.profile)
-    segments = dc.segments_from_profile(profile)
+    segments = dc.setpoints_from_profile(profile)
     started = _dt.datetime.now(_dt.timezone.utc)
     run_id = uuid.uuid4().hex
     run_dir = _new_run_dir(cfg.report_dir, cfg.serial, started, run_id)
