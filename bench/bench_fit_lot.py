@@ -94,7 +94,8 @@ def main() -> None:
                     help="skip the noise-free run that measures the ECU's own 6th-order current ripple")
     args = ap.parse_args()
 
-    from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame, wrap_phase
+    from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
+    from eol_cal.wrap import wrap_pi
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.analysis.fit_table import block_from_record
     from eol_cal.analysis.result import CiLimits, record_for_motor
@@ -154,12 +155,12 @@ def main() -> None:
                 "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
                 "k6_eff_err_pct": 100 * (k.value - k_eff) / k_eff,
                 "k6_current_pct": 100 * (k_eff - p.k6) / p.k6,
-                "phase_k6_err_deg": math.degrees(wrap_phase(k.phase - p.phase_k6)),
-                "phase_k6_err_rec_deg": math.degrees(wrap_phase(k_rec.phase - (p.phase_k6 - 6 * d_rec))),
+                "phase_k6_err_deg": math.degrees(wrap_pi(k.phase - p.phase_k6)),
+                "phase_k6_err_rec_deg": math.degrees(wrap_pi(k_rec.phase - (p.phase_k6 - 6 * d_rec))),
                 "frame_rec_deg": math.degrees(d_rec),
                 "_phase_k6": k.phase, "_phase_c6": c.phase, "_c6": c.value,
                 "c6_err_nm": c_err,
-                "phase_c6_err_deg": math.degrees(wrap_phase(c.phase - p.phase_c6)),
+                "phase_c6_err_deg": math.degrees(wrap_pi(c.phase - p.phase_c6)),
                 "ci_k6_pct": 100 * k.ci95 / k.value,
                 "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
                 "hall_source": mi.hall.source,
@@ -185,7 +186,7 @@ def main() -> None:
             keep = b.capture.t >= 0.2
             d_fw = float(np.angle(np.mean(np.exp(1j * (b.theta_hat[keep] - b.theta_r[keep])))))
             r["frame_fw_deg"] = math.degrees(d_fw)
-            r["phase_k6_err_fw_deg"] = math.degrees(wrap_phase(r["_phase_k6"] - (p.phase_k6 - 6 * d_fw)))
+            r["phase_k6_err_fw_deg"] = math.degrees(wrap_pi(r["_phase_k6"] - (p.phase_k6 - 6 * d_fw)))
             r["c6_err_fw_nm"] = abs(r["_c6"] * np.exp(1j * r["_phase_c6"]) - p.c6 * np.exp(1j * (p.phase_c6 - 6 * d_fw)))
             nan = (float("nan"), float("nan"))
             rows[i]["pp_before_pct"] = _pp(before[j].capture)[0]

@@ -34,5 +34,6 @@ def wrap_2pi(x: Any, xp: Any = np) -> Any:
 
 def wrap_pi(x: Any, xp: Any = np) -> Any:
     """Angle ``x`` (rad, scalar or array) reduced into (-pi, pi] (rad): the signed difference
-    of two angles, or a phase as the fit reports it."""
-    return math.pi - xp.mod(math.pi - x, TWO_PI)
+    of two angles, or a phase as the fit reports it. An angle already in range comes back
+    unchanged, bit for bit."""
+    return x - TWO_PI * xp.ceil((x - math.pi) / TWO_PI)

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.analysis.fit import wrap_phase
+from eol_cal.wrap import wrap_pi
 from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 
@@ -65,9 +65,9 @@ def test_fit_recovers_the_generator_and_writes_the_schema(fitted, files):
     (m,) = doc["motors"]
     assert m["serial"] == "M-0007" and m["status"] == "ok" and m["reasons"] == []
     assert abs(m["k6"]["value"] - TRUTH["k6"]) < 0.02 * TRUTH["k6"]
-    assert abs(wrap_phase(m["phase_k6"]["value"] - TRUTH["phase_k6"])) < math.radians(2)
+    assert abs(wrap_pi(m["phase_k6"]["value"] - TRUTH["phase_k6"])) < math.radians(2)
     assert abs(m["c6"]["value"] - TRUTH["c6"]) < 0.002
-    assert abs(wrap_phase(m["phase_c6"]["value"] - TRUTH["phase_c6"])) < math.radians(10)
+    assert abs(wrap_pi(m["phase_c6"]["value"] - TRUTH["phase_c6"])) < math.radians(10)
     for key in ("k6", "phase_k6", "c6", "phase_c6", "delay_s"):
         assert m[key]["ci95"] > 0
     assert -math.pi < m["phase_k6"]["value"] <= math.pi

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments, wrap_phase
+from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
+from eol_cal.wrap import wrap_pi
 from eol_cal.analysis.fit_synth import synthetic_segments
 from eol_cal.analysis.result import STATUS_CI_TOO_WIDE, STATUS_NOT_CONVERGED, STATUS_OK, CiLimits, judge, motor_record
 from eol_cal.errors import InputError
@@ -17,7 +18,7 @@ LOADS = (20.0, 40.0, 65.0)
 
 
 def _phase_err(a: float, b: float) -> float:
-    return abs(wrap_phase(a - b))
+    return abs(wrap_pi(a - b))
 
 
 def _within(est, truth: float, sigmas: float = 4.0) -> bool:

@@ -7,7 +7,8 @@ import math
 
 import numpy as np
 
-from eol_cal.analysis.fit import FitSpec, fit_many, wrap_phase
+from eol_cal.analysis.fit import FitSpec, fit_many
+from eol_cal.wrap import wrap_pi
 from eol_cal.analysis.fit_capture import motor_inputs
 from eol_cal.analysis.fit_table import block_from_record
 from eol_cal.analysis.metrics import capture_ripple_pp
@@ -39,7 +40,7 @@ def test_fit_table_and_compensated_plant_close_the_loop():
                        encoder_ppr=mi.encoder_ppr, sources=[], segments=segs, metrics={}, solver_mode="loop")
     assert rec["status"] == "ok", rec["reasons"]
     assert abs(rec["k6"]["value"] - spec.k6) < 0.05 * spec.k6
-    assert abs(wrap_phase(rec["phase_k6"]["value"] - spec.phase_k6)) < math.radians(3)
+    assert abs(wrap_pi(rec["phase_k6"]["value"] - spec.phase_k6)) < math.radians(3)
     # the plant's transducer is a first-order low-pass; the fit's time constant should match it
     assert abs(rec["delay_s"]["value"] - 1 / (2 * math.pi * spec.tq_bw_hz)) < 0.2 / (2 * math.pi * spec.tq_bw_hz)
     block = block_from_record(rec, load_motor("paper"))

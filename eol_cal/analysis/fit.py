@@ -41,6 +41,7 @@ from typing import Callable
 import numpy as np
 
 from eol_cal.errors import InputError
+from eol_cal.wrap import wrap_pi
 
 #: scale of the delay parameter inside the solver (s); keeps the parameter vector near O(1)
 TAU_SCALE = 1e-4
@@ -722,16 +723,10 @@ def shift_frame(fit: MotorFit, offset_rad: float) -> MotorFit:
     import dataclasses
 
     harmonics = {
-        h: {part: dataclasses.replace(e, phase=wrap_phase(e.phase - h * offset_rad)) for part, e in parts.items()}
+        h: {part: dataclasses.replace(e, phase=float(wrap_pi(e.phase - h * offset_rad))) for part, e in parts.items()}
         for h, parts in fit.harmonics.items()
     }
     return dataclasses.replace(fit, harmonics=harmonics)
-
-
-def wrap_phase(phi: float) -> float:
-    """Wrap an angle (rad) into (-pi, pi]."""
-    w = math.atan2(math.sin(phi), math.cos(phi))
-    return math.pi if w <= -math.pi else w
 
 
 def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
@@ -743,7 +738,7 @@ def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
     g_ph = np.array([-b, a]) / amp**2
     var_amp = float(g_amp @ cov2 @ g_amp)
     var_ph = float(g_ph @ cov2 @ g_ph)
-    return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), wrap_phase(math.atan2(b, a)), Z95 * math.sqrt(max(var_ph, 0.0)))
+    return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), float(wrap_pi(math.atan2(b, a))), Z95 * math.sqrt(max(var_ph, 0.0)))
 
 
 def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit:
