@@ -211,7 +211,7 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
             source,
             "iq_ref",
             f"c6 and k6 are not identifiable from a single load point (i_qo = {seg.i_qo[0]:.4g} A in all "
-            "segments): capture at two or more load points, or fit one of them only (--no-c6 / --no-k6)",
+            "segments): capture at two or more load points, or fit one of them only (c6 or k6 switched off)",
         )
     if spec.fit_delay:
         w = seg.omega_e
@@ -221,7 +221,7 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
                 source,
                 "speed",
                 "the transducer delay is not identifiable from a single speed (it shifts the phase in "
-                "proportion to speed): capture at two speeds or in both directions, or give --delay SECONDS",
+                "proportion to speed): capture at two speeds or in both directions, or give the transducer delay (s)",
             )
 
 

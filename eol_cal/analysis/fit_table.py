@@ -32,7 +32,7 @@ def select_motor(doc: dict[str, Any], serial: str | None, source: str) -> dict[s
     motors = doc["motors"]
     if serial is None:
         if len(motors) != 1:
-            raise InputError(source, "serial", f"{len(motors)} motors in the result: choose one with --serial "
+            raise InputError(source, "serial", f"{len(motors)} motors in the result: choose one by serial "
                              f"({', '.join(m['serial'] for m in motors)})")
         return motors[0]
     for m in motors:

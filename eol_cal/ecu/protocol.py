@@ -111,7 +111,7 @@ NRC_HINT: dict[int, str] = {
     NRC.RequestSequenceError: "request out of order (the ECU enforces the programming sequence)",
     NRC.RequestOutOfRange: "address, size, identifier or parameter out of range",
     NRC.SecurityAccessDenied: "security access required: the ECU is locked",
-    NRC.InvalidKey: "wrong key: check --key-file and the seed-to-key algorithm",
+    NRC.InvalidKey: "wrong key: check the secret (key file) and the seed-to-key algorithm",
     NRC.ExceedNumberOfAttempts: "too many wrong keys: the ECU is now locked out",
     NRC.RequiredTimeDelayNotExpired: "the ECU is in its security lock-out delay; wait and retry",
     NRC.UploadDownloadNotAccepted: "download not accepted for this memory area",

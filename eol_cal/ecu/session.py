@@ -30,7 +30,7 @@ from udsoncan.exceptions import (InvalidResponseException, NegativeResponseExcep
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.transport import GuardedBus, IsoTpTiming, LinkLost, TesterConnection, make_stack
-from eol_cal.errors import CheckFailed, EolCalError
+from eol_cal.errors import CheckFailed, EolCalError, InputError
 from eol_cal.retry import RetriesExhausted, retry_call
 
 log = logging.getLogger(__name__)
@@ -203,7 +203,8 @@ class UdsSession:
         """Attempts the last :meth:`call` made (more than 1: an answer was lost)."""
 
     def _security_algo(self, level: int, seed: bytes, params: Any = None) -> bytes:
-        assert self.seed_to_key is not None
+        if self.seed_to_key is None:
+            raise InputError(None, "secret", "security access needs the ECU's seed-to-key (its secret)")
         return self.seed_to_key(bytes(seed))
 
     def _heard(self) -> None:

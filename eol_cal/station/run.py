@@ -179,7 +179,7 @@ def check_motor(capture, motor: MotorParams) -> None:
         got = int(capture.metadata[key])
         if got != want:
             raise InputError(capture.source, key, f"the capture says {got}, the station's motor type "
-                             f"{motor.name!r} has {want}: wrong motor on the dyno, or give the station its motor (--motor)")
+                             f"{motor.name!r} has {want}: wrong motor on the dyno, or the station is set up for another motor type")
 
 
 def _previous(report) -> dict[str, Any]:
