@@ -273,3 +273,20 @@ def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, mon
     titles = re.findall(r"<title>([^<]*)</title>", html.split("</head>")[1])
     assert all(t.endswith("beyond the control limits") for t in titles) and "data:image/png;base64" in html
     assert "More than 5 runs: points without hover text" in html
+
+
+def test_a_plot_that_cannot_be_drawn_says_why_and_the_page_is_still_written(fitted, tmp_path):
+    """Ripple data without angles (a caller that does not keep them): the angle plot says why,
+    the other plots are drawn and the page is written."""
+    import dataclasses
+
+    from eol_cal.station.report import write_report
+
+    mi, fit, spec, pr = fitted
+    broken = tuple(dataclasses.replace(p, theta_r=None) for p in pr)
+    rec = error_record()
+    rec.update(verdict="pass", reasons=[], error=None,
+               metrics={"operating_point": {"speed_rpm": 120.0, "i_qo_a": 65.0}})
+    html = write_report(rec, tmp_path, fit_extra=(mi, fit, spec), point_ripple=broken).read_text()
+    assert html.count('class="plot-error"') == 1 and "This plot could not be drawn: TypeError" in html
+    assert html.count("<svg") == 2

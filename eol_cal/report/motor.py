@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -43,6 +43,22 @@ class Figure:
     name: str
     caption: str
     svg: str
+
+
+def drawn(name: str, draw: Callable[[], Figure]) -> Figure:
+    """``draw()``, or, when drawing fails, a figure that says why on the page.
+
+    A plot that cannot be drawn must not cost the motor its record or its verdict (the report
+    step's failure would make the run an error); the page shows the reason instead.
+    """
+    try:
+        return draw()
+    except Exception as exc:  # noqa: BLE001 - shown on the page, the run goes on
+        from xml.sax.saxutils import escape
+
+        return Figure(name, f"not drawn: {type(exc).__name__}: {exc}",
+                      f'<p class="plot-error">This plot could not be drawn: {escape(type(exc).__name__)}: '
+                      f"{escape(str(exc))}</p>")
 
 
 @dataclass(frozen=True)

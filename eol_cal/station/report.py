@@ -34,9 +34,9 @@ def fit_plots(run_dir: str | Path, fit_extra: Any) -> list[Figure]:
     fit_extra : (MotorInput, MotorFit, FitSpec)
         The motor's fit inputs, its fit and the model.
     """
-    from eol_cal.report.motor import residual_figure
+    from eol_cal.report.motor import drawn, residual_figure
 
-    return [residual_figure(fit_extra)]
+    return [drawn("residual", lambda: residual_figure(fit_extra))]
 
 
 def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: Sequence[Figure] | None = None,
@@ -59,13 +59,14 @@ def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: Sequence[
     point_ripple : (PointRipple, PointRipple), optional
         Before and compensated ripple at the operating point (torque against angle, spectra).
     """
-    from eol_cal.report.motor import angle_figure, render_motor_report, spectrum_figure
+    from eol_cal.report.motor import angle_figure, drawn, render_motor_report, spectrum_figure
 
     figures = list(figures or [])
     if fit_extra is not None and not any(f.name == "residual" for f in figures):
         figures += fit_plots(run_dir, fit_extra)
     if point_ripple is not None:
-        figures = [angle_figure(rec, point_ripple, fit_extra), spectrum_figure(rec, point_ripple)] + figures
+        figures = [drawn("angle", lambda: angle_figure(rec, point_ripple, fit_extra)),
+                   drawn("spectrum", lambda: spectrum_figure(rec, point_ripple))] + figures
     html_path = Path(run_dir) / "report.html"
     _write_text(html_path, render_motor_report(rec, figures))
     return html_path
