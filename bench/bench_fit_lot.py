@@ -126,14 +126,14 @@ def main() -> None:
                          seed=first) if args.effective else [None] * len(plants)
         t_sim += time.perf_counter() - t0
         t0 = time.perf_counter()
-        inputs = [motor_inputs([r.capture], bench=bench)[0] for r in runs]
+        inputs = [motor_inputs([r.capture], mechanics=bench)[0] for r in runs]
         fits = fit_many([m.segments for m in inputs], spec, mode="loop")
         t_fit += time.perf_counter() - t0
         blocks, truths, blocks_nom = [], [], []
         if args.nominal_halls:
             # the alternative: the same fit with the contract's nominal hall table in the block
             for r in runs:
-                (mi_n,) = motor_inputs([r.capture], bench=bench, hall_angle="nominal")
+                (mi_n,) = motor_inputs([r.capture], mechanics=bench, hall_angle="nominal")
                 (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
                 rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
                 blocks_nom.append(block_from_record(rec_n, motor) if rec_n["status"] == "ok" else None)

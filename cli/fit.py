@@ -101,8 +101,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         solver=solver,
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
-    bench = mechanics_or_rigid(bench_name)
-    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, bench=bench,
+    mechanics = mechanics_or_rigid(bench_name)
+    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, mechanics=mechanics,
                          hall_angle=hall_angle)
     caps = [read_capture(p, map_file) for p in captures]
     serials = {c.serial for c in caps if "serial" in c.metadata}

@@ -174,7 +174,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     limits = load_limits(limits_file, variant)
     load_profile(profile)  # refuse a bad profile, motor or bench before anything moves
     motor = load_motor("paper", motor_file)
-    bench = mechanics_or_rigid(bench_name)
+    mechanics = mechanics_or_rigid(bench_name)
     if key_file is None:
         raise InputError(None, "key-file", "the flash step needs the ECU's secret: give --key-file (16 bytes, hex) or set EOL_CAL_KEY_FILE")
     seed_to_key = _seed_to_key(key_file, None)
@@ -189,7 +189,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
         db_timeout_s=db_timeout,
         station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
         prepare=enable_jax_cache,  # on the helper thread: importing JAX costs a second
-        motor=motor, bench=bench,
+        motor=motor, mechanics=mechanics,
     )
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:

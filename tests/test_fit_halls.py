@@ -51,7 +51,7 @@ def plant_motor():
 
     spec = draw_motor(4)  # hall errors about 1 degree RMS
     (run,) = simulate(spec, load_profile("eol-default"), mode="estimated", seed=2)
-    (mi,) = motor_inputs([run.capture], bench=load_mechanics("paper"))
+    (mi,) = motor_inputs([run.capture], mechanics=load_mechanics("paper"))
     return spec, run, mi
 
 

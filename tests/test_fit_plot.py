@@ -16,7 +16,7 @@ def test_plotted_curve_is_the_fitted_model_with_the_bench_response(tmp_path):
     caps = [synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=i, theta_r0=0.7 * i, serial="M-1",
                               k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
             for i, (rpm, iq) in enumerate(POINTS)]
-    (mi,) = motor_inputs(caps, bench=load_mechanics("paper"))
+    (mi,) = motor_inputs(caps, mechanics=load_mechanics("paper"))
     spec = FitSpec(harmonics=(6, 12))
     (fit,) = fit_many([mi.segments], spec)
     assert fit.converged

@@ -94,7 +94,7 @@ def test_fit_on_the_plant_recovers_the_motors_own_k6_with_the_bench():
     fs = FitSpec(harmonics=(6,))
     errs = {}
     for name, bench in (("bench", load_mechanics("paper")), ("rigid", None)):
-        (mi,) = motor_inputs([run.capture], bench=bench)
+        (mi,) = motor_inputs([run.capture], mechanics=bench)
         (f,) = fit_many([mi.segments], fs)
         assert f.converged
         errs[name] = f.harmonics[6]["k"].value / spec.k6 - 1

@@ -53,7 +53,7 @@ class MotorInput:
     capture_of_segment: list[int] = field(default_factory=list)
     frame: str = "offline"
     frame_offset_rad: float = 0.0
-    bench: BenchMechanics | None = None
+    mechanics: BenchMechanics | None = None
     hall: HallAngles | None = None
 
     @property
@@ -190,7 +190,7 @@ def motor_inputs(
     settle_s: float = 0.1,
     min_revs: int = 1,
     frame: str = "firmware",
-    bench: BenchMechanics | None = None,
+    mechanics: BenchMechanics | None = None,
     hall_angle: str = "measured",
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
@@ -213,7 +213,7 @@ def motor_inputs(
         angle (:func:`firmware_frame_offset`), so that phases can be given in the frame the ECU
         evaluates its table in; captures without ``enc_b`` fall back to ``offline`` (the hall
         frame of :mod:`eol_cal.analysis.angle`).
-    bench : BenchMechanics, optional
+    mechanics : BenchMechanics, optional
         The dyno bench the captures come from; the fit then divides its shaft response
         (:func:`eol_cal.mechanics.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
     hall_angle : {"measured", "nominal"}
@@ -290,9 +290,9 @@ def motor_inputs(
                 s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle)
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
-        response = None if bench is None else functools.partial(shaft_response, motor=motor, mechanics=bench)
+        response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
         seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
-        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, bench=bench, hall=hall)
+        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics, hall=hall)
         if use_fw and fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
         elif frame == "firmware":

@@ -43,7 +43,7 @@ class FitOptions:
         How motors are solved in JAX (auto: :func:`eol_cal.analysis.fit.pick_mode`).
     capture_metrics : bool
         Add each window's p-p ripple to the record's ``metrics.captures``.
-    bench : BenchMechanics or None
+    mechanics : BenchMechanics or None
         The dyno bench of the captures (:mod:`eol_cal.mechanics`; default the built-in ``paper``
         bench, which the plant and ``eol-cal dyno-sim`` model): its shaft response is divided out
         of the measured ripple. ``None``: rigid coupling (the measured ripple taken as the motor's).
@@ -62,7 +62,7 @@ class FitOptions:
     frame: str = "firmware"
     batch: str = "auto"
     capture_metrics: bool = True
-    bench: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
+    mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     hall_angle: str = "measured"
     motor: MotorParams | None = None
 
@@ -163,7 +163,7 @@ def fit_motors(
     if tool_version is None:
         from eol_cal import __version__ as tool_version
     inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
-                          frame=options.frame, bench=options.bench, hall_angle=options.hall_angle)
+                          frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],

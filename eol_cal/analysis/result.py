@@ -187,7 +187,7 @@ def record_for_motor(mi, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metr
         mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
         solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
-        bench=None if mi.bench is None else dataclasses.asdict(mi.bench),
+        bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
     )
 

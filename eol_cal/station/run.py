@@ -87,7 +87,7 @@ class StationConfig:
         The motor type on the station (default the paper preset): poles and encoder the
         captures must show, the ECU's tick rate and kt for the blocks, the current loop for the
         lead, rotor inertia for the bench response.
-    bench : BenchMechanics or None
+    mechanics : BenchMechanics or None
         The dyno bench whose response the fit divides out (default the built-in ``paper``
         bench, which ``eol-cal dyno-sim`` simulates); ``None``: rigid coupling.
     """
@@ -108,7 +108,7 @@ class StationConfig:
     ecu_timing: Any = None
     prepare: Callable[[], None] | None = None
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
-    bench: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
+    mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
 
 
 @dataclass
@@ -148,11 +148,11 @@ def _safe_name(text: str) -> str:
 
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
-              bench: BenchMechanics | None = None) -> tuple[dict, dict, Any]:
+              mechanics: BenchMechanics | None = None) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit_motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
-    ``motor`` (default the paper preset) and ``bench`` (``None``: rigid coupling) as in
+    ``motor`` (default the paper preset) and ``mechanics`` (``None``: rigid coupling) as in
     :class:`eol_cal.analysis.fit_motors.FitOptions`.
 
     Returns
@@ -163,7 +163,7 @@ def fit_motor(capture, limits: VariantLimits, tool_version: str, motor: MotorPar
     """
     from eol_cal.analysis.fit_motors import FitOptions, fit_motors
 
-    options = FitOptions(limits=limits.ci_limits(), batch="loop", bench=bench, motor=motor)
+    options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor)
     res = fit_motors([capture], options, tool_version)
     (rec,) = res.records
     return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)
@@ -341,7 +341,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         "verdict": "error", "reasons": [], "error": None,
         "tool_version": __version__, "layout_version": LAYOUT_VERSION,
         "station": dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz,
-                        motor=cfg.motor.name, bench=cfg.bench.name if cfg.bench is not None else "rigid"),
+                        motor=cfg.motor.name, bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid"),
         "limits": cfg.limits.to_dict(), "steps": [], "captures": {}, "fit": None, "block": None,
         "flash": None, "ecu_prepared": None, "metrics": {}, "report_dir": str(run_dir), "safe_state": None,
     }
@@ -400,7 +400,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(state["before"], cfg.motor)
         state["prewarm"].result()
-        doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__, cfg.motor, cfg.bench)
+        doc, frec, extra = fit_motor(state["before"], cfg.limits, __version__, cfg.motor, cfg.mechanics)
         from eol_cal.analysis.result import write_result
 
         write_result(doc, run_dir / "fit.json")
