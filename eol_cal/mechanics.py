@@ -38,14 +38,17 @@ import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from eol_cal.arrays import Array, ArrayModule
 from eol_cal.errors import InputError
 from eol_cal.motor import MotorParams
 from eol_cal.wrap import wrap_2pi
+
+if TYPE_CHECKING:
+    from eol_cal.plant.params import PlantParams
 
 TWO_PI = 2.0 * math.pi
 
@@ -193,7 +196,7 @@ def shaft_response(omega: np.ndarray, motor: MotorParams, mechanics: BenchMechan
     return G / (1.0 + feedback)
 
 
-def shaft_torque(twist: Any, omega_m: Any, omega_d: Any, p: Any) -> Any:
+def shaft_torque(twist: Array, omega_m: Array, omega_d: Array, p: PlantParams) -> Array:
     """Torque in the shaft (N*m) from its twist (rad) and the two speeds (rad/s, mechanical).
 
     ``p`` holds ``K_shaft`` (N*m/rad) and ``D_shaft`` (N*m*s/rad), e.g.
@@ -203,9 +206,9 @@ def shaft_torque(twist: Any, omega_m: Any, omega_d: Any, p: Any) -> Any:
 
 
 def mech_step(
-    theta_m: Any, twist: Any, omega_m: Any, omega_d: Any, x_dyno: Any,
-    T_rotor: Any, omega_ref: Any, p: Any, dt: float, xp: Any,
-) -> tuple[Any, Any, Any, Any, Any, Any]:
+    theta_m: Array, twist: Array, omega_m: Array, omega_d: Array, x_dyno: Array,
+    T_rotor: Array, omega_ref: Array, p: PlantParams, dt: float, xp: ArrayModule,
+) -> tuple[Array, Array, Array, Array, Array, Array]:
     """Advance the shaft line by one tick (semi-implicit Euler, see the module doc).
 
     Parameters

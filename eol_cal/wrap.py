@@ -12,14 +12,15 @@ plant's scan and the analysis use the same rule.
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
+
+from eol_cal.arrays import Array, ArrayModule
 
 TWO_PI = 2.0 * math.pi
 
 
-def wrap_2pi(x: Any, xp: Any = np) -> Any:
+def wrap_2pi(x: Array, xp: ArrayModule = np) -> Array:
     """Angle ``x`` (rad, scalar or array) reduced into [0, 2*pi) (rad).
 
     Parameters
@@ -32,7 +33,7 @@ def wrap_2pi(x: Any, xp: Any = np) -> Any:
     return xp.mod(x, TWO_PI)
 
 
-def wrap_pi(x: Any, xp: Any = np) -> Any:
+def wrap_pi(x: Array, xp: ArrayModule = np) -> Array:
     """Angle ``x`` (rad, scalar or array) reduced into (-pi, pi] (rad): the signed difference
     of two angles, or a phase as the fit reports it. An angle already in range comes back
     unchanged, bit for bit."""

@@ -128,11 +128,11 @@ def _block(flags: int, sequence: int) -> bytes:
 def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
     """The rig reads the ECU simulator's flash at every capture the dyno makes."""
     from eol_cal.ecu.flash import NorFlash
-    from eol_cal.station.rig import EcuState, with_ecu
+    from eol_cal.station.rig import ActiveCalibration, with_ecu
 
-    seen: list[tuple[CaptureRequest, EcuState]] = []
+    seen: list[tuple[CaptureRequest, ActiveCalibration]] = []
 
-    def recording(req: CaptureRequest, ecu: EcuState):
+    def recording(req: CaptureRequest, ecu: ActiveCalibration):
         seen.append((req, ecu))
         return synthetic_source(req)
 
@@ -140,7 +140,7 @@ def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
     sim = DynoSim(with_ecu(flash_file, recording))
     seg = DynoSetpoint(60.0, 0.2, iq=20.0, ramp_rpm_s=5000.0)
 
-    def capture_once() -> EcuState:
+    def capture_once() -> ActiveCalibration:
         c = _client(th.port)
         c.connect()
         c.set_point(seg)

@@ -20,13 +20,16 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
-
 from fractions import Fraction
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
+from eol_cal.arrays import Array, ArrayModule
 from eol_cal.plant import inverter
+
+if TYPE_CHECKING:
+    from eol_cal.plant.params import PlantParams
 
 MODES = ("raw", "estimated", "compensated")
 
@@ -39,13 +42,13 @@ class EcuState(NamedTuple):
     i_qc: compensating current of the last current-control step (A).
     """
 
-    x_d: Any
-    x_q: Any
-    u_d: Any
-    u_q: Any
-    i_qo: Any
-    omega_c: Any
-    i_qc: Any
+    x_d: Array
+    x_q: Array
+    u_d: Array
+    u_q: Array
+    i_qo: Array
+    omega_c: Array
+    i_qc: Array
 
 
 def rate_flags(n_ticks: int, f_tick: float, f_task: float, start: int = 0) -> np.ndarray:
@@ -62,8 +65,8 @@ def rate_flags(n_ticks: int, f_tick: float, f_task: float, start: int = 0) -> np
 
 
 def pi_current_step(
-    st: EcuState, i_d_meas: Any, i_q_meas: Any, i_q_ref: Any, p: Any, T_cc: float, xp: Any,
-) -> tuple[Any, Any, Any, Any]:
+    st: EcuState, i_d_meas: Array, i_q_meas: Array, i_q_ref: Array, p: PlantParams, T_cc: float, xp: ArrayModule,
+) -> tuple[Array, Array, Array, Array]:
     """One current-control update (all in the controller's dq frame).
 
     PI with decoupling (``-omega L_q i_q`` on d, ``+omega (L_d i_d + psi_f)`` on q, nominal motor
@@ -85,7 +88,7 @@ def pi_current_step(
     return x_d, x_q, u_d * scale, u_q * scale
 
 
-def initial_ecu(i_qo: float, omega_r: float, p: Any, xp: Any) -> EcuState:
+def initial_ecu(i_qo: float, omega_r: float, p: PlantParams, xp: ArrayModule) -> EcuState:
     """Controller memory in steady state at ``i_qo`` (A) and ``omega_r`` (rad/s electrical)."""
     R = p.Ki_q / p.Kp_q * p.L_q_nom  # nominal R_s recovered from the tuning
     x_d = xp.zeros_like(p.Kp_d)

@@ -9,12 +9,13 @@ linear range of SVPWM); a longer command is shortened to that circle keeping its
 from __future__ import annotations
 
 import math
-from typing import Any
+
+from eol_cal.arrays import Array, ArrayModule
 
 SQRT3 = math.sqrt(3.0)
 
 
-def limit_voltage(u_alpha: Any, u_beta: Any, u_dc: Any, xp: Any) -> tuple[Any, Any]:
+def limit_voltage(u_alpha: Array, u_beta: Array, u_dc: Array, xp: ArrayModule) -> tuple[Array, Array]:
     """Shorten ``(u_alpha, u_beta)`` (V) to the SVPWM linear limit ``u_dc/sqrt(3)``."""
     u_max = u_dc / SQRT3
     mag = xp.sqrt(u_alpha * u_alpha + u_beta * u_beta)
@@ -22,7 +23,7 @@ def limit_voltage(u_alpha: Any, u_beta: Any, u_dc: Any, xp: Any) -> tuple[Any, A
     return u_alpha * scale, u_beta * scale
 
 
-def dead_time_error(i_a: Any, i_b: Any, i_c: Any, u_dead: Any, xp: Any) -> tuple[Any, Any]:
+def dead_time_error(i_a: Array, i_b: Array, i_c: Array, u_dead: Array, xp: ArrayModule) -> tuple[Array, Array]:
     """Average voltage lost to dead time, as an alpha-beta vector (V).
 
     ``u_dead = u_dc * t_dead * f_pwm`` (V) per phase, opposing each phase current (A); the sign

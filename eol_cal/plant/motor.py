@@ -13,10 +13,15 @@ L/R = 3 ms this is exact to well below the current sensors' resolution.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+from eol_cal.arrays import Array, ArrayModule
+
+if TYPE_CHECKING:
+    from eol_cal.plant.params import PlantParams
 
 
-def rl_coefficients(R_s: Any, L: Any, dt: float, xp: Any) -> tuple[Any, Any]:
+def rl_coefficients(R_s: Array, L: Array, dt: float, xp: ArrayModule) -> tuple[Array, Array]:
     """Exact discretisation of ``L di/dt = v - R_s i`` over ``dt`` (s).
 
     Returns ``(a, b)`` with ``i(t+dt) = a*i(t) + b*v``; ``a`` is 1, ``b`` is 1/ohm.
@@ -25,7 +30,7 @@ def rl_coefficients(R_s: Any, L: Any, dt: float, xp: Any) -> tuple[Any, Any]:
     return a, (1.0 - a) / R_s
 
 
-def current_step(i_d: Any, i_q: Any, v_d: Any, v_q: Any, omega_r: Any, p: Any) -> tuple[Any, Any]:
+def current_step(i_d: Array, i_q: Array, v_d: Array, v_q: Array, omega_r: Array, p: PlantParams) -> tuple[Array, Array]:
     """Advance the dq currents (A) by one tick under the dq voltages ``v_d, v_q`` (V).
 
     ``omega_r`` is the electrical speed (rad/s); ``p`` carries ``a_d, b_d, a_q, b_q`` from
@@ -36,6 +41,6 @@ def current_step(i_d: Any, i_q: Any, v_d: Any, v_q: Any, omega_r: Any, p: Any) -
     return i_d_next, i_q_next
 
 
-def electromagnetic_torque(i_d: Any, i_q: Any, p: Any, poles: int) -> Any:
+def electromagnetic_torque(i_d: Array, i_q: Array, p: PlantParams, poles: int) -> Array:
     """Seed eq. (3): ``3/2 * P/2 * (psi_f i_q + (L_d - L_q) i_d i_q)`` (N*m)."""
     return 0.75 * poles * (p.psi_f * i_q + (p.L_d - p.L_q) * i_d * i_q)

@@ -20,13 +20,18 @@ For speed the scan never calls ``sin`` per harmonic: ``c*sin(n*theta + phi)`` is
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
+
+from eol_cal.arrays import Array
+
+if TYPE_CHECKING:
+    from eol_cal.plant.params import PlantParams, PlantSpec
 
 #: Ripple harmonics of the electrical angle (orders) in the coefficient layout.
 ORDERS = (6, 12, 18)
 
 
-def coefficients(spec: Any) -> dict[str, float]:
+def coefficients(spec: PlantSpec) -> dict[str, float]:
     """Sine/cosine coefficients of every ripple term of a PlantSpec (N*m and N*m/A).
 
     Keys ``s6c, c6c`` (cogging: coefficient of sin and cos of 6*theta, N*m), ``s6k, c6k``
@@ -42,7 +47,7 @@ def coefficients(spec: Any) -> dict[str, float]:
     return out
 
 
-def harmonic_phasors(cos_r: Any, sin_r: Any) -> tuple[tuple[Any, Any], ...]:
+def harmonic_phasors(cos_r: Array, sin_r: Array) -> tuple[tuple[Array, Array], ...]:
     """``(cos, sin)`` of 6, 12 and 18 times the electrical angle from its own cos and sin."""
     c2, s2 = cos_r * cos_r - sin_r * sin_r, 2.0 * sin_r * cos_r
     c3, s3 = c2 * cos_r - s2 * sin_r, s2 * cos_r + c2 * sin_r
@@ -52,7 +57,7 @@ def harmonic_phasors(cos_r: Any, sin_r: Any) -> tuple[tuple[Any, Any], ...]:
     return (c6, s6), (c12, s12), (c18, s18)
 
 
-def ripple_torque(cos_r: Any, sin_r: Any, cos_m: Any, sin_m: Any, i_q: Any, p: Any) -> Any:
+def ripple_torque(cos_r: Array, sin_r: Array, cos_m: Array, sin_m: Array, i_q: Array, p: PlantParams) -> Array:
     """Ripple torque to subtract from ``kt*i_q`` (N*m).
 
     Parameters

@@ -9,20 +9,25 @@ actual angle by :mod:`eol_cal.plant.simulate`.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING
+
+from eol_cal.arrays import Array, ArrayModule
+
+if TYPE_CHECKING:
+    from eol_cal.plant.params import PlantParams
 
 
-def lowpass_gain(bw_hz: Any, dt: float, xp: Any) -> Any:
+def lowpass_gain(bw_hz: Array, dt: float, xp: ArrayModule) -> Array:
     """Per-tick gain of an exact first-order low-pass with corner ``bw_hz`` (Hz)."""
     return 1.0 - xp.exp(-2.0 * math.pi * bw_hz * dt)
 
 
-def quantise(x: Any, lsb: Any, xp: Any) -> Any:
+def quantise(x: Array, lsb: Array, xp: ArrayModule) -> Array:
     """An ADC's mid-tread quantisation to steps of ``lsb`` (same unit as ``x``)."""
     return xp.round(x / lsb) * lsb
 
 
-def transducer_step(y: Any, T_shaft: Any, noise: Any, p: Any, xp: Any) -> tuple[Any, Any]:
+def transducer_step(y: Array, T_shaft: Array, noise: Array, p: PlantParams, xp: ArrayModule) -> tuple[Array, Array]:
     """Torque transducer: first-order bandwidth, additive noise, ADC resolution.
 
     Parameters
@@ -39,7 +44,7 @@ def transducer_step(y: Any, T_shaft: Any, noise: Any, p: Any, xp: Any) -> tuple[
     return y, quantise(y + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
 
 
-def current_reading(i_x: Any, noise: Any, p: Any, xp: Any) -> Any:
+def current_reading(i_x: Array, noise: Array, p: PlantParams, xp: ArrayModule) -> Array:
     """A phase-current sensor with noise ``i_noise_a`` (A rms) and ADC step ``i_lsb_a`` (A)."""
     return quantise(i_x + p.i_noise_a * noise, p.i_lsb_a, xp)
 

@@ -3,9 +3,9 @@ simulator's flash holds.
 
 The dyno simulator (:mod:`eol_cal.dyno.sim`) knows no ECU: at every capture it asks a capture
 source for the recording. The rig's source reads the ECU simulator's flash file at that moment
-(:func:`ecu_state`: the active bank's parameter block and the mode its flags select) and runs
-the plant with it, so a flash changes what the next capture shows, as on a real line where the
-motor's ECU runs the block the tester wrote. :func:`eol_cal.station.demo.loopback_station` puts
+(:func:`active_calibration`: the active bank's parameter block and the mode its flags select)
+and runs the plant with it, so a flash changes what the next capture shows, as on a real line
+where the motor's ECU runs the block the tester wrote. :func:`eol_cal.station.demo.loopback_station` puts
 the two simulators together with this source.
 """
 
@@ -25,8 +25,8 @@ NO_BLOCK_MODE = "raw"
 
 
 @dataclass(frozen=True)
-class EcuState:
-    """What the motor's ECU runs at a capture.
+class ActiveCalibration:
+    """What the motor's ECU runs at a capture: the calibration in its active bank.
 
     Attributes
     ----------
@@ -41,34 +41,34 @@ class EcuState:
     block: ParamBlock | None = None
 
 
-def ecu_state(flash_file: str | Path | None) -> EcuState:
-    """The ECU's state from its simulator's flash file: the active bank and the mode it selects.
+def active_calibration(flash_file: str | Path | None) -> ActiveCalibration:
+    """The ECU's active calibration from its simulator's flash file: the block and its mode.
 
     No file (not given, or before the ECU simulator created it) or no valid bank: the raw mode
     without a block.
     """
     if flash_file is None or not Path(flash_file).exists():
-        return EcuState()
+        return ActiveCalibration()
     from eol_cal.ecu.flash import active_block_from_file
     from eol_cal.firmware.block import unpack
     from eol_cal.plant.simulate import mode_of_block
 
     data = active_block_from_file(flash_file)
     if data is None:
-        return EcuState()
+        return ActiveCalibration()
     block = unpack(data, f"{flash_file} (active bank)")
-    return EcuState(mode_of_block(block), block)
+    return ActiveCalibration(mode_of_block(block), block)
 
 
-#: ``(request, ECU state) -> capture``: a recording that depends on what the ECU runs
-EcuCapture = Callable[[CaptureRequest, EcuState], Capture]
+#: ``(request, active calibration) -> capture``: a recording that depends on what the ECU runs
+CalibratedCapture = Callable[[CaptureRequest, ActiveCalibration], Capture]
 
 
-def with_ecu(flash_file: str | Path | None, capture: EcuCapture) -> CaptureSource:
-    """A dyno capture source that reads the ECU's state at each capture and hands it on."""
+def with_ecu(flash_file: str | Path | None, capture: CalibratedCapture) -> CaptureSource:
+    """A dyno capture source that reads the ECU's active calibration at each capture and hands it on."""
 
     def source(req: CaptureRequest) -> Capture:
-        return capture(req, ecu_state(flash_file))
+        return capture(req, active_calibration(flash_file))
 
     return source
 
@@ -86,7 +86,7 @@ def default_plant_spec(req: CaptureRequest, preset: str = "paper") -> PlantSpec:
     return variation.vary(spec, req.seed)
 
 
-def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None) -> EcuCapture:
+def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None) -> CalibratedCapture:
     """The built-in plant (:func:`eol_cal.plant.simulate.simulate`) recording one capture.
 
     Parameters
@@ -95,7 +95,7 @@ def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None)
         ``request -> PlantSpec``: the motor on the dyno (default :func:`default_plant_spec`).
     """
 
-    def capture(req: CaptureRequest, ecu: EcuState) -> Capture:
+    def capture(req: CaptureRequest, cal: ActiveCalibration) -> Capture:
         from eol_cal.plant.profile import Profile, ProfileSegment
         from eol_cal.plant.simulate import simulate
 
@@ -108,7 +108,7 @@ def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None)
         iq = i_qo_of(req, spec.motor.kt)
         profile = Profile("dyno", (ProfileSegment(speed_rpm=req.speed_rpm, seconds=req.n_samples * step / f_tick, iq=iq),))
         seed = (req.seed or 0) * 1000 + req.capture_index
-        result = simulate(spec, profile, mode=ecu.mode, blocks=ecu.block, seed=seed)[0]
+        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed)[0]
         cap = result.capture
         # the plant runs at the PWM tick; the dyno's DAQ keeps every step-th sample
         channels = {k: v[::step][: req.n_samples] for k, v in cap.channels.items()}
