@@ -82,7 +82,7 @@ def _summary(result, mode: str, path: str | None) -> dict:
 @handle_errors
 def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm, iq, seconds, serial, seed,
                  motors, out_dir, fmt, plot_file, as_json) -> None:
-    """Simulate the bench: a motor (or a lot) through a test profile, written as captures.
+    """Simulate a motor on the test bench (or a lot): the plant through a test profile, written as captures.
 
     Captures carry the plant's truth as truth.* metadata (k6, phases, c6, sensor errors, R_s, ...).
     """
