@@ -24,7 +24,7 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, TypeVar
 
 import numpy as np
 
@@ -41,6 +41,8 @@ from eol_cal.dyno.registers import (
     SimFault,
 )
 from eol_cal.dyno.sim_modbus import ModbusFace
+
+T = TypeVar("T")
 
 #: speed tolerance for "at speed": max(SPEED_TOL_RPM, SPEED_TOL_REL * |set point|)
 SPEED_TOL_RPM = 1.0
@@ -429,8 +431,8 @@ class DynoSimThread:
         self.port = port
         self._started.set()
 
-    def call(self, fn: Callable, *args):
-        """Run ``fn(*args)`` on the server's event loop and return its result."""
+    def call(self, fn: Callable[..., T], *args: object) -> T:
+        """Run ``fn(*args)`` on the server's event loop and return its result (10 s at most)."""
         loop = self.sim._serving_loop()
         fut = asyncio.run_coroutine_threadsafe(_acall(fn, *args), loop)
         return fut.result(10.0)
@@ -448,5 +450,5 @@ class DynoSimThread:
         self.stop()
 
 
-async def _acall(fn: Callable, *args):
+async def _acall(fn: Callable[..., T], *args: object) -> T:
     return fn(*args)

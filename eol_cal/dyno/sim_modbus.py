@@ -12,10 +12,14 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, Fault, Interlock, SimFault
+
+if TYPE_CHECKING:
+    from pymodbus.constants import ExcCodes
+    from pymodbus.simulator import SimDevice
 
 _FC_READ = (3, 4)
 #: longest capture the buffer holds (samples)
@@ -81,7 +85,7 @@ class ModbusFace:
             "sim_fault_arg": 0,
         }
 
-    def simdevice(self):
+    def simdevice(self) -> SimDevice:
         """The pymodbus :class:`SimDevice` backing the server (one shared register space)."""
         from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -98,8 +102,9 @@ class ModbusFace:
         return SimDevice(0, simdata=data, action=self.action)
 
     async def action(
-        self, function_code: int, start_address: int, address: int, count: int, registers: list[int], set_values
-    ):
+        self, function_code: int, start_address: int, address: int, count: int, registers: list[int],
+        set_values: list[int] | None,
+    ) -> ExcCodes | None:
         """pymodbus hook, called for every request before it touches ``registers``."""
         from pymodbus.constants import ExcCodes
 

@@ -11,10 +11,17 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Callable, Iterator
+
+if TYPE_CHECKING:
+    import can
+
+    from eol_cal.dyno.sim import CaptureRequest, CaptureSource, DynoSimThread, FaultPlan
+    from eol_cal.ecu.remote import RemoteEcu
+    from eol_cal.plant.params import PlantSpec
 
 
-def demo_motor_spec(seed: int, serial: str) -> Any:
+def demo_motor_spec(seed: int, serial: str) -> PlantSpec:
     """The demo's motor number ``seed``: the plant's production draw around the paper's bench
     (:func:`eol_cal.plant.variation.draw_spec`)."""
     from eol_cal.plant.variation import draw_spec
@@ -30,10 +37,10 @@ class LoopbackStation:
     dyno_address: str
     can_channel: str
     flash_file: Path
-    dyno: Any
-    ecu: Any
+    dyno: DynoSimThread
+    ecu: RemoteEcu
 
-    def open_bus(self) -> Any:
+    def open_bus(self) -> can.BusABC:
         """The tester's bus: python-can ``remote`` to the ECU simulator."""
         from eol_cal.ecu.transport import open_bus
 
@@ -42,8 +49,9 @@ class LoopbackStation:
 
 @contextlib.contextmanager
 def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
-                     spec_for: Callable[[Any], Any] | None = None, source: Any = None,
-                     faults: tuple = ()) -> Iterator[LoopbackStation]:
+                     spec_for: Callable[[CaptureRequest], PlantSpec] | None = None,
+                     source: CaptureSource | None = None,
+                     faults: tuple[FaultPlan, ...] = ()) -> Iterator[LoopbackStation]:
     """Start the ECU and dyno simulators of one motor on 127.0.0.1; stop them on exit.
 
     Parameters
