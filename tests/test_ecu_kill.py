@@ -155,8 +155,10 @@ def test_signal_at_each_step(base, tmp_path_factory, sig):
         line = _one_error_line(err)
         assert rc == 2 and elapsed < BOUND_S, (step, elapsed, err)
         assert f"interrupted by {sig.name} during flash ({shown})" in line, line
-        # Interrupted before the reset the tester erases what it wrote: the old block boots.
+        # Interrupted before the reset the tester erases what it wrote: the old block boots,
+        # and the message says which block boots.
         assert booted == (2 if step == "reset" else 1), line
+        assert ("previous block stays active" in line) == (booted == 1), line
 
 
 def test_silent_ecu_ends_within_the_bound():

@@ -173,22 +173,24 @@ def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, repo
     raise AssertionError("unreachable")
 
 
-def _rollback(s: UdsSession, base: int) -> bool:
+def _rollback(s: UdsSession, base: int) -> str:
     """Erase the bank just written, re-entering the programming session if it was lost.
 
-    One attempt per request: after a timeout or a dead link nothing more is tried.
+    Requests are repeated only while the ECU was heard less than S3 ago. Returns ``erased``,
+    ``refused`` (an NRC or a dead link: not erased) or ``unknown`` (the erase went out and
+    stayed unanswered: the ECU may still carry it out).
     """
     try:
         try:
-            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES, retry=False)
+            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES)
         except EcuError as exc:
             if exc.nrc not in SESSION_LOST_NRCS:
                 raise
             s.enter_programming()
-            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES, retry=False)
-    except EcuError:
-        return False
-    return True
+            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES)
+    except EcuError as exc:
+        return "unknown" if exc.cause == "timeout" and exc.step == "erase again" else "refused"
+    return "erased"
 
 
 def _aftermath(s: UdsSession, prog: _Progress, base: int, rollback: bool) -> str:
@@ -200,9 +202,13 @@ def _aftermath(s: UdsSession, prog: _Progress, base: int, rollback: bool) -> str
     new = f"bank {prog.bank} (sequence {prog.sequence})"
     if prog.reset_sent:
         return f"the ECU was reset: it boots the new, checked block in {new}"
-    if rollback and s.link.lost is None and _rollback(s, base):
+    erased = _rollback(s, base) if rollback and not s.ecu_gone else "refused"
+    if erased == "erased":
         s.leave()
         return f"{new} erased again: the previous block stays active"
+    if erased == "unknown":
+        return (f"{new} may still hold the complete new block, checked before its CRC was written (the erase "
+                "sent to remove it went unanswered): if so, the ECU boots it at its next reset")
     held = "holds" if prog.tail == "written" else "may hold"
     return (f"{new} {held} the complete new block, checked before its CRC was written: "
             "the ECU boots it at its next reset")

@@ -105,14 +105,15 @@ class ClientTiming:
 
     @property
     def dead_link_bound_s(self) -> float:
-        """Longest a command talks on after the ECU's last frame, s.
+        """Longest a command goes on after the ECU's last frame, s.
 
-        The failing request ends at most max(P2*, S3 + back-off + P2) after it (a 0x78 followed
-        by silence, or retries while the silence is shorter than S3); one cleanup request may
-        wait P2 more; closing the ISO-TP stack takes under a second.
+        The failing request ends at most max(P2*, S3 + back-off + P2) after it: a 0x78 followed
+        by silence, or retries while the silence is shorter than S3. Clean-up requests (back to
+        the default session, erasing a written bank) go out only while it is shorter than S3,
+        so they end within the same time. Stopping ISO-TP and closing the bus: under 1 s.
         """
         backoff = self.retry_delay_s * 2 ** max(self.retries - 1, 0)
-        return max(self.p2_star_s, self.s3_s + backoff + self.p2_s) + self.p2_s + 1.0
+        return max(self.p2_star_s, self.s3_s + backoff + self.p2_s) + 1.0
 
 
 class _Codec(DidCodec):
@@ -214,6 +215,11 @@ class UdsSession:
     def silent_s(self) -> float:
         """Seconds since the ECU's last frame (answer or 0x78)."""
         return time.monotonic() - self.last_heard
+
+    @property
+    def ecu_gone(self) -> bool:
+        """The link is dead, or the ECU has been silent for S3 (a living one has dropped the session)."""
+        return self.link.lost is not None or self.silent_s >= self.timing.s3_s
 
     def __enter__(self) -> "UdsSession":
         self.client.open()
@@ -396,7 +402,7 @@ class UdsSession:
         tester showed up) sends it: a tester that was refused must not end another's session.
         """
         mine = self.unlocked or not self.link.foreign_frames
-        if self.in_session and self.programming and mine and self.link.lost is None:
+        if self.in_session and self.programming and mine and not self.ecu_gone:
             try:
                 self.call("default session (10 01)", self.client.change_session, P.SESSION_DEFAULT, retry=False)
             except EcuError as exc:

@@ -299,11 +299,28 @@ class GuardedBus(can.BusABC):
         super().shutdown()
         if not self.owns:
             return
-        try:
-            self.inner.shutdown()
-        except Exception as exc:  # noqa: BLE001 - closing a dead link fails; nothing is left to close
-            log.debug("closing the CAN bus: %s", exc)
-            can.BusABC.shutdown(self.inner)  # marks it closed, so its __del__ does not try again
+        # python-can-remote's shutdown waits for the server's close frame with no time limit
+        # (a frozen server never sends it): close from a helper thread and wait a bounded time.
+        done = threading.Event()
+
+        def close() -> None:
+            try:
+                self.inner.shutdown()
+            except Exception as exc:  # noqa: BLE001 - closing a dead link fails; nothing is left to close
+                log.debug("closing the CAN bus: %s", exc)
+                can.BusABC.shutdown(self.inner)  # marks it closed, so its __del__ does not try again
+            done.set()
+
+        threading.Thread(target=close, name="can-close", daemon=True).start()
+        if not done.wait(SHUTDOWN_S):
+            log.info("the CAN bus did not close within %.1f s; left to the process exit", SHUTDOWN_S)
+            sock = getattr(self.inner, "socket", None)
+            if isinstance(sock, socket.socket):
+                sock.close()  # ends the close's wait on a frozen server
+
+
+SHUTDOWN_S = 0.5
+"""Longest wait for the CAN interface to close, s."""
 
 
 POLL_S = 0.05
