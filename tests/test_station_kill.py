@@ -17,7 +17,7 @@ import pytest
 from eol_cal.dyno import sim as ds
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming
-from eol_cal.ecu.flash import active_block_from_file
+from eol_cal.ecu.flash import NorFlash, active_block_from_file, select_active
 from eol_cal.station.records import query_records
 
 BOUND_S = ClientTiming().dead_link_bound_s
@@ -94,6 +94,19 @@ def test_run_when_the_ecu_dies_during_the_flash(station):
     _recorded(tmp_path, "prepare ECU", "CAN link lost")
     assert not dyno.enabled and dyno.speed == 0.0
     assert active_block_from_file(tmp_path / "ecu.flash") is None  # the interrupted erase left nothing valid
+
+
+def test_run_when_the_ecu_dies_after_the_calibrated_block_is_complete(station):
+    """Killed at the calibrated flash's transfer exit: the block is complete and checked, the
+    record says the ECU boots it at its next reset."""
+    start, tmp_path, dyno = station
+    ecu, run = start("--die-at", "transfer_exit:2")
+    _, err = run.communicate(timeout=120)
+    assert run.returncode == 2, err
+    rec = _recorded(tmp_path, "flash", "CAN link lost")
+    assert "boots it at its next reset" in rec["error"]["message"]
+    assert rec["ecu_active"] == {"block": "calibrated", "sequence": 2, "bank": 1}
+    assert select_active(NorFlash(tmp_path / "ecu.flash"))[0].sequence == 2  # what the record says
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])

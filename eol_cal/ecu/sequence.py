@@ -193,25 +193,34 @@ def _rollback(s: UdsSession, base: int) -> str:
     return "erased"
 
 
-def _aftermath(s: UdsSession, prog: _Progress, base: int, rollback: bool) -> str:
-    """Clean up after a failure; returns what the ECU boots now, for the message."""
+def _aftermath(s: UdsSession, prog: _Progress, base: int, rollback: bool) -> tuple[str, str]:
+    """Clean up after a failure.
+
+    Returns what the ECU boots, for the message, and in one word: ``previous``, ``new`` or
+    ``maybe new`` (the exception's :attr:`ecu_boots`).
+    """
     if prog.bank is None or prog.tail == "none":
         if rollback:
             s.leave()
-        return "the previous block stays active"
+        return "the previous block stays active", "previous"
     new = f"bank {prog.bank} (sequence {prog.sequence})"
     if prog.reset_sent:
-        return f"the ECU was reset: it boots the new, checked block in {new}"
+        return f"the ECU was reset: it boots the new, checked block in {new}", "new"
     erased = _rollback(s, base) if rollback and not s.ecu_gone else "refused"
     if erased == "erased":
         s.leave()
-        return f"{new} erased again: the previous block stays active"
+        return f"{new} erased again: the previous block stays active", "previous"
     if erased == "unknown":
         return (f"{new} may still hold the complete new block, checked before its CRC was written (the erase "
-                "sent to remove it went unanswered): if so, the ECU boots it at its next reset")
+                "sent to remove it went unanswered): if so, the ECU boots it at its next reset"), "maybe new"
     held = "holds" if prog.tail == "written" else "may hold"
     return (f"{new} {held} the complete new block, checked before its CRC was written: "
-            "the ECU boots it at its next reset")
+            "the ECU boots it at its next reset"), "new" if prog.tail == "written" else "maybe new"
+
+
+def _boots(prog: _Progress, word: str) -> dict[str, Any]:
+    """The :attr:`ecu_boots` an exception of :func:`flash_block` carries."""
+    return {"boots": word, "bank": prog.bank, "sequence": prog.sequence if prog.bank is not None else None}
 
 
 def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
@@ -250,6 +259,10 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
         Written, but the read-back, the check routine or FD01 after the reset disagrees.
     Interrupted
         SIGINT/SIGTERM (raised by the caller's handler); same cleanup and message as EcuError.
+
+    Each of these raised after the session opened carries ``ecu_boots``: ``{"boots":
+    "previous" | "new" | "maybe new", "bank", "sequence"}`` (the new block boots when the link
+    died after its CRC was written).
     """
     t0 = time.perf_counter()
     blk = _refuse(data, source)
@@ -321,15 +334,19 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
             if after != expected:
                 raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
         except (EcuError, VerifyFailed) as exc:
-            exc.args = (f"{exc}; {_aftermath(s, prog, base, rollback=True)}",)
+            outcome, word = _aftermath(s, prog, base, rollback=True)
+            exc.args = (f"{exc}; {outcome}",)
+            exc.ecu_boots = _boots(prog, word)
             raise
         except KeyboardInterrupt as exc:  # Interrupted (SIGINT/SIGTERM) or a bare Ctrl-C
             name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
             try:
-                outcome = _aftermath(s, prog, base, rollback=True)
+                outcome, word = _aftermath(s, prog, base, rollback=True)
             except KeyboardInterrupt:  # a second signal: stop cleaning up
-                outcome = _aftermath(s, prog, base, rollback=False)
-            raise Interrupted(name, f"flash ({prog.current})", outcome) from None
+                outcome, word = _aftermath(s, prog, base, rollback=False)
+            interrupted = Interrupted(name, f"flash ({prog.current})", outcome)
+            interrupted.ecu_boots = _boots(prog, word)
+            raise interrupted from None
     report.seconds = time.perf_counter() - t0
     report.retries = s.retries_used
     return report

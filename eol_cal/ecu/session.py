@@ -51,7 +51,11 @@ class EcuError(EolCalError):
     cause : str
         ``nrc``, ``timeout`` (no answer), ``link`` (the bus itself is gone), ``invalid``
         (a malformed answer) or ``refused`` (the tester's own decision).
+    ecu_boots : dict or None
+        Set by the flash sequence: which block the ECU boots after this failure.
     """
+
+    ecu_boots: dict[str, Any] | None = None
 
     def __init__(self, step: str, reason: str, nrc: int | None = None, cause: str = "refused") -> None:
         super().__init__(f"{step}: {reason}")
@@ -62,6 +66,8 @@ class EcuError(EolCalError):
 
 class VerifyFailed(CheckFailed):
     """The block was written but the ECU's check, the read-back or FD01 disagrees (exit code 1)."""
+
+    ecu_boots: dict[str, Any] | None = None
 
     def __init__(self, step: str, reason: str) -> None:
         super().__init__(f"{step}: {reason}")

@@ -518,6 +518,13 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
             if not isinstance(exc, Exception):  # Ctrl-C: record first, then let it end the process
                 state["reraise"] = exc
         rec["ecu_active"] = ecu_active(rec)
+        boots = getattr(failure, "ecu_boots", None)
+        if boots is not None and boots["boots"] != "previous":
+            # the flash failed after the new block was complete and checked (a dead link, a
+            # signal): the ECU boots it at its next reset
+            what = "calibrated" if rec["error"]["step"] == "flash" else "uncompensated"
+            rec["ecu_active"] = {"block": what if boots["boots"] == "new" else f"{what} (if its CRC was written)",
+                                 "sequence": boots["sequence"], "bank": boots["bank"]}
         report_html = None
         try:
             report_html = step("report", lambda: _report(rec, run_dir, state))
