@@ -11,12 +11,17 @@ from __future__ import annotations
 import datetime as dt
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from eol_cal.lot.stats import Capability, Summary
 from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
 VERDICT_COLOUR = {"pass": "tab:green", "fail": "tab:orange", "error": "tab:red"}
 #: more points than this in one chart are drawn as an embedded image without hover text (each
@@ -53,7 +58,7 @@ def _limit_steps(ax: Any, times: list[dt.datetime], recs: list[dict[str, Any]], 
         ax.step(times, lim, where="post", color=colour, lw=1.0, ls="--", label=label, gid=f"limit-{key}")
 
 
-def timeline_figure(records: list[dict[str, Any]], title: str = "") -> Any:
+def timeline_figure(records: list[dict[str, Any]], title: str = "") -> MplFigure:
     """See :func:`timeline` (the figure alone)."""
     return timeline(records, title)[0]
 
@@ -63,7 +68,7 @@ def point_title(rec: dict[str, Any], text: str) -> str:
     return f"{rec['serial']} ({rec.get('verdict')}), {str(rec.get('started_at', ''))[:19].replace('T', ' ')}: {text}"
 
 
-def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[Any, dict[str, list[str]]]:
+def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[MplFigure, dict[str, list[str]]]:
     """k6 and p-p ripple of every run against its start time, with the limits; error runs shown.
 
     Parameters
@@ -130,7 +135,7 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[Any, dict[
     return fig, titles
 
 
-def save_png(fig: Any, path: Any) -> None:
+def save_png(fig: MplFigure, path: str | Path) -> None:
     """Write a figure as PNG (atomically) and close it."""
     from eol_cal.analysis.plots import _save
 
@@ -169,10 +174,10 @@ class QuantityStats:
     key: str
     title: str
     unit: str
-    summary: Any
+    summary: Summary
     limit_key: str | None
     limit: float | None
-    capability: Any | None
+    capability: Capability | None
     note: str
 
     @property
@@ -205,7 +210,7 @@ def quantity_stats(records: Sequence[dict[str, Any]]) -> list[QuantityStats]:
     return out
 
 
-def histogram_figure(records: Sequence[dict[str, Any]], notes: dict[str, str] | None = None) -> Any:
+def histogram_figure(records: Sequence[dict[str, Any]], notes: dict[str, str] | None = None) -> MplFigure:
     """Histograms of the measured quantities over the runs that have them, with the limits.
 
     Parameters
@@ -237,7 +242,7 @@ def histogram_figure(records: Sequence[dict[str, Any]], notes: dict[str, str] | 
 
 
 def control_figure(records: Sequence[dict[str, Any]], station: str,
-                   limits: dict[str, dict[str, float]] | None = None) -> tuple[Any, dict[str, list[str]]]:
+                   limits: dict[str, dict[str, float]] | None = None) -> tuple[MplFigure, dict[str, list[str]]]:
     """Individuals and moving-range charts of :data:`CHARTED` against time, for one station.
 
     Parameters
@@ -309,7 +314,7 @@ def control_figure(records: Sequence[dict[str, Any]], station: str,
     return fig, titles
 
 
-def pareto_figure(causes: Sequence[tuple[str, int, float]]) -> Any:
+def pareto_figure(causes: Sequence[tuple[str, int, float]]) -> MplFigure:
     """Failure causes as bars, most frequent first, with the cumulative share as a line."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 0.9 + 0.32 * max(1, len(causes))))
@@ -336,7 +341,7 @@ def latest_per_motor(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     return list(latest.values())
 
 
-def worst_motors(records: Sequence[dict[str, Any]], page_dir: Any, n: int = 15) -> list[dict[str, Any]]:
+def worst_motors(records: Sequence[dict[str, Any]], page_dir: str | Path, n: int = 15) -> list[dict[str, Any]]:
     """The motors nearest their limits (each serial's latest run): errors and fails first, then by
     the smallest margin as a fraction of its limit.
 
@@ -348,7 +353,6 @@ def worst_motors(records: Sequence[dict[str, Any]], page_dir: Any, n: int = 15) 
         when that file exists, else None).
     """
     import os
-    from pathlib import Path
 
     from eol_cal.report.motor import limit_rows
 
@@ -377,7 +381,7 @@ def _safe_id(text: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-") or "x"
 
 
-def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: str,
+def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, title: str,
                     filters: dict[str, str | None]) -> str:
     """The lot page (self-contained HTML) of a set of run records.
 
@@ -438,7 +442,7 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: Any, *, title: 
                   last=dates[-1] if dates else "-", stations=sorted(stations), fmt=_fmt)
 
 
-def _fmt(x: Any, digits: int = 4) -> str:
+def _fmt(x: float | None, digits: int = 4) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "-"
     return f"{float(x):.{digits}g}"
@@ -460,10 +464,9 @@ def select_records(records: Sequence[dict[str, Any]], variant: str | None = None
     return out
 
 
-def write_lot_page(records: Sequence[dict[str, Any]], path: Any, *, title: str,
-                   filters: dict[str, str | None]) -> Any:
+def write_lot_page(records: Sequence[dict[str, Any]], path: str | Path, *, title: str,
+                   filters: dict[str, str | None]) -> Path:
     """Write the lot page to ``path`` (atomically); returns the path."""
-    from pathlib import Path
 
     from eol_cal.atomic import atomic_write
 

@@ -12,12 +12,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
 from eol_cal.report.svg import figure_svg, pyplot
 from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_checks
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.fit import FitSpec, MotorFit
+    from eol_cal.analysis.fit_capture import MotorInput
+    from eol_cal.analysis.spectrum import OrderSpectrum
+    from eol_cal.station.run import PointRipple
+
+#: the fit of one motor as the report draws it: its inputs, its fit and the model
+FitExtra = tuple["MotorInput", "MotorFit", "FitSpec"]
+#: the ripple at the operating point, before and compensated
+PointRipples = tuple["PointRipple", "PointRipple"]
 from eol_cal.wrap import wrap_2pi
 
 _MAX_POINTS = 3000  # points drawn per panel: enough to show the band, small enough to inline
@@ -131,7 +142,7 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     One dict per column with the keys ``label``, ``bank``, ``sequence``, ``crc32``, ``flags``,
     ``verified``; a value the record does not have is ``"-"``.
     """
-    def text(x: Any) -> str:
+    def text(x: object) -> str:
         return "-" if x is None else ("yes" if x is True else "no" if x is False else str(x))
 
     prep = rec.get("ecu_prepared") or {}
@@ -171,7 +182,7 @@ def _binned_mean(deg: np.ndarray, y: np.ndarray, bins: int = _ANGLE_BINS) -> tup
     return centre[ok], s[ok] / n[ok]
 
 
-def _without_mech1(theta_r: np.ndarray, torque: np.ndarray, spectrum: Any, pole_pairs: int) -> np.ndarray:
+def _without_mech1(theta_r: np.ndarray, torque: np.ndarray, spectrum: OrderSpectrum, pole_pairs: int) -> np.ndarray:
     """Torque minus its mean and its mechanical order 1 (the rotor's unbalance, which no table
     cancels), using the capture's own order spectrum (``A cos(theta_m + phase)``)."""
     y = np.asarray(torque, float) - float(np.mean(torque))
@@ -181,7 +192,7 @@ def _without_mech1(theta_r: np.ndarray, torque: np.ndarray, spectrum: Any, pole_
     return y
 
 
-def operating_segment(mi: Any, speed_rpm: float, i_qo_a: float) -> int:
+def operating_segment(mi: MotorInput, speed_rpm: float, i_qo_a: float) -> int:
     """Index of the fit segment nearest the operating point (speed in rpm, i_qo in A, signed)."""
     def distance(s: int) -> float:
         info = mi.info[s]
@@ -191,7 +202,7 @@ def operating_segment(mi: Any, speed_rpm: float, i_qo_a: float) -> int:
     return min(range(len(mi.info)), key=distance)
 
 
-def angle_figure(rec: dict[str, Any], point_ripple: Sequence[Any], fit_extra: Any | None) -> Figure:
+def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: FitExtra | None) -> Figure:
     """Torque against electrical angle at the operating point, before and compensated, one scale.
 
     Parameters
@@ -241,7 +252,7 @@ def angle_figure(rec: dict[str, Any], point_ripple: Sequence[Any], fit_extra: An
                   "compensation, on one scale, with the fitted ripple", figure_svg(fig, "angle"))
 
 
-def spectrum_figure(rec: dict[str, Any], point_ripple: Sequence[Any]) -> Figure:
+def spectrum_figure(rec: dict[str, Any], point_ripple: PointRipples) -> Figure:
     """Order spectrum before and compensated with the limits as lines.
 
     Two limits are drawn in N*m: ``max_pp_after_pct`` of the mean torque as the amplitude of one
@@ -280,7 +291,7 @@ def spectrum_figure(rec: dict[str, Any], point_ripple: Sequence[Any]) -> Figure:
                   "compensation, with the limits", figure_svg(fig, "spectrum"))
 
 
-def residual_figure(fit_extra: Any, cols: int = 4) -> Figure:
+def residual_figure(fit_extra: FitExtra, cols: int = 4) -> Figure:
     """The fit's residual (measured - model) against electrical angle, one small panel per
     segment: every segment, shared scale.
 
@@ -325,7 +336,7 @@ def residual_figure(fit_extra: Any, cols: int = 4) -> Figure:
 
 
 # --------------------------------------------------------------------------- the page
-def _fmt(x: Any, digits: int = 4) -> str:
+def _fmt(x: float | None, digits: int = 4) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "-"
     return f"{float(x):.{digits}g}"

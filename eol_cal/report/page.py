@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-from typing import Any
 
 import jinja2
 from markupsafe import Markup
@@ -20,7 +19,7 @@ def environment() -> jinja2.Environment:
     return env
 
 
-def utc_text(stamp: Any) -> str:
+def utc_text(stamp: str | None) -> str:
     """``2026-11-23T21:58:03.919+00:00`` as ``2026-11-23 21:58:03 UTC`` (``-`` for none)."""
     import datetime as dt
 
@@ -35,6 +34,6 @@ def utc_text(stamp: Any) -> str:
     return t.strftime("%Y-%m-%d %H:%M:%S UTC")
 
 
-def render(template: str, **context: Any) -> str:
+def render(template: str, **context: object) -> str:
     """The page ``template`` rendered with ``context``."""
     return environment().get_template(template).render(**context)

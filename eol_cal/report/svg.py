@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import io
 import re
-from typing import Any, Sequence
+from types import ModuleType
+from typing import TYPE_CHECKING, Sequence
 from xml.sax.saxutils import escape
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure as MplFigure
 
 _ID = re.compile(r'\bid="([^"]+)"')
 _REF = re.compile(r'(url\(#|href="#)([^")]+)')
@@ -19,7 +23,7 @@ _REF = re.compile(r'(url\(#|href="#)([^")]+)')
 RC = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
 
 
-def pyplot() -> Any:
+def pyplot() -> ModuleType:
     """matplotlib's pyplot on the Agg backend (imported on first use: it costs a second)."""
     import matplotlib
 
@@ -29,7 +33,7 @@ def pyplot() -> Any:
     return plt
 
 
-def figure_svg(fig: Any, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
+def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
     """The figure as an ``<svg>`` element for inlining into HTML; closes the figure.
 
     Parameters

@@ -16,14 +16,14 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from eol_cal.atomic import atomic_write
-from eol_cal.report.motor import Figure
+from eol_cal.report.motor import Figure, FitExtra, PointRipples
 
 
 def _write_text(path: Path, text: str) -> None:
     atomic_write(path, text)
 
 
-def fit_plots(run_dir: str | Path, fit_extra: Any) -> list[Figure]:
+def fit_plots(run_dir: str | Path, fit_extra: FitExtra) -> list[Figure]:
     """The plots that need only the fit (the residual of every segment); run while the dyno
     spins for the compensated capture.
 
@@ -40,7 +40,7 @@ def fit_plots(run_dir: str | Path, fit_extra: Any) -> list[Figure]:
 
 
 def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: Sequence[Figure] | None = None,
-                 fit_extra: Any = None, point_ripple: Any = None) -> Path:
+                 fit_extra: FitExtra | None = None, point_ripple: PointRipples | None = None) -> Path:
     """Write ``report.html`` into ``run_dir``; returns its path.
 
     ``report.json`` is written by :func:`write_record_json` once the record is final.
