@@ -232,7 +232,7 @@ def main() -> None:
     ap.add_argument("--cap", type=float, default=20.0, help="Seconds after which a trial counts as hung.")
     args = ap.parse_args()
     print(f"# bench_faults_ecu: {platform.python_version()}, {os.cpu_count()} CPUs, bound "
-          f"max(P2*, S3 + back-off + P2) + P2 + 1 s = {BOUND_S:.2f} s (ClientTiming defaults)")
+          f"max(P2*, S3 + back-off + P2) + 1 s = {BOUND_S:.2f} s (ClientTiming defaults)")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         base = _base(tmp)
