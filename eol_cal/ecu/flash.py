@@ -21,7 +21,7 @@ from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 
 N_BANKS = len(B.BANK_WORD_ADDR)
-ERASED = 0xFF
+ERASED = P.ERASED_BYTE
 
 
 class ProgramError(Exception):

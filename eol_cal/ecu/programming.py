@@ -158,7 +158,7 @@ class BankProgrammer:
         self.programmed_blocks += 1
         d.offset += len(chunk)
         d.last_bsc, d.last_len = bsc, len(chunk)
-        d.next_bsc = (bsc + 1) & 0xFF
+        d.next_bsc = P.next_block_counter(bsc)
 
     def transfer_exit(self) -> None:
         d = self.download

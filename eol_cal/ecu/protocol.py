@@ -62,6 +62,8 @@ MAX_READ_BYTES = 1024
 """Largest ReadMemoryByAddress the ECU serves, bytes."""
 WORD_BYTES = 2
 """C28x memory is addressed in 16-bit words."""
+ERASED_BYTE = 0xFF
+"""An erased NOR-flash word reads 0xFFFF (contract section 1)."""
 
 # --- Identifiers -----------------------------------------------------------------------------------
 DID_SERIAL = 0xF18C
@@ -128,6 +130,11 @@ def nrc_text(code: int) -> str:
     name = NRC.get_name(code) or "unknown"
     hint = NRC_HINT.get(code, "")
     return f"NRC 0x{code:02X} {name}" + (f": {hint}" if hint else "")
+
+
+def next_block_counter(bsc: int) -> int:
+    """TransferData's blockSequenceCounter after ``bsc``: starts at 1, wraps 0xFF -> 0x00."""
+    return (bsc + 1) & 0xFF
 
 
 # --- Codecs ----------------------------------------------------------------------------------------

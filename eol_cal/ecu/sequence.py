@@ -30,7 +30,8 @@ from eol_cal.firmware import block as B
 
 TAIL_BYTES = 4
 """The CRC: the last bytes of a block, written last (the block is valid only with them)."""
-ERASED_CRC = 0xFFFFFFFF
+ERASED_CRC = int.from_bytes(bytes([P.ERASED_BYTE]) * TAIL_BYTES, "little")
+"""The CRC field of an erased bank."""
 MAX_RESTARTS = 5
 """Downloads started again from the erase after losses on the bus (smaller blocks each time)."""
 
@@ -142,7 +143,7 @@ def _send(s: UdsSession, base: int, data: bytes, start: int, limit: int, bsc: in
     blocks = 0
     for offset in range(0, len(data), limit):
         s.transfer(f"transfer data (36) at byte {start + offset}", bsc, data[offset:offset + limit])
-        bsc = (bsc + 1) & 0xFF
+        bsc = P.next_block_counter(bsc)
         blocks += 1
     return bsc, blocks
 
