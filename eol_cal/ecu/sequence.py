@@ -135,7 +135,7 @@ def _image(blk: B.ParamBlock, sequence: int) -> bytes:
     return image
 
 
-def _send(s: UdsSession, base: int, data: bytes, start: int, limit: int, bsc: int) -> tuple[int, int]:
+def _send(s: UdsSession, data: bytes, start: int, limit: int, bsc: int) -> tuple[int, int]:
     """TransferData of ``data`` (the image from byte ``start``) in pieces of ``limit`` bytes.
 
     Returns the next block sequence counter and the number of requests.
@@ -162,16 +162,16 @@ def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, repo
         try:
             max_payload = s.request_download(base, len(image))
             limit = max_payload if limit is None else min(limit, max_payload)
-            bsc, blocks = _send(s, base, body, 0, limit, 1)
+            bsc, blocks = _send(s, body, 0, limit, 1)
         except EcuError as exc:
-            if exc.cause != "timeout" or restart == MAX_RESTARTS or s.silent_s >= s.timing.s3_s:
+            if exc.cause != "timeout" or restart == MAX_RESTARTS or s.ecu_gone:
                 raise
             report.restarts += 1
             limit = shrink(limit) if limit is not None else None
             continue
         report.transfer_blocks += blocks
         return bsc
-    raise AssertionError("unreachable")
+    raise AssertionError("the loop returns or raises")
 
 
 def _rollback(s: UdsSession, base: int) -> str:
@@ -311,7 +311,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
                 report.verified = True
             prog.step("CRC (36)")
             prog.tail = "sent"
-            _send(s, base, image[-TAIL_BYTES:], len(image) - TAIL_BYTES, TAIL_BYTES, bsc)
+            _send(s, image[-TAIL_BYTES:], len(image) - TAIL_BYTES, TAIL_BYTES, bsc)
             prog.tail = "written"
             report.transfer_blocks += 1
             prog.step("transfer exit (37)")
