@@ -55,7 +55,8 @@ class Browser:
             raise RuntimeError("chromium not found (Debian: apt-get install -y chromium)")
         self.profile = Path(tempfile.mkdtemp(prefix="eol-cal-chromium-"))
         self.proc = subprocess.Popen(
-            [exe, "--headless", "--disable-gpu", "--no-sandbox", "--no-first-run", "--no-default-browser-check",
+            [exe, "--headless", "--disable-gpu", "--no-sandbox", "--disable-dev-shm-usage", "--no-first-run",
+             "--no-default-browser-check",
              "--disable-extensions", "--disable-background-networking", "--disable-component-update",
              "--disable-sync", "--disable-default-apps", "--mute-audio", "--hide-scrollbars",
              "--remote-debugging-address=127.0.0.1", "--remote-debugging-port=0",
