@@ -30,7 +30,8 @@ def wrap_2pi(x: Array, xp: ArrayModule = np) -> Array:
     xp : module
         Array namespace (``numpy`` or ``jax.numpy``).
     """
-    return xp.mod(x, TWO_PI)
+    # floor, not xp.mod: the same result here, and fewer operations inside the plant's scan
+    return x - TWO_PI * xp.floor(x / TWO_PI)
 
 
 def wrap_pi(x: Array, xp: ArrayModule = np) -> Array:
