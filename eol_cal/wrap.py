@@ -21,7 +21,8 @@ TWO_PI = 2.0 * math.pi
 
 
 def wrap_2pi(x: Array, xp: ArrayModule = np) -> Array:
-    """Angle ``x`` (rad, scalar or array) reduced into [0, 2*pi) (rad).
+    """Angle ``x`` (rad, scalar or array) reduced into [0, 2*pi) (rad); an ``x`` a rounding
+    error below 0 may come back as 2*pi itself.
 
     Parameters
     ----------
