@@ -27,7 +27,7 @@ Steps
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
@@ -35,6 +35,9 @@ from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.wrap import wrap_2pi, wrap_pi
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.estimator import EstimatorConfig
 
 TWO_PI = 2.0 * np.pi
 
@@ -530,7 +533,7 @@ class FirmwareAngleDifference:
 
 
 def firmware_angle_difference(
-    capture: Capture, angle: AngleResult | None = None, config=None
+    capture: Capture, angle: AngleResult | None = None, config: EstimatorConfig | None = None
 ) -> FirmwareAngleDifference:
     """Run the firmware's estimator over a capture and compare its angle with the offline one.
 

@@ -9,6 +9,8 @@ least ``min_revs`` revolutions is one segment: one load point x speed x directio
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import functools
 import math
 from dataclasses import dataclass, field
@@ -17,10 +19,13 @@ import numpy as np
 
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
-from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
+from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.motor import MotorParams, load_motor
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.estimator import EstimatorConfig
 
 
 @dataclass
@@ -146,7 +151,7 @@ def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
     return motor.kt, f"preset {motor.name}"
 
 
-def firmware_config(capture: Capture):
+def firmware_config(capture: Capture) -> EstimatorConfig:
     """The paper's estimator configuration at a capture's poles, encoder and sample rate."""
     from eol_cal.firmware import estimator as est
 

@@ -10,16 +10,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit_capture import MotorInput
 from eol_cal.analysis.result import CiLimits
-from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.capture.model import Capture
+from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.angle import AngleResult
 
 
 @dataclass(frozen=True)
@@ -106,7 +109,7 @@ def json_safe(x: Any) -> Any:
     return x
 
 
-def window_metrics(capture: Capture, angle) -> dict[str, Any]:
+def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
     """p-p ripple of one window (``metrics.captures[i]`` of a record); ``error`` when it has none."""
     from eol_cal.analysis.metrics import capture_ripple_pp
     from eol_cal.errors import InputError

@@ -22,12 +22,17 @@ The definition of the peak-to-peak figure is in ``docs/metrics.md``; in short:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 from dataclasses import dataclass
 
 import numpy as np
 
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.angle import AngleResult
 
 TWO_PI = 2.0 * np.pi
 
@@ -517,7 +522,7 @@ def ripple_pp(
     )
 
 
-def capture_ripple_pp(capture: Capture, angle=None, **kwargs) -> RipplePP:
+def capture_ripple_pp(capture: Capture, angle: AngleResult | None = None, **kwargs: Any) -> RipplePP:
     """:func:`ripple_pp` on a :class:`~eol_cal.capture.model.Capture`.
 
     Parameters

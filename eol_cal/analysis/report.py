@@ -7,7 +7,10 @@ prints it as a table or as JSON, the station and scripts use it directly.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from eol_cal.capture.model import Capture
 
 #: orders shown in the table (electrical); mechanical order 1 is added separately
 TOP_ORDERS = (6, 12, 18)
@@ -18,7 +21,7 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
-def analyze_capture(capture, ripple_options: dict[str, Any] | None = None, fw_angle: bool = False) -> tuple[dict, Any]:
+def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = None, fw_angle: bool = False) -> tuple[dict, Any]:
     """Every figure ``eol-cal analyze`` reports for one capture.
 
     Parameters

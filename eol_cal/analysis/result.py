@@ -12,12 +12,15 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit
 from eol_cal.errors import InputError
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.fit_capture import MotorInput
 
 SCHEMA = "eol-cal/fit-result/1"
 STATUS_OK = "ok"
@@ -164,7 +167,7 @@ def motor_record(
     return rec
 
 
-def record_for_motor(mi, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
+def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
                      solver_mode: str) -> dict[str, Any]:
     """:func:`motor_record` for a :class:`~eol_cal.analysis.fit_capture.MotorInput` and its fit.
 

@@ -20,11 +20,12 @@ inside ``jit``/``vmap``/``lax.scan`` (the plant).
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 
 from eol_cal.errors import InputError
+from eol_cal.arrays import Array, ArrayModule
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, TABLE_LEN_MAX, TABLE_LEN_MIN, ParamBlock, table_len_ok
 
 K_6_OVER_2PI = np.float32(6.0 / (2.0 * math.pi))
@@ -45,7 +46,7 @@ def _check_harmonics(harmonics: Sequence[Harmonic], N: int | None) -> None:
             raise InputError(None, "harmonics", f"order {order} is not resolved by a {N}-entry table")
 
 
-def ripple_parts(theta: Any, c6: float, phase_c6: float, k6: float, phase_k6: float, kt: float,
+def ripple_parts(theta: Array, c6: float, phase_c6: float, k6: float, phase_k6: float, kt: float,
                  harmonics: Sequence[Harmonic] = ()) -> tuple[np.ndarray, np.ndarray]:
     """The analytic compensating current's two parts at electrical angle ``theta`` (float64).
 
@@ -81,7 +82,7 @@ def ripple_parts(theta: Any, c6: float, phase_c6: float, k6: float, phase_k6: fl
     return i_const / kt, i_per_amp / kt
 
 
-def ripple_i_qc(theta: Any, i_qo: Any, c6: float, phase_c6: float, k6: float, phase_k6: float,
+def ripple_i_qc(theta: Array, i_qo: Array, c6: float, phase_c6: float, k6: float, phase_k6: float,
                 kt: float, harmonics: Sequence[Harmonic] = ()) -> np.ndarray:
     """Analytic i_qc (A, float64) that cancels the ripple at angle ``theta`` (rad) and ``i_qo`` (A)."""
     i_const, i_per_amp = ripple_parts(theta, c6, phase_c6, k6, phase_k6, kt, harmonics)
@@ -118,8 +119,8 @@ def make_tables(c6: float, phase_c6: float, k6: float, phase_k6: float, kt: floa
     return i_const.astype(np.float32), i_per_amp.astype(np.float32)
 
 
-def i_qc(theta_hat: Any, omega_hat: Any, i_qo: Any, table_const: Any, table_per_amp: Any,
-         lead_s: Any, iqc_limit: Any, xp: Any = np) -> Any:
+def i_qc(theta_hat: Array, omega_hat: Array, i_qo: Array, table_const: Array, table_per_amp: Array,
+         lead_s: Array, iqc_limit: Array, xp: ArrayModule = np) -> Array:
     """Compensating q current as the firmware computes it each tick (binary32, fixed order).
 
     Parameters
@@ -190,7 +191,7 @@ def i_qc(theta_hat: Any, omega_hat: Any, i_qo: Any, table_const: Any, table_per_
     return xp.where(s > limit, limit, xp.where(s < -limit, -limit, s))
 
 
-def block_i_qc(block: ParamBlock, theta_hat: Any, omega_hat: Any, i_qo: Any, xp: Any = np) -> Any:
+def block_i_qc(block: ParamBlock, theta_hat: Array, omega_hat: Array, i_qo: Array, xp: ArrayModule = np) -> Array:
     """:func:`i_qc` with a block's tables, lead and limit; zero when ``COMP_ENABLE`` is clear (A)."""
     out = i_qc(theta_hat, omega_hat, i_qo, block.table_const, block.table_per_amp,
                block.lead_s, block.iqc_limit, xp=xp)

@@ -53,7 +53,7 @@ class VectorSet:
     tolerance: dict[str, Any] | str = "exact"
 
 
-def f32hex(x: Any) -> str:
+def f32hex(x: float) -> str:
     """Bit pattern of ``x`` rounded to binary32: 8 lower-case hex digits (``1.0 -> 3f800000``)."""
     return f"{int(np.asarray(x, dtype=np.float32).view(np.uint32)):08x}"
 

@@ -25,6 +25,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from eol_cal.arrays import Array, ArrayModule
+
 
 class SensorErrors(NamedTuple):
     """Manufacturing errors of one motor's position sensors.
@@ -91,8 +93,8 @@ def _channel(u: Any, eps_table: Any, N_enc: int, xp: Any) -> Any:
     return ((fr >= 0.0) & (fr < 0.5)).astype(xp.int32)
 
 
-def encoder_hall_signals(theta_m: Any, poles: int, N_enc: int,
-                         errors: SensorErrors | None = None, xp: Any = np) -> tuple[Any, Any, Any]:
+def encoder_hall_signals(theta_m: Array, poles: int, N_enc: int,
+                         errors: SensorErrors | None = None, xp: ArrayModule = np) -> tuple[Array, Array, Array]:
     """Encoder and hall levels at mechanical rotor angle ``theta_m``.
 
     Parameters
@@ -134,7 +136,7 @@ def encoder_hall_signals(theta_m: Any, poles: int, N_enc: int,
     return enc_a, enc_b, hall
 
 
-def electrical_angle(theta_m: Any, poles: int, xp: Any = np) -> Any:
+def electrical_angle(theta_m: Array, poles: int, xp: ArrayModule = np) -> Array:
     """True electrical angle (rad, [0, 2*pi)) of mechanical angle ``theta_m`` (rad)."""
     return xp.mod(xp.asarray(theta_m) * (poles / 2.0), 2.0 * math.pi)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple, Sequence
+from typing import TYPE_CHECKING, NamedTuple, Sequence
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tabl
 from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, speed_gains
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.plant import motor as motor_model, ripple
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.kinematics import SensorErrors
 
 
 @dataclass(frozen=True)
@@ -242,7 +245,7 @@ def estimator_tables(p: PlantParams) -> HallTables:
     return HallTables(p.hall_start, p.hall_width, p.hall_mid)
 
 
-def sensor_errors(p: PlantParams):
+def sensor_errors(p: PlantParams) -> SensorErrors:
     """The kinematic sensor model's error record of these parameters."""
     from eol_cal.firmware.kinematics import SensorErrors
 

@@ -24,7 +24,7 @@ import math
 import os
 import sys
 from dataclasses import dataclass
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.estimator import EstimatorConfig
 
 TWO_PI = 2.0 * math.pi
 #: Nominal hall_angle table of the contract (rad): state s begins at HALL_ANGLE[s-1].
@@ -275,7 +278,7 @@ def mode_of_block(block: ParamBlock) -> str:
     return "estimated" if block.flags & FLAG_INTERP_ENABLE else "raw"
 
 
-def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, improved: bool = False) -> Any:
+def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, improved: bool = False) -> EstimatorConfig:
     """The firmware estimator's configuration on this bench (from the block when given).
 
     ``improved``: the reference's best improvements (:meth:`EstimatorConfig.best`) instead of the

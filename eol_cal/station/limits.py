@@ -26,9 +26,12 @@ import math
 import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from eol_cal.errors import InputError
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.result import CiLimits
 
 #: key -> (unit, lowest allowed value, highest allowed value)
 _KEYS: dict[str, tuple[str, float, float]] = {
@@ -65,7 +68,7 @@ class VariantLimits:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-    def ci_limits(self):
+    def ci_limits(self) -> CiLimits:
         """The interval limits as the fit's own :class:`~eol_cal.analysis.result.CiLimits`."""
         from eol_cal.analysis.result import CiLimits
 

@@ -30,9 +30,9 @@ from typing import Any, Callable
 import numpy as np
 
 from eol_cal.analysis.fit_motors import json_safe
-from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.interrupts import shielded
+from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
 from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
