@@ -197,3 +197,14 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
         compensated = sixth()
     assert raw > 0.03  # k6*i_qo = 0.040 N*m plus cogging
     assert compensated < 0.2 * raw
+
+
+def test_the_dyno_package_knows_no_ecu_and_no_block():
+    """The rig (eol_cal.station.rig) wires the ECU in; the dyno package itself imports neither."""
+    import subprocess
+    import sys
+
+    code = ("import sys, eol_cal.dyno.sim, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, eol_cal.dyno.transfer; "
+            "print(sorted(m for m in sys.modules if m.startswith(('eol_cal.ecu', 'eol_cal.firmware', 'eol_cal.station'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]"
