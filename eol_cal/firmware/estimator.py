@@ -26,9 +26,14 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
 
 import numpy as np
+
+from eol_cal.arrays import Array, ArrayModule
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.block import ParamBlock
 
 F32 = np.float32
 I32 = np.int32
@@ -192,7 +197,7 @@ class EstimatorConfig:
         return cls.best(**kwargs)
 
     @classmethod
-    def from_block(cls, block: Any, standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+    def from_block(cls, block: ParamBlock, standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
         """Configuration from a parameter block (anything with ``poles``, ``encoder_ppr``,
         ``tick_hz``, ``hall_angle``, e.g. :class:`eol_cal.firmware.block.ParamBlock`)."""
         tick_hz = float(block.tick_hz)
@@ -221,14 +226,14 @@ class Consts(NamedTuple):
     NEXT: np.ndarray         # i32[8] forward successor
 
 
-def wrap(x: Any, xp: Any = np) -> Any:
+def wrap(x: Array, xp: ArrayModule = np) -> Array:
     """Reduce an angle into [0, 2*pi) in binary32 (rad), exactly as the C port does."""
     r = x - TWO_PI * xp.floor(x * INV_TWO_PI)
     r = xp.where(r >= TWO_PI, r - TWO_PI, r)
     return xp.where(r < F32(0.0), r + TWO_PI, r)
 
 
-def wrap_pm(x: Any, xp: Any = np) -> Any:
+def wrap_pm(x: Array, xp: ArrayModule = np) -> Array:
     """Reduce an angle into [-pi, pi) in binary32 (rad)."""
     return wrap(x + PI, xp) - PI
 
@@ -244,9 +249,9 @@ class HallTables(NamedTuple):
     mid : f32[8] rad, ``wrap(start + width * 0.5)`` (``Consts.H_MID``).
     """
 
-    start: Any
-    width: Any
-    mid: Any
+    start: Array
+    width: Array
+    mid: Array
 
 
 def hall_tables(hall_angle: Sequence[float]) -> HallTables:
@@ -323,26 +328,26 @@ class EstimatorState(NamedTuple):
     ts : i32[2*N_enc] tick of each A edge's last event (improvement 4, else empty).
     """
 
-    phase: Any
-    q: Any
-    n: Any
-    k_last: Any
-    dir_last: Any
-    nc_prev: Any
-    against: Any
-    omega: Any
-    alpha: Any
-    adv: Any
-    G: Any
-    hall_last: Any
-    sector: Any
-    anchored: Any
-    n_anchor: Any
-    tick: Any
-    run: Any
-    R_prev: Any
-    c_tab: Any
-    ts: Any
+    phase: Array
+    q: Array
+    n: Array
+    k_last: Array
+    dir_last: Array
+    nc_prev: Array
+    against: Array
+    omega: Array
+    alpha: Array
+    adv: Array
+    G: Array
+    hall_last: Array
+    sector: Array
+    anchored: Array
+    n_anchor: Array
+    tick: Array
+    run: Array
+    R_prev: Array
+    c_tab: Array
+    ts: Array
 
 
 class EstimatorOut(NamedTuple):
@@ -355,13 +360,13 @@ class EstimatorOut(NamedTuple):
     status : ST_* bits (int32).
     """
 
-    theta_hat: Any
-    omega_hat: Any
-    theta_enc: Any
-    status: Any
+    theta_hat: Array
+    omega_hat: Array
+    theta_enc: Array
+    status: Array
 
 
-def _tab(table: np.ndarray, idx: Any, xp: Any) -> Any:
+def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
     return table[idx] if xp is np or xp is _SCALAR_NP else xp.asarray(table)[idx]
 
@@ -381,26 +386,26 @@ class _ScalarNumpy:
     zeros_like = staticmethod(np.zeros_like)
 
     @staticmethod
-    def where(c: Any, x: Any, y: Any) -> Any:
+    def where(c: Array, x: Array, y: Array) -> Array:
         return x if c else y
 
     @staticmethod
-    def minimum(x: Any, y: Any) -> Any:
+    def minimum(x: Array, y: Array) -> Array:
         return x if x < y else y
 
     @staticmethod
-    def maximum(x: Any, y: Any) -> Any:
+    def maximum(x: Array, y: Array) -> Array:
         return x if x > y else y
 
     @staticmethod
-    def abs(x: Any) -> Any:
+    def abs(x: Array) -> Array:
         return -x if x < 0 else x
 
 
 _SCALAR_NP = _ScalarNumpy()
 
 
-def _set(arr: Any, idx: Any, val: Any, xp: Any) -> Any:
+def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
     """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX)."""
     if not hasattr(arr, "at"):
         out = arr.copy()
@@ -409,18 +414,18 @@ def _set(arr: Any, idx: Any, val: Any, xp: Any) -> Any:
     return arr.at[idx].set(val)
 
 
-def _dq(q: Any, k_last: Any, M: int, xp: Any) -> Any:
+def _dq(q: Array, k_last: Array, M: int, xp: ArrayModule) -> Array:
     """Signed quadrature counts from boundary ``k_last`` to count ``q``, in [-M/2, M/2)."""
     return (q - k_last + I32(M + M // 2)) % I32(M) - I32(M // 2)
 
 
-def quadrature_phase(enc_a: Any, enc_b: Any) -> Any:
+def quadrature_phase(enc_a: Array, enc_b: Array) -> Array:
     """Position of the encoder levels (0/1 integers) in one quadrature cycle, forward: 00 -> 10 -> 11 -> 01 is 0, 1, 2, 3."""
     return I32(2) * enc_b + (enc_a ^ enc_b)
 
 
-def init_state(cfg: EstimatorConfig, hall0: Any, enc_a0: Any = 0, enc_b0: Any = 0,
-               xp: Any = np) -> EstimatorState:
+def init_state(cfg: EstimatorConfig, hall0: Array, enc_a0: Array = 0, enc_b0: Array = 0,
+               xp: ArrayModule = np) -> EstimatorState:
     """Power-on state from the first sample of the halls (and the encoder levels).
 
     Parameters
@@ -448,8 +453,8 @@ def init_state(cfg: EstimatorConfig, hall0: Any, enc_a0: Any = 0, enc_b0: Any = 
                           ts=xp.zeros(h.shape + (L,), xp.int32))
 
 
-def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, hall: Any,
-         xp: Any = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
+def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
+         xp: ArrayModule = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick").
 
     Parameters
@@ -647,7 +652,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Any, enc_b: Any, ha
                              status=status)
 
 
-def run(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any) -> EstimatorOut:
+def run(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array) -> EstimatorOut:
     """Run the estimator over sampled signals with numpy, tick by tick (the bit-exact reference).
 
     The power-on state takes the first sample's levels (:func:`init_state`), then every sample,
@@ -697,7 +702,7 @@ def _program_config(cfg: EstimatorConfig) -> EstimatorConfig:
     return dataclasses.replace(cfg, hall_angle=NOMINAL_HALL_ANGLE)
 
 
-def run_jax(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any,
+def run_jax(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array,
             hall_angle: Sequence[float] | None = None) -> EstimatorOut:
     """The same as :func:`run` under ``jax.lax.scan`` (float32 tolerance, not bit-exact).
 
@@ -753,7 +758,7 @@ def _scan_chunk(cfg: EstimatorConfig):
     return jax.jit(chunk)
 
 
-def run_jax_chunked(cfg: EstimatorConfig, enc_a: Any, enc_b: Any, hall: Any, chunk: int = JAX_CHUNK,
+def run_jax_chunked(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array, chunk: int = JAX_CHUNK,
                     hall_angle: Sequence[float] | None = None) -> EstimatorOut:
     """:func:`run_jax` for one capture (1-D inputs) with one compiled program for every length.
 
