@@ -376,7 +376,8 @@ def _block_buffer(rows: int) -> np.ndarray:
     return buf
 
 
-def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_pairs: int, spec: FitSpec):
+def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_pairs: int,
+                     spec: FitSpec) -> tuple[np.ndarray, np.ndarray, float, float, float, int, int]:
     """Normal-equation summary of one segment: (R, z, floor, sst, ymean, n, n_nuis).
 
     ``theta`` must be continuous (unwrapped), as :mod:`eol_cal.analysis.angle` returns it.
@@ -836,7 +837,7 @@ def fit_many(
     mode: str = "auto",
     chunk: int = 64,
     sources: list[str | None] | None = None,
-    progress=None,
+    progress: Callable[[int], None] | None = None,
     threads: int = 0,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.

@@ -25,7 +25,7 @@ import uuid
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -36,6 +36,10 @@ from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import Measured, VariantLimits, fit_reasons, verdict
 from eol_cal.station.records import RECORD_SCHEMA, SaveResult, save_record
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.angle import AngleResult
+    from eol_cal.capture.model import Capture
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
 STEPS = ("prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
@@ -147,7 +151,7 @@ def _safe_name(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- fit
-def fit_motor(capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
+def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit_motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
@@ -169,7 +173,7 @@ def fit_motor(capture, limits: VariantLimits, tool_version: str, motor: MotorPar
     return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)
 
 
-def check_motor(capture, motor: MotorParams) -> None:
+def check_motor(capture: Capture, motor: MotorParams) -> None:
     """Refuse a capture whose poles or encoder are not the station's motor type (InputError).
 
     The blocks the station flashes carry the motor type's poles, encoder and tick rate; a
@@ -254,7 +258,7 @@ def nearest_segment(pieces: list, speed_rpm: float, i_qo_a: float) -> int:
     return min(range(len(pieces)), key=lambda k: distance(pieces[k]))
 
 
-def point_ripple(capture, angle) -> PointRipple:
+def point_ripple(capture: Capture, angle: AngleResult) -> PointRipple:
     """p-p ripple and 6th-order amplitude of one steady capture (the operating point's window).
 
     Parameters
