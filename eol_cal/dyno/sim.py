@@ -29,7 +29,6 @@ from typing import Callable, TypeVar
 import numpy as np
 
 from eol_cal.capture.model import Capture
-from eol_cal.motor import MotorParams, load_motor
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import (
     CaptureState,
@@ -41,6 +40,7 @@ from eol_cal.dyno.registers import (
     SimFault,
 )
 from eol_cal.dyno.sim_modbus import ModbusFace
+from eol_cal.motor import MotorParams, load_motor
 
 T = TypeVar("T")
 
