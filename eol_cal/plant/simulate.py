@@ -43,8 +43,6 @@ if TYPE_CHECKING:
     from eol_cal.firmware.estimator import EstimatorConfig
 
 TWO_PI = 2.0 * math.pi
-#: Nominal hall_angle table of the contract (rad): state s begins at HALL_ANGLE[s-1].
-HALL_ANGLE = NOMINAL_HALL_ANGLE
 #: Per-tick outputs of the scan, in this order (float32 columns).
 OUT_COLUMNS = ("torque", "enc_a", "enc_b", "hall", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic",
                "speed", "theta_r", "theta_hat", "theta_enc")
@@ -264,7 +262,7 @@ def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: b
     tc, tp = compensator.make_tables(spec.c6, spec.phase_c6, spec.k6, spec.phase_k6, m.kt, table_len, harm)
     return ParamBlock(
         sequence=1, flags=flags, serial=spec.serial[:16], calibrated_at=0, poles=m.poles,
-        encoder_ppr=m.N_enc, tick_hz=m.f_pwm, kt=m.kt, hall_angle=HALL_ANGLE,
+        encoder_ppr=m.N_enc, tick_hz=m.f_pwm, kt=m.kt, hall_angle=NOMINAL_HALL_ANGLE,
         c6=spec.c6, phase_c6=spec.phase_c6, k6=spec.k6, phase_k6=spec.phase_k6,
         lead_s=1.0 / (2.0 * math.pi * m.current_bw_hz), iqc_limit=6.5,
         table_const=tc, table_per_amp=tp,
@@ -288,7 +286,7 @@ def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, improved:
     from eol_cal.firmware import estimator
 
     m = spec.motor
-    hall = block.hall_angle if block is not None else HALL_ANGLE
+    hall = block.hall_angle if block is not None else NOMINAL_HALL_ANGLE
     make = estimator.EstimatorConfig.best if improved else estimator.EstimatorConfig.paper
     return make(poles=m.poles, N_enc=m.N_enc, tick_hz=m.f_pwm, hall_angle=tuple(float(a) for a in hall))
 
@@ -372,7 +370,7 @@ def simulate(
         else:
             tc = tp = np.zeros(16, np.float32)
             lead = lim = 0.0
-            hall = HALL_ANGLE
+            hall = NOMINAL_HALL_ANGLE
         params.append(to_params(spec, tc, tp, lead, lim, hall_angle=hall))
     lens = {len(p.table_const) for p in params}
     if len(lens) != 1:
