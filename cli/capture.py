@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Any
 
 import click
 
-from cli.common import console, handle_errors, print_json
+from cli.common import CommandExit, console, handle_errors, print_json
 
 
 def _finite_range(values: Any) -> tuple[float | None, float | None, int]:
@@ -141,7 +140,7 @@ def info(file: str, map_file: str | None, as_json: bool) -> None:
         _print_summary(summary)
     if problem is not None:
         click.echo(f"error: invalid capture: {problem}", err=True)
-        sys.exit(problem.exit_code)
+        raise CommandExit(problem.exit_code)
 
 
 @capture_group.command("convert")

@@ -65,20 +65,41 @@ def _option_hint(exc: EolCalError) -> str:
     return " (give one with --map FILE)" if isinstance(exc, ForeignChannelError) else ""
 
 
+class CommandExit(Exception):
+    """A command has printed its outcome itself and ends with ``exit_code`` (nothing more is printed).
+
+    Commands raise this instead of calling :func:`sys.exit`, so that :func:`handle_errors` is the
+    one place where an outcome becomes the process's exit status (0 ok, 1 a check failed, 2 bad input).
+    """
+
+    def __init__(self, exit_code: int) -> None:
+        self.exit_code = exit_code
+        super().__init__(f"exit code {exit_code}")
+
+
 def handle_errors(func: Callable) -> Callable:
-    """Turn library errors and SIGINT/SIGTERM into a one-line message on stderr and the exit code."""
+    """Map every way a command ends to its exit code: the one place the CLI calls :func:`sys.exit`.
+
+    :class:`CommandExit` ends silently with its code; library errors (:class:`EolCalError`) and
+    SIGINT/SIGTERM print a one-line message on stderr and end with the error's code.
+    """
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             with signals_interrupt():
-                return func(*args, **kwargs)
+                result = func(*args, **kwargs)
+        except CommandExit as exc:
+            if exc.exit_code:
+                sys.exit(exc.exit_code)
+            return None
         except EolCalError as exc:
             click.echo(f"error: {exc}{_option_hint(exc)}", err=True)
             sys.exit(exc.exit_code)
         except KeyboardInterrupt as exc:  # Interrupted, or Ctrl-C before the handlers were set
             click.echo(f"error: {exc if isinstance(exc, Interrupted) else Interrupted()}", err=True)
             sys.exit(Interrupted.exit_code)
+        return result
 
     return wrapper
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import console, err_console, handle_errors
+from cli.common import CommandExit, console, err_console, handle_errors
 
 
 def enable_jax_cache() -> None:
@@ -78,7 +78,6 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
     every fit is usable, 1 when a fit did not converge or its interval is too wide, 2 on bad input.
     """
-    import sys
 
     from rich.progress import Progress
     from rich.table import Table
@@ -149,7 +148,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
 
         click.echo(json.dumps(doc, indent=2, allow_nan=False))
     if any(r["status"] != STATUS_OK for r in records):
-        sys.exit(1)
+        raise CommandExit(1)
 
 
 COMMANDS = [fit_cmd]

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
-from cli.common import console, err_console, handle_errors, print_json
+from cli.common import CommandExit, console, err_console, handle_errors, print_json
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = """\
@@ -197,9 +196,9 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
         err_console.print("interrupted: the dyno was sent to its safe state and the run recorded as an error")
-        sys.exit(2)
+        raise CommandExit(2) from None
     _print_outcome(out, as_json)
-    sys.exit(out.exit_code)
+    raise CommandExit(out.exit_code)
 
 
 @click.command("demo")
@@ -272,7 +271,7 @@ def demo_cmd(motors, out_dir, profile, seed) -> None:
     console.print(f"records: {db} (eol-cal records --db {db}); limits: {limits_path}")
     console.print("the same cycle on a real station: eol-cal run --dyno HOST:PORT --interface I --channel C "
                   f"--limits {limits_path} --db results.sqlite --serial S --key-file KEY")
-    sys.exit(max(o.exit_code for o in outcomes))
+    raise CommandExit(max(o.exit_code for o in outcomes))
 
 
 def _day(value: str | None) -> str | None:
@@ -309,7 +308,7 @@ def records_cmd(db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
         for bad in res.bad_files:
             err_console.print(f"spool: {bad}; left alone")
         if res.remaining:
-            sys.exit(2)
+            raise CommandExit(2)
     records = query_records(db, serial, day)
     summary = summarise(records)
     if plot_file is not None:
