@@ -37,22 +37,20 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
 
     Exit 1 when the motor's fit is not usable, 2 on bad input.
     """
-    from eol_cal.analysis.fit_table import block_from_record, created_unix, select_motor
+    from eol_cal.analysis.fit_table import block_from_result, created_unix, select_motor
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.result import read_result
     from eol_cal.atomic import atomic_write
-    from eol_cal.errors import InputError
     from eol_cal.firmware.block import check, pack, to_intel_hex
     from eol_cal.motor import load_motor
 
     lead_s = _lead(lead)
     doc = read_result(result)
     rec = select_motor(doc, serial, result)
+    motor_result = MotorResult.from_json(rec, result, f"motors[{doc['motors'].index(rec)}].")
     motor = load_motor("paper", motor_file)
-    try:
-        blk = block_from_record(rec, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
-                                calibrated_at=created_unix(doc), source=result)
-    except KeyError as exc:
-        raise InputError(result, str(exc.args[0]), f"missing in motor {rec.get('serial')!r}") from None
+    blk = block_from_result(motor_result, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
+                            calibrated_at=created_unix(doc), source=result)
     data = pack(blk)
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
@@ -70,7 +68,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
             f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"
             f"{' (auto)' if lead_s is None else ''}, iqc_limit {blk.iqc_limit:.3g} A, "
             f"max |table_per_amp| {abs(blk.table_per_amp).max():.3g} A/A, max |table_const| {abs(blk.table_const).max():.3g} A; "
-            f"hall_angle {(rec.get('hall_angle') or {}).get('source', 'nominal')}"
+            f"hall_angle {(motor_result.hall_angle or {}).get('source', 'nominal')}"
         )
 
 

@@ -54,3 +54,7 @@ class Interrupted(KeyboardInterrupt):
         self.detail = detail
         text = f"interrupted by {signal_name}" + (f" during {during}" if during else "")
         super().__init__(text + (f"; {detail}" if detail else ""))
+
+
+class ResultFormatError(InputError, ValueError):
+    """A fit result (``eol-cal/fit-result/1``) that does not hold what its schema says (exit code 2)."""

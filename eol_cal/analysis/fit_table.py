@@ -22,6 +22,7 @@ from eol_cal.errors import CheckFailed, InputError
 from eol_cal.motor import MotorParams
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult, ValueCi
     from eol_cal.firmware.block import ParamBlock
 
 IQC_LIMIT_FRACTION = 0.10
@@ -41,16 +42,15 @@ def select_motor(doc: dict[str, Any], serial: str | None, source: str) -> dict[s
     raise InputError(source, "serial", f"{serial!r} not in the result ({', '.join(m['serial'] for m in motors)})")
 
 
-def _value(rec: dict[str, Any], key: str, source: str) -> float:
-    try:
-        v = rec[key]["value"]
-        return float(v)
-    except (KeyError, TypeError, ValueError):
-        raise InputError(source, key, f"missing or not a number in motor {rec.get('serial')!r}") from None
+def block_from_record(rec: dict[str, Any], motor: MotorParams, *, source: str = "<result>", **kwargs: Any) -> ParamBlock:
+    """:func:`block_from_result` for one decoded ``motors`` entry, checked by :meth:`MotorResult.from_json`."""
+    from eol_cal.analysis.motor_result import MotorResult
+
+    return block_from_result(MotorResult.from_json(rec, source), motor, source=source, **kwargs)
 
 
-def block_from_record(
-    rec: dict[str, Any],
+def block_from_result(
+    res: MotorResult,
     motor: MotorParams,
     *,
     table_len: int = 256,
@@ -59,22 +59,22 @@ def block_from_record(
     calibrated_at: int | None = None,
     source: str = "<result>",
 ) -> ParamBlock:
-    """A :class:`~eol_cal.firmware.block.ParamBlock` for one usable motor record.
+    """A :class:`~eol_cal.firmware.block.ParamBlock` for one usable motor result.
 
     Parameters
     ----------
-    rec : dict
-        One entry of the result's ``motors`` (``status`` must be ``"ok"``).
+    res : MotorResult
+        One motor of the fit result (``status`` must be ``"ok"``).
     motor : MotorParams
         Current-loop bandwidth and rates for the automatic lead; ``f_pwm`` becomes ``tick_hz``.
     table_len : int
         N, a power of two 16..1024.
     lead_s : float, optional
-        Look-up lead (s); ``None`` = automatic at the record's operating speed.
+        Look-up lead (s); ``None`` = automatic at the result's operating speed.
     iqc_limit : float, optional
-        Clamp of |i_qc| (A); ``None`` = 10 % of the largest |i_qo| of the record's segments.
+        Clamp of |i_qc| (A); ``None`` = 10 % of the largest |i_qo| of the result's segments.
     calibrated_at : int, optional
-        Unix time (s); default the record's result ``created`` time or now.
+        Unix time (s); default now.
     source : str
         Result file, for errors.
 
@@ -87,25 +87,27 @@ def block_from_record(
     from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
     from eol_cal.firmware.compensator import make_tables
 
-    serial = rec.get("serial")
-    if rec.get("status") != "ok":
-        why = "; ".join(rec.get("reasons") or []) or "no reason recorded"
-        raise CheckFailed(f"motor {serial}: fit status {rec.get('status')!r} ({why}); no table from an unusable fit")
-    c6, phase_c6 = _value(rec, "c6", source), _value(rec, "phase_c6", source)
-    k6, phase_k6 = _value(rec, "k6", source), _value(rec, "phase_k6", source)
-    kt = float(rec["kt"])
-    harmonics = []
-    for h in rec.get("harmonics") or []:
-        def part(name: str) -> float:
-            return float(h[name]["value"]) if h.get(name) else 0.0
+    serial = res.serial
+    e = res.estimates
+    if e is None or res.status != "ok":
+        why = "; ".join(res.reasons) or "no reason recorded"
+        raise CheckFailed(f"motor {serial}: fit status {res.status!r} ({why}); no table from an unusable fit")
+    c6, phase_c6, k6, phase_k6 = e.c6.value, e.phase_c6.value, e.k6.value, e.phase_k6.value
+    kt = float(res.kt)
 
-        harmonics.append((int(h["order"]), part("c"), part("phase_c"), part("k"), part("phase_k")))
+    def part(est: ValueCi | None) -> float:
+        return float(est.value) if est is not None else 0.0
+
+    harmonics = [(h.order, part(h.c), part(h.phase_c), part(h.k), part(h.phase_k)) for h in e.harmonics]
     tc, tp = make_tables(c6, phase_c6, k6, phase_k6, kt, table_len, harmonics)
-    hall_angle = _hall_angle(rec, source)
+    hall_angle = _hall_angle(res, source)
     if lead_s is None:
-        lead_s = auto_lead_s(rec["operating_point"]["speed_rpm"], motor)
+        lead_s = auto_lead_s(res.operating_point.speed_rpm, motor)
     if iqc_limit is None:
-        iqc_limit = IQC_LIMIT_FRACTION * max(abs(s["i_qo_a"]) for s in rec["segments"])
+        try:
+            iqc_limit = IQC_LIMIT_FRACTION * max(abs(float(s["i_qo_a"])) for s in res.segments)
+        except (KeyError, TypeError, ValueError):
+            raise InputError(source, "segments", f"motor {serial!r}: every segment needs a number 'i_qo_a' (A)") from None
     if calibrated_at is None:
         calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
     if len(str(serial).encode("ascii", "replace")) > 16:
@@ -115,15 +117,15 @@ def block_from_record(
         flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE,
         serial=str(serial),
         calibrated_at=int(calibrated_at),
-        poles=int(rec["poles"]),
-        encoder_ppr=int(rec["encoder_ppr"]),
+        poles=int(res.poles),
+        encoder_ppr=int(res.encoder_ppr),
         tick_hz=motor.f_pwm,
         kt=kt,
         hall_angle=hall_angle,
-        c6=c6,
-        phase_c6=phase_c6,
-        k6=k6,
-        phase_k6=phase_k6,
+        c6=float(c6),
+        phase_c6=float(phase_c6),
+        k6=float(k6),
+        phase_k6=float(phase_k6),
         lead_s=float(lead_s),
         iqc_limit=float(iqc_limit),
         table_const=tc,
@@ -164,19 +166,19 @@ def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | No
     )
 
 
-def _hall_angle(rec: dict[str, Any], source: str) -> tuple[float, ...]:
-    """The record's hall table (rad, 6 entries); nominal for records written before it existed."""
+def _hall_angle(res: MotorResult, source: str) -> tuple[float, ...]:
+    """The result's hall table (rad, 6 entries); nominal for results written before it existed."""
     from eol_cal.analysis.angle import NOMINAL_HALL_ANGLES
 
-    entry = rec.get("hall_angle")
+    entry = res.hall_angle
     if entry is None:
         return tuple(NOMINAL_HALL_ANGLES)
     try:
         values = tuple(float(v) for v in entry["value"])
     except (KeyError, TypeError, ValueError):
-        raise InputError(source, "hall_angle", f"motor {rec.get('serial')!r}: 'value' must be 6 numbers (rad)") from None
+        raise InputError(source, "hall_angle", f"motor {res.serial!r}: 'value' must be 6 numbers (rad)") from None
     if len(values) != 6 or not all(math.isfinite(v) and 0.0 <= v < 2.0 * math.pi for v in values):
-        raise InputError(source, "hall_angle", f"motor {rec.get('serial')!r}: needs 6 angles in [0, 2*pi) rad, got {values}")
+        raise InputError(source, "hall_angle", f"motor {res.serial!r}: needs 6 angles in [0, 2*pi) rad, got {values}")
     return values
 
 

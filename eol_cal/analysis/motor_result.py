@@ -1,0 +1,266 @@
+"""One motor's fit result as a typed object: the one reader and writer of a ``motors`` entry.
+
+:meth:`MotorResult.from_json` checks an entry of an ``eol-cal/fit-result/1`` document strictly
+(types, finiteness, signs and physical bounds) and refuses with the file, the field and the
+reason; :meth:`MotorResult.to_json` writes the same entry back, key for key (``docs/json.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from eol_cal.errors import ResultFormatError
+
+#: Physical bounds an estimate must lie within (documented in docs/json.md). The paper's motor
+#: has k6 ~ 6e-4 N*m/A and c6 ~ 5e-3 N*m; anything past these is a corrupt file, not a motor.
+K6_MAX = 1.0  # N*m/A
+C6_MAX = 10.0  # N*m
+KT_MAX = 10.0  # N*m/A
+PHASE_MAX = 100.0  # rad (phases are wrapped to a few pi; 100 rad only catches garbage)
+DELAY_MAX = 1.0  # s
+ESTIMATE_KEYS = ("k6", "phase_k6", "c6", "phase_c6")
+
+
+@dataclass(frozen=True)
+class ValueCi:
+    """An estimate and its 95 % interval half-width (same unit; ``ci95`` None when not finite)."""
+
+    value: float
+    ci95: float | None
+
+    def to_json(self) -> dict[str, float | None]:
+        return {"value": self.value, "ci95": self.ci95}
+
+
+@dataclass(frozen=True)
+class Harmonic:
+    """Estimates of one order above 6 (``c`` N*m, ``k`` N*m/A, phases rad); None when not fitted."""
+
+    order: int
+    c: ValueCi | None = None
+    phase_c: ValueCi | None = None
+    k: ValueCi | None = None
+    phase_k: ValueCi | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"order": self.order}
+        for name in ("c", "phase_c", "k", "phase_k"):
+            est = getattr(self, name)
+            if est is not None:
+                out[name] = est.to_json()
+        return out
+
+
+@dataclass(frozen=True)
+class FitEstimates:
+    """The estimates of a usable fit: k6 (N*m/A), c6 (N*m), phases (rad), delay_s (s), higher orders."""
+
+    k6: ValueCi
+    phase_k6: ValueCi
+    c6: ValueCi
+    phase_c6: ValueCi
+    delay_s: ValueCi
+    harmonics: tuple[Harmonic, ...]
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    """The segment the compensation is tuned for: speed (rpm) and i_qo (A)."""
+
+    speed_rpm: float
+    i_qo_a: float
+
+
+@dataclass(frozen=True)
+class MotorResult:
+    """One entry of a fit result's ``motors`` (``docs/json.md``).
+
+    Attributes
+    ----------
+    serial, status, reasons
+        Motor serial, ``"ok"`` / ``"not_converged"`` / ``"ci_too_wide"``, why not usable.
+    estimates : FitEstimates or None
+        None when the fit is not usable (the file holds ``null`` in every estimate field).
+    kt, kt_source
+        Torque constant (N*m/A) and where it came from.
+    metrics, fit, model, hall_angle
+        The entry's objects as written by the fit (``hall_angle`` None for files older than it).
+    poles, encoder_ppr
+        Pole count and encoder pulses per revolution.
+    operating_point : OperatingPoint
+    segments : tuple of dict
+        Per-segment table (source, t_start/t_end s, i_qo_a A, speed_rpm, T_avg_nm N*m, shaft gain/phase).
+    sources : tuple of str
+        Capture files.
+    """
+
+    serial: str
+    status: str
+    reasons: tuple[str, ...]
+    estimates: FitEstimates | None
+    kt: float
+    kt_source: str
+    metrics: dict[str, Any]
+    fit: dict[str, Any]
+    model: dict[str, Any]
+    hall_angle: dict[str, Any] | None
+    poles: int
+    encoder_ppr: int
+    operating_point: OperatingPoint
+    segments: tuple[dict[str, Any], ...]
+    sources: tuple[str, ...]
+
+    @property
+    def usable(self) -> bool:
+        return self.status == "ok" and self.estimates is not None
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``motors`` entry, keys in the order the fit writes them."""
+        e = self.estimates
+        out: dict[str, Any] = {"serial": self.serial, "status": self.status, "reasons": list(self.reasons)}
+        for key in ESTIMATE_KEYS:
+            out[key] = None if e is None else getattr(e, key).to_json()
+        out["kt"] = self.kt
+        out["kt_source"] = self.kt_source
+        out["delay_s"] = None if e is None else e.delay_s.to_json()
+        out["harmonics"] = None if e is None else [h.to_json() for h in e.harmonics]
+        out["metrics"] = self.metrics
+        out["fit"] = self.fit
+        out["model"] = self.model
+        if self.hall_angle is not None:
+            out["hall_angle"] = self.hall_angle
+        out["poles"] = self.poles
+        out["encoder_ppr"] = self.encoder_ppr
+        out["operating_point"] = {"speed_rpm": self.operating_point.speed_rpm, "i_qo_a": self.operating_point.i_qo_a}
+        out["segments"] = [dict(s) for s in self.segments]
+        out["sources"] = list(self.sources)
+        return out
+
+    @classmethod
+    def from_json(cls, rec: Any, source: str = "<result>", where: str = "") -> MotorResult:
+        """Check one ``motors`` entry and build it; :class:`ResultFormatError` names file, field and reason.
+
+        Parameters
+        ----------
+        rec : object
+            The decoded JSON entry.
+        source : str
+            File it came from, for errors.
+        where : str
+            Prefix of field names in errors (e.g. ``motors[0].``).
+        """
+        r = _Reader(source, where)
+        obj = r.obj(rec, "")
+        serial = r.string(obj, "serial")
+        status = r.string(obj, "status")
+        reasons = tuple(r.string_list(obj, "reasons"))
+        estimates = None
+        if status == "ok":
+            amp = {"k6": K6_MAX, "c6": C6_MAX}
+            vals = {k: r.value_ci(obj, k, (0.0, amp[k]) if k in amp else (-PHASE_MAX, PHASE_MAX)) for k in ESTIMATE_KEYS}
+            delay = r.value_ci(obj, "delay_s", (-DELAY_MAX, DELAY_MAX))
+            harmonics = tuple(r.harmonic(h, f"harmonics[{i}]") for i, h in enumerate(r.list(obj, "harmonics")))
+            estimates = FitEstimates(delay_s=delay, harmonics=harmonics, **vals)
+        else:
+            for k in (*ESTIMATE_KEYS, "delay_s", "harmonics"):
+                if obj.get(k, None) is not None:
+                    raise r.error(k, f"must be null when status is {status!r}")
+        op = r.obj(r.need(obj, "operating_point"), "operating_point")
+        return cls(
+            serial=serial, status=status, reasons=reasons, estimates=estimates,
+            kt=r.number(obj, "kt", (0.0, KT_MAX)), kt_source=r.string(obj, "kt_source"),
+            metrics=r.obj(r.need(obj, "metrics"), "metrics"), fit=r.obj(r.need(obj, "fit"), "fit"),
+            model=r.obj(r.need(obj, "model"), "model"),
+            hall_angle=None if "hall_angle" not in obj else r.obj(obj["hall_angle"], "hall_angle"),
+            poles=r.integer(obj, "poles"), encoder_ppr=r.integer(obj, "encoder_ppr"),
+            operating_point=OperatingPoint(r.number(op, "speed_rpm", None, "operating_point."),
+                                           r.number(op, "i_qo_a", None, "operating_point.")),
+            segments=tuple(r.obj(s, f"segments[{i}]") for i, s in enumerate(r.list(obj, "segments"))),
+            sources=tuple(r.string_list(obj, "sources")),
+        )
+
+
+class _Reader:
+    """Typed getters that raise :class:`ResultFormatError` with the file and the field."""
+
+    def __init__(self, source: str, where: str) -> None:
+        self.source = source
+        self.where = where
+
+    def error(self, field: str, reason: str) -> ResultFormatError:
+        return ResultFormatError(self.source, f"{self.where}{field}" or None, reason)
+
+    def need(self, obj: Mapping[str, Any], key: str, prefix: str = "") -> Any:
+        if key not in obj:
+            raise self.error(prefix + key, "missing")
+        return obj[key]
+
+    def obj(self, value: Any, field: str) -> dict[str, Any]:
+        if not isinstance(value, dict):
+            raise self.error(field, f"expected an object, got {_kind(value)}")
+        return value
+
+    def list(self, obj: Mapping[str, Any], key: str) -> list[Any]:
+        value = self.need(obj, key)
+        if not isinstance(value, list):
+            raise self.error(key, f"expected a list, got {_kind(value)}")
+        return value
+
+    def string(self, obj: Mapping[str, Any], key: str) -> str:
+        value = self.need(obj, key)
+        if not isinstance(value, str):
+            raise self.error(key, f"expected a string, got {_kind(value)}")
+        return value
+
+    def string_list(self, obj: Mapping[str, Any], key: str) -> list[str]:
+        value = self.list(obj, key)
+        if not all(isinstance(v, str) for v in value):
+            raise self.error(key, "expected a list of strings")
+        return value
+
+    def integer(self, obj: Mapping[str, Any], key: str) -> int:
+        value = self.need(obj, key)
+        if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+            raise self.error(key, f"expected a positive integer, got {value!r}")
+        return value
+
+    def number(self, obj: Mapping[str, Any], key: str, bounds: tuple[float, float] | None,
+               prefix: str = "", *, nullable: bool = False) -> Any:
+        value = self.need(obj, key, prefix)
+        if value is None and nullable:
+            return None
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise self.error(prefix + key, f"expected a number, got {_kind(value)} {value!r}")
+        if not math.isfinite(value):
+            raise self.error(prefix + key, f"not a finite number: {value!r}")
+        if bounds is not None and not bounds[0] <= value <= bounds[1]:
+            raise self.error(prefix + key, f"{value!r} outside the physical bounds [{bounds[0]:g}, {bounds[1]:g}]")
+        return value
+
+    def value_ci(self, obj: Mapping[str, Any], key: str, bounds: tuple[float, float]) -> ValueCi:
+        entry = self.need(obj, key)
+        if isinstance(entry, dict):
+            value = self.number(entry, "value", bounds, f"{key}.")
+            ci95 = self.number(entry, "ci95", (0.0, math.inf), f"{key}.", nullable=True)
+            return ValueCi(value, ci95)
+        # a bare number where {"value", "ci95"} belongs: judged as the value, so the reason is the real one
+        self.number(obj, key, bounds)
+        raise self.error(key, "expected an object {value, ci95}")
+
+    def harmonic(self, value: Any, field: str) -> Harmonic:
+        h = self.obj(value, field)
+        sub = _Reader(self.source, f"{self.where}{field}.")
+        order = sub.integer(h, "order")
+        parts: dict[str, ValueCi] = {}
+        for name in ("c", "phase_c", "k", "phase_k"):
+            if name in h:
+                bounds = {"c": (0.0, C6_MAX), "k": (0.0, K6_MAX)}.get(name, (-PHASE_MAX, PHASE_MAX))
+                parts[name] = sub.value_ci(h, name, bounds)
+        return Harmonic(order, **parts)
+
+
+def _kind(value: Any) -> str:
+    return {bool: "a boolean", str: "a string", type(None): "null", list: "a list", dict: "an object"}.get(
+        type(value), type(value).__name__)
