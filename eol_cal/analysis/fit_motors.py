@@ -8,16 +8,14 @@ reported with the phases in the firmware estimator's angle frame unless told oth
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
-
-import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit_capture import MotorInput
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
+from eol_cal.jsonsafe import json_safe
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams
 
@@ -94,19 +92,6 @@ class MotorsFit:
     @property
     def records(self) -> list[dict[str, Any]]:
         return self.doc["motors"]
-
-
-def json_safe(x: Any) -> Any:
-    """``x`` with non-finite floats as ``None`` and numpy scalars as Python ones (JSON has no NaN)."""
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, dict):
-        return {k: json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [json_safe(v) for v in x]
-    return x
 
 
 def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:

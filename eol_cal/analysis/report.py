@@ -6,19 +6,15 @@ prints it as a table or as JSON, the station and scripts use it directly.
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING, Any
+
+from eol_cal.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
 
 #: orders shown in the table (electrical); mechanical order 1 is added separately
 TOP_ORDERS = (6, 12, 18)
-
-
-def _finite(x: float) -> float | None:
-    """JSON has no NaN: undefined figures become null."""
-    return float(x) if math.isfinite(x) else None
 
 
 def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = None, fw_angle: bool = False) -> tuple[dict, Any]:
@@ -57,7 +53,7 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
 
     def order_entry(amp: float, phase: float) -> dict:
         pct = 100.0 * amp / abs(T_avg) if T_avg else float("nan")
-        return {"amplitude_nm": _finite(amp), "amplitude_pct": _finite(pct), "phase_rad": _finite(phase)}
+        return {"amplitude_nm": json_safe(float(amp)), "amplitude_pct": json_safe(float(pct)), "phase_rad": json_safe(float(phase))}
 
     top = {str(n): order_entry(spectrum.amplitude(n), spectrum.phase(n)) for n in TOP_ORDERS}
     top["mech1"] = order_entry(spectrum.mech1_amplitude_nm, spectrum.mech1_phase_rad)
@@ -69,11 +65,11 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
         "speed_rpm": ripple.speed_rpm,
         "T_avg_nm": T_avg,
         "ripple": {
-            "raw_pct": _finite(ripple.raw_pct),
-            "filtered_pct": _finite(ripple.filtered_pct),
-            "raw_pct_max": _finite(ripple.raw_pct_max),
-            "filtered_pct_max": _finite(ripple.filtered_pct_max),
-            "no_mech1_pct": _finite(ripple.no_mech1_pct),
+            "raw_pct": json_safe(float(ripple.raw_pct)),
+            "filtered_pct": json_safe(float(ripple.filtered_pct)),
+            "raw_pct_max": json_safe(float(ripple.raw_pct_max)),
+            "filtered_pct_max": json_safe(float(ripple.filtered_pct_max)),
+            "no_mech1_pct": json_safe(float(ripple.no_mech1_pct)),
             "raw_pp_nm": ripple.raw_pp_nm,
             "filtered_pp_nm": ripple.filtered_pp_nm,
             "window_revs": ripple.window_revs,
@@ -87,11 +83,11 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
                     "t_end": w.t_end,
                     "n_revs": w.n_revs,
                     "T_avg_nm": w.T_avg_nm,
-                    "raw_pct": _finite(w.raw_pct),
-                    "filtered_pct": _finite(w.filtered_pct),
-                    "no_mech1_pct": _finite(w.no_mech1_pct),
+                    "raw_pct": json_safe(float(w.raw_pct)),
+                    "filtered_pct": json_safe(float(w.filtered_pct)),
+                    "no_mech1_pct": json_safe(float(w.no_mech1_pct)),
                     "speed_rpm": w.speed_rpm,
-                    "i_qo_a": _finite(w.i_qo_a),
+                    "i_qo_a": json_safe(float(w.i_qo_a)),
                 }
                 for w in ripple.windows
             ],
@@ -102,8 +98,8 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
             "orders": [int(n) for n in spectrum.orders],
             "amplitude_nm": [float(a) for a in spectrum.amplitude_nm],
             "phase_rad": [float(p) for p in spectrum.phase_rad],
-            "mech1_amplitude_nm": _finite(spectrum.mech1_amplitude_nm),
-            "mech1_phase_rad": _finite(spectrum.mech1_phase_rad),
+            "mech1_amplitude_nm": json_safe(float(spectrum.mech1_amplitude_nm)),
+            "mech1_phase_rad": json_safe(float(spectrum.mech1_phase_rad)),
             "n_elec_revs": spectrum.n_elec_revs,
             "span_s": list(spectrum.span_s),
         },

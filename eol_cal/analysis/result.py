@@ -18,6 +18,7 @@ import numpy as np
 
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit
 from eol_cal.errors import InputError
+from eol_cal.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit_capture import MotorInput
@@ -70,12 +71,8 @@ def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits) -> tuple[str, list[str
     return (STATUS_CI_TOO_WIDE, reasons) if reasons else (STATUS_OK, [])
 
 
-def _num(x: float) -> float | None:
-    return float(x) if math.isfinite(x) else None
-
-
 def _vc(value: float, ci95: float) -> dict[str, float | None]:
-    return {"value": _num(value), "ci95": _num(ci95)}
+    return {"value": json_safe(float(value)), "ci95": json_safe(float(ci95))}
 
 
 def _estimates(e: Estimate, amp: str, phase: str) -> dict[str, Any]:
@@ -132,11 +129,11 @@ def motor_record(
     rec["harmonics"] = harmonics if usable else None
     rec["metrics"] = metrics
     rec["fit"] = {
-        "rms": _num(fit.rms),
-        "r2": _num(fit.r2),
+        "rms": json_safe(float(fit.rms)),
+        "r2": json_safe(float(fit.r2)),
         "converged": fit.converged,
         "steps": fit.steps,
-        "birge": _num(fit.birge),
+        "birge": json_safe(float(fit.birge)),
         "n_samples": fit.n_samples,
         "n_segments": len(segments),
         "solver": spec.solver,

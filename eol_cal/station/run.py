@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
-from eol_cal.analysis.fit_motors import json_safe
+from eol_cal.jsonsafe import json_safe
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.interrupts import shielded
 from eol_cal.mechanics import BenchMechanics, load_mechanics
