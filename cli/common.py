@@ -107,3 +107,21 @@ def handle_errors(func: Callable) -> Callable:
 def print_json(obj: Any) -> None:
     """Machine output: one JSON document on stdout, keys as documented in docs/json.md."""
     click.echo(json.dumps(obj, indent=2, sort_keys=False, allow_nan=False))
+
+
+class RecordsDb(click.ParamType):
+    """A records database: a SQLite file path, or a ``postgresql://user@host:port/db`` URL (kept as text)."""
+
+    name = "PATH|URL"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> "str | Path":
+        from pathlib import Path
+
+        if isinstance(value, Path) or "://" in str(value):
+            return value
+        if Path(value).is_dir():
+            self.fail(f"{value}: is a directory, expected a database file or URL", param, ctx)
+        return Path(value)
+
+
+RECORDS_DB = RecordsDb()

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import console, handle_errors
+from cli.common import RECORDS_DB, console, handle_errors
 
 
 def _date(value: str | None, name: str):
@@ -28,7 +28,7 @@ def lot_group() -> None:
 
 
 @lot_group.command("report")
-@click.option("--db", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Records database.")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.option("--variant", default=None, help="Only this product variant.")
 @click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
 @click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
@@ -42,12 +42,12 @@ def report_cmd(db, variant, since, until, station, out) -> None:
     offline in a browser."""
     from eol_cal.errors import InputError
     from eol_cal.report.lot import select_records, write_lot_page
-    from eol_cal.station.records import query_records
+    from eol_cal.station.records import db_label, query_records
 
     first, last = _date(since, "since"), _date(until, "until")
     records = select_records(query_records(db), variant, first, last, station)
     try:
-        path = write_lot_page(records, out, title=db.name,
+        path = write_lot_page(records, out, title=db_label(db),
                               filters={"variant": variant, "since": since, "until": until, "station": station})
     except OSError as exc:
         raise InputError(str(out), None, f"cannot write: {exc.strerror or exc}") from None

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import CommandExit, console, err_console, handle_errors, print_json
+from cli.common import RECORDS_DB, CommandExit, console, err_console, handle_errors, print_json
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = """\
@@ -130,7 +130,7 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 @click.option("--can-config", type=click.Path(dir_okay=False), help="python-can configuration file; options given here win.")
 @click.option("--limits", "limits_file", required=True, type=click.Path(dir_okay=False), help="Limits TOML ([variant.NAME] tables).")
 @click.option("--variant", default=None, help="Product variant in the limits file (default: its default_variant or only one).")
-@click.option("--db", required=True, type=click.Path(dir_okay=False, path_type=Path), help="SQLite database of run records (WAL).")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file (WAL) or postgresql://user@host:port/db.")
 @click.option("--serial", required=True, help="Serial of the motor on the dyno (1-16 ASCII characters).")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile or a TOML profile file.")
 @click.option("--verify", type=click.Choice(["point", "full"]), default="point", show_default=True,
@@ -207,8 +207,10 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
               show_default=True, help="Directory for the database, reports, captures and flash images.")
 @click.option("--profile", default="eol-default", show_default=True, help="Test profile.")
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
+@click.option("--db", default=None, type=RECORDS_DB,
+              help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
 @handle_errors
-def demo_cmd(motors, out_dir, profile, seed) -> None:
+def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
     Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
@@ -234,7 +236,7 @@ def demo_cmd(motors, out_dir, profile, seed) -> None:
     except OSError as exc:
         raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
     limits = load_limits(limits_path)
-    db = out_dir / "results.sqlite"
+    db = out_dir / "results.sqlite" if db is None else db
     _quiet_logs()
     enable_jax_cache()
     t0 = time.perf_counter()
@@ -260,9 +262,9 @@ def demo_cmd(motors, out_dir, profile, seed) -> None:
     wall = time.perf_counter() - t0
     console.print(_results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
     from eol_cal.report.lot import write_lot_page
-    from eol_cal.station.records import query_records
+    from eol_cal.station.records import db_label, query_records
 
-    lot_page = write_lot_page(query_records(db), out_dir / "lot.html", title=f"{db.name} (eol-cal demo)",
+    lot_page = write_lot_page(query_records(db), out_dir / "lot.html", title=f"{db_label(db)} (eol-cal demo)",
                               filters={"variant": None, "since": None, "until": None, "station": None})
     console.print("per-motor reports (one self-contained file each; open in a browser):")
     for o in outcomes:
@@ -285,19 +287,25 @@ def _day(value: str | None) -> str | None:
         raise click.BadParameter(f"{value!r}: expected YYYY-MM-DD") from None
 
 
-@click.command("records")
-@click.option("--db", default="results.sqlite", show_default=True, type=click.Path(dir_okay=False, path_type=Path), help="Records database.")
+@click.group("records", invoke_without_command=True)
+@click.option("--db", default="results.sqlite", show_default=True, type=RECORDS_DB,
+              help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.option("--serial", default=None, help="Only this motor.")
 @click.option("--day", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day.")
 @click.option("--json", "as_json", is_flag=True, help="Print the records and the summary as JSON.")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False, path_type=Path), help="PNG of k6 and p-p %% across the lot.")
 @click.option("--flush", is_flag=True, help="First write spooled records into the database.")
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Spool directory (as for run).")
+@click.pass_context
 @handle_errors
-def records_cmd(db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
-    """Query run records: by serial or day, the pass rate, and a plot across the lot."""
-    from eol_cal.station.records import flush_spool, query_records, summarise
+def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
+    """Query run records: by serial or day, the pass rate, and a plot across the lot.
 
+    `eol-cal records migrate --db DB` brings a database to this version's schema."""
+    from eol_cal.station.records import db_label, flush_spool, query_records, summarise
+
+    if ctx.invoked_subcommand is not None:
+        return
     day = _day(day)
     if flush:
         res = flush_spool(db, spool_dir)
@@ -314,16 +322,32 @@ def records_cmd(db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
     if plot_file is not None:
         from eol_cal.station.report import plot_lot
 
-        plot_lot(plot_file, records, title=f"{db.name}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))
+        plot_lot(plot_file, records, title=f"{db_label(db)}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))
     if as_json:
         print_json({"summary": summary, "records": records})
         return
-    console.print(_results_table(records, f"{db}: {summary['runs']} run(s)"))
+    console.print(_results_table(records, f"{db_label(db)}: {summary['runs']} run(s)"))
     rate = "-" if summary["pass_rate"] is None else f"{100 * summary['pass_rate']:.1f} %"
     console.print(f"pass {summary['pass']}, fail {summary['fail']}, error {summary['error']}; pass rate {rate} "
                   f"(of runs that ended pass or fail); motors {summary['motors']}")
     if plot_file is not None:
         console.print(f"plot: {plot_file}")
+
+
+@records_cmd.command("migrate")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
+@handle_errors
+def migrate_cmd(db) -> None:
+    """Create the records tables, or bring an older database to this version's schema."""
+    from eol_cal.errors import InputError
+    from eol_cal.station.records import DB_ERRORS, db_label, migrate
+
+    try:
+        before, now = migrate(db)
+    except DB_ERRORS as exc:
+        raise InputError(db_label(db), None, f"cannot migrate: {str(exc).splitlines()[0]}") from None
+    what = "created" if before is None else ("already at" if before == now else f"migrated from version {before} to")
+    console.print(f"{db_label(db)}: {what} schema version {now}")
 
 
 COMMANDS = [run_cmd, demo_cmd, records_cmd]

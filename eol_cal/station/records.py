@@ -1,70 +1,208 @@
-"""Run records: SQLite in WAL mode, with a local spool so that no record is ever lost.
+"""Run records: one interface, two backends (SQLite file, PostgreSQL URL), and a local spool
+so that no record is ever lost.
 
-One row per motor run in table ``runs`` (columns in ``docs/station.md``): serial, variant,
-start/end times (UTC ISO 8601), capture paths and SHA-256, the fit record (JSON), the block's
-CRC and sequence, tool and layout versions, verdict and reasons, plus the whole record as JSON.
+The database layer is SQLAlchemy Core 2.x (with psycopg 3 for PostgreSQL): the same table,
+the same idempotent insert (``ON CONFLICT (run_id) DO NOTHING``) and the same queries on both.
+``db`` is a file path (SQLite, WAL mode, the embedded default) or a URL
+``postgresql://user@host:port/dbname`` (``postgresql+psycopg://`` is implied).
+
+One row per motor run in table ``runs`` (columns in ``docs/records.md``): serial, variant,
+station, operator, start/end times (UTC ISO 8601), verdict and reasons, k6, phase_k6, c6, the
+peak-to-peak ripple before/after, capture paths and SHA-256, the fit record (JSON), the block's
+CRC and sequence, tool and layout versions, plus the whole record as JSON. Table
+``schema_version`` holds :data:`SCHEMA_VERSION`; a database written before it existed
+(version 1) is brought up by :func:`migrate`.
 
 When the database cannot be written - locked beyond the timeout, its directory missing (a share
-not mounted), read-only, corrupt - the record is written as one JSON file into the spool
-directory (atomically: temp file, fsync, rename) and inserted later by :func:`flush_spool`
-(the next run does it first; ``eol-cal records --flush`` does it by hand). The insert is keyed by
-the record's ``run_id``, so a flush interrupted between the insert and the spool file's removal
-inserts nothing twice.
+not mounted), the server down, read-only, corrupt - the record is written as one JSON file into
+the spool directory (atomically: temp file, fsync, rename) and inserted later by
+:func:`flush_spool`. The insert is keyed by the record's ``run_id``, so a flush interrupted
+between the insert and the spool file's removal inserts nothing twice, and many writers at once
+neither lose nor duplicate a record.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import sqlite3
+import threading
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
+
+import sqlalchemy as sa
+from sqlalchemy import event
+from sqlalchemy.dialects import postgresql as pg_dialect
+from sqlalchemy.dialects import sqlite as sqlite_dialect
+from sqlalchemy.engine import Connection, Engine
+from sqlalchemy.pool import NullPool
 
 from eol_cal.errors import EolCalError, InputError
 
 RECORD_SCHEMA = "eol-cal/run-record/1"
 SPOOL_SCHEMA = "eol-cal/spooled-record/1"
-#: seconds a write waits for another connection's lock before the record goes to the spool
+#: the database layout this code writes (1: the SQLite table of eol-cal before schema_version)
+SCHEMA_VERSION = 2
+#: seconds a write waits for another connection's lock (or for the server) before spooling
 DEFAULT_LOCK_TIMEOUT_S = 5.0
 
-_COLUMNS = (
-    ("run_id", "TEXT PRIMARY KEY"),
-    ("serial", "TEXT NOT NULL"),
-    ("variant", "TEXT"),
-    ("started_at", "TEXT NOT NULL"),
-    ("ended_at", "TEXT"),
-    ("verdict", "TEXT NOT NULL CHECK (verdict IN ('pass', 'fail', 'error'))"),
-    ("reasons", "TEXT NOT NULL"),
-    ("k6", "REAL"),
-    ("phase_k6", "REAL"),
-    ("c6", "REAL"),
-    ("pp_before_pct", "REAL"),
-    ("pp_after_pct", "REAL"),
-    ("improvement_pct", "REAL"),
-    ("capture_before", "TEXT"),
-    ("sha256_before", "TEXT"),
-    ("capture_after", "TEXT"),
-    ("sha256_after", "TEXT"),
-    ("fit_json", "TEXT"),
-    ("block_crc32", "TEXT"),
-    ("block_sequence", "INTEGER"),
-    ("tool_version", "TEXT"),
-    ("layout_version", "INTEGER"),
-    ("report_dir", "TEXT"),
-    ("record_json", "TEXT NOT NULL"),
+_metadata = sa.MetaData()
+runs = sa.Table(
+    "runs", _metadata,
+    sa.Column("run_id", sa.Text, primary_key=True),
+    sa.Column("serial", sa.Text, nullable=False),
+    sa.Column("variant", sa.Text),
+    sa.Column("started_at", sa.Text, nullable=False),
+    sa.Column("ended_at", sa.Text),
+    sa.Column("verdict", sa.Text, sa.CheckConstraint("verdict IN ('pass', 'fail', 'error')"), nullable=False),
+    sa.Column("reasons", sa.Text, nullable=False),
+    sa.Column("k6", sa.Float),
+    sa.Column("phase_k6", sa.Float),
+    sa.Column("c6", sa.Float),
+    sa.Column("pp_before_pct", sa.Float),
+    sa.Column("pp_after_pct", sa.Float),
+    sa.Column("improvement_pct", sa.Float),
+    sa.Column("capture_before", sa.Text),
+    sa.Column("sha256_before", sa.Text),
+    sa.Column("capture_after", sa.Text),
+    sa.Column("sha256_after", sa.Text),
+    sa.Column("fit_json", sa.Text),
+    sa.Column("block_crc32", sa.Text),
+    sa.Column("block_sequence", sa.Integer),
+    sa.Column("tool_version", sa.Text),
+    sa.Column("layout_version", sa.Integer),
+    sa.Column("report_dir", sa.Text),
+    sa.Column("record_json", sa.Text, nullable=False),
+    # version 2
+    sa.Column("station", sa.Text),
+    sa.Column("operator", sa.Text),
+    sa.Index("runs_serial", "serial"),
+    sa.Index("runs_started", "started_at"),
+    sa.Index("runs_variant_station", "variant", "station"),
 )
-COLUMN_NAMES = tuple(c for c, _ in _COLUMNS)
-_CREATE = (
-    f"CREATE TABLE IF NOT EXISTS runs ({', '.join(f'{c} {t}' for c, t in _COLUMNS)});"
-    "CREATE INDEX IF NOT EXISTS runs_serial ON runs (serial);"
-    "CREATE INDEX IF NOT EXISTS runs_started ON runs (started_at);"
-)
+schema_version = sa.Table("schema_version", _metadata, sa.Column("version", sa.Integer, nullable=False))
+COLUMN_NAMES = tuple(c.name for c in runs.columns)
+#: columns added by each migration (version: [(name, type)])
+_ADDED = {2: [("station", "TEXT"), ("operator", "TEXT")]}
 
 
 class RecordError(EolCalError):
     """Neither the database nor the spool could take a record (exit code 2)."""
+
+
+class SchemaError(EolCalError):
+    """The database holds an older (or newer) layout than this code writes (exit code 2)."""
+
+
+#: what a write may raise when the database is unavailable (the caller spools)
+DB_ERRORS = (sa.exc.SQLAlchemyError, sqlite3.Error, OSError, SchemaError)
+
+
+def is_url(db: str | Path) -> bool:
+    """True for a database URL (``postgresql://...``), False for a SQLite file path."""
+    return "://" in str(db)
+
+
+def db_key(db: str | Path) -> str:
+    """The identity of a database in the spool: the absolute file path, or the URL without password."""
+    if not is_url(db):
+        return str(Path(db).resolve())
+    return sa.engine.make_url(_sa_url(str(db))).render_as_string(hide_password=True)
+
+
+def db_label(db: str | Path) -> str:
+    """A name of the database for titles and messages (no password)."""
+    return db_key(db) if is_url(db) else Path(db).name
+
+
+def _sa_url(url: str) -> str:
+    # psycopg 3 is the driver; a plain postgresql:// URL means it
+    for plain in ("postgresql://", "postgres://"):
+        if url.startswith(plain):
+            return "postgresql+psycopg://" + url[len(plain):]
+    return url
+
+
+_engines: dict[tuple[str, float], Engine] = {}
+_engines_lock = threading.Lock()
+
+
+def _server_engine(url: str, timeout_s: float) -> Engine:
+    # one pooled engine per URL and process: a station writes one record a minute, a benchmark many
+    key = (url, timeout_s)
+    with _engines_lock:
+        eng = _engines.get(key)
+        if eng is None or eng.pool is None:
+            eng = sa.create_engine(_sa_url(url), pool_pre_ping=True, pool_size=2, max_overflow=4,
+                                   connect_args={"connect_timeout": max(1, int(round(timeout_s)))})
+            _engines[key] = eng
+    return eng
+
+
+def _sqlite_engine(db: Path, timeout_s: float, readonly: bool) -> Engine:
+    if readonly:
+        url = f"sqlite:///file:{db.resolve()}?mode=ro&uri=true"
+    else:
+        url = f"sqlite:///{db}"
+    eng = sa.create_engine(url, poolclass=NullPool, connect_args={"timeout": timeout_s})
+
+    @event.listens_for(eng, "connect")
+    def _connect(dbapi_con, _rec) -> None:
+        # explicit transactions: BEGIN IMMEDIATE takes the write lock up front, so a locked
+        # database fails here after the timeout, not half-way through
+        dbapi_con.isolation_level = None
+        if not readonly:
+            mode = dbapi_con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
+            if str(mode).lower() != "wal":
+                raise sqlite3.OperationalError(f"cannot switch the database to WAL mode (journal_mode={mode})")
+            dbapi_con.execute("PRAGMA synchronous=FULL")
+            dbapi_con.execute(f"PRAGMA busy_timeout={int(timeout_s * 1000)}")
+
+    @event.listens_for(eng, "begin")
+    def _begin(con: Connection) -> None:
+        con.exec_driver_sql("BEGIN" if readonly else "BEGIN IMMEDIATE")
+
+    return eng
+
+
+def engine(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S, readonly: bool = False) -> Engine:
+    """The SQLAlchemy engine of a records database (file path or URL)."""
+    if is_url(db):
+        return _server_engine(str(db), timeout_s)
+    db = Path(db)
+    if not readonly and not db.parent.is_dir():
+        # sqlite would say "unable to open database file"; say which directory is missing
+        raise sqlite3.OperationalError(f"directory {db.parent} does not exist")
+    return _sqlite_engine(db, timeout_s, readonly)
+
+
+def _dispose(eng: Engine, db: str | Path) -> None:
+    if not is_url(db):
+        eng.dispose()
+
+
+def _version(con: Connection) -> int | None:
+    """The layout of the database: None when empty, 1 for the table without schema_version."""
+    insp = sa.inspect(con)
+    if insp.has_table("schema_version"):
+        v = con.execute(sa.select(sa.func.max(schema_version.c.version))).scalar()
+        return int(v) if v is not None else 1
+    return 1 if insp.has_table("runs") else None
+
+
+def _ensure_schema(con: Connection) -> None:
+    v = _version(con)
+    if v is None and con.dialect.name == "postgresql":
+        # two stations writing the first record of a new database at once: one creates
+        con.execute(sa.text("SELECT pg_advisory_xact_lock(7413001)"))
+        v = _version(con)
+    if v is None:
+        _metadata.create_all(con)
+        con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
+    elif v != SCHEMA_VERSION:
+        raise SchemaError(f"records database at schema version {v}, this tool writes version "
+                          f"{SCHEMA_VERSION}: migrate it first")
 
 
 def default_spool_dir() -> Path:
@@ -80,7 +218,7 @@ def default_spool_dir() -> Path:
     return Path(state) / "eol-cal" / "spool"
 
 
-def _row(record: dict[str, Any]) -> tuple:
+def _row(record: dict[str, Any]) -> dict[str, Any]:
     def get(*keys: str) -> Any:
         x: Any = record
         for k in keys:
@@ -115,57 +253,76 @@ def _row(record: dict[str, Any]) -> tuple:
         "layout_version": record.get("layout_version"),
         "report_dir": record.get("report_dir"),
         "record_json": json.dumps(record, allow_nan=False),
+        "station": _station_of(record),
+        "operator": record.get("operator") or get("station", "operator"),
     }
-    return tuple(values[c] for c in COLUMN_NAMES)
+    return values
 
 
-@contextlib.contextmanager
-def _connect(db: Path, timeout_s: float, readonly: bool = False) -> Iterator[sqlite3.Connection]:
-    # isolation_level=None: transactions are explicit (BEGIN IMMEDIATE takes the write lock up
-    # front, so a locked database fails here after the timeout, not half-way through)
-    if readonly:
-        con = sqlite3.connect(f"{db.resolve().as_uri()}?mode=ro", uri=True, timeout=timeout_s, isolation_level=None)
-    else:
-        con = sqlite3.connect(str(db), timeout=timeout_s, isolation_level=None)
-    try:
-        yield con
-    finally:
-        con.close()
+def _station_of(record: dict[str, Any]) -> str | None:
+    # the station id as the reports read it (one rule); the column is NULL without one
+    from eol_cal.report.motor import NO_STATION, station_of
+
+    name = station_of(record)
+    return None if name == NO_STATION else name
 
 
-def _prepare(con: sqlite3.Connection) -> None:
-    mode = con.execute("PRAGMA journal_mode=WAL").fetchone()[0]
-    if str(mode).lower() != "wal":
-        raise sqlite3.OperationalError(f"cannot switch the database to WAL mode (journal_mode={mode})")
-    con.execute("PRAGMA synchronous=FULL")
-    con.executescript(_CREATE)
+def _insert(con: Connection, rows: list[dict[str, Any]]) -> int:
+    dialect = pg_dialect if con.dialect.name == "postgresql" else sqlite_dialect
+    stmt = dialect.insert(runs).on_conflict_do_nothing(index_elements=["run_id"]).returning(runs.c.run_id)
+    return len(con.execute(stmt, rows).all()) if rows else 0
 
 
 def insert_records(db: str | Path, records: list[dict[str, Any]], timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> int:
     """Insert records in one transaction; an existing ``run_id`` is left as it is.
 
-    Returns the number of rows inserted. Raises :class:`sqlite3.Error` (or :class:`OSError`)
-    when the database cannot be written; the caller decides to spool.
+    Returns the number of rows inserted. Raises one of :data:`DB_ERRORS` when the database
+    cannot be written; the caller decides to spool.
     """
-    db = Path(db)
-    if not db.parent.is_dir():
-        # sqlite would say "unable to open database file"; say which directory is missing
-        raise sqlite3.OperationalError(f"directory {db.parent} does not exist")
-    with _connect(db, timeout_s) as con:
-        con.execute(f"PRAGMA busy_timeout={int(timeout_s * 1000)}")
-        _prepare(con)
-        con.execute("BEGIN IMMEDIATE")
-        try:
-            before = con.total_changes
-            con.executemany(f"INSERT OR IGNORE INTO runs ({', '.join(COLUMN_NAMES)}) VALUES "
-                            f"({', '.join('?' * len(COLUMN_NAMES))})", [_row(r) for r in records])
-            n = con.total_changes - before
-            con.execute("COMMIT")
-        except BaseException:
-            with contextlib.suppress(sqlite3.Error):
-                con.execute("ROLLBACK")
-            raise
-    return n
+    rows = [_row(r) for r in records]
+    eng = engine(db, timeout_s)
+    try:
+        with eng.begin() as con:
+            _ensure_schema(con)
+            return _insert(con, rows)
+    finally:
+        _dispose(eng, db)
+
+
+def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[int | None, int]:
+    """Bring a records database to :data:`SCHEMA_VERSION` (creating it when empty).
+
+    Version 1 (the SQLite table before ``schema_version``) gains the columns ``station`` and
+    ``operator``, filled from each row's record JSON. Returns ``(version before, version now)``;
+    ``before`` is None for a new database.
+    """
+    eng = engine(db, timeout_s)
+    try:
+        with eng.begin() as con:
+            if con.dialect.name == "postgresql":
+                con.execute(sa.text("SELECT pg_advisory_xact_lock(7413001)"))
+            v = _version(con)
+            if v is None:
+                _metadata.create_all(con)
+                con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
+                return None, SCHEMA_VERSION
+            if v > SCHEMA_VERSION:
+                raise SchemaError(f"records database at schema version {v} is newer than this tool "
+                                  f"({SCHEMA_VERSION})")
+            for step in range(v + 1, SCHEMA_VERSION + 1):
+                for name, typ in _ADDED.get(step, []):
+                    con.exec_driver_sql(f"ALTER TABLE runs ADD COLUMN {name} {typ}")
+            if v < 2:
+                for run_id, doc in con.execute(sa.select(runs.c.run_id, runs.c.record_json)).all():
+                    row = _row(json.loads(doc))
+                    con.execute(runs.update().where(runs.c.run_id == run_id)
+                                .values(station=row["station"], operator=row["operator"]))
+            _metadata.create_all(con)  # the new table and indexes; existing ones are kept
+            con.execute(schema_version.delete())
+            con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
+            return v, SCHEMA_VERSION
+    finally:
+        _dispose(eng, db)
 
 
 def spool_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path, why: str) -> Path:
@@ -174,7 +331,7 @@ def spool_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path, 
 
     spool_dir = Path(spool_dir)
     spool_dir.mkdir(parents=True, exist_ok=True)
-    doc = {"schema": SPOOL_SCHEMA, "db": str(Path(db).resolve()), "why": why, "record": record}
+    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record}
     path = spool_dir / f"{record['run_id']}.json"
     atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
     return path
@@ -202,8 +359,8 @@ def save_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path | 
     try:
         insert_records(db, [record], timeout_s)
         return SaveResult("db", str(db))
-    except (sqlite3.Error, OSError) as exc:
-        why = f"{type(exc).__name__}: {exc}"
+    except DB_ERRORS as exc:
+        why = f"{type(exc).__name__}: {_oneline(exc)}"
     try:
         path = spool_record(record, db, spool_dir, why)
     except OSError as exc:
@@ -251,7 +408,7 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
     spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
     if not spool_dir.is_dir():
         return FlushResult(0, 0, 0, 0)
-    target = str(Path(db).resolve())
+    target = db_key(db)
     mine, others = [], 0
     spooled, bad = _spooled(spool_dir)
     for path, doc in spooled:
@@ -263,33 +420,58 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
         return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
     try:
         n = insert_records(db, [r for _p, r in mine], timeout_s)
-    except (sqlite3.Error, OSError, KeyError) as exc:
-        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {exc}", tuple(bad))
+    except (*DB_ERRORS, KeyError) as exc:
+        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {_oneline(exc)}", tuple(bad))
     for path, _r in mine:
         path.unlink(missing_ok=True)
     return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad))
 
 
+def _oneline(exc: BaseException) -> str:
+    # SQLAlchemy appends the SQL and a link on further lines; the first line says why
+    if isinstance(exc, sa.exc.StatementError) and exc.orig is not None:
+        exc = exc.orig
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
+def select_runs(variant: str | None = None, station: str | None = None, since: str | None = None,
+                until: str | None = None, serial: str | None = None, day: str | None = None) -> sa.Select:
+    """The ``runs`` rows matching the filters, oldest first (days are UTC ``YYYY-MM-DD``, inclusive)."""
+    q = sa.select(runs)
+    day_of = sa.func.substr(runs.c.started_at, 1, 10)
+    for col, value in ((runs.c.variant, variant), (runs.c.station, station), (runs.c.serial, serial), (day_of, day)):
+        if value is not None:
+            q = q.where(col == value)
+    if since is not None:
+        q = q.where(day_of >= since)
+    if until is not None:
+        q = q.where(day_of <= until)
+    return q.order_by(runs.c.started_at, runs.c.run_id)
+
+
+def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Any]]:
+    """Rows of ``query`` as dicts; :class:`InputError` when the database is missing or unreadable."""
+    if not is_url(db) and not Path(db).exists():
+        raise InputError(str(db), None, "database not found")
+    try:
+        eng = engine(db, timeout_s, readonly=True)
+        try:
+            with eng.connect() as con:
+                return [dict(r._mapping) for r in con.execute(query)]
+        finally:
+            _dispose(eng, db)
+    except DB_ERRORS as exc:
+        raise InputError(db_label(db), None, f"cannot read the records: {_oneline(exc)}") from None
+
+
 def query_records(db: str | Path, serial: str | None = None, day: str | None = None,
                   timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Any]]:
-    """Records (the stored JSON documents) by serial and/or UTC day ``YYYY-MM-DD``, oldest first."""
-    db = Path(db)
-    if not db.exists():
-        raise InputError(str(db), None, "database not found")
-    where, args = [], []
-    if serial is not None:
-        where.append("serial = ?")
-        args.append(serial)
-    if day is not None:
-        where.append("substr(started_at, 1, 10) = ?")
-        args.append(day)
-    sql = "SELECT record_json FROM runs" + (f" WHERE {' AND '.join(where)}" if where else "") + " ORDER BY started_at, run_id"
-    try:
-        with _connect(db, timeout_s, readonly=True) as con:
-            rows = con.execute(sql, args).fetchall()
-    except sqlite3.Error as exc:
-        raise InputError(str(db), None, f"cannot read the records: {exc}") from None
-    return [json.loads(r[0]) for r in rows]
+    """Records (the stored JSON documents) by serial and/or UTC day ``YYYY-MM-DD``, oldest first.
+
+    Works on every schema version (it reads only the record JSON).
+    """
+    q = select_runs(serial=serial, day=day).with_only_columns(runs.c.record_json)
+    return [json.loads(r["record_json"]) for r in read_rows(db, q, timeout_s)]
 
 
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:

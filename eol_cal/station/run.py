@@ -101,7 +101,7 @@ class StationConfig:
     open_bus: Callable[[], Any]
     seed_to_key: Callable[[bytes], bytes]
     limits: VariantLimits
-    db: Path
+    db: "Path | str"
     report_dir: Path
     profile: str = "eol-default"
     verify: str = "point"
