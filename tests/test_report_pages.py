@@ -63,7 +63,7 @@ def fitted():
     from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit_capture import motor_inputs
     from eol_cal.capture.synthetic import synthetic_capture
-    from eol_cal.station.run import point_ripple
+    from eol_cal.analysis.point_metrics import point_ripple
 
     points = [(120.0, 20.0), (120.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
     caps = [synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.5, seed=i, theta_r0=0.7 * i, serial="R-1",

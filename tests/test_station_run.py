@@ -302,7 +302,7 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
 def test_verification_segments_are_the_operating_point_in_both_directions():
     from eol_cal.dyno.client import setpoints_from_profile
     from eol_cal.plant.profile import load_profile
-    from eol_cal.station.run import verify_segments
+    from eol_cal.analysis.point_metrics import verify_segments
 
     segs = setpoints_from_profile(load_profile("eol-default"))
     chosen = verify_segments(segs, 60.0, 65.0)

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.analysis.fit_capture import MotorInput
     from eol_cal.analysis.spectrum import OrderSpectrum
-    from eol_cal.station.run import PointRipple
+    from eol_cal.analysis.point_metrics import PointRipple
 
 #: the fit of one motor as the report draws it: its inputs, its fit and the model
 FitExtra = tuple["MotorInput", "MotorFit", "FitSpec"]
@@ -210,7 +210,7 @@ def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: Fit
     rec : dict
         The run record (operating point).
     point_ripple : (PointRipple, PointRipple)
-        Before and compensated (:class:`eol_cal.station.run.PointRipple`, with ``theta_r``).
+        Before and compensated (:class:`eol_cal.analysis.point_metrics.PointRipple`, with ``theta_r``).
     fit_extra : (MotorInput, MotorFit, FitSpec) or None
         The fit, for the fitted ripple drawn over both.
     """
