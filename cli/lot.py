@@ -54,4 +54,75 @@ def report_cmd(db, variant, since, until, station, out) -> None:
     console.print(f"lot page: {path} ({len(records)} runs)")
 
 
+def _fmt(x, digits: int = 4) -> str:
+    return "-" if x is None else f"{x:.{digits}g}"
+
+
+@lot_group.command("stats")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
+@click.option("--variant", default=None, help="Only this product variant.")
+@click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
+@click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
+@click.option("--station", default=None, help="Only this station.")
+@click.option("--json", "as_json", is_flag=True, help="Print the statistics as one JSON document.")
+@click.option("--csv", "csv_file", default=None, type=click.Path(dir_okay=False, path_type=Path),
+              help="Also write the selected runs (one row each, the database's columns) as CSV.")
+@handle_errors
+def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
+    """Lot statistics: per quantity count, mean, sd, percentiles and Cp/Cpk against the variant's
+    limit; first-pass yield; failure causes as a Pareto; individuals / moving-range control
+    limits per station."""
+    from cli.common import print_json
+    from eol_cal.lot.summary import lot_summary, write_runs_csv
+    from eol_cal.station.records import db_label, query_rows
+
+    first, last = _date(since, "since"), _date(until, "until")
+    rows = query_rows(db, variant=variant, station=station, since=first and first.isoformat(),
+                      until=last and last.isoformat())
+    records = [r["record"] for r in rows]
+    doc = lot_summary(records)
+    if csv_file is not None:
+        from eol_cal.errors import InputError
+
+        try:
+            write_runs_csv(csv_file, rows)
+        except OSError as exc:
+            raise InputError(str(csv_file), None, f"cannot write: {exc.strerror or exc}") from None
+    if as_json:
+        print_json({"db": db_label(db), "filters": {"variant": variant, "since": since, "until": until,
+                                                     "station": station}, **doc})
+        return
+    from rich.table import Table
+
+    fpy = doc["first_pass_yield"]
+    console.print(f"{db_label(db)}: {doc['runs']} run(s) of {doc['motors']} motor(s); pass {doc['verdicts']['pass']}, "
+                  f"fail {doc['verdicts']['fail']}, error {doc['verdicts']['error']}; first-pass yield "
+                  + ("-" if fpy is None else f"{100 * fpy:.1f} %"))
+    t = Table(title="quantities")
+    for col in ("quantity", "unit", "n", "mean", "sd", "p5", "p50", "p95", "limit", "Cp", "Cpk", "Ppk"):
+        t.add_column(col, justify="left" if col in ("quantity", "unit") else "right")
+    for q in doc["quantities"]:
+        p = q["percentiles"]
+        t.add_row(q["title"], q["unit"], str(q["count"]), _fmt(q["mean"]), _fmt(q["sd"], 3), _fmt(p["p5"]),
+                  _fmt(p["p50"]), _fmt(p["p95"]), _fmt(q["limit"]), _fmt(q["cp"], 3), _fmt(q["cpk"], 3), _fmt(q["ppk"], 3))
+    console.print(t)
+    if doc["pareto"]:
+        t = Table(title="failure causes (Pareto)")
+        for col in ("cause", "runs", "cumulative"):
+            t.add_column(col, justify="left" if col == "cause" else "right")
+        for c in doc["pareto"]:
+            t.add_row(c["cause"], str(c["runs"]), f"{100 * c['cumulative']:.0f} %")
+        console.print(t)
+    t = Table(title="control limits per station (I-MR)")
+    for col in ("station", "quantity", "runs", "centre", "LCL", "UCL", "MR centre", "MR UCL"):
+        t.add_column(col, justify="left" if col in ("station", "quantity") else "right")
+    for st, qs in doc["control"].items():
+        for key, cl in qs.items():
+            t.add_row(st, key, str(cl["runs"]), _fmt(cl["center"]), _fmt(cl["lcl"]), _fmt(cl["ucl"]),
+                      _fmt(cl["mr_center"]), _fmt(cl["mr_ucl"]))
+    console.print(t)
+    if csv_file is not None:
+        console.print(f"csv: {csv_file} ({len(rows)} runs)")
+
+
 COMMANDS = [lot_group]

@@ -1,0 +1,64 @@
+"""`eol-cal lot stats` on both backends: Cpk, control limits, yield and Pareto of a small lot
+against values computed by hand; filters; the CSV export."""
+
+from __future__ import annotations
+
+import csv
+import json
+import uuid
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal.station.records import insert_records
+
+
+def rec(serial: str, hour: int, k6_mnm: float, station: str, verdict: str = "pass", reasons=(), variant="EPS-STD"):
+    t = f"2026-11-22T{hour:02d}:00:00.000+00:00"
+    return {"schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": serial, "started_at": t,
+            "ended_at": t, "verdict": verdict, "reasons": list(reasons), "station": {"id": station},
+            "limits": {"variant": variant, "max_k6": 2.0e-3, "max_pp_after_pct": 2.0},
+            "fit": {"k6": {"value": k6_mnm * 1e-3}}, "metrics": {"pp_after_pct": 1.0}}
+
+
+def test_lot_stats_by_hand(records_db, tmp_path: Path):
+    lot = [rec("A", 8, 1.0, "EOL-1"), rec("B", 9, 1.2, "EOL-1"), rec("C", 10, 0.9, "EOL-1"),
+           rec("D", 11, 1.1, "EOL-1", "fail", ["p-p after = 2.5 % exceeds max_pp_after_pct = 2"]),
+           rec("E", 12, 1.5, "EOL-2"), rec("F", 13, 1.7, "EOL-2"),
+           rec("G", 14, 9.0, "EOL-3", variant="EPS-HI")]
+    insert_records(records_db, lot)
+    res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--variant", "EPS-STD", "--json",
+                                   "--csv", str(tmp_path / "runs.csv")])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["runs"] == 6 and doc["verdicts"] == {"pass": 5, "fail": 1, "error": 0}
+    assert doc["first_pass_yield"] == pytest.approx(5 / 6)
+    assert doc["pareto"] == [{"cause": "max_pp_after_pct", "runs": 1, "cumulative": 1.0}]
+    k6 = next(q for q in doc["quantities"] if q["key"] == "k6")
+    x = [1.0, 1.2, 0.9, 1.1, 1.5, 1.7]  # mN*m/A in time order
+    mean = sum(x) / 6  # 1.2333
+    mr_bar = (0.2 + 0.3 + 0.2 + 0.4 + 0.2) / 5  # 0.26
+    sigma_w = mr_bar / 1.128
+    assert k6["count"] == 6 and k6["mean"] == pytest.approx(mean) and k6["limit"] == pytest.approx(2.0)
+    assert k6["cpk"] == pytest.approx((2.0 - mean) / (3 * sigma_w))  # 0.7667 / 0.6915
+    assert k6["cpk"] == pytest.approx(1.1087, abs=1e-4)
+    assert k6["cp"] is None  # one-sided limit
+    cl1 = doc["control"]["EOL-1"]["k6"]
+    mr1 = (0.2 + 0.3 + 0.2) / 3
+    assert cl1["runs"] == 4 and cl1["center"] == pytest.approx(1.05)
+    assert cl1["ucl"] == pytest.approx(1.05 + 2.66 * mr1, abs=2e-4) and cl1["lcl"] == pytest.approx(1.05 - 2.66 * mr1, abs=2e-4)
+    assert cl1["mr_center"] == pytest.approx(mr1) and cl1["mr_ucl"] == pytest.approx(3.267 * mr1)
+    assert set(doc["control"]) == {"EOL-1", "EOL-2"}
+    with open(tmp_path / "runs.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["serial"] for r in rows] == list("ABCDEF") and rows[1]["station"] == "EOL-1"
+    assert float(rows[4]["k6"]) == pytest.approx(1.5e-3)
+    # filters: one station, a day range with nothing in it; the table output
+    res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--station", "EOL-2", "--json"])
+    assert json.loads(res.stdout)["runs"] == 2
+    res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--since", "2026-11-23", "--json"])
+    assert json.loads(res.stdout)["runs"] == 0
+    res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db)])
+    assert res.exit_code == 0 and "first-pass yield" in res.output and "EOL-3" in res.output
