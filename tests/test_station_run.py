@@ -399,3 +399,35 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     colours, spread = not_blank(shot)
     assert colours > 50 and spread > 10
     assert 1 <= pages <= 2
+
+
+def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, files, tmp_path):
+    """StationCycle.to_record: the same keys and the run-record schema on pass, fail (at the fit) and error."""
+    from eol_cal.schemas import validator
+
+    check = validator("run-record")
+    low = tmp_path / "low.toml"  # a k6 limit no motor meets: the cycle stops after the fit, nothing flashed
+    low.write_text(LIMITS.split("[variant.TIGHT]")[0].replace("max_k6 = 0.0025", "max_k6 = 0.00001"))
+    wrong = tmp_path / "wrong.hex"
+    wrong.write_text("00" * 16)
+    records = {"pass": full_run["rec"]}
+    with loopback_station("R-1", 5, tmp_path / "sim", spec_for=lambda req: MOTOR) as st:
+        args = run_args(files, st, "R-1", tmp_path / "r.sqlite", tmp_path / "reports")
+        args[args.index("--limits") + 1] = str(low)
+        res = CliRunner().invoke(cli, args)
+        assert res.exit_code == 1, res.output
+        records["fail"] = json.loads(res.stdout)["record"]
+        args[args.index("--key-file") + 1] = str(wrong)
+        res = CliRunner().invoke(cli, args)
+        assert res.exit_code == 2, res.output
+        records["error"] = json.loads(res.stdout)["record"]
+    for verdict_, rec in records.items():
+        assert rec["verdict"] == verdict_
+        check.validate(rec)
+    assert {frozenset(r) for r in records.values()} == {frozenset(records["pass"])}
+    fail = records["fail"]
+    assert [s["step"] for s in fail["steps"]] == ["prepare ECU", "acquire", "fit", "report"]
+    assert any("max_k6" in r for r in fail["reasons"]) and fail["block"] is None and fail["error"] is None
+    assert fail["ecu_active"]["block"] == "uncompensated" and fail["fit"]["status"] == "ok"
+    err = records["error"]
+    assert err["error"]["step"] == "prepare ECU" and err["fit"] is None and err["safe_state"] is not None
