@@ -97,3 +97,25 @@ def test_unusable_result_must_not_carry_estimates(results):
     m["k6"] = {"value": 0.0006, "ci95": 0.0}
     with pytest.raises(ResultFormatError, match="must be null"):
         MotorResult.from_json(m, "r.json")
+
+
+def test_real_json_outputs_of_the_commands_match_their_schemas(results, tmp_path):
+    """fit result, table --json, block show --json and analyze --json against eol_cal/schemas/."""
+    from eol_cal.schemas import validator
+
+    ok, _ = results
+    block = tmp_path / "b.bin"
+    docs = {"fit-result": [json.loads(ok.read_text())]}
+    for name, args in (("block", ["table", str(ok), "-o", str(block), "--json"]),
+                       ("block", ["block", "show", str(block), "--json"]),
+                       ("analyze", ["analyze", str(ok.parent / "c1.csv"), str(ok.parent / "c3.csv"), "--json"])):
+        res = CliRunner().invoke(cli, args)
+        assert res.exit_code in (0, 2), res.output
+        docs.setdefault(name, []).append(json.loads(res.stdout))
+    for name, found in docs.items():
+        check = validator(name)
+        for doc in found:
+            check.validate(doc)
+    # a refusal is a refusal: a table document without its block does not pass
+    with pytest.raises(jsonschema.ValidationError):
+        validator("block").validate({"file": "b.bin", "bytes": 2152})

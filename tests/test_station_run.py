@@ -431,3 +431,13 @@ def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, fil
     assert fail["ecu_active"]["block"] == "uncompensated" and fail["fit"]["status"] == "ok"
     err = records["error"]
     assert err["error"]["step"] == "prepare ECU" and err["fit"] is None and err["safe_state"] is not None
+
+
+def test_records_json_matches_its_schema(full_run):
+    from eol_cal.schemas import validator
+
+    res = CliRunner().invoke(cli, ["records", "--db", str(full_run["db"]), "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert [r["serial"] for r in doc["records"]] == [SERIAL]
+    validator("records").validate(doc)
