@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit
+from eol_cal.analysis.motor_result import FitEstimates, Harmonic, MotorResult, OperatingPoint, ValueCi
 from eol_cal.errors import InputError
 from eol_cal.jsonsafe import json_safe
 
@@ -71,12 +72,21 @@ def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits) -> tuple[str, list[str
     return (STATUS_CI_TOO_WIDE, reasons) if reasons else (STATUS_OK, [])
 
 
-def _vc(value: float, ci95: float) -> dict[str, float | None]:
-    return {"value": json_safe(float(value)), "ci95": json_safe(float(ci95))}
+def _vc(value: float, ci95: float) -> ValueCi:
+    return ValueCi(json_safe(float(value)), json_safe(float(ci95)))
 
 
-def _estimates(e: Estimate, amp: str, phase: str) -> dict[str, Any]:
-    return {amp: _vc(e.value, e.ci95), phase: _vc(e.phase, e.phase_ci95)}
+def _pair(e: Estimate) -> tuple[ValueCi, ValueCi]:
+    """Amplitude and phase of one fitted part, each with its interval."""
+    return _vc(e.value, e.ci95), _vc(e.phase, e.phase_ci95)
+
+
+def _harmonic(order: int, parts: dict[str, Estimate]) -> Harmonic:
+    kw: dict[str, ValueCi] = {}
+    for p in ("c", "k"):
+        if p in parts:
+            kw[p], kw[f"phase_{p}"] = _pair(parts[p])
+    return Harmonic(order, **kw)
 
 
 def motor_record(
@@ -106,29 +116,20 @@ def motor_record(
     the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal).
     """
     status, reasons = judge(fit, spec, limits)
-    usable = status == STATUS_OK
-    rec: dict[str, Any] = {"serial": serial, "status": status, "reasons": reasons}
     six = fit.harmonics[6]
-    for part, amp, phase in (("k", "k6", "phase_k6"), ("c", "c6", "phase_c6")):
-        if usable and part in six:
-            rec.update(_estimates(six[part], amp, phase))
-        elif usable:  # not fitted: the model holds it at 0
-            rec.update({amp: {"value": 0.0, "ci95": 0.0}, phase: {"value": 0.0, "ci95": 0.0}})
-        else:
-            rec.update({amp: None, phase: None})
-    rec["kt"] = float(kt)
-    rec["kt_source"] = kt_source
-    rec["delay_s"] = _vc(fit.delay_s, fit.delay_ci95) if usable else None
-    harmonics = []
-    for h in spec.harmonics[1:]:
-        entry: dict[str, Any] = {"order": h}
-        for part in ("c", "k"):
-            if part in fit.harmonics[h]:
-                entry.update(_estimates(fit.harmonics[h][part], part, f"phase_{part}"))
-        harmonics.append(entry)
-    rec["harmonics"] = harmonics if usable else None
-    rec["metrics"] = metrics
-    rec["fit"] = {
+    estimates = None
+    if status == STATUS_OK:
+        parts: dict[str, ValueCi] = {}
+        for part, amp, phase in (("k", "k6", "phase_k6"), ("c", "c6", "phase_c6")):
+            # a part not fitted is held at 0 by the model
+            parts[amp], parts[phase] = _pair(six[part]) if part in six else (ValueCi(0.0, 0.0), ValueCi(0.0, 0.0))
+        estimates = FitEstimates(delay_s=_vc(fit.delay_s, fit.delay_ci95), **parts,
+                                 harmonics=tuple(_harmonic(h, fit.harmonics[h]) for h in spec.harmonics[1:]))
+    if hall_angle is None:
+        from eol_cal.analysis.halls import nominal_hall_angles
+
+        hall_angle = nominal_hall_angles("not measured").to_dict()
+    fit_stats = {
         "rms": json_safe(float(fit.rms)),
         "r2": json_safe(float(fit.r2)),
         "converged": fit.converged,
@@ -139,7 +140,7 @@ def motor_record(
         "solver": spec.solver,
         "batch": solver_mode,
     }
-    rec["model"] = {
+    model = {
         "harmonics": list(spec.harmonics),
         "fit_c6": spec.fit_c,
         "fit_k6": spec.fit_k,
@@ -151,17 +152,12 @@ def motor_record(
         "frame_offset_deg": math.degrees(frame_offset_rad),
         "bench": bench if bench is not None else "rigid",
     }
-    if hall_angle is None:
-        from eol_cal.analysis.halls import nominal_hall_angles
-
-        hall_angle = nominal_hall_angles("not measured").to_dict()
-    rec["hall_angle"] = hall_angle
-    rec["poles"] = poles
-    rec["encoder_ppr"] = encoder_ppr
-    rec["operating_point"] = operating_point(segments)
-    rec["segments"] = segments
-    rec["sources"] = sources
-    return rec
+    op = operating_point(segments)
+    return MotorResult(
+        serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=float(kt), kt_source=kt_source,
+        metrics=metrics, fit=fit_stats, model=model, hall_angle=hall_angle, poles=poles, encoder_ppr=encoder_ppr,
+        operating_point=OperatingPoint(op["speed_rpm"], op["i_qo_a"]), segments=tuple(segments), sources=tuple(sources),
+    ).to_json()
 
 
 def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],

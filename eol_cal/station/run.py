@@ -31,6 +31,7 @@ from eol_cal.station.limits import Measured, VariantLimits
 from eol_cal.station.records import SaveResult
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
@@ -173,14 +174,31 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
 
 
 def measured_from_fit(rec: dict[str, Any]) -> Measured:
-    """The fit's part of :class:`Measured` from a usable motor record (units as in the record)."""
-    k6, c6, pc6 = rec["k6"], rec["c6"], rec["phase_c6"]
-    ci_c6 = max(c6["ci95"], abs(c6["value"]) * pc6["ci95"])
-    hall = rec.get("hall_angle") or {"source": "not in the record", "deviation_deg": []}
+    """:func:`measured_from_result` of a usable motor record, read by :meth:`MotorResult.from_json`."""
+    from eol_cal.analysis.motor_result import MotorResult
+
+    return measured_from_result(MotorResult.from_json(rec, "<run record>", "fit."))
+
+
+def measured_from_result(res: MotorResult) -> Measured:
+    """The fit's part of :class:`Measured` (k6 N*m/A, intervals, r2, rms N*m, hall deviation deg).
+
+    Raises
+    ------
+    ValueError
+        The fit is not usable (no estimates).
+    TypeError
+        An interval or a fit figure is null (not finite when the fit wrote it).
+    """
+    e = res.estimates
+    if e is None:
+        raise ValueError(f"motor {res.serial}: fit status {res.status!r} has no estimates")
+    ci_c6 = max(float(e.c6.ci95), abs(e.c6.value) * float(e.phase_c6.ci95))
+    hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
     measured = hall["source"] == "measured"
     return Measured(
-        k6=abs(float(k6["value"])), ci_k6=float(k6["ci95"]), ci_phase_k6_deg=math.degrees(rec["phase_k6"]["ci95"]),
-        ci_c6_nm=float(ci_c6), r2=float(rec["fit"]["r2"]), rms_nm=float(rec["fit"]["rms"]),
+        k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
+        ci_c6_nm=ci_c6, r2=float(res.fit["r2"]), rms_nm=float(res.fit["rms"]),
         hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
         hall_source=str(hall["source"]),
     )
