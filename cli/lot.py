@@ -125,4 +125,31 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
         console.print(f"csv: {csv_file} ({len(rows)} runs)")
 
 
+@lot_group.command("diff")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
+@click.argument("results", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the changes as JSON.")
+@handle_errors
+def diff_cmd(db, results, as_json) -> None:
+    """Which motors a refit (`eol-cal refit -o RESULTS`) would give another verdict than their
+    latest recorded run."""
+    from cli.common import print_json
+    from eol_cal.lot.refit import read_rows, verdict_changes
+    from eol_cal.station.records import query_records
+
+    rows = [r for path in results for r in read_rows(path)]
+    changes = verdict_changes(query_records(db), rows)
+    if as_json:
+        print_json({"rows": len(rows), "changes": changes})
+        return
+    from rich.table import Table
+
+    t = Table(title=f"{len(changes)} of {len(rows)} refitted motor(s) change verdict")
+    for col in ("serial", "recorded", "refit", "k6 recorded", "k6 refit", "reasons"):
+        t.add_column(col)
+    for c in changes:
+        t.add_row(c["serial"], c["recorded"], c["refit"], _fmt(c["k6_recorded"]), _fmt(c["k6_refit"]), "; ".join(c["reasons"]))
+    console.print(t)
+
+
 COMMANDS = [lot_group]

@@ -1,0 +1,66 @@
+"""``eol-cal refit``: refit a lot's captures on a Dask cluster."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from cli.common import CommandExit, console, err_console, handle_errors
+
+
+def _warm_worker() -> None:
+    # each worker process keeps JAX's persistent compile cache and the fit's exported solvers
+    from cli.fit import enable_jax_cache
+
+    enable_jax_cache()
+
+
+@click.command("refit")
+@click.argument("captures", nargs=-1, required=True)
+@click.option("--scheduler", default=None, metavar="tcp://HOST:8786", help="A running Dask scheduler to use.")
+@click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
+              help="Worker processes of the local cluster (127.0.0.1) when no --scheduler is given.")
+@click.option("--limits", "limits_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="Limits file: each row gets the verdict the fit's limits give.")
+@click.option("--variant", default=None, help="Variant in the limits file.")
+@click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Results: .parquet or .jsonl, one row per capture, keyed by serial.")
+@handle_errors
+def refit_cmd(captures, scheduler, workers, limits_file, variant, out) -> None:
+    """Refit every capture (directories of station runs: their before.mf4; files; globs) as one
+    task each on a `distributed` cluster, with the station's fit; rows keyed by serial."""
+    from distributed import Client, LocalCluster
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from eol_cal.errors import InputError
+    from eol_cal.lot.refit import find_captures, refit_lot, write_rows
+
+    if out.suffix not in (".parquet", ".jsonl"):
+        raise InputError(str(out), None, "results file must end in .jsonl or .parquet")
+    paths = find_captures(captures)
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)
+    try:
+        with Client(scheduler or cluster) as client:
+            client.register_worker_callbacks(_warm_worker)
+            with Progress(TextColumn("refit"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                          console=err_console, transient=False) as bar:
+                task = bar.add_task("refit", total=len(paths))
+                rows = refit_lot(paths, client, limits_file, variant, on_done=lambda _r: bar.advance(task))
+    finally:
+        if cluster is not None:
+            cluster.close()
+    write_rows(out, rows)
+    bad = [r for r in rows if r["error"]]
+    for r in bad:
+        err_console.print(f"{r['capture']}: {r['error']}")
+    verdicts = {v: sum(r["verdict"] == v for r in rows) for v in ("pass", "fail", "error")}
+    console.print(f"refit {len(rows)} capture(s) -> {out}: " + ", ".join(f"{k} {n}" for k, n in verdicts.items()))
+    if bad:
+        raise CommandExit(1)
+
+
+COMMANDS = [refit_cmd]

@@ -1,0 +1,177 @@
+"""Refit a lot's captures on a Dask ``distributed`` cluster: one task per motor run (a station
+run's directory, or a directory of one motor's captures), results keyed by serial and
+comparable with the run records.
+
+Each task reads the run's captures and fits them as the station does (the options of
+:func:`eol_cal.station.run.fit_motor`, so the same k6 as the record of that run), and, with limits, judges the fit's
+part of them (:func:`eol_cal.station.limits.fit_reasons`: k6, the intervals, R^2, RMS, the hall
+table; the ripple limits need the compensated capture, which a refit does not make). A capture
+that cannot be read or fitted gives a row with ``error`` and no numbers; the lot goes on.
+Tasks are pure (a file in, a row out), so ``distributed`` may rerun one whose worker died.
+"""
+
+from __future__ import annotations
+
+import glob
+import math
+from pathlib import Path
+from typing import Any, Callable, Iterable, Sequence
+
+from eol_cal.errors import InputError
+
+CAPTURE_SUFFIXES = (".mf4", ".csv")
+#: the file a station run writes before compensation (eol_cal.station.cycle); a directory of runs
+#: is refitted from these
+STATION_CAPTURE = "before.mf4"
+ROW_KEYS = ("serial", "capture", "k6", "phase_k6", "c6", "r2", "rms", "status", "verdict", "reasons", "error")
+
+
+def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
+    """The capture files of directories (their station ``before.mf4`` files, recursively, else
+    every capture in them), files and globs, grouped by directory: one group per motor run
+    (a station run directory, or a directory holding one motor's captures); sorted, each once."""
+    out: set[Path] = set()
+    for pat in patterns:
+        p = Path(pat)
+        if p.is_dir():
+            found = list(p.rglob(STATION_CAPTURE)) or [q for q in p.rglob("*") if q.suffix.lower() in CAPTURE_SUFFIXES]
+        elif p.is_file():
+            found = [p]
+        else:
+            found = [Path(q) for q in glob.glob(pat, recursive=True) if Path(q).suffix.lower() in CAPTURE_SUFFIXES]
+        if not found:
+            raise InputError(pat, None, "no capture files (.mf4, .csv) found")
+        out.update(q.resolve() for q in found)
+    groups: dict[Path, list[Path]] = {}
+    for q in sorted(out):
+        groups.setdefault(q.parent, []).append(q)
+    return [groups[k] for k in sorted(groups)]
+
+
+def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None,
+                  variant: str | None = None) -> dict[str, Any]:
+    """One motor's row (:data:`ROW_KEYS`) from its captures; never raises for a bad capture
+    (``error`` says why).
+
+    The fit is the station's (:func:`eol_cal.station.run.fit_motor`'s options: joint windows,
+    firmware frame, rigid coupling). ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
+    ``rms`` in N*m, as in the records; ``capture`` names the first file.
+    """
+    from eol_cal import __version__
+    from eol_cal.analysis.fit_motors import FitOptions, fit_motors
+    from eol_cal.capture.io import read_capture
+    from eol_cal.errors import EolCalError
+    from eol_cal.station.limits import fit_reasons, load_limits
+    from eol_cal.station.run import measured_from_fit
+
+    row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
+    row.update(capture=str(paths[0]), reasons=[])
+    try:
+        lim = load_limits(limits_file, variant) if limits_file else None
+        caps = [read_capture(p) for p in paths]
+        row["serial"] = caps[0].serial
+        opts = FitOptions(batch="loop", mechanics=None) if lim is None else \
+            FitOptions(limits=lim.ci_limits(), batch="loop", mechanics=None)
+        res = fit_motors(caps, opts, __version__)
+        if len(res.records) != 1:
+            raise InputError(str(paths[0]), "serial", f"the directory holds {len(res.records)} motors, expected one")
+        (rec,) = res.records
+    except (EolCalError, OSError, ValueError) as exc:
+        row["error"] = f"{type(exc).__name__}: {exc}"
+        row["verdict"] = "error"
+        return row
+    row["status"] = rec["status"]
+    for key in ("k6", "phase_k6", "c6"):
+        row[key] = (rec.get(key) or {}).get("value")
+    row["r2"] = (rec.get("fit") or {}).get("r2")
+    row["rms"] = (rec.get("fit") or {}).get("rms")
+    if rec["status"] != "ok":
+        row["verdict"], row["reasons"] = "fail", list(rec.get("reasons") or [])
+    elif lim is not None:
+        reasons = fit_reasons(measured_from_fit(rec), lim)
+        row["verdict"], row["reasons"] = ("fail", reasons) if reasons else ("pass", [])
+    return row
+
+
+def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | None = None, variant: str | None = None,
+              on_done: Callable[[dict[str, Any]], None] | None = None, retries: int = 2) -> list[dict[str, Any]]:
+    """Refit every group of captures (one motor run, :func:`find_captures`) as one task on
+    ``client`` (a ``distributed.Client``); rows in the order of ``paths``. ``retries``: how often a task whose worker died is run again."""
+    from distributed import as_completed
+
+    futures = {client.submit(refit_capture, [str(q) for q in group], limits_file, variant,
+                             key=f"refit-{i}-{group[0].parent.name}", retries=retries, pure=False): i
+               for i, group in enumerate(paths)}
+    rows: list[dict[str, Any] | None] = [None] * len(paths)
+    for fut in as_completed(futures):
+        i = futures[fut]
+        try:
+            rows[i] = fut.result()
+        except Exception as exc:  # noqa: BLE001 - a task that failed on every retry: reported per capture
+            row = dict.fromkeys(ROW_KEYS)
+            row.update(capture=str(paths[i][0]), reasons=[], verdict="error", error=f"{type(exc).__name__}: {exc}")
+            rows[i] = row
+        if on_done is not None:
+            on_done(rows[i])
+    return [r for r in rows if r is not None]
+
+
+def write_rows(path: str | Path, rows: Iterable[dict[str, Any]]) -> Path:
+    """Write rows as JSON Lines (``.jsonl``) or Parquet (``.parquet``), atomically."""
+    import json
+
+    from eol_cal.atomic import atomic_write
+
+    path = Path(path)
+    rows = list(rows)
+    if path.suffix == ".jsonl":
+        atomic_write(path, "".join(json.dumps(_json_safe(r), allow_nan=False) + "\n" for r in rows))
+    elif path.suffix == ".parquet":
+        import io
+
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        table = pa.Table.from_pylist([{**r, "reasons": list(r["reasons"] or [])} for r in rows])
+        buf = io.BytesIO()
+        pq.write_table(table, buf)
+        atomic_write(path, buf.getvalue())
+    else:
+        raise InputError(str(path), None, "results file must end in .jsonl or .parquet")
+    return path
+
+
+def read_rows(path: str | Path) -> list[dict[str, Any]]:
+    """Rows written by :func:`write_rows`."""
+    import json
+
+    path = Path(path)
+    try:
+        if path.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            return pq.read_table(path).to_pylist()
+        return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+    except (OSError, ValueError) as exc:
+        raise InputError(str(path), None, f"cannot read the refit results: {exc}") from None
+
+
+def _json_safe(r: dict[str, Any]) -> dict[str, Any]:
+    return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
+
+
+def verdict_changes(records: Sequence[dict[str, Any]], rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Motors whose refit verdict differs from their latest recorded run's verdict (by serial)."""
+    latest: dict[str, dict[str, Any]] = {}
+    for r in sorted(records, key=lambda r: str(r.get("started_at") or "")):
+        latest[r["serial"]] = r
+    out = []
+    for row in rows:
+        rec = latest.get(row.get("serial") or "")
+        if rec is None or row.get("verdict") is None:
+            continue
+        if rec.get("verdict") != row["verdict"]:
+            k6_rec = ((rec.get("fit") or {}).get("k6") or {}).get("value")
+            out.append({"serial": row["serial"], "recorded": rec.get("verdict"), "refit": row["verdict"],
+                        "k6_recorded": k6_rec, "k6_refit": row.get("k6"), "reasons": row.get("reasons") or []})
+    return out

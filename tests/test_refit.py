@@ -1,0 +1,97 @@
+"""`eol-cal refit` on a real distributed.LocalCluster (2 worker processes): the same rows as the
+fit in this process, a capture that cannot be read reported per capture, a killed worker loses
+no capture, and `lot diff` against the records."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import uuid
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal.capture.io import write_capture
+from eol_cal.capture.synthetic import synthetic_capture
+from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_lot
+from eol_cal.station.records import insert_records
+
+SERIALS = ("R-1", "R-2", "R-3")
+# two speeds, two loads, and reverse: the delay, c6 and k6 are all identifiable
+POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _no_jax_cache():
+    mp = pytest.MonkeyPatch()
+    mp.setenv("EOL_CAL_JAX_CACHE", "off")  # the workers inherit it: keep the tests out of ~/.cache
+    yield
+    mp.undo()
+
+
+@pytest.fixture(scope="module")
+def lot(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("refit")
+    for i, s in enumerate(SERIALS):  # a directory per motor; the points of tests/test_fit_cli.py
+        (d / s).mkdir()
+        for j, (rpm, iq) in enumerate(POINTS):
+            c = synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=10 * i + j, theta_r0=0.7 * j,
+                                  k6=0.0006 + 0.0001 * i, serial=s)
+            write_capture(c, d / s / f"c{j}.mf4")
+    return d
+
+
+def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot: Path, tmp_path: Path):
+    (tmp_path / "X").mkdir()
+    bad = tmp_path / "X" / "bad.mf4"
+    bad.write_bytes(b"not an mdf file")
+    out = tmp_path / "r.jsonl"
+    res = CliRunner().invoke(cli, ["refit", str(lot), str(bad), "--workers", "2", "-o", str(out)])
+    assert res.exit_code == 1, res.output  # one capture failed: reported, the lot went on
+    rows = {r["capture"]: r for r in read_rows(out)}
+    assert len(rows) == 4 and "bad.mf4" in rows[str(bad.resolve())]["error"]
+    for group in find_captures([str(lot)]):
+        here = refit_capture(group)
+        there = rows[str(group[0])]
+        assert there["serial"] == here["serial"] and there["error"] is None
+        assert there["k6"] == pytest.approx(here["k6"], rel=1e-9) and there["c6"] == pytest.approx(here["c6"], rel=1e-9)
+    k6 = {r["serial"]: r["k6"] for r in rows.values() if r["serial"]}
+    assert k6["R-3"] > k6["R-1"]
+    from eol_cal.lot.refit import write_rows
+    pq = write_rows(tmp_path / "r.parquet", list(rows.values()))
+    assert {r["capture"]: r["k6"] for r in read_rows(pq)} == {c: r["k6"] for c, r in rows.items()}
+
+
+def test_a_killed_worker_loses_no_capture(lot: Path):
+    from distributed import Client, LocalCluster
+
+    paths = find_captures([str(lot)]) * 2
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        pids = list(client.run(os.getpid).values())
+        done = []
+
+        def kill_once(row):
+            done.append(row)
+            if len(done) == 1:
+                os.kill(pids[0], signal.SIGKILL)  # one worker process dies mid-lot
+
+        rows = refit_lot(paths, client, on_done=kill_once, retries=3)
+    assert len(rows) == len(paths)
+    assert all(r["error"] is None and r["k6"] is not None for r in rows), rows
+    assert sorted(r["serial"] for r in rows) == sorted(SERIALS * 2)
+
+
+def test_lot_diff_names_the_motors_that_change_verdict(records_db, tmp_path: Path):
+    recs = [{"run_id": uuid.uuid4().hex, "serial": s, "started_at": "2026-11-22T10:00:00.000+00:00",
+             "verdict": v, "reasons": [], "fit": {"k6": {"value": 1e-3}}} for s, v in (("A", "pass"), ("B", "pass"))]
+    insert_records(records_db, recs)
+    out = tmp_path / "r.jsonl"
+    out.write_text("".join(json.dumps({"serial": s, "verdict": v, "k6": 2e-3, "reasons": why}) + "\n"
+                           for s, v, why in (("A", "pass", []), ("B", "fail", ["k6 over max_k6"]))))
+    res = CliRunner().invoke(cli, ["lot", "diff", "--db", str(records_db), str(out), "--json"])
+    assert res.exit_code == 0, res.output
+    assert [(c["serial"], c["recorded"], c["refit"]) for c in json.loads(res.stdout)["changes"]] == [("B", "pass", "fail")]
