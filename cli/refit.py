@@ -24,10 +24,13 @@ def _warm_worker() -> None:
 @click.option("--limits", "limits_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="Limits file: each row gets the verdict the fit's limits give.")
 @click.option("--variant", default=None, help="Variant in the limits file.")
+@click.option("--bench", default="paper", show_default=True, metavar="NAME|FILE.toml",
+              help="Dyno bench the captures were made on (as for fit); 'none': rigid coupling.")
+@click.option("--motor", default="paper", show_default=True, help="Motor preset the runs were made with.")
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Results: .parquet or .jsonl, one row per capture, keyed by serial.")
 @handle_errors
-def refit_cmd(captures, scheduler, workers, limits_file, variant, out) -> None:
+def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out) -> None:
     """Refit every capture (directories of station runs: their before.mf4; files; globs) as one
     task each on a `distributed` cluster, with the station's fit; rows keyed by serial."""
     from distributed import Client, LocalCluster
@@ -49,7 +52,8 @@ def refit_cmd(captures, scheduler, workers, limits_file, variant, out) -> None:
             with Progress(TextColumn("refit"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                           console=err_console, transient=False) as bar:
                 task = bar.add_task("refit", total=len(paths))
-                rows = refit_lot(paths, client, limits_file, variant, on_done=lambda _r: bar.advance(task))
+                rows = refit_lot(paths, client, limits_file, variant, on_done=lambda _r: bar.advance(task),
+                                 bench=bench, motor=motor)
     finally:
         if cluster is not None:
             cluster.close()

@@ -49,12 +49,12 @@ def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot:
     bad = tmp_path / "X" / "bad.mf4"
     bad.write_bytes(b"not an mdf file")
     out = tmp_path / "r.jsonl"
-    res = CliRunner().invoke(cli, ["refit", str(lot), str(bad), "--workers", "2", "-o", str(out)])
+    res = CliRunner().invoke(cli, ["refit", str(lot), str(bad), "--workers", "2", "--bench", "none", "-o", str(out)])
     assert res.exit_code == 1, res.output  # one capture failed: reported, the lot went on
     rows = {r["capture"]: r for r in read_rows(out)}
     assert len(rows) == 4 and "bad.mf4" in rows[str(bad.resolve())]["error"]
     for group in find_captures([str(lot)]):
-        here = refit_capture(group)
+        here = refit_capture(group, bench="none")
         there = rows[str(group[0])]
         assert there["serial"] == here["serial"] and there["error"] is None
         assert there["k6"] == pytest.approx(here["k6"], rel=1e-9) and there["c6"] == pytest.approx(here["c6"], rel=1e-9)
@@ -79,7 +79,7 @@ def test_a_killed_worker_loses_no_capture(lot: Path):
             if len(done) == 1:
                 os.kill(pids[0], signal.SIGKILL)  # one worker process dies mid-lot
 
-        rows = refit_lot(paths, client, on_done=kill_once, retries=3)
+        rows = refit_lot(paths, client, on_done=kill_once, retries=3, bench="none")
     assert len(rows) == len(paths)
     assert all(r["error"] is None and r["k6"] is not None for r in rows), rows
     assert sorted(r["serial"] for r in rows) == sorted(SERIALS * 2)

@@ -48,13 +48,14 @@ def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
     return [groups[k] for k in sorted(groups)]
 
 
-def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None,
-                  variant: str | None = None) -> dict[str, Any]:
+def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, variant: str | None = None,
+                  bench: str = "paper", motor: str = "paper") -> dict[str, Any]:
     """One motor's row (:data:`ROW_KEYS`) from its captures; never raises for a bad capture
     (``error`` says why).
 
     The fit is the station's (:func:`eol_cal.station.run.fit_motor`'s options: joint windows,
-    firmware frame, rigid coupling). ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
+    firmware frame), with the dyno ``bench`` (a name or TOML file; ``"none"``: rigid coupling)
+    and ``motor`` preset the runs were made with (the record's ``station.bench``, ``station.motor``). ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
     ``rms`` in N*m, as in the records; ``capture`` names the first file.
     """
     from eol_cal import __version__
@@ -70,8 +71,11 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None,
         lim = load_limits(limits_file, variant) if limits_file else None
         caps = [read_capture(p) for p in paths]
         row["serial"] = caps[0].serial
-        opts = FitOptions(batch="loop", mechanics=None) if lim is None else \
-            FitOptions(limits=lim.ci_limits(), batch="loop", mechanics=None)
+        from eol_cal.mechanics import mechanics_or_rigid
+        from eol_cal.motor import load_motor
+
+        common = dict(batch="loop", mechanics=mechanics_or_rigid(bench), motor=load_motor(motor))
+        opts = FitOptions(**common) if lim is None else FitOptions(limits=lim.ci_limits(), **common)
         res = fit_motors(caps, opts, __version__)
         if len(res.records) != 1:
             raise InputError(str(paths[0]), "serial", f"the directory holds {len(res.records)} motors, expected one")
@@ -94,12 +98,13 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None,
 
 
 def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | None = None, variant: str | None = None,
-              on_done: Callable[[dict[str, Any]], None] | None = None, retries: int = 2) -> list[dict[str, Any]]:
+              on_done: Callable[[dict[str, Any]], None] | None = None, retries: int = 2,
+              bench: str = "paper", motor: str = "paper") -> list[dict[str, Any]]:
     """Refit every group of captures (one motor run, :func:`find_captures`) as one task on
     ``client`` (a ``distributed.Client``); rows in the order of ``paths``. ``retries``: how often a task whose worker died is run again."""
     from distributed import as_completed
 
-    futures = {client.submit(refit_capture, [str(q) for q in group], limits_file, variant,
+    futures = {client.submit(refit_capture, [str(q) for q in group], limits_file, variant, bench, motor,
                              key=f"refit-{i}-{group[0].parent.name}", retries=retries, pure=False): i
                for i, group in enumerate(paths)}
     rows: list[dict[str, Any] | None] = [None] * len(paths)
