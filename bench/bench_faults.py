@@ -1,0 +1,134 @@
+"""Fault benchmark (issue 16): how the real CLI ends on hostile inputs, side by side with the
+code before this work.
+
+Section ``inputs``: a seeded campaign of bad inputs (:mod:`eol_cal.fuzz`: CSV and MDF4 captures,
+parameter blocks, fit results), each run through the real CLI in a child process under an
+address-space limit. Per kind and in all it prints: bad inputs tried / accepted / refused
+cleanly (exit 1 or 2, one line naming the file) / refusals that do not name the file /
+tracebacks / hangs / crashes (a signal or another exit code) / inputs modified, the slowest run
+and the largest resident set. Tracebacks, hangs, crashes and modified inputs must all be 0.
+
+Side by side (``--before COMMIT``): the same inputs through the CLI of an older commit (checked
+out with ``git worktree`` into a temporary directory), the code a user has without this work.
+
+Sections are functions in :data:`SECTIONS` (name -> function(args) -> bool ok); another section
+(the ECU-kill trials) adds itself there and its options in :func:`add_options`.
+
+    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from eol_cal import fuzz  # noqa: E402
+
+COLUMNS = ("tried", "accepted", "refused_cleanly", "unnamed", "tracebacks", "hangs", "crashes", "modified")
+
+
+@contextlib.contextmanager
+def checkout(commit: str) -> Iterator[Path]:
+    """A temporary ``git worktree`` of ``commit`` (removed afterwards)."""
+    with tempfile.TemporaryDirectory(prefix="bench-faults-before-") as tmp:
+        tree = Path(tmp) / "tree"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), commit],
+                       check=True, capture_output=True)
+        try:
+            yield tree
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)],
+                           check=False, capture_output=True)
+
+
+def _row(label: str, tally: fuzz.Tally) -> str:
+    cells = "  ".join(f"{getattr(tally, c):>{max(len(c), 5)}d}" for c in COLUMNS)
+    return f"{label:<16}{cells}  {tally.max_seconds:8.2f}  {tally.max_rss_kb / 1024:8.0f}"
+
+
+def _print_tallies(title: str, tallies: dict[str, fuzz.Tally]) -> fuzz.Tally:
+    print(f"\n{title}")
+    print(f"{'kind':<16}" + "  ".join(f"{c:>{max(len(c), 5)}}" for c in COLUMNS) + "  max s    max RSS MiB")
+    total = fuzz.Tally()
+    for kind, tally in tallies.items():
+        print(_row(kind, tally))
+        for name in COLUMNS:
+            setattr(total, name, getattr(total, name) + getattr(tally, name))
+        total.max_seconds = max(total.max_seconds, tally.max_seconds)
+        total.max_rss_kb = max(total.max_rss_kb, tally.max_rss_kb)
+        total.bad.extend(tally.bad)
+    print(_row("all", total))
+    return total
+
+
+def _show_bad(total: fuzz.Tally, limit: int) -> None:
+    for o in total.bad[:limit]:
+        what = ("hang" if o.hang else "crash" if o.crash else "traceback" if o.traceback
+                else "modified" if o.modified else "unnamed")
+        last = (o.stderr.strip().splitlines() or [""])[-1][:160]
+        print(f"  {what:<9} {o.case.name} ({o.case.how}) `{o.command}` rc {o.rc}: {last}")
+
+
+def inputs_section(args: argparse.Namespace) -> bool:
+    """Bad inputs through the CLI: ours, and (with --before) the older code's."""
+    bases = fuzz.base_files()
+    with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
+        work = Path(tmp)
+        t0 = time.perf_counter()
+        ours = fuzz.campaign(args.seed, args.per_kind, work, bases, timeout_s=args.timeout)
+        took = time.perf_counter() - t0
+        total = _print_tallies(f"bad inputs, this tree (seed {args.seed}, {args.per_kind} per kind, "
+                               f"{took:.0f} s, bound {args.timeout:g} s per command, RLIMIT_AS "
+                               f"{fuzz.CHILD_MEMORY_BYTES / 1024**3:g} GiB)", ours)
+        _show_bad(total, args.show)
+        if args.before:
+            with checkout(args.before) as tree:
+                before_work = work / "before"
+                before_work.mkdir()
+                theirs = fuzz.campaign(args.seed, args.per_kind, before_work, bases, timeout_s=args.timeout, root=tree)
+                old = _print_tallies(f"bad inputs, commit {args.before} (the same inputs)", theirs)
+                _show_bad(old, args.show)
+    print(f"\nbad inputs tried {total.tried} / refused cleanly {total.refused_cleanly} / tracebacks {total.tracebacks} "
+          f"/ hangs {total.hangs} / crashes {total.crashes} / inputs modified {total.modified}"
+          f" (accepted {total.accepted}, refusals not naming the file {total.unnamed})")
+    return not (total.tracebacks or total.hangs or total.crashes or total.modified or total.unnamed)
+
+
+#: name -> section; each prints its figures and returns True when its must-be-zero counts are 0
+SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {"inputs": inputs_section}
+
+
+def add_options(ap: argparse.ArgumentParser) -> None:
+    """Options of every section (a new section adds its own here)."""
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--per-kind", type=int, default=125, help="bad inputs per kind (csv, mdf4, block, fitjson)")
+    ap.add_argument("--timeout", type=float, default=20.0, help="bound per command and input (s): beyond is a hang")
+    ap.add_argument("--before", metavar="COMMIT", help="also run the inputs through this older commit's CLI")
+    ap.add_argument("--show", type=int, default=20, help="list at most this many bad outcomes")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--section", action="append", choices=sorted(SECTIONS), help="run only these (default all)")
+    add_options(ap)
+    args = ap.parse_args()
+    print(f"# bench_faults: Python {platform.python_version()}, {os.cpu_count()} CPUs")
+    ok = True
+    for name in args.section or list(SECTIONS):
+        ok &= SECTIONS[name](args)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,571 @@
+"""Hostile inputs for the fault test and the fault benchmark (issue 16): seeded mutations of
+real files, and a runner that feeds them to the real CLI in a child process and judges the end.
+
+Four kinds of input, each a mutation of a valid file the tool writes itself:
+
+- ``csv``: a CSV capture (bit flips, truncation, hostile cells, units and metadata, huge headers);
+- ``mdf4``: an MDF4 capture (bit flips, truncation, block links patched to point at their own
+  block, outside the file or at a block of another type, block lengths, link counts,
+  compressed-data lengths, cycle counts and channel offsets patched);
+- ``block``: a parameter block (bit flips, fields patched to NaN, infinities, 3e38, 0, with the
+  CRC made right again so that only a physical-sanity check can refuse it);
+- ``fitjson``: a fit result (values of the wrong type or out of bounds, deep nesting, huge
+  numbers, truncation).
+
+A run is judged on what a station cares about: the exit code is 0, 1 or 2 (no signal, no
+other code), no ``Traceback`` on stderr, the command ended within its time bound, its memory
+stayed under ``RLIMIT_AS``, and no input file changed (hash before and after). A refusal must
+name the file it refuses.
+
+Used by ``tests/test_fuzz.py`` (a small seeded campaign, ~30 s) and ``bench/bench_faults.py``
+(a bigger one).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import resource
+import struct
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+KINDS = ("csv", "mdf4", "block", "fitjson")
+
+#: bound on every child's address space (bytes): a decoder that believes a hostile size dies of it
+CHILD_MEMORY_BYTES = 2 * 1024**3
+
+_HOSTILE_CELLS = ("nan", "inf", "-inf", "1e308", "-1e308", "1e999", "", "abc", "0x10", "1,5", "--1", "1e-320",
+                  "3e38", "9" * 400)
+_HOSTILE_UNITS = ("degC", "kg", "V", "", "[", "m/s", "1/0", "rpm**rpm", "N*m*" * 50, "degF", "A/s", "\u00b5A")
+_HOSTILE_META = {"poles": ("0", "-6", "7", "1e9", "x", "6.5", "99999999999999999999"),
+                 "encoder_ppr": ("0", "-1", "1e12", "y", "64.0"),
+                 "kt": ("0", "-1", "nan", "inf", "1e308"),
+                 "serial": ("", "\x00", "x" * 5000)}
+_HOSTILE_F32 = (float("nan"), float("inf"), float("-inf"), 3e38, -3e38, 0.0, -1.0, 1e-45, 1e30)
+_HOSTILE_JSON = (1e30, -5, True, False, "0.0006", None, [], {}, "NaN", 10**30, -1e-300, "")
+_HOSTILE_JSON_TEXT = ("NaN", "Infinity", "-Infinity", "1e400", "-1e400", "9" * 5000, "1" + "0" * 100000)
+
+
+@dataclass
+class Case:
+    """One hostile input: its files (name -> bytes) and how it was made."""
+
+    kind: str
+    name: str
+    how: str
+    data: bytes
+
+
+@dataclass
+class Outcome:
+    """How the CLI ended on one case."""
+
+    case: Case
+    command: str
+    rc: int | None
+    seconds: float
+    stderr: str
+    traceback: bool
+    hang: bool
+    crash: bool
+    modified: bool
+    named: bool
+    maxrss_kb: int = 0
+    accepted: bool = False
+
+    @property
+    def clean(self) -> bool:
+        """Ended as the tool promises: 0/1/2, one-line error naming the file, in time, input intact."""
+        return not (self.traceback or self.hang or self.crash or self.modified) and (self.accepted or self.named)
+
+
+# --------------------------------------------------------------------------------------------
+# valid base files
+
+
+def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
+    """The valid files every mutation starts from: kind -> bytes (written by the tool itself)."""
+    import tempfile
+
+    from eol_cal.capture.io import write_capture
+    from eol_cal.capture.synthetic import synthetic_capture
+    from eol_cal.ecu.testing import example_block
+
+    capture = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
+    out: dict[str, bytes] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for kind, suffix in (("csv", ".csv"), ("mdf4", ".mf4")):
+            path = Path(tmp) / f"base{suffix}"
+            write_capture(capture, path)
+            out[kind] = path.read_bytes()
+    out["block"] = example_block(serial="F-0001")
+    fit_result = fit_result or Path(__file__).resolve().parents[1] / "fixtures" / "fit_paper.json"
+    out["fitjson"] = fit_result.read_bytes()
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# byte-level mutations
+
+
+def _bitflip(rng: np.random.Generator, data: bytes, lo: int = 0, hi: int | None = None) -> tuple[bytes, str]:
+    buf = bytearray(data)
+    hi = len(buf) if hi is None else hi
+    flips = int(rng.integers(1, 9))
+    for _ in range(flips):
+        pos = int(rng.integers(lo, hi))
+        buf[pos] ^= 1 << int(rng.integers(0, 8))
+    return bytes(buf), f"{flips} bit flips in bytes {lo}..{hi}"
+
+
+def _truncate(rng: np.random.Generator, data: bytes) -> tuple[bytes, str]:
+    n = int(rng.integers(0, len(data)))
+    return data[:n], f"truncated to {n} of {len(data)} bytes"
+
+
+def _splice(rng: np.random.Generator, data: bytes) -> tuple[bytes, str]:
+    a, b = sorted(int(x) for x in rng.integers(0, len(data), 2))
+    at = int(rng.integers(0, len(data)))
+    return data[:at] + data[a:b] + data[at:], f"bytes {a}..{b} copied in at {at}"
+
+
+# --------------------------------------------------------------------------------------------
+# CSV
+
+
+def _csv_cell(rng: np.random.Generator, text: str) -> tuple[str, str]:
+    lines = text.split("\n")
+    first = next(i for i, line in enumerate(lines) if line and not line.startswith("#"))
+    row = int(rng.integers(first + 1, len(lines) - 1))
+    cells = lines[row].split(",")
+    col = int(rng.integers(0, len(cells)))
+    cell = str(rng.choice(_HOSTILE_CELLS))
+    cells[col] = cell
+    lines[row] = ",".join(cells)
+    return "\n".join(lines), f"cell row {row} column {col} = {cell[:20]!r}"
+
+
+def _csv_unit(rng: np.random.Generator, text: str) -> tuple[str, str]:
+    lines = text.split("\n")
+    first = next(i for i, line in enumerate(lines) if line and not line.startswith("#"))
+    cells = lines[first].split(",")
+    col = int(rng.integers(0, len(cells)))
+    name = cells[col].split("[")[0].strip()
+    unit = str(rng.choice(_HOSTILE_UNITS))
+    cells[col] = f"{name} [{unit}]"
+    lines[first] = ",".join(cells)
+    return "\n".join(lines), f"unit of {name} = {unit[:20]!r}"
+
+
+def _csv_meta(rng: np.random.Generator, text: str) -> tuple[str, str]:
+    key = str(rng.choice(list(_HOSTILE_META)))
+    value = str(rng.choice(_HOSTILE_META[key]))
+    lines = [line for line in text.split("\n") if not line.startswith(f"# {key}:")]
+    return "\n".join([f"# {key}: {value}", *lines]), f"metadata {key} = {value[:20]!r}"
+
+
+def _csv_wide(rng: np.random.Generator, text: str) -> tuple[str, str]:
+    n = int(rng.choice((1000, 20000, 100000)))
+    header = ",".join(f"c{i} [A]" for i in range(n))
+    return f"# serial: W\n{header}\n" + ",".join("0" for _ in range(n)) + "\n", f"{n}-column header"
+
+
+def _csv_rows(rng: np.random.Generator, text: str) -> tuple[str, str]:
+    lines = text.split("\n")
+    first = next(i for i, line in enumerate(lines) if line and not line.startswith("#"))
+    keep = int(rng.choice((0, 1, 2, 3)))
+    return "\n".join(lines[: first + 1 + keep]) + "\n", f"{keep} data rows"
+
+
+def _csv_bytes(rng: np.random.Generator, text: str) -> tuple[bytes, str]:
+    raw = text.encode()
+    at = int(rng.integers(0, len(raw)))
+    junk = bytes(rng.choice([0xFF, 0xFE, 0x00, 0xC3, 0x80], int(rng.integers(1, 4))).tolist())
+    return raw[:at] + junk + raw[at:], f"bytes {junk!r} inserted at {at}"
+
+
+def mutate_csv(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
+    """One hostile CSV from a valid one."""
+    text = base.decode()
+    op = int(rng.integers(0, 9))
+    if op == 0:
+        return _bitflip(rng, base)
+    if op == 1:
+        return _truncate(rng, base)
+    if op == 2:
+        return _splice(rng, base)
+    if op == 7:
+        return _csv_bytes(rng, text)
+    mutated, how = (_csv_cell, _csv_unit, _csv_meta, _csv_wide, _csv_rows, _csv_cell)[op - 3](rng, text)
+    return mutated.encode(), how
+
+
+# --------------------------------------------------------------------------------------------
+# MDF4
+
+
+def mdf4_blocks(data: bytes) -> dict[int, tuple[bytes, int, tuple[int, ...]]]:
+    """Every block reachable from the header: offset -> (id, length, links) (for mutations only)."""
+    blocks: dict[int, tuple[bytes, int, tuple[int, ...]]] = {}
+    stack = [64]
+    while stack:
+        offset = stack.pop()
+        if offset in blocks or offset + 24 > len(data):
+            continue
+        block_id, _, length, count = struct.unpack_from("<4sIQQ", data, offset)
+        if count > 10000 or offset + 24 + 8 * count > len(data):
+            continue
+        links = struct.unpack_from(f"<{count}Q", data, offset + 24)
+        blocks[offset] = (block_id, length, links)
+        stack.extend(link for link in links if link)
+    return blocks
+
+
+def _patch_u64(data: bytes, at: int, value: int) -> bytes:
+    buf = bytearray(data)
+    struct.pack_into("<Q", buf, at, value & 0xFFFFFFFFFFFFFFFF)
+    return bytes(buf)
+
+
+def mutate_mdf4(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
+    """One hostile MDF4 file from a valid one."""
+    blocks = mdf4_blocks(base)
+    offsets = sorted(blocks)
+    op = int(rng.integers(0, 10))
+    if op == 0:
+        return _bitflip(rng, base)
+    if op == 1:
+        dz = [o for o in offsets if blocks[o][0] == b"##DZ"]
+        if dz:
+            o = dz[0]
+            return _bitflip(rng, base, o + 48, o + blocks[o][1])
+        return _bitflip(rng, base)
+    if op == 2:
+        return _truncate(rng, base)
+    if op == 3:  # a link to its own block, outside the file, to another block, or to garbage
+        with_links = [o for o in offsets if blocks[o][2]]
+        o = int(rng.choice(with_links))
+        k = int(rng.integers(0, len(blocks[o][2])))
+        target = int(rng.choice([o, len(base) + 8, 2**63, int(rng.choice(offsets)), int(rng.integers(0, len(base))),
+                                 blocks[o][2][k] + 8, 64]))
+        return _patch_u64(base, o + 24 + 8 * k, target), f"link {k} of {blocks[o][0].decode()} at {o} -> {target}"
+    if op == 4:  # block length
+        o = int(rng.choice(offsets))
+        value = int(rng.choice([0, 1, 23, 24, 2**31, 2**62, 2**64 - 1, blocks[o][1] + 8, blocks[o][1] - 8,
+                                len(base)]))
+        return _patch_u64(base, o + 8, value), f"length of {blocks[o][0].decode()} at {o} = {value}"
+    if op == 5:  # link count
+        o = int(rng.choice(offsets))
+        value = int(rng.choice([0, 1, 2**20, 2**40, 2**64 - 1, len(blocks[o][2]) + 1]))
+        return _patch_u64(base, o + 16, value), f"link count of {blocks[o][0].decode()} at {o} = {value}"
+    if op == 6:  # compressed data sizes
+        dz = [o for o in offsets if blocks[o][0] == b"##DZ"]
+        if not dz:
+            return _bitflip(rng, base)
+        o = dz[0]
+        field_at, label = [(o + 32, "original length"), (o + 40, "compressed length")][int(rng.integers(0, 2))]
+        value = int(rng.choice([0, 1, 2**31, 2**62, 2**64 - 1, 7]))
+        return _patch_u64(base, field_at, value), f"DZ {label} = {value}"
+    if op == 7:  # cycle count, record size
+        cg = [o for o in offsets if blocks[o][0] == b"##CG"]
+        o = int(rng.choice(cg))
+        data_at = o + 24 + 8 * len(blocks[o][2])
+        value = int(rng.choice([0, 1, 2, 2**31, 2**62, 2**64 - 1]))
+        return _patch_u64(base, data_at + 8, value), f"CG cycle count = {value}"
+    if op == 8:  # channel byte offset / bit count / data type
+        cn = [o for o in offsets if blocks[o][0] == b"##CN"]
+        o = int(rng.choice(cn))
+        data_at = o + 24 + 8 * len(blocks[o][2])
+        buf = bytearray(base)
+        which = int(rng.integers(0, 3))
+        if which == 0:
+            value = int(rng.choice([2**31, 2**32 - 1, 1000, 9]))
+            struct.pack_into("<I", buf, data_at + 4, value)
+            return bytes(buf), f"CN byte offset = {value}"
+        if which == 1:
+            value = int(rng.choice([0, 65, 2**31, 2**32 - 1, 1000]))
+            struct.pack_into("<I", buf, data_at + 8, value)
+            return bytes(buf), f"CN bit count = {value}"
+        value = int(rng.choice([6, 7, 9, 13, 15, 200, 255]))
+        buf[data_at + 2] = value
+        return bytes(buf), f"CN data type = {value}"
+    return _splice(rng, base)
+
+
+# --------------------------------------------------------------------------------------------
+# parameter blocks
+
+
+def mutate_block(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
+    """One hostile parameter block; most keep a right CRC so that only a sanity check refuses them."""
+    from eol_cal.firmware import block as B
+
+    op = int(rng.integers(0, 5))
+    if op == 0:
+        return _bitflip(rng, base)
+    if op == 1:
+        return _truncate(rng, base)
+    n = B.unpack(base).table_len
+    buf = bytearray(base)
+    if op == 2:  # a float field
+        name = str(rng.choice(["tick_hz", "kt", "c6", "phase_c6", "k6", "phase_k6", "lead_s", "iqc_limit",
+                               "hall_angle", "table_const", "table_per_amp"]))
+        value = float(rng.choice(_HOSTILE_F32))
+        count = B.field_count(name, n)
+        at = B.field_offset(name, n) + 4 * int(rng.integers(0, count))
+        with np.errstate(over="ignore"):
+            struct.pack_into("<f", buf, at, np.float32(value))
+        how = f"{name} = {value}"
+    elif op == 3:  # an integer field
+        name = str(rng.choice(["poles", "encoder_ppr", "table_len", "block_bytes", "flags", "sequence"]))
+        size = {"u16": 2, "u32": 4}[B.FIELDS[name]["type"]]
+        value = int(rng.choice([0, 1, 3, 8, 7, 0xFFFF, 2**31]))
+        buf[B.field_offset(name, n):B.field_offset(name, n) + size] = (value & (256**size - 1)).to_bytes(size, "little")
+        how = f"{name} = {value}"
+    else:
+        return _bitflip(rng, base, 0, B.field_offset("crc32", n))
+    try:
+        return B.with_crc(bytes(buf)), how + " (CRC made right)"
+    except Exception:  # noqa: BLE001 - a table_len the CRC cannot be placed for: keep the bytes as they are
+        return bytes(buf), how
+
+
+# --------------------------------------------------------------------------------------------
+# fit result JSON
+
+
+def _leaves(doc: object, path: tuple = ()) -> Iterator[tuple]:
+    if isinstance(doc, dict):
+        for k, v in doc.items():
+            yield from _leaves(v, (*path, k))
+    elif isinstance(doc, list):
+        for i, v in enumerate(doc):
+            yield from _leaves(v, (*path, i))
+    else:
+        yield path
+
+
+def _set(doc: object, path: tuple, value: object) -> None:
+    for k in path[:-1]:
+        doc = doc[k]  # type: ignore[index]
+    doc[path[-1]] = value  # type: ignore[index]
+
+
+def mutate_fitjson(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
+    """One hostile fit result."""
+    doc = json.loads(base)
+    leaves = [p for p in _leaves(doc) if p and p[0] == "motors"]
+    op = int(rng.integers(0, 7))
+    if op in (0, 1):  # a value of the wrong type or out of bounds
+        path = leaves[int(rng.integers(0, len(leaves)))]
+        value = _HOSTILE_JSON[int(rng.integers(0, len(_HOSTILE_JSON)))]
+        _set(doc, path, value)
+        return json.dumps(doc).encode(), f"{'.'.join(map(str, path))} = {value!r}"
+    if op == 2:  # a number as text JSON allows (or Python's json writes)
+        path = leaves[int(rng.integers(0, len(leaves)))]
+        token = str(rng.choice(_HOSTILE_JSON_TEXT))
+        _set(doc, path, "@@TOKEN@@")
+        return json.dumps(doc).replace('"@@TOKEN@@"', token).encode(), f"{'.'.join(map(str, path))} = {token[:20]}"
+    if op == 3:  # deep nesting
+        depth = int(rng.choice((1000, 100000, 1000000)))
+        path = leaves[int(rng.integers(0, len(leaves)))]
+        _set(doc, path, "@@TOKEN@@")
+        return json.dumps(doc).replace('"@@TOKEN@@"', "[" * depth + "]" * depth).encode(), f"nesting depth {depth}"
+    if op == 4:
+        return _truncate(rng, base)
+    if op == 5:
+        return _bitflip(rng, base)
+    path = leaves[int(rng.integers(0, len(leaves)))]
+    parent = doc
+    for k in path[:-2]:
+        parent = parent[k]
+    if isinstance(parent, dict) and path[-2] in parent and isinstance(parent[path[-2]], dict):
+        del parent[path[-2]]
+        return json.dumps(doc).encode(), f"{'.'.join(map(str, path[:-1]))} removed"
+    return _bitflip(rng, base)
+
+
+MUTATORS: dict[str, Callable[[np.random.Generator, bytes], tuple[bytes, str]]] = {
+    "csv": mutate_csv, "mdf4": mutate_mdf4, "block": mutate_block, "fitjson": mutate_fitjson,
+}
+SUFFIX = {"csv": ".csv", "mdf4": ".mf4", "block": ".bin", "fitjson": ".json"}
+
+
+def cases(seed: int, per_kind: int, bases: dict[str, bytes], kinds: tuple[str, ...] = KINDS) -> list[Case]:
+    """``per_kind`` hostile inputs of each kind, the same for the same seed."""
+    out = []
+    for k, kind in enumerate(kinds):
+        rng = np.random.default_rng([seed, k])
+        for i in range(per_kind):
+            data, how = MUTATORS[kind](rng, bases[kind])
+            out.append(Case(kind, f"{kind}-{seed}-{i:04d}{SUFFIX[kind]}", how, data))
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# running the CLI
+
+
+def _limit_memory(limit: int) -> Callable[[], None]:
+    def apply() -> None:
+        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+
+    return apply
+
+
+#: the checkout whose ``cli`` the children run (another one: the code before a change)
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
+            root: Path = ROOT) -> tuple[int | None, str, str, float, int]:
+    """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit.
+
+    Returns (exit code or None when it was killed for running past ``timeout_s``; a negative
+    code is the signal that ended it), stdout, stderr, seconds, peak resident memory (KiB).
+    """
+    child_env = dict(os.environ)
+    child_env["PYTHONPATH"] = str(root)
+    child_env.setdefault("EOL_CAL_JAX_CACHE", "off")
+    t0 = time.perf_counter()
+    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=child_env, preexec_fn=_limit_memory(memory_bytes),
+                            start_new_session=True)
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+        rc: int | None = proc.returncode
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, 9)
+        out, err = proc.communicate()
+        rc = None
+    seconds = time.perf_counter() - t0
+    # the largest resident set of any child waited for so far: an upper bound for this one
+    rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "-"
+
+
+def _commands(kind: str, name: str) -> list[list[str]]:
+    if kind in ("csv", "mdf4"):
+        return [["analyze", "--json", name]]
+    if kind == "block":
+        return [["block", "check", name], ["block", "show", "--json", name]]
+    return [["table", name, "-o", name + ".out.bin"]]
+
+
+def judge(case: Case, command: list[str], rc: int | None, stdout: str, stderr: str, seconds: float,
+          rss_kb: int, modified: bool) -> Outcome:
+    """An :class:`Outcome` from how one command ended."""
+    crash = rc is not None and rc not in (0, 1, 2)
+    accepted = rc == 0
+    return Outcome(case=case, command=" ".join(command), rc=rc, seconds=seconds, stderr=stderr[-2000:],
+                   traceback="Traceback" in stderr, hang=rc is None, crash=crash, modified=modified,
+                   named=case.name in stderr or case.name in stdout, maxrss_kb=rss_kb, accepted=accepted)
+
+
+def run_case(case: Case, workdir: Path, timeout_s: float = 20.0,
+             memory_bytes: int = CHILD_MEMORY_BYTES, root: Path = ROOT) -> list[Outcome]:
+    """Write ``case`` into ``workdir``, run each of its commands, judge each."""
+    path = workdir / case.name
+    path.write_bytes(case.data)
+    before = _digest(path)
+    outcomes = []
+    for command in _commands(case.kind, case.name):
+        rc, out, err, seconds, rss = run_cli(command, workdir, timeout_s, memory_bytes, root)
+        after = _digest(path)
+        outcomes.append(judge(case, command, rc, out, err, seconds, rss, after != before))
+    return outcomes
+
+
+def run_batch(batch: list[Case], workdir: Path, timeout_s: float = 60.0,
+              memory_bytes: int = CHILD_MEMORY_BYTES, root: Path = ROOT) -> list[Outcome]:
+    """Captures of one batch in one ``analyze --json`` (one bad file must not cost the others);
+    a batch that does not end cleanly is run again file by file to find the culprit."""
+    digests = {}
+    for case in batch:
+        (workdir / case.name).write_bytes(case.data)
+        digests[case.name] = _digest(workdir / case.name)
+    command = ["analyze", "--json", *(c.name for c in batch)]
+    rc, out, err, seconds, rss = run_cli(command, workdir, timeout_s, memory_bytes, root)
+    try:
+        doc = json.loads(out)
+        accepted = {c["file"] for c in doc["captures"]} | {c["file"].split("#")[0] for c in doc["captures"]}
+        refused = {e["file"].split("#")[0] for e in doc["errors"]}
+    except (ValueError, KeyError, TypeError):
+        doc = None
+    if doc is None or rc not in (0, 2) or "Traceback" in err:
+        return [o for case in batch for o in run_case(case, workdir, timeout_s / len(batch), memory_bytes, root)]
+    outcomes = []
+    for case in batch:
+        modified = _digest(workdir / case.name) != digests[case.name]
+        ok = case.name in accepted and case.name not in refused
+        outcomes.append(Outcome(case=case, command="analyze --json (batch)", rc=0 if ok else 2, seconds=seconds,
+                                stderr="", traceback=False, hang=False, crash=False, modified=modified,
+                                named=case.name in refused or ok, maxrss_kb=rss, accepted=ok))
+    return outcomes
+
+
+@dataclass
+class Tally:
+    """Counts over a campaign (the figures ``bench/bench_faults.py`` prints)."""
+
+    tried: int = 0
+    accepted: int = 0
+    refused_cleanly: int = 0
+    unnamed: int = 0
+    tracebacks: int = 0
+    hangs: int = 0
+    crashes: int = 0
+    modified: int = 0
+    max_seconds: float = 0.0
+    max_rss_kb: int = 0
+    bad: list[Outcome] = field(default_factory=list)
+
+    def add(self, outcomes: list[Outcome]) -> None:
+        """Count one input (all its commands)."""
+        self.tried += 1
+        worst = [o for o in outcomes if not o.clean]
+        self.tracebacks += any(o.traceback for o in outcomes)
+        self.hangs += any(o.hang for o in outcomes)
+        self.crashes += any(o.crash for o in outcomes)
+        self.modified += any(o.modified for o in outcomes)
+        self.unnamed += any(not (o.accepted or o.named) and not (o.traceback or o.hang or o.crash) for o in outcomes)
+        if not worst:
+            if all(o.accepted for o in outcomes):
+                self.accepted += 1
+            else:
+                self.refused_cleanly += 1
+        self.bad.extend(worst)
+        self.max_seconds = max([self.max_seconds, *(o.seconds for o in outcomes)])
+        self.max_rss_kb = max([self.max_rss_kb, *(o.maxrss_kb for o in outcomes)])
+
+
+def campaign(seed: int, per_kind: int, workdir: Path, bases: dict[str, bytes], kinds: tuple[str, ...] = KINDS,
+             batch: int = 10, timeout_s: float = 20.0, memory_bytes: int = CHILD_MEMORY_BYTES,
+             root: Path = ROOT) -> dict[str, Tally]:
+    """Run a seeded campaign; a :class:`Tally` per kind."""
+    tallies = {kind: Tally() for kind in kinds}
+    all_cases = cases(seed, per_kind, bases, kinds)
+    for kind in kinds:
+        mine = [c for c in all_cases if c.kind == kind]
+        if kind in ("csv", "mdf4"):
+            for i in range(0, len(mine), batch):
+                chunk = mine[i:i + batch]
+                outcomes = run_batch(chunk, workdir, timeout_s * len(chunk), memory_bytes, root)
+                for case in chunk:
+                    tallies[kind].add([o for o in outcomes if o.case is case])
+        else:
+            for case in mine:
+                tallies[kind].add(run_case(case, workdir, timeout_s, memory_bytes, root))
+    return tallies
