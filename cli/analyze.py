@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from cli.common import console, err_console, handle_errors, print_json
+from cli.common import console, handle_errors, print_json
 from eol_cal.errors import InputError
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -83,14 +83,14 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
         except InputError as exc:
             windows = []
             errors.append({"file": exc.file or path, "field": exc.field, "reason": exc.reason})
-            err_console.print(f"error: {exc}", markup=False, highlight=False)
+            click.echo(f"error: {exc}", err=True)  # one line, never wrapped
         # a joined (dyno) capture is reported window by window: no angle across a join
         for window in windows:
             try:
                 report, plot = analyze_capture(window, fw_angle=fw_angle)
             except InputError as exc:
                 errors.append({"file": exc.file or window.source, "field": exc.field, "reason": exc.reason})
-                err_console.print(f"error: {exc}", markup=False, highlight=False)
+                click.echo(f"error: {exc}", err=True)  # one line, never wrapped
                 continue
             reports.append(report)
             plots.append(plot)

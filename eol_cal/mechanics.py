@@ -44,6 +44,7 @@ import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
 from eol_cal.errors import InputError
+from eol_cal.inputs import read_text
 from eol_cal.motor import MotorParams
 from eol_cal.wrap import wrap_2pi
 
@@ -102,10 +103,7 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
     path = Path(name_or_file)
     if path.suffix == ".toml":
         source = str(path)
-        try:
-            text = path.read_text()
-        except FileNotFoundError:
-            raise InputError(source, None, "file not found") from None
+        text = read_text(path)
     else:
         source = f"bench {name_or_file}"
         try:

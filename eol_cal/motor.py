@@ -10,6 +10,7 @@ from importlib import resources
 from pathlib import Path
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import load_toml
 
 
 @dataclass(frozen=True)
@@ -133,15 +134,8 @@ def load_motor(preset: str = "paper", toml_file: str | Path | None = None) -> Mo
     data = tomllib.loads(text)
     source = f"preset {preset}"
     if toml_file is not None:
-        path = Path(toml_file)
-        try:
-            override = tomllib.loads(path.read_text())
-        except FileNotFoundError:
-            raise InputError(str(path), None, "file not found") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise InputError(str(path), None, f"not valid TOML: {exc}") from None
-        data.update(override)
-        source = str(path)
+        data.update(load_toml(toml_file))
+        source = str(toml_file)
     return motor_from_mapping(data, source)
 
 

@@ -19,7 +19,6 @@ not name are dropped, except those already carrying a canonical name.
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
@@ -29,6 +28,7 @@ from eol_cal.capture.metadata import MetaValue, coerce_value
 from eol_cal.capture.model import CANONICAL_CHANNELS, TRUTH_PREFIX
 from eol_cal.capture.units import check_unit, parse_unit, to_canonical
 from eol_cal.errors import InputError
+from eol_cal.inputs import load_toml
 
 
 class ForeignChannelError(InputError):
@@ -94,12 +94,7 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         converted, ``truth.*`` metadata, one source feeding two channels.
     """
     path_s = str(path)
-    try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path_s, None, "map file not found") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(path_s, None, f"not valid TOML: {exc}") from None
+    data = load_toml(path)
     unknown = set(data) - {"channels", "metadata"}
     if unknown:
         raise InputError(path_s, sorted(unknown)[0], "unknown table; a map has [channels] and [metadata]")

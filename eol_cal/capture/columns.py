@@ -144,8 +144,11 @@ def assemble(
         if "torque" not in columns:
             raise InputError(source, "torque", "required channel missing (its time base becomes the capture's)")
         t = np.asarray(columns["torque"].times, dtype=np.float64)
+        if len(t) < 2:
+            raise InputError(source, "torque", f"{len(t)} samples; a capture needs at least 2")
         lo = max(float(c.times[0]) for c in columns.values() if len(c.times))
-        hi = min(float(c.times[-1]) for c in columns.values() if not c.events and len(c.times))
+        # the torque channel's group may read as change events (integral values): then it alone bounds the span
+        hi = min((float(c.times[-1]) for c in columns.values() if not c.events and len(c.times)), default=float(t[-1]))
         keep = (t >= lo) & (t <= hi)
         if keep.sum() < 2:
             raise InputError(source, "t", f"the channels' time bases overlap on {int(keep.sum())} torque samples")

@@ -27,6 +27,7 @@ from eol_cal.capture.columns import Column, assemble
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, decode_value, encode_value, join_truth, split_truth
 from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
 from eol_cal.errors import InputError
+from eol_cal.inputs import read_text
 
 _META_LINE = re.compile(r"^#\s*([^:\s]+)\s*:\s?(.*)$")
 _HEADER_CELL = re.compile(r"^(.*?)\s*\[(.*)\]$")
@@ -41,10 +42,11 @@ def _parse_header(line: str, file: str) -> list[tuple[str, str | None]]:
         if not name:
             raise InputError(file, f"column {position}", "empty channel name in the header line")
         cells.append((name, unit))
-    names = [n for n, _ in cells]
-    for name in names:
-        if names.count(name) > 1:
+    seen: set[str] = set()
+    for name, _ in cells:  # a set, not list.count: a 100 000-column header must stay linear
+        if name in seen:
             raise InputError(file, name, "channel named twice in the header line")
+        seen.add(name)
     return cells
 
 
@@ -80,12 +82,7 @@ def read_csv_columns(path: str | Path) -> tuple[dict[str, Column], dict[str, Met
         Unreadable file, no header, malformed or duplicate metadata, non-numeric data.
     """
     file = str(path)
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(file, None, "file not found") from None
-    except UnicodeDecodeError as exc:
-        raise InputError(file, None, f"not UTF-8 text: {exc}") from None
+    text = read_text(path, encoding="utf-8-sig")
     lines = text.splitlines()
     properties: dict[str, MetaValue] = {}
     index = 0

@@ -15,7 +15,11 @@ torque channel's time base (analog: linear interpolation; digital: zero-order ho
 
 from __future__ import annotations
 
+import contextlib
+import gc
+import sys
 import xml.etree.ElementTree as ET
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Literal
 
@@ -26,7 +30,9 @@ from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble, change_events, is_change_list
 from eol_cal.capture.metadata import MetaValue, decode_value, encode_value, join_truth, split_truth
 from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
+from eol_cal.capture.mdf4_check import check_mdf4_file
 from eol_cal.errors import InputError
+from eol_cal.inputs import check_regular
 
 _MDF_VERSION = "4.10"
 _DESCRIPTION = "eol-cal capture (capture format v1)"
@@ -160,16 +166,45 @@ def read_mdf4_columns(
     """Raw columns (source names, each on its group's time base), header properties, and the
     channels that cannot be used (name -> reason: ambiguous name, non-numeric).
 
+    The file's structure is checked first (:mod:`eol_cal.capture.mdf4_check`): asammdf only
+    decodes a file whose links, sizes and compressed data hold.
+
     Raises
     ------
     InputError
-        Missing or unreadable file, not MDF version 4, a malformed header comment.
+        Missing or unreadable file, a structural fault (naming the block), not MDF version 4,
+        a malformed header comment.
     """
+    file = str(path)
+    check_regular(path)
+    check_mdf4_file(path)  # structure, sizes and compressed data, before asammdf trusts any of it
+    try:
+        with _quiet_asammdf():
+            return _decode(path, file)
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - whatever asammdf trips over in a file that passed the check
+        raise InputError(file, None, f"not a readable MDF file: {exc.__class__.__name__}: {exc}") from None
+
+
+@contextlib.contextmanager
+def _quiet_asammdf() -> Iterator[None]:
+    """asammdf objects that failed half-way complain from ``__del__`` on stderr; the error we
+    raise says what went wrong, once."""
+    previous = sys.unraisablehook
+    sys.unraisablehook = lambda unraisable: None
+    try:
+        yield
+    finally:
+        gc.collect()
+        sys.unraisablehook = previous
+
+
+def _decode(
+    path: str | Path, file: str
+) -> tuple[dict[str, Column], dict[str, MetaValue], dict[str, str]]:
     from asammdf import MDF
 
-    file = str(path)
-    if not Path(path).is_file():
-        raise InputError(file, None, "file not found")
     try:
         mdf = MDF(str(path))
     except Exception as exc:  # asammdf raises MdfException, struct.error, ... for bad files
@@ -196,6 +231,9 @@ def read_mdf4_columns(
                     bad[name] = f"not a numeric scalar channel (dtype {samples.dtype})"
                     continue
                 times = np.asarray(signal.timestamps, dtype=np.float64)
+                if times.shape != samples.shape:
+                    bad[name] = f"{samples.size} samples on {times.size} time stamps"
+                    continue
                 found.append((name, samples, signal.unit or None, times))
             if not found:
                 continue

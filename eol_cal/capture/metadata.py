@@ -41,8 +41,12 @@ KEY_PATTERN = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]*$")
 _INT_PATTERN = re.compile(r"^[+-]?[0-9]+$")
 
 
+#: longest integer text read as a number (Python refuses to convert more than 4300 digits)
+_MAX_INT_DIGITS = 100
+
+
 def _infer(text: str) -> MetaValue:
-    if _INT_PATTERN.match(text):
+    if _INT_PATTERN.match(text) and len(text) <= _MAX_INT_DIGITS:
         return int(text)
     try:
         return float(text)
@@ -91,7 +95,7 @@ def coerce_value(key: str, value: object, file: str | None) -> MetaValue:
     if want is int:
         if isinstance(value, float) and value.is_integer():
             return int(value)
-        if isinstance(value, str) and _INT_PATTERN.match(value.strip()):
+        if isinstance(value, str) and _INT_PATTERN.match(value.strip()) and len(value.strip()) <= _MAX_INT_DIGITS:
             return int(value)
         raise InputError(file, key, f"must be an integer, got {value!r}")
     try:

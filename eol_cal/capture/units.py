@@ -112,10 +112,11 @@ def to_canonical(
             return values
     source = parse_unit(unit, file, field)
     ureg = unit_registry()
-    quantity = ureg.Quantity(np.asarray(values, dtype=np.float64), source)
-    if channel == "speed" and "radian" not in ureg.get_root_units(source)[1]._units:
-        quantity = quantity * ureg.revolution
     try:
+        quantity = ureg.Quantity(np.asarray(values, dtype=np.float64), source)
+        if channel == "speed" and "radian" not in ureg.get_root_units(source)[1]._units:
+            # an offset unit (degC) fails here already: it cannot be multiplied by a revolution
+            quantity = quantity * ureg.revolution
         return np.asarray(quantity.to(canonical).magnitude, dtype=np.float64)
     except Exception as exc:  # DimensionalityError, OffsetUnitCalculusError
         raise InputError(

@@ -31,6 +31,30 @@ MIN_HALL_CHANGES = 7
 
 _DIGITAL_RANGE = {"enc_a": (0, 1), "enc_b": (0, 1), "hall": (0, 7)}
 
+#: physical bounds of the analog channels, canonical units (docs/capture-format.md, "Bad input"):
+#: far beyond any EPS motor on an end-of-line bench, far below what overflows a float64 sum or
+#: square in an analysis (a 1e308 N*m sample passed the finite check and crashed the fit)
+PHYSICAL_BOUNDS: dict[str, tuple[float, float]] = {
+    "t": (-1e10, 1e10),            # s (epoch-based time stamps fit)
+    "torque": (-1e3, 1e3),         # N*m
+    "iq_ref": (-1e4, 1e4),         # A
+    "iqc": (-1e4, 1e4),
+    "iq": (-1e4, 1e4),
+    "id": (-1e4, 1e4),
+    "ia": (-1e4, 1e4),
+    "ib": (-1e4, 1e4),
+    "ic": (-1e4, 1e4),
+    "speed": (-1e5, 1e5),          # rpm
+    "temp": (-273.15, 1e3),        # degC
+}
+#: bounds of numeric metadata (poles, encoder_ppr and kt must also be positive)
+METADATA_BOUNDS: dict[str, tuple[float, float]] = {
+    "poles": (2, 1000),
+    "encoder_ppr": (1, 1_000_000),
+    "kt": (0.0, 100.0),            # N*m/A
+    "iq_ref": (-1e4, 1e4),         # A
+}
+
 
 def _at(t: np.ndarray, index: int) -> str:
     return f"t = {float(t[index]):.6g} s (sample {index})"
@@ -65,6 +89,9 @@ def check_metadata(capture: Capture) -> None:
         raise InputError(src, "encoder_ppr", f"must be a positive integer, got {meta['encoder_ppr']}")
     if "kt" in meta and meta["kt"] <= 0:
         raise InputError(src, "kt", f"must be positive, got {meta['kt']}")
+    for key, (lo, hi) in METADATA_BOUNDS.items():
+        if key in meta and not lo <= meta[key] <= hi:
+            raise InputError(src, key, f"{meta[key]!r} outside the physical bounds {lo:g}..{hi:g}")
 
 
 def check_channels_present(capture: Capture) -> None:
@@ -97,6 +124,26 @@ def check_finite(capture: Capture) -> None:
             first, count = found
             kind = "NaN" if np.isnan(values[first]) else "infinite value"
             raise InputError(capture.source, name, f"{kind} at {_at(capture.t, first)}; {count} non-finite samples in all")
+
+
+def check_bounds(capture: Capture) -> None:
+    """Every analog value (and ``t``) within :data:`PHYSICAL_BOUNDS`: what passes is safe to sum,
+    square and fit (no overflow to infinity downstream)."""
+    for name in ("t", *capture.channels):
+        if name not in PHYSICAL_BOUNDS:
+            continue
+        lo, hi = PHYSICAL_BOUNDS[name]
+        values = np.asarray(capture[name], dtype=np.float64)
+        found = _first((values < lo) | (values > hi))
+        if found:
+            first, count = found
+            unit = CANONICAL_CHANNELS[name]
+            raise InputError(
+                capture.source,
+                name,
+                f"value {values[first]:.6g} {unit} at {_at(capture.t, first)} outside the physical bounds "
+                f"{lo:g}..{hi:g} {unit}; {count} such samples",
+            )
 
 
 def check_time(capture: Capture) -> None:
@@ -201,8 +248,8 @@ def check_activity(capture: Capture) -> None:
 def validate(capture: Capture) -> Capture:
     """Refuse a capture that cannot be trusted; return it unchanged when it can.
 
-    Checks, in this order: channel names, presence and lengths; metadata; finite values;
-    strictly increasing time; digital ranges and hall faults (states 0 and 7); recorded events;
+    Checks, in this order: channel names, presence and lengths; metadata (with its bounds);
+    finite values; values within :data:`PHYSICAL_BOUNDS`; strictly increasing time; digital ranges and hall faults (states 0 and 7); recorded events;
     encoders that never toggle; at least one full electrical revolution (see module docstring).
 
     Parameters
@@ -223,6 +270,7 @@ def validate(capture: Capture) -> Capture:
     check_channels_present(capture)
     check_metadata(capture)
     check_finite(capture)
+    check_bounds(capture)
     check_time(capture)
     check_digital(capture)
     check_events(capture)

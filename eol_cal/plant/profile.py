@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import read_text
 
 MAX_RPM = 6000.0
 MAX_IQ_A = 300.0
@@ -177,8 +178,4 @@ def load_profile(name_or_file: str | Path) -> Profile:
     if not path.exists():
         raise InputError(text_name, None, f"no such profile file, and not a built-in profile "
                          f"({', '.join(builtin_profiles())})")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(text_name, None, f"cannot read: {exc}") from None
-    return parse_profile(text, text_name)
+    return parse_profile(read_text(path), text_name)

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import read_text
 
 if TYPE_CHECKING:
     from eol_cal.analysis.result import CiLimits
@@ -129,12 +130,7 @@ def load_limits(path: str | Path, variant: str | None = None) -> VariantLimits:
         several and no default.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(str(path), None, "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(str(path), None, f"cannot read: {exc}") from None
+    text = read_text(path)
     variants = parse_limits(text, str(path))
     if variant is None:
         default = tomllib.loads(text).get("default_variant")

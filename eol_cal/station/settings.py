@@ -26,7 +26,6 @@ line's deployment can set what differs per station without editing the file.
 from __future__ import annotations
 
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Mapping
@@ -35,6 +34,7 @@ import can
 
 from eol_cal.address import parse_host_port
 from eol_cal.errors import InputError
+from eol_cal.inputs import load_toml
 
 #: Modbus TCP's registered port: a dyno address without one uses it
 MODBUS_PORT = 502
@@ -135,16 +135,7 @@ def _flatten(table: Mapping[str, object], prefix: str = "") -> dict[str, object]
 
 
 def _read_toml(path: Path) -> dict[str, object]:
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise InputError(str(path), None, f"cannot read station settings: {exc.strerror or exc}") from exc
-    try:
-        return tomllib.loads(raw.decode("utf-8"))
-    except UnicodeDecodeError as exc:
-        raise InputError(str(path), None, f"not UTF-8 text (byte {exc.start})") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(str(path), None, f"not valid TOML: {exc}") from exc
+    return load_toml(path)
 
 
 def _from_env(key: Key, text: str, where: str) -> object:
