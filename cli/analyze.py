@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from cli.common import console, handle_errors, print_json
+from cli.paths import io_paths
 from eol_cal.errors import InputError
 
 def _fmt(x: float | None, spec: str) -> str:
@@ -61,6 +62,7 @@ def _print_table(reports: list[dict]) -> None:
 @click.option("--fw-angle", is_flag=True,
               help="Also run the firmware's angle estimator (JAX; seconds) and report it against the offline angle.")
 @handle_errors
+@io_paths(inputs=("captures", "map_file"), outputs=("plot_file",))
 def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, plot_file: str | None,
                 fw_angle: bool) -> None:
     """Ripple metrics (p-p % raw and filtered), order spectrum and encoder quantisation per CAPTURE.

@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from cli.common import console, handle_errors, print_json
+from cli.paths import io_paths
 
 _STATUS_TEXT = {0: "valid", 1: "CRC mismatch", 2: "header invalid"}
 
@@ -140,6 +141,7 @@ def check_cmd(file: str, as_json: bool) -> None:
 @click.option("--bank", type=click.IntRange(0, 1), required=True, help="target bank: 0 (sector C) or 1 (sector B)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Intel HEX file to write")
 @handle_errors
+@io_paths(inputs=("file",), outputs=("output",))
 def hex_cmd(file: str, bank: int, output: str) -> None:
     """Write a valid block as Intel HEX at its bank's flash address (byte address = 2 x word address).
 
@@ -167,6 +169,7 @@ def hex_cmd(file: str, bank: int, output: str) -> None:
 @click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
               help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm).")
 @handle_errors
+@io_paths(inputs=("motor_file",), outputs=("output",))
 def uncompensated_cmd(serial: str, output: str, motor_file: str | None) -> None:
     """Write the block a motor is measured under: the interpolated angle, no compensation.
 

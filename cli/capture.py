@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from cli.common import CommandExit, console, handle_errors, print_json
+from cli.paths import io_paths
 
 
 def _finite_range(values: Any) -> tuple[float | None, float | None, int]:
@@ -154,6 +155,7 @@ def info(file: str, map_file: str | None, as_json: bool) -> None:
     help="MDF4 output: digital channels as sampled levels (default) or as change events.",
 )
 @handle_errors
+@io_paths(inputs=("src", "map_file"), outputs=("dst",))
 def convert(src: str, dst: str, map_file: str | None, digital: str | None) -> None:
     """Read IN (any reader, checked), write OUT (format from its suffix), atomically.
 

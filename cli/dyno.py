@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import click
 
 from cli.common import console, err_console, handle_errors, print_json
+from cli.paths import io_paths
 
 if TYPE_CHECKING:
     from eol_cal.dyno.sim import FaultPlan
@@ -35,6 +36,7 @@ def _quiet_pymodbus() -> None:
 @click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @handle_errors
+@io_paths(inputs=("profile",), outputs=("output",))
 def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults,
                 split_windows, as_json) -> None:
     """Run a test profile on the dyno and write the capture.

@@ -12,6 +12,7 @@ from typing import Any, Callable
 import click
 
 from cli.common import err_console, handle_errors, print_json
+from cli.paths import io_paths
 from eol_cal.errors import InputError
 
 
@@ -49,15 +50,43 @@ def _seed_to_key(key_file: str | None, key_algo: str | None) -> Any:
 
     secret = load_key_file(key_file) if key_file else None
     if key_algo:
-        module_name, _, func_name = key_algo.partition(":")
-        try:
-            algo = getattr(importlib.import_module(module_name), func_name)
-        except (ImportError, AttributeError, ValueError) as exc:
-            raise InputError(None, "key-algo", f"cannot load {key_algo!r}: {exc}") from exc
-        return lambda seed: bytes(algo(seed, secret))
+        return _key_algo(key_algo, secret)
     if secret is None:
         raise InputError(None, "key-file", "security access needs the ECU's secret: give --key-file (16 bytes, hex)")
     return hmac_seed_to_key(secret)
+
+
+def _key_algo(spec: str, secret: bytes | None) -> Callable[[bytes], bytes]:
+    """The seed-to-key function named ``MODULE:FUNC``; whatever it does wrong is one line naming
+    its file (or the spec, when it cannot be loaded), never a traceback in the middle of a flash."""
+    module_name, colon, func_name = spec.partition(":")
+    if not colon or not module_name or not func_name:
+        raise InputError(None, "key-algo", f"{spec!r}: expected MODULE:FUNC")
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:  # noqa: BLE001 - ImportError, or anything the module raises on import
+        raise InputError(None, "key-algo", f"cannot load {spec!r}: {exc.__class__.__name__}: {exc}") from None
+    where = getattr(module, "__file__", None) or module_name
+    algo = getattr(module, func_name, None)
+    if not callable(algo):
+        raise InputError(where, "key-algo", f"{spec!r}: {module_name} has no function {func_name!r}")
+
+    def seed_to_key(seed: bytes) -> bytes:
+        try:
+            key = algo(seed, secret)
+        except Exception as exc:  # noqa: BLE001 - a foreign algorithm fails in its own ways
+            raise InputError(where, "key-algo", f"{spec} failed on the seed: {exc.__class__.__name__}: {exc}") from None
+        if not isinstance(key, (bytes, bytearray, memoryview)):
+            raise InputError(where, "key-algo", f"{spec} returned {type(key).__name__}, not the key bytes")
+        return bytes(key)
+
+    # a trial on a made-up seed, so that a wrong algorithm is refused before any session opens
+    seed_to_key(_SEED_TRIAL)
+    return seed_to_key
+
+
+#: the seed the key algorithm is tried on before the flash (the contract's seeds are 4 bytes)
+_SEED_TRIAL = b"\x12\x34\x56\x78"
 
 
 @click.command("flash")
@@ -149,6 +178,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 @_bus_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (raw).")
 @handle_errors
+@io_paths(inputs=("can_config",), outputs=("output",))
 def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
                    output: str) -> None:
     """Read the active block back from the ECU into a file (written atomically)."""

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from cli.common import CommandExit, console, err_console, handle_errors
+from cli.paths import io_paths
 
 
 def enable_jax_cache() -> None:
@@ -71,6 +72,7 @@ def _harmonics(text: str) -> tuple[int, ...]:
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
+@io_paths(inputs=("captures", "map_file", "bench_name"), outputs=("output",), output_dirs=("plot_dir",))
 def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
             hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.

@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from cli.common import handle_errors
+from cli.paths import io_paths
 
 _DEFAULT_DIR = "firmware_params/golden"
 
@@ -14,6 +15,7 @@ _DEFAULT_DIR = "firmware_params/golden"
 @click.option("--check", "check_dir", type=click.Path(file_okay=False), is_flag=False, flag_value=_DEFAULT_DIR,
               help=f"compare DIR (default {_DEFAULT_DIR}) with the Python reference; exit 1 on any difference")
 @handle_errors
+@io_paths(output_dirs=("out_dir",))
 def golden(out_dir: str | None, check_dir: str | None) -> None:
     """Generate the golden vectors (--out DIR) or verify a checked-in set (--check [DIR])."""
     from eol_cal.errors import CheckFailed, InputError

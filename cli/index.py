@@ -6,6 +6,7 @@ import click
 import numpy as np
 
 from cli.common import console, handle_errors, print_json
+from cli.paths import io_paths
 from eol_cal.errors import InputError
 
 #: round PPR values the seed's Fig. 4 discussion reads off (200, 500), besides powers of two
@@ -51,6 +52,7 @@ def index_rows(poles: int, ppr: int, ppr_min: int, ppr_max: int) -> list[dict]:
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False, writable=True),
               help="Write the eta-against-PPR figure (seed Fig. 4 analogue) to this PNG.")
 @handle_errors
+@io_paths(outputs=("plot_file",))
 def index_cmd(poles: int, ppr: int, ppr_min: int, ppr_max: int, as_json: bool, plot_file: str | None) -> None:
     """Torque ripple index eta = 100*(1 - cos(P*pi/N_enc)) % of encoder quantisation over a PPR range."""
     if poles % 2:

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.common import RECORDS_DB, console, handle_errors
+from cli.paths import io_paths
 
 
 def _date(value: str | None, name: str):
@@ -36,6 +37,7 @@ def lot_group() -> None:
 @click.option("-o", "--out", "out", default=Path("lot.html"), show_default=True,
               type=click.Path(dir_okay=False, path_type=Path), help="The page to write (one self-contained HTML file).")
 @handle_errors
+@io_paths(inputs=("db",), outputs=("out",))
 def report_cmd(db, variant, since, until, station, out) -> None:
     """Write the lot page: yield and counts, distributions with the limits, control charts per
     station, the motors nearest their limits with links to their reports. One file that opens
@@ -68,6 +70,7 @@ def _fmt(x, digits: int = 4) -> str:
 @click.option("--csv", "csv_file", default=None, type=click.Path(dir_okay=False, path_type=Path),
               help="Also write the selected runs (one row each, the database's columns) as CSV.")
 @handle_errors
+@io_paths(inputs=("db",), outputs=("csv_file",))
 def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
     """Lot statistics: per quantity count, mean, sd, percentiles and Cp/Cpk against the variant's
     limit; first-pass yield; failure causes as a Pareto; individuals / moving-range control

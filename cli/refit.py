@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.common import CommandExit, console, err_console, handle_errors
+from cli.paths import io_paths
 
 
 def _warm_worker() -> None:
@@ -30,6 +31,7 @@ def _warm_worker() -> None:
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Results: .parquet or .jsonl, one row per capture, keyed by serial.")
 @handle_errors
+@io_paths(inputs=("captures", "limits_file", "bench", "motor"), outputs=("out",))
 def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out) -> None:
     """Refit every capture (directories of station runs: their before.mf4; files; globs) as one
     task each on a `distributed` cluster, with the station's fit; rows keyed by serial."""

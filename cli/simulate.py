@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.common import console, handle_errors, print_json
+from cli.paths import io_paths
 from eol_cal.errors import InputError
 
 _SUFFIXES = (".csv", ".mf4")
@@ -80,6 +81,7 @@ def _summary(result, mode: str, path: str | None) -> dict:
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False), help="PNG: angle, currents, torque (paper Figs. 9-12).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary.")
 @handle_errors
+@io_paths(inputs=("block_file", "profile"), outputs=("output", "plot_file"), output_dirs=("out_dir",))
 def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm, iq, seconds, serial, seed,
                  motors, out_dir, fmt, plot_file, as_json) -> None:
     """Simulate a motor on the test bench (or a lot): the plant through a test profile, written as captures.

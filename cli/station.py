@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, handle_errors, print_json
+from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = """\
@@ -150,6 +151,7 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
               help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @handle_errors
+@io_paths(inputs=("can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",), output_dirs=("report_dir", "spool_dir"))
 def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, verify, key_file,
             report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, motor_file, bench_name, as_json) -> None:
     """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
@@ -298,6 +300,7 @@ def _day(value: str | None) -> str | None:
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Spool directory (as for run).")
 @click.pass_context
 @handle_errors
+@io_paths(inputs=("db",), outputs=("plot_file",), output_dirs=("spool_dir",))
 def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
     """Query run records: by serial or day, the pass rate, and a plot across the lot.
 
@@ -317,7 +320,10 @@ def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> N
             err_console.print(f"spool: {bad}; left alone")
         if res.remaining:
             raise CommandExit(2)
-    records = query_records(db, serial, day)
+    skipped: list = []
+    records = query_records(db, serial, day, skipped=skipped)
+    for exc in skipped:  # a corrupt row costs only itself: reported, the others are listed
+        click.echo(f"error: {exc}; skipped", err=True)
     summary = summarise(records)
     if plot_file is not None:
         from eol_cal.station.report import plot_lot
@@ -325,6 +331,8 @@ def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> N
         plot_lot(plot_file, records, title=f"{db_label(db)}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))
     if as_json:
         print_json({"summary": summary, "records": records})
+        if skipped:
+            raise CommandExit(2)
         return
     console.print(_results_table(records, f"{db_label(db)}: {summary['runs']} run(s)"))
     rate = "-" if summary["pass_rate"] is None else f"{100 * summary['pass_rate']:.1f} %"
@@ -332,6 +340,8 @@ def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> N
                   f"(of runs that ended pass or fail); motors {summary['motors']}")
     if plot_file is not None:
         console.print(f"plot: {plot_file}")
+    if skipped:
+        raise CommandExit(2)
 
 
 @records_cmd.command("migrate")

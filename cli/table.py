@@ -5,6 +5,7 @@ from __future__ import annotations
 import click
 
 from cli.common import console, handle_errors, print_json
+from cli.paths import io_paths
 
 
 def _lead(text: str) -> float | None:
@@ -32,6 +33,7 @@ def _lead(text: str) -> float | None:
 @click.option("--bank", default=0, show_default=True, type=click.IntRange(0, 1), help="Bank address for --hex.")
 @click.option("--json", "as_json", is_flag=True, help="Print the block's fields as JSON.")
 @handle_errors
+@io_paths(inputs=("result", "motor_file"), outputs=("output", "hex_file"))
 def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, hex_file, bank, as_json):
     """Build the compensator tables of one motor and pack them into a valid parameter block.
 

@@ -8,6 +8,8 @@ import tempfile
 from pathlib import Path
 from typing import Iterator
 
+from eol_cal.errors import WriteError
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
@@ -15,10 +17,14 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
     The temporary file keeps ``path``'s suffix (asammdf picks the format from it) and lives in
     the same directory, so the final rename is atomic. On an exception it is removed and
-    ``path`` is left as it was.
+    ``path`` is left as it was; an :class:`OSError` (a full disk) becomes a
+    :class:`~eol_cal.errors.WriteError` naming ``path``.
     """
     path = Path(path)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent or ".")
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent or ".")
+    except OSError as exc:
+        raise WriteError(str(path), exc) from exc
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -30,9 +36,12 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+            # a full disk (ENOSPC) or a refused rename: the target named, nothing left behind
+            raise WriteError(str(path), exc) from exc
         raise
     with contextlib.suppress(OSError):
         dir_fd = os.open(path.parent or ".", os.O_RDONLY)
@@ -48,7 +57,10 @@ def atomic_write(path: str | Path, data: bytes | str, encoding: str = "utf-8") -
     Creates missing parent directories.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise WriteError(str(path), exc) from exc
     raw = data.encode(encoding) if isinstance(data, str) else data
     with atomic_path(path) as tmp:
         tmp.write_bytes(raw)

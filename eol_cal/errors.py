@@ -24,6 +24,20 @@ class InputError(EolCalError):
         super().__init__(f"{where}: {reason}" if where else reason)
 
 
+class WriteError(InputError, OSError):
+    """An output file could not be written (full disk, no permission): names the target, not the
+    temporary file; nothing of it was left behind (exit code 2).
+
+    Also an :class:`OSError` with the original ``errno`` and ``strerror``, so callers that spool or
+    retry on OS errors keep doing so.
+    """
+
+    def __init__(self, file: str, cause: OSError) -> None:
+        super().__init__(file, None, f"cannot write: {cause.strerror or cause}")
+        self.errno = cause.errno
+        self.strerror = cause.strerror
+
+
 class CheckFailed(EolCalError):
     """A check or limit did not hold (exit code 1); the run itself worked."""
 

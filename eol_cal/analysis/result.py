@@ -217,13 +217,10 @@ def write_result(doc: dict[str, Any], path: str | Path) -> None:
 
 def read_result(path: str | Path) -> dict[str, Any]:
     """Read and check a fit result file (schema, motors list)."""
+    from eol_cal.inputs import load_json
+
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(str(path), None, "file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(str(path), None, f"not valid JSON: {exc}") from None
+    doc = load_json(path)  # a FIFO, non-UTF-8, deep nesting or a 5000-digit number: one line naming the file
     if not isinstance(doc, dict) or doc.get("schema") != SCHEMA:
         got = doc.get("schema") if isinstance(doc, dict) else type(doc).__name__
         raise InputError(str(path), "schema", f"expected {SCHEMA!r}, got {got!r}")

@@ -314,7 +314,7 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
                     con.exec_driver_sql(f"ALTER TABLE runs ADD COLUMN {name} {typ}")
             if v < 2:
                 for run_id, doc in con.execute(sa.select(runs.c.run_id, runs.c.record_json)).all():
-                    row = _row(json.loads(doc))
+                    row = _row(_record(db, {"run_id": run_id, "record_json": doc}, None))
                     con.execute(runs.update().where(runs.c.run_id == run_id)
                                 .values(station=row["station"], operator=row["operator"]))
             _metadata.create_all(con)  # the new table and indexes; existing ones are kept
@@ -464,14 +464,37 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
         raise InputError(db_label(db), None, f"cannot read the records: {_oneline(exc)}") from None
 
 
+def _record(db: str | Path, row: dict[str, Any], skipped: list[InputError] | None) -> dict[str, Any] | None:
+    """The parsed ``record_json`` of one row; a corrupt one is refused naming the database and the
+    run, or (with ``skipped``) added there and passed over."""
+    from eol_cal.inputs import loads_json
+
+    where = f"run {row.get('run_id')} record_json"
+    name = db_key(db) if is_url(db) else str(db)  # the file as given; a URL without its password
+    try:
+        doc = loads_json(str(row["record_json"]), name, where)
+        if not isinstance(doc, dict):
+            raise InputError(name, where, f"a JSON {type(doc).__name__}, not a record object")
+    except InputError as exc:
+        if skipped is None:
+            raise
+        skipped.append(exc)
+        return None
+    return doc
+
+
 def query_records(db: str | Path, serial: str | None = None, day: str | None = None,
-                  timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Any]]:
+                  timeout_s: float = DEFAULT_LOCK_TIMEOUT_S,
+                  skipped: list[InputError] | None = None) -> list[dict[str, Any]]:
     """Records (the stored JSON documents) by serial and/or UTC day ``YYYY-MM-DD``, oldest first.
 
-    Works on every schema version (it reads only the record JSON).
+    Works on every schema version (it reads only the record JSON). A row whose record JSON is
+    corrupt raises :class:`InputError` naming the database and the run; with ``skipped`` given,
+    it is appended there instead and the other records are returned.
     """
-    q = select_runs(serial=serial, day=day).with_only_columns(runs.c.record_json)
-    return [json.loads(r["record_json"]) for r in read_rows(db, q, timeout_s)]
+    q = select_runs(serial=serial, day=day).with_only_columns(runs.c.run_id, runs.c.record_json)
+    docs = (_record(db, r, skipped) for r in read_rows(db, q, timeout_s))
+    return [d for d in docs if d is not None]
 
 
 def query_rows(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
@@ -482,7 +505,8 @@ def query_rows(db: str | Path, variant: str | None = None, station: str | None =
     q = select_runs(variant=variant, station=station, since=since, until=until).with_only_columns(*cols)
     out = []
     for row in read_rows(db, q, timeout_s):
-        row["record"] = json.loads(row.pop("record_json"))
+        row["record"] = _record(db, row, None)
+        del row["record_json"]
         out.append(row)
     return out
 

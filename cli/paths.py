@@ -1,0 +1,120 @@
+"""The one check of a command's file arguments: no output may be one of its inputs, and no
+output may be a device, FIFO or socket.
+
+``eol-cal fit X.mf4 -o X.mf4`` used to replace the capture with the result and exit 0. Every
+command that writes declares its inputs and outputs with :func:`io_paths`; before it runs, each
+output is compared with each input (and with the other outputs) as files: the same inode when
+both exist (a hard link, a symbolic link, ``./x`` and ``x`` alike), else the same path after
+resolving links. An existing output that is not a regular file (``/dev/sda``, a FIFO) is refused
+too: outputs are written atomically, by renaming a new file over the old name, which would
+replace the device node itself. Every refusal names the file (exit 2).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import stat
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+from eol_cal.errors import InputError
+
+PathArg = str | os.PathLike | None
+
+
+def _paths(value: Any) -> list[str]:
+    """A parameter's value as path strings (``nargs=-1`` tuples, ``None`` and URLs left out)."""
+    if value is None:
+        return []
+    if isinstance(value, (tuple, list)):
+        return [p for v in value for p in _paths(v)]
+    text = os.fspath(value) if isinstance(value, os.PathLike) else str(value)
+    return [] if "://" in text or not text else [text]
+
+
+def _identity(path: str) -> tuple[str, object]:
+    """What makes two names the same file: (dev, inode) when it exists, else the resolved path."""
+    try:
+        info = os.stat(path)
+        return "inode", (info.st_dev, info.st_ino)
+    except OSError:
+        return "path", str(Path(path).resolve())
+
+
+def _same(a: str, b: str) -> bool:
+    kind_a, id_a = _identity(a)
+    kind_b, id_b = _identity(b)
+    if kind_a == kind_b == "inode":
+        return id_a == id_b
+    return str(Path(a).resolve()) == str(Path(b).resolve())
+
+
+def _special(path: str) -> str | None:
+    """Why an existing output cannot be written atomically (None when it can)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None
+    for test, name in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return None
+
+
+def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs: Iterable[PathArg] = ()) -> None:
+    """Refuse outputs that are inputs, that repeat each other, or that are devices/FIFOs.
+
+    Parameters
+    ----------
+    inputs : iterable of path
+        Files the command reads.
+    outputs : iterable of path
+        Files it writes (replaced atomically).
+    output_dirs : iterable of path
+        Directories it writes into: refused when they exist as something else than a directory.
+
+    Raises
+    ------
+    InputError
+        Naming the output, and the input it is the same file as.
+    """
+    ins = [p for v in inputs for p in _paths(v)]
+    outs = [p for v in outputs for p in _paths(v)]
+    for k, out in enumerate(outs):
+        special = _special(out)
+        if special is not None:
+            raise InputError(out, None, f"output is {special}; outputs are regular files, replaced atomically")
+        if os.path.isdir(out):
+            raise InputError(out, None, "output is a directory; give a file name")
+        for inp in ins:
+            if _same(out, inp):
+                same = "" if os.path.normpath(out) == os.path.normpath(inp) else f" ({inp})"
+                raise InputError(out, None, f"output is also an input of this command{same}; it would be overwritten")
+        for other in outs[:k]:
+            if _same(out, other):
+                raise InputError(out, None, f"given as two outputs ({other}); one would overwrite the other")
+    for d in (p for v in output_dirs for p in _paths(v)):
+        if os.path.exists(d) and not os.path.isdir(d):
+            raise InputError(d, None, "output directory exists and is not a directory")
+
+
+def io_paths(inputs: tuple[str, ...] = (), outputs: tuple[str, ...] = (),
+             output_dirs: tuple[str, ...] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """Decorator of a command: :func:`check_io` on the named parameters before it runs.
+
+    Put it under :func:`cli.common.handle_errors`, so that a refusal is one line and exit 2.
+    """
+
+    def decorate(func: Callable[..., Any]) -> Callable[..., Any]:
+        @functools.wraps(func)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            check_io((kwargs.get(n) for n in inputs), (kwargs.get(n) for n in outputs),
+                     (kwargs.get(n) for n in output_dirs))
+            return func(*args, **kwargs)
+
+        return wrapper
+
+    return decorate
