@@ -3,7 +3,7 @@
 Each capture is 1 s at 20 kHz of one motor: 2 load points x 2 speeds, 0.25 s each (20000
 samples), so c6, k6 and the delay are all identifiable from it. The alternative a user would
 write is scipy.optimize.least_squares on the same model over every sample
-(:mod:`eol_cal.analysis.fit_scipy`); both run here on the same data, and the fits are compared.
+(:mod:`eol_cal.analysis.fit.scipy_ref`); both run here on the same data, and the fits are compared.
 
     python bench/bench_fit.py [--captures 1000] [--scipy 5] [--cli] [--threads N]
 """
@@ -39,8 +39,8 @@ def main() -> None:
     import jax
 
     from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
-    from eol_cal.analysis.fit_scipy import fit_segments_scipy
-    from eol_cal.analysis.fit_synth import synthetic_segments
+    from eol_cal.analysis.fit.scipy_ref import fit_segments_scipy
+    from eol_cal.analysis.fit.synth import synthetic_segments
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")
     rng = np.random.default_rng(7)

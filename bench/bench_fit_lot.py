@@ -66,7 +66,7 @@ def _current_k6(run, spec) -> complex:
     import dataclasses
 
     from eol_cal.analysis.fit import fit_many
-    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
 
     (mi,) = motor_inputs([run.capture], frame="offline", hall_angle="nominal")
     kt = float(run.capture.metadata["kt"])
@@ -96,8 +96,8 @@ def main() -> None:
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
     from eol_cal.wrap import wrap_pi
-    from eol_cal.analysis.fit_capture import motor_inputs
-    from eol_cal.analysis.fit_table import block_from_record
+    from eol_cal.analysis.fit.capture import motor_inputs
+    from eol_cal.analysis.fit.table import block_from_record
     from eol_cal.analysis.result import CiLimits, record_for_motor
     from eol_cal.mechanics import load_mechanics
     from eol_cal.motor import load_motor

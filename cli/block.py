@@ -177,7 +177,7 @@ def uncompensated_cmd(serial: str, output: str, motor_file: str | None) -> None:
     as `eol-cal run` does in its first step: a blank ECU would run the raw encoder angle, a
     calibrated one its old compensation.
     """
-    from eol_cal.analysis.fit_table import uncompensated_block
+    from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.atomic import atomic_write
     from eol_cal.firmware import block as pb
     from eol_cal.motor import load_motor

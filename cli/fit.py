@@ -15,7 +15,7 @@ def enable_jax_cache() -> None:
     """JAX's persistent compilation cache, so a second ``eol-cal fit`` skips compiling.
 
     Directory: ``$EOL_CAL_JAX_CACHE`` or ``~/.cache/eol-cal/jax`` (``off``: no cache); the fit's
-    serialized solvers (:data:`eol_cal.analysis.fit.EXPORT_DIR`) live there too.
+    serialized solvers (:data:`eol_cal.analysis.fit.cache.EXPORT_DIR`) live there too.
     """
     import jax
 
@@ -26,9 +26,9 @@ def enable_jax_cache() -> None:
         Path(path).mkdir(parents=True, exist_ok=True)
     except OSError:
         return  # a read-only home only costs the compile time
-    from eol_cal.analysis import fit
+    from eol_cal.analysis.fit import cache
 
-    fit.EXPORT_DIR = path
+    cache.EXPORT_DIR = path
     jax.config.update("jax_compilation_cache_dir", path)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
@@ -85,7 +85,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from rich.table import Table
 
     from eol_cal.analysis.fit import FitSpec
-    from eol_cal.analysis.fit_motors import FitOptions, fit_motors
+    from eol_cal.analysis.fit.motors import FitOptions, fit_motors
     from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.capture.io import read_capture
@@ -112,7 +112,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         res = fit_motors(caps, options, progress=lambda n: progress.update(task, completed=n))
     doc, records = res.doc, res.records
     if plot_dir:
-        from eol_cal.analysis.fit_plot import plot_fit, plot_residual_spectrum
+        from eol_cal.analysis.fit.plot import plot_fit, plot_residual_spectrum
 
         Path(plot_dir).mkdir(parents=True, exist_ok=True)
         for mi, f in zip(res.inputs, res.fits):

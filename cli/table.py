@@ -39,7 +39,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
 
     Exit 1 when the motor's fit is not usable, 2 on bad input.
     """
-    from eol_cal.analysis.fit_table import block_from_result, created_unix, select_motor
+    from eol_cal.analysis.fit.table import block_from_result, created_unix, select_motor
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.result import read_result
     from eol_cal.atomic import atomic_write

@@ -3,7 +3,8 @@
 import numpy as np
 
 from eol_cal.analysis import fit
-from eol_cal.analysis.fit_synth import synthetic_segments
+from eol_cal.analysis.fit import compression
+from eol_cal.analysis.fit.synth import synthetic_segments
 
 
 def _reference(theta, t, y, pole_pairs, spec):
@@ -23,8 +24,8 @@ def test_blocks_match_whole_segment(monkeypatch):
     seg, _ = synthetic_segments(rng, seg_s=0.6, speeds_rpm=(60.0, 600.0), loads_a=(20.0, 65.0))
     spec = fit.FitSpec()
     # 0.6 s at 20 kHz = 12000 samples: two blocks at the default size, 13 at 937 (a ragged last one)
-    for block in (fit._BLOCK, 937):
-        monkeypatch.setattr(fit, "_BLOCK", block)
+    for block in (compression._BLOCK, 937):
+        monkeypatch.setattr(compression, "_BLOCK", block)
         for s in range(seg.n_segments):
             th, t, y = seg.theta[s], seg.t[s], seg.torque[s]
             assert len(th) > block

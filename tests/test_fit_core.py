@@ -9,7 +9,7 @@ import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
 from eol_cal.wrap import wrap_pi
-from eol_cal.analysis.fit_synth import synthetic_segments
+from eol_cal.analysis.fit.synth import synthetic_segments
 from eol_cal.analysis.result import STATUS_CI_TOO_WIDE, STATUS_NOT_CONVERGED, STATUS_OK, CiLimits, judge, motor_record
 from eol_cal.errors import InputError
 
@@ -44,7 +44,7 @@ def test_recovers_known_parameters_with_noise():
 
 def test_exact_same_optimum_as_full_per_sample_least_squares():
     """The compressed, nuisance-projected JAX problem has the same optimum as scipy on every sample."""
-    from eol_cal.analysis.fit_scipy import fit_segments_scipy
+    from eol_cal.analysis.fit.scipy_ref import fit_segments_scipy
 
     seg, _ = synthetic_segments(np.random.default_rng(5), seg_s=0.02, speeds_rpm=(600.0, 1200.0), loads_a=LOADS)
     spec = FitSpec()
@@ -171,7 +171,7 @@ def test_batched_equals_single_and_95_percent_intervals_cover_the_truth():
 
 def test_exported_solver_round_trip(tmp_path, monkeypatch):
     """The CLI's serialized solver (jax.export) gives the same fit as the jitted one."""
-    from eol_cal.analysis import fit as fit_mod
+    from eol_cal.analysis.fit import cache as fit_mod
 
     seg, _ = synthetic_segments(np.random.default_rng(9), seg_s=0.1, loads_a=(65.0,), c6=0.0, delay_s=0.0)
     spec = FitSpec(fit_c=False, delay_s=0.0)

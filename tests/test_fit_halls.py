@@ -43,7 +43,7 @@ def test_measure_recovers_offsets_and_refuses_what_it_cannot_measure():
 
 @pytest.fixture(scope="module")
 def plant_motor():
-    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.mechanics import load_mechanics
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate
@@ -71,7 +71,7 @@ def test_measured_table_matches_the_plants_hall_errors(plant_motor):
 def test_measured_table_brings_the_ecu_angle_closer(plant_motor):
     """The firmware estimator run with the measured table: its angle error about its own mean
     (what the compensation sees as jitter) is smaller than with the nominal table."""
-    from eol_cal.analysis.fit_capture import firmware_config
+    from eol_cal.analysis.fit.capture import firmware_config
     from eol_cal.firmware import estimator as est
 
     spec, run, mi = plant_motor
@@ -90,7 +90,7 @@ def test_measured_table_brings_the_ecu_angle_closer(plant_motor):
 
 def test_record_and_block_carry_the_measured_table(plant_motor):
     from eol_cal.analysis.fit import FitSpec, fit_many
-    from eol_cal.analysis.fit_table import block_from_record
+    from eol_cal.analysis.fit.table import block_from_record
     from eol_cal.analysis.result import CiLimits, record_for_motor
     from eol_cal.motor import load_motor
 
@@ -106,7 +106,7 @@ def test_record_and_block_carry_the_measured_table(plant_motor):
 
 @pytest.mark.parametrize("kwargs", [{"hall_angle": "measure"}, {"frame": "ecu"}])
 def test_unknown_option_values_are_refused_not_taken_as_a_default(kwargs):
-    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.capture.synthetic import synthetic_capture
     from eol_cal.errors import InputError
 

@@ -9,8 +9,8 @@ import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, fit_many
 from eol_cal.wrap import wrap_pi
-from eol_cal.analysis.fit_capture import motor_inputs
-from eol_cal.analysis.fit_table import block_from_record
+from eol_cal.analysis.fit.capture import motor_inputs
+from eol_cal.analysis.fit.table import block_from_record
 from eol_cal.analysis.metrics import capture_ripple_pp
 from eol_cal.analysis.result import CiLimits, motor_record
 from eol_cal.firmware.block import check, pack

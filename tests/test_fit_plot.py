@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_many, path_gain
-from eol_cal.analysis.fit_capture import motor_inputs
-from eol_cal.analysis.fit_plot import fitted_ripple, plot_fit, segment_model
+from eol_cal.analysis.fit.capture import motor_inputs
+from eol_cal.analysis.fit.plot import fitted_ripple, plot_fit, segment_model
 from eol_cal.mechanics import load_mechanics
 from eol_cal.capture.synthetic import synthetic_capture
 

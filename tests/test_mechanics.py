@@ -83,7 +83,7 @@ def test_fit_on_the_plant_recovers_the_motors_own_k6_with_the_bench():
     fit's k6 is the motor's to 0.25 %; taking the shaft torque as the motor's (rigid coupling)
     reads it 0.5 % or more low (rotor inertia share and the current loop's reaction)."""
     from eol_cal.analysis.fit import FitSpec, fit_many
-    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.plant.presets import paper
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate

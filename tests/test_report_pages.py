@@ -61,7 +61,7 @@ def test_limit_rows_give_value_limit_margin_and_status():
 def fitted():
     """A real fit of synthetic captures (six load points) and the ripple at the 65 A point."""
     from eol_cal.analysis.fit import FitSpec, fit_many
-    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.capture.synthetic import synthetic_capture
     from eol_cal.analysis.point_metrics import point_ripple
 

@@ -560,7 +560,7 @@ def firmware_angle_difference(
     if angle is None:
         angle = capture_angle(capture)
     if config is None:
-        from eol_cal.analysis.fit_capture import firmware_config
+        from eol_cal.analysis.fit.capture import firmware_config
 
         config = firmware_config(capture)
     out = est.run_jax_chunked(config, capture["enc_a"], capture["enc_b"], capture["hall"])

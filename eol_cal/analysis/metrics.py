@@ -422,7 +422,7 @@ def ripple_pp(
     despiked, spikes = hampel(torque, max(1, round(hampel_half_width_s * fs)), hampel_sigma)
 
     # one implementation of "where does the rotor turn one way": the fit's
-    from eol_cal.analysis.fit_capture import direction_pieces
+    from eol_cal.analysis.fit.capture import direction_pieces
 
     if np.ptp(theta_r) < TWO_PI:
         raise InputError(source, "torque", "the capture does not hold one whole electrical revolution")

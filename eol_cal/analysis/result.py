@@ -22,7 +22,7 @@ from eol_cal.errors import InputError
 from eol_cal.jsonsafe import json_safe
 
 if TYPE_CHECKING:
-    from eol_cal.analysis.fit_capture import MotorInput
+    from eol_cal.analysis.fit.capture import MotorInput
 
 SCHEMA = "eol-cal/fit-result/1"
 STATUS_OK = "ok"
@@ -162,7 +162,7 @@ def motor_record(
 
 def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
                      solver_mode: str) -> dict[str, Any]:
-    """:func:`motor_record` for a :class:`~eol_cal.analysis.fit_capture.MotorInput` and its fit.
+    """:func:`motor_record` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
 
     Moves the phases into the frame ``motor_inputs`` measured (the firmware's by default,
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself

@@ -59,7 +59,7 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
     ``rms`` in N*m, as in the records; ``capture`` names the first file.
     """
     from eol_cal import __version__
-    from eol_cal.analysis.fit_motors import FitOptions, fit_motors
+    from eol_cal.analysis.fit.motors import FitOptions, fit_motors
     from eol_cal.capture.io import read_capture
     from eol_cal.errors import EolCalError
     from eol_cal.station.limits import fit_reasons, load_limits

@@ -21,7 +21,7 @@ from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_ch
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
-    from eol_cal.analysis.fit_capture import MotorInput
+    from eol_cal.analysis.fit.capture import MotorInput
     from eol_cal.analysis.spectrum import OrderSpectrum
     from eol_cal.analysis.point_metrics import PointRipple
 
@@ -214,7 +214,7 @@ def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: Fit
     fit_extra : (MotorInput, MotorFit, FitSpec) or None
         The fit, for the fitted ripple drawn over both.
     """
-    from eol_cal.analysis.fit_plot import fitted_ripple
+    from eol_cal.analysis.fit.plot import fitted_ripple
 
     plt = pyplot()
     op = (rec.get("fit") or {}).get("operating_point") or (rec.get("metrics") or {}).get("operating_point") or {}
@@ -302,7 +302,7 @@ def residual_figure(fit_extra: FitExtra, cols: int = 4) -> Figure:
     cols : int
         Panels per row.
     """
-    from eol_cal.analysis.fit_plot import segment_model
+    from eol_cal.analysis.fit.plot import segment_model
 
     plt = pyplot()
     mi, fit, spec = fit_extra

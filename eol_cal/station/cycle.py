@@ -95,7 +95,7 @@ class StationCycle:
     @classmethod
     def start(cls, cfg: StationConfig, progress: ProgressFn | None = None) -> StationCycle:
         """Check the configuration, make the run directory, start pre-warming the fit."""
-        from eol_cal.analysis.fit_prewarm import prewarm_fit
+        from eol_cal.analysis.fit.prewarm import prewarm_fit
         from eol_cal.dyno import client as dc
         from eol_cal.plant.profile import load_profile
         from eol_cal.station.run import check_config, new_run_dir, sha256_file
@@ -122,7 +122,7 @@ class StationCycle:
     # ------------------------------------------------------------------ the steps
     def prepare_ecu(self) -> None:
         """Flash the uncompensated block, so the calibration capture sees the field estimator alone."""
-        from eol_cal.analysis.fit_table import uncompensated_block
+        from eol_cal.analysis.fit.table import uncompensated_block
         from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import flag_names, pack
 
@@ -164,7 +164,7 @@ class StationCycle:
 
     def table(self) -> None:
         """The calibrated block from the fit (lead automatic)."""
-        from eol_cal.analysis.fit_table import block_from_record, created_unix
+        from eol_cal.analysis.fit.table import block_from_record, created_unix
         from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import flag_names, pack
 

@@ -140,11 +140,11 @@ def _safe_name(text: str) -> str:
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None) -> tuple[dict, dict, Any]:
-    """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit_motors.fit_motors`, as
+    """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
     ``motor`` (default the paper preset) and ``mechanics`` (``None``: rigid coupling) as in
-    :class:`eol_cal.analysis.fit_motors.FitOptions`.
+    :class:`eol_cal.analysis.fit.motors.FitOptions`.
 
     Returns
     -------
@@ -152,7 +152,7 @@ def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor:
         The result document (schema ``eol-cal/fit-result/1``), its one motor record, and
         ``(MotorInput, MotorFit, FitSpec)`` for the plots.
     """
-    from eol_cal.analysis.fit_motors import FitOptions, fit_motors
+    from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor)
     res = fit_motors([capture], options, tool_version)

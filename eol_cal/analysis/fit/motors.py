@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
-from eol_cal.analysis.fit_capture import MotorInput
+from eol_cal.analysis.fit.capture import MotorInput
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
 from eol_cal.jsonsafe import json_safe
@@ -39,7 +39,7 @@ class FitOptions:
         Fewest electrical revolutions per segment.
     frame : {"firmware", "offline"}
         Angle frame the phases are reported in (``firmware``: the frame the ECU evaluates its
-        table in, :func:`eol_cal.analysis.fit_capture.firmware_frame_offset`).
+        table in, :func:`eol_cal.analysis.fit.capture.firmware_frame_offset`).
     batch : {"auto", "loop", "vmap", "map"}
         How motors are solved in JAX (auto: :func:`eol_cal.analysis.fit.pick_mode`).
     capture_metrics : bool
@@ -144,7 +144,7 @@ def fit_motors(
         A capture without serial, torque, i_qo or any steady segment.
     """
     from eol_cal.analysis.fit import fit_many
-    from eol_cal.analysis.fit_capture import motor_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.analysis.metrics import eta_percent
     from eol_cal.analysis.result import record_for_motor, result_document
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
-from eol_cal.analysis.fit_capture import MotorInput
+from eol_cal.analysis.fit.capture import MotorInput
 from eol_cal.wrap import wrap_2pi
 
 _MAX_PANELS = 8

@@ -17,9 +17,9 @@ def prewarm_fit(n_segments: int, prepare: Callable[[], None] | None = None) -> N
         import numpy as np
 
         from eol_cal.analysis.fit import FitSpec, fit_many
-        from eol_cal.analysis.fit_synth import synthetic_segments
-        import eol_cal.analysis.fit_capture  # noqa: F401
-        import eol_cal.analysis.fit_plot  # noqa: F401
+        from eol_cal.analysis.fit.synth import synthetic_segments
+        import eol_cal.analysis.fit.capture  # noqa: F401
+        import eol_cal.analysis.fit.plot  # noqa: F401
         from eol_cal.analysis.plots import _pyplot
 
         _pyplot()

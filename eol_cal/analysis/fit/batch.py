@@ -1,0 +1,139 @@
+"""Fitting one motor or many: compression in numpy, the nonlinear solve batched in JAX."""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from eol_cal.analysis.fit import cache
+from eol_cal.analysis.fit.compression import _DICT_KEYS, _as_dict, compress
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
+from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
+from eol_cal.analysis.fit.solver import _build, _solver, tau_grid
+
+
+def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None) -> MotorFit:
+    """Fit one motor from its segments (all captures jointly).
+
+    Parameters
+    ----------
+    seg : SteadySegments
+        Electrical angle (rad), time (s), torque (N*m) per segment, with i_qo (A) and omega_e (rad/s).
+    spec : FitSpec
+        Model and solver settings.
+    source : str, optional
+        Named in errors.
+
+    Returns
+    -------
+    MotorFit
+    """
+    return fit_many([seg], spec, mode="loop", sources=[source])[0]
+
+
+#: ``fit_many(mode="auto")`` batches the solve from this many motors on (below, the compile of a
+#: batched program costs more than the per-call dispatch it saves)
+AUTO_BATCH_MIN = 16
+
+
+def pick_mode(n_motors: int) -> str:
+    """The batch mode ``fit_many(mode="auto")`` uses for ``n_motors``: ``loop`` or ``map``.
+
+    ``map`` and ``vmap`` measure within a few per cent of each other (docs/benchmarks.md); ``map``
+    is kept because it does not run every member to the slowest one's step count.
+    """
+    return "map" if n_motors >= AUTO_BATCH_MIN else "loop"
+
+
+def fit_many(
+    motors: list[SteadySegments],
+    spec: FitSpec = FitSpec(),
+    mode: str = "auto",
+    chunk: int = 64,
+    sources: list[str | None] | None = None,
+    progress: Callable[[int], None] | None = None,
+    threads: int = 0,
+) -> list[MotorFit]:
+    """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
+
+    With ``threads`` > 0 the compression of every motor is queued on a thread pool at once, so
+    the pool compresses the next chunks while this thread runs the JAX solve of the current one
+    (XLA and the numpy kernels release the GIL) and unpacks its results.
+
+    Parameters
+    ----------
+    motors : list of SteadySegments
+        One entry per motor.
+    spec : FitSpec
+        Shared model and solver settings.
+    mode : {"loop", "vmap", "map", "auto"}
+        ``loop``: one jitted solve per motor; ``vmap``: one vectorised solve per chunk (every member
+        iterates until the slowest has converged); ``map``: ``jax.lax.map`` inside one jitted call;
+        ``auto``: :func:`pick_mode`.
+    chunk : int
+        Motors per batched call (vmap/map); also the progress granularity.
+    sources : list, optional
+        Per motor, named in errors.
+    progress : callable, optional
+        Called with the number of motors finished after each chunk.
+    threads : int
+        Worker threads that compress ahead of the solve (numpy releases the GIL in its kernels);
+        0 (default) compresses in this thread, chunk by chunk. On the 2-core machine of
+        docs/benchmarks.md 1 or 2 workers measured no faster than none: the kernels of an
+        8000-sample block are short and the threads mostly wait for the GIL between them.
+
+    Returns
+    -------
+    list of MotorFit
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    import jax
+
+    if mode == "auto":
+        mode = pick_mode(len(motors))
+    sources = sources or [None] * len(motors)
+    for seg, src in zip(motors, sources):
+        check_identifiable(seg, spec, src)
+    S = max(m.n_segments for m in motors)
+    omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
+    grid = tau_grid(spec, omega_max)
+    results: list[MotorFit] = []
+    pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
+    try:
+        # every compression queued up front (a few kB of result per motor): the workers run ahead
+        futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
+        with jax.enable_x64(True):
+            grid_j = jax.numpy.asarray(grid)
+            exported = cache._exported_solver(spec, S, len(grid)) if mode == "loop" else None
+            solve = (lambda c, g, _steps: exported(c, g)) if exported else _solver(spec, S, "one" if mode == "loop" else mode)
+            save_export = mode == "loop" and exported is None and cache.EXPORT_DIR is not None
+            step = 1 if mode == "loop" else chunk
+            for start in range(0, len(motors), step):
+                block = motors[start : start + step]
+                if futures:
+                    comps = [f.result() for f in futures[start : start + step]]
+                else:
+                    comps = [compress(m, spec, S) for m in block]
+                if mode == "loop":
+                    args = (_as_dict(comps[0]), grid_j)
+                    out = jax.device_get(solve(*args, spec.max_steps))
+                    outs = [out]
+                    if save_export:
+                        save_export = False
+                        cache._save_exported(jax.jit(lambda c, g: _build(spec, S)(c, g, spec.max_steps)), spec, S, len(grid), args)
+                else:
+                    # pad the last chunk to the chunk size: one compiled shape
+                    padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
+                    batch = {k: np.stack([getattr(c, k) for c in padded]) for k in _DICT_KEYS}
+                    out = jax.device_get(solve(batch, grid_j, spec.max_steps))
+                    outs = [{k: v[j] for k, v in out.items()} for j in range(len(block))]
+                for m, c, o in zip(block, comps, outs):
+                    results.append(unpack(o, c, spec, m.n_segments))
+                if progress:
+                    progress(len(results))
+    finally:
+        if pool:
+            pool.shutdown(cancel_futures=True)
+    return results

@@ -1,0 +1,308 @@
+"""The fit's model: what is fitted (FitSpec), its array-level input (SteadySegments), the design matrix.
+
+Model (firmware contract section 2, plus the measurement's nuisances), per sample of segment s::
+
+    T = T_avg[s] + drift_s(t) + mech_s(theta_m)
+        - sum_h [ c_h sin(h (theta - omega_s tau) + phase_c_h)
+                  + k_h i_qo[s] sin(h (theta - omega_s tau) + phase_k_h) ]
+
+``theta`` is the electrical angle (rad) in the frame the firmware uses, ``h`` runs over the
+requested harmonics (6, optionally 12 and 18), ``tau`` (s) is the torque transducer's delay: the
+measured torque lags, so harmonic h is seen at phase ``h (theta - omega_e tau)``, a shift that
+grows with the electrical speed ``omega_e`` (rad/s, signed). ``drift_s`` is a Legendre polynomial
+in time per segment (degree ``drift_degree``, its constant term is T_avg), ``mech_s`` a cos/sin pair
+at mechanical order 1 (``theta_m = theta / (P/2)``) per segment: its phase is unknown between
+segments because halls only give the electrical angle.
+
+A segment holds one load point (constant ``i_qo``), one speed and one direction, so within a
+segment the model is linear in a handful of columns (Legendre terms, mechanical cos/sin, sin/cos
+of h theta): :func:`design_matrix`. The compression (:mod:`eol_cal.analysis.fit.compression`) and
+the solver (:mod:`eol_cal.analysis.fit.solver`) build on it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from eol_cal.errors import InputError
+
+#: scale of the delay parameter inside the solver (s); keeps the parameter vector near O(1)
+TAU_SCALE = 1e-4
+#: z for a two-sided 95 % normal interval (n is in the thousands, so t ~ normal)
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class FitSpec:
+    """What to fit and how.
+
+    Attributes
+    ----------
+    harmonics : tuple of int
+        Electrical orders of the ripple terms; always starts with 6; 12 and 18 optional.
+    fit_c : bool
+        Fit the load-independent (cogging) part c_h. Needs at least two load points together with
+        ``fit_k``.
+    fit_k : bool
+        Fit the load-proportional part k_h (N*m/A).
+    drift_degree : int
+        Degree of the per-segment Legendre polynomial in time (0 = constant T_avg only).
+    mech_order1 : bool
+        Include the mechanical order-1 term per segment.
+    delay_s : float or None
+        Known transducer delay (s); ``None`` estimates it (needs two different signed speeds).
+    delay_max_s : float or None
+        Upper end of the grid that starts the delay estimate (s); default 5 ms for the low-pass
+        model, 1 ms for the pure delay (whose delay is unique only modulo ``2 pi / (6 d_omega)``,
+        d_omega the difference of two segment speeds: 2.8 ms for +-600 rpm, 6 poles).
+    transducer : {"delay", "lowpass"}
+        How the torque transducer distorts harmonic h at electrical speed omega: a pure delay
+        ``tau`` (phase ``-h omega tau``), or a first-order low-pass of time constant ``tau``
+        (gain and phase of ``1 / (1 + i h omega tau)``).
+    max_steps : int
+        Levenberg-Marquardt step limit; hitting it means "not converged".
+    rtol, atol : float
+        Solver tolerances (Jacobi-scaled coordinates).
+    solver : {"gn", "lm"}
+        Gauss-Newton or Levenberg-Marquardt (optimistix).
+    lm_init_step : float
+        Levenberg-Marquardt's initial trust-region step (1 / initial damping).
+    lack_of_fit : bool
+        Widen the intervals by the between-segment lack of fit (Birge ratio) when it exceeds 1.
+    """
+
+    harmonics: tuple[int, ...] = (6, 12, 18)
+    fit_c: bool = True
+    fit_k: bool = True
+    drift_degree: int = 2
+    mech_order1: bool = True
+    delay_s: float | None = None
+    delay_max_s: float | None = None
+    transducer: str = "lowpass"
+    max_steps: int = 64
+    rtol: float = 1e-6
+    atol: float = 1e-8
+    solver: str = "gn"
+    lack_of_fit: bool = True
+    lm_init_step: float = 1e3
+
+    @property
+    def n_cols(self) -> int:
+        """Columns per segment: Legendre terms, mechanical cos/sin, sin/cos per harmonic."""
+        return self.drift_degree + 3 + 2 * len(self.harmonics)
+
+    @property
+    def n_nuis(self) -> int:
+        """Nuisance parameters per segment (drift polynomial and mechanical pair)."""
+        return self.drift_degree + 3
+
+    @property
+    def n_glob(self) -> int:
+        """Global cos/sin ripple coefficients."""
+        return 2 * len(self.harmonics) * (int(self.fit_c) + int(self.fit_k))
+
+    @property
+    def delay_max(self) -> float:
+        """Upper end of the delay start grid (s)."""
+        if self.delay_max_s is not None:
+            return self.delay_max_s
+        return 5e-3 if self.transducer == "lowpass" else 1e-3
+
+    @property
+    def fit_delay(self) -> bool:
+        return self.delay_s is None
+
+
+@dataclass
+class SteadySegments:
+    """Samples of one motor, steady segment by steady segment (the fit's array-level input).
+
+    A steady segment is a piece of a capture at one load point, speed and direction, whole
+    electrical revolutions long (:func:`eol_cal.analysis.fit.capture.capture_segments`); not a
+    test profile's segment (:class:`eol_cal.plant.profile.ProfileSegment`).
+
+    Attributes
+    ----------
+    theta : list of ndarray
+        Electrical angle per segment (rad, continuous, firmware frame).
+    t : list of ndarray
+        Sample times per segment (s).
+    torque : list of ndarray
+        Measured shaft torque per segment (N*m).
+    i_qo : ndarray
+        Nominal q current of each segment (A, signed).
+    omega_e : ndarray
+        Mean electrical speed of each segment (rad/s, signed).
+    pole_pairs : int
+        P/2.
+    labels : list of str
+        Where each segment came from (file and sample range), for messages and the result.
+    path_response : callable, optional
+        Complex response of the path from the motor's air-gap torque to the shaft torque the
+        transducer sees, at angular frequencies (rad/s, signed): ``omega -> ndarray of complex``
+        (:func:`eol_cal.mechanics.shaft_response` for a bench). The fitted ripple is the air-gap one;
+        ``None`` takes the coupling as rigid (response 1).
+    """
+
+    theta: list[np.ndarray]
+    t: list[np.ndarray]
+    torque: list[np.ndarray]
+    i_qo: np.ndarray
+    omega_e: np.ndarray
+    pole_pairs: int
+    labels: list[str] = field(default_factory=list)
+    path_response: Callable[[np.ndarray], np.ndarray] | None = None
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.theta)
+
+
+def path_gain(seg: SteadySegments, spec: FitSpec) -> np.ndarray:
+    """``seg.path_response`` at every segment's harmonics, shape (segments, harmonics), complex."""
+    freq = np.outer(seg.omega_e, np.asarray(spec.harmonics, dtype=float))
+    if seg.path_response is None:
+        return np.ones(freq.shape, dtype=complex)
+    return np.asarray(seg.path_response(freq), dtype=complex).reshape(freq.shape)
+
+
+def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None) -> None:
+    """Refuse a request the data cannot answer (InputError naming what is missing).
+
+    Parameters
+    ----------
+    seg : SteadySegments
+        The motor's segments.
+    spec : FitSpec
+        The request.
+    source : str, optional
+        File(s) named in the error.
+    """
+    if seg.n_segments == 0:
+        raise InputError(source, "segments", "no usable segment (constant load, speed and direction) found")
+    if spec.harmonics[:1] != (6,) or any(h % 6 or h <= 0 for h in spec.harmonics):
+        raise InputError(source, "harmonics", f"harmonics must start with 6 and be multiples of 6, got {spec.harmonics}")
+    if not (spec.fit_c or spec.fit_k):
+        raise InputError(source, "model", "nothing to fit: both c6 and k6 switched off")
+    i_abs = np.abs(seg.i_qo)
+    scale = max(float(i_abs.max()), 1e-9)
+    loads = np.unique(np.round(seg.i_qo / (0.05 * scale)))
+    if spec.fit_k and float(i_abs.max()) < 1e-6:
+        raise InputError(source, "iq_ref", "k6 needs a load: every segment has i_qo = 0")
+    if spec.fit_c and spec.fit_k and len(loads) < 2:
+        raise InputError(
+            source,
+            "iq_ref",
+            f"c6 and k6 are not identifiable from a single load point (i_qo = {seg.i_qo[0]:.4g} A in all "
+            "segments): capture at two or more load points, or fit one of them only (c6 or k6 switched off)",
+        )
+    if spec.fit_delay:
+        w = seg.omega_e
+        spread = float(w.max() - w.min())
+        if spread < 0.1 * max(float(np.abs(w).max()), 1e-9):
+            raise InputError(
+                source,
+                "speed",
+                "the transducer delay is not identifiable from a single speed (it shifts the phase in "
+                "proportion to speed): capture at two speeds or in both directions, or give the transducer delay (s)",
+            )
+
+
+def _legendre_rows(x: np.ndarray, degree: int, out: np.ndarray) -> None:
+    """Legendre polynomials P_0..P_degree at x in [-1, 1], written into the rows of ``out``."""
+    out[0] = 1.0
+    if degree >= 1:
+        out[1] = x
+    for n in range(1, degree):
+        # P_{n+1} = ((2n+1) x P_n - n P_{n-1}) / (n+1), in place (no temporaries of n samples)
+        row = out[n + 1]
+        np.multiply(x, out[n], out=row)
+        row *= (2 * n + 1) / (n + 1)
+        row -= (n / (n + 1)) * out[n - 1]
+
+
+def _cpow(e: np.ndarray, n: int) -> np.ndarray:
+    """e**n for a complex array and a positive integer n, by repeated squaring."""
+    out = None
+    while n:
+        if n & 1:
+            out = e if out is None else out * e
+        n >>= 1
+        if n:
+            e = e * e
+    return out
+
+
+def design_matrix_t(
+    theta: np.ndarray,
+    t: np.ndarray,
+    pole_pairs: int,
+    spec: FitSpec,
+    t_span: tuple[float, float] | None = None,
+    mech: bool | None = None,
+    out: np.ndarray | None = None,
+) -> np.ndarray:
+    """Columns of one segment, as rows: Legendre(t), cos/sin(theta_m), then sin/cos(h theta) per harmonic.
+
+    Parameters
+    ----------
+    theta : ndarray
+        Continuous (unwrapped) electrical angle (rad).
+    t : ndarray
+        Sample times (s).
+    pole_pairs : int
+        P/2.
+    spec : FitSpec
+        Which columns.
+    t_span : (float, float), optional
+        First and last sample time of the whole segment (s), when ``theta``, ``t`` are a block of
+        it (the Legendre time axis spans the segment); default ``(t[0], t[-1])``.
+    mech : bool, optional
+        Whether the segment resolves the mechanical pair; default: ``spec.mech_order1`` and at
+        least one mechanical revolution in ``theta``.
+    out : ndarray, optional
+        Array of at least ``spec.n_cols`` rows and ``len(theta)`` columns to fill (its first
+        ``spec.n_cols`` rows are returned); default: a new one.
+
+    Returns
+    -------
+    ndarray, shape (spec.n_cols, n)
+        The transposed design matrix (row-major, so X^T X is one contiguous product). A mechanical
+        pair the segment cannot resolve (less than one mechanical revolution, or switched off) is
+        left as zero rows; :func:`compress_segment` pins it.
+    """
+    n = len(theta)
+    q = spec.n_nuis
+    XT = np.empty((spec.n_cols, n)) if out is None else out[: spec.n_cols]
+    t_first, t_last = (t[0], t[-1]) if t_span is None else t_span
+    if mech is None:
+        mech = spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs
+    tn = t - t_first
+    tn *= 2.0 / (t_last - t_first)
+    tn -= 1.0
+    _legendre_rows(tn, spec.drift_degree, XT[: q - 2])
+    # one exp(i theta_m) per sample: everything else is a power of it (exact to ~1e-14)
+    e_m = np.exp(1j * (theta / pole_pairs))
+    if mech:
+        XT[q - 2] = e_m.real
+        XT[q - 1] = e_m.imag
+    else:
+        XT[q - 2 : q] = 0.0
+    e6 = _cpow(e_m, 6 * pole_pairs)
+    e, order = e6, 6
+    for i, h in enumerate(spec.harmonics):
+        if h != order:
+            e = e * _cpow(e6, (h - order) // 6)
+            order = h
+        XT[q + 2 * i] = e.imag
+        XT[q + 2 * i + 1] = e.real
+    return XT
+
+
+def design_matrix(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSpec) -> np.ndarray:
+    """:func:`design_matrix_t` transposed: shape (n, spec.n_cols)."""
+    return design_matrix_t(np.asarray(theta, dtype=float), np.asarray(t, dtype=float), pole_pairs, spec).T

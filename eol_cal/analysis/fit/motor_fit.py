@@ -1,0 +1,143 @@
+"""The fit of one motor as numbers: amplitude/phase estimates with 95 % intervals (:class:`MotorFit`),
+unpacked from the solver's arrays with delta-method intervals."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from eol_cal.analysis.fit.compression import Compressed
+from eol_cal.analysis.fit.model import TAU_SCALE, Z95, FitSpec
+from eol_cal.wrap import wrap_pi
+
+
+@dataclass
+class Estimate:
+    """One amplitude/phase pair with 95 % half-widths."""
+
+    value: float
+    ci95: float
+    phase: float
+    phase_ci95: float
+
+
+@dataclass
+class MotorFit:
+    """The fit of one motor (array-level result).
+
+    Attributes
+    ----------
+    harmonics : dict[int, dict[str, Estimate]]
+        Per order h: ``"c"`` (N*m, phase rad) and/or ``"k"`` (N*m/A, phase rad).
+    delay_s, delay_ci95 : float
+        Transducer delay and its 95 % half-width (s); the given value and 0 when fixed.
+    t_avg : ndarray
+        Mean torque per segment (N*m).
+    rms : float
+        Residual RMS (N*m).
+    r2 : float
+        1 - SSR / sum of squares about each segment's mean: the share of the ripple explained.
+    converged : bool
+    steps : int
+    n_samples : int
+    coef : ndarray, (segments, spec.n_cols)
+        Every segment's column coefficients (nuisance then harmonics) for
+        :func:`design_matrix`; the model of segment s is ``mean(y_s) + design_matrix(...) @ coef[s]``.
+    """
+
+    harmonics: dict
+    delay_s: float
+    delay_ci95: float
+    t_avg: np.ndarray
+    rms: float
+    r2: float
+    converged: bool
+    steps: int
+    n_samples: int
+    coef: np.ndarray | None = None
+    birge: float = 1.0
+
+
+def shift_frame(fit: MotorFit, offset_rad: float) -> MotorFit:
+    """The same fit with its phases in a frame ``theta' = theta + offset_rad`` (rad, electrical).
+
+    ``sin(h theta + phi) = sin(h theta' - h offset + phi)``: harmonic h's phases move by
+    ``-h * offset_rad``; amplitudes and intervals are unchanged.
+    """
+    import dataclasses
+
+    harmonics = {
+        h: {part: dataclasses.replace(e, phase=float(wrap_pi(e.phase - h * offset_rad))) for part, e in parts.items()}
+        for h, parts in fit.harmonics.items()
+    }
+    return dataclasses.replace(fit, harmonics=harmonics)
+
+
+def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
+    """Amplitude/phase of a cos/sin pair (value*cos(phase), value*sin(phase)), delta method."""
+    amp = math.hypot(a, b)
+    if amp == 0.0:
+        return Estimate(0.0, float("inf"), 0.0, float("inf"))
+    g_amp = np.array([a, b]) / amp
+    g_ph = np.array([-b, a]) / amp**2
+    var_amp = float(g_amp @ cov2 @ g_amp)
+    var_ph = float(g_ph @ cov2 @ g_ph)
+    return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), float(wrap_pi(math.atan2(b, a))), Z95 * math.sqrt(max(var_ph, 0.0)))
+
+
+def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit:
+    """Turn the solver's arrays for one motor into a :class:`MotorFit`.
+
+    The covariance is ``s^2 (J^T J)^-1`` with ``s^2 = SSR / (n - n_parameters)``, counting the
+    projected nuisance parameters; amplitude/phase intervals follow by the delta method.
+    """
+    p = np.asarray(out["p"], dtype=float)
+    n_tau = int(spec.fit_delay)
+    nh = len(spec.harmonics)
+    q = spec.n_nuis
+    valid = comp.n > 0
+    n = float(comp.n.sum())
+    ssr = float(out["ssr_red"]) + float(comp.floor[valid].sum())
+    n_par = n_tau + spec.n_glob + float(comp.n_nuis[valid].sum())
+    s2 = ssr / max(n - n_par, 1.0)
+    # Lack of fit between segments (Birge ratio): the projected rows hold only what the ripple
+    # model leaves unexplained from one segment to the next; with an exact model their mean
+    # square is s2. More than that widens the intervals by the ratio.
+    dof_red = float(valid.sum()) * 2 * nh - (n_tau + spec.n_glob)
+    birge = float(out["ssr_red"]) / dof_red / s2 if dof_red >= 1 and s2 > 0 else 1.0
+    inflate = max(1.0, birge) if spec.lack_of_fit else 1.0
+    cov = inflate * s2 * np.asarray(out["cov_unscaled"], dtype=float)
+    harmonics: dict = {h: {} for h in spec.harmonics}
+    parts = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
+    for ip, name in enumerate(parts):
+        for ih, h in enumerate(spec.harmonics):
+            i = n_tau + (ip * nh + ih) * 2
+            harmonics[h][name] = _amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
+    if n_tau:
+        delay, delay_ci = p[0] * TAU_SCALE, Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE
+    else:
+        delay, delay_ci = float(spec.delay_s), 0.0
+    # T_avg: back-substitute the projected nuisance (its first Legendre term is the mean offset)
+    g = np.asarray(out["g"], dtype=float)[:S_valid]
+    R = comp.R[:S_valid]
+    rhs = comp.z[:S_valid, :q] - np.einsum("sij,sj->si", R[:, :q, q:], g)
+    nuis = np.linalg.solve(R[:, :q, :q], rhs[..., None])[..., 0]
+    t_avg = comp.ymean[:S_valid] + nuis[:, 0]
+    coef = np.concatenate([nuis, g], axis=1)
+    sst = float(comp.sst[valid].sum())
+    finite = bool(np.all(np.isfinite(p)) and np.all(np.isfinite(np.diag(cov))))
+    return MotorFit(
+        harmonics=harmonics,
+        delay_s=float(delay),
+        delay_ci95=float(delay_ci),
+        t_avg=t_avg,
+        rms=math.sqrt(max(ssr, 0.0) / n),
+        r2=1.0 - ssr / sst if sst > 0 else float("nan"),
+        converged=bool(out["converged"]) and finite,
+        steps=int(out["steps"]),
+        n_samples=int(n),
+        coef=coef,
+        birge=birge,
+    )
