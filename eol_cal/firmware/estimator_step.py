@@ -1,0 +1,374 @@
+"""One tick of the firmware's angle and speed estimator (ESTIMATOR.md, "State" and "Per tick").
+
+:func:`step` is written once with ``xp`` operations only (no Python branch on values), so with
+``xp=numpy`` on scalars it is the bit-exact binary32 reference for the C port
+(``firmware_params/c/eol_est.c``) and the golden vectors, and with ``xp=jax.numpy`` it traces
+inside ``jit``/``vmap``/``lax.scan`` (the plant's ECU). :mod:`eol_cal.firmware.estimator` runs it
+over whole captures.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware.estimator_config import (
+    F32, HALF, I32, K_ACC, K_PITCH, N_LEARN, ST_DIR_MISMATCH, ST_EDGE_REJECT, ST_HALL_FAULT, ST_HALL_SEQ,
+    ST_MISSING_EDGE, ST_NO_ANCHOR, ST_NO_SPEED, ST_QEP_ERROR, ST_REVERSE, ST_STANDSTILL, STEADY_TICKS,
+    TICK_MASK, TWO_PI, EstimatorConfig, HallTables, consts, wrap, wrap_pm,
+)
+
+class EstimatorState(NamedTuple):
+    """Everything the estimator keeps between ticks (int32 / float32, scalars or batched).
+
+    Batched states: any leading shape with ``xp=numpy`` (bit-exact per element) as long as
+    ``learn_pitch_errors`` is off; with it on, batch through ``jax.vmap`` (its per-motor tables
+    are indexed per motor).
+
+    phase : quadrature phase of (A, B): (0,0)=0, (1,0)=1, (1,1)=2, (0,1)=3.
+    q : quadrature count, 0 .. 4*N_enc-1.
+    n : ticks since the last A edge event, saturating at standstill_ticks + 1.
+    k_last : quadrature boundary index of the last A edge event (its angle is G + k*QUARTER).
+    dir_last : direction of the last A edge event (+1, -1; 0 before the first).
+    nc_prev : N_c of the last measured interval (ticks; 0 = none).
+    against : a quadrature step against dir_last happened since the last edge event (0/1).
+    omega : omega_hat from the last measured interval (rad/s electrical, signed).
+    alpha : filtered acceleration estimate (rad/s^2 electrical), improvement 3 only.
+    adv : angle advanced since the last edge event (rad electrical).
+    G : encoder-grid offset: electrical angle of quadrature boundary 0 (rad, [0, 2*pi)).
+    hall_last : last valid hall reading (1..6; 0 = none yet).
+    sector : last hall state reached through an adjacent transition or at start-up (0 = none).
+    anchored : a hall transition has set G (0/1).
+    n_anchor : hall corrections since the anchor or the last count slip, saturating at N_LEARN.
+    tick : free-running tick counter modulo 2**30 (improvement 4).
+    run : measured intervals in a row in one direction, saturating at N_enc (improvement 4).
+    R_prev : revolution time at the previous measured edge (ticks; improvement 4).
+    c_tab : f32[2*N_enc] learned placement error of each A edge (rad electrical, index k >> 1;
+        improvement 4, else empty).
+    ts : i32[2*N_enc] tick of each A edge's last event (improvement 4, else empty).
+    """
+
+    phase: Array
+    q: Array
+    n: Array
+    k_last: Array
+    dir_last: Array
+    nc_prev: Array
+    against: Array
+    omega: Array
+    alpha: Array
+    adv: Array
+    G: Array
+    hall_last: Array
+    sector: Array
+    anchored: Array
+    n_anchor: Array
+    tick: Array
+    run: Array
+    R_prev: Array
+    c_tab: Array
+    ts: Array
+
+
+class EstimatorOut(NamedTuple):
+    """Per-tick outputs.
+
+    theta_hat : estimated electrical angle (rad, [0, 2*pi)).
+    omega_hat : estimated electrical speed (rad/s, signed; + = forward).
+    theta_enc : raw edge-quantised electrical angle, the angle of the last A edge event
+        (rad, [0, 2*pi)); the paper's 'raw' encoder angle.
+    status : ST_* bits (int32).
+    """
+
+    theta_hat: Array
+    omega_hat: Array
+    theta_enc: Array
+    status: Array
+
+
+def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
+    """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
+    return table[idx] if xp is np or xp is _SCALAR_NP else xp.asarray(table)[idx]
+
+
+class _ScalarNumpy:
+    """numpy for one motor's scalars, minus the 0-d array round trips of ``np.where`` & co.
+
+    Selections and min/max pick one of their (already binary32) operands, so the arithmetic and
+    its results are those of ``xp=numpy`` exactly; :func:`run` uses it for speed only.
+    """
+
+    int32 = np.int32
+    float32 = np.float32
+    floor = staticmethod(np.floor)
+    asarray = staticmethod(np.asarray)
+    zeros = staticmethod(np.zeros)
+    zeros_like = staticmethod(np.zeros_like)
+
+    @staticmethod
+    def where(c: Array, x: Array, y: Array) -> Array:
+        return x if c else y
+
+    @staticmethod
+    def minimum(x: Array, y: Array) -> Array:
+        return x if x < y else y
+
+    @staticmethod
+    def maximum(x: Array, y: Array) -> Array:
+        return x if x > y else y
+
+    @staticmethod
+    def abs(x: Array) -> Array:
+        return -x if x < 0 else x
+
+
+_SCALAR_NP = _ScalarNumpy()
+
+
+def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
+    """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX)."""
+    if not hasattr(arr, "at"):
+        out = arr.copy()
+        out[idx] = val
+        return out
+    return arr.at[idx].set(val)
+
+
+def _dq(q: Array, k_last: Array, M: int, xp: ArrayModule) -> Array:
+    """Signed quadrature counts from boundary ``k_last`` to count ``q``, in [-M/2, M/2)."""
+    return (q - k_last + I32(M + M // 2)) % I32(M) - I32(M // 2)
+
+
+def quadrature_phase(enc_a: Array, enc_b: Array) -> Array:
+    """Position of the encoder levels (0/1 integers) in one quadrature cycle, forward: 00 -> 10 -> 11 -> 01 is 0, 1, 2, 3."""
+    return I32(2) * enc_b + (enc_a ^ enc_b)
+
+
+def init_state(cfg: EstimatorConfig, hall0: Array, enc_a0: Array = 0, enc_b0: Array = 0,
+               xp: ArrayModule = np) -> EstimatorState:
+    """Power-on state from the first sample of the halls (and the encoder levels).
+
+    Parameters
+    ----------
+    cfg : EstimatorConfig
+    hall0 : int or int array
+        Hall state at power-on (0..7; 0 and 7 leave the sector unknown until a valid reading).
+    enc_a0, enc_b0 : int or int array
+        Encoder levels at power-on (0/1), so the first tick counts no spurious step.
+    xp : numpy or jax.numpy
+    """
+    h = xp.asarray(hall0).astype(xp.int32)
+    a = xp.asarray(enc_a0).astype(xp.int32) + xp.zeros_like(h)
+    b = xp.asarray(enc_b0).astype(xp.int32) + xp.zeros_like(h)
+    valid = (h >= 1) & (h <= 6)
+    L = 2 * cfg.N_enc if cfg.learn_pitch_errors else 0
+    h = xp.where(valid, h, xp.zeros_like(h))
+    zi = xp.zeros_like(h)
+    zf = zi.astype(xp.float32)
+    ph = quadrature_phase(a, b)
+    return EstimatorState(phase=ph, q=ph, n=zi, k_last=zi, dir_last=zi, nc_prev=zi, against=zi,
+                          omega=zf, alpha=zf, adv=zf, G=zf, hall_last=h, sector=h, anchored=zi,
+                          n_anchor=zi, tick=zi, run=zi, R_prev=zi,
+                          c_tab=xp.zeros(h.shape + (L,), xp.float32),
+                          ts=xp.zeros(h.shape + (L,), xp.int32))
+
+
+def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
+         xp: ArrayModule = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
+    """One PWM tick of the estimator (ESTIMATOR.md, "Per tick").
+
+    Parameters
+    ----------
+    cfg : EstimatorConfig
+        Static; its booleans select code paths at trace time.
+    state : EstimatorState
+    enc_a, enc_b : int (0/1) or int arrays
+        Encoder channel levels sampled this tick.
+    hall : int (0..7) or int array
+        Hall bits U | V<<1 | W<<2 sampled this tick.
+    xp : numpy or jax.numpy
+    tables : HallTables, optional
+        One motor's hall lookups (f32[8] each, rad; may be traced), used instead of those of
+        ``cfg.hall_angle``: a calibrated table is data, not a reason to compile again.
+
+    Returns
+    -------
+    (new state, EstimatorOut)
+    """
+    c = consts(cfg)
+    ht = HallTables(c.H_START, c.H_WIDTH, c.H_MID) if tables is None else tables
+    i32, f32 = xp.int32, xp.float32
+    M, S = c.M, c.S
+    one = I32(1)
+    s = state
+
+    # 1. Quadrature decoding (x4). A rising edge: phase 0->1 forward, 3->2 reverse.
+    a = i32(enc_a)
+    b = i32(enc_b)
+    ph = quadrature_phase(a, b)
+    d = (ph - s.phase + I32(4)) % I32(4)
+    stp = xp.where(d == 1, one, xp.where(d == 3, -one, I32(0)))
+    qep_err = d == 2
+    q = (s.q + stp + I32(M)) % I32(M)
+    a_rise = ((d == 1) & (ph == 1)) | ((d == 3) & (ph == 2))
+    edir = xp.where(ph == 1, one, -one)
+    k = xp.where(edir > 0, q, (q + one) % I32(M))
+    against = s.against | i32(((stp != 0) & (stp == -s.dir_last)))
+    n1 = xp.minimum(s.n + one, I32(S + 1))
+
+    # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
+    bounce = a_rise & (k == s.k_last) & (edir == s.dir_last)
+    ev = a_rise & ~bounce
+    same_dir = edir == s.dir_last
+    pitch_ok = k == (s.k_last + I32(4) * edir + I32(M)) % I32(M)
+    interval = ev & same_dir & pitch_ok & (n1 <= I32(S))
+    long_iv = interval & (s.nc_prev > 0) & (I32(2) * n1 > I32(3) * s.nc_prev)
+    missing = long_iv & (against != 0)
+    reject = long_iv & (against == 0)
+    measured = interval & ~long_iv
+    nc_eff = xp.where(missing, n1 // I32(2), n1)
+    omega_new = f32(edir) * (c.K_OMEGA / f32(nc_eff))
+    # A lost A pulse leaves the count one pitch behind: put it back.
+    fix = xp.where(missing, I32(4) * edir, I32(0))
+    q = (q + fix + I32(M)) % I32(M)
+    k = (k + fix + I32(M)) % I32(M)
+    speed_upd = measured | missing
+    if cfg.learn_pitch_errors:
+        tick = (s.tick + one) & I32(TICK_MASK)
+        i_new = k >> one
+        c_old = s.c_tab[s.k_last >> one]
+        c_new = s.c_tab[i_new]
+        R = xp.maximum((tick - s.ts[i_new]) & I32(TICK_MASK), one)
+        learn = measured & (s.run >= I32(cfg.N_enc)) & (xp.abs(R - s.R_prev) <= I32(STEADY_TICKS))
+        # At steady speed the same edge's revolution time gives the true speed, so this pitch's
+        # real size is N_enc*DELTA * N_c / R; its edge sits that far from the previous one.
+        pitch = f32(n1) * (c.K_NDELTA / f32(R))
+        target = c_old + f32(edir) * (pitch - c.DELTA)
+        c_new = xp.where(learn, c_new + K_PITCH * (target - c_new), c_new)
+        c_tab = _set(s.c_tab, i_new, c_new, xp)
+        ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
+        R_prev = xp.where(measured, R, s.R_prev)
+        run = xp.where(measured, xp.minimum(s.run + one, I32(cfg.N_enc)),
+                       xp.where(ev, I32(0), s.run))
+        omega_new = xp.where(measured, f32(edir)
+                             * (((c.DELTA + f32(edir) * (c_new - c_old)) * c.TICK_HZ)
+                                / f32(n1)), omega_new)
+    else:
+        tick, run, R_prev, c_tab, ts = s.tick, s.run, s.R_prev, s.c_tab, s.ts
+    omega = xp.where(speed_upd, omega_new,
+                     xp.where(ev & ~same_dir, F32(0.0), s.omega))
+    nc_prev = xp.where(speed_upd, nc_eff,
+                       xp.where(reject, n1, xp.where(ev, I32(0), s.nc_prev)))
+    if cfg.accel_prediction:
+        consecutive = measured & (s.nc_prev > 0)
+        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32((n1 + s.nc_prev)))
+        alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
+                         xp.where(ev & ~(missing | reject), F32(0.0), s.alpha))
+    else:
+        alpha = s.alpha
+    n = xp.where(ev, I32(0), n1)
+    k_last = xp.where(ev, k, s.k_last)
+    dir_last = xp.where(ev, edir, s.dir_last)
+    against = xp.where(ev, I32(0), against)
+
+    # 3. Standstill and the prediction between edges (eq. 16).
+    still = n > I32(S)
+    nc_prev = xp.where(still, I32(0), nc_prev)
+    # omega_hat is valid exactly while nc_prev > 0 (a measured interval since the last break).
+    speed_ok = nc_prev > 0
+    omega = xp.where(speed_ok, omega, F32(0.0))
+    run = xp.where(still, I32(0), run)
+    alpha = xp.where(still, F32(0.0), alpha)
+    if cfg.accel_prediction:
+        # omega from an interval is the mean over it: the speed at its middle, N_c/2 ticks back.
+        tau = (f32(nc_prev) * HALF + f32(n)) * c.T
+        omega_pred = omega + alpha * tau
+    else:
+        omega_pred = omega
+    adv = xp.where(ev, F32(0.0), s.adv + omega_pred * c.T)
+    if cfg.clamp_to_next_edge:
+        # The rotor is inside the current quadrature count: the prediction never passes its far
+        # boundary (so never the next edge) and catches up with its near one. Not after a step
+        # against the direction since the last edge: then the count may be a lost pulse behind.
+        lo = f32(_dq(q, k_last, M, xp)) * c.QUARTER
+        adv = xp.where(against == 0, xp.minimum(xp.maximum(adv, lo), lo + c.QUARTER), adv)
+
+    # 4. Halls: validity, sequence, absolute re-anchor at transitions.
+    h = i32(hall)
+    hv = (h >= 1) & (h <= 6)
+    hl = s.hall_last
+    trans = hv & (h != hl) & (hl != 0)
+    fwd = trans & (h == _tab(c.NEXT, hl, xp))
+    rev = trans & (hl == _tab(c.NEXT, xp.where(hv, h, I32(0)), xp))
+    adj = fwd | rev
+    jump = trans & ~adj
+    first = hv & (hl == 0)
+    hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, I32(0)), xp), _tab(ht.start, hl, xp))
+    # First anchor without an edge yet: the grid reference is the current count's middle.
+    no_edge = dir_last == 0
+    k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
+    c_last = c_tab[k_last >> one] if cfg.learn_pitch_errors else F32(0.0)
+    rel = f32(k_last) * c.QUARTER + c_last
+    # Without a valid speed the best position is the middle of the current quadrature count.
+    cell = f32(_dq(q, k_last, M, xp)) * c.QUARTER + c.HALF_QUARTER
+    adv_eff = xp.where(speed_ok, adv, cell)
+    theta_pred = wrap(wrap(s.G + rel, xp) + adv_eff, xp)
+    e = wrap_pm(hb - theta_pred, xp)
+    big = xp.abs(e) > c.HALF_DELTA
+    if cfg.learn_grid_offset:
+        # Running mean of the corrections over the first N_LEARN transitions, then a first-order
+        # filter; an error over half a pitch is a count slip and is taken whole.
+        gain = F32(1.0) / f32((xp.minimum(s.n_anchor + one, I32(N_LEARN))))
+        g = xp.where(big, e, e * gain)
+    else:
+        g = e
+    G = xp.where(adj & (s.anchored != 0), wrap(s.G + g, xp),
+                 xp.where(adj, wrap(hb - (rel + adv_eff), xp), s.G))
+    anchored = xp.where(adj, one, s.anchored)
+    n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
+                        xp.where(adj, xp.minimum(s.n_anchor + one, I32(N_LEARN)), s.n_anchor))
+    hdir = xp.where(fwd, one, -one)
+    dir_mismatch = adj & (dir_last != 0) & (hdir != dir_last)
+    hall_last = xp.where(hv, h, hl)
+    sector = xp.where(adj | first, h, s.sector)
+
+    # 5. Outputs.
+    theta_enc = wrap(G + rel, xp)
+    theta = wrap(theta_enc + adv_eff, xp)
+    start = _tab(ht.start, sector, xp)
+    width = _tab(ht.width, sector, xp)
+    dd = wrap(theta - start, xp)
+    outside = dd > width
+    end = wrap(start + width, xp)
+    clamped = xp.where(outside, xp.where(dd - width < TWO_PI - dd, end, start), theta)
+    theta = xp.where(still, clamped, theta)
+    unanchored = anchored == 0
+    mid = _tab(ht.mid, sector, xp)
+    theta = xp.where(unanchored, mid, theta)
+    theta_enc = xp.where(unanchored, mid, theta_enc)
+    omega_out = omega_pred
+    if cfg.clamp_to_next_edge:
+        # No edge for n ticks: |speed| cannot exceed a pitch per n ticks.
+        bound = c.K_OMEGA / f32(xp.maximum(n, one))
+        omega_out = xp.where(n > 0, xp.minimum(xp.maximum(omega_out, -bound), bound), omega_out)
+    no_speed = (nc_prev == 0) & ~speed_upd
+
+    status = (i32(still) * I32(ST_STANDSTILL)
+              | i32((dir_last < 0)) * I32(ST_REVERSE)
+              | i32((~hv)) * I32(ST_HALL_FAULT)
+              | i32(jump) * I32(ST_HALL_SEQ)
+              | i32(unanchored) * I32(ST_NO_ANCHOR)
+              | i32(qep_err) * I32(ST_QEP_ERROR)
+              | i32((bounce | reject | (ev & ~speed_upd))) * I32(ST_EDGE_REJECT)
+              | i32(missing) * I32(ST_MISSING_EDGE)
+              | i32(dir_mismatch) * I32(ST_DIR_MISMATCH)
+              | i32(no_speed) * I32(ST_NO_SPEED))
+
+    new = EstimatorState(phase=ph, q=q, n=n, k_last=k_last, dir_last=dir_last, nc_prev=nc_prev,
+                         against=against, omega=omega, alpha=alpha, adv=adv, G=G,
+                         hall_last=hall_last, sector=sector, anchored=anchored,
+                         n_anchor=n_anchor, tick=tick, run=run, R_prev=R_prev, c_tab=c_tab, ts=ts)
+    return new, EstimatorOut(theta_hat=theta, omega_hat=omega_out, theta_enc=theta_enc,
+                             status=status)
