@@ -37,15 +37,16 @@ def make_lot(d: Path, n: int) -> list[list[Path]]:
 
 
 def _init() -> None:
-    from cli.fit import enable_jax_cache
+    from eol_cal.analysis.fit.cache import default_cache_dir, enable_compile_cache
 
-    enable_jax_cache()
+    enable_compile_cache(default_cache_dir())
 
 
 def _fit(group: list[Path]) -> float:
+    from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.refit import refit_capture
 
-    row = refit_capture(group, bench="none")
+    row = refit_capture(group, bench="none", cache_dir=default_cache_dir())
     assert row["error"] is None, row["error"]
     return row["k6"]
 
@@ -56,6 +57,7 @@ def main() -> None:
     a = ap.parse_args()
     from distributed import Client, LocalCluster
 
+    from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.refit import refit_lot
 
     with tempfile.TemporaryDirectory() as d:
@@ -77,9 +79,9 @@ def main() -> None:
             with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                               dashboard_address=None, silence_logs=50) as cluster, Client(cluster) as client:
                 client.register_worker_callbacks(_init)
-                refit_lot([warm] * n, client, bench="none")
+                refit_lot([warm] * n, client, bench="none", cache_dir=default_cache_dir())
                 t0 = time.perf_counter()
-                rows = refit_lot(lot, client, bench="none")
+                rows = refit_lot(lot, client, bench="none", cache_dir=default_cache_dir())
                 out[f"dask, {n} worker(s)"] = time.perf_counter() - t0
             assert [r["k6"] for r in rows] == ref
     base = out["loop (1 process)"]

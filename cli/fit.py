@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import click
@@ -11,27 +10,16 @@ from cli.common import CommandExit, console, err_console, handle_errors
 from cli.paths import io_paths
 
 
-def enable_jax_cache() -> None:
+def enable_jax_cache() -> Path | None:
     """JAX's persistent compilation cache, so a second ``eol-cal fit`` skips compiling.
 
-    Directory: ``$EOL_CAL_JAX_CACHE`` or ``~/.cache/eol-cal/jax`` (``off``: no cache); the fit's
-    serialized solvers (:data:`eol_cal.analysis.fit.cache.EXPORT_DIR`) live there too.
+    Directory: :func:`eol_cal.analysis.fit.cache.default_cache_dir` (``$EOL_CAL_JAX_CACHE`` or
+    ``~/.cache/eol-cal/jax``; ``off``: no cache). Returns it (``None``: no cache) for the fit's
+    serialized solvers, which live there too.
     """
-    import jax
+    from eol_cal.analysis.fit.cache import default_cache_dir, enable_compile_cache
 
-    path = os.environ.get("EOL_CAL_JAX_CACHE") or str(Path.home() / ".cache" / "eol-cal" / "jax")
-    if path == "off":
-        return
-    try:
-        Path(path).mkdir(parents=True, exist_ok=True)
-    except OSError:
-        return  # a read-only home only costs the compile time
-    from eol_cal.analysis.fit import cache
-
-    cache.EXPORT_DIR = path
-    jax.config.update("jax_compilation_cache_dir", path)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    return enable_compile_cache(default_cache_dir())
 
 
 def _harmonics(text: str) -> tuple[int, ...]:
@@ -90,7 +78,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.capture.io import read_capture
 
-    enable_jax_cache()
+    cache_dir = enable_jax_cache()
     spec = FitSpec(
         harmonics=_harmonics(harmonics),
         fit_c=not no_c6,
@@ -104,7 +92,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
     mechanics = mechanics_or_rigid(bench_name)
     options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, mechanics=mechanics,
-                         hall_angle=hall_angle)
+                         hall_angle=hall_angle, cache_dir=cache_dir)
     caps = [read_capture(p, map_file) for p in captures]
     serials = {c.serial for c in caps if "serial" in c.metadata}
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:

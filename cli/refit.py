@@ -2,19 +2,13 @@
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import click
 
 from cli.common import CommandExit, console, err_console, handle_errors
 from cli.paths import io_paths
-
-
-def _warm_worker() -> None:
-    # each worker process keeps JAX's persistent compile cache and the fit's exported solvers
-    from cli.fit import enable_jax_cache
-
-    enable_jax_cache()
 
 
 @click.command("refit")
@@ -38,24 +32,27 @@ def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, 
     from distributed import Client, LocalCluster
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from eol_cal.analysis.fit.cache import default_cache_dir, enable_compile_cache
     from eol_cal.errors import InputError
     from eol_cal.lot.refit import find_captures, refit_lot, write_rows
 
     if out.suffix not in (".parquet", ".jsonl"):
         raise InputError(str(out), None, "results file must end in .jsonl or .parquet")
     paths = find_captures(captures)
+    cache_dir = default_cache_dir()
     cluster = None
     if scheduler is None:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address=None)
     try:
         with Client(scheduler or cluster) as client:
-            client.register_worker_callbacks(_warm_worker)
+            # each worker process keeps JAX's persistent compile cache and the fit's exported solvers
+            client.register_worker_callbacks(functools.partial(enable_compile_cache, cache_dir))
             with Progress(TextColumn("refit"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                           console=err_console, transient=False) as bar:
                 task = bar.add_task("refit", total=len(paths))
                 rows = refit_lot(paths, client, limits_file, variant, on_done=lambda _r: bar.advance(task),
-                                 bench=bench, motor=motor)
+                                 bench=bench, motor=motor, cache_dir=cache_dir)
     finally:
         if cluster is not None:
             cluster.close()

@@ -161,7 +161,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     the next run (or `eol-cal records --flush`) writes it in.
     """
     from cli.ecu import _seed_to_key
-    from cli.fit import enable_jax_cache
+    from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.ecu.transport import open_bus
@@ -189,7 +189,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
         db=db, report_dir=report_dir, profile=profile, verify=verify, spool_dir=spool_dir, rate_hz=rate_hz,
         db_timeout_s=db_timeout,
         station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
-        prepare=enable_jax_cache,  # on the helper thread: importing JAX costs a second
+        cache_dir=default_cache_dir(),  # switched on by the helper thread: importing JAX costs a second
         motor=motor, mechanics=mechanics,
     )
     try:
@@ -240,7 +240,7 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     limits = load_limits(limits_path)
     db = out_dir / "results.sqlite" if db is None else db
     _quiet_logs()
-    enable_jax_cache()
+    cache_dir = enable_jax_cache()
     t0 = time.perf_counter()
     err_console.print(f"eol-cal demo: {motors} motor(s), profile {profile}, limits {limits_path} ({limits.variant}); "
                       "the first motor also compiles the plant and the fit (cached for later runs)")
@@ -253,7 +253,7 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
             cfg = StationConfig(
                 serial=serial, dyno=DynoConfig(host=host, port=port), open_bus=st.open_bus,
                 seed_to_key=hmac_seed_to_key(P.DEV_SECRET), limits=limits, db=db, report_dir=out_dir / "reports",
-                profile=profile, spool_dir=out_dir / "spool",
+                profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,
                 station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},
             )
             with _StepProgress(serial) as progress:

@@ -169,17 +169,36 @@ def test_batched_equals_single_and_95_percent_intervals_cover_the_truth():
         assert 0.90 <= rate <= 0.99, (name, rates)
 
 
-def test_exported_solver_round_trip(tmp_path, monkeypatch):
+def test_exported_solver_round_trip(tmp_path):
     """The CLI's serialized solver (jax.export) gives the same fit as the jitted one."""
-    from eol_cal.analysis.fit import cache as fit_mod
+    from eol_cal.analysis.fit import cache
 
     seg, _ = synthetic_segments(np.random.default_rng(9), seg_s=0.1, loads_a=(65.0,), c6=0.0, delay_s=0.0)
     spec = FitSpec(fit_c=False, delay_s=0.0)
-    monkeypatch.setattr(fit_mod, "EXPORT_DIR", str(tmp_path))
-    first = fit_segments(seg, spec)  # jitted; saves the export
+    first = fit_segments(seg, spec, cache_dir=tmp_path)  # jitted; saves the export
     files = list(tmp_path.glob("fit-*.jaxexport"))
     assert len(files) == 1 and files[0].stat().st_size > 1000
-    assert fit_mod._exported_solver(spec, seg.n_segments, 1) is not None
-    second = fit_segments(seg, spec)  # deserialized
+    assert cache.load_solver(tmp_path, spec, seg.n_segments, 1) is not None
+    second = fit_segments(seg, spec, cache_dir=tmp_path)  # deserialized
     assert second.harmonics[6]["k"].value == first.harmonics[6]["k"].value
     assert second.harmonics[6]["k"].ci95 == first.harmonics[6]["k"].ci95 and second.steps == first.steps
+
+
+def test_cache_directory_is_a_parameter(tmp_path):
+    """The cache directory comes from the caller (default: one function of the environment), and a
+    fit without one writes nothing."""
+    from pathlib import Path
+
+    from eol_cal.analysis.fit import cache
+
+    assert cache.default_cache_dir({"EOL_CAL_JAX_CACHE": "off"}) is None
+    assert cache.default_cache_dir({"EOL_CAL_JAX_CACHE": str(tmp_path / "c")}) == tmp_path / "c"
+    assert cache.default_cache_dir({}) == Path.home() / ".cache" / "eol-cal" / "jax"
+    assert cache.enable_compile_cache(None) is None
+    seg, _ = synthetic_segments(np.random.default_rng(9), seg_s=0.1, loads_a=(65.0,), c6=0.0, delay_s=0.0)
+    spec = FitSpec(fit_c=False, delay_s=0.0)
+    assert cache.load_solver(None, spec, seg.n_segments, 1) is None
+    # two directories in one process: each fit uses the one it is given
+    for d in (tmp_path / "a", tmp_path / "b"):
+        fit_segments(seg, spec, cache_dir=d)
+        assert len(list(d.glob("fit-*.jaxexport"))) == 1

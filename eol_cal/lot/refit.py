@@ -49,14 +49,15 @@ def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
 
 
 def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, variant: str | None = None,
-                  bench: str = "paper", motor: str = "paper") -> dict[str, Any]:
+                  bench: str = "paper", motor: str = "paper", cache_dir: str | Path | None = None) -> dict[str, Any]:
     """One motor's row (:data:`ROW_KEYS`) from its captures; never raises for a bad capture
     (``error`` says why).
 
     The fit is the station's (:func:`eol_cal.station.run.fit_motor`'s options: joint windows,
     firmware frame), with the dyno ``bench`` (a name or TOML file; ``"none"``: rigid coupling)
     and ``motor`` preset the runs were made with (the record's ``station.bench``, ``station.motor``). ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
-    ``rms`` in N*m, as in the records; ``capture`` names the first file.
+    ``rms`` in N*m, as in the records; ``capture`` names the first file. ``cache_dir``: the fit's
+    serialized solvers (:mod:`eol_cal.analysis.fit.cache`; ``None``: none).
     """
     from eol_cal import __version__
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
@@ -74,7 +75,8 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
         from eol_cal.mechanics import mechanics_or_rigid
         from eol_cal.motor import load_motor
 
-        common = dict(batch="loop", mechanics=mechanics_or_rigid(bench), motor=load_motor(motor))
+        common = dict(batch="loop", mechanics=mechanics_or_rigid(bench), motor=load_motor(motor),
+                      cache_dir=None if cache_dir is None else Path(cache_dir))
         opts = FitOptions(**common) if lim is None else FitOptions(limits=lim.ci_limits(), **common)
         res = fit_motors(caps, opts, __version__)
         if len(res.records) != 1:
@@ -99,12 +101,14 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
 
 def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | None = None, variant: str | None = None,
               on_done: Callable[[dict[str, Any]], None] | None = None, retries: int = 2,
-              bench: str = "paper", motor: str = "paper") -> list[dict[str, Any]]:
+              bench: str = "paper", motor: str = "paper", cache_dir: str | Path | None = None) -> list[dict[str, Any]]:
     """Refit every group of captures (one motor run, :func:`find_captures`) as one task on
-    ``client`` (a ``distributed.Client``); rows in the order of ``paths``. ``retries``: how often a task whose worker died is run again."""
+    ``client`` (a ``distributed.Client``); rows in the order of ``paths``. ``retries``: how often a task whose worker died is run again.
+    ``cache_dir``: the fit's serialized solvers, a directory on the workers' machines (``None``: none)."""
     from distributed import as_completed
 
     futures = {client.submit(refit_capture, [str(q) for q in group], limits_file, variant, bench, motor,
+                             None if cache_dir is None else str(cache_dir),
                              key=f"refit-{i}-{group[0].parent.name}", retries=retries, pure=False): i
                for i, group in enumerate(paths)}
     rows: list[dict[str, Any] | None] = [None] * len(paths)

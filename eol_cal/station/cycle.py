@@ -116,7 +116,7 @@ class StationCycle:
         # One helper thread: it imports JAX and matplotlib while the dyno spins the first time, and
         # draws the fit's plots while it spins the second time (the main thread mostly waits there).
         cycle._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
-        cycle._prewarm = cycle._helper.submit(prewarm_fit, len(segments), cfg.prepare)
+        cycle._prewarm = cycle._helper.submit(prewarm_fit, len(segments), cfg.cache_dir)
         return cycle
 
     # ------------------------------------------------------------------ the steps
@@ -151,7 +151,8 @@ class StationCycle:
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(self.before, self.cfg.motor)
         self._prewarm.result()
-        doc, frec, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics)
+        doc, frec, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
+                                     self.cfg.cache_dir)
         write_result(doc, self.run_dir / "fit.json")
         self.fit_doc, self.fit_record, self.fit_extra = doc, frec, extra
         self._fit_plots = self._helper.submit(fit_plots, self.run_dir, extra)

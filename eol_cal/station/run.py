@@ -75,9 +75,10 @@ class StationConfig:
         Free-form description of the station for the record (addresses, interface).
     ecu_timing : ClientTiming or None
         UDS timing (default the contract's).
-    prepare : callable or None
-        Called first on the helper thread while the dyno spins, e.g. to switch on JAX's
-        persistent compilation cache (importing JAX costs a second).
+    cache_dir : Path or None
+        The fit's cache directory (JAX's persistent compilation cache and the serialized solvers,
+        :func:`eol_cal.analysis.fit.cache.default_cache_dir`), switched on by the pre-warming on
+        the helper thread while the dyno spins (importing JAX costs a second); ``None``: no cache.
     motor : MotorParams
         The motor type on the station (default the paper preset): poles and encoder the
         captures must show, the ECU's tick rate and kt for the blocks, the current loop for the
@@ -101,7 +102,7 @@ class StationConfig:
     db_timeout_s: float = 5.0
     station: dict[str, Any] = field(default_factory=dict)
     ecu_timing: Any = None
-    prepare: Callable[[], None] | None = None
+    cache_dir: Path | None = None
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
 
@@ -139,11 +140,12 @@ def _safe_name(text: str) -> str:
 
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
-              mechanics: BenchMechanics | None = None) -> tuple[dict, dict, Any]:
+              mechanics: BenchMechanics | None = None, cache_dir: Path | None = None) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
-    ``motor`` (default the paper preset) and ``mechanics`` (``None``: rigid coupling) as in
+    ``motor`` (default the paper preset), ``mechanics`` (``None``: rigid coupling) and
+    ``cache_dir`` (the serialized solvers; ``None``: none) as in
     :class:`eol_cal.analysis.fit.motors.FitOptions`.
 
     Returns
@@ -154,7 +156,7 @@ def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor:
     """
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 
-    options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor)
+    options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir)
     res = fit_motors([capture], options, tool_version)
     (rec,) = res.records
     return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)

@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
+import os
 from typing import Callable
 
 import numpy as np
 
-from eol_cal.analysis.fit import cache
+from eol_cal.analysis.fit.cache import load_solver, save_solver
 from eol_cal.analysis.fit.compression import _DICT_KEYS, _as_dict, compress
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
 from eol_cal.analysis.fit.solver import _build, _solver, tau_grid
 
 
-def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None) -> MotorFit:
+def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None,
+                 cache_dir: str | os.PathLike[str] | None = None) -> MotorFit:
     """Fit one motor from its segments (all captures jointly).
 
     Parameters
@@ -24,12 +26,14 @@ def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | N
         Model and solver settings.
     source : str, optional
         Named in errors.
+    cache_dir : path, optional
+        Directory of serialized solvers (:mod:`eol_cal.analysis.fit.cache`); ``None``: none.
 
     Returns
     -------
     MotorFit
     """
-    return fit_many([seg], spec, mode="loop", sources=[source])[0]
+    return fit_many([seg], spec, mode="loop", sources=[source], cache_dir=cache_dir)[0]
 
 
 #: ``fit_many(mode="auto")`` batches the solve from this many motors on (below, the compile of a
@@ -54,6 +58,7 @@ def fit_many(
     sources: list[str | None] | None = None,
     progress: Callable[[int], None] | None = None,
     threads: int = 0,
+    cache_dir: str | os.PathLike[str] | None = None,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
 
@@ -82,6 +87,10 @@ def fit_many(
         0 (default) compresses in this thread, chunk by chunk. On the 2-core machine of
         docs/benchmarks.md 1 or 2 workers measured no faster than none: the kernels of an
         8000-sample block are short and the threads mostly wait for the GIL between them.
+    cache_dir : path, optional
+        Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
+        :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
+        from there instead of tracing it, or writes it there after tracing. ``None``: no cache.
 
     Returns
     -------
@@ -106,9 +115,9 @@ def fit_many(
         futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
         with jax.enable_x64(True):
             grid_j = jax.numpy.asarray(grid)
-            exported = cache._exported_solver(spec, S, len(grid)) if mode == "loop" else None
+            exported = load_solver(cache_dir, spec, S, len(grid)) if mode == "loop" else None
             solve = (lambda c, g, _steps: exported(c, g)) if exported else _solver(spec, S, "one" if mode == "loop" else mode)
-            save_export = mode == "loop" and exported is None and cache.EXPORT_DIR is not None
+            save_export = mode == "loop" and exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
@@ -122,7 +131,8 @@ def fit_many(
                     outs = [out]
                     if save_export:
                         save_export = False
-                        cache._save_exported(jax.jit(lambda c, g: _build(spec, S)(c, g, spec.max_steps)), spec, S, len(grid), args)
+                        save_solver(cache_dir, jax.jit(lambda c, g: _build(spec, S)(c, g, spec.max_steps)), spec, S, len(grid),
+                                    args)
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps

@@ -1,40 +1,88 @@
-"""The fit's on-disk cache of serialized (``jax.export``) one-motor solvers.
+"""The fit's caches on disk: JAX's persistent compilation cache and serialized one-motor solvers.
 
-JAX's persistent compilation cache skips XLA compiling; this cache skips tracing the solver
-(and importing optimistix), about 2 s of a short run.
+Both live in one directory, chosen by the caller (:func:`default_cache_dir` computes the default;
+the CLI and the station pass it on). JAX's compilation cache skips XLA compiling; the serialized
+(``jax.export``) solvers skip tracing the solver (and importing optimistix), about 2 s of a short
+run. Pre-warming a process (imports, one solver trace, matplotlib) sits beside this module:
+:func:`eol_cal.analysis.fit.prewarm.prewarm_fit`.
 """
 
 from __future__ import annotations
 
-from eol_cal.analysis.fit.model import FitSpec
+import hashlib
+import os
+import re
+from pathlib import Path
+from typing import Callable, Mapping
 
-#: Where :func:`fit_many` keeps serialized (``jax.export``) one-motor solvers; ``None`` = off.
-#: The CLI sets it next to JAX's persistent compilation cache: the compilation cache skips XLA
-#: compiling, this skips tracing the solver (and importing optimistix), about 2 s of a short run.
-EXPORT_DIR: str | None = None
+from eol_cal.analysis.fit.model import FitSpec
+from eol_cal.atomic import atomic_write
+
+#: environment variable naming the cache directory (``off``: no cache)
+CACHE_ENV = "EOL_CAL_JAX_CACHE"
+#: part of every solver file's key: bump it when the solver's program changes
 _EXPORT_TAG = "eol-cal-fit-solve-2"
 
 
-def _export_file(spec: FitSpec, S: int, n_grid: int) -> str | None:
-    import hashlib
-    import os
+def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:
+    """The cache directory a process uses unless told otherwise.
 
+    ``$EOL_CAL_JAX_CACHE``, or ``~/.cache/eol-cal/jax`` when it is unset or empty; ``None`` when it
+    is ``off``.
+
+    Parameters
+    ----------
+    environ : mapping, optional
+        The environment to read (default ``os.environ``).
+    """
+    env = os.environ if environ is None else environ
+    value = env.get(CACHE_ENV) or str(Path.home() / ".cache" / "eol-cal" / "jax")
+    return None if value == "off" else Path(value)
+
+
+def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | None:
+    """Switch on JAX's persistent compilation cache in ``cache_dir`` (created if missing).
+
+    JAX's cache directory is a setting of the whole process (``jax.config``); the serialized
+    solvers are not: pass the returned directory to :func:`eol_cal.analysis.fit.fit_many`.
+
+    Returns
+    -------
+    Path or None
+        ``cache_dir`` when it can be used; ``None`` when it is ``None`` or cannot be created (a
+        read-only home only costs the compile time).
+    """
+    if cache_dir is None:
+        return None
+    path = Path(cache_dir)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None
+    import jax  # a second to import: only for callers that fit or simulate
+
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    return path
+
+
+def solver_file(cache_dir: str | os.PathLike[str], spec: FitSpec, S: int, n_grid: int) -> Path:
+    """The file of the serialized solver for ``spec``, ``S`` segments and a delay grid of ``n_grid``
+    points (the key also holds the jax version: an entry is only read back on this installation)."""
     import jax
 
-    if not EXPORT_DIR:
-        return None
     key = repr((_EXPORT_TAG, jax.__version__, spec, S, n_grid))
-    return os.path.join(EXPORT_DIR, f"fit-{hashlib.sha256(key.encode()).hexdigest()[:20]}.jaxexport")
+    return Path(cache_dir) / f"fit-{hashlib.sha256(key.encode()).hexdigest()[:20]}.jaxexport"
 
 
-def _exported_solver(spec: FitSpec, S: int, n_grid: int):
-    """A deserialized one-motor solver from EXPORT_DIR, or None (none yet, or unreadable)."""
-    path = _export_file(spec, S, n_grid)
-    if path is None:
+def load_solver(cache_dir: str | os.PathLike[str] | None, spec: FitSpec, S: int, n_grid: int) -> Callable | None:
+    """A deserialized one-motor solver ``(compressed, tau_grid) -> outputs`` from ``cache_dir``, or
+    ``None`` (no cache, none yet, or unreadable)."""
+    if cache_dir is None:
         return None
     try:
-        with open(path, "rb") as fh:
-            blob = fh.read()
+        blob = solver_file(cache_dir, spec, S, n_grid).read_bytes()
         from jax import export
 
         return export.deserialize(bytearray(blob)).call
@@ -42,12 +90,11 @@ def _exported_solver(spec: FitSpec, S: int, n_grid: int):
         return None
 
 
-def _save_exported(fn, spec: FitSpec, S: int, n_grid: int, args: tuple) -> None:
-    """Serialize the jitted one-motor solver for the next process (best effort, atomic)."""
-    import re
-
-    path = _export_file(spec, S, n_grid)
-    if path is None:
+def save_solver(cache_dir: str | os.PathLike[str] | None, fn: Callable, spec: FitSpec, S: int, n_grid: int,
+                args: tuple) -> None:
+    """Serialize the jitted one-motor solver ``fn`` (traced at ``args``) into ``cache_dir`` for the
+    next process (best effort, atomic; nothing when ``cache_dir`` is ``None``)."""
+    if cache_dir is None:
         return
     try:
         from jax import export
@@ -67,9 +114,6 @@ def _save_exported(fn, spec: FitSpec, S: int, n_grid: int, args: tuple) -> None:
                 names |= new
         else:
             return
-        blob = exp.serialize()
-        from eol_cal.atomic import atomic_write
-
-        atomic_write(path, bytes(blob))
+        atomic_write(solver_file(cache_dir, spec, S, n_grid), bytes(exp.serialize()))
     except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
         return

@@ -9,6 +9,7 @@ reported with the phases in the firmware estimator's angle frame unless told oth
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
@@ -54,6 +55,9 @@ class FitOptions:
     motor : MotorParams or None
         Rotor inertia and friction for the shaft response, kt when the captures have none
         (default: the ``paper`` preset).
+    cache_dir : Path or None
+        Directory of the fit's serialized solvers (:mod:`eol_cal.analysis.fit.cache`); ``None``:
+        the solver is traced in every process.
     """
 
     spec: FitSpec = field(default_factory=FitSpec)
@@ -66,6 +70,7 @@ class FitOptions:
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     hall_angle: str = "measured"
     motor: MotorParams | None = None
+    cache_dir: Path | None = None
 
 
 @dataclass
@@ -160,6 +165,7 @@ def fit_motors(
         chunk=max(1, min(64, len(inputs))),
         sources=[", ".join(m.sources) for m in inputs],
         progress=progress,
+        cache_dir=options.cache_dir,
     )
     records = []
     for mi, f in zip(inputs, fits):

@@ -1,23 +1,42 @@
-"""Pre-warming of the fit: imports and a solver trace, run while the dyno spins (the station cycle)."""
+"""Pre-warming of the fit: imports and a solver trace, run while the dyno spins (the station cycle).
+
+It sits beside the fit's caches (:mod:`eol_cal.analysis.fit.cache`): it switches JAX's compilation
+cache on for the directory it is given and reads (or writes) the serialized solver there.
+"""
 
 from __future__ import annotations
 
-from typing import Callable
+import dataclasses
+import os
+
+import numpy as np
+
+from eol_cal.analysis.fit.batch import fit_many
+from eol_cal.analysis.fit.cache import enable_compile_cache
+from eol_cal.analysis.fit.model import FitSpec
+from eol_cal.analysis.fit.synth import synthetic_segments
 
 
-def prewarm_fit(n_segments: int, prepare: Callable[[], None] | None = None) -> None:
-    """Import what the fit and the plots need, and trace the fit's solver for ``n_segments``
+def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None) -> None:
+    """Make the fit's first run in this process fast; never raises.
+
+    Switches on JAX's persistent compilation cache in ``cache_dir``, imports what the fit and the
+    plots need (JAX, the angle, matplotlib), and traces the fit's solver for ``n_segments``
     segments on an analytic record (JAX traces per shape; tracing costs seconds even when the
-    compiled code comes from the persistent cache). Runs while the dyno spins."""
+    compiled code comes from the persistent cache), reading or writing the serialized solver in
+    ``cache_dir``. Runs on a helper thread while the dyno spins.
+
+    Parameters
+    ----------
+    n_segments : int
+        Segments of the capture the fit will see (the profile's setpoints).
+    cache_dir : path, optional
+        The fit's cache directory (:func:`eol_cal.analysis.fit.cache.default_cache_dir`); ``None``:
+        no cache.
+    """
     try:
-        if prepare is not None:
-            prepare()
-        import dataclasses
-
-        import numpy as np
-
-        from eol_cal.analysis.fit import FitSpec, fit_many
-        from eol_cal.analysis.fit.synth import synthetic_segments
+        enable_compile_cache(cache_dir)
+        # imported here on purpose: loading them is the work this function does ahead of time
         import eol_cal.analysis.fit.capture  # noqa: F401
         import eol_cal.analysis.fit.plot  # noqa: F401
         from eol_cal.analysis.plots import _pyplot
@@ -30,6 +49,6 @@ def prewarm_fit(n_segments: int, prepare: Callable[[], None] | None = None) -> N
             keep = slice(0, n_segments)
             seg = dataclasses.replace(seg, **{f.name: getattr(seg, f.name)[keep] for f in dataclasses.fields(seg)
                                               if isinstance(getattr(seg, f.name), (list, np.ndarray))})
-        fit_many([seg], FitSpec(), mode="loop")
+        fit_many([seg], FitSpec(), mode="loop", cache_dir=cache_dir)
     except Exception:  # noqa: BLE001 - the step that needs it reports a real failure
         pass
