@@ -116,36 +116,65 @@ def show(file: str, as_json: bool) -> None:
         raise InputError(file, None, "not a decodable parameter block (reason above)")
 
 
+def unsafe_reasons(data: bytes, file: str, motor_file: str | None) -> list[str]:
+    """Why a block that the firmware calls valid must still not drive the motor (empty: it may).
+
+    The physical-sanity rules of :mod:`eol_cal.firmware.block_sanity` for the motor of
+    ``motor_file`` (default the paper preset): finite values, currents within its rating, its type.
+    """
+    from eol_cal.firmware import block as pb
+    from eol_cal.firmware.block_sanity import MotorType, sanity_problems, type_problems
+    from eol_cal.motor import load_motor
+
+    motor = load_motor("paper", motor_file)
+    blk = pb.unpack(data, file)
+    problems = sanity_problems(blk, motor.i_max) + type_problems(blk, MotorType.of_motor(motor))
+    return [f"{f}: {r}" for f, r in problems]
+
+
+_MOTOR_OPTION = click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
+                             help="Motor TOML overriding the paper preset: its current rating i_max and its type "
+                                  "(poles, N_enc, f_pwm) the block must fit.")
+
+
 @block_group.command("check")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--json", "as_json", is_flag=True, help="one JSON document on stdout")
+@_MOTOR_OPTION
 @handle_errors
-def check_cmd(file: str, as_json: bool) -> None:
-    """Apply the firmware's check routine; exit 0 valid, 1 invalid, 2 unreadable."""
+@io_paths(inputs=("file", "motor_file"))
+def check_cmd(file: str, as_json: bool, motor_file: str | None) -> None:
+    """Apply the firmware's check routine, then the physical-sanity rules (finite values, currents
+    within the motor's rating, the motor's type); exit 0 valid and safe, 1 invalid or unsafe, 2 unreadable."""
     from eol_cal.errors import CheckFailed
     from eol_cal.firmware import block as pb
 
-    res = pb.check(pb.read_block_file(file))
+    data = pb.read_block_file(file)
+    res = pb.check(data)
+    unsafe = unsafe_reasons(data, file, motor_file) if res.valid else []
     if as_json:
         print_json({"file": file, "valid": res.valid, "status": res.status,
                     "status_text": _STATUS_TEXT[res.status], "reasons": list(res.reasons),
-                    "warnings": list(res.warnings)})
-    elif res.valid:
+                    "warnings": list(res.warnings), "safe": res.valid and not unsafe, "unsafe": unsafe})
+    elif res.valid and not unsafe:
         click.echo(f"{file}: valid" + "".join(f"\n  warning: {w}" for w in res.warnings))
     if not res.valid:
         raise CheckFailed(f"{file}: {_STATUS_TEXT[res.status]} (status {res.status}): " + "; ".join(res.reasons))
+    if unsafe:
+        raise CheckFailed(f"{file}: valid for the firmware but unsafe for the motor: " + "; ".join(unsafe))
 
 
 @block_group.command("hex")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--bank", type=click.IntRange(0, 1), required=True, help="target bank: 0 (sector C) or 1 (sector B)")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="Intel HEX file to write")
+@_MOTOR_OPTION
 @handle_errors
-@io_paths(inputs=("file",), outputs=("output",))
-def hex_cmd(file: str, bank: int, output: str) -> None:
+@io_paths(inputs=("file", "motor_file"), outputs=("output",))
+def hex_cmd(file: str, bank: int, output: str, motor_file: str | None) -> None:
     """Write a valid block as Intel HEX at its bank's flash address (byte address = 2 x word address).
 
-    Refuses an invalid block (exit 1). Bytes after the block are not exported.
+    Refuses an invalid or unsafe block (exit 1). Bytes after the block are not exported.
     """
     from eol_cal.errors import CheckFailed
     from eol_cal.firmware import block as pb
@@ -155,6 +184,9 @@ def hex_cmd(file: str, bank: int, output: str) -> None:
     res = pb.check(data)
     if not res.valid:
         raise CheckFailed(f"{file}: refusing to export an invalid block: " + "; ".join(res.reasons))
+    unsafe = unsafe_reasons(data, file, motor_file)
+    if unsafe:
+        raise CheckFailed(f"{file}: refusing to export an unsafe block: " + "; ".join(unsafe))
     n = pb.unpack(data, file).table_len
     text = pb.to_intel_hex(data[:pb.block_bytes(n)], bank)
     atomic_write(Path(output), text.encode("ascii"))

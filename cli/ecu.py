@@ -98,11 +98,15 @@ _SEED_TRIAL = b"\x12\x34\x56\x78"
 @click.option("--verify/--no-verify", default=True, show_default=True, help="Read the block back and compare.")
 @click.option("--dry-run", is_flag=True, help="Identify and unlock the ECU, check the block against it, write nothing.")
 @click.option("--force", is_flag=True, help="Flash even if the block's serial differs from the ECU's (F18C).")
+@click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
+              help="Motor TOML overriding the paper preset: its current rating bounds the block, and its type "
+                   "(poles, N_enc, f_pwm) is the ECU's when the ECU has no active block to read it from.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 @handle_errors
+@io_paths(inputs=("block_file", "key_file", "can_config", "motor_file"))
 def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitrate: int | None,
               can_config: str | None, key_file: str | None, key_algo: str | None, verify: bool,
-              dry_run: bool, force: bool, as_json: bool) -> None:
+              dry_run: bool, force: bool, motor_file: str | None, as_json: bool) -> None:
     """Write parameter BLOCK (raw .bin or Intel .hex) into the ECU's inactive bank.
 
     Sequence of firmware contract v1 section 3; the block's sequence becomes the ECU's active
@@ -111,13 +115,15 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
     """
     from eol_cal.ecu.client import flash_block
     from eol_cal.firmware.block import read_block_file
+    from eol_cal.motor import load_motor
 
     data = read_block_file(block_file)
+    motor = load_motor("paper", motor_file)
     seed_to_key = _seed_to_key(key_file, key_algo)
     bus = _open_bus(interface, channel, bitrate, can_config)
     try:
         report = flash_block(bus, data, seed_to_key=seed_to_key, verify=verify, dry_run=dry_run,
-                             force=force, source=block_file,
+                             force=force, source=block_file, motor=motor,
                              progress=None if as_json else lambda s: err_console.print(f"  {s}", style="dim"))
     finally:
         bus.shutdown()

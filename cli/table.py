@@ -44,6 +44,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     from eol_cal.analysis.result import read_result
     from eol_cal.atomic import atomic_write
     from eol_cal.firmware.block import check, pack, to_intel_hex
+    from eol_cal.firmware.block_sanity import require_safe
     from eol_cal.motor import load_motor
 
     lead_s = _lead(lead)
@@ -57,6 +58,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
         raise RuntimeError(f"packed block does not check: {res.reasons}")
+    require_safe(blk, motor, result)  # e.g. --iqc-limit 1e30: above the motor's current rating
     atomic_write(output, data)
     if hex_file:
         atomic_write(hex_file, to_intel_hex(data, bank))

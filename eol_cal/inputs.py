@@ -42,7 +42,7 @@ def check_regular(path: str | os.PathLike, field: str | None = None) -> None:
     try:
         mode = os.stat(path).st_mode
     except FileNotFoundError:
-        raise InputError(file, field, "file not found") from None
+        raise InputError(file, field, "cannot read: file not found") from None
     except OSError as exc:
         raise InputError(file, field, f"cannot read: {exc.strerror or exc}") from None
     if not stat.S_ISREG(mode):

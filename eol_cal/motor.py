@@ -46,6 +46,9 @@ class MotorParams:
     current_bw_hz : float
         Closed-loop bandwidth the ECU's PI current controller is tuned for (Hz); the plant's
         controller and the compensator's lead both derive from it.
+    i_max : float
+        Current rating (A): the largest ``|i_q|`` the drive may command. A parameter block's
+        ``iqc_limit`` and table values must stay within it (:mod:`eol_cal.firmware.block_sanity`).
     """
 
     name: str = "paper"
@@ -64,6 +67,7 @@ class MotorParams:
     f_cc: float = 1680.0
     f_cmd: float = 420.0
     current_bw_hz: float = 200.0
+    i_max: float = 100.0
 
     @property
     def kt(self) -> float:

@@ -100,7 +100,9 @@ def test_power_loss_at_every_word_of_the_program_step():
     assert select_active(flash)[0].sequence == 2
 
 
-@pytest.mark.parametrize("seed", [2])
+# a seed whose drops miss the reset answer (a lost one is an error by design: the ECU may have reset);
+# the flash reads the active header (0x23) before the erase since issue 16, which moved seed 2's drops there
+@pytest.mark.parametrize("seed", [3])
 def test_one_percent_dropped_frames_complete_after_retries(base_flash, tmp_path, seed):
     path = tmp_path / "flash.bin"
     shutil.copy(base_flash, path)

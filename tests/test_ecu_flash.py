@@ -126,7 +126,7 @@ NRC_CASES = [
     (0x34, P.NRC.UploadDownloadNotAccepted, "request download"),
     (0x36, P.NRC.GeneralProgrammingFailure, "transfer data"),
     (0x37, P.NRC.RequestSequenceError, "transfer exit"),
-    (0x23, P.NRC.RequestOutOfRange, "read-back"),
+    (0x23, P.NRC.RequestOutOfRange, "read the active block's header (23)"),  # the first 0x23, before the erase
     (0x11, P.NRC.ConditionsNotCorrect, "ECU reset"),
 ]
 

@@ -27,6 +27,8 @@ from eol_cal.ecu.session import (SESSION_LOST_NRCS, ClientTiming, EcuError, Seed
                                  VerifyFailed, shrink)
 from eol_cal.errors import InputError, Interrupted
 from eol_cal.firmware import block as B
+from eol_cal.firmware.block_sanity import MotorType, require_safe, type_problems
+from eol_cal.motor import MotorParams, load_motor
 
 TAIL_BYTES = 4
 """The CRC: the last bytes of a block, written last (the block is valid only with them)."""
@@ -117,11 +119,23 @@ class _Progress:
         return self.steps[-1] if self.steps else "start"
 
 
-def _refuse(data: bytes, source: str) -> B.ParamBlock:
+def _refuse(data: bytes, source: str, motor: MotorParams) -> B.ParamBlock:
+    """The block, when it is valid and physically sane for ``motor`` (before any session opens)."""
     chk = B.check(data)
     if not chk.valid:
         raise InputError(source, "block", "invalid parameter block: " + "; ".join(chk.reasons))
-    return B.unpack(data, source)
+    blk = B.unpack(data, source)
+    require_safe(blk, motor, source, check_type=False)  # the type is checked against the ECU's own
+    return blk
+
+
+def _ecu_motor_type(s: UdsSession, previous: P.ActiveBlock, motor: MotorParams) -> tuple[MotorType, str]:
+    """The ECU's motor type: the header of its active block (ReadMemoryByAddress, before any
+    erase), else, on an ECU without one, the station's motor. (The contract has no DID for it.)"""
+    if previous.has_bank:
+        head = s.read_memory(B.BANK_WORD_ADDR[previous.bank], B.HEADER_BYTES, "read the active block's header (23)")
+        return MotorType.of_header(head), f"the active block in bank {previous.bank}"
+    return MotorType.of_motor(motor), f"no active block: the station's motor {motor.name!r}"
 
 
 def _image(blk: B.ParamBlock, sequence: int) -> bytes:
@@ -227,7 +241,7 @@ def _boots(prog: _Progress, word: str) -> dict[str, Any]:
 def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
                 dry_run: bool = False, force: bool = False, source: str = "<block>",
                 timing: ClientTiming = ClientTiming(),
-                progress: Callable[[str], None] | None = None) -> FlashReport:
+                progress: Callable[[str], None] | None = None, motor: MotorParams | None = None) -> FlashReport:
     """Write a parameter block into the ECU's inactive bank (contract section 3).
 
     Parameters
@@ -244,6 +258,10 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
         Stop before the erase: sessions, unlock and identification only; nothing is written.
     force : bool
         Flash even when the block's serial differs from the ECU's (F18C).
+    motor : MotorParams, optional
+        The station's motor (default the paper preset): its current rating bounds the block's
+        currents (checked before any session), and its type (poles, PPR, tick) is the ECU's when
+        the ECU has no active block to read it from.
     source : str
         File name for error messages.
     progress : callable or None
@@ -252,7 +270,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
     Raises
     ------
     InputError
-        The block is invalid (nothing was sent).
+        The block is invalid or physically unsafe (nothing was sent).
     EcuError
         Refused (layout, serial), an NRC, a timeout, a lost link; the message ends with what
         the ECU boots now (the previous block unless the new one was complete and checked).
@@ -266,7 +284,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
     died after its CRC was written).
     """
     t0 = time.perf_counter()
-    blk = _refuse(data, source)
+    blk = _refuse(data, source, motor or load_motor())
     prog = _Progress([], progress)
     base = 0
     with UdsSession(bus, seed_to_key=seed_to_key, timing=timing) as s:
@@ -286,6 +304,11 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
             if blk.serial != serial and not force:
                 raise EcuError("identification", f"block serial {blk.serial!r} differs from the ECU's "
                                                  f"{serial!r} (F18C); flash it anyway only on purpose (force)")
+            ecu_type, known_from = _ecu_motor_type(s, previous, motor or load_motor())
+            mismatch = type_problems(blk, ecu_type)
+            if mismatch:
+                raise EcuError("identification", f"the block is for another motor type than the ECU's ({ecu_type}, "
+                                                 f"from {known_from}): " + "; ".join(r for _, r in mismatch))
             bank = 0 if not previous.has_bank else 1 - previous.bank
             sequence = previous.sequence + 1 if previous.has_bank else 1
             if sequence >= B.SEQUENCE_INVALID[1]:

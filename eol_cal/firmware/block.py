@@ -571,11 +571,10 @@ def read_block_file(path: str | os.PathLike, source: str | None = None) -> bytes
     InputError
         The file cannot be read, or its Intel HEX is malformed or lies outside both banks.
     """
+    from eol_cal.inputs import read_bytes
+
     source = source or str(path)
-    try:
-        data = Path(path).read_bytes()
-    except OSError as exc:
-        raise InputError(str(path), "file", f"cannot read: {exc.strerror or exc}") from exc
+    data = read_bytes(path, "file", max_bytes=4 * BANK_BYTES)  # no FIFO, no device, no gigabytes
     if data[:1] == b":" or Path(path).suffix.lower() in HEX_SUFFIXES:
         try:
             text = data.decode("ascii")

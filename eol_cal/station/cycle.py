@@ -346,7 +346,7 @@ class StationCycle:
         bus = self.cfg.open_bus()
         try:
             return flash_block(bus, data, seed_to_key=self.cfg.seed_to_key, verify=True, source=source,
-                               timing=self.cfg.ecu_timing or ClientTiming())
+                               timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor)
         finally:
             bus.shutdown()
 

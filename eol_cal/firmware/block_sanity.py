@@ -1,0 +1,150 @@
+"""Physical sanity of a parameter block: may it drive this motor?
+
+The firmware's check routine (:func:`eol_cal.firmware.block.check`) only asks whether a bank
+holds a block (magic, layout, lengths, CRC). A block with a NaN ``k6``, an infinite or 3e38 A
+``iqc_limit``, tables of +-3e38 A, 0 poles or a 0 Hz tick passes it, boots, and drives the motor
+with garbage; a block for an 8-pole motor passes it on a 6-pole ECU. These rules refuse such a
+block before any command writes, exports or flashes it (``eol-cal block check``, ``table``,
+``flash``, before security access):
+
+- every float finite (scalars, hall angles, both tables);
+- with compensation on (``COMP_ENABLE``): ``0 < iqc_limit <= i_max``, the motor's current
+  rating; with it off, ``0 <= iqc_limit <= i_max`` (the measurement block has 0);
+- ``|table_const| <= i_max`` (A) and ``|table_per_amp| <= 1`` A/A, so that neither part of
+  ``i_qc`` exceeds the rating for any ``|i_qo| <= i_max``;
+- ``0 < kt <= KT_MAX``, ``0 <= k6 <= K6_MAX``, ``0 <= c6 <= C6_MAX``, phases and hall angles
+  within ``+-PHASE_MAX`` (the fit result's own bounds, :mod:`eol_cal.analysis.motor_result`);
+- ``0 <= lead_s < LEAD_MAX_S``;
+- poles even, 2..1000; encoder PPR 1..65535; tick rate 1 kHz..1 MHz;
+- the motor type (poles, encoder PPR, tick rate) that of the ECU (:func:`type_problems`).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass
+
+import numpy as np
+
+from eol_cal.analysis.motor_result import C6_MAX, K6_MAX, KT_MAX, PHASE_MAX
+from eol_cal.errors import InputError
+from eol_cal.firmware import block as B
+from eol_cal.motor import MotorParams
+
+#: largest look-up lead (s) a block may carry
+LEAD_MAX_S = 0.1
+#: largest |table_per_amp| (A/A): a compensation current as large as the current itself is no ripple
+TABLE_PER_AMP_MAX = 1.0
+#: plausible estimator tick rates (Hz)
+TICK_HZ_RANGE = (1e3, 1e6)
+POLES_MAX = 1000
+#: relative tolerance of a tick rate stored as binary32
+_TICK_RTOL = 1e-6
+
+
+@dataclass(frozen=True)
+class MotorType:
+    """What makes a block fit a motor: poles P, encoder PPR N_enc and the estimator tick (Hz)."""
+
+    poles: int
+    encoder_ppr: int
+    tick_hz: float
+
+    @classmethod
+    def of_motor(cls, motor: MotorParams) -> MotorType:
+        """The motor type of a station's motor parameters."""
+        return cls(motor.poles, motor.N_enc, float(np.float32(motor.f_pwm)))
+
+    @classmethod
+    def of_block(cls, blk: B.ParamBlock) -> MotorType:
+        return cls(blk.poles, blk.encoder_ppr, blk.tick_hz)
+
+    @classmethod
+    def of_header(cls, head: bytes) -> MotorType:
+        """The motor type in the header of a block image (e.g. read from the ECU's active bank)."""
+        if len(head) < B.HEADER_BYTES:
+            raise ValueError(f"{len(head)} bytes, a block header has {B.HEADER_BYTES}")
+        fmt = {"u16": "<H", "u32": "<I", "f32": "<f"}
+        get = {n: struct.unpack_from(fmt[B.FIELDS[n]["type"]], head, B.field_offset(n))[0]
+               for n in ("poles", "encoder_ppr", "tick_hz")}
+        return cls(int(get["poles"]), int(get["encoder_ppr"]), float(get["tick_hz"]))
+
+    def __str__(self) -> str:
+        return f"{self.poles} poles, {self.encoder_ppr} PPR, {self.tick_hz:g} Hz tick"
+
+
+def _bounded(problems: list[tuple[str, str]], name: str, value: float, lo: float, hi: float, unit: str,
+             lo_open: bool = False) -> None:
+    if not math.isfinite(value):
+        problems.append((name, f"{value} is not finite"))
+    elif value < lo or (lo_open and value == lo) or value > hi:
+        low = f"> {lo:g}" if lo_open else f">= {lo:g}"
+        problems.append((name, f"{value:g} {unit} is outside the physical bounds ({low} and <= {hi:g})".replace("  ", " ")))
+
+
+def sanity_problems(blk: B.ParamBlock, i_max: float) -> list[tuple[str, str]]:
+    """Why ``blk`` is not physically sane for a motor rated ``i_max`` A: (field, reason) pairs.
+
+    Parameters
+    ----------
+    blk : ParamBlock
+        The decoded block (CRC and sequence are :func:`eol_cal.firmware.block.check`'s business).
+    i_max : float
+        The motor's current rating (A): the largest ``|i_q|`` its drive may command.
+    """
+    problems: list[tuple[str, str]] = []
+    comp = bool(blk.flags & B.FLAG_COMP_ENABLE)
+    _bounded(problems, "iqc_limit", blk.iqc_limit, 0.0, i_max, "A", lo_open=comp)
+    _bounded(problems, "kt", blk.kt, 0.0, KT_MAX, "N*m/A", lo_open=True)
+    _bounded(problems, "k6", blk.k6, 0.0, K6_MAX, "N*m/A")
+    _bounded(problems, "c6", blk.c6, 0.0, C6_MAX, "N*m")
+    for name in ("phase_k6", "phase_c6"):
+        _bounded(problems, name, getattr(blk, name), -PHASE_MAX, PHASE_MAX, "rad")
+    _bounded(problems, "lead_s", blk.lead_s, 0.0, LEAD_MAX_S, "s")
+    _bounded(problems, "tick_hz", blk.tick_hz, *TICK_HZ_RANGE, "Hz")
+    if not (2 <= blk.poles <= POLES_MAX and blk.poles % 2 == 0):
+        problems.append(("poles", f"{blk.poles}: needs an even number from 2 to {POLES_MAX}"))
+    if not 1 <= blk.encoder_ppr <= 0xFFFF:
+        problems.append(("encoder_ppr", f"{blk.encoder_ppr}: needs 1..65535 pulses per revolution"))
+    hall = np.asarray(blk.hall_angle, dtype=np.float64)
+    if not np.all(np.isfinite(hall)):
+        problems.append(("hall_angle", "not finite"))
+    elif np.any(np.abs(hall) > PHASE_MAX):
+        problems.append(("hall_angle", f"an angle beyond +-{PHASE_MAX:g} rad"))
+    for name, limit, unit in (("table_const", i_max, "A"), ("table_per_amp", TABLE_PER_AMP_MAX, "A/A")):
+        table = np.asarray(getattr(blk, name), dtype=np.float64)
+        bad = ~np.isfinite(table) | (np.abs(table) > limit)
+        if bad.any():
+            j = int(np.argmax(bad))
+            problems.append((name, f"entry {j} is {table[j]:g} {unit}, outside +-{limit:g} {unit}; "
+                                   f"{int(bad.sum())} such entries"))
+    return problems
+
+
+def type_problems(blk: B.ParamBlock, want: MotorType) -> list[tuple[str, str]]:
+    """Why ``blk`` is for another motor type than ``want``: (field, reason) pairs."""
+    have = MotorType.of_block(blk)
+    problems = []
+    if have.poles != want.poles:
+        problems.append(("poles", f"the block is for {have.poles} poles, the motor has {want.poles}"))
+    if have.encoder_ppr != want.encoder_ppr:
+        problems.append(("encoder_ppr", f"the block is for {have.encoder_ppr} PPR, the motor has {want.encoder_ppr}"))
+    if not (math.isfinite(have.tick_hz) and abs(have.tick_hz - want.tick_hz) <= _TICK_RTOL * abs(want.tick_hz)):
+        problems.append(("tick_hz", f"the block is for a {have.tick_hz:g} Hz tick, the ECU runs {want.tick_hz:g} Hz"))
+    return problems
+
+
+def require_safe(blk: B.ParamBlock, motor: MotorParams, source: str | None, check_type: bool = True) -> None:
+    """Refuse a block that is not sane for ``motor`` (and, with ``check_type``, not of its type).
+
+    Raises
+    ------
+    InputError
+        Naming ``source``, the first field at fault, and every problem found.
+    """
+    problems = sanity_problems(blk, motor.i_max)
+    if check_type:
+        problems += type_problems(blk, MotorType.of_motor(motor))
+    if problems:
+        raise InputError(source, problems[0][0], "unsafe parameter block: " + "; ".join(f"{f}: {r}" for f, r in problems))
