@@ -91,7 +91,7 @@ def test_the_good_block_is_safe_and_the_rules_name_every_problem():
     bad = B.unpack(patched(k6=float("nan"), iqc_limit=3e38, poles=0))
     assert [f for f, _ in sanity_problems(bad, 100.0)] == ["iqc_limit", "k6", "poles"]
     # the uncompensated (measurement) block carries iqc_limit 0 and no compensation: it is safe
-    from eol_cal.analysis.fit_table import uncompensated_block
+    from eol_cal.analysis.fit.table import uncompensated_block
 
     assert sanity_problems(uncompensated_block("X", load_motor()), 100.0) == []
 
