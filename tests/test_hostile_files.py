@@ -122,7 +122,7 @@ def test_a_corrupt_record_row_is_skipped_and_reported_the_others_kept(tmp_path):
     from eol_cal.station.records import insert_records
 
     db = tmp_path / "r.sqlite"
-    recs = [record("A"), record("B"), record("C")]
+    recs = [record(serial, started=f"2026-11-22T0{k}:00:00.000+00:00") for k, serial in enumerate("ABC")]
     insert_records(db, recs)
     con = sqlite3.connect(db)
     con.execute("UPDATE runs SET record_json = ? WHERE serial = 'B'", ('{"schema": "eol-cal/run-record/1", "serial": ',))
