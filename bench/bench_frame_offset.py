@@ -1,7 +1,7 @@
 """Firmware frame offset over captures of different lengths: one compiled scan vs one per length.
 
 ``eol-cal fit`` runs the firmware estimator over every capture window to place the phases in the
-firmware's angle frame (:func:`eol_cal.analysis.fit.capture.firmware_frame_offset`). Here: the
+firmware's angle frame (:func:`eol_cal.analysis.firmware_angle.firmware_frame_offset`). Here: the
 windows of the ``eol-default`` profile (seven lengths, 10 kHz), run cold in a fresh process,
 then again warm; side by side with what a user would write, ``estimator.run_jax`` per window.
 
@@ -28,7 +28,7 @@ def windows():
 
 
 def run(which: str) -> None:
-    from eol_cal.analysis.fit import capture as fc
+    from eol_cal.analysis.firmware_angle import firmware_frame_offset
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.firmware import estimator as est
 
@@ -41,7 +41,7 @@ def run(which: str) -> None:
         np.asarray(out.theta_hat)
 
     def chunked(c, th):
-        fc.firmware_frame_offset(c, th, [(0, len(c.t))])
+        firmware_frame_offset(c, th, [(0, len(c.t))])
 
     f = per_window_run_jax if which == "run_jax" else chunked
     for label in ("cold", "warm"):

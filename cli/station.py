@@ -169,7 +169,8 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
-    from eol_cal.station.run import StationConfig, run_motor
+    from eol_cal.station.cycle import run_motor
+    from eol_cal.station.run import StationConfig
 
     host, port = parse_address(address)
     limits = load_limits(limits_file, variant)
@@ -229,7 +230,8 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     from eol_cal.errors import InputError
     from eol_cal.station.demo import loopback_station
     from eol_cal.station.limits import load_limits
-    from eol_cal.station.run import StationConfig, run_motor
+    from eol_cal.station.cycle import run_motor
+    from eol_cal.station.run import StationConfig
 
     try:
         out_dir.mkdir(parents=True, exist_ok=True)

@@ -14,7 +14,7 @@ import pytest
 
 from eol_cal.firmware import block as pb
 from eol_cal.firmware import compensator as comp
-from eol_cal.firmware import golden
+from eol_cal.firmware import golden, vectors
 
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "firmware_params" / "golden"
@@ -42,7 +42,7 @@ def test_manifest_format(sets):
         assert hashlib.sha256(text).hexdigest() == f["sha256"]
         assert text.count(b"\n") == f["rows"] + 1
         assert f["name"] in doc["tolerance"]
-    comp_rows = list(golden.iter_rows((GOLDEN / "compensator.csv").read_text()))
+    comp_rows = list(vectors.iter_rows((GOLDEN / "compensator.csv").read_text()))
     for r in comp_rows[:50]:
         assert all(re.fullmatch(r"[0-9a-f]{8}", r[c]) for c in ("theta_hat", "omega_hat", "i_qo", "i_qc"))
 
@@ -70,7 +70,7 @@ def test_check_reports_file_and_row(tmp_path, sets):
     lines = path.read_text().splitlines(keepends=True)
     cols = lines[0].rstrip().split(",")
     fields = lines[42].rstrip().split(",")
-    fields[cols.index("i_qc")] = golden.f32hex(golden.hex_f32(fields[cols.index("i_qc")]) + np.float32(1e-3))
+    fields[cols.index("i_qc")] = vectors.f32hex(vectors.hex_f32(fields[cols.index("i_qc")]) + np.float32(1e-3))
     lines[42] = ",".join(fields) + "\n"
     path.write_text("".join(lines))
     problems = golden.check_golden(tmp_path, mine)
@@ -161,14 +161,13 @@ def test_c_crc_table_is_iso_hdlc():
 
 
 def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):
-    import sys
     import types
 
     fake = types.ModuleType("eol_cal.firmware.estimator_golden")
     fake.vector_sets = lambda: {"estimator_const_60rpm.csv": (["tick", "theta_hat"], [[0, "3f800000"], [1, "40000000"]])}
     fake.TOLERANCE = {"estimator_const_60rpm.csv": {"theta_hat": {"abs": 1e-6, "unit": "rad"}}}
     fake.DESCRIPTIONS = {}
-    monkeypatch.setitem(sys.modules, "eol_cal.firmware.estimator_golden", fake)
+    monkeypatch.setattr(golden, "estimator_golden", fake)
     monkeypatch.setattr(golden, "_estimator_sets", golden._estimator_sets.__wrapped__)
     sets = golden.vector_sets()
     est = sets["estimator_const_60rpm.csv"]

@@ -71,7 +71,7 @@ def test_measured_table_matches_the_plants_hall_errors(plant_motor):
 def test_measured_table_brings_the_ecu_angle_closer(plant_motor):
     """The firmware estimator run with the measured table: its angle error about its own mean
     (what the compensation sees as jitter) is smaller than with the nominal table."""
-    from eol_cal.analysis.fit.capture import firmware_config
+    from eol_cal.analysis.firmware_angle import firmware_config
     from eol_cal.firmware import estimator as est
 
     spec, run, mi = plant_motor

@@ -109,7 +109,7 @@ def test_window_spans_tolerate_the_rounded_starts_and_find_gaps():
 
 
 def test_chunked_estimator_is_run_jax_with_one_program_for_every_length():
-    from eol_cal.analysis.fit.capture import firmware_config
+    from eol_cal.analysis.firmware_angle import firmware_config
     from eol_cal.firmware import estimator as est
 
     caps = [synthetic_capture(rpm=rpm, seconds=s, fs=10000.0, seed=k) for k, (rpm, s) in enumerate([(120.0, 0.3),

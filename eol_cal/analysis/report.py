@@ -119,7 +119,7 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
         },
     }
     if fw_angle:
-        from eol_cal.analysis.angle import firmware_angle_difference
+        from eol_cal.analysis.firmware_angle import firmware_angle_difference
 
         d = firmware_angle_difference(capture, angle)
         report["firmware_angle"] = {

@@ -204,7 +204,7 @@ def quantisation_figures(capture: Capture, angle: AngleResult | None = None) -> 
     -------
     QuantisationFigures
     """
-    from eol_cal.analysis.angle import level_changes
+    from eol_cal.analysis.edges import level_changes
 
     if angle is None:
         angle = capture_angle(capture)

@@ -25,6 +25,7 @@ from typing import Callable
 import numpy as np
 
 from eol_cal.firmware import estimator as est
+from eol_cal.firmware.vectors import f32hex
 from eol_cal.firmware.kinematics import draw_sensor_errors, encoder_hall_signals, speed_profile_angle
 
 TICK_HZ = 20000.0
@@ -161,21 +162,15 @@ DESCRIPTIONS["estimator_configs.csv"] = (
     "4 accel_prediction, 8 learn_pitch_errors) and the constants eol_est_init derives from it")
 
 
-def _hex(x: object) -> str:
-    from eol_cal.firmware.golden import f32hex
-
-    return f32hex(x)
-
-
 def config_row(name: str, cfg: est.EstimatorConfig) -> list[str]:
     """The ``estimator_configs.csv`` row of scenario file ``name``."""
     c = est.consts(cfg)
-    return ([name, str(cfg.poles), str(cfg.N_enc), _hex(cfg.tick_hz)]
-            + [_hex(x) for x in cfg.hall_angle]
-            + [str(cfg.standstill_ticks), str(cfg.flags), _hex(c.T), _hex(c.DELTA), _hex(c.QUARTER),
-               _hex(c.K_OMEGA), _hex(c.K_NDELTA)]
-            + [_hex(c.H_WIDTH[s]) for s in range(1, 7)]
-            + [_hex(c.H_MID[s]) for s in range(1, 7)])
+    return ([name, str(cfg.poles), str(cfg.N_enc), f32hex(cfg.tick_hz)]
+            + [f32hex(x) for x in cfg.hall_angle]
+            + [str(cfg.standstill_ticks), str(cfg.flags), f32hex(c.T), f32hex(c.DELTA), f32hex(c.QUARTER),
+               f32hex(c.K_OMEGA), f32hex(c.K_NDELTA)]
+            + [f32hex(c.H_WIDTH[s]) for s in range(1, 7)]
+            + [f32hex(c.H_MID[s]) for s in range(1, 7)])
 
 
 def scenario_rows(cfg: est.EstimatorConfig, a: np.ndarray, b: np.ndarray, h: np.ndarray) -> list[list[str]]:

@@ -13,22 +13,22 @@ Everything is generated from the Python reference; ``check_golden`` regenerates 
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import importlib
 import hashlib
 import json
 import math
 import struct
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from eol_cal.firmware import block as pb
 from eol_cal.atomic import atomic_write
+from eol_cal.firmware import block as pb
+from eol_cal.firmware import estimator_golden
 from eol_cal.firmware.compensator import i_qc, make_tables
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+from eol_cal.firmware.vectors import VectorSet, csv_text, f32hex
 from eol_cal.wrap import wrap_2pi
 
 GOLDEN_FORMAT = 1
@@ -39,28 +39,6 @@ DEFAULT_DIR = Path("firmware_params") / "golden"
 #: Tolerance for targets whose FPU rounds differently (e.g. a fused multiply-add); a host build
 #: of the C reference with -ffp-contract=off must match exactly.
 COMPENSATOR_TOLERANCE = {"i_qc": {"abs": 1e-3, "unit": "A"}}
-
-Rows = list[list[str]]
-
-
-@dataclasses.dataclass(frozen=True)
-class VectorSet:
-    """One CSV file: its columns, rows (strings as written), a description and its tolerance."""
-
-    columns: tuple[str, ...]
-    rows: Rows
-    description: str = ""
-    tolerance: dict[str, Any] | str = "exact"
-
-
-def f32hex(x: float) -> str:
-    """Bit pattern of ``x`` rounded to binary32: 8 lower-case hex digits (``1.0 -> 3f800000``)."""
-    return f"{int(np.asarray(x, dtype=np.float32).view(np.uint32)):08x}"
-
-
-def hex_f32(s: str) -> np.float32:
-    """Inverse of :func:`f32hex`."""
-    return np.array([int(s, 16)], dtype=np.uint32).view(np.float32)[0]
 
 
 _HALL_NOMINAL = NOMINAL_HALL_ANGLE
@@ -216,7 +194,7 @@ def _compensator_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
 def _estimator_sets() -> dict[str, VectorSet]:
     # Cached: the tick-by-tick numpy reference takes seconds, and its output never changes
     # within a process (golden --out, --check and the tests all ask for it).
-    mod = importlib.import_module("eol_cal.firmware.estimator_golden")
+    mod = estimator_golden
 
     out = {}
     for name, (columns, rows) in mod.vector_sets().items():
@@ -239,18 +217,6 @@ def vector_sets(include_estimator: bool = True) -> dict[str, VectorSet]:
                 raise ValueError(f"estimator vector set {name!r} clashes with a block/compensator set")
             sets[name] = vs
     return sets
-
-
-def csv_text(vs: VectorSet) -> str:
-    """The CSV file of a set: header row, then one line per row, ``\\n`` line ends, no quoting."""
-    lines = [",".join(vs.columns)]
-    for r in vs.rows:
-        if len(r) != len(vs.columns):
-            raise ValueError(f"row {r[:3]}... has {len(r)} fields for {len(vs.columns)} columns")
-        if any("," in c or "\n" in c or '"' in c for c in r):
-            raise ValueError(f"row {r[:3]}... has a field with a comma, quote or newline")
-        lines.append(",".join(r))
-    return "\n".join(lines) + "\n"
 
 
 def manifest(sets: dict[str, VectorSet], texts: dict[str, str]) -> dict[str, Any]:
@@ -358,9 +324,3 @@ def _short(fields: list[str], cols: list[str], col: str) -> str:
     return v if len(v) <= 24 else v[:21] + "..."
 
 
-def iter_rows(text: str) -> Iterable[dict[str, str]]:
-    """Rows of a golden CSV as dicts (for consumers and tests)."""
-    lines = text.splitlines()
-    cols = lines[0].split(",")
-    for line in lines[1:]:
-        yield dict(zip(cols, line.split(",")))

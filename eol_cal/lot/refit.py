@@ -63,8 +63,7 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
     from eol_cal.capture.io import read_capture
     from eol_cal.errors import EolCalError
-    from eol_cal.station.limits import fit_reasons, load_limits
-    from eol_cal.station.run import measured_from_fit
+    from eol_cal.station.limits import fit_reasons, load_limits, measured_from_fit
 
     row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
     row.update(capture=str(paths[0]), reasons=[])

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from eol_cal.report.svg import figure_svg, pyplot
-from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_checks
+from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_checks, measured_from_fit
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
@@ -93,8 +93,6 @@ def limits_of(rec: dict[str, Any]) -> VariantLimits | None:
 
 def measured_of(rec: dict[str, Any]) -> Measured:
     """What the record says was measured, NaN where it was not (a run that ended early)."""
-    from eol_cal.station.run import measured_from_fit
-
     nan = math.nan
     met = rec.get("metrics") or {}
     try:

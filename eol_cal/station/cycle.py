@@ -22,15 +22,26 @@ from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_r
 from eol_cal.errors import EolCalError
 from eol_cal.interrupts import shielded
 from eol_cal.jsonsafe import json_safe
-from eol_cal.station.limits import Measured, fit_reasons, verdict
+from eol_cal.station.limits import Measured, fit_reasons, measured_from_fit, verdict
+from eol_cal.station.run import (
+    EXIT,
+    ProgressFn,
+    RunOutcome,
+    StationConfig,
+    check_config,
+    check_motor,
+    ecu_active,
+    fit_motor,
+    new_run_dir,
+    safe_state,
+    sha256_file,
+)
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.station.records import SaveResult
-    from eol_cal.station.run import RunOutcome, StationConfig
 
-ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
 
 
 @dataclass(frozen=True)
@@ -98,7 +109,6 @@ class StationCycle:
         from eol_cal.analysis.fit.prewarm import prewarm_fit
         from eol_cal.dyno import client as dc
         from eol_cal.plant.profile import load_profile
-        from eol_cal.station.run import check_config, new_run_dir, sha256_file
 
         check_config(cfg)
         profile = load_profile(cfg.profile)
@@ -145,7 +155,6 @@ class StationCycle:
         from eol_cal import __version__
         from eol_cal.analysis.result import write_result
         from eol_cal.station.report import fit_plots
-        from eol_cal.station.run import check_motor, fit_motor, measured_from_fit
 
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
@@ -242,7 +251,6 @@ class StationCycle:
     def run(self) -> RunOutcome:
         """Every step in order; the record is written whether the motor passed, failed or the cycle erred."""
         from eol_cal.station.report import write_record_json
-        from eol_cal.station.run import EXIT, RunOutcome
 
         failure: BaseException | None = None
         try:
@@ -331,7 +339,6 @@ class StationCycle:
 
     def _acquire(self, which: str, segs: list) -> Capture:
         from eol_cal.dyno import client as dc
-        from eol_cal.station.run import sha256_file
 
         path = self.run_dir / f"{which}.mf4"
         cap = dc.acquire(self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
@@ -351,7 +358,6 @@ class StationCycle:
             bus.shutdown()
 
     def _record_failure(self, exc: BaseException) -> None:
-        from eol_cal.station.run import safe_state
 
         failed = self.steps[-1]["step"] if self.steps else "start"
         self.verdict = "error"
@@ -363,7 +369,6 @@ class StationCycle:
 
     def _ecu_active(self, failure: BaseException | None) -> dict[str, Any]:
         """Which block the ECU boots after this run (see :func:`eol_cal.station.run.ecu_active`)."""
-        from eol_cal.station.run import ecu_active
 
         active = ecu_active({"block": self.block, "ecu_prepared": self.ecu_prepared})
         boots = getattr(failure, "ecu_boots", None)
@@ -379,3 +384,13 @@ class StationCycle:
 def previous_block(report: FlashReport) -> dict[str, Any]:
     """What the ECU held before a flash (bank None: no valid bank), for the record."""
     return {"bank": report.previous.bank if report.previous.has_bank else None, "sequence": report.previous.sequence}
+
+
+def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutcome:
+    """Run the whole cycle for one motor (:class:`StationCycle`); see :mod:`eol_cal.station.run`.
+
+    Raises only :class:`InputError` for a configuration refused before anything ran (and
+    :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
+    record); every failure during the run is recorded with verdict ``error``.
+    """
+    return StationCycle.start(cfg, progress).run()

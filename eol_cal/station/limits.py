@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.errors import InputError
 from eol_cal.inputs import read_text
 
@@ -298,3 +299,32 @@ def verdict(m: Measured, lim: VariantLimits) -> tuple[str, list[str]]:
 
 
 LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source"))
+
+
+def measured_from_fit(rec: dict[str, Any]) -> Measured:
+    """:func:`measured_from_result` of a usable motor record, read by :meth:`MotorResult.from_json`."""
+    return measured_from_result(MotorResult.from_json(rec, "<run record>", "fit."))
+
+
+def measured_from_result(res: MotorResult) -> Measured:
+    """The fit's part of :class:`Measured` (k6 N*m/A, intervals, r2, rms N*m, hall deviation deg).
+
+    Raises
+    ------
+    ValueError
+        The fit is not usable (no estimates).
+    TypeError
+        An interval or a fit figure is null (not finite when the fit wrote it).
+    """
+    e = res.estimates
+    if e is None:
+        raise ValueError(f"motor {res.serial}: fit status {res.status!r} has no estimates")
+    ci_c6 = max(float(e.c6.ci95), abs(e.c6.value) * float(e.phase_c6.ci95))
+    hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
+    measured = hall["source"] == "measured"
+    return Measured(
+        k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
+        ci_c6_nm=ci_c6, r2=float(res.fit["r2"]), rms_nm=float(res.fit["rms"]),
+        hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
+        hall_source=str(hall["source"]),
+    )

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
@@ -26,15 +25,14 @@ from typing import TYPE_CHECKING, Any, Callable
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
-from eol_cal.station.cycle import ProgressFn
-from eol_cal.station.limits import Measured, VariantLimits
+from eol_cal.station.limits import VariantLimits
 from eol_cal.station.records import SaveResult
 
 if TYPE_CHECKING:
-    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
+ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
 STEPS = ("prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
 
 
@@ -175,37 +173,6 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
                              f"{motor.name!r} has {want}: wrong motor on the dyno, or the station is set up for another motor type")
 
 
-def measured_from_fit(rec: dict[str, Any]) -> Measured:
-    """:func:`measured_from_result` of a usable motor record, read by :meth:`MotorResult.from_json`."""
-    from eol_cal.analysis.motor_result import MotorResult
-
-    return measured_from_result(MotorResult.from_json(rec, "<run record>", "fit."))
-
-
-def measured_from_result(res: MotorResult) -> Measured:
-    """The fit's part of :class:`Measured` (k6 N*m/A, intervals, r2, rms N*m, hall deviation deg).
-
-    Raises
-    ------
-    ValueError
-        The fit is not usable (no estimates).
-    TypeError
-        An interval or a fit figure is null (not finite when the fit wrote it).
-    """
-    e = res.estimates
-    if e is None:
-        raise ValueError(f"motor {res.serial}: fit status {res.status!r} has no estimates")
-    ci_c6 = max(float(e.c6.ci95), abs(e.c6.value) * float(e.phase_c6.ci95))
-    hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
-    measured = hall["source"] == "measured"
-    return Measured(
-        k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
-        ci_c6_nm=ci_c6, r2=float(res.fit["r2"]), rms_nm=float(res.fit["rms"]),
-        hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
-        hall_source=str(hall["source"]),
-    )
-
-
 # --------------------------------------------------------------------------- the cycle
 def new_run_dir(report_dir: Path, serial: str, started: _dt.datetime, run_id: str) -> Path:
     stamp = started.strftime("%Y%m%dT%H%M%SZ")
@@ -222,18 +189,6 @@ def check_config(cfg: StationConfig) -> None:
         cfg.report_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(str(cfg.report_dir), "report-dir", f"cannot create: {exc}") from None
-
-
-def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutcome:
-    """Run the whole cycle for one motor (:class:`eol_cal.station.cycle.StationCycle`); see the module doc.
-
-    Raises only :class:`InputError` for a configuration refused before anything ran (and
-    :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
-    record); every failure during the run is recorded with verdict ``error``.
-    """
-    from eol_cal.station.cycle import StationCycle
-
-    return StationCycle.start(cfg, progress).run()
 
 
 def ecu_active(rec: dict[str, Any]) -> dict[str, Any]:

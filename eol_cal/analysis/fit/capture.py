@@ -2,14 +2,12 @@
 
 Segments (documented in ``docs/fit.md``): a capture is split where the direction of rotation
 changes, then into runs of whole electrical revolutions at a steady speed and a steady i_qo
-(:func:`eol_cal.analysis.metrics.steady_runs`, the same rule the p-p metric uses); the first
+(:func:`eol_cal.analysis.steady.steady_runs`, the same rule the p-p metric uses); the first
 ``settle_s`` of every run is dropped (current and speed transients after a step). Each run of at
 least ``min_revs`` revolutions is one segment: one load point x speed x direction.
 """
 
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import functools
 import math
@@ -17,15 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from eol_cal.analysis.angle import capture_angle
+from eol_cal.analysis.firmware_angle import firmware_frame_offset
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
+from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.motor import MotorParams, load_motor
-
-if TYPE_CHECKING:
-    from eol_cal.firmware.estimator import EstimatorConfig
 
 
 @dataclass
@@ -66,30 +64,6 @@ class MotorInput:
         return [c.source for c in self.captures]
 
 
-def direction_pieces(omega_r: np.ndarray, min_fraction: float = 0.05) -> list[tuple[int, int]]:
-    """Sample ranges of constant direction of rotation.
-
-    Parameters
-    ----------
-    omega_r : ndarray
-        Electrical speed per sample (rad/s).
-    min_fraction : float
-        Speeds below this fraction of the largest |omega_r| count as standstill (no direction).
-
-    Returns
-    -------
-    list of (start, stop)
-        Half-open sample ranges.
-    """
-    w = np.asarray(omega_r, dtype=float)
-    s = np.sign(w)
-    s[np.abs(w) < min_fraction * max(float(np.abs(w).max()), 1e-12)] = 0
-    edges = np.flatnonzero(np.diff(s) != 0) + 1
-    starts = np.concatenate([[0], edges])
-    stops = np.concatenate([edges, [len(s)]])
-    return [(int(a), int(b)) for a, b in zip(starts, stops) if s[a] != 0 and b - a > 1]
-
-
 def capture_segments(
     t: np.ndarray,
     theta_r: np.ndarray,
@@ -119,15 +93,13 @@ def capture_segments(
     min_revs : int
         Fewest electrical revolutions a segment must keep.
     speed_tol, iq_tol_a, iq_tol_rel
-        Steadiness tolerances, as in :func:`eol_cal.analysis.metrics.steady_runs`.
+        Steadiness tolerances, as in :func:`eol_cal.analysis.steady.steady_runs`.
 
     Returns
     -------
     list of (start, stop)
         Half-open sample ranges.
     """
-    from eol_cal.analysis.metrics import revolution_bounds, steady_runs
-
     out: list[tuple[int, int]] = []
     for a, b in direction_pieces(omega_r):
         bounds = revolution_bounds(theta_r[a:b])
@@ -149,44 +121,6 @@ def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
     if values:
         return values.pop(), "metadata"
     return motor.kt, f"preset {motor.name}"
-
-
-def firmware_config(capture: Capture) -> EstimatorConfig:
-    """The paper's estimator configuration at a capture's poles, encoder and sample rate."""
-    from eol_cal.firmware import estimator as est
-
-    # the mean rate differs in its last bits from window to window; the firmware's tick is a
-    # binary32 period, so six significant digits lose nothing and keep one compiled scan per rate
-    tick_hz = float(f"{capture.sample_rate:.6g}")
-    return est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=tick_hz)
-
-
-def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
-                          hall_angle: tuple[float, ...] | None = None) -> tuple[complex, int]:
-    """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
-
-    Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_chunked`:
-    one compiled program for every capture length and hall table) with the block's ``hall_angle``
-    (rad, entry s-1; default nominal) and sums ``exp(i (theta_hat - theta_r))`` over the segment
-    samples at which it is anchored, moving and has a speed.
-
-    Returns
-    -------
-    (complex, int)
-        The sum and the number of samples in it; ``angle(sum)`` is the offset (rad, electrical).
-    """
-    from eol_cal.firmware import estimator as est
-
-    out = est.run_jax_chunked(firmware_config(capture), capture["enc_a"], capture["enc_b"], capture["hall"],
-                              hall_angle=hall_angle)
-    theta_hat, status = out.theta_hat, out.status
-    ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
-    in_seg = np.zeros(len(ok), bool)
-    for a, b in ranges:
-        in_seg[a:b] = True
-    ok &= in_seg
-    d = np.asarray(theta_hat, float)[ok] - theta_r[ok]
-    return complex(np.exp(1j * d).sum()), int(ok.sum())
 
 
 def motor_inputs(
@@ -231,7 +165,6 @@ def motor_inputs(
     list of MotorInput
         In order of first appearance of each serial; ``captures`` and ``angles`` are per window.
     """
-    from eol_cal.analysis.angle import capture_angle
     from eol_cal.capture.windows import split_windows
 
     for name, value, known in (("frame", frame, ("firmware", "offline")), ("hall_angle", hall_angle, ("measured", "nominal"))):

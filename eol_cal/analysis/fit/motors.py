@@ -40,7 +40,7 @@ class FitOptions:
         Fewest electrical revolutions per segment.
     frame : {"firmware", "offline"}
         Angle frame the phases are reported in (``firmware``: the frame the ECU evaluates its
-        table in, :func:`eol_cal.analysis.fit.capture.firmware_frame_offset`).
+        table in, :func:`eol_cal.analysis.firmware_angle.firmware_frame_offset`).
     batch : {"auto", "loop", "vmap", "map"}
         How motors are solved in JAX (auto: :func:`eol_cal.analysis.fit.pick_mode`).
     capture_metrics : bool

@@ -1,0 +1,119 @@
+"""The firmware estimator's angle against the offline angle: the estimator configured for a capture,
+the frame offset the fit reports its phases in, and the tick-by-tick difference (docs/angle-frame.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from eol_cal.analysis.angle import AngleResult, capture_angle
+from eol_cal.capture.model import Capture
+from eol_cal.errors import InputError
+from eol_cal.firmware import estimator as est
+from eol_cal.wrap import wrap_pi
+
+def firmware_config(capture: Capture) -> est.EstimatorConfig:
+    """The paper's estimator configuration at a capture's poles, encoder and sample rate."""
+    # the mean rate differs in its last bits from window to window; the firmware's tick is a
+    # binary32 period, so six significant digits lose nothing and keep one compiled scan per rate
+    tick_hz = float(f"{capture.sample_rate:.6g}")
+    return est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=tick_hz)
+
+
+def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
+                          hall_angle: tuple[float, ...] | None = None) -> tuple[complex, int]:
+    """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
+
+    Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_chunked`:
+    one compiled program for every capture length and hall table) with the block's ``hall_angle``
+    (rad, entry s-1; default nominal) and sums ``exp(i (theta_hat - theta_r))`` over the segment
+    samples at which it is anchored, moving and has a speed.
+
+    Returns
+    -------
+    (complex, int)
+        The sum and the number of samples in it; ``angle(sum)`` is the offset (rad, electrical).
+    """
+    out = est.run_jax_chunked(firmware_config(capture), capture["enc_a"], capture["enc_b"], capture["hall"],
+                              hall_angle=hall_angle)
+    theta_hat, status = out.theta_hat, out.status
+    ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
+    in_seg = np.zeros(len(ok), bool)
+    for a, b in ranges:
+        in_seg[a:b] = True
+    ok &= in_seg
+    d = np.asarray(theta_hat, float)[ok] - theta_r[ok]
+    return complex(np.exp(1j * d).sum()), int(ok.sum())
+
+
+@dataclass(frozen=True)
+class FirmwareAngleDifference:
+    """The firmware estimator's angle (what the ECU sees) against the offline angle.
+
+    Attributes
+    ----------
+    mean_deg, rms_deg, max_deg : float
+        Mean, RMS and max |.| of ``theta_hat - theta_r`` (electrical deg), wrapped, over the
+        samples where the estimator is anchored, not at standstill and has a measured speed.
+    raw_rms_deg, raw_max_deg : float
+        RMS and max |.| of the firmware's raw edge angle ``theta_enc - theta_r`` (deg).
+    phase6_shift_deg : float
+        Shift of the 6th harmonic's phase that the mean difference causes, ``6 * mean`` (deg).
+    n_ticks : int
+        Samples judged.
+    """
+
+    mean_deg: float
+    rms_deg: float
+    max_deg: float
+    raw_rms_deg: float
+    raw_max_deg: float
+    phase6_shift_deg: float
+    n_ticks: int
+
+
+def firmware_angle_difference(
+    capture: Capture, angle: AngleResult | None = None, config: est.EstimatorConfig | None = None
+) -> FirmwareAngleDifference:
+    """Run the firmware's estimator over a capture and compare its angle with the offline one.
+
+    Every sample is one estimator tick, so this is what the ECU sees when the capture was
+    sampled at the ECU's tick rate (the PWM frequency, 20 kHz on the paper's bench).
+
+    Parameters
+    ----------
+    capture : Capture
+        Needs ``enc_a``, ``enc_b``, ``hall`` and metadata ``poles``, ``encoder_ppr``.
+    angle : AngleResult, optional
+        Offline angle; computed when not given.
+    config : eol_cal.firmware.estimator.EstimatorConfig, optional
+        Estimator configuration; default the paper's estimator at the capture's sample rate.
+
+    Returns
+    -------
+    FirmwareAngleDifference
+    """
+    if not capture.has("enc_b"):
+        raise InputError(capture.source, "enc_b", "missing channel, the firmware estimator needs it")
+    if angle is None:
+        angle = capture_angle(capture)
+    if config is None:
+        config = firmware_config(capture)
+    out = est.run_jax_chunked(config, capture["enc_a"], capture["enc_b"], capture["hall"])
+    status = np.asarray(out.status)
+    judged = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
+    judged &= (capture.t >= angle.t_span[0]) & (capture.t <= angle.t_span[1])
+    if not judged.any():
+        raise InputError(capture.source, "enc_a", "the firmware estimator never anchored on a moving rotor")
+    d = np.rad2deg(wrap_pi(np.asarray(out.theta_hat, float)[judged] - angle.theta_r[judged]))
+    raw = np.rad2deg(wrap_pi(np.asarray(out.theta_enc, float)[judged] - angle.theta_r[judged]))
+    return FirmwareAngleDifference(
+        mean_deg=float(d.mean()),
+        rms_deg=float(np.sqrt(np.mean(d**2))),
+        max_deg=float(np.max(np.abs(d))),
+        raw_rms_deg=float(np.sqrt(np.mean(raw**2))),
+        raw_max_deg=float(np.max(np.abs(raw))),
+        phase6_shift_deg=float(6.0 * d.mean()),
+        n_ticks=int(judged.sum()),
+    )

@@ -1,0 +1,54 @@
+"""The golden vector file format: one CSV per vector set, floats as binary32 bit patterns.
+
+Shared by the generators (:mod:`eol_cal.firmware.golden`, :mod:`eol_cal.firmware.estimator_golden`)
+and the consumers (tests, firmware engineers' scripts).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Iterable
+
+import numpy as np
+
+Rows = list[list[str]]
+
+
+@dataclasses.dataclass(frozen=True)
+class VectorSet:
+    """One CSV file: its columns, rows (strings as written), a description and its tolerance."""
+
+    columns: tuple[str, ...]
+    rows: Rows
+    description: str = ""
+    tolerance: dict[str, Any] | str = "exact"
+
+
+def f32hex(x: float) -> str:
+    """Bit pattern of ``x`` rounded to binary32: 8 lower-case hex digits (``1.0 -> 3f800000``)."""
+    return f"{int(np.asarray(x, dtype=np.float32).view(np.uint32)):08x}"
+
+
+def hex_f32(s: str) -> np.float32:
+    """Inverse of :func:`f32hex`."""
+    return np.array([int(s, 16)], dtype=np.uint32).view(np.float32)[0]
+
+
+def csv_text(vs: VectorSet) -> str:
+    """The CSV file of a set: header row, then one line per row, ``\\n`` line ends, no quoting."""
+    lines = [",".join(vs.columns)]
+    for r in vs.rows:
+        if len(r) != len(vs.columns):
+            raise ValueError(f"row {r[:3]}... has {len(r)} fields for {len(vs.columns)} columns")
+        if any("," in c or "\n" in c or '"' in c for c in r):
+            raise ValueError(f"row {r[:3]}... has a field with a comma, quote or newline")
+        lines.append(",".join(r))
+    return "\n".join(lines) + "\n"
+
+
+def iter_rows(text: str) -> Iterable[dict[str, str]]:
+    """Rows of a golden CSV as dicts (for consumers and tests)."""
+    lines = text.splitlines()
+    cols = lines[0].split(",")
+    for line in lines[1:]:
+        yield dict(zip(cols, line.split(",")))
