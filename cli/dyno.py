@@ -51,7 +51,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     from eol_cal.dyno import client as dc
-    from eol_cal.errors import InputError
+    from eol_cal.errors import InputError, naming
     from eol_cal.plant.profile import load_profile
 
     if output.suffix.lower() not in _SUFFIXES:
@@ -60,7 +60,8 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         raise InputError(str(output), None, "directory does not exist")
     host, port = dc.parse_address(address)
     prof = load_profile(profile)
-    segments = dc.setpoints_from_profile(prof)
+    with naming(profile if Path(profile).is_file() else None):  # a segment the dyno cannot run: the profile file named
+        segments = dc.setpoints_from_profile(prof)
     channels = dc.DEFAULT_CHANNELS + (dc.EXTRA_CHANNELS if all_channels else ())
     config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections)
     _quiet_pymodbus()

@@ -8,7 +8,7 @@ import click
 
 from cli.common import console, handle_errors, print_json
 from cli.paths import io_paths
-from eol_cal.errors import InputError
+from eol_cal.errors import InputError, naming
 
 _SUFFIXES = (".csv", ".mf4")
 
@@ -115,7 +115,8 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
         spec = base if seed is None else variation.draw_motor(seed, base)
         if serial:
             spec = spec.replace(serial=serial)
-        result = simulate(spec, prof, mode=mode, blocks=block, seed=0 if seed is None else seed)[0]
+        with naming(block_file):  # "block is for P=8": the block file named
+            result = simulate(spec, prof, mode=mode, blocks=block, seed=0 if seed is None else seed)[0]
         write_capture(result.capture, output)
         if plot_file:
             from eol_cal.plant.plot import plot_runs
@@ -142,8 +143,9 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     docs = []
     with Progress(console=console, transient=as_json) as bar:
         task = bar.add_task(f"simulating {motors} motors ({prof.seconds:.1f} s each)", total=1.0)
-        results = simulate(specs, prof, mode=mode, blocks=block, seed=first,
-                           progress=lambda f: bar.update(task, completed=f))
+        with naming(block_file):
+            results = simulate(specs, prof, mode=mode, blocks=block, seed=first,
+                               progress=lambda f: bar.update(task, completed=f))
         for r in results:
             path = out / f"{r.capture.serial}.{fmt}"
             write_capture(r.capture, path)

@@ -43,6 +43,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.result import read_result
     from eol_cal.atomic import atomic_write
+    from eol_cal.errors import naming
     from eol_cal.firmware.block import check, pack, to_intel_hex
     from eol_cal.firmware.block_sanity import require_safe
     from eol_cal.motor import load_motor
@@ -52,9 +53,10 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     rec = select_motor(doc, serial, result)
     motor_result = MotorResult.from_json(rec, result, f"motors[{doc['motors'].index(rec)}].")
     motor = load_motor("paper", motor_file)
-    blk = block_from_result(motor_result, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
-                            calibrated_at=created_unix(doc), source=result)
-    data = pack(blk)
+    with naming(result):  # the tables' and the block's own checks see values; they came from RESULT
+        blk = block_from_result(motor_result, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
+                                calibrated_at=created_unix(doc), source=result)
+        data = pack(blk)
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
         raise RuntimeError(f"packed block does not check: {res.reasons}")

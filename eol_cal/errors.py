@@ -6,11 +6,19 @@ Exit codes: 0 ok, 1 a check or limit failed (:class:`CheckFailed`), 2 bad input 
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 
 class EolCalError(Exception):
     """Base class of every error the tool reports to its user."""
 
     exit_code = 2
+
+
+def _message(file: str | None, field: str | None, reason: str) -> str:
+    where = ", ".join(p for p in (f"file {file}" if file else "", f"field {field!r}" if field else "") if p)
+    return f"{where}: {reason}" if where else reason
 
 
 class InputError(EolCalError):
@@ -20,8 +28,29 @@ class InputError(EolCalError):
         self.file = file
         self.field = field
         self.reason = reason
-        where = ", ".join(p for p in (f"file {file}" if file else "", f"field {field!r}" if field else "") if p)
-        super().__init__(f"{where}: {reason}" if where else reason)
+        super().__init__(_message(file, field, reason))
+
+    def located(self, file: str) -> InputError:
+        """This refusal naming ``file`` (itself when it names a file already), same class and field."""
+        if self.file is not None:
+            return self
+        new = self.__class__.__new__(self.__class__)
+        new.__dict__.update(self.__dict__)
+        new.file = file
+        new.args = (_message(file, self.field, self.reason),)
+        return new
+
+
+@contextlib.contextmanager
+def naming(file: str | None) -> Iterator[None]:
+    """Refusals raised inside that name no file name ``file``: a library check that sees only
+    values (a block's fields, a table's harmonics) reports the file the values came from."""
+    try:
+        yield
+    except InputError as exc:
+        if file is None or exc.file is not None:
+            raise
+        raise exc.located(file) from None
 
 
 class WriteError(InputError, OSError):
@@ -35,7 +64,9 @@ class WriteError(InputError, OSError):
     def __init__(self, file: str, cause: OSError) -> None:
         super().__init__(file, None, f"cannot write: {cause.strerror or cause}")
         self.errno = cause.errno
-        self.strerror = cause.strerror
+        self.strerror = cause.strerror or str(cause)
+
+    __str__ = BaseException.__str__  # the message, not OSError's "[Errno 28] ..."
 
 
 class CheckFailed(EolCalError):

@@ -8,7 +8,7 @@ from typing import Any
 from eol_cal.capture.channel_map import ChannelMap, load_channel_map
 from eol_cal.capture.model import Capture
 from eol_cal.capture.validate import validate as _validate
-from eol_cal.errors import InputError
+from eol_cal.errors import InputError, WriteError
 
 #: file suffixes the readers and writers take
 SUFFIXES = (".csv", ".mf4")
@@ -81,6 +81,8 @@ def write_capture(capture: Capture, path: str | Path, **opts: Any) -> None:
     suffix = _suffix(path)
     try:
         _write(capture, path, suffix, opts)
+    except WriteError:
+        raise
     except OSError as exc:
         raise InputError(str(path), None, f"cannot write: {exc.strerror or exc}") from exc
 

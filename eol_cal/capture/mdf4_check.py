@@ -84,6 +84,14 @@ _LINK_TARGETS: dict[str, Sequence[frozenset[str] | None]] = {
     "HL": (frozenset({"DL"}),),
     "LD": (frozenset({"LD"}),),
 }
+#: links each block type must carry (lo, hi): readers parse the standard links by position
+_LINK_COUNT = {
+    "HD": (6, 6), "FH": (2, 2), "CH": (4, MAX_LINKS), "AT": (4, 4), "EV": (5, MAX_LINKS), "DG": (4, 4),
+    "CG": (6, 7), "SI": (3, 3), "CN": (8, MAX_LINKS), "CC": (4, MAX_LINKS), "CA": (1, MAX_LINKS), "SR": (2, 2),
+    "DL": (1, MAX_LINKS), "HL": (1, 1), "LD": (1, MAX_LINKS), "GD": (1, 1),
+    "MD": (0, 0), "TX": (0, 0), "DT": (0, 0), "RD": (0, 0), "SD": (0, 0), "DZ": (0, 0), "DV": (0, 0), "DI": (0, 0),
+    "RV": (0, 0), "RI": (0, 0),
+}
 #: data-type codes of fixed-size numbers in a record (unsigned/signed integers, floats, LE/BE)
 _NUMERIC_TYPES = range(0, 6)
 _MAX_DATA_TYPE = 16
@@ -185,8 +193,9 @@ def _read_block(data: bytes | mmap.mmap, offset: int, where: str) -> Block:
     here = f"block ##{kind} at 0x{offset:x}"
     if kind not in _FIXED_DATA:
         raise _Refusal(here, "unknown block type")
-    if count > MAX_LINKS:
-        raise _Refusal(here, f"{count} links (at most {MAX_LINKS})")
+    lo, hi = _LINK_COUNT[kind]
+    if not lo <= count <= hi:
+        raise _Refusal(here, f"{count} links; a ##{kind} block has {lo}" + (f"..{hi}" if hi != lo else ""))
     need = _HEADER.size + 8 * count + _FIXED_DATA[kind]
     if length < need:
         raise _Refusal(here, f"length {length} bytes cannot hold its {count} links and fixed fields ({need} bytes)")
