@@ -213,7 +213,7 @@ def test_ecu_enforces_the_contract(tmp_path):
             c.request_download(loc1)
             c.transfer_data(1, b"\x00\x00")
             status = s.routine("check", P.RID_CHECK, bank1, 2152)
-            assert status == bytes([P.CHECK_HEADER])
+            assert status == bytes([P.STATUS_HEADER_INVALID])
             # 255 blocks later the counter wraps FF -> 00.
             s.routine("erase", P.RID_ERASE, bank1, B.BANK_BYTES)
             c.request_download(P.memory_location(bank1, 2 * 257))

@@ -34,13 +34,10 @@ import numpy as np
 from eol_cal.analysis.edges import boundary_state, debounce_edges, level_changes, quadrature_boundaries
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
-from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+from eol_cal.firmware.contract import HALL_FORWARD_SEQUENCE, NOMINAL_HALL_ANGLE
 from eol_cal.wrap import wrap_2pi, wrap_pi
 
 TWO_PI = 2.0 * np.pi
-
-#: Forward hall sequence (contract section 2): state 5 begins at 0 deg, 1 at 60 deg, ...
-HALL_FORWARD_SEQUENCE: tuple[int, ...] = (5, 1, 3, 2, 6, 4)
 
 #: Nominal electrical angle (rad) at which hall state s begins in forward rotation, index s-1
 #: (the contract's nominal ``hall_angle``, defined once in the firmware reference).

@@ -16,6 +16,21 @@ from dataclasses import dataclass
 from udsoncan import MemoryLocation
 from udsoncan import Response
 
+# the contract's identifiers and check codes, read through this module by the client and the simulator
+from eol_cal.firmware.contract import (  # noqa: F401
+    CHECK_STATUS,
+    DID_ACTIVE_BLOCK,
+    DID_LAYOUTS,
+    DID_SERIAL,
+    DID_SW_VERSION,
+    NO_BANK,
+    RID_CHECK,
+    RID_ERASE,
+    STATUS_CRC_MISMATCH,
+    STATUS_HEADER_INVALID,
+    STATUS_VALID,
+)
+
 # --- CAN / ISO-TP (contract 3, first bullets) --------------------------------------------
 TESTER_ID = 0x7E0
 """CAN ID tester -> ECU (11 bit)."""
@@ -65,24 +80,13 @@ WORD_BYTES = 2
 ERASED_BYTE = 0xFF
 """An erased NOR-flash word reads 0xFFFF (contract section 1)."""
 
-# --- Identifiers -----------------------------------------------------------------------------------
-DID_SERIAL = 0xF18C
-DID_SW_VERSION = 0xF195
-DID_LAYOUTS = 0xFD00
-DID_ACTIVE_BLOCK = 0xFD01
-RID_ERASE = 0xFF00
-RID_CHECK = 0x0202
+# --- Identifiers: the contract's (DID_*, RID_*, NO_BANK, imported above) and UDS's own --------------
 ROUTINE_START = 0x01
 RESET_HARD = 0x01
 DOWNLOAD_DFI = 0x00
 """dataFormatIdentifier: no compression, no encryption."""
-NO_BANK = 0xFF
-"""FD01 bank value when no bank holds a valid block."""
 
-CHECK_VALID = 0
-CHECK_CRC = 1
-CHECK_HEADER = 2
-CHECK_STATUS_TEXT = {CHECK_VALID: "valid", CHECK_CRC: "CRC mismatch", CHECK_HEADER: "header invalid"}
+CHECK_STATUS_TEXT = {s.code: s.text for s in CHECK_STATUS.values()}
 
 # --- Negative response codes: contract list, values from udsoncan ------------------------
 NRC = Response.Code

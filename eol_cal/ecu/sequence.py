@@ -340,7 +340,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
             prog.step("transfer exit (37)")
             s.transfer_exit()
             status = s.routine(prog.step("check routine (31 0202)"), P.RID_CHECK, base, len(image))
-            if not status or status[0] != P.CHECK_VALID:
+            if not status or status[0] != P.STATUS_VALID:
                 code = status[0] if status else None
                 raise VerifyFailed("check routine", f"ECU reports bank {bank} "
                                    f"{P.CHECK_STATUS_TEXT.get(code, f'status {code}')}")

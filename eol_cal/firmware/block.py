@@ -25,11 +25,26 @@ from typing import Any
 import numpy as np
 
 from eol_cal.errors import InputError
+# the contract's constants, also read through this module (block.FLAG_COMP_ENABLE, block.STATUS_VALID)
+from eol_cal.firmware.contract import (  # noqa: F401
+    FLAG_COMP_ENABLE,
+    FLAG_INTERP_ENABLE,
+    FLAGS,
+    FLAGS_KNOWN,
+    MAGIC,
+    STATUS_CRC_MISMATCH,
+    STATUS_HEADER_INVALID,
+    STATUS_VALID,
+)
 
 
 def _load_layout() -> dict[str, Any]:
     text = resources.files("eol_cal.firmware").joinpath("layout_v1.toml").read_text("utf-8")
-    return tomllib.loads(text)
+    layout = tomllib.loads(text)
+    for f in layout["field"]:
+        if f["name"] == "magic":
+            f["value"] = MAGIC  # the layout says where the marker is, the contract what it is
+    return layout
 
 
 LAYOUT: dict[str, Any] = _load_layout()
@@ -37,7 +52,6 @@ LAYOUT: dict[str, Any] = _load_layout()
 
 FIELDS: dict[str, dict[str, Any]] = {f["name"]: f for f in LAYOUT["field"]}
 
-MAGIC: int = LAYOUT["magic"]
 LAYOUT_VERSION: int = LAYOUT["layout_version"]
 SUPPORTED_LAYOUTS: tuple[int, ...] = (LAYOUT_VERSION,)
 BANK_WORD_ADDR: tuple[int, int] = tuple(LAYOUT["bank_word_addr"])  # type: ignore[assignment]
@@ -46,27 +60,20 @@ BANK_BYTES: int = LAYOUT["bank_bytes"]
 HEADER_BYTES: int = LAYOUT["header_bytes"]
 TABLE_LEN_MIN: int = LAYOUT["table_len_min"]
 TABLE_LEN_MAX: int = LAYOUT["table_len_max"]
-FLAG_COMP_ENABLE: int = 1 << LAYOUT["flags"]["COMP_ENABLE"]["bit"]
-FLAG_INTERP_ENABLE: int = 1 << LAYOUT["flags"]["INTERP_ENABLE"]["bit"]
-FLAGS_KNOWN: int = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE
-
-
 def flag_names(flags: int) -> str:
     """The block's flags by name, ``COMP_ENABLE|INTERP_ENABLE`` (``none`` when no bit is set)."""
-    names = [n for bit, n in ((FLAG_COMP_ENABLE, "COMP_ENABLE"), (FLAG_INTERP_ENABLE, "INTERP_ENABLE")) if flags & bit]
+    names = [name for name, f in FLAGS.items() if flags & (1 << f.bit)]
     return "|".join(names) or "none"
 
-STATUS_VALID = 0
-STATUS_CRC_MISMATCH = 1
-STATUS_HEADER_INVALID = 2
+
 SEQUENCE_INVALID = (0, 0xFFFFFFFF)
 
 _STRUCT = {"u16": "<H", "u32": "<I", "f32": "<f"}
 _SIZE = {"u8": 1, "u16": 2, "u32": 4, "f32": 4}
 
-if MAGIC != 0xEC6A or LAYOUT_VERSION != 1 or BANK_BYTES != 2 * BANK_WORDS:
+if LAYOUT_VERSION != 1 or BANK_BYTES != 2 * BANK_WORDS:
     # the layout file is package data: a wrong one is a broken installation, not bad input
-    raise ImportError(f"layout_v1.toml is not layout version 1 (magic 0x{MAGIC:04X}, version {LAYOUT_VERSION}, "
+    raise ImportError(f"layout_v1.toml is not layout version 1 (version {LAYOUT_VERSION}, "
                       f"bank {BANK_BYTES} bytes for {BANK_WORDS} words)")
 
 

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware.contract import HALL_NEXT, NOMINAL_HALL_ANGLE
 
 if TYPE_CHECKING:
     from eol_cal.firmware.block import ParamBlock
@@ -41,12 +42,8 @@ STEADY_TICKS = 2
 TICK_MASK = (1 << 30) - 1
 """The free-running tick counter of improvement 4 counts modulo 2**30."""
 
-# Hall convention (firmware contract section 2): U = bit0, V = bit1, W = bit2; forward rotation
-# steps 5 -> 1 -> 3 -> 2 -> 6 -> 4 -> 5. Indexed by the state; 0 and 7 are faults.
-HALL_NEXT = (0, 3, 6, 2, 5, 1, 4, 0)
-"""Forward successor of hall state s (``HALL_NEXT[s]``); 0 for the fault states 0 and 7."""
-NOMINAL_HALL_ANGLE = tuple(math.radians(d) for d in (60.0, 180.0, 120.0, 300.0, 0.0, 240.0))
-"""Nominal ``hall_angle`` (rad, electrical), contract order: entry s-1 is where state s begins."""
+# Hall convention (firmware contract section 2): HALL_NEXT (forward successor of each state) and
+# NOMINAL_HALL_ANGLE, both from eol_cal.firmware.contract.
 
 # Status bits of EstimatorOut.status.
 ST_STANDSTILL = 1 << 0

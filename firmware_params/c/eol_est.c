@@ -4,6 +4,7 @@
 #include <math.h>
 
 #include "eol_est.h"
+#include "eol_param_block.h"
 
 /* binary32 constants; 9 significant digits round-trip exactly */
 #define PI_F 3.14159274f          /* 0x40490fdb */
@@ -16,7 +17,7 @@
 #define TICK_MASK 0x3FFFFFFFUL
 
 /* forward successor of hall state s (contract: 5 -> 1 -> 3 -> 2 -> 6 -> 4 -> 5) */
-static const int32_t HALL_NEXT[8] = {0, 3, 6, 2, 5, 1, 4, 0};
+static const int32_t HALL_NEXT[8] = EOL_PB_HALL_NEXT;
 
 float eol_est_wrap(float x)
 {
