@@ -11,10 +11,13 @@ and the largest resident set. Tracebacks, hangs, crashes and modified inputs mus
 Side by side (``--before COMMIT``): the same inputs through the CLI of an older commit (checked
 out with ``git worktree`` into a temporary directory), the code a user has without this work.
 
-Sections are functions in :data:`SECTIONS` (name -> function(args) -> bool ok); another section
-(the ECU-kill trials) adds itself there and its options in :func:`add_options`.
+Section ``ecu``: the ECU-kill and signal trials of ``bench/bench_faults_ecu.py`` (the ECU
+simulator killed at each flashing step, SIGINT/SIGTERM during each, ``eol-cal run`` with the ECU
+killed in either flash): ECU-kill trials / ended within the bound / records kept.
 
-    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs]
+Sections are functions in :data:`SECTIONS` (name -> function(args) -> bool ok).
+
+    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs|ecu]
 """
 
 from __future__ import annotations
@@ -105,8 +108,15 @@ def inputs_section(args: argparse.Namespace) -> bool:
     return not (total.tracebacks or total.hangs or total.crashes or total.modified or total.unnamed)
 
 
+def ecu_section(args: argparse.Namespace) -> bool:
+    """ECU-kill and signal trials during ``flash`` and ``run`` (``bench/bench_faults_ecu.py``)."""
+    import bench_faults_ecu
+
+    return bench_faults_ecu.ecu_section(args.repeat, args.before or args.ecu_before, args.cap)
+
+
 #: name -> section; each prints its figures and returns True when its must-be-zero counts are 0
-SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {"inputs": inputs_section}
+SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {"inputs": inputs_section, "ecu": ecu_section}
 
 
 def add_options(ap: argparse.ArgumentParser) -> None:
@@ -116,6 +126,10 @@ def add_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--timeout", type=float, default=20.0, help="bound per command and input (s): beyond is a hang")
     ap.add_argument("--before", metavar="COMMIT", help="also run the inputs through this older commit's CLI")
     ap.add_argument("--show", type=int, default=20, help="list at most this many bad outcomes")
+    ap.add_argument("--repeat", type=int, default=2, help="ECU-kill trials per flashing step")
+    ap.add_argument("--cap", type=float, default=20.0, help="ECU trials: seconds after which a trial counts as hung")
+    ap.add_argument("--ecu-before", default="b46ce43", metavar="COMMIT",
+                    help="ECU trials: the older code's kill -9 reproduction (used when --before is not given)")
 
 
 def main() -> int:

@@ -1,6 +1,6 @@
 """ECU-kill and signal trials: does every way out of ``eol-cal flash`` / ``eol-cal run`` end in
 time, cleanly, with the banks intact and the record kept? (issue 16, the ECU part of the fault
-benchmark; the bad-input part is ``bench/bench_faults.py``.)
+benchmark: ``bench/bench_faults.py --section ecu`` runs it beside the bad inputs.)
 
 Real processes on 127.0.0.1: ``eol-cal ecu-sim --die-at STEP`` kills itself (SIGKILL) when that
 request of the flash arrives; ``eol-cal flash`` and ``eol-cal run`` are their own processes; the
@@ -225,45 +225,41 @@ def _summary(name: str, trials: list[Trial], bound: float) -> None:
           f"exit 2 + one line {clean:3d}  tracebacks {tb:3d}  old bank intact {intact:3d}  worst {worst:5.2f} s")
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--repeat", type=int, default=2, help="ECU-kill trials per step.")
-    ap.add_argument("--before", default="b46ce43", help="Commit to compare with ('' to skip).")
-    ap.add_argument("--cap", type=float, default=20.0, help="Seconds after which a trial counts as hung.")
-    args = ap.parse_args()
-    print(f"# bench_faults_ecu: {platform.python_version()}, {os.cpu_count()} CPUs, bound "
-          f"max(P2*, S3 + back-off + P2) + 1 s = {BOUND_S:.2f} s (ClientTiming defaults)")
+def ecu_section(repeat: int, before: str | None, cap: float) -> bool:
+    """Run the trials, print the figures; True when every trial ended within the bound with the
+    old bank intact and every run kept its record."""
+    print(f"\nECU-kill trials: bound max(P2*, S3 + back-off + P2) + 1 s = {BOUND_S:.2f} s (ClientTiming defaults)")
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         base = _base(tmp)
         old_bank = NorFlash(base / "base.bin").bank(0)
         env = _env(ROOT)
-        cases = [(s, r) for r in range(args.repeat) for s in KILL_STEPS]
-        kills = [kill_flash(env, base, Path(tempfile.mkdtemp(dir=tmp)), s, args.cap, old_bank) for s, _ in cases]
+        cases = [(s, r) for r in range(repeat) for s in KILL_STEPS]
+        kills = [kill_flash(env, base, Path(tempfile.mkdtemp(dir=tmp)), s, cap, old_bank) for s, _ in cases]
         with ThreadPoolExecutor(4) as pool:
             signals = list(pool.map(
                 lambda c: signal_flash(env, base, Path(tempfile.mkdtemp(dir=tmp)), c[0], c[1], c[2], old_bank),
                 [(s, shown, sig) for sig in (signal.SIGINT, signal.SIGTERM) for s, shown in SIGNAL_STEPS]))
         runs = [kill_run(env, base, Path(tempfile.mkdtemp(dir=tmp)), die) for die in ("erase:1", "transfer:2")]
-        external = [kill_flash_external(env, base, Path(tempfile.mkdtemp(dir=tmp)), args.cap, old_bank)
-                    for _ in range(args.repeat)]
-        before = []
-        if args.before:
+        external = [kill_flash_external(env, base, Path(tempfile.mkdtemp(dir=tmp)), cap, old_bank)
+                    for _ in range(repeat)]
+        older = []
+        if before:
             tree = tmp / "before"
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), args.before],
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), before],
                            check=True, capture_output=True)
             try:
-                for _ in range(args.repeat):
-                    before.append(kill_flash_external(_env(tree), base, Path(tempfile.mkdtemp(dir=tmp)), args.cap,
-                                                      old_bank))
+                for _ in range(repeat):
+                    older.append(kill_flash_external(_env(tree), base, Path(tempfile.mkdtemp(dir=tmp)), cap,
+                                                     old_bank))
             finally:
                 subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)],
                                capture_output=True)
     print()
     _summary("flash, ECU killed at each step", kills, BOUND_S)
     _summary("flash, kill -9 at the erase (ours)", external, BOUND_S)
-    if before:
-        _summary(f"same, {args.before} (before)", before, BOUND_S)
+    if older:
+        _summary(f"same, {before} (before)", older, BOUND_S)
     _summary("flash, SIGINT/SIGTERM at each step", signals, BOUND_S)
     print(f"boots after the ECU was killed: old {sum(t.boots == 1 for t in kills)}, new (complete, checked) "
           f"{sum(t.boots == 2 for t in kills)}, other {sum(t.boots not in (1, 2) for t in kills)}; "
@@ -272,13 +268,25 @@ def main() -> None:
         print(f"{t.what:<34} exit {t.rc}  ended {t.seconds:.2f} s after the ECU died  traceback {t.traceback}  "
               f"record and report kept {t.record}")
     ours = kills + external + runs
-    print(f"ECU-kill trials {len(ours)} / ended within the bound "
-          f"{sum(t.rc is not None and t.seconds <= BOUND_S for t in ours)} / records kept "
-          f"{sum(bool(t.record) for t in runs)} of {len(runs)} runs")
+    within = sum(t.rc is not None and t.seconds <= BOUND_S for t in ours)
+    kept = sum(bool(t.record) for t in runs)
+    print(f"ECU-kill trials {len(ours)} / ended within the bound {within} / records kept {kept} of {len(runs)} runs")
     print("\nper trial (ours):")
     for t in kills + signals:
         print(f"  {t.what:<40} exit {t.rc}  {t.seconds:5.2f} s  boots seq {t.boots}")
+    intact = all(t.old_bank_intact for t in kills + external + signals)
+    return within == len(ours) and kept == len(runs) and intact and not any(t.traceback for t in ours + signals)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=2, help="ECU-kill trials per step.")
+    ap.add_argument("--before", default="b46ce43", help="Commit to compare with ('' to skip).")
+    ap.add_argument("--cap", type=float, default=20.0, help="Seconds after which a trial counts as hung.")
+    args = ap.parse_args()
+    print(f"# bench_faults_ecu: {platform.python_version()}, {os.cpu_count()} CPUs")
+    return 0 if ecu_section(args.repeat, args.before or None, args.cap) else 1
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

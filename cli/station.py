@@ -112,7 +112,7 @@ def _print_outcome(out, as_json: bool) -> None:
 
 
 def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
-    from eol_cal.station.records import flush_spool
+    from eol_cal.station.spool import flush_spool
 
     res = flush_spool(db, spool_dir, timeout)
     for bad in res.bad_files:
@@ -307,7 +307,8 @@ def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> N
     """Query run records: by serial or day, the pass rate, and a plot across the lot.
 
     `eol-cal records migrate --db DB` brings a database to this version's schema."""
-    from eol_cal.station.records import db_label, flush_spool, query_records, summarise
+    from eol_cal.station.records import db_label, query_records, summarise
+    from eol_cal.station.spool import flush_spool
 
     if ctx.invoked_subcommand is not None:
         return

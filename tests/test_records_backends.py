@@ -16,8 +16,9 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from eol_cal.station.records import (SCHEMA_VERSION, SchemaError, db_key, engine, flush_spool, insert_records, migrate,
-                                     query_records, read_rows, save_record, select_runs)
+from eol_cal.station.records import (SCHEMA_VERSION, SchemaError, db_key, engine, insert_records, migrate,
+                                     query_records, read_rows, select_runs)
+from eol_cal.station.spool import flush_spool, save_record
 
 
 def record(serial: str = "M-1", verdict: str = "pass", started: str = "2026-11-22T10:00:00.000+00:00",

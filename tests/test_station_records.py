@@ -15,8 +15,8 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.errors import InputError
-from eol_cal.station.records import (COLUMN_NAMES, RecordError, flush_spool, insert_records, query_records,
-                                     save_record, summarise)
+from eol_cal.station.records import COLUMN_NAMES, RecordError, insert_records, query_records, summarise
+from eol_cal.station.spool import flush_spool, save_record
 
 
 def record(serial: str = "M-1", verdict: str = "pass", started: str = "2026-11-22T10:00:00.000+00:00",

@@ -40,7 +40,7 @@ from eol_cal.station.run import (
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
     from eol_cal.ecu.sequence import FlashReport
-    from eol_cal.station.records import SaveResult
+    from eol_cal.station.spool import SaveResult
 
 
 
@@ -240,7 +240,7 @@ class StationCycle:
 
     def record(self, rec: dict[str, Any]) -> SaveResult:
         """Save the record: database, or the spool when the database cannot take it."""
-        from eol_cal.station.records import save_record
+        from eol_cal.station.spool import save_record
 
         self._progress("record", "start")
         saved = save_record(rec, self.cfg.db, self.cfg.spool_dir, self.cfg.db_timeout_s)

@@ -15,19 +15,16 @@ CRC and sequence, tool and layout versions, plus the whole record as JSON. Table
 
 When the database cannot be written - locked beyond the timeout, its directory missing (a share
 not mounted), the server down, read-only, corrupt - the record is written as one JSON file into
-the spool directory (atomically: temp file, fsync, rename) and inserted later by
-:func:`flush_spool`. The insert is keyed by the record's ``run_id``, so a flush interrupted
-between the insert and the spool file's removal inserts nothing twice, and many writers at once
-neither lose nor duplicate a record.
+the spool directory and inserted later (:mod:`eol_cal.station.spool`). The insert is keyed by
+the record's ``run_id``, so a flush interrupted between the insert and the spool file's removal
+inserts nothing twice, and many writers at once neither lose nor duplicate a record.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import sqlite3
 import threading
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -205,19 +202,6 @@ def _ensure_schema(con: Connection) -> None:
                           f"{SCHEMA_VERSION}: migrate it first")
 
 
-def default_spool_dir() -> Path:
-    """``$EOL_CAL_SPOOL``, else ``$XDG_STATE_HOME/eol-cal/spool`` (``~/.local/state/...``).
-
-    Deliberately on the station's local disk, not next to the database: the database may be
-    on a share that is the very thing that is down.
-    """
-    env = os.environ.get("EOL_CAL_SPOOL")
-    if env:
-        return Path(env)
-    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
-    return Path(state) / "eol-cal" / "spool"
-
-
 def _row(record: dict[str, Any]) -> dict[str, Any]:
     def get(*keys: str) -> Any:
         x: Any = record
@@ -325,115 +309,6 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
         _dispose(eng, db)
 
 
-def spool_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path, why: str) -> Path:
-    """Write ``record`` into the spool directory (atomically); returns the file."""
-    from eol_cal.atomic import atomic_write
-
-    spool_dir = Path(spool_dir)
-    spool_dir.mkdir(parents=True, exist_ok=True)
-    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record}
-    path = spool_dir / f"{record['run_id']}.json"
-    atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-    return path
-
-
-@dataclass(frozen=True)
-class SaveResult:
-    """Where a record went: ``"db"`` or ``"spool"`` (with the spool file and why)."""
-
-    where: str
-    path: str
-    why: str | None = None
-
-
-def save_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path | None = None,
-                timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> SaveResult:
-    """Write a run record into the database, or into the spool when the database fails.
-
-    Raises
-    ------
-    RecordError
-        Neither worked (the message says both reasons; the caller should print the record).
-    """
-    spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
-    try:
-        insert_records(db, [record], timeout_s)
-        return SaveResult("db", str(db))
-    except DB_ERRORS as exc:
-        why = f"{type(exc).__name__}: {_oneline(exc)}"
-    try:
-        path = spool_record(record, db, spool_dir, why)
-    except OSError as exc:
-        raise RecordError(f"record {record['run_id']} could not be written: database {db}: {why}; "
-                          f"spool {spool_dir}: {exc}") from exc
-    return SaveResult("spool", str(path), why)
-
-
-@dataclass(frozen=True)
-class FlushResult:
-    """Outcome of :func:`flush_spool`."""
-
-    inserted: int
-    flushed_files: int
-    remaining: int
-    other_db: int
-    error: str | None = None
-    bad_files: tuple[str, ...] = ()
-
-
-def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, dict[str, Any]]], list[str]]:
-    """Readable spooled records, and ``"file: reason"`` for every file that is not one."""
-    out, bad = [], []
-    for path in sorted(spool_dir.glob("*.json")):
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-            bad.append(f"{path}: unreadable ({exc})")
-            continue
-        if not isinstance(doc, dict) or doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
-            bad.append(f"{path}: not a spooled record ({SPOOL_SCHEMA})")
-            continue
-        out.append((path, doc))
-    return out, bad
-
-
-def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
-                timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> FlushResult:
-    """Insert every spooled record meant for ``db`` and remove its spool file.
-
-    Records spooled for another database stay. When the database still cannot be written
-    nothing is removed and ``error`` says why. Files in the spool that are not spooled records
-    are left alone and listed in ``bad_files`` (one stray file must not stop the line).
-    """
-    spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
-    if not spool_dir.is_dir():
-        return FlushResult(0, 0, 0, 0)
-    target = db_key(db)
-    mine, others = [], 0
-    spooled, bad = _spooled(spool_dir)
-    for path, doc in spooled:
-        if doc.get("db") == target:
-            mine.append((path, doc["record"]))
-        else:
-            others += 1
-    if not mine:
-        return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
-    try:
-        n = insert_records(db, [r for _p, r in mine], timeout_s)
-    except (*DB_ERRORS, KeyError) as exc:
-        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {_oneline(exc)}", tuple(bad))
-    for path, _r in mine:
-        path.unlink(missing_ok=True)
-    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad))
-
-
-def _oneline(exc: BaseException) -> str:
-    # SQLAlchemy appends the SQL and a link on further lines; the first line says why
-    if isinstance(exc, sa.exc.StatementError) and exc.orig is not None:
-        exc = exc.orig
-    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-
-
 def select_runs(variant: str | None = None, station: str | None = None, since: str | None = None,
                 until: str | None = None, serial: str | None = None, day: str | None = None) -> sa.Select:
     """The ``runs`` rows matching the filters, oldest first (days are UTC ``YYYY-MM-DD``, inclusive)."""
@@ -461,7 +336,7 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
         finally:
             _dispose(eng, db)
     except DB_ERRORS as exc:
-        raise InputError(db_label(db), None, f"cannot read the records: {_oneline(exc)}") from None
+        raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
 
 
 def _record(db: str | Path, row: dict[str, Any], skipped: list[InputError] | None) -> dict[str, Any] | None:
@@ -528,3 +403,10 @@ def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
         "pass_rate": counts["pass"] / judged if judged else None,
         "motors": len(latest), "motors_pass": sum(1 for v in latest.values() if v == "pass"),
     }
+
+
+def one_line(exc: BaseException) -> str:
+    # SQLAlchemy appends the SQL and a link on further lines; the first line says why
+    if isinstance(exc, sa.exc.StatementError) and exc.orig is not None:
+        exc = exc.orig
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__

@@ -26,7 +26,7 @@ from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import VariantLimits
-from eol_cal.station.records import SaveResult
+from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
@@ -64,7 +64,7 @@ class StationConfig:
         profile again.
     spool_dir : path or None
         Where records go when the database cannot be written (default
-        :func:`eol_cal.station.records.default_spool_dir`).
+        :func:`eol_cal.station.spool.default_spool_dir`).
     rate_hz : int
         Capture sample rate (Hz).
     db_timeout_s : float

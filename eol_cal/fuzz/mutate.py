@@ -1,38 +1,11 @@
-"""Hostile inputs for the fault test and the fault benchmark (issue 16): seeded mutations of
-real files, and a runner that feeds them to the real CLI in a child process and judges the end.
-
-Four kinds of input, each a mutation of a valid file the tool writes itself:
-
-- ``csv``: a CSV capture (bit flips, truncation, hostile cells, units and metadata, huge headers);
-- ``mdf4``: an MDF4 capture (bit flips, truncation, block links patched to point at their own
-  block, outside the file or at a block of another type, block lengths, link counts,
-  compressed-data lengths, cycle counts and channel offsets patched);
-- ``block``: a parameter block (bit flips, fields patched to NaN, infinities, 3e38, 0, with the
-  CRC made right again so that only a physical-sanity check can refuse it);
-- ``fitjson``: a fit result (values of the wrong type or out of bounds, deep nesting, huge
-  numbers, truncation).
-
-A run is judged on what a station cares about: the exit code is 0, 1 or 2 (no signal, no
-other code), no ``Traceback`` on stderr, the command ended within its time bound, its memory
-stayed under ``RLIMIT_AS``, and no input file changed (hash before and after). A refusal must
-name the file it refuses.
-
-Used by ``tests/test_fuzz.py`` (a small seeded campaign, ~30 s) and ``bench/bench_faults.py``
-(a bigger one).
-"""
+"""Hostile inputs: seeded mutations of valid files the tool writes itself (see :mod:`eol_cal.fuzz`)."""
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
-import resource
 import struct
-import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -64,28 +37,6 @@ class Case:
     data: bytes
 
 
-@dataclass
-class Outcome:
-    """How the CLI ended on one case."""
-
-    case: Case
-    command: str
-    rc: int | None
-    seconds: float
-    stderr: str
-    traceback: bool
-    hang: bool
-    crash: bool
-    modified: bool
-    named: bool
-    maxrss_kb: int = 0
-    accepted: bool = False
-
-    @property
-    def clean(self) -> bool:
-        """Ended as the tool promises: 0/1/2, one-line error naming the file, in time, input intact."""
-        return not (self.traceback or self.hang or self.crash or self.modified) and (self.accepted or self.named)
-
 
 # --------------------------------------------------------------------------------------------
 # valid base files
@@ -107,7 +58,7 @@ def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
             write_capture(capture, path)
             out[kind] = path.read_bytes()
     out["block"] = example_block(serial="F-0001")
-    fit_result = fit_result or Path(__file__).resolve().parents[1] / "fixtures" / "fit_paper.json"
+    fit_result = fit_result or Path(__file__).resolve().parents[2] / "fixtures" / "fit_paper.json"
     out["fitjson"] = fit_result.read_bytes()
     return out
 
@@ -410,162 +361,3 @@ def cases(seed: int, per_kind: int, bases: dict[str, bytes], kinds: tuple[str, .
     return out
 
 
-# --------------------------------------------------------------------------------------------
-# running the CLI
-
-
-def _limit_memory(limit: int) -> Callable[[], None]:
-    def apply() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-
-    return apply
-
-
-#: the checkout whose ``cli`` the children run (another one: the code before a change)
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
-            root: Path = ROOT) -> tuple[int | None, str, str, float, int]:
-    """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit.
-
-    Returns (exit code or None when it was killed for running past ``timeout_s``; a negative
-    code is the signal that ended it), stdout, stderr, seconds, peak resident memory (KiB).
-    """
-    child_env = dict(os.environ)
-    child_env["PYTHONPATH"] = str(root)
-    child_env.setdefault("EOL_CAL_JAX_CACHE", "off")
-    t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=child_env, preexec_fn=_limit_memory(memory_bytes),
-                            start_new_session=True)
-    try:
-        out, err = proc.communicate(timeout=timeout_s)
-        rc: int | None = proc.returncode
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, 9)
-        out, err = proc.communicate()
-        rc = None
-    seconds = time.perf_counter() - t0
-    # the largest resident set of any child waited for so far: an upper bound for this one
-    rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss
-
-
-def _digest(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest() if path.exists() else "-"
-
-
-def _commands(kind: str, name: str) -> list[list[str]]:
-    if kind in ("csv", "mdf4"):
-        return [["analyze", "--json", name]]
-    if kind == "block":
-        return [["block", "check", name], ["block", "show", "--json", name]]
-    return [["table", name, "-o", name + ".out.bin"]]
-
-
-def judge(case: Case, command: list[str], rc: int | None, stdout: str, stderr: str, seconds: float,
-          rss_kb: int, modified: bool) -> Outcome:
-    """An :class:`Outcome` from how one command ended."""
-    crash = rc is not None and rc not in (0, 1, 2)
-    accepted = rc == 0
-    return Outcome(case=case, command=" ".join(command), rc=rc, seconds=seconds, stderr=stderr[-2000:],
-                   traceback="Traceback" in stderr, hang=rc is None, crash=crash, modified=modified,
-                   named=case.name in stderr or case.name in stdout, maxrss_kb=rss_kb, accepted=accepted)
-
-
-def run_case(case: Case, workdir: Path, timeout_s: float = 20.0,
-             memory_bytes: int = CHILD_MEMORY_BYTES, root: Path = ROOT) -> list[Outcome]:
-    """Write ``case`` into ``workdir``, run each of its commands, judge each."""
-    path = workdir / case.name
-    path.write_bytes(case.data)
-    before = _digest(path)
-    outcomes = []
-    for command in _commands(case.kind, case.name):
-        rc, out, err, seconds, rss = run_cli(command, workdir, timeout_s, memory_bytes, root)
-        after = _digest(path)
-        outcomes.append(judge(case, command, rc, out, err, seconds, rss, after != before))
-    return outcomes
-
-
-def run_batch(batch: list[Case], workdir: Path, timeout_s: float = 60.0,
-              memory_bytes: int = CHILD_MEMORY_BYTES, root: Path = ROOT) -> list[Outcome]:
-    """Captures of one batch in one ``analyze --json`` (one bad file must not cost the others);
-    a batch that does not end cleanly is run again file by file to find the culprit."""
-    digests = {}
-    for case in batch:
-        (workdir / case.name).write_bytes(case.data)
-        digests[case.name] = _digest(workdir / case.name)
-    command = ["analyze", "--json", *(c.name for c in batch)]
-    rc, out, err, seconds, rss = run_cli(command, workdir, timeout_s, memory_bytes, root)
-    try:
-        doc = json.loads(out)
-        accepted = {c["file"] for c in doc["captures"]} | {c["file"].split("#")[0] for c in doc["captures"]}
-        refused = {e["file"].split("#")[0] for e in doc["errors"]}
-    except (ValueError, KeyError, TypeError):
-        doc = None
-    if doc is None or rc not in (0, 2) or "Traceback" in err:
-        return [o for case in batch for o in run_case(case, workdir, timeout_s / len(batch), memory_bytes, root)]
-    outcomes = []
-    for case in batch:
-        modified = _digest(workdir / case.name) != digests[case.name]
-        ok = case.name in accepted and case.name not in refused
-        outcomes.append(Outcome(case=case, command="analyze --json (batch)", rc=0 if ok else 2, seconds=seconds,
-                                stderr="", traceback=False, hang=False, crash=False, modified=modified,
-                                named=case.name in refused or ok, maxrss_kb=rss, accepted=ok))
-    return outcomes
-
-
-@dataclass
-class Tally:
-    """Counts over a campaign (the figures ``bench/bench_faults.py`` prints)."""
-
-    tried: int = 0
-    accepted: int = 0
-    refused_cleanly: int = 0
-    unnamed: int = 0
-    tracebacks: int = 0
-    hangs: int = 0
-    crashes: int = 0
-    modified: int = 0
-    max_seconds: float = 0.0
-    max_rss_kb: int = 0
-    bad: list[Outcome] = field(default_factory=list)
-
-    def add(self, outcomes: list[Outcome]) -> None:
-        """Count one input (all its commands)."""
-        self.tried += 1
-        worst = [o for o in outcomes if not o.clean]
-        self.tracebacks += any(o.traceback for o in outcomes)
-        self.hangs += any(o.hang for o in outcomes)
-        self.crashes += any(o.crash for o in outcomes)
-        self.modified += any(o.modified for o in outcomes)
-        self.unnamed += any(not (o.accepted or o.named) and not (o.traceback or o.hang or o.crash) for o in outcomes)
-        if not worst:
-            if all(o.accepted for o in outcomes):
-                self.accepted += 1
-            else:
-                self.refused_cleanly += 1
-        self.bad.extend(worst)
-        self.max_seconds = max([self.max_seconds, *(o.seconds for o in outcomes)])
-        self.max_rss_kb = max([self.max_rss_kb, *(o.maxrss_kb for o in outcomes)])
-
-
-def campaign(seed: int, per_kind: int, workdir: Path, bases: dict[str, bytes], kinds: tuple[str, ...] = KINDS,
-             batch: int = 10, timeout_s: float = 20.0, memory_bytes: int = CHILD_MEMORY_BYTES,
-             root: Path = ROOT) -> dict[str, Tally]:
-    """Run a seeded campaign; a :class:`Tally` per kind."""
-    tallies = {kind: Tally() for kind in kinds}
-    all_cases = cases(seed, per_kind, bases, kinds)
-    for kind in kinds:
-        mine = [c for c in all_cases if c.kind == kind]
-        if kind in ("csv", "mdf4"):
-            for i in range(0, len(mine), batch):
-                chunk = mine[i:i + batch]
-                outcomes = run_batch(chunk, workdir, timeout_s * len(chunk), memory_bytes, root)
-                for case in chunk:
-                    tallies[kind].add([o for o in outcomes if o.case is case])
-        else:
-            for case in mine:
-                tallies[kind].add(run_case(case, workdir, timeout_s, memory_bytes, root))
-    return tallies

@@ -1,0 +1,142 @@
+"""The spool: run records that the database could not take, kept on the station's disk.
+
+A record that cannot be inserted (database locked beyond the timeout, its share not mounted,
+the server down, read-only, corrupt) is written as one JSON file into the spool directory,
+atomically, and inserted later by :func:`flush_spool`. The insert is keyed by the record's
+``run_id`` (:func:`eol_cal.station.records.insert_records`), so a flush interrupted between the
+insert and the file's removal inserts nothing twice.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from eol_cal.station.records import (
+    DB_ERRORS,
+    DEFAULT_LOCK_TIMEOUT_S,
+    SPOOL_SCHEMA,
+    RecordError,
+    db_key,
+    insert_records,
+    one_line,
+)
+
+
+def default_spool_dir() -> Path:
+    """``$EOL_CAL_SPOOL``, else ``$XDG_STATE_HOME/eol-cal/spool`` (``~/.local/state/...``).
+
+    Deliberately on the station's local disk, not next to the database: the database may be
+    on a share that is the very thing that is down.
+    """
+    env = os.environ.get("EOL_CAL_SPOOL")
+    if env:
+        return Path(env)
+    state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
+    return Path(state) / "eol-cal" / "spool"
+
+
+
+def spool_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path, why: str) -> Path:
+    """Write ``record`` into the spool directory (atomically); returns the file."""
+    from eol_cal.atomic import atomic_write
+
+    spool_dir = Path(spool_dir)
+    spool_dir.mkdir(parents=True, exist_ok=True)
+    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record}
+    path = spool_dir / f"{record['run_id']}.json"
+    atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    return path
+
+
+@dataclass(frozen=True)
+class SaveResult:
+    """Where a record went: ``"db"`` or ``"spool"`` (with the spool file and why)."""
+
+    where: str
+    path: str
+    why: str | None = None
+
+
+def save_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path | None = None,
+                timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> SaveResult:
+    """Write a run record into the database, or into the spool when the database fails.
+
+    Raises
+    ------
+    RecordError
+        Neither worked (the message says both reasons; the caller should print the record).
+    """
+    spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
+    try:
+        insert_records(db, [record], timeout_s)
+        return SaveResult("db", str(db))
+    except DB_ERRORS as exc:
+        why = f"{type(exc).__name__}: {one_line(exc)}"
+    try:
+        path = spool_record(record, db, spool_dir, why)
+    except OSError as exc:
+        raise RecordError(f"record {record['run_id']} could not be written: database {db}: {why}; "
+                          f"spool {spool_dir}: {exc}") from exc
+    return SaveResult("spool", str(path), why)
+
+
+@dataclass(frozen=True)
+class FlushResult:
+    """Outcome of :func:`flush_spool`."""
+
+    inserted: int
+    flushed_files: int
+    remaining: int
+    other_db: int
+    error: str | None = None
+    bad_files: tuple[str, ...] = ()
+
+
+def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, dict[str, Any]]], list[str]]:
+    """Readable spooled records, and ``"file: reason"`` for every file that is not one."""
+    out, bad = [], []
+    for path in sorted(spool_dir.glob("*.json")):
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            bad.append(f"{path}: unreadable ({exc})")
+            continue
+        if not isinstance(doc, dict) or doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
+            bad.append(f"{path}: not a spooled record ({SPOOL_SCHEMA})")
+            continue
+        out.append((path, doc))
+    return out, bad
+
+
+def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
+                timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> FlushResult:
+    """Insert every spooled record meant for ``db`` and remove its spool file.
+
+    Records spooled for another database stay. When the database still cannot be written
+    nothing is removed and ``error`` says why. Files in the spool that are not spooled records
+    are left alone and listed in ``bad_files`` (one stray file must not stop the line).
+    """
+    spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
+    if not spool_dir.is_dir():
+        return FlushResult(0, 0, 0, 0)
+    target = db_key(db)
+    mine, others = [], 0
+    spooled, bad = _spooled(spool_dir)
+    for path, doc in spooled:
+        if doc.get("db") == target:
+            mine.append((path, doc["record"]))
+        else:
+            others += 1
+    if not mine:
+        return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
+    try:
+        n = insert_records(db, [r for _p, r in mine], timeout_s)
+    except (*DB_ERRORS, KeyError) as exc:
+        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad))
+    for path, _r in mine:
+        path.unlink(missing_ok=True)
+    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad))
