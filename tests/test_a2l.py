@@ -201,3 +201,18 @@ def test_cli_refuses_bad_bank_and_table_len(tmp_path):
         assert res.exit_code == 2, res.output
         assert value in res.output
         assert not out.exists()
+
+
+def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path, monkeypatch):
+    """gen_a2l reads the flag names from contract.FLAGS: a new bit there is a new characteristic
+    and a new name in the flags word's verbal table, and the file still reads back."""
+    monkeypatch.setitem(C.FLAGS, "TEST_BIT_31", C.Flag(31, "a bit this test adds"))
+    path = _write_a2l(tmp_path, 1, 16)
+    session = pya2l.import_a2l(str(path), in_memory=True, progress_bar=False, loglevel="ERROR")
+    bit = a2l_inspect.Characteristic(session, "flags.TEST_BIT_31")
+    assert bit.bitMask == 1 << 31 and bit.address == 2 * pb.BANK_WORD_ADDR[1] + pb.field_offset("flags")
+    verb = a2l_inspect.Characteristic(session, "flags").compuMethod.tab_verb
+    assert len(verb.in_values) == 2 ** len(C.FLAGS)
+    assert dict(zip(verb.in_values, verb.text_values))[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
+    res = subprocess.run([_a2ltool(), str(path), "--strict", "--check"], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stdout + res.stderr

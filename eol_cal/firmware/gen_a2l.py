@@ -13,6 +13,7 @@ Addresses are BYTE addresses, ``2 x`` the F28335's 16-bit word address, as in th
 
 from __future__ import annotations
 
+import operator
 from typing import Any
 
 from eol_cal.errors import InputError
@@ -78,11 +79,15 @@ def _limits(f: dict[str, Any]) -> tuple[str, str]:
 
 
 def check_table_len(table_len: int) -> int:
-    """``table_len`` when it is a table length a block can have, else :class:`InputError`."""
-    if isinstance(table_len, bool) or not isinstance(table_len, int) or not pb.table_len_ok(table_len):
+    """``table_len`` as an int when it is a table length a block can have, else :class:`InputError`."""
+    try:
+        n = operator.index(table_len)
+    except TypeError:
+        n = -1
+    if isinstance(table_len, bool) or not pb.table_len_ok(n):
         raise InputError(None, "table_len", f"{table_len!r}: needs a power of two in "
                                             f"{pb.TABLE_LEN_MIN}..{pb.TABLE_LEN_MAX}")
-    return table_len
+    return n
 
 
 def _characteristic(f: dict[str, Any], base: int, table_len: int) -> list[str]:
@@ -184,7 +189,7 @@ def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN) -> str:
         ``bank`` not 0 or 1, or ``table_len`` not a valid table length.
     """
     base = bank_byte_address(bank)
-    check_table_len(table_len)
+    table_len = check_table_len(table_len)
     L = pb.LAYOUT
     version = L["layout_version"]
     units = sorted({f.get("unit", "") for f in L["field"] if f["name"] not in ("flags", "serial")})
