@@ -16,6 +16,8 @@ from __future__ import annotations
 import operator
 from typing import Any
 
+import numpy as np
+
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as pb
 from eol_cal.firmware import contract as C
@@ -26,7 +28,7 @@ DATATYPE: dict[str, str] = {"u8": "UBYTE", "u16": "UWORD", "u32": "ULONG", "f32"
 #: size of one element of each layout type (bytes)
 ELEMENT_BYTES: dict[str, int] = {"u8": 1, "u16": 2, "u32": 4, "f32": 4}
 #: the binary32 range, the limits of a float field
-_F32_MAX = "3.4028234663852886E+38"
+_F32_MAX = f"{float(np.finfo(np.float32).max):.17G}"
 #: more named flag bits than this would make the flags word's verbal table (2**bits rows) unwieldy
 _MAX_VERBAL_FLAG_BITS = 8
 
