@@ -1,4 +1,4 @@
-"""``eol-cal block show|check|hex``: inspect, validate and export calibration parameter blocks."""
+"""``eol-cal block show|check|hex|a2l``: inspect, validate and export calibration parameter blocks."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import click
 
 from cli.common import console, handle_errors, print_json
 from cli.paths import io_paths
+from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 
 _STATUS_TEXT = {0: "valid", 1: "CRC mismatch", 2: "header invalid"}
 
@@ -193,6 +194,29 @@ def hex_cmd(file: str, bank: int, output: str, motor_file: str | None) -> None:
     start = 2 * pb.BANK_WORD_ADDR[bank]
     click.echo(f"wrote {output}: {pb.block_bytes(n)} bytes at byte address 0x{start:x} "
                f"(word address 0x{pb.BANK_WORD_ADDR[bank]:x}, bank {bank})")
+
+
+@block_group.command("a2l")
+@click.option("--bank", type=click.IntRange(0, 1), required=True,
+              help="bank whose addresses the characteristics carry: 0 (sector C) or 1 (sector B)")
+@click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="A2L file to write")
+@click.option("--table-len", type=int, default=DEFAULT_TABLE_LEN, show_default=True,
+              help="table entries N the file describes (power of two, 16..1024; eol-cal table's default)")
+@handle_errors
+@io_paths(outputs=("output",))
+def a2l_cmd(bank: int, output: str, table_len: int) -> None:
+    """Write the A2L description (ASAP2 1.71) of a block in a bank for CANape/INCA.
+
+    Addresses are byte addresses (2 x word address, as in the Intel HEX files); both banks'
+    MEMORY_SEGMENTs are described. The tables' and the CRC's addresses depend on N: a block
+    with another table length needs its own file.
+    """
+    from eol_cal.atomic import atomic_write
+    from eol_cal.firmware.gen_a2l import bank_byte_address, render_a2l
+
+    text = render_a2l(bank, table_len)
+    atomic_write(Path(output), text.encode("ascii"))
+    click.echo(f"wrote {output}: bank {bank} at byte address 0x{bank_byte_address(bank):x}, table_len {table_len}")
 
 
 @block_group.command("uncompensated")

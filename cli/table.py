@@ -6,6 +6,7 @@ import click
 
 from cli.common import console, handle_errors, print_json
 from cli.paths import io_paths
+from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 
 
 def _lead(text: str) -> float | None:
@@ -24,7 +25,7 @@ def _lead(text: str) -> float | None:
 @click.argument("result", type=click.Path(dir_okay=False))
 @click.option("--serial", help="Motor to take from a result with several.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block image to write (.bin).")
-@click.option("--table-len", default=256, show_default=True, type=int, help="Table entries N (power of two, 16..1024).")
+@click.option("--table-len", default=DEFAULT_TABLE_LEN, show_default=True, type=int, help="Table entries N (power of two, 16..1024).")
 @click.option("--lead", "lead", default="auto", show_default=True,
               help="Look-up lead: 'auto' (current-loop lag at the operating speed) or seconds.")
 @click.option("--iqc-limit", type=click.FloatRange(0.0), help="Clamp of |i_qc| (A); default 10 % of the largest |i_qo| fitted.")

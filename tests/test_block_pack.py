@@ -257,15 +257,21 @@ def test_checked_in_header_is_generated_from_layout():
     path = ROOT / "firmware_params" / "eol_param_block.h"
     assert path.read_text("utf-8") == gen_header.render_header(), \
         "stale header: run python -m eol_cal.firmware.gen_header"
-    assert gen_header.main(["--check", "--out", str(path)]) == 0
+    assert gen_header.main(["--check", "--out", str(path),
+                            "--a2l-out", str(ROOT / "firmware_params" / "eol_param_block.a2l")]) == 0
 
 
 def test_header_check_detects_staleness(tmp_path):
-    out = tmp_path / "h.h"
-    assert gen_header.main(["--out", str(out)]) == 0
-    assert gen_header.main(["--check", "--out", str(out)]) == 0
+    out, a2l = tmp_path / "h.h", tmp_path / "b.a2l"
+    paths = ["--out", str(out), "--a2l-out", str(a2l)]
+    assert gen_header.main(paths) == 0
+    assert gen_header.main(["--check", *paths]) == 0
     out.write_text(out.read_text().replace("UINT32_C(100)", "UINT32_C(102)", 1))
-    assert gen_header.main(["--check", "--out", str(out)]) == 1
+    assert gen_header.main(["--check", *paths]) == 1
+    assert gen_header.main(paths) == 0
+    # the A2L is checked too: a field one byte off is stale
+    a2l.write_text(a2l.read_text().replace("VALUE 0x650028", "VALUE 0x650029", 1))
+    assert gen_header.main(["--check", *paths]) == 1
 
 
 def test_paper_fixture_is_current():

@@ -1,7 +1,8 @@
-"""Generate ``firmware_params/eol_param_block.h`` from the layout file (``layout_v1.toml``) and the
-contract's constants (:mod:`eol_cal.firmware.contract`).
+"""Generate ``firmware_params/eol_param_block.h`` (and ``eol_param_block.a2l``) from the layout file
+(``layout_v1.toml``) and the contract's constants (:mod:`eol_cal.firmware.contract`).
 
-Run ``python -m eol_cal.firmware.gen_header [--out PATH] [--check]``. A packed C struct is not
+Run ``python -m eol_cal.firmware.gen_header [--out PATH] [--a2l-out PATH] [--check]``; the A2L
+text comes from :mod:`eol_cal.firmware.gen_a2l` (bank 0, the default table length). A packed C struct is not
 portable to the C28x (16-bit char, 32-bit alignment on even words), so the header gives byte
 offsets and accessor functions over the bank image seen as 16-bit words, low byte first.
 """
@@ -17,8 +18,10 @@ import numpy as np
 from eol_cal.atomic import atomic_write
 from eol_cal.firmware import contract as C
 from eol_cal.firmware.block import LAYOUT
+from eol_cal.firmware.gen_a2l import render_a2l
 
 DEFAULT_OUT = Path("firmware_params") / "eol_param_block.h"
+DEFAULT_A2L_OUT = Path("firmware_params") / "eol_param_block.a2l"
 
 _C_TYPE = {"u8": "uint16_t", "u16": "uint16_t", "u32": "uint32_t", "f32": "float"}
 _GETTER = {"u8": "eol_pb_u8", "u16": "eol_pb_u16", "u32": "eol_pb_u32", "f32": "eol_pb_f32"}
@@ -145,17 +148,18 @@ def render_header() -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="header path (default %(default)s)")
-    parser.add_argument("--check", action="store_true", help="exit 1 when the file differs from the layout")
+    parser.add_argument("--a2l-out", type=Path, default=DEFAULT_A2L_OUT, help="A2L path (default %(default)s)")
+    parser.add_argument("--check", action="store_true", help="exit 1 when a file differs from the layout")
     args = parser.parse_args(argv)
-    text = render_header()
+    files = ((args.out, render_header()), (args.a2l_out, render_a2l()))
     if args.check:
-        current = args.out.read_text("utf-8") if args.out.exists() else None
-        if current != text:
-            print(f"{args.out} is stale: run python -m eol_cal.firmware.gen_header", file=sys.stderr)
-            return 1
-        return 0
-    atomic_write(args.out, text.encode("utf-8"))
-    print(f"wrote {args.out}")
+        stale = [path for path, text in files if (path.read_text("utf-8") if path.exists() else None) != text]
+        for path in stale:
+            print(f"{path} is stale: run python -m eol_cal.firmware.gen_header", file=sys.stderr)
+        return 1 if stale else 0
+    for path, text in files:
+        atomic_write(path, text.encode("utf-8"))
+        print(f"wrote {path}")
     return 0
 
 

@@ -19,6 +19,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from eol_cal.errors import CheckFailed, InputError
+from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 from eol_cal.motor import MotorParams
 
 if TYPE_CHECKING:
@@ -53,7 +54,7 @@ def block_from_result(
     res: MotorResult,
     motor: MotorParams,
     *,
-    table_len: int = 256,
+    table_len: int = DEFAULT_TABLE_LEN,
     lead_s: float | None = None,
     iqc_limit: float | None = None,
     calibrated_at: int | None = None,
