@@ -54,7 +54,17 @@ def verdict_panel(serial: str, verdict: str, lines: list[str]):
 
 
 def _ask(prompt: str) -> str | None:
-    """One line from the operator (a scanner types the code and Enter); None at end of input."""
+    """One line from the operator (a scanner types the code and Enter); None at end of input.
+
+    On a terminal, what was typed before the prompt is dropped first: a code scanned while the
+    previous motor ran (that motor is not on the dyno yet), or the second half of a scanner's
+    CR LF, which would otherwise read as an empty line and end the session.
+    """
+    import sys
+    import termios
+
+    if sys.stdin.isatty():
+        termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
     try:
         return input(prompt)
     except EOFError:
