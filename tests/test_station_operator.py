@@ -189,3 +189,20 @@ def test_end_of_input_at_the_operator_prompt_runs_nothing(tmp_path, terminal):
     t.expect(r"no operator: the session ends", 10)
     assert t.exit_code() == 0
     assert not (tmp_path / "s" / "results.sqlite").exists()
+
+
+@pytest.mark.parametrize("line, reason", [("", "empty"), ("M 1", "' ' not allowed"), ("M-1\x1b", "'\\x1b'"),
+                                          ("Mé1", "'é' not allowed"), ("A" * 17, "17 characters")])
+def test_a_scanned_line_that_is_no_serial_is_refused_with_the_reason(line, reason):
+    from eol_cal.errors import InputError
+    from eol_cal.station.session import scanned_serial
+
+    with pytest.raises(InputError) as info:
+        scanned_serial(line)
+    assert info.value.field == "serial" and reason in info.value.reason
+    assert scanned_serial(" \tM-0001.a_B \r\n") == "M-0001.a_B"
+
+
+def test_demo_serials_name_the_demo_motors():
+    assert demo_seed("DEMO-0003") == 3 and demo_seed("M-17") == 17
+    assert demo_seed("ABC") == demo_seed("ABC") != demo_seed("ABD")

@@ -94,3 +94,20 @@ def test_run_without_a_file_takes_the_variables(tmp_path):
     res = CliRunner().invoke(cli, ["run", "--serial", "S-1"], env=env)
     assert res.exit_code == 2 and "field 'db': required: give --db" in res.output and "EOL_CAL_DB" in res.output, res.output
     assert path.is_file() and not (tmp_path / "r.sqlite").exists()
+
+
+def test_the_operator_loop_on_a_settings_file(tmp_path):
+    # the real station's path of `eol-cal station`: the dyno and the ECU from the file (here the
+    # loopback station's), the operator asked, one motor, q; the lot page where --lot says
+    station_dir = tmp_path / "station"
+    station_dir.mkdir()
+    with loopback_station("S-8", 8, tmp_path / "sim", source=synthetic_source) as st:
+        path = _station_file(station_dir, st.dyno_address, st.can_channel)
+        res = CliRunner().invoke(cli, ["station", "--station", str(path), "--limits", str(station_dir / "limits.toml"),
+                                       "--lot", str(tmp_path / "lot.html")],
+                                 input="  eve \nS-8\nq\n", env=_env())
+    assert res.exit_code == 0, res.output
+    assert "Operator: " in res.output and "S-8: " in res.output and "session: 1 motor(s)" in res.output
+    assert (tmp_path / "lot.html").is_file()
+    with sqlite3.connect(station_dir / "records.sqlite") as con:
+        assert con.execute("SELECT serial, station, operator FROM runs").fetchall() == [("S-8", "L3-EOL-02", "eve")]

@@ -33,7 +33,9 @@ def scanned_serial(text: str) -> str:
     serial = text.strip()
     if SERIAL_RE.fullmatch(serial):
         return serial
-    if len(serial) > 16:
+    if not serial:
+        why = "empty"
+    elif len(serial) > 16:
         why = f"{len(serial)} characters, at most 16"
     else:
         bad = next(ch for ch in serial if not SERIAL_RE.fullmatch(ch))
