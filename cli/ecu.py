@@ -143,7 +143,7 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
 
 @click.group("ecu")
 def ecu_group() -> None:
-    """Talk to the ECU: identification and read-back (no security access needed)."""
+    """Talk to the ECU: identification, read-back, and restoring an earlier calibration."""
 
 
 @ecu_group.command("info")
@@ -183,24 +183,109 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 @ecu_group.command("read-block")
 @_bus_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (raw).")
+@click.option("--bank", default=None, metavar="0|1|previous", help="Read this bank instead of the active one.")
 @handle_errors
 @io_paths(inputs=("can_config",), outputs=("output",))
 def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
-                   output: str) -> None:
-    """Read the active block back from the ECU into a file (written atomically)."""
+                   output: str, bank: str | None) -> None:
+    """Read the active block (or a bank's) back from the ECU into a file (written atomically)."""
     from eol_cal.atomic import atomic_write
     from eol_cal.ecu.client import read_active_block
+    from eol_cal.ecu.restore import read_bank_block
+    from eol_cal.firmware.block import check
 
+    which = _bank_choice(bank)
     bus = _open_bus(interface, channel, bitrate, can_config)
     try:
-        data = read_active_block(bus)
+        data = read_active_block(bus) if which is None else read_bank_block(bus, which).data
     finally:
         bus.shutdown()
+    if which is not None and not check(data).valid:
+        err_console.print(f"warning: bank {bank}'s block is not valid: {'; '.join(check(data).reasons)}")
     try:
         atomic_write(output, data)
     except OSError as exc:
         raise InputError(output, None, f"cannot write: {exc}") from exc
     click.echo(f"wrote {len(data)} bytes to {output}")
+
+
+def _bank_choice(value: str | None) -> int | str | None:
+    from eol_cal.ecu.restore import PREVIOUS
+
+    if value is None or value == PREVIOUS:
+        return value
+    if value not in ("0", "1"):
+        raise InputError(None, "bank", f"{value!r}: 0, 1 or {PREVIOUS}")
+    return int(value)
+
+
+@ecu_group.command("restore")
+@click.option("--bank", default=None, metavar="0|1|previous",
+              help="Restore the block in this bank; previous: the bank that is not active.")
+@click.option("--from", "from_file", type=click.Path(dir_okay=False), default=None,
+              help="Restore this block file instead (a run directory's block.bin, raw or Intel HEX).")
+@_bus_options
+@click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
+@click.option("--key-algo", metavar="MODULE:FUNC",
+              help="Other seed-to-key algorithm: FUNC(seed: bytes, secret: bytes|None) -> key bytes.")
+@click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None,
+              help="Write the block read from the bank here before flashing (written atomically).")
+@click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
+              help="Motor TOML overriding the paper preset: its current rating bounds the block.")
+@click.option("--json", "as_json", is_flag=True, help="Print the flash report as JSON.")
+@handle_errors
+@io_paths(inputs=("from_file", "key_file", "can_config", "motor_file"), outputs=("save_file",))
+def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, channel: str | None,
+                bitrate: int | None, can_config: str | None, key_file: str | None, key_algo: str | None,
+                save_file: str | None, motor_file: str | None, as_json: bool) -> None:
+    """Make an earlier calibration active again: flash it anew with a higher sequence.
+
+    The block comes from a bank of the ECU (--bank 0|1|previous; checked: valid, CRC and physical
+    sanity) or from a file (--from). It is written like `eol-cal flash` writes: into the inactive
+    bank, read back, checked, confirmed after the reset. Restoring the previous bank rewrites
+    that very bank: if the flash fails, the active block stays active and that bank is erased
+    (keep a copy with --save). Exit 0 restored (or already active), 1 verification failed,
+    2 refused or error.
+    """
+    from eol_cal.atomic import atomic_write
+    from eol_cal.ecu.restore import read_bank_block, restore_block
+    from eol_cal.firmware.block import read_block_file
+    from eol_cal.motor import load_motor
+
+    if (bank is None) == (from_file is None):
+        raise InputError(None, "bank", "give either --bank 0|1|previous or --from FILE")
+    which = _bank_choice(bank)
+    motor = load_motor("paper", motor_file)
+    seed_to_key = _seed_to_key(key_file, key_algo)
+    if from_file is not None:
+        data, source = read_block_file(from_file), from_file
+    else:
+        bus = _open_bus(interface, channel, bitrate, can_config)
+        try:
+            got = read_bank_block(bus, which)
+        finally:
+            bus.shutdown()  # a UDS session closes its link with it: the flash opens its own
+        data, source = got.data, got.source
+        if got.is_active:
+            click.echo(f"bank {got.bank} is the active block already (sequence {got.active.sequence}): nothing to do")
+            return
+        if save_file is not None:
+            try:
+                atomic_write(save_file, data)
+            except OSError as exc:
+                raise InputError(save_file, None, f"cannot write: {exc}") from exc
+    bus = _open_bus(interface, channel, bitrate, can_config)
+    try:
+        report = restore_block(bus, data, source, seed_to_key=seed_to_key, motor=motor,
+                               progress=None if as_json else lambda s: err_console.print(f"  {s}", style="dim"))
+    finally:
+        bus.shutdown()
+    if as_json:
+        print_json(dict(report.to_dict(), restored_from=source))
+        return
+    prev = f"bank {report.previous.bank} seq {report.previous.sequence}" if report.previous.has_bank else "none"
+    click.echo(f"restored {source} into bank {report.bank}: active now, seq {report.sequence} crc {report.crc32:08x} "
+               f"({'verified' if report.verified else 'NOT read back'}); active before: {prev}")
 
 
 @click.command("ecu-sim")

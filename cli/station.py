@@ -123,20 +123,73 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
         err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db}: {res.error}[/yellow]")
 
 
+#: each `run` option's settings key (eol_cal.station.settings.KEYS); an option given on the command
+#: line overrides the settings file and the environment
+OPTION_KEYS = {
+    "address": "dyno.address", "interface": "can.interface", "channel": "can.channel", "bitrate": "can.bitrate",
+    "can_config": "can.config", "limits_file": "limits", "variant": "variant", "db": "db", "profile": "profile",
+    "verify": "verify", "key_file": "key_file", "report_dir": "report_dir", "spool_dir": "spool_dir",
+    "db_timeout": "db_timeout_s", "rate_hz": "rate_hz", "dyno_timeout": "dyno.timeout_s", "motor_file": "motor",
+    "bench_name": "bench", "station_id": "station_id",
+}
+#: what `run` without --station needs, by option, for its one-line refusal
+REQUIRED_OPTIONS = {"address": "--dyno HOST:PORT", "limits_file": "--limits FILE", "db": "--db PATH|URL",
+                    "key_file": "--key-file FILE"}
+
+
+def given_options(ctx: click.Context, values: dict, keys: dict[str, str]) -> dict[str, object]:
+    """The options typed on the command line, by settings key (defaults and unset ones left out)."""
+    from click.core import ParameterSource
+
+    out: dict[str, object] = {}
+    for name, key in keys.items():
+        value = values.get(name)
+        if value is None or ctx.get_parameter_source(name) is not ParameterSource.COMMANDLINE:
+            continue
+        out[key] = value if isinstance(value, (int, float)) else str(value)
+    return out
+
+
+def load_station(ctx: click.Context, station_file: str | None, values: dict, keys: dict[str, str]):
+    """The checked settings: the file (``--station``), the environment, and the options given (highest)."""
+    import os
+
+    from eol_cal.errors import InputError
+    from eol_cal.station.settings import env_name, load_settings
+
+    given = given_options(ctx, values, keys)
+    if station_file is None:
+        # without a settings file, `run` needs its options (or their variables) as it always did
+        for name, option in REQUIRED_OPTIONS.items():
+            key = keys[name]
+            if key not in given and not os.environ.get(env_name(key)):
+                raise InputError(None, option.split()[0][2:], f"required: give {option} (or set ${env_name(key)}), "
+                                                              "or a settings file with --station")
+    if "dyno.address" in given:
+        from eol_cal.dyno.client import parse_address
+
+        parse_address(str(given["dyno.address"]))  # the option says HOST:PORT; the file may leave out the port
+    return load_settings(station_file, given=given, optional=() if station_file else ("station_id",))
+
+
 @click.command("run")
-@click.option("--dyno", "address", required=True, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--station", "station_file", type=click.Path(dir_okay=False), default=None,
+              help="Station settings TOML (docs/station.md, First real station); options given here override it.")
+@click.option("--dyno", "address", default=None, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
 @click.option("--interface", "-i", default=None, help="python-can interface of the ECU's bus (socketcan, pcan, vector, remote...).")
 @click.option("--channel", "-c", default=None, help="python-can channel (can0, PCAN_USBBUS1, ws://127.0.0.1:54701/...).")
 @click.option("--bitrate", type=int, default=None, help="CAN bit rate (bit/s).")
 @click.option("--can-config", type=click.Path(dir_okay=False), help="python-can configuration file; options given here win.")
-@click.option("--limits", "limits_file", required=True, type=click.Path(dir_okay=False), help="Limits TOML ([variant.NAME] tables).")
+@click.option("--limits", "limits_file", default=None, type=click.Path(dir_okay=False), help="Limits TOML ([variant.NAME] tables).")
 @click.option("--variant", default=None, help="Product variant in the limits file (default: its default_variant or only one).")
-@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file (WAL) or postgresql://user@host:port/db.")
+@click.option("--db", default=None, type=RECORDS_DB, help="Records database: a SQLite file (WAL) or postgresql://user@host:port/db.")
 @click.option("--serial", required=True, help="Serial of the motor on the dyno (1-16 ASCII characters).")
+@click.option("--station-id", default=None, help="Station id for the record (settings key station_id).")
+@click.option("--operator", default=None, help="Operator for the record.")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile or a TOML profile file.")
 @click.option("--verify", type=click.Choice(["point", "full"]), default="point", show_default=True,
               help="Compensated acquisition: the profile's segments at the operating point (both directions), or the full profile.")
-@click.option("--key-file", type=click.Path(dir_okay=False), envvar="EOL_CAL_KEY_FILE",
+@click.option("--key-file", type=click.Path(dir_okay=False),
               help="ECU security secret, 16 bytes hex (or $EOL_CAL_KEY_FILE).")
 @click.option("--report-dir", default="reports", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Each run gets a directory here: captures, fit, block, plots, report.html/json.")
@@ -150,49 +203,28 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 @click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
               help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
+@click.pass_context
 @handle_errors
-@io_paths(inputs=("can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",), output_dirs=("report_dir", "spool_dir"))
-def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, verify, key_file,
-            report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, motor_file, bench_name, as_json) -> None:
+@io_paths(inputs=("station_file", "can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",),
+          output_dirs=("report_dir", "spool_dir"))
+def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
 
-    Exit 0 pass, 1 fail (limits), 2 error (the dyno is left stopped and disabled; the record is
-    written all the same). When the database cannot be written the record goes to the spool and
-    the next run (or `eol-cal records --flush`) writes it in.
+    Settings come from the options, else their environment variables (EOL_CAL_DYNO_ADDRESS,
+    EOL_CAL_LIMITS, ...), else the --station file. Exit 0 pass, 1 fail (limits), 2 error (the
+    dyno is left stopped and disabled; the record is written all the same). When the database
+    cannot be written the record goes to the spool and the next run (or `eol-cal records
+    --flush`) writes it in.
     """
-    from cli.ecu import _seed_to_key
     from eol_cal.analysis.fit.cache import default_cache_dir
-    from eol_cal.mechanics import mechanics_or_rigid
-    from eol_cal.dyno.client import DynoConfig, parse_address
-    from eol_cal.ecu.transport import open_bus
-    from eol_cal.errors import InputError
-    from eol_cal.motor import load_motor
-    from eol_cal.plant.profile import load_profile
-    from eol_cal.station.limits import load_limits
+    from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor
-    from eol_cal.station.run import StationConfig
 
-    host, port = parse_address(address)
-    limits = load_limits(limits_file, variant)
-    load_profile(profile)  # refuse a bad profile, motor or bench before anything moves
-    motor = load_motor("paper", motor_file)
-    mechanics = mechanics_or_rigid(bench_name)
-    if key_file is None:
-        raise InputError(None, "key-file", "the flash step needs the ECU's secret: give --key-file (16 bytes, hex) or set EOL_CAL_KEY_FILE")
-    seed_to_key = _seed_to_key(key_file, None)
-    if interface is None and can_config is None:
-        raise InputError(None, "interface", "no CAN interface given (--interface or --can-config)")
+    settings = load_station(ctx, station_file, options, OPTION_KEYS)
+    # switched on by the helper thread: importing JAX costs a second
+    cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
     _quiet_logs()
-    _flush_first(db, spool_dir, db_timeout)
-    cfg = StationConfig(
-        serial=serial, dyno=DynoConfig(host=host, port=port, timeout=dyno_timeout),
-        open_bus=lambda: open_bus(interface, channel, bitrate, can_config), seed_to_key=seed_to_key, limits=limits,
-        db=db, report_dir=report_dir, profile=profile, verify=verify, spool_dir=spool_dir, rate_hz=rate_hz,
-        db_timeout_s=db_timeout,
-        station={"dyno": address, "can": {"interface": interface, "channel": channel, "bitrate": bitrate}},
-        cache_dir=default_cache_dir(),  # switched on by the helper thread: importing JAX costs a second
-        motor=motor, mechanics=mechanics,
-    )
+    _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:
             out = run_motor(cfg, progress)

@@ -88,15 +88,22 @@ class EcuInfo:
         return d
 
 
-def _read_active_block(s: UdsSession, active: P.ActiveBlock) -> bytes:
-    base = B.BANK_WORD_ADDR[active.bank]
-    head = s.read_memory(base, B.HEADER_BYTES, "read active block (23)")
+def read_bank(s: UdsSession, bank: int, step: str) -> bytes:
+    """The block in ``bank`` (ReadMemoryByAddress): its header, then as many bytes as the header's
+    ``table_len`` says; only the header when that is not a table length (an erased bank)."""
+    base = B.BANK_WORD_ADDR[bank]
+    head = s.read_memory(base, B.HEADER_BYTES, step)
     table_len = int.from_bytes(head[B.field_offset("table_len"):B.field_offset("table_len") + 2], "little")
     if not B.table_len_ok(table_len):
-        raise EcuError("read active block (23)", f"bank {active.bank} header has table_len {table_len}")
-    size = B.block_bytes(table_len)
-    rest = s.read_memory(base + B.HEADER_BYTES // P.WORD_BYTES, size - B.HEADER_BYTES, "read active block (23)")
-    return head + rest
+        return head
+    return head + s.read_memory(base + B.HEADER_BYTES // P.WORD_BYTES, B.block_bytes(table_len) - B.HEADER_BYTES, step)
+
+
+def _read_active_block(s: UdsSession, active: P.ActiveBlock) -> bytes:
+    data = read_bank(s, active.bank, "read active block (23)")
+    if len(data) == B.HEADER_BYTES:
+        raise EcuError("read active block (23)", f"bank {active.bank} header: " + "; ".join(B.check(data).reasons))
+    return data
 
 
 def ecu_info(bus: can.BusABC, *, read_block: bool = True, timing: ClientTiming = ClientTiming()) -> EcuInfo:

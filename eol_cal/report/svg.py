@@ -85,6 +85,8 @@ def _group_end(text: str, start: int) -> int:
                 return m.end()
         elif not m.group(0).endswith("/>"):
             depth += 1
+        elif depth == 0:  # the group itself is empty (<g id=".."/>: a scatter without points)
+            return m.end()
     return len(text)
 
 

@@ -20,7 +20,8 @@ never a half-run cycle. The file's keys (docs/station.md, "First real station"):
 
 Environment variables override the file key by key: ``EOL_CAL_`` + the key's dotted path in
 capitals with ``_`` for the dot (``EOL_CAL_DYNO_ADDRESS``, ``EOL_CAL_CAN_CHANNEL``), so that a
-line's deployment can set what differs per station without editing the file.
+line's deployment can set what differs per station without editing the file. An empty variable
+counts as unset. The caller's own values (a command's options) override both, key by key.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import Callable, Collection, Mapping
 
 import can
 
@@ -40,6 +41,9 @@ from eol_cal.inputs import load_toml
 MODBUS_PORT = 502
 
 ENV_PREFIX = "EOL_CAL_"
+
+#: where a value given by the caller (a command's option) is said to come from
+COMMAND_LINE = "command line"
 
 
 def env_name(key: str) -> str:
@@ -114,8 +118,9 @@ class StationSettings:
         return self.values[name]
 
     def where(self, name: str) -> str:
-        """The file, or ``$VARIABLE``, that a key's value came from (for error messages)."""
-        return f"${env_name(name)}" if self.origin.get(name) == "env" else self.source
+        """The file, ``$VARIABLE`` or ``command line`` that a key's value came from (for error messages)."""
+        origin = self.origin.get(name)
+        return f"${env_name(name)}" if origin == "env" else COMMAND_LINE if origin == "given" else self.source
 
     def path(self, name: str) -> Path | None:
         """A path-valued key as a :class:`~pathlib.Path` (``None`` when unset)."""
@@ -174,20 +179,42 @@ def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
         raise InputError(where, "dyno.address", exc.reason) from exc
 
 
+def _resolve(key: Key, value: object, base: Path) -> object:
+    """A path-valued key relative to ``base``; so is a database that is a file, not a URL."""
+    if key.is_path or (key.name == "db" and "://" not in str(value)):
+        return str((base / str(value)).resolve())
+    return value
+
+
 def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = None,
-                  validators: Mapping[str, Callable[[StationSettings], None]] | None = None) -> StationSettings:
+                  validators: Mapping[str, Callable[[StationSettings], None]] | None = None, *,
+                  given: Mapping[str, object] | None = None, fallbacks: Mapping[str, object] | None = None,
+                  optional: Collection[str] = ()) -> StationSettings:
     """Read, merge and check a station's settings.
+
+    Each key's value comes from, highest first: ``given``, the environment, the file,
+    ``fallbacks``, the key's default.
 
     Parameters
     ----------
     path : path or None
-        The station's TOML file; ``None``: every required key must come from the environment.
+        The station's TOML file; ``None``: every required key must come from the environment
+        (or ``given``).
     environ : mapping, optional
         The environment (default ``os.environ``); ``EOL_CAL_*`` variables override file keys.
     validators : mapping, optional
         Further checks by name, each called with the merged settings and raising
         :class:`~eol_cal.errors.InputError` (the station module adds the ones that load the
         limits, the profile, the motor and the key, so that they run before the dyno moves).
+    given : mapping, optional
+        Values the caller was given explicitly (a command's options), by dotted key; relative
+        paths are relative to the working directory. Checked like the file's.
+    fallbacks : mapping, optional
+        Values the caller uses where neither the file nor the environment sets a key (the
+        demo's limits and database); relative paths are relative to the working directory.
+    optional : collection of str
+        Required keys the caller supplies itself when unset (the demo's dyno, bus and key);
+        they stay ``None``.
 
     Returns
     -------
@@ -200,44 +227,50 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
         of range, a missing required key or a missing file; the file and the key are named.
     """
     environ = os.environ if environ is None else environ
+    given, fallbacks = dict(given or {}), dict(fallbacks or {})
     source = str(path) if path is not None else "environment"
     base = Path(path).resolve().parent if path is not None else Path.cwd()
     file_values = _flatten(_read_toml(Path(path))) if path is not None else {}
     known = {k.name: k for k in KEYS}
-    for name in file_values:
+    for name in [*file_values, *given, *fallbacks]:
         if name not in known:
-            raise InputError(source, name, f"unknown key (known: {', '.join(sorted(known))})")
+            where = source if name in file_values else COMMAND_LINE
+            raise InputError(where, name, f"unknown key (known: {', '.join(sorted(known))})")
     values: dict[str, object] = {}
     origin: dict[str, str] = {}
     for key in KEYS:
-        if key.env in environ:
+        root = base
+        if given.get(key.name) is not None:
+            value, where, origin[key.name], root = given[key.name], COMMAND_LINE, "given", Path.cwd()
+        elif environ.get(key.env, "") != "":  # an empty variable is an unset one
             value, where, origin[key.name] = _from_env(key, environ[key.env], f"${key.env}"), f"${key.env}", "env"
+            root = Path.cwd()
         elif key.name in file_values:
             value, where, origin[key.name] = file_values[key.name], source, "file"
-        elif key.required:
+        elif fallbacks.get(key.name) is not None:
+            value, where, origin[key.name], root = fallbacks[key.name], COMMAND_LINE, "default", Path.cwd()
+        elif key.required and key.name not in optional:
             raise InputError(source, key.name, f"required (in the file or as ${key.env})")
         else:
             values[key.name], origin[key.name] = key.default, "default"
             if key.is_path and key.default is not None:
                 values[key.name] = str(base / str(key.default))
             continue
-        value = _check_value(key, value, where)
-        if key.is_path:
-            value = str((base / str(value)).resolve())
-        values[key.name] = value
+        values[key.name] = _resolve(key, _check_value(key, value, where), root)
     settings = StationSettings(source, values, origin, "", 0)
     for name in ("limits", "key_file", "can.config"):
         p = values[name]
         if p is not None and not Path(str(p)).is_file():
             raise InputError(settings.where(name), name, f"no such file: {p}")
-    if values["can.interface"] is None and values["can.config"] is None:
+    if values["can.interface"] is None and values["can.config"] is None and "can.interface" not in optional:
         raise InputError(source, "can.interface", "no CAN interface: set can.interface (and can.channel) or can.config")
     interface = values["can.interface"]
     # udp_multicast sends frames out through the network card: never a station's ECU bus
     if interface is not None and (interface not in can.interfaces.VALID_INTERFACES or interface == "udp_multicast"):
         raise InputError(settings.where("can.interface"), "can.interface",
                          f"{interface!r} is not a python-can interface this tool drives")
-    host, port = parse_dyno_address(str(values["dyno.address"]), settings.where("dyno.address"))
+    host, port = ("", 0) if values["dyno.address"] is None else \
+        parse_dyno_address(str(values["dyno.address"]), settings.where("dyno.address"))
     settings = StationSettings(source, values, origin, host, port)
     for name, check in (validators or {}).items():
         check(settings)
@@ -274,4 +307,5 @@ def check_station(settings: StationSettings) -> None:
     motor = str(settings["motor"])
     _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
     _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
-    _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
+    if settings["key_file"] is not None:  # None: the caller has its own key (the demo's)
+        _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))

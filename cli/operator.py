@@ -1,0 +1,273 @@
+"""``eol-cal station``: the operator loop (scan a serial, run the cycle, show the verdict, next motor)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from cli.common import RECORDS_DB, CommandExit, console, err_console, handle_errors
+from cli.paths import io_paths
+from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
+
+#: `station` options by settings key (as `run`'s); given ones override the file and the environment
+STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
+                       "station_id": "station_id"}
+#: keys the demo fills itself (the simulators' dyno and bus, the contract's development key)
+DEMO_OWN_KEYS = ("dyno.address", "key_file", "can.interface")
+DEMO_STATION_ID = "DEMO"
+COLOUR = {"pass": "green", "fail": "yellow", "error": "red"}
+END_WORDS = ("", "q", "quit")
+
+# 5-row block letters for the verdict, readable from across the station
+_FONT = {
+    "P": ["████ ", "█   █", "████ ", "█    ", "█    "],
+    "A": [" ███ ", "█   █", "█████", "█   █", "█   █"],
+    "S": [" ████", "█    ", " ███ ", "    █", "████ "],
+    "F": ["█████", "█    ", "████ ", "█    ", "█    "],
+    "I": ["█████", "  █  ", "  █  ", "  █  ", "█████"],
+    "L": ["█    ", "█    ", "█    ", "█    ", "█████"],
+    "E": ["█████", "█    ", "████ ", "█    ", "█████"],
+    "R": ["████ ", "█   █", "████ ", "█  █ ", "█   █"],
+    "O": [" ███ ", "█   █", "█   █", "█   █", " ███ "],
+}
+
+
+def big_word(word: str) -> str:
+    """``word`` (letters of PASS, FAIL, ERROR) in 5-row block letters."""
+    return "\n".join("  ".join(_FONT[ch][row] for ch in word) for row in range(5))
+
+
+def verdict_panel(serial: str, verdict: str, lines: list[str]):
+    """The large verdict of one motor, with its reasons and where its report is."""
+    from rich.align import Align
+    from rich.console import Group
+    from rich.panel import Panel
+    from rich.text import Text
+
+    colour = COLOUR.get(verdict, "white")
+    # centred as one block: centring each row alone would shift the letters' rows apart
+    body = [Align.center(Text(big_word(verdict.upper()), style=f"bold {colour}", no_wrap=True)), Text("")]
+    body += [Text(line) for line in lines]
+    return Panel(Group(*body), title=f"{serial}: {verdict.upper()}", border_style=colour, expand=True)
+
+
+def _ask(prompt: str) -> str | None:
+    """One line from the operator (a scanner types the code and Enter); None at end of input.
+
+    On a terminal, what was typed before the prompt is dropped first: a code scanned while the
+    previous motor ran (that motor is not on the dyno yet), or the second half of a scanner's
+    CR LF, which would otherwise read as an empty line and end the session.
+    """
+    import sys
+    import termios
+
+    if sys.stdin.isatty():
+        termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
+    try:
+        return input(prompt)
+    except EOFError:
+        return None
+
+
+def _ask_operator() -> str | None:
+    from eol_cal.errors import InputError
+    from eol_cal.station.session import operator_name
+
+    while True:
+        line = _ask("Operator: ")
+        if line is None or not line.strip():
+            return None
+        try:
+            return operator_name(line)
+        except InputError as exc:
+            console.print(f"[red]{exc}[/red]; type your name again")
+
+
+def _next_serial() -> str | None:
+    """The next motor's serial, re-asked until it is one; None ends the session."""
+    from eol_cal.errors import InputError
+    from eol_cal.station.session import scanned_serial
+
+    while True:
+        line = _ask("Scan serial (Enter or q ends the session): ")
+        if line is None or line.strip().lower() in END_WORDS:
+            return None
+        try:
+            return scanned_serial(line)
+        except InputError as exc:
+            console.print(f"[red]not a serial: {exc.reason}[/red]; scan again")
+
+
+def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir: Path | None, options: dict):
+    """The session's settings: file, environment, options; the demo's own where it runs on simulators."""
+    from eol_cal.station.settings import load_settings
+
+    given = given_options(ctx, options, STATION_OPTION_KEYS)
+    if not demo:
+        return load_settings(station_file, given=given)
+    limits = out_dir / "limits.toml"
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        limits.write_text(DEMO_LIMITS, encoding="utf-8")
+    except OSError as exc:
+        from eol_cal.errors import InputError
+
+        raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
+    # simulated motors never go into a station's database: records and reports stay in the demo's
+    # directory unless given, and the station's EOL_CAL_* variables are not read
+    given = {"db": str(out_dir / "results.sqlite"), "report_dir": str(out_dir / "reports"),
+             "spool_dir": str(out_dir / "spool"), **given}
+    return load_settings(station_file, environ={}, given=given, optional=DEMO_OWN_KEYS,
+                         fallbacks={"limits": str(limits), "station_id": DEMO_STATION_ID})
+
+
+def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
+    """The cycle of one motor (on its own loopback simulators in the demo)."""
+    from eol_cal.station.configure import for_motor
+    from eol_cal.station.cycle import run_motor
+
+    station = dict(cfg.station, operator=operator)
+    if demo_dir is None:
+        with _StepProgress(serial) as progress:
+            return run_motor(for_motor(cfg, serial, station=station), progress)
+    from eol_cal.dyno.client import DynoConfig, parse_address
+    from eol_cal.station.demo import loopback_station
+    from eol_cal.station.session import demo_seed
+
+    with loopback_station(serial, demo_seed(serial), demo_dir / "sim") as st:
+        host, port = parse_address(st.dyno_address)
+        station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
+        mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port), open_bus=st.open_bus, station=station)
+        with _StepProgress(serial) as progress:
+            return run_motor(mcfg, progress)
+
+
+def _show(out) -> None:
+    rec = out.record
+    lines = [f"{rec['verdict']}: {r}" for r in rec["reasons"]]
+    if rec.get("safe_state"):
+        lines.append(f"dyno safe state: {rec['safe_state']}")
+    if (rec.get("ecu_active") or {}).get("block") == "uncompensated":
+        lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
+    lines.append(f"report: {out.report_html}" if out.report_html else "report: none (see the record)")
+    where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
+    lines.append(f"record {rec['run_id']} -> {where}")
+    console.print(verdict_panel(rec["serial"], rec["verdict"], lines))
+
+
+def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
+    """Motors until the operator ends the session; True when a motor was interrupted."""
+    while True:
+        try:
+            serial = _next_serial()
+        except KeyboardInterrupt:
+            console.print("\nCtrl-C between motors: the session ends")
+            return False
+        if serial is None:
+            return False
+        try:
+            out = _run_one(cfg, serial, operator, demo_dir)
+        except KeyboardInterrupt:
+            # the cycle has commanded the dyno's safe state and recorded the run as an error
+            tally.interrupted.append(serial)
+            console.print(verdict_panel(serial, "error", [
+                "interrupted: the dyno was sent to its safe state and the run recorded as an error",
+                f"report: under {cfg.report_dir}"]))
+            return True
+        tally.add(out.record, str(out.report_html) if out.report_html else None)
+        try:
+            _show(out)
+        except KeyboardInterrupt:
+            return False
+
+
+def _finish(cfg, tally, lot_file: Path | None) -> None:
+    """The session's summary, the per-motor reports, and the lot page."""
+    from eol_cal.report.lot import select_records, write_lot_page
+    from eol_cal.station.records import db_label, query_records
+
+    station_id = cfg.station.get("id")
+    if tally.records:
+        console.print(_results_table(tally.records, f"eol-cal station {station_id}: this session"))
+    console.print(f"session: {tally.summary()}")
+    for rec, report in zip(tally.records, tally.reports):
+        console.print(f"  {rec['serial']}: {rec['verdict']}, report {report or '-'}")
+    for serial in tally.interrupted:
+        console.print(f"  {serial}: interrupted (error), its run directory is under {cfg.report_dir}")
+    hint = f"eol-cal lot report --db {cfg.db} --station {station_id} -o lot.html"
+    if lot_file is None or not (tally.records or tally.interrupted):
+        console.print(f"lot page: {hint}")
+        return
+    records = select_records(query_records(cfg.db), station=station_id)
+    page = write_lot_page(records, lot_file, title=f"{db_label(cfg.db)}, station {station_id}",
+                          filters={"variant": None, "since": None, "until": None, "station": station_id})
+    console.print(f"lot page: {page} ({len(records)} runs of station {station_id}; again: {hint})")
+
+
+@click.command("station")
+@click.option("--station", "station_file", type=click.Path(dir_okay=False), default=None,
+              help="Station settings TOML (docs/station.md, First real station) [default: the EOL_CAL_* variables].")
+@click.option("--demo", is_flag=True, help="Loopback ECU and dyno simulators per motor; the scanned serial is the motor.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Demo: directory for limits, database, reports, flash images [default: a new temporary directory].")
+@click.option("--operator", default=None, help="Operator for the records [default: asked at the start].")
+@click.option("--station-id", default=None, help="Station id for the records (settings key station_id).")
+@click.option("--limits", "limits_file", default=None, type=click.Path(dir_okay=False), help="Limits TOML (overrides the settings).")
+@click.option("--variant", default=None, help="Product variant in the limits file (overrides the settings).")
+@click.option("--db", default=None, type=RECORDS_DB, help="Records database (overrides the settings; demo: OUT/results.sqlite).")
+@click.option("--report-dir", default=None, type=click.Path(file_okay=False, path_type=Path), help="Reports (overrides the settings).")
+@click.option("--lot", "lot_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Write the station's lot page here at the end [demo default: OUT/lot.html].")
+@click.pass_context
+@handle_errors
+@io_paths(inputs=("station_file", "limits_file"), outputs=("db", "lot_file"), output_dirs=("out_dir", "report_dir"))
+def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options: Any) -> None:
+    """The operator loop: scan a motor's serial, run the cycle, read the verdict, next motor.
+
+    Every setting is checked before the first motor. An empty line, q or end of input ends the
+    session (exit 0), as does Ctrl-C between motors; Ctrl-C during a motor leaves the dyno in its
+    safe state, records the run as an error and ends the session with exit 2. At the end: the
+    session's summary, each motor's report, and the station's lot page.
+    """
+    import tempfile
+
+    from cli.fit import enable_jax_cache
+    from eol_cal.ecu import protocol as P
+    from eol_cal.ecu.client import hmac_seed_to_key
+    from eol_cal.station.configure import station_config
+    from eol_cal.station.session import SessionTally, operator_name
+
+    if demo and out_dir is None:
+        out_dir = Path(tempfile.mkdtemp(prefix="eol-cal-station-"))
+    settings = _settings(ctx, station_file, demo, out_dir, options)
+    cfg = station_config(settings, cache_dir=enable_jax_cache(),
+                         seed_to_key=hmac_seed_to_key(P.DEV_SECRET) if demo else None)
+    if demo and lot_file is None:
+        lot_file = out_dir / "lot.html"
+    _quiet_logs()
+    what = f"demo in {out_dir} (simulated ECU and dyno per motor)" if demo else f"settings {settings.source}"
+    console.print(f"eol-cal station {cfg.station['id']}: {what}\n  limits {cfg.limits.source} ({cfg.limits.variant}), "
+                  f"records {cfg.db}, reports {cfg.report_dir}")
+    try:
+        operator = operator_name(operator) if operator is not None else _ask_operator()
+    except KeyboardInterrupt:
+        operator = None
+    if operator is None:
+        console.print("no operator: the session ends")
+        return
+    if not demo:
+        _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    err_console.print(f"operator {operator}; each motor takes about a quarter of a minute")
+    tally = SessionTally()
+    interrupted = False
+    try:
+        interrupted = _loop(cfg, operator, out_dir if demo else None, tally)
+    finally:
+        _finish(cfg, tally, lot_file)
+    if interrupted:
+        raise CommandExit(2)
+
+
+COMMANDS = [station_cmd]

@@ -1,0 +1,94 @@
+"""A station's cycle configuration from its checked settings (:mod:`eol_cal.station.settings`).
+
+``eol-cal run`` and ``eol-cal station`` both build their :class:`~eol_cal.station.run.StationConfig`
+here, once per session: every key is loaded (limits and variant, profile, motor, bench, key)
+before the dyno moves, each refusal naming the settings file or variable and the key. Per motor
+only the serial and the operator change (:func:`for_motor`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Callable
+
+from eol_cal.errors import InputError
+from eol_cal.station.run import StationConfig
+from eol_cal.station.settings import StationSettings, _named
+
+#: the dyno register map a station uses when its settings name none
+BUILT_IN_MAP = "default"
+
+
+def _check_register_map(settings: StationSettings) -> None:
+    # Only the built-in map exists in this version: a named one must not be silently ignored.
+    name = settings["dyno.register_map"]
+    if name != BUILT_IN_MAP:
+        raise InputError(settings.where("dyno.register_map"), "dyno.register_map",
+                         f"{name!r}: this version drives only the built-in register map ({BUILT_IN_MAP!r})")
+
+
+def station_record(settings: StationSettings, operator: str | None) -> dict[str, Any]:
+    """The run record's ``station`` entries that the settings give (id, operator, addresses).
+
+    The cycle adds profile, verify, rate, motor and bench itself.
+    """
+    return {"id": settings["station_id"], "operator": operator, "settings": settings.source,
+            "dyno": None if settings["dyno.address"] is None else f"{settings.dyno_host}:{settings.dyno_port}",
+            "can": {"interface": settings["can.interface"], "channel": settings["can.channel"],
+                    "bitrate": settings["can.bitrate"]}}
+
+
+def station_config(settings: StationSettings, *, operator: str | None = None, cache_dir: Path | None = None,
+                   seed_to_key: Callable[[bytes], bytes] | None = None) -> StationConfig:
+    """The configuration every motor of a session shares (its serial is set per motor).
+
+    Parameters
+    ----------
+    settings : StationSettings
+        Checked settings (:func:`eol_cal.station.settings.load_settings`).
+    operator : str or None
+        Who runs the station (into every record).
+    cache_dir : Path or None
+        The fit's cache directory (:attr:`StationConfig.cache_dir`).
+    seed_to_key : callable, optional
+        Security algorithm; default the contract's HMAC with the settings' ``key_file``.
+
+    Raises
+    ------
+    InputError
+        A key whose file or value cannot be used; names the settings file (or variable) and the key.
+    """
+    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
+    from eol_cal.ecu.transport import open_bus
+    from eol_cal.mechanics import mechanics_or_rigid
+    from eol_cal.motor import load_motor
+    from eol_cal.plant.profile import load_profile
+    from eol_cal.station.limits import load_limits
+
+    _check_register_map(settings)
+    limits = _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))
+    _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    motor_name = str(settings["motor"])
+    motor = _named(settings, "motor", lambda: load_motor("paper", None if motor_name == "paper" else motor_name))
+    mechanics = _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
+    if seed_to_key is None:
+        if settings["key_file"] is None:
+            raise InputError(settings.source, "key_file", "required: the flash step needs the ECU's secret")
+        seed_to_key = hmac_seed_to_key(_named(settings, "key_file", lambda: load_key_file(str(settings["key_file"]))))
+    db = str(settings["db"])
+    can = (settings["can.interface"], settings["can.channel"], settings["can.bitrate"], settings["can.config"])
+    return StationConfig(
+        serial="", dyno=DynoConfig(host=settings.dyno_host, port=settings.dyno_port, timeout=settings["dyno.timeout_s"]),
+        open_bus=lambda: open_bus(*can), seed_to_key=seed_to_key, limits=limits, db=db if "://" in db else Path(db),
+        report_dir=settings.path("report_dir"), profile=str(settings["profile"]), verify=str(settings["verify"]),
+        spool_dir=settings.path("spool_dir"), rate_hz=int(settings["rate_hz"]), db_timeout_s=float(settings["db_timeout_s"]),
+        station=station_record(settings, operator), cache_dir=cache_dir, motor=motor, mechanics=mechanics,
+    )
+
+
+def for_motor(cfg: StationConfig, serial: str, **changes: Any) -> StationConfig:
+    """The session's configuration for one motor: its serial, and any per-motor ``changes``
+    (the demo's simulators: ``dyno``, ``open_bus``, ``station``)."""
+    return dataclasses.replace(cfg, serial=serial, **changes)
