@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
 
-from cli.common import console, err_console, handle_errors, print_json
+from cli.common import console, err_console, exchange_log_options, handle_errors, print_json
 from cli.paths import io_paths
 
 if TYPE_CHECKING:
@@ -18,8 +17,10 @@ _SUFFIXES = (".csv", ".mf4")
 
 
 def _quiet_pymodbus() -> None:
+    from eol_cal.exchange_log import quiet
+
     # pymodbus logs every retried request at ERROR; the command reports failures itself
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    quiet(("pymodbus",))
 
 
 @click.command("acquire")
@@ -36,6 +37,7 @@ def _quiet_pymodbus() -> None:
 @click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("profile",), outputs=("output",))
 def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults,
                 split_windows, as_json) -> None:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, handle_errors, print_json
+from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, print_json
 from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
@@ -27,11 +27,11 @@ max_hall_deviation_deg = 3.0
 
 
 def _quiet_logs() -> None:
-    import logging
+    from eol_cal.exchange_log import quiet
 
     # pymodbus, can-isotp, udsoncan log every retry and timeout; the run reports failures itself
-    for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    # (--verbose/--log-file open the exchange loggers again)
+    quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
 
 
 class _StepProgress:
@@ -151,6 +151,7 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
               help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",), output_dirs=("report_dir", "spool_dir"))
 def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, verify, key_file,
             report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, motor_file, bench_name, as_json) -> None:
@@ -213,6 +214,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
 @click.option("--db", default=None, type=RECORDS_DB,
               help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
 @handle_errors
+@exchange_log_options
 def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 

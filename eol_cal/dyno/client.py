@@ -25,6 +25,7 @@ from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
 from eol_cal.errors import EolCalError, InputError, Interrupted
+from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
 from eol_cal.dyno.transfer import DynoConfig, ProgressFn, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
@@ -145,10 +146,16 @@ class DynoClient:
     def where(self) -> str:
         return f"dyno {self.config.host}:{self.config.port}"
 
-    def _call(self, what: str, fn: Callable[[], object]):
+    def _call(self, what: str, fn: Callable[[], object], request: tuple[int, int, int, list[int] | None]):
         """Run one request with :func:`eol_cal.retry.retry_call`: reconnect on lost connections
-        and timeouts; a Modbus exception answer is a refusal, not retried."""
+        and timeouts; a Modbus exception answer is a refusal, not retried.
+
+        ``request`` is (function code, address, count, words written) for the exchange log.
+        """
         from pymodbus.exceptions import ModbusException
+
+        fc, address, count, written = request
+        where = f"{self.config.host}:{self.config.port}"
 
         def attempt(n: int):
             if not self._client.connected:
@@ -165,11 +172,14 @@ class DynoClient:
                                   before_retry=lambda _n, _exc: self._client.close())
         except RetriesExhausted as exc:
             self._client.close()
+            log_modbus(where, fc, address, count, written, exception=f"none after {exc.attempts} attempts: {exc.last}")
             raise DynoError(f"{self.where}: {what} failed after {exc.attempts} attempts: {exc.last}") from None
         if response.isError():
             code = getattr(response, "exception_code", None)
+            log_modbus(where, fc, address, count, written, exception=code)
             why = _EXCEPTION_MEANING.get(code, "")
             raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
+        log_modbus(where, fc, address, count, written if written is not None else getattr(response, "registers", None))
         return response
 
     def connect(self) -> dict[str, float | int | str]:
@@ -185,7 +195,8 @@ class DynoClient:
     def read_block(self, first: str, last: str) -> dict[str, float | int | str]:
         """Read registers ``first`` ... ``last`` in one request and decode every entry in between."""
         address, count = rm.span(first, last)
-        r = self._call(f"read {first}..{last}", lambda: self._client.read_holding_registers(address, count=count, device_id=self.config.device_id))
+        r = self._call(f"read {first}..{last}", lambda: self._client.read_holding_registers(address, count=count, device_id=self.config.device_id),
+                       (3, address, count, None))
         names = tuple(reg.name for reg in rm.REGISTERS if address <= reg.address < address + count)
         return rm.unpack_block(address, r.registers, names)
 
@@ -198,7 +209,8 @@ class DynoClient:
                 words = [w for r in run for w in rm.encode(r.name, values[r.name])]
                 address = run[0].address
                 names = ",".join(r.name for r in run)
-                self._call(f"write {names}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id))
+                self._call(f"write {names}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id),
+                           (16, address, len(words), words))
                 run = []
             if reg is not None:
                 run.append(reg)

@@ -17,6 +17,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from eol_cal.dyno import registers as rm
+from eol_cal.exchange_log import log_modbus
 from eol_cal.retry import RetriesExhausted, retry_async
 
 ProgressFn = Callable[[str, float, float], None]  # (what, done, total)
@@ -117,6 +118,7 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
     from pymodbus.exceptions import ModbusException
 
     k = max(1, cfg.connections)
+    where = f"{cfg.host}:{cfg.port}"
     clients: list = []
     reconnects = 0
 
@@ -131,7 +133,10 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
                 raise ConnectionError("cannot connect")
 
     async def read_page(cid: int, first: int, n_regs: int) -> np.ndarray:
-        sel = await clients[0].write_registers(rm.BY_NAME["buf_channel"].address, [cid] + rm.encode("buf_offset", first), device_id=cfg.device_id)
+        select = [cid] + rm.encode("buf_offset", first)
+        sel = await clients[0].write_registers(rm.BY_NAME["buf_channel"].address, select, device_id=cfg.device_id)
+        log_modbus(where, 16, rm.BY_NAME["buf_channel"].address, len(select), select,
+                   exception=getattr(sel, "exception_code", None) if sel.isError() else None)
         if sel.isError():
             raise TransferError(f"page select refused (Modbus exception {getattr(sel, 'exception_code', None)})")
         blocks = [(rm.WINDOW_ADDR + a, min(rm.MAX_READ_REGS, n_regs - a)) for a in range(0, n_regs, rm.MAX_READ_REGS)]
@@ -141,6 +146,8 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
             for j in range(i, len(blocks), k):
                 address, count = blocks[j]
                 r = await clients[i].read_holding_registers(address, count=count, device_id=cfg.device_id)
+                log_modbus(where, 3, address, count, getattr(r, "registers", None),
+                           exception=getattr(r, "exception_code", None) if r.isError() else None)
                 if r.isError():
                     raise TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})")
                 if len(r.registers) != count:
