@@ -24,7 +24,7 @@ def _quiet_pymodbus() -> None:
 
 
 @click.command("acquire")
-@click.option("--dyno", "address", required=True, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--dyno", "address", required=True, metavar="HOST[:PORT]", help="Modbus TCP address of the dyno (port 502 when none is given).")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile name or a TOML profile file.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Capture file (.csv or .mf4), written atomically.")
 @click.option("--serial", default=None, help="Motor serial (default: the serial the dyno reports).")

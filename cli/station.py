@@ -124,7 +124,7 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 
 
 @click.command("run")
-@click.option("--dyno", "address", required=True, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--dyno", "address", required=True, metavar="HOST[:PORT]", help="Modbus TCP address of the dyno (port 502 when none is given).")
 @click.option("--interface", "-i", default=None, help="python-can interface of the ECU's bus (socketcan, pcan, vector, remote...).")
 @click.option("--channel", "-c", default=None, help="python-can channel (can0, PCAN_USBBUS1, ws://127.0.0.1:54701/...).")
 @click.option("--bitrate", type=int, default=None, help="CAN bit rate (bit/s).")

@@ -67,8 +67,17 @@ def test_acquire_writes_a_capture(tmp_path: Path, profile: Path):
 def test_acquire_refuses_bad_output_and_address(tmp_path: Path, profile: Path):
     r = CliRunner().invoke(cli, ["acquire", "--dyno", "127.0.0.1:5020", "--profile", str(profile), "-o", str(tmp_path / "x.txt")])
     assert r.exit_code == 2 and "x.txt" in r.output and ".csv or .mf4" in r.output
-    r = CliRunner().invoke(cli, ["acquire", "--dyno", "localhost", "-o", str(tmp_path / "x.csv")])
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", "localhost:50x", "-o", str(tmp_path / "x.csv")])
+    assert r.exit_code == 2 and "'50x' is not a number" in r.output
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", ":5020", "-o", str(tmp_path / "x.csv")])
     assert r.exit_code == 2 and "HOST:PORT" in r.output
+
+
+def test_acquire_dyno_without_port_uses_modbus_502(tmp_path: Path, profile: Path):
+    # nothing listens on 127.0.0.1:502 here (a privileged port): the refusal names the port tried
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", "127.0.0.1", "--profile", str(profile), "-o", str(tmp_path / "x.csv"),
+                                 "--retries", "0", "--timeout", "0.2"])
+    assert r.exit_code == 2 and "dyno 127.0.0.1:502" in r.output, r.output
 
 
 def test_acquire_unreachable_dyno_exit_2_no_file(tmp_path: Path, profile: Path):

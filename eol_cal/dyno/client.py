@@ -20,7 +20,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from eol_cal.address import parse_host_port
+from eol_cal.address import parse_modbus_address
 from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
@@ -99,8 +99,9 @@ def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
 
 
 def parse_address(text: str) -> tuple[str, int]:
-    """The dyno's ``HOST:PORT`` -> (host, port); a bad address is an :class:`InputError`."""
-    return parse_host_port(text, "address")
+    """The dyno's ``HOST`` or ``HOST:PORT`` -> (host, port), Modbus TCP's port 502 when none is
+    given; a bad address is an :class:`InputError`."""
+    return parse_modbus_address(text, "address")
 
 
 @dataclass

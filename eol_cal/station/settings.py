@@ -32,12 +32,9 @@ from typing import Callable, Mapping
 
 import can
 
-from eol_cal.address import parse_host_port
+from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
 from eol_cal.inputs import load_toml
-
-#: Modbus TCP's registered port: a dyno address without one uses it
-MODBUS_PORT = 502
 
 ENV_PREFIX = "EOL_CAL_"
 
@@ -165,11 +162,8 @@ def _check_value(key: Key, value: object, where: str) -> object:
 
 def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
     """``HOST`` or ``HOST:PORT`` -> (host, port), port 502 (Modbus TCP) when none is given."""
-    bare_ipv6 = text.startswith("[") and text.endswith("]")
-    if ":" not in text or bare_ipv6:
-        text = f"{text}:{MODBUS_PORT}"
     try:
-        return parse_host_port(text, "dyno.address")
+        return parse_modbus_address(text, "dyno.address")
     except InputError as exc:
         raise InputError(where, "dyno.address", exc.reason) from exc
 
