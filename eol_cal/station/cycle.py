@@ -218,7 +218,8 @@ class StationCycle:
         after_cap = pieces[nearest_segment(pieces, op["speed_rpm"], op["i_qo_a"])]
         after = point_ripple(after_cap, capture_angle(after_cap))
         self.point_ripples = (before, after)
-        m = Measured(**{**self.measured.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct})
+        m = Measured(**{**self.measured.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct,
+                        "pp_after_no_mech1_pct": after.pp_no_mech1_pct})
         self.measured = m
         self.metrics = json_safe({
             "operating_point": op, "pp_before_pct": m.pp_before_pct, "pp_after_pct": m.pp_after_pct,
