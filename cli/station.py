@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, print_json
+from cli.dyno import load_map, register_map_option
 from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
@@ -150,11 +151,12 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 @click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
               help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
+@register_map_option
 @handle_errors
 @exchange_log_options
 @io_paths(inputs=("can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",), output_dirs=("report_dir", "spool_dir"))
 def run_cmd(address, interface, channel, bitrate, can_config, limits_file, variant, db, serial, profile, verify, key_file,
-            report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, motor_file, bench_name, as_json) -> None:
+            report_dir, spool_dir, db_timeout, rate_hz, dyno_timeout, motor_file, bench_name, as_json, register_map) -> None:
     """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
 
     Exit 0 pass, 1 fail (limits), 2 error (the dyno is left stopped and disabled; the record is
@@ -174,6 +176,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     from eol_cal.station.run import StationConfig
 
     host, port = parse_address(address)
+    regmap = load_map(register_map)
     limits = load_limits(limits_file, variant)
     load_profile(profile)  # refuse a bad profile, motor or bench before anything moves
     motor = load_motor("paper", motor_file)
@@ -186,7 +189,7 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
     _quiet_logs()
     _flush_first(db, spool_dir, db_timeout)
     cfg = StationConfig(
-        serial=serial, dyno=DynoConfig(host=host, port=port, timeout=dyno_timeout),
+        serial=serial, dyno=DynoConfig(host=host, port=port, timeout=dyno_timeout, register_map=regmap),
         open_bus=lambda: open_bus(interface, channel, bitrate, can_config), seed_to_key=seed_to_key, limits=limits,
         db=db, report_dir=report_dir, profile=profile, verify=verify, spool_dir=spool_dir, rate_hz=rate_hz,
         db_timeout_s=db_timeout,
@@ -213,9 +216,10 @@ def run_cmd(address, interface, channel, bitrate, can_config, limits_file, varia
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
 @click.option("--db", default=None, type=RECORDS_DB,
               help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
+@register_map_option
 @handle_errors
 @exchange_log_options
-def demo_cmd(motors, out_dir, profile, seed, db) -> None:
+def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
     Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
@@ -242,6 +246,7 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     except OSError as exc:
         raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
     limits = load_limits(limits_path)
+    regmap = load_map(register_map)
     db = out_dir / "results.sqlite" if db is None else db
     _quiet_logs()
     cache_dir = enable_jax_cache()
@@ -251,11 +256,11 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     outcomes = []
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
-        with loopback_station(serial, seed + k, out_dir / "sim") as st:
+        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap) as st:
             host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(
-                serial=serial, dyno=DynoConfig(host=host, port=port), open_bus=st.open_bus,
+                serial=serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
                 seed_to_key=hmac_seed_to_key(P.DEV_SECRET), limits=limits, db=db, report_dir=out_dir / "reports",
                 profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,
                 station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},

@@ -144,6 +144,8 @@ class DynoClient:
         self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
         self.reconnects = 0
         self._heartbeat = (-1, time.monotonic())
+        #: the dyno's identification matched the register map: only then is anything written
+        self.identified = False
 
     # ------------------------------------------------------------ transport
     @property
@@ -188,11 +190,17 @@ class DynoClient:
 
     def connect(self) -> dict[str, float | int | str]:
         """Connect and read the identification registers (checking the map version the map expects)."""
-        ident = self.read(self.regmap.group("identification"))
+        try:
+            ident = self.read(self.regmap.group("identification"))
+        except DynoError as exc:
+            if "refused" not in str(exc):
+                raise
+            raise DynoError(f"{exc}; is {self.regmap.source} this dyno's register map?") from None
         expected = self.regmap.map_version
         if expected is not None and ident["map_version"] != expected:
             raise DynoError(f"{self.where}: register map version {ident['map_version']}, the register map "
                             f"{self.regmap.name!r} ({self.regmap.source}) expects {expected}")
+        self.identified = True
         return ident
 
     def close(self) -> None:
@@ -298,8 +306,14 @@ class DynoClient:
         return result
 
     def safe_state(self) -> str | None:
-        """Speed set point 0, capture aborted, drive disabled. Returns None or why it failed."""
+        """Speed set point 0, capture aborted, drive disabled. Returns None or why it failed.
+
+        Nothing is written to a dyno whose identification did not match the register map: on
+        another layout those addresses are other registers.
+        """
         try:
+            if not self.identified:
+                self.connect()
             self.write(speed_setpoint=0.0)
             self.write(capture_start=CaptureCommand.ABORT)
             self.write(enable=Switch.OFF)

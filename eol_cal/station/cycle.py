@@ -119,7 +119,8 @@ class StationCycle:
         if Path(cfg.limits.source).is_file():
             limits["sha256"] = sha256_file(cfg.limits.source)
         station = dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz,
-                       motor=cfg.motor.name, bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid")
+                       motor=cfg.motor.name, bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid",
+                       dyno_register_map=cfg.dyno.regmap.name)
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
                     run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
                     segments=segments, station=station, limits=limits)

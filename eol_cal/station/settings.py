@@ -13,6 +13,7 @@ never a half-run cycle. The file's keys (docs/station.md, "First real station"):
     key_file = "ecu.key"
     [dyno]
     address = "192.0.2.10"          # Modbus TCP; port 502 when none is given
+    register_map = "default"        # a shipped map's name or a map file (docs/dyno.md)
     [can]
     interface = "pcan"
     channel = "PCAN_USBBUS1"
@@ -28,13 +29,16 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
+from typing import TYPE_CHECKING, Callable, Mapping
 
 import can
 
 from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
 from eol_cal.inputs import load_toml
+
+if TYPE_CHECKING:
+    from eol_cal.dyno.regmap import RegisterMap
 
 ENV_PREFIX = "EOL_CAL_"
 
@@ -269,3 +273,15 @@ def check_station(settings: StationSettings) -> None:
     _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
     _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
+    register_map_of(settings)
+
+
+def register_map_of(settings: StationSettings) -> "RegisterMap":
+    """The dyno's register map the settings name (``dyno.register_map``: a shipped map's name, or
+    a map file, relative to the settings file); a bad map names the settings key."""
+    from eol_cal.dyno.mapfile import load_register_map
+
+    spec = str(settings["dyno.register_map"])
+    if (spec.endswith(".toml") or "/" in spec) and settings.source != "environment" and not Path(spec).is_absolute():
+        spec = str(Path(settings.source).resolve().parent / spec)
+    return _named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
