@@ -140,7 +140,8 @@ class ModbusFace:
                 chunk += [0] * (hi - lo - len(chunk))
                 base = w.address - start_address
                 registers[base + lo: base + hi] = chunk
-            self._refresh(registers, start_address, address, end, table, self.status_values())
+            if address < w.address or end > w.end or table not in (None, w.table):  # not a window-only read
+                self._refresh(registers, start_address, address, end, table, self.status_values())
             return None
         if set_values is None:
             return None
