@@ -309,8 +309,10 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
     assert res.exit_code == 2 and "key-file" in res.output
     res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--serial", "S" * 17])
     assert res.exit_code == 2 and "16 ASCII" in res.output
-    res = runner.invoke(cli, base[:2] + ["nohost"] + base[3:] + ["--limits", str(files["limits"])])
-    assert res.exit_code == 2 and "HOST:PORT" in res.output
+    res = runner.invoke(cli, base[:2] + ["nohost:50x"] + base[3:] + ["--limits", str(files["limits"])])
+    assert res.exit_code == 2 and "'50x' is not a number" in res.output  # a bare HOST is port 502
+    res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--register-map", "vendor-z"])
+    assert res.exit_code == 2 and "vendor-z" in res.output
     res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--bench", "nope"])
     assert res.exit_code == 2 and "nope" in res.output
     bad_motor = tmp_path / "motor.toml"
