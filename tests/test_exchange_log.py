@@ -80,7 +80,7 @@ def test_acquire_log_file_holds_the_modbus_exchanges(tmp_path: Path):
     lines = [ln for ln in text.splitlines() if "eol_cal.modbus" in ln]
     assert lines and all(STAMP.match(ln) for ln in lines)
     assert all(f"127.0.0.1:{port}" in ln for ln in lines)
-    assert any(" FC03 addr 0 " in ln for ln in lines)  # identification block read
+    assert any(" FC04 addr 0 " in ln for ln in lines)  # identification block read (input registers)
     assert any(" FC16 " in ln for ln in lines)  # set points written
     assert any(re.search(r" FC03 addr 32768 \(0x8000\) count 125 \[[0-9a-f]{4} ", ln) for ln in lines)  # window
 
@@ -111,3 +111,19 @@ def test_missing_can_driver_is_one_line_exit_2(tmp_path: Path):
         assert res.exit_code == 2, (args, res.output)
         assert res.output.count("\n") == 1 and "Traceback" not in res.output, res.output
         assert "interface" in res.output and args[args.index("-i") + 1] in res.output
+
+
+def test_ctrl_c_before_a_command_runs_is_one_line_exit_2(monkeypatch, capsys):
+    import pytest
+
+    import cli.main as main_module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt  # e.g. while the command's heavy imports load, before its handlers are set
+
+    monkeypatch.setattr(main_module, "cli", interrupted)
+    with pytest.raises(SystemExit) as exit_info:
+        main_module.main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "interrupted" in err and "Traceback" not in err
