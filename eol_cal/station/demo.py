@@ -74,16 +74,14 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     register_map : RegisterMap, optional
         The register layout the dyno simulator serves (default: the reference map).
     """
-    import logging
-
     from eol_cal.dyno import sim as ds
+    from eol_cal.exchange_log import quiet
     from eol_cal.ecu.remote import serve_remote
     from eol_cal.station.rig import plant_source
     from eol_cal.ecu.sim import SimConfig
     from eol_cal.motor import load_motor
 
-    for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))  # unless an exchange log is on
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     flash_file = work_dir / f"{serial}.flash"
