@@ -33,6 +33,7 @@ import numpy as np
 
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.client import DynoClient, DynoConfig, DynoSetpoint
+from eol_cal.dyno.mapfile import default_register_map
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,19 +48,19 @@ def plain_read(host: str, port: int, channel_ids: list[int], n: int) -> tuple[di
     """The plain way: one synchronous 125-register read after the other on one connection."""
     from pymodbus.client import ModbusTcpClient
 
+    m = default_register_map()
     c = ModbusTcpClient(host, port=port, timeout=2.0, retries=0)
     c.connect()
     out, regs = {}, 0
     for cid in channel_ids:
-        per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
-        page_samples = rm.WINDOW_REGS // per
+        per = m.regs_per_sample(cid)
+        page_samples = m.samples_per_page(cid)
         parts = []
         for first in range(0, n, page_samples):
-            c.write_registers(rm.BY_NAME["buf_channel"].address, [cid] + rm.encode("buf_offset", first), device_id=1)
+            c.write_registers(m["buf_channel"].address, [cid] + m.encode("buf_offset", first), device_id=1)
             n_regs = min(page_samples, n - first) * per
-            for k in range(0, n_regs, rm.MAX_READ_REGS):
-                cnt = min(rm.MAX_READ_REGS, n_regs - k)
-                r = c.read_holding_registers(rm.WINDOW_ADDR + k, count=cnt, device_id=1)
+            for address, cnt in m.page_blocks(n_regs):
+                r = c.read_holding_registers(address, count=cnt, device_id=1)
                 assert not r.isError(), r
                 parts.append(np.asarray(r.registers, dtype=np.uint16))
                 regs += cnt
@@ -87,8 +88,9 @@ def main() -> int:
         dc.connect()
         dc.set_point(DynoSetpoint(60.0, args.samples / 20000, iq=65.0, ramp_rpm_s=5000.0))
         st = dc.capture(args.samples, 20000)
-        names = [name for cid, name in rm.ANALOG_CHANNELS.items() if int(st["capture_channels"]) & rm.channel_bit(cid)]
-        ids = [cid for cid, name in rm.ANALOG_CHANNELS.items() if name in names] + [rm.DIGITAL_CHANNEL_ID]
+        m = default_register_map()
+        names = [name for cid, name in m.analog_channels.items() if int(st["capture_channels"]) & rm.channel_bit(cid)]
+        ids = [cid for cid, name in m.analog_channels.items() if name in names] + [m.window.digital_id]
         regs_per_sample = 2 * len(names) + 1
         total_regs = args.samples * regs_per_sample
         print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load avg {os.getloadavg()[0]:.1f}; "
@@ -116,10 +118,10 @@ def main() -> int:
                 got = dk.read_buffer(names, args.samples)
                 times.append(time.perf_counter() - t0)
                 cpus.append(time.process_time() - c0)
-            for cid, name in rm.ANALOG_CHANNELS.items():
+            for cid, name in m.analog_channels.items():
                 if name in names:
-                    np.testing.assert_array_equal(got[name], rm.words_to_f32(ref[cid]))
-            a, b, h = rm.unpack_digital(ref[rm.DIGITAL_CHANNEL_ID])
+                    np.testing.assert_array_equal(got[name], m.words_to_analog(ref[cid]))
+            a, b, h = m.unpack_digital(ref[m.window.digital_id])
             np.testing.assert_array_equal(got["hall"], h)
             dk.close()
             rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times), statistics.median(cpus)))

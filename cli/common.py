@@ -125,3 +125,29 @@ class RecordsDb(click.ParamType):
 
 
 RECORDS_DB = RecordsDb()
+
+
+def exchange_log_options(func: Callable) -> Callable:
+    """``--verbose`` and ``--log-file FILE`` for every command that talks to the ECU or the dyno.
+
+    Both write the timestamped UDS and Modbus exchanges (:mod:`eol_cal.exchange_log`): ``--verbose``
+    on stderr, ``--log-file`` appended to FILE. Put it below :func:`handle_errors`, so a log file that
+    cannot be opened is one line and exit 2::
+
+        @click.command("x")
+        @handle_errors
+        @exchange_log_options
+        def x_cmd(...): ...
+    """
+
+    @click.option("--log-file", type=click.Path(dir_okay=False), default=None,
+                  help="Append the timestamped UDS/Modbus exchanges to this file.")
+    @click.option("--verbose", is_flag=True, help="Print the timestamped UDS/Modbus exchanges on stderr.")
+    @functools.wraps(func)
+    def wrapper(*args: Any, verbose: bool = False, log_file: str | None = None, **kwargs: Any) -> Any:
+        from eol_cal.exchange_log import exchange_logging
+
+        with exchange_logging(sys.stderr if verbose else None, log_file):
+            return func(*args, **kwargs)
+
+    return wrapper

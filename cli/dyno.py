@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import logging
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import click
 
-from cli.common import console, err_console, handle_errors, print_json
+from cli.common import console, err_console, exchange_log_options, handle_errors, print_json
 from cli.paths import io_paths
 
 if TYPE_CHECKING:
@@ -17,13 +16,29 @@ if TYPE_CHECKING:
 _SUFFIXES = (".csv", ".mf4")
 
 
+def register_map_option(func):
+    """``--register-map FILE|NAME``: the dyno's register map (a TOML file, or a map shipped with eol-cal)."""
+    return click.option("--register-map", "register_map", default="default", show_default=True, metavar="FILE|NAME",
+                         help="The dyno's register map: a map file (docs/dyno.md, 'Writing a register map') or a "
+                              "shipped map's name (default, vendor-b).")(func)
+
+
+def load_map(spec: str):
+    """The register map a command was given (an :class:`~eol_cal.errors.InputError` names the file and key)."""
+    from eol_cal.dyno.mapfile import load_register_map
+
+    return load_register_map(spec)
+
+
 def _quiet_pymodbus() -> None:
+    from eol_cal.exchange_log import quiet
+
     # pymodbus logs every retried request at ERROR; the command reports failures itself
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    quiet(("pymodbus",))
 
 
 @click.command("acquire")
-@click.option("--dyno", "address", required=True, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--dyno", "address", required=True, metavar="HOST[:PORT]", help="Modbus TCP address of the dyno (port 502 when none is given).")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile name or a TOML profile file.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Capture file (.csv or .mf4), written atomically.")
 @click.option("--serial", default=None, help="Motor serial (default: the serial the dyno reports).")
@@ -35,10 +50,12 @@ def _quiet_pymodbus() -> None:
 @click.option("--reset-faults", is_flag=True, help="Clear faults latched on the dyno before the run.")
 @click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
+@register_map_option
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("profile",), outputs=("output",))
 def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults,
-                split_windows, as_json) -> None:
+                split_windows, as_json, register_map) -> None:
     """Run a test profile on the dyno and write the capture.
 
     Segment by segment: set point, wait until at speed, capture, read the buffer. On any error
@@ -59,11 +76,13 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
     if not output.parent.is_dir():
         raise InputError(str(output), None, "directory does not exist")
     host, port = dc.parse_address(address)
+    regmap = load_map(register_map)
     prof = load_profile(profile)
     with naming(profile if Path(profile).is_file() else None):  # a segment the dyno cannot run: the profile file named
         segments = dc.setpoints_from_profile(prof)
     channels = dc.DEFAULT_CHANNELS + (dc.EXTRA_CHANNELS if all_channels else ())
-    config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections)
+    config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections,
+                           register_map=regmap)
     _quiet_pymodbus()
     t0 = time.perf_counter()
     with Progress(
@@ -140,8 +159,9 @@ def parse_fault_plan(text: str) -> FaultPlan:
 @click.option("--serial", default="M-0001", show_default=True, help="Serial of the simulated motor.")
 @click.option("--source", type=click.Choice(["plant", "synthetic"]), default="plant", show_default=True, help="plant: the built-in JAX plant with the ECU's mode; synthetic: the analytic model (fast, no ECU).")
 @click.option("--fault", "faults", multiple=True, metavar="KIND[@capture:N|@read:N][/MS]", help="Inject a fault by itself: disconnect, over-speed or torque-sensor, at the N-th capture or window read (repeatable).")
+@register_map_option
 @handle_errors
-def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
+def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, register_map) -> None:
     """Serve a simulated dyno with the motor on it over Modbus TCP (register map: docs/dyno.md).
 
     Binds 127.0.0.1 unless told otherwise. Stop with Ctrl-C.
@@ -161,6 +181,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
     if not serial or len(serial.encode("ascii", "replace")) > 16:
         raise InputError(None, "--serial", "1 to 16 ASCII characters")
     plans = [parse_fault_plan(f) for f in faults]
+    regmap = load_map(register_map)
     motor = load_motor("paper")
     if source == "plant":
         from cli.fit import enable_jax_cache
@@ -177,10 +198,10 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults) -> None:
         capture_source = plant_source(ecu_flash)
     else:
         capture_source = ds.synthetic_source
-    sim = ds.DynoSim(capture_source, serial=serial, motor=motor, seed=seed, faults=plans)
+    sim = ds.DynoSim(capture_source, serial=serial, motor=motor, seed=seed, faults=plans, register_map=regmap)
 
     def started(bound: int) -> None:
-        err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP), motor {serial}, source {source}"
+        err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP, register map {regmap.name!r}), motor {serial}, source {source}"
                           + (f", ECU flash {ecu_flash}" if ecu_flash else ""))
         if source == "plant":
             threading.Thread(target=warm_up, name="plant-warm-up", daemon=True).start()

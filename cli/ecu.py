@@ -11,7 +11,7 @@ from typing import Any, Callable
 
 import click
 
-from cli.common import err_console, handle_errors, print_json
+from cli.common import err_console, exchange_log_options, handle_errors, print_json
 from cli.paths import io_paths
 from eol_cal.errors import InputError
 
@@ -34,13 +34,12 @@ def _bus_options(func: Callable) -> Callable:
 
 
 def _open_bus(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None) -> Any:
-    import logging
-
     from eol_cal.ecu.transport import open_bus
+    from eol_cal.exchange_log import quiet
 
-    # can-isotp and udsoncan log every lost frame and timeout; the error we raise says it once.
-    for name in ("isotp", "UdsClient", "Connection", "can"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    # can-isotp and udsoncan log every lost frame and timeout; the error we raise says it once
+    # (--verbose/--log-file open these loggers again).
+    quiet(("isotp", "UdsClient", "Connection", "can"))
 
     return open_bus(interface, channel, bitrate, can_config)
 
@@ -103,6 +102,7 @@ _SEED_TRIAL = b"\x12\x34\x56\x78"
                    "(poles, N_enc, f_pwm) is the ECU's when the ECU has no active block to read it from.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("block_file", "key_file", "can_config", "motor_file"))
 def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitrate: int | None,
               can_config: str | None, key_file: str | None, key_algo: str | None, verify: bool,
@@ -150,6 +150,7 @@ def ecu_group() -> None:
 @_bus_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @handle_errors
+@exchange_log_options
 def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
              as_json: bool) -> None:
     """Serial, software version, supported layouts, active bank and sequence, and the active block."""
@@ -185,6 +186,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (raw).")
 @click.option("--bank", default=None, metavar="0|1|previous", help="Read this bank instead of the active one.")
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("can_config",), outputs=("output",))
 def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
                    output: str, bank: str | None) -> None:

@@ -48,7 +48,14 @@ _register()
 
 
 def main() -> None:
-    cli(prog_name="eol-cal")
+    try:
+        cli(prog_name="eol-cal")
+    except KeyboardInterrupt:
+        # Ctrl-C before a command set its handlers (imports, option parsing): one line, exit 2
+        from eol_cal.errors import Interrupted
+
+        click.echo(f"error: {Interrupted()}", err=True)
+        raise SystemExit(Interrupted.exit_code) from None
 
 
 if __name__ == "__main__":

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, handle_errors
+from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors
 from cli.paths import io_paths
 from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
 
@@ -136,10 +136,12 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
     from eol_cal.station.demo import loopback_station
     from eol_cal.station.session import demo_seed
 
-    with loopback_station(serial, demo_seed(serial), demo_dir / "sim") as st:
+    regmap = cfg.dyno.regmap  # the settings' map: the demo's dyno simulator serves the same one
+    with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap) as st:
         host, port = parse_address(st.dyno_address)
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
-        mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port), open_bus=st.open_bus, station=station)
+        mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
+                         station=station)
         with _StepProgress(serial) as progress:
             return run_motor(mcfg, progress)
 
@@ -222,6 +224,7 @@ def _finish(cfg, tally, lot_file: Path | None) -> None:
               help="Write the station's lot page here at the end [demo default: OUT/lot.html].")
 @click.pass_context
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("station_file", "limits_file"), outputs=("db", "lot_file"), output_dirs=("out_dir", "report_dir"))
 def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options: Any) -> None:
     """The operator loop: scan a motor's serial, run the cycle, read the verdict, next motor.

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, handle_errors, print_json
+from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, print_json
+from cli.dyno import load_map, register_map_option
 from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
@@ -27,11 +28,11 @@ max_hall_deviation_deg = 3.0
 
 
 def _quiet_logs() -> None:
-    import logging
+    from eol_cal.exchange_log import quiet
 
     # pymodbus, can-isotp, udsoncan log every retry and timeout; the run reports failures itself
-    for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    # (--verbose/--log-file open the exchange loggers again)
+    quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
 
 
 class _StepProgress:
@@ -130,7 +131,7 @@ OPTION_KEYS = {
     "can_config": "can.config", "limits_file": "limits", "variant": "variant", "db": "db", "profile": "profile",
     "verify": "verify", "key_file": "key_file", "report_dir": "report_dir", "spool_dir": "spool_dir",
     "db_timeout": "db_timeout_s", "rate_hz": "rate_hz", "dyno_timeout": "dyno.timeout_s", "motor_file": "motor",
-    "bench_name": "bench", "station_id": "station_id",
+    "bench_name": "bench", "station_id": "station_id", "register_map": "dyno.register_map",
 }
 #: what `run` without --station needs, by option, for its one-line refusal
 REQUIRED_OPTIONS = {"address": "--dyno HOST:PORT", "limits_file": "--limits FILE", "db": "--db PATH|URL",
@@ -165,17 +166,13 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
             if key not in given and not os.environ.get(env_name(key)):
                 raise InputError(None, option.split()[0][2:], f"required: give {option} (or set ${env_name(key)}), "
                                                               "or a settings file with --station")
-    if "dyno.address" in given:
-        from eol_cal.dyno.client import parse_address
-
-        parse_address(str(given["dyno.address"]))  # the option says HOST:PORT; the file may leave out the port
     return load_settings(station_file, given=given, optional=() if station_file else ("station_id",))
 
 
 @click.command("run")
 @click.option("--station", "station_file", type=click.Path(dir_okay=False), default=None,
               help="Station settings TOML (docs/station.md, First real station); options given here override it.")
-@click.option("--dyno", "address", default=None, metavar="HOST:PORT", help="Modbus TCP address of the dyno.")
+@click.option("--dyno", "address", default=None, metavar="HOST[:PORT]", help="Modbus TCP address of the dyno (port 502 when none is given).")
 @click.option("--interface", "-i", default=None, help="python-can interface of the ECU's bus (socketcan, pcan, vector, remote...).")
 @click.option("--channel", "-c", default=None, help="python-can channel (can0, PCAN_USBBUS1, ws://127.0.0.1:54701/...).")
 @click.option("--bitrate", type=int, default=None, help="CAN bit rate (bit/s).")
@@ -203,8 +200,10 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
 @click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
               help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
+@register_map_option
 @click.pass_context
 @handle_errors
+@exchange_log_options
 @io_paths(inputs=("station_file", "can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",),
           output_dirs=("report_dir", "spool_dir"))
 def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
@@ -244,8 +243,10 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
 @click.option("--db", default=None, type=RECORDS_DB,
               help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
+@register_map_option
 @handle_errors
-def demo_cmd(motors, out_dir, profile, seed, db) -> None:
+@exchange_log_options
+def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
     Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
@@ -272,6 +273,7 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     except OSError as exc:
         raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
     limits = load_limits(limits_path)
+    regmap = load_map(register_map)
     db = out_dir / "results.sqlite" if db is None else db
     _quiet_logs()
     cache_dir = enable_jax_cache()
@@ -281,11 +283,11 @@ def demo_cmd(motors, out_dir, profile, seed, db) -> None:
     outcomes = []
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
-        with loopback_station(serial, seed + k, out_dir / "sim") as st:
+        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap) as st:
             host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(
-                serial=serial, dyno=DynoConfig(host=host, port=port), open_bus=st.open_bus,
+                serial=serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
                 seed_to_key=hmac_seed_to_key(P.DEV_SECRET), limits=limits, db=db, report_dir=out_dir / "reports",
                 profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,
                 station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},

@@ -67,8 +67,17 @@ def test_acquire_writes_a_capture(tmp_path: Path, profile: Path):
 def test_acquire_refuses_bad_output_and_address(tmp_path: Path, profile: Path):
     r = CliRunner().invoke(cli, ["acquire", "--dyno", "127.0.0.1:5020", "--profile", str(profile), "-o", str(tmp_path / "x.txt")])
     assert r.exit_code == 2 and "x.txt" in r.output and ".csv or .mf4" in r.output
-    r = CliRunner().invoke(cli, ["acquire", "--dyno", "localhost", "-o", str(tmp_path / "x.csv")])
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", "localhost:50x", "-o", str(tmp_path / "x.csv")])
+    assert r.exit_code == 2 and "'50x' is not a number" in r.output
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", ":5020", "-o", str(tmp_path / "x.csv")])
     assert r.exit_code == 2 and "HOST:PORT" in r.output
+
+
+def test_acquire_dyno_without_port_uses_modbus_502(tmp_path: Path, profile: Path):
+    # nothing listens on 127.0.0.1:502 here (a privileged port): the refusal names the port tried
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", "127.0.0.1", "--profile", str(profile), "-o", str(tmp_path / "x.csv"),
+                                 "--retries", "0", "--timeout", "0.2"])
+    assert r.exit_code == 2 and "dyno 127.0.0.1:502" in r.output, r.output
 
 
 def test_acquire_unreachable_dyno_exit_2_no_file(tmp_path: Path, profile: Path):
@@ -90,20 +99,31 @@ def test_acquire_fault_exit_2_no_file(tmp_path: Path, profile: Path):
     assert not list(tmp_path.glob("cap*")) and not list(tmp_path.glob(".cap*"))
 
 
-def test_dyno_sim_and_acquire_as_processes(tmp_path: Path, profile: Path):
+@pytest.mark.parametrize("register_map", ["default", "vendor-b"])
+def test_dyno_sim_and_acquire_as_processes(tmp_path: Path, profile: Path, register_map: str):
     exe = [sys.executable, "-m", "cli.main"]
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     port = _free_port()
-    server = subprocess.Popen(exe + ["dyno-sim", "--listen", f"127.0.0.1:{port}", "--source", "synthetic", "--serial", "M-PROC"],
+    server = subprocess.Popen(exe + ["dyno-sim", "--listen", f"127.0.0.1:{port}", "--source", "synthetic", "--serial", "M-PROC",
+                                     "--register-map", register_map],
                               stderr=subprocess.PIPE, text=True, env=env)
     try:
         line = server.stderr.readline()
         assert re.search(rf"on 127\.0\.0\.1:{port}\b", line), line
         out = tmp_path / "cap.mf4"
-        r = subprocess.run(exe + ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile), "-o", str(out)],
+        r = subprocess.run(exe + ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile), "-o", str(out),
+                                  "--register-map", register_map],
                            capture_output=True, text=True, timeout=60, env=env)
         assert r.returncode == 0, r.stderr
         assert read_capture(out).metadata["serial"] == "M-PROC"
+        if register_map == "vendor-b":  # the client on the other map is stopped at once, in one line
+            other = subprocess.run(exe + ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile),
+                                          "-o", str(tmp_path / "x.mf4"), "--retries", "0"],
+                                   capture_output=True, text=True, timeout=60, env=env)
+            lines = [ln for ln in other.stderr.splitlines() if ln.strip()]
+            assert other.returncode == 2 and len(lines) == 1 and not (tmp_path / "x.mf4").exists(), other.stderr
+            assert "is " in lines[0] and "default.toml this dyno's register map?" in lines[0]
+            assert "write" not in lines[0]  # nothing written on a layout the map does not describe
         # a second simulator on the same port is refused cleanly
         r2 = subprocess.run(exe + ["dyno-sim", "--listen", f"127.0.0.1:{port}", "--source", "synthetic"],
                             capture_output=True, text=True, timeout=30, env=env)
@@ -115,6 +135,17 @@ def test_dyno_sim_and_acquire_as_processes(tmp_path: Path, profile: Path):
         except subprocess.TimeoutExpired:
             server.kill()
             server.wait()
+
+
+def test_bad_register_map_is_one_line_naming_file_and_key(tmp_path: Path, profile: Path):
+    bad = tmp_path / "rig.toml"
+    bad.write_text("[window]\naddress = 1\n")
+    for args in (["acquire", "--dyno", "127.0.0.1:1", "--profile", str(profile), "-o", str(tmp_path / "c.csv")],
+                 ["dyno-sim", "--listen", "127.0.0.1:0"]):
+        r = CliRunner().invoke(cli, args + ["--register-map", str(bad)])
+        assert r.exit_code == 2 and r.output.count("\n") == 1 and "rig.toml" in r.output and "window.registers" in r.output, r.output
+        r = CliRunner().invoke(cli, args + ["--register-map", "vendor-z"])
+        assert r.exit_code == 2 and "vendor-z" in r.output and "vendor-b" in r.output, r.output
 
 
 def test_bad_profile_refused_before_the_shaft_turns(tmp_path: Path):

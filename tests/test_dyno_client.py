@@ -1,7 +1,9 @@
 """Dyno client against the real pymodbus server of the dyno simulator, on 127.0.0.1.
 
 The simulator's capture source here is the analytic model (``synthetic_source``) so these tests
-need no JAX; the plant-backed source is exercised in test_dyno_sim.py.
+need no JAX; the plant-backed source is exercised in test_dyno_sim.py. Every test runs on both
+register maps shipped: the reference layout and vendor B's (other addresses and tables, CDAB
+word order, scaled integers, other codes).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import pytest
 
 from eol_cal.capture import read_capture
 from eol_cal.dyno.client import DynoConfig, DynoError, DynoSetpoint, acquire
+from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import SimFault
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
 from eol_cal.motor import load_motor
@@ -29,22 +32,28 @@ PROFILE = [
 ]
 
 
-def config(port: int, **kw) -> DynoConfig:
-    base = dict(host="127.0.0.1", port=port, timeout=0.5, retries=3, retry_delay=0.05, settle_timeout=3.0, capture_timeout=5.0)
+@pytest.fixture(params=["default", "vendor-b"])
+def regmap(request):
+    return load_register_map(request.param)
+
+
+def config(port: int, regmap, **kw) -> DynoConfig:
+    base = dict(host="127.0.0.1", port=port, timeout=0.5, retries=3, retry_delay=0.05, settle_timeout=3.0, capture_timeout=5.0,
+                register_map=regmap)
     base.update(kw)
     return DynoConfig(**base)
 
 
 @pytest.fixture
-def dyno():
-    sim = DynoSim(synthetic_source, serial="M-TEST-1", motor=MOTOR)
+def dyno(regmap):
+    sim = DynoSim(synthetic_source, serial="M-TEST-1", motor=MOTOR, register_map=regmap)
     with DynoSimThread(sim) as th:
         yield th
 
 
-def test_profile_end_to_end_into_a_valid_capture_file(dyno, tmp_path: Path):
+def test_profile_end_to_end_into_a_valid_capture_file(dyno, tmp_path: Path, regmap):
     out = tmp_path / "capture.mf4"
-    cap = acquire(config(dyno.port), PROFILE, out, rate_hz=10000)
+    cap = acquire(config(dyno.port, regmap), PROFILE, out, rate_hz=10000)
     assert out.exists()
     back = read_capture(out)
     n = sum(int(round(s.seconds * 10000)) for s in PROFILE)
@@ -76,12 +85,12 @@ def _assert_safe(sim: DynoSim):
 
 
 @pytest.mark.parametrize("kind", [SimFault.OVER_SPEED, SimFault.TORQUE_SENSOR])
-def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind):
-    sim = DynoSim(synthetic_source, serial="M-TEST-2", faults=[FaultPlan(kind, "capture", 2)])
+def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind, regmap):
+    sim = DynoSim(synthetic_source, serial="M-TEST-2", faults=[FaultPlan(kind, "capture", 2)], register_map=regmap)
     out = tmp_path / "capture.mf4"
     with DynoSimThread(sim) as th:
         with pytest.raises(DynoError) as err:
-            acquire(config(th.port), PROFILE, out)
+            acquire(config(th.port, regmap), PROFILE, out)
         _assert_safe(sim)
         # the client itself commanded the safe state (not only the trip)
         names = [name for _, name, _ in sim.log]
@@ -91,24 +100,24 @@ def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind
     assert not out.exists() and not list(tmp_path.iterdir())
 
 
-def test_long_disconnect_fails_safe_and_no_file(tmp_path: Path):
+def test_long_disconnect_fails_safe_and_no_file(tmp_path: Path, regmap):
     # the dyno drops off the network for longer than the client's retries: the client gives up,
     # and the dyno's communication watchdog stops the drive
-    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 3, 2500)])
+    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 3, 2500)], register_map=regmap)
     out = tmp_path / "capture.csv"
     with DynoSimThread(sim) as th:
         with pytest.raises(DynoError) as err:
-            acquire(config(th.port, retries=2, watchdog_ms=500), PROFILE, out)
+            acquire(config(th.port, regmap, retries=2, watchdog_ms=500), PROFILE, out)
         _assert_safe(sim)
     assert not out.exists() and not list(tmp_path.iterdir())
     assert "failed" in str(err.value)
 
 
-def test_transient_disconnect_is_retried(tmp_path: Path):
-    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 5, 150)])
+def test_transient_disconnect_is_retried(tmp_path: Path, regmap):
+    sim = DynoSim(synthetic_source, faults=[FaultPlan(SimFault.DISCONNECT, "read", 5, 150)], register_map=regmap)
     out = tmp_path / "capture.csv"
     with DynoSimThread(sim) as th:
-        cap = acquire(config(th.port, retries=4), PROFILE, out)
+        cap = acquire(config(th.port, regmap, retries=4), PROFILE, out)
     assert out.exists()
     assert [n for _, n, _ in sim.log].count("fault") == 1
     back = read_capture(out)
@@ -116,12 +125,12 @@ def test_transient_disconnect_is_retried(tmp_path: Path):
     np.testing.assert_array_equal(back["hall"][-len(sim.last_capture.t):], sim.last_capture["hall"])
 
 
-def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path):
+def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path, regmap):
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.capture.windows import split_windows
 
     out = tmp_path / "cap.mf4"
-    acquire(config(dyno.port), PROFILE, out)
+    acquire(config(dyno.port, regmap), PROFILE, out)
     back = read_capture(out)
     windows = split_windows(back)
     assert [len(w.t) for w in windows] == [int(round(s.seconds * 10000)) for s in PROFILE]
@@ -135,7 +144,7 @@ def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path):
     assert [len(w.t) for w in split_windows(no_meta)] == [len(w.t) for w in windows]
 
 
-def test_stuck_heartbeat_stops_the_run(tmp_path: Path):
+def test_stuck_heartbeat_stops_the_run(tmp_path: Path, regmap):
     holder: dict = {}
 
     def hangs_at_second_capture(req):
@@ -144,11 +153,11 @@ def test_stuck_heartbeat_stops_the_run(tmp_path: Path):
             time.sleep(1.5)  # ... and the capture never gets ready in time
         return synthetic_source(req)
 
-    sim = DynoSim(hangs_at_second_capture)
+    sim = DynoSim(hangs_at_second_capture, register_map=regmap)
     holder["sim"] = sim
     out = tmp_path / "capture.mf4"
     with DynoSimThread(sim) as th:
         with pytest.raises(DynoError, match="heartbeat stuck at 1234"):
-            acquire(config(th.port), PROFILE, out)
+            acquire(config(th.port, regmap), PROFILE, out)
         _assert_safe(sim)
     assert not list(tmp_path.iterdir())

@@ -11,96 +11,133 @@ import pytest
 
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint
+from eol_cal.dyno.mapfile import load_register_map
 from cli.dyno import parse_fault_plan
 from eol_cal.dyno.sim import CaptureRequest, DynoSim, DynoSimThread, synthetic_source
 from eol_cal.firmware import block as B
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 DOC = Path(__file__).resolve().parents[1] / "docs" / "dyno.md"
+MAPS = ("default", "vendor-b")
+
+
+@pytest.fixture(params=MAPS)
+def regmap(request):
+    return load_register_map(request.param)
 
 
 def test_register_map_doc_lists_every_register():
     text = DOC.read_text()
-    # the doc embeds the generated tables verbatim: regenerate with `python -m eol_cal.dyno.registers`
-    assert rm.markdown_table() in text
-    for reg in rm.REGISTERS:
-        assert f"`{reg.name}`" in text
-    for name in rm.ANALOG_CHANNELS.values():
+    # the doc embeds the generated tables verbatim: regenerate with `python -m eol_cal.dyno.mapfile`
+    m = load_register_map()
+    assert m.markdown_table() in text
+    for name in rm.ROLES:
+        assert f"`{name}`" in text
+    for name in m.channels:
         assert f"`{name}`" in text
 
 
 def test_register_encoding_round_trips_and_word_order():
-    assert rm.encode("speed_setpoint", 1.0) == [0x3F80, 0x0000]  # high word first
-    assert rm.encode("capture_length", 0x12345) == [0x0001, 0x2345]
-    assert rm.decode("capture_length", [0x0001, 0x2345]) == 0x12345
-    assert rm.decode("dut_serial", rm.encode("dut_serial", "M-0001")) == "M-0001"
+    m = load_register_map("default")
+    assert m.encode("speed_setpoint", 1.0) == [0x3F80, 0x0000]  # high word first
+    assert m.encode("capture_length", 0x12345) == [0x0001, 0x2345]
+    assert m.decode("capture_length", [0x0001, 0x2345]) == 0x12345
+    assert m.decode("dut_serial", m.encode("dut_serial", "M-0001")) == "M-0001"
     x = np.array([0.0, -1.5, 3.25e-3, 65.0])
-    np.testing.assert_array_equal(rm.words_to_f32(rm.f32_to_words(x)), x.astype(np.float32))
-    a, b, h = rm.unpack_digital(rm.pack_digital([1, 0, 1], [0, 1, 1], [5, 1, 6]))
+    np.testing.assert_array_equal(m.words_to_analog(m.analog_to_words(x)), x.astype(np.float32))
+    a, b, h = m.unpack_digital(m.pack_digital([1, 0, 1], [0, 1, 1], [5, 1, 6]))
     assert list(a) == [1, 0, 1] and list(b) == [0, 1, 1] and list(h) == [5, 1, 6]
+    assert list(m.pack_digital([1], [1], [5])) == [1 | 2 | 5 << 2]
     with pytest.raises(ValueError):
-        rm.encode("mode", 70000)
+        m.encode("mode", 70000)
 
 
-@pytest.fixture
-def dyno():
-    sim = DynoSim(synthetic_source, serial="M-MAP")
-    with DynoSimThread(sim) as th:
-        yield th
+def test_vendor_b_encoding_cdab_scaled_integers_and_codes():
+    m = load_register_map("vendor-b")
+    assert m.encode("capture_length", 0x12345) == [0x2345, 0x0001]  # low word first ("CDAB")
+    assert m.encode("speed_setpoint", 123.4) == [1234, 0]  # 0.1 rpm per count
+    assert m.encode("dut_cmd", -1.5) == [(-1500) & 0xFFFF, 0xFFFF]  # mN*m, i32
+    assert m.decode("speed", m.encode("speed", -60.0)) == pytest.approx(-60.0)
+    assert np.isnan(m.decode("torque", m.encode("torque", float("nan")))) and m.encode("torque", float("nan")) == [0, 0x8000]
+    assert m.encode("enable", rm.Switch.ON) == [0x0F] and m.decode("drive_state", [0x13]) == rm.DriveState.AT_SPEED
+    assert m.encode("faults", int(rm.Fault.OVER_SPEED | rm.Fault.DRIVE)) == [1 << 3 | 1 << 8]
+    assert m.decode("interlocks", [0b1111]) == rm.Interlock.ALL
+    with pytest.raises(ValueError, match="code"):
+        m.decode("drive_state", [0x12])
+    assert list(m.pack_digital([1], [0], [6])) == [1 << 8 | 6 << 4]
+    x = np.array([1.0, -2.5])
+    assert list(m.analog_to_words(x)) == [0x0000, 0x3F80, 0x0000, 0xC020]
+    # the two tables are separate spaces: mode and map_version both at 0
+    assert (m["mode"].table, m["mode"].address) == ("holding", 0) and (m["map_version"].table, m["map_version"].address) == ("input", 0)
 
 
-def _client(port: int) -> DynoClient:
-    return DynoClient(DynoConfig(port=port, timeout=0.5, retries=0, settle_timeout=2.0))
+def _client(port: int, regmap=None) -> DynoClient:
+    return DynoClient(DynoConfig(port=port, timeout=0.5, retries=0, settle_timeout=2.0, register_map=regmap))
 
 
-def test_server_enforces_the_map(dyno):
-    c = _client(dyno.port)
-    ident = c.connect()
-    assert ident["dut_serial"] == "M-MAP" and ident["map_version"] == rm.MAP_VERSION
-    with pytest.raises(DynoError, match="refused"):
-        c.write(speed=10.0)  # status is read-only
-    with pytest.raises(DynoError, match="refused"):
-        c.write(mode=7)
-    with pytest.raises(DynoError, match="refused"):
-        c.write(capture_rate=7000)  # does not divide the 20 kHz tick
-    with pytest.raises(DynoError, match="refused"):
-        c.write(capture_start=1)  # drive not enabled
-    half = rm.BY_NAME["speed_setpoint"].address + 1
-    r = c._client.write_registers(half, [0], device_id=1)  # half of an f32
-    assert r.isError()
-    dyno.sim.interlocks = rm.Interlock.ALL & ~rm.Interlock.GUARD_CLOSED
-    with pytest.raises(DynoError, match="refused"):
-        c.write(enable=1)
-    dyno.sim.interlocks = rm.Interlock.ALL
-    c.write(mode=1, enable=1)
-    c.write(speed_setpoint=300.0, ramp=3000.0)
-    c.wait(lambda s: s["drive_state"] == rm.DriveState.AT_SPEED, 3.0, "ramping")
-    # AT_SPEED holds within the tolerance, before the ramp's last step: wait for its end
-    st = c.wait(lambda s: s["speed"] == pytest.approx(300.0), 3.0, "ramp end")
-    assert st["speed"] == pytest.approx(300.0) and st["drive_state"] == rm.DriveState.AT_SPEED
-    with pytest.raises(DynoError, match="refused"):
-        c.write(direction=1)  # no reversing while spinning
-    c.write(stop=1)
-    st = c.wait(lambda s: s["drive_state"] == rm.DriveState.DISABLED, 3.0, "stopping")
-    assert st["speed"] == 0.0 and c.read_block("mode", "watchdog_ms")["stop"] == 0
-    c.close()
+def test_server_enforces_the_map(regmap):
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-MAP", register_map=regmap)) as dyno:
+        c = _client(dyno.port, regmap)
+        ident = c.connect()
+        assert ident["dut_serial"] == "M-MAP" and ident["map_version"] == regmap.map_version
+        with pytest.raises(DynoError, match="refused"):
+            c.write(speed=10.0)  # status is read-only
+        with pytest.raises(DynoError, match="refused|cannot write"):
+            c.write(mode=7)  # refused by the dyno, or (a map with codes) unsayable
+        with pytest.raises(DynoError, match="refused"):
+            c.write(capture_rate=7000)  # does not divide the 20 kHz tick
+        with pytest.raises(DynoError, match="refused"):
+            c.write(capture_start=rm.CaptureCommand.ARM)  # drive not enabled
+        half = regmap["speed_setpoint"].address + 1
+        r = c._client.write_registers(half, [0], device_id=1)  # half of a 32-bit value
+        assert r.isError()
+        if regmap["drive_state"].table == "holding":  # a status word in the holding table is still read-only
+            r = c._client.write_registers(regmap["drive_state"].address, [0], device_id=1)
+            assert r.isError()
+        dyno.sim.interlocks = rm.Interlock.ALL & ~rm.Interlock.GUARD_CLOSED
+        assert c.status()["interlocks"] == rm.Interlock.ALL & ~rm.Interlock.GUARD_CLOSED
+        with pytest.raises(DynoError, match="refused"):
+            c.write(enable=rm.Switch.ON)
+        dyno.sim.interlocks = rm.Interlock.ALL
+        c.write(mode=rm.Mode.SPEED, enable=rm.Switch.ON)
+        c.write(speed_setpoint=300.0, ramp=3000.0)
+        c.wait(lambda s: s["drive_state"] == rm.DriveState.AT_SPEED, 3.0, "ramping")
+        # AT_SPEED holds within the tolerance, before the ramp's last step: wait for its end
+        st = c.wait(lambda s: s["speed"] == pytest.approx(300.0), 3.0, "ramp end")
+        assert st["speed"] == pytest.approx(300.0) and st["drive_state"] == rm.DriveState.AT_SPEED
+        assert dyno.sim.setpoint == pytest.approx(300.0) and dyno.sim.ramp == pytest.approx(3000.0)
+        with pytest.raises(DynoError, match="refused"):
+            c.write(direction=rm.Direction.REVERSE)  # no reversing while spinning
+        c.write(stop=rm.Command.EXECUTE)
+        st = c.wait(lambda s: s["drive_state"] == rm.DriveState.DISABLED, 3.0, "stopping")
+        assert st["speed"] == 0.0 and c.read(["stop"])["stop"] == rm.Command.IDLE
+        c.close()
 
 
-def test_fault_register_trips_and_reset_clears(dyno):
-    c = _client(dyno.port)
-    c.connect()
-    c.write(mode=1, enable=1)
-    c.write(speed_setpoint=100.0, ramp=5000.0)
-    c.write(sim_fault=int(rm.SimFault.TORQUE_SENSOR))
-    st = c.status()
-    assert st["faults"] & rm.Fault.TORQUE_SENSOR and st["drive_state"] == rm.DriveState.TRIPPED
-    assert np.isnan(st["torque"])
-    with pytest.raises(DynoError, match="refused"):
-        c.write(enable=1)  # latched
-    c.write(fault_reset=1)
-    assert c.status()["faults"] == 0
-    c.write(enable=1)
-    c.close()
+def test_fault_register_trips_and_reset_clears(regmap):
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-MAP", register_map=regmap)) as dyno:
+        c = _client(dyno.port, regmap)
+        c.connect()
+        c.write(mode=rm.Mode.SPEED, enable=rm.Switch.ON)
+        c.write(speed_setpoint=100.0, ramp=5000.0)
+        c.write(sim_fault=int(rm.SimFault.TORQUE_SENSOR))
+        st = c.status()
+        assert st["faults"] & rm.Fault.TORQUE_SENSOR and st["drive_state"] == rm.DriveState.TRIPPED
+        assert np.isnan(st["torque"])
+        with pytest.raises(DynoError, match="refused"):
+            c.write(enable=rm.Switch.ON)  # latched
+        c.write(fault_reset=rm.Command.EXECUTE)
+        assert c.status()["faults"] == 0
+        c.write(enable=rm.Switch.ON)
+        c.close()
+
+
+def test_a_client_on_the_wrong_map_is_stopped_at_connect():
+    with DynoSimThread(DynoSim(synthetic_source, register_map=load_register_map("vendor-b"))) as dyno:
+        c = _client(dyno.port, load_register_map("default"))
+        with pytest.raises(DynoError, match="register map version|refused|raw value"):
+            c.connect()
+        c.close()
 
 
 def test_fault_plan_parsing():
@@ -125,7 +162,7 @@ def _block(flags: int, sequence: int) -> bytes:
     return B.pack(blk)
 
 
-def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
+def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path, regmap):
     """The rig reads the ECU simulator's flash at every capture the dyno makes."""
     from eol_cal.ecu.flash import NorFlash
     from eol_cal.station.rig import ActiveCalibration, with_ecu
@@ -137,11 +174,11 @@ def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path):
         return synthetic_source(req)
 
     flash_file = tmp_path / "ecu.flash"
-    sim = DynoSim(with_ecu(flash_file, recording))
+    sim = DynoSim(with_ecu(flash_file, recording), register_map=regmap)
     seg = DynoSetpoint(60.0, 0.2, iq=20.0, ramp_rpm_s=5000.0)
 
     def capture_once() -> ActiveCalibration:
-        c = _client(th.port)
+        c = _client(th.port, regmap)
         c.connect()
         c.set_point(seg)
         c.capture(2000, 10000)

@@ -32,11 +32,15 @@ def test_a_record_without_fit_renders_every_limit_as_not_measured():
 
     rec = error_record()
     rows = limit_rows(rec)
-    assert [r.check.key for r in rows] == list(LIMIT_KEYS)
+    judged = [k for k in LIMIT_KEYS if getattr(LIMITS, k) is not None]  # an optional limit left off is no row
+    assert "max_pp_after_no_mech1_pct" not in judged
+    assert [r.check.key for r in rows] == judged
     assert {r.status for r in rows} == {"not measured"}
     html = render_motor_report(rec, [])
     assert 'id="verdict" class="verdict error">ERROR<' in html
-    assert html.count('class="limit-row"') == len(LIMIT_KEYS)
+    assert html.count('class="limit-row"') == len(judged)
+    rec["limits"]["max_pp_after_no_mech1_pct"] = 1.0
+    assert [r.check.key for r in limit_rows(rec)] == list(LIMIT_KEYS)
     assert "dyno fault" in html and 'id="no-plots"' in html
     assert "operator</th><td>not recorded" in html
 

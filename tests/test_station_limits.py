@@ -28,9 +28,10 @@ max_hall_deviation_deg = 3.0
 """
 
 # a motor of the plant's production draw as the station measures it (k6 0.85 mN*m/A; p-p under the
-# interpolated angle 4.4 % -> 1.23 % compensated)
+# interpolated angle 4.4 % -> 1.23 % compensated, 0.6 % of it without the rotor's unbalance)
 MOTOR = Measured(k6=0.85e-3, ci_k6=8.8e-6, ci_phase_k6_deg=0.5, ci_c6_nm=4.6e-4, r2=0.57, rms_nm=0.021,
-                 pp_before_pct=4.4, pp_after_pct=1.23, hall_deviation_deg=1.2, hall_source="measured")
+                 pp_before_pct=4.4, pp_after_pct=1.23, hall_deviation_deg=1.2, hall_source="measured",
+                 pp_after_no_mech1_pct=0.6)
 
 
 def test_fixture_has_two_variants_and_a_default():
@@ -131,3 +132,47 @@ def test_variant_choice(tmp_path: Path):
     with pytest.raises(InputError, match="file not found"):
         load_limits(tmp_path / "missing.toml")
 
+
+
+def test_old_limits_file_without_the_newer_keys_loads_with_the_defaults(tmp_path: Path):
+    from eol_cal.station.limits import OPTIONAL_DEFAULTS
+
+    old = tmp_path / "limits-2026-01.toml"  # written before max_hall_deviation_deg and the mech1 limit
+    old.write_text(GOOD.replace("max_hall_deviation_deg = 3.0\n", ""))
+    lim = load_limits(old)
+    assert lim.max_hall_deviation_deg == OPTIONAL_DEFAULTS["max_hall_deviation_deg"] == 3.0
+    assert lim.max_pp_after_no_mech1_pct is None  # off by default: not judged
+    assert verdict(MOTOR, lim)[0] == "fail"  # GOOD's own limits: MOTOR's p-p after 1.23 % > 1.0 %
+    assert not any("mech" in r for r in verdict(MOTOR, lim)[1])
+    # the default still judges: a hall table 3.5 deg off fails the motor
+    m = Measured(**{**MOTOR.__dict__, "hall_deviation_deg": 3.5, "pp_after_pct": 0.5})
+    assert any("max_hall_deviation_deg = 3" in r for r in verdict(m, lim)[1])
+    # the required keys stay required
+    old.write_text(GOOD.replace("max_rms_nm = 0.05\n", "").replace("max_hall_deviation_deg = 3.0\n", ""))
+    with pytest.raises(InputError) as err:
+        load_limits(old)
+    assert err.value.field == "variant.A.max_rms_nm"
+
+
+def test_mech1_limit_judged_when_set():
+    from eol_cal.station.limits import limit_checks
+
+    # MOTOR on EPS-STD passes; what is left after compensation is mostly the rotor's unbalance
+    motor = Measured(**{**MOTOR.__dict__, "pp_after_no_mech1_pct": 0.6})
+    loose = parse_limits(GOOD.replace("max_pp_after_pct = 1.0", "max_pp_after_pct = 2.0")
+                         + "max_pp_after_no_mech1_pct = 1.0\n", "x.toml")["A"]
+    assert loose.max_pp_after_no_mech1_pct == 1.0
+    assert verdict(motor, loose) == ("pass", [])
+    assert "max_pp_after_no_mech1_pct" in [c.key for c in limit_checks(motor, loose)]
+    tight = parse_limits(GOOD.replace("max_pp_after_pct = 1.0", "max_pp_after_pct = 2.0")
+                         + "max_pp_after_no_mech1_pct = 0.5\n", "x.toml")["A"]
+    v, reasons = verdict(motor, tight)
+    assert v == "fail" and len(reasons) == 1 and "max_pp_after_no_mech1_pct = 0.5" in reasons[0]
+    # not measured never passes a limit that is set
+    v, reasons = verdict(Measured(**{**MOTOR.__dict__, "pp_after_no_mech1_pct": math.nan}), tight)
+    assert v == "fail" and "max_pp_after_no_mech1_pct" in reasons[0]
+    # off: not a check at all
+    off = parse_limits(GOOD, "x.toml")["A"]
+    assert "max_pp_after_no_mech1_pct" not in [c.key for c in limit_checks(motor, off)]
+    with pytest.raises(InputError, match="outside"):
+        parse_limits(GOOD + "max_pp_after_no_mech1_pct = -1\n", "x.toml")

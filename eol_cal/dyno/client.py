@@ -2,7 +2,8 @@
 
 The sequence per segment: set the load command, direction and speed set point, enable, wait
 until the dyno reports "at speed", start a capture, poll until the buffer is ready, read every
-channel through the paged window (:mod:`.registers`) and check it. The segments are joined into
+channel through the paged window and check it. Which registers those are, and how their values
+are encoded, is the dyno's register map (:mod:`.regmap`, from a map file: ``DynoConfig.register_map``). The segments are joined into
 one :class:`~eol_cal.capture.model.Capture` whose time axis keeps the real time between the
 segments' starts (so the gaps are visible: the windows are not one continuous recording).
 
@@ -20,11 +21,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from eol_cal.address import parse_host_port
+from eol_cal.address import parse_modbus_address
 from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.registers import BY_NAME, CaptureState, DriveState, DutCmdKind, Fault
+from eol_cal.dyno.regmap import READ_FC
+from eol_cal.dyno.registers import CaptureCommand, CaptureState, Command, Direction, DriveState, DutCmdKind, Fault, Mode, Switch
 from eol_cal.errors import EolCalError, InputError, Interrupted
+from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
 from eol_cal.dyno.transfer import DynoConfig, ProgressFn, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
@@ -98,8 +101,9 @@ def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
 
 
 def parse_address(text: str) -> tuple[str, int]:
-    """The dyno's ``HOST:PORT`` -> (host, port); a bad address is an :class:`InputError`."""
-    return parse_host_port(text, "address")
+    """The dyno's ``HOST`` or ``HOST:PORT`` -> (host, port), Modbus TCP's port 502 when none is
+    given; a bad address is an :class:`InputError`."""
+    return parse_modbus_address(text, "address")
 
 
 @dataclass
@@ -136,19 +140,28 @@ class DynoClient:
         from pymodbus.client import ModbusTcpClient
 
         self.config = config
+        self.regmap = config.regmap
         self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
         self.reconnects = 0
         self._heartbeat = (-1, time.monotonic())
+        #: the dyno's identification matched the register map: only then is anything written
+        self.identified = False
 
     # ------------------------------------------------------------ transport
     @property
     def where(self) -> str:
         return f"dyno {self.config.host}:{self.config.port}"
 
-    def _call(self, what: str, fn: Callable[[], object]):
+    def _call(self, what: str, fn: Callable[[], object], request: tuple[int, int, int, list[int] | None]):
         """Run one request with :func:`eol_cal.retry.retry_call`: reconnect on lost connections
-        and timeouts; a Modbus exception answer is a refusal, not retried."""
+        and timeouts; a Modbus exception answer is a refusal, not retried.
+
+        ``request`` is (function code, address, count, words written) for the exchange log.
+        """
         from pymodbus.exceptions import ModbusException
+
+        fc, address, count, written = request
+        where = f"{self.config.host}:{self.config.port}"
 
         def attempt(n: int):
             if not self._client.connected:
@@ -165,47 +178,61 @@ class DynoClient:
                                   before_retry=lambda _n, _exc: self._client.close())
         except RetriesExhausted as exc:
             self._client.close()
+            log_modbus(where, fc, address, count, written, exception=f"none after {exc.attempts} attempts: {exc.last}")
             raise DynoError(f"{self.where}: {what} failed after {exc.attempts} attempts: {exc.last}") from None
         if response.isError():
             code = getattr(response, "exception_code", None)
+            log_modbus(where, fc, address, count, written, exception=code)
             why = _EXCEPTION_MEANING.get(code, "")
             raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
+        log_modbus(where, fc, address, count, written if written is not None else getattr(response, "registers", None))
         return response
 
     def connect(self) -> dict[str, float | int | str]:
-        """Connect and read the identification registers."""
-        ident = self.read_block("map_version", "tick_hz")
-        if ident["map_version"] != rm.MAP_VERSION:
-            raise DynoError(f"{self.where}: register map version {ident['map_version']}, this tool speaks {rm.MAP_VERSION}")
+        """Connect and read the identification registers (checking the map version the map expects)."""
+        try:
+            ident = self.read(self.regmap.group("identification"))
+        except DynoError as exc:
+            if "refused" not in str(exc):
+                raise
+            raise DynoError(f"{exc}; is {self.regmap.source} this dyno's register map?") from None
+        expected = self.regmap.map_version
+        if expected is not None and ident["map_version"] != expected:
+            raise DynoError(f"{self.where}: register map version {ident['map_version']}, the register map "
+                            f"{self.regmap.name!r} ({self.regmap.source}) expects {expected}")
+        self.identified = True
         return ident
 
     def close(self) -> None:
         self._client.close()
 
-    def read_block(self, first: str, last: str) -> dict[str, float | int | str]:
-        """Read registers ``first`` ... ``last`` in one request and decode every entry in between."""
-        address, count = rm.span(first, last)
-        r = self._call(f"read {first}..{last}", lambda: self._client.read_holding_registers(address, count=count, device_id=self.config.device_id))
-        names = tuple(reg.name for reg in rm.REGISTERS if address <= reg.address < address + count)
-        return rm.unpack_block(address, r.registers, names)
+    def read(self, names: Sequence[str]) -> dict[str, float | int | str]:
+        """Read registers ``names`` (neighbours of one table in one request) and decode them."""
+        out: dict[str, float | int | str] = {}
+        for table, address, count, run in self.regmap.read_runs(names):
+            fc = READ_FC[table]
+            read = self._client.read_input_registers if fc == 4 else self._client.read_holding_registers
+            r = self._call(f"read {','.join(run)}", lambda a=address, n=count, f=read: f(a, count=n, device_id=self.config.device_id),
+                           (fc, address, count, None))
+            try:
+                out.update(self.regmap.unpack(address, r.registers, run))
+            except ValueError as exc:
+                raise DynoError(f"{self.where}: {exc} (register map {self.regmap.source})") from None
+        return out
 
     def write(self, **values: float | int) -> None:
-        """Write registers by name; neighbours go out in one FC 16 request."""
-        regs = sorted((BY_NAME[n] for n in values), key=lambda r: r.address)
-        run: list[rm.Register] = []
-        for reg in regs + [None]:  # type: ignore[list-item]
-            if run and (reg is None or reg.address != run[-1].address + run[-1].count):
-                words = [w for r in run for w in rm.encode(r.name, values[r.name])]
-                address = run[0].address
-                names = ",".join(r.name for r in run)
-                self._call(f"write {names}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id))
-                run = []
-            if reg is not None:
-                run.append(reg)
+        """Write registers by name (physical or semantic values); neighbours go out in one FC 16 request."""
+        try:
+            runs = self.regmap.write_runs(values)
+        except ValueError as exc:
+            raise DynoError(f"{self.where}: cannot write {exc} (register map {self.regmap.source})") from None
+        for address, words, names in runs:
+            self._call(f"write {','.join(names)}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id),
+                       (16, address, len(words), words))
 
     def status(self) -> dict[str, float | int | str]:
-        """The status block; raises when the dyno's heartbeat stopped for ``HEARTBEAT_STALL_S``."""
-        st = self.read_block("speed", "capture_seq")
+        """The status registers; raises when the dyno's heartbeat stopped for ``HEARTBEAT_STALL_S``."""
+        st = self.read(self.regmap.group("status"))
         now = time.monotonic()
         if st["heartbeat"] != self._heartbeat[0]:
             self._heartbeat = (int(st["heartbeat"]), now)
@@ -227,16 +254,16 @@ class DynoClient:
         cfg = self.config
         st = self.status()
         self.check_faults(st, "preparing")
-        direction = 1 if seg.speed_rpm < 0 else 0
+        direction = Direction.REVERSE if seg.speed_rpm < 0 else Direction.FORWARD
         kind, value = seg.command()
-        current_dir = 1 if float(st["speed"]) < 0 else 0
+        current_dir = Direction.REVERSE if float(st["speed"]) < 0 else Direction.FORWARD
         if abs(float(st["speed"])) > rm.STANDSTILL_RPM and direction != current_dir:
             # reversing goes through standstill; the dyno refuses a direction flip while spinning
             self.write(speed_setpoint=0.0)
             self.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse")
-        self.write(mode=1, direction=direction)
+        self.write(mode=Mode.SPEED, direction=direction)
         self.write(speed_setpoint=abs(seg.speed_rpm), ramp=seg.ramp_rpm_s, dut_cmd_kind=int(kind), dut_cmd=value)
-        self.write(enable=1, watchdog_ms=cfg.watchdog_ms)
+        self.write(enable=Switch.ON, watchdog_ms=cfg.watchdog_ms)
         ramp_time = abs(seg.speed_rpm - float(st["speed"])) / seg.ramp_rpm_s
         self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
 
@@ -254,7 +281,7 @@ class DynoClient:
     def capture(self, n_samples: int, rate_hz: int) -> dict:
         """Start a capture of ``n_samples`` at ``rate_hz`` (Hz) and wait until it is ready."""
         self.write(capture_rate=rate_hz, capture_length=n_samples)
-        self.write(capture_start=1)
+        self.write(capture_start=CaptureCommand.ARM)
 
         def ready(s: dict) -> bool:
             if s["capture_state"] == CaptureState.ERROR:
@@ -279,11 +306,17 @@ class DynoClient:
         return result
 
     def safe_state(self) -> str | None:
-        """Speed set point 0, capture aborted, drive disabled. Returns None or why it failed."""
+        """Speed set point 0, capture aborted, drive disabled. Returns None or why it failed.
+
+        Nothing is written to a dyno whose identification did not match the register map: on
+        another layout those addresses are other registers.
+        """
         try:
+            if not self.identified:
+                self.connect()
             self.write(speed_setpoint=0.0)
-            self.write(capture_start=2)
-            self.write(enable=0)
+            self.write(capture_start=CaptureCommand.ABORT)
+            self.write(enable=Switch.OFF)
         except DynoError as exc:
             return str(exc)
         return None
@@ -302,22 +335,22 @@ def run_profile(
     Returns the segments' data and the dyno's identification registers.
     Raises :class:`DynoError` on any failure (after the safe state was commanded).
     """
-    unknown = [c for c in channels if c not in rm.ANALOG_CHANNELS.values()]
+    known = client.regmap.channels
+    unknown = [c for c in channels if c not in known]
     if unknown:
-        raise InputError(None, "channels", f"unknown dyno channel(s) {unknown}; known: {sorted(rm.ANALOG_CHANNELS.values())}")
+        raise InputError(client.regmap.source, "channels", f"the dyno records no channel(s) {unknown}; known: {sorted(known)}")
     for i, seg in enumerate(segments):
         # refuse a bad profile before the shaft turns
         if int(round(seg.seconds * rate_hz)) < 2:
             raise InputError(None, f"segment {i + 1}", f"{seg.seconds:g} s of steady capture at {rate_hz} Hz is fewer than 2 samples")
         if seg.ramp_rpm_s <= 0 or not np.isfinite(seg.ramp_rpm_s):
             raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
-    name_to_id = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
     data: list[DynoWindow] = []
     t_first: float | None = None
     try:
         ident = client.connect()
         if reset_faults:
-            client.write(fault_reset=1)
+            client.write(fault_reset=Command.EXECUTE)
         for i, seg in enumerate(segments):
             if progress:
                 progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
@@ -326,7 +359,7 @@ def run_profile(
             t_start = time.monotonic()
             st = client.capture(n, rate_hz)
             available = int(st["capture_channels"])
-            want = [c for c in channels if available & rm.channel_bit(name_to_id[c])]
+            want = [c for c in channels if available & rm.channel_bit(known[c])]
             for required in ("torque", "iq_ref"):
                 if required not in want:
                     raise DynoError(f"{client.where}: capture has no {required} channel")

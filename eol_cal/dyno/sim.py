@@ -1,4 +1,5 @@
-"""Dyno simulator: a real pymodbus TCP server speaking the register map of :mod:`.registers`.
+"""Dyno simulator: a real pymodbus TCP server speaking a dyno register map (:mod:`.regmap`: the
+reference layout by default, or any map file the client can drive).
 
 The simulated dyno holds a speed set point with a ramp, passes the load command to the motor
 under test and, when a capture is started, asks a *capture source* for the recording
@@ -29,7 +30,6 @@ from typing import Callable, TypeVar
 import numpy as np
 
 from eol_cal.capture.model import Capture
-from eol_cal.dyno import registers as rm
 from eol_cal.dyno.registers import (
     CaptureState,
     DriveState,
@@ -39,6 +39,8 @@ from eol_cal.dyno.registers import (
     Mode,
     SimFault,
 )
+from eol_cal.dyno.mapfile import default_register_map
+from eol_cal.dyno.regmap import RegisterMap
 from eol_cal.dyno.sim_modbus import ModbusFace
 from eol_cal.motor import MotorParams, load_motor
 
@@ -163,6 +165,8 @@ class DynoSim(ModbusFace):
         Over-speed trip threshold (rpm).
     faults : sequence of FaultPlan
         Faults that fire by themselves.
+    register_map : RegisterMap, optional
+        The layout the dyno serves (default: the eol-cal reference map, ``maps/default.toml``).
     """
 
     def __init__(
@@ -174,7 +178,9 @@ class DynoSim(ModbusFace):
         seed: int | None = None,
         max_speed: float = 3000.0,
         faults: tuple[FaultPlan, ...] | list[FaultPlan] = (),
+        register_map: RegisterMap | None = None,
     ) -> None:
+        self.regmap = default_register_map() if register_map is None else register_map
         self.source = source
         self.serial = serial
         self.motor = load_motor("paper") if motor is None else motor
@@ -353,7 +359,7 @@ class DynoSim(ModbusFace):
             return
         capture: Capture = job.result()
         try:
-            self.buffer = capture_to_buffer(capture, request.n_samples)
+            self.buffer = capture_to_buffer(capture, request.n_samples, self.regmap)
         except ValueError as err:
             self.log.append((time.monotonic(), "capture_error", str(err)))
             self._capture_failed()
@@ -370,13 +376,13 @@ class DynoSim(ModbusFace):
         if words is None:
             self.page = []
             return
-        per = 1 if self.buf_channel == rm.DIGITAL_CHANNEL_ID else 2
+        per = self.regmap.regs_per_sample(self.buf_channel)
         first = self.buf_offset * per
-        self.page = words[first : first + rm.WINDOW_REGS].tolist()
+        self.page = words[first : first + self.regmap.window.registers].tolist()
 
 
-def capture_to_buffer(capture: Capture, n_samples: int) -> dict[int, np.ndarray]:
-    """A capture -> register words per channel id (the dyno's capture buffer).
+def capture_to_buffer(capture: Capture, n_samples: int, regmap: RegisterMap) -> dict[int, np.ndarray]:
+    """A capture -> register words per channel id (the dyno's capture buffer, encoded as ``regmap`` says).
 
     Raises ValueError when the capture lacks the digital channels or has the wrong length.
     """
@@ -385,10 +391,10 @@ def capture_to_buffer(capture: Capture, n_samples: int) -> dict[int, np.ndarray]
     ch = capture.channels
     if "enc_a" not in ch or "hall" not in ch:
         raise ValueError("capture source returned no enc_a/hall channels")
-    buffer = {rm.DIGITAL_CHANNEL_ID: rm.pack_digital(ch["enc_a"], ch.get("enc_b"), ch["hall"])}
-    for cid, name in rm.ANALOG_CHANNELS.items():
+    buffer = {regmap.window.digital_id: regmap.pack_digital(ch["enc_a"], ch.get("enc_b"), ch["hall"])}
+    for cid, name in regmap.analog_channels.items():
         if name in ch:
-            buffer[cid] = rm.f32_to_words(ch[name])
+            buffer[cid] = regmap.analog_to_words(ch[name])
     return buffer
 
 

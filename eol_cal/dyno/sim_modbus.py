@@ -1,10 +1,12 @@
 """The dyno simulator's Modbus face: register values, the request hook, the TCP server.
 
 :class:`ModbusFace` is mixed into :class:`eol_cal.dyno.sim.DynoSim`; it turns the simulated
-state into the register map of :mod:`eol_cal.dyno.registers` and every accepted write back into
-state. The pymodbus 3.16 server is fed a :class:`pymodbus.simulator.SimDevice` (the datastore
-API 3.16 recommends; the ``ModbusDeviceContext`` classes are deprecated shims) whose ``action``
-hook sees every request: it validates and applies writes and refreshes what a read returns.
+state into the registers of the dyno's :class:`~eol_cal.dyno.regmap.RegisterMap` (any map the
+client can drive: the reference layout, or a vendor's) and every accepted write back into state.
+The pymodbus 3.16 server is fed a :class:`pymodbus.simulator.SimDevice` (the datastore API 3.16
+recommends; the ``ModbusDeviceContext`` classes are deprecated shims), one shared register space
+or separate holding and input tables as the map says, whose ``action`` hook sees every request:
+it validates and applies writes and refreshes what a read returns.
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import time
 from typing import TYPE_CHECKING, Callable
 
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.registers import BY_NAME, CaptureState, Fault, Interlock, SimFault
+from eol_cal.dyno.regmap import RegisterMap
+from eol_cal.dyno.registers import CaptureState, Fault, Interlock, SimFault
 
 if TYPE_CHECKING:
     from pymodbus.constants import ExcCodes
@@ -24,6 +27,8 @@ if TYPE_CHECKING:
 _FC_READ = (3, 4)
 #: longest capture the buffer holds (samples)
 MAX_CAPTURE_SAMPLES = 4_000_000
+#: command registers: act on the write, read back idle (0)
+_SELF_CLEARING = ("stop", "capture_start", "fault_reset", "sim_fault")
 
 
 class ModbusFace:
@@ -31,6 +36,7 @@ class ModbusFace:
 
     _loop: asyncio.AbstractEventLoop | None
     _server: object | None
+    regmap: RegisterMap
 
     def _serving_loop(self) -> asyncio.AbstractEventLoop:
         """The server's event loop; a :class:`RuntimeError` before :meth:`serve` started."""
@@ -39,12 +45,9 @@ class ModbusFace:
         return self._loop
 
     def status_values(self) -> dict[str, float | int | str]:
-        """Current value of every read-only register except the window."""
-        mask = 0
-        for cid in self.buffer:
-            mask |= rm.channel_bit(cid)
+        """Current value of every read-only register (physical or semantic values)."""
         return {
-            "map_version": rm.MAP_VERSION,
+            "map_version": self.regmap.map_version or 0,
             "dut_serial": self.serial,
             "dut_poles": self.motor.poles,
             "dut_encoder_ppr": self.motor.N_enc,
@@ -59,7 +62,7 @@ class ModbusFace:
             "drive_state": int(self.drive_state()),
             "capture_state": int(self.capture_state),
             "capture_count": self.buffer_count if self.capture_state == CaptureState.READY else 0,
-            "capture_channels": mask,
+            "capture_channels": self.regmap.channel_mask(list(self.buffer)),
             "heartbeat": self.heartbeat_frozen if self.heartbeat_frozen is not None else int((time.monotonic() - self._t0) * 100) & 0xFFFF,
             "capture_seq": self.capture_seq,
         }
@@ -86,20 +89,31 @@ class ModbusFace:
         }
 
     def simdevice(self) -> SimDevice:
-        """The pymodbus :class:`SimDevice` backing the server (one shared register space)."""
+        """The pymodbus :class:`SimDevice` backing the server: the map's registers and window."""
         from pymodbus.simulator import DataType, SimData, SimDevice
 
-        data = []
+        m = self.regmap
         values = {**self.status_values(), **self.control_values()}
-        for reg in rm.REGISTERS:
-            if reg.type == "words":
-                data.append(SimData(reg.address, count=reg.count, values=0, datatype=DataType.REGISTERS, readonly=True))
-            else:
-                data.append(
-                    SimData(reg.address, values=rm.encode(reg.name, values[reg.name]), datatype=DataType.REGISTERS, readonly=not reg.writable)
-                )
+        tables: dict[str, list] = {"holding": [], "input": []}
+        for e in m.entries.values():
+            tables[e.table].append(SimData(e.address, values=m.encode(e.name, values[e.name]), datatype=DataType.REGISTERS,
+                                           readonly=not e.role.writable))
+        w = m.window
+        tables[w.table].append(SimData(w.address, count=w.registers, values=0, datatype=DataType.REGISTERS, readonly=True))
         # id 0: answer every unit id, as a TCP device usually does
-        return SimDevice(0, simdata=data, action=self.action)
+        if m.shared_tables:
+            return SimDevice(0, simdata=tables["holding"] + tables["input"], action=self.action)
+        for name in ("holding", "input"):
+            if not tables[name]:  # pymodbus needs an entry in each table
+                tables[name].append(SimData(0, values=0, datatype=DataType.REGISTERS, readonly=True))
+        bit = [SimData(0, datatype=DataType.BITS, readonly=True)]
+        return SimDevice(0, simdata=(bit, list(bit), tables["holding"], tables["input"]), action=self.action)
+
+    def _table_of(self, function_code: int) -> str | None:
+        """The table a request addresses (None: the one shared space)."""
+        if self.regmap.shared_tables:
+            return None
+        return "input" if function_code == 4 else "holding"
 
     async def action(
         self, function_code: int, start_address: int, address: int, count: int, registers: list[int],
@@ -112,52 +126,57 @@ class ModbusFace:
         self._last_request = now
         self.advance(now)
         end = address + count
+        table = self._table_of(function_code)
+        w = self.regmap.window
         if function_code in _FC_READ:
-            if address < rm.WINDOW_ADDR + rm.WINDOW_REGS and end > rm.WINDOW_ADDR:
+            if table in (None, w.table) and address < w.end and end > w.address:
                 self.window_reads += 1
                 self._fire_plans("read", self.window_reads)
                 if time.monotonic() < self.disconnect_until:
                     return ExcCodes.DEVICE_BUSY  # the connection is being dropped anyway
-                lo = max(address, rm.WINDOW_ADDR) - rm.WINDOW_ADDR
-                hi = min(end, rm.WINDOW_ADDR + rm.WINDOW_REGS) - rm.WINDOW_ADDR
+                lo = max(address, w.address) - w.address
+                hi = min(end, w.end) - w.address
                 chunk = self.page[lo:hi]
                 chunk += [0] * (hi - lo - len(chunk))
-                base = rm.WINDOW_ADDR - start_address
-                registers[base + lo : base + hi] = chunk
-            if address < rm.WINDOW_ADDR:
-                self._refresh(registers, start_address, address, min(end, rm.WINDOW_ADDR), self.status_values())
+                base = w.address - start_address
+                registers[base + lo: base + hi] = chunk
+            if address < w.address or end > w.end or table not in (None, w.table):  # not a window-only read
+                self._refresh(registers, start_address, address, end, table, self.status_values())
             return None
         if set_values is None:
             return None
-        return self._write(address, list(set_values), set_values, registers, start_address) or None
+        return self._write(address, list(set_values), set_values) or None
 
-    @staticmethod
-    def _refresh(registers: list[int], start: int, lo: int, hi: int, values: dict) -> None:
+    def _refresh(self, registers: list[int], start: int, lo: int, hi: int, table: str | None, values: dict) -> None:
         for name, value in values.items():
-            reg = BY_NAME[name]
-            if reg.address < hi and reg.address + reg.count > lo:
-                i = reg.address - start
-                registers[i : i + reg.count] = rm.encode(name, value)
+            e = self.regmap.entries.get(name)
+            if e is not None and table in (None, e.table) and e.address < hi and e.end > lo:
+                i = e.address - start
+                registers[i: i + e.count] = self.regmap.encode(name, value)
 
-    def _write(self, address: int, words: list[int], set_values, registers: list[int], start: int):
+    def _write(self, address: int, words: list[int], set_values):
         from pymodbus.constants import ExcCodes
 
         end = address + len(words)
+        m = self.regmap
         # A write must cover whole values: half of an f32 would change it to garbage.
         new: dict[str, float | int | str] = {}
-        for reg in rm.REGISTERS:
-            if reg.address < end and reg.address + reg.count > address:
-                if reg.address < address or reg.address + reg.count > end or not reg.writable:
+        for e in m.entries.values():
+            if (m.shared_tables or e.table == "holding") and e.address < end and e.end > address:
+                if e.address < address or e.end > end or not e.role.writable:
                     return ExcCodes.ILLEGAL_ADDRESS
-                i = reg.address - address
-                new[reg.name] = rm.decode(reg.name, words[i : i + reg.count])
+                i = e.address - address
+                try:
+                    new[e.name] = m.decode(e.name, words[i: i + e.count])
+                except ValueError:
+                    return ExcCodes.ILLEGAL_VALUE  # a raw code the map does not list
         err = self._apply(new)
         if err:
             return err
-        # self-clearing command registers read back 0
-        for name in ("stop", "capture_start", "fault_reset", "sim_fault"):
+        for name in _SELF_CLEARING:
             if name in new:
-                set_values[BY_NAME[name].address - address] = 0
+                i = m[name].address - address
+                set_values[i: i + m[name].count] = m.encode(name, 0)
         return None
 
     def _apply(self, new: dict[str, float | int | str]):
@@ -188,7 +207,7 @@ class ModbusFace:
             return bad
         if new.get("capture_start") == 1 and not self.enabled:
             return bad
-        if "buf_channel" in new and new["buf_channel"] not in (0, rm.DIGITAL_CHANNEL_ID, *rm.ANALOG_CHANNELS):
+        if "buf_channel" in new and new["buf_channel"] not in (0, self.regmap.window.digital_id, *self.regmap.analog_channels):
             return bad
         if "sim_fault" in new and new["sim_fault"] not in tuple(int(k) for k in SimFault):
             return bad

@@ -1,8 +1,8 @@
 """How the client reaches the dyno (:class:`DynoConfig`) and the chunked read of its capture buffer.
 
-The buffer is read page by page through the register window (:mod:`.registers`): select a
-channel and a first sample, then read the window in blocks of at most ``MAX_READ_REGS``
-registers. pymodbus serves one request per connection at a time, so the blocks of a page are
+The buffer is read page by page through the register map's window (:mod:`.regmap`): select a
+channel and a first sample, then read the window in blocks of at most the map's
+``max_read_registers``. pymodbus serves one request per connection at a time, so the blocks of a page are
 read over ``connections`` parallel connections; a lost connection or a timeout restarts the page
 on fresh connections through :func:`eol_cal.retry.retry_async` (the same back-off rule as every
 single request, :meth:`eol_cal.dyno.client.DynoClient._call`).
@@ -16,7 +16,9 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from eol_cal.dyno import registers as rm
+from eol_cal.dyno.mapfile import default_register_map
+from eol_cal.dyno.regmap import READ_FC, RegisterMap
+from eol_cal.exchange_log import log_modbus
 from eol_cal.retry import RetriesExhausted, retry_async
 
 ProgressFn = Callable[[str, float, float], None]  # (what, done, total)
@@ -55,6 +57,8 @@ class DynoConfig:
         Extra time allowed for a capture beyond its duration (s).
     poll_interval : float
         Status polling period (s).
+    register_map : RegisterMap or None
+        The dyno's register layout; None: the eol-cal reference map (``maps/default.toml``).
     """
 
     host: str = "127.0.0.1"
@@ -68,17 +72,22 @@ class DynoConfig:
     settle_timeout: float = 10.0
     capture_timeout: float = 60.0
     poll_interval: float = 0.01
+    register_map: RegisterMap | None = None
+
+    @property
+    def regmap(self) -> RegisterMap:
+        """The register map in use (the default map when none was given)."""
+        return default_register_map() if self.register_map is None else self.register_map
 
 
-def page_plan(names: Sequence[str], n_samples: int) -> tuple[list[tuple[str, int]], list[tuple[int, int, int]]]:
+def page_plan(regmap: RegisterMap, names: Sequence[str], n_samples: int) -> tuple[list[tuple[str, int]], list[tuple[int, int, int]]]:
     """Channels to read (``names`` plus the digital channel, as ``(name, channel id)``) and their
     pages as ``(channel id, first sample, registers)``."""
-    ids = {name: cid for cid, name in rm.ANALOG_CHANNELS.items()}
-    plan = [(n, ids[n]) for n in names] + [("digital", rm.DIGITAL_CHANNEL_ID)]
+    plan = [(n, regmap.channels[n]) for n in names] + [("digital", regmap.window.digital_id)]
     pages: list[tuple[int, int, int]] = []
     for _name, cid in plan:
-        per = 1 if cid == rm.DIGITAL_CHANNEL_ID else 2
-        page_samples = rm.WINDOW_REGS // per
+        per = regmap.regs_per_sample(cid)
+        page_samples = regmap.samples_per_page(cid)
         for first in range(0, n_samples, page_samples):
             pages.append((cid, first, min(page_samples, n_samples - first) * per))
     return plan, pages
@@ -91,16 +100,17 @@ def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
     Returns the analog channels (float64 from the f32 on the wire) and ``enc_a``, ``enc_b``,
     ``hall``, and the number of reconnects it took. Raises :class:`TransferError`.
     """
-    plan, pages = page_plan(names, n_samples)
+    regmap = cfg.regmap
+    plan, pages = page_plan(regmap, names, n_samples)
     words = asyncio.run(_transfer(cfg, pages, progress))
     reconnects = int(words.pop())
     result: dict[str, np.ndarray] = {}
     for name, cid in plan:
         w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words) if c == cid])
         if name == "digital":
-            result["enc_a"], result["enc_b"], result["hall"] = rm.unpack_digital(w)
+            result["enc_a"], result["enc_b"], result["hall"] = regmap.unpack_digital(w)
         else:
-            result[name] = rm.words_to_f32(w)
+            result[name] = regmap.words_to_analog(w)
     return result, reconnects
 
 
@@ -117,6 +127,8 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
     from pymodbus.exceptions import ModbusException
 
     k = max(1, cfg.connections)
+    regmap = cfg.regmap
+    where = f"{cfg.host}:{cfg.port}"
     clients: list = []
     reconnects = 0
 
@@ -131,16 +143,23 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
                 raise ConnectionError("cannot connect")
 
     async def read_page(cid: int, first: int, n_regs: int) -> np.ndarray:
-        sel = await clients[0].write_registers(rm.BY_NAME["buf_channel"].address, [cid] + rm.encode("buf_offset", first), device_id=cfg.device_id)
-        if sel.isError():
-            raise TransferError(f"page select refused (Modbus exception {getattr(sel, 'exception_code', None)})")
-        blocks = [(rm.WINDOW_ADDR + a, min(rm.MAX_READ_REGS, n_regs - a)) for a in range(0, n_regs, rm.MAX_READ_REGS)]
+        for address, select, _names in regmap.write_runs({"buf_channel": cid, "buf_offset": first}):
+            sel = await clients[0].write_registers(address, select, device_id=cfg.device_id)
+            log_modbus(where, 16, address, len(select), select,
+                       exception=getattr(sel, "exception_code", None) if sel.isError() else None)
+            if sel.isError():
+                raise TransferError(f"page select refused (Modbus exception {getattr(sel, 'exception_code', None)})")
+        blocks = regmap.page_blocks(n_regs)
         out: list = [None] * len(blocks)
+        fc = READ_FC[regmap.window.table]
 
         async def worker(i: int) -> None:
             for j in range(i, len(blocks), k):
                 address, count = blocks[j]
-                r = await clients[i].read_holding_registers(address, count=count, device_id=cfg.device_id)
+                read = clients[i].read_input_registers if fc == 4 else clients[i].read_holding_registers
+                r = await read(address, count=count, device_id=cfg.device_id)
+                log_modbus(where, fc, address, count, getattr(r, "registers", None),
+                           exception=getattr(r, "exception_code", None) if r.isError() else None)
                 if r.isError():
                     raise TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})")
                 if len(r.registers) != count:

@@ -127,9 +127,13 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
         # the connection and never answers would hold the command forever.
         socket.setdefaulttimeout(CONNECT_TIMEOUT_S)
         bus = can.Bus(ignore_config=True, **config)
-    except (can.CanError, ValueError, OSError, ImportError, TypeError, AssertionError) as exc:
+    except (can.CanError, ValueError, OSError, TypeError) as exc:
         raise InputError(can_config, "interface",
                          f"cannot open {config.get('interface')} channel {config.get('channel')!r}: {exc}") from exc
+    except Exception as exc:  # noqa: BLE001 - a missing vendor driver fails in its own ways (kvaser: NameError)
+        raise InputError(can_config, "interface",
+                         f"cannot open {config.get('interface')} channel {config.get('channel')!r}: its driver is "
+                         f"missing or failed ({type(exc).__name__}: {exc})") from exc
     finally:
         socket.setdefaulttimeout(previous_timeout)
     sock = getattr(bus, "socket", None)

@@ -99,7 +99,7 @@ def measured_of(rec: dict[str, Any]) -> Measured:
         m = measured_from_fit(rec["fit"])
     except (KeyError, TypeError, ValueError):
         m = Measured(k6=nan, ci_k6=nan, ci_phase_k6_deg=nan, ci_c6_nm=nan, r2=nan, rms_nm=nan)
-    pp = {k: float(met[k]) if met.get(k) is not None else nan for k in ("pp_before_pct", "pp_after_pct")}
+    pp = {k: float(met[k]) if met.get(k) is not None else nan for k in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct")}
     return Measured(**{**m.__dict__, **pp})
 
 
@@ -354,7 +354,9 @@ def render_motor_report(rec: dict[str, Any], figures: Sequence[Figure]) -> str:
         ("hall table", hall.get("source", "-") if hall.get("source") != "measured" else
          "measured, offsets " + " ".join(f"{d:+.2f}" for d in hall.get("deviation_deg", [])) + " deg"),
         ("compensated p-p, mech. order 1 taken out",
-         f"{_fmt((rec.get('metrics') or {}).get('pp_after_no_mech1_pct'))} % (no limit: the rest is the rotor's unbalance)"),
+         f"{_fmt((rec.get('metrics') or {}).get('pp_after_no_mech1_pct'))} % "
+         + ("(no limit: the rest is the rotor's unbalance)" if (rec.get("limits") or {}).get("max_pp_after_no_mech1_pct") is None
+            else f"(limit {_fmt(rec['limits']['max_pp_after_no_mech1_pct'])} %: the rows below)")),
         ("lead", f"{_fmt((rec.get('block') or {}).get('lead_s', None) and rec['block']['lead_s'] * 1e6)} us"),
     ]
     ecu = rec.get("ecu_active") or {}

@@ -14,19 +14,7 @@ from typing import Any, Callable
 
 from eol_cal.errors import InputError
 from eol_cal.station.run import StationConfig
-from eol_cal.station.settings import StationSettings, _named
-
-#: the dyno register map a station uses when its settings name none
-BUILT_IN_MAP = "default"
-
-
-def _check_register_map(settings: StationSettings) -> None:
-    # Only the built-in map exists in this version: a named one must not be silently ignored.
-    name = settings["dyno.register_map"]
-    if name != BUILT_IN_MAP:
-        raise InputError(settings.where("dyno.register_map"), "dyno.register_map",
-                         f"{name!r}: this version drives only the built-in register map ({BUILT_IN_MAP!r})")
-
+from eol_cal.station.settings import StationSettings, _named, register_map_of
 
 def station_record(settings: StationSettings, operator: str | None) -> dict[str, Any]:
     """The run record's ``station`` entries that the settings give (id, operator, addresses).
@@ -67,7 +55,7 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
 
-    _check_register_map(settings)
+    regmap = register_map_of(settings)
     limits = _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))
     _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     motor_name = str(settings["motor"])
@@ -80,7 +68,8 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     db = str(settings["db"])
     can = (settings["can.interface"], settings["can.channel"], settings["can.bitrate"], settings["can.config"])
     return StationConfig(
-        serial="", dyno=DynoConfig(host=settings.dyno_host, port=settings.dyno_port, timeout=settings["dyno.timeout_s"]),
+        serial="", dyno=DynoConfig(host=settings.dyno_host, port=settings.dyno_port, timeout=settings["dyno.timeout_s"],
+                                     register_map=regmap),
         open_bus=lambda: open_bus(*can), seed_to_key=seed_to_key, limits=limits, db=db if "://" in db else Path(db),
         report_dir=settings.path("report_dir"), profile=str(settings["profile"]), verify=str(settings["verify"]),
         spool_dir=settings.path("spool_dir"), rate_hz=int(settings["rate_hz"]), db_timeout_s=float(settings["db_timeout_s"]),

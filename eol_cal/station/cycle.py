@@ -119,7 +119,8 @@ class StationCycle:
         if Path(cfg.limits.source).is_file():
             limits["sha256"] = sha256_file(cfg.limits.source)
         station = dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz,
-                       motor=cfg.motor.name, bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid")
+                       motor=cfg.motor.name, bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid",
+                       dyno_register_map=cfg.dyno.regmap.name)
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
                     run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
                     segments=segments, station=station, limits=limits)
@@ -218,7 +219,8 @@ class StationCycle:
         after_cap = pieces[nearest_segment(pieces, op["speed_rpm"], op["i_qo_a"])]
         after = point_ripple(after_cap, capture_angle(after_cap))
         self.point_ripples = (before, after)
-        m = Measured(**{**self.measured.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct})
+        m = Measured(**{**self.measured.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct,
+                        "pp_after_no_mech1_pct": after.pp_no_mech1_pct})
         self.measured = m
         self.metrics = json_safe({
             "operating_point": op, "pp_before_pct": m.pp_before_pct, "pp_after_pct": m.pp_after_pct,

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Callable, Iterator
 if TYPE_CHECKING:
     import can
 
+    from eol_cal.dyno.regmap import RegisterMap
     from eol_cal.dyno.sim import CaptureRequest, CaptureSource, DynoSimThread, FaultPlan
     from eol_cal.ecu.remote import RemoteEcu
     from eol_cal.plant.params import PlantSpec
@@ -51,7 +52,8 @@ class LoopbackStation:
 def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
                      spec_for: Callable[[CaptureRequest], PlantSpec] | None = None,
                      source: CaptureSource | None = None,
-                     faults: tuple[FaultPlan, ...] = ()) -> Iterator[LoopbackStation]:
+                     faults: tuple[FaultPlan, ...] = (),
+                     register_map: RegisterMap | None = None) -> Iterator[LoopbackStation]:
     """Start the ECU and dyno simulators of one motor on 127.0.0.1; stop them on exit.
 
     Parameters
@@ -69,17 +71,17 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
         which does not see the ECU).
     faults : tuple of FaultPlan
         Dyno faults that fire by themselves.
+    register_map : RegisterMap, optional
+        The register layout the dyno simulator serves (default: the reference map).
     """
-    import logging
-
     from eol_cal.dyno import sim as ds
+    from eol_cal.exchange_log import quiet
     from eol_cal.ecu.remote import serve_remote
     from eol_cal.station.rig import plant_source
     from eol_cal.ecu.sim import SimConfig
     from eol_cal.motor import load_motor
 
-    for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
+    quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))  # unless an exchange log is on
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     flash_file = work_dir / f"{serial}.flash"
@@ -89,7 +91,7 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
         source = plant_source(flash_file, spec_for or (lambda req: spec))
     ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial))
     try:
-        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults))
+        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults), register_map=register_map)
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
             yield LoopbackStation(serial, f"127.0.0.1:{dyno.port}", ecu.url, flash_file, dyno, ecu)
     finally:

@@ -13,6 +13,7 @@ never a half-run cycle. The file's keys (docs/station.md, "First real station"):
     key_file = "ecu.key"
     [dyno]
     address = "192.0.2.10"          # Modbus TCP; port 502 when none is given
+    register_map = "default"        # a shipped map's name or a map file (docs/dyno.md)
     [can]
     interface = "pcan"
     channel = "PCAN_USBBUS1"
@@ -29,16 +30,16 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Collection, Mapping
+from typing import TYPE_CHECKING, Callable, Collection, Mapping
 
 import can
 
-from eol_cal.address import parse_host_port
+from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
 from eol_cal.inputs import load_toml
 
-#: Modbus TCP's registered port: a dyno address without one uses it
-MODBUS_PORT = 502
+if TYPE_CHECKING:
+    from eol_cal.dyno.regmap import RegisterMap
 
 ENV_PREFIX = "EOL_CAL_"
 
@@ -170,11 +171,8 @@ def _check_value(key: Key, value: object, where: str) -> object:
 
 def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
     """``HOST`` or ``HOST:PORT`` -> (host, port), port 502 (Modbus TCP) when none is given."""
-    bare_ipv6 = text.startswith("[") and text.endswith("]")
-    if ":" not in text or bare_ipv6:
-        text = f"{text}:{MODBUS_PORT}"
     try:
-        return parse_host_port(text, "dyno.address")
+        return parse_modbus_address(text, "dyno.address")
     except InputError as exc:
         raise InputError(where, "dyno.address", exc.reason) from exc
 
@@ -309,3 +307,15 @@ def check_station(settings: StationSettings) -> None:
     _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     if settings["key_file"] is not None:  # None: the caller has its own key (the demo's)
         _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
+    register_map_of(settings)
+
+
+def register_map_of(settings: StationSettings) -> "RegisterMap":
+    """The dyno's register map the settings name (``dyno.register_map``: a shipped map's name, or
+    a map file, relative to the settings file); a bad map names the settings key."""
+    from eol_cal.dyno.mapfile import load_register_map
+
+    spec = str(settings["dyno.register_map"])
+    if (spec.endswith(".toml") or "/" in spec) and settings.source != "environment" and not Path(spec).is_absolute():
+        spec = str(Path(settings.source).resolve().parent / spec)
+    return _named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
