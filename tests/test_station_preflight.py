@@ -175,3 +175,96 @@ def flash_while_acquiring(st, after_captures: int = 1):
         return synthetic_source(req)
 
     return source, done
+
+
+def test_the_ecu_state_changing_during_the_calibration_capture_ends_the_cycle(files, tmp_path):  # noqa: F811
+    with loopback_station("C-1", 3, tmp_path / "sim", source=synthetic_source) as st:
+        st.dyno.sim.source, flashed = flash_while_acquiring(st, after_captures=2)
+        res, _ = run_cycle(files, st, "C-1", tmp_path)
+        wait_stopped(st.dyno.sim)
+        assert not st.dyno.sim.enabled and st.dyno.sim.speed == 0.0
+    assert flashed.is_set()
+    assert res.exit_code == 2, res.output
+    rec = json.loads(res.stdout)["record"]
+    assert rec["error"]["step"] == "acquire" and rec["fit"] is None and rec["block"] is None
+    assert "changed during the before acquisition" in rec["reasons"][0]
+    cap = rec["captures"]["before"]  # kept, with both states, for whoever looks into it
+    assert cap["ecu_before"]["sequence"] == rec["ecu_prepared"]["sequence"] == 1
+    assert cap["ecu_before"]["flags"] == rec["ecu_prepared"]["flags"]
+    assert cap["ecu_after"]["sequence"] == 2 and "COMP_ENABLE" in cap["ecu_after"]["flags"]
+    # the same capture is refused by `eol-cal fit`, whatever is allowed
+    out = tmp_path / "fit.json"
+    res = CliRunner().invoke(cli, ["fit", cap["path"], "-o", str(out), "--allow-untraced", "--allow-compensated"])
+    assert res.exit_code == 2 and not out.exists()
+    (line,) = res.stderr.strip().splitlines()
+    assert cap["path"] in line and "changed during the acquisition" in line
+
+
+def acquire_args(st, out: Path, *extra: str) -> list[str]:
+    return ["acquire", "--dyno", st.dyno_address, "--profile", "eol-default", "-o", str(out), "--json", *extra]
+
+
+SHORT = """
+name = "short"
+[[segment]]
+speed_rpm = 120.0
+iq = 65.0
+seconds = 0.5
+
+[[segment]]
+speed_rpm = -120.0
+iq = -65.0
+seconds = 0.5
+"""
+
+
+def test_acquire_records_the_ecu_state_and_fit_refuses_what_it_must(tmp_path):
+    profile = tmp_path / "short.toml"
+    profile.write_text(SHORT)
+    runner = CliRunner()
+    with loopback_station("A-1", 3, tmp_path / "sim", source=synthetic_source) as st:
+        bus = ["-i", "remote", "-c", st.can_channel]
+        # untraced: no CAN options, no record of the ECU state
+        plain = tmp_path / "plain.mf4"
+        res = runner.invoke(cli, acquire_args(st, plain, "--profile", str(profile)))
+        assert res.exit_code == 0, res.output
+        assert json.loads(res.stdout)["ecu"] is None
+        # traced, under compensation: the ECU holds a calibrated block
+        calibrate(st)
+        comp = tmp_path / "comp.csv"
+        res = runner.invoke(cli, acquire_args(st, comp, "--profile", str(profile), *bus))
+        assert res.exit_code == 0, res.output
+        ecu = json.loads(res.stdout)["ecu"]
+        # the ECU changes during the acquisition
+        st.dyno.sim.source, flashed = flash_while_acquiring(st, after_captures=1)
+        changed = tmp_path / "changed.mf4"
+        res = runner.invoke(cli, acquire_args(st, changed, "--profile", str(profile), *bus))
+        assert res.exit_code == 0 and flashed.is_set(), res.output
+    assert ecu["ecu_before"] == ecu["ecu_after"] and ecu["ecu_before"]["serial"] == "A-1"
+    assert ecu["ecu_before"]["flags"] == "COMP_ENABLE|INTERP_ENABLE" and ecu["ecu_before"]["sequence"] == 1
+    out = tmp_path / "fit.json"
+    for path, allow, why in ((plain, "--allow-untraced", "no record of the ECU state"),
+                             (comp, "--allow-compensated", "taken under compensation")):
+        res = runner.invoke(cli, ["fit", str(path), "-o", str(out)])
+        assert res.exit_code == 2 and not out.exists(), res.output
+        (line,) = res.stderr.strip().splitlines()
+        assert str(path) in line and why in line, line
+        # the explicit option: a warning, and the fit runs
+        res = runner.invoke(cli, ["fit", str(path), "-o", str(out), "--bench", "none", allow])
+        assert res.exit_code in (0, 1) and out.exists(), res.output
+        assert f"warning: file {path}" in res.stderr and why in res.stderr
+        out.unlink()
+    res = runner.invoke(cli, ["fit", str(changed), "-o", str(out), "--allow-untraced", "--allow-compensated"])
+    assert res.exit_code == 2 and "changed during the acquisition" in res.stderr and "sequence 2" in res.stderr
+    # analyze: the compensated capture is measured and its ECU state reported; untraced with a
+    # warning; the changed one refused
+    res = runner.invoke(cli, ["analyze", str(comp), str(plain), str(changed), "--json"])
+    assert res.exit_code == 2
+    doc = json.loads(res.stdout)
+    by_file = {r["file"].split("#")[0]: r for r in doc["captures"]}
+    assert by_file[str(comp)]["ecu"] == ecu and by_file[str(plain)]["ecu"] is None
+    assert [e["file"] for e in doc["errors"]] == [str(changed)]
+    assert f"warning: file {plain}" in res.stderr and f"warning: file {comp}" not in res.stderr
+    from eol_cal.schemas import validator
+
+    validator("analyze").validate(doc)
