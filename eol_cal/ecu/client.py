@@ -20,6 +20,7 @@ from eol_cal.ecu.sequence import FlashReport, flash_block
 from eol_cal.ecu.session import ClientTiming, EcuError, SeedToKey, UdsSession, VerifyFailed
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
+from eol_cal.firmware.block_sanity import header_field
 
 __all__ = ["ClientTiming", "EcuError", "EcuInfo", "FlashReport", "SeedToKey", "UdsSession", "VerifyFailed",
            "EcuCheck", "ecu_info", "ecu_state", "flash_block", "hmac_seed_to_key", "load_key_file", "preflight_ecu",
@@ -129,7 +130,7 @@ def _active_state(s: UdsSession, serial: str | None) -> EcuState:
     if not active.has_bank:
         return EcuState(None, serial=serial)
     head = s.read_memory(B.BANK_WORD_ADDR[active.bank], B.HEADER_BYTES, "read the active block's header (23)")
-    return EcuState(active.bank, active.sequence, f"{active.crc32:08x}", B.flag_names(int(B.header_field(head, "flags"))),
+    return EcuState(active.bank, active.sequence, f"{active.crc32:08x}", B.flag_names(int(header_field(head, "flags"))),
                     serial)
 
 

@@ -332,13 +332,6 @@ def _get(data: bytes, name: str, n: int) -> Any:
     return np.frombuffer(bytes(data[off:off + count * _SIZE[f["type"]]]), dtype=dt)
 
 
-def header_field(head: bytes, name: str) -> Any:
-    """One scalar field of a block's header bytes (e.g. read from the ECU's active bank), unchecked."""
-    if len(head) < HEADER_BYTES:
-        raise ValueError(f"{len(head)} bytes, a block header has {HEADER_BYTES}")
-    return _get(head, name, 0)
-
-
 def pack(block: ParamBlock) -> bytes:
     """Byte image of ``block``: fills magic, block_bytes, table_len, reserved and the CRC.
 
