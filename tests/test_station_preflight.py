@@ -268,3 +268,18 @@ def test_acquire_records_the_ecu_state_and_fit_refuses_what_it_must(tmp_path):
     from eol_cal.schemas import validator
 
     validator("analyze").validate(doc)
+
+
+def test_the_report_shows_what_the_ecu_ran_before_the_run_and_during_each_capture():
+    from eol_cal.report.motor import ecu_states
+
+    ran = {"bank": 0, "sequence": 1, "crc32": "0badcafe", "flags": "INTERP_ENABLE", "serial": "R-1"}
+    rec = {"preflight": {"ecu": {"state": {"bank": 1, "sequence": 4, "crc32": "12345678",
+                                           "flags": "COMP_ENABLE|INTERP_ENABLE", "serial": "R-1"}}},
+           "ecu_prepared": {"bank": 0, "sequence": 5, "crc32": "0badcafe", "flags": "INTERP_ENABLE", "verified": True,
+                            "previous": {"bank": 1, "sequence": 4}},
+           "captures": {"before": {"ecu_before": ran, "ecu_after": ran}}}
+    cols = {c["label"]: c for c in ecu_states(rec)}
+    assert cols["before the run"]["crc32"] == "12345678" and cols["before the run"]["flags"] == "COMP_ENABLE|INTERP_ENABLE"
+    assert cols["ran during the calibration capture"]["crc32"] == "0badcafe"
+    assert "ran during the compensated capture" not in cols
