@@ -106,7 +106,7 @@ class StationCycle:
 
     @classmethod
     def start(cls, cfg: StationConfig, progress: ProgressFn | None = None) -> StationCycle:
-        """Check the configuration, make the run directory, start pre-warming the fit."""
+        """Check the configuration, make the run directory, start the helper thread."""
         from eol_cal.dyno import client as dc
         from eol_cal.plant.profile import load_profile
 
@@ -268,8 +268,8 @@ class StationCycle:
 
         failure: BaseException | None = None
         try:
-            for name, method in (("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu), ("acquire", self.acquire), ("fit", self.fit),
-                                 ("table", self.table), ("flash", self.flash),
+            for name, method in (("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
+                                 ("acquire", self.acquire), ("fit", self.fit), ("table", self.table), ("flash", self.flash),
                                  ("acquire compensated", self.acquire_compensated), ("metrics", self.judge)):
                 found = self._step(name, method)
                 if found is not None:
