@@ -93,14 +93,16 @@ def run_alternative(work: Path, profile: str, serial: str, seed: int, key: Path,
             ("block uncompensated", eol_cal("block", "uncompensated", "--serial", serial, "-o", str(work / "prep.bin"))),
             ("flash uncompensated", eol_cal("flash", str(work / "prep.bin"), "--interface", "remote",
                                             "--channel", st.can_channel, "--key-file", str(key))),
+            # with the ECU's bus: the capture records the block the ECU ran (fit refuses it otherwise)
             ("acquire", eol_cal("acquire", "--dyno", st.dyno_address, "--profile", profile, "--serial", serial,
-                                "-o", str(work / "before.mf4"))),
+                                "-o", str(work / "before.mf4"), "--interface", "remote", "--channel", st.can_channel)),
             ("fit", eol_cal("fit", str(work / "before.mf4"), "-o", str(work / "fit.json"))),
             ("table", eol_cal("table", str(work / "fit.json"), "-o", str(work / "block.bin"))),
             ("flash", eol_cal("flash", str(work / "block.bin"), "--interface", "remote", "--channel", st.can_channel,
                               "--key-file", str(key))),
             ("acquire compensated", eol_cal("acquire", "--dyno", st.dyno_address, "--profile", profile, "--serial", serial,
-                                            "-o", str(work / "after.mf4"))),
+                                            "-o", str(work / "after.mf4"), "--interface", "remote",
+                                            "--channel", st.can_channel)),
             ("analyze", eol_cal("analyze", str(work / "before.mf4"), str(work / "after.mf4"), "--json")),
         ]
         for name, cmd in chain:

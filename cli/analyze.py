@@ -12,6 +12,16 @@ def _fmt(x: float | None, spec: str) -> str:
     return "-" if x is None else format(x, spec)
 
 
+def _ecu_text(ecu: dict | None) -> str:
+    """The ECU state of a report in a few words (``-``: not recorded)."""
+    if ecu is None:
+        return "-"
+    b = ecu["ecu_before"]
+    if b["bank"] is None:
+        return "no block"
+    return f"seq {b['sequence']} {b['crc32']}\n{b['flags']}"
+
+
 def _print_table(reports: list[dict]) -> None:
     from rich.table import Table
 
@@ -41,6 +51,7 @@ def _print_table(reports: list[dict]) -> None:
         ("raw enc. error rms/max deg",
          lambda r: f"{r['quantisation']['enc_error_rms_deg']:.2f} / {r['quantisation']['enc_error_max_deg']:.2f}"),
         ("hall residual rms deg", lambda r: f"{r['angle']['hall_residual_rms_deg']:.2f}"),
+        ("ECU", lambda r: _ecu_text(r["ecu"])),
     ]
     if any("firmware_angle" in r for r in reports):
         rows.append(("fw estimator - offline rms/max deg",
@@ -70,9 +81,15 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
     A joined capture (``eol-cal acquire``: metadata segment_starts) is reported per window (FILE#k).
 
     Exit code 2 when any capture is refused (the others are still reported).
+
+    The ECU state recorded in a capture (metadata ecu_before/ecu_after) is reported with it; a
+    capture under compensation is analysed (that is how the compensated ripple is measured), one
+    whose ECU block changed during the acquisition is refused, one with no record is analysed
+    with a warning.
     """
     from eol_cal.analysis.report import analyze_capture
     from eol_cal.capture import load_channel_map, read_capture
+    from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.windows import split_windows
 
     channel_map = load_channel_map(map_file) if map_file else None
@@ -81,7 +98,12 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
     errors: list[dict] = []
     for path in captures:
         try:
-            windows = split_windows(read_capture(path, channel_map))
+            capture = read_capture(path, channel_map)
+            trace = trace_of(capture.metadata, path)
+            warnings = check_trace(trace, path, allow_untraced=True, allow_compensated=True)
+            if not trace.traced:  # under compensation is what this command is for: no warning
+                click.echo(f"warning: {warnings[0]}", err=True)
+            windows = split_windows(capture)
         except InputError as exc:
             windows = []
             errors.append({"file": exc.file or path, "field": exc.field, "reason": exc.reason})
@@ -94,6 +116,7 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
                 errors.append({"file": exc.file or window.source, "field": exc.field, "reason": exc.reason})
                 click.echo(f"error: {exc}", err=True)  # one line, never wrapped
                 continue
+            report["ecu"] = trace.to_dict() if trace.traced else None
             reports.append(report)
             plots.append(plot)
     if plot_file and plots:

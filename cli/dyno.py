@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from cli.common import console, err_console, exchange_log_options, handle_errors, print_json
+from cli.ecu import _bus_options, _open_bus
 from cli.paths import io_paths
 
 if TYPE_CHECKING:
@@ -51,17 +52,23 @@ def _quiet_pymodbus() -> None:
 @click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @register_map_option
+@_bus_options
 @handle_errors
 @exchange_log_options
-@io_paths(inputs=("profile",), outputs=("output",))
+@io_paths(inputs=("profile", "can_config"), outputs=("output",))
 def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, connections, all_channels, reset_faults,
-                split_windows, as_json, register_map) -> None:
+                split_windows, as_json, register_map, interface, channel, bitrate, can_config) -> None:
     """Run a test profile on the dyno and write the capture.
 
     Segment by segment: set point, wait until at speed, capture, read the buffer. On any error
     the speed goes to 0, the drive is disabled and no capture file is written (exit code 2).
     The segments' windows are joined with gaps in time (metadata segment_starts); they are not
     one continuous recording.
+
+    With the ECU's bus (--interface/--channel or --can-config) the ECU's active block is read
+    over UDS before and after the acquisition into the capture (metadata ecu_before.*,
+    ecu_after.*); without it the capture has no record of the ECU state, and `eol-cal fit`
+    refuses it unless told otherwise.
     """
     import time
 
@@ -70,6 +77,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
     from eol_cal.dyno import client as dc
     from eol_cal.errors import InputError, naming
     from eol_cal.plant.profile import load_profile
+    from eol_cal.station.preflight import acquire_traced
 
     if output.suffix.lower() not in _SUFFIXES:
         raise InputError(str(output), None, f"unknown capture format {output.suffix!r}; use .csv or .mf4")
@@ -98,9 +106,15 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
             else:
                 bar.update(seg_task, description=what, completed=done)
 
-        capture = dc.acquire(config, segments, output, serial=serial, rate_hz=rate_hz, channels=channels,
-                             progress=progress, reset_faults=reset_faults,
-                             extra_metadata={"comment": f"eol-cal acquire, profile {prof.name}"})
+        read_ecu = None
+        if interface is not None or can_config is not None:
+            from eol_cal.ecu.client import ClientTiming
+            from eol_cal.station.preflight import read_ecu_with
+
+            read_ecu = read_ecu_with(lambda: _open_bus(interface, channel, bitrate, can_config), ClientTiming())
+        capture, trace = acquire_traced(read_ecu, config, segments, output, serial=serial, rate_hz=rate_hz,
+                                        channels=channels, progress=progress, reset_faults=reset_faults,
+                                        extra_metadata={"comment": f"eol-cal acquire, profile {prof.name}"})
     windows = []
     if split_windows:
         from eol_cal.capture import write_capture
@@ -121,12 +135,13 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         "channels": sorted(capture.channels),
         "windows": windows,
         "wall_s": round(wall, 3),
+        "ecu": trace.to_dict() if trace.traced else None,
     }
     if as_json:
         print_json(summary)
     else:
         console.print(f"wrote {output}: {summary['samples']} samples, {len(segments)} segments, "
-                      f"serial {summary['serial']}, {wall:.2f} s")
+                      f"serial {summary['serial']}, {wall:.2f} s; {trace.describe()}")
 
 
 def parse_fault_plan(text: str) -> FaultPlan:

@@ -58,15 +58,24 @@ def _harmonics(text: str) -> tuple[int, ...]:
 @click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True, help="Gauss-Newton or Levenberg-Marquardt.")
 @click.option("--batch", type=click.Choice(["auto", "loop", "vmap", "map"]), default="auto", show_default=True,
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
+@click.option("--allow-untraced", is_flag=True,
+              help="Fit captures with no record of the ECU state (a foreign DAQ's): a warning instead of a refusal.")
+@click.option("--allow-compensated", is_flag=True,
+              help="Fit captures taken under compensation (COMP_ENABLE): a warning instead of a refusal.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
 @io_paths(inputs=("captures", "map_file", "bench_name"), outputs=("output",), output_dirs=("plot_dir",))
 def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
-            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
+            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch,
+            allow_untraced, allow_compensated, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
     Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
     every fit is usable, 1 when a fit did not converge or its interval is too wide, 2 on bad input.
+
+    A capture must say what the ECU ran (metadata ecu_before/ecu_after, docs/capture-format.md):
+    refused when the ECU's block changed during it; refused unless allowed when it has no such
+    record (--allow-untraced) or was taken under compensation (--allow-compensated).
     """
 
     from rich.progress import Progress
@@ -76,6 +85,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
     from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
     from eol_cal.mechanics import mechanics_or_rigid
+    from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.io import read_capture
 
     cache_dir = enable_jax_cache()
@@ -94,6 +104,10 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, mechanics=mechanics,
                          hall_angle=hall_angle, cache_dir=cache_dir)
     caps = [read_capture(p, map_file) for p in captures]
+    for path, cap in zip(captures, caps):  # every refusal before any fit starts
+        for warning in check_trace(trace_of(cap.metadata, path), path, allow_untraced=allow_untraced,
+                                   allow_compensated=allow_compensated):
+            click.echo(f"warning: {warning}", err=True)
     serials = {c.serial for c in caps if "serial" in c.metadata}
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:
         task = progress.add_task("fitting", total=len(serials))

@@ -90,7 +90,10 @@ def test_analyze_with_a_channel_map_and_refusals(tmp_path):
     res = CliRunner().invoke(cli, ["analyze", str(FIXTURES / "daq_export_foreign.csv"),
                                    "--map", str(FIXTURES / "daq_export_foreign.map.toml"), "--json"])
     assert res.exit_code == 0, res.output
-    assert json.loads(res.output)["captures"][0]["serial"] == "M-0001"
+    assert json.loads(res.stdout)["captures"][0]["serial"] == "M-0001"
+    # a foreign DAQ's export says nothing of the ECU: analysed, with one warning line
+    (warning,) = res.stderr.splitlines()
+    assert "daq_export_foreign.csv" in warning and "no record of the ECU state" in warning
     res = CliRunner().invoke(cli, ["analyze", str(FIXTURES / "paper_60rpm.csv"), str(FIXTURES / "bad_hall_fault.csv"),
                                    "--json"])
     assert res.exit_code == 2

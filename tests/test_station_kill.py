@@ -84,22 +84,25 @@ def _recorded(tmp_path, step: str, message: str) -> dict:
     return rec
 
 
-# (the ECU dies at, what the ECU boots afterwards per the record): before the prepare block's
-# CRC nothing was written; at its check routine the uncompensated block is complete and checked.
-PREPARE_KILLS = [("security", {"block": "unchanged", "sequence": None, "bank": None}),
-                 ("erase", {"block": "unchanged", "sequence": None, "bank": None}),
-                 ("check", {"block": "uncompensated", "sequence": 1, "bank": 0})]
+# (the ECU dies at, the cycle's step then, what the ECU boots afterwards per the record): the
+# pre-flight's seed/key are the first two security requests, the prepare flash's the next two;
+# before the prepare block's CRC nothing was written; at its check routine the uncompensated
+# block is complete and checked.
+PREPARE_KILLS = [("security", "pre-flight", {"block": "unchanged", "sequence": None, "bank": None}),
+                 ("security:3", "prepare ECU", {"block": "unchanged", "sequence": None, "bank": None}),
+                 ("erase", "prepare ECU", {"block": "unchanged", "sequence": None, "bank": None}),
+                 ("check", "prepare ECU", {"block": "uncompensated", "sequence": 1, "bank": 0})]
 
 
-@pytest.mark.parametrize("step,boots", PREPARE_KILLS, ids=[s for s, _ in PREPARE_KILLS])
-def test_run_when_the_ecu_dies_during_the_prepare_flash(station, step, boots):
+@pytest.mark.parametrize("step,cycle_step,boots", PREPARE_KILLS, ids=[s for s, _, _ in PREPARE_KILLS])
+def test_run_when_the_ecu_dies_during_the_prepare_flash(station, step, cycle_step, boots):
     start, tmp_path, dyno = station
     ecu, run = start("--die-at", step)
     t0 = time.monotonic()
     _, err = run.communicate(timeout=BOUND_S + START_S + 10)
     assert run.returncode == 2 and time.monotonic() - t0 < BOUND_S + START_S, err
     assert ecu.wait(5) == -signal.SIGKILL
-    rec = _recorded(tmp_path, "prepare ECU", "CAN link lost")
+    rec = _recorded(tmp_path, cycle_step, "CAN link lost")
     assert rec["ecu_active"] == boots
     assert not dyno.enabled and dyno.speed == 0.0
     active = active_block_from_file(tmp_path / "ecu.flash")

@@ -127,8 +127,12 @@ def test_full_run_end_to_end(full_run):
     rec, doc = full_run["rec"], full_run["doc"]
     assert full_run["res"].exit_code == 0, (rec["verdict"], rec["reasons"], rec.get("error"))
     assert rec["verdict"] == "pass" and rec["reasons"] == []
-    assert [s["step"] for s in rec["steps"]] == ["prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated",
-                                                 "metrics", "report"]
+    assert [s["step"] for s in rec["steps"]] == ["pre-flight", "prepare ECU", "acquire", "fit", "table", "flash",
+                                                 "acquire compensated", "metrics", "report"]
+    # the pre-flight found the blank ECU of this motor, the key accepted, the dyno ready
+    pre = rec["preflight"]
+    assert pre["reasons"] == [] and pre["ecu"]["key_accepted"] is True and pre["ecu"]["state"]["bank"] is None
+    assert pre["ecu"]["state"]["serial"] == SERIAL and pre["dyno"]["dut_serial"] == SERIAL
     # the motor was measured under the uncompensated block (field estimator), flashed first
     prep = rec["ecu_prepared"]
     assert prep["flags"] == "INTERP_ENABLE" and prep["verified"] and prep["sequence"] == 1
@@ -153,10 +157,17 @@ def test_full_run_end_to_end(full_run):
     assert rec["block"]["flags"] == B.flag_names(blk.flags) == "COMP_ENABLE|INTERP_ENABLE"
     assert f"{B.check(active).crc_stored:08x}" == rec["block"]["crc32"]
     assert blk.sequence == rec["block"]["sequence"] == 2 and rec["block"]["bank"] != prep["bank"]
-    # captures on disk with the recorded hashes
-    for which in ("before", "after"):
+    # captures on disk with the recorded hashes, each with the block the ECU ran all along
+    for which, ran in (("before", prep), ("after", rec["block"])):
         c = rec["captures"][which]
         assert sha256_file(c["path"]) == c["sha256"]
+        assert c["ecu_before"] == c["ecu_after"]
+        assert (c["ecu_before"]["bank"], c["ecu_before"]["sequence"], c["ecu_before"]["crc32"],
+                c["ecu_before"]["flags"]) == (ran["bank"], ran["sequence"], ran["crc32"], ran["flags"])
+        from eol_cal.capture.ecu_state import trace_of
+        from eol_cal.capture.io import read_capture
+
+        assert trace_of(read_capture(c["path"]).metadata).to_dict() == {k: c[k] for k in ("ecu_before", "ecu_after")}
     # verification at the operating point only: 65 A at 120 rpm, forward and reverse
     assert rec["captures"]["before"]["segments"] == 3 and rec["captures"]["after"]["segments"] == 2
     assert rec["station"]["verify"] == "point"
@@ -334,7 +345,7 @@ def test_verification_segments_are_the_operating_point_in_both_directions():
     assert verify_segments(segs, 90.0, 65.0) == segs  # no such point: the whole profile
 
 
-def test_flash_refused_with_a_wrong_key_is_an_error_before_the_dyno_turns_and_the_ecu_keeps_no_block(files, tmp_path):
+def test_a_wrong_key_is_an_error_before_the_dyno_turns_and_the_ecu_keeps_no_block(files, tmp_path):
     db = tmp_path / "results.sqlite"
     wrong = tmp_path / "wrong.hex"
     wrong.write_text("00" * 16)
@@ -347,9 +358,9 @@ def test_flash_refused_with_a_wrong_key_is_an_error_before_the_dyno_turns_and_th
         flash = st.flash_file
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    # the first flash (the uncompensated block) is refused: nothing was captured, nothing written
-    assert rec["verdict"] == "error" and rec["error"]["step"] == "prepare ECU"
-    assert rec["captures"] == {} and [s["step"] for s in rec["steps"]][:1] == ["prepare ECU"]
+    # the pre-flight's seed/key is refused: nothing was flashed, captured or written
+    assert rec["verdict"] == "error" and rec["error"]["step"] == "pre-flight"
+    assert rec["captures"] == {} and [s["step"] for s in rec["steps"]] == ["pre-flight", "report"]
     assert "security" in rec["error"]["message"].lower() or "35" in rec["error"]["message"]
     assert active_block_from_file(flash) is None  # nothing was written into a bank
     assert [r["verdict"] for r in query_records(db)] == ["error"]
@@ -449,11 +460,11 @@ def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, fil
         check.validate(rec)
     assert {frozenset(r) for r in records.values()} == {frozenset(records["pass"])}
     fail = records["fail"]
-    assert [s["step"] for s in fail["steps"]] == ["prepare ECU", "acquire", "fit", "report"]
+    assert [s["step"] for s in fail["steps"]] == ["pre-flight", "prepare ECU", "acquire", "fit", "report"]
     assert any("max_k6" in r for r in fail["reasons"]) and fail["block"] is None and fail["error"] is None
     assert fail["ecu_active"]["block"] == "uncompensated" and fail["fit"]["status"] == "ok"
     err = records["error"]
-    assert err["error"]["step"] == "prepare ECU" and err["fit"] is None and err["safe_state"] is not None
+    assert err["error"]["step"] == "pre-flight" and err["fit"] is None and err["safe_state"] is not None
 
 
 def test_records_json_matches_its_schema(full_run):

@@ -18,6 +18,7 @@ import math
 import re
 from typing import Mapping
 
+from eol_cal.capture.ecu_state import METADATA_TYPES as ECU_STATE_TYPES
 from eol_cal.capture.model import TRUTH_PREFIX
 from eol_cal.errors import InputError
 
@@ -35,6 +36,8 @@ METADATA_TYPES: Mapping[str, type] = {
     "created": str,
     "source": str,
     "comment": str,
+    # the ECU's active block before and after the acquisition (eol_cal.capture.ecu_state)
+    **ECU_STATE_TYPES,
 }
 
 KEY_PATTERN = re.compile(r"^[A-Za-z_][A-Za-z0-9_.\-]*$")

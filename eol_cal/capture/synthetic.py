@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from eol_cal.capture.columns import zoh
+from eol_cal.capture.ecu_state import EcuState, with_ecu_state
 from eol_cal.capture.model import Capture
 from eol_cal.motor import MotorParams, load_motor
 
@@ -172,6 +173,9 @@ def synthetic_capture(
     else:
         metadata["iq_ref"] = float(i_qo)
     channels["speed"] = np.full(n, float(rpm))
+    # the model's controller runs the raw encoder angle without compensation: an ECU with no
+    # valid block, all along (eol_cal.capture.ecu_state)
+    metadata = with_ecu_state(metadata, EcuState(None), EcuState(None))
     truth: dict[str, str | int | float] = {
         "model": MODEL_NAME,
         "k6": float(k6),

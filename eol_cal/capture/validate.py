@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from eol_cal.capture.ecu_state import trace_of
 from eol_cal.capture.metadata import METADATA_TYPES
 from eol_cal.capture.model import (
     CANONICAL_CHANNELS,
@@ -92,6 +93,7 @@ def check_metadata(capture: Capture) -> None:
     for key, (lo, hi) in METADATA_BOUNDS.items():
         if key in meta and not lo <= meta[key] <= hi:
             raise InputError(src, key, f"{meta[key]!r} outside the physical bounds {lo:g}..{hi:g}")
+    trace_of(meta, src)  # a partial or malformed ECU-state record is refused here, before any analysis
 
 
 def check_channels_present(capture: Capture) -> None:

@@ -14,14 +14,17 @@ from typing import Any
 
 import can
 
+from eol_cal.capture.ecu_state import EcuState
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.sequence import FlashReport, flash_block
 from eol_cal.ecu.session import ClientTiming, EcuError, SeedToKey, UdsSession, VerifyFailed
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
+from eol_cal.firmware.block_sanity import header_field
 
 __all__ = ["ClientTiming", "EcuError", "EcuInfo", "FlashReport", "SeedToKey", "UdsSession", "VerifyFailed",
-           "ecu_info", "flash_block", "hmac_seed_to_key", "load_key_file", "read_active_block"]
+           "EcuCheck", "ecu_info", "ecu_state", "flash_block", "hmac_seed_to_key", "load_key_file", "preflight_ecu",
+           "read_active_block"]
 
 log = logging.getLogger(__name__)
 
@@ -126,3 +129,69 @@ def read_active_block(bus: can.BusABC, *, timing: ClientTiming = ClientTiming())
     if info.block is None:
         raise EcuError("read active block", "the ECU has no valid block (FD01 bank 0xFF)")
     return info.block
+
+
+def _active_state(s: UdsSession, serial: str | None) -> EcuState:
+    """FD01 and the active block's flags (from its header, ReadMemoryByAddress)."""
+    active = s.read_did(P.DID_ACTIVE_BLOCK)
+    if not active.has_bank:
+        return EcuState(None, serial=serial)
+    head = s.read_memory(B.BANK_WORD_ADDR[active.bank], B.HEADER_BYTES, "read the active block's header (23)")
+    return EcuState(active.bank, active.sequence, f"{active.crc32:08x}", B.flag_names(int(header_field(head, "flags"))),
+                    serial)
+
+
+def ecu_state(bus: can.BusABC, *, timing: ClientTiming = ClientTiming()) -> EcuState:
+    """What the ECU runs now: its serial (F18C), active bank, sequence, CRC (FD01) and the block's
+    flags. Extended session, no security access; nothing is written."""
+    with UdsSession(bus, timing=timing) as s:
+        s.session(P.SESSION_EXTENDED)
+        return _active_state(s, s.read_did(P.DID_SERIAL))
+
+
+@dataclass
+class EcuCheck:
+    """What :func:`preflight_ecu` found.
+
+    Attributes
+    ----------
+    state : EcuState or None
+        The ECU's serial and active block (None: the ECU did not answer).
+    key_accepted : bool or None
+        The security key was accepted (None: not tried, the ECU did not answer).
+    problems : list of str
+        Each failure, one line.
+    """
+
+    state: EcuState | None
+    key_accepted: bool | None
+    problems: list[str]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"state": None if self.state is None else self.state.to_dict(), "key_accepted": self.key_accepted,
+                "problems": list(self.problems)}
+
+
+def preflight_ecu(bus: can.BusABC, seed_to_key: SeedToKey | None, *,
+                  timing: ClientTiming = ClientTiming()) -> EcuCheck:
+    """Check the ECU before anything is written to it: it answers, its identity and active block,
+    and that it accepts the security key (27 01/02 in the extended session; no programming
+    session, no erase). Failures are returned, not raised; every wait is bounded by ``timing``."""
+    with UdsSession(bus, seed_to_key=seed_to_key, timing=timing) as s:
+        try:
+            s.session(P.SESSION_EXTENDED)
+            state = _active_state(s, s.read_did(P.DID_SERIAL))
+        except EcuError as exc:
+            return EcuCheck(None, None, [f"ECU not reachable: {exc}"])
+        problems: list[str] = []
+        try:
+            s.unlock()
+            accepted = True
+        except (EcuError, InputError) as exc:
+            accepted = False
+            problems.append(f"security key not accepted: {exc}")
+        try:  # back to the default session: the ECU drops the unlocked state with it
+            s.call("default session (10 01)", s.client.change_session, P.SESSION_DEFAULT, retry=False)
+        except EcuError as exc:
+            log.debug("leaving the session: %s", exc)
+    return EcuCheck(state, accepted, problems)

@@ -43,6 +43,14 @@ POLES_MAX = 1000
 _TICK_RTOL = 1e-6
 
 
+def header_field(head: bytes, name: str) -> int | float:
+    """One scalar field of a block header's bytes (e.g. read from the ECU's active bank), unchecked."""
+    if len(head) < B.HEADER_BYTES:
+        raise ValueError(f"{len(head)} bytes, a block header has {B.HEADER_BYTES}")
+    fmt = {"u16": "<H", "u32": "<I", "f32": "<f"}
+    return struct.unpack_from(fmt[B.FIELDS[name]["type"]], head, B.field_offset(name))[0]
+
+
 @dataclass(frozen=True)
 class MotorType:
     """What makes a block fit a motor: poles P, encoder PPR N_enc and the estimator tick (Hz)."""
@@ -65,9 +73,7 @@ class MotorType:
         """The motor type in the header of a block image (e.g. read from the ECU's active bank)."""
         if len(head) < B.HEADER_BYTES:
             raise ValueError(f"{len(head)} bytes, a block header has {B.HEADER_BYTES}")
-        fmt = {"u16": "<H", "u32": "<I", "f32": "<f"}
-        get = {n: struct.unpack_from(fmt[B.FIELDS[n]["type"]], head, B.field_offset(n))[0]
-               for n in ("poles", "encoder_ppr", "tick_hz")}
+        get = {n: header_field(head, n) for n in ("poles", "encoder_ppr", "tick_hz")}
         return cls(int(get["poles"]), int(get["encoder_ppr"]), float(get["tick_hz"]))
 
     def __str__(self) -> str:

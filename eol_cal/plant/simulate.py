@@ -20,6 +20,7 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import sys
@@ -28,6 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
+from eol_cal.capture.ecu_state import EcuState, with_ecu_state
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware import compensator
@@ -276,6 +278,24 @@ def mode_of_block(block: ParamBlock) -> str:
     return "estimated" if block.flags & FLAG_INTERP_ENABLE else "raw"
 
 
+def simulated_ecu_state(spec: PlantSpec, mode: str, block: ParamBlock | None) -> EcuState:
+    """The ECU state a simulation stands for (the capture's ``ecu_before``/``ecu_after``).
+
+    The block the simulated ECU runs, in bank 0, with the flags that select ``mode`` (other bits
+    of a given block kept): the given block, else one from the plant's true ripple
+    (:func:`true_block`); raw mode without a block is an ECU with no valid block.
+    """
+    from eol_cal.firmware.block import check, flag_names, pack
+
+    if block is None and mode == "raw":
+        return EcuState(None)
+    mode_bits = {"raw": 0, "estimated": FLAG_INTERP_ENABLE, "compensated": FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE}[mode]
+    base = block if block is not None else true_block(spec)
+    flags = (base.flags & ~(FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE)) | mode_bits
+    blk = dataclasses.replace(base, flags=flags)
+    return EcuState(0, blk.sequence, f"{check(pack(blk)).crc_stored:08x}", flag_names(flags))
+
+
 def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, improved: bool = False) -> EstimatorConfig:
     """The firmware estimator's configuration on this bench (from the block when given).
 
@@ -358,7 +378,9 @@ def simulate(
         raise InputError(None, "blocks", f"{len(blocks)} blocks for {len(specs)} motors")
 
     params = []
+    states = []
     for spec, block in zip(specs, blocks):
+        states.append(simulated_ecu_state(spec, mode, block))
         if block is None:
             block = true_block(spec) if mode == "compensated" else None
         if block is not None:
@@ -412,12 +434,12 @@ def simulate(
             progress(stop / n_total)
     results = []
     for i in range(len(specs)):
-        results.append(_to_result(out[i, :, n_pre:], specs[i], cfg, profile, mode, blocks[i]))
+        results.append(_to_result(out[i, :, n_pre:], specs[i], cfg, profile, mode, blocks[i], states[i]))
     return results
 
 
 def _to_result(y: np.ndarray, spec: PlantSpec, cfg: PlantSimConfig, profile: Profile, mode: str,
-               block: ParamBlock | None) -> SimResult:
+               block: ParamBlock | None, ecu: EcuState) -> SimResult:
     m = spec.motor
     col = dict(zip(OUT_COLUMNS, y))
     n = y.shape[1]
@@ -432,6 +454,7 @@ def _to_result(y: np.ndarray, spec: PlantSpec, cfg: PlantSimConfig, profile: Pro
         "serial": spec.serial, "poles": m.poles, "encoder_ppr": m.N_enc, "kt": m.kt,
         "source": "plant", "comment": f"eol-cal plant, mode {mode}, profile {profile.name}",
     }
+    metadata = with_ecu_state(metadata, ecu, ecu)  # the simulated ECU runs one block all along
     truth = spec.truth()
     truth.update({"mode": mode, "profile": profile.name})
     if block is not None and mode == "compensated":

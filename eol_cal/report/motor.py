@@ -135,7 +135,8 @@ def station_of(rec: dict[str, Any]) -> str:
 
 
 def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
-    """The ECU's state before the run, after the prepare step and after the calibration flash.
+    """The ECU's state before the run (the pre-flight's read), after the prepare step, after the
+    calibration flash, and the block it ran during each capture (read over UDS before it).
 
     One dict per column with the keys ``label``, ``bank``, ``sequence``, ``crc32``, ``flags``,
     ``verified``; a value the record does not have is ``"-"``.
@@ -146,7 +147,9 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     prep = rec.get("ecu_prepared") or {}
     blk = rec.get("block") or {}
     flash = rec.get("flash") or {}
-    before = rec.get("ecu_before") or prep.get("previous") or {}
+    # the pre-flight's read of the ECU has the flags and the CRC as well
+    found = ((rec.get("preflight") or {}).get("ecu") or {}).get("state")
+    before = rec.get("ecu_before") or found or prep.get("previous") or {}
     # the prepare step's read of the ECU says bank None when no bank was valid (a blank ECU)
     before_bank = "none valid" if "bank" in before and before["bank"] is None else before.get("bank")
     cols = [
@@ -157,6 +160,12 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
         {"label": "calibrated", "bank": blk.get("bank"), "sequence": blk.get("sequence"), "crc32": blk.get("crc32"),
          "flags": blk.get("flags"), "verified": flash.get("verified")},
     ]
+    for which, label in (("before", "ran during the calibration capture"), ("after", "ran during the compensated capture")):
+        ran = ((rec.get("captures") or {}).get(which) or {}).get("ecu_before")
+        if isinstance(ran, dict):  # read over UDS before that acquisition (the same after it, or the cycle erred)
+            cols.append({"label": label, "bank": "none valid" if ran.get("bank") is None else ran["bank"],
+                         "sequence": ran.get("sequence"), "crc32": ran.get("crc32"), "flags": ran.get("flags"),
+                         "verified": None})
     after = rec.get("ecu_after")
     if isinstance(after, dict):  # read back from the ECU where the record has it
         cols.append({"label": "read back after the run", **{k: after.get(k) for k in ("bank", "sequence", "crc32",

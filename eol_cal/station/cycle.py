@@ -1,6 +1,6 @@
 """The station cycle as an object: one method per step, a field for what each step produced.
 
-:class:`StationCycle` runs prepare ECU -> acquire -> fit -> table -> flash -> acquire
+:class:`StationCycle` runs pre-flight -> prepare ECU -> acquire -> fit -> table -> flash -> acquire
 compensated -> metrics (verdict) -> report -> record (see :mod:`eol_cal.station.run`). A step
 that finds the motor failing returns a :class:`StepVerdict` and the cycle stops there; an
 exception ends it with verdict ``error``. Whatever happened, :meth:`StationCycle.to_record`
@@ -40,8 +40,8 @@ from eol_cal.station.run import (
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
     from eol_cal.ecu.sequence import FlashReport
+    from eol_cal.station.preflight import Preflight
     from eol_cal.station.spool import SaveResult
-
 
 
 @dataclass(frozen=True)
@@ -76,6 +76,7 @@ class StationCycle:
     limits: dict[str, Any]
     # what the steps produced
     steps: list[dict[str, Any]] = field(default_factory=list)
+    preflight: Preflight | None = None
     captures: dict[str, dict[str, Any]] = field(default_factory=dict)
     ecu_prepared: dict[str, Any] | None = None
     before: Capture | None = None
@@ -105,8 +106,7 @@ class StationCycle:
 
     @classmethod
     def start(cls, cfg: StationConfig, progress: ProgressFn | None = None) -> StationCycle:
-        """Check the configuration, make the run directory, start pre-warming the fit."""
-        from eol_cal.analysis.fit.prewarm import prewarm_fit
+        """Check the configuration, make the run directory, start the helper thread."""
         from eol_cal.dyno import client as dc
         from eol_cal.plant.profile import load_profile
 
@@ -124,13 +124,27 @@ class StationCycle:
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
                     run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
                     segments=segments, station=station, limits=limits)
-        # One helper thread: it imports JAX and matplotlib while the dyno spins the first time, and
-        # draws the fit's plots while it spins the second time (the main thread mostly waits there).
+        # One helper thread: it imports JAX and matplotlib while the dyno spins the first time
+        # (started once the pre-flight passed), and draws the fit's plots while it spins the
+        # second time (the main thread mostly waits there).
         cycle._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
-        cycle._prewarm = cycle._helper.submit(prewarm_fit, len(segments), cfg.cache_dir)
         return cycle
 
     # ------------------------------------------------------------------ the steps
+    def pre_flight(self) -> None:
+        """Dyno ready, ECU answering and accepting the key, serials agreeing: before anything is
+        written to the ECU (:mod:`eol_cal.station.preflight`); any problem stops the cycle here."""
+        from eol_cal.ecu.client import ClientTiming
+        from eol_cal.station.preflight import PreflightFailed, preflight
+
+        self.preflight = preflight(self.cfg.serial, self.cfg.dyno, self.cfg.open_bus, self.cfg.seed_to_key,
+                                   self.cfg.ecu_timing or ClientTiming())
+        if self.preflight.reasons:
+            raise PreflightFailed(self.preflight.reasons)
+        from eol_cal.analysis.fit.prewarm import prewarm_fit
+
+        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
+
     def prepare_ecu(self) -> None:
         """Flash the uncompensated block, so the calibration capture sees the field estimator alone."""
         from eol_cal.analysis.fit.table import uncompensated_block
@@ -256,8 +270,8 @@ class StationCycle:
 
         failure: BaseException | None = None
         try:
-            for name, method in (("prepare ECU", self.prepare_ecu), ("acquire", self.acquire), ("fit", self.fit),
-                                 ("table", self.table), ("flash", self.flash),
+            for name, method in (("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
+                                 ("acquire", self.acquire), ("fit", self.fit), ("table", self.table), ("flash", self.flash),
                                  ("acquire compensated", self.acquire_compensated), ("metrics", self.judge)):
                 found = self._step(name, method)
                 if found is not None:
@@ -310,6 +324,7 @@ class StationCycle:
             "limits": self.limits, "steps": self.steps, "captures": self.captures, "fit": self.fit_record,
             "block": self.block, "flash": self.flash_result, "ecu_prepared": self.ecu_prepared,
             "metrics": self.metrics, "report_dir": str(self.run_dir), "safe_state": self.safe_state,
+            "preflight": None if self.preflight is None else self.preflight.to_dict(),
         }
         if self.ecu_active is not None:
             rec["ecu_active"] = self.ecu_active
@@ -340,13 +355,22 @@ class StationCycle:
         return out
 
     def _acquire(self, which: str, segs: list) -> Capture:
-        from eol_cal.dyno import client as dc
+        """One acquisition with the ECU's state before and after (in the capture and the record);
+        the ECU must have run the block this cycle flashed, unchanged, all along."""
+        from eol_cal.capture.ecu_state import check_trace
+        from eol_cal.ecu.client import ClientTiming
+        from eol_cal.station.preflight import acquire_traced, expect_block, read_ecu_with
 
         path = self.run_dir / f"{which}.mf4"
-        cap = dc.acquire(self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
-                         extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, profile {self.profile_name}"})
+        cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
+                                    self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
+                                    extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
+                                                               f"profile {self.profile_name}"})
         self.captures[which] = {"path": str(path), "sha256": sha256_file(path), "samples": int(len(cap.t)),
-                                "segments": len(segs)}
+                                "segments": len(segs), **trace.to_dict()}
+        expect_block(trace, which, self.ecu_prepared if which == "before" else self.block)
+        if which == "before":
+            check_trace(trace, str(path))  # the calibration capture: never under compensation
         return cap
 
     def _flash(self, data: bytes, source: str) -> FlashReport:
@@ -364,10 +388,15 @@ class StationCycle:
         failed = self.steps[-1]["step"] if self.steps else "start"
         self.verdict = "error"
         self.reasons = [f"{failed}: {exc}" if str(exc) else f"{failed}: {type(exc).__name__}"]
+        if getattr(exc, "reasons", None):  # the pre-flight: each problem on its own
+            self.reasons = [f"{failed}: {r}" for r in exc.reasons]
         self.error = {"step": failed, "type": type(exc).__name__, "message": str(exc),
                       "traceback": None if isinstance(exc, EolCalError)
                       else "".join(traceback.format_exception(exc, limit=8))}
-        self.safe_state = safe_state(self.cfg.dyno)
+        if self.preflight is not None and not self.preflight.dyno_reached and failed == "pre-flight":
+            self.safe_state = "not commanded: the pre-flight did not reach the dyno (nothing was started on it)"
+        else:
+            self.safe_state = safe_state(self.cfg.dyno)
 
     def _ecu_active(self, failure: BaseException | None) -> dict[str, Any]:
         """Which block the ECU boots after this run (see :func:`eol_cal.station.run.ecu_active`)."""

@@ -1,6 +1,7 @@
 """The end-of-line cycle for one motor.
 
-prepare ECU (flash the uncompensated block: field estimator, no compensation) -> acquire (dyno,
+pre-flight (dyno ready, ECU answering and accepting the key, serials agreeing; nothing written,
+:mod:`eol_cal.station.preflight`) -> prepare ECU (flash the uncompensated block: field estimator, no compensation) -> acquire (dyno,
 profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the compensation the
 ECU now runs -> metrics -> verdict against the variant's limits -> report + record. The first
 flash makes the calibration capture independent of what the ECU ran before: a blank ECU would
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
 ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
-STEPS = ("prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
+STEPS = ("pre-flight", "prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
 
 
 @dataclass
