@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import CommandExit, console, err_console, handle_errors
+from cli.common import CommandExit, console, err_console, estimator_bits, estimator_option, handle_errors
 from cli.paths import io_paths
 
 
@@ -58,11 +58,13 @@ def _harmonics(text: str) -> tuple[int, ...]:
 @click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True, help="Gauss-Newton or Levenberg-Marquardt.")
 @click.option("--batch", type=click.Choice(["auto", "loop", "vmap", "map"]), default="auto", show_default=True,
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
+@estimator_option("those the ECU ran during the captures: the firmware frame is measured with that estimator.")
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
 @io_paths(inputs=("captures", "map_file", "bench_name"), outputs=("output",), output_dirs=("plot_dir",))
 def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
-            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, as_json):
+            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch, estimator,
+            as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
     Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
@@ -92,7 +94,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
     mechanics = mechanics_or_rigid(bench_name)
     options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, mechanics=mechanics,
-                         hall_angle=hall_angle, cache_dir=cache_dir)
+                         hall_angle=hall_angle, cache_dir=cache_dir, estimator_options=estimator_bits(estimator))
     caps = [read_capture(p, map_file) for p in captures]
     serials = {c.serial for c in caps if "serial" in c.metadata}
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:

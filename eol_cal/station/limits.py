@@ -15,8 +15,10 @@ File format (``docs/station.md``)::
     max_ci_phase_k6_deg = 3.0        # widest 95 % interval of phase_k6 (deg)
     max_ci_c6_nm = 0.002             # widest 95 % cogging phasor error (N*m)
     max_hall_deviation_deg = 3.0     # largest measured hall boundary offset from nominal (deg el.)
+    estimator = "best"               # optional: the estimator options the line flashes (block flags
+                                     # bits 2-5): paper, best (default), names joined by "+", or 0xMASK
 
-Every key is required (a line that forgets one would otherwise pass motors silently); unknown
+Every numeric key is required (a line that forgets one would otherwise pass motors silently); unknown
 keys are refused (a typo such as ``max_pp_afer_pct`` would be a limit that never applies).
 """
 
@@ -30,6 +32,7 @@ from typing import TYPE_CHECKING, Any
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.errors import InputError
+from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options
 from eol_cal.inputs import read_text
 
 if TYPE_CHECKING:
@@ -66,6 +69,12 @@ class VariantLimits:
     max_ci_c6_nm: float
     max_hall_deviation_deg: float
     source: str = "<memory>"
+    estimator: str = DEFAULT_PRESET
+
+    @property
+    def estimator_options(self) -> int:
+        """The estimator option bits (contract flags bits 2-5) the variant's blocks carry."""
+        return parse_options(self.estimator, self.source, f"variant.{self.variant}.estimator")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -94,9 +103,9 @@ def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
         where = f"variant.{name}"
         if not isinstance(table, dict):
             raise InputError(file, where, "must be a table")
-        unknown = set(table) - set(_KEYS)
+        unknown = set(table) - set(_KEYS) - {"estimator"}
         if unknown:
-            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(_KEYS)}")
+            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(_KEYS)}, estimator")
         values: dict[str, float] = {}
         for key, (unit, lo, hi) in _KEYS.items():
             if key not in table:
@@ -107,7 +116,8 @@ def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
             if not lo <= v <= hi:
                 raise InputError(file, f"{where}.{key}", f"{v} outside {lo:g} ... {hi:g} {unit}")
             values[key] = float(v)
-        out[name] = VariantLimits(variant=name, source=file, **values)
+        estimator = options_label(parse_options(table.get("estimator", DEFAULT_PRESET), file, f"{where}.estimator"))
+        out[name] = VariantLimits(variant=name, source=file, estimator=estimator, **values)
     default = doc.get("default_variant")
     if default is not None and default not in out:
         raise InputError(file, "default_variant", f"{default!r} is not one of the variants ({', '.join(out)})")
@@ -298,7 +308,7 @@ def verdict(m: Measured, lim: VariantLimits) -> tuple[str, list[str]]:
     return ("fail", reasons) if reasons else ("pass", [])
 
 
-LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source"))
+LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source", "estimator"))
 
 
 def measured_from_fit(rec: dict[str, Any]) -> Measured:
