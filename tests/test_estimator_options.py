@@ -113,3 +113,108 @@ def test_each_option_alone_changes_the_estimate(name):
     with_option = E.run(sc.cfg, a, b, h)
     paper = E.run(E.EstimatorConfig.from_flags(C.FLAG_INTERP_ENABLE, tick_hz=G.TICK_HZ), a, b, h)
     assert not np.array_equal(with_option.theta_hat.view(np.uint32), paper.theta_hat.view(np.uint32))
+
+
+# --------------------------------------------------------------------------- the CLI and the station
+def _cli(*args: str):
+    from click.testing import CliRunner
+
+    from cli.main import cli
+
+    return CliRunner().invoke(cli, list(args), catch_exceptions=False)
+
+
+def test_block_show_names_the_options_and_warns_without_interp(tmp_path):
+    import json
+
+    path = tmp_path / "b.bin"
+    path.write_bytes(pb.pack(_block(C.FLAG_COMP_ENABLE | C.FLAG_EST_LEARN_GRID_OFFSET)))
+    res = _cli("block", "show", str(path))
+    text = " ".join(res.output.split())
+    assert res.exit_code == 0
+    assert "COMP_ENABLE|EST_LEARN_GRID_OFFSET" in text and "warning" in text and "without INTERP_ENABLE" in text
+    doc = json.loads(_cli("block", "show", str(path), "--json").output)
+    assert doc["valid"] and any("EST_LEARN_GRID_OFFSET without INTERP_ENABLE" in w for w in doc["warnings"])
+    # with INTERP_ENABLE: no warning
+    path.write_bytes(pb.pack(_block(C.FLAG_INTERP_ENABLE | C.FLAG_EST_LEARN_GRID_OFFSET)))
+    doc = json.loads(_cli("block", "show", str(path), "--json").output)
+    assert doc["warnings"] == []
+
+
+@pytest.mark.parametrize("choice, flags", [(None, C.FLAG_INTERP_ENABLE | C.FLAGS_ESTIMATOR),
+                                           ("paper", C.FLAG_INTERP_ENABLE),
+                                           ("0x20", C.FLAG_INTERP_ENABLE | C.FLAG_EST_LEARN_PITCH_ERRORS)])
+def test_block_uncompensated_carries_the_chosen_options(tmp_path, choice, flags):
+    path = tmp_path / "prep.bin"
+    extra = [] if choice is None else ["--estimator", choice]
+    res = _cli("block", "uncompensated", "--serial", "M-1", "-o", str(path), *extra)
+    assert res.exit_code == 0, res.output
+    blk = pb.unpack(path.read_bytes())
+    assert blk.flags == flags and not blk.flags & C.FLAG_COMP_ENABLE
+
+
+LIMITS = """
+[variant.A]
+max_k6 = 0.002
+max_pp_before_pct = 10.0
+max_pp_after_pct = 1.0
+min_improvement_pct = 50.0
+min_r2 = 0.5
+max_rms_nm = 0.05
+max_ci_k6_rel = 0.05
+max_ci_phase_k6_deg = 3.0
+max_ci_c6_nm = 0.002
+max_hall_deviation_deg = 3.0
+"""
+
+
+@pytest.mark.parametrize("line, label, bits", [("", "best", 0x3C), ('estimator = "paper"', "paper", 0),
+                                               ('estimator = "learn_pitch_errors+clamp_to_next_edge"',
+                                                "EST_CLAMP_TO_NEXT_EDGE+EST_LEARN_PITCH_ERRORS", 0x24),
+                                               ('estimator = "0x3c"', "best", 0x3C)])
+def test_limits_estimator_key(line, label, bits):
+    from eol_cal.station.limits import LIMIT_KEYS, parse_limits
+
+    lim = parse_limits(LIMITS + line + "\n", "lim.toml")["A"]
+    assert lim.estimator == label and lim.estimator_options == bits
+    assert "estimator" not in LIMIT_KEYS  # not a pass/fail limit
+
+
+@pytest.mark.parametrize("value", ['"fancy"', '"0x40"', "12"])
+def test_limits_refuse_a_bad_estimator(value):
+    from eol_cal.station.limits import parse_limits
+
+    with pytest.raises(InputError) as err:
+        parse_limits(LIMITS + f"estimator = {value}\n", "lim.toml")
+    assert "lim.toml" in str(err.value) and "variant.A.estimator" in str(err.value)
+
+
+def test_station_config_estimator_overrides_the_variant(tmp_path):
+    from eol_cal.station.limits import parse_limits
+    from eol_cal.station.run import StationConfig
+
+    lim = parse_limits(LIMITS + 'estimator = "paper"\n', "lim.toml")["A"]
+    cfg = StationConfig(serial="S", dyno=None, open_bus=lambda: None, seed_to_key=lambda s: s, limits=lim,
+                        db=tmp_path / "db", report_dir=tmp_path)
+    assert cfg.estimator_options == 0
+    cfg.estimator = "best"
+    assert cfg.estimator_options == C.FLAGS_ESTIMATOR
+
+
+def test_the_prepared_block_selects_the_same_estimator_in_the_rig():
+    """The rig's plant runs what the ECU's active block selects: a prepared block with ``best``
+    gives another angle estimate than one with ``paper`` (same motor, same noise)."""
+    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.dyno.registers import DutCmdKind
+    from eol_cal.dyno.sim import CaptureRequest
+    from eol_cal.motor import load_motor
+    from eol_cal.station.rig import ActiveCalibration, plant_capture
+
+    motor = load_motor("paper")
+    req = CaptureRequest(speed_rpm=120.0, dut_cmd_kind=DutCmdKind.IQ, dut_cmd=40.0, n_samples=2000,
+                         rate_hz=20000.0, serial="M-1", seed=None, capture_index=1)
+    caps = {}
+    for name, bits in (("paper", 0), ("best", C.FLAGS_ESTIMATOR)):
+        blk = uncompensated_block("M-1", motor, calibrated_at=0, options=bits)
+        caps[name] = plant_capture()(req, ActiveCalibration("estimated", blk))
+    assert not np.array_equal(caps["paper"]["iq"], caps["best"]["iq"])
