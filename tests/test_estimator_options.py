@@ -4,6 +4,7 @@ block, its check, and the estimator the golden vectors run."""
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -153,19 +154,9 @@ def test_block_uncompensated_carries_the_chosen_options(tmp_path, choice, flags)
     assert blk.flags == flags and not blk.flags & C.FLAG_COMP_ENABLE
 
 
-LIMITS = """
-[variant.A]
-max_k6 = 0.002
-max_pp_before_pct = 10.0
-max_pp_after_pct = 1.0
-min_improvement_pct = 50.0
-min_r2 = 0.5
-max_rms_nm = 0.05
-max_ci_k6_rel = 0.05
-max_ci_phase_k6_deg = 3.0
-max_ci_c6_nm = 0.002
-max_hall_deviation_deg = 3.0
-"""
+#: the fixture's limits; its last table is variant EPS-PREMIUM, so a line appended belongs to it
+LIMITS = (Path(__file__).resolve().parents[1] / "fixtures" / "limits.toml").read_text("utf-8") + "\n"
+VARIANT = "EPS-PREMIUM"
 
 
 @pytest.mark.parametrize("line, label, bits", [("", "best", 0x3C), ('estimator = "paper"', "paper", 0),
@@ -175,7 +166,7 @@ max_hall_deviation_deg = 3.0
 def test_limits_estimator_key(line, label, bits):
     from eol_cal.station.limits import LIMIT_KEYS, parse_limits
 
-    lim = parse_limits(LIMITS + line + "\n", "lim.toml")["A"]
+    lim = parse_limits(LIMITS + line + "\n", "lim.toml")[VARIANT]
     assert lim.estimator == label and lim.estimator_options == bits
     assert "estimator" not in LIMIT_KEYS  # not a pass/fail limit
 
@@ -186,14 +177,14 @@ def test_limits_refuse_a_bad_estimator(value):
 
     with pytest.raises(InputError) as err:
         parse_limits(LIMITS + f"estimator = {value}\n", "lim.toml")
-    assert "lim.toml" in str(err.value) and "variant.A.estimator" in str(err.value)
+    assert "lim.toml" in str(err.value) and f"variant.{VARIANT}.estimator" in str(err.value)
 
 
 def test_station_config_estimator_overrides_the_variant(tmp_path):
     from eol_cal.station.limits import parse_limits
     from eol_cal.station.run import StationConfig
 
-    lim = parse_limits(LIMITS + 'estimator = "paper"\n', "lim.toml")["A"]
+    lim = parse_limits(LIMITS + 'estimator = "paper"\n', "lim.toml")[VARIANT]
     cfg = StationConfig(serial="S", dyno=None, open_bus=lambda: None, seed_to_key=lambda s: s, limits=lim,
                         db=tmp_path / "db", report_dir=tmp_path)
     assert cfg.estimator_options == 0

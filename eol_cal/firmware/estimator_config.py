@@ -25,6 +25,7 @@ from eol_cal.firmware.contract import (
     HALL_NEXT,
     NOMINAL_HALL_ANGLE,
 )
+from eol_cal.firmware.options import honoured_options
 
 if TYPE_CHECKING:
     from eol_cal.firmware.block import ParamBlock
@@ -92,7 +93,7 @@ def options_from_flags(flags: int) -> dict[str, bool]:
     The option bits count only with ``INTERP_ENABLE`` set (contract section 2); without it every
     switch is off.
     """
-    honoured = flags & FLAGS_ESTIMATOR if flags & FLAG_INTERP_ENABLE else 0
+    honoured = honoured_options(flags)
     return {name: bool(honoured & bit) for name, bit in OPTION_FLAGS.items()}
 
 STATUS_BITS = {
