@@ -4,7 +4,7 @@ Side by side on the same sampled encoder/hall signals (6 poles, 64 PPR, 20 kHz):
 
 - raw encoder angle (the firmware's ``theta_enc``: angle of the last A edge, seed eq. 8),
 - the firmware's causal estimator (seed eqs. 13-16, ``EstimatorConfig.paper``) and with its
-  three improvements (``EstimatorConfig.best``),
+  four options (``EstimatorConfig.best``, block flags bits 2-5 all set; three before contract revision 1.1),
 - offline linear interpolation between the same edges (``np.interp``),
 - offline PCHIP (``eol_cal.analysis.angle``, this product).
 

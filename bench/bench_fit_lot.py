@@ -31,7 +31,13 @@ bench measures it on a noise-free run of each motor through the same profile (th
 (against the plant's k6, the issue's target) and ``k6_eff_err_pct`` (against k6 + that part).
 Skip the extra run with ``--no-effective``.
 
-    python bench/bench_fit_lot.py [--motors 100] [--batch 10]
+The ECU's estimator options (contract flags bits 2-5) are chosen per run with ``--estimator``
+(default ``paper,best``: both, one after the other on the same motors, in one invocation): each
+motor is measured under the uncompensated block carrying those options (as the station's
+"prepare ECU" step flashes it), fitted with its firmware frame measured under that estimator, and
+its block carries them; the plant's ECU runs whatever the active block's flags select.
+
+    python bench/bench_fit_lot.py [--motors 100] [--batch 10] [--estimator paper,best]
 """
 
 from __future__ import annotations
@@ -85,9 +91,10 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=10, help="motors simulated together (memory)")
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--json", help="write the per-motor rows here")
-    ap.add_argument("--ecu-estimator", choices=("paper", "best"), default="paper",
-                    help="the ECU's estimator in the operating-point runs: the contract's (paper) or the "
-                         "reference's improvements (a what-if; 1.5 s pre-roll to learn the pitch errors)")
+    ap.add_argument("--estimator", default="paper,best",
+                    help="comma-separated estimator choices to run side by side (paper, best, names joined by "
+                         "'+', or a hex mask of bits 2-5); each is calibrated, flashed and measured with its "
+                         "own options")
     ap.add_argument("--no-nominal-halls", dest="nominal_halls", action="store_false",
                     help="skip the comparison fit + run with the nominal hall table")
     ap.add_argument("--no-effective", dest="effective", action="store_false",
@@ -102,16 +109,19 @@ def main() -> None:
     from eol_cal.mechanics import load_mechanics
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
+    from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
     from eol_cal.plant.simulate import simulate, true_block
     from eol_cal.plant.variation import draw_motor
+
+    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.firmware.options import options_label, parse_options
 
     print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")
     motor = load_motor("paper")
     cal = load_profile("eol-default")
     point = load_profile("paper")
     spec = FitSpec()
-    # the operating-point runs: the ECU's estimator (a what-if with --ecu-estimator best)
-    check = {} if args.ecu_estimator == "paper" else {"ecu_estimator": "best", "pre_roll_s": 1.5}
+    choices = [parse_options(c.strip(), None, "--estimator") for c in args.estimator.split(",")]
     bench = load_mechanics("paper")  # eol-cal fit's default: the bench the plant models
     rows = []
     t_sim = t_fit = 0.0
@@ -119,82 +129,87 @@ def main() -> None:
     for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
         seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
         plants = [draw_motor(s) for s in seeds]
-        t0 = time.perf_counter()
-        runs = simulate(plants, cal, mode="estimated", seed=first)
-        # the same motors, same start angles, without sensor noise: the deterministic current ripple
-        clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], cal, mode="estimated",
-                         seed=first) if args.effective else [None] * len(plants)
-        t_sim += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        inputs = [motor_inputs([r.capture], mechanics=bench)[0] for r in runs]
-        fits = fit_many([m.segments for m in inputs], spec, mode="loop")
-        t_fit += time.perf_counter() - t0
-        blocks, truths, blocks_nom = [], [], []
-        if args.nominal_halls:
-            # the alternative: the same fit with the contract's nominal hall table in the block
-            for r in runs:
-                (mi_n,) = motor_inputs([r.capture], mechanics=bench, hall_angle="nominal")
-                (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
-                rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
-                blocks_nom.append(block_from_record(rec_n, motor) if rec_n["status"] == "ok" else None)
-        for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
-            # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
-            # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
-            d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
-            # as eol-cal fit writes it (phases in the firmware estimator's frame, measured hall
-            # table); f_fw: the same phases with their uncertainty, also for an unusable fit
-            rec = record_for_motor(mi, f, spec, CiLimits(), metrics={}, solver_mode="loop")
-            f_fw = shift_frame(f, mi.frame_offset_rad)
-            k_rec = f.harmonics[6]["k"]
-            six = f_fw.harmonics[6]
-            k, c = six["k"], six["c"]
-            c_err = abs(c.value * np.exp(1j * c.phase) - p.c6 * np.exp(1j * p.phase_c6))
-            k_eff = abs(p.k6 * np.exp(1j * p.phase_k6) + (_current_k6(cl, spec) if cl is not None else 0.0))
-            rows.append({
-                "seed": p.serial, "status": rec["status"],
-                "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
-                "k6_eff_err_pct": 100 * (k.value - k_eff) / k_eff,
-                "k6_current_pct": 100 * (k_eff - p.k6) / p.k6,
-                "phase_k6_err_deg": math.degrees(wrap_pi(k.phase - p.phase_k6)),
-                "phase_k6_err_rec_deg": math.degrees(wrap_pi(k_rec.phase - (p.phase_k6 - 6 * d_rec))),
-                "frame_rec_deg": math.degrees(d_rec),
-                "_phase_k6": k.phase, "_phase_c6": c.phase, "_c6": c.value,
-                "c6_err_nm": c_err,
-                "phase_c6_err_deg": math.degrees(wrap_pi(c.phase - p.phase_c6)),
-                "ci_k6_pct": 100 * k.ci95 / k.value,
-                "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
-                "hall_source": mi.hall.source,
-            })
-            blocks.append(block_from_record(rec, motor) if rec["status"] == "ok" else None)
-            truths.append(true_block(p))
-        t0 = time.perf_counter()
-        ok = [i for i, b in enumerate(blocks) if b is not None]
-        before = simulate(plants, point, mode="estimated", seed=first + 1000, **check)
-        after = simulate([plants[i] for i in ok], point, mode="compensated", blocks=[blocks[i] for i in ok],
-                         seed=first + 1000, **check)
-        ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000, **check)
-        ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
-        after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
-                                            blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000, **check))) if ok_n else {}
-        t_sim += time.perf_counter() - t0
-        after_by = dict(zip(ok, after))
-        for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
-            # the firmware's frame where the compensation works: its estimator (with the block's
-            # hall table: the compensated run's) at the operating point (steady 60 rpm after 0.2 s)
-            # against the plant's true angle
-            b, p, r = after_by.get(j, before[j]), plants[j], rows[i]
-            keep = b.capture.t >= 0.2
-            d_fw = float(np.angle(np.mean(np.exp(1j * (b.theta_hat[keep] - b.theta_r[keep])))))
-            r["frame_fw_deg"] = math.degrees(d_fw)
-            r["phase_k6_err_fw_deg"] = math.degrees(wrap_pi(r["_phase_k6"] - (p.phase_k6 - 6 * d_fw)))
-            r["c6_err_fw_nm"] = abs(r["_c6"] * np.exp(1j * r["_phase_c6"]) - p.c6 * np.exp(1j * (p.phase_c6 - 6 * d_fw)))
-            nan = (float("nan"), float("nan"))
-            rows[i]["pp_before_pct"] = _pp(before[j].capture)[0]
-            rows[i]["pp_after_pct"], rows[i]["pp_after_no_mech1_pct"] = _pp(after_by[j].capture) if j in after_by else nan
-            rows[i]["unb1_nm"] = p.unb1
-            rows[i]["pp_true6_pct"] = _pp(ideal[j].capture)[0]
-            rows[i]["pp_after_nominal_halls_pct"] = _pp(after_nom[j].capture)[0] if j in after_nom else nan[0]
-        print(f"  {len(rows)} motors done, {time.perf_counter() - t_start:.0f} s", flush=True)
+        for opt in choices:
+            label = options_label(opt)
+            # the ECU runs what its active block selects: measured under the uncompensated block with
+            # the options the calibrated block will carry (the station's "prepare ECU" step)
+            prepared = [uncompensated_block(p.serial[:16], motor, calibrated_at=0, options=opt) for p in plants]
+            t0 = time.perf_counter()
+            runs = simulate(plants, cal, mode="estimated", blocks=prepared, seed=first)
+            # the same motors, same start angles, without sensor noise: the deterministic current ripple
+            clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], cal, mode="estimated",
+                             blocks=prepared, seed=first) if args.effective else [None] * len(plants)
+            t_sim += time.perf_counter() - t0
+            t0 = time.perf_counter()
+            inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=opt)[0] for r in runs]
+            fits = fit_many([m.segments for m in inputs], spec, mode="loop")
+            t_fit += time.perf_counter() - t0
+            blocks, truths, blocks_nom = [], [], []
+            if args.nominal_halls:
+                # the alternative: the same fit with the contract's nominal hall table in the block
+                for r in runs:
+                    (mi_n,) = motor_inputs([r.capture], mechanics=bench, hall_angle="nominal", estimator_options=opt)
+                    (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
+                    rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
+                    blocks_nom.append(block_from_record(rec_n, motor, options=opt) if rec_n["status"] == "ok" else None)
+            for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
+                # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
+                # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
+                d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
+                # as eol-cal fit writes it (phases in the firmware estimator's frame, measured hall
+                # table); f_fw: the same phases with their uncertainty, also for an unusable fit
+                rec = record_for_motor(mi, f, spec, CiLimits(), metrics={}, solver_mode="loop")
+                f_fw = shift_frame(f, mi.frame_offset_rad)
+                k_rec = f.harmonics[6]["k"]
+                six = f_fw.harmonics[6]
+                k, c = six["k"], six["c"]
+                c_err = abs(c.value * np.exp(1j * c.phase) - p.c6 * np.exp(1j * p.phase_c6))
+                k_eff = abs(p.k6 * np.exp(1j * p.phase_k6) + (_current_k6(cl, spec) if cl is not None else 0.0))
+                rows.append({
+                    "seed": p.serial, "estimator": label, "status": rec["status"],
+                    "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
+                    "k6_eff_err_pct": 100 * (k.value - k_eff) / k_eff,
+                    "k6_current_pct": 100 * (k_eff - p.k6) / p.k6,
+                    "phase_k6_err_deg": math.degrees(wrap_pi(k.phase - p.phase_k6)),
+                    "phase_k6_err_rec_deg": math.degrees(wrap_pi(k_rec.phase - (p.phase_k6 - 6 * d_rec))),
+                    "frame_rec_deg": math.degrees(d_rec),
+                    "_phase_k6": k.phase, "_phase_c6": c.phase, "_c6": c.value,
+                    "c6_err_nm": c_err,
+                    "phase_c6_err_deg": math.degrees(wrap_pi(c.phase - p.phase_c6)),
+                    "ci_k6_pct": 100 * k.ci95 / k.value,
+                    "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
+                    "hall_source": mi.hall.source,
+                })
+                blocks.append(block_from_record(rec, motor, options=opt) if rec["status"] == "ok" else None)
+                truths.append(true_block(p, flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | opt))
+            t0 = time.perf_counter()
+            ok = [i for i, b in enumerate(blocks) if b is not None]
+            before = simulate(plants, point, mode="estimated", blocks=prepared, seed=first + 1000)
+            after = simulate([plants[i] for i in ok], point, mode="compensated", blocks=[blocks[i] for i in ok],
+                             seed=first + 1000)
+            ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
+            ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
+            after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
+                                                blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000))) if ok_n else {}
+            t_sim += time.perf_counter() - t0
+            after_by = dict(zip(ok, after))
+            for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
+                # the firmware's frame where the compensation works: its estimator (with the block's
+                # hall table: the compensated run's) at the operating point (steady 60 rpm after 0.2 s)
+                # against the plant's true angle
+                b, p, r = after_by.get(j, before[j]), plants[j], rows[i]
+                keep = b.capture.t >= 0.2
+                d_fw = float(np.angle(np.mean(np.exp(1j * (b.theta_hat[keep] - b.theta_r[keep])))))
+                r["frame_fw_deg"] = math.degrees(d_fw)
+                r["phase_k6_err_fw_deg"] = math.degrees(wrap_pi(r["_phase_k6"] - (p.phase_k6 - 6 * d_fw)))
+                r["c6_err_fw_nm"] = abs(r["_c6"] * np.exp(1j * r["_phase_c6"]) - p.c6 * np.exp(1j * (p.phase_c6 - 6 * d_fw)))
+                nan = (float("nan"), float("nan"))
+                rows[i]["pp_before_pct"] = _pp(before[j].capture)[0]
+                rows[i]["pp_after_pct"], rows[i]["pp_after_no_mech1_pct"] = _pp(after_by[j].capture) if j in after_by else nan
+                rows[i]["unb1_nm"] = p.unb1
+                rows[i]["pp_true6_pct"] = _pp(ideal[j].capture)[0]
+                rows[i]["pp_after_nominal_halls_pct"] = _pp(after_nom[j].capture)[0] if j in after_nom else nan[0]
+            print(f"  {len(rows)} motor runs done ({label}), {time.perf_counter() - t_start:.0f} s", flush=True)
 
     if args.json:
         import json
@@ -202,14 +217,35 @@ def main() -> None:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
 
+    labels = list(dict.fromkeys(r["estimator"] for r in rows))
+    for label in labels:
+        _summary([r for r in rows if r["estimator"] == label], label, args)
+    print(f"\nsimulation {t_sim:.0f} s, fitting (incl. angle + segments) {t_fit:.0f} s, "
+          f"wall {time.perf_counter() - t_start:.0f} s")
+    print("\ncompensated p-p at 60 rpm / 65 A, side by side (targets: <= 1.0 % on 85/100, median <= 0.75 %; "
+          "without mechanical order 1 all <= 0.8 %):")
+    print(f"{'estimator':<10} {'n':>4} {'pp median':>10} {'p95':>6} {'max':>6} {'<=1.0 %':>8} "
+          f"{'no_mech1 median':>16} {'max':>6} {'<=0.8 %':>8} {'before median':>14}")
+    for label in labels:
+        sub = [r for r in rows if r["estimator"] == label]
+        pp = np.array([r["pp_after_pct"] for r in sub], float)
+        nm = np.array([r["pp_after_no_mech1_pct"] for r in sub], float)
+        bf = np.array([r["pp_before_pct"] for r in sub], float)
+        print(f"{label:<10} {len(sub):>4} {np.nanmedian(pp):>9.2f}% {np.nanpercentile(pp, 95):>5.2f}% "
+              f"{np.nanmax(pp):>5.2f}% {int((pp <= 1.0).sum()):>4}/{len(sub):<3} {np.nanmedian(nm):>15.2f}% "
+              f"{np.nanmax(nm):>5.2f}% {int((nm <= 0.8).sum()):>4}/{len(sub):<3} {np.nanmedian(bf):>13.2f}%")
+
+
+def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
+    """The per-estimator figures of the lot (one block of lines)."""
     def col(name):
         return np.array([r[name] for r in rows], dtype=float)
 
     n = len(rows)
     usable = sum(r["status"] == "ok" for r in rows)
     print(f"\n{n} motors (plant seeds {args.first_seed}..{args.first_seed + n - 1}), eol-default profile, "
-          f"ECU estimator at the operating point: {args.ecu_estimator}; "
-          f"usable fits {usable}/{n}; simulation {t_sim:.0f} s, fitting (incl. angle + segments) {t_fit:.0f} s")
+          f"ECU estimator (block flags bits 2-5, calibration and operating point): {label}; "
+          f"usable fits {usable}/{n}")
     for name, unit, limit in (("k6_err_pct", "%", 2.0), ("phase_k6_err_deg", "deg", 2.0),
                               ("phase_k6_err_rec_deg", "deg", 2.0), ("phase_k6_err_fw_deg", "deg", 2.0),
                               ("frame_rec_deg", "deg", None), ("frame_fw_deg", "deg", None),

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from cli.common import console, handle_errors, print_json
+from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json
 from cli.paths import io_paths
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 
@@ -224,9 +224,10 @@ def a2l_cmd(bank: int, output: str, table_len: int) -> None:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="block image to write (.bin)")
 @click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
               help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm).")
+@estimator_option("give the calibrated block's, so the motor is measured under the estimator it will run.")
 @handle_errors
 @io_paths(inputs=("motor_file",), outputs=("output",))
-def uncompensated_cmd(serial: str, output: str, motor_file: str | None) -> None:
+def uncompensated_cmd(serial: str, output: str, motor_file: str | None, estimator: str) -> None:
     """Write the block a motor is measured under: the interpolated angle, no compensation.
 
     Flash it before the calibration capture (`eol-cal flash`) when running the steps one by one,
@@ -238,9 +239,11 @@ def uncompensated_cmd(serial: str, output: str, motor_file: str | None) -> None:
     from eol_cal.firmware import block as pb
     from eol_cal.motor import load_motor
 
-    data = pb.pack(uncompensated_block(serial, load_motor("paper", motor_file)))
+    blk = uncompensated_block(serial, load_motor("paper", motor_file), options=estimator_bits(estimator))
+    data = pb.pack(blk)
     atomic_write(Path(output), data)
-    click.echo(f"wrote {output}: {len(data)} bytes, flags INTERP_ENABLE (no compensation), serial {serial}")
+    click.echo(f"wrote {output}: {len(data)} bytes, flags {pb.flag_names(blk.flags)} (no compensation), "
+               f"serial {serial}")
 
 
 COMMANDS = [block_group]

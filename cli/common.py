@@ -151,3 +151,20 @@ def exchange_log_options(func: Callable) -> Callable:
             return func(*args, **kwargs)
 
     return wrapper
+
+
+def estimator_option(what: str, default: str | None = "best") -> Callable:
+    """The ``--estimator`` option (paper|best|NAMES|0xMASK, default ``default``) of the commands
+    that choose the firmware estimator's options (contract flags bits 2-5); ``what`` ends its help."""
+    return click.option(
+        "--estimator", "estimator", default=default, show_default=default is not None, metavar="paper|best|NAMES|0xMASK",
+        help="Estimator options (block flags bits 2-5): paper (none), best (all four), option names joined "
+             "by '+' (clamp_to_next_edge, learn_grid_offset, accel_prediction, learn_pitch_errors) or a hex "
+             f"mask of bits 2-5; {what}")
+
+
+def estimator_bits(text: str) -> int:
+    """The option bits of an ``--estimator`` value (bad input: exit 2 naming the option)."""
+    from eol_cal.firmware.options import parse_options
+
+    return parse_options(text, None, "--estimator")

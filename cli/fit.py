@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import CommandExit, console, err_console, handle_errors
+from cli.common import CommandExit, console, err_console, estimator_bits, estimator_option, handle_errors
 from cli.paths import io_paths
 
 
@@ -28,6 +28,32 @@ def _harmonics(text: str) -> tuple[int, ...]:
     except ValueError:
         raise click.BadParameter(f"{text!r}: comma-separated orders, e.g. 6,12,18") from None
     return orders
+
+
+def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple[int, list[str]]:
+    """The estimator options the fit measures the firmware frame with, and warnings.
+
+    The options the captures' ECU ran (their ``ecu_before`` block's flags) unless ``choice``
+    (``--estimator``) says otherwise, which is then warned about per capture that recorded
+    others; ``best`` when no capture recorded a block. Captures that recorded different options
+    cannot share one frame: refused unless ``choice`` is given.
+    """
+    from eol_cal.errors import InputError
+    from eol_cal.firmware.options import options_label
+
+    recorded = {path: t.before.estimator_options() for path, t in zip(paths, traces)
+                if t.before is not None and t.before.has_block}
+    if choice is not None:
+        bits = estimator_bits(choice)
+        return bits, [f"{path}: the ECU ran estimator {options_label(r)}, the frame is measured with "
+                      f"{options_label(bits)} (--estimator)" for path, r in recorded.items() if r != bits]
+    found = set(recorded.values())
+    if len(found) > 1:
+        first = {options_label(r): path for path, r in recorded.items()}
+        raise InputError(", ".join(first.values()), "ecu_before.flags",
+                         f"the captures ran different estimator options ({', '.join(sorted(first))}); "
+                         "fit them apart or choose one with --estimator")
+    return (found.pop() if found else estimator_bits("best")), []
 
 
 @click.command("fit")
@@ -62,12 +88,14 @@ def _harmonics(text: str) -> tuple[int, ...]:
               help="Fit captures with no record of the ECU state (a foreign DAQ's): a warning instead of a refusal.")
 @click.option("--allow-compensated", is_flag=True,
               help="Fit captures taken under compensation (COMP_ENABLE): a warning instead of a refusal.")
+@estimator_option("those the ECU ran during the captures: the firmware frame is measured with that estimator "
+                  "[default: the options the captures' ECU state records; best for captures without one].", default=None)
 @click.option("--json", "as_json", is_flag=True, help="Also print the result JSON on stdout.")
 @handle_errors
 @io_paths(inputs=("captures", "map_file", "bench_name"), outputs=("output",), output_dirs=("plot_dir",))
 def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
             hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch,
-            allow_untraced, allow_compensated, as_json):
+            allow_untraced, allow_compensated, estimator, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
     Captures are grouped by their ``serial``; all captures of one motor fit jointly. Exit 0 when
@@ -101,13 +129,16 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     )
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
     mechanics = mechanics_or_rigid(bench_name)
-    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, mechanics=mechanics,
-                         hall_angle=hall_angle, cache_dir=cache_dir)
     caps = [read_capture(p, map_file) for p in captures]
-    for path, cap in zip(captures, caps):  # every refusal before any fit starts
-        for warning in check_trace(trace_of(cap.metadata, path), path, allow_untraced=allow_untraced,
-                                   allow_compensated=allow_compensated):
+    traces = [trace_of(cap.metadata, path) for path, cap in zip(captures, caps)]
+    for path, trace in zip(captures, traces):  # every refusal before any fit starts
+        for warning in check_trace(trace, path, allow_untraced=allow_untraced, allow_compensated=allow_compensated):
             click.echo(f"warning: {warning}", err=True)
+    bits, warnings = frame_estimator(estimator, captures, traces)
+    for warning in warnings:
+        click.echo(f"warning: {warning}", err=True)
+    options = FitOptions(spec=spec, limits=limits, settle_s=settle_s, frame=frame, batch=batch, mechanics=mechanics,
+                         hall_angle=hall_angle, cache_dir=cache_dir, estimator_options=bits)
     serials = {c.serial for c in caps if "serial" in c.metadata}
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:
         task = progress.add_task("fitting", total=len(serials))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from cli.common import console, handle_errors, print_json
+from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json
 from cli.paths import io_paths
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 
@@ -32,10 +32,11 @@ def _lead(text: str) -> float | None:
 @click.option("--motor", "motor_file", type=click.Path(dir_okay=False), help="Motor TOML overriding the paper preset (current_bw_hz, f_cc, f_pwm).")
 @click.option("--hex", "hex_file", type=click.Path(dir_okay=False), help="Also write Intel HEX at the bank's flash address.")
 @click.option("--bank", default=0, show_default=True, type=click.IntRange(0, 1), help="Bank address for --hex.")
+@estimator_option("the block's flags carry them (the ECU runs that estimator).")
 @click.option("--json", "as_json", is_flag=True, help="Print the block's fields as JSON.")
 @handle_errors
 @io_paths(inputs=("result", "motor_file"), outputs=("output", "hex_file"))
-def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, hex_file, bank, as_json):
+def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, hex_file, bank, estimator, as_json):
     """Build the compensator tables of one motor and pack them into a valid parameter block.
 
     Exit 1 when the motor's fit is not usable, 2 on bad input.
@@ -45,18 +46,20 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     from eol_cal.analysis.result import read_result
     from eol_cal.atomic import atomic_write
     from eol_cal.errors import naming
-    from eol_cal.firmware.block import check, pack, to_intel_hex
+    from eol_cal.firmware.block import check, flag_names, pack, to_intel_hex
+    from eol_cal.firmware.options import options_label
     from eol_cal.firmware.block_sanity import require_safe
     from eol_cal.motor import load_motor
 
     lead_s = _lead(lead)
+    options = estimator_bits(estimator)
     doc = read_result(result)
     rec = select_motor(doc, serial, result)
     motor_result = MotorResult.from_json(rec, result, f"motors[{doc['motors'].index(rec)}].")
     motor = load_motor("paper", motor_file)
     with naming(result):  # the tables' and the block's own checks see values; they came from RESULT
         blk = block_from_result(motor_result, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
-                                calibrated_at=created_unix(doc), source=result)
+                                calibrated_at=created_unix(doc), source=result, options=options)
         data = pack(blk)
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
@@ -75,8 +78,13 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
             f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"
             f"{' (auto)' if lead_s is None else ''}, iqc_limit {blk.iqc_limit:.3g} A, "
             f"max |table_per_amp| {abs(blk.table_per_amp).max():.3g} A/A, max |table_const| {abs(blk.table_const).max():.3g} A; "
-            f"hall_angle {(motor_result.hall_angle or {}).get('source', 'nominal')}"
+            f"hall_angle {(motor_result.hall_angle or {}).get('source', 'nominal')}; "
+            f"estimator {options_label(options)} (flags {flag_names(blk.flags)})"
         )
+        frame_estimator = (motor_result.model or {}).get("frame_estimator")
+        if frame_estimator is not None and frame_estimator != options_label(options):
+            console.print(f"[yellow]warning:[/yellow] the fit measured its phases' frame under the {frame_estimator} "
+                          f"estimator; the block runs {options_label(options)}")
 
 
 COMMANDS = [table_cmd]

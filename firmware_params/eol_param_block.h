@@ -27,9 +27,15 @@
 #define EOL_PB_BANK1_WORD_ADDR    UINT32_C(0x330000)
 #define EOL_PB_SEQUENCE_ERASED    UINT32_C(0xFFFFFFFF)
 
-/* flags */
-#define EOL_PB_FLAG_COMP_ENABLE    (UINT32_C(1) << 0)  /* apply i_qc */
-#define EOL_PB_FLAG_INTERP_ENABLE  (UINT32_C(1) << 1)  /* use the interpolated angle theta_hat (0 = raw encoder angle) */
+/* flags; bits 2-5 are the estimator options (revision 1.1), honoured only with INTERP_ENABLE */
+#define EOL_PB_FLAG_COMP_ENABLE            (UINT32_C(1) << 0)  /* apply i_qc */
+#define EOL_PB_FLAG_INTERP_ENABLE          (UINT32_C(1) << 1)  /* use the interpolated angle theta_hat (0 = raw encoder angle) */
+#define EOL_PB_FLAG_EST_CLAMP_TO_NEXT_EDGE (UINT32_C(1) << 2)  /* estimator: prediction kept inside the current quadrature count, speed bounded by one pitch per elapsed tick count */
+#define EOL_PB_FLAG_EST_LEARN_GRID_OFFSET  (UINT32_C(1) << 3)  /* estimator: encoder grid offset = running mean of the hall corrections */
+#define EOL_PB_FLAG_EST_ACCEL_PREDICTION   (UINT32_C(1) << 4)  /* estimator: extrapolates the filtered acceleration between edges */
+#define EOL_PB_FLAG_EST_LEARN_PITCH_ERRORS (UINT32_C(1) << 5)  /* estimator: learns each edge's placement error at steady speed */
+#define EOL_PB_FLAGS_ESTIMATOR             UINT32_C(0x3C)  /* every estimator option bit */
+#define EOL_PB_FLAGS_KNOWN                 UINT32_C(0x3F)  /* every bit the contract defines */
 
 /* check routine status (UDS routine 0x0202) */
 #define EOL_PB_STATUS_VALID          0u  /* valid */
@@ -54,7 +60,7 @@
 /* sequence: u32, write counter, 1 or more; 0 and 0xFFFFFFFF are invalid */
 #define EOL_PB_OFF_SEQUENCE UINT32_C(8)
 #define EOL_PB_COUNT_SEQUENCE UINT32_C(1)
-/* flags: u32, the EOL_PB_FLAG_* bits, every other bit 0 */
+/* flags: u32, the EOL_PB_FLAG_* bits (bits 2-5: estimator options, only with INTERP_ENABLE), every other bit 0 */
 #define EOL_PB_OFF_FLAGS UINT32_C(12)
 #define EOL_PB_COUNT_FLAGS UINT32_C(1)
 /* serial: u8[16], motor serial, ASCII, NUL-padded */

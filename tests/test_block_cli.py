@@ -125,7 +125,7 @@ def test_uncompensated_block_for_the_calibration_capture(tmp_path):
     assert pb.check(data).valid
     blk = pb.unpack(data, str(out))
     # the field's estimator, no compensation, the contract's nominal hall table
-    assert blk.flags == pb.FLAG_INTERP_ENABLE and blk.serial == "M-0007"
+    assert blk.flags == pb.FLAG_INTERP_ENABLE | pb.FLAGS_ESTIMATOR and blk.serial == "M-0007"  # default best
     assert blk.iqc_limit == 0.0 and not blk.table_const.any() and not blk.table_per_amp.any()
     assert (blk.poles, blk.encoder_ppr) == (6, 64)
     motor = tmp_path / "m8.toml"

@@ -115,7 +115,7 @@ def test_sixteen_character_serial_has_no_nul():
 @pytest.mark.parametrize("change, field", [
     (dict(sequence=0), "sequence"),
     (dict(sequence=0xFFFFFFFF), "sequence"),
-    (dict(flags=4), "flags"),
+    (dict(flags=0x40), "flags"),
     (dict(serial="X" * 17), "serial"),
     (dict(serial="MOTÖR"), "serial"),
     (dict(serial="A\0B"), "serial"),

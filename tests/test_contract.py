@@ -70,3 +70,17 @@ def test_the_c_code_takes_the_hall_convention_and_codes_from_the_header():
     assert "EOL_PB_HALL_NEXT" in sources["eol_est.c"]
     seq_c = "{" + ", ".join(map(str, C.HALL_NEXT)) + "}"
     assert all(seq_c not in text for text in sources.values())
+
+
+def test_every_flag_bit_is_in_the_header_and_the_estimator_reads_the_contract_bits():
+    header = (ROOT / "firmware_params" / "eol_param_block.h").read_text("utf-8")
+    for name, flag in C.FLAGS.items():
+        assert re.search(rf"#define EOL_PB_FLAG_{name}\s+\(UINT32_C\(1\) << {flag.bit}\)", header), name
+    assert re.search(rf"#define EOL_PB_FLAGS_ESTIMATOR\s+UINT32_C\(0x{C.FLAGS_ESTIMATOR:02X}\)", header)
+    assert {n for n in C.FLAGS if n.startswith("EST_")} == set(C.ESTIMATOR_OPTIONS)
+    # the C estimator has no option mask of its own: it tests the block's bits
+    est_h = (ROOT / "firmware_params" / "c" / "eol_est.h").read_text("utf-8")
+    est_c = (ROOT / "firmware_params" / "c" / "eol_est.c").read_text("utf-8")
+    assert not re.search(r"#define EOL_EST_(CLAMP|LEARN|ACCEL)", est_h + est_c)
+    for name in C.ESTIMATOR_OPTIONS:
+        assert f"EOL_PB_FLAG_{name}" in est_c, name

@@ -11,6 +11,7 @@ import math
 import numpy as np
 import pytest
 
+from eol_cal.firmware import contract as C
 from eol_cal.firmware import estimator as E
 from eol_cal.firmware import estimator_golden as G
 from eol_cal.firmware.kinematics import (draw_sensor_errors, electrical_angle, encoder_hall_signals,
@@ -243,20 +244,37 @@ def test_config_validation_and_flags():
         E.EstimatorConfig(poles=5, N_enc=64, tick_hz=2e4, hall_angle=E.NOMINAL_HALL_ANGLE, standstill_ticks=10)
     with pytest.raises(ValueError):
         E.EstimatorConfig.paper(standstill_s=1e5)
-    assert E.EstimatorConfig.paper().flags == 0
-    assert E.EstimatorConfig.best().flags == 0xB
-    assert E.EstimatorConfig.all_improvements().flags == 0xF
-    assert E.EstimatorConfig.paper(learn_grid_offset=True).flags == E.FLAG_LEARN_GRID_OFFSET
+    # the configuration as the block flags word that selects it (contract bits 1 and 2-5)
+    assert E.EstimatorConfig.paper().flags == C.FLAG_INTERP_ENABLE and E.EstimatorConfig.paper().options == 0
+    assert E.EstimatorConfig.best().flags == C.FLAG_INTERP_ENABLE | C.FLAGS_ESTIMATOR == 0x3E
+    assert E.EstimatorConfig.all_improvements() == E.EstimatorConfig.best()
+    assert E.EstimatorConfig.paper(learn_grid_offset=True).options == C.FLAG_EST_LEARN_GRID_OFFSET == 0x08
 
 
 def test_from_block_takes_the_block_fields():
     class Blk:
         poles, encoder_ppr, tick_hz = 8, 128, 16000.0
         hall_angle = tuple(math.radians(d) for d in (61, 181, 121, 301, 1, 241))
+        flags = C.FLAG_INTERP_ENABLE | C.FLAG_EST_LEARN_PITCH_ERRORS
 
     cfg = E.EstimatorConfig.from_block(Blk(), clamp_to_next_edge=True)
     assert (cfg.poles, cfg.N_enc, cfg.tick_hz, cfg.standstill_ticks) == (8, 128, 16000.0, 16000)
     assert cfg.hall_angle[0] == float(np.float32(math.radians(61))) and cfg.clamp_to_next_edge
+    # the options come from the block's flags, named ones on top
+    assert cfg.learn_pitch_errors and not cfg.learn_grid_offset and not cfg.accel_prediction
+
+
+@pytest.mark.parametrize("flags, options", [
+    (0, 0),
+    (C.FLAG_INTERP_ENABLE, 0),
+    (C.FLAG_INTERP_ENABLE | C.FLAGS_ESTIMATOR, C.FLAGS_ESTIMATOR),
+    (C.FLAG_COMP_ENABLE | C.FLAGS_ESTIMATOR, 0),  # options without INTERP_ENABLE: not honoured
+    (C.FLAG_INTERP_ENABLE | C.FLAG_EST_ACCEL_PREDICTION, C.FLAG_EST_ACCEL_PREDICTION),
+])
+def test_block_flags_select_the_options(flags, options):
+    cfg = E.EstimatorConfig.from_flags(flags)
+    assert cfg.options == options
+    assert sum(bit for name, bit in E.OPTION_FLAGS.items() if E.options_from_flags(flags)[name]) == options
 
 
 def test_wrap_edges():

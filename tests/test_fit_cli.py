@@ -158,7 +158,8 @@ def test_table_round_trip(fitted, tmp_path):
     assert check(data).valid
     assert from_intel_hex(hex_path.read_text(), 0)[: len(data)] == data
     blk = unpack(data)
-    assert blk.serial == "M-0007" and blk.sequence == 1 and blk.flags == 3 and blk.table_len == 256
+    # COMP_ENABLE | INTERP_ENABLE and, by default (best), every estimator option (bits 2-5)
+    assert blk.serial == "M-0007" and blk.sequence == 1 and blk.flags == 0x3F and blk.table_len == 256
     assert blk.k6 == pytest.approx(m["k6"]["value"], rel=1e-6)
     assert blk.phase_k6 == pytest.approx(m["phase_k6"]["value"], rel=1e-6)
     assert blk.iqc_limit == pytest.approx(6.5)  # 10 % of the largest |i_qo|
@@ -177,6 +178,38 @@ def test_table_round_trip(fitted, tmp_path):
     assert res.exit_code == 0, res.output
     blk = unpack(blk_path.read_bytes())
     assert blk.lead_s == pytest.approx(1e-4) and blk.table_len == 64
+
+
+@pytest.mark.parametrize("choice, flags", [
+    ("best", 0x3F), ("paper", 0x03), ("learn_grid_offset+learn_pitch_errors", 0x2B),
+    ("EST_ACCEL_PREDICTION", 0x13), ("0x04", 0x07),
+])
+def test_table_estimator_options(fitted, tmp_path, choice, flags):
+    from eol_cal.firmware.block import flag_names, unpack
+
+    _, out = fitted
+    assert json.loads(out.read_text())["motors"][0]["model"]["frame_estimator"] == "best"
+    blk_path = tmp_path / "b.bin"
+    res = CliRunner().invoke(cli, ["table", str(out), "-o", str(blk_path), "--estimator", choice])
+    assert res.exit_code == 0, res.output
+    blk = unpack(blk_path.read_bytes())
+    assert blk.flags == flags
+    text = " ".join(res.output.split())
+    assert f"flags {flag_names(flags)}" in text
+    # the fit measured its frame under best: another choice is pointed out
+    assert ("warning" in text) == (choice != "best")
+
+
+@pytest.mark.parametrize("choice, why", [("fancy", "unknown estimator option 'fancy'"),
+                                         ("0x43", "bits outside the estimator options"),
+                                         ("clamp_to_next_edge+", "unknown estimator option ''")])
+def test_table_refuses_a_bad_estimator_choice_with_one_line(fitted, tmp_path, choice, why):
+    _, out = fitted
+    blk_path = tmp_path / "b.bin"
+    res = CliRunner().invoke(cli, ["table", str(out), "-o", str(blk_path), "--estimator", choice])
+    assert res.exit_code == 2
+    assert "--estimator" in res.output and why in res.output
+    assert not blk_path.exists()
 
 
 def test_bench_response_divided_out(fitted, files, tmp_path):

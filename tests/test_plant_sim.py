@@ -210,5 +210,39 @@ def test_ecu_estimator_what_if_improves_the_ecu_angle():
         d = np.angle(np.exp(1j * (d - np.angle(np.mean(np.exp(1j * d))))))
         rms[name] = float(np.sqrt(np.mean(d**2)))
     assert rms["best"] < 0.4 * rms["paper"], rms
-    with pytest.raises(InputError, match="ECU estimator"):
+    with pytest.raises(InputError, match="unknown estimator option"):
         simulate(spec, prof, ecu_estimator="fancy")
+
+
+def test_the_block_flags_select_the_ecu_estimator():
+    """A block whose flags carry the estimator options (bits 2-5) runs that estimator in the
+    simulated ECU: the same angle as naming the options, another than the paper's; blocks of
+    one batch must agree."""
+    import dataclasses
+
+    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.errors import InputError
+    from eol_cal.firmware import contract as C
+    from eol_cal.plant.profile import Profile, ProfileSegment
+    from eol_cal.plant.variation import draw_motor
+
+    spec = draw_motor(7).replace(tq_noise_nm=0.0, i_noise_a=0.0)
+    prof = Profile("p", (ProfileSegment(120.0, 0.1, iq=40.0),))
+    paper = uncompensated_block(spec.serial, spec.motor, calibrated_at=0, options=0)
+    best = dataclasses.replace(paper, flags=C.FLAG_INTERP_ENABLE | C.FLAGS_ESTIMATOR)
+    (by_block,) = simulate(spec, prof, mode="estimated", blocks=best, seed=1, pre_roll_s=0.8)
+    (named,) = simulate(spec, prof, mode="estimated", blocks=paper, seed=1, pre_roll_s=0.8, ecu_estimator="best")
+    (plain,) = simulate(spec, prof, mode="estimated", blocks=paper, seed=1, pre_roll_s=0.8)
+    np.testing.assert_array_equal(by_block.theta_hat, named.theta_hat)
+    assert not np.array_equal(by_block.theta_hat, plain.theta_hat)
+    # options without INTERP_ENABLE are not honoured: the paper's estimator
+    ignored = dataclasses.replace(paper, flags=C.FLAG_COMP_ENABLE | C.FLAGS_ESTIMATOR)
+    assert simulate_options([ignored]) == 0
+    with pytest.raises(InputError, match="share the estimator options"):
+        simulate([spec, spec], prof, mode="estimated", blocks=[paper, best])
+
+
+def simulate_options(blocks):
+    from eol_cal.plant.simulate import batch_options
+
+    return batch_options(blocks)

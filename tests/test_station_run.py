@@ -135,7 +135,9 @@ def test_full_run_end_to_end(full_run):
     assert pre["ecu"]["state"]["serial"] == SERIAL and pre["dyno"]["dut_serial"] == SERIAL
     # the motor was measured under the uncompensated block (field estimator), flashed first
     prep = rec["ecu_prepared"]
-    assert prep["flags"] == "INTERP_ENABLE" and prep["verified"] and prep["sequence"] == 1
+    # under the estimator options the calibrated block carries (the limits' default: best, all four)
+    assert prep["flags"] == B.flag_names(B.FLAG_INTERP_ENABLE | B.FLAGS_ESTIMATOR) and prep["estimator"] == "best"
+    assert prep["verified"] and prep["sequence"] == 1
     assert prep["previous"]["bank"] is None  # a blank ECU
     assert all(s["ok"] and s["seconds"] > 0 for s in rec["steps"])
     # the fit found the plant motor's ripple
@@ -154,7 +156,11 @@ def test_full_run_end_to_end(full_run):
     active = active_block_from_file(full_run["flash"])
     blk = B.unpack(active, "active")
     assert blk.serial == SERIAL and blk.flags & B.FLAG_COMP_ENABLE
-    assert rec["block"]["flags"] == B.flag_names(blk.flags) == "COMP_ENABLE|INTERP_ENABLE"
+    assert rec["block"]["flags"] == B.flag_names(blk.flags) == ("COMP_ENABLE|INTERP_ENABLE|EST_CLAMP_TO_NEXT_EDGE|"
+                                                                "EST_LEARN_GRID_OFFSET|EST_ACCEL_PREDICTION|"
+                                                                "EST_LEARN_PITCH_ERRORS")
+    assert rec["block"]["estimator"] == "best"
+    assert rec["fit"]["model"]["frame_estimator"] == "best"
     assert f"{B.check(active).crc_stored:08x}" == rec["block"]["crc32"]
     assert blk.sequence == rec["block"]["sequence"] == 2 and rec["block"]["bank"] != prep["bank"]
     # captures on disk with the recorded hashes, each with the block the ECU ran all along
@@ -263,7 +269,7 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
     active = B.unpack(active_block_from_file(flash), "active")
     if failed_step == "acquire":
         assert rec["ecu_active"] == {"block": "uncompensated", "sequence": 1, "bank": rec["ecu_prepared"]["bank"]}
-        assert active.flags == B.FLAG_INTERP_ENABLE and active.sequence == 1
+        assert active.flags == B.FLAG_INTERP_ENABLE | B.FLAGS_ESTIMATOR and active.sequence == 1
     else:
         assert rec["ecu_active"]["block"] == "calibrated" and rec["ecu_active"]["sequence"] == 2
         assert active.flags & B.FLAG_COMP_ENABLE and active.sequence == 2

@@ -11,23 +11,29 @@ from eol_cal.analysis.angle import AngleResult, capture_angle
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware import estimator as est
+from eol_cal.firmware.contract import FLAG_INTERP_ENABLE
 from eol_cal.wrap import wrap_pi
 
-def firmware_config(capture: Capture) -> est.EstimatorConfig:
-    """The paper's estimator configuration at a capture's poles, encoder and sample rate."""
+def firmware_config(capture: Capture, options: int = 0) -> est.EstimatorConfig:
+    """The firmware estimator's configuration at a capture's poles, encoder and sample rate.
+
+    ``options``: the estimator option bits (contract flags bits 2-5) the ECU ran when the capture
+    was taken; 0 = the paper's estimator."""
     # the mean rate differs in its last bits from window to window; the firmware's tick is a
     # binary32 period, so six significant digits lose nothing and keep one compiled scan per rate
     tick_hz = float(f"{capture.sample_rate:.6g}")
-    return est.EstimatorConfig.paper(poles=capture.poles, N_enc=capture.encoder_ppr, tick_hz=tick_hz)
+    return est.EstimatorConfig.from_flags(FLAG_INTERP_ENABLE | options, poles=capture.poles,
+                                          N_enc=capture.encoder_ppr, tick_hz=tick_hz)
 
 
 def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
-                          hall_angle: tuple[float, ...] | None = None) -> tuple[complex, int]:
+                          hall_angle: tuple[float, ...] | None = None, options: int = 0) -> tuple[complex, int]:
     """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
 
     Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_chunked`:
     one compiled program for every capture length and hall table) with the block's ``hall_angle``
-    (rad, entry s-1; default nominal) and sums ``exp(i (theta_hat - theta_r))`` over the segment
+    (rad, entry s-1; default nominal) and the estimator ``options`` the ECU ran (contract flags
+    bits 2-5; 0 = the paper's estimator), and sums ``exp(i (theta_hat - theta_r))`` over the segment
     samples at which it is anchored, moving and has a speed.
 
     Returns
@@ -35,7 +41,7 @@ def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tu
     (complex, int)
         The sum and the number of samples in it; ``angle(sum)`` is the offset (rad, electrical).
     """
-    out = est.run_jax_chunked(firmware_config(capture), capture["enc_a"], capture["enc_b"], capture["hall"],
+    out = est.run_jax_chunked(firmware_config(capture, options), capture["enc_a"], capture["enc_b"], capture["hall"],
                               hall_angle=hall_angle)
     theta_hat, status = out.theta_hat, out.status
     ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0

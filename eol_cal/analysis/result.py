@@ -107,13 +107,15 @@ def motor_record(
     frame_offset_rad: float = 0.0,
     bench: dict[str, Any] | None = None,
     hall_angle: dict[str, Any] | None = None,
+    frame_estimator: str | None = None,
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
     ``fit`` must already be in the frame named by ``frame`` (:func:`eol_cal.analysis.fit.shift_frame`);
     ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad); ``bench``
     the bench mechanics divided out of the measured ripple (None: rigid coupling); ``hall_angle``
-    the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal).
+    the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal);
+    ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names).
     """
     status, reasons = judge(fit, spec, limits)
     six = fit.harmonics[6]
@@ -152,6 +154,8 @@ def motor_record(
         "frame_offset_deg": math.degrees(frame_offset_rad),
         "bench": bench if bench is not None else "rigid",
     }
+    if frame_estimator is not None:
+        model["frame_estimator"] = frame_estimator
     op = operating_point(segments)
     return MotorResult(
         serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=float(kt), kt_source=kt_source,
@@ -171,6 +175,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
     import dataclasses
 
     from eol_cal.analysis.fit import path_gain, shift_frame
+    from eol_cal.firmware.options import options_label
 
     g6 = path_gain(mi.segments, FitSpec(harmonics=(6,)))[:, 0]
     segments = [
@@ -185,6 +190,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
         bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
+        frame_estimator=options_label(mi.frame_options) if mi.frame == "firmware" else None,
     )
 
 

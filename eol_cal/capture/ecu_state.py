@@ -69,6 +69,17 @@ class EcuState:
         """The flag names as a set (empty without a block)."""
         return set(self.flags.split("|")) if self.flags else set()
 
+    def estimator_options(self) -> int | None:
+        """The estimator option bits (contract flags bits 2-5) the ECU ran with this block; None
+        without a block (the raw encoder angle, no estimator)."""
+        from eol_cal.firmware.contract import FLAGS
+        from eol_cal.firmware.options import honoured_options
+
+        if not self.has_block:
+            return None
+        bits = sum(1 << FLAGS[name].bit for name in self.flag_set() if name in FLAGS)
+        return honoured_options(bits)
+
     def same_block(self, other: EcuState) -> bool:
         """The same active block (bank, sequence, CRC and flags; the serial is not compared)."""
         return (self.bank, self.sequence, self.crc32, self.flags) == (other.bank, other.sequence, other.crc32,

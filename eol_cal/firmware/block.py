@@ -1,8 +1,11 @@
 """The F28335 calibration parameter block (``docs/firmware-contract.md`` section 2): pack, unpack, check.
 
-The byte layout is read from ``layout_v1.toml`` next to this module, the one place it is
-defined; the C header ``firmware_params/eol_param_block.h`` is generated from the same file
-(:mod:`eol_cal.firmware.gen_header`).
+Split by concern: the byte layout (read from ``layout_v1.toml``, the one place it is defined) is
+:mod:`eol_cal.firmware.block_layout`, the firmware's check routine
+:mod:`eol_cal.firmware.block_check`, block files and Intel HEX :mod:`eol_cal.firmware.block_file`;
+this module holds the decoded block and packs/unpacks it, and re-exports the other three, so
+``block.X`` names every public piece. The C header ``firmware_params/eol_param_block.h`` is
+generated from the same layout (:mod:`eol_cal.firmware.gen_header`).
 
 Invariant: :func:`pack` only ever returns a block that :func:`check` calls valid; blocks with
 invalid headers exist only as bytes (tests and golden vectors patch them on purpose).
@@ -10,98 +13,59 @@ invalid headers exist only as bytes (tests and golden vectors patch them on purp
 
 from __future__ import annotations
 
-import io
 import math
 import operator
-import os
 import struct
-import tomllib
-import zlib
 from dataclasses import dataclass, field
-from importlib import resources
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from eol_cal.errors import InputError
+# the check routine and block files, also read through this module (block.check, block.read_block_file)
+from eol_cal.firmware.block_check import BlockCheck, check, flag_warnings  # noqa: F401
+from eol_cal.firmware.block_file import (  # noqa: F401
+    HEX_SUFFIXES,
+    from_intel_hex,
+    intel_hex_bank,
+    read_block_file,
+    to_intel_hex,
+)
+# the layout, also read through this module (block.FIELDS, block.field_offset, ...)
+from eol_cal.firmware.block_layout import (  # noqa: F401
+    BANK_BYTES,
+    BANK_WORD_ADDR,
+    BANK_WORDS,
+    FIELDS,
+    HEADER_BYTES,
+    LAYOUT,
+    LAYOUT_VERSION,
+    SEQUENCE_INVALID,
+    SIZE as _SIZE,
+    SUPPORTED_LAYOUTS,
+    TABLE_LEN_MAX,
+    TABLE_LEN_MIN,
+    block_bytes,
+    crc32,
+    field_count,
+    field_offset,
+    flag_names,
+    table_len_ok,
+)
+from eol_cal.firmware.block_layout import get_field as _get
+from eol_cal.firmware.block_layout import put_field as _put
 # the contract's constants, also read through this module (block.FLAG_COMP_ENABLE, block.STATUS_VALID)
 from eol_cal.firmware.contract import (  # noqa: F401
     FLAG_COMP_ENABLE,
     FLAG_INTERP_ENABLE,
     FLAGS,
+    FLAGS_ESTIMATOR,
     FLAGS_KNOWN,
     MAGIC,
     STATUS_CRC_MISMATCH,
     STATUS_HEADER_INVALID,
     STATUS_VALID,
 )
-
-
-def _load_layout() -> dict[str, Any]:
-    text = resources.files("eol_cal.firmware").joinpath("layout_v1.toml").read_text("utf-8")
-    layout = tomllib.loads(text)
-    for f in layout["field"]:
-        if f["name"] == "magic":
-            f["value"] = MAGIC  # the layout says where the marker is, the contract what it is
-    return layout
-
-
-LAYOUT: dict[str, Any] = _load_layout()
-"""The parsed layout file (keys as in ``layout_v1.toml``)."""
-
-FIELDS: dict[str, dict[str, Any]] = {f["name"]: f for f in LAYOUT["field"]}
-
-LAYOUT_VERSION: int = LAYOUT["layout_version"]
-SUPPORTED_LAYOUTS: tuple[int, ...] = (LAYOUT_VERSION,)
-BANK_WORD_ADDR: tuple[int, int] = tuple(LAYOUT["bank_word_addr"])  # type: ignore[assignment]
-BANK_WORDS: int = LAYOUT["bank_words"]
-BANK_BYTES: int = LAYOUT["bank_bytes"]
-HEADER_BYTES: int = LAYOUT["header_bytes"]
-TABLE_LEN_MIN: int = LAYOUT["table_len_min"]
-TABLE_LEN_MAX: int = LAYOUT["table_len_max"]
-def flag_names(flags: int) -> str:
-    """The block's flags by name, ``COMP_ENABLE|INTERP_ENABLE`` (``none`` when no bit is set)."""
-    names = [name for name, f in FLAGS.items() if flags & (1 << f.bit)]
-    return "|".join(names) or "none"
-
-
-SEQUENCE_INVALID = (0, 0xFFFFFFFF)
-
-_STRUCT = {"u16": "<H", "u32": "<I", "f32": "<f"}
-_SIZE = {"u8": 1, "u16": 2, "u32": 4, "f32": 4}
-
-if LAYOUT_VERSION != 1 or BANK_BYTES != 2 * BANK_WORDS:
-    # the layout file is package data: a wrong one is a broken installation, not bad input
-    raise ImportError(f"layout_v1.toml is not layout version 1 (version {LAYOUT_VERSION}, "
-                      f"bank {BANK_BYTES} bytes for {BANK_WORDS} words)")
-
-
-def block_bytes(table_len: int) -> int:
-    """Total size of a block with ``table_len`` table entries, CRC included (bytes): 104 + 8*N."""
-    return HEADER_BYTES + LAYOUT["bytes_per_n"] * table_len + LAYOUT["trailer_bytes"]
-
-
-def field_offset(name: str, table_len: int = 0) -> int:
-    """Byte offset of field ``name`` from the bank start for a block of ``table_len`` entries."""
-    f = FIELDS[name]
-    return f["offset"] + f.get("offset_per_n", 0) * table_len
-
-
-def field_count(name: str, table_len: int = 0) -> int:
-    """Number of elements of field ``name`` (``table_len`` for the tables)."""
-    count = FIELDS[name].get("count", 1)
-    return table_len if count == "N" else count
-
-
-def table_len_ok(n: int) -> bool:
-    """True when ``n`` is a power of two within the layout's table length range."""
-    return TABLE_LEN_MIN <= n <= TABLE_LEN_MAX and n & (n - 1) == 0
-
-
-def crc32(data: bytes) -> int:
-    """CRC-32/ISO-HDLC (the zlib/PNG CRC) of ``data``; check value of b"123456789" is 0xCBF43926."""
-    return zlib.crc32(data) & 0xFFFFFFFF
 
 
 def _f32(x: Any, name: str) -> float:
@@ -136,7 +100,8 @@ class ParamBlock:
     sequence : int
         Write counter, 1 .. 0xFFFFFFFE.
     flags : int
-        ``FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE`` bits.
+        ``FLAG_COMP_ENABLE``, ``FLAG_INTERP_ENABLE`` and the estimator option bits 2-5
+        (``contract.ESTIMATOR_OPTIONS``, honoured only with ``FLAG_INTERP_ENABLE``).
     serial : str
         Motor serial, ASCII, at most 16 characters.
     calibrated_at : int
@@ -273,7 +238,8 @@ def pack_problems(block: ParamBlock) -> list[tuple[str, str]]:
     if not 0 < block.sequence < 0xFFFFFFFF:
         problems.append(("sequence", f"{block.sequence} outside 1..0xFFFFFFFE"))
     if block.flags & ~FLAGS_KNOWN or block.flags < 0:
-        problems.append(("flags", f"0x{block.flags:x} has bits other than COMP_ENABLE|INTERP_ENABLE"))
+        problems.append(("flags", f"0x{block.flags:x} has bits the contract does not define "
+                                  f"(known: {flag_names(FLAGS_KNOWN)})"))
     try:
         raw = block.serial.encode("ascii")
         if len(raw) > field_count("serial"):
@@ -304,32 +270,6 @@ def pack_problems(block: ParamBlock) -> list[tuple[str, str]]:
         if not np.all(np.isfinite(getattr(block, name))):
             problems.append((name, "not finite in binary32"))
     return problems
-
-
-def _put(buf: bytearray, name: str, n: int, value: Any) -> None:
-    f = FIELDS[name]
-    off = field_offset(name, n)
-    if f["type"] == "u8":
-        raw = bytes(value)
-        buf[off:off + len(raw)] = raw
-    elif field_count(name, n) == 1 and not isinstance(value, (tuple, list, np.ndarray)):
-        struct.pack_into(_STRUCT[f["type"]], buf, off, value)
-    else:
-        dt = {"u16": "<u2", "u32": "<u4", "f32": "<f4"}[f["type"]]
-        raw = np.asarray(value, dtype=dt).tobytes()
-        buf[off:off + len(raw)] = raw
-
-
-def _get(data: bytes, name: str, n: int) -> Any:
-    f = FIELDS[name]
-    off = field_offset(name, n)
-    count = field_count(name, n)
-    if f["type"] == "u8":
-        return bytes(data[off:off + count])
-    if FIELDS[name].get("count", 1) == 1:
-        return struct.unpack_from(_STRUCT[f["type"]], data, off)[0]
-    dt = {"u16": "<u2", "u32": "<u4", "f32": "<f4"}[f["type"]]
-    return np.frombuffer(bytes(data[off:off + count * _SIZE[f["type"]]]), dtype=dt)
 
 
 def pack(block: ParamBlock) -> bytes:
@@ -380,85 +320,6 @@ def with_crc(data: bytes) -> bytes:
     return bytes(buf)
 
 
-@dataclass(frozen=True)
-class BlockCheck:
-    """Outcome of the firmware's check routine (UDS routine 0x0202) on a bank image.
-
-    Attributes
-    ----------
-    status : int
-        0 valid, 1 CRC mismatch, 2 header invalid (the routine's status byte).
-    reasons : tuple of str
-        Why the block is invalid (empty when valid).
-    warnings : tuple of str
-        Deviations the contract does not count as invalid (non-zero reserved, unknown flag bits).
-    crc_stored, crc_computed : int or None
-        The CRC field and the CRC of the covered bytes, when the header locates them.
-    """
-
-    status: int
-    reasons: tuple[str, ...] = ()
-    warnings: tuple[str, ...] = ()
-    crc_stored: int | None = None
-    crc_computed: int | None = None
-
-    @property
-    def valid(self) -> bool:
-        return self.status == STATUS_VALID
-
-
-def check(data: bytes) -> BlockCheck:
-    """Apply every rule of the contract's "valid" to a bank image.
-
-    Rules, in the order the firmware applies them: magic; supported layout version; (then all
-    of) ``table_len`` a power of two in 16..1024, ``block_bytes == 104 + 8*table_len``,
-    ``sequence`` not 0 nor 0xFFFFFFFF, the image long enough for ``block_bytes``; any of those
-    failing gives status 2. Only then the CRC: a mismatch gives status 1. Bytes after the block
-    (an erased bank's 0xFF) are allowed.
-    """
-    data = bytes(data)
-    if len(data) < HEADER_BYTES:
-        return BlockCheck(STATUS_HEADER_INVALID, (f"truncated: {len(data)} bytes, the header needs "
-                                                  f"{HEADER_BYTES}",))
-    magic = _get(data, "magic", 0)
-    if magic != MAGIC:
-        erased = " (erased bank)" if data[:HEADER_BYTES] == b"\xff" * HEADER_BYTES else ""
-        return BlockCheck(STATUS_HEADER_INVALID, (f"magic 0x{magic:04x} is not 0x{MAGIC:04x}{erased}",))
-    version = _get(data, "layout_version", 0)
-    if version not in SUPPORTED_LAYOUTS:
-        return BlockCheck(STATUS_HEADER_INVALID,
-                          (f"layout_version {version} not supported {list(SUPPORTED_LAYOUTS)}",))
-    reasons = []
-    n = _get(data, "table_len", 0)
-    size = _get(data, "block_bytes", 0)
-    seq = _get(data, "sequence", 0)
-    n_ok = table_len_ok(n)
-    if not n_ok:
-        reasons.append(f"table_len {n} is not a power of two in {TABLE_LEN_MIN}..{TABLE_LEN_MAX}")
-    if size != block_bytes(n):
-        reasons.append(f"block_bytes {size} is not 104 + 8*table_len = {block_bytes(n)}")
-    if seq in SEQUENCE_INVALID:
-        reasons.append(f"sequence 0x{seq:08x} is invalid")
-    if n_ok and len(data) < block_bytes(n):
-        reasons.append(f"truncated: {len(data)} bytes, the block needs {block_bytes(n)}")
-    warnings = []
-    if _get(data, "reserved", 0) != 0:
-        warnings.append(f"reserved is 0x{_get(data, 'reserved', 0):04x}, not 0")
-    flags = _get(data, "flags", 0)
-    if flags & ~FLAGS_KNOWN:
-        warnings.append(f"flags 0x{flags:08x} has unknown bits")
-    if reasons:
-        return BlockCheck(STATUS_HEADER_INVALID, tuple(reasons), tuple(warnings))
-    crc_at = field_offset("crc32", n)
-    stored = _get(data, "crc32", n)
-    computed = crc32(data[:crc_at])
-    if stored != computed:
-        return BlockCheck(STATUS_CRC_MISMATCH,
-                          (f"CRC mismatch: stored 0x{stored:08x}, computed 0x{computed:08x}",),
-                          tuple(warnings), stored, computed)
-    return BlockCheck(STATUS_VALID, (), tuple(warnings), stored, computed)
-
-
 def unpack(data: bytes, source: str = "<bytes>") -> ParamBlock:
     """Decode a block image (trailing bytes allowed); the CRC and sequence are NOT required valid.
 
@@ -495,97 +356,3 @@ def unpack(data: bytes, source: str = "<bytes>") -> ParamBlock:
             kwargs[f["name"]] = _get(data, f["name"], n)
     kwargs["hall_angle"] = tuple(float(a) for a in kwargs["hall_angle"])
     return ParamBlock(**kwargs)
-
-
-def to_intel_hex(data: bytes, bank: int) -> str:
-    """Intel HEX text of a bank image placed at its F28335 flash address.
-
-    The contract gives word addresses; HEX records count bytes, so the image starts at byte
-    address ``2 * BANK_WORD_ADDR[bank]`` (0x650000 for bank 0, 0x660000 for bank 1) with the
-    low byte of each word first. This is eol-cal's choice, documented in firmware_params/README.md.
-    """
-    from intelhex import IntelHex
-
-    if bank not in (0, 1):
-        raise InputError(None, "bank", f"{bank!r}: must be 0 or 1")
-    if len(data) > BANK_BYTES:
-        raise InputError(None, "block_bytes", f"{len(data)} bytes exceed a bank ({BANK_BYTES})")
-    if len(data) % 2:
-        raise InputError(None, "block_bytes", f"{len(data)} bytes: the flash takes whole 16-bit words")
-    ih = IntelHex()
-    ih.frombytes(bytes(data), offset=2 * BANK_WORD_ADDR[bank])
-    out = io.StringIO()
-    ih.write_hex_file(out)
-    return out.getvalue()
-
-
-def from_intel_hex(text: str, bank: int, source: str = "<hex>") -> bytes:
-    """Inverse of :func:`to_intel_hex`: the bytes stored from ``bank``'s start (gaps read 0xFF).
-
-    Raises :class:`InputError` when the data does not lie inside that bank.
-    """
-    return _from_intel_hex(text, (bank,), source)[1]
-
-
-def intel_hex_bank(text: str, source: str = "<hex>") -> tuple[int, bytes]:
-    """(bank, bytes) of an Intel HEX image, the bank being the one whose address range holds it."""
-    return _from_intel_hex(text, (0, 1), source)
-
-
-def _from_intel_hex(text: str, banks: tuple[int, ...], source: str) -> tuple[int, bytes]:
-    from intelhex import IntelHex, IntelHexError
-
-    ih = IntelHex()
-    try:
-        ih.loadhex(io.StringIO(text))
-    except (IntelHexError, ValueError) as exc:
-        raise InputError(source, "hex", str(exc)) from exc
-    addrs = ih.addresses()
-    if not addrs:
-        raise InputError(source, "hex", "no data records")
-    for b in banks:
-        if b not in (0, 1):
-            raise InputError(source, "bank", f"{b!r}: must be 0 or 1")
-        start = 2 * BANK_WORD_ADDR[b]
-        if start <= addrs[0] and addrs[-1] < start + BANK_BYTES:
-            return b, ih.tobinstr(start=start, end=addrs[-1])
-    ranges = ", ".join(f"bank {b}: bytes 0x{2 * BANK_WORD_ADDR[b]:x}..0x{2 * BANK_WORD_ADDR[b] + BANK_BYTES - 1:x}"
-                       for b in banks)
-    raise InputError(source, "address", f"data at 0x{addrs[0]:x}..0x{addrs[-1]:x} is not inside one bank ({ranges})")
-
-
-#: file name endings that mark an Intel HEX block file
-HEX_SUFFIXES = (".hex", ".ihex")
-
-
-def read_block_file(path: str | os.PathLike, source: str | None = None) -> bytes:
-    """The image of a parameter block file: the one rule every command reads blocks with.
-
-    A file is Intel HEX when its name ends in ``.hex``/``.ihex`` or its first byte is ``:``
-    (a binary block cannot start with it: its first bytes are the magic 0xEC6A, low byte
-    first); the image is then the bytes stored from the start of the bank whose address range
-    holds the data (:func:`intel_hex_bank`). Anything else is the raw bank image.
-
-    Parameters
-    ----------
-    path : path
-        The block file.
-    source : str, optional
-        Name used in error messages (default ``path``).
-
-    Raises
-    ------
-    InputError
-        The file cannot be read, or its Intel HEX is malformed or lies outside both banks.
-    """
-    from eol_cal.inputs import read_bytes
-
-    source = source or str(path)
-    data = read_bytes(path, "file", max_bytes=4 * BANK_BYTES)  # no FIFO, no device, no gigabytes
-    if data[:1] == b":" or Path(path).suffix.lower() in HEX_SUFFIXES:
-        try:
-            text = data.decode("ascii")
-        except UnicodeDecodeError as exc:
-            raise InputError(source, "hex", "not ASCII text") from exc
-        return intel_hex_bank(text, source)[1]
-    return data

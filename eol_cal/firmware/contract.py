@@ -24,13 +24,30 @@ class Flag(NamedTuple):
     meaning: str
 
 
-#: The block's ``flags`` bits by name (every other bit 0).
+#: The block's ``flags`` bits by name (every other bit 0). Bits 2-5 (revision 1.1) are the
+#: estimator options, each honoured only with ``INTERP_ENABLE``; their arithmetic is the estimator
+#: reference's (firmware_params/ESTIMATOR.md).
 FLAGS: dict[str, Flag] = {
     "COMP_ENABLE": Flag(0, "apply i_qc"),
     "INTERP_ENABLE": Flag(1, "use the interpolated angle theta_hat (0 = raw encoder angle)"),
+    "EST_CLAMP_TO_NEXT_EDGE": Flag(2, "estimator: prediction kept inside the current quadrature count, "
+                                      "speed bounded by one pitch per elapsed tick count"),
+    "EST_LEARN_GRID_OFFSET": Flag(3, "estimator: encoder grid offset = running mean of the hall corrections"),
+    "EST_ACCEL_PREDICTION": Flag(4, "estimator: extrapolates the filtered acceleration between edges"),
+    "EST_LEARN_PITCH_ERRORS": Flag(5, "estimator: learns each edge's placement error at steady speed"),
 }
 FLAG_COMP_ENABLE = 1 << FLAGS["COMP_ENABLE"].bit
 FLAG_INTERP_ENABLE = 1 << FLAGS["INTERP_ENABLE"].bit
+FLAG_EST_CLAMP_TO_NEXT_EDGE = 1 << FLAGS["EST_CLAMP_TO_NEXT_EDGE"].bit
+FLAG_EST_LEARN_GRID_OFFSET = 1 << FLAGS["EST_LEARN_GRID_OFFSET"].bit
+FLAG_EST_ACCEL_PREDICTION = 1 << FLAGS["EST_ACCEL_PREDICTION"].bit
+FLAG_EST_LEARN_PITCH_ERRORS = 1 << FLAGS["EST_LEARN_PITCH_ERRORS"].bit
+#: name prefix of the estimator option bits
+EST_PREFIX = "EST_"
+#: the estimator option bits (2-5) by name
+ESTIMATOR_OPTIONS: dict[str, int] = {name: 1 << f.bit for name, f in FLAGS.items() if name.startswith(EST_PREFIX)}
+#: every estimator option bit
+FLAGS_ESTIMATOR = sum(ESTIMATOR_OPTIONS.values())
 #: every bit the contract defines
 FLAGS_KNOWN = sum(1 << f.bit for f in FLAGS.values())
 

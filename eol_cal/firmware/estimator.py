@@ -40,9 +40,7 @@ from eol_cal.firmware.estimator_config import (
     ST_NO_SPEED, ST_QEP_ERROR, ST_REVERSE, ST_STANDSTILL, STATUS_BITS, STEADY_TICKS, TICK_MASK, TWO_PI,
     Consts, EstimatorConfig, HallTables, consts, hall_tables, wrap, wrap_pm,
 )
-from eol_cal.firmware.estimator_config import (
-    FLAG_ACCEL_PREDICTION, FLAG_CLAMP_TO_NEXT_EDGE, FLAG_LEARN_GRID_OFFSET, FLAG_LEARN_PITCH_ERRORS,
-)
+from eol_cal.firmware.estimator_config import OPTION_FLAGS, options_from_flags
 from eol_cal.firmware.estimator_step import (
     _SCALAR_NP, EstimatorOut, EstimatorState, init_state, quadrature_phase, step,
 )
@@ -82,10 +80,8 @@ __all__ = [
     "hall_tables",
     "wrap",
     "wrap_pm",
-    "FLAG_ACCEL_PREDICTION",
-    "FLAG_CLAMP_TO_NEXT_EDGE",
-    "FLAG_LEARN_GRID_OFFSET",
-    "FLAG_LEARN_PITCH_ERRORS",
+    "OPTION_FLAGS",
+    "options_from_flags",
     "EstimatorOut",
     "EstimatorState",
     "init_state",

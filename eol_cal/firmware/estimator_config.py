@@ -15,7 +15,17 @@ from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
-from eol_cal.firmware.contract import HALL_NEXT, NOMINAL_HALL_ANGLE
+from eol_cal.firmware.contract import (
+    FLAG_EST_ACCEL_PREDICTION,
+    FLAG_EST_CLAMP_TO_NEXT_EDGE,
+    FLAG_EST_LEARN_GRID_OFFSET,
+    FLAG_EST_LEARN_PITCH_ERRORS,
+    FLAG_INTERP_ENABLE,
+    FLAGS_ESTIMATOR,
+    HALL_NEXT,
+    NOMINAL_HALL_ANGLE,
+)
+from eol_cal.firmware.options import honoured_options
 
 if TYPE_CHECKING:
     from eol_cal.firmware.block import ParamBlock
@@ -67,10 +77,24 @@ ST_DIR_MISMATCH = 1 << 8
 ST_NO_SPEED = 1 << 9
 """omega_hat is not (yet) from a measured interval: start-up, after a reversal or standstill."""
 
-FLAG_CLAMP_TO_NEXT_EDGE = 0x1
-FLAG_LEARN_GRID_OFFSET = 0x2
-FLAG_ACCEL_PREDICTION = 0x4
-FLAG_LEARN_PITCH_ERRORS = 0x8
+#: THE mapping of the block's estimator option bits (contract ``flags`` bits 2-5) to the
+#: configuration's switches; the C port reads the same bits (eol_est_config_t.flags).
+OPTION_FLAGS: dict[str, int] = {
+    "clamp_to_next_edge": FLAG_EST_CLAMP_TO_NEXT_EDGE,
+    "learn_grid_offset": FLAG_EST_LEARN_GRID_OFFSET,
+    "accel_prediction": FLAG_EST_ACCEL_PREDICTION,
+    "learn_pitch_errors": FLAG_EST_LEARN_PITCH_ERRORS,
+}
+
+
+def options_from_flags(flags: int) -> dict[str, bool]:
+    """The configuration's switches a block's ``flags`` word selects.
+
+    The option bits count only with ``INTERP_ENABLE`` set (contract section 2); without it every
+    switch is off.
+    """
+    honoured = honoured_options(flags)
+    return {name: bool(honoured & bit) for name, bit in OPTION_FLAGS.items()}
 
 STATUS_BITS = {
     "STANDSTILL": ST_STANDSTILL, "REVERSE": ST_REVERSE, "HALL_FAULT": ST_HALL_FAULT,
@@ -97,17 +121,17 @@ class EstimatorConfig:
     standstill_ticks : int
         No A edge within this many ticks -> standstill (omega_hat = 0).
     clamp_to_next_edge : bool
-        Improvement 1: the prediction stays inside the current quadrature count (so it never
+        Improvement 1 (block flag ``EST_CLAMP_TO_NEXT_EDGE``, bit 2): the prediction stays inside the current quadrature count (so it never
         passes the next edge's angle), and the reported speed is bounded by what the time since
         the last edge allows.
     learn_grid_offset : bool
-        Improvement 2: the encoder-grid offset is the running mean of the hall corrections (the
+        Improvement 2 (``EST_LEARN_GRID_OFFSET``, bit 3): the encoder-grid offset is the running mean of the hall corrections (the
         first N_LEARN, then a 1/N_LEARN filter; a full correction when the error exceeds half a
         pitch) instead of the last correction whole.
     accel_prediction : bool
-        Improvement 3: the prediction between edges extrapolates the filtered acceleration.
+        Improvement 3 (``EST_ACCEL_PREDICTION``, bit 4): the prediction between edges extrapolates the filtered acceleration.
     learn_pitch_errors : bool
-        Improvement 4: learns each A edge's placement error at steady speed from the time the
+        Improvement 4 (``EST_LEARN_PITCH_ERRORS``, bit 5): learns each A edge's placement error at steady speed from the time the
         same edge took for a whole revolution, and uses it for the edge angles and the speed.
     """
 
@@ -122,12 +146,15 @@ class EstimatorConfig:
     learn_pitch_errors: bool = False
 
     @property
+    def options(self) -> int:
+        """The switched-on improvements as the block's estimator option bits (contract bits 2-5)."""
+        return sum(bit for name, bit in OPTION_FLAGS.items() if getattr(self, name))
+
+    @property
     def flags(self) -> int:
-        """The improvement switches as the C port's ``flags`` bits (EOL_EST_* in eol_est.h)."""
-        return (FLAG_CLAMP_TO_NEXT_EDGE * self.clamp_to_next_edge
-                | FLAG_LEARN_GRID_OFFSET * self.learn_grid_offset
-                | FLAG_ACCEL_PREDICTION * self.accel_prediction
-                | FLAG_LEARN_PITCH_ERRORS * self.learn_pitch_errors)
+        """The block ``flags`` word that selects this estimator: ``INTERP_ENABLE`` and the option
+        bits (what the C port's ``eol_est_config_t.flags`` takes)."""
+        return FLAG_INTERP_ENABLE | self.options
 
     def __post_init__(self) -> None:
         if len(self.hall_angle) != 6:
@@ -163,28 +190,33 @@ class EstimatorConfig:
                    standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
 
     @classmethod
+    def from_flags(cls, flags: int, **kwargs: Any) -> "EstimatorConfig":
+        """The paper's bench running the estimator a block's ``flags`` word selects
+        (:func:`options_from_flags`); ``kwargs`` as :meth:`paper` takes them."""
+        return cls.paper(**{**options_from_flags(flags), **kwargs})
+
+    @classmethod
     def best(cls, **kwargs: Any) -> "EstimatorConfig":
-        """The paper's bench with the best combination of bench/bench_estimator.py: improvements
-        1, 2 and 4 (3, the acceleration-aware prediction, measured no gain there)."""
-        kwargs.setdefault("clamp_to_next_edge", True)
-        kwargs.setdefault("learn_grid_offset", True)
-        kwargs.setdefault("learn_pitch_errors", True)
-        return cls.paper(**kwargs)
+        """The paper's bench with every option on (the ``best`` choice of
+        :mod:`eol_cal.firmware.options`: contract bits 2-5 all set)."""
+        return cls.from_flags(FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR, **kwargs)
 
     @classmethod
     def all_improvements(cls, **kwargs: Any) -> "EstimatorConfig":
-        """The paper's bench with all four improvements switched on."""
-        kwargs.setdefault("accel_prediction", True)
+        """The paper's bench with all four improvements switched on (same as :meth:`best`)."""
         return cls.best(**kwargs)
 
     @classmethod
     def from_block(cls, block: ParamBlock, standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
         """Configuration from a parameter block (anything with ``poles``, ``encoder_ppr``,
-        ``tick_hz``, ``hall_angle``, e.g. :class:`eol_cal.firmware.block.ParamBlock`)."""
+        ``tick_hz``, ``hall_angle`` and ``flags``, e.g. :class:`eol_cal.firmware.block.ParamBlock`):
+        the options are those its ``flags`` select (:func:`options_from_flags`) unless
+        ``improvements`` names them."""
         tick_hz = float(block.tick_hz)
+        options = {**options_from_flags(int(block.flags)), **improvements}
         return cls(poles=int(block.poles), N_enc=int(block.encoder_ppr), tick_hz=tick_hz,
                    hall_angle=tuple(float(a) for a in block.hall_angle),
-                   standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
+                   standstill_ticks=int(round(standstill_s * tick_hz)), **options)
 
 
 class Consts(NamedTuple):

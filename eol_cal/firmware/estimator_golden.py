@@ -4,8 +4,10 @@
 writes the files and the manifest. Files:
 
 * ``estimator_configs.csv``: one row per scenario file: the configuration (poles, N_enc,
-  tick_hz, hall_angle_1..6, standstill_ticks, flags) and the constants the C port derives from
-  it at init (T, DELTA, QUARTER, K_OMEGA, K_NDELTA, h_width_s, h_mid_s) as binary32 hex;
+  tick_hz, hall_angle_1..6, standstill_ticks, block_flags: the parameter block's ``flags`` word
+  that selects the estimator options, contract bits 2-5 with ``INTERP_ENABLE``; options: the
+  option bits it honours) and the constants the C port derives from it at init (T, DELTA,
+  QUARTER, K_OMEGA, K_NDELTA, h_width_s, h_mid_s) as binary32 hex;
 * ``estimator_<scenario>.csv``: columns tick, enc_a, enc_b, hall (inputs), theta_hat,
   omega_hat, theta_enc (binary32 hex), status (decimal). The power-on state takes the first
   row's inputs (``eol_est_init(cfg, hall, a, b)``), then every row, the first included, is one
@@ -25,6 +27,15 @@ from typing import Callable
 import numpy as np
 
 from eol_cal.firmware import estimator as est
+from eol_cal.firmware.contract import (
+    ESTIMATOR_OPTIONS,
+    FLAG_EST_ACCEL_PREDICTION,
+    FLAG_EST_CLAMP_TO_NEXT_EDGE,
+    FLAG_EST_LEARN_GRID_OFFSET,
+    FLAG_EST_LEARN_PITCH_ERRORS,
+    FLAG_INTERP_ENABLE,
+    FLAGS_ESTIMATOR,
+)
 from eol_cal.firmware.vectors import f32hex
 from eol_cal.firmware.kinematics import draw_sensor_errors, encoder_hall_signals, speed_profile_angle
 
@@ -44,7 +55,7 @@ TOLERANCE = {
 SCENARIO_COLUMNS = ("tick", "enc_a", "enc_b", "hall", "theta_hat", "omega_hat", "theta_enc", "status")
 CONFIG_COLUMNS = (("file", "poles", "N_enc", "tick_hz")
                   + tuple(f"hall_angle_{s}" for s in range(1, 7))
-                  + ("standstill_ticks", "flags", "T", "DELTA", "QUARTER", "K_OMEGA", "K_NDELTA")
+                  + ("standstill_ticks", "block_flags", "options", "T", "DELTA", "QUARTER", "K_OMEGA", "K_NDELTA")
                   + tuple(f"h_width_{s}" for s in range(1, 7))
                   + tuple(f"h_mid_{s}" for s in range(1, 7)))
 
@@ -54,19 +65,27 @@ Segments = tuple[tuple[float, float, float], ...]
 
 @dataclass(frozen=True)
 class Scenario:
-    """One estimator scenario: configuration, motion, sensor errors and injected glitches.
+    """One estimator scenario: block flags, motion, sensor errors and injected glitches.
 
+    flags : the parameter block's ``flags`` word that selects the estimator (its option bits).
     segments : (seconds, rpm_start, rpm_end) of the mechanical speed profile.
     theta0 : mechanical angle at tick 0 (rad); seed : of the drawn sensor errors.
     inject : edits the sampled (enc_a, enc_b, hall) levels (glitches), or None.
+    standstill_s : the standstill bound (s) of the configuration.
     """
 
-    cfg: est.EstimatorConfig
+    flags: int
     segments: Segments
     seed: int
     description: str
     theta0: float = 0.3
     inject: Callable[[np.ndarray, np.ndarray, np.ndarray], Signals] | None = None
+    standstill_s: float = 1.0
+
+    @property
+    def cfg(self) -> est.EstimatorConfig:
+        """The estimator configuration the block's flags select on the paper's bench."""
+        return est.EstimatorConfig.from_flags(self.flags, tick_hz=TICK_HZ, standstill_s=self.standstill_s)
 
     def theta_m(self) -> np.ndarray:
         """True mechanical angle at every tick (rad)."""
@@ -119,10 +138,10 @@ def _hall_glitch(a: np.ndarray, b: np.ndarray, h: np.ndarray) -> Signals:
     return a, b, h
 
 
-_PAPER = est.EstimatorConfig.paper(tick_hz=TICK_HZ)
-_PAPER_SHORT = est.EstimatorConfig.paper(tick_hz=TICK_HZ, standstill_s=0.05)
-_ALL = est.EstimatorConfig.all_improvements(tick_hz=TICK_HZ)
-_ALL_SHORT = est.EstimatorConfig.all_improvements(tick_hz=TICK_HZ, standstill_s=0.05)
+#: block flags: the paper's estimator (no option), and every option
+_PAPER = FLAG_INTERP_ENABLE
+_ALL = FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR
+_SHORT = 0.05  # s, standstill bound of the stop-and-go scenarios
 _STOP_GO = ((0.1, 60.0, 60.0), (0.03, 60.0, 0.0), (0.12, 0.0, 0.0), (0.05, 0.0, 60.0), (0.1, 60.0, 60.0))
 
 #: file name -> scenario
@@ -136,10 +155,11 @@ SCENARIOS: dict[str, Scenario] = {
     "estimator_creep_1rpm.csv": Scenario(_PAPER, ((1.3, 1.0, 1.0),), 3,
                                          "paper estimator, 1 rpm creep (an edge every 0.94 s), 1.3 s",
                                          theta0=math.radians(19.5)),
-    "estimator_standstill_restart.csv": Scenario(_PAPER_SHORT, _STOP_GO, 4,
-                                                 "paper estimator, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+    "estimator_standstill_restart.csv": Scenario(_PAPER, _STOP_GO, 4,
+                                                 "paper estimator, standstill_ticks 1000: 60 rpm, stop, rest, restart",
+                                                 standstill_s=_SHORT),
     "estimator_standstill_restart_all.csv": Scenario(
-        _ALL_SHORT, _STOP_GO, 4, "every improvement, standstill_ticks 1000: 60 rpm, stop, rest, restart"),
+        _ALL, _STOP_GO, 4, "every option, standstill_ticks 1000: 60 rpm, stop, rest, restart", standstill_s=_SHORT),
     "estimator_reversal.csv": Scenario(_PAPER, ((0.1, 60.0, 60.0), (0.1, 60.0, -60.0), (0.1, -60.0, -60.0)), 5,
                                        "paper estimator, 60 rpm forward, through zero to 60 rpm reverse"),
     "estimator_reverse_60rpm.csv": Scenario(_PAPER, ((0.2, -60.0, -60.0),), 6,
@@ -153,21 +173,37 @@ SCENARIOS: dict[str, Scenario] = {
                                           inject=_hall_glitch),
     # 240 rpm for 0.45 s: almost two revolutions, so improvement 4 learns during the second.
     "estimator_all_240rpm.csv": Scenario(_ALL, ((0.45, 240.0, 240.0),), 10,
-                                          "every improvement, 240 rpm for 0.45 s (pitch learning starts)"),
+                                          "every option, 240 rpm for 0.45 s (pitch learning starts)"),
+    # each option alone, in a motion where it acts
+    "estimator_clamp_to_next_edge.csv": Scenario(
+        _PAPER | FLAG_EST_CLAMP_TO_NEXT_EDGE, ((0.05, 60.0, 60.0), (0.25, 60.0, 15.0)), 11,
+        "EST_CLAMP_TO_NEXT_EDGE alone: 60 rpm, then slowing to 15 rpm in 0.25 s"),
+    "estimator_learn_grid_offset.csv": Scenario(
+        _PAPER | FLAG_EST_LEARN_GRID_OFFSET, ((0.3, 60.0, 60.0),), 12,
+        "EST_LEARN_GRID_OFFSET alone: constant 60 rpm, 0.3 s"),
+    "estimator_accel_prediction.csv": Scenario(
+        _PAPER | FLAG_EST_ACCEL_PREDICTION, ((0.05, 30.0, 30.0), (0.25, 30.0, 90.0)), 13,
+        "EST_ACCEL_PREDICTION alone: 30 rpm, then a ramp to 90 rpm in 0.25 s"),
+    "estimator_learn_pitch_errors.csv": Scenario(
+        _PAPER | FLAG_EST_LEARN_PITCH_ERRORS, ((0.45, 240.0, 240.0),), 14,
+        "EST_LEARN_PITCH_ERRORS alone: 240 rpm for 0.45 s (pitch learning starts)"),
 }
 
 DESCRIPTIONS = {name: sc.description for name, sc in SCENARIOS.items()}
 DESCRIPTIONS["estimator_configs.csv"] = (
-    "configuration of each estimator_*.csv (flags: 1 clamp_to_next_edge, 2 learn_grid_offset, "
-    "4 accel_prediction, 8 learn_pitch_errors) and the constants eol_est_init derives from it")
+    "configuration of each estimator_*.csv (block_flags: the parameter block's flags word, bit 1 "
+    "INTERP_ENABLE with the estimator options "
+    + ", ".join(f"{bit} {name}" for name, bit in ESTIMATOR_OPTIONS.items())
+    + "; options: the option bits it selects) and the constants eol_est_init derives from it")
 
 
-def config_row(name: str, cfg: est.EstimatorConfig) -> list[str]:
+def config_row(name: str, sc: Scenario) -> list[str]:
     """The ``estimator_configs.csv`` row of scenario file ``name``."""
+    cfg = sc.cfg
     c = est.consts(cfg)
     return ([name, str(cfg.poles), str(cfg.N_enc), f32hex(cfg.tick_hz)]
             + [f32hex(x) for x in cfg.hall_angle]
-            + [str(cfg.standstill_ticks), str(cfg.flags), f32hex(c.T), f32hex(c.DELTA), f32hex(c.QUARTER),
+            + [str(cfg.standstill_ticks), str(sc.flags), str(cfg.options), f32hex(c.T), f32hex(c.DELTA), f32hex(c.QUARTER),
                f32hex(c.K_OMEGA), f32hex(c.K_NDELTA)]
             + [f32hex(c.H_WIDTH[s]) for s in range(1, 7)]
             + [f32hex(c.H_MID[s]) for s in range(1, 7)])
@@ -190,7 +226,7 @@ def vector_sets(names: list[str] | None = None) -> dict[str, tuple[tuple[str, ..
     """
     chosen = list(SCENARIOS) if names is None else [n for n in SCENARIOS if n in names]
     sets: dict[str, tuple[tuple[str, ...], list[list[str]]]] = {
-        "estimator_configs.csv": (CONFIG_COLUMNS, [config_row(n, SCENARIOS[n].cfg) for n in chosen])}
+        "estimator_configs.csv": (CONFIG_COLUMNS, [config_row(n, SCENARIOS[n]) for n in chosen])}
     for n in chosen:
         sets[n] = (SCENARIO_COLUMNS, scenario_rows(SCENARIOS[n].cfg, *SCENARIOS[n].signals()))
     return sets

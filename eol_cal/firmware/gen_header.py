@@ -75,9 +75,14 @@ def render_header() -> str:
     for i, addr in enumerate(L["bank_word_addr"]):
         out.append(f"#define EOL_PB_BANK{i}_WORD_ADDR    UINT32_C(0x{addr:06X})")
     out += ["#define EOL_PB_SEQUENCE_ERASED    UINT32_C(0xFFFFFFFF)", ""]
-    out.append("/* flags */")
+    out.append("/* flags; bits 2-5 are the estimator options (revision 1.1), honoured only with INTERP_ENABLE */")
+    width = max(len(name) for name in C.FLAGS)
     for name, flag in C.FLAGS.items():
-        out.append(f"#define EOL_PB_FLAG_{name:<14} (UINT32_C(1) << {flag.bit})  /* {flag.meaning} */")
+        out.append(f"#define EOL_PB_FLAG_{name:<{width}} (UINT32_C(1) << {flag.bit})  /* {flag.meaning} */")
+    out.append(f"#define EOL_PB_FLAGS_{'ESTIMATOR':<{width - 1}} UINT32_C(0x{C.FLAGS_ESTIMATOR:02X})  "
+               "/* every estimator option bit */")
+    out.append(f"#define EOL_PB_FLAGS_{'KNOWN':<{width - 1}} UINT32_C(0x{C.FLAGS_KNOWN:02X})  "
+               "/* every bit the contract defines */")
     out += ["", f"/* check routine status (UDS routine 0x{C.RID_CHECK:04X}) */"]
     for name, status in C.CHECK_STATUS.items():
         out.append(f"#define EOL_PB_STATUS_{name:<14} {status.code}u  /* {status.text} */")

@@ -57,7 +57,8 @@ def golden_blocks() -> list[tuple[str, pb.ParamBlock]]:
         ("clamp_n16", 16, 0.030, -2.9, 0.0040, 1.2, ((12, 0.004, 0.5, 0.0006, -1.0),), 0.0, 0.25, 1, "EPS-0002-A",
          7),
         ("fine_n1024", 1024, 0.008, 3.0, 0.0021, 2.2,
-         ((12, 0.002, -0.4, 0.0004, 0.8), (18, 0.0007, 1.9, 0.0001, -2.5)), 2.5e-4, 3.0, 2, "MOTOR-1024-XYZ-9",
+         ((12, 0.002, -0.4, 0.0004, 0.8), (18, 0.0007, 1.9, 0.0001, -2.5)), 2.5e-4, 3.0,
+         pb.FLAG_INTERP_ENABLE | pb.FLAGS_ESTIMATOR, "MOTOR-1024-XYZ-9",
          0xFFFFFFFE),
     ]
     hall_skewed = tuple(a + math.radians(d) for a, d in zip(_HALL_NOMINAL, (1.5, -0.7, 0.3, -1.9, 0.0, 1.1)))
@@ -126,6 +127,7 @@ def check_cases(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> list[tuple[str, 
         ("valid_in_erased_bank_tail", small + b"\xff" * 512, V),
         ("valid_reserved_nonzero", _patch(small, "reserved", 0x1234), V),
         ("valid_unknown_flag_bit", _patch(small, "flags", 0x80000001), V),
+        ("valid_option_without_interp", _patch(small, "flags", pb.FLAG_COMP_ENABLE | pb.FLAGS_ESTIMATOR), V),
         ("erased", b"\xff" * 256, H),
         ("all_zero", b"\x00" * 256, H),
         ("header_truncated", small[:60], H),

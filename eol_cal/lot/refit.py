@@ -76,7 +76,9 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
 
         common = dict(batch="loop", mechanics=mechanics_or_rigid(bench), motor=load_motor(motor),
                       cache_dir=None if cache_dir is None else Path(cache_dir))
-        opts = FitOptions(**common) if lim is None else FitOptions(limits=lim.ci_limits(), **common)
+        # the estimator the runs measured under: the variant's (default best, as the station's)
+        opts = FitOptions(**common) if lim is None else FitOptions(limits=lim.ci_limits(),
+                                                                    estimator_options=lim.estimator_options, **common)
         res = fit_motors(caps, opts, __version__)
         if len(res.records) != 1:
             raise InputError(str(paths[0]), "serial", f"the directory holds {len(res.records)} motors, expected one")

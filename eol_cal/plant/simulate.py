@@ -296,19 +296,50 @@ def simulated_ecu_state(spec: PlantSpec, mode: str, block: ParamBlock | None) ->
     return EcuState(0, blk.sequence, f"{check(pack(blk)).crc_stored:08x}", flag_names(flags))
 
 
-def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, improved: bool = False) -> EstimatorConfig:
-    """The firmware estimator's configuration on this bench (from the block when given).
+def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, options: int | None = None) -> EstimatorConfig:
+    """The firmware estimator's configuration on this bench.
 
-    ``improved``: the reference's best improvements (:meth:`EstimatorConfig.best`) instead of the
-    paper's estimator that the contract's firmware runs; a what-if for the firmware team (the
-    block has no switch for them).
+    The hall table is the block's (nominal without one); the options (contract flags bits 2-5)
+    are ``options`` when given, else those the block's flags select (none without a block: the
+    paper's estimator).
     """
     from eol_cal.firmware import estimator
+    from eol_cal.firmware.options import honoured_options
 
     m = spec.motor
     hall = block.hall_angle if block is not None else NOMINAL_HALL_ANGLE
-    make = estimator.EstimatorConfig.best if improved else estimator.EstimatorConfig.paper
-    return make(poles=m.poles, N_enc=m.N_enc, tick_hz=m.f_pwm, hall_angle=tuple(float(a) for a in hall))
+    if options is None:
+        options = honoured_options(block.flags) if block is not None else 0
+    return estimator.EstimatorConfig.from_flags(FLAG_INTERP_ENABLE | options, poles=m.poles, N_enc=m.N_enc,
+                                                tick_hz=m.f_pwm, hall_angle=tuple(float(a) for a in hall))
+
+
+def batch_options(blocks: Sequence[ParamBlock | None], ecu_estimator: str | None = None) -> int:
+    """The estimator option bits the ECUs of one batch run: ``ecu_estimator`` (a choice as
+    :func:`eol_cal.firmware.options.parse_options` reads it) when given, else what the blocks'
+    flags select (none for a motor without a block). They are compiled into the scan, so every
+    motor of a batch must run the same ones.
+    """
+    from eol_cal.firmware.options import honoured_options, options_label, parse_options
+
+    if ecu_estimator is not None:
+        return parse_options(ecu_estimator, None, "ecu_estimator")
+    found = {honoured_options(b.flags) if b is not None else 0 for b in blocks}
+    if len(found) > 1:
+        raise InputError(None, "blocks", "a batch must share the estimator options; the blocks select "
+                                         + ", ".join(sorted(options_label(o) for o in found)))
+    return found.pop() if found else 0
+
+
+def learning_pre_roll_s(options: int, speed_rpm: float) -> float:
+    """Pre-roll (s) that lets pitch-error learning (``EST_LEARN_PITCH_ERRORS``) converge before
+    the recording: 1.5 mechanical revolutions at the first speed, within 0.3-2 s; 0.3 s for the
+    other estimators (their first edges and hall transition)."""
+    from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
+
+    if not options & FLAG_EST_LEARN_PITCH_ERRORS or speed_rpm == 0.0:
+        return 0.3
+    return min(2.0, max(0.3, 1.5 * 60.0 / abs(speed_rpm)))
 
 
 def simulate(
@@ -317,11 +348,11 @@ def simulate(
     mode: str = "estimated",
     blocks: ParamBlock | Sequence[ParamBlock | None] | None = None,
     seed: int = 0,
-    pre_roll_s: float = 0.3,
+    pre_roll_s: float | None = None,
     chunk_ticks: int = CHUNK_TICKS,
     unroll: int = 1,
     progress: Callable[[float], None] | None = None,
-    ecu_estimator: str = "paper",
+    ecu_estimator: str | None = None,
 ) -> list[SimResult]:
     """Simulate one motor or a lot of motors through a test profile.
 
@@ -335,22 +366,24 @@ def simulate(
         Control angle and compensation (paper Figs. 10, 11, 12).
     blocks : ParamBlock or sequence, optional
         Parameter block per motor: its tables for ``compensated`` (missing ones are made from the
-        plant's true ripple, :func:`true_block`), its ``hall_angle`` for the ECU's estimator in
-        every mode (nominal without a block). Motors of one batch may carry different tables.
+        plant's true ripple, :func:`true_block`), its ``hall_angle`` and the estimator options
+        its flags select (bits 2-5 with ``INTERP_ENABLE``) for the ECU's estimator in every mode
+        (nominal table and the paper's estimator without a block). Motors of one batch may carry
+        different tables but must select the same estimator options.
     seed : int
         Seed of the sensor noise.
-    pre_roll_s : float
+    pre_roll_s : float, optional
         Time (s) simulated at the profile's first point before recording starts, so the
-        estimator has seen its first edges and hall transition.
+        estimator has seen its first edges and hall transition; default
+        :func:`learning_pre_roll_s` (longer when the estimator learns pitch errors).
     chunk_ticks, unroll : int
         Scan chunk length (ticks) and unroll factor (speed only).
     progress : callable, optional
         Called with the fraction done after each chunk.
-    ecu_estimator : {"paper", "best"}
-        The ECU's angle estimator: the paper's (what the contract's firmware runs), or the
-        firmware reference with its improvements 1, 2 and 4 (:meth:`EstimatorConfig.best`), a
-        what-if that no block can switch on. Its pitch-error learning needs a revolution at steady
-        speed: give it a longer ``pre_roll_s``.
+    ecu_estimator : str, optional
+        Overrides the blocks' estimator options: ``paper``, ``best``, option names joined by
+        ``+`` or a hex mask (:func:`eol_cal.firmware.options.parse_options`); for runs without
+        a block.
 
     Returns
     -------
@@ -360,8 +393,6 @@ def simulate(
 
     if mode not in control.MODES:
         raise InputError(None, "mode", f"unknown mode {mode!r}; known: {', '.join(control.MODES)}")
-    if ecu_estimator not in ("paper", "best"):
-        raise InputError(None, "ecu_estimator", f"unknown ECU estimator {ecu_estimator!r}; known: paper, best")
     single = isinstance(specs, PlantSpec)
     specs = [specs] if single else list(specs)
     if not specs:
@@ -379,10 +410,12 @@ def simulate(
 
     params = []
     states = []
+    effective = []
     for spec, block in zip(specs, blocks):
         states.append(simulated_ecu_state(spec, mode, block))
         if block is None:
             block = true_block(spec) if mode == "compensated" else None
+        effective.append(block)
         if block is not None:
             if (block.poles, block.encoder_ppr) != (spec.motor.poles, spec.motor.N_enc):
                 raise InputError(None, "block", f"block is for P={block.poles}, {block.encoder_ppr} PPR; "
@@ -398,13 +431,16 @@ def simulate(
     if len(lens) != 1:
         raise InputError(None, "blocks", "a batch must share one table length")
     batch = stack_params(params)
+    options = batch_options(effective, ecu_estimator)
 
     cfg = PlantSimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
                     # nominal table: each motor's own travels in its PlantParams (one program for all)
-                    mode=mode, estimator=estimator_config(specs[0], improved=ecu_estimator == "best"),
+                    mode=mode, estimator=estimator_config(specs[0], options=options),
                     dead_time=any(s.dead_time_s > 0 for s in specs))
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
+    if pre_roll_s is None:
+        pre_roll_s = learning_pre_roll_s(options, float(speed_rpm[0]))
     n_pre = int(round(pre_roll_s * m0.f_pwm))
     speed_rpm = np.concatenate([np.full(n_pre, speed_rpm[0]), speed_rpm])
     i_qo = np.concatenate([np.full(n_pre, i_qo[0]), i_qo])

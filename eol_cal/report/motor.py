@@ -139,7 +139,8 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     calibration flash, and the block it ran during each capture (read over UDS before it).
 
     One dict per column with the keys ``label``, ``bank``, ``sequence``, ``crc32``, ``flags``,
-    ``verified``; a value the record does not have is ``"-"``.
+    ``estimator`` (the estimator options the block's flags select: ``paper``, ``best`` or their
+    names), ``verified``; a value the record does not have is ``"-"``.
     """
     def text(x: object) -> str:
         return "-" if x is None else ("yes" if x is True else "no" if x is False else str(x))
@@ -154,11 +155,13 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     before_bank = "none valid" if "bank" in before and before["bank"] is None else before.get("bank")
     cols = [
         {"label": "before the run", "bank": before_bank, "sequence": before.get("sequence"),
-         "crc32": before.get("crc32"), "flags": before.get("flags"), "verified": None},
+         "crc32": before.get("crc32"), "flags": before.get("flags"), "estimator": before.get("estimator"),
+         "verified": None},
         {"label": "prepared (uncompensated)", "bank": prep.get("bank"), "sequence": prep.get("sequence"),
-         "crc32": prep.get("crc32"), "flags": prep.get("flags"), "verified": prep.get("verified")},
+         "crc32": prep.get("crc32"), "flags": prep.get("flags"), "estimator": prep.get("estimator"),
+         "verified": prep.get("verified")},
         {"label": "calibrated", "bank": blk.get("bank"), "sequence": blk.get("sequence"), "crc32": blk.get("crc32"),
-         "flags": blk.get("flags"), "verified": flash.get("verified")},
+         "flags": blk.get("flags"), "estimator": blk.get("estimator"), "verified": flash.get("verified")},
     ]
     for which, label in (("before", "ran during the calibration capture"), ("after", "ran during the compensated capture")):
         ran = ((rec.get("captures") or {}).get(which) or {}).get("ecu_before")
@@ -169,8 +172,20 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     after = rec.get("ecu_after")
     if isinstance(after, dict):  # read back from the ECU where the record has it
         cols.append({"label": "read back after the run", **{k: after.get(k) for k in ("bank", "sequence", "crc32",
-                                                                                         "flags", "verified")}})
+                                                                                         "flags", "estimator", "verified")}})
     return [{k: text(v) if k != "label" else v for k, v in c.items()} for c in cols]
+
+
+def _estimator_text(rec: dict[str, Any]) -> str:
+    """The estimator the calibrated block runs, and the one the motor was measured under."""
+    blk = (rec.get("block") or {}).get("estimator")
+    prep = (rec.get("ecu_prepared") or {}).get("estimator")
+    if blk is None and prep is None:
+        return "-"
+    text = f"{blk or '-'} (block flags bits 2-5)"
+    if prep is not None and prep != blk:
+        text += f"; measured under {prep}"
+    return text
 
 
 # --------------------------------------------------------------------------- plots
@@ -367,6 +382,7 @@ def render_motor_report(rec: dict[str, Any], figures: Sequence[Figure]) -> str:
          + ("(no limit: the rest is the rotor's unbalance)" if (rec.get("limits") or {}).get("max_pp_after_no_mech1_pct") is None
             else f"(limit {_fmt(rec['limits']['max_pp_after_no_mech1_pct'])} %: the rows below)")),
         ("lead", f"{_fmt((rec.get('block') or {}).get('lead_s', None) and rec['block']['lead_s'] * 1e6)} us"),
+        ("estimator options", _estimator_text(rec)),
     ]
     ecu = rec.get("ecu_active") or {}
     captures = rec.get("captures") or {}

@@ -146,18 +146,22 @@ class StationCycle:
         self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
 
     def prepare_ecu(self) -> None:
-        """Flash the uncompensated block, so the calibration capture sees the field estimator alone."""
+        """Flash the uncompensated block, so the calibration capture sees the field estimator alone:
+        the same estimator options as the calibrated block will carry."""
         from eol_cal.analysis.fit.table import uncompensated_block
         from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import flag_names, pack
+        from eol_cal.firmware.options import options_label
 
-        blk = uncompensated_block(self.cfg.serial, self.cfg.motor)
+        options = self.cfg.estimator_options
+        blk = uncompensated_block(self.cfg.serial, self.cfg.motor, options=options)
         data = pack(blk)
         path = self.run_dir / "block_uncompensated.bin"
         with atomic_path(path) as tmp:
             tmp.write_bytes(data)
         report = self._flash(data, str(path))
-        self.ecu_prepared = {"path": str(path), "flags": flag_names(blk.flags), "crc32": f"{report.crc32:08x}",
+        self.ecu_prepared = {"path": str(path), "flags": flag_names(blk.flags), "estimator": options_label(options),
+                             "crc32": f"{report.crc32:08x}",
                              "sequence": report.sequence, "bank": report.bank, "verified": report.verified,
                              "previous": previous_block(report)}
 
@@ -176,7 +180,7 @@ class StationCycle:
         check_motor(self.before, self.cfg.motor)
         self._prewarm.result()
         doc, frec, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
-                                     self.cfg.cache_dir)
+                                     self.cfg.cache_dir, self.cfg.estimator_options)
         write_result(doc, self.run_dir / "fit.json")
         self.fit_doc, self.fit_record, self.fit_extra = doc, frec, extra
         self._fit_plots = self._helper.submit(fit_plots, self.run_dir, extra)
@@ -192,9 +196,11 @@ class StationCycle:
         from eol_cal.analysis.fit.table import block_from_record, created_unix
         from eol_cal.atomic import atomic_path
         from eol_cal.firmware.block import flag_names, pack
+        from eol_cal.firmware.options import options_label
 
+        options = self.cfg.estimator_options
         blk = block_from_record(self.fit_record, self.cfg.motor, calibrated_at=created_unix(self.fit_doc),
-                                source=str(self.run_dir / "fit.json"))
+                                source=str(self.run_dir / "fit.json"), options=options)
         data = pack(blk)
         path = self.run_dir / "block.bin"
         with atomic_path(path) as tmp:
@@ -202,7 +208,7 @@ class StationCycle:
         self.block_bytes = data
         self.block = {"path": str(path), "bytes": len(data), "table_len": blk.table_len,
                       "lead_s": blk.lead_s, "iqc_limit": blk.iqc_limit, "flags": flag_names(blk.flags),
-                      "crc32": None, "sequence": None}
+                      "estimator": options_label(options), "crc32": None, "sequence": None}
 
     def flash(self) -> None:
         """Write the calibrated block into the ECU's inactive bank (verified)."""

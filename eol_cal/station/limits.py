@@ -17,6 +17,8 @@ File format (``docs/station.md``)::
     max_hall_deviation_deg = 3.0     # optional (default 3.0): largest hall boundary offset (deg el.)
     max_pp_after_no_mech1_pct = 1.5  # optional (default: no limit): compensated p-p without the
                                      # mechanical order 1 (the rotor's unbalance) (%)
+    estimator = "best"               # optional: the estimator options the line flashes (block flags
+                                     # bits 2-5): paper, best (default), names joined by "+", or 0xMASK
 
 The keys of the first station are required (a line that forgets one would otherwise pass
 motors silently); keys added since are optional with the defaults of :data:`OPTIONAL_DEFAULTS`,
@@ -34,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.errors import InputError
+from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options
 from eol_cal.inputs import read_text
 
 if TYPE_CHECKING:
@@ -79,6 +82,12 @@ class VariantLimits:
     max_hall_deviation_deg: float = 3.0  # OPTIONAL_DEFAULTS
     max_pp_after_no_mech1_pct: float | None = None  # OPTIONAL_DEFAULTS: no limit
     source: str = "<memory>"
+    estimator: str = DEFAULT_PRESET
+
+    @property
+    def estimator_options(self) -> int:
+        """The estimator option bits (contract flags bits 2-5) the variant's blocks carry."""
+        return parse_options(self.estimator, self.source, f"variant.{self.variant}.estimator")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -107,9 +116,9 @@ def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
         where = f"variant.{name}"
         if not isinstance(table, dict):
             raise InputError(file, where, "must be a table")
-        unknown = set(table) - set(_KEYS)
+        unknown = set(table) - set(_KEYS) - {"estimator"}
         if unknown:
-            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(_KEYS)}")
+            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(_KEYS)}, estimator")
         values: dict[str, float | None] = {}
         for key, (unit, lo, hi) in _KEYS.items():
             if key not in table and key in OPTIONAL_DEFAULTS:
@@ -123,7 +132,8 @@ def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
             if not lo <= v <= hi:
                 raise InputError(file, f"{where}.{key}", f"{v} outside {lo:g} ... {hi:g} {unit}")
             values[key] = float(v)
-        out[name] = VariantLimits(variant=name, source=file, **values)
+        estimator = options_label(parse_options(table.get("estimator", DEFAULT_PRESET), file, f"{where}.estimator"))
+        out[name] = VariantLimits(variant=name, source=file, estimator=estimator, **values)
     default = doc.get("default_variant")
     if default is not None and default not in out:
         raise InputError(file, "default_variant", f"{default!r} is not one of the variants ({', '.join(out)})")
@@ -325,7 +335,7 @@ def verdict(m: Measured, lim: VariantLimits) -> tuple[str, list[str]]:
     return ("fail", reasons) if reasons else ("pass", [])
 
 
-LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source"))
+LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source", "estimator"))
 
 
 def measured_from_fit(rec: dict[str, Any]) -> Measured:

@@ -85,6 +85,12 @@ class StationConfig:
     mechanics : BenchMechanics or None
         The dyno bench whose response the fit divides out (default the built-in ``paper``
         bench, which ``eol-cal dyno-sim`` simulates); ``None``: rigid coupling.
+    estimator : str or None
+        The estimator options the line flashes (contract flags bits 2-5: ``paper``, ``best``,
+        names joined by ``+`` or a hex mask, :mod:`eol_cal.firmware.options`); ``None``: the
+        variant's (``limits.estimator``, default ``best``). The uncompensated block of the
+        "prepare ECU" step carries the same options as the calibrated one, and the fit measures
+        its frame under that estimator.
     """
 
     serial: str
@@ -104,6 +110,16 @@ class StationConfig:
     cache_dir: Path | None = None
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
+    estimator: str | None = None
+
+    @property
+    def estimator_options(self) -> int:
+        """The estimator option bits this station's blocks carry (this config's, else the variant's)."""
+        from eol_cal.firmware.options import parse_options
+
+        if self.estimator is None:
+            return self.limits.estimator_options
+        return parse_options(self.estimator, None, "estimator")
 
 
 @dataclass
@@ -139,13 +155,14 @@ def _safe_name(text: str) -> str:
 
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
-              mechanics: BenchMechanics | None = None, cache_dir: Path | None = None) -> tuple[dict, dict, Any]:
+              mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
+              estimator_options: int = 0) -> tuple[dict, dict, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
     ``motor`` (default the paper preset), ``mechanics`` (``None``: rigid coupling) and
-    ``cache_dir`` (the serialized solvers; ``None``: none) as in
-    :class:`eol_cal.analysis.fit.motors.FitOptions`.
+    ``cache_dir`` (the serialized solvers; ``None``: none) and ``estimator_options`` (what the
+    ECU ran during the capture) as in :class:`eol_cal.analysis.fit.motors.FitOptions`.
 
     Returns
     -------
@@ -155,7 +172,8 @@ def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor:
     """
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 
-    options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir)
+    options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
+                         estimator_options=estimator_options)
     res = fit_motors([capture], options, tool_version)
     (rec,) = res.records
     return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)

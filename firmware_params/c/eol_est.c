@@ -4,7 +4,6 @@
 #include <math.h>
 
 #include "eol_est.h"
-#include "eol_param_block.h"
 
 /* binary32 constants; 9 significant digits round-trip exactly */
 #define PI_F 3.14159274f          /* 0x40490fdb */
@@ -51,6 +50,29 @@ static float fminf_(float x, float y) { return x < y ? x : y; }
 static float fmaxf_(float x, float y) { return x > y ? x : y; }
 static int32_t imin(int32_t x, int32_t y) { return x < y ? x : y; }
 
+uint32_t eol_est_options(uint32_t block_flags)
+{
+    return (block_flags & EOL_PB_FLAG_INTERP_ENABLE) ? (block_flags & EOL_PB_FLAGS_ESTIMATOR) : 0u;
+}
+
+int eol_est_config_from_block(const uint16_t *w, int32_t standstill_ticks, eol_est_config_t *cfg)
+{
+    int32_t s;
+    cfg->poles = (int32_t)EOL_PB_GET_POLES(w);
+    cfg->n_enc = (int32_t)EOL_PB_GET_ENCODER_PPR(w);
+    cfg->tick_hz = EOL_PB_GET_TICK_HZ(w);
+    for (s = 0; s < 6; ++s) {
+        cfg->hall_angle[s] = EOL_PB_GET_HALL_ANGLE(w, s);
+    }
+    cfg->standstill_ticks = standstill_ticks;
+    cfg->flags = EOL_PB_GET_FLAGS(w);
+    if (cfg->poles < 2 || (cfg->poles % 2) != 0 || cfg->n_enc < 1 || cfg->n_enc > EOL_EST_MAX_PPR ||
+        !(cfg->tick_hz > 0.0f) || standstill_ticks < 1 || standstill_ticks >= 0x20000000L) {
+        return -1;
+    }
+    return 0;
+}
+
 int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int32_t a0, int32_t b0)
 {
     int32_t s, i;
@@ -59,6 +81,7 @@ int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int
         return -1;
     }
     est->cfg = *cfg;
+    est->opts = eol_est_options(cfg->flags);
     est->T = 1.0f / cfg->tick_hz;
     est->DELTA = ((float)cfg->poles * PI_F) / (float)cfg->n_enc;
     est->QUARTER = est->DELTA * 0.25f;
@@ -112,7 +135,7 @@ int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int
 
 void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_t *out)
 {
-    const uint16_t fl = e->cfg.flags;
+    const uint32_t fl = e->opts;
     const int32_t M = e->M;
     const int32_t S = e->cfg.standstill_ticks;
     int32_t ph, d, stp, qep_err, q, a_rise, edir, k, against, n1;
@@ -152,7 +175,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     k = (k + fix + M) % M;
     speed_upd = measured || missing;
     run = e->run;
-    if (fl & EOL_EST_LEARN_PITCH_ERRORS) {
+    if (fl & EOL_PB_FLAG_EST_LEARN_PITCH_ERRORS) {
         int32_t tick = (int32_t)(((uint32_t)e->tick + 1u) & TICK_MASK);
         int32_t i_new = k >> 1;
         float c_old = e->c_tab[e->k_last >> 1];
@@ -203,7 +226,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         nc_prev = e->nc_prev;
     }
     alpha = e->alpha;
-    if (fl & EOL_EST_ACCEL_PREDICTION) {
+    if (fl & EOL_PB_FLAG_EST_ACCEL_PREDICTION) {
         if (measured && e->nc_prev > 0) {
             float alpha_raw = (omega_new - e->omega) * (e->TWO_TICK_HZ / (float)(n1 + e->nc_prev));
             alpha = e->alpha + K_ACC * (alpha_raw - e->alpha);
@@ -231,14 +254,14 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         run = 0;
         alpha = 0.0f;
     }
-    if (fl & EOL_EST_ACCEL_PREDICTION) {
+    if (fl & EOL_PB_FLAG_EST_ACCEL_PREDICTION) {
         float tau = ((float)nc_prev * 0.5f + (float)n) * e->T;
         omega_pred = omega + alpha * tau;
     } else {
         omega_pred = omega;
     }
     adv = ev ? 0.0f : e->adv + omega_pred * e->T;
-    if ((fl & EOL_EST_CLAMP_TO_NEXT_EDGE) && against == 0) {
+    if ((fl & EOL_PB_FLAG_EST_CLAMP_TO_NEXT_EDGE) && against == 0) {
         float lo = (float)dq_of(q, k_last, M) * e->QUARTER;
         adv = fminf_(fmaxf_(adv, lo), lo + e->QUARTER);
     }
@@ -257,14 +280,14 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     if (adj && anchored_before == 0 && dir_last == 0) {
         k_last = q;
     }
-    c_last = (fl & EOL_EST_LEARN_PITCH_ERRORS) ? e->c_tab[k_last >> 1] : 0.0f;
+    c_last = (fl & EOL_PB_FLAG_EST_LEARN_PITCH_ERRORS) ? e->c_tab[k_last >> 1] : 0.0f;
     rel = (float)k_last * e->QUARTER + c_last;
     /* without a valid speed: the middle of the current quadrature count */
     adv_eff = speed_ok ? adv : (float)dq_of(q, k_last, M) * e->QUARTER + e->HALF_QUARTER;
     theta_pred = eol_est_wrap(eol_est_wrap(e->G + rel) + adv_eff);
     err = eol_est_wrap_pm(hb - theta_pred);
     big = fabsf(err) > e->HALF_DELTA;
-    if (fl & EOL_EST_LEARN_GRID_OFFSET) {
+    if (fl & EOL_PB_FLAG_EST_LEARN_GRID_OFFSET) {
         float gain = 1.0f / (float)imin(e->n_anchor + 1, N_LEARN);
         g = big ? err : err * gain;
     } else {
@@ -310,7 +333,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         theta_enc = e->h_mid[e->sector];
     }
     omega_out = omega_pred;
-    if ((fl & EOL_EST_CLAMP_TO_NEXT_EDGE) && n > 0) {
+    if ((fl & EOL_PB_FLAG_EST_CLAMP_TO_NEXT_EDGE) && n > 0) {
         float bound = e->K_OMEGA / (float)n;
         omega_out = fminf_(fmaxf_(omega_out, -bound), bound);
     }

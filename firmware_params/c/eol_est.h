@@ -7,6 +7,8 @@
 
 #include <stdint.h>
 
+#include "eol_param_block.h"
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -16,11 +18,9 @@ extern "C" {
 #define EOL_EST_MAX_PPR 256
 #endif
 
-/* Improvement switches (eol_est_config_t.flags) */
-#define EOL_EST_CLAMP_TO_NEXT_EDGE 0x1u
-#define EOL_EST_LEARN_GRID_OFFSET 0x2u
-#define EOL_EST_ACCEL_PREDICTION 0x4u
-#define EOL_EST_LEARN_PITCH_ERRORS 0x8u
+/* Improvement switches: the parameter block's estimator option bits, EOL_PB_FLAG_EST_* of
+ * eol_param_block.h (flags bits 2-5, contract revision 1.1), honoured only together with
+ * EOL_PB_FLAG_INTERP_ENABLE; eol_est_options() is the one place that says which count. */
 
 /* Status bits (eol_est_out_t.status), see ESTIMATOR.md */
 #define EOL_EST_ST_STANDSTILL 0x001
@@ -40,12 +40,13 @@ typedef struct {
     float tick_hz;            /* estimator tick = PWM frequency, Hz */
     float hall_angle[6];      /* rad electrical; [s-1] = where hall state s begins forward */
     int32_t standstill_ticks; /* 1 .. 2^29-1 */
-    uint16_t flags;           /* EOL_EST_* improvement switches */
+    uint32_t flags;           /* the block's flags word; the options it selects: eol_est_options() */
 } eol_est_config_t;
 
 typedef struct {
     /* configuration and constants derived at init (ESTIMATOR.md, "Constants") */
     eol_est_config_t cfg;
+    uint32_t opts;            /* eol_est_options(cfg.flags) */
     float T, DELTA, QUARTER, HALF_QUARTER, HALF_DELTA, K_OMEGA, TWO_TICK_HZ, TICK_HZ, K_NDELTA;
     int32_t M;
     float h_start[8], h_width[8], h_mid[8];
@@ -64,6 +65,15 @@ typedef struct {
     float theta_enc; /* rad electrical, [0, 2*pi): raw angle of the last A edge */
     int32_t status;  /* EOL_EST_ST_* bits */
 } eol_est_out_t;
+
+/* The estimator options a block's flags word selects: its EOL_PB_FLAGS_ESTIMATOR bits when
+ * EOL_PB_FLAG_INTERP_ENABLE is set, none without it. */
+uint32_t eol_est_options(uint32_t block_flags);
+
+/* The configuration a valid parameter block (word image w, see eol_param_block.h) gives:
+ * poles, encoder_ppr, tick_hz, hall_angle and the flags word, with standstill_ticks from the
+ * caller. Returns 0, or -1 when the block's values are outside what eol_est_init accepts. */
+int eol_est_config_from_block(const uint16_t *w, int32_t standstill_ticks, eol_est_config_t *cfg);
 
 /* Power-on: derive the constants from cfg and take the first sample (hall0 0..7, a0/b0 0/1).
  * Returns 0, or -1 when cfg is out of range (est is then unusable). */

@@ -210,6 +210,24 @@ static int check_blocks(const char *dir, const char *file, result_t *r)
             fail(r, &c, "crc32 of the image", EOL_PB_GET_CRC32(g_words, n),
                  eol_crc32_words(g_words, EOL_PB_OFF_CRC32(n)));
         }
+        {
+            /* the estimator configuration the block gives: its fields and flags word */
+            eol_est_config_t k;
+            int h;
+            if (eol_est_config_from_block(g_words, 1, &k) != 0) {
+                fail(r, &c, "eol_est_config_from_block", 0, 1);
+            } else {
+                if (k.flags != EOL_PB_GET_FLAGS(g_words)) fail(r, &c, "config flags", EOL_PB_GET_FLAGS(g_words), k.flags);
+                if (k.poles != (int32_t)EOL_PB_GET_POLES(g_words)) fail(r, &c, "config poles", EOL_PB_GET_POLES(g_words), (unsigned long)k.poles);
+                if (k.n_enc != (int32_t)EOL_PB_GET_ENCODER_PPR(g_words)) fail(r, &c, "config n_enc", EOL_PB_GET_ENCODER_PPR(g_words), (unsigned long)k.n_enc);
+                if (f32_bits(k.tick_hz) != f32_bits(EOL_PB_GET_TICK_HZ(g_words))) fail(r, &c, "config tick_hz", f32_bits(EOL_PB_GET_TICK_HZ(g_words)), f32_bits(k.tick_hz));
+                for (h = 0; h < 6; ++h) {
+                    if (f32_bits(k.hall_angle[h]) != f32_bits(EOL_PB_GET_HALL_ANGLE(g_words, h))) {
+                        fail(r, &c, "config hall_angle", f32_bits(EOL_PB_GET_HALL_ANGLE(g_words, h)), f32_bits(k.hall_angle[h]));
+                    }
+                }
+            }
+        }
         for (s = 0u; s < EOL_PB_COUNT_SERIAL; ++s) {
             size_t len = strlen(c.f[i_ser]);
             uint16_t want = (uint16_t)(s < len ? (unsigned char)c.f[i_ser][s] : 0u);
@@ -379,7 +397,7 @@ static int est_config(const char *dir, const char *file, eol_est_config_t *cfg, 
     static csv_t c;
     static eol_est_t e;
     int rc, found = 0, s;
-    int i_file = -1, i_poles, i_nenc, i_tick, i_ss, i_flags, i_ha[6];
+    int i_file = -1, i_poles, i_nenc, i_tick, i_ss, i_flags, i_opts, i_ha[6];
     char name[32];
     if (csv_open(&c, dir, "estimator_configs.csv") != 0) return -1;
     i_file = csv_col(&c, "file");
@@ -387,8 +405,9 @@ static int est_config(const char *dir, const char *file, eol_est_config_t *cfg, 
     i_nenc = csv_col(&c, "N_enc");
     i_tick = csv_col(&c, "tick_hz");
     i_ss = csv_col(&c, "standstill_ticks");
-    i_flags = csv_col(&c, "flags");
-    if (i_file < 0 || i_poles < 0 || i_nenc < 0 || i_tick < 0 || i_ss < 0 || i_flags < 0) return -1;
+    i_flags = csv_col(&c, "block_flags");
+    i_opts = csv_col(&c, "options");
+    if (i_file < 0 || i_poles < 0 || i_nenc < 0 || i_tick < 0 || i_ss < 0 || i_flags < 0 || i_opts < 0) return -1;
     for (s = 0; s < 6; ++s) {
         snprintf(name, sizeof name, "hall_angle_%d", s + 1);
         if ((i_ha[s] = csv_col(&c, name)) < 0) return -1;
@@ -401,13 +420,17 @@ static int est_config(const char *dir, const char *file, eol_est_config_t *cfg, 
         k.tick_hz = hex_f32(c.f[i_tick]);
         for (s = 0; s < 6; ++s) k.hall_angle[s] = hex_f32(c.f[i_ha[s]]);
         k.standstill_ticks = (int32_t)strtol(c.f[i_ss], NULL, 10);
-        k.flags = (uint16_t)strtoul(c.f[i_flags], NULL, 10);
+        k.flags = (uint32_t)strtoul(c.f[i_flags], NULL, 10);
         if (file != NULL && strcmp(c.f[i_file], file) == 0) {
             *cfg = k;
             found = 1;
         }
         if (r == NULL) continue;
         r->rows++;
+        /* the options the block's flags select, as the Python reference reads them */
+        if (eol_est_options(k.flags) != strtoul(c.f[i_opts], NULL, 10)) {
+            fail(r, &c, "options", strtoul(c.f[i_opts], NULL, 10), eol_est_options(k.flags));
+        }
         if (eol_est_init(&e, &k, 0, 0, 0) != 0) {
             fail(r, &c, "eol_est_init", 0, 1);
             continue;

@@ -58,6 +58,7 @@ class MotorInput:
     frame_offset_rad: float = 0.0
     mechanics: BenchMechanics | None = None
     hall: HallAngles | None = None
+    frame_options: int = 0
 
     @property
     def sources(self) -> list[str]:
@@ -131,6 +132,7 @@ def motor_inputs(
     frame: str = "firmware",
     mechanics: BenchMechanics | None = None,
     hall_angle: str = "measured",
+    estimator_options: int = 0,
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
@@ -159,6 +161,9 @@ def motor_inputs(
         The hall table the block will carry (:mod:`eol_cal.analysis.halls`): ``measured`` from
         the motor's own transitions (nominal, with the reason, when they do not suffice). The
         firmware frame is measured with that table, so the phases match the block.
+    estimator_options : int
+        The estimator options (contract flags bits 2-5) the ECU ran during the captures: the
+        firmware frame is measured with that estimator (0: the paper's).
 
     Returns
     -------
@@ -225,7 +230,7 @@ def motor_inputs(
         fw_sum, fw_n = 0j, 0
         for c, ang, ranges in zip(caps, angles, cap_ranges):
             if use_fw and ranges:
-                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle)
+                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle, estimator_options)
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
         response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
@@ -233,6 +238,7 @@ def motor_inputs(
         mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics, hall=hall)
         if use_fw and fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
+            mi.frame_options = estimator_options
         elif frame == "firmware":
             mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
         out.append(mi)

@@ -16,6 +16,7 @@ from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit.capture import MotorInput
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
+from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
 from eol_cal.jsonsafe import json_safe
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams
@@ -58,6 +59,10 @@ class FitOptions:
     cache_dir : Path or None
         Directory of the fit's serialized solvers (:mod:`eol_cal.analysis.fit.cache`); ``None``:
         the solver is traced in every process.
+    estimator_options : int
+        The estimator options (contract flags bits 2-5) the ECU ran during the captures, for the
+        firmware frame (default the ``best`` choice of :mod:`eol_cal.firmware.options`, what the
+        station measures under).
     """
 
     spec: FitSpec = field(default_factory=FitSpec)
@@ -71,6 +76,7 @@ class FitOptions:
     hall_angle: str = "measured"
     motor: MotorParams | None = None
     cache_dir: Path | None = None
+    estimator_options: int = field(default_factory=lambda: PRESETS[DEFAULT_PRESET])
 
 
 @dataclass
@@ -156,7 +162,8 @@ def fit_motors(
     if tool_version is None:
         from eol_cal import __version__ as tool_version
     inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
-                          frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle)
+                          frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle,
+                          estimator_options=options.estimator_options)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],

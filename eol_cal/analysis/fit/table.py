@@ -3,7 +3,9 @@
 The tables come from :func:`eol_cal.firmware.compensator.make_tables`, the bytes from
 :func:`eol_cal.firmware.block.pack`; this module only decides the block's other fields:
 
-- ``flags`` = COMP_ENABLE | INTERP_ENABLE; ``sequence`` = 1 (the flasher writes the real one);
+- ``flags`` = COMP_ENABLE | INTERP_ENABLE and the estimator options chosen (contract bits 2-5,
+  :mod:`eol_cal.firmware.options`; default ``best``, all four); ``sequence`` = 1 (the flasher
+  writes the real one);
 - ``hall_angle`` the record's (measured per motor, or nominal): the table the fit measured the
   firmware frame of its phases with, so phases and anchoring agree;
 - ``lead_s`` from :mod:`eol_cal.analysis.lead` at the fit's operating speed, or given;
@@ -59,6 +61,7 @@ def block_from_result(
     iqc_limit: float | None = None,
     calibrated_at: int | None = None,
     source: str = "<result>",
+    options: int | None = None,
 ) -> ParamBlock:
     """A :class:`~eol_cal.firmware.block.ParamBlock` for one usable motor result.
 
@@ -78,6 +81,9 @@ def block_from_result(
         Unix time (s); default now.
     source : str
         Result file, for errors.
+    options : int, optional
+        Estimator option bits (contract ``flags`` bits 2-5) the block carries; default the
+        ``best`` choice (:data:`eol_cal.firmware.options.DEFAULT_PRESET`).
 
     Raises
     ------
@@ -115,7 +121,7 @@ def block_from_result(
         raise InputError(source, "serial", f"{serial!r}: the block holds at most 16 ASCII characters")
     return ParamBlock(
         sequence=1,
-        flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE,
+        flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | _options(options),
         serial=str(serial),
         calibrated_at=int(calibrated_at),
         poles=int(res.poles),
@@ -134,10 +140,25 @@ def block_from_result(
     )
 
 
-def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | None = None) -> ParamBlock:
+def _options(options: int | None) -> int:
+    """The option bits to write: ``options``, or the default choice's; bits outside 2-5 refused."""
+    from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS, options_label
+
+    if options is None:
+        return PRESETS[DEFAULT_PRESET]
+    if options & ~PRESETS["best"]:
+        raise InputError(None, "estimator", f"0x{options:x} has bits outside the estimator options "
+                                            f"({options_label(PRESETS['best'])} = 0x{PRESETS['best']:02x})")
+    return options
+
+
+def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | None = None,
+                        options: int | None = None) -> ParamBlock:
     """The block a motor is measured under: the field's estimator, no compensation.
 
-    ``flags`` = INTERP_ENABLE only, zero tables (N = 16), nominal ``hall_angle``, no lead, and
+    ``flags`` = INTERP_ENABLE and the estimator options the calibrated block will carry
+    (``options``, default the ``best`` choice), so the motor is measured under the estimator it
+    will run; zero tables (N = 16), nominal ``hall_angle``, no lead, and
     ``iqc_limit`` 0: whatever the ECU ran before (no valid bank: the raw encoder angle; a motor
     being re-tested: its old compensation) the calibration capture then sees the motor's own
     ripple under the angle estimate the ECU will use in the field.
@@ -150,6 +171,8 @@ def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | No
         Motor type: poles, encoder PPR, tick rate (Hz) and kt (N*m/A) of the block.
     calibrated_at : int, optional
         Unix time (s, UTC); default now.
+    options : int, optional
+        Estimator option bits (contract ``flags`` bits 2-5); default the ``best`` choice.
     """
     import numpy as np
 
@@ -160,7 +183,7 @@ def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | No
         calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
     zeros = np.zeros(16, np.float32)
     return ParamBlock(
-        sequence=1, flags=FLAG_INTERP_ENABLE, serial=str(serial), calibrated_at=int(calibrated_at),
+        sequence=1, flags=FLAG_INTERP_ENABLE | _options(options), serial=str(serial), calibrated_at=int(calibrated_at),
         poles=motor.poles, encoder_ppr=motor.N_enc, tick_hz=motor.f_pwm, kt=motor.kt,
         hall_angle=tuple(NOMINAL_HALL_ANGLES), c6=0.0, phase_c6=0.0, k6=0.0, phase_k6=0.0,
         lead_s=0.0, iqc_limit=0.0, table_const=zeros, table_per_amp=zeros.copy(),
