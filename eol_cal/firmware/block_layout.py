@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from eol_cal.firmware.contract import FLAGS, FLAGS_KNOWN, MAGIC
+from eol_cal.firmware.contract import FLAGS, MAGIC
 
 
 def _load_layout() -> dict[str, Any]:
@@ -47,8 +47,9 @@ def flag_names(flags: int) -> str:
     """The block's flags by name, ``COMP_ENABLE|INTERP_ENABLE|EST_...`` (``none`` when no bit is
     set); bits the contract does not define follow as one hex number."""
     names = [name for name, f in FLAGS.items() if flags & (1 << f.bit)]
-    if flags & ~FLAGS_KNOWN:
-        names.append(f"0x{flags & ~FLAGS_KNOWN:x}")
+    unknown = flags & ~sum(1 << f.bit for f in FLAGS.values())  # FLAGS itself, so a bit added to it is named
+    if unknown:
+        names.append(f"0x{unknown:x}")
     return "|".join(names) or "none"
 
 
