@@ -9,6 +9,7 @@ a2ltool (the a2lfile crate's command line) checks the same files in strict mode.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import shutil
@@ -30,6 +31,30 @@ from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 import pya2l  # pya2ldb, in the test extra
 from pya2l import model
 from pya2l.api import inspect as a2l_inspect
+from sqlalchemy import event
+from sqlalchemy.engine import Engine
+
+# pya2l registers a "connect" listener on EVERY SQLAlchemy engine of the process (its SQLite
+# pragmas and REGEXP function; on a psycopg connection it raises): the records tests in the same
+# pytest process would open their databases through it. It is kept only while pya2l opens its own.
+event.remove(Engine, "connect", model.set_sqlite3_pragmas)
+
+
+@contextlib.contextmanager
+def _pya2l_connects():
+    event.listen(Engine, "connect", model.set_sqlite3_pragmas)
+    try:
+        yield
+    finally:
+        event.remove(Engine, "connect", model.set_sqlite3_pragmas)
+
+
+def _import_a2l(path: Path):
+    """pya2l's session of an A2L file, its inspected characteristics by name."""
+    with _pya2l_connects():
+        session = pya2l.import_a2l(str(path), in_memory=True, progress_bar=False, loglevel="ERROR")
+        names = [c.name for c in session.query(model.Characteristic).all()]
+        return session, {name: a2l_inspect.Characteristic(session, name) for name in names}
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,9 +83,7 @@ def _write_a2l(tmp_path: Path, bank: int, table_len: int) -> Path:
 def parsed(request, tmp_path_factory):
     bank, n = request.param
     path = _write_a2l(tmp_path_factory.mktemp("a2l"), bank, n)
-    session = pya2l.import_a2l(str(path), in_memory=True, progress_bar=False, loglevel="ERROR")
-    names = [c.name for c in session.query(model.Characteristic).all()]
-    chars = {name: a2l_inspect.Characteristic(session, name) for name in names}
+    session, chars = _import_a2l(path)
     yield bank, n, path, session, chars
 
 
@@ -208,11 +231,16 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
     and a new name in the flags word's verbal table, and the file still reads back."""
     monkeypatch.setitem(C.FLAGS, "TEST_BIT_31", C.Flag(31, "a bit this test adds"))
     path = _write_a2l(tmp_path, 1, 16)
-    session = pya2l.import_a2l(str(path), in_memory=True, progress_bar=False, loglevel="ERROR")
-    bit = a2l_inspect.Characteristic(session, "flags.TEST_BIT_31")
+    session, chars = _import_a2l(path)
+    bit = chars["flags.TEST_BIT_31"]
     assert bit.bitMask == 1 << 31 and bit.address == 2 * pb.BANK_WORD_ADDR[1] + pb.field_offset("flags")
-    verb = a2l_inspect.Characteristic(session, "flags").compuMethod.tab_verb
+    verb = chars["flags"].compuMethod.tab_verb
     assert len(verb.in_values) == 2 ** len(C.FLAGS)
     assert dict(zip(verb.in_values, verb.text_values))[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
     res = subprocess.run([_a2ltool(), str(path), "--strict", "--check"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_pya2l_leaves_no_listener_on_other_engines(parsed):
+    """Our own engines (the records' SQLite and PostgreSQL) never run pya2l's connect hook."""
+    assert not event.contains(Engine, "connect", model.set_sqlite3_pragmas)
