@@ -40,7 +40,7 @@ from eol_cal.errors import EolCalError, InputError
 RECORD_SCHEMA = "eol-cal/run-record/1"
 SPOOL_SCHEMA = "eol-cal/spooled-record/1"
 #: the database layout this code writes (1: the SQLite table of eol-cal before schema_version)
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: seconds a write waits for another connection's lock (or for the server) before spooling
 DEFAULT_LOCK_TIMEOUT_S = 5.0
 
@@ -74,14 +74,20 @@ runs = sa.Table(
     # version 2
     sa.Column("station", sa.Text),
     sa.Column("operator", sa.Text),
+    # version 3: what lot statistics need besides the values above, so they never parse record_json
+    sa.Column("limits_json", sa.Text),
+    sa.Column("error_step", sa.Text),
+    sa.Column("phase_c6", sa.Float),
+    sa.Column("fit_r2", sa.Float),
+    sa.Column("fit_rms_nm", sa.Float),
     sa.Index("runs_serial", "serial"),
     sa.Index("runs_started", "started_at"),
     sa.Index("runs_variant_station", "variant", "station"),
 )
 schema_version = sa.Table("schema_version", _metadata, sa.Column("version", sa.Integer, nullable=False))
 COLUMN_NAMES = tuple(c.name for c in runs.columns)
-#: columns added by each migration (version: [(name, type)])
-_ADDED = {2: [("station", "TEXT"), ("operator", "TEXT")]}
+#: columns added by each migration (version: names; their types are the table's)
+_ADDED = {2: ("station", "operator"), 3: ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm")}
 
 
 class RecordError(EolCalError):
@@ -203,6 +209,19 @@ def _ensure_schema(con: Connection) -> None:
 
 
 def _row(record: dict[str, Any]) -> dict[str, Any]:
+    """The ``runs`` row of a record: :func:`row_values` plus the record (and its fit) as JSON."""
+    fit = record.get("fit")
+    return {**row_values(record),
+            "fit_json": json.dumps(fit, allow_nan=False) if fit is not None else None,
+            "record_json": json.dumps(record, allow_nan=False)}
+
+
+def row_values(record: dict[str, Any]) -> dict[str, Any]:
+    """The columns of a record's row, except the JSON documents ``fit_json`` and ``record_json``.
+
+    The one mapping from a record to its columns: the insert, the migrations and the lot
+    statistics of parsed records (:mod:`eol_cal.lot.columns`) all use it.
+    """
     def get(*keys: str) -> Any:
         x: Any = record
         for k in keys:
@@ -211,8 +230,8 @@ def _row(record: dict[str, Any]) -> dict[str, Any]:
             x = x[k]
         return x
 
-    fit = record.get("fit")
-    values = {
+    limits = record.get("limits")
+    return {
         "run_id": record["run_id"],
         "serial": record["serial"],
         "variant": get("limits", "variant"),
@@ -230,17 +249,19 @@ def _row(record: dict[str, Any]) -> dict[str, Any]:
         "sha256_before": get("captures", "before", "sha256"),
         "capture_after": get("captures", "after", "path"),
         "sha256_after": get("captures", "after", "sha256"),
-        "fit_json": json.dumps(fit, allow_nan=False) if fit is not None else None,
         "block_crc32": get("block", "crc32"),
         "block_sequence": get("block", "sequence"),
         "tool_version": record.get("tool_version"),
         "layout_version": record.get("layout_version"),
         "report_dir": record.get("report_dir"),
-        "record_json": json.dumps(record, allow_nan=False),
         "station": _station_of(record),
         "operator": record.get("operator") or get("station", "operator"),
+        "limits_json": json.dumps(limits, sort_keys=True, allow_nan=False) if isinstance(limits, dict) else None,
+        "error_step": get("error", "step"),
+        "phase_c6": get("fit", "phase_c6", "value"),
+        "fit_r2": get("fit", "fit", "r2"),
+        "fit_rms_nm": get("fit", "fit", "rms"),
     }
-    return values
 
 
 def _station_of(record: dict[str, Any]) -> str | None:
@@ -277,7 +298,9 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
     """Bring a records database to :data:`SCHEMA_VERSION` (creating it when empty).
 
     Version 1 (the SQLite table before ``schema_version``) gains the columns ``station`` and
-    ``operator``, filled from each row's record JSON. Returns ``(version before, version now)``;
+    ``operator``; version 2 gains ``limits_json``, ``error_step``, ``phase_c6``, ``fit_r2`` and
+    ``fit_rms_nm``. The new columns are filled from each row's record JSON (a corrupt one
+    refuses the migration, naming the run). Returns ``(version before, version now)``;
     ``before`` is None for a new database.
     """
     eng = engine(db, timeout_s)
@@ -293,20 +316,34 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
             if v > SCHEMA_VERSION:
                 raise SchemaError(f"records database at schema version {v} is newer than this tool "
                                   f"({SCHEMA_VERSION})")
-            for step in range(v + 1, SCHEMA_VERSION + 1):
-                for name, typ in _ADDED.get(step, []):
-                    con.exec_driver_sql(f"ALTER TABLE runs ADD COLUMN {name} {typ}")
-            if v < 2:
-                for run_id, doc in con.execute(sa.select(runs.c.run_id, runs.c.record_json)).all():
-                    row = _row(_record(db, {"run_id": run_id, "record_json": doc}, None))
-                    con.execute(runs.update().where(runs.c.run_id == run_id)
-                                .values(station=row["station"], operator=row["operator"]))
+            added = [name for step in range(v + 1, SCHEMA_VERSION + 1) for name in _ADDED.get(step, ())]
+            for name in added:
+                typ = runs.c[name].type.compile(dialect=con.dialect)
+                con.exec_driver_sql(f"ALTER TABLE runs ADD COLUMN {name} {typ}")
+            if added:
+                _fill(con, db, added)
             _metadata.create_all(con)  # the new table and indexes; existing ones are kept
             con.execute(schema_version.delete())
             con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
             return v, SCHEMA_VERSION
     finally:
         _dispose(eng, db)
+
+
+def _fill(con: Connection, db: str | Path, names: list[str], batch: int = 2000) -> None:
+    """Fill the columns ``names`` of every row from its record JSON, ``batch`` rows at a time
+    (a plant's table of record documents does not fit in memory at once)."""
+    stmt = runs.update().where(runs.c.run_id == sa.bindparam("_run_id")).values(
+        {name: sa.bindparam(name) for name in names})
+    ids = list(con.execute(sa.select(runs.c.run_id)).scalars())
+    for k in range(0, len(ids), batch):
+        q = sa.select(runs.c.run_id, runs.c.record_json).where(runs.c.run_id.in_(ids[k:k + batch]))
+        updates = []
+        for run_id, doc in con.execute(q).all():
+            record = _record(db, {"run_id": run_id, "record_json": doc}, None)  # raises on a corrupt one
+            values = row_values(record)  # type: ignore[arg-type]
+            updates.append({"_run_id": run_id, **{name: values[name] for name in names}})
+        con.execute(stmt, updates)
 
 
 def select_runs(variant: str | None = None, station: str | None = None, since: str | None = None,
@@ -337,6 +374,33 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
             _dispose(eng, db)
     except DB_ERRORS as exc:
         raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
+
+
+def read_columns(db: str | Path, query: sa.Select, min_version: int = SCHEMA_VERSION,
+                 timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> dict[str, list[Any]]:
+    """The result of ``query`` column-wise: ``{column name: values in row order}``.
+
+    :class:`InputError` when the database is missing or unreadable, or older than
+    ``min_version`` (the columns the query reads came with that version).
+    """
+    if not is_url(db) and not Path(db).exists():
+        raise InputError(str(db), None, "database not found")
+    try:
+        eng = engine(db, timeout_s, readonly=True)
+        try:
+            with eng.connect() as con:
+                v = _version(con)
+                if v is not None and v < min_version:
+                    raise SchemaError(f"records database at schema version {v}, this needs version "
+                                      f"{min_version}: migrate it first")
+                res = con.execute(query)
+                names, rows = list(res.keys()), res.all()
+        finally:
+            _dispose(eng, db)
+    except DB_ERRORS as exc:
+        raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
+    cols = list(zip(*rows)) if rows else [()] * len(names)
+    return {name: list(col) for name, col in zip(names, cols)}
 
 
 def _record(db: str | Path, row: dict[str, Any], skipped: list[InputError] | None) -> dict[str, Any] | None:

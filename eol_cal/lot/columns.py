@@ -1,0 +1,205 @@
+"""A lot's runs column-wise: what lot statistics read, as numpy arrays in time order.
+
+:class:`Lot` is built either from the records database's columns (:func:`read_lot`: no record
+JSON is parsed, only the few distinct ``limits_json`` texts) or from parsed run records
+(:func:`from_records`: the lot page, tests). Both go through
+:func:`eol_cal.station.records.row_values`, the one mapping from a record to its columns (the
+insert and the migrations use it too), so both give the same lot and the same statistics.
+
+Time order is the order of the ``started_at`` strings (ties by ``run_id``): the station writes
+UTC ISO 8601 with milliseconds (``2026-11-22T08:00:00.000+00:00``), all of one length, whose
+text order is their time order. A lot holding other forms (another offset, no milliseconds,
+``Z``) is ordered by the parsed times instead.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple, Sequence
+
+import numpy as np
+
+from eol_cal.errors import InputError
+
+
+class Quantity(NamedTuple):
+    """A measured quantity of the lot: its column (``key``), where the record has it, its display
+    scale and unit (display value = scale x stored value), its limit key and the limit's sense."""
+
+    key: str
+    title: str
+    path: tuple[str, ...]
+    scale: float
+    unit: str
+    limit_key: str | None
+    sense: str
+
+
+#: the quantities of the lot page and ``lot stats``; each key is a column of ``runs``
+QUANTITIES: tuple[Quantity, ...] = (
+    Quantity("k6", "k6", ("fit", "k6", "value"), 1e3, "mN*m/A", "max_k6", "max"),
+    Quantity("phase_k6", "phase_k6", ("fit", "phase_k6", "value"), 180.0 / math.pi, "deg", None, "max"),
+    Quantity("c6", "c6", ("fit", "c6", "value"), 1e3, "mN*m", None, "max"),
+    Quantity("phase_c6", "phase_c6", ("fit", "phase_c6", "value"), 180.0 / math.pi, "deg", None, "max"),
+    Quantity("pp_before_pct", "p-p before", ("metrics", "pp_before_pct"), 1.0, "%", "max_pp_before_pct", "max"),
+    Quantity("pp_after_pct", "p-p compensated", ("metrics", "pp_after_pct"), 1.0, "%", "max_pp_after_pct", "max"),
+    Quantity("improvement_pct", "improvement", ("metrics", "improvement_pct"), 1.0, "%", "min_improvement_pct", "min"),
+    Quantity("fit_r2", "fit R^2", ("fit", "fit", "r2"), 1.0, "1", "min_r2", "min"),
+    Quantity("fit_rms_nm", "fit residual rms", ("fit", "fit", "rms"), 1e3, "mN*m", "max_rms_nm", "max"),
+)
+#: what the control charts follow per station
+CHARTED = ("k6", "pp_after_pct")
+#: the ``runs`` columns a lot reads
+LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "reasons", "error_step", "limits_json",
+               *(q.key for q in QUANTITIES))
+
+
+@dataclass(frozen=True)
+class Lot:
+    """Runs column-wise in time order (object arrays of str, float arrays in stored units).
+
+    Attributes
+    ----------
+    run_id, serial, started_at, verdict, station : numpy.ndarray
+        Per run; ``station`` as the reports name it (``(no station id)`` without one).
+    reasons : numpy.ndarray
+        Per run, the JSON list of reasons (the ``reasons`` column's text).
+    error_step : numpy.ndarray
+        The step an error run ended in (None otherwise).
+    values : dict of str -> numpy.ndarray
+        Per :data:`QUANTITIES` key, stored units (NaN where the run has none).
+    limits : dict of str -> numpy.ndarray
+        Per limit key of :data:`QUANTITIES`, the limit in force for the run (NaN: none).
+    """
+
+    run_id: np.ndarray
+    serial: np.ndarray
+    started_at: np.ndarray
+    verdict: np.ndarray
+    station: np.ndarray
+    reasons: np.ndarray
+    error_step: np.ndarray
+    values: dict[str, np.ndarray]
+    limits: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.run_id)
+
+    def display(self, q: Quantity) -> np.ndarray:
+        """The quantity's values in display units, time order."""
+        return self.values[q.key] * q.scale
+
+    def limit_values(self, q: Quantity) -> list[float]:
+        """The distinct values of the quantity's limit over the lot, display units (several: the
+        lot mixes variants; none: no limit)."""
+        if q.limit_key is None:
+            return []
+        lim = self.limits[q.limit_key]
+        return [float(v) * q.scale for v in np.unique(lim[np.isfinite(lim)])]
+
+    def causes(self) -> list[list[str]]:
+        """Each run's failure causes (:func:`eol_cal.lot.stats.causes_of`; a pass has none)."""
+        from eol_cal.lot.stats import causes_of
+
+        out: list[list[str]] = []
+        for i in np.flatnonzero(self.verdict != "pass"):
+            reasons = json.loads(self.reasons[i]) if self.reasons[i] else []
+            out.append(causes_of(self.verdict[i], reasons if isinstance(reasons, list) else [], self.error_step[i]))
+        return out
+
+    def stations(self) -> list[tuple[str, np.ndarray]]:
+        """``(station, indices of its runs in time order)``, by station name."""
+        names, codes = np.unique(self.station, return_inverse=True)
+        return [(str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names)]
+
+
+def _number(x: Any) -> float:
+    # as the record-wise reading did: a number, else NaN
+    if x is None:
+        return math.nan
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _floats(col: Sequence[Any]) -> np.ndarray:
+    try:
+        return np.asarray(col, dtype=float)  # None is NaN
+    except (TypeError, ValueError):
+        return np.array([_number(x) for x in col], dtype=float)
+
+
+def _limits(texts: Sequence[str | None]) -> dict[str, np.ndarray]:
+    """Per limit key, its value for each run, parsing each distinct ``limits_json`` text once."""
+    keys = [q.limit_key for q in QUANTITIES if q.limit_key]
+    index: dict[str | None, int] = {}
+    codes = np.fromiter((index.setdefault(t, len(index)) for t in texts), dtype=np.intp, count=len(texts))
+    table = np.full((max(1, len(index)), len(keys)), math.nan)
+    for text, k in index.items():
+        doc = json.loads(text) if text else None
+        if isinstance(doc, dict):
+            table[k] = [_number(doc.get(key)) for key in keys]
+    return {key: table[codes, j] for j, key in enumerate(keys)}
+
+
+def _utc_key(text: str) -> str:
+    try:
+        t = dt.datetime.fromisoformat(text)
+    except ValueError:
+        raise InputError(None, "started_at", f"{text!r}: not an ISO 8601 time") from None
+    if t.tzinfo is not None:
+        t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
+    return t.isoformat(timespec="microseconds")
+
+
+def time_order(started_at: Sequence[str], run_id: Sequence[str]) -> np.ndarray:
+    """Indices that put runs in time order, ties by run id (see the module doc)."""
+    if not len(started_at):
+        return np.zeros(0, dtype=np.intp)
+    n = len(started_at[0])
+    same_form = all(len(s) == n and s.endswith("+00:00") for s in started_at)
+    keys = started_at if same_form else [_utc_key(s) for s in started_at]
+    return np.lexsort((np.asarray(run_id, dtype=str), np.asarray(keys, dtype=str)))
+
+
+def from_columns(cols: dict[str, Sequence[Any]]) -> Lot:
+    """A :class:`Lot` of the ``runs`` columns :data:`LOT_COLUMNS` (any row order)."""
+    from eol_cal.report.motor import NO_STATION
+
+    order = time_order(cols["started_at"], cols["run_id"])
+
+    def text(name: str) -> np.ndarray:
+        return np.asarray(cols[name], dtype=object)[order] if len(order) else np.zeros(0, dtype=object)
+
+    station = text("station")
+    station[station == None] = NO_STATION  # noqa: E711 - elementwise: the runs without a station id
+    limits = _limits(cols["limits_json"])
+    return Lot(run_id=text("run_id"), serial=text("serial"), started_at=text("started_at"), verdict=text("verdict"),
+               station=station, reasons=text("reasons"), error_step=text("error_step"),
+               values={q.key: _floats(cols[q.key])[order] for q in QUANTITIES},
+               limits={k: v[order] for k, v in limits.items()})
+
+
+def from_records(records: Sequence[dict[str, Any]]) -> Lot:
+    """A :class:`Lot` of parsed run records (their columns as the database would hold them)."""
+    from eol_cal.station.records import row_values
+
+    rows = [row_values(r) for r in records]
+    return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS})
+
+
+def read_lot(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
+             until: str | None = None) -> Lot:
+    """The selected runs of a records database as a :class:`Lot`, from its columns alone (schema
+    version 3). Filters as :func:`eol_cal.station.records.select_runs`."""
+    from eol_cal.station.records import read_columns, runs, select_runs
+
+    q = select_runs(variant=variant, station=station, since=since, until=until)
+    # the order is made here (the server's text collation need not be code-point order)
+    q = q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)).order_by(None)
+    return from_columns(read_columns(db, q, min_version=3))
