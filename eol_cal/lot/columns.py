@@ -6,10 +6,10 @@ JSON is parsed, only the few distinct ``limits_json`` texts) or from parsed run 
 :func:`eol_cal.station.records.row_values`, the one mapping from a record to its columns (the
 insert and the migrations use it too), so both give the same lot and the same statistics.
 
-Time order is the order of the ``started_at`` strings (ties by ``run_id``): the station writes
+Time order is the order of the ``started_at`` times (ties by ``run_id``). The station writes
 UTC ISO 8601 with milliseconds (``2026-11-22T08:00:00.000+00:00``), all of one length, whose
-text order is their time order. A lot holding other forms (another offset, no milliseconds,
-``Z``) is ordered by the parsed times instead.
+text order is their time order; numpy parses those in one call. A lot holding other forms
+(another offset, no milliseconds, ``Z``) is parsed time by time.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import datetime as dt
 import json
 import math
 from dataclasses import dataclass
+from itertools import repeat
 from pathlib import Path
 from typing import Any, NamedTuple, Sequence
 
@@ -134,37 +135,56 @@ def _floats(col: Sequence[Any]) -> np.ndarray:
         return np.array([_number(x) for x in col], dtype=float)
 
 
+def _codes(texts: Sequence[Any]) -> tuple[list[Any], np.ndarray]:
+    """The distinct values of ``texts`` (first-seen order) and each one's index among them."""
+    distinct = list(dict.fromkeys(texts))
+    index = {t: k for k, t in enumerate(distinct)}
+    return distinct, np.fromiter(map(index.__getitem__, texts), dtype=np.intp, count=len(texts))
+
+
 def _limits(texts: Sequence[str | None]) -> dict[str, np.ndarray]:
     """Per limit key, its value for each run, parsing each distinct ``limits_json`` text once."""
     keys = [q.limit_key for q in QUANTITIES if q.limit_key]
-    index: dict[str | None, int] = {}
-    codes = np.fromiter((index.setdefault(t, len(index)) for t in texts), dtype=np.intp, count=len(texts))
-    table = np.full((max(1, len(index)), len(keys)), math.nan)
-    for text, k in index.items():
+    distinct, codes = _codes(texts)
+    table = np.full((max(1, len(distinct)), len(keys)), math.nan)
+    for k, text in enumerate(distinct):
         doc = json.loads(text) if text else None
         if isinstance(doc, dict):
             table[k] = [_number(doc.get(key)) for key in keys]
     return {key: table[codes, j] for j, key in enumerate(keys)}
 
 
-def _utc_key(text: str) -> str:
+#: the station's form of a start time: UTC, milliseconds (``2026-11-22T08:00:00.000+00:00``)
+_STATION_FORM = len("2026-11-22T08:00:00.000+00:00")
+
+
+def _utc(text: str) -> np.datetime64:
     try:
         t = dt.datetime.fromisoformat(text)
     except ValueError:
         raise InputError(None, "started_at", f"{text!r}: not an ISO 8601 time") from None
     if t.tzinfo is not None:
         t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
-    return t.isoformat(timespec="microseconds")
+    return np.datetime64(t, "us")
+
+
+def _times(started_at: Sequence[str]) -> np.ndarray:
+    """The start times as datetime64 (UTC), parsed by numpy when all are in the station's form."""
+    if set(map(len, started_at)) == {_STATION_FORM} and all(map(str.endswith, started_at, repeat("+00:00"))):
+        return np.array([s[:-6] for s in started_at], dtype="datetime64[us]")
+    return np.array([_utc(s) for s in started_at], dtype="datetime64[us]")
 
 
 def time_order(started_at: Sequence[str], run_id: Sequence[str]) -> np.ndarray:
     """Indices that put runs in time order, ties by run id (see the module doc)."""
-    if not len(started_at):
-        return np.zeros(0, dtype=np.intp)
-    n = len(started_at[0])
-    same_form = all(len(s) == n and s.endswith("+00:00") for s in started_at)
-    keys = started_at if same_form else [_utc_key(s) for s in started_at]
-    return np.lexsort((np.asarray(run_id, dtype=str), np.asarray(keys, dtype=str)))
+    t = _times(started_at)
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    bounds = np.concatenate(([0], np.flatnonzero(ts[1:] != ts[:-1]) + 1, [len(ts)]))
+    for g in np.flatnonzero(np.diff(bounds) > 1):  # runs that started at the same time: by run id
+        b, e = bounds[g], bounds[g + 1]
+        order[b:e] = sorted(order[b:e], key=lambda i: run_id[i])
+    return order
 
 
 def from_columns(cols: dict[str, Sequence[Any]]) -> Lot:
