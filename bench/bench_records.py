@@ -2,7 +2,7 @@
 large lot in PostgreSQL, two ways.
 
     python bench/bench_records.py [--pg-url postgresql://USER@127.0.0.1:PORT/DB] [--writers 4 --per-writer 500]
-        [--stats-records 100000] [--repeat 3]
+        [--stats-records 100000] [--repeat 3] [--repeat-records 1]
 
 Without --pg-url the bench starts its own PostgreSQL server with tests/_postgres.py (the
 machine's server binaries, a temporary directory, 127.0.0.1 on a free port, fsync off) and stops
@@ -129,7 +129,8 @@ def main() -> None:
     ap.add_argument("--writers", type=int, default=4, help="writer processes (0: no writers section)")
     ap.add_argument("--per-writer", type=int, default=500)
     ap.add_argument("--stats-records", type=int, default=100_000)
-    ap.add_argument("--repeat", type=int, default=3, help="timings of each `lot stats` path")
+    ap.add_argument("--repeat", type=int, default=3, help="timings of `lot stats` by columns")
+    ap.add_argument("--repeat-records", type=int, default=1, help="timings of the path that parses every record")
     a = ap.parse_args()
     server = None
     if a.pg_url is None:
@@ -167,8 +168,8 @@ def run(a: argparse.Namespace) -> None:
     print(f"{n} runs inserted in {seconds:.1f} s, {size / 1e3:.1f} kB of record + fit JSON per run")
     print(f"lot stats over {n} records in PostgreSQL (query + statistics; load average {_load()}):")
     docs = {}
-    for name, fn in (("columns", by_columns), ("records", by_records)):
-        times, docs[name] = timed(lambda: fn(db, "EPS-STD"), a.repeat)
+    for name, fn, repeat in (("columns", by_columns, a.repeat), ("records", by_records, a.repeat_records)):
+        times, docs[name] = timed(lambda: fn(db, "EPS-STD"), repeat)
         if docs[name]["runs"] != n:
             raise SystemExit(f"{name}: {docs[name]['runs']} runs, expected {n}")
         print(f"  {name:<8} median {statistics.median(times):6.2f} s, best {min(times):6.2f} s  "

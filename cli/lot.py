@@ -77,7 +77,7 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
     limits per station."""
     from cli.common import print_json
     from eol_cal.lot.columns import read_lot
-    from eol_cal.lot.summary import lot_summary, write_runs_csv
+    from eol_cal.lot.summary import LOT_STATS_SCHEMA, lot_summary, write_runs_csv
     from eol_cal.station.records import db_label
 
     first, last = _date(since, "since"), _date(until, "until")
@@ -91,7 +91,7 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
         except OSError as exc:
             raise InputError(str(csv_file), None, f"cannot write: {exc.strerror or exc}") from None
     if as_json:
-        print_json({"db": db_label(db), "filters": {"variant": variant, "since": since, "until": until,
+        print_json({"schema": LOT_STATS_SCHEMA, "db": db_label(db), "filters": {"variant": variant, "since": since, "until": until,
                                                      "station": station}, **doc})
         return
     from rich.table import Table

@@ -21,6 +21,7 @@ from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, 
 from eol_cal.lot.summary import lot_summary
 from eol_cal.report.lot import run_time, value_of
 from eol_cal.report.motor import station_of
+from eol_cal.schemas import validator
 from eol_cal.station.records import (SCHEMA_VERSION, engine, insert_records, migrate, query_records, read_rows,
                                      row_values, runs, select_runs)
 from test_records_backends import _V1
@@ -103,7 +104,9 @@ def test_lot_stats_from_the_columns_equal_the_statistics_of_the_records(records_
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--json"]
                              + (["--variant", variant] if variant else []))
     assert res.exit_code == 0, res.output
-    assert {k: v for k, v in json.loads(res.stdout).items() if k not in ("db", "filters")} == fast
+    printed = json.loads(res.stdout)
+    validator("lot-stats").validate(printed)
+    assert {k: v for k, v in printed.items() if k not in ("schema", "db", "filters")} == fast
 
 
 def _v2_database(db, records: list[dict]) -> None:

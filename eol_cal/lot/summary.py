@@ -19,6 +19,9 @@ import numpy as np
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot
 from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, imr_limits, pareto_of, summary
 
+#: the ``schema`` of the document ``eol-cal lot stats --json`` prints
+LOT_STATS_SCHEMA = "eol-cal/lot-stats/1"
+
 
 @dataclass(frozen=True)
 class QuantityStats:
