@@ -8,10 +8,11 @@ the same idempotent insert (``ON CONFLICT (run_id) DO NOTHING``) and the same qu
 
 One row per motor run in table ``runs`` (columns in ``docs/records.md``): serial, variant,
 station, operator, start/end times (UTC ISO 8601), verdict and reasons, k6, phase_k6, c6, the
-peak-to-peak ripple before/after, capture paths and SHA-256, the fit record (JSON), the block's
-CRC and sequence, tool and layout versions, plus the whole record as JSON. Table
-``schema_version`` holds :data:`SCHEMA_VERSION`; a database written before it existed
-(version 1) is brought up by :func:`migrate`.
+peak-to-peak ripple before/after, capture paths and SHA-256, the block's CRC and sequence,
+tool and layout versions, what lot statistics read besides (the limits in force as JSON text,
+the error step, phase_c6, the fit's R^2 and RMS), and last the fit record and the whole record
+as JSON. Table ``schema_version`` holds :data:`SCHEMA_VERSION`; older databases (version 1:
+written before it existed) are brought up by :func:`migrate`.
 
 When the database cannot be written - locked beyond the timeout, its directory missing (a share
 not mounted), the server down, read-only, corrupt - the record is written as one JSON file into
