@@ -114,8 +114,8 @@ class Lot:
 
     def stations(self) -> list[tuple[str, np.ndarray]]:
         """``(station, indices of its runs in time order)``, by station name."""
-        names, codes = np.unique(self.station, return_inverse=True)
-        return [(str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names)]
+        names, codes = _codes(self.station.tolist())
+        return sorted((str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names))
 
 
 def _number(x: Any) -> float:

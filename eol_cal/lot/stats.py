@@ -154,8 +154,11 @@ def first_pass_yield_of(serial: np.ndarray, verdict: np.ndarray) -> tuple[float,
     """:func:`first_pass_yield` of runs given as arrays of serials and verdicts in time order."""
     if not len(serial):
         return math.nan, 0
-    _motors, first = np.unique(serial, return_index=True)  # each serial's first run
-    return float(np.count_nonzero(verdict[first] == "pass") / len(first)), int(len(first))
+    n = len(serial)
+    # each serial's first run: built from the last run back, so the earliest index stays
+    first_of = dict(zip(np.asarray(serial)[::-1].tolist(), range(n - 1, -1, -1)))
+    first = np.fromiter(first_of.values(), dtype=np.intp, count=len(first_of))
+    return float(np.count_nonzero(np.asarray(verdict)[first] == "pass") / len(first)), len(first)
 
 
 _LIMIT_KEY = re.compile(r"\b((?:max|min)_[a-z0-9_]+)\b")
