@@ -67,10 +67,8 @@ class Lot:
     ----------
     run_id, serial, started_at, verdict, station : numpy.ndarray
         Per run; ``station`` as the reports name it (``(no station id)`` without one).
-    reasons : numpy.ndarray
-        Per run, the JSON list of reasons (the ``reasons`` column's text).
-    error_step : numpy.ndarray
-        The step an error run ended in (None otherwise).
+    causes : list of list of str
+        The failure causes (:func:`eol_cal.lot.stats.causes_of`) of each run that did not pass.
     values : dict of str -> numpy.ndarray
         Per :data:`QUANTITIES` key, stored units (NaN where the run has none).
     limits : dict of str -> numpy.ndarray
@@ -82,8 +80,7 @@ class Lot:
     started_at: np.ndarray
     verdict: np.ndarray
     station: np.ndarray
-    reasons: np.ndarray
-    error_step: np.ndarray
+    causes: list[list[str]]
     values: dict[str, np.ndarray]
     limits: dict[str, np.ndarray]
 
@@ -102,20 +99,26 @@ class Lot:
         lim = self.limits[q.limit_key]
         return [float(v) * q.scale for v in np.unique(lim[np.isfinite(lim)])]
 
-    def causes(self) -> list[list[str]]:
-        """Each run's failure causes (:func:`eol_cal.lot.stats.causes_of`; a pass has none)."""
-        from eol_cal.lot.stats import causes_of
-
-        out: list[list[str]] = []
-        for i in np.flatnonzero(self.verdict != "pass"):
-            reasons = json.loads(self.reasons[i]) if self.reasons[i] else []
-            out.append(causes_of(self.verdict[i], reasons if isinstance(reasons, list) else [], self.error_step[i]))
-        return out
-
     def stations(self) -> list[tuple[str, np.ndarray]]:
         """``(station, indices of its runs in time order)``, by station name."""
         names, codes = _codes(self.station.tolist())
         return sorted((str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names))
+
+
+def _causes(verdict: np.ndarray, run_id: np.ndarray, reasons: np.ndarray, error_step: np.ndarray) -> list[list[str]]:
+    """The failure causes of each run that did not pass (its reasons' JSON parsed: a few runs)."""
+    from eol_cal.lot.stats import causes_of
+
+    out: list[list[str]] = []
+    for i in np.flatnonzero(verdict != "pass"):
+        try:
+            doc = json.loads(reasons[i]) if reasons[i] else []
+        except ValueError:
+            doc = None
+        if not isinstance(doc, list):
+            raise InputError(None, f"run {run_id[i]} reasons", "not a JSON list")
+        out.append(causes_of(verdict[i], doc, error_step[i]))
+    return out
 
 
 def _number(x: Any) -> float:
@@ -198,9 +201,10 @@ def from_columns(cols: dict[str, Sequence[Any]]) -> Lot:
 
     station = text("station")
     station[station == None] = NO_STATION  # noqa: E711 - elementwise: the runs without a station id
+    run_id, verdict = text("run_id"), text("verdict")
     limits = _limits(cols["limits_json"])
-    return Lot(run_id=text("run_id"), serial=text("serial"), started_at=text("started_at"), verdict=text("verdict"),
-               station=station, reasons=text("reasons"), error_step=text("error_step"),
+    return Lot(run_id=run_id, serial=text("serial"), started_at=text("started_at"), verdict=verdict, station=station,
+               causes=_causes(verdict, run_id, text("reasons"), text("error_step")),
                values={q.key: _floats(cols[q.key])[order] for q in QUANTITIES},
                limits={k: v[order] for k, v in limits.items()})
 
@@ -217,9 +221,12 @@ def read_lot(db: str | Path, variant: str | None = None, station: str | None = N
              until: str | None = None) -> Lot:
     """The selected runs of a records database as a :class:`Lot`, from its columns alone (schema
     version 3). Filters as :func:`eol_cal.station.records.select_runs`."""
-    from eol_cal.station.records import read_columns, runs, select_runs
+    from eol_cal.errors import naming
+    from eol_cal.station.records import db_key, is_url, read_columns, runs, select_runs
 
     q = select_runs(variant=variant, station=station, since=since, until=until)
     # the order is made here (the server's text collation need not be code-point order)
     q = q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)).order_by(None)
-    return from_columns(read_columns(db, q, min_version=3))
+    cols = read_columns(db, q, min_version=3)
+    with naming(db_key(db) if is_url(db) else str(db)):
+        return from_columns(cols)

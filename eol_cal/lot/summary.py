@@ -109,7 +109,7 @@ def lot_summary(lot: Lot) -> dict[str, Any]:
         "verdicts": {v: int(np.count_nonzero(lot.verdict == v)) for v in ("pass", "fail", "error")},
         "first_pass_yield": fpy, "motors": motors,
         "quantities": quantities,
-        "pareto": [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(lot.causes())],
+        "pareto": [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(lot.causes)],
         "control": control,
     })
 

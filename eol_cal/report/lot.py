@@ -349,7 +349,7 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, 
     summary = summarise(recs)
     fpy, _motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = quantity_stats(lot)
-    causes = pareto_of(lot.causes())
+    causes = pareto_of(lot.causes)
     figures: list[Figure] = []
     if recs:
         fig, titles = timeline(recs, title)

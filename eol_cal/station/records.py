@@ -463,20 +463,6 @@ def query_records(db: str | Path, serial: str | None = None, day: str | None = N
     return [d for d in docs if d is not None]
 
 
-def query_rows(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
-               until: str | None = None, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Any]]:
-    """The selected runs' columns (no ``fit_json``/``record_json`` text) plus ``record``, the
-    parsed record, oldest first. Needs schema version 2 (the ``station`` column)."""
-    cols = [c for c in runs.columns if c.name not in ("fit_json",)]
-    q = select_runs(variant=variant, station=station, since=since, until=until).with_only_columns(*cols)
-    out = []
-    for row in read_rows(db, q, timeout_s):
-        row["record"] = _record(db, row, None)
-        del row["record_json"]
-        out.append(row)
-    return out
-
-
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
     """Counts and pass rate of a set of records.
 
