@@ -106,7 +106,8 @@ def by_records(db, variant: str | None) -> dict[str, Any]:
     with engine(db, readonly=True).connect() as con:
         for run_id, text in con.execution_options(yield_per=2000).execute(q):
             rows.append(row_values(_record(db, {"run_id": run_id, "record_json": text}, None)))
-    return lot_summary(from_columns({name: [r[name] for r in rows] for name in LOT_COLUMNS}))
+    return lot_summary(from_columns({name: [r[name] for r in rows] for name in LOT_COLUMNS},
+                                    (r["limits_json"] for r in rows)))
 
 
 def timed(fn: Callable[[], dict[str, Any]], repeat: int) -> tuple[list[float], dict[str, Any]]:

@@ -20,7 +20,7 @@ import math
 from dataclasses import dataclass
 from itertools import repeat
 from pathlib import Path
-from typing import Any, NamedTuple, Sequence
+from typing import Any, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -54,8 +54,8 @@ QUANTITIES: tuple[Quantity, ...] = (
 )
 #: what the control charts follow per station
 CHARTED = ("k6", "pp_after_pct")
-#: the ``runs`` columns a lot reads
-LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "reasons", "error_step", "limits_json",
+#: the ``runs`` columns a lot reads per run (and the distinct ``limits_json`` texts)
+LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "reasons", "error_step",
                *(q.key for q in QUANTITIES))
 
 
@@ -72,7 +72,8 @@ class Lot:
     values : dict of str -> numpy.ndarray
         Per :data:`QUANTITIES` key, stored units (NaN where the run has none).
     limits : dict of str -> numpy.ndarray
-        Per limit key of :data:`QUANTITIES`, the limit in force for the run (NaN: none).
+        Per limit key of :data:`QUANTITIES`, the distinct values it has over the lot's runs
+        (stored units, ascending; several: the lot mixes variants).
     """
 
     run_id: np.ndarray
@@ -96,8 +97,7 @@ class Lot:
         lot mixes variants; none: no limit)."""
         if q.limit_key is None:
             return []
-        lim = self.limits[q.limit_key]
-        return [float(v) * q.scale for v in np.unique(lim[np.isfinite(lim)])]
+        return [float(v) * q.scale for v in self.limits[q.limit_key]]
 
     def stations(self) -> list[tuple[str, np.ndarray]]:
         """``(station, indices of its runs in time order)``, by station name."""
@@ -145,16 +145,19 @@ def _codes(texts: Sequence[Any]) -> tuple[list[Any], np.ndarray]:
     return distinct, np.fromiter(map(index.__getitem__, texts), dtype=np.intp, count=len(texts))
 
 
-def _limits(texts: Sequence[str | None]) -> dict[str, np.ndarray]:
-    """Per limit key, its value for each run, parsing each distinct ``limits_json`` text once."""
+def _limits(texts: Iterable[str | None]) -> dict[str, np.ndarray]:
+    """Per limit key, its distinct finite values over the ``limits_json`` texts (each distinct
+    text parsed once; one that is not a JSON object sets no limit)."""
     keys = [q.limit_key for q in QUANTITIES if q.limit_key]
-    distinct, codes = _codes(texts)
-    table = np.full((max(1, len(distinct)), len(keys)), math.nan)
-    for k, text in enumerate(distinct):
-        doc = json.loads(text) if text else None
+    table = np.full((0, len(keys)), math.nan)
+    for text in dict.fromkeys(texts):
+        try:
+            doc = json.loads(text) if text else None
+        except ValueError:
+            doc = None
         if isinstance(doc, dict):
-            table[k] = [_number(doc.get(key)) for key in keys]
-    return {key: table[codes, j] for j, key in enumerate(keys)}
+            table = np.vstack([table, [_number(doc.get(key)) for key in keys]])
+    return {key: np.unique(table[np.isfinite(table[:, j]), j]) for j, key in enumerate(keys)}
 
 
 #: the station's form of a start time: UTC, milliseconds (``2026-11-22T08:00:00.000+00:00``)
@@ -190,8 +193,9 @@ def time_order(started_at: Sequence[str], run_id: Sequence[str]) -> np.ndarray:
     return order
 
 
-def from_columns(cols: dict[str, Sequence[Any]]) -> Lot:
-    """A :class:`Lot` of the ``runs`` columns :data:`LOT_COLUMNS` (any row order)."""
+def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | None]) -> Lot:
+    """A :class:`Lot` of the ``runs`` columns :data:`LOT_COLUMNS` (any row order) and the runs'
+    ``limits_json`` texts (each run's, or only the distinct ones)."""
     from eol_cal.report.motor import NO_STATION
 
     order = time_order(cols["started_at"], cols["run_id"])
@@ -202,11 +206,10 @@ def from_columns(cols: dict[str, Sequence[Any]]) -> Lot:
     station = text("station")
     station[station == None] = NO_STATION  # noqa: E711 - elementwise: the runs without a station id
     run_id, verdict = text("run_id"), text("verdict")
-    limits = _limits(cols["limits_json"])
     return Lot(run_id=run_id, serial=text("serial"), started_at=text("started_at"), verdict=verdict, station=station,
                causes=_causes(verdict, run_id, text("reasons"), text("error_step")),
                values={q.key: _floats(cols[q.key])[order] for q in QUANTITIES},
-               limits={k: v[order] for k, v in limits.items()})
+               limits=_limits(limits_json))
 
 
 def from_records(records: Sequence[dict[str, Any]]) -> Lot:
@@ -214,7 +217,7 @@ def from_records(records: Sequence[dict[str, Any]]) -> Lot:
     from eol_cal.station.records import row_values
 
     rows = [row_values(r) for r in records]
-    return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS})
+    return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS}, (row["limits_json"] for row in rows))
 
 
 def read_lot(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
@@ -224,9 +227,10 @@ def read_lot(db: str | Path, variant: str | None = None, station: str | None = N
     from eol_cal.errors import naming
     from eol_cal.station.records import db_key, is_url, read_columns, runs, select_runs
 
-    q = select_runs(variant=variant, station=station, since=since, until=until)
-    # the order is made here (the server's text collation need not be code-point order)
-    q = q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)).order_by(None)
-    cols = read_columns(db, q, min_version=3)
+    q = select_runs(variant=variant, station=station, since=since, until=until).order_by(None)
+    # the order is made here (the server's text collation need not be code-point order); the
+    # limits are few distinct texts, asked for as such (not 100 000 copies of them)
+    cols, limits = read_columns(db, q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
+                                q.with_only_columns(runs.c.limits_json).distinct(), min_version=3)
     with naming(db_key(db) if is_url(db) else str(db)):
-        return from_columns(cols)
+        return from_columns(cols, limits["limits_json"])

@@ -381,14 +381,15 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
         raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
 
 
-def read_columns(db: str | Path, query: sa.Select, min_version: int = SCHEMA_VERSION,
-                 timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> dict[str, Sequence[Any]]:
-    """The result of ``query`` column-wise: ``{column name: values in row order}``.
+def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_VERSION,
+                 timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Sequence[Any]]]:
+    """The results of ``queries`` column-wise, each ``{column name: values in row order}``, all
+    from one snapshot of the database (one read transaction, repeatable read).
 
     For many rows: SQLAlchemy writes the SQL, the driver's own cursor fetches the rows (on
     PostgreSQL in the binary protocol: numbers arrive as binary doubles), without a
     SQLAlchemy row object per row. :class:`InputError` when the database is missing or
-    unreadable, or older than ``min_version`` (the columns the query reads came with it).
+    unreadable, or older than ``min_version`` (the columns the queries read came with it).
     """
     if not is_url(db) and not Path(db).exists():
         raise InputError(str(db), None, "database not found")
@@ -398,15 +399,16 @@ def read_columns(db: str | Path, query: sa.Select, min_version: int = SCHEMA_VER
         eng = engine(db, timeout_s, readonly=True)
         try:
             with eng.connect() as con:
+                if con.dialect.name == "postgresql":
+                    con = con.execution_options(isolation_level="REPEATABLE READ")
                 v = _version(con)
                 if v is not None and v < min_version:
                     raise SchemaError(f"records database at schema version {v}, this needs version "
                                       f"{min_version}: migrate it first")
-                names, rows = _fetch(con, query)
+                results = [_fetch(con, q) for q in queries]
         finally:
             _dispose(eng, db)
-        cols = list(zip(*rows)) if rows else [()] * len(names)
-        return dict(zip(names, cols))
+        return [dict(zip(names, list(zip(*rows)) if rows else [()] * len(names))) for names, rows in results]
     except DB_ERRORS as exc:
         raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
     finally:
