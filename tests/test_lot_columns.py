@@ -164,6 +164,8 @@ def test_time_order_is_the_order_of_the_start_strings_or_of_the_parsed_times():
     assert time_order(mixed, ["a", "b", "c", "d"]).tolist() == [1, 3, 2, 0]
     with pytest.raises(InputError, match="started_at"):
         time_order(["yesterday", "2026-11-22T08:00:00+00:00"], ["a", "b"])
+    with pytest.raises(InputError, match="started_at.*2026-13"):  # the station's length, not a time
+        time_order(["2026-13-22T08:00:00.000+00:00", "2026-11-22T08:00:00.000+00:00"], ["a", "b"])
     recs = sorted(LOT, key=lambda r: (r["started_at"], r["run_id"]))
     lot = from_records(LOT[::-1])  # any input order: time order out
     assert lot.run_id.tolist() == [r["run_id"] for r in recs]

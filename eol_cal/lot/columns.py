@@ -9,7 +9,7 @@ insert and the migrations use it too), so both give the same lot and the same st
 Time order is the order of the ``started_at`` times (ties by ``run_id``). The station writes
 UTC ISO 8601 with milliseconds (``2026-11-22T08:00:00.000+00:00``), all of one length, whose
 text order is their time order; numpy parses those in one call. A lot holding other forms
-(another offset, no milliseconds, ``Z``) is parsed time by time.
+(another offset, no milliseconds, ``Z``; no offset: UTC) is parsed time by time.
 """
 
 from __future__ import annotations
@@ -177,7 +177,10 @@ def _utc(text: str) -> np.datetime64:
 def _times(started_at: Sequence[str]) -> np.ndarray:
     """The start times as datetime64 (UTC), parsed by numpy when all are in the station's form."""
     if set(map(len, started_at)) == {_STATION_FORM} and all(map(str.endswith, started_at, repeat("+00:00"))):
-        return np.array([s[:-6] for s in started_at], dtype="datetime64[us]")
+        try:
+            return np.array([s[:-6] for s in started_at], dtype="datetime64[us]")
+        except ValueError:
+            pass  # of the right length but not a time: the one by one reading names it
     return np.array([_utc(s) for s in started_at], dtype="datetime64[us]")
 
 
