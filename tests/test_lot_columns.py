@@ -171,3 +171,18 @@ def test_time_order_is_the_order_of_the_start_strings_or_of_the_parsed_times():
     assert lot.run_id.tolist() == [r["run_id"] for r in recs]
     assert np.array_equal(lot.values["k6"], np.array([value_of(r, ("fit", "k6", "value")) for r in recs]),
                           equal_nan=True)
+
+
+def test_a_corrupt_record_refuses_the_migration_and_leaves_version_2(records_db):
+    lot = LOT[:5]
+    _v2_database(records_db, lot)
+    with engine(records_db).begin() as con:
+        con.execute(runs.update().where(runs.c.run_id == lot[2]["run_id"]).values(record_json='{"serial": '))
+    with pytest.raises(InputError, match=f"run {lot[2]['run_id']} record_json"):
+        migrate(records_db)
+    # one transaction: no column added, still version 2; mended, the migration goes through
+    with engine(records_db, readonly=True).connect() as con:
+        assert "limits_json" not in {c["name"] for c in sa.inspect(con).get_columns("runs")}
+    with engine(records_db).begin() as con:
+        con.execute(runs.update().where(runs.c.run_id == lot[2]["run_id"]).values(record_json=json.dumps(lot[2])))
+    assert migrate(records_db) == (2, 3)
