@@ -81,7 +81,8 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
     from eol_cal.station.records import db_label
 
     first, last = _date(since, "since"), _date(until, "until")
-    filters = dict(variant=variant, station=station, since=first and first.isoformat(), until=last and last.isoformat())
+    filters = dict(variant=variant, station=station, since=first and first.isoformat(),
+                   until=last and last.isoformat())
     doc = lot_summary(read_lot(db, **filters))
     if csv_file is not None:
         from eol_cal.errors import InputError

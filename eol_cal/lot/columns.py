@@ -220,7 +220,8 @@ def from_records(records: Sequence[dict[str, Any]]) -> Lot:
     from eol_cal.station.records import row_values
 
     rows = [row_values(r) for r in records]
-    return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS}, (row["limits_json"] for row in rows))
+    return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS},
+                        (row["limits_json"] for row in rows))
 
 
 def read_lot(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
