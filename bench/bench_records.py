@@ -1,38 +1,46 @@
 """Records at plant scale: concurrent writers into PostgreSQL and SQLite, and `lot stats` over a
-large lot in PostgreSQL.
+large lot in PostgreSQL, two ways.
 
-    python bench/bench_records.py --pg-url postgresql://USER@127.0.0.1:PORT/DB [--writers 4 --per-writer 500]
-        [--stats-records 100000]
+    python bench/bench_records.py [--pg-url postgresql://USER@127.0.0.1:PORT/DB] [--writers 4 --per-writer 500]
+        [--stats-records 100000] [--repeat 3] [--repeat-records 1]
+
+Without --pg-url the bench starts its own PostgreSQL server with tests/_postgres.py (the
+machine's server binaries, a temporary directory, 127.0.0.1 on a free port, fsync off) and stops
+it at the end. The records are realistic: the real record of an `eol-cal demo` motor
+(fixtures/run_record_demo.json, about 9 kB of record JSON plus its 6 kB fit as stored) with
+values, verdicts, stations and times varied per run (tests/_lot_records.py).
 
 Each writer is a process that writes its records one transaction each (as stations do), through
 `eol_cal.station.records.insert_records`; afterwards the count and the set of run ids are
-compared with what was sent (zero lost, zero duplicated). `lot stats` is timed end to end
-(query + statistics) on a table of --stats-records runs.
+compared with what was sent (zero lost, zero duplicated). `lot stats` is timed end to end on a
+table of --stats-records runs, on the same table both ways:
+
+- columns: what `eol-cal lot stats` does (`read_lot`: the columns it needs, no record JSON;
+  `lot_summary`);
+- records: the alternative, reading and parsing every run's record JSON (streamed, as
+  `query_records` parses it), then the same statistics.
+
+The two documents are compared (they must be equal).
 """
 
 from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import os
+import statistics
+import sys
 import tempfile
 import time
 import uuid
 from pathlib import Path
+from typing import Any, Callable
 
 import sqlalchemy as sa
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-def _record(serial: str, i: int, station: str) -> dict:
-    t = f"2026-11-{1 + i % 28:02d}T{i % 24:02d}:{i % 60:02d}:00.000+00:00"
-    k6 = 1.0e-3 + 1e-5 * ((i * 7919) % 100)
-    return {"schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": serial, "started_at": t,
-            "ended_at": t, "verdict": "pass" if i % 17 else "fail",
-            "reasons": [] if i % 17 else ["p-p after = 2.5 % exceeds max_pp_after_pct = 2"],
-            "station": {"id": station}, "limits": {"variant": "EPS-STD", "max_k6": 2e-3, "max_pp_after_pct": 2.0,
-                                                    "min_improvement_pct": 50.0, "max_pp_before_pct": 40.0},
-            "fit": {"k6": {"value": k6}, "phase_k6": {"value": 0.3}, "c6": {"value": 0.004}},
-            "metrics": {"pp_before_pct": 10.0 + (i % 5), "pp_after_pct": 0.5 + 0.01 * (i % 50),
-                        "improvement_pct": 90.0}}
+from _lot_records import lot_record  # noqa: E402
 
 
 def _writer(args: tuple) -> list[str]:
@@ -41,7 +49,8 @@ def _writer(args: tuple) -> list[str]:
     db, w, n = args
     ids = []
     for i in range(n):
-        r = _record(f"W{w}-{i:05d}", i, f"EOL-{w}")
+        r = lot_record(i, n)
+        r.update(serial=f"W{w}-{i:05d}", station={**r["station"], "id": f"EOL-{w}"})
         insert_records(db, [r], timeout_s=30.0)
         ids.append(r["run_id"])
     return ids
@@ -61,32 +70,83 @@ def concurrent(db, writers: int, per: int) -> tuple[float, int, int, int]:
     return len(sent) / dt, len(got), lost, dup
 
 
-def stats_time(db, n: int) -> float:
-    from eol_cal.lot.summary import lot_summary
-    from eol_cal.station.records import _row, engine, insert_records, query_rows, runs
+def fill(db, n: int, batch: int = 2000) -> tuple[float, float]:
+    """Insert a lot of ``n`` realistic runs (95 % as many motors: the rest are re-tests);
+    returns (seconds, mean bytes of record_json + fit_json per row)."""
+    from eol_cal.station.records import _row, engine, insert_records, runs
 
     insert_records(db, [])
     eng = engine(db)
-    batch = 5000
+    t0 = time.perf_counter()
+    size = 0
     with eng.begin() as con:
         for k in range(0, n, batch):
-            con.execute(runs.insert(), [_row(_record(f"S{k + i:06d}", k + i, f"EOL-{(k + i) % 6}"))
-                                        for i in range(min(batch, n - k))])
-    t0 = time.perf_counter()
-    rows = query_rows(db, variant="EPS-STD")
-    doc = lot_summary([r["record"] for r in rows])
-    dt = time.perf_counter() - t0
-    assert doc["runs"] == n, doc["runs"]
-    return dt
+            rows = [_row(lot_record(k + i, n - n // 20)) for i in range(min(batch, n - k))]
+            size += sum(len(r["record_json"]) + len(r["fit_json"] or "") for r in rows)
+            con.execute(runs.insert(), rows)
+    return time.perf_counter() - t0, size / max(1, n)
+
+
+def by_columns(db, variant: str | None) -> dict[str, Any]:
+    """`eol-cal lot stats`: the columns, no record JSON."""
+    from eol_cal.lot.columns import read_lot
+    from eol_cal.lot.summary import lot_summary
+
+    return lot_summary(read_lot(db, variant=variant))
+
+
+def by_records(db, variant: str | None) -> dict[str, Any]:
+    """The alternative: read and parse every run's record JSON, then the same statistics."""
+    from eol_cal.lot.columns import LOT_COLUMNS, from_columns
+    from eol_cal.lot.summary import lot_summary
+    from eol_cal.station.records import _record, engine, row_values, runs, select_runs
+
+    q = select_runs(variant=variant).with_only_columns(runs.c.run_id, runs.c.record_json)
+    rows = []
+    with engine(db, readonly=True).connect() as con:
+        for run_id, text in con.execution_options(yield_per=2000).execute(q):
+            rows.append(row_values(_record(db, {"run_id": run_id, "record_json": text}, None)))
+    return lot_summary(from_columns({name: [r[name] for r in rows] for name in LOT_COLUMNS},
+                                    (r["limits_json"] for r in rows)))
+
+
+def timed(fn: Callable[[], dict[str, Any]], repeat: int) -> tuple[list[float], dict[str, Any]]:
+    times, doc = [], {}
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        doc = fn()
+        times.append(time.perf_counter() - t0)
+    return times, doc
+
+
+def _load() -> str:
+    return " ".join(f"{x:.1f}" for x in os.getloadavg())
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--pg-url", required=True, help="an EMPTY PostgreSQL server database's admin URL")
-    ap.add_argument("--writers", type=int, default=4)
+    ap.add_argument("--pg-url", default=None, help="an EMPTY PostgreSQL server database's admin URL "
+                    "(default: start a server of its own with tests/_postgres.py)")
+    ap.add_argument("--writers", type=int, default=4, help="writer processes (0: no writers section)")
     ap.add_argument("--per-writer", type=int, default=500)
     ap.add_argument("--stats-records", type=int, default=100_000)
+    ap.add_argument("--repeat", type=int, default=3, help="timings of `lot stats` by columns")
+    ap.add_argument("--repeat-records", type=int, default=1, help="timings of the path that parses every record")
     a = ap.parse_args()
+    server = None
+    if a.pg_url is None:
+        from _postgres import PostgresServer
+
+        server = PostgresServer().start()
+        a.pg_url = server.url()
+    try:
+        run(a)
+    finally:
+        if server is not None:
+            server.stop()
+
+
+def run(a: argparse.Namespace) -> None:
     import psycopg
 
     def fresh(name: str) -> str:
@@ -95,14 +155,27 @@ def main() -> None:
         return sa.engine.make_url(a.pg_url).set(database=name).render_as_string(hide_password=False)
 
     tag = uuid.uuid4().hex[:8]
-    print(f"{a.writers} writers x {a.per_writer} records, one transaction each")
-    print(f"{'backend':<12}{'records/s':>12}{'rows':>8}{'lost':>6}{'dup':>6}")
-    with tempfile.TemporaryDirectory() as d:
-        for name, db in (("postgresql", fresh(f"w{tag}")), ("sqlite", Path(d) / "r.sqlite")):
-            rate, rows, lost, dup = concurrent(db, a.writers, a.per_writer)
-            print(f"{name:<12}{rate:>12.0f}{rows:>8}{lost:>6}{dup:>6}")
-    dt = stats_time(fresh(f"s{tag}"), a.stats_records)
-    print(f"lot stats over {a.stats_records} records in PostgreSQL: {dt:.2f} s (query + statistics)")
+    print(f"load average {_load()} on {os.cpu_count()} cores")
+    if a.writers > 0:
+        print(f"{a.writers} writers x {a.per_writer} records, one transaction each")
+        print(f"{'backend':<12}{'records/s':>12}{'rows':>8}{'lost':>6}{'dup':>6}")
+        with tempfile.TemporaryDirectory() as d:
+            for name, db in (("postgresql", fresh(f"w{tag}")), ("sqlite", Path(d) / "r.sqlite")):
+                rate, rows, lost, dup = concurrent(db, a.writers, a.per_writer)
+                print(f"{name:<12}{rate:>12.0f}{rows:>8}{lost:>6}{dup:>6}")
+    db = fresh(f"s{tag}")
+    n = a.stats_records
+    seconds, size = fill(db, n)
+    print(f"{n} runs inserted in {seconds:.1f} s, {size / 1e3:.1f} kB of record + fit JSON per run")
+    print(f"lot stats over {n} records in PostgreSQL (query + statistics; load average {_load()}):")
+    docs = {}
+    for name, fn, repeat in (("columns", by_columns, a.repeat), ("records", by_records, a.repeat_records)):
+        times, docs[name] = timed(lambda: fn(db, "EPS-STD"), repeat)
+        if docs[name]["runs"] != n:
+            raise SystemExit(f"{name}: {docs[name]['runs']} runs, expected {n}")
+        print(f"  {name:<8} median {statistics.median(times):6.2f} s, best {min(times):6.2f} s  "
+              f"({', '.join(f'{t:.2f}' for t in times)}; load average {_load()})")
+    print("same figures both ways:", docs["columns"] == docs["records"])
 
 
 if __name__ == "__main__":

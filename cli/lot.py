@@ -76,23 +76,23 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
     limit; first-pass yield; failure causes as a Pareto; individuals / moving-range control
     limits per station."""
     from cli.common import print_json
-    from eol_cal.lot.summary import lot_summary, write_runs_csv
-    from eol_cal.station.records import db_label, query_rows
+    from eol_cal.lot.columns import read_lot
+    from eol_cal.lot.summary import LOT_STATS_SCHEMA, lot_summary, write_runs_csv
+    from eol_cal.station.records import db_label
 
     first, last = _date(since, "since"), _date(until, "until")
-    rows = query_rows(db, variant=variant, station=station, since=first and first.isoformat(),
-                      until=last and last.isoformat())
-    records = [r["record"] for r in rows]
-    doc = lot_summary(records)
+    filters = dict(variant=variant, station=station, since=first and first.isoformat(),
+                   until=last and last.isoformat())
+    doc = lot_summary(read_lot(db, **filters))
     if csv_file is not None:
         from eol_cal.errors import InputError
 
         try:
-            write_runs_csv(csv_file, rows)
+            runs = write_runs_csv(csv_file, db, **filters)
         except OSError as exc:
             raise InputError(str(csv_file), None, f"cannot write: {exc.strerror or exc}") from None
     if as_json:
-        print_json({"db": db_label(db), "filters": {"variant": variant, "since": since, "until": until,
+        print_json({"schema": LOT_STATS_SCHEMA, "db": db_label(db), "filters": {"variant": variant, "since": since, "until": until,
                                                      "station": station}, **doc})
         return
     from rich.table import Table
@@ -125,7 +125,7 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
                       _fmt(cl["mr_center"]), _fmt(cl["mr_ucl"]))
     console.print(t)
     if csv_file is not None:
-        console.print(f"csv: {csv_file} ({len(rows)} runs)")
+        console.print(f"csv: {csv_file} ({runs} runs)")
 
 
 @lot_group.command("diff")

@@ -132,8 +132,17 @@ def test_a_corrupt_record_row_is_skipped_and_reported_the_others_kept(tmp_path):
     line = _one_line_exit_2(res, str(db), "record_json", "skipped")
     assert recs[1]["run_id"] not in line or "run" in line
     assert [r["serial"] for r in json.loads(res.stdout)["records"]] == ["A", "C"]
+    # lot statistics read the columns, not the record JSON: the corrupt document does not matter
+    res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(db), "--json"])
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["runs"] == 3
+    # a corrupt reasons column of a failed run is refused, naming the database, the run and the column
+    con = sqlite3.connect(db)
+    con.execute("UPDATE runs SET verdict = 'fail', reasons = '[\"p-p' WHERE serial = 'C'")
+    con.commit()
+    con.close()
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(db)])
-    _one_line_exit_2(res, str(db), "record_json")
+    _one_line_exit_2(res, str(db), recs[2]["run_id"], "reasons")
 
 
 def _full_disk(tmp_path: Path) -> Path | None:

@@ -235,7 +235,8 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     for r in sorted(lot_db["records"], key=lambda r: r["started_at"]):
         first.setdefault(r["serial"], r["verdict"])
     assert fpy == f"{100 * sum(v == 'pass' for v in first.values()) / len(first):.1f} %"
-    assert quantity_rows == ["k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct", "improvement_pct"]
+    assert quantity_rows == ["k6", "phase_k6", "c6", "phase_c6", "pp_before_pct", "pp_after_pct", "improvement_pct",
+                             "fit_r2", "fit_rms_nm"]
     assert sorted(causes) == ["error in acquire", "x"]
     assert control_lines == 2  # each station's k6 chart has its upper control limit
     before, zoomed, back = zoom

@@ -86,7 +86,7 @@ class ControlLimits:
 
 
 def _finite(x: Iterable[float]) -> np.ndarray:
-    a = np.asarray(list(x), dtype=float)
+    a = np.asarray(x if isinstance(x, np.ndarray) else list(x), dtype=float)
     return a[np.isfinite(a)]
 
 
@@ -145,11 +145,20 @@ def _time(rec: dict[str, Any]) -> str:
 
 def first_pass_yield(records: Sequence[dict[str, Any]]) -> tuple[float, int]:
     """(motors whose first run passed / motors, motors); NaN without records."""
-    first: dict[str, str] = {}
-    for r in sorted(records, key=_time):
-        first.setdefault(r["serial"], r.get("verdict"))
-    n = len(first)
-    return (sum(v == "pass" for v in first.values()) / n if n else math.nan), n
+    recs = sorted(records, key=_time)
+    return first_pass_yield_of(np.array([r["serial"] for r in recs], dtype=object),
+                               np.array([r.get("verdict") for r in recs], dtype=object))
+
+
+def first_pass_yield_of(serial: np.ndarray, verdict: np.ndarray) -> tuple[float, int]:
+    """:func:`first_pass_yield` of runs given as arrays of serials and verdicts in time order."""
+    if not len(serial):
+        return math.nan, 0
+    n = len(serial)
+    # each serial's first run: built from the last run back, so the earliest index stays
+    first_of = dict(zip(np.asarray(serial)[::-1].tolist(), range(n - 1, -1, -1)))
+    first = np.fromiter(first_of.values(), dtype=np.intp, count=len(first_of))
+    return float(np.count_nonzero(np.asarray(verdict)[first] == "pass") / len(first)), len(first)
 
 
 _LIMIT_KEY = re.compile(r"\b((?:max|min)_[a-z0-9_]+)\b")
@@ -157,14 +166,17 @@ _LIMIT_KEY = re.compile(r"\b((?:max|min)_[a-z0-9_]+)\b")
 
 def failure_causes(rec: dict[str, Any]) -> list[str]:
     """The causes of a run that did not pass (empty for a pass): see the module doc."""
-    verdict = rec.get("verdict")
+    return causes_of(rec.get("verdict"), rec.get("reasons") or [], (rec.get("error") or {}).get("step"))
+
+
+def causes_of(verdict: str | None, reasons: Sequence[str], error_step: str | None) -> list[str]:
+    """:func:`failure_causes` of a run given as its verdict, reasons and the step it erred in."""
     if verdict == "pass":
         return []
     if verdict == "error":
-        step = (rec.get("error") or {}).get("step")
-        return [f"error in {step}" if step else "error"]
+        return [f"error in {error_step}" if error_step else "error"]
     causes: list[str] = []
-    for reason in rec.get("reasons") or []:
+    for reason in reasons:
         keys = _LIMIT_KEY.findall(str(reason))
         cause = keys[0] if keys else str(reason).split(":")[0].split(" = ")[0].strip()
         if cause not in causes:
@@ -174,9 +186,14 @@ def failure_causes(rec: dict[str, Any]) -> list[str]:
 
 def pareto(records: Sequence[dict[str, Any]]) -> list[tuple[str, int, float]]:
     """``(cause, runs, cumulative share of all causes)``, most frequent first (ties by name)."""
+    return pareto_of(failure_causes(r) for r in records)
+
+
+def pareto_of(causes: Iterable[Sequence[str]]) -> list[tuple[str, int, float]]:
+    """:func:`pareto` of the runs' causes (one list per run)."""
     counts: dict[str, int] = {}
-    for r in records:
-        for c in failure_causes(r):
+    for run in causes:
+        for c in run:
             counts[c] = counts.get(c, 0) + 1
     total = sum(counts.values())
     out, acc = [], 0

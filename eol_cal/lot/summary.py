@@ -1,18 +1,66 @@
 """The lot's statistics as one document: what ``eol-cal lot stats`` prints and writes as JSON.
 
-Built from :mod:`eol_cal.lot.stats` (the definitions) over the quantities of the lot page
-(:data:`eol_cal.report.lot.QUANTITIES`, in their display units), so the page and the command
-give the same figures for the same records.
+One definition for the command and the lot page: :func:`quantity_stats` and
+:func:`lot_summary` take a :class:`eol_cal.lot.columns.Lot` (the runs column-wise, from the
+database's columns or from parsed records) and apply :mod:`eol_cal.lot.stats` (the
+definitions) to the quantities :data:`eol_cal.lot.columns.QUANTITIES` in their display units.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
-from eol_cal.lot.stats import first_pass_yield, imr_limits, pareto
+import numpy as np
+
+from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot
+from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, imr_limits, pareto_of, summary
+
+#: the ``schema`` of the document ``eol-cal lot stats --json`` prints
+LOT_STATS_SCHEMA = "eol-cal/lot-stats/1"
+
+
+@dataclass(frozen=True)
+class QuantityStats:
+    """One quantity of the lot in display units: summary, the limit and the capability."""
+
+    key: str
+    title: str
+    unit: str
+    summary: Summary
+    limit_key: str | None
+    limit: float | None
+    capability: Capability | None
+    note: str
+
+    @property
+    def line(self) -> str:
+        """One line for the histogram's title."""
+        s = self.summary
+        text = f"mean {s.mean:.4g}, sd {s.sd:.3g}"
+        if self.capability is not None:
+            text += f"; Cpk {self.capability.cpk:.2f}, Ppk {self.capability.ppk:.2f}"
+        return text
+
+
+def quantity_stats(lot: Lot) -> list[QuantityStats]:
+    """:data:`QUANTITIES` of the lot (time order): summary and, where the quantity has a limit
+    and the lot one value of it, the capability against it."""
+    out = []
+    for q in QUANTITIES:
+        x = lot.display(q)
+        limits = lot.limit_values(q)
+        cap, limit, note = None, None, ""
+        if len(limits) == 1:
+            limit = limits[0]
+            cap = capability(x, usl=limit) if q.sense == "max" else capability(x, lsl=limit)
+        elif len(limits) > 1:
+            note = f"{q.limit_key} differs between the lot's variants: no capability (choose a variant)"
+        out.append(QuantityStats(q.key, q.title, q.unit, summary(x), q.limit_key, limit, cap, note))
+    return out
 
 
 def _num(x: float | None) -> float | None:
@@ -30,21 +78,17 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def lot_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
+def lot_summary(lot: Lot) -> dict[str, Any]:
     """The lot's figures (display units, NaN as None).
 
     Keys: ``runs``, ``verdicts`` (counts), ``first_pass_yield`` and ``motors``, ``quantities``
     (per quantity: unit, count, mean, sd, min, max, percentiles, the limit and Cp/Cpk/Ppk
     against it), ``pareto`` (cause, runs, cumulative share) and ``control`` (per station, per
-    charted quantity: the individuals / moving-range limits).
+    charted quantity: the individuals / moving-range limits). Documented in ``docs/json.md``.
     """
-    from eol_cal.report.lot import CHARTED, QUANTITIES, quantity_stats, run_time, value_of
-    from eol_cal.report.motor import station_of
-
-    recs = sorted(records, key=run_time)
-    fpy, motors = first_pass_yield(recs)
+    fpy, motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = []
-    for q in quantity_stats(recs):
+    for q in quantity_stats(lot):
         s = q.summary
         cap = q.capability
         quantities.append({
@@ -54,40 +98,38 @@ def lot_summary(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "cp": cap.cp if cap else None, "cpk": cap.cpk if cap else None, "ppk": cap.ppk if cap else None,
             "note": q.note,
         })
-    by_station: dict[str, list[dict[str, Any]]] = {}
-    for r in recs:
-        by_station.setdefault(station_of(r), []).append(r)
-    paths = {key: (path, scale) for key, _t, path, scale, *_ in QUANTITIES}
+    charted = [q for key in CHARTED for q in QUANTITIES if q.key == key]
+    values = {q.key: lot.display(q) for q in charted}
     control = {}
-    for station, rs in sorted(by_station.items()):
-        control[station] = {}
-        for key in CHARTED:
-            path, scale = paths[key]
-            cl = imr_limits(value_of(r, path) * scale for r in rs)
-            control[station][key] = {"runs": len(rs), **dataclasses.asdict(cl)}
+    for station, idx in lot.stations():
+        control[station] = {q.key: {"runs": len(idx), **dataclasses.asdict(imr_limits(values[q.key][idx]))}
+                            for q in charted}
     return _clean({
-        "runs": len(recs),
-        "verdicts": {v: sum(r.get("verdict") == v for r in recs) for v in ("pass", "fail", "error")},
+        "runs": len(lot),
+        "verdicts": {v: int(np.count_nonzero(lot.verdict == v)) for v in ("pass", "fail", "error")},
         "first_pass_yield": fpy, "motors": motors,
         "quantities": quantities,
-        "pareto": [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto(recs)],
+        "pareto": [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(lot.causes)],
         "control": control,
     })
 
 
-def write_runs_csv(path: str | Path, rows: Sequence[dict[str, Any]]) -> Path:
-    """Write the runs' columns (the database's, without the JSON documents) as CSV, atomically."""
+def write_runs_csv(path: str | Path, db: str | Path, **filters: str | None) -> int:
+    """Write the selected runs' columns (the database's, without the JSON documents) as CSV,
+    atomically, oldest first; returns the number of runs. ``filters`` as
+    :func:`eol_cal.station.records.select_runs`."""
     import csv
     import io
 
     from eol_cal.atomic import atomic_write
-    from eol_cal.station.records import COLUMN_NAMES
+    from eol_cal.station.records import COLUMN_NAMES, read_rows, runs, select_runs
 
     cols = [c for c in COLUMN_NAMES if c not in ("fit_json", "record_json")]
+    rows = read_rows(db, select_runs(**filters).with_only_columns(*(runs.c[c] for c in cols)))
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(cols)
     for r in rows:
         w.writerow(["" if r.get(c) is None else r.get(c) for c in cols])
     atomic_write(Path(path), buf.getvalue())
-    return Path(path)
+    return len(rows)

@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import datetime as dt
 import math
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from eol_cal.lot.stats import Capability, Summary
+from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
+from eol_cal.lot.summary import quantity_stats
 from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
 
@@ -146,97 +146,38 @@ def save_png(fig: MplFigure, path: str | Path) -> None:
 
 
 # --------------------------------------------------------------------------- the lot page
-#: the quantities the lot page shows: (key, title, path in the record, display scale, unit, limit key, sense)
-QUANTITIES: tuple[tuple[str, str, tuple[str, ...], float, str, str | None, str], ...] = (
-    ("k6", "k6", ("fit", "k6", "value"), 1e3, "mN*m/A", "max_k6", "max"),
-    ("phase_k6", "phase_k6", ("fit", "phase_k6", "value"), 180.0 / math.pi, "deg", None, "max"),
-    ("c6", "c6", ("fit", "c6", "value"), 1e3, "mN*m", None, "max"),
-    ("pp_before_pct", "p-p before", ("metrics", "pp_before_pct"), 1.0, "%", "max_pp_before_pct", "max"),
-    ("pp_after_pct", "p-p compensated", ("metrics", "pp_after_pct"), 1.0, "%", "max_pp_after_pct", "max"),
-    ("improvement_pct", "improvement", ("metrics", "improvement_pct"), 1.0, "%", "min_improvement_pct", "min"),
-)
-#: what the control charts follow per station
-CHARTED = ("k6", "pp_after_pct")
 
-
-def _limit_values(records: Sequence[dict[str, Any]], key: str | None, scale: float) -> list[float]:
-    """The distinct values of a limit over the records (several: the lot mixes variants)."""
-    if key is None:
-        return []
-    out = sorted({value_of(r, ("limits", key)) for r in records} - {math.nan})
-    return [v * scale for v in out if math.isfinite(v)]
-
-
-@dataclass(frozen=True)
-class QuantityStats:
-    """One quantity of the lot in display units: summary, the limit and the capability."""
-
-    key: str
-    title: str
-    unit: str
-    summary: Summary
-    limit_key: str | None
-    limit: float | None
-    capability: Capability | None
-    note: str
-
-    @property
-    def line(self) -> str:
-        """One line for the histogram's title."""
-        s = self.summary
-        text = f"mean {s.mean:.4g}, sd {s.sd:.3g}"
-        if self.capability is not None:
-            text += f"; Cpk {self.capability.cpk:.2f}, Ppk {self.capability.ppk:.2f}"
-        return text
-
-
-def quantity_stats(records: Sequence[dict[str, Any]]) -> list[QuantityStats]:
-    """:data:`QUANTITIES` of the runs (time order) with :mod:`eol_cal.lot.stats`: summary and,
-    where the quantity has a limit and the lot one value of it, the capability against it."""
-    from eol_cal.lot.stats import capability, summary
-
-    recs = sorted(records, key=run_time)
-    out = []
-    for key, title, path, scale, unit, lim_key, sense in QUANTITIES:
-        x = [value_of(r, path) * scale for r in recs]
-        limits = _limit_values(recs, lim_key, scale)
-        cap, limit, note = None, None, ""
-        if len(limits) == 1:
-            limit = limits[0]
-            cap = capability(x, usl=limit) if sense == "max" else capability(x, lsl=limit)
-        elif len(limits) > 1:
-            note = f"{lim_key} differs between the lot's variants: no capability (choose a variant)"
-        out.append(QuantityStats(key, title, unit, summary(x), lim_key, limit, cap, note))
-    return out
-
-
-def histogram_figure(records: Sequence[dict[str, Any]], notes: dict[str, str] | None = None) -> MplFigure:
-    """Histograms of the measured quantities over the runs that have them, with the limits.
+def histogram_figure(lot: Lot, notes: dict[str, str] | None = None) -> MplFigure:
+    """Histograms of :data:`QUANTITIES` over the runs that have them, with the limits.
 
     Parameters
     ----------
-    records : sequence of dict
-        Run records.
+    lot : Lot
+        The runs column-wise (:func:`eol_cal.lot.columns.from_records`).
     notes : dict of quantity key -> str, optional
         A line under each panel's title (the capability figures).
     """
     plt = pyplot()
-    fig, axes = plt.subplots(2, 3, figsize=(10, 5.2))
-    for ax, (key, title, path, scale, unit, lim_key, _sense) in zip(axes.flat, QUANTITIES):
-        x = np.array([value_of(r, path) for r in records]) * scale
+    cols = 3
+    rows = -(-len(QUANTITIES) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(10, 2.6 * rows))
+    for ax, q in zip(axes.flat, QUANTITIES):
+        x = lot.display(q)
         x = x[np.isfinite(x)]
-        ax.set_gid(f"hist-{key}")
+        ax.set_gid(f"hist-{q.key}")
         if len(x):
             ax.hist(x, bins=min(30, max(5, int(np.sqrt(len(x))) + 1)), color="tab:blue", alpha=0.8)
-        for i, v in enumerate(_limit_values(records, lim_key, scale)):
-            ax.axvline(v, color="tab:red", ls="--", lw=1.2, label=lim_key if i == 0 else None)
-        if lim_key and ax.get_legend_handles_labels()[0]:
+        for i, v in enumerate(lot.limit_values(q)):
+            ax.axvline(v, color="tab:red", ls="--", lw=1.2, label=q.limit_key if i == 0 else None)
+        if q.limit_key and ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=6, loc="upper right")
-        note = (notes or {}).get(key)
-        ax.set_title(f"{title}: n = {len(x)}" + (f"\n{note}" if note else ""), fontsize=8)
-        ax.set_xlabel(unit, fontsize=7)
+        note = (notes or {}).get(q.key)
+        ax.set_title(f"{q.title}: n = {len(x)}" + (f"\n{note}" if note else ""), fontsize=8)
+        ax.set_xlabel(q.unit, fontsize=7)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
+    for ax in list(axes.flat)[len(QUANTITIES):]:
+        ax.set_visible(False)
     fig.tight_layout()
     return fig
 
@@ -401,13 +342,14 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, 
     from eol_cal.report.svg import figure_svg
     from eol_cal.station.records import summarise
 
-    from eol_cal.lot.stats import first_pass_yield, pareto
+    from eol_cal.lot.stats import first_pass_yield_of, pareto_of
 
     recs = sorted(records, key=run_time)
+    lot = from_records(recs)
     summary = summarise(recs)
-    fpy, _motors = first_pass_yield(recs)
-    quantities = quantity_stats(recs)
-    causes = pareto(recs)
+    fpy, _motors = first_pass_yield_of(lot.serial, lot.verdict)
+    quantities = quantity_stats(lot)
+    causes = pareto_of(lot.causes)
     figures: list[Figure] = []
     if recs:
         fig, titles = timeline(recs, title)
@@ -419,7 +361,7 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, 
         notes = {q.key: q.line for q in quantities if q.summary.count}
         figures.append(Figure("histograms", "Distribution of the measured quantities over the runs that have them, "
                               "with the variant's limits; Cpk (sigma from the moving range) and Ppk (overall sd) "
-                              "against the limit", figure_svg(histogram_figure(recs, notes), "histograms")))
+                              "against the limit", figure_svg(histogram_figure(lot, notes), "histograms")))
     pareto_fig = None
     if causes:
         pareto_fig = Figure("pareto", "Why runs did not pass: each limit a failed run names, and the step an error "

@@ -8,10 +8,11 @@ the same idempotent insert (``ON CONFLICT (run_id) DO NOTHING``) and the same qu
 
 One row per motor run in table ``runs`` (columns in ``docs/records.md``): serial, variant,
 station, operator, start/end times (UTC ISO 8601), verdict and reasons, k6, phase_k6, c6, the
-peak-to-peak ripple before/after, capture paths and SHA-256, the fit record (JSON), the block's
-CRC and sequence, tool and layout versions, plus the whole record as JSON. Table
-``schema_version`` holds :data:`SCHEMA_VERSION`; a database written before it existed
-(version 1) is brought up by :func:`migrate`.
+peak-to-peak ripple before/after, capture paths and SHA-256, the block's CRC and sequence,
+tool and layout versions, what lot statistics read besides (the limits in force as JSON text,
+the error step, phase_c6, the fit's R^2 and RMS), and last the fit record and the whole record
+as JSON. Table ``schema_version`` holds :data:`SCHEMA_VERSION`; older databases (version 1:
+written before it existed) are brought up by :func:`migrate`.
 
 When the database cannot be written - locked beyond the timeout, its directory missing (a share
 not mounted), the server down, read-only, corrupt - the record is written as one JSON file into
@@ -22,11 +23,12 @@ inserts nothing twice, and many writers at once neither lose nor duplicate a rec
 
 from __future__ import annotations
 
+import gc
 import json
 import sqlite3
 import threading
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import sqlalchemy as sa
 from sqlalchemy import event
@@ -40,7 +42,7 @@ from eol_cal.errors import EolCalError, InputError
 RECORD_SCHEMA = "eol-cal/run-record/1"
 SPOOL_SCHEMA = "eol-cal/spooled-record/1"
 #: the database layout this code writes (1: the SQLite table of eol-cal before schema_version)
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 #: seconds a write waits for another connection's lock (or for the server) before spooling
 DEFAULT_LOCK_TIMEOUT_S = 5.0
 
@@ -64,24 +66,33 @@ runs = sa.Table(
     sa.Column("sha256_before", sa.Text),
     sa.Column("capture_after", sa.Text),
     sa.Column("sha256_after", sa.Text),
-    sa.Column("fit_json", sa.Text),
     sa.Column("block_crc32", sa.Text),
     sa.Column("block_sequence", sa.Integer),
     sa.Column("tool_version", sa.Text),
     sa.Column("layout_version", sa.Integer),
     sa.Column("report_dir", sa.Text),
-    sa.Column("record_json", sa.Text, nullable=False),
     # version 2
     sa.Column("station", sa.Text),
     sa.Column("operator", sa.Text),
+    # version 3: what lot statistics need besides the values above, so they never parse record_json
+    sa.Column("limits_json", sa.Text),
+    sa.Column("error_step", sa.Text),
+    sa.Column("phase_c6", sa.Float),
+    sa.Column("fit_r2", sa.Float),
+    sa.Column("fit_rms_nm", sa.Float),
+    # the documents last: SQLite reads a row's columns in order, through the overflow pages of
+    # the kB of JSON before them (a database created at version 3; a migrated one adds its new
+    # columns after them)
+    sa.Column("fit_json", sa.Text),
+    sa.Column("record_json", sa.Text, nullable=False),
     sa.Index("runs_serial", "serial"),
     sa.Index("runs_started", "started_at"),
     sa.Index("runs_variant_station", "variant", "station"),
 )
 schema_version = sa.Table("schema_version", _metadata, sa.Column("version", sa.Integer, nullable=False))
 COLUMN_NAMES = tuple(c.name for c in runs.columns)
-#: columns added by each migration (version: [(name, type)])
-_ADDED = {2: [("station", "TEXT"), ("operator", "TEXT")]}
+#: columns added by each migration (version: names; their types are the table's)
+_ADDED = {2: ("station", "operator"), 3: ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm")}
 
 
 class RecordError(EolCalError):
@@ -203,6 +214,19 @@ def _ensure_schema(con: Connection) -> None:
 
 
 def _row(record: dict[str, Any]) -> dict[str, Any]:
+    """The ``runs`` row of a record: :func:`row_values` plus the record (and its fit) as JSON."""
+    fit = record.get("fit")
+    return {**row_values(record),
+            "fit_json": json.dumps(fit, allow_nan=False) if fit is not None else None,
+            "record_json": json.dumps(record, allow_nan=False)}
+
+
+def row_values(record: dict[str, Any]) -> dict[str, Any]:
+    """The columns of a record's row, except the JSON documents ``fit_json`` and ``record_json``.
+
+    The one mapping from a record to its columns: the insert, the migrations and the lot
+    statistics of parsed records (:mod:`eol_cal.lot.columns`) all use it.
+    """
     def get(*keys: str) -> Any:
         x: Any = record
         for k in keys:
@@ -211,8 +235,8 @@ def _row(record: dict[str, Any]) -> dict[str, Any]:
             x = x[k]
         return x
 
-    fit = record.get("fit")
-    values = {
+    limits = record.get("limits")
+    return {
         "run_id": record["run_id"],
         "serial": record["serial"],
         "variant": get("limits", "variant"),
@@ -230,17 +254,19 @@ def _row(record: dict[str, Any]) -> dict[str, Any]:
         "sha256_before": get("captures", "before", "sha256"),
         "capture_after": get("captures", "after", "path"),
         "sha256_after": get("captures", "after", "sha256"),
-        "fit_json": json.dumps(fit, allow_nan=False) if fit is not None else None,
         "block_crc32": get("block", "crc32"),
         "block_sequence": get("block", "sequence"),
         "tool_version": record.get("tool_version"),
         "layout_version": record.get("layout_version"),
         "report_dir": record.get("report_dir"),
-        "record_json": json.dumps(record, allow_nan=False),
         "station": _station_of(record),
         "operator": record.get("operator") or get("station", "operator"),
+        "limits_json": json.dumps(limits, sort_keys=True, allow_nan=False) if isinstance(limits, dict) else None,
+        "error_step": get("error", "step"),
+        "phase_c6": get("fit", "phase_c6", "value"),
+        "fit_r2": get("fit", "fit", "r2"),
+        "fit_rms_nm": get("fit", "fit", "rms"),
     }
-    return values
 
 
 def _station_of(record: dict[str, Any]) -> str | None:
@@ -277,7 +303,9 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
     """Bring a records database to :data:`SCHEMA_VERSION` (creating it when empty).
 
     Version 1 (the SQLite table before ``schema_version``) gains the columns ``station`` and
-    ``operator``, filled from each row's record JSON. Returns ``(version before, version now)``;
+    ``operator``; version 2 gains ``limits_json``, ``error_step``, ``phase_c6``, ``fit_r2`` and
+    ``fit_rms_nm``. The new columns are filled from each row's record JSON (a corrupt one
+    refuses the migration, naming the run). Returns ``(version before, version now)``;
     ``before`` is None for a new database.
     """
     eng = engine(db, timeout_s)
@@ -293,20 +321,34 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
             if v > SCHEMA_VERSION:
                 raise SchemaError(f"records database at schema version {v} is newer than this tool "
                                   f"({SCHEMA_VERSION})")
-            for step in range(v + 1, SCHEMA_VERSION + 1):
-                for name, typ in _ADDED.get(step, []):
-                    con.exec_driver_sql(f"ALTER TABLE runs ADD COLUMN {name} {typ}")
-            if v < 2:
-                for run_id, doc in con.execute(sa.select(runs.c.run_id, runs.c.record_json)).all():
-                    row = _row(_record(db, {"run_id": run_id, "record_json": doc}, None))
-                    con.execute(runs.update().where(runs.c.run_id == run_id)
-                                .values(station=row["station"], operator=row["operator"]))
+            added = [name for step in range(v + 1, SCHEMA_VERSION + 1) for name in _ADDED.get(step, ())]
+            for name in added:
+                typ = runs.c[name].type.compile(dialect=con.dialect)
+                con.exec_driver_sql(f"ALTER TABLE runs ADD COLUMN {name} {typ}")
+            if added:
+                _fill(con, db, added)
             _metadata.create_all(con)  # the new table and indexes; existing ones are kept
             con.execute(schema_version.delete())
             con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
             return v, SCHEMA_VERSION
     finally:
         _dispose(eng, db)
+
+
+def _fill(con: Connection, db: str | Path, names: list[str], batch: int = 2000) -> None:
+    """Fill the columns ``names`` of every row from its record JSON, ``batch`` rows at a time
+    (a plant's table of record documents does not fit in memory at once)."""
+    stmt = runs.update().where(runs.c.run_id == sa.bindparam("_run_id")).values(
+        {name: sa.bindparam(name) for name in names})
+    ids = list(con.execute(sa.select(runs.c.run_id)).scalars())
+    for k in range(0, len(ids), batch):
+        q = sa.select(runs.c.run_id, runs.c.record_json).where(runs.c.run_id.in_(ids[k:k + batch]))
+        updates = []
+        for run_id, doc in con.execute(q).all():
+            record = _record(db, {"run_id": run_id, "record_json": doc}, None)  # raises on a corrupt one
+            values = row_values(record)  # type: ignore[arg-type]
+            updates.append({"_run_id": run_id, **{name: values[name] for name in names}})
+        con.execute(stmt, updates)
 
 
 def select_runs(variant: str | None = None, station: str | None = None, since: str | None = None,
@@ -337,6 +379,57 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
             _dispose(eng, db)
     except DB_ERRORS as exc:
         raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
+
+
+def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_VERSION,
+                 timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Sequence[Any]]]:
+    """The results of ``queries`` column-wise, each ``{column name: values in row order}``, all
+    from one snapshot of the database (one read transaction, repeatable read).
+
+    For many rows: SQLAlchemy writes the SQL, the driver's own cursor fetches the rows (on
+    PostgreSQL in the binary protocol: numbers arrive as binary doubles), without a
+    SQLAlchemy row object per row. :class:`InputError` when the database is missing or
+    unreadable, or older than ``min_version`` (the columns the queries read came with it).
+    """
+    if not is_url(db) and not Path(db).exists():
+        raise InputError(str(db), None, "database not found")
+    collecting = gc.isenabled()
+    gc.disable()  # millions of new objects, none in a cycle: the collector's passes over them are waste
+    try:
+        eng = engine(db, timeout_s, readonly=True)
+        try:
+            with eng.connect() as con:
+                if con.dialect.name == "postgresql":
+                    con = con.execution_options(isolation_level="REPEATABLE READ")
+                v = _version(con)
+                if v is not None and v < min_version:
+                    raise SchemaError(f"records database at schema version {v}, this needs version "
+                                      f"{min_version}: migrate it first")
+                results = [_fetch(con, q) for q in queries]
+        finally:
+            _dispose(eng, db)
+        return [dict(zip(names, list(zip(*rows)) if rows else [()] * len(names))) for names, rows in results]
+    except DB_ERRORS as exc:
+        raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
+    finally:
+        if collecting:
+            gc.enable()
+
+
+def _fetch(con: Connection, query: sa.Select) -> tuple[list[str], list[tuple[Any, ...]]]:
+    # the driver's cursor on SQLAlchemy's connection (its transaction, its read-only mode)
+    compiled = query.compile(dialect=con.dialect)
+    driver = con.connection.driver_connection
+    if con.dialect.name == "postgresql":
+        cur = driver.cursor(binary=True)  # type: ignore[union-attr]
+        cur.execute(str(compiled), compiled.params)
+    else:  # sqlite3: positional parameters
+        cur = driver.cursor()  # type: ignore[union-attr]
+        cur.execute(str(compiled), [compiled.params[k] for k in compiled.positiontup or ()])
+    try:
+        return [d[0] for d in cur.description], cur.fetchall()
+    finally:
+        cur.close()
 
 
 def _record(db: str | Path, row: dict[str, Any], skipped: list[InputError] | None) -> dict[str, Any] | None:
@@ -370,20 +463,6 @@ def query_records(db: str | Path, serial: str | None = None, day: str | None = N
     q = select_runs(serial=serial, day=day).with_only_columns(runs.c.run_id, runs.c.record_json)
     docs = (_record(db, r, skipped) for r in read_rows(db, q, timeout_s))
     return [d for d in docs if d is not None]
-
-
-def query_rows(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
-               until: str | None = None, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Any]]:
-    """The selected runs' columns (no ``fit_json``/``record_json`` text) plus ``record``, the
-    parsed record, oldest first. Needs schema version 2 (the ``station`` column)."""
-    cols = [c for c in runs.columns if c.name not in ("fit_json",)]
-    q = select_runs(variant=variant, station=station, since=since, until=until).with_only_columns(*cols)
-    out = []
-    for row in read_rows(db, q, timeout_s):
-        row["record"] = _record(db, row, None)
-        del row["record_json"]
-        out.append(row)
-    return out
 
 
 def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:

@@ -1,0 +1,240 @@
+"""A lot's runs column-wise: what lot statistics read, as numpy arrays in time order.
+
+:class:`Lot` is built either from the records database's columns (:func:`read_lot`: no record
+JSON is parsed, only the few distinct ``limits_json`` texts) or from parsed run records
+(:func:`from_records`: the lot page, tests). Both go through
+:func:`eol_cal.station.records.row_values`, the one mapping from a record to its columns (the
+insert and the migrations use it too), so both give the same lot and the same statistics.
+
+Time order is the order of the ``started_at`` times (ties by ``run_id``). The station writes
+UTC ISO 8601 with milliseconds (``2026-11-22T08:00:00.000+00:00``), all of one length, whose
+text order is their time order; numpy parses those in one call. A lot holding other forms
+(another offset, no milliseconds, ``Z``; no offset: UTC) is parsed time by time.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+from dataclasses import dataclass
+from itertools import repeat
+from pathlib import Path
+from typing import Any, Iterable, NamedTuple, Sequence
+
+import numpy as np
+
+from eol_cal.errors import InputError
+
+
+class Quantity(NamedTuple):
+    """A measured quantity of the lot: its column (``key``), where the record has it, its display
+    scale and unit (display value = scale x stored value), its limit key and the limit's sense."""
+
+    key: str
+    title: str
+    path: tuple[str, ...]
+    scale: float
+    unit: str
+    limit_key: str | None
+    sense: str
+
+
+#: the quantities of the lot page and ``lot stats``; each key is a column of ``runs``
+QUANTITIES: tuple[Quantity, ...] = (
+    Quantity("k6", "k6", ("fit", "k6", "value"), 1e3, "mN*m/A", "max_k6", "max"),
+    Quantity("phase_k6", "phase_k6", ("fit", "phase_k6", "value"), 180.0 / math.pi, "deg", None, "max"),
+    Quantity("c6", "c6", ("fit", "c6", "value"), 1e3, "mN*m", None, "max"),
+    Quantity("phase_c6", "phase_c6", ("fit", "phase_c6", "value"), 180.0 / math.pi, "deg", None, "max"),
+    Quantity("pp_before_pct", "p-p before", ("metrics", "pp_before_pct"), 1.0, "%", "max_pp_before_pct", "max"),
+    Quantity("pp_after_pct", "p-p compensated", ("metrics", "pp_after_pct"), 1.0, "%", "max_pp_after_pct", "max"),
+    Quantity("improvement_pct", "improvement", ("metrics", "improvement_pct"), 1.0, "%", "min_improvement_pct", "min"),
+    Quantity("fit_r2", "fit R^2", ("fit", "fit", "r2"), 1.0, "1", "min_r2", "min"),
+    Quantity("fit_rms_nm", "fit residual rms", ("fit", "fit", "rms"), 1e3, "mN*m", "max_rms_nm", "max"),
+)
+#: what the control charts follow per station
+CHARTED = ("k6", "pp_after_pct")
+#: the ``runs`` columns a lot reads per run (and the distinct ``limits_json`` texts)
+LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "reasons", "error_step",
+               *(q.key for q in QUANTITIES))
+
+
+@dataclass(frozen=True)
+class Lot:
+    """Runs column-wise in time order (object arrays of str, float arrays in stored units).
+
+    Attributes
+    ----------
+    run_id, serial, started_at, verdict, station : numpy.ndarray
+        Per run; ``station`` as the reports name it (``(no station id)`` without one).
+    causes : list of list of str
+        The failure causes (:func:`eol_cal.lot.stats.causes_of`) of each run that did not pass.
+    values : dict of str -> numpy.ndarray
+        Per :data:`QUANTITIES` key, stored units (NaN where the run has none).
+    limits : dict of str -> numpy.ndarray
+        Per limit key of :data:`QUANTITIES`, the distinct values it has over the lot's runs
+        (stored units, ascending; several: the lot mixes variants).
+    """
+
+    run_id: np.ndarray
+    serial: np.ndarray
+    started_at: np.ndarray
+    verdict: np.ndarray
+    station: np.ndarray
+    causes: list[list[str]]
+    values: dict[str, np.ndarray]
+    limits: dict[str, np.ndarray]
+
+    def __len__(self) -> int:
+        return len(self.run_id)
+
+    def display(self, q: Quantity) -> np.ndarray:
+        """The quantity's values in display units, time order."""
+        return self.values[q.key] * q.scale
+
+    def limit_values(self, q: Quantity) -> list[float]:
+        """The distinct values of the quantity's limit over the lot, display units (several: the
+        lot mixes variants; none: no limit)."""
+        if q.limit_key is None:
+            return []
+        return [float(v) * q.scale for v in self.limits[q.limit_key]]
+
+    def stations(self) -> list[tuple[str, np.ndarray]]:
+        """``(station, indices of its runs in time order)``, by station name."""
+        names, codes = _codes(self.station.tolist())
+        return sorted((str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names))
+
+
+def _causes(verdict: np.ndarray, run_id: np.ndarray, reasons: np.ndarray, error_step: np.ndarray) -> list[list[str]]:
+    """The failure causes of each run that did not pass (its reasons' JSON parsed: a few runs)."""
+    from eol_cal.lot.stats import causes_of
+
+    out: list[list[str]] = []
+    for i in np.flatnonzero(verdict != "pass"):
+        try:
+            doc = json.loads(reasons[i]) if reasons[i] else []
+        except ValueError:
+            doc = None
+        if not isinstance(doc, list):
+            raise InputError(None, f"run {run_id[i]} reasons", "not a JSON list")
+        out.append(causes_of(verdict[i], doc, error_step[i]))
+    return out
+
+
+def _number(x: Any) -> float:
+    # as the record-wise reading did: a number, else NaN
+    if x is None:
+        return math.nan
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _floats(col: Sequence[Any]) -> np.ndarray:
+    try:
+        return np.asarray(col, dtype=float)  # None is NaN
+    except (TypeError, ValueError):
+        return np.array([_number(x) for x in col], dtype=float)
+
+
+def _codes(texts: Sequence[Any]) -> tuple[list[Any], np.ndarray]:
+    """The distinct values of ``texts`` (first-seen order) and each one's index among them."""
+    distinct = list(dict.fromkeys(texts))
+    index = {t: k for k, t in enumerate(distinct)}
+    return distinct, np.fromiter(map(index.__getitem__, texts), dtype=np.intp, count=len(texts))
+
+
+def _limits(texts: Iterable[str | None]) -> dict[str, np.ndarray]:
+    """Per limit key, its distinct finite values over the ``limits_json`` texts (each distinct
+    text parsed once; one that is not a JSON object sets no limit)."""
+    keys = [q.limit_key for q in QUANTITIES if q.limit_key]
+    table = np.full((0, len(keys)), math.nan)
+    for text in dict.fromkeys(texts):
+        try:
+            doc = json.loads(text) if text else None
+        except ValueError:
+            doc = None
+        if isinstance(doc, dict):
+            table = np.vstack([table, [_number(doc.get(key)) for key in keys]])
+    return {key: np.unique(table[np.isfinite(table[:, j]), j]) for j, key in enumerate(keys)}
+
+
+#: the station's form of a start time: UTC, milliseconds (``2026-11-22T08:00:00.000+00:00``)
+_STATION_FORM = len("2026-11-22T08:00:00.000+00:00")
+
+
+def _utc(text: str) -> np.datetime64:
+    try:
+        t = dt.datetime.fromisoformat(text)
+    except ValueError:
+        raise InputError(None, "started_at", f"{text!r}: not an ISO 8601 time") from None
+    if t.tzinfo is not None:
+        t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
+    return np.datetime64(t, "us")
+
+
+def _times(started_at: Sequence[str]) -> np.ndarray:
+    """The start times as datetime64 (UTC), parsed by numpy when all are in the station's form."""
+    if set(map(len, started_at)) == {_STATION_FORM} and all(map(str.endswith, started_at, repeat("+00:00"))):
+        try:
+            return np.array([s[:-6] for s in started_at], dtype="datetime64[us]")
+        except ValueError:
+            pass  # of the right length but not a time: the one by one reading names it
+    return np.array([_utc(s) for s in started_at], dtype="datetime64[us]")
+
+
+def time_order(started_at: Sequence[str], run_id: Sequence[str]) -> np.ndarray:
+    """Indices that put runs in time order, ties by run id (see the module doc)."""
+    t = _times(started_at)
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    bounds = np.concatenate(([0], np.flatnonzero(ts[1:] != ts[:-1]) + 1, [len(ts)]))
+    for g in np.flatnonzero(np.diff(bounds) > 1):  # runs that started at the same time: by run id
+        b, e = bounds[g], bounds[g + 1]
+        order[b:e] = sorted(order[b:e], key=lambda i: run_id[i])
+    return order
+
+
+def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | None]) -> Lot:
+    """A :class:`Lot` of the ``runs`` columns :data:`LOT_COLUMNS` (any row order) and the runs'
+    ``limits_json`` texts (each run's, or only the distinct ones)."""
+    from eol_cal.report.motor import NO_STATION
+
+    order = time_order(cols["started_at"], cols["run_id"])
+
+    def text(name: str) -> np.ndarray:
+        return np.asarray(cols[name], dtype=object)[order] if len(order) else np.zeros(0, dtype=object)
+
+    station = text("station")
+    station[station == None] = NO_STATION  # noqa: E711 - elementwise: the runs without a station id
+    run_id, verdict = text("run_id"), text("verdict")
+    return Lot(run_id=run_id, serial=text("serial"), started_at=text("started_at"), verdict=verdict, station=station,
+               causes=_causes(verdict, run_id, text("reasons"), text("error_step")),
+               values={q.key: _floats(cols[q.key])[order] for q in QUANTITIES},
+               limits=_limits(limits_json))
+
+
+def from_records(records: Sequence[dict[str, Any]]) -> Lot:
+    """A :class:`Lot` of parsed run records (their columns as the database would hold them)."""
+    from eol_cal.station.records import row_values
+
+    rows = [row_values(r) for r in records]
+    return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS},
+                        (row["limits_json"] for row in rows))
+
+
+def read_lot(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
+             until: str | None = None) -> Lot:
+    """The selected runs of a records database as a :class:`Lot`, from its columns alone (schema
+    version 3). Filters as :func:`eol_cal.station.records.select_runs`."""
+    from eol_cal.errors import naming
+    from eol_cal.station.records import db_key, is_url, read_columns, runs, select_runs
+
+    q = select_runs(variant=variant, station=station, since=since, until=until).order_by(None)
+    # the order is made here (the server's text collation need not be code-point order); the
+    # limits are few distinct texts, asked for as such (not 100 000 copies of them)
+    cols, limits = read_columns(db, q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
+                                q.with_only_columns(runs.c.limits_json).distinct(), min_version=3)
+    with naming(db_key(db) if is_url(db) else str(db)):
+        return from_columns(cols, limits["limits_json"])
