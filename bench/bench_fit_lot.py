@@ -110,7 +110,8 @@ def main() -> None:
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
-    from eol_cal.plant.simulate import simulate, true_block
+    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.simulate import simulate
     from eol_cal.plant.variation import draw_motor
 
     from eol_cal.analysis.fit.table import uncompensated_block

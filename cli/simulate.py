@@ -94,7 +94,8 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     from cli.fit import enable_jax_cache
     from eol_cal.capture import write_capture
     from eol_cal.plant import presets, variation
-    from eol_cal.plant.simulate import mode_of_block, simulate
+    from eol_cal.plant.ecu import mode_of_block
+    from eol_cal.plant.simulate import simulate
 
     if motors is None and output is None:
         raise InputError(None, "-o", "give -o FILE (or --motors N --out-dir DIR)")

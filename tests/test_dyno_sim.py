@@ -207,7 +207,7 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
     from eol_cal.ecu.flash import NorFlash
     from eol_cal.station.rig import plant_source
     from eol_cal.plant.presets import preset_spec
-    from eol_cal.plant.simulate import true_block
+    from eol_cal.plant.ecu import true_block
 
     flash_file = tmp_path / "ecu.flash"
     flash = NorFlash(flash_file)

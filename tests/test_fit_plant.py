@@ -17,7 +17,8 @@ from eol_cal.firmware.block import check, pack
 from eol_cal.motor import load_motor
 from eol_cal.plant.presets import paper
 from eol_cal.plant.profile import Profile, ProfileSegment
-from eol_cal.plant.simulate import simulate, true_block
+from eol_cal.plant.ecu import true_block
+from eol_cal.plant.simulate import simulate
 
 
 def test_fit_table_and_compensated_plant_close_the_loop():

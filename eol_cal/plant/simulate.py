@@ -20,12 +20,11 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import sys
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -33,23 +32,20 @@ from eol_cal.capture.ecu_state import EcuState, with_ecu_state
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware import compensator
-from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
+from eol_cal.firmware.block import ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.mechanics import mech_step
 from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
+from eol_cal.plant.ecu import batch_options, estimator_config, learning_pre_roll_s, simulated_ecu_state, true_block
 from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
-
-if TYPE_CHECKING:
-    from eol_cal.firmware.estimator import EstimatorConfig
 
 TWO_PI = 2.0 * math.pi
 #: Per-tick outputs of the scan, in this order (float32 columns).
 OUT_COLUMNS = ("torque", "enc_a", "enc_b", "hall", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic",
                "speed", "theta_r", "theta_hat", "theta_enc")
 CHUNK_TICKS = 4000
-DEFAULT_TABLE_LEN = 256
 
 
 @dataclass(frozen=True)
@@ -249,97 +245,6 @@ def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m
     ecu = control.EcuState(*(np.asarray(v, dtype=np.float32) for v in ecu))
     est_state = type(est_state)(*(np.asarray(v) for v in est_state))
     return plant, est_state, ecu
-
-
-def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: bool = False,
-               flags: int = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE) -> ParamBlock:
-    """A parameter block made from the plant's true 6th-harmonic ripple (the ideal calibration).
-
-    The paper's compensator cancels the 6th harmonic only; ``harmonics=True`` adds the true
-    12th and 18th to the tables as well. The lead is the current loop's time constant
-    ``1/(2*pi*current_bw_hz)``; ``iqc_limit`` is 10 % of 65 A.
-    """
-    m = spec.motor
-    harm = spec.ripple_harmonics() if harmonics else ()
-    tc, tp = compensator.make_tables(spec.c6, spec.phase_c6, spec.k6, spec.phase_k6, m.kt, table_len, harm)
-    return ParamBlock(
-        sequence=1, flags=flags, serial=spec.serial[:16], calibrated_at=0, poles=m.poles,
-        encoder_ppr=m.N_enc, tick_hz=m.f_pwm, kt=m.kt, hall_angle=NOMINAL_HALL_ANGLE,
-        c6=spec.c6, phase_c6=spec.phase_c6, k6=spec.k6, phase_k6=spec.phase_k6,
-        lead_s=1.0 / (2.0 * math.pi * m.current_bw_hz), iqc_limit=6.5,
-        table_const=tc, table_per_amp=tp,
-    )
-
-
-def mode_of_block(block: ParamBlock) -> str:
-    """The control mode a firmware runs with this block's flags."""
-    if block.flags & FLAG_COMP_ENABLE:
-        return "compensated"
-    return "estimated" if block.flags & FLAG_INTERP_ENABLE else "raw"
-
-
-def simulated_ecu_state(spec: PlantSpec, mode: str, block: ParamBlock | None) -> EcuState:
-    """The ECU state a simulation stands for (the capture's ``ecu_before``/``ecu_after``).
-
-    The block the simulated ECU runs, in bank 0, with the flags that select ``mode`` (other bits
-    of a given block kept): the given block, else one from the plant's true ripple
-    (:func:`true_block`); raw mode without a block is an ECU with no valid block.
-    """
-    from eol_cal.firmware.block import check, flag_names, pack
-
-    if block is None and mode == "raw":
-        return EcuState(None)
-    mode_bits = {"raw": 0, "estimated": FLAG_INTERP_ENABLE, "compensated": FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE}[mode]
-    base = block if block is not None else true_block(spec)
-    flags = (base.flags & ~(FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE)) | mode_bits
-    blk = dataclasses.replace(base, flags=flags)
-    return EcuState(0, blk.sequence, f"{check(pack(blk)).crc_stored:08x}", flag_names(flags))
-
-
-def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, options: int | None = None) -> EstimatorConfig:
-    """The firmware estimator's configuration on this bench.
-
-    The hall table is the block's (nominal without one); the options (contract flags bits 2-5)
-    are ``options`` when given, else those the block's flags select (none without a block: the
-    paper's estimator).
-    """
-    from eol_cal.firmware import estimator
-    from eol_cal.firmware.options import honoured_options
-
-    m = spec.motor
-    hall = block.hall_angle if block is not None else NOMINAL_HALL_ANGLE
-    if options is None:
-        options = honoured_options(block.flags) if block is not None else 0
-    return estimator.EstimatorConfig.from_flags(FLAG_INTERP_ENABLE | options, poles=m.poles, N_enc=m.N_enc,
-                                                tick_hz=m.f_pwm, hall_angle=tuple(float(a) for a in hall))
-
-
-def batch_options(blocks: Sequence[ParamBlock | None], ecu_estimator: str | None = None) -> int:
-    """The estimator option bits the ECUs of one batch run: ``ecu_estimator`` (a choice as
-    :func:`eol_cal.firmware.options.parse_options` reads it) when given, else what the blocks'
-    flags select (none for a motor without a block). They are compiled into the scan, so every
-    motor of a batch must run the same ones.
-    """
-    from eol_cal.firmware.options import honoured_options, options_label, parse_options
-
-    if ecu_estimator is not None:
-        return parse_options(ecu_estimator, None, "ecu_estimator")
-    found = {honoured_options(b.flags) if b is not None else 0 for b in blocks}
-    if len(found) > 1:
-        raise InputError(None, "blocks", "a batch must share the estimator options; the blocks select "
-                                         + ", ".join(sorted(options_label(o) for o in found)))
-    return found.pop() if found else 0
-
-
-def learning_pre_roll_s(options: int, speed_rpm: float) -> float:
-    """Pre-roll (s) that lets pitch-error learning (``EST_LEARN_PITCH_ERRORS``) converge before
-    the recording: 1.5 mechanical revolutions at the first speed, within 0.3-2 s; 0.3 s for the
-    other estimators (their first edges and hall transition)."""
-    from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
-
-    if not options & FLAG_EST_LEARN_PITCH_ERRORS or speed_rpm == 0.0:
-        return 0.3
-    return min(2.0, max(0.3, 1.5 * 60.0 / abs(speed_rpm)))
 
 
 def simulate(

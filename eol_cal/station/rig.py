@@ -51,7 +51,7 @@ def active_calibration(flash_file: str | Path | None) -> ActiveCalibration:
         return ActiveCalibration()
     from eol_cal.ecu.flash import active_block_from_file
     from eol_cal.firmware.block import unpack
-    from eol_cal.plant.simulate import mode_of_block
+    from eol_cal.plant.ecu import mode_of_block
 
     data = active_block_from_file(flash_file)
     if data is None:
