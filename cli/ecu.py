@@ -231,7 +231,8 @@ def _bank_choice(value: str | None) -> int | str | None:
 @click.option("--key-algo", metavar="MODULE:FUNC",
               help="Other seed-to-key algorithm: FUNC(seed: bytes, secret: bytes|None) -> key bytes.")
 @click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None,
-              help="Write the block read from the bank here before flashing (written atomically).")
+              help="Write the block read from the bank here before flashing (written atomically) "
+                   "[default: ecu-bankN-TIME.bin in the current directory].")
 @click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
               help="Motor TOML overriding the paper preset: its current rating bounds the block.")
 @click.option("--json", "as_json", is_flag=True, help="Print the flash report as JSON.")
@@ -245,10 +246,13 @@ def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, 
     The block comes from a bank of the ECU (--bank 0|1|previous; checked: valid, CRC and physical
     sanity) or from a file (--from). It is written like `eol-cal flash` writes: into the inactive
     bank, read back, checked, confirmed after the reset. Restoring the previous bank rewrites
-    that very bank: if the flash fails, the active block stays active and that bank is erased
-    (keep a copy with --save). Exit 0 restored (or already active), 1 verification failed,
+    that very bank: if the flash fails, the active block stays active and that bank is erased,
+    so the block read is always kept in a file first (--save, or ecu-bankN-TIME.bin here), from
+    which --from restores it. Exit 0 restored (or already active), 1 verification failed,
     2 refused or error.
     """
+    import time
+
     from eol_cal.atomic import atomic_write
     from eol_cal.ecu.restore import read_bank_block, restore_block
     from eol_cal.firmware.block import read_block_file
@@ -271,11 +275,13 @@ def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, 
         if got.is_active:
             click.echo(f"bank {got.bank} is the active block already (sequence {got.active.sequence}): nothing to do")
             return
-        if save_file is not None:
-            try:
-                atomic_write(save_file, data)
-            except OSError as exc:
-                raise InputError(save_file, None, f"cannot write: {exc}") from exc
+        if save_file is None:  # the flash erases this very bank first: never without a copy
+            save_file = time.strftime(f"ecu-bank{got.bank}-%Y%m%dT%H%M%SZ.bin", time.gmtime())
+        try:
+            atomic_write(save_file, data)
+        except OSError as exc:
+            raise InputError(save_file, None, f"cannot write: {exc}; nothing was flashed") from exc
+        click.echo(f"bank {got.bank}'s block kept in {save_file} (eol-cal ecu restore --from {save_file})", err=True)
     bus = _open_bus(interface, channel, bitrate, can_config)
     try:
         report = restore_block(bus, data, source, seed_to_key=seed_to_key, motor=motor,

@@ -107,3 +107,17 @@ def test_an_erased_or_damaged_bank_is_refused_and_nothing_is_written(ecu, files,
     assert res.exit_code == 2 and "bank" in res.output
     res = _invoke("ecu", "restore", *bus, "--key-file", files["key"])
     assert res.exit_code == 2 and "--bank" in res.output
+
+
+def test_restore_without_save_keeps_the_block_in_a_file_before_the_bank_is_erased(ecu, files, tmp_path, monkeypatch):
+    bus = ecu("keep")
+    for block in (files["a"], files["b"]):
+        assert _invoke("flash", str(block), *bus, "--key-file", files["key"]).exit_code == 0
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    res = _invoke("ecu", "restore", "--bank", "previous", *bus, "--key-file", files["key"])
+    assert res.exit_code == 0, res.output
+    kept = list(work.glob("ecu-bank0-*.bin"))
+    assert len(kept) == 1 and kept[0].read_bytes() == files["a"].read_bytes()
+    assert f"--from {kept[0].name}" in res.output
