@@ -6,9 +6,9 @@
 All four run the same task (:func:`eol_cal.lot.refit.refit_capture`) in processes prepared the
 same way (:func:`eol_cal.lot.cluster.prepare_fit_process`: JAX's compile cache, the fit's
 modules, ``gc.freeze``), each warm (one fit per process outside the timing). The Dask runs use
-the cluster `eol-cal refit` starts (:func:`eol_cal.lot.cluster.local_cluster`); the Pool's
-processes get the environment the nanny gives Dask's workers (``distributed.nanny.pre-spawn-environ``:
-one OpenMP/BLAS thread each). The machine is shared: the alternatives run one after the other
+the cluster `eol-cal refit` starts (:func:`eol_cal.lot.cluster.local_cluster`); the Pool's processes get the
+environment the nanny gives Dask's workers (:func:`eol_cal.lot.cluster.worker_environ`: one
+OpenMP/BLAS thread each). The machine is shared: the alternatives run one after the other
 in each round, ``--rounds`` times, and the table sums the rounds; ``cpu/serial`` is the CPU time
 (user + system) of every process involved (this one, the pool's, the nannies and workers), which
 other jobs on the machine move much less than the wall time.
@@ -106,13 +106,11 @@ def run_loop(lot: list[list[Path]], warm: list[Path]) -> tuple[list[float], floa
 
 
 def run_pool(lot: list[list[Path]], warm: list[Path]) -> tuple[list[float], float, float]:
-    import dask
-    from distributed import Nanny  # noqa: F401 - loads distributed's configuration defaults
+    from eol_cal.lot.cluster import worker_environ
 
-    pre_spawn = {k: str(v) for k, v in dask.config.get("distributed.nanny.pre-spawn-environ").items() if v is not None}
     ctx = mp.get_context("spawn")
     ready = ctx.Semaphore(0)
-    with _environ(pre_spawn), ctx.Pool(2, initializer=_init, initargs=(warm, ready)) as pool:
+    with _environ(worker_environ()), ctx.Pool(2, initializer=_init, initargs=(warm, ready)) as pool:
         for _ in range(2):  # both processes initialised and warm before the clock
             ready.acquire()
         return _timed(lambda: pool.map(_fit, lot, chunksize=1))

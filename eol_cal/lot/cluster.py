@@ -6,8 +6,9 @@ what ``distributed`` does beside the tasks counts. Measured on the 2-core machin
 docs/benchmarks.md ("Lot refit throughput"): the worker's statistical profiler (a thread that
 samples the task thread's stack every 10 ms) and the 20 ms to 100 ms monitoring loops of the
 scheduler, nannies and workers cost 5 to 10 % of a refit's CPU; :data:`REFIT_CONFIG` switches the
-profiler off and slows those loops down. Nothing of the scheduling changes: one task per motor
-run, retries, a nanny that restarts a killed worker.
+profiler off and slows those loops down, and leaves glibc's malloc trimming as it is in a plain
+process (``MALLOC_TRIM_THRESHOLD_`` unset: ~20 % of a refit's CPU). Nothing of the scheduling
+changes: one task per motor run, retries, a nanny that restarts a killed worker.
 """
 
 from __future__ import annotations
@@ -34,7 +35,23 @@ REFIT_CONFIG: dict[str, object] = {
     # worker and nanny memory checks: default 100 ms; a worker over its memory limit is still
     # paused or restarted, a second later at most
     "distributed.worker.memory.monitor-interval": "1s",
+    # distributed sets MALLOC_TRIM_THRESHOLD_=65536 in its workers (to give freed memory back to
+    # the system soon); glibc then unmaps and faults in again the fit's arrays on every capture:
+    # ~20 % more CPU per refit (measured with multiprocessing.Pool workers, with and without it)
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
 }
+
+
+def worker_environ() -> dict[str, str]:
+    """The environment variables the nanny of :func:`local_cluster` sets for its workers
+    (``distributed.nanny.pre-spawn-environ`` under :data:`REFIT_CONFIG`: one OpenMP/MKL/OpenBLAS
+    thread per process; variables of this process's environment take precedence)."""
+    import dask
+    from distributed import Nanny  # noqa: F401 - loads distributed's configuration defaults
+
+    with dask.config.set(REFIT_CONFIG):
+        env = dask.config.get("distributed.nanny.pre-spawn-environ")
+    return {k: os.environ.get(k, str(v)) for k, v in env.items() if v is not None}
 
 
 @contextlib.contextmanager
