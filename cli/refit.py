@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import functools
+import contextlib
 from pathlib import Path
 
 import click
@@ -29,33 +29,29 @@ from cli.paths import io_paths
 def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out) -> None:
     """Refit every capture (directories of station runs: their before.mf4; files; globs) as one
     task each on a `distributed` cluster, with the station's fit; rows keyed by serial."""
-    from distributed import Client, LocalCluster
+    from distributed import Client
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from eol_cal.analysis.fit.cache import default_cache_dir, enable_compile_cache
+    from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.errors import InputError
+    from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
     from eol_cal.lot.refit import find_captures, refit_lot, write_rows
 
     if out.suffix not in (".parquet", ".jsonl"):
         raise InputError(str(out), None, "results file must end in .jsonl or .parquet")
     paths = find_captures(captures)
     cache_dir = default_cache_dir()
-    cluster = None
-    if scheduler is None:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)
-    try:
-        with Client(scheduler or cluster) as client:
-            # each worker process keeps JAX's persistent compile cache and the fit's exported solvers
-            client.register_worker_callbacks(functools.partial(enable_compile_cache, cache_dir))
-            with Progress(TextColumn("refit"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                          console=err_console, transient=False) as bar:
-                task = bar.add_task("refit", total=len(paths))
-                rows = refit_lot(paths, client, limits_file, variant, on_done=lambda _r: bar.advance(task),
-                                 bench=bench, motor=motor, cache_dir=cache_dir)
-    finally:
-        if cluster is not None:
-            cluster.close()
+    with contextlib.ExitStack() as stack:
+        cluster = None if scheduler else stack.enter_context(local_cluster(workers))
+        client = stack.enter_context(Client(scheduler or cluster))
+        # every worker (one restarted after a crash too): JAX's persistent compile cache, the fit's
+        # modules imported and frozen out of the garbage collector's walks
+        client.register_plugin(RefitWorkerSetup(cache_dir))
+        with Progress(TextColumn("refit"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=err_console, transient=False, refresh_per_second=2) as bar:
+            task = bar.add_task("refit", total=len(paths))
+            rows = refit_lot(paths, client, limits_file, variant, on_done=lambda _r: bar.advance(task),
+                             bench=bench, motor=motor, cache_dir=cache_dir)
     write_rows(out, rows)
     bad = [r for r in rows if r["error"]]
     for r in bad:

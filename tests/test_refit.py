@@ -16,6 +16,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
+from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
 from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_lot
 from eol_cal.station.records import insert_records
 
@@ -65,12 +66,21 @@ def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot:
     assert {r["capture"]: r["k6"] for r in read_rows(pq)} == {c: r["k6"] for c, r in rows.items()}
 
 
+def _worker_state() -> tuple[int, bool, int, str | None]:
+    import gc
+
+    import dask
+
+    return (os.getpid(), dask.config.get("distributed.worker.profile.enabled"), gc.get_freeze_count(),
+            os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+
+
 def test_a_killed_worker_loses_no_capture(lot: Path):
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
     paths = find_captures([str(lot)]) * 2
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    with local_cluster(2) as cluster, Client(cluster) as client:  # the cluster `eol-cal refit` starts
+        client.register_plugin(RefitWorkerSetup(None))
         pids = list(client.run(os.getpid).values())
         done = []
 
@@ -80,6 +90,13 @@ def test_a_killed_worker_loses_no_capture(lot: Path):
                 os.kill(pids[0], signal.SIGKILL)  # one worker process dies mid-lot
 
         rows = refit_lot(paths, client, on_done=kill_once, retries=3, bench="none")
+        client.wait_for_workers(2, timeout=60)
+        state = list(client.run(_worker_state).values())
+    # the nanny restarted the killed worker: it runs the refit's settings and the plugin too
+    assert len(state) == 2 and pids[0] not in [pid for pid, *_ in state]
+    assert all(profiling is False and frozen > 10_000 for _, profiling, frozen, _ in state), state
+    # no malloc trimming added by the nanny (it costs a refit ~20 % CPU): as in this process
+    assert {trim for *_, trim in state} == {os.environ.get("MALLOC_TRIM_THRESHOLD_")}
     assert len(rows) == len(paths)
     assert all(r["error"] is None and r["k6"] is not None for r in rows), rows
     assert sorted(r["serial"] for r in rows) == sorted(SERIALS * 2)

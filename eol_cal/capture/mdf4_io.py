@@ -190,13 +190,19 @@ def read_mdf4_columns(
 @contextlib.contextmanager
 def _quiet_asammdf() -> Iterator[None]:
     """asammdf objects that failed half-way complain from ``__del__`` on stderr; the error we
-    raise says what went wrong, once."""
+    raise says what went wrong, once.
+
+    Only a failed read collects its garbage here: a full ``gc.collect`` walks every object of the
+    process (about 0.1 s once JAX is imported, more in a Dask worker), which on every good capture
+    was most of a lot refit's time (docs/benchmarks.md, "Lot refit throughput")."""
     previous = sys.unraisablehook
     sys.unraisablehook = lambda unraisable: None
     try:
         yield
+    except BaseException:
+        gc.collect()  # the half-built objects die now, while their complaints go nowhere
+        raise
     finally:
-        gc.collect()
         sys.unraisablehook = previous
 
 

@@ -108,10 +108,13 @@ def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | N
     ``cache_dir``: the fit's serialized solvers, a directory on the workers' machines (``None``: none)."""
     from distributed import as_completed
 
-    futures = {client.submit(refit_capture, [str(q) for q in group], limits_file, variant, bench, motor,
-                             None if cache_dir is None else str(cache_dir),
-                             key=f"refit-{i}-{group[0].parent.name}", retries=retries, pure=False): i
-               for i, group in enumerate(paths)}
+    # one graph update for the whole lot (a submit per task is a scheduler round trip each); the
+    # arguments are file names and a few strings: nothing of size goes over the wire either way
+    keys = [f"refit-{i}-{group[0].parent.name}" for i, group in enumerate(paths)]
+    mapped = client.map(refit_capture, [[str(q) for q in group] for group in paths], key=keys, retries=retries,
+                        pure=False, limits_file=limits_file, variant=variant, bench=bench, motor=motor,
+                        cache_dir=None if cache_dir is None else str(cache_dir))
+    futures = {fut: i for i, fut in enumerate(mapped)}
     rows: list[dict[str, Any] | None] = [None] * len(paths)
     for fut in as_completed(futures):
         i = futures[fut]
