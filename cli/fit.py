@@ -131,8 +131,9 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     mechanics = mechanics_or_rigid(bench_name)
     caps = [read_capture(p, map_file) for p in captures]
     traces = [trace_of(cap.metadata, path) for path, cap in zip(captures, caps)]
-    for path, trace in zip(captures, traces):  # every refusal before any fit starts
-        for warning in check_trace(trace, path, allow_untraced=allow_untraced, allow_compensated=allow_compensated):
+    for path, trace, cap in zip(captures, traces, caps):  # every refusal before any fit starts
+        for warning in check_trace(trace, path, allow_untraced=allow_untraced, allow_compensated=allow_compensated,
+                                   serial=cap.metadata.get("serial")):
             click.echo(f"warning: {warning}", err=True)
     bits, warnings = frame_estimator(estimator, captures, traces)
     for warning in warnings:

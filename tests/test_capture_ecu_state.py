@@ -94,3 +94,14 @@ def test_simulated_captures_carry_the_state_they_simulate():
     assert comp.crc32 == f"{B.check(image).crc_stored:08x}" and est.crc32 != comp.crc32
     # the analytic model: the raw encoder angle, no block
     assert trace_of(small().metadata) == Trace(EcuState(None), EcuState(None))
+
+
+def test_an_ecu_of_another_serial_is_refused():
+    """The dyno ran motor M-0007 while the ECU on the bus said M-0001: its block and hall table are another motor's."""
+    f = "c.mf4"
+    ecu = dataclasses.replace(AFTER, serial="M-0001")
+    with pytest.raises(InputError, match=r"c\.mf4.*ecu_before\.serial.*M-0001 \(F18C\).*M-0007"):
+        check_trace(Trace(ecu, ecu), f, serial="M-0007", allow_untraced=True, allow_compensated=True)
+    assert check_trace(Trace(ecu, ecu), f, serial="M-0001") == []
+    unread = dataclasses.replace(AFTER, serial=None)  # a simulated capture: no F18C read
+    assert check_trace(Trace(unread, unread), f, serial="M-0007") == []

@@ -185,12 +185,14 @@ def compensated(state: EcuState) -> bool:
 
 
 def check_trace(trace: Trace, file: str | None, *, allow_untraced: bool = False,
-                allow_compensated: bool = False) -> list[str]:
+                allow_compensated: bool = False, serial: str | None = None) -> list[str]:
     """Refuse a capture whose ECU record does not allow a fit of the motor's own ripple.
 
-    Always refused: the ECU's active block changed during the acquisition (before != after), or
-    only one of the two states was recorded. Refused unless allowed: no record at all
-    (``allow_untraced``), and a capture taken under compensation (``allow_compensated``).
+    Always refused: the ECU's active block changed during the acquisition (before != after),
+    only one of the two states was recorded, or the ECU reported another serial (F18C) than the
+    capture's ``serial`` (the dyno ran one motor under another motor's ECU and block). Refused
+    unless allowed: no record at all (``allow_untraced``), and a capture taken under
+    compensation (``allow_compensated``).
 
     Returns
     -------
@@ -211,6 +213,10 @@ def check_trace(trace: Trace, file: str | None, *, allow_untraced: bool = False,
     if trace.before is None or trace.after is None:
         missing = "ecu_before" if trace.before is None else "ecu_after"
         raise InputError(file, missing, "the ECU state is recorded only at one end of the capture")
+    ecu_serial = trace.before.serial or trace.after.serial
+    if serial and ecu_serial and ecu_serial != serial:
+        raise InputError(file, "ecu_before.serial", f"the ECU reported serial {ecu_serial} (F18C), the capture is of "
+                                                    f"{serial}: it ran another motor's block")
     if not trace.before.same_block(trace.after):
         raise InputError(file, "ecu_after", f"the ECU's active block changed during the acquisition (before: "
                                             f"{trace.before.describe()}; after: {trace.after.describe()})")
