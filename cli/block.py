@@ -10,8 +10,10 @@ import click
 from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json
 from cli.paths import io_paths
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import CHECK_STATUS
 
-_STATUS_TEXT = {0: "valid", 1: "CRC mismatch", 2: "header invalid"}
+#: the check routine's status codes as the contract words them
+_STATUS_TEXT = {st.code: st.text for st in CHECK_STATUS.values()}
 
 
 def block_report(path: str) -> tuple[dict[str, Any], Any]:
