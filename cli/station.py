@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, print_json
+from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
+                        handle_errors, print_json)
 from cli.dyno import load_map, register_map_option
 from cli.paths import io_paths
 
@@ -132,6 +133,7 @@ OPTION_KEYS = {
     "verify": "verify", "key_file": "key_file", "report_dir": "report_dir", "spool_dir": "spool_dir",
     "db_timeout": "db_timeout_s", "rate_hz": "rate_hz", "dyno_timeout": "dyno.timeout_s", "motor_file": "motor",
     "bench_name": "bench", "station_id": "station_id", "register_map": "dyno.register_map",
+    "estimator": "estimator",
 }
 #: what `run` without --station needs, by option, for its one-line refusal
 REQUIRED_OPTIONS = {"address": "--dyno HOST:PORT", "limits_file": "--limits FILE", "db": "--db PATH|URL",
@@ -199,6 +201,8 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
               help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm, current_bw_hz, ...): the motor type on the station.")
 @click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
               help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
+@estimator_option("both blocks of the cycle carry them [default: the variant's, limits key estimator].",
+                  default=None)
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @register_map_option
 @click.pass_context

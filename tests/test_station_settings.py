@@ -127,3 +127,18 @@ def test_dyno_register_map_key_names_a_shipped_map_or_a_file_beside_the_settings
     (station_dir / "station.toml").write_text(GOOD.replace('address = "127.0.0.1"', 'address = "127.0.0.1"\nregister_map = "maps/rig3.toml"'))
     err = _refused(station_dir / "station.toml", check=True)
     assert err.field == "dyno.register_map" and "rig3.toml" in str(err) and "registers.speed.scale" in str(err)
+
+
+def test_the_estimator_options_come_from_the_settings_or_the_variant(station_dir: Path) -> None:
+    from eol_cal.firmware.options import parse_options
+    from eol_cal.station.configure import station_config
+
+    s = load_settings(station_dir / "station.toml", {})
+    cfg = station_config(s)
+    assert cfg.estimator is None and cfg.estimator_options == cfg.limits.estimator_options  # the variant's
+    s = load_settings(station_dir / "station.toml", {env_name("estimator"): "paper"})
+    check_station(s)
+    cfg = station_config(s)
+    assert cfg.estimator == "paper" and cfg.estimator_options == parse_options("paper") == 0
+    err = _refused(station_dir / "station.toml", {env_name("estimator"): "fastest"}, check=True)
+    assert err.field == "estimator" and err.file == f"${env_name('estimator')}"

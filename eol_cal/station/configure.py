@@ -74,6 +74,7 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
         report_dir=settings.path("report_dir"), profile=str(settings["profile"]), verify=str(settings["verify"]),
         spool_dir=settings.path("spool_dir"), rate_hz=int(settings["rate_hz"]), db_timeout_s=float(settings["db_timeout_s"]),
         station=station_record(settings, operator), cache_dir=cache_dir, motor=motor, mechanics=mechanics,
+        estimator=None if settings["estimator"] is None else str(settings["estimator"]),
     )
 
 

@@ -79,6 +79,7 @@ KEYS: tuple[Key, ...] = (
     Key("key_file", str, required=True, is_path=True),
     Key("profile", str, "eol-default"),
     Key("verify", str, "point", choices=("point", "full")),
+    Key("estimator", str),  # None: the variant's (limits file), else paper|best|NAMES|0xMASK
     Key("motor", str, "paper"),
     Key("bench", str, "paper"),
     Key("rate_hz", int, 10000, bounds=(1, 1_000_000)),
@@ -302,6 +303,10 @@ def check_station(settings: StationSettings) -> None:
 
     _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
     _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    if settings["estimator"] is not None:
+        from eol_cal.firmware.options import parse_options
+
+        parse_options(str(settings["estimator"]), settings.where("estimator"), "estimator")
     motor = str(settings["motor"])
     _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
     _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
