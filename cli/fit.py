@@ -33,27 +33,24 @@ def _harmonics(text: str) -> tuple[int, ...]:
 def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple[int, list[str]]:
     """The estimator options the fit measures the firmware frame with, and warnings.
 
-    The options the captures' ECU ran (their ``ecu_before`` block's flags) unless ``choice``
-    (``--estimator``) says otherwise, which is then warned about per capture that recorded
-    others; ``best`` when no capture recorded a block. Captures that recorded different options
-    cannot share one frame: refused unless ``choice`` is given.
+    The options the captures' ECU ran (:func:`eol_cal.capture.ecu_state.common_options`) unless
+    ``choice`` (``--estimator``) says otherwise, which is then warned about per capture that
+    recorded others; ``best`` when no capture recorded a block.
     """
+    from eol_cal.capture.ecu_state import common_options, recorded_options
     from eol_cal.errors import InputError
     from eol_cal.firmware.options import options_label
 
-    recorded = {path: t.before.estimator_options() for path, t in zip(paths, traces)
-                if t.before is not None and t.before.has_block}
+    recorded = recorded_options(paths, traces)
     if choice is not None:
         bits = estimator_bits(choice)
         return bits, [f"{path}: the ECU ran estimator {options_label(r)}, the frame is measured with "
                       f"{options_label(bits)} (--estimator)" for path, r in recorded.items() if r != bits]
-    found = set(recorded.values())
-    if len(found) > 1:
-        first = {options_label(r): path for path, r in recorded.items()}
-        raise InputError(", ".join(first.values()), "ecu_before.flags",
-                         f"the captures ran different estimator options ({', '.join(sorted(first))}); "
-                         "fit them apart or choose one with --estimator")
-    return (found.pop() if found else estimator_bits("best")), []
+    try:
+        ran = common_options(recorded)
+    except InputError as exc:
+        raise InputError(exc.file, exc.field, f"{exc.reason}; fit them apart or choose one with --estimator") from None
+    return (estimator_bits("best") if ran is None else ran), []
 
 
 @click.command("fit")

@@ -112,3 +112,23 @@ def test_lot_diff_names_the_motors_that_change_verdict(records_db, tmp_path: Pat
     res = CliRunner().invoke(cli, ["lot", "diff", "--db", str(records_db), str(out), "--json"])
     assert res.exit_code == 0, res.output
     assert [(c["serial"], c["recorded"], c["refit"]) for c in json.loads(res.stdout)["changes"]] == [("B", "pass", "fail")]
+
+
+@pytest.mark.parametrize("flags, ecu_serial, words", [
+    ("COMP_ENABLE|INTERP_ENABLE", None, "under compensation"),
+    ("INTERP_ENABLE", "M-0001", "another motor's block"),
+])
+def test_a_capture_fit_would_refuse_is_an_error_row(tmp_path, flags, ecu_serial, words):
+    """A refit refuses per serial what `eol-cal fit` refuses: under compensation, another motor's ECU."""
+    import dataclasses
+
+    from eol_cal.capture.ecu_state import EcuState, with_ecu_state
+
+    c = synthetic_capture(rpm=60.0, i_qo=40.0, seconds=0.6, seed=3, serial="M-0007")
+    state = EcuState(1, 4, "0badc0de", flags, ecu_serial)
+    c = dataclasses.replace(c, metadata=with_ecu_state(c.metadata, state, state))
+    path = tmp_path / "m.mf4"
+    write_capture(c, path)
+    row = refit_capture([path])
+    assert row["verdict"] == "error" and words in row["error"] and str(path) in row["error"]
+    assert row["k6"] is None

@@ -23,7 +23,7 @@ and the same under ``ecu_after.``. A capture with neither is *untraced*.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 from eol_cal.errors import InputError
 
@@ -227,3 +227,30 @@ def check_trace(trace: Trace, file: str | None, *, allow_untraced: bool = False,
             raise problem
         return [str(problem)]
     return []
+
+
+def recorded_options(files: Sequence[str], traces: Sequence[Trace]) -> dict[str, int]:
+    """The estimator option bits (contract flags bits 2-5) each capture's ECU ran, by file: the
+    captures whose ``ecu_before`` records a block (the others ran no estimator or are untraced)."""
+    return {f: t.before.estimator_options() for f, t in zip(files, traces)
+            if t.before is not None and t.before.has_block}
+
+
+def common_options(recorded: Mapping[str, int]) -> int | None:
+    """The one set of option bits the captures ran (None: none recorded a block).
+
+    Raises
+    ------
+    InputError
+        The captures ran different options: they cannot share one firmware frame (names one
+        file of each set and the metadata key).
+    """
+    from eol_cal.firmware.options import options_label
+
+    found = set(recorded.values())
+    if len(found) > 1:
+        first = {options_label(r): f for f, r in recorded.items()}
+        raise InputError(", ".join(first.values()), "ecu_before.flags",
+                         f"the captures ran different estimator options ({', '.join(sorted(first))}): "
+                         "they cannot share one firmware frame")
+    return found.pop() if found else None

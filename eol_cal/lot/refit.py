@@ -6,7 +6,11 @@ Each task reads the run's captures and fits them as the station does (the option
 :func:`eol_cal.station.run.fit_motor`, so the same k6 as the record of that run), and, with limits, judges the fit's
 part of them (:func:`eol_cal.station.limits.fit_reasons`: k6, the intervals, R^2, RMS, the hall
 table; the ripple limits need the compensated capture, which a refit does not make). A capture
-that cannot be read or fitted gives a row with ``error`` and no numbers; the lot goes on.
+that cannot be read or fitted gives a row with ``error`` and no numbers; the lot goes on. So does
+a capture that ``eol-cal fit`` would refuse by its recorded ECU state (the block changed during
+it, another motor's ECU, taken under compensation); untraced captures (older runs) are refitted,
+and the firmware frame is measured under the estimator options the captures' ECU ran (else the
+variant's).
 Tasks are pure (a file in, a row out), so ``distributed`` may rerun one whose worker died.
 """
 
@@ -61,6 +65,7 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
     """
     from eol_cal import __version__
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
+    from eol_cal.capture.ecu_state import check_trace, common_options, recorded_options, trace_of
     from eol_cal.capture.io import read_capture
     from eol_cal.errors import EolCalError
     from eol_cal.station.limits import fit_reasons, load_limits, measured_from_fit
@@ -71,14 +76,24 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
         lim = load_limits(limits_file, variant) if limits_file else None
         caps = [read_capture(p) for p in paths]
         row["serial"] = caps[0].serial
+        # what fit refuses, a refit refuses (per serial): a block changed during the capture, another
+        # motor's ECU, a capture under compensation; untraced captures (older runs) are refitted
+        traces = [trace_of(c.metadata, str(p)) for p, c in zip(paths, caps)]
+        for p, c, t in zip(paths, caps, traces):
+            check_trace(t, str(p), allow_untraced=True, serial=c.metadata.get("serial"))
+        ran = common_options(recorded_options([str(p) for p in paths], traces))
         from eol_cal.mechanics import mechanics_or_rigid
         from eol_cal.motor import load_motor
 
         common = dict(batch="loop", mechanics=mechanics_or_rigid(bench), motor=load_motor(motor),
                       cache_dir=None if cache_dir is None else Path(cache_dir))
-        # the estimator the runs measured under: the variant's (default best, as the station's)
-        opts = FitOptions(**common) if lim is None else FitOptions(limits=lim.ci_limits(),
-                                                                    estimator_options=lim.estimator_options, **common)
+        # the estimator the runs measured under: the one their ECU state records, else the variant's
+        # (default best, as the station's)
+        if ran is not None:
+            common["estimator_options"] = ran
+        elif lim is not None:
+            common["estimator_options"] = lim.estimator_options
+        opts = FitOptions(**common) if lim is None else FitOptions(limits=lim.ci_limits(), **common)
         res = fit_motors(caps, opts, __version__)
         if len(res.records) != 1:
             raise InputError(str(paths[0]), "serial", f"the directory holds {len(res.records)} motors, expected one")
