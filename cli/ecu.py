@@ -254,7 +254,7 @@ def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, 
     import time
 
     from eol_cal.atomic import atomic_write
-    from eol_cal.ecu.restore import read_bank_block, restore_block
+    from eol_cal.ecu.restore import check_restorable, read_bank_block, restore_block
     from eol_cal.firmware.block import read_block_file
     from eol_cal.motor import load_motor
 
@@ -275,6 +275,7 @@ def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, 
         if got.is_active:
             click.echo(f"bank {got.bank} is the active block already (sequence {got.active.sequence}): nothing to do")
             return
+        check_restorable(data, source, motor)  # a bank not worth restoring is refused before any copy
         if save_file is None:  # the flash erases this very bank first: never without a copy
             save_file = time.strftime(f"ecu-bank{got.bank}-%Y%m%dT%H%M%SZ.bin", time.gmtime())
         try:
