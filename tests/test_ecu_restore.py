@@ -86,7 +86,10 @@ def test_restore_previous_makes_the_first_calibration_active_with_a_higher_seque
     assert _content(_active(bus, tmp_path)) == _content(files["b"].read_bytes())
 
 
-def test_an_erased_or_damaged_bank_is_refused_and_nothing_is_written(ecu, files, tmp_path):
+def test_an_erased_or_damaged_bank_is_refused_and_nothing_is_written(ecu, files, tmp_path, monkeypatch):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)  # where a restore keeps its copy when not told: none may be left by a refusal
     bus = ecu("one")
     res = _invoke("flash", str(files["a"]), *bus, "--key-file", files["key"])
     assert res.exit_code == 0, res.output
@@ -107,6 +110,7 @@ def test_an_erased_or_damaged_bank_is_refused_and_nothing_is_written(ecu, files,
     assert res.exit_code == 2 and "bank" in res.output
     res = _invoke("ecu", "restore", *bus, "--key-file", files["key"])
     assert res.exit_code == 2 and "--bank" in res.output
+    assert list(work.iterdir()) == []
 
 
 def test_restore_without_save_keeps_the_block_in_a_file_before_the_bank_is_erased(ecu, files, tmp_path, monkeypatch):
