@@ -193,7 +193,7 @@ def hex_cmd(file: str, bank: int, output: str, motor_file: str | None) -> None:
     n = pb.unpack(data, file).table_len
     text = pb.to_intel_hex(data[:pb.block_bytes(n)], bank)
     atomic_write(Path(output), text.encode("ascii"))
-    start = 2 * pb.BANK_WORD_ADDR[bank]
+    start = pb.BANK_BYTE_ADDR[bank]
     click.echo(f"wrote {output}: {pb.block_bytes(n)} bytes at byte address 0x{start:x} "
                f"(word address 0x{pb.BANK_WORD_ADDR[bank]:x}, bank {bank})")
 

@@ -33,6 +33,7 @@ from eol_cal.firmware.block_file import (  # noqa: F401
 )
 # the layout, also read through this module (block.FIELDS, block.field_offset, ...)
 from eol_cal.firmware.block_layout import (  # noqa: F401
+    BANK_BYTE_ADDR,
     BANK_BYTES,
     BANK_WORD_ADDR,
     BANK_WORDS,

@@ -8,7 +8,7 @@ import os
 from pathlib import Path
 
 from eol_cal.errors import InputError
-from eol_cal.firmware.block_layout import BANK_BYTES, BANK_WORD_ADDR
+from eol_cal.firmware.block_layout import BANK_BYTE_ADDR, BANK_BYTES
 
 
 def to_intel_hex(data: bytes, bank: int) -> str:
@@ -27,7 +27,7 @@ def to_intel_hex(data: bytes, bank: int) -> str:
     if len(data) % 2:
         raise InputError(None, "block_bytes", f"{len(data)} bytes: the flash takes whole 16-bit words")
     ih = IntelHex()
-    ih.frombytes(bytes(data), offset=2 * BANK_WORD_ADDR[bank])
+    ih.frombytes(bytes(data), offset=BANK_BYTE_ADDR[bank])
     out = io.StringIO()
     ih.write_hex_file(out)
     return out.getvalue()
@@ -60,10 +60,10 @@ def _from_intel_hex(text: str, banks: tuple[int, ...], source: str) -> tuple[int
     for b in banks:
         if b not in (0, 1):
             raise InputError(source, "bank", f"{b!r}: must be 0 or 1")
-        start = 2 * BANK_WORD_ADDR[b]
+        start = BANK_BYTE_ADDR[b]
         if start <= addrs[0] and addrs[-1] < start + BANK_BYTES:
             return b, ih.tobinstr(start=start, end=addrs[-1])
-    ranges = ", ".join(f"bank {b}: bytes 0x{2 * BANK_WORD_ADDR[b]:x}..0x{2 * BANK_WORD_ADDR[b] + BANK_BYTES - 1:x}"
+    ranges = ", ".join(f"bank {b}: bytes 0x{BANK_BYTE_ADDR[b]:x}..0x{BANK_BYTE_ADDR[b] + BANK_BYTES - 1:x}"
                        for b in banks)
     raise InputError(source, "address", f"data at 0x{addrs[0]:x}..0x{addrs[-1]:x} is not inside one bank ({ranges})")
 

@@ -36,6 +36,8 @@ FIELDS: dict[str, dict[str, Any]] = {f["name"]: f for f in LAYOUT["field"]}
 LAYOUT_VERSION: int = LAYOUT["layout_version"]
 SUPPORTED_LAYOUTS: tuple[int, ...] = (LAYOUT_VERSION,)
 BANK_WORD_ADDR: tuple[int, int] = tuple(LAYOUT["bank_word_addr"])  # type: ignore[assignment]
+#: each bank's start as a byte address, 2 x its word address (the contract's Intel HEX and A2L rule)
+BANK_BYTE_ADDR: tuple[int, int] = tuple(2 * a for a in BANK_WORD_ADDR)  # type: ignore[assignment]
 BANK_WORDS: int = LAYOUT["bank_words"]
 BANK_BYTES: int = LAYOUT["bank_bytes"]
 HEADER_BYTES: int = LAYOUT["header_bytes"]

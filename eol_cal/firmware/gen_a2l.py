@@ -21,12 +21,11 @@ import numpy as np
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as pb
 from eol_cal.firmware import contract as C
+from eol_cal.firmware.block_layout import BANK_BYTE_ADDR, SIZE
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 
 #: A2L data type of each layout element type
 DATATYPE: dict[str, str] = {"u8": "UBYTE", "u16": "UWORD", "u32": "ULONG", "f32": "FLOAT32_IEEE"}
-#: size of one element of each layout type (bytes)
-ELEMENT_BYTES: dict[str, int] = {"u8": 1, "u16": 2, "u32": 4, "f32": 4}
 #: the binary32 range, the limits of a float field
 _F32_MAX = f"{float(np.finfo(np.float32).max):.17G}"
 #: more named flag bits than this would make the flags word's verbal table (2**bits rows) unwieldy
@@ -43,7 +42,7 @@ def bank_byte_address(bank: int) -> int:
     """
     if bank not in (0, 1):
         raise InputError(None, "bank", f"{bank!r}: must be 0 or 1")
-    return 2 * pb.BANK_WORD_ADDR[bank]
+    return BANK_BYTE_ADDR[bank]
 
 
 def record_layout_name(type_: str) -> str:
@@ -77,7 +76,7 @@ def _limits(f: dict[str, Any]) -> tuple[str, str]:
         return str(pb.TABLE_LEN_MIN), str(pb.TABLE_LEN_MAX)
     if f["type"] == "f32":
         return "-" + _F32_MAX, _F32_MAX
-    return "0", str((1 << (8 * ELEMENT_BYTES[f["type"]])) - 1)
+    return "0", str((1 << (8 * SIZE[f["type"]])) - 1)
 
 
 def check_table_len(table_len: int) -> int:

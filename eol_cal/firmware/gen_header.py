@@ -18,6 +18,7 @@ import numpy as np
 from eol_cal.atomic import atomic_write
 from eol_cal.firmware import contract as C
 from eol_cal.firmware.block import LAYOUT
+from eol_cal.firmware.block_layout import SIZE
 from eol_cal.firmware.gen_a2l import render_a2l
 
 DEFAULT_OUT = Path("firmware_params") / "eol_param_block.h"
@@ -25,7 +26,6 @@ DEFAULT_A2L_OUT = Path("firmware_params") / "eol_param_block.a2l"
 
 _C_TYPE = {"u8": "uint16_t", "u16": "uint16_t", "u32": "uint32_t", "f32": "float"}
 _GETTER = {"u8": "eol_pb_u8", "u16": "eol_pb_u16", "u32": "eol_pb_u32", "f32": "eol_pb_f32"}
-_SIZE = {"u8": 1, "u16": 2, "u32": 4, "f32": 4}
 
 
 def _offset_expr(f: dict) -> str:
@@ -134,7 +134,7 @@ def render_header() -> str:
         up = f["name"].upper()
         getter = _GETTER[f["type"]]
         count = f.get("count", 1)
-        size = _SIZE[f["type"]]
+        size = SIZE[f["type"]]
         if f.get("offset_per_n"):
             base, args = f"EOL_PB_OFF_{up}(n)", "(w, n)"
         elif count == "N":
