@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 from eol_cal.errors import ResultFormatError
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.mech_result import MechResult
 
 #: Physical bounds an estimate must lie within (documented in docs/json.md). The paper's motor
 #: has k6 ~ 6e-4 N*m/A and c6 ~ 5e-3 N*m; anything past these is a corrupt file, not a motor.
@@ -94,6 +97,9 @@ class MotorResult:
         Per-segment table (source, t_start/t_end s, i_qo_a A, speed_rpm, T_avg_nm N*m, shaft gain/phase).
     sources : tuple of str
         Capture files.
+    mech : MechResult or None
+        The mechanical orders and the encoder's fingerprint (contract revision 1.2,
+        :mod:`eol_cal.analysis.mech_result`); None for results without them.
     """
 
     serial: str
@@ -111,6 +117,7 @@ class MotorResult:
     operating_point: OperatingPoint
     segments: tuple[dict[str, Any], ...]
     sources: tuple[str, ...]
+    mech: MechResult | None = None
 
     @property
     def usable(self) -> bool:
@@ -136,6 +143,8 @@ class MotorResult:
         out["operating_point"] = {"speed_rpm": self.operating_point.speed_rpm, "i_qo_a": self.operating_point.i_qo_a}
         out["segments"] = [dict(s) for s in self.segments]
         out["sources"] = list(self.sources)
+        if self.mech is not None:
+            out["mech"] = self.mech.to_json()
         return out
 
     @classmethod
@@ -168,6 +177,11 @@ class MotorResult:
                 if obj.get(k, None) is not None:
                     raise r.error(k, f"must be null when status is {status!r}")
         op = r.obj(r.need(obj, "operating_point"), "operating_point")
+        mech = None
+        if obj.get("mech") is not None:
+            from eol_cal.analysis.mech_result import MechResult
+
+            mech = MechResult.from_json(obj["mech"], source, f"{where}mech.", r.integer(obj, "encoder_ppr"))
         return cls(
             serial=serial, status=status, reasons=reasons, estimates=estimates,
             kt=r.number(obj, "kt", (0.0, KT_MAX)), kt_source=r.string(obj, "kt_source"),
@@ -178,7 +192,7 @@ class MotorResult:
             operating_point=OperatingPoint(r.number(op, "speed_rpm", None, "operating_point."),
                                            r.number(op, "i_qo_a", None, "operating_point.")),
             segments=tuple(r.obj(s, f"segments[{i}]") for i, s in enumerate(r.list(obj, "segments"))),
-            sources=tuple(r.string_list(obj, "sources")),
+            sources=tuple(r.string_list(obj, "sources")), mech=mech,
         )
 
 

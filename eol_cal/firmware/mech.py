@@ -258,6 +258,76 @@ def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     return ok, best_r, best_rho, margin, complete
 
 
+class MechPre(NamedTuple):
+    """The cheap first half of a tick (:func:`mech_accumulate`): the state with this tick's sample
+    accumulated, and whether a fault, an evaluation or a revolution mark check is due."""
+
+    ms: MechState
+    fault: Array
+    due: Array
+    mark: Array
+    d: Array
+
+
+def mech_accumulate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
+                    ps: PitchSample, xp: ArrayModule = np) -> MechPre:
+    """Steps 1 and the conditions of 2 and 3 of a tick (MECH.md, "Per tick")."""
+    i32 = xp.int32
+    N = mc.N
+    enabled = tb.enabled != 0
+    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX))
+    acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
+    cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
+    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
+    ms = ms._replace(acc=acc, cnt=cnt, n_new=n_new)
+    fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
+    d = i32(es.dir_last < 0)
+    has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
+    due = enabled & ~fault & (es.anchored != 0) & (n_new >= I32(N)) & has_dir
+    mark = enabled & (ms.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0)
+    return MechPre(ms, fault, due, mark, d)
+
+
+def mech_idle(pre: MechPre, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """The rest of a tick when neither an evaluation nor a mark check is due (only a fault can
+    change the state): what :func:`mech_finish` gives then, without its arithmetic."""
+    ms, fault = pre.ms, pre.fault
+    w = _withdrawn(ms, xp)
+    new = MechState(*(xp.where(fault, a, b) for a, b in zip(w, ms)))
+    events = xp.where(fault, I32(EV_RESET_FAULT), I32(0))
+    return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
+
+
+def mech_finish(mc: MechConsts, tb: MechTables, pre: MechPre, es: EstimatorState,
+                xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """Steps 2 to 4 of a tick: evaluation, revolution mark, the state's update (MECH.md, "Per tick")."""
+    i32 = xp.int32
+    N = mc.N
+    one = I32(1)
+    ms, fault, due, mark, d = pre
+    ok, r_best, score, margin, complete = _evaluate(mc, tb, ms, es, d, xp)
+    ev_eval = due & complete
+    passed = ev_eval & ok
+    confirm = passed & (ms.active == 0) & (ms.cand == r_best)
+    eval_bad = ev_eval & (ms.active != 0) & (~ok | (r_best != ms.r))
+    # 3. revolution mark: the hall-to-encoder fraction of the identified offset
+    mean_c = _seq_sum(xp.take(es.c_tab, I32(2) * xp.arange(N, dtype=i32) + d), xp) / F32(N)
+    e_now = wrap_pm(((es.G + mean_c) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
+    frac_bad = mark & ~ev_eval & (xp.abs(e_now) > tb.id_frac_tol)
+    reset = fault | eval_bad | frac_bad
+    active = xp.where(reset, I32(0), xp.where(confirm, one, ms.active))
+    r = xp.where(confirm, r_best, ms.r)
+    cand = xp.where(reset, I32(-1), xp.where(ev_eval, xp.where(ok, r_best, I32(-1)), ms.cand))
+    keep = ~reset
+    new = MechState(acc=xp.where(keep, ms.acc, F32(0.0)), cnt=xp.where(keep, ms.cnt, I32(0)),
+                    n_new=xp.where(keep & ~ev_eval, ms.n_new, I32(0)), cand=cand, active=active, r=r,
+                    score=xp.where(ev_eval, score, ms.score), margin=xp.where(ev_eval, margin, ms.margin))
+    events = (i32(ev_eval) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
+              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad) * I32(EV_RESET_FRACTION)
+              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
+    return new, MechOut(active=active, r=r, events=events, score=new.score, margin=new.margin)
+
+
 def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
               ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
     """One tick of the identifier after the estimator's (MECH.md, "Per tick").
@@ -275,50 +345,18 @@ def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
         This tick's estimator outputs (its status bits).
     ps : PitchSample
         This tick's pitch sample (:func:`eol_cal.firmware.estimator.step_pitch`).
+
+    Notes
+    -----
+    :func:`mech_accumulate` then :func:`mech_finish`; when neither an evaluation nor a mark check
+    is due, :func:`mech_idle` gives the same result without the arithmetic (numpy takes that
+    branch on the value; a JAX batch can take it with ``lax.cond`` when no motor needs more,
+    as :mod:`eol_cal.firmware.mech_sim` does).
     """
-    i32 = xp.int32
-    N = mc.N
-    one = I32(1)
-    enabled = tb.enabled != 0
-    # 1. accumulate this tick's pitch sample
-    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX))
-    acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
-    cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
-    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
-    ms = ms._replace(acc=acc, cnt=cnt, n_new=n_new)
-    fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
-    # 2. evaluation: a revolution of new samples, the direction's edges all measured, anchored
-    d = i32(es.dir_last < 0)
-    has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
-    due = enabled & ~fault & (es.anchored != 0) & (n_new >= I32(N)) & has_dir
-    mark = (es.n == 0) & ((es.k_last >> I32(2)) == 0)
-    if xp is np and not (due or (ms.active != 0 and mark)):
-        # nothing below can change the state this tick: the reference skips the arithmetic (speed only)
-        reset = bool(fault)
-        new = ms if not reset else _withdrawn(ms, xp)
-        events = I32(EV_RESET_FAULT) if reset else I32(0)
-        return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
-    ok, r_best, score, margin, complete = _evaluate(mc, tb, ms, es, d, xp)
-    ev_eval = due & complete
-    passed = ev_eval & ok
-    confirm = passed & (ms.active == 0) & (ms.cand == r_best)
-    eval_bad = ev_eval & (ms.active != 0) & (~ok | (r_best != ms.r))
-    # 3. revolution mark: the hall-to-encoder fraction of the identified offset
-    mean_c = _seq_sum(xp.take(es.c_tab, I32(2) * xp.arange(N, dtype=i32) + d), xp) / F32(N)
-    e_now = wrap_pm(((es.G + mean_c) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
-    frac_bad = enabled & (ms.active != 0) & mark & ~ev_eval & (xp.abs(e_now) > tb.id_frac_tol)
-    reset = fault | eval_bad | frac_bad
-    active = xp.where(reset, I32(0), xp.where(confirm, one, ms.active))
-    r = xp.where(confirm, r_best, ms.r)
-    cand = xp.where(reset, I32(-1), xp.where(ev_eval, xp.where(ok, r_best, I32(-1)), ms.cand))
-    keep = ~reset
-    new = MechState(acc=xp.where(keep, ms.acc, F32(0.0)), cnt=xp.where(keep, ms.cnt, I32(0)),
-                    n_new=xp.where(keep & ~ev_eval, ms.n_new, I32(0)), cand=cand, active=active, r=r,
-                    score=xp.where(ev_eval, score, ms.score), margin=xp.where(ev_eval, margin, ms.margin))
-    events = (i32(ev_eval) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
-              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad) * I32(EV_RESET_FRACTION)
-              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
-    return new, MechOut(active=active, r=r, events=events, score=new.score, margin=new.margin)
+    pre = mech_accumulate(mc, tb, ms, es, eo, ps, xp)
+    if xp is np and not (pre.due or pre.mark):
+        return mech_idle(pre, xp)
+    return mech_finish(mc, tb, pre, es, xp)
 
 
 def _withdrawn(ms: MechState, xp: ArrayModule) -> MechState:
