@@ -10,9 +10,10 @@ smooth angle at the edge time (a cubic polynomial in time per stretch), the erro
 mechanical orders 0..2 (which the polynomials over a revolution or so would otherwise share). The window's grid phase is where its count boundary 0 sits in the
 firmware's electrical frame (the offline angle at its edges plus the firmware frame offset).
 
-Windows are then put into one frame, the first window's (the block's): each other window's offset
-is identified as the firmware does (hall fraction hypotheses, cosine of the pitch errors), and the
-windows' errors are averaged there. The margin the firmware will see after one revolution at the
+Windows are then put into one frame, that of the window with most edges (the block's): each other
+window's offset is found by the halls (its grid phase allows one offset per pole pair) and the
+fingerprint (the offset whose joint fit with the windows already placed leaves the least
+residual), and the errors are fitted over all placed windows' edges together. The margin the firmware will see after one revolution at the
 reference speed is predicted from the fingerprint, its uncertainty and the tick quantisation.
 """
 
@@ -36,20 +37,21 @@ _LOW_ORDERS = 2
 
 
 @dataclass(frozen=True)
-class WindowPrint:
-    """One window's fingerprint in its own count frame.
+class WindowEdges:
+    """One window's A edges over its steady stretches, in its own count frame.
 
-    fp, var : (2N,) edge errors (rad electrical, NaN where not measured) and their variances;
-    dirs : fp_dirs bits measured; grid_phase : rad electrical of count boundary 0 (firmware frame);
-    q : (n,) the window's unwrapped quadrature count per sample; n_edges : edges used per direction.
+    stretches : per steady stretch, (edge times (s), boundaries k (unwrapped), direction d 0/1);
+    grid_phase : rad electrical of the window's count boundary 0 (firmware frame);
+    q : (n,) the window's unwrapped quadrature count per sample.
     """
 
-    fp: np.ndarray
-    var: np.ndarray
-    dirs: int
+    stretches: list[tuple[np.ndarray, np.ndarray, int]]
     grid_phase: float
     q: np.ndarray
-    n_edges: tuple[int, int]
+
+    @property
+    def n_edges(self) -> int:
+        return sum(len(t) for t, _, _ in self.stretches)
 
 
 @dataclass(frozen=True)
@@ -58,8 +60,9 @@ class Fingerprint:
 
     fp, sigma : (2N,) edge errors (rad electrical, mean 0 per direction, 0 where not measured) and
     their standard errors; dirs : FP_FORWARD | FP_REVERSE measured; grid_phase : rad, [0, 2*pi);
-    offsets : per window, its offset r into the block's frame (None: not identified, not used);
-    scores : per window, (cosine, margin) of its identification against the block's frame.
+    offsets : per window, its offset r into the block's frame (None: not placed, not used);
+    scores : per window, (fraction error rad, residual ratio of the next offset; NaN when the
+    joint fit could not tell) of its placement.
     """
 
     fp: np.ndarray
@@ -108,41 +111,9 @@ def _low_order_complement(N: int) -> np.ndarray:
     return q_full[:, A.shape[1]:N]
 
 
-def _fit_direction(groups: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """Edge errors (N,) and variances from one direction's edges in steady stretches, or None when
-    the stretches hold fewer than a revolution and a half of edges.
-
-    ``groups`` holds per stretch the edge times (s) and boundaries; each stretch's motion is a
-    polynomial in time of its own (degree ``_POLY_DEGREE``), the errors are shared.
-    """
-    groups = [(t, k) for t, k in groups if len(t) > _POLY_DEGREE + 2]
-    if sum(len(t) for t, _ in groups) < N + N // 2:
-        return None
-    P = _low_order_complement(N)
-    nb = (_POLY_DEGREE + 1) * len(groups)
-    rows, rhs = [], []
-    for g, (times, k) in enumerate(groups):
-        x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
-        V = np.zeros((len(times), nb))
-        V[:, g * (_POLY_DEGREE + 1):(g + 1) * (_POLY_DEGREE + 1)] = np.polynomial.legendre.legvander(x, _POLY_DEGREE)
-        rows.append(np.concatenate([V, -P[(k >> 2) % N]], axis=1))
-        rhs.append(k * quarter)
-    A = np.concatenate(rows)
-    phi = np.concatenate(rhs)
-    sol, *_ = np.linalg.lstsq(A, phi, rcond=None)
-    resid = phi - A @ sol
-    dof = max(1, len(phi) - A.shape[1])
-    s2 = float(resid @ resid) / dof
-    cov = s2 * np.linalg.pinv(A.T @ A)
-    f = P @ sol[nb:]
-    var = np.einsum("ij,jk,ik->i", P, cov[nb:, nb:], P)
-    return f, var
-
-
-def window_print(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: np.ndarray,
-                 poles: int, N: int, ranges: Sequence[tuple[int, int]]) -> WindowPrint | None:
-    """One capture window's fingerprint in its own count frame.
+def window_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: np.ndarray,
+                 poles: int, N: int, ranges: Sequence[tuple[int, int]]) -> WindowEdges | None:
+    """One capture window's A edges over its steady stretches (the fit's segments) and its grid phase.
 
     Parameters
     ----------
@@ -156,45 +127,79 @@ def window_print(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: 
     poles, N : int
         P and the encoder's pulses per revolution.
     ranges : sequence of (start, stop)
-        The steady stretches (sample ranges) whose edges are used (the fit's segments): one
-        speed and load each, so the motion within is smooth.
+        The steady stretches (sample ranges): one speed, load and direction each, so the motion
+        within is smooth.
 
     Returns
     -------
-    WindowPrint, or None when a quadrature error makes the count untrustworthy or neither
-    direction covers enough edges.
+    WindowEdges, or None when a quadrature error makes the count untrustworthy or no stretch
+    holds edges.
     """
-    from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE
-
     t = np.asarray(t, dtype=float)
     q, step, qep = quadrature_counts(enc_a, enc_b)
     if qep:
         return None
     times, k, dirn = a_edges(t, enc_a, enc_b, q, step)
     quarter = poles * math.pi / N / 4.0
-    fp = np.full(2 * N, np.nan)
-    var = np.full(2 * N, np.nan)
-    dirs = 0
-    counts = [0, 0]
+    stretches = []
     used = np.zeros(len(times), bool)
-    for d, bit in ((0, FP_FORWARD), (1, FP_REVERSE)):
-        groups = []
-        for a, b in ranges:
+    for a, b in ranges:
+        for d in (0, 1):
             sel = (dirn == (1 if d == 0 else -1)) & (times >= t[a]) & (times <= t[b - 1])
-            if sel.sum():
-                groups.append((times[sel], k[sel]))
+            if sel.sum() > _POLY_DEGREE + 2:
+                stretches.append((times[sel], k[sel], d))
                 used |= sel
-        res = _fit_direction(groups, N, quarter)
-        if res is not None:
-            fp[d::2], var[d::2] = res
-            dirs |= bit
-            counts[d] = sum(len(g[0]) for g in groups)
-    if not dirs:
+    if not stretches:
         return None
-    # the grid phase: theta_fw at the edges used minus their boundaries' nominal angles
     th = np.interp(times[used], t, np.asarray(theta_fw, dtype=float))
     gp = float(np.angle(np.mean(np.exp(1j * (th - k[used] * quarter)))) % (2 * math.pi))
-    return WindowPrint(fp, var, dirs, gp, q, (counts[0], counts[1]))
+    return WindowEdges(stretches, gp, q)
+
+
+def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray, int]], N: int, quarter: float):
+    """Least squares of the edge errors shared by every stretch (each its own cubic motion).
+
+    ``stretches`` hold (times, boundaries k in the common frame, direction d). Returns
+    ``(fp (2N,), var (2N,), rss, dirs, dof)``; a direction with a pulse seen fewer than twice is
+    left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
+    """
+    from eol_cal.firmware.mech_params import FP_FORWARD
+
+    P = _low_order_complement(N)
+    nF = P.shape[1]
+    def covered(d):
+        seen = np.bincount(np.concatenate([(k >> 2) % N for _, k, dd in stretches if dd == d] or [np.zeros(0, int)]),
+                           minlength=N)
+        return seen.min() >= 2
+
+    dirs = [d for d in (0, 1) if covered(d)]
+    groups = [g for g in stretches if g[2] in dirs]
+    if not groups:
+        return None
+    nb = (_POLY_DEGREE + 1) * len(groups)
+    col = {d: nb + i * nF for i, d in enumerate(dirs)}
+    rows, rhs = [], []
+    for g, (times, k, d) in enumerate(groups):
+        x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
+        A = np.zeros((len(times), nb + nF * len(dirs)))
+        A[:, g * (_POLY_DEGREE + 1):(g + 1) * (_POLY_DEGREE + 1)] = np.polynomial.legendre.legvander(x, _POLY_DEGREE)
+        A[:, col[d]:col[d] + nF] = -P[(k >> 2) % N]
+        rows.append(A)
+        rhs.append(k * quarter)
+    A = np.concatenate(rows)
+    phi = np.concatenate(rhs)
+    sol, *_ = np.linalg.lstsq(A, phi, rcond=None)
+    resid = phi - A @ sol
+    rss = float(resid @ resid)
+    s2 = rss / max(1, len(phi) - A.shape[1])
+    cov = s2 * np.linalg.pinv(A.T @ A)
+    fp = np.full(2 * N, np.nan)
+    var = np.full(2 * N, np.nan)
+    for d in dirs:
+        c = slice(col[d], col[d] + nF)
+        fp[d::2] = P @ sol[c]
+        var[d::2] = np.einsum("ij,jk,ik->i", P, cov[c, c], P)
+    return fp, var, rss, sum(FP_FORWARD << d for d in dirs), len(phi) - A.shape[1]
 
 
 def pitch_errors(fp: np.ndarray, N: int) -> np.ndarray:
@@ -223,55 +228,91 @@ def hypotheses(dF_meas: np.ndarray, dF_ref: np.ndarray, dg: float, poles: int, N
     return rs[b], rhos[b], rhos[b] - second, es[b]
 
 
-def merge_windows(prints: Sequence[WindowPrint | None], poles: int, N: int, min_margin: float = 0.25,
+def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min_ratio: float = 2.0,
                   frac_tol: float = math.radians(2.0)) -> Fingerprint | None:
-    """The windows' fingerprints in one frame: the first usable window's (None when there is none).
+    """The fingerprint of every window's edges in one frame: the window with most edges' (None
+    when no window, or no direction, holds a revolution and a half of edges).
 
-    Each other window is placed by the firmware's own rule (:func:`hypotheses` on the direction
-    both measured, against the frame's running mean); one that does not pass ``min_margin`` and
-    ``frac_tol`` is left out (its offset None).
+    Each other window is placed by the halls and the fingerprint together: of the P/2 offsets its
+    grid phase allows (one per pole pair), the one whose joint fit leaves the smallest residual,
+    when it agrees with the halls' fraction within ``frac_tol`` and the next offset's residual is
+    ``min_ratio`` times larger; otherwise the window is left out (its offset None).
     """
-    usable = [i for i, p in enumerate(prints) if p is not None]
-    offsets: list[int | None] = [None] * len(prints)
-    scores: list[tuple[float, float] | None] = [None] * len(prints)
+    usable = [i for i, w in enumerate(windows) if w is not None]
     if not usable:
         return None
-    ref = prints[usable[0]]
-    w = np.where(np.isfinite(ref.fp), 1.0 / np.maximum(ref.var, 1e-30), 0.0)
-    acc = np.where(np.isfinite(ref.fp), ref.fp * w, 0.0)
-    offsets[usable[0]] = 0
-    scores[usable[0]] = (1.0, 1.0)
-    for i in usable[1:]:
-        p = prints[i]
-        mean = np.where(w > 0, acc / np.maximum(w, 1e-300), 0.0)
-        best = None
-        for d in (0, 1):
-            if np.isfinite(p.fp[d::2]).all() and (w[d::2] > 0).all():
-                r, rho, margin, e = hypotheses(pitch_errors(p.fp, N)[d::2], pitch_errors(mean, N)[d::2],
-                                               p.grid_phase - ref.grid_phase, poles, N)
-                if best is None or margin > best[2]:
-                    best = (r, rho, margin, e)
-        if best is None or best[2] < min_margin or abs(best[3]) > frac_tol:
-            scores[i] = None if best is None else (best[1], best[2])
-            continue
-        r = best[0]
-        offsets[i], scores[i] = r, (best[1], best[2])
-        # window pulse m is the frame's pulse (m + r): move its entries there
-        idx = (2 * ((np.arange(N) + r) % N)[:, None] + np.arange(2)).reshape(-1)
-        ok = np.isfinite(p.fp)
-        wi = np.where(ok, 1.0 / np.maximum(p.var, 1e-30), 0.0)
-        acc[idx] += np.where(ok, p.fp * wi, 0.0)
-        w[idx] += wi
-    fp = np.where(w > 0, acc / np.maximum(w, 1e-300), 0.0)
-    sigma = np.where(w > 0, 1.0 / np.sqrt(np.maximum(w, 1e-300)), np.inf)
-    dirs = 0
+    ref = max(usable, key=lambda i: windows[i].n_edges)
+    quarter = poles * math.pi / N / 4.0
+    delta = 4 * quarter
+    offsets: list[int | None] = [None] * len(windows)
+    scores: list[tuple[float, float] | None] = [None] * len(windows)
+    offsets[ref] = 0
+    placed = list(windows[ref].stretches)
+    todo = [i for i in sorted(usable, key=lambda j: -windows[j].n_edges) if i != ref]
+    changed = True
+    while todo and changed:  # a window that overlaps nothing placed yet may overlap what later windows add
+        changed = False
+        for i in list(todo):
+            placement = _place(windows[i], windows[ref].grid_phase, placed, poles, N, quarter, delta,
+                               min_ratio, frac_tol)
+            if placement is None:
+                continue
+            r, moved, score = placement
+            scores[i] = score
+            if r is not None:
+                offsets[i] = r
+                placed += moved
+                todo.remove(i)
+                changed = True
+    fit = _joint_fit(placed, N, quarter)
+    if fit is None:
+        return None
+    fp, var, _, dirs, _ = fit
+    sigma = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
     for d in (0, 1):
-        if (w[d::2] > 0).all():
-            dirs |= 1 << d
+        if dirs & (1 << d):
             fp[d::2] -= fp[d::2].mean()
         else:
-            fp[d::2] = 0.0
-    return Fingerprint(fp, sigma, dirs, ref.grid_phase, offsets, scores)
+            fp[d::2], sigma[d::2] = 0.0, np.inf
+    return Fingerprint(fp, sigma, dirs, windows[ref].grid_phase, offsets, scores)
+
+
+def _place(w: WindowEdges, ref_phase: float, placed: list, poles: int, N: int, quarter: float, delta: float,
+           min_ratio: float, frac_tol: float):
+    """Where window ``w`` goes in the frame of the windows ``placed``: ``(r or None, its stretches
+    moved there, (fraction error rad, residual ratio))``.
+
+    The halls allow one offset per pole pair (the ``grid_phase`` difference); the one within
+    ``frac_tol`` of its fraction is taken unless the fingerprint contradicts it: a joint fit with
+    enough data to tell (N/2 more edges than unknowns) in which another offset leaves a residual
+    ``min_ratio`` times smaller. Several offsets within ``frac_tol`` (pulses that divide evenly among
+    the pole pairs) need the fingerprint to prefer one by ``min_ratio``.
+    """
+    dg = (w.grid_phase - ref_phase) % (2 * math.pi)
+    trials = []
+    for j in range(poles // 2):
+        r = int(math.floor((dg + 2 * math.pi * j) / delta + 0.5)) % N
+        e = math.remainder(dg - r * delta, 2 * math.pi)
+        moved = [(t, k + 4 * r, d) for t, k, d in w.stretches]
+        fit = _joint_fit(placed + moved, N, quarter)
+        rss = fit[2] if fit is not None and fit[4] >= N // 2 else math.nan
+        trials.append((rss, r, e, moved))
+    frac_ok = sorted((x for x in trials if abs(x[2]) <= frac_tol), key=lambda x: abs(x[2]))
+    if not frac_ok:
+        return None, [], (float(min(abs(x[2]) for x in trials)), math.nan)
+    told = [x for x in trials if math.isfinite(x[0])]
+    if len(frac_ok) > 1:
+        cands = sorted((x for x in frac_ok if math.isfinite(x[0])), key=lambda x: x[0])
+        if len(cands) < 2 or cands[1][0] < min_ratio * cands[0][0]:
+            return None, [], (float(frac_ok[0][2]), math.nan)  # neither the halls nor the fingerprint can tell
+        best = cands[0]
+    else:
+        best = frac_ok[0]
+    others = [x[0] for x in told if x is not best]
+    ratio = min(others) / max(best[0], 1e-300) if others and math.isfinite(best[0]) else math.nan
+    if math.isfinite(ratio) and ratio * min_ratio <= 1.0:
+        return None, [], (float(best[2]), float(ratio))  # the fingerprint contradicts the halls
+    return best[1], best[3], (float(best[2]), float(ratio))
 
 
 def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N: int, tick_hz: float,

@@ -35,8 +35,8 @@ if TYPE_CHECKING:
 _Z95 = 1.959963984540054
 
 
-def window_prints(mi: MotorInput) -> list[fpr.WindowPrint | None]:
-    """Each capture window's fingerprint over its steady segments (None: no usable one)."""
+def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
+    """Each capture window's edges over its steady segments (None: no usable one)."""
     out = []
     for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles)):
         ranges = [(i.start, i.stop) for k, i in enumerate(mi.info) if mi.capture_of_segment[k] == ci]
@@ -44,11 +44,11 @@ def window_prints(mi: MotorInput) -> list[fpr.WindowPrint | None]:
             out.append(None)
             continue
         theta_fw = np.asarray(ang.theta_r, dtype=float) + mi.frame_offset_rad
-        out.append(fpr.window_print(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
+        out.append(fpr.window_edges(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
     return out
 
 
-def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowPrint | None],
+def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
                fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
     """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
     the identified windows; None when no segment's window is identified."""
