@@ -163,7 +163,8 @@ def main() -> None:
                     (mi_n,) = motor_inputs([r.capture], mechanics=bench, hall_angle="nominal", estimator_options=opt)
                     (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
                     rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
-                    blocks_nom.append(block_from_record(rec_n, motor, options=opt) if rec_n["status"] == "ok" else None)
+                    blocks_nom.append(block_from_record(rec_n, motor, options=opt, layout=1)
+                                      if rec_n["status"] == "ok" else None)
             for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
                 # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
                 # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
