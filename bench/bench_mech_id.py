@@ -91,7 +91,7 @@ def main() -> None:
     sc = G.SCENARIOS["mech_pole_pair_0.csv"]
     a, b, h = sc.signals()
     t0 = time.perf_counter()
-    run_mech(G._block("mech_a"), a, b, h, G.I_QO)
+    run_mech(G.golden_block("mech_a"), a, b, h, G.I_QO)
     t_np = time.perf_counter() - t0
     print(f"   numpy reference: {t_np:.2f} s, {len(a) / t_np:,.0f} ticks/s (the batches above: their ticks/s column, "
           "compile included)")

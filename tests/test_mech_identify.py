@@ -106,14 +106,14 @@ def test_every_pole_pair_and_direction_reference():
     for name in ("mech_pole_pair_0.csv", "mech_pole_pair_1.csv", "mech_pole_pair_2.csv", "mech_reverse.csv"):
         sc = G.SCENARIOS[name]
         a, b, h = sc.signals()
-        out = run_mech(G._block(sc.block_id), a, b, h, G.I_QO)
+        out = run_mech(G.golden_block(sc.block_id), a, b, h, G.I_QO)
         truth = pulse_at(sc.theta0, G.sensors(sc.block_id), int(a[0]), int(b[0]))
         assert out.active[-1] == 1 and out.r[-1] == truth, name
         first = int(np.argmax(out.active))
         # identified after three revolutions at 300 rpm (0.2 s each), not before two
         assert 0.4 < first / G.TICK_HZ < 0.8, name
         # before: the 6th-harmonic tables' current alone, bit for bit; after: the mechanical part added
-        blk = G._block(sc.block_id)
+        blk = G.golden_block(sc.block_id)
         six = i_qc(out.theta_hat, out.omega_hat, np.float32(G.I_QO), blk.table_const, blk.table_per_amp,
                    blk.lead_s, blk.iqc_limit)
         np.testing.assert_array_equal(out.i_qc[:first], six[:first])
@@ -126,7 +126,7 @@ def test_a_slipped_pulse_is_withdrawn_within_a_revolution_and_identified_again()
     slip_s = 3.3
     sc = G.MechScenario("mech_a", ((6.6, 120.0, 120.0),), 2.2, "120 rpm slip", inject=G._slip(slip_s))
     a, b, h = sc.signals()
-    out = run_mech(G._block("mech_a"), a, b, h, G.I_QO)
+    out = run_mech(G.golden_block("mech_a"), a, b, h, G.I_QO)
     truth = pulse_at(sc.theta0, G.sensors("mech_a"), int(a[0]), int(b[0]))
     i_slip = int(slip_s * G.TICK_HZ)
     assert out.active[i_slip] == 1 and out.r[i_slip] == truth

@@ -88,7 +88,7 @@ def golden_blocks_v2() -> list[tuple[str, pb.ParamBlock]]:
     return out
 
 
-def _block(block_id: str) -> pb.ParamBlock:
+def golden_block(block_id: str) -> pb.ParamBlock:
     return dict(golden_blocks_v2())[block_id]
 
 
@@ -188,7 +188,7 @@ COMP_COLUMNS = ("block_id", "q", "r", "theta_hat", "omega_hat", "i_qo", "i_qc")
 
 
 def _config_row(name: str, sc: MechScenario) -> list[str]:
-    blk = _block(sc.block_id)
+    blk = golden_block(sc.block_id)
     cfg = EstimatorConfig.from_block(blk, standstill_s=sc.standstill_s)
     mc = MechConsts.of(cfg)
     tb = block_mech_tables(blk)
@@ -199,7 +199,7 @@ def _config_row(name: str, sc: MechScenario) -> list[str]:
 def scenario_rows(sc: MechScenario) -> list[list[str]]:
     """Rows of one scenario file: inputs and the numpy reference's outputs, tick by tick."""
     a, b, h = sc.signals()
-    out = run_mech(_block(sc.block_id), a, b, h, I_QO, standstill_s=sc.standstill_s)
+    out = run_mech(golden_block(sc.block_id), a, b, h, I_QO, standstill_s=sc.standstill_s)
     iq = f32hex(I_QO)
     sc_hex = out.score.view(np.uint32)
     mg_hex = out.margin.view(np.uint32)
