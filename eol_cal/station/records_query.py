@@ -106,7 +106,7 @@ def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_
 
 def _fetch(con: Connection, query: sa.Select) -> tuple[list[str], list[tuple[Any, ...]]]:
     # the driver's cursor on SQLAlchemy's connection (its transaction, its read-only mode)
-    compiled = query.compile(dialect=con.dialect)
+    compiled = query.compile(dialect=con.dialect, compile_kwargs={"render_postcompile": True})
     driver = con.connection.driver_connection
     if con.dialect.name == "postgresql":
         cur = driver.cursor(binary=True)  # type: ignore[union-attr]
