@@ -127,13 +127,13 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["verdict"] = "error"
         return row
-    row["status"] = rec["status"]
+    row["status"] = result.status
     for key in ("k6", "phase_k6", "c6"):
-        row[key] = (rec.get(key) or {}).get("value")
-    row["r2"] = (rec.get("fit") or {}).get("r2")
-    row["rms"] = (rec.get("fit") or {}).get("rms")
-    if rec["status"] != "ok":
-        row["verdict"], row["reasons"] = "fail", list(rec.get("reasons") or [])
+        row[key] = None if result.estimates is None else getattr(result.estimates, key).value
+    row["r2"], row["rms"] = result.fit.get("r2"), result.fit.get("rms")
+    if not result.usable:
+        row["verdict"], row["reasons"] = "fail", list(result.reasons)
+        row["failed_checks"] = [f"fit {result.status}"]
     elif lim is not None:
         checks = judge(Measured.of_fit(result), lim, "fit")
         reasons = failed(checks)

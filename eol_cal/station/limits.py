@@ -150,7 +150,7 @@ class VariantLimits:
         return cls(variant, {k: None if v is None else float(v) for k, v in full.items()}, source, estimator)
 
     def __getattr__(self, name: str) -> float | None:
-        # lim.max_k6 and the like: the value of a limit key (tests and interactive use)
+        # lim.KEY: the value of a limit key (tests and interactive use)
         values = self.__dict__.get("values")
         if values is not None and name in values:
             return values[name]
