@@ -72,6 +72,7 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
     table.add_column("field")
     table.add_column("value")
     table.add_column("unit")
+    from eol_cal.display import display_unit
     from eol_cal.firmware.block import FIELDS, flag_names
 
     for name, spec in FIELDS.items():
@@ -87,10 +88,14 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
         elif name == "reserved":
             continue
         elif isinstance(v, float):
-            text = f"{v:.9g}"
+            unit, factor = display_unit(spec.get("unit", ""))  # one unit per quantity: k6 in mN*m/A...
+            text = f"{v * factor:.9g}"
         else:
             text = str(v)
-        unit = "deg (electrical)" if name == "hall_angle" else spec.get("unit", "")
+        if name == "hall_angle":
+            unit = "deg (electrical)"
+        elif not isinstance(v, float):
+            unit = spec.get("unit", "")
         table.add_row(name, text, unit)
     for name in ("table_const", "table_per_amp"):
         arr = getattr(blk, name)

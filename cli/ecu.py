@@ -175,9 +175,12 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
     click.echo(f"active      bank {a['bank']} seq {a['sequence']} layout {a['layout_version']} crc {a['crc32']}")
     blk = doc["block"]
     if blk and blk["valid"]:
-        click.echo(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {blk['k6']:.6g} N*m/A "
-                      f"phase_k6 {blk['phase_k6']:.4f} rad c6 {blk['c6']:.6g} N*m lead {blk['lead_s']:.3g} s "
-                      f"iqc_limit {blk['iqc_limit']:g} A flags 0x{blk['flags']:x} calibrated_at {blk['calibrated_at']}")
+        from eol_cal.display import to_display
+
+        click.echo(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {to_display(blk['k6'], 'N*m/A'):.6g} "
+                   f"mN*m/A phase_k6 {to_display(blk['phase_k6'], 'rad'):.2f} deg c6 {to_display(blk['c6'], 'N*m'):.6g} "
+                   f"mN*m lead {blk['lead_s'] * 1e6:.1f} us iqc_limit {blk['iqc_limit']:g} A flags 0x{blk['flags']:x} "
+                   f"calibrated_at {blk['calibrated_at']}")
     elif blk:
         click.echo(f"block       INVALID read-back: {'; '.join(blk['reasons'])}")
 

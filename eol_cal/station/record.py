@@ -22,241 +22,21 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from eol_cal.analysis.motor_result import MotorResult
-from eol_cal.capture.ecu_state import EcuState
-from eol_cal.errors import InputError
 from eol_cal.station.limits import LimitCheck, VariantLimits
+from eol_cal.station.record_json import (Reader, block_json, check_from, check_json, common_from, ecu_active_from,
+                                         limits_from, metrics_from, metrics_json, preflight_from, preflight_json,
+                                         restored_from, station_from, station_json, capture_json, block_from,
+                                         limits_json, error_json, step_json, restored_json)
+from eol_cal.station.record_parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REFUSAL_CODES, SCHEMA, SCHEMA_V1,
+                                          VERDICTS, CaptureRef, DynoStatus, EcuActive, EcuFound, ErrorInfo,
+                                          FlashedBlock, PointFigures, PreflightResult, PreviousBlock, Problem,
+                                          RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
+from eol_cal.jsonsafe import json_safe
 
-SCHEMA = "eol-cal/run-record/2"
-SCHEMA_V1 = "eol-cal/run-record/1"
-KINDS = ("production", "refusal", "restore", "master", "simulated")
-#: the kind lot statistics, first-pass yield, latest status, ``lot diff`` and ``refit`` take by default
-MEASURED_KIND = "production"
-VERDICTS = ("pass", "fail", "error")
-#: why a run was refused (nothing written to the ECU, nothing measured): code -> meaning
-REFUSAL_CODES: dict[str, str] = {
-    "wrong_serial": "the serial given is not the ECU's (F18C) or the dyno's motor's",
-    "dyno_unreachable": "the dyno did not answer",
-    "dyno_fault": "the dyno has latched faults",
-    "dyno_tripped": "the dyno's drive is tripped",
-    "dyno_interlocks": "the dyno's interlocks are not met",
-    "ecu_bus": "the ECU's CAN bus could not be opened",
-    "ecu_silent": "the ECU did not answer",
-    "key_refused": "the ECU refused the security key",
-    "settings": "the station's settings were refused (profile, estimator options)",
-    "interrupted": "the operator stopped the run before anything was written",
-    "station_error": "the station failed before anything was written",
-}
-BLOCK_ROLES = ("prepare", "calibrated", "restore")
-
-
-class RecordFormatError(InputError, ValueError):
-    """A run record that does not hold what its schema says (names the source, field, reason)."""
-
-
-@dataclass(frozen=True)
-class StationInfo:
-    """The station a run was made on (the record's ``station``); ``extra``: what else the station
-    recorded about itself (addresses, CAN interface), as given."""
-
-    id: str | None = None
-    operator: str | None = None
-    settings: str | None = None
-    profile: str | None = None
-    verify: str | None = None
-    rate_hz: int | None = None
-    motor: str | None = None
-    bench: str | None = None
-    dyno_register_map: str | None = None
-    extra: Mapping[str, Any] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class CaptureRef:
-    """A capture the run made: its file, SHA-256, size, and the ECU's state around it."""
-
-    path: str
-    sha256: str
-    samples: int
-    segments: int
-    ecu_before: EcuState | None = None
-    ecu_after: EcuState | None = None
-
-
-@dataclass(frozen=True)
-class PreviousBlock:
-    """What the ECU booted before a flash (``bank`` None: no valid bank)."""
-
-    bank: int | None
-    sequence: int
-
-
-@dataclass(frozen=True)
-class FlashedBlock:
-    """A block written into the ECU by the run, archived in the run's directory as it went in.
-
-    Attributes
-    ----------
-    role : {"prepare", "calibrated", "restore"}
-        The uncompensated block the cycle flashes before the calibration capture, the calibrated
-        block, or an earlier calibration flashed again.
-    path : str
-        The archive file: the block's bytes as flashed (sequence and CRC set).
-    sha256 : str or None
-        SHA-256 of those bytes (None in records older than the archive: their file is the block
-        before the flash set its sequence and CRC).
-    bytes : int or None
-    bank, sequence, crc32
-        Where it went, its sequence and CRC (8 hex digits) as flashed.
-    flags, estimator : str or None
-        The block's flags by name and the estimator options they select.
-    table_len, lead_s, iqc_limit
-        The block's table length, compensation lead (s) and current limit (A); None where not recorded.
-    verified : bool
-        Read back equal before its CRC was written.
-    confirmed : bool
-        The ECU reported it active after the reset (FD01); False: the flash failed after its CRC
-        was written and the ECU boots it at its next reset.
-    previous : PreviousBlock or None
-        What the ECU booted before.
-    seconds, transfer_blocks, retries
-        The flash's wall time (s), TransferData requests and repeated requests; None where not recorded.
-    """
-
-    role: str
-    path: str | None
-    sha256: str | None
-    bytes: int | None
-    bank: int | None
-    sequence: int | None
-    crc32: str | None
-    flags: str | None = None
-    estimator: str | None = None
-    table_len: int | None = None
-    lead_s: float | None = None
-    iqc_limit: float | None = None
-    verified: bool = False
-    confirmed: bool = True
-    previous: PreviousBlock | None = None
-    seconds: float | None = None
-    transfer_blocks: int | None = None
-    retries: int | None = None
-
-
-@dataclass(frozen=True)
-class Problem:
-    """One reason the pre-flight found the station not ready: a :data:`REFUSAL_CODES` code and the text."""
-
-    code: str
-    text: str
-
-
-@dataclass(frozen=True)
-class DynoStatus:
-    """The dyno as the pre-flight read it (nothing commanded)."""
-
-    map_version: int
-    dut_serial: str
-    faults: int
-    interlocks: int
-    drive_state: int
-
-
-@dataclass(frozen=True)
-class EcuFound:
-    """The ECU as the pre-flight found it: its state (None: it did not answer), whether it accepted
-    the key (None: not tried), its problems."""
-
-    state: EcuState | None
-    key_accepted: bool | None
-    problems: tuple[str, ...] = ()
-
-
-@dataclass(frozen=True)
-class PreflightResult:
-    """What the pre-flight found (None parts: not reached)."""
-
-    dyno: DynoStatus | None
-    ecu: EcuFound | None
-    problems: tuple[Problem, ...] = ()
-
-    @property
-    def codes(self) -> tuple[str, ...]:
-        """The problems' codes, each once, in order."""
-        return tuple(dict.fromkeys(p.code for p in self.problems))
-
-
-@dataclass(frozen=True)
-class PointFigures:
-    """The ripple at the operating point of one capture (``docs/metrics.md``): filtered and raw
-    p-p (%), p-p (N*m), p-p without the mechanical order 1 (%), mean torque (N*m), 6th-order
-    amplitude (N*m), the time span analysed (s)."""
-
-    pp_pct: float
-    pp_raw_pct: float
-    pp_nm: float
-    pp_no_mech1_pct: float
-    T_avg_nm: float
-    amp6_nm: float
-    span_s: tuple[float, float]
-
-
-@dataclass(frozen=True)
-class RippleMetrics:
-    """The ripple at the operating point before and with the compensation."""
-
-    speed_rpm: float
-    i_qo_a: float
-    before: PointFigures
-    after: PointFigures
-    definition: str
-
-    @property
-    def improvement_pct(self) -> float:
-        b, a = self.before.pp_pct, self.after.pp_pct
-        return 100.0 * (b - a) / b if b > 0.0 and math.isfinite(a) else math.nan
-
-
-@dataclass(frozen=True)
-class Step:
-    """One step of the run: its name, wall time (s; None: not finished), whether it completed, and
-    the error that ended it (None: none)."""
-
-    step: str
-    seconds: float | None
-    ok: bool
-    error: str | None = None
-
-
-@dataclass(frozen=True)
-class ErrorInfo:
-    """The exception that ended a run: the step, its type, message and (for a program error) traceback."""
-
-    step: str
-    type: str
-    message: str
-    traceback: str | None = None
-
-
-@dataclass(frozen=True)
-class EcuActive:
-    """Which block the ECU boots after the run: ``calibrated``, ``uncompensated``, ``restored``,
-    ``unchanged`` (nothing written), or such a word with a qualification; its sequence and bank."""
-
-    block: str
-    sequence: int | None = None
-    bank: int | None = None
-
-
-@dataclass(frozen=True)
-class RestoredFrom:
-    """The calibration a restore flashed again: the run that archived it, its archive file and
-    SHA-256, and its sequence and CRC as that run flashed them."""
-
-    run_id: str | None
-    path: str
-    sha256: str | None
-    sequence: int | None
-    crc32: str | None
+__all__ = ["BLOCK_ROLES", "KINDS", "MEASURED_KIND", "REFUSAL_CODES", "SCHEMA", "SCHEMA_V1", "VERDICTS", "CaptureRef",
+           "DynoStatus", "EcuActive", "EcuFound", "ErrorInfo", "FlashedBlock", "PointFigures", "PreflightResult",
+           "PreviousBlock", "Problem", "RecordFormatError", "RestoredFrom", "RippleMetrics", "RunRecord", "StationInfo",
+           "Step", "record_kind"]
 
 
 @dataclass(frozen=True)
@@ -345,18 +125,49 @@ class RunRecord:
 
     # ------------------------------------------------------------------ JSON
     def to_json(self) -> dict[str, Any]:
-        """The record as JSON (schema :data:`SCHEMA`; non-finite numbers as null)."""
-        from eol_cal.station.record_json import record_to_json
-
-        return record_to_json(self)
+        """The record as JSON (schema :data:`SCHEMA`; non-finite numbers as null; keys in ``docs/json.md``)."""
+        return json_safe({
+            "schema": SCHEMA, "kind": self.kind, "run_id": self.run_id, "serial": self.serial,
+            "started_at": self.started_at, "ended_at": self.ended_at, "verdict": self.verdict,
+            "reasons": list(self.reasons), "refusal_codes": list(self.refusal_codes), "error": error_json(self.error),
+            "tool_version": self.tool_version, "layout_version": self.layout_version,
+            "station": station_json(self.station), "limits": limits_json(self.limits, self.limits_sha256),
+            "checks": [check_json(c) for c in self.checks], "steps": [step_json(s) for s in self.steps],
+            "preflight": preflight_json(self.preflight),
+            "captures": {k: capture_json(c) for k, c in self.captures.items()},
+            "fit": None if self.fit is None else self.fit.to_json(), "blocks": [block_json(b) for b in self.blocks],
+            "metrics": metrics_json(self.metrics), "report_dir": self.report_dir, "safe_state": self.safe_state,
+            "ecu_active": {"block": self.ecu_active.block, "sequence": self.ecu_active.sequence,
+                           "bank": self.ecu_active.bank},
+            "restored_from": restored_json(self.restored_from), "report_error": self.report_error,
+        })
 
     @classmethod
     def from_json(cls, doc: Any, source: str = "<record>") -> RunRecord:
-        """A record of schema :data:`SCHEMA` or :data:`SCHEMA_V1` (migrated);
-        :class:`RecordFormatError` names ``source``, the field and the reason."""
-        from eol_cal.station.record_json import record_from_json
+        """A record of schema :data:`SCHEMA` or :data:`SCHEMA_V1` (migrated as it is read,
+        :mod:`eol_cal.station.record_v1`); :class:`RecordFormatError` names ``source``, the field and
+        the reason."""
+        r = Reader(source)
+        if not isinstance(doc, dict):
+            raise RecordFormatError(source, None, f"expected a record object, got {type(doc).__name__}")
+        schema = doc.get("schema")
+        if schema == SCHEMA_V1:
+            from eol_cal.station.record_v1 import fields_from_v1
 
-        return record_from_json(doc, source)
+            return cls(**fields_from_v1(r, doc))
+        if schema != SCHEMA:
+            raise r.error("schema", f"{schema!r}: not a run record ({SCHEMA} or {SCHEMA_V1})")
+        lim, sha = limits_from(r.at("limits."), r.obj(doc, "limits", null=True))
+        return cls(
+            kind=r.choice(doc, "kind", KINDS), refusal_codes=r.strs(doc, "refusal_codes"),
+            station=station_from(r.at("station."), r.obj(doc, "station")), limits=lim, limits_sha256=sha,
+            checks=r.items(doc, "checks", check_from),
+            preflight=preflight_from(r.at("preflight."), r.obj(doc, "preflight", null=True)),
+            blocks=r.items(doc, "blocks", block_from),
+            metrics=metrics_from(r.at("metrics."), r.obj(doc, "metrics", null=True)),
+            ecu_active=ecu_active_from(r.at("ecu_active."), r.obj(doc, "ecu_active")),
+            restored_from=restored_from(r.at("restored_from."), r.obj(doc, "restored_from", null=True)),
+            report_error=r.str(doc, "report_error", null=True), **common_from(r, doc))
 
 
 def record_kind(doc: Any) -> str | None:

@@ -1,7 +1,7 @@
-"""The run record's JSON, schema ``eol-cal/run-record/2``: :func:`record_to_json` and
-:func:`record_from_json` (through :meth:`eol_cal.station.record.RunRecord.to_json` /
-``from_json``). The one place the record's keys are spelled; records of schema
-``eol-cal/run-record/1`` are read by :mod:`eol_cal.station.record_v1`.
+"""The JSON of a run record's parts (schema ``eol-cal/run-record/2``): one writer and one reader
+per part, used by :meth:`eol_cal.station.record.RunRecord.to_json` / ``from_json`` (which spell
+the record's top-level keys) and by :mod:`eol_cal.station.record_v1` (records of schema 1).
+Together they are the one place the record's keys are spelled.
 
 Numbers that are not finite (a ripple that could not be measured) are ``null`` in JSON and NaN
 in the record; ``to_json(from_json(doc)) == doc`` for every document ``to_json`` wrote.
@@ -14,12 +14,10 @@ from typing import Any, Callable, Mapping
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.capture.ecu_state import EcuState
-from eol_cal.jsonsafe import json_safe
 from eol_cal.station.limits import LimitCheck, VariantLimits
-from eol_cal.station.record import (BLOCK_ROLES, KINDS, SCHEMA, SCHEMA_V1, VERDICTS, CaptureRef, DynoStatus,
-                                    EcuActive, EcuFound, ErrorInfo, FlashedBlock, PointFigures, PreflightResult,
-                                    PreviousBlock, Problem, RecordFormatError, RestoredFrom, RippleMetrics, RunRecord,
-                                    StationInfo, Step)
+from eol_cal.station.record_parts import (BLOCK_ROLES, VERDICTS, CaptureRef, DynoStatus, EcuActive, EcuFound,
+                                          ErrorInfo, FlashedBlock, PointFigures, PreflightResult, PreviousBlock, Problem,
+                                          RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
 
 _MISSING = object()
 #: the station's typed keys, in the order they are written (its other keys go between settings and profile)
@@ -33,14 +31,14 @@ def ecu_state_json(s: EcuState | None) -> dict[str, Any] | None:
     return None if s is None else s.to_dict()
 
 
-def _station(st: StationInfo) -> dict[str, Any]:
+def station_json(st: StationInfo) -> dict[str, Any]:
     out: dict[str, Any] = {k: getattr(st, k) for k in _STATION_HEAD}
     out.update(st.extra)
     out.update({k: getattr(st, k) for k in _STATION_TAIL})
     return out
 
 
-def _limits(lim: VariantLimits | None, sha256: str | None) -> dict[str, Any] | None:
+def limits_json(lim: VariantLimits | None, sha256: str | None) -> dict[str, Any] | None:
     return None if lim is None else {**lim.to_dict(), "sha256": sha256}
 
 
@@ -51,7 +49,7 @@ def check_json(c: LimitCheck) -> dict[str, Any]:
             "reason": c.reason}
 
 
-def _capture(c: CaptureRef) -> dict[str, Any]:
+def capture_json(c: CaptureRef) -> dict[str, Any]:
     return {"path": c.path, "sha256": c.sha256, "samples": c.samples, "segments": c.segments,
             "ecu_before": ecu_state_json(c.ecu_before), "ecu_after": ecu_state_json(c.ecu_after)}
 
@@ -71,6 +69,19 @@ def _figures(p: PointFigures) -> dict[str, Any]:
             "T_avg_nm": p.T_avg_nm, "amp6_nm": p.amp6_nm, "span_s": list(p.span_s)}
 
 
+def error_json(e: ErrorInfo | None) -> dict[str, Any] | None:
+    return None if e is None else {"step": e.step, "type": e.type, "message": e.message, "traceback": e.traceback}
+
+
+def step_json(s: Step) -> dict[str, Any]:
+    return {"step": s.step, "seconds": s.seconds, "ok": s.ok, "error": s.error}
+
+
+def restored_json(rf: RestoredFrom | None) -> dict[str, Any] | None:
+    return None if rf is None else {"run_id": rf.run_id, "path": rf.path, "sha256": rf.sha256,
+                                    "sequence": rf.sequence, "crc32": rf.crc32}
+
+
 def metrics_json(m: RippleMetrics | None) -> dict[str, Any] | None:
     if m is None:
         return None
@@ -80,7 +91,7 @@ def metrics_json(m: RippleMetrics | None) -> dict[str, Any] | None:
             "after": _figures(m.after), "definition": m.definition}
 
 
-def _preflight(p: PreflightResult | None) -> dict[str, Any] | None:
+def preflight_json(p: PreflightResult | None) -> dict[str, Any] | None:
     if p is None:
         return None
     dyno = None if p.dyno is None else {"map_version": p.dyno.map_version, "dut_serial": p.dyno.dut_serial,
@@ -89,28 +100,6 @@ def _preflight(p: PreflightResult | None) -> dict[str, Any] | None:
     ecu = None if p.ecu is None else {"state": ecu_state_json(p.ecu.state), "key_accepted": p.ecu.key_accepted,
                                        "problems": list(p.ecu.problems)}
     return {"dyno": dyno, "ecu": ecu, "problems": [{"code": x.code, "text": x.text} for x in p.problems]}
-
-
-def record_to_json(r: RunRecord) -> dict[str, Any]:
-    """See :meth:`RunRecord.to_json`."""
-    err = None if r.error is None else {"step": r.error.step, "type": r.error.type, "message": r.error.message,
-                                        "traceback": r.error.traceback}
-    rf = r.restored_from
-    return json_safe({
-        "schema": SCHEMA, "kind": r.kind, "run_id": r.run_id, "serial": r.serial, "started_at": r.started_at,
-        "ended_at": r.ended_at, "verdict": r.verdict, "reasons": list(r.reasons), "refusal_codes": list(r.refusal_codes),
-        "error": err, "tool_version": r.tool_version, "layout_version": r.layout_version,
-        "station": _station(r.station), "limits": _limits(r.limits, r.limits_sha256),
-        "checks": [check_json(c) for c in r.checks],
-        "steps": [{"step": s.step, "seconds": s.seconds, "ok": s.ok, "error": s.error} for s in r.steps],
-        "preflight": _preflight(r.preflight), "captures": {k: _capture(c) for k, c in r.captures.items()},
-        "fit": None if r.fit is None else r.fit.to_json(), "blocks": [block_json(b) for b in r.blocks],
-        "metrics": metrics_json(r.metrics), "report_dir": r.report_dir, "safe_state": r.safe_state,
-        "ecu_active": {"block": r.ecu_active.block, "sequence": r.ecu_active.sequence, "bank": r.ecu_active.bank},
-        "restored_from": None if rf is None else {"run_id": rf.run_id, "path": rf.path, "sha256": rf.sha256,
-                                                  "sequence": rf.sequence, "crc32": rf.crc32},
-        "report_error": r.report_error,
-    })
 
 
 # --------------------------------------------------------------------------- reading
@@ -348,28 +337,3 @@ def common_from(r: Reader, d: dict[str, Any]) -> dict[str, Any]:
 
 def ecu_active_from(r: Reader, d: dict[str, Any]) -> EcuActive:
     return EcuActive(r.str(d, "block"), r.int(d, "sequence", null=True), r.int(d, "bank", null=True))
-
-
-def record_from_json(doc: Any, source: str) -> RunRecord:
-    """See :meth:`RunRecord.from_json`."""
-    r = Reader(source)
-    if not isinstance(doc, dict):
-        raise RecordFormatError(source, None, f"expected a record object, got {type(doc).__name__}")
-    schema = doc.get("schema")
-    if schema == SCHEMA_V1:
-        from eol_cal.station.record_v1 import record_from_v1
-
-        return record_from_v1(r, doc)
-    if schema != SCHEMA:
-        raise r.error("schema", f"{schema!r}: not a run record ({SCHEMA} or {SCHEMA_V1})")
-    lim, sha = limits_from(r.at("limits."), r.obj(doc, "limits", null=True))
-    return RunRecord(
-        kind=r.choice(doc, "kind", KINDS), refusal_codes=r.strs(doc, "refusal_codes"),
-        station=station_from(r.at("station."), r.obj(doc, "station")), limits=lim, limits_sha256=sha,
-        checks=r.items(doc, "checks", check_from),
-        preflight=preflight_from(r.at("preflight."), r.obj(doc, "preflight", null=True)),
-        blocks=r.items(doc, "blocks", block_from),
-        metrics=metrics_from(r.at("metrics."), r.obj(doc, "metrics", null=True)),
-        ecu_active=ecu_active_from(r.at("ecu_active."), r.obj(doc, "ecu_active")),
-        restored_from=restored_from(r.at("restored_from."), r.obj(doc, "restored_from", null=True)),
-        report_error=r.str(doc, "report_error", null=True), **common_from(r, doc))

@@ -21,9 +21,9 @@ from __future__ import annotations
 from typing import Any
 
 from eol_cal.station.limits import STAGES, Measured, all_checks, judge
-from eol_cal.station.record import (SCHEMA_V1, EcuActive, FlashedBlock, Problem, RunRecord, StationInfo)
 from eol_cal.station.record_json import (Reader, common_from, ecu_active_from, limits_from, metrics_from,
                                          preflight_from, previous_from, station_from)
+from eol_cal.station.record_parts import SCHEMA_V1, EcuActive, FlashedBlock, Problem, StationInfo
 
 #: the pre-flight's reasons as schema 1 worded them -> refusal code (first match)
 V1_PROBLEMS = (
@@ -96,8 +96,8 @@ def _ecu_active(blocks: tuple[FlashedBlock, ...]) -> EcuActive:
     return EcuActive("unchanged")
 
 
-def record_from_v1(r: Reader, doc: dict[str, Any]) -> RunRecord:
-    """A schema-1 record as a :class:`RunRecord` (module doc)."""
+def fields_from_v1(r: Reader, doc: dict[str, Any]) -> dict[str, Any]:
+    """A schema-1 record's :class:`~eol_cal.station.record.RunRecord` fields (module doc)."""
     assert doc.get("schema") == SCHEMA_V1
     common = common_from(r, doc)
     kind = kind_v1(doc)
@@ -130,7 +130,7 @@ def record_from_v1(r: Reader, doc: dict[str, Any]) -> RunRecord:
         assert set(judged) <= set(STAGES)
     blocks = _blocks(r, doc)
     active = r.obj(doc, "ecu_active", default=None)
-    return RunRecord(
+    return dict(
         kind=kind, refusal_codes=codes, station=_station(r, doc), limits=lim, limits_sha256=sha, checks=checks,
         preflight=preflight, blocks=blocks, metrics=metrics,
         ecu_active=ecu_active_from(r.at("ecu_active."), active) if active else _ecu_active(blocks),
