@@ -151,3 +151,23 @@ def test_a_capture_fit_would_refuse_is_an_error_row(tmp_path, flags, ecu_serial,
     row = refit_capture([path])
     assert row["verdict"] == "error" and words in row["error"] and str(path) in row["error"]
     assert row["k6"] is None
+
+
+def test_refit_takes_the_production_runs_of_a_reports_directory_unless_asked(tmp_path: Path):
+    """A station run directory whose record is of another kind (a master motor's check, a simulated
+    motor) is no motor of the lot; --kind all takes it."""
+    import dataclasses
+
+    from _records import make_record
+
+    for name, kind in (("A_run", "production"), ("B_run", "simulated"), ("C_run", None)):
+        d = tmp_path / "reports" / name
+        d.mkdir(parents=True)
+        (d / "before.mf4").write_bytes(b"")
+        if kind is not None:  # C: no record beside the capture (taken as it is)
+            rec = dataclasses.replace(make_record(name[0]), kind=kind)
+            (d / "report.json").write_text(json.dumps(rec.to_json()))
+    names = lambda groups: [g[0].parent.name for g in groups]  # noqa: E731
+    assert names(find_captures([str(tmp_path / "reports")])) == ["A_run", "C_run"]
+    assert names(find_captures([str(tmp_path / "reports")], "all")) == ["A_run", "B_run", "C_run"]
+    assert names(find_captures([str(tmp_path / "reports")], "simulated")) == ["B_run", "C_run"]
