@@ -190,7 +190,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
 def _finish(cfg, tally, lot_file: Path | None) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
     from eol_cal.report.lot import select_records, write_lot_page
-    from eol_cal.station.records import db_label
+    from eol_cal.station.records import db_label, db_shown
     from eol_cal.station.records_query import query_records
 
     station_id = cfg.station.get("id")
@@ -202,7 +202,7 @@ def _finish(cfg, tally, lot_file: Path | None) -> None:
         console.print(f"  {rec.serial}: {what}, report {report or '-'}")
     for serial in tally.interrupted:
         console.print(f"  {serial}: interrupted (error), its run directory is under {cfg.report_dir}")
-    hint = f"eol-cal lot report --db {cfg.db} --station {station_id} -o lot.html"
+    hint = f"eol-cal lot report --db {db_shown(cfg.db)} --station {station_id} -o lot.html"
     if lot_file is None or not (tally.records or tally.interrupted):
         console.print(f"lot page: {hint}")
         return
@@ -244,6 +244,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.station.configure import station_config
+    from eol_cal.station.records import db_shown
     from eol_cal.station.session import SessionTally, operator_name
 
     if demo and out_dir is None:
@@ -256,7 +257,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     _quiet_logs()
     what = f"demo in {out_dir} (simulated ECU and dyno per motor)" if demo else f"settings {settings.source}"
     console.print(f"eol-cal station {cfg.station['id']}: {what}\n  limits {cfg.limits.source} ({cfg.limits.variant}), "
-                  f"records {cfg.db}, reports {cfg.report_dir}")
+                  f"records {db_shown(cfg.db)}, reports {cfg.report_dir}")
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:

@@ -115,15 +115,17 @@ def _print_outcome(out, as_json: bool) -> None:
 
 
 def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
+    from eol_cal.station.records import db_shown
     from eol_cal.station.spool import flush_spool
 
     res = flush_spool(db, spool_dir, timeout)
     for bad in res.bad_files:
         err_console.print(f"[yellow]spool: {bad}; left alone[/yellow]")
     if res.flushed_files:
-        err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db}")
+        err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db_shown(db)}")
     elif res.remaining:
-        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db}: {res.error}[/yellow]")
+        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db_shown(db)}: "
+                          f"{res.error}[/yellow]")
 
 
 #: each `run` option's settings key (eol_cal.station.settings.KEYS); an option given on the command
@@ -305,7 +307,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     wall = time.perf_counter() - t0
     console.print(results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
     from eol_cal.report.lot import write_lot_page
-    from eol_cal.station.records import db_label
+    from eol_cal.station.records import db_label, db_shown
     from eol_cal.station.records_query import query_records
 
     lot_page = write_lot_page(query_records(db), out_dir / "lot.html", title=f"{db_label(db)} (eol-cal demo)",
@@ -313,8 +315,9 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     console.print("per-motor reports (one self-contained file each; open in a browser):")
     for o in outcomes:
         console.print(f"  {o.record.serial}: {o.report_html}")
-    console.print(f"lot page: {lot_page} (eol-cal lot report --db {db} -o lot.html)")
-    console.print(f"records: {db} (eol-cal records --db {db}); limits: {limits_path}")
+    shown = db_shown(db)
+    console.print(f"lot page: {lot_page} (eol-cal lot report --db {shown} -o lot.html)")
+    console.print(f"records: {shown} (eol-cal records --db {shown}); limits: {limits_path}")
     console.print("the same cycle on a real station: eol-cal run --dyno HOST:PORT --interface I --channel C "
                   f"--limits {limits_path} --db results.sqlite --serial S --key-file KEY")
     raise CommandExit(max(o.exit_code for o in outcomes))
@@ -359,7 +362,7 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
     day = _day(day)
     if flush:
         res = flush_spool(db, spool_dir)
-        msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db}"
+        msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db_label(db)}"
                + (f"; {res.remaining} still waiting: {res.error}" if res.remaining else "")
                + (f"; {res.other_db} spooled for other databases" if res.other_db else ""))
         err_console.print(msg)

@@ -126,19 +126,20 @@ def db_key(db: str | Path) -> str:
     return sa.engine.make_url(_sa_url(str(db))).render_as_string(hide_password=True)
 
 
-def db_label(db: str | Path) -> str:
-    """A name of the database for titles and messages: a file's name, or the URL as it was typed
-    with its password masked (``postgresql://eolcal:***@host/db``)."""
-    if not is_url(db):
-        return Path(db).name
-    url = sa.engine.make_url(_sa_url(str(db)))
+def db_shown(db: str | Path) -> str:
+    """The database as it was typed, for messages: a file path, or a URL with its password masked
+    (``postgresql://eolcal:***@host/db``)."""
     shown = str(db)
-    if url.password is not None:
+    if is_url(db) and sa.engine.make_url(_sa_url(shown)).password is not None:
         scheme, _, rest = shown.partition("://")
         userinfo, at, hostpart = rest.rpartition("@")
-        user = userinfo.partition(":")[0]
-        shown = f"{scheme}://{user}:***{at}{hostpart}"
+        shown = f"{scheme}://{userinfo.partition(':')[0]}:***{at}{hostpart}"
     return shown
+
+
+def db_label(db: str | Path) -> str:
+    """A name of the database for titles: a file's name, or the URL as typed, password masked."""
+    return db_shown(db) if is_url(db) else Path(db).name
 
 
 def _sa_url(url: str) -> str:

@@ -22,6 +22,7 @@ from eol_cal.station.records import (
     SPOOL_SCHEMA,
     RecordError,
     db_key,
+    db_shown,
     insert_records,
     one_line,
 )
@@ -74,13 +75,13 @@ def save_record(record: RunRecord, db: str | Path, spool_dir: str | Path | None 
     spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
     try:
         insert_records(db, [record], timeout_s)
-        return SaveResult("db", str(db))
+        return SaveResult("db", db_shown(db))
     except DB_ERRORS as exc:
         why = f"{type(exc).__name__}: {one_line(exc)}"
     try:
         path = spool_record(record, db, spool_dir, why)
     except OSError as exc:
-        raise RecordError(f"record {record.run_id} could not be written: database {db}: {why}; "
+        raise RecordError(f"record {record.run_id} could not be written: database {db_shown(db)}: {why}; "
                           f"spool {spool_dir}: {exc}") from exc
     return SaveResult("spool", str(path), why)
 
