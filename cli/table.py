@@ -81,7 +81,8 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
         if "mech" in d:
             for name in ("mech_table_const", "mech_table_per_amp"):
                 d["mech"].pop(name)
-        print_json({"file": output, "bytes": len(data), "block": d, "mech_off_reasons": mech_off})
+        print_json({"schema": "eol-cal/table/1", "file": output, "bytes": len(data), "block": d,
+                    "mech_off_reasons": mech_off})
     else:
         console.print(
             f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"
