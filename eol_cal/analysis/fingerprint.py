@@ -30,8 +30,8 @@ from eol_cal.firmware.estimator import quadrature_phase
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
 REF_RPM = 300.0
-#: degree of each steady stretch's polynomial motion (Legendre in time)
-_POLY_DEGREE = 3
+#: degree of each stretch's polynomial motion (Legendre in time)
+_POLY_DEGREE = 5
 #: mechanical orders taken out of the fitted errors (the spline shares them)
 _LOW_ORDERS = 2
 
@@ -40,18 +40,19 @@ _LOW_ORDERS = 2
 class WindowEdges:
     """One window's A edges over its steady stretches, in its own count frame.
 
-    stretches : per steady stretch, (edge times (s), boundaries k (unwrapped), direction d 0/1);
+    stretches : per stretch of smooth motion in one direction, (edge times (s), A boundaries k
+        (unwrapped): ``k >> 1`` indexes the fingerprint, both of its halves);
     grid_phase : rad electrical of the window's count boundary 0 (firmware frame);
     q : (n,) the window's unwrapped quadrature count per sample.
     """
 
-    stretches: list[tuple[np.ndarray, np.ndarray, int]]
+    stretches: list[tuple[np.ndarray, np.ndarray]]
     grid_phase: float
     q: np.ndarray
 
     @property
     def n_edges(self) -> int:
-        return sum(len(t) for t, _, _ in self.stretches)
+        return sum(len(t) for t, _ in self.stretches)
 
 
 @dataclass(frozen=True)
@@ -88,16 +89,24 @@ def quadrature_counts(enc_a: np.ndarray, enc_b: np.ndarray) -> tuple[np.ndarray,
 
 def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, step: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A rising edges: times (s, the midpoint of the two samples around), boundary ``k`` (unwrapped;
-    forward ``q``, reverse ``q + 1``, as the estimator numbers them) and direction (+1/-1)."""
-    ph = np.asarray(quadrature_phase(np.asarray(enc_a).astype(np.int64) & 1, np.asarray(enc_b).astype(np.int64) & 1))
-    fwd = (step == 1) & (ph == 1)
-    rev = (step == -1) & (ph == 2)
-    idx = np.flatnonzero(fwd | rev)
+    """Every level change of channel A: times (s, the midpoint of the two samples around), the
+    boundary ``k`` it crosses (unwrapped; the estimator's numbering: ``q`` stepping forward,
+    ``q + 1`` stepping back) and the direction of motion (+1/-1).
+
+    A rises at ``k = 4m + 1`` and falls at ``4m + 3`` in forward rotation; in reverse the same
+    boundaries are crossed the other way. The firmware's forward fingerprint is the edges at
+    ``4m + 1`` (A rising forward), its reverse fingerprint those at ``4m + 3`` (A rising in
+    reverse): both are measured whichever way the motor turns (fingerprint index ``k >> 1``).
+    """
+    a = np.asarray(enc_a).astype(np.int64) & 1
+    a_changed = np.concatenate(([False], a[1:] != a[:-1]))
+    moved = step != 0
+    idx = np.flatnonzero(a_changed & moved)
     idx = idx[idx > 0]
     times = 0.5 * (t[idx - 1] + t[idx])
-    k = np.where(fwd[idx], q[idx], q[idx] + 1)
-    return times, k, np.where(fwd[idx], 1, -1)
+    fwd = step[idx] > 0
+    k = np.where(fwd, q[idx], q[idx] + 1)
+    return times, k, np.where(fwd, 1, -1)
 
 
 def _low_order_complement(N: int) -> np.ndarray:
@@ -144,46 +153,59 @@ def window_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: 
     stretches = []
     used = np.zeros(len(times), bool)
     for a, b in ranges:
-        for d in (0, 1):
-            sel = (dirn == (1 if d == 0 else -1)) & (times >= t[a]) & (times <= t[b - 1])
-            if sel.sum() > _POLY_DEGREE + 2:
-                stretches.append((times[sel], k[sel], d))
+        for d in (1, -1):
+            sel = (dirn == d) & (times >= t[a]) & (times <= t[b - 1])
+            if sel.sum() > 2 * (_POLY_DEGREE + 2):
+                stretches.append((times[sel], k[sel]))
                 used |= sel
     if not stretches:
         return None
-    th = np.interp(times[used], t, np.asarray(theta_fw, dtype=float))
-    gp = float(np.angle(np.mean(np.exp(1j * (th - k[used] * quarter)))) % (2 * math.pi))
+    # the grid phase from the forward fingerprint's edges (A rising forward: the duty cycle's
+    # error would shift the others by a constant)
+    rise = used & ((k & 3) == 1)
+    th = np.interp(times[rise], t, np.asarray(theta_fw, dtype=float))
+    gp = float(np.angle(np.mean(np.exp(1j * (th - k[rise] * quarter)))) % (2 * math.pi))
     return WindowEdges(stretches, gp, q)
 
 
-def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray, int]], N: int, quarter: float):
-    """Least squares of the edge errors shared by every stretch (each its own cubic motion).
+def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float, cov: bool = True):
+    """Least squares of the edge errors shared by every stretch (each its own polynomial motion).
 
-    ``stretches`` hold (times, boundaries k in the common frame, direction d). Returns
-    ``(fp (2N,), var (2N,), rss, dirs, dof)``; a direction with a pulse seen fewer than twice is
-    left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
+    ``stretches`` hold (times, A boundaries k in the common frame); edge ``k`` is fingerprint entry
+    ``(k >> 1) mod 2N``: forward half (``k = 4m + 1``) and reverse half (``4m + 3``). Returns
+    ``(fp (2N,), var (2N,), rss, dirs, dof)``; a half with a pulse never seen, or fewer than 1.25
+    revolutions of edges, is left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
+    ``cov=False`` skips the variances (NaN): a placement trial needs the residual only.
     """
     from eol_cal.firmware.mech_params import FP_FORWARD
 
     P = _low_order_complement(N)
     nF = P.shape[1]
+    allk = np.concatenate([k for _, k in stretches]) if stretches else np.zeros(0, np.int64)
+
     def covered(d):
-        seen = np.bincount(np.concatenate([(k >> 2) % N for _, k, dd in stretches if dd == d] or [np.zeros(0, int)]),
-                           minlength=N)
-        return seen.min() >= 2
+        kk = allk[((allk >> 1) & 1) == d]
+        seen = np.bincount((kk >> 2) % N, minlength=N)
+        return seen.min() >= 1 and seen.sum() >= N + N // 4
 
     dirs = [d for d in (0, 1) if covered(d)]
-    groups = [g for g in stretches if g[2] in dirs]
-    if not groups:
+    if not dirs:
         return None
-    nb = (_POLY_DEGREE + 1) * len(groups)
+    nb = (_POLY_DEGREE + 1) * len(stretches)
     col = {d: nb + i * nF for i, d in enumerate(dirs)}
     rows, rhs = [], []
-    for g, (times, k, d) in enumerate(groups):
+    for g, (times, k) in enumerate(stretches):
+        half = (k >> 1) & 1
+        keep = np.isin(half, dirs)
+        times, k, half = times[keep], k[keep], half[keep]
+        if not len(times):
+            continue
         x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
         A = np.zeros((len(times), nb + nF * len(dirs)))
         A[:, g * (_POLY_DEGREE + 1):(g + 1) * (_POLY_DEGREE + 1)] = np.polynomial.legendre.legvander(x, _POLY_DEGREE)
-        A[:, col[d]:col[d] + nF] = -P[(k >> 2) % N]
+        for d in dirs:
+            sel = half == d
+            A[sel, col[d]:col[d] + nF] = -P[(k[sel] >> 2) % N]
         rows.append(A)
         rhs.append(k * quarter)
     A = np.concatenate(rows)
@@ -191,14 +213,16 @@ def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray, int]], N: int, quar
     sol, *_ = np.linalg.lstsq(A, phi, rcond=None)
     resid = phi - A @ sol
     rss = float(resid @ resid)
-    s2 = rss / max(1, len(phi) - A.shape[1])
-    cov = s2 * np.linalg.pinv(A.T @ A)
     fp = np.full(2 * N, np.nan)
     var = np.full(2 * N, np.nan)
+    if cov:
+        s2 = rss / max(1, len(phi) - A.shape[1])
+        C = s2 * np.linalg.pinv(A.T @ A)
     for d in dirs:
         c = slice(col[d], col[d] + nF)
         fp[d::2] = P @ sol[c]
-        var[d::2] = np.einsum("ij,jk,ik->i", P, cov[c, c], P)
+        if cov:
+            var[d::2] = np.einsum("ij,jk,ik->i", P, C[c, c], P)
     return fp, var, rss, sum(FP_FORWARD << d for d in dirs), len(phi) - A.shape[1]
 
 
@@ -293,8 +317,8 @@ def _place(w: WindowEdges, ref_phase: float, placed: list, poles: int, N: int, q
     for j in range(poles // 2):
         r = int(math.floor((dg + 2 * math.pi * j) / delta + 0.5)) % N
         e = math.remainder(dg - r * delta, 2 * math.pi)
-        moved = [(t, k + 4 * r, d) for t, k, d in w.stretches]
-        fit = _joint_fit(placed + moved, N, quarter)
+        moved = [(t, k + 4 * r) for t, k in w.stretches]
+        fit = _joint_fit(placed + moved, N, quarter, cov=False)
         rss = fit[2] if fit is not None and fit[4] >= N // 2 else math.nan
         trials.append((rss, r, e, moved))
     frac_ok = sorted((x for x in trials if abs(x[2]) <= frac_tol), key=lambda x: abs(x[2]))

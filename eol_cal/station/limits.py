@@ -101,8 +101,8 @@ LIMITS: tuple[Limit, ...] = (
     # the rotor's unbalance is a mechanical reject only where a line chooses to judge it
     Limit("max_pp_after_no_mech1_pct", "pp_after_no_mech1_pct", "p-p compensated without mechanical order 1", "%",
           "max", "ripple", (0.0, 1000.0), default=None),
-    # revision 1.2: with a layout-2 block the mechanical orders are compensated too (max_pp_after_pct
-    # judges the p-p of every order); this judges what the compensation left of order 1
+    # revision 1.2: with a layout-2 block the mechanical orders are compensated too (the compensated
+    # p-p above then judges every order); this judges what the compensation left of order 1
     Limit("max_mech1_after_nm", "mech1_after_nm", "mechanical order 1 left compensated", "N*m", "max", "ripple",
           (0.0, 10.0), default=None),
 )

@@ -271,7 +271,7 @@ def _figures_from(r: Reader, d: dict[str, Any]) -> PointFigures:
         raise r.error("span_s", "expected [start, end] in s")
     return PointFigures(*(r.num(d, k, nan=True, default=None) for k in ("pp_pct", "pp_raw_pct", "pp_nm",
                                                                         "pp_no_mech1_pct", "T_avg_nm", "amp6_nm")),
-                        span_s=(float(span[0]), float(span[1])), mech1_nm=r.num(d, "mech1_nm", nan=True, default=float("nan")))
+                        span_s=(float(span[0]), float(span[1])), mech1_nm=r.num(d, "mech1_nm", nan=True, default=None))
 
 
 def metrics_from(r: Reader, d: dict[str, Any] | None) -> RippleMetrics | None:

@@ -35,11 +35,39 @@ if TYPE_CHECKING:
 _Z95 = 1.959963984540054
 
 
+#: a steady segment's stretch for the fingerprint extends while the speed stays within this
+#: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
+#: segments of eol-default settle slowly after their ramp)
+EXTEND_TOL = 0.1
+
+
+def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
+    """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
+    fit, extended both ways while the direction is the same and the speed within
+    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
+    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
+    out: list[tuple[int, int]] = []
+    for k, info in enumerate(mi.info):
+        if mi.capture_of_segment[k] != ci:
+            continue
+        ws = float(np.median(w[info.start:info.stop]))
+        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        before = np.flatnonzero(bad[:info.start])
+        after = np.flatnonzero(bad[info.stop:])
+        a = int(before[-1]) + 1 if len(before) else 0
+        b = info.stop + int(after[0]) if len(after) else len(w)
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
 def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
-    """Each capture window's edges over its steady segments (None: no usable one)."""
+    """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
     out = []
     for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles)):
-        ranges = [(i.start, i.stop) for k, i in enumerate(mi.info) if mi.capture_of_segment[k] == ci]
+        ranges = fingerprint_ranges(mi, ci)
         if not ranges or not cap.has("enc_b"):
             out.append(None)
             continue
