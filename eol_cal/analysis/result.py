@@ -117,7 +117,7 @@ def motor_record(
     the bench mechanics divided out of the measured ripple (None: rigid coupling); ``hall_angle``
     the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal);
     ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names);
-    ``mech`` the mechanical result (:class:`eol_cal.analysis.mech_result.MechResult`, contract
+    ``mech`` the mechanical result (:class:`eol_cal.analysis.motor_result.MechResult`, contract
     revision 1.2), written only with a usable fit.
     """
     status, reasons = judge(fit, spec, limits)

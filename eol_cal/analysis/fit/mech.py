@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.mech_result import STATUS_OFF, STATUS_OK, MechOrder, MechResult
+from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult
 from eol_cal.analysis.motor_result import ValueCi
 from eol_cal.firmware.mech_params import ID_MARGIN, ID_MIN_SCORE, ORDERS
 
@@ -166,7 +166,7 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
         if not reasons:
             reasons.append("no capture window holds a revolution and a half of steady edges: no fingerprint")
         zeros = (0.0,) * (2 * N)
-        return MechResult(STATUS_OFF, tuple(reasons), zeros, (None,) * (2 * N), 0, 0.0,
+        return MechResult(MECH_OFF, tuple(reasons), zeros, (None,) * (2 * N), 0, 0.0,
                           tuple([None] * len(prints)), 0.0, 0.0, threshold, fpr.REF_RPM, ())
     score, margin = fpr.predicted_margin(fp.fp, fp.sigma, fp.dirs, mi.poles, N, tick_hz)
     if margin < threshold or score < min_score:
@@ -178,7 +178,7 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     sigma = tuple(None if not math.isfinite(x) else float(x) for x in fp.sigma)
     # a window that could not be placed is left out of the fingerprint and the orders, no reason to switch off
     return MechResult(
-        status=STATUS_OFF if reasons else STATUS_OK, reasons=tuple(reasons),
+        status=MECH_OFF if reasons else MECH_OK, reasons=tuple(reasons),
         fingerprint=tuple(float(x) for x in fp.fp), sigma=sigma, dirs=fp.dirs, grid_phase=float(fp.grid_phase),
         windows=tuple(fp.offsets), score=float(score), margin=float(margin), threshold=threshold,
         ref_rpm=fpr.REF_RPM, orders=orders or ())
