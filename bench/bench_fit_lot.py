@@ -124,7 +124,8 @@ def main() -> None:
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.variation import draw_motor
 
-    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.analysis.fit.table import mech_off_reasons, uncompensated_block
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
     from eol_cal.firmware.options import options_label, parse_options
 
@@ -197,8 +198,10 @@ def main() -> None:
                 blocks.append(block_from_record(rec, motor, options=opt, layout=1) if usable else None)
                 blocks_mech.append(block_from_record(rec, motor, options=opt) if usable else None)
                 mech = rec.get("mech") or {}
+                # the block's switch: the fit's mechanical status and the estimator options it needs
+                off = mech_off_reasons(MotorResult.from_json(rec), blocks_mech[-1].flags) if usable else ["fit not usable"]
                 rows[-1].update({
-                    "mech_status": mech.get("status", "none"), "mech_reasons": mech.get("reasons", []),
+                    "mech_status": "ok" if not off else "off", "mech_reasons": off,
                     "mech_margin": (mech.get("margin") or {}).get("predicted", float("nan")),
                     "mech_score": (mech.get("margin") or {}).get("score", float("nan")),
                     "mech1_nm": next((o["c"]["value"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
