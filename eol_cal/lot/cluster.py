@@ -72,7 +72,9 @@ def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
 
 
 def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
-    """Make this process ready to fit motors: JAX's persistent compile cache switched on in
+    """Make this process ready to fit motors: the firmware estimator's tick loop compiled into
+    one kernel (:func:`eol_cal.xla.configure_xla`, when JAX has not started yet), JAX's
+    persistent compile cache switched on in
     ``cache_dir`` (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`; ``None``: off), the
     fit's modules imported, and the objects they made frozen out of the cyclic garbage
     collector (``gc.freeze``: JAX and the libraries of a fit are ~200 000 objects that a full
@@ -83,7 +85,12 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     ``bench/bench_refit.py``.
     """
     from eol_cal.analysis.fit.cache import enable_compile_cache
+    from eol_cal.xla import configure_xla
 
+    # before JAX starts in this process: the firmware estimator's tick loop (the firmware frame of
+    # every capture) in one kernel, ~3x less CPU per capture; the rows do not change
+    # (docs/benchmarks.md, "Lot refit throughput")
+    configure_xla()
     enable_compile_cache(cache_dir)
     # imported here on purpose: loading them is the work this function does ahead of the tasks
     import jax  # noqa: F401

@@ -21,8 +21,6 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 from __future__ import annotations
 
 import math
-import os
-import sys
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple, Sequence
 
@@ -40,6 +38,7 @@ from eol_cal.plant.ecu import batch_options, estimator_config, learning_pre_roll
 from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
+from eol_cal.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
 TWO_PI = 2.0 * math.pi
 #: Per-tick outputs of the scan, in this order (float32 columns).
@@ -168,40 +167,6 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[
 
 
 _COMPILED: dict[tuple, Callable] = {}
-
-#: XLA CPU compiles a while loop into one kernel when the bytes it accesses stay below this
-#: backend option (default 1024); above it, every fused kernel of the body is dispatched on its
-#: own and the tick's ~80 kernels cost ~4 us per iteration instead of ~0.5 us.
-_LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
-_LOOP_BYTES = 1 << 28
-
-
-def configure_xla() -> bool:
-    """Let XLA compile the plant's tick loop into a single kernel (about 8x faster on CPU).
-
-    Adds ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2**28`` to
-    ``XLA_FLAGS``. XLA reads its flags once, when JAX's backend starts, so this must run before
-    the process's first JAX computation; it returns False (and changes nothing) when that has
-    happened already or when ``XLA_FLAGS`` sets backend options of its own. The option applies
-    to every ``while`` loop of the process without custom calls (LAPACK, ...): call it from
-    entry points that mostly simulate (the CLI, benchmarks), not from library code.
-    """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if _LOOP_OPTION in flags:
-        return True
-    if "xla_backend_extra_options" in flags:
-        return False
-    if "jax" in sys.modules:
-        try:
-            from jax._src import xla_bridge
-
-            if xla_bridge.backends_are_initialized():
-                return False
-        except (ImportError, AttributeError):
-            return False
-    os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_extra_options={_LOOP_OPTION}={_LOOP_BYTES}".strip()
-    return True
-
 
 def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
     """Compiled ``(params, carry, shared_xs, keys, start) -> (carry, outputs)`` for a batch.
