@@ -182,7 +182,7 @@ def run_jax(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array,
 
 
 #: ticks per call of the chunked runners' compiled scan
-JAX_CHUNK = 4096
+JAX_CHUNK = 1024
 
 #: lanes (captures) of one compiled batched scan: a batch is padded up to the next of these (or
 #: split at the last), so a few programs serve every batch size
