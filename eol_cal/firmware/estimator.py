@@ -265,7 +265,13 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
         for c, x in enumerate(signals[i]):
             abh[:lengths[i], j, c] = x
         abh[lengths[i]:, j] = abh[lengths[i] - 1, j]
-    per_lane = [hall_tables(cfg.hall_angle if h is None else h) for h in hall_angles]
+    made: dict[tuple[float, ...], HallTables] = {}  # the captures of one motor share its table
+    per_lane = []
+    for h in hall_angles:
+        table = tuple(cfg.hall_angle if h is None else h)
+        if table not in made:
+            made[table] = hall_tables(table)
+        per_lane.append(made[table])
     per_lane += per_lane[:1] * (B - len(per_lane))
     tables = HallTables(*(jnp.asarray(np.stack(t)) for t in zip(*per_lane)))
     pcfg = _program_config(cfg)
