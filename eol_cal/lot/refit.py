@@ -4,8 +4,8 @@ comparable with the run records.
 
 Each task reads the run's captures and fits them as the station does (the options of
 :func:`eol_cal.station.run.fit_motor`, so the same k6 as the record of that run), and, with limits, judges the fit's
-part of them (:func:`eol_cal.station.limits.fit_reasons`: k6, the intervals, R^2, RMS, the hall
-table; the ripple limits need the compensated capture, which a refit does not make). A capture
+part of them (:func:`eol_cal.station.limits.judge` of the fit stage: k6, the intervals, R^2, RMS, the
+hall table; the ripple limits need the compensated capture, which a refit does not make). A capture
 that cannot be read or fitted gives a row with ``error`` and no numbers; the lot goes on. So does
 a capture that ``eol-cal fit`` would refuse by its recorded ECU state (the block changed during
 it, another motor's ECU, taken under compensation); untraced captures (older runs) are refitted,
@@ -28,18 +28,28 @@ CAPTURE_SUFFIXES = (".mf4", ".csv")
 #: is refitted from these
 STATION_CAPTURE = "before.mf4"
 _ERRORS = (EolCalError, OSError, ValueError)
-ROW_KEYS = ("serial", "capture", "k6", "phase_k6", "c6", "r2", "rms", "status", "verdict", "reasons", "error")
+ROW_KEYS = ("serial", "capture", "k6", "phase_k6", "c6", "r2", "rms", "status", "verdict", "reasons", "failed_checks",
+            "error")
 
 
-def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
+def find_captures(patterns: Sequence[str], kind: str | Sequence[str] | None = "production") -> list[list[Path]]:
     """The capture files of directories (their station ``before.mf4`` files, recursively, else
     every capture in them), files and globs, grouped by directory: one group per motor run
-    (a station run directory, or a directory holding one motor's captures); sorted, each once."""
+    (a station run directory, or a directory holding one motor's captures); sorted, each once.
+
+    A station run directory whose record (``report.json``) is of another kind than ``kind``
+    (default ``production``; ``all`` or None: every kind) is left out: a master motor's or a
+    simulated run is not a motor of the lot unless asked for."""
+    from eol_cal.station.records_query import kinds_of
+
+    kinds = kinds_of(kind)
     out: set[Path] = set()
     for pat in patterns:
         p = Path(pat)
         if p.is_dir():
-            found = list(p.rglob(STATION_CAPTURE)) or [q for q in p.rglob("*") if q.suffix.lower() in CAPTURE_SUFFIXES]
+            found = [q for q in p.rglob(STATION_CAPTURE) if kinds is None or _run_kind(q.parent) in (*kinds, None)]
+            found = found or [q for q in p.rglob("*") if q.suffix.lower() in CAPTURE_SUFFIXES
+                              and q.name != STATION_CAPTURE]
         elif p.is_file():
             found = [p]
         else:
@@ -51,6 +61,18 @@ def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
     for q in sorted(out):
         groups.setdefault(q.parent, []).append(q)
     return [groups[k] for k in sorted(groups)]
+
+
+def _run_kind(run_dir: Path) -> str | None:
+    """The kind of a station run directory's record (None: no readable record there)."""
+    import json
+
+    from eol_cal.station.record import record_kind
+
+    try:
+        return record_kind(json.loads((run_dir / "report.json").read_text(encoding="utf-8")))
+    except (OSError, ValueError):
+        return None
 
 
 #: serials per refit task (:func:`refit_serials`): the firmware estimator runs over all their
@@ -87,7 +109,7 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
     rows: list[dict[str, Any]] = []
     for paths in groups:
         row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
-        row.update(capture=str(paths[0]), reasons=[])
+        row.update(capture=str(paths[0]), reasons=[], failed_checks=[])
         rows.append(row)
     try:
         setup = _RefitSetup(limits_file, variant, bench, motor, cache_dir)
@@ -105,10 +127,9 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
     for row, mi, opts in ready:
         try:
             (rec,) = setup.fit(mi, opts)
+            setup.judge(row, rec, row["capture"])
         except _ERRORS as exc:
             _error(row, exc)
-            continue
-        setup.judge(row, rec)
     return rows
 
 
@@ -185,19 +206,25 @@ class _RefitSetup:
 
         return fit_inputs([mi], opts, __version__).records
 
-    def judge(self, row: dict[str, Any], rec: dict[str, Any]) -> None:
-        from eol_cal.station.limits import fit_reasons, measured_from_fit
+    def judge(self, row: dict[str, Any], rec: dict[str, Any], source: str) -> None:
+        """Fill ``row`` from a motor's fit record (read typed, judged against the fit stage's limits);
+        raises before touching the row when either cannot be done."""
+        from eol_cal.analysis.motor_result import MotorResult
+        from eol_cal.station.limits import Measured, failed, judge
 
-        row["status"] = rec["status"]
+        result = MotorResult.from_json(rec, source, "motors[0].")
+        checks = judge(Measured.of_fit(result), self.lim, "fit") if result.usable and self.lim is not None else None
+        row["status"] = result.status
         for key in ("k6", "phase_k6", "c6"):
-            row[key] = (rec.get(key) or {}).get("value")
-        row["r2"] = (rec.get("fit") or {}).get("r2")
-        row["rms"] = (rec.get("fit") or {}).get("rms")
-        if rec["status"] != "ok":
-            row["verdict"], row["reasons"] = "fail", list(rec.get("reasons") or [])
-        elif self.lim is not None:
-            reasons = fit_reasons(measured_from_fit(rec), self.lim)
+            row[key] = None if result.estimates is None else getattr(result.estimates, key).value
+        row["r2"], row["rms"] = result.fit.get("r2"), result.fit.get("rms")
+        if not result.usable:
+            row["verdict"], row["reasons"] = "fail", list(result.reasons)
+            row["failed_checks"] = [f"fit {result.status}"]
+        elif checks is not None:
+            reasons = failed(checks)
             row["verdict"], row["reasons"] = ("fail", reasons) if reasons else ("pass", [])
+            row["failed_checks"] = [c.key for c in checks if c.passed is False]
 
 
 def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | None = None, variant: str | None = None,
@@ -227,7 +254,7 @@ def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | N
             done = []
             for group in paths[k:k + batch]:
                 row = dict.fromkeys(ROW_KEYS)
-                row.update(capture=str(group[0]), reasons=[])
+                row.update(capture=str(group[0]), reasons=[], failed_checks=[])
                 _error(row, exc)
                 done.append(row)
         for j, row in enumerate(done):
