@@ -322,11 +322,11 @@ def _safe_id(text: str) -> str:
 
 
 def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title: str,
-                    filters: dict[str, str | None]) -> str:
+                    filters: dict[str, str | None], kind: str = MEASURED_KIND) -> str:
     """The lot page (self-contained HTML) of a set of run records.
 
-    The statistics, charts and the motors nearest their limits are of the ``production`` runs;
-    the refusals (nothing written, nothing measured) are counted and shown with their own
+    The statistics, charts and the motors nearest their limits are of the runs of ``kind``
+    (``production``; ``simulated`` for a what-if lot, ``all`` for every measured kind); the refusals (nothing written, nothing measured) are counted and shown with their own
     Pareto; runs of other kinds (restores...) are counted.
 
     Parameters
@@ -347,10 +347,10 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
     from eol_cal.station.records_query import summarise
 
     ordered = sorted(records, key=lambda r: (run_time(r), r.run_id))
-    recs = [r for r in ordered if r.kind == MEASURED_KIND]
+    recs = [r for r in ordered if (r.kind != "refusal" if kind == "all" else r.kind == kind)]
     refusals = [r for r in ordered if r.kind == "refusal"]
     lot = from_records(recs)
-    summary = summarise(ordered)
+    summary = summarise(ordered, kind)
     fpy, _motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = quantity_stats(lot)
     causes = pareto_of(lot.causes)
@@ -417,11 +417,11 @@ def select_records(records: Sequence[RunRecord], variant: str | None = None, sin
 
 
 def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str,
-                   filters: dict[str, str | None]) -> Path:
+                   filters: dict[str, str | None], kind: str = MEASURED_KIND) -> Path:
     """Write the lot page to ``path`` (atomically); returns the path."""
 
     from eol_cal.atomic import atomic_write
 
     path = Path(path)
-    atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters))
+    atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters, kind=kind))
     return path

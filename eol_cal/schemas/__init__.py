@@ -31,6 +31,8 @@ SCHEMA_FILES: dict[str, str] = {
     "eol-cal/records/2": "records",
     "eol-cal/lot-stats/1": "lot-stats",
     "eol-cal/lot-diff/1": "lot-diff",
+    "eol-cal/lot-simulate/1": "lot-simulate",
+    "eol-cal/lot-compare/1": "lot-compare",
 }
 
 
