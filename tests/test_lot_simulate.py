@@ -38,12 +38,7 @@ ramp_s = 0.3
 """
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _no_jax_cache():
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")  # the workers inherit it: keep the tests out of ~/.cache
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("no_jax_cache")  # the workers inherit it: the tests stay out of ~/.cache
 
 
 @pytest.fixture(scope="module")

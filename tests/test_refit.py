@@ -25,12 +25,7 @@ SERIALS = ("R-1", "R-2", "R-3")
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _no_jax_cache():
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")  # the workers inherit it: keep the tests out of ~/.cache
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("no_jax_cache")  # the workers inherit it: the tests stay out of ~/.cache
 
 
 @pytest.fixture(scope="module")
