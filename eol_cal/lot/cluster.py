@@ -1,14 +1,14 @@
-"""The Dask side of a lot refit: the local cluster `eol-cal refit` starts, and what every worker
-process does before its first task.
+"""The Dask side of a lot refit (and of ``lot simulate``): the local cluster `eol-cal refit` starts,
+and what every worker process does before its first task.
 
-A refit task is ~0.2 s of CPU (read six captures, fit one motor) on a machine of few cores, so
+A refit task is ~0.2 s of CPU (read and fit 8 motors of six captures) on a machine of few cores, so
 what ``distributed`` does beside the tasks counts. Measured on the 2-core machine of
 docs/benchmarks.md ("Lot refit throughput"): the worker's statistical profiler (a thread that
 samples the task thread's stack every 10 ms) and the 20 ms to 100 ms monitoring loops of the
 scheduler, nannies and workers cost 5 to 10 % of a refit's CPU; :data:`REFIT_CONFIG` switches the
 profiler off and slows those loops down, and leaves glibc's malloc trimming as it is in a plain
 process (``MALLOC_TRIM_THRESHOLD_`` unset: ~20 % of a refit's CPU). Nothing of the scheduling
-changes: one task per motor run, retries, a nanny that restarts a killed worker.
+changes: a task per batch of motor runs, retries, a nanny that restarts a killed worker.
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
-"""Refit a lot's captures on a Dask ``distributed`` cluster: one task per motor run (a station
-run's directory, or a directory of one motor's captures), results keyed by serial and
-comparable with the run records.
+"""Refit a lot's captures on a Dask ``distributed`` cluster: a few motor runs per task (a motor run
+is a station run's directory, or a directory of one motor's captures; :data:`REFIT_BATCH`),
+results keyed by serial and comparable with the run records.
 
-Each task reads the run's captures and fits them as the station does (the options of
+Each motor's captures are read and fitted as the station does (the options of
 :func:`eol_cal.station.run.fit_motor`, so the same k6 as the record of that run), and, with limits, judges the fit's
 part of them (:func:`eol_cal.station.limits.judge` of the fit stage: k6, the intervals, R^2, RMS, the
 hall table; the ripple limits need the compensated capture, which a refit does not make). A capture
@@ -11,7 +11,7 @@ a capture that ``eol-cal fit`` would refuse by its recorded ECU state (the block
 it, another motor's ECU, taken under compensation); untraced captures (older runs) are refitted,
 and the firmware frame is measured under the estimator options the captures' ECU ran (else the
 variant's).
-Tasks are pure (a file in, a row out), so ``distributed`` may rerun one whose worker died.
+Tasks are pure (files in, rows out), so ``distributed`` may rerun one whose worker died.
 """
 
 from __future__ import annotations
