@@ -22,7 +22,8 @@ from test_station_run import PROFILE, files, run_args, wait_stopped  # noqa: F40
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 #: the commands that take --json (cli/*.py), each run below
 JSON_COMMANDS = {"index", "analyze", "fit", "table", "block show", "block check", "capture info", "simulate",
-                 "acquire", "flash", "ecu info", "ecu restore", "run", "records", "lot stats", "lot diff"}
+                 "acquire", "flash", "ecu info", "ecu restore", "run", "records", "lot stats", "lot diff",
+                 "lot simulate"}  # lot simulate's and lot diff --lot's documents: tests/test_lot_simulate.py
 
 
 def _json(*args: str, code: int | tuple[int, ...] = 0) -> dict:

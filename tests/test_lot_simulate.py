@@ -13,6 +13,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.errors import InputError
 from eol_cal.lot.simulate import LotPlan, recorded_runs, simulate_batch
+from eol_cal.schemas import validator
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records import insert_records
 from eol_cal.station.records_query import query_records
@@ -86,6 +87,7 @@ def test_simulated_runs_stay_out_of_production_statistics(records_db, batch: lis
     prod = json.loads(runner.invoke(cli, ["lot", "stats", "--db", str(records_db), "--json"]).stdout)
     sim = json.loads(runner.invoke(cli, ["lot", "stats", "--db", str(records_db), "--json", "--kind", "simulated",
                                          "--station", "sim:T"]).stdout)
+    validator("lot-stats").validate(sim)
     assert prod["runs"] == 0 and sim["runs"] == 2 and sim["filters"]["kind"] == "simulated"
     assert {q["key"] for q in sim["quantities"] if q["count"] == 2} >= {"k6", "pp_after_pct"}
 
@@ -124,12 +126,14 @@ def test_cli_simulates_two_lots_and_compares_them(records_db, files, tmp_path: P
     res = runner.invoke(cli, common + ["--limits", str(LIMITS), "--lot", "A"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
+    validator("lot-simulate").validate(doc)
     assert doc["schema"] == "eol-cal/lot-simulate/1" and doc["recorded_now"] == 2 and doc["station"] == "sim:A"
     res = runner.invoke(cli, common + ["--limits", str(files["strict"]), "--lot", "B"])
     assert res.exit_code == 0, res.output
     res = runner.invoke(cli, ["lot", "diff", "--db", str(records_db), "--lot", "sim:A", "--lot", "sim:B", "--json"])
     assert res.exit_code == 0, res.output
     cmp = json.loads(res.stdout)
+    validator("lot-compare").validate(cmp)
     a, b = cmp["lots"]
     assert cmp["compared"] == 2 and a["runs"] == b["runs"] == 2
     # the same motors (seeds 5 and 6) under a stricter compensated limit: B fails where A passes

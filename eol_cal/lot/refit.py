@@ -306,20 +306,3 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
 
 def _json_safe(r: dict[str, Any]) -> dict[str, Any]:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
-
-
-def verdict_changes(records: Sequence[dict[str, Any]], rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Motors whose refit verdict differs from their latest recorded run's verdict (by serial)."""
-    latest: dict[str, dict[str, Any]] = {}
-    for r in sorted(records, key=lambda r: str(r.get("started_at") or "")):
-        latest[r["serial"]] = r
-    out = []
-    for row in rows:
-        rec = latest.get(row.get("serial") or "")
-        if rec is None or row.get("verdict") is None:
-            continue
-        if rec.get("verdict") != row["verdict"]:
-            k6_rec = ((rec.get("fit") or {}).get("k6") or {}).get("value")
-            out.append({"serial": row["serial"], "recorded": rec.get("verdict"), "refit": row["verdict"],
-                        "k6_recorded": k6_rec, "k6_refit": row.get("k6"), "reasons": row.get("reasons") or []})
-    return out
