@@ -1,0 +1,77 @@
+"""The baseline store on SQLite and on a real PostgreSQL server: frozen lines per quantity,
+variant and station stored once, read back in another connection and judged against."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import sqlalchemy as sa
+
+from eol_cal.errors import InputError
+from eol_cal.lot.baseline import (BASELINE_SCHEMA_VERSION, NO_VARIANT, group_lines, list_baselines, load,
+                                  make_baseline, migrate, store)
+from eol_cal.lot.spc import judge
+from eol_cal.station.records import engine, insert_records, migrate as migrate_records
+
+
+def _lines():
+    rng = np.random.default_rng(3)
+    n = 60
+    station = np.array(["EOL-1", "EOL-2"] * (n // 2), dtype=object)
+    variant = ["EPS-STD"] * (n - 4) + [None] * 4  # four runs without a variant: too few for limits
+    k6 = 6.4e-4 + 2e-5 * rng.standard_normal(n)
+    phase = np.pi - 0.02 + 0.01 * rng.standard_normal(n)  # near the wrap: some values come out near -pi
+    phase = np.where(phase > np.pi, phase - 2 * np.pi, phase)
+    return group_lines({"k6": k6, "phase_c6": phase}, variant, station, circular={"phase_c6"}, min_n=25), k6, station
+
+
+def test_baseline_stored_and_reused(records_db):
+    migrate_records(records_db)  # an existing records database (a SQLite file is not made by a baseline)
+    lines, k6, station = _lines()
+    b = make_baseline("shift-1", lines, runs=60, filters={"since": "2026-11-02", "until": "2026-11-03"})
+    store(records_db, b)
+    got = load(records_db, "shift-1")
+    assert got.runs == 60 and got.min_n == 25 and got.filters["since"] == "2026-11-02" and got.filters["variant"] is None
+    assert set(got.lines) == set(lines)
+    one = got.line("k6", "EPS-STD", "EOL-1")
+    ref = lines[("k6", "EPS-STD", "EOL-1")]
+    assert one.n == 28 and one.center == ref.center and one.sigma == ref.sigma and one.mr_center == ref.mr_center
+    x1 = k6[:-4][station[:-4] == "EOL-1"]
+    assert one.center == pytest.approx(float(x1.mean()))
+    assert one.sigma == pytest.approx(float(np.abs(np.diff(x1)).mean()) / 1.128)
+    few = got.line("k6", None, "EOL-2")
+    assert few.center is None and few.reason == "n = 2 < 25" and got.lines[("k6", NO_VARIANT, "EOL-2")] == few
+    ph = got.line("phase_c6", "EPS-STD", "EOL-2")
+    assert ph.circular and abs(abs(ph.center) - (math.pi - 0.02)) < 0.01  # the circular mean, near pi
+    # a new run 5 sigma above the frozen centre fires rule 1; a phase across the wrap from it does not
+    v = judge([one.center + 5 * one.sigma], one, "k6")
+    assert [(x.rule, x.side) for x in v] == [(1, 1)]
+    assert judge([ph.center + 2 * np.pi - 0.001], ph) == []
+    # the same name again is refused; --replace makes it anew; listing
+    with pytest.raises(InputError, match="exists already"):
+        store(records_db, b)
+    store(records_db, make_baseline("shift-1", {}, runs=0, filters={}), replace=True)
+    assert load(records_db, "shift-1").lines == {} and [r["name"] for r in list_baselines(records_db)] == ["shift-1"]
+    with pytest.raises(InputError, match=r"not found \(there are: shift-1\)"):
+        load(records_db, "shift-9")
+    assert migrate(records_db) == (BASELINE_SCHEMA_VERSION, BASELINE_SCHEMA_VERSION)
+
+
+def test_baseline_tables_refuse_a_newer_layout_and_a_missing_database(records_db, tmp_path):
+    insert_records(records_db, [])  # a records database without baseline tables
+    assert list_baselines(records_db) == []
+    assert migrate(records_db) == (None, BASELINE_SCHEMA_VERSION)
+    eng = engine(records_db)
+    with eng.begin() as con:
+        con.execute(sa.text("UPDATE baseline_schema_version SET version = 99"))
+    if not str(records_db).startswith("postgresql"):
+        eng.dispose()
+    with pytest.raises(InputError, match="newer than this tool"):
+        store(records_db, make_baseline("b", {}, runs=0, filters={}))
+    with pytest.raises(InputError, match="database not found"):
+        load(tmp_path / "none.sqlite", "b")
+    with pytest.raises(InputError, match="holds no baselines"):
+        migrate_records(tmp_path / "r.sqlite")
+        load(tmp_path / "r.sqlite", "b")
