@@ -58,6 +58,9 @@ def test_type1_below_min_n_and_without_tolerance_gives_reasons():
     assert no_t.cg.reason == "no tolerance" and no_t.sd == pytest.approx(S, rel=1e-9)
     flat = type1_study([1.0] * 30, 1.0, 0.5)
     assert flat.cg.reason == "no spread (all measurements equal)" and math.isnan(flat.t)
+    no_ref = type1_study(X, None, 0.1)  # repeatability needs no reference; the bias does
+    assert no_ref.cg.value == pytest.approx(2.5 / math.sqrt(2 / 3), rel=1e-9) and no_ref.cgk.reason == "no reference"
+    assert math.isnan(no_ref.bias) and math.isnan(no_ref.p_value) and no_ref.capable is None
     with pytest.raises(ValueError):
         type1_study(X, 10.0, 0.0)
 

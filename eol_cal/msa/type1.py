@@ -26,7 +26,7 @@ from typing import Sequence
 
 import numpy as np
 
-from eol_cal.lot.spc import DEFAULT_MIN_N, Gated, gate, n_reason, wrapped_deviation
+from eol_cal.lot.spc import DEFAULT_MIN_N, Gated, circular_mean, gate, n_reason, wrapped_deviation
 
 #: share of the tolerance the study variation may take (20 %)
 K_DEFAULT = 0.2
@@ -48,18 +48,20 @@ class Type1Study:
         The measurements in run order (a phase: reference + wrapped deviation).
     n : int
         Finite measurements.
-    reference : float
-        ``x_ref``, the reference value.
+    reference : float or None
+        ``x_ref``, the reference value (None: no bias, no Cgk).
     reference_source : str
-        Where it came from (``"given"``, ``"run RUN_ID"``).
+        Where it came from (``"given"``, ``"run RUN_ID"``, ``"none"``).
     tolerance : float or None
         ``T`` (None: no tolerance, no Cg/Cgk).
     k, l : float
         The convention (``K`` share of ``T``, ``L`` standard deviations).
     mean, sd, bias : float
-        Mean, sample sd (repeatability), ``mean - reference``; NaN with fewer than 2 values.
+        Mean, sample sd (repeatability), ``mean - reference``; NaN with fewer than 2 values (the
+        bias: without a reference).
     t, p_value : float
-        The bias's t statistic and two-sided p-value (NaN when ``sd`` is 0 or n < 2).
+        The bias's t statistic and two-sided p-value (NaN when ``sd`` is 0, n < 2 or there is no
+        reference).
     cg, cgk : Gated
         The indices, or None with the reason.
     var_repeatability_pct : Gated
@@ -72,7 +74,7 @@ class Type1Study:
     unit: str
     values: tuple[float, ...]
     n: int
-    reference: float
+    reference: float | None
     reference_source: str
     tolerance: float | None
     k: float
@@ -97,13 +99,13 @@ class Type1Study:
     @property
     def band(self) -> tuple[float, float] | None:
         """``x_ref -+ K T / 2``: where the measurements of a capable gauge lie (the run chart's lines)."""
-        if self.tolerance is None:
+        if self.tolerance is None or self.reference is None:
             return None
         half = self.k * self.tolerance / 2.0
         return self.reference - half, self.reference + half
 
 
-def type1_study(x: Sequence[float] | np.ndarray, reference: float, tolerance: float | None, *, quantity: str = "",
+def type1_study(x: Sequence[float] | np.ndarray, reference: float | None, tolerance: float | None, *, quantity: str = "",
                 unit: str = "", reference_source: str = "given", k: float = K_DEFAULT, l: float = L_DEFAULT,
                 min_n: int = DEFAULT_MIN_N, circular: bool = False) -> Type1Study:
     """The :class:`Type1Study` of the measurements ``x`` (run order) of one reference part.
@@ -112,8 +114,9 @@ def type1_study(x: Sequence[float] | np.ndarray, reference: float, tolerance: fl
     ----------
     x : array of float
         The measurements (NaN: a run without the value, left out).
-    reference : float
-        ``x_ref``; for a phase in rad.
+    reference : float or None
+        ``x_ref``; for a phase in rad (None: repeatability and Cg only; a phase is then taken
+        around its circular mean).
     tolerance : float or None
         ``T = USL - LSL`` (> 0); None gives bias and repeatability only.
     k, l : float
@@ -129,28 +132,32 @@ def type1_study(x: Sequence[float] | np.ndarray, reference: float, tolerance: fl
         raise ValueError(f"K must be in (0, 1] and L > 0 (got {k}, {l})")
     a = np.asarray(x, dtype=float)
     a = a[np.isfinite(a)]
-    if circular:
-        a = reference + wrapped_deviation(a, reference)
+    if circular and len(a):
+        centre = reference if reference is not None else circular_mean(a)
+        a = centre + wrapped_deviation(a, centre)
     n = int(len(a))
     nan = math.nan
     mean = float(a.mean()) if n else nan
     sd = float(a.std(ddof=1)) if n > 1 else nan
-    bias = mean - reference
+    bias = mean - reference if reference is not None else nan
     t = p = nan
-    if n > 1 and sd > 0.0:
+    if n > 1 and sd > 0.0 and reference is not None:
         from scipy.stats import t as student_t
 
         t = bias / (sd / math.sqrt(n))
         p = float(2.0 * student_t.sf(abs(t), n - 1))
     why = _why_not(n, sd, tolerance, min_n)
+    why_k = why or (None if reference is not None else "no reference")
     cg = cgk = var = nan
     if why is None:
         cg = k * tolerance / (l * sd)  # type: ignore[operator]
-        cgk = (k * tolerance / 2.0 - abs(bias)) / (l * sd / 2.0)  # type: ignore[operator]
         var = 100.0 * l * sd / tolerance  # type: ignore[operator]
-    return Type1Study(quantity, unit, tuple(float(v) for v in a), n, float(reference), reference_source,
+        if why_k is None:
+            cgk = (k * tolerance / 2.0 - abs(bias)) / (l * sd / 2.0)  # type: ignore[operator]
+    return Type1Study(quantity, unit, tuple(float(v) for v in a), n, None if reference is None else float(reference),
+                      reference_source if reference is not None else "none",
                       None if tolerance is None else float(tolerance), k, l, mean, sd, bias, t, p,
-                      _gated(cg, n, min_n, why), _gated(cgk, n, min_n, why), _gated(var, n, min_n, why), circular)
+                      _gated(cg, n, min_n, why), _gated(cgk, n, min_n, why_k), _gated(var, n, min_n, why), circular)
 
 
 def _why_not(n: int, sd: float, tolerance: float | None, min_n: int) -> str | None:
