@@ -128,6 +128,54 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
         console.print(f"csv: {csv_file} ({runs} runs)")
 
 
+@lot_group.command("baseline")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
+@click.option("--name", required=True, help="The baseline's name (lot stats --baseline NAME).")
+@click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
+@click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
+@click.option("--variant", default=None, help="Only this product variant.")
+@click.option("--station", default=None, help="Only this station.")
+@click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
+              help="Fewest runs a variant and station need for limits [default: 25; $EOL_CAL_MIN_N].")
+@click.option("--replace", is_flag=True, help="Replace a baseline of that name.")
+@click.option("--json", "as_json", is_flag=True, help="Print the stored baseline as JSON.")
+@handle_errors
+def baseline_cmd(db, name, since, until, variant, station, min_n, replace, as_json) -> None:
+    """Freeze centre lines and control limits per quantity, variant and station from the runs of
+    a period, and store them in the database: later `lot stats --baseline NAME` judges new runs
+    against them (docs/spc.md). Groups with fewer than --min-n runs get no limits (the reason is
+    stored)."""
+    from cli.common import print_json
+    from eol_cal.errors import InputError
+    from eol_cal.lot.baseline import baseline_document, baseline_of_db, store
+    from eol_cal.lot.spc import DEFAULT_MIN_N
+    from eol_cal.station.records import db_label
+
+    first, last = _date(since, "since"), _date(until, "until")
+    filters = dict(since=first and first.isoformat(), until=last and last.isoformat(), variant=variant, station=station)
+    min_n = DEFAULT_MIN_N if min_n is None else min_n
+    b = baseline_of_db(db, name, filters, min_n)
+    if all(line.center is None for line in b.lines.values()):
+        reasons = sorted({str(line.reason) for line in b.lines.values()})
+        raise InputError(db_label(db), "baseline", f"no variant and station with limits ({'; '.join(reasons)}): nothing stored")
+    store(db, b, replace=replace)
+    doc = {**baseline_document(b), "db": db_label(db)}
+    if as_json:
+        print_json(doc)
+        return
+    from rich.table import Table
+
+    t = Table(title=f"baseline {name}: {b.runs} run(s), min n {min_n}")
+    for col in ("quantity", "unit", "variant", "station", "n", "centre", "sigma", "LCL", "UCL"):
+        t.add_column(col, justify="left" if col in ("quantity", "unit", "variant", "station") else "right")
+    for line in doc["lines"]:
+        figures = ([_fmt(line[k]) for k in ("center", "sigma", "lcl", "ucl")] if line["reason"] is None
+                   else [line["reason"], "", "", ""])
+        t.add_row(line["quantity"], line["unit"], line["variant"], line["station"], str(line["n"]), *figures)
+    console.print(t)
+    console.print(f"stored in {db_label(db)} as {name!r}")
+
+
 @lot_group.command("diff")
 @click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.argument("results", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))

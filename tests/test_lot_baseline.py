@@ -75,3 +75,40 @@ def test_baseline_tables_refuse_a_newer_layout_and_a_missing_database(records_db
     with pytest.raises(InputError, match="holds no baselines"):
         migrate_records(tmp_path / "r.sqlite")
         load(tmp_path / "r.sqlite", "b")
+
+
+def test_lot_baseline_command(records_db):
+    import json
+
+    from click.testing import CliRunner
+
+    from _lot_records import lot_record
+    from cli.main import cli
+
+    recs = [lot_record(i, motors=60, stations=2) for i in range(80)]
+    insert_records(records_db, recs)
+    # every 13th run has no station id (7 runs, one an error run without values): too few for limits
+    n_none = sum(1 for i, r in enumerate(recs) if i % 13 == 0 and r["fit"] is not None)
+    run = CliRunner().invoke
+    res = run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "nov", "--json"])
+    assert res.exit_code == 0, res.output
+    doc = json.loads(res.stdout)
+    assert doc["schema"] == "eol-cal/lot-baseline/1" and doc["runs"] == 80 and doc["min_n"] == 25
+    k6 = {(x["variant"], x["station"]): x for x in doc["lines"] if x["quantity"] == "k6"}
+    assert n_none == 6 and k6[("EPS-STD", "(no station id)")]["reason"] == "n = 6 < 25" and k6[("EPS-STD", "(no station id)")]["ucl"] is None
+    e0 = k6[("EPS-STD", "EOL-0")]
+    assert e0["n"] >= 25 and e0["unit"] == "mN*m/A" and e0["ucl"] == pytest.approx(e0["center"] + 3 * e0["sigma"])
+    assert 0.58 < e0["center"] < 0.70  # lot_record's k6: 0.64 +- 0.06 mN*m/A
+    stored = load(records_db, "nov").line("k6", "EPS-STD", "EOL-0")
+    assert stored.center * 1e3 == pytest.approx(e0["center"]) and stored.n == e0["n"]
+    ph = {(x["variant"], x["station"]): x for x in doc["lines"] if x["quantity"] == "phase_k6"}[("EPS-STD", "EOL-0")]
+    assert ph["circular"] and ph["unit"] == "deg"
+    # the same name again: refused (exit 2, one line); --replace; a period without runs; too few everywhere
+    res = run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "nov"])
+    assert res.exit_code == 2 and "exists already" in res.output
+    assert run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "nov", "--replace"]).exit_code == 0
+    res = run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "dec", "--since", "2027-01-01"])
+    assert res.exit_code == 2 and "no runs selected" in res.output
+    res = run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "dec", "--min-n", "100"])
+    assert res.exit_code == 2 and "nothing stored" in res.output and "n = " in res.output
+    assert [b["name"] for b in list_baselines(records_db)] == ["nov"]

@@ -29,7 +29,7 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.errors import InputError
-from eol_cal.lot.spc import DEFAULT_MIN_N, ControlLine, freeze_line
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line
 
 #: the layout of the baseline tables this code writes
 BASELINE_SCHEMA_VERSION = 1
@@ -123,6 +123,56 @@ def make_baseline(name: str, lines: dict[tuple[str, str, str], ControlLine], run
     created = dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
     return Baseline(name, created, {k: filters.get(k) for k in ("since", "until", "variant", "station")}, min_n,
                     runs, dict(lines))
+
+
+def baseline_of_db(db: str | Path, name: str, filters: Mapping[str, str | None], min_n: int = DEFAULT_MIN_N
+                   ) -> Baseline:
+    """The baseline of the runs a records database holds under ``filters`` (``since``, ``until``:
+    UTC days; ``variant``, ``station``): every quantity of :data:`eol_cal.lot.columns.QUANTITIES`
+    per variant and station, read column-wise (schema version 3), in time order."""
+    from eol_cal.lot.columns import QUANTITIES, time_order
+    from eol_cal.report.motor import NO_STATION
+    from eol_cal.station.records import read_columns, runs, select_runs
+
+    keys = [q.key for q in QUANTITIES]
+    q = select_runs(**{k: filters.get(k) for k in ("variant", "station", "since", "until")}).order_by(None)
+    (cols,) = read_columns(db, q.with_only_columns(*(runs.c[c] for c in ("run_id", "started_at", "variant",
+                                                                          "station", *keys))), min_version=3)
+    if not cols["run_id"]:
+        raise InputError(None, "baseline", "no runs selected: a baseline needs the runs of a period")
+    order = time_order(cols["started_at"], cols["run_id"])
+    station = [NO_STATION if s is None else s for s in np.asarray(cols["station"], dtype=object)[order]]
+    values = {k: np.asarray([math.nan if v is None else v for v in cols[k]], dtype=float)[order] for k in keys}
+    lines = group_lines(values, np.asarray(cols["variant"], dtype=object)[order], station, CIRCULAR, min_n)
+    return make_baseline(name, lines, len(order), filters, min_n)
+
+
+#: the ``schema`` of ``eol-cal lot baseline --json``
+BASELINE_SCHEMA = "eol-cal/lot-baseline/1"
+
+
+def line_document(line: ControlLine, scale: float) -> dict[str, Any]:
+    """A line's figures in display units (``scale`` x stored; None where not made). A phase's
+    limits are ``centre -+ 3 sigma`` as numbers (they may pass +-180 deg: judged on the circle)."""
+    def d(x: float | None) -> float | None:
+        return None if x is None else x * scale
+
+    return {"n": line.n, "circular": line.circular, "center": d(line.center), "sigma": d(line.sigma),
+            "lcl": d(line.lcl), "ucl": d(line.ucl), "mr_center": d(line.mr_center), "mr_ucl": d(line.mr_ucl),
+            "reason": line.reason}
+
+
+def baseline_document(b: Baseline) -> dict[str, Any]:
+    """The baseline as ``lot baseline --json`` prints it (display units; ``docs/json.md``)."""
+    from eol_cal.lot.columns import QUANTITIES
+
+    unit = {q.key: (q.scale, q.unit) for q in QUANTITIES}
+    lines = []
+    for (key, variant, station), line in sorted(b.lines.items()):
+        scale, u = unit.get(key, (1.0, ""))
+        lines.append({"quantity": key, "unit": u, "variant": variant, "station": station, **line_document(line, scale)})
+    return {"schema": BASELINE_SCHEMA, "name": b.name, "created_at": b.created_at, "filters": b.filters,
+            "min_n": b.min_n, "runs": b.runs, "lines": lines}
 
 
 # --------------------------------------------------------------------------- the tables

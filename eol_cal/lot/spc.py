@@ -32,6 +32,8 @@ from eol_cal.wrap import wrap_pi
 
 #: the smallest n that gives a capability index or a control limit (``lot stats --min-n``)
 DEFAULT_MIN_N = 25
+#: the lot's quantities that are angles (rad): circular statistics, frozen and judged on the circle
+CIRCULAR = frozenset({"phase_k6", "phase_c6"})
 
 # --------------------------------------------------------------------------- minimum n
 

@@ -18,13 +18,11 @@ from typing import Any, Mapping
 
 from eol_cal.errors import InputError
 from eol_cal.lot.columns import QUANTITIES, Lot, Quantity
-from eol_cal.lot.spc import DEFAULT_MIN_N
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
 from eol_cal.msa.type1 import CAPABLE, K_DEFAULT, L_DEFAULT, Type1Study, type1_study
 
 #: the quantities of a type-1 study of the ripple measurement
 TYPE1_QUANTITIES = ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct")
-#: angles: studied on the circle
-CIRCULAR = frozenset({"phase_k6", "phase_c6"})
 #: the quantities whose lower limit is a natural zero (a magnitude, a ripple): ``T = USL - 0``
 NATURAL_ZERO = frozenset({"k6", "c6", "pp_before_pct", "pp_after_pct"})
 #: the ``schema`` of ``eol-cal msa type1 --json``
