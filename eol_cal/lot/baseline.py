@@ -29,12 +29,11 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.errors import InputError
+from eol_cal.lot.columns import NO_VARIANT
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line
 
 #: the layout of the baseline tables this code writes
 BASELINE_SCHEMA_VERSION = 1
-#: the ``variant`` of runs without one (a key column cannot be NULL)
-NO_VARIANT = "(no variant)"
 _LOCK = 7413002  # PostgreSQL advisory lock: two first baselines at once, one creates the tables
 
 _metadata = sa.MetaData()
@@ -129,22 +128,14 @@ def baseline_of_db(db: str | Path, name: str, filters: Mapping[str, str | None],
                    ) -> Baseline:
     """The baseline of the runs a records database holds under ``filters`` (``since``, ``until``:
     UTC days; ``variant``, ``station``): every quantity of :data:`eol_cal.lot.columns.QUANTITIES`
-    per variant and station, read column-wise (schema version 3), in time order."""
-    from eol_cal.lot.columns import QUANTITIES, time_order
-    from eol_cal.report.motor import NO_STATION
-    from eol_cal.station.records import read_columns, runs, select_runs
+    per variant and station, from the lot's columns (:func:`eol_cal.lot.columns.read_lot`)."""
+    from eol_cal.lot.columns import read_lot
 
-    keys = [q.key for q in QUANTITIES]
-    q = select_runs(**{k: filters.get(k) for k in ("variant", "station", "since", "until")}).order_by(None)
-    (cols,) = read_columns(db, q.with_only_columns(*(runs.c[c] for c in ("run_id", "started_at", "variant",
-                                                                          "station", *keys))), min_version=3)
-    if not cols["run_id"]:
+    lot = read_lot(db, **{k: filters.get(k) for k in ("variant", "station", "since", "until")})
+    if not len(lot):
         raise InputError(None, "baseline", "no runs selected: a baseline needs the runs of a period")
-    order = time_order(cols["started_at"], cols["run_id"])
-    station = [NO_STATION if s is None else s for s in np.asarray(cols["station"], dtype=object)[order]]
-    values = {k: np.asarray([math.nan if v is None else v for v in cols[k]], dtype=float)[order] for k in keys}
-    lines = group_lines(values, np.asarray(cols["variant"], dtype=object)[order], station, CIRCULAR, min_n)
-    return make_baseline(name, lines, len(order), filters, min_n)
+    lines = group_lines(lot.values, lot.variant, lot.station, CIRCULAR, min_n)
+    return make_baseline(name, lines, len(lot), filters, min_n)
 
 
 #: the ``schema`` of ``eol-cal lot baseline --json``
