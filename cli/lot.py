@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import RECORDS_DB, console, handle_errors
+from cli.common import RECORDS_DB, CommandExit, console, handle_errors
 from cli.paths import io_paths
 
 
@@ -60,54 +60,104 @@ def _fmt(x, digits: int = 4) -> str:
     return "-" if x is None else f"{x:.{digits}g}"
 
 
+def _min_n_option(func):
+    return click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
+                        help="Fewest values that give a capability index or control limits [default: 25; "
+                             "$EOL_CAL_MIN_N]; fewer: shown as 'n = 7 < 25'.")(func)
+
+
+def _gated(value, reason, digits: int = 3) -> str:
+    return _fmt(value, digits) if value is not None else (reason or "-")
+
+
 @lot_group.command("stats")
 @click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.option("--variant", default=None, help="Only this product variant.")
 @click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
 @click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
 @click.option("--station", default=None, help="Only this station.")
+@_min_n_option
+@click.option("--baseline", "baseline_name", default=None, metavar="NAME",
+              help="Judge the runs against this stored baseline (eol-cal lot baseline): Western Electric rules 1-4; "
+                   "exit 1 when one fires.")
+@click.option("--quantity", "judged", multiple=True, metavar="KEY",
+              help="A quantity to judge against the baseline (repeat) [default: k6, pp_after_pct].")
 @click.option("--json", "as_json", is_flag=True, help="Print the statistics as one JSON document.")
 @click.option("--csv", "csv_file", default=None, type=click.Path(dir_okay=False, path_type=Path),
-              help="Also write the selected runs (one row each, the database's columns) as CSV.")
+              help="Also write the selected runs (one row each, the database's columns; with --baseline the rules "
+                   "each run is part of) as CSV.")
 @handle_errors
 @io_paths(inputs=("db",), outputs=("csv_file",))
-def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
-    """Lot statistics: per quantity count, mean, sd, percentiles and Cp/Cpk against the variant's
-    limit; first-pass yield; failure causes as a Pareto; individuals / moving-range control
-    limits per station."""
+def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, as_json, csv_file) -> None:
+    """Lot statistics: per quantity count, mean, sd, percentiles (phases on the circle), Cp/Cpk
+    per variant and station against the variant's limit; first-pass yield; failure causes as a
+    Pareto; individuals / moving-range control limits per station. Capability and limits need
+    --min-n values. With --baseline the runs are judged against its frozen lines (exit 1 when a
+    rule fires). Definitions: docs/spc.md."""
     from cli.common import print_json
-    from eol_cal.lot.columns import read_lot
+    from eol_cal.errors import InputError
+    from eol_cal.lot.columns import CHARTED, QUANTITIES, read_lot
+    from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.lot.summary import LOT_STATS_SCHEMA, lot_summary, write_runs_csv
     from eol_cal.station.records import db_label
 
+    keys = [q.key for q in QUANTITIES]
+    for key in judged:
+        if key not in keys:
+            raise InputError(None, "--quantity", f"{key!r} is not one of {', '.join(keys)}")
+    if judged and baseline_name is None:
+        raise InputError(None, "--quantity", "judges against a baseline: give --baseline NAME")
     first, last = _date(since, "since"), _date(until, "until")
     filters = dict(variant=variant, station=station, since=first and first.isoformat(),
                    until=last and last.isoformat())
-    doc = lot_summary(read_lot(db, **filters))
+    min_n = DEFAULT_MIN_N if min_n is None else min_n
+    baseline = None
+    if baseline_name is not None:
+        from eol_cal.lot.baseline import load
+
+        baseline = load(db, baseline_name)
+    doc = lot_summary(read_lot(db, **filters), min_n, baseline, tuple(judged) or CHARTED)
     if csv_file is not None:
-        from eol_cal.errors import InputError
+        from eol_cal.lot.spc_stats import rules_by_run
 
         try:
-            runs = write_runs_csv(csv_file, db, **filters)
+            runs = write_runs_csv(csv_file, db, rules_by_run(doc["violations"]) if baseline else None, **filters)
         except OSError as exc:
             raise InputError(str(csv_file), None, f"cannot write: {exc.strerror or exc}") from None
     if as_json:
         print_json({"schema": LOT_STATS_SCHEMA, "db": db_label(db), "filters": {"variant": variant, "since": since, "until": until,
                                                      "station": station}, **doc})
-        return
+    else:
+        _print_stats(db_label(db), doc)
+        if csv_file is not None:
+            console.print(f"csv: {csv_file} ({runs} runs)")
+    if doc["violations"]:
+        raise CommandExit(1)
+
+
+def _print_stats(label: str, doc: dict) -> None:
     from rich.table import Table
 
     fpy = doc["first_pass_yield"]
-    console.print(f"{db_label(db)}: {doc['runs']} run(s) of {doc['motors']} motor(s); pass {doc['verdicts']['pass']}, "
+    console.print(f"{label}: {doc['runs']} run(s) of {doc['motors']} motor(s); pass {doc['verdicts']['pass']}, "
                   f"fail {doc['verdicts']['fail']}, error {doc['verdicts']['error']}; first-pass yield "
-                  + ("-" if fpy is None else f"{100 * fpy:.1f} %"))
-    t = Table(title="quantities")
+                  + ("-" if fpy is None else f"{100 * fpy:.1f} %") + f"; minimum n {doc['min_n']}")
+    t = Table(title="quantities (phases: circular mean and sd)")
     for col in ("quantity", "unit", "n", "mean", "sd", "p5", "p50", "p95", "limit", "Cp", "Cpk", "Ppk"):
         t.add_column(col, justify="left" if col in ("quantity", "unit") else "right")
     for q in doc["quantities"]:
         p = q["percentiles"]
-        t.add_row(q["title"], q["unit"], str(q["count"]), _fmt(q["mean"]), _fmt(q["sd"], 3), _fmt(p["p5"]),
-                  _fmt(p["p50"]), _fmt(p["p95"]), _fmt(q["limit"]), _fmt(q["cp"], 3), _fmt(q["cpk"], 3), _fmt(q["ppk"], 3))
+        t.add_row(q["title"] + (" (circular)" if q["circular"] else ""), q["unit"], str(q["count"]), _fmt(q["mean"]),
+                  _fmt(q["sd"], 3), _fmt(p["p5"]), _fmt(p["p50"]), _fmt(p["p95"]), _fmt(q["limit"]),
+                  *(_gated(q[k], q[f"{k}_reason"]) if q["limit_key"] else "-" for k in ("cp", "cpk", "ppk")))
+    console.print(t)
+    t = Table(title="capability per variant and station")
+    for col in ("quantity", "variant", "station", "n", "limit", "Cpk", "Ppk"):
+        t.add_column(col, justify="left" if col in ("quantity", "variant", "station") else "right")
+    for q in doc["quantities"]:
+        for g in q["capability"]:
+            t.add_row(q["key"], g["variant"], g["station"] or "all", str(g["n"]), _fmt(g["limit"]),
+                      _gated(g["cpk"], g["cpk_reason"]), _gated(g["ppk"], g["ppk_reason"]))
     console.print(t)
     if doc["pareto"]:
         t = Table(title="failure causes (Pareto)")
@@ -116,16 +166,30 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
         for c in doc["pareto"]:
             t.add_row(c["cause"], str(c["runs"]), f"{100 * c['cumulative']:.0f} %")
         console.print(t)
-    t = Table(title="control limits per station (I-MR)")
-    for col in ("station", "quantity", "runs", "centre", "LCL", "UCL", "MR centre", "MR UCL"):
+    t = Table(title="control limits per station (I-MR, the station's own runs)")
+    for col in ("station", "quantity", "n", "centre", "LCL", "UCL", "MR centre", "MR UCL"):
         t.add_column(col, justify="left" if col in ("station", "quantity") else "right")
     for st, qs in doc["control"].items():
         for key, cl in qs.items():
-            t.add_row(st, key, str(cl["runs"]), _fmt(cl["center"]), _fmt(cl["lcl"]), _fmt(cl["ucl"]),
-                      _fmt(cl["mr_center"]), _fmt(cl["mr_ucl"]))
+            figures = ([_fmt(cl[k]) for k in ("center", "lcl", "ucl", "mr_center", "mr_ucl")] if cl["reason"] is None
+                       else [cl["reason"], "", "", "", ""])
+            t.add_row(st, key, str(cl["n"]), *figures)
     console.print(t)
-    if csv_file is not None:
-        console.print(f"csv: {csv_file} ({runs} runs)")
+    if doc["baseline"] is not None:
+        b = doc["baseline"]
+        console.print(f"baseline {b['name']!r} ({b['created_at'][:19]} UTC, {b['runs']} runs, "
+                      f"{b['filters'].get('since') or 'any'} .. {b['filters'].get('until') or 'any'})")
+        t = Table(title="run rules against the baseline (Western Electric 1-4)")
+        for col in ("quantity", "variant", "station", "rule", "runs"):
+            t.add_column(col)
+        for v in doc["violations"]:
+            t.add_row(v["quantity"], v["variant"], v["station"], v["text"],
+                      ", ".join(f"{s} {str(a)[:16]}" for s, a in zip(v["serials"], v["started_at"])))
+        console.print(t)
+        unjudged = [j for j in doc["judged"] if j["reason"]]
+        for j in unjudged:
+            console.print(f"  not judged: {j['quantity']} {j['variant']} {j['station']}: {j['reason']}")
+        console.print(f"{len(doc['violations'])} rule violation(s)" + (" (exit 1)" if doc["violations"] else ""))
 
 
 @lot_group.command("baseline")
@@ -135,8 +199,7 @@ def stats_cmd(db, variant, since, until, station, as_json, csv_file) -> None:
 @click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
 @click.option("--variant", default=None, help="Only this product variant.")
 @click.option("--station", default=None, help="Only this station.")
-@click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
-              help="Fewest runs a variant and station need for limits [default: 25; $EOL_CAL_MIN_N].")
+@_min_n_option
 @click.option("--replace", is_flag=True, help="Replace a baseline of that name.")
 @click.option("--json", "as_json", is_flag=True, help="Print the stored baseline as JSON.")
 @handle_errors
