@@ -34,23 +34,35 @@ def lot_group() -> None:
 @click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
 @click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
 @click.option("--station", default=None, help="Only this station.")
+@click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
+              help="Fewest values that give a capability index or control limits [default: 25; $EOL_CAL_MIN_N].")
+@click.option("--baseline", "baseline_name", default=None, metavar="NAME",
+              help="Draw this stored baseline's frozen limits and list the runs that break a rule.")
 @click.option("-o", "--out", "out", default=Path("lot.html"), show_default=True,
               type=click.Path(dir_okay=False, path_type=Path), help="The page to write (one self-contained HTML file).")
 @handle_errors
 @io_paths(inputs=("db",), outputs=("out",))
-def report_cmd(db, variant, since, until, station, out) -> None:
-    """Write the lot page: yield and counts, distributions with the limits, control charts per
-    station, the motors nearest their limits with links to their reports. One file that opens
-    offline in a browser."""
+def report_cmd(db, variant, since, until, station, min_n, baseline_name, out) -> None:
+    """Write the lot page: yield and counts, distributions with the limits (phases on the circle),
+    capability per variant and station, control charts per station (against a frozen baseline
+    with the run rules when given), the motors nearest their limits with links to their reports.
+    One file that opens offline in a browser."""
     from eol_cal.errors import InputError
+    from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.report.lot import select_records, write_lot_page
     from eol_cal.station.records import db_label, query_records
 
     first, last = _date(since, "since"), _date(until, "until")
+    baseline = None
+    if baseline_name is not None:
+        from eol_cal.lot.baseline import load
+
+        baseline = load(db, baseline_name)
     records = select_records(query_records(db), variant, first, last, station)
     try:
         path = write_lot_page(records, out, title=db_label(db),
-                              filters={"variant": variant, "since": since, "until": until, "station": station})
+                              filters={"variant": variant, "since": since, "until": until, "station": station},
+                              min_n=DEFAULT_MIN_N if min_n is None else min_n, baseline=baseline)
     except OSError as exc:
         raise InputError(str(out), None, f"cannot write: {exc.strerror or exc}") from None
     console.print(f"lot page: {path} ({len(records)} runs)")

@@ -84,6 +84,12 @@ def test_baseline_judges_two_later_lot_stats_calls(records_db, tmp_path: Path):
     # the table output names the rule and ends with exit 1
     res = run(cli, ["lot", "stats", "--db", str(records_db), "--since", "2026-11-04", "--baseline", "wk45"])
     assert res.exit_code == 1 and "rule 4: 8 points in a row" in res.output and "rule violation(s) (exit 1)" in res.output
+    # the lot page of the same period against the same baseline lists the same violations
+    page = tmp_path / "lot.html"
+    res = run(cli, ["lot", "report", "--db", str(records_db), "--since", "2026-11-03", "--baseline", "wk45", "-o", str(page)])
+    assert res.exit_code == 0, res.output
+    html = page.read_text()
+    assert html.count('class="violation-row"') == len(doc["violations"]) and "baseline <b>wk45</b>" in html
     # a baseline that is not there; --quantity without --baseline; a phase judged on the circle
     res = run(cli, ["lot", "stats", "--db", str(records_db), "--baseline", "wk99"])
     assert res.exit_code == 2 and "not found (there are: wk45)" in res.output

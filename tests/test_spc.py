@@ -35,6 +35,8 @@ def test_capability_is_gated_by_n():
     assert enough["cp"].value is None and enough["cp"].reason == "needs both limits"
     flat = gated_capability([2.0] * 30, 0.0, 3.0)
     assert flat["cpk"].reason == "no spread (all values equal)"
+    noisy = gated_capability([0.8] * 30, 0.3, None)  # their mean is not 0.8 to the last bit: still no spread
+    assert noisy["ppk"].value is None and noisy["ppk"].reason == "no spread (all values equal)"
 
 
 # --------------------------------------------------------------------------- circular
@@ -151,6 +153,9 @@ def test_rules_against_a_frozen_centre_and_sigma_skip_missing_values():
     # overlapping windows of one pattern are one violation: nine in a row above
     long = [-0.5, *[0.5] * 9, -0.5]
     assert fired(long) == [(4, 1, tuple(range(1, 10)))]
+    # two points in a row beyond 3 sigma are one violation of rule 1; with one between, two
+    assert fired([0.1, 3.2, 3.5, 0.2]) == [(1, 1, (1, 2)), (2, 1, (1, 2))]
+    assert [v[:2] for v in fired([3.2, 0.1, 3.5])] == [(1, 1), (2, 1), (1, 1)]
     v = run_rules(long, 0.0, 1.0, "pp_after_pct")[0]
     assert v.quantity == "pp_after_pct" and v.text == "rule 4: " + RULES[4][3] + " (above)"
     with pytest.raises(ValueError):

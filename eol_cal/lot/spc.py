@@ -71,6 +71,9 @@ def gated_capability(x: Sequence[float] | np.ndarray, lsl: float | None, usl: fl
     each gated by :func:`gate` (:func:`eol_cal.lot.stats.capability` gives the numbers)."""
     a = _finite(x)
     c = capability(a, lsl=lsl, usl=usl)
+    if len(a) > 1 and not c.sigma_overall > 1e-12 * float(np.abs(a).max()):
+        # equal values: the sd is rounding noise (1e-16 of the mean), not a spread to divide by
+        c = Capability(lsl, usl, math.nan, math.nan, math.nan, math.nan, math.nan)
     return _gated_indices(c, len(a), min_n)
 
 
@@ -120,7 +123,7 @@ def circular_summary(theta: Iterable[float]) -> CircularSummary:
     r = min(1.0, math.hypot(c, s))  # rounding may put R of equal angles a hair above 1
     if r <= 1e-12:  # the vectors cancel (to rounding): no direction
         return CircularSummary(int(len(a)), math.nan, 0.0, math.inf)
-    mean, sd = math.atan2(s, c), math.sqrt(-2.0 * math.log(r))
+    mean, sd = math.atan2(s, c), math.sqrt(max(0.0, -2.0 * math.log(r)))
     return CircularSummary(int(len(a)), float(wrap_pi(mean)), r, sd)
 
 
@@ -262,7 +265,8 @@ class Violation:
         +1 above the centre line, -1 below.
     runs : tuple of int
         Indices (into the series judged) of the points that make the pattern: the points beyond
-        the rule's zone in every window where it fired, overlapping windows merged.
+        the rule's zone in every window where it fired, overlapping or adjacent windows merged
+        (two points in a row beyond 3 sigma are one violation of rule 1).
     quantity : str or None
         What was judged.
     """
@@ -302,7 +306,7 @@ def run_rules(x: Sequence[float] | np.ndarray, center: float, sigma: float, quan
             groups: list[tuple[int, set[int]]] = []  # (last window end, points)
             for e in ends.tolist():
                 pts = {int(i) for i in range(e - window + 1, e + 1) if beyond[i]}
-                if groups and e - window + 1 <= groups[-1][0]:
+                if groups and e - window + 1 <= groups[-1][0] + 1:
                     groups[-1] = (e, groups[-1][1] | pts)
                 else:
                     groups.append((e, pts))
