@@ -76,13 +76,14 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     refs = parse_pairs(references, "--reference")
     tols = parse_pairs(tolerances, "--tolerance", positive=True)
     first, last = _date(since, "since"), _date(until, "until")
-    source = "given"
+    sources = {key: "given" for key in refs}
     if reference_run is not None:
-        refs = {**reference_of_run(read_runs(db, run_id=reference_run), reference_run), **refs}
-        source = f"run {reference_run}"
+        of_run = reference_of_run(read_runs(db, run_id=reference_run), reference_run)
+        sources = {**{key: f"run {reference_run}" for key in of_run}, **sources}
+        refs = {**of_run, **refs}
     lot = read_runs(db, serial=serial, since=first and first.isoformat(), until=last and last.isoformat(),
                     exclude=reference_run)
-    results = studies(lot, refs, tols, source, l=l, min_n=min_n)
+    results = studies(lot, refs, tols, sources, l=l, min_n=min_n)
     doc = {**document(results, serial=serial, runs=lot, min_n=min_n), "db": db_label(db)}
     if out is not None:
         from eol_cal.msa.page import write_page

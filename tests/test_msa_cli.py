@@ -44,7 +44,7 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path):
     assert doc["schema"] == "eol-cal/msa-type1/1" and doc["serial"] == "MASTER-1" and doc["runs"] == 25
     k6 = next(q for q in doc["quantities"] if q["key"] == "k6")
     s = 0.002 * math.sqrt(2 / 3)
-    assert k6["reference"] == 0.640 and k6["reference_source"] == f"run {declared['run_id']}"
+    assert k6["reference"] == 0.640 and k6["reference_source"] == "given"  # --reference over the declared run's
     assert k6["tolerance"] == pytest.approx(1.0) and k6["tolerance_source"] == "max_k6 - 0 (natural zero)"
     assert k6["sd"] == pytest.approx(s, rel=1e-6) and k6["bias"] == pytest.approx(0.002, rel=1e-6)
     assert k6["cg"] == pytest.approx(0.2 / (4 * s), rel=1e-6) and k6["cgk"] == pytest.approx((0.1 - 0.002) / (2 * s), rel=1e-6)
@@ -54,6 +54,7 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path):
     ref = type1_study(np.radians([r["fit"]["phase_k6"]["value"] * 180 / math.pi for r in master]), math.radians(179.0),
                       math.radians(40.0), circular=True)
     assert ph["reference"] == pytest.approx(179.0) and ph["mean"] == pytest.approx(math.degrees(ref.mean))
+    assert ph["reference_source"] == f"run {declared['run_id']}"
     assert ph["cg"] == pytest.approx(ref.cg.value) and ph["cgk"] == pytest.approx(ref.cgk.value)
     c6 = next(q for q in doc["quantities"] if q["key"] == "c6")
     assert c6["cg"] is None and c6["cg_reason"] == "no tolerance" and c6["tolerance_source"].startswith("no tolerance")

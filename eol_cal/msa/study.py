@@ -92,11 +92,12 @@ def _display(st: Type1Study, scale: float) -> Type1Study:
                                bias=st.bias * scale)
 
 
-def studies(lot: Lot, references: Mapping[str, float], tolerances: Mapping[str, float], reference_source: str = "given",
-            k: float = K_DEFAULT, l: float = L_DEFAULT, min_n: int = DEFAULT_MIN_N
-            ) -> list[tuple[Type1Study, str]]:
+def studies(lot: Lot, references: Mapping[str, float], tolerances: Mapping[str, float],
+            sources: Mapping[str, str] | None = None, k: float = K_DEFAULT, l: float = L_DEFAULT,
+            min_n: int = DEFAULT_MIN_N) -> list[tuple[Type1Study, str]]:
     """The type-1 study of each of :data:`TYPE1_QUANTITIES` over the runs (display units in and
-    out), with where each tolerance came from."""
+    out), with where each tolerance came from; ``sources``: where each reference came from
+    (default ``"given"``)."""
     out = []
     for key in TYPE1_QUANTITIES:
         q = quantity(key)
@@ -104,7 +105,8 @@ def studies(lot: Lot, references: Mapping[str, float], tolerances: Mapping[str, 
         ref = references.get(key)
         st = type1_study(lot.values[key], None if ref is None else ref / q.scale,
                          None if tol is None else tol / q.scale, quantity=key, unit=q.unit,
-                         reference_source=reference_source, k=k, l=l, min_n=min_n, circular=key in CIRCULAR)
+                         reference_source=(sources or {}).get(key, "given"), k=k, l=l, min_n=min_n,
+                         circular=key in CIRCULAR)
         out.append((_display(st, q.scale), source))
     return out
 
