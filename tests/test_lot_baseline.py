@@ -13,6 +13,7 @@ from eol_cal.errors import InputError
 from eol_cal.lot.baseline import (BASELINE_SCHEMA_VERSION, NO_VARIANT, group_lines, list_baselines, load,
                                   make_baseline, migrate, store)
 from eol_cal.lot.spc import judge
+from eol_cal.schemas import validator
 from eol_cal.station.records import engine, insert_records, migrate as migrate_records
 
 
@@ -93,6 +94,7 @@ def test_lot_baseline_command(records_db):
     res = run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "nov", "--json"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
+    validator("lot-baseline").validate(doc)
     assert doc["schema"] == "eol-cal/lot-baseline/1" and doc["runs"] == 80 and doc["min_n"] == 25
     k6 = {(x["variant"], x["station"]): x for x in doc["lines"] if x["quantity"] == "k6"}
     assert n_none == 6 and k6[("EPS-STD", "(no station id)")]["reason"] == "n = 6 < 25" and k6[("EPS-STD", "(no station id)")]["ucl"] is None

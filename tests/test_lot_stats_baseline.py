@@ -15,6 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
+from eol_cal.schemas import validator
 from eol_cal.station.records import insert_records
 
 T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.timezone.utc)
@@ -68,6 +69,7 @@ def test_baseline_judges_two_later_lot_stats_calls(records_db, tmp_path: Path):
                     "--csv", str(csv_path)])
     assert res.exit_code == 1, res.output
     doc = json.loads(res.stdout)
+    validator("lot-stats").validate(doc)
     judged = {j["quantity"]: j for j in doc["judged"]}
     assert judged["k6"]["center"] == pytest.approx(k6_line["center"])  # the stored line, not the drifted runs' mean
     fired = {(v["quantity"], v["rule"]): v for v in doc["violations"]}

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.msa.type1 import type1_study
+from eol_cal.schemas import validator
 from eol_cal.station.records import insert_records
 
 # the master's k6 in mN*m/A, run by run: 8 x 0.640, 9 x 0.642, 8 x 0.644 (the hand-worked set of
@@ -41,6 +42,7 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path):
                                    "--plots", str(plots), "--reference-run", declared["run_id"]])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
+    validator("msa-type1").validate(doc)
     assert doc["schema"] == "eol-cal/msa-type1/1" and doc["serial"] == "MASTER-1" and doc["runs"] == 25
     k6 = next(q for q in doc["quantities"] if q["key"] == "k6")
     s = 0.002 * math.sqrt(2 / 3)
