@@ -40,6 +40,7 @@ _COMMAND_MODULES: list[str] = [
     "msa",
     "operator",
     "refit",
+    "restore",
     "simulate",
     "station",
     "table",

@@ -11,7 +11,8 @@ import numpy as np
 from eol_cal.lot.baseline import group_lines, make_baseline
 from eol_cal.lot.columns import from_records
 from eol_cal.lot.spc import CIRCULAR
-from test_report_pages import lot_record
+from _records import make_record
+from test_report_pages import LIMITS
 
 
 def _records():
@@ -23,10 +24,10 @@ def _records():
             station = f"L1-S{1 + i % 2}"
             if station == "L1-S1" and i >= 10:
                 k6 += drift  # station 1 drifts up on the 22nd
-            r = lot_record(f"M{day}{i:03d}", f"2026-11-{day}T{6 + i // 3:02d}:{20 * (i % 3):02d}:00.000+00:00", "pass",
-                           k6=k6, after=0.9 + 0.02 * (i % 5), station=station)
-            r["fit"]["phase_c6"]["value"] = math.pi - 0.05 if i % 2 else -math.pi + 0.04  # across the wrap
-            recs.append(r)
+            recs.append(make_record(f"M{day}{i:03d}", started=f"2026-11-{day}T{6 + i // 3:02d}:{20 * (i % 3):02d}:00.000+00:00",
+                                    station=station, variant="T", limits=dict(LIMITS.values), k6=k6, pp_before=5.0,
+                                    pp_after=0.9 + 0.02 * (i % 5),
+                                    phase_c6=math.pi - 0.05 if i % 2 else -math.pi + 0.04))  # across the wrap
     return recs
 
 
@@ -36,11 +37,11 @@ def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     from eol_cal.report.lot import write_lot_page
 
     recs = _records()
-    base_runs = [r for r in recs if r["started_at"] < "2026-11-22"]
+    base_runs = [r for r in recs if r.started_at < "2026-11-22"]
     lot = from_records(base_runs)
     baseline = make_baseline("nov-wk47", group_lines(lot.values, lot.variant, lot.station, CIRCULAR, 25), len(base_runs),
                              {"until": "2026-11-21"})
-    judged = [r for r in recs if r["started_at"] >= "2026-11-22"]
+    judged = [r for r in recs if r.started_at >= "2026-11-22"]
     page = write_lot_page(judged, tmp_path / "lot.html", title="lot.sqlite", filters={"since": "2026-11-22"}, min_n=10,
                           baseline=baseline)
     with Browser() as b:

@@ -7,13 +7,13 @@ from __future__ import annotations
 import csv
 import datetime as dt
 import json
-import uuid
 from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from _records import make_record
 from cli.main import cli
 from eol_cal.schemas import validator
 from eol_cal.station.records import insert_records
@@ -23,11 +23,9 @@ T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.timezone.utc)
 
 def rec(i: int, day: int, k6_mnm: float, station: str):
     t = (T0 + dt.timedelta(days=day, minutes=3 * i)).isoformat(timespec="milliseconds")
-    return {"schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": f"M{day}-{i:04d}", "started_at": t,
-            "ended_at": t, "verdict": "pass", "reasons": [], "station": {"id": station},
-            "limits": {"variant": "EPS-STD", "max_k6": 1.2e-3, "max_pp_after_pct": 2.0},
-            "fit": {"k6": {"value": k6_mnm * 1e-3}, "phase_c6": {"value": np.pi - 0.01 * (i % 3)}},
-            "metrics": {"pp_after_pct": 0.9 + 0.05 * ((i * 7) % 5 - 2)}}
+    return make_record(f"M{day}-{i:04d}", started=t, station=station, variant="EPS-STD",
+                       limits={"max_k6": 1.2e-3, "max_pp_after_pct": 2.0}, k6=k6_mnm * 1e-3,
+                       phase_c6=np.pi - 0.01 * (i % 3), pp_after=0.9 + 0.05 * ((i * 7) % 5 - 2))
 
 
 def period(day: int, n: int, seed: int, shift: float = 0.0, drift_from: int | None = None):
@@ -73,15 +71,15 @@ def test_baseline_judges_two_later_lot_stats_calls(records_db, tmp_path: Path):
     judged = {j["quantity"]: j for j in doc["judged"]}
     assert judged["k6"]["center"] == pytest.approx(k6_line["center"])  # the stored line, not the drifted runs' mean
     fired = {(v["quantity"], v["rule"]): v for v in doc["violations"]}
-    ids = [r["run_id"] for r in drifting]
+    ids = [r.run_id for r in drifting]
     assert fired[("k6", 1)]["runs"] == [ids[8]] and fired[("k6", 1)]["side"] == "above"
     assert fired[("k6", 4)]["runs"] == ids and fired[("k6", 4)]["station"] == "EOL-1"
     assert fired[("k6", 3)]["runs"][:4] == ids[:4]  # 4 of 5 beyond 1 sigma from the first four on
     assert ("k6", 2) not in fired  # 1.5-1.6 sigma, then one point at 4 sigma: never 2 of 3 beyond 2 sigma
-    assert fired[("k6", 4)]["serials"] == [r["serial"] for r in drifting] and fired[("k6", 4)]["values"][0] > k6_line["center"]
+    assert fired[("k6", 4)]["serials"] == [r.serial for r in drifting] and fired[("k6", 4)]["values"][0] > k6_line["center"]
     with open(csv_path, newline="") as f:
         rows = {r["run_id"]: r for r in csv.DictReader(f)}
-    assert rows[ids[8]]["rules"] == "k6:1;k6:3;k6:4" and rows[quiet[0]["run_id"]]["rules"] == ""
+    assert rows[ids[8]]["rules"] == "k6:1;k6:3;k6:4" and rows[quiet[0].run_id]["rules"] == ""
     assert rows[ids[0]]["rules"] == "k6:3;k6:4"
     # the table output names the rule and ends with exit 1
     res = run(cli, ["lot", "stats", "--db", str(records_db), "--since", "2026-11-04", "--baseline", "wk45"])

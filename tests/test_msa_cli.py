@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import json
 import math
-import uuid
 from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
+from _records import make_record
 from cli.main import cli
 from eol_cal.msa.type1 import type1_study
 from eol_cal.schemas import validator
@@ -24,12 +24,10 @@ K6 = [0.640] * 8 + [0.642] * 9 + [0.644] * 8
 
 def rec(serial: str, i: int, k6_mnm: float, phase_deg: float = 179.5):
     t = f"2026-11-22T{8 + i // 60:02d}:{i % 60:02d}:00.000+00:00"
-    return {"schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": serial, "started_at": t,
-            "ended_at": t, "verdict": "pass", "reasons": [], "station": {"id": "EOL-1"},
-            "limits": {"variant": "EPS-STD", "max_k6": 1.0e-3, "max_pp_after_pct": 2.0, "max_pp_before_pct": 8.0},
-            "fit": {"k6": {"value": k6_mnm * 1e-3}, "phase_k6": {"value": math.radians(phase_deg)},
-                    "c6": {"value": 0.038 + 1e-4 * (i % 3)}},
-            "metrics": {"pp_before_pct": 3.0 + 0.01 * (i % 5), "pp_after_pct": 0.9 + 0.01 * (i % 4)}}
+    return make_record(serial, started=t, station="EOL-1", variant="EPS-STD",
+                       limits={"max_k6": 1.0e-3, "max_pp_after_pct": 2.0, "max_pp_before_pct": 8.0},
+                       k6=k6_mnm * 1e-3, phase_k6=math.radians(phase_deg), c6=0.038 + 1e-4 * (i % 3),
+                       pp_before=3.0 + 0.01 * (i % 5), pp_after=0.9 + 0.01 * (i % 4))
 
 
 def test_msa_type1_of_a_master(records_db, tmp_path: Path):
@@ -39,7 +37,7 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path):
     page, plots = tmp_path / "type1.html", tmp_path / "plots"
     res = CliRunner().invoke(cli, ["msa", "type1", "--db", str(records_db), "--serial", "MASTER-1", "--reference",
                                    "k6=0.640", "--tolerance", "phase_k6=40", "--json", "-o", str(page),
-                                   "--plots", str(plots), "--reference-run", declared["run_id"]])
+                                   "--plots", str(plots), "--reference-run", declared.run_id])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
     validator("msa-type1").validate(doc)
@@ -53,10 +51,10 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path):
     assert k6["capable"] is True
     # phase_k6 across the wrap against the declared run's 179 deg; the same figures as the pure function
     ph = next(q for q in doc["quantities"] if q["key"] == "phase_k6")
-    ref = type1_study(np.radians([r["fit"]["phase_k6"]["value"] * 180 / math.pi for r in master]), math.radians(179.0),
+    ref = type1_study(np.array([r.value("phase_k6") for r in master]), math.radians(179.0),
                       math.radians(40.0), circular=True)
     assert ph["reference"] == pytest.approx(179.0) and ph["mean"] == pytest.approx(math.degrees(ref.mean))
-    assert ph["reference_source"] == f"run {declared['run_id']}"
+    assert ph["reference_source"] == f"run {declared.run_id}"
     assert ph["cg"] == pytest.approx(ref.cg.value) and ph["cgk"] == pytest.approx(ref.cgk.value)
     c6 = next(q for q in doc["quantities"] if q["key"] == "c6")
     assert c6["cg"] is None and c6["cg_reason"] == "no tolerance" and c6["tolerance_source"].startswith("no tolerance")

@@ -80,7 +80,17 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def lot_summary(lot: Lot, min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None,
+def _pareto(causes: list[list[str]]) -> list[dict[str, Any]]:
+    return [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(causes)]
+
+
+def refusal_summary(refusals: Lot) -> dict[str, Any]:
+    """The refused runs (nothing written, nothing measured): how many, of how many serials, and
+    their reasons as a Pareto (refusal codes)."""
+    return {"runs": len(refusals), "serials": len(set(refusals.serial.tolist())), "pareto": _pareto(refusals.causes)}
+
+
+def lot_summary(lot: Lot, refusals: Lot | None = None, min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None,
                 judged: Sequence[str] = CHARTED) -> dict[str, Any]:
     """The lot's figures (display units, NaN as None).
 
@@ -90,8 +100,9 @@ def lot_summary(lot: Lot, min_n: int = DEFAULT_MIN_N, baseline: Baseline | None 
     ``capability`` per variant and station, each index None below ``min_n`` with its reason),
     ``pareto`` (cause, runs, cumulative share), ``control`` (per station, per charted quantity:
     the individuals / moving-range limits, None below ``min_n``), and with a ``baseline`` the
-    lines ``judged`` against and the Western Electric rules' ``violations``. Documented in
-    ``docs/json.md``; the definitions in ``docs/spc.md``.
+    lines ``judged`` against and the Western Electric rules' ``violations``; with ``refusals``
+    (the refused runs of the same selection) ``refusals`` (:func:`refusal_summary`). Documented
+    in ``docs/json.md``; the definitions in ``docs/spc.md``.
     """
     from eol_cal.lot import spc_stats
 
@@ -120,9 +131,10 @@ def lot_summary(lot: Lot, min_n: int = DEFAULT_MIN_N, baseline: Baseline | None 
         "verdicts": {v: int(np.count_nonzero(lot.verdict == v)) for v in ("pass", "fail", "error")},
         "first_pass_yield": fpy, "motors": motors,
         "quantities": quantities,
-        "pareto": [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(lot.causes)],
+        "pareto": _pareto(lot.causes),
         "control": spc_stats.control_limits(lot, charted, min_n),
         "baseline": None, "judged": [], "violations": [],
+        **({} if refusals is None else {"refusals": refusal_summary(refusals)}),
     }
     if baseline is not None:
         violations, lines = spc_stats.judge_lot(lot, baseline, [QUANTITY[key] for key in judged])
@@ -133,25 +145,28 @@ def lot_summary(lot: Lot, min_n: int = DEFAULT_MIN_N, baseline: Baseline | None 
 
 
 def write_runs_csv(path: str | Path, db: str | Path, rules: dict[str, list[str]] | None = None,
-                   **filters: str | None) -> int:
+                   **filters: Any) -> int:
     """Write the selected runs' columns (the database's, without the JSON documents) as CSV,
     atomically, oldest first; returns the number of runs. ``filters`` as
-    :func:`eol_cal.station.records.select_runs`. With ``rules`` (run id -> ``QUANTITY:RULE``
-    tags, :func:`eol_cal.lot.spc_stats.rules_by_run`) a last column ``rules`` lists the run
-    rules each run is part of, ``;``-separated."""
+    :func:`eol_cal.station.records_query.select_runs`. Each header names its unit (``k6 [mN*m/A]``);
+    the measured quantities are in their display units (:mod:`eol_cal.display`). With ``rules``
+    (run id -> ``QUANTITY:RULE`` tags, :func:`eol_cal.lot.spc_stats.rules_by_run`) a last column
+    ``rules`` lists the run rules each run is part of, ``;``-separated."""
     import csv
     import io
 
     from eol_cal.atomic import atomic_write
-    from eol_cal.station.records import COLUMN_NAMES, read_rows, runs, select_runs
+    from eol_cal.station.records import COLUMN_NAMES, runs
+    from eol_cal.station.records_query import read_rows, select_runs
 
+    shown = {q.key: q for q in QUANTITIES}
     cols = [c for c in COLUMN_NAMES if c not in ("fit_json", "record_json")]
     rows = read_rows(db, select_runs(**filters).with_only_columns(*(runs.c[c] for c in cols)))
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols + (["rules"] if rules is not None else []))
+    w.writerow([f"{c} [{shown[c].unit}]" if c in shown else c for c in cols] + (["rules"] if rules is not None else []))
     for r in rows:
         extra = [";".join(rules.get(r["run_id"], []))] if rules is not None else []
-        w.writerow(["" if r.get(c) is None else r.get(c) for c in cols] + extra)
+        w.writerow(["" if r.get(c) is None else (r[c] * shown[c].scale if c in shown else r[c]) for c in cols] + extra)
     atomic_write(Path(path), buf.getvalue())
     return len(rows)

@@ -37,21 +37,28 @@ def quantity(key: str) -> Quantity:
     raise KeyError(key)
 
 
+#: the run kinds a study takes: the master checks, and runs of the master serial made as
+#: production runs (before the station named it its master)
+STUDY_KINDS = ("master", "production")
+
+
 def read_runs(db: str | Path, serial: str | None = None, run_id: str | None = None, since: str | None = None,
-              until: str | None = None, exclude: str | None = None) -> Lot:
-    """The runs of one serial (or the one run ``run_id``; without the run ``exclude``) as a
-    :class:`Lot`, time order."""
+              until: str | None = None, exclude: str | None = None,
+              kind: str | tuple[str, ...] | None = STUDY_KINDS) -> Lot:
+    """The runs of one serial (or the one run ``run_id``, any kind; without the run ``exclude``)
+    as a :class:`Lot`, time order."""
     from eol_cal.errors import naming
     from eol_cal.lot.columns import LOT_COLUMNS, from_columns
-    from eol_cal.station.records import db_key, is_url, read_columns, runs, select_runs
+    from eol_cal.station.records import db_key, is_url, runs
+    from eol_cal.station.records_query import read_columns, select_runs
 
-    q = select_runs(serial=serial, since=since, until=until).order_by(None)
+    q = select_runs(serial=serial, since=since, until=until, kind=None if run_id else kind).order_by(None)
     if run_id is not None:
         q = q.where(runs.c.run_id == run_id)
     if exclude is not None:
         q = q.where(runs.c.run_id != exclude)
     cols, limits = read_columns(db, q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
-                                q.with_only_columns(runs.c.limits_json).distinct(), min_version=3)
+                                q.with_only_columns(runs.c.limits_json).distinct(), min_version=4)
     with naming(db_key(db) if is_url(db) else str(db)):
         return from_columns(cols, limits["limits_json"])
 
