@@ -28,7 +28,7 @@ from __future__ import annotations
 import datetime as dt
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Callable, Mapping
 
 from eol_cal.errors import InputError
 
@@ -76,10 +76,20 @@ def parse_shifts(text: str, where: str, key: str = "master.shifts") -> tuple[dt.
     return tuple(sorted(set(out)))
 
 
-def master_settings(values: Mapping[str, object], where: str) -> MasterSettings | None:
+def master_settings(values: Mapping[str, object], where: str | Callable[[str], str]) -> MasterSettings | None:
     """The :class:`MasterSettings` of a station's flattened settings keys (``master.serial``,
     ``master.reference.k6``...); None when ``master.serial`` is unset. Every reference needs a
-    tolerance and a period must be set; each refusal names the key."""
+    tolerance and a period must be set; each refusal names the key and where it came from
+    (``where``: the file, or a function of the key giving the file or ``$VARIABLE``)."""
+    at = where if callable(where) else (lambda _key: where)
+    try:
+        return _master_settings(values, at)
+    except InputError as exc:
+        raise InputError(at(exc.field or "master.serial"), exc.field, exc.reason) from None
+
+
+def _master_settings(values: Mapping[str, object], at: Callable[[str], str]) -> MasterSettings | None:
+    where = at("master.serial")
     serial = values.get("master.serial")
     if serial is None:
         stray = [k for k, v in values.items() if k.startswith("master.") and v is not None and k != "master.timezone"]
@@ -103,7 +113,7 @@ def master_settings(values: Mapping[str, object], where: str) -> MasterSettings 
     if (every is None) == (shifts_text is None):
         raise InputError(where, "master.every_h", "set either master.every_h or master.shifts (how often the master runs)")
     tz = str(values.get("master.timezone") or "UTC")
-    _zone(tz, where)
+    _zone(tz, at("master.timezone"))
     shifts = parse_shifts(str(shifts_text), where) if shifts_text is not None else ()
     return MasterSettings(str(serial), ref, tol, None if every is None else float(every), shifts, tz, where)  # type: ignore[arg-type]
 
