@@ -54,6 +54,7 @@ def main() -> int:
     from cli.station import DEMO_LIMITS
     from eol_cal.ecu import protocol as P
     from eol_cal.station.demo import demo_motor_spec, loopback_station
+    from eol_cal.station.record import RunRecord
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
@@ -76,7 +77,10 @@ def main() -> int:
     db = out / "master.sqlite"
     spec = demo_motor_spec(args.seed, SERIAL)
     k6_true = spec.k6 * 1e3  # mN*m/A
-    env = dict(os.environ)
+    # the station names the master (docs/station.md, "Master motor"): its runs are kind master, checked
+    # against the true k6 +- 0.1 mN*m/A
+    env = {**os.environ, "EOL_CAL_MASTER_SERIAL": SERIAL, "EOL_CAL_MASTER_EVERY_H": "8",
+           "EOL_CAL_MASTER_REFERENCE_K6": f"{k6_true:.6f}", "EOL_CAL_MASTER_TOLERANCE_K6": "0.1"}
     t0 = time.perf_counter()
     k6, ids = [], []
     with loopback_station(SERIAL, args.seed, out / "sim", spec_for=lambda req: spec) as st:
@@ -88,12 +92,12 @@ def main() -> int:
                                capture_output=True, text=True, env=env, cwd=ROOT, timeout=600)
             if p.returncode not in (0, 1):
                 raise RuntimeError(f"eol-cal run failed ({p.returncode}): {p.stderr[-2000:]}")
-            rec = json.loads(p.stdout)["record"]
-            value = rec["fit"]["k6"]["value"] * 1e3 if rec.get("fit") else float("nan")
-            ids.append(rec["run_id"])
+            rec = RunRecord.from_json(json.loads(p.stdout)["record"], "eol-cal run --json")
+            value = rec.value("k6") * 1e3
+            ids.append(rec.run_id)
             if i:
                 k6.append(value)
-            print(f"run {i:2d}{' (reference)' if i == 0 else ''}: {rec['verdict']:5s} k6 {value:.5f} mN*m/A  ({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(f"run {i:2d}{' (reference)' if i == 0 else ''}: {rec.kind} {rec.verdict:5s} k6 {value:.5f} mN*m/A  ({time.perf_counter() - t0:.0f} s)", flush=True)
     wall = time.perf_counter() - t0
     cmd = ["msa", "type1", "--db", str(db), "--serial", SERIAL, "--reference-run", ids[0], "--reference",
            f"k6={k6_true!r}", "--json", "-o", str(out / "type1.html"), "--plots", str(out / "plots")]
