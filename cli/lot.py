@@ -28,14 +28,31 @@ def lot_group() -> None:
     """A lot of motors: the page quality engineers look at."""
 
 
+def day_options(func):
+    """``--since`` and ``--until``: UTC days, inclusive (:func:`_date` checks them)."""
+    func = click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")(func)
+    return click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")(func)
+
+
+def lot_filters(func):
+    """``--db`` and the filters that choose a lot: ``--variant``, ``--since``, ``--until``, ``--station``."""
+    func = click.option("--station", default=None, help="Only this station.")(func)
+    func = day_options(func)
+    func = click.option("--variant", default=None, help="Only this product variant.")(func)
+    return click.option("--db", required=True, type=RECORDS_DB,
+                        help="Records database: a SQLite file or postgresql://user@host:port/db.")(func)
+
+
+def min_n_option(func):
+    """``--min-n`` (``$EOL_CAL_MIN_N``): the minimum n of capability indices and control limits."""
+    return click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
+                        help="Fewest values that give a capability index, a control limit or Cg/Cgk [default: 25; "
+                             "$EOL_CAL_MIN_N]; fewer: shown as 'n = 7 < 25'.")(func)
+
+
 @lot_group.command("report")
-@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
-@click.option("--variant", default=None, help="Only this product variant.")
-@click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
-@click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
-@click.option("--station", default=None, help="Only this station.")
-@click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
-              help="Fewest values that give a capability index or control limits [default: 25; $EOL_CAL_MIN_N].")
+@lot_filters
+@min_n_option
 @click.option("--baseline", "baseline_name", default=None, metavar="NAME",
               help="Draw this stored baseline's frozen limits and list the runs that break a rule.")
 @click.option("-o", "--out", "out", default=Path("lot.html"), show_default=True,
@@ -74,23 +91,13 @@ def _fmt(x, digits: int = 4) -> str:
     return "-" if x is None else f"{x:.{digits}g}"
 
 
-def _min_n_option(func):
-    return click.option("--min-n", default=None, type=click.IntRange(min=2), envvar="EOL_CAL_MIN_N",
-                        help="Fewest values that give a capability index or control limits [default: 25; "
-                             "$EOL_CAL_MIN_N]; fewer: shown as 'n = 7 < 25'.")(func)
-
-
 def _gated(value, reason, digits: int = 3) -> str:
     return _fmt(value, digits) if value is not None else (reason or "-")
 
 
 @lot_group.command("stats")
-@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
-@click.option("--variant", default=None, help="Only this product variant.")
-@click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
-@click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
-@click.option("--station", default=None, help="Only this station.")
-@_min_n_option
+@lot_filters
+@min_n_option
 @click.option("--baseline", "baseline_name", default=None, metavar="NAME",
               help="Judge the runs against this stored baseline (eol-cal lot baseline): Western Electric rules 1-4; "
                    "exit 1 when one fires.")
@@ -220,13 +227,9 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
 
 
 @lot_group.command("baseline")
-@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
+@lot_filters
 @click.option("--name", required=True, help="The baseline's name (lot stats --baseline NAME).")
-@click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
-@click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
-@click.option("--variant", default=None, help="Only this product variant.")
-@click.option("--station", default=None, help="Only this station.")
-@_min_n_option
+@min_n_option
 @click.option("--replace", is_flag=True, help="Replace a baseline of that name.")
 @click.option("--json", "as_json", is_flag=True, help="Print the stored baseline as JSON.")
 @handle_errors

@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from cli.common import RECORDS_DB, CommandExit, console, handle_errors
+from cli.lot import day_options, min_n_option
 from cli.paths import io_paths
 
 
@@ -42,8 +43,7 @@ def msa_group() -> None:
 @msa_group.command("type1")
 @click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.option("--serial", required=True, help="The master motor's serial: its recorded runs are the study.")
-@click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")
-@click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")
+@day_options
 @click.option("--reference", "references", multiple=True, metavar="KEY=VALUE",
               help="Reference value x_ref of a quantity in its display unit (k6 mN*m/A, phase_k6 deg, c6 mN*m, "
                    "pp_before_pct / pp_after_pct %); repeat per quantity.")
@@ -54,7 +54,7 @@ def msa_group() -> None:
                    "variant's upper limit - 0.")
 @click.option("--sigmas", "l", default=4.0, show_default=True, type=click.FloatRange(min=1.0, max=10.0),
               help="Study variation in standard deviations: 4 (+-2 s, VDA 5 / Bosch) or 6 (+-3 s, Minitab).")
-@click.option("--min-n", default=None, type=click.IntRange(min=2), help="Fewest runs that give Cg/Cgk [default: 25].")
+@min_n_option
 @click.option("--json", "as_json", is_flag=True, help="Print the study as one JSON document.")
 @click.option("-o", "--out", "out", default=None, type=click.Path(dir_okay=False, path_type=Path),
               help="Write the study's page (one self-contained HTML file).")
