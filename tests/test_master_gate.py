@@ -11,6 +11,7 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.ecu.flash import active_block_from_file
+from eol_cal.schemas import validator
 from eol_cal.station.demo import loopback_station
 from eol_cal.station.records_query import query_records
 from test_station_run import MOTOR, files, run_args  # noqa: F401 - files: the fixture
@@ -59,6 +60,8 @@ def test_master_gate_refuses_then_lets_through_then_refuses_after_a_failed_maste
     assert res.exit_code == 2
     refused = json.loads(res.stdout)["record"]
     assert refused["kind"] == "refusal" and refused["refusal_codes"] == ["master_failed"]
+    for doc in (master, failed, refused):  # the records as the schema says
+        validator("run-record").validate(doc)
     assert refused["reasons"][0].startswith("master check: master check failed: the last run of the master M-MASTER")
     # every run recorded, each with its kind; the lot's statistics take the production run alone
     db = tmp_path / "r.sqlite"
