@@ -91,10 +91,6 @@ def _fmt(x, digits: int = 4) -> str:
     return "-" if x is None else f"{x:.{digits}g}"
 
 
-def _gated(value, reason, digits: int = 3) -> str:
-    return _fmt(value, digits) if value is not None else (reason or "-")
-
-
 @lot_group.command("stats")
 @lot_filters
 @min_n_option
@@ -164,6 +160,8 @@ def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, 
 def _print_stats(label: str, doc: dict, kind: str) -> None:
     from rich.table import Table
 
+    from eol_cal.lot.spc_stats import gated_text
+
     fpy = doc["first_pass_yield"]
     console.print(f"{label}: {doc['runs']} {'' if kind == 'all' else kind + ' '}run(s) of {doc['motors']} "
                   f"motor(s); pass {doc['verdicts']['pass']}, fail {doc['verdicts']['fail']}, error "
@@ -176,7 +174,7 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
         p = q["percentiles"]
         t.add_row(q["title"] + (" (circular)" if q["circular"] else ""), q["unit"], str(q["count"]), _fmt(q["mean"]),
                   _fmt(q["sd"], 3), _fmt(p["p5"]), _fmt(p["p50"]), _fmt(p["p95"]), _fmt(q["limit"]),
-                  *(_gated(q[k], q[f"{k}_reason"]) if q["limit_key"] else "-" for k in ("cp", "cpk", "ppk")))
+                  *(gated_text(q[k], q[f"{k}_reason"]) if q["limit_key"] else "-" for k in ("cp", "cpk", "ppk")))
     console.print(t)
     t = Table(title="capability per variant and station")
     for col in ("quantity", "variant", "station", "n", "limit", "Cpk", "Ppk"):
@@ -184,7 +182,7 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
     for q in doc["quantities"]:
         for g in q["capability"]:
             t.add_row(q["key"], g["variant"], g["station"] or "all", str(g["n"]), _fmt(g["limit"]),
-                      _gated(g["cpk"], g["cpk_reason"]), _gated(g["ppk"], g["ppk_reason"]))
+                      gated_text(g["cpk"], g["cpk_reason"]), gated_text(g["ppk"], g["ppk_reason"]))
     console.print(t)
     if doc["pareto"]:
         t = Table(title="failure causes (Pareto)")

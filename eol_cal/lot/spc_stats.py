@@ -154,6 +154,19 @@ def rule_texts() -> dict[str, str]:
     return {str(k): v[3] for k, v in RULES.items()}
 
 
-def finite_or_none(x: float | None) -> float | None:
-    """JSON has no NaN."""
-    return None if x is None or not math.isfinite(x) else float(x)
+def gated_text(value: float | None, reason: str | None, digits: int = 3) -> str:
+    """A gated figure of the document for people: the value, or why there is none (``n = 7 < 25``)."""
+    if value is None or not math.isfinite(value):
+        return reason or "-"
+    return f"{value:.{digits}g}"
+
+
+def quantity_note(q: dict[str, Any]) -> str:
+    """One line of a ``quantities`` entry: mean and sd (a phase's on the circle), Cpk and Ppk or
+    why not (the lot page's histogram titles)."""
+    if q["circular"]:
+        return f"circular mean {gated_text(q['mean'], None, 4)}, sd {gated_text(q['sd'], None)} {q['unit']}"
+    text = f"mean {gated_text(q['mean'], None, 4)}, sd {gated_text(q['sd'], None)}"
+    if q["limit_key"] and q["capability"]:
+        text += f"; Cpk {gated_text(q['cpk'], q['cpk_reason'], 2)}, Ppk {gated_text(q['ppk'], q['ppk_reason'], 2)}"
+    return text

@@ -19,7 +19,7 @@ from eol_cal.display import display_unit
 from eol_cal.lot.baseline import Baseline
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary
-from eol_cal.lot.spc_stats import CIRCLE_BINS
+from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
 from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
@@ -398,7 +398,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
                               + ("Hover on a point: serial, verdict, time, value; " if titles else
                                  f"More than {MAX_HOVER_POINTS} runs: points without hover text; ")
                               + "wheel: zoom, drag: pan, double-click: back", figure_svg(fig, "timeline", titles, "plot zoom")))
-        notes = {q["key"]: _note(q) for q in doc["quantities"] if q["count"]}
+        notes = {q["key"]: quantity_note(q) for q in doc["quantities"] if q["count"]}
         figures.append(Figure("histograms", "Distribution of the measured quantities over the runs that have them, "
                               "with the variant's limits; the phases on the circle (sectors of 15 deg, the red line: "
                               "circular mean, its length R). Cpk (sigma from the moving range) and Ppk (overall sd) "
@@ -421,21 +421,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
                   fpy=doc["first_pass_yield"], doc=doc, causes=causes, pareto=pareto_fig, refused=refused,
                   refusal_fig=refusal_fig, refusal_runs=len(refusals), worst=worst_motors(recs, page_dir),
                   filters=filters, first=dates[0] if dates else "-", last=dates[-1] if dates else "-",
-                  stations=sorted(stations), fmt=_fmt, gated=_gated)
-
-
-def _note(q: dict[str, Any]) -> str:
-    """One line under a histogram: mean and sd (a phase's on the circle), Cpk and Ppk or why not."""
-    if q["circular"]:
-        return f"circular mean {_fmt(q['mean'])}, sd {_fmt(q['sd'], 3)} {q['unit']}"
-    text = f"mean {_fmt(q['mean'])}, sd {_fmt(q['sd'], 3)}"
-    if q["limit_key"] and q["capability"]:
-        text += f"; Cpk {_gated(q['cpk'], q['cpk_reason'], 2)}, Ppk {_gated(q['ppk'], q['ppk_reason'], 2)}"
-    return text
-
-
-def _gated(value: float | None, reason: str | None, digits: int = 3) -> str:
-    return _fmt(value, digits) if value is not None else (reason or "-")
+                  stations=sorted(stations), fmt=_fmt, gated=gated_text)
 
 
 def _control(name: str, runs: list[RunRecord], doc: dict[str, Any], baseline: Baseline | None, min_n: int) -> Any:
