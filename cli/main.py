@@ -50,6 +50,9 @@ _register()
 
 
 def main() -> None:
+    from eol_cal.blas import limit_blas_threads
+
+    limit_blas_threads()
     try:
         cli(prog_name="eol-cal")
     except KeyboardInterrupt:
