@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import json
 import os
+import math
 import stat
 import tomllib
 from typing import Any
 
 from eol_cal.errors import InputError
 
-#: deepest nesting of arrays and objects a JSON input may have (the tool's own documents: < 10)
-MAX_JSON_DEPTH = 64
 
 
 def _kind(mode: int) -> str:
@@ -92,13 +91,61 @@ def read_text(path: str | os.PathLike, field: str | None = None, encoding: str =
         raise InputError(str(path), field, f"not {name} text (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
 
 
-def load_toml(path: str | os.PathLike) -> dict[str, Any]:
-    """A TOML file as a dict: refuses non-UTF-8 bytes and bad TOML with the file named."""
-    text = read_text(path)
+#: deepest nesting of tables and arrays a TOML or JSON input may have (the tool's own: < 10)
+MAX_NESTING = 64
+#: largest TOML file the tool reads (settings, limits, maps, motors, benches, profiles: < 20 KiB)
+MAX_TOML_BYTES = 1 << 20
+#: TOML integers are 64-bit signed (TOML 1.0, "Integer"); JSON ones are held to the same range,
+#: so that no reader meets an integer that overflows a float or a C field
+INT_RANGE = (-(1 << 63), (1 << 63) - 1)
+
+
+def _check_tree(doc: Any, source: str | None, field: str | None, finite: bool) -> None:
+    """Walk a parsed document (iteratively): nesting, integer range, and (``finite``) no NaN or
+    infinity; the refusal names the offending value's path (``motors[0].k6.value``)."""
+    stack: list[tuple[Any, str, int]] = [(doc, field or "", 0)]
+    while stack:
+        value, where, depth = stack.pop()
+        if isinstance(value, dict):
+            if depth >= MAX_NESTING:
+                raise InputError(source, where or None, f"nested deeper than {MAX_NESTING} levels")
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in value.items())
+        elif isinstance(value, list):
+            if depth >= MAX_NESTING:
+                raise InputError(source, where or None, f"nested deeper than {MAX_NESTING} levels")
+            stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(value))
+        elif isinstance(value, bool):
+            continue
+        elif isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
+            raise InputError(source, where or None, f"integer of {len(str(abs(value)))} digits, outside the "
+                                                    "64-bit range")
+        elif finite and isinstance(value, float) and not math.isfinite(value):
+            raise InputError(source, where or None, f"{value!r} is not a finite number")
+
+
+def loads_toml(text: str, source: str | None) -> dict[str, Any]:
+    """Parse untrusted TOML text: :class:`InputError` naming ``source`` for anything it cannot be.
+
+    The one TOML parser of the tool (settings, limits, channel and register maps, motors,
+    benches, profiles). Refused: bad TOML, nesting deeper than :data:`MAX_NESTING` (arrays,
+    inline tables or dotted keys: the parser recurses per level), integers outside 64 bits
+    (a 5000-digit one is a ``ValueError`` in the parser, a 400-digit one overflows a float
+    later). ``nan``/``inf`` are left to the reader's own check, which names the key.
+    """
     try:
-        return tomllib.loads(text)
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(str(path), None, f"not valid TOML: {exc}") from None
+        raise InputError(source, None, f"not valid TOML: {exc}") from None
+    except (ValueError, RecursionError) as exc:  # an integer of too many digits; deep arrays or tables
+        raise InputError(source, None, f"not valid TOML: {str(exc)[:200]}") from None
+    _check_tree(doc, source, None, finite=False)
+    return doc
+
+
+def load_toml(path: str | os.PathLike, max_bytes: int = MAX_TOML_BYTES) -> dict[str, Any]:
+    """A TOML file as a dict (:func:`loads_toml`): a FIFO, a device, more than ``max_bytes``,
+    non-UTF-8 bytes or bad TOML are refused with the file named."""
+    return loads_toml(read_text(path, max_bytes=max_bytes), str(path))
 
 
 def _depth(text: str) -> int:
@@ -126,19 +173,24 @@ def _depth(text: str) -> int:
 def loads_json(text: str, source: str | None, field: str | None = None) -> Any:
     """Parse untrusted JSON text: :class:`InputError` naming ``source`` for anything it cannot be.
 
-    Refused: invalid JSON, nesting deeper than :data:`MAX_JSON_DEPTH`, integers longer than
-    Python converts (4300 digits). ``NaN``/``Infinity`` and numbers beyond binary64 (``1e400``,
-    read as infinity) are left to the reader's type check, which names the field.
+    The one JSON parser of the tool's inputs (fit results, spool files, refit results, stored
+    records). Refused: invalid JSON, nesting deeper than :data:`MAX_NESTING`, integers outside
+    64 bits (longer than Python converts: 4300 digits, or beyond a float), ``NaN``/``Infinity``
+    and numbers beyond binary64 (``1e400``, read as infinity): the tool writes none of them
+    (``allow_nan=False``), and a reader that met one would fail far from here. The refusal
+    names the value's path (``field 'motors[0].k6.value'``).
     """
     # the C parser recurses per level; refuse deep documents before they reach it
-    if text.count("[") + text.count("{") > MAX_JSON_DEPTH and _depth(text) > MAX_JSON_DEPTH:
-        raise InputError(source, field, f"nested deeper than {MAX_JSON_DEPTH} levels")
+    if text.count("[") + text.count("{") > MAX_NESTING and _depth(text) > MAX_NESTING:
+        raise InputError(source, field, f"nested deeper than {MAX_NESTING} levels")
     try:
-        return json.loads(text)
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(source, field, f"not valid JSON: {exc}") from None
     except (ValueError, RecursionError) as exc:  # an integer of too many digits
         raise InputError(source, field, f"not valid JSON: {exc}") from None
+    _check_tree(doc, source, field, finite=True)
+    return doc
 
 
 def load_json(path: str | os.PathLike, max_bytes: int | None = None) -> Any:

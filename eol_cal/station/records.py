@@ -179,6 +179,11 @@ def engine(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S, readonly: 
     if is_url(db):
         return _server_engine(str(db), timeout_s)
     db = Path(db)
+    if db.exists() and not db.is_file():
+        # SQLite would open a FIFO and block in the kernel for ever (deaf to SIGTERM), or read a device
+        from eol_cal.inputs import check_regular
+
+        check_regular(db, None)
     if not readonly and not db.parent.is_dir():
         # sqlite would say "unable to open database file"; say which directory is missing
         raise sqlite3.OperationalError(f"directory {db.parent} does not exist")

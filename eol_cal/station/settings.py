@@ -36,7 +36,7 @@ import can
 
 from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_toml
+from eol_cal.inputs import check_regular, load_toml
 
 if TYPE_CHECKING:
     from eol_cal.dyno.regmap import RegisterMap
@@ -259,8 +259,12 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
     settings = StationSettings(source, values, origin, "", 0)
     for name in ("limits", "key_file", "can.config"):
         p = values[name]
-        if p is not None and not Path(str(p)).is_file():
-            raise InputError(settings.where(name), name, f"no such file: {p}")
+        if p is not None:
+            try:
+                check_regular(str(p))
+            except InputError as exc:  # missing, a directory, a FIFO: said with the key that names it
+                reason = "no such file" if not os.path.exists(str(p)) else exc.reason
+                raise InputError(settings.where(name), name, f"{reason}: {p}") from None
     if values["can.interface"] is None and values["can.config"] is None and "can.interface" not in optional:
         raise InputError(source, "can.interface", "no CAN interface: set can.interface (and can.channel) or can.config")
     interface = values["can.interface"]

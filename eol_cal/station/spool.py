@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from eol_cal.errors import InputError
+from eol_cal.inputs import load_json
 from eol_cal.station.records import (
     DB_ERRORS,
     DEFAULT_LOCK_TIMEOUT_S,
@@ -24,6 +26,10 @@ from eol_cal.station.records import (
     insert_records,
     one_line,
 )
+
+
+#: largest spool file read back (one run record: ~20 KiB)
+MAX_SPOOL_FILE_BYTES = 16 << 20
 
 
 def default_spool_dir() -> Path:
@@ -100,10 +106,10 @@ def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, dict[str, Any]]], list[s
     """Readable spooled records, and ``"file: reason"`` for every file that is not one."""
     out, bad = [], []
     for path in sorted(spool_dir.glob("*.json")):
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-            bad.append(f"{path}: unreadable ({exc})")
+        try:  # the bounded loader: a FIFO, a 5000-digit number or deep nesting is one bad file
+            doc = load_json(path, max_bytes=MAX_SPOOL_FILE_BYTES)
+        except InputError as exc:
+            bad.append(f"{path}: unreadable ({exc.reason})")
             continue
         if not isinstance(doc, dict) or doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
             bad.append(f"{path}: not a spooled record ({SPOOL_SCHEMA})")
