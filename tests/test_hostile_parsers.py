@@ -241,3 +241,19 @@ def test_mdf4_zero_records_is_refused_by_the_structure_check_naming_the_group(ba
     with pytest.raises(InputError, match="claims 0 records") as err:
         check_mdf4_bytes(hostile.mdf4_with_cg_field(bases["mdf4"], "cycles", 0), "x.mf4")
     assert err.value.field.startswith("block ##CG")
+
+
+def test_a_fifo_as_key_file_or_golden_vector_file_is_refused_unread(tmp_path):
+    from eol_cal.ecu.testing import example_block
+
+    block = tmp_path / "b.bin"
+    block.write_bytes(example_block(serial="M-0007"))
+    fifo = tmp_path / "ecu.key"
+    os.mkfifo(fifo)
+    res = CliRunner().invoke(cli, ["flash", str(block), "-i", "virtual", "-c", "nobody-listens", "--key-file", str(fifo)])
+    _one_line_exit_2(res, str(fifo), "FIFO")
+    golden = tmp_path / "golden"
+    golden.mkdir()
+    os.mkfifo(golden / "manifest.json")
+    res = CliRunner().invoke(cli, ["golden", "--check", str(golden)])
+    assert res.exit_code in (1, 2) and "Traceback" not in res.output and "FIFO" in res.output, res.output
