@@ -22,7 +22,9 @@ LOG_WIDTH = 160
 
 
 def _console(stderr: bool = False, file: Any = None) -> Console:
-    c = Console(stderr=stderr, file=file)
+    # no markup, no emoji codes: serials, file names and reasons are printed as they are ("[/]" in
+    # a name was a MarkupError traceback); our own colours are rich.text.Text styles (styled())
+    c = Console(stderr=stderr, file=file, markup=False, emoji=False)
     if not c.is_terminal and "COLUMNS" not in os.environ:
         c.width = LOG_WIDTH
     return c
@@ -56,6 +58,13 @@ def signals_interrupt() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def styled(*parts: str | tuple[str, str]) -> Any:
+    """Console text from plain strings and ``(text, style)`` pairs; nothing in them is markup."""
+    from rich.text import Text
+
+    return Text.assemble(*parts)
 
 
 def _option_hint(exc: EolCalError) -> str:

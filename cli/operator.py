@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors
+from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
 from cli.paths import io_paths
 from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
 
@@ -50,7 +50,7 @@ def verdict_panel(serial: str, verdict: str, lines: list[str]):
     # centred as one block: centring each row alone would shift the letters' rows apart
     body = [Align.center(Text(big_word(verdict.upper()), style=f"bold {colour}", no_wrap=True)), Text("")]
     body += [Text(line) for line in lines]
-    return Panel(Group(*body), title=f"{serial}: {verdict.upper()}", border_style=colour, expand=True)
+    return Panel(Group(*body), title=Text(f"{serial}: {verdict.upper()}"), border_style=colour, expand=True)
 
 
 def _ask(prompt: str) -> str | None:
@@ -82,7 +82,7 @@ def _ask_operator() -> str | None:
         try:
             return operator_name(line)
         except InputError as exc:
-            console.print(f"[red]{exc}[/red]; type your name again")
+            console.print(styled((str(exc), "red"), "; type your name again"))
 
 
 def _next_serial() -> str | None:
@@ -97,7 +97,7 @@ def _next_serial() -> str | None:
         try:
             return scanned_serial(line)
         except InputError as exc:
-            console.print(f"[red]not a serial: {exc.reason}[/red]; scan again")
+            console.print(styled((f"not a serial: {exc.reason}", "red"), "; scan again"))
 
 
 def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir: Path | None, options: dict):

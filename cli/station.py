@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
-                        handle_errors, print_json)
+                        handle_errors, print_json, styled)
 from cli.dyno import load_map, register_map_option
 from cli.paths import io_paths
 
@@ -42,7 +42,9 @@ class _StepProgress:
     def __init__(self, serial: str, enabled: bool = True) -> None:
         from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-        self.serial = serial
+        from rich.markup import escape
+
+        self.serial = escape(serial)  # the step lines are markup (their marks); the serial is not
         self.progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                                  console=err_console, transient=True, disable=not enabled)
         self.tasks: dict[str, int] = {}
@@ -84,7 +86,7 @@ def _results_table(records: list[dict], title: str):
         fit = r.get("fit") or {}
         met = r.get("metrics") or {}
         wall = sum(s["seconds"] or 0.0 for s in r.get("steps") or [])
-        table.add_row(r["serial"], f"[{colour.get(r['verdict'], 'white')}]{r['verdict']}[/]",
+        table.add_row(r["serial"], styled((str(r["verdict"]), colour.get(r["verdict"], "white"))),
                       _fmt((fit.get("k6") or {}).get("value"), 4, 1e3), _fmt(met.get("pp_before_pct")),
                       _fmt(met.get("pp_after_pct")), _fmt(met.get("improvement_pct")), f"{wall:.1f}",
                       str(r.get("started_at", ""))[5:19].replace("T", " "))
@@ -118,11 +120,11 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 
     res = flush_spool(db, spool_dir, timeout)
     for bad in res.bad_files:
-        err_console.print(f"[yellow]spool: {bad}; left alone[/yellow]")
+        err_console.print(styled((f"spool: {bad}; left alone", "yellow")))
     if res.flushed_files:
         err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db}")
     elif res.remaining:
-        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db}: {res.error}[/yellow]")
+        err_console.print(styled((f"{res.remaining} spooled record(s) still waiting for {db}: {res.error}", "yellow")))
 
 
 #: each `run` option's settings key (eol_cal.station.settings.KEYS); an option given on the command

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
+from eol_cal.render import plain
 from eol_cal.report.svg import figure_svg, pyplot
 from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_checks, measured_from_fit
 
@@ -267,7 +268,7 @@ def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: Fit
         ax.legend(fontsize=6, loc="upper right")
     axes[0].set_ylabel("torque - mean (N*m)", fontsize=8)
     where = f"{op.get('speed_rpm', float('nan')):.0f} rpm, i_qo {op.get('i_qo_a', float('nan')):.0f} A" if op else ""
-    fig.suptitle(f"{rec['serial']}: torque at the operating point ({where}), mean and mechanical order 1 removed",
+    fig.suptitle(f"{plain(rec['serial'])}: torque at the operating point ({where}), mean and mechanical order 1 removed",
                  fontsize=9)
     fig.tight_layout()
     return Figure("angle", "Torque against electrical angle at the operating point, before and with the "
