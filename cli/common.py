@@ -124,13 +124,13 @@ class RecordsDb(click.ParamType):
     name = "PATH|URL"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> "str | Path":
-        from pathlib import Path
+        from eol_cal.address import records_db
+        from eol_cal.errors import InputError
 
-        if isinstance(value, Path) or "://" in str(value):
-            return value
-        if Path(value).is_dir():
-            self.fail(f"{value}: is a directory, expected a database file or URL", param, ctx)
-        return Path(value)
+        try:  # the one check of a database address (settings and variables take the same)
+            return records_db(value, "db")
+        except InputError as exc:
+            self.fail(exc.reason if exc.file is None else f"{exc.file}: {exc.reason}", param, ctx)
 
 
 RECORDS_DB = RecordsDb()

@@ -65,10 +65,15 @@ def _ask(prompt: str) -> str | None:
 
     if sys.stdin.isatty():
         termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
-    try:
-        return input(prompt)
-    except EOFError:
+    # the bytes as the scanner sent them, not input(): its line editing (GNU readline) swallowed
+    # a NUL and glued the line's two halves together ("M\0q" was calibrated as serial "Mq");
+    # bytes that are not UTF-8 stay as surrogates, which no serial or name check lets through
+    sys.stdout.write(prompt)
+    sys.stdout.flush()
+    line = sys.stdin.buffer.readline()
+    if not line:
         return None
+    return line.decode("utf-8", "surrogateescape").rstrip("\r\n")
 
 
 def _ask_operator() -> str | None:

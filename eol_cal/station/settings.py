@@ -185,6 +185,31 @@ def _resolve(key: Key, value: object, base: Path) -> object:
     return value
 
 
+def _check_values(settings: StationSettings) -> None:
+    """The keys whose values alone can be wrong, checked as the options are: the estimator, the
+    database address, the CAN configuration file (a cycle started with ``estimator = "foo"``,
+    ``db = "."`` or a garbage ``can.config`` and failed at its first use of them)."""
+    from eol_cal.address import records_db
+
+    if settings["estimator"] is not None:
+        from eol_cal.firmware.options import parse_options
+
+        parse_options(str(settings["estimator"]), settings.where("estimator"), "estimator")
+    if settings["db"] is not None:
+        try:
+            records_db(str(settings["db"]), "db", writing=True)
+        except InputError as exc:
+            raise InputError(settings.where("db"), "db", exc.reason if exc.file is None else f"{exc.file}: {exc.reason}") from None
+    if settings["can.config"] is not None:
+        from eol_cal.ecu.transport import bus_config
+
+        try:
+            bus_config(settings["can.interface"], settings["can.channel"], settings["can.bitrate"],
+                       str(settings["can.config"]))
+        except InputError as exc:
+            raise InputError(settings.where("can.config"), "can.config", f"{settings['can.config']}: {exc.reason}") from None
+
+
 def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = None,
                   validators: Mapping[str, Callable[[StationSettings], None]] | None = None, *,
                   given: Mapping[str, object] | None = None, fallbacks: Mapping[str, object] | None = None,
@@ -265,6 +290,7 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
             except InputError as exc:  # missing, a directory, a FIFO: said with the key that names it
                 reason = "no such file" if not os.path.exists(str(p)) else exc.reason
                 raise InputError(settings.where(name), name, f"{reason}: {p}") from None
+    _check_values(settings)
     if values["can.interface"] is None and values["can.config"] is None and "can.interface" not in optional:
         raise InputError(source, "can.interface", "no CAN interface: set can.interface (and can.channel) or can.config")
     interface = values["can.interface"]
@@ -307,10 +333,6 @@ def check_station(settings: StationSettings) -> None:
 
     _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
     _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
-    if settings["estimator"] is not None:
-        from eol_cal.firmware.options import parse_options
-
-        parse_options(str(settings["estimator"]), settings.where("estimator"), "estimator")
     motor = str(settings["motor"])
     _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
     _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
