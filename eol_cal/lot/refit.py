@@ -187,8 +187,9 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
         lines = read_text(path).splitlines()
         rows = [loads_json(line, file, f"line {k}") for k, line in enumerate(lines, start=1) if line.strip()]
     for k, row in enumerate(rows, start=1):
-        if not isinstance(row, dict) or not isinstance(row.get("serial", ""), str):
-            raise InputError(file, f"row {k}", "not a refit result row (an object with a serial)")
+        if not isinstance(row, dict) or not isinstance(row.get("serial"), (str, type(None))):
+            raise InputError(file, f"row {k}", "not a refit result row (an object with a serial, null for a "
+                                               "capture that could not be read)")
     return rows
 
 
