@@ -313,9 +313,11 @@ def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, 
                    "arrives (session, security, read_did, erase, download, transfer, transfer_exit, check, "
                    "read_memory, reset); erase and transfer leave their damage in the flash first.")
 @click.option("--slow", metavar="STEP:S", help="Fault test: every request of STEP takes S seconds more (0x78 meanwhile).")
+@click.option("--stale-answers", is_flag=True,
+              help="Fault test: before each request's answer, the previous answer again (a late duplicate at every step).")
 @handle_errors
 def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None, erase_s: float,
-                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None) -> None:
+                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None, stale_answers: bool) -> None:
     """Run the ECU simulator, served to other processes over python-can-remote.
 
     Testers connect with ``--interface remote --channel ws://HOST:PORT/``. Stop with Ctrl-C.
@@ -338,7 +340,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
         except ValueError:
             raise InputError(None, option, f"{value!r} after the step is not a {kind.__name__}") from None
 
-    faults = Faults()
+    faults = Faults(stale_answers=stale_answers)
     if die_at:
         faults.power_loss_step, faults.power_loss_occurrence = step_arg(die_at, "die-at", int)
     if slow:
