@@ -8,12 +8,13 @@ from typing import Any
 import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
+from cli.ecu import key_algo_option
 from cli.paths import io_paths
 from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
 STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
-                       "station_id": "station_id"}
+                       "station_id": "station_id", "key_algo": "key_algo"}
 #: keys the demo fills itself (the simulators' dyno and bus, the contract's development key)
 DEMO_OWN_KEYS = ("dyno.address", "key_file", "can.interface")
 DEMO_STATION_ID = "DEMO"
@@ -225,6 +226,7 @@ def _finish(cfg, tally, lot_file: Path | None) -> None:
 @click.option("--variant", default=None, help="Product variant in the limits file (overrides the settings).")
 @click.option("--db", default=None, type=RECORDS_DB, help="Records database (overrides the settings; demo: OUT/results.sqlite).")
 @click.option("--report-dir", default=None, type=click.Path(file_okay=False, path_type=Path), help="Reports (overrides the settings).")
+@key_algo_option
 @click.option("--lot", "lot_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the station's lot page here at the end [demo default: OUT/lot.html].")
 @click.pass_context

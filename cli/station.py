@@ -9,6 +9,7 @@ import click
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
                         handle_errors, print_json, styled)
 from cli.dyno import load_map, register_map_option
+from cli.ecu import key_algo_option
 from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
@@ -132,7 +133,7 @@ def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 OPTION_KEYS = {
     "address": "dyno.address", "interface": "can.interface", "channel": "can.channel", "bitrate": "can.bitrate",
     "can_config": "can.config", "limits_file": "limits", "variant": "variant", "db": "db", "profile": "profile",
-    "verify": "verify", "key_file": "key_file", "report_dir": "report_dir", "spool_dir": "spool_dir",
+    "verify": "verify", "key_file": "key_file", "key_algo": "key_algo", "report_dir": "report_dir", "spool_dir": "spool_dir",
     "db_timeout": "db_timeout_s", "rate_hz": "rate_hz", "dyno_timeout": "dyno.timeout_s", "motor_file": "motor",
     "bench_name": "bench", "station_id": "station_id", "register_map": "dyno.register_map",
     "estimator": "estimator",
@@ -167,6 +168,8 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
         # without a settings file, `run` needs its options (or their variables) as it always did
         for name, option in REQUIRED_OPTIONS.items():
             key = keys[name]
+            if key == "key_file" and ("key_algo" in given or os.environ.get(env_name("key_algo"))):
+                continue  # the OEM's algorithm may need no secret
             if key not in given and not os.environ.get(env_name(key)):
                 raise InputError(None, option.split()[0][2:], f"required: give {option} (or set ${env_name(key)}), "
                                                               "or a settings file with --station")
@@ -192,6 +195,7 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
               help="Compensated acquisition: the profile's segments at the operating point (both directions), or the full profile.")
 @click.option("--key-file", type=click.Path(dir_okay=False),
               help="ECU security secret, 16 bytes hex (or $EOL_CAL_KEY_FILE).")
+@key_algo_option
 @click.option("--report-dir", default="reports", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Each run gets a directory here: captures, fit, block, plots, report.html/json.")
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None,

@@ -11,6 +11,7 @@ never a half-run cycle. The file's keys (docs/station.md, "First real station"):
     db = "records.sqlite"           # or postgresql://user@host:5432/eol
     report_dir = "reports"
     key_file = "ecu.key"
+    key_algo = "oem-eps"            # optional: the OEM's seed-to-key (entry point or MODULE:FUNC)
     [dyno]
     address = "192.0.2.10"          # Modbus TCP; port 502 when none is given
     register_map = "default"        # a shipped map's name or a map file (docs/dyno.md)
@@ -76,7 +77,8 @@ KEYS: tuple[Key, ...] = (
     Key("db", str, required=True),
     Key("report_dir", str, "reports", is_path=True),
     Key("spool_dir", str, is_path=True),
-    Key("key_file", str, required=True, is_path=True),
+    Key("key_file", str, is_path=True),  # required unless key_algo needs no secret
+    Key("key_algo", str),  # the OEM's seed-to-key: an entry point name or MODULE:FUNC (eol_cal.ecu.keyalgo)
     Key("profile", str, "eol-default"),
     Key("verify", str, "point", choices=("point", "full")),
     Key("estimator", str),  # None: the variant's (limits file), else paper|best|NAMES|0xMASK
@@ -281,6 +283,9 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
                 values[key.name] = str(base / str(key.default))
             continue
         values[key.name] = _resolve(key, _check_value(key, value, where), root)
+    if values["key_file"] is None and values["key_algo"] is None and "key_file" not in optional:
+        raise InputError(source, "key_file", f"required (in the file or as ${env_name('key_file')}), unless key_algo "
+                                             "names an OEM algorithm that needs no secret")
     settings = StationSettings(source, values, origin, "", 0)
     for name in ("limits", "key_file", "can.config"):
         p = values[name]
@@ -326,7 +331,6 @@ def check_station(settings: StationSettings) -> None:
     file is refused here with the settings key named, not halfway through the first motor.
     """
     from eol_cal.mechanics import mechanics_or_rigid
-    from eol_cal.ecu.client import load_key_file
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
@@ -336,9 +340,21 @@ def check_station(settings: StationSettings) -> None:
     motor = str(settings["motor"])
     _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
     _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
-    if settings["key_file"] is not None:  # None: the caller has its own key (the demo's)
-        _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
+    if settings["key_file"] is not None or settings["key_algo"] is not None:  # else the caller's own (the demo's)
+        seed_to_key_of(settings)
     register_map_of(settings)
+
+
+def seed_to_key_of(settings: StationSettings) -> Callable[[bytes], bytes]:
+    """The settings' seed-to-key algorithm (``key_algo`` with ``key_file``'s secret, else the
+    contract's HMAC with it), loaded and tried once: a refusal names the key it came from."""
+    from eol_cal.ecu.keyalgo import seed_to_key_from
+
+    key_file, key_algo = settings["key_file"], settings["key_algo"]
+    name = "key_algo" if key_algo is not None else "key_file"
+    return _named(settings, name, lambda: seed_to_key_from(None if key_file is None else str(key_file),  # type: ignore[return-value]
+                                                           None if key_algo is None else str(key_algo),
+                                                           file_field="key_file", algo_field="key_algo"))
 
 
 def register_map_of(settings: StationSettings) -> "RegisterMap":
