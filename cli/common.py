@@ -95,8 +95,10 @@ def handle_errors(func: Callable) -> Callable:
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from eol_cal.inputs import command_inputs
+
         try:
-            with signals_interrupt():
+            with signals_interrupt(), command_inputs():
                 result = func(*args, **kwargs)
         except CommandExit as exc:
             if exc.exit_code:
@@ -154,8 +156,14 @@ def exchange_log_options(func: Callable) -> Callable:
     @click.option("--verbose", is_flag=True, help="Print the timestamped UDS/Modbus exchanges on stderr.")
     @functools.wraps(func)
     def wrapper(*args: Any, verbose: bool = False, log_file: str | None = None, **kwargs: Any) -> Any:
+        from cli.paths import LOG_FILE, check_io
         from eol_cal.exchange_log import exchange_logging
 
+        if log_file is not None:
+            check_io((), (log_file,))  # not a directory, FIFO or device
+            ctx = click.get_current_context(silent=True)
+            if ctx is not None:  # an output of the command: checked against its inputs (cli.paths)
+                ctx.meta[LOG_FILE] = log_file
         with exchange_logging(sys.stderr if verbose else None, log_file):
             return func(*args, **kwargs)
 

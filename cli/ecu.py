@@ -119,6 +119,7 @@ def ecu_group() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @handle_errors
 @exchange_log_options
+@io_paths(inputs=("can_config",))
 def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
              as_json: bool) -> None:
     """Serial, software version, supported layouts, active bank and sequence, and the active block."""

@@ -9,7 +9,7 @@ import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
 from cli.ecu import key_algo_option
-from cli.paths import io_paths
+from cli.paths import check_more, io_paths
 from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
@@ -252,6 +252,9 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     if demo and out_dir is None:
         out_dir = Path(tempfile.mkdtemp(prefix="eol-cal-station-"))
     settings = _settings(ctx, station_file, demo, out_dir, options)
+    from eol_cal.station.settings import settings_paths
+
+    check_more(*settings_paths(settings))  # --lot and --log-file against the settings' database and files
     cfg = station_config(settings, cache_dir=enable_jax_cache(),
                          seed_to_key=hmac_seed_to_key(P.DEV_SECRET) if demo else None)
     if demo and lot_file is None:

@@ -10,7 +10,7 @@ from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator
                         handle_errors, print_json, styled)
 from cli.dyno import load_map, register_map_option
 from cli.ecu import key_algo_option
-from cli.paths import io_paths
+from cli.paths import check_more, io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = """\
@@ -228,8 +228,10 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor
+    from eol_cal.station.settings import settings_paths
 
     settings = load_station(ctx, station_file, options, OPTION_KEYS)
+    check_more(*settings_paths(settings))  # the settings' paths against the options' (--log-file too)
     # switched on by the helper thread: importing JAX costs a second
     cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
     _quiet_logs()
@@ -256,6 +258,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
 @register_map_option
 @handle_errors
 @exchange_log_options
+@io_paths(inputs=("profile", "register_map"), outputs=("db",), output_dirs=("out_dir",))
 def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 

@@ -9,11 +9,14 @@ open descriptor, which is opened non-blocking so that a FIFO swapped in meanwhil
 
 from __future__ import annotations
 
+import contextlib
 import json
-import os
 import math
+import os
 import stat
+import threading
 import tomllib
+from collections.abc import Iterator
 from typing import Any
 
 from eol_cal.errors import InputError
@@ -29,8 +32,74 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def check_regular(path: str | os.PathLike, field: str | None = None) -> None:
+# --------------------------------------------------------------------------------------------
+# the inputs of the running command: no file it read may be replaced by a file it writes
+
+_ledger: dict[tuple[int, int], str] | None = None
+_ledger_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def command_inputs() -> Iterator[None]:
+    """Keep, while a command runs, the identity (device, inode) of every file it reads.
+
+    The CLI's one entry (``cli.common.handle_errors``) enters it; :func:`refuse_overwriting_input`
+    then refuses a write over any of them, whatever option, setting or default named the output
+    (checks made before the command runs see the paths known then; this sees every one). A
+    command run inside another (a test) shares the outer one's record.
+    """
+    global _ledger
+    with _ledger_lock:
+        outer = _ledger is not None
+        if not outer:
+            _ledger = {}
+    try:
+        yield
+    finally:
+        if not outer:
+            with _ledger_lock:
+                _ledger = None
+
+
+def register_input(path: str | os.PathLike) -> None:
+    """Note ``path`` as read by the running command (no-op outside one, or for a missing file)."""
+    if _ledger is None:
+        return
+    try:
+        info = os.stat(path)
+    except OSError:
+        return
+    with _ledger_lock:
+        if _ledger is not None:
+            _ledger.setdefault((info.st_dev, info.st_ino), str(path))
+
+
+def refuse_overwriting_input(path: str | os.PathLike) -> None:
+    """Raise :class:`InputError` when ``path`` is a file the running command has read.
+
+    Raises
+    ------
+    InputError
+        Naming ``path`` and the input it is (the same file by another name, a link, too).
+    """
+    ledger = _ledger
+    if ledger is None:
+        return
+    try:
+        info = os.stat(path)
+    except OSError:
+        return  # a new file
+    read_as = ledger.get((info.st_dev, info.st_ino))
+    if read_as is not None:
+        same = "" if os.path.normpath(str(path)) == os.path.normpath(read_as) else f" ({read_as})"
+        raise InputError(str(path), None, f"output is also an input of this command{same}; it would be overwritten")
+
+
+def check_regular(path: str | os.PathLike, field: str | None = None, register: bool = True) -> None:
     """Refuse ``path`` unless it is an existing regular file (links are followed), without opening it.
+
+    With ``register`` (the default) the file is noted as an input of the running command
+    (:func:`register_input`).
 
     Raises
     ------
@@ -46,9 +115,12 @@ def check_regular(path: str | os.PathLike, field: str | None = None) -> None:
         raise InputError(file, field, f"cannot read: {exc.strerror or exc}") from None
     if not stat.S_ISREG(mode):
         raise InputError(file, field, f"{_kind(mode)}, expected a regular file")
+    if register:
+        register_input(path)
 
 
-def read_bytes(path: str | os.PathLike, field: str | None = None, max_bytes: int | None = None) -> bytes:
+def read_bytes(path: str | os.PathLike, field: str | None = None, max_bytes: int | None = None,
+               register: bool = True) -> bytes:
     """The bytes of a regular file; :class:`InputError` naming it for anything else.
 
     Parameters
@@ -59,9 +131,12 @@ def read_bytes(path: str | os.PathLike, field: str | None = None, max_bytes: int
         Field named in errors (e.g. the option's subject: ``"key"``).
     max_bytes : int, optional
         Refuse a larger file (bytes).
+    register : bool
+        Note the file as an input of the running command (False: a state file the caller
+        rewrites itself, the ECU simulator's flash image).
     """
     file = str(path)
-    check_regular(path, field)
+    check_regular(path, field, register)
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:

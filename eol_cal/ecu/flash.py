@@ -67,7 +67,7 @@ class NorFlash:
         self._rng = random.Random(seed)
         size = N_BANKS * B.BANK_BYTES
         if self.path is not None and self.path.exists():
-            raw = read_bytes(self.path, "flash image", max_bytes=size)
+            raw = read_bytes(self.path, "flash image", max_bytes=size, register=False)
             if len(raw) != size:
                 raise InputError(str(self.path), "size",
                                  f"{len(raw)} bytes; a flash image of {N_BANKS} banks has {size}")
@@ -188,7 +188,7 @@ class SecurityMemory:
         self.lockout_pending = False
         if self.path is not None and self.path.exists():
             try:
-                state = json.loads(read_bytes(self.path, max_bytes=4096))
+                state = json.loads(read_bytes(self.path, max_bytes=4096, register=False))
                 self.failed = int(state["failed"])
                 self.lockout_pending = bool(state["lockout_pending"])
             except (InputError, ValueError, KeyError, TypeError, RecursionError):

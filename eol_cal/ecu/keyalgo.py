@@ -95,6 +95,7 @@ def seed_to_key_from(key_file: str | None, key_algo: str | None, *, file_field: 
     if key_algo:
         return oem_seed_to_key(key_algo, secret, algo_field)
     if secret is None:
-        raise InputError(None, file_field, f"security access needs the ECU's secret: give {file_field} (16 bytes, "
-                                           f"hex), or the OEM's algorithm with {algo_field}")
+        said = {f: f"--{f}" if "-" in f else f for f in (file_field, algo_field)}  # an option, or a settings key
+        raise InputError(None, file_field, f"security access needs the ECU's secret: give {said[file_field]} (16 "
+                                           f"bytes, hex), or the OEM's algorithm with {said[algo_field]}")
     return hmac_seed_to_key(secret)

@@ -357,6 +357,32 @@ def seed_to_key_of(settings: StationSettings) -> Callable[[bytes], bytes]:
                                                            file_field="key_file", algo_field="key_algo"))
 
 
+#: files SQLite writes beside a database file (WAL mode, and the rollback journal)
+SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
+
+
+def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], list[str]]:
+    """What the settings make a station read and write: (input files, output files, output
+    directories), for the check that no output is an input (``cli.paths.check_more``).
+
+    Inputs: the settings file, limits, key file, CAN configuration, and the motor, bench,
+    profile and register map where they are files. Outputs: the records database (and the
+    files SQLite keeps beside it). Directories: reports and spool.
+    """
+    reads = [settings.source] if settings.source != "environment" else []
+    reads += [str(settings[k]) for k in ("limits", "key_file", "can.config") if settings[k] is not None]
+    for key in ("motor", "bench", "profile", "dyno.register_map"):
+        value = settings[key]
+        if value is not None and Path(str(value)).is_file():
+            reads.append(str(value))
+    writes: list[str] = []
+    db = settings["db"]
+    if db is not None and "://" not in str(db):
+        writes += [str(db), *(f"{db}{side}" for side in SQLITE_SIDE_FILES)]
+    dirs = [str(settings[k]) for k in ("report_dir", "spool_dir") if settings[k] is not None]
+    return reads, writes, dirs
+
+
 def register_map_of(settings: StationSettings) -> "RegisterMap":
     """The dyno's register map the settings name (``dyno.register_map``: a shipped map's name, or
     a map file, relative to the settings file); a bad map names the settings key."""
