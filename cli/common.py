@@ -40,21 +40,25 @@ def signals_interrupt() -> Iterator[None]:
 
     SIGTERM's (and a closed terminal's SIGHUP's) default ends the process without cleanup (no
     safe state, no record); raised as an exception it unwinds through every ``finally`` like
-    Ctrl-C. Inside ``eol_cal.interrupts.shielded`` (a record being written) it waits for the end. Outside the main thread
-    (a test invoking the CLI from a worker) handlers cannot be set and nothing changes.
+    Ctrl-C. Inside ``eol_cal.interrupts.shielded`` (a record being written) it waits for the end;
+    inside a finalizer it comes again a moment later; a main thread stuck in a system call is
+    ended by the watchdog (``eol_cal.interrupts``). Outside the main thread (a test invoking the
+    CLI from a worker) handlers cannot be set and nothing changes.
     """
+    from eol_cal import interrupts
+
+    interrupts.reset()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    from eol_cal.interrupts import deliver
-
     def raise_interrupted(signum: int, frame: Any) -> None:
-        deliver(signal.Signals(signum).name)
+        interrupts.deliver(signal.Signals(signum).name, frame)
 
     previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
-        yield
+        with interrupts.watchdog():
+            yield
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
@@ -95,12 +99,17 @@ def handle_errors(func: Callable) -> Callable:
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from eol_cal import interrupts
         from eol_cal.inputs import command_inputs
 
         try:
             with signals_interrupt(), command_inputs():
                 result = func(*args, **kwargs)
+                interrupts.raise_if_received()  # a signal whose exception a finalizer swallowed
         except CommandExit as exc:
+            if exc.exit_code != Interrupted.exit_code and interrupts.received():
+                click.echo(f"error: {Interrupted(interrupts.received())}", err=True)
+                sys.exit(Interrupted.exit_code)
             if exc.exit_code:
                 sys.exit(exc.exit_code)
             return None

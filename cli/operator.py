@@ -9,6 +9,7 @@ import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
 from cli.ecu import key_algo_option
+from eol_cal import interrupts
 from cli.paths import check_more, io_paths
 from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
 
@@ -171,6 +172,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             serial = _next_serial()
         except KeyboardInterrupt:
+            interrupts.handled()  # the session's way to end, with exit 0
             console.print("\nCtrl-C between motors: the session ends")
             return False
         if serial is None:
@@ -188,6 +190,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             _show(out)
         except KeyboardInterrupt:
+            interrupts.handled()
             return False
 
 
@@ -266,6 +269,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:
+        interrupts.handled()
         operator = None
     if operator is None:
         console.print("no operator: the session ends")
