@@ -56,21 +56,24 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
-            root: Path = ROOT) -> tuple[int | None, str, str, float, int]:
-    """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit.
+            root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None) -> tuple[int | None, str, str, float, int]:
+    """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit,
+    with ``stdin`` as its input and ``env`` added to (the station's ``EOL_CAL_*`` variables removed from)
+    this process's environment.
 
     Returns (exit code or None when it was killed for running past ``timeout_s``; a negative
     code is the signal that ended it), stdout, stderr, seconds, peak resident memory (KiB).
     """
-    child_env = dict(os.environ)
+    child_env = {k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_") or k == "EOL_CAL_JAX_CACHE"}
     child_env["PYTHONPATH"] = str(root)
     child_env.setdefault("EOL_CAL_JAX_CACHE", "off")
+    child_env.update(env or {})
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=child_env, preexec_fn=_limit_memory(memory_bytes),
-                            start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
+                            preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
-        out, err = proc.communicate(timeout=timeout_s)
+        out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
         rc: int | None = proc.returncode
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, 9)
