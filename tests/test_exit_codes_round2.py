@@ -13,9 +13,9 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from test_station_kill import station  # noqa: F401 - the fixture: ECU simulator process, dyno simulator
+from test_station_kill import _wait_for_erase, station  # noqa: F401 - the fixture: ECU simulator process, dyno simulator
 
-from eol_cal.station.records import query_records
+from eol_cal.station.records_query import query_records
 
 
 def _free_port() -> int:
@@ -78,9 +78,7 @@ def test_a_second_signal_while_the_run_ends_is_still_exit_2(station, gap_s):  # 
     traceback, the record kept."""
     start, tmp_path, dyno = station
     ecu, run = start("--slow", "erase:3")
-    end = time.monotonic() + 60
-    while not list((tmp_path / "reports").rglob("block_uncompensated.bin")) and time.monotonic() < end:
-        time.sleep(0.05)
+    _wait_for_erase(tmp_path)  # the prepare flash has sent its erase
     time.sleep(1.0)  # inside the slowed erase
     run.send_signal(signal.SIGINT)
     time.sleep(gap_s)
@@ -90,5 +88,5 @@ def test_a_second_signal_while_the_run_ends_is_still_exit_2(station, gap_s):  # 
     assert run.returncode == 2, err
     assert "Traceback" not in err, err
     recs = query_records(tmp_path / "db.sqlite")
-    assert [r["verdict"] for r in recs] == ["error"]
+    assert [r.verdict for r in recs] == ["error"]
     assert not dyno.enabled and dyno.speed == 0.0

@@ -135,10 +135,11 @@ def test_the_loader_keeps_valid_documents_and_names_the_path_of_a_bad_value():
     '{"serial": "M-1", "verdict": "pass", "k6": 1e999}',
 ])
 def test_lot_diff_refuses_a_hostile_refit_row_naming_the_file(tmp_path, line):
+    from eol_cal.station.record import RunRecord
     from eol_cal.station.records import insert_records
 
     db = tmp_path / "r.sqlite"
-    insert_records(db, [json.loads((FIXTURES / "run_record_demo.json").read_text())])
+    insert_records(db, [RunRecord.from_json(json.loads((FIXTURES / "run_record_demo.json").read_text()))])
     rows = tmp_path / "refit.jsonl"
     rows.write_text('{"serial": "M-0", "verdict": "pass"}\n' + line + "\n")
     res = CliRunner().invoke(cli, ["lot", "diff", "--db", str(db), str(rows)])
@@ -148,11 +149,12 @@ def test_lot_diff_refuses_a_hostile_refit_row_naming_the_file(tmp_path, line):
 def test_a_stored_record_holding_nan_is_skipped_and_named(tmp_path):
     """A record row written by another tool with NaN in it: ``records --json`` names the run and
     goes on with the others (it used to end in ``ValueError: Out of range float values``)."""
+    from eol_cal.station.record import RunRecord
     from eol_cal.station.records import insert_records
 
     db = tmp_path / "r.sqlite"
     rec = json.loads((FIXTURES / "run_record_demo.json").read_text())
-    insert_records(db, [rec])
+    insert_records(db, [RunRecord.from_json(rec)])
     with sqlite3.connect(db) as con:
         text = con.execute("SELECT record_json FROM runs").fetchone()[0]
         doc = json.loads(text)

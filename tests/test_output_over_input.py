@@ -115,11 +115,13 @@ def test_a_settings_output_over_a_settings_input_is_refused(station_dir, keys, w
 
 
 def test_station_lot_page_over_the_settings_database_is_refused_and_the_records_kept(station_dir):
-    from eol_cal.station.records import insert_records, query_records
+    from eol_cal.station.record import RunRecord
+    from eol_cal.station.records import insert_records
+    from eol_cal.station.records_query import query_records
 
     d = station_dir
     path = _settings(d)
-    insert_records(d / "records.sqlite", [json.loads((FIXTURES / "run_record_demo.json").read_text())])
+    insert_records(d / "records.sqlite", [RunRecord.from_json(json.loads((FIXTURES / "run_record_demo.json").read_text()))])
     before = _digests(d)
     for lot in (d / "records.sqlite", d / "limits.toml", d / "station.toml"):
         res = CliRunner().invoke(cli, ["station", "--station", str(path), "--operator", "bob", "--lot", str(lot)],

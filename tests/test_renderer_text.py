@@ -72,13 +72,14 @@ def test_simulate_plots_a_hostile_serial(tmp_path, text):
 
 
 def _hostile_db(tmp_path: Path, report_dir: str) -> Path:
+    from eol_cal.station.record import RunRecord
     from eol_cal.station.records import insert_records
 
     base = json.loads((FIXTURES / "run_record_demo.json").read_text())
     recs = []
     for k, text in enumerate(HOSTILE):
         rec = json.loads(json.dumps(base))
-        rec["run_id"] = f"{base['run_id']}-{k}"
+        rec["run_id"] = f"{k:032x}"
         rec["serial"] = f"S{k}{text}"
         rec["station"]["id"] = f"line {text}"
         rec["limits"]["variant"] = f"V{text}"
@@ -88,7 +89,7 @@ def _hostile_db(tmp_path: Path, report_dir: str) -> Path:
             rec["reasons"] = [f"{text}: too much ripple"]
         recs.append(rec)
     db = tmp_path / "lot $\\foo{$ [red].sqlite"
-    insert_records(db, recs)
+    insert_records(db, [RunRecord.from_json(r) for r in recs])
     return db
 
 

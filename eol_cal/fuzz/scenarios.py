@@ -154,12 +154,13 @@ def _records_db(token: str | None = None) -> bytes:
     import sqlite3
     import tempfile
 
+    from eol_cal.station.record import RunRecord
     from eol_cal.station.records import insert_records
 
     rec = json.loads((FIXTURES / "run_record_demo.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.sqlite"
-        insert_records(db, [rec])
+        insert_records(db, [RunRecord.from_json(rec)])
         if token is not None:
             with sqlite3.connect(db) as con:
                 doc = json.loads(con.execute("SELECT record_json FROM runs").fetchone()[0])

@@ -367,7 +367,7 @@ def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], lis
 
     Inputs: the settings file, limits, key file, CAN configuration, and the motor, bench,
     profile and register map where they are files. Outputs: the records database (and the
-    files SQLite keeps beside it). Directories: reports and spool.
+    files SQLite keeps beside it) unless an option gave it. Directories: reports and spool.
     """
     reads = [settings.source] if settings.source != "environment" else []
     reads += [str(settings[k]) for k in ("limits", "key_file", "can.config") if settings[k] is not None]
@@ -377,7 +377,9 @@ def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], lis
             reads.append(str(value))
     writes: list[str] = []
     db = settings["db"]
-    if db is not None and "://" not in str(db):
+    # a database given as an option is that option's output already (the same file twice is
+    # not two outputs); one from the file or a variable is the settings' own
+    if db is not None and "://" not in str(db) and settings.origin.get("db") != "given":
         writes += [str(db), *(f"{db}{side}" for side in SQLITE_SIDE_FILES)]
     dirs = [str(settings[k]) for k in ("report_dir", "spool_dir") if settings[k] is not None]
     return reads, writes, dirs
