@@ -185,7 +185,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
             # the cycle has commanded the dyno's safe state and recorded the run as an error
             tally.interrupted.append(serial)
             console.print(verdict_panel(serial, "error", [
-                "interrupted: the dyno was sent to its safe state and the run recorded as an error",
+                "interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)",
                 f"report: under {cfg.report_dir}"]))
             return True
         tally.add(out.record, str(out.report_html) if out.report_html else None)

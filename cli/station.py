@@ -244,7 +244,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
             out = run_motor(cfg, progress)
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
-        err_console.print("interrupted: the dyno was sent to its safe state and the run recorded as an error")
+        err_console.print("interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)")
         raise CommandExit(2) from None
     _print_outcome(out, as_json)
     raise CommandExit(out.exit_code)

@@ -214,8 +214,8 @@ def check_config(cfg: StationConfig) -> None:
 
     why = serial_problem(cfg.serial)
     if why is not None:
-        raise InputError(None, "serial", f"{cfg.serial!r}: {why} (the block's serial field: 1 to 16 printable ASCII "
-                                         "characters)")
+        raise InputError(None, "serial", f"{cfg.serial!r}: {why} (the block's serial field: 1 to 16 ASCII characters, "
+                                         "printable)")
     try:
         cfg.report_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -18,7 +18,6 @@ from eol_cal.errors import InputError
 from eol_cal.inputs import load_json
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records import (
-    DB_ERRORS,
     DEFAULT_LOCK_TIMEOUT_S,
     SPOOL_SCHEMA,
     RecordError,
@@ -53,7 +52,9 @@ def spool_record(record: RunRecord, db: str | Path, spool_dir: str | Path, why: 
 
     spool_dir = Path(spool_dir)
     spool_dir.mkdir(parents=True, exist_ok=True)
-    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record.to_json()}
+    from eol_cal.jsonsafe import json_safe
+
+    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": json_safe(record.to_json())}
     path = spool_dir / f"{record.run_id}.json"
     atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
     return path
@@ -81,11 +82,11 @@ def save_record(record: RunRecord, db: str | Path, spool_dir: str | Path | None 
     try:
         insert_records(db, [record], timeout_s)
         return SaveResult("db", db_shown(db))
-    except DB_ERRORS as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever keeps the record out of the database, it is spooled
         why = f"{type(exc).__name__}: {one_line(exc)}"
     try:
         path = spool_record(record, db, spool_dir, why)
-    except OSError as exc:
+    except Exception as exc:  # noqa: BLE001 - a full disk, or anything else: said with the database's reason
         raise RecordError(f"record {record.run_id} could not be written: database {db_shown(db)}: {why}; "
                           f"spool {spool_dir}: {exc}") from exc
     return SaveResult("spool", str(path), why)
@@ -148,7 +149,7 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
         return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
     try:
         n = insert_records(db, [r for _p, r in mine], timeout_s)
-    except DB_ERRORS as exc:
+    except Exception as exc:  # noqa: BLE001 - still not writable, however: the records wait in the spool
         return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad))
     for path, _r in mine:
         path.unlink(missing_ok=True)
