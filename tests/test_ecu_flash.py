@@ -60,7 +60,9 @@ def test_full_sequence_alternates_banks_and_pads_every_frame(tmp_path):
         assert (second.bank, second.sequence, second.previous.sequence) == (1, 2, 1)
         third = _flash(rig, BLOCK_A)  # back to bank 0, the old bank 0 content is erased first
         assert (third.bank, third.sequence) == (0, 3)
-        assert first.seconds < 1.0 and second.seconds < 1.0
+        # a hang guard, not a speed claim (bench/bench_flash.py measures the speed): generous for a
+        # loaded machine (a CPU hog at load 8 on 2 cores)
+        assert first.seconds < 30.0 and second.seconds < 30.0
         back = read_active_block(rig.tester, timing=FAST_CLIENT)
         assert B.unpack(back) == dataclasses.replace(B.unpack(BLOCK_A), sequence=3)
         info = ecu_info(rig.tester, timing=FAST_CLIENT).to_dict()

@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
+from test_hostile_files import _one_line_exit_2
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
 from eol_cal.fuzz import hostile
@@ -35,16 +36,6 @@ TOML_HOSTILE = {
     "dotted key 5000 deep": "zz" + ".a" * 5000 + " = 1\n",
     "table header 300 deep": "[" + ".".join(["t"] * 300) + "]\nx = 1\n",
 }
-
-
-def _one_line_exit_2(res, *words: str) -> str:
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output, res.output
-    line = res.stderr.strip()
-    assert len(line.splitlines()) == 1, line
-    for w in words:
-        assert w in line, line
-    return line
 
 
 def _env() -> dict[str, str | None]:

@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
+from test_refused_inputs import _refused
 from eol_cal.atomic import atomic_write
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.testing import example_block
@@ -27,14 +28,6 @@ FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
 def _digests(d: Path) -> dict[str, str]:
     return {str(p): hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(d.rglob("*")) if p.is_file()}
-
-
-def _refused(res, *words: str) -> None:
-    assert res.exit_code == 2, res.output
-    assert "Traceback" not in res.output, res.output
-    line = res.stderr.strip().splitlines()[-1]
-    for w in words:
-        assert w in line, res.output
 
 
 def _env() -> dict[str, str | None]:

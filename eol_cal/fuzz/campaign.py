@@ -100,7 +100,8 @@ def _commands(kind: str, name: str) -> list[list[str]]:
 def judge(case: Case, command: list[str], rc: int | None, stdout: str, stderr: str, seconds: float,
           rss_kb: int, modified: bool) -> Outcome:
     """An :class:`Outcome` from how one command ended."""
-    crash = rc is not None and rc not in (0, 1, 2)
+    # a MemoryError under RLIMIT_AS is a decoder that believed a size, not a clean refusal
+    crash = rc is not None and (rc not in (0, 1, 2) or "MemoryError" in stderr)
     accepted = rc == 0
     return Outcome(case=case, command=" ".join(command), rc=rc, seconds=seconds, stderr=stderr[-2000:],
                    traceback="Traceback" in stderr, hang=rc is None, crash=crash, modified=modified,
@@ -137,7 +138,7 @@ def run_batch(batch: list[Case], workdir: Path, timeout_s: float = 60.0,
         refused = {e["file"].split("#")[0] for e in doc["errors"]}
     except (ValueError, KeyError, TypeError):
         doc = None
-    if doc is None or rc not in (0, 2) or "Traceback" in err:
+    if doc is None or rc not in (0, 2) or "Traceback" in err or "MemoryError" in out + err:
         return [o for case in batch for o in run_case(case, workdir, timeout_s / len(batch), memory_bytes, root)]
     outcomes = []
     for case in batch:
