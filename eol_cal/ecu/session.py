@@ -29,7 +29,7 @@ from typing import Any, Callable
 import can
 import isotp
 import udsoncan
-from udsoncan import Response, services
+from udsoncan import Request, Response, services
 from udsoncan.client import Client
 from udsoncan.common.DidCodec import DidCodec
 from udsoncan.exceptions import (InvalidResponseException, NegativeResponseException,
@@ -207,6 +207,14 @@ def answers(request: bytes, message: bytes) -> bool:
     return True
 
 
+def _no_answer_expected(request: bytes) -> bool:
+    """A request whose sub-function asks for no positive answer (ISO 14229-1, bit 7)."""
+    if len(request) < 2:
+        return False
+    service = Request.from_payload(request).service
+    return service is not None and service.use_subfunction() and bool(request[1] & _SUPPRESS_BIT)
+
+
 class MatchingConnection(TesterConnection):
     """:class:`TesterConnection` that hands udsoncan only the answer to the request it sent.
 
@@ -221,7 +229,8 @@ class MatchingConnection(TesterConnection):
         self.stale_answers = 0
 
     def specific_send(self, payload: bytes, timeout: float | None = None) -> None:
-        self._request = bytes(payload)
+        if not _no_answer_expected(payload):  # a TesterPresent 3E 80 from the keep-alive thread
+            self._request = bytes(payload)  # must not change what a waiting request expects
         super().specific_send(payload, timeout)
 
     def specific_wait_frame(self, timeout: float | None = None) -> bytes | None:
