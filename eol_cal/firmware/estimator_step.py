@@ -128,12 +128,16 @@ _SCALAR_NP = _ScalarNumpy()
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
-    """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX)."""
+    """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX).
+
+    Under JAX a select against the position (``idx`` in range: the same array bit for bit):
+    ``.at[idx].set`` becomes a scatter once the step is vmapped over motors or captures, which
+    XLA's CPU backend runs outside the compiled tick loop, ~20x slower per tick."""
     if not hasattr(arr, "at"):
         out = arr.copy()
         out[idx] = val
         return out
-    return arr.at[idx].set(val)
+    return xp.where(xp.arange(arr.shape[-1], dtype=xp.int32) == idx, val, arr)
 
 
 def _dq(q: Array, k_last: Array, M: int, xp: ArrayModule) -> Array:

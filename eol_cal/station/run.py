@@ -30,6 +30,7 @@ from eol_cal.station.limits import VariantLimits
 from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
+    from eol_cal.msa.master import MasterSettings
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
     from eol_cal.station.record import RunRecord
@@ -96,6 +97,10 @@ class StationConfig:
     kind : str
         The record's kind when the cycle gets past its pre-flight (``production`` on a line;
         :data:`eol_cal.station.record.KINDS`); a cycle that ends before is a ``refusal``.
+    master : MasterSettings or None
+        The station's master motor (:mod:`eol_cal.msa.master`): a ``production`` run is refused
+        while its check is due or last failed; a run of kind ``master`` is judged against its
+        references too.
     """
 
     serial: str
@@ -117,6 +122,7 @@ class StationConfig:
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     estimator: str | None = None
     kind: str = "production"
+    master: MasterSettings | None = None
 
     @property
     def estimator_options(self) -> int:
@@ -160,11 +166,12 @@ def _safe_name(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- fit
-def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
+def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
               estimator_options: int = 0) -> tuple[dict, MotorResult, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
-    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
+    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame); ``capture`` may
+    also be the windows as separate captures (``eol-cal lot simulate``'s).
 
     ``motor`` (default the paper preset), ``mechanics`` (``None``: rigid coupling) and
     ``cache_dir`` (the serialized solvers; ``None``: none) and ``estimator_options`` (what the
@@ -182,7 +189,7 @@ def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor:
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
                          estimator_options=estimator_options)
-    res = fit_motors([capture], options, tool_version)
+    res = fit_motors(capture if isinstance(capture, list) else [capture], options, tool_version)
     (rec,) = res.records
     return res.doc, MotorResult.from_json(rec, "<fit>", "motors[0]."), (res.inputs[0], res.fits[0], options.spec)
 
