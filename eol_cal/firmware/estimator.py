@@ -42,7 +42,7 @@ from eol_cal.firmware.estimator_config import (
 )
 from eol_cal.firmware.estimator_config import OPTION_FLAGS, options_from_flags
 from eol_cal.firmware.estimator_step import (
-    _SCALAR_NP, EstimatorOut, EstimatorState, init_state, quadrature_phase, step,
+    _SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
 )
 
 
@@ -84,9 +84,11 @@ __all__ = [
     "options_from_flags",
     "EstimatorOut",
     "EstimatorState",
+    "PitchSample",
     "init_state",
     "quadrature_phase",
     "step",
+    "step_pitch",
     "run",
     "run_jax",
     "run_jax_chunked",

@@ -21,7 +21,7 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 from __future__ import annotations
 
 from fractions import Fraction
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
@@ -91,7 +91,7 @@ def pi_current_step(
 def current_task(
     st: EcuState, i_abc: tuple[Array, Array, Array], noise: Array, theta_hat: Array, omega_hat: Array,
     i_qo_cmd: Array, cmd: Array, cos_c: Array, sin_c: Array, p: PlantParams, T_cc: float, compensate: bool,
-    xp: ArrayModule,
+    xp: ArrayModule, mech: Callable[[Array], tuple[Array, Array]] | None = None,
 ) -> EcuState:
     """One run of the 1.68 kHz current-control task (with the 420 Hz command task where ``cmd``).
 
@@ -99,8 +99,10 @@ def current_task(
     decoupling on command ticks; samples the phase currents ``i_abc`` (A) with the sensors'
     ``noise`` (three standard normal draws) and turns them into the controller's frame with the
     control angle (``cos_c``, ``sin_c``); in compensated mode adds the block's ``i_qc`` at the
-    estimator's ``theta_hat``, ``omega_hat`` (:func:`eol_cal.firmware.compensator.i_qc`); and
-    updates the PI (:func:`pi_current_step`). Returns the controller memory after the task.
+    estimator's ``theta_hat``, ``omega_hat`` (:func:`eol_cal.firmware.compensator.i_qc`), with a
+    layout-2 block's mechanical orders once identified (``mech``: ``i_qo -> (on, current A)``,
+    :func:`eol_cal.firmware.mech.mech_sum`); and updates the PI (:func:`pi_current_step`). Returns
+    the controller memory after the task.
     """
     from eol_cal.firmware import compensator
     from eol_cal.plant import sensors, transforms
@@ -110,8 +112,9 @@ def current_task(
     m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise)))
     i_d_meas, i_q_meas = cos_c * m_al + sin_c * m_be, cos_c * m_be - sin_c * m_al
     if compensate:
+        mech_on, mech_sum = (None, None) if mech is None else mech(i_qo)
         i_qc = compensator.i_qc(theta_hat, omega_hat, i_qo, p.table_const, p.table_per_amp, p.lead_s,
-                                p.iqc_limit, xp=xp)
+                                p.iqc_limit, xp=xp, mech_on=mech_on, mech_sum=mech_sum)
     else:
         i_qc = xp.zeros_like(i_qo)
     st = st._replace(i_qo=i_qo, omega_c=omega_c)

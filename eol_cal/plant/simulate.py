@@ -5,10 +5,12 @@ Each tick (see :mod:`eol_cal.plant.control` for the ECU's rates):
 1. the encoder and hall levels are sampled at the rotor's actual angle;
 2. the firmware's estimator (:mod:`eol_cal.firmware.estimator`, the same code as the golden
    reference) steps once; the mode picks the control angle (``raw`` = its edge-quantised angle
-   ``theta_enc``, ``estimated``/``compensated`` = ``theta_hat``);
+   ``theta_enc``, ``estimated``/``compensated`` = ``theta_hat``); with a layout-2 block whose
+   ``MECH_COMP_ENABLE`` is honoured, the identifier (:mod:`eol_cal.firmware.mech`) steps too;
 3. on 420 Hz ticks the command ``i_qo`` and the decoupling speed are taken over; on 1.68 kHz
    ticks the phase currents are sampled, ``i_qc`` is evaluated with the firmware compensator
-   (``compensated`` only) and the PI current controller updates the dq voltage reference;
+   (``compensated`` only; the mechanical orders added once identified) and the PI current
+   controller updates the dq voltage reference;
 4. the voltage reference is rotated with the latest control angle, limited by the SVPWM inverter,
    and rotated into the rotor's true dq frame; the motor's currents advance exactly over the tick;
 5. torque ``kt*i_q`` minus the ripple sources drives the rotor; the shaft and the dyno advance and
@@ -34,7 +36,9 @@ from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.mechanics import mech_step
 from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.ecu import batch_options, estimator_config, learning_pre_roll_s, simulated_ecu_state, true_block
-from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
+from eol_cal.plant.params import (
+    PlantParams, PlantSpec, estimator_tables, mech_tables_of, sensor_errors, stack_params, to_params,
+)
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
 from eol_cal.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
@@ -42,7 +46,7 @@ from eol_cal.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' 
 TWO_PI = 2.0 * math.pi
 #: Per-tick outputs of the scan, in this order (float32 columns).
 OUT_COLUMNS = ("torque", "enc_a", "enc_b", "hall", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic",
-               "speed", "theta_r", "theta_hat", "theta_enc")
+               "speed", "theta_r", "theta_hat", "theta_enc", "mech_active", "theta_m")
 #: ticks of one draw of sensor noise (and the unit of a chunk's length)
 NOISE_BLOCK = 1000
 
@@ -60,6 +64,7 @@ class PlantSimConfig:
     mode: str
     estimator: Any
     dead_time: bool = False
+    mech: Any = None  # eol_cal.firmware.mech.MechConsts when a block of the batch identifies, else None
 
 
 class PlantState(NamedTuple):
@@ -77,12 +82,18 @@ class PlantState(NamedTuple):
 
 @dataclass(frozen=True)
 class SimResult:
-    """One motor's run: the capture plus the angles (rad) only a simulator knows, for plots."""
+    """One motor's run: the capture plus the angles (rad) only a simulator knows, for plots and tests.
+
+    ``mech_active`` (0/1 per sample): the ECU's mechanical-order compensation was identified and
+    running; ``theta_m`` the rotor's true mechanical angle (rad, [0, 2*pi)).
+    """
 
     capture: Capture
     theta_r: np.ndarray
     theta_hat: np.ndarray
     theta_enc: np.ndarray
+    mech_active: np.ndarray | None = None
+    theta_m: np.ndarray | None = None
 
 
 def _rotate(x: Any, y: Any, c: Any, s: Any) -> tuple[Any, Any]:
@@ -108,21 +119,32 @@ class Sensed(NamedTuple):
     sin_m: Any
     cos_c: Any
     sin_c: Any
+    # layout 2 (contract revision 1.2): the identifier's state after this tick (None without)
+    mech: Any = None
 
 
-def _sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any) -> tuple[Any, Sensed]:
-    """Steps 1-2 of a tick at rotor angle ``theta_m`` (rad): the levels, the estimator's step."""
+def _sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mech_state: Any = None
+           ) -> tuple[Any, Sensed]:
+    """Steps 1-2 of a tick at rotor angle ``theta_m`` (rad): the levels, the estimator's step (and
+    with ``cfg.mech`` the identifier's, from ``mech_state``: :attr:`Sensed.mech`)."""
     import jax.numpy as jnp
 
     from eol_cal.firmware import estimator, kinematics
 
     enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
     # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
-    est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
-                                    tables=estimator_tables(p))
+    if cfg.mech is None:
+        est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
+                                        tables=estimator_tables(p))
+    else:
+        from eol_cal.firmware.mech import mech_step
+
+        est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
+                                                     tables=estimator_tables(p))
+        mech_state, _ = mech_step(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
     theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
     return est_state, Sensed(enc_a, enc_b, hall, est, jnp.cos(theta_m), jnp.sin(theta_m), jnp.cos(theta_c),
-                             jnp.sin(theta_c))
+                             jnp.sin(theta_c), mech_state)
 
 
 def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tuple) -> tuple[tuple, Any]:
@@ -149,9 +171,19 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tu
     i_al, i_be = _rotate(plant.i_d, plant.i_q, cos_r, sin_r)
     i_a, i_b, i_c = transforms.alphabeta_to_abc(i_al, i_be)
 
+    mech_on = None if cfg.mech is None else sensed.mech.active != 0
+
+    def mech_current(i_qo: Any) -> tuple[Any, Any]:
+        """Layout 2: whether the mechanical orders are compensated, and their current (A)."""
+        from eol_cal.firmware.mech import mech_sum
+
+        return mech_on, mech_sum(cfg.mech, mech_tables_of(p), sensed.mech.r, est_state.q, est.theta_hat,
+                                 est.omega_hat, i_qo, xp=jnp)
+
     def current_task(ecu: control.EcuState) -> control.EcuState:
         return control.current_task(ecu, (i_a, i_b, i_c), i_noise[cc_index], est.theta_hat, est.omega_hat,
-                                    i_qo_prof, cmd_flag, cos_c, sin_c, p, T_cc, cfg.mode == "compensated", jnp)
+                                    i_qo_prof, cmd_flag, cos_c, sin_c, p, T_cc, cfg.mode == "compensated", jnp,
+                                    mech=None if cfg.mech is None else mech_current)
 
     ecu = jax.lax.cond(cc_flag, current_task, lambda e: e, ecu)
 
@@ -177,10 +209,11 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tu
         torque, sensed.enc_a.astype(f32), sensed.enc_b.astype(f32), sensed.hall.astype(f32), ecu.i_qo, ecu.i_qc,
         plant.i_q, plant.i_d, i_a, i_b, i_c, omega_d * (60.0 / TWO_PI),
         theta_r, est.theta_hat, est.theta_enc,
+        jnp.zeros_like(torque) if mech_on is None else mech_on.astype(f32), wrap_2pi(plant.theta_m, jnp),
     ])
     plant = PlantState(theta_m, twist, omega_m, omega_d, x_dyno, i_d, i_q, y_tq)
     # the next tick's sensors and estimator step
-    est_state, sensed = _sense(cfg, p, theta_m, est_state)
+    est_state, sensed = _sense(cfg, p, theta_m, est_state, sensed.mech)
     return (plant, est_state, ecu, sensed), out
 
 
@@ -241,15 +274,15 @@ def chunk_ticks_for(n_motors: int) -> int:
 
 
 def _prime_fn(cfg: PlantSimConfig) -> Callable:
-    """Compiled ``(params, carry) -> carry`` that adds the first tick's :class:`Sensed` to a batch's
-    initial carry ``(plant, estimator state, ECU)``."""
+    """Compiled ``(params, carry) -> carry`` that turns a batch's initial ``(plant, estimator state,
+    ECU, identifier state)`` into the scan's carry with the first tick's :class:`Sensed`."""
     key = (cfg, "prime")
     if key not in _COMPILED:
         import jax
 
         def one_motor(p, carry):
-            plant, est_state, ecu = carry
-            est_state, sensed = _sense(cfg, p, plant.theta_m, est_state)
+            plant, est_state, ecu, mech_state = carry
+            est_state, sensed = _sense(cfg, p, plant.theta_m, est_state, mech_state)
             return plant, est_state, ecu, sensed
 
         _COMPILED[key] = jax.jit(jax.vmap(one_motor))
@@ -274,7 +307,12 @@ def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m
     ecu = control.initial_ecu(f(i_qo0), f(cfg.poles // 2 * omega_m0), ps, np)
     ecu = control.EcuState(*(np.asarray(v, dtype=np.float32) for v in ecu))
     est_state = type(est_state)(*(np.asarray(v) for v in est_state))
-    return plant, est_state, ecu
+    mech_state = None
+    if cfg.mech is not None:
+        from eol_cal.firmware.mech import mech_init
+
+        mech_state = type(mech_init(cfg.N_enc))(*(np.asarray(v) for v in mech_init(cfg.N_enc)))
+    return plant, est_state, ecu, mech_state
 
 
 def simulate(
@@ -346,9 +384,12 @@ def simulate(
     if len(blocks) != len(specs):
         raise InputError(None, "blocks", f"{len(blocks)} blocks for {len(specs)} motors")
 
+    from eol_cal.firmware.mech import MechConsts, block_mech_tables
+
     params = []
     states = []
     effective = []
+    identifies = False
     for spec, block in zip(specs, blocks):
         states.append(simulated_ecu_state(spec, mode, block))
         if block is None:
@@ -360,25 +401,31 @@ def simulate(
                                  f"motor has P={spec.motor.poles}, {spec.motor.N_enc} PPR")
             tc, tp, lead, lim = block.table_const, block.table_per_amp, block.lead_s, block.iqc_limit
             hall = block.hall_angle
+            mtb = block_mech_tables(block)
+            identifies |= bool(mtb.enabled) and mode != "raw"
         else:
             tc = tp = np.zeros(16, np.float32)
             lead = lim = 0.0
             hall = NOMINAL_HALL_ANGLE
-        params.append(to_params(spec, tc, tp, lead, lim, hall_angle=hall))
+            mtb = None
+        params.append(to_params(spec, tc, tp, lead, lim, hall_angle=hall, mech_tb=mtb))
     lens = {len(p.table_const) for p in params}
     if len(lens) != 1:
         raise InputError(None, "blocks", "a batch must share one table length")
     batch = stack_params(params)
     options = batch_options(effective, ecu_estimator)
 
+    est_cfg = estimator_config(specs[0], options=options)
+    identifies &= est_cfg.learn_pitch_errors
     cfg = PlantSimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
                     # nominal table: each motor's own travels in its PlantParams (one program for all)
-                    mode=mode, estimator=estimator_config(specs[0], options=options),
-                    dead_time=any(s.dead_time_s > 0 for s in specs))
+                    mode=mode, estimator=est_cfg,
+                    dead_time=any(s.dead_time_s > 0 for s in specs),
+                    mech=MechConsts.of(est_cfg) if identifies else None)
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
     if pre_roll_s is None:
-        pre_roll_s = learning_pre_roll_s(options, float(speed_rpm[0]))
+        pre_roll_s = learning_pre_roll_s(options, float(speed_rpm[0]), identifies)
     n_pre = int(round(pre_roll_s * m0.f_pwm))
     speed_rpm = np.concatenate([np.full(n_pre, speed_rpm[0]), speed_rpm])
     i_qo = np.concatenate([np.full(n_pre, i_qo[0]), i_qo])
@@ -445,4 +492,5 @@ def _to_result(t: np.ndarray, col: dict[str, np.ndarray], spec: PlantSpec, profi
     if block is not None and mode == "compensated":
         truth.update({"block_k6": block.k6, "block_c6": block.c6, "block_lead_s": block.lead_s})
     cap = Capture(t=t, channels=channels, metadata=metadata, truth=truth, source="<plant>")
-    return SimResult(cap, col["theta_r"], col["theta_hat"], col["theta_enc"])
+    return SimResult(cap, col["theta_r"], col["theta_hat"], col["theta_enc"], col["mech_active"].astype(np.int8),
+                     col["theta_m"])

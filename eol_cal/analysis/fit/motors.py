@@ -189,11 +189,14 @@ def fit_inputs(
         progress=progress,
         cache_dir=options.cache_dir,
     )
+    from eol_cal.motor import load_motor
+
+    tick_hz = float((options.motor or load_motor("paper")).f_pwm)
     records = []
     for mi, f in zip(inputs, fits):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
         if options.capture_metrics:
             metrics["captures"] = [window_metrics(c, a) for c, a in zip(mi.captures, mi.angles)]
         records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
-                                                  solver_mode=mode)))
+                                                  solver_mode=mode, tick_hz=tick_hz)))
     return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)
