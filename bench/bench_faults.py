@@ -248,7 +248,7 @@ SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {
 def add_options(ap: argparse.ArgumentParser) -> None:
     """Options of every section (a new section adds its own here)."""
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--per-kind", type=int, default=125, help="bad inputs per kind (csv, mdf4, block, fitjson)")
+    ap.add_argument("--per-kind", type=int, default=125, help="bad inputs per kind (csv, mdf4, block, fitjson, block2, fitjson2)")
     ap.add_argument("--timeout", type=float, default=20.0, help="bound per command and input (s): beyond is a hang")
     ap.add_argument("--before", metavar="COMMIT", help="also run the inputs through this older commit's CLI")
     ap.add_argument("--show", type=int, default=20, help="list at most this many bad outcomes")

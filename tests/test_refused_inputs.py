@@ -19,7 +19,7 @@ from _capture_helpers import small_capture, with_metadata
 from cli.main import cli
 from eol_cal.capture.io import write_capture
 from eol_cal.ecu import protocol as P
-from eol_cal.fuzz import hostile
+from eol_cal.fuzz import hostile, scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "fixtures"
@@ -175,6 +175,53 @@ def test_a_fit_result_whose_serial_a_block_cannot_carry_is_refused_by_table(tmp_
     res = CliRunner().invoke(cli, ["table", str(bad), "-o", str(tmp_path / "b.bin")])
     _refused(res, str(bad), "motors[0].serial")
     assert not (tmp_path / "b.bin").exists()
+
+
+# ------------------------------------------------------- revision 1.2: a fit result's mech object
+
+
+@pytest.mark.parametrize("name,path,value", [pytest.param(*m, id=m[0]) for m in scenarios.BAD_MECH])
+def test_a_fit_result_whose_mechanical_part_is_out_of_bounds_is_refused_by_table(tmp_path, name, path, value):
+    """The layout-2 block (table's default) is built from ``mech``; every member is refused with
+    its field, nothing written (an order outside 1..3 or given twice was dropped or overwritten)."""
+    from eol_cal.fuzz.mutate import fit_result_with_mech
+
+    doc = json.loads(fit_result_with_mech((FIXTURES / "fit_paper.json").read_bytes()))
+    at = doc["motors"][0]["mech"]
+    for k in path[:-1]:
+        at = at[k]
+    at[path[-1]] = float("nan") if value == "NaN" else value
+    bad = tmp_path / "fit.json"
+    bad.write_text(json.dumps(doc))
+    res = CliRunner().invoke(cli, ["table", str(bad), "-o", str(tmp_path / "b.bin")])
+    _refused(res, str(bad), "motors[0].mech.")
+    assert not (tmp_path / "b.bin").exists()
+
+
+def test_the_valid_mechanical_part_gives_a_layout_2_block_with_mech_on(tmp_path):
+    from eol_cal.firmware import block as B
+    from eol_cal.fuzz.mutate import fit_result_with_mech
+
+    good = tmp_path / "fit.json"
+    good.write_bytes(fit_result_with_mech((FIXTURES / "fit_paper.json").read_bytes()))
+    res = CliRunner().invoke(cli, ["table", str(good), "-o", str(tmp_path / "b.bin")])
+    assert res.exit_code == 0, res.output
+    blk = B.unpack((tmp_path / "b.bin").read_bytes())
+    assert blk.layout_version == 2 and blk.flags & B.FLAG_MECH_COMP_ENABLE
+    assert blk.mech.mech_c[0] == pytest.approx(0.004)
+
+
+@pytest.mark.parametrize("value", ["-0.001", "11.0", "nan", "inf", '"0.01"', "true"])
+def test_the_new_limit_row_takes_the_limits_rules(tmp_path, value):
+    """``max_mech1_after_nm`` (revision 1.2) through the same checks as every limit row."""
+    for name, data in scenarios.station_files().items():
+        (tmp_path / name).write_bytes(data)
+    text = (FIXTURES / "limits.toml").read_text().replace(
+        "[variant.EPS-STD]\n", f"[variant.EPS-STD]\nmax_mech1_after_nm = {value}\n")
+    (tmp_path / "limits.toml").write_text(text)
+    res = CliRunner().invoke(cli, ["run", "--station", str(tmp_path / "station.toml"), "--serial", "M-1"], env=_env())
+    _refused(res, "limits.toml", "max_mech1_after_nm")
+    assert not (tmp_path / "records.sqlite").exists()
 
 
 def test_a_nul_in_the_scanned_line_is_refused_not_swallowed(tmp_path):

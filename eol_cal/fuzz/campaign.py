@@ -92,7 +92,7 @@ def _digest(path: Path) -> str:
 def _commands(kind: str, name: str) -> list[list[str]]:
     if kind in ("csv", "mdf4"):
         return [["analyze", "--json", name]]
-    if kind == "block":
+    if kind in ("block", "block2"):
         return [["block", "check", name], ["block", "show", "--json", name]]
     return [["table", name, "-o", name + ".out.bin"]]
 

@@ -260,13 +260,46 @@ def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         files = {**station_files(), "can.ini": cfg}
         files["station.toml"] = files["station.toml"].replace(b'channel = "nobody"\n', b'channel = "nobody"\nconfig = "can.ini"\n')
         yield Scenario("refusals", f"settings can.config {name}", files, RUN)
+    limits = _text(FIXTURES / "limits.toml")
+    for value in ("-0.001", "11.0", "nan", "inf", '"0.01"', "true", "[0.01]", "1" + "0" * 30):
+        row = f"max_mech1_after_nm = {value}\n".encode()
+        files = {**station_files(), "limits.toml": limits.replace(b"[variant.EPS-STD]\n", b"[variant.EPS-STD]\n" + row)}
+        yield Scenario("refusals", f"limits max_mech1_after_nm = {value}", files, RUN)
     fit = json.loads((FIXTURES / "fit_paper.json").read_text())
     for serial in ("", "   ", " M-1", "M\x001", "M\t1", "X" * 17, "Mé"):
         doc = json.loads(json.dumps(fit))
         doc["motors"][0]["serial"] = serial
         yield Scenario("refusals", f"fit result serial {serial!r}", {"fit.json": json.dumps(doc).encode()},
                        ["table", "{d}/fit.json", "-o", "{d}/b.bin"])
+    yield from _mech_scenarios()
     yield from _ecu_state_scenarios()
+
+
+#: a fit result's ``mech`` object with a value that must be refused: (name, key path, value)
+BAD_MECH: tuple[tuple[str, tuple, object], ...] = (
+    ("status", ("status",), "maybe"), ("dirs", ("dirs",), 4), ("grid_phase", ("grid_phase",), 7.0),
+    ("fingerprint short", ("fingerprint",), [0.0] * 3), ("fingerprint 2 rad", ("fingerprint", 0), 2.0),
+    ("sigma negative", ("sigma", 0), -1.0), ("window", ("windows", 0), 64), ("margin NaN", ("margin", "predicted"), "NaN"),
+    ("threshold", ("margin", "threshold"), 9.0), ("order 1 c", ("orders", 0, "c", "value"), 1e6),
+    ("order 1 phase", ("orders", 0, "phase_c", "value"), 1e3), ("order as text", ("orders", 0, "order"), "1"),
+    ("order 9", ("orders", 0, "order"), 9), ("order 1 twice", ("orders", 1, "order"), 1),
+    ("order 0", ("orders", 0, "order"), 0),
+)
+
+
+def _mech_scenarios() -> Iterator[Scenario]:
+    """Fit results of revision 1.2 whose ``mech`` object must be refused by ``table`` (layout 2)."""
+    from eol_cal.fuzz.mutate import fit_result_with_mech
+
+    base = fit_result_with_mech(_text(FIXTURES / "fit_paper.json"))
+    for name, path, value in BAD_MECH:
+        doc = json.loads(base)
+        at = doc["motors"][0]["mech"]
+        for k in path[:-1]:
+            at = at[k]
+        at[path[-1]] = "@@"
+        data = json.dumps(doc).replace('"@@"', value if value == "NaN" else json.dumps(value)).encode()
+        yield Scenario("refusals", f"fit result mech.{name}", {"fit.json": data}, ["table", "{d}/fit.json", "-o", "{d}/b.bin"])
 
 
 def _ecu_state_scenarios() -> Iterator[Scenario]:
