@@ -151,20 +151,26 @@ def run_batch(batch: list[Case], workdir: Path, timeout_s: float = 60.0,
 
 
 @dataclass
-class Tally:
-    """Counts over a campaign (the figures ``bench/bench_faults.py`` prints)."""
+class Counts:
+    """What every fault count has: tried, the must-be-zero counts, the slowest run, the bad outcomes."""
 
     tried: int = 0
-    accepted: int = 0
-    refused_cleanly: int = 0
-    unnamed: int = 0
     tracebacks: int = 0
     hangs: int = 0
     crashes: int = 0
     modified: int = 0
     max_seconds: float = 0.0
+    bad: list = field(default_factory=list)
+
+
+@dataclass
+class Tally(Counts):
+    """Counts over a campaign (the figures ``bench/bench_faults.py`` prints)."""
+
+    accepted: int = 0
+    refused_cleanly: int = 0
+    unnamed: int = 0
     max_rss_kb: int = 0
-    bad: list[Outcome] = field(default_factory=list)
 
     def add(self, outcomes: list[Outcome]) -> None:
         """Count one input (all its commands)."""

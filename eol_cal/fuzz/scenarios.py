@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eol_cal.fuzz import hostile
+from eol_cal.fuzz.campaign import Counts
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "fixtures"
@@ -392,19 +393,12 @@ def run_scenario(scenario: Scenario, workdir: Path, timeout_s: float = 60.0, roo
 
 
 @dataclass
-class ScenarioTally:
+class ScenarioTally(Counts):
     """Counts of one kind of scenario."""
 
-    tried: int = 0
     refused: int = 0
     accepted: int = 0
     should_refuse: int = 0
-    tracebacks: int = 0
-    hangs: int = 0
-    crashes: int = 0
-    modified: int = 0
-    max_seconds: float = 0.0
-    bad: list[ScenarioOutcome] = field(default_factory=list)
 
     def add(self, o: ScenarioOutcome) -> None:
         self.tried += 1
