@@ -173,8 +173,10 @@ max_hall_deviation_deg = 3.0
 
 
 def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
-    """``eol-cal run`` with the ECU killed at ``die_at`` (erase:1 the prepare flash, transfer:2 the
-    calibrated block's flash): is the error record in the database and the report written?"""
+    """``eol-cal run`` with the ECU killed at ``die_at`` (erase:1 the prepare flash, transfer:3 the
+    calibrated block's flash: the prepare flash sends two TransferData, its body and, last, its
+    CRC; transfer:2 killed the prepare flash's CRC write): is the error record in the database
+    and the report written?"""
     from eol_cal.dyno import sim as ds
     from eol_cal.station.records_query import query_records
 
@@ -240,7 +242,7 @@ def ecu_section(repeat: int, before: str | None, cap: float) -> bool:
             signals = list(pool.map(
                 lambda c: signal_flash(env, base, Path(tempfile.mkdtemp(dir=tmp)), c[0], c[1], c[2], old_bank),
                 [(s, shown, sig) for sig in (signal.SIGINT, signal.SIGTERM) for s, shown in SIGNAL_STEPS]))
-        runs = [kill_run(env, base, Path(tempfile.mkdtemp(dir=tmp)), die) for die in ("erase:1", "transfer:2")]
+        runs = [kill_run(env, base, Path(tempfile.mkdtemp(dir=tmp)), die) for die in ("erase:1", "transfer:3")]
         external = [kill_flash_external(env, base, Path(tempfile.mkdtemp(dir=tmp)), cap, old_bank)
                     for _ in range(repeat)]
         older = []
