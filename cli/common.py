@@ -57,7 +57,7 @@ def signals_interrupt() -> Iterator[None]:
 
     previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
-        with interrupts.watchdog():
+        with interrupts.watchdog(), interrupts.dropped_redelivered():
             yield
     finally:
         for sig, handler in previous.items():

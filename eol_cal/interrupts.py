@@ -96,11 +96,36 @@ def deliver(signal_name: str, frame: FrameType | None = None) -> None:
         _pending = _pending or signal_name
         return
     if _unraisable(frame):
-        timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
-        timer.daemon = True
-        timer.start()
+        _redeliver(signum)
         return
     raise Interrupted(signal_name)
+
+
+def _redeliver(signum: int) -> None:
+    timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+    timer.daemon = True
+    timer.start()
+
+
+@contextlib.contextmanager
+def dropped_redelivered() -> Iterator[None]:
+    """While the block runs, an :class:`Interrupted` that Python drops (raised where
+    :func:`_unraisable` did not see a finalizer: a weakref callback, a generator closed by the
+    collector) is not printed as "Exception ignored ... Traceback", and its signal comes again a
+    moment later, where it can stop the command."""
+    previous = sys.unraisablehook
+
+    def hook(unraisable: sys.UnraisableHookArgs) -> None:
+        if isinstance(unraisable.exc_value, Interrupted):
+            _redeliver(signal.Signals[unraisable.exc_value.signal_name])
+        else:
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
 
 
 @contextlib.contextmanager

@@ -61,6 +61,55 @@ def test_a_signal_inside_a_gc_callback_is_not_lost(tmp_path, sig):
     assert f"interrupted by {sig.name}" in err, err
 
 
+@pytest.mark.parametrize("where", ["weakref", "generator"])
+def test_a_signal_dropped_where_no_finalizer_was_seen_is_sent_again(tmp_path, where):
+    """Code Python runs where it drops exceptions but that is neither a ``__del__`` nor a gc
+    callback (a weakref callback, a generator the collector closes): the signal is not printed
+    as "Exception ignored" and lost; it comes again and stops the command before its next step."""
+    proc = _script(tmp_path, f"""
+        import gc, time, weakref
+        from cli.common import handle_errors
+        from eol_cal import interrupts
+
+        class Thing:
+            pass
+
+        def slow(ref):  # a weakref callback: its exception is dropped
+            time.sleep(0.2)
+
+        def slow_generator():
+            try:
+                yield 1
+            finally:  # run by the collector when the generator dies
+                time.sleep(0.2)
+
+        @handle_errors
+        def command():
+            print("ready", flush=True)
+            keep = []
+            for _ in range(300):
+                if "{where}" == "weakref":
+                    t = Thing()
+                    keep.append(weakref.ref(t, slow))
+                    del t
+                else:
+                    g = slow_generator()
+                    next(g)
+                    del g
+                interrupts.raise_if_received("the next step")
+            print("flashed", flush=True)
+
+        command()
+    """)
+    _wait_ready(proc)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, (out, err)
+    assert "flashed" not in out and "Exception ignored" not in err and "Traceback" not in err, err
+    assert "interrupted by SIGTERM" in err, err
+
+
 def test_a_main_thread_stuck_in_a_system_call_is_ended_by_the_watchdog(tmp_path):
     fifo = tmp_path / "records.sqlite"
     os.mkfifo(fifo)

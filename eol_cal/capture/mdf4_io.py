@@ -247,7 +247,8 @@ def _quiet_asammdf(file: str) -> Iterator[_Quiet]:
     was most of a lot refit's time (docs/benchmarks.md, "Lot refit throughput")."""
     quiet = _Quiet(file)
     previous = sys.unraisablehook
-    sys.unraisablehook = lambda unraisable: None
+    # a signal's exception dropped in there still goes to the command's hook (sent again)
+    sys.unraisablehook = lambda u: previous(u) if isinstance(u.exc_value, KeyboardInterrupt) else None
     try:
         with contextlib.redirect_stdout(io.StringIO()):
             yield quiet
