@@ -261,11 +261,14 @@ def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         files = {**station_files(), "can.ini": cfg}
         files["station.toml"] = files["station.toml"].replace(b'channel = "nobody"\n', b'channel = "nobody"\nconfig = "can.ini"\n')
         yield Scenario("refusals", f"settings can.config {name}", files, RUN)
+    from eol_cal.station.limits import LIMITS
+
     limits = _text(FIXTURES / "limits.toml")
+    key = next(lim.key for lim in LIMITS if lim.quantity == "mech1_after_nm")  # revision 1.2's row
     for value in ("-0.001", "11.0", "nan", "inf", '"0.01"', "true", "[0.01]", "1" + "0" * 30):
-        row = f"max_mech1_after_nm = {value}\n".encode()
+        row = f"{key} = {value}\n".encode()
         files = {**station_files(), "limits.toml": limits.replace(b"[variant.EPS-STD]\n", b"[variant.EPS-STD]\n" + row)}
-        yield Scenario("refusals", f"limits max_mech1_after_nm = {value}", files, RUN)
+        yield Scenario("refusals", f"limits {key} = {value}", files, RUN)
     fit = json.loads((FIXTURES / "fit_paper.json").read_text())
     for serial in ("", "   ", " M-1", "M\x001", "M\t1", "X" * 17, "Mé"):
         doc = json.loads(json.dumps(fit))
