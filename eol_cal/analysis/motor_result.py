@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Any, Mapping
 
 from eol_cal.errors import ResultFormatError
+from eol_cal.firmware.mech_params import ORDERS
 
 #: Physical bounds an estimate must lie within (documented in docs/json.md). The paper's motor
 #: has k6 ~ 6e-4 N*m/A and c6 ~ 5e-3 N*m; anything past these is a corrupt file, not a motor.
@@ -375,7 +376,10 @@ class MechResult:
         for i, o in enumerate(r.list(obj, "orders")):
             osub = _Reader(source, f"{where}orders[{i}].")
             oo = r.obj(o, f"orders[{i}]")
-            orders.append(MechOrder(osub.integer(oo, "order"), osub.value_ci(oo, "c", (0.0, C6_MAX)),
+            order = osub.integer(oo, "order")
+            if order not in ORDERS or order in (o.order for o in orders):
+                raise osub.error("order", f"{order}: the block carries mechanical orders {ORDERS}, each once")
+            orders.append(MechOrder(order, osub.value_ci(oo, "c", (0.0, C6_MAX)),
                                     osub.value_ci(oo, "phase_c", (-PHASE_MAX, PHASE_MAX))))
         return cls(status=status, reasons=tuple(r.string_list(obj, "reasons")), fingerprint=fps, sigma=sgs, dirs=dirs,
                    grid_phase=r.number(obj, "grid_phase", (0.0, 2 * math.pi)), windows=tuple(windows),
