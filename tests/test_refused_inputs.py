@@ -177,6 +177,18 @@ def test_a_fit_result_whose_serial_a_block_cannot_carry_is_refused_by_table(tmp_
     assert not (tmp_path / "b.bin").exists()
 
 
+
+@pytest.mark.parametrize("converged", [False, None, "yes", 1])
+def test_a_fit_result_that_did_not_converge_is_never_a_result_whatever_its_status(tmp_path, converged):
+    doc = json.loads((FIXTURES / "fit_paper.json").read_text())
+    assert doc["motors"][0]["status"] == "ok"
+    doc["motors"][0]["fit"]["converged"] = converged
+    bad = tmp_path / "fit.json"
+    bad.write_text(json.dumps(doc))
+    res = CliRunner().invoke(cli, ["table", str(bad), "-o", str(tmp_path / "b.bin")])
+    _refused(res, str(bad), "motors[0].fit.converged")
+    assert not (tmp_path / "b.bin").exists()
+
 # ------------------------------------------------------- revision 1.2: a fit result's mech object
 
 

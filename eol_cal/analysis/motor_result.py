@@ -174,6 +174,10 @@ class MotorResult:
             for k in (*ESTIMATE_KEYS, "delay_s", "harmonics"):
                 if obj.get(k, None) is not None:
                     raise r.error(k, f"must be null when status is {status!r}")
+        fit = r.obj(r.need(obj, "fit"), "fit")
+        if status == "ok" and fit.get("converged") is not True:
+            # a fit that did not converge is never a result, whatever its status says
+            raise r.error("fit.converged", f"must be true when status is 'ok', got {fit.get('converged')!r}")
         op = r.obj(r.need(obj, "operating_point"), "operating_point")
         mech = None
         if obj.get("mech") is not None:
@@ -181,7 +185,7 @@ class MotorResult:
         return cls(
             serial=serial, status=status, reasons=reasons, estimates=estimates,
             kt=r.number(obj, "kt", (0.0, KT_MAX)), kt_source=r.string(obj, "kt_source"),
-            metrics=r.obj(r.need(obj, "metrics"), "metrics"), fit=r.obj(r.need(obj, "fit"), "fit"),
+            metrics=r.obj(r.need(obj, "metrics"), "metrics"), fit=fit,
             model=r.obj(r.need(obj, "model"), "model"),
             hall_angle=None if "hall_angle" not in obj else r.obj(obj["hall_angle"], "hall_angle"),
             poles=r.integer(obj, "poles"), encoder_ppr=r.integer(obj, "encoder_ppr"),
