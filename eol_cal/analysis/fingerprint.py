@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
+import scipy.linalg
 
 from eol_cal.firmware.estimator import quadrature_phase
 
@@ -174,14 +175,15 @@ def window_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: 
 
 class _Stats:
     """One window's (or any list of stretches') share of the joint fit, by pulse: what a placement
-    trial and the final fit need of its edges, computed once (a trial only rolls it).
+    trial and the final fit need of its edges, computed once (a trial only moves it).
 
-    For the edges of the halves kept (``halves``), per stretch: ``Q`` the orthonormal basis of its
-    polynomial motion and ``phi_res`` the edges' nominal angles less their projection on it. The fit
-    needs per (half, pulse) the edge count, the sum of ``phi_res`` and the sum of ``Q``'s rows
-    (the stretches' columns side by side), and ``|phi_res|^2``. Moving the window by ``r`` pulses
-    (``k + 4r``: the same half, pulse ``m + r``; ``phi_res`` unchanged, the constant is in the
-    motion) rolls them along the pulse axis.
+    For the edges of the halves kept, per stretch: ``Q`` the orthonormal basis of its polynomial
+    motion and ``phi_res`` the edges' nominal angles less their projection on it. The fit needs per
+    (half, pulse) the edge count, the sum of ``phi_res`` and the sum of ``Q``'s rows (the
+    stretches' columns side by side), and ``|phi_res|^2``: with ``err`` the errors per (half,
+    pulse), the residual is ``|phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2``. Moving the
+    window by ``r`` pulses (``k + 4r``: the same half, pulse ``m + r``; ``phi_res`` unchanged, the
+    constant is in the motion) moves these to pulse ``m + r``.
     """
 
     def __init__(self, stretches: Sequence[tuple[np.ndarray, np.ndarray]], N: int, quarter: float):
@@ -190,17 +192,19 @@ class _Stats:
         allk = np.concatenate([k for _, k in stretches]) if stretches else np.zeros(0, np.int64)
         #: every edge per (half, pulse), whatever is kept: which halves the fit can keep
         self.seen = np.bincount(((allk >> 1) & 1) * N + (allk >> 2) % N, minlength=2 * N).reshape(2, N)
-        self._parts: dict[tuple[int, ...], tuple[np.ndarray, np.ndarray, np.ndarray, float, int]] = {}
+        self._parts: dict[tuple[int, ...], tuple[list[tuple[np.ndarray, ...]], float, int]] = {}
 
-    def part(self, halves: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, int]:
-        """``(counts (2, N), r (2, N), S (2, N, columns), |phi_res|^2, edges)`` of the edges of ``halves``."""
+    def part(self, halves: tuple[int, ...]) -> tuple[list[tuple[np.ndarray, ...]], float, int]:
+        """For the edges of ``halves``: per half, ``(pulses seen, counts, r, S rows)`` at those
+        pulses; ``|phi_res|^2``; the number of edges."""
         if halves not in self._parts:
             N = self.N
             counts, r = np.zeros(2 * N), np.zeros(2 * N)
             cols, ss, n = [np.zeros((2 * N, 0))], 0.0, 0
             for times, k in self.stretches:
-                keep = ((k >> 1) & 1) == halves[0] if len(halves) < 2 else slice(None)
-                times, k = times[keep], k[keep]
+                if len(halves) < 2:
+                    keep = ((k >> 1) & 1) == halves[0]
+                    times, k = times[keep], k[keep]
                 if not len(times):
                     continue
                 n += len(times)
@@ -214,82 +218,88 @@ class _Stats:
                 cols.append(np.stack([np.bincount(idx, weights=Q[:, j], minlength=2 * N)
                                       for j in range(Q.shape[1])], axis=1))
                 ss += float(phi_res @ phi_res)
-            self._parts[halves] = (counts.reshape(2, N), r.reshape(2, N),
-                                   np.concatenate(cols, axis=1).reshape(2, N, -1), ss, n)
+            S = np.concatenate(cols, axis=1)
+            per_half = []
+            for h in halves:
+                J = np.flatnonzero(counts[h * N:(h + 1) * N])
+                per_half.append((J, counts[h * N + J], r[h * N + J], S[h * N + J]))
+            self._parts[halves] = (per_half, ss, n)
         return self._parts[halves]
+
+    def normal(self, halves: tuple[int, ...], shift: int) -> tuple[np.ndarray, np.ndarray, float, int]:
+        """This window's part of the normal equations in the errors' basis ``P`` (per half) for
+        the edges of ``halves``, moved by ``shift`` pulses: ``(G, rhs, |phi_res|^2, edges)``."""
+        per_half, ss, n = self.part(halves)
+        P = _low_order_complement(self.N)
+        nF = P.shape[1]
+        G = np.zeros((len(halves) * nF, len(halves) * nF))
+        rhs = np.zeros(len(halves) * nF)
+        Ts = []
+        for i, (J, counts, r, S) in enumerate(per_half):
+            PJ = P[(J + shift) % self.N]  # only the pulses the window saw
+            s = slice(i * nF, (i + 1) * nF)
+            G[s, s] = PJ.T @ (counts[:, None] * PJ)
+            rhs[s] = -PJ.T @ r
+            Ts.append(PJ.T @ S)
+        T = np.concatenate(Ts)
+        G -= T @ T.T
+        return G, rhs, ss, n
 
 
 class _Sums:
-    """The joint fit's normal equations over windows (:class:`_Stats`) at their offsets, for the
-    edges of the halves ``halves``: counts and ``phi_res`` summed per (half, pulse), the motions'
-    part ``B = sum T T^T`` with ``T = P^T S`` (the errors' basis ``P`` per half), ``|phi_res|^2``,
-    edges and stretches."""
+    """The joint fit's normal equations (errors' basis ``P`` per half) over windows at their
+    offsets, for the edges of ``halves``: ``G``, ``rhs``, ``|phi_res|^2``, edges and stretches."""
 
     def __init__(self, N: int, halves: tuple[int, ...]):
         nF = _low_order_complement(N).shape[1]
         self.halves = halves
-        self.counts, self.r = np.zeros((2, N)), np.zeros((2, N))
-        self.B = np.zeros((len(halves) * nF, len(halves) * nF))
+        self.G = np.zeros((len(halves) * nF, len(halves) * nF))
+        self.rhs = np.zeros(len(halves) * nF)
         self.ss, self.n, self.n_stretches = 0.0, 0, 0
-
-    def copy(self) -> _Sums:
-        c = object.__new__(_Sums)
-        c.__dict__.update(self.__dict__)
-        c.counts, c.r, c.B = self.counts.copy(), self.r.copy(), self.B.copy()
-        return c
 
     def add(self, w: _Stats, shift: int) -> None:
         """Add window ``w`` moved by ``shift`` pulses."""
-        counts, r, S, ss, n = w.part(self.halves)
-        P = _low_order_complement(w.N)
-        self.counts += np.roll(counts, shift, axis=1)
-        self.r += np.roll(r, shift, axis=1)
-        if S.shape[2]:
-            T = np.concatenate([P.T @ np.roll(S[h], shift, axis=0) for h in self.halves])
-            self.B += T @ T.T
+        G, rhs, ss, n = w.normal(self.halves, shift)
+        self.G += G
+        self.rhs += rhs
         self.ss += ss
         self.n += n
         self.n_stretches += len(w.stretches)
 
 
-def _solve(sums: _Sums, N: int, cov: bool):
-    """The joint fit from its sums: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as :func:`_joint_fit`."""
+def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, halves: tuple[int, ...],
+           N: int, cov: bool):
+    """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
+    :func:`_joint_fit`. Without ``cov`` (a placement trial) only the residual is computed, from a
+    Cholesky factor ``G = L L^T``: ``rss = ss - |L^-1 rhs|^2``."""
     from eol_cal.firmware.mech_params import FP_FORWARD
 
     P = _low_order_complement(N)
     nF = P.shape[1]
-    halves = sums.halves
-    G = -sums.B
-    rhs = np.zeros(len(halves) * nF)
-    for i, h in enumerate(halves):
-        s = slice(i * nF, (i + 1) * nF)
-        G[s, s] += P.T @ (sums.counts[h][:, None] * P)
-        rhs[s] = -P.T @ sums.r[h]
-    G_inv = None
-    if cov:
-        try:
-            G_inv = np.linalg.inv(G)
-        except np.linalg.LinAlgError:
-            G_inv = np.linalg.pinv(G)
-        sol = G_inv @ rhs
-    else:
-        try:
-            sol = np.linalg.solve(G, rhs)
-        except np.linalg.LinAlgError:
-            sol = np.linalg.pinv(G) @ rhs
-    # the residual of phi_res + e - Q Q^T e over every edge, e the errors at the edges' pulses:
-    # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 = ss - 2 rhs.sol + sol^T G sol
-    rss = max(sums.ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
-    dof = sums.n - ((_POLY_DEGREE + 1) * sums.n_stretches + nF * len(halves))
+    dof = n - ((_POLY_DEGREE + 1) * n_stretches + nF * len(halves))
+    dirs = sum(FP_FORWARD << d for d in halves)
     fp = np.full(2 * N, np.nan)
     var = np.full(2 * N, np.nan)
-    C = rss / max(1, dof) * G_inv if cov else None
+    if not cov:
+        L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
+        if info == 0:
+            z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
+            if info == 0:
+                return fp, var, max(ss - float(z @ z), 0.0), dirs, dof
+    try:
+        G_inv = np.linalg.inv(G)
+    except np.linalg.LinAlgError:
+        G_inv = np.linalg.pinv(G)
+    sol = G_inv @ rhs
+    # the residual of phi_res + e - Q Q^T e over every edge, e the errors at the edges' pulses:
+    # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 = ss - 2 rhs.sol + sol^T G sol
+    rss = max(ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
+    C = rss / max(1, dof) * G_inv
     for i, d in enumerate(halves):
         s = slice(i * nF, (i + 1) * nF)
         fp[d::2] = P @ sol[s]
-        if C is not None:
-            var[d::2] = np.einsum("ij,jk,ik->i", P, C[s, s], P)
-    return fp, var, rss, sum(FP_FORWARD << d for d in halves), dof
+        var[d::2] = np.einsum("ij,jk,ik->i", P, C[s, s], P)
+    return fp, var, rss, dirs, dof
 
 
 def _halves(seen: np.ndarray, N: int) -> tuple[int, ...]:
@@ -298,8 +308,8 @@ def _halves(seen: np.ndarray, N: int) -> tuple[int, ...]:
 
 
 class _Placed:
-    """The windows placed so far (each :class:`_Stats` at its offset) and their sums per set of
-    halves kept (built when first asked, kept up to date as windows are placed)."""
+    """The windows placed so far (each :class:`_Stats` at its offset) and their normal equations
+    per set of halves kept (built when first asked, kept up to date as windows are placed)."""
 
     def __init__(self, N: int):
         self.N = N
@@ -328,11 +338,12 @@ class _Placed:
         halves = _halves(seen, self.N)
         if not halves:
             return None
-        sums = self.sums(halves)
-        if extra is not None:
-            sums = sums.copy()
-            sums.add(*extra)
-        return _solve(sums, self.N, cov)
+        s = self.sums(halves)
+        if extra is None:
+            return _solve(s.G, s.rhs, s.ss, s.n, s.n_stretches, halves, self.N, cov)
+        G, rhs, ss, n = extra[0].normal(halves, extra[1])
+        return _solve(s.G + G, s.rhs + rhs, s.ss + ss, s.n + n, s.n_stretches + len(extra[0].stretches),
+                      halves, self.N, cov)
 
 
 def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float, cov: bool = True):
@@ -342,13 +353,14 @@ def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: 
     ``(k >> 1) mod 2N``: forward half (``k = 4m + 1``) and reverse half (``4m + 3``). Returns
     ``(fp (2N,), var (2N,), rss, dirs, dof)``; a half with a pulse never seen, or fewer than 1.25
     revolutions of edges, is left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
-    ``cov=False`` skips the variances (NaN): a placement trial needs the residual only.
+    ``cov=False`` gives the residual, ``dirs`` and ``dof`` only (``fp`` and ``var`` NaN): a
+    placement trial needs no more.
 
     Each stretch's polynomial is projected out of its edges (Frisch-Waugh): the errors' normal
     equations are then ``(nF * dirs)`` square, summed per pulse from the edges (:class:`_Stats`),
     instead of a dense edges x unknowns least squares; the solution, the residual and the errors'
-    covariance are the same. :func:`merge_windows` keeps each window's sums and rolls them to each
-    offset it tries.
+    covariance are the same. :func:`merge_windows` keeps each window's sums, and the normal
+    equations of the windows placed, and moves the window it places to each offset it tries.
     """
     placed = _Placed(N)
     placed.add(_Stats(stretches, N, quarter), 0)
