@@ -8,8 +8,9 @@ intervals) must agree to ``--tol`` (relative, default 1e-9).
 Inputs: ``fit_mech``'s arguments recorded while fitting the lot of ``bench/bench_refit.py``
 (``--serials`` serials) and the motors of tests/test_fit_mech.py (two plant motors on
 eol-default, and the first one's capture cut into windows, as a dyno records it). The code before
-(``_joint_fit`` as a dense-per-stretch projection redone for every trial, ``fit_orders`` as one
-dense least squares) is kept here, not in the library, only for this comparison.
+(``_joint_fit`` as a per-stretch projection redone for every trial, ``fit_orders`` as one
+dense least squares, ``fitted_ripple`` one sine per part) is kept here, not in the library,
+only for this comparison.
 """
 
 from __future__ import annotations
@@ -204,12 +205,50 @@ def old_place(w: WindowEdges, ref_phase: float, placed: list, poles: int, N: int
 
 
 
+def old_fitted_ripple(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int, theta: np.ndarray,
+                  gains: np.ndarray | None = None) -> np.ndarray:
+    """T_avg and the fitted ripple of segment ``s`` as the transducer sees it, at angles ``theta``.
+
+    Parameters
+    ----------
+    mi, fit, spec
+        The motor's inputs, its fit and the model it was fitted with.
+    s : int
+        Segment index.
+    theta : ndarray
+        Electrical angles (rad).
+    gains : ndarray, optional
+        :func:`eol_cal.analysis.fit.path_gain` of the segments (computed when not given).
+
+    Returns
+    -------
+    ndarray
+        Torque (N*m): through the bench's response and the transducer's lag at the segment's
+        speed, as in the fit's own model.
+    """
+    from eol_cal.analysis.fit import path_gain
+
+    seg = mi.segments
+    gains = path_gain(seg, spec) if gains is None else gains
+    curve = np.full_like(np.asarray(theta, dtype=float), fit.t_avg[s])
+    for h, parts in fit.harmonics.items():
+        a = h * seg.omega_e[s] * fit.delay_s
+        gain = 1.0 / (1.0 + 1j * a) if spec.transducer == "lowpass" else np.exp(-1j * a)
+        gain *= gains[s, spec.harmonics.index(h)]
+        arg = h * theta + np.angle(gain)
+        if "c" in parts:
+            curve -= abs(gain) * parts["c"].value * np.sin(arg + parts["c"].phase)
+        if "k" in parts:
+            curve -= abs(gain) * parts["k"].value * seg.i_qo[s] * np.sin(arg + parts["k"].phase)
+    return curve
+
+
+
 def old_fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
                fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
     """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
     the identified windows; None when no segment's window is identified."""
     from eol_cal.analysis.fit.model import _legendre_rows
-    from eol_cal.analysis.fit.plot import fitted_ripple
     from eol_cal.analysis.fit import path_gain
 
     seg = mi.segments
@@ -226,7 +265,7 @@ def old_fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fp
         ci = mi.capture_of_segment[s]
         info = mi.info[s]
         theta = np.asarray(seg.theta[s], dtype=float)
-        y = np.asarray(seg.torque[s], dtype=float) - fitted_ripple(mi, fit, spec, s, theta, gains6)
+        y = np.asarray(seg.torque[s], dtype=float) - old_fitted_ripple(mi, fit, spec, s, theta, gains6)
         q = prints[ci].q[info.start:info.stop]
         th_m = fpr.block_frame_mech_angle(q, fp.offsets[ci], fp.grid_phase, theta + mi.frame_offset_rad,
                                           mi.poles, mi.encoder_ppr)

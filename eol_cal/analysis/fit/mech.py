@@ -116,12 +116,16 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         # columns: the drift's Legendre rows, the orders' (sin, cos) pairs, the torque
         W = np.empty((nd + 2 * H + 1, len(t)))
         _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, W[:nd])
+        # the ripple -c sin(h th + phase) = -(A sin(h th) + B cos(h th)), A = c cos phase, B = c sin phase,
+        # through the response g: columns -|g| sin(h th + arg g), -|g| cos(...) = Im, Re of -g exp(i h th)
+        e1 = np.exp(1j * th_m)
+        e = {1: e1}
+        for h in range(2, max(ORDERS) + 1):
+            e[h] = e[h - 1] * e1
         for i, h in enumerate(ORDERS):
-            arg = h * th_m + np.angle(g[i])
-            # the ripple -c sin(h th + phase) = -(A sin(h th) + B cos(h th)), A = c cos phase, B = c sin phase
-            np.sin(arg, out=W[nd + 2 * i])
-            np.cos(arg, out=W[nd + 2 * i + 1])
-            W[nd + 2 * i: nd + 2 * i + 2] *= -abs(g[i])
+            z = e[h] * -g[i]
+            W[nd + 2 * i] = z.imag
+            W[nd + 2 * i + 1] = z.real
         W[-1] = y
         Gs = W @ W.T
         D_inv, B = np.linalg.inv(Gs[:nd, :nd]), Gs[:nd, nd:-1]
