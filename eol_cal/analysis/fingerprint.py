@@ -193,6 +193,7 @@ class _Stats:
         #: every edge per (half, pulse), whatever is kept: which halves the fit can keep
         self.seen = np.bincount(((allk >> 1) & 1) * N + (allk >> 2) % N, minlength=2 * N).reshape(2, N)
         self._parts: dict[tuple[int, ...], tuple[list[tuple[np.ndarray, ...]], float, int]] = {}
+        self._normal: dict[tuple[tuple[int, ...], int], tuple[np.ndarray, np.ndarray, float, int]] = {}
 
     def part(self, halves: tuple[int, ...]) -> tuple[list[tuple[np.ndarray, ...]], float, int]:
         """For the edges of ``halves``: per half, ``(pulses seen, counts, r, S rows)`` at those
@@ -229,6 +230,8 @@ class _Stats:
     def normal(self, halves: tuple[int, ...], shift: int) -> tuple[np.ndarray, np.ndarray, float, int]:
         """This window's part of the normal equations in the errors' basis ``P`` (per half) for
         the edges of ``halves``, moved by ``shift`` pulses: ``(G, rhs, |phi_res|^2, edges)``."""
+        if (halves, shift) in self._normal:  # placed at the offset a trial computed
+            return self._normal[halves, shift]
         per_half, ss, n = self.part(halves)
         P = _low_order_complement(self.N)
         nF = P.shape[1]
@@ -243,6 +246,7 @@ class _Stats:
             Ts.append(PJ.T @ S)
         T = np.concatenate(Ts)
         G -= T @ T.T
+        self._normal[halves, shift] = (G, rhs, ss, n)
         return G, rhs, ss, n
 
 
@@ -298,7 +302,7 @@ def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, 
     for i, d in enumerate(halves):
         s = slice(i * nF, (i + 1) * nF)
         fp[d::2] = P @ sol[s]
-        var[d::2] = np.einsum("ij,jk,ik->i", P, C[s, s], P)
+        var[d::2] = np.sum((P @ C[s, s]) * P, axis=1)
     return fp, var, rss, dirs, dof
 
 
