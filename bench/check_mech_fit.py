@@ -478,7 +478,7 @@ def main() -> None:
             ok &= not bad
             print(f"  {k:<34} {v:.3g}{'  > tol' if bad else ''}")
         worst.update(w)
-    print("same within", a.tol if ok else "NOT within", a.tol)
+    print(f"{'all' if ok else 'NOT all'} within {a.tol:g} of the code before")
     sys.exit(0 if ok else 1)
 
 
