@@ -8,7 +8,7 @@ import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
                         handle_errors, print_json)
-from cli.dyno import load_map, register_map_option
+from cli.dyno import load_map, realtime_option, register_map_option
 from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
@@ -247,10 +247,11 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
 @click.option("--db", default=None, type=RECORDS_DB,
               help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
+@realtime_option
 @register_map_option
 @handle_errors
 @exchange_log_options
-def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
+def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
     Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
@@ -287,7 +288,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     outcomes = []
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
-        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap) as st:
+        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap, realtime=realtime) as st:
             host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(

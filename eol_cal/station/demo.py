@@ -53,7 +53,8 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
                      spec_for: Callable[[CaptureRequest], PlantSpec] | None = None,
                      source: CaptureSource | None = None,
                      faults: tuple[FaultPlan, ...] = (),
-                     register_map: RegisterMap | None = None) -> Iterator[LoopbackStation]:
+                     register_map: RegisterMap | None = None,
+                     realtime: bool = False) -> Iterator[LoopbackStation]:
     """Start the ECU and dyno simulators of one motor on 127.0.0.1; stop them on exit.
 
     Parameters
@@ -73,6 +74,8 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
         Dyno faults that fire by themselves.
     register_map : RegisterMap, optional
         The register layout the dyno simulator serves (default: the reference map).
+    realtime : bool
+        The dyno simulator in real time: a capture takes its physical time (:class:`~eol_cal.dyno.sim.DynoSim`).
     """
     from eol_cal.dyno import sim as ds
     from eol_cal.exchange_log import quiet
@@ -91,7 +94,8 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
         source = plant_source(flash_file, spec_for or (lambda req: spec))
     ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial))
     try:
-        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults), register_map=register_map)
+        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults), register_map=register_map,
+                         realtime=realtime)
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
             yield LoopbackStation(serial, f"127.0.0.1:{dyno.port}", ecu.url, flash_file, dyno, ecu)
     finally:
