@@ -14,6 +14,7 @@ the capture file is written (atomically) only after every segment was read and v
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -98,6 +99,29 @@ def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
         out.append(DynoSetpoint(seg.speed_rpm, seg.seconds - seg.ramp_s, seg.torque_nm, seg.iq, ramp))
         prev = seg.speed_rpm
     return out
+
+
+def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RATE_HZ) -> float:
+    """How long the shaft must turn for ``segments`` (s), from standstill back to standstill: what
+    no tool can take off a station's cycle.
+
+    Each segment's ramp at its rate until the dyno reports at speed (within its tolerance), a
+    reversal's stop at the previous ramp rate first, the capture's ``round(seconds * rate_hz)``
+    samples, and the stop at the end, as :func:`run_profile` commands them.
+    """
+    from eol_cal.dyno.sim import SPEED_TOL_REL, SPEED_TOL_RPM
+
+    total, speed, ramp = 0.0, 0.0, DEFAULT_RAMP_RPM_S
+    for seg in segments:
+        if abs(speed) > rm.STANDSTILL_RPM and (seg.speed_rpm < 0) != (speed < 0):
+            total += (abs(speed) - rm.STANDSTILL_RPM) / ramp
+            speed = math.copysign(rm.STANDSTILL_RPM, speed)
+        ramp = seg.ramp_rpm_s
+        tol = max(SPEED_TOL_RPM, SPEED_TOL_REL * abs(seg.speed_rpm))
+        total += max(0.0, abs(seg.speed_rpm - speed) - tol) / ramp
+        total += int(round(seg.seconds * rate_hz)) / rate_hz
+        speed = seg.speed_rpm
+    return total + max(0.0, abs(speed) - rm.STANDSTILL_RPM) / ramp
 
 
 def parse_address(text: str) -> tuple[str, int]:

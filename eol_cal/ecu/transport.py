@@ -1,8 +1,9 @@
 """CAN bus and ISO-TP plumbing shared by the flashing client and the ECU simulator.
 
 python-can opens the bus (any interface, or python-can's own config file), can-isotp carries
-UDS messages with the contract's addressing and 0xCC padding, and :class:`FaultyBus` injects
-dropped and delayed frames for the reliability tests.
+UDS messages with the contract's addressing and 0xCC padding, :class:`FaultyBus` injects
+dropped and delayed frames for the reliability tests, and :class:`PacedBus` holds the ECU
+simulator's frames to a CAN bit rate.
 """
 
 from __future__ import annotations
@@ -196,6 +197,64 @@ class FaultyBus(can.BusABC):
         if msg is not None and self._draw() < self.drop_rate:
             self.dropped += 1
             return None, False
+        return msg, False
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self.inner.shutdown()
+
+
+class PacedBus(can.BusABC):
+    """A bus wrapper that holds every frame, sent or received, for its time on a CAN bus of
+    ``bitrate`` (the ECU simulator's bus: a virtual bus carries frames as fast as the CPU allows).
+
+    Both directions share one medium: a frame occupies the bus for :func:`frame_bits` (worst-case
+    stuffing) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
+    frame goes out when its time on the bus has passed; a received frame is handed on then.
+
+    Parameters
+    ----------
+    inner : can.BusABC
+        The real (virtual) bus.
+    bitrate : int
+        bit/s (the contract's bus: 500000).
+    """
+
+    def __init__(self, inner: can.BusABC, bitrate: int) -> None:
+        if bitrate <= 0:
+            raise ValueError(f"bit rate {bitrate} must be positive")
+        self.inner = inner
+        self.bitrate = int(bitrate)
+        self._lock = threading.Lock()
+        self._free_at = 0.0
+        self.busy_s = 0.0
+        """Seconds the frames have occupied the bus so far."""
+        super().__init__(channel=getattr(inner, "channel_info", "paced"))
+        self.channel_info = f"paced {self.bitrate} bit/s ({getattr(inner, 'channel_info', '')})"
+
+    def _occupy(self, msg: can.Message, arrived: float | None = None) -> None:
+        """Wait until ``msg`` has had its time on the bus (after every frame before it, and after
+        ``arrived``, monotonic s: when it was handed to the bus; default now)."""
+        seconds = frame_bits(msg.dlc) / self.bitrate
+        now = time.monotonic()
+        with self._lock:
+            done = max(now if arrived is None else min(arrived, now), self._free_at) + seconds
+            self._free_at = done
+            self.busy_s += seconds
+        wait = done - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._occupy(msg)
+        self.inner.send(msg, timeout)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        msg = self.inner.recv(timeout)
+        if msg is not None:
+            # on the bus from when the sender handed it over, not from when this thread got to it
+            age = time.time() - msg.timestamp if msg.timestamp else 0.0
+            self._occupy(msg, time.monotonic() - age if 0.0 <= age < 1.0 else None)
         return msg, False
 
     def shutdown(self) -> None:
