@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoSetpoint
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint, run_profile
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import CaptureCommand, CaptureState
 from eol_cal.dyno.regmap import READ_FC
@@ -151,3 +151,34 @@ def test_without_realtime_the_capture_is_ready_when_computed(regmap):
         words = thread.sim.buffer[regmap.window.digital_id]
         assert len(words) == 10000 and np.any(words)
         client.close()
+
+
+def test_the_client_reads_the_buffer_while_the_shaft_turns(regmap):
+    segments = [DynoSetpoint(60.0, 0.3, iq=10.0), DynoSetpoint(-60.0, 0.2, iq=-10.0)]
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-STREAM", register_map=regmap, realtime=True)) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
+        data, _ident = run_profile(client, segments, RATE)
+        sim = thread.sim
+        assert len(sim.captures) == 2
+        # most of each capture was read before it was ready: the last chunk is what is left then
+        assert all(c.early_reads > 0 and c.ready is not None for c in sim.captures)
+        last = sim.last_capture  # the reverse segment: what was streamed is the recording itself
+        np.testing.assert_array_equal(data[1].channels["torque"], last.channels["torque"].astype(np.float32))
+        np.testing.assert_array_equal(data[1].channels["hall"], last.channels["hall"])
+        assert [len(w.channels["torque"]) for w in data] == [3000, 2000]
+
+
+@pytest.mark.parametrize("fault", ["torque-sensor@read:3", "disconnect@read:4/3000"])
+def test_a_fault_while_streaming_stops_the_run_safely(regmap, fault):
+    from cli.dyno import parse_fault_plan
+
+    plan = parse_fault_plan(fault)
+    sim = DynoSim(synthetic_source, serial="M-FAULT", register_map=regmap, realtime=True, faults=[plan])
+    with DynoSimThread(sim) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap, timeout=0.3, retries=1, retry_delay=0.05))
+        with pytest.raises(DynoError):
+            run_profile(client, [DynoSetpoint(60.0, 0.5, iq=10.0)], RATE)
+        assert thread.sim.captures[0].early_reads >= 2  # it failed while streaming
+        if plan.kind.name == "TORQUE_SENSOR":
+            assert not thread.sim.enabled and thread.sim.setpoint == 0.0
+        assert not any(t.name == "dyno-stream" for t in threading.enumerate())

@@ -30,7 +30,7 @@ from eol_cal.dyno.registers import CaptureCommand, CaptureState, Command, Direct
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
-from eol_cal.dyno.transfer import DynoConfig, ProgressFn, TransferError, read_capture_buffer
+from eol_cal.dyno.transfer import BufferFill, DynoConfig, ProgressFn, StreamReader, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
 
 #: channels read by default (the packed digital channel is always read); the others on request
@@ -41,6 +41,8 @@ HEARTBEAT_STALL_S = 1.0
 #: least gap between two windows in the joined capture (sample periods): a simulator captures
 #: faster than real time, and a gap must stay visible to anyone who splits at gaps in ``t``
 WINDOW_GAP_SAMPLES = 100
+#: status poll period (s) when a capture is about to be ready
+READY_POLL_S = 0.002
 #: capture rate (Hz) when the profile gives none
 DEFAULT_RATE_HZ = 10000
 
@@ -273,8 +275,12 @@ class DynoClient:
             raise DynoError(f"{self.where}: drive tripped while {what}")
 
     # ------------------------------------------------------------ operations
-    def set_point(self, seg: DynoSetpoint) -> None:
-        """Command one segment's load, direction and speed; return when the dyno is at speed."""
+    def set_point(self, seg: DynoSetpoint, wait: bool = True) -> float:
+        """Command one segment's load, direction and speed; return when the dyno is at speed
+        (``wait``), else at once (a capture armed next starts by itself at speed).
+
+        Returns the time the ramp takes (s), from the speed the dyno had.
+        """
         cfg = self.config
         st = self.status()
         self.check_faults(st, "preparing")
@@ -289,9 +295,13 @@ class DynoClient:
         self.write(speed_setpoint=abs(seg.speed_rpm), ramp=seg.ramp_rpm_s, dut_cmd_kind=int(kind), dut_cmd=value)
         self.write(enable=Switch.ON, watchdog_ms=cfg.watchdog_ms)
         ramp_time = abs(seg.speed_rpm - float(st["speed"])) / seg.ramp_rpm_s
-        self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+        if wait:
+            self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+        return ramp_time
 
-    def wait(self, cond: Callable[[dict], bool], timeout: float, what: str) -> dict:
+    def wait(self, cond: Callable[[dict], bool], timeout: float, what: str,
+             interval: Callable[[dict], float] | None = None) -> dict:
+        """Poll the status until ``cond(status)``; every ``poll_interval`` s, or as ``interval(status)`` says."""
         end = time.monotonic() + timeout
         while True:
             st = self.status()
@@ -300,7 +310,7 @@ class DynoClient:
                 return st
             if time.monotonic() > end:
                 raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, drive state {DriveState(int(st['drive_state'])).name})")
-            time.sleep(self.config.poll_interval)
+            time.sleep(self.config.poll_interval if interval is None else interval(st))
 
     def capture(self, n_samples: int, rate_hz: int) -> dict:
         """Start a capture of ``n_samples`` at ``rate_hz`` (Hz) and wait until it is ready."""
@@ -316,6 +326,63 @@ class DynoClient:
         if int(st["capture_count"]) != n_samples:
             raise DynoError(f"{self.where}: capture holds {st['capture_count']} samples, {n_samples} requested")
         return st
+
+    def record(self, n_samples: int, rate_hz: int, names: Sequence[str], progress: ProgressFn | None = None,
+               ramp_s: float = 0.0) -> dict[str, np.ndarray]:
+        """Arm a capture of ``n_samples`` at ``rate_hz`` (Hz) and read channels ``names`` (those the
+        buffer holds; ``torque`` and ``iq_ref`` required) while it records (:class:`StreamReader`);
+        return when every sample is read.
+
+        The capture starts by itself once the shaft is at speed: ``ramp_s`` (s) is the ramp still
+        to go, added to the wait. Returns the channels as :meth:`read_buffer`.
+        """
+        cfg = self.config
+        self.write(capture_rate=rate_hz, capture_length=n_samples)
+        self.write(capture_start=CaptureCommand.ARM)
+        fill = BufferFill(n_samples)
+        reader: StreamReader | None = None
+
+        def recorded(s: dict) -> bool:
+            nonlocal reader
+            state = s["capture_state"]
+            if state == CaptureState.ERROR:
+                raise DynoError(f"{self.where}: capture ended in the error state")
+            count = int(s["capture_count"]) if state in (CaptureState.RUNNING, CaptureState.READY) else 0
+            if reader is None and count > 0:
+                reader = StreamReader(cfg, self.recorded_channels(s, names), fill, rate_hz, progress).start()
+            if state == CaptureState.READY and count != n_samples:
+                raise DynoError(f"{self.where}: capture holds {count} samples, {n_samples} requested")
+            fill.update(count)
+            return state == CaptureState.READY
+
+        def interval(s: dict) -> float:
+            # poll faster near the end: the capture's last chunk is read once it is ready
+            left = (n_samples - fill.count) / rate_hz if s["capture_state"] == CaptureState.RUNNING else 1.0
+            return min(cfg.poll_interval, max(left - cfg.poll_interval / 2, READY_POLL_S))
+
+        try:
+            self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
+                      interval)
+            result, reconnects = reader.result(cfg.capture_timeout)
+        except TransferError as exc:
+            raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
+        except BaseException:
+            if reader is not None:
+                reader.abandon("the capture failed")
+            raise
+        self.reconnects += reconnects
+        return result
+
+    def recorded_channels(self, st: dict, names: Sequence[str]) -> list[str]:
+        """Of channels ``names``, those the buffer holds (status ``capture_channels``); refuses a
+        buffer without ``torque`` or ``iq_ref``."""
+        known = self.regmap.channels
+        available = int(st["capture_channels"])
+        want = [c for c in names if available & rm.channel_bit(known[c])]
+        for required in ("torque", "iq_ref"):
+            if required not in want:
+                raise DynoError(f"{self.where}: capture has no {required} channel")
+        return want
 
     def read_buffer(self, names: Sequence[str], n_samples: int, progress: ProgressFn | None = None) -> dict[str, np.ndarray]:
         """Read channels ``names`` (canonical names) plus the digital channel from the buffer.
@@ -353,8 +420,16 @@ def run_profile(
     channels: Sequence[str] = DEFAULT_CHANNELS,
     progress: ProgressFn | None = None,
     reset_faults: bool = False,
+    before_capture: Callable[[], object] | None = None,
+    after_capture: Callable[[], object] | None = None,
 ) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
+
+    ``before_capture`` is called (and waited for) right before the first capture is armed, while
+    the shaft ramps to the first segment; ``after_capture`` right after the last window was read
+    and checked, before the stop: work of the caller's that must bracket the captures (the ECU's
+    state, :func:`eol_cal.station.preflight.acquire_traced`) runs alongside the ramps, not after them.
+    An exception from either ends the run like any other (safe state first).
 
     Returns the segments' data and the dyno's identification registers.
     Raises :class:`DynoError` on any failure (after the safe state was commanded).
@@ -379,15 +454,11 @@ def run_profile(
             if progress:
                 progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
             n = int(round(seg.seconds * rate_hz))
-            client.set_point(seg)
+            ramp_s = client.set_point(seg, wait=False)
+            if i == 0 and before_capture is not None:
+                before_capture()
             t_start = time.monotonic()
-            st = client.capture(n, rate_hz)
-            available = int(st["capture_channels"])
-            want = [c for c in channels if available & rm.channel_bit(known[c])]
-            for required in ("torque", "iq_ref"):
-                if required not in want:
-                    raise DynoError(f"{client.where}: capture has no {required} channel")
-            chans = client.read_buffer(want, n, progress)
+            chans = client.record(n, rate_hz, channels, progress, ramp_s)
             st = client.status()
             client.check_faults(st, "reading the capture")
             if int(st["capture_state"]) != CaptureState.READY:
@@ -397,6 +468,8 @@ def run_profile(
                 raise DynoError(f"{client.where}: segment {i + 1}: non-finite samples in {', '.join(bad)}")
             t_first = t_start if t_first is None else t_first
             data.append(DynoWindow(t_start - t_first, float(rate_hz), chans))
+        if after_capture is not None:
+            after_capture()
         if progress:
             progress("stopping", len(segments), len(segments))
         client.write(speed_setpoint=0.0)
@@ -476,6 +549,8 @@ def acquire(
     progress: ProgressFn | None = None,
     extra_metadata: dict | None = None,
     reset_faults: bool = False,
+    before_capture: Callable[[], object] | None = None,
+    after_capture: Callable[[], object] | None = None,
 ) -> Capture:
     """Run a profile on the dyno, check the capture and write it atomically to ``out``.
 
@@ -493,6 +568,9 @@ def acquire(
         Capture sample rate (Hz).
     reset_faults : bool
         Clear faults latched before this run (a fault during the run still stops it).
+    before_capture, after_capture : callable, optional
+        Called right before the first capture is armed and right after the last window is read
+        (:func:`run_profile`).
 
     Raises
     ------
@@ -504,7 +582,7 @@ def acquire(
     if not segments:
         raise InputError(None, "profile", "no segments")
     client = DynoClient(config)
-    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults)
+    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults, before_capture, after_capture)
     capture = assemble(data, ident, serial, extra_metadata)
     from eol_cal.capture import validate, write_capture
 

@@ -120,6 +120,8 @@ class CaptureTiming:
         The capture source returned the recording (None: not yet, or it failed).
     ready : float or None
         The capture became ready (None: not yet, or it failed or was aborted).
+    early_reads : int
+        Window reads answered while the capture was still running (a streaming client).
     """
 
     index: int
@@ -127,6 +129,7 @@ class CaptureTiming:
     physical_end: float
     source_done: float | None = None
     ready: float | None = None
+    early_reads: int = 0
 
     @property
     def source_late_s(self) -> float:

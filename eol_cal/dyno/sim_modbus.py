@@ -38,6 +38,7 @@ class ModbusFace:
     _server: object | None
     regmap: RegisterMap
     realtime: bool
+    captures: list
 
     def _serving_loop(self) -> asyncio.AbstractEventLoop:
         """The server's event loop; a :class:`RuntimeError` before :meth:`serve` started."""
@@ -138,11 +139,13 @@ class ModbusFace:
                 lo = max(address, w.address) - w.address
                 hi = min(end, w.end) - w.address
                 channel, offset = self.buf_channel, self.buf_offset  # the page this read addresses
-                if self.realtime and self.capture_state == CaptureState.RUNNING and (channel == w.digital_id or channel in self.regmap.analog_channels):
+                recorded = channel == w.digital_id or channel in self.regmap.analog_channels
+                if self.realtime and self.capture_state == CaptureState.RUNNING and recorded:
                     per = self.regmap.regs_per_sample(channel)
                     # as a real dyno: samples the shaft has not turned out yet are waited for
                     if not await self.wait_recorded(offset + -(-hi // per)):
                         return ExcCodes.DEVICE_FAILURE  # the capture failed or was aborted meanwhile
+                    self.captures[-1].early_reads += 1
                 base = w.address - start_address
                 registers[base + lo: base + hi] = self.window_words(channel, offset, lo, hi)
             if address < w.address or end > w.end or table not in (None, w.table):  # not a window-only read

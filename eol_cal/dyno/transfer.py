@@ -6,11 +6,18 @@ channel and a first sample, then read the window in blocks of at most the map's
 read over ``connections`` parallel connections; a lost connection or a timeout restarts the page
 on fresh connections through :func:`eol_cal.retry.retry_async` (the same back-off rule as every
 single request, :meth:`eol_cal.dyno.client.DynoClient._call`).
+
+The read is streamed (:class:`StreamReader`): it runs in a thread of its own while the capture
+records and reads the samples the client's status polls report recorded (:class:`BufferFill`,
+``capture_count`` while running), in chunks of :data:`STREAM_CHUNK_S`, so that when the capture is
+ready only its last chunk is left to read. A dyno that reports no count before the capture is
+ready is read whole then, as before.
 """
 
 from __future__ import annotations
 
 import asyncio
+import threading
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -80,48 +87,142 @@ class DynoConfig:
         return default_register_map() if self.register_map is None else self.register_map
 
 
-def page_plan(regmap: RegisterMap, names: Sequence[str], n_samples: int) -> tuple[list[tuple[str, int]], list[tuple[int, int, int]]]:
-    """Channels to read (``names`` plus the digital channel, as ``(name, channel id)``) and their
-    pages as ``(channel id, first sample, registers)``."""
-    plan = [(n, regmap.channels[n]) for n in names] + [("digital", regmap.window.digital_id)]
-    pages: list[tuple[int, int, int]] = []
-    for _name, cid in plan:
-        per = regmap.regs_per_sample(cid)
-        page_samples = regmap.samples_per_page(cid)
-        for first in range(0, n_samples, page_samples):
-            pages.append((cid, first, min(page_samples, n_samples - first) * per))
-    return plan, pages
+#: a streamed read waits for at least this much capture (s) before it reads a chunk
+STREAM_CHUNK_S = 0.02
+#: how often a streamed read looks for newly recorded samples (s)
+STREAM_POLL_S = 0.003
 
 
-def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
-                        progress: ProgressFn | None = None) -> tuple[dict[str, np.ndarray], int]:
-    """Read channels ``names`` (canonical names) and the digital channel from the dyno's buffer.
+class BufferFill:
+    """How many samples of the capture the dyno holds, as the client's status polls see it.
 
-    Returns the analog channels (float64 from the f32 on the wire) and ``enc_a``, ``enc_b``,
-    ``hall``, and the number of reconnects it took. Raises :class:`TransferError`.
+    The polling thread :meth:`update` s it; the reader of :class:`StreamReader` reads :attr:`count`.
+    :meth:`stop` ends a read that waits for samples (the capture failed, the client gave up).
     """
-    regmap = cfg.regmap
-    plan, pages = page_plan(regmap, names, n_samples)
-    words = asyncio.run(_transfer(cfg, pages, progress))
-    reconnects = int(words.pop())
+
+    def __init__(self, n_samples: int, count: int = 0) -> None:
+        self.n_samples = n_samples
+        self.count = min(count, n_samples)
+        self.stopped: str | None = None
+        self._lock = threading.Lock()
+
+    def update(self, count: int) -> None:
+        with self._lock:
+            self.count = max(self.count, min(int(count), self.n_samples))
+
+    def stop(self, why: str) -> None:
+        self.stopped = why
+
+
+def channel_plan(regmap: RegisterMap, names: Sequence[str]) -> list[tuple[str, int]]:
+    """Channels to read: ``names`` plus the digital channel, as ``(name, channel id)``."""
+    return [(n, regmap.channels[n]) for n in names] + [("digital", regmap.window.digital_id)]
+
+
+def page_plan(regmap: RegisterMap, names: Sequence[str], n_samples: int, first: int = 0
+              ) -> tuple[list[tuple[str, int]], list[tuple[int, int, int]]]:
+    """Channels to read (:func:`channel_plan`) and the pages of samples ``first:n_samples`` as
+    ``(channel id, first sample, registers)``."""
+    plan = channel_plan(regmap, names)
+    return plan, [page for _name, cid in plan for page in _pages(regmap, cid, first, n_samples)]
+
+
+def _pages(regmap: RegisterMap, cid: int, first: int, stop: int) -> list[tuple[int, int, int]]:
+    per = regmap.regs_per_sample(cid)
+    page_samples = regmap.samples_per_page(cid)
+    return [(cid, f, min(page_samples, stop - f) * per) for f in range(first, stop, page_samples)]
+
+
+def _decode(regmap: RegisterMap, plan: list[tuple[str, int]], words: dict[int, list[np.ndarray]]) -> dict[str, np.ndarray]:
     result: dict[str, np.ndarray] = {}
     for name, cid in plan:
-        w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words) if c == cid])
+        w = np.concatenate(words[cid]) if words[cid] else np.zeros(0, dtype=np.uint16)
         if name == "digital":
             result["enc_a"], result["enc_b"], result["hall"] = regmap.unpack_digital(w)
         else:
             result[name] = regmap.words_to_analog(w)
-    return result, reconnects
+    return result
 
 
-async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress: ProgressFn | None) -> list:
-    """Read capture pages over ``cfg.connections`` parallel connections.
+def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
+                        progress: ProgressFn | None = None) -> tuple[dict[str, np.ndarray], int]:
+    """Read channels ``names`` (canonical names) and the digital channel from the dyno's buffer
+    (a capture that is ready: every sample at once).
+
+    Returns the analog channels (float64 from the f32 on the wire) and ``enc_a``, ``enc_b``,
+    ``hall``, and the number of reconnects it took. Raises :class:`TransferError`.
+    """
+    plan = channel_plan(cfg.regmap, names)
+    words, reconnects = asyncio.run(_transfer(cfg, plan, BufferFill(n_samples, n_samples), n_samples, progress))
+    return _decode(cfg.regmap, plan, words), reconnects
+
+
+class StreamReader:
+    """The capture buffer read in a thread of its own while the capture records (module doc).
+
+    Parameters
+    ----------
+    cfg : DynoConfig
+    names : sequence of str
+        Analog channels to read (canonical names); the digital channel is always read.
+    fill : BufferFill
+        How far the buffer is filled; the polling thread updates it.
+    rate_hz : float
+        Capture rate (Hz): a chunk is :data:`STREAM_CHUNK_S` of it.
+    progress : callable, optional
+        ``(what, done, total)`` in registers.
+    """
+
+    def __init__(self, cfg: DynoConfig, names: Sequence[str], fill: BufferFill, rate_hz: float,
+                 progress: ProgressFn | None = None) -> None:
+        self.plan = channel_plan(cfg.regmap, names)
+        self._cfg, self._fill, self._progress = cfg, fill, progress
+        self._chunk = max(1, int(rate_hz * STREAM_CHUNK_S))
+        self._out: tuple[dict[int, list[np.ndarray]], int] | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="dyno-stream", daemon=True)
+
+    def start(self) -> StreamReader:
+        self._thread.start()
+        return self
+
+    def _run(self) -> None:
+        try:
+            self._out = asyncio.run(_transfer(self._cfg, self.plan, self._fill, self._chunk, self._progress))
+        except BaseException as exc:  # noqa: BLE001 - handed to the caller of result()
+            self._error = exc
+
+    def result(self, timeout: float | None = None) -> tuple[dict[str, np.ndarray], int]:
+        """The channels read (as :func:`read_capture_buffer`) once every sample is in; raises
+        :class:`TransferError`. Call after the fill reached the capture's length (or was stopped)."""
+        self._thread.join(timeout)
+        if self._thread.is_alive():
+            self._fill.stop("no answer in time")
+            raise TransferError(f"the buffer read did not finish within {timeout} s")
+        if self._error is not None:
+            if isinstance(self._error, TransferError):
+                raise self._error
+            raise TransferError(f"{type(self._error).__name__}: {self._error}") from self._error
+        words, reconnects = self._out
+        return _decode(self._cfg.regmap, self.plan, words), reconnects
+
+    def abandon(self, why: str) -> None:
+        """Stop reading (the capture failed): the thread ends within a request timeout."""
+        self._fill.stop(why)
+        self._thread.join(self._cfg.timeout * (self._cfg.retries + 1) + 1.0)
+
+
+async def _transfer(cfg: DynoConfig, plan: list[tuple[str, int]], fill: BufferFill, chunk: int,
+                    progress: ProgressFn | None) -> tuple[dict[int, list[np.ndarray]], int]:
+    """Read the buffer's channels ``plan`` as ``fill`` says samples are recorded, over
+    ``cfg.connections`` parallel connections.
 
     pymodbus serves one request per connection at a time, so parallel connections are how
     requests overlap. The page selection is dyno state shared by all connections: each page is
-    selected, then its blocks are read in parallel. A lost connection or timeout restarts the
-    page on fresh connections (:func:`eol_cal.retry.retry_async`: ``cfg.retries`` times, doubling delays). Returns the pages' words
-    followed by the number of reconnects.
+    selected, then its blocks are read in parallel. A read waits until ``chunk`` samples more (or
+    the rest of the capture) are recorded. A lost connection or timeout restarts the page on fresh
+    connections (:func:`eol_cal.retry.retry_async`: ``cfg.retries`` times, doubling delays).
+    Returns each channel's words, page by page, and the number of reconnects.
     """
     from pymodbus.client import AsyncModbusTcpClient
     from pymodbus.exceptions import ModbusException
@@ -131,6 +232,7 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
     where = f"{cfg.host}:{cfg.port}"
     clients: list = []
     reconnects = 0
+    pages_read = 0
 
     async def open_all() -> None:
         for cl in clients:
@@ -169,34 +271,47 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
         await asyncio.gather(*(worker(i) for i in range(min(k, len(blocks)))))
         return np.concatenate([np.asarray(b, dtype=np.uint16) for b in out])
 
-    words: list = []
-    total = sum(n for _c, _f, n in pages)
+    async def read_with_retry(cid: int, first: int, n_regs: int) -> np.ndarray:
+        async def attempt(n: int) -> np.ndarray:
+            nonlocal reconnects
+            if len(clients) != k or not all(cl.connected for cl in clients):
+                if n or pages_read:
+                    reconnects += 1
+                await open_all()
+            return await read_page(cid, first, n_regs)
+
+        def drop_all(_n: int, _exc: BaseException) -> None:
+            for cl in clients:
+                cl.close()
+            clients.clear()
+
+        try:
+            return await retry_async(attempt, retries=cfg.retries, delay_s=cfg.retry_delay,
+                                     retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
+                                     before_retry=drop_all)
+        except RetriesExhausted as exc:
+            raise TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
+
+    n = fill.n_samples
+    words: dict[int, list[np.ndarray]] = {cid: [] for _name, cid in plan}
+    total = sum(regmap.regs_per_sample(cid) for _name, cid in plan) * n
     done = 0
     try:
-        for cid, first, n_regs in pages:
-            async def attempt(n: int, cid: int = cid, first: int = first, n_regs: int = n_regs) -> np.ndarray:
-                nonlocal reconnects
-                if len(clients) != k or not all(cl.connected for cl in clients):
-                    if n or words:
-                        reconnects += 1
-                    await open_all()
-                return await read_page(cid, first, n_regs)
-
-            def drop_all(_n: int, _exc: BaseException) -> None:
-                for cl in clients:
-                    cl.close()
-                clients.clear()
-
-            try:
-                words.append(await retry_async(attempt, retries=cfg.retries, delay_s=cfg.retry_delay,
-                                               retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
-                                               before_retry=drop_all))
-            except RetriesExhausted as exc:
-                raise TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
-            done += n_regs
+        while done < n:
+            if fill.stopped is not None:
+                raise TransferError(f"stopped at sample {done} of {n}: {fill.stopped}")
+            count = fill.count
+            if count - done < min(chunk, n - done):
+                await asyncio.sleep(STREAM_POLL_S)
+                continue
+            for _name, cid in plan:
+                for page in _pages(regmap, cid, done, count):
+                    words[cid].append(await read_with_retry(*page))
+                    pages_read += 1
+            done = count
             if progress:
-                progress("transfer", done, total)
+                progress("transfer", total * done / n, total)
     finally:
         for cl in clients:
             cl.close()
-    return words + [reconnects]
+    return words, reconnects

@@ -13,7 +13,7 @@ It checks, each within the existing timeouts (a dead dyno address ends within se
   nothing erased or written).
 
 The traced acquisition (:func:`acquire_traced`) reads the ECU's active block right before the
-dyno turns and right after the last window, and writes both into the capture's metadata
+first capture and right after the last window (alongside the dyno's ramps), and writes both into the capture's metadata
 (:mod:`eol_cal.capture.ecu_state`).
 """
 
@@ -159,18 +159,27 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
     """:func:`eol_cal.dyno.client.acquire` with the ECU's state read before and after, into the
     capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads.
 
-    ``read_ecu`` None: no record of the ECU state (no ECU-state keys). A failed read before
-    stops before the dyno turns; a failed read after writes no capture.
+    ``read_ecu`` None: no record of the ECU state (no ECU-state keys). The reads run alongside
+    the dyno's ramps (:func:`eol_cal.dyno.client.run_profile`): the one before while the shaft
+    ramps to the first segment, finished before the first capture is armed; the one after from
+    the last window on, while the shaft stops. A failed read before stops the dyno (safe state)
+    before any capture; a failed read after writes no capture.
     """
+    from concurrent.futures import Future, ThreadPoolExecutor
+
     from eol_cal.capture import write_capture
     from eol_cal.dyno import client as dc
 
-    before = read_ecu() if read_ecu is not None else None
-    capture = dc.acquire(config, segments, None, **acquire_kw)
     if read_ecu is None:
+        capture = dc.acquire(config, segments, None, **acquire_kw)
         write_capture(capture, out)
         return capture, Trace(None, None)
-    after = read_ecu()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ecu-trace") as pool:
+        before_job = pool.submit(read_ecu)
+        after_job: list[Future] = []
+        capture = dc.acquire(config, segments, None, before_capture=before_job.result,
+                             after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
+        before, after = before_job.result(), after_job[0].result()
     capture = dataclasses.replace(capture, metadata=with_ecu_state(capture.metadata, before, after))
     write_capture(capture, out)
     return capture, Trace(before, after)
