@@ -12,6 +12,7 @@ import errno
 import itertools
 import logging
 import os
+import queue
 import random
 import socket
 import threading
@@ -86,8 +87,16 @@ def make_stack(bus: can.BusABC, *, tx_id: int, rx_id: int, blocking_send: bool,
     reader in the same process; use a second ``can.Bus`` on the channel to sniff.
     """
     address = isotp.Address(isotp.AddressingMode.Normal_11bits, txid=tx_id, rxid=rx_id)
+    # The stack's reading thread waits in bus.recv at most this long: a frame wakes it at once,
+    # so it bounds only how long stopping the stack takes, which the tester pays at the end of
+    # every session (the station opens several per motor).
+    read_timeout = TESTER_READ_TIMEOUT_S if blocking_send else 0.02
     return isotp.CanStack(bus, address=address, params=isotp_params(blocking_send=blocking_send, timing=timing),
-                          read_timeout=0.02)
+                          read_timeout=read_timeout)
+
+
+TESTER_READ_TIMEOUT_S = 0.004
+"""Longest wait of the tester's ISO-TP reading thread in one ``bus.recv``, s (see :func:`make_stack`)."""
 
 
 def open_bus(interface: str | None, channel: str | None, bitrate: int | None = None,
@@ -205,12 +214,14 @@ class FaultyBus(can.BusABC):
 
 
 class PacedBus(can.BusABC):
-    """A bus wrapper that holds every frame, sent or received, for its time on a CAN bus of
+    """A bus wrapper that gives every frame, sent or received, its time on a CAN bus of
     ``bitrate`` (the ECU simulator's bus: a virtual bus carries frames as fast as the CPU allows).
 
     Both directions share one medium: a frame occupies the bus for :func:`frame_bits` (worst-case
     stuffing) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
-    frame goes out when its time on the bus has passed; a received frame is handed on then.
+    frame goes into a transmit queue, as into a CAN controller's, and reaches the other side when
+    its time on the bus is over (frames sent back to back follow each other at the bit rate, the
+    sender's own sleeps not adding up); a received frame is handed on when its time is over.
 
     Parameters
     ----------
@@ -229,36 +240,55 @@ class PacedBus(can.BusABC):
         self._free_at = 0.0
         self.busy_s = 0.0
         """Seconds the frames have occupied the bus so far."""
+        self._tx: queue.SimpleQueue[tuple[float, can.Message] | None] = queue.SimpleQueue()
+        self._tx_thread = threading.Thread(target=self._transmit, name="paced-bus-tx", daemon=True)
+        self._tx_thread.start()
         super().__init__(channel=getattr(inner, "channel_info", "paced"))
         self.channel_info = f"paced {self.bitrate} bit/s ({getattr(inner, 'channel_info', '')})"
 
-    def _occupy(self, msg: can.Message, arrived: float | None = None) -> None:
-        """Wait until ``msg`` has had its time on the bus (after every frame before it, and after
-        ``arrived``, monotonic s: when it was handed to the bus; default now)."""
+    def _slot(self, msg: can.Message, ready: float) -> float:
+        """When ``msg``, ready to go at ``ready`` (monotonic s), has left the bus."""
         seconds = frame_bits(msg.dlc) / self.bitrate
-        now = time.monotonic()
         with self._lock:
-            done = max(now if arrived is None else min(arrived, now), self._free_at) + seconds
+            done = max(ready, self._free_at) + seconds
             self._free_at = done
             self.busy_s += seconds
-        wait = done - time.monotonic()
+        return done
+
+    @staticmethod
+    def _sleep_until(t: float) -> None:
+        wait = t - time.monotonic()
         if wait > 0:
             time.sleep(wait)
 
+    def _transmit(self) -> None:
+        while True:
+            item = self._tx.get()
+            if item is None:
+                return
+            done, msg = item
+            self._sleep_until(done)
+            try:
+                self.inner.send(msg)
+            except Exception as exc:  # noqa: BLE001 - a closed bus: the frame is lost, as on a dead link
+                log.debug("paced bus: frame not sent: %s", exc)
+
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self._occupy(msg)
-        self.inner.send(msg, timeout)
+        self._tx.put((self._slot(msg, time.monotonic()), msg))
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         msg = self.inner.recv(timeout)
         if msg is not None:
             # on the bus from when the sender handed it over, not from when this thread got to it
             age = time.time() - msg.timestamp if msg.timestamp else 0.0
-            self._occupy(msg, time.monotonic() - age if 0.0 <= age < 1.0 else None)
+            now = time.monotonic()
+            self._sleep_until(self._slot(msg, now - age if 0.0 <= age < 1.0 else now))
         return msg, False
 
     def shutdown(self) -> None:
         super().shutdown()
+        self._tx.put(None)
+        self._tx_thread.join(1.0)
         self.inner.shutdown()
 
 
