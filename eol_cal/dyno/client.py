@@ -290,7 +290,8 @@ class DynoClient:
         if abs(float(st["speed"])) > rm.STANDSTILL_RPM and direction != current_dir:
             # reversing goes through standstill; the dyno refuses a direction flip while spinning
             self.write(speed_setpoint=0.0)
-            self.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse")
+            self.wait_standstill(abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse",
+                                 float(st["speed"]))
         self.write(mode=Mode.SPEED, direction=direction)
         self.write(speed_setpoint=abs(seg.speed_rpm), ramp=seg.ramp_rpm_s, dut_cmd_kind=int(kind), dut_cmd=value)
         self.write(enable=Switch.ON, watchdog_ms=cfg.watchdog_ms)
@@ -311,6 +312,22 @@ class DynoClient:
             if time.monotonic() > end:
                 raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, drive state {DriveState(int(st['drive_state'])).name})")
             time.sleep(self.config.poll_interval if interval is None else interval(st))
+
+    def wait_standstill(self, timeout: float, what: str, speed: float | None = None) -> dict:
+        """Poll until the shaft is within :data:`~eol_cal.dyno.registers.STANDSTILL_RPM` of zero;
+        faster as it gets near, when the ramp rate it stops at is known from two polls."""
+        seen: list[tuple[float, float]] = [] if speed is None else [(time.monotonic(), abs(speed))]
+
+        def interval(s: dict) -> float:
+            now, v = time.monotonic(), abs(float(s["speed"]))
+            seen.append((now, v))
+            (t0, v0), (t1, v1) = seen[0], seen[-1]
+            if t1 <= t0 or v1 >= v0:
+                return self.config.poll_interval
+            left = (v1 - rm.STANDSTILL_RPM) * (t1 - t0) / (v0 - v1)
+            return min(self.config.poll_interval, max(left - self.config.poll_interval / 2, READY_POLL_S))
+
+        return self.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, timeout, what, interval)
 
     def capture(self, n_samples: int, rate_hz: int) -> dict:
         """Start a capture of ``n_samples`` at ``rate_hz`` (Hz) and wait until it is ready."""
@@ -473,7 +490,7 @@ def run_profile(
         if progress:
             progress("stopping", len(segments), len(segments))
         client.write(speed_setpoint=0.0)
-        client.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, client.config.settle_timeout, "stopping")
+        client.wait_standstill(client.config.settle_timeout, "stopping")
     except BaseException as exc:
         why = client.safe_state()
         client.close()
