@@ -142,6 +142,9 @@ class DynoWindow:
     channels: dict[str, np.ndarray] = field(default_factory=dict)
 
 
+#: ``(index, window, t)``: a window just read, with its sample times (s) in the joined capture
+WindowHook = Callable[[int, DynoWindow, np.ndarray], None]
+
 
 #: what the dyno means by each Modbus exception code (docs/dyno.md, "Encoding")
 _EXCEPTION_MEANING = {
@@ -439,6 +442,7 @@ def run_profile(
     reset_faults: bool = False,
     before_capture: Callable[[], object] | None = None,
     after_capture: Callable[[], object] | None = None,
+    on_window: WindowHook | None = None,
 ) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
 
@@ -446,7 +450,10 @@ def run_profile(
     the shaft ramps to the first segment; ``after_capture`` right after the last window was read
     and checked, before the stop: work of the caller's that must bracket the captures (the ECU's
     state, :func:`eol_cal.station.preflight.acquire_traced`) runs alongside the ramps, not after them.
-    An exception from either ends the run like any other (safe state first).
+    An exception from either ends the run like any other (safe state first). ``on_window(i,
+    window, t)`` is called with each window as soon as it is read and checked, ``t`` its sample
+    times in the joined capture (:func:`window_times`): the caller's work on it can start while
+    the shaft turns on (it should hand the work to another thread and return).
 
     Returns the segments' data and the dyno's identification registers.
     Raises :class:`DynoError` on any failure (after the safe state was commanded).
@@ -463,6 +470,7 @@ def run_profile(
             raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
     data: list[DynoWindow] = []
     t_first: float | None = None
+    t_end = -np.inf  # the last sample time of the windows so far in the joined capture
     try:
         ident = client.connect()
         if reset_faults:
@@ -485,6 +493,10 @@ def run_profile(
                 raise DynoError(f"{client.where}: segment {i + 1}: non-finite samples in {', '.join(bad)}")
             t_first = t_start if t_first is None else t_first
             data.append(DynoWindow(t_start - t_first, float(rate_hz), chans))
+            if on_window is not None:
+                t_window = _window_time(data[-1], t_end)
+                t_end = float(t_window[-1])
+                on_window(i, data[-1], t_window)
         if after_capture is not None:
             after_capture()
         if progress:
@@ -511,6 +523,21 @@ def run_profile(
     return data, ident
 
 
+def _window_time(d: DynoWindow, t_end: float) -> np.ndarray:
+    n = len(next(iter(d.channels.values())))
+    return max(d.t0, t_end + WINDOW_GAP_SAMPLES / d.rate_hz) + np.arange(n) / d.rate_hz
+
+
+def window_times(data: Sequence[DynoWindow]) -> list[np.ndarray]:
+    """Each window's sample times (s) in the joined capture (:func:`assemble`): from the wall-clock
+    time of its capture start after the first one, but at least :data:`WINDOW_GAP_SAMPLES` sample
+    periods after the previous window's last sample."""
+    out: list[np.ndarray] = []
+    for d in data:
+        out.append(_window_time(d, out[-1][-1] if out else -np.inf))
+    return out
+
+
 def assemble(
     data: Sequence[DynoWindow],
     ident: dict,
@@ -525,13 +552,8 @@ def assemble(
     if not data:
         raise DynoError("no segments captured")
     names = sorted(set.intersection(*(set(d.channels) for d in data)))
-    ts, chans = [], {n: [] for n in names}
-    t_end = -np.inf
+    ts, chans = window_times(data), {n: [] for n in names}
     for d in data:
-        n = len(next(iter(d.channels.values())))
-        t = max(d.t0, t_end + WINDOW_GAP_SAMPLES / d.rate_hz) + np.arange(n) / d.rate_hz
-        ts.append(t)
-        t_end = t[-1]
         for name in names:
             chans[name].append(d.channels[name])
     starts = [float(t[0]) for t in ts]
@@ -568,6 +590,7 @@ def acquire(
     reset_faults: bool = False,
     before_capture: Callable[[], object] | None = None,
     after_capture: Callable[[], object] | None = None,
+    on_window: WindowHook | None = None,
 ) -> Capture:
     """Run a profile on the dyno, check the capture and write it atomically to ``out``.
 
@@ -588,6 +611,8 @@ def acquire(
     before_capture, after_capture : callable, optional
         Called right before the first capture is armed and right after the last window is read
         (:func:`run_profile`).
+    on_window : callable, optional
+        ``(index, window, t)`` for each window as soon as it is read (:func:`run_profile`).
 
     Raises
     ------
@@ -599,7 +624,8 @@ def acquire(
     if not segments:
         raise InputError(None, "profile", "no segments")
     client = DynoClient(config)
-    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults, before_capture, after_capture)
+    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults, before_capture, after_capture,
+                              on_window)
     capture = assemble(data, ident, serial, extra_metadata)
     from eol_cal.capture import validate, write_capture
 

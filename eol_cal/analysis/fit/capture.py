@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.motor import MotorParams, load_motor
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.angle import AngleResult
 
 
 @dataclass
@@ -115,6 +119,16 @@ def capture_segments(
     return out
 
 
+def _map(fn: Callable, items: list, workers: int) -> list:
+    """``[fn(x) for x in items]``, on up to ``workers`` threads (results in order)."""
+    if workers <= 1 or len(items) <= 1:
+        return [fn(x) for x in items]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(min(workers, len(items)), thread_name_prefix="fit-frame") as pool:
+        return list(pool.map(fn, items))
+
+
 def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
     values = {float(c.metadata["kt"]) for c in captures if "kt" in c.metadata}
     if len(values) > 1:
@@ -133,6 +147,8 @@ def motor_inputs(
     mechanics: BenchMechanics | None = None,
     hall_angle: str = "measured",
     estimator_options: int = 0,
+    angle_of: Callable[[Capture], AngleResult] = capture_angle,
+    frame_workers: int = 1,
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
@@ -164,6 +180,12 @@ def motor_inputs(
     estimator_options : int
         The estimator options (contract flags bits 2-5) the ECU ran during the captures: the
         firmware frame is measured with that estimator (0: the paper's).
+    angle_of : callable
+        A window's angle (default :func:`capture_angle`); the station hands in the angles it
+        reconstructed while the dyno was still turning (:mod:`eol_cal.station.early`).
+    frame_workers : int
+        Threads that run the firmware estimator over the windows for the firmware frame (one per
+        window at most; the estimator's JAX scan leaves the interpreter while it runs).
 
     Returns
     -------
@@ -198,7 +220,7 @@ def motor_inputs(
                 raise InputError(c.source, "torque", "missing channel, needed for the fit")
             if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
                 raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-            ang = capture_angle(c)
+            ang = angle_of(c)
             angles.append(ang)
             i_qo = np.asarray(c.iq_ref(), dtype=float)
             ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
@@ -228,10 +250,9 @@ def motor_inputs(
         else:
             hall = nominal_hall_angles("asked for")
         fw_sum, fw_n = 0j, 0
-        for c, ang, ranges in zip(caps, angles, cap_ranges):
-            if use_fw and ranges:
-                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle, estimator_options)
-                fw_sum, fw_n = fw_sum + s_, fw_n + n_
+        jobs = [(c, ang.theta_r, ranges) for c, ang, ranges in zip(caps, angles, cap_ranges) if use_fw and ranges]
+        for s_, n_ in _map(lambda j: firmware_frame_offset(*j, hall.hall_angle, estimator_options), jobs, frame_workers):
+            fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
         response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
         seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)

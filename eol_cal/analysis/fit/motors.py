@@ -124,11 +124,28 @@ def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
     }
 
 
+class PreparedWindows:
+    """What :func:`fit_motors` computes per window, as plain calls; the station's subclass
+    (:class:`eol_cal.station.early.EarlyWindows`) hands in what it computed while the windows arrived."""
+
+    #: threads for the firmware frame (:func:`eol_cal.analysis.fit.capture.motor_inputs`)
+    frame_workers: int = 1
+
+    def angle_of(self, capture: Capture) -> AngleResult:
+        from eol_cal.analysis.angle import capture_angle
+
+        return capture_angle(capture)
+
+    def metrics_of(self, capture: Capture, angle: AngleResult) -> dict[str, Any]:
+        return window_metrics(capture, angle)
+
+
 def fit_motors(
     captures: list[Capture],
     options: FitOptions = FitOptions(),
     tool_version: str | None = None,
     progress: Callable[[int], None] | None = None,
+    prepared: PreparedWindows | None = None,
 ) -> MotorsFit:
     """Fit every motor of ``captures`` and build the result document.
 
@@ -143,6 +160,9 @@ def fit_motors(
         For the document's ``tool`` (default: this package's version).
     progress : callable, optional
         Called with the number of motors fitted so far.
+    prepared : PreparedWindows, optional
+        Work done on the windows before the fit (the station, while the dyno turned): their
+        angles and p-p figures, and threads for the firmware frame.
 
     Returns
     -------
@@ -161,9 +181,11 @@ def fit_motors(
 
     if tool_version is None:
         from eol_cal import __version__ as tool_version
+    prepared = prepared or PreparedWindows()
     inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
                           frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle,
-                          estimator_options=options.estimator_options)
+                          estimator_options=options.estimator_options, angle_of=prepared.angle_of,
+                          frame_workers=prepared.frame_workers)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],
@@ -178,7 +200,7 @@ def fit_motors(
     for mi, f in zip(inputs, fits):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
         if options.capture_metrics:
-            metrics["captures"] = [window_metrics(c, a) for c, a in zip(mi.captures, mi.angles)]
+            metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles)]
         records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
                                                   solver_mode=mode)))
     return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)
