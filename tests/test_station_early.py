@@ -23,14 +23,15 @@ def _no_times(doc):
 
 
 def test_a_fit_on_the_early_windows_equals_the_fit_of_the_capture_file(tmp_path):
-    early = EarlyWindows(poles=6, encoder_ppr=64)
+    options = FitOptions(batch="loop")
+    early = EarlyWindows(poles=6, encoder_ppr=64, estimator_options=options.estimator_options, n_windows=len(SEGMENTS))
     with DynoSimThread(DynoSim(synthetic_source, serial="E-1", realtime=True)) as dyno:
         cap = acquire(DynoConfig(port=dyno.port), SEGMENTS, tmp_path / "cap.mf4", on_window=early.on_window)
     early.wait()
-    options = FitOptions(batch="loop")
     with_early = fit_motors([cap], options, "t", prepared=early)
     early.close()
-    assert early.used == len(SEGMENTS)
+    # every window's angle and part of the firmware frame came from the work done as it arrived
+    assert early.used == early.frames_used == len(SEGMENTS)
     from_file = fit_motors([read_capture(tmp_path / "cap.mf4")], options, "t")
     a, b = with_early.doc["motors"][0], from_file.doc["motors"][0]
     # everything but the capture's name (in memory "dyno", from the file its path) is the same

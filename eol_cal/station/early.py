@@ -4,9 +4,10 @@ The fit needs each window's angle (:func:`eol_cal.analysis.angle.capture_angle`)
 (:func:`eol_cal.analysis.fit.motors.window_metrics`); neither depends on the other windows, so the
 station computes them on a thread of its own as soon as the dyno client has read a window
 (:func:`eol_cal.dyno.client.run_profile`, ``on_window``), and the first window also compiles the
-firmware estimator's scan for the frame offset. What stays for the end is what needs every
-window: the hall table, the firmware frame (run on :attr:`EarlyWindows.frame_workers` threads)
-and the joint solve.
+firmware estimator's scan for the frame offset. The firmware frame needs every window (the hall
+table is measured on all of them): it is computed as soon as the last window is in, on
+:attr:`EarlyWindows.frame_workers` threads, while the shaft stops and the ECU's state is read.
+What the fit itself does at the end is the hall table again and the joint solve.
 
 The fit asks for a window's figures with the window it cut from the joined capture
 (:func:`eol_cal.capture.windows.split_windows`): they are handed out only when that window's
@@ -16,13 +17,15 @@ samples are exactly the ones worked on, else computed there and then, so the res
 
 from __future__ import annotations
 
+import os
 import re
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eol_cal.analysis.fit.motors import PreparedWindows, window_metrics
+from eol_cal.analysis.fit.capture import PreparedWindows, capture_segments
+from eol_cal.analysis.fit.motors import window_metrics
 from eol_cal.capture.model import Capture
 
 if TYPE_CHECKING:
@@ -44,20 +47,66 @@ class EarlyWindows(PreparedWindows):
     estimator_options : int
         The estimator options the ECU runs (contract flags bits 2-5): the first window compiles
         the firmware estimator's scan with them.
+    pool : ThreadPoolExecutor, optional
+        Where the work runs (the station cycle's helper thread, behind its pre-warming); default
+        a thread of its own.
+    cache_dir : path, optional
+        The fit's cache directory: JAX's persistent compilation cache is switched on there before
+        the estimator is compiled (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`).
+    n_windows : int, optional
+        Windows the capture will have: when the last is in, the firmware frame is computed with
+        the hall table measured on all of them and the fit's segments of ``settle_s`` and
+        ``min_revs`` (the fit's defaults, :class:`eol_cal.analysis.fit.motors.FitOptions`).
     """
 
     frame_workers = FRAME_WORKERS
 
-    def __init__(self, poles: int, encoder_ppr: int, estimator_options: int = 0) -> None:
+    def __init__(self, poles: int, encoder_ppr: int, estimator_options: int = 0, *,
+                 pool: ThreadPoolExecutor | None = None, cache_dir: str | os.PathLike[str] | None = None,
+                 n_windows: int | None = None, settle_s: float = 0.1, min_revs: int = 1) -> None:
         self.poles, self.encoder_ppr, self.estimator_options = poles, encoder_ppr, estimator_options
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-window")
+        self.cache_dir = cache_dir
+        self.n_windows, self.settle_s, self.min_revs = n_windows, settle_s, min_revs
+        self._frames: Future | None = None
+        self._own = pool is None
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-window") if pool is None else pool
         self._jobs: dict[int, Future] = {}
         self.used = 0
-        """Windows whose early figures the fit took."""
+        """Windows whose early angle the fit took."""
+        self.frames_used = 0
+        """Windows whose early part of the firmware frame the fit took."""
 
     def on_window(self, index: int, window: DynoWindow, t: np.ndarray) -> None:
         """The dyno client's hook: start on window ``index`` (0-based) at once, on the helper thread."""
         self._jobs[index + 1] = self._pool.submit(self._prepare, index, window, t)
+        if self.n_windows is not None and index + 1 == self.n_windows:
+            self._frames = self._pool.submit(self._frame_offsets)
+
+    def _frame_offsets(self) -> dict[int, tuple[tuple, list, complex, int]]:
+        """Every window's part of the firmware frame, as :func:`motor_inputs` will ask for it:
+        ``{window: (hall_angle, ranges, sum, n)}`` (empty when a window has no ``enc_b``)."""
+        from concurrent.futures import ThreadPoolExecutor as Pool
+
+        from eol_cal.analysis.firmware_angle import firmware_frame_offset
+        from eol_cal.analysis.halls import measure_hall_angles
+
+        done = {k: job.result() for k, job in sorted(self._jobs.items())}
+        if any("enc_b" not in cap.channels for cap, _a, _m in done.values()):
+            return {}
+        hall = measure_hall_angles([a.hall_begins for _c, a, _m in done.values()],
+                                   [a.hall_theta for _c, a, _m in done.values()])
+        table = tuple(hall.hall_angle)
+        ranges = {k: capture_segments(cap.t, a.theta_r, a.omega_r, np.asarray(cap.iq_ref(), dtype=float),
+                                      settle_s=self.settle_s, min_revs=self.min_revs) for k, (cap, a, _m) in done.items()}
+        keys = [k for k in done if ranges[k]]
+
+        def one(k: int) -> tuple[complex, int]:
+            cap, a, _m = done[k]
+            return firmware_frame_offset(cap, a.theta_r, ranges[k], table, self.estimator_options)
+
+        with Pool(max(1, min(self.frame_workers, len(keys))), thread_name_prefix="early-frame") as pool:
+            sums = list(pool.map(one, keys))
+        return {k: (table, ranges[k], *sn) for k, sn in zip(keys, sums)}
 
     def _prepare(self, index: int, window: DynoWindow, t: np.ndarray) -> tuple[Capture, AngleResult, dict[str, Any]]:
         from eol_cal.analysis.angle import capture_angle
@@ -74,16 +123,21 @@ class EarlyWindows(PreparedWindows):
         """One throwaway run of the firmware estimator: the frame offset at the end then finds its
         scan compiled (one program for every window length and hall table)."""
         from eol_cal.analysis.firmware_angle import firmware_frame_offset
+        from eol_cal.analysis.fit.cache import enable_compile_cache
 
         try:
+            enable_compile_cache(self.cache_dir)
             firmware_frame_offset(cap, angle.theta_r, [(0, len(cap.t))], None, self.estimator_options)
         except Exception:  # noqa: BLE001 - only a warm-up: the fit reports a real failure
             pass
 
+    def _window(self, capture: Capture) -> int | None:
+        m = _WINDOW_OF.search(capture.source or "")
+        return int(m.group(1)) if m else None
+
     def _early(self, capture: Capture) -> tuple[Capture, AngleResult, dict[str, Any]] | None:
         """The early work on ``capture`` when it holds exactly the samples worked on, else None."""
-        m = _WINDOW_OF.search(capture.source or "")
-        job = self._jobs.get(int(m.group(1))) if m else None
+        job = self._jobs.get(self._window(capture))
         if job is None or job.exception() is not None:
             return None
         cap, angle, metrics = job.result()
@@ -100,6 +154,19 @@ class EarlyWindows(PreparedWindows):
         self.used += 1
         return early[1]
 
+    def frame_offset(self, capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
+                     hall_angle: tuple[float, ...] | None, options: int) -> tuple[complex, int]:
+        early = self._early(capture)
+        frames = self._frames
+        if (early is not None and frames is not None and frames.exception() is None
+                and np.array_equal(theta_r, early[1].theta_r)):
+            got = frames.result().get(self._window(capture))
+            if (got is not None and hall_angle is not None and got[0] == tuple(hall_angle) and got[1] == list(ranges)
+                    and options == self.estimator_options):
+                self.frames_used += 1
+                return got[2], got[3]
+        return super().frame_offset(capture, theta_r, ranges, hall_angle, options)
+
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict[str, Any]:
         early = self._early(capture)
         if early is None or early[1] is not angle:
@@ -108,8 +175,11 @@ class EarlyWindows(PreparedWindows):
 
     def wait(self) -> None:
         """Until every window handed in is worked on (the fit then takes them without waiting)."""
-        for job in list(self._jobs.values()):
+        for job in [*self._jobs.values(), *([self._frames] if self._frames is not None else [])]:
             job.exception()
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True)
+        """Wait for the work handed in; stop the thread when it is this object's own."""
+        self.wait()
+        if self._own:
+            self._pool.shutdown(wait=True)

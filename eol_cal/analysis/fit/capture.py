@@ -119,6 +119,31 @@ def capture_segments(
     return out
 
 
+class PreparedWindows:
+    """Where the fit's per-window figures come from: plain calls here. The station's subclass
+    (:class:`eol_cal.station.early.EarlyWindows`) hands in what it computed while the windows
+    arrived, for exactly the inputs it was computed from, and computes anything else here."""
+
+    #: threads that run the firmware estimator over the windows for the firmware frame (one
+    #: window each; the estimator's JAX scan leaves the interpreter while it runs)
+    frame_workers: int = 1
+
+    def angle_of(self, capture: Capture) -> AngleResult:
+        """A window's angle (:func:`capture_angle`)."""
+        return capture_angle(capture)
+
+    def frame_offset(self, capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
+                     hall_angle: tuple[float, ...] | None, options: int) -> tuple[complex, int]:
+        """A window's part of the firmware frame offset (:func:`firmware_frame_offset`)."""
+        return firmware_frame_offset(capture, theta_r, ranges, hall_angle, options)
+
+    def metrics_of(self, capture: Capture, angle: AngleResult) -> dict:
+        """A window's p-p figures (:func:`eol_cal.analysis.fit.motors.window_metrics`)."""
+        from eol_cal.analysis.fit.motors import window_metrics
+
+        return window_metrics(capture, angle)
+
+
 def _map(fn: Callable, items: list, workers: int) -> list:
     """``[fn(x) for x in items]``, on up to ``workers`` threads (results in order)."""
     if workers <= 1 or len(items) <= 1:
@@ -147,8 +172,7 @@ def motor_inputs(
     mechanics: BenchMechanics | None = None,
     hall_angle: str = "measured",
     estimator_options: int = 0,
-    angle_of: Callable[[Capture], AngleResult] = capture_angle,
-    frame_workers: int = 1,
+    prepared: PreparedWindows | None = None,
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
@@ -180,12 +204,10 @@ def motor_inputs(
     estimator_options : int
         The estimator options (contract flags bits 2-5) the ECU ran during the captures: the
         firmware frame is measured with that estimator (0: the paper's).
-    angle_of : callable
-        A window's angle (default :func:`capture_angle`); the station hands in the angles it
-        reconstructed while the dyno was still turning (:mod:`eol_cal.station.early`).
-    frame_workers : int
-        Threads that run the firmware estimator over the windows for the firmware frame (one per
-        window at most; the estimator's JAX scan leaves the interpreter while it runs).
+    prepared : PreparedWindows, optional
+        Where each window's angle and firmware frame offset come from (default: computed here);
+        the station hands in what it computed while the dyno was still turning
+        (:mod:`eol_cal.station.early`).
 
     Returns
     -------
@@ -194,6 +216,7 @@ def motor_inputs(
     """
     from eol_cal.capture.windows import split_windows
 
+    prepared = prepared or PreparedWindows()
     for name, value, known in (("frame", frame, ("firmware", "offline")), ("hall_angle", hall_angle, ("measured", "nominal"))):
         if value not in known:
             raise InputError(None, name, f"unknown value {value!r}; known: {', '.join(known)}")
@@ -220,7 +243,7 @@ def motor_inputs(
                 raise InputError(c.source, "torque", "missing channel, needed for the fit")
             if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
                 raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-            ang = angle_of(c)
+            ang = prepared.angle_of(c)
             angles.append(ang)
             i_qo = np.asarray(c.iq_ref(), dtype=float)
             ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
@@ -251,7 +274,8 @@ def motor_inputs(
             hall = nominal_hall_angles("asked for")
         fw_sum, fw_n = 0j, 0
         jobs = [(c, ang.theta_r, ranges) for c, ang, ranges in zip(caps, angles, cap_ranges) if use_fw and ranges]
-        for s_, n_ in _map(lambda j: firmware_frame_offset(*j, hall.hall_angle, estimator_options), jobs, frame_workers):
+        for s_, n_ in _map(lambda j: prepared.frame_offset(*j, hall.hall_angle, estimator_options), jobs,
+                           prepared.frame_workers):
             fw_sum, fw_n = fw_sum + s_, fw_n + n_
         kt, kt_source = _kt_of(caps, motor)
         response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
-from eol_cal.analysis.fit.capture import MotorInput
+from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
 from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
@@ -124,22 +124,6 @@ def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
     }
 
 
-class PreparedWindows:
-    """What :func:`fit_motors` computes per window, as plain calls; the station's subclass
-    (:class:`eol_cal.station.early.EarlyWindows`) hands in what it computed while the windows arrived."""
-
-    #: threads for the firmware frame (:func:`eol_cal.analysis.fit.capture.motor_inputs`)
-    frame_workers: int = 1
-
-    def angle_of(self, capture: Capture) -> AngleResult:
-        from eol_cal.analysis.angle import capture_angle
-
-        return capture_angle(capture)
-
-    def metrics_of(self, capture: Capture, angle: AngleResult) -> dict[str, Any]:
-        return window_metrics(capture, angle)
-
-
 def fit_motors(
     captures: list[Capture],
     options: FitOptions = FitOptions(),
@@ -184,8 +168,7 @@ def fit_motors(
     prepared = prepared or PreparedWindows()
     inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
                           frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle,
-                          estimator_options=options.estimator_options, angle_of=prepared.angle_of,
-                          frame_workers=prepared.frame_workers)
+                          estimator_options=options.estimator_options, prepared=prepared)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],
