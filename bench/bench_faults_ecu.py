@@ -176,7 +176,7 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
     """``eol-cal run`` with the ECU killed at ``die_at`` (erase:1 the prepare flash, transfer:2 the
     calibrated block's flash): is the error record in the database and the report written?"""
     from eol_cal.dyno import sim as ds
-    from eol_cal.station.records import query_records
+    from eol_cal.station.records_query import query_records
 
     (work / "limits.toml").write_text(LIMITS)
     flash_file = work / "ecu.flash"
@@ -195,7 +195,7 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
         ecu.kill()
         ecu.wait()
     recs = query_records(work / "db.sqlite") if (work / "db.sqlite").exists() else []
-    kept = (len(recs) == 1 and recs[0]["verdict"] == "error"
+    kept = (len(recs) == 1 and recs[0].verdict == "error"
             and bool(list((work / "reports").rglob("report.json"))))
     t = Trial(f"run, ECU killed at {die_at}", run.returncode, end - (died[0] if died else end),
               sum(line.startswith("error:") for line in err.splitlines()), "Traceback" in err, True, 0, kept)

@@ -8,17 +8,17 @@ Without --pg-url the bench starts its own PostgreSQL server with tests/_postgres
 machine's server binaries, a temporary directory, 127.0.0.1 on a free port, fsync off) and stops
 it at the end. The records are realistic: the real record of an `eol-cal demo` motor
 (fixtures/run_record_demo.json, about 9 kB of record JSON plus its 6 kB fit as stored) with
-values, verdicts, stations and times varied per run (tests/_lot_records.py).
+values, verdicts, stations and times varied per run, 3 % of the runs refusals (tests/_lot_records.py).
 
 Each writer is a process that writes its records one transaction each (as stations do), through
 `eol_cal.station.records.insert_records`; afterwards the count and the set of run ids are
 compared with what was sent (zero lost, zero duplicated). `lot stats` is timed end to end on a
 table of --stats-records runs, on the same table both ways:
 
-- columns: what `eol-cal lot stats` does (`read_lot`: the columns it needs, no record JSON;
-  `lot_summary`);
+- columns: what `eol-cal lot stats` does (`read_lots`: the columns it needs of the production
+  runs and of the refusals, the kinds filtered in SQL, no record JSON; `lot_summary`);
 - records: the alternative, reading and parsing every run's record JSON (streamed, as
-  `query_records` parses it), then the same statistics.
+  `query_records` parses it, into RunRecord), then the same statistics.
 
 The two documents are compared (they must be equal).
 """
@@ -44,70 +44,76 @@ from _lot_records import lot_record  # noqa: E402
 
 
 def _writer(args: tuple) -> list[str]:
+    import dataclasses
+
     from eol_cal.station.records import insert_records
 
     db, w, n = args
     ids = []
     for i in range(n):
         r = lot_record(i, n)
-        r.update(serial=f"W{w}-{i:05d}", station={**r["station"], "id": f"EOL-{w}"})
+        r = dataclasses.replace(r, serial=f"W{w}-{i:05d}", station=dataclasses.replace(r.station, id=f"EOL-{w}"))
         insert_records(db, [r], timeout_s=30.0)
-        ids.append(r["run_id"])
+        ids.append(r.run_id)
     return ids
 
 
 def concurrent(db, writers: int, per: int) -> tuple[float, int, int, int]:
-    from eol_cal.station.records import migrate, query_records
+    from eol_cal.station.records import migrate
+    from eol_cal.station.records_query import query_records
 
     migrate(db)
     t0 = time.perf_counter()
     with mp.get_context("spawn").Pool(writers) as pool:
         sent = [i for ids in pool.map(_writer, [(db, w, per) for w in range(writers)]) for i in ids]
     dt = time.perf_counter() - t0
-    got = [r["run_id"] for r in query_records(db)]
+    got = [r.run_id for r in query_records(db)]
     lost = len(set(sent) - set(got))
     dup = len(got) - len(set(got))
     return len(sent) / dt, len(got), lost, dup
 
 
-def fill(db, n: int, batch: int = 2000) -> tuple[float, float]:
-    """Insert a lot of ``n`` realistic runs (95 % as many motors: the rest are re-tests);
-    returns (seconds, mean bytes of record_json + fit_json per row)."""
+def fill(db, n: int, batch: int = 2000) -> tuple[float, float, int]:
+    """Insert a lot of ``n`` realistic runs (95 % as many motors: the rest are re-tests; 3 %
+    refusals); returns (seconds, mean bytes of record_json + fit_json per row, production runs)."""
     from eol_cal.station.records import _row, engine, insert_records, runs
 
     insert_records(db, [])
     eng = engine(db)
     t0 = time.perf_counter()
-    size = 0
+    size = production = 0
     with eng.begin() as con:
         for k in range(0, n, batch):
-            rows = [_row(lot_record(k + i, n - n // 20)) for i in range(min(batch, n - k))]
+            recs = [lot_record(k + i, n - n // 20, refusals=True) for i in range(min(batch, n - k))]
+            production += sum(r.kind == "production" for r in recs)
+            rows = [_row(r) for r in recs]
             size += sum(len(r["record_json"]) + len(r["fit_json"] or "") for r in rows)
             con.execute(runs.insert(), rows)
-    return time.perf_counter() - t0, size / max(1, n)
+    return time.perf_counter() - t0, size / max(1, n), production
 
 
 def by_columns(db, variant: str | None) -> dict[str, Any]:
-    """`eol-cal lot stats`: the columns, no record JSON."""
-    from eol_cal.lot.columns import read_lot
+    """`eol-cal lot stats`: the columns of the production runs and the refusals, no record JSON."""
+    from eol_cal.lot.columns import read_lots
     from eol_cal.lot.summary import lot_summary
 
-    return lot_summary(read_lot(db, variant=variant))
+    return lot_summary(*read_lots(db, variant=variant, also=("refusal",)))
 
 
 def by_records(db, variant: str | None) -> dict[str, Any]:
     """The alternative: read and parse every run's record JSON, then the same statistics."""
-    from eol_cal.lot.columns import LOT_COLUMNS, from_columns
+    from eol_cal.lot.columns import from_records
     from eol_cal.lot.summary import lot_summary
-    from eol_cal.station.records import _record, engine, row_values, runs, select_runs
+    from eol_cal.station.records import engine, parse_record, runs
+    from eol_cal.station.records_query import select_runs
 
     q = select_runs(variant=variant).with_only_columns(runs.c.run_id, runs.c.record_json)
-    rows = []
+    recs = []
     with engine(db, readonly=True).connect() as con:
         for run_id, text in con.execution_options(yield_per=2000).execute(q):
-            rows.append(row_values(_record(db, {"run_id": run_id, "record_json": text}, None)))
-    return lot_summary(from_columns({name: [r[name] for r in rows] for name in LOT_COLUMNS},
-                                    (r["limits_json"] for r in rows)))
+            recs.append(parse_record(db, run_id, text))
+    return lot_summary(from_records([r for r in recs if r.kind == "production"]),
+                       from_records([r for r in recs if r.kind == "refusal"]))
 
 
 def timed(fn: Callable[[], dict[str, Any]], repeat: int) -> tuple[list[float], dict[str, Any]]:
@@ -165,17 +171,21 @@ def run(a: argparse.Namespace) -> None:
                 print(f"{name:<12}{rate:>12.0f}{rows:>8}{lost:>6}{dup:>6}")
     db = fresh(f"s{tag}")
     n = a.stats_records
-    seconds, size = fill(db, n)
-    print(f"{n} runs inserted in {seconds:.1f} s, {size / 1e3:.1f} kB of record + fit JSON per run")
+    seconds, size, production = fill(db, n)
+    print(f"{n} runs ({production} production, the rest refusals) inserted in {seconds:.1f} s, "
+          f"{size / 1e3:.1f} kB of record + fit JSON per run")
     print(f"lot stats over {n} records in PostgreSQL (query + statistics; load average {_load()}):")
     docs = {}
     for name, fn, repeat in (("columns", by_columns, a.repeat), ("records", by_records, a.repeat_records)):
+        if repeat < 1:
+            continue
         times, docs[name] = timed(lambda: fn(db, "EPS-STD"), repeat)
-        if docs[name]["runs"] != n:
-            raise SystemExit(f"{name}: {docs[name]['runs']} runs, expected {n}")
+        if docs[name]["runs"] != production or docs[name]["refusals"]["runs"] != n - production:
+            raise SystemExit(f"{name}: {docs[name]['runs']} runs, expected {production}")
         print(f"  {name:<8} median {statistics.median(times):6.2f} s, best {min(times):6.2f} s  "
               f"({', '.join(f'{t:.2f}' for t in times)}; load average {_load()})")
-    print("same figures both ways:", docs["columns"] == docs["records"])
+    if len(docs) == 2:
+        print("same figures both ways:", docs["columns"] == docs["records"])
 
 
 if __name__ == "__main__":

@@ -16,6 +16,11 @@ from eol_cal.firmware.contract import CHECK_STATUS
 _STATUS_TEXT = {st.code: st.text for st in CHECK_STATUS.values()}
 
 
+#: the ``schema`` of ``block show --json`` and ``block check --json``
+BLOCK_SHOW_SCHEMA = "eol-cal/block-show/1"
+BLOCK_CHECK_SCHEMA = "eol-cal/block-check/1"
+
+
 def block_report(path: str) -> tuple[dict[str, Any], Any]:
     """The ``block show --json`` document for a file, and the decoded block (None if undecodable)."""
     from eol_cal.errors import InputError
@@ -29,6 +34,7 @@ def block_report(path: str) -> tuple[dict[str, Any], Any]:
     except InputError as exc:
         blk, decode_error = None, str(exc)
     doc = {
+        "schema": BLOCK_SHOW_SCHEMA,
         "file": str(path),
         "bytes": len(data),
         "valid": res.valid,
@@ -66,6 +72,7 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
     table.add_column("field")
     table.add_column("value")
     table.add_column("unit")
+    from eol_cal.display import display_unit
     from eol_cal.firmware.block import FIELDS, flag_names
 
     for name, spec in FIELDS.items():
@@ -81,10 +88,14 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
         elif name == "reserved":
             continue
         elif isinstance(v, float):
-            text = f"{v:.9g}"
+            unit, factor = display_unit(spec.get("unit", ""))  # one unit per quantity: k6 in mN*m/A...
+            text = f"{v * factor:.9g}"
         else:
             text = str(v)
-        unit = "deg (electrical)" if name == "hall_angle" else spec.get("unit", "")
+        if name == "hall_angle":
+            unit = "deg (electrical)"
+        elif not isinstance(v, float):
+            unit = spec.get("unit", "")
         table.add_row(name, text, unit)
     for name in ("table_const", "table_per_amp"):
         arr = getattr(blk, name)
@@ -156,7 +167,7 @@ def check_cmd(file: str, as_json: bool, motor_file: str | None) -> None:
     res = pb.check(data)
     unsafe = unsafe_reasons(data, file, motor_file) if res.valid else []
     if as_json:
-        print_json({"file": file, "valid": res.valid, "status": res.status,
+        print_json({"schema": BLOCK_CHECK_SCHEMA, "file": file, "valid": res.valid, "status": res.status,
                     "status_text": _STATUS_TEXT[res.status], "reasons": list(res.reasons),
                     "warnings": list(res.warnings), "safe": res.valid and not unsafe, "unsafe": unsafe})
     elif res.valid and not unsafe:

@@ -136,7 +136,7 @@ def info(file: str, map_file: str | None, as_json: bool) -> None:
         problem = exc
     summary = capture_summary(capture, Path(file).suffix.lower().lstrip("."), problem)
     if as_json:
-        print_json(summary)
+        print_json({"schema": "eol-cal/capture-info/1", **summary})
     else:
         _print_summary(summary)
     if problem is not None:

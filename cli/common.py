@@ -104,9 +104,21 @@ def handle_errors(func: Callable) -> Callable:
     return wrapper
 
 
-def print_json(obj: Any) -> None:
-    """Machine output: one JSON document on stdout, keys as documented in docs/json.md."""
+def print_json(obj: dict[str, Any]) -> None:
+    """Machine output: one JSON document on stdout, keys as documented in docs/json.md; every
+    document names its schema (``"schema": "eol-cal/NAME/VERSION"``, a file in eol_cal/schemas)."""
+    if not isinstance(obj, dict) or not str(obj.get("schema", "")).startswith("eol-cal/"):
+        raise TypeError("a --json document without its schema key")  # a programming error, not the user's
     click.echo(json.dumps(obj, indent=2, sort_keys=False, allow_nan=False))
+
+
+def kind_option(what: str, default: str = "production") -> Callable:
+    """``--kind KIND|all``: which run kinds (docs/records.md, "Run kinds") a command takes; ``what``
+    ends its help."""
+    from eol_cal.station.record import KINDS
+
+    return click.option("--kind", default=default, show_default=True, type=click.Choice([*KINDS, "all"]),
+                        help=f"Run kind: {', '.join(KINDS)}, or all; {what}")
 
 
 class RecordsDb(click.ParamType):

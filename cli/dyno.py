@@ -133,6 +133,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
             windows.append(str(path))
     wall = time.perf_counter() - t0
     summary = {
+        "schema": "eol-cal/acquire/1",
         "output": str(output),
         "serial": capture.serial,
         "profile": prof.name,

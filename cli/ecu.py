@@ -128,7 +128,7 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
     finally:
         bus.shutdown()
     if as_json:
-        print_json(report.to_dict())
+        print_json({"schema": "eol-cal/flash/1", **report.to_dict()})
         return
     prev = f"bank {report.previous.bank} seq {report.previous.sequence}" if report.previous.has_bank else "none"
     if report.dry_run:
@@ -163,7 +163,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
         bus.shutdown()
     doc = info.to_dict()
     if as_json:
-        print_json(doc)
+        print_json({"schema": "eol-cal/ecu-info/1", **doc})
         return
     click.echo(f"serial      {doc['serial']}\nsw version  {doc['sw_version']}\n"
                   f"layouts     {doc['layouts']}")
@@ -174,9 +174,12 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
     click.echo(f"active      bank {a['bank']} seq {a['sequence']} layout {a['layout_version']} crc {a['crc32']}")
     blk = doc["block"]
     if blk and blk["valid"]:
-        click.echo(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {blk['k6']:.6g} N*m/A "
-                      f"phase_k6 {blk['phase_k6']:.4f} rad c6 {blk['c6']:.6g} N*m lead {blk['lead_s']:.3g} s "
-                      f"iqc_limit {blk['iqc_limit']:g} A flags 0x{blk['flags']:x} calibrated_at {blk['calibrated_at']}")
+        from eol_cal.display import to_display
+
+        click.echo(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {to_display(blk['k6'], 'N*m/A'):.6g} "
+                   f"mN*m/A phase_k6 {to_display(blk['phase_k6'], 'rad'):.2f} deg c6 {to_display(blk['c6'], 'N*m'):.6g} "
+                   f"mN*m lead {blk['lead_s'] * 1e6:.1f} us iqc_limit {blk['iqc_limit']:g} A flags 0x{blk['flags']:x} "
+                   f"calibrated_at {blk['calibrated_at']}")
     elif blk:
         click.echo(f"block       INVALID read-back: {'; '.join(blk['reasons'])}")
 
@@ -219,82 +222,6 @@ def _bank_choice(value: str | None) -> int | str | None:
     if value not in ("0", "1"):
         raise InputError(None, "bank", f"{value!r}: 0, 1 or {PREVIOUS}")
     return int(value)
-
-
-@ecu_group.command("restore")
-@click.option("--bank", default=None, metavar="0|1|previous",
-              help="Restore the block in this bank; previous: the bank that is not active.")
-@click.option("--from", "from_file", type=click.Path(dir_okay=False), default=None,
-              help="Restore this block file instead (a run directory's block.bin, raw or Intel HEX).")
-@_bus_options
-@click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
-@click.option("--key-algo", metavar="MODULE:FUNC",
-              help="Other seed-to-key algorithm: FUNC(seed: bytes, secret: bytes|None) -> key bytes.")
-@click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None,
-              help="Write the block read from the bank here before flashing (written atomically) "
-                   "[default: ecu-bankN-TIME.bin in the current directory].")
-@click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
-              help="Motor TOML overriding the paper preset: its current rating bounds the block.")
-@click.option("--json", "as_json", is_flag=True, help="Print the flash report as JSON.")
-@handle_errors
-@io_paths(inputs=("from_file", "key_file", "can_config", "motor_file"), outputs=("save_file",))
-def restore_cmd(bank: str | None, from_file: str | None, interface: str | None, channel: str | None,
-                bitrate: int | None, can_config: str | None, key_file: str | None, key_algo: str | None,
-                save_file: str | None, motor_file: str | None, as_json: bool) -> None:
-    """Make an earlier calibration active again: flash it anew with a higher sequence.
-
-    The block comes from a bank of the ECU (--bank 0|1|previous; checked: valid, CRC and physical
-    sanity) or from a file (--from). It is written like `eol-cal flash` writes: into the inactive
-    bank, read back, checked, confirmed after the reset. Restoring the previous bank rewrites
-    that very bank: if the flash fails, the active block stays active and that bank is erased,
-    so the block read is always kept in a file first (--save, or ecu-bankN-TIME.bin here), from
-    which --from restores it. Exit 0 restored (or already active), 1 verification failed,
-    2 refused or error.
-    """
-    import time
-
-    from eol_cal.atomic import atomic_write
-    from eol_cal.ecu.restore import check_restorable, read_bank_block, restore_block
-    from eol_cal.firmware.block import read_block_file
-    from eol_cal.motor import load_motor
-
-    if (bank is None) == (from_file is None):
-        raise InputError(None, "bank", "give either --bank 0|1|previous or --from FILE")
-    which = _bank_choice(bank)
-    motor = load_motor("paper", motor_file)
-    seed_to_key = _seed_to_key(key_file, key_algo)
-    if from_file is not None:
-        data, source = read_block_file(from_file), from_file
-    else:
-        bus = _open_bus(interface, channel, bitrate, can_config)
-        try:
-            got = read_bank_block(bus, which)
-        finally:
-            bus.shutdown()  # a UDS session closes its link with it: the flash opens its own
-        data, source = got.data, got.source
-        if got.is_active:
-            click.echo(f"bank {got.bank} is the active block already (sequence {got.active.sequence}): nothing to do")
-            return
-        check_restorable(data, source, motor)  # a bank not worth restoring is refused before any copy
-        if save_file is None:  # the flash erases this very bank first: never without a copy
-            save_file = time.strftime(f"ecu-bank{got.bank}-%Y%m%dT%H%M%SZ.bin", time.gmtime())
-        try:
-            atomic_write(save_file, data)
-        except OSError as exc:
-            raise InputError(save_file, None, f"cannot write: {exc}; nothing was flashed") from exc
-        click.echo(f"bank {got.bank}'s block kept in {save_file} (eol-cal ecu restore --from {save_file})", err=True)
-    bus = _open_bus(interface, channel, bitrate, can_config)
-    try:
-        report = restore_block(bus, data, source, seed_to_key=seed_to_key, motor=motor,
-                               progress=None if as_json else lambda s: err_console.print(f"  {s}", style="dim"))
-    finally:
-        bus.shutdown()
-    if as_json:
-        print_json(dict(report.to_dict(), restored_from=source))
-        return
-    prev = f"bank {report.previous.bank} seq {report.previous.sequence}" if report.previous.has_bank else "none"
-    click.echo(f"restored {source} into bank {report.bank}: active now, seq {report.sequence} crc {report.crc32:08x} "
-               f"({'verified' if report.verified else 'NOT read back'}); active before: {prev}")
 
 
 @click.command("ecu-sim")

@@ -153,7 +153,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     write_result(doc, output)
 
     table = Table(title=f"ripple fit, values ± 95 % ({len(records)} motor{'s' if len(records) != 1 else ''})")
-    for col in ("serial", "status", "k6 mNm/A", "φk6 °", "c6 mNm", "φc6 °", "τ µs", "rms mNm", "R²", "steps"):
+    for col in ("serial", "status", "k6 mN*m/A", "φk6 deg", "c6 mN*m", "φc6 deg", "τ µs", "rms mN*m", "R²", "steps"):
         table.add_column(col, justify="right" if col not in ("serial", "status") else "left", no_wrap=col == "serial")
     import math
 

@@ -39,6 +39,7 @@ _COMMAND_MODULES: list[str] = [
     "lot",
     "operator",
     "refit",
+    "restore",
     "simulate",
     "station",
     "table",

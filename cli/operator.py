@@ -9,7 +9,7 @@ import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors
 from cli.paths import io_paths
-from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _results_table, _StepProgress, given_options
+from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _StepProgress, given_options, results_table
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
 STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
@@ -148,15 +148,17 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
 
 def _show(out) -> None:
     rec = out.record
-    lines = [f"{rec['verdict']}: {r}" for r in rec["reasons"]]
-    if rec.get("safe_state"):
-        lines.append(f"dyno safe state: {rec['safe_state']}")
-    if (rec.get("ecu_active") or {}).get("block") == "uncompensated":
+    lines = [f"{rec.verdict}: {r}" for r in rec.reasons]
+    if rec.kind == "refusal":
+        lines.append(f"refused ({', '.join(rec.refusal_codes)}): nothing was written to the ECU; not the motor's result")
+    if rec.safe_state:
+        lines.append(f"dyno safe state: {rec.safe_state}")
+    if rec.ecu_active.block == "uncompensated":
         lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
     lines.append(f"report: {out.report_html}" if out.report_html else "report: none (see the record)")
     where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
-    lines.append(f"record {rec['run_id']} -> {where}")
-    console.print(verdict_panel(rec["serial"], rec["verdict"], lines))
+    lines.append(f"record {rec.run_id} -> {where}")
+    console.print(verdict_panel(rec.serial, rec.verdict, lines))
 
 
 def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
@@ -188,17 +190,19 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
 def _finish(cfg, tally, lot_file: Path | None) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
     from eol_cal.report.lot import select_records, write_lot_page
-    from eol_cal.station.records import db_label, query_records
+    from eol_cal.station.records import db_label, db_shown
+    from eol_cal.station.records_query import query_records
 
     station_id = cfg.station.get("id")
     if tally.records:
-        console.print(_results_table(tally.records, f"eol-cal station {station_id}: this session"))
+        console.print(results_table(tally.records, f"eol-cal station {station_id}: this session"))
     console.print(f"session: {tally.summary()}")
     for rec, report in zip(tally.records, tally.reports):
-        console.print(f"  {rec['serial']}: {rec['verdict']}, report {report or '-'}")
+        what = f"refused ({', '.join(rec.refusal_codes)})" if rec.kind == "refusal" else rec.verdict
+        console.print(f"  {rec.serial}: {what}, report {report or '-'}")
     for serial in tally.interrupted:
         console.print(f"  {serial}: interrupted (error), its run directory is under {cfg.report_dir}")
-    hint = f"eol-cal lot report --db {cfg.db} --station {station_id} -o lot.html"
+    hint = f"eol-cal lot report --db {db_shown(cfg.db)} --station {station_id} -o lot.html"
     if lot_file is None or not (tally.records or tally.interrupted):
         console.print(f"lot page: {hint}")
         return
@@ -240,6 +244,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.station.configure import station_config
+    from eol_cal.station.records import db_shown
     from eol_cal.station.session import SessionTally, operator_name
 
     if demo and out_dir is None:
@@ -252,7 +257,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     _quiet_logs()
     what = f"demo in {out_dir} (simulated ECU and dyno per motor)" if demo else f"settings {settings.source}"
     console.print(f"eol-cal station {cfg.station['id']}: {what}\n  limits {cfg.limits.source} ({cfg.limits.variant}), "
-                  f"records {cfg.db}, reports {cfg.report_dir}")
+                  f"records {db_shown(cfg.db)}, reports {cfg.report_dir}")
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:

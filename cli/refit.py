@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import CommandExit, console, err_console, handle_errors
+from cli.common import CommandExit, console, err_console, handle_errors, kind_option
 from cli.paths import io_paths
 
 
@@ -24,9 +24,10 @@ from cli.paths import io_paths
 @click.option("--motor", default="paper", show_default=True, help="Motor preset the runs were made with.")
 @click.option("-o", "--out", "out", required=True, type=click.Path(dir_okay=False, path_type=Path),
               help="Results: .parquet or .jsonl, one row per capture, keyed by serial.")
+@kind_option("station run directories whose record is of another kind are left out.")
 @handle_errors
 @io_paths(inputs=("captures", "limits_file", "bench", "motor"), outputs=("out",))
-def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out) -> None:
+def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out, kind) -> None:
     """Refit every capture (directories of station runs: their before.mf4; files; globs) as one
     task each on a `distributed` cluster, with the station's fit; rows keyed by serial."""
     from distributed import Client
@@ -39,7 +40,7 @@ def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, 
 
     if out.suffix not in (".parquet", ".jsonl"):
         raise InputError(str(out), None, "results file must end in .jsonl or .parquet")
-    paths = find_captures(captures)
+    paths = find_captures(captures, kind)
     cache_dir = default_cache_dir()
     with contextlib.ExitStack() as stack:
         cluster = None if scheduler else stack.enter_context(local_cluster(workers))

@@ -125,7 +125,7 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
             plot_runs([result], plot_file)
         doc = _summary(result, mode, output)
         if as_json:
-            print_json(doc)
+            print_json({"schema": SIMULATE_SCHEMA, **doc})
         else:
             console.print(f"wrote {output}: {doc['serial']}, mode {mode}, profile {prof.name}, "
                           f"{doc['seconds']:.2f} s, mean torque {doc['torque_mean_nm']:.3f} N*m")
@@ -156,9 +156,12 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
 
         plot_runs(results[:4], plot_file)
     if as_json:
-        print_json({"motors": docs})
+        print_json({"schema": SIMULATE_SCHEMA, "motors": docs})
     else:
         console.print(f"wrote {len(docs)} captures to {out_dir}")
 
+
+#: the ``schema`` of ``simulate --json`` (one motor's summary, or ``motors``: one per motor)
+SIMULATE_SCHEMA = "eol-cal/simulate/1"
 
 COMMANDS = [simulate_cmd]

@@ -2,30 +2,18 @@
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
-                        handle_errors, print_json)
+                        handle_errors, kind_option, print_json)
 from cli.dyno import load_map, realtime_option, register_map_option
 from cli.paths import io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
-DEMO_LIMITS = """\
-# eol-cal demo: limits of the demo's product variant (units: docs/station.md)
-[variant.EPS-STD]
-max_k6 = 0.0012
-max_pp_before_pct = 6.0
-max_pp_after_pct = 2.0
-min_improvement_pct = 40.0
-min_r2 = 0.3
-max_rms_nm = 0.05
-max_ci_k6_rel = 0.05
-max_ci_phase_k6_deg = 3.0
-max_ci_c6_nm = 0.002
-max_hall_deviation_deg = 3.0
-"""
+DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").read_text(encoding="utf-8")
 
 
 def _quiet_logs() -> None:
@@ -71,58 +59,73 @@ def _fmt(x, digits: int = 3, scale: float = 1.0) -> str:
     return f"{x * scale:.{digits}g}"
 
 
-def _results_table(records: list[dict], title: str):
+def results_table(records: list, title: str):
+    """The runs as a table: serial, kind and verdict, k6 (display unit), p-p before/after,
+    improvement, wall time, start."""
     from rich import box
     from rich.table import Table
 
+    from eol_cal.display import display_unit
+
+    k6_unit, k6_scale = display_unit("N*m/A")
     table = Table(title=title, box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False)
-    for col, just in (("serial", "left"), ("verdict", "left"), ("k6\nmN*m/A", "right"), ("p-p %\nbefore", "right"),
+    for col, just in (("serial", "left"), ("verdict", "left"), (f"k6\n{k6_unit}", "right"), ("p-p %\nbefore", "right"),
                       ("p-p %\nafter", "right"), ("impr.\n%", "right"), ("wall\ns", "right"), ("started\nUTC", "left")):
         table.add_column(col, justify=just, no_wrap=True)
     colour = {"pass": "green", "fail": "yellow", "error": "red"}
     for r in records:
-        fit = r.get("fit") or {}
-        met = r.get("metrics") or {}
-        wall = sum(s["seconds"] or 0.0 for s in r.get("steps") or [])
-        table.add_row(r["serial"], f"[{colour.get(r['verdict'], 'white')}]{r['verdict']}[/]",
-                      _fmt((fit.get("k6") or {}).get("value"), 4, 1e3), _fmt(met.get("pp_before_pct")),
-                      _fmt(met.get("pp_after_pct")), _fmt(met.get("improvement_pct")), f"{wall:.1f}",
-                      str(r.get("started_at", ""))[5:19].replace("T", " "))
+        verdict = f"[{colour.get(r.verdict, 'white')}]{r.verdict}[/]"
+        if r.kind == "refusal":
+            verdict = f"[red]refused[/] ({', '.join(r.refusal_codes)})"
+        elif r.kind != "production":
+            verdict = f"{r.kind}: {verdict}"
+        table.add_row(r.serial, verdict, _fmt(r.value("k6"), 4, k6_scale), _fmt(r.value("pp_before_pct")),
+                      _fmt(r.value("pp_after_pct")), _fmt(r.value("improvement_pct")), f"{r.total_s:.1f}",
+                      r.started_at[5:19].replace("T", " "))
     return table
+
+
+#: the ``schema`` of ``eol-cal run --json``
+RUN_SCHEMA = "eol-cal/run/1"
 
 
 def _print_outcome(out, as_json: bool) -> None:
     rec = out.record
     if as_json:
-        print_json({"record": rec, "saved": {"where": out.saved.where, "path": out.saved.path, "why": out.saved.why},
+        print_json({"schema": RUN_SCHEMA, "record": rec.to_json(),
+                    "saved": {"where": out.saved.where, "path": out.saved.path, "why": out.saved.why},
                     "report": str(out.report_html) if out.report_html else None, "exit_code": out.exit_code})
         return
-    console.print(_results_table([rec], f"eol-cal run: {rec['serial']} ({rec['limits']['variant']})"))
-    for reason in rec["reasons"]:
-        console.print(f"  {rec['verdict']}: {reason}")
-    if rec.get("safe_state"):
-        console.print(f"  dyno safe state: {rec['safe_state']}")
-    ecu = rec.get("ecu_active") or {}
-    if ecu.get("block") == "uncompensated":
-        console.print(f"  ECU: the uncompensated block is active (sequence {ecu['sequence']}): the motor is not calibrated")
-    steps = ", ".join(f"{s['step']} {s['seconds']:.2f} s" for s in rec["steps"] if s["seconds"] is not None)
+    console.print(results_table([rec], f"eol-cal run: {rec.serial} ({rec.limits.variant if rec.limits else '-'})"))
+    for reason in rec.reasons:
+        console.print(f"  {'refused' if rec.kind == 'refusal' else rec.verdict}: {reason}")
+    if rec.kind == "refusal":
+        console.print("  nothing was written to the ECU: the run is kept as a refusal, not as the motor's result")
+    if rec.safe_state:
+        console.print(f"  dyno safe state: {rec.safe_state}")
+    if rec.ecu_active.block == "uncompensated":
+        console.print(f"  ECU: the uncompensated block is active (sequence {rec.ecu_active.sequence}): "
+                      "the motor is not calibrated")
+    steps = ", ".join(f"{s.step} {s.seconds:.2f} s" for s in rec.steps if s.seconds is not None)
     console.print(f"  steps: {steps}")
     if out.report_html:
         console.print(f"  report: {out.report_html}")
     where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
-    console.print(f"  record {rec['run_id']} -> {where}")
+    console.print(f"  record {rec.run_id} -> {where}")
 
 
 def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
+    from eol_cal.station.records import db_shown
     from eol_cal.station.spool import flush_spool
 
     res = flush_spool(db, spool_dir, timeout)
     for bad in res.bad_files:
         err_console.print(f"[yellow]spool: {bad}; left alone[/yellow]")
     if res.flushed_files:
-        err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db}")
+        err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db_shown(db)}")
     elif res.remaining:
-        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db}: {res.error}[/yellow]")
+        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db_shown(db)}: "
+                          f"{res.error}[/yellow]")
 
 
 #: each `run` option's settings key (eol_cal.station.settings.KEYS); an option given on the command
@@ -301,19 +304,21 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
                 out = run_motor(cfg, progress)
         outcomes.append(out)
         rec = out.record
-        err_console.print(f"{serial}: {rec['verdict']}" + (f" ({'; '.join(rec['reasons'])})" if rec["reasons"] else ""))
+        err_console.print(f"{serial}: {rec.verdict}" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
     wall = time.perf_counter() - t0
-    console.print(_results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
+    console.print(results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
     from eol_cal.report.lot import write_lot_page
-    from eol_cal.station.records import db_label, query_records
+    from eol_cal.station.records import db_label, db_shown
+    from eol_cal.station.records_query import query_records
 
     lot_page = write_lot_page(query_records(db), out_dir / "lot.html", title=f"{db_label(db)} (eol-cal demo)",
                               filters={"variant": None, "since": None, "until": None, "station": None})
     console.print("per-motor reports (one self-contained file each; open in a browser):")
     for o in outcomes:
-        console.print(f"  {o.record['serial']}: {o.report_html}")
-    console.print(f"lot page: {lot_page} (eol-cal lot report --db {db} -o lot.html)")
-    console.print(f"records: {db} (eol-cal records --db {db}); limits: {limits_path}")
+        console.print(f"  {o.record.serial}: {o.report_html}")
+    shown = db_shown(db)
+    console.print(f"lot page: {lot_page} (eol-cal lot report --db {shown} -o lot.html)")
+    console.print(f"records: {shown} (eol-cal records --db {shown}); limits: {limits_path}")
     console.print("the same cycle on a real station: eol-cal run --dyno HOST:PORT --interface I --channel C "
                   f"--limits {limits_path} --db results.sqlite --serial S --key-file KEY")
     raise CommandExit(max(o.exit_code for o in outcomes))
@@ -335,6 +340,7 @@ def _day(value: str | None) -> str | None:
               help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.option("--serial", default=None, help="Only this motor.")
 @click.option("--day", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day.")
+@kind_option("the list and --json [default: every kind; the summary counts production runs].", default="all")
 @click.option("--json", "as_json", is_flag=True, help="Print the records and the summary as JSON.")
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False, path_type=Path), help="PNG of k6 and p-p %% across the lot.")
 @click.option("--flush", is_flag=True, help="First write spooled records into the database.")
@@ -342,11 +348,14 @@ def _day(value: str | None) -> str | None:
 @click.pass_context
 @handle_errors
 @io_paths(inputs=("db",), outputs=("plot_file",), output_dirs=("spool_dir",))
-def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> None:
-    """Query run records: by serial or day, the pass rate, and a plot across the lot.
+def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir) -> None:
+    """Query run records: by serial, day and kind, the pass rate, and a plot across the lot.
 
-    `eol-cal records migrate --db DB` brings a database to this version's schema."""
-    from eol_cal.station.records import db_label, query_records, summarise
+    The summary counts the production runs (measured motors); refusals (nothing written,
+    nothing measured), restores and other kinds are counted apart. `eol-cal records migrate
+    --db DB` brings a database to this version's schema."""
+    from eol_cal.station.records import db_label
+    from eol_cal.station.records_query import query_records, summarise
     from eol_cal.station.spool import flush_spool
 
     if ctx.invoked_subcommand is not None:
@@ -354,7 +363,7 @@ def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> N
     day = _day(day)
     if flush:
         res = flush_spool(db, spool_dir)
-        msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db}"
+        msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db_label(db)}"
                + (f"; {res.remaining} still waiting: {res.error}" if res.remaining else "")
                + (f"; {res.other_db} spooled for other databases" if res.other_db else ""))
         err_console.print(msg)
@@ -363,23 +372,27 @@ def records_cmd(ctx, db, serial, day, as_json, plot_file, flush, spool_dir) -> N
         if res.remaining:
             raise CommandExit(2)
     skipped: list = []
-    records = query_records(db, serial, day, skipped=skipped)
+    records = query_records(db, serial, day, skipped=skipped, kind=kind)
     for exc in skipped:  # a corrupt row costs only itself: reported, the others are listed
         click.echo(f"error: {exc}; skipped", err=True)
     summary = summarise(records)
     if plot_file is not None:
         from eol_cal.station.report import plot_lot
 
-        plot_lot(plot_file, records, title=f"{db_label(db)}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))
+        plot_lot(plot_file, [r for r in records if r.kind == "production"],
+                 title=f"{db_label(db)}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))
     if as_json:
-        print_json({"summary": summary, "records": records})
+        print_json({"schema": RECORDS_SCHEMA, "summary": summary, "records": [r.to_json() for r in records]})
         if skipped:
             raise CommandExit(2)
         return
-    console.print(_results_table(records, f"{db_label(db)}: {summary['runs']} run(s)"))
+    console.print(results_table(records, f"{db_label(db)}: {len(records)} run(s)"))
     rate = "-" if summary["pass_rate"] is None else f"{100 * summary['pass_rate']:.1f} %"
-    console.print(f"pass {summary['pass']}, fail {summary['fail']}, error {summary['error']}; pass rate {rate} "
-                  f"(of runs that ended pass or fail); motors {summary['motors']}")
+    others = ", ".join(f"{k} {n}" for k, n in summary["kinds"].items() if k != "production" and n)
+    console.print(f"production runs {summary['runs']}: pass {summary['pass']}, fail {summary['fail']}, "
+                  f"error {summary['error']}; pass rate {rate} (of runs that ended pass or fail); motors "
+                  f"{summary['motors']}, {summary['motors_pass']} passing in their latest run"
+                  + (f"; apart: {others}" if others else ""))
     if plot_file is not None:
         console.print(f"plot: {plot_file}")
     if skipped:
@@ -401,5 +414,8 @@ def migrate_cmd(db) -> None:
     what = "created" if before is None else ("already at" if before == now else f"migrated from version {before} to")
     console.print(f"{db_label(db)}: {what} schema version {now}")
 
+
+#: the ``schema`` of ``eol-cal records --json``
+RECORDS_SCHEMA = "eol-cal/records/2"
 
 COMMANDS = [run_cmd, demo_cmd, records_cmd]

@@ -72,7 +72,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
         d = blk.to_dict()
         d.pop("table_const")
         d.pop("table_per_amp")
-        print_json({"file": output, "bytes": len(data), "block": d})
+        print_json({"schema": "eol-cal/table/1", "file": output, "bytes": len(data), "block": d})
     else:
         console.print(
             f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"

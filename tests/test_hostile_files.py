@@ -130,7 +130,7 @@ def test_a_corrupt_record_row_is_skipped_and_reported_the_others_kept(tmp_path):
     con.close()
     res = CliRunner().invoke(cli, ["records", "--db", str(db), "--json"])
     line = _one_line_exit_2(res, str(db), "record_json", "skipped")
-    assert recs[1]["run_id"] not in line or "run" in line
+    assert recs[1].run_id not in line or "run" in line
     assert [r["serial"] for r in json.loads(res.stdout)["records"]] == ["A", "C"]
     # lot statistics read the columns, not the record JSON: the corrupt document does not matter
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(db), "--json"])
@@ -138,11 +138,11 @@ def test_a_corrupt_record_row_is_skipped_and_reported_the_others_kept(tmp_path):
     assert json.loads(res.stdout)["runs"] == 3
     # a corrupt reasons column of a failed run is refused, naming the database, the run and the column
     con = sqlite3.connect(db)
-    con.execute("UPDATE runs SET verdict = 'fail', reasons = '[\"p-p' WHERE serial = 'C'")
+    con.execute("UPDATE runs SET verdict = 'fail', causes = '[\"max_' WHERE serial = 'C'")
     con.commit()
     con.close()
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(db)])
-    _one_line_exit_2(res, str(db), recs[2]["run_id"], "reasons")
+    _one_line_exit_2(res, str(db), recs[2].run_id, "causes")
 
 
 def _full_disk(tmp_path: Path) -> Path | None:

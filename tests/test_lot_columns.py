@@ -1,5 +1,5 @@
 """Lot statistics from the database's columns (no record JSON parsed) are the statistics of the
-records themselves, on both backends; a version-2 database migrates to version 3 with the new
+records themselves, on both backends; a version-2 database migrates to version 4 with the new
 columns filled from each row's record JSON; time order from the start-time strings."""
 
 from __future__ import annotations
@@ -19,24 +19,25 @@ from eol_cal.errors import InputError
 from eol_cal.lot.columns import QUANTITIES, from_records, read_lot, time_order
 from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, summary
 from eol_cal.lot.summary import lot_summary
-from eol_cal.report.lot import run_time, value_of
+from eol_cal.report.lot import run_time
 from eol_cal.report.motor import station_of
 from eol_cal.schemas import validator
-from eol_cal.station.records import (SCHEMA_VERSION, engine, insert_records, migrate, query_records, read_rows,
-                                     row_values, runs, select_runs)
+from eol_cal.station.record import RunRecord
+from eol_cal.station.records import SCHEMA_VERSION, engine, insert_records, migrate, row_values, runs
+from eol_cal.station.records_query import query_records, read_rows, select_runs
 from test_records_backends import _V1
 
-LOT = [lot_record(i, motors=70, hi_every=25) for i in range(90)]
+LOT = [lot_record(i, motors=70, hi_every=25, refusals=True) for i in range(90)]
 
 
-def by_definition(records: list[dict]) -> dict:
+def by_definition(records: list[RunRecord]) -> dict:
     """The lot's figures record by record, straight from the definitions in eol_cal.lot.stats
-    (the reading lot statistics had before the columns): the reference."""
-    recs = sorted(records, key=lambda r: (run_time(r), r["run_id"]))
+    (the reading lot statistics had before the columns): the reference. Production runs only."""
+    recs = sorted((r for r in records if r.kind == "production"), key=lambda r: (run_time(r), r.run_id))
     quantities = {}
     for q in QUANTITIES:
-        x = [value_of(r, q.path) * q.scale for r in recs]
-        lims = sorted({value_of(r, ("limits", q.limit_key)) for r in recs if q.limit_key} - {math.nan})
+        x = [r.value(q.key) * q.scale for r in recs]
+        lims = sorted({r.limits.value(q.limit_key) for r in recs if q.limit_key} - {None})
         lims = [v * q.scale for v in lims if math.isfinite(v)]
         cap = None
         if len(lims) == 1:
@@ -45,9 +46,8 @@ def by_definition(records: list[dict]) -> dict:
     control = {}
     for st in sorted({station_of(r) for r in recs}):
         rs = [r for r in recs if station_of(r) == st]
-        control[st] = {key: (len(rs), imr_limits([value_of(r, path) * scale for r in rs]))
-                       for key, path, scale in (("k6", ("fit", "k6", "value"), 1e3),
-                                                ("pp_after_pct", ("metrics", "pp_after_pct"), 1.0))}
+        control[st] = {key: (len(rs), imr_limits([r.value(key) * scale for r in rs]))
+                       for key, scale in (("k6", 1e3), ("pp_after_pct", 1.0))}
     return {"fpy": first_pass_yield(recs), "pareto": pareto(recs), "quantities": quantities, "control": control}
 
 
@@ -86,17 +86,18 @@ def test_lot_stats_from_the_columns_equal_the_statistics_of_the_records(records_
     insert_records(records_db, LOT)
     stored = query_records(records_db)  # the full parsed records, as the database returns them
     if variant:
-        stored = [r for r in stored if r["limits"]["variant"] == variant]
+        stored = [r for r in stored if r.limits.variant == variant]
     fast = lot_summary(read_lot(records_db, variant=variant))
-    assert fast == lot_summary(from_records(stored))
+    assert fast == lot_summary(from_records([r for r in stored if r.kind == "production"]))
     ref = by_definition(stored)
     assert_matches_definition(fast, ref)
     # the lot is what the test means it to be: re-tests, all verdicts, a run without station, ties,
     # every cause, capability against a limit (and none where the variants' limits differ)
-    assert fast["runs"] == len(stored) and fast["motors"] < fast["runs"]
+    refused = [r for r in stored if r.kind == "refusal"]
+    assert refused and fast["runs"] == len(stored) - len(refused) and fast["motors"] < fast["runs"]
     assert all(fast["verdicts"][v] > 0 for v in ("pass", "fail", "error"))
     assert "(no station id)" in fast["control"] and len(fast["control"]) == 7
-    assert len({r["started_at"] for r in stored}) < len(stored)
+    assert len({r.started_at for r in stored}) < len(stored)
     assert {p["cause"] for p in fast["pareto"]} >= {"max_pp_after_pct", "max_k6", "min_r2", "error in acquire"}
     k6 = next(q for q in fast["quantities"] if q["key"] == "k6")
     assert (k6["cpk"] is not None) == (variant == "EPS-STD")
@@ -106,11 +107,15 @@ def test_lot_stats_from_the_columns_equal_the_statistics_of_the_records(records_
     assert res.exit_code == 0, res.output
     printed = json.loads(res.stdout)
     validator("lot-stats").validate(printed)
-    assert {k: v for k, v in printed.items() if k not in ("schema", "db", "filters")} == fast
+    assert {k: v for k, v in printed.items() if k not in ("schema", "db", "filters", "refusals")} == fast
+    # the refusals apart: their own Pareto of reasons, in no figure of the lot
+    assert printed["refusals"]["runs"] == len(refused)
+    assert {p["cause"]: p["runs"] for p in printed["refusals"]["pareto"]} == {
+        c: sum(r.refusal_codes == (c,) for r in refused) for c in {r.refusal_codes[0] for r in refused}}
 
 
-def _v2_database(db, records: list[dict]) -> None:
-    """A records database as eol-cal wrote it at schema version 2 (no version-3 columns)."""
+def _v2_database(db, records: list[RunRecord]) -> None:
+    """A records database laid out as eol-cal wrote it at schema version 2 (no version-3 or -4 columns)."""
     eng = engine(db)
     with eng.begin() as con:
         for stmt in _V1.split(";"):
@@ -120,38 +125,40 @@ def _v2_database(db, records: list[dict]) -> None:
         con.exec_driver_sql("ALTER TABLE runs ADD COLUMN operator TEXT")
         con.exec_driver_sql("CREATE TABLE schema_version (version INTEGER NOT NULL)")
         con.exec_driver_sql("INSERT INTO schema_version (version) VALUES (2)")
-        v3 = ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm")
-        rows = [{k: v for k, v in row_values(r).items() if k not in v3} | {"record_json": json.dumps(r)}
+        later = ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm", "kind", "causes")
+        rows = [{k: v for k, v in row_values(r).items() if k not in later} | {"record_json": json.dumps(r.to_json())}
                 for r in records]
         con.execute(runs.insert(), rows)
     if isinstance(db, Path):
         eng.dispose()
 
 
-def test_a_version_2_database_migrates_to_3_with_the_new_columns_filled(records_db):
+def test_a_version_2_database_migrates_to_4_with_the_new_columns_filled(records_db):
     lot = LOT[:40]
     _v2_database(records_db, lot)
     with pytest.raises(InputError, match="schema version 2.*migrate it first"):
         read_lot(records_db)
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db)])
     assert res.exit_code == 2 and "schema version 2" in res.output
-    assert migrate(records_db) == (2, SCHEMA_VERSION) and SCHEMA_VERSION == 3
-    new = ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm")
+    assert migrate(records_db) == (2, SCHEMA_VERSION) and SCHEMA_VERSION == 4
+    new = ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm", "kind", "causes")
     got = {r["run_id"]: r for r in read_rows(records_db, select_runs())}
     for r in lot:
         want = row_values(r)
-        assert {k: got[r["run_id"]][k] for k in new} == {k: want[k] for k in new}
-    errors = [r for r in lot if r["verdict"] == "error"]
-    assert errors and all(got[r["run_id"]]["error_step"] == r["error"]["step"] for r in errors)
-    assert all(got[r["run_id"]]["fit_r2"] is None for r in errors)
-    assert json.loads(got[lot[0]["run_id"]]["limits_json"]) == lot[0]["limits"]
-    assert all(math.isfinite(got[r["run_id"]]["fit_r2"]) for r in lot if r["fit"])
+        assert {k: got[r.run_id][k] for k in new} == {k: want[k] for k in new}
+    errors = [r for r in lot if r.verdict == "error" and r.kind == "production"]
+    assert errors and all(got[r.run_id]["error_step"] == r.error.step for r in errors)
+    assert all(got[r.run_id]["fit_r2"] is None for r in errors if r.fit is None)
+    assert json.loads(got[lot[0].run_id]["limits_json"]) == {**lot[0].limits.to_dict(), "sha256": lot[0].limits_sha256}
+    assert all(math.isfinite(got[r.run_id]["fit_r2"]) for r in lot if r.fit)
+    assert {got[r.run_id]["kind"] for r in lot} == {"production", "refusal"}
     # the migrated database gives the statistics of its records; new records fill the columns
     assert insert_records(records_db, LOT[40:45]) == 5
-    assert read_lot(records_db).verdict.size == 45
+    measured = [r for r in LOT[:45] if r.kind == "production"]
+    assert read_lot(records_db).verdict.size == len(measured)
     doc = lot_summary(read_lot(records_db))
     r2 = next(q for q in doc["quantities"] if q["key"] == "fit_r2")
-    assert r2["count"] == sum(1 for r in LOT[:45] if r["fit"]) and r2["limit"] == pytest.approx(0.3)
+    assert r2["count"] == sum(1 for r in measured if r.fit) and r2["limit"] == pytest.approx(0.3)
     with engine(records_db, readonly=True).connect() as con:
         assert con.execute(sa.select(sa.func.count()).where(runs.c.limits_json.is_(None))).scalar() == 0
 
@@ -166,23 +173,22 @@ def test_time_order_is_the_order_of_the_start_strings_or_of_the_parsed_times():
         time_order(["yesterday", "2026-11-22T08:00:00+00:00"], ["a", "b"])
     with pytest.raises(InputError, match="started_at.*2026-13"):  # the station's length, not a time
         time_order(["2026-13-22T08:00:00.000+00:00", "2026-11-22T08:00:00.000+00:00"], ["a", "b"])
-    recs = sorted(LOT, key=lambda r: (r["started_at"], r["run_id"]))
+    recs = sorted(LOT, key=lambda r: (r.started_at, r.run_id))
     lot = from_records(LOT[::-1])  # any input order: time order out
-    assert lot.run_id.tolist() == [r["run_id"] for r in recs]
-    assert np.array_equal(lot.values["k6"], np.array([value_of(r, ("fit", "k6", "value")) for r in recs]),
-                          equal_nan=True)
+    assert lot.run_id.tolist() == [r.run_id for r in recs]
+    assert np.array_equal(lot.values["k6"], np.array([r.value("k6") for r in recs]), equal_nan=True)
 
 
 def test_a_corrupt_record_refuses_the_migration_and_leaves_version_2(records_db):
     lot = LOT[:5]
     _v2_database(records_db, lot)
     with engine(records_db).begin() as con:
-        con.execute(runs.update().where(runs.c.run_id == lot[2]["run_id"]).values(record_json='{"serial": '))
-    with pytest.raises(InputError, match=f"run {lot[2]['run_id']} record_json"):
+        con.execute(runs.update().where(runs.c.run_id == lot[2].run_id).values(record_json='{"serial": '))
+    with pytest.raises(InputError, match=f"run {lot[2].run_id} record_json"):
         migrate(records_db)
     # one transaction: no column added, still version 2; mended, the migration goes through
     with engine(records_db, readonly=True).connect() as con:
         assert "limits_json" not in {c["name"] for c in sa.inspect(con).get_columns("runs")}
     with engine(records_db).begin() as con:
-        con.execute(runs.update().where(runs.c.run_id == lot[2]["run_id"]).values(record_json=json.dumps(lot[2])))
-    assert migrate(records_db) == (2, 3)
+        con.execute(runs.update().where(runs.c.run_id == lot[2].run_id).values(record_json=json.dumps(lot[2].to_json())))
+    assert migrate(records_db) == (2, 4)

@@ -6,7 +6,8 @@ import math
 
 import pytest
 
-from eol_cal.lot.stats import capability, failure_causes, first_pass_yield, imr_limits, pareto, summary
+from _records import make_record
+from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, summary
 
 # x in time order; mean 2.6, sd (ddof 1) sqrt(5.2 / 4) = 1.140175, moving ranges 2 1 2 1 -> MRbar 1.5
 X = [1.0, 3.0, 2.0, 4.0, 3.0]
@@ -44,22 +45,25 @@ def test_individuals_and_moving_range_limits_by_hand():
     assert lim.beyond([2.0, 7.0, -2.0]) == [1, 2]
 
 
-def rec(serial, t, verdict, reasons=(), step=None):
-    return {"serial": serial, "started_at": f"2026-11-22T{t:02d}:00:00+00:00", "verdict": verdict, "reasons": list(reasons),
-            "error": {"step": step} if step else None}
+def rec(serial, t, **kw):
+    return make_record(serial, started=f"2026-11-22T{t:02d}:00:00.000+00:00", **kw)
 
 
 def test_first_pass_yield_and_pareto_by_hand():
-    recs = [rec("A", 8, "pass"),
-            rec("B", 9, "fail", ["p-p after = 2.5 % exceeds max_pp_after_pct = 2", "improvement = 30 % below min_improvement_pct = 40"]),
-            rec("B", 12, "pass"),  # B's re-test passes: not a first pass
-            rec("C", 10, "error", ["acquire: dyno fault"], step="acquire"),
-            rec("D", 11, "fail", ["p-p after = 3 % exceeds max_pp_after_pct = 2"]),
-            rec("E", 13, "fail", ["hall table not measured: too few transitions"])]
+    recs = [rec("A", 8),
+            rec("B", 9, pp_after=2.5),  # fails max_pp_after_pct and min_improvement_pct (from the demo's 2.93 %)
+            rec("B", 12),  # B's re-test passes: not a first pass
+            rec("C", 10, error_step="acquire"),
+            rec("D", 11, pp_after=1.9, pp_before=6.5),  # fails max_pp_before_pct (improvement 71 %)
+            rec("E", 13, r2=0.2),  # fails min_r2
+            rec("F", 7, refused=("wrong_serial",)),  # a mis-scan: measured nothing, in no figure of the lot
+            rec("F", 14)]
     fpy, motors = first_pass_yield(recs)
-    assert motors == 5 and fpy == pytest.approx(1 / 5)
-    assert failure_causes(recs[1]) == ["max_pp_after_pct", "min_improvement_pct"]
-    assert failure_causes(recs[3]) == ["error in acquire"]
-    assert failure_causes(recs[5]) == ["hall table not measured"]
-    assert pareto(recs) == [("max_pp_after_pct", 2, pytest.approx(0.4)), ("error in acquire", 1, pytest.approx(0.6)),
-                            ("hall table not measured", 1, pytest.approx(0.8)), ("min_improvement_pct", 1, pytest.approx(1.0))]
+    assert motors == 6 and fpy == pytest.approx(2 / 6)  # A and F (its first measured run) of A..F
+    assert recs[1].causes() == ["max_pp_after_pct", "min_improvement_pct"]
+    assert recs[3].causes() == ["error in acquire"]
+    assert recs[5].causes() == ["min_r2"] and recs[6].causes() == ["wrong_serial"]
+    measured = [r for r in recs if r.kind == "production"]
+    assert pareto(measured) == [("error in acquire", 1, pytest.approx(1 / 5)), ("max_pp_after_pct", 1, pytest.approx(2 / 5)),
+                                ("max_pp_before_pct", 1, pytest.approx(3 / 5)), ("min_improvement_pct", 1, pytest.approx(4 / 5)),
+                                ("min_r2", 1, pytest.approx(1.0))]

@@ -5,27 +5,26 @@ from __future__ import annotations
 
 import csv
 import json
-import uuid
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
+from _records import make_record
 from cli.main import cli
 from eol_cal.station.records import insert_records
 
 
-def rec(serial: str, hour: int, k6_mnm: float, station: str, verdict: str = "pass", reasons=(), variant="EPS-STD"):
-    t = f"2026-11-22T{hour:02d}:00:00.000+00:00"
-    return {"schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": serial, "started_at": t,
-            "ended_at": t, "verdict": verdict, "reasons": list(reasons), "station": {"id": station},
-            "limits": {"variant": variant, "max_k6": 2.0e-3, "max_pp_after_pct": 2.0},
-            "fit": {"k6": {"value": k6_mnm * 1e-3}}, "metrics": {"pp_after_pct": 1.0}}
+def rec(serial: str, hour: int, k6_mnm: float, station: str, verdict: str = "pass", variant="EPS-STD"):
+    # a failed run: its compensated p-p over the variant's 2 %
+    return make_record(serial, started=f"2026-11-22T{hour:02d}:00:00.000+00:00", station=station, variant=variant,
+                       limits={"max_k6": 2.0e-3, "min_improvement_pct": 10.0}, k6=k6_mnm * 1e-3,
+                       pp_after=2.5 if verdict == "fail" else 1.0)
 
 
 def test_lot_stats_by_hand(records_db, tmp_path: Path):
     lot = [rec("A", 8, 1.0, "EOL-1"), rec("B", 9, 1.2, "EOL-1"), rec("C", 10, 0.9, "EOL-1"),
-           rec("D", 11, 1.1, "EOL-1", "fail", ["p-p after = 2.5 % exceeds max_pp_after_pct = 2"]),
+           rec("D", 11, 1.1, "EOL-1", "fail"),
            rec("E", 12, 1.5, "EOL-2"), rec("F", 13, 1.7, "EOL-2"),
            rec("G", 14, 9.0, "EOL-3", variant="EPS-HI")]
     insert_records(records_db, lot)
@@ -54,7 +53,8 @@ def test_lot_stats_by_hand(records_db, tmp_path: Path):
     with open(tmp_path / "runs.csv", newline="") as f:
         rows = list(csv.DictReader(f))
     assert [r["serial"] for r in rows] == list("ABCDEF") and rows[1]["station"] == "EOL-1"
-    assert float(rows[4]["k6"]) == pytest.approx(1.5e-3)
+    assert float(rows[4]["k6 [mN*m/A]"]) == pytest.approx(1.5)  # one unit per quantity: the one people read
+    assert "phase_k6 [deg]" in rows[0] and "pp_after_pct [%]" in rows[0] and rows[3]["kind"] == "production"
     # filters: one station, a day range with nothing in it; the table output
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--station", "EOL-2", "--json"])
     assert json.loads(res.stdout)["runs"] == 2

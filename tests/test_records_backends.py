@@ -8,56 +8,53 @@ written with the schema of eol-cal before ``schema_version``.
 from __future__ import annotations
 
 import json
-import sqlite3
-import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
 import sqlalchemy as sa
 
-from eol_cal.station.records import (SCHEMA_VERSION, SchemaError, db_key, engine, insert_records, migrate,
-                                     query_records, read_rows, select_runs)
+from _records import make_record, v1_record
+from eol_cal.station.record import RunRecord
+from eol_cal.station.records import SCHEMA_VERSION, SchemaError, db_key, engine, insert_records, migrate
+from eol_cal.station.records_query import query_records, read_rows, select_runs
 from eol_cal.station.spool import flush_spool, save_record
 
 
 def record(serial: str = "M-1", verdict: str = "pass", started: str = "2026-11-22T10:00:00.000+00:00",
-           k6: float = 1.5e-3, station: str = "EOL-1") -> dict:
-    return {
-        "schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": serial,
-        "started_at": started, "ended_at": started, "verdict": verdict, "reasons": [] if verdict == "pass" else ["x"],
-        "limits": {"variant": "EPS-STD"}, "station": {"id": station, "operator": "ab"},
-        "fit": {"k6": {"value": k6}, "phase_k6": {"value": 0.5}, "c6": {"value": 0.01}},
-        "metrics": {"pp_before_pct": 10.0, "pp_after_pct": 0.3, "improvement_pct": 97.0},
-    }
+           k6: float = 1.0e-3, station: str = "EOL-1") -> RunRecord:
+    # a failed run: k6 over the variant's limit (1.2 mN*m/A)
+    return make_record(serial, started=started, k6=k6 if verdict == "pass" else max(k6, 1.3e-3), station=station,
+                       operator="ab")
 
 
 def test_insert_is_idempotent_and_columns_are_queryable(records_db):
     recs = [record("A", started="2026-11-21T10:00:00.000+00:00"), record("B", "fail", k6=3e-3, station="EOL-2")]
     assert insert_records(records_db, recs) == 2
     assert insert_records(records_db, recs) == 0  # same run ids: nothing twice
-    assert [r["run_id"] for r in query_records(records_db)] == [r["run_id"] for r in recs]
+    assert [r.run_id for r in query_records(records_db)] == [r.run_id for r in recs]
     rows = read_rows(records_db, select_runs(station="EOL-2"))
     assert len(rows) == 1 and rows[0]["serial"] == "B" and rows[0]["k6"] == 3e-3 and rows[0]["operator"] == "ab"
-    assert rows[0]["variant"] == "EPS-STD" and json.loads(rows[0]["record_json"]) == recs[1]
+    assert rows[0]["variant"] == "EPS-STD" and json.loads(rows[0]["record_json"]) == recs[1].to_json()
+    assert rows[0]["kind"] == "production" and json.loads(rows[0]["causes"]) == ["max_k6"]
     assert [r["serial"] for r in read_rows(records_db, select_runs(since="2026-11-22"))] == ["B"]
     assert [r["serial"] for r in read_rows(records_db, select_runs(until="2026-11-21"))] == ["A"]
-    assert query_records(records_db, serial="A")[0]["run_id"] == recs[0]["run_id"]
+    assert query_records(records_db, serial="A")[0] == recs[0]
 
 
 def test_concurrent_writers_lose_and_duplicate_nothing(records_db):
     insert_records(records_db, [])  # create the schema once, as `records migrate` would
     batches = [[record(f"W{w}-{i}") for i in range(25)] for w in range(4)]
 
-    def write(batch: list[dict]) -> int:
+    def write(batch: list[RunRecord]) -> int:
         # one record per transaction, each written twice (a retried flush)
         return sum(insert_records(records_db, [r]) + insert_records(records_db, [r]) for r in batch)
 
     with ThreadPoolExecutor(4) as pool:
         assert sum(pool.map(write, batches)) == 100
-    ids = [r["run_id"] for r in query_records(records_db)]
+    ids = [r.run_id for r in query_records(records_db)]
     assert len(ids) == len(set(ids)) == 100
-    assert set(ids) == {r["run_id"] for b in batches for r in b}
+    assert set(ids) == {r.run_id for b in batches for r in b}
 
 
 def _down(db) -> str | Path:
@@ -91,7 +88,7 @@ def test_outage_spools_and_the_flush_writes_it_once(records_db, tmp_path: Path):
         Path(res.path).write_text(json.dumps(doc))
     out = flush_spool(target, spool)
     assert out.flushed_files == 1 and out.remaining == 0 and out.error is None
-    assert [x["run_id"] for x in query_records(target)] == [r["run_id"]]
+    assert [x.run_id for x in query_records(target)] == [r.run_id]
     assert flush_spool(target, spool).flushed_files == 0
 
 
@@ -105,7 +102,7 @@ CREATE INDEX runs_serial ON runs (serial); CREATE INDEX runs_started ON runs (st
 
 
 def test_migrate_a_version_1_database(records_db):
-    old = [record("A", started="2026-11-21T10:00:00.000+00:00"), record("B", station="EOL-7")]
+    old = [v1_record("A", started="2026-11-21T10:00:00.000+00:00"), v1_record("B", station="EOL-7")]
     eng = engine(records_db)
     with eng.begin() as con:
         for stmt in _V1.split(";"):
@@ -118,7 +115,7 @@ def test_migrate_a_version_1_database(records_db):
                              k=r["fit"]["k6"]["value"], j=json.dumps(r)))
     if isinstance(records_db, Path):
         eng.dispose()
-    assert len(query_records(records_db)) == 2  # an old database reads
+    assert [r.kind for r in query_records(records_db)] == ["production"] * 2  # an old database reads
     with pytest.raises(SchemaError, match="version 1"):
         insert_records(records_db, [record("X")])
     assert migrate(records_db) == (1, SCHEMA_VERSION)
@@ -126,7 +123,7 @@ def test_migrate_a_version_1_database(records_db):
     assert insert_records(records_db, [record("C", started="2026-11-23T10:00:00.000+00:00")]) == 1
     rows = read_rows(records_db, select_runs(station="EOL-7"))
     assert [r["serial"] for r in rows] == ["B"] and rows[0]["operator"] == "ab"
-    assert [r["serial"] for r in query_records(records_db)] == ["A", "B", "C"]
+    assert [r.serial for r in query_records(records_db)] == ["A", "B", "C"]
 
 
 def test_migrate_creates_a_new_database(records_db):

@@ -102,16 +102,35 @@ def test_a_killed_worker_loses_no_capture(lot: Path):
     assert sorted(r["serial"] for r in rows) == sorted(SERIALS * 2)
 
 
-def test_lot_diff_names_the_motors_that_change_verdict(records_db, tmp_path: Path):
-    recs = [{"run_id": uuid.uuid4().hex, "serial": s, "started_at": "2026-11-22T10:00:00.000+00:00",
-             "verdict": v, "reasons": [], "fit": {"k6": {"value": 1e-3}}} for s, v in (("A", "pass"), ("B", "pass"))]
+def test_lot_diff_compares_the_fit_stage_checks_of_each_serials_latest_measured_run(records_db, tmp_path: Path):
+    from _records import make_record
+
+    t = "2026-11-22T{:02d}:00:00.000+00:00".format
+    recs = [make_record("A", started=t(8)), make_record("B", started=t(8)),
+            make_record("C", started=t(8), pp_after=2.5),  # failed on its ripple: a refit cannot judge that
+            make_record("D", started=t(8)), make_record("D", started=t(9), refused=("dyno_unreachable",))]
+    assert recs[2].verdict == "fail"
     insert_records(records_db, recs)
     out = tmp_path / "r.jsonl"
-    out.write_text("".join(json.dumps({"serial": s, "verdict": v, "k6": 2e-3, "reasons": why}) + "\n"
-                           for s, v, why in (("A", "pass", []), ("B", "fail", ["k6 over max_k6"]))))
+    rows = [("A", "pass", [], 0.9e-3), ("B", "fail", ["max_k6"], 1.3e-3), ("C", "pass", [], 0.7e-3),
+            ("D", "pass", [], 0.6e-3), ("E", "pass", [], 0.6e-3)]
+    out.write_text("".join(json.dumps({"serial": s, "verdict": v, "status": "ok", "k6": k6, "failed_checks": f,
+                                       "reasons": [f"k6 over {x}" for x in f], "error": None}) + "\n"
+                           for s, v, f, k6 in rows)
+                   + json.dumps({"serial": None, "verdict": "error", "error": "OSError: x"}) + "\n")
     res = CliRunner().invoke(cli, ["lot", "diff", "--db", str(records_db), str(out), "--json"])
     assert res.exit_code == 0, res.output
-    assert [(c["serial"], c["recorded"], c["refit"]) for c in json.loads(res.stdout)["changes"]] == [("B", "pass", "fail")]
+    doc = json.loads(res.stdout)
+    from eol_cal.schemas import validator
+
+    validator("lot-diff").validate(doc)
+    assert (doc["rows"], doc["compared"], doc["not_compared"], doc["errors"]) == (6, 4, 1, 1)
+    (change,) = doc["changes"]
+    assert (change["serial"], change["recorded"], change["refit"], change["newly_failing"]) == ("B", "pass", "fail",
+                                                                                                 ["max_k6"])
+    assert change["run_id"] == recs[1].run_id and change["k6_refit"] == pytest.approx(1.3) and doc["k6_unit"] == "mN*m/A"
+    res = CliRunner().invoke(cli, ["lot", "diff", "--db", str(records_db), str(out)])
+    assert res.exit_code == 0 and "1 of 4 compared" in res.output and "mN*m/A" in res.output
 
 
 @pytest.mark.parametrize("flags, ecu_serial, words", [
@@ -132,3 +151,23 @@ def test_a_capture_fit_would_refuse_is_an_error_row(tmp_path, flags, ecu_serial,
     row = refit_capture([path])
     assert row["verdict"] == "error" and words in row["error"] and str(path) in row["error"]
     assert row["k6"] is None
+
+
+def test_refit_takes_the_production_runs_of_a_reports_directory_unless_asked(tmp_path: Path):
+    """A station run directory whose record is of another kind (a master motor's check, a simulated
+    motor) is no motor of the lot; --kind all takes it."""
+    import dataclasses
+
+    from _records import make_record
+
+    for name, kind in (("A_run", "production"), ("B_run", "simulated"), ("C_run", None)):
+        d = tmp_path / "reports" / name
+        d.mkdir(parents=True)
+        (d / "before.mf4").write_bytes(b"")
+        if kind is not None:  # C: no record beside the capture (taken as it is)
+            rec = dataclasses.replace(make_record(name[0]), kind=kind)
+            (d / "report.json").write_text(json.dumps(rec.to_json()))
+    names = lambda groups: [g[0].parent.name for g in groups]  # noqa: E731
+    assert names(find_captures([str(tmp_path / "reports")])) == ["A_run", "C_run"]
+    assert names(find_captures([str(tmp_path / "reports")], "all")) == ["A_run", "B_run", "C_run"]
+    assert names(find_captures([str(tmp_path / "reports")], "simulated")) == ["B_run", "C_run"]

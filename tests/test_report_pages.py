@@ -9,22 +9,18 @@ import math
 import numpy as np
 import pytest
 
+from _records import make_record
 from eol_cal.station.limits import LIMIT_KEYS, VariantLimits
 
-LIMITS = VariantLimits(variant="T", max_k6=0.0025, max_pp_before_pct=25.0, max_pp_after_pct=2.0,
-                       min_improvement_pct=40.0, min_r2=0.3, max_rms_nm=0.1, max_ci_k6_rel=0.05,
-                       max_ci_phase_k6_deg=3.0, max_ci_c6_nm=0.01, max_hall_deviation_deg=3.0, source="limits.toml")
+LIMITS = VariantLimits.of("T", max_k6=0.0025, max_pp_before_pct=25.0, max_pp_after_pct=2.0,
+                          min_improvement_pct=40.0, min_r2=0.3, max_rms_nm=0.1, max_ci_k6_rel=0.05,
+                          max_ci_phase_k6_deg=3.0, max_ci_c6_nm=0.01, max_hall_deviation_deg=3.0, source="limits.toml")
 
 
-def error_record() -> dict:
-    """A run that ended in the acquisition: no fit, no metrics, no block."""
-    return {"schema": "eol-cal/run-record/1", "run_id": "0" * 32, "serial": "E-1", "started_at": "2026-11-23T10:00:00.000+00:00",
-            "ended_at": "2026-11-23T10:00:05.000+00:00", "verdict": "error", "reasons": ["acquire: dyno fault"],
-            "error": {"step": "acquire", "type": "DynoError", "message": "dyno fault", "traceback": None},
-            "tool_version": "0.1.0", "layout_version": 1, "station": {"dyno": "127.0.0.1:502"},
-            "limits": LIMITS.to_dict(), "steps": [{"step": "acquire", "seconds": 1.0, "ok": False}], "captures": {},
-            "fit": None, "block": None, "flash": None, "ecu_prepared": None, "metrics": {}, "report_dir": "/x",
-            "safe_state": "speed 0, drive disabled (confirmed)", "ecu_active": {"block": "unchanged", "sequence": None, "bank": None}}
+def error_record(**limits):
+    """A run that ended in the acquisition after the prepare step: no fit, no metrics, no calibrated block."""
+    return make_record("E-1", started="2026-11-23T10:00:00.000+00:00", variant="T", station=None,
+                       limits={**LIMITS.values, **limits}, error_step="acquire")
 
 
 def test_a_record_without_fit_renders_every_limit_as_not_measured():
@@ -34,31 +30,38 @@ def test_a_record_without_fit_renders_every_limit_as_not_measured():
     rows = limit_rows(rec)
     judged = [k for k in LIMIT_KEYS if getattr(LIMITS, k) is not None]  # an optional limit left off is no row
     assert "max_pp_after_no_mech1_pct" not in judged
-    assert [r.check.key for r in rows] == judged
+    assert [r.key for r in rows] == judged
     assert {r.status for r in rows} == {"not measured"}
     html = render_motor_report(rec, [])
     assert 'id="verdict" class="verdict error">ERROR<' in html
     assert html.count('class="limit-row"') == len(judged)
-    rec["limits"]["max_pp_after_no_mech1_pct"] = 1.0
-    assert [r.check.key for r in limit_rows(rec)] == list(LIMIT_KEYS)
-    assert "dyno fault" in html and 'id="no-plots"' in html
+    assert [r.key for r in limit_rows(error_record(max_pp_after_no_mech1_pct=1.0))] == list(LIMIT_KEYS)
+    assert "simulated fault" in html and 'id="no-plots"' in html
     assert "operator</th><td>not recorded" in html
 
 
-def test_limit_rows_give_value_limit_margin_and_status():
-    from eol_cal.report.motor import limit_rows
+def test_limit_rows_show_the_records_checks_in_display_units():
+    from eol_cal.report.motor import limit_rows, render_motor_report
 
-    rec = error_record()
-    rec["verdict"], rec["reasons"] = "fail", ["p-p after = 2.5 % exceeds max_pp_after_pct = 2"]
-    rec["metrics"] = {"pp_before_pct": 5.0, "pp_after_pct": 2.5}
-    rows = {r.check.key: r for r in limit_rows(rec)}
+    rec = make_record("F-1", variant="T", limits=dict(LIMITS.values), pp_before=5.0, pp_after=2.5, k6=0.0011)
+    assert rec.verdict == "fail" and rec.reasons == ("p-p ripple compensated = 2.5 % exceeds max_pp_after_pct = 2 %",)
+    rows = {r.key: r for r in limit_rows(rec)}
     after = rows["max_pp_after_pct"]
-    assert (after.check.value, after.check.limit, after.status) == (2.5, 2.0, "FAIL")
-    assert after.check.margin == pytest.approx(-0.5)
-    assert rows["max_pp_before_pct"].status == "PASS" and rows["max_pp_before_pct"].check.margin == pytest.approx(20.0)
+    assert (after.value, after.limit, after.status) == (2.5, 2.0, "FAIL")
+    assert after.margin == pytest.approx(-0.5)
+    assert rows["max_pp_before_pct"].status == "PASS" and rows["max_pp_before_pct"].margin == pytest.approx(20.0)
     imp = rows["min_improvement_pct"]  # 50 % against at least 40 %: a min limit's margin is value - limit
-    assert imp.status == "PASS" and imp.check.margin == pytest.approx(10.0)
-    assert rows["max_k6"].status == "not measured" and math.isnan(rows["max_k6"].check.value)
+    assert imp.status == "PASS" and imp.margin == pytest.approx(10.0)
+    k6 = rows["max_k6"]  # one unit per quantity: k6 in mN*m/A
+    assert (k6.value, k6.limit, k6.unit, k6.status) == (pytest.approx(1.1), pytest.approx(2.5), "mN*m/A", "PASS")
+    # the report shows what the record says; it never judges again: a check marked failed is FAIL
+    import dataclasses
+
+    forged = dataclasses.replace(rec, checks=tuple(dataclasses.replace(c, passed=False) if c.key == "max_k6" else c
+                                                   for c in rec.checks))
+    assert {r.key: r.status for r in limit_rows(forged)}["max_k6"] == "FAIL"
+    html = render_motor_report(rec, [])
+    assert "1.1 ± " in html and "mN*m/A" in html and "N*m/A<" not in html.replace("mN*m/A", "")
 
 
 @pytest.fixture(scope="module")
@@ -87,10 +90,8 @@ def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
     from eol_cal.station.report import write_report
 
     mi, fit, spec, pr = fitted
-    rec = error_record()
-    rec.update(verdict="pass", reasons=[], error=None, serial="R-1",
-               metrics={"operating_point": {"speed_rpm": 120.0, "i_qo_a": 65.0}, "pp_before_pct": pr[0].pp_pct,
-                        "pp_after_pct": pr[1].pp_pct})
+    rec = at_point(make_record("R-1", variant="T", limits=dict(LIMITS.values), pp_before=pr[0].pp_pct,
+                               pp_after=pr[1].pp_pct), 120.0, 65.0)
     pages = []
     for d in ("a", "b"):
         (tmp_path / d).mkdir()
@@ -106,21 +107,27 @@ def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
     assert len(ids) == len(set(ids))
 
 
-def lot_record(serial: str, started: str, verdict: str, k6: float | None = 1.0e-3, after: float | None = 0.8,
-               station: str = "L1-S1", reasons: list[str] | None = None) -> dict:
-    """A run record as the station writes it, with the parts the lot views read."""
-    rec = error_record()
-    rec.update(run_id=f"{serial}-{started}", serial=serial, started_at=started, verdict=verdict,
-               reasons=reasons if reasons is not None else ([] if verdict == "pass" else ["x"]),
-               error={"step": "acquire", "type": "DynoError", "message": "x"} if verdict == "error" else None,
-               station={"name": station})
-    if k6 is not None:
-        rec["fit"] = {"k6": {"value": k6, "ci95": 2e-5}, "phase_k6": {"value": 0.4, "ci95": 0.01},
-                      "c6": {"value": 0.003, "ci95": 1e-4}, "phase_c6": {"value": 1.0, "ci95": 0.01},
-                      "fit": {"r2": 0.8, "rms": 0.004}, "hall_angle": {"source": "measured", "deviation_deg": [0.5, -0.3]}}
-    if after is not None:
-        rec["metrics"] = {"pp_before_pct": 3.0, "pp_after_pct": after, "improvement_pct": 100 * (3.0 - after) / 3.0}
-    return rec
+def at_point(rec, speed_rpm: float, i_qo_a: float):
+    """The record with its operating point moved (fit and metrics)."""
+    import dataclasses
+
+    from eol_cal.analysis.motor_result import OperatingPoint
+
+    return dataclasses.replace(rec, fit=dataclasses.replace(rec.fit, operating_point=OperatingPoint(speed_rpm, i_qo_a)),
+                               metrics=dataclasses.replace(rec.metrics, speed_rpm=speed_rpm, i_qo_a=i_qo_a))
+
+
+def lot_record(serial: str, started: str, verdict: str, k6: float = 1.0e-3, after: float = 0.8,
+               station: str = "L1-S1"):
+    """A run record as the station writes it: ``fail`` by its compensated p-p, ``error`` in the acquisition,
+    ``refused`` by the pre-flight (a wrong serial)."""
+    kw = dict(started=started, station=station, variant="T", limits=dict(LIMITS.values), k6=k6, pp_before=5.0,
+              pp_after=2.5 if verdict == "fail" else after)
+    if verdict == "error":
+        return make_record(serial, error_step="acquire", **kw)
+    if verdict == "refused":
+        return make_record(serial, refused=("wrong_serial",), **kw)
+    return make_record(serial, **kw)
 
 
 def test_records_plot_is_against_time_with_limits_and_error_runs():
@@ -128,9 +135,9 @@ def test_records_plot_is_against_time_with_limits_and_error_runs():
     from eol_cal.report.svg import pyplot
 
     recs = [lot_record("A", "2026-11-22T09:00:00+00:00", "pass"),
-            lot_record("B", "2026-11-22T12:00:00+00:00", "error", k6=None, after=None),
+            lot_record("B", "2026-11-22T12:00:00+00:00", "error"),
             lot_record("C", "2026-11-22T10:00:00+00:00", "fail", after=2.5),
-            lot_record("D", "2026-11-23T08:00:00+00:00", "error", k6=None, after=None)]
+            lot_record("D", "2026-11-23T08:00:00+00:00", "error")]
     fig = timeline_figure(recs, "lot")
     try:
         def by_gid(gid):
@@ -152,7 +159,7 @@ def test_records_plot_is_against_time_with_limits_and_error_runs():
 
 @pytest.fixture(scope="module")
 def lot_db(tmp_path_factory):
-    """A records database of 24 runs on two stations; one motor's report page exists."""
+    """A records database of 24 production runs on two stations and 2 refusals; one motor's report page exists."""
     from eol_cal.report.motor import render_motor_report
     from eol_cal.station.records import insert_records
 
@@ -161,13 +168,17 @@ def lot_db(tmp_path_factory):
     recs = []
     for i in range(24):
         verdict = "error" if i % 11 == 5 else ("fail" if i % 7 == 3 else "pass")
-        has = verdict != "error"
         recs.append(lot_record(f"M{i:03d}", f"2026-11-{20 + i // 12}T{8 + i % 12:02d}:00:00.000+00:00", verdict,
-                               k6=float(rng.normal(1.0e-3, 1e-4)) if has else None,
-                               after=float(rng.normal(0.9, 0.3)) if has else None, station=f"L1-S{1 + i % 2}"))
+                               k6=float(rng.normal(1.0e-3, 1e-4)), after=float(abs(rng.normal(0.9, 0.3))),
+                               station=f"L1-S{1 + i % 2}"))
+    # a mis-scan before M000's first run and a dead dyno after its pass: neither is M000's result
+    recs += [lot_record("M000", "2026-11-20T07:00:00.000+00:00", "refused", station="L1-S1"),
+             lot_record("M000", "2026-11-22T08:00:00.000+00:00", "refused", station="L1-S1")]
     run_dir = d / "reports" / "M003_run"
     run_dir.mkdir(parents=True)
-    recs[3]["report_dir"] = str(run_dir)
+    import dataclasses
+
+    recs[3] = dataclasses.replace(recs[3], report_dir=str(run_dir))
     (run_dir / "report.html").write_text(render_motor_report(recs[3], []))
     insert_records(d / "lot.sqlite", recs)
     return {"dir": d, "db": d / "lot.sqlite", "records": recs}
@@ -190,7 +201,7 @@ def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
     assert html.count('class="worst-row"') == 15 and 'href="../reports/M003_run/report.html"' in html
     res = runner.invoke(cli, ["lot", "report", "--db", str(lot_db["db"]), "--station", "L1-S2", "--since", "2026-11-21",
                               "-o", str(out / "s2.html")])
-    assert res.exit_code == 0 and "(6 runs)" in res.output
+    assert res.exit_code == 0 and "(6 runs)" in res.output  # the refusals are of station L1-S1
     res = runner.invoke(cli, ["lot", "report", "--db", str(lot_db["db"]), "--since", "21-11-2026", "-o", str(out / "x.html")])
     assert res.exit_code == 2 and "since" in res.output and "YYYY-MM-DD" in res.output
     assert not (out / "x.html").exists()
@@ -211,6 +222,10 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
         fpy = b.evaluate("document.getElementById('fpy').textContent")
         quantity_rows = b.evaluate("Array.from(document.querySelectorAll('tr.quantity-row')).map(r => r.dataset.key)")
         causes = b.evaluate("Array.from(document.querySelectorAll('tr.cause-row td:first-child')).map(t => t.textContent)")
+        refusals = b.evaluate("Array.from(document.querySelectorAll('tr.refusal-row')).map(r => r.textContent)")
+        worst = b.evaluate("Object.fromEntries(Array.from(document.querySelectorAll('tr.worst-row')).map("
+                           "r => [r.cells[0].textContent, r.cells[1].textContent]))")
+        refused = b.evaluate("document.getElementById('refused').textContent")
         control_lines = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-cl-k6-ucl]').length")
         # zoom: a wheel event on a chart narrows its viewBox, a double-click restores it
         zoom = b.evaluate("""(() => { const s = document.querySelector('#fig-timeline svg'); const r = s.getBoundingClientRect();
@@ -224,20 +239,25 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     assert log.console_errors == [] and log_after.console_errors == []
     assert set(log.requests) == {page.as_uri()}
     # timeline, histograms, Pareto, one control chart per station
-    assert [s["id"] for s in sizes] == ["fig-timeline", "fig-histograms", "fig-pareto", "fig-control-L1-S1",
-                                        "fig-control-L1-S2"]
+    assert [s["id"] for s in sizes] == ["fig-timeline", "fig-histograms", "fig-pareto", "fig-refusals",
+                                        "fig-control-L1-S1", "fig-control-L1-S2"]
     assert all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
-    with_k6 = sorted((r for r in lot_db["records"] if r["fit"]), key=lambda r: r["started_at"])
-    assert len(k6_titles) == len(with_k6) and all(t.startswith(r["serial"]) for t, r in zip(k6_titles, with_k6))
-    judged = [r for r in lot_db["records"] if r["verdict"] != "error"]
-    assert pass_rate == f"{100 * sum(r['verdict'] == 'pass' for r in judged) / len(judged):.1f} %"
+    measured = [r for r in lot_db["records"] if r.kind == "production"]
+    with_k6 = sorted((r for r in measured if r.fit), key=lambda r: r.started_at)
+    assert len(k6_titles) == len(with_k6) and all(t.startswith(r.serial) for t, r in zip(k6_titles, with_k6))
+    judged = [r for r in measured if r.verdict != "error"]
+    assert pass_rate == f"{100 * sum(r.verdict == 'pass' for r in judged) / len(judged):.1f} %"
     first = {}
-    for r in sorted(lot_db["records"], key=lambda r: r["started_at"]):
-        first.setdefault(r["serial"], r["verdict"])
+    for r in sorted(measured, key=lambda r: r.started_at):
+        first.setdefault(r.serial, r.verdict)
+    assert first["M000"] == "pass"  # its first measured run; the mis-scan before it measured nothing
     assert fpy == f"{100 * sum(v == 'pass' for v in first.values()) / len(first):.1f} %"
+    # the refusals: their own Pareto; M000's latest measured run passed (the dead dyno after it is no result)
+    assert refused == "2" and refusals == ["wrong_serial2100 %"]
+    assert worst.get("M000", "PASS") == "PASS"
     assert quantity_rows == ["k6", "phase_k6", "c6", "phase_c6", "pp_before_pct", "pp_after_pct", "improvement_pct",
                              "fit_r2", "fit_rms_nm"]
-    assert sorted(causes) == ["error in acquire", "x"]
+    assert sorted(causes) == ["error in acquire", "max_pp_after_pct"]
     assert control_lines == 2  # each station's k6 chart has its upper control limit
     before, zoomed, back = zoom
     assert float(zoomed.split()[2]) < float(before.split()[2]) and back == before
@@ -289,9 +309,7 @@ def test_a_plot_that_cannot_be_drawn_says_why_and_the_page_is_still_written(fitt
 
     mi, fit, spec, pr = fitted
     broken = tuple(dataclasses.replace(p, theta_r=None) for p in pr)
-    rec = error_record()
-    rec.update(verdict="pass", reasons=[], error=None,
-               metrics={"operating_point": {"speed_rpm": 120.0, "i_qo_a": 65.0}})
+    rec = at_point(make_record("R-1"), 120.0, 65.0)
     html = write_report(rec, tmp_path, fit_extra=(mi, fit, spec), point_ripple=broken).read_text()
     assert html.count('class="plot-error"') == 1 and "This plot could not be drawn: TypeError" in html
     assert html.count("<svg") == 2

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -18,7 +19,7 @@ from eol_cal.dyno import sim as ds
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming
 from eol_cal.ecu.flash import NorFlash, active_block_from_file, select_active
-from eol_cal.station.records import query_records
+from eol_cal.station.records_query import query_records
 
 BOUND_S = ClientTiming().dead_link_bound_s
 START_S = 8.0  # process start, imports, the JAX warm-up the run waits for on its way out, s
@@ -60,7 +61,8 @@ def station(tmp_path):
         run = _cli("run", "--dyno", f"127.0.0.1:{dyno.port}", "-i", "remote", "-c", url,
                    "--limits", str(tmp_path / "limits.toml"), "--db", str(tmp_path / "db.sqlite"),
                    "--serial", "K-1", "--key-file", str(tmp_path / "key.hex"),
-                   "--report-dir", str(tmp_path / "reports"), "--spool-dir", str(tmp_path / "spool"), "--json")
+                   "--report-dir", str(tmp_path / "reports"), "--spool-dir", str(tmp_path / "spool"), "--json",
+                   "--log-file", str(tmp_path / "run.log"))
         procs.append(run)
         return ecu, run
 
@@ -75,10 +77,19 @@ def station(tmp_path):
                     p.wait(5)
 
 
+def _wait_for_erase(tmp_path, timeout: float = 30.0) -> None:
+    """Until the run's exchange log shows its first erase request (the prepare flash's)."""
+    log, end = tmp_path / "run.log", time.monotonic() + timeout
+    while time.monotonic() < end and not (log.exists() and "(EraseMemory)" in log.read_text(errors="replace")):
+        time.sleep(0.05)
+
+
 def _recorded(tmp_path, step: str, message: str) -> dict:
-    recs = query_records(tmp_path / "db.sqlite")
+    recs = [r.to_json() for r in query_records(tmp_path / "db.sqlite")]
     assert [r["verdict"] for r in recs] == ["error"]
     rec = recs[0]
+    # killed before anything was written: a refusal; from the prepare step on: the motor's run
+    assert rec["kind"] == ("refusal" if step == "pre-flight" else "production")
     assert rec["error"]["step"] == step and message in rec["error"]["message"], rec["error"]
     assert list((tmp_path / "reports").rglob("report.json")), "no report written"
     return rec
@@ -103,9 +114,12 @@ def test_run_when_the_ecu_dies_during_the_prepare_flash(station, step, cycle_ste
     assert run.returncode == 2 and time.monotonic() - t0 < BOUND_S + START_S, err
     assert ecu.wait(5) == -signal.SIGKILL
     rec = _recorded(tmp_path, cycle_step, "CAN link lost")
-    assert rec["ecu_active"] == boots
-    assert not dyno.enabled and dyno.speed == 0.0
     active = active_block_from_file(tmp_path / "ecu.flash")
+    assert rec["ecu_active"] == boots
+    if boots["sequence"] is not None:  # the prepare block is complete: archived as it went into the bank
+        (prep,) = rec["blocks"]
+        assert Path(prep["path"]).read_bytes() == active and not prep["confirmed"]
+    assert not dyno.enabled and dyno.speed == 0.0
     assert (active is None) == (boots["sequence"] is None)
 
 
@@ -126,10 +140,7 @@ def test_run_when_the_ecu_dies_after_the_calibrated_block_is_complete(station):
 def test_run_signalled_during_the_flash(station, sig):
     start, tmp_path, dyno = station
     ecu, run = start("--slow", "erase:3")
-    end = time.monotonic() + 30
-    # the prepare step writes its block file, then flashes it
-    while not list((tmp_path / "reports").rglob("block_uncompensated.bin")) and time.monotonic() < end:
-        time.sleep(0.05)
+    _wait_for_erase(tmp_path)  # the prepare flash has sent its erase
     time.sleep(1.0)  # inside the slowed erase
     t0 = time.monotonic()
     run.send_signal(sig)
@@ -144,9 +155,7 @@ def test_run_signalled_twice_still_records(station):
     """SIGTERM, then SIGINT while the run is recording its error: the record waits for neither."""
     start, tmp_path, dyno = station
     ecu, run = start("--slow", "erase:3")
-    end = time.monotonic() + 30
-    while not list((tmp_path / "reports").rglob("block_uncompensated.bin")) and time.monotonic() < end:
-        time.sleep(0.05)
+    _wait_for_erase(tmp_path)
     time.sleep(1.0)
     run.send_signal(signal.SIGTERM)
     time.sleep(0.05)  # the run is now commanding the safe state and writing its report

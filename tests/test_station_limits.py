@@ -29,7 +29,7 @@ max_hall_deviation_deg = 3.0
 
 # a motor of the plant's production draw as the station measures it (k6 0.85 mN*m/A; p-p under the
 # interpolated angle 4.4 % -> 1.23 % compensated, 0.6 % of it without the rotor's unbalance)
-MOTOR = Measured(k6=0.85e-3, ci_k6=8.8e-6, ci_phase_k6_deg=0.5, ci_c6_nm=4.6e-4, r2=0.57, rms_nm=0.021,
+MOTOR = Measured(k6=0.85e-3, ci_k6=8.8e-6, ci_phase_k6_deg=0.5, ci_c6_nm=4.6e-4, fit_r2=0.57, fit_rms_nm=0.021,
                  pp_before_pct=4.4, pp_after_pct=1.23, hall_deviation_deg=1.2, hall_source="measured",
                  pp_after_no_mech1_pct=0.6)
 
@@ -57,11 +57,11 @@ def test_same_data_passes_one_variant_and_fails_the_other():
 
 def test_each_limit_fails_on_its_own():
     lim = parse_limits(GOOD, "x.toml")["A"]
-    ok = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01,
+    ok = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, fit_r2=0.9, fit_rms_nm=0.01,
                   pp_before_pct=8.0, pp_after_pct=0.5, hall_deviation_deg=1.0, hall_source="measured")
     assert verdict(ok, lim) == ("pass", [])
     bad = {
-        "k6": 3e-3, "ci_k6": 1e-4, "ci_phase_k6_deg": 4.0, "ci_c6_nm": 0.01, "r2": 0.1, "rms_nm": 0.1,
+        "k6": 3e-3, "ci_k6": 1e-4, "ci_phase_k6_deg": 4.0, "ci_c6_nm": 0.01, "fit_r2": 0.1, "fit_rms_nm": 0.1,
         "pp_before_pct": 12.0, "pp_after_pct": 1.5, "hall_deviation_deg": 3.5,
     }
     for key, value in bad.items():
@@ -77,7 +77,7 @@ def test_each_limit_fails_on_its_own():
 
 def test_unmeasured_ripple_never_passes():
     lim = parse_limits(GOOD, "x.toml")["A"]
-    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01,
+    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, fit_r2=0.9, fit_rms_nm=0.01,
                  hall_deviation_deg=1.0, hall_source="measured")
     v, reasons = verdict(m, lim)
     assert v == "fail" and len(reasons) == 3  # before, after, improvement are NaN
@@ -85,7 +85,7 @@ def test_unmeasured_ripple_never_passes():
 
 def test_unmeasured_hall_table_never_passes():
     lim = parse_limits(GOOD, "x.toml")["A"]
-    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, r2=0.9, rms_nm=0.01, pp_before_pct=8.0,
+    m = Measured(k6=1e-3, ci_k6=1e-5, ci_phase_k6_deg=0.5, ci_c6_nm=1e-4, fit_r2=0.9, fit_rms_nm=0.01, pp_before_pct=8.0,
                  pp_after_pct=0.5, hall_source="nominal (boundary of state 2 measured +39.5 deg from nominal)")
     v, reasons = verdict(m, lim)
     assert v == "fail" and reasons == ["hall table not measured: nominal (boundary of state 2 measured +39.5 deg "
@@ -155,7 +155,7 @@ def test_old_limits_file_without_the_newer_keys_loads_with_the_defaults(tmp_path
 
 
 def test_mech1_limit_judged_when_set():
-    from eol_cal.station.limits import limit_checks
+    from eol_cal.station.limits import judge
 
     # MOTOR on EPS-STD passes; what is left after compensation is mostly the rotor's unbalance
     motor = Measured(**{**MOTOR.__dict__, "pp_after_no_mech1_pct": 0.6})
@@ -163,7 +163,7 @@ def test_mech1_limit_judged_when_set():
                          + "max_pp_after_no_mech1_pct = 1.0\n", "x.toml")["A"]
     assert loose.max_pp_after_no_mech1_pct == 1.0
     assert verdict(motor, loose) == ("pass", [])
-    assert "max_pp_after_no_mech1_pct" in [c.key for c in limit_checks(motor, loose)]
+    assert "max_pp_after_no_mech1_pct" in [c.key for c in judge(motor, loose, "ripple")]
     tight = parse_limits(GOOD.replace("max_pp_after_pct = 1.0", "max_pp_after_pct = 2.0")
                          + "max_pp_after_no_mech1_pct = 0.5\n", "x.toml")["A"]
     v, reasons = verdict(motor, tight)
@@ -173,6 +173,44 @@ def test_mech1_limit_judged_when_set():
     assert v == "fail" and "max_pp_after_no_mech1_pct" in reasons[0]
     # off: not a check at all
     off = parse_limits(GOOD, "x.toml")["A"]
-    assert "max_pp_after_no_mech1_pct" not in [c.key for c in limit_checks(motor, off)]
+    assert "max_pp_after_no_mech1_pct" not in [c.key for c in judge(motor, off, "ripple")]
     with pytest.raises(InputError, match="outside"):
         parse_limits(GOOD + "max_pp_after_no_mech1_pct = -1\n", "x.toml")
+
+
+def test_one_table_judges_each_stage_and_keeps_every_check():
+    from eol_cal.station.limits import LIMITS, all_checks, judge
+
+    lim = parse_limits(GOOD, "x.toml")["A"]
+    fit = judge(MOTOR, lim, "fit")
+    assert [c.key for c in fit] == [row.key for row in LIMITS if row.stage == "fit"]
+    # the ripple stage not reached: its checks are kept, not judged, in the table's order
+    checks = all_checks({"fit": fit}, lim)
+    assert [c.key for c in checks] == [row.key for row in LIMITS if lim.value(row.key) is not None]
+    assert {c.status for c in checks if c.stage == "ripple"} == {"not judged"}
+    k6 = next(c for c in checks if c.key == "max_k6")
+    assert k6.passed is True and k6.margin == pytest.approx(0.002 - 0.85e-3) and k6.unit == "N*m/A"
+    # a person reads k6 in mN*m/A: the reason says so
+    bad = judge(Measured(**{**MOTOR.__dict__, "k6": 2.5e-3}), lim, "fit")
+    assert next(c for c in bad if c.key == "max_k6").reason == "k6 = 2.5 mN*m/A exceeds max_k6 = 2 mN*m/A"
+
+
+def test_a_limit_is_one_row_of_the_table():
+    """Adding a limit on a quantity the cycle measures is one row: the file's keys, the defaults, the
+    fit's interval limits and the checks all follow the table."""
+    import dataclasses
+
+    from eol_cal.station import limits as L
+
+    row = L.Limit("max_pp_raw_test_pct", "pp_after_pct", "test limit", "%", "max", "ripple", (0.0, 100.0), default=None)
+    old = L.LIMITS
+    try:
+        L.LIMITS = old + (row,)
+        L.BY_KEY[row.key] = row
+        lim = parse_limits(GOOD + "max_pp_raw_test_pct = 1.0\n", "x.toml")["A"]
+        assert lim.value("max_pp_raw_test_pct") == 1.0
+        checks = L.judge(dataclasses.replace(MOTOR, pp_after_pct=1.5), lim, "ripple")
+        assert next(c for c in checks if c.key == row.key).passed is False
+    finally:
+        L.LIMITS = old
+        del L.BY_KEY[row.key]

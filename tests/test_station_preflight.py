@@ -58,11 +58,13 @@ def run_cycle(files, st, serial: str, tmp_path: Path, *extra: str, dyno: str | N
     return res, time.monotonic() - t0
 
 
-def assert_nothing_written(rec: dict, flash_before: bytes, flash_after: bytes) -> None:
+def assert_nothing_written(rec: dict, flash_before: bytes, flash_after: bytes, *codes: str) -> None:
     assert flash_after == flash_before  # both banks, byte for byte
     assert rec["verdict"] == "error" and rec["error"]["step"] == "pre-flight"
+    assert rec["kind"] == "refusal" and rec["refusal_codes"] == list(codes)  # not the motor's result
+    assert [p["code"] for p in rec["preflight"]["problems"]] == [c for c in codes for _ in range(1 + (c == "wrong_serial"))]
     assert [s["step"] for s in rec["steps"]] == ["pre-flight", "report"]
-    assert rec["ecu_prepared"] is None and rec["block"] is None and rec["captures"] == {}
+    assert rec["blocks"] == [] and rec["captures"] == {}
     assert rec["ecu_active"] == {"block": "unchanged", "sequence": None, "bank": None}
 
 
@@ -77,7 +79,7 @@ def test_a_typo_in_the_dyno_address_costs_no_calibration(files, tmp_path):  # no
         assert not st.dyno.sim.enabled and st.dyno.sim.speed == 0.0
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    assert_nothing_written(rec, before, after)
+    assert_nothing_written(rec, before, after, "dyno_unreachable")
     assert len(rec["reasons"]) == 1 and rec["reasons"][0].startswith("pre-flight: dyno not reachable: dyno 127.0.0.1:")
     assert rec["safe_state"].startswith("not commanded")
     # the ECU was reached and found as it is: the calibrated block, the key accepted
@@ -101,7 +103,7 @@ def test_a_serial_that_is_not_the_ecus_is_refused_before_the_ecu_is_touched(file
         assert st.dyno.sim.capture_seq == 0  # the dyno never captured
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    assert_nothing_written(rec, before, after)
+    assert_nothing_written(rec, before, after, "wrong_serial")
     assert rec["reasons"] == ["pre-flight: ECU serial M-0001 (F18C) is not M-0007",
                               "pre-flight: dyno's motor serial M-0001 (dut_serial) is not M-0007"]
     assert rec["safe_state"].startswith("speed 0, drive disabled")
@@ -117,7 +119,7 @@ def test_a_wrong_key_is_found_by_the_pre_flight(files, tmp_path):  # noqa: F811
         after = st.flash_file.read_bytes()
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    assert_nothing_written(rec, before, after)
+    assert_nothing_written(rec, before, after, "key_refused")
     (reason,) = rec["reasons"]
     assert reason.startswith("pre-flight: security key not accepted") and "0x35" in reason
     assert rec["preflight"]["ecu"]["key_accepted"] is False
@@ -131,6 +133,7 @@ def test_a_dead_ecu_is_found_by_the_pre_flight_within_its_timeouts(files, tmp_pa
     rec = json.loads(res.stdout)["record"]
     assert rec["error"]["step"] == "pre-flight" and rec["captures"] == {}
     assert any(r.startswith("pre-flight: ECU") for r in rec["reasons"]), rec["reasons"]
+    assert rec["kind"] == "refusal" and rec["refusal_codes"] in (["ecu_silent"], ["ecu_bus"])
     assert wall < 30.0, wall
 
 
@@ -185,11 +188,12 @@ def test_the_ecu_state_changing_during_the_calibration_capture_ends_the_cycle(fi
     assert flashed.is_set()
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    assert rec["error"]["step"] == "acquire" and rec["fit"] is None and rec["block"] is None
+    (prep,) = rec["blocks"]
+    assert rec["error"]["step"] == "acquire" and rec["fit"] is None and prep["role"] == "prepare"
     assert "changed during the before acquisition" in rec["reasons"][0]
     cap = rec["captures"]["before"]  # kept, with both states, for whoever looks into it
-    assert cap["ecu_before"]["sequence"] == rec["ecu_prepared"]["sequence"] == 1
-    assert cap["ecu_before"]["flags"] == rec["ecu_prepared"]["flags"]
+    assert cap["ecu_before"]["sequence"] == prep["sequence"] == 1
+    assert cap["ecu_before"]["flags"] == prep["flags"]
     assert cap["ecu_after"]["sequence"] == 2 and "COMP_ENABLE" in cap["ecu_after"]["flags"]
     # the same capture is refused by `eol-cal fit`, whatever is allowed
     out = tmp_path / "fit.json"
@@ -270,14 +274,17 @@ def test_acquire_records_the_ecu_state_and_fit_refuses_what_it_must(tmp_path):
 
 
 def test_the_report_shows_what_the_ecu_ran_before_the_run_and_during_each_capture():
-    from eol_cal.report.motor import ecu_states
+    from _records import make_record
 
-    ran = {"bank": 0, "sequence": 1, "crc32": "0badcafe", "flags": "INTERP_ENABLE", "serial": "R-1"}
-    rec = {"preflight": {"ecu": {"state": {"bank": 1, "sequence": 4, "crc32": "12345678",
-                                           "flags": "COMP_ENABLE|INTERP_ENABLE", "serial": "R-1"}}},
-           "ecu_prepared": {"bank": 0, "sequence": 5, "crc32": "0badcafe", "flags": "INTERP_ENABLE", "verified": True,
-                            "previous": {"bank": 1, "sequence": 4}},
-           "captures": {"before": {"ecu_before": ran, "ecu_after": ran}}}
+    from eol_cal.capture.ecu_state import EcuState
+    from eol_cal.report.motor import ecu_states
+    from eol_cal.station.record import EcuFound, PreflightResult
+
+    ran = EcuState(0, 1, "0badcafe", "INTERP_ENABLE", "R-1")
+    rec = make_record("R-1", error_step="fit")  # ended after the calibration capture
+    cap = dataclasses.replace(rec.captures["before"], ecu_before=ran, ecu_after=ran)
+    rec = dataclasses.replace(rec, captures={"before": cap}, preflight=PreflightResult(
+        None, EcuFound(EcuState(1, 4, "12345678", "COMP_ENABLE|INTERP_ENABLE", "R-1"), True)))
     cols = {c["label"]: c for c in ecu_states(rec)}
     assert cols["before the run"]["crc32"] == "12345678" and cols["before the run"]["flags"] == "COMP_ENABLE|INTERP_ENABLE"
     assert cols["ran during the calibration capture"]["crc32"] == "0badcafe"

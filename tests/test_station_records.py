@@ -7,30 +7,28 @@ from __future__ import annotations
 
 import json
 import sqlite3
-import uuid
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
 
+from _records import make_record
 from cli.main import cli
 from eol_cal.errors import InputError
-from eol_cal.station.records import COLUMN_NAMES, RecordError, insert_records, query_records, summarise
+from eol_cal.station.record import RunRecord
+from eol_cal.station.records import COLUMN_NAMES, RecordError, insert_records
+from eol_cal.station.records_query import query_records, summarise
 from eol_cal.station.spool import flush_spool, save_record
 
 
 def record(serial: str = "M-1", verdict: str = "pass", started: str = "2026-11-22T10:00:00.000+00:00",
-           k6: float = 1.5e-3, before: float = 10.0, after: float = 0.3) -> dict:
-    return {
-        "schema": "eol-cal/run-record/1", "run_id": uuid.uuid4().hex, "serial": serial,
-        "started_at": started, "ended_at": started, "verdict": verdict, "reasons": [] if verdict == "pass" else ["x"],
-        "limits": {"variant": "EPS-STD"}, "tool_version": "test", "layout_version": 1,
-        "fit": {"k6": {"value": k6, "ci95": 1e-5}, "phase_k6": {"value": 0.5, "ci95": 0.01}, "c6": {"value": 0.01, "ci95": 1e-4}},
-        "metrics": {"pp_before_pct": before, "pp_after_pct": after, "improvement_pct": 100 * (before - after) / before},
-        "captures": {"before": {"path": "/x/before.mf4", "sha256": "ab" * 32}, "after": {"path": "/x/after.mf4", "sha256": "cd" * 32}},
-        "block": {"crc32": "deadbeef", "sequence": 3},
-        "steps": [{"step": "acquire", "seconds": 1.0, "ok": True}],
-    }
+           k6: float = 1.0e-3, before: float = 3.0, after: float = 0.5) -> RunRecord:
+    """A production run that passes, fails (k6 or p-p past the demo variant's limits) or errs in its acquisition."""
+    if verdict == "error":
+        return make_record(serial, started=started, error_step="acquire")
+    if verdict == "fail" and k6 <= 1.2e-3 and after <= 2.0:
+        k6 = 3e-3
+    return make_record(serial, started=started, k6=k6, pp_before=before, pp_after=after)
 
 
 def rows(db: Path) -> list[tuple]:
@@ -55,11 +53,13 @@ def test_database_is_wal_and_holds_every_column(tmp_path: Path):
         con.close()
     assert tuple(cols) == COLUMN_NAMES
     values = dict(zip(cols, row))
-    assert values["run_id"] == r["run_id"] and values["verdict"] == "pass" and values["variant"] == "EPS-STD"
-    assert values["block_crc32"] == "deadbeef" and values["block_sequence"] == 3
-    assert values["sha256_before"] == "ab" * 32 and values["capture_after"] == "/x/after.mf4"
-    assert json.loads(values["fit_json"])["k6"]["value"] == 1.5e-3
-    assert json.loads(values["record_json"]) == r
+    cal = r.block("calibrated")
+    assert values["run_id"] == r.run_id and values["verdict"] == "pass" and values["variant"] == "EPS-STD"
+    assert values["block_crc32"] == cal.crc32 and values["block_sequence"] == cal.sequence == 2
+    assert values["sha256_before"] == r.captures["before"].sha256 and values["capture_after"] == r.captures["after"].path
+    assert json.loads(values["fit_json"])["k6"]["value"] == 1.0e-3
+    assert json.loads(values["record_json"]) == r.to_json()
+    assert values["kind"] == "production" and json.loads(values["causes"]) == []
     assert not (tmp_path / "spool").exists()
 
 
@@ -76,7 +76,7 @@ def test_locked_database_spools_then_flush_writes_it(tmp_path: Path):
         assert res.where == "spool"
         assert "locked" in res.why
         spooled = json.loads(Path(res.path).read_text())
-        assert spooled["record"] == r and spooled["db"] == str(db.resolve())
+        assert spooled["record"] == r.to_json() and spooled["db"] == str(db.resolve())
         # still locked: a flush keeps the file and says why
         fl = flush_spool(db, spool, timeout_s=0.2)
         assert fl.flushed_files == 0 and fl.remaining == 1 and "locked" in fl.error
@@ -102,7 +102,7 @@ def test_missing_directory_spools_then_flush_after_it_is_back(tmp_path: Path):
     db.parent.mkdir()
     fl = flush_spool(db, spool)
     assert fl.inserted == 3 and fl.remaining == 0
-    assert {x[0] for x in rows(db)} == {r["run_id"] for r in recs}
+    assert {x[0] for x in rows(db)} == {r.run_id for r in recs}
 
 
 def test_flush_is_idempotent_and_leaves_other_databases_records(tmp_path: Path):
@@ -126,9 +126,9 @@ def test_flush_is_idempotent_and_leaves_other_databases_records(tmp_path: Path):
     stray.write_text("{not json")
     r2 = record("M-9")
     save_record(r2, db.parent / "nodir" / "x.sqlite", spool)
-    doc = json.loads((spool / f"{r2['run_id']}.json").read_text())
+    doc = json.loads((spool / f"{r2.run_id}.json").read_text())
     doc["db"] = str(db.resolve())
-    (spool / f"{r2['run_id']}.json").write_text(json.dumps(doc))
+    (spool / f"{r2.run_id}.json").write_text(json.dumps(doc))
     fl = flush_spool(db, spool)
     assert fl.inserted == 1 and len(fl.bad_files) == 1 and "notes.json" in fl.bad_files[0]
     assert stray.exists()
@@ -150,9 +150,9 @@ def test_query_by_serial_and_day_and_pass_rate(tmp_path: Path):
         record("C", "error", "2026-11-22T10:00:00.000+00:00"),
     ]
     insert_records(db, recs)
-    assert [r["serial"] for r in query_records(db)] == ["A", "B", "A", "C"]
-    assert [r["run_id"] for r in query_records(db, serial="A")] == [recs[0]["run_id"], recs[2]["run_id"]]
-    assert [r["serial"] for r in query_records(db, day="2026-11-22")] == ["B", "A", "C"]
+    assert [r.serial for r in query_records(db)] == ["A", "B", "A", "C"]
+    assert [r.run_id for r in query_records(db, serial="A")] == [recs[0].run_id, recs[2].run_id]
+    assert [r.serial for r in query_records(db, day="2026-11-22")] == ["B", "A", "C"]
     s = summarise(query_records(db, day="2026-11-22"))
     assert (s["runs"], s["pass"], s["fail"], s["error"]) == (3, 1, 1, 1)
     assert s["pass_rate"] == 0.5 and s["motors"] == 3 and s["motors_pass"] == 1
@@ -176,6 +176,7 @@ def test_records_cli_flush_json_and_plot(tmp_path: Path):
                               "--plot", str(tmp_path / "lot.png")])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
+    assert doc["schema"] == "eol-cal/records/2"
     assert doc["summary"]["runs"] == 2 and doc["summary"]["pass_rate"] == 0.5
     assert [r["serial"] for r in doc["records"]] == ["A", "B"]
     assert (tmp_path / "lot.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -185,3 +186,14 @@ def test_records_cli_flush_json_and_plot(tmp_path: Path):
     assert res.exit_code == 2 and "YYYY-MM-DD" in res.output
     res = runner.invoke(cli, ["records", "--db", str(tmp_path / "x.sqlite")])
     assert res.exit_code == 2 and "database not found" in res.output
+
+
+def test_a_spooled_record_that_does_not_read_is_left_alone_not_lost(tmp_path: Path):
+    db, spool = tmp_path / "r.sqlite", tmp_path / "spool"
+    path = Path(save_record(record("M-5"), tmp_path / "nodir" / "r.sqlite", spool).path)
+    doc = json.loads(path.read_text())
+    doc["db"] = str(db.resolve())
+    doc["record"]["fit"]["k6"]["value"] = "big"  # damaged on the station's disk
+    path.write_text(json.dumps(doc))
+    fl = flush_spool(db, spool)
+    assert fl.inserted == 0 and len(fl.bad_files) == 1 and "fit.k6.value" in fl.bad_files[0] and path.exists()

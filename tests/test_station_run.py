@@ -25,8 +25,9 @@ from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
 from eol_cal.station.demo import loopback_station
-from eol_cal.station.limits import Measured, load_limits, verdict
-from eol_cal.station.records import query_records
+from eol_cal.station.limits import LIMIT_KEYS, Measured, load_limits, verdict
+from eol_cal.station.record import RunRecord
+from eol_cal.station.records_query import query_records
 from eol_cal.station.run import sha256_file
 
 
@@ -103,6 +104,13 @@ def run_args(files: dict[str, Path], st, serial: str, db: Path, report_dir: Path
             "--json", *extra]
 
 
+def bank_bytes(flash_file: Path, bank: int, n: int) -> bytes:
+    """The first ``n`` bytes of a bank of the ECU simulator's flash image."""
+    from eol_cal.ecu.flash import NorFlash
+
+    return NorFlash(flash_file).read(bank, 0, n)
+
+
 def wait_stopped(sim, timeout: float = 3.0) -> None:
     end = time.monotonic() + timeout
     while time.monotonic() < end and sim.speed != 0.0:
@@ -131,10 +139,12 @@ def test_full_run_end_to_end(full_run):
                                                  "acquire compensated", "metrics", "report"]
     # the pre-flight found the blank ECU of this motor, the key accepted, the dyno ready
     pre = rec["preflight"]
-    assert pre["reasons"] == [] and pre["ecu"]["key_accepted"] is True and pre["ecu"]["state"]["bank"] is None
+    assert pre["problems"] == [] and pre["ecu"]["key_accepted"] is True and pre["ecu"]["state"]["bank"] is None
+    assert rec["kind"] == "production" and rec["refusal_codes"] == []
     assert pre["ecu"]["state"]["serial"] == SERIAL and pre["dyno"]["dut_serial"] == SERIAL
     # the motor was measured under the uncompensated block (field estimator), flashed first
-    prep = rec["ecu_prepared"]
+    blocks = {b["role"]: b for b in rec["blocks"]}
+    prep = blocks["prepare"]
     # under the estimator options the calibrated block carries (the limits' default: best, all four)
     assert prep["flags"] == B.flag_names(B.FLAG_INTERP_ENABLE | B.FLAGS_ESTIMATOR) and prep["estimator"] == "best"
     assert prep["verified"] and prep["sequence"] == 1
@@ -156,15 +166,26 @@ def test_full_run_end_to_end(full_run):
     active = active_block_from_file(full_run["flash"])
     blk = B.unpack(active, "active")
     assert blk.serial == SERIAL and blk.flags & B.FLAG_COMP_ENABLE
-    assert rec["block"]["flags"] == B.flag_names(blk.flags) == ("COMP_ENABLE|INTERP_ENABLE|EST_CLAMP_TO_NEXT_EDGE|"
-                                                                "EST_LEARN_GRID_OFFSET|EST_ACCEL_PREDICTION|"
-                                                                "EST_LEARN_PITCH_ERRORS")
-    assert rec["block"]["estimator"] == "best"
+    cal = blocks["calibrated"]
+    assert cal["flags"] == B.flag_names(blk.flags) == ("COMP_ENABLE|INTERP_ENABLE|EST_CLAMP_TO_NEXT_EDGE|"
+                                                       "EST_LEARN_GRID_OFFSET|EST_ACCEL_PREDICTION|"
+                                                       "EST_LEARN_PITCH_ERRORS")
+    assert cal["estimator"] == "best"
     assert rec["fit"]["model"]["frame_estimator"] == "best"
-    assert f"{B.check(active).crc_stored:08x}" == rec["block"]["crc32"]
-    assert blk.sequence == rec["block"]["sequence"] == 2 and rec["block"]["bank"] != prep["bank"]
+    assert f"{B.check(active).crc_stored:08x}" == cal["crc32"]
+    assert blk.sequence == cal["sequence"] == 2 and cal["bank"] != prep["bank"]
+    # the archive is the truth: each block in the run's directory is the bank's bytes as flashed
+    # (sequence and CRC set), its SHA-256 in the record
+    for b in (prep, cal):
+        data = Path(b["path"]).read_bytes()
+        assert data == bank_bytes(full_run["flash"], b["bank"], len(data)) and sha256_file(b["path"]) == b["sha256"]
+        assert B.unpack(data, "archive").sequence == b["sequence"] and f"{B.check(data).crc_stored:08x}" == b["crc32"]
+    assert Path(cal["path"]).name == "block.bin" and Path(prep["path"]).name == "block_uncompensated.bin"
+    # every limit checked once, by the cycle, and carried in the record
+    assert [c["key"] for c in rec["checks"]] == [k for k in LIMIT_KEYS if rec["limits"][k] is not None]
+    assert all(c["pass"] is True for c in rec["checks"])
     # captures on disk with the recorded hashes, each with the block the ECU ran all along
-    for which, ran in (("before", prep), ("after", rec["block"])):
+    for which, ran in (("before", prep), ("after", cal)):
         c = rec["captures"][which]
         assert sha256_file(c["path"]) == c["sha256"]
         assert c["ecu_before"] == c["ecu_after"]
@@ -179,12 +200,13 @@ def test_full_run_end_to_end(full_run):
     assert rec["station"]["verify"] == "point"
     assert rec["station"]["motor"] == "paper" and rec["station"]["bench"] == "paper"
     # the ECU boots this run's block
-    assert rec["ecu_active"] == {"block": "calibrated", "sequence": 2, "bank": rec["block"]["bank"]}
+    assert rec["ecu_active"] == {"block": "calibrated", "sequence": 2, "bank": cal["bank"]}
     assert abs(rec["fit"]["operating_point"]["i_qo_a"]) == 65.0
     # the record is in the database (WAL), identical to the report's JSON
     assert doc["saved"]["where"] == "db"
     (stored,) = query_records(full_run["db"], serial=SERIAL)
-    assert stored == rec
+    assert stored.to_json() == rec
+    assert RunRecord.from_json(rec).to_json() == rec  # the round trip is exact
     con = sqlite3.connect(full_run["db"])
     assert con.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     con.close()
@@ -225,8 +247,8 @@ def test_same_run_passes_one_variant_and_fails_another(full_run, files):
     rec = full_run["rec"]
     f = rec["fit"]
     m = Measured(k6=f["k6"]["value"], ci_k6=f["k6"]["ci95"], ci_phase_k6_deg=math.degrees(f["phase_k6"]["ci95"]),
-                 ci_c6_nm=max(f["c6"]["ci95"], f["c6"]["value"] * f["phase_c6"]["ci95"]), r2=f["fit"]["r2"],
-                 rms_nm=f["fit"]["rms"], pp_before_pct=rec["metrics"]["pp_before_pct"],
+                 ci_c6_nm=max(f["c6"]["ci95"], f["c6"]["value"] * f["phase_c6"]["ci95"]), fit_r2=f["fit"]["r2"],
+                 fit_rms_nm=f["fit"]["rms"], pp_before_pct=rec["metrics"]["pp_before_pct"],
                  pp_after_pct=rec["metrics"]["pp_after_pct"],
                  hall_deviation_deg=max(abs(d) for d in f["hall_angle"]["deviation_deg"]), hall_source="measured")
     assert f["hall_angle"]["source"] == "measured"
@@ -268,7 +290,7 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
     # when the cycle ended before the calibrated one was written, else the calibrated one
     active = B.unpack(active_block_from_file(flash), "active")
     if failed_step == "acquire":
-        assert rec["ecu_active"] == {"block": "uncompensated", "sequence": 1, "bank": rec["ecu_prepared"]["bank"]}
+        assert rec["ecu_active"] == {"block": "uncompensated", "sequence": 1, "bank": rec["blocks"][0]["bank"]}
         assert active.flags == B.FLAG_INTERP_ENABLE | B.FLAGS_ESTIMATOR and active.sequence == 1
     else:
         assert rec["ecu_active"]["block"] == "calibrated" and rec["ecu_active"]["sequence"] == 2
@@ -280,8 +302,9 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
     which = "before" if failed_step == "acquire" else "after"
     assert which not in rec["captures"]
     assert not (Path(rec["report_dir"]) / f"{which}.mf4").exists()
+    assert rec["kind"] == "production"  # something was written to the ECU: a measured attempt, not a refusal
     if failed_step == "acquire compensated":
-        assert rec["block"]["crc32"] is not None  # it had been flashed; the ECU keeps it
+        assert rec["blocks"][-1]["role"] == "calibrated"  # it had been flashed; the ECU keeps it
     # the locked database: the record waited in the spool; the next command writes it in
     assert doc["saved"]["where"] == "spool"
     assert Path(doc["saved"]["path"]).exists()
@@ -305,7 +328,7 @@ def test_a_motor_of_another_type_on_the_dyno_is_refused_before_the_fit(files, tm
     rec = json.loads(res.stdout)["record"]
     assert rec["verdict"] == "error" and rec["error"]["step"] == "fit"
     assert "poles" in rec["error"]["message"] and "eps8" in rec["error"]["message"]
-    assert rec["fit"] is None and rec["block"] is None
+    assert rec["fit"] is None and [b["role"] for b in rec["blocks"]] == ["prepare"]
     # the block it prepared the ECU with is for the motor type it was given
     assert B.unpack(active_block_from_file(flash), "active").poles == 8
     assert rec["ecu_active"]["block"] == "uncompensated"
@@ -364,12 +387,13 @@ def test_a_wrong_key_is_an_error_before_the_dyno_turns_and_the_ecu_keeps_no_bloc
         flash = st.flash_file
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    # the pre-flight's seed/key is refused: nothing was flashed, captured or written
+    # the pre-flight's seed/key is refused: nothing was flashed, captured or written: a refusal
     assert rec["verdict"] == "error" and rec["error"]["step"] == "pre-flight"
+    assert rec["kind"] == "refusal" and rec["refusal_codes"] == ["key_refused"]
     assert rec["captures"] == {} and [s["step"] for s in rec["steps"]] == ["pre-flight", "report"]
     assert "security" in rec["error"]["message"].lower() or "35" in rec["error"]["message"]
     assert active_block_from_file(flash) is None  # nothing was written into a bank
-    assert [r["verdict"] for r in query_records(db)] == ["error"]
+    assert [(r.kind, r.verdict) for r in query_records(db)] == [("refusal", "error")]
 
 
 def test_demo_one_motor_from_the_command_line(tmp_path):
@@ -377,12 +401,12 @@ def test_demo_one_motor_from_the_command_line(tmp_path):
     assert res.exit_code == 0, res.output
     assert "DEMO-0001" in res.output and "pass" in res.output
     (rec,) = query_records(tmp_path / "demo" / "results.sqlite")
-    assert rec["verdict"] == "pass" and rec["station"]["demo"] is True
-    assert Path(rec["report_dir"], "report.html").exists()
+    assert rec.verdict == "pass" and rec.station.extra["demo"] is True
+    assert Path(rec.report_dir, "report.html").exists()
     assert (tmp_path / "demo" / "limits.toml").exists()
     # it ends pointing at both pages; the lot page links the motor's report relative to itself
     lot = (tmp_path / "demo" / "lot.html").read_text()
-    rel = Path(rec["report_dir"]).relative_to(tmp_path / "demo").as_posix()
+    rel = Path(rec.report_dir).relative_to(tmp_path / "demo").as_posix()
     assert f'href="{rel}/report.html"' in lot
     assert "lot page:" in res.output and "report.html" in res.output
 
@@ -428,11 +452,11 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     assert [u for u in log.requests if not u.startswith("data:")] == [page.as_uri()]
     assert len(sizes) == 3 and all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
     assert verdict_text == rec["verdict"].upper()
-    assert [k for k, _ in rows] == [k for k in LIMIT_KEYS if rec["limits"].get(k) is not None]  # an optional limit left off is no row
+    assert [k for k, _ in rows] == [c["key"] for c in rec["checks"]]  # the record's checks; an optional limit left off is none
     assert all(status in ("PASS", "FAIL") for _, status in rows)
     # the ECU's state in the record is on the page: CRCs and flags of both blocks
     ecu = b_ecu
-    for text in (rec["ecu_prepared"]["crc32"], rec["block"]["crc32"], "COMP_ENABLE|INTERP_ENABLE"):
+    for text in (*(b["crc32"] for b in rec["blocks"]), "COMP_ENABLE|INTERP_ENABLE"):
         assert text in ecu
     # every fitted segment has its residual panel (the record lists them)
     assert residual_panels == len(rec["fit"]["segments"])
@@ -442,7 +466,7 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
 
 
 def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, files, tmp_path):
-    """StationCycle.to_record: the same keys and the run-record schema on pass, fail (at the fit) and error."""
+    """StationCycle.to_record: the same keys and the run-record schema on pass, fail (at the fit) and refusal."""
     from eol_cal.schemas import validator
 
     check = validator("run-record")
@@ -464,13 +488,19 @@ def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, fil
     for verdict_, rec in records.items():
         assert rec["verdict"] == verdict_
         check.validate(rec)
+        assert RunRecord.from_json(rec).to_json() == rec
     assert {frozenset(r) for r in records.values()} == {frozenset(records["pass"])}
     fail = records["fail"]
     assert [s["step"] for s in fail["steps"]] == ["pre-flight", "prepare ECU", "acquire", "fit", "report"]
-    assert any("max_k6" in r for r in fail["reasons"]) and fail["block"] is None and fail["error"] is None
+    assert any("max_k6" in r for r in fail["reasons"]) and fail["error"] is None
+    assert [b["role"] for b in fail["blocks"]] == ["prepare"]
     assert fail["ecu_active"]["block"] == "uncompensated" and fail["fit"]["status"] == "ok"
+    # judged once: the fit's limits at the fit (max_k6 failed), the ripple's not judged (never reached)
+    status = {c["key"]: c["pass"] for c in fail["checks"]}
+    assert status["max_k6"] is False and status["min_r2"] is True and status["max_pp_after_pct"] is None
     err = records["error"]
     assert err["error"]["step"] == "pre-flight" and err["fit"] is None and err["safe_state"] is not None
+    assert err["kind"] == "refusal" and err["refusal_codes"] == ["key_refused"]
 
 
 def test_records_json_matches_its_schema(full_run):
@@ -479,5 +509,5 @@ def test_records_json_matches_its_schema(full_run):
     res = CliRunner().invoke(cli, ["records", "--db", str(full_run["db"]), "--json"])
     assert res.exit_code == 0, res.output
     doc = json.loads(res.stdout)
-    assert [r["serial"] for r in doc["records"]] == [SERIAL]
+    assert [r["serial"] for r in doc["records"]] == [SERIAL] and doc["schema"] == "eol-cal/records/2"
     validator("records").validate(doc)

@@ -71,6 +71,9 @@ class FlashReport:
         Downloads started again from the erase after losses.
     steps : list of str
         Steps completed, in order.
+    image : bytes
+        The block as written (its sequence and CRC set): what the ECU's bank holds (empty on a
+        dry run). Not in :meth:`to_dict`.
     """
 
     serial: str
@@ -87,9 +90,11 @@ class FlashReport:
     retries: int = 0
     restarts: int = 0
     steps: list[str] = field(default_factory=list)
+    image: bytes = field(default=b"", repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)
+        del d["image"]
         d["crc32"] = f"{self.crc32:08x}"
         for key in ("previous", "active_after"):
             if d[key] is not None:
@@ -107,6 +112,7 @@ class _Progress:
     sequence: int = 0
     tail: str = "none"  # none | sent | written
     reset_sent: bool = False
+    image: bytes = b""  # the block with its sequence and CRC, once built
 
     def step(self, name: str) -> str:
         self.steps.append(name)
@@ -238,6 +244,13 @@ def _boots(prog: _Progress, word: str) -> dict[str, Any]:
     return {"boots": word, "bank": prog.bank, "sequence": prog.sequence if prog.bank is not None else None}
 
 
+def _mark(exc: BaseException, prog: _Progress, word: str) -> None:
+    """What an exception of :func:`flash_block` carries: ``ecu_boots`` and, once the CRC went out
+    (the bank may hold the complete block), ``flashed_image``: the bytes it holds."""
+    exc.ecu_boots = _boots(prog, word)  # type: ignore[attr-defined]
+    exc.flashed_image = prog.image if prog.tail != "none" else None  # type: ignore[attr-defined]
+
+
 def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
                 dry_run: bool = False, force: bool = False, source: str = "<block>",
                 timing: ClientTiming = ClientTiming(),
@@ -316,13 +329,14 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
             image = _image(blk, sequence)
             crc = B.check(image).crc_stored or 0
             report = FlashReport(serial=serial, bank=bank, sequence=sequence, crc32=crc,
-                                 block_bytes=len(image), previous=previous, dry_run=dry_run, steps=prog.steps)
+                                 block_bytes=len(image), previous=previous, dry_run=dry_run, steps=prog.steps,
+                                 image=b"" if dry_run else image)
             base = B.BANK_WORD_ADDR[bank]
             if dry_run:
                 s.leave()
                 report.seconds = time.perf_counter() - t0
                 return report
-            prog.bank, prog.sequence = bank, sequence
+            prog.bank, prog.sequence, prog.image = bank, sequence, image
             bsc = _download_body(s, prog, base, image, report)
             if verify:
                 body = image[:-TAIL_BYTES]
@@ -360,7 +374,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
         except (EcuError, VerifyFailed) as exc:
             outcome, word = _aftermath(s, prog, base, rollback=True)
             exc.args = (f"{exc}; {outcome}",)
-            exc.ecu_boots = _boots(prog, word)
+            _mark(exc, prog, word)
             raise
         except KeyboardInterrupt as exc:  # Interrupted (SIGINT/SIGTERM) or a bare Ctrl-C
             name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
@@ -369,7 +383,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
             except KeyboardInterrupt:  # a second signal: stop cleaning up
                 outcome, word = _aftermath(s, prog, base, rollback=False)
             interrupted = Interrupted(name, f"flash ({prog.current})", outcome)
-            interrupted.ecu_boots = _boots(prog, word)
+            _mark(interrupted, prog, word)
             raise interrupted from None
     report.seconds = time.perf_counter() - t0
     report.retries = s.retries_used

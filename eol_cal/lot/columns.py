@@ -1,10 +1,11 @@
 """A lot's runs column-wise: what lot statistics read, as numpy arrays in time order.
 
 :class:`Lot` is built either from the records database's columns (:func:`read_lot`: no record
-JSON is parsed, only the few distinct ``limits_json`` texts) or from parsed run records
+JSON is parsed, only the few distinct ``limits_json`` texts) or from run records
 (:func:`from_records`: the lot page, tests). Both go through
 :func:`eol_cal.station.records.row_values`, the one mapping from a record to its columns (the
-insert and the migrations use it too), so both give the same lot and the same statistics.
+insert and the migrations use it too), so both give the same lot and the same statistics. A lot
+holds the runs of one kind, ``production`` unless asked (``docs/records.md``, "Run kinds").
 
 Time order is the order of the ``started_at`` times (ties by ``run_id``). The station writes
 UTC ISO 8601 with milliseconds (``2026-11-22T08:00:00.000+00:00``), all of one length, whose
@@ -24,39 +25,58 @@ from typing import Any, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
+from eol_cal.display import display_unit
 from eol_cal.errors import InputError
+from eol_cal.station.limits import limit_on
+from eol_cal.station.record import MEASURED_KIND, RunRecord
 
 
 class Quantity(NamedTuple):
-    """A measured quantity of the lot: its column (``key``), where the record has it, its display
-    scale and unit (display value = scale x stored value), its limit key and the limit's sense."""
+    """A measured quantity of the lot: its column (``key``, :meth:`RunRecord.value`), its title and
+    stored unit; its display unit and scale (:mod:`eol_cal.display`), and the limit on it
+    (:func:`eol_cal.station.limits.limit_on`) follow."""
 
     key: str
     title: str
-    path: tuple[str, ...]
-    scale: float
-    unit: str
-    limit_key: str | None
-    sense: str
+    stored_unit: str
+
+    @property
+    def unit(self) -> str:
+        """The display unit."""
+        return display_unit(self.stored_unit)[0]
+
+    @property
+    def scale(self) -> float:
+        """Display value = scale x stored value."""
+        return display_unit(self.stored_unit)[1]
+
+    @property
+    def limit_key(self) -> str | None:
+        lim = limit_on(self.key)
+        return None if lim is None else lim.key
+
+    @property
+    def sense(self) -> str:
+        lim = limit_on(self.key)
+        return "max" if lim is None else lim.sense
 
 
 #: the quantities of the lot page and ``lot stats``; each key is a column of ``runs``
 QUANTITIES: tuple[Quantity, ...] = (
-    Quantity("k6", "k6", ("fit", "k6", "value"), 1e3, "mN*m/A", "max_k6", "max"),
-    Quantity("phase_k6", "phase_k6", ("fit", "phase_k6", "value"), 180.0 / math.pi, "deg", None, "max"),
-    Quantity("c6", "c6", ("fit", "c6", "value"), 1e3, "mN*m", None, "max"),
-    Quantity("phase_c6", "phase_c6", ("fit", "phase_c6", "value"), 180.0 / math.pi, "deg", None, "max"),
-    Quantity("pp_before_pct", "p-p before", ("metrics", "pp_before_pct"), 1.0, "%", "max_pp_before_pct", "max"),
-    Quantity("pp_after_pct", "p-p compensated", ("metrics", "pp_after_pct"), 1.0, "%", "max_pp_after_pct", "max"),
-    Quantity("improvement_pct", "improvement", ("metrics", "improvement_pct"), 1.0, "%", "min_improvement_pct", "min"),
-    Quantity("fit_r2", "fit R^2", ("fit", "fit", "r2"), 1.0, "1", "min_r2", "min"),
-    Quantity("fit_rms_nm", "fit residual rms", ("fit", "fit", "rms"), 1e3, "mN*m", "max_rms_nm", "max"),
+    Quantity("k6", "k6", "N*m/A"),
+    Quantity("phase_k6", "phase_k6", "rad"),
+    Quantity("c6", "c6", "N*m"),
+    Quantity("phase_c6", "phase_c6", "rad"),
+    Quantity("pp_before_pct", "p-p before", "%"),
+    Quantity("pp_after_pct", "p-p compensated", "%"),
+    Quantity("improvement_pct", "improvement", "%"),
+    Quantity("fit_r2", "fit R^2", "1"),
+    Quantity("fit_rms_nm", "fit residual rms", "N*m"),
 )
 #: what the control charts follow per station
 CHARTED = ("k6", "pp_after_pct")
 #: the ``runs`` columns a lot reads per run (and the distinct ``limits_json`` texts)
-LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "reasons", "error_step",
-               *(q.key for q in QUANTITIES))
+LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "causes", *(q.key for q in QUANTITIES))
 
 
 @dataclass(frozen=True)
@@ -68,7 +88,7 @@ class Lot:
     run_id, serial, started_at, verdict, station : numpy.ndarray
         Per run; ``station`` as the reports name it (``(no station id)`` without one).
     causes : list of list of str
-        The failure causes (:func:`eol_cal.lot.stats.causes_of`) of each run that did not pass.
+        The failure causes (:meth:`RunRecord.causes`) of each run that did not pass.
     values : dict of str -> numpy.ndarray
         Per :data:`QUANTITIES` key, stored units (NaN where the run has none).
     limits : dict of str -> numpy.ndarray
@@ -105,19 +125,17 @@ class Lot:
         return sorted((str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names))
 
 
-def _causes(verdict: np.ndarray, run_id: np.ndarray, reasons: np.ndarray, error_step: np.ndarray) -> list[list[str]]:
-    """The failure causes of each run that did not pass (its reasons' JSON parsed: a few runs)."""
-    from eol_cal.lot.stats import causes_of
-
+def _causes(verdict: np.ndarray, run_id: np.ndarray, causes: np.ndarray) -> list[list[str]]:
+    """The failure causes of each run that did not pass (their JSON lists parsed: a few runs)."""
     out: list[list[str]] = []
     for i in np.flatnonzero(verdict != "pass"):
         try:
-            doc = json.loads(reasons[i]) if reasons[i] else []
+            doc = json.loads(causes[i]) if causes[i] else []
         except ValueError:
             doc = None
-        if not isinstance(doc, list):
-            raise InputError(None, f"run {run_id[i]} reasons", "not a JSON list")
-        out.append(causes_of(verdict[i], doc, error_step[i]))
+        if not isinstance(doc, list) or not all(isinstance(c, str) for c in doc):
+            raise InputError(None, f"run {run_id[i]} causes", "not a JSON list of strings")
+        out.append(doc)
     return out
 
 
@@ -210,13 +228,14 @@ def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | Non
     station[station == None] = NO_STATION  # noqa: E711 - elementwise: the runs without a station id
     run_id, verdict = text("run_id"), text("verdict")
     return Lot(run_id=run_id, serial=text("serial"), started_at=text("started_at"), verdict=verdict, station=station,
-               causes=_causes(verdict, run_id, text("reasons"), text("error_step")),
+               causes=_causes(verdict, run_id, text("causes")),
                values={q.key: _floats(cols[q.key])[order] for q in QUANTITIES},
                limits=_limits(limits_json))
 
 
-def from_records(records: Sequence[dict[str, Any]]) -> Lot:
-    """A :class:`Lot` of parsed run records (their columns as the database would hold them)."""
+def from_records(records: Sequence[RunRecord]) -> Lot:
+    """A :class:`Lot` of run records (their columns as the database would hold them; every record
+    given, whatever its kind: choose the kind before)."""
     from eol_cal.station.records import row_values
 
     rows = [row_values(r) for r in records]
@@ -225,16 +244,29 @@ def from_records(records: Sequence[dict[str, Any]]) -> Lot:
 
 
 def read_lot(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
-             until: str | None = None) -> Lot:
+             until: str | None = None, kind: str | Sequence[str] | None = MEASURED_KIND) -> Lot:
     """The selected runs of a records database as a :class:`Lot`, from its columns alone (schema
-    version 3). Filters as :func:`eol_cal.station.records.select_runs`."""
-    from eol_cal.errors import naming
-    from eol_cal.station.records import db_key, is_url, read_columns, runs, select_runs
+    version 4). Filters as :func:`eol_cal.station.records_query.select_runs` (``kind``: production
+    runs unless asked)."""
+    return read_lots(db, variant, station, since, until, kind)[0]
 
-    q = select_runs(variant=variant, station=station, since=since, until=until).order_by(None)
-    # the order is made here (the server's text collation need not be code-point order); the
-    # limits are few distinct texts, asked for as such (not 100 000 copies of them)
-    cols, limits = read_columns(db, q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
-                                q.with_only_columns(runs.c.limits_json).distinct(), min_version=3)
+
+def read_lots(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
+              until: str | None = None, kind: str | Sequence[str] | None = MEASURED_KIND,
+              also: Sequence[str] = ()) -> list[Lot]:
+    """:func:`read_lot` and, from the same snapshot of the database, the lot of each kind in ``also``
+    (the refusals beside the production runs)."""
+    from eol_cal.errors import naming
+    from eol_cal.station.records import db_key, is_url, runs
+    from eol_cal.station.records_query import read_columns, select_runs
+
+    queries = []
+    for k in (kind, *also):
+        q = select_runs(variant=variant, station=station, since=since, until=until, kind=k).order_by(None)
+        # the order is made here (the server's text collation need not be code-point order); the
+        # limits are few distinct texts, asked for as such (not 100 000 copies of them)
+        queries += [q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
+                    q.with_only_columns(runs.c.limits_json).distinct()]
+    got = read_columns(db, *queries, min_version=4)
     with naming(db_key(db) if is_url(db) else str(db)):
-        return from_columns(cols, limits["limits_json"])
+        return [from_columns(got[k], got[k + 1]["limits_json"]) for k in range(0, len(got), 2)]

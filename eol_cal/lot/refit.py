@@ -4,8 +4,8 @@ comparable with the run records.
 
 Each task reads the run's captures and fits them as the station does (the options of
 :func:`eol_cal.station.run.fit_motor`, so the same k6 as the record of that run), and, with limits, judges the fit's
-part of them (:func:`eol_cal.station.limits.fit_reasons`: k6, the intervals, R^2, RMS, the hall
-table; the ripple limits need the compensated capture, which a refit does not make). A capture
+part of them (:func:`eol_cal.station.limits.judge` of the fit stage: k6, the intervals, R^2, RMS, the
+hall table; the ripple limits need the compensated capture, which a refit does not make). A capture
 that cannot be read or fitted gives a row with ``error`` and no numbers; the lot goes on. So does
 a capture that ``eol-cal fit`` would refuse by its recorded ECU state (the block changed during
 it, another motor's ECU, taken under compensation); untraced captures (older runs) are refitted,
@@ -27,18 +27,28 @@ CAPTURE_SUFFIXES = (".mf4", ".csv")
 #: the file a station run writes before compensation (eol_cal.station.cycle); a directory of runs
 #: is refitted from these
 STATION_CAPTURE = "before.mf4"
-ROW_KEYS = ("serial", "capture", "k6", "phase_k6", "c6", "r2", "rms", "status", "verdict", "reasons", "error")
+ROW_KEYS = ("serial", "capture", "k6", "phase_k6", "c6", "r2", "rms", "status", "verdict", "reasons", "failed_checks",
+            "error")
 
 
-def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
+def find_captures(patterns: Sequence[str], kind: str | Sequence[str] | None = "production") -> list[list[Path]]:
     """The capture files of directories (their station ``before.mf4`` files, recursively, else
     every capture in them), files and globs, grouped by directory: one group per motor run
-    (a station run directory, or a directory holding one motor's captures); sorted, each once."""
+    (a station run directory, or a directory holding one motor's captures); sorted, each once.
+
+    A station run directory whose record (``report.json``) is of another kind than ``kind``
+    (default ``production``; ``all`` or None: every kind) is left out: a master motor's or a
+    simulated run is not a motor of the lot unless asked for."""
+    from eol_cal.station.records_query import kinds_of
+
+    kinds = kinds_of(kind)
     out: set[Path] = set()
     for pat in patterns:
         p = Path(pat)
         if p.is_dir():
-            found = list(p.rglob(STATION_CAPTURE)) or [q for q in p.rglob("*") if q.suffix.lower() in CAPTURE_SUFFIXES]
+            found = [q for q in p.rglob(STATION_CAPTURE) if kinds is None or _run_kind(q.parent) in (*kinds, None)]
+            found = found or [q for q in p.rglob("*") if q.suffix.lower() in CAPTURE_SUFFIXES
+                              and q.name != STATION_CAPTURE]
         elif p.is_file():
             found = [p]
         else:
@@ -50,6 +60,18 @@ def find_captures(patterns: Sequence[str]) -> list[list[Path]]:
     for q in sorted(out):
         groups.setdefault(q.parent, []).append(q)
     return [groups[k] for k in sorted(groups)]
+
+
+def _run_kind(run_dir: Path) -> str | None:
+    """The kind of a station run directory's record (None: no readable record there)."""
+    import json
+
+    from eol_cal.station.record import record_kind
+
+    try:
+        return record_kind(json.loads((run_dir / "report.json").read_text(encoding="utf-8")))
+    except (OSError, ValueError):
+        return None
 
 
 def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, variant: str | None = None,
@@ -68,10 +90,10 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
     from eol_cal.capture.ecu_state import check_trace, common_options, recorded_options, trace_of
     from eol_cal.capture.io import read_capture
     from eol_cal.errors import EolCalError
-    from eol_cal.station.limits import fit_reasons, load_limits, measured_from_fit
+    from eol_cal.station.limits import Measured, failed, judge, load_limits
 
     row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
-    row.update(capture=str(paths[0]), reasons=[])
+    row.update(capture=str(paths[0]), reasons=[], failed_checks=[])
     try:
         lim = load_limits(limits_file, variant) if limits_file else None
         caps = [read_capture(p) for p in paths]
@@ -98,20 +120,25 @@ def refit_capture(paths: Sequence[str | Path], limits_file: str | None = None, v
         if len(res.records) != 1:
             raise InputError(str(paths[0]), "serial", f"the directory holds {len(res.records)} motors, expected one")
         (rec,) = res.records
+        from eol_cal.analysis.motor_result import MotorResult
+
+        result = MotorResult.from_json(rec, str(paths[0]), "motors[0].")
     except (EolCalError, OSError, ValueError) as exc:
         row["error"] = f"{type(exc).__name__}: {exc}"
         row["verdict"] = "error"
         return row
-    row["status"] = rec["status"]
+    row["status"] = result.status
     for key in ("k6", "phase_k6", "c6"):
-        row[key] = (rec.get(key) or {}).get("value")
-    row["r2"] = (rec.get("fit") or {}).get("r2")
-    row["rms"] = (rec.get("fit") or {}).get("rms")
-    if rec["status"] != "ok":
-        row["verdict"], row["reasons"] = "fail", list(rec.get("reasons") or [])
+        row[key] = None if result.estimates is None else getattr(result.estimates, key).value
+    row["r2"], row["rms"] = result.fit.get("r2"), result.fit.get("rms")
+    if not result.usable:
+        row["verdict"], row["reasons"] = "fail", list(result.reasons)
+        row["failed_checks"] = [f"fit {result.status}"]
     elif lim is not None:
-        reasons = fit_reasons(measured_from_fit(rec), lim)
+        checks = judge(Measured.of_fit(result), lim, "fit")
+        reasons = failed(checks)
         row["verdict"], row["reasons"] = ("fail", reasons) if reasons else ("pass", [])
+        row["failed_checks"] = [c.key for c in checks if c.passed is False]
     return row
 
 
@@ -137,7 +164,8 @@ def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | N
             rows[i] = fut.result()
         except Exception as exc:  # noqa: BLE001 - a task that failed on every retry: reported per capture
             row = dict.fromkeys(ROW_KEYS)
-            row.update(capture=str(paths[i][0]), reasons=[], verdict="error", error=f"{type(exc).__name__}: {exc}")
+            row.update(capture=str(paths[i][0]), reasons=[], failed_checks=[], verdict="error",
+                       error=f"{type(exc).__name__}: {exc}")
             rows[i] = row
         if on_done is not None:
             on_done(rows[i])
@@ -160,7 +188,8 @@ def write_rows(path: str | Path, rows: Iterable[dict[str, Any]]) -> Path:
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        table = pa.Table.from_pylist([{**r, "reasons": list(r["reasons"] or [])} for r in rows])
+        table = pa.Table.from_pylist([{**r, "reasons": list(r["reasons"] or []),
+                                        "failed_checks": list(r.get("failed_checks") or [])} for r in rows])
         buf = io.BytesIO()
         pq.write_table(table, buf)
         atomic_write(path, buf.getvalue())
@@ -186,20 +215,3 @@ def read_rows(path: str | Path) -> list[dict[str, Any]]:
 
 def _json_safe(r: dict[str, Any]) -> dict[str, Any]:
     return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in r.items()}
-
-
-def verdict_changes(records: Sequence[dict[str, Any]], rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Motors whose refit verdict differs from their latest recorded run's verdict (by serial)."""
-    latest: dict[str, dict[str, Any]] = {}
-    for r in sorted(records, key=lambda r: str(r.get("started_at") or "")):
-        latest[r["serial"]] = r
-    out = []
-    for row in rows:
-        rec = latest.get(row.get("serial") or "")
-        if rec is None or row.get("verdict") is None:
-            continue
-        if rec.get("verdict") != row["verdict"]:
-            k6_rec = ((rec.get("fit") or {}).get("k6") or {}).get("value")
-            out.append({"serial": row["serial"], "recorded": rec.get("verdict"), "refit": row["verdict"],
-                        "k6_recorded": k6_rec, "k6_refit": row.get("k6"), "reasons": row.get("reasons") or []})
-    return out

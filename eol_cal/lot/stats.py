@@ -1,7 +1,8 @@
 """Lot statistics of run records: summaries, process capability, control limits, yield, Pareto.
 
-Pure functions over numbers in time order and over run records (``eol-cal/run-record/1``).
-Definitions (the usual ones of statistical process control, for individual measurements):
+Pure functions over numbers in time order and over run records
+(:class:`~eol_cal.station.record.RunRecord`). Definitions (the usual ones of statistical process
+control, for individual measurements; the run kinds in ``docs/records.md``):
 
 - ``sd``: sample standard deviation (ddof 1); percentiles by linear interpolation.
 - Capability: ``sigma_within = mean(|x[i] - x[i-1]|) / d2`` with ``d2 = 1.128`` (the moving
@@ -11,21 +12,27 @@ Definitions (the usual ones of statistical process control, for individual measu
   variants' ``max_...`` / ``min_...``) gives the one-sided index.
 - Individuals / moving-range chart: centre ``mean``, ``UCL/LCL = mean +- 2.66 MRbar``; the
   moving range's centre ``MRbar`` and ``UCL = 3.267 MRbar`` (``2.66 = 3 / d2``, ``3.267 = D4``).
-- First-pass yield: motors whose first run passed / motors tested (a first run that ended in a
-  station error is not a first pass: the motor had to be run again).
+- First-pass yield: serials whose first *measured* (``production``) run passed / serials with a
+  measured run (a first measured run that ended in a station error is not a first pass: the
+  motor had to be run again; a refusal before it measured nothing and does not count).
 - Pareto: failed and error runs by cause, most frequent first, with the cumulative share.
-  The cause of a failed run is each limit its reasons name (``max_pp_after_pct``...); of an
-  error run ``error in STEP``.
+  The causes of a run are :meth:`RunRecord.causes`: each limit key its failed checks name (or
+  the fit's status), ``error in STEP`` for an error run; refusals have their own Pareto of
+  refusal codes.
 """
 
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
-from typing import Any, Iterable, Sequence
+from typing import TYPE_CHECKING, Iterable, Sequence
 
 import numpy as np
+
+from eol_cal.station.record import MEASURED_KIND
+
+if TYPE_CHECKING:
+    from eol_cal.station.record import RunRecord
 
 D2 = 1.128  # E[moving range of two] / sigma
 E2 = 3.0 / D2  # 2.66: individuals' limits from MRbar
@@ -139,15 +146,11 @@ def imr_limits(x: Iterable[float]) -> ControlLimits:
 
 
 # --------------------------------------------------------------------------- records
-def _time(rec: dict[str, Any]) -> str:
-    return str(rec.get("started_at") or "")
-
-
-def first_pass_yield(records: Sequence[dict[str, Any]]) -> tuple[float, int]:
-    """(motors whose first run passed / motors, motors); NaN without records."""
-    recs = sorted(records, key=_time)
-    return first_pass_yield_of(np.array([r["serial"] for r in recs], dtype=object),
-                               np.array([r.get("verdict") for r in recs], dtype=object))
+def first_pass_yield(records: Sequence[RunRecord]) -> tuple[float, int]:
+    """(serials whose first production run passed / serials with one, serials); NaN without any."""
+    recs = sorted((r for r in records if r.kind == MEASURED_KIND), key=lambda r: (r.started_at, r.run_id))
+    return first_pass_yield_of(np.array([r.serial for r in recs], dtype=object),
+                               np.array([r.verdict for r in recs], dtype=object))
 
 
 def first_pass_yield_of(serial: np.ndarray, verdict: np.ndarray) -> tuple[float, int]:
@@ -161,36 +164,13 @@ def first_pass_yield_of(serial: np.ndarray, verdict: np.ndarray) -> tuple[float,
     return float(np.count_nonzero(np.asarray(verdict)[first] == "pass") / len(first)), len(first)
 
 
-_LIMIT_KEY = re.compile(r"\b((?:max|min)_[a-z0-9_]+)\b")
-
-
-def failure_causes(rec: dict[str, Any]) -> list[str]:
-    """The causes of a run that did not pass (empty for a pass): see the module doc."""
-    return causes_of(rec.get("verdict"), rec.get("reasons") or [], (rec.get("error") or {}).get("step"))
-
-
-def causes_of(verdict: str | None, reasons: Sequence[str], error_step: str | None) -> list[str]:
-    """:func:`failure_causes` of a run given as its verdict, reasons and the step it erred in."""
-    if verdict == "pass":
-        return []
-    if verdict == "error":
-        return [f"error in {error_step}" if error_step else "error"]
-    causes: list[str] = []
-    for reason in reasons:
-        keys = _LIMIT_KEY.findall(str(reason))
-        cause = keys[0] if keys else str(reason).split(":")[0].split(" = ")[0].strip()
-        if cause not in causes:
-            causes.append(cause)
-    return causes or ["fail (no reason recorded)"]
-
-
-def pareto(records: Sequence[dict[str, Any]]) -> list[tuple[str, int, float]]:
-    """``(cause, runs, cumulative share of all causes)``, most frequent first (ties by name)."""
-    return pareto_of(failure_causes(r) for r in records)
+def pareto(records: Sequence[RunRecord]) -> list[tuple[str, int, float]]:
+    """``(cause, runs, cumulative share of all causes)`` of the records' causes, most frequent first."""
+    return pareto_of(r.causes() for r in records)
 
 
 def pareto_of(causes: Iterable[Sequence[str]]) -> list[tuple[str, int, float]]:
-    """:func:`pareto` of the runs' causes (one list per run)."""
+    """:func:`pareto` of the runs' causes (one list per run), ties by name."""
     counts: dict[str, int] = {}
     for run in causes:
         for c in run:

@@ -78,13 +78,25 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def lot_summary(lot: Lot) -> dict[str, Any]:
+def _pareto(causes: list[list[str]]) -> list[dict[str, Any]]:
+    return [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(causes)]
+
+
+def refusal_summary(refusals: Lot) -> dict[str, Any]:
+    """The refused runs (nothing written, nothing measured): how many, of how many serials, and
+    their reasons as a Pareto (refusal codes)."""
+    return {"runs": len(refusals), "serials": len(set(refusals.serial.tolist())), "pareto": _pareto(refusals.causes)}
+
+
+def lot_summary(lot: Lot, refusals: Lot | None = None) -> dict[str, Any]:
     """The lot's figures (display units, NaN as None).
 
     Keys: ``runs``, ``verdicts`` (counts), ``first_pass_yield`` and ``motors``, ``quantities``
     (per quantity: unit, count, mean, sd, min, max, percentiles, the limit and Cp/Cpk/Ppk
     against it), ``pareto`` (cause, runs, cumulative share) and ``control`` (per station, per
-    charted quantity: the individuals / moving-range limits). Documented in ``docs/json.md``.
+    charted quantity: the individuals / moving-range limits); with ``refusals`` (the refused
+    runs of the same selection) ``refusals`` (:func:`refusal_summary`). Documented in
+    ``docs/json.md``.
     """
     fpy, motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = []
@@ -109,27 +121,31 @@ def lot_summary(lot: Lot) -> dict[str, Any]:
         "verdicts": {v: int(np.count_nonzero(lot.verdict == v)) for v in ("pass", "fail", "error")},
         "first_pass_yield": fpy, "motors": motors,
         "quantities": quantities,
-        "pareto": [{"cause": c, "runs": n, "cumulative": acc} for c, n, acc in pareto_of(lot.causes)],
+        "pareto": _pareto(lot.causes),
         "control": control,
+        **({} if refusals is None else {"refusals": refusal_summary(refusals)}),
     })
 
 
-def write_runs_csv(path: str | Path, db: str | Path, **filters: str | None) -> int:
+def write_runs_csv(path: str | Path, db: str | Path, **filters: Any) -> int:
     """Write the selected runs' columns (the database's, without the JSON documents) as CSV,
     atomically, oldest first; returns the number of runs. ``filters`` as
-    :func:`eol_cal.station.records.select_runs`."""
+    :func:`eol_cal.station.records_query.select_runs`. Each header names its unit (``k6 [mN*m/A]``);
+    the measured quantities are in their display units (:mod:`eol_cal.display`)."""
     import csv
     import io
 
     from eol_cal.atomic import atomic_write
-    from eol_cal.station.records import COLUMN_NAMES, read_rows, runs, select_runs
+    from eol_cal.station.records import COLUMN_NAMES, runs
+    from eol_cal.station.records_query import read_rows, select_runs
 
+    shown = {q.key: q for q in QUANTITIES}
     cols = [c for c in COLUMN_NAMES if c not in ("fit_json", "record_json")]
     rows = read_rows(db, select_runs(**filters).with_only_columns(*(runs.c[c] for c in cols)))
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(cols)
+    w.writerow([f"{c} [{shown[c].unit}]" if c in shown else c for c in cols])
     for r in rows:
-        w.writerow(["" if r.get(c) is None else r.get(c) for c in cols])
+        w.writerow(["" if r.get(c) is None else (r[c] * shown[c].scale if c in shown else r[c]) for c in cols])
     atomic_write(Path(path), buf.getvalue())
     return len(rows)

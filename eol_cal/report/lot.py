@@ -15,66 +15,71 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
+from eol_cal.display import display_unit
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
 from eol_cal.lot.summary import quantity_stats
 from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
+from eol_cal.station.limits import limit_on
+from eol_cal.station.record import MEASURED_KIND
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
+
+    from eol_cal.station.record import RunRecord
 
 VERDICT_COLOUR = {"pass": "tab:green", "fail": "tab:orange", "error": "tab:red"}
 #: more points than this in one chart are drawn as an embedded image without hover text (each
 #: SVG point with its title costs about 0.3 kB: 100 000 runs would make a 200 MB page)
 MAX_HOVER_POINTS = 2000
+#: stored unit of each lot quantity
+_UNITS = {q.key: q.stored_unit for q in QUANTITIES}
 
 
-def run_time(rec: dict[str, Any]) -> dt.datetime:
+def run_time(rec: RunRecord) -> dt.datetime:
     """The run's start as a naive UTC datetime (matplotlib's date axis)."""
-    t = dt.datetime.fromisoformat(str(rec["started_at"]))
+    t = dt.datetime.fromisoformat(rec.started_at)
     if t.tzinfo is not None:
         t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
     return t
 
 
-def value_of(rec: dict[str, Any], path: Sequence[str]) -> float:
-    """A number in the record by its keys (NaN where the record has none)."""
-    x: Any = rec
-    for k in path:
-        if not isinstance(x, dict) or x.get(k) is None:
-            return math.nan
-        x = x[k]
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return math.nan
+def limit_of(rec: RunRecord, quantity: str) -> float:
+    """The limit the run was judged against on ``quantity``, stored units (NaN: none)."""
+    c = rec.check(quantity)
+    return math.nan if c is None else c.limit
 
 
-def _limit_steps(ax: Any, times: list[dt.datetime], recs: list[dict[str, Any]], key: str, scale: float,
-                 colour: str, label: str) -> None:
+def _limit_steps(ax: Any, times: list[dt.datetime], recs: list[RunRecord], quantity: str, colour: str) -> None:
     """A variant limit as a step line through the runs' times (a change of variant shows)."""
-    lim = np.array([value_of(r, ("limits", key)) * scale for r in recs])
+    lim = np.array([limit_of(r, quantity) for r in recs]) * display_unit(_UNITS[quantity])[1]
+    key = limit_on(quantity).key if limit_on(quantity) else quantity
     if len(times) and np.isfinite(lim).any():
-        ax.step(times, lim, where="post", color=colour, lw=1.0, ls="--", label=label, gid=f"limit-{key}")
+        ax.step(times, lim, where="post", color=colour, lw=1.0, ls="--", label=key, gid=f"limit-{key}")
 
 
-def timeline_figure(records: list[dict[str, Any]], title: str = "") -> MplFigure:
+def timeline_figure(records: list[RunRecord], title: str = "") -> MplFigure:
     """See :func:`timeline` (the figure alone)."""
     return timeline(records, title)[0]
 
 
-def point_title(rec: dict[str, Any], text: str) -> str:
+def point_title(rec: RunRecord, text: str) -> str:
     """Hover text of a run's point: serial, verdict, time, the value."""
-    return f"{rec['serial']} ({rec.get('verdict')}), {str(rec.get('started_at', ''))[:19].replace('T', ' ')}: {text}"
+    return f"{rec.serial} ({rec.verdict}), {rec.started_at[:19].replace('T', ' ')}: {text}"
 
 
-def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[MplFigure, dict[str, list[str]]]:
+def _display(recs: Sequence[RunRecord], quantity: str) -> np.ndarray:
+    """The runs' values of a lot quantity in its display unit (NaN where a run has none)."""
+    return np.array([r.value(quantity) for r in recs], dtype=float) * display_unit(_UNITS[quantity])[1]
+
+
+def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict[str, list[str]]]:
     """k6 and p-p ripple of every run against its start time, with the limits; error runs shown.
 
     Parameters
     ----------
-    records : list of dict
-        Run records (any order; drawn by time).
+    records : list of RunRecord
+        Production run records (any order; drawn by time).
     title : str
         Figure title.
 
@@ -87,10 +92,11 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[MplFigure,
     plt = pyplot()
     recs = sorted(records, key=run_time)
     times = [run_time(r) for r in recs]
-    verdicts = [r.get("verdict") for r in recs]
+    verdicts = [r.verdict for r in recs]
     fig, (ax_k, ax_p) = plt.subplots(2, 1, figsize=(10, 6.0), sharex=True)
-    k6 = np.array([value_of(r, ("fit", "k6", "value")) for r in recs]) * 1e3
-    ci = np.array([value_of(r, ("fit", "k6", "ci95")) for r in recs]) * 1e3
+    k6 = _display(recs, "k6")
+    ci = np.array([r.fit.estimates.k6.ci95 if r.fit is not None and r.fit.estimates is not None and
+                   r.fit.estimates.k6.ci95 is not None else math.nan for r in recs]) * display_unit(_UNITS["k6"])[1]
     colours = [VERDICT_COLOUR.get(v, "k") for v in verdicts]
     ok = np.isfinite(k6)
     t_ok = [t for t, o in zip(times, ok) if o]
@@ -98,19 +104,19 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[MplFigure,
     ax_k.errorbar(t_ok, k6[ok], yerr=np.nan_to_num(ci[ok]), fmt="none", ecolor="0.6", lw=1, rasterized=dense)
     ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok) if o], s=22, zorder=3, gid="runs-k6", rasterized=dense,
                  label="k6 (green pass, orange fail)")
-    _limit_steps(ax_k, times, recs, "max_k6", 1e3, "tab:red", "max_k6")
-    ax_k.set_ylabel("k6 (mN*m/A)")
-    for key, path, marker, colour in (("before", ("metrics", "pp_before_pct"), "o", "tab:blue"),
-                                      ("after", ("metrics", "pp_after_pct"), "s", "tab:purple")):
-        y = np.array([value_of(r, path) for r in recs])
+    _limit_steps(ax_k, times, recs, "k6", "tab:red")
+    ax_k.set_ylabel(f"k6 ({display_unit(_UNITS['k6'])[0]})")
+    for key, quantity, marker, colour in (("before", "pp_before_pct", "o", "tab:blue"),
+                                          ("after", "pp_after_pct", "s", "tab:purple")):
+        y = _display(recs, quantity)
         ok_y = np.isfinite(y)
         t_y = [t for t, o in zip(times, ok_y) if o]
         ax_p.plot(t_y, y[ok_y], "-", color=colour, lw=0.6, alpha=0.6, rasterized=dense)
         ax_p.scatter(t_y, y[ok_y], marker=marker, s=18, zorder=3, facecolor=colour, rasterized=dense,
                      edgecolor=[c for c, o in zip(colours, ok_y) if o], linewidth=1.2,
                      label=f"p-p {'before' if key == 'before' else 'compensated'}", gid=f"runs-{key}")
-    _limit_steps(ax_p, times, recs, "max_pp_before_pct", 1.0, "tab:blue", "max_pp_before_pct")
-    _limit_steps(ax_p, times, recs, "max_pp_after_pct", 1.0, "tab:purple", "max_pp_after_pct")
+    _limit_steps(ax_p, times, recs, "pp_before_pct", "tab:blue")
+    _limit_steps(ax_p, times, recs, "pp_after_pct", "tab:purple")
     ax_p.set_ylabel("p-p ripple at the operating point (%)")
     errors = [t for t, v in zip(times, verdicts) if v == "error"]
     for ax in (ax_k, ax_p):
@@ -128,10 +134,11 @@ def timeline(records: list[dict[str, Any]], title: str = "") -> tuple[MplFigure,
     fig.tight_layout()
     if dense:
         return fig, {}
-    titles = {"runs-k6": [point_title(r, f"k6 {v:.4g} mN*m/A") for r, v in zip(recs, k6) if math.isfinite(v)]}
-    for key, path in (("before", ("metrics", "pp_before_pct")), ("after", ("metrics", "pp_after_pct"))):
-        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %") for r in recs
-                                 if math.isfinite(v := value_of(r, path))]
+    titles = {"runs-k6": [point_title(r, f"k6 {v:.4g} {display_unit(_UNITS['k6'])[0]}")
+                          for r, v in zip(recs, k6) if math.isfinite(v)]}
+    for key, quantity in (("before", "pp_before_pct"), ("after", "pp_after_pct")):
+        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %") for r, v in zip(recs, _display(recs, quantity))
+                                 if math.isfinite(v)]
     return fig, titles
 
 
@@ -182,14 +189,14 @@ def histogram_figure(lot: Lot, notes: dict[str, str] | None = None) -> MplFigure
     return fig
 
 
-def control_figure(records: Sequence[dict[str, Any]], station: str,
+def control_figure(records: Sequence[RunRecord], station: str,
                    limits: dict[str, dict[str, float]] | None = None) -> tuple[MplFigure, dict[str, list[str]]]:
     """Individuals and moving-range charts of :data:`CHARTED` against time, for one station.
 
     Parameters
     ----------
-    records : sequence of dict
-        The station's runs.
+    records : sequence of RunRecord
+        The station's production runs.
     station : str
         Its name (titles, gids).
     limits : dict of quantity key -> {"center", "ucl", "lcl", "mr_center", "mr_ucl"}, optional
@@ -205,17 +212,17 @@ def control_figure(records: Sequence[dict[str, Any]], station: str,
     recs = sorted(records, key=run_time)
     fig, axes = plt.subplots(2, len(CHARTED), figsize=(10, 4.4), sharex=True, squeeze=False)
     titles: dict[str, list[str]] = {}
-    q = {k: (title, path, scale, unit) for k, title, path, scale, unit, _l, _s in QUANTITIES}
+    q = {x.key: x for x in QUANTITIES}
     for col, key in enumerate(CHARTED):
-        title, path, scale, unit = q[key]
-        pts = [(run_time(r), value_of(r, path) * scale, r) for r in recs]
+        title, unit = q[key].title, q[key].unit
+        pts = [(run_time(r), v, r) for r, v in zip(recs, _display(recs, key))]
         pts = [p for p in pts if math.isfinite(p[1])]
         t = [p[0] for p in pts]
         x = np.array([p[1] for p in pts])
         ax_i, ax_m = axes[0][col], axes[1][col]
         dense = len(pts) > MAX_HOVER_POINTS
         ax_i.plot(t, x, "-", color="0.6", lw=0.7, rasterized=dense)
-        ax_i.scatter(t, x, s=14, zorder=3, c=[VERDICT_COLOUR.get(p[2].get("verdict"), "k") for p in pts], gid=f"i-{key}",
+        ax_i.scatter(t, x, s=14, zorder=3, c=[VERDICT_COLOUR.get(p[2].verdict, "k") for p in pts], gid=f"i-{key}",
                      rasterized=dense)
         if not dense:
             titles[f"i-{key}"] = [point_title(p[2], f"{title} {p[1]:.4g} {unit}") for p in pts]
@@ -274,17 +281,9 @@ def pareto_figure(causes: Sequence[tuple[str, int, float]]) -> MplFigure:
     return fig
 
 
-def latest_per_motor(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Each serial's latest run."""
-    latest: dict[str, dict[str, Any]] = {}
-    for r in sorted(records, key=run_time):
-        latest[r["serial"]] = r
-    return list(latest.values())
-
-
-def worst_motors(records: Sequence[dict[str, Any]], page_dir: str | Path, n: int = 15) -> list[dict[str, Any]]:
-    """The motors nearest their limits (each serial's latest run): errors and fails first, then by
-    the smallest margin as a fraction of its limit.
+def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15) -> list[dict[str, Any]]:
+    """The motors nearest their limits (each serial's latest production run): errors and fails
+    first, then by the smallest margin as a fraction of its limit (the record's checks, display units).
 
     Returns
     -------
@@ -296,24 +295,24 @@ def worst_motors(records: Sequence[dict[str, Any]], page_dir: str | Path, n: int
     import os
 
     from eol_cal.report.motor import limit_rows
+    from eol_cal.station.records_query import latest_per_serial
 
     order = {"error": 0, "fail": 1, "pass": 2}
     rows = []
-    for r in latest_per_motor(records):
+    for r in latest_per_serial(records).values():
         worst, rel = None, math.inf
         for row in limit_rows(r):
-            c = row.check
-            if math.isfinite(c.margin) and c.limit != 0 and c.margin / abs(c.limit) < rel:
-                worst, rel = c, c.margin / abs(c.limit)
-        page = Path(str(r.get("report_dir") or "")) / "report.html"
+            if math.isfinite(row.margin) and row.limit != 0 and row.margin / abs(row.limit) < rel:
+                worst, rel = row, row.margin / abs(row.limit)
+        page = Path(r.report_dir or "") / "report.html"
         link = None
-        if r.get("report_dir") and page.is_file():
+        if r.report_dir and page.is_file():
             link = Path(os.path.relpath(page.resolve(), Path(page_dir).resolve())).as_posix()
-        rows.append({"serial": r["serial"], "verdict": r.get("verdict"), "started_at": r.get("started_at"),
+        rows.append({"serial": r.serial, "verdict": r.verdict, "started_at": r.started_at,
                      "station": station_of(r), "key": worst.key if worst else None,
                      "value": worst.value if worst else math.nan, "limit": worst.limit if worst else math.nan,
                      "margin": worst.margin if worst else math.nan, "unit": worst.unit if worst else "",
-                     "reasons": r.get("reasons") or [], "link": link, "_sort": (order.get(r.get("verdict"), 3), rel)})
+                     "reasons": list(r.reasons), "link": link, "_sort": (order.get(r.verdict, 3), rel)})
     rows.sort(key=lambda x: x["_sort"])
     return rows[:n]
 
@@ -322,14 +321,18 @@ def _safe_id(text: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in text).strip("-") or "x"
 
 
-def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, title: str,
+def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title: str,
                     filters: dict[str, str | None]) -> str:
     """The lot page (self-contained HTML) of a set of run records.
 
+    The statistics, charts and the motors nearest their limits are of the ``production`` runs;
+    the refusals (nothing written, nothing measured) are counted and shown with their own
+    Pareto; runs of other kinds (restores...) are counted.
+
     Parameters
     ----------
-    records : sequence of dict
-        The lot's run records (already filtered).
+    records : sequence of RunRecord
+        The lot's run records (already filtered), any kind.
     page_dir : path
         The directory the page is written to (links to the per-motor reports are relative to it).
     title : str
@@ -337,19 +340,21 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, 
     filters : dict
         The filters that selected the lot, shown on the page (None: not filtered).
     """
+    from eol_cal.lot.stats import first_pass_yield_of, pareto_of
     from eol_cal.report.motor import Figure
     from eol_cal.report.page import render
     from eol_cal.report.svg import figure_svg
-    from eol_cal.station.records import summarise
+    from eol_cal.station.records_query import summarise
 
-    from eol_cal.lot.stats import first_pass_yield_of, pareto_of
-
-    recs = sorted(records, key=run_time)
+    ordered = sorted(records, key=lambda r: (run_time(r), r.run_id))
+    recs = [r for r in ordered if r.kind == MEASURED_KIND]
+    refusals = [r for r in ordered if r.kind == "refusal"]
     lot = from_records(recs)
-    summary = summarise(recs)
+    summary = summarise(ordered)
     fpy, _motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = quantity_stats(lot)
     causes = pareto_of(lot.causes)
+    refused = pareto_of(r.causes() for r in refusals)
     figures: list[Figure] = []
     if recs:
         fig, titles = timeline(recs, title)
@@ -364,9 +369,13 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, 
                               "against the limit", figure_svg(histogram_figure(lot, notes), "histograms")))
     pareto_fig = None
     if causes:
-        pareto_fig = Figure("pareto", "Why runs did not pass: each limit a failed run names, and the step an error "
-                            "run ended in", figure_svg(pareto_figure(causes), "pareto"))
-    stations: dict[str, list[dict[str, Any]]] = {}
+        pareto_fig = Figure("pareto", "Why runs did not pass: each limit a failed run's checks name, and the step "
+                            "an error run ended in", figure_svg(pareto_figure(causes), "pareto"))
+    refusal_fig = None
+    if refused:
+        refusal_fig = Figure("refusals", "Why runs were refused before anything was written to the ECU (refusal "
+                             "codes): not results of the motors", figure_svg(pareto_figure(refused), "refusals"))
+    stations: dict[str, list[RunRecord]] = {}
     for r in recs:
         stations.setdefault(station_of(r), []).append(r)
     control = []
@@ -377,11 +386,12 @@ def render_lot_page(records: Sequence[dict[str, Any]], page_dir: str | Path, *, 
                               f"{len(runs)} runs; centre line and control limits (mean +- 2.66 MRbar, MR: 3.267 MRbar) "
                               "of the station's own runs, points beyond them ringed red",
                               figure_svg(fig, fid, titles, "plot zoom")))
-    dates = [str(r.get("started_at", ""))[:19].replace("T", " ") for r in recs]
+    dates = [r.started_at[:19].replace("T", " ") for r in ordered]
     return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control, fpy=fpy,
-                  quantities=quantities, causes=causes, pareto=pareto_fig,
-                  worst=worst_motors(recs, page_dir), filters=filters, first=dates[0] if dates else "-",
-                  last=dates[-1] if dates else "-", stations=sorted(stations), fmt=_fmt)
+                  quantities=quantities, causes=causes, pareto=pareto_fig, refused=refused, refusal_fig=refusal_fig,
+                  refusal_runs=len(refusals), worst=worst_motors(recs, page_dir), filters=filters,
+                  first=dates[0] if dates else "-", last=dates[-1] if dates else "-", stations=sorted(stations),
+                  fmt=_fmt)
 
 
 def _fmt(x: float | None, digits: int = 4) -> str:
@@ -390,13 +400,13 @@ def _fmt(x: float | None, digits: int = 4) -> str:
     return f"{float(x):.{digits}g}"
 
 
-def select_records(records: Sequence[dict[str, Any]], variant: str | None = None, since: dt.date | None = None,
-                   until: dt.date | None = None, station: str | None = None) -> list[dict[str, Any]]:
+def select_records(records: Sequence[RunRecord], variant: str | None = None, since: dt.date | None = None,
+                   until: dt.date | None = None, station: str | None = None) -> list[RunRecord]:
     """The records of one variant, station and UTC day range (``until`` inclusive)."""
     out = []
     for r in records:
         day = run_time(r).date()
-        if variant is not None and (r.get("limits") or {}).get("variant") != variant:
+        if variant is not None and (r.limits is None or r.limits.variant != variant):
             continue
         if station is not None and station_of(r) != station:
             continue
@@ -406,7 +416,7 @@ def select_records(records: Sequence[dict[str, Any]], variant: str | None = None
     return out
 
 
-def write_lot_page(records: Sequence[dict[str, Any]], path: str | Path, *, title: str,
+def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str,
                    filters: dict[str, str | None]) -> Path:
     """Write the lot page to ``path`` (atomically); returns the path."""
 

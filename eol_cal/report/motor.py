@@ -11,16 +11,18 @@ records do not have) is shown as such, never guessed.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
+from eol_cal.display import display_unit
 from eol_cal.report.svg import figure_svg, pyplot
-from eol_cal.station.limits import LimitCheck, Measured, VariantLimits, limit_checks, measured_from_fit
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
+    from eol_cal.capture.ecu_state import EcuState
+    from eol_cal.station.record import RunRecord
     from eol_cal.analysis.fit.capture import MotorInput
     from eol_cal.analysis.spectrum import OrderSpectrum
     from eol_cal.analysis.point_metrics import PointRipple
@@ -74,69 +76,49 @@ def drawn(name: str, draw: Callable[[], Figure]) -> Figure:
 
 @dataclass(frozen=True)
 class LimitRow:
-    """A limit row of the report: the check and how it is shown (``PASS``, ``FAIL``, ``not measured``)."""
+    """A limit row of the report: the record's check in its display unit (:mod:`eol_cal.display`)
+    and how it is shown (``PASS``, ``FAIL``, ``not measured``, ``not judged``)."""
 
-    check: LimitCheck
+    key: str
+    title: str
+    sense: str
+    value: float
+    limit: float
+    margin: float
+    unit: str
     status: str
 
 
 # --------------------------------------------------------------------------- from the record
-def limits_of(rec: dict[str, Any]) -> VariantLimits | None:
-    """The variant's limits as the record keeps them (None when it has none)."""
-    lim = rec.get("limits") or {}
-    names = [f.name for f in fields(VariantLimits)]
-    try:
-        return VariantLimits(**{k: lim[k] for k in names if k in lim})
-    except TypeError:
-        return None
+def limit_rows(rec: RunRecord) -> list[LimitRow]:
+    """The record's checks as rows, display units; nothing is judged here.
 
-
-def measured_of(rec: dict[str, Any]) -> Measured:
-    """What the record says was measured, NaN where it was not (a run that ended early)."""
-    nan = math.nan
-    met = rec.get("metrics") or {}
-    try:
-        m = measured_from_fit(rec["fit"])
-    except (KeyError, TypeError, ValueError):
-        m = Measured(k6=nan, ci_k6=nan, ci_phase_k6_deg=nan, ci_c6_nm=nan, r2=nan, rms_nm=nan)
-    pp = {k: float(met[k]) if met.get(k) is not None else nan for k in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct")}
-    return Measured(**{**m.__dict__, **pp})
-
-
-def limit_rows(rec: dict[str, Any]) -> list[LimitRow]:
-    """Every limit of the record's variant against what the record measured.
-
-    A NaN value is ``FAIL`` when the run's verdict names it (a hall table that could not be
-    measured fails the motor), otherwise ``not measured`` (the run ended before that step).
+    A check the cycle judged is ``PASS`` or ``FAIL``; one it did not reach is ``not measured``
+    when it has no value, ``not judged`` when it has one.
     """
-    lim = limits_of(rec)
-    if lim is None:
-        return []
-    reasons = set(rec.get("reasons") or [])
     rows = []
-    for c in limit_checks(measured_of(rec), lim):
-        if c.ok:
-            status = "PASS"
-        elif math.isfinite(c.value) or c.reason in reasons:
-            status = "FAIL"
-        else:
-            status = "not measured"
-        rows.append(LimitRow(c, status))
+    for c in rec.checks:
+        unit, factor = display_unit(c.unit)
+        status = {True: "PASS", False: "FAIL"}.get(c.passed) or ("not measured" if math.isnan(c.value) else "not judged")
+        rows.append(LimitRow(c.key, c.title, c.sense, c.value * factor, c.limit * factor, c.margin * factor, unit, status))
     return rows
 
 
-def station_of(rec: dict[str, Any]) -> str:
+def station_of(rec: RunRecord) -> str:
     """The station a run was made on: its id where the record has one."""
-    st = rec.get("station") or {}
-    for value in (rec.get("station_id"), st.get("id"), st.get("station_id"), st.get("name")):
-        if value:
-            return str(value)
-    return NO_STATION
+    return rec.station_name or NO_STATION
 
 
-def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
-    """The ECU's state before the run (the pre-flight's read), after the prepare step, after the
-    calibration flash, and the block it ran during each capture (read over UDS before it).
+def _state_col(label: str, s: EcuState | None, verified: bool | None = None) -> dict[str, Any]:
+    if s is None:
+        return {"label": label}
+    return {"label": label, "bank": "none valid" if s.bank is None else s.bank, "sequence": s.sequence, "crc32": s.crc32,
+            "flags": s.flags, "verified": verified}
+
+
+def ecu_states(rec: RunRecord) -> list[dict[str, str]]:
+    """The ECU's state before the run (the pre-flight's read), each block the run flashed, and
+    the block it ran during each capture (read over UDS before it).
 
     One dict per column with the keys ``label``, ``bank``, ``sequence``, ``crc32``, ``flags``,
     ``estimator`` (the estimator options the block's flags select: ``paper``, ``best`` or their
@@ -145,46 +127,35 @@ def ecu_states(rec: dict[str, Any]) -> list[dict[str, str]]:
     def text(x: object) -> str:
         return "-" if x is None else ("yes" if x is True else "no" if x is False else str(x))
 
-    prep = rec.get("ecu_prepared") or {}
-    blk = rec.get("block") or {}
-    flash = rec.get("flash") or {}
-    # the pre-flight's read of the ECU has the flags and the CRC as well
-    found = ((rec.get("preflight") or {}).get("ecu") or {}).get("state")
-    before = rec.get("ecu_before") or found or prep.get("previous") or {}
-    # the prepare step's read of the ECU says bank None when no bank was valid (a blank ECU)
-    before_bank = "none valid" if "bank" in before and before["bank"] is None else before.get("bank")
-    cols = [
-        {"label": "before the run", "bank": before_bank, "sequence": before.get("sequence"),
-         "crc32": before.get("crc32"), "flags": before.get("flags"), "estimator": before.get("estimator"),
-         "verified": None},
-        {"label": "prepared (uncompensated)", "bank": prep.get("bank"), "sequence": prep.get("sequence"),
-         "crc32": prep.get("crc32"), "flags": prep.get("flags"), "estimator": prep.get("estimator"),
-         "verified": prep.get("verified")},
-        {"label": "calibrated", "bank": blk.get("bank"), "sequence": blk.get("sequence"), "crc32": blk.get("crc32"),
-         "flags": blk.get("flags"), "estimator": blk.get("estimator"), "verified": flash.get("verified")},
-    ]
+    cols: list[dict[str, Any]] = []
+    found = rec.preflight.ecu.state if rec.preflight is not None and rec.preflight.ecu is not None else None
+    if found is not None:
+        cols.append(_state_col("before the run", found))
+    else:
+        prev = next((b.previous for b in rec.blocks if b.previous is not None), None)
+        cols.append({"label": "before the run", "bank": None if prev is None else
+                     ("none valid" if prev.bank is None else prev.bank), "sequence": None if prev is None else prev.sequence})
+    labels = {"prepare": "prepared (uncompensated)", "calibrated": "calibrated", "restore": "restored"}
+    for b in rec.blocks:
+        cols.append({"label": labels[b.role] + ("" if b.confirmed else " (not confirmed)"), "bank": b.bank,
+                     "sequence": b.sequence, "crc32": b.crc32, "flags": b.flags, "estimator": b.estimator,
+                     "verified": b.verified})
     for which, label in (("before", "ran during the calibration capture"), ("after", "ran during the compensated capture")):
-        ran = ((rec.get("captures") or {}).get(which) or {}).get("ecu_before")
-        if isinstance(ran, dict):  # read over UDS before that acquisition (the same after it, or the cycle erred)
-            cols.append({"label": label, "bank": "none valid" if ran.get("bank") is None else ran["bank"],
-                         "sequence": ran.get("sequence"), "crc32": ran.get("crc32"), "flags": ran.get("flags"),
-                         "verified": None})
-    after = rec.get("ecu_after")
-    if isinstance(after, dict):  # read back from the ECU where the record has it
-        cols.append({"label": "read back after the run", **{k: after.get(k) for k in ("bank", "sequence", "crc32",
-                                                                                         "flags", "estimator", "verified")}})
-    return [{k: text(v) if k != "label" else v for k, v in c.items()} for c in cols]
+        c = rec.captures.get(which)
+        if c is not None and c.ecu_before is not None:
+            cols.append(_state_col(label, c.ecu_before))
+    keys = ("bank", "sequence", "crc32", "flags", "estimator", "verified")
+    return [{"label": c["label"], **{k: text(c.get(k)) for k in keys}} for c in cols]
 
 
-def _estimator_text(rec: dict[str, Any]) -> str:
+def _estimator_text(rec: RunRecord) -> str:
     """The estimator the calibrated block runs, and the one the motor was measured under."""
-    blk = (rec.get("block") or {}).get("estimator")
-    prep = (rec.get("ecu_prepared") or {}).get("estimator")
+    blk, prep = rec.block("calibrated"), rec.block("prepare")
     if blk is None and prep is None:
         return "-"
-    text = f"{blk or '-'} (block flags bits 2-5)"
-    if prep is not None and prep != blk:
-        text += f"; measured under {prep}"
+    text = f"{(blk.estimator if blk else None) or '-'} (block flags bits 2-5)"
+    if prep is not None and prep.estimator != (blk.estimator if blk else None):
+        text += f"; measured under {prep.estimator}"
     return text
 
 
@@ -224,12 +195,12 @@ def operating_segment(mi: MotorInput, speed_rpm: float, i_qo_a: float) -> int:
     return min(range(len(mi.info)), key=distance)
 
 
-def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: FitExtra | None) -> Figure:
+def angle_figure(rec: RunRecord, point_ripple: PointRipples, fit_extra: FitExtra | None) -> Figure:
     """Torque against electrical angle at the operating point, before and compensated, one scale.
 
     Parameters
     ----------
-    rec : dict
+    rec : RunRecord
         The run record (operating point).
     point_ripple : (PointRipple, PointRipple)
         Before and compensated (:class:`eol_cal.analysis.point_metrics.PointRipple`, with ``theta_r``).
@@ -239,7 +210,11 @@ def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: Fit
     from eol_cal.analysis.fit.plot import fitted_ripple
 
     plt = pyplot()
-    op = (rec.get("fit") or {}).get("operating_point") or (rec.get("metrics") or {}).get("operating_point") or {}
+    op = {}
+    if rec.fit is not None:
+        op = {"speed_rpm": rec.fit.operating_point.speed_rpm, "i_qo_a": rec.fit.operating_point.i_qo_a}
+    elif rec.metrics is not None:
+        op = {"speed_rpm": rec.metrics.speed_rpm, "i_qo_a": rec.metrics.i_qo_a}
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.3), sharey=True)
     curve = None
     if fit_extra is not None and op:
@@ -267,23 +242,22 @@ def angle_figure(rec: dict[str, Any], point_ripple: PointRipples, fit_extra: Fit
         ax.legend(fontsize=6, loc="upper right")
     axes[0].set_ylabel("torque - mean (N*m)", fontsize=8)
     where = f"{op.get('speed_rpm', float('nan')):.0f} rpm, i_qo {op.get('i_qo_a', float('nan')):.0f} A" if op else ""
-    fig.suptitle(f"{rec['serial']}: torque at the operating point ({where}), mean and mechanical order 1 removed",
+    fig.suptitle(f"{rec.serial}: torque at the operating point ({where}), mean and mechanical order 1 removed",
                  fontsize=9)
     fig.tight_layout()
     return Figure("angle", "Torque against electrical angle at the operating point, before and with the "
                   "compensation, on one scale, with the fitted ripple", figure_svg(fig, "angle"))
 
 
-def spectrum_figure(rec: dict[str, Any], point_ripple: PointRipples) -> Figure:
+def spectrum_figure(rec: RunRecord, point_ripple: PointRipples) -> Figure:
     """Order spectrum before and compensated with the limits as lines.
 
-    Two limits are drawn in N*m: ``max_pp_after_pct`` of the mean torque as the amplitude of one
-    order alone (a sine of amplitude A has p-p 2A), and ``max_k6 * |i_qo|`` at order 6 (the
-    load-proportional part of the 6th the variant allows).
+    Two of the record's limits are drawn in N*m: the compensated p-p limit (%) of the mean torque
+    as the amplitude of one order alone (a sine of amplitude A has p-p 2A), and the k6 limit times
+    |i_qo| at order 6 (the load-proportional part of the 6th the variant allows).
     """
     plt = pyplot()
-    lim = rec.get("limits") or {}
-    op = (rec.get("metrics") or {}).get("operating_point") or {}
+    pp_after, k6 = rec.check("pp_after_pct"), rec.check("k6")
     fig, ax = plt.subplots(figsize=(10, 3.0))
     width = 0.38
     for off, pr, label, colour in ((-width / 2, point_ripple[0], "before", "tab:blue"),
@@ -292,14 +266,15 @@ def spectrum_figure(rec: dict[str, Any], point_ripple: PointRipples) -> Figure:
         keep = sp.orders <= _MAX_ORDER
         ax.bar(sp.orders[keep] + off, sp.amplitude_nm[keep], width=width, color=colour, label=label)
     t_avg = abs(float(point_ripple[0].T_avg_nm))
-    if lim.get("max_pp_after_pct") is not None and t_avg > 0:
-        a = lim["max_pp_after_pct"] / 100.0 * t_avg / 2.0
+    if pp_after is not None and t_avg > 0:
+        a = pp_after.limit / 100.0 * t_avg / 2.0
         ax.axhline(a, color="tab:red", lw=1.0, ls="--",
-                   label=f"max_pp_after_pct {lim['max_pp_after_pct']:g} % as one order's amplitude ({a:.3g} N*m)")
-    if lim.get("max_k6") is not None and op.get("i_qo_a") is not None:
-        a6 = lim["max_k6"] * abs(float(op["i_qo_a"]))
+                   label=f"{pp_after.key} {pp_after.limit:g} % as one order's amplitude ({a:.3g} N*m)")
+    if k6 is not None and rec.metrics is not None:
+        a6 = k6.limit * abs(rec.metrics.i_qo_a)
+        unit, factor = display_unit(k6.unit)
         ax.plot([5.5, 6.5], [a6, a6], color="tab:orange", lw=2.0,
-                label=f"max_k6 x |i_qo| at order 6 ({a6:.3g} N*m)")
+                label=f"{k6.key} {k6.limit * factor:g} {unit} x |i_qo| at order 6 ({a6:.3g} N*m)")
     ax.set_yscale("log")
     ax.set_xlim(0.3, _MAX_ORDER + 0.7)
     ax.set_xticks(range(1, _MAX_ORDER + 1))
@@ -364,30 +339,38 @@ def _fmt(x: float | None, digits: int = 4) -> str:
     return f"{float(x):.{digits}g}"
 
 
-def render_motor_report(rec: dict[str, Any], figures: Sequence[Figure]) -> str:
+def _estimate(est: Any, unit: str, digits: int = 4) -> str:
+    """An estimate ``value ± ci95`` in its display unit."""
+    if est is None:
+        return "-"
+    shown, factor = display_unit(unit)
+    ci = "" if est.ci95 is None else f" ± {_fmt(est.ci95 * factor, 2)}"
+    return f"{_fmt(est.value * factor, digits)}{ci} {shown}"
+
+
+def render_motor_report(rec: RunRecord, figures: Sequence[Figure]) -> str:
     """The per-motor page (self-contained HTML) of a run record and its figures."""
     from eol_cal.report.page import render
 
-    fit = rec.get("fit") or {}
-    st = rec.get("station") or {}
-    hall = fit.get("hall_angle") or {}
+    e = rec.fit.estimates if rec.fit is not None else None
+    hall = (rec.fit.hall_angle if rec.fit is not None else None) or {}
+    no_mech1 = rec.check("pp_after_no_mech1_pct")
+    cal = rec.block("calibrated")
     values = [
-        ("k6", f"{_fmt((fit.get('k6') or {}).get('value'))} ± {_fmt((fit.get('k6') or {}).get('ci95'), 2)} N*m/A"),
-        ("phase_k6", f"{_fmt(math.degrees(v)) if (v := (fit.get('phase_k6') or {}).get('value')) is not None else '-'} deg"),
-        ("c6", f"{_fmt((fit.get('c6') or {}).get('value'))} N*m"),
+        ("k6", _estimate(e and e.k6, "N*m/A")),
+        ("phase_k6", _estimate(e and e.phase_k6, "rad")),
+        ("c6", _estimate(e and e.c6, "N*m")),
         ("hall table", hall.get("source", "-") if hall.get("source") != "measured" else
          "measured, offsets " + " ".join(f"{d:+.2f}" for d in hall.get("deviation_deg", [])) + " deg"),
         ("compensated p-p, mech. order 1 taken out",
-         f"{_fmt((rec.get('metrics') or {}).get('pp_after_no_mech1_pct'))} % "
-         + ("(no limit: the rest is the rotor's unbalance)" if (rec.get("limits") or {}).get("max_pp_after_no_mech1_pct") is None
-            else f"(limit {_fmt(rec['limits']['max_pp_after_no_mech1_pct'])} %: the rows below)")),
-        ("lead", f"{_fmt((rec.get('block') or {}).get('lead_s', None) and rec['block']['lead_s'] * 1e6)} us"),
+         f"{_fmt(rec.metrics.after.pp_no_mech1_pct if rec.metrics else None)} % "
+         + ("(no limit: the rest is the rotor's unbalance)" if no_mech1 is None
+            else f"(limit {_fmt(no_mech1.limit)} %: the rows below)")),
+        ("lead", f"{_fmt(cal.lead_s * 1e6 if cal is not None and cal.lead_s is not None else None)} us"),
         ("estimator options", _estimator_text(rec)),
     ]
-    ecu = rec.get("ecu_active") or {}
-    captures = rec.get("captures") or {}
-    return render("motor.html.j2", rec=rec, station=st, figures=list(figures), limit_rows=limit_rows(rec),
-                  ecu_states=ecu_states(rec), ecu_active=ecu, values=values, fmt=_fmt,
-                  operator=rec.get("operator") or st.get("operator"),
-                  station_name=station_of(rec) if station_of(rec) != NO_STATION else st.get("dyno"),
-                  captures=captures, total_s=sum(s.get("seconds") or 0.0 for s in rec.get("steps") or []))
+    name = station_of(rec)
+    return render("motor.html.j2", rec=rec, station=rec.station, figures=list(figures), limit_rows=limit_rows(rec),
+                  ecu_states=ecu_states(rec), ecu_active=rec.ecu_active, values=values, fmt=_fmt,
+                  operator=rec.operator, station_name=name if name != NO_STATION else rec.station.extra.get("dyno"),
+                  captures=rec.captures, total_s=rec.total_s)

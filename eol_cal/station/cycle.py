@@ -3,12 +3,16 @@
 :class:`StationCycle` runs pre-flight -> prepare ECU -> acquire -> fit -> table -> flash -> acquire
 compensated -> metrics (verdict) -> report -> record (see :mod:`eol_cal.station.run`). A step
 that finds the motor failing returns a :class:`StepVerdict` and the cycle stops there; an
-exception ends it with verdict ``error``. Whatever happened, :meth:`StationCycle.to_record`
-builds the one record (keys: ``docs/json.md``, schema ``eol-cal/run-record/1``).
+exception ends it with verdict ``error``. Each limit is judged once, at its stage
+(:func:`eol_cal.station.limits.judge`). Whatever happened, :meth:`StationCycle.to_record` builds
+the one :class:`~eol_cal.station.record.RunRecord`: kind ``refusal`` when the cycle ended before
+the prepare step (nothing written to the ECU, nothing measured), else the configuration's kind
+(``production`` on a line).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import time
 import traceback
@@ -19,29 +23,24 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_ripple, verify_segments
-from eol_cal.errors import EolCalError
+from eol_cal.errors import EolCalError, InputError
 from eol_cal.interrupts import shielded
-from eol_cal.jsonsafe import json_safe
-from eol_cal.station.limits import Measured, fit_reasons, measured_from_fit, verdict
-from eol_cal.station.run import (
-    EXIT,
-    ProgressFn,
-    RunOutcome,
-    StationConfig,
-    check_config,
-    check_motor,
-    ecu_active,
-    fit_motor,
-    new_run_dir,
-    safe_state,
-    sha256_file,
-)
+from eol_cal.station.limits import LimitCheck, Measured, all_checks, failed, judge
+from eol_cal.station.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, PointFigures, PreflightResult,
+                                    RippleMetrics, RunRecord, StationInfo, Step)
+from eol_cal.station.run import (EXIT, ProgressFn, RunOutcome, StationConfig, check_config, check_motor, fit_motor,
+                                 new_run_dir, safe_state, sha256_file)
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
-    from eol_cal.ecu.sequence import FlashReport
-    from eol_cal.station.preflight import Preflight
+    from eol_cal.firmware.block import ParamBlock
     from eol_cal.station.spool import SaveResult
+
+#: the archive files of a run's directory, by the block's role
+ARCHIVE_NAMES = {"prepare": "block_uncompensated.bin", "calibrated": "block.bin"}
+RIPPLE_DEFINITION = ("filtered p-p % (docs/metrics.md), median over the steady windows of the operating point's "
+                     "segment")
 
 
 @dataclass(frozen=True)
@@ -55,6 +54,21 @@ class StepVerdict:
 def now_iso() -> str:
     """UTC now, ISO 8601 with milliseconds (the record's time stamps)."""
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def station_info(cfg: StationConfig, profile_name: str) -> StationInfo:
+    """The record's station: the configuration's description of itself and what the cycle runs."""
+    st = dict(cfg.station)
+    typed = {k: st.pop(k, None) for k in ("id", "operator", "settings")}
+    return StationInfo(**typed, profile=profile_name, verify=cfg.verify, rate_hz=cfg.rate_hz, motor=cfg.motor.name,
+                       bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid",
+                       dyno_register_map=cfg.dyno.regmap.name, extra=st)
+
+
+def point_figures(pr: PointRipple) -> PointFigures:
+    """The record's figures of a capture's ripple at the operating point."""
+    return PointFigures(pr.pp_pct, pr.pp_raw_pct, pr.pp_nm, pr.pp_no_mech1_pct, pr.T_avg_nm, pr.amp6_nm,
+                        (float(pr.span_s[0]), float(pr.span_s[1])))
 
 
 @dataclass
@@ -72,29 +86,30 @@ class StationCycle:
     run_dir: Path
     profile_name: str
     segments: list
-    station: dict[str, Any]
-    limits: dict[str, Any]
+    station: StationInfo
+    limits_sha256: str | None
     # what the steps produced
-    steps: list[dict[str, Any]] = field(default_factory=list)
-    preflight: Preflight | None = None
-    captures: dict[str, dict[str, Any]] = field(default_factory=dict)
-    ecu_prepared: dict[str, Any] | None = None
+    steps: list[Step] = field(default_factory=list)
+    preflight: PreflightResult | None = None
+    touched: bool = False  # the prepare step began: from here the run is a measured attempt
+    captures: dict[str, CaptureRef] = field(default_factory=dict)
+    blocks: list[FlashedBlock] = field(default_factory=list)
     before: Capture | None = None
     fit_doc: dict[str, Any] | None = None
-    fit_record: dict[str, Any] | None = None
+    result: MotorResult | None = None
     fit_extra: Any = None
     measured: Measured | None = None
-    block_bytes: bytes | None = None
-    block: dict[str, Any] | None = None
-    flash_result: dict[str, Any] | None = None
+    judged: dict[str, list[LimitCheck]] = field(default_factory=dict)
+    calibrated: ParamBlock | None = None
     after: Capture | None = None
     point_ripples: tuple[PointRipple, PointRipple] | None = None
-    metrics: dict[str, Any] = field(default_factory=dict)
+    metrics: RippleMetrics | None = None
     verdict: str = "error"
     reasons: list[str] = field(default_factory=list)
-    error: dict[str, Any] | None = None
+    refusal_codes: tuple[str, ...] = ()
+    error: ErrorInfo | None = None
     safe_state: str | None = None
-    ecu_active: dict[str, Any] | None = None
+    ecu_active: EcuActive | None = None
     report_html: Path | None = None
     report_error: str | None = None
     ended_at: str | None = None
@@ -115,15 +130,10 @@ class StationCycle:
         segments = dc.setpoints_from_profile(profile)
         started = _dt.datetime.now(_dt.timezone.utc)
         run_id = uuid.uuid4().hex
-        limits = cfg.limits.to_dict()
-        if Path(cfg.limits.source).is_file():
-            limits["sha256"] = sha256_file(cfg.limits.source)
-        station = dict(cfg.station, profile=profile.name, verify=cfg.verify, rate_hz=cfg.rate_hz,
-                       motor=cfg.motor.name, bench=cfg.mechanics.name if cfg.mechanics is not None else "rigid",
-                       dyno_register_map=cfg.dyno.regmap.name)
+        sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
                     run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
-                    segments=segments, station=station, limits=limits)
+                    segments=segments, station=station_info(cfg, profile.name), limits_sha256=sha)
         # One helper thread: it imports JAX and matplotlib while the dyno spins the first time
         # (started once the pre-flight passed), and draws the fit's plots while it spins the
         # second time (the main thread mostly waits there).
@@ -132,15 +142,17 @@ class StationCycle:
 
     # ------------------------------------------------------------------ the steps
     def pre_flight(self) -> None:
-        """Dyno ready, ECU answering and accepting the key, serials agreeing: before anything is
-        written to the ECU (:mod:`eol_cal.station.preflight`); any problem stops the cycle here."""
+        """The settings the cycle will flash with, then dyno ready, ECU answering and accepting the
+        key, serials agreeing: before anything is written to the ECU
+        (:mod:`eol_cal.station.preflight`); any problem stops the cycle here."""
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.preflight import PreflightFailed, preflight
 
+        self.cfg.estimator_options  # noqa: B018 - refuses options that cannot be flashed (a settings refusal)
         self.preflight = preflight(self.cfg.serial, self.cfg.dyno, self.cfg.open_bus, self.cfg.seed_to_key,
                                    self.cfg.ecu_timing or ClientTiming())
-        if self.preflight.reasons:
-            raise PreflightFailed(self.preflight.reasons)
+        if self.preflight.problems:
+            raise PreflightFailed(self.preflight.problems)
         from eol_cal.analysis.fit.prewarm import prewarm_fit
 
         self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
@@ -149,28 +161,18 @@ class StationCycle:
         """Flash the uncompensated block, so the calibration capture sees the field estimator alone:
         the same estimator options as the calibrated block will carry."""
         from eol_cal.analysis.fit.table import uncompensated_block
-        from eol_cal.atomic import atomic_path
-        from eol_cal.firmware.block import flag_names, pack
-        from eol_cal.firmware.options import options_label
+        from eol_cal.firmware.block import pack
 
-        options = self.cfg.estimator_options
-        blk = uncompensated_block(self.cfg.serial, self.cfg.motor, options=options)
-        data = pack(blk)
-        path = self.run_dir / "block_uncompensated.bin"
-        with atomic_path(path) as tmp:
-            tmp.write_bytes(data)
-        report = self._flash(data, str(path))
-        self.ecu_prepared = {"path": str(path), "flags": flag_names(blk.flags), "estimator": options_label(options),
-                             "crc32": f"{report.crc32:08x}",
-                             "sequence": report.sequence, "bank": report.bank, "verified": report.verified,
-                             "previous": previous_block(report)}
+        self.touched = True
+        blk = uncompensated_block(self.cfg.serial, self.cfg.motor, options=self.cfg.estimator_options)
+        self._flash(pack(blk), "prepare")
 
     def acquire(self) -> None:
         """The calibration capture over the whole profile."""
         self.before = self._acquire("before", self.segments)
 
     def fit(self) -> StepVerdict | None:
-        """Fit the capture; a fit that is not usable or out of limits fails the motor here."""
+        """Fit the capture; a fit that is not usable or out of the fit's limits fails the motor here."""
         from eol_cal import __version__
         from eol_cal.analysis.result import write_result
         from eol_cal.station.report import fit_plots
@@ -179,88 +181,68 @@ class StationCycle:
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(self.before, self.cfg.motor)
         self._prewarm.result()
-        doc, frec, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
-                                     self.cfg.cache_dir, self.cfg.estimator_options)
+        doc, res, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
+                                    self.cfg.cache_dir, self.cfg.estimator_options)
         write_result(doc, self.run_dir / "fit.json")
-        self.fit_doc, self.fit_record, self.fit_extra = doc, frec, extra
+        self.fit_doc, self.result, self.fit_extra = doc, res, extra
         self._fit_plots = self._helper.submit(fit_plots, self.run_dir, extra)
-        if frec["status"] != "ok":
-            return StepVerdict("fail", tuple(f"fit {frec['status']}: {r}" for r in frec["reasons"])
-                               or (f"fit {frec['status']}",))
-        self.measured = measured_from_fit(frec)
-        reasons = fit_reasons(self.measured, self.cfg.limits)
+        if not res.usable:
+            return StepVerdict("fail", tuple(f"fit {res.status}: {r}" for r in res.reasons) or (f"fit {res.status}",))
+        self.measured = Measured.of_fit(res)
+        self.judged["fit"] = judge(self.measured, self.cfg.limits, "fit")
+        reasons = failed(self.judged["fit"])
         return StepVerdict("fail", tuple(reasons)) if reasons else None
 
     def table(self) -> None:
         """The calibrated block from the fit (lead automatic)."""
-        from eol_cal.analysis.fit.table import block_from_record, created_unix
-        from eol_cal.atomic import atomic_path
-        from eol_cal.firmware.block import flag_names, pack
-        from eol_cal.firmware.options import options_label
+        from eol_cal.analysis.fit.table import block_from_result, created_unix
 
-        options = self.cfg.estimator_options
-        blk = block_from_record(self.fit_record, self.cfg.motor, calibrated_at=created_unix(self.fit_doc),
-                                source=str(self.run_dir / "fit.json"), options=options)
-        data = pack(blk)
-        path = self.run_dir / "block.bin"
-        with atomic_path(path) as tmp:
-            tmp.write_bytes(data)
-        self.block_bytes = data
-        self.block = {"path": str(path), "bytes": len(data), "table_len": blk.table_len,
-                      "lead_s": blk.lead_s, "iqc_limit": blk.iqc_limit, "flags": flag_names(blk.flags),
-                      "estimator": options_label(options), "crc32": None, "sequence": None}
+        self.calibrated = block_from_result(self.result, self.cfg.motor, calibrated_at=created_unix(self.fit_doc),
+                                            source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
     def flash(self) -> None:
         """Write the calibrated block into the ECU's inactive bank (verified)."""
-        report = self._flash(self.block_bytes, self.block["path"])
-        self.block.update(crc32=f"{report.crc32:08x}", sequence=report.sequence, bank=report.bank)
-        self.flash_result = {"seconds": round(report.seconds, 4), "verified": report.verified,
-                             "transfer_blocks": report.transfer_blocks, "retries": report.retries,
-                             "previous": previous_block(report)}
+        from eol_cal.firmware.block import pack
+
+        self._flash(pack(self.calibrated), "calibrated")
 
     def acquire_compensated(self) -> None:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
-        op = self.fit_record["operating_point"]
-        segs = self.segments if self.cfg.verify == "full" else verify_segments(self.segments, op["speed_rpm"], op["i_qo_a"])
+        op = self.result.operating_point
+        segs = self.segments if self.cfg.verify == "full" else verify_segments(self.segments, op.speed_rpm, op.i_qo_a)
         # the before-capture's figures are computed meanwhile on the helper thread
         mi = self.fit_extra[0]
-        k = nearest_segment(mi.captures, op["speed_rpm"], op["i_qo_a"])
+        k = nearest_segment(mi.captures, op.speed_rpm, op.i_qo_a)
         self._pr_before = self._helper.submit(point_ripple, mi.captures[k], mi.angles[k])
         self.after = self._acquire("after", segs)
 
     def judge(self) -> StepVerdict:
-        """Ripple before and after at the operating point, and the verdict against the limits."""
+        """Ripple before and after at the operating point, judged against the ripple's limits."""
         from eol_cal.analysis.angle import capture_angle
         from eol_cal.capture.windows import split_windows
 
-        op = self.fit_record["operating_point"]
+        op = self.result.operating_point
         before = self._pr_before.result()
         pieces = split_windows(self.after)
-        after_cap = pieces[nearest_segment(pieces, op["speed_rpm"], op["i_qo_a"])]
+        after_cap = pieces[nearest_segment(pieces, op.speed_rpm, op.i_qo_a)]
         after = point_ripple(after_cap, capture_angle(after_cap))
         self.point_ripples = (before, after)
-        m = Measured(**{**self.measured.__dict__, "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct,
-                        "pp_after_no_mech1_pct": after.pp_no_mech1_pct})
-        self.measured = m
-        self.metrics = json_safe({
-            "operating_point": op, "pp_before_pct": m.pp_before_pct, "pp_after_pct": m.pp_after_pct,
-            "improvement_pct": m.improvement_pct, "pp_after_no_mech1_pct": after.pp_no_mech1_pct,
-            "before": before.to_dict(), "after": after.to_dict(),
-            "definition": "filtered p-p % (docs/metrics.md), median over the steady windows of the operating "
-                          "point's segment",
-        })
-        result, reasons = verdict(m, self.cfg.limits)
-        return StepVerdict(result, tuple(reasons))
+        self.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
+                                     RIPPLE_DEFINITION)
+        self.measured = self.measured.with_ripple(before.pp_pct, after.pp_pct, after.pp_no_mech1_pct)
+        self.judged["ripple"] = judge(self.measured, self.cfg.limits, "ripple")
+        reasons = failed(self.judged["ripple"])
+        return StepVerdict("fail" if reasons else "pass", tuple(reasons))
 
     def report(self) -> Path:
         """The per-motor HTML report (the fit's plots come from the helper thread)."""
         from eol_cal.station.report import write_report
 
         figures = self._fit_plots.result() if self._fit_plots is not None else []
-        return write_report(self.to_record(finite=False), self.run_dir, figures=figures, fit_extra=self.fit_extra,
+        return write_report(self.to_record(), self.run_dir, figures=figures, fit_extra=self.fit_extra,
                             point_ripple=self.point_ripples)
 
-    def record(self, rec: dict[str, Any]) -> SaveResult:
+    def record(self, rec: RunRecord) -> SaveResult:
         """Save the record: database, or the spool when the database cannot take it."""
         from eol_cal.station.spool import save_record
 
@@ -282,7 +264,8 @@ class StationCycle:
                 found = self._step(name, method)
                 if found is not None:
                     self.verdict, self.reasons = found.verdict, list(found.reasons)
-                    break
+                    if found.verdict != "pass":
+                        break
         except BaseException as exc:  # noqa: BLE001 - every failure becomes an error record
             failure = exc
         # From here on a signal waits until the record is written (eol_cal.interrupts).
@@ -293,7 +276,7 @@ class StationCycle:
             try:
                 self.report_html = self._step("report", self.report)
             except Exception as exc:  # noqa: BLE001 - the record must still be written
-                self.steps[-1]["error"] = f"{type(exc).__name__}: {exc}"
+                self.steps[-1] = dataclasses.replace(self.steps[-1], error=f"{type(exc).__name__}: {exc}")
                 self.report_error = f"{type(exc).__name__}: {exc}"
                 if self.verdict != "error":
                     self.verdict = "error"
@@ -304,39 +287,32 @@ class StationCycle:
             try:
                 write_record_json(rec, self.run_dir)
             except Exception as exc:  # noqa: BLE001 - the database still gets it
-                rec["report_error"] = f"report.json: {type(exc).__name__}: {exc}"
+                rec = dataclasses.replace(rec, report_error=f"report.json: {type(exc).__name__}: {exc}")
             saved = self.record(rec)
         if failure is not None and not isinstance(failure, Exception):  # Ctrl-C: recorded; now end the process
             raise failure
-        return RunOutcome(rec, saved, self.report_html, EXIT[rec["verdict"]])
+        return RunOutcome(rec, saved, self.report_html, EXIT[rec.verdict])
 
-    def to_record(self, finite: bool = True) -> dict[str, Any]:
-        """The run record (schema ``eol-cal/run-record/1``), from whatever the steps produced.
+    @property
+    def kind(self) -> str:
+        """``refusal`` when the cycle ended before the prepare step, else the configuration's kind."""
+        return self.cfg.kind if self.touched else "refusal"
 
-        Parameters
-        ----------
-        finite : bool
-            Non-finite numbers as ``null`` (JSON); False keeps them for the report's own formatting.
-        """
+    def to_record(self) -> RunRecord:
+        """The run record, from whatever the steps produced."""
         from eol_cal import __version__
         from eol_cal.firmware.block import LAYOUT_VERSION
-        from eol_cal.station.records import RECORD_SCHEMA
 
-        rec: dict[str, Any] = {
-            "schema": RECORD_SCHEMA, "run_id": self.run_id, "serial": self.cfg.serial,
-            "started_at": self.started.isoformat(timespec="milliseconds"), "ended_at": self.ended_at,
-            "verdict": self.verdict, "reasons": list(self.reasons), "error": self.error,
-            "tool_version": __version__, "layout_version": LAYOUT_VERSION, "station": self.station,
-            "limits": self.limits, "steps": self.steps, "captures": self.captures, "fit": self.fit_record,
-            "block": self.block, "flash": self.flash_result, "ecu_prepared": self.ecu_prepared,
-            "metrics": self.metrics, "report_dir": str(self.run_dir), "safe_state": self.safe_state,
-            "preflight": None if self.preflight is None else self.preflight.to_dict(),
-        }
-        if self.ecu_active is not None:
-            rec["ecu_active"] = self.ecu_active
-        if self.report_error is not None:
-            rec["report_error"] = self.report_error
-        return json_safe(rec) if finite else rec
+        lim = self.cfg.limits
+        return RunRecord(
+            kind=self.kind, run_id=self.run_id, serial=self.cfg.serial,
+            started_at=self.started.isoformat(timespec="milliseconds"), ended_at=self.ended_at, verdict=self.verdict,
+            reasons=tuple(self.reasons), refusal_codes=self.refusal_codes if self.kind == "refusal" else (),
+            error=self.error, tool_version=__version__, layout_version=LAYOUT_VERSION, station=self.station,
+            limits=lim, limits_sha256=self.limits_sha256, checks=tuple(all_checks(self.judged, lim)),
+            steps=tuple(self.steps), preflight=self.preflight, captures=dict(self.captures), fit=self.result,
+            blocks=tuple(self.blocks), metrics=self.metrics, report_dir=str(self.run_dir), safe_state=self.safe_state,
+            ecu_active=self.ecu_active or self._ecu_active(None), report_error=self.report_error)
 
     # ------------------------------------------------------------------ helpers
     def _progress(self, name: str, what: str) -> None:
@@ -347,16 +323,14 @@ class StationCycle:
         """Run one step, timed into ``steps``; a returned :class:`StepVerdict` still counts as done."""
         self._progress(name, "start")
         t0 = time.perf_counter()
-        entry: dict[str, Any] = {"step": name, "seconds": None, "ok": False}
-        self.steps.append(entry)
+        self.steps.append(Step(name, None, False))
         try:
             out = fn()
         except BaseException:
-            entry["seconds"] = round(time.perf_counter() - t0, 4)
+            self.steps[-1] = Step(name, round(time.perf_counter() - t0, 4), False)
             self._progress(name, "failed")
             raise
-        entry["seconds"] = round(time.perf_counter() - t0, 4)
-        entry["ok"] = True
+        self.steps[-1] = Step(name, round(time.perf_counter() - t0, 4), True)
         self._progress(name, "done")
         return out
 
@@ -372,55 +346,72 @@ class StationCycle:
                                     self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
                                                                f"profile {self.profile_name}"})
-        self.captures[which] = {"path": str(path), "sha256": sha256_file(path), "samples": int(len(cap.t)),
-                                "segments": len(segs), **trace.to_dict()}
-        expect_block(trace, which, self.ecu_prepared if which == "before" else self.block)
+        self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), len(segs), trace.before,
+                                          trace.after)
+        expect_block(trace, which, self._last_block("prepare" if which == "before" else "calibrated"))
         if which == "before":
             check_trace(trace, str(path))  # the calibration capture: never under compensation
         return cap
 
-    def _flash(self, data: bytes, source: str) -> FlashReport:
-        from eol_cal.ecu.client import ClientTiming, flash_block
+    def _last_block(self, role: str) -> FlashedBlock | None:
+        return next((b for b in reversed(self.blocks) if b.role == role), None)
 
-        bus = self.cfg.open_bus()
+    def _flash(self, data: bytes, role: str) -> None:
+        """Flash a block of this run (verified) and archive it as it went in."""
+        from eol_cal.ecu.client import ClientTiming
+        from eol_cal.station.archive import flash_archived
+
         try:
-            return flash_block(bus, data, seed_to_key=self.cfg.seed_to_key, verify=True, source=source,
-                               timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor)
-        finally:
-            bus.shutdown()
+            _report, done = flash_archived(self.cfg.open_bus, data, role=role, path=self.run_dir / ARCHIVE_NAMES[role],
+                                           seed_to_key=self.cfg.seed_to_key, timing=self.cfg.ecu_timing or ClientTiming(),
+                                           motor=self.cfg.motor, source=f"{role} block of run {self.run_id[:8]}")
+        except BaseException as exc:
+            if getattr(exc, "flashed_block", None) is not None:
+                self.blocks.append(exc.flashed_block)
+            raise
+        self.blocks.append(done)
 
     def _record_failure(self, exc: BaseException) -> None:
-
-        failed = self.steps[-1]["step"] if self.steps else "start"
+        failed_step = self.steps[-1].step if self.steps else "start"
         self.verdict = "error"
-        self.reasons = [f"{failed}: {exc}" if str(exc) else f"{failed}: {type(exc).__name__}"]
-        if getattr(exc, "reasons", None):  # the pre-flight: each problem on its own
-            self.reasons = [f"{failed}: {r}" for r in exc.reasons]
-        self.error = {"step": failed, "type": type(exc).__name__, "message": str(exc),
-                      "traceback": None if isinstance(exc, EolCalError)
-                      else "".join(traceback.format_exception(exc, limit=8))}
-        if self.preflight is not None and not self.preflight.dyno_reached and failed == "pre-flight":
+        self.reasons = [f"{failed_step}: {exc}" if str(exc) else f"{failed_step}: {type(exc).__name__}"]
+        problems = getattr(exc, "problems", None)
+        if problems:  # the pre-flight: each problem on its own
+            self.reasons = [f"{failed_step}: {p.text}" for p in problems]
+        self.error = ErrorInfo(failed_step, type(exc).__name__, str(exc),
+                               None if isinstance(exc, EolCalError) else "".join(traceback.format_exception(exc, limit=8)))
+        if not self.touched:
+            if problems:
+                self.refusal_codes = tuple(dict.fromkeys(p.code for p in problems))
+            else:
+                self.refusal_codes = ("interrupted",) if isinstance(exc, KeyboardInterrupt) else (
+                    ("settings",) if isinstance(exc, InputError) else ("station_error",))
+        if self.preflight is not None and self.preflight.dyno is None and failed_step == "pre-flight":
             self.safe_state = "not commanded: the pre-flight did not reach the dyno (nothing was started on it)"
         else:
             self.safe_state = safe_state(self.cfg.dyno)
 
-    def _ecu_active(self, failure: BaseException | None) -> dict[str, Any]:
-        """Which block the ECU boots after this run (see :func:`eol_cal.station.run.ecu_active`)."""
+    def _ecu_active(self, failure: BaseException | None) -> EcuActive:
+        """Which block the ECU boots after this run.
 
-        active = ecu_active({"block": self.block, "ecu_prepared": self.ecu_prepared})
+        ``calibrated``: this run's block; ``uncompensated``: the prepare step's block (the cycle
+        ended before the calibrated one was written: the motor runs without compensation, and a
+        calibration it had before is superseded); ``unchanged``: nothing was written.
+        """
+        active = EcuActive("unchanged")
+        for role, word in (("calibrated", "calibrated"), ("prepare", "uncompensated")):
+            b = self._last_block(role)
+            if b is not None and b.confirmed:
+                active = EcuActive(word, b.sequence, b.bank)
+                break
         boots = getattr(failure, "ecu_boots", None)
         if boots is not None and boots["boots"] != "previous":
             # the flash failed after the new block was complete and checked (a dead link, a
             # signal): the ECU boots it at its next reset
-            what = "calibrated" if self.error["step"] == "flash" else "uncompensated"
-            active = {"block": what if boots["boots"] == "new" else f"{what} (if its CRC was written)",
-                      "sequence": boots["sequence"], "bank": boots["bank"]}
+            what = "calibrated" if self.error is not None and self.error.step == "flash" else "uncompensated"
+            active = EcuActive(what if boots["boots"] == "new" else f"{what} (if its CRC was written)",
+                               boots["sequence"], boots["bank"])
         return active
-
-
-def previous_block(report: FlashReport) -> dict[str, Any]:
-    """What the ECU held before a flash (bank None: no valid bank), for the record."""
-    return {"bank": report.previous.bank if report.previous.has_bank else None, "sequence": report.previous.sequence}
 
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutcome:
@@ -428,6 +419,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutc
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
-    record); every failure during the run is recorded with verdict ``error``.
+    record); every failure during the run is recorded (kind ``refusal`` before anything was
+    written, else verdict ``error``).
     """
     return StationCycle.start(cfg, progress).run()

@@ -1,88 +1,164 @@
-"""Pass/fail limits of the end-of-line station, one set per product variant (TOML).
+"""Pass/fail limits of the end-of-line station: one table, one set of values per product variant.
 
-File format (``docs/station.md``)::
+:data:`LIMITS` is the one table of the limits: per row the key a limits file sets, the measured
+quantity it bounds (a :class:`Measured` field, and the lot's column of the same name where
+there is one), what it checks in words, its unit, its sense (``max``: the value must not exceed
+the limit; ``min``: not fall below it), the stage of the cycle that judges it (``fit``: right
+after the fit, before anything calibrated is flashed; ``ripple``: on the compensated capture),
+the values a file may give it, and whether a file may leave it out. Adding a limit on a quantity
+the cycle already measures is one row here (and its line in ``docs/station.md``); everything
+else (the limits file's checks, the record's checks, the report, the lot page, ``lot stats``)
+follows the table.
 
-    default_variant = "EPS-A"        # optional; used when no variant is chosen
+A limits file (``docs/station.md``, "Limits") holds ``[variant.NAME]`` tables of these keys, an
+optional ``default_variant`` and per variant an optional ``estimator`` (the estimator options the
+line flashes). Rows without a default are required (a line that forgets one would otherwise pass
+motors silently); rows added since the first station have a default (``None``: not judged unless
+set), so a limits file written before them still loads. Unknown keys are refused (a typo would
+be a limit that never applies).
 
-    [variant.EPS-A]
-    max_k6 = 0.0025                  # N*m/A, largest acceptable load-proportional ripple k6
-    max_pp_before_pct = 12.0         # %, p-p ripple at the operating point before compensation
-    max_pp_after_pct = 2.0           # %, p-p ripple at the operating point with compensation
-    min_improvement_pct = 40.0       # %, 100 * (before - after) / before
-    min_r2 = 0.5                     # fit quality: coefficient of determination
-    max_rms_nm = 0.02                # fit quality: residual RMS (N*m)
-    max_ci_k6_rel = 0.05             # widest 95 % interval of k6, fraction of k6
-    max_ci_phase_k6_deg = 3.0        # widest 95 % interval of phase_k6 (deg)
-    max_ci_c6_nm = 0.002             # widest 95 % cogging phasor error (N*m)
-    max_hall_deviation_deg = 3.0     # optional (default 3.0): largest hall boundary offset (deg el.)
-    max_pp_after_no_mech1_pct = 1.5  # optional (default: no limit): compensated p-p without the
-                                     # mechanical order 1 (the rotor's unbalance) (%)
-    estimator = "best"               # optional: the estimator options the line flashes (block flags
-                                     # bits 2-5): paper, best (default), names joined by "+", or 0xMASK
-
-The keys of the first station are required (a line that forgets one would otherwise pass
-motors silently); keys added since are optional with the defaults of :data:`OPTIONAL_DEFAULTS`,
-so a limits file written before them still loads. Unknown keys are refused (a typo such as
-``max_pp_afer_pct`` would be a limit that never applies).
+The cycle judges each stage once (:func:`judge`); the run record carries every check
+(:class:`LimitCheck`: value, limit, margin, pass) and whoever shows a verdict reads those.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import tomllib
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Mapping
 
-from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.errors import InputError
 from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options
 from eol_cal.inputs import read_text
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.result import CiLimits
 
-#: key -> (unit, lowest allowed value, highest allowed value)
-_KEYS: dict[str, tuple[str, float, float]] = {
-    "max_k6": ("N*m/A", 0.0, 1.0),
-    "max_pp_before_pct": ("%", 0.0, 1000.0),
-    "max_pp_after_pct": ("%", 0.0, 1000.0),
-    "min_improvement_pct": ("%", -1000.0, 100.0),
-    "min_r2": ("1", -1.0, 1.0),
-    "max_rms_nm": ("N*m", 0.0, 100.0),
-    "max_ci_k6_rel": ("1", 0.0, 10.0),
-    "max_ci_phase_k6_deg": ("deg", 0.0, 180.0),
-    "max_ci_c6_nm": ("N*m", 0.0, 100.0),
-    "max_hall_deviation_deg": ("deg", 0.0, 180.0),
-    "max_pp_after_no_mech1_pct": ("%", 0.0, 1000.0),
-}
-#: keys a limits file may leave out, and their value then (None: no limit, not judged)
-OPTIONAL_DEFAULTS: dict[str, float | None] = {
+#: a row's ``default`` when a limits file must set it
+REQUIRED = "required"
+STAGES = ("fit", "ripple")
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One row of :data:`LIMITS`.
+
+    Attributes
+    ----------
+    key : str
+        The key in a limits file.
+    quantity : str
+        The :class:`Measured` field it bounds (the lot's column where the lot has one).
+    title : str
+        What is judged, in words.
+    unit : str
+        Unit of the quantity and the limit (stored units; people read :mod:`eol_cal.display`'s).
+    sense : {"max", "min"}
+        ``max``: the value must not exceed the limit; ``min``: it must not fall below it.
+    stage : {"fit", "ripple"}
+        ``fit``: judged right after the fit; ``ripple``: on the compensated capture.
+    bounds : (float, float)
+        The values a limits file may give it.
+    default : float, None or REQUIRED
+        Its value when a limits file leaves it out (None: off, not judged).
+    ci : str or None
+        The fit's :class:`~eol_cal.analysis.result.CiLimits` field it also sets (the interval limits).
+    missing : str
+        The reason when the quantity was not measured (``str.format`` of the :class:`Measured` fields).
+    """
+
+    key: str
+    quantity: str
+    title: str
+    unit: str
+    sense: str
+    stage: str
+    bounds: tuple[float, float]
+    default: float | None | str = REQUIRED
+    ci: str | None = None
+    missing: str = "{title} not measured ({key} is not met)"
+
+
+#: the limits, in the order the report and the record list them
+LIMITS: tuple[Limit, ...] = (
+    Limit("max_k6", "k6", "k6", "N*m/A", "max", "fit", (0.0, 1.0)),
+    Limit("max_pp_before_pct", "pp_before_pct", "p-p ripple before", "%", "max", "ripple", (0.0, 1000.0)),
+    Limit("max_pp_after_pct", "pp_after_pct", "p-p ripple compensated", "%", "max", "ripple", (0.0, 1000.0)),
+    Limit("min_improvement_pct", "improvement_pct", "improvement", "%", "min", "ripple", (-1000.0, 100.0)),
+    Limit("min_r2", "fit_r2", "fit R^2", "1", "min", "fit", (-1.0, 1.0)),
+    Limit("max_rms_nm", "fit_rms_nm", "fit residual rms", "N*m", "max", "fit", (0.0, 100.0)),
+    Limit("max_ci_k6_rel", "ci_k6_rel", "95 % interval of k6 / k6", "1", "max", "fit", (0.0, 10.0), ci="k6_rel"),
+    Limit("max_ci_phase_k6_deg", "ci_phase_k6_deg", "95 % interval of phase_k6", "deg", "max", "fit", (0.0, 180.0),
+          ci="phase_k6_deg"),
+    Limit("max_ci_c6_nm", "ci_c6_nm", "95 % cogging phasor error", "N*m", "max", "fit", (0.0, 100.0), ci="c6_nm"),
     # added after the first station: 3 deg el. is the variants' shipped value (fixtures/limits.toml)
-    "max_hall_deviation_deg": 3.0,
+    Limit("max_hall_deviation_deg", "hall_deviation_deg", "largest hall boundary offset", "deg", "max", "fit",
+          (0.0, 180.0), default=3.0, missing="hall table not measured: {hall_source}"),
     # the rotor's unbalance is a mechanical reject only where a line chooses to judge it
-    "max_pp_after_no_mech1_pct": None,
-}
+    Limit("max_pp_after_no_mech1_pct", "pp_after_no_mech1_pct", "p-p compensated without mechanical order 1", "%",
+          "max", "ripple", (0.0, 1000.0), default=None),
+)
+BY_KEY: dict[str, Limit] = {lim.key: lim for lim in LIMITS}
+#: the limit keys, in table order
+LIMIT_KEYS: tuple[str, ...] = tuple(BY_KEY)
+#: keys a limits file may leave out, and their value then (None: no limit, not judged)
+OPTIONAL_DEFAULTS: dict[str, float | None] = {lim.key: lim.default for lim in LIMITS  # type: ignore[misc]
+                                              if lim.default != REQUIRED}
+
+
+def limit_on(quantity: str) -> Limit | None:
+    """The row that bounds ``quantity`` (a :class:`Measured` field or lot column), None without one."""
+    return next((lim for lim in LIMITS if lim.quantity == quantity), None)
 
 
 @dataclass(frozen=True)
 class VariantLimits:
-    """Limits of one product variant (units in the module doc)."""
+    """The limits of one product variant.
+
+    Attributes
+    ----------
+    variant : str
+    values : mapping of limit key -> float or None
+        Every key of :data:`LIMITS` (None: off); the limits file's units.
+    source : str
+        The limits file.
+    estimator : str
+        The estimator options the variant's blocks carry (a label: ``best``, ``paper``, names).
+    """
 
     variant: str
-    max_k6: float
-    max_pp_before_pct: float
-    max_pp_after_pct: float
-    min_improvement_pct: float
-    min_r2: float
-    max_rms_nm: float
-    max_ci_k6_rel: float
-    max_ci_phase_k6_deg: float
-    max_ci_c6_nm: float
-    max_hall_deviation_deg: float = 3.0  # OPTIONAL_DEFAULTS
-    max_pp_after_no_mech1_pct: float | None = None  # OPTIONAL_DEFAULTS: no limit
+    values: Mapping[str, float | None]
     source: str = "<memory>"
     estimator: str = DEFAULT_PRESET
+
+    @classmethod
+    def of(cls, variant: str, *, source: str = "<memory>", estimator: str = DEFAULT_PRESET,
+           **values: float | None) -> VariantLimits:
+        """Limits from keyword values (missing optional keys take their default; a missing required
+        key or an unknown one is a :class:`ValueError`)."""
+        unknown = set(values) - set(BY_KEY)
+        if unknown:
+            raise ValueError(f"unknown limit keys {sorted(unknown)}")
+        missing = [lim.key for lim in LIMITS if lim.key not in values and lim.default == REQUIRED]
+        if missing:
+            raise ValueError(f"missing limit keys {missing}")
+        full = {lim.key: values.get(lim.key, lim.default) for lim in LIMITS}
+        return cls(variant, {k: None if v is None else float(v) for k, v in full.items()}, source, estimator)
+
+    def __getattr__(self, name: str) -> float | None:
+        # lim.KEY: the value of a limit key (tests and interactive use)
+        values = self.__dict__.get("values")
+        if values is not None and name in values:
+            return values[name]
+        raise AttributeError(name)
+
+    def value(self, key: str) -> float | None:
+        """The limit's value (None: off, or not recorded)."""
+        return self.values.get(key)
 
     @property
     def estimator_options(self) -> int:
@@ -90,13 +166,14 @@ class VariantLimits:
         return parse_options(self.estimator, self.source, f"variant.{self.variant}.estimator")
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """``variant``, every limit key, ``source``, ``estimator`` (the record's ``limits``)."""
+        return {"variant": self.variant, **self.values, "source": self.source, "estimator": self.estimator}
 
     def ci_limits(self) -> CiLimits:
         """The interval limits as the fit's own :class:`~eol_cal.analysis.result.CiLimits`."""
         from eol_cal.analysis.result import CiLimits
 
-        return CiLimits(k6_rel=self.max_ci_k6_rel, phase_k6_deg=self.max_ci_phase_k6_deg, c6_nm=self.max_ci_c6_nm)
+        return CiLimits(**{lim.ci: self.values[lim.key] for lim in LIMITS if lim.ci})
 
 
 def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
@@ -116,24 +193,25 @@ def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
         where = f"variant.{name}"
         if not isinstance(table, dict):
             raise InputError(file, where, "must be a table")
-        unknown = set(table) - set(_KEYS) - {"estimator"}
+        unknown = set(table) - set(BY_KEY) - {"estimator"}
         if unknown:
-            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(_KEYS)}, estimator")
+            raise InputError(file, f"{where}.{sorted(unknown)[0]}", f"unknown key; known: {', '.join(BY_KEY)}, estimator")
         values: dict[str, float | None] = {}
-        for key, (unit, lo, hi) in _KEYS.items():
-            if key not in table and key in OPTIONAL_DEFAULTS:
-                values[key] = OPTIONAL_DEFAULTS[key]
+        for lim in LIMITS:
+            if lim.key not in table:
+                if lim.default == REQUIRED:
+                    raise InputError(file, f"{where}.{lim.key}", f"missing ({lim.unit})")
+                values[lim.key] = lim.default  # type: ignore[assignment]
                 continue
-            if key not in table:
-                raise InputError(file, f"{where}.{key}", f"missing ({unit})")
-            v = table[key]
+            v = table[lim.key]
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                raise InputError(file, f"{where}.{key}", f"{v!r} is not a finite number ({unit})")
+                raise InputError(file, f"{where}.{lim.key}", f"{v!r} is not a finite number ({lim.unit})")
+            lo, hi = lim.bounds
             if not lo <= v <= hi:
-                raise InputError(file, f"{where}.{key}", f"{v} outside {lo:g} ... {hi:g} {unit}")
-            values[key] = float(v)
+                raise InputError(file, f"{where}.{lim.key}", f"{v} outside {lo:g} ... {hi:g} {lim.unit}")
+            values[lim.key] = float(v)
         estimator = options_label(parse_options(table.get("estimator", DEFAULT_PRESET), file, f"{where}.estimator"))
-        out[name] = VariantLimits(variant=name, source=file, estimator=estimator, **values)
+        out[name] = VariantLimits(variant=name, values=values, source=file, estimator=estimator)
     default = doc.get("default_variant")
     if default is not None and default not in out:
         raise InputError(file, "default_variant", f"{default!r} is not one of the variants ({', '.join(out)})")
@@ -172,41 +250,39 @@ def load_limits(path: str | Path, variant: str | None = None) -> VariantLimits:
 
 @dataclass(frozen=True)
 class Measured:
-    """What the cycle measured on one motor, as the limits see it.
+    """What the cycle measured on one motor, as the limits see it (NaN: not measured).
 
     Attributes
     ----------
     k6 : float
-        Load-proportional 6th-harmonic coefficient (N*m/A).
+        Load-proportional 6th-harmonic coefficient, magnitude (N*m/A).
     ci_k6 : float
         Its 95 % interval half-width (N*m/A).
     ci_phase_k6_deg : float
         95 % interval of phase_k6 (deg).
     ci_c6_nm : float
         Cogging phasor error bound max(ci95(c6), c6 * ci95(phase_c6)) (N*m).
-    r2 : float
+    fit_r2 : float
         Fit R^2 (1).
-    rms_nm : float
+    fit_rms_nm : float
         Fit residual RMS (N*m).
     pp_before_pct, pp_after_pct : float
-        Filtered p-p ripple at the operating point before and with compensation (%);
-        NaN when not measured.
-    pp_after_no_mech1_pct : float
-        ``pp_after_pct`` with the mechanical order 1 (rotor unbalance) taken out (%); NaN when
-        not measured.
+        Filtered p-p ripple at the operating point before and with compensation (%).
     hall_deviation_deg : float
         Largest |measured - nominal| hall boundary angle (deg, electrical); NaN when the table
         could not be measured (``hall_source`` says why).
     hall_source : str
-        The record's ``hall_angle.source``.
+        The fit's ``hall_angle.source``.
+    pp_after_no_mech1_pct : float
+        ``pp_after_pct`` with the mechanical order 1 (rotor unbalance) taken out (%).
     """
 
-    k6: float
-    ci_k6: float
-    ci_phase_k6_deg: float
-    ci_c6_nm: float
-    r2: float
-    rms_nm: float
+    k6: float = math.nan
+    ci_k6: float = math.nan
+    ci_phase_k6_deg: float = math.nan
+    ci_c6_nm: float = math.nan
+    fit_r2: float = math.nan
+    fit_rms_nm: float = math.nan
     pp_before_pct: float = math.nan
     pp_after_pct: float = math.nan
     hall_deviation_deg: float = math.nan
@@ -220,148 +296,121 @@ class Measured:
             return math.nan
         return 100.0 * (self.pp_before_pct - self.pp_after_pct) / self.pp_before_pct
 
+    @property
+    def ci_k6_rel(self) -> float:
+        """The 95 % interval of k6 as a fraction of k6 (1; infinite for k6 0)."""
+        k6 = abs(self.k6)
+        return self.ci_k6 / k6 if k6 > 0 else (math.nan if math.isnan(k6) else math.inf)
+
+    @classmethod
+    def of_fit(cls, res: MotorResult) -> Measured:
+        """The fit's part (k6, intervals, R^2, RMS, hall deviation) of a usable fit.
+
+        Raises
+        ------
+        ValueError
+            The fit is not usable (no estimates).
+        """
+        e = res.estimates
+        if e is None:
+            raise ValueError(f"motor {res.serial}: fit status {res.status!r} has no estimates")
+        ci_c6 = max(float(e.c6.ci95), abs(e.c6.value) * float(e.phase_c6.ci95))
+        hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
+        measured = hall["source"] == "measured"
+        return cls(
+            k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
+            ci_c6_nm=ci_c6, fit_r2=float(res.fit["r2"]), fit_rms_nm=float(res.fit["rms"]),
+            hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
+            hall_source=str(hall["source"]),
+        )
+
+    def with_ripple(self, pp_before_pct: float, pp_after_pct: float, pp_after_no_mech1_pct: float) -> Measured:
+        """These values and the ripple at the operating point (%)."""
+        return dataclasses.replace(self, pp_before_pct=pp_before_pct, pp_after_pct=pp_after_pct,
+                                   pp_after_no_mech1_pct=pp_after_no_mech1_pct)
+
 
 @dataclass(frozen=True)
 class LimitCheck:
-    """One limit of a variant against what was measured.
+    """One limit against what was measured, as the run record keeps it.
 
     Attributes
     ----------
-    key : str
-        The limit's key in the limits file (``max_k6``...).
-    quantity : str
-        What is judged, in words.
+    key, quantity, title, unit, sense, stage
+        As the :class:`Limit` row (kept in the record: it renders without the table of its time).
     value : float
         The measured value in ``unit`` (NaN: not measured).
     limit : float
         The limit in ``unit``.
-    unit : str
-        Unit of ``value``, ``limit`` and ``margin``.
-    sense : {"max", "min"}
-        ``max``: the value must not exceed the limit; ``min``: it must not fall below it.
-    ok : bool
-        The limit is met (NaN never meets one).
+    passed : bool or None
+        The limit is met; None: not judged (the cycle ended before the check's stage).
     reason : str
-        Why it is not met (empty when it is).
-    stage : {"fit", "ripple"}
-        ``fit``: judged right after the fit; ``ripple``: on the compensated run.
+        Why it is not met (empty when it is, or when not judged).
     """
 
     key: str
     quantity: str
-    value: float
-    limit: float
+    title: str
     unit: str
     sense: str
-    ok: bool
-    reason: str
     stage: str
+    value: float
+    limit: float
+    passed: bool | None
+    reason: str = ""
 
     @property
     def margin(self) -> float:
         """How far inside the limit the value is (``unit``; negative: outside, NaN: not measured)."""
         return self.limit - self.value if self.sense == "max" else self.value - self.limit
 
-
-def _check(key: str, quantity: str, value: float, limit: float, unit: str, sense: str, stage: str,
-           reason: str) -> LimitCheck:
-    ok = bool(value <= limit) if sense == "max" else bool(value >= limit)
-    return LimitCheck(key, quantity, float(value), float(limit), unit, sense, ok, "" if ok else reason, stage)
-
-
-def limit_checks(m: Measured, lim: VariantLimits) -> list[LimitCheck]:
-    """Every limit of ``lim`` against ``m``, in the limits file's order (``verdict``'s reasons
-    are the failed checks' reasons); an optional limit that is off is not a check."""
-    k6, imp = abs(m.k6), m.improvement_pct
-    ci_k6_rel = m.ci_k6 / k6 if k6 > 0 else math.inf
-    hall = m.hall_deviation_deg
-    hall_reason = (f"hall table not measured: {m.hall_source}" if math.isnan(hall) else
-                   f"hall boundary {hall:.3g} deg from nominal exceeds max_hall_deviation_deg = {lim.max_hall_deviation_deg:g}")
-    checks = [
-        _check("max_k6", "k6", m.k6, lim.max_k6, "N*m/A", "max", "fit",
-               f"k6 = {m.k6:.4g} N*m/A exceeds max_k6 = {lim.max_k6:g}"),
-        _check("max_pp_before_pct", "p-p ripple before", m.pp_before_pct, lim.max_pp_before_pct, "%", "max", "ripple",
-               f"p-p before = {m.pp_before_pct:.3g} % exceeds max_pp_before_pct = {lim.max_pp_before_pct:g}"),
-        _check("max_pp_after_pct", "p-p ripple compensated", m.pp_after_pct, lim.max_pp_after_pct, "%", "max", "ripple",
-               f"p-p after = {m.pp_after_pct:.3g} % exceeds max_pp_after_pct = {lim.max_pp_after_pct:g}"),
-        _check("min_improvement_pct", "improvement", imp, lim.min_improvement_pct, "%", "min", "ripple",
-               f"improvement = {imp:.3g} % below min_improvement_pct = {lim.min_improvement_pct:g}"),
-        _check("min_r2", "fit R^2", m.r2, lim.min_r2, "1", "min", "fit",
-               f"fit R^2 = {m.r2:.4g} below min_r2 = {lim.min_r2:g}"),
-        _check("max_rms_nm", "fit residual rms", m.rms_nm, lim.max_rms_nm, "N*m", "max", "fit",
-               f"fit rms = {m.rms_nm:.4g} N*m exceeds max_rms_nm = {lim.max_rms_nm:g}"),
-        _check("max_ci_k6_rel", "95 % interval of k6 / k6", ci_k6_rel, lim.max_ci_k6_rel, "1", "max", "fit",
-               f"ci95(k6) = {m.ci_k6:.3g} N*m/A exceeds {100 * lim.max_ci_k6_rel:g} % of k6"),
-        _check("max_ci_phase_k6_deg", "95 % interval of phase_k6", m.ci_phase_k6_deg, lim.max_ci_phase_k6_deg, "deg",
-               "max", "fit", f"ci95(phase_k6) = {m.ci_phase_k6_deg:.3g} deg exceeds max_ci_phase_k6_deg = "
-               f"{lim.max_ci_phase_k6_deg:g}"),
-        _check("max_ci_c6_nm", "95 % cogging phasor error", m.ci_c6_nm, lim.max_ci_c6_nm, "N*m", "max", "fit",
-               f"c6 phasor ci95 = {m.ci_c6_nm:.3g} N*m exceeds max_ci_c6_nm = {lim.max_ci_c6_nm:g}"),
-        _check("max_hall_deviation_deg", "largest hall boundary offset", hall, lim.max_hall_deviation_deg, "deg", "max",
-               "fit", hall_reason),
-    ]
-    if lim.max_pp_after_no_mech1_pct is not None:
-        no1 = m.pp_after_no_mech1_pct
-        checks.append(_check("max_pp_after_no_mech1_pct", "p-p compensated without mechanical order 1", no1,
-                             lim.max_pp_after_no_mech1_pct, "%", "max", "ripple",
-                             f"p-p after without mechanical order 1 = {no1:.3g} % exceeds max_pp_after_no_mech1_pct = "
-                             f"{lim.max_pp_after_no_mech1_pct:g} (electrical ripple left: re-test, check the fit)"))
-    return checks
+    @property
+    def status(self) -> str:
+        """``pass``, ``fail`` or ``not judged``."""
+        return "not judged" if self.passed is None else ("pass" if self.passed else "fail")
 
 
-_FIT_ORDER = ("max_k6", "min_r2", "max_rms_nm", "max_ci_k6_rel", "max_ci_phase_k6_deg", "max_ci_c6_nm",
-              "max_hall_deviation_deg")
-_RIPPLE_ORDER = ("max_pp_before_pct", "max_pp_after_pct", "min_improvement_pct", "max_pp_after_no_mech1_pct")
+def _reason(lim: Limit, value: float, limit: float, m: Measured) -> str:
+    from eol_cal.display import display_unit
+
+    if math.isnan(value):
+        return lim.missing.format(title=lim.title, key=lim.key, **dataclasses.asdict(m))
+    unit, factor = display_unit(lim.unit)
+    unit_text = "" if unit == "1" else f" {unit}"
+    word = "exceeds" if lim.sense == "max" else "below"
+    return f"{lim.title} = {value * factor:.4g}{unit_text} {word} {lim.key} = {limit * factor:g}{unit_text}"
 
 
-def _reasons(m: Measured, lim: VariantLimits, order: tuple[str, ...]) -> list[str]:
-    by_key = {c.key: c for c in limit_checks(m, lim)}
-    return [by_key[k].reason for k in order if k in by_key and not by_key[k].ok]
+def check(lim: Limit, limit: float, m: Measured | None) -> LimitCheck:
+    """One limit row at ``limit`` against ``m`` (None: not judged). NaN never meets a limit."""
+    if m is None:
+        return LimitCheck(lim.key, lim.quantity, lim.title, lim.unit, lim.sense, lim.stage, math.nan, float(limit), None)
+    value = float(getattr(m, lim.quantity))
+    ok = bool(value <= limit) if lim.sense == "max" else bool(value >= limit)
+    return LimitCheck(lim.key, lim.quantity, lim.title, lim.unit, lim.sense, lim.stage, value, float(limit), ok,
+                      "" if ok else _reason(lim, value, limit, m))
 
 
-def fit_reasons(m: Measured, lim: VariantLimits) -> list[str]:
-    """Why the fit's quality or k6 fails ``lim`` (empty: it passes)."""
-    return _reasons(m, lim, _FIT_ORDER)
+def judge(m: Measured | None, lim: VariantLimits, stage: str) -> list[LimitCheck]:
+    """Every limit of ``stage`` that ``lim`` sets, against ``m`` (None: not judged), table order;
+    a limit that is off is no check."""
+    if stage not in STAGES:
+        raise ValueError(f"unknown stage {stage!r}")
+    return [check(row, v, m) for row in LIMITS if row.stage == stage and (v := lim.value(row.key)) is not None]
 
 
-def ripple_reasons(m: Measured, lim: VariantLimits) -> list[str]:
-    """Why the before/after ripple fails ``lim`` (empty: it passes); NaN never passes."""
-    return _reasons(m, lim, _RIPPLE_ORDER)
+def all_checks(judged: Mapping[str, list[LimitCheck]], lim: VariantLimits) -> list[LimitCheck]:
+    """The checks of every stage in table order: those ``judged`` (by stage), the others not judged."""
+    by_key = {c.key: c for stage in STAGES for c in (judged.get(stage) or judge(None, lim, stage))}
+    return [by_key[row.key] for row in LIMITS if row.key in by_key]
+
+
+def failed(checks: list[LimitCheck]) -> list[str]:
+    """The reasons of the checks that failed, in their order."""
+    return [c.reason for c in checks if c.passed is False]
 
 
 def verdict(m: Measured, lim: VariantLimits) -> tuple[str, list[str]]:
-    """``("pass", [])`` or ``("fail", reasons)`` of a fully measured motor against ``lim``."""
-    reasons = fit_reasons(m, lim) + ripple_reasons(m, lim)
+    """``("pass", [])`` or ``("fail", reasons)`` of a fully measured motor against ``lim`` (every stage)."""
+    reasons = [r for stage in STAGES for r in failed(judge(m, lim, stage))]
     return ("fail", reasons) if reasons else ("pass", [])
-
-
-LIMIT_KEYS = tuple(f.name for f in fields(VariantLimits) if f.name not in ("variant", "source", "estimator"))
-
-
-def measured_from_fit(rec: dict[str, Any]) -> Measured:
-    """:func:`measured_from_result` of a usable motor record, read by :meth:`MotorResult.from_json`."""
-    return measured_from_result(MotorResult.from_json(rec, "<run record>", "fit."))
-
-
-def measured_from_result(res: MotorResult) -> Measured:
-    """The fit's part of :class:`Measured` (k6 N*m/A, intervals, r2, rms N*m, hall deviation deg).
-
-    Raises
-    ------
-    ValueError
-        The fit is not usable (no estimates).
-    TypeError
-        An interval or a fit figure is null (not finite when the fit wrote it).
-    """
-    e = res.estimates
-    if e is None:
-        raise ValueError(f"motor {res.serial}: fit status {res.status!r} has no estimates")
-    ci_c6 = max(float(e.c6.ci95), abs(e.c6.value) * float(e.phase_c6.ci95))
-    hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
-    measured = hall["source"] == "measured"
-    return Measured(
-        k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
-        ci_c6_nm=ci_c6, r2=float(res.fit["r2"]), rms_nm=float(res.fit["rms"]),
-        hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
-        hall_source=str(hall["source"]),
-    )

@@ -20,17 +20,17 @@ first capture and right after the last window (alongside the dyno's ramps), and 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 from eol_cal.capture.ecu_state import EcuState, Trace, with_ecu_state
 from eol_cal.errors import EolCalError
+from eol_cal.station.record import DynoStatus, EcuFound, FlashedBlock, PreflightResult, Problem
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
     from eol_cal.dyno.client import DynoConfig, DynoSetpoint
-    from eol_cal.ecu.client import ClientTiming, EcuCheck, SeedToKey
+    from eol_cal.ecu.client import ClientTiming, SeedToKey
 
 #: reads the ECU's state now (opens and closes its own bus)
 ReadEcu = Callable[[], EcuState]
@@ -41,38 +41,21 @@ class PreflightFailed(EolCalError):
 
     Attributes
     ----------
-    reasons : list of str
-        Every problem found, one line each.
+    problems : list of Problem
+        Every problem found: its refusal code and one line.
     """
 
-    def __init__(self, reasons: list[str]) -> None:
-        super().__init__("; ".join(reasons))
-        self.reasons = list(reasons)
+    def __init__(self, problems: Sequence[Problem]) -> None:
+        super().__init__("; ".join(p.text for p in problems))
+        self.problems = list(problems)
+        self.reasons = [p.text for p in problems]
 
 
 class EcuStateMismatch(EolCalError):
     """The ECU did not run the block the cycle expected during an acquisition (exit 2)."""
 
 
-@dataclass
-class Preflight:
-    """What the pre-flight found (for the record: ``preflight``)."""
-
-    serial: str
-    dyno: dict[str, Any] | None = None
-    ecu: EcuCheck | None = None
-    reasons: list[str] = field(default_factory=list)
-
-    @property
-    def dyno_reached(self) -> bool:
-        return self.dyno is not None
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"dyno": self.dyno, "ecu": None if self.ecu is None else self.ecu.to_dict(),
-                "reasons": list(self.reasons)}
-
-
-def check_dyno(config: DynoConfig) -> tuple[dict[str, Any] | None, list[str]]:
+def check_dyno(config: DynoConfig) -> tuple[DynoStatus | None, list[Problem]]:
     """The dyno's identification and status, and why it is not ready (nothing is commanded).
 
     Returns ``(None, [why])`` when it does not answer: the client's timeout and retries bound the wait.
@@ -85,58 +68,65 @@ def check_dyno(config: DynoConfig) -> tuple[dict[str, Any] | None, list[str]]:
         ident = client.connect()
         st = client.status()
     except EolCalError as exc:
-        return None, [f"dyno not reachable: {exc}"]
+        return None, [Problem("dyno_unreachable", f"dyno not reachable: {exc}")]
     finally:
         client.close()
-    found = {"map_version": int(ident["map_version"]), "dut_serial": str(ident.get("dut_serial") or ""),
-             "faults": int(st["faults"]), "interlocks": int(st["interlocks"]), "drive_state": int(st["drive_state"])}
+    found = DynoStatus(map_version=int(ident["map_version"]), dut_serial=str(ident.get("dut_serial") or ""),
+                       faults=int(st["faults"]), interlocks=int(st["interlocks"]), drive_state=int(st["drive_state"]))
+    where = f"dyno {client.config.host}:{client.config.port}"
     problems = []
-    if found["faults"]:
-        names = "+".join(f.name for f in Fault if f & found["faults"])
-        problems.append(f"dyno {client.config.host}:{client.config.port} has latched faults {names} "
-                        f"(faults=0x{found['faults']:04x}): clear them at the dyno")
-    if found["drive_state"] == DriveState.TRIPPED:
-        problems.append(f"dyno {client.config.host}:{client.config.port}: drive tripped")
-    missing = Interlock.ALL & ~Interlock(found["interlocks"] & Interlock.ALL)
+    if found.faults:
+        names = "+".join(f.name for f in Fault if f & found.faults)
+        problems.append(Problem("dyno_fault", f"{where} has latched faults {names} (faults=0x{found.faults:04x}): "
+                                              "clear them at the dyno"))
+    if found.drive_state == DriveState.TRIPPED:
+        problems.append(Problem("dyno_tripped", f"{where}: drive tripped"))
+    missing = Interlock.ALL & ~Interlock(found.interlocks & Interlock.ALL)
     if missing:
-        problems.append(f"dyno {client.config.host}:{client.config.port}: interlocks not met: "
-                        + "+".join(i.name for i in Interlock if i != Interlock.ALL and i & missing))
+        problems.append(Problem("dyno_interlocks", f"{where}: interlocks not met: "
+                                + "+".join(i.name for i in Interlock if i != Interlock.ALL and i & missing)))
     return found, problems
 
 
-def check_ecu(open_bus: Callable[[], Any], seed_to_key: SeedToKey | None, timing: ClientTiming) -> EcuCheck:
-    """:func:`eol_cal.ecu.client.preflight_ecu` on a bus of its own (a bus that cannot be opened is a problem)."""
-    from eol_cal.ecu.client import EcuCheck, preflight_ecu
+def check_ecu(open_bus: Callable[[], Any], seed_to_key: SeedToKey | None, timing: ClientTiming
+              ) -> tuple[EcuFound, list[Problem]]:
+    """:func:`eol_cal.ecu.client.preflight_ecu` on a bus of its own (a bus that cannot be opened is a
+    problem); what it found and its problems with their codes."""
+    from eol_cal.ecu.client import preflight_ecu
 
     try:
         bus = open_bus()
     except Exception as exc:  # noqa: BLE001 - python-can raises many kinds; each is a reason here
-        return EcuCheck(None, None, [f"ECU bus cannot be opened: {type(exc).__name__}: {exc}"])
+        text = f"ECU bus cannot be opened: {type(exc).__name__}: {exc}"
+        return EcuFound(None, None, (text,)), [Problem("ecu_bus", text)]
     try:
-        return preflight_ecu(bus, seed_to_key, timing=timing)
+        found = preflight_ecu(bus, seed_to_key, timing=timing)
     finally:
         bus.shutdown()
+    # preflight_ecu: without a state the ECU did not answer; with one, a problem is the key's
+    code = "ecu_silent" if found.state is None else "key_refused"
+    return (EcuFound(found.state, found.key_accepted, tuple(found.problems)),
+            [Problem(code, text) for text in found.problems])
 
 
-def serial_problems(serial: str, ecu: EcuState | None, dut_serial: str | None) -> list[str]:
+def serial_problems(serial: str, ecu: EcuState | None, dut_serial: str | None) -> list[Problem]:
     """The given serial against the ECU's (F18C) and the dyno's motor serial (when it reports one)."""
     out = []
     if ecu is not None and ecu.serial is not None and ecu.serial != serial:
-        out.append(f"ECU serial {ecu.serial} (F18C) is not {serial}")
+        out.append(Problem("wrong_serial", f"ECU serial {ecu.serial} (F18C) is not {serial}"))
     if dut_serial and dut_serial != serial:
-        out.append(f"dyno's motor serial {dut_serial} (dut_serial) is not {serial}")
+        out.append(Problem("wrong_serial", f"dyno's motor serial {dut_serial} (dut_serial) is not {serial}"))
     return out
 
 
 def preflight(serial: str, dyno: DynoConfig, open_bus: Callable[[], Any], seed_to_key: SeedToKey | None,
-              timing: ClientTiming) -> Preflight:
-    """Every check of the module docstring; the reasons are empty when the station is ready."""
-    found = Preflight(serial)
-    found.dyno, dyno_problems = check_dyno(dyno)
-    found.ecu = check_ecu(open_bus, seed_to_key, timing)
-    found.reasons = dyno_problems + list(found.ecu.problems) + serial_problems(
-        serial, found.ecu.state, None if found.dyno is None else found.dyno["dut_serial"])
-    return found
+              timing: ClientTiming) -> PreflightResult:
+    """Every check of the module docstring; its problems are empty when the station is ready."""
+    found_dyno, dyno_problems = check_dyno(dyno)
+    ecu, ecu_problems = check_ecu(open_bus, seed_to_key, timing)
+    problems = dyno_problems + ecu_problems + serial_problems(
+        serial, ecu.state, None if found_dyno is None else found_dyno.dut_serial)
+    return PreflightResult(found_dyno, ecu, tuple(problems))
 
 
 def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
@@ -185,11 +175,9 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
     return capture, Trace(before, after)
 
 
-def expect_block(trace: Trace, which: str, expected: dict[str, Any] | None) -> None:
-    """Refuse a capture of the cycle whose ECU state changed, or is not the block the cycle flashed.
-
-    ``expected``: the record's ``ecu_prepared`` or ``block`` (``bank``, ``sequence``, ``crc32``).
-    """
+def expect_block(trace: Trace, which: str, expected: FlashedBlock | None) -> None:
+    """Refuse a capture of the cycle whose ECU state changed, or is not the block the cycle flashed
+    (``expected``; None: any block)."""
     before, after = trace.before, trace.after
     if before is None or after is None:
         raise EcuStateMismatch(f"{which}: no record of the ECU state")
@@ -197,7 +185,7 @@ def expect_block(trace: Trace, which: str, expected: dict[str, Any] | None) -> N
         raise EcuStateMismatch(f"the ECU's active block changed during the {which} acquisition (before: "
                                f"{before.describe()}; after: {after.describe()})")
     if expected is not None and (before.bank, before.sequence, before.crc32) != (
-            expected.get("bank"), expected.get("sequence"), expected.get("crc32")):
+            expected.bank, expected.sequence, expected.crc32):
         raise EcuStateMismatch(f"the ECU ran {before.describe()} during the {which} acquisition, not the block "
-                               f"this cycle flashed (bank {expected.get('bank')}, sequence {expected.get('sequence')}, "
-                               f"CRC {expected.get('crc32')})")
+                               f"this cycle flashed (bank {expected.bank}, sequence {expected.sequence}, "
+                               f"CRC {expected.crc32})")

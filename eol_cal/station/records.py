@@ -6,13 +6,16 @@ the same idempotent insert (``ON CONFLICT (run_id) DO NOTHING``) and the same qu
 ``db`` is a file path (SQLite, WAL mode, the embedded default) or a URL
 ``postgresql://user@host:port/dbname`` (``postgresql+psycopg://`` is implied).
 
-One row per motor run in table ``runs`` (columns in ``docs/records.md``): serial, variant,
+One row per run in table ``runs`` (columns in ``docs/records.md``): serial, variant,
 station, operator, start/end times (UTC ISO 8601), verdict and reasons, k6, phase_k6, c6, the
-peak-to-peak ripple before/after, capture paths and SHA-256, the block's CRC and sequence,
-tool and layout versions, what lot statistics read besides (the limits in force as JSON text,
-the error step, phase_c6, the fit's R^2 and RMS), and last the fit record and the whole record
-as JSON. Table ``schema_version`` holds :data:`SCHEMA_VERSION`; older databases (version 1:
-written before it existed) are brought up by :func:`migrate`.
+peak-to-peak ripple before/after, capture paths and SHA-256, the calibrated block's CRC and
+sequence, tool and layout versions, what lot statistics read besides (the limits in force as
+JSON text, the error step, phase_c6, the fit's R^2 and RMS, the run's kind and its failure
+causes), and last the fit record and the whole record as JSON
+(:class:`~eol_cal.station.record.RunRecord`; :func:`row_values` is the one mapping from a
+record to its columns). Table ``schema_version`` holds :data:`SCHEMA_VERSION`; older databases
+(version 1: written before it existed) are brought up by :func:`migrate`. Reading the records:
+:mod:`eol_cal.station.records_query`.
 
 When the database cannot be written - locked beyond the timeout, its directory missing (a share
 not mounted), the server down, read-only, corrupt - the record is written as one JSON file into
@@ -23,7 +26,6 @@ inserts nothing twice, and many writers at once neither lose nor duplicate a rec
 
 from __future__ import annotations
 
-import gc
 import json
 import sqlite3
 import threading
@@ -37,12 +39,12 @@ from sqlalchemy.dialects import sqlite as sqlite_dialect
 from sqlalchemy.engine import Connection, Engine
 from sqlalchemy.pool import NullPool
 
-from eol_cal.errors import EolCalError, InputError
+from eol_cal.errors import EolCalError
+from eol_cal.station.record import KINDS, RunRecord
 
-RECORD_SCHEMA = "eol-cal/run-record/1"
 SPOOL_SCHEMA = "eol-cal/spooled-record/1"
 #: the database layout this code writes (1: the SQLite table of eol-cal before schema_version)
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: seconds a write waits for another connection's lock (or for the server) before spooling
 DEFAULT_LOCK_TIMEOUT_S = 5.0
 
@@ -80,6 +82,9 @@ runs = sa.Table(
     sa.Column("phase_c6", sa.Float),
     sa.Column("fit_r2", sa.Float),
     sa.Column("fit_rms_nm", sa.Float),
+    # version 4: the run's kind (lot statistics take production runs) and why it did not pass
+    sa.Column("kind", sa.Text, sa.CheckConstraint(f"kind IN ({', '.join(repr(k) for k in KINDS)})")),
+    sa.Column("causes", sa.Text),
     # the documents last: SQLite reads a row's columns in order, through the overflow pages of
     # the kB of JSON before them (a database created at version 3; a migrated one adds its new
     # columns after them)
@@ -88,11 +93,13 @@ runs = sa.Table(
     sa.Index("runs_serial", "serial"),
     sa.Index("runs_started", "started_at"),
     sa.Index("runs_variant_station", "variant", "station"),
+    sa.Index("runs_kind_serial", "kind", "serial"),
 )
 schema_version = sa.Table("schema_version", _metadata, sa.Column("version", sa.Integer, nullable=False))
 COLUMN_NAMES = tuple(c.name for c in runs.columns)
 #: columns added by each migration (version: names; their types are the table's)
-_ADDED = {2: ("station", "operator"), 3: ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm")}
+_ADDED = {2: ("station", "operator"), 3: ("limits_json", "error_step", "phase_c6", "fit_r2", "fit_rms_nm"),
+          4: ("kind", "causes")}
 
 
 class RecordError(EolCalError):
@@ -119,9 +126,20 @@ def db_key(db: str | Path) -> str:
     return sa.engine.make_url(_sa_url(str(db))).render_as_string(hide_password=True)
 
 
+def db_shown(db: str | Path) -> str:
+    """The database as it was typed, for messages: a file path, or a URL with its password masked
+    (``postgresql://eolcal:***@host/db``)."""
+    shown = str(db)
+    if is_url(db) and sa.engine.make_url(_sa_url(shown)).password is not None:
+        scheme, _, rest = shown.partition("://")
+        userinfo, at, hostpart = rest.rpartition("@")
+        shown = f"{scheme}://{userinfo.partition(':')[0]}:***{at}{hostpart}"
+    return shown
+
+
 def db_label(db: str | Path) -> str:
-    """A name of the database for titles and messages (no password)."""
-    return db_key(db) if is_url(db) else Path(db).name
+    """A name of the database for titles: a file's name, or the URL as typed, password masked."""
+    return db_shown(db) if is_url(db) else Path(db).name
 
 
 def _sa_url(url: str) -> str:
@@ -185,12 +203,12 @@ def engine(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S, readonly: 
     return _sqlite_engine(db, timeout_s, readonly)
 
 
-def _dispose(eng: Engine, db: str | Path) -> None:
+def dispose(eng: Engine, db: str | Path) -> None:
     if not is_url(db):
         eng.dispose()
 
 
-def _version(con: Connection) -> int | None:
+def version_of(con: Connection) -> int | None:
     """The layout of the database: None when empty, 1 for the table without schema_version."""
     insp = sa.inspect(con)
     if insp.has_table("schema_version"):
@@ -200,11 +218,11 @@ def _version(con: Connection) -> int | None:
 
 
 def _ensure_schema(con: Connection) -> None:
-    v = _version(con)
+    v = version_of(con)
     if v is None and con.dialect.name == "postgresql":
         # two stations writing the first record of a new database at once: one creates
         con.execute(sa.text("SELECT pg_advisory_xact_lock(7413001)"))
-        v = _version(con)
+        v = version_of(con)
     if v is None:
         _metadata.create_all(con)
         con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
@@ -213,68 +231,55 @@ def _ensure_schema(con: Connection) -> None:
                           f"{SCHEMA_VERSION}: migrate it first")
 
 
-def _row(record: dict[str, Any]) -> dict[str, Any]:
+def _row(record: RunRecord) -> dict[str, Any]:
     """The ``runs`` row of a record: :func:`row_values` plus the record (and its fit) as JSON."""
-    fit = record.get("fit")
+    doc = record.to_json()
+    fit = doc["fit"]
     return {**row_values(record),
             "fit_json": json.dumps(fit, allow_nan=False) if fit is not None else None,
-            "record_json": json.dumps(record, allow_nan=False)}
+            "record_json": json.dumps(doc, allow_nan=False)}
 
 
-def row_values(record: dict[str, Any]) -> dict[str, Any]:
+def _num(x: float) -> float | None:
+    return None if x != x else x  # NaN: NULL
+
+
+def row_values(record: RunRecord) -> dict[str, Any]:
     """The columns of a record's row, except the JSON documents ``fit_json`` and ``record_json``.
 
     The one mapping from a record to its columns: the insert, the migrations and the lot
     statistics of parsed records (:mod:`eol_cal.lot.columns`) all use it.
     """
-    def get(*keys: str) -> Any:
-        x: Any = record
-        for k in keys:
-            if not isinstance(x, dict) or x.get(k) is None:
-                return None
-            x = x[k]
-        return x
-
-    limits = record.get("limits")
+    cal = record.block("calibrated")
+    cap = record.captures
+    lim = record.limits
+    limits_doc = None if lim is None else {**lim.to_dict(), "sha256": record.limits_sha256}
     return {
-        "run_id": record["run_id"],
-        "serial": record["serial"],
-        "variant": get("limits", "variant"),
-        "started_at": record["started_at"],
-        "ended_at": record.get("ended_at"),
-        "verdict": record["verdict"],
-        "reasons": json.dumps(record.get("reasons") or []),
-        "k6": get("fit", "k6", "value"),
-        "phase_k6": get("fit", "phase_k6", "value"),
-        "c6": get("fit", "c6", "value"),
-        "pp_before_pct": get("metrics", "pp_before_pct"),
-        "pp_after_pct": get("metrics", "pp_after_pct"),
-        "improvement_pct": get("metrics", "improvement_pct"),
-        "capture_before": get("captures", "before", "path"),
-        "sha256_before": get("captures", "before", "sha256"),
-        "capture_after": get("captures", "after", "path"),
-        "sha256_after": get("captures", "after", "sha256"),
-        "block_crc32": get("block", "crc32"),
-        "block_sequence": get("block", "sequence"),
-        "tool_version": record.get("tool_version"),
-        "layout_version": record.get("layout_version"),
-        "report_dir": record.get("report_dir"),
-        "station": _station_of(record),
-        "operator": record.get("operator") or get("station", "operator"),
-        "limits_json": json.dumps(limits, sort_keys=True, allow_nan=False) if isinstance(limits, dict) else None,
-        "error_step": get("error", "step"),
-        "phase_c6": get("fit", "phase_c6", "value"),
-        "fit_r2": get("fit", "fit", "r2"),
-        "fit_rms_nm": get("fit", "fit", "rms"),
+        "run_id": record.run_id,
+        "serial": record.serial,
+        "variant": None if lim is None else lim.variant,
+        "started_at": record.started_at,
+        "ended_at": record.ended_at,
+        "verdict": record.verdict,
+        "reasons": json.dumps(list(record.reasons)),
+        **{q: _num(record.value(q)) for q in ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct",
+                                             "improvement_pct", "phase_c6", "fit_r2", "fit_rms_nm")},
+        "capture_before": cap["before"].path if "before" in cap else None,
+        "sha256_before": cap["before"].sha256 if "before" in cap else None,
+        "capture_after": cap["after"].path if "after" in cap else None,
+        "sha256_after": cap["after"].sha256 if "after" in cap else None,
+        "block_crc32": None if cal is None else cal.crc32,
+        "block_sequence": None if cal is None else cal.sequence,
+        "tool_version": record.tool_version,
+        "layout_version": record.layout_version,
+        "report_dir": record.report_dir,
+        "station": record.station_name,
+        "operator": record.operator,
+        "limits_json": None if limits_doc is None else json.dumps(limits_doc, sort_keys=True, allow_nan=False),
+        "error_step": None if record.error is None else record.error.step,
+        "kind": record.kind,
+        "causes": json.dumps(record.causes()),
     }
-
-
-def _station_of(record: dict[str, Any]) -> str | None:
-    # the station id as the reports read it (one rule); the column is NULL without one
-    from eol_cal.report.motor import NO_STATION, station_of
-
-    name = station_of(record)
-    return None if name == NO_STATION else name
 
 
 def _insert(con: Connection, rows: list[dict[str, Any]]) -> int:
@@ -283,7 +288,7 @@ def _insert(con: Connection, rows: list[dict[str, Any]]) -> int:
     return len(con.execute(stmt, rows).all()) if rows else 0
 
 
-def insert_records(db: str | Path, records: list[dict[str, Any]], timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> int:
+def insert_records(db: str | Path, records: Sequence[RunRecord], timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> int:
     """Insert records in one transaction; an existing ``run_id`` is left as it is.
 
     Returns the number of rows inserted. Raises one of :data:`DB_ERRORS` when the database
@@ -296,7 +301,7 @@ def insert_records(db: str | Path, records: list[dict[str, Any]], timeout_s: flo
             _ensure_schema(con)
             return _insert(con, rows)
     finally:
-        _dispose(eng, db)
+        dispose(eng, db)
 
 
 def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[int | None, int]:
@@ -304,8 +309,9 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
 
     Version 1 (the SQLite table before ``schema_version``) gains the columns ``station`` and
     ``operator``; version 2 gains ``limits_json``, ``error_step``, ``phase_c6``, ``fit_r2`` and
-    ``fit_rms_nm``. The new columns are filled from each row's record JSON (a corrupt one
-    refuses the migration, naming the run). Returns ``(version before, version now)``;
+    ``fit_rms_nm``; version 3 gains ``kind`` and ``causes``. The new columns are filled from each
+    row's record JSON, read as a :class:`~eol_cal.station.record.RunRecord` (a record of the first
+    schema migrated as it is read; a corrupt one refuses the migration, naming the run). Returns ``(version before, version now)``;
     ``before`` is None for a new database.
     """
     eng = engine(db, timeout_s)
@@ -313,7 +319,7 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
         with eng.begin() as con:
             if con.dialect.name == "postgresql":
                 con.execute(sa.text("SELECT pg_advisory_xact_lock(7413001)"))
-            v = _version(con)
+            v = version_of(con)
             if v is None:
                 _metadata.create_all(con)
                 con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
@@ -332,7 +338,7 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
             con.execute(schema_version.insert().values(version=SCHEMA_VERSION))
             return v, SCHEMA_VERSION
     finally:
-        _dispose(eng, db)
+        dispose(eng, db)
 
 
 def _fill(con: Connection, db: str | Path, names: list[str], batch: int = 2000) -> None:
@@ -345,143 +351,20 @@ def _fill(con: Connection, db: str | Path, names: list[str], batch: int = 2000) 
         q = sa.select(runs.c.run_id, runs.c.record_json).where(runs.c.run_id.in_(ids[k:k + batch]))
         updates = []
         for run_id, doc in con.execute(q).all():
-            record = _record(db, {"run_id": run_id, "record_json": doc}, None)  # raises on a corrupt one
-            values = row_values(record)  # type: ignore[arg-type]
+            record = parse_record(db, run_id, doc)  # raises on a corrupt one
+            values = row_values(record)
             updates.append({"_run_id": run_id, **{name: values[name] for name in names}})
         con.execute(stmt, updates)
 
 
-def select_runs(variant: str | None = None, station: str | None = None, since: str | None = None,
-                until: str | None = None, serial: str | None = None, day: str | None = None) -> sa.Select:
-    """The ``runs`` rows matching the filters, oldest first (days are UTC ``YYYY-MM-DD``, inclusive)."""
-    q = sa.select(runs)
-    day_of = sa.func.substr(runs.c.started_at, 1, 10)
-    for col, value in ((runs.c.variant, variant), (runs.c.station, station), (runs.c.serial, serial), (day_of, day)):
-        if value is not None:
-            q = q.where(col == value)
-    if since is not None:
-        q = q.where(day_of >= since)
-    if until is not None:
-        q = q.where(day_of <= until)
-    return q.order_by(runs.c.started_at, runs.c.run_id)
-
-
-def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Any]]:
-    """Rows of ``query`` as dicts; :class:`InputError` when the database is missing or unreadable."""
-    if not is_url(db) and not Path(db).exists():
-        raise InputError(str(db), None, "database not found")
-    try:
-        eng = engine(db, timeout_s, readonly=True)
-        try:
-            with eng.connect() as con:
-                return [dict(r._mapping) for r in con.execute(query)]
-        finally:
-            _dispose(eng, db)
-    except DB_ERRORS as exc:
-        raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
-
-
-def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_VERSION,
-                 timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Sequence[Any]]]:
-    """The results of ``queries`` column-wise, each ``{column name: values in row order}``, all
-    from one snapshot of the database (one read transaction, repeatable read).
-
-    For many rows: SQLAlchemy writes the SQL, the driver's own cursor fetches the rows (on
-    PostgreSQL in the binary protocol: numbers arrive as binary doubles), without a
-    SQLAlchemy row object per row. :class:`InputError` when the database is missing or
-    unreadable, or older than ``min_version`` (the columns the queries read came with it).
-    """
-    if not is_url(db) and not Path(db).exists():
-        raise InputError(str(db), None, "database not found")
-    collecting = gc.isenabled()
-    gc.disable()  # millions of new objects, none in a cycle: the collector's passes over them are waste
-    try:
-        eng = engine(db, timeout_s, readonly=True)
-        try:
-            with eng.connect() as con:
-                if con.dialect.name == "postgresql":
-                    con = con.execution_options(isolation_level="REPEATABLE READ")
-                v = _version(con)
-                if v is not None and v < min_version:
-                    raise SchemaError(f"records database at schema version {v}, this needs version "
-                                      f"{min_version}: migrate it first")
-                results = [_fetch(con, q) for q in queries]
-        finally:
-            _dispose(eng, db)
-        return [dict(zip(names, list(zip(*rows)) if rows else [()] * len(names))) for names, rows in results]
-    except DB_ERRORS as exc:
-        raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
-    finally:
-        if collecting:
-            gc.enable()
-
-
-def _fetch(con: Connection, query: sa.Select) -> tuple[list[str], list[tuple[Any, ...]]]:
-    # the driver's cursor on SQLAlchemy's connection (its transaction, its read-only mode)
-    compiled = query.compile(dialect=con.dialect)
-    driver = con.connection.driver_connection
-    if con.dialect.name == "postgresql":
-        cur = driver.cursor(binary=True)  # type: ignore[union-attr]
-        cur.execute(str(compiled), compiled.params)
-    else:  # sqlite3: positional parameters
-        cur = driver.cursor()  # type: ignore[union-attr]
-        cur.execute(str(compiled), [compiled.params[k] for k in compiled.positiontup or ()])
-    try:
-        return [d[0] for d in cur.description], cur.fetchall()
-    finally:
-        cur.close()
-
-
-def _record(db: str | Path, row: dict[str, Any], skipped: list[InputError] | None) -> dict[str, Any] | None:
-    """The parsed ``record_json`` of one row; a corrupt one is refused naming the database and the
-    run, or (with ``skipped``) added there and passed over."""
+def parse_record(db: str | Path, run_id: str, text: str) -> RunRecord:
+    """The record of one row's ``record_json``; :class:`InputError` naming the database and the run."""
     from eol_cal.inputs import loads_json
 
-    where = f"run {row.get('run_id')} record_json"
+    where = f"run {run_id} record_json"
     name = db_key(db) if is_url(db) else str(db)  # the file as given; a URL without its password
-    try:
-        doc = loads_json(str(row["record_json"]), name, where)
-        if not isinstance(doc, dict):
-            raise InputError(name, where, f"a JSON {type(doc).__name__}, not a record object")
-    except InputError as exc:
-        if skipped is None:
-            raise
-        skipped.append(exc)
-        return None
-    return doc
-
-
-def query_records(db: str | Path, serial: str | None = None, day: str | None = None,
-                  timeout_s: float = DEFAULT_LOCK_TIMEOUT_S,
-                  skipped: list[InputError] | None = None) -> list[dict[str, Any]]:
-    """Records (the stored JSON documents) by serial and/or UTC day ``YYYY-MM-DD``, oldest first.
-
-    Works on every schema version (it reads only the record JSON). A row whose record JSON is
-    corrupt raises :class:`InputError` naming the database and the run; with ``skipped`` given,
-    it is appended there instead and the other records are returned.
-    """
-    q = select_runs(serial=serial, day=day).with_only_columns(runs.c.run_id, runs.c.record_json)
-    docs = (_record(db, r, skipped) for r in read_rows(db, q, timeout_s))
-    return [d for d in docs if d is not None]
-
-
-def summarise(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """Counts and pass rate of a set of records.
-
-    ``pass_rate`` is pass / (pass + fail): the motors' yield, with station errors (which say
-    nothing about the motor) counted apart; None without a judged run. ``motors_pass`` counts
-    the motors whose latest run passed.
-    """
-    counts = {v: sum(1 for r in records if r.get("verdict") == v) for v in ("pass", "fail", "error")}
-    judged = counts["pass"] + counts["fail"]
-    latest: dict[str, str] = {}
-    for r in sorted(records, key=lambda r: r.get("started_at", "")):
-        latest[r["serial"]] = r.get("verdict")
-    return {
-        "runs": len(records), **counts,
-        "pass_rate": counts["pass"] / judged if judged else None,
-        "motors": len(latest), "motors_pass": sum(1 for v in latest.values() if v == "pass"),
-    }
+    doc = loads_json(str(text), name, where)
+    return RunRecord.from_json(doc, f"{name}, {where}")
 
 
 def one_line(exc: BaseException) -> str:

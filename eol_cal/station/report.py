@@ -13,10 +13,13 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Sequence
+from typing import TYPE_CHECKING, Sequence
 
 from eol_cal.atomic import atomic_write
 from eol_cal.report.motor import Figure, FitExtra, PointRipples
+
+if TYPE_CHECKING:
+    from eol_cal.station.record import RunRecord
 
 
 def _write_text(path: Path, text: str) -> None:
@@ -39,7 +42,7 @@ def fit_plots(run_dir: str | Path, fit_extra: FitExtra) -> list[Figure]:
     return [drawn("residual", lambda: residual_figure(fit_extra))]
 
 
-def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: Sequence[Figure] | None = None,
+def write_report(rec: RunRecord, run_dir: str | Path, *, figures: Sequence[Figure] | None = None,
                  fit_extra: FitExtra | None = None, point_ripple: PointRipples | None = None) -> Path:
     """Write ``report.html`` into ``run_dir``; returns its path.
 
@@ -47,8 +50,8 @@ def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: Sequence[
 
     Parameters
     ----------
-    rec : dict
-        The run record (JSON-safe).
+    rec : RunRecord
+        The run record.
     run_dir : path
         The run's directory (exists).
     figures : list of Figure, optional
@@ -72,14 +75,14 @@ def write_report(rec: dict[str, Any], run_dir: str | Path, *, figures: Sequence[
     return html_path
 
 
-def write_record_json(rec: dict[str, Any], run_dir: str | Path) -> Path:
+def write_record_json(rec: RunRecord, run_dir: str | Path) -> Path:
     """``report.json``: the final run record, the same document the database holds."""
     path = Path(run_dir) / "report.json"
-    _write_text(path, json.dumps(rec, indent=2, allow_nan=False) + "\n")
+    _write_text(path, json.dumps(rec.to_json(), indent=2, allow_nan=False) + "\n")
     return path
 
 
-def plot_lot(path: str | Path, records: list[dict[str, Any]], title: str = "") -> None:
+def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> None:
     """k6 and p-p ripple (before, compensated) of every run against its start time, with the
     variants' limits and the error runs, into one PNG (:func:`eol_cal.report.lot.timeline_figure`).
 
@@ -87,7 +90,7 @@ def plot_lot(path: str | Path, records: list[dict[str, Any]], title: str = "") -
     ----------
     path : path
         PNG to write (atomically).
-    records : list of dict
+    records : list of RunRecord
         Run records.
     title : str
         Figure title.

@@ -12,7 +12,7 @@ of limits, fails right after the fit (nothing is flashed). Any error ends the cy
 ``error``: the dyno client has already put the drive in the safe state (speed 0, disabled); the
 cycle commands it once more, best effort, and the record is written all the same.
 
-Exit codes (:attr:`RunOutcome.exit_code`): 0 pass, 1 fail, 2 error.
+Exit codes (:attr:`RunOutcome.exit_code`): 0 pass, 1 fail, 2 error (a refusal too).
 """
 
 from __future__ import annotations
@@ -30,7 +30,9 @@ from eol_cal.station.limits import VariantLimits
 from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
+    from eol_cal.station.record import RunRecord
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
 ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
@@ -91,6 +93,9 @@ class StationConfig:
         variant's (``limits.estimator``, default ``best``). The uncompensated block of the
         "prepare ECU" step carries the same options as the calibrated one, and the fit measures
         its frame under that estimator.
+    kind : str
+        The record's kind when the cycle gets past its pre-flight (``production`` on a line;
+        :data:`eol_cal.station.record.KINDS`); a cycle that ends before is a ``refusal``.
     """
 
     serial: str
@@ -111,6 +116,7 @@ class StationConfig:
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     estimator: str | None = None
+    kind: str = "production"
 
     @property
     def estimator_options(self) -> int:
@@ -126,14 +132,14 @@ class StationConfig:
 class RunOutcome:
     """What :func:`run_motor` returns: the record, where it went, and the exit code."""
 
-    record: dict[str, Any]
+    record: RunRecord
     saved: SaveResult | None
     report_html: Path | None
     exit_code: int
 
     @property
     def verdict(self) -> str:
-        return self.record["verdict"]
+        return self.record.verdict
 
 
 def sha256_file(path: str | Path) -> str:
@@ -156,7 +162,7 @@ def _safe_name(text: str) -> str:
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
-              estimator_options: int = 0) -> tuple[dict, dict, Any]:
+              estimator_options: int = 0) -> tuple[dict, MotorResult, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
@@ -166,17 +172,19 @@ def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor:
 
     Returns
     -------
-    doc, record, extra
-        The result document (schema ``eol-cal/fit-result/1``), its one motor record, and
+    doc, result, extra
+        The result document (schema ``eol-cal/fit-result/1``), its one motor as a
+        :class:`~eol_cal.analysis.motor_result.MotorResult` (read once, here), and
         ``(MotorInput, MotorFit, FitSpec)`` for the plots.
     """
+    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
                          estimator_options=estimator_options)
     res = fit_motors([capture], options, tool_version)
     (rec,) = res.records
-    return res.doc, rec, (res.inputs[0], res.fits[0], options.spec)
+    return res.doc, MotorResult.from_json(rec, "<fit>", "motors[0]."), (res.inputs[0], res.fits[0], options.spec)
 
 
 def check_motor(capture: Capture, motor: MotorParams) -> None:
@@ -208,20 +216,6 @@ def check_config(cfg: StationConfig) -> None:
         cfg.report_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise InputError(str(cfg.report_dir), "report-dir", f"cannot create: {exc}") from None
-
-
-def ecu_active(rec: dict[str, Any]) -> dict[str, Any]:
-    """Which block the ECU boots after this run, from what the run flashed (for the record).
-
-    ``calibrated``: this run's block; ``uncompensated``: the prepare step's block (the cycle
-    ended before the calibrated one was written: the motor runs without compensation, and a
-    calibration it had before is superseded); ``unchanged``: nothing was written.
-    """
-    for key, what in (("block", "calibrated"), ("ecu_prepared", "uncompensated")):
-        done = rec.get(key) or {}
-        if done.get("sequence") is not None:
-            return {"block": what, "sequence": done["sequence"], "bank": done.get("bank")}
-    return {"block": "unchanged", "sequence": None, "bank": None}
 
 
 def safe_state(dyno_cfg: Any) -> str:

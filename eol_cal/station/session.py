@@ -9,9 +9,12 @@ from __future__ import annotations
 import re
 import zlib
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING
 
 from eol_cal.errors import InputError
+
+if TYPE_CHECKING:
+    from eol_cal.station.record import RunRecord
 
 #: a serial as the block's serial field carries it (1-16 ASCII characters), restricted to what a
 #: label's barcode carries: letters, digits and - _ . (a scanner's stray control character or a
@@ -62,22 +65,25 @@ def demo_seed(serial: str) -> int:
 class SessionTally:
     """The records of the motors run in one session, in order, and the ones interrupted."""
 
-    records: list[dict[str, Any]] = field(default_factory=list)
+    records: list[RunRecord] = field(default_factory=list)
     reports: list[str | None] = field(default_factory=list)
     interrupted: list[str] = field(default_factory=list)
 
-    def add(self, record: dict[str, Any], report: str | None) -> None:
+    def add(self, record: RunRecord, report: str | None) -> None:
         self.records.append(record)
         self.reports.append(report)
 
     def counts(self) -> dict[str, int]:
-        """Motors run, and how many ended pass, fail and error (an interrupted one is an error)."""
+        """Motors run, and how many ended pass, fail and error (an interrupted one is an error), and
+        how many of the runs were refused (nothing written to the ECU; counted in error as well)."""
         out = {"motors": len(self.records) + len(self.interrupted), "pass": 0, "fail": 0,
-               "error": len(self.interrupted)}
+               "error": len(self.interrupted), "refused": 0}
         for rec in self.records:
-            out[rec["verdict"]] += 1
+            out[rec.verdict] += 1
+            out["refused"] += rec.kind == "refusal"
         return out
 
     def summary(self) -> str:
         c = self.counts()
-        return f"{c['motors']} motor(s): {c['pass']} pass, {c['fail']} fail, {c['error']} error"
+        text = f"{c['motors']} motor(s): {c['pass']} pass, {c['fail']} fail, {c['error']} error"
+        return text + (f" ({c['refused']} of them refused before anything was written)" if c["refused"] else "")

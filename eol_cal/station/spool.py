@@ -13,14 +13,16 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
+
+from eol_cal.station.record import RunRecord
 from eol_cal.station.records import (
     DB_ERRORS,
     DEFAULT_LOCK_TIMEOUT_S,
     SPOOL_SCHEMA,
     RecordError,
     db_key,
+    db_shown,
     insert_records,
     one_line,
 )
@@ -40,14 +42,14 @@ def default_spool_dir() -> Path:
 
 
 
-def spool_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path, why: str) -> Path:
+def spool_record(record: RunRecord, db: str | Path, spool_dir: str | Path, why: str) -> Path:
     """Write ``record`` into the spool directory (atomically); returns the file."""
     from eol_cal.atomic import atomic_write
 
     spool_dir = Path(spool_dir)
     spool_dir.mkdir(parents=True, exist_ok=True)
-    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record}
-    path = spool_dir / f"{record['run_id']}.json"
+    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record.to_json()}
+    path = spool_dir / f"{record.run_id}.json"
     atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
     return path
 
@@ -61,7 +63,7 @@ class SaveResult:
     why: str | None = None
 
 
-def save_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path | None = None,
+def save_record(record: RunRecord, db: str | Path, spool_dir: str | Path | None = None,
                 timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> SaveResult:
     """Write a run record into the database, or into the spool when the database fails.
 
@@ -73,13 +75,13 @@ def save_record(record: dict[str, Any], db: str | Path, spool_dir: str | Path | 
     spool_dir = Path(spool_dir) if spool_dir is not None else default_spool_dir()
     try:
         insert_records(db, [record], timeout_s)
-        return SaveResult("db", str(db))
+        return SaveResult("db", db_shown(db))
     except DB_ERRORS as exc:
         why = f"{type(exc).__name__}: {one_line(exc)}"
     try:
         path = spool_record(record, db, spool_dir, why)
     except OSError as exc:
-        raise RecordError(f"record {record['run_id']} could not be written: database {db}: {why}; "
+        raise RecordError(f"record {record.run_id} could not be written: database {db_shown(db)}: {why}; "
                           f"spool {spool_dir}: {exc}") from exc
     return SaveResult("spool", str(path), why)
 
@@ -96,8 +98,11 @@ class FlushResult:
     bad_files: tuple[str, ...] = ()
 
 
-def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, dict[str, Any]]], list[str]]:
-    """Readable spooled records, and ``"file: reason"`` for every file that is not one."""
+def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, str, RunRecord]], list[str]]:
+    """Readable spooled records ``(file, database, record)``, and ``"file: reason"`` for every file
+    that is not one (a record that does not read as one included: it is left alone, not lost)."""
+    from eol_cal.errors import InputError
+
     out, bad = [], []
     for path in sorted(spool_dir.glob("*.json")):
         try:
@@ -108,7 +113,10 @@ def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, dict[str, Any]]], list[s
         if not isinstance(doc, dict) or doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
             bad.append(f"{path}: not a spooled record ({SPOOL_SCHEMA})")
             continue
-        out.append((path, doc))
+        try:
+            out.append((path, str(doc.get("db")), RunRecord.from_json(doc["record"], str(path))))
+        except InputError as exc:
+            bad.append(f"{path}: {exc}")
     return out, bad
 
 
@@ -126,16 +134,16 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
     target = db_key(db)
     mine, others = [], 0
     spooled, bad = _spooled(spool_dir)
-    for path, doc in spooled:
-        if doc.get("db") == target:
-            mine.append((path, doc["record"]))
+    for path, where, record in spooled:
+        if where == target:
+            mine.append((path, record))
         else:
             others += 1
     if not mine:
         return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
     try:
         n = insert_records(db, [r for _p, r in mine], timeout_s)
-    except (*DB_ERRORS, KeyError) as exc:
+    except DB_ERRORS as exc:
         return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad))
     for path, _r in mine:
         path.unlink(missing_ok=True)

@@ -1,0 +1,83 @@
+"""The archive of what a run wrote into the ECU: every block, byte for byte as it went in.
+
+The flash gives a block the ECU's next sequence and the CRC over it
+(:func:`eol_cal.ecu.sequence.flash_block`), so the block a run builds is not the block the ECU
+holds. :func:`flash_archived` flashes a block and keeps the image the flash wrote (sequence and
+CRC set) in the run's directory, atomically, with its SHA-256 in the record
+(:class:`~eol_cal.station.record.FlashedBlock`): ``eol-cal block show`` of the file says what
+``eol-cal ecu info`` says after the run, and the file equals the bank's bytes. A flash that fails
+after the CRC went out (the ECU may boot the new block at its next reset) archives the image all
+the same, as not confirmed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable
+
+from eol_cal.station.record import FlashedBlock, PreviousBlock
+
+if TYPE_CHECKING:
+    from eol_cal.ecu.sequence import FlashReport
+    from eol_cal.motor import MotorParams
+
+
+def write_archive(path: Path, image: bytes) -> str:
+    """Write ``image`` to ``path`` atomically; returns its SHA-256 (hex)."""
+    from eol_cal.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(image)
+    return hashlib.sha256(image).hexdigest()
+
+
+def block_fields(image: bytes) -> dict[str, Any]:
+    """What the record says of a block's content: flags by name, the estimator options they
+    select, table length, lead (s), current limit (A)."""
+    from eol_cal.firmware import block as B
+    from eol_cal.firmware.options import honoured_options, options_label
+
+    blk = B.unpack(image, "<flashed block>")
+    return {"flags": B.flag_names(blk.flags), "estimator": options_label(honoured_options(blk.flags)),
+            "table_len": int(blk.table_len), "lead_s": float(blk.lead_s), "iqc_limit": float(blk.iqc_limit)}
+
+
+def flashed_block(role: str, path: Path, report: FlashReport) -> FlashedBlock:
+    """The record of a completed flash whose image was archived at ``path``."""
+    image = report.image
+    prev = report.previous
+    return FlashedBlock(role=role, path=str(path), sha256=write_archive(path, image), bytes=len(image),
+                        bank=report.bank, sequence=report.sequence, crc32=f"{report.crc32:08x}", verified=report.verified,
+                        confirmed=True, previous=PreviousBlock(prev.bank if prev.has_bank else None, prev.sequence),
+                        seconds=round(report.seconds, 4), transfer_blocks=report.transfer_blocks,
+                        retries=report.retries, **block_fields(image))
+
+
+def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path: Path,
+                   seed_to_key: Callable[[bytes], bytes], timing: Any, motor: MotorParams, source: str,
+                   progress: Callable[[str], None] | None = None) -> tuple[FlashReport, FlashedBlock]:
+    """Flash ``data`` (verified) on a bus of its own and archive the image as flashed at ``path``.
+
+    An exception raised after the block's CRC went out carries ``flashed_block``: the archived
+    image's record, ``confirmed`` False (the ECU boots it at its next reset, or may).
+    """
+    from eol_cal.ecu.client import flash_block
+    from eol_cal.firmware import block as B
+
+    bus = open_bus()
+    try:
+        report = flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source, timing=timing,
+                             motor=motor, progress=progress)
+    except BaseException as exc:
+        image = getattr(exc, "flashed_image", None)
+        boots = getattr(exc, "ecu_boots", None) or {}
+        if image:
+            exc.flashed_block = FlashedBlock(  # type: ignore[attr-defined]
+                role=role, path=str(path), sha256=write_archive(path, image), bytes=len(image),
+                bank=boots.get("bank"), sequence=boots.get("sequence"),
+                crc32=f"{B.check(image).crc_stored or 0:08x}", verified=True, confirmed=False, **block_fields(image))
+        raise
+    finally:
+        bus.shutdown()
+    return report, flashed_block(role, path, report)

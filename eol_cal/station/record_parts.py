@@ -1,0 +1,245 @@
+"""The parts of a run record (:class:`eol_cal.station.record.RunRecord`): the station, captures,
+flashed blocks, pre-flight, ripple, steps, error, ECU state after the run, restore source, and
+the run kinds and refusal codes. Typed and frozen; their JSON is :mod:`eol_cal.station.record_json`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from eol_cal.capture.ecu_state import EcuState
+from eol_cal.errors import InputError
+
+SCHEMA = "eol-cal/run-record/2"
+SCHEMA_V1 = "eol-cal/run-record/1"
+KINDS = ("production", "refusal", "restore", "master", "simulated")
+#: the kind lot statistics, first-pass yield, latest status, ``lot diff`` and ``refit`` take by default
+MEASURED_KIND = "production"
+VERDICTS = ("pass", "fail", "error")
+#: why a run was refused (nothing written to the ECU, nothing measured): code -> meaning
+REFUSAL_CODES: dict[str, str] = {
+    "wrong_serial": "the serial given is not the ECU's (F18C) or the dyno's motor's",
+    "dyno_unreachable": "the dyno did not answer",
+    "dyno_fault": "the dyno has latched faults",
+    "dyno_tripped": "the dyno's drive is tripped",
+    "dyno_interlocks": "the dyno's interlocks are not met",
+    "ecu_bus": "the ECU's CAN bus could not be opened",
+    "ecu_silent": "the ECU did not answer",
+    "key_refused": "the ECU refused the security key",
+    "settings": "the station's settings were refused (profile, estimator options)",
+    "interrupted": "the operator stopped the run before anything was written",
+    "station_error": "the station failed before anything was written",
+}
+BLOCK_ROLES = ("prepare", "calibrated", "restore")
+
+
+class RecordFormatError(InputError, ValueError):
+    """A run record that does not hold what its schema says (names the source, field, reason)."""
+
+
+@dataclass(frozen=True)
+class StationInfo:
+    """The station a run was made on (the record's ``station``); ``extra``: what else the station
+    recorded about itself (addresses, CAN interface), as given."""
+
+    id: str | None = None
+    operator: str | None = None
+    settings: str | None = None
+    profile: str | None = None
+    verify: str | None = None
+    rate_hz: int | None = None
+    motor: str | None = None
+    bench: str | None = None
+    dyno_register_map: str | None = None
+    extra: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class CaptureRef:
+    """A capture the run made: its file, SHA-256, size, and the ECU's state around it."""
+
+    path: str
+    sha256: str
+    samples: int
+    segments: int
+    ecu_before: EcuState | None = None
+    ecu_after: EcuState | None = None
+
+
+@dataclass(frozen=True)
+class PreviousBlock:
+    """What the ECU booted before a flash (``bank`` None: no valid bank)."""
+
+    bank: int | None
+    sequence: int
+
+
+@dataclass(frozen=True)
+class FlashedBlock:
+    """A block written into the ECU by the run, archived in the run's directory as it went in.
+
+    Attributes
+    ----------
+    role : {"prepare", "calibrated", "restore"}
+        The uncompensated block the cycle flashes before the calibration capture, the calibrated
+        block, or an earlier calibration flashed again.
+    path : str
+        The archive file: the block's bytes as flashed (sequence and CRC set).
+    sha256 : str or None
+        SHA-256 of those bytes (None in records older than the archive: their file is the block
+        before the flash set its sequence and CRC).
+    bytes : int or None
+    bank, sequence, crc32
+        Where it went, its sequence and CRC (8 hex digits) as flashed.
+    flags, estimator : str or None
+        The block's flags by name and the estimator options they select.
+    table_len, lead_s, iqc_limit
+        The block's table length, compensation lead (s) and current limit (A); None where not recorded.
+    verified : bool
+        Read back equal before its CRC was written.
+    confirmed : bool
+        The ECU reported it active after the reset (FD01); False: the flash failed after its CRC
+        was written and the ECU boots it at its next reset.
+    previous : PreviousBlock or None
+        What the ECU booted before.
+    seconds, transfer_blocks, retries
+        The flash's wall time (s), TransferData requests and repeated requests; None where not recorded.
+    """
+
+    role: str
+    path: str | None
+    sha256: str | None
+    bytes: int | None
+    bank: int | None
+    sequence: int | None
+    crc32: str | None
+    flags: str | None = None
+    estimator: str | None = None
+    table_len: int | None = None
+    lead_s: float | None = None
+    iqc_limit: float | None = None
+    verified: bool = False
+    confirmed: bool = True
+    previous: PreviousBlock | None = None
+    seconds: float | None = None
+    transfer_blocks: int | None = None
+    retries: int | None = None
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One reason the pre-flight found the station not ready: a :data:`REFUSAL_CODES` code and the text."""
+
+    code: str
+    text: str
+
+
+@dataclass(frozen=True)
+class DynoStatus:
+    """The dyno as the pre-flight read it (nothing commanded)."""
+
+    map_version: int
+    dut_serial: str
+    faults: int
+    interlocks: int
+    drive_state: int
+
+
+@dataclass(frozen=True)
+class EcuFound:
+    """The ECU as the pre-flight found it: its state (None: it did not answer), whether it accepted
+    the key (None: not tried), its problems."""
+
+    state: EcuState | None
+    key_accepted: bool | None
+    problems: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class PreflightResult:
+    """What the pre-flight found (None parts: not reached)."""
+
+    dyno: DynoStatus | None
+    ecu: EcuFound | None
+    problems: tuple[Problem, ...] = ()
+
+    @property
+    def codes(self) -> tuple[str, ...]:
+        """The problems' codes, each once, in order."""
+        return tuple(dict.fromkeys(p.code for p in self.problems))
+
+
+@dataclass(frozen=True)
+class PointFigures:
+    """The ripple at the operating point of one capture (``docs/metrics.md``): filtered and raw
+    p-p (%), p-p (N*m), p-p without the mechanical order 1 (%), mean torque (N*m), 6th-order
+    amplitude (N*m), the time span analysed (s)."""
+
+    pp_pct: float
+    pp_raw_pct: float
+    pp_nm: float
+    pp_no_mech1_pct: float
+    T_avg_nm: float
+    amp6_nm: float
+    span_s: tuple[float, float]
+
+
+@dataclass(frozen=True)
+class RippleMetrics:
+    """The ripple at the operating point before and with the compensation."""
+
+    speed_rpm: float
+    i_qo_a: float
+    before: PointFigures
+    after: PointFigures
+    definition: str
+
+    @property
+    def improvement_pct(self) -> float:
+        b, a = self.before.pp_pct, self.after.pp_pct
+        return 100.0 * (b - a) / b if b > 0.0 and math.isfinite(a) else math.nan
+
+
+@dataclass(frozen=True)
+class Step:
+    """One step of the run: its name, wall time (s; None: not finished), whether it completed, and
+    the error that ended it (None: none)."""
+
+    step: str
+    seconds: float | None
+    ok: bool
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class ErrorInfo:
+    """The exception that ended a run: the step, its type, message and (for a program error) traceback."""
+
+    step: str
+    type: str
+    message: str
+    traceback: str | None = None
+
+
+@dataclass(frozen=True)
+class EcuActive:
+    """Which block the ECU boots after the run: ``calibrated``, ``uncompensated``, ``restored``,
+    ``unchanged`` (nothing written), or such a word with a qualification; its sequence and bank."""
+
+    block: str
+    sequence: int | None = None
+    bank: int | None = None
+
+
+@dataclass(frozen=True)
+class RestoredFrom:
+    """The calibration a restore flashed again: the run that archived it, its archive file and
+    SHA-256, and its sequence and CRC as that run flashed them."""
+
+    run_id: str | None
+    path: str
+    sha256: str | None
+    sequence: int | None
+    crc32: str | None
