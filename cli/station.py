@@ -89,6 +89,13 @@ def results_table(records: list, title: str):
 RUN_SCHEMA = "eol-cal/run/1"
 
 
+def _print_verdict(rec) -> None:
+    """The verdict as soon as the cycle knows it (the report and the database come after)."""
+    what = "REFUSED" if rec.kind == "refusal" else rec.verdict.upper()
+    colour = {"pass": "green", "fail": "yellow"}.get(rec.verdict, "red")
+    console.print(f"[bold {colour}]{rec.serial}: {what}[/]" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
+
+
 def _print_outcome(out, as_json: bool) -> None:
     rec = out.record
     if as_json:
@@ -233,7 +240,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:
-            out = run_motor(cfg, progress)
+            out = run_motor(cfg, progress, on_verdict=None if as_json else _print_verdict)
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
         err_console.print("interrupted: the dyno was sent to its safe state and the run recorded as an error")

@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
     from eol_cal.firmware.block import ParamBlock
+    from eol_cal.station.early import EarlyWindows
     from eol_cal.station.spool import SaveResult
 
 #: the archive files of a run's directory, by the block's role
@@ -116,7 +117,7 @@ class StationCycle:
     # work on the helper thread
     _helper: ThreadPoolExecutor | None = None
     _prewarm: Future | None = None
-    _fit_plots: Future | None = None
+    _early: EarlyWindows | None = None
     _pr_before: Future | None = None
 
     @classmethod
@@ -134,9 +135,10 @@ class StationCycle:
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
                     run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
                     segments=segments, station=station_info(cfg, profile.name), limits_sha256=sha)
-        # One helper thread: it imports JAX and matplotlib while the dyno spins the first time
-        # (started once the pre-flight passed), and draws the fit's plots while it spins the
-        # second time (the main thread mostly waits there).
+        # One helper thread: while the dyno spins the first time it imports JAX and matplotlib,
+        # traces the fit's solver and works on each window as it arrives; while it spins the second
+        # time it measures the calibration capture at the operating point (the main thread mostly
+        # waits on the dyno there).
         cycle._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
         return cycle
 
@@ -153,9 +155,6 @@ class StationCycle:
                                    self.cfg.ecu_timing or ClientTiming())
         if self.preflight.problems:
             raise PreflightFailed(self.preflight.problems)
-        from eol_cal.analysis.fit.prewarm import prewarm_fit
-
-        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
 
     def prepare_ecu(self) -> None:
         """Flash the uncompensated block, so the calibration capture sees the field estimator alone:
@@ -168,24 +167,33 @@ class StationCycle:
         self._flash(pack(blk), "prepare")
 
     def acquire(self) -> None:
-        """The calibration capture over the whole profile."""
-        self.before = self._acquire("before", self.segments)
+        """The calibration capture over the whole profile; each window's angle and p-p figure are
+        worked out on the helper thread as the dyno hands it over (:mod:`eol_cal.station.early`),
+        behind the fit's pre-warming (imports, the solver's trace), while the shaft turns on."""
+        from eol_cal.analysis.fit.prewarm import prewarm_fit
+        from eol_cal.station.early import EarlyWindows
+
+        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
+        self._early = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, self.cfg.estimator_options,
+                                   pool=self._helper, cache_dir=self.cfg.cache_dir, n_windows=len(self.segments))
+        self.before = self._acquire("before", self.segments, on_window=self._early.on_window)
 
     def fit(self) -> StepVerdict | None:
-        """Fit the capture; a fit that is not usable or out of the fit's limits fails the motor here."""
+        """Fit the capture; a fit that is not usable or out of the fit's limits fails the motor here.
+
+        What is left when the capture is in: the hall table, the firmware frame (on threads) and
+        the joint solve (its solver traced during the capture)."""
         from eol_cal import __version__
         from eol_cal.analysis.result import write_result
-        from eol_cal.station.report import fit_plots
 
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(self.before, self.cfg.motor)
         self._prewarm.result()
         doc, res, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
-                                    self.cfg.cache_dir, self.cfg.estimator_options)
+                                    self.cfg.cache_dir, self.cfg.estimator_options, prepared=self._early)
         write_result(doc, self.run_dir / "fit.json")
         self.fit_doc, self.result, self.fit_extra = doc, res, extra
-        self._fit_plots = self._helper.submit(fit_plots, self.run_dir, extra)
         if not res.usable:
             return StepVerdict("fail", tuple(f"fit {res.status}: {r}" for r in res.reasons) or (f"fit {res.status}",))
         self.measured = Measured.of_fit(res)
@@ -235,12 +243,24 @@ class StationCycle:
         return StepVerdict("fail" if reasons else "pass", tuple(reasons))
 
     def report(self) -> Path:
-        """The per-motor HTML report (the fit's plots come from the helper thread)."""
-        from eol_cal.station.report import write_report
+        """The per-motor HTML report with the fit's plots (drawn now: after the verdict is shown)."""
+        from eol_cal.station.report import fit_plots, write_report
 
-        figures = self._fit_plots.result() if self._fit_plots is not None else []
+        figures = fit_plots(self.run_dir, self.fit_extra) if self.fit_extra is not None else []
         return write_report(self.to_record(), self.run_dir, figures=figures, fit_extra=self.fit_extra,
                             point_ripple=self.point_ripples)
+
+    def _journal(self, rec: RunRecord) -> Path | None:
+        """The record at the verdict, into the spool before anyone sees the verdict; None when the
+        spool cannot be written (the database is tried all the same after the report)."""
+        from eol_cal.station.spool import default_spool_dir, spool_record
+
+        try:
+            return spool_record(rec, self.cfg.db, self.cfg.spool_dir or default_spool_dir(),
+                                "written at the verdict, before the report; the run's process ended before "
+                                "it wrote the record into the database")
+        except OSError:
+            return None
 
     def record(self, rec: RunRecord) -> SaveResult:
         """Save the record: database, or the spool when the database cannot take it."""
@@ -252,8 +272,14 @@ class StationCycle:
         return saved
 
     # ------------------------------------------------------------------ the cycle
-    def run(self) -> RunOutcome:
-        """Every step in order; the record is written whether the motor passed, failed or the cycle erred."""
+    def run(self, on_verdict: Callable[[RunRecord], None] | None = None) -> RunOutcome:
+        """Every step in order; the record is written whether the motor passed, failed or the cycle erred.
+
+        The verdict comes first: as soon as it is known the record goes into the spool (durable:
+        a station killed from then on loses nothing, the next start writes it into the database),
+        ``on_verdict(record)`` shows it, and only then are the report drawn and the record written
+        into the database (and its spool file removed).
+        """
         from eol_cal.station.report import write_record_json
 
         failure: BaseException | None = None
@@ -273,6 +299,11 @@ class StationCycle:
             if failure is not None:
                 self._record_failure(failure)
             self.ecu_active = self._ecu_active(failure)
+            self.ended_at = now_iso()
+            verdict_rec = self.to_record()
+            journal = self._journal(verdict_rec)
+            if on_verdict is not None:
+                on_verdict(verdict_rec)
             try:
                 self.report_html = self._step("report", self.report)
             except Exception as exc:  # noqa: BLE001 - the record must still be written
@@ -289,6 +320,8 @@ class StationCycle:
             except Exception as exc:  # noqa: BLE001 - the database still gets it
                 rec = dataclasses.replace(rec, report_error=f"report.json: {type(exc).__name__}: {exc}")
             saved = self.record(rec)
+            if journal is not None and saved.where == "db":
+                journal.unlink(missing_ok=True)
         if failure is not None and not isinstance(failure, Exception):  # Ctrl-C: recorded; now end the process
             raise failure
         return RunOutcome(rec, saved, self.report_html, EXIT[rec.verdict])
@@ -334,9 +367,10 @@ class StationCycle:
         self._progress(name, "done")
         return out
 
-    def _acquire(self, which: str, segs: list) -> Capture:
+    def _acquire(self, which: str, segs: list, on_window: Callable | None = None) -> Capture:
         """One acquisition with the ECU's state before and after (in the capture and the record);
-        the ECU must have run the block this cycle flashed, unchanged, all along."""
+        the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
+        the dyno client's hook for each window as it is read."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.preflight import acquire_traced, expect_block, read_ecu_with
@@ -345,7 +379,7 @@ class StationCycle:
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
                                     self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
-                                                               f"profile {self.profile_name}"})
+                                                               f"profile {self.profile_name}"}, on_window=on_window)
         self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), len(segs), trace.before,
                                           trace.after)
         expect_block(trace, which, self._last_block("prepare" if which == "before" else "calibrated"))
@@ -414,12 +448,16 @@ class StationCycle:
         return active
 
 
-def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutcome:
+def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
+              on_verdict: Callable[[RunRecord], None] | None = None) -> RunOutcome:
     """Run the whole cycle for one motor (:class:`StationCycle`); see :mod:`eol_cal.station.run`.
+
+    ``on_verdict(record)`` shows the verdict as soon as it is known and safe in the spool, before
+    the report and the database (:meth:`StationCycle.run`).
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """
-    return StationCycle.start(cfg, progress).run()
+    return StationCycle.start(cfg, progress).run(on_verdict)
