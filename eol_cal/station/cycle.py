@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import sys
 import time
 import traceback
 import uuid
@@ -38,6 +39,8 @@ if TYPE_CHECKING:
     from eol_cal.station.early import EarlyWindows
     from eol_cal.station.spool import SaveResult
 
+#: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
+SWITCH_INTERVAL_S = 0.0005
 #: the archive files of a run's directory, by the block's role
 ARCHIVE_NAMES = {"prepare": "block_uncompensated.bin", "calibrated": "block.bin"}
 RIPPLE_DEFINITION = ("filtered p-p % (docs/metrics.md), median over the steady windows of the operating point's "
@@ -280,6 +283,17 @@ class StationCycle:
         ``on_verdict(record)`` shows it, and only then are the report drawn and the record written
         into the database (and its spool file removed).
         """
+        previous = sys.getswitchinterval()
+        # The main thread waits on the dyno and the ECU (a status poll, a chunk of the buffer, a
+        # frame) while the helper thread computes (imports, the windows, the frame): with
+        # Python's default 5 ms turns each of those answers waited for the interpreter that long.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        try:
+            return self._run(on_verdict)
+        finally:
+            sys.setswitchinterval(previous)
+
+    def _run(self, on_verdict: Callable[[RunRecord], None] | None) -> RunOutcome:
         from eol_cal.station.report import write_record_json
 
         failure: BaseException | None = None
