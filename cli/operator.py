@@ -251,6 +251,9 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     """
     import tempfile
 
+    from eol_cal.ecu.python_can import import_can
+
+    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key

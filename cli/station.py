@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from importlib import resources
 from pathlib import Path
 
@@ -229,6 +230,9 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     cannot be written the record goes to the spool and the next run (or `eol-cal records
     --flush`) writes it in.
     """
+    from eol_cal.ecu.python_can import import_can
+
+    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor
@@ -237,7 +241,13 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     # switched on by the helper thread: importing JAX costs a second
     cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
     _quiet_logs()
-    _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    # Records spooled earlier go into the database beside the cycle, not before it: the database
+    # library loads and the inserts run while the cycle waits on the dyno and the ECU. (The
+    # spool is listed as the flush starts: this run's record, spooled at its verdict, is not
+    # among them.)
+    flush = threading.Thread(target=_flush_first, args=(cfg.db, cfg.spool_dir, cfg.db_timeout_s),
+                             name="spool-flush", daemon=True)
+    flush.start()
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:
             out = run_motor(cfg, progress, on_verdict=None if as_json else _print_verdict)
@@ -245,6 +255,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
         err_console.print("interrupted: the dyno was sent to its safe state and the run recorded as an error")
         raise CommandExit(2) from None
+    flush.join()
     _print_outcome(out, as_json)
     raise CommandExit(out.exit_code)
 

@@ -176,6 +176,7 @@ class StationCycle:
         from eol_cal.analysis.fit.prewarm import prewarm_fit
         from eol_cal.station.early import EarlyWindows
 
+        self._helper.submit(_preload_writers)
         self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
         self._early = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, self.cfg.estimator_options,
                                    pool=self._helper, cache_dir=self.cfg.cache_dir, n_windows=len(self.segments))
@@ -460,6 +461,13 @@ class StationCycle:
             active = EcuActive(what if boots["boots"] == "new" else f"{what} (if its CRC was written)",
                                boots["sequence"], boots["bank"])
         return active
+
+
+def _preload_writers() -> None:
+    """Import what writes the captures (asammdf, pandas) and the record (the database library)
+    while the dyno turns, not when the capture is in or the verdict is known."""
+    import eol_cal.capture.mdf4_io  # noqa: F401
+    import eol_cal.station.spool  # noqa: F401
 
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,

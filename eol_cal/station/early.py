@@ -1,7 +1,7 @@
 """The calibration capture's windows worked on as they arrive, while the dyno turns on.
 
 The fit needs each window's angle (:func:`eol_cal.analysis.angle.capture_angle`) and p-p figure
-(:func:`eol_cal.analysis.fit.motors.window_metrics`); neither depends on the other windows, so the
+(:func:`eol_cal.analysis.fit.capture.window_metrics`); neither depends on the other windows, so the
 station computes them on a thread of its own as soon as the dyno client has read a window
 (:func:`eol_cal.dyno.client.run_profile`, ``on_window``), and the first window also compiles the
 firmware estimator's scan for the frame offset. The firmware frame needs every window (the hall
@@ -24,8 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eol_cal.analysis.fit.capture import PreparedWindows, capture_segments
-from eol_cal.analysis.fit.motors import window_metrics
+from eol_cal.analysis.fit.capture import PreparedWindows, capture_segments, window_metrics
 from eol_cal.capture.model import Capture
 
 if TYPE_CHECKING:

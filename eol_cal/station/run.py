@@ -27,10 +27,10 @@ from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import VariantLimits
-from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import PreparedWindows
+    from eol_cal.station.spool import SaveResult
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
     from eol_cal.station.record import RunRecord

@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -119,6 +119,25 @@ def capture_segments(
     return out
 
 
+def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
+    """p-p ripple of one window (``metrics.captures[i]`` of a record); ``error`` when it has none."""
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.errors import InputError
+
+    try:
+        pp = capture_ripple_pp(capture, angle)
+    except InputError as exc:
+        return {"source": capture.source, "error": exc.reason}
+    return {
+        "source": capture.source,
+        "pp_raw_pct": pp.raw_pct,
+        "pp_filtered_pct": pp.filtered_pct,
+        "pp_filtered_nm": pp.filtered_pp_nm,
+        "T_avg_nm": pp.T_avg_nm,
+        "speed_rpm": pp.speed_rpm,
+    }
+
+
 class PreparedWindows:
     """Where the fit's per-window figures come from: plain calls here. The station's subclass
     (:class:`eol_cal.station.early.EarlyWindows`) hands in what it computed while the windows
@@ -138,9 +157,7 @@ class PreparedWindows:
         return firmware_frame_offset(capture, theta_r, ranges, hall_angle, options)
 
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict:
-        """A window's p-p figures (:func:`eol_cal.analysis.fit.motors.window_metrics`)."""
-        from eol_cal.analysis.fit.motors import window_metrics
-
+        """A window's p-p figures (:func:`window_metrics`)."""
         return window_metrics(capture, angle)
 
 

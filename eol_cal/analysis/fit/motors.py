@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import Any, Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
@@ -20,9 +20,6 @@ from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
 from eol_cal.jsonsafe import json_safe
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams
-
-if TYPE_CHECKING:
-    from eol_cal.analysis.angle import AngleResult
 
 
 @dataclass(frozen=True)
@@ -103,25 +100,6 @@ class MotorsFit:
     @property
     def records(self) -> list[dict[str, Any]]:
         return self.doc["motors"]
-
-
-def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
-    """p-p ripple of one window (``metrics.captures[i]`` of a record); ``error`` when it has none."""
-    from eol_cal.analysis.metrics import capture_ripple_pp
-    from eol_cal.errors import InputError
-
-    try:
-        pp = capture_ripple_pp(capture, angle)
-    except InputError as exc:
-        return {"source": capture.source, "error": exc.reason}
-    return {
-        "source": capture.source,
-        "pp_raw_pct": pp.raw_pct,
-        "pp_filtered_pct": pp.filtered_pct,
-        "pp_filtered_nm": pp.filtered_pp_nm,
-        "T_avg_nm": pp.T_avg_nm,
-        "speed_rpm": pp.speed_rpm,
-    }
 
 
 def fit_motors(
