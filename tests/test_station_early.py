@@ -56,3 +56,20 @@ def test_a_window_that_is_not_the_one_worked_on_is_computed_anew(tmp_path):
     assert early.angle_of(changed) is not early._jobs[2].result()[1]
     assert early.used == 1
     early.close()
+
+
+def test_the_verification_figures_are_the_ones_of_the_window(tmp_path):
+    from eol_cal.analysis.angle import capture_angle
+    from eol_cal.analysis.point_metrics import point_ripple
+    from eol_cal.capture.windows import split_windows
+
+    verify = EarlyWindows(poles=6, encoder_ppr=64, measure=point_ripple)
+    with DynoSimThread(DynoSim(synthetic_source, serial="E-3")) as dyno:
+        cap = acquire(DynoConfig(port=dyno.port), SEGMENTS[1:], None, on_window=verify.on_window)
+    verify.wait()
+    for window in split_windows(cap):
+        early = verify.measured(window)
+        again = point_ripple(window, capture_angle(window))
+        assert early is verify._jobs[int(window.source.rsplit("#", 1)[1])].result()[2]
+        assert early.to_dict() == again.to_dict()
+    verify.close()

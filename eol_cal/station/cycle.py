@@ -121,6 +121,7 @@ class StationCycle:
     _helper: ThreadPoolExecutor | None = None
     _prewarm: Future | None = None
     _early: EarlyWindows | None = None
+    _verify: EarlyWindows | None = None
     _pr_before: Future | None = None
 
     @classmethod
@@ -222,22 +223,24 @@ class StationCycle:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
         op = self.result.operating_point
         segs = self.segments if self.cfg.verify == "full" else verify_segments(self.segments, op.speed_rpm, op.i_qo_a)
-        # the before-capture's figures are computed meanwhile on the helper thread
+        # the before-capture's figures are computed meanwhile on the helper thread, and each
+        # verification window's as it arrives
+        from eol_cal.station.early import EarlyWindows
+
         mi = self.fit_extra[0]
         k = nearest_segment(mi.captures, op.speed_rpm, op.i_qo_a)
         self._pr_before = self._helper.submit(point_ripple, mi.captures[k], mi.angles[k])
-        self.after = self._acquire("after", segs)
+        self._verify = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, pool=self._helper, measure=point_ripple)
+        self.after = self._acquire("after", segs, on_window=self._verify.on_window)
 
     def judge(self) -> StepVerdict:
         """Ripple before and after at the operating point, judged against the ripple's limits."""
-        from eol_cal.analysis.angle import capture_angle
         from eol_cal.capture.windows import split_windows
 
         op = self.result.operating_point
         before = self._pr_before.result()
         pieces = split_windows(self.after)
-        after_cap = pieces[nearest_segment(pieces, op.speed_rpm, op.i_qo_a)]
-        after = point_ripple(after_cap, capture_angle(after_cap))
+        after = self._verify.measured(pieces[nearest_segment(pieces, op.speed_rpm, op.i_qo_a)])
         self.point_ripples = (before, after)
         self.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
                                      RIPPLE_DEFINITION)

@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import re
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -55,15 +55,22 @@ class EarlyWindows(PreparedWindows):
     n_windows : int, optional
         Windows the capture will have: when the last is in, the firmware frame is computed with
         the hall table measured on all of them and the fit's segments of ``settle_s`` and
-        ``min_revs`` (the fit's defaults, :class:`eol_cal.analysis.fit.motors.FitOptions`).
+        ``min_revs`` (the fit's defaults, :class:`eol_cal.analysis.fit.motors.FitOptions`); the
+        first window compiles the firmware estimator for it.
+    measure : callable
+        ``(window, angle) -> figures`` computed for each window (default the fit's p-p figures,
+        :func:`~eol_cal.analysis.fit.capture.window_metrics`; the verification's: the ripple at
+        the operating point, :func:`eol_cal.analysis.point_metrics.point_ripple`).
     """
 
     frame_workers = FRAME_WORKERS
 
     def __init__(self, poles: int, encoder_ppr: int, estimator_options: int = 0, *,
                  pool: ThreadPoolExecutor | None = None, cache_dir: str | os.PathLike[str] | None = None,
-                 n_windows: int | None = None, settle_s: float = 0.1, min_revs: int = 1) -> None:
+                 n_windows: int | None = None, settle_s: float = 0.1, min_revs: int = 1,
+                 measure: Callable[[Capture, AngleResult], Any] = window_metrics) -> None:
         self.poles, self.encoder_ppr, self.estimator_options = poles, encoder_ppr, estimator_options
+        self.measure = measure
         self.cache_dir = cache_dir
         self.n_windows, self.settle_s, self.min_revs = n_windows, settle_s, min_revs
         self._frames: Future | None = None
@@ -114,9 +121,9 @@ class EarlyWindows(PreparedWindows):
                     for name, v in window.channels.items()}
         cap = Capture(t, channels, {"poles": self.poles, "encoder_ppr": self.encoder_ppr}, source=f"window {index + 1}")
         angle = capture_angle(cap)
-        if index == 0:
+        if index == 0 and self.n_windows is not None:
             self._compile_estimator(cap, angle)
-        return cap, angle, window_metrics(cap, angle)
+        return cap, angle, self.measure(cap, angle)
 
     def _compile_estimator(self, cap: Capture, angle: AngleResult) -> None:
         """One throwaway run of the firmware estimator: the frame offset at the end then finds its
@@ -168,9 +175,17 @@ class EarlyWindows(PreparedWindows):
 
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict[str, Any]:
         early = self._early(capture)
-        if early is None or early[1] is not angle:
+        if early is None or early[1] is not angle or self.measure is not window_metrics:
             return super().metrics_of(capture, angle)
         return {**early[2], "source": capture.source}
+
+    def measured(self, capture: Capture) -> Any:
+        """``measure(capture, its angle)``: what was computed as the window arrived, when
+        ``capture`` holds exactly its samples; else computed now."""
+        early = self._early(capture)
+        if early is not None:
+            return early[2]
+        return self.measure(capture, self.angle_of(capture))
 
     def wait(self) -> None:
         """Until every window handed in is worked on (the fit then takes them without waiting)."""

@@ -121,9 +121,15 @@ def serial_problems(serial: str, ecu: EcuState | None, dut_serial: str | None) -
 
 def preflight(serial: str, dyno: DynoConfig, open_bus: Callable[[], Any], seed_to_key: SeedToKey | None,
               timing: ClientTiming) -> PreflightResult:
-    """Every check of the module docstring; its problems are empty when the station is ready."""
-    found_dyno, dyno_problems = check_dyno(dyno)
-    ecu, ecu_problems = check_ecu(open_bus, seed_to_key, timing)
+    """Every check of the module docstring; its problems are empty when the station is ready.
+
+    The dyno and the ECU are asked at the same time (each wait is bounded by its own timeouts)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preflight-dyno") as pool:
+        dyno_job = pool.submit(check_dyno, dyno)
+        ecu, ecu_problems = check_ecu(open_bus, seed_to_key, timing)
+        found_dyno, dyno_problems = dyno_job.result()
     problems = dyno_problems + ecu_problems + serial_problems(
         serial, ecu.state, None if found_dyno is None else found_dyno.dut_serial)
     return PreflightResult(found_dyno, ecu, tuple(problems))
