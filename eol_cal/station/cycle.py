@@ -178,7 +178,8 @@ class StationCycle:
         from eol_cal.station.early import EarlyWindows
 
         self._helper.submit(_preload_writers)
-        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
+        # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
+        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir, False)
         self._early = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, self.cfg.estimator_options,
                                    pool=self._helper, cache_dir=self.cfg.cache_dir, n_windows=len(self.segments))
         self.before = self._acquire("before", self.segments, on_window=self._early.on_window)
