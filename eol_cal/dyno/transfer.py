@@ -87,8 +87,10 @@ class DynoConfig:
         return default_register_map() if self.register_map is None else self.register_map
 
 
-#: a streamed read waits for at least this much capture (s) before it reads a chunk
-STREAM_CHUNK_S = 0.02
+#: a streamed read waits for at least this much capture (s) before it reads a chunk ...
+STREAM_CHUNK_S = 0.05
+#: ... and, in the capture's last chunk, this much: what is left to read once it is ready
+STREAM_TAIL_S = 0.01
 #: how often a streamed read looks for newly recorded samples (s)
 STREAM_POLL_S = 0.003
 
@@ -153,7 +155,8 @@ def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
     ``hall``, and the number of reconnects it took. Raises :class:`TransferError`.
     """
     plan = channel_plan(cfg.regmap, names)
-    words, reconnects = asyncio.run(_transfer(cfg, plan, BufferFill(n_samples, n_samples), n_samples, progress))
+    words, reconnects = asyncio.run(_transfer(cfg, plan, BufferFill(n_samples, n_samples), (n_samples, n_samples),
+                                              progress))
     return _decode(cfg.regmap, plan, words), reconnects
 
 
@@ -177,7 +180,7 @@ class StreamReader:
                  progress: ProgressFn | None = None) -> None:
         self.plan = channel_plan(cfg.regmap, names)
         self._cfg, self._fill, self._progress = cfg, fill, progress
-        self._chunk = max(1, int(rate_hz * STREAM_CHUNK_S))
+        self._chunk = (max(1, int(rate_hz * STREAM_CHUNK_S)), max(1, int(rate_hz * STREAM_TAIL_S)))
         self._out: tuple[dict[int, list[np.ndarray]], int] | None = None
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="dyno-stream", daemon=True)
@@ -212,15 +215,16 @@ class StreamReader:
         self._thread.join(self._cfg.timeout * (self._cfg.retries + 1) + 1.0)
 
 
-async def _transfer(cfg: DynoConfig, plan: list[tuple[str, int]], fill: BufferFill, chunk: int,
+async def _transfer(cfg: DynoConfig, plan: list[tuple[str, int]], fill: BufferFill, chunk: tuple[int, int],
                     progress: ProgressFn | None) -> tuple[dict[int, list[np.ndarray]], int]:
     """Read the buffer's channels ``plan`` as ``fill`` says samples are recorded, over
     ``cfg.connections`` parallel connections.
 
     pymodbus serves one request per connection at a time, so parallel connections are how
     requests overlap. The page selection is dyno state shared by all connections: each page is
-    selected, then its blocks are read in parallel. A read waits until ``chunk`` samples more (or
-    the rest of the capture) are recorded. A lost connection or timeout restarts the page on fresh
+    selected, then its blocks are read in parallel. A read waits until ``chunk[0]`` samples more
+    (``chunk[1]`` in the capture's last ``chunk[0]``; or the rest of the capture) are recorded:
+    few requests while the capture runs, little left when it is ready. A lost connection or timeout restarts the page on fresh
     connections (:func:`eol_cal.retry.retry_async`: ``cfg.retries`` times, doubling delays).
     Returns each channel's words, page by page, and the number of reconnects.
     """
@@ -301,7 +305,8 @@ async def _transfer(cfg: DynoConfig, plan: list[tuple[str, int]], fill: BufferFi
             if fill.stopped is not None:
                 raise TransferError(f"stopped at sample {done} of {n}: {fill.stopped}")
             count = fill.count
-            if count - done < min(chunk, n - done):
+            want = chunk[0] if n - count > chunk[0] else chunk[1]
+            if count - done < min(want, n - done):
                 await asyncio.sleep(STREAM_POLL_S)
                 continue
             for _name, cid in plan:
