@@ -30,7 +30,7 @@ from eol_cal.dyno.registers import CaptureCommand, CaptureState, Command, Direct
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
-from eol_cal.dyno.transfer import BufferFill, DynoConfig, ProgressFn, StreamReader, TransferError, read_capture_buffer
+from eol_cal.dyno.transfer import BufferFill, BufferReader, DynoConfig, ProgressFn, Stream, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
 
 #: channels read by default (the packed digital channel is always read); the others on request
@@ -171,7 +171,8 @@ class DynoClient:
         self.config = config
         self.regmap = config.regmap
         self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
-        self.reconnects = 0
+        self._reconnects = 0
+        self._reader: BufferReader | None = None  # the streamed buffer reads, opened at the first capture
         self._heartbeat = (-1, time.monotonic())
         #: the dyno's identification matched the register map: only then is anything written
         self.identified = False
@@ -195,7 +196,7 @@ class DynoClient:
         def attempt(n: int):
             if not self._client.connected:
                 if n:
-                    self.reconnects += 1
+                    self._reconnects += 1
                 if not self._client.connect():
                     raise ConnectionError("cannot connect")
             return fn()
@@ -232,8 +233,17 @@ class DynoClient:
         self.identified = True
         return ident
 
+    @property
+    def reconnects(self) -> int:
+        """Connections opened again after a loss (requests and buffer reads)."""
+        return self._reconnects + (self._reader.reconnects if self._reader is not None else 0)
+
     def close(self) -> None:
         self._client.close()
+        if self._reader is not None:
+            self._reader.close()
+            self._reconnects += self._reader.reconnects
+            self._reader = None
 
     def read(self, names: Sequence[str]) -> dict[str, float | int | str]:
         """Read registers ``names`` (neighbours of one table in one request) and decode them."""
@@ -360,7 +370,9 @@ class DynoClient:
         self.write(capture_rate=rate_hz, capture_length=n_samples)
         self.write(capture_start=CaptureCommand.ARM)
         fill = BufferFill(n_samples)
-        reader: StreamReader | None = None
+        reader: Stream | None = None
+        if self._reader is None:
+            self._reader = BufferReader(cfg)
 
         def recorded(s: dict) -> bool:
             nonlocal reader
@@ -369,7 +381,7 @@ class DynoClient:
                 raise DynoError(f"{self.where}: capture ended in the error state")
             count = int(s["capture_count"]) if state in (CaptureState.RUNNING, CaptureState.READY) else 0
             if reader is None and count > 0:
-                reader = StreamReader(cfg, self.recorded_channels(s, names), fill, rate_hz, progress).start()
+                reader = self._reader.stream(self.recorded_channels(s, names), fill, rate_hz, progress)
             if state == CaptureState.READY and count != n_samples:
                 raise DynoError(f"{self.where}: capture holds {count} samples, {n_samples} requested")
             fill.update(count)
@@ -383,15 +395,13 @@ class DynoClient:
         try:
             self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
                       interval)
-            result, reconnects = reader.result(cfg.capture_timeout)
+            return reader.result(cfg.capture_timeout)
         except TransferError as exc:
             raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
         except BaseException:
             if reader is not None:
                 reader.abandon("the capture failed")
             raise
-        self.reconnects += reconnects
-        return result
 
     def recorded_channels(self, st: dict, names: Sequence[str]) -> list[str]:
         """Of channels ``names``, those the buffer holds (status ``capture_channels``); refuses a
@@ -413,7 +423,7 @@ class DynoClient:
             result, reconnects = read_capture_buffer(self.config, names, n_samples, progress)
         except TransferError as exc:
             raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
-        self.reconnects += reconnects
+        self._reconnects += reconnects
         return result
 
     def safe_state(self) -> str | None:
