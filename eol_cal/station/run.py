@@ -30,6 +30,7 @@ from eol_cal.station.limits import VariantLimits
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import PreparedWindows
+    from eol_cal.msa.master import MasterSettings
     from eol_cal.station.spool import SaveResult
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
@@ -97,6 +98,10 @@ class StationConfig:
     kind : str
         The record's kind when the cycle gets past its pre-flight (``production`` on a line;
         :data:`eol_cal.station.record.KINDS`); a cycle that ends before is a ``refusal``.
+    master : MasterSettings or None
+        The station's master motor (:mod:`eol_cal.msa.master`): a ``production`` run is refused
+        while its check is due or last failed; a run of kind ``master`` is judged against its
+        references too.
     """
 
     serial: str
@@ -118,6 +123,7 @@ class StationConfig:
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     estimator: str | None = None
     kind: str = "production"
+    master: MasterSettings | None = None
 
     @property
     def estimator_options(self) -> int:
