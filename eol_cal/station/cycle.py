@@ -336,7 +336,10 @@ class StationCycle:
             verdict_rec = self.to_record()
             journal = self._journal(verdict_rec)
             if on_verdict is not None:
-                on_verdict(verdict_rec)
+                try:
+                    on_verdict(verdict_rec)
+                except Exception:  # noqa: BLE001 - a display that fails must not cost the record
+                    pass
             try:
                 self.report_html = self._step("report", self.report)
             except Exception as exc:  # noqa: BLE001 - the record must still be written
