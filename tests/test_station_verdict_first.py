@@ -20,7 +20,10 @@ import threading
 import time
 from pathlib import Path
 
+from eol_cal.dyno.sim import synthetic_source
+from eol_cal.station.demo import loopback_station
 from eol_cal.station.records_query import query_records
+from test_station_run import files  # noqa: F401 - the module's fixture
 
 ROOT = Path(__file__).resolve().parents[1]
 MOTOR_S = 300.0
@@ -89,3 +92,26 @@ def test_a_station_killed_right_after_the_verdict_loses_no_record(tmp_path):
     (row,) = query_records(db)
     assert (row.run_id, row.serial, row.verdict) == (rec["run_id"], "DEMO-0001", shown)
     assert not list((out / "spool").glob("*.json"))
+
+
+def test_a_calibration_capture_that_cannot_be_written_stops_the_cycle_before_the_flash(files, tmp_path, monkeypatch):  # noqa: F811
+    """The calibration capture is written beside the fit; the flash waits for the file, and a
+    write that failed ends the cycle there: nothing calibrated goes into the ECU."""
+    import eol_cal.capture as capture_io
+    from test_station_preflight import run_cycle
+
+    written = capture_io.write_capture
+
+    def write(cap, path, *args, **kw):
+        if Path(path).name == "before.mf4":
+            raise OSError(28, "No space left on device")
+        return written(cap, path, *args, **kw)
+
+    monkeypatch.setattr(capture_io, "write_capture", write)
+    with loopback_station("W-1", 3, tmp_path / "sim", source=synthetic_source) as st:
+        res, _ = run_cycle(files, st, "W-1", tmp_path)
+    assert res.exit_code == 2, res.output
+    rec = json.loads(res.stdout)["record"]
+    assert rec["verdict"] == "error" and rec["error"]["step"] in ("fit", "table", "flash")
+    assert "before capture was not written" in rec["reasons"][0] and "No space left" in rec["reasons"][0]
+    assert [b["role"] for b in rec["blocks"]] == ["prepare"]  # the calibrated block never went in

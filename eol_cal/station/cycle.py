@@ -122,6 +122,7 @@ class StationCycle:
     _prewarm: Future | None = None
     _early: EarlyWindows | None = None
     _verify: EarlyWindows | None = None
+    _writes: dict[str, Future] = field(default_factory=dict)  # capture files being written aside
     _pr_before: Future | None = None
 
     @classmethod
@@ -189,7 +190,7 @@ class StationCycle:
         self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir, False)
         self._early = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, self.cfg.estimator_options,
                                    pool=self._helper, cache_dir=self.cfg.cache_dir, n_windows=len(self.segments))
-        self.before = self._acquire("before", self.segments, on_window=self._early.on_window)
+        self.before = self._acquire("before", self.segments, on_window=self._early.on_window, write_aside=True)
 
     def fit(self) -> StepVerdict | None:
         """Fit the capture; a fit that is not usable or out of the fit's limits fails the motor here.
@@ -222,9 +223,11 @@ class StationCycle:
                                             source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
     def flash(self) -> None:
-        """Write the calibrated block into the ECU's inactive bank (verified)."""
+        """Write the calibrated block into the ECU's inactive bank (verified), once the calibration
+        capture's file is on disk."""
         from eol_cal.firmware.block import pack
 
+        self._settle_writes()
         self._flash(pack(self.calibrated), "calibrated")
 
     def acquire_compensated(self) -> None:
@@ -329,6 +332,10 @@ class StationCycle:
             failure = exc
         # From here on a signal waits until the record is written (eol_cal.interrupts).
         with shielded():
+            try:
+                self._settle_writes()  # the cycle ended before the flash waited for them
+            except EolCalError as exc:
+                failure = failure or exc
             if failure is not None:
                 self._record_failure(failure)
             self.ecu_active = self._ecu_active(failure)
@@ -403,25 +410,50 @@ class StationCycle:
         self._progress(name, "done")
         return out
 
-    def _acquire(self, which: str, segs: list, on_window: Callable | None = None) -> Capture:
+    def _acquire(self, which: str, segs: list, on_window: Callable | None = None, write_aside: bool = False) -> Capture:
         """One acquisition with the ECU's state before and after (in the capture and the record);
         the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
-        the dyno client's hook for each window as it is read."""
+        the dyno client's hook for each window as it is read. ``write_aside``: the capture file is
+        written on a thread of its own, beside the fit; :meth:`_settle_writes` waits for it (the
+        flash does, before anything is written to the ECU)."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.preflight import acquire_traced, expect_block, read_ecu_with
 
         path = self.run_dir / f"{which}.mf4"
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
-                                    self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
+                                    self.cfg.dyno, segs, None, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
                                                                f"profile {self.profile_name}"}, on_window=on_window)
-        self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), len(segs), trace.before,
-                                          trace.after)
+        if write_aside:
+            writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
+            self._writes[which] = writer.submit(self._store, which, cap, trace, path, len(segs))
+            writer.shutdown(wait=False)
+        else:
+            self._store(which, cap, trace, path, len(segs))
+        # a capture whose ECU state is not the expected one is kept all the same (its file and record)
         expect_block(trace, which, self._last_block("prepare" if which == "before" else "calibrated"))
         if which == "before":
             check_trace(trace, str(path))  # the calibration capture: never under compensation
         return cap
+
+    def _store(self, which: str, cap: Capture, trace: Any, path: Path, n_segments: int) -> None:
+        """Write a capture file (atomically) and keep its reference for the record."""
+        from eol_cal.capture import write_capture
+
+        write_capture(cap, path)
+        self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), n_segments, trace.before,
+                                          trace.after)
+
+    def _settle_writes(self) -> None:
+        """Wait for the capture files written aside; a write that failed ends the cycle here."""
+        while self._writes:
+            which, job = self._writes.popitem()
+            try:
+                job.result()
+            except Exception as exc:
+                raise EolCalError(f"the {which} capture was not written to {self.run_dir / (which + '.mf4')}: "
+                                  f"{type(exc).__name__}: {exc}") from exc
 
     def _last_block(self, role: str) -> FlashedBlock | None:
         return next((b for b in reversed(self.blocks) if b.role == role), None)

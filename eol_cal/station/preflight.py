@@ -151,9 +151,10 @@ def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
 
 
 def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Sequence[DynoSetpoint],
-                   out: str | Path, **acquire_kw: Any) -> tuple[Capture, Trace]:
+                   out: str | Path | None, **acquire_kw: Any) -> tuple[Capture, Trace]:
     """:func:`eol_cal.dyno.client.acquire` with the ECU's state read before and after, into the
-    capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads.
+    capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads
+    (``out`` None: the caller writes it).
 
     ``read_ecu`` None: no record of the ECU state (no ECU-state keys). The reads run alongside
     the dyno's ramps (:func:`eol_cal.dyno.client.run_profile`): the one before while the shaft
@@ -168,7 +169,8 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
 
     if read_ecu is None:
         capture = dc.acquire(config, segments, None, **acquire_kw)
-        write_capture(capture, out)
+        if out is not None:
+            write_capture(capture, out)
         return capture, Trace(None, None)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ecu-trace") as pool:
         before_job = pool.submit(read_ecu)
@@ -177,7 +179,8 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
                              after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
         before, after = before_job.result(), after_job[0].result()
     capture = dataclasses.replace(capture, metadata=with_ecu_state(capture.metadata, before, after))
-    write_capture(capture, out)
+    if out is not None:
+        write_capture(capture, out)
     return capture, Trace(before, after)
 
 
