@@ -6,7 +6,7 @@ station computes them on a thread of its own as soon as the dyno client has read
 (:func:`eol_cal.dyno.client.run_profile`, ``on_window``), and the first window also compiles the
 firmware estimator's scan for the frame offset. The firmware frame needs every window (the hall
 table is measured on all of them): it is computed as soon as the last window is in, on
-:attr:`EarlyWindows.frame_workers` threads, while the shaft stops and the ECU's state is read.
+:data:`FRAME_WORKERS` threads, while the shaft stops and the ECU's state is read.
 What the fit itself does at the end is the hall table again and the joint solve.
 
 The fit asks for a window's figures with the window it cut from the joined capture
@@ -20,7 +20,7 @@ from __future__ import annotations
 import os
 import re
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Callable, Sequence
 
 import numpy as np
 
@@ -29,6 +29,7 @@ from eol_cal.capture.model import Capture
 
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult
+    from eol_cal.analysis.firmware_angle import FrameJob
     from eol_cal.dyno.client import DynoWindow
 
 #: threads for the firmware frame at the end (one window each)
@@ -62,8 +63,6 @@ class EarlyWindows(PreparedWindows):
         :func:`~eol_cal.analysis.fit.capture.window_metrics`; the verification's: the ripple at
         the operating point, :func:`eol_cal.analysis.point_metrics.point_ripple`).
     """
-
-    frame_workers = FRAME_WORKERS
 
     def __init__(self, poles: int, encoder_ppr: int, estimator_options: int = 0, *,
                  pool: ThreadPoolExecutor | None = None, cache_dir: str | os.PathLike[str] | None = None,
@@ -110,7 +109,7 @@ class EarlyWindows(PreparedWindows):
             cap, a, _m = done[k]
             return firmware_frame_offset(cap, a.theta_r, ranges[k], table, self.estimator_options)
 
-        with Pool(max(1, min(self.frame_workers, len(keys))), thread_name_prefix="early-frame") as pool:
+        with Pool(max(1, min(FRAME_WORKERS, len(keys))), thread_name_prefix="early-frame") as pool:
             sums = list(pool.map(one, keys))
         return {k: (table, ranges[k], *sn) for k, sn in zip(keys, sums)}
 
@@ -160,18 +159,28 @@ class EarlyWindows(PreparedWindows):
         self.used += 1
         return early[1]
 
-    def frame_offset(self, capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
-                     hall_angle: tuple[float, ...] | None, options: int) -> tuple[complex, int]:
+    def frame_offsets(self, jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
+        out: list[tuple[complex, int] | None] = [self._early_frame(*job) for job in jobs]
+        missing = [i for i, got in enumerate(out) if got is None]
+        for i, got in zip(missing, super().frame_offsets([jobs[i] for i in missing])):
+            out[i] = got
+        return out  # type: ignore[return-value]
+
+    def _early_frame(self, capture: Capture, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]],
+                     hall_angle: Sequence[float] | None, options: int) -> tuple[complex, int] | None:
+        """A window's part of the firmware frame computed when the last window came in, when it
+        was computed from exactly these inputs; else None."""
         early = self._early(capture)
         frames = self._frames
-        if (early is not None and frames is not None and frames.exception() is None
-                and np.array_equal(theta_r, early[1].theta_r)):
-            got = frames.result().get(self._window(capture))
-            if (got is not None and hall_angle is not None and got[0] == tuple(hall_angle) and got[1] == list(ranges)
-                    and options == self.estimator_options):
-                self.frames_used += 1
-                return got[2], got[3]
-        return super().frame_offset(capture, theta_r, ranges, hall_angle, options)
+        if (early is None or frames is None or frames.exception() is not None
+                or not np.array_equal(theta_r, early[1].theta_r)):
+            return None
+        got = frames.result().get(self._window(capture))
+        if (got is None or hall_angle is None or got[0] != tuple(hall_angle) or got[1] != list(ranges)
+                or options != self.estimator_options):
+            return None
+        self.frames_used += 1
+        return got[2], got[3]
 
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict[str, Any]:
         early = self._early(capture)

@@ -12,12 +12,12 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from eol_cal.analysis.angle import capture_angle
-from eol_cal.analysis.firmware_angle import firmware_frame_offset
+from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
@@ -143,32 +143,17 @@ class PreparedWindows:
     (:class:`eol_cal.station.early.EarlyWindows`) hands in what it computed while the windows
     arrived, for exactly the inputs it was computed from, and computes anything else here."""
 
-    #: threads that run the firmware estimator over the windows for the firmware frame (one
-    #: window each; the estimator's JAX scan leaves the interpreter while it runs)
-    frame_workers: int = 1
-
     def angle_of(self, capture: Capture) -> AngleResult:
         """A window's angle (:func:`capture_angle`)."""
         return capture_angle(capture)
 
-    def frame_offset(self, capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
-                     hall_angle: tuple[float, ...] | None, options: int) -> tuple[complex, int]:
-        """A window's part of the firmware frame offset (:func:`firmware_frame_offset`)."""
-        return firmware_frame_offset(capture, theta_r, ranges, hall_angle, options)
+    def frame_offsets(self, jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
+        """The windows' parts of the firmware frame offset (:func:`firmware_frame_offsets`)."""
+        return firmware_frame_offsets(jobs)
 
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict:
         """A window's p-p figures (:func:`window_metrics`)."""
         return window_metrics(capture, angle)
-
-
-def _map(fn: Callable, items: list, workers: int) -> list:
-    """``[fn(x) for x in items]``, on up to ``workers`` threads (results in order)."""
-    if workers <= 1 or len(items) <= 1:
-        return [fn(x) for x in items]
-    from concurrent.futures import ThreadPoolExecutor
-
-    with ThreadPoolExecutor(min(workers, len(items)), thread_name_prefix="fit-frame") as pool:
-        return list(pool.map(fn, items))
 
 
 def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
@@ -231,12 +216,31 @@ def motor_inputs(
     list of MotorInput
         In order of first appearance of each serial; ``captures`` and ``angles`` are per window.
     """
+    if frame not in ("firmware", "offline"):
+        raise InputError(None, "frame", f"unknown value {frame!r}; known: firmware, offline")
+    inputs = segment_motors(captures, motor, settle_s=settle_s, min_revs=min_revs, hall_angle=hall_angle,
+                            mechanics=mechanics, prepared=prepared)
+    if frame == "firmware":
+        measure_firmware_frames(inputs, [estimator_options] * len(inputs), prepared)
+    return inputs
+
+
+def segment_motors(
+    captures: list[Capture],
+    motor: MotorParams | None = None,
+    settle_s: float = 0.1,
+    min_revs: int = 1,
+    hall_angle: str = "measured",
+    mechanics: BenchMechanics | None = None,
+    prepared: PreparedWindows | None = None,
+) -> list[MotorInput]:
+    """:func:`motor_inputs` up to the firmware frame: every motor's inputs in the offline frame,
+    for :func:`measure_firmware_frames` (which measures the frames of many motors in one batch)."""
     from eol_cal.capture.windows import split_windows
 
+    if hall_angle not in ("measured", "nominal"):
+        raise InputError(None, "hall_angle", f"unknown value {hall_angle!r}; known: measured, nominal")
     prepared = prepared or PreparedWindows()
-    for name, value, known in (("frame", frame, ("firmware", "offline")), ("hall_angle", hall_angle, ("measured", "nominal"))):
-        if value not in known:
-            raise InputError(None, name, f"unknown value {value!r}; known: {', '.join(known)}")
     captures = [w for c in captures for w in split_windows(c)]
 
     motor = motor or load_motor("paper")
@@ -245,63 +249,87 @@ def motor_inputs(
         if "serial" not in c.metadata:
             raise InputError(c.source, "serial", "missing metadata: captures are grouped by serial")
         groups.setdefault(c.serial, []).append(c)
-    out = []
-    for serial, caps in groups.items():
-        poles = {c.poles for c in caps}
-        ppr = {c.encoder_ppr for c in caps}
-        if len(poles) > 1 or len(ppr) > 1:
-            raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
-        P = poles.pop()
-        thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
-        use_fw = frame == "firmware" and all(c.has("enc_b") for c in caps)
-        cap_ranges = []
-        for ci, c in enumerate(caps):
-            if not c.has("torque"):
-                raise InputError(c.source, "torque", "missing channel, needed for the fit")
-            if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
-                raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-            ang = prepared.angle_of(c)
-            angles.append(ang)
-            i_qo = np.asarray(c.iq_ref(), dtype=float)
-            ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
-            cap_ranges.append(ranges)
-            for a, b in ranges:
-                th = ang.theta_r[a:b]
-                tt = c.t[a:b]
-                omega = float(th[-1] - th[0]) / float(tt[-1] - tt[0])
-                thetas.append(th)
-                ts.append(tt)
-                ys.append(np.asarray(c["torque"][a:b], dtype=float))
-                iqs.append(float(i_qo[a:b].mean()))
-                omegas.append(omega)
-                rpm = omega / (P / 2) * 60.0 / (2 * math.pi)
-                labels.append(f"{c.source}[{a}:{b}]")
-                infos.append(SteadySegmentOrigin(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
-                cap_idx.append(ci)
-        if not thetas:
-            raise InputError(
-                ", ".join(c.source for c in caps),
-                "segments",
-                f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
-                f"{settle_s} s settling (constant speed, direction and iq_ref)",
-            )
-        if hall_angle == "measured":
-            hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
-        else:
-            hall = nominal_hall_angles("asked for")
+    return [_segment_motor(serial, caps, motor, settle_s, min_revs, hall_angle, mechanics, prepared)
+            for serial, caps in groups.items()]
+
+
+def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_s: float, min_revs: int,
+                   hall_angle: str, mechanics: BenchMechanics | None, prepared: PreparedWindows) -> MotorInput:
+    poles = {c.poles for c in caps}
+    ppr = {c.encoder_ppr for c in caps}
+    if len(poles) > 1 or len(ppr) > 1:
+        raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
+    P = poles.pop()
+    thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
+    for ci, c in enumerate(caps):
+        if not c.has("torque"):
+            raise InputError(c.source, "torque", "missing channel, needed for the fit")
+        if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
+            raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
+        ang = prepared.angle_of(c)
+        angles.append(ang)
+        i_qo = np.asarray(c.iq_ref(), dtype=float)
+        ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
+        for a, b in ranges:
+            th = ang.theta_r[a:b]
+            tt = c.t[a:b]
+            omega = float(th[-1] - th[0]) / float(tt[-1] - tt[0])
+            thetas.append(th)
+            ts.append(tt)
+            ys.append(np.asarray(c["torque"][a:b], dtype=float))
+            iqs.append(float(i_qo[a:b].mean()))
+            omegas.append(omega)
+            rpm = omega / (P / 2) * 60.0 / (2 * math.pi)
+            labels.append(f"{c.source}[{a}:{b}]")
+            infos.append(SteadySegmentOrigin(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
+            cap_idx.append(ci)
+    if not thetas:
+        raise InputError(
+            ", ".join(c.source for c in caps),
+            "segments",
+            f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
+            f"{settle_s} s settling (constant speed, direction and iq_ref)",
+        )
+    if hall_angle == "measured":
+        hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
+    else:
+        hall = nominal_hall_angles("asked for")
+    kt, kt_source = _kt_of(caps, motor)
+    response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
+    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
+    return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
+                      hall=hall)
+
+
+def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int],
+                            prepared: PreparedWindows | None = None) -> None:
+    """Measure every motor's firmware frame (:func:`firmware_frame_offsets`, all captures of all
+    motors in one batched estimator run) and set ``frame``, ``frame_offset_rad`` and
+    ``frame_options`` of each ``MotorInput`` in place.
+
+    ``estimator_options``: per motor, the options (contract flags bits 2-5) its ECU ran. A motor
+    whose captures lack ``enc_b``, or whose estimator never anchored on a segment sample, keeps
+    the offline frame (and says why). ``prepared``: where the captures' parts come from (default
+    computed here).
+    """
+    prepared = prepared or PreparedWindows()
+    jobs, owner = [], []
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options)):
+        if not all(c.has("enc_b") for c in mi.captures):
+            continue
+        for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles)):
+            ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment) if j == ci]
+            if ranges:
+                jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
+                owner.append(k)
+    sums = prepared.frame_offsets(jobs)
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options)):
         fw_sum, fw_n = 0j, 0
-        jobs = [(c, ang.theta_r, ranges) for c, ang, ranges in zip(caps, angles, cap_ranges) if use_fw and ranges]
-        for s_, n_ in _map(lambda j: prepared.frame_offset(*j, hall.hall_angle, estimator_options), jobs,
-                           prepared.frame_workers):
-            fw_sum, fw_n = fw_sum + s_, fw_n + n_
-        kt, kt_source = _kt_of(caps, motor)
-        response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
-        seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
-        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics, hall=hall)
-        if use_fw and fw_n:
+        for (s_, n_), o in zip(sums, owner):
+            if o == k:
+                fw_sum, fw_n = fw_sum + s_, fw_n + n_
+        if fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
-            mi.frame_options = estimator_options
-        elif frame == "firmware":
+            mi.frame_options = options
+        else:
             mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
-        out.append(mi)
-    return out
