@@ -2,7 +2,15 @@
 
 from __future__ import annotations
 
-import click
+import os
+
+# Before numpy loads: OpenBLAS's worker threads spin for every small least-squares problem (the
+# fingerprint's placement trials, the fit's), and on a station PC whose cores are busy (the
+# tester's threads, the dyno's and the ECU's) that cost a calibration seconds instead of tenths
+# (docs/benchmarks.md, issue 24). A user's own setting wins.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import click  # noqa: E402
 
 from eol_cal import __version__
 

@@ -191,9 +191,18 @@ def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: 
     dirs = [d for d in (0, 1) if covered(d)]
     if not dirs:
         return None
-    nb = (_POLY_DEGREE + 1) * len(stretches)
+    # The normal equations assembled block by block: a row holds its stretch's polynomial and one
+    # row of P, so A'A costs a pass over the edges (a dense A'A, or lstsq on A, costs edges x
+    # unknowns^2: seconds for a dyno capture's windows, and the placement trials run it P/2 times
+    # a window). Each stretch's straight line is taken out of its angles first (its polynomial
+    # absorbs it): the right-hand side stays small, the normal equations lose no precision to it.
+    deg1 = _POLY_DEGREE + 1
+    nb = deg1 * len(stretches)
     col = {d: nb + i * nF for i, d in enumerate(dirs)}
-    rows, rhs = [], []
+    n_unk = nb + nF * len(dirs)
+    M = np.zeros((n_unk, n_unk))
+    v = np.zeros(n_unk)
+    parts, n_rows = [], 0
     for g, (times, k) in enumerate(stretches):
         half = (k >> 1) & 1
         keep = np.isin(half, dirs)
@@ -201,29 +210,45 @@ def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: 
         if not len(times):
             continue
         x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
-        A = np.zeros((len(times), nb + nF * len(dirs)))
-        A[:, g * (_POLY_DEGREE + 1):(g + 1) * (_POLY_DEGREE + 1)] = np.polynomial.legendre.legvander(x, _POLY_DEGREE)
+        L = np.polynomial.legendre.legvander(x, _POLY_DEGREE)
+        phi = k * quarter
+        line = np.polyfit(x, phi, 1) if len(x) > 1 else np.array([0.0, phi[0]])
+        y = phi - np.polyval(line, x)
+        m = (k >> 2) % N
+        b = slice(g * deg1, (g + 1) * deg1)
+        M[b, b] = L.T @ L
+        v[b] = L.T @ y
         for d in dirs:
             sel = half == d
-            A[sel, col[d]:col[d] + nF] = -P[(k[sel] >> 2) % N]
-        rows.append(A)
-        rhs.append(k * quarter)
-    A = np.concatenate(rows)
-    phi = np.concatenate(rhs)
-    sol, *_ = np.linalg.lstsq(A, phi, rcond=None)
-    resid = phi - A @ sol
-    rss = float(resid @ resid)
+            if not sel.any():
+                continue
+            c = slice(col[d], col[d] + nF)
+            H = np.stack([np.bincount(m[sel], weights=L[sel, j], minlength=N) for j in range(deg1)])
+            M[b, c] = -H @ P
+            M[c, b] = M[b, c].T
+            M[c, c] += (P.T * np.bincount(m[sel], minlength=N)) @ P
+            v[c] -= P.T @ np.bincount(m[sel], weights=y[sel], minlength=N)
+        parts.append((b, L, y, m, half))
+        n_rows += len(times)
+    sol = np.linalg.lstsq(M, v, rcond=None)[0]
+    rss = 0.0
+    for b, L, y, m, half in parts:
+        resid = y - L @ sol[b]
+        for d in dirs:
+            sel = half == d
+            resid[sel] += P[m[sel]] @ sol[col[d]:col[d] + nF]
+        rss += float(resid @ resid)
     fp = np.full(2 * N, np.nan)
     var = np.full(2 * N, np.nan)
     if cov:
-        s2 = rss / max(1, len(phi) - A.shape[1])
-        C = s2 * np.linalg.pinv(A.T @ A)
+        s2 = rss / max(1, n_rows - n_unk)
+        C = s2 * np.linalg.pinv(M)
     for d in dirs:
         c = slice(col[d], col[d] + nF)
         fp[d::2] = P @ sol[c]
         if cov:
             var[d::2] = np.einsum("ij,jk,ik->i", P, C[c, c], P)
-    return fp, var, rss, sum(FP_FORWARD << d for d in dirs), len(phi) - A.shape[1]
+    return fp, var, rss, sum(FP_FORWARD << d for d in dirs), n_rows - n_unk
 
 
 def pitch_errors(fp: np.ndarray, N: int) -> np.ndarray:
