@@ -245,8 +245,10 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
     _quiet_pymodbus()
     try:
         asyncio.run(sim.serve(host, port, started))
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt:  # how a simulator is stopped: exit 0
+        from eol_cal import interrupts
+
+        interrupts.handled()
     except (OSError, RuntimeError) as exc:
         raise InputError(None, "--listen", f"cannot listen on {listen}: {exc}") from None
 

@@ -7,13 +7,15 @@ from typing import Any
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors
-from cli.paths import io_paths
+from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
+from cli.ecu import key_algo_option
+from cli.paths import check_more, io_paths
 from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _StepProgress, given_options, results_table
+from eol_cal import interrupts
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
 STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
-                       "station_id": "station_id"}
+                       "station_id": "station_id", "key_algo": "key_algo"}
 #: keys the demo fills itself (the simulators' dyno and bus, the contract's development key)
 DEMO_OWN_KEYS = ("dyno.address", "key_file", "can.interface")
 DEMO_STATION_ID = "DEMO"
@@ -50,7 +52,7 @@ def verdict_panel(serial: str, verdict: str, lines: list[str]):
     # centred as one block: centring each row alone would shift the letters' rows apart
     body = [Align.center(Text(big_word(verdict.upper()), style=f"bold {colour}", no_wrap=True)), Text("")]
     body += [Text(line) for line in lines]
-    return Panel(Group(*body), title=f"{serial}: {verdict.upper()}", border_style=colour, expand=True)
+    return Panel(Group(*body), title=Text(f"{serial}: {verdict.upper()}"), border_style=colour, expand=True)
 
 
 def _ask(prompt: str) -> str | None:
@@ -65,10 +67,15 @@ def _ask(prompt: str) -> str | None:
 
     if sys.stdin.isatty():
         termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
-    try:
-        return input(prompt)
-    except EOFError:
+    # the bytes as the scanner sent them, not input(): its line editing (GNU readline) swallowed
+    # a NUL and glued the line's two halves together ("M\0q" was calibrated as serial "Mq");
+    # bytes that are not UTF-8 stay as surrogates, which no serial or name check lets through
+    sys.stdout.write(prompt)
+    sys.stdout.flush()
+    line = sys.stdin.buffer.readline()
+    if not line:
         return None
+    return line.decode("utf-8", "surrogateescape").rstrip("\r\n")
 
 
 def _ask_operator() -> str | None:
@@ -82,7 +89,7 @@ def _ask_operator() -> str | None:
         try:
             return operator_name(line)
         except InputError as exc:
-            console.print(f"[red]{exc}[/red]; type your name again")
+            console.print(styled((str(exc), "red"), "; type your name again"))
 
 
 def _next_serial() -> str | None:
@@ -97,7 +104,7 @@ def _next_serial() -> str | None:
         try:
             return scanned_serial(line)
         except InputError as exc:
-            console.print(f"[red]not a serial: {exc.reason}[/red]; scan again")
+            console.print(styled((f"not a serial: {exc.reason}", "red"), "; scan again"))
 
 
 def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir: Path | None, options: dict):
@@ -196,6 +203,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             serial = _next_serial()
         except KeyboardInterrupt:
+            interrupts.handled()  # the session's way to end, with exit 0
             console.print("\nCtrl-C between motors: the session ends")
             return False
         if serial is None:
@@ -206,13 +214,14 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
             # the cycle has commanded the dyno's safe state and recorded the run as an error
             tally.interrupted.append(serial)
             console.print(verdict_panel(serial, "error", [
-                "interrupted: the dyno was sent to its safe state and the run recorded as an error",
+                "interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)",
                 f"report: under {cfg.report_dir}"]))
             return True
         tally.add(out.record, str(out.report_html) if out.report_html else None)
         try:
             _show(out)
         except KeyboardInterrupt:
+            interrupts.handled()
             return False
 
 
@@ -253,6 +262,7 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
 @click.option("--variant", default=None, help="Product variant in the limits file (overrides the settings).")
 @click.option("--db", default=None, type=RECORDS_DB, help="Records database (overrides the settings; demo: OUT/results.sqlite).")
 @click.option("--report-dir", default=None, type=click.Path(file_okay=False, path_type=Path), help="Reports (overrides the settings).")
+@key_algo_option
 @click.option("--lot", "lot_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the station's lot page here at the end [demo default: OUT/lot.html].")
 @click.pass_context
@@ -282,6 +292,9 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     if demo and out_dir is None:
         out_dir = Path(tempfile.mkdtemp(prefix="eol-cal-station-"))
     settings = _settings(ctx, station_file, demo, out_dir, options)
+    from eol_cal.station.settings import settings_paths
+
+    check_more(*settings_paths(settings))  # --lot and --log-file against the settings' database and files
     cfg = station_config(settings, cache_dir=enable_jax_cache(),
                          seed_to_key=hmac_seed_to_key(P.DEV_SECRET) if demo else None)
     if demo and lot_file is None:
@@ -293,6 +306,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:
+        interrupts.handled()
         operator = None
     if operator is None:
         console.print("no operator: the session ends")

@@ -1,5 +1,6 @@
-"""The fingerprint's joint fit (normal equations assembled per stretch) against the dense least
-squares it replaces: the same edge errors, variances, residual and degrees of freedom."""
+"""The fingerprint's joint fit (each stretch's motion projected out, normal equations summed per
+pulse) against the dense least squares over every edge: the same edge errors, variances, residual
+and degrees of freedom."""
 
 from __future__ import annotations
 

@@ -15,18 +15,19 @@ from eol_cal.analysis.metrics import RipplePP, eta_percent, lowpass_zero_phase
 from eol_cal.analysis.spectrum import OrderSpectrum
 from eol_cal.atomic import atomic_path
 from eol_cal.errors import InputError
+from eol_cal.render import plain
 
 
 def _pyplot():
-    import matplotlib
+    from eol_cal.render import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def _save(fig, path: str | Path) -> None:
+    from eol_cal.render import literal_texts
+
+    literal_texts(fig)
     try:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png", dpi=110)
@@ -123,7 +124,7 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
             ax_t.plot(row.t, filt, color="tab:blue", lw=1.0, label=f"low-pass {r.cutoff_order:g} x f_e")
             for i, w in enumerate(r.windows):
                 ax_t.axvspan(w.t_start, w.t_end, color="tab:green", alpha=0.08 if i % 2 else 0.15, lw=0)
-            ax_t.set_title(f"{row.label}: p-p {r.raw_pct:.2f} % raw, {r.filtered_pct:.2f} % filtered, "
+            ax_t.set_title(f"{plain(row.label)}: p-p {r.raw_pct:.2f} % raw, {r.filtered_pct:.2f} % filtered, "
                            f"T_avg {r.T_avg_nm:.3f} N*m", fontsize=9)
             ax_t.set_xlabel("t (s)")
             ax_t.set_ylabel("torque (N*m)")

@@ -173,8 +173,13 @@ class Trace:
 
 
 def trace_of(metadata: Mapping[str, Any], file: str | None = None) -> Trace:
-    """Both ECU states of a capture's metadata (see :func:`ecu_state`)."""
-    return Trace(ecu_state(metadata, "ecu_before", file), ecu_state(metadata, "ecu_after", file))
+    """Both ECU states of a capture's metadata (see :func:`ecu_state`); a record of only one of
+    the two is refused (capture format, "ECU state"), whichever command reads the file."""
+    trace = Trace(ecu_state(metadata, "ecu_before", file), ecu_state(metadata, "ecu_after", file))
+    if (trace.before is None) != (trace.after is None):
+        missing = "ecu_before" if trace.before is None else "ecu_after"
+        raise InputError(file, missing, "the ECU state is recorded only at one end of the capture")
+    return trace
 
 
 def compensated(state: EcuState) -> bool:

@@ -38,10 +38,9 @@ def hmac_seed_to_key(secret: bytes) -> SeedToKey:
 
 def load_key_file(path: str | Path) -> bytes:
     """Read a 16-byte security secret written as hex (whitespace and a ``0x`` prefix allowed)."""
-    try:
-        text = Path(path).read_text("ascii")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(str(path), "key", f"cannot read: {exc}") from exc
+    from eol_cal.inputs import read_text
+
+    text = read_text(path, "key", encoding="ascii", max_bytes=4096)  # a FIFO or a device: refused unread
     cleaned = "".join(text.split())
     cleaned = cleaned[2:] if cleaned.lower().startswith("0x") else cleaned
     try:

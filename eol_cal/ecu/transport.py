@@ -99,6 +99,53 @@ TESTER_READ_TIMEOUT_S = 0.004
 """Longest wait of the tester's ISO-TP reading thread in one ``bus.recv``, s (see :func:`make_stack`)."""
 
 
+def bus_config(interface: str | None, channel: str | None, bitrate: int | None = None,
+               can_config: str | None = None) -> dict:
+    """The python-can settings :func:`open_bus` opens: the options over the configuration file's
+    ``[default]`` section, checked without opening anything (a station checks them at its start).
+
+    Raises
+    ------
+    InputError
+        The file is not a readable regular file or not a python-can configuration (a garbage
+        file was a ``MissingSectionHeaderError`` traceback), no interface, or one this tool
+        does not drive.
+    """
+    import configparser
+
+    overrides = {k: v for k, v in (("interface", interface), ("channel", channel), ("bitrate", bitrate))
+                 if v is not None}
+    if can_config is not None:
+        from eol_cal.inputs import read_text
+
+        parser = configparser.ConfigParser()
+        try:  # read as python-can will, but through the one reader of input files (a FIFO is refused)
+            parser.read_string(read_text(can_config, "can-config", max_bytes=1 << 20), source=can_config)
+        except configparser.Error as exc:
+            raise InputError(can_config, "can-config", f"not a python-can configuration file: "
+                                                       f"{str(exc).splitlines()[0]}") from None
+    try:
+        config = can.util.load_config(path=can_config, config=overrides) if can_config else overrides
+    except (OSError, ValueError, configparser.Error, can.CanInterfaceNotImplementedError) as exc:
+        raise InputError(can_config, "can-config", str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    if not config.get("interface"):
+        raise InputError(can_config, "interface", "no CAN interface given (neither directly nor in a python-can configuration file)")
+    if config.get("interface") == "udp_multicast":
+        # Its frames leave through the network card; the project never uses it.
+        raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
+    if config["interface"] not in can.interfaces.VALID_INTERFACES:
+        raise InputError(can_config, "interface", f"{config['interface']!r} is not a python-can interface")
+    for key in ("bitrate", "data_bitrate"):
+        if key in config:
+            try:
+                config[key] = int(config[key])
+            except (TypeError, ValueError):
+                raise InputError(can_config, key, f"{config[key]!r} is not a bit rate (bit/s)") from None
+            if not 10_000 <= config[key] <= 8_000_000:
+                raise InputError(can_config, key, f"{config[key]} bit/s outside 10000..8000000")
+    return config
+
+
 def open_bus(interface: str | None, channel: str | None, bitrate: int | None = None,
              can_config: str | None = None) -> "GuardedBus":
     """Open a python-can bus from command-line style options, wrapped in a :class:`GuardedBus`.
@@ -118,19 +165,7 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     InputError
         The interface is unknown, the config file unreadable, or the bus cannot be opened.
     """
-    overrides = {k: v for k, v in (("interface", interface), ("channel", channel), ("bitrate", bitrate))
-                 if v is not None}
-    if can_config is not None and not os.path.isfile(can_config):
-        raise InputError(can_config, "can-config", "file not found")
-    try:
-        config = can.util.load_config(path=can_config, config=overrides) if can_config else overrides
-    except (OSError, ValueError, can.CanInterfaceNotImplementedError) as exc:
-        raise InputError(can_config, "can-config", str(exc)) from exc
-    if not config.get("interface"):
-        raise InputError(can_config, "interface", "no CAN interface given (neither directly nor in a python-can configuration file)")
-    if config.get("interface") == "udp_multicast":
-        # Its frames leave through the network card; the project never uses it.
-        raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
+    config = bus_config(interface, channel, bitrate, can_config)
     previous_timeout = socket.getdefaulttimeout()
     try:
         # python-can-remote's WebSocket handshake has no timeout of its own: a server that accepts

@@ -24,13 +24,10 @@ RC = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": Tru
 
 
 def pyplot() -> ModuleType:
-    """matplotlib's pyplot on the Agg backend (imported on first use: it costs a second)."""
-    import matplotlib
+    """matplotlib's pyplot (:func:`eol_cal.render.pyplot`: Agg, no LaTeX)."""
+    from eol_cal.render import pyplot as render_pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return render_pyplot()
 
 
 def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
@@ -55,7 +52,10 @@ def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | Non
     """
     import matplotlib
 
+    from eol_cal.render import literal_texts
+
     buf = io.StringIO()
+    literal_texts(fig)
     try:
         with matplotlib.rc_context(RC):
             # dpi: resolution of the rasterized parts (dense point clouds drawn as one embedded PNG

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, Callable
 
 from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_ripple, verify_segments
 from eol_cal.errors import EolCalError, InputError
-from eol_cal.interrupts import shielded
+from eol_cal.interrupts import emergency, raise_if_received, shielded
 from eol_cal.station.limits import LimitCheck, Measured, all_checks, failed, judge
 from eol_cal.station.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, PointFigures, PreflightResult,
                                     RippleMetrics, RunRecord, StationInfo, Step)
@@ -286,6 +286,17 @@ class StationCycle:
         except OSError:
             return None
 
+    def _spool_now(self, rec: RunRecord) -> None:
+        """The emergency path of :meth:`record` (the watchdog's thread): straight into the spool."""
+        from eol_cal.station.spool import default_spool_dir, spool_record
+
+        spool_record(rec, self.cfg.db, self.cfg.spool_dir or default_spool_dir(), "the process was ended by a signal "
+                     "while it wrote the database")
+
+    def _dyno_safe_now(self) -> None:
+        """The emergency path of the cycle (the watchdog's thread): the dyno's safe state, once."""
+        safe_state(self.cfg.dyno)
+
     def record(self, rec: RunRecord) -> SaveResult:
         """Save the record: database, or the spool when the database cannot take it."""
         from eol_cal.station.spool import save_record
@@ -323,6 +334,9 @@ class StationCycle:
             for name, method in (*gate, ("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
                                  ("acquire", self.acquire), ("fit", self.fit), ("table", self.table), ("flash", self.flash),
                                  ("acquire compensated", self.acquire_compensated), ("metrics", self.judge)):
+                # a signal whose exception a finalizer swallowed (JAX's gc callback, during the
+                # fit) stops the cycle here: nothing is flashed after it (eol_cal.interrupts)
+                raise_if_received(name)
                 found = self._step(name, method)
                 if found is not None:
                     self.verdict, self.reasons = found.verdict, list(found.reasons)
@@ -362,7 +376,10 @@ class StationCycle:
                 write_record_json(rec, self.run_dir)
             except Exception as exc:  # noqa: BLE001 - the database still gets it
                 rec = dataclasses.replace(rec, report_error=f"report.json: {type(exc).__name__}: {exc}")
-            saved = self.record(rec)
+            # a main thread stuck in the database write (a share that hangs) still leaves the
+            # record in the spool when the watchdog ends the process
+            with emergency(lambda: self._spool_now(rec)):
+                saved = self.record(rec)
             if journal is not None and saved.where == "db":
                 journal.unlink(missing_ok=True)
         if failure is not None and not isinstance(failure, Exception):  # Ctrl-C: recorded; now end the process
@@ -536,4 +553,6 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """
-    return StationCycle.start(cfg, progress).run(on_verdict)
+    cycle = StationCycle.start(cfg, progress)
+    with emergency(cycle._dyno_safe_now):  # the watchdog's last resort if the main thread is stuck
+        return cycle.run(on_verdict)

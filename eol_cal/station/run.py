@@ -219,8 +219,12 @@ def new_run_dir(report_dir: Path, serial: str, started: _dt.datetime, run_id: st
 
 def check_config(cfg: StationConfig) -> None:
     """Refuse what can be known bad before the dyno turns (no record: nothing was run)."""
-    if not cfg.serial or len(cfg.serial.encode("ascii", "replace")) > 16 or not cfg.serial.isascii():
-        raise InputError(None, "serial", f"{cfg.serial!r}: 1 to 16 ASCII characters (the block's serial field)")
+    from eol_cal.firmware.block import serial_problem
+
+    why = serial_problem(cfg.serial)
+    if why is not None:
+        raise InputError(None, "serial", f"{cfg.serial!r}: {why} (the block's serial field: 1 to 16 ASCII characters, "
+                                         "printable)")
     try:
         cfg.report_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
