@@ -211,9 +211,12 @@ def _bank_choice(value: str | None) -> int | str | None:
 @click.option("--slow", metavar="STEP:S", help="Fault test: every request of STEP takes S seconds more (0x78 meanwhile).")
 @click.option("--stale-answers", is_flag=True,
               help="Fault test: before each request's answer, the previous answer again (a late duplicate at every step).")
+@click.option("--bitrate", type=click.IntRange(10_000, 8_000_000), default=None,
+              help="Pace the simulator's bus to this CAN bit rate (bit/s, both directions) [default: unpaced].")
 @handle_errors
 def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None, erase_s: float,
-                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None, stale_answers: bool) -> None:
+                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None, stale_answers: bool,
+                bitrate: int | None) -> None:
     """Run the ECU simulator, served to other processes over python-can-remote.
 
     Testers connect with ``--interface remote --channel ws://HOST:PORT/``. Stop with Ctrl-C.
@@ -250,7 +253,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
     except UnicodeEncodeError:
         raise InputError(None, "serial", f"{serial!r} is not ASCII") from None
     config = SimConfig(serial=serial, secret=load_key_file(key_file) if key_file else P.DEV_SECRET,
-                       erase_s=erase_s, s3_s=s3_s, lockout_s=lockout_s)
+                       erase_s=erase_s, s3_s=s3_s, lockout_s=lockout_s, bitrate=bitrate)
     try:
         ecu = serve_remote(flash_file, host=host, port=port, config=config, faults=faults)
     except OSError as exc:

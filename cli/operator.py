@@ -131,14 +131,15 @@ def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir:
 
 
 def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
-    """The cycle of one motor (on its own loopback simulators in the demo)."""
+    """The cycle of one motor (on its own loopback simulators in the demo); the verdict is shown
+    as soon as the cycle knows it, the report and the record's place after them."""
     from eol_cal.station.configure import for_motor
     from eol_cal.station.cycle import run_motor
 
     station = dict(cfg.station, operator=operator)
     if demo_dir is None:
         with _StepProgress(serial) as progress:
-            return run_motor(for_motor(cfg, serial, station=station), progress)
+            return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.station.demo import loopback_station
     from eol_cal.station.session import demo_seed
@@ -150,13 +151,13 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
         mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
                          station=station)
         with _StepProgress(serial) as progress:
-            return run_motor(mcfg, progress)
+            return run_motor(mcfg, progress, on_verdict=_show_verdict)
 
 
-def _show(out) -> None:
+def _show_verdict(rec) -> None:
+    """The large verdict, the moment the cycle knows it (the record is already safe in the spool)."""
     from eol_cal.msa.gate import gate_refusal
 
-    rec = out.record
     if (line := gate_refusal(rec)) is not None:  # the master gate: one line
         console.print(verdict_panel(rec.serial, rec.verdict, [line]))
         return
@@ -167,10 +168,20 @@ def _show(out) -> None:
         lines.append(f"dyno safe state: {rec.safe_state}")
     if rec.ecu_active.block == "uncompensated":
         lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
-    lines.append(f"report: {out.report_html}" if out.report_html else "report: none (see the record)")
-    where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
-    lines.append(f"record {rec.run_id} -> {where}")
+    lines.append("report and record: being written (the next serial is asked for when they are)")
     console.print(verdict_panel(rec.serial, rec.verdict, lines))
+
+
+def _show(out) -> None:
+    """Where the report and the record went, once they are written."""
+    rec = out.record
+    where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
+    report = f"report: {out.report_html}" if out.report_html else "report: none (see the record)"
+    if rec.report_error:
+        report += f" ({rec.report_error})"
+    console.print(f"  {rec.serial} {report}\n  {rec.serial} record {rec.run_id} -> {where}")
+    if rec.verdict == "error" and rec.report_error:  # the report failed after the verdict was shown
+        console.print(verdict_panel(rec.serial, rec.verdict, [f"{rec.verdict}: {r}" for r in rec.reasons]))
 
 
 def _master_status(cfg) -> str:
@@ -268,6 +279,9 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     """
     import tempfile
 
+    from eol_cal.ecu.python_can import import_can
+
+    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key

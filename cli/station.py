@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from importlib import resources
 from pathlib import Path
 
@@ -9,7 +10,7 @@ import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
                         handle_errors, kind_option, print_json, styled)
-from cli.dyno import load_map, register_map_option
+from cli.dyno import load_map, realtime_option, register_map_option
 from cli.ecu import key_algo_option
 from cli.paths import check_more, io_paths
 
@@ -90,6 +91,17 @@ def results_table(records: list, title: str):
 
 #: the ``schema`` of ``eol-cal run --json``
 RUN_SCHEMA = "eol-cal/run/1"
+
+
+def _print_verdict(rec) -> None:
+    """The verdict as soon as the cycle knows it (the report and the database come after)."""
+    from eol_cal.msa.gate import gate_refusal
+
+    if gate_refusal(rec) is not None:  # the master gate refused at once: its one line follows
+        return
+    what = "REFUSED" if rec.kind == "refusal" else rec.verdict.upper()
+    colour = {"pass": "green", "fail": "yellow"}.get(rec.verdict, "red")
+    console.print(f"[bold {colour}]{rec.serial}: {what}[/]" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
 
 
 def _print_outcome(out, as_json: bool) -> None:
@@ -233,6 +245,9 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     cannot be written the record goes to the spool and the next run (or `eol-cal records
     --flush`) writes it in.
     """
+    from eol_cal.ecu.python_can import import_can
+
+    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor
@@ -243,14 +258,21 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     # switched on by the helper thread: importing JAX costs a second
     cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
     _quiet_logs()
-    _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    # Records spooled earlier go into the database beside the cycle, not before it: the database
+    # library loads and the inserts run while the cycle waits on the dyno and the ECU. (The
+    # spool is listed as the flush starts: this run's record, spooled at its verdict, is not
+    # among them.)
+    flush = threading.Thread(target=_flush_first, args=(cfg.db, cfg.spool_dir, cfg.db_timeout_s),
+                             name="spool-flush", daemon=True)
+    flush.start()
     try:
         with _StepProgress(serial, enabled=not as_json) as progress:
-            out = run_motor(cfg, progress)
+            out = run_motor(cfg, progress, on_verdict=None if as_json else _print_verdict)
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
         err_console.print("interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)")
         raise CommandExit(2) from None
+    flush.join()
     _print_outcome(out, as_json)
     raise CommandExit(out.exit_code)
 
@@ -263,11 +285,12 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
 @click.option("--db", default=None, type=RECORDS_DB,
               help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
+@realtime_option
 @register_map_option
 @handle_errors
 @exchange_log_options
 @io_paths(inputs=("profile", "register_map"), outputs=("db",), output_dirs=("out_dir",))
-def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
+def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
     Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
@@ -304,7 +327,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     outcomes = []
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
-        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap) as st:
+        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap, realtime=realtime) as st:
             host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(

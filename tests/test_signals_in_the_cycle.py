@@ -41,8 +41,14 @@ def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s)
     assert run.returncode == 2, err
     assert "Traceback" not in err, err
     (rec,) = query_records(tmp_path / "db.sqlite")
-    assert rec.verdict == "error" and sig.name in rec.error.message, rec.error
     assert not dyno.enabled and dyno.speed == 0.0
+    if rec.verdict != "error":
+        # the cycle reached its verdict before the signal (the fit, worked on while the dyno
+        # turned, can end within delay_s of before.mf4, which is written beside it): the record
+        # keeps the verdict, and what was flashed was flashed before the signal
+        assert rec.verdict in ("pass", "fail") and rec.error is None, rec
+        return
+    assert sig.name in rec.error.message, rec.error
     if not flashed_before:  # the calibrated block was not being written when the signal came
         active = B.unpack(active_block_from_file(tmp_path / "ecu.flash"), "active")
         assert active.sequence == 1 and not active.flags & B.FLAG_COMP_ENABLE, "flashed after the signal"

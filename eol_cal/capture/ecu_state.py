@@ -3,8 +3,8 @@
 A capture's torque depends on the block the ECU runs (estimator, compensation), so a capture
 without that record cannot be trusted for a fit: a capture taken under compensation shows the
 residual of the old table, not the motor's ripple. The acquisition reads the ECU's active
-block over UDS (DID FD01 and the block header's flags) right before the dyno turns and right
-after the last window, and the capture's metadata carries both as ``ecu_before.*`` /
+block over UDS (DID FD01 and the block header's flags) right before the first capture and
+right after the last window, and the capture's metadata carries both as ``ecu_before.*`` /
 ``ecu_after.*`` keys (``docs/capture-format.md``, "ECU state"):
 
 ==============================  ======  ===========================================================

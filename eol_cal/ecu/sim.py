@@ -34,7 +34,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import NorFlash, SecurityMemory, select_active
 from eol_cal.ecu.programming import BankProgrammer, Nrc, PowerLoss, parse_location
 from eol_cal.ecu.simconfig import STEPS, Faults, SimConfig
-from eol_cal.ecu.transport import FaultyBus, make_stack
+from eol_cal.ecu.transport import FaultyBus, PacedBus, make_stack
 
 __all__ = ["EcuSimulator", "Faults", "Nrc", "STEPS", "SimConfig"]
 
@@ -106,6 +106,8 @@ class EcuSimulator:
         self.config = config or SimConfig()
         self.faults = faults or Faults()
         f = self.faults
+        if self.config.bitrate:
+            bus = PacedBus(bus, self.config.bitrate)
         self.bus: can.BusABC = (FaultyBus(bus, drop_rate=f.drop_rate, delay_rate=f.delay_rate,
                                           delay_s=f.delay_s, seed=f.seed)
                                 if (f.drop_rate or f.delay_rate) else bus)

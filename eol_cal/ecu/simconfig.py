@@ -96,6 +96,9 @@ class SimConfig:
         maxNumberOfBlockLength of the RequestDownload response: bytes of one TransferData
         request, service ID and counter included.
     isotp_timing : IsoTpTiming
+    bitrate : int or None
+        The CAN bit rate (bit/s) the simulator's bus is paced to, both directions
+        (:class:`~eol_cal.ecu.transport.PacedBus`); None: frames as fast as the virtual bus carries them.
     """
 
     serial: str = "SIM-0001"
@@ -109,3 +112,4 @@ class SimConfig:
     erase_s: float = 0.05
     max_block_length: int = 4094
     isotp_timing: IsoTpTiming = IsoTpTiming()
+    bitrate: int | None = None

@@ -1,8 +1,9 @@
 """CAN bus and ISO-TP plumbing shared by the flashing client and the ECU simulator.
 
 python-can opens the bus (any interface, or python-can's own config file), can-isotp carries
-UDS messages with the contract's addressing and 0xCC padding, and :class:`FaultyBus` injects
-dropped and delayed frames for the reliability tests.
+UDS messages with the contract's addressing and 0xCC padding, :class:`FaultyBus` injects
+dropped and delayed frames for the reliability tests, and :class:`PacedBus` holds the ECU
+simulator's frames to a CAN bit rate.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import errno
 import itertools
 import logging
 import os
+import queue
 import random
 import socket
 import threading
@@ -85,8 +87,16 @@ def make_stack(bus: can.BusABC, *, tx_id: int, rx_id: int, blocking_send: bool,
     reader in the same process; use a second ``can.Bus`` on the channel to sniff.
     """
     address = isotp.Address(isotp.AddressingMode.Normal_11bits, txid=tx_id, rxid=rx_id)
+    # The stack's reading thread waits in bus.recv at most this long: a frame wakes it at once,
+    # so it bounds only how long stopping the stack takes, which the tester pays at the end of
+    # every session (the station opens several per motor).
+    read_timeout = TESTER_READ_TIMEOUT_S if blocking_send else 0.02
     return isotp.CanStack(bus, address=address, params=isotp_params(blocking_send=blocking_send, timing=timing),
-                          read_timeout=0.02)
+                          read_timeout=read_timeout)
+
+
+TESTER_READ_TIMEOUT_S = 0.004
+"""Longest wait of the tester's ISO-TP reading thread in one ``bus.recv``, s (see :func:`make_stack`)."""
 
 
 def bus_config(interface: str | None, channel: str | None, bitrate: int | None = None,
@@ -235,6 +245,85 @@ class FaultyBus(can.BusABC):
 
     def shutdown(self) -> None:
         super().shutdown()
+        self.inner.shutdown()
+
+
+class PacedBus(can.BusABC):
+    """A bus wrapper that gives every frame, sent or received, its time on a CAN bus of
+    ``bitrate`` (the ECU simulator's bus: a virtual bus carries frames as fast as the CPU allows).
+
+    Both directions share one medium: a frame occupies the bus for :func:`frame_bits` (worst-case
+    stuffing) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
+    frame goes into a transmit queue, as into a CAN controller's, and reaches the other side when
+    its time on the bus is over (frames sent back to back follow each other at the bit rate, the
+    sender's own sleeps not adding up); a received frame is handed on when its time is over.
+
+    Parameters
+    ----------
+    inner : can.BusABC
+        The real (virtual) bus.
+    bitrate : int
+        bit/s (the contract's bus: 500000).
+    """
+
+    def __init__(self, inner: can.BusABC, bitrate: int) -> None:
+        if bitrate <= 0:
+            raise ValueError(f"bit rate {bitrate} must be positive")
+        self.inner = inner
+        self.bitrate = int(bitrate)
+        self._lock = threading.Lock()
+        self._free_at = 0.0
+        self.busy_s = 0.0
+        """Seconds the frames have occupied the bus so far."""
+        self._tx: queue.SimpleQueue[tuple[float, can.Message] | None] = queue.SimpleQueue()
+        self._tx_thread = threading.Thread(target=self._transmit, name="paced-bus-tx", daemon=True)
+        self._tx_thread.start()
+        super().__init__(channel=getattr(inner, "channel_info", "paced"))
+        self.channel_info = f"paced {self.bitrate} bit/s ({getattr(inner, 'channel_info', '')})"
+
+    def _slot(self, msg: can.Message, ready: float) -> float:
+        """When ``msg``, ready to go at ``ready`` (monotonic s), has left the bus."""
+        seconds = frame_bits(msg.dlc) / self.bitrate
+        with self._lock:
+            done = max(ready, self._free_at) + seconds
+            self._free_at = done
+            self.busy_s += seconds
+        return done
+
+    @staticmethod
+    def _sleep_until(t: float) -> None:
+        wait = t - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+    def _transmit(self) -> None:
+        while True:
+            item = self._tx.get()
+            if item is None:
+                return
+            done, msg = item
+            self._sleep_until(done)
+            try:
+                self.inner.send(msg)
+            except Exception as exc:  # noqa: BLE001 - a closed bus: the frame is lost, as on a dead link
+                log.debug("paced bus: frame not sent: %s", exc)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._tx.put((self._slot(msg, time.monotonic()), msg))
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        msg = self.inner.recv(timeout)
+        if msg is not None:
+            # on the bus from when the sender handed it over, not from when this thread got to it
+            age = time.time() - msg.timestamp if msg.timestamp else 0.0
+            now = time.monotonic()
+            self._sleep_until(self._slot(msg, now - age if 0.0 <= age < 1.0 else now))
+        return msg, False
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self._tx.put(None)
+        self._tx_thread.join(1.0)
         self.inner.shutdown()
 
 
