@@ -428,9 +428,8 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
         placed = [(t, k + 4 * r) for w, r in zip(prints, old.offsets) if r is not None for t, k in w.stretches]
         for cov in (True, False):
             a, b = fpr._joint_fit(placed, N, quarter, cov), old_joint_fit(placed, N, quarter, cov)
-            if cov:  # without, the new fit gives the residual only
-                note("joint fit fp", _rel(a[0], b[0]))
-                note("joint fit var", _rel(a[1], b[1]))
+            note("joint fit fp", _rel(a[0], b[0]))
+            note("joint fit var", _rel(a[1], b[1]))
             note("joint fit rss", _rel(a[2], b[2]))
             note("joint fit dirs, dof differ", float(a[3:] != b[3:]))
         ref = old.offsets.index(0)

@@ -274,36 +274,35 @@ class _Sums:
 def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, halves: tuple[int, ...],
            N: int, cov: bool):
     """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
-    :func:`_joint_fit`. Without ``cov`` (a placement trial) only the residual is computed, from a
-    Cholesky factor ``G = L L^T``: ``rss = ss - |L^-1 rhs|^2``."""
+    :func:`_joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
+    ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (a placement trial's figures are those of
+    the full fit; ``cov`` adds the variances)."""
     from eol_cal.firmware.mech_params import FP_FORWARD
 
     P = _low_order_complement(N)
     nF = P.shape[1]
     dof = n - ((_POLY_DEGREE + 1) * n_stretches + nF * len(halves))
-    dirs = sum(FP_FORWARD << d for d in halves)
+    L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
+    if info == 0:
+        z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
+    if info == 0:
+        sol = scipy.linalg.lapack.dtrtrs(L, z, lower=1, trans=1)[0]
+        rss = max(ss - float(z @ z), 0.0)
+        G_inv = scipy.linalg.cho_solve((L, True), np.eye(len(rhs)), check_finite=False) if cov else None
+    else:  # not positive definite (a pulse's errors not separable from the motions): least norm
+        G_inv = np.linalg.pinv(G)
+        sol = G_inv @ rhs
+        # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 over every edge = ss - 2 rhs.sol + sol^T G sol
+        rss = max(ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
     fp = np.full(2 * N, np.nan)
     var = np.full(2 * N, np.nan)
-    if not cov:
-        L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
-        if info == 0:
-            z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
-            if info == 0:
-                return fp, var, max(ss - float(z @ z), 0.0), dirs, dof
-    try:
-        G_inv = np.linalg.inv(G)
-    except np.linalg.LinAlgError:
-        G_inv = np.linalg.pinv(G)
-    sol = G_inv @ rhs
-    # the residual of phi_res + e - Q Q^T e over every edge, e the errors at the edges' pulses:
-    # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 = ss - 2 rhs.sol + sol^T G sol
-    rss = max(ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
-    C = rss / max(1, dof) * G_inv
+    C = rss / max(1, dof) * G_inv if cov else None
     for i, d in enumerate(halves):
         s = slice(i * nF, (i + 1) * nF)
         fp[d::2] = P @ sol[s]
-        var[d::2] = np.sum((P @ C[s, s]) * P, axis=1)
-    return fp, var, rss, dirs, dof
+        if C is not None:
+            var[d::2] = np.sum((P @ C[s, s]) * P, axis=1)
+    return fp, var, rss, sum(FP_FORWARD << d for d in halves), dof
 
 
 def _halves(seen: np.ndarray, N: int) -> tuple[int, ...]:
@@ -357,8 +356,7 @@ def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: 
     ``(k >> 1) mod 2N``: forward half (``k = 4m + 1``) and reverse half (``4m + 3``). Returns
     ``(fp (2N,), var (2N,), rss, dirs, dof)``; a half with a pulse never seen, or fewer than 1.25
     revolutions of edges, is left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
-    ``cov=False`` gives the residual, ``dirs`` and ``dof`` only (``fp`` and ``var`` NaN): a
-    placement trial needs no more.
+    ``cov=False`` skips the variances (NaN): a placement trial needs the residual only.
 
     Each stretch's polynomial is projected out of its edges (Frisch-Waugh): the errors' normal
     equations are then ``(nF * dirs)`` square, summed per pulse from the edges (:class:`_Stats`),
