@@ -17,10 +17,13 @@ THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"
 
 
 def limit_blas_threads() -> None:
-    """Limit the BLAS libraries loaded in this process to one thread, unless one of
-    :data:`THREAD_VARIABLES` is set (then the user's count stands)."""
+    """Limit the BLAS libraries of this process, loaded now or later, to one thread, unless one
+    of :data:`THREAD_VARIABLES` is set (then the user's count stands)."""
     if any(os.environ.get(v) for v in THREAD_VARIABLES):
         return
+    # a BLAS loaded later reads its count when it loads: scipy's wheels bring an OpenBLAS of
+    # their own, loaded with scipy.linalg (the fingerprint's Cholesky factors), after this call
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
     import numpy  # noqa: F401 - its BLAS must be loaded for threadpoolctl to find it
     from threadpoolctl import threadpool_limits
 

@@ -12,6 +12,7 @@ PROBE = (
     "import numpy  # noqa: F401\n"
     "from eol_cal.blas import limit_blas_threads\n"
     "limit_blas_threads()\n"
+    "import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded after the limit\n"
     "from threadpoolctl import threadpool_info\n"
     "print(max(i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas'))\n"
 )

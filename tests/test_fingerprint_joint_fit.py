@@ -1,6 +1,7 @@
 """The fingerprint's joint fit (each stretch's motion projected out, normal equations summed per
-pulse) against the dense least squares over every edge: the same edge errors, variances, residual
-and degrees of freedom."""
+pulse, windows moved by moving their sums) against the dense least squares over every edge: the
+same edge errors, variances, residual and degrees of freedom; and window placement over the
+pole-pair offsets."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from eol_cal.firmware.mech_params import FP_FORWARD
 
 N, POLES = 64, 8
 QUARTER = POLES * math.pi / N / 4.0
+DELTA = 4 * QUARTER
 
 
 def _stretches(rng: np.random.Generator, fp_true: np.ndarray, n: int, reverse: bool) -> list:
@@ -44,6 +46,8 @@ def _dense(stretches: list, dirs: list[int]):
     col = {d: nb + i * nF for i, d in enumerate(dirs)}
     rows, rhs = [], []
     for g, (times, k) in enumerate(stretches):
+        keep = np.isin((k >> 1) & 1, dirs)  # a half left out: its edges are not in the fit
+        times, k = times[keep], k[keep]
         half = (k >> 1) & 1
         x = (times - times[0]) / (times[-1] - times[0]) * 2.0 - 1.0
         A = np.zeros((len(times), nb + nF * len(dirs)))
@@ -87,3 +91,73 @@ def test_the_joint_fit_equals_the_dense_least_squares(seed):
     fp2, var2, rss2, _, _ = fpr._joint_fit(stretches, N, QUARTER, cov=False)
     np.testing.assert_array_equal(fp2, fp)
     assert np.isnan(var2).all() and rss2 == rss
+
+
+def _true_fingerprint(seed: int) -> np.ndarray:
+    """(2N,) edge errors (rad electrical) without mechanical orders 0..2 in either half."""
+    P = fpr._low_order_complement(N)
+    rng = np.random.default_rng(seed)
+    fp = np.zeros(2 * N)
+    for d in (0, 1):
+        fp[d::2] = P @ (P.T @ rng.normal(0.0, 5e-3, N))
+    return fp
+
+
+def _stretch(fp: np.ndarray, k0: int, n_edges: int, rpm: float, seed: int, noise_s: float = 2e-6):
+    """A stretch of A edges (both halves, forward) from boundary ``k0``: the rotor's electrical
+    angle at edge k is ``k * QUARTER + fp[(k >> 1) mod 2N]``, a slowly accelerating motion."""
+    rng = np.random.default_rng(seed)
+    k = k0 + 2 * np.arange(n_edges)  # A edges (k0 odd): every other boundary, k = 4m + 1 and 4m + 3
+    theta = k * QUARTER + fp[(k >> 1) % (2 * N)]
+    w = rpm / 60.0 * 2 * math.pi * POLES / 2  # rad electrical / s
+    # theta = w t + a t^2 / 2, a small: t from the quadratic
+    a = 0.05 * w
+    t = (-w + np.sqrt(w * w + 2 * a * (theta - theta[0]))) / a
+    return t + rng.normal(0.0, noise_s, len(t)), k.astype(np.int64)
+
+
+@pytest.mark.parametrize("drop_reverse_pulse", [False, True])
+def test_the_joint_fit_of_one_half_or_both_is_the_dense_least_squares(drop_reverse_pulse):
+    fp_true = _true_fingerprint(1)
+    stretches = [_stretch(fp_true, 1, 200, 120.0, 2), _stretch(fp_true, 4 * 37 + 3, 90, 240.0, 3),
+                 _stretch(fp_true, 4 * 7 + 1, 60, 60.0, 4)]
+    halves = (0, 1)
+    if drop_reverse_pulse:  # the reverse half never sees pulse 5: left out, the forward half alone is fitted
+        keep = [~((((k >> 1) & 1) == 1) & ((k >> 2) % N == 5)) for _, k in stretches]
+        stretches = [(t[m], k[m]) for (t, k), m in zip(stretches, keep)]
+        halves = (0,)
+    fp, var, rss, dirs, dof = fpr._joint_fit(stretches, N, QUARTER)
+    fp_d, var_d, rss_d, dof_d = _dense(stretches, list(halves))
+    assert dirs == sum(1 << h for h in halves) and dof == dof_d
+    np.testing.assert_allclose(fp, fp_d, rtol=0, atol=1e-9 * np.nanmax(np.abs(fp_d)))
+    np.testing.assert_allclose(var, var_d, rtol=1e-8)
+    assert rss == pytest.approx(rss_d, rel=1e-8)
+    assert fpr._joint_fit(stretches, N, QUARTER, cov=False)[2] == pytest.approx(rss_d, rel=1e-8)
+    # and the fit finds the fingerprint it was made with (edge time noise: 2 us)
+    sigma = np.sqrt(var[halves[0]::2])
+    assert np.all(np.abs(fp[halves[0]::2] - fp_true[halves[0]::2]) < 5 * sigma)
+
+
+def test_windows_are_placed_by_the_fingerprint_among_the_pole_pair_offsets():
+    """Windows whose count starts elsewhere (each its own frame): the halls allow P/2 offsets, all
+    at the same fraction; the joint fit's residual picks the true one."""
+    fp_true = _true_fingerprint(5)
+    ref = _stretch(fp_true, 1, 180, 120.0, 6)
+    parts = [(ref, 0), (_stretch(fp_true, 4 * 20 + 1, 100, 120.0, 7), 23),
+             (_stretch(fp_true, 4 * 50 + 3, 90, 240.0, 8), 41)]
+    windows = []
+    for (t, k), r in parts:  # the window counts from its own start: k - 4r in its frame
+        windows.append(fpr.WindowEdges([(t, k - 4 * r)], (r * DELTA) % (2 * math.pi), np.zeros(1, np.int64)))
+    merged = fpr.merge_windows(windows, POLES, N)
+    assert merged.offsets == [0, 23, 41] and merged.dirs == 3
+    ratios = [s[1] for s in merged.scores[1:]]
+    assert all(x > 10 for x in ratios)  # the next offset leaves a residual many times larger
+    fp, var, *_ = fpr._joint_fit([s for s, _ in parts], N, QUARTER)
+    for d in (0, 1):
+        np.testing.assert_allclose(merged.fp[d::2], fp[d::2] - fp[d::2].mean(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(merged.sigma, np.sqrt(var), rtol=1e-12)
+    # a window of another encoder (its fingerprint matches no offset): left out, not guessed
+    t, k = _stretch(_true_fingerprint(99), 4 * 9 + 1, 100, 120.0, 9)
+    other = fpr.WindowEdges([(t, k - 4 * 9)], (9 * DELTA) % (2 * math.pi), np.zeros(1, np.int64))
+    merged = fpr.merge_windows([*windows, other], POLES, N)
+    assert merged.offsets == [0, 23, 41, None] and merged.scores[3] is not None

@@ -88,13 +88,18 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     pp = seg.pole_pairs
     H = len(ORDERS)
     deg = spec.drift_degree
-    blocks, rhs = [], []
+    nd = deg + 1
     gains6 = path_gain(seg, spec)
     used = [s for s in range(seg.n_segments) if fp.offsets[mi.capture_of_segment[s]] is not None]
     if not used:
         return None
-    nb = (deg + 1) * len(used)
-    for j, s in enumerate(used):
+    # Each segment's drift polynomial is eliminated from its own normal equations (the order block
+    # of inv(X^T X) is the Schur complement): a (2H x 2H) system instead of one dense least squares
+    # with (deg + 1) columns per segment; the same solution, residual and covariance.
+    parts = []
+    M = np.zeros((2 * H, 2 * H))
+    rhs = np.zeros(2 * H)
+    for s in used:
         ci = mi.capture_of_segment[s]
         info = mi.info[s]
         theta = np.asarray(seg.theta[s], dtype=float)
@@ -108,32 +113,42 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         if seg.path_response is not None:
             g = g * np.asarray(seg.path_response(freqs), dtype=complex)
         t = np.asarray(seg.t[s], dtype=float)
-        X = np.zeros((len(t), nb + 2 * H))
-        legt = np.empty((deg + 1, len(t)))
-        _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, legt)
-        X[:, j * (deg + 1):(j + 1) * (deg + 1)] = legt.T
+        # columns: the drift's Legendre rows, the orders' (sin, cos) pairs, the torque
+        W = np.empty((nd + 2 * H + 1, len(t)))
+        _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, W[:nd])
+        # the ripple -c sin(h th + phase) = -(A sin(h th) + B cos(h th)), A = c cos phase, B = c sin phase,
+        # through the response g: columns -|g| sin(h th + arg g), -|g| cos(...) = Im, Re of -g exp(i h th)
+        e1 = np.exp(1j * th_m)
+        e = {1: e1}
+        for h in range(2, max(ORDERS) + 1):
+            e[h] = e[h - 1] * e1
         for i, h in enumerate(ORDERS):
-            arg = h * th_m + np.angle(g[i])
-            # the ripple -c sin(h th + phase) = -(A sin(h th) + B cos(h th)), A = c cos phase, B = c sin phase
-            X[:, nb + 2 * i] = -abs(g[i]) * np.sin(arg)
-            X[:, nb + 2 * i + 1] = -abs(g[i]) * np.cos(arg)
-        blocks.append(X)
-        rhs.append(y)
-    X = np.concatenate(blocks)
-    y = np.concatenate(rhs)
-    XtX = X.T @ X
-    sol = np.linalg.solve(XtX, X.T @ y)
-    res = y - X @ sol
+            z = e[h] * -g[i]
+            W[nd + 2 * i] = z.imag
+            W[nd + 2 * i + 1] = z.real
+        W[-1] = y
+        Gs = W @ W.T
+        D_inv, B = np.linalg.inv(Gs[:nd, :nd]), Gs[:nd, nd:-1]
+        M += Gs[nd:-1, nd:-1] - B.T @ D_inv @ B
+        rhs += Gs[nd:-1, -1] - B.T @ (D_inv @ Gs[:nd, -1])
+        parts.append((W, D_inv))
+    sol = np.linalg.solve(M, rhs)
+    res = []
+    for W, D_inv in parts:
+        e = W[-1] - W[nd:-1].T @ sol     # the torque less the orders, then less its own best drift
+        res.append(e - W[:nd].T @ (D_inv @ (W[:nd] @ e)))
+    res = np.concatenate(res)
+    n_coef = nd * len(used) + 2 * H
     r1 = float(np.dot(res[1:], res[:-1]) / max(np.dot(res, res), 1e-300))
     inflate = (1.0 + r1) / max(1.0 - r1, 1e-3)
-    s2 = float(res @ res) / max(1, len(y) - X.shape[1]) * max(inflate, 1.0)
-    cov = s2 * np.linalg.inv(XtX)
+    s2 = float(res @ res) / max(1, len(res) - n_coef) * max(inflate, 1.0)
+    cov = s2 * np.linalg.inv(M)
     out = []
     for i, h in enumerate(ORDERS):
-        a, b = sol[nb + 2 * i], sol[nb + 2 * i + 1]
+        a, b = sol[2 * i], sol[2 * i + 1]
         c = math.hypot(a, b)
         phase = math.atan2(b, a)
-        C = cov[nb + 2 * i: nb + 2 * i + 2, nb + 2 * i: nb + 2 * i + 2]
+        C = cov[2 * i: 2 * i + 2, 2 * i: 2 * i + 2]
         u = np.array([math.cos(phase), math.sin(phase)])
         v = np.array([-math.sin(phase), math.cos(phase)])
         sd_c = math.sqrt(max(float(u @ C @ u), 0.0))

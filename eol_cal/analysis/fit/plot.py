@@ -55,11 +55,13 @@ def fitted_ripple(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int, theta: n
         a = h * seg.omega_e[s] * fit.delay_s
         gain = 1.0 / (1.0 + 1j * a) if spec.transducer == "lowpass" else np.exp(-1j * a)
         gain *= gains[s, spec.harmonics.index(h)]
-        arg = h * theta + np.angle(gain)
+        # c sin(x + phase_c) + k i_qo sin(x + phase_k) = Im(e^ix (c e^i phase_c + k i_qo e^i phase_k)): one sine
+        amp = 0j
         if "c" in parts:
-            curve -= abs(gain) * parts["c"].value * np.sin(arg + parts["c"].phase)
+            amp += parts["c"].value * np.exp(1j * parts["c"].phase)
         if "k" in parts:
-            curve -= abs(gain) * parts["k"].value * seg.i_qo[s] * np.sin(arg + parts["k"].phase)
+            amp += parts["k"].value * seg.i_qo[s] * np.exp(1j * parts["k"].phase)
+        curve -= abs(gain) * abs(amp) * np.sin(h * theta + (np.angle(gain) + np.angle(amp)))
     return curve
 
 
