@@ -1,7 +1,17 @@
-"""Shared fixtures: a real PostgreSQL server (session-scoped, started only when a test asks)."""
+"""Shared fixtures: a real PostgreSQL server (session-scoped, started only when a test asks), and
+the suite's own JAX cache directory.
+
+The suite runs in parallel (pytest-xdist, ``scripts/test``): each worker is its own process, so
+whatever a test writes goes under ``tmp_path`` or into a directory of its worker, never into the
+repository, the working directory or the user's home. The PostgreSQL server is one per worker
+(session scope), on a free port, each test in a database of its own.
+"""
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -9,6 +19,31 @@ from pathlib import Path
 import pytest
 
 from _postgres import PostgresServer
+
+_JAX_CACHE = "EOL_CAL_JAX_CACHE"
+_jax_cache_key = pytest.StashKey[str]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Point the fit's caches (JAX's compilation cache, the serialized solvers) at a directory of
+    this worker unless the caller chose one: JAX writes its cache entries in place, so two
+    workers sharing ``~/.cache/eol-cal/jax`` could read each other's half-written entries; and the
+    tests stay out of the user's home. The processes a test starts inherit it."""
+    if os.environ.get(_JAX_CACHE):
+        return
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    path = tempfile.mkdtemp(prefix=f"eol-cal-test-jax-{worker}-")
+    config.stash[_jax_cache_key] = path
+    os.environ[_JAX_CACHE] = path
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    path = config.stash.get(_jax_cache_key, None)
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
+        if os.environ.get(_JAX_CACHE) == path:
+            del os.environ[_JAX_CACHE]
+
 
 
 @pytest.fixture(scope="session")
@@ -20,7 +55,7 @@ def postgres_server() -> Iterator[PostgresServer]:
         server.stop()
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
+@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.slow)])
 def records_db(request, tmp_path: Path) -> str | Path:
     """A new, empty records database of each backend: a SQLite file path or a PostgreSQL URL."""
     if request.param == "sqlite":

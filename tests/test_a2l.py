@@ -226,6 +226,7 @@ def test_cli_refuses_bad_bank_and_table_len(tmp_path):
         assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path, monkeypatch):
     """gen_a2l reads the flag names from contract.FLAGS: a new bit there is a new characteristic
     and a new name in the flags word's verbal table, and the file still reads back."""

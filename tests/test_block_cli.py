@@ -7,6 +7,7 @@ import shutil
 import struct
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
@@ -98,6 +99,7 @@ def test_hex_export_round_trip_and_refusal(tmp_path):
     assert _run("block", "hex", str(PAPER), "--bank", "2", "-o", str(out)).exit_code == 2
 
 
+@pytest.mark.slow
 def test_golden_out_and_check(tmp_path):
     out = tmp_path / "g"
     res = _run("golden", "--out", str(out))

@@ -43,6 +43,7 @@ def _stop(proc):
         proc.wait(5)
 
 
+@pytest.mark.slow
 def test_flash_across_processes_and_restart_sees_the_flash(files):
     tmp, key, block = files
     flash = tmp / "ecu.bin"

@@ -24,6 +24,8 @@ from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import Faults
 from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)
 NEW = example_block(seed=2)

@@ -113,6 +113,7 @@ def test_second_tester_is_refused_while_the_programming_session_is_held(tmp_path
             s.routine("erase", P.RID_ERASE, B.BANK_WORD_ADDR[0], B.BANK_BYTES)
 
 
+@pytest.mark.slow
 def test_two_testers_racing_never_leave_a_newer_block_behind(tmp_path):
     """Ten races of two testers (own bus objects, one ECU): whatever each tester reports, the
     ECU boots the newest block a tester reported as flashed, and no bank holds a newer one."""

@@ -96,6 +96,7 @@ def test_ramp_30_to_85_rpm_tracks_speed_and_angle():
     assert out.omega_hat[-1] > 80 * RPM_TO_ELEC
 
 
+@pytest.mark.slow
 def test_creep_1_rpm_is_measured_not_standstill():
     a, b, h, out, truth, omega = _run("estimator_creep_1rpm.csv")
     edges = _a_rising(a)

@@ -85,6 +85,7 @@ def test_checked_in_vectors_are_the_python_reference(name):
     assert text == ",".join(columns) + "\n" + "".join(",".join(r) + "\n" for r in rows)
 
 
+@pytest.mark.slow
 def test_fast_numpy_loop_is_the_numpy_step():
     """E.run's scalar fast path computes exactly what step(xp=numpy) computes."""
     cfg = E.EstimatorConfig.all_improvements(standstill_s=0.05)

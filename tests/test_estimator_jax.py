@@ -31,6 +31,7 @@ def test_numpy_and_jax_scan_agree_paper():
     assert np.array_equal(np.asarray(out.status), ref.status)
 
 
+@pytest.mark.slow
 def test_best_under_jit_vmap_scan_with_the_jax_signal_model():
     # every improvement (learned tables in the scan carry), two motors batched with vmap, the
     # signals made by the signal model under jax.numpy inside the same jit

@@ -106,6 +106,7 @@ def test_golden_vectors_cover_each_option_alone_and_all_together():
     assert options["estimator_all_240rpm.csv"] == C.FLAGS_ESTIMATOR
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(ALONE))
 def test_each_option_alone_changes_the_estimate(name):
     # the scenario shows its option acting: the same signals under the paper estimator differ
@@ -192,6 +193,7 @@ def test_station_config_estimator_overrides_the_variant(tmp_path):
     assert cfg.estimator_options == C.FLAGS_ESTIMATOR
 
 
+@pytest.mark.slow
 def test_the_prepared_block_selects_the_same_estimator_in_the_rig():
     """The rig's plant runs what the ECU's active block selects: a prepared block with ``best``
     gives another angle estimate than one with ``paper`` (same motor, same noise)."""

@@ -57,6 +57,7 @@ def fitted(files):
     return res, out
 
 
+@pytest.mark.slow
 def test_fit_recovers_the_generator_and_writes_the_schema(fitted, files):
     res, out = fitted
     assert res.exit_code == 0, res.output
@@ -98,6 +99,7 @@ def test_same_result_from_csv_and_mdf4(fitted, files):
     assert a["fit"]["n_samples"] == b["fit"]["n_samples"]
 
 
+@pytest.mark.slow
 def test_single_load_point_refused_with_exit_2(files, tmp_path):
     # +65 A and -65 A would be two load points (c6 + k6*i_qo takes two values): keep i_qo = +65 A only
     one_load = [f for f, (_, iq) in zip(files["csv"], POINTS) if iq == 65.0]
@@ -123,6 +125,7 @@ def test_single_load_point_refused_with_exit_2(files, tmp_path):
     assert m["c6"] == {"value": 0.0, "ci95": 0.0} and m["model"]["fit_c6"] is False
 
 
+@pytest.mark.slow
 def test_not_converged_exits_1_without_values_and_no_table(files, tmp_path):
     out = tmp_path / "r.json"
     res = CliRunner().invoke(cli, ["fit", *files["csv"], "-o", str(out), "--max-steps", "1"])

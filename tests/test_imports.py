@@ -12,6 +12,7 @@ import ast
 import subprocess
 import sys
 from pathlib import Path
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("eol_cal", "cli")
@@ -120,6 +121,7 @@ def test_no_import_cycle():
         f"{a} (line {g[a][b]})" for a, b in zip(cycle, cycle[1:])) + f" -> {cycle[-1]}"
 
 
+@pytest.mark.slow
 def test_every_module_imports_first_in_a_fresh_interpreter():
     """Each module imported as the first of the project's modules (the others dropped from
     ``sys.modules`` in between; third-party packages stay loaded, so this takes seconds)."""

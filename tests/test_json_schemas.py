@@ -44,6 +44,7 @@ def test_every_json_command_is_covered_here():
     assert options == len(JSON_COMMANDS)  # a new --json command: run it below and give it a schema file
 
 
+@pytest.mark.slow
 def test_files_and_plant_commands(tmp_path):
     seen = set()
     seen.add(_check(_json("index", "--json")))
@@ -64,6 +65,7 @@ def test_files_and_plant_commands(tmp_path):
                     "eol-cal/block-check/1", "eol-cal/table/1", "eol-cal/simulate/1", "eol-cal/fit-result/1"}
 
 
+@pytest.mark.slow
 def test_station_ecu_and_records_commands_and_every_record_kind(files, tmp_path):  # noqa: F811
     """run (pass, refusal), acquire, flash, ecu info, ecu restore (recorded: kind restore), records,
     lot stats and lot diff, on one loopback station and one database."""

@@ -117,6 +117,7 @@ def test_cli_refuses_bad_profile(tmp_path):
     assert res.exit_code == 2 and "x.txt" in res.output
 
 
+@pytest.mark.slow
 def test_cli_lot_with_plot(tmp_path):
     out = tmp_path / "lot"
     png = tmp_path / "lot.png"
@@ -151,6 +152,7 @@ def test_cli_runs_a_block_file(tmp_path):
     assert res.exit_code == 2 and "bad.bin" in res.output
 
 
+@pytest.mark.slow
 def test_batch_of_motors_with_different_hall_tables():
     # each motor's ECU anchors on its own block's hall_angle, all in one compiled program: a
     # batch gives every motor what it gets alone, and the moved entries do move theta_hat

@@ -45,6 +45,7 @@ def lot(tmp_path_factory) -> Path:
     return d
 
 
+@pytest.mark.slow
 def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot: Path, tmp_path: Path):
     (tmp_path / "X").mkdir()
     bad = tmp_path / "X" / "bad.mf4"
@@ -75,6 +76,7 @@ def _worker_state() -> tuple[int, bool, int, str | None]:
             os.environ.get("MALLOC_TRIM_THRESHOLD_"))
 
 
+@pytest.mark.slow
 def test_a_killed_worker_loses_no_capture(lot: Path):
     from distributed import Client
 

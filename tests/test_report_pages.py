@@ -86,6 +86,7 @@ def fitted():
     return mi, fit, spec, (before, after)
 
 
+@pytest.mark.slow
 def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
     from eol_cal.station.report import write_report
 
@@ -184,6 +185,7 @@ def lot_db(tmp_path_factory):
     return {"dir": d, "db": d / "lot.sqlite", "records": recs}
 
 
+@pytest.mark.slow
 def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
     from click.testing import CliRunner
 
@@ -207,6 +209,7 @@ def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
     assert not (out / "x.html").exists()
 
 
+@pytest.mark.slow
 def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     from _browser import Browser, element_sizes, group_alive, not_blank
 
@@ -287,6 +290,7 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
         figure_svg(fig(), "f", {"pts": ["only one"] * (n + 1)})
 
 
+@pytest.mark.slow
 def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, monkeypatch, tmp_path):
     import eol_cal.report.lot as lot
 
@@ -300,6 +304,7 @@ def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, mon
     assert "More than 5 runs: points without hover text" in html
 
 
+@pytest.mark.slow
 def test_a_plot_that_cannot_be_drawn_says_why_and_the_page_is_still_written(fitted, tmp_path):
     """Ripple data without angles (a caller that does not keep them): the angle plot says why,
     the other plots are drawn and the page is written."""

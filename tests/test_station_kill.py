@@ -21,6 +21,8 @@ from eol_cal.ecu.client import ClientTiming
 from eol_cal.ecu.flash import NorFlash, active_block_from_file, select_active
 from eol_cal.station.records_query import query_records
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 BOUND_S = ClientTiming().dead_link_bound_s
 START_S = 8.0  # process start, imports, the JAX warm-up the run waits for on its way out, s
 LIMITS = """

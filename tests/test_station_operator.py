@@ -29,6 +29,8 @@ from cli.station import DEMO_LIMITS
 from eol_cal.station.demo import demo_motor_spec
 from eol_cal.station.session import demo_seed
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 ROOT = Path(__file__).resolve().parent.parent
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b\][^\x07]*\x07|\r")
 MOTOR_S = 180.0  # one motor's budget on a loaded shared machine (about 15 s alone)

@@ -131,6 +131,7 @@ def full_run(files):
     return {"res": res, "doc": doc, "rec": doc["record"], "db": db, "sim_state": sim_state, "flash": flash}
 
 
+@pytest.mark.slow
 def test_full_run_end_to_end(full_run):
     rec, doc = full_run["rec"], full_run["doc"]
     assert full_run["res"].exit_code == 0, (rec["verdict"], rec["reasons"], rec.get("error"))
@@ -222,6 +223,7 @@ def test_full_run_end_to_end(full_run):
     assert full_run["sim_state"] == (False, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     """The whole cycle on a dyno laid out otherwise (vendor B: CDAB, scaled integers, separate
     tables, its own codes): the simulator serves the map and ``run --register-map`` drives it."""
@@ -258,6 +260,7 @@ def test_same_run_passes_one_variant_and_fails_another(full_run, files):
     assert any("max_pp_after_pct" in r for r in reasons) and any("min_improvement_pct" in r for r in reasons)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("fault", "at_capture", "failed_step"), [
     (SimFault.OVER_SPEED, 2, "acquire"),
     (SimFault.TORQUE_SENSOR, 5, "acquire compensated"),  # 3 segments before, the 2nd of the compensated run
@@ -315,6 +318,7 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
     assert not Path(doc["saved"]["path"]).exists()
 
 
+@pytest.mark.slow
 def test_a_motor_of_another_type_on_the_dyno_is_refused_before_the_fit(files, tmp_path):
     # the station is set up for an 8-pole motor type; the dyno turns the paper's 6-pole motor
     motor = tmp_path / "eps8.toml"
@@ -396,6 +400,7 @@ def test_a_wrong_key_is_an_error_before_the_dyno_turns_and_the_ecu_keeps_no_bloc
     assert [(r.kind, r.verdict) for r in query_records(db)] == [("refusal", "error")]
 
 
+@pytest.mark.slow
 def test_demo_one_motor_from_the_command_line(tmp_path):
     res = CliRunner().invoke(cli, ["demo", "--motors", "1", "--out", str(tmp_path / "demo")])
     assert res.exit_code == 0, res.output
@@ -428,6 +433,7 @@ def test_windows_split_where_the_rounded_segment_starts_say():
     assert "segment_starts" not in pieces[1].metadata and pieces[1].source == "dyno#2"
 
 
+@pytest.mark.slow
 def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     """The run's report.html in headless Chromium from file://, network off: nothing fetched
     but the file itself (and its inline data: images), no console error, every plot drawn,
@@ -465,6 +471,7 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     assert 1 <= pages <= 2
 
 
+@pytest.mark.slow
 def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, files, tmp_path):
     """StationCycle.to_record: the same keys and the run-record schema on pass, fail (at the fit) and refusal."""
     from eol_cal.schemas import validator
