@@ -111,6 +111,7 @@ def test_golden_out_and_check(tmp_path):
     assert _run("golden").exit_code == 2
 
 
+@pytest.mark.slow
 def test_golden_check_default_dir(monkeypatch):
     monkeypatch.chdir(ROOT)
     res = _run("golden", "--check")
