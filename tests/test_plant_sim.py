@@ -117,7 +117,6 @@ def test_cli_refuses_bad_profile(tmp_path):
     assert res.exit_code == 2 and "x.txt" in res.output
 
 
-@pytest.mark.slow
 def test_cli_lot_with_plot(tmp_path):
     out = tmp_path / "lot"
     png = tmp_path / "lot.png"
