@@ -37,6 +37,7 @@ _COMMAND_MODULES: list[str] = [
     "golden",
     "index",
     "lot",
+    "msa",
     "operator",
     "refit",
     "restore",

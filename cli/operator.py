@@ -147,7 +147,12 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
 
 
 def _show(out) -> None:
+    from eol_cal.msa.gate import gate_refusal
+
     rec = out.record
+    if (line := gate_refusal(rec)) is not None:  # the master gate: one line
+        console.print(verdict_panel(rec.serial, rec.verdict, [line]))
+        return
     lines = [f"{rec.verdict}: {r}" for r in rec.reasons]
     if rec.kind == "refusal":
         lines.append(f"refused ({', '.join(rec.refusal_codes)}): nothing was written to the ECU; not the motor's result")
@@ -159,6 +164,19 @@ def _show(out) -> None:
     where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
     lines.append(f"record {rec.run_id} -> {where}")
     console.print(verdict_panel(rec.serial, rec.verdict, lines))
+
+
+def _master_status(cfg) -> str:
+    """One line: the station's master motor and whether production may run now."""
+    from eol_cal.msa.gate import MasterGateClosed, check_gate
+
+    m = cfg.master
+    period = f"every {m.every_h:g} h" if m.every_h is not None else f"per shift ({m.timezone})"
+    try:
+        last = check_gate(cfg.db, m, cfg.station.get("id"), timeout_s=cfg.db_timeout_s)
+    except MasterGateClosed as exc:
+        return f"master {m.serial} ({period}): {exc}"
+    return f"master {m.serial} ({period}): passed {last.started_at:%Y-%m-%d %H:%M} UTC; production may run"
 
 
 def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
@@ -187,7 +205,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
             return False
 
 
-def _finish(cfg, tally, lot_file: Path | None) -> None:
+def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
     from eol_cal.report.lot import select_records, write_lot_page
     from eol_cal.station.records import db_label, db_shown
@@ -208,7 +226,7 @@ def _finish(cfg, tally, lot_file: Path | None) -> None:
         return
     records = select_records(query_records(cfg.db), station=station_id)
     page = write_lot_page(records, lot_file, title=f"{db_label(cfg.db)}, station {station_id}",
-                          filters={"variant": None, "since": None, "until": None, "station": station_id})
+                          filters={"variant": None, "since": None, "until": None, "station": station_id}, min_n=min_n)
     console.print(f"lot page: {page} ({len(records)} runs of station {station_id}; again: {hint})")
 
 
@@ -267,13 +285,15 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
         return
     if not demo:
         _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    if cfg.master is not None:
+        console.print(_master_status(cfg))
     err_console.print(f"operator {operator}; each motor takes about a quarter of a minute")
     tally = SessionTally()
     interrupted = False
     try:
         interrupted = _loop(cfg, operator, out_dir if demo else None, tally)
     finally:
-        _finish(cfg, tally, lot_file)
+        _finish(cfg, tally, lot_file, int(settings["min_n"]))
     if interrupted:
         raise CommandExit(2)
 

@@ -96,6 +96,11 @@ def _print_outcome(out, as_json: bool) -> None:
                     "saved": {"where": out.saved.where, "path": out.saved.path, "why": out.saved.why},
                     "report": str(out.report_html) if out.report_html else None, "exit_code": out.exit_code})
         return
+    from eol_cal.msa.gate import gate_refusal
+
+    if (line := gate_refusal(rec)) is not None:  # the master gate: one line, nothing else happened
+        console.print(line)
+        return
     console.print(results_table([rec], f"eol-cal run: {rec.serial} ({rec.limits.variant if rec.limits else '-'})"))
     for reason in rec.reasons:
         console.print(f"  {'refused' if rec.kind == 'refusal' else rec.verdict}: {reason}")
@@ -402,7 +407,8 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
 @click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @handle_errors
 def migrate_cmd(db) -> None:
-    """Create the records tables, or bring an older database to this version's schema."""
+    """Create the records tables, or bring an older database to this version's schema; the
+    baseline tables (eol-cal lot baseline) too."""
     from eol_cal.errors import InputError
     from eol_cal.station.records import DB_ERRORS, db_label, migrate
 
@@ -412,6 +418,11 @@ def migrate_cmd(db) -> None:
         raise InputError(db_label(db), None, f"cannot migrate: {str(exc).splitlines()[0]}") from None
     what = "created" if before is None else ("already at" if before == now else f"migrated from version {before} to")
     console.print(f"{db_label(db)}: {what} schema version {now}")
+    from eol_cal.lot.baseline import migrate as migrate_baselines
+
+    before, now = migrate_baselines(db)
+    what = "created" if before is None else ("already at" if before == now else f"migrated from version {before} to")
+    console.print(f"{db_label(db)}: baseline tables {what} layout version {now}")
 
 
 #: the ``schema`` of ``eol-cal records --json``

@@ -21,8 +21,10 @@ from test_station_run import PROFILE, files, run_args, wait_stopped  # noqa: F40
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 #: the commands that take --json (cli/*.py), each run below
+#: (lot baseline needs 2 runs of a station at the least: validated in tests/test_lot_baseline.py)
 JSON_COMMANDS = {"index", "analyze", "fit", "table", "block show", "block check", "capture info", "simulate",
-                 "acquire", "flash", "ecu info", "ecu restore", "run", "records", "lot stats", "lot diff"}
+                 "acquire", "flash", "ecu info", "ecu restore", "run", "records", "lot stats", "lot diff",
+                 "lot baseline", "msa type1"}
 
 
 def _json(*args: str, code: int | tuple[int, ...] = 0) -> dict:
@@ -94,12 +96,13 @@ def test_station_ecu_and_records_commands_and_every_record_kind(files, tmp_path)
     kinds["restore"] = restore["record"]
     seen.add(_check(_json("records", "--db", str(db), "--json")))
     seen.add(_check(_json("lot", "stats", "--db", str(db), "--json")))
+    seen.add(_check(_json("msa", "type1", "--db", str(db), "--serial", "J-1", "--json", code=1)))  # n = 1 < 25
     rows = tmp_path / "refit.jsonl"
     rows.write_text(json.dumps({"serial": "J-1", "verdict": "pass", "status": "ok", "k6": 6e-4, "failed_checks": [],
                                 "reasons": [], "error": None}) + "\n")
     seen.add(_check(_json("lot", "diff", "--db", str(db), str(rows), "--json")))
     assert seen == {"eol-cal/acquire/1", "eol-cal/flash/1", "eol-cal/ecu-info/1", "eol-cal/run/1", "eol-cal/ecu-restore/1",
-                    "eol-cal/records/2", "eol-cal/lot-stats/1", "eol-cal/lot-diff/1"}
+                    "eol-cal/records/2", "eol-cal/lot-stats/2", "eol-cal/lot-diff/1", "eol-cal/msa-type1/1"}
     # every record kind validates as a run record (fail and error from the station's own shapes)
     kinds.setdefault("pass", make_record("P-1").to_json())
     kinds.setdefault("fail", make_record("F-1", k6=2e-3).to_json())

@@ -17,6 +17,7 @@ from _lot_records import lot_record
 from cli.main import cli
 from eol_cal.errors import InputError
 from eol_cal.lot.columns import QUANTITIES, from_records, read_lot, time_order
+from eol_cal.lot.spc import CIRCULAR, circular_summary
 from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, summary
 from eol_cal.lot.summary import lot_summary
 from eol_cal.report.lot import run_time
@@ -30,24 +31,34 @@ from test_records_backends import _V1
 LOT = [lot_record(i, motors=70, hi_every=25, refusals=True) for i in range(90)]
 
 
-def by_definition(records: list[RunRecord]) -> dict:
-    """The lot's figures record by record, straight from the definitions in eol_cal.lot.stats
-    (the reading lot statistics had before the columns): the reference. Production runs only."""
+def by_definition(records: list[RunRecord], min_n: int = 25) -> dict:
+    """The lot's figures record by record, straight from the definitions in eol_cal.lot.stats and
+    eol_cal.lot.spc (the reading lot statistics had before the columns): the reference.
+    Production runs only."""
     recs = sorted((r for r in records if r.kind == "production"), key=lambda r: (run_time(r), r.run_id))
     quantities = {}
     for q in QUANTITIES:
         x = [r.value(q.key) * q.scale for r in recs]
-        lims = sorted({r.limits.value(q.limit_key) for r in recs if q.limit_key} - {None})
-        lims = [v * q.scale for v in lims if math.isfinite(v)]
-        cap = None
-        if len(lims) == 1:
-            cap = capability(x, usl=lims[0]) if q.sense == "max" else capability(x, lsl=lims[0])
-        quantities[q.key] = (summary(x), lims, cap)
+        by_variant = {}
+        for v in sorted({r.limits.variant for r in recs}):
+            rs = [r for r in recs if r.limits.variant == v]
+            lims = sorted({r.limits.value(q.limit_key) for r in rs} - {None}) if q.limit_key else []
+            lims = [y * q.scale for y in lims if math.isfinite(y)]
+            xv = [r.value(q.key) * q.scale for r in rs]
+            n = sum(1 for y in xv if math.isfinite(y))
+            if len(lims) == 1 and q.key not in CIRCULAR:
+                cap = capability(xv, usl=lims[0]) if q.sense == "max" else capability(xv, lsl=lims[0])
+                by_variant[v] = (n, lims[0], cap if n >= min_n else None)
+        circ = circular_summary([r.value(q.key) for r in recs]) if q.key in CIRCULAR else None
+        quantities[q.key] = (summary(x), by_variant, circ)
     control = {}
     for st in sorted({station_of(r) for r in recs}):
         rs = [r for r in recs if station_of(r) == st]
-        control[st] = {key: (len(rs), imr_limits([r.value(key) * scale for r in rs]))
-                       for key, scale in (("k6", 1e3), ("pp_after_pct", 1.0))}
+        control[st] = {}
+        for key, scale in (("k6", 1e3), ("pp_after_pct", 1.0)):
+            y = [r.value(key) * scale for r in rs]
+            n = sum(1 for v in y if math.isfinite(v))
+            control[st][key] = (len(rs), n, imr_limits(y) if n >= min_n else None)
     return {"fpy": first_pass_yield(recs), "pareto": pareto(recs), "quantities": quantities, "control": control}
 
 
@@ -61,24 +72,38 @@ def assert_matches_definition(doc: dict, ref: dict) -> None:
     assert [p["cumulative"] for p in doc["pareto"]] == pytest.approx([s for _c, _n, s in ref["pareto"]])
     assert [q["key"] for q in doc["quantities"]] == [q.key for q in QUANTITIES]
     for q in doc["quantities"]:
-        s, lims, cap = ref["quantities"][q["key"]]
+        s, by_variant, circ = ref["quantities"][q["key"]]
         assert q["count"] == s.count > 0
+        if circ is not None:  # a phase: on the circle, no linear order statistics
+            scale = 180 / math.pi
+            assert q["circular"] and _same(q["mean"], circ.mean * scale) and _same(q["sd"], circ.sd * scale)
+            assert q["min"] is None and q["max"] is None and set(q["percentiles"].values()) == {None}
+            assert sum(q["histogram"]["counts"]) == circ.count
+            continue
         for got, want in ((q["mean"], s.mean), (q["sd"], s.sd), (q["min"], s.minimum), (q["max"], s.maximum),
                           *((q["percentiles"][f"p{p:g}"], v) for p, v in s.percentiles.items())):
             assert _same(got, want), (q["key"], got, want)
-        assert (q["limit"] is None) == (cap is None)
-        if cap is not None:
-            assert q["limit"] == pytest.approx(lims[0])
-            assert _same(q["cpk"], cap.cpk) and _same(q["ppk"], cap.ppk) and _same(q["cp"], cap.cp)
-        elif len(lims) > 1:
-            assert "differs between the lot's variants" in q["note"]
+        whole = {g["variant"]: g for g in q["capability"] if g["station"] is None}
+        assert set(whole) == set(by_variant)
+        for v, (n, limit, cap) in by_variant.items():
+            g = whole[v]
+            assert g["n"] == n and g["limit"] == pytest.approx(limit)
+            if cap is None:
+                assert g["cpk"] is None and g["cpk_reason"] == f"n = {n} < 25"
+            else:
+                assert _same(g["cpk"], cap.cpk) and _same(g["ppk"], cap.ppk) and _same(g["cp"], cap.cp)
+        if len(by_variant) == 1:
+            assert q["cpk"] == next(iter(whole.values()))["cpk"]
+        elif by_variant:
+            assert q["cpk"] is None and "mixes variants" in q["cpk_reason"]
     assert list(doc["control"]) == list(ref["control"])
     for st, qs in ref["control"].items():
-        for key, (n, cl) in qs.items():
+        for key, (runs_, n, cl) in qs.items():
             got = doc["control"][st][key]
-            assert got["runs"] == n
+            assert got["runs"] == runs_ and got["n"] == n
             for name in ("center", "ucl", "lcl", "mr_center", "mr_ucl"):
-                assert _same(got[name], getattr(cl, name)), (st, key, name)
+                assert _same(got[name], getattr(cl, name)) if cl else got[name] is None, (st, key, name)
+            assert (got["reason"] is None) == (cl is not None)
 
 
 @pytest.mark.parametrize("variant", [None, "EPS-STD"])
@@ -101,7 +126,8 @@ def test_lot_stats_from_the_columns_equal_the_statistics_of_the_records(records_
     assert {p["cause"] for p in fast["pareto"]} >= {"max_pp_after_pct", "max_k6", "min_r2", "error in acquire"}
     k6 = next(q for q in fast["quantities"] if q["key"] == "k6")
     assert (k6["cpk"] is not None) == (variant == "EPS-STD")
-    assert all(q["cpk"] is not None for q in fast["quantities"] if q["key"] in ("fit_r2", "fit_rms_nm"))
+    assert {g["variant"] for g in k6["capability"]} == ({"EPS-STD"} if variant else {"EPS-STD", "EPS-HI"})
+    assert all(c["reason"] == f"n = {c['n']} < 25" for qs in fast["control"].values() for c in qs.values())
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--json"]
                              + (["--variant", variant] if variant else []))
     assert res.exit_code == 0, res.output

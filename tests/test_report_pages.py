@@ -230,6 +230,8 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
                            "r => [r.cells[0].textContent, r.cells[1].textContent]))")
         refused = b.evaluate("document.getElementById('refused').textContent")
         control_lines = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-cl-k6-ucl]').length")
+        few = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-few-k6]').length")
+        cpk = b.evaluate("document.querySelector('tr.quantity-row[data-key=k6] td.cpk').textContent")
         # zoom: a wheel event on a chart narrows its viewBox, a double-click restores it
         zoom = b.evaluate("""(() => { const s = document.querySelector('#fig-timeline svg'); const r = s.getBoundingClientRect();
             const before = s.getAttribute('viewBox');
@@ -261,7 +263,9 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     assert quantity_rows == ["k6", "phase_k6", "c6", "phase_c6", "pp_before_pct", "pp_after_pct", "improvement_pct",
                              "fit_r2", "fit_rms_nm"]
     assert sorted(causes) == ["error in acquire", "max_pp_after_pct"]
-    assert control_lines == 2  # each station's k6 chart has its upper control limit
+    # 10 or 11 runs with a k6 per station, 20 in the lot: no control limits and no Cpk below n = 25, said so
+    assert control_lines == 0 and few == 2
+    assert cpk == f"n = {len(with_k6)} < 25"
     before, zoomed, back = zoom
     assert float(zoomed.split()[2]) < float(before.split()[2]) and back == before
     colours, spread = not_blank(shot)

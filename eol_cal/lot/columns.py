@@ -76,7 +76,10 @@ QUANTITIES: tuple[Quantity, ...] = (
 #: what the control charts follow per station
 CHARTED = ("k6", "pp_after_pct")
 #: the ``runs`` columns a lot reads per run (and the distinct ``limits_json`` texts)
-LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "causes", *(q.key for q in QUANTITIES))
+LOT_COLUMNS = ("run_id", "serial", "started_at", "verdict", "station", "variant", "causes",
+               *(q.key for q in QUANTITIES))
+#: the ``variant`` of runs without one
+NO_VARIANT = "(no variant)"
 
 
 @dataclass(frozen=True)
@@ -85,8 +88,9 @@ class Lot:
 
     Attributes
     ----------
-    run_id, serial, started_at, verdict, station : numpy.ndarray
-        Per run; ``station`` as the reports name it (``(no station id)`` without one).
+    run_id, serial, started_at, verdict, station, variant : numpy.ndarray
+        Per run; ``station`` as the reports name it (``(no station id)`` without one), ``variant``
+        :data:`NO_VARIANT` without one.
     causes : list of list of str
         The failure causes (:meth:`RunRecord.causes`) of each run that did not pass.
     values : dict of str -> numpy.ndarray
@@ -94,6 +98,8 @@ class Lot:
     limits : dict of str -> numpy.ndarray
         Per limit key of :data:`QUANTITIES`, the distinct values it has over the lot's runs
         (stored units, ascending; several: the lot mixes variants).
+    variant_limits : dict of str -> dict of str -> numpy.ndarray
+        The same per variant (the ``variant`` of the limits the runs were judged against).
     """
 
     run_id: np.ndarray
@@ -104,6 +110,8 @@ class Lot:
     causes: list[list[str]]
     values: dict[str, np.ndarray]
     limits: dict[str, np.ndarray]
+    variant: np.ndarray
+    variant_limits: dict[str, dict[str, np.ndarray]]
 
     def __len__(self) -> int:
         return len(self.run_id)
@@ -119,10 +127,24 @@ class Lot:
             return []
         return [float(v) * q.scale for v in self.limits[q.limit_key]]
 
+    def variant_limit_values(self, q: Quantity, variant: str) -> list[float]:
+        """:meth:`limit_values` of one variant (several: its limit changed within the lot)."""
+        if q.limit_key is None:
+            return []
+        return [float(v) * q.scale for v in self.variant_limits.get(variant, {}).get(q.limit_key, ())]
+
     def stations(self) -> list[tuple[str, np.ndarray]]:
         """``(station, indices of its runs in time order)``, by station name."""
-        names, codes = _codes(self.station.tolist())
-        return sorted((str(name), np.flatnonzero(codes == k)) for k, name in enumerate(names))
+        return _groups(self.station)
+
+    def variants(self) -> list[tuple[str, np.ndarray]]:
+        """``(variant, indices of its runs in time order)``, by variant name."""
+        return _groups(self.variant)
+
+
+def _groups(names: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    distinct, codes = _codes(names.tolist())
+    return sorted((str(name), np.flatnonzero(codes == k)) for k, name in enumerate(distinct))
 
 
 def _causes(verdict: np.ndarray, run_id: np.ndarray, causes: np.ndarray) -> list[list[str]]:
@@ -163,11 +185,12 @@ def _codes(texts: Sequence[Any]) -> tuple[list[Any], np.ndarray]:
     return distinct, np.fromiter(map(index.__getitem__, texts), dtype=np.intp, count=len(texts))
 
 
-def _limits(texts: Iterable[str | None]) -> dict[str, np.ndarray]:
-    """Per limit key, its distinct finite values over the ``limits_json`` texts (each distinct
-    text parsed once; one that is not a JSON object sets no limit)."""
+def _limits(texts: Iterable[str | None]) -> tuple[dict[str, np.ndarray], dict[str, dict[str, np.ndarray]]]:
+    """Per limit key, its distinct finite values over the ``limits_json`` texts, over all and
+    per variant (each distinct text parsed once; one that is not a JSON object sets no limit)."""
     keys = [q.limit_key for q in QUANTITIES if q.limit_key]
     table = np.full((0, len(keys)), math.nan)
+    variants: list[str] = []
     for text in dict.fromkeys(texts):
         try:
             doc = json.loads(text) if text else None
@@ -175,7 +198,13 @@ def _limits(texts: Iterable[str | None]) -> dict[str, np.ndarray]:
             doc = None
         if isinstance(doc, dict):
             table = np.vstack([table, [_number(doc.get(key)) for key in keys]])
-    return {key: np.unique(table[np.isfinite(table[:, j]), j]) for j, key in enumerate(keys)}
+            variants.append(NO_VARIANT if doc.get("variant") is None else str(doc["variant"]))
+
+    def distinct(rows: np.ndarray) -> dict[str, np.ndarray]:
+        return {key: np.unique(rows[np.isfinite(rows[:, j]), j]) for j, key in enumerate(keys)}
+
+    names = np.asarray(variants, dtype=object)
+    return distinct(table), {v: distinct(table[names == v]) for v in dict.fromkeys(variants)}
 
 
 #: the station's form of a start time: UTC, milliseconds (``2026-11-22T08:00:00.000+00:00``)
@@ -224,13 +253,15 @@ def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | Non
     def text(name: str) -> np.ndarray:
         return np.asarray(cols[name], dtype=object)[order] if len(order) else np.zeros(0, dtype=object)
 
-    station = text("station")
+    station, variant = text("station"), text("variant")
     station[station == None] = NO_STATION  # noqa: E711 - elementwise: the runs without a station id
+    variant[variant == None] = NO_VARIANT  # noqa: E711
     run_id, verdict = text("run_id"), text("verdict")
+    limits, variant_limits = _limits(limits_json)
     return Lot(run_id=run_id, serial=text("serial"), started_at=text("started_at"), verdict=verdict, station=station,
                causes=_causes(verdict, run_id, text("causes")),
                values={q.key: _floats(cols[q.key])[order] for q in QUANTITIES},
-               limits=_limits(limits_json))
+               limits=limits, variant=variant, variant_limits=variant_limits)
 
 
 def from_records(records: Sequence[RunRecord]) -> Lot:

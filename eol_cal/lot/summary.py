@@ -8,19 +8,21 @@ definitions) to the quantities :data:`eol_cal.lot.columns.QUANTITIES` in their d
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 
+from eol_cal.lot.baseline import Baseline
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot
-from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, imr_limits, pareto_of, summary
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
+from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, pareto_of, summary
 
 #: the ``schema`` of the document ``eol-cal lot stats --json`` prints
-LOT_STATS_SCHEMA = "eol-cal/lot-stats/1"
+LOT_STATS_SCHEMA = "eol-cal/lot-stats/2"
+QUANTITY = {q.key: q for q in QUANTITIES}
 
 
 @dataclass(frozen=True)
@@ -88,50 +90,68 @@ def refusal_summary(refusals: Lot) -> dict[str, Any]:
     return {"runs": len(refusals), "serials": len(set(refusals.serial.tolist())), "pareto": _pareto(refusals.causes)}
 
 
-def lot_summary(lot: Lot, refusals: Lot | None = None) -> dict[str, Any]:
+def lot_summary(lot: Lot, refusals: Lot | None = None, min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None,
+                judged: Sequence[str] = CHARTED) -> dict[str, Any]:
     """The lot's figures (display units, NaN as None).
 
-    Keys: ``runs``, ``verdicts`` (counts), ``first_pass_yield`` and ``motors``, ``quantities``
-    (per quantity: unit, count, mean, sd, min, max, percentiles, the limit and Cp/Cpk/Ppk
-    against it), ``pareto`` (cause, runs, cumulative share) and ``control`` (per station, per
-    charted quantity: the individuals / moving-range limits); with ``refusals`` (the refused
-    runs of the same selection) ``refusals`` (:func:`refusal_summary`). Documented in
-    ``docs/json.md``.
+    Keys: ``min_n``, ``runs``, ``verdicts`` (counts), ``first_pass_yield`` and ``motors``,
+    ``quantities`` (per quantity: unit, count, mean, sd, min, max, percentiles - a phase's mean
+    and sd on the circle, with its histogram -, the limit, Cp/Cpk/Ppk of a one-variant lot and
+    ``capability`` per variant and station, each index None below ``min_n`` with its reason),
+    ``pareto`` (cause, runs, cumulative share), ``control`` (per station, per charted quantity:
+    the individuals / moving-range limits, None below ``min_n``), and with a ``baseline`` the
+    lines ``judged`` against and the Western Electric rules' ``violations``; with ``refusals``
+    (the refused runs of the same selection) ``refusals`` (:func:`refusal_summary`). Documented
+    in ``docs/json.md``; the definitions in ``docs/spc.md``.
     """
+    from eol_cal.lot import spc_stats
+
     fpy, motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = []
     for q in quantity_stats(lot):
         s = q.summary
-        cap = q.capability
-        quantities.append({
-            "key": q.key, "title": q.title, "unit": q.unit, "count": s.count, "mean": s.mean, "sd": s.sd,
-            "min": s.minimum, "max": s.maximum, "percentiles": {f"p{p:g}": v for p, v in s.percentiles.items()},
-            "limit_key": q.limit_key, "limit": q.limit,
-            "cp": cap.cp if cap else None, "cpk": cap.cpk if cap else None, "ppk": cap.ppk if cap else None,
-            "note": q.note,
-        })
-    charted = [q for key in CHARTED for q in QUANTITIES if q.key == key]
-    values = {q.key: lot.display(q) for q in charted}
-    control = {}
-    for station, idx in lot.stations():
-        control[station] = {q.key: {"runs": len(idx), **dataclasses.asdict(imr_limits(values[q.key][idx]))}
-                            for q in charted}
-    return _clean({
-        "runs": len(lot),
+        quantity = QUANTITY[q.key]
+        circular = q.key in CIRCULAR
+        groups = spc_stats.capability_groups(lot, quantity, min_n)
+        item: dict[str, Any] = {
+            "key": q.key, "title": q.title, "unit": q.unit, "circular": circular, "count": s.count,
+            "mean": s.mean, "sd": s.sd, "min": s.minimum, "max": s.maximum,
+            "percentiles": {f"p{p:g}": v for p, v in s.percentiles.items()},
+            "limit_key": q.limit_key, "limit": q.limit, **spc_stats.lot_capability(groups, lot), "note": q.note,
+            "capability": groups,
+        }
+        if circular:
+            item.update(min=None, max=None, percentiles={k: None for k in item["percentiles"]},
+                        note="a phase: circular mean and sd (docs/spc.md); no min, max or percentiles on the circle",
+                        **spc_stats.circular_figures(lot, quantity))
+        quantities.append(item)
+    charted = [QUANTITY[key] for key in CHARTED]
+    doc: dict[str, Any] = {
+        "min_n": min_n, "runs": len(lot),
         "verdicts": {v: int(np.count_nonzero(lot.verdict == v)) for v in ("pass", "fail", "error")},
         "first_pass_yield": fpy, "motors": motors,
         "quantities": quantities,
         "pareto": _pareto(lot.causes),
-        "control": control,
+        "control": spc_stats.control_limits(lot, charted, min_n),
+        "baseline": None, "judged": [], "violations": [],
         **({} if refusals is None else {"refusals": refusal_summary(refusals)}),
-    })
+    }
+    if baseline is not None:
+        violations, lines = spc_stats.judge_lot(lot, baseline, [QUANTITY[key] for key in judged])
+        doc.update(baseline={"name": baseline.name, "created_at": baseline.created_at, "filters": baseline.filters,
+                             "min_n": baseline.min_n, "runs": baseline.runs, "rules": spc_stats.rule_texts()},
+                   judged=lines, violations=[{k: v for k, v in x.items() if k != "index"} for x in violations])
+    return _clean(doc)
 
 
-def write_runs_csv(path: str | Path, db: str | Path, **filters: Any) -> int:
+def write_runs_csv(path: str | Path, db: str | Path, rules: dict[str, list[str]] | None = None,
+                   **filters: Any) -> int:
     """Write the selected runs' columns (the database's, without the JSON documents) as CSV,
     atomically, oldest first; returns the number of runs. ``filters`` as
     :func:`eol_cal.station.records_query.select_runs`. Each header names its unit (``k6 [mN*m/A]``);
-    the measured quantities are in their display units (:mod:`eol_cal.display`)."""
+    the measured quantities are in their display units (:mod:`eol_cal.display`). With ``rules``
+    (run id -> ``QUANTITY:RULE`` tags, :func:`eol_cal.lot.spc_stats.rules_by_run`) a last column
+    ``rules`` lists the run rules each run is part of, ``;``-separated."""
     import csv
     import io
 
@@ -144,8 +164,9 @@ def write_runs_csv(path: str | Path, db: str | Path, **filters: Any) -> int:
     rows = read_rows(db, select_runs(**filters).with_only_columns(*(runs.c[c] for c in cols)))
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow([f"{c} [{shown[c].unit}]" if c in shown else c for c in cols])
+    w.writerow([f"{c} [{shown[c].unit}]" if c in shown else c for c in cols] + (["rules"] if rules is not None else []))
     for r in rows:
-        w.writerow(["" if r.get(c) is None else (r[c] * shown[c].scale if c in shown else r[c]) for c in cols])
+        extra = [";".join(rules.get(r["run_id"], []))] if rules is not None else []
+        w.writerow(["" if r.get(c) is None else (r[c] * shown[c].scale if c in shown else r[c]) for c in cols] + extra)
     atomic_write(Path(path), buf.getvalue())
     return len(rows)

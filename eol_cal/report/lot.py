@@ -16,8 +16,11 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from eol_cal.display import display_unit
+from eol_cal.lot.baseline import Baseline
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
-from eol_cal.lot.summary import quantity_stats
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary
+from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
+from eol_cal.lot.summary import lot_summary
 from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
 from eol_cal.station.limits import limit_on
@@ -167,12 +170,16 @@ def histogram_figure(lot: Lot, notes: dict[str, str] | None = None) -> MplFigure
     plt = pyplot()
     cols = 3
     rows = -(-len(QUANTITIES) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(10, 2.6 * rows))
-    for ax, q in zip(axes.flat, QUANTITIES):
+    fig = plt.figure(figsize=(10, 2.6 * rows))
+    for k, q in enumerate(QUANTITIES):
+        circular = q.key in CIRCULAR
+        ax = fig.add_subplot(rows, cols, k + 1, projection="polar" if circular else None)
         x = lot.display(q)
         x = x[np.isfinite(x)]
         ax.set_gid(f"hist-{q.key}")
-        if len(x):
+        if circular:
+            _circle_histogram(ax, lot.values[q.key])
+        elif len(x):
             ax.hist(x, bins=min(30, max(5, int(np.sqrt(len(x))) + 1)), color="tab:blue", alpha=0.8)
         for i, v in enumerate(lot.limit_values(q)):
             ax.axvline(v, color="tab:red", ls="--", lw=1.2, label=q.limit_key if i == 0 else None)
@@ -180,17 +187,27 @@ def histogram_figure(lot: Lot, notes: dict[str, str] | None = None) -> MplFigure
             ax.legend(fontsize=6, loc="upper right")
         note = (notes or {}).get(q.key)
         ax.set_title(f"{q.title}: n = {len(x)}" + (f"\n{note}" if note else ""), fontsize=8)
-        ax.set_xlabel(q.unit, fontsize=7)
+        if not circular:
+            ax.set_xlabel(q.unit, fontsize=7)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
-    for ax in list(axes.flat)[len(QUANTITIES):]:
-        ax.set_visible(False)
     fig.tight_layout()
     return fig
 
 
+def _circle_histogram(ax: Any, theta: np.ndarray) -> None:
+    """A phase (rad) as sectors on the circle with its circular mean as a line of length R."""
+    counts, edges = circular_histogram(theta, CIRCLE_BINS)
+    ax.bar(edges[:-1], counts, width=np.diff(edges), align="edge", color="tab:blue", alpha=0.8, edgecolor="white", lw=0.5)
+    s = circular_summary(theta)
+    if math.isfinite(s.mean) and counts.max() > 0:
+        ax.plot([s.mean, s.mean], [0, s.resultant * counts.max()], color="tab:red", lw=1.6, gid="circular-mean")
+    ax.set_yticklabels([])
+
+
 def control_figure(records: Sequence[RunRecord], station: str,
-                   limits: dict[str, dict[str, float]] | None = None) -> tuple[MplFigure, dict[str, list[str]]]:
+                   limits: dict[str, dict[str, float]] | None = None, min_n: int = DEFAULT_MIN_N,
+                   marks: dict[str, dict[str, str]] | None = None) -> tuple[MplFigure, dict[str, list[str]]]:
     """Individuals and moving-range charts of :data:`CHARTED` against time, for one station.
 
     Parameters
@@ -200,8 +217,13 @@ def control_figure(records: Sequence[RunRecord], station: str,
     station : str
         Its name (titles, gids).
     limits : dict of quantity key -> {"center", "ucl", "lcl", "mr_center", "mr_ucl"}, optional
-        Control limits (display units) to draw instead of the station's own
-        (:func:`eol_cal.lot.stats.imr_limits` of the points drawn); points beyond them are ringed.
+        Control limits (display units: a frozen baseline's) to draw instead of the station's own
+        (:func:`eol_cal.lot.stats.imr_limits` of the points drawn, only with ``min_n`` of them;
+        points beyond them are ringed).
+    min_n : int
+        Fewest points that give the station's own limits.
+    marks : dict of quantity key -> {run id: text}, optional
+        Runs to ring as breaking a run rule (gid ``rule-KEY``), with the rule as hover text.
 
     Returns
     -------
@@ -233,7 +255,7 @@ def control_figure(records: Sequence[RunRecord], station: str,
             if not dense:
                 titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr)]
         lim = (limits or {}).get(key)
-        if lim is None and len(x) > 1:
+        if lim is None and len(x) >= max(2, min_n):
             from eol_cal.lot.stats import imr_limits
 
             cl = imr_limits(x)
@@ -244,6 +266,15 @@ def control_figure(records: Sequence[RunRecord], station: str,
                              zorder=4, gid=f"beyond-{key}")
                 titles[f"beyond-{key}"] = [point_title(pts[i][2], f"{title} {x[i]:.4g} {unit}: beyond the control limits")
                                            for i in beyond]
+        ringed = [(i, (marks or {}).get(key, {}).get(p[2].run_id)) for i, p in enumerate(pts)]
+        ringed = [(i, text) for i, text in ringed if text]
+        if ringed:
+            ax_i.scatter([t[i] for i, _ in ringed], x[[i for i, _ in ringed]], s=110, facecolor="none",
+                         edgecolor="tab:purple", lw=1.6, zorder=5, gid=f"rule-{key}")
+            titles[f"rule-{key}"] = [point_title(pts[i][2], f"{title} {x[i]:.4g} {unit}: {text}") for i, text in ringed]
+        if not lim and len(x) < min_n:
+            ax_i.text(0.01, 0.97, f"no control limits: n = {len(x)} < {min_n}", transform=ax_i.transAxes, va="top",
+                      fontsize=7, color="0.3", gid=f"few-{key}")
         if lim:
             for ax, names in ((ax_i, ("center", "ucl", "lcl")), (ax_m, ("mr_center", "mr_ucl"))):
                 for name in names:
@@ -322,12 +353,12 @@ def _safe_id(text: str) -> str:
 
 
 def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title: str,
-                    filters: dict[str, str | None]) -> str:
+                    filters: dict[str, str | None], min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None) -> str:
     """The lot page (self-contained HTML) of a set of run records.
 
     The statistics, charts and the motors nearest their limits are of the ``production`` runs;
     the refusals (nothing written, nothing measured) are counted and shown with their own
-    Pareto; runs of other kinds (restores...) are counted.
+    Pareto; runs of other kinds (restores, master runs...) are counted.
 
     Parameters
     ----------
@@ -339,8 +370,13 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
         Page title (the database, say).
     filters : dict
         The filters that selected the lot, shown on the page (None: not filtered).
+    min_n : int
+        Fewest values that give a capability index or control limits (fewer: ``n = 7 < 25``).
+    baseline : Baseline, optional
+        Frozen control lines: the charts draw them and the runs are judged against them
+        (Western Electric rules 1-4, listed and ringed).
     """
-    from eol_cal.lot.stats import first_pass_yield_of, pareto_of
+    from eol_cal.lot.stats import pareto_of
     from eol_cal.report.motor import Figure
     from eol_cal.report.page import render
     from eol_cal.report.svg import figure_svg
@@ -351,8 +387,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
     refusals = [r for r in ordered if r.kind == "refusal"]
     lot = from_records(recs)
     summary = summarise(ordered)
-    fpy, _motors = first_pass_yield_of(lot.serial, lot.verdict)
-    quantities = quantity_stats(lot)
+    doc = lot_summary(lot, None, min_n, baseline)
     causes = pareto_of(lot.causes)
     refused = pareto_of(r.causes() for r in refusals)
     figures: list[Figure] = []
@@ -363,10 +398,12 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
                               + ("Hover on a point: serial, verdict, time, value; " if titles else
                                  f"More than {MAX_HOVER_POINTS} runs: points without hover text; ")
                               + "wheel: zoom, drag: pan, double-click: back", figure_svg(fig, "timeline", titles, "plot zoom")))
-        notes = {q.key: q.line for q in quantities if q.summary.count}
+        notes = {q["key"]: quantity_note(q) for q in doc["quantities"] if q["count"]}
         figures.append(Figure("histograms", "Distribution of the measured quantities over the runs that have them, "
-                              "with the variant's limits; Cpk (sigma from the moving range) and Ppk (overall sd) "
-                              "against the limit", figure_svg(histogram_figure(lot, notes), "histograms")))
+                              "with the variant's limits; the phases on the circle (sectors of 15 deg, the red line: "
+                              "circular mean, its length R). Cpk (sigma from the moving range) and Ppk (overall sd) "
+                              f"of a one-variant lot, given from n = {min_n} on",
+                              figure_svg(histogram_figure(lot, notes), "histograms")))
     pareto_fig = None
     if causes:
         pareto_fig = Figure("pareto", "Why runs did not pass: each limit a failed run's checks name, and the step "
@@ -378,20 +415,44 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
     stations: dict[str, list[RunRecord]] = {}
     for r in recs:
         stations.setdefault(station_of(r), []).append(r)
-    control = []
-    for name, runs in sorted(stations.items()):
-        fig, titles = control_figure(runs, name)
-        fid = f"control-{_safe_id(name)}"
-        control.append(Figure(fid, f"Station {name}: individuals and moving range of k6 and the compensated p-p, "
-                              f"{len(runs)} runs; centre line and control limits (mean +- 2.66 MRbar, MR: 3.267 MRbar) "
-                              "of the station's own runs, points beyond them ringed red",
-                              figure_svg(fig, fid, titles, "plot zoom")))
+    control = [_control(name, runs, doc, baseline, min_n) for name, runs in sorted(stations.items())]
     dates = [r.started_at[:19].replace("T", " ") for r in ordered]
-    return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control, fpy=fpy,
-                  quantities=quantities, causes=causes, pareto=pareto_fig, refused=refused, refusal_fig=refusal_fig,
-                  refusal_runs=len(refusals), worst=worst_motors(recs, page_dir), filters=filters,
-                  first=dates[0] if dates else "-", last=dates[-1] if dates else "-", stations=sorted(stations),
-                  fmt=_fmt)
+    return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control,
+                  fpy=doc["first_pass_yield"], doc=doc, causes=causes, pareto=pareto_fig, refused=refused,
+                  refusal_fig=refusal_fig, refusal_runs=len(refusals), worst=worst_motors(recs, page_dir),
+                  filters=filters, first=dates[0] if dates else "-", last=dates[-1] if dates else "-",
+                  stations=sorted(stations), fmt=_fmt, gated=gated_text)
+
+
+def _control(name: str, runs: list[RunRecord], doc: dict[str, Any], baseline: Baseline | None, min_n: int) -> Any:
+    """One station's control charts: against the baseline's lines of its variant when there is
+    one (the runs breaking a rule ringed), else its own limits from ``min_n`` runs on."""
+    from eol_cal.report.motor import Figure
+    from eol_cal.report.svg import figure_svg
+
+    limits = None
+    how = (f"centre line and control limits (mean +- 2.66 MRbar, MR: 3.267 MRbar) of the station's own runs from "
+           f"n = {min_n} on, points beyond them ringed red")
+    if baseline is not None:
+        lines = {j["quantity"]: j for j in doc["judged"] if j["station"] == name and j["reason"] is None}
+        variants = {j["variant"] for j in doc["judged"] if j["station"] == name}
+        if len(variants) == 1 and lines:
+            limits = {k: {f: j[f] for f in ("center", "ucl", "lcl", "mr_center", "mr_ucl")} for k, j in lines.items()}
+            how = (f"frozen centre line and limits (centre +- 3 sigma) of baseline {baseline.name!r}; runs that "
+                   "break a Western Electric rule ringed purple (hover: the rule)")
+        else:
+            how = (f"baseline {baseline.name!r} has no lines for this station's variant(s) {', '.join(sorted(variants))}; "
+                   + how)
+    marks: dict[str, dict[str, str]] = {}
+    for v in doc["violations"]:
+        if v["station"] == name:
+            for rid in v["runs"]:
+                old = marks.setdefault(v["quantity"], {}).get(rid)
+                marks[v["quantity"]][rid] = f"{old}; {v['text']}" if old else v["text"]
+    fig, titles = control_figure(runs, name, limits, min_n, marks)
+    fid = f"control-{_safe_id(name)}"
+    return Figure(fid, f"Station {name}: individuals and moving range of k6 and the compensated p-p, {len(runs)} runs; "
+                  + how, figure_svg(fig, fid, titles, "plot zoom"))
 
 
 def _fmt(x: float | None, digits: int = 4) -> str:
@@ -417,11 +478,13 @@ def select_records(records: Sequence[RunRecord], variant: str | None = None, sin
 
 
 def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str,
-                   filters: dict[str, str | None]) -> Path:
-    """Write the lot page to ``path`` (atomically); returns the path."""
+                   filters: dict[str, str | None], min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None) -> Path:
+    """Write the lot page to ``path`` (atomically); returns the path. ``min_n``, ``baseline``: as
+    :func:`render_lot_page`."""
 
     from eol_cal.atomic import atomic_write
 
     path = Path(path)
-    atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters))
+    atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters, min_n=min_n,
+                                       baseline=baseline))
     return path

@@ -29,7 +29,9 @@ SCHEMA_FILES: dict[str, str] = {
     "eol-cal/run/1": "run",
     "eol-cal/run-record/2": "run-record",
     "eol-cal/records/2": "records",
-    "eol-cal/lot-stats/1": "lot-stats",
+    "eol-cal/lot-stats/2": "lot-stats",
+    "eol-cal/lot-baseline/1": "lot-baseline",
+    "eol-cal/msa-type1/1": "msa-type1",
     "eol-cal/lot-diff/1": "lot-diff",
 }
 

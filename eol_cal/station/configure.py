@@ -14,7 +14,7 @@ from typing import Any, Callable
 
 from eol_cal.errors import InputError
 from eol_cal.station.run import StationConfig
-from eol_cal.station.settings import StationSettings, _named, register_map_of
+from eol_cal.station.settings import StationSettings, _named, master_of, register_map_of
 
 def station_record(settings: StationSettings, operator: str | None) -> dict[str, Any]:
     """The run record's ``station`` entries that the settings give (id, operator, addresses).
@@ -74,11 +74,14 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
         report_dir=settings.path("report_dir"), profile=str(settings["profile"]), verify=str(settings["verify"]),
         spool_dir=settings.path("spool_dir"), rate_hz=int(settings["rate_hz"]), db_timeout_s=float(settings["db_timeout_s"]),
         station=station_record(settings, operator), cache_dir=cache_dir, motor=motor, mechanics=mechanics,
-        estimator=None if settings["estimator"] is None else str(settings["estimator"]),
+        estimator=None if settings["estimator"] is None else str(settings["estimator"]), master=master_of(settings),
     )
 
 
 def for_motor(cfg: StationConfig, serial: str, **changes: Any) -> StationConfig:
     """The session's configuration for one motor: its serial, and any per-motor ``changes``
-    (the demo's simulators: ``dyno``, ``open_bus``, ``station``)."""
-    return dataclasses.replace(cfg, serial=serial, **changes)
+    (the demo's simulators: ``dyno``, ``open_bus``, ``station``). The station's master motor
+    runs as kind ``master``."""
+    is_master = cfg.master is not None and serial == cfg.master.serial
+    kind = "master" if is_master else ("production" if cfg.kind == "master" else cfg.kind)
+    return dataclasses.replace(cfg, serial=serial, **{"kind": kind, **changes})

@@ -141,6 +141,13 @@ class StationCycle:
         return cycle
 
     # ------------------------------------------------------------------ the steps
+    def master_check(self) -> None:
+        """A production motor on a station with a master motor: refused, before anything is
+        touched, while the master check is due or the last one failed (:mod:`eol_cal.msa.gate`)."""
+        from eol_cal.msa.gate import check_gate
+
+        check_gate(self.cfg.db, self.cfg.master, self.station.id, timeout_s=self.cfg.db_timeout_s)
+
     def pre_flight(self) -> None:
         """The settings the cycle will flash with, then dyno ready, ECU answering and accepting the
         key, serials agreeing: before anything is written to the ECU
@@ -232,6 +239,12 @@ class StationCycle:
         self.measured = self.measured.with_ripple(before.pp_pct, after.pp_pct, after.pp_no_mech1_pct)
         self.judged["ripple"] = judge(self.measured, self.cfg.limits, "ripple")
         reasons = failed(self.judged["ripple"])
+        if self.cfg.kind == "master" and self.cfg.master is not None:  # the master check: within its references
+            from eol_cal.msa.gate import judge_master
+
+            e = self.result.estimates
+            reasons += judge_master({"k6": e.k6.value, "phase_k6": e.phase_k6.value, "c6": e.c6.value,
+                                     "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct}, self.cfg.master)
         return StepVerdict("fail" if reasons else "pass", tuple(reasons))
 
     def report(self) -> Path:
@@ -258,7 +271,8 @@ class StationCycle:
 
         failure: BaseException | None = None
         try:
-            for name, method in (("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
+            gate = (("master check", self.master_check),) if self.cfg.master and self.cfg.kind == "production" else ()
+            for name, method in (*gate, ("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
                                  ("acquire", self.acquire), ("fit", self.fit), ("table", self.table), ("flash", self.flash),
                                  ("acquire compensated", self.acquire_compensated), ("metrics", self.judge)):
                 found = self._step(name, method)

@@ -31,6 +31,8 @@ REFUSAL_CODES: dict[str, str] = {
     "settings": "the station's settings were refused (profile, estimator options)",
     "interrupted": "the operator stopped the run before anything was written",
     "station_error": "the station failed before anything was written",
+    "master_due": "the station's master motor check is due (none within its period)",
+    "master_failed": "the station's last master motor check failed",
 }
 BLOCK_ROLES = ("prepare", "calibrated", "restore")
 

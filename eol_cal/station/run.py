@@ -30,6 +30,7 @@ from eol_cal.station.limits import VariantLimits
 from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
+    from eol_cal.msa.master import MasterSettings
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
     from eol_cal.station.record import RunRecord
@@ -96,6 +97,10 @@ class StationConfig:
     kind : str
         The record's kind when the cycle gets past its pre-flight (``production`` on a line;
         :data:`eol_cal.station.record.KINDS`); a cycle that ends before is a ``refusal``.
+    master : MasterSettings or None
+        The station's master motor (:mod:`eol_cal.msa.master`): a ``production`` run is refused
+        while its check is due or last failed; a run of kind ``master`` is judged against its
+        references too.
     """
 
     serial: str
@@ -117,6 +122,7 @@ class StationConfig:
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
     estimator: str | None = None
     kind: str = "production"
+    master: MasterSettings | None = None
 
     @property
     def estimator_options(self) -> int:

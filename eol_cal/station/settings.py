@@ -37,9 +37,11 @@ import can
 from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
 from eol_cal.inputs import load_toml
+from eol_cal.msa.master import MASTER_QUANTITIES
 
 if TYPE_CHECKING:
     from eol_cal.dyno.regmap import RegisterMap
+    from eol_cal.msa.master import MasterSettings
 
 ENV_PREFIX = "EOL_CAL_"
 
@@ -91,6 +93,15 @@ KEYS: tuple[Key, ...] = (
     Key("can.channel", str),
     Key("can.bitrate", int, bounds=(10_000, 8_000_000)),
     Key("can.config", str, is_path=True),
+    # statistics: the fewest values a capability index or control limit is given from (docs/spc.md)
+    Key("min_n", int, 25, bounds=(2, 1_000_000)),
+    # the master motor (docs/station.md, "Master motor"; eol_cal.msa.master): its serial, how often
+    # it runs, its reference values and the tolerances around them (display units)
+    Key("master.serial", str),
+    Key("master.every_h", float, bounds=(0.01, 10_000.0)),
+    Key("master.shifts", str),
+    Key("master.timezone", str),
+    *(Key(f"master.{part}.{q}", float) for part in ("reference", "tolerance") for q in MASTER_QUANTITIES),
 )
 
 
@@ -302,6 +313,7 @@ def check_station(settings: StationSettings) -> None:
     from eol_cal.station.limits import load_limits
 
     _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
+    master_of(settings)
     _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     if settings["estimator"] is not None:
         from eol_cal.firmware.options import parse_options
@@ -324,3 +336,11 @@ def register_map_of(settings: StationSettings) -> "RegisterMap":
     if (spec.endswith(".toml") or "/" in spec) and settings.source != "environment" and not Path(spec).is_absolute():
         spec = str(Path(settings.source).resolve().parent / spec)
     return _named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
+
+
+def master_of(settings: StationSettings) -> "MasterSettings | None":
+    """The station's master motor (keys ``master.*``), or None when ``master.serial`` is unset; a
+    key that does not fit is refused naming the settings file (or variable) and the key."""
+    from eol_cal.msa.master import master_settings
+
+    return master_settings(settings.values, settings.where)
