@@ -24,17 +24,13 @@ from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import Faults
 from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
 
-from _processes import ends_after
-
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)
 NEW = example_block(seed=2)
 BOUND_S = ClientTiming().dead_link_bound_s
-# From the ECU's death to the flash command's exit, past the dead link's bound: its error message and
-# exit; generous for a loaded machine (load 8 on 2 cores), a hang is what the bound is for.
-EXIT_S = 5.0
+START_S = 3.0  # a process's start-up on a loaded 2-core machine, s
 
 
 @pytest.fixture(scope="module")
@@ -97,8 +93,10 @@ def _kill_trial(base, tmp, step: str) -> tuple[int, float, str, int]:
     path = _copy(base, tmp)
     sim, url = _sim(path, "--die-at", step)
     try:
+        t0 = time.monotonic()
         flash = _cli("flash", str(base / "new.bin"), "-i", "remote", "-c", url, "--key-file", str(base / "key.hex"))
-        elapsed, err = ends_after(sim, flash, timeout=120)
+        _, err = flash.communicate(timeout=BOUND_S + START_S + 5)
+        elapsed = time.monotonic() - t0
         assert sim.wait(5) == -signal.SIGKILL  # the ECU really died at that step
     finally:
         _end(sim)
@@ -113,7 +111,7 @@ def test_ecu_killed_at_each_step(base, tmp_path_factory):
         results = list(pool.map(lambda c: _kill_trial(base, c[1], c[0][0]), zip(KILL_CASES, dirs)))
     for (step, boots), d, (rc, elapsed, err, booted) in zip(KILL_CASES, dirs, results):
         line = _one_error_line(err)
-        assert rc == 2 and elapsed < BOUND_S + EXIT_S, (step, elapsed, err)
+        assert rc == 2 and elapsed < BOUND_S + START_S, (step, elapsed, err)
         assert "CAN link lost" in line, line
         assert NorFlash(d / "ecu.bin").bank(0) == old_bank, f"{step}: the old block's bank was touched"
         assert booted == boots, (step, line)
@@ -128,9 +126,6 @@ SIGNAL_CASES = [("session", "sessions"), ("security", "security access"), ("eras
 
 def _signal_trial(base, tmp, step: str, shown: str, sig: signal.Signals) -> tuple[int, float, str, int]:
     path = _copy(base, tmp)
-    # the step slowed to 1 s: the signal lands inside it, 0.3 s after the progress line, and the
-    # tester's clean-up (an erase after transfer exit) is still answered within its wait once the
-    # slowed step ends (2 s was too long for that wait)
     sim, url = _sim(path, "--slow", f"{step}:1.0")
     try:
         flash = _cli("flash", str(base / "new.bin"), "-i", "remote", "-c", url, "--key-file", str(base / "key.hex"))
