@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from eol_cal.lot.baseline import group_lines, make_baseline
 from eol_cal.lot.columns import from_records
@@ -31,6 +32,7 @@ def _records():
     return recs
 
 
+@pytest.mark.slow
 def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     from _browser import Browser, element_sizes
 
