@@ -37,6 +37,14 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ[_JAX_CACHE] = path
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """A test marked ``long`` (minutes: the mech branch's marker) is also ``slow``, so the fast loop
+    (``-m "not slow"``) leaves it out whichever marker it carries."""
+    for item in items:
+        if item.get_closest_marker("long") is not None and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.slow)
+
+
 def pytest_unconfigure(config: pytest.Config) -> None:
     path = config.stash.get(_jax_cache_key, None)
     if path is not None:
