@@ -38,10 +38,13 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """A test marked ``long`` (minutes: the mech branch's marker) is also ``slow``, so the fast loop
-    (``-m "not slow"``) leaves it out whichever marker it carries."""
+    """Also ``slow``, so that the fast loop (``-m "not slow"``) leaves them out: a test on the
+    PostgreSQL server (``records_db``'s ``postgresql`` parameter; SQLite stays in the fast loop),
+    and a test marked ``long`` (minutes: the mech branch's marker)."""
     for item in items:
-        if item.get_closest_marker("long") is not None and item.get_closest_marker("slow") is None:
+        callspec = getattr(item, "callspec", None)
+        on_postgres = callspec is not None and callspec.params.get("records_db") == "postgresql"
+        if (on_postgres or item.get_closest_marker("long") is not None) and item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.slow)
 
 
@@ -63,7 +66,7 @@ def postgres_server() -> Iterator[PostgresServer]:
         server.stop()
 
 
-@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.slow)])
+@pytest.fixture(params=["sqlite", "postgresql"])
 def records_db(request, tmp_path: Path) -> str | Path:
     """A new, empty records database of each backend: a SQLite file path or a PostgreSQL URL."""
     if request.param == "sqlite":
