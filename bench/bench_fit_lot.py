@@ -31,6 +31,14 @@ bench measures it on a noise-free run of each motor through the same profile (th
 (against the plant's k6, the issue's target) and ``k6_eff_err_pct`` (against k6 + that part).
 Skip the extra run with ``--no-effective``.
 
+Mechanical orders (issue 22, contract revision 1.2): each motor's fit also measures its encoder's
+fingerprint and the mechanical orders 1..3 in the block's frame, and ``eol-cal table`` makes a
+layout-2 block (``MECH_COMP_ENABLE`` on when the predicted identification margin passes). For
+the estimator choices that learn pitch errors (``best``) every motor runs the operating point a
+third time with that block: its ECU identifies the rotor's mechanical angle in the pre-roll (four
+revolutions) and compensates every order (``pp_after_mech_pct``), against the 6th-harmonic table
+alone (layout 1, ``pp_after_pct``) in the same run. ``--no-mech`` skips it.
+
 The ECU's estimator options (contract flags bits 2-5) are chosen per run with ``--estimator``
 (default ``paper,best``: both, one after the other on the same motors, in one invocation): each
 motor is measured under the uncompensated block carrying those options (as the station's
@@ -99,6 +107,8 @@ def main() -> None:
                     help="skip the comparison fit + run with the nominal hall table")
     ap.add_argument("--no-effective", dest="effective", action="store_false",
                     help="skip the noise-free run that measures the ECU's own 6th-order current ripple")
+    ap.add_argument("--no-mech", dest="mech", action="store_false",
+                    help="skip the run with the layout-2 block (mechanical orders identified and compensated)")
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
@@ -114,7 +124,9 @@ def main() -> None:
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.variation import draw_motor
 
-    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.analysis.fit.table import mech_off_reasons, uncompensated_block
+    from eol_cal.analysis.motor_result import MotorResult
+    from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
     from eol_cal.firmware.options import options_label, parse_options
 
     print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")
@@ -145,14 +157,15 @@ def main() -> None:
             inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=opt)[0] for r in runs]
             fits = fit_many([m.segments for m in inputs], spec, mode="loop")
             t_fit += time.perf_counter() - t0
-            blocks, truths, blocks_nom = [], [], []
+            blocks, truths, blocks_nom, blocks_mech = [], [], [], []
             if args.nominal_halls:
                 # the alternative: the same fit with the contract's nominal hall table in the block
                 for r in runs:
                     (mi_n,) = motor_inputs([r.capture], mechanics=bench, hall_angle="nominal", estimator_options=opt)
                     (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
                     rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
-                    blocks_nom.append(block_from_record(rec_n, motor, options=opt) if rec_n["status"] == "ok" else None)
+                    blocks_nom.append(block_from_record(rec_n, motor, options=opt, layout=1)
+                                      if rec_n["status"] == "ok" else None)
             for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
                 # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
                 # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
@@ -181,7 +194,19 @@ def main() -> None:
                     "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
                     "hall_source": mi.hall.source,
                 })
-                blocks.append(block_from_record(rec, motor, options=opt) if rec["status"] == "ok" else None)
+                usable = rec["status"] == "ok"
+                blocks.append(block_from_record(rec, motor, options=opt, layout=1) if usable else None)
+                blocks_mech.append(block_from_record(rec, motor, options=opt) if usable else None)
+                mech = rec.get("mech") or {}
+                # the block's switch: the fit's mechanical status and the estimator options it needs
+                off = mech_off_reasons(MotorResult.from_json(rec), blocks_mech[-1].flags) if usable else ["fit not usable"]
+                rows[-1].update({
+                    "mech_status": "ok" if not off else "off", "mech_reasons": off,
+                    "mech_margin": (mech.get("margin") or {}).get("predicted", float("nan")),
+                    "mech_score": (mech.get("margin") or {}).get("score", float("nan")),
+                    "mech1_nm": next((o["c"]["value"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
+                    "mech1_ci_nm": next((o["c"]["ci95"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
+                })
                 truths.append(true_block(p, flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | opt))
             t0 = time.perf_counter()
             ok = [i for i, b in enumerate(blocks) if b is not None]
@@ -192,6 +217,9 @@ def main() -> None:
             ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
             after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
                                                 blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000))) if ok_n else {}
+            ok_m = [i for i, b in enumerate(blocks_mech) if b is not None] if args.mech and opt & FLAG_EST_LEARN_PITCH_ERRORS else []
+            after_mech = dict(zip(ok_m, simulate([plants[i] for i in ok_m], point, mode="compensated",
+                                                 blocks=[blocks_mech[i] for i in ok_m], seed=first + 1000))) if ok_m else {}
             t_sim += time.perf_counter() - t0
             after_by = dict(zip(ok, after))
             for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
@@ -210,6 +238,11 @@ def main() -> None:
                 rows[i]["unb1_nm"] = p.unb1
                 rows[i]["pp_true6_pct"] = _pp(ideal[j].capture)[0]
                 rows[i]["pp_after_nominal_halls_pct"] = _pp(after_nom[j].capture)[0] if j in after_nom else nan[0]
+                am = after_mech.get(j)
+                rows[i]["pp_after_mech_pct"], rows[i]["pp_after_mech_no_mech1_pct"] = _pp(am.capture) if am else nan
+                # the ECU identified in the pre-roll: its compensation ran from the first recorded sample
+                rows[i]["mech_active_first"] = float(am.mech_active[0]) if am else float("nan")
+                rows[i]["mech_active_frac"] = float(np.mean(am.mech_active)) if am else float("nan")
             print(f"  {len(rows)} motor runs done ({label}), {time.perf_counter() - t_start:.0f} s", flush=True)
 
     if args.json:
@@ -223,8 +256,8 @@ def main() -> None:
         _summary([r for r in rows if r["estimator"] == label], label, args)
     print(f"\nsimulation {t_sim:.0f} s, fitting (incl. angle + segments) {t_fit:.0f} s, "
           f"wall {time.perf_counter() - t_start:.0f} s")
-    print("\ncompensated p-p at 60 rpm / 65 A, side by side (targets: <= 1.0 % on 85/100, median <= 0.75 %; "
-          "without mechanical order 1 all <= 0.8 %):")
+    print("\ncompensated p-p at 60 rpm / 65 A, side by side (issue 22 targets, every order included, with the "
+          "layout-2 block: <= 1.0 % on 100/100, median <= 0.5 %):")
     print(f"{'estimator':<10} {'n':>4} {'pp median':>10} {'p95':>6} {'max':>6} {'<=1.0 %':>8} "
           f"{'no_mech1 median':>16} {'max':>6} {'<=0.8 %':>8} {'before median':>14}")
     for label in labels:
@@ -235,6 +268,12 @@ def main() -> None:
         print(f"{label:<10} {len(sub):>4} {np.nanmedian(pp):>9.2f}% {np.nanpercentile(pp, 95):>5.2f}% "
               f"{np.nanmax(pp):>5.2f}% {int((pp <= 1.0).sum()):>4}/{len(sub):<3} {np.nanmedian(nm):>15.2f}% "
               f"{np.nanmax(nm):>5.2f}% {int((nm <= 0.8).sum()):>4}/{len(sub):<3} {np.nanmedian(bf):>13.2f}%")
+        pm = np.array([r.get("pp_after_mech_pct", np.nan) for r in sub], float)
+        if np.isfinite(pm).any():
+            nmm = np.array([r["pp_after_mech_no_mech1_pct"] for r in sub], float)
+            print(f"{label + '+mech':<10} {int(np.isfinite(pm).sum()):>4} {np.nanmedian(pm):>9.2f}% "
+                  f"{np.nanpercentile(pm, 95):>5.2f}% {np.nanmax(pm):>5.2f}% {int((pm <= 1.0).sum()):>4}/{len(sub):<3} "
+                  f"{np.nanmedian(nmm):>15.2f}% {np.nanmax(nmm):>5.2f}% {int((nmm <= 0.8).sum()):>4}/{len(sub):<3}")
 
 
 def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
@@ -270,12 +309,38 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
               f"the interval holds it for {int((np.abs(eff) <= ci).sum())}/{n}")
     print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
     print(f"hall table measured for {sum(r['hall_source'] == 'measured' for r in rows)}/{n} motors")
-    for name in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct", "pp_after_nominal_halls_pct", "pp_true6_pct"):
+    _mech_summary(rows)
+    for name in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct", "pp_after_nominal_halls_pct", "pp_true6_pct",
+                 "pp_after_mech_pct", "pp_after_mech_no_mech1_pct"):
         v = col(name)
         if np.all(np.isnan(v)):
             continue
         print(f"{name}: median {np.nanmedian(v):.2f} %, p95 {np.nanpercentile(v, 95):.2f} %, max {np.nanmax(v):.2f} %"
               + (f", <= 1.0 %: {int((v <= 1.0).sum())}/{n}" if name.startswith("pp_after") else ""))
+
+
+def _mech_summary(rows: list) -> None:
+    """The identification over the lot: the end of line's switch, the margin, the ECU's identification."""
+    n = len(rows)
+    on = [r for r in rows if r.get("mech_status") == "ok"]
+    marg = np.array([r.get("mech_margin", np.nan) for r in rows], float)
+    if np.all(np.isnan(marg)):
+        return
+    print(f"MECH_COMP_ENABLE on at end of line: {len(on)}/{n}; off: "
+          + ("; ".join(sorted({"; ".join(r.get("mech_reasons", [])) for r in rows if r.get("mech_status") != "ok"})) or "none"))
+    q = np.nanpercentile(marg, [0, 5, 50, 95, 100])
+    print(f"predicted identification margin (cosine, one revolution at 300 rpm): min {q[0]:.3f}, p5 {q[1]:.3f}, "
+          f"median {q[2]:.3f}, p95 {q[3]:.3f}, max {q[4]:.3f}; score median {np.nanmedian([r.get('mech_score', np.nan) for r in rows]):.3f}")
+    first = np.array([r.get("mech_active_first", np.nan) for r in rows], float)
+    frac = np.array([r.get("mech_active_frac", np.nan) for r in rows], float)
+    if np.isfinite(first).any():
+        print(f"ECU identified within the pre-roll (compensating from the first recorded sample): "
+              f"{int(np.nansum(first))}/{int(np.isfinite(first).sum())}; active over the capture: min {np.nanmin(frac):.3f}")
+    c1 = np.array([r.get("mech1_nm", np.nan) for r in rows], float)
+    u1 = np.array([r.get("unb1_nm", np.nan) for r in rows], float)
+    if np.isfinite(c1).any() and np.isfinite(u1).any():
+        d = np.abs(c1 - u1)
+        print(f"|fitted order 1 - plant unb1| (N*m): median {np.nanmedian(d):.5f}, max {np.nanmax(d):.5f}")
 
 
 if __name__ == "__main__":

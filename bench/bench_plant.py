@@ -1,27 +1,44 @@
-"""Speed of the built-in plant against motulator, side by side in one run.
+"""Speed of the built-in plant, and its p-p figures, against an older checkout of the code and
+against motulator, side by side in one run.
 
-Prints simulated seconds per wall second (x real time) for:
+Prints simulated seconds per second (x real time) for:
 
-- eol-cal's plant (JAX lax.scan at the 20 kHz PWM tick, float32, compensated mode of the paper
-  preset: estimator + compensator + PI current control + SPMSM + shaft/dyno + transducer),
-  one motor and a vmapped batch of 64, cold (first call: trace + compile + run, no persistent
-  cache) and warm (second call);
-- motulator (the package index's PMSM drive simulator: continuous-time model solved by scipy
-  between control samples) simulating the same motor (seed Table I) under current-vector control
-  at the same 20 kHz sampling, an externally driven rotor at 60 rpm, 3.2 N*m reference,
-  for the same simulated time; cold = first run in the process (imports excluded), warm = second.
+- eol-cal's plant (JAX ``lax.scan`` at the 20 kHz PWM tick, float32, compensated mode of the
+  paper preset: estimator + compensator + PI current control + SPMSM + shaft/dyno + transducer),
+  one motor and a vmapped batch (default 64 motors drawn from the production spread), cold (first
+  call: trace + compile + run, no persistent cache) and warm (the next calls);
+- the same with ``--baseline DIR`` (a checkout of older code, e.g. ``git worktree add DIR
+  COMMIT``): its ``eol_cal`` imported instead of this one, in a process of its own;
+- motulator (the package index's PMSM drive simulator, when installed: ``pip install -e .[bench]``)
+  simulating the same motor under current-vector control at the same 20 kHz sampling, an
+  externally driven rotor at 60 rpm, 3.2 N*m reference.
 
-Everything is pinned to one CPU core (``os.sched_setaffinity``), so the figures are one-core figures.
+Each simulator runs in a fresh process pinned to one CPU core (``os.sched_setaffinity``): the
+figures are one-core figures, ``warm/cpu`` per CPU second of that process (which other jobs on the
+machine move less than the wall time). The rounds alternate the code versions.
 
-    python bench/bench_plant.py [--seconds 1.0] [--batch 64] [--motulator-seconds 1.0]
+``--pp-seeds N`` also measures the paper preset's p-p ripple (docs/metrics.md: raw and filtered,
+60 rpm, 65 A, 1.5 s) in the three modes over N noise seeds with each code version: the means the
+speed-ups must keep (issue 25: within 2 %).
+
+    python bench/bench_plant.py [--seconds 2.0] [--batch 64] [--rounds 2] [--baseline DIR] [--pp-seeds 10]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve()
+MODES = ("raw", "estimated", "compensated")
 
 
 def _pin_one_core() -> int:
@@ -30,8 +47,16 @@ def _pin_one_core() -> int:
     return cpus[0]
 
 
-def bench_plant(seconds: float, batch: int) -> dict[str, float]:
-    """Cold/warm wall times (s) of one motor and of ``batch`` motors."""
+def _loop_kernel() -> None:
+    try:
+        from eol_cal.xla import configure_xla
+    except ImportError:  # older checkouts kept it with the plant
+        from eol_cal.plant.simulate import configure_xla
+    configure_xla()
+
+
+def bench_plant(seconds: float, batch: int, warm_runs: int) -> dict[str, float]:
+    """Cold and best warm wall and CPU times (s) of one motor and of ``batch`` motors."""
     from eol_cal.plant.presets import paper
     from eol_cal.plant.profile import constant
     from eol_cal.plant.simulate import simulate
@@ -40,16 +65,35 @@ def bench_plant(seconds: float, batch: int) -> dict[str, float]:
     prof = constant(60.0, seconds, iq=65.0)
     out: dict[str, float] = {}
     for label, specs in (("1", paper()), (str(batch), [draw_motor(s) for s in range(batch)])):
-        for phase in ("cold", "warm"):
+        for k in range(1 + warm_runs):
             t0, c0 = time.perf_counter(), time.process_time()
             simulate(specs, prof, mode="compensated", pre_roll_s=0.0)
-            out[f"{label}/{phase}"] = time.perf_counter() - t0
-            out[f"{label}/{phase}/cpu"] = time.process_time() - c0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+            phase = "cold" if k == 0 else "warm"
+            out[f"{label}/{phase}"] = min(out.get(f"{label}/{phase}", math.inf), wall)
+            out[f"{label}/{phase}/cpu"] = min(out.get(f"{label}/{phase}/cpu", math.inf), cpu)
+    return out
+
+
+def paper_pp(seeds: int) -> dict[str, list[list[float]]]:
+    """Per mode, (raw %, filtered %) of the paper preset for noise seeds 1..``seeds``."""
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.plant.presets import paper
+    from eol_cal.plant.profile import constant
+    from eol_cal.plant.simulate import simulate
+
+    prof = constant(60.0, 1.5, iq=65.0)
+    out: dict[str, list[list[float]]] = {}
+    for mode in MODES:
+        out[mode] = []
+        for seed in range(1, seeds + 1):
+            pp = capture_ripple_pp(simulate(paper(), prof, mode=mode, seed=seed)[0].capture)
+            out[mode].append([pp.raw_pct, pp.filtered_pct])
     return out
 
 
 def bench_motulator(seconds: float) -> dict[str, float]:
-    """Cold/warm wall times (s) of motulator's PMSM current-vector-controlled drive."""
+    """Cold/warm wall and CPU times (s) of motulator's PMSM current-vector-controlled drive."""
     import motulator.drive.control.sm as control
     from motulator.drive import model
     from motulator.drive.utils import SynchronousMachinePars
@@ -73,48 +117,113 @@ def bench_motulator(seconds: float) -> dict[str, float]:
         sim.simulate(t_stop=seconds)
         out[phase] = time.perf_counter() - t0
         out[f"{phase}/cpu"] = time.process_time() - c0
-        tau = mdl.machine.data.tau_M if hasattr(mdl.machine, "data") else None
-        if tau is not None:
-            out["torque_check"] = float(sum(tau[len(tau) // 2:]) / max(1, len(tau) - len(tau) // 2))
     return out
+
+
+def child(kind: str, a: argparse.Namespace, out: Path) -> None:
+    _pin_one_core()
+    if not a.no_loop_kernel:
+        _loop_kernel()
+    if kind == "plant":
+        res: Any = bench_plant(a.seconds, a.batch, a.warm_runs)
+    elif kind == "pp":
+        res = paper_pp(a.pp_seeds)
+    else:
+        res = bench_motulator(a.motulator_seconds)
+    out.write_text(json.dumps(res))
+
+
+def run_child(kind: str, a: argparse.Namespace, baseline: Path | None) -> Any:
+    env = dict(os.environ)
+    if baseline is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(baseline), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    args = [sys.executable, str(HERE), "--child", kind, "--seconds", str(a.seconds), "--batch", str(a.batch),
+            "--warm-runs", str(a.warm_runs), "--pp-seeds", str(a.pp_seeds), "--motulator-seconds",
+            str(a.motulator_seconds)] + (["--no-loop-kernel"] if a.no_loop_kernel else [])
+    with tempfile.NamedTemporaryFile(suffix=".json") as f:
+        subprocess.run(args + ["--out", f.name], check=True, env=env, cwd=baseline or HERE.parent.parent)
+        return json.loads(Path(f.name).read_text())
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds of the plant runs")
+    ap.add_argument("--seconds", type=float, default=2.0, help="simulated seconds of the plant runs")
     ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--warm-runs", type=int, default=2, help="warm calls per process (the best one counts)")
+    ap.add_argument("--rounds", type=int, default=2, help="the code versions run in turn, this many times")
+    ap.add_argument("--baseline", type=Path, default=None, help="a checkout of older code to run side by side")
+    ap.add_argument("--pp-seeds", type=int, default=0, help="noise seeds of the p-p comparison (0: none)")
     ap.add_argument("--motulator-seconds", type=float, default=1.0, help="simulated seconds of motulator")
     ap.add_argument("--no-loop-kernel", action="store_true",
                     help="leave XLA's small-while-loop threshold at its default (each kernel dispatched)")
-    args = ap.parse_args()
-    core = _pin_one_core()
-    if not args.no_loop_kernel:
-        from eol_cal.plant.simulate import configure_xla
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, default=None, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child:
+        child(a.child, a, a.out)
+        return
 
-        configure_xla()
+    versions: list[tuple[str, Path | None]] = [("this checkout", None)]
+    if a.baseline is not None:
+        versions.insert(0, (f"baseline {a.baseline}", a.baseline.resolve()))
+    load0 = os.getloadavg()
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name, _ in versions}
+    for r in range(a.rounds):
+        for name, path in versions:
+            res = run_child("plant", a, path)
+            runs[name].append(res)
+            b = a.batch
+            print(f"round {r + 1}: {name:<40} 1 motor {a.seconds / res['1/warm']:6.1f}x, batch {b} "
+                  f"{b * a.seconds / res[f'{b}/warm']:6.1f}x (wall), {b * a.seconds / res[f'{b}/warm/cpu']:6.1f}x "
+                  f"per CPU s; load {os.getloadavg()[0]:.2f}", flush=True)
+    try:
+        import motulator  # noqa: F401
 
-    plant = bench_plant(args.seconds, args.batch)
-    mot = bench_motulator(args.motulator_seconds)
+        mot = run_child("motulator", a, None)
+    except ImportError:
+        mot = None
 
-    def rate(sim_s: float, wall: float) -> float:
-        return sim_s / wall
+    b = a.batch
+    print(f"\none CPU core per process; simulated {a.seconds:g} s (plant); batch of {b} from the production spread; "
+          f"load average {load0[0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end; "
+          f"x real time = simulated s per s, best of {a.rounds} rounds x {a.warm_runs} warm runs")
+    print(f"{'simulator':46s} {'cold':>7s} {'warm':>7s} {'warm/cpu':>9s}")
+    best: dict[str, dict[str, float]] = {}
+    for name, _ in versions:
+        best[name] = {k: min(r[k] for r in runs[name]) for k in runs[name][0]}
+        x = best[name]
+        for label, n in (("1", 1), (str(b), b)):
+            title = f"{name}: {'1 motor' if n == 1 else f'batch {b} (aggregate)'}"
+            print(f"{title:46s} {n * a.seconds / x[f'{label}/cold']:7.1f} {n * a.seconds / x[f'{label}/warm']:7.1f} "
+                  f"{n * a.seconds / x[f'{label}/warm/cpu']:9.1f}")
+    if mot is not None:
+        print(f"{'motulator PMSM current-vector control':46s} {a.motulator_seconds / mot['cold']:7.2f} "
+              f"{a.motulator_seconds / mot['warm']:7.2f} {a.motulator_seconds / mot['warm/cpu']:9.2f}")
+    else:
+        print("motulator: not installed (pip install -e .[bench]); not compared")
+    if a.baseline is not None:
+        new, old = best["this checkout"], best[versions[0][0]]
+        for key, what in ((f"{b}/warm/cpu", f"batch {b} per CPU s"), (f"{b}/warm", f"batch {b} wall"),
+                          ("1/warm/cpu", "1 motor per CPU s")):
+            print(f"speed-up against the baseline, {what}: {old[key] / new[key]:.2f}x")
+    print(f"batch {b}: {b * a.seconds / best['this checkout'][f'{b}/warm/cpu']:.0f}x real time per CPU s "
+          "(target >= 300x on one core)")
 
-    print(f"XLA_FLAGS={os.environ.get('XLA_FLAGS', '')!r}")
-    print(f"one CPU core (#{core}); simulated {args.seconds:g} s (plant), {args.motulator_seconds:g} s (motulator)")
-    print(f"{'simulator':40s} {'cold x RT':>10s} {'warm x RT':>10s} {'warm/cpu':>10s}  (simulated s per wall s; "
-          "last column per CPU s of the process, less sensitive to other load)")
-    print(f"{'eol-cal plant, 1 motor':40s} {rate(args.seconds, plant['1/cold']):10.2f} "
-          f"{rate(args.seconds, plant['1/warm']):10.2f} {rate(args.seconds, plant['1/warm/cpu']):10.2f}")
-    b = args.batch
-    print(f"{f'eol-cal plant, batch {b} (aggregate)':40s} {rate(b * args.seconds, plant[f'{b}/cold']):10.2f} "
-          f"{rate(b * args.seconds, plant[f'{b}/warm']):10.2f} {rate(b * args.seconds, plant[f'{b}/warm/cpu']):10.2f}")
-    print(f"{'motulator 0.5 PMSM current-vector ctrl':40s} {rate(args.motulator_seconds, mot['cold']):10.2f} "
-          f"{rate(args.motulator_seconds, mot['warm']):10.2f} {rate(args.motulator_seconds, mot['warm/cpu']):10.2f}")
-    mot_warm = rate(args.motulator_seconds, mot["warm"])
-    if "torque_check" in mot:
-        print(f"motulator mean torque over the second half: {mot['torque_check']:.3f} N*m (reference 3.2)")
-    print(f"speed-up warm, 1 motor: {rate(args.seconds, plant['1/warm']) / mot_warm:.1f}x; "
-          f"batch {b} aggregate: {rate(b * args.seconds, plant[f'{b}/warm']) / mot_warm:.1f}x")
+    if a.pp_seeds:
+        import numpy as np
+
+        pps = {name: run_child("pp", a, path) for name, path in versions}
+        print(f"\npaper preset p-p (%), 60 rpm / 65 A / 1.5 s, mean over noise seeds 1..{a.pp_seeds}:")
+        for mode in MODES:
+            line = f"{mode:<12}"
+            means = {name: np.mean(np.array(pps[name][mode]), axis=0) for name, _ in versions}
+            for name, _ in versions:
+                sd = np.std(np.array(pps[name][mode]), axis=0, ddof=1)
+                line += f"  {name}: raw {means[name][0]:.3f} (sd {sd[0]:.3f}), filtered {means[name][1]:.3f} (sd {sd[1]:.3f})"
+            if a.baseline is not None:
+                new, old = means["this checkout"], means[versions[0][0]]
+                line += f"  -> {100 * (new[0] / old[0] - 1):+.2f} %, {100 * (new[1] / old[1] - 1):+.2f} %"
+            print(line)
 
 
 if __name__ == "__main__":

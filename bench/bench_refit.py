@@ -1,40 +1,54 @@
-"""Lot refit throughput: a plain loop, multiprocessing.Pool(2), and Dask distributed with 1 and
-2 local worker processes, over the same synthetic lot (one directory of captures per serial).
+"""Lot refit throughput: one process and Dask distributed with 1 and 2 local workers, against
+merely reading the same files, and against an older checkout of the code, over one synthetic lot
+(one directory of six captures per serial).
 
-    python bench/bench_refit.py [--serials 400] [--rounds 2]
+    python bench/bench_refit.py [--serials 400] [--rounds 2] [--baseline DIR]
 
-All four run the same task (:func:`eol_cal.lot.refit.refit_capture`) in processes prepared the
-same way (:func:`eol_cal.lot.cluster.prepare_fit_process`: JAX's compile cache, the fit's
-modules, ``gc.freeze``), each warm (one fit per process outside the timing). The Dask runs use
-the cluster `eol-cal refit` starts (:func:`eol_cal.lot.cluster.local_cluster`); the Pool's processes get the
-environment the nanny gives Dask's workers (:func:`eol_cal.lot.cluster.worker_environ`: one
-OpenMP/BLAS thread each). The machine is shared: the alternatives run one after the other
-in each round, ``--rounds`` times, and the table sums the rounds; ``cpu/serial`` is the CPU time
-(user + system) of every process involved (this one, the pool's, the nannies and workers), which
-other jobs on the machine move much less than the wall time.
+Every alternative runs in a fresh process of its own (``--child``), prepared as `eol-cal refit`
+prepares its workers (:func:`eol_cal.lot.cluster.prepare_fit_process`) and warm (a batch of
+serials outside the lot, on every worker, before the clock); the rounds alternate them, so a
+change in the machine's load falls on all of them. ``cpu/serial`` is the CPU time (user +
+system) of the child and everything it started (nannies, workers), which other jobs on the
+machine move much less than the wall time.
+
+- ``read_capture``: every capture read as the refit reads it (structure check, decode, channel
+  map, validation), nothing else: the time to merely read and decode the files;
+- ``asammdf``: every capture decoded with plain asammdf (``MDF(path).select`` of every channel):
+  what reading the files costs with the library alone;
+- ``loop``: the refit in one process (:func:`eol_cal.lot.refit.refit_serials`, batches of
+  :data:`~eol_cal.lot.refit.REFIT_BATCH` serials);
+- ``dask, N workers``: :func:`eol_cal.lot.refit.refit_lot` on the cluster `eol-cal refit` starts;
+- ``--baseline DIR``: the loop and the 2-worker cluster once more with the code of another
+  checkout (``git worktree add DIR COMMIT``), its ``eol_cal`` imported instead of this one.
+
+All refits must give the same k6, c6, R^2 and RMS per serial (checked); the phases may differ
+by float32 rounding of the firmware frame (the largest difference is printed).
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import multiprocessing as mp
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
+HERE = Path(__file__).resolve()
+FIGURES = ("k6", "c6", "r2", "rms")
 
 
-def make_lot(d: Path, n: int) -> list[list[Path]]:
+def make_lot(d: Path, n: int, first: int = 0) -> list[list[Path]]:
     from eol_cal.capture.io import write_capture
     from eol_cal.capture.synthetic import synthetic_capture
 
     groups = []
-    for i in range(n):
+    for i in range(first, first + n):
         sd = d / f"S{i:04d}"
         sd.mkdir()
         g = []
@@ -47,24 +61,8 @@ def make_lot(d: Path, n: int) -> list[list[Path]]:
     return groups
 
 
-def _fit(group: list[Path]) -> float:
-    from eol_cal.analysis.fit.cache import default_cache_dir
-    from eol_cal.lot.refit import refit_capture
-
-    row = refit_capture(group, bench="none", cache_dir=default_cache_dir())
-    if row["error"] is not None:
-        raise RuntimeError(row["error"])
-    return row["k6"]
-
-
-def _init(warm: list[Path], ready: Any = None) -> None:
-    from eol_cal.analysis.fit.cache import default_cache_dir
-    from eol_cal.lot.cluster import prepare_fit_process
-
-    prepare_fit_process(default_cache_dir())
-    _fit(warm)
-    if ready is not None:
-        ready.release()
+def _groups(d: Path) -> list[list[Path]]:
+    return [sorted(p.glob("*.mf4")) for p in sorted(d.iterdir())]
 
 
 def _tree_cpu() -> float:
@@ -80,104 +78,172 @@ def _tree_cpu() -> float:
     return total
 
 
-@contextlib.contextmanager
-def _environ(env: dict[str, str]) -> Iterator[None]:
-    old = {k: os.environ.get(k) for k in env}
-    os.environ.update(env)
-    try:
-        yield
-    finally:
-        for k, v in old.items():
-            if v is None:
-                os.environ.pop(k, None)
-            else:
-                os.environ[k] = v
+# ------------------------------------------------------------------------------------------
+# the children: one alternative each, in a fresh process
 
 
-def _timed(run: Callable[[], list[float]]) -> tuple[list[float], float, float]:
+def _rows_of(refit: Any, groups: list[list[Path]], **kw: Any) -> list[dict[str, Any]]:
+    """Rows of a lot in one process: batches where the code has them, else serial by serial."""
+    if hasattr(refit, "refit_serials"):
+        b = refit.REFIT_BATCH
+        return [r for k in range(0, len(groups), b) for r in refit.refit_serials(groups[k:k + b], **kw)]
+    return [refit.refit_capture(g, **kw) for g in groups]
+
+
+def _child_read(lot: list[list[Path]], plain_asammdf: bool) -> tuple[list[Any], float, float]:
+    import eol_cal.analysis.fit.motors  # noqa: F401 - the same process as a refit's, JAX loaded
+    from eol_cal.capture.io import read_capture
+
+    def asammdf_read(p: Path) -> int:
+        from asammdf import MDF
+
+        mdf = MDF(str(p))
+        try:
+            req = [(None, gi, ci) for gi, g in enumerate(mdf.groups) for ci in range(len(g.channels))
+                   if ci != mdf.masters_db.get(gi)]
+            return sum(len(s.samples) for s in mdf.select(req))
+        finally:
+            mdf.close()
+
+    read = asammdf_read if plain_asammdf else read_capture
+    for p in lot[0]:
+        read(p)
     c0, t0 = _tree_cpu(), time.perf_counter()
-    k6 = run()
-    return k6, time.perf_counter() - t0, _tree_cpu() - c0
+    for g in lot:
+        for p in g:
+            read(p)
+    return [], time.perf_counter() - t0, _tree_cpu() - c0
 
 
-def run_loop(lot: list[list[Path]], warm: list[Path]) -> tuple[list[float], float, float]:
-    _init(warm)
-    return _timed(lambda: [_fit(g) for g in lot])
+def _child_loop(lot: list[list[Path]], warm: list[list[Path]]) -> tuple[list[Any], float, float]:
+    from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.lot import refit
+    from eol_cal.lot.cluster import prepare_fit_process
+
+    cache = default_cache_dir()
+    prepare_fit_process(cache)
+    _rows_of(refit, warm, bench="none", cache_dir=cache)
+    c0, t0 = _tree_cpu(), time.perf_counter()
+    rows = _rows_of(refit, lot, bench="none", cache_dir=cache)
+    return rows, time.perf_counter() - t0, _tree_cpu() - c0
 
 
-def run_pool(lot: list[list[Path]], warm: list[Path]) -> tuple[list[float], float, float]:
-    from eol_cal.lot.cluster import worker_environ
-
-    ctx = mp.get_context("spawn")
-    ready = ctx.Semaphore(0)
-    with _environ(worker_environ()), ctx.Pool(2, initializer=_init, initargs=(warm, ready)) as pool:
-        for _ in range(2):  # both processes initialised and warm before the clock
-            ready.acquire()
-        return _timed(lambda: pool.map(_fit, lot, chunksize=1))
-
-
-def run_dask(lot: list[list[Path]], warm: list[Path], n: int) -> tuple[list[float], float, float]:
+def _child_dask(lot: list[list[Path]], warm: list[list[Path]], n: int) -> tuple[list[Any], float, float]:
     from distributed import Client, wait
 
     from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.lot import refit
     from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-    from eol_cal.lot.refit import refit_capture, refit_lot
 
-    cache_dir = default_cache_dir()
+    cache = default_cache_dir()
+    warm_args = [[str(q) for q in g] for g in warm]
     with local_cluster(n) as cluster, Client(cluster) as client:
-        client.register_plugin(RefitWorkerSetup(cache_dir))
-        wait([client.submit(refit_capture, [str(q) for q in warm], bench="none", cache_dir=str(cache_dir), pure=False,
-                            workers=[addr], allow_other_workers=False) for addr in client.scheduler_info()["workers"]])
+        client.register_plugin(RefitWorkerSetup(cache))
+        task = (refit.refit_serials, warm_args) if hasattr(refit, "refit_serials") else (refit.refit_capture, warm_args[0])
+        wait([client.submit(*task, bench="none", cache_dir=str(cache), pure=False, workers=[addr],
+                            allow_other_workers=False) for addr in client.scheduler_info()["workers"]])
+        c0, t0 = _tree_cpu(), time.perf_counter()
+        rows = refit.refit_lot(lot, client, bench="none", cache_dir=cache)
+        return rows, time.perf_counter() - t0, _tree_cpu() - c0
 
-        def go() -> list[float]:
-            rows = refit_lot(lot, client, bench="none", cache_dir=cache_dir)
-            bad = [r["error"] for r in rows if r["error"]]
-            if bad:
-                raise RuntimeError(bad[0])
-            return [r["k6"] for r in rows]
 
-        return _timed(go)
+def child(name: str, lot_dir: Path, warm_dir: Path, out: Path) -> None:
+    lot, warm = _groups(lot_dir), _groups(warm_dir)
+    if name in ("read_capture", "asammdf"):
+        rows, wall, cpu = _child_read(lot, name == "asammdf")
+    elif name == "loop":
+        rows, wall, cpu = _child_loop(lot, warm)
+    else:
+        rows, wall, cpu = _child_dask(lot, warm, int(name.split("-")[1]))
+    bad = [r["error"] for r in rows if r["error"]]
+    if bad:
+        raise RuntimeError(bad[0])
+    figures = [{k: r[k] for k in ("serial", "phase_k6", *FIGURES)} for r in rows]
+    out.write_text(json.dumps({"wall": wall, "cpu": cpu, "rows": figures}))
+
+
+# ------------------------------------------------------------------------------------------
+# the parent: the lot, the rounds, the table
+
+
+def run_child(name: str, lot: Path, warm: Path, baseline: Path | None) -> dict[str, Any]:
+    env = dict(os.environ)
+    if baseline is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(baseline), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    with tempfile.NamedTemporaryFile(suffix=".json") as f:
+        subprocess.run([sys.executable, str(HERE), "--child", name, "--lot", str(lot), "--warm", str(warm),
+                        "--out", f.name], check=True, env=env, cwd=baseline or HERE.parent.parent)
+        return json.loads(Path(f.name).read_text())
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--serials", type=int, default=400)
     ap.add_argument("--rounds", type=int, default=2, help="the alternatives run in turn, this many times")
+    ap.add_argument("--baseline", type=Path, default=None,
+                    help="a checkout of older code (e.g. a git worktree of main): its loop and 2-worker cluster too")
+    ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--lot", type=Path, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--warm", type=Path, default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args()
+    if a.child:
+        child(a.child, a.lot, a.warm, a.out)
+        return
 
-    runs: dict[str, Callable[[list[list[Path]], list[Path]], tuple[list[float], float, float]]] = {
-        "loop (1 process)": run_loop,
-        "multiprocessing.Pool(2)": run_pool,
-        "dask, 1 worker": lambda lot, warm: run_dask(lot, warm, 1),
-        "dask, 2 workers": lambda lot, warm: run_dask(lot, warm, 2),
-    }
-    wall = dict.fromkeys(runs, 0.0)
-    cpu = dict.fromkeys(runs, 0.0)
+    runs: list[tuple[str, str, Path | None]] = [
+        ("read+decode (read_capture)", "read_capture", None),
+        ("read+decode (asammdf)", "asammdf", None),
+        ("loop (1 process)", "loop", None),
+        ("dask, 1 worker", "dask-1", None),
+        ("dask, 2 workers", "dask-2", None),
+    ]
+    if a.baseline is not None:
+        base = a.baseline.resolve()
+        runs += [("baseline loop (1 process)", "loop", base), ("baseline dask, 2 workers", "dask-2", base)]
+    wall = {name: 0.0 for name, _, _ in runs}
+    cpu = dict(wall)
     load0 = os.getloadavg()
+    ref: list[dict[str, Any]] | None = None
+    phase_diff = 0.0
     with tempfile.TemporaryDirectory() as d:
-        lot = make_lot(Path(d), a.serials + 1)
-        warm, lot = lot[0], lot[1:]
-        ref = None
+        from eol_cal.lot.refit import REFIT_BATCH
+
+        (Path(d) / "lot").mkdir()
+        (Path(d) / "warm").mkdir()
+        make_lot(Path(d) / "lot", a.serials)
+        make_lot(Path(d) / "warm", REFIT_BATCH, first=a.serials)
         for r in range(a.rounds):
-            for name, run in runs.items():
-                k6, w, c = run(lot, warm)
-                if ref is None:
-                    ref = k6
-                if k6 != ref:
-                    raise RuntimeError(f"{name}: k6 differs from the first run's")
-                wall[name] += w
-                cpu[name] += c
-                print(f"round {r + 1}: {name:<24} {a.serials / w:6.2f} serials/s  load {os.getloadavg()[0]:.2f}",
-                      flush=True)
+            for name, kind, baseline in runs:
+                res = run_child(kind, Path(d) / "lot", Path(d) / "warm", baseline)
+                wall[name] += res["wall"]
+                cpu[name] += res["cpu"]
+                if res["rows"]:
+                    ref = ref or res["rows"]
+                    for x, y in zip(ref, res["rows"]):
+                        if x["serial"] != y["serial"] or any(x[k] != y[k] for k in FIGURES):
+                            raise RuntimeError(f"{name}: {y['serial']} differs from the first refit: {x} {y}")
+                        phase_diff = max(phase_diff, abs(x["phase_k6"] - y["phase_k6"]))
+                print(f"round {r + 1}: {name:<28} {a.serials / res['wall']:7.2f} serials/s  "
+                      f"{res['cpu'] / a.serials * 1e3:6.1f} ms CPU/serial  load {os.getloadavg()[0]:.2f}", flush=True)
     n = a.serials * a.rounds
-    base = wall["loop (1 process)"]
-    print(f"{a.serials} serials x {len(POINTS)} captures x {a.rounds} round(s), {mp.cpu_count()} cores, "
+    print(f"{a.serials} serials x {len(POINTS)} captures x {a.rounds} round(s), {os.cpu_count()} cores, "
           f"load average {load0[0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
-    print(f"{'':<26}{'s':>8}{'serials/s':>11}{'vs loop':>9}{'cpu/serial':>12}")
-    for k in runs:
-        print(f"{k:<26}{wall[k]:>8.1f}{n / wall[k]:>11.2f}{base / wall[k]:>8.2f}x{cpu[k] / n:>11.3f}s")
-    d2, pool = wall["dask, 2 workers"], wall["multiprocessing.Pool(2)"]
-    print(f"dask 2 workers: {base / d2:.2f}x the loop (target >= 1.7x), {pool / d2:.2f}x the Pool (target >= 0.9x)")
+    base_name = "baseline loop (1 process)" if a.baseline is not None else "loop (1 process)"
+    print(f"{'':<30}{'s':>8}{'serials/s':>11}{'vs ' + ('baseline' if a.baseline else 'loop'):>13}{'cpu/serial':>12}")
+    for name, _, _ in runs:
+        print(f"{name:<30}{wall[name]:>8.1f}{n / wall[name]:>11.2f}{wall[base_name] / wall[name]:>12.2f}x"
+              f"{cpu[name] / n * 1e3:>9.1f} ms")
+    loop, read = wall["loop (1 process)"], wall["read+decode (read_capture)"]
+    print(f"loop: {n / loop:.1f} serials/s (target >= 40), {loop / read:.2f}x the time to read and decode the files "
+          f"(target <= 3x; {loop / wall['read+decode (asammdf)']:.2f}x plain asammdf's)")
+    print(f"dask 2 workers: {wall['dask, 1 worker'] / wall['dask, 2 workers']:.2f}x 1 worker (target >= 1.8x), "
+          f"{loop / wall['dask, 2 workers']:.2f}x the loop")
+    if a.baseline is not None:
+        for new, old in (("loop (1 process)", "baseline loop (1 process)"),
+                         ("dask, 2 workers", "baseline dask, 2 workers")):
+            print(f"{new}: {wall[old] / wall[new]:.2f}x the baseline's")
+    print(f"k6, c6, R^2, RMS identical in every refit; largest phase_k6 difference {phase_diff:.3g} rad")
 
 
 if __name__ == "__main__":

@@ -215,9 +215,11 @@ def hex_cmd(file: str, bank: int, output: str, motor_file: str | None) -> None:
 @click.option("-o", "--output", type=click.Path(dir_okay=False), required=True, help="A2L file to write")
 @click.option("--table-len", type=int, default=DEFAULT_TABLE_LEN, show_default=True,
               help="table entries N the file describes (power of two, 16..1024; eol-cal table's default)")
+@click.option("--layout", type=click.IntRange(1, 2), default=2, show_default=True,
+              help="layout version: 2 (revision 1.2, the mechanical-order extension; what eol-cal table writes) or 1")
 @handle_errors
 @io_paths(outputs=("output",))
-def a2l_cmd(bank: int, output: str, table_len: int) -> None:
+def a2l_cmd(bank: int, output: str, table_len: int, layout: int) -> None:
     """Write the A2L description (ASAP2 1.71) of a block in a bank for CANape/INCA.
 
     Addresses are byte addresses (2 x word address, as in the Intel HEX files); both banks'
@@ -227,9 +229,10 @@ def a2l_cmd(bank: int, output: str, table_len: int) -> None:
     from eol_cal.atomic import atomic_write
     from eol_cal.firmware.gen_a2l import bank_byte_address, render_a2l
 
-    text = render_a2l(bank, table_len)
+    text = render_a2l(bank, table_len, layout)
     atomic_write(Path(output), text.encode("ascii"))
-    click.echo(f"wrote {output}: bank {bank} at byte address 0x{bank_byte_address(bank):x}, table_len {table_len}")
+    click.echo(f"wrote {output}: layout {layout}, bank {bank} at byte address 0x{bank_byte_address(bank):x}, "
+               f"table_len {table_len}")
 
 
 @block_group.command("uncompensated")

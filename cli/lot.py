@@ -55,16 +55,17 @@ def min_n_option(func):
 @min_n_option
 @click.option("--baseline", "baseline_name", default=None, metavar="NAME",
               help="Draw this stored baseline's frozen limits and list the runs that break a rule.")
+@kind_option("the runs the statistics and charts are of (simulated: a lot simulate's what-if lot, with --station sim:NAME).")
 @click.option("-o", "--out", "out", default=Path("lot.html"), show_default=True,
               type=click.Path(dir_okay=False, path_type=Path), help="The page to write (one self-contained HTML file).")
 @handle_errors
 @io_paths(inputs=("db",), outputs=("out",))
-def report_cmd(db, variant, since, until, station, min_n, baseline_name, out) -> None:
+def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, out) -> None:
     """Write the lot page: yield and counts, distributions with the limits (phases on the circle),
     capability per variant and station, control charts per station (against a frozen baseline
     with the run rules when given), the motors nearest their limits with links to their reports,
     the refused runs with their own Pareto. One file that opens offline in a browser. The
-    statistics are of the production runs (docs/records.md, "Run kinds")."""
+    statistics are of the production runs unless --kind says otherwise (docs/records.md, "Run kinds")."""
     from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.report.lot import select_records, write_lot_page
@@ -79,8 +80,9 @@ def report_cmd(db, variant, since, until, station, min_n, baseline_name, out) ->
         baseline = load(db, baseline_name)
     records = select_records(query_records(db), variant, first, last, station)  # every kind: the page sorts them
     try:
-        path = write_lot_page(records, out, title=db_label(db),
-                              filters={"variant": variant, "since": since, "until": until, "station": station},
+        path = write_lot_page(records, out, title=db_label(db), kind=kind,
+                              filters={"variant": variant, "since": since, "until": until, "station": station,
+                                       "kind": kind},
                               min_n=DEFAULT_MIN_N if min_n is None else min_n, baseline=baseline)
     except OSError as exc:
         raise InputError(str(out), None, f"cannot write: {exc.strerror or exc}") from None
@@ -269,15 +271,27 @@ def baseline_cmd(db, name, since, until, variant, station, min_n, replace, as_js
 
 @lot_group.command("diff")
 @click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
-@click.argument("results", nargs=-1, required=True, type=click.Path(exists=True, dir_okay=False))
+@click.argument("results", nargs=-1, type=click.Path(exists=True, dir_okay=False))
 @kind_option("each serial's latest run of this kind is compared.")
+@click.option("--lot", "lots", multiple=True, metavar="STATION",
+              help="Compare two lots instead of a refit: give it twice (a simulated lot's station is sim:NAME).")
 @click.option("--json", "as_json", is_flag=True, help="Print the changes as JSON.")
 @handle_errors
-def diff_cmd(db, results, kind, as_json) -> None:
+def diff_cmd(db, results, kind, lots, as_json) -> None:
     """Which motors a refit (`eol-cal refit -o RESULTS`) judges otherwise than their latest recorded
     run: the refit's verdict and failed limits against the fit-stage checks the record carries
-    (a refit makes no compensated capture: the ripple limits are not compared)."""
+    (a refit makes no compensated capture: the ripple limits are not compared). With --lot A
+    --lot B: two lots side by side (yield, capability, causes) and the motors whose verdict
+    differs (two simulated lots: the same motor number is the same motor)."""
     from cli.common import print_json
+    from eol_cal.errors import InputError
+
+    if lots:
+        if results:
+            raise InputError(None, "--lot", "compare two lots or a refit's results, not both")
+        return _compare(db, lots, kind, as_json)
+    if not results:
+        raise InputError(None, "RESULTS", "give a refit's results file(s), or two --lot")
     from eol_cal.lot.diff import LOT_DIFF_SCHEMA, verdict_changes
     from eol_cal.lot.refit import read_rows
     from eol_cal.station.records_query import query_records
@@ -300,6 +314,120 @@ def diff_cmd(db, results, kind, as_json) -> None:
                   ", ".join(c["no_longer_failing"]) or "-", _fmt(c["k6_recorded"]), _fmt(c["k6_refit"]),
                   "; ".join(c["reasons"]))
     console.print(t)
+
+
+def _compare(db, lots, kind, as_json) -> None:
+    from rich.table import Table
+
+    from cli.common import print_json
+    from eol_cal.lot.compare import LOT_COMPARE_SCHEMA, SHOWN, compare_lots
+
+    doc = compare_lots(db, lots, "simulated" if kind == "production" and all(s.startswith("sim:") for s in lots)
+                       else kind)
+    if as_json:
+        print_json({"schema": LOT_COMPARE_SCHEMA, **doc})
+        return
+    a, b = doc["lots"]
+    t = Table(title=f"{a['station']} against {b['station']}")
+    for col in ("figure", a["station"], b["station"]):
+        t.add_column(col, justify="left" if col == "figure" else "right")
+    y = lambda x: "-" if x is None else f"{100 * x:.1f} %"  # noqa: E731
+    t.add_row("runs", str(a["runs"]), str(b["runs"]))
+    t.add_row("yield (pass / judged)", y(a["yield"]), y(b["yield"]))
+    for key in SHOWN:
+        qa, qb = a["quantities"].get(key), b["quantities"].get(key)
+        if qa and qb:
+            t.add_row(f"{key} median ({qa['unit']})", _fmt(qa["p50"]), _fmt(qb["p50"]))
+            t.add_row(f"{key} Cpk", _fmt(qa["cpk"], 3), _fmt(qb["cpk"], 3))
+    t.add_row("top cause", a["pareto"][0]["cause"] if a["pareto"] else "-", b["pareto"][0]["cause"] if b["pareto"] else "-")
+    console.print(t)
+    console.print(f"{len(doc['changes'])} of {doc['compared']} motor(s) judged otherwise; "
+                  f"{doc['only_in_one']} in one lot only")
+    if doc["changes"]:
+        t = Table(title="motors judged otherwise")
+        for col in ("motor", a["station"], b["station"], "now failing", "no longer failing"):
+            t.add_column(col)
+        for c in doc["changes"]:
+            t.add_row(c["motor"], c["verdicts"][0], c["verdicts"][1], ", ".join(c["newly_failing"]) or "-",
+                      ", ".join(c["no_longer_failing"]) or "-")
+        console.print(t)
+
+
+@lot_group.command("simulate")
+@click.option("--motors", required=True, type=click.IntRange(1, 999_999), help="Motors in the lot.")
+@click.option("--spread", default="default", show_default=True, metavar="NAME|FILE.toml",
+              help="Production spread the motors are drawn from (eol_cal/spreads/, docs/plant.md).")
+@click.option("--limits", "limits_file", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="Limits file the runs are judged by (and whose variant's estimator options the blocks carry).")
+@click.option("--variant", default=None, help="Variant in the limits file.")
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
+@click.option("--lot", "lot_name", default="SIM", show_default=True,
+              help="The lot's name: its runs' station is sim:NAME (lot stats --kind simulated --station sim:NAME), "
+                   "its serials NAME-000001...; the same name continues a lot that was stopped.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Motor i is drawn with seed SEED + i.")
+@click.option("--profile", default="eol-default", show_default=True, help="Calibration capture's test profile.")
+@click.option("--bench", default="paper", show_default=True, metavar="NAME|FILE.toml", help="Dyno bench the fit divides out.")
+@click.option("--batch", type=click.IntRange(1, 256), default=None,
+              help="Motors per task and plant call (default 8; part of the lot's identity).")
+@click.option("--scheduler", default=None, metavar="tcp://HOST:8786", help="A running Dask scheduler to use.")
+@click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
+              help="Worker processes of the local cluster (127.0.0.1) when no --scheduler is given.")
+@click.option("--json", "as_json", is_flag=True, help="Print what was done as JSON.")
+@handle_errors
+@io_paths(inputs=("limits_file", "spread", "profile", "bench"), outputs=())
+def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profile, bench, batch, scheduler, workers,
+                 as_json) -> None:
+    """A what-if lot: MOTORS drawn from a production spread, each through the whole calibration in
+    simulation (prepare, calibration capture, fit, table, block, compensated capture, verdict),
+    recorded as runs of kind simulated (never in the production statistics unless asked:
+    lot stats/report --kind simulated --station sim:NAME). Resumable: run it again to finish a lot
+    that was stopped; no motor is recorded twice."""
+    import contextlib
+
+    from distributed import Client
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from cli.common import CommandExit, err_console, print_json
+    from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
+    from eol_cal.lot.simulate import SIM_BATCH, LotPlan, check_plan, recorded_runs, simulate_lot
+    from eol_cal.station.records import db_label
+
+    plan = LotPlan(lot_name, spread, str(limits_file), variant, motors, seed, profile, "paper", bench,
+                   batch or SIM_BATCH)
+    check_plan(plan)
+    before = len(recorded_runs(db, plan) & {plan.run_id(i) for i in range(motors)})
+    cache_dir = default_cache_dir()
+    t0 = __import__("time").perf_counter()
+    with contextlib.ExitStack() as stack:
+        cluster = None if scheduler else stack.enter_context(local_cluster(workers))
+        client = stack.enter_context(Client(scheduler or cluster))
+        # every worker: the plant's and estimator's tick loops in one kernel, JAX's compile cache,
+        # the fit imported (eol_cal.lot.cluster)
+        client.register_plugin(RefitWorkerSetup(cache_dir))
+        with Progress(TextColumn(f"lot {plan.name}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                      console=err_console, transient=False, refresh_per_second=2) as bar:
+            task = bar.add_task("simulate", total=motors, completed=before)
+            out = simulate_lot(plan, db, client, on_done=lambda n: bar.advance(task, n), cache_dir=cache_dir)
+    seconds = __import__("time").perf_counter() - t0
+    doc = {"lot": plan.name, "station": plan.station, "db": db_label(db), "motors": motors,
+           "recorded_before": out.recorded_before, "recorded_now": out.recorded_now,
+           "failed_batches": [{"motors": [b[0], b[-1]], "error": e} for b, e in out.failed_batches],
+           "seconds": round(seconds, 1)}
+    if as_json:
+        print_json({"schema": LOT_SIMULATE_SCHEMA, **doc})
+    else:
+        console.print(f"lot {plan.name}: {out.recorded_now} motor(s) simulated and recorded in {seconds:.0f} s, "
+                      f"{out.recorded_before} recorded before; lot stats --db {db_label(db)} --kind simulated "
+                      f"--station {plan.station}")
+    for b, e in out.failed_batches:
+        err_console.print(f"motors {b[0]}..{b[-1]} not simulated: {e}")
+    if out.failed_batches:
+        raise CommandExit(1)
+
+
+#: the schema of ``lot simulate --json``
+LOT_SIMULATE_SCHEMA = "eol-cal/lot-simulate/1"
 
 
 COMMANDS = [lot_group]

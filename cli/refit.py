@@ -28,8 +28,8 @@ from cli.paths import io_paths
 @handle_errors
 @io_paths(inputs=("captures", "limits_file", "bench", "motor"), outputs=("out",))
 def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out, kind) -> None:
-    """Refit every capture (directories of station runs: their before.mf4; files; globs) as one
-    task each on a `distributed` cluster, with the station's fit; rows keyed by serial."""
+    """Refit every capture (directories of station runs: their before.mf4; files; globs) on a
+    `distributed` cluster, a few motor runs per task, with the station's fit; rows keyed by serial."""
     from distributed import Client
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 

@@ -74,6 +74,8 @@ def _summary(result, mode: str, path: str | None) -> dict:
 @click.option("--serial", help="Motor serial (with --motors: prefix).")
 @click.option("--seed", type=int, help="Draw the motor from production tolerances with this seed "
                                        "(default: the preset motor as it is). Also seeds sensor noise.")
+@click.option("--spread", default="default", show_default=True, metavar="NAME|FILE.toml",
+              help="Production spread --seed and --motors draw from (eol_cal/spreads/, docs/plant.md).")
 @click.option("--motors", type=click.IntRange(min=1), help="Simulate a lot of N motors (seeds seed..seed+N-1), batched.")
 @click.option("--out-dir", type=click.Path(file_okay=False), help="Directory for --motors captures.")
 @click.option("--format", "fmt", type=click.Choice(["csv", "mf4"]), default="mf4", show_default=True,
@@ -81,14 +83,14 @@ def _summary(result, mode: str, path: str | None) -> dict:
 @click.option("--plot", "plot_file", type=click.Path(dir_okay=False), help="PNG: angle, currents, torque (paper Figs. 9-12).")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary.")
 @handle_errors
-@io_paths(inputs=("block_file", "profile"), outputs=("output", "plot_file"), output_dirs=("out_dir",))
+@io_paths(inputs=("block_file", "profile", "spread"), outputs=("output", "plot_file"), output_dirs=("out_dir",))
 def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm, iq, seconds, serial, seed,
-                 motors, out_dir, fmt, plot_file, as_json) -> None:
+                 spread, motors, out_dir, fmt, plot_file, as_json) -> None:
     """Simulate a motor on the test bench (or a lot): the plant through a test profile, written as captures.
 
     Captures carry the plant's truth as truth.* metadata (k6, phases, c6, sensor errors, R_s, ...).
     """
-    from eol_cal.plant.simulate import configure_xla
+    from eol_cal.xla import configure_xla
 
     configure_xla()  # before the first JAX computation of the process
     from cli.fit import enable_jax_cache
@@ -96,6 +98,7 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     from eol_cal.plant import presets, variation
     from eol_cal.plant.ecu import mode_of_block
     from eol_cal.plant.simulate import simulate
+    from eol_cal.plant.spread import load_spread
 
     if motors is None and output is None:
         raise InputError(None, "-o", "give -o FILE (or --motors N --out-dir DIR)")
@@ -110,10 +113,11 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     if mode is None:
         mode = mode_of_block(block) if block is not None else "estimated"
     base = presets.preset_spec(preset)
+    spread_ = load_spread(spread)
 
     enable_jax_cache()
     if motors is None:
-        spec = base if seed is None else variation.draw_motor(seed, base)
+        spec = base if seed is None else variation.draw_motor(seed, base, spread=spread_)
         if serial:
             spec = spec.replace(serial=serial)
         with naming(block_file):  # "block is for P=8": the block file named
@@ -140,7 +144,8 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
         raise InputError(out_dir, "--out-dir", f"cannot create: {exc.strerror or exc}") from None
     first = 0 if seed is None else seed
     prefix = serial or "SIM"
-    specs = [variation.draw_motor(first + i, base, serial=f"{prefix}-{first + i:06d}") for i in range(motors)]
+    specs = [variation.draw_motor(first + i, base, serial=f"{prefix}-{first + i:06d}", spread=spread_)
+             for i in range(motors)]
     docs = []
     with Progress(console=console, transient=as_json) as bar:
         task = bar.add_task(f"simulating {motors} motors ({prof.seconds:.1f} s each)", total=1.0)

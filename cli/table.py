@@ -33,15 +33,20 @@ def _lead(text: str) -> float | None:
 @click.option("--hex", "hex_file", type=click.Path(dir_okay=False), help="Also write Intel HEX at the bank's flash address.")
 @click.option("--bank", default=0, show_default=True, type=click.IntRange(0, 1), help="Bank address for --hex.")
 @estimator_option("the block's flags carry them (the ECU runs that estimator).")
+@click.option("--layout", type=click.IntRange(1, 2), default=2, show_default=True,
+              help="2: with the mechanical orders and the encoder's fingerprint (revision 1.2; MECH_COMP_ENABLE "
+                   "when the identification margin passes); 1: the block of revision 1.1.")
 @click.option("--json", "as_json", is_flag=True, help="Print the block's fields as JSON.")
 @handle_errors
 @io_paths(inputs=("result", "motor_file"), outputs=("output", "hex_file"))
-def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, hex_file, bank, estimator, as_json):
+def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, hex_file, bank, estimator, layout, as_json):
     """Build the compensator tables of one motor and pack them into a valid parameter block.
 
-    Exit 1 when the motor's fit is not usable, 2 on bad input.
+    Layout 2 (the default) also carries the encoder's fingerprint and the mechanical orders; its
+    MECH_COMP_ENABLE stays off, with the reason printed, when the fit's identification margin is
+    too small. Exit 1 when the motor's fit is not usable, 2 on bad input.
     """
-    from eol_cal.analysis.fit.table import block_from_result, created_unix, select_motor
+    from eol_cal.analysis.fit.table import block_from_result, created_unix, mech_off_reasons, select_motor
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.result import read_result
     from eol_cal.atomic import atomic_write
@@ -59,7 +64,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     motor = load_motor("paper", motor_file)
     with naming(result):  # the tables' and the block's own checks see values; they came from RESULT
         blk = block_from_result(motor_result, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
-                                calibrated_at=created_unix(doc), source=result, options=options)
+                                calibrated_at=created_unix(doc), source=result, options=options, layout=layout)
         data = pack(blk)
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself
@@ -68,11 +73,16 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     atomic_write(output, data)
     if hex_file:
         atomic_write(hex_file, to_intel_hex(data, bank))
+    mech_off = mech_off_reasons(motor_result, blk.flags) if layout == 2 else []
     if as_json:
         d = blk.to_dict()
         d.pop("table_const")
         d.pop("table_per_amp")
-        print_json({"schema": "eol-cal/table/1", "file": output, "bytes": len(data), "block": d})
+        if "mech" in d:
+            for name in ("mech_table_const", "mech_table_per_amp"):
+                d["mech"].pop(name)
+        print_json({"schema": "eol-cal/table/1", "file": output, "bytes": len(data), "block": d,
+                    "mech_off_reasons": mech_off})
     else:
         console.print(
             f"{blk.serial}: {len(data)} bytes -> {output}; N = {blk.table_len}, lead {blk.lead_s * 1e6:.1f} us"
@@ -81,6 +91,12 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
             f"hall_angle {(motor_result.hall_angle or {}).get('source', 'nominal')}; "
             f"estimator {options_label(options)} (flags {flag_names(blk.flags)})"
         )
+        if layout == 2:
+            m = motor_result.mech
+            console.print(f"layout 2: MECH_COMP_ENABLE {'off' if mech_off else 'on'}"
+                          + (f" (identification margin {m.margin:.3f}, threshold {m.threshold:g}; order 1 "
+                             f"{m.orders[0].c.value * 1e3:.2f} mN*m)" if m is not None and m.orders else "")
+                          + ("" if not mech_off else "; " + "; ".join(mech_off)))
         frame_estimator = (motor_result.model or {}).get("frame_estimator")
         if frame_estimator is not None and frame_estimator != options_label(options):
             console.print(f"[yellow]warning:[/yellow] the fit measured its phases' frame under the {frame_estimator} "

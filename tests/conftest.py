@@ -66,6 +66,16 @@ def postgres_server() -> Iterator[PostgresServer]:
         server.stop()
 
 
+@pytest.fixture(scope="module")
+def no_jax_cache() -> Iterator[None]:
+    """JAX's persistent compile cache off for the module (Dask workers started meanwhile inherit
+    it): keeps the tests out of ~/.cache."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("EOL_CAL_JAX_CACHE", "off")
+    yield
+    mp.undo()
+
+
 @pytest.fixture(params=["sqlite", "postgresql"])
 def records_db(request, tmp_path: Path) -> str | Path:
     """A new, empty records database of each backend: a SQLite file path or a PostgreSQL URL."""

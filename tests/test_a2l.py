@@ -27,6 +27,7 @@ from eol_cal.firmware import block as pb
 from eol_cal.firmware import contract as C
 from eol_cal.firmware import gen_header
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.mech_params import FP_FORWARD, FP_MAX, FP_REVERSE, MechParams, make_mech_tables, unused_mech
 
 import pya2l  # pya2ldb, in the test extra
 from pya2l import model
@@ -71,20 +72,32 @@ def _a2ltool() -> str:
     return exe
 
 
-def _write_a2l(tmp_path: Path, bank: int, table_len: int) -> Path:
-    out = tmp_path / f"bank{bank}_n{table_len}.a2l"
-    res = CliRunner().invoke(cli, ["block", "a2l", "--bank", str(bank), "-o", str(out), "--table-len", str(table_len)],
-                             catch_exceptions=False)
+def _write_a2l(tmp_path: Path, bank: int, table_len: int, layout: int = 1) -> Path:
+    out = tmp_path / f"bank{bank}_n{table_len}_v{layout}.a2l"
+    res = CliRunner().invoke(cli, ["block", "a2l", "--bank", str(bank), "-o", str(out), "--table-len", str(table_len),
+                                   "--layout", str(layout)], catch_exceptions=False)
     assert res.exit_code == 0, res.output
     return out
 
 
-@pytest.fixture(scope="module", params=[(0, DEFAULT_TABLE_LEN), (1, 1024), (1, 16)], ids=lambda p: f"bank{p[0]}-N{p[1]}")
+@pytest.fixture(scope="module", params=[(0, DEFAULT_TABLE_LEN, 1), (1, 1024, 1), (1, 16, 1), (0, DEFAULT_TABLE_LEN, 2),
+                                        (1, 16, 2)], ids=lambda p: f"bank{p[0]}-N{p[1]}-v{p[2]}")
 def parsed(request, tmp_path_factory):
-    bank, n = request.param
-    path = _write_a2l(tmp_path_factory.mktemp("a2l"), bank, n)
+    bank, n, layout = request.param
+    path = _write_a2l(tmp_path_factory.mktemp("a2l"), bank, n, layout)
     session, chars = _import_a2l(path)
-    yield bank, n, path, session, chars
+    yield bank, n, path, session, chars, layout
+
+
+def _mech_example(encoder_ppr: int) -> MechParams:
+    """A layout-2 extension with a distinct value in every field (so a misplaced one shows)."""
+    rng = np.random.default_rng(7)
+    m = unused_mech(encoder_ppr)
+    tc, tp = make_mech_tables((0.01, 0.002, 0.001), (0.3, 1.1, -2.0), (1e-5, 0.0, 2e-6), (0.5, 0.0, 1.0), 0.049)
+    return m.replace(fp_dirs=FP_FORWARD | FP_REVERSE, grid_phase=1.25, mech_c=(0.01, 0.002, 0.001),
+                     mech_phase_c=(0.3, 1.1, -2.0), mech_k=(1e-5, 0.0, 2e-6), mech_phase_k=(0.5, 0.0, 1.0),
+                     mech_table_const=tc, mech_table_per_amp=tp,
+                     fingerprint=rng.normal(0.0, 0.005, 2 * encoder_ppr))
 
 
 def _size(ch) -> int:
@@ -93,21 +106,21 @@ def _size(ch) -> int:
 
 
 def test_a_characteristic_per_field_and_per_named_flag_bit(parsed):
-    _, _, _, _, chars = parsed
-    fields = [f["name"] for f in pb.LAYOUT["field"]]
+    _, _, _, _, chars, layout = parsed
+    fields = [f["name"] for f in pb.LAYOUTS[layout]["field"]]
     bits = [f"flags.{name}" for name in C.FLAGS]
     assert sorted(chars) == sorted(fields + bits)
 
 
 def test_every_characteristic_has_the_layouts_address_size_type_and_unit(parsed):
-    bank, n, _, _, chars = parsed
+    bank, n, _, _, chars, layout = parsed
     base = 2 * pb.BANK_WORD_ADDR[bank]  # the contract's byte address of the bank
-    for f in pb.LAYOUT["field"]:
+    for f in pb.LAYOUTS[layout]["field"]:
         name = f["name"]
         ch = chars[name]
         asam, elem = ASAM_TYPE[f["type"]]
-        count = pb.field_count(name, n)
-        assert ch.address == base + pb.field_offset(name, n), name
+        count = pb.field_count(name, n, layout)
+        assert ch.address == base + pb.field_offset(name, n, layout), name
         assert ch.fnc_asam_dtype == asam, name
         assert ch.fnc_element_size == elem, name
         assert _size(ch) == elem * count, name
@@ -127,17 +140,17 @@ def test_every_characteristic_has_the_layouts_address_size_type_and_unit(parsed)
 
 
 def test_the_characteristics_tile_the_block(parsed):
-    bank, n, _, _, chars = parsed
-    spans = sorted((chars[f["name"]].address, _size(chars[f["name"]])) for f in pb.LAYOUT["field"])
+    bank, n, _, _, chars, layout = parsed
+    spans = sorted((chars[f["name"]].address, _size(chars[f["name"]])) for f in pb.LAYOUTS[layout]["field"])
     start = 2 * pb.BANK_WORD_ADDR[bank]
     for addr, size in spans:
         assert addr == start
         start += size
-    assert start - 2 * pb.BANK_WORD_ADDR[bank] == pb.block_bytes(n) == 104 + 8 * n
+    assert start - 2 * pb.BANK_WORD_ADDR[bank] == pb.block_bytes(n, layout) == {1: 104, 2: 3248}[layout] + 8 * n
 
 
 def test_flags_name_the_contracts_bits(parsed):
-    _, _, _, _, chars = parsed
+    _, _, _, _, chars, _ = parsed
     flags = chars["flags"]
     verb = flags.compuMethod.tab_verb
     assert flags.compuMethod.conversionType == "TAB_VERB"
@@ -152,7 +165,7 @@ def test_flags_name_the_contracts_bits(parsed):
 
 
 def test_memory_segments_byte_order_and_version(parsed):
-    _, n, path, session, _ = parsed
+    _, n, path, session, _, layout = parsed
     segs = sorted(session.query(model.MemorySegment).all(), key=lambda s: s.address)
     assert [(s.name, s.address, s.size, s.prgType, s.memoryType) for s in segs] == [
         (f"BANK{b}", 2 * w, pb.BANK_BYTES, "DATA", "FLASH") for b, w in enumerate(pb.BANK_WORD_ADDR)]
@@ -161,20 +174,28 @@ def test_memory_segments_byte_order_and_version(parsed):
     version = session.query(model.Asap2Version).one()
     assert (version.versionNo, version.upgradeNo) == (1, 71)
     assert f"table_len = {n}" in path.read_text("ascii").split("*/")[0]
+    assert f"layout version {layout}," in path.read_text("ascii").split("*/")[0]
 
 
 def test_a_tool_reading_with_the_a2l_sees_the_blocks_values(parsed):
     """What CANape would display: each characteristic read from a bank image at its address,
     with its type, the byte order and bit mask, equals the block's decoded fields."""
-    bank, n, _, session, chars = parsed
+    bank, n, _, session, chars, layout = parsed
     # bit 0 set, bit 1 clear: the bit characteristics must tell them apart
     blk = dataclasses.replace(pb.unpack(example_block(serial="EPS-A2L-7", table_len=n, sequence=5)),
                               flags=C.FLAG_COMP_ENABLE)
+    if layout == 2:
+        blk = dataclasses.replace(blk, layout_version=2, mech=_mech_example(blk.encoder_ppr))
     data = pb.pack(blk)
     seg = {s.name: s for s in session.query(model.MemorySegment).all()}[f"BANK{bank}"]
     image = data + b"\xff" * (seg.size - len(data))
     order = {"MSB_LAST": "<", "MSB_FIRST": ">"}[session.query(model.ModCommon).one().byte_order.byteOrder]
     expected = pb.unpack(data).to_dict() | {"reserved": 0, "crc32": pb.crc32(data[:-4])}
+    if layout == 2:
+        mech = expected.pop("mech")
+        fp = np.zeros(2 * FP_MAX)
+        fp[:len(mech["fingerprint"])] = mech["fingerprint"]
+        expected |= mech | {"fingerprint": fp, "mech_table_len": 128, "reserved2": 0}
     for name, ch in chars.items():
         off = ch.address - seg.address
         raw = image[off:off + _size(ch)]
@@ -193,7 +214,7 @@ def test_a_tool_reading_with_the_a2l_sees_the_blocks_values(parsed):
 
 
 def test_a2ltool_strict_check_finds_no_problem(parsed):
-    _, _, path, _, _ = parsed
+    _, _, path, _, _, _ = parsed
     res = subprocess.run([_a2ltool(), str(path), "--strict", "--check"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0 and "No problems found" in res.stdout + res.stderr, res.stdout + res.stderr
 
@@ -210,10 +231,12 @@ def test_a2ltool_strict_refuses_a_broken_file(tmp_path):
 
 def test_checked_in_a2l_is_generated_and_describes_bank0_default_table(tmp_path):
     path = ROOT / "firmware_params" / "eol_param_block.a2l"
-    out = _write_a2l(tmp_path, 0, DEFAULT_TABLE_LEN)
-    assert path.read_text("ascii") == out.read_text("ascii"), "stale A2L: run python -m eol_cal.firmware.gen_header"
+    path2 = ROOT / "firmware_params" / "eol_param_block_v2.a2l"
+    for layout, checked_in in ((1, path), (2, path2)):
+        out = _write_a2l(tmp_path, 0, DEFAULT_TABLE_LEN, layout)
+        assert checked_in.read_text("ascii") == out.read_text("ascii"), "stale A2L: run python -m eol_cal.firmware.gen_header"
     assert gen_header.main(["--check", "--out", str(ROOT / "firmware_params" / "eol_param_block.h"),
-                            "--a2l-out", str(path)]) == 0
+                            "--a2l-out", str(path), "--a2l-v2-out", str(path2)]) == 0
 
 
 def test_cli_refuses_bad_bank_and_table_len(tmp_path):
@@ -242,6 +265,6 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
     assert res.returncode == 0, res.stdout + res.stderr
 
 
-def test_pya2l_leaves_no_listener_on_other_engines(parsed):
+def test_pya2l_leaves_no_listener_on_other_engines(parsed):  # noqa: ARG001
     """Our own engines (the records' SQLite and PostgreSQL) never run pya2l's connect hook."""
     assert not event.contains(Engine, "connect", model.set_sqlite3_pragmas)

@@ -60,7 +60,7 @@ def test_layout_matches_contract_and_tiles_the_block(n):
 
 
 def test_constants():
-    assert (pb.MAGIC, pb.LAYOUT_VERSION, pb.SUPPORTED_LAYOUTS) == (0xEC6A, 1, (1,))
+    assert (pb.MAGIC, pb.LAYOUT_VERSION, pb.SUPPORTED_LAYOUTS) == (0xEC6A, 1, (1, 2))
     assert pb.BANK_WORD_ADDR == (0x328000, 0x330000)
     assert (pb.BANK_WORDS, pb.BANK_BYTES) == (0x8000, 65536)
     assert (pb.FLAG_COMP_ENABLE, pb.FLAG_INTERP_ENABLE) == (1, 2)
@@ -159,7 +159,7 @@ def test_each_validity_rule_is_refused_with_its_status():
     H, C = pb.STATUS_HEADER_INVALID, pb.STATUS_CRC_MISMATCH
     cases = {
         "magic": (_patched(good, "<H", 0, 0x6AEC), H, "magic"),
-        "layout": (_patched(good, "<H", 2, 2), H, "layout_version"),
+        "layout": (_patched(good, "<H", 2, 3), H, "layout_version"),
         "table_len small": (_patched(good, "<H", 96, 8), H, "table_len"),
         "table_len large": (_patched(good + bytes(8 * 2048), "<H", 96, 2048), H, "table_len"),
         "table_len not pow2": (_patched(good + bytes(300), "<H", 96, 24), H, "table_len"),

@@ -64,7 +64,7 @@ def test_full_sequence_alternates_banks_and_pads_every_frame(tmp_path):
         back = read_active_block(rig.tester, timing=FAST_CLIENT)
         assert B.unpack(back) == dataclasses.replace(B.unpack(BLOCK_A), sequence=3)
         info = ecu_info(rig.tester, timing=FAST_CLIENT).to_dict()
-        assert info["serial"] == "SIM-0001" and info["layouts"] == [1]
+        assert info["serial"] == "SIM-0001" and info["layouts"] == [1, 2]
         assert info["active"]["bank"] == 0 and info["block"]["valid"] and info["block"]["sequence"] == 3
         time.sleep(0.05)
         n = _check_frames(rig.sniffer.frames)

@@ -21,7 +21,7 @@ from eol_cal.firmware.options import option_names, options_label, parse_options
 def test_the_option_bits_as_the_contract_states_them():
     assert (C.FLAG_EST_CLAMP_TO_NEXT_EDGE, C.FLAG_EST_LEARN_GRID_OFFSET,
             C.FLAG_EST_ACCEL_PREDICTION, C.FLAG_EST_LEARN_PITCH_ERRORS) == (0x04, 0x08, 0x10, 0x20)
-    assert C.FLAGS_ESTIMATOR == 0x3C and C.FLAGS_KNOWN == 0x3F
+    assert C.FLAGS_ESTIMATOR == 0x3C and C.FLAGS_KNOWN == 0x7F  # bit 6: MECH_COMP_ENABLE (revision 1.2)
 
 
 @pytest.mark.parametrize("text, bits", [

@@ -24,7 +24,8 @@ FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 #: (lot baseline needs 2 runs of a station at the least: validated in tests/test_lot_baseline.py)
 JSON_COMMANDS = {"index", "analyze", "fit", "table", "block show", "block check", "capture info", "simulate",
                  "acquire", "flash", "ecu info", "ecu restore", "run", "records", "lot stats", "lot diff",
-                 "lot baseline", "msa type1"}
+                 "lot baseline", "msa type1",
+                 "lot simulate"}  # lot simulate's and lot diff --lot's documents: tests/test_lot_simulate.py
 
 
 def _json(*args: str, code: int | tuple[int, ...] = 0) -> dict:

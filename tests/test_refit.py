@@ -17,7 +17,7 @@ from cli.main import cli
 from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_lot
+from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_lot, refit_serials
 from eol_cal.station.records import insert_records
 
 SERIALS = ("R-1", "R-2", "R-3")
@@ -25,12 +25,7 @@ SERIALS = ("R-1", "R-2", "R-3")
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _no_jax_cache():
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")  # the workers inherit it: keep the tests out of ~/.cache
-    yield
-    mp.undo()
+pytestmark = pytest.mark.usefixtures("no_jax_cache")  # the workers inherit it: the tests stay out of ~/.cache
 
 
 @pytest.fixture(scope="module")
@@ -60,11 +55,34 @@ def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot:
         there = rows[str(group[0])]
         assert there["serial"] == here["serial"] and there["error"] is None
         assert there["k6"] == pytest.approx(here["k6"], rel=1e-9) and there["c6"] == pytest.approx(here["c6"], rel=1e-9)
+        # the workers run the estimator's tick loop in one kernel (eol_cal.xla), this process does
+        # not: float32 rounding of the firmware frame, nothing more
+        assert there["phase_k6"] == pytest.approx(here["phase_k6"], abs=1e-6)
+        assert there["r2"] == pytest.approx(here["r2"], rel=1e-9) and there["rms"] == pytest.approx(here["rms"], rel=1e-9)
     k6 = {r["serial"]: r["k6"] for r in rows.values() if r["serial"]}
     assert k6["R-3"] > k6["R-1"]
     from eol_cal.lot.refit import write_rows
     pq = write_rows(tmp_path / "r.parquet", list(rows.values()))
     assert {r["capture"]: r["k6"] for r in read_rows(pq)} == {c: r["k6"] for c, r in rows.items()}
+
+
+def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: Path, tmp_path: Path):
+    """Many serials in one task (their firmware frames in one batched estimator run): each row is
+    the row of that serial refitted alone, bit for bit, and a bad capture spoils only its own row."""
+    bad = tmp_path / "X" / "bad.mf4"
+    bad.parent.mkdir()
+    bad.write_bytes(b"not an mdf file")
+    short = tmp_path / "S" / "short.mf4"  # readable, but no steady segment: fails at the segments
+    short.parent.mkdir()
+    write_capture(synthetic_capture(rpm=120.0, i_qo=20.0, seconds=0.2, seed=1, serial="R-9"), short)
+    groups = find_captures([str(lot)])
+    mixed = [groups[0], [bad], groups[1], [short], groups[2]]
+    rows = refit_serials(mixed, bench="none")
+    assert [r["serial"] for r in rows] == ["R-1", None, "R-2", "R-9", "R-3"]
+    assert "bad.mf4" in rows[1]["error"] and "segment" in rows[3]["error"]
+    assert rows[1]["verdict"] == rows[3]["verdict"] == "error"
+    for group, row in zip(mixed, rows):
+        assert row == refit_capture(group, bench="none")
 
 
 def _worker_state() -> tuple[int, bool, int, str | None]:
@@ -91,7 +109,8 @@ def test_a_killed_worker_loses_no_capture(lot: Path):
             if len(done) == 1:
                 os.kill(pids[0], signal.SIGKILL)  # one worker process dies mid-lot
 
-        rows = refit_lot(paths, client, on_done=kill_once, retries=3, bench="none")
+        # one serial per task: the worker dies with tasks still to come
+        rows = refit_lot(paths, client, on_done=kill_once, retries=3, bench="none", batch=1)
         client.wait_for_workers(2, timeout=60)
         state = list(client.run(_worker_state).values())
     # the nanny restarted the killed worker: it runs the refit's settings and the plugin too

@@ -35,7 +35,7 @@ def test_a_record_without_fit_renders_every_limit_as_not_measured():
     html = render_motor_report(rec, [])
     assert 'id="verdict" class="verdict error">ERROR<' in html
     assert html.count('class="limit-row"') == len(judged)
-    assert [r.key for r in limit_rows(error_record(max_pp_after_no_mech1_pct=1.0))] == list(LIMIT_KEYS)
+    assert [r.key for r in limit_rows(error_record(max_pp_after_no_mech1_pct=1.0, max_mech1_after_nm=0.002))] == list(LIMIT_KEYS)
     assert "simulated fault" in html and 'id="no-plots"' in html
     assert "operator</th><td>not recorded" in html
 
@@ -322,3 +322,23 @@ def test_a_plot_that_cannot_be_drawn_says_why_and_the_page_is_still_written(fitt
     html = write_report(rec, tmp_path, fit_extra=(mi, fit, spec), point_ripple=broken).read_text()
     assert html.count('class="plot-error"') == 1 and "This plot could not be drawn: TypeError" in html
     assert html.count("<svg") == 2
+
+
+def test_the_report_shows_the_mechanical_orders_and_the_identification_margin():
+    """A run of revision 1.2 (the demo record): the block's switch, the margin, the fitted orders,
+    order 1 before and with the compensation."""
+    import json
+    from pathlib import Path
+
+    from eol_cal.report.motor import mech_section, render_motor_report
+    from eol_cal.station.record import RunRecord
+
+    doc = json.loads((Path(__file__).resolve().parents[1] / "fixtures" / "run_record_demo.json").read_text())
+    rec = RunRecord.from_json(doc, "run_record_demo.json")
+    sec = mech_section(rec)
+    assert sec["status"].startswith("MECH_COMP_ENABLE on: identification margin 0.8")
+    assert [row[0] for row in sec["rows"]] == [1, 2, 3]
+    assert "mN*m" in sec["rows"][0][1] and "uncompensated" in sec["rows"][0][2]
+    html = render_motor_report(rec, [])
+    assert 'id="mech"' in html and "Mechanical orders" in html
+    assert "the mechanical orders are compensated too" in html

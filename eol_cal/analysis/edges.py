@@ -5,10 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 
-# Gray-code position of the quadrature state (a, b) in forward rotation: 00 -> 10 -> 11 -> 01.
-_QUAD_POS = {(0, 0): 0, (1, 0): 1, (1, 1): 2, (0, 1): 3}
-
-
 def level_changes(
     t: np.ndarray, levels: np.ndarray, events: tuple[np.ndarray, np.ndarray] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -64,10 +60,15 @@ def quadrature_boundaries(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Decode A/B edges into boundary indices on the quarter-pitch grid.
 
+    Each edge is a quarter-pitch step, forward or back as the Gray code of (A, B) says. Edges of
+    A and B in the same instant (the same sample) are a double step whose order the samples
+    cannot tell: both are taken in the direction of the last few steps (the sign of the sum of
+    the last 8, counting a forward step before the first edge).
+
     Parameters
     ----------
     times_a, levels_a, times_b, levels_b : ndarray
-        Change times (s) and new levels of channels A and B.
+        Change times (s) and new levels (0/1) of channels A and B.
     a0, b0 : int
         Levels before the first change.
 
@@ -80,61 +81,30 @@ def quadrature_boundaries(
         boundary c+1 in either direction, so its angle is ``boundary * delta``.
     """
     times = np.concatenate((times_a, times_b))
-    chan = np.concatenate((np.zeros(len(times_a), int), np.ones(len(times_b), int)))
-    lev = np.concatenate((levels_a, levels_b))
+    chan = np.concatenate((np.zeros(len(times_a), np.int64), np.ones(len(times_b), np.int64)))
+    lev = np.concatenate((levels_a, levels_b)).astype(np.int64)
+    if not np.isin(lev, (0, 1)).all() or {int(a0), int(b0)} - {0, 1}:
+        raise ValueError("encoder levels must be 0 or 1")
     order = np.lexsort((chan, times))
     times, chan, lev = times[order], chan[order], lev[order]
-    a, b = int(a0), int(b0)
-    count = 0
-    # Direction of the last few steps: one glitch step must not decide an ambiguous double step.
-    recent = [1]
-    boundary = np.empty(len(times), dtype=np.int64)
-    out_t = np.empty(len(times))
-    n_out = 0
-    i = 0
     n = len(times)
-    while i < n:
-        # Edges of A and B in the same instant (same sample) are a double step whose order
-        # the samples cannot tell: apply them in the order the recent direction implies.
-        j = i + 1
-        if j < n and times[j] == times[i] and chan[j] != chan[i]:
-            group = [i, j]
-            i_next = j + 1
-        else:
-            group = [i]
-            i_next = j
-        if len(group) == 2:
-            q_old = _QUAD_POS[(a, b)]
-            na, nb = a, b
-            for g in group:
-                if chan[g] == 0:
-                    na = int(lev[g])
-                else:
-                    nb = int(lev[g])
-            step = (_QUAD_POS[(na, nb)] - q_old) % 4
-            trend = 1 if sum(recent) >= 0 else -1
-            d = trend if step == 2 else (1 if step == 1 else -1 if step == 3 else 0)
-            first = [g for g in group if (chan[g] == 0) == ((d > 0) == (a == b))]
-            group = first + [g for g in group if g not in first]
-        for g in group:
-            q_old = _QUAD_POS[(a, b)]
-            if chan[g] == 0:
-                a = int(lev[g])
-            else:
-                b = int(lev[g])
-            step = (_QUAD_POS[(a, b)] - q_old) % 4
-            d = 1 if step == 1 else -1
-            new = count + d
-            # written in the order applied, so a double step's two edges come out in sequence
-            out_t[n_out] = times[g]
-            boundary[n_out] = max(count, new)
-            n_out += 1
-            count = new
-            recent.append(d)
-            if len(recent) > 8:
-                recent.pop(0)
-        i = i_next
-    return out_t, boundary
+    k = np.arange(n)
+    # each channel's level after every edge: its own last change so far, else its start level
+    last_a = np.maximum.accumulate(np.where(chan == 0, k, -1)) if n else k
+    last_b = np.maximum.accumulate(np.where(chan == 1, k, -1)) if n else k
+    a = np.where(last_a >= 0, lev[np.maximum(last_a, 0)], int(a0))
+    b = np.where(last_b >= 0, lev[np.maximum(last_b, 0)], int(b0))
+    pos = 2 * b + (a ^ b)  # Gray-code position: 00 -> 10 -> 11 -> 01 is 0, 1, 2, 3
+    before = np.concatenate(([2 * int(b0) + (int(a0) ^ int(b0))], pos[:-1]))
+    d = np.where((pos - before) % 4 == 1, 1, -1)
+    # double steps: an edge of A and one of B at the same time (sorted A first); both go the way
+    # of the recent steps, which earlier double steps are part of: settled in order
+    double = np.flatnonzero((times[1:] == times[:-1]) & (chan[1:] != chan[:-1]))
+    for i in double:
+        recent = np.concatenate(([1], d[max(0, i - 8):i]))[-8:]
+        d[i] = d[i + 1] = 1 if recent.sum() >= 0 else -1
+    count = np.cumsum(d)
+    return times.astype(float, copy=False), np.maximum(count, count - d).astype(np.int64)
 
 
 def debounce_edges(times: np.ndarray, boundary: np.ndarray, bounce_frac: float = 0.2) -> tuple[np.ndarray, np.ndarray]:

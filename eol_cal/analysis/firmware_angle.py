@@ -4,6 +4,7 @@ the frame offset the fit reports its phases in, and the tick-by-tick difference 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -26,11 +27,17 @@ def firmware_config(capture: Capture, options: int = 0) -> est.EstimatorConfig:
                                           N_enc=capture.encoder_ppr, tick_hz=tick_hz)
 
 
+#: one capture's part of the firmware frame: the capture, its offline angle theta_r (rad), the
+#: segments' sample ranges, the hall table (rad, entry s-1; ``None``: nominal) and the estimator
+#: options the ECU ran (contract flags bits 2-5)
+FrameJob = tuple[Capture, np.ndarray, Sequence[tuple[int, int]], Sequence[float] | None, int]
+
+
 def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tuple[int, int]],
                           hall_angle: tuple[float, ...] | None = None, options: int = 0) -> tuple[complex, int]:
     """Where the firmware's angle frame sits against the offline angle, over the fit's segments.
 
-    Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_chunked`:
+    Runs the firmware estimator over the capture (:func:`eol_cal.firmware.estimator.run_jax_batch`:
     one compiled program for every capture length and hall table) with the block's ``hall_angle``
     (rad, entry s-1; default nominal) and the estimator ``options`` the ECU ran (contract flags
     bits 2-5; 0 = the paper's estimator), and sums ``exp(i (theta_hat - theta_r))`` over the segment
@@ -41,15 +48,48 @@ def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tu
     (complex, int)
         The sum and the number of samples in it; ``angle(sum)`` is the offset (rad, electrical).
     """
-    out = est.run_jax_chunked(firmware_config(capture, options), capture["enc_a"], capture["enc_b"], capture["hall"],
-                              hall_angle=hall_angle)
-    theta_hat, status = out.theta_hat, out.status
-    ok = (status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
+    return firmware_frame_offsets([(capture, theta_r, ranges, hall_angle, options)])[0]
+
+
+def firmware_frame_offsets(jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
+    """:func:`firmware_frame_offset` of many captures, the estimator run over all of them at once.
+
+    The captures that share an estimator configuration (poles, encoder, tick rate, options) run
+    side by side in one batched scan (:func:`eol_cal.firmware.estimator.run_jax_batch`), each as
+    far as its last segment sample (the estimator is causal: what comes later changes nothing
+    before it). The results are those of one capture at a time, bit for bit.
+
+    Parameters
+    ----------
+    jobs : sequence of FrameJob
+        ``(capture, theta_r, ranges, hall_angle, options)`` per capture.
+
+    Returns
+    -------
+    list of (complex, int)
+        Per job, as :func:`firmware_frame_offset`.
+    """
+    by_cfg: dict[est.EstimatorConfig, list[int]] = {}
+    for i, (capture, _, ranges, _, options) in enumerate(jobs):
+        by_cfg.setdefault(firmware_config(capture, options), []).append(i)
+    out: list[tuple[complex, int]] = [(0j, 0)] * len(jobs)
+    for cfg, idx in by_cfg.items():
+        ends = [max((b for _, b in jobs[i][2]), default=1) for i in idx]
+        signals = [tuple(np.asarray(jobs[i][0][name])[:m] for name in ("enc_a", "enc_b", "hall"))
+                   for i, m in zip(idx, ends)]
+        runs = est.run_jax_batch(cfg, signals, [jobs[i][3] for i in idx])
+        for i, run in zip(idx, runs):
+            out[i] = _frame_sum(run, jobs[i][1], jobs[i][2])
+    return out
+
+
+def _frame_sum(out: est.EstimatorOut, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]]) -> tuple[complex, int]:
+    ok = (out.status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
     in_seg = np.zeros(len(ok), bool)
     for a, b in ranges:
         in_seg[a:b] = True
     ok &= in_seg
-    d = np.asarray(theta_hat, float)[ok] - theta_r[ok]
+    d = np.asarray(out.theta_hat, float)[ok] - theta_r[: len(ok)][ok]
     return complex(np.exp(1j * d).sum()), int(ok.sum())
 
 

@@ -94,6 +94,9 @@ class MotorResult:
         Per-segment table (source, t_start/t_end s, i_qo_a A, speed_rpm, T_avg_nm N*m, shaft gain/phase).
     sources : tuple of str
         Capture files.
+    mech : MechResult or None
+        The mechanical orders and the encoder's fingerprint (contract revision 1.2,
+        :class:`MechResult`); None for results without them.
     """
 
     serial: str
@@ -111,6 +114,7 @@ class MotorResult:
     operating_point: OperatingPoint
     segments: tuple[dict[str, Any], ...]
     sources: tuple[str, ...]
+    mech: "MechResult | None" = None
 
     @property
     def usable(self) -> bool:
@@ -136,6 +140,8 @@ class MotorResult:
         out["operating_point"] = {"speed_rpm": self.operating_point.speed_rpm, "i_qo_a": self.operating_point.i_qo_a}
         out["segments"] = [dict(s) for s in self.segments]
         out["sources"] = list(self.sources)
+        if self.mech is not None:
+            out["mech"] = self.mech.to_json()
         return out
 
     @classmethod
@@ -168,6 +174,9 @@ class MotorResult:
                 if obj.get(k, None) is not None:
                     raise r.error(k, f"must be null when status is {status!r}")
         op = r.obj(r.need(obj, "operating_point"), "operating_point")
+        mech = None
+        if obj.get("mech") is not None:
+            mech = MechResult.from_json(obj["mech"], source, f"{where}mech.", r.integer(obj, "encoder_ppr"))
         return cls(
             serial=serial, status=status, reasons=reasons, estimates=estimates,
             kt=r.number(obj, "kt", (0.0, KT_MAX)), kt_source=r.string(obj, "kt_source"),
@@ -178,7 +187,7 @@ class MotorResult:
             operating_point=OperatingPoint(r.number(op, "speed_rpm", None, "operating_point."),
                                            r.number(op, "i_qo_a", None, "operating_point.")),
             segments=tuple(r.obj(s, f"segments[{i}]") for i, s in enumerate(r.list(obj, "segments"))),
-            sources=tuple(r.string_list(obj, "sources")),
+            sources=tuple(r.string_list(obj, "sources")), mech=mech,
         )
 
 
@@ -259,6 +268,129 @@ class _Reader:
                 bounds = {"c": (0.0, C6_MAX), "k": (0.0, K6_MAX)}.get(name, (-PHASE_MAX, PHASE_MAX))
                 parts[name] = sub.value_ci(h, name, bounds)
         return Harmonic(order, **parts)
+
+
+# --- the mechanical part (contract revision 1.2) ---------------------------------------------
+# A motor's ``mech`` object: ``status`` ``"ok"`` when the block may switch ``MECH_COMP_ENABLE`` on,
+# else ``"off"`` with the reasons (a fingerprint too weak to identify, not measured, orders not
+# fitted): such a motor gets a layout-2 block with ``MECH_COMP_ENABLE`` clear, never a guess.
+
+MECH_OK = "ok"
+MECH_OFF = "off"
+#: fingerprint entries are placement errors of a few tenths of a pitch at most (rad electrical)
+FP_MAX_RAD = 1.0
+
+
+@dataclass(frozen=True)
+class MechOrder:
+    """One mechanical order: load-independent ripple ``c`` (N*m) and its phase (rad, the block's
+    mechanical frame), each with its 95 % interval."""
+
+    order: int
+    c: ValueCi
+    phase_c: ValueCi
+
+    def to_json(self) -> dict[str, Any]:
+        return {"order": self.order, "c": self.c.to_json(), "phase_c": self.phase_c.to_json()}
+
+
+@dataclass(frozen=True)
+class MechResult:
+    """The ``mech`` object of a motor result.
+
+    Attributes
+    ----------
+    status, reasons
+        ``"ok"`` or ``"off"`` and why it is off.
+    fingerprint, sigma : tuple of float (2 * encoder_ppr)
+        Edge errors (rad electrical; entry 2m forward, 2m+1 reverse) and their standard errors
+        in the block's frame (0 / inf where not measured: JSON null).
+    dirs : int
+        FP_FORWARD | FP_REVERSE measured.
+    grid_phase : float
+        rad electrical, where the frame's count boundary 0 sits.
+    windows : tuple of (int or None)
+        Per capture window, its offset into the frame (None: not identified, not used).
+    score, margin : float
+        Predicted cosine of the true hypothesis and margin after one revolution at ``ref_rpm``.
+    threshold : float
+        The identification margin the block requires (``id_margin``).
+    ref_rpm : float
+        Speed the prediction is for (rpm).
+    orders : tuple of MechOrder
+        Mechanical orders 1..3 (empty when not fitted).
+    """
+
+    status: str
+    reasons: tuple[str, ...]
+    fingerprint: tuple[float, ...]
+    sigma: tuple[float | None, ...]
+    dirs: int
+    grid_phase: float
+    windows: tuple[int | None, ...]
+    score: float
+    margin: float
+    threshold: float
+    ref_rpm: float
+    orders: tuple[MechOrder, ...]
+
+    @property
+    def enabled(self) -> bool:
+        return self.status == MECH_OK
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "status": self.status, "reasons": list(self.reasons), "dirs": self.dirs, "grid_phase": self.grid_phase,
+            "margin": {"predicted": self.margin, "score": self.score, "threshold": self.threshold, "ref_rpm": self.ref_rpm},
+            "orders": [o.to_json() for o in self.orders],
+            "windows": list(self.windows),
+            "fingerprint": list(self.fingerprint), "sigma": list(self.sigma),
+        }
+
+    @classmethod
+    def from_json(cls, value: Any, source: str, where: str, encoder_ppr: int) -> MechResult:
+        """Check a ``mech`` object strictly; :class:`ResultFormatError` names file, field and reason."""
+        r = _Reader(source, where)
+        obj = r.obj(value, "")
+        status = r.string(obj, "status")
+        if status not in (MECH_OK, MECH_OFF):
+            raise r.error("status", f"{status!r} is not {MECH_OK!r} or {MECH_OFF!r}")
+        m = r.obj(r.need(obj, "margin"), "margin")
+        sub = _Reader(source, f"{where}margin.")
+        fp = r.list(obj, "fingerprint")
+        sg = r.list(obj, "sigma")
+        if len(fp) != 2 * encoder_ppr or len(sg) != 2 * encoder_ppr:
+            raise r.error("fingerprint", f"needs 2 x encoder_ppr = {2 * encoder_ppr} values and sigmas, "
+                                         f"got {len(fp)} and {len(sg)}")
+        fps = tuple(_num(r, v, f"fingerprint[{i}]", FP_MAX_RAD) for i, v in enumerate(fp))
+        sgs = tuple(None if v is None else _num(r, v, f"sigma[{i}]", math.inf, lo=0.0) for i, v in enumerate(sg))
+        dirs = obj.get("dirs")
+        if isinstance(dirs, bool) or not isinstance(dirs, int) or not 0 <= dirs <= 3:
+            raise r.error("dirs", f"expected 0..3, got {dirs!r}")
+        windows = r.list(obj, "windows")
+        if not all(w is None or (isinstance(w, int) and not isinstance(w, bool) and 0 <= w < encoder_ppr)
+                   for w in windows):
+            raise r.error("windows", f"expected offsets 0..{encoder_ppr - 1} or null")
+        orders = []
+        for i, o in enumerate(r.list(obj, "orders")):
+            osub = _Reader(source, f"{where}orders[{i}].")
+            oo = r.obj(o, f"orders[{i}]")
+            orders.append(MechOrder(osub.integer(oo, "order"), osub.value_ci(oo, "c", (0.0, C6_MAX)),
+                                    osub.value_ci(oo, "phase_c", (-PHASE_MAX, PHASE_MAX))))
+        return cls(status=status, reasons=tuple(r.string_list(obj, "reasons")), fingerprint=fps, sigma=sgs, dirs=dirs,
+                   grid_phase=r.number(obj, "grid_phase", (0.0, 2 * math.pi)), windows=tuple(windows),
+                   score=sub.number(m, "score", (-1.5, 1.5)), margin=sub.number(m, "predicted", (-3.0, 3.0)),
+                   threshold=sub.number(m, "threshold", (0.0, 2.0)), ref_rpm=sub.number(m, "ref_rpm", (0.0, 1e5)),
+                   orders=tuple(orders))
+
+
+def _num(r: _Reader, v: Any, field: str, bound: float, lo: float | None = None) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise r.error(field, f"expected a finite number, got {v!r}")
+    low = -bound if lo is None else lo
+    if not low <= v <= bound:
+        raise r.error(field, f"{v!r} outside [{low:g}, {bound:g}]")
+    return float(v)
 
 
 def _kind(value: Any) -> str:

@@ -37,7 +37,10 @@ class PointRipple:
     span_s : (float, float)
         The capture's time span that was analysed (s).
     pp_no_mech1_pct : float
-        ``pp_pct`` with the mechanical order 1 taken out (%): what the tables can act on.
+        ``pp_pct`` with the mechanical order 1 taken out (%): what the 6th-harmonic tables can act on.
+    mech1_nm : float
+        Amplitude of the mechanical order 1 (N*m; the order spectrum's): the rotor's unbalance,
+        which only a layout-2 block's mechanical compensation (contract revision 1.2) cancels.
     """
 
     pp_pct: float
@@ -52,11 +55,12 @@ class PointRipple:
     torque: Any = None
     poles: int = 0
     pp_no_mech1_pct: float = float("nan")
+    mech1_nm: float = float("nan")
     theta_r: Any = None  # electrical angle per sample (rad), for the report's torque against angle
 
     def to_dict(self) -> dict[str, Any]:
         return json_safe({"pp_pct": self.pp_pct, "pp_raw_pct": self.pp_raw_pct, "pp_nm": self.pp_nm,
-                           "pp_no_mech1_pct": self.pp_no_mech1_pct,
+                           "pp_no_mech1_pct": self.pp_no_mech1_pct, "mech1_nm": self.mech1_nm,
                            "T_avg_nm": self.T_avg_nm, "amp6_nm": self.amp6_nm, "span_s": list(self.span_s)})
 
 
@@ -89,7 +93,7 @@ def point_ripple(capture: Capture, angle: AngleResult) -> PointRipple:
     sp = order_spectrum(theta, torque, capture.poles, t=t, source=capture.source)
     return PointRipple(rp.filtered_pct, rp.raw_pct, rp.filtered_pp_nm, rp.T_avg_nm, float(sp.amplitude(6)),
                        (float(t[0]), float(t[-1])), rp, sp, t, torque, capture.poles,
-                       pp_no_mech1_pct=rp.no_mech1_pct, theta_r=theta)
+                       pp_no_mech1_pct=rp.no_mech1_pct, mech1_nm=float(sp.mech1_amplitude_nm), theta_r=theta)
 
 
 def verify_segments(segments: list, speed_rpm: float, i_qo_a: float, rel_tol: float = 0.02) -> list:

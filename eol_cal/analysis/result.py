@@ -108,6 +108,7 @@ def motor_record(
     bench: dict[str, Any] | None = None,
     hall_angle: dict[str, Any] | None = None,
     frame_estimator: str | None = None,
+    mech: Any = None,
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
@@ -115,7 +116,9 @@ def motor_record(
     ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad); ``bench``
     the bench mechanics divided out of the measured ripple (None: rigid coupling); ``hall_angle``
     the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal);
-    ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names).
+    ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names);
+    ``mech`` the mechanical result (:class:`eol_cal.analysis.motor_result.MechResult`, contract
+    revision 1.2), written only with a usable fit.
     """
     status, reasons = judge(fit, spec, limits)
     six = fit.harmonics[6]
@@ -161,16 +164,19 @@ def motor_record(
         serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=float(kt), kt_source=kt_source,
         metrics=metrics, fit=fit_stats, model=model, hall_angle=hall_angle, poles=poles, encoder_ppr=encoder_ppr,
         operating_point=OperatingPoint(op["speed_rpm"], op["i_qo_a"]), segments=tuple(segments), sources=tuple(sources),
+        mech=mech if status == STATUS_OK else None,
     ).to_json()
 
 
 def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
-                     solver_mode: str) -> dict[str, Any]:
+                     solver_mode: str, tick_hz: float | None = 20000.0) -> dict[str, Any]:
     """:func:`motor_record` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
 
     Moves the phases into the frame ``motor_inputs`` measured (the firmware's by default,
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
-    stays in the offline frame (the plots draw it against the offline angle).
+    stays in the offline frame (the plots draw it against the offline angle). With ``tick_hz``
+    (the firmware's tick, Hz) the mechanical part is measured too
+    (:func:`eol_cal.analysis.fit.mech.fit_mech`); None leaves it out.
     """
     import dataclasses
 
@@ -184,8 +190,13 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
          "shaft_phase_6_deg": math.degrees(float(np.angle(g6[k])))}
         for k, i in enumerate(mi.info)
     ]
+    mech = None
+    if tick_hz is not None and fit.converged:
+        from eol_cal.analysis.fit.mech import fit_mech
+
+        mech = fit_mech(mi, fit, spec, tick_hz)
     return motor_record(
-        mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
+        mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source, mech=mech,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
         solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
         bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),

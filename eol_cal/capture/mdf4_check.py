@@ -31,12 +31,13 @@ block once with an output cap, so its time and memory are linear in the file siz
 
 from __future__ import annotations
 
+import contextlib
 import mmap
 import os
 import struct
 import zlib
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from eol_cal.errors import InputError
@@ -117,10 +118,13 @@ class Block:
 
 @dataclass(frozen=True)
 class Mdf4Layout:
-    """What the check found: the blocks by offset, and the bytes their data decodes to."""
+    """What the check found: the blocks by offset, the bytes their data decodes to, and each
+    compressed data block's inflated data by the block's offset (the check inflates it anyway:
+    a decoder takes it from here instead of inflating it again)."""
 
     blocks: dict[int, Block]
     decoded_bytes: int
+    inflated: dict[int, bytes] = field(default_factory=dict)
 
 
 class _Refusal(Exception):
@@ -136,16 +140,21 @@ def check_mdf4_file(path: str | Path) -> Mdf4Layout:
     InputError
         Naming the file, the block (``block ##DZ at 0x320``) and the reason.
     """
+    with checked_mdf4(path) as (_, layout):
+        return layout
+
+
+@contextlib.contextmanager
+def checked_mdf4(path: str | Path) -> Iterator[tuple[mmap.mmap, Mdf4Layout]]:
+    """:func:`check_mdf4_file`, and the file's bytes (mapped read-only) with its layout for a
+    decoder while the context lasts."""
     file = str(path)
     with open(path, "rb") as fh:
         size = os.fstat(fh.fileno()).st_size
         if size < _ID_BYTES + _HEADER.size:
             raise InputError(file, None, f"{size} bytes: too short for an MDF file (identification and header block)")
         with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:
-            try:
-                return check_mdf4_bytes(data, file)
-            except _Refusal as exc:
-                raise InputError(file, exc.where, exc.reason) from None
+            yield data, check_mdf4_bytes(data, file)
 
 
 def check_mdf4_bytes(data: bytes | mmap.mmap, file: str = "<bytes>") -> Mdf4Layout:
@@ -160,15 +169,16 @@ def _check(data: bytes | mmap.mmap) -> Mdf4Layout:
     _check_identification(data)
     blocks = _walk(data)
     decoded = 0
+    inflated: dict[int, bytes] = {}
     for block in blocks.values():
-        decoded += _check_fields(data, block, blocks)
+        decoded += _check_fields(data, block, blocks, inflated)
         if decoded > MAX_DECODED_BYTES:
             raise _Refusal("data", f"the data blocks decode to more than {MAX_DECODED_BYTES} bytes, the memory bound "
                                    "of a capture")
     for block in blocks.values():
         if block.kind == "DG":
             _check_records(data, block, blocks)
-    return Mdf4Layout(blocks, decoded)
+    return Mdf4Layout(blocks, decoded, inflated)
 
 
 def _check_identification(data: bytes | mmap.mmap) -> None:
@@ -252,13 +262,15 @@ def _u8(data: bytes | mmap.mmap, at: int) -> int:
     return data[at]
 
 
-def _check_fields(data: bytes | mmap.mmap, block: Block, blocks: dict[int, Block]) -> int:
-    """The fixed fields of one block; returns the bytes its data decodes to (data blocks)."""
+def _check_fields(data: bytes | mmap.mmap, block: Block, blocks: dict[int, Block], inflated: dict[int, bytes]) -> int:
+    """The fixed fields of one block; returns the bytes its data decodes to (data blocks); a
+    compressed block's inflated data goes into ``inflated``."""
     at = block.data_at
     if block.kind in ("DT", "SD", "RD", "DV", "DI", "RV", "RI"):
         return block.length - _HEADER.size - 8 * len(block.links)
     if block.kind == "DZ":
-        return _check_dz(data, block)
+        inflated[block.offset] = _check_dz(data, block)
+        return len(inflated[block.offset])
     if block.kind == "DL":
         flags = _u8(data, at)
         count = struct.unpack_from("<I", data, at + 4)[0]
@@ -279,7 +291,7 @@ def _check_fields(data: bytes | mmap.mmap, block: Block, blocks: dict[int, Block
     return 0
 
 
-def _check_dz(data: bytes | mmap.mmap, block: Block) -> int:
+def _check_dz(data: bytes | mmap.mmap, block: Block) -> bytes:
     at = block.data_at
     original_type = bytes(data[at:at + 2]).decode("ascii", "replace")
     zip_type = _u8(data, at + 2)
@@ -309,7 +321,7 @@ def _check_dz(data: bytes | mmap.mmap, block: Block) -> int:
     if len(out) != original or not inflater.eof:
         raise _Refusal(where, f"compressed data inflates to {len(out)}{'+' if not inflater.eof else ''} bytes, "
                               f"not the {original} it claims")
-    return original
+    return out
 
 
 def _data_bytes(blocks: dict[int, Block], data: bytes | mmap.mmap, link: int) -> int:

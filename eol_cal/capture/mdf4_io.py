@@ -21,7 +21,7 @@ import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Literal
+from typing import Any, Callable, Literal
 
 import numpy as np
 
@@ -30,7 +30,8 @@ from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble, change_events, is_change_list
 from eol_cal.capture.metadata import MetaValue, decode_value, encode_value, join_truth, split_truth
 from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
-from eol_cal.capture.mdf4_check import check_mdf4_file
+from eol_cal.capture.mdf4_check import checked_mdf4
+from eol_cal.capture.mdf4_decode import Group, decode_checked
 from eol_cal.errors import InputError
 from eol_cal.inputs import check_regular
 
@@ -167,7 +168,9 @@ def read_mdf4_columns(
     channels that cannot be used (name -> reason: ambiguous name, non-numeric).
 
     The file's structure is checked first (:mod:`eol_cal.capture.mdf4_check`): asammdf only
-    decodes a file whose links, sizes and compressed data hold.
+    decodes a file whose links, sizes and compressed data hold. A plain file (eol-cal's own
+    layout, most loggers') is decoded from the checked bytes directly
+    (:mod:`eol_cal.capture.mdf4_decode`: the same columns, ~5x faster); any other with asammdf.
 
     Raises
     ------
@@ -177,7 +180,12 @@ def read_mdf4_columns(
     """
     file = str(path)
     check_regular(path)
-    check_mdf4_file(path)  # structure, sizes and compressed data, before asammdf trusts any of it
+    # structure, sizes and compressed data, before anything trusts any of it
+    with checked_mdf4(path) as (data, layout):
+        plain = decode_checked(data, layout)
+    if plain is not None:
+        groups, comment = plain
+        return _columns(groups, parse_header_comment(comment, file))
     try:
         with _quiet_asammdf():
             return _decode(path, file)
@@ -219,40 +227,55 @@ def _decode(
         if not str(mdf.version).startswith("4"):
             raise InputError(file, None, f"MDF version {mdf.version}; capture format v1 takes MDF 4")
         properties = parse_header_comment(mdf.header.comment or "", file)
-        columns: dict[str, Column] = {}
-        bad: dict[str, str] = {}
+        groups: list[Group] = []
         for gi, group in enumerate(mdf.groups):
             master = mdf.masters_db.get(gi)
-            found: list[tuple[str, np.ndarray, str | None, np.ndarray]] = []
-            for ci, channel in enumerate(group.channels):
-                if ci == master:
-                    continue
-                signal = mdf.get(group=gi, index=ci)
-                name = channel.name
-                if name in columns or any(name == f[0] for f in found):
-                    bad[name] = "channel name found in more than one channel group; ambiguous"
-                    continue
-                samples = np.asarray(signal.samples)
-                if not _numeric_1d(samples):
-                    bad[name] = f"not a numeric scalar channel (dtype {samples.dtype})"
-                    continue
-                times = np.asarray(signal.timestamps, dtype=np.float64)
-                if times.shape != samples.shape:
-                    bad[name] = f"{samples.size} samples on {times.size} time stamps"
-                    continue
-                found.append((name, samples, signal.unit or None, times))
-            if not found:
-                continue
-            events = all(np.array_equal(f[3], found[0][3]) for f in found) and is_change_list(
-                found[0][3], [np.asarray(f[1], dtype=np.float64) for f in found]
-            )
-            for name, samples, unit, times in found:
-                columns[name] = Column(samples, unit, times, events)
-        for name in bad:
-            columns.pop(name, None)
+            groups.append([(channel.name, _signal_loader(mdf, gi, ci)) for ci, channel in enumerate(group.channels)
+                           if ci != master])
+        return _columns(groups, properties)
     finally:
         mdf.close()
+
+
+def _signal_loader(mdf: Any, gi: int, ci: int) -> Callable[[], tuple[np.ndarray, str | None, np.ndarray]]:
+    def load() -> tuple[np.ndarray, str | None, np.ndarray]:
+        signal = mdf.get(group=gi, index=ci)
+        return np.asarray(signal.samples), signal.unit or None, np.asarray(signal.timestamps)
+
+    return load
+
+
+def _columns(groups: list[Group], properties: dict[str, MetaValue]
+             ) -> tuple[dict[str, Column], dict[str, MetaValue], dict[str, str]]:
+    """Columns of the decoded channel groups (either decoder's), the unusable channels named."""
+    columns: dict[str, Column] = {}
+    bad: dict[str, str] = {}
+    for group in groups:
+        found: list[tuple[str, np.ndarray, str | None, np.ndarray]] = []
+        for name, load in group:
+            samples, unit, times = load()
+            if name in columns or any(name == f[0] for f in found):
+                bad[name] = "channel name found in more than one channel group; ambiguous"
+                continue
+            if not _numeric_1d(samples):
+                bad[name] = f"not a numeric scalar channel (dtype {samples.dtype})"
+                continue
+            times = np.asarray(times, dtype=np.float64)
+            if times.shape != samples.shape:
+                bad[name] = f"{samples.size} samples on {times.size} time stamps"
+                continue
+            found.append((name, samples, unit, times))
+        if not found:
+            continue
+        events = all(np.array_equal(f[3], found[0][3]) for f in found) and is_change_list(
+            found[0][3], [np.asarray(f[1], dtype=np.float64) for f in found]
+        )
+        for name, samples, unit, times in found:
+            columns[name] = Column(samples, unit, times, events)
+    for name in bad:
+        columns.pop(name, None)
     return columns, properties, bad
+
 
 
 def read_mdf4(path: str | Path, channel_map: ChannelMap | None = None) -> Capture:

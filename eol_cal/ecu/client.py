@@ -93,13 +93,15 @@ class EcuInfo:
 
 def read_bank(s: UdsSession, bank: int, step: str) -> bytes:
     """The block in ``bank`` (ReadMemoryByAddress): its header, then as many bytes as the header's
-    ``table_len`` says; only the header when that is not a table length (an erased bank)."""
+    ``table_len`` and layout say; only the header when that is not a table length (an erased bank)."""
     base = B.BANK_WORD_ADDR[bank]
     head = s.read_memory(base, B.HEADER_BYTES, step)
     table_len = int.from_bytes(head[B.field_offset("table_len"):B.field_offset("table_len") + 2], "little")
+    layout = int.from_bytes(head[B.field_offset("layout_version"):B.field_offset("layout_version") + 2], "little")
     if not B.table_len_ok(table_len):
         return head
-    return head + s.read_memory(base + B.HEADER_BYTES // P.WORD_BYTES, B.block_bytes(table_len) - B.HEADER_BYTES, step)
+    size = B.block_bytes(table_len, layout if layout in B.LAYOUTS else 1)
+    return head + s.read_memory(base + B.HEADER_BYTES // P.WORD_BYTES, size - B.HEADER_BYTES, step)
 
 
 def _read_active_block(s: UdsSession, active: P.ActiveBlock) -> bytes:

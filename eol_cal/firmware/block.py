@@ -9,6 +9,9 @@ generated from the same layout (:mod:`eol_cal.firmware.gen_header`).
 
 Invariant: :func:`pack` only ever returns a block that :func:`check` calls valid; blocks with
 invalid headers exist only as bytes (tests and golden vectors patch them on purpose).
+
+Two layouts (contract revision 1.2): a block without ``mech`` is layout 1, exactly as before; a
+block with ``mech`` (:class:`eol_cal.firmware.mech_params.MechParams`) is layout 2.
 """
 
 from __future__ import annotations
@@ -38,9 +41,12 @@ from eol_cal.firmware.block_layout import (  # noqa: F401
     BANK_WORD_ADDR,
     BANK_WORDS,
     FIELDS,
+    FIELDS_BY_VERSION,
     HEADER_BYTES,
     LAYOUT,
+    LAYOUTS,
     LAYOUT_VERSION,
+    LAYOUT_VERSION_MECH,
     SEQUENCE_INVALID,
     SIZE as _SIZE,
     SUPPORTED_LAYOUTS,
@@ -59,6 +65,7 @@ from eol_cal.firmware.block_layout import put_field as _put
 from eol_cal.firmware.contract import (  # noqa: F401
     FLAG_COMP_ENABLE,
     FLAG_INTERP_ENABLE,
+    FLAG_MECH_COMP_ENABLE,
     FLAGS,
     FLAGS_ESTIMATOR,
     FLAGS_KNOWN,
@@ -67,6 +74,7 @@ from eol_cal.firmware.contract import (  # noqa: F401
     STATUS_HEADER_INVALID,
     STATUS_VALID,
 )
+from eol_cal.firmware.mech_params import FP_MAX, MechParams, mech_problems
 
 
 def _f32(x: Any, name: str) -> float:
@@ -130,7 +138,9 @@ class ParamBlock:
     table_per_amp : ndarray of float32, shape (N,)
         Part of i_qc per ampere of i_qo at table angle j (A/A).
     layout_version : int
-        Layout version (1).
+        Layout version: 1 without ``mech``, 2 with it (the default follows ``mech``).
+    mech : MechParams, optional
+        The mechanical-order extension of layout 2 (contract revision 1.2).
     """
 
     sequence: int
@@ -150,10 +160,15 @@ class ParamBlock:
     iqc_limit: float
     table_const: np.ndarray = field(repr=False)
     table_per_amp: np.ndarray = field(repr=False)
-    layout_version: int = LAYOUT_VERSION
+    layout_version: int | None = None
+    mech: MechParams | None = None
 
     def __post_init__(self) -> None:
         put = object.__setattr__
+        if self.layout_version is None:
+            put(self, "layout_version", LAYOUT_VERSION_MECH if self.mech is not None else LAYOUT_VERSION)
+        if self.mech is not None and not isinstance(self.mech, MechParams):
+            raise InputError(None, "mech", f"not MechParams: {type(self.mech).__name__}")
         for name in _INT_FIELDS:
             put(self, name, _int(getattr(self, name), name))
         for name in _F32_FIELDS:
@@ -185,14 +200,15 @@ class ParamBlock:
     @property
     def block_bytes(self) -> int:
         """Size of the packed block, CRC included (bytes)."""
-        return block_bytes(self.table_len)
+        return block_bytes(self.table_len, self.layout_version if self.layout_version in LAYOUTS else 1)
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, ParamBlock):
             return NotImplemented
-        scalars = [n for n in self.__dataclass_fields__ if n not in ("table_const", "table_per_amp")]
+        scalars = [n for n in self.__dataclass_fields__ if n not in ("table_const", "table_per_amp", "mech")]
         # Compare floats by bit pattern so that NaN == NaN and -0.0 != 0.0, like the bytes do.
         return (all(_bits(getattr(self, n)) == _bits(getattr(other, n)) for n in scalars)
+                and self.mech == other.mech
                 and self.table_const.tobytes() == other.table_const.tobytes()
                 and self.table_per_amp.tobytes() == other.table_per_amp.tobytes())
 
@@ -206,6 +222,10 @@ class ParamBlock:
         d: dict[str, Any] = {"magic": MAGIC}
         for name in self.__dataclass_fields__:
             v = getattr(self, name)
+            if name == "mech":
+                if v is not None:
+                    d["mech"] = v.to_dict()
+                continue
             if isinstance(v, np.ndarray):
                 v = [_json_float(float(x)) for x in v]
             elif isinstance(v, tuple):
@@ -236,6 +256,13 @@ def pack_problems(block: ParamBlock) -> list[tuple[str, str]]:
     problems: list[tuple[str, str]] = []
     if block.layout_version not in SUPPORTED_LAYOUTS:
         problems.append(("layout_version", f"{block.layout_version} not supported {SUPPORTED_LAYOUTS}"))
+    elif (block.layout_version == LAYOUT_VERSION_MECH) != (block.mech is not None):
+        problems.append(("layout_version", f"layout {block.layout_version} "
+                         + ("needs the mechanical part (mech)" if block.mech is None else "has no mechanical part")))
+    if block.flags & FLAG_MECH_COMP_ENABLE and block.mech is None:
+        problems.append(("flags", "MECH_COMP_ENABLE needs a layout-2 block (the mechanical part)"))
+    if block.mech is not None:
+        problems += mech_problems(block.mech, block.encoder_ppr)
     if not 0 < block.sequence < 0xFFFFFFFF:
         problems.append(("sequence", f"{block.sequence} outside 1..0xFFFFFFFE"))
     if block.flags & ~FLAGS_KNOWN or block.flags < 0:
@@ -285,10 +312,14 @@ def pack(block: ParamBlock) -> bytes:
     if problems:
         raise InputError(None, problems[0][0], "; ".join(f"{f}: {r}" for f, r in problems))
     n = block.table_len
-    size = block_bytes(n)
+    v = block.layout_version
+    size = block_bytes(n, v)
     buf = bytearray(size)
     derived = {"block_bytes": size, "table_len": n}
-    for f in LAYOUT["field"]:
+    mech = block.mech
+    if mech is not None:
+        derived["fp_len"] = mech.fp_len
+    for f in LAYOUTS[v]["field"]:
         name = f["name"]
         if name == "crc32":
             continue
@@ -298,26 +329,38 @@ def pack(block: ParamBlock) -> bytes:
             value = derived[name]
         elif name == "serial":
             value = block.serial.encode("ascii").ljust(field_count("serial"), b"\0")
-        else:
+        elif name == "fingerprint":
+            value = np.zeros(2 * FP_MAX, np.float32)
+            value[:mech.fingerprint.size] = mech.fingerprint
+        elif name in FIELDS:
             value = getattr(block, name)
-        _put(buf, name, n, value)
-    crc_at = field_offset("crc32", n)
-    _put(buf, "crc32", n, crc32(bytes(buf[:crc_at])))
+        else:
+            value = getattr(mech, name)
+        _put(buf, name, n, value, v)
+    crc_at = field_offset("crc32", n, v)
+    _put(buf, "crc32", n, crc32(bytes(buf[:crc_at])), v)
     return bytes(buf)
 
 
-def with_crc(data: bytes) -> bytes:
+def with_crc(data: bytes, version: int | None = None) -> bytes:
     """``data`` with the CRC field rewritten for its own ``table_len`` (for deliberately edited blocks).
 
-    Trailing bytes after the block are kept. Raises :class:`InputError` when the header's
-    ``table_len`` does not tell where the CRC sits inside ``data``.
+    The CRC sits where layout ``version`` puts it; by default the header's layout when it is
+    supported and the image long enough for it, else layout 1 (an edited header, e.g. a wrong
+    layout version, keeps its CRC where the image has it). Trailing bytes after the block are
+    kept. Raises :class:`InputError` when the header's ``table_len`` does not tell where the CRC
+    sits inside ``data``.
     """
     n = _get(data, "table_len", 0) if len(data) >= HEADER_BYTES else -1
-    crc_at = field_offset("crc32", n)
+    if version is None:
+        v = _get(data, "layout_version", 0) if len(data) >= HEADER_BYTES else 1
+        version = v if v in LAYOUTS and n >= 0 and len(data) >= block_bytes(n, v) else 1
+    v = version
+    crc_at = field_offset("crc32", n, v)
     if n < 0 or len(data) < crc_at + 4:
         raise InputError(None, "table_len", "data too short to hold the CRC")
     buf = bytearray(data)
-    _put(buf, "crc32", n, crc32(bytes(buf[:crc_at])))
+    _put(buf, "crc32", n, crc32(bytes(buf[:crc_at])), v)
     return bytes(buf)
 
 
@@ -329,8 +372,9 @@ def unpack(data: bytes, source: str = "<bytes>") -> ParamBlock:
     Raises
     ------
     InputError
-        When the bytes cannot be decoded as a layout-1 block: too short, wrong magic,
-        unsupported layout, table_len out of range, non-ASCII serial.
+        When the bytes cannot be decoded as a block of a supported layout: too short, wrong
+        magic, unsupported layout, table_len out of range, non-ASCII serial, a fingerprint
+        longer than its room.
     """
     data = bytes(data)
     if len(data) < HEADER_BYTES:
@@ -344,16 +388,23 @@ def unpack(data: bytes, source: str = "<bytes>") -> ParamBlock:
     n = _get(data, "table_len", 0)
     if not table_len_ok(n):
         raise InputError(source, "table_len", f"{n} is not a power of two in {TABLE_LEN_MIN}..{TABLE_LEN_MAX}")
-    if len(data) < block_bytes(n):
-        raise InputError(source, "block_bytes", f"{len(data)} bytes, the block needs {block_bytes(n)}")
+    if len(data) < block_bytes(n, version):
+        raise InputError(source, "block_bytes", f"{len(data)} bytes, the block needs {block_bytes(n, version)}")
     raw_serial = _get(data, "serial", n).rstrip(b"\0")
     try:
         serial = raw_serial.decode("ascii")
     except UnicodeDecodeError as exc:
         raise InputError(source, "serial", f"not ASCII: {raw_serial!r}") from exc
     kwargs: dict[str, Any] = {"serial": serial}
-    for f in LAYOUT["field"]:
+    mech: dict[str, Any] = {}
+    for f in LAYOUTS[version]["field"]:
         if f["role"] == "field" and f["name"] != "serial":
-            kwargs[f["name"]] = _get(data, f["name"], n)
+            (kwargs if f["name"] in FIELDS else mech)[f["name"]] = _get(data, f["name"], n, version)
     kwargs["hall_angle"] = tuple(float(a) for a in kwargs["hall_angle"])
+    if version == LAYOUT_VERSION_MECH:
+        fp_len = _get(data, "fp_len", n, version)
+        if fp_len > FP_MAX:
+            raise InputError(source, "fp_len", f"{fp_len} pulses, the fingerprint holds at most {FP_MAX}")
+        mech["fingerprint"] = mech["fingerprint"][:2 * fp_len]
+        kwargs["mech"] = MechParams(**mech)
     return ParamBlock(**kwargs)

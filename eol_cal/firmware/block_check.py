@@ -19,7 +19,9 @@ from eol_cal.firmware.block_layout import (
 )
 from eol_cal.firmware.block_layout import get_field as _get
 from eol_cal.firmware.contract import (
+    FLAG_MECH_COMP_ENABLE,
     FLAGS_KNOWN,
+    FLAGS_MECH_NEEDS,
     MAGIC,
     STATUS_CRC_MISMATCH,
     STATUS_HEADER_INVALID,
@@ -59,7 +61,8 @@ def check(data: bytes) -> BlockCheck:
     """Apply every rule of the contract's "valid" to a bank image.
 
     Rules, in the order the firmware applies them: magic; supported layout version; (then all
-    of) ``table_len`` a power of two in 16..1024, ``block_bytes == 104 + 8*table_len``,
+    of) ``table_len`` a power of two in 16..1024, ``block_bytes == 104 + 8*table_len`` (layout 1)
+    or ``3248 + 8*table_len`` (layout 2),
     ``sequence`` not 0 nor 0xFFFFFFFF, the image long enough for ``block_bytes``; any of those
     failing gives status 2. Only then the CRC: a mismatch gives status 1. Bytes after the block
     (an erased bank's 0xFF) are allowed.
@@ -83,20 +86,21 @@ def check(data: bytes) -> BlockCheck:
     n_ok = table_len_ok(n)
     if not n_ok:
         reasons.append(f"table_len {n} is not a power of two in {TABLE_LEN_MIN}..{TABLE_LEN_MAX}")
-    if size != block_bytes(n):
-        reasons.append(f"block_bytes {size} is not 104 + 8*table_len = {block_bytes(n)}")
+    want = block_bytes(n, version)
+    if size != want:
+        reasons.append(f"block_bytes {size} is not {block_bytes(0, version)} + 8*table_len = {want}")
     if seq in SEQUENCE_INVALID:
         reasons.append(f"sequence 0x{seq:08x} is invalid")
-    if n_ok and len(data) < block_bytes(n):
-        reasons.append(f"truncated: {len(data)} bytes, the block needs {block_bytes(n)}")
+    if n_ok and len(data) < want:
+        reasons.append(f"truncated: {len(data)} bytes, the block needs {want}")
     warnings = []
     if _get(data, "reserved", 0) != 0:
         warnings.append(f"reserved is 0x{_get(data, 'reserved', 0):04x}, not 0")
-    warnings += flag_warnings(_get(data, "flags", 0))
+    warnings += flag_warnings(_get(data, "flags", 0), version)
     if reasons:
         return BlockCheck(STATUS_HEADER_INVALID, tuple(reasons), tuple(warnings))
-    crc_at = field_offset("crc32", n)
-    stored = _get(data, "crc32", n)
+    crc_at = field_offset("crc32", n, version)
+    stored = _get(data, "crc32", n, version)
     computed = crc32(data[:crc_at])
     if stored != computed:
         return BlockCheck(STATUS_CRC_MISMATCH,
@@ -107,10 +111,18 @@ def check(data: bytes) -> BlockCheck:
 
 
 
-def flag_warnings(flags: int) -> list[str]:
+def flag_warnings(flags: int, version: int = 1) -> list[str]:
     """What the contract allows in a ``flags`` word but a reader should know: bits it does not
-    define, and estimator options set without ``INTERP_ENABLE`` (the firmware ignores them)."""
+    define, estimator options set without ``INTERP_ENABLE``, ``MECH_COMP_ENABLE`` in a layout-1
+    block or without the bits it needs (the firmware ignores them)."""
     warnings = []
+    if flags & FLAG_MECH_COMP_ENABLE:
+        if version < 2:
+            warnings.append(f"flags 0x{flags:08x} sets MECH_COMP_ENABLE in a layout-{version} block: "
+                            "the firmware needs layout 2's mechanical part and ignores it")
+        elif flags & FLAGS_MECH_NEEDS != FLAGS_MECH_NEEDS:
+            warnings.append(f"flags 0x{flags:08x} sets MECH_COMP_ENABLE without "
+                            f"{flag_names(FLAGS_MECH_NEEDS & ~flags)}: the firmware ignores it")
     if flags & ~FLAGS_KNOWN:
         warnings.append(f"flags 0x{flags:08x} has unknown bits (0x{flags & ~FLAGS_KNOWN:x})")
     ignored = ignored_options(flags)

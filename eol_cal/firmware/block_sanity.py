@@ -16,7 +16,11 @@ block before any command writes, exports or flashes it (``eol-cal block check``,
   within ``+-PHASE_MAX`` (the fit result's own bounds, :mod:`eol_cal.analysis.motor_result`);
 - ``0 <= lead_s < LEAD_MAX_S``;
 - poles even, 2..1000; encoder PPR 1..65535; tick rate 1 kHz..1 MHz;
-- the motor type (poles, encoder PPR, tick rate) that of the ECU (:func:`type_problems`).
+- the motor type (poles, encoder PPR, tick rate) that of the ECU (:func:`type_problems`);
+- layout 2 (revision 1.2): the mechanical tables as bounded as the 6th-harmonic ones, orders
+  and phases within the fit's bounds, ``0 <= id_min_score <= 1``, ``0 <= id_margin <= 2``,
+  ``0 < id_frac_tol < pi``, ``grid_phase`` in [0, 2*pi), every fingerprint entry within half a
+  pitch (rad electrical).
 """
 
 from __future__ import annotations
@@ -118,13 +122,38 @@ def sanity_problems(blk: B.ParamBlock, i_max: float) -> list[tuple[str, str]]:
         problems.append(("hall_angle", "not finite"))
     elif np.any(np.abs(hall) > PHASE_MAX):
         problems.append(("hall_angle", f"an angle beyond +-{PHASE_MAX:g} rad"))
-    for name, limit, unit in (("table_const", i_max, "A"), ("table_per_amp", TABLE_PER_AMP_MAX, "A/A")):
-        table = np.asarray(getattr(blk, name), dtype=np.float64)
+    tables = [(name, getattr(blk, name), limit, unit)
+              for name, limit, unit in (("table_const", i_max, "A"), ("table_per_amp", TABLE_PER_AMP_MAX, "A/A"))]
+    if blk.mech is not None:
+        tables += [(name, getattr(blk.mech, name), limit, unit) for name, limit, unit in (
+            ("mech_table_const", i_max, "A"), ("mech_table_per_amp", TABLE_PER_AMP_MAX, "A/A"))]
+        if blk.poles > 0 and blk.encoder_ppr > 0:
+            tables.append(("fingerprint", blk.mech.fingerprint, blk.poles * math.pi / blk.encoder_ppr / 2, "rad"))
+        problems += _mech_problems(blk.mech)
+    for name, values, limit, unit in tables:
+        table = np.asarray(values, dtype=np.float64)
         bad = ~np.isfinite(table) | (np.abs(table) > limit)
         if bad.any():
             j = int(np.argmax(bad))
             problems.append((name, f"entry {j} is {table[j]:g} {unit}, outside +-{limit:g} {unit}; "
                                    f"{int(bad.sum())} such entries"))
+    return problems
+
+
+def _mech_problems(mech) -> list[tuple[str, str]]:
+    """The scalar bounds of a layout-2 block's mechanical part."""
+    problems: list[tuple[str, str]] = []
+    for name, amp_max, unit in (("mech_c", C6_MAX, "N*m"), ("mech_k", K6_MAX, "N*m/A")):
+        for h, v in enumerate(getattr(mech, name), start=1):
+            _bounded(problems, f"{name}[{h}]", v, 0.0, amp_max, unit)
+    for name in ("mech_phase_c", "mech_phase_k"):
+        for h, v in enumerate(getattr(mech, name), start=1):
+            _bounded(problems, f"{name}[{h}]", v, -PHASE_MAX, PHASE_MAX, "rad")
+    _bounded(problems, "id_min_score", mech.id_min_score, 0.0, 1.0, "")
+    _bounded(problems, "id_margin", mech.id_margin, 0.0, 2.0, "")
+    _bounded(problems, "id_frac_tol", mech.id_frac_tol, 0.0, math.pi, "rad", lo_open=True)
+    if not (math.isfinite(mech.grid_phase) and 0.0 <= mech.grid_phase < 2 * math.pi):
+        problems.append(("grid_phase", f"{mech.grid_phase:g} rad is outside [0, 2*pi)"))
     return problems
 
 

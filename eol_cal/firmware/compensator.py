@@ -122,8 +122,63 @@ def make_tables(c6: float, phase_c6: float, k6: float, phase_k6: float, kt: floa
     return i_const.astype(np.float32), i_per_amp.astype(np.float32)
 
 
+def table_sum(x: Array, i_qo: Array, table_const: Array, table_per_amp: Array, scale: Array,
+              xp: ArrayModule = np) -> Array:
+    """The two tables read at angle ``x`` and summed, before the clamp (binary32, fixed order).
+
+    ``v = x * scale`` is the angle in table entries; it is reduced into [0, N) and the tables are
+    interpolated linearly: the steps from ``v`` to ``s`` of COMPENSATOR.md, shared by the
+    6th-harmonic tables (``x`` = the lead angle ``t``, ``scale`` = N * 6/(2*pi)) and the mechanical
+    ones of layout 2 (firmware_params/MECH.md).
+
+    Parameters
+    ----------
+    x : array_like
+        Angle (rad), any finite value.
+    i_qo : array_like
+        Nominal q current (A), signed.
+    table_const, table_per_amp : array_like, shape (N,)
+        Tables (A, A/A); N a power of two.
+    scale : float
+        Table entries per rad of ``x`` (binary32).
+
+    Returns
+    -------
+    s : array of float32
+        ``lerp(table_const) + i_qo * lerp(table_per_amp)`` (A).
+    """
+    f32 = xp.float32
+    tc = xp.asarray(table_const, dtype=f32)
+    tp = xp.asarray(table_per_amp, dtype=f32)
+    n = int(tc.shape[0])  # static: the table shape, never a traced value
+    if n & (n - 1) or n < 2 or tp.shape != tc.shape:
+        raise InputError(None, "table_len", f"tables of shape {tc.shape}, {tp.shape}: need equal power-of-two lengths")
+    recip_n = f32(1.0 / n)
+    n_f = f32(n)
+    one = f32(1.0)
+    v = xp.asarray(x, dtype=f32) * f32(scale)
+    q = xp.floor(v * recip_n)
+    u = v - q * n_f
+    g = xp.floor(u)
+    f = u - g
+    j = xp.bitwise_and(g.astype(xp.int32), n - 1)
+    j1 = xp.bitwise_and(j + 1, n - 1)
+    w = one - f
+    lc = w * xp.take(tc, j) + f * xp.take(tc, j1)
+    lp = w * xp.take(tp, j) + f * xp.take(tp, j1)
+    return lc + xp.asarray(i_qo, dtype=f32) * lp
+
+
+def lead_angle(theta_hat: Array, omega_hat: Array, lead_s: Array, xp: ArrayModule = np) -> Array:
+    """The angle the tables are read at: ``theta_hat + omega_hat * lead_s`` (rad, binary32, two roundings)."""
+    f32 = xp.float32
+    a = xp.asarray(omega_hat, dtype=f32) * xp.asarray(lead_s, dtype=f32)
+    return xp.asarray(theta_hat, dtype=f32) + a
+
+
 def i_qc(theta_hat: Array, omega_hat: Array, i_qo: Array, table_const: Array, table_per_amp: Array,
-         lead_s: Array, iqc_limit: Array, xp: ArrayModule = np) -> Array:
+         lead_s: Array, iqc_limit: Array, xp: ArrayModule = np, mech_on: Array | None = None,
+         mech_sum: Array | None = None) -> Array:
     """Compensating q current as the firmware computes it each tick (binary32, fixed order).
 
     Parameters
@@ -142,6 +197,10 @@ def i_qc(theta_hat: Array, omega_hat: Array, i_qo: Array, table_const: Array, ta
         Clamp of abs(i_qc) (A), >= 0.
     xp : module
         ``numpy`` or ``jax.numpy``.
+    mech_on, mech_sum : array_like, optional
+        Layout 2 (contract revision 1.2): where ``mech_on`` is true, the mechanical-order current
+        ``mech_sum`` (A, :func:`eol_cal.firmware.mech.mech_sum`) is added before the clamp:
+        ``s = s + mech_sum``. Elsewhere (and without them) the result is layout 1's, bit for bit.
 
     Returns
     -------
@@ -163,34 +222,13 @@ def i_qc(theta_hat: Array, omega_hat: Array, i_qo: Array, table_const: Array, ta
     and the mask maps j = N to entry 0 with f = 0, the same point.
     """
     f32 = xp.float32
-    tc = xp.asarray(table_const, dtype=f32)
-    tp = xp.asarray(table_per_amp, dtype=f32)
-    n = int(tc.shape[0])  # static: the table shape, never a traced value
-    if n & (n - 1) or n < 2 or tp.shape != tc.shape:
-        raise InputError(None, "table_len", f"tables of shape {tc.shape}, {tp.shape}: need equal power-of-two lengths")
+    n = int(xp.asarray(table_const).shape[0])  # static: the table shape
     scale = f32(np.float32(n) * K_6_OVER_2PI)
-    recip_n = f32(1.0 / n)
-    n_f = f32(n)
-    one = f32(1.0)
-    theta_hat = xp.asarray(theta_hat, dtype=f32)
-    omega_hat = xp.asarray(omega_hat, dtype=f32)
-    i_qo = xp.asarray(i_qo, dtype=f32)
-    lead = xp.asarray(lead_s, dtype=f32)
     limit = xp.asarray(iqc_limit, dtype=f32)
-
-    a = omega_hat * lead
-    t = theta_hat + a
-    v = t * scale
-    q = xp.floor(v * recip_n)
-    u = v - q * n_f
-    g = xp.floor(u)
-    f = u - g
-    j = xp.bitwise_and(g.astype(xp.int32), n - 1)
-    j1 = xp.bitwise_and(j + 1, n - 1)
-    w = one - f
-    lc = w * xp.take(tc, j) + f * xp.take(tc, j1)
-    lp = w * xp.take(tp, j) + f * xp.take(tp, j1)
-    s = lc + i_qo * lp
+    t = lead_angle(theta_hat, omega_hat, lead_s, xp)
+    s = table_sum(t, i_qo, table_const, table_per_amp, scale, xp)
+    if mech_on is not None:
+        s = xp.where(mech_on, s + xp.asarray(mech_sum, dtype=f32), s)
     return xp.where(s > limit, limit, xp.where(s < -limit, -limit, s))
 
 

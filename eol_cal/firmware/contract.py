@@ -1,6 +1,6 @@
 """The firmware contract's constants (``docs/firmware-contract.md``), each spelled here once.
 
-The block's byte layout (offsets, types) is in ``layout_v1.toml``; what the bytes mean lives here:
+The block's byte layouts (offsets, types) are in ``layout_v1.toml`` and ``layout_v2.toml``; what the bytes mean lives here:
 the block marker, the ``flags`` bits, the check routine's status codes, the hall convention and
 its nominal table, and the UDS identifiers. :mod:`eol_cal.firmware.block`, the estimator, the
 ECU client and simulator read them from here, and :mod:`eol_cal.firmware.gen_header` writes them
@@ -26,7 +26,9 @@ class Flag(NamedTuple):
 
 #: The block's ``flags`` bits by name (every other bit 0). Bits 2-5 (revision 1.1) are the
 #: estimator options, each honoured only with ``INTERP_ENABLE``; their arithmetic is the estimator
-#: reference's (firmware_params/ESTIMATOR.md).
+#: reference's (firmware_params/ESTIMATOR.md). Bit 6 (revision 1.2) switches the mechanical-order
+#: compensation of a layout-2 block (firmware_params/MECH.md), honoured only with COMP_ENABLE,
+#: INTERP_ENABLE and EST_LEARN_PITCH_ERRORS.
 FLAGS: dict[str, Flag] = {
     "COMP_ENABLE": Flag(0, "apply i_qc"),
     "INTERP_ENABLE": Flag(1, "use the interpolated angle theta_hat (0 = raw encoder angle)"),
@@ -35,6 +37,7 @@ FLAGS: dict[str, Flag] = {
     "EST_LEARN_GRID_OFFSET": Flag(3, "estimator: encoder grid offset = running mean of the hall corrections"),
     "EST_ACCEL_PREDICTION": Flag(4, "estimator: extrapolates the filtered acceleration between edges"),
     "EST_LEARN_PITCH_ERRORS": Flag(5, "estimator: learns each edge's placement error at steady speed"),
+    "MECH_COMP_ENABLE": Flag(6, "identify the rotor's mechanical angle (layout 2) and add the mechanical-order i_qc"),
 }
 FLAG_COMP_ENABLE = 1 << FLAGS["COMP_ENABLE"].bit
 FLAG_INTERP_ENABLE = 1 << FLAGS["INTERP_ENABLE"].bit
@@ -42,6 +45,9 @@ FLAG_EST_CLAMP_TO_NEXT_EDGE = 1 << FLAGS["EST_CLAMP_TO_NEXT_EDGE"].bit
 FLAG_EST_LEARN_GRID_OFFSET = 1 << FLAGS["EST_LEARN_GRID_OFFSET"].bit
 FLAG_EST_ACCEL_PREDICTION = 1 << FLAGS["EST_ACCEL_PREDICTION"].bit
 FLAG_EST_LEARN_PITCH_ERRORS = 1 << FLAGS["EST_LEARN_PITCH_ERRORS"].bit
+FLAG_MECH_COMP_ENABLE = 1 << FLAGS["MECH_COMP_ENABLE"].bit
+#: the bits MECH_COMP_ENABLE needs besides itself (and a layout-2 block)
+FLAGS_MECH_NEEDS = (1 << FLAGS["COMP_ENABLE"].bit) | (1 << FLAGS["INTERP_ENABLE"].bit) | FLAG_EST_LEARN_PITCH_ERRORS
 #: name prefix of the estimator option bits
 EST_PREFIX = "EST_"
 #: the estimator option bits (2-5) by name

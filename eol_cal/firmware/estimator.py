@@ -42,7 +42,7 @@ from eol_cal.firmware.estimator_config import (
 )
 from eol_cal.firmware.estimator_config import OPTION_FLAGS, options_from_flags
 from eol_cal.firmware.estimator_step import (
-    _SCALAR_NP, EstimatorOut, EstimatorState, init_state, quadrature_phase, step,
+    _SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
 )
 
 
@@ -84,13 +84,17 @@ __all__ = [
     "options_from_flags",
     "EstimatorOut",
     "EstimatorState",
+    "PitchSample",
     "init_state",
     "quadrature_phase",
     "step",
+    "step_pitch",
     "run",
     "run_jax",
     "run_jax_chunked",
+    "run_jax_batch",
     "JAX_CHUNK",
+    "JAX_LANES",
 ]
 
 def run(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array) -> EstimatorOut:
@@ -179,33 +183,115 @@ def run_jax(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array,
     return jax.jit(f)(a, b, h, tables)
 
 
-#: ticks per call of :func:`run_jax_chunked`'s compiled scan
-JAX_CHUNK = 4096
+#: ticks per call of the chunked runners' compiled scan
+JAX_CHUNK = 1024
+
+#: lanes (captures) of one compiled batched scan: a batch is padded up to the next of these (or
+#: split at the last), so a few programs serve every batch size
+JAX_LANES = (1, 2, 4, 8, 16, 24, 32, 48, 64)
 
 
 @functools.lru_cache(maxsize=16)
 def _scan_chunk(cfg: EstimatorConfig):
-    """The jitted scan over one chunk of ticks, state carried in and out (one per config; the
-    hall tables are an argument, so call it with :func:`_program_config`)."""
+    """The jitted scan over one chunk of ticks of a batch of captures, each lane with its own
+    state and hall tables (one program per config and lane count; the hall tables are an
+    argument, so call it with :func:`_program_config`): ``(state[B], abh[chunk, B, 3],
+    tables[B]) -> (state[B], out[chunk, B])``."""
     import jax
     import jax.numpy as jnp
 
-    def chunk(s, abh, tables):
+    def one(s, abh, tables):
         def body(s, x):
             return step(cfg, s, x[0], x[1], x[2], xp=jnp, tables=tables)
 
         return jax.lax.scan(body, s, abh)
 
-    return jax.jit(chunk)
+    return jax.jit(jax.vmap(one, in_axes=(0, 1, 0), out_axes=(0, 1)))
+
+
+@functools.lru_cache(maxsize=16)
+def _init_batch(cfg: EstimatorConfig):
+    """The jitted power-on state of a batch from its first ticks ``abh0[B, 3]``."""
+    import jax
+    import jax.numpy as jnp
+
+    return jax.jit(lambda abh0: init_state(cfg, abh0[:, 2], abh0[:, 0], abh0[:, 1], xp=jnp))
+
+
+def _lanes(n: int) -> int:
+    return next((b for b in JAX_LANES if b >= n), JAX_LANES[-1])
+
+
+def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Array]],
+                  hall_angles: Sequence[Sequence[float] | None] | None = None,
+                  chunk: int = JAX_CHUNK) -> list[EstimatorOut]:
+    """:func:`run_jax` for many captures of any lengths at once, one compiled program per lane
+    count (:data:`JAX_LANES`) for every length and hall table.
+
+    The captures run side by side (``vmap``: each its own state, the same arithmetic per
+    lane as :func:`run_jax_chunked`), in chunks of ``chunk`` ticks under ``jax.lax.scan``, the
+    states carried from chunk to chunk; a shorter capture is padded with its last sample and
+    missing lanes with copies of the first capture (their outputs are discarded).
+
+    Parameters
+    ----------
+    cfg : EstimatorConfig
+        Shared by the captures, except for the hall table.
+    signals : sequence of (enc_a, enc_b, hall)
+        Per capture, int arrays (n_i,) of encoder levels (0/1) and hall states (0..7).
+    hall_angles : sequence of (6 float or None), optional
+        Per capture, the ``hall_angle`` table (rad) to run with instead of ``cfg.hall_angle``
+        (``None``: the config's); a dynamic argument of the compiled program.
+
+    Returns
+    -------
+    list of EstimatorOut
+        numpy arrays, one entry per tick, one per capture.
+    """
+    import jax.numpy as jnp
+
+    if not signals:
+        return []
+    hall_angles = list(hall_angles) if hall_angles is not None else [None] * len(signals)
+    if len(hall_angles) != len(signals):
+        raise ValueError(f"{len(hall_angles)} hall tables for {len(signals)} captures")
+    B = _lanes(len(signals))
+    if len(signals) > B:
+        return [o for k in range(0, len(signals), B)
+                for o in run_jax_batch(cfg, signals[k:k + B], hall_angles[k:k + B], chunk)]
+    lengths = [len(a) for a, _, _ in signals]
+    n = max(lengths)
+    abh = np.empty((n + (-n) % chunk, B, 3), np.int32)
+    for j in range(B):
+        i = j if j < len(signals) else 0
+        for c, x in enumerate(signals[i]):
+            abh[:lengths[i], j, c] = x
+        abh[lengths[i]:, j] = abh[lengths[i] - 1, j]
+    made: dict[tuple[float, ...], HallTables] = {}  # the captures of one motor share its table
+    per_lane = []
+    for h in hall_angles:
+        table = tuple(cfg.hall_angle if h is None else h)
+        if table not in made:
+            made[table] = hall_tables(table)
+        per_lane.append(made[table])
+    per_lane += per_lane[:1] * (B - len(per_lane))
+    tables = HallTables(*(jnp.asarray(np.stack(t)) for t in zip(*per_lane)))
+    pcfg = _program_config(cfg)
+    scan = _scan_chunk(pcfg)
+    state = _init_batch(pcfg)(abh[0])
+    outs = []
+    for k in range(0, len(abh), chunk):
+        state, out = scan(state, abh[k:k + chunk], tables)
+        outs.append(out)
+    fields = [np.concatenate([np.asarray(o[f]) for o in outs]) for f in range(len(EstimatorOut._fields))]
+    return [EstimatorOut(*(x[:m, i] for x in fields)) for i, m in enumerate(lengths)]
 
 
 def run_jax_chunked(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array, chunk: int = JAX_CHUNK,
                     hall_angle: Sequence[float] | None = None) -> EstimatorOut:
-    """:func:`run_jax` for one capture (1-D inputs) with one compiled program for every length.
-
-    The ticks run in chunks of ``chunk`` under ``jax.lax.scan``, the state carried from chunk to
-    chunk and the last chunk padded with the last sample (its outputs and the final state are
-    discarded): :func:`run_jax` traces and compiles anew for every capture length.
+    """:func:`run_jax` for one capture (1-D inputs) with one compiled program for every length:
+    :func:`run_jax_batch` of one capture (:func:`run_jax` traces and compiles anew for every
+    capture length).
 
     Parameters
     ----------
@@ -218,17 +304,4 @@ def run_jax_chunked(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Arra
     EstimatorOut
         numpy arrays, one entry per tick.
     """
-    import jax.numpy as jnp
-
-    abh = np.stack([np.asarray(enc_a), np.asarray(enc_b), np.asarray(hall)], axis=-1).astype(np.int32)
-    n = len(abh)
-    abh = np.concatenate([abh, np.repeat(abh[-1:], (-n) % chunk, axis=0)])
-    tables = _jax_tables(cfg, hall_angle)
-    pcfg = _program_config(cfg)
-    scan = _scan_chunk(pcfg)
-    state = init_state(pcfg, jnp.int32(abh[0, 2]), jnp.int32(abh[0, 0]), jnp.int32(abh[0, 1]), xp=jnp)
-    outs = []
-    for k in range(0, len(abh), chunk):
-        state, out = scan(state, abh[k:k + chunk], tables)
-        outs.append(out)
-    return EstimatorOut(*(np.concatenate([np.asarray(o[i]) for o in outs])[:n] for i in range(len(EstimatorOut._fields))))
+    return run_jax_batch(cfg, [(enc_a, enc_b, hall)], [hall_angle], chunk)[0]

@@ -72,6 +72,22 @@ class EstimatorState(NamedTuple):
     ts: Array
 
 
+class PitchSample(NamedTuple):
+    """What improvement 4 measured this tick (the mechanical identifier's input,
+    ``firmware_params/MECH.md``); all zero without ``learn_pitch_errors``.
+
+    learn : 1 when this tick's A edge closed a pitch at steady speed (the estimator learnt).
+    index : c_tab index (``k >> 1``) of the edge that ENDS the pitch in forward rotation: the new
+        edge forward, the previous edge in reverse (so forward and reverse samples of one pitch
+        share the parity of their direction and the pulse index ``index >> 1``).
+    error : the pitch's size minus ``DELTA`` (rad electrical): ``n1 * (K_NDELTA / R) - DELTA``.
+    """
+
+    learn: Array
+    index: Array
+    error: Array
+
+
 class EstimatorOut(NamedTuple):
     """Per-tick outputs.
 
@@ -128,12 +144,16 @@ _SCALAR_NP = _ScalarNumpy()
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
-    """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX)."""
+    """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX).
+
+    Under JAX a select against the position (``idx`` in range: the same array bit for bit):
+    ``.at[idx].set`` becomes a scatter once the step is vmapped over motors or captures, which
+    XLA's CPU backend runs outside the compiled tick loop, ~20x slower per tick."""
     if not hasattr(arr, "at"):
         out = arr.copy()
         out[idx] = val
         return out
-    return arr.at[idx].set(val)
+    return xp.where(xp.arange(arr.shape[-1], dtype=xp.int32) == idx, val, arr)
 
 
 def _dq(q: Array, k_last: Array, M: int, xp: ArrayModule) -> Array:
@@ -177,7 +197,16 @@ def init_state(cfg: EstimatorConfig, hall0: Array, enc_a0: Array = 0, enc_b0: Ar
 
 def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
          xp: ArrayModule = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
-    """One PWM tick of the estimator (ESTIMATOR.md, "Per tick").
+    """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"): :func:`step_pitch` without its
+    pitch sample."""
+    new, out, _ = step_pitch(cfg, state, enc_a, enc_b, hall, xp, tables)
+    return new, out
+
+
+def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
+               xp: ArrayModule = np, tables: HallTables | None = None
+               ) -> tuple[EstimatorState, EstimatorOut, PitchSample]:
+    """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"), with what improvement 4 measured.
 
     Parameters
     ----------
@@ -195,7 +224,7 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array
 
     Returns
     -------
-    (new state, EstimatorOut)
+    (new state, EstimatorOut, PitchSample)
     """
     c = consts(cfg)
     ht = HallTables(c.H_START, c.H_WIDTH, c.H_MID) if tables is None else tables
@@ -245,7 +274,8 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array
         # At steady speed the same edge's revolution time gives the true speed, so this pitch's
         # real size is N_enc*DELTA * N_c / R; its edge sits that far from the previous one.
         pitch = f32(n1) * (c.K_NDELTA / f32(R))
-        target = c_old + f32(edir) * (pitch - c.DELTA)
+        pitch_err = pitch - c.DELTA
+        target = c_old + f32(edir) * pitch_err
         c_new = xp.where(learn, c_new + K_PITCH * (target - c_new), c_new)
         c_tab = _set(s.c_tab, i_new, c_new, xp)
         ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
@@ -255,8 +285,11 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array
         omega_new = xp.where(measured, f32(edir)
                              * (((c.DELTA + f32(edir) * (c_new - c_old)) * c.TICK_HZ)
                                 / f32(n1)), omega_new)
+        sample = PitchSample(learn=i32(learn), index=xp.where(edir > 0, i_new, s.k_last >> one),
+                             error=xp.where(learn, pitch_err, F32(0.0)))
     else:
         tick, run, R_prev, c_tab, ts = s.tick, s.run, s.R_prev, s.c_tab, s.ts
+        sample = PitchSample(learn=I32(0) * edir, index=I32(0) * edir, error=F32(0.0) * f32(edir))
     omega = xp.where(speed_upd, omega_new,
                      xp.where(ev & ~same_dir, F32(0.0), s.omega))
     nc_prev = xp.where(speed_upd, nc_eff,
@@ -371,4 +404,4 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array
                          hall_last=hall_last, sector=sector, anchored=anchored,
                          n_anchor=n_anchor, tick=tick, run=run, R_prev=R_prev, c_tab=c_tab, ts=ts)
     return new, EstimatorOut(theta_hat=theta, omega_hat=omega_out, theta_enc=theta_enc,
-                             status=status)
+                             status=status), sample

@@ -6,7 +6,9 @@ binary32 bit patterns as 8 lower-case hex digits, integers decimal. Sets:
 - ``blocks.csv``: valid parameter blocks, every field value and the exact byte image (hex);
 - ``block_checks.csv``: images (valid, deliberately broken, erased) and the check routine's status;
 - ``compensator.csv``: i_qc for a grid of angle, speed and i_qo over each block of ``blocks.csv``;
-- the estimator scenarios, from ``eol_cal.firmware.estimator_golden.vector_sets()``.
+- the estimator scenarios, from ``eol_cal.firmware.estimator_golden.vector_sets()``;
+- layout 2 (revision 1.2): ``blocks_v2.csv``, ``block_checks_v2.csv``, the identifier's scenarios
+  and the mechanical compensation, from ``eol_cal.firmware.mech_golden.vector_sets()``.
 
 Everything is generated from the Python reference; ``check_golden`` regenerates and compares.
 """
@@ -208,15 +210,24 @@ def _estimator_sets() -> dict[str, VectorSet]:
     return out
 
 
+@functools.cache
+def _mech_sets() -> dict[str, VectorSet]:
+    # Cached like the estimator's: the identifier's scenarios run tick by tick in numpy.
+    from eol_cal.firmware import mech_golden
+
+    return mech_golden.vector_sets()
+
+
 def vector_sets(include_estimator: bool = True) -> dict[str, VectorSet]:
-    """Every golden vector set, by file name."""
+    """Every golden vector set, by file name (``include_estimator=False``: the block and
+    compensator sets of layout 1 only, the quick ones)."""
     blocks = golden_blocks()
     sets = {"blocks.csv": _blocks_set(blocks), "block_checks.csv": _checks_set(blocks),
             "compensator.csv": _compensator_set(blocks)}
     if include_estimator:
-        for name, vs in _estimator_sets().items():
+        for name, vs in {**_estimator_sets(), **_mech_sets()}.items():
             if name in sets or name == "manifest.json":
-                raise ValueError(f"estimator vector set {name!r} clashes with a block/compensator set")
+                raise ValueError(f"vector set {name!r} clashes with another set")
             sets[name] = vs
     return sets
 
@@ -228,6 +239,7 @@ def manifest(sets: dict[str, VectorSet], texts: dict[str, str]) -> dict[str, Any
     return {
         "format": "eol-cal golden vectors",
         "layout_version": pb.LAYOUT_VERSION,
+        "layout_versions": list(pb.SUPPORTED_LAYOUTS),
         "generator": GENERATOR,
         "generator_package_version": __version__,
         "float_encoding": FLOAT_ENCODING,
@@ -251,7 +263,7 @@ def write_golden(out_dir: str | Path, sets: dict[str, VectorSet] | None = None) 
 
 
 # Manifest keys that identify the vectors; the rest (package version) is informational.
-_MANIFEST_KEYS = ("format", "layout_version", "generator", "float_encoding", "integer_encoding", "tolerance")
+_MANIFEST_KEYS = ("format", "layout_version", "layout_versions", "generator", "float_encoding", "integer_encoding", "tolerance")
 
 
 def check_golden(golden_dir: str | Path, sets: dict[str, VectorSet] | None = None,

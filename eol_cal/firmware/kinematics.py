@@ -169,3 +169,48 @@ def speed_profile_angle(segments: Any, tick_hz: float, theta0: float = 0.0) -> n
         out.append(theta + w0 * tau + 0.5 * acc * tau**2)
         theta = theta + w0 * n / tick_hz + 0.5 * acc * (n / tick_hz) ** 2
     return np.concatenate(out) if out else np.zeros(0)
+
+
+#: hall sensor and switching point (``hall_offset[sensor, 0 rising | 1 falling]``) at which each
+#: state s begins in forward rotation (contract section 2: 5 at 0, 1 at 60, 3 at 120, 2 at 180,
+#: 6 at 240, 4 at 300 degrees)
+_STATE_SWITCH = {5: (0, 0), 1: (2, 1), 3: (1, 0), 2: (0, 1), 6: (2, 0), 4: (1, 1)}
+
+
+def hall_angle_of(errors: SensorErrors) -> tuple[float, ...]:
+    """The true ``hall_angle`` table of a motor's halls (rad electrical, entry s-1: where state s
+    begins in forward rotation): the contract's nominal table plus each switching point's error."""
+    from eol_cal.firmware.contract import NOMINAL_HALL_ANGLE
+
+    off = np.asarray(errors.hall_offset, dtype=float)
+    return tuple(float(NOMINAL_HALL_ANGLE[s - 1] + off[_STATE_SWITCH[s]]) for s in range(1, 7))
+
+
+def fingerprint_of(errors: SensorErrors, poles: int) -> tuple[np.ndarray, float]:
+    """The true fingerprint of a motor's encoder in its own pulse numbering (firmware_params/MECH.md).
+
+    Returns ``(fingerprint, grid_phase)``: the placement error of each A edge (rad electrical,
+    mean 0; entry ``2k`` pulse k's forward edge, ``2k + 1`` its reverse edge, which in this model
+    carries the same error) and the electrical angle (rad, [0, 2*pi)) of the frame's quadrature
+    boundary 0 on the mean grid: a quarter pitch before pulse 0's mean rising edge. This is what a
+    perfect end-of-line measurement writes into a layout-2 block whose frame is the model's pulse
+    numbering.
+    """
+    e = np.asarray(errors.edge_error, dtype=float)
+    N = e.size
+    pp = poles / 2.0
+    f = pp * (e - e.mean())
+    fp = np.repeat(f, 2)
+    quarter = pp * 2.0 * math.pi / N / 4.0
+    grid_phase = float(np.mod(pp * (errors.grid_offset + e.mean()) - quarter, 2.0 * math.pi))
+    return fp, grid_phase
+
+
+def pulse_at(theta_m: float, errors: SensorErrors, a0: int, b0: int) -> int:
+    """The model's pulse index whose A rising edge is quadrature boundary 1 of a count started at
+    mechanical angle ``theta_m`` with levels ``(a0, b0)``: the offset ``r`` the firmware's identifier
+    must find when the block's frame is the model's pulse numbering (firmware pulse 0 = this pulse)."""
+    N = len(errors.edge_error)
+    u = (float(theta_m) - float(errors.grid_offset)) * N / (2.0 * math.pi)
+    phase = 2 * int(b0) + (int(a0) ^ int(b0))
+    return int(round(u - phase / 4.0 + 0.125)) % N

@@ -1,14 +1,14 @@
-"""The Dask side of a lot refit: the local cluster `eol-cal refit` starts, and what every worker
-process does before its first task.
+"""The Dask side of a lot refit (and of ``lot simulate``): the local cluster `eol-cal refit` starts,
+and what every worker process does before its first task.
 
-A refit task is ~0.2 s of CPU (read six captures, fit one motor) on a machine of few cores, so
+A refit task is ~0.2 s of CPU (read and fit 8 motors of six captures) on a machine of few cores, so
 what ``distributed`` does beside the tasks counts. Measured on the 2-core machine of
 docs/benchmarks.md ("Lot refit throughput"): the worker's statistical profiler (a thread that
 samples the task thread's stack every 10 ms) and the 20 ms to 100 ms monitoring loops of the
 scheduler, nannies and workers cost 5 to 10 % of a refit's CPU; :data:`REFIT_CONFIG` switches the
 profiler off and slows those loops down, and leaves glibc's malloc trimming as it is in a plain
 process (``MALLOC_TRIM_THRESHOLD_`` unset: ~20 % of a refit's CPU). Nothing of the scheduling
-changes: one task per motor run, retries, a nanny that restarts a killed worker.
+changes: a task per batch of motor runs, retries, a nanny that restarts a killed worker.
 """
 
 from __future__ import annotations
@@ -72,7 +72,9 @@ def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
 
 
 def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
-    """Make this process ready to fit motors: JAX's persistent compile cache switched on in
+    """Make this process ready to fit motors: the firmware estimator's tick loop compiled into
+    one kernel (:func:`eol_cal.xla.configure_xla`, when JAX has not started yet), JAX's
+    persistent compile cache switched on in
     ``cache_dir`` (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`; ``None``: off), the
     fit's modules imported, and the objects they made frozen out of the cyclic garbage
     collector (``gc.freeze``: JAX and the libraries of a fit are ~200 000 objects that a full
@@ -83,7 +85,12 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     ``bench/bench_refit.py``.
     """
     from eol_cal.analysis.fit.cache import enable_compile_cache
+    from eol_cal.xla import configure_xla
 
+    # before JAX starts in this process: the firmware estimator's tick loop (the firmware frame of
+    # every capture) in one kernel, ~3x less CPU per capture; the rows do not change
+    # (docs/benchmarks.md, "Lot refit throughput")
+    configure_xla()
     enable_compile_cache(cache_dir)
     # imported here on purpose: loading them is the work this function does ahead of the tasks
     import jax  # noqa: F401

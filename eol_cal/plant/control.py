@@ -5,10 +5,10 @@ Three rates:
 - every PWM tick (20 kHz): the estimator runs on the sensor levels, and the held dq voltage
   reference is turned into the stator-frame vector with the *latest* angle (so the modulator's
   angle moves between current-control updates);
-- current control (1.68 kHz): phase currents are sampled, transformed with the latest angle, and a
-  PI controller with decoupling updates the dq voltage reference; in ``compensated`` mode the
-  compensating current ``i_qc`` from the parameter block's tables is added to the command
-  (seed eq. 20);
+- current control (1.68 kHz, :func:`current_task`): phase currents are sampled, transformed with
+  the latest angle, and a PI controller with decoupling updates the dq voltage reference; in
+  ``compensated`` mode the compensating current ``i_qc`` from the parameter block's tables is
+  added to the command (seed eq. 20);
 - command and speed (420 Hz): the nominal current ``i_qo`` and the speed used for decoupling
   are taken over.
 
@@ -21,7 +21,7 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 from __future__ import annotations
 
 from fractions import Fraction
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Callable, NamedTuple
 
 import numpy as np
 
@@ -86,6 +86,40 @@ def pi_current_step(
     x_d = xp.where(free, st.x_d + p.Ki_d * T_cc * e_d, st.x_d)
     x_q = xp.where(free, st.x_q + p.Ki_q * T_cc * e_q, st.x_q)
     return x_d, x_q, u_d * scale, u_q * scale
+
+
+def current_task(
+    st: EcuState, i_abc: tuple[Array, Array, Array], noise: Array, theta_hat: Array, omega_hat: Array,
+    i_qo_cmd: Array, cmd: Array, cos_c: Array, sin_c: Array, p: PlantParams, T_cc: float, compensate: bool,
+    xp: ArrayModule, mech: Callable[[Array], tuple[Array, Array]] | None = None,
+) -> EcuState:
+    """One run of the 1.68 kHz current-control task (with the 420 Hz command task where ``cmd``).
+
+    Takes over the command ``i_qo_cmd`` (A) and the estimator's speed ``omega_hat`` (rad/s) for
+    decoupling on command ticks; samples the phase currents ``i_abc`` (A) with the sensors'
+    ``noise`` (three standard normal draws) and turns them into the controller's frame with the
+    control angle (``cos_c``, ``sin_c``); in compensated mode adds the block's ``i_qc`` at the
+    estimator's ``theta_hat``, ``omega_hat`` (:func:`eol_cal.firmware.compensator.i_qc`), with a
+    layout-2 block's mechanical orders once identified (``mech``: ``i_qo -> (on, current A)``,
+    :func:`eol_cal.firmware.mech.mech_sum`); and updates the PI (:func:`pi_current_step`). Returns
+    the controller memory after the task.
+    """
+    from eol_cal.firmware import compensator
+    from eol_cal.plant import sensors, transforms
+
+    i_qo = xp.where(cmd, i_qo_cmd, st.i_qo)
+    omega_c = xp.where(cmd, omega_hat, st.omega_c)
+    m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise)))
+    i_d_meas, i_q_meas = cos_c * m_al + sin_c * m_be, cos_c * m_be - sin_c * m_al
+    if compensate:
+        mech_on, mech_sum = (None, None) if mech is None else mech(i_qo)
+        i_qc = compensator.i_qc(theta_hat, omega_hat, i_qo, p.table_const, p.table_per_amp, p.lead_s,
+                                p.iqc_limit, xp=xp, mech_on=mech_on, mech_sum=mech_sum)
+    else:
+        i_qc = xp.zeros_like(i_qo)
+    st = st._replace(i_qo=i_qo, omega_c=omega_c)
+    x_d, x_q, u_d, u_q = pi_current_step(st, i_d_meas, i_q_meas, i_qo + i_qc, p, T_cc, xp)
+    return EcuState(x_d=x_d, x_q=x_q, u_d=u_d, u_q=u_q, i_qo=i_qo, omega_c=omega_c, i_qc=i_qc)
 
 
 def initial_ecu(i_qo: float, omega_r: float, p: PlantParams, xp: ArrayModule) -> EcuState:

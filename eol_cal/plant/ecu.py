@@ -21,12 +21,14 @@ from eol_cal.plant.params import PlantSpec
 
 
 def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: bool = False,
-               flags: int = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE) -> ParamBlock:
+               flags: int = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE, mech: bool = False) -> ParamBlock:
     """A parameter block made from the plant's true 6th-harmonic ripple (the ideal calibration).
 
     The paper's compensator cancels the 6th harmonic only; ``harmonics=True`` adds the true
     12th and 18th to the tables as well. The lead is the current loop's time constant
-    ``1/(2*pi*current_bw_hz)``; ``iqc_limit`` is 10 % of 65 A.
+    ``1/(2*pi*current_bw_hz)``; ``iqc_limit`` is 10 % of 65 A. ``mech=True`` makes it a layout-2
+    block (:func:`true_mech`: the encoder's true fingerprint, the true unbalance as mechanical
+    order 1); ``flags`` then decides whether ``MECH_COMP_ENABLE`` is set.
     """
     m = spec.motor
     harm = spec.ripple_harmonics() if harmonics else ()
@@ -36,8 +38,39 @@ def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: b
         encoder_ppr=m.N_enc, tick_hz=m.f_pwm, kt=m.kt, hall_angle=NOMINAL_HALL_ANGLE,
         c6=spec.c6, phase_c6=spec.phase_c6, k6=spec.k6, phase_k6=spec.phase_k6,
         lead_s=1.0 / (2.0 * math.pi * m.current_bw_hz), iqc_limit=6.5,
-        table_const=tc, table_per_amp=tp,
+        table_const=tc, table_per_amp=tp, mech=true_mech(spec) if mech else None,
     )
+
+
+def true_mech(spec: PlantSpec):
+    """The layout-2 mechanical part a perfect end of line would write for this plant motor.
+
+    The block's frame is the encoder model's pulse numbering (:func:`eol_cal.firmware.kinematics.fingerprint_of`);
+    its mechanical angle 0 is electrical angle 0 under the pole pair that holds the frame's
+    count boundary 0, which sits ``shift`` = 0 or one pole pitch (2*pi/pp) from the plant's
+    mechanical 0: the unbalance ``unb1 sin(theta_m + phase_unb1)`` is order 1 at phase
+    ``phase_unb1 - shift`` there.
+    """
+    import numpy as np
+
+    from eol_cal.firmware.kinematics import fingerprint_of
+    from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
+    from eol_cal.plant.params import sensor_errors, to_params
+
+    m = spec.motor
+    pp = m.poles // 2
+    err = sensor_errors(to_params(spec, np.zeros(16), np.zeros(16), 0.0, 0.0))
+    err = err._replace(edge_error=np.asarray(err.edge_error, float), grid_offset=float(err.grid_offset))
+    fp, gp = fingerprint_of(err, m.poles)
+    e = np.asarray(spec.enc_edge_err_deg or np.zeros(m.N_enc), float)
+    boundary0 = math.radians(spec.grid_offset_deg + float(e.mean())) - 2.0 * math.pi / m.N_enc / 4.0
+    shift = gp / pp - boundary0  # 0 or a pole pitch: where the block frame's mechanical 0 lies
+    c = (spec.unb1, 0.0, 0.0)
+    ph = (float(spec.phase_unb1 - shift), 0.0, 0.0)
+    zeros = (0.0, 0.0, 0.0)
+    tc, tp = make_mech_tables(c, ph, zeros, zeros, m.kt)
+    return unused_mech(m.N_enc).replace(fp_dirs=FP_FORWARD | FP_REVERSE, grid_phase=gp, mech_c=c, mech_phase_c=ph,
+                                        mech_table_const=tc, mech_table_per_amp=tp, fingerprint=fp)
 
 
 def mode_of_block(block: ParamBlock) -> str:
@@ -100,12 +133,21 @@ def batch_options(blocks: Sequence[ParamBlock | None], ecu_estimator: str | None
     return found.pop() if found else 0
 
 
-def learning_pre_roll_s(options: int, speed_rpm: float) -> float:
+#: mechanical revolutions of pre-roll an identifying ECU gets: the identifier needs one revolution
+#: before the estimator measures pitches, one of samples and one more to confirm (firmware_params/MECH.md)
+IDENTIFY_REVS = 4.0
+
+
+def learning_pre_roll_s(options: int, speed_rpm: float, identifies: bool = False) -> float:
     """Pre-roll (s) that lets pitch-error learning (``EST_LEARN_PITCH_ERRORS``) converge before
     the recording: 1.5 mechanical revolutions at the first speed, within 0.3-2 s; 0.3 s for the
-    other estimators (their first edges and hall transition)."""
+    other estimators (their first edges and hall transition). An ECU that identifies the rotor's
+    mechanical angle (``identifies``, layout 2) gets :data:`IDENTIFY_REVS` revolutions (at most 10 s),
+    so its compensation runs from the first recorded sample."""
     from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
 
     if not options & FLAG_EST_LEARN_PITCH_ERRORS or speed_rpm == 0.0:
         return 0.3
+    if identifies:
+        return min(10.0, max(0.3, IDENTIFY_REVS * 60.0 / abs(speed_rpm)))
     return min(2.0, max(0.3, 1.5 * 60.0 / abs(speed_rpm)))

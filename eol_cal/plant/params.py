@@ -25,6 +25,7 @@ from eol_cal.plant import motor as motor_model, ripple
 
 if TYPE_CHECKING:
     from eol_cal.firmware.kinematics import SensorErrors
+    from eol_cal.firmware.mech import MechTables
 
 
 @dataclass(frozen=True)
@@ -199,16 +200,33 @@ class PlantParams(NamedTuple):
     hall_start: np.ndarray    # (8,) rad electrical
     hall_width: np.ndarray    # (8,) rad electrical
     hall_mid: np.ndarray      # (8,) rad electrical
+    # layout 2: the identifier's tables (eol_cal.firmware.mech.MechTables, flattened; all 0 without)
+    mech_enabled: np.ndarray  # 0/1
+    mech_dirs: np.ndarray     # fp_dirs
+    mech_dF: np.ndarray       # (2 N_enc,) rad electrical, the fingerprint's pitch errors
+    mech_EF: np.ndarray       # (2,) their energy per direction
+    mech_grid_phase: np.ndarray  # rad electrical
+    mech_id_min_score: np.ndarray
+    mech_id_margin: np.ndarray
+    mech_id_frac_tol: np.ndarray  # rad electrical
+    mech_table_const: np.ndarray    # (128,) A
+    mech_table_per_amp: np.ndarray  # (128,) A/A
 
 
 def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarray,
               lead_s: float, iqc_limit: float,
-              hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE) -> PlantParams:
+              hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE, mech_tb: MechTables | None = None) -> PlantParams:
     """Float32 parameters of one motor on the bench, with the ECU's gains and the compensation tables.
 
     ``hall_angle`` (6 float, rad electrical) is the table of the motor's parameter block, the
-    one its ECU's estimator anchors on (the contract's nominal one when it has no block).
+    one its ECU's estimator anchors on (the contract's nominal one when it has no block);
+    ``mech_tb`` the identifier's tables of a layout-2 block (:func:`eol_cal.firmware.mech.block_mech_tables`;
+    disabled without one).
     """
+    from eol_cal.firmware.mech import mech_tables
+
+    if mech_tb is None:
+        mech_tb = mech_tables(None, lead_s, False, spec.motor.N_enc)
     m = spec.motor
     dt = 1.0 / m.f_pwm
     R = spec.R_s_true
@@ -236,8 +254,24 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
         L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
         table_const=table_const, table_per_amp=table_per_amp, lead_s=lead_s, iqc_limit=iqc_limit,
         **dict(zip(("hall_start", "hall_width", "hall_mid"), hall_tables(hall_angle))),
+        **{f"mech_{name}": getattr(mech_tb, name) for name in _MECH_FIELDS},
     )
     return PlantParams(**{k: np.asarray(v, dtype=np.float32) for k, v in values.items()})
+
+
+#: the MechTables fields PlantParams carries as mech_<name> (lead_s is the block's, shared)
+_MECH_FIELDS = ("enabled", "dirs", "dF", "EF", "grid_phase", "id_min_score", "id_margin", "id_frac_tol",
+                "table_const", "table_per_amp")
+
+
+def mech_tables_of(p: PlantParams) -> MechTables:
+    """The identifier's tables of these parameters (one motor's, or traced under ``vmap``)."""
+    from eol_cal.firmware.mech import MechTables
+
+    fields = {name: getattr(p, f"mech_{name}") for name in _MECH_FIELDS}
+    fields["enabled"] = fields["enabled"].astype("int32")
+    fields["dirs"] = fields["dirs"].astype("int32")
+    return MechTables(lead_s=p.lead_s, **fields)
 
 
 def estimator_tables(p: PlantParams) -> HallTables:

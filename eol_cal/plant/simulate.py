@@ -5,10 +5,12 @@ Each tick (see :mod:`eol_cal.plant.control` for the ECU's rates):
 1. the encoder and hall levels are sampled at the rotor's actual angle;
 2. the firmware's estimator (:mod:`eol_cal.firmware.estimator`, the same code as the golden
    reference) steps once; the mode picks the control angle (``raw`` = its edge-quantised angle
-   ``theta_enc``, ``estimated``/``compensated`` = ``theta_hat``);
+   ``theta_enc``, ``estimated``/``compensated`` = ``theta_hat``); with a layout-2 block whose
+   ``MECH_COMP_ENABLE`` is honoured, the identifier (:mod:`eol_cal.firmware.mech`) steps too;
 3. on 420 Hz ticks the command ``i_qo`` and the decoupling speed are taken over; on 1.68 kHz
    ticks the phase currents are sampled, ``i_qc`` is evaluated with the firmware compensator
-   (``compensated`` only) and the PI current controller updates the dq voltage reference;
+   (``compensated`` only; the mechanical orders added once identified) and the PI current
+   controller updates the dq voltage reference;
 4. the voltage reference is rotated with the latest control angle, limited by the SVPWM inverter,
    and rotated into the rotor's true dq frame; the motor's currents advance exactly over the tick;
 5. torque ``kt*i_q`` minus the ripple sources drives the rotor; the shaft and the dyno advance and
@@ -21,8 +23,6 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 from __future__ import annotations
 
 import math
-import os
-import sys
 from dataclasses import dataclass
 from typing import Any, Callable, NamedTuple, Sequence
 
@@ -31,21 +31,24 @@ import numpy as np
 from eol_cal.capture.ecu_state import EcuState, with_ecu_state
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
-from eol_cal.firmware import compensator
 from eol_cal.firmware.block import ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.mechanics import mech_step
 from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.ecu import batch_options, estimator_config, learning_pre_roll_s, simulated_ecu_state, true_block
-from eol_cal.plant.params import PlantParams, PlantSpec, estimator_tables, sensor_errors, stack_params, to_params
+from eol_cal.plant.params import (
+    PlantParams, PlantSpec, estimator_tables, mech_tables_of, sensor_errors, stack_params, to_params,
+)
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
+from eol_cal.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
 TWO_PI = 2.0 * math.pi
 #: Per-tick outputs of the scan, in this order (float32 columns).
 OUT_COLUMNS = ("torque", "enc_a", "enc_b", "hall", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic",
-               "speed", "theta_r", "theta_hat", "theta_enc")
-CHUNK_TICKS = 4000
+               "speed", "theta_r", "theta_hat", "theta_enc", "mech_active", "theta_m")
+#: ticks of one draw of sensor noise (and the unit of a chunk's length)
+NOISE_BLOCK = 1000
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,7 @@ class PlantSimConfig:
     mode: str
     estimator: Any
     dead_time: bool = False
+    mech: Any = None  # eol_cal.firmware.mech.MechConsts when a block of the batch identifies, else None
 
 
 class PlantState(NamedTuple):
@@ -78,12 +82,18 @@ class PlantState(NamedTuple):
 
 @dataclass(frozen=True)
 class SimResult:
-    """One motor's run: the capture plus the angles (rad) only a simulator knows, for plots."""
+    """One motor's run: the capture plus the angles (rad) only a simulator knows, for plots and tests.
+
+    ``mech_active`` (0/1 per sample): the ECU's mechanical-order compensation was identified and
+    running; ``theta_m`` the rotor's true mechanical angle (rad, [0, 2*pi)).
+    """
 
     capture: Capture
     theta_r: np.ndarray
     theta_hat: np.ndarray
     theta_enc: np.ndarray
+    mech_active: np.ndarray | None = None
+    theta_m: np.ndarray | None = None
 
 
 def _rotate(x: Any, y: Any, c: Any, s: Any) -> tuple[Any, Any]:
@@ -91,54 +101,91 @@ def _rotate(x: Any, y: Any, c: Any, s: Any) -> tuple[Any, Any]:
     return c * x - s * y, s * x + c * y
 
 
-def _tick(cfg: PlantSimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[tuple, Any]:
+class Sensed(NamedTuple):
+    """What the sensors and the ECU's estimator give at the start of a tick (rotor angle theta_m):
+    encoder and hall levels, the estimator's outputs, and the cosines and sines of the actual
+    mechanical angle and of the ECU's control angle (every rotation of the tick).
+
+    The scan computes them at the end of the tick before, from the state it hands over: the
+    same arithmetic, but each sine and cosine once (XLA fuses, and so repeats, a value computed
+    inside the tick into every consumer; a sine costs ~50 multiplications on the CPU).
+    """
+
+    enc_a: Any
+    enc_b: Any
+    hall: Any
+    est: Any
+    cos_m: Any
+    sin_m: Any
+    cos_c: Any
+    sin_c: Any
+    # layout 2 (contract revision 1.2): the identifier's state after this tick (None without)
+    mech: Any = None
+
+
+def _sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mech_state: Any = None
+           ) -> tuple[Any, Sensed]:
+    """Steps 1-2 of a tick at rotor angle ``theta_m`` (rad): the levels, the estimator's step (and
+    with ``cfg.mech`` the identifier's, from ``mech_state``: :attr:`Sensed.mech`)."""
     import jax.numpy as jnp
 
     from eol_cal.firmware import estimator, kinematics
 
-    plant, est_state, ecu = carry
-    omega_ref, i_qo_prof, cc_flag, cmd_flag, noise = x
+    enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
+    # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
+    if cfg.mech is None:
+        est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
+                                        tables=estimator_tables(p))
+    else:
+        from eol_cal.firmware.mech import mech_step
+
+        est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
+                                                     tables=estimator_tables(p))
+        mech_state, _ = mech_step(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
+    theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
+    return est_state, Sensed(enc_a, enc_b, hall, est, jnp.cos(theta_m), jnp.sin(theta_m), jnp.cos(theta_c),
+                             jnp.sin(theta_c), mech_state)
+
+
+def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tuple) -> tuple[tuple, Any]:
+    import jax
+    import jax.numpy as jnp
+
+    plant, est_state, ecu, sensed = carry
+    omega_ref, i_qo_prof, cc_flag, cmd_flag, cc_index, tq_noise = x
     pp = cfg.poles // 2
     dt = 1.0 / cfg.f_pwm
     T_cc = 1.0 / cfg.f_cc
 
+    # 1-2: sensors and the firmware's estimator at this tick's angle (computed at the end of the last)
+    est = sensed.est
+    cos_m, sin_m, cos_c, sin_c = sensed.cos_m, sensed.sin_m, sensed.cos_c, sensed.sin_c
     # One sin/cos pair of the rotor angle serves every rotation and every ripple harmonic.
-    theta_m = plant.theta_m
-    cos_m, sin_m = jnp.cos(theta_m), jnp.sin(theta_m)
     cos_r, sin_r = cos_m, sin_m
     for _ in range(pp - 1):
         cos_r, sin_r = _rotate(cos_r, sin_r, cos_m, sin_m)
     omega_r = pp * plant.omega_m
 
-    # 1-2: sensors and the firmware's estimator
-    enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
-    # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
-    est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
-                                    tables=estimator_tables(p))
-    theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
-    cos_c, sin_c = jnp.cos(theta_c), jnp.sin(theta_c)
-
-    # 3: command / speed at 420 Hz, current control at 1.68 kHz
-    i_qo = jnp.where(cmd_flag, i_qo_prof, ecu.i_qo)
-    omega_c = jnp.where(cmd_flag, est.omega_hat, ecu.omega_c)
+    # 3: command / speed at 420 Hz, current control at 1.68 kHz (every motor of a batch on the
+    # same ticks: a branch that runs on those ticks only)
     i_al, i_be = _rotate(plant.i_d, plant.i_q, cos_r, sin_r)
     i_a, i_b, i_c = transforms.alphabeta_to_abc(i_al, i_be)
-    m_al, m_be = transforms.abc_to_alphabeta(sensors.current_reading(i_a, noise[1], p, jnp),
-                                             sensors.current_reading(i_b, noise[2], p, jnp),
-                                             sensors.current_reading(i_c, noise[3], p, jnp))
-    i_d_meas, i_q_meas = _rotate(m_al, m_be, cos_c, -sin_c)
-    if cfg.mode == "compensated":
-        i_qc_new = compensator.i_qc(est.theta_hat, est.omega_hat, i_qo, p.table_const,
-                                    p.table_per_amp, p.lead_s, p.iqc_limit, xp=jnp)
-    else:
-        i_qc_new = jnp.zeros_like(i_qo)
-    ecu = ecu._replace(i_qo=i_qo, omega_c=omega_c)
-    x_d, x_q, u_d, u_q = control.pi_current_step(ecu, i_d_meas, i_q_meas, i_qo + i_qc_new, p, T_cc, jnp)
-    ecu = control.EcuState(
-        x_d=jnp.where(cc_flag, x_d, ecu.x_d), x_q=jnp.where(cc_flag, x_q, ecu.x_q),
-        u_d=jnp.where(cc_flag, u_d, ecu.u_d), u_q=jnp.where(cc_flag, u_q, ecu.u_q),
-        i_qo=i_qo, omega_c=omega_c, i_qc=jnp.where(cc_flag, i_qc_new, ecu.i_qc),
-    )
+
+    mech_on = None if cfg.mech is None else sensed.mech.active != 0
+
+    def mech_current(i_qo: Any) -> tuple[Any, Any]:
+        """Layout 2: whether the mechanical orders are compensated, and their current (A)."""
+        from eol_cal.firmware.mech import mech_sum
+
+        return mech_on, mech_sum(cfg.mech, mech_tables_of(p), sensed.mech.r, est_state.q, est.theta_hat,
+                                 est.omega_hat, i_qo, xp=jnp)
+
+    def current_task(ecu: control.EcuState) -> control.EcuState:
+        return control.current_task(ecu, (i_a, i_b, i_c), i_noise[cc_index], est.theta_hat, est.omega_hat,
+                                    i_qo_prof, cmd_flag, cos_c, sin_c, p, T_cc, cfg.mode == "compensated", jnp,
+                                    mech=None if cfg.mech is None else mech_current)
+
+    ecu = jax.lax.cond(cc_flag, current_task, lambda e: e, ecu)
 
     # 4: PWM with the latest angle, inverter, motor currents
     u_al, u_be = _rotate(ecu.u_d, ecu.u_q, cos_c, sin_c)
@@ -153,61 +200,32 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, carry: tuple, x: tuple) -> tuple[
 
     # 5: shaft, dyno, transducer
     theta_m, twist, omega_m, omega_d, x_dyno, T_shaft = mech_step(
-        theta_m, plant.twist, plant.omega_m, plant.omega_d, plant.x_dyno, T_rotor, omega_ref, p, dt, jnp)
-    y_tq, torque = sensors.transducer_step(plant.y_tq, T_shaft, noise[0], p, jnp)
+        plant.theta_m, plant.twist, plant.omega_m, plant.omega_d, plant.x_dyno, T_rotor, omega_ref, p, dt, jnp)
+    y_tq, torque = sensors.transducer_step(plant.y_tq, T_shaft, tq_noise, p, jnp)
 
     f32 = jnp.float32
     theta_r = wrap_2pi(pp * plant.theta_m, jnp)
     out = jnp.stack([
-        torque, enc_a.astype(f32), enc_b.astype(f32), hall.astype(f32), i_qo, ecu.i_qc,
+        torque, sensed.enc_a.astype(f32), sensed.enc_b.astype(f32), sensed.hall.astype(f32), ecu.i_qo, ecu.i_qc,
         plant.i_q, plant.i_d, i_a, i_b, i_c, omega_d * (60.0 / TWO_PI),
         theta_r, est.theta_hat, est.theta_enc,
+        jnp.zeros_like(torque) if mech_on is None else mech_on.astype(f32), wrap_2pi(plant.theta_m, jnp),
     ])
     plant = PlantState(theta_m, twist, omega_m, omega_d, x_dyno, i_d, i_q, y_tq)
-    return (plant, est_state, ecu), out
+    # the next tick's sensors and estimator step
+    est_state, sensed = _sense(cfg, p, theta_m, est_state, sensed.mech)
+    return (plant, est_state, ecu, sensed), out
 
 
 _COMPILED: dict[tuple, Callable] = {}
 
-#: XLA CPU compiles a while loop into one kernel when the bytes it accesses stay below this
-#: backend option (default 1024); above it, every fused kernel of the body is dispatched on its
-#: own and the tick's ~80 kernels cost ~4 us per iteration instead of ~0.5 us.
-_LOOP_OPTION = "xla_cpu_small_while_loop_byte_threshold"
-_LOOP_BYTES = 1 << 28
-
-
-def configure_xla() -> bool:
-    """Let XLA compile the plant's tick loop into a single kernel (about 8x faster on CPU).
-
-    Adds ``--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=2**28`` to
-    ``XLA_FLAGS``. XLA reads its flags once, when JAX's backend starts, so this must run before
-    the process's first JAX computation; it returns False (and changes nothing) when that has
-    happened already or when ``XLA_FLAGS`` sets backend options of its own. The option applies
-    to every ``while`` loop of the process without custom calls (LAPACK, ...): call it from
-    entry points that mostly simulate (the CLI, benchmarks), not from library code.
-    """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if _LOOP_OPTION in flags:
-        return True
-    if "xla_backend_extra_options" in flags:
-        return False
-    if "jax" in sys.modules:
-        try:
-            from jax._src import xla_bridge
-
-            if xla_bridge.backends_are_initialized():
-                return False
-        except (ImportError, AttributeError):
-            return False
-    os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_extra_options={_LOOP_OPTION}={_LOOP_BYTES}".strip()
-    return True
-
-
 def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
-    """Compiled ``(params, carry, shared_xs, keys, start) -> (carry, outputs)`` for a batch.
+    """Compiled ``(params, carry, shared_xs, keys, first_block) -> (carry, outputs)`` for a batch.
 
-    ``keys`` holds one PRNG key per motor; the chunk's sensor noise is drawn from
-    ``fold_in(key, start)`` so a run does not depend on how it is cut into chunks' dispatches.
+    ``keys`` holds one PRNG key per motor; the sensor noise of every block of :data:`NOISE_BLOCK`
+    ticks is drawn from ``fold_in(key, block)`` (its torque-transducer draws, one a tick, and its
+    current-sensor draws, three a current-control tick), so a run does not depend on how it is
+    cut into chunks.
     """
     key = (cfg, n_ticks, unroll)
     if key in _COMPILED:
@@ -215,15 +233,60 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
     import jax
     import jax.numpy as jnp
 
-    def one_motor(p, carry, shared, key, start):
-        noise = jax.random.normal(jax.random.fold_in(key, start), (n_ticks, 4), dtype=jnp.float32)
-        xs = (*shared, noise)
-        carry, ys = jax.lax.scan(lambda c, x: _tick(cfg, p, c, x), carry, xs, unroll=unroll)
+    n_blocks = n_ticks // NOISE_BLOCK
+    n_cc = _cc_per_block(cfg)
+
+    def block_noise(key, block):
+        k_tq, k_i = jax.random.split(jax.random.fold_in(key, block))
+        return (jax.random.normal(k_tq, (NOISE_BLOCK,), dtype=jnp.float32),
+                jax.random.normal(k_i, (n_cc, 3), dtype=jnp.float32))
+
+    def one_motor(p, carry, shared, key, first_block):
+        tq_noise, i_noise = jax.vmap(block_noise, in_axes=(None, 0))(key, first_block + jnp.arange(n_blocks))
+        xs = (*shared, tq_noise.reshape(-1))
+        i_noise = i_noise.reshape(-1, 3)
+        carry, ys = jax.lax.scan(lambda c, x: _tick(cfg, p, i_noise, c, x), carry, xs, unroll=unroll)
         return carry, ys.T  # channel-major: the host converts contiguous rows
 
     fn = jax.jit(jax.vmap(one_motor, in_axes=(0, 0, None, 0, None)))
     _COMPILED[key] = fn
     return fn
+
+
+def _cc_per_block(cfg: PlantSimConfig) -> int:
+    """Current-noise draws of a noise block: more than the current-control ticks it can hold."""
+    return math.ceil(NOISE_BLOCK * cfg.f_cc / cfg.f_pwm) + 1
+
+
+def _cc_index(cc: np.ndarray, n_cc: int) -> np.ndarray:
+    """For each tick of a chunk (whole noise blocks), the current-noise draw a current-control
+    tick reads: its block's draws, in the order of the block's current-control ticks."""
+    per_block = cc.reshape(-1, NOISE_BLOCK)
+    j = np.maximum(np.cumsum(per_block, axis=1) - 1, 0)
+    return (j + n_cc * np.arange(len(per_block))[:, None]).reshape(-1).astype(np.int32)
+
+
+def chunk_ticks_for(n_motors: int) -> int:
+    """Ticks per compiled scan call for a batch of ``n_motors``: about 64 000 motor-ticks of outputs
+    per call (they stay in the CPU's caches: at 64 motors, 1000-tick chunks run ~20 % faster
+    than 4000-tick ones), at least one noise block, at most four."""
+    return NOISE_BLOCK * max(1, min(4, 64 // max(1, n_motors)))
+
+
+def _prime_fn(cfg: PlantSimConfig) -> Callable:
+    """Compiled ``(params, carry) -> carry`` that turns a batch's initial ``(plant, estimator state,
+    ECU, identifier state)`` into the scan's carry with the first tick's :class:`Sensed`."""
+    key = (cfg, "prime")
+    if key not in _COMPILED:
+        import jax
+
+        def one_motor(p, carry):
+            plant, est_state, ecu, mech_state = carry
+            est_state, sensed = _sense(cfg, p, plant.theta_m, est_state, mech_state)
+            return plant, est_state, ecu, sensed
+
+        _COMPILED[key] = jax.jit(jax.vmap(one_motor))
+    return _COMPILED[key]
 
 
 def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m0: float,
@@ -244,7 +307,12 @@ def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m
     ecu = control.initial_ecu(f(i_qo0), f(cfg.poles // 2 * omega_m0), ps, np)
     ecu = control.EcuState(*(np.asarray(v, dtype=np.float32) for v in ecu))
     est_state = type(est_state)(*(np.asarray(v) for v in est_state))
-    return plant, est_state, ecu
+    mech_state = None
+    if cfg.mech is not None:
+        from eol_cal.firmware.mech import mech_init
+
+        mech_state = type(mech_init(cfg.N_enc))(*(np.asarray(v) for v in mech_init(cfg.N_enc)))
+    return plant, est_state, ecu, mech_state
 
 
 def simulate(
@@ -254,7 +322,7 @@ def simulate(
     blocks: ParamBlock | Sequence[ParamBlock | None] | None = None,
     seed: int = 0,
     pre_roll_s: float | None = None,
-    chunk_ticks: int = CHUNK_TICKS,
+    chunk_ticks: int | None = None,
     unroll: int = 1,
     progress: Callable[[float], None] | None = None,
     ecu_estimator: str | None = None,
@@ -281,8 +349,11 @@ def simulate(
         Time (s) simulated at the profile's first point before recording starts, so the
         estimator has seen its first edges and hall transition; default
         :func:`learning_pre_roll_s` (longer when the estimator learns pitch errors).
-    chunk_ticks, unroll : int
-        Scan chunk length (ticks) and unroll factor (speed only).
+    chunk_ticks : int, optional
+        Scan chunk length (ticks, a multiple of :data:`NOISE_BLOCK`; speed only): default
+        :func:`chunk_ticks_for` the batch.
+    unroll : int
+        Unroll factor of the scan (speed only).
     progress : callable, optional
         Called with the fraction done after each chunk.
     ecu_estimator : str, optional
@@ -313,9 +384,12 @@ def simulate(
     if len(blocks) != len(specs):
         raise InputError(None, "blocks", f"{len(blocks)} blocks for {len(specs)} motors")
 
+    from eol_cal.firmware.mech import MechConsts, block_mech_tables
+
     params = []
     states = []
     effective = []
+    identifies = False
     for spec, block in zip(specs, blocks):
         states.append(simulated_ecu_state(spec, mode, block))
         if block is None:
@@ -327,25 +401,31 @@ def simulate(
                                  f"motor has P={spec.motor.poles}, {spec.motor.N_enc} PPR")
             tc, tp, lead, lim = block.table_const, block.table_per_amp, block.lead_s, block.iqc_limit
             hall = block.hall_angle
+            mtb = block_mech_tables(block)
+            identifies |= bool(mtb.enabled) and mode != "raw"
         else:
             tc = tp = np.zeros(16, np.float32)
             lead = lim = 0.0
             hall = NOMINAL_HALL_ANGLE
-        params.append(to_params(spec, tc, tp, lead, lim, hall_angle=hall))
+            mtb = None
+        params.append(to_params(spec, tc, tp, lead, lim, hall_angle=hall, mech_tb=mtb))
     lens = {len(p.table_const) for p in params}
     if len(lens) != 1:
         raise InputError(None, "blocks", "a batch must share one table length")
     batch = stack_params(params)
     options = batch_options(effective, ecu_estimator)
 
+    est_cfg = estimator_config(specs[0], options=options)
+    identifies &= est_cfg.learn_pitch_errors
     cfg = PlantSimConfig(poles=m0.poles, N_enc=m0.N_enc, f_pwm=m0.f_pwm, f_cc=m0.f_cc, f_cmd=m0.f_cmd,
                     # nominal table: each motor's own travels in its PlantParams (one program for all)
-                    mode=mode, estimator=estimator_config(specs[0], options=options),
-                    dead_time=any(s.dead_time_s > 0 for s in specs))
+                    mode=mode, estimator=est_cfg,
+                    dead_time=any(s.dead_time_s > 0 for s in specs),
+                    mech=MechConsts.of(est_cfg) if identifies else None)
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
     if pre_roll_s is None:
-        pre_roll_s = learning_pre_roll_s(options, float(speed_rpm[0]))
+        pre_roll_s = learning_pre_roll_s(options, float(speed_rpm[0]), identifies)
     n_pre = int(round(pre_roll_s * m0.f_pwm))
     speed_rpm = np.concatenate([np.full(n_pre, speed_rpm[0]), speed_rpm])
     i_qo = np.concatenate([np.full(n_pre, i_qo[0]), i_qo])
@@ -358,38 +438,49 @@ def simulate(
     rng = np.random.default_rng(seed)
     carries = [_initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
                for p, s in zip(params, specs)]
-    carry = jax.tree_util.tree_map(lambda *a: np.stack(a), *carries)
+    carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
     keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
 
+    chunk_ticks = chunk_ticks_for(len(specs)) if chunk_ticks is None else int(chunk_ticks)
+    if chunk_ticks < NOISE_BLOCK or chunk_ticks % NOISE_BLOCK:
+        raise InputError(None, "chunk_ticks", f"{chunk_ticks}: needs a multiple of {NOISE_BLOCK}")
     fn = _chunk_fn(cfg, chunk_ticks, unroll)
-    out = np.empty((len(specs), len(OUT_COLUMNS), n_total), np.float32)
+    n_cc = _cc_per_block(cfg)
+    # the recorded ticks (after the pre-roll) go straight into the captures' arrays, converted to
+    # their dtypes on the way (one pass over the outputs; no float32 copy of the whole run first)
+    n_rec = n_total - n_pre
+    cols = {name: np.empty((len(specs), n_rec), _DTYPES.get(name, np.float64)) for name in OUT_COLUMNS}
     # The last chunk runs padded (its extra ticks are dropped with the carry after them).
     pad = -n_total % chunk_ticks
     inputs = tuple(np.pad(a, (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
     for start in range(0, n_total, chunk_ticks):
         stop = min(start + chunk_ticks, n_total)
         shared = tuple(a[start:start + chunk_ticks] for a in inputs)
-        carry, ys = fn(batch, carry, shared, keys, np.int32(start))
-        out[:, :, start:stop] = np.asarray(ys)[:, :, : stop - start]
+        shared += (_cc_index(shared[2], n_cc),)
+        carry, ys = fn(batch, carry, shared, keys, np.int32(start // NOISE_BLOCK))
+        lo = max(start, n_pre)
+        if lo < stop:
+            ys = np.asarray(ys)
+            for k, name in enumerate(OUT_COLUMNS):
+                cols[name][:, lo - n_pre:stop - n_pre] = ys[:, k, lo - start:stop - start]
         if progress is not None:
             progress(stop / n_total)
-    results = []
-    for i in range(len(specs)):
-        results.append(_to_result(out[i, :, n_pre:], specs[i], cfg, profile, mode, blocks[i], states[i]))
-    return results
+    t = np.arange(n_rec, dtype=np.float64) / m0.f_pwm
+    t.flags.writeable = False  # one time base shared by the lot's captures
+    return [_to_result(t, {name: c[i] for name, c in cols.items()}, specs[i], profile, mode, blocks[i], states[i])
+            for i in range(len(specs))]
 
 
-def _to_result(y: np.ndarray, spec: PlantSpec, cfg: PlantSimConfig, profile: Profile, mode: str,
+#: capture dtypes of the scan's outputs (float64 otherwise): digital levels as the readers give them
+_DTYPES = {"enc_a": np.int8, "enc_b": np.int8, "hall": np.int8}
+
+
+def _to_result(t: np.ndarray, col: dict[str, np.ndarray], spec: PlantSpec, profile: Profile, mode: str,
                block: ParamBlock | None, ecu: EcuState) -> SimResult:
     m = spec.motor
-    col = dict(zip(OUT_COLUMNS, y))
-    n = y.shape[1]
-    t = np.arange(n, dtype=np.float64) / m.f_pwm
-    channels: dict[str, np.ndarray] = {}
-    for name in ("enc_a", "enc_b", "hall"):
-        channels[name] = col[name].astype(np.int64)
-    for name in ("torque", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic", "speed"):
-        channels[name] = col[name].astype(np.float64)
+    n = len(t)
+    channels: dict[str, np.ndarray] = {name: col[name] for name in ("enc_a", "enc_b", "hall", "torque", "iq_ref",
+                                                                    "iqc", "iq", "id", "ia", "ib", "ic", "speed")}
     channels["temp"] = np.full(n, spec.temp_degC)
     metadata: dict[str, str | int | float] = {
         "serial": spec.serial, "poles": m.poles, "encoder_ppr": m.N_enc, "kt": m.kt,
@@ -401,5 +492,5 @@ def _to_result(y: np.ndarray, spec: PlantSpec, cfg: PlantSimConfig, profile: Pro
     if block is not None and mode == "compensated":
         truth.update({"block_k6": block.k6, "block_c6": block.c6, "block_lead_s": block.lead_s})
     cap = Capture(t=t, channels=channels, metadata=metadata, truth=truth, source="<plant>")
-    return SimResult(cap, col["theta_r"].astype(np.float64), col["theta_hat"].astype(np.float64),
-                     col["theta_enc"].astype(np.float64))
+    return SimResult(cap, col["theta_r"], col["theta_hat"], col["theta_enc"], col["mech_active"].astype(np.int8),
+                     col["theta_m"])

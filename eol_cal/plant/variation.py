@@ -1,7 +1,8 @@
 """Motor-to-motor production spread: ``--seed`` draws one motor as built.
 
-Distributions (one motor per seed, numpy's PCG64 ``default_rng(seed)``; documented in
-``docs/plant.md``):
+The distributions are data: a spread file (:mod:`eol_cal.plant.spread`; the default one is
+``eol_cal/spreads/default.toml``, documented there and in ``docs/plant.md``). In short, the
+default spread:
 
 ======================  ==============================================================
 k6                      normal, mean 0.00062 N*m/A (seed eq. 18), sigma 15 %, >= 0
@@ -23,17 +24,14 @@ The bench itself (transducer, shaft, dyno) is the base preset's.
 
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
 from eol_cal.plant.params import PlantSpec
-from eol_cal.plant.presets import paper
+from eol_cal.plant.spread import Spread, load_spread
 
 K6_NOMINAL = 0.00062
 
 
-def draw_motor(seed: int, base: PlantSpec | None = None, serial: str | None = None) -> PlantSpec:
+def draw_motor(seed: int, base: PlantSpec | None = None, serial: str | None = None,
+               spread: Spread | None = None) -> PlantSpec:
     """One motor from the production spread around ``base`` (default: the ``paper`` bench).
 
     Parameters
@@ -44,29 +42,11 @@ def draw_motor(seed: int, base: PlantSpec | None = None, serial: str | None = No
         Bench and nominal motor data.
     serial : str, optional
         Serial; default ``SIM-<seed>``.
+    spread : Spread, optional
+        The distributions (:func:`eol_cal.plant.spread.load_spread`); default the built-in
+        ``default`` spread.
     """
-    from eol_cal.firmware.kinematics import draw_sensor_errors
-
-    base = paper() if base is None else base
-    rng = np.random.default_rng(seed)
-    u = lambda: float(rng.uniform(0.0, 2.0 * math.pi))  # noqa: E731 - a phase
-    k6 = max(0.0, float(rng.normal(K6_NOMINAL, 0.15 * K6_NOMINAL)))
-    spec = base.replace(
-        serial=serial if serial is not None else f"SIM-{seed:06d}",
-        k6=k6, phase_k6=float(rng.normal(0.0, 0.15)),
-        c6=float(rng.uniform(0.002, 0.008)), phase_c6=u(),
-        c12=float(rng.uniform(0.004, 0.016)), phase_c12=u(),
-        k12=abs(float(rng.normal(0.0, 0.00004))), phase_k12=u(),
-        c18=float(rng.uniform(0.0, 0.004)), phase_c18=u(), k18=0.0, phase_k18=0.0,
-        unb1=float(rng.rayleigh(0.005)), phase_unb1=u(),
-        R_s_scale=float(rng.normal(1.0, 0.03)), temp_degC=float(rng.uniform(20.0, 40.0)),
-    )
-    err = draw_sensor_errors(rng, base.motor.N_enc)
-    return spec.replace(
-        enc_edge_err_deg=tuple(float(v) for v in np.degrees(err.edge_error)),
-        hall_err_deg=tuple(float(v) for v in np.degrees(np.asarray(err.hall_offset).ravel())),
-        grid_offset_deg=float(np.degrees(err.grid_offset)),
-    )
+    return (spread or load_spread("default")).draw(seed, base, serial)
 
 
 def vary(base: PlantSpec, seed: int) -> PlantSpec:

@@ -353,12 +353,14 @@ def _safe_id(text: str) -> str:
 
 
 def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title: str,
-                    filters: dict[str, str | None], min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None) -> str:
+                    filters: dict[str, str | None], min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None,
+                    kind: str = MEASURED_KIND) -> str:
     """The lot page (self-contained HTML) of a set of run records.
 
-    The statistics, charts and the motors nearest their limits are of the ``production`` runs;
-    the refusals (nothing written, nothing measured) are counted and shown with their own
-    Pareto; runs of other kinds (restores, master runs...) are counted.
+    The statistics, charts and the motors nearest their limits are of the runs of ``kind``
+    (``production``; ``simulated`` for a what-if lot, ``all`` for every kind but refusals); the
+    refusals (nothing written, nothing measured) are counted and shown with their own Pareto;
+    runs of other kinds (restores, master runs...) are counted.
 
     Parameters
     ----------
@@ -383,10 +385,10 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
     from eol_cal.station.records_query import summarise
 
     ordered = sorted(records, key=lambda r: (run_time(r), r.run_id))
-    recs = [r for r in ordered if r.kind == MEASURED_KIND]
+    recs = [r for r in ordered if (r.kind != "refusal" if kind == "all" else r.kind == kind)]
     refusals = [r for r in ordered if r.kind == "refusal"]
     lot = from_records(recs)
-    summary = summarise(ordered)
+    summary = summarise(ordered, kind)
     doc = lot_summary(lot, None, min_n, baseline)
     causes = pareto_of(lot.causes)
     refused = pareto_of(r.causes() for r in refusals)
@@ -478,13 +480,14 @@ def select_records(records: Sequence[RunRecord], variant: str | None = None, sin
 
 
 def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str,
-                   filters: dict[str, str | None], min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None) -> Path:
-    """Write the lot page to ``path`` (atomically); returns the path. ``min_n``, ``baseline``: as
-    :func:`render_lot_page`."""
+                   filters: dict[str, str | None], min_n: int = DEFAULT_MIN_N, baseline: Baseline | None = None,
+                   kind: str = MEASURED_KIND) -> Path:
+    """Write the lot page to ``path`` (atomically); returns the path. ``min_n``, ``baseline``,
+    ``kind``: as :func:`render_lot_page`."""
 
     from eol_cal.atomic import atomic_write
 
     path = Path(path)
     atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters, min_n=min_n,
-                                       baseline=baseline))
+                                       baseline=baseline, kind=kind))
     return path

@@ -348,6 +348,31 @@ def _estimate(est: Any, unit: str, digits: int = 4) -> str:
     return f"{_fmt(est.value * factor, digits)}{ci} {shown}"
 
 
+def mech_section(rec: RunRecord) -> dict[str, Any] | None:
+    """The report's mechanical orders (contract revision 1.2): the block's switch, the identification
+    margin, each order fitted, and order 1 before and with the compensation (None without a
+    mechanical result)."""
+    m = rec.fit.mech if rec.fit is not None else None
+    if m is None:
+        return None
+    cal = rec.block("calibrated")
+    switch = cal.mech if cal is not None and cal.mech is not None else ("written" if cal is None else "not in the block")
+    status = (f"MECH_COMP_ENABLE {switch}: identification margin {_fmt(m.margin, 3)} (threshold {_fmt(m.threshold, 3)}, "
+              f"cosine {_fmt(m.score, 3)}, one revolution at {_fmt(m.ref_rpm, 3)} rpm); fingerprint "
+              + {1: "forward", 2: "reverse", 3: "forward and reverse"}.get(m.dirs, "not measured")
+              + ("" if not m.reasons else "; off: " + "; ".join(m.reasons)))
+    before = rec.metrics.before.mech1_nm if rec.metrics is not None else None
+    after = rec.metrics.after.mech1_nm if rec.metrics is not None else None
+    rows = []
+    for o in m.orders:
+        amp = _estimate(o.c, "N*m")
+        fitted = f"{amp}, phase {_estimate(o.phase_c, 'rad', 3)}"
+        left = (f"{_fmt(after * 1e3, 3)} mN*m (uncompensated {_fmt(before * 1e3, 3)} mN*m)"
+                if o.order == 1 and after is not None else "-")
+        rows.append((o.order, fitted, left))
+    return {"status": status, "rows": rows}
+
+
 def render_motor_report(rec: RunRecord, figures: Sequence[Figure]) -> str:
     """The per-motor page (self-contained HTML) of a run record and its figures."""
     from eol_cal.report.page import render
@@ -364,13 +389,14 @@ def render_motor_report(rec: RunRecord, figures: Sequence[Figure]) -> str:
          "measured, offsets " + " ".join(f"{d:+.2f}" for d in hall.get("deviation_deg", [])) + " deg"),
         ("compensated p-p, mech. order 1 taken out",
          f"{_fmt(rec.metrics.after.pp_no_mech1_pct if rec.metrics else None)} % "
-         + ("(no limit: the rest is the rotor's unbalance)" if no_mech1 is None
+         + ("(the mechanical orders are compensated too: below)" if cal is not None and cal.mech == "on"
+            else "(no limit: the rest is the rotor's unbalance)" if no_mech1 is None
             else f"(limit {_fmt(no_mech1.limit)} %: the rows below)")),
         ("lead", f"{_fmt(cal.lead_s * 1e6 if cal is not None and cal.lead_s is not None else None)} us"),
         ("estimator options", _estimator_text(rec)),
     ]
     name = station_of(rec)
     return render("motor.html.j2", rec=rec, station=rec.station, figures=list(figures), limit_rows=limit_rows(rec),
-                  ecu_states=ecu_states(rec), ecu_active=rec.ecu_active, values=values, fmt=_fmt,
+                  ecu_states=ecu_states(rec), ecu_active=rec.ecu_active, values=values, fmt=_fmt, mech=mech_section(rec),
                   operator=rec.operator, station_name=name if name != NO_STATION else rec.station.extra.get("dyno"),
                   captures=rec.captures, total_s=rec.total_s)

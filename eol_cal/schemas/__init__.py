@@ -33,6 +33,8 @@ SCHEMA_FILES: dict[str, str] = {
     "eol-cal/lot-baseline/1": "lot-baseline",
     "eol-cal/msa-type1/1": "msa-type1",
     "eol-cal/lot-diff/1": "lot-diff",
+    "eol-cal/lot-simulate/1": "lot-simulate",
+    "eol-cal/lot-compare/1": "lot-compare",
 }
 
 

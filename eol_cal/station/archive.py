@@ -34,13 +34,17 @@ def write_archive(path: Path, image: bytes) -> str:
 
 def block_fields(image: bytes) -> dict[str, Any]:
     """What the record says of a block's content: flags by name, the estimator options they
-    select, table length, lead (s), current limit (A)."""
+    select, table length, lead (s), current limit (A), layout, whether its mechanical
+    compensation is on (layout 2)."""
     from eol_cal.firmware import block as B
+    from eol_cal.firmware.mech import mech_enabled
     from eol_cal.firmware.options import honoured_options, options_label
 
     blk = B.unpack(image, "<flashed block>")
+    mech = None if blk.mech is None else ("on" if mech_enabled(blk.flags, blk.layout_version, blk.mech) else "off")
     return {"flags": B.flag_names(blk.flags), "estimator": options_label(honoured_options(blk.flags)),
-            "table_len": int(blk.table_len), "lead_s": float(blk.lead_s), "iqc_limit": float(blk.iqc_limit)}
+            "table_len": int(blk.table_len), "lead_s": float(blk.lead_s), "iqc_limit": float(blk.iqc_limit),
+            "layout_version": int(blk.layout_version), "mech": mech}
 
 
 def flashed_block(role: str, path: Path, report: FlashReport) -> FlashedBlock:

@@ -68,7 +68,7 @@ def station_info(cfg: StationConfig, profile_name: str) -> StationInfo:
 def point_figures(pr: PointRipple) -> PointFigures:
     """The record's figures of a capture's ripple at the operating point."""
     return PointFigures(pr.pp_pct, pr.pp_raw_pct, pr.pp_nm, pr.pp_no_mech1_pct, pr.T_avg_nm, pr.amp6_nm,
-                        (float(pr.span_s[0]), float(pr.span_s[1])))
+                        (float(pr.span_s[0]), float(pr.span_s[1])), pr.mech1_nm)
 
 
 @dataclass
@@ -236,7 +236,7 @@ class StationCycle:
         self.point_ripples = (before, after)
         self.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
                                      RIPPLE_DEFINITION)
-        self.measured = self.measured.with_ripple(before.pp_pct, after.pp_pct, after.pp_no_mech1_pct)
+        self.measured = self.measured.with_ripple(before.pp_pct, after.pp_pct, after.pp_no_mech1_pct, after.mech1_nm)
         self.judged["ripple"] = judge(self.measured, self.cfg.limits, "ripple")
         reasons = failed(self.judged["ripple"])
         if self.cfg.kind == "master" and self.cfg.master is not None:  # the master check: within its references
@@ -322,7 +322,8 @@ class StationCycle:
             kind=self.kind, run_id=self.run_id, serial=self.cfg.serial,
             started_at=self.started.isoformat(timespec="milliseconds"), ended_at=self.ended_at, verdict=self.verdict,
             reasons=tuple(self.reasons), refusal_codes=self.refusal_codes if self.kind == "refusal" else (),
-            error=self.error, tool_version=__version__, layout_version=LAYOUT_VERSION, station=self.station,
+            error=self.error, tool_version=__version__, station=self.station,
+            layout_version=self.calibrated.layout_version if self.calibrated is not None else LAYOUT_VERSION,
             limits=lim, limits_sha256=self.limits_sha256, checks=tuple(all_checks(self.judged, lim)),
             steps=tuple(self.steps), preflight=self.preflight, captures=dict(self.captures), fit=self.result,
             blocks=tuple(self.blocks), metrics=self.metrics, report_dir=str(self.run_dir), safe_state=self.safe_state,

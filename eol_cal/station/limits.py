@@ -101,6 +101,10 @@ LIMITS: tuple[Limit, ...] = (
     # the rotor's unbalance is a mechanical reject only where a line chooses to judge it
     Limit("max_pp_after_no_mech1_pct", "pp_after_no_mech1_pct", "p-p compensated without mechanical order 1", "%",
           "max", "ripple", (0.0, 1000.0), default=None),
+    # revision 1.2: with a layout-2 block the mechanical orders are compensated too (the compensated
+    # p-p above then judges every order); this judges what the compensation left of order 1
+    Limit("max_mech1_after_nm", "mech1_after_nm", "mechanical order 1 left compensated", "N*m", "max", "ripple",
+          (0.0, 10.0), default=None),
 )
 BY_KEY: dict[str, Limit] = {lim.key: lim for lim in LIMITS}
 #: the limit keys, in table order
@@ -275,6 +279,8 @@ class Measured:
         The fit's ``hall_angle.source``.
     pp_after_no_mech1_pct : float
         ``pp_after_pct`` with the mechanical order 1 (rotor unbalance) taken out (%).
+    mech1_after_nm : float
+        Amplitude of the mechanical order 1 in the compensated capture (N*m).
     """
 
     k6: float = math.nan
@@ -288,6 +294,7 @@ class Measured:
     hall_deviation_deg: float = math.nan
     hall_source: str = "not measured"
     pp_after_no_mech1_pct: float = math.nan
+    mech1_after_nm: float = math.nan
 
     @property
     def improvement_pct(self) -> float:
@@ -324,10 +331,11 @@ class Measured:
             hall_source=str(hall["source"]),
         )
 
-    def with_ripple(self, pp_before_pct: float, pp_after_pct: float, pp_after_no_mech1_pct: float) -> Measured:
-        """These values and the ripple at the operating point (%)."""
+    def with_ripple(self, pp_before_pct: float, pp_after_pct: float, pp_after_no_mech1_pct: float,
+                    mech1_after_nm: float = math.nan) -> Measured:
+        """These values and the ripple at the operating point (%, the order-1 amplitude N*m)."""
         return dataclasses.replace(self, pp_before_pct=pp_before_pct, pp_after_pct=pp_after_pct,
-                                   pp_after_no_mech1_pct=pp_after_no_mech1_pct)
+                                   pp_after_no_mech1_pct=pp_after_no_mech1_pct, mech1_after_nm=mech1_after_nm)
 
 
 @dataclass(frozen=True)

@@ -61,12 +61,12 @@ def block_json(b: FlashedBlock) -> dict[str, Any]:
             "sequence": b.sequence, "crc32": b.crc32, "flags": b.flags, "estimator": b.estimator,
             "table_len": b.table_len, "lead_s": b.lead_s, "iqc_limit": b.iqc_limit, "verified": b.verified,
             "confirmed": b.confirmed, "previous": prev, "seconds": b.seconds, "transfer_blocks": b.transfer_blocks,
-            "retries": b.retries}
+            "retries": b.retries, "layout_version": b.layout_version, "mech": b.mech}
 
 
 def _figures(p: PointFigures) -> dict[str, Any]:
     return {"pp_pct": p.pp_pct, "pp_raw_pct": p.pp_raw_pct, "pp_nm": p.pp_nm, "pp_no_mech1_pct": p.pp_no_mech1_pct,
-            "T_avg_nm": p.T_avg_nm, "amp6_nm": p.amp6_nm, "span_s": list(p.span_s)}
+            "T_avg_nm": p.T_avg_nm, "amp6_nm": p.amp6_nm, "span_s": list(p.span_s), "mech1_nm": p.mech1_nm}
 
 
 def error_json(e: ErrorInfo | None) -> dict[str, Any] | None:
@@ -260,7 +260,9 @@ def block_from(r: Reader, x: Any) -> FlashedBlock:
         flags=r.str(d, "flags", null=True), estimator=r.str(d, "estimator", null=True), table_len=n("table_len"),
         lead_s=r.opt_num(d, "lead_s"), iqc_limit=r.opt_num(d, "iqc_limit"), verified=r.bool(d, "verified"),
         confirmed=r.bool(d, "confirmed"), previous=previous_from(r.at("previous."), d["previous"]) if "previous" in d
-        else None, seconds=r.opt_num(d, "seconds"), transfer_blocks=n("transfer_blocks"), retries=n("retries"))
+        else None, seconds=r.opt_num(d, "seconds"), transfer_blocks=n("transfer_blocks"), retries=n("retries"),
+        layout_version=r.int(d, "layout_version", null=True, default=None),
+        mech=r.choice(d, "mech", ("on", "off"), default=None) if d.get("mech") is not None else None)
 
 
 def _figures_from(r: Reader, d: dict[str, Any]) -> PointFigures:
@@ -269,7 +271,7 @@ def _figures_from(r: Reader, d: dict[str, Any]) -> PointFigures:
         raise r.error("span_s", "expected [start, end] in s")
     return PointFigures(*(r.num(d, k, nan=True, default=None) for k in ("pp_pct", "pp_raw_pct", "pp_nm",
                                                                         "pp_no_mech1_pct", "T_avg_nm", "amp6_nm")),
-                        span_s=(float(span[0]), float(span[1])))
+                        span_s=(float(span[0]), float(span[1])), mech1_nm=r.num(d, "mech1_nm", nan=True, default=None))
 
 
 def metrics_from(r: Reader, d: dict[str, Any] | None) -> RippleMetrics | None:

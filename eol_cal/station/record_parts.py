@@ -108,6 +108,12 @@ class FlashedBlock:
         What the ECU booted before.
     seconds, transfer_blocks, retries
         The flash's wall time (s), TransferData requests and repeated requests; None where not recorded.
+    layout_version : int or None
+        The block's layout (1, or 2 with the mechanical orders of revision 1.2); None where not recorded.
+    mech : str or None
+        Layout 2: ``"on"`` when its ``MECH_COMP_ENABLE`` is honoured (the ECU identifies the rotor's
+        mechanical angle and compensates the mechanical orders), ``"off"`` (the reasons are the
+        fit's ``mech.reasons``); None for layout 1.
     """
 
     role: str
@@ -128,6 +134,8 @@ class FlashedBlock:
     seconds: float | None = None
     transfer_blocks: int | None = None
     retries: int | None = None
+    layout_version: int | None = None
+    mech: str | None = None
 
 
 @dataclass(frozen=True)
@@ -177,7 +185,8 @@ class PreflightResult:
 class PointFigures:
     """The ripple at the operating point of one capture (``docs/metrics.md``): filtered and raw
     p-p (%), p-p (N*m), p-p without the mechanical order 1 (%), mean torque (N*m), 6th-order
-    amplitude (N*m), the time span analysed (s)."""
+    amplitude (N*m), the time span analysed (s), the mechanical order 1's amplitude (N*m; NaN in
+    records older than revision 1.2)."""
 
     pp_pct: float
     pp_raw_pct: float
@@ -186,6 +195,7 @@ class PointFigures:
     T_avg_nm: float
     amp6_nm: float
     span_s: tuple[float, float]
+    mech1_nm: float = float("nan")
 
 
 @dataclass(frozen=True)

@@ -154,18 +154,19 @@ def latest_per_serial(records: Sequence[RunRecord], kind: str = MEASURED_KIND) -
     return latest
 
 
-def summarise(records: Sequence[RunRecord]) -> dict[str, Any]:
+def summarise(records: Sequence[RunRecord], kind: str = MEASURED_KIND) -> dict[str, Any]:
     """Counts and pass rate of a set of records (``docs/records.md``, "Run kinds").
 
     ``runs``, ``pass``, ``fail``, ``error`` and ``pass_rate`` (pass / (pass + fail): the motors'
-    yield, station errors counted apart; None without a judged run) count the ``production``
-    runs; ``kinds`` counts every kind (refusals, restores... apart). ``motors`` counts the serials
-    with a production run, ``motors_pass`` those whose latest production run passed.
+    yield, station errors counted apart; None without a judged run) count the runs of ``kind``
+    (``production``; ``all``: every kind but refusals); ``kinds`` counts every kind (refusals,
+    restores... apart). ``motors`` counts the serials with a run of ``kind``, ``motors_pass``
+    those whose latest such run passed.
     """
-    prod = [r for r in records if r.kind == MEASURED_KIND]
+    prod = [r for r in records if (r.kind != "refusal" if kind == "all" else r.kind == kind)]
     counts = {v: sum(1 for r in prod if r.verdict == v) for v in ("pass", "fail", "error")}
     judged = counts["pass"] + counts["fail"]
-    latest = latest_per_serial(prod)
+    latest = {r.serial: r for r in sorted(prod, key=lambda r: (r.started_at, r.run_id))}
     return {
         "runs": len(prod), **counts,
         "pass_rate": counts["pass"] / judged if judged else None,

@@ -71,8 +71,11 @@ static int eol_table_len_ok(uint16_t n)
 uint16_t eol_block_check(const uint16_t *w, uint32_t avail_bytes)
 {
     uint16_t n;
+    uint16_t version;
     uint32_t seq;
     uint32_t size;
+    uint32_t want;
+    uint32_t crc_at;
 
     if (avail_bytes < EOL_PB_HEADER_BYTES) {
         return EOL_PB_STATUS_HEADER_INVALID;
@@ -80,22 +83,26 @@ uint16_t eol_block_check(const uint16_t *w, uint32_t avail_bytes)
     if (EOL_PB_GET_MAGIC(w) != EOL_PB_MAGIC) {
         return EOL_PB_STATUS_HEADER_INVALID;
     }
-    if (EOL_PB_GET_LAYOUT_VERSION(w) != EOL_PB_LAYOUT_VERSION) {
+    version = EOL_PB_GET_LAYOUT_VERSION(w);
+    if (version != EOL_PB_LAYOUT_VERSION && version != EOL_PB_LAYOUT_VERSION_MECH) {
         return EOL_PB_STATUS_HEADER_INVALID;
     }
     n = EOL_PB_GET_TABLE_LEN(w);
     if (!eol_table_len_ok(n)) {
         return EOL_PB_STATUS_HEADER_INVALID;
     }
+    /* layout 2 (revision 1.2): the same header, the extension before the CRC */
+    want = (version == EOL_PB_LAYOUT_VERSION) ? EOL_PB_BLOCK_BYTES(n) : EOL_PB_V2_BLOCK_BYTES(n);
+    crc_at = (version == EOL_PB_LAYOUT_VERSION) ? EOL_PB_OFF_CRC32(n) : EOL_PB_V2_OFF_CRC32(n);
     size = EOL_PB_GET_BLOCK_BYTES(w);
-    if (size != EOL_PB_BLOCK_BYTES(n) || size > avail_bytes) {
+    if (size != want || size > avail_bytes) {
         return EOL_PB_STATUS_HEADER_INVALID;
     }
     seq = EOL_PB_GET_SEQUENCE(w);
     if (seq == UINT32_C(0) || seq == EOL_PB_SEQUENCE_ERASED) {
         return EOL_PB_STATUS_HEADER_INVALID;
     }
-    if (eol_crc32_words(w, EOL_PB_OFF_CRC32(n)) != EOL_PB_GET_CRC32(w, n)) {
+    if (eol_crc32_words(w, crc_at) != eol_pb_u32(w, crc_at)) {
         return EOL_PB_STATUS_CRC_MISMATCH;
     }
     return EOL_PB_STATUS_VALID;

@@ -25,9 +25,10 @@ uint32_t eol_crc32_words(const uint16_t *w, uint32_t nbytes);
 
 /* Validate the block at the start of a bank image of avail_bytes bytes (EOL_PB_BANK_BYTES for a
  * flash bank). Returns EOL_PB_STATUS_VALID, EOL_PB_STATUS_CRC_MISMATCH or
- * EOL_PB_STATUS_HEADER_INVALID. Header rules first (magic, layout version, table_len a power of
- * two in 16..1024, block_bytes == 104 + 8*table_len, sequence not 0 nor 0xFFFFFFFF, the block
- * inside avail_bytes), then the CRC. Bytes after the block are ignored. */
+ * EOL_PB_STATUS_HEADER_INVALID. Header rules first (magic, layout version 1 or 2, table_len a power
+ * of two in 16..1024, block_bytes == 104 + 8*table_len (layout 1) or 3248 + 8*table_len (layout 2),
+ * sequence not 0 nor 0xFFFFFFFF, the block inside avail_bytes), then the CRC at the end of the
+ * block. Bytes after the block are ignored. */
 uint16_t eol_block_check(const uint16_t *w, uint32_t avail_bytes);
 
 #ifdef __cplusplus

@@ -146,6 +146,10 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     float omega_new, omega, alpha, omega_pred, adv, adv_eff, hb, c_last, rel, theta_pred, err, g, G;
     float theta_enc, theta, start, width, dd, end, omega_out;
 
+    out->learn = 0;
+    out->learn_idx = 0;
+    out->pitch_err = 0.0f;
+
     /* 1. quadrature decoding (x4) */
     ph = phase_of(a, b);
     d = (ph - e->phase + 4) % 4;
@@ -193,9 +197,13 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         learn = measured && e->run >= e->cfg.n_enc && dR <= STEADY_TICKS;
         if (learn) {
             float pitch = (float)n1 * (e->K_NDELTA / (float)R);
-            float target = c_old + (float)edir * (pitch - e->DELTA);
+            float pitch_err = pitch - e->DELTA;
+            float target = c_old + (float)edir * pitch_err;
             c_new = c_new + K_PITCH * (target - c_new);
+            out->pitch_err = pitch_err;
         }
+        out->learn = learn;
+        out->learn_idx = (edir > 0) ? i_new : (e->k_last >> 1);
         e->c_tab[i_new] = c_new;
         if (ev) {
             e->ts[i_new] = tick;

@@ -64,6 +64,10 @@ typedef struct {
     float omega_hat; /* rad/s electrical, signed (+ forward) */
     float theta_enc; /* rad electrical, [0, 2*pi): raw angle of the last A edge */
     int32_t status;  /* EOL_EST_ST_* bits */
+    /* improvement 4's pitch sample (the mechanical identifier's input, ../MECH.md); 0 without it */
+    int32_t learn;     /* 1: this tick's A edge closed a pitch at steady speed */
+    int32_t learn_idx; /* c_tab index of the edge ending the pitch in forward rotation */
+    float pitch_err;   /* rad electrical: the pitch's size minus DELTA */
 } eol_est_out_t;
 
 /* The estimator options a block's flags word selects: its EOL_PB_FLAGS_ESTIMATOR bits when

@@ -15,6 +15,7 @@
 #include "eol_block.h"
 #include "eol_comp.h"
 #include "eol_est.h" /* H4 */
+#include "eol_mech.h" /* revision 1.2 */
 
 /* ---------------------------------------------------------------- CSV reading (shared) ---- */
 
@@ -503,6 +504,287 @@ static int check_estimator(const char *dir, const char *file, result_t *r)
 }
 /* ===================================================== ESTIMATOR SET (H4) ==== end ====== */
 
+/* ============================================ LAYOUT 2 / MECHANICAL SET (rev 1.2) ==== begin ====
+ * blocks_v2.csv: valid layout-2 blocks; mech_configs.csv: each scenario's block and constants;
+ * mech_*.csv: eol_est_step + eol_mech_step + eol_comp_iqc_mech tick by tick;
+ * mech_compensator.csv: eol_mech_sum + eol_comp_iqc_mech over counts, offsets and angles. */
+
+#define MAX_V2_BLOCKS 8
+#define V2_WORDS 8192 /* 16 KiB: a layout-2 block of table_len 1024 needs 11 440 bytes */
+
+typedef struct {
+    char id[64];
+    uint16_t w[V2_WORDS];
+} v2_block_t;
+
+static v2_block_t g_v2[MAX_V2_BLOCKS];
+static int g_nv2 = -1;
+
+static int load_v2_blocks(const char *dir)
+{
+    static csv_t c;
+    int rc, i_img, i_id;
+    if (g_nv2 >= 0) return 0;
+    g_nv2 = 0;
+    if (csv_open(&c, dir, "blocks_v2.csv") != 0) return -1;
+    i_img = csv_col(&c, "image");
+    i_id = csv_col(&c, "id");
+    if (i_img < 0 || i_id < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        v2_block_t *b = &g_v2[g_nv2];
+        long nbytes;
+        if (g_nv2 == MAX_V2_BLOCKS || (long)strlen(c.f[i_img]) / 2 > 2L * V2_WORDS) {
+            fprintf(stderr, "%s: row %ld: too many or too large blocks\n", c.path, c.row);
+            return -1;
+        }
+        nbytes = image_words(c.f[i_img], b->w, 2L * V2_WORDS);
+        if (nbytes < 0 || eol_block_check(b->w, (uint32_t)nbytes) != EOL_PB_STATUS_VALID) {
+            fprintf(stderr, "%s: row %ld: not a valid block\n", c.path, c.row);
+            return -1;
+        }
+        snprintf(b->id, sizeof b->id, "%s", c.f[i_id]);
+        g_nv2++;
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+static const uint16_t *v2_block(const char *id)
+{
+    int k;
+    for (k = 0; k < g_nv2; ++k) {
+        if (strcmp(g_v2[k].id, id) == 0) return g_v2[k].w;
+    }
+    fprintf(stderr, "no layout-2 block %s in blocks_v2.csv\n", id);
+    return NULL;
+}
+
+static int check_blocks_v2(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    int rc, col, i_img;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_img = csv_col(&c, "image");
+    if (i_img < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        long nbytes = image_words(c.f[i_img], g_words, MAX_IMAGE_BYTES);
+        uint16_t n;
+        if (nbytes < 0) return -1;
+        r->rows++;
+        n = EOL_PB_GET_TABLE_LEN(g_words);
+        if (eol_block_check(g_words, (uint32_t)nbytes) != EOL_PB_STATUS_VALID) {
+            fail(r, &c, "check status", EOL_PB_STATUS_VALID, eol_block_check(g_words, (uint32_t)nbytes));
+        }
+        if ((uint32_t)nbytes != EOL_PB_V2_BLOCK_BYTES(n)) fail(r, &c, "image size", EOL_PB_V2_BLOCK_BYTES(n), (unsigned long)nbytes);
+        if (!eol_mech_enabled(g_words)) fail(r, &c, "eol_mech_enabled", 1, 0);
+        for (col = 0; col < c.ncols; ++col) {
+            const char *name = c.cols[col];
+            const char *v = c.f[col];
+            unsigned long want = strtoul(v, NULL, 10);
+            unsigned long got;
+            if (col == i_img || strcmp(name, "id") == 0) continue;
+#define INT_FIELD(key, expr) else if (strcmp(name, key) == 0) { got = (unsigned long)(expr); if (got != want) fail(r, &c, key, want, got); }
+#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { want = hex_u32(v); got = f32_bits(expr); if (got != want) fail(r, &c, key, want, got); }
+            if (0) {
+            }
+            INT_FIELD("sequence", EOL_PB_GET_SEQUENCE(g_words))
+            INT_FIELD("flags", EOL_PB_GET_FLAGS(g_words))
+            INT_FIELD("table_len", n)
+            INT_FIELD("block_bytes", EOL_PB_GET_BLOCK_BYTES(g_words))
+            INT_FIELD("fp_len", EOL_PB_V2_GET_FP_LEN(g_words, n))
+            INT_FIELD("fp_dirs", EOL_PB_V2_GET_FP_DIRS(g_words, n))
+            INT_FIELD("crc32", EOL_PB_V2_GET_CRC32(g_words, n))
+            F32_FIELD("grid_phase", EOL_PB_V2_GET_GRID_PHASE(g_words, n))
+            F32_FIELD("id_min_score", EOL_PB_V2_GET_ID_MIN_SCORE(g_words, n))
+            F32_FIELD("id_margin", EOL_PB_V2_GET_ID_MARGIN(g_words, n))
+            F32_FIELD("id_frac_tol", EOL_PB_V2_GET_ID_FRAC_TOL(g_words, n))
+            else {
+                fprintf(stderr, "%s: unknown column %s\n", c.path, name);
+                return -1;
+            }
+#undef INT_FIELD
+#undef F32_FIELD
+        }
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+/* the scenario's block and standstill bound from mech_configs.csv; with r, checks every row's constants */
+static int mech_config(const char *dir, const char *file, const uint16_t **w, int32_t *standstill, result_t *r)
+{
+    static csv_t c;
+    static eol_est_t e;
+    static eol_mech_t m;
+    int rc, found = 0, i_file, i_blk, i_ss;
+    if (load_v2_blocks(dir) != 0) return -1;
+    if (csv_open(&c, dir, "mech_configs.csv") != 0) return -1;
+    i_file = csv_col(&c, "file");
+    i_blk = csv_col(&c, "block_id");
+    i_ss = csv_col(&c, "standstill_ticks");
+    if (i_file < 0 || i_blk < 0 || i_ss < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        const uint16_t *bw = v2_block(c.f[i_blk]);
+        int32_t ss = (int32_t)strtol(c.f[i_ss], NULL, 10);
+        eol_est_config_t cfg;
+        int col;
+        if (bw == NULL) return -1;
+        if (file != NULL && strcmp(c.f[i_file], file) == 0) {
+            *w = bw;
+            *standstill = ss;
+            found = 1;
+        }
+        if (r == NULL) continue;
+        r->rows++;
+        if (eol_est_config_from_block(bw, ss, &cfg) != 0 || eol_est_init(&e, &cfg, 0, 0, 0) != 0 ||
+            eol_mech_init(&m, &e, bw) != 0) {
+            fail(r, &c, "init", 0, 1);
+            continue;
+        }
+        for (col = 0; col < c.ncols; ++col) {
+            const char *cn = c.cols[col];
+            float got;
+            if (strcmp(cn, "DELTA") == 0) got = m.DELTA;
+            else if (strcmp(cn, "INV_DELTA") == 0) got = m.INV_DELTA;
+            else if (strcmp(cn, "KM") == 0) got = m.KM;
+            else if (strcmp(cn, "EF_0") == 0) got = m.EF[0];
+            else if (strcmp(cn, "EF_1") == 0) got = m.EF[1];
+            else continue;
+            if (f32_bits(got) != hex_u32(c.f[col])) fail(r, &c, cn, hex_u32(c.f[col]), f32_bits(got));
+        }
+    }
+    csv_close(&c);
+    if (rc < 0) return -1;
+    if (file != NULL && !found) {
+        fprintf(stderr, "mech_configs.csv: no row for %s\n", file);
+        return -1;
+    }
+    return 0;
+}
+
+static int check_mech_configs(const char *dir, const char *file, result_t *r)
+{
+    const uint16_t *w;
+    int32_t ss;
+    (void)file;
+    return mech_config(dir, NULL, &w, &ss, r);
+}
+
+static int check_mech(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    static eol_est_t e;
+    static eol_mech_t m;
+    const uint16_t *w = NULL;
+    int32_t ss = 0;
+    eol_est_config_t cfg;
+    int rc, i_a, i_b, i_h, i_iq, i_st, i_le, i_ac, i_r, i_ev, i_sc, i_mg, i_out;
+    uint16_t n;
+    if (mech_config(dir, file, &w, &ss, NULL) != 0) return -1;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_a = csv_col(&c, "enc_a");
+    i_b = csv_col(&c, "enc_b");
+    i_h = csv_col(&c, "hall");
+    i_iq = csv_col(&c, "i_qo");
+    i_st = csv_col(&c, "status");
+    i_le = csv_col(&c, "learn");
+    i_ac = csv_col(&c, "active");
+    i_r = csv_col(&c, "r");
+    i_ev = csv_col(&c, "events");
+    i_sc = csv_col(&c, "score");
+    i_mg = csv_col(&c, "margin");
+    i_out = csv_col(&c, "i_qc");
+    if (i_a < 0 || i_b < 0 || i_h < 0 || i_iq < 0 || i_st < 0 || i_le < 0 || i_ac < 0 || i_r < 0 || i_ev < 0 ||
+        i_sc < 0 || i_mg < 0 || i_out < 0) return -1;
+    n = EOL_PB_GET_TABLE_LEN(w);
+    if (eol_est_config_from_block(w, ss, &cfg) != 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        eol_est_out_t o;
+        eol_mech_out_t mo;
+        int32_t a = (int32_t)strtol(c.f[i_a], NULL, 10);
+        int32_t b = (int32_t)strtol(c.f[i_b], NULL, 10);
+        int32_t h = (int32_t)strtol(c.f[i_h], NULL, 10);
+        float iq = hex_f32(c.f[i_iq]);
+        float sm, y = 0.0f;
+        if (c.row == 1 && (eol_est_init(&e, &cfg, h, a, b) != 0 || eol_mech_init(&m, &e, w) != 0)) {
+            fprintf(stderr, "%s: configuration refused\n", c.path);
+            return -1;
+        }
+        r->rows++;
+        eol_est_step(&e, a, b, h, &o);
+        eol_mech_step(&m, &e, &o, &mo);
+        if (EOL_PB_GET_FLAGS(w) & EOL_PB_FLAG_COMP_ENABLE) {
+            static float tc[EOL_PB_TABLE_LEN_MAX], tp[EOL_PB_TABLE_LEN_MAX];
+            uint16_t j;
+            for (j = 0u; j < n; ++j) {
+                tc[j] = EOL_PB_GET_TABLE_CONST(w, n, j);
+                tp[j] = EOL_PB_GET_TABLE_PER_AMP(w, n, j);
+            }
+            sm = eol_mech_sum(&m, mo.r, e.q, o.theta_hat, o.omega_hat, iq);
+            y = eol_comp_iqc_mech(o.theta_hat, o.omega_hat, iq, tc, tp, n, EOL_PB_GET_LEAD_S(w),
+                                  EOL_PB_GET_IQC_LIMIT(w), mo.active, sm);
+        }
+        if ((unsigned long)o.status != strtoul(c.f[i_st], NULL, 10)) fail(r, &c, "status", strtoul(c.f[i_st], NULL, 10), (unsigned long)o.status);
+        if ((unsigned long)o.learn != strtoul(c.f[i_le], NULL, 10)) fail(r, &c, "learn", strtoul(c.f[i_le], NULL, 10), (unsigned long)o.learn);
+        if ((unsigned long)mo.active != strtoul(c.f[i_ac], NULL, 10)) fail(r, &c, "active", strtoul(c.f[i_ac], NULL, 10), (unsigned long)mo.active);
+        if ((unsigned long)mo.r != strtoul(c.f[i_r], NULL, 10)) fail(r, &c, "r", strtoul(c.f[i_r], NULL, 10), (unsigned long)mo.r);
+        if ((unsigned long)mo.events != strtoul(c.f[i_ev], NULL, 10)) fail(r, &c, "events", strtoul(c.f[i_ev], NULL, 10), (unsigned long)mo.events);
+        if (f32_bits(mo.score) != hex_u32(c.f[i_sc])) fail(r, &c, "score", hex_u32(c.f[i_sc]), f32_bits(mo.score));
+        if (f32_bits(mo.margin) != hex_u32(c.f[i_mg])) fail(r, &c, "margin", hex_u32(c.f[i_mg]), f32_bits(mo.margin));
+        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+
+static int check_mech_compensator(const char *dir, const char *file, result_t *r)
+{
+    static csv_t c;
+    static eol_est_t e;
+    static eol_mech_t m;
+    static float tc[EOL_PB_TABLE_LEN_MAX], tp[EOL_PB_TABLE_LEN_MAX];
+    static char current[64] = "";
+    int rc, i_id, i_q, i_r, i_th, i_om, i_iq, i_out;
+    if (load_v2_blocks(dir) != 0) return -1;
+    if (csv_open(&c, dir, file) != 0) return -1;
+    i_id = csv_col(&c, "block_id");
+    i_q = csv_col(&c, "q");
+    i_r = csv_col(&c, "r");
+    i_th = csv_col(&c, "theta_hat");
+    i_om = csv_col(&c, "omega_hat");
+    i_iq = csv_col(&c, "i_qo");
+    i_out = csv_col(&c, "i_qc");
+    if (i_id < 0 || i_q < 0 || i_r < 0 || i_th < 0 || i_om < 0 || i_iq < 0 || i_out < 0) return -1;
+    while ((rc = csv_next(&c)) == 1) {
+        const uint16_t *w = v2_block(c.f[i_id]);
+        uint16_t n;
+        float th, om, iq, sm, y;
+        if (w == NULL) return -1;
+        n = EOL_PB_GET_TABLE_LEN(w);
+        if (strcmp(current, c.f[i_id]) != 0) {
+            eol_est_config_t cfg;
+            uint16_t j;
+            if (eol_est_config_from_block(w, 20000, &cfg) != 0 || eol_est_init(&e, &cfg, 0, 0, 0) != 0 ||
+                eol_mech_init(&m, &e, w) != 0) return -1;
+            for (j = 0u; j < n; ++j) {
+                tc[j] = EOL_PB_GET_TABLE_CONST(w, n, j);
+                tp[j] = EOL_PB_GET_TABLE_PER_AMP(w, n, j);
+            }
+            snprintf(current, sizeof current, "%s", c.f[i_id]);
+        }
+        r->rows++;
+        th = hex_f32(c.f[i_th]);
+        om = hex_f32(c.f[i_om]);
+        iq = hex_f32(c.f[i_iq]);
+        sm = eol_mech_sum(&m, (int32_t)strtol(c.f[i_r], NULL, 10), (int32_t)strtol(c.f[i_q], NULL, 10), th, om, iq);
+        y = eol_comp_iqc_mech(th, om, iq, tc, tp, n, EOL_PB_GET_LEAD_S(w), EOL_PB_GET_IQC_LIMIT(w), 1, sm);
+        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+    }
+    csv_close(&c);
+    return rc < 0 ? -1 : 0;
+}
+/* ============================================= LAYOUT 2 / MECHANICAL SET (rev 1.2) ==== end ==== */
+
 /* ------------------------------------------------------------------------ dispatch ---- */
 
 typedef int (*checker_fn)(const char *dir, const char *file, result_t *r);
@@ -519,6 +801,12 @@ static const checker_t CHECKERS[] = {
     /* ESTIMATOR SET (H4): the configs file first, its prefix is longer */
     {"estimator_configs.csv", check_estimator_configs},
     {"estimator_", check_estimator},
+    /* layout 2 (revision 1.2) */
+    {"blocks_v2.csv", check_blocks_v2},
+    {"block_checks_v2.csv", check_block_checks},
+    {"mech_configs.csv", check_mech_configs},
+    {"mech_compensator.csv", check_mech_compensator},
+    {"mech_", check_mech},
 };
 
 static char g_manifest[1L << 16];

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.analysis.angle import capture_angle
-from eol_cal.analysis.firmware_angle import firmware_frame_offset
+from eol_cal.analysis.firmware_angle import firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
@@ -170,11 +170,29 @@ def motor_inputs(
     list of MotorInput
         In order of first appearance of each serial; ``captures`` and ``angles`` are per window.
     """
+    if frame not in ("firmware", "offline"):
+        raise InputError(None, "frame", f"unknown value {frame!r}; known: firmware, offline")
+    inputs = segment_motors(captures, motor, settle_s=settle_s, min_revs=min_revs, hall_angle=hall_angle,
+                            mechanics=mechanics)
+    if frame == "firmware":
+        measure_firmware_frames(inputs, [estimator_options] * len(inputs))
+    return inputs
+
+
+def segment_motors(
+    captures: list[Capture],
+    motor: MotorParams | None = None,
+    settle_s: float = 0.1,
+    min_revs: int = 1,
+    hall_angle: str = "measured",
+    mechanics: BenchMechanics | None = None,
+) -> list[MotorInput]:
+    """:func:`motor_inputs` up to the firmware frame: every motor's inputs in the offline frame,
+    for :func:`measure_firmware_frames` (which measures the frames of many motors in one batch)."""
     from eol_cal.capture.windows import split_windows
 
-    for name, value, known in (("frame", frame, ("firmware", "offline")), ("hall_angle", hall_angle, ("measured", "nominal"))):
-        if value not in known:
-            raise InputError(None, name, f"unknown value {value!r}; known: {', '.join(known)}")
+    if hall_angle not in ("measured", "nominal"):
+        raise InputError(None, "hall_angle", f"unknown value {hall_angle!r}; known: measured, nominal")
     captures = [w for c in captures for w in split_windows(c)]
 
     motor = motor or load_motor("paper")
@@ -183,63 +201,84 @@ def motor_inputs(
         if "serial" not in c.metadata:
             raise InputError(c.source, "serial", "missing metadata: captures are grouped by serial")
         groups.setdefault(c.serial, []).append(c)
-    out = []
-    for serial, caps in groups.items():
-        poles = {c.poles for c in caps}
-        ppr = {c.encoder_ppr for c in caps}
-        if len(poles) > 1 or len(ppr) > 1:
-            raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
-        P = poles.pop()
-        thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
-        use_fw = frame == "firmware" and all(c.has("enc_b") for c in caps)
-        cap_ranges = []
-        for ci, c in enumerate(caps):
-            if not c.has("torque"):
-                raise InputError(c.source, "torque", "missing channel, needed for the fit")
-            if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
-                raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-            ang = capture_angle(c)
-            angles.append(ang)
-            i_qo = np.asarray(c.iq_ref(), dtype=float)
-            ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
-            cap_ranges.append(ranges)
-            for a, b in ranges:
-                th = ang.theta_r[a:b]
-                tt = c.t[a:b]
-                omega = float(th[-1] - th[0]) / float(tt[-1] - tt[0])
-                thetas.append(th)
-                ts.append(tt)
-                ys.append(np.asarray(c["torque"][a:b], dtype=float))
-                iqs.append(float(i_qo[a:b].mean()))
-                omegas.append(omega)
-                rpm = omega / (P / 2) * 60.0 / (2 * math.pi)
-                labels.append(f"{c.source}[{a}:{b}]")
-                infos.append(SteadySegmentOrigin(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
-                cap_idx.append(ci)
-        if not thetas:
-            raise InputError(
-                ", ".join(c.source for c in caps),
-                "segments",
-                f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
-                f"{settle_s} s settling (constant speed, direction and iq_ref)",
-            )
-        if hall_angle == "measured":
-            hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
-        else:
-            hall = nominal_hall_angles("asked for")
+    return [_segment_motor(serial, caps, motor, settle_s, min_revs, hall_angle, mechanics)
+            for serial, caps in groups.items()]
+
+
+def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_s: float, min_revs: int,
+                   hall_angle: str, mechanics: BenchMechanics | None) -> MotorInput:
+    poles = {c.poles for c in caps}
+    ppr = {c.encoder_ppr for c in caps}
+    if len(poles) > 1 or len(ppr) > 1:
+        raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
+    P = poles.pop()
+    thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
+    for ci, c in enumerate(caps):
+        if not c.has("torque"):
+            raise InputError(c.source, "torque", "missing channel, needed for the fit")
+        if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
+            raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
+        ang = capture_angle(c)
+        angles.append(ang)
+        i_qo = np.asarray(c.iq_ref(), dtype=float)
+        ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
+        for a, b in ranges:
+            th = ang.theta_r[a:b]
+            tt = c.t[a:b]
+            omega = float(th[-1] - th[0]) / float(tt[-1] - tt[0])
+            thetas.append(th)
+            ts.append(tt)
+            ys.append(np.asarray(c["torque"][a:b], dtype=float))
+            iqs.append(float(i_qo[a:b].mean()))
+            omegas.append(omega)
+            rpm = omega / (P / 2) * 60.0 / (2 * math.pi)
+            labels.append(f"{c.source}[{a}:{b}]")
+            infos.append(SteadySegmentOrigin(c.source, a, b, float(tt[0]), float(tt[-1]), iqs[-1], rpm))
+            cap_idx.append(ci)
+    if not thetas:
+        raise InputError(
+            ", ".join(c.source for c in caps),
+            "segments",
+            f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
+            f"{settle_s} s settling (constant speed, direction and iq_ref)",
+        )
+    if hall_angle == "measured":
+        hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
+    else:
+        hall = nominal_hall_angles("asked for")
+    kt, kt_source = _kt_of(caps, motor)
+    response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
+    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
+    return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
+                      hall=hall)
+
+
+def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int]) -> None:
+    """Measure every motor's firmware frame (:func:`firmware_frame_offsets`, all captures of all
+    motors in one batched estimator run) and set ``frame``, ``frame_offset_rad`` and
+    ``frame_options`` of each ``MotorInput`` in place.
+
+    ``estimator_options``: per motor, the options (contract flags bits 2-5) its ECU ran. A motor
+    whose captures lack ``enc_b``, or whose estimator never anchored on a segment sample, keeps
+    the offline frame (and says why).
+    """
+    jobs, owner = [], []
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options)):
+        if not all(c.has("enc_b") for c in mi.captures):
+            continue
+        for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles)):
+            ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment) if j == ci]
+            if ranges:
+                jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
+                owner.append(k)
+    sums = firmware_frame_offsets(jobs)
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options)):
         fw_sum, fw_n = 0j, 0
-        for c, ang, ranges in zip(caps, angles, cap_ranges):
-            if use_fw and ranges:
-                s_, n_ = firmware_frame_offset(c, ang.theta_r, ranges, hall.hall_angle, estimator_options)
+        for (s_, n_), o in zip(sums, owner):
+            if o == k:
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
-        kt, kt_source = _kt_of(caps, motor)
-        response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
-        seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
-        mi = MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics, hall=hall)
-        if use_fw and fw_n:
+        if fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
-            mi.frame_options = estimator_options
-        elif frame == "firmware":
+            mi.frame_options = options
+        else:
             mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
-        out.append(mi)
-    return out

@@ -154,16 +154,31 @@ def fit_motors(
     InputError
         A capture without serial, torque, i_qo or any steady segment.
     """
-    from eol_cal.analysis.fit import fit_many
     from eol_cal.analysis.fit.capture import motor_inputs
+
+    inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
+                          frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle,
+                          estimator_options=options.estimator_options)
+    return fit_inputs(inputs, options, tool_version, progress)
+
+
+def fit_inputs(
+    inputs: list[MotorInput],
+    options: FitOptions = FitOptions(),
+    tool_version: str | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> MotorsFit:
+    """The part of :func:`fit_motors` after the inputs (:func:`eol_cal.analysis.fit.capture.motor_inputs`,
+    or :func:`~eol_cal.analysis.fit.capture.segment_motors` and
+    :func:`~eol_cal.analysis.fit.capture.measure_firmware_frames` for many motors' frames in one
+    batch): the fit and the result document. ``options``' segmentation and frame settings are
+    those the inputs were made with."""
+    from eol_cal.analysis.fit import fit_many
     from eol_cal.analysis.metrics import eta_percent
     from eol_cal.analysis.result import record_for_motor, result_document
 
     if tool_version is None:
         from eol_cal import __version__ as tool_version
-    inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
-                          frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle,
-                          estimator_options=options.estimator_options)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],
@@ -174,11 +189,14 @@ def fit_motors(
         progress=progress,
         cache_dir=options.cache_dir,
     )
+    from eol_cal.motor import load_motor
+
+    tick_hz = float((options.motor or load_motor("paper")).f_pwm)
     records = []
     for mi, f in zip(inputs, fits):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
         if options.capture_metrics:
             metrics["captures"] = [window_metrics(c, a) for c, a in zip(mi.captures, mi.angles)]
         records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
-                                                  solver_mode=mode)))
+                                                  solver_mode=mode, tick_hz=tick_hz)))
     return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)

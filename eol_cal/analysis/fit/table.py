@@ -11,7 +11,12 @@ The tables come from :func:`eol_cal.firmware.compensator.make_tables`, the bytes
 - ``lead_s`` from :mod:`eol_cal.analysis.lead` at the fit's operating speed, or given;
 - ``iqc_limit`` = 10 % of the largest |i_qo| the motor was calibrated at (65 A -> 6.5 A), unless
   given: a bound on what a wrong table could inject, well above the ~1-2 A the paper needed;
-- ``calibrated_at`` = the result's ``created`` time.
+- ``calibrated_at`` = the result's ``created`` time;
+- layout 2 (contract revision 1.2, the default): the result's fingerprint, frame and mechanical
+  orders 1..3 (load-independent; the per-ampere part 0) with their tables, the identification
+  thresholds, and ``MECH_COMP_ENABLE`` when the result's mechanical status is ``ok`` and the
+  estimator options include ``EST_LEARN_PITCH_ERRORS`` (else off, the reason in
+  :func:`mech_off_reasons`); ``layout=1`` writes the block of revision 1.1.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ def block_from_result(
     calibrated_at: int | None = None,
     source: str = "<result>",
     options: int | None = None,
+    layout: int = 2,
 ) -> ParamBlock:
     """A :class:`~eol_cal.firmware.block.ParamBlock` for one usable motor result.
 
@@ -84,6 +90,9 @@ def block_from_result(
     options : int, optional
         Estimator option bits (contract ``flags`` bits 2-5) the block carries; default the
         ``best`` choice (:data:`eol_cal.firmware.options.DEFAULT_PRESET`).
+    layout : {2, 1}
+        2: with the mechanical part of revision 1.2 (``MECH_COMP_ENABLE`` as :func:`mech_off_reasons`
+        decides); 1: the block of revision 1.1.
 
     Raises
     ------
@@ -119,9 +128,20 @@ def block_from_result(
         calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
     if len(str(serial).encode("ascii", "replace")) > 16:
         raise InputError(source, "serial", f"{serial!r}: the block holds at most 16 ASCII characters")
+    if layout not in (1, 2):
+        raise InputError(source, "layout", f"{layout!r}: layout 1 or 2")
+    flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | _options(options)
+    mech = None
+    if layout == 2:
+        mech = mech_params(res, kt)
+        if not mech_off_reasons(res, flags):
+            from eol_cal.firmware.block import FLAG_MECH_COMP_ENABLE
+
+            flags |= FLAG_MECH_COMP_ENABLE
     return ParamBlock(
         sequence=1,
-        flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | _options(options),
+        flags=flags,
+        mech=mech,
         serial=str(serial),
         calibrated_at=int(calibrated_at),
         poles=int(res.poles),
@@ -138,6 +158,42 @@ def block_from_result(
         table_const=tc,
         table_per_amp=tp,
     )
+
+
+def mech_off_reasons(res: MotorResult, flags: int) -> list[str]:
+    """Why a layout-2 block of this result leaves ``MECH_COMP_ENABLE`` off (empty: it may switch it on)."""
+    from eol_cal.firmware.contract import FLAGS_MECH_NEEDS
+    from eol_cal.firmware.block import flag_names
+
+    if res.mech is None:
+        return ["the fit result has no mechanical part (written before revision 1.2, or without a firmware frame)"]
+    reasons = list(res.mech.reasons) if not res.mech.enabled else []
+    if flags & FLAGS_MECH_NEEDS != FLAGS_MECH_NEEDS:
+        reasons.append(f"the estimator options lack {flag_names(FLAGS_MECH_NEEDS & ~flags)}, which the "
+                       "identification needs")
+    return reasons
+
+
+def mech_params(res: MotorResult, kt: float):
+    """The block's mechanical part from the result (an empty one without a mechanical result)."""
+    import numpy as np
+
+    from eol_cal.firmware.mech_params import ORDERS, make_mech_tables, unused_mech
+
+    m = res.mech
+    base = unused_mech(int(res.encoder_ppr))
+    if m is None:
+        return base
+    c = [0.0] * len(ORDERS)
+    ph = [0.0] * len(ORDERS)
+    for o in m.orders:
+        if o.order in ORDERS:
+            c[o.order - 1], ph[o.order - 1] = float(o.c.value), float(o.phase_c.value)
+    zeros = [0.0] * len(ORDERS)
+    tc, tp = make_mech_tables(c, ph, zeros, zeros, kt)
+    return base.replace(fp_dirs=m.dirs, grid_phase=m.grid_phase, id_margin=m.threshold, mech_c=tuple(c),
+                        mech_phase_c=tuple(ph), mech_table_const=tc, mech_table_per_amp=tp,
+                        fingerprint=np.asarray(m.fingerprint, dtype=np.float32))
 
 
 def _options(options: int | None) -> int:

@@ -1,0 +1,104 @@
+"""`eol-cal lot simulate` on 2 cores: wall time of a lot, 2 workers against 1, and its predicted
+yield and compensated p-p against the 100-motor `bench/bench_fit_lot.py` result.
+
+    python bench/bench_fit_lot.py --motors 100 --estimator best --no-nominal-halls --no-effective --json fitlot.json
+    python bench/bench_lot_simulate.py --motors 1000 --fit-lot fitlot.json [--profile FILE] [--scaling 160]
+
+The lot runs as the command runs it (:func:`eol_cal.lot.simulate.simulate_lot` on the local
+cluster `eol-cal lot simulate` starts, records into a new SQLite file), with the limits of
+``fixtures/limits.toml`` (variant EPS-STD) but ``max_pp_after_pct = 1.0``: bench_fit_lot's
+compensated p-p target, so the lot's yield and the fraction of bench_fit_lot's motors within
+1.0 % are the same figure. bench_fit_lot's 95 % intervals: Wilson's for its fraction within
+1.0 %, the order statistics' for its median. ``--scaling N``: N motors with 1 and then 2 workers
+(alternated twice), the speed-up of the second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profile: str, seed: int = 0) -> float:
+    from distributed import Client
+
+    from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
+    from eol_cal.lot.simulate import LotPlan, simulate_lot
+
+    plan = LotPlan(name, "default", str(limits), "EPS-STD", motors, seed=seed, profile=profile)
+    t0 = time.perf_counter()
+    with local_cluster(workers) as cluster, Client(cluster) as client:
+        client.register_plugin(RefitWorkerSetup(default_cache_dir()))
+        out = simulate_lot(plan, db, client, cache_dir=default_cache_dir())
+    if out.failed_batches:
+        raise RuntimeError(out.failed_batches[0][1])
+    return time.perf_counter() - t0
+
+
+def intervals(pp: np.ndarray) -> dict[str, tuple[float, float, float]]:
+    """bench_fit_lot's fraction within 1.0 % and median, each with its 95 % interval."""
+    from scipy import stats
+
+    n, k = len(pp), int(np.count_nonzero(pp <= 1.0))
+    z, p = 1.959964, k / n
+    den = 1 + z * z / n
+    c, h = (p + z * z / (2 * n)) / den, z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
+    s = np.sort(pp)
+    lo, hi = int(stats.binom.ppf(0.025, n, 0.5)), int(stats.binom.isf(0.025, n, 0.5))
+    return {"yield": (p, c - h, c + h), "median": (float(np.median(pp)), float(s[lo - 1]), float(s[hi]))}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--motors", type=int, default=1000)
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--profile", default="eol-default")
+    ap.add_argument("--fit-lot", type=Path, default=None, help="bench_fit_lot.py --json rows to compare with")
+    ap.add_argument("--scaling", type=int, default=0, help="motors of the 1-against-2-workers runs (0: none)")
+    a = ap.parse_args()
+    from eol_cal.station.records_query import query_records
+
+    with tempfile.TemporaryDirectory() as d:
+        limits = Path(d) / "limits.toml"
+        limits.write_text((ROOT / "fixtures" / "limits.toml").read_text().replace(
+            "max_pp_after_pct = 2.0", "max_pp_after_pct = 1.0", 1))
+        load0 = os.getloadavg()[0]
+        db = Path(d) / "lot.sqlite"
+        wall = run_lot(db, "LOT", a.motors, a.workers, limits, a.profile)
+        print(f"{a.motors} motors, {a.workers} workers, profile {a.profile}: {wall:.0f} s "
+              f"({wall / 60:.1f} min; target <= 10 min); load average {load0:.2f} at the start, "
+              f"{os.getloadavg()[0]:.2f} at the end", flush=True)
+        recs = query_records(db, kind="simulated")
+        pp = np.array([r.value("pp_after_pct") for r in recs])
+        verdicts = {v: sum(r.verdict == v for r in recs) for v in ("pass", "fail", "error")}
+        judged = verdicts["pass"] + verdicts["fail"]
+        print(f"predicted yield {verdicts['pass'] / judged:.3f} ({verdicts}); compensated p-p median "
+              f"{np.nanmedian(pp):.3f} %, p95 {np.nanpercentile(pp, 95):.3f} %, within 1.0 %: "
+              f"{int(np.count_nonzero(pp <= 1.0))}/{len(pp)}")
+        if a.fit_lot is not None:
+            rows = json.loads(a.fit_lot.read_text())
+            ref = intervals(np.array([r["pp_after_pct"] for r in rows if r.get("estimator", "best") == "best"], float))
+            y, m = ref["yield"], ref["median"]
+            ours_y, ours_m = verdicts["pass"] / judged, float(np.nanmedian(pp))
+            print(f"bench_fit_lot ({len(rows)} motors): within 1.0 % {y[0]:.3f} [95 % {y[1]:.3f}, {y[2]:.3f}] -> "
+                  f"lot {'inside' if y[1] <= ours_y <= y[2] else 'OUTSIDE'}; median {m[0]:.3f} % [{m[1]:.3f}, {m[2]:.3f}] "
+                  f"-> lot {'inside' if m[1] <= ours_m <= m[2] else 'OUTSIDE'}")
+        for r in range(2 if a.scaling else 0):
+            t = {}
+            for w in (1, 2):
+                t[w] = run_lot(Path(d) / f"s{r}{w}.sqlite", f"S{r}{w}", a.scaling, w, limits, a.profile, seed=10_000)
+            print(f"scaling round {r + 1}: {a.scaling} motors, 1 worker {t[1]:.0f} s, 2 workers {t[2]:.0f} s: "
+                  f"{t[1] / t[2]:.2f}x (target >= 1.8x); load {os.getloadavg()[0]:.2f}", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,184 @@
+"""The fit's mechanical part (contract revision 1.2): the encoder's fingerprint, the mechanical
+orders 1..3 in the frame the firmware identifies, the identification margin, and whether the
+block may switch ``MECH_COMP_ENABLE`` on.
+
+After the ripple fit (:mod:`eol_cal.analysis.fit`, whose per-segment mechanical pair has a phase of
+its own in every segment: the halls cannot tell the pole pair) the fingerprint
+(:mod:`eol_cal.analysis.fingerprint`) gives every sample of every identified window its mechanical
+angle in the block's frame. The torque left after the fitted electrical ripple is then fitted,
+all segments together, with a drift polynomial per segment and one sine/cosine pair per
+mechanical order h = 1..3 shared by all: each order seen through the bench's response and the
+transducer's lag at the segment's speed, as the ripple fit models them. The orders are
+load-independent (N*m; the plant's unbalance is); the block's per-ampere part is 0.
+
+Intervals: the least-squares covariance of the joint fit, the residual variance scaled by the
+residual's lag-one correlation ((1 + r1) / (1 - r1), the samples are not independent).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from eol_cal.analysis import fingerprint as fpr
+from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult
+from eol_cal.analysis.motor_result import ValueCi
+from eol_cal.firmware.mech_params import ID_MARGIN, ID_MIN_SCORE, ORDERS
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.fit import FitSpec, MotorFit
+    from eol_cal.analysis.fit.capture import MotorInput
+
+#: z of a two-sided 95 % interval
+_Z95 = 1.959963984540054
+
+
+#: a steady segment's stretch for the fingerprint extends while the speed stays within this
+#: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
+#: segments of eol-default settle slowly after their ramp)
+EXTEND_TOL = 0.1
+
+
+def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
+    """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
+    fit, extended both ways while the direction is the same and the speed within
+    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
+    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
+    out: list[tuple[int, int]] = []
+    for k, info in enumerate(mi.info):
+        if mi.capture_of_segment[k] != ci:
+            continue
+        ws = float(np.median(w[info.start:info.stop]))
+        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        before = np.flatnonzero(bad[:info.start])
+        after = np.flatnonzero(bad[info.stop:])
+        a = int(before[-1]) + 1 if len(before) else 0
+        b = info.stop + int(after[0]) if len(after) else len(w)
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
+    """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
+    out = []
+    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles)):
+        ranges = fingerprint_ranges(mi, ci)
+        if not ranges or not cap.has("enc_b"):
+            out.append(None)
+            continue
+        theta_fw = np.asarray(ang.theta_r, dtype=float) + mi.frame_offset_rad
+        out.append(fpr.window_edges(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
+    return out
+
+
+def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
+               fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
+    """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
+    the identified windows; None when no segment's window is identified."""
+    from eol_cal.analysis.fit.model import _legendre_rows
+    from eol_cal.analysis.fit.plot import fitted_ripple
+    from eol_cal.analysis.fit import path_gain
+
+    seg = mi.segments
+    pp = seg.pole_pairs
+    H = len(ORDERS)
+    deg = spec.drift_degree
+    blocks, rhs = [], []
+    gains6 = path_gain(seg, spec)
+    used = [s for s in range(seg.n_segments) if fp.offsets[mi.capture_of_segment[s]] is not None]
+    if not used:
+        return None
+    nb = (deg + 1) * len(used)
+    for j, s in enumerate(used):
+        ci = mi.capture_of_segment[s]
+        info = mi.info[s]
+        theta = np.asarray(seg.theta[s], dtype=float)
+        y = np.asarray(seg.torque[s], dtype=float) - fitted_ripple(mi, fit, spec, s, theta, gains6)
+        q = prints[ci].q[info.start:info.stop]
+        th_m = fpr.block_frame_mech_angle(q, fp.offsets[ci], fp.grid_phase, theta + mi.frame_offset_rad,
+                                          mi.poles, mi.encoder_ppr)
+        w_m = seg.omega_e[s] / pp
+        freqs = np.asarray(ORDERS, dtype=float) * w_m
+        g = 1.0 / (1.0 + 1j * freqs * fit.delay_s) if spec.transducer == "lowpass" else np.exp(-1j * freqs * fit.delay_s)
+        if seg.path_response is not None:
+            g = g * np.asarray(seg.path_response(freqs), dtype=complex)
+        t = np.asarray(seg.t[s], dtype=float)
+        X = np.zeros((len(t), nb + 2 * H))
+        legt = np.empty((deg + 1, len(t)))
+        _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, legt)
+        X[:, j * (deg + 1):(j + 1) * (deg + 1)] = legt.T
+        for i, h in enumerate(ORDERS):
+            arg = h * th_m + np.angle(g[i])
+            # the ripple -c sin(h th + phase) = -(A sin(h th) + B cos(h th)), A = c cos phase, B = c sin phase
+            X[:, nb + 2 * i] = -abs(g[i]) * np.sin(arg)
+            X[:, nb + 2 * i + 1] = -abs(g[i]) * np.cos(arg)
+        blocks.append(X)
+        rhs.append(y)
+    X = np.concatenate(blocks)
+    y = np.concatenate(rhs)
+    XtX = X.T @ X
+    sol = np.linalg.solve(XtX, X.T @ y)
+    res = y - X @ sol
+    r1 = float(np.dot(res[1:], res[:-1]) / max(np.dot(res, res), 1e-300))
+    inflate = (1.0 + r1) / max(1.0 - r1, 1e-3)
+    s2 = float(res @ res) / max(1, len(y) - X.shape[1]) * max(inflate, 1.0)
+    cov = s2 * np.linalg.inv(XtX)
+    out = []
+    for i, h in enumerate(ORDERS):
+        a, b = sol[nb + 2 * i], sol[nb + 2 * i + 1]
+        c = math.hypot(a, b)
+        phase = math.atan2(b, a)
+        C = cov[nb + 2 * i: nb + 2 * i + 2, nb + 2 * i: nb + 2 * i + 2]
+        u = np.array([math.cos(phase), math.sin(phase)])
+        v = np.array([-math.sin(phase), math.cos(phase)])
+        sd_c = math.sqrt(max(float(u @ C @ u), 0.0))
+        sd_p = math.sqrt(max(float(v @ C @ v), 0.0)) / c if c > 0 else math.pi
+        out.append(MechOrder(h, ValueCi(c, _Z95 * sd_c), ValueCi(phase, min(_Z95 * sd_p, math.pi))))
+    return tuple(out)
+
+
+def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, threshold: float = ID_MARGIN,
+             min_score: float = ID_MIN_SCORE) -> MechResult:
+    """The mechanical result of one motor (fingerprint, margin, orders, the block's switch).
+
+    Parameters
+    ----------
+    mi, fit, spec
+        The motor's inputs and its ripple fit (offline frame) with the model it was fitted with.
+    tick_hz : float
+        The firmware's tick rate (Hz), for the predicted margin.
+    threshold, min_score : float
+        The identification margin and least cosine the block will require: below them the
+        block's ``MECH_COMP_ENABLE`` stays off.
+    """
+    N = mi.encoder_ppr
+    reasons: list[str] = []
+    prints = window_prints(mi) if mi.frame == "firmware" else [None] * len(mi.captures)
+    if mi.frame != "firmware":
+        reasons.append("no firmware frame (enc_b missing or the estimator never anchored): no fingerprint")
+    fp = fpr.merge_windows(prints, mi.poles, N)
+    if fp is None:
+        if not reasons:
+            reasons.append("no capture window holds a revolution and a half of steady edges: no fingerprint")
+        zeros = (0.0,) * (2 * N)
+        return MechResult(MECH_OFF, tuple(reasons), zeros, (None,) * (2 * N), 0, 0.0,
+                          tuple([None] * len(prints)), 0.0, 0.0, threshold, fpr.REF_RPM, ())
+    score, margin = fpr.predicted_margin(fp.fp, fp.sigma, fp.dirs, mi.poles, N, tick_hz)
+    if margin < threshold or score < min_score:
+        reasons.append(f"fingerprint too weak to identify: predicted margin {margin:.3f} (least {threshold:g}), "
+                       f"cosine {score:.3f} (least {min_score:g}) after a revolution at {fpr.REF_RPM:g} rpm")
+    orders = fit_orders(mi, fit, spec, prints, fp) if fit.converged else None
+    if orders is None:
+        reasons.append("mechanical orders not fitted (no segment in an identified window, or the ripple fit did not converge)")
+    sigma = tuple(None if not math.isfinite(x) else float(x) for x in fp.sigma)
+    # a window that could not be placed is left out of the fingerprint and the orders, no reason to switch off
+    return MechResult(
+        status=MECH_OFF if reasons else MECH_OK, reasons=tuple(reasons),
+        fingerprint=tuple(float(x) for x in fp.fp), sigma=sigma, dirs=fp.dirs, grid_phase=float(fp.grid_phase),
+        windows=tuple(fp.offsets), score=float(score), margin=float(margin), threshold=threshold,
+        ref_rpm=fpr.REF_RPM, orders=orders or ())

@@ -1,0 +1,397 @@
+"""The rotor's mechanical angle without an index pulse, and the mechanical-order compensation
+(contract revision 1.2, ``firmware_params/MECH.md``): the reference the C port
+(``firmware_params/c/eol_mech.c``), the golden vectors, the plant's ECU and the analysis share.
+
+The 64 PPR encoder has no index and the halls repeat every electrical revolution, so after power-up
+the firmware knows the electrical angle but not which of the P/2 pole pairs the rotor is under,
+nor which encoder pulse is which. A layout-2 block carries what identifies them:
+
+* the encoder's *fingerprint*: the placement error of each A edge, measured at end of line in the
+  block's frame (pulse 0 of that frame is an arbitrary pulse; ``grid_phase`` says where the frame's
+  quadrature boundary 0 sits against the halls);
+* thresholds: the least cosine of the best hypothesis, the least margin over the next one, the
+  largest hall-to-encoder fraction error.
+
+Per tick (:func:`mech_step`, after the estimator's :func:`eol_cal.firmware.estimator.step_pitch`)
+the identifier accumulates the pitch sizes the estimator measures at steady speed (improvement 4),
+per edge and direction. Once a revolution's worth of new samples is in and every edge of the
+current direction has one, it *evaluates*: the halls give the firmware's encoder frame against the
+block's up to the pole pair (``P/2`` hypotheses of the pulse offset ``r``, one per pole pair); the
+measured pitch errors are correlated (cosine) with the block's pitch errors under each hypothesis;
+the best must reach ``id_min_score``, lead the next by ``id_margin`` and agree with the halls within
+``id_frac_tol``. Two evaluations in a row that pass with the same ``r`` identify the frame; from then
+on every evaluation must give the same ``r`` and the hall fraction is checked at every revolution
+mark, else the compensation is withdrawn and the identification starts again. A count or hall
+fault (QEP error, a corrected lost pulse, a hall reading 0/7 or out of sequence) withdraws it at
+once. Identified, :func:`mech_sum` reads the block's mechanical tables at the rotor's mechanical
+angle in the block's frame, and :func:`eol_cal.firmware.compensator.i_qc` adds it before the clamp.
+
+Everything is binary32 in a fixed order with ``xp`` operations only (no Python branch on values):
+bit-exact under numpy on one motor (sums run element by element, ``np.add.accumulate``), traced
+under ``jax.numpy`` (``vmap`` over motors) for the plant, where XLA's sums and fused multiply-adds
+make it float32-close rather than bit-exact.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware.compensator import lead_angle, table_sum
+from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_MECH_NEEDS
+from eol_cal.firmware.estimator_config import (
+    F32, I32, PI, ST_HALL_FAULT, ST_HALL_SEQ, ST_MISSING_EDGE, ST_QEP_ERROR, TWO_PI, EstimatorConfig, consts,
+    wrap, wrap_pm,
+)
+from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
+from eol_cal.firmware.mech_params import FP_FORWARD, MECH_TABLE_LEN, MechParams
+
+#: a pitch sample is accumulated only while its edge has fewer (the mean no longer moves; the
+#: binary32 sum keeps its resolution)
+CNT_MAX = 1024
+#: most pole pairs (hypotheses) the identifier evaluates (the C port's EOL_MECH_MAX_PP)
+MAX_PP = 64
+#: estimator status bits after which the count or the halls cannot be trusted: withdraw and start again
+RESET_STATUS = ST_QEP_ERROR | ST_MISSING_EDGE | ST_HALL_FAULT | ST_HALL_SEQ
+
+# event bits of MechOut.events
+EV_EVAL = 1 << 0
+"""An evaluation ran this tick."""
+EV_PASS = 1 << 1
+"""The evaluation's best hypothesis passed the three thresholds."""
+EV_IDENTIFIED = 1 << 2
+"""This tick's evaluation confirmed the candidate: the compensation starts."""
+EV_RESET_FAULT = 1 << 3
+"""A count or hall fault (``RESET_STATUS``) reset the identification."""
+EV_RESET_FRACTION = 1 << 4
+"""Identified, the hall-to-encoder fraction at a revolution mark disagreed: withdrawn."""
+EV_RESET_EVAL = 1 << 5
+"""Identified, an evaluation failed or gave another offset: withdrawn."""
+EVENT_BITS = {"EVAL": EV_EVAL, "PASS": EV_PASS, "IDENTIFIED": EV_IDENTIFIED, "RESET_FAULT": EV_RESET_FAULT,
+              "RESET_FRACTION": EV_RESET_FRACTION, "RESET_EVAL": EV_RESET_EVAL}
+
+
+@dataclass(frozen=True)
+class MechConsts:
+    """Static integers and binary32 constants of the identifier (from the estimator's configuration).
+
+    N : pulses per revolution; PP : pole pairs (hypotheses); M : quadrature counts per revolution;
+    DELTA, QUARTER : rad electrical of a pitch and a count; INV_DELTA = 1/DELTA; KM : mechanical
+    table entries per rad of unwrapped electrical angle, ``MECH_TABLE_LEN / (P * pi)``.
+    """
+
+    N: int
+    PP: int
+    M: int
+    DELTA: np.float32
+    QUARTER: np.float32
+    INV_DELTA: np.float32
+    KM: np.float32
+
+    @classmethod
+    def of(cls, cfg: EstimatorConfig) -> "MechConsts":
+        c = consts(cfg)
+        return cls(N=cfg.N_enc, PP=cfg.poles // 2, M=c.M, DELTA=c.DELTA, QUARTER=c.QUARTER,
+                   INV_DELTA=F32(1.0) / c.DELTA, KM=F32(MECH_TABLE_LEN) / (F32(cfg.poles) * PI))
+
+
+class MechTables(NamedTuple):
+    """What the identifier reads from the block, derived once at init (arrays may be traced).
+
+    enabled : int32 0/1, MECH_COMP_ENABLE honoured (flags, layout 2, a fingerprint).
+    dirs : int32, fp_dirs.
+    dF : f32[2N] the fingerprint's pitch errors, ``fp[2m+d] - fp[2((m-1) mod N)+d]`` (rad).
+    EF : f32[2] their energy per direction, ``sum_m dF[2m+d]**2`` (element by element).
+    grid_phase, id_min_score, id_margin, id_frac_tol, lead_s : f32 (rad, 1, 1, rad, s).
+    table_const, table_per_amp : f32[MECH_TABLE_LEN] (A, A/A).
+    """
+
+    enabled: Array
+    dirs: Array
+    dF: Array
+    EF: Array
+    grid_phase: Array
+    id_min_score: Array
+    id_margin: Array
+    id_frac_tol: Array
+    lead_s: Array
+    table_const: Array
+    table_per_amp: Array
+
+
+class MechState(NamedTuple):
+    """The identifier's state (all zero at power-on but ``cand`` = -1).
+
+    acc : f32[2N] sum of the pitch samples per edge and direction (index ``2m + d``, d = 1 reverse).
+    cnt : i32[2N] samples in ``acc``, saturating at CNT_MAX.
+    n_new : i32 samples since the last evaluation (saturating at N).
+    cand : i32 offset that passed the last evaluation (-1: none).
+    active : i32 0/1 identified: the mechanical compensation runs.
+    r : i32 the identified offset: firmware pulse m is the block's pulse (m + r) mod N.
+    score, margin : f32 the last evaluation's best cosine and its margin over the next.
+    """
+
+    acc: Array
+    cnt: Array
+    n_new: Array
+    cand: Array
+    active: Array
+    r: Array
+    score: Array
+    margin: Array
+
+
+class MechOut(NamedTuple):
+    """Per tick: ``active`` (0/1), ``r``, ``events`` (EV_* bits), ``score`` and ``margin`` of the last evaluation."""
+
+    active: Array
+    r: Array
+    events: Array
+    score: Array
+    margin: Array
+
+
+def _seq_sum(x: Array, xp: ArrayModule) -> Array:
+    """Sum of the last axis, element by element in binary32 under numpy (the C loop's order)."""
+    if xp is np:
+        return np.add.accumulate(np.asarray(x, np.float32), axis=-1)[..., -1]
+    return xp.sum(x, axis=-1)
+
+
+def mech_enabled(flags: int, layout_version: int, mech: MechParams | None) -> bool:
+    """Whether a block's mechanical compensation is honoured: layout 2, ``MECH_COMP_ENABLE`` with
+    ``COMP_ENABLE``, ``INTERP_ENABLE`` and ``EST_LEARN_PITCH_ERRORS``, and a measured fingerprint."""
+    return (layout_version >= 2 and mech is not None and bool(flags & FLAG_MECH_COMP_ENABLE)
+            and flags & FLAGS_MECH_NEEDS == FLAGS_MECH_NEEDS and mech.fp_dirs != 0)
+
+
+def mech_tables(mech: MechParams | None, lead_s: float, enabled: bool, N: int) -> MechTables:
+    """The identifier's tables of a block's mechanical part (numpy binary32; MECH.md "Init").
+
+    A block without one (layout 1) gives disabled, all-zero tables of the right shapes.
+    """
+    f32 = np.float32
+    if mech is None or mech.fingerprint.size != 2 * N:
+        fp = np.zeros(2 * N, f32)
+        tc = tp = np.zeros(MECH_TABLE_LEN, f32)
+        scal: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0)
+        dirs, enabled = 0, False
+    else:
+        fp = np.asarray(mech.fingerprint, f32)
+        tc, tp = mech.mech_table_const, mech.mech_table_per_amp
+        scal = (mech.grid_phase, mech.id_min_score, mech.id_margin, mech.id_frac_tol)
+        dirs = mech.fp_dirs
+    prev = np.roll(fp.reshape(N, 2), 1, axis=0).reshape(-1)
+    dF = (fp - prev).astype(f32)
+    EF = np.array([_seq_sum(dF[d::2] * dF[d::2], np) for d in (0, 1)], f32)
+    gp, lo, margin, frac = (f32(v) for v in scal)
+    return MechTables(enabled=I32(int(enabled)), dirs=I32(dirs), dF=dF, EF=EF, grid_phase=gp, id_min_score=lo,
+                      id_margin=margin, id_frac_tol=frac, lead_s=f32(lead_s),
+                      table_const=np.asarray(tc, f32), table_per_amp=np.asarray(tp, f32))
+
+
+def block_mech_tables(block, N: int | None = None) -> MechTables:
+    """:func:`mech_tables` of a :class:`eol_cal.firmware.block.ParamBlock` (layout 1: disabled)."""
+    N = int(block.encoder_ppr) if N is None else N
+    mech = getattr(block, "mech", None)
+    enabled = mech_enabled(block.flags, block.layout_version, mech) and int(block.poles) // 2 <= MAX_PP
+    return mech_tables(mech, block.lead_s, enabled, N)
+
+
+def mech_init(N: int, xp: ArrayModule = np) -> MechState:
+    """Power-on state of the identifier for an encoder of ``N`` pulses."""
+    zi = xp.asarray(I32(0))
+    zf = xp.asarray(F32(0.0))
+    return MechState(acc=xp.zeros(2 * N, xp.float32), cnt=xp.zeros(2 * N, xp.int32), n_new=zi,
+                     cand=xp.asarray(I32(-1)), active=zi, r=zi, score=zf, margin=zf)
+
+
+def _set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
+    if hasattr(arr, "at"):
+        return arr.at[idx].add(val)
+    out = arr.copy()
+    out[idx] = out[idx] + val
+    return out
+
+
+def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, d: Array, xp: ArrayModule):
+    """One evaluation (MECH.md, "Evaluation"): (pass, r_best, score, margin, |e_best|, complete)."""
+    f32, i32 = xp.float32, xp.int32
+    N = mc.N
+    m = xp.arange(N, dtype=xp.int32)
+    idx = I32(2) * m + d
+    cnt_d = xp.take(ms.cnt, idx)
+    complete = xp.min(cnt_d) >= I32(1)
+    a = xp.take(ms.acc, idx) / f32(xp.maximum(cnt_d, I32(1)))
+    Ea = _seq_sum(a * a, xp)
+    mean_c = _seq_sum(xp.take(es.c_tab, idx), xp) / F32(N)
+    dg = wrap((es.G + mean_c) - tb.grid_phase, xp)
+    EF = xp.take(tb.EF, d)
+    den = xp.sqrt(Ea * EF)
+    best_rho = best_r = best_e = None
+    rhos, rs = [], []
+    for j in range(mc.PP):
+        x = (dg + TWO_PI * F32(j)) * mc.INV_DELTA
+        r = xp.floor(x + F32(0.5)).astype(i32) % I32(N)
+        e = wrap_pm(dg - f32(r) * mc.DELTA, xp)
+        s = _seq_sum(a * xp.take(tb.dF, I32(2) * ((m + r) % I32(N)) + d), xp)
+        rho = xp.where(den > F32(0.0), s / xp.where(den > F32(0.0), den, F32(1.0)), F32(0.0))
+        if j == 0:
+            best_rho, best_r, best_e, best_j = rho, r, e, xp.asarray(I32(0))
+        else:
+            better = rho > best_rho
+            best_rho = xp.where(better, rho, best_rho)
+            best_r = xp.where(better, r, best_r)
+            best_e = xp.where(better, e, best_e)
+            best_j = xp.where(better, I32(j), best_j)
+        rhos.append(rho)
+        rs.append(r)
+    second = xp.asarray(F32(0.0))
+    for j, rho in enumerate(rhos):
+        second = xp.where(best_j != I32(j), xp.maximum(second, rho), second)
+    margin = best_rho - second
+    ok = (best_rho >= tb.id_min_score) & (margin >= tb.id_margin) & (xp.abs(best_e) <= tb.id_frac_tol)
+    return ok, best_r, best_rho, margin, complete
+
+
+class MechPre(NamedTuple):
+    """The cheap first half of a tick (:func:`mech_accumulate`): the state with this tick's sample
+    accumulated, and whether a fault, an evaluation or a revolution mark check is due."""
+
+    ms: MechState
+    fault: Array
+    due: Array
+    mark: Array
+    d: Array
+
+
+def mech_accumulate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
+                    ps: PitchSample, xp: ArrayModule = np) -> MechPre:
+    """Steps 1 and the conditions of 2 and 3 of a tick (MECH.md, "Per tick")."""
+    i32 = xp.int32
+    N = mc.N
+    enabled = tb.enabled != 0
+    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX))
+    acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
+    cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
+    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
+    ms = ms._replace(acc=acc, cnt=cnt, n_new=n_new)
+    fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
+    d = i32(es.dir_last < 0)
+    has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
+    due = enabled & ~fault & (es.anchored != 0) & (n_new >= I32(N)) & has_dir
+    mark = enabled & (ms.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0)
+    return MechPre(ms, fault, due, mark, d)
+
+
+def mech_idle(pre: MechPre, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """The rest of a tick when neither an evaluation nor a mark check is due (only a fault can
+    change the state): what :func:`mech_finish` gives then, without its arithmetic."""
+    ms, fault = pre.ms, pre.fault
+    w = _withdrawn(ms, xp)
+    new = MechState(*(xp.where(fault, a, b) for a, b in zip(w, ms)))
+    events = xp.where(fault, I32(EV_RESET_FAULT), I32(0))
+    return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
+
+
+def mech_finish(mc: MechConsts, tb: MechTables, pre: MechPre, es: EstimatorState,
+                xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """Steps 2 to 4 of a tick: evaluation, revolution mark, the state's update (MECH.md, "Per tick")."""
+    i32 = xp.int32
+    N = mc.N
+    one = I32(1)
+    ms, fault, due, mark, d = pre
+    ok, r_best, score, margin, complete = _evaluate(mc, tb, ms, es, d, xp)
+    ev_eval = due & complete
+    passed = ev_eval & ok
+    confirm = passed & (ms.active == 0) & (ms.cand == r_best)
+    eval_bad = ev_eval & (ms.active != 0) & (~ok | (r_best != ms.r))
+    # 3. revolution mark: the hall-to-encoder fraction of the identified offset
+    mean_c = _seq_sum(xp.take(es.c_tab, I32(2) * xp.arange(N, dtype=i32) + d), xp) / F32(N)
+    e_now = wrap_pm(((es.G + mean_c) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
+    frac_bad = mark & ~ev_eval & (xp.abs(e_now) > tb.id_frac_tol)
+    reset = fault | eval_bad | frac_bad
+    active = xp.where(reset, I32(0), xp.where(confirm, one, ms.active))
+    r = xp.where(confirm, r_best, ms.r)
+    cand = xp.where(reset, I32(-1), xp.where(ev_eval, xp.where(ok, r_best, I32(-1)), ms.cand))
+    keep = ~reset
+    new = MechState(acc=xp.where(keep, ms.acc, F32(0.0)), cnt=xp.where(keep, ms.cnt, I32(0)),
+                    n_new=xp.where(keep & ~ev_eval, ms.n_new, I32(0)), cand=cand, active=active, r=r,
+                    score=xp.where(ev_eval, score, ms.score), margin=xp.where(ev_eval, margin, ms.margin))
+    events = (i32(ev_eval) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
+              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad) * I32(EV_RESET_FRACTION)
+              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
+    return new, MechOut(active=active, r=r, events=events, score=new.score, margin=new.margin)
+
+
+def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
+              ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """One tick of the identifier after the estimator's (MECH.md, "Per tick").
+
+    Parameters
+    ----------
+    mc : MechConsts
+        Static.
+    tb : MechTables
+        The block's (:func:`mech_tables`).
+    ms : MechState
+    es : EstimatorState
+        The estimator's state AFTER this tick.
+    eo : EstimatorOut
+        This tick's estimator outputs (its status bits).
+    ps : PitchSample
+        This tick's pitch sample (:func:`eol_cal.firmware.estimator.step_pitch`).
+
+    Notes
+    -----
+    :func:`mech_accumulate` then :func:`mech_finish`; when neither an evaluation nor a mark check
+    is due, :func:`mech_idle` gives the same result without the arithmetic (numpy takes that
+    branch on the value; a JAX batch can take it with ``lax.cond`` when no motor needs more,
+    as :mod:`eol_cal.firmware.mech_sim` does).
+    """
+    pre = mech_accumulate(mc, tb, ms, es, eo, ps, xp)
+    if xp is np and not (pre.due or pre.mark):
+        return mech_idle(pre, xp)
+    return mech_finish(mc, tb, pre, es, xp)
+
+
+def _withdrawn(ms: MechState, xp: ArrayModule) -> MechState:
+    """``ms`` after a withdrawal: nothing identified, nothing accumulated (score and margin kept)."""
+    return ms._replace(acc=xp.zeros_like(ms.acc), cnt=xp.zeros_like(ms.cnt), n_new=I32(0) * ms.n_new,
+                       cand=I32(-1) + I32(0) * ms.cand, active=I32(0) * ms.active)
+
+
+def f32_(x: Array, xp: ArrayModule) -> Array:
+    """``(float)x`` of an int32 (a named step so the order of operations reads as in MECH.md)."""
+    return xp.asarray(x).astype(xp.float32)
+
+
+def mech_sum(mc: MechConsts, tb: MechTables, r: Array, q: Array, theta_hat: Array, omega_hat: Array,
+             i_qo: Array, xp: ArrayModule = np) -> Array:
+    """The mechanical-order current before the clamp (A, MECH.md "Compensation").
+
+    The rotor's count ``q`` in the block's frame is ``k = (q + 4r) mod M``; its boundary sits at
+    the unwrapped electrical angle ``E_k = grid_phase + k*QUARTER`` (in [0, 8*pi)); the lead angle
+    ``t`` is placed beside it, ``E = E_k + wrap_pm(t - E_k)``, and the mechanical tables are read at
+    ``E * KM`` (KM = table entries per rad electrical: the mechanical angle is ``E / (P/2)``).
+    """
+    t = lead_angle(theta_hat, omega_hat, tb.lead_s, xp)
+    k = (xp.asarray(q, dtype=xp.int32) + I32(4) * xp.asarray(r, dtype=xp.int32)) % I32(mc.M)
+    Ek = tb.grid_phase + f32_(k, xp) * mc.QUARTER
+    E = Ek + wrap_pm(t - Ek, xp)
+    return table_sum(E, i_qo, tb.table_const, tb.table_per_amp, mc.KM, xp)
+
+
+def block_frame_angle(mc: MechConsts, grid_phase: float, r: Array, q: Array, theta: Array, xp: ArrayModule = np) -> Array:
+    """The rotor's mechanical angle in the block's frame (rad, [0, 2*pi)) from the count ``q``, the
+    offset ``r`` and the electrical angle ``theta`` (rad): what :func:`mech_sum` reads the tables at,
+    for plots and the analysis (float64 under numpy)."""
+    M = mc.M
+    k = (np.asarray(q) + 4 * np.asarray(r)) % M
+    Ek = grid_phase + k * float(mc.QUARTER)
+    E = Ek + (np.asarray(theta) - Ek + math.pi) % (2 * math.pi) - math.pi
+    return np.mod(E / mc.PP, 2 * math.pi)

@@ -1,0 +1,174 @@
+"""Many power-ups of the firmware's identifier at once (JAX, vmapped): the kinematic sensor model
+(:mod:`eol_cal.firmware.kinematics`) turning at a speed profile, the estimator with its pitch
+samples and the identifier (:mod:`eol_cal.firmware.mech`) tick by tick, per power-up its own
+encoder, halls, block, start angle and speed.
+
+Used by the identification tests (thousands of power-ups) and the study of the margins
+(``bench/bench_mech_id.py``); the numpy reference of one ECU is :func:`eol_cal.firmware.mech_run.run_mech`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from eol_cal.firmware import estimator as est
+from eol_cal.firmware.estimator_step import init_state, step_pitch
+from eol_cal.firmware.kinematics import SensorErrors, encoder_hall_signals, hall_angle_of, pulse_at
+from eol_cal.firmware.mech import (
+    EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, MechConsts, MechTables, mech_accumulate, mech_finish, mech_idle,
+    mech_init, mech_tables,
+)
+from eol_cal.firmware.mech_params import MechParams
+
+TICK_HZ = 20000.0
+#: ticks per compiled chunk of the scan
+CHUNK = 4000
+_RESETS = EV_RESET_FAULT | EV_RESET_FRACTION | EV_RESET_EVAL
+
+
+@dataclass(frozen=True)
+class PowerUp:
+    """One power-up: the motor's sensors, the block's mechanical part, the motion.
+
+    errors : the motor's encoder and hall errors (the truth the signals come from);
+    mech : the block's mechanical part (its fingerprint measured or true);
+    theta0 : mechanical angle at power-on (rad); rpm0, rpm1 : speed at power-on and after the
+    ramp (mechanical rpm, signed), the ramp over [ramp_s[0], ramp_s[1]] s;
+    jitter_deg : white noise on the angle the sensors see (mechanical degrees per tick).
+    """
+
+    errors: SensorErrors
+    mech: MechParams
+    theta0: float
+    rpm0: float
+    rpm1: float | None = None
+    ramp_s: tuple[float, float] = (0.0, 0.0)
+    jitter_deg: float = 0.0
+
+    def truth_r(self, poles: int) -> int:
+        """The offset the identifier must find: the block's frame is the model's pulse numbering."""
+        a, b, _ = encoder_hall_signals(np.float64(self.theta0), poles, len(self.errors.edge_error), self.errors)
+        return pulse_at(self.theta0, self.errors, int(a), int(b))
+
+
+@dataclass(frozen=True)
+class PowerUpResult:
+    """Per power-up (numpy arrays): the truth and what the identifier did.
+
+    truth : offset r the block's frame has; first_id_s : time of the first identification (s, NaN
+    if none); r_first : r it identified first (-1 none); wrong_ticks : ticks active with r != truth;
+    active_end : identified at the end; resets : withdrawals; score, margin : last evaluation's.
+    """
+
+    truth: np.ndarray
+    first_id_s: np.ndarray
+    r_first: np.ndarray
+    wrong_ticks: np.ndarray
+    active_end: np.ndarray
+    resets: np.ndarray
+    score: np.ndarray
+    margin: np.ndarray
+
+
+def _stack(items: Sequence) -> list:
+    return [np.stack(x) for x in zip(*items)]
+
+
+def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, flags: int | None = None,
+                      seed: int = 0, lead_s: float = 0.0) -> PowerUpResult:
+    """Run the power-ups for ``seconds`` each (one vmapped batch; every power-up's own sensors,
+    block and motion). ``flags``: the block's flags word selecting the estimator (default every
+    option, which the identifier needs)."""
+    import jax
+    import jax.numpy as jnp
+
+    from eol_cal.firmware.contract import FLAG_INTERP_ENABLE, FLAGS_ESTIMATOR
+
+    flags = FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR if flags is None else flags
+    N = len(pus[0].errors.edge_error)
+    cfg = est.EstimatorConfig.from_flags(flags, poles=poles, N_enc=N, tick_hz=TICK_HZ)
+    mc = MechConsts.of(cfg)
+    B = len(pus)
+    edge = np.stack([np.asarray(p.errors.edge_error, float) for p in pus])
+    hall = np.stack([np.asarray(p.errors.hall_offset, float) for p in pus])
+    grid = np.array([float(p.errors.grid_offset) for p in pus])
+    hts = [est.hall_tables(hall_angle_of(p.errors)) for p in pus]
+    tables = est.HallTables(*(jnp.asarray(np.stack([t[i] for t in hts])) for i in range(3)))
+    tbs = [mech_tables(p.mech, lead_s, True, N) for p in pus]
+    tb = MechTables(*(jnp.asarray(x) for x in _stack(tbs)))
+    w0 = np.array([p.rpm0 for p in pus]) * 2 * math.pi / 60
+    w1 = np.array([p.rpm1 if p.rpm1 is not None else p.rpm0 for p in pus]) * 2 * math.pi / 60
+    r0 = np.array([p.ramp_s[0] for p in pus]) * TICK_HZ
+    r1 = np.maximum(np.array([p.ramp_s[1] for p in pus]) * TICK_HZ, r0 + 1)
+    jit = np.radians([p.jitter_deg for p in pus])
+    th0 = np.array([p.theta0 for p in pus])
+    truth = np.array([p.truth_r(poles) for p in pus], np.int32)
+
+    f32 = jnp.float32
+    E, H, G = (jnp.asarray(x, f32) for x in (edge, hall, grid))
+    a0, b0, h0 = jax.vmap(lambda th, e, h, g: encoder_hall_signals(th, poles, N, SensorErrors(e, h, g), xp=jnp))(
+        jnp.asarray(th0, f32), E, H, G)
+    es = jax.vmap(lambda h, a, b: init_state(cfg, h, a, b, xp=jnp))(h0, a0, b0)
+    ms = jax.vmap(lambda _: mech_init(N, xp=jnp))(jnp.arange(B))
+    track = (jnp.full(B, -1, jnp.int32), jnp.full(B, -1, jnp.int32), jnp.zeros(B, jnp.int32), jnp.zeros(B, jnp.int32))
+    consts = tuple(jnp.asarray(x, f32) for x in (w0, w1, r0, r1, jit)) + (jnp.asarray(truth), E, H, G)
+    chunk = _chunk_fn(cfg, mc, poles)
+    carry = (jnp.asarray(th0, f32), es, ms, track)
+    key = jax.random.PRNGKey(seed)
+    n_chunks = int(math.ceil(seconds * TICK_HZ / CHUNK))
+    for c in range(n_chunks):
+        carry = chunk(carry, consts, tables, tb, jnp.int32(c * CHUNK), jax.random.fold_in(key, c))
+    _, _, ms, (first, rfirst, wrong, resets) = carry
+    first = np.asarray(first)
+    return PowerUpResult(truth=truth, first_id_s=np.where(first >= 0, first / TICK_HZ, np.nan),
+                         r_first=np.asarray(rfirst), wrong_ticks=np.asarray(wrong),
+                         active_end=np.asarray(ms.active), resets=np.asarray(resets),
+                         score=np.asarray(ms.score), margin=np.asarray(ms.margin))
+
+
+@functools.lru_cache(maxsize=8)
+def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int):
+    """The jitted scan over CHUNK ticks of a batch (one compile per configuration and batch shape)."""
+    import jax
+    import jax.numpy as jnp
+
+    f32 = jnp.float32
+    N = cfg.N_enc
+
+    def sig(th, e, h, g):
+        return encoder_hall_signals(th, poles, N, SensorErrors(e, h, g), xp=jnp)
+
+    @jax.jit
+    def chunk(carry, consts, tables, tb, start, key):
+        w0_, w1_, r0_, r1_, jit_, tr, E, H, G = consts
+
+        def body(c, i):
+            th, es, ms, (first, rfirst, wrong, resets) = c
+            k = (start + i).astype(f32)
+            w = w0_ + (w1_ - w0_) * jnp.clip((k - r0_) / (r1_ - r0_), 0.0, 1.0)
+            th = jnp.mod(th + w * f32(1.0 / TICK_HZ), f32(2 * math.pi))
+            ths = th + jit_ * jax.random.normal(jax.random.fold_in(key, i), th.shape, f32)
+            a, b, h = jax.vmap(sig)(ths, E, H, G)
+            es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t))(es, a, b, h, tables)
+            pre = jax.vmap(lambda m, t, s, o, p: mech_accumulate(mc, t, m, s, o, p, xp=jnp))(ms, tb, es, eo, ps)
+            # the evaluation's arithmetic only on the ticks some power-up needs it (the same result)
+            ms, mo = jax.lax.cond(jnp.any(pre.due | pre.mark),
+                                  lambda: jax.vmap(lambda t, p, s: mech_finish(mc, t, p, s, xp=jnp))(tb, pre, es),
+                                  lambda: jax.vmap(lambda p: mech_idle(p, xp=jnp))(pre))
+            on = mo.active != 0
+            new_first = (first < 0) & on
+            first = jnp.where(new_first, start + i, first)
+            rfirst = jnp.where(new_first, mo.r, rfirst)
+            wrong = wrong + (on & (mo.r != tr)).astype(jnp.int32)
+            resets = resets + ((mo.events & _RESETS) != 0).astype(jnp.int32)
+            return (th, es, ms, (first, rfirst, wrong, resets)), None
+
+        carry, _ = jax.lax.scan(body, carry, jnp.arange(CHUNK, dtype=jnp.int32))
+        return carry
+
+    return chunk

@@ -1,0 +1,127 @@
+"""End of line for revision 1.2 on the plant: the fit measures the fingerprint and the mechanical
+orders, the table is a layout-2 block, the plant's ECU identifies in the pre-roll and compensates;
+a motor whose fingerprint is too weak gets MECH_COMP_ENABLE off with the reason; a layout-1 block
+and a layout-2 block with the bit off run as before."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from eol_cal.analysis.fit import FitSpec
+from eol_cal.analysis.fit.motors import FitOptions, fit_motors
+from eol_cal.analysis.fit.table import block_from_record, mech_off_reasons, uncompensated_block
+from eol_cal.analysis.metrics import capture_ripple_pp
+from eol_cal.analysis.motor_result import MotorResult
+from eol_cal.capture.model import Capture
+from eol_cal.firmware import block as pb
+from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
+from eol_cal.firmware.options import parse_options
+from eol_cal.motor import load_motor
+from eol_cal.plant.profile import load_profile
+from eol_cal.plant.simulate import simulate
+from eol_cal.plant.variation import draw_motor
+
+BEST = parse_options("best")
+MOTOR = load_motor("paper")
+
+
+def _weak(spec):
+    """The same motor with an encoder 30 times better: its fingerprint is too weak to identify."""
+    return spec.replace(serial=spec.serial + "W", enc_edge_err_deg=tuple(v / 30.0 for v in spec.enc_edge_err_deg))
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    """Two plant motors calibrated as the station does (eol-default under the prepared block, fit)."""
+    plants = [draw_motor(14), _weak(draw_motor(13))]
+    prep = [uncompensated_block(p.serial[:16], MOTOR, calibrated_at=0, options=BEST) for p in plants]
+    runs = simulate(plants, load_profile("eol-default"), mode="estimated", blocks=prep, seed=14)
+    fitted = fit_motors([r.capture for r in runs], FitOptions(spec=FitSpec(), capture_metrics=False,
+                                                              estimator_options=BEST))
+    return plants, runs, fitted.records
+
+
+def test_the_fit_measures_the_fingerprint_and_the_orders(calibrated):
+    plants, _, recs = calibrated
+    rec = recs[0]
+    assert rec["status"] == "ok"
+    mech = MotorResult.from_json(rec).mech
+    assert mech.status == "ok" and mech.reasons == () and mech.dirs & 1
+    assert mech.margin >= mech.threshold and mech.windows == (0,)
+    # order 1: the rotor's unbalance (plus what the encoder's placement makes of it), with an interval
+    o1 = mech.orders[0]
+    assert abs(o1.c.value - plants[0].unb1) < 0.25 * plants[0].unb1 + 3 * o1.c.ci95
+    assert 0 < o1.c.ci95 < 0.2 * o1.c.value
+    # the fingerprint in electrical radians: the plant's placement errors are 0.1 deg mechanical (sigma)
+    fp = np.asarray(mech.fingerprint)[0::2]
+    assert 0.5 < np.std(fp) / np.radians(0.3) < 1.5
+
+
+def test_a_weak_fingerprint_switches_mech_off_with_the_reason(calibrated):
+    _, _, recs = calibrated
+    res = MotorResult.from_json(recs[1])
+    assert res.status == "ok" and res.mech.status == "off"
+    assert any("too weak" in r for r in res.mech.reasons)
+    blk = block_from_record(recs[1], MOTOR, options=BEST)
+    assert blk.layout_version == 2 and not blk.flags & FLAG_MECH_COMP_ENABLE
+    assert mech_off_reasons(res, blk.flags) and pb.check(pb.pack(blk)).valid
+
+
+def test_the_layout_2_block_identifies_in_the_pre_roll_and_cancels_order_1(calibrated):
+    plants, _, recs = calibrated
+    six = [block_from_record(r, MOTOR, options=BEST, layout=1) for r in recs]
+    two = [block_from_record(r, MOTOR, options=BEST) for r in recs]
+    assert two[0].flags & FLAG_MECH_COMP_ENABLE
+    point = load_profile("paper")
+    a6 = simulate(plants, point, mode="compensated", blocks=six, seed=99)
+    a2 = simulate(plants, point, mode="compensated", blocks=two, seed=99)
+    # the strong motor: identified before the recording starts, all along
+    assert a2[0].mech_active.min() == 1
+    pp6, pp2 = capture_ripple_pp(a6[0].capture), capture_ripple_pp(a2[0].capture)
+    assert pp2.filtered_pct < pp6.filtered_pct - 0.5 * (pp6.filtered_pct - pp6.no_mech1_pct)
+    assert pp2.filtered_pct < 1.0
+    # the weak motor's block has MECH_COMP_ENABLE off: never identified (its run is otherwise the
+    # 6th-harmonic block's, bit for bit, when the batch's pre-roll is the same: the last test)
+    assert a2[1].mech_active.max() == 0
+
+
+def test_a_dyno_capture_of_windows_gives_the_same_frame_and_orders(calibrated):
+    """The station's capture is one window per profile segment (the count lost between them): the
+    windows are placed by the halls and the fingerprint; the orders agree with the continuous capture's."""
+    _, runs, recs = calibrated
+    cap = runs[0].capture
+    prof = load_profile("eol-default")
+    keep = np.zeros(len(cap.t), bool)
+    starts, t0 = [], 0.0
+    for seg in prof.segments:
+        a, b = t0 + seg.ramp_s + 0.05, t0 + seg.seconds
+        keep |= (cap.t >= a) & (cap.t < b)
+        starts.append(float(cap.t[np.searchsorted(cap.t, a)]))
+        t0 += seg.seconds
+    md = dict(cap.metadata, segment_starts=",".join(f"{s:.6f}" for s in starts))
+    joined = Capture(t=cap.t[keep], channels={k: v[keep] for k, v in cap.channels.items()}, metadata=md,
+                     truth=cap.truth, source="<windows>")
+    rec = fit_motors([joined], FitOptions(capture_metrics=False, estimator_options=BEST)).records[0]
+    mech = MotorResult.from_json(rec).mech
+    ref = MotorResult.from_json(recs[0]).mech
+    assert mech.status == "ok" and sum(w is not None for w in mech.windows) >= 6
+    o, r = mech.orders[0], ref.orders[0]
+    assert abs(o.c.value - r.c.value) < 3 * (o.c.ci95 + r.c.ci95)
+    assert abs(mech.margin - ref.margin) < 0.1
+
+
+def test_a_layout_1_block_runs_exactly_as_revision_1_1(calibrated):
+    """The plant's ECU with a layout-1 block and with the same block as layout 2, MECH off: the
+    identifier does not run and every sample is the same."""
+    plants, _, recs = calibrated
+    one = block_from_record(recs[0], MOTOR, options=BEST, layout=1)
+    off = dataclasses.replace(block_from_record(recs[0], MOTOR, options=BEST),
+                              flags=one.flags)  # layout 2, MECH_COMP_ENABLE clear
+    point = load_profile("paper")
+    (r1,) = simulate(plants[0], point, mode="compensated", blocks=one, seed=5)
+    (r2,) = simulate(plants[0], point, mode="compensated", blocks=off, seed=5)
+    for name in ("torque", "iqc", "enc_a"):
+        np.testing.assert_array_equal(r1.capture[name], r2.capture[name])
