@@ -102,7 +102,8 @@ def test_chunked_hall_table_is_a_dynamic_argument():
     assert np.max(_ang_diff(out.theta_hat, ref.theta_hat[:3000])) < 1e-4
 
 
-@pytest.mark.parametrize("improvements", [{}, {"learn_pitch_errors": True, "accel_prediction": True}])
+@pytest.mark.parametrize("improvements", [
+    {}, pytest.param({"learn_pitch_errors": True, "accel_prediction": True}, marks=pytest.mark.slow)])
 def test_batch_is_each_capture_alone_bit_for_bit(improvements):
     # captures of different lengths, speeds and hall tables side by side in one batched scan give
     # exactly what each gives alone (the lanes share nothing); the learned-table option included,

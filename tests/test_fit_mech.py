@@ -70,6 +70,7 @@ def test_a_weak_fingerprint_switches_mech_off_with_the_reason(calibrated):
     assert mech_off_reasons(res, blk.flags) and pb.check(pb.pack(blk)).valid
 
 
+@pytest.mark.slow  # a compensated plant run; the fit tests keep the module in the fast loop
 def test_the_layout_2_block_identifies_in_the_pre_roll_and_cancels_order_1(calibrated):
     plants, _, recs = calibrated
     six = [block_from_record(r, MOTOR, options=BEST, layout=1) for r in recs]
@@ -113,6 +114,7 @@ def test_a_dyno_capture_of_windows_gives_the_same_frame_and_orders(calibrated):
     assert abs(mech.margin - ref.margin) < 0.1
 
 
+@pytest.mark.slow  # two plant runs
 def test_a_layout_1_block_runs_exactly_as_revision_1_1(calibrated):
     """The plant's ECU with a layout-1 block and with the same block as layout 2, MECH off: the
     identifier does not run and every sample is the same."""

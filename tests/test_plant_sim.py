@@ -218,6 +218,7 @@ def test_batch_of_motors_with_different_hall_tables():
             assert d < 1e-3 if m == n else d > math.radians(2.0), (n, m, d)
 
 
+@pytest.mark.slow  # plant runs of the ECU estimator; the block-flags test keeps it in the fast loop
 def test_ecu_estimator_what_if_improves_the_ecu_angle():
     """``ecu_estimator="best"`` runs the firmware reference's improvements in the ECU: after a
     revolution of learning its angle error is a fraction of the paper estimator's."""

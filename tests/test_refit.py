@@ -66,6 +66,7 @@ def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot:
     assert {r["capture"]: r["k6"] for r in read_rows(pq)} == {c: r["k6"] for c, r in rows.items()}
 
 
+@pytest.mark.slow  # a Dask cluster
 def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: Path, tmp_path: Path):
     """Many serials in one task (their firmware frames in one batched estimator run): each row is
     the row of that serial refitted alone, bit for bit, and a bad capture spoils only its own row."""
