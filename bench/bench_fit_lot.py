@@ -166,7 +166,7 @@ def main() -> None:
                     rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
                     blocks_nom.append(block_from_record(rec_n, motor, options=opt, layout=1)
                                       if rec_n["status"] == "ok" else None)
-            for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
+            for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean, strict=True):
                 # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
                 # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
                 d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
@@ -216,12 +216,12 @@ def main() -> None:
             ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
             ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
             after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
-                                                blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000))) if ok_n else {}
+                                                blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000), strict=True)) if ok_n else {}
             ok_m = [i for i, b in enumerate(blocks_mech) if b is not None] if args.mech and opt & FLAG_EST_LEARN_PITCH_ERRORS else []
             after_mech = dict(zip(ok_m, simulate([plants[i] for i in ok_m], point, mode="compensated",
-                                                 blocks=[blocks_mech[i] for i in ok_m], seed=first + 1000))) if ok_m else {}
+                                                 blocks=[blocks_mech[i] for i in ok_m], seed=first + 1000), strict=True)) if ok_m else {}
             t_sim += time.perf_counter() - t0
-            after_by = dict(zip(ok, after))
+            after_by = dict(zip(ok, after, strict=True))
             for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
                 # the firmware's frame where the compensation works: its estimator (with the block's
                 # hall table: the compensated run's) at the operating point (steady 60 rpm after 0.2 s)

@@ -34,13 +34,14 @@ import tempfile
 import time
 import uuid
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import sqlalchemy as sa
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from _lot_records import lot_record  # noqa: E402
+from _lot_records import lot_record
 
 
 def _writer(args: tuple) -> list[str]:

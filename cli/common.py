@@ -9,7 +9,8 @@ import os
 import signal
 import sys
 import threading
-from typing import Any, Callable, Iterator
+from typing import Any
+from collections.abc import Callable, Iterator
 
 import click
 from rich.console import Console
@@ -126,7 +127,7 @@ class RecordsDb(click.ParamType):
 
     name = "PATH|URL"
 
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> "str | Path":
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str | Path:
         from pathlib import Path
 
         if isinstance(value, Path) or "://" in str(value):

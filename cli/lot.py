@@ -218,7 +218,7 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
             t.add_column(col)
         for v in doc["violations"]:
             t.add_row(v["quantity"], v["variant"], v["station"], v["text"],
-                      ", ".join(f"{s} {str(a)[:16]}" for s, a in zip(v["serials"], v["started_at"])))
+                      ", ".join(f"{s} {str(a)[:16]}" for s, a in zip(v["serials"], v["started_at"], strict=True)))
         console.print(t)
         unjudged = [j for j in doc["judged"] if j["reason"]]
         for j in unjudged:

@@ -88,7 +88,7 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     if out is not None:
         from eol_cal.msa.page import write_page
 
-        titles = [f"{rid}, {str(t)[:19].replace('T', ' ')}" for rid, t in zip(lot.run_id, lot.started_at)]
+        titles = [f"{rid}, {str(t)[:19].replace('T', ' ')}" for rid, t in zip(lot.run_id, lot.started_at, strict=True)]
         write_page(out, doc, results, title=db_label(db), run_titles=titles)
     written = []
     if plots is not None:

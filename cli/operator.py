@@ -215,7 +215,7 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     if tally.records:
         console.print(results_table(tally.records, f"eol-cal station {station_id}: this session"))
     console.print(f"session: {tally.summary()}")
-    for rec, report in zip(tally.records, tally.reports):
+    for rec, report in zip(tally.records, tally.reports, strict=True):
         what = f"refused ({', '.join(rec.refusal_codes)})" if rec.kind == "refusal" else rec.verdict
         console.print(f"  {rec.serial}: {what}, report {report or '-'}")
     for serial in tally.interrupted:

@@ -35,7 +35,7 @@ class _StepProgress:
                                  console=err_console, transient=True, disable=not enabled)
         self.tasks: dict[str, int] = {}
 
-    def __enter__(self) -> "_StepProgress":
+    def __enter__(self) -> _StepProgress:
         self.progress.__enter__()
         return self
 

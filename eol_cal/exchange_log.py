@@ -15,7 +15,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import time
-from typing import Iterator, Sequence, TextIO
+from typing import TextIO
+from collections.abc import Iterator, Sequence
 
 from eol_cal.errors import InputError
 

@@ -10,7 +10,7 @@ the block ends.
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator
+from collections.abc import Iterator
 
 from eol_cal.errors import Interrupted
 

@@ -49,7 +49,7 @@ class Browser:
         self._events: list[dict[str, Any]] = []
 
     # ------------------------------------------------------------------ lifetime
-    def __enter__(self) -> "Browser":
+    def __enter__(self) -> Browser:
         exe = chromium_path()
         if exe is None:
             raise RuntimeError("chromium not found (Debian: apt-get install -y chromium)")

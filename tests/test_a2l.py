@@ -154,7 +154,7 @@ def test_flags_name_the_contracts_bits(parsed):
     flags = chars["flags"]
     verb = flags.compuMethod.tab_verb
     assert flags.compuMethod.conversionType == "TAB_VERB"
-    table = dict(zip(verb.in_values, verb.text_values))
+    table = dict(zip(verb.in_values, verb.text_values, strict=True))
     assert len(table) == 2 ** len(C.FLAGS)
     for name, flag in C.FLAGS.items():
         assert table[float(1 << flag.bit)] == name
@@ -260,11 +260,11 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
     assert bit.bitMask == 1 << 31 and bit.address == 2 * pb.BANK_WORD_ADDR[1] + pb.field_offset("flags")
     verb = chars["flags"].compuMethod.tab_verb
     assert len(verb.in_values) == 2 ** len(C.FLAGS)
-    assert dict(zip(verb.in_values, verb.text_values))[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
+    assert dict(zip(verb.in_values, verb.text_values, strict=True))[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
     res = subprocess.run([_a2ltool(), str(path), "--strict", "--check"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stdout + res.stderr
 
 
-def test_pya2l_leaves_no_listener_on_other_engines(parsed):  # noqa: ARG001
+def test_pya2l_leaves_no_listener_on_other_engines(parsed):
     """Our own engines (the records' SQLite and PostgreSQL) never run pya2l's connect hook."""
     assert not event.contains(Engine, "connect", model.set_sqlite3_pragmas)

@@ -135,7 +135,7 @@ def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path, regma
     back = read_capture(out)
     windows = split_windows(back)
     assert [len(w.t) for w in windows] == [int(round(s.seconds * 10000)) for s in PROFILE]
-    for w, seg in zip(windows, PROFILE):
+    for w, seg in zip(windows, PROFILE, strict=True):
         assert np.all(w["speed"] == seg.speed_rpm)
         ang = capture_angle(w)  # one continuous motion per window: the halls agree with the encoder
         assert np.degrees(ang.hall_residual_rms_rad) < 1.0

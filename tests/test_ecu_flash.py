@@ -257,15 +257,14 @@ def test_real_contract_timing_values(tmp_path):
     the real 10 s lock-out still refuses a seed after one second."""
     cfg = SimConfig()
     assert (cfg.s3_s, cfg.lockout_s, cfg.p2_s, cfg.p2_star_s) == (5.0, 10.0, 0.05, 5.0)
-    with virtual_rig() as rig:
-        with UdsSession(rig.tester, seed_to_key=lambda seed: bytes(4), timing=FAST_CLIENT) as s:
-            resp = s.client.change_session(P.SESSION_EXTENDED)
-            assert resp.service_data.p2_server_max == pytest.approx(0.050)
-            assert resp.service_data.p2_star_server_max == pytest.approx(5.0)
-            for _ in range(3):
-                assert _nrc_of(s, s.client.unlock_security_access, 1) in (P.NRC.InvalidKey, P.NRC.ExceedNumberOfAttempts)
-            time.sleep(1.0)
-            assert _nrc_of(s, s.client.request_seed, 1) == P.NRC.RequiredTimeDelayNotExpired
+    with virtual_rig() as rig, UdsSession(rig.tester, seed_to_key=lambda seed: bytes(4), timing=FAST_CLIENT) as s:
+        resp = s.client.change_session(P.SESSION_EXTENDED)
+        assert resp.service_data.p2_server_max == pytest.approx(0.050)
+        assert resp.service_data.p2_star_server_max == pytest.approx(5.0)
+        for _ in range(3):
+            assert _nrc_of(s, s.client.unlock_security_access, 1) in (P.NRC.InvalidKey, P.NRC.ExceedNumberOfAttempts)
+        time.sleep(1.0)
+        assert _nrc_of(s, s.client.request_seed, 1) == P.NRC.RequiredTimeDelayNotExpired
 
 
 @pytest.mark.slow

@@ -110,16 +110,15 @@ def test_lockout_survives_reset_and_power_cycle(tmp_path):
 
 
 def test_second_tester_is_refused_while_the_programming_session_is_held(tmp_path):
-    with virtual_rig(tmp_path / "f.bin") as rig:
-        with UdsSession(rig.tester, seed_to_key=KEY, timing=FAST_CLIENT) as s:
-            s.enter_programming()
-            second = rig.tester.__class__(channel=rig.channel, interface="virtual")  # joins the bus now
-            with pytest.raises(EcuError, match="another tester holds the programming session") as exc:
-                flash_block(second, BLOCK, seed_to_key=KEY, timing=FAST_CLIENT)
-            assert exc.value.nrc == P.NRC.ConditionsNotCorrect
-            second.shutdown()
-            # the refused tester did not end the holder's session
-            s.routine("erase", P.RID_ERASE, B.BANK_WORD_ADDR[0], B.BANK_BYTES)
+    with virtual_rig(tmp_path / "f.bin") as rig, UdsSession(rig.tester, seed_to_key=KEY, timing=FAST_CLIENT) as s:
+        s.enter_programming()
+        second = rig.tester.__class__(channel=rig.channel, interface="virtual")  # joins the bus now
+        with pytest.raises(EcuError, match="another tester holds the programming session") as exc:
+            flash_block(second, BLOCK, seed_to_key=KEY, timing=FAST_CLIENT)
+        assert exc.value.nrc == P.NRC.ConditionsNotCorrect
+        second.shutdown()
+        # the refused tester did not end the holder's session
+        s.routine("erase", P.RID_ERASE, B.BANK_WORD_ADDR[0], B.BANK_BYTES)
 
 
 @pytest.mark.slow

@@ -21,7 +21,7 @@ RPM_TO_ELEC = 2.0 * math.pi / 60.0 * 3.0  # rad/s electrical per rpm, 6 poles
 DELTA_DEG = 16.875  # one encoder pitch, electrical degrees
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _run(name: str, cfg: E.EstimatorConfig | None = None):
     sc = G.SCENARIOS[name]
     a, b, h = sc.signals()
@@ -50,7 +50,7 @@ def test_constant_speed_eqs_13_to_16():
     edges = _a_rising(a)
     # eq. 15 exactly, in binary32: omega_hat = P*pi / (N_enc * N_c * T) at each edge after the first
     c = E.consts(cfg)
-    for k0, k1 in zip(edges[1:-1], edges[2:]):
+    for k0, k1 in zip(edges[1:-1], edges[2:], strict=True):
         assert out.omega_hat[k1] == c.K_OMEGA / np.float32(k1 - k0)
     # eq. 16: between edges theta_hat advances by omega_hat*T per tick
     k0, k1 = edges[5], edges[6]

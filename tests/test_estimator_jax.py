@@ -65,7 +65,7 @@ def test_signal_model_numpy_and_jax_agree():
     theta_m = np.linspace(0.0, 2 * math.pi, 8001)[:-1]
     ref = encoder_hall_signals(theta_m, 6, 64, err)
     got = encoder_hall_signals(jnp.asarray(theta_m, jnp.float32), 6, 64, err, xp=jnp)
-    for r, g in zip(ref, got):
+    for r, g in zip(ref, got, strict=True):
         # float32 positions may flip a level on the sample nearest a switching point
         assert np.count_nonzero(np.asarray(g) != r) <= 4
 
@@ -119,9 +119,9 @@ def test_batch_is_each_capture_alone_bit_for_bit(improvements):
         tables.append(skewed if k == 1 else None)
     batch = E.run_jax_batch(cfg, signals, tables, chunk=1024)
     assert [len(o.theta_hat) for o in batch] == [5000, 7321, 4100]
-    for (a, b, h), table, got in zip(signals, tables, batch):
+    for (a, b, h), table, got in zip(signals, tables, batch, strict=True):
         alone = E.run_jax_chunked(cfg, a, b, h, chunk=1024, hall_angle=table)
-        for x, y in zip(got, alone):
+        for x, y in zip(got, alone, strict=True):
             np.testing.assert_array_equal(x, y)
         ref = E.run(E.EstimatorConfig.paper(hall_angle=table or E.NOMINAL_HALL_ANGLE, **improvements), a, b, h)
         assert np.array_equal(got.status, ref.status)
@@ -129,5 +129,5 @@ def test_batch_is_each_capture_alone_bit_for_bit(improvements):
     # more captures than the widest program: split into batches, the same figures
     many = E.run_jax_batch(cfg, signals * 30, tables * 30, chunk=1024)
     assert len(many) == 90 and E.JAX_LANES[-1] < 90
-    for got, alone in zip(many[-3:], batch):
+    for got, alone in zip(many[-3:], batch, strict=False):
         np.testing.assert_array_equal(got.theta_hat, alone.theta_hat)

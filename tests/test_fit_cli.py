@@ -102,7 +102,7 @@ def test_same_result_from_csv_and_mdf4(fitted, files):
 @pytest.mark.slow
 def test_single_load_point_refused_with_exit_2(files, tmp_path):
     # +65 A and -65 A would be two load points (c6 + k6*i_qo takes two values): keep i_qo = +65 A only
-    one_load = [f for f, (_, iq) in zip(files["csv"], POINTS) if iq == 65.0]
+    one_load = [f for f, (_, iq) in zip(files["csv"], POINTS, strict=True) if iq == 65.0]
     res = CliRunner().invoke(cli, ["fit", *one_load, "-o", str(tmp_path / "r.json")])
     assert res.exit_code == 2
     assert "not identifiable from a single load point" in res.output

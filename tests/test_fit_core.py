@@ -157,12 +157,12 @@ def test_batched_equals_single_and_95_percent_intervals_cover_the_truth():
     spec = FitSpec()
     fits = fit_many(motors, spec, mode="map", chunk=200)
     again = [fit_segments(m, spec) for m in motors[:5]]
-    for a, b in zip(fits, again):
+    for a, b in zip(fits, again, strict=True):
         assert a.harmonics[6]["k"].value == pytest.approx(b.harmonics[6]["k"].value, rel=1e-9)
         assert a.delay_s == pytest.approx(b.delay_s, rel=1e-9)
     assert all(f.converged for f in fits)
     hits = {"k6": 0, "phase_k6": 0, "c6": 0, "phase_c6": 0, "delay_s": 0}
-    for f, t in zip(fits, truths):
+    for f, t in zip(fits, truths, strict=True):
         k, c = f.harmonics[6]["k"], f.harmonics[6]["c"]
         hits["k6"] += abs(k.value - t["k6"]) <= k.ci95
         hits["phase_k6"] += _phase_err(k.phase, t["phase_k6"]) <= k.phase_ci95

@@ -9,6 +9,7 @@ function could move to the top of its module.
 from __future__ import annotations
 
 import ast
+import itertools
 import subprocess
 import sys
 from pathlib import Path
@@ -118,7 +119,7 @@ def test_no_import_cycle():
     g = import_graph()
     cycle = find_cycle(g)
     assert cycle is None, "import cycle: " + " -> ".join(
-        f"{a} (line {g[a][b]})" for a, b in zip(cycle, cycle[1:])) + f" -> {cycle[-1]}"
+        f"{a} (line {g[a][b]})" for a, b in itertools.pairwise(cycle)) + f" -> {cycle[-1]}"
 
 
 @pytest.mark.slow

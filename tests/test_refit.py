@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import uuid
 from pathlib import Path
 
 import pytest
@@ -82,7 +81,7 @@ def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: P
     assert [r["serial"] for r in rows] == ["R-1", None, "R-2", "R-9", "R-3"]
     assert "bad.mf4" in rows[1]["error"] and "segment" in rows[3]["error"]
     assert rows[1]["verdict"] == rows[3]["verdict"] == "error"
-    for group, row in zip(mixed, rows):
+    for group, row in zip(mixed, rows, strict=True):
         assert row == refit_capture(group, bench="none")
 
 

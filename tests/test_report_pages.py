@@ -4,7 +4,6 @@ every limit is a row with its margin."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -249,7 +248,7 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     assert all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
     measured = [r for r in lot_db["records"] if r.kind == "production"]
     with_k6 = sorted((r for r in measured if r.fit), key=lambda r: r.started_at)
-    assert len(k6_titles) == len(with_k6) and all(t.startswith(r.serial) for t, r in zip(k6_titles, with_k6))
+    assert len(k6_titles) == len(with_k6) and all(t.startswith(r.serial) for t, r in zip(k6_titles, with_k6, strict=True))
     judged = [r for r in measured if r.verdict != "error"]
     assert pass_rate == f"{100 * sum(r.verdict == 'pass' for r in judged) / len(judged):.1f} %"
     first = {}

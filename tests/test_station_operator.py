@@ -144,7 +144,7 @@ def test_three_motors_one_failing_then_an_empty_line(tmp_path, terminal):
     t.type("")
     t.expect(r"session: 3 motor\(s\): 2 pass, 1 fail, 0 error", 30)
     assert t.exit_code() == 0, t.text[-3000:]
-    assert f"fail: k6 " in t.text and "max_k6" in t.text
+    assert "fail: k6 " in t.text and "max_k6" in t.text
     assert (out / "lot.html").is_file() and "lot page: " in t.text
     rows = _rows(out / "results.sqlite")
     assert [(r[0], r[1], r[2], r[3]) for r in rows] == [

@@ -52,7 +52,7 @@ def test_database_is_wal_and_holds_every_column(tmp_path: Path):
     finally:
         con.close()
     assert tuple(cols) == COLUMN_NAMES
-    values = dict(zip(cols, row))
+    values = dict(zip(cols, row, strict=True))
     cal = r.block("calibrated")
     assert values["run_id"] == r.run_id and values["verdict"] == "pass" and values["variant"] == "EPS-STD"
     assert values["block_crc32"] == cal.crc32 and values["block_sequence"] == cal.sequence == 2

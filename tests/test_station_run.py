@@ -445,7 +445,6 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     the verdict and every limit row there, at most two A4 pages printed."""
     from _browser import Browser, element_sizes, group_alive, not_blank, pdf_pages
 
-    from eol_cal.station.limits import LIMIT_KEYS
 
     rec = full_run["rec"]
     page = Path(rec["report_dir"]) / "report.html"

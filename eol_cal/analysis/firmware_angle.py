@@ -4,7 +4,7 @@ the frame offset the fit reports its phases in, and the tick-by-tick difference 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -76,9 +76,9 @@ def firmware_frame_offsets(jobs: Sequence[FrameJob]) -> list[tuple[complex, int]
     for cfg, idx in by_cfg.items():
         ends = [max((b for _, b in jobs[i][2]), default=1) for i in idx]
         signals = [tuple(np.asarray(jobs[i][0][name])[:m] for name in ("enc_a", "enc_b", "hall"))
-                   for i, m in zip(idx, ends)]
+                   for i, m in zip(idx, ends, strict=True)]
         runs = est.run_jax_batch(cfg, signals, [jobs[i][3] for i in idx])
-        for i, run in zip(idx, runs):
+        for i, run in zip(idx, runs, strict=True):
             out[i] = _frame_sum(run, jobs[i][1], jobs[i][2])
     return out
 

@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 from eol_cal.errors import ResultFormatError
 
@@ -114,7 +115,7 @@ class MotorResult:
     operating_point: OperatingPoint
     segments: tuple[dict[str, Any], ...]
     sources: tuple[str, ...]
-    mech: "MechResult | None" = None
+    mech: MechResult | None = None
 
     @property
     def usable(self) -> bool:

@@ -113,7 +113,7 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
     fig, axes = plt.subplots(len(rows), 2, figsize=(12, 3.4 * len(rows)), squeeze=False,
                              gridspec_kw={"width_ratios": [3, 2]})
     try:
-        for (ax_t, ax_s), row in zip(axes, rows):
+        for (ax_t, ax_s), row in zip(axes, rows, strict=True):
             r = row.ripple
             fs = (len(row.t) - 1) / (row.t[-1] - row.t[0])
             # one trace for the whole record: the windows' typical |speed| sets its cut-off

@@ -31,7 +31,8 @@ from __future__ import annotations
 import mmap
 import struct
 import xml.etree.ElementTree as ET
-from typing import Callable, Union
+from typing import Union
+from collections.abc import Callable
 
 import numpy as np
 

@@ -31,7 +31,7 @@ _EXTRA_DEFINITIONS = (
 
 
 @functools.lru_cache(maxsize=1)
-def unit_registry() -> "pint.UnitRegistry":
+def unit_registry() -> pint.UnitRegistry:
     """The process-wide pint registry (cached)."""
     import pint
 
@@ -42,11 +42,11 @@ def unit_registry() -> "pint.UnitRegistry":
 
 
 @functools.lru_cache(maxsize=256)
-def _parse_unit(unit: str) -> "pint.Unit":
+def _parse_unit(unit: str) -> pint.Unit:
     return unit_registry().Unit(unit)
 
 
-def parse_unit(unit: str, file: str | None, channel: str | None) -> "pint.Unit":
+def parse_unit(unit: str, file: str | None, channel: str | None) -> pint.Unit:
     """Parse a unit string, refusing unknown units with an :class:`InputError`.
 
     Parameters

@@ -15,12 +15,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping, Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from eol_cal.dyno import regcodec as rc
-from eol_cal.dyno.registers import GROUPS, ROLES, Role, channel_bit, pack_digital, unpack_digital
+from eol_cal.dyno.registers import GROUPS, Role, channel_bit, pack_digital, unpack_digital
 
 Value = float | int | str
 #: Modbus function code that reads each table

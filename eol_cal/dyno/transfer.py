@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -106,7 +106,7 @@ def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
     reconnects = int(words.pop())
     result: dict[str, np.ndarray] = {}
     for name, cid in plan:
-        w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words) if c == cid])
+        w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words, strict=True) if c == cid])
         if name == "digital":
             result["enc_a"], result["enc_b"], result["hall"] = regmap.unpack_digital(w)
         else:

@@ -15,7 +15,7 @@ to the end of the flash. A flash that fails leaves the active block active and t
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable
 
 import can
 

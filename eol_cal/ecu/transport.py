@@ -90,7 +90,7 @@ def make_stack(bus: can.BusABC, *, tx_id: int, rx_id: int, blocking_send: bool,
 
 
 def open_bus(interface: str | None, channel: str | None, bitrate: int | None = None,
-             can_config: str | None = None) -> "GuardedBus":
+             can_config: str | None = None) -> GuardedBus:
     """Open a python-can bus from command-line style options, wrapped in a :class:`GuardedBus`.
 
     Parameters
@@ -130,7 +130,7 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     except (can.CanError, ValueError, OSError, TypeError) as exc:
         raise InputError(can_config, "interface",
                          f"cannot open {config.get('interface')} channel {config.get('channel')!r}: {exc}") from exc
-    except Exception as exc:  # noqa: BLE001 - a missing vendor driver fails in its own ways (kvaser: NameError)
+    except Exception as exc:
         raise InputError(can_config, "interface",
                          f"cannot open {config.get('interface')} channel {config.get('channel')!r}: its driver is "
                          f"missing or failed ({type(exc).__name__}: {exc})") from exc

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -275,7 +275,7 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
             made[table] = hall_tables(table)
         per_lane.append(made[table])
     per_lane += per_lane[:1] * (B - len(per_lane))
-    tables = HallTables(*(jnp.asarray(np.stack(t)) for t in zip(*per_lane)))
+    tables = HallTables(*(jnp.asarray(np.stack(t)) for t in zip(*per_lane, strict=True)))
     pcfg = _program_config(cfg)
     scan = _scan_chunk(pcfg)
     state = _init_batch(pcfg)(abh[0])

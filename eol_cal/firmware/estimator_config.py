@@ -10,7 +10,8 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -175,7 +176,7 @@ class EstimatorConfig:
     @classmethod
     def paper(cls, poles: int = 6, N_enc: int = 64, tick_hz: float = 20000.0,
               hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE,
-              standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+              standstill_s: float = 1.0, **improvements: bool) -> EstimatorConfig:
         """The paper's bench (6 poles, 64 PPR, 20 kHz, nominal halls).
 
         Parameters
@@ -190,24 +191,24 @@ class EstimatorConfig:
                    standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
 
     @classmethod
-    def from_flags(cls, flags: int, **kwargs: Any) -> "EstimatorConfig":
+    def from_flags(cls, flags: int, **kwargs: Any) -> EstimatorConfig:
         """The paper's bench running the estimator a block's ``flags`` word selects
         (:func:`options_from_flags`); ``kwargs`` as :meth:`paper` takes them."""
         return cls.paper(**{**options_from_flags(flags), **kwargs})
 
     @classmethod
-    def best(cls, **kwargs: Any) -> "EstimatorConfig":
+    def best(cls, **kwargs: Any) -> EstimatorConfig:
         """The paper's bench with every option on (the ``best`` choice of
         :mod:`eol_cal.firmware.options`: contract bits 2-5 all set)."""
         return cls.from_flags(FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR, **kwargs)
 
     @classmethod
-    def all_improvements(cls, **kwargs: Any) -> "EstimatorConfig":
+    def all_improvements(cls, **kwargs: Any) -> EstimatorConfig:
         """The paper's bench with all four improvements switched on (same as :meth:`best`)."""
         return cls.best(**kwargs)
 
     @classmethod
-    def from_block(cls, block: ParamBlock, standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+    def from_block(cls, block: ParamBlock, standstill_s: float = 1.0, **improvements: bool) -> EstimatorConfig:
         """Configuration from a parameter block (anything with ``poles``, ``encoder_ppr``,
         ``tick_hz``, ``hall_angle`` and ``flags``, e.g. :class:`eol_cal.firmware.block.ParamBlock`):
         the options are those its ``flags`` select (:func:`options_from_flags`) unless

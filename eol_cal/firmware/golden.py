@@ -21,7 +21,8 @@ import json
 import math
 import struct
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -63,7 +64,7 @@ def golden_blocks() -> list[tuple[str, pb.ParamBlock]]:
          pb.FLAG_INTERP_ENABLE | pb.FLAGS_ESTIMATOR, "MOTOR-1024-XYZ-9",
          0xFFFFFFFE),
     ]
-    hall_skewed = tuple(a + math.radians(d) for a, d in zip(_HALL_NOMINAL, (1.5, -0.7, 0.3, -1.9, 0.0, 1.1)))
+    hall_skewed = tuple(a + math.radians(d) for a, d in zip(_HALL_NOMINAL, (1.5, -0.7, 0.3, -1.9, 0.0, 1.1), strict=True))
     hall_skewed = tuple(float(wrap_2pi(a)) for a in hall_skewed)
     out = []
     for k, (bid, n, c6, pc6, k6, pk6, harm, lead, lim, flags, serial, seq) in enumerate(specs):
@@ -186,7 +187,7 @@ def _compensator_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
     rows = []
     for bid, b in blocks:
         out = i_qc(theta, omega, iq, b.table_const, b.table_per_amp, b.lead_s, b.iqc_limit)
-        for t, w, i, y in zip(theta, omega, iq, out):
+        for t, w, i, y in zip(theta, omega, iq, out, strict=True):
             rows.append([bid, f32hex(t), f32hex(w), f32hex(i), f32hex(y)])
     return VectorSet(("block_id", "theta_hat", "omega_hat", "i_qo", "i_qc"), rows,
                      "i_qc = eol_comp_iqc(theta_hat, omega_hat, i_qo, tables, table_len, lead_s, iqc_limit) "
@@ -317,10 +318,10 @@ def _diff_csv(path: Path, got: str, want: str, max_diffs: int) -> list[str]:
         out.append(f"{path}: header is {g_lines[:1]}, the reference gives {w_lines[:1]}")
         return out
     cols = w_lines[0].split(",")
-    for k, (g, w) in enumerate(zip(g_lines[1:], w_lines[1:]), start=1):
+    for k, (g, w) in enumerate(zip(g_lines[1:], w_lines[1:], strict=False), start=1):
         if g != w:
             gf, wf = g.split(","), w.split(",")
-            bad = [c for c, a, b in zip(cols, gf, wf) if a != b] or ["(field count)"]
+            bad = [c for c, a, b in zip(cols, gf, wf, strict=False) if a != b] or ["(field count)"]
             out.append(f"{path}: row {k} differs in {', '.join(bad)}"
                        + (f" (file {_short(gf, cols, bad[0])}, reference {_short(wf, cols, bad[0])})"
                           if bad[0] in cols else ""))

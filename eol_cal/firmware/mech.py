@@ -93,7 +93,7 @@ class MechConsts:
     KM: np.float32
 
     @classmethod
-    def of(cls, cfg: EstimatorConfig) -> "MechConsts":
+    def of(cls, cfg: EstimatorConfig) -> MechConsts:
         c = consts(cfg)
         return cls(N=cfg.N_enc, PP=cfg.poles // 2, M=c.M, DELTA=c.DELTA, QUARTER=c.QUARTER,
                    INV_DELTA=F32(1.0) / c.DELTA, KM=F32(MECH_TABLE_LEN) / (F32(cfg.poles) * PI))
@@ -293,7 +293,7 @@ def mech_idle(pre: MechPre, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
     change the state): what :func:`mech_finish` gives then, without its arithmetic."""
     ms, fault = pre.ms, pre.fault
     w = _withdrawn(ms, xp)
-    new = MechState(*(xp.where(fault, a, b) for a, b in zip(w, ms)))
+    new = MechState(*(xp.where(fault, a, b) for a, b in zip(w, ms, strict=True)))
     events = xp.where(fault, I32(EV_RESET_FAULT), I32(0))
     return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
 

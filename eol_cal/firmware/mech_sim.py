@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -76,7 +76,7 @@ class PowerUpResult:
 
 
 def _stack(items: Sequence) -> list:
-    return [np.stack(x) for x in zip(*items)]
+    return [np.stack(x) for x in zip(*items, strict=True)]
 
 
 def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, flags: int | None = None,

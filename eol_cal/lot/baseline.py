@@ -22,7 +22,8 @@ import datetime as dt
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 import sqlalchemy as sa
@@ -106,7 +107,7 @@ def group_lines(values: Mapping[str, np.ndarray], variant: Sequence[Any], statio
     var = np.array([NO_VARIANT if v is None else str(v) for v in variant], dtype=object)
     sta = np.asarray(station, dtype=object)
     out: dict[tuple[str, str, str], ControlLine] = {}
-    groups = sorted({(str(a), str(b)) for a, b in zip(var.tolist(), sta.tolist())})
+    groups = sorted({(str(a), str(b)) for a, b in zip(var.tolist(), sta.tolist(), strict=True)})
     for v, s in groups:
         idx = np.flatnonzero((var == v) & (sta == s))
         for key, x in values.items():
@@ -119,7 +120,7 @@ def make_baseline(name: str, lines: dict[tuple[str, str, str], ControlLine], run
     """A :class:`Baseline` made now (UTC)."""
     if not name.strip():
         raise InputError(None, "name", "a baseline needs a name")
-    created = dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
+    created = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
     return Baseline(name, created, {k: filters.get(k) for k in ("since", "until", "variant", "station")}, min_n,
                     runs, dict(lines))
 

@@ -16,7 +16,8 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
+from collections.abc import Iterator
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -95,8 +96,8 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     # imported here on purpose: loading them is the work this function does ahead of the tasks
     import jax  # noqa: F401
 
-    import eol_cal.analysis.fit.motors  # noqa: F401
-    import eol_cal.capture.io  # noqa: F401
+    import eol_cal.analysis.fit.motors
+    import eol_cal.capture.io
     import eol_cal.station.limits  # noqa: F401
 
     gc.collect()

@@ -21,7 +21,8 @@ import math
 from dataclasses import dataclass
 from itertools import repeat
 from pathlib import Path
-from typing import Any, Iterable, NamedTuple, Sequence
+from typing import Any, NamedTuple
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -217,7 +218,7 @@ def _utc(text: str) -> np.datetime64:
     except ValueError:
         raise InputError(None, "started_at", f"{text!r}: not an ISO 8601 time") from None
     if t.tzinfo is not None:
-        t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
+        t = t.astimezone(dt.UTC).replace(tzinfo=None)
     return np.datetime64(t, "us")
 
 

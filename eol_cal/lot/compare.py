@@ -10,7 +10,8 @@ and those whose verdict or failed limits differ are listed.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 from eol_cal.errors import InputError
 from eol_cal.station.record import RunRecord
@@ -60,7 +61,7 @@ def compare_lots(db: str | Path, stations: Sequence[str], kind: str = "simulated
         raise InputError(None, "--lot", f"give two lots to compare, got {len(stations)}")
     records = query_records(db, kind=kind)
     lots = [[r for r in records if r.station_name == s] for s in stations]
-    for s, recs in zip(stations, lots):
+    for s, recs in zip(stations, lots, strict=True):
         if not recs:
             raise InputError(str(db), "--lot", f"no {kind} runs of station {s!r} in the database")
     a, b = (_latest(recs) for recs in lots)
@@ -73,7 +74,7 @@ def compare_lots(db: str | Path, stations: Sequence[str], kind: str = "simulated
                             "newly_failing": [c for c in cb if c not in ca],
                             "no_longer_failing": [c for c in ca if c not in cb],
                             "pp_after_pct": [_num(ra.value("pp_after_pct")), _num(rb.value("pp_after_pct"))]})
-    return {"lots": [_lot_doc(s, recs) for s, recs in zip(stations, lots)], "compared": len(set(a) & set(b)),
+    return {"lots": [_lot_doc(s, recs) for s, recs in zip(stations, lots, strict=True)], "compared": len(set(a) & set(b)),
             "only_in_one": len(set(a) ^ set(b)), "changes": changes}
 
 

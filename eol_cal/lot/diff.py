@@ -12,7 +12,8 @@ row that could not be fitted are counted, not compared.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 from eol_cal.display import display_unit
 from eol_cal.station.record import MEASURED_KIND, RunRecord

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import datetime as dt
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING
+from collections.abc import Mapping
 
 from eol_cal.errors import EolCalError
 from eol_cal.msa.master import MasterRun, MasterSettings, check_master, master_due
@@ -51,7 +52,7 @@ def latest_master_run(db: str | Path, m: MasterSettings, station: str | None,
     r = rows[0]
     started = dt.datetime.fromisoformat(str(r["started_at"]))
     if started.tzinfo is None:
-        started = started.replace(tzinfo=dt.timezone.utc)
+        started = started.replace(tzinfo=dt.UTC)
     return MasterRun(started, r["verdict"] == "pass", str(r["run_id"]), str(r["verdict"]))
 
 
@@ -61,7 +62,7 @@ def check_gate(db: str | Path, m: MasterSettings, station: str | None, now: dt.d
     that lets it (the latest, passed and within its period)."""
     from eol_cal.errors import InputError
 
-    now = now or dt.datetime.now(dt.timezone.utc)
+    now = now or dt.datetime.now(dt.UTC)
     try:
         last = latest_master_run(db, m, station, timeout_s)
     except InputError as exc:
@@ -78,7 +79,7 @@ def check_gate(db: str | Path, m: MasterSettings, station: str | None, now: dt.d
 GATE_CODES = ("master_due", "master_failed")
 
 
-def gate_refusal(rec: "RunRecord") -> str | None:
+def gate_refusal(rec: RunRecord) -> str | None:
     """The one line that says why the gate refused a run (None: not a gate refusal)."""
     if rec.kind != "refusal" or not set(rec.refusal_codes) & set(GATE_CODES):
         return None

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -55,7 +56,7 @@ def study_figure(st: Type1Study, title: str, run_titles: Sequence[str] = ()) -> 
         a.grid(alpha=0.3)
         a.tick_params(labelsize=7)
     fig.tight_layout()
-    titles = {f"values-{key}": [f"{t}: {v:.5g} {st.unit}" for t, v in zip(run_titles, x)]} if run_titles else {}
+    titles = {f"values-{key}": [f"{t}: {v:.5g} {st.unit}" for t, v in zip(run_titles, x, strict=True)]} if run_titles else {}
     return fig, titles
 
 

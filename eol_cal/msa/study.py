@@ -14,7 +14,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 from eol_cal.errors import InputError
 from eol_cal.lot.columns import QUANTITIES, Lot, Quantity

@@ -21,7 +21,8 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 from __future__ import annotations
 
 from fractions import Fraction
-from typing import TYPE_CHECKING, Callable, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Callable
 
 import numpy as np
 
@@ -109,7 +110,7 @@ def current_task(
 
     i_qo = xp.where(cmd, i_qo_cmd, st.i_qo)
     omega_c = xp.where(cmd, omega_hat, st.omega_c)
-    m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise)))
+    m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise, strict=True)))
     i_d_meas, i_q_meas = cos_c * m_al + sin_c * m_be, cos_c * m_be - sin_c * m_al
     if compensate:
         mech_on, mech_sum = (None, None) if mech is None else mech(i_qo)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import InputError

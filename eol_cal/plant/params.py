@@ -14,7 +14,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, NamedTuple, Sequence
+from typing import TYPE_CHECKING, NamedTuple
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -97,7 +98,7 @@ class PlantSpec:
     mechanics: BenchMechanics = field(default_factory=lambda: load_mechanics("paper"))
     dead_time_s: float = 0.0
 
-    def replace(self, **changes) -> "PlantSpec":
+    def replace(self, **changes) -> PlantSpec:
         return dataclasses.replace(self, **changes)
 
     @property
@@ -105,7 +106,7 @@ class PlantSpec:
         """Winding resistance during the test (ohm)."""
         return self.R_s_scale * self.motor.R_s_at(self.temp_degC)
 
-    def without_ripple(self) -> "PlantSpec":
+    def without_ripple(self) -> PlantSpec:
         """The same bench with every ripple source set to zero (for torque-balance checks)."""
         zero = {n: 0.0 for n in ("c6", "k6", "c12", "k12", "c18", "k18", "unb1")}
         return self.replace(**zero)
@@ -253,7 +254,7 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
         Kp_d=Kp_d, Kp_q=Kp_q, Ki_d=Ki_d, Ki_q=Ki_q,
         L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
         table_const=table_const, table_per_amp=table_per_amp, lead_s=lead_s, iqc_limit=iqc_limit,
-        **dict(zip(("hall_start", "hall_width", "hall_mid"), hall_tables(hall_angle))),
+        **dict(zip(("hall_start", "hall_width", "hall_mid"), hall_tables(hall_angle), strict=True)),
         **{f"mech_{name}": getattr(mech_tb, name) for name in _MECH_FIELDS},
     )
     return PlantParams(**{k: np.asarray(v, dtype=np.float32) for k, v in values.items()})
@@ -288,4 +289,4 @@ def sensor_errors(p: PlantParams) -> SensorErrors:
 
 def stack_params(params: list[PlantParams]) -> PlantParams:
     """Stack the parameters of several motors along a new leading axis (a lot for ``vmap``)."""
-    return PlantParams(*(np.stack(fields) for fields in zip(*params)))
+    return PlantParams(*(np.stack(fields) for fields in zip(*params, strict=True)))

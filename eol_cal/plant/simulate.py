@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, NamedTuple
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -390,7 +391,7 @@ def simulate(
     states = []
     effective = []
     identifies = False
-    for spec, block in zip(specs, blocks):
+    for spec, block in zip(specs, blocks, strict=True):
         states.append(simulated_ecu_state(spec, mode, block))
         if block is None:
             block = true_block(spec) if mode == "compensated" else None
@@ -437,7 +438,7 @@ def simulate(
 
     rng = np.random.default_rng(seed)
     carries = [_initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
-               for p, s in zip(params, specs)]
+               for p, s in zip(params, specs, strict=True)]
     carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
     keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
 

@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -222,7 +223,7 @@ def angle_figure(rec: RunRecord, point_ripple: PointRipples, fit_extra: FitExtra
         s = operating_segment(mi, float(op["speed_rpm"]), float(op["i_qo_a"]))
         grid = np.linspace(0.0, 2 * math.pi, 361)
         curve = (np.degrees(grid), fitted_ripple(mi, fit, spec, s, grid) - float(fit.t_avg[s]))
-    for ax, pr, label in zip(axes, point_ripple, ("before", "compensated")):
+    for ax, pr, label in zip(axes, point_ripple, ("before", "compensated"), strict=True):
         pole_pairs = max(1, int(pr.poles) // 2)
         y = _without_mech1(pr.theta_r, pr.torque, pr.spectrum, pole_pairs)
         deg = np.degrees(wrap_2pi(np.asarray(pr.theta_r, float)))

@@ -30,7 +30,7 @@ def utc_text(stamp: str | None) -> str:
     except ValueError:
         return str(stamp)
     if t.tzinfo is not None:
-        t = t.astimezone(dt.timezone.utc)
+        t = t.astimezone(dt.UTC)
     return t.strftime("%Y-%m-%d %H:%M:%S UTC")
 
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import io
 import re
 from types import ModuleType
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING
+from collections.abc import Sequence
 from xml.sax.saxutils import escape
 
 if TYPE_CHECKING:

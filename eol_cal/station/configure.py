@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from eol_cal.errors import InputError
 from eol_cal.station.run import StationConfig

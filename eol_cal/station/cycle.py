@@ -20,7 +20,8 @@ import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
 
 from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_ripple, verify_segments
 from eol_cal.errors import EolCalError, InputError
@@ -53,7 +54,7 @@ class StepVerdict:
 
 def now_iso() -> str:
     """UTC now, ISO 8601 with milliseconds (the record's time stamps)."""
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def station_info(cfg: StationConfig, profile_name: str) -> StationInfo:
@@ -128,7 +129,7 @@ class StationCycle:
         check_config(cfg)
         profile = load_profile(cfg.profile)
         segments = dc.setpoints_from_profile(profile)
-        started = _dt.datetime.now(_dt.timezone.utc)
+        started = _dt.datetime.now(_dt.UTC)
         run_id = uuid.uuid4().hex
         sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,

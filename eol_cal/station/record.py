@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.station.limits import LimitCheck, VariantLimits

@@ -10,7 +10,8 @@ in the record; ``to_json(from_json(doc)) == doc`` for every document ``to_json``
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Mapping
+from typing import Any
+from collections.abc import Callable, Mapping
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.capture.ecu_state import EcuState

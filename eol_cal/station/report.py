@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 from eol_cal.atomic import atomic_write
 from eol_cal.report.motor import Figure, FitExtra, PointRipples

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
+from collections.abc import Callable
 
 from eol_cal.capture.model import Capture
 from eol_cal.dyno.sim import CaptureRequest, CaptureSource, i_qo_of

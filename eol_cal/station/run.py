@@ -21,7 +21,8 @@ import datetime as _dt
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
 
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
@@ -108,7 +109,7 @@ class StationConfig:
     open_bus: Callable[[], Any]
     seed_to_key: Callable[[bytes], bytes]
     limits: VariantLimits
-    db: "Path | str"
+    db: Path | str
     report_dir: Path
     profile: str = "eol-default"
     verify: str = "point"
@@ -158,7 +159,7 @@ def sha256_file(path: str | Path) -> str:
 
 
 def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _safe_name(text: str) -> str:

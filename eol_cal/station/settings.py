@@ -30,7 +30,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Collection, Mapping
+from typing import TYPE_CHECKING
+from collections.abc import Callable, Collection, Mapping
 
 import can
 
@@ -327,7 +328,7 @@ def check_station(settings: StationSettings) -> None:
     register_map_of(settings)
 
 
-def register_map_of(settings: StationSettings) -> "RegisterMap":
+def register_map_of(settings: StationSettings) -> RegisterMap:
     """The dyno's register map the settings name (``dyno.register_map``: a shipped map's name, or
     a map file, relative to the settings file); a bad map names the settings key."""
     from eol_cal.dyno.mapfile import load_register_map
@@ -338,7 +339,7 @@ def register_map_of(settings: StationSettings) -> "RegisterMap":
     return _named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
 
 
-def master_of(settings: StationSettings) -> "MasterSettings | None":
+def master_of(settings: StationSettings) -> MasterSettings | None:
     """The station's master motor (keys ``master.*``), or None when ``master.serial`` is unset; a
     key that does not fit is refused naming the settings file (or variable) and the key."""
     from eol_cal.msa.master import master_settings

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -103,7 +103,7 @@ def fit_many(
     if mode == "auto":
         mode = pick_mode(len(motors))
     sources = sources or [None] * len(motors)
-    for seg, src in zip(motors, sources):
+    for seg, src in zip(motors, sources, strict=True):
         check_identifiable(seg, spec, src)
     S = max(m.n_segments for m in motors)
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
@@ -139,7 +139,7 @@ def fit_many(
                     batch = {k: np.stack([getattr(c, k) for c in padded]) for k in _DICT_KEYS}
                     out = jax.device_get(solve(batch, grid_j, spec.max_steps))
                     outs = [{k: v[j] for k, v in out.items()} for j in range(len(block))]
-                for m, c, o in zip(block, comps, outs):
+                for m, c, o in zip(block, comps, outs, strict=True):
                     results.append(unpack(o, c, spec, m.n_segments))
                 if progress:
                     progress(len(results))

@@ -66,7 +66,7 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
 def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
     """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
     out = []
-    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles)):
+    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
         ranges = fingerprint_ranges(mi, ci)
         if not ranges or not cap.has("enc_b"):
             out.append(None)

@@ -37,7 +37,7 @@ def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None
     try:
         enable_compile_cache(cache_dir)
         # imported here on purpose: loading them is the work this function does ahead of time
-        import eol_cal.analysis.fit.capture  # noqa: F401
+        import eol_cal.analysis.fit.capture
         import eol_cal.analysis.fit.plot  # noqa: F401
         from eol_cal.analysis.plots import _pyplot
 

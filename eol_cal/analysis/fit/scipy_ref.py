@@ -38,7 +38,7 @@ def fit_segments_scipy(seg: SteadySegments, spec: FitSpec, p0: np.ndarray | None
     n_tau = int(spec.fit_delay)
     G = spec.n_glob
     S = seg.n_segments
-    Xs = [design_matrix(np.unwrap(th), t, seg.pole_pairs, spec) for th, t in zip(seg.theta, seg.t)]
+    Xs = [design_matrix(np.unwrap(th), t, seg.pole_pairs, spec) for th, t in zip(seg.theta, seg.t, strict=True)]
     ys = [np.asarray(y, dtype=float) for y in seg.torque]
     H = np.asarray(spec.harmonics, dtype=float)
     gain = path_gain(seg, spec)

@@ -125,7 +125,7 @@ def block_from_result(
         except (KeyError, TypeError, ValueError):
             raise InputError(source, "segments", f"motor {serial!r}: every segment needs a number 'i_qo_a' (A)") from None
     if calibrated_at is None:
-        calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
+        calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
     if len(str(serial).encode("ascii", "replace")) > 16:
         raise InputError(source, "serial", f"{serial!r}: the block holds at most 16 ASCII characters")
     if layout not in (1, 2):
@@ -236,7 +236,7 @@ def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | No
     from eol_cal.firmware.block import FLAG_INTERP_ENABLE, ParamBlock
 
     if calibrated_at is None:
-        calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
+        calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
     zeros = np.zeros(16, np.float32)
     return ParamBlock(
         sequence=1, flags=FLAG_INTERP_ENABLE | _options(options), serial=str(serial), calibrated_at=int(calibrated_at),
