@@ -8,6 +8,7 @@ Prints markdown tables (the figures in docs/benchmarks.md, section "Flashing ove
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import logging
 import shutil
@@ -50,10 +51,8 @@ def _outcome(base: Path, tmp: Path, faults: Faults) -> str:
     shutil.copy(base, path)
     old_bank = NorFlash(path).bank(0)
     with virtual_rig(path, faults=faults) as rig:
-        try:
+        with contextlib.suppress(EcuError):
             flash_block(rig.tester, NEW, seed_to_key=KEY, timing=DYING)
-        except EcuError:
-            pass
         rig.restart(faults=Faults())
         active = rig.sim.active
     if NorFlash(path).bank(0) != old_bank and active.bank != 1:

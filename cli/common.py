@@ -9,6 +9,7 @@ import os
 import signal
 import sys
 import threading
+from pathlib import Path
 from typing import Any
 from collections.abc import Callable, Iterator
 
@@ -128,7 +129,6 @@ class RecordsDb(click.ParamType):
     name = "PATH|URL"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str | Path:
-        from pathlib import Path
 
         if isinstance(value, Path) or "://" in str(value):
             return value

@@ -10,6 +10,7 @@ console errors, uncaught exceptions, log errors, and the URL of every request.
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import shutil
@@ -77,17 +78,13 @@ class Browser:
     def close(self) -> None:
         """End the browser's process group and wait for it; remove the profile directory."""
         if self.ws is not None:
-            try:
+            with contextlib.suppress(Exception):  # the browser goes next anyway
                 self.ws.close()
-            except Exception:  # noqa: BLE001 - the browser goes next anyway
-                pass
             self.ws = None
         if self.proc is not None:
             pgid = self.proc.pid  # start_new_session: the group id is the browser's pid
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(pgid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
             try:
                 self.proc.wait(timeout=10)
             except subprocess.TimeoutExpired:

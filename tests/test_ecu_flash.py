@@ -93,9 +93,9 @@ def test_refusals_send_nothing_or_write_nothing(tmp_path):
         dry = _flash(rig, example_block(serial="M-42"), dry_run=True)
         assert dry.dry_run and (dry.bank, dry.sequence) == (1, 2)
         assert rig.sim.active.sequence == 1 and not B.check(rig.sim.flash.bank(1)).valid
-    with virtual_rig(config=SimConfig(layouts=(2,))) as rig:
-        with pytest.raises(EcuError, match=r"supports layout versions \[2\]"):
-            _flash(rig, BLOCK_A)
+    with virtual_rig(config=SimConfig(layouts=(2,))) as rig, \
+            pytest.raises(EcuError, match=r"supports layout versions \[2\]"):
+        _flash(rig, BLOCK_A)
 
 
 def test_no_verify_and_verification_failure_exit_path(tmp_path):

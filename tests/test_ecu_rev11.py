@@ -136,14 +136,14 @@ def test_two_testers_racing_never_leave_a_newer_block_behind(tmp_path):
             other = rig.tester.__class__(channel=rig.channel, interface="virtual")
             outcomes: list[object] = [None, None]
 
-            def tester(i, bus):
+            def tester(i, bus, trial, outcomes):
                 time.sleep(0.002 * i * trial)  # vary who starts first and by how much
                 try:
                     outcomes[i] = flash_block(bus, example_block(seed=10 + i), seed_to_key=KEY, timing=FAST_CLIENT)
                 except EcuError as exc:
                     outcomes[i] = exc
 
-            threads = [threading.Thread(target=tester, args=(i, bus)) for i, bus in enumerate((rig.tester, other))]
+            threads = [threading.Thread(target=tester, args=(i, bus, trial, outcomes)) for i, bus in enumerate((rig.tester, other))]
             for t in threads:
                 t.start()
             for t in threads:

@@ -109,7 +109,7 @@ def test_station_ecu_and_records_commands_and_every_record_kind(files, tmp_path)
     kinds.setdefault("fail", make_record("F-1", k6=2e-3).to_json())
     kinds["error"] = make_record("E-1", error_step="acquire").to_json()
     check = validator("run-record")
-    for kind, rec in kinds.items():
+    for rec in kinds.values():
         check.validate(rec)
     assert {r["kind"] for r in kinds.values()} == {"production", "refusal", "restore"}
     assert set(kinds) == {"pass", "fail", "error", "refusal", "restore"}

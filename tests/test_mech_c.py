@@ -74,7 +74,7 @@ def test_the_harness_sees_one_changed_bit(harness, tmp_path):
 
 
 def test_layout_2_blocks_check_and_decode():
-    for bid, blk in MG.golden_blocks_v2():
+    for _bid, blk in MG.golden_blocks_v2():
         data = pb.pack(blk)
         assert pb.check(data).valid and len(data) == 3248 + 8 * blk.table_len
         assert pb.unpack(data) == blk and blk.layout_version == 2

@@ -70,7 +70,7 @@ def firmware_frame_offsets(jobs: Sequence[FrameJob]) -> list[tuple[complex, int]
         Per job, as :func:`firmware_frame_offset`.
     """
     by_cfg: dict[est.EstimatorConfig, list[int]] = {}
-    for i, (capture, _, ranges, _, options) in enumerate(jobs):
+    for i, (capture, _, _, _, options) in enumerate(jobs):
         by_cfg.setdefault(firmware_config(capture, options), []).append(i)
     out: list[tuple[complex, int]] = [(0j, 0)] * len(jobs)
     for cfg, idx in by_cfg.items():

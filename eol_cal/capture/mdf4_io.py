@@ -78,9 +78,9 @@ def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
 def _stored(values: np.ndarray, digital: bool) -> np.ndarray:
     """uint8 for digital levels that fit; anything else as float64, so that no value changes."""
     values = np.asarray(values)
-    if digital and values.size and np.all(np.isfinite(values)) and np.array_equal(values, np.round(values)):
-        if values.min() >= 0 and values.max() <= 255:
-            return values.astype(np.uint8)
+    if (digital and values.size and np.all(np.isfinite(values)) and np.array_equal(values, np.round(values))
+            and values.min() >= 0 and values.max() <= 255):
+        return values.astype(np.uint8)
     return values.astype(np.float64)
 
 
@@ -222,7 +222,7 @@ def _decode(
 
     try:
         mdf = MDF(str(path))
-    except Exception as exc:  # asammdf raises MdfException, struct.error, ... for bad files
+    except Exception as exc:  # noqa: BLE001 - asammdf raises MdfException, struct.error, ... for bad files
         raise InputError(file, None, f"not a readable MDF file: {exc.__class__.__name__}: {exc}") from None
     try:
         if not str(mdf.version).startswith("4"):

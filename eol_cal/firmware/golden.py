@@ -289,7 +289,7 @@ def check_golden(golden_dir: str | Path, sets: dict[str, VectorSet] | None = Non
     disk_files = {f.get("name"): f for f in on_disk.get("files", []) if isinstance(f, dict)}
     for extra in sorted(set(disk_files) - set(sets)):
         problems.append(f"{mpath}: lists {extra}, which the reference does not generate")
-    for name, vs in sets.items():
+    for name in sets:
         path = golden_dir / name
         entry = disk_files.get(name)
         exp_entry = next(f for f in expected["files"] if f["name"] == name)

@@ -66,10 +66,9 @@ def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
     import dask
     from distributed import LocalCluster
 
-    with dask.config.set(REFIT_CONFIG):
-        with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None) as cluster:
-            yield cluster
+    with dask.config.set(REFIT_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                                     host="127.0.0.1", dashboard_address=None) as cluster:
+        yield cluster
 
 
 def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:

@@ -22,6 +22,7 @@ batch: the same lot (name, spread, limits, seed, batch size) gives the same reco
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import time
 import uuid
@@ -229,7 +230,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
         m.steps += [Step("prepare ECU", 0.0, True), Step("acquire", share, True)]
         m.before = _windows(run.capture, profile, motor.f_pwm)
         # fit (its limits), table
-        fitted = step(m, "fit", lambda: fit_motor(m.before, lim, __version__, motor, mechanics, cache, options))
+        fitted = step(m, "fit", functools.partial(fit_motor, m.before, lim, __version__, motor, mechanics, cache, options))
         if fitted is None:
             continue
         _doc, m.result, extra = fitted
@@ -243,7 +244,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
             m.verdict, m.reasons = "fail", failed(m.judged["fit"])
             continue
         m.before = extra[0]  # the fit's windows and angles, for the ripple before
-        m.calibrated = step(m, "table", lambda: block_from_result(m.result, motor, calibrated_at=0,
+        m.calibrated = step(m, "table", functools.partial(block_from_result, m.result, motor, calibrated_at=0,
                                                                   source=f"<{m.spec.serial}>", options=options))
         if m.calibrated is not None:
             m.blocks.append(_flashed(m.calibrated, "calibrated"))
@@ -263,7 +264,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
         share = round((time.perf_counter() - t0) / len(group), 4)
         for m, run in zip(group, after, strict=True):
             m.steps.append(Step("acquire compensated", share, True))
-            step(m, "metrics", lambda: _judge_ripple(m, run.capture, lim))
+            step(m, "metrics", functools.partial(_judge_ripple, m, run.capture, lim))
     return [_record(plan, m, lim, __version__).to_json() for m in motors]
 
 

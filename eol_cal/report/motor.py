@@ -19,6 +19,7 @@ import numpy as np
 
 from eol_cal.display import display_unit
 from eol_cal.report.svg import figure_svg, pyplot
+from eol_cal.wrap import wrap_2pi
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
@@ -32,7 +33,6 @@ if TYPE_CHECKING:
 FitExtra = tuple["MotorInput", "MotorFit", "FitSpec"]
 #: the ripple at the operating point, before and compensated
 PointRipples = tuple["PointRipple", "PointRipple"]
-from eol_cal.wrap import wrap_2pi
 
 _MAX_POINTS = 3000  # points drawn per panel: enough to show the band, small enough to inline
 _ANGLE_BINS = 120  # 3 deg electrical per bin for the mean curve

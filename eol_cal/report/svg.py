@@ -11,7 +11,7 @@ import io
 import re
 from types import ModuleType
 from typing import TYPE_CHECKING
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from xml.sax.saxutils import escape
 
 if TYPE_CHECKING:
@@ -115,7 +115,7 @@ def _add_titles(text: str, titles: dict[str, Sequence[str]]) -> str:
             raise ValueError(f"artist {gid!r}: {drawn} points drawn, {len(labels)} titles")
         it = iter(labels)
 
-        def one(m: re.Match) -> str:
+        def one(m: re.Match, it: Iterator[str] = it) -> str:  # bound here: called within this iteration
             return f"{m.group(0)[:-2]}><title>{escape(next(it))}</title></{m.group(1)}>"
 
         parts[::2] = [_POINT.sub(one, p) for p in parts[::2]]

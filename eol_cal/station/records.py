@@ -168,10 +168,7 @@ def _server_engine(url: str, timeout_s: float) -> Engine:
 
 
 def _sqlite_engine(db: Path, timeout_s: float, readonly: bool) -> Engine:
-    if readonly:
-        url = f"sqlite:///file:{db.resolve()}?mode=ro&uri=true"
-    else:
-        url = f"sqlite:///{db}"
+    url = f"sqlite:///file:{db.resolve()}?mode=ro&uri=true" if readonly else f"sqlite:///{db}"
     eng = sa.create_engine(url, poolclass=NullPool, connect_args={"timeout": timeout_s})
 
     @event.listens_for(eng, "connect")

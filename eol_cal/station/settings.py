@@ -283,7 +283,7 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
     host, port = ("", 0) if values["dyno.address"] is None else \
         parse_dyno_address(str(values["dyno.address"]), settings.where("dyno.address"))
     settings = StationSettings(source, values, origin, host, port)
-    for name, check in (validators or {}).items():
+    for check in (validators or {}).values():
         check(settings)
     return settings
 
