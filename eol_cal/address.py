@@ -28,7 +28,8 @@ def parse_host_port(text: str, field: str = "address", any_port: bool = False,
         return text, default_port
     host, sep, port = text.rpartition(":")
     if not sep or not host:
-        example = "HOST or HOST:PORT, e.g. 192.0.2.10 or 127.0.0.1:5020" if default_port is not None else "HOST:PORT, e.g. 127.0.0.1:5020"
+        example = ("HOST or HOST:PORT, e.g. 192.0.2.10 or 127.0.0.1:5020" if default_port is not None
+                   else "HOST:PORT, e.g. 127.0.0.1:5020")
         raise InputError(None, field, f"expected {example}, got {text!r}")
     if not port.isdigit():
         raise InputError(None, field, f"port {port!r} is not a number")

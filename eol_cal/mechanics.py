@@ -110,7 +110,8 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
             text = resources.files("eol_cal.benches").joinpath(f"{name_or_file}.toml").read_text()
         except FileNotFoundError:
             known = sorted(p.name[:-5] for p in resources.files("eol_cal.benches").iterdir() if p.name.endswith(".toml"))
-            raise InputError(None, "bench", f"unknown bench {name_or_file!r}; known: {', '.join(known)}, or a .toml file") from None
+            raise InputError(None, "bench",
+                             f"unknown bench {name_or_file!r}; known: {', '.join(known)}, or a .toml file") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -230,4 +230,5 @@ def element_sizes(browser: Browser, selector: str) -> list[dict[str, Any]]:
     """``{id, w, h}`` of every element matching ``selector`` (getBoundingClientRect)."""
     return browser.evaluate(
         f"Array.from(document.querySelectorAll({json.dumps(selector)})).map(e => {{"
-        "const r = e.getBoundingClientRect(); return {id: e.id || (e.closest('[id]') || {}).id || '', w: r.width, h: r.height}; })")
+        "const r = e.getBoundingClientRect(); "
+        "return {id: e.id || (e.closest('[id]') || {}).id || '', w: r.width, h: r.height}; })")

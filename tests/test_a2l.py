@@ -260,7 +260,8 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
     assert bit.bitMask == 1 << 31 and bit.address == 2 * pb.BANK_WORD_ADDR[1] + pb.field_offset("flags")
     verb = chars["flags"].compuMethod.tab_verb
     assert len(verb.in_values) == 2 ** len(C.FLAGS)
-    assert dict(zip(verb.in_values, verb.text_values, strict=True))[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
+    verbs = dict(zip(verb.in_values, verb.text_values, strict=True))
+    assert verbs[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
     res = subprocess.run([_a2ltool(), str(path), "--strict", "--check"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stdout + res.stderr
 

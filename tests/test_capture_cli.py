@@ -77,7 +77,8 @@ def test_convert_foreign_to_mdf4_events_and_back(tmp_path):
 
 
 def test_convert_refuses_events_for_csv_and_foreign_without_map(tmp_path):
-    r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "paper_60rpm.csv"), str(tmp_path / "x.csv"), "--digital", "events"])
+    r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "paper_60rpm.csv"), str(tmp_path / "x.csv"),
+                                 "--digital", "events"])
     assert r.exit_code == 2 and "--digital" in r.stderr
     r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "daq_export_foreign.csv"), str(tmp_path / "x.mf4")])
     assert r.exit_code == 2 and "'Zeit'" in r.stderr and "--map" in r.stderr

@@ -143,7 +143,8 @@ def test_two_testers_racing_never_leave_a_newer_block_behind(tmp_path):
                 except EcuError as exc:
                     outcomes[i] = exc
 
-            threads = [threading.Thread(target=tester, args=(i, bus, trial, outcomes)) for i, bus in enumerate((rig.tester, other))]
+            threads = [threading.Thread(target=tester, args=(i, bus, trial, outcomes))
+                       for i, bus in enumerate((rig.tester, other))]
             for t in threads:
                 t.start()
             for t in threads:

@@ -49,11 +49,15 @@ def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     with Browser() as b:
         log = b.open(page.as_uri())
         text = b.evaluate("document.getElementById('baseline').textContent")
-        rows = b.evaluate("Array.from(document.querySelectorAll('tr.violation-row')).map(r => [r.dataset.rule, r.dataset.key, r.cells[3].textContent])")
-        ringed = b.evaluate("Array.from(document.querySelectorAll('[id=\"control-L1-S1-rule-k6\"] title')).map(t => t.textContent)")
+        rows = b.evaluate("Array.from(document.querySelectorAll('tr.violation-row'))"
+                          ".map(r => [r.dataset.rule, r.dataset.key, r.cells[3].textContent])")
+        ringed = b.evaluate("Array.from(document.querySelectorAll('[id=\"control-L1-S1-rule-k6\"] title'))"
+                            ".map(t => t.textContent)")
         frozen_ucl = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-cl-k6-ucl]').length")
-        phase = b.evaluate("Array.from(document.querySelector('tr.quantity-row[data-key=phase_c6]').cells).map(c => c.textContent)")
-        groups = b.evaluate("Array.from(document.querySelectorAll('tr.capability-row[data-key=k6]')).map(r => [r.dataset.station, r.querySelector('td.cpk').textContent])")
+        phase = b.evaluate("Array.from(document.querySelector('tr.quantity-row[data-key=phase_c6]').cells)"
+                           ".map(c => c.textContent)")
+        groups = b.evaluate("Array.from(document.querySelectorAll('tr.capability-row[data-key=k6]'))"
+                            ".map(r => [r.dataset.station, r.querySelector('td.cpk').textContent])")
         card = b.evaluate("document.getElementById('card-violations').textContent")
         polar = b.evaluate("document.querySelectorAll('[id=\"histograms-hist-phase_c6\"]').length")
         sizes = element_sizes(b, "svg.plot")

@@ -97,7 +97,8 @@ def _in_chromium(page: Path, plots: Path, doc: dict) -> None:
         log = b.open(page.as_uri())
         sizes = element_sizes(b, "svg.plot")
         verdict = b.evaluate("document.getElementById('verdict').textContent")
-        cells = b.evaluate("Array.from(document.querySelectorAll('tr.study-row')).map(r => [r.dataset.key, r.querySelector('td.cg').textContent])")
+        cells = b.evaluate("Array.from(document.querySelectorAll('tr.study-row'))"
+                           ".map(r => [r.dataset.key, r.querySelector('td.cg').textContent])")
         points = b.evaluate("document.querySelectorAll('[id=\"type1-k6-values-k6\"] title').length")
     assert log.console_errors == [] and set(log.requests) == {page.as_uri()}
     assert [s["id"] for s in sizes] == [f"fig-type1-{q['key'].replace('_', '-')}" for q in doc["quantities"]]

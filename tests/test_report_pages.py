@@ -219,7 +219,8 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
         log = b.open(page.as_uri())
         sizes = element_sizes(b, "svg.plot")
         # hover text: one <title> per drawn point, naming the serial
-        k6_titles = b.evaluate("Array.from(document.querySelectorAll('[id=\"timeline-runs-k6\"] use > title')).map(t => t.textContent)")
+        k6_titles = b.evaluate("Array.from(document.querySelectorAll('[id=\"timeline-runs-k6\"] use > title'))"
+                               ".map(t => t.textContent)")
         pass_rate = b.evaluate("document.getElementById('pass-rate').textContent")
         fpy = b.evaluate("document.getElementById('fpy').textContent")
         quantity_rows = b.evaluate("Array.from(document.querySelectorAll('tr.quantity-row')).map(r => r.dataset.key)")
@@ -234,7 +235,8 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
         # zoom: a wheel event on a chart narrows its viewBox, a double-click restores it
         zoom = b.evaluate("""(() => { const s = document.querySelector('#fig-timeline svg'); const r = s.getBoundingClientRect();
             const before = s.getAttribute('viewBox');
-            s.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, clientX: r.left + r.width / 2, clientY: r.top + r.height / 2, bubbles: true, cancelable: true}));
+            s.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, clientX: r.left + r.width / 2,
+                                                     clientY: r.top + r.height / 2, bubbles: true, cancelable: true}));
             const zoomed = s.getAttribute('viewBox'); s.dispatchEvent(new MouseEvent('dblclick', {bubbles: true}));
             return [before, zoomed, s.getAttribute('viewBox')]; })()""")
         shot = b.screenshot(tmp_path / "lot.png")

@@ -348,7 +348,8 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
     base = ["run", "--dyno", "127.0.0.1:1", "--interface", "virtual", "--channel", "x", "--db", str(tmp_path / "r.sqlite"),
             "--serial", "S-1", "--key-file", str(files["key"]), "--report-dir", str(tmp_path / "rep")]
     bad = tmp_path / "bad.toml"
-    bad.write_text(LIMITS.replace("max_k6 = 0.0025\nmax_pp_before_pct = 25.0\nmax_pp_after_pct = 2.0", "max_pp_after_pct = 2.0", 1))
+    bad.write_text(LIMITS.replace("max_k6 = 0.0025\nmax_pp_before_pct = 25.0\nmax_pp_after_pct = 2.0",
+                                  "max_pp_after_pct = 2.0", 1))
     res = runner.invoke(cli, base + ["--limits", str(bad)])
     assert res.exit_code == 2 and "variant.TEST.max_k6" in res.output and str(bad) in res.output
     res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--variant", "NOPE"])
@@ -452,7 +453,8 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
         log = b.open(page.as_uri())
         sizes = element_sizes(b, "svg.plot")
         verdict_text = b.evaluate("document.getElementById('verdict').textContent")
-        rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row')).map(r => [r.dataset.key, r.lastElementChild.textContent])")
+        rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row'))"
+                          ".map(r => [r.dataset.key, r.lastElementChild.textContent])")
         b_ecu = b.evaluate("document.getElementById('ecu').textContent")
         residual_panels = b.evaluate("document.querySelectorAll('#fig-residual g[id^=residual-segment-]').length")
         shot = b.screenshot(tmp_path / "report.png")

@@ -7,14 +7,16 @@ as the estimator decodes it (from the window's first sample), every A rising edg
 boundary found, and the edge errors fitted by least squares, per direction, over the steady
 stretches of the fit's segments: the boundary's nominal angle plus the edge's error is the rotor's
 smooth angle at the edge time (a cubic polynomial in time per stretch), the errors orthogonal to
-mechanical orders 0..2 (which the polynomials over a revolution or so would otherwise share). The window's grid phase is where its count boundary 0 sits in the
-firmware's electrical frame (the offline angle at its edges plus the firmware frame offset).
+mechanical orders 0..2 (which the polynomials over a revolution or so would otherwise share).
+The window's grid phase is where its count boundary 0 sits in the firmware's electrical frame
+(the offline angle at its edges plus the firmware frame offset).
 
 Windows are then put into one frame, that of the window with most edges (the block's): each other
 window's offset is found by the halls (its grid phase allows one offset per pole pair) and the
 fingerprint (the offset whose joint fit with the windows already placed leaves the least
-residual), and the errors are fitted over all placed windows' edges together. The margin the firmware will see after one revolution at the
-reference speed is predicted from the fingerprint, its uncertainty and the tick quantisation.
+residual), and the errors are fitted over all placed windows' edges together. The margin the
+firmware will see after one revolution at the reference speed is predicted from the fingerprint,
+its uncertainty and the tick quantisation.
 """
 
 from __future__ import annotations

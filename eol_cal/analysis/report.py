@@ -53,7 +53,8 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
 
     def order_entry(amp: float, phase: float) -> dict:
         pct = 100.0 * amp / abs(T_avg) if T_avg else float("nan")
-        return {"amplitude_nm": json_safe(float(amp)), "amplitude_pct": json_safe(float(pct)), "phase_rad": json_safe(float(phase))}
+        return {"amplitude_nm": json_safe(float(amp)), "amplitude_pct": json_safe(float(pct)),
+                "phase_rad": json_safe(float(phase))}
 
     top = {str(n): order_entry(spectrum.amplitude(n), spectrum.phase(n)) for n in TOP_ORDERS}
     top["mech1"] = order_entry(spectrum.mech1_amplitude_nm, spectrum.mech1_phase_rad)

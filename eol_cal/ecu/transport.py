@@ -117,7 +117,8 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     except (OSError, ValueError, can.CanInterfaceNotImplementedError) as exc:
         raise InputError(can_config, "can-config", str(exc)) from exc
     if not config.get("interface"):
-        raise InputError(can_config, "interface", "no CAN interface given (neither directly nor in a python-can configuration file)")
+        raise InputError(can_config, "interface",
+                         "no CAN interface given (neither directly nor in a python-can configuration file)")
     if config.get("interface") == "udp_multicast":
         # Its frames leave through the network card; the project never uses it.
         raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")

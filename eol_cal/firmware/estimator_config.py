@@ -122,9 +122,9 @@ class EstimatorConfig:
     standstill_ticks : int
         No A edge within this many ticks -> standstill (omega_hat = 0).
     clamp_to_next_edge : bool
-        Improvement 1 (block flag ``EST_CLAMP_TO_NEXT_EDGE``, bit 2): the prediction stays inside the current quadrature count (so it never
-        passes the next edge's angle), and the reported speed is bounded by what the time since
-        the last edge allows.
+        Improvement 1 (block flag ``EST_CLAMP_TO_NEXT_EDGE``, bit 2): the prediction stays inside
+        the current quadrature count (so it never passes the next edge's angle), and the reported
+        speed is bounded by what the time since the last edge allows.
     learn_grid_offset : bool
         Improvement 2 (``EST_LEARN_GRID_OFFSET``, bit 3): the encoder-grid offset is the running mean of the hall corrections (the
         first N_LEARN, then a 1/N_LEARN filter; a full correction when the error exceeds half a

@@ -98,7 +98,8 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
 
     The fit is the station's (:func:`eol_cal.station.run.fit_motor`'s options: joint windows,
     firmware frame), with the dyno ``bench`` (a name or TOML file; ``"none"``: rigid coupling)
-    and ``motor`` preset the runs were made with (the record's ``station.bench``, ``station.motor``). ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
+    and ``motor`` preset the runs were made with (the record's ``station.bench``, ``station.motor``).
+    ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
     ``rms`` in N*m, as in the records; ``capture`` names the first file. ``cache_dir``: the fit's
     serialized solvers (:mod:`eol_cal.analysis.fit.cache`; ``None``: none).
 

@@ -90,8 +90,9 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
     Returns
     -------
     matplotlib.figure.Figure, dict of gid -> list of str
-        The figure, and the hover text of each point of its scatters. Artists with a ``gid``: ``runs-k6``, ``runs-before``, ``runs-after`` (one marker per
-        run that has the value), ``error-runs`` (one line per error run), ``limit-KEY``.
+        The figure, and the hover text of each point of its scatters. Artists with a ``gid``:
+        ``runs-k6``, ``runs-before``, ``runs-after`` (one marker per run that has the value),
+        ``error-runs`` (one line per error run), ``limit-KEY``.
     """
     plt = pyplot()
     recs = sorted(records, key=run_time)
@@ -106,8 +107,8 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
     t_ok = [t for t, o in zip(times, ok, strict=True) if o]
     dense = len(recs) > MAX_HOVER_POINTS
     ax_k.errorbar(t_ok, k6[ok], yerr=np.nan_to_num(ci[ok]), fmt="none", ecolor="0.6", lw=1, rasterized=dense)
-    ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok, strict=True) if o], s=22, zorder=3, gid="runs-k6", rasterized=dense,
-                 label="k6 (green pass, orange fail)")
+    ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok, strict=True) if o], s=22, zorder=3, gid="runs-k6",
+                 rasterized=dense, label="k6 (green pass, orange fail)")
     _limit_steps(ax_k, times, recs, "k6", "tab:red")
     ax_k.set_ylabel(f"k6 ({display_unit(_UNITS['k6'])[0]})")
     for key, quantity, marker, colour in (("before", "pp_before_pct", "o", "tab:blue"),
@@ -141,8 +142,8 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
     titles = {"runs-k6": [point_title(r, f"k6 {v:.4g} {display_unit(_UNITS['k6'])[0]}")
                           for r, v in zip(recs, k6, strict=True) if math.isfinite(v)]}
     for key, quantity in (("before", "pp_before_pct"), ("after", "pp_after_pct")):
-        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %") for r, v in zip(recs, _display(recs, quantity), strict=True)
-                                 if math.isfinite(v)]
+        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %")
+                                 for r, v in zip(recs, _display(recs, quantity), strict=True) if math.isfinite(v)]
     return fig, titles
 
 
@@ -254,7 +255,8 @@ def control_figure(records: Sequence[RunRecord], station: str,
             ax_m.plot(t[1:], mr, "-", color="0.6", lw=0.7, rasterized=dense)
             ax_m.scatter(t[1:], mr, s=10, zorder=3, color="tab:blue", gid=f"mr-{key}", rasterized=dense)
             if not dense:
-                titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr, strict=True)]
+                titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}")
+                                       for p, m in zip(pts[1:], mr, strict=True)]
         lim = (limits or {}).get(key)
         if lim is None and len(x) >= max(2, min_n):
             from eol_cal.lot.stats import imr_limits

@@ -3,7 +3,8 @@
 Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1, so the
 tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...`` would), and a
 dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
-comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind free ports and are shut down when the motor is done.
+comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind
+free ports and are shut down when the motor is done.
 """
 
 from __future__ import annotations

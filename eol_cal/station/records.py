@@ -309,7 +309,8 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
     ``operator``; version 2 gains ``limits_json``, ``error_step``, ``phase_c6``, ``fit_r2`` and
     ``fit_rms_nm``; version 3 gains ``kind`` and ``causes``. The new columns are filled from each
     row's record JSON, read as a :class:`~eol_cal.station.record.RunRecord` (a record of the first
-    schema migrated as it is read; a corrupt one refuses the migration, naming the run). Returns ``(version before, version now)``;
+    schema migrated as it is read; a corrupt one refuses the migration, naming the run). Returns
+    ``(version before, version now)``;
     ``before`` is None for a new database.
     """
     eng = engine(db, timeout_s)

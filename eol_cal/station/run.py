@@ -1,8 +1,8 @@
 """The end-of-line cycle for one motor.
 
 pre-flight (dyno ready, ECU answering and accepting the key, serials agreeing; nothing written,
-:mod:`eol_cal.station.preflight`) -> prepare ECU (flash the uncompensated block: field estimator, no compensation) -> acquire (dyno,
-profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the compensation the
+:mod:`eol_cal.station.preflight`) -> prepare ECU (flash the uncompensated block: field estimator,
+no compensation) -> acquire (dyno, profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the compensation the
 ECU now runs -> metrics -> verdict against the variant's limits -> report + record. The first
 flash makes the calibration capture independent of what the ECU ran before: a blank ECU would
 run the raw encoder angle (k6 about 1.7 % low and twice the scatter on the plant lot), and a
@@ -205,7 +205,8 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
         got = int(capture.metadata[key])
         if got != want:
             raise InputError(capture.source, key, f"the capture says {got}, the station's motor type "
-                             f"{motor.name!r} has {want}: wrong motor on the dyno, or the station is set up for another motor type")
+                             f"{motor.name!r} has {want}: wrong motor on the dyno, or the station is set up for "
+                             "another motor type")
 
 
 # --------------------------------------------------------------------------- the cycle
