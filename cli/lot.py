@@ -68,7 +68,7 @@ def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, o
     statistics are of the production runs unless --kind says otherwise (docs/records.md, "Run kinds")."""
     from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
-    from eol_cal.report.lot import select_records, write_lot_page
+    from eol_cal.lot.page import select_records, write_lot_page
     from eol_cal.station.records import db_label
     from eol_cal.station.records_query import query_records
 

@@ -207,7 +207,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
 
 def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
-    from eol_cal.report.lot import select_records, write_lot_page
+    from eol_cal.lot.page import select_records, write_lot_page
     from eol_cal.station.records import db_label, db_shown
     from eol_cal.station.records_query import query_records
 

@@ -311,7 +311,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
         err_console.print(f"{serial}: {rec.verdict}" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
     wall = time.perf_counter() - t0
     console.print(results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
-    from eol_cal.report.lot import write_lot_page
+    from eol_cal.lot.page import write_lot_page
     from eol_cal.station.records import db_label, db_shown
     from eol_cal.station.records_query import query_records
 

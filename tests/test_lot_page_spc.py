@@ -36,7 +36,7 @@ def _records():
 def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     from _browser import Browser, element_sizes
 
-    from eol_cal.report.lot import write_lot_page
+    from eol_cal.lot.page import write_lot_page
 
     recs = _records()
     base_runs = [r for r in recs if r.started_at < "2026-11-22"]

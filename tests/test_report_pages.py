@@ -131,7 +131,7 @@ def lot_record(serial: str, started: str, verdict: str, k6: float = 1.0e-3, afte
 
 
 def test_records_plot_is_against_time_with_limits_and_error_runs():
-    from eol_cal.report.lot import timeline_figure
+    from eol_cal.lot.page import timeline_figure
     from eol_cal.report.svg import pyplot
 
     recs = [lot_record("A", "2026-11-22T09:00:00+00:00", "pass"),
@@ -212,7 +212,7 @@ def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
 def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     from _browser import Browser, element_sizes, group_alive, not_blank
 
-    from eol_cal.report.lot import write_lot_page
+    from eol_cal.lot.page import write_lot_page
 
     page = write_lot_page(lot_db["records"], tmp_path / "lot.html", title="lot.sqlite", filters={"variant": None})
     with Browser() as b:
@@ -297,7 +297,7 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
 
 @pytest.mark.slow
 def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, monkeypatch, tmp_path):
-    import eol_cal.report.lot as lot
+    import eol_cal.lot.page as lot
 
     monkeypatch.setattr(lot, "MAX_HOVER_POINTS", 5)
     html = lot.write_lot_page(lot_db["records"], tmp_path / "big.html", title="big", filters={}).read_text()

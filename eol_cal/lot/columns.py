@@ -29,7 +29,7 @@ import numpy as np
 from eol_cal.display import display_unit
 from eol_cal.errors import InputError
 from eol_cal.station.limits import limit_on
-from eol_cal.station.record import MEASURED_KIND, RunRecord
+from eol_cal.station.record import MEASURED_KIND, NO_STATION, RunRecord
 
 
 class Quantity(NamedTuple):
@@ -247,8 +247,6 @@ def time_order(started_at: Sequence[str], run_id: Sequence[str]) -> np.ndarray:
 def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | None]) -> Lot:
     """A :class:`Lot` of the ``runs`` columns :data:`LOT_COLUMNS` (any row order) and the runs'
     ``limits_json`` texts (each run's, or only the distinct ones)."""
-    from eol_cal.report.motor import NO_STATION
-
     order = time_order(cols["started_at"], cols["run_id"])
 
     def text(name: str) -> np.ndarray:

@@ -22,7 +22,6 @@ from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary
 from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
-from eol_cal.report.motor import station_of
 from eol_cal.report.svg import pyplot
 from eol_cal.station.limits import limit_on
 from eol_cal.station.record import MEASURED_KIND
@@ -343,7 +342,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
         if r.report_dir and page.is_file():
             link = Path(os.path.relpath(page.resolve(), Path(page_dir).resolve())).as_posix()
         rows.append({"serial": r.serial, "verdict": r.verdict, "started_at": r.started_at,
-                     "station": station_of(r), "key": worst.key if worst else None,
+                     "station": r.station_label, "key": worst.key if worst else None,
                      "value": worst.value if worst else math.nan, "limit": worst.limit if worst else math.nan,
                      "margin": worst.margin if worst else math.nan, "unit": worst.unit if worst else "",
                      "reasons": list(r.reasons), "link": link, "_sort": (order.get(r.verdict, 3), rel)})
@@ -419,7 +418,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
                              "codes): not results of the motors", figure_svg(pareto_figure(refused), "refusals"))
     stations: dict[str, list[RunRecord]] = {}
     for r in recs:
-        stations.setdefault(station_of(r), []).append(r)
+        stations.setdefault(r.station_label, []).append(r)
     control = [_control(name, runs, doc, baseline, min_n) for name, runs in sorted(stations.items())]
     dates = [r.started_at[:19].replace("T", " ") for r in ordered]
     return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control,
@@ -474,7 +473,7 @@ def select_records(records: Sequence[RunRecord], variant: str | None = None, sin
         day = run_time(r).date()
         if variant is not None and (r.limits is None or r.limits.variant != variant):
             continue
-        if station is not None and station_of(r) != station:
+        if station is not None and r.station_label != station:
             continue
         if (since is not None and day < since) or (until is not None and day > until):
             continue

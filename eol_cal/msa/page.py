@@ -75,7 +75,7 @@ def line(st: Type1Study) -> str:
 def write_pngs(results: Sequence[tuple[Type1Study, str]], directory: str | Path) -> list[Path]:
     """One PNG per quantity, ``type1-KEY.png`` in ``directory`` (made when missing)."""
     from eol_cal.msa.study import quantity
-    from eol_cal.report.lot import save_png
+    from eol_cal.lot.page import save_png
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

@@ -19,6 +19,7 @@ import numpy as np
 
 from eol_cal.display import display_unit
 from eol_cal.report.svg import figure_svg, pyplot
+from eol_cal.station.record import NO_STATION
 from eol_cal.wrap import wrap_2pi
 
 if TYPE_CHECKING:
@@ -37,7 +38,6 @@ PointRipples = tuple["PointRipple", "PointRipple"]
 _MAX_POINTS = 3000  # points drawn per panel: enough to show the band, small enough to inline
 _ANGLE_BINS = 120  # 3 deg electrical per bin for the mean curve
 _MAX_ORDER = 24
-NO_STATION = "(no station id)"
 
 
 @dataclass(frozen=True)
@@ -103,11 +103,6 @@ def limit_rows(rec: RunRecord) -> list[LimitRow]:
         status = {True: "PASS", False: "FAIL"}.get(c.passed) or ("not measured" if math.isnan(c.value) else "not judged")
         rows.append(LimitRow(c.key, c.title, c.sense, c.value * factor, c.limit * factor, c.margin * factor, unit, status))
     return rows
-
-
-def station_of(rec: RunRecord) -> str:
-    """The station a run was made on: its id where the record has one."""
-    return rec.station_name or NO_STATION
 
 
 def _state_col(label: str, s: EcuState | None, verified: bool | None = None) -> dict[str, Any]:
@@ -396,7 +391,7 @@ def render_motor_report(rec: RunRecord, figures: Sequence[Figure]) -> str:
         ("lead", f"{_fmt(cal.lead_s * 1e6 if cal is not None and cal.lead_s is not None else None)} us"),
         ("estimator options", _estimator_text(rec)),
     ]
-    name = station_of(rec)
+    name = rec.station_label
     return render("motor.html.j2", rec=rec, station=rec.station, figures=list(figures), limit_rows=limit_rows(rec),
                   ecu_states=ecu_states(rec), ecu_active=rec.ecu_active, values=values, fmt=_fmt, mech=mech_section(rec),
                   operator=rec.operator, station_name=name if name != NO_STATION else rec.station.extra.get("dyno"),

@@ -85,7 +85,7 @@ def write_record_json(rec: RunRecord, run_dir: str | Path) -> Path:
 
 def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> None:
     """k6 and p-p ripple (before, compensated) of every run against its start time, with the
-    variants' limits and the error runs, into one PNG (:func:`eol_cal.report.lot.timeline_figure`).
+    variants' limits and the error runs, into one PNG (:func:`eol_cal.lot.page.timeline_figure`).
 
     Parameters
     ----------
@@ -96,6 +96,6 @@ def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> Non
     title : str
         Figure title.
     """
-    from eol_cal.report.lot import save_png, timeline_figure
+    from eol_cal.lot.page import save_png, timeline_figure
 
     save_png(timeline_figure(records, title), path)
