@@ -132,7 +132,7 @@ def lot_record(serial: str, started: str, verdict: str, k6: float = 1.0e-3, afte
 
 def test_records_plot_is_against_time_with_limits_and_error_runs():
     from eol_cal.lot.page import timeline_figure
-    from eol_cal.report.svg import pyplot
+    from eol_cal.figures import pyplot
 
     recs = [lot_record("A", "2026-11-22T09:00:00+00:00", "pass"),
             lot_record("B", "2026-11-22T12:00:00+00:00", "error"),
@@ -279,7 +279,8 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
     title, in the data's order, and a count that does not match is refused."""
     import re
 
-    from eol_cal.report.svg import figure_svg, pyplot
+    from eol_cal.figures import pyplot
+    from eol_cal.report.svg import figure_svg
 
     def fig():
         f, ax = pyplot().subplots(figsize=(3, 2))

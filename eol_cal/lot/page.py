@@ -22,7 +22,7 @@ from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary
 from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
-from eol_cal.report.svg import pyplot
+from eol_cal.figures import pyplot
 from eol_cal.station.limits import limit_on
 from eol_cal.station.record import MEASURED_KIND
 
@@ -144,16 +144,6 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
         titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %")
                                  for r, v in zip(recs, _display(recs, quantity), strict=True) if math.isfinite(v)]
     return fig, titles
-
-
-def save_png(fig: MplFigure, path: str | Path) -> None:
-    """Write a figure as PNG (atomically) and close it."""
-    from eol_cal.analysis.plots import _save
-
-    try:
-        _save(fig, path)
-    finally:
-        pyplot().close(fig)
 
 
 # --------------------------------------------------------------------------- the lot page

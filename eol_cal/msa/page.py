@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.msa.type1 import CAPABLE, Type1Study
-from eol_cal.report.svg import pyplot
+from eol_cal.figures import pyplot
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -75,7 +75,7 @@ def line(st: Type1Study) -> str:
 def write_pngs(results: Sequence[tuple[Type1Study, str]], directory: str | Path) -> list[Path]:
     """One PNG per quantity, ``type1-KEY.png`` in ``directory`` (made when missing)."""
     from eol_cal.msa.study import quantity
-    from eol_cal.lot.page import save_png
+    from eol_cal.figures import save_png
 
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

@@ -18,7 +18,8 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from eol_cal.display import display_unit
-from eol_cal.report.svg import figure_svg, pyplot
+from eol_cal.figures import pyplot
+from eol_cal.report.svg import figure_svg
 from eol_cal.station.record import NO_STATION
 from eol_cal.wrap import wrap_2pi
 

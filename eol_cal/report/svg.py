@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import io
 import re
-from types import ModuleType
 from typing import TYPE_CHECKING
 from collections.abc import Iterator, Sequence
 from xml.sax.saxutils import escape
+
+from eol_cal.figures import pyplot
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -22,16 +23,6 @@ _REF = re.compile(r'(url\(#|href="#)([^")]+)')
 #: what every SVG the reports inline is written with: fixed hash salt (clip path ids), glyphs as
 #: paths (no font needed where the page is opened), no date in the metadata
 RC = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
-
-
-def pyplot() -> ModuleType:
-    """matplotlib's pyplot on the Agg backend (imported on first use: it costs a second)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:

@@ -96,6 +96,7 @@ def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> Non
     title : str
         Figure title.
     """
-    from eol_cal.lot.page import save_png, timeline_figure
+    from eol_cal.figures import save_png
+    from eol_cal.lot.page import timeline_figure
 
     save_png(timeline_figure(records, title), path)
