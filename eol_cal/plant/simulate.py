@@ -181,7 +181,7 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tu
         return mech_on, mech_sum(cfg.mech, mech_tables_of(p), sensed.mech.r, est_state.q, est.theta_hat,
                                  est.omega_hat, i_qo, xp=jnp)
 
-    def current_task(ecu: control.EcuState) -> control.EcuState:
+    def current_task(ecu: control.ControllerState) -> control.ControllerState:
         return control.current_task(ecu, (i_a, i_b, i_c), i_noise[cc_index], est.theta_hat, est.omega_hat,
                                     i_qo_prof, cmd_flag, cos_c, sin_c, p, T_cc, cfg.mode == "compensated", jnp,
                                     mech=None if cfg.mech is None else mech_current)
@@ -306,7 +306,7 @@ def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m
                        f(0.0), f(i_qo0), f(T0))
     est_state = estimator.init_state(cfg.estimator, int(hall0), int(a0), int(b0), xp=np)
     ecu = control.initial_ecu(f(i_qo0), f(cfg.poles // 2 * omega_m0), ps, np)
-    ecu = control.EcuState(*(np.asarray(v, dtype=np.float32) for v in ecu))
+    ecu = control.ControllerState(*(np.asarray(v, dtype=np.float32) for v in ecu))
     est_state = type(est_state)(*(np.asarray(v) for v in est_state))
     mech_state = None
     if cfg.mech is not None:
