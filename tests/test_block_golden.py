@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import compensator as comp
 from eol_cal.firmware import golden, vectors
 
@@ -157,7 +157,7 @@ def test_c_crc_table_is_iso_hdlc():
         for _ in range(8):
             c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
         assert v == c
-    assert pb.crc32(b"123456789") == 0xCBF43926
+    assert B.crc32(b"123456789") == 0xCBF43926
 
 
 def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):

@@ -181,7 +181,7 @@ def test_batch_of_motors_with_different_hall_tables():
     import dataclasses
     import math
 
-    from eol_cal.firmware import estimator as E
+    from eol_cal.firmware import estimator as est
     from eol_cal.plant.ecu import true_block
 
     spec = paper().replace(tq_noise_nm=0.0, i_noise_a=0.0)  # no noise: the batch position does not matter
@@ -213,7 +213,7 @@ def test_batch_of_motors_with_different_hall_tables():
         c = alone[n].capture
         start = np.flatnonzero(np.diff(c["hall"]) != 0)[1] + 1
         for m, blk in blocks.items():
-            ref = E.run(E.EstimatorConfig.from_block(blk), c["enc_a"], c["enc_b"], c["hall"])
+            ref = est.run(est.EstimatorConfig.from_block(blk), c["enc_a"], c["enc_b"], c["hall"])
             d = np.max(np.abs(np.angle(np.exp(1j * (ref.theta_hat[start:] - alone[n].theta_hat[start:])))))
             assert d < 1e-3 if m == n else d > math.radians(2.0), (n, m, d)
 
