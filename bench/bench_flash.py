@@ -25,9 +25,12 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import Faults, SimConfig
-from eol_cal.ecu.testing import FAST_CLIENT, Sniffer, example_block, virtual_rig
 from eol_cal.ecu.transport import frame_bits, isotp_min_frames
 from eol_cal.firmware import block as B
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the virtual rig: a test fixture
+
+from _ecu_rig import FAST_CLIENT, Sniffer, example_block, virtual_rig
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.testing import example_block
+from _ecu_rig import example_block
 from tests.test_ecu_cli import _start_sim, _stop
 
 PROFILE = """
