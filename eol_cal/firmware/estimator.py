@@ -46,7 +46,7 @@ from eol_cal.firmware.estimator_config import (
 )
 from eol_cal.firmware.estimator_config import OPTION_FLAGS, options_from_flags
 from eol_cal.firmware.estimator_step import (
-    _SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
+    SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
 )
 
 
@@ -133,7 +133,7 @@ def run(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array) -> Estima
     state = init_state(cfg, h[0], a[0], b[0])
     state = EstimatorState(*(x[()] if x.ndim == 0 else x for x in state))
     for i in range(n):
-        state, out = step(cfg, state, a[i], b[i], h[i], xp=_SCALAR_NP)
+        state, out = step(cfg, state, a[i], b[i], h[i], xp=SCALAR_NP)
         th[i], om[i], te[i], st[i] = out
     return EstimatorOut(th, om, te, st)
 

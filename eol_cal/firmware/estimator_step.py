@@ -110,7 +110,7 @@ class EstimatorOut(NamedTuple):
 
 def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
-    return table[idx] if xp is np or xp is _SCALAR_NP else xp.asarray(table)[idx]
+    return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
 
 
 class _ScalarNumpy:
@@ -144,7 +144,7 @@ class _ScalarNumpy:
         return -x if x < 0 else x
 
 
-_SCALAR_NP = _ScalarNumpy()
+SCALAR_NP = _ScalarNumpy()
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:

@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 from eol_cal.errors import InputError
 from eol_cal.station.run import StationConfig
-from eol_cal.station.settings import StationSettings, _named, master_of, register_map_of
+from eol_cal.station.settings import StationSettings, load_named, master_of, register_map_of
 
 def station_record(settings: StationSettings, operator: str | None) -> dict[str, Any]:
     """The run record's ``station`` entries that the settings give (id, operator, addresses).
@@ -57,15 +57,15 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     from eol_cal.station.limits import load_limits
 
     regmap = register_map_of(settings)
-    limits = _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))
-    _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    limits = load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))
+    load_named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     motor_name = str(settings["motor"])
-    motor = _named(settings, "motor", lambda: load_motor("paper", None if motor_name == "paper" else motor_name))
-    mechanics = _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
+    motor = load_named(settings, "motor", lambda: load_motor("paper", None if motor_name == "paper" else motor_name))
+    mechanics = load_named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     if seed_to_key is None:
         if settings["key_file"] is None:
             raise InputError(settings.source, "key_file", "required: the flash step needs the ECU's secret")
-        seed_to_key = hmac_seed_to_key(_named(settings, "key_file", lambda: load_key_file(str(settings["key_file"]))))
+        seed_to_key = hmac_seed_to_key(load_named(settings, "key_file", lambda: load_key_file(str(settings["key_file"]))))
     db = str(settings["db"])
     can = (settings["can.interface"], settings["can.channel"], settings["can.bitrate"], settings["can.config"])
     return StationConfig(

@@ -288,7 +288,7 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
     return settings
 
 
-def _named(settings: StationSettings, name: str, load: Callable[[], object]) -> object:
+def load_named(settings: StationSettings, name: str, load: Callable[[], object]) -> object:
     """Run ``load``; its InputError is re-said with the settings key it came from.
 
     A loader's own field may itself be a settings key (the limits file's ``variant``): then
@@ -313,18 +313,18 @@ def check_station(settings: StationSettings) -> None:
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
 
-    _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
+    load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
     master_of(settings)
-    _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    load_named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     if settings["estimator"] is not None:
         from eol_cal.firmware.options import parse_options
 
         parse_options(str(settings["estimator"]), settings.where("estimator"), "estimator")
     motor = str(settings["motor"])
-    _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
-    _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
+    load_named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
+    load_named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     if settings["key_file"] is not None:  # None: the caller has its own key (the demo's)
-        _named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
+        load_named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
     register_map_of(settings)
 
 
@@ -336,7 +336,7 @@ def register_map_of(settings: StationSettings) -> RegisterMap:
     spec = str(settings["dyno.register_map"])
     if (spec.endswith(".toml") or "/" in spec) and settings.source != "environment" and not Path(spec).is_absolute():
         spec = str(Path(settings.source).resolve().parent / spec)
-    return _named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
+    return load_named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
 
 
 def master_of(settings: StationSettings) -> MasterSettings | None:

@@ -125,8 +125,8 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
     return Compressed(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), **vec)
 
 
-_DICT_KEYS = ("R", "z", "n", "i_qo", "omega", "gain_re", "gain_im")
+COMPRESSED_KEYS = ("R", "z", "n", "i_qo", "omega", "gain_re", "gain_im")
 
 
-def _as_dict(c: Compressed) -> dict[str, np.ndarray]:
-    return {k: getattr(c, k) for k in _DICT_KEYS}
+def compressed_dict(c: Compressed) -> dict[str, np.ndarray]:
+    return {k: getattr(c, k) for k in COMPRESSED_KEYS}

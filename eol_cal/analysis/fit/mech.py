@@ -80,7 +80,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
     """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
     the identified windows; None when no segment's window is identified."""
-    from eol_cal.analysis.fit.model import _legendre_rows
+    from eol_cal.analysis.fit.model import legendre_rows
     from eol_cal.analysis.fit.plot import fitted_ripple
     from eol_cal.analysis.fit import path_gain
 
@@ -110,7 +110,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         t = np.asarray(seg.t[s], dtype=float)
         X = np.zeros((len(t), nb + 2 * H))
         legt = np.empty((deg + 1, len(t)))
-        _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, legt)
+        legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, legt)
         X[:, j * (deg + 1):(j + 1) * (deg + 1)] = legt.T
         for i, h in enumerate(ORDERS):
             arg = h * th_m + np.angle(g[i])
