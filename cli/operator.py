@@ -9,7 +9,7 @@ import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors
 from cli.paths import io_paths
-from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _StepProgress, given_options, results_table
+from cli.station import DEMO_LIMITS, flush_first, quiet_logs, StepProgress, given_options, results_table
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
 STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
@@ -130,7 +130,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
 
     station = dict(cfg.station, operator=operator)
     if demo_dir is None:
-        with _StepProgress(serial) as progress:
+        with StepProgress(serial) as progress:
             return run_motor(for_motor(cfg, serial, station=station), progress)
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.station.demo import loopback_station
@@ -142,7 +142,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
         mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
                          station=station)
-        with _StepProgress(serial) as progress:
+        with StepProgress(serial) as progress:
             return run_motor(mcfg, progress)
 
 
@@ -272,7 +272,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
                          seed_to_key=hmac_seed_to_key(P.DEV_SECRET) if demo else None)
     if demo and lot_file is None:
         lot_file = out_dir / "lot.html"
-    _quiet_logs()
+    quiet_logs()
     what = f"demo in {out_dir} (simulated ECU and dyno per motor)" if demo else f"settings {settings.source}"
     console.print(f"eol-cal station {cfg.station['id']}: {what}\n  limits {cfg.limits.source} ({cfg.limits.variant}), "
                   f"records {db_shown(cfg.db)}, reports {cfg.report_dir}")
@@ -284,7 +284,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
         console.print("no operator: the session ends")
         return
     if not demo:
-        _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+        flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
     if cfg.master is not None:
         console.print(_master_status(cfg))
     err_console.print(f"operator {operator}; each motor takes about a quarter of a minute")

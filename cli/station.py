@@ -16,7 +16,7 @@ from cli.paths import io_paths
 DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").read_text(encoding="utf-8")
 
 
-def _quiet_logs() -> None:
+def quiet_logs() -> None:
     from eol_cal.exchange_log import quiet
 
     # pymodbus, can-isotp, udsoncan log every retry and timeout; the run reports failures itself
@@ -24,7 +24,7 @@ def _quiet_logs() -> None:
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
 
 
-class _StepProgress:
+class StepProgress:
     """The cycle's steps as a rich progress display (one line per step, with its time)."""
 
     def __init__(self, serial: str, enabled: bool = True) -> None:
@@ -35,7 +35,7 @@ class _StepProgress:
                                  console=err_console, transient=True, disable=not enabled)
         self.tasks: dict[str, int] = {}
 
-    def __enter__(self) -> _StepProgress:
+    def __enter__(self) -> StepProgress:
         self.progress.__enter__()
         return self
 
@@ -119,7 +119,7 @@ def _print_outcome(out, as_json: bool) -> None:
     console.print(f"  record {rec.run_id} -> {where}")
 
 
-def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
+def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
     from eol_cal.station.records import db_shown
     from eol_cal.station.spool import flush_spool
 
@@ -234,10 +234,10 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     settings = load_station(ctx, station_file, options, OPTION_KEYS)
     # switched on by the helper thread: importing JAX costs a second
     cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
-    _quiet_logs()
-    _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    quiet_logs()
+    flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
     try:
-        with _StepProgress(serial, enabled=not as_json) as progress:
+        with StepProgress(serial, enabled=not as_json) as progress:
             out = run_motor(cfg, progress)
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
@@ -287,7 +287,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     limits = load_limits(limits_path)
     regmap = load_map(register_map)
     db = out_dir / "results.sqlite" if db is None else db
-    _quiet_logs()
+    quiet_logs()
     cache_dir = enable_jax_cache()
     t0 = time.perf_counter()
     err_console.print(f"eol-cal demo: {motors} motor(s), profile {profile}, limits {limits_path} ({limits.variant}); "
@@ -304,7 +304,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
                 profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,
                 station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},
             )
-            with _StepProgress(serial) as progress:
+            with StepProgress(serial) as progress:
                 out = run_motor(cfg, progress)
         outcomes.append(out)
         rec = out.record
