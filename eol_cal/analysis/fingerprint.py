@@ -22,12 +22,13 @@ its uncertainty and the tick quantisation.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from eol_cal.firmware.estimator import quadrature_phase
+from eol_cal.firmware.mech_params import FP_FORWARD
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
@@ -179,8 +180,6 @@ def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: 
     revolutions of edges, is left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
     ``cov=False`` skips the variances (NaN): a placement trial needs the residual only.
     """
-    from eol_cal.firmware.mech_params import FP_FORWARD
-
     P = _low_order_complement(N)
     nF = P.shape[1]
     allk = np.concatenate([k for _, k in stretches]) if stretches else np.zeros(0, np.int64)

@@ -22,10 +22,9 @@ from __future__ import annotations
 # One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
 # mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
-
 import math
-from dataclasses import dataclass, replace
 from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,12 +33,18 @@ from eol_cal.firmware import compensator
 from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
 from eol_cal.firmware.estimator import EstimatorConfig
 from eol_cal.firmware.kinematics import (
-    SensorErrors, draw_sensor_errors, encoder_hall_signals, fingerprint_of, hall_angle_of, speed_profile_angle,
+    SensorErrors,
+    draw_sensor_errors,
+    encoder_hall_signals,
+    fingerprint_of,
+    hall_angle_of,
+    speed_profile_angle,
 )
 from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
 from eol_cal.firmware.mech_run import run_mech
 from eol_cal.firmware.vectors import VectorSet, f32hex
+from eol_cal.motor import load_motor
 
 TICK_HZ = 20000.0
 #: the flags of an identifying block: compensation, the interpolated angle, every estimator option, MECH_COMP_ENABLE
@@ -59,8 +64,6 @@ def sensors(block_id: str) -> SensorErrors:
 
 def golden_blocks_v2() -> list[tuple[str, B.ParamBlock]]:
     """The valid layout-2 blocks: the true fingerprint of each drawn encoder, orders 1..3, thresholds."""
-    from eol_cal.motor import load_motor
-
     motor = load_motor("paper")
     out = []
     specs = [

@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import datetime as dt
 import math
-from dataclasses import dataclass, field
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from eol_cal.errors import InputError
 
@@ -119,8 +120,6 @@ def _master_settings(values: Mapping[str, object], at: Callable[[str], str]) -> 
 
 
 def _zone(name: str, where: str) -> dt.tzinfo:
-    from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
-
     try:
         return ZoneInfo(name)
     except (ZoneInfoNotFoundError, ValueError):

@@ -20,14 +20,15 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from fractions import Fraction
 from typing import TYPE_CHECKING, NamedTuple
-from collections.abc import Callable
 
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
-from eol_cal.plant import inverter
+from eol_cal.firmware import compensator
+from eol_cal.plant import inverter, sensors, transforms
 
 if TYPE_CHECKING:
     from eol_cal.plant.params import PlantParams
@@ -105,9 +106,6 @@ def current_task(
     :func:`eol_cal.firmware.mech.mech_sum`); and updates the PI (:func:`pi_current_step`). Returns
     the controller memory after the task.
     """
-    from eol_cal.firmware import compensator
-    from eol_cal.plant import sensors, transforms
-
     i_qo = xp.where(cmd, i_qo_cmd, st.i_qo)
     omega_c = xp.where(cmd, omega_hat, st.omega_c)
     m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise, strict=True)))

@@ -13,16 +13,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, NamedTuple
-from collections.abc import Sequence
 
 import numpy as np
 
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
+from eol_cal.firmware.kinematics import SensorErrors
+from eol_cal.firmware.mech import MechTables, mech_tables
 from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, speed_gains
 from eol_cal.motor import MotorParams, load_motor
-from eol_cal.plant import motor as motor_model, ripple
+from eol_cal.plant import motor as motor_model
+from eol_cal.plant import ripple
 
 if TYPE_CHECKING:
     from eol_cal.firmware.kinematics import SensorErrors
@@ -224,8 +227,6 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
     ``mech_tb`` the identifier's tables of a layout-2 block (:func:`eol_cal.firmware.mech.block_mech_tables`;
     disabled without one).
     """
-    from eol_cal.firmware.mech import mech_tables
-
     if mech_tb is None:
         mech_tb = mech_tables(None, lead_s, False, spec.motor.N_enc)
     m = spec.motor
@@ -267,8 +268,6 @@ _MECH_FIELDS = ("enabled", "dirs", "dF", "EF", "grid_phase", "id_min_score", "id
 
 def mech_tables_of(p: PlantParams) -> MechTables:
     """The identifier's tables of these parameters (one motor's, or traced under ``vmap``)."""
-    from eol_cal.firmware.mech import MechTables
-
     fields = {name: getattr(p, f"mech_{name}") for name in _MECH_FIELDS}
     fields["enabled"] = fields["enabled"].astype("int32")
     fields["dirs"] = fields["dirs"].astype("int32")
@@ -282,8 +281,6 @@ def estimator_tables(p: PlantParams) -> HallTables:
 
 def sensor_errors(p: PlantParams) -> SensorErrors:
     """The kinematic sensor model's error record of these parameters."""
-    from eol_cal.firmware.kinematics import SensorErrors
-
     return SensorErrors(p.edge_error, p.hall_offset, p.grid_offset)
 
 

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, compressed_dict, compress
+from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, compress, compressed_dict
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
@@ -96,8 +97,6 @@ def fit_many(
     -------
     list of MotorFit
     """
-    from concurrent.futures import ThreadPoolExecutor
-
     import jax
 
     if mode == "auto":

@@ -23,8 +23,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult
-from eol_cal.analysis.motor_result import ValueCi
+from eol_cal.analysis.fit import path_gain
+from eol_cal.analysis.fit.model import legendre_rows
+from eol_cal.analysis.fit.plot import fitted_ripple
+from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ID_MARGIN, ID_MIN_SCORE, ORDERS
 
 if TYPE_CHECKING:
@@ -80,10 +82,6 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
     """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
     the identified windows; None when no segment's window is identified."""
-    from eol_cal.analysis.fit.model import legendre_rows
-    from eol_cal.analysis.fit.plot import fitted_ripple
-    from eol_cal.analysis.fit import path_gain
-
     seg = mi.segments
     pp = seg.pole_pairs
     H = len(ORDERS)

@@ -9,6 +9,7 @@ segment's nuisance coefficients. Not used by the product.
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from eol_cal.analysis.fit import TAU_SCALE, FitSpec, SteadySegments, design_matrix, path_gain
 
@@ -31,8 +32,6 @@ def fit_segments_scipy(seg: SteadySegments, spec: FitSpec, p0: np.ndarray | None
         ``harmonics`` {order: {"c": (amplitude N*m, phase rad), "k": (N*m/A, rad)}}, ``delay_s``,
         ``nfev``, ``cost`` (half the sum of squares, N*m^2), ``success``.
     """
-    from scipy.optimize import least_squares
-
     nh = len(spec.harmonics)
     q = spec.n_nuis
     n_tau = int(spec.fit_delay)
