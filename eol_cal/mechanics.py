@@ -38,7 +38,7 @@ import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -48,8 +48,6 @@ from eol_cal.inputs import read_text
 from eol_cal.motor import MotorParams
 from eol_cal.wrap import wrap_2pi
 
-if TYPE_CHECKING:
-    from eol_cal.plant.params import PlantParams
 
 TWO_PI = 2.0 * math.pi
 
@@ -195,18 +193,42 @@ def shaft_response(omega: np.ndarray, motor: MotorParams, mechanics: BenchMechan
     return G / (1.0 + feedback)
 
 
-def shaft_torque(twist: Array, omega_m: Array, omega_d: Array, p: PlantParams) -> Array:
+class ShaftLine(Protocol):
+    """The shaft line's coefficients in the per-tick float32 form (a plant's parameters hold them)."""
+
+    @property
+    def J(self) -> Array: ...  # kg*m^2, rotor
+
+    @property
+    def B(self) -> Array: ...  # N*m*s/rad, rotor friction
+
+    @property
+    def J_dyno(self) -> Array: ...  # kg*m^2
+
+    @property
+    def K_shaft(self) -> Array: ...  # N*m/rad
+
+    @property
+    def D_shaft(self) -> Array: ...  # N*m*s/rad
+
+    @property
+    def Kp_dyno(self) -> Array: ...  # N*m*s/rad, dyno speed loop
+
+    @property
+    def Ki_dyno(self) -> Array: ...  # N*m/rad, dyno speed loop
+
+
+def shaft_torque(twist: Array, omega_m: Array, omega_d: Array, p: ShaftLine) -> Array:
     """Torque in the shaft (N*m) from its twist (rad) and the two speeds (rad/s, mechanical).
 
-    ``p`` holds ``K_shaft`` (N*m/rad) and ``D_shaft`` (N*m*s/rad), e.g.
-    :class:`eol_cal.plant.params.PlantParams`.
+    ``p`` holds ``K_shaft`` (N*m/rad) and ``D_shaft`` (N*m*s/rad).
     """
     return p.K_shaft * twist + p.D_shaft * (omega_m - omega_d)
 
 
 def mech_step(
     theta_m: Array, twist: Array, omega_m: Array, omega_d: Array, x_dyno: Array,
-    T_rotor: Array, omega_ref: Array, p: PlantParams, dt: float, xp: ArrayModule,
+    T_rotor: Array, omega_ref: Array, p: ShaftLine, dt: float, xp: ArrayModule,
 ) -> tuple[Array, Array, Array, Array, Array, Array]:
     """Advance the shaft line by one tick (semi-implicit Euler, see the module doc).
 
@@ -224,7 +246,7 @@ def mech_step(
         Electromagnetic torque minus ripple acting on the rotor (N*m).
     omega_ref : array
         Dyno speed reference (rad/s, signed).
-    p : PlantParams
+    p : ShaftLine
         ``J``, ``B``, ``J_dyno``, ``K_shaft``, ``D_shaft``, ``Kp_dyno``, ``Ki_dyno`` (the
         per-tick float32 form of the motor and its :class:`BenchMechanics`).
     dt : float
