@@ -31,6 +31,8 @@ from eol_cal.station.limits import VariantLimits
 from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
+    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.ecu.session import ClientTiming
     from eol_cal.msa.master import MasterSettings
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
@@ -105,7 +107,7 @@ class StationConfig:
     """
 
     serial: str
-    dyno: Any
+    dyno: DynoConfig
     open_bus: Callable[[], Any]
     seed_to_key: Callable[[bytes], bytes]
     limits: VariantLimits
@@ -117,7 +119,7 @@ class StationConfig:
     rate_hz: int = 10000
     db_timeout_s: float = 5.0
     station: dict[str, Any] = field(default_factory=dict)
-    ecu_timing: Any = None
+    ecu_timing: ClientTiming | None = None
     cache_dir: Path | None = None
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
