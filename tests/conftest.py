@@ -20,6 +20,12 @@ import pytest
 
 from _postgres import PostgresServer
 
+# pytest-xdist gives its workers COLUMNS=80 (the controller's terminal): the CLI would print its
+# tables 80 wide there and LOG_WIDTH wide in a serial run, and a test reading a table would pass in
+# one and not the other. The workers see what a serial run sees; a test that wants a width sets it.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.pop("COLUMNS", None)
+
 _JAX_CACHE = "EOL_CAL_JAX_CACHE"
 _jax_cache_key = pytest.StashKey[str]()
 
