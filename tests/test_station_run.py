@@ -250,6 +250,7 @@ def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     assert rec["metrics"]["pp_after_pct"] < 0.5 * rec["metrics"]["pp_before_pct"]
 
 
+@pytest.mark.slow  # a whole station run; the operator loop test keeps the cycle in the fast loop
 def test_same_run_passes_one_variant_and_fails_another(full_run, files):
     rec = full_run["rec"]
     f = rec["fit"]
@@ -516,6 +517,7 @@ def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, fil
     assert err["kind"] == "refusal" and err["refusal_codes"] == ["key_refused"]
 
 
+@pytest.mark.slow  # a whole station run
 def test_records_json_matches_its_schema(full_run):
     from eol_cal.schemas import validator
 
