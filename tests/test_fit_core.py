@@ -157,7 +157,7 @@ def test_batched_equals_single_and_95_percent_intervals_cover_the_truth():
     spec = FitSpec()
     fits = fit_many(motors, spec, mode="map", chunk=200)
     again = [fit_segments(m, spec) for m in motors[:5]]
-    for a, b in zip(fits, again, strict=True):
+    for a, b in zip(fits[:5], again, strict=True):
         assert a.harmonics[6]["k"].value == pytest.approx(b.harmonics[6]["k"].value, rel=1e-9)
         assert a.delay_s == pytest.approx(b.delay_s, rel=1e-9)
     assert all(f.converged for f in fits)
