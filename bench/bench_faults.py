@@ -15,9 +15,24 @@ Section ``ecu``: the ECU-kill and signal trials of ``bench/bench_faults_ecu.py``
 simulator killed at each flashing step, SIGINT/SIGTERM during each, ``eol-cal run`` with the ECU
 killed in either flash): ECU-kill trials / ended within the bound / records kept.
 
+Section ``scenarios`` (issue 23): the targeted scenarios of :mod:`eol_cal.fuzz.scenarios`, every
+member of each class the probe found: hostile TOML of every kind (numbers of thousands of
+digits, nesting thousands deep, oversized, a FIFO), JSON (fit results, refit rows, spool files,
+stored records with NaN), CSV header cells and MDF4 record counts, flags and header comments,
+an output over an input through every writing option and setting, values that must be refused,
+refit's exit codes. Per kind: tried / refused / accepted / accepted-should-refuse / tracebacks /
+hangs / crashes / inputs modified.
+
+Section ``uds`` (issue 23): flashes against an ECU simulator that sends a late duplicate of its
+previous answer before every answer (``Faults.stale_answers``), with the response matcher and
+without it (udsoncan's first-message rule, the code before): flashes completed and verified.
+
+Section ``signals`` (issue 23): ``bench/bench_faults_signals.py``, SIGINT/SIGTERM at random
+moments of ``eol-cal run``'s fit and writes: exit 2, signals ignored, records lost, dyno unsafe.
+
 Sections are functions in :data:`SECTIONS` (name -> function(args) -> bool ok).
 
-    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs|ecu]
+    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs|ecu|scenarios|uds|signals]
 """
 
 from __future__ import annotations
@@ -108,6 +123,115 @@ def inputs_section(args: argparse.Namespace) -> bool:
     return not (total.tracebacks or total.hangs or total.crashes or total.modified or total.unnamed)
 
 
+SCENARIO_COLUMNS = ("tried", "refused", "accepted", "should_refuse", "tracebacks", "hangs", "crashes", "modified")
+
+
+def _print_scenarios(title: str, tallies: dict) -> object:
+    from eol_cal.fuzz.scenarios import ScenarioTally
+
+    print(f"\n{title}")
+    print(f"{'kind':<10}" + "  ".join(f"{c:>{max(len(c), 5)}}" for c in SCENARIO_COLUMNS) + "   max s")
+    total = ScenarioTally()
+    for kind, t in tallies.items():
+        print(f"{kind:<10}" + "  ".join(f"{getattr(t, c):>{max(len(c), 5)}d}" for c in SCENARIO_COLUMNS)
+              + f"  {t.max_seconds:6.1f}")
+        for c in SCENARIO_COLUMNS:
+            setattr(total, c, getattr(total, c) + getattr(t, c))
+        total.max_seconds = max(total.max_seconds, t.max_seconds)
+        total.bad.extend(t.bad)
+    print(f"{'all':<10}" + "  ".join(f"{getattr(total, c):>{max(len(c), 5)}d}" for c in SCENARIO_COLUMNS)
+          + f"  {total.max_seconds:6.1f}")
+    return total
+
+
+def scenarios_section(args: argparse.Namespace) -> bool:
+    """The targeted scenarios of issue 23 through the CLI: ours, and (with --before) the older code's."""
+    from eol_cal.fuzz.scenarios import BUILDERS, run_scenarios
+
+    bases = fuzz.base_files()
+    kinds = tuple(BUILDERS)
+    with tempfile.TemporaryDirectory(prefix="bench-scenarios-") as tmp:
+        t0 = time.perf_counter()
+        ours = run_scenarios(kinds, Path(tmp), bases, timeout_s=args.timeout * 3)
+        total = _print_scenarios(f"targeted scenarios, this tree ({time.perf_counter() - t0:.0f} s, bound "
+                                 f"{args.timeout * 3:g} s per command)", ours)
+        for o in total.bad[:args.show]:
+            print(f"  {o.what:<22} {o.scenario.kind}: {o.scenario.name} rc {o.rc}: "
+                  f"{(o.stderr.strip().splitlines() or [''])[-1][:140]}")
+        if args.before:
+            with checkout(args.before) as tree:
+                theirs = run_scenarios(kinds, Path(tmp), bases, timeout_s=args.timeout * 3, root=tree)
+            old = _print_scenarios(f"targeted scenarios, commit {args.before} (the same scenarios)", theirs)
+            for o in old.bad[:args.show]:
+                print(f"  {o.what:<22} {o.scenario.kind}: {o.scenario.name} rc {o.rc}: "
+                      f"{(o.stderr.strip().splitlines() or [''])[-1][:140]}")
+    print(f"\nscenarios tried {total.tried} / refused {total.refused} / accepted {total.accepted} / "
+          f"accepted-should-refuse {total.should_refuse} / tracebacks {total.tracebacks} / hangs {total.hangs} / "
+          f"crashes {total.crashes} / inputs modified {total.modified}")
+    return not (total.should_refuse or total.tracebacks or total.hangs or total.crashes or total.modified)
+
+
+def uds_section(args: argparse.Namespace) -> bool:
+    """Flashes with a late duplicate answer at every step: with the matcher, and without (before)."""
+    import dataclasses
+
+    import eol_cal.ecu.session as session
+    from eol_cal.ecu import protocol as P
+    from eol_cal.ecu.client import flash_block, hmac_seed_to_key, read_active_block
+    from eol_cal.ecu.sim import Faults
+    sys.path.insert(0, str(ROOT / "tests"))  # the virtual rig: a test fixture
+    from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
+    from eol_cal.ecu.transport import TesterConnection
+
+    from eol_cal.exchange_log import quiet
+
+    quiet(("UdsClient", "isotp", "Connection", "can"))  # udsoncan logs each refused answer; counted below
+    timing = dataclasses.replace(FAST_CLIENT, p2_s=0.5)
+    key = hmac_seed_to_key(P.DEV_SECRET)
+    results = {}
+    for label, conn in (("with the matcher", session.MatchingConnection), ("udsoncan's first message (before)",
+                                                                           TesterConnection)):
+        done = failed = stale = 0
+        reasons: dict[str, int] = {}
+        saved = session.MatchingConnection
+        session.MatchingConnection = conn  # the session builds its connection from this name
+        try:
+            for k in range(args.uds_flashes):
+                block = example_block(seed=100 + k)
+                with virtual_rig(faults=Faults(stale_answers=True)) as rig:
+                    try:
+                        flash_block(rig.tester, block, seed_to_key=key, verify=True, timing=timing)
+                        ok = read_active_block(rig.tester, timing=timing) == block
+                    except Exception as exc:  # noqa: BLE001 - the outcome counted
+                        ok = False
+                        reasons[type(exc).__name__] = reasons.get(type(exc).__name__, 0) + 1
+                    stale += rig.sim.stale_sent
+                done += ok
+                failed += not ok
+        finally:
+            session.MatchingConnection = saved
+        results[label] = (done, failed, stale, reasons)
+    print(f"\nflashes with a late duplicate answer at every step ({args.uds_flashes} each, P2 {timing.p2_s:g} s)")
+    print(f"{'tester':<36}{'flashes':>8}{'completed and verified':>24}{'failed':>8}{'late answers sent':>19}")
+    for label, (done, failed, stale, reasons) in results.items():
+        why = ", ".join(f"{k} {n}" for k, n in reasons.items())
+        print(f"{label:<36}{args.uds_flashes:>8}{done:>24}{failed:>8}{stale:>19}  {why}")
+    return results["with the matcher"][1] == 0
+
+
+def signals_section(args: argparse.Namespace) -> bool:
+    """SIGINT/SIGTERM at random moments of eol-cal run's fit and writes (bench/bench_faults_signals.py)."""
+    import bench_faults_signals as bs
+
+    counts = bs.print_trials(f"signals during eol-cal run, this tree (seed {args.seed})",
+                             bs.signal_trials(args.signal_trials, args.seed))
+    if args.before:
+        with checkout(args.before) as tree:
+            bs.print_trials(f"signals, commit {args.before} (the same moments)",
+                            bs.signal_trials(args.signal_trials, args.seed, tree=tree))
+    return not any(counts[k] for k in ("ignored", "records lost", "dyno unsafe", "tracebacks", "hangs", "crashes"))
+
+
 def ecu_section(args: argparse.Namespace) -> bool:
     """ECU-kill and signal trials during ``flash`` and ``run`` (``bench/bench_faults_ecu.py``)."""
     import bench_faults_ecu
@@ -116,13 +240,16 @@ def ecu_section(args: argparse.Namespace) -> bool:
 
 
 #: name -> section; each prints its figures and returns True when its must-be-zero counts are 0
-SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {"inputs": inputs_section, "ecu": ecu_section}
+SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {
+    "inputs": inputs_section, "ecu": ecu_section, "scenarios": scenarios_section, "uds": uds_section,
+    "signals": signals_section,
+}
 
 
 def add_options(ap: argparse.ArgumentParser) -> None:
     """Options of every section (a new section adds its own here)."""
     ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--per-kind", type=int, default=125, help="bad inputs per kind (csv, mdf4, block, fitjson)")
+    ap.add_argument("--per-kind", type=int, default=125, help="bad inputs per kind (csv, mdf4, block, fitjson, block2, fitjson2)")
     ap.add_argument("--timeout", type=float, default=20.0, help="bound per command and input (s): beyond is a hang")
     ap.add_argument("--before", metavar="COMMIT", help="also run the inputs through this older commit's CLI")
     ap.add_argument("--show", type=int, default=20, help="list at most this many bad outcomes")
@@ -130,6 +257,8 @@ def add_options(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--cap", type=float, default=20.0, help="ECU trials: seconds after which a trial counts as hung")
     ap.add_argument("--ecu-before", default="b46ce43", metavar="COMMIT",
                     help="ECU trials: the older code's kill -9 reproduction (used when --before is not given)")
+    ap.add_argument("--uds-flashes", type=int, default=10, help="flashes per tester in the uds section")
+    ap.add_argument("--signal-trials", type=int, default=12, help="signalled runs in the signals section")
 
 
 def main() -> int:
@@ -137,7 +266,8 @@ def main() -> int:
     ap.add_argument("--section", action="append", choices=sorted(SECTIONS), help="run only these (default all)")
     add_options(ap)
     args = ap.parse_args()
-    print(f"# bench_faults: Python {platform.python_version()}, {os.cpu_count()} CPUs")
+    print(f"# bench_faults: Python {platform.python_version()}, {os.cpu_count()} CPUs, load average "
+          f"{' '.join(open('/proc/loadavg').read().split()[:3])}")
     ok = True
     for name in args.section or list(SECTIONS):
         ok &= SECTIONS[name](args)

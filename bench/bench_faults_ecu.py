@@ -174,8 +174,10 @@ max_hall_deviation_deg = 3.0
 
 
 def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
-    """``eol-cal run`` with the ECU killed at ``die_at`` (erase:1 the prepare flash, transfer:2 the
-    calibrated block's flash): is the error record in the database and the report written?"""
+    """``eol-cal run`` with the ECU killed at ``die_at`` (erase:1 the prepare flash, transfer:3 the
+    calibrated block's flash: the prepare flash sends two TransferData, its body and, last, its
+    CRC; transfer:2 killed the prepare flash's CRC write): is the error record in the database
+    and the report written?"""
     from eol_cal.dyno import sim as ds
     from eol_cal.station.records_query import query_records
 
@@ -241,7 +243,7 @@ def ecu_section(repeat: int, before: str | None, cap: float) -> bool:
             signals = list(pool.map(
                 lambda c: signal_flash(env, base, Path(tempfile.mkdtemp(dir=tmp)), c[0], c[1], c[2], old_bank),
                 [(s, shown, sig) for sig in (signal.SIGINT, signal.SIGTERM) for s, shown in SIGNAL_STEPS]))
-        runs = [kill_run(env, base, Path(tempfile.mkdtemp(dir=tmp)), die) for die in ("erase:1", "transfer:2")]
+        runs = [kill_run(env, base, Path(tempfile.mkdtemp(dir=tmp)), die) for die in ("erase:1", "transfer:3")]
         external = [kill_flash_external(env, base, Path(tempfile.mkdtemp(dir=tmp)), cap, old_bank)
                     for _ in range(repeat)]
         older = []
@@ -265,18 +267,24 @@ def ecu_section(repeat: int, before: str | None, cap: float) -> bool:
     print(f"boots after the ECU was killed: old {sum(t.boots == 1 for t in kills)}, new (complete, checked) "
           f"{sum(t.boots == 2 for t in kills)}, other {sum(t.boots not in (1, 2) for t in kills)}; "
           f"after a signal: old {sum(t.boots == 1 for t in signals)}, new {sum(t.boots == 2 for t in signals)}")
+    # a run goes on after its flash step failed: the dyno's safe state, the report and the record,
+    # which waits for the fit's pre-warm thread (station/cycle.py: JAX imports and a solver trace,
+    # seconds under load); it is judged against --cap (a hang), not the link's bound
     for t in runs:
         print(f"{t.what:<34} exit {t.rc}  ended {t.seconds:.2f} s after the ECU died  traceback {t.traceback}  "
               f"record and report kept {t.record}")
-    ours = kills + external + runs
+    ours = kills + external
     within = sum(t.rc is not None and t.seconds <= BOUND_S for t in ours)
+    runs_ended = sum(t.rc == 2 and t.seconds <= cap for t in runs)
     kept = sum(bool(t.record) for t in runs)
-    print(f"ECU-kill trials {len(ours)} / ended within the bound {within} / records kept {kept} of {len(runs)} runs")
+    print(f"ECU-kill trials {len(ours)} / ended within the bound {within} / runs ended exit 2 within {cap:g} s "
+          f"{runs_ended} of {len(runs)} / records kept {kept} of {len(runs)} runs")
     print("\nper trial (ours):")
     for t in kills + signals:
         print(f"  {t.what:<40} exit {t.rc}  {t.seconds:5.2f} s  boots seq {t.boots}")
     intact = all(t.old_bank_intact for t in kills + external + signals)
-    return within == len(ours) and kept == len(runs) and intact and not any(t.traceback for t in ours + signals)
+    return (within == len(ours) and runs_ended == kept == len(runs) and intact
+            and not any(t.traceback for t in ours + runs + signals))
 
 
 def main() -> int:

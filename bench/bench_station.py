@@ -1,175 +1,357 @@
-"""Wall time of a full ``eol-cal run`` for one motor on the simulators, per step, against the
-separate commands a user would otherwise chain in a shell script.
+"""Takt time of the end-of-line station: what the station adds to the motor's time on the dyno.
 
-The simulators run in this process on 127.0.0.1 (as the dyno and the ECU are other machines on a
-line): the dyno simulator (pymodbus, the built-in plant, a demo motor with ripple) and the ECU
-simulator (python-can-remote). Each repeat gets a fresh ECU (flash erased) so the first
-acquisition sees an uncompensated motor. The time the plant spends computing the captures is
-measured inside the dyno simulator: on a real line that time is the shaft turning, on the
-simulators it is CPU.
+The critical path as users feel it: from the operator's scan (station loop) or the `run` start
+(single `eol-cal run` process) to the verdict on screen, minus the profile's physical time (the
+shaft turning: ramps, captures and stops, :func:`eol_cal.dyno.client.physical_seconds`, for the
+calibration profile and the compensated verification the run chose).
 
-- ours: ``eol-cal run ... --json`` in its own process (process start, imports and the JAX
-  persistent cache included); the per-step times come from its record. Both verification
-  modes: ``--verify point`` (default: the compensated acquisition runs only the operating
-  point's segments) and ``--verify full`` (the whole profile again).
-- alternative: ``eol-cal block uncompensated``, ``flash`` (the run's prepare step), ``acquire``,
-  ``fit``, ``table``, ``flash``, ``acquire``, ``analyze``, one process each, stopping at the first
-  failing command.
+The simulators run in this process on 127.0.0.1, at fixed addresses for many motors, as a line's
+dyno and ECU are other machines (:func:`eol_cal.station.demo.loopback_line`): the dyno simulator in
+real time (a capture takes its physical time, the buffer fills as the shaft turns) with the
+built-in plant, and the ECU simulator with its bus paced to the CAN bit rate. Each motor gets a
+fresh, erased ECU and the next plant draw.
 
-    python bench/bench_station.py [--profile eol-default] [--repeat 3]
+- station loop: one `eol-cal station --station FILE` process (warm) fed serials on stdin, one
+  at a time when it asks; the first motor is its warm-up and is not counted;
+- single run: one `eol-cal run` process per motor (process start included).
+
+Each setup (register map, bit rate) runs today's code (``--base DIR``: a worktree of the
+commit to compare with) and this checkout, alternated, in the same run.
+
+    python bench/bench_station.py [--base ../takt-base] [--motors 3] [--runs 3] \\
+        [--setups default@500000,default@1000000,vendor-b@500000] [--profile eol-default]
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
 import os
 import platform
+import re
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 LIMITS = ROOT / "fixtures" / "limits.toml"
+#: the cycle's steps up to the verdict, in order (what the record's ``steps`` names them)
+CRITICAL_STEPS = ("pre-flight", "prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics")
 
 
-def eol_cal(*args: str) -> list[str]:
+def load() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
+
+
+class Screen:
+    """A child process's stdout, read as it comes, with the time each piece arrived."""
+
+    def __init__(self, proc: subprocess.Popen) -> None:
+        self.text = ""
+        self.events: list[tuple[float, int]] = []  # (monotonic time, length of text then)
+        self._cond = threading.Condition()
+        self._proc = proc
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        fd = self._proc.stdout.fileno()
+        while True:
+            chunk = os.read(fd, 65536)
+            now = time.monotonic()
+            with self._cond:
+                if not chunk:
+                    self.events.append((now, -1))
+                    self._cond.notify_all()
+                    return
+                self.text += chunk.decode("utf-8", "replace")
+                self.events.append((now, len(self.text)))
+                self._cond.notify_all()
+
+    def wait_for(self, pattern: re.Pattern, start: int = 0, timeout: float = 300.0) -> tuple[float, re.Match]:
+        """When ``pattern`` first appeared after text position ``start`` (monotonic s), and the match."""
+        end = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                m = pattern.search(self.text, start)
+                if m is not None:
+                    t = next(t for t, n in self.events if n == -1 or n >= m.end())
+                    return t, m
+                if self.events and self.events[-1][1] == -1:
+                    raise RuntimeError(f"process ended before {pattern.pattern!r}; output:\n{self.text[-3000:]}")
+                left = end - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"no {pattern.pattern!r} within {timeout} s; output:\n{self.text[-3000:]}")
+                self._cond.wait(left)
+
+
+@dataclass
+class Motor:
+    """One motor's figures (s)."""
+
+    serial: str
+    verdict: str
+    wall: float  # scan or process start -> verdict on screen
+    physical: float
+    steps: dict[str, float]
+    before_cycle: float  # scan / process start -> the cycle's start (record started_at)
+    tail: float  # verdict on screen -> next serial asked / process exit
+    plant_late: float
+    load: str
+    extra: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def critical(self) -> float:
+        return self.wall - self.physical
+
+
+def eol_cal(code: Path, *args: str) -> list[str]:
     return [sys.executable, "-m", "cli.main", *args]
 
 
-def timed(inner, spent: list[float]):
-    """The dyno simulator's capture source ``inner`` (the rig's plant), timing each capture."""
-
-    def source(req):
-        t0 = time.perf_counter()
-        try:
-            return inner(req)
-        finally:
-            spent.append(time.perf_counter() - t0)
-
-    return source
+def child_env() -> dict[str, str]:
+    env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160")
+    env.pop("PYTHONPATH", None)  # each checkout imports its own eol_cal (the working directory comes first)
+    return env
 
 
-def run_ours(work: Path, profile: str, serial: str, seed: int, key: Path, env: dict, verify: str = "point") -> dict:
-    from eol_cal.station.demo import loopback_station
-
-    spent: list[float] = []
-    with loopback_station(serial, seed, work / "sim") as st:
-        st.dyno.sim.source = timed(st.dyno.sim.source, spent)
-        t0 = time.perf_counter()
-        t_spawn = time.time()
-        p = subprocess.run(eol_cal("run", "--dyno", st.dyno_address, "--interface", "remote", "--channel", st.can_channel,
-                                   "--limits", str(LIMITS), "--db", str(work / "results.sqlite"), "--serial", serial,
-                                   "--profile", profile, "--key-file", str(key), "--report-dir", str(work / "reports"),
-                                   "--spool-dir", str(work / "spool"), "--verify", verify, "--json"),
-                           capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
-        wall = time.perf_counter() - t0
-        t_exit = time.time()
-    if p.returncode not in (0, 1):
-        raise RuntimeError(f"eol-cal run failed ({p.returncode}): {p.stderr[-2000:]}")
-    rec = json.loads(p.stdout)["record"]
-    steps = {s["step"]: s["seconds"] for s in rec["steps"]}
-    from datetime import datetime
-
-    started = datetime.fromisoformat(rec["started_at"]).timestamp()
-    ended = datetime.fromisoformat(rec["ended_at"]).timestamp()
-    return {"wall": wall, "steps": steps, "plant": sum(spent), "verdict": rec["verdict"],
-            "captures": len(spent), "steps_sum": sum(steps.values()),
-            "startup": started - t_spawn, "teardown": t_exit - ended}
+def run_dir(reports: Path, serial: str) -> Path:
+    (found,) = sorted(reports.glob(f"{serial}_*"))
+    return found
 
 
-def run_alternative(work: Path, profile: str, serial: str, seed: int, key: Path, env: dict) -> list[tuple[str, float, int]]:
-    from eol_cal.station.demo import loopback_station
+def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
+    """The physical seconds of the run's two acquisitions (0 for one that did not run)."""
+    from eol_cal.analysis.point_metrics import verify_segments
+    from eol_cal.dyno.client import physical_seconds, setpoints_from_profile
+    from eol_cal.plant.profile import load_profile
 
-    out: list[tuple[str, float, int]] = []
-    spent: list[float] = []
-    with loopback_station(serial, seed, work / "sim-alt") as st:
-        st.dyno.sim.source = timed(st.dyno.sim.source, spent)
-        chain = [
-            # the same measurement condition as eol-cal run's prepare step
-            ("block uncompensated", eol_cal("block", "uncompensated", "--serial", serial, "-o", str(work / "prep.bin"))),
-            ("flash uncompensated", eol_cal("flash", str(work / "prep.bin"), "--interface", "remote",
-                                            "--channel", st.can_channel, "--key-file", str(key))),
-            # with the ECU's bus: the capture records the block the ECU ran (fit refuses it otherwise)
-            ("acquire", eol_cal("acquire", "--dyno", st.dyno_address, "--profile", profile, "--serial", serial,
-                                "-o", str(work / "before.mf4"), "--interface", "remote", "--channel", st.can_channel)),
-            ("fit", eol_cal("fit", str(work / "before.mf4"), "-o", str(work / "fit.json"))),
-            ("table", eol_cal("table", str(work / "fit.json"), "-o", str(work / "block.bin"))),
-            ("flash", eol_cal("flash", str(work / "block.bin"), "--interface", "remote", "--channel", st.can_channel,
-                              "--key-file", str(key))),
-            ("acquire compensated", eol_cal("acquire", "--dyno", st.dyno_address, "--profile", profile, "--serial", serial,
-                                            "-o", str(work / "after.mf4"), "--interface", "remote",
-                                            "--channel", st.can_channel)),
-            ("analyze", eol_cal("analyze", str(work / "before.mf4"), str(work / "after.mf4"), "--json")),
-        ]
-        for name, cmd in chain:
-            t0 = time.perf_counter()
-            p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
-            out.append((name, time.perf_counter() - t0, p.returncode))
-            if p.returncode != 0:
-                out.append((f"  ({name} exit {p.returncode}: {p.stderr.strip().splitlines()[-1][:100] if p.stderr.strip() else ''})", 0.0, p.returncode))
-                break
+    ran = {s["step"] for s in rec["steps"] if s["seconds"] is not None}
+    segs = setpoints_from_profile(load_profile(rec["station"]["profile"]))
+    before = physical_seconds(segs, rate_hz) if "acquire" in ran else 0.0
+    after = 0.0
+    if "acquire compensated" in ran:
+        op = rec["fit"]["operating_point"]
+        after_segs = segs if rec["station"]["verify"] == "full" else verify_segments(segs, op["speed_rpm"], op["i_qo_a"])
+        after = physical_seconds(after_segs, rate_hz)
+    return before, after
+
+
+def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: float, tail: float,
+                  plant_late: float, load_text: str, rate_hz: int) -> Motor:
+    before, after = physical_of(rec, rate_hz)
+    steps = {s["step"]: s["seconds"] for s in rec["steps"] if s["seconds"] is not None}
+    started = dt.datetime.fromisoformat(rec["started_at"]).timestamp()
+    crit = {k: v for k, v in steps.items() if k in CRITICAL_STEPS}
+    crit["acquire"] = crit.get("acquire", 0.0) - before
+    crit["acquire compensated"] = crit.get("acquire compensated", 0.0) - after
+    return Motor(serial, rec["verdict"], t_verdict_wall - t_start_wall, before + after, crit, started - t_start_wall,
+                 tail, plant_late, load_text, {"report": steps.get("report", 0.0), "record": steps.get("record", 0.0)})
+
+
+def settings_file(work: Path, line, map_name: str, key: Path, profile: str) -> Path:
+    path = work / "station.toml"
+    path.write_text("\n".join([
+        'station_id = "BENCH"',
+        f'limits = "{LIMITS}"',
+        f'db = "{work / "results.sqlite"}"',
+        f'report_dir = "{work / "reports"}"',
+        f'spool_dir = "{work / "spool"}"',
+        f'key_file = "{key}"',
+        f'profile = "{profile}"',
+        "[dyno]",
+        f'address = "{line.dyno_address}"',
+        f'register_map = "{map_name}"',
+        "[can]",
+        'interface = "remote"',
+        f'channel = "{line.can_channel}"',
+        "",
+    ]))
+    return path
+
+
+def plant_late(line) -> float:
+    return sum(c.source_late_s for c in list(line.dyno.sim.captures))
+
+
+def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile: str, motors: int,
+                 rate_hz: int, first_seed: int) -> list[Motor]:
+    """``motors`` + 1 motors through one `eol-cal station` process; the first one is not counted."""
+    settings = settings_file(work, line, map_name, key, profile)
+    err = open(work / "station.stderr", "w")
+    proc = subprocess.Popen(eol_cal(code, "station", "--station", str(settings), "--operator", "bench"),
+                            cwd=code, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err)
+    screen = Screen(proc)
+    prompt = re.compile(r"Scan serial")
+    out: list[Motor] = []
+    pos = 0
+    try:
+        t_prompt, m = screen.wait_for(prompt, pos, timeout=120)
+        pos = m.end()
+        for k in range(motors + 1):
+            serial = f"L{first_seed + k:04d}"
+            line.load(serial, first_seed + k)
+            load_text = load()
+            t_scan, t_scan_wall = time.monotonic(), time.time()
+            proc.stdin.write(f"{serial}\n".encode())
+            proc.stdin.flush()
+            t_verdict, m = screen.wait_for(re.compile(rf"{serial}: (PASS|FAIL|ERROR)"), pos)
+            pos = m.end()
+            t_next, m = screen.wait_for(prompt, pos)
+            pos = m.end()
+            rec = json.loads((run_dir(work / "reports", serial) / "report.json").read_text())
+            fig = motor_figures(rec, serial, t_scan_wall, t_scan_wall + (t_verdict - t_scan), t_next - t_verdict,
+                                plant_late(line), load_text, rate_hz)
+            print(f"    loop {serial}{' (warm-up)' if k == 0 else ''}: {fig.verdict}, scan->verdict {fig.wall:.2f} s, "
+                  f"physical {fig.physical:.2f}, critical {fig.critical:.2f}, verdict->next scan {fig.tail:.2f}, "
+                  f"plant late {fig.plant_late:.2f}, load {load_text}", flush=True)
+            if k:
+                out.append(fig)
+        proc.stdin.write(b"q\n")
+        proc.stdin.flush()
+        proc.wait(120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        err.close()
     return out
+
+
+def single_runs(code: Path, line, work: Path, map_name: str, key: Path, profile: str, runs: int,
+                rate_hz: int, first_seed: int) -> list[Motor]:
+    out: list[Motor] = []
+    work.mkdir(parents=True, exist_ok=True)
+    for k in range(runs):
+        serial = f"S{first_seed + k:04d}"
+        line.load(serial, first_seed + k)
+        cmd = eol_cal(code, "run", "--dyno", line.dyno_address, "--interface", "remote", "--channel", line.can_channel,
+                      "--limits", str(LIMITS), "--db", str(work / "results.sqlite"), "--serial", serial,
+                      "--profile", profile, "--key-file", str(key), "--report-dir", str(work / "reports"),
+                      "--spool-dir", str(work / "spool"), "--register-map", map_name)
+        load_text = load()
+        t0, t0_wall = time.monotonic(), time.time()
+        with open(work / f"{serial}.stderr", "w") as err:
+            proc = subprocess.Popen(cmd, cwd=code, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                    stderr=err)
+            screen = Screen(proc)
+            try:
+                t_verdict, _m = screen.wait_for(re.compile(rf"{serial}(?::\s+|\s+)(pass|fail|error)\b", re.I))
+                rc = proc.wait(300)
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+        t_exit = time.monotonic()
+        if rc not in (0, 1):
+            raise RuntimeError(f"eol-cal run exit {rc}: {(work / f'{serial}.stderr').read_text()[-2000:]}")
+        rec = json.loads((run_dir(work / "reports", serial) / "report.json").read_text())
+        fig = motor_figures(rec, serial, t0_wall, t0_wall + (t_verdict - t0), t_exit - t_verdict, plant_late(line),
+                            load_text, rate_hz)
+        print(f"    run {serial}: {fig.verdict}, start->verdict {fig.wall:.2f} s, physical {fig.physical:.2f}, "
+              f"critical {fig.critical:.2f}, verdict->exit {fig.tail:.2f}, plant late {fig.plant_late:.2f}, "
+              f"load {load_text}", flush=True)
+        out.append(fig)
+    return out
+
+
+def med(values: list[float]) -> str:
+    return f"{statistics.median(values):6.2f} ({min(values):.2f}-{max(values):.2f})" if values else "-"
+
+
+def report(results: dict[tuple[str, str, str], list[Motor]], codes: list[str]) -> None:
+    setups = sorted({s for s, _c, _m in results}, key=lambda s: list(dict.fromkeys(s for s, _c, _m in results)).index(s))
+    print("\n## Critical path beyond the physical time, median (min-max) s per motor")
+    print(f"{'setup':<22}{'mode':<14}" + "".join(f"{c:>26}" for c in codes))
+    for setup in setups:
+        for mode in ("station loop", "eol-cal run"):
+            cells = [med([m.critical for m in results.get((setup, c, mode), [])]) for c in codes]
+            print(f"{setup:<22}{mode:<14}" + "".join(f"{x:>26}" for x in cells))
+    for (setup, code, mode), motors in results.items():
+        if not motors:
+            continue
+        print(f"\n### {setup}, {mode}, {code}: {len(motors)} motors, verdicts "
+              f"{','.join(m.verdict for m in motors)}, load {motors[0].load} .. {motors[-1].load}")
+        rows = [("scan/start -> verdict on screen", [m.wall for m in motors]),
+                ("physical time (shaft turning)", [m.physical for m in motors]),
+                ("critical path beyond physical", [m.critical for m in motors]),
+                ("  start -> cycle start", [m.before_cycle for m in motors])]
+        for step in CRITICAL_STEPS:
+            label = f"  {step}" + (" beyond physical" if step.startswith("acquire") else "")
+            rows.append((label, [m.steps.get(step, 0.0) for m in motors]))
+        rows.append(("  metrics end -> verdict on screen",
+                     [m.critical - m.before_cycle - sum(m.steps.get(s, 0.0) for s in CRITICAL_STEPS) for m in motors]))
+        rows.append(("  (plant later than real time)", [m.plant_late for m in motors]))
+        rows.append(("verdict -> next scan / exit", [m.tail for m in motors]))
+        rows.append(("  report step (record)", [m.extra["report"] for m in motors]))
+        for label, values in rows:
+            print(f"{label:<40}{med(values)}")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base", type=Path, default=None, help="checkout of today's code to compare with (a git worktree)")
+    ap.add_argument("--motors", type=int, default=3, help="counted motors per station loop (after one warm-up)")
+    ap.add_argument("--runs", type=int, default=3, help="single `eol-cal run` processes per setup")
+    ap.add_argument("--setups", default="default@500000,default@1000000,vendor-b@500000",
+                    help="register map @ CAN bit rate, comma-separated")
+    ap.add_argument("--modes", default="loop,run", help="loop, run or both")
     ap.add_argument("--profile", default="eol-default")
-    ap.add_argument("--repeat", type=int, default=3)
     args = ap.parse_args()
 
     import logging
 
+    from cli.fit import enable_jax_cache
+    from eol_cal.dyno.mapfile import load_register_map
     from eol_cal.ecu import protocol as P
+    from eol_cal.station.demo import loopback_line
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
-    from cli.fit import enable_jax_cache
-
     enable_jax_cache()  # the simulators' plant in this process
-    env = dict(os.environ)
+    codes = {"ours": ROOT}
+    if args.base is not None:
+        codes = {"today": args.base.resolve(), "ours": ROOT}
+    rev = {name: subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True).stdout.strip() for name, path in codes.items()}
     print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
-          f"profile {args.profile}, {args.repeat} repeats after one warm-up (JAX cache warm)")
+          f"profile {args.profile}, real-time dyno, load {load()}; code: "
+          + ", ".join(f"{n} {rev[n]} ({p})" for n, p in codes.items()), flush=True)
+    modes = [m for m in args.modes.split(",") if m]
+    results: dict[tuple[str, str, str], list[Motor]] = {}
+    warmed: set[str] = set()
     with tempfile.TemporaryDirectory(prefix="bench-station-") as tmp:
         tmp = Path(tmp)
         key = tmp / "key.hex"
         key.write_text(P.DEV_SECRET.hex())
-        results: dict[str, list[dict]] = {"point": [], "full": []}
-        for i in range(args.repeat + 1):
-            for verify in ("point", "full"):
-                work = tmp / f"run{i}-{verify}"
-                work.mkdir()
-                r = run_ours(work, args.profile, f"B-{i:04d}", 1, key, env, verify)
-                if i:
-                    results[verify].append(r)
-                print(f"{'warm-up' if i == 0 else f'run {i}'} --verify {verify}: {r['wall']:.2f} s wall, verdict "
-                      f"{r['verdict']}, plant {r['plant']:.2f} s over {r['captures']} captures", flush=True)
-        for verify, runs in results.items():
-            names = list(runs[0]["steps"])
-            print(f"\n## eol-cal run --verify {verify}, median over the repeats (s)")
-            print(f"{'step':<26}{'median':>9}{'min':>9}{'max':>9}")
-            for n in names:
-                v = [r["steps"].get(n, float('nan')) for r in runs]
-                print(f"{n:<26}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
-            for label, key_ in (("sum of steps", "steps_sum"), ("process start to cycle", "startup"),
-                                ("cycle end to exit", "teardown"), ("process wall", "wall"),
-                                ("plant compute (dyno sim)", "plant")):
-                v = [r[key_] for r in runs]
-                print(f"{label:<26}{statistics.median(v):9.2f}{min(v):9.2f}{max(v):9.2f}")
-            tool = [r["wall"] - r["plant"] for r in runs]
-            print(f"{'wall minus plant':<26}{statistics.median(tool):9.2f}{min(tool):9.2f}{max(tool):9.2f}")
-
-        print("\n## alternative: separate eol-cal commands, one process each (s)")
-        work = tmp / "alt"
-        work.mkdir()
-        total = 0.0
-        for name, sec, rc in run_alternative(work, args.profile, "B-ALT", 1, key, env):
-            total += sec
-            print(f"{name:<22}{sec:9.2f}  exit {rc}" if sec else name)
-        print(f"{'total':<22}{total:9.2f}")
+        for i, setup in enumerate(args.setups.split(",")):
+            map_name, _, bitrate = setup.partition("@")
+            regmap = load_register_map(map_name)
+            with loopback_line(tmp / f"sim-{map_name}-{bitrate}", register_map=regmap, realtime=True,
+                               bitrate=int(bitrate)) as line:
+                print(f"\n# setup {setup}: dyno {line.dyno_address} ({regmap.name}), ECU {line.can_channel} "
+                      f"paced to {int(bitrate)} bit/s", flush=True)
+                for j, mode in enumerate(modes):
+                    seed = 1 + 100 * (len(modes) * i + j)  # the same motors for both checkouts
+                    for name, code in codes.items():  # today, then ours: alternated within each mode
+                        work = tmp / f"{setup.replace('@', '-')}-{mode}-{name}"
+                        work.mkdir()
+                        label = "station loop" if mode == "loop" else "eol-cal run"
+                        if mode == "run" and name not in warmed:  # JAX's and the OS's caches, not counted
+                            print(f"  warm-up run, {name}:", flush=True)
+                            single_runs(code, line, work / "warm-up", map_name, key, args.profile, 1, 10000, 9000)
+                            warmed.add(name)
+                        print(f"  {label}, {name}:", flush=True)
+                        if mode == "loop":
+                            got = station_loop(code, line, work, map_name, key, args.profile, args.motors, 10000, seed)
+                        else:
+                            got = single_runs(code, line, work, map_name, key, args.profile, args.runs, 10000, seed)
+                        results[(setup, name, label)] = got
+    report(results, list(codes))
+    print(f"\n# load at the end {load()}")
     return 0
 
 

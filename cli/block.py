@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json
+from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json, styled
 from cli.paths import io_paths
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 from eol_cal.firmware.contract import CHECK_STATUS
@@ -56,12 +56,12 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
     from rich.table import Table
 
     style = "green" if doc["valid"] else "red"
-    console.print(f"{doc['file']}: [{style}]{doc['status_text']}[/{style}] (status {doc['status']}), "
-                  f"{doc['bytes']} bytes")
+    console.print(styled(f"{doc['file']}: ", (doc["status_text"], style), f" (status {doc['status']}), "
+                         f"{doc['bytes']} bytes"))
     for r in doc["reasons"]:
-        console.print(f"  [red]invalid:[/red] {r}")
+        console.print(styled("  ", ("invalid:", "red"), f" {r}"))
     for w in doc["warnings"]:
-        console.print(f"  [yellow]warning:[/yellow] {w}")
+        console.print(styled("  ", ("warning:", "yellow"), f" {w}"))
     if doc["crc32_stored"] is not None:
         console.print(f"  crc32 stored {doc['crc32_stored']}, computed {doc['crc32_computed']}")
     if blk is None:

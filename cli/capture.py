@@ -8,7 +8,7 @@ from typing import Any
 import click
 import contextlib
 
-from cli.common import CommandExit, console, handle_errors, print_json
+from cli.common import CommandExit, console, handle_errors, print_json, styled
 from cli.paths import io_paths
 
 
@@ -83,7 +83,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     from rich.table import Table
 
     rate = _fmt(s["sample_rate_hz"])
-    console.print(f"[bold]{s['file']}[/] ({s['format']}): {s['samples']} samples, {_fmt(s['duration_s'])} s at {rate} Hz")
+    console.print(styled((str(s["file"]), "bold"), f" ({s['format']}): {s['samples']} samples, {_fmt(s['duration_s'])} s "
+                         f"at {rate} Hz"))
     table = Table("channel", "unit", "min", "max", "non-finite", "events")
     for ch in s["channels"]:
         events = s["events"].get(ch["name"])
@@ -104,7 +105,7 @@ def _print_summary(s: dict[str, Any]) -> None:
     )
     console.print(f"hall: states seen {hall['states_seen']}, {hall['changes']} changes")
     if s["valid"]:
-        console.print("[green]valid[/]: passes every capture-format check")
+        console.print(styled(("valid", "green"), ": passes every capture-format check"))
 
 
 @click.group("capture")

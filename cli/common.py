@@ -24,7 +24,9 @@ LOG_WIDTH = 160
 
 
 def _console(stderr: bool = False, file: Any = None) -> Console:
-    c = Console(stderr=stderr, file=file)
+    # no markup, no emoji codes: serials, file names and reasons are printed as they are ("[/]" in
+    # a name was a MarkupError traceback); our own colours are rich.text.Text styles (styled())
+    c = Console(stderr=stderr, file=file, markup=False, emoji=False)
     if not c.is_terminal and "COLUMNS" not in os.environ:
         c.width = LOG_WIDTH
     return c
@@ -40,24 +42,35 @@ def signals_interrupt() -> Iterator[None]:
 
     SIGTERM's (and a closed terminal's SIGHUP's) default ends the process without cleanup (no
     safe state, no record); raised as an exception it unwinds through every ``finally`` like
-    Ctrl-C. Inside ``eol_cal.interrupts.shielded`` (a record being written) it waits for the end. Outside the main thread
-    (a test invoking the CLI from a worker) handlers cannot be set and nothing changes.
+    Ctrl-C. Inside ``eol_cal.interrupts.shielded`` (a record being written) it waits for the end;
+    inside a finalizer it comes again a moment later; a main thread stuck in a system call is
+    ended by the watchdog (``eol_cal.interrupts``). Outside the main thread (a test invoking the
+    CLI from a worker) handlers cannot be set and nothing changes.
     """
+    from eol_cal import interrupts
+
+    interrupts.reset()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
-    from eol_cal.interrupts import deliver
-
     def raise_interrupted(signum: int, frame: Any) -> None:
-        deliver(signal.Signals(signum).name)
+        interrupts.deliver(signal.Signals(signum).name, frame)
 
     previous = {sig: signal.signal(sig, raise_interrupted) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
-        yield
+        with interrupts.watchdog(), interrupts.dropped_redelivered():
+            yield
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def styled(*parts: str | tuple[str, str]) -> Any:
+    """Console text from plain strings and ``(text, style)`` pairs; nothing in them is markup."""
+    from rich.text import Text
+
+    return Text.assemble(*parts)
 
 
 def _option_hint(exc: EolCalError) -> str:
@@ -88,10 +101,17 @@ def handle_errors(func: Callable) -> Callable:
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
+        from eol_cal import interrupts
+        from eol_cal.inputs import command_inputs
+
         try:
-            with signals_interrupt():
+            with signals_interrupt(), command_inputs():
                 result = func(*args, **kwargs)
+                interrupts.raise_if_received()  # a signal whose exception a finalizer swallowed
         except CommandExit as exc:
+            if exc.exit_code != Interrupted.exit_code and interrupts.received():
+                click.echo(f"error: {Interrupted(interrupts.received())}", err=True)
+                sys.exit(Interrupted.exit_code)
             if exc.exit_code:
                 sys.exit(exc.exit_code)
             return None
@@ -129,12 +149,13 @@ class RecordsDb(click.ParamType):
     name = "PATH|URL"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str | Path:
+        from eol_cal.address import records_db
+        from eol_cal.errors import InputError
 
-        if isinstance(value, Path) or "://" in str(value):
-            return value
-        if Path(value).is_dir():
-            self.fail(f"{value}: is a directory, expected a database file or URL", param, ctx)
-        return Path(value)
+        try:  # the one check of a database address (settings and variables take the same)
+            return records_db(value, "db")
+        except InputError as exc:
+            self.fail(exc.reason if exc.file is None else f"{exc.file}: {exc.reason}", param, ctx)
 
 
 RECORDS_DB = RecordsDb()
@@ -158,8 +179,14 @@ def exchange_log_options(func: Callable) -> Callable:
     @click.option("--verbose", is_flag=True, help="Print the timestamped UDS/Modbus exchanges on stderr.")
     @functools.wraps(func)
     def wrapper(*args: Any, verbose: bool = False, log_file: str | None = None, **kwargs: Any) -> Any:
+        from cli.paths import LOG_FILE, check_io
         from eol_cal.exchange_log import exchange_logging
 
+        if log_file is not None:
+            check_io((), (log_file,))  # not a directory, FIFO or device
+            ctx = click.get_current_context(silent=True)
+            if ctx is not None:  # an output of the command: checked against its inputs (cli.paths)
+                ctx.meta[LOG_FILE] = log_file
         with exchange_logging(sys.stderr if verbose else None, log_file):
             return func(*args, **kwargs)
 

@@ -24,6 +24,13 @@ def register_map_option(func):
                               "shipped map's name (default, vendor-b).")(func)
 
 
+def realtime_option(func):
+    """``--realtime``: the dyno simulator takes a capture's physical time (docs/dyno.md, "The simulator")."""
+    return click.option("--realtime", is_flag=True,
+                        help="Real-time dyno: a capture takes its physical time and its buffer fills as the shaft "
+                             "turns (reads of samples not recorded yet wait), as on a real dyno.")(func)
+
+
 def load_map(spec: str):
     """The register map a command was given (an :class:`~eol_cal.errors.InputError` names the file and key)."""
     from eol_cal.dyno.mapfile import load_register_map
@@ -175,9 +182,10 @@ def parse_fault_plan(text: str) -> FaultPlan:
 @click.option("--serial", default="M-0001", show_default=True, help="Serial of the simulated motor.")
 @click.option("--source", type=click.Choice(["plant", "synthetic"]), default="plant", show_default=True, help="plant: the built-in JAX plant with the ECU's mode; synthetic: the analytic model (fast, no ECU).")
 @click.option("--fault", "faults", multiple=True, metavar="KIND[@capture:N|@read:N][/MS]", help="Inject a fault by itself: disconnect, over-speed or torque-sensor, at the N-th capture or window read (repeatable).")
+@realtime_option
 @register_map_option
 @handle_errors
-def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, register_map) -> None:
+def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, register_map) -> None:
     """Serve a simulated dyno with the motor on it over Modbus TCP (register map: docs/dyno.md).
 
     Binds 127.0.0.1 unless told otherwise. Stop with Ctrl-C.
@@ -214,10 +222,12 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, register_map) 
         capture_source = plant_source(ecu_flash)
     else:
         capture_source = ds.synthetic_source
-    sim = ds.DynoSim(capture_source, serial=serial, motor=motor, seed=seed, faults=plans, register_map=regmap)
+    sim = ds.DynoSim(capture_source, serial=serial, motor=motor, seed=seed, faults=plans, register_map=regmap,
+                     realtime=realtime)
 
     def started(bound: int) -> None:
         err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP, register map {regmap.name!r}), motor {serial}, source {source}"
+                          + (", real time" if realtime else "")
                           + (f", ECU flash {ecu_flash}" if ecu_flash else ""))
         if source == "plant":
             threading.Thread(target=warm_up, name="plant-warm-up", daemon=True).start()
@@ -235,8 +245,10 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, register_map) 
     _quiet_pymodbus()
     try:
         asyncio.run(sim.serve(host, port, started))
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt:  # how a simulator is stopped: exit 0
+        from eol_cal import interrupts
+
+        interrupts.handled()
     except (OSError, RuntimeError) as exc:
         raise InputError(None, "--listen", f"cannot listen on {listen}: {exc}") from None
 

@@ -6,7 +6,6 @@ CAN, ISO-TP and UDS imports stay inside the commands so ``eol-cal --help`` stays
 from __future__ import annotations
 
 import functools
-import importlib
 from typing import Any
 from collections.abc import Callable
 
@@ -46,55 +45,24 @@ def open_cli_bus(interface: str | None, channel: str | None, bitrate: int | None
 
 
 def key_from_options(key_file: str | None, key_algo: str | None) -> Any:
-    from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
+    from eol_cal.ecu.keyalgo import seed_to_key_from
 
-    secret = load_key_file(key_file) if key_file else None
-    if key_algo:
-        return _key_algo(key_algo, secret)
-    if secret is None:
-        raise InputError(None, "key-file", "security access needs the ECU's secret: give --key-file (16 bytes, hex)")
-    return hmac_seed_to_key(secret)
+    return seed_to_key_from(key_file, key_algo)
 
 
-def _key_algo(spec: str, secret: bytes | None) -> Callable[[bytes], bytes]:
-    """The seed-to-key function named ``MODULE:FUNC``; whatever it does wrong is one line naming
-    its file (or the spec, when it cannot be loaded), never a traceback in the middle of a flash."""
-    module_name, colon, func_name = spec.partition(":")
-    if not colon or not module_name or not func_name:
-        raise InputError(None, "key-algo", f"{spec!r}: expected MODULE:FUNC")
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as exc:  # noqa: BLE001 - ImportError, or anything the module raises on import
-        raise InputError(None, "key-algo", f"cannot load {spec!r}: {exc.__class__.__name__}: {exc}") from None
-    where = getattr(module, "__file__", None) or module_name
-    algo = getattr(module, func_name, None)
-    if not callable(algo):
-        raise InputError(where, "key-algo", f"{spec!r}: {module_name} has no function {func_name!r}")
-
-    def seed_to_key(seed: bytes) -> bytes:
-        try:
-            key = algo(seed, secret)
-        except Exception as exc:  # noqa: BLE001 - a foreign algorithm fails in its own ways
-            raise InputError(where, "key-algo", f"{spec} failed on the seed: {exc.__class__.__name__}: {exc}") from None
-        if not isinstance(key, (bytes, bytearray, memoryview)):
-            raise InputError(where, "key-algo", f"{spec} returned {type(key).__name__}, not the key bytes")
-        return bytes(key)
-
-    # a trial on a made-up seed, so that a wrong algorithm is refused before any session opens
-    seed_to_key(_SEED_TRIAL)
-    return seed_to_key
-
-
-#: the seed the key algorithm is tried on before the flash (the contract's seeds are 4 bytes)
-_SEED_TRIAL = b"\x12\x34\x56\x78"
+def key_algo_option(func: Callable) -> Callable:
+    """``--key-algo NAME|MODULE:FUNC``: the OEM's seed-to-key algorithm (:mod:`eol_cal.ecu.keyalgo`)."""
+    return click.option(
+        "--key-algo", metavar="NAME|MODULE:FUNC",
+        help="The OEM's seed-to-key algorithm: an entry point of group eol_cal.seed_to_key, or MODULE:FUNC; "
+             "called as FUNC(seed: bytes, secret: bytes|None) -> key bytes (secret: the --key-file's).")(func)
 
 
 @click.command("flash")
 @click.argument("block_file", metavar="BLOCK", type=click.Path(dir_okay=False))
 @bus_options
 @click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
-@click.option("--key-algo", metavar="MODULE:FUNC",
-              help="Other seed-to-key algorithm: FUNC(seed: bytes, secret: bytes|None) -> key bytes.")
+@key_algo_option
 @click.option("--verify/--no-verify", default=True, show_default=True, help="Read the block back and compare.")
 @click.option("--dry-run", is_flag=True, help="Identify and unlock the ECU, check the block against it, write nothing.")
 @click.option("--force", is_flag=True, help="Flash even if the block's serial differs from the ECU's (F18C).")
@@ -152,6 +120,7 @@ def ecu_group() -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @handle_errors
 @exchange_log_options
+@io_paths(inputs=("can_config",))
 def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
              as_json: bool) -> None:
     """Serial, software version, supported layouts, active bank and sequence, and the active block."""
@@ -241,9 +210,14 @@ def bank_choice(value: str | None) -> int | str | None:
                    "arrives (session, security, read_did, erase, download, transfer, transfer_exit, check, "
                    "read_memory, reset); erase and transfer leave their damage in the flash first.")
 @click.option("--slow", metavar="STEP:S", help="Fault test: every request of STEP takes S seconds more (0x78 meanwhile).")
+@click.option("--stale-answers", is_flag=True,
+              help="Fault test: before each request's answer, the previous answer again (a late duplicate at every step).")
+@click.option("--bitrate", type=click.IntRange(10_000, 8_000_000), default=None,
+              help="Pace the simulator's bus to this CAN bit rate (bit/s, both directions) [default: unpaced].")
 @handle_errors
 def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None, erase_s: float,
-                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None) -> None:
+                s3_s: float, lockout_s: float, die_at: str | None, slow: str | None, stale_answers: bool,
+                bitrate: int | None) -> None:
     """Run the ECU simulator, served to other processes over python-can-remote.
 
     Testers connect with ``--interface remote --channel ws://HOST:PORT/``. Stop with Ctrl-C.
@@ -266,7 +240,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
         except ValueError:
             raise InputError(None, option, f"{value!r} after the step is not a {kind.__name__}") from None
 
-    faults = Faults()
+    faults = Faults(stale_answers=stale_answers)
     if die_at:
         faults.power_loss_step, faults.power_loss_occurrence = step_arg(die_at, "die-at", int)
     if slow:
@@ -280,7 +254,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
     except UnicodeEncodeError:
         raise InputError(None, "serial", f"{serial!r} is not ASCII") from None
     config = SimConfig(serial=serial, secret=load_key_file(key_file) if key_file else P.DEV_SECRET,
-                       erase_s=erase_s, s3_s=s3_s, lockout_s=lockout_s)
+                       erase_s=erase_s, s3_s=s3_s, lockout_s=lockout_s, bitrate=bitrate)
     try:
         ecu = serve_remote(flash_file, host=host, port=port, config=config, faults=faults)
     except OSError as exc:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.common import CommandExit, console, err_console, estimator_bits, estimator_option, handle_errors
+from cli.common import CommandExit, console, err_console, estimator_bits, estimator_option, handle_errors, styled
 from cli.paths import io_paths
 
 
@@ -168,7 +168,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
 
     for r in records:
         table.add_row(
-            r["serial"], r["status"] if r["status"] == STATUS_OK else f"[red]{r['status']}[/red]",
+            r["serial"], r["status"] if r["status"] == STATUS_OK else styled((r["status"], "red")),
             pm(r["k6"], 1e3), pm(r["phase_k6"], 1, True), pm(r["c6"], 1e3), pm(r["phase_c6"], 1, True),
             pm(r["delay_s"], 1e6), f"{r['fit']['rms'] * 1e3:.3g}", f"{r['fit']['r2']:.3f}", str(r["fit"]["steps"]),
         )

@@ -49,7 +49,45 @@ _COMMAND_MODULES: list[str] = [
 _register()
 
 
+_ENDING_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+def _ignore_signals() -> None:
+    # the last atexit handler: past it Python resets its handlers to the default, and a signal
+    # during the C-level teardown (XLA's threads) killed the process by the signal (exit -2)
+    import signal
+
+    for name in _ENDING_SIGNALS:
+        signal.signal(getattr(signal, name), signal.SIG_IGN)
+
+
+def _exit_at_once_on_a_signal() -> None:
+    """From here on the outcome is decided and said: a signal (a second Ctrl-C while threads
+    and atexit handlers finish) ends the process at once with exit 2, and during the teardown
+    after the last atexit handler it is ignored; never the signal's own death (130)."""
+    import os
+    import signal
+    import sys
+
+    def now(signum: int, frame: object) -> None:
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except Exception:  # noqa: BLE001 - a closed pipe: nothing more can be said
+                pass
+        os._exit(2)
+
+    for name in _ENDING_SIGNALS:
+        signal.signal(getattr(signal, name), now)
+
+
 def main() -> None:
+    import atexit
+
+    from eol_cal.blas import limit_blas_threads
+
+    atexit.register(_ignore_signals)  # registered first: runs last
+    limit_blas_threads()
     try:
         cli(prog_name="eol-cal")
     except KeyboardInterrupt:
@@ -58,6 +96,8 @@ def main() -> None:
 
         click.echo(f"error: {Interrupted()}", err=True)
         raise SystemExit(Interrupted.exit_code) from None
+    finally:
+        _exit_at_once_on_a_signal()
 
 
 if __name__ == "__main__":

@@ -7,13 +7,15 @@ from typing import Any
 
 import click
 
-from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors
-from cli.paths import io_paths
+from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
+from cli.ecu import key_algo_option
+from cli.paths import check_more, io_paths
 from cli.station import DEMO_LIMITS, flush_first, quiet_logs, StepProgress, given_options, results_table
+from eol_cal import interrupts
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
 STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
-                       "station_id": "station_id"}
+                       "station_id": "station_id", "key_algo": "key_algo"}
 #: keys the demo fills itself (the simulators' dyno and bus, the contract's development key)
 DEMO_OWN_KEYS = ("dyno.address", "key_file", "can.interface")
 DEMO_STATION_ID = "DEMO"
@@ -50,7 +52,7 @@ def verdict_panel(serial: str, verdict: str, lines: list[str]):
     # centred as one block: centring each row alone would shift the letters' rows apart
     body = [Align.center(Text(big_word(verdict.upper()), style=f"bold {colour}", no_wrap=True)), Text("")]
     body += [Text(line) for line in lines]
-    return Panel(Group(*body), title=f"{serial}: {verdict.upper()}", border_style=colour, expand=True)
+    return Panel(Group(*body), title=Text(f"{serial}: {verdict.upper()}"), border_style=colour, expand=True)
 
 
 def _ask(prompt: str) -> str | None:
@@ -65,10 +67,15 @@ def _ask(prompt: str) -> str | None:
 
     if sys.stdin.isatty():
         termios.tcflush(sys.stdin.fileno(), termios.TCIFLUSH)
-    try:
-        return input(prompt)
-    except EOFError:
+    # the bytes as the scanner sent them, not input(): its line editing (GNU readline) swallowed
+    # a NUL and glued the line's two halves together ("M\0q" was calibrated as serial "Mq");
+    # bytes that are not UTF-8 stay as surrogates, which no serial or name check lets through
+    sys.stdout.write(prompt)
+    sys.stdout.flush()
+    line = sys.stdin.buffer.readline()
+    if not line:
         return None
+    return line.decode("utf-8", "surrogateescape").rstrip("\r\n")
 
 
 def _ask_operator() -> str | None:
@@ -82,7 +89,7 @@ def _ask_operator() -> str | None:
         try:
             return operator_name(line)
         except InputError as exc:
-            console.print(f"[red]{exc}[/red]; type your name again")
+            console.print(styled((str(exc), "red"), "; type your name again"))
 
 
 def _next_serial() -> str | None:
@@ -97,7 +104,7 @@ def _next_serial() -> str | None:
         try:
             return scanned_serial(line)
         except InputError as exc:
-            console.print(f"[red]not a serial: {exc.reason}[/red]; scan again")
+            console.print(styled((f"not a serial: {exc.reason}", "red"), "; scan again"))
 
 
 def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir: Path | None, options: dict):
@@ -124,14 +131,15 @@ def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir:
 
 
 def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
-    """The cycle of one motor (on its own loopback simulators in the demo)."""
+    """The cycle of one motor (on its own loopback simulators in the demo); the verdict is shown
+    as soon as the cycle knows it, the report and the record's place after them."""
     from eol_cal.station.configure import for_motor
     from eol_cal.station.cycle import run_motor
 
     station = dict(cfg.station, operator=operator)
     if demo_dir is None:
         with StepProgress(serial) as progress:
-            return run_motor(for_motor(cfg, serial, station=station), progress)
+            return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.station.demo import loopback_station
     from eol_cal.station.session import demo_seed
@@ -143,13 +151,13 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
         mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
                          station=station)
         with StepProgress(serial) as progress:
-            return run_motor(mcfg, progress)
+            return run_motor(mcfg, progress, on_verdict=_show_verdict)
 
 
-def _show(out) -> None:
+def _show_verdict(rec) -> None:
+    """The large verdict, the moment the cycle knows it (the record is already safe in the spool)."""
     from eol_cal.msa.gate import gate_refusal
 
-    rec = out.record
     if (line := gate_refusal(rec)) is not None:  # the master gate: one line
         console.print(verdict_panel(rec.serial, rec.verdict, [line]))
         return
@@ -160,10 +168,20 @@ def _show(out) -> None:
         lines.append(f"dyno safe state: {rec.safe_state}")
     if rec.ecu_active.block == "uncompensated":
         lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
-    lines.append(f"report: {out.report_html}" if out.report_html else "report: none (see the record)")
-    where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
-    lines.append(f"record {rec.run_id} -> {where}")
+    lines.append("report and record: being written (the next serial is asked for when they are)")
     console.print(verdict_panel(rec.serial, rec.verdict, lines))
+
+
+def _show(out) -> None:
+    """Where the report and the record went, once they are written."""
+    rec = out.record
+    where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
+    report = f"report: {out.report_html}" if out.report_html else "report: none (see the record)"
+    if rec.report_error:
+        report += f" ({rec.report_error})"
+    console.print(f"  {rec.serial} {report}\n  {rec.serial} record {rec.run_id} -> {where}")
+    if rec.verdict == "error" and rec.report_error:  # the report failed after the verdict was shown
+        console.print(verdict_panel(rec.serial, rec.verdict, [f"{rec.verdict}: {r}" for r in rec.reasons]))
 
 
 def _master_status(cfg) -> str:
@@ -185,6 +203,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             serial = _next_serial()
         except KeyboardInterrupt:
+            interrupts.handled()  # the session's way to end, with exit 0
             console.print("\nCtrl-C between motors: the session ends")
             return False
         if serial is None:
@@ -195,13 +214,14 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
             # the cycle has commanded the dyno's safe state and recorded the run as an error
             tally.interrupted.append(serial)
             console.print(verdict_panel(serial, "error", [
-                "interrupted: the dyno was sent to its safe state and the run recorded as an error",
+                "interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)",
                 f"report: under {cfg.report_dir}"]))
             return True
         tally.add(out.record, str(out.report_html) if out.report_html else None)
         try:
             _show(out)
         except KeyboardInterrupt:
+            interrupts.handled()
             return False
 
 
@@ -242,6 +262,7 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
 @click.option("--variant", default=None, help="Product variant in the limits file (overrides the settings).")
 @click.option("--db", default=None, type=RECORDS_DB, help="Records database (overrides the settings; demo: OUT/results.sqlite).")
 @click.option("--report-dir", default=None, type=click.Path(file_okay=False, path_type=Path), help="Reports (overrides the settings).")
+@key_algo_option
 @click.option("--lot", "lot_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the station's lot page here at the end [demo default: OUT/lot.html].")
 @click.pass_context
@@ -258,6 +279,9 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     """
     import tempfile
 
+    from eol_cal.ecu.python_can import import_can
+
+    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
@@ -268,6 +292,9 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     if demo and out_dir is None:
         out_dir = Path(tempfile.mkdtemp(prefix="eol-cal-station-"))
     settings = _settings(ctx, station_file, demo, out_dir, options)
+    from eol_cal.station.settings import settings_paths
+
+    check_more(*settings_paths(settings))  # --lot and --log-file against the settings' database and files
     cfg = station_config(settings, cache_dir=enable_jax_cache(),
                          seed_to_key=hmac_seed_to_key(P.DEV_SECRET) if demo else None)
     if demo and lot_file is None:
@@ -279,6 +306,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:
+        interrupts.handled()
         operator = None
     if operator is None:
         console.print("no operator: the session ends")

@@ -1,6 +1,12 @@
 """The one check of a command's file arguments: no output may be one of its inputs, and no
 output may be a device, FIFO or socket.
 
+Every path a command writes counts, from any option, setting or default: the declared
+outputs, the ``--log-file`` (appended to: it named the block being flashed, and the next run
+failed), and, for ``run`` and ``station``, what the station settings name (:func:`check_more`:
+the records database is written, the lot page must not replace it). Files read and written at
+run time are guarded by :func:`eol_cal.inputs.refuse_overwriting_input` (every atomic write).
+
 ``eol-cal fit X.mf4 -o X.mf4`` used to replace the capture with the result and exit 0. Every
 command that writes declares its inputs and outputs with :func:`io_paths`; before it runs, each
 output is compared with each input (and with the other outputs) as files: the same inode when
@@ -15,6 +21,7 @@ from __future__ import annotations
 import functools
 import os
 import stat
+from collections.abc import Sequence
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -22,6 +29,10 @@ from typing import Any
 from eol_cal.errors import InputError
 
 PathArg = str | os.PathLike | None
+
+#: ``click`` context meta keys: the ``--log-file`` of the command, and the paths already checked
+LOG_FILE = "eol_cal.log_file"
+_CHECKED = "eol_cal.io_checked"
 
 
 def _paths(value: Any) -> list[str]:
@@ -101,18 +112,60 @@ def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs:
             raise InputError(d, None, "output directory exists and is not a directory")
 
 
+def _context() -> Any:
+    import click
+
+    return click.get_current_context(silent=True)
+
+
+def _checked(ctx: Any) -> dict[str, Any]:
+    if ctx is None:
+        return {"inputs": [], "outputs": [], "dirs": []}
+    return ctx.meta.setdefault(_CHECKED, {"inputs": [], "outputs": [], "dirs": []})
+
+
+def check_more(inputs: Sequence[PathArg] = (), outputs: Sequence[PathArg] = (),
+               output_dirs: Sequence[PathArg] = ()) -> None:
+    """:func:`check_io` on paths a command learns while it runs (its settings file's), together
+    with those it was given (its options, the log file), and each input noted for the run-time
+    guard.
+
+    Raises
+    ------
+    InputError
+        As :func:`check_io`.
+    """
+    from eol_cal.inputs import register_input
+
+    ctx = _context()
+    seen = _checked(ctx)
+    log_file = ctx.meta.get(LOG_FILE) if ctx is not None else None
+    ins = [*seen["inputs"], *(p for v in inputs for p in _paths(v))]
+    outs = [*seen["outputs"], *(p for v in outputs for p in _paths(v))]
+    if log_file is not None and not seen.get("log"):
+        outs.append(log_file)
+        seen["log"] = True
+    dirs = [*seen["dirs"], *(p for v in output_dirs for p in _paths(v))]
+    check_io(ins, outs, dirs)
+    seen.update(inputs=ins, outputs=outs, dirs=dirs)
+    for path in ins:
+        register_input(path)
+
+
 def io_paths(inputs: tuple[str, ...] = (), outputs: tuple[str, ...] = (),
              output_dirs: tuple[str, ...] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
-    """Decorator of a command: :func:`check_io` on the named parameters before it runs.
+    """Decorator of a command: :func:`check_io` on the named parameters (and the ``--log-file``)
+    before it runs.
 
-    Put it under :func:`cli.common.handle_errors`, so that a refusal is one line and exit 2.
+    Put it under :func:`cli.common.handle_errors` (and :func:`cli.common.exchange_log_options`),
+    so that a refusal is one line and exit 2.
     """
 
     def decorate(func: Callable[..., Any]) -> Callable[..., Any]:
         @functools.wraps(func)
         def wrapper(*args: Any, **kwargs: Any) -> Any:
-            check_io((kwargs.get(n) for n in inputs), (kwargs.get(n) for n in outputs),
-                     (kwargs.get(n) for n in output_dirs))
+            check_more([kwargs.get(n) for n in inputs], [kwargs.get(n) for n in outputs],
+                       [kwargs.get(n) for n in output_dirs])
             return func(*args, **kwargs)
 
         return wrapper

@@ -11,6 +11,41 @@ from cli.common import CommandExit, console, err_console, handle_errors, kind_op
 from cli.paths import io_paths
 
 
+#: seconds to reach a --scheduler before giving up (distributed's own default is 30)
+SCHEDULER_TIMEOUT_S = 10
+
+
+def scheduler_address(text: str) -> str:
+    """A Dask scheduler's address, ``tcp://HOST:PORT`` (``tls://`` too; a bare ``HOST:PORT`` is
+    tcp): checked before any cluster is reached (a malformed one was a ValueError traceback)."""
+    from eol_cal.address import parse_host_port
+    from eol_cal.errors import InputError
+
+    scheme, sep, rest = text.partition("://")
+    if not sep:
+        scheme, rest = "tcp", text
+    if scheme not in ("tcp", "tls"):
+        raise InputError(None, "scheduler", f"{text!r}: expected tcp://HOST:PORT (or tls://)")
+    host, port = parse_host_port(rest, "scheduler")
+    return f"{scheme}://{host}:{port}"
+
+
+def _check_lot_inputs(limits_file: str | None, variant: str | None, bench: str, motor: str) -> None:
+    """What every task would read, read once here: a bad limits file, variant, bench or motor is
+    bad input (exit 2) before the cluster starts, not an error row per capture (exit 1)."""
+    from eol_cal.errors import InputError
+    from eol_cal.mechanics import mechanics_or_rigid
+    from eol_cal.motor import load_motor
+    from eol_cal.station.limits import load_limits
+
+    if limits_file is not None:
+        load_limits(limits_file, variant)
+    elif variant is not None:
+        raise InputError(None, "variant", "given without --limits")
+    mechanics_or_rigid(bench)
+    load_motor(motor)
+
+
 @click.command("refit")
 @click.argument("captures", nargs=-1, required=True)
 @click.option("--scheduler", default=None, metavar="tcp://HOST:8786", help="A running Dask scheduler to use.")
@@ -41,10 +76,15 @@ def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, 
     if out.suffix not in (".parquet", ".jsonl"):
         raise InputError(str(out), None, "results file must end in .jsonl or .parquet")
     paths = find_captures(captures, kind)
+    _check_lot_inputs(limits_file, variant, bench, motor)
+    address = None if scheduler is None else scheduler_address(scheduler)
     cache_dir = default_cache_dir()
     with contextlib.ExitStack() as stack:
-        cluster = None if scheduler else stack.enter_context(local_cluster(workers))
-        client = stack.enter_context(Client(scheduler or cluster))
+        cluster = None if address else stack.enter_context(local_cluster(workers))
+        try:
+            client = stack.enter_context(Client(address or cluster, timeout=SCHEDULER_TIMEOUT_S))
+        except (OSError, TimeoutError) as exc:  # down, refusing, or not a scheduler
+            raise InputError(None, "scheduler", f"cannot connect to {address}: {exc}") from None
         # every worker (one restarted after a crash too): JAX's persistent compile cache, the fit's
         # modules imported and frozen out of the garbage collector's walks
         client.register_plugin(RefitWorkerSetup(cache_dir))

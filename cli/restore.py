@@ -11,7 +11,7 @@ from typing import Any
 import click
 
 from cli.common import RECORDS_DB, err_console, handle_errors, print_json
-from cli.ecu import bank_choice, bus_options, open_cli_bus, key_from_options, ecu_group
+from cli.ecu import bank_choice, bus_options, open_cli_bus, key_from_options, ecu_group, key_algo_option
 from cli.paths import io_paths
 from eol_cal.errors import InputError
 
@@ -36,8 +36,7 @@ from eol_cal.errors import InputError
 @click.option("--force", is_flag=True, help="Restore a block without compensation, or a run's block that did not pass.")
 @bus_options
 @click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
-@click.option("--key-algo", metavar="MODULE:FUNC",
-              help="Other seed-to-key algorithm: FUNC(seed: bytes, secret: bytes|None) -> key bytes.")
+@key_algo_option
 @click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None,
               help="Write the block read from the bank here before flashing (written atomically) "
                    "[default: ecu-bankN-TIME.bin in the current directory].")

@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import threading
 from importlib import resources
 from pathlib import Path
 
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
-                        handle_errors, kind_option, print_json)
-from cli.dyno import load_map, register_map_option
-from cli.paths import io_paths
+                        handle_errors, kind_option, print_json, styled)
+from cli.dyno import load_map, realtime_option, register_map_option
+from cli.ecu import key_algo_option
+from cli.paths import check_more, io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").read_text(encoding="utf-8")
@@ -30,7 +32,9 @@ class StepProgress:
     def __init__(self, serial: str, enabled: bool = True) -> None:
         from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-        self.serial = serial
+        from rich.markup import escape
+
+        self.serial = escape(serial)  # the step lines are markup (their marks); the serial is not
         self.progress = Progress(SpinnerColumn(), TextColumn("{task.description}"), TimeElapsedColumn(),
                                  console=err_console, transient=True, disable=not enabled)
         self.tasks: dict[str, int] = {}
@@ -74,11 +78,11 @@ def results_table(records: list, title: str):
         table.add_column(col, justify=just, no_wrap=True)
     colour = {"pass": "green", "fail": "yellow", "error": "red"}
     for r in records:
-        verdict = f"[{colour.get(r.verdict, 'white')}]{r.verdict}[/]"
+        verdict = styled((r.verdict, colour.get(r.verdict, "white")))
         if r.kind == "refusal":
-            verdict = f"[red]refused[/] ({', '.join(r.refusal_codes)})"
+            verdict = styled(("refused", "red"), f" ({', '.join(r.refusal_codes)})")
         elif r.kind != "production":
-            verdict = f"{r.kind}: {verdict}"
+            verdict = styled(f"{r.kind}: ", (r.verdict, colour.get(r.verdict, "white")))
         table.add_row(r.serial, verdict, _fmt(r.value("k6"), 4, k6_scale), _fmt(r.value("pp_before_pct")),
                       _fmt(r.value("pp_after_pct")), _fmt(r.value("improvement_pct")), f"{r.total_s:.1f}",
                       r.started_at[5:19].replace("T", " "))
@@ -87,6 +91,17 @@ def results_table(records: list, title: str):
 
 #: the ``schema`` of ``eol-cal run --json``
 RUN_SCHEMA = "eol-cal/run/1"
+
+
+def _print_verdict(rec) -> None:
+    """The verdict as soon as the cycle knows it (the report and the database come after)."""
+    from eol_cal.msa.gate import gate_refusal
+
+    if gate_refusal(rec) is not None:  # the master gate refused at once: its one line follows
+        return
+    what = "REFUSED" if rec.kind == "refusal" else rec.verdict.upper()
+    colour = {"pass": "green", "fail": "yellow"}.get(rec.verdict, "red")
+    console.print(f"[bold {colour}]{rec.serial}: {what}[/]" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
 
 
 def _print_outcome(out, as_json: bool) -> None:
@@ -125,12 +140,12 @@ def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 
     res = flush_spool(db, spool_dir, timeout)
     for bad in res.bad_files:
-        err_console.print(f"[yellow]spool: {bad}; left alone[/yellow]")
+        err_console.print(styled((f"spool: {bad}; left alone", "yellow")))
     if res.flushed_files:
         err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db_shown(db)}")
     elif res.remaining:
-        err_console.print(f"[yellow]{res.remaining} spooled record(s) still waiting for {db_shown(db)}: "
-                          f"{res.error}[/yellow]")
+        err_console.print(styled((f"{res.remaining} spooled record(s) still waiting for {db_shown(db)}: {res.error}",
+                                  "yellow")))
 
 
 #: each `run` option's settings key (eol_cal.station.settings.KEYS); an option given on the command
@@ -138,7 +153,7 @@ def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 OPTION_KEYS = {
     "address": "dyno.address", "interface": "can.interface", "channel": "can.channel", "bitrate": "can.bitrate",
     "can_config": "can.config", "limits_file": "limits", "variant": "variant", "db": "db", "profile": "profile",
-    "verify": "verify", "key_file": "key_file", "report_dir": "report_dir", "spool_dir": "spool_dir",
+    "verify": "verify", "key_file": "key_file", "key_algo": "key_algo", "report_dir": "report_dir", "spool_dir": "spool_dir",
     "db_timeout": "db_timeout_s", "rate_hz": "rate_hz", "dyno_timeout": "dyno.timeout_s", "motor_file": "motor",
     "bench_name": "bench", "station_id": "station_id", "register_map": "dyno.register_map",
     "estimator": "estimator",
@@ -173,6 +188,8 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
         # without a settings file, `run` needs its options (or their variables) as it always did
         for name, option in REQUIRED_OPTIONS.items():
             key = keys[name]
+            if key == "key_file" and ("key_algo" in given or os.environ.get(env_name("key_algo"))):
+                continue  # the OEM's algorithm may need no secret
             if key not in given and not os.environ.get(env_name(key)):
                 raise InputError(None, option.split()[0][2:], f"required: give {option} (or set ${env_name(key)}), "
                                                               "or a settings file with --station")
@@ -198,6 +215,7 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
               help="Compensated acquisition: the profile's segments at the operating point (both directions), or the full profile.")
 @click.option("--key-file", type=click.Path(dir_okay=False),
               help="ECU security secret, 16 bytes hex (or $EOL_CAL_KEY_FILE).")
+@key_algo_option
 @click.option("--report-dir", default="reports", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Each run gets a directory here: captures, fit, block, plots, report.html/json.")
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
@@ -227,22 +245,34 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     cannot be written the record goes to the spool and the next run (or `eol-cal records
     --flush`) writes it in.
     """
+    from eol_cal.ecu.python_can import import_can
+
+    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor
+    from eol_cal.station.settings import settings_paths
 
     settings = load_station(ctx, station_file, options, OPTION_KEYS)
+    check_more(*settings_paths(settings))  # the settings' paths against the options' (--log-file too)
     # switched on by the helper thread: importing JAX costs a second
     cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
     quiet_logs()
-    flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+    # Records spooled earlier go into the database beside the cycle, not before it: the database
+    # library loads and the inserts run while the cycle waits on the dyno and the ECU. (The
+    # spool is listed as the flush starts: this run's record, spooled at its verdict, is not
+    # among them.)
+    flush = threading.Thread(target=flush_first, args=(cfg.db, cfg.spool_dir, cfg.db_timeout_s),
+                             name="spool-flush", daemon=True)
+    flush.start()
     try:
         with StepProgress(serial, enabled=not as_json) as progress:
-            out = run_motor(cfg, progress)
+            out = run_motor(cfg, progress, on_verdict=None if as_json else _print_verdict)
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
-        err_console.print("interrupted: the dyno was sent to its safe state and the run recorded as an error")
+        err_console.print("interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)")
         raise CommandExit(2) from None
+    flush.join()
     _print_outcome(out, as_json)
     raise CommandExit(out.exit_code)
 
@@ -255,10 +285,12 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
 @click.option("--seed", type=int, default=1, show_default=True, help="Seed of the first motor (the next ones count up).")
 @click.option("--db", default=None, type=RECORDS_DB,
               help="Records database (file or postgresql://user@host:port/db) [default: OUT/results.sqlite].")
+@realtime_option
 @register_map_option
 @handle_errors
 @exchange_log_options
-def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
+@io_paths(inputs=("profile", "register_map"), outputs=("db",), output_dirs=("out_dir",))
+def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
     Per motor it starts an ECU simulator (UDS over ISO-TP, served on 127.0.0.1 through
@@ -295,7 +327,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, register_map) -> None:
     outcomes = []
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
-        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap) as st:
+        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap, realtime=realtime) as st:
             host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json
+from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json, styled
 from cli.paths import io_paths
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 
@@ -99,8 +99,8 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
                           + ("" if not mech_off else "; " + "; ".join(mech_off)))
         frame_estimator = (motor_result.model or {}).get("frame_estimator")
         if frame_estimator is not None and frame_estimator != options_label(options):
-            console.print(f"[yellow]warning:[/yellow] the fit measured its phases' frame under the {frame_estimator} "
-                          f"estimator; the block runs {options_label(options)}")
+            console.print(styled(("warning:", "yellow"), f" the fit measured its phases' frame under the "
+                                 f"{frame_estimator} estimator; the block runs {options_label(options)}"))
 
 
 COMMANDS = [table_cmd]

@@ -9,6 +9,7 @@ from pathlib import Path
 from collections.abc import Iterator
 
 from eol_cal.errors import WriteError
+from eol_cal.inputs import refuse_overwriting_input
 
 
 @contextlib.contextmanager
@@ -18,9 +19,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     The temporary file keeps ``path``'s suffix (asammdf picks the format from it) and lives in
     the same directory, so the final rename is atomic. On an exception it is removed and
     ``path`` is left as it was; an :class:`OSError` (a full disk) becomes a
-    :class:`~eol_cal.errors.WriteError` naming ``path``.
+    :class:`~eol_cal.errors.WriteError` naming ``path``. A ``path`` that the running command
+    read is refused (:func:`eol_cal.inputs.refuse_overwriting_input`).
     """
     path = Path(path)
+    refuse_overwriting_input(path)  # whatever named it: an option, a setting, a default
     try:
         fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{path.suffix}", dir=path.parent or ".")
     except OSError as exc:

@@ -16,7 +16,17 @@ class EolCalError(Exception):
     exit_code = 2
 
 
+#: longest field name and reason said whole in a message: a hostile header cell or metadata value
+#: of 200 000 characters is cut, not echoed into a one-line error
+MAX_FIELD_CHARS = 120
+MAX_REASON_CHARS = 1000
+
+
 def _message(file: str | None, field: str | None, reason: str) -> str:
+    if field and len(field) > MAX_FIELD_CHARS:
+        field = f"{field[:MAX_FIELD_CHARS // 2]}... ({len(field)} characters)"
+    if len(reason) > MAX_REASON_CHARS:
+        reason = f"{reason[:MAX_REASON_CHARS // 2]}... ({len(reason)} characters)"
     where = ", ".join(p for p in (f"file {file}" if file else "", f"field {field!r}" if field else "") if p)
     return f"{where}: {reason}" if where else reason
 

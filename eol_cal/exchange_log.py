@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import time
 from typing import TextIO
 from collections.abc import Iterator, Sequence
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import refuse_overwriting_input
 
 #: logger of the dyno client's Modbus exchanges
 MODBUS_LOGGER = "eol_cal.modbus"
@@ -73,10 +75,14 @@ def exchange_logging(stream: TextIO | None = None, path: str | None = None) -> I
     if stream is not None:
         handlers.append(logging.StreamHandler(stream))
     if path is not None:
-        try:
-            handlers.append(logging.FileHandler(path, mode="a", encoding="utf-8"))
-        except OSError as exc:
-            raise InputError(path, None, f"cannot open the log file: {exc.strerror or exc}") from None
+        # opened at the first exchange, after the command's checks of its outputs (the log file
+        # named the block being flashed or the limits file, and was appended to); a file that
+        # cannot be written is refused now
+        refuse_overwriting_input(path)
+        parent = os.path.dirname(os.path.abspath(path))
+        if not (os.access(path, os.W_OK) if os.path.exists(path) else os.access(parent, os.W_OK)):
+            raise InputError(path, None, "cannot open the log file: not writable (or its directory does not exist)")
+        handlers.append(logging.FileHandler(path, mode="a", encoding="utf-8", delay=True))
     saved = {}
     for handler in handlers:
         handler.setFormatter(formatter)

@@ -9,16 +9,18 @@ open descriptor, which is opened non-blocking so that a FIFO swapped in meanwhil
 
 from __future__ import annotations
 
+import contextlib
 import json
+import math
 import os
 import stat
+import threading
 import tomllib
+from collections.abc import Iterator
 from typing import Any
 
 from eol_cal.errors import InputError
 
-#: deepest nesting of arrays and objects a JSON input may have (the tool's own documents: < 10)
-MAX_JSON_DEPTH = 64
 
 
 def _kind(mode: int) -> str:
@@ -30,8 +32,74 @@ def _kind(mode: int) -> str:
     return "not a regular file"
 
 
-def check_regular(path: str | os.PathLike, field: str | None = None) -> None:
+# --------------------------------------------------------------------------------------------
+# the inputs of the running command: no file it read may be replaced by a file it writes
+
+_ledger: dict[tuple[int, int], str] | None = None
+_ledger_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def command_inputs() -> Iterator[None]:
+    """Keep, while a command runs, the identity (device, inode) of every file it reads.
+
+    The CLI's one entry (``cli.common.handle_errors``) enters it; :func:`refuse_overwriting_input`
+    then refuses a write over any of them, whatever option, setting or default named the output
+    (checks made before the command runs see the paths known then; this sees every one). A
+    command run inside another (a test) shares the outer one's record.
+    """
+    global _ledger
+    with _ledger_lock:
+        outer = _ledger is not None
+        if not outer:
+            _ledger = {}
+    try:
+        yield
+    finally:
+        if not outer:
+            with _ledger_lock:
+                _ledger = None
+
+
+def register_input(path: str | os.PathLike) -> None:
+    """Note ``path`` as read by the running command (no-op outside one, or for a missing file)."""
+    if _ledger is None:
+        return
+    try:
+        info = os.stat(path)
+    except OSError:
+        return
+    with _ledger_lock:
+        if _ledger is not None:
+            _ledger.setdefault((info.st_dev, info.st_ino), str(path))
+
+
+def refuse_overwriting_input(path: str | os.PathLike) -> None:
+    """Raise :class:`InputError` when ``path`` is a file the running command has read.
+
+    Raises
+    ------
+    InputError
+        Naming ``path`` and the input it is (the same file by another name, a link, too).
+    """
+    ledger = _ledger
+    if ledger is None:
+        return
+    try:
+        info = os.stat(path)
+    except OSError:
+        return  # a new file
+    read_as = ledger.get((info.st_dev, info.st_ino))
+    if read_as is not None:
+        same = "" if os.path.normpath(str(path)) == os.path.normpath(read_as) else f" ({read_as})"
+        raise InputError(str(path), None, f"output is also an input of this command{same}; it would be overwritten")
+
+
+def check_regular(path: str | os.PathLike, field: str | None = None, register: bool = True) -> None:
     """Refuse ``path`` unless it is an existing regular file (links are followed), without opening it.
+
+    With ``register`` (the default) the file is noted as an input of the running command
+    (:func:`register_input`).
 
     Raises
     ------
@@ -47,9 +115,12 @@ def check_regular(path: str | os.PathLike, field: str | None = None) -> None:
         raise InputError(file, field, f"cannot read: {exc.strerror or exc}") from None
     if not stat.S_ISREG(mode):
         raise InputError(file, field, f"{_kind(mode)}, expected a regular file")
+    if register:
+        register_input(path)
 
 
-def read_bytes(path: str | os.PathLike, field: str | None = None, max_bytes: int | None = None) -> bytes:
+def read_bytes(path: str | os.PathLike, field: str | None = None, max_bytes: int | None = None,
+               register: bool = True) -> bytes:
     """The bytes of a regular file; :class:`InputError` naming it for anything else.
 
     Parameters
@@ -60,9 +131,12 @@ def read_bytes(path: str | os.PathLike, field: str | None = None, max_bytes: int
         Field named in errors (e.g. the option's subject: ``"key"``).
     max_bytes : int, optional
         Refuse a larger file (bytes).
+    register : bool
+        Note the file as an input of the running command (False: a state file the caller
+        rewrites itself, the ECU simulator's flash image).
     """
     file = str(path)
-    check_regular(path, field)
+    check_regular(path, field, register)
     try:
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except OSError as exc:
@@ -92,13 +166,61 @@ def read_text(path: str | os.PathLike, field: str | None = None, encoding: str =
         raise InputError(str(path), field, f"not {name} text (byte 0x{raw[exc.start]:02x} at offset {exc.start})") from None
 
 
-def load_toml(path: str | os.PathLike) -> dict[str, Any]:
-    """A TOML file as a dict: refuses non-UTF-8 bytes and bad TOML with the file named."""
-    text = read_text(path)
+#: deepest nesting of tables and arrays a TOML or JSON input may have (the tool's own: < 10)
+MAX_NESTING = 64
+#: largest TOML file the tool reads (settings, limits, maps, motors, benches, profiles: < 20 KiB)
+MAX_TOML_BYTES = 1 << 20
+#: TOML integers are 64-bit signed (TOML 1.0, "Integer"); JSON ones are held to the same range,
+#: so that no reader meets an integer that overflows a float or a C field
+INT_RANGE = (-(1 << 63), (1 << 63) - 1)
+
+
+def _check_tree(doc: Any, source: str | None, field: str | None, finite: bool) -> None:
+    """Walk a parsed document (iteratively): nesting, integer range, and (``finite``) no NaN or
+    infinity; the refusal names the offending value's path (``motors[0].k6.value``)."""
+    stack: list[tuple[Any, str, int]] = [(doc, field or "", 0)]
+    while stack:
+        value, where, depth = stack.pop()
+        if isinstance(value, dict):
+            if depth >= MAX_NESTING:
+                raise InputError(source, where or None, f"nested deeper than {MAX_NESTING} levels")
+            stack.extend((v, f"{where}.{k}" if where else str(k), depth + 1) for k, v in value.items())
+        elif isinstance(value, list):
+            if depth >= MAX_NESTING:
+                raise InputError(source, where or None, f"nested deeper than {MAX_NESTING} levels")
+            stack.extend((v, f"{where}[{i}]", depth + 1) for i, v in enumerate(value))
+        elif isinstance(value, bool):
+            continue
+        elif isinstance(value, int) and not INT_RANGE[0] <= value <= INT_RANGE[1]:
+            raise InputError(source, where or None, f"integer of {len(str(abs(value)))} digits, outside the "
+                                                    "64-bit range")
+        elif finite and isinstance(value, float) and not math.isfinite(value):
+            raise InputError(source, where or None, f"{value!r} is not a finite number")
+
+
+def loads_toml(text: str, source: str | None) -> dict[str, Any]:
+    """Parse untrusted TOML text: :class:`InputError` naming ``source`` for anything it cannot be.
+
+    The one TOML parser of the tool (settings, limits, channel and register maps, motors,
+    benches, profiles). Refused: bad TOML, nesting deeper than :data:`MAX_NESTING` (arrays,
+    inline tables or dotted keys: the parser recurses per level), integers outside 64 bits
+    (a 5000-digit one is a ``ValueError`` in the parser, a 400-digit one overflows a float
+    later). ``nan``/``inf`` are left to the reader's own check, which names the key.
+    """
     try:
-        return tomllib.loads(text)
+        doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise InputError(str(path), None, f"not valid TOML: {exc}") from None
+        raise InputError(source, None, f"not valid TOML: {exc}") from None
+    except (ValueError, RecursionError) as exc:  # an integer of too many digits; deep arrays or tables
+        raise InputError(source, None, f"not valid TOML: {str(exc)[:200]}") from None
+    _check_tree(doc, source, None, finite=False)
+    return doc
+
+
+def load_toml(path: str | os.PathLike, max_bytes: int = MAX_TOML_BYTES) -> dict[str, Any]:
+    """A TOML file as a dict (:func:`loads_toml`): a FIFO, a device, more than ``max_bytes``,
+    non-UTF-8 bytes or bad TOML are refused with the file named."""
+    return loads_toml(read_text(path, max_bytes=max_bytes), str(path))
 
 
 def _depth(text: str) -> int:
@@ -126,19 +248,24 @@ def _depth(text: str) -> int:
 def loads_json(text: str, source: str | None, field: str | None = None) -> Any:
     """Parse untrusted JSON text: :class:`InputError` naming ``source`` for anything it cannot be.
 
-    Refused: invalid JSON, nesting deeper than :data:`MAX_JSON_DEPTH`, integers longer than
-    Python converts (4300 digits). ``NaN``/``Infinity`` and numbers beyond binary64 (``1e400``,
-    read as infinity) are left to the reader's type check, which names the field.
+    The one JSON parser of the tool's inputs (fit results, spool files, refit results, stored
+    records). Refused: invalid JSON, nesting deeper than :data:`MAX_NESTING`, integers outside
+    64 bits (longer than Python converts: 4300 digits, or beyond a float), ``NaN``/``Infinity``
+    and numbers beyond binary64 (``1e400``, read as infinity): the tool writes none of them
+    (``allow_nan=False``), and a reader that met one would fail far from here. The refusal
+    names the value's path (``field 'motors[0].k6.value'``).
     """
     # the C parser recurses per level; refuse deep documents before they reach it
-    if text.count("[") + text.count("{") > MAX_JSON_DEPTH and _depth(text) > MAX_JSON_DEPTH:
-        raise InputError(source, field, f"nested deeper than {MAX_JSON_DEPTH} levels")
+    if text.count("[") + text.count("{") > MAX_NESTING and _depth(text) > MAX_NESTING:
+        raise InputError(source, field, f"nested deeper than {MAX_NESTING} levels")
     try:
-        return json.loads(text)
+        doc = json.loads(text)
     except json.JSONDecodeError as exc:
         raise InputError(source, field, f"not valid JSON: {exc}") from None
     except (ValueError, RecursionError) as exc:  # an integer of too many digits
         raise InputError(source, field, f"not valid JSON: {exc}") from None
+    _check_tree(doc, source, field, finite=True)
+    return doc
 
 
 def load_json(path: str | os.PathLike, max_bytes: int | None = None) -> Any:

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -44,7 +43,7 @@ import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
 from eol_cal.errors import InputError
-from eol_cal.inputs import read_text
+from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
 from eol_cal.motor import MotorParams
 from eol_cal.wrap import wrap_2pi
 
@@ -101,7 +100,7 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
     path = Path(name_or_file)
     if path.suffix == ".toml":
         source = str(path)
-        text = read_text(path)
+        text = read_text(path, max_bytes=MAX_TOML_BYTES)
     else:
         source = f"bench {name_or_file}"
         try:
@@ -110,10 +109,7 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
             known = sorted(p.name[:-5] for p in resources.files("eol_cal.benches").iterdir() if p.name.endswith(".toml"))
             raise InputError(None, "bench",
                              f"unknown bench {name_or_file!r}; known: {', '.join(known)}, or a .toml file") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(source, None, f"not valid TOML: {exc}") from None
+    data = loads_toml(text, source)
     kwargs: dict = {}
     for key, value in data.items():
         if key not in _FIELDS:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_toml
+from eol_cal.inputs import load_toml, loads_toml
 
 
 @dataclass(frozen=True)
@@ -135,7 +134,7 @@ def load_motor(preset: str = "paper", toml_file: str | Path | None = None) -> Mo
         text = resources.files("eol_cal.motors").joinpath(f"{preset}.toml").read_text()
     except FileNotFoundError:
         raise InputError(None, "preset", f"unknown motor preset {preset!r}") from None
-    data = tomllib.loads(text)
+    data = loads_toml(text, f"preset {preset}")
     source = f"preset {preset}"
     if toml_file is not None:
         data.update(load_toml(toml_file))

@@ -36,8 +36,12 @@ def _direct(path: Path):
 
 
 def _asammdf(path: Path):
-    with _quiet_asammdf():
-        return _decode(path, str(path))
+    """asammdf's columns; the properties from the file's own comment, as read_capture takes them."""
+    with checked_mdf4(path) as (_data, layout):
+        comment = layout.header_comment
+    with _quiet_asammdf(str(path)) as decode:
+        columns, _none, bad = decode(_decode, path, str(path))
+    return columns, parse_header_comment(comment, str(path)), bad
 
 
 def _assert_same(direct, slow) -> None:

@@ -21,7 +21,7 @@ from eol_cal.firmware import block as B
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)
 NEW = example_block(seed=2)
-DYING = dataclasses.replace(FAST_CLIENT, p2_star_s=0.3, retries=1)  # P2 0.15 s: margin for a loaded machine
+DYING = dataclasses.replace(FAST_CLIENT, p2_star_s=0.6, retries=1)  # P2 0.5 s: margin for a loaded machine
 
 
 @pytest.fixture(scope="module")

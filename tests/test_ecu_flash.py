@@ -13,7 +13,7 @@ from eol_cal.ecu.client import (EcuError, UdsSession, VerifyFailed, ecu_info, fl
                                 hmac_seed_to_key, load_key_file, read_active_block)
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import SimConfig
-from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
+from _ecu_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
 from eol_cal.ecu.transport import IsoTpTiming
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
@@ -60,7 +60,9 @@ def test_full_sequence_alternates_banks_and_pads_every_frame(tmp_path):
         assert (second.bank, second.sequence, second.previous.sequence) == (1, 2, 1)
         third = _flash(rig, BLOCK_A)  # back to bank 0, the old bank 0 content is erased first
         assert (third.bank, third.sequence) == (0, 3)
-        assert first.seconds < 1.0 and second.seconds < 1.0
+        # a hang guard, not a speed claim (bench/bench_flash.py measures the speed): generous for a
+        # loaded machine (a CPU hog at load 8 on 2 cores)
+        assert first.seconds < 30.0 and second.seconds < 30.0
         back = read_active_block(rig.tester, timing=FAST_CLIENT)
         assert B.unpack(back) == dataclasses.replace(B.unpack(BLOCK_A), sequence=3)
         info = ecu_info(rig.tester, timing=FAST_CLIENT).to_dict()
@@ -165,7 +167,12 @@ def test_ecu_enforces_the_contract(tmp_path):
         active = _flash(rig, BLOCK_A).active_after  # bank 0 active
         bank1 = B.BANK_WORD_ADDR[1]
         loc1 = P.memory_location(bank1, 2152)
-        with UdsSession(rig.tester, seed_to_key=KEY, timing=FAST_CLIENT) as s:
+        # direct client calls are not repeated: a P2 of 2 s, not 0.15, so that a loaded machine
+        # (load 8 on 2 cores delayed answers past 0.15 s) does not fail what is not about timing
+        # and no keep-alive: its TesterPresent, sent from its thread beside these direct calls
+        # (which bypass the session's lock), empties the receive queue under a waiting request
+        quiet = dataclasses.replace(FAST_CLIENT, p2_s=2.0, tester_present_s=3600.0)
+        with UdsSession(rig.tester, seed_to_key=KEY, timing=quiet) as s:
             c = s.client
             assert _nrc_of(s, c.change_session, P.SESSION_PROGRAMMING) == P.NRC.SubFunctionNotSupportedInActiveSession
             assert _nrc_of(s, c.request_seed, 1) == P.NRC.ServiceNotSupportedInActiveSession
@@ -227,8 +234,9 @@ def test_ecu_enforces_the_contract(tmp_path):
 
 @pytest.mark.slow
 def test_erase_longer_than_p2_is_held_by_response_pending(tmp_path):
-    # P2 of this client is 0.15 s; the erase takes 0.4 s: only NRC 0x78 handling saves it.
-    with virtual_rig(tmp_path / "f.bin", config=SimConfig(erase_s=0.4)) as rig:
+    # P2 of this client is 0.5 s; the erase takes 0.9 s (under the client's P2* of 1 s): only NRC
+    # 0x78 handling saves it.
+    with virtual_rig(tmp_path / "f.bin", config=SimConfig(isotp_timing=FAST_ISOTP, erase_s=0.9)) as rig:
         report = _flash(rig, BLOCK_A)
         assert report.active_after.sequence == 1 and report.retries == 0
 

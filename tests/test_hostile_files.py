@@ -108,7 +108,7 @@ def test_non_utf8_motor_and_bench_toml_name_the_file(files, tmp_path):
     ("json:loads", ["json", "failed on the seed"]),
     ("os:nothing_here", ["os.py", "no function"]),
     ("no_such_module_xyz:f", ["cannot load", "no_such_module_xyz"]),
-    ("justaname", ["expected MODULE:FUNC"]),
+    ("justaname", ["no entry point", "MODULE:FUNC"]),
 ])
 def test_wrong_key_algo_is_refused_before_the_bus_opens(files, algo, words):
     res = CliRunner().invoke(cli, ["flash", str(files["block"]), "-i", "virtual", "-c", "nobody-listens",

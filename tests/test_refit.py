@@ -192,3 +192,48 @@ def test_refit_takes_the_production_runs_of_a_reports_directory_unless_asked(tmp
     assert names(find_captures([str(tmp_path / "reports")])) == ["A_run", "C_run"]
     assert names(find_captures([str(tmp_path / "reports")], "all")) == ["A_run", "B_run", "C_run"]
     assert names(find_captures([str(tmp_path / "reports")], "simulated")) == ["B_run", "C_run"]
+
+
+def test_refit_on_a_running_scheduler_started_apart(lot: Path, tmp_path: Path):
+    """`--scheduler`: a scheduler and a worker started as a plant would (the `dask` command line,
+    their own processes, 127.0.0.1), not by eol-cal: the same rows as the local cluster's."""
+    import shutil
+    import subprocess
+    import sys
+    import time
+
+    dask_cli = Path(sys.executable).with_name("dask")
+    assert dask_cli.exists() or shutil.which("dask"), "distributed's `dask` command is installed with it"
+    dask_cli = str(dask_cli if dask_cli.exists() else shutil.which("dask"))
+    sched_file = tmp_path / "scheduler.json"
+    env = {**os.environ, "EOL_CAL_JAX_CACHE": "off"}
+    procs = [subprocess.Popen([dask_cli, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(sched_file)], env=env,
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.monotonic() + 120
+        while not sched_file.exists() or not sched_file.read_text().strip():
+            assert time.monotonic() < deadline, "the scheduler wrote no address"
+            time.sleep(0.2)
+        address = json.loads(sched_file.read_text())["address"]
+        procs.append(subprocess.Popen([dask_cli, "worker", address, "--host", "127.0.0.1", "--nworkers", "1",
+                                       "--nthreads", "1", "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        out = tmp_path / "apart.jsonl"
+        res = CliRunner().invoke(cli, ["refit", str(lot), "--scheduler", address, "--bench", "none", "-o", str(out)])
+        assert res.exit_code == 0, res.output
+        rows = {r["capture"]: r for r in read_rows(out)}
+        assert len(rows) == len(SERIALS)
+        for group in find_captures([str(lot)]):
+            here = refit_capture(group, bench="none")
+            there = rows[str(group[0])]
+            assert there["error"] is None and there["serial"] == here["serial"]
+            assert there["k6"] == pytest.approx(here["k6"], rel=1e-9) and there["c6"] == pytest.approx(here["c6"], rel=1e-9)
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in reversed(procs):
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()

@@ -15,6 +15,7 @@ from collections.abc import Mapping
 from eol_cal.errors import ResultFormatError
 # the physical bounds a fit result is read against are the block's (a block holds what a fit gives)
 from eol_cal.firmware.contract import C6_MAX, DELAY_MAX, K6_MAX, KT_MAX, PHASE_MAX
+from eol_cal.firmware.mech_params import ORDERS
 
 ESTIMATE_KEYS = ("k6", "phase_k6", "c6", "phase_c6")
 
@@ -169,6 +170,10 @@ class MotorResult:
             for k in (*ESTIMATE_KEYS, "delay_s", "harmonics"):
                 if obj.get(k, None) is not None:
                     raise r.error(k, f"must be null when status is {status!r}")
+        fit = r.obj(r.need(obj, "fit"), "fit")
+        if status == "ok" and fit.get("converged") is not True:
+            # a fit that did not converge is never a result, whatever its status says
+            raise r.error("fit.converged", f"must be true when status is 'ok', got {fit.get('converged')!r}")
         op = r.obj(r.need(obj, "operating_point"), "operating_point")
         mech = None
         if obj.get("mech") is not None:
@@ -176,7 +181,7 @@ class MotorResult:
         return cls(
             serial=serial, status=status, reasons=reasons, estimates=estimates,
             kt=r.number(obj, "kt", (0.0, KT_MAX)), kt_source=r.string(obj, "kt_source"),
-            metrics=r.obj(r.need(obj, "metrics"), "metrics"), fit=r.obj(r.need(obj, "fit"), "fit"),
+            metrics=r.obj(r.need(obj, "metrics"), "metrics"), fit=fit,
             model=r.obj(r.need(obj, "model"), "model"),
             hall_angle=None if "hall_angle" not in obj else r.obj(obj["hall_angle"], "hall_angle"),
             poles=r.integer(obj, "poles"), encoder_ppr=r.integer(obj, "encoder_ppr"),
@@ -371,7 +376,10 @@ class MechResult:
         for i, o in enumerate(r.list(obj, "orders")):
             osub = _Reader(source, f"{where}orders[{i}].")
             oo = r.obj(o, f"orders[{i}]")
-            orders.append(MechOrder(osub.integer(oo, "order"), osub.value_ci(oo, "c", (0.0, C6_MAX)),
+            order = osub.integer(oo, "order")
+            if order not in ORDERS or order in (o.order for o in orders):
+                raise osub.error("order", f"{order}: the block carries mechanical orders {ORDERS}, each once")
+            orders.append(MechOrder(order, osub.value_ci(oo, "c", (0.0, C6_MAX)),
                                     osub.value_ci(oo, "phase_c", (-PHASE_MAX, PHASE_MAX))))
         return cls(status=status, reasons=tuple(r.string_list(obj, "reasons")), fingerprint=fps, sigma=sgs, dirs=dirs,
                    grid_phase=r.number(obj, "grid_phase", (0.0, 2 * math.pi)), windows=tuple(windows),

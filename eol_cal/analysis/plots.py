@@ -14,6 +14,7 @@ import numpy as np
 from eol_cal.analysis.metrics import RipplePP, eta_percent, lowpass_zero_phase
 from eol_cal.analysis.spectrum import OrderSpectrum
 from eol_cal.figures import pyplot, write_png
+from eol_cal.render import plain
 
 
 def plot_eta(path: str | Path, poles: int, ppr: int, ppr_min: int, ppr_max: int, table_ppr: np.ndarray) -> None:
@@ -105,7 +106,7 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
             ax_t.plot(row.t, filt, color="tab:blue", lw=1.0, label=f"low-pass {r.cutoff_order:g} x f_e")
             for i, w in enumerate(r.windows):
                 ax_t.axvspan(w.t_start, w.t_end, color="tab:green", alpha=0.08 if i % 2 else 0.15, lw=0)
-            ax_t.set_title(f"{row.label}: p-p {r.raw_pct:.2f} % raw, {r.filtered_pct:.2f} % filtered, "
+            ax_t.set_title(f"{plain(row.label)}: p-p {r.raw_pct:.2f} % raw, {r.filtered_pct:.2f} % filtered, "
                            f"T_avg {r.T_avg_nm:.3f} N*m", fontsize=9)
             ax_t.set_xlabel("t (s)")
             ax_t.set_ylabel("torque (N*m)")

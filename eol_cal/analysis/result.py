@@ -243,7 +243,12 @@ def read_result(path: str | Path) -> dict[str, Any]:
         raise InputError(str(path), "schema", f"expected {SCHEMA!r}, got {got!r}")
     if not isinstance(doc.get("motors"), list) or not doc["motors"]:
         raise InputError(str(path), "motors", "missing or empty list")
+    from eol_cal.firmware.block import serial_problem
+
     for i, m in enumerate(doc["motors"]):
         if not isinstance(m, dict) or not isinstance(m.get("serial"), str) or "status" not in m:
             raise InputError(str(path), f"motors[{i}]", "needs at least serial and status")
+        why = serial_problem(m["serial"])
+        if why is not None:  # the serial a block would carry to the ECU
+            raise InputError(str(path), f"motors[{i}].serial", why)
     return doc

@@ -30,15 +30,22 @@ from eol_cal.errors import InputError
 from eol_cal.inputs import read_text
 
 _META_LINE = re.compile(r"^#\s*([^:\s]+)\s*:\s?(.*)$")
-_HEADER_CELL = re.compile(r"^(.*?)\s*\[(.*)\]$")
+
+
+def _split_cell(cell: str) -> tuple[str, str | None]:
+    """``name [unit]`` -> (name, unit): the unit is what lies between the first ``[`` and a final
+    ``]``. No regular expression: ``^(.*?)\\s*\\[(.*)\\]$`` backtracked quadratically on a cell of
+    200 000 ``[`` (minutes)."""
+    opening = cell.find("[")
+    if not cell.endswith("]") or opening < 0:
+        return cell, None
+    return cell[:opening].strip(), cell[opening + 1:-1].strip() or None
 
 
 def _parse_header(line: str, file: str) -> list[tuple[str, str | None]]:
     cells = []
     for position, cell in enumerate(line.split(","), start=1):
-        cell = cell.strip()
-        match = _HEADER_CELL.match(cell)
-        name, unit = (match.group(1).strip(), match.group(2).strip() or None) if match else (cell, None)
+        name, unit = _split_cell(cell.strip())
         if not name:
             raise InputError(file, f"column {position}", "empty channel name in the header line")
         cells.append((name, unit))

@@ -3,8 +3,8 @@
 A capture's torque depends on the block the ECU runs (estimator, compensation), so a capture
 without that record cannot be trusted for a fit: a capture taken under compensation shows the
 residual of the old table, not the motor's ripple. The acquisition reads the ECU's active
-block over UDS (DID FD01 and the block header's flags) right before the dyno turns and right
-after the last window, and the capture's metadata carries both as ``ecu_before.*`` /
+block over UDS (DID FD01 and the block header's flags) right before the first capture and
+right after the last window, and the capture's metadata carries both as ``ecu_before.*`` /
 ``ecu_after.*`` keys (``docs/capture-format.md``, "ECU state"):
 
 ==============================  ======  ===========================================================
@@ -174,8 +174,13 @@ class Trace:
 
 
 def trace_of(metadata: Mapping[str, Any], file: str | None = None) -> Trace:
-    """Both ECU states of a capture's metadata (see :func:`ecu_state`)."""
-    return Trace(ecu_state(metadata, "ecu_before", file), ecu_state(metadata, "ecu_after", file))
+    """Both ECU states of a capture's metadata (see :func:`ecu_state`); a record of only one of
+    the two is refused (capture format, "ECU state"), whichever command reads the file."""
+    trace = Trace(ecu_state(metadata, "ecu_before", file), ecu_state(metadata, "ecu_after", file))
+    if (trace.before is None) != (trace.after is None):
+        missing = "ecu_before" if trace.before is None else "ecu_after"
+        raise InputError(file, missing, "the ECU state is recorded only at one end of the capture")
+    return trace
 
 
 def compensated(state: EcuState) -> bool:

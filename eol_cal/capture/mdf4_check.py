@@ -19,8 +19,12 @@ unless:
   length of at most :data:`MAX_DZ_RATIO` times their compressed length (deflate cannot do
   better than about 1032:1) and actually inflate to exactly that length (a bit flip is caught
   here by zlib's own checksum, naming the block);
+- no channel group holds variable-length signal data (flag bit 0; its size fields mean
+  something else, and asammdf trusted them into a ``malloc`` abort);
 - data lists (``##DL``) hold as many data links as they count; a channel group's records fit
-  in its data group's data, and every fixed-size channel's bytes fit in its record;
+  in its data group's data (the only group of a sorted data group fills it exactly: asammdf
+  read 0 claimed records as an endless run of empty ones), and every
+  fixed-size channel's bytes fit in its record;
 - the bytes the data blocks decode to, summed over the file, stay under
   :data:`MAX_DECODED_BYTES`, the memory bound of a decode.
 
@@ -125,6 +129,9 @@ class Mdf4Layout:
     blocks: dict[int, Block]
     decoded_bytes: int
     inflated: dict[int, bytes] = field(default_factory=dict)
+    #: the header block's comment as stored (XML of a ##MD block, or a ##TX text), "" when none:
+    #: read here because asammdf rebuilds it from a dict, which hides a key given twice
+    header_comment: str = ""
 
 
 class _Refusal(Exception):
@@ -178,7 +185,19 @@ def _check(data: bytes | mmap.mmap) -> Mdf4Layout:
     for block in blocks.values():
         if block.kind == "DG":
             _check_records(data, block, blocks)
-    return Mdf4Layout(blocks, decoded, inflated)
+    return Mdf4Layout(blocks, decoded, inflated, _text(data, blocks, blocks[_ID_BYTES].links[5]))
+
+
+def _text(data: bytes | mmap.mmap, blocks: dict[int, Block], link: int) -> str:
+    """The text of a ##TX/##MD block (UTF-8, up to its first NUL); "" for link 0."""
+    if not link:
+        return ""
+    block = blocks[link]
+    raw = bytes(data[block.data_at:block.offset + block.length]).split(b"\0", 1)[0]
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _Refusal(block.where(), f"text is not UTF-8 (byte 0x{raw[exc.start]:02x} at {exc.start})") from None
 
 
 def _check_identification(data: bytes | mmap.mmap) -> None:
@@ -354,9 +373,19 @@ def _check_records(data: bytes | mmap.mmap, dg: Block, blocks: dict[int, Block])
         cg = blocks[cg_at]
         cycles, flags = struct.unpack_from("<QH", data, cg.data_at + 8)
         record, invalid = struct.unpack_from("<II", data, cg.data_at + 24)
-        if not flags & 1:  # a variable-length signal data group stores its own lengths
-            needed += cycles * (record_id + record + invalid)
-            _check_channels(data, cg, blocks, record)
+        if flags & 1:
+            # a VLSD group's size fields mean something else (asammdf trusted them into a malloc
+            # abort and MemoryErrors); capture channels are fixed-size numbers
+            raise _Refusal(cg.where(), "a variable-length signal data group (flag bit 0): capture channels are "
+                                       "fixed-size numbers")
+        sorted_alone = record_id == 0 and cg_at == dg.links[1] and not cg.links[0]
+        if sorted_alone and cycles * (record + invalid) != available:
+            # the only group of a sorted data group owns all its data; claimed 0 records made
+            # asammdf split the data into empty records without end (memory without bound)
+            raise _Refusal(cg.where(), f"claims {cycles} records of {record + invalid} bytes, but its data group "
+                                       f"holds {available} bytes of them")
+        needed += cycles * (record_id + record + invalid)
+        _check_channels(data, cg, blocks, record)
         cg_at = cg.links[0]
     if needed > available:
         raise _Refusal(dg.where(), f"its channel groups declare {needed} bytes of records, its data holds {available}")

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import gc
+import io
 import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
@@ -50,8 +51,19 @@ def header_comment(properties: dict[str, MetaValue], file: str | None = None) ->
     return ET.tostring(root, encoding="unicode")
 
 
+#: elements of ``common_properties`` that group others (ASAM MDF 4.2, HD comment); each names its group
+_GROUPS = ("tree", "list", "elist", "li", "eli")
+
+
 def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
-    """Typed properties from an ``<HDcomment>``'s ``common_properties/e`` elements."""
+    """Typed properties from an ``<HDcomment>``'s ``common_properties/e`` elements.
+
+    ``comment`` is the text stored in the file (:attr:`Mdf4Layout.header_comment`), not asammdf's
+    ``header.comment``: asammdf rebuilds that from a dict, so a key given twice came back once,
+    with the last value. Refused, as in a CSV: a key given twice (names compared without
+    surrounding blanks), two ``common_properties``, an ``e`` or a group without its ``name``
+    (asammdf prints a traceback on stdout for that one).
+    """
     if not comment.strip().startswith("<"):
         return {}
     try:
@@ -62,13 +74,19 @@ def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
         if "}" in element.tag:
             element.tag = element.tag.split("}", 1)[1]
     properties: dict[str, MetaValue] = {}
-    common = root.find("common_properties")
-    if common is None:
+    commons = root.findall("common_properties")
+    if len(commons) > 1:
+        raise InputError(file, "header comment", "common_properties given twice")
+    if not commons:
         return properties
-    for element in common.findall("e"):
-        key = element.get("name")
-        if not key:
+    for element in commons[0].iter():
+        if element.tag not in ("e", *_GROUPS) or element.tag == "li":
             continue
+        name = element.get("name")
+        if name is None or not name.strip():
+            raise InputError(file, "header comment", f"a <{element.tag}> element without its name")
+    for element in commons[0].findall("e"):
+        key = element.get("name", "").strip()
         if key in properties:
             raise InputError(file, key, "metadata key given twice in the header comment")
         properties[key] = decode_value(key, element.text or "", file)
@@ -157,8 +175,9 @@ def write_mdf4(
 
 
 def _numeric_1d(samples: np.ndarray) -> bool:
+    # real numbers only: a complex channel read as its real part was a current of 0 A and a warning
     return samples.ndim == 1 and samples.dtype.names is None and (
-        np.issubdtype(samples.dtype, np.number) or samples.dtype == bool
+        np.issubdtype(samples.dtype, np.integer) or np.issubdtype(samples.dtype, np.floating) or samples.dtype == bool
     )
 
 
@@ -184,56 +203,80 @@ def read_mdf4_columns(
     # structure, sizes and compressed data, before anything trusts any of it
     with checked_mdf4(path) as (data, layout):
         plain = decode_checked(data, layout)
+    # the comment as the file stores it, whichever decoder reads the data (asammdf's
+    # header.comment is rebuilt from a dict: a key given twice came back once)
+    properties = parse_header_comment(layout.header_comment, file)
     if plain is not None:
-        groups, comment = plain
-        return _columns(groups, parse_header_comment(comment, file))
-    try:
-        with _quiet_asammdf():
-            return _decode(path, file)
-    except InputError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - whatever asammdf trips over in a file that passed the check
-        raise InputError(file, None, f"not a readable MDF file: {exc.__class__.__name__}: {exc}") from None
+        groups, _comment = plain
+        return _columns(groups, properties)
+    with _quiet_asammdf(file) as decode:
+        columns, _none, bad = decode(_decode, path, file)
+    return columns, properties, bad
+
+
+class _Quiet:
+    def __init__(self, file: str) -> None:
+        self.file = file
+        self.failure: InputError | None = None
+
+    def __call__(self, func, *args):  # noqa: ANN001, ANN204 - the decode and its arguments
+        try:
+            return func(*args)
+        except InputError as exc:
+            self.failure = exc
+        except Exception as exc:  # noqa: BLE001 - whatever asammdf trips over in a file that passed the check
+            self.failure = InputError(self.file, None, f"not a readable MDF file: {exc.__class__.__name__}: {exc}")
+        # out of the except block: the failed decode's frames, and the half-built asammdf objects
+        # they hold, are free once the failure forgets its traceback and context
+        self.failure.__traceback__ = self.failure.__context__ = None
+        self.failure.__suppress_context__ = True
+        raise _DecodeFailed
+
+
+class _DecodeFailed(Exception):
+    pass
 
 
 @contextlib.contextmanager
-def _quiet_asammdf() -> Iterator[None]:
-    """asammdf objects that failed half-way complain from ``__del__`` on stderr; the error we
-    raise says what went wrong, once.
+def _quiet_asammdf(file: str) -> Iterator[_Quiet]:
+    """asammdf objects that failed half-way complain from ``__del__`` on stderr, and asammdf
+    prints the traceback of a header comment it cannot parse on stdout (a ``--json`` output's
+    stream); the error we raise says what went wrong, once.
 
     Only a failed read collects its garbage here: a full ``gc.collect`` walks every object of the
     process (about 0.1 s once JAX is imported, more in a Dask worker), which on every good capture
     was most of a lot refit's time (docs/benchmarks.md, "Lot refit throughput")."""
+    quiet = _Quiet(file)
     previous = sys.unraisablehook
-    sys.unraisablehook = lambda unraisable: None
+    # a signal's exception dropped in there still goes to the command's hook (sent again)
+    sys.unraisablehook = lambda u: previous(u) if isinstance(u.exc_value, KeyboardInterrupt) else None
     try:
-        yield
-    except BaseException:
-        gc.collect()  # the half-built objects die now, while their complaints go nowhere
-        raise
+        with contextlib.redirect_stdout(io.StringIO()):
+            yield quiet
+    except _DecodeFailed:
+        pass
     finally:
+        if quiet.failure is not None:
+            gc.collect()  # the half-built objects die now, while their complaints go nowhere
         sys.unraisablehook = previous
+    if quiet.failure is not None:
+        raise quiet.failure
 
 
-def _decode(
-    path: str | Path, file: str
-) -> tuple[dict[str, Column], dict[str, MetaValue], dict[str, str]]:
+def _decode(path: str | Path, file: str) -> tuple[dict[str, Column], dict[str, MetaValue], dict[str, str]]:
+    """asammdf's decode of a file that is not plain (its columns; the properties come from the check)."""
     from asammdf import MDF
 
-    try:
-        mdf = MDF(str(path))
-    except Exception as exc:  # noqa: BLE001 - asammdf raises MdfException, struct.error, ... for bad files
-        raise InputError(file, None, f"not a readable MDF file: {exc.__class__.__name__}: {exc}") from None
+    mdf = MDF(str(path))  # asammdf raises MdfException, struct.error, ... for bad files: said by _Quiet
     try:
         if not str(mdf.version).startswith("4"):
             raise InputError(file, None, f"MDF version {mdf.version}; capture format v1 takes MDF 4")
-        properties = parse_header_comment(mdf.header.comment or "", file)
         groups: list[Group] = []
         for gi, group in enumerate(mdf.groups):
             master = mdf.masters_db.get(gi)
             groups.append([(channel.name, _signal_loader(mdf, gi, ci)) for ci, channel in enumerate(group.channels)
                            if ci != master])
-        return _columns(groups, properties)
+        return _columns(groups, {})
     finally:
         mdf.close()
 

@@ -17,6 +17,9 @@ from eol_cal.errors import InputError
 if TYPE_CHECKING:  # pragma: no cover
     import pint
 
+#: longest unit text taken (``N*m``, ``1/min``, ``mV/deg``: < 20 characters)
+MAX_UNIT_CHARS = 64
+
 #: unit spellings DAQ exports use for dimensionless digital lines
 _DIMENSIONLESS_SPELLINGS = frozenset({"", "1", "-", "dimensionless"})
 
@@ -56,6 +59,9 @@ def parse_unit(unit: str, file: str | None, channel: str | None) -> pint.Unit:
     file, channel : str or None
         Where the unit came from, for the error message.
     """
+    if len(unit.strip()) > MAX_UNIT_CHARS:  # pint's parser is not linear in the text; no real unit is this long
+        raise InputError(file, channel, f"unit of {len(unit.strip())} characters ({unit.strip()[:24]!r}...); a unit "
+                                        f"has at most {MAX_UNIT_CHARS}")
     try:
         return _parse_unit(unit.strip())
     except Exception as exc:  # noqa: BLE001 - pint raises several unrelated types for bad strings

@@ -14,6 +14,7 @@ the capture file is written (atomically) only after every segment was read and v
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ from eol_cal.dyno.registers import CaptureCommand, CaptureState, Command, Direct
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
-from eol_cal.dyno.transfer import DynoConfig, ProgressFn, TransferError, read_capture_buffer
+from eol_cal.dyno.transfer import BufferFill, BufferReader, DynoConfig, ProgressFn, Stream, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
 
 #: channels read by default (the packed digital channel is always read); the others on request
@@ -40,6 +41,8 @@ HEARTBEAT_STALL_S = 1.0
 #: least gap between two windows in the joined capture (sample periods): a simulator captures
 #: faster than real time, and a gap must stay visible to anyone who splits at gaps in ``t``
 WINDOW_GAP_SAMPLES = 100
+#: status poll period (s) when a capture is about to be ready
+READY_POLL_S = 0.002
 #: capture rate (Hz) when the profile gives none
 DEFAULT_RATE_HZ = 10000
 
@@ -100,6 +103,29 @@ def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
     return out
 
 
+def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RATE_HZ) -> float:
+    """How long the shaft must turn for ``segments`` (s), from standstill back to standstill: what
+    no tool can take off a station's cycle.
+
+    Each segment's ramp at its rate until the dyno reports at speed (within its tolerance), a
+    reversal's stop at the previous ramp rate first, the capture's ``round(seconds * rate_hz)``
+    samples, and the stop at the end, as :func:`run_profile` commands them.
+    """
+    from eol_cal.dyno.sim import SPEED_TOL_REL, SPEED_TOL_RPM
+
+    total, speed, ramp = 0.0, 0.0, DEFAULT_RAMP_RPM_S
+    for seg in segments:
+        if abs(speed) > rm.STANDSTILL_RPM and (seg.speed_rpm < 0) != (speed < 0):
+            total += (abs(speed) - rm.STANDSTILL_RPM) / ramp
+            speed = math.copysign(rm.STANDSTILL_RPM, speed)
+        ramp = seg.ramp_rpm_s
+        tol = max(SPEED_TOL_RPM, SPEED_TOL_REL * abs(seg.speed_rpm))
+        total += max(0.0, abs(seg.speed_rpm - speed) - tol) / ramp
+        total += int(round(seg.seconds * rate_hz)) / rate_hz
+        speed = seg.speed_rpm
+    return total + max(0.0, abs(speed) - rm.STANDSTILL_RPM) / ramp
+
+
 def parse_address(text: str) -> tuple[str, int]:
     """The dyno's ``HOST`` or ``HOST:PORT`` -> (host, port), Modbus TCP's port 502 when none is
     given; a bad address is an :class:`InputError`."""
@@ -115,6 +141,9 @@ class DynoWindow:
     rate_hz: float
     channels: dict[str, np.ndarray] = field(default_factory=dict)
 
+
+#: ``(index, window, t)``: a window just read, with its sample times (s) in the joined capture
+WindowHook = Callable[[int, DynoWindow, np.ndarray], None]
 
 
 #: what the dyno means by each Modbus exception code (docs/dyno.md, "Encoding")
@@ -142,7 +171,8 @@ class DynoClient:
         self.config = config
         self.regmap = config.regmap
         self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
-        self.reconnects = 0
+        self._reconnects = 0
+        self._reader: BufferReader | None = None  # the streamed buffer reads, opened at the first capture
         self._heartbeat = (-1, time.monotonic())
         #: the dyno's identification matched the register map: only then is anything written
         self.identified = False
@@ -166,7 +196,7 @@ class DynoClient:
         def attempt(n: int):
             if not self._client.connected:
                 if n:
-                    self.reconnects += 1
+                    self._reconnects += 1
                 if not self._client.connect():
                     raise ConnectionError("cannot connect")
             return fn()
@@ -203,8 +233,17 @@ class DynoClient:
         self.identified = True
         return ident
 
+    @property
+    def reconnects(self) -> int:
+        """Connections opened again after a loss (requests and buffer reads)."""
+        return self._reconnects + (self._reader.reconnects if self._reader is not None else 0)
+
     def close(self) -> None:
         self._client.close()
+        if self._reader is not None:
+            self._reader.close()
+            self._reconnects += self._reader.reconnects
+            self._reader = None
 
     def read(self, names: Sequence[str]) -> dict[str, float | int | str]:
         """Read registers ``names`` (neighbours of one table in one request) and decode them."""
@@ -249,8 +288,12 @@ class DynoClient:
             raise DynoError(f"{self.where}: drive tripped while {what}")
 
     # ------------------------------------------------------------ operations
-    def set_point(self, seg: DynoSetpoint) -> None:
-        """Command one segment's load, direction and speed; return when the dyno is at speed."""
+    def set_point(self, seg: DynoSetpoint, wait: bool = True) -> float:
+        """Command one segment's load, direction and speed; return when the dyno is at speed
+        (``wait``), else at once (a capture armed next starts by itself at speed).
+
+        Returns the time the ramp takes (s), from the speed the dyno had.
+        """
         cfg = self.config
         st = self.status()
         self.check_faults(st, "preparing")
@@ -260,14 +303,19 @@ class DynoClient:
         if abs(float(st["speed"])) > rm.STANDSTILL_RPM and direction != current_dir:
             # reversing goes through standstill; the dyno refuses a direction flip while spinning
             self.write(speed_setpoint=0.0)
-            self.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse")
+            self.wait_standstill(abs(float(st["speed"])) / seg.ramp_rpm_s + cfg.settle_timeout, "stopping to reverse",
+                                 float(st["speed"]))
         self.write(mode=Mode.SPEED, direction=direction)
         self.write(speed_setpoint=abs(seg.speed_rpm), ramp=seg.ramp_rpm_s, dut_cmd_kind=int(kind), dut_cmd=value)
         self.write(enable=Switch.ON, watchdog_ms=cfg.watchdog_ms)
         ramp_time = abs(seg.speed_rpm - float(st["speed"])) / seg.ramp_rpm_s
-        self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+        if wait:
+            self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+        return ramp_time
 
-    def wait(self, cond: Callable[[dict], bool], timeout: float, what: str) -> dict:
+    def wait(self, cond: Callable[[dict], bool], timeout: float, what: str,
+             interval: Callable[[dict], float] | None = None) -> dict:
+        """Poll the status until ``cond(status)``; every ``poll_interval`` s, or as ``interval(status)`` says."""
         end = time.monotonic() + timeout
         while True:
             st = self.status()
@@ -276,7 +324,23 @@ class DynoClient:
                 return st
             if time.monotonic() > end:
                 raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, drive state {DriveState(int(st['drive_state'])).name})")
-            time.sleep(self.config.poll_interval)
+            time.sleep(self.config.poll_interval if interval is None else interval(st))
+
+    def wait_standstill(self, timeout: float, what: str, speed: float | None = None) -> dict:
+        """Poll until the shaft is within :data:`~eol_cal.dyno.registers.STANDSTILL_RPM` of zero;
+        faster as it gets near, when the ramp rate it stops at is known from two polls."""
+        seen: list[tuple[float, float]] = [] if speed is None else [(time.monotonic(), abs(speed))]
+
+        def interval(s: dict) -> float:
+            now, v = time.monotonic(), abs(float(s["speed"]))
+            seen.append((now, v))
+            (t0, v0), (t1, v1) = seen[0], seen[-1]
+            if t1 <= t0 or v1 >= v0:
+                return self.config.poll_interval
+            left = (v1 - rm.STANDSTILL_RPM) * (t1 - t0) / (v0 - v1)
+            return min(self.config.poll_interval, max(left - self.config.poll_interval / 2, READY_POLL_S))
+
+        return self.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, timeout, what, interval)
 
     def capture(self, n_samples: int, rate_hz: int) -> dict:
         """Start a capture of ``n_samples`` at ``rate_hz`` (Hz) and wait until it is ready."""
@@ -293,6 +357,63 @@ class DynoClient:
             raise DynoError(f"{self.where}: capture holds {st['capture_count']} samples, {n_samples} requested")
         return st
 
+    def record(self, n_samples: int, rate_hz: int, names: Sequence[str], progress: ProgressFn | None = None,
+               ramp_s: float = 0.0) -> dict[str, np.ndarray]:
+        """Arm a capture of ``n_samples`` at ``rate_hz`` (Hz) and read channels ``names`` (those the
+        buffer holds; ``torque`` and ``iq_ref`` required) while it records (:class:`StreamReader`);
+        return when every sample is read.
+
+        The capture starts by itself once the shaft is at speed: ``ramp_s`` (s) is the ramp still
+        to go, added to the wait. Returns the channels as :meth:`read_buffer`.
+        """
+        cfg = self.config
+        self.write(capture_rate=rate_hz, capture_length=n_samples)
+        self.write(capture_start=CaptureCommand.ARM)
+        fill = BufferFill(n_samples)
+        reader: Stream | None = None
+        if self._reader is None:
+            self._reader = BufferReader(cfg)
+
+        def recorded(s: dict) -> bool:
+            nonlocal reader
+            state = s["capture_state"]
+            if state == CaptureState.ERROR:
+                raise DynoError(f"{self.where}: capture ended in the error state")
+            count = int(s["capture_count"]) if state in (CaptureState.RUNNING, CaptureState.READY) else 0
+            if reader is None and count > 0:
+                reader = self._reader.stream(self.recorded_channels(s, names), fill, rate_hz, progress)
+            if state == CaptureState.READY and count != n_samples:
+                raise DynoError(f"{self.where}: capture holds {count} samples, {n_samples} requested")
+            fill.update(count)
+            return state == CaptureState.READY
+
+        def interval(s: dict) -> float:
+            # poll faster near the end: the capture's last chunk is read once it is ready
+            left = (n_samples - fill.count) / rate_hz if s["capture_state"] == CaptureState.RUNNING else 1.0
+            return min(cfg.poll_interval, max(left - cfg.poll_interval / 2, READY_POLL_S))
+
+        try:
+            self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
+                      interval)
+            return reader.result(cfg.capture_timeout)
+        except TransferError as exc:
+            raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
+        except BaseException:
+            if reader is not None:
+                reader.abandon("the capture failed")
+            raise
+
+    def recorded_channels(self, st: dict, names: Sequence[str]) -> list[str]:
+        """Of channels ``names``, those the buffer holds (status ``capture_channels``); refuses a
+        buffer without ``torque`` or ``iq_ref``."""
+        known = self.regmap.channels
+        available = int(st["capture_channels"])
+        want = [c for c in names if available & rm.channel_bit(known[c])]
+        for required in ("torque", "iq_ref"):
+            if required not in want:
+                raise DynoError(f"{self.where}: capture has no {required} channel")
+        return want
+
     def read_buffer(self, names: Sequence[str], n_samples: int, progress: ProgressFn | None = None) -> dict[str, np.ndarray]:
         """Read channels ``names`` (canonical names) plus the digital channel from the buffer.
 
@@ -302,7 +423,7 @@ class DynoClient:
             result, reconnects = read_capture_buffer(self.config, names, n_samples, progress)
         except TransferError as exc:
             raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
-        self.reconnects += reconnects
+        self._reconnects += reconnects
         return result
 
     def safe_state(self) -> str | None:
@@ -329,8 +450,20 @@ def run_profile(
     channels: Sequence[str] = DEFAULT_CHANNELS,
     progress: ProgressFn | None = None,
     reset_faults: bool = False,
+    before_capture: Callable[[], object] | None = None,
+    after_capture: Callable[[], object] | None = None,
+    on_window: WindowHook | None = None,
 ) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
+
+    ``before_capture`` is called (and waited for) right before the first capture is armed, while
+    the shaft ramps to the first segment; ``after_capture`` right after the last window was read
+    and checked, before the stop: work of the caller's that must bracket the captures (the ECU's
+    state, :func:`eol_cal.station.preflight.acquire_traced`) runs alongside the ramps, not after them.
+    An exception from either ends the run like any other (safe state first). ``on_window(i,
+    window, t)`` is called with each window as soon as it is read and checked, ``t`` its sample
+    times in the joined capture (:func:`window_times`): the caller's work on it can start while
+    the shaft turns on (it should hand the work to another thread and return).
 
     Returns the segments' data and the dyno's identification registers.
     Raises :class:`DynoError` on any failure (after the safe state was commanded).
@@ -347,6 +480,7 @@ def run_profile(
             raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
     data: list[DynoWindow] = []
     t_first: float | None = None
+    t_end = -np.inf  # the last sample time of the windows so far in the joined capture
     try:
         ident = client.connect()
         if reset_faults:
@@ -355,15 +489,11 @@ def run_profile(
             if progress:
                 progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
             n = int(round(seg.seconds * rate_hz))
-            client.set_point(seg)
+            ramp_s = client.set_point(seg, wait=False)
+            if i == 0 and before_capture is not None:
+                before_capture()
             t_start = time.monotonic()
-            st = client.capture(n, rate_hz)
-            available = int(st["capture_channels"])
-            want = [c for c in channels if available & rm.channel_bit(known[c])]
-            for required in ("torque", "iq_ref"):
-                if required not in want:
-                    raise DynoError(f"{client.where}: capture has no {required} channel")
-            chans = client.read_buffer(want, n, progress)
+            chans = client.record(n, rate_hz, channels, progress, ramp_s)
             st = client.status()
             client.check_faults(st, "reading the capture")
             if int(st["capture_state"]) != CaptureState.READY:
@@ -373,10 +503,16 @@ def run_profile(
                 raise DynoError(f"{client.where}: segment {i + 1}: non-finite samples in {', '.join(bad)}")
             t_first = t_start if t_first is None else t_first
             data.append(DynoWindow(t_start - t_first, float(rate_hz), chans))
+            if on_window is not None:
+                t_window = _window_time(data[-1], t_end)
+                t_end = float(t_window[-1])
+                on_window(i, data[-1], t_window)
+        if after_capture is not None:
+            after_capture()
         if progress:
             progress("stopping", len(segments), len(segments))
         client.write(speed_setpoint=0.0)
-        client.wait(lambda s: abs(float(s["speed"])) <= rm.STANDSTILL_RPM, client.config.settle_timeout, "stopping")
+        client.wait_standstill(client.config.settle_timeout, "stopping")
     except BaseException as exc:
         why = client.safe_state()
         client.close()
@@ -397,6 +533,21 @@ def run_profile(
     return data, ident
 
 
+def _window_time(d: DynoWindow, t_end: float) -> np.ndarray:
+    n = len(next(iter(d.channels.values())))
+    return max(d.t0, t_end + WINDOW_GAP_SAMPLES / d.rate_hz) + np.arange(n) / d.rate_hz
+
+
+def window_times(data: Sequence[DynoWindow]) -> list[np.ndarray]:
+    """Each window's sample times (s) in the joined capture (:func:`assemble`): from the wall-clock
+    time of its capture start after the first one, but at least :data:`WINDOW_GAP_SAMPLES` sample
+    periods after the previous window's last sample."""
+    out: list[np.ndarray] = []
+    for d in data:
+        out.append(_window_time(d, out[-1][-1] if out else -np.inf))
+    return out
+
+
 def assemble(
     data: Sequence[DynoWindow],
     ident: dict,
@@ -411,13 +562,8 @@ def assemble(
     if not data:
         raise DynoError("no segments captured")
     names = sorted(set.intersection(*(set(d.channels) for d in data)))
-    ts, chans = [], {n: [] for n in names}
-    t_end = -np.inf
+    ts, chans = window_times(data), {n: [] for n in names}
     for d in data:
-        n = len(next(iter(d.channels.values())))
-        t = max(d.t0, t_end + WINDOW_GAP_SAMPLES / d.rate_hz) + np.arange(n) / d.rate_hz
-        ts.append(t)
-        t_end = t[-1]
         for name in names:
             chans[name].append(d.channels[name])
     starts = [float(t[0]) for t in ts]
@@ -452,6 +598,9 @@ def acquire(
     progress: ProgressFn | None = None,
     extra_metadata: dict | None = None,
     reset_faults: bool = False,
+    before_capture: Callable[[], object] | None = None,
+    after_capture: Callable[[], object] | None = None,
+    on_window: WindowHook | None = None,
 ) -> Capture:
     """Run a profile on the dyno, check the capture and write it atomically to ``out``.
 
@@ -469,6 +618,11 @@ def acquire(
         Capture sample rate (Hz).
     reset_faults : bool
         Clear faults latched before this run (a fault during the run still stops it).
+    before_capture, after_capture : callable, optional
+        Called right before the first capture is armed and right after the last window is read
+        (:func:`run_profile`).
+    on_window : callable, optional
+        ``(index, window, t)`` for each window as soon as it is read (:func:`run_profile`).
 
     Raises
     ------
@@ -480,7 +634,8 @@ def acquire(
     if not segments:
         raise InputError(None, "profile", "no segments")
     client = DynoClient(config)
-    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults)
+    data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults, before_capture, after_capture,
+                              on_window)
     capture = assemble(data, ident, serial, extra_metadata)
     from eol_cal.capture import validate, write_capture
 

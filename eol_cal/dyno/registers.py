@@ -199,7 +199,7 @@ _ROLE_LIST: tuple[Role, ...] = (
     Role("interlocks", "status", "", "interlock bits, 1 = met", bits=Interlock),
     Role("drive_state", "status", "", "state of the drive", codes=DriveState),
     Role("capture_state", "status", "", "state of the capture", codes=CaptureState),
-    Role("capture_count", "status", "samples", "samples in the capture buffer (valid when capture_state is ready)"),
+    Role("capture_count", "status", "samples", "samples in the capture buffer: all of them when capture_state is ready; while running, those recorded so far (0 on a dyno that does not say)"),
     Role("capture_channels", "status", "", "channels in the buffer: bit (id-1) for channel id (see the channel table)"),
     Role("heartbeat", "status", "", "counts up every 10 ms while the dyno controller runs (wraps)"),
     Role("capture_seq", "status", "", "number of captures completed since power-up (wraps); changes when a new buffer is ready"),

@@ -9,6 +9,14 @@ flash bank, so a flash changes what the next capture shows). The dyno knows no E
 parameter block; the motor's data (poles, encoder, torque constant, PWM clock) come from its
 :class:`~eol_cal.motor.MotorParams`.
 
+In real-time mode (``realtime=True``, ``eol-cal dyno-sim --realtime``) a capture takes its
+physical time, as on a real dyno: the buffer fills at the capture rate from the moment the
+capture starts, ``capture_count`` counts the samples recorded so far, a window read of samples
+not recorded yet waits until they are, and the capture is ready at its physical end. The capture
+source may compute the recording ahead (the plant usually does), but nothing of it is answered
+earlier than the shaft would have turned it out; a source slower than real time holds the
+samples back until it is done (:attr:`DynoSim.captures` says by how much).
+
 Faults on demand (register ``sim_fault``, :meth:`DynoSim.inject`, or a :class:`FaultPlan`
 that fires at the N-th capture or the N-th window read): disconnect (every connection dropped
 and requests ignored for a while), over-speed trip and torque-sensor fault (the drive trips,
@@ -97,6 +105,39 @@ class CaptureRequest:
 CaptureSource = Callable[["CaptureRequest"], Capture]
 
 
+@dataclass
+class CaptureTiming:
+    """When one capture of the simulator happened (monotonic s), for benchmarks and tests.
+
+    Attributes
+    ----------
+    index : int
+        The capture's :attr:`CaptureRequest.capture_index`.
+    started : float
+        The capture started (armed and at speed).
+    physical_end : float
+        ``started`` plus the capture's duration: when a real dyno's buffer is full.
+    source_done : float or None
+        The capture source returned the recording (None: not yet, or it failed).
+    ready : float or None
+        The capture became ready (None: not yet, or it failed or was aborted).
+    early_reads : int
+        Window reads answered while the capture was still running (a streaming client).
+    """
+
+    index: int
+    started: float
+    physical_end: float
+    source_done: float | None = None
+    ready: float | None = None
+    early_reads: int = 0
+
+    @property
+    def source_late_s(self) -> float:
+        """How long the source finished after the physical end (s; 0 when it computed ahead)."""
+        return 0.0 if self.source_done is None else max(0.0, self.source_done - self.physical_end)
+
+
 @dataclass(frozen=True)
 class FaultPlan:
     """A fault that fires by itself.
@@ -168,6 +209,9 @@ class DynoSim(ModbusFace):
         Faults that fire by themselves.
     register_map : RegisterMap, optional
         The layout the dyno serves (default: the eol-cal reference map, ``maps/default.toml``).
+    realtime : bool
+        A capture takes its physical time (``capture_length / capture_rate``) and its buffer
+        fills as the shaft turns (module doc); False: ready as soon as the source has computed it.
     """
 
     def __init__(
@@ -180,8 +224,10 @@ class DynoSim(ModbusFace):
         max_speed: float = 3000.0,
         faults: tuple[FaultPlan, ...] | list[FaultPlan] = (),
         register_map: RegisterMap | None = None,
+        realtime: bool = False,
     ) -> None:
         self.regmap = default_register_map() if register_map is None else register_map
+        self.realtime = realtime
         self.source = source
         self.serial = serial
         self.motor = load_motor("paper") if motor is None else motor
@@ -211,7 +257,9 @@ class DynoSim(ModbusFace):
         self.window_reads = 0
         self.buffer: dict[int, np.ndarray] = {}  # channel id -> register words (uint16)
         self.buffer_count = 0
-        self.page: list[int] = []
+        #: every capture started since start-up, with its timing (:class:`CaptureTiming`)
+        self.captures: list[CaptureTiming] = []
+        self._recording: CaptureRequest | None = None  # the capture running now
         self.buf_channel = 0
         self.buf_offset = 0
         self.disconnect_until = 0.0
@@ -276,6 +324,8 @@ class DynoSim(ModbusFace):
             self._trip(Fault.OVER_SPEED)
         if self.watchdog_ms and self.enabled and now - self._last_request > self.watchdog_ms / 1000.0:
             self._trip(Fault.COMM_WATCHDOG)
+        if self.capture_state == CaptureState.RUNNING and self._recording_due(now):
+            self._capture_ready()
         if self.capture_state == CaptureState.ARMED and self.at_speed():
             self._start_capture()
         elif self.capture_state in (CaptureState.ARMED, CaptureState.RUNNING) and not self.enabled:
@@ -291,6 +341,7 @@ class DynoSim(ModbusFace):
 
     def _capture_failed(self) -> None:
         self._capture_token += 1  # a job still running finishes into the void
+        self._recording = None
         self.capture_state = CaptureState.ERROR
         self.faults |= Fault.CAPTURE
         self.buffer, self.buffer_count = {}, 0
@@ -343,6 +394,9 @@ class DynoSim(ModbusFace):
             seed=self.seed,
             capture_index=self.captures_started,
         )
+        now = time.monotonic()
+        self.captures.append(CaptureTiming(request.capture_index, now, now + request.seconds))
+        self._recording = request
         self._capture_token += 1
         token = self._capture_token
         job = self._serving_loop().run_in_executor(None, self.source, request)
@@ -365,21 +419,62 @@ class DynoSim(ModbusFace):
             self.log.append((time.monotonic(), "capture_error", str(err)))
             self._capture_failed()
             return
-        self.buffer_count = request.n_samples
         self.last_capture = capture
-        if "temp" in capture.channels:
+        self.captures[-1].source_done = time.monotonic()
+        if not self.realtime or self._recording_due(time.monotonic()):
+            self._capture_ready()
+
+    def _recording_due(self, now: float) -> bool:
+        """Real time: the running capture's source is done and its physical time has passed."""
+        timing = self.captures[-1] if self.captures else None
+        return (self.realtime and self._recording is not None and timing is not None
+                and timing.source_done is not None and now >= timing.physical_end)
+
+    def _capture_ready(self) -> None:
+        request, self._recording = self._recording, None
+        self.buffer_count = request.n_samples
+        self.captures[-1].ready = time.monotonic()
+        capture = self.last_capture
+        if capture is not None and "temp" in capture.channels:
             self.temperature = float(np.mean(capture.channels["temp"]))
         self.capture_seq = (self.capture_seq + 1) & 0xFFFF
         self.capture_state = CaptureState.READY
 
-    def _fill_page(self) -> None:
-        words = self.buffer.get(self.buf_channel)
-        if words is None:
-            self.page = []
-            return
-        per = self.regmap.regs_per_sample(self.buf_channel)
-        first = self.buf_offset * per
-        self.page = words[first : first + self.regmap.window.registers].tolist()
+    def captured(self, now: float | None = None) -> int:
+        """Samples in the capture buffer now: all of a ready capture; in real time, those of a
+        running capture the shaft has turned out (and the source has computed); else 0."""
+        if self.capture_state == CaptureState.READY:
+            return self.buffer_count
+        request, timing = self._recording, (self.captures[-1] if self.captures else None)
+        if (not self.realtime or self.capture_state != CaptureState.RUNNING or request is None or timing is None
+                or timing.source_done is None):
+            return 0
+        now = time.monotonic() if now is None else now
+        return min(request.n_samples, max(0, int((now - timing.started) * request.rate_hz)))
+
+    async def wait_recorded(self, samples: int) -> bool:
+        """Real time: wait until the running capture holds ``samples`` samples (a window read of
+        samples not recorded yet). False when the capture failed or was aborted meanwhile."""
+        token = self._capture_token
+        while self.capture_state == CaptureState.RUNNING and token == self._capture_token:
+            now = time.monotonic()
+            self.advance(now)
+            if self.captured(now) >= samples or self.capture_state != CaptureState.RUNNING:
+                break
+            timing, request = self.captures[-1], self._recording
+            due = (timing.started + samples / request.rate_hz - now) if timing.source_done is not None else 0.005
+            await asyncio.sleep(min(max(due, 0.0005), 0.05))
+        return token == self._capture_token and self.capture_state in (CaptureState.READY, CaptureState.RUNNING)
+
+    def window_words(self, channel: int, offset: int, lo: int, hi: int) -> list[int]:
+        """Registers ``lo:hi`` of the window page of ``channel`` from sample ``offset`` (zeros
+        past the buffer or for a channel it does not hold)."""
+        words = self.buffer.get(channel)
+        chunk: list[int] = []
+        if words is not None:
+            first = offset * self.regmap.regs_per_sample(channel)
+            chunk = words[first + lo: first + hi].tolist()
+        return chunk + [0] * (hi - lo - len(chunk))
 
 
 def capture_to_buffer(capture: Capture, n_samples: int, regmap: RegisterMap) -> dict[int, np.ndarray]:

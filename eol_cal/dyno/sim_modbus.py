@@ -38,6 +38,8 @@ class ModbusFace:
     _loop: asyncio.AbstractEventLoop | None
     _server: object | None
     regmap: RegisterMap
+    realtime: bool
+    captures: list
 
     def _serving_loop(self) -> asyncio.AbstractEventLoop:
         """The server's event loop; a :class:`RuntimeError` before :meth:`serve` started."""
@@ -62,7 +64,7 @@ class ModbusFace:
             "interlocks": int(self.interlocks),
             "drive_state": int(self.drive_state()),
             "capture_state": int(self.capture_state),
-            "capture_count": self.buffer_count if self.capture_state == CaptureState.READY else 0,
+            "capture_count": self.captured(),
             "capture_channels": self.regmap.channel_mask(list(self.buffer)),
             "heartbeat": self.heartbeat_frozen if self.heartbeat_frozen is not None else int((time.monotonic() - self._t0) * 100) & 0xFFFF,
             "capture_seq": self.capture_seq,
@@ -137,10 +139,16 @@ class ModbusFace:
                     return ExcCodes.DEVICE_BUSY  # the connection is being dropped anyway
                 lo = max(address, w.address) - w.address
                 hi = min(end, w.end) - w.address
-                chunk = self.page[lo:hi]
-                chunk += [0] * (hi - lo - len(chunk))
+                channel, offset = self.buf_channel, self.buf_offset  # the page this read addresses
+                recorded = channel == w.digital_id or channel in self.regmap.analog_channels
+                if self.realtime and self.capture_state == CaptureState.RUNNING and recorded:
+                    per = self.regmap.regs_per_sample(channel)
+                    # as a real dyno: samples the shaft has not turned out yet are waited for
+                    if not await self.wait_recorded(offset + -(-hi // per)):
+                        return ExcCodes.DEVICE_FAILURE  # the capture failed or was aborted meanwhile
+                    self.captures[-1].early_reads += 1
                 base = w.address - start_address
-                registers[base + lo: base + hi] = chunk
+                registers[base + lo: base + hi] = self.window_words(channel, offset, lo, hi)
             if address < w.address or end > w.end or table not in (None, w.table):  # not a window-only read
                 self._refresh(registers, start_address, address, end, table, self.status_values())
             return None
@@ -243,16 +251,17 @@ class ModbusFace:
             self.stopping = self.enabled
         if new.get("capture_start") == 1:
             self._capture_token += 1
+            self._recording = None
             self.buffer, self.buffer_count = {}, 0
             self.capture_state = CaptureState.ARMED
             self.advance(now)
         elif new.get("capture_start") == 2 and self.capture_state in (CaptureState.ARMED, CaptureState.RUNNING):
             self._capture_token += 1
+            self._recording = None
             self.capture_state = CaptureState.IDLE
         if "buf_channel" in new or "buf_offset" in new:
             self.buf_channel = int(new.get("buf_channel", self.buf_channel))
             self.buf_offset = int(new.get("buf_offset", self.buf_offset))
-            self._fill_page()
         if new.get("sim_fault"):
             self.inject(SimFault(int(new["sim_fault"])), int(new.get("sim_fault_arg", 500)) or 500)
         return None

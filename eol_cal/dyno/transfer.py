@@ -6,11 +6,21 @@ channel and a first sample, then read the window in blocks of at most the map's
 read over ``connections`` parallel connections; a lost connection or a timeout restarts the page
 on fresh connections through :func:`eol_cal.retry.retry_async` (the same back-off rule as every
 single request, :meth:`eol_cal.dyno.client.DynoClient._call`).
+
+The read is streamed (:class:`BufferReader`): it runs on an event loop in a thread of its own,
+its connections kept open from one capture to the next, while the capture records, and reads the
+samples the client's status polls report recorded (:class:`BufferFill`, ``capture_count`` while
+running), in chunks of :data:`STREAM_CHUNK_S`, so that when the capture is ready only its last
+chunk is left to read. A dyno that reports no count before the capture is ready is read whole
+then, as before.
 """
 
 from __future__ import annotations
 
 import asyncio
+import threading
+from concurrent.futures import Future
+from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
 from collections.abc import Callable, Sequence
 
@@ -80,69 +90,206 @@ class DynoConfig:
         return default_register_map() if self.register_map is None else self.register_map
 
 
-def page_plan(regmap: RegisterMap, names: Sequence[str], n_samples: int) -> tuple[list[tuple[str, int]], list[tuple[int, int, int]]]:
-    """Channels to read (``names`` plus the digital channel, as ``(name, channel id)``) and their
-    pages as ``(channel id, first sample, registers)``."""
-    plan = [(n, regmap.channels[n]) for n in names] + [("digital", regmap.window.digital_id)]
-    pages: list[tuple[int, int, int]] = []
-    for _name, cid in plan:
-        per = regmap.regs_per_sample(cid)
-        page_samples = regmap.samples_per_page(cid)
-        for first in range(0, n_samples, page_samples):
-            pages.append((cid, first, min(page_samples, n_samples - first) * per))
-    return plan, pages
+#: a streamed read waits for at least this much capture (s) before it reads a chunk ...
+STREAM_CHUNK_S = 0.05
+#: ... and, in the capture's last chunk, this much: what is left to read once it is ready
+STREAM_TAIL_S = 0.01
+#: how often a streamed read looks for newly recorded samples (s)
+STREAM_POLL_S = 0.003
 
 
-def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
-                        progress: ProgressFn | None = None) -> tuple[dict[str, np.ndarray], int]:
-    """Read channels ``names`` (canonical names) and the digital channel from the dyno's buffer.
+class BufferFill:
+    """How many samples of the capture the dyno holds, as the client's status polls see it.
 
-    Returns the analog channels (float64 from the f32 on the wire) and ``enc_a``, ``enc_b``,
-    ``hall``, and the number of reconnects it took. Raises :class:`TransferError`.
+    The polling thread :meth:`update` s it; the :class:`BufferReader` reads :attr:`count`.
+    :meth:`stop` ends a read that waits for samples (the capture failed, the client gave up).
     """
-    regmap = cfg.regmap
-    plan, pages = page_plan(regmap, names, n_samples)
-    words = asyncio.run(_transfer(cfg, pages, progress))
-    reconnects = int(words.pop())
+
+    def __init__(self, n_samples: int, count: int = 0) -> None:
+        self.n_samples = n_samples
+        self.count = min(count, n_samples)
+        self.stopped: str | None = None
+        self._lock = threading.Lock()
+
+    def update(self, count: int) -> None:
+        with self._lock:
+            self.count = max(self.count, min(int(count), self.n_samples))
+
+    def stop(self, why: str) -> None:
+        self.stopped = why
+
+
+def channel_plan(regmap: RegisterMap, names: Sequence[str]) -> list[tuple[str, int]]:
+    """Channels to read: ``names`` plus the digital channel, as ``(name, channel id)``."""
+    return [(n, regmap.channels[n]) for n in names] + [("digital", regmap.window.digital_id)]
+
+
+def page_plan(regmap: RegisterMap, names: Sequence[str], n_samples: int, first: int = 0
+              ) -> tuple[list[tuple[str, int]], list[tuple[int, int, int]]]:
+    """Channels to read (:func:`channel_plan`) and the pages of samples ``first:n_samples`` as
+    ``(channel id, first sample, registers)``."""
+    plan = channel_plan(regmap, names)
+    return plan, [page for _name, cid in plan for page in _pages(regmap, cid, first, n_samples)]
+
+
+def _pages(regmap: RegisterMap, cid: int, first: int, stop: int) -> list[tuple[int, int, int]]:
+    per = regmap.regs_per_sample(cid)
+    page_samples = regmap.samples_per_page(cid)
+    return [(cid, f, min(page_samples, stop - f) * per) for f in range(first, stop, page_samples)]
+
+
+def _decode(regmap: RegisterMap, plan: list[tuple[str, int]], words: dict[int, list[np.ndarray]]) -> dict[str, np.ndarray]:
     result: dict[str, np.ndarray] = {}
     for name, cid in plan:
-        w = np.concatenate([wp for (c, _f, _n), wp in zip(pages, words, strict=True) if c == cid])
+        w = np.concatenate(words[cid]) if words[cid] else np.zeros(0, dtype=np.uint16)
         if name == "digital":
             result["enc_a"], result["enc_b"], result["hall"] = regmap.unpack_digital(w)
         else:
             result[name] = regmap.words_to_analog(w)
-    return result, reconnects
+    return result
 
 
-async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress: ProgressFn | None) -> list:
-    """Read capture pages over ``cfg.connections`` parallel connections.
+def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
+                        progress: ProgressFn | None = None) -> tuple[dict[str, np.ndarray], int]:
+    """Read channels ``names`` (canonical names) and the digital channel from the dyno's buffer
+    (a capture that is ready: every sample at once).
 
-    pymodbus serves one request per connection at a time, so parallel connections are how
-    requests overlap. The page selection is dyno state shared by all connections: each page is
-    selected, then its blocks are read in parallel. A lost connection or timeout restarts the
-    page on fresh connections (:func:`eol_cal.retry.retry_async`: ``cfg.retries`` times, doubling delays). Returns the pages' words
-    followed by the number of reconnects.
+    Returns the analog channels (float64 from the f32 on the wire) and ``enc_a``, ``enc_b``,
+    ``hall``, and the number of reconnects it took. Raises :class:`TransferError`.
     """
-    from pymodbus.client import AsyncModbusTcpClient
-    from pymodbus.exceptions import ModbusException
+    plan = channel_plan(cfg.regmap, names)
 
-    k = max(1, cfg.connections)
-    regmap = cfg.regmap
-    where = f"{cfg.host}:{cfg.port}"
-    clients: list = []
-    reconnects = 0
+    async def once() -> tuple[dict[int, list[np.ndarray]], int]:
+        conns = _Connections(cfg)
+        try:
+            return await _transfer(cfg, conns, plan, BufferFill(n_samples, n_samples), (n_samples, n_samples),
+                                   progress), conns.reconnects
+        finally:
+            conns.close()
 
-    async def open_all() -> None:
-        for cl in clients:
-            cl.close()
-        clients.clear()
-        for _ in range(k):
+    words, reconnects = asyncio.run(once())
+    return _decode(cfg.regmap, plan, words), reconnects
+
+
+class BufferReader:
+    """Streamed reads of the dyno's capture buffer (module doc): an event loop in a thread of its
+    own and the parallel connections, kept for every capture of a profile; :meth:`close` ends both.
+    """
+
+    def __init__(self, cfg: DynoConfig) -> None:
+        self._cfg = cfg
+        self._loop = asyncio.new_event_loop()
+        self._conns = _Connections(cfg)
+        self._thread = threading.Thread(target=self._loop.run_forever, name="dyno-stream", daemon=True)
+        self._thread.start()
+
+    @property
+    def reconnects(self) -> int:
+        """Connections opened again after a loss, over every read so far."""
+        return self._conns.reconnects
+
+    def stream(self, names: Sequence[str], fill: BufferFill, rate_hz: float,
+               progress: ProgressFn | None = None) -> Stream:
+        """Start reading channels ``names`` (and the digital channel) of the capture ``fill`` follows."""
+        plan = channel_plan(self._cfg.regmap, names)
+        chunk = (max(1, int(rate_hz * STREAM_CHUNK_S)), max(1, int(rate_hz * STREAM_TAIL_S)))
+        job = asyncio.run_coroutine_threadsafe(_transfer(self._cfg, self._conns, plan, fill, chunk, progress), self._loop)
+        return Stream(self._cfg, plan, fill, job)
+
+    def close(self) -> None:
+        if self._loop.is_closed():
+            return
+        if self._thread.is_alive():
+            self._loop.call_soon_threadsafe(self._conns.close)
+            self._loop.call_soon_threadsafe(self._loop.stop)
+            self._thread.join(2.0)
+        if not self._thread.is_alive():
+            self._loop.close()
+
+
+class Stream:
+    """One capture's streamed read (:meth:`BufferReader.stream`)."""
+
+    def __init__(self, cfg: DynoConfig, plan: list[tuple[str, int]], fill: BufferFill, job: Future) -> None:
+        self.plan, self._cfg, self._fill, self._job = plan, cfg, fill, job
+
+    def result(self, timeout: float | None = None) -> dict[str, np.ndarray]:
+        """The channels read (as :func:`read_capture_buffer`) once every sample is in; raises
+        :class:`TransferError`. Call after the fill reached the capture's length (or was stopped)."""
+        try:
+            words = self._job.result(timeout)
+        except FutureTimeout:
+            self._fill.stop("no answer in time")
+            raise TransferError(f"the buffer read did not finish within {timeout} s") from None
+        except TransferError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any failure of the read is the transfer's
+            raise TransferError(f"{type(exc).__name__}: {exc}") from exc
+        return _decode(self._cfg.regmap, self.plan, words)
+
+    def abandon(self, why: str) -> None:
+        """Stop reading (the capture failed): the read ends within a request timeout."""
+        self._fill.stop(why)
+        try:
+            self._job.result(self._cfg.timeout * (self._cfg.retries + 1) + 1.0)
+        except Exception:  # noqa: BLE001 - the capture's own failure is what is reported
+            pass
+
+
+class _Connections:
+    """``cfg.connections`` parallel pymodbus connections to the dyno, opened when first needed
+    and again after a loss (counted in :attr:`reconnects`); used on one event loop."""
+
+    def __init__(self, cfg: DynoConfig) -> None:
+        self.cfg = cfg
+        self.clients: list = []
+        self.reconnects = 0
+        self._opened = False
+
+    @property
+    def up(self) -> bool:
+        return len(self.clients) == max(1, self.cfg.connections) and all(cl.connected for cl in self.clients)
+
+    async def open(self) -> None:
+        from pymodbus.client import AsyncModbusTcpClient
+
+        cfg = self.cfg
+        self.close()
+        if self._opened:
+            self.reconnects += 1
+        self._opened = True
+        for _ in range(max(1, cfg.connections)):
             cl = AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout, retries=0, reconnect_delay=0)
-            clients.append(cl)
+            self.clients.append(cl)
             if not await cl.connect():
                 raise ConnectionError("cannot connect")
 
+    def close(self) -> None:
+        for cl in self.clients:
+            cl.close()
+        self.clients.clear()
+
+
+async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, int]], fill: BufferFill,
+                    chunk: tuple[int, int], progress: ProgressFn | None) -> dict[int, list[np.ndarray]]:
+    """Read the buffer's channels ``plan`` as ``fill`` says samples are recorded, over the parallel
+    connections ``conns``.
+
+    pymodbus serves one request per connection at a time, so parallel connections are how
+    requests overlap. The page selection is dyno state shared by all connections: each page is
+    selected, then its blocks are read in parallel. A read waits until ``chunk[0]`` samples more
+    (``chunk[1]`` in the capture's last ``chunk[0]``; or the rest of the capture) are recorded:
+    few requests while the capture runs, little left when it is ready. A lost connection or a
+    timeout restarts the page on fresh connections (:func:`eol_cal.retry.retry_async`:
+    ``cfg.retries`` times, doubling delays). Returns each channel's words, page by page.
+    """
+    from pymodbus.exceptions import ModbusException
+
+    regmap = cfg.regmap
+    where = f"{cfg.host}:{cfg.port}"
+
     async def read_page(cid: int, first: int, n_regs: int) -> np.ndarray:
+        clients = conns.clients
         for address, select, _names in regmap.write_runs({"buf_channel": cid, "buf_offset": first}):
             sel = await clients[0].write_registers(address, select, device_id=cfg.device_id)
             log_modbus(where, 16, address, len(select), select,
@@ -152,6 +299,7 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
         blocks = regmap.page_blocks(n_regs)
         out: list = [None] * len(blocks)
         fc = READ_FC[regmap.window.table]
+        k = len(clients)
 
         async def worker(i: int) -> None:
             for j in range(i, len(blocks), k):
@@ -169,34 +317,35 @@ async def _transfer(cfg: DynoConfig, pages: list[tuple[int, int, int]], progress
         await asyncio.gather(*(worker(i) for i in range(min(k, len(blocks)))))
         return np.concatenate([np.asarray(b, dtype=np.uint16) for b in out])
 
-    words: list = []
-    total = sum(n for _c, _f, n in pages)
+    async def read_with_retry(cid: int, first: int, n_regs: int) -> np.ndarray:
+        async def attempt(_n: int) -> np.ndarray:
+            if not conns.up:
+                await conns.open()
+            return await read_page(cid, first, n_regs)
+
+        try:
+            return await retry_async(attempt, retries=cfg.retries, delay_s=cfg.retry_delay,
+                                     retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
+                                     before_retry=lambda _n, _exc: conns.close())
+        except RetriesExhausted as exc:
+            raise TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
+
+    n = fill.n_samples
+    words: dict[int, list[np.ndarray]] = {cid: [] for _name, cid in plan}
+    total = sum(regmap.regs_per_sample(cid) for _name, cid in plan) * n
     done = 0
-    try:
-        for cid, first, n_regs in pages:
-            async def attempt(n: int, cid: int = cid, first: int = first, n_regs: int = n_regs) -> np.ndarray:
-                nonlocal reconnects
-                if len(clients) != k or not all(cl.connected for cl in clients):
-                    if n or words:
-                        reconnects += 1
-                    await open_all()
-                return await read_page(cid, first, n_regs)
-
-            def drop_all(_n: int, _exc: BaseException) -> None:
-                for cl in clients:
-                    cl.close()
-                clients.clear()
-
-            try:
-                words.append(await retry_async(attempt, retries=cfg.retries, delay_s=cfg.retry_delay,
-                                               retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
-                                               before_retry=drop_all))
-            except RetriesExhausted as exc:
-                raise TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
-            done += n_regs
-            if progress:
-                progress("transfer", done, total)
-    finally:
-        for cl in clients:
-            cl.close()
-    return words + [reconnects]
+    while done < n:
+        if fill.stopped is not None:
+            raise TransferError(f"stopped at sample {done} of {n}: {fill.stopped}")
+        count = fill.count
+        want = chunk[0] if n - count > chunk[0] else chunk[1]
+        if count - done < min(want, n - done):
+            await asyncio.sleep(STREAM_POLL_S)
+            continue
+        for _name, cid in plan:
+            for page in _pages(regmap, cid, done, count):
+                words[cid].append(await read_with_retry(*page))
+        done = count
+        if progress:
+            progress("transfer", total * done / n, total)
+    return words

@@ -19,6 +19,7 @@ from eol_cal.atomic import atomic_write
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
+from eol_cal.inputs import read_bytes
 
 N_BANKS = len(B.BANK_WORD_ADDR)
 ERASED = P.ERASED_BYTE
@@ -66,7 +67,7 @@ class NorFlash:
         self._rng = random.Random(seed)
         size = N_BANKS * B.BANK_BYTES
         if self.path is not None and self.path.exists():
-            raw = self.path.read_bytes()
+            raw = read_bytes(self.path, "flash image", max_bytes=size, register=False)
             if len(raw) != size:
                 raise InputError(str(self.path), "size",
                                  f"{len(raw)} bytes; a flash image of {N_BANKS} banks has {size}")
@@ -187,10 +188,10 @@ class SecurityMemory:
         self.lockout_pending = False
         if self.path is not None and self.path.exists():
             try:
-                state = json.loads(self.path.read_text("ascii"))
+                state = json.loads(read_bytes(self.path, max_bytes=4096, register=False))
                 self.failed = int(state["failed"])
                 self.lockout_pending = bool(state["lockout_pending"])
-            except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+            except (InputError, ValueError, KeyError, TypeError, RecursionError):
                 # A torn record reads as locked out: failing safe costs one delay, never attempts.
                 self.failed, self.lockout_pending = 0, True
 

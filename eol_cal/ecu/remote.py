@@ -27,6 +27,15 @@ class RemoteEcu:
     sim: EcuSimulator
     server: RemoteServer
     thread: threading.Thread
+    channel: str = ""
+    """The private virtual channel the simulator and the server share."""
+
+    def replace(self, flash_path: str | Path, config: SimConfig | None = None, faults: Faults | None = None) -> None:
+        """Put another ECU on the same server (the next motor on a line): the simulator stops and
+        a new one starts on ``flash_path``; testers keep the same URL."""
+        self.sim.stop()
+        self.sim.bus.shutdown()
+        self.sim = _start_sim(self.channel, flash_path, config, faults)
 
     @property
     def url(self) -> str:
@@ -54,10 +63,13 @@ def serve_remote(flash_path: str | Path, *, host: str = "127.0.0.1", port: int =
     # can_remote logs every frame at INFO/DEBUG; keep it to warnings.
     logging.getLogger("can_remote").setLevel(logging.WARNING)
     channel = private_channel_name("ecu-sim")
-    sim = EcuSimulator(can.Bus(interface="virtual", channel=channel), NorFlash(flash_path), config, faults)
-    sim.start()
+    sim = _start_sim(channel, flash_path, config, faults)
     server = RemoteServer(host, port, interface="virtual", channel=channel)
     thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1},
                               name="can-remote", daemon=True)
     thread.start()
-    return RemoteEcu(sim, server, thread)
+    return RemoteEcu(sim, server, thread, channel)
+
+
+def _start_sim(channel: str, flash_path: str | Path, config: SimConfig | None, faults: Faults | None) -> EcuSimulator:
+    return EcuSimulator(can.Bus(interface="virtual", channel=channel), NorFlash(flash_path), config, faults).start()

@@ -34,7 +34,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import NorFlash, SecurityMemory, select_active
 from eol_cal.ecu.programming import BankProgrammer, Nrc, PowerLoss, parse_location
 from eol_cal.ecu.simconfig import STEPS, Faults, SimConfig
-from eol_cal.ecu.transport import FaultyBus, make_stack
+from eol_cal.ecu.transport import FaultyBus, PacedBus, make_stack
 
 __all__ = ["EcuSimulator", "Faults", "Nrc", "STEPS", "SimConfig"]
 
@@ -106,6 +106,8 @@ class EcuSimulator:
         self.config = config or SimConfig()
         self.faults = faults or Faults()
         f = self.faults
+        if self.config.bitrate:
+            bus = PacedBus(bus, self.config.bitrate)
         self.bus: can.BusABC = (FaultyBus(bus, drop_rate=f.drop_rate, delay_rate=f.delay_rate,
                                           delay_s=f.delay_s, seed=f.seed)
                                 if (f.drop_rate or f.delay_rate) else bus)
@@ -118,6 +120,8 @@ class EcuSimulator:
         self.on_power_loss: Callable[[], None] | None = None
         """Called when the injected power loss happens (``ecu-sim`` kills its own process there)."""
         self.steps_seen: list[str] = []
+        self._previous: tuple[bytes, bytes] | None = None  # the last (request, answer), for stale_answers
+        self.stale_sent = 0
         self.security = SecurityMemory(flash)
         self._lockout_until = 0.0
         self._step_counts: dict[str, int] = {}
@@ -214,7 +218,21 @@ class EcuSimulator:
     def _send(self, payload: bytes) -> None:
         self._stack.send(payload)
 
+    def _stale_answer(self, payload: bytes) -> None:
+        """Faults.stale_answers: the previous answer again, before this request's own; not after
+        the very same request (the answer would be the same) nor between two reads of memory
+        (their answers carry no echo: UDS gives a tester nothing to tell them apart by)."""
+        previous, self._previous = self._previous, None
+        if previous is None or previous[0] == payload:
+            return
+        if previous[0][:1] == payload[:1] == bytes((services.ReadMemoryByAddress.request_id(),)):
+            return
+        self.stale_sent += 1
+        self._send(previous[1])
+
     def _serve(self, payload: bytes) -> None:
+        if self.faults.stale_answers:
+            self._stale_answer(payload)
         req = Request.from_payload(payload)
         if req.service is None or req.service not in self._handlers:
             # No udsoncan service object exists for an unknown ID, so build 7F SID 11 here.
@@ -234,7 +252,9 @@ class EcuSimulator:
                 raise Nrc(self.faults.nrc[req.service.request_id()])
             data = self._handlers[req.service](req)
         except Nrc as exc:
-            pending.finish(None if lost else Response(service=req.service, code=exc.code).get_payload())
+            final = None if lost else Response(service=req.service, code=exc.code).get_payload()
+            pending.finish(final)
+            self._previous = None if final is None else (payload, final)
             return
         except BaseException:
             pending.finish(None)
@@ -243,6 +263,7 @@ class EcuSimulator:
         if data is not None and not req.suppress_positive_response and not lost:
             final = Response(service=req.service, code=Response.Code.PositiveResponse, data=data).get_payload()
         pending.finish(final)
+        self._previous = None if final is None else (payload, final)
 
     def _power_fails(self, step: str) -> bool:
         return (self.faults.power_loss_step == step

@@ -44,6 +44,12 @@ class Faults:
         answers are lost on the way back.
     slow_step : dict of str to float
         Step -> extra seconds every request of it takes (answered 0x78 meanwhile).
+    stale_answers : bool
+        A late duplicate at every step: before serving a request, the ECU sends its previous
+        answer again (as an ECU does that answers a request the tester gave up on and repeated),
+        so that it arrives while the tester waits for this request's answer. Not done where
+        UDS lets no tester tell the two apart: the same service without an echo (two
+        ReadMemoryByAddress of one size) or the very same answer again.
     seed : int
         Seed of every random choice (dropped frames, arbitrary words, seeds).
     """
@@ -59,6 +65,7 @@ class Faults:
     wrong_block_counter: int | None = None
     drop_response: dict[str, int | tuple[int, ...]] = field(default_factory=dict)
     slow_step: dict[str, float] = field(default_factory=dict)
+    stale_answers: bool = False
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -89,6 +96,9 @@ class SimConfig:
         maxNumberOfBlockLength of the RequestDownload response: bytes of one TransferData
         request, service ID and counter included.
     isotp_timing : IsoTpTiming
+    bitrate : int or None
+        The CAN bit rate (bit/s) the simulator's bus is paced to, both directions
+        (:class:`~eol_cal.ecu.transport.PacedBus`); None: frames as fast as the virtual bus carries them.
     """
 
     serial: str = "SIM-0001"
@@ -102,3 +112,4 @@ class SimConfig:
     erase_s: float = 0.05
     max_block_length: int = 4094
     isotp_timing: IsoTpTiming = IsoTpTiming()
+    bitrate: int | None = None

@@ -1,16 +1,19 @@
 """CAN bus and ISO-TP plumbing shared by the flashing client and the ECU simulator.
 
 python-can opens the bus (any interface, or python-can's own config file), can-isotp carries
-UDS messages with the contract's addressing and 0xCC padding, and :class:`FaultyBus` injects
-dropped and delayed frames for the reliability tests.
+UDS messages with the contract's addressing and 0xCC padding, :class:`FaultyBus` injects
+dropped and delayed frames for the reliability tests, and :class:`PacedBus` holds the ECU
+simulator's frames to a CAN bit rate.
 """
 
 from __future__ import annotations
 
+import configparser
 import errno
 import itertools
 import logging
 import os
+import queue
 import random
 import socket
 import threading
@@ -26,6 +29,7 @@ from udsoncan.exceptions import TimeoutException
 
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
+from eol_cal.inputs import read_text
 
 log = logging.getLogger(__name__)
 
@@ -85,8 +89,59 @@ def make_stack(bus: can.BusABC, *, tx_id: int, rx_id: int, blocking_send: bool,
     reader in the same process; use a second ``can.Bus`` on the channel to sniff.
     """
     address = isotp.Address(isotp.AddressingMode.Normal_11bits, txid=tx_id, rxid=rx_id)
+    # The stack's reading thread waits in bus.recv at most this long: a frame wakes it at once,
+    # so it bounds only how long stopping the stack takes, which the tester pays at the end of
+    # every session (the station opens several per motor).
+    read_timeout = TESTER_READ_TIMEOUT_S if blocking_send else 0.02
     return isotp.CanStack(bus, address=address, params=isotp_params(blocking_send=blocking_send, timing=timing),
-                          read_timeout=0.02)
+                          read_timeout=read_timeout)
+
+
+TESTER_READ_TIMEOUT_S = 0.004
+"""Longest wait of the tester's ISO-TP reading thread in one ``bus.recv``, s (see :func:`make_stack`)."""
+
+
+def bus_config(interface: str | None, channel: str | None, bitrate: int | None = None,
+               can_config: str | None = None) -> dict:
+    """The python-can settings :func:`open_bus` opens: the options over the configuration file's
+    ``[default]`` section, checked without opening anything (a station checks them at its start).
+
+    Raises
+    ------
+    InputError
+        The file is not a readable regular file or not a python-can configuration (a garbage
+        file was a ``MissingSectionHeaderError`` traceback), no interface, or one this tool
+        does not drive.
+    """
+    overrides = {k: v for k, v in (("interface", interface), ("channel", channel), ("bitrate", bitrate))
+                 if v is not None}
+    if can_config is not None:
+        parser = configparser.ConfigParser()
+        try:  # read as python-can will, but through the one reader of input files (a FIFO is refused)
+            parser.read_string(read_text(can_config, "can-config", max_bytes=1 << 20), source=can_config)
+        except configparser.Error as exc:
+            raise InputError(can_config, "can-config", f"not a python-can configuration file: "
+                                                       f"{str(exc).splitlines()[0]}") from None
+    try:
+        config = can.util.load_config(path=can_config, config=overrides) if can_config else overrides
+    except (OSError, ValueError, configparser.Error, can.CanInterfaceNotImplementedError) as exc:
+        raise InputError(can_config, "can-config", str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    if not config.get("interface"):
+        raise InputError(can_config, "interface", "no CAN interface given (neither directly nor in a python-can configuration file)")
+    if config.get("interface") == "udp_multicast":
+        # Its frames leave through the network card; the project never uses it.
+        raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
+    if config["interface"] not in can.interfaces.VALID_INTERFACES:
+        raise InputError(can_config, "interface", f"{config['interface']!r} is not a python-can interface")
+    for key in ("bitrate", "data_bitrate"):
+        if key in config:
+            try:
+                config[key] = int(config[key])
+            except (TypeError, ValueError):
+                raise InputError(can_config, key, f"{config[key]!r} is not a bit rate (bit/s)") from None
+            if not 10_000 <= config[key] <= 8_000_000:
+                raise InputError(can_config, key, f"{config[key]} bit/s outside 10000..8000000")
+    return config
 
 
 def open_bus(interface: str | None, channel: str | None, bitrate: int | None = None,
@@ -108,20 +163,7 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     InputError
         The interface is unknown, the config file unreadable, or the bus cannot be opened.
     """
-    overrides = {k: v for k, v in (("interface", interface), ("channel", channel), ("bitrate", bitrate))
-                 if v is not None}
-    if can_config is not None and not os.path.isfile(can_config):
-        raise InputError(can_config, "can-config", "file not found")
-    try:
-        config = can.util.load_config(path=can_config, config=overrides) if can_config else overrides
-    except (OSError, ValueError, can.CanInterfaceNotImplementedError) as exc:
-        raise InputError(can_config, "can-config", str(exc)) from exc
-    if not config.get("interface"):
-        raise InputError(can_config, "interface",
-                         "no CAN interface given (neither directly nor in a python-can configuration file)")
-    if config.get("interface") == "udp_multicast":
-        # Its frames leave through the network card; the project never uses it.
-        raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
+    config = bus_config(interface, channel, bitrate, can_config)
     previous_timeout = socket.getdefaulttimeout()
     try:
         # python-can-remote's WebSocket handshake has no timeout of its own: a server that accepts
@@ -201,6 +243,85 @@ class FaultyBus(can.BusABC):
 
     def shutdown(self) -> None:
         super().shutdown()
+        self.inner.shutdown()
+
+
+class PacedBus(can.BusABC):
+    """A bus wrapper that gives every frame, sent or received, its time on a CAN bus of
+    ``bitrate`` (the ECU simulator's bus: a virtual bus carries frames as fast as the CPU allows).
+
+    Both directions share one medium: a frame occupies the bus for :func:`frame_bits` (worst-case
+    stuffing) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
+    frame goes into a transmit queue, as into a CAN controller's, and reaches the other side when
+    its time on the bus is over (frames sent back to back follow each other at the bit rate, the
+    sender's own sleeps not adding up); a received frame is handed on when its time is over.
+
+    Parameters
+    ----------
+    inner : can.BusABC
+        The real (virtual) bus.
+    bitrate : int
+        bit/s (the contract's bus: 500000).
+    """
+
+    def __init__(self, inner: can.BusABC, bitrate: int) -> None:
+        if bitrate <= 0:
+            raise ValueError(f"bit rate {bitrate} must be positive")
+        self.inner = inner
+        self.bitrate = int(bitrate)
+        self._lock = threading.Lock()
+        self._free_at = 0.0
+        self.busy_s = 0.0
+        """Seconds the frames have occupied the bus so far."""
+        self._tx: queue.SimpleQueue[tuple[float, can.Message] | None] = queue.SimpleQueue()
+        self._tx_thread = threading.Thread(target=self._transmit, name="paced-bus-tx", daemon=True)
+        self._tx_thread.start()
+        super().__init__(channel=getattr(inner, "channel_info", "paced"))
+        self.channel_info = f"paced {self.bitrate} bit/s ({getattr(inner, 'channel_info', '')})"
+
+    def _slot(self, msg: can.Message, ready: float) -> float:
+        """When ``msg``, ready to go at ``ready`` (monotonic s), has left the bus."""
+        seconds = frame_bits(msg.dlc) / self.bitrate
+        with self._lock:
+            done = max(ready, self._free_at) + seconds
+            self._free_at = done
+            self.busy_s += seconds
+        return done
+
+    @staticmethod
+    def _sleep_until(t: float) -> None:
+        wait = t - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+
+    def _transmit(self) -> None:
+        while True:
+            item = self._tx.get()
+            if item is None:
+                return
+            done, msg = item
+            self._sleep_until(done)
+            try:
+                self.inner.send(msg)
+            except Exception as exc:  # noqa: BLE001 - a closed bus: the frame is lost, as on a dead link
+                log.debug("paced bus: frame not sent: %s", exc)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self._tx.put((self._slot(msg, time.monotonic()), msg))
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        msg = self.inner.recv(timeout)
+        if msg is not None:
+            # on the bus from when the sender handed it over, not from when this thread got to it
+            age = time.time() - msg.timestamp if msg.timestamp else 0.0
+            now = time.monotonic()
+            self._sleep_until(self._slot(msg, now - age if 0.0 <= age < 1.0 else now))
+        return msg, False
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self._tx.put(None)
+        self._tx_thread.join(1.0)
         self.inner.shutdown()
 
 

@@ -251,6 +251,24 @@ def _bits(v: Any) -> Any:
     return v
 
 
+def serial_problem(serial: str) -> str | None:
+    """Why ``serial`` cannot name a motor in a block (None when it can): 1 to 16 printable ASCII
+    characters without surrounding blanks (an empty serial passed ``table`` into a block)."""
+    try:
+        raw = serial.encode("ascii")
+    except UnicodeEncodeError:
+        return f"not ASCII: {serial!r}"
+    if not raw.strip():
+        return "empty"
+    if len(raw) > field_count("serial"):
+        return f"{len(raw)} characters, at most {field_count('serial')}"
+    if b"\0" in raw:
+        return "contains NUL"
+    if not serial.isprintable() or serial != serial.strip():
+        return f"{serial!r}: control characters or surrounding blanks"
+    return None
+
+
 def pack_problems(block: ParamBlock) -> list[tuple[str, str]]:
     """Why ``block`` cannot be packed into a valid block: a list of (field, reason), empty if it can."""
     problems: list[tuple[str, str]] = []
@@ -268,14 +286,9 @@ def pack_problems(block: ParamBlock) -> list[tuple[str, str]]:
     if block.flags & ~FLAGS_KNOWN or block.flags < 0:
         problems.append(("flags", f"0x{block.flags:x} has bits the contract does not define "
                                   f"(known: {flag_names(FLAGS_KNOWN)})"))
-    try:
-        raw = block.serial.encode("ascii")
-        if len(raw) > field_count("serial"):
-            problems.append(("serial", f"{len(raw)} characters, at most {field_count('serial')}"))
-        if b"\0" in raw:
-            problems.append(("serial", "contains NUL"))
-    except UnicodeEncodeError:
-        problems.append(("serial", f"not ASCII: {block.serial!r}"))
+    why = serial_problem(block.serial)
+    if why is not None:
+        problems.append(("serial", why))
     if not 0 <= block.calibrated_at <= 0xFFFFFFFF:
         problems.append(("calibrated_at", f"{block.calibrated_at} outside u32"))
     if not (2 <= block.poles <= 0xFFFF and block.poles % 2 == 0):

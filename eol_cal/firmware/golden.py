@@ -27,11 +27,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.atomic import atomic_write
+from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware import estimator_golden
 from eol_cal.firmware.compensator import i_qc, make_tables
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.firmware.vectors import VectorSet, csv_text, f32hex
+from eol_cal.inputs import loads_json, read_text
 from eol_cal.wrap import wrap_2pi
 
 GOLDEN_FORMAT = 1
@@ -279,9 +281,11 @@ def check_golden(golden_dir: str | Path, sets: dict[str, VectorSet] | None = Non
     problems: list[str] = []
     mpath = golden_dir / "manifest.json"
     try:
-        on_disk = json.loads(mpath.read_text("utf-8"))
-    except (OSError, ValueError) as exc:
-        return [f"{mpath}: cannot read the manifest ({exc})"]
+        on_disk = loads_json(read_text(mpath), str(mpath))
+    except InputError as exc:
+        return [f"{mpath}: cannot read the manifest ({exc.reason})"]
+    if not isinstance(on_disk, dict):
+        return [f"{mpath}: the manifest is not a JSON object"]
     expected = manifest(sets, texts)
     for key in _MANIFEST_KEYS:
         if on_disk.get(key) != expected[key]:
@@ -299,9 +303,9 @@ def check_golden(golden_dir: str | Path, sets: dict[str, VectorSet] | None = Non
             diff = [k for k in exp_entry if entry.get(k) != exp_entry[k]]
             problems.append(f"{mpath}: entry of {name} differs in {', '.join(diff)}")
         try:
-            text = path.read_text("ascii")
-        except (OSError, UnicodeDecodeError) as exc:
-            problems.append(f"{path}: cannot read ({exc})")
+            text = read_text(path, encoding="ascii")
+        except InputError as exc:
+            problems.append(f"{path}: cannot read ({exc.reason})")
             continue
         if entry is not None and hashlib.sha256(text.encode()).hexdigest() != entry.get("sha256"):
             problems.append(f"{path}: SHA-256 differs from the manifest's")

@@ -1,7 +1,7 @@
 """Hostile inputs for the fault test and the fault benchmark (issue 16): seeded mutations of
 real files, and a runner that feeds them to the real CLI in a child process and judges the end.
 
-Four kinds of input, each a mutation of a valid file the tool writes itself:
+Six kinds of input, each a mutation of a valid file the tool writes itself:
 
 - ``csv``: a CSV capture (bit flips, truncation, hostile cells, units and metadata, huge headers);
 - ``mdf4``: an MDF4 capture (bit flips, truncation, block links patched to point at their own
@@ -10,7 +10,9 @@ Four kinds of input, each a mutation of a valid file the tool writes itself:
 - ``block``: a parameter block (bit flips, fields patched to NaN, infinities, 3e38, 0, with the
   CRC made right again so that only a physical-sanity check can refuse it);
 - ``fitjson``: a fit result (values of the wrong type or out of bounds, deep nesting, huge
-  numbers, truncation).
+  numbers, truncation);
+- ``block2`` and ``fitjson2``: the same for a layout-2 block (contract revision 1.2, its
+  mechanical fields patched too) and a fit result carrying a ``mech`` object.
 
 A run is judged on what a station cares about: the exit code is 0, 1 or 2 (no signal, no
 other code), no ``Traceback`` on stderr, the command ended within its time bound, its memory

@@ -56,21 +56,24 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
-            root: Path = ROOT) -> tuple[int | None, str, str, float, int]:
-    """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit.
+            root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None) -> tuple[int | None, str, str, float, int]:
+    """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit,
+    with ``stdin`` as its input and ``env`` added to (the station's ``EOL_CAL_*`` variables removed from)
+    this process's environment.
 
     Returns (exit code or None when it was killed for running past ``timeout_s``; a negative
     code is the signal that ended it), stdout, stderr, seconds, peak resident memory (KiB).
     """
-    child_env = dict(os.environ)
+    child_env = {k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_") or k == "EOL_CAL_JAX_CACHE"}
     child_env["PYTHONPATH"] = str(root)
     child_env.setdefault("EOL_CAL_JAX_CACHE", "off")
+    child_env.update(env or {})
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, env=child_env, preexec_fn=_limit_memory(memory_bytes),
-                            start_new_session=True)
+    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
+                            preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
-        out, err = proc.communicate(timeout=timeout_s)
+        out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
         rc: int | None = proc.returncode
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, 9)
@@ -89,7 +92,7 @@ def _digest(path: Path) -> str:
 def _commands(kind: str, name: str) -> list[list[str]]:
     if kind in ("csv", "mdf4"):
         return [["analyze", "--json", name]]
-    if kind == "block":
+    if kind in ("block", "block2"):
         return [["block", "check", name], ["block", "show", "--json", name]]
     return [["table", name, "-o", name + ".out.bin"]]
 
@@ -97,7 +100,8 @@ def _commands(kind: str, name: str) -> list[list[str]]:
 def judge(case: Case, command: list[str], rc: int | None, stdout: str, stderr: str, seconds: float,
           rss_kb: int, modified: bool) -> Outcome:
     """An :class:`Outcome` from how one command ended."""
-    crash = rc is not None and rc not in (0, 1, 2)
+    # a MemoryError under RLIMIT_AS is a decoder that believed a size, not a clean refusal
+    crash = rc is not None and (rc not in (0, 1, 2) or "MemoryError" in stderr)
     accepted = rc == 0
     return Outcome(case=case, command=" ".join(command), rc=rc, seconds=seconds, stderr=stderr[-2000:],
                    traceback="Traceback" in stderr, hang=rc is None, crash=crash, modified=modified,
@@ -134,7 +138,7 @@ def run_batch(batch: list[Case], workdir: Path, timeout_s: float = 60.0,
         refused = {e["file"].split("#")[0] for e in doc["errors"]}
     except (ValueError, KeyError, TypeError):
         doc = None
-    if doc is None or rc not in (0, 2) or "Traceback" in err:
+    if doc is None or rc not in (0, 2) or "Traceback" in err or "MemoryError" in out + err:
         return [o for case in batch for o in run_case(case, workdir, timeout_s / len(batch), memory_bytes, root)]
     outcomes = []
     for case in batch:
@@ -147,20 +151,26 @@ def run_batch(batch: list[Case], workdir: Path, timeout_s: float = 60.0,
 
 
 @dataclass
-class Tally:
-    """Counts over a campaign (the figures ``bench/bench_faults.py`` prints)."""
+class Counts:
+    """What every fault count has: tried, the must-be-zero counts, the slowest run, the bad outcomes."""
 
     tried: int = 0
-    accepted: int = 0
-    refused_cleanly: int = 0
-    unnamed: int = 0
     tracebacks: int = 0
     hangs: int = 0
     crashes: int = 0
     modified: int = 0
     max_seconds: float = 0.0
+    bad: list = field(default_factory=list)
+
+
+@dataclass
+class Tally(Counts):
+    """Counts over a campaign (the figures ``bench/bench_faults.py`` prints)."""
+
+    accepted: int = 0
+    refused_cleanly: int = 0
+    unnamed: int = 0
     max_rss_kb: int = 0
-    bad: list[Outcome] = field(default_factory=list)
 
     def add(self, outcomes: list[Outcome]) -> None:
         """Count one input (all its commands)."""

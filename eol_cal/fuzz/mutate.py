@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -10,7 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-KINDS = ("csv", "mdf4", "block", "fitjson")
+#: ``block2`` and ``fitjson2``: a layout-2 block and a fit result with its ``mech`` object (contract
+#: revision 1.2), mutated the same ways plus their mechanical fields
+KINDS = ("csv", "mdf4", "block", "fitjson", "block2", "fitjson2")
 
 #: bound on every child's address space (bytes): a decoder that believes a hostile size dies of it
 CHILD_MEMORY_BYTES = 2 * 1024**3
@@ -58,9 +62,43 @@ def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
             write_capture(capture, path)
             out[kind] = path.read_bytes()
     out["block"] = example_block(serial="F-0001")
+    out["block2"] = layout2_block(out["block"])
     fit_result = fit_result or Path(__file__).resolve().parents[2] / "fixtures" / "fit_paper.json"
     out["fitjson"] = fit_result.read_bytes()
+    out["fitjson2"] = fit_result_with_mech(out["fitjson"])
     return out
+
+
+def layout2_block(base: bytes) -> bytes:
+    """``base`` as a layout-2 block with a measured fingerprint and mechanical orders."""
+    from eol_cal.firmware import block as B
+    from eol_cal.firmware.mech_params import make_mech_tables, unused_mech
+
+    blk = B.unpack(base)
+    c, ph, zeros = (0.004, 0.001, 0.0005), (0.3, -1.0, 2.0), (0.0, 0.0, 0.0)
+    tc, tp = make_mech_tables(c, ph, zeros, zeros, blk.kt)
+    j = np.arange(2 * blk.encoder_ppr)
+    mech = unused_mech(blk.encoder_ppr).replace(
+        fp_dirs=3, grid_phase=0.7, mech_c=c, mech_phase_c=ph, mech_table_const=tc, mech_table_per_amp=tp,
+        fingerprint=(0.01 * np.sin(2 * np.pi * j / j.size)).astype(np.float32))
+    return B.pack(dataclasses.replace(blk, mech=mech, layout_version=None,
+                                      flags=blk.flags | B.FLAG_MECH_COMP_ENABLE))
+
+
+def fit_result_with_mech(base: bytes) -> bytes:
+    """``base`` (a fit result) with a ``mech`` object of status ok on every motor."""
+    doc = json.loads(base)
+    for m in doc["motors"]:
+        n = 2 * int(m["encoder_ppr"])
+        m["mech"] = {
+            "status": "ok", "reasons": [], "dirs": 3, "grid_phase": 0.7,
+            "margin": {"predicted": 0.6, "score": 0.9, "threshold": 0.25, "ref_rpm": 60.0},
+            "orders": [{"order": h, "c": {"value": c, "ci95": 1e-4}, "phase_c": {"value": p, "ci95": 0.05}}
+                       for h, c, p in ((1, 0.004, 0.3), (2, 0.001, -1.0), (3, 0.0005, 2.0))],
+            "windows": [0], "fingerprint": [round(0.01 * math.sin(2 * math.pi * i / n), 6) for i in range(n)],
+            "sigma": [1e-3] * n,
+        }
+    return json.dumps(doc).encode()
 
 
 # --------------------------------------------------------------------------------------------
@@ -255,34 +293,45 @@ def mutate_mdf4(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
 # parameter blocks
 
 
+#: layout 2's float fields (contract revision 1.2)
+_MECH_F32 = ("grid_phase", "id_min_score", "id_margin", "id_frac_tol", "mech_c", "mech_phase_c", "mech_k",
+             "mech_phase_k", "mech_table_const", "mech_table_per_amp", "fingerprint")
+
+
 def mutate_block(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
     """One hostile parameter block; most keep a right CRC so that only a sanity check refuses them."""
     from eol_cal.firmware import block as B
+    from eol_cal.firmware.block_layout import FIELDS_BY_VERSION
 
     op = int(rng.integers(0, 5))
     if op == 0:
         return _bitflip(rng, base)
     if op == 1:
         return _truncate(rng, base)
-    n = B.unpack(base).table_len
+    head = B.unpack(base)
+    n, v = head.table_len, head.layout_version
     buf = bytearray(base)
     if op == 2:  # a float field
-        name = str(rng.choice(["tick_hz", "kt", "c6", "phase_c6", "k6", "phase_k6", "lead_s", "iqc_limit",
-                               "hall_angle", "table_const", "table_per_amp"]))
+        floats = ["tick_hz", "kt", "c6", "phase_c6", "k6", "phase_k6", "lead_s", "iqc_limit", "hall_angle",
+                  "table_const", "table_per_amp"]
+        name = str(rng.choice(floats + (list(_MECH_F32) if v == 2 else [])))
         value = float(rng.choice(_HOSTILE_F32))
-        count = B.field_count(name, n)
-        at = B.field_offset(name, n) + 4 * int(rng.integers(0, count))
+        count = B.field_count(name, n, v)
+        at = B.field_offset(name, n, v) + 4 * int(rng.integers(0, count))
         with np.errstate(over="ignore"):
             struct.pack_into("<f", buf, at, np.float32(value))
         how = f"{name} = {value}"
     elif op == 3:  # an integer field
-        name = str(rng.choice(["poles", "encoder_ppr", "table_len", "block_bytes", "flags", "sequence"]))
-        size = {"u16": 2, "u32": 4}[B.FIELDS[name]["type"]]
-        value = int(rng.choice([0, 1, 3, 8, 7, 0xFFFF, 2**31]))
-        buf[B.field_offset(name, n):B.field_offset(name, n) + size] = (value & (256**size - 1)).to_bytes(size, "little")
+        ints = ["poles", "encoder_ppr", "table_len", "block_bytes", "flags", "sequence"]
+        name = str(rng.choice(ints + (["layout_version", "mech_table_len", "fp_len", "fp_dirs", "reserved2"]
+                                      if v == 2 else [])))
+        size = {"u16": 2, "u32": 4}[FIELDS_BY_VERSION[v][name]["type"]]
+        value = int(rng.choice([0, 1, 2, 3, 8, 7, 0xFFFF, 2**31]))
+        at = B.field_offset(name, n, v)
+        buf[at:at + size] = (value & (256**size - 1)).to_bytes(size, "little")
         how = f"{name} = {value}"
     else:
-        return _bitflip(rng, base, 0, B.field_offset("crc32", n))
+        return _bitflip(rng, base, 0, B.field_offset("crc32", n, v))
     try:
         return B.with_crc(bytes(buf)), how + " (CRC made right)"
     except Exception:  # noqa: BLE001 - a table_len the CRC cannot be placed for: keep the bytes as they are
@@ -346,8 +395,9 @@ def mutate_fitjson(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
 
 MUTATORS: dict[str, Callable[[np.random.Generator, bytes], tuple[bytes, str]]] = {
     "csv": mutate_csv, "mdf4": mutate_mdf4, "block": mutate_block, "fitjson": mutate_fitjson,
+    "block2": mutate_block, "fitjson2": mutate_fitjson,
 }
-SUFFIX = {"csv": ".csv", "mdf4": ".mf4", "block": ".bin", "fitjson": ".json"}
+SUFFIX = {"csv": ".csv", "mdf4": ".mf4", "block": ".bin", "fitjson": ".json", "block2": ".bin", "fitjson2": ".json"}
 
 
 def cases(seed: int, per_kind: int, bases: dict[str, bytes], kinds: tuple[str, ...] = KINDS) -> list[Case]:

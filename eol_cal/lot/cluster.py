@@ -76,7 +76,7 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     one kernel (:func:`eol_cal.xla.configure_xla`, when JAX has not started yet), JAX's
     persistent compile cache switched on in
     ``cache_dir`` (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`; ``None``: off), the
-    fit's modules imported, and the objects they made frozen out of the cyclic garbage
+    fit's modules imported, one BLAS thread (:func:`eol_cal.blas.limit_blas_threads`), and the objects they made frozen out of the cyclic garbage
     collector (``gc.freeze``: JAX and the libraries of a fit are ~200 000 objects that a full
     collection would otherwise walk every time; none of them is garbage).
 
@@ -85,6 +85,7 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     ``bench/bench_refit.py``.
     """
     from eol_cal.analysis.fit.cache import enable_compile_cache
+    from eol_cal.blas import limit_blas_threads
     from eol_cal.xla import configure_xla
 
     # before JAX starts in this process: the firmware estimator's tick loop (the firmware frame of
@@ -92,6 +93,7 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     # (docs/benchmarks.md, "Lot refit throughput")
     configure_xla()
     enable_compile_cache(cache_dir)
+    limit_blas_threads()
     # imported here on purpose: loading them is the work this function does ahead of the tasks
     import jax  # noqa: F401
 

@@ -16,7 +16,6 @@ text order is their time order; numpy parses those in one call. A lot holding ot
 from __future__ import annotations
 
 import datetime as dt
-import json
 import math
 from dataclasses import dataclass
 from itertools import repeat
@@ -28,6 +27,7 @@ import numpy as np
 
 from eol_cal.display import display_unit
 from eol_cal.errors import InputError
+from eol_cal.inputs import loads_json
 from eol_cal.station.limits import limit_on
 from eol_cal.station.record import MEASURED_KIND, NO_STATION, RunRecord
 
@@ -153,8 +153,8 @@ def _causes(verdict: np.ndarray, run_id: np.ndarray, causes: np.ndarray) -> list
     out: list[list[str]] = []
     for i in np.flatnonzero(verdict != "pass"):
         try:
-            doc = json.loads(causes[i]) if causes[i] else []
-        except ValueError:
+            doc = loads_json(causes[i], None) if causes[i] else []
+        except InputError:
             doc = None
         if not isinstance(doc, list) or not all(isinstance(c, str) for c in doc):
             raise InputError(None, f"run {run_id[i]} causes", "not a JSON list of strings")
@@ -194,8 +194,8 @@ def _limits(texts: Iterable[str | None]) -> tuple[dict[str, np.ndarray], dict[st
     variants: list[str] = []
     for text in dict.fromkeys(texts):
         try:
-            doc = json.loads(text) if text else None
-        except ValueError:
+            doc = loads_json(text, None) if text else None
+        except InputError:
             doc = None
         if isinstance(doc, dict):
             table = np.vstack([table, [_number(doc.get(key)) for key in keys]])

@@ -23,6 +23,7 @@ from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circula
 from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
 from eol_cal.figures import pyplot
+from eol_cal.render import file_link, plain
 from eol_cal.station.limits import limit_on
 from eol_cal.station.record import MEASURED_KIND
 
@@ -134,7 +135,7 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
     fig.autofmt_xdate()
     n = len(recs)
     counts = {v: verdicts.count(v) for v in ("pass", "fail", "error")}
-    fig.suptitle(f"{title}: {n} runs, {counts['pass']} pass, {counts['fail']} fail, {counts['error']} error", fontsize=10)
+    fig.suptitle(f"{plain(title)}: {n} runs, {counts['pass']} pass, {counts['fail']} fail, {counts['error']} error", fontsize=10)
     fig.tight_layout()
     if dense:
         return fig, {}
@@ -177,7 +178,7 @@ def histogram_figure(lot: Lot, notes: dict[str, str] | None = None) -> MplFigure
         if q.limit_key and ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=6, loc="upper right")
         note = (notes or {}).get(q.key)
-        ax.set_title(f"{q.title}: n = {len(x)}" + (f"\n{note}" if note else ""), fontsize=8)
+        ax.set_title(f"{q.title}: n = {len(x)}" + (f"\n{plain(note)}" if note else ""), fontsize=8)
         if not circular:
             ax.set_xlabel(q.unit, fontsize=7)
         ax.tick_params(labelsize=7)
@@ -275,7 +276,7 @@ def control_figure(records: Sequence[RunRecord], station: str,
                         ax.axhline(v, color="tab:red" if name != "center" and name != "mr_center" else "0.3",
                                    ls="--" if "cl" in name and "center" not in name else "-", lw=1.0,
                                    gid=f"cl-{key}-{name}")
-        ax_i.set_title(f"{station}: {title} ({unit}), individuals", fontsize=8)
+        ax_i.set_title(f"{plain(station)}: {title} ({unit}), individuals", fontsize=8)
         ax_m.set_title("moving range", fontsize=8)
         for ax in (ax_i, ax_m):
             ax.grid(alpha=0.3)
@@ -289,7 +290,7 @@ def pareto_figure(causes: Sequence[tuple[str, int, float]]) -> MplFigure:
     """Failure causes as bars, most frequent first, with the cumulative share as a line."""
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 0.9 + 0.32 * max(1, len(causes))))
-    names = [c for c, _n, _s in causes][::-1]
+    names = [plain(c) for c, _n, _s in causes][::-1]
     counts = [n for _c, n, _s in causes][::-1]
     ax.barh(names, counts, color=["tab:red" if c.startswith("error") else "tab:orange" for c in names], gid="pareto-bars")
     ax.set_xlabel("runs", fontsize=8)
@@ -315,8 +316,6 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
         ``margin``, ``unit``, ``reasons``, ``link`` (the run's report relative to ``page_dir``
         when that file exists, else None).
     """
-    import os
-
     from eol_cal.report.motor import limit_rows
     from eol_cal.station.records_query import latest_per_serial
 
@@ -327,10 +326,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
         for row in limit_rows(r):
             if math.isfinite(row.margin) and row.limit != 0 and row.margin / abs(row.limit) < rel:
                 worst, rel = row, row.margin / abs(row.limit)
-        page = Path(r.report_dir or "") / "report.html"
-        link = None
-        if r.report_dir and page.is_file():
-            link = Path(os.path.relpath(page.resolve(), Path(page_dir).resolve())).as_posix()
+        link = file_link(Path(str(r.report_dir)) / "report.html", page_dir) if r.report_dir else None
         rows.append({"serial": r.serial, "verdict": r.verdict, "started_at": r.started_at,
                      "station": r.station_label, "key": worst.key if worst else None,
                      "value": worst.value if worst else math.nan, "limit": worst.limit if worst else math.nan,

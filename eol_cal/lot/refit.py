@@ -66,13 +66,12 @@ def find_captures(patterns: Sequence[str], kind: str | Sequence[str] | None = "p
 
 def _run_kind(run_dir: Path) -> str | None:
     """The kind of a station run directory's record (None: no readable record there)."""
-    import json
-
+    from eol_cal.inputs import load_json
     from eol_cal.station.record import record_kind
 
-    try:
-        return record_kind(json.loads((run_dir / "report.json").read_text(encoding="utf-8")))
-    except (OSError, ValueError):
+    try:  # the bounded loader: a FIFO or a record nested 100 000 deep is no readable record
+        return record_kind(load_json(run_dir / "report.json", max_bytes=64 << 20))
+    except (InputError, ValueError):
         return None
 
 
@@ -293,17 +292,26 @@ def write_rows(path: str | Path, rows: Iterable[dict[str, Any]]) -> Path:
 
 def read_rows(path: str | Path) -> list[dict[str, Any]]:
     """Rows written by :func:`write_rows`."""
-    import json
+    from eol_cal.inputs import check_regular, loads_json, read_text
 
     path = Path(path)
-    try:
-        if path.suffix == ".parquet":
-            import pyarrow.parquet as pq
+    file = str(path)
+    if path.suffix == ".parquet":
+        import pyarrow.parquet as pq
 
-            return pq.read_table(path).to_pylist()
-        return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
-    except (OSError, ValueError) as exc:
-        raise InputError(str(path), None, f"cannot read the refit results: {exc}") from None
+        check_regular(path)
+        try:
+            rows = pq.read_table(path).to_pylist()
+        except (OSError, ValueError) as exc:
+            raise InputError(file, None, f"cannot read the refit results: {exc}") from None
+    else:
+        lines = read_text(path).splitlines()
+        rows = [loads_json(line, file, f"line {k}") for k, line in enumerate(lines, start=1) if line.strip()]
+    for k, row in enumerate(rows, start=1):
+        if not isinstance(row, dict) or not isinstance(row.get("serial"), (str, type(None))):
+            raise InputError(file, f"row {k}", "not a refit result row (an object with a serial, null for a "
+                                               "capture that could not be read)")
+    return rows
 
 
 def _json_safe(r: dict[str, Any]) -> dict[str, Any]:

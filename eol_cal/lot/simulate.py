@@ -33,6 +33,7 @@ from collections.abc import Callable, Sequence
 
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import loads_json
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
@@ -344,8 +345,6 @@ class LotOutcome:
 def recorded_runs(db: str | Path, plan: LotPlan) -> set[str]:
     """The run ids of the lot's motors the database holds already; refuses a lot of the same name
     made otherwise (another spread, limits, seed, profile or batch size)."""
-    import json
-
     from eol_cal.station.records import is_url, runs
     from eol_cal.station.records_query import read_rows, select_runs
 
@@ -356,7 +355,8 @@ def recorded_runs(db: str | Path, plan: LotPlan) -> set[str]:
     want = plan.fingerprint()
     for row in rows[:1]:
         # a record's station keeps what the station recorded beside its own keys (StationInfo.extra)
-        got = (json.loads(row["record_json"]).get("station") or {}).get("simulated") or {}
+        doc = loads_json(str(row["record_json"]), str(db), f"run {row.get('run_id')} record_json")
+        got = ((doc.get("station") if isinstance(doc, dict) else None) or {}).get("simulated") or {}
         made = {k: got.get(k) for k in want}
         if made != want:
             diff = ", ".join(f"{k} {made[k]!r} (now {want[k]!r})" for k in want if made[k] != want[k])

@@ -8,6 +8,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.atomic import atomic_path
+from eol_cal.render import literal_texts, plain, pyplot
 
 
 def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None:
@@ -21,10 +22,7 @@ def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None
     path : path
         PNG file, written atomically.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     n = len(results)
     fig, axes = plt.subplots(4, n, figsize=(5.5 * n, 10), sharex="col", squeeze=False)
@@ -50,9 +48,10 @@ def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None
         ax[3].set_ylabel("torque (N*m)")
         ax[3].set_xlabel("time (s)")
         mode = c.truth.get("mode", "")
-        ax[0].set_title(f"{c.metadata.get('serial', '')}  mode {mode}  "
+        ax[0].set_title(f"{plain(c.metadata.get('serial', ''))}  mode {plain(mode)}  "
                         f"{np.mean(c['speed']):.0f} rpm, i_qo {np.mean(c['iq_ref']):.0f} A", fontsize=9)
     fig.tight_layout()
+    literal_texts(fig)
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90, format="png")

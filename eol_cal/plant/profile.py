@@ -19,7 +19,6 @@ Built-in profiles live in ``eol_cal/profiles/NAME.toml``. Any problem is refused
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -27,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.errors import InputError
-from eol_cal.inputs import read_text
+from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
 
 MAX_RPM = 6000.0
 MAX_IQ_A = 300.0
@@ -138,10 +137,7 @@ def _segment(data: dict, file: str, where: str) -> ProfileSegment:
 
 def parse_profile(text: str, file: str) -> Profile:
     """Profile from TOML text; ``file`` names the source in error messages."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(file, None, f"not valid TOML: {exc}") from None
+    data = loads_toml(text, file)
     for key in data:
         if key not in _TOP_KEYS:
             raise InputError(file, key, f"unknown key; known: {', '.join(sorted(_TOP_KEYS))}")
@@ -178,4 +174,4 @@ def load_profile(name_or_file: str | Path) -> Profile:
     if not path.exists():
         raise InputError(text_name, None, f"no such profile file, and not a built-in profile "
                          f"({', '.join(builtin_profiles())})")
-    return parse_profile(read_text(path), text_name)
+    return parse_profile(read_text(path, max_bytes=MAX_TOML_BYTES), text_name)

@@ -19,6 +19,7 @@ import numpy as np
 
 from eol_cal.display import display_unit
 from eol_cal.figures import pyplot
+from eol_cal.render import plain
 from eol_cal.report.svg import figure_svg
 from eol_cal.station.record import NO_STATION
 from eol_cal.wrap import wrap_2pi
@@ -239,7 +240,7 @@ def angle_figure(rec: RunRecord, point_ripple: PointRipples, fit_extra: FitExtra
         ax.legend(fontsize=6, loc="upper right")
     axes[0].set_ylabel("torque - mean (N*m)", fontsize=8)
     where = f"{op.get('speed_rpm', float('nan')):.0f} rpm, i_qo {op.get('i_qo_a', float('nan')):.0f} A" if op else ""
-    fig.suptitle(f"{rec.serial}: torque at the operating point ({where}), mean and mechanical order 1 removed",
+    fig.suptitle(f"{plain(rec.serial)}: torque at the operating point ({where}), mean and mechanical order 1 removed",
                  fontsize=9)
     fig.tight_layout()
     return Figure("angle", "Torque against electrical angle at the operating point, before and with the "

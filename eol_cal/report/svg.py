@@ -14,6 +14,7 @@ from collections.abc import Iterator, Sequence
 from xml.sax.saxutils import escape
 
 from eol_cal.figures import pyplot
+from eol_cal.render import literal_texts
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -48,6 +49,7 @@ def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | Non
     import matplotlib
 
     buf = io.StringIO()
+    literal_texts(fig)
     try:
         with matplotlib.rc_context(RC):
             # dpi: resolution of the rasterized parts (dense point clouds drawn as one embedded PNG

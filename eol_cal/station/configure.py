@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 from eol_cal.errors import InputError
 from eol_cal.station.run import StationConfig
-from eol_cal.station.settings import StationSettings, load_named, master_of, register_map_of
+from eol_cal.station.settings import StationSettings, load_named, master_of, register_map_of, seed_to_key_of
 
 def station_record(settings: StationSettings, operator: str | None) -> dict[str, Any]:
     """The run record's ``station`` entries that the settings give (id, operator, addresses).
@@ -41,7 +41,8 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     cache_dir : Path or None
         The fit's cache directory (:attr:`StationConfig.cache_dir`).
     seed_to_key : callable, optional
-        Security algorithm; default the contract's HMAC with the settings' ``key_file``.
+        Security algorithm; default the settings' ``key_algo`` (with ``key_file``'s secret), else
+        the contract's HMAC with ``key_file``.
 
     Raises
     ------
@@ -49,7 +50,6 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
         A key whose file or value cannot be used; names the settings file (or variable) and the key.
     """
     from eol_cal.dyno.client import DynoConfig
-    from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
     from eol_cal.ecu.transport import open_bus
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.motor import load_motor
@@ -62,10 +62,10 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     motor_name = str(settings["motor"])
     motor = load_named(settings, "motor", lambda: load_motor("paper", None if motor_name == "paper" else motor_name))
     mechanics = load_named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
-    if seed_to_key is None:
-        if settings["key_file"] is None:
-            raise InputError(settings.source, "key_file", "required: the flash step needs the ECU's secret")
-        seed_to_key = hmac_seed_to_key(load_named(settings, "key_file", lambda: load_key_file(str(settings["key_file"]))))
+    if seed_to_key is None:  # the settings' algorithm, tried on a made-up seed before the dyno moves
+        if settings["key_file"] is None and settings["key_algo"] is None:
+            raise InputError(settings.source, "key_file", "required: the flash step needs the ECU's secret (or key_algo)")
+        seed_to_key = seed_to_key_of(settings)
     db = str(settings["db"])
     can = (settings["can.interface"], settings["can.channel"], settings["can.bitrate"], settings["can.config"])
     return StationConfig(

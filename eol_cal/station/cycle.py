@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as _dt
+import sys
 import time
 import traceback
 import uuid
@@ -25,7 +26,7 @@ from collections.abc import Callable
 
 from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_ripple, verify_segments
 from eol_cal.errors import EolCalError, InputError
-from eol_cal.interrupts import shielded
+from eol_cal.interrupts import emergency, raise_if_received, shielded
 from eol_cal.station.limits import LimitCheck, Measured, all_checks, failed, judge
 from eol_cal.station.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, PointFigures, PreflightResult,
                                     RippleMetrics, RunRecord, StationInfo, Step)
@@ -36,8 +37,11 @@ if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
     from eol_cal.firmware.block import ParamBlock
+    from eol_cal.station.early import EarlyWindows
     from eol_cal.station.spool import SaveResult
 
+#: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
+SWITCH_INTERVAL_S = 0.0005
 #: the archive files of a run's directory, by the block's role
 ARCHIVE_NAMES = {"prepare": "block_uncompensated.bin", "calibrated": "block.bin"}
 RIPPLE_DEFINITION = ("filtered p-p % (docs/metrics.md), median over the steady windows of the operating point's "
@@ -117,7 +121,9 @@ class StationCycle:
     # work on the helper thread
     _helper: ThreadPoolExecutor | None = None
     _prewarm: Future | None = None
-    _fit_plots: Future | None = None
+    _early: EarlyWindows | None = None
+    _verify: EarlyWindows | None = None
+    _writes: dict[str, Future] = field(default_factory=dict)  # capture files being written aside
     _pr_before: Future | None = None
 
     @classmethod
@@ -135,9 +141,10 @@ class StationCycle:
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
                     run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
                     segments=segments, station=station_info(cfg, profile.name), limits_sha256=sha)
-        # One helper thread: it imports JAX and matplotlib while the dyno spins the first time
-        # (started once the pre-flight passed), and draws the fit's plots while it spins the
-        # second time (the main thread mostly waits there).
+        # One helper thread: while the dyno spins the first time it imports JAX and matplotlib,
+        # traces the fit's solver and works on each window as it arrives; while it spins the second
+        # time it measures the calibration capture at the operating point (the main thread mostly
+        # waits on the dyno there).
         cycle._helper = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-run")
         return cycle
 
@@ -161,9 +168,6 @@ class StationCycle:
                                    self.cfg.ecu_timing or ClientTiming())
         if self.preflight.problems:
             raise PreflightFailed(self.preflight.problems)
-        from eol_cal.analysis.fit.prewarm import prewarm_fit
-
-        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir)
 
     def prepare_ecu(self) -> None:
         """Flash the uncompensated block, so the calibration capture sees the field estimator alone:
@@ -176,24 +180,35 @@ class StationCycle:
         self._flash(pack(blk), "prepare")
 
     def acquire(self) -> None:
-        """The calibration capture over the whole profile."""
-        self.before = self._acquire("before", self.segments)
+        """The calibration capture over the whole profile; each window's angle and p-p figure are
+        worked out on the helper thread as the dyno hands it over (:mod:`eol_cal.station.early`),
+        behind the fit's pre-warming (imports, the solver's trace), while the shaft turns on."""
+        from eol_cal.analysis.fit.prewarm import prewarm_fit
+        from eol_cal.station.early import EarlyWindows
+
+        self._helper.submit(_preload_writers)
+        # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
+        self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir, False)
+        self._early = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, self.cfg.estimator_options,
+                                   pool=self._helper, cache_dir=self.cfg.cache_dir, n_windows=len(self.segments))
+        self.before = self._acquire("before", self.segments, on_window=self._early.on_window, write_aside=True)
 
     def fit(self) -> StepVerdict | None:
-        """Fit the capture; a fit that is not usable or out of the fit's limits fails the motor here."""
+        """Fit the capture; a fit that is not usable or out of the fit's limits fails the motor here.
+
+        What is left when the capture is in: the hall table, the firmware frame (on threads) and
+        the joint solve (its solver traced during the capture)."""
         from eol_cal import __version__
         from eol_cal.analysis.result import write_result
-        from eol_cal.station.report import fit_plots
 
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(self.before, self.cfg.motor)
         self._prewarm.result()
         doc, res, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
-                                    self.cfg.cache_dir, self.cfg.estimator_options)
+                                    self.cfg.cache_dir, self.cfg.estimator_options, prepared=self._early)
         write_result(doc, self.run_dir / "fit.json")
         self.fit_doc, self.result, self.fit_extra = doc, res, extra
-        self._fit_plots = self._helper.submit(fit_plots, self.run_dir, extra)
         if not res.usable:
             return StepVerdict("fail", tuple(f"fit {res.status}: {r}" for r in res.reasons) or (f"fit {res.status}",))
         self.measured = Measured.of_fit(res)
@@ -209,31 +224,35 @@ class StationCycle:
                                             source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
     def flash(self) -> None:
-        """Write the calibrated block into the ECU's inactive bank (verified)."""
+        """Write the calibrated block into the ECU's inactive bank (verified), once the calibration
+        capture's file is on disk."""
         from eol_cal.firmware.block import pack
 
+        self._settle_writes()
         self._flash(pack(self.calibrated), "calibrated")
 
     def acquire_compensated(self) -> None:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
         op = self.result.operating_point
         segs = self.segments if self.cfg.verify == "full" else verify_segments(self.segments, op.speed_rpm, op.i_qo_a)
-        # the before-capture's figures are computed meanwhile on the helper thread
+        # the before-capture's figures are computed meanwhile on the helper thread, and each
+        # verification window's as it arrives
+        from eol_cal.station.early import EarlyWindows
+
         mi = self.fit_extra[0]
         k = nearest_segment(mi.captures, op.speed_rpm, op.i_qo_a)
         self._pr_before = self._helper.submit(point_ripple, mi.captures[k], mi.angles[k])
-        self.after = self._acquire("after", segs)
+        self._verify = EarlyWindows(self.cfg.motor.poles, self.cfg.motor.N_enc, pool=self._helper, measure=point_ripple)
+        self.after = self._acquire("after", segs, on_window=self._verify.on_window)
 
     def judge(self) -> StepVerdict:
         """Ripple before and after at the operating point, judged against the ripple's limits."""
-        from eol_cal.analysis.angle import capture_angle
         from eol_cal.capture.windows import split_windows
 
         op = self.result.operating_point
         before = self._pr_before.result()
         pieces = split_windows(self.after)
-        after_cap = pieces[nearest_segment(pieces, op.speed_rpm, op.i_qo_a)]
-        after = point_ripple(after_cap, capture_angle(after_cap))
+        after = self._verify.measured(pieces[nearest_segment(pieces, op.speed_rpm, op.i_qo_a)])
         self.point_ripples = (before, after)
         self.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
                                      RIPPLE_DEFINITION)
@@ -249,12 +268,35 @@ class StationCycle:
         return StepVerdict("fail" if reasons else "pass", tuple(reasons))
 
     def report(self) -> Path:
-        """The per-motor HTML report (the fit's plots come from the helper thread)."""
-        from eol_cal.station.report import write_report
+        """The per-motor HTML report with the fit's plots (drawn now: after the verdict is shown)."""
+        from eol_cal.station.report import fit_plots, write_report
 
-        figures = self._fit_plots.result() if self._fit_plots is not None else []
+        figures = fit_plots(self.run_dir, self.fit_extra) if self.fit_extra is not None else []
         return write_report(self.to_record(), self.run_dir, figures=figures, fit_extra=self.fit_extra,
                             point_ripple=self.point_ripples)
+
+    def _journal(self, rec: RunRecord) -> Path | None:
+        """The record at the verdict, into the spool before anyone sees the verdict; None when the
+        spool cannot be written (the database is tried all the same after the report)."""
+        from eol_cal.station.spool import default_spool_dir, spool_record
+
+        try:
+            return spool_record(rec, self.cfg.db, self.cfg.spool_dir or default_spool_dir(),
+                                "written at the verdict, before the report; the run's process ended before "
+                                "it wrote the record into the database")
+        except OSError:
+            return None
+
+    def _spool_now(self, rec: RunRecord) -> None:
+        """The emergency path of :meth:`record` (the watchdog's thread): straight into the spool."""
+        from eol_cal.station.spool import default_spool_dir, spool_record
+
+        spool_record(rec, self.cfg.db, self.cfg.spool_dir or default_spool_dir(), "the process was ended by a signal "
+                     "while it wrote the database")
+
+    def _dyno_safe_now(self) -> None:
+        """The emergency path of the cycle (the watchdog's thread): the dyno's safe state, once."""
+        safe_state(self.cfg.dyno)
 
     def record(self, rec: RunRecord) -> SaveResult:
         """Save the record: database, or the spool when the database cannot take it."""
@@ -266,8 +308,25 @@ class StationCycle:
         return saved
 
     # ------------------------------------------------------------------ the cycle
-    def run(self) -> RunOutcome:
-        """Every step in order; the record is written whether the motor passed, failed or the cycle erred."""
+    def run(self, on_verdict: Callable[[RunRecord], None] | None = None) -> RunOutcome:
+        """Every step in order; the record is written whether the motor passed, failed or the cycle erred.
+
+        The verdict comes first: as soon as it is known the record goes into the spool (durable:
+        a station killed from then on loses nothing, the next start writes it into the database),
+        ``on_verdict(record)`` shows it, and only then are the report drawn and the record written
+        into the database (and its spool file removed).
+        """
+        previous = sys.getswitchinterval()
+        # The main thread waits on the dyno and the ECU (a status poll, a chunk of the buffer, a
+        # frame) while the helper thread computes (imports, the windows, the frame): with
+        # Python's default 5 ms turns each of those answers waited for the interpreter that long.
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+        try:
+            return self._run(on_verdict)
+        finally:
+            sys.setswitchinterval(previous)
+
+    def _run(self, on_verdict: Callable[[RunRecord], None] | None) -> RunOutcome:
         from eol_cal.station.report import write_record_json
 
         failure: BaseException | None = None
@@ -276,6 +335,9 @@ class StationCycle:
             for name, method in (*gate, ("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
                                  ("acquire", self.acquire), ("fit", self.fit), ("table", self.table), ("flash", self.flash),
                                  ("acquire compensated", self.acquire_compensated), ("metrics", self.judge)):
+                # a signal whose exception a finalizer swallowed (JAX's gc callback, during the
+                # fit) stops the cycle here: nothing is flashed after it (eol_cal.interrupts)
+                raise_if_received(name)
                 found = self._step(name, method)
                 if found is not None:
                     self.verdict, self.reasons = found.verdict, list(found.reasons)
@@ -285,9 +347,21 @@ class StationCycle:
             failure = exc
         # From here on a signal waits until the record is written (eol_cal.interrupts).
         with shielded():
+            try:
+                self._settle_writes()  # the cycle ended before the flash waited for them
+            except EolCalError as exc:
+                failure = failure or exc
             if failure is not None:
                 self._record_failure(failure)
             self.ecu_active = self._ecu_active(failure)
+            self.ended_at = now_iso()
+            verdict_rec = self.to_record()
+            journal = self._journal(verdict_rec)
+            if on_verdict is not None:
+                try:
+                    on_verdict(verdict_rec)
+                except Exception:  # noqa: BLE001 - a display that fails must not cost the record
+                    pass
             try:
                 self.report_html = self._step("report", self.report)
             except Exception as exc:  # noqa: BLE001 - the record must still be written
@@ -303,7 +377,12 @@ class StationCycle:
                 write_record_json(rec, self.run_dir)
             except Exception as exc:  # noqa: BLE001 - the database still gets it
                 rec = dataclasses.replace(rec, report_error=f"report.json: {type(exc).__name__}: {exc}")
-            saved = self.record(rec)
+            # a main thread stuck in the database write (a share that hangs) still leaves the
+            # record in the spool when the watchdog ends the process
+            with emergency(lambda: self._spool_now(rec)):
+                saved = self.record(rec)
+            if journal is not None and saved.where == "db":
+                journal.unlink(missing_ok=True)
         if failure is not None and not isinstance(failure, Exception):  # Ctrl-C: recorded; now end the process
             raise failure
         return RunOutcome(rec, saved, self.report_html, EXIT[rec.verdict])
@@ -350,24 +429,50 @@ class StationCycle:
         self._progress(name, "done")
         return out
 
-    def _acquire(self, which: str, segs: list) -> Capture:
+    def _acquire(self, which: str, segs: list, on_window: Callable | None = None, write_aside: bool = False) -> Capture:
         """One acquisition with the ECU's state before and after (in the capture and the record);
-        the ECU must have run the block this cycle flashed, unchanged, all along."""
+        the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
+        the dyno client's hook for each window as it is read. ``write_aside``: the capture file is
+        written on a thread of its own, beside the fit; :meth:`_settle_writes` waits for it (the
+        flash does, before anything is written to the ECU)."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.preflight import acquire_traced, expect_block, read_ecu_with
 
         path = self.run_dir / f"{which}.mf4"
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
-                                    self.cfg.dyno, segs, path, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
+                                    self.cfg.dyno, segs, None, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
-                                                               f"profile {self.profile_name}"})
-        self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), len(segs), trace.before,
-                                          trace.after)
+                                                               f"profile {self.profile_name}"}, on_window=on_window)
+        if write_aside:
+            writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
+            self._writes[which] = writer.submit(self._store, which, cap, trace, path, len(segs))
+            writer.shutdown(wait=False)
+        else:
+            self._store(which, cap, trace, path, len(segs))
+        # a capture whose ECU state is not the expected one is kept all the same (its file and record)
         expect_block(trace, which, self._last_block("prepare" if which == "before" else "calibrated"))
         if which == "before":
             check_trace(trace, str(path))  # the calibration capture: never under compensation
         return cap
+
+    def _store(self, which: str, cap: Capture, trace: Any, path: Path, n_segments: int) -> None:
+        """Write a capture file (atomically) and keep its reference for the record."""
+        from eol_cal.capture import write_capture
+
+        write_capture(cap, path)
+        self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), n_segments, trace.before,
+                                          trace.after)
+
+    def _settle_writes(self) -> None:
+        """Wait for the capture files written aside; a write that failed ends the cycle here."""
+        while self._writes:
+            which, job = self._writes.popitem()
+            try:
+                job.result()
+            except Exception as exc:
+                raise EolCalError(f"the {which} capture was not written to {self.run_dir / (which + '.mf4')}: "
+                                  f"{type(exc).__name__}: {exc}") from exc
 
     def _last_block(self, role: str) -> FlashedBlock | None:
         return next((b for b in reversed(self.blocks) if b.role == role), None)
@@ -430,12 +535,25 @@ class StationCycle:
         return active
 
 
-def run_motor(cfg: StationConfig, progress: ProgressFn | None = None) -> RunOutcome:
+def _preload_writers() -> None:
+    """Import what writes the captures (asammdf, pandas) and the record (the database library)
+    while the dyno turns, not when the capture is in or the verdict is known."""
+    import eol_cal.capture.mdf4_io  # noqa: F401
+    import eol_cal.station.spool  # noqa: F401
+
+
+def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
+              on_verdict: Callable[[RunRecord], None] | None = None) -> RunOutcome:
     """Run the whole cycle for one motor (:class:`StationCycle`); see :mod:`eol_cal.station.run`.
+
+    ``on_verdict(record)`` shows the verdict as soon as it is known and safe in the spool, before
+    the report and the database (:meth:`StationCycle.run`).
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """
-    return StationCycle.start(cfg, progress).run()
+    cycle = StationCycle.start(cfg, progress)
+    with emergency(cycle._dyno_safe_now):  # the watchdog's last resort if the main thread is stuck
+        return cycle.run(on_verdict)

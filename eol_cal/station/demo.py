@@ -5,6 +5,10 @@ tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...
 dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
 comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind
 free ports and are shut down when the motor is done.
+
+:func:`loopback_line` keeps one dyno simulator and one ECU server at fixed addresses for many
+motors, as a line's station does (the benchmark drives ``eol-cal station`` against it): each
+:meth:`LoopbackLine.load` puts the next motor on the dyno and a fresh ECU behind the same URL.
 """
 
 from __future__ import annotations
@@ -55,7 +59,8 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
                      spec_for: Callable[[CaptureRequest], PlantSpec] | None = None,
                      source: CaptureSource | None = None,
                      faults: tuple[FaultPlan, ...] = (),
-                     register_map: RegisterMap | None = None) -> Iterator[LoopbackStation]:
+                     register_map: RegisterMap | None = None,
+                     realtime: bool = False, bitrate: int | None = None) -> Iterator[LoopbackStation]:
     """Start the ECU and dyno simulators of one motor on 127.0.0.1; stop them on exit.
 
     Parameters
@@ -75,6 +80,10 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
         Dyno faults that fire by themselves.
     register_map : RegisterMap, optional
         The register layout the dyno simulator serves (default: the reference map).
+    realtime : bool
+        The dyno simulator in real time: a capture takes its physical time (:class:`~eol_cal.dyno.sim.DynoSim`).
+    bitrate : int or None
+        Pace the ECU simulator's bus to this CAN bit rate (bit/s); None: unpaced.
     """
     from eol_cal.dyno import sim as ds
     from eol_cal.exchange_log import quiet
@@ -91,10 +100,66 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     if source is None:
         spec = demo_motor_spec(seed, serial)
         source = plant_source(flash_file, spec_for or (lambda req: spec))
-    ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial))
+    ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial, bitrate=bitrate))
     try:
-        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults), register_map=register_map)
+        sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults), register_map=register_map,
+                         realtime=realtime)
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
             yield LoopbackStation(serial, f"127.0.0.1:{dyno.port}", ecu.url, flash_file, dyno, ecu)
+    finally:
+        ecu.close()
+
+
+@dataclass
+class LoopbackLine:
+    """One station's simulators at fixed addresses for many motors (:func:`loopback_line`)."""
+
+    dyno_address: str
+    can_channel: str
+    dyno: DynoSimThread
+    ecu: RemoteEcu
+    work_dir: Path
+    bitrate: int | None = None
+    serial: str | None = None
+
+    def load(self, serial: str, seed: int) -> Path:
+        """The next motor: drawn with ``seed`` on the dyno, a fresh (erased) ECU with ``serial``
+        behind the same URL. Returns the ECU's flash file. Call between motors only."""
+        from eol_cal.ecu.sim import SimConfig
+        from eol_cal.station.rig import plant_source
+
+        flash_file = self.work_dir / f"{serial}.flash"
+        flash_file.unlink(missing_ok=True)
+        self.ecu.replace(flash_file, SimConfig(serial=serial, bitrate=self.bitrate))
+        spec = demo_motor_spec(seed, serial)
+        sim = self.dyno.sim
+        sim.serial, sim.seed = serial, seed
+        sim.source = plant_source(flash_file, lambda req: spec)
+        sim.captures.clear()
+        self.serial = serial
+        return flash_file
+
+
+@contextlib.contextmanager
+def loopback_line(work_dir: str | Path, *, register_map: RegisterMap | None = None, realtime: bool = False,
+                  bitrate: int | None = None) -> Iterator[LoopbackLine]:
+    """A dyno simulator and an ECU server on 127.0.0.1 (free ports) that stay for many motors;
+    load each motor with :meth:`LoopbackLine.load` before its cycle. Arguments as
+    :func:`loopback_station`."""
+    from eol_cal.dyno import sim as ds
+    from eol_cal.ecu.remote import serve_remote
+    from eol_cal.ecu.sim import SimConfig
+    from eol_cal.exchange_log import quiet
+    from eol_cal.motor import load_motor
+
+    quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
+    work_dir = Path(work_dir)
+    work_dir.mkdir(parents=True, exist_ok=True)
+    ecu = serve_remote(work_dir / "idle.flash", host="127.0.0.1", port=0, config=SimConfig(bitrate=bitrate))
+    try:
+        sim = ds.DynoSim(ds.synthetic_source, serial="IDLE", motor=load_motor("paper"), register_map=register_map,
+                         realtime=realtime)
+        with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
+            yield LoopbackLine(f"127.0.0.1:{dyno.port}", ecu.url, dyno, ecu, work_dir, bitrate)
     finally:
         ecu.close()

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,7 +32,7 @@ from collections.abc import Mapping
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options
-from eol_cal.inputs import read_text
+from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
@@ -183,10 +182,7 @@ class VariantLimits:
 
 def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
     """All variants of a limits file's text; :class:`InputError` naming file, key and reason."""
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(file, None, f"not valid TOML: {exc}") from None
+    doc = loads_toml(text, file)
     unknown_top = set(doc) - {"variant", "default_variant"}
     if unknown_top:
         raise InputError(file, sorted(unknown_top)[0], "unknown key (expected [variant.NAME] tables and default_variant)")
@@ -240,10 +236,10 @@ def load_limits(path: str | Path, variant: str | None = None) -> VariantLimits:
         several and no default.
     """
     path = Path(path)
-    text = read_text(path)
+    text = read_text(path, max_bytes=MAX_TOML_BYTES)
     variants = parse_limits(text, str(path))
     if variant is None:
-        default = tomllib.loads(text).get("default_variant")
+        default = loads_toml(text, str(path)).get("default_variant")
         if default is None and len(variants) > 1:
             raise InputError(str(path), "variant", f"several variants ({', '.join(variants)}) and no default_variant: "
                              "choose one by name")

@@ -13,7 +13,7 @@ It checks, each within the existing timeouts (a dead dyno address ends within se
   nothing erased or written).
 
 The traced acquisition (:func:`acquire_traced`) reads the ECU's active block right before the
-dyno turns and right after the last window, and writes both into the capture's metadata
+first capture and right after the last window (alongside the dyno's ramps), and writes both into the capture's metadata
 (:mod:`eol_cal.capture.ecu_state`).
 """
 
@@ -122,9 +122,15 @@ def serial_problems(serial: str, ecu: EcuState | None, dut_serial: str | None) -
 
 def preflight(serial: str, dyno: DynoConfig, open_bus: Callable[[], Any], seed_to_key: SeedToKey | None,
               timing: ClientTiming) -> PreflightResult:
-    """Every check of the module docstring; its problems are empty when the station is ready."""
-    found_dyno, dyno_problems = check_dyno(dyno)
-    ecu, ecu_problems = check_ecu(open_bus, seed_to_key, timing)
+    """Every check of the module docstring; its problems are empty when the station is ready.
+
+    The dyno and the ECU are asked at the same time (each wait is bounded by its own timeouts)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="preflight-dyno") as pool:
+        dyno_job = pool.submit(check_dyno, dyno)
+        ecu, ecu_problems = check_ecu(open_bus, seed_to_key, timing)
+        found_dyno, dyno_problems = dyno_job.result()
     problems = dyno_problems + ecu_problems + serial_problems(
         serial, ecu.state, None if found_dyno is None else found_dyno.dut_serial)
     return PreflightResult(found_dyno, ecu, tuple(problems))
@@ -146,24 +152,36 @@ def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
 
 
 def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Sequence[DynoSetpoint],
-                   out: str | Path, **acquire_kw: Any) -> tuple[Capture, Trace]:
+                   out: str | Path | None, **acquire_kw: Any) -> tuple[Capture, Trace]:
     """:func:`eol_cal.dyno.client.acquire` with the ECU's state read before and after, into the
-    capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads.
+    capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads
+    (``out`` None: the caller writes it).
 
-    ``read_ecu`` None: no record of the ECU state (no ECU-state keys). A failed read before
-    stops before the dyno turns; a failed read after writes no capture.
+    ``read_ecu`` None: no record of the ECU state (no ECU-state keys). The reads run alongside
+    the dyno's ramps (:func:`eol_cal.dyno.client.run_profile`): the one before while the shaft
+    ramps to the first segment, finished before the first capture is armed; the one after from
+    the last window on, while the shaft stops. A failed read before stops the dyno (safe state)
+    before any capture; a failed read after writes no capture.
     """
+    from concurrent.futures import Future, ThreadPoolExecutor
+
     from eol_cal.capture import write_capture
     from eol_cal.dyno import client as dc
 
-    before = read_ecu() if read_ecu is not None else None
-    capture = dc.acquire(config, segments, None, **acquire_kw)
     if read_ecu is None:
-        write_capture(capture, out)
+        capture = dc.acquire(config, segments, None, **acquire_kw)
+        if out is not None:
+            write_capture(capture, out)
         return capture, Trace(None, None)
-    after = read_ecu()
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ecu-trace") as pool:
+        before_job = pool.submit(read_ecu)
+        after_job: list[Future] = []
+        capture = dc.acquire(config, segments, None, before_capture=before_job.result,
+                             after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
+        before, after = before_job.result(), after_job[0].result()
     capture = dataclasses.replace(capture, metadata=with_ecu_state(capture.metadata, before, after))
-    write_capture(capture, out)
+    if out is not None:
+        write_capture(capture, out)
     return capture, Trace(before, after)
 
 

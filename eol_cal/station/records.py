@@ -120,22 +120,28 @@ def is_url(db: str | Path) -> bool:
     return "://" in str(db)
 
 
+def _masked(url: str) -> str:
+    """A URL with the password of its user part masked, without parsing it (it may not parse)."""
+    scheme, _, rest = url.partition("://")
+    userinfo, at, hostpart = rest.rpartition("@")
+    return f"{scheme}://{userinfo.partition(':')[0]}{':***' if ':' in userinfo else ''}{at}{hostpart}" if at else url
+
+
 def db_key(db: str | Path) -> str:
-    """The identity of a database in the spool: the absolute file path, or the URL without password."""
+    """The identity of a database in the spool: the absolute file path, or the URL without password
+    (a URL that does not parse: masked as typed, so that its record is still spooled)."""
     if not is_url(db):
         return str(Path(db).resolve())
-    return sa.engine.make_url(_sa_url(str(db))).render_as_string(hide_password=True)
+    try:
+        return sa.engine.make_url(_sa_url(str(db))).render_as_string(hide_password=True)
+    except (sa.exc.ArgumentError, ValueError):
+        return _masked(str(db))
 
 
 def db_shown(db: str | Path) -> str:
     """The database as it was typed, for messages: a file path, or a URL with its password masked
     (``postgresql://eolcal:***@host/db``)."""
-    shown = str(db)
-    if is_url(db) and sa.engine.make_url(_sa_url(shown)).password is not None:
-        scheme, _, rest = shown.partition("://")
-        userinfo, at, hostpart = rest.rpartition("@")
-        shown = f"{scheme}://{userinfo.partition(':')[0]}:***{at}{hostpart}"
-    return shown
+    return _masked(str(db)) if is_url(db) else str(db)
 
 
 def db_label(db: str | Path) -> str:
@@ -195,6 +201,11 @@ def engine(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S, readonly: 
     if is_url(db):
         return _server_engine(str(db), timeout_s)
     db = Path(db)
+    if db.exists() and not db.is_file():
+        # SQLite would open a FIFO and block in the kernel for ever (deaf to SIGTERM), or read a device
+        from eol_cal.inputs import check_regular
+
+        check_regular(db, None)
     if not readonly and not db.parent.is_dir():
         # sqlite would say "unable to open database file"; say which directory is missing
         raise sqlite3.OperationalError(f"directory {db.parent} does not exist")

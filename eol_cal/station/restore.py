@@ -59,10 +59,13 @@ def read_archive(block: FlashedBlock, run_id: str) -> bytes:
 
     if not block.path:
         raise InputError(None, f"run {run_id} blocks", f"the {block.role} block has no archive file")
-    try:
-        data = Path(block.path).read_bytes()
-    except OSError as exc:
-        raise InputError(block.path, None, f"the archive of run {run_id} cannot be read: {exc.strerror or exc}") from None
+    from eol_cal.firmware.block_layout import BANK_BYTES
+    from eol_cal.inputs import read_bytes
+
+    try:  # a path from a record: no FIFO, no device, no gigabytes
+        data = read_bytes(block.path, None, max_bytes=4 * BANK_BYTES)
+    except InputError as exc:
+        raise InputError(block.path, None, f"the archive of run {run_id} cannot be read: {exc.reason}") from None
     if block.sha256 is not None and hashlib.sha256(data).hexdigest() != block.sha256:
         raise InputError(block.path, "sha256", f"the file is not the block run {run_id} flashed (its SHA-256 "
                                                f"differs from the record's {block.sha256[:16]}...)")

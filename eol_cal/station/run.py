@@ -28,12 +28,13 @@ from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.station.limits import VariantLimits
-from eol_cal.station.spool import SaveResult
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.fit.capture import PreparedWindows
     from eol_cal.dyno.client import DynoConfig
     from eol_cal.ecu.session import ClientTiming
     from eol_cal.msa.master import MasterSettings
+    from eol_cal.station.spool import SaveResult
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
     from eol_cal.station.record import RunRecord
@@ -171,14 +172,15 @@ def _safe_name(text: str) -> str:
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
-              estimator_options: int = 0) -> tuple[dict, MotorResult, Any]:
+              estimator_options: int = 0, prepared: PreparedWindows | None = None) -> tuple[dict, MotorResult, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame); ``capture`` may
     also be the windows as separate captures (``eol-cal lot simulate``'s).
 
     ``motor`` (default the paper preset), ``mechanics`` (``None``: rigid coupling) and
     ``cache_dir`` (the serialized solvers; ``None``: none) and ``estimator_options`` (what the
-    ECU ran during the capture) as in :class:`eol_cal.analysis.fit.motors.FitOptions`.
+    ECU ran during the capture) as in :class:`eol_cal.analysis.fit.motors.FitOptions`;
+    ``prepared``: the windows' work done while the dyno turned (:mod:`eol_cal.station.early`).
 
     Returns
     -------
@@ -192,7 +194,7 @@ def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_vers
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
                          estimator_options=estimator_options)
-    res = fit_motors(capture if isinstance(capture, list) else [capture], options, tool_version)
+    res = fit_motors(capture if isinstance(capture, list) else [capture], options, tool_version, prepared=prepared)
     (rec,) = res.records
     return res.doc, MotorResult.from_json(rec, "<fit>", "motors[0]."), (res.inputs[0], res.fits[0], options.spec)
 
@@ -221,8 +223,12 @@ def new_run_dir(report_dir: Path, serial: str, started: _dt.datetime, run_id: st
 
 def check_config(cfg: StationConfig) -> None:
     """Refuse what can be known bad before the dyno turns (no record: nothing was run)."""
-    if not cfg.serial or len(cfg.serial.encode("ascii", "replace")) > 16 or not cfg.serial.isascii():
-        raise InputError(None, "serial", f"{cfg.serial!r}: 1 to 16 ASCII characters (the block's serial field)")
+    from eol_cal.firmware.block import serial_problem
+
+    why = serial_problem(cfg.serial)
+    if why is not None:
+        raise InputError(None, "serial", f"{cfg.serial!r}: {why} (the block's serial field: 1 to 16 ASCII characters, "
+                                         "printable)")
     try:
         cfg.report_dir.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

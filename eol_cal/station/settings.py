@@ -11,6 +11,7 @@ never a half-run cycle. The file's keys (docs/station.md, "First real station"):
     db = "records.sqlite"           # or postgresql://user@host:5432/eol
     report_dir = "reports"
     key_file = "ecu.key"
+    key_algo = "oem-eps"            # optional: the OEM's seed-to-key (entry point or MODULE:FUNC)
     [dyno]
     address = "192.0.2.10"          # Modbus TCP; port 502 when none is given
     register_map = "default"        # a shipped map's name or a map file (docs/dyno.md)
@@ -37,7 +38,7 @@ import can
 
 from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_toml
+from eol_cal.inputs import check_regular, load_toml
 from eol_cal.msa.master import MASTER_QUANTITIES
 
 if TYPE_CHECKING:
@@ -79,7 +80,8 @@ KEYS: tuple[Key, ...] = (
     Key("db", str, required=True),
     Key("report_dir", str, "reports", is_path=True),
     Key("spool_dir", str, is_path=True),
-    Key("key_file", str, required=True, is_path=True),
+    Key("key_file", str, is_path=True),  # required unless key_algo needs no secret
+    Key("key_algo", str),  # the OEM's seed-to-key: an entry point name or MODULE:FUNC (eol_cal.ecu.keyalgo)
     Key("profile", str, "eol-default"),
     Key("verify", str, "point", choices=("point", "full")),
     Key("estimator", str),  # None: the variant's (limits file), else paper|best|NAMES|0xMASK
@@ -197,6 +199,31 @@ def _resolve(key: Key, value: object, base: Path) -> object:
     return value
 
 
+def _check_values(settings: StationSettings) -> None:
+    """The keys whose values alone can be wrong, checked as the options are: the estimator, the
+    database address, the CAN configuration file (a cycle started with ``estimator = "foo"``,
+    ``db = "."`` or a garbage ``can.config`` and failed at its first use of them)."""
+    from eol_cal.address import records_db
+
+    if settings["estimator"] is not None:
+        from eol_cal.firmware.options import parse_options
+
+        parse_options(str(settings["estimator"]), settings.where("estimator"), "estimator")
+    if settings["db"] is not None:
+        try:
+            records_db(str(settings["db"]), "db", writing=True)
+        except InputError as exc:
+            raise InputError(settings.where("db"), "db", exc.reason if exc.file is None else f"{exc.file}: {exc.reason}") from None
+    if settings["can.config"] is not None:
+        from eol_cal.ecu.transport import bus_config
+
+        try:
+            bus_config(settings["can.interface"], settings["can.channel"], settings["can.bitrate"],
+                       str(settings["can.config"]))
+        except InputError as exc:
+            raise InputError(settings.where("can.config"), "can.config", f"{settings['can.config']}: {exc.reason}") from None
+
+
 def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = None,
                   validators: Mapping[str, Callable[[StationSettings], None]] | None = None, *,
                   given: Mapping[str, object] | None = None, fallbacks: Mapping[str, object] | None = None,
@@ -268,11 +295,19 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
                 values[key.name] = str(base / str(key.default))
             continue
         values[key.name] = _resolve(key, _check_value(key, value, where), root)
+    if values["key_file"] is None and values["key_algo"] is None and "key_file" not in optional:
+        raise InputError(source, "key_file", f"required (in the file or as ${env_name('key_file')}), unless key_algo "
+                                             "names an OEM algorithm that needs no secret")
     settings = StationSettings(source, values, origin, "", 0)
     for name in ("limits", "key_file", "can.config"):
         p = values[name]
-        if p is not None and not Path(str(p)).is_file():
-            raise InputError(settings.where(name), name, f"no such file: {p}")
+        if p is not None:
+            try:
+                check_regular(str(p))
+            except InputError as exc:  # missing, a directory, a FIFO: said with the key that names it
+                reason = "no such file" if not os.path.exists(str(p)) else exc.reason
+                raise InputError(settings.where(name), name, f"{reason}: {p}") from None
+    _check_values(settings)
     if values["can.interface"] is None and values["can.config"] is None and "can.interface" not in optional:
         raise InputError(source, "can.interface", "no CAN interface: set can.interface (and can.channel) or can.config")
     interface = values["can.interface"]
@@ -308,7 +343,6 @@ def check_station(settings: StationSettings) -> None:
     file is refused here with the settings key named, not halfway through the first motor.
     """
     from eol_cal.mechanics import mechanics_or_rigid
-    from eol_cal.ecu.client import load_key_file
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
@@ -316,16 +350,52 @@ def check_station(settings: StationSettings) -> None:
     load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
     master_of(settings)
     load_named(settings, "profile", lambda: load_profile(str(settings["profile"])))
-    if settings["estimator"] is not None:
-        from eol_cal.firmware.options import parse_options
-
-        parse_options(str(settings["estimator"]), settings.where("estimator"), "estimator")
     motor = str(settings["motor"])
     load_named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
     load_named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
-    if settings["key_file"] is not None:  # None: the caller has its own key (the demo's)
-        load_named(settings, "key_file", lambda: load_key_file(str(settings["key_file"])))
+    if settings["key_file"] is not None or settings["key_algo"] is not None:  # else the caller's own (the demo's)
+        seed_to_key_of(settings)
     register_map_of(settings)
+
+
+def seed_to_key_of(settings: StationSettings) -> Callable[[bytes], bytes]:
+    """The settings' seed-to-key algorithm (``key_algo`` with ``key_file``'s secret, else the
+    contract's HMAC with it), loaded and tried once: a refusal names the key it came from."""
+    from eol_cal.ecu.keyalgo import seed_to_key_from
+
+    key_file, key_algo = settings["key_file"], settings["key_algo"]
+    name = "key_algo" if key_algo is not None else "key_file"
+    return load_named(settings, name, lambda: seed_to_key_from(None if key_file is None else str(key_file),  # type: ignore[return-value]
+                                                               None if key_algo is None else str(key_algo),
+                                                               file_field="key_file", algo_field="key_algo"))
+
+
+#: files SQLite writes beside a database file (WAL mode, and the rollback journal)
+SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
+
+
+def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], list[str]]:
+    """What the settings make a station read and write: (input files, output files, output
+    directories), for the check that no output is an input (``cli.paths.check_more``).
+
+    Inputs: the settings file, limits, key file, CAN configuration, and the motor, bench,
+    profile and register map where they are files. Outputs: the records database (and the
+    files SQLite keeps beside it) unless an option gave it. Directories: reports and spool.
+    """
+    reads = [settings.source] if settings.source != "environment" else []
+    reads += [str(settings[k]) for k in ("limits", "key_file", "can.config") if settings[k] is not None]
+    for key in ("motor", "bench", "profile", "dyno.register_map"):
+        value = settings[key]
+        if value is not None and Path(str(value)).is_file():
+            reads.append(str(value))
+    writes: list[str] = []
+    db = settings["db"]
+    # a database given as an option is that option's output already (the same file twice is
+    # not two outputs); one from the file or a variable is the settings' own
+    if db is not None and "://" not in str(db) and settings.origin.get("db") != "given":
+        writes += [str(db), *(f"{db}{side}" for side in SQLITE_SIDE_FILES)]
+    dirs = [str(settings[k]) for k in ("report_dir", "spool_dir") if settings[k] is not None]
+    return reads, writes, dirs
 
 
 def register_map_of(settings: StationSettings) -> RegisterMap:

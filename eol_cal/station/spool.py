@@ -14,10 +14,10 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-
+from eol_cal.errors import InputError
+from eol_cal.inputs import load_json
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records import (
-    DB_ERRORS,
     DEFAULT_LOCK_TIMEOUT_S,
     SPOOL_SCHEMA,
     RecordError,
@@ -26,6 +26,10 @@ from eol_cal.station.records import (
     insert_records,
     one_line,
 )
+
+
+#: largest spool file read back (one run record: ~20 KiB)
+MAX_SPOOL_FILE_BYTES = 16 << 20
 
 
 def default_spool_dir() -> Path:
@@ -48,7 +52,9 @@ def spool_record(record: RunRecord, db: str | Path, spool_dir: str | Path, why: 
 
     spool_dir = Path(spool_dir)
     spool_dir.mkdir(parents=True, exist_ok=True)
-    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": record.to_json()}
+    from eol_cal.jsonsafe import json_safe
+
+    doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": json_safe(record.to_json())}
     path = spool_dir / f"{record.run_id}.json"
     atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
     return path
@@ -76,11 +82,11 @@ def save_record(record: RunRecord, db: str | Path, spool_dir: str | Path | None 
     try:
         insert_records(db, [record], timeout_s)
         return SaveResult("db", db_shown(db))
-    except DB_ERRORS as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever keeps the record out of the database, it is spooled
         why = f"{type(exc).__name__}: {one_line(exc)}"
     try:
         path = spool_record(record, db, spool_dir, why)
-    except OSError as exc:
+    except Exception as exc:  # noqa: BLE001 - a full disk, or anything else: said with the database's reason
         raise RecordError(f"record {record.run_id} could not be written: database {db_shown(db)}: {why}; "
                           f"spool {spool_dir}: {exc}") from exc
     return SaveResult("spool", str(path), why)
@@ -105,10 +111,10 @@ def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, str, RunRecord]], list[s
 
     out, bad = [], []
     for path in sorted(spool_dir.glob("*.json")):
-        try:
-            doc = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-            bad.append(f"{path}: unreadable ({exc})")
+        try:  # the bounded loader: a FIFO, a 5000-digit number or deep nesting is one bad file
+            doc = load_json(path, max_bytes=MAX_SPOOL_FILE_BYTES)
+        except InputError as exc:
+            bad.append(f"{path}: unreadable ({exc.reason})")
             continue
         if not isinstance(doc, dict) or doc.get("schema") != SPOOL_SCHEMA or not isinstance(doc.get("record"), dict):
             bad.append(f"{path}: not a spooled record ({SPOOL_SCHEMA})")
@@ -143,7 +149,7 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
         return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
     try:
         n = insert_records(db, [r for _p, r in mine], timeout_s)
-    except DB_ERRORS as exc:
+    except Exception as exc:  # noqa: BLE001 - still not writable, however: the records wait in the spool
         return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad))
     for path, _r in mine:
         path.unlink(missing_ok=True)

@@ -12,11 +12,12 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
 from eol_cal.analysis.angle import capture_angle
-from eol_cal.analysis.firmware_angle import firmware_frame_offsets
+from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
@@ -24,6 +25,9 @@ from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, shaft_response
 from eol_cal.motor import MotorParams, load_motor
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.angle import AngleResult
 
 
 @dataclass
@@ -115,6 +119,43 @@ def capture_segments(
     return out
 
 
+def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
+    """p-p ripple of one window (``metrics.captures[i]`` of a record); ``error`` when it has none."""
+    from eol_cal.analysis.metrics import capture_ripple_pp
+    from eol_cal.errors import InputError
+
+    try:
+        pp = capture_ripple_pp(capture, angle)
+    except InputError as exc:
+        return {"source": capture.source, "error": exc.reason}
+    return {
+        "source": capture.source,
+        "pp_raw_pct": pp.raw_pct,
+        "pp_filtered_pct": pp.filtered_pct,
+        "pp_filtered_nm": pp.filtered_pp_nm,
+        "T_avg_nm": pp.T_avg_nm,
+        "speed_rpm": pp.speed_rpm,
+    }
+
+
+class PreparedWindows:
+    """Where the fit's per-window figures come from: plain calls here. The station's subclass
+    (:class:`eol_cal.station.early.EarlyWindows`) hands in what it computed while the windows
+    arrived, for exactly the inputs it was computed from, and computes anything else here."""
+
+    def angle_of(self, capture: Capture) -> AngleResult:
+        """A window's angle (:func:`capture_angle`)."""
+        return capture_angle(capture)
+
+    def frame_offsets(self, jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
+        """The windows' parts of the firmware frame offset (:func:`firmware_frame_offsets`)."""
+        return firmware_frame_offsets(jobs)
+
+    def metrics_of(self, capture: Capture, angle: AngleResult) -> dict:
+        """A window's p-p figures (:func:`window_metrics`)."""
+        return window_metrics(capture, angle)
+
+
 def _kt_of(captures: list[Capture], motor: MotorParams) -> tuple[float, str]:
     values = {float(c.metadata["kt"]) for c in captures if "kt" in c.metadata}
     if len(values) > 1:
@@ -133,6 +174,7 @@ def motor_inputs(
     mechanics: BenchMechanics | None = None,
     hall_angle: str = "measured",
     estimator_options: int = 0,
+    prepared: PreparedWindows | None = None,
 ) -> list[MotorInput]:
     """Split captures into windows, group them by serial, reconstruct the angle, cut segments.
 
@@ -164,6 +206,10 @@ def motor_inputs(
     estimator_options : int
         The estimator options (contract flags bits 2-5) the ECU ran during the captures: the
         firmware frame is measured with that estimator (0: the paper's).
+    prepared : PreparedWindows, optional
+        Where each window's angle and firmware frame offset come from (default: computed here);
+        the station hands in what it computed while the dyno was still turning
+        (:mod:`eol_cal.station.early`).
 
     Returns
     -------
@@ -173,9 +219,9 @@ def motor_inputs(
     if frame not in ("firmware", "offline"):
         raise InputError(None, "frame", f"unknown value {frame!r}; known: firmware, offline")
     inputs = segment_motors(captures, motor, settle_s=settle_s, min_revs=min_revs, hall_angle=hall_angle,
-                            mechanics=mechanics)
+                            mechanics=mechanics, prepared=prepared)
     if frame == "firmware":
-        measure_firmware_frames(inputs, [estimator_options] * len(inputs))
+        measure_firmware_frames(inputs, [estimator_options] * len(inputs), prepared)
     return inputs
 
 
@@ -186,6 +232,7 @@ def segment_motors(
     min_revs: int = 1,
     hall_angle: str = "measured",
     mechanics: BenchMechanics | None = None,
+    prepared: PreparedWindows | None = None,
 ) -> list[MotorInput]:
     """:func:`motor_inputs` up to the firmware frame: every motor's inputs in the offline frame,
     for :func:`measure_firmware_frames` (which measures the frames of many motors in one batch)."""
@@ -193,6 +240,7 @@ def segment_motors(
 
     if hall_angle not in ("measured", "nominal"):
         raise InputError(None, "hall_angle", f"unknown value {hall_angle!r}; known: measured, nominal")
+    prepared = prepared or PreparedWindows()
     captures = [w for c in captures for w in split_windows(c)]
 
     motor = motor or load_motor("paper")
@@ -201,12 +249,12 @@ def segment_motors(
         if "serial" not in c.metadata:
             raise InputError(c.source, "serial", "missing metadata: captures are grouped by serial")
         groups.setdefault(c.serial, []).append(c)
-    return [_segment_motor(serial, caps, motor, settle_s, min_revs, hall_angle, mechanics)
+    return [_segment_motor(serial, caps, motor, settle_s, min_revs, hall_angle, mechanics, prepared)
             for serial, caps in groups.items()]
 
 
 def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_s: float, min_revs: int,
-                   hall_angle: str, mechanics: BenchMechanics | None) -> MotorInput:
+                   hall_angle: str, mechanics: BenchMechanics | None, prepared: PreparedWindows) -> MotorInput:
     poles = {c.poles for c in caps}
     ppr = {c.encoder_ppr for c in caps}
     if len(poles) > 1 or len(ppr) > 1:
@@ -218,7 +266,7 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
             raise InputError(c.source, "torque", "missing channel, needed for the fit")
         if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
             raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-        ang = capture_angle(c)
+        ang = prepared.angle_of(c)
         angles.append(ang)
         i_qo = np.asarray(c.iq_ref(), dtype=float)
         ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
@@ -253,15 +301,18 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
                       hall=hall)
 
 
-def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int]) -> None:
+def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int],
+                            prepared: PreparedWindows | None = None) -> None:
     """Measure every motor's firmware frame (:func:`firmware_frame_offsets`, all captures of all
     motors in one batched estimator run) and set ``frame``, ``frame_offset_rad`` and
     ``frame_options`` of each ``MotorInput`` in place.
 
     ``estimator_options``: per motor, the options (contract flags bits 2-5) its ECU ran. A motor
     whose captures lack ``enc_b``, or whose estimator never anchored on a segment sample, keeps
-    the offline frame (and says why).
+    the offline frame (and says why). ``prepared``: where the captures' parts come from (default
+    computed here).
     """
+    prepared = prepared or PreparedWindows()
     jobs, owner = [], []
     for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         if not all(c.has("enc_b") for c in mi.captures):
@@ -271,7 +322,7 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
             if ranges:
                 jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
                 owner.append(k)
-    sums = firmware_frame_offsets(jobs)
+    sums = prepared.frame_offsets(jobs)
     for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         fw_sum, fw_n = 0j, 0
         for (s_, n_), o in zip(sums, owner, strict=True):

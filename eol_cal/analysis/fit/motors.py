@@ -10,20 +10,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 from collections.abc import Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
-from eol_cal.analysis.fit.capture import MotorInput
+from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
 from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
 from eol_cal.jsonsafe import json_safe
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams
-
-if TYPE_CHECKING:
-    from eol_cal.analysis.angle import AngleResult
 
 
 @dataclass(frozen=True)
@@ -106,30 +103,12 @@ class MotorsFit:
         return self.doc["motors"]
 
 
-def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
-    """p-p ripple of one window (``metrics.captures[i]`` of a record); ``error`` when it has none."""
-    from eol_cal.analysis.metrics import capture_ripple_pp
-    from eol_cal.errors import InputError
-
-    try:
-        pp = capture_ripple_pp(capture, angle)
-    except InputError as exc:
-        return {"source": capture.source, "error": exc.reason}
-    return {
-        "source": capture.source,
-        "pp_raw_pct": pp.raw_pct,
-        "pp_filtered_pct": pp.filtered_pct,
-        "pp_filtered_nm": pp.filtered_pp_nm,
-        "T_avg_nm": pp.T_avg_nm,
-        "speed_rpm": pp.speed_rpm,
-    }
-
-
 def fit_motors(
     captures: list[Capture],
     options: FitOptions = FitOptions(),
     tool_version: str | None = None,
     progress: Callable[[int], None] | None = None,
+    prepared: PreparedWindows | None = None,
 ) -> MotorsFit:
     """Fit every motor of ``captures`` and build the result document.
 
@@ -144,6 +123,9 @@ def fit_motors(
         For the document's ``tool`` (default: this package's version).
     progress : callable, optional
         Called with the number of motors fitted so far.
+    prepared : PreparedWindows, optional
+        Work done on the windows before the fit (the station, while the dyno turned): their
+        angles, p-p figures and parts of the firmware frame.
 
     Returns
     -------
@@ -159,8 +141,8 @@ def fit_motors(
 
     inputs = motor_inputs(captures, options.motor, settle_s=options.settle_s, min_revs=options.min_revs,
                           frame=options.frame, mechanics=options.mechanics, hall_angle=options.hall_angle,
-                          estimator_options=options.estimator_options)
-    return fit_inputs(inputs, options, tool_version, progress)
+                          estimator_options=options.estimator_options, prepared=prepared)
+    return fit_inputs(inputs, options, tool_version, progress, prepared)
 
 
 def fit_inputs(
@@ -168,18 +150,21 @@ def fit_inputs(
     options: FitOptions = FitOptions(),
     tool_version: str | None = None,
     progress: Callable[[int], None] | None = None,
+    prepared: PreparedWindows | None = None,
 ) -> MotorsFit:
     """The part of :func:`fit_motors` after the inputs (:func:`eol_cal.analysis.fit.capture.motor_inputs`,
     or :func:`~eol_cal.analysis.fit.capture.segment_motors` and
     :func:`~eol_cal.analysis.fit.capture.measure_firmware_frames` for many motors' frames in one
     batch): the fit and the result document. ``options``' segmentation and frame settings are
-    those the inputs were made with."""
+    those the inputs were made with; ``prepared`` (as for :func:`fit_motors`) gives the windows'
+    p-p figures."""
     from eol_cal.analysis.fit import fit_many
     from eol_cal.analysis.metrics import eta_percent
     from eol_cal.analysis.result import record_for_motor, result_document
 
     if tool_version is None:
         from eol_cal import __version__ as tool_version
+    prepared = prepared or PreparedWindows()
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],
@@ -197,7 +182,7 @@ def fit_inputs(
     for mi, f in zip(inputs, fits, strict=True):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
         if options.capture_metrics:
-            metrics["captures"] = [window_metrics(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
+            metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
         records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
                                                   solver_mode=mode, tick_hz=tick_hz)))
     return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)

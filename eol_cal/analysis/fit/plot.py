@@ -9,6 +9,7 @@ import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
 from eol_cal.analysis.fit.capture import MotorInput
+from eol_cal.render import plain
 from eol_cal.wrap import wrap_2pi
 
 _MAX_PANELS = 8
@@ -92,7 +93,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
         curve = fitted_ripple(mi, fit, spec, s, grid, gains=bench)
         ax.plot(np.degrees(grid), curve, "-", color="C3", lw=1.2, label="fit")
         info = mi.info[s]
-        ax.set_title(f"{Path(info.source).name}: {info.speed_rpm:.0f} rpm, i_qo {info.i_qo:.1f} A", fontsize=8)
+        ax.set_title(f"{plain(Path(info.source).name)}: {info.speed_rpm:.0f} rpm, i_qo {info.i_qo:.1f} A", fontsize=8)
         ax.set_xlim(0, 360)
         ax.set_xlabel("electrical angle theta_r (deg)", fontsize=8)
         ax.set_ylabel("torque (N*m)", fontsize=8)
@@ -100,7 +101,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
     for s in range(n, rows * cols):
         axes[s // cols][s % cols].axis("off")
     axes[0][0].legend(fontsize=7, loc="upper right")
-    fig.suptitle(f"{mi.serial}: torque vs electrical angle (drift and mechanical order 1 removed)", fontsize=9)
+    fig.suptitle(f"{plain(mi.serial)}: torque vs electrical angle (drift and mechanical order 1 removed)", fontsize=9)
     fig.tight_layout()
     write_png(fig, path)
     plt.close(fig)
@@ -127,7 +128,7 @@ def plot_residual_spectrum(path: str | Path, mi: MotorInput, fit: MotorFit, spec
         ax.axvline(h, color="0.8", lw=0.8, zorder=0)
     ax.set_xlabel("electrical order")
     ax.set_ylabel("residual amplitude (N*m)")
-    ax.set_title(f"{mi.serial}: residual spectrum (rms {fit.rms:.3g} N*m)", fontsize=9)
+    ax.set_title(f"{plain(mi.serial)}: residual spectrum (rms {fit.rms:.3g} N*m)", fontsize=9)
     if seg.n_segments <= 10:
         ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()

@@ -17,7 +17,7 @@ from eol_cal.analysis.fit.model import FitSpec
 from eol_cal.analysis.fit.synth import synthetic_segments
 
 
-def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None) -> None:
+def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None, plots: bool = True) -> None:
     """Make the fit's first run in this process fast; never raises.
 
     Switches on JAX's persistent compilation cache in ``cache_dir``, imports what the fit and the
@@ -33,15 +33,18 @@ def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None
     cache_dir : path, optional
         The fit's cache directory (:func:`eol_cal.analysis.fit.cache.default_cache_dir`); ``None``:
         no cache.
+    plots : bool
+        Import matplotlib and the fit's plots too (False: a caller that draws them only later).
     """
     try:
         enable_compile_cache(cache_dir)
         # imported here on purpose: loading them is the work this function does ahead of time
         import eol_cal.analysis.fit.capture
-        import eol_cal.analysis.fit.plot  # noqa: F401
-        from eol_cal.figures import pyplot
+        if plots:
+            import eol_cal.analysis.fit.plot  # noqa: F401
+            from eol_cal.figures import pyplot
 
-        pyplot()
+            pyplot()
         loads = tuple(20.0 + 10.0 * k for k in range(max(2, (n_segments + 3) // 4)))
         seg, _truth = synthetic_segments(np.random.default_rng(0), loads_a=loads, speeds_rpm=(60.0, 120.0),
                                          directions=(1, -1), seg_s=0.1, fs_hz=10000.0)

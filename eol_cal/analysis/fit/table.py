@@ -100,7 +100,7 @@ def block_from_result(
         The motor's fit is not usable (its ``status`` is not ``"ok"``).
     """
     from eol_cal.analysis.lead import auto_lead_s
-    from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
+    from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock, serial_problem
     from eol_cal.firmware.compensator import make_tables
 
     serial = res.serial
@@ -126,8 +126,9 @@ def block_from_result(
             raise InputError(source, "segments", f"motor {serial!r}: every segment needs a number 'i_qo_a' (A)") from None
     if calibrated_at is None:
         calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
-    if len(str(serial).encode("ascii", "replace")) > 16:
-        raise InputError(source, "serial", f"{serial!r}: the block holds at most 16 ASCII characters")
+    why = serial_problem(str(serial))
+    if why is not None:
+        raise InputError(source, "serial", f"{serial!r}: {why} (the block's serial field)")
     if layout not in (1, 2):
         raise InputError(source, "layout", f"{layout!r}: layout 1 or 2")
     flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | _options(options)

@@ -1,0 +1,172 @@
+"""Signals at random moments of ``eol-cal run``: during the fit (JAX tracing and solving) and
+during the writes (judging, report, record). Does every one end the run with exit 2, the dyno in
+its safe state, the record kept, and nothing flashed after it? (issue 23: the fault benchmark's
+``signals`` section, ``bench/bench_faults.py --section signals``.)
+
+Real processes on 127.0.0.1: ``eol-cal ecu-sim`` (python-can-remote) and ``eol-cal run`` each in
+their own process, the dyno simulator (synthetic captures) in this one. A trial waits for the
+capture that starts its window (``before.mf4``: the fit follows; ``after.mf4``: the writes
+follow), waits a seeded random time inside the window, sends SIGINT or SIGTERM, and judges:
+
+- ``ignored``: the run ended 0 or 1 (the signal was swallowed), or flashed the calibrated block
+  after it (the block had not been started when the signal came, and the ECU boots it);
+- ``lost``: no record in the database, nor in the spool;
+- ``unsafe``: the dyno simulator was left enabled or turning;
+- ``traceback``, ``hang`` (no exit within ``--cap`` s), ``crash`` (another exit code).
+
+    python bench/bench_faults_signals.py [--trials 12] [--seed 1] [--before COMMIT]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "bench"))
+
+from eol_cal.dyno import sim as ds  # noqa: E402
+from bench_faults_ecu import LIMITS  # noqa: E402 - the same limits as the ECU trials
+from eol_cal.ecu import protocol as P  # noqa: E402
+
+#: (window, the file that opens it, the longest wait into it, s)
+WINDOWS = (("fit", "before.mf4", 3.0), ("writes", "after.mf4", 0.8))
+
+
+@dataclass
+class SignalTrial:
+    window: str
+    signal_name: str
+    delay_s: float
+    rc: int | None
+    seconds: float
+    traceback: bool
+    ignored: bool
+    lost: bool
+    unsafe: bool
+
+    @property
+    def hang(self) -> bool:
+        return self.rc is None
+
+    @property
+    def crash(self) -> bool:
+        return self.rc is not None and self.rc not in (0, 1, 2)
+
+    @property
+    def clean(self) -> bool:
+        return not (self.traceback or self.ignored or self.lost or self.unsafe or self.hang or self.crash)
+
+
+def _cli(tree: Path, *args: str) -> subprocess.Popen:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_") or k == "EOL_CAL_JAX_CACHE"}
+    env["PYTHONPATH"] = str(tree)
+    return subprocess.Popen([sys.executable, "-m", "cli.main", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env, cwd=tree, start_new_session=True)
+
+
+def _records(work: Path, tree: Path) -> int:
+    """Records of the run in the database and the spool (read with this tree's code)."""
+    from eol_cal.station.records_query import query_records
+
+    db = work / "db.sqlite"
+    n = len(query_records(db)) if db.exists() else 0
+    return n + len(list((work / "spool").glob("*.json")))
+
+
+def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, sig: signal.Signals,
+              cap: float) -> SignalTrial:
+    from eol_cal.ecu.flash import active_block_from_file
+    from eol_cal.firmware import block as B
+
+    (work / "limits.toml").write_text(LIMITS)
+    (work / "key.hex").write_text(P.DEV_SECRET.hex())
+    sim = ds.DynoSim(ds.synthetic_source, serial="K-1")
+    procs = []
+    try:
+        with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
+            ecu = _cli(tree, "ecu-sim", "--flash-file", str(work / "ecu.flash"), "--listen", "127.0.0.1:0",
+                       "--serial", "K-1", "--s3-s", "1")
+            procs.append(ecu)
+            url = ecu.stdout.readline().strip()
+            run = _cli(tree, "run", "--dyno", f"127.0.0.1:{dyno.port}", "-i", "remote", "-c", url, "--limits",
+                       str(work / "limits.toml"), "--db", str(work / "db.sqlite"), "--serial", "K-1", "--key-file",
+                       str(work / "key.hex"), "--report-dir", str(work / "reports"), "--spool-dir", str(work / "spool"),
+                       "--json")
+            procs.append(run)
+            end = time.monotonic() + cap
+            while not list((work / "reports").rglob(opens)) and time.monotonic() < end and run.poll() is None:
+                time.sleep(0.02)
+            time.sleep(delay_s)
+            started_flash = bool(list((work / "reports").rglob("block.bin")))
+            t0 = time.monotonic()
+            if run.poll() is None:
+                run.send_signal(sig)
+            try:
+                _, err = run.communicate(timeout=cap)
+                rc: int | None = run.returncode
+            except subprocess.TimeoutExpired:
+                run.kill()
+                _, err = run.communicate()
+                rc = None
+            seconds = time.monotonic() - t0
+            unsafe = sim.enabled or sim.speed != 0.0
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait(10)
+    raw = active_block_from_file(work / "ecu.flash") if (work / "ecu.flash").exists() else None
+    flashed_after = (not started_flash and raw is not None
+                     and bool(B.unpack(raw, "active").flags & B.FLAG_COMP_ENABLE))
+    ignored = rc in (0, 1) or flashed_after
+    return SignalTrial(window, sig.name, delay_s, rc, seconds, "Traceback" in err, ignored, _records(work, tree) < 1,
+                       unsafe)
+
+
+def signal_trials(trials: int, seed: int, tree: Path = ROOT, cap: float = 120.0) -> list[SignalTrial]:
+    rng = random.Random(seed)
+    out = []
+    for k in range(trials):
+        window, opens, longest = WINDOWS[0] if k % 3 != 2 else WINDOWS[1]
+        sig = (signal.SIGINT, signal.SIGTERM)[rng.randrange(2)]
+        delay = round(rng.uniform(0.0, longest), 3)
+        with tempfile.TemporaryDirectory(prefix="bench-signals-") as tmp:
+            out.append(one_trial(tree, Path(tmp), window, opens, delay, sig, cap))
+    return out
+
+
+def print_trials(title: str, trials: list[SignalTrial], show: int = 20) -> dict[str, int]:
+    counts = {"trials": len(trials), "exit 2": sum(t.rc == 2 for t in trials), "ignored": sum(t.ignored for t in trials),
+              "records lost": sum(t.lost for t in trials), "dyno unsafe": sum(t.unsafe for t in trials),
+              "tracebacks": sum(t.traceback for t in trials), "hangs": sum(t.hang for t in trials),
+              "crashes": sum(t.crash for t in trials)}
+    worst = max((t.seconds for t in trials if t.rc is not None), default=0.0)
+    print(f"\n{title}")
+    print("  ".join(f"{k} {v}" for k, v in counts.items()) + f"  worst s {worst:.1f}")
+    for t in [t for t in trials if not t.clean][:show]:
+        print(f"  {t.window} +{t.delay_s:.2f} s {t.signal_name}: rc {t.rc}, ignored {t.ignored}, lost {t.lost}, "
+              f"unsafe {t.unsafe}, traceback {t.traceback}")
+    return counts
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=12)
+    ap.add_argument("--seed", type=int, default=1)
+    args = ap.parse_args()
+    counts = print_trials("signals", signal_trials(args.trials, args.seed))
+    return 0 if not any(counts[k] for k in ("ignored", "records lost", "dyno unsafe", "tracebacks", "hangs", "crashes")) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

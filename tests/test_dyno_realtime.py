@@ -1,0 +1,184 @@
+"""The dyno simulator in real time (issue 24): a capture takes its physical time, its buffer fills
+as the shaft turns, and a read of samples not recorded yet waits for them, on both register maps.
+
+Every timing assertion here is a lower bound (nothing answered *earlier* than the shaft turns it
+out), which a loaded machine can only make later, never fail.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint, run_profile
+from eol_cal.dyno.mapfile import load_register_map
+from eol_cal.dyno.registers import CaptureCommand, CaptureState
+from eol_cal.dyno.regmap import READ_FC
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+RATE = 10000
+
+
+@pytest.fixture(params=("default", "vendor-b"))
+def regmap(request):
+    return load_register_map(request.param)
+
+
+def _armed(regmap, source=synthetic_source, n: int = 4000):
+    """A real-time simulator spinning at 60 rpm with a capture of ``n`` samples armed."""
+    thread = DynoSimThread(DynoSim(source, serial="M-RT", register_map=regmap, realtime=True)).start()
+    client = DynoClient(DynoConfig(port=thread.port, register_map=regmap, timeout=5.0, retries=0))
+    client.connect()
+    client.set_point(DynoSetpoint(60.0, n / RATE, iq=10.0))
+    client.write(capture_rate=RATE, capture_length=n)
+    client.write(capture_start=CaptureCommand.ARM)
+    return thread, client
+
+
+def _read_window(regmap, port: int, channel: int, offset: int, count: int) -> list[int]:
+    """Select a page and read ``count`` registers of the window on a connection of its own."""
+    raw = ModbusTcpClient("127.0.0.1", port=port, timeout=10.0)
+    try:
+        raw.connect()
+        for address, words, _names in regmap.write_runs({"buf_channel": channel, "buf_offset": offset}):
+            assert not raw.write_registers(address, words, device_id=1).isError()
+        fc = READ_FC[regmap.window.table]
+        read = raw.read_input_registers if fc == 4 else raw.read_holding_registers
+        r = read(regmap.window.address, count=count, device_id=1)
+        return r
+    finally:
+        raw.close()
+
+
+def _wait_running(client: DynoClient) -> None:
+    client.wait(lambda s: s["capture_state"] in (CaptureState.RUNNING, CaptureState.READY), 5.0, "starting the capture")
+
+
+def test_capture_takes_its_physical_time_and_the_count_grows(regmap):
+    n = 4000  # 0.4 s at 10 kHz
+    thread, client = _armed(regmap, n=n)
+    try:
+        _wait_running(client)
+        counts = []
+        st = client.wait(lambda s: counts.append(int(s["capture_count"])) or s["capture_state"] == CaptureState.READY,
+                         10.0, "capturing")
+        t_ready = time.monotonic()
+        timing = thread.sim.captures[-1]
+        assert t_ready - timing.started >= n / RATE
+        assert timing.ready - timing.started >= n / RATE
+        assert int(st["capture_count"]) == n
+        # the buffer filled as the shaft turned: partial counts seen, never going back
+        assert any(0 < c < n for c in counts)
+        assert counts == sorted(counts)
+    finally:
+        client.close()
+        thread.stop()
+
+
+def test_a_read_of_samples_not_recorded_yet_waits_for_them(regmap):
+    n = 4000
+    thread, client = _armed(regmap, n=n)
+    try:
+        _wait_running(client)
+        digital = regmap.window.digital_id
+        offset = n - 50  # the last 50 samples: recorded 0.4 s after the start
+        r = _read_window(regmap, thread.port, digital, offset, 50)
+        answered = time.monotonic()
+        assert not r.isError()
+        timing = thread.sim.captures[-1]
+        assert answered >= timing.started + n / RATE
+        client.wait(lambda s: s["capture_state"] == CaptureState.READY, 10.0, "capturing")
+        # what was answered while waiting is the recording itself
+        assert r.registers == thread.sim.buffer[digital][offset:n].tolist()
+    finally:
+        client.close()
+        thread.stop()
+
+
+def test_a_waiting_read_is_refused_when_the_capture_is_aborted(regmap):
+    n = 20000  # 2 s: the abort comes long before the last samples
+    thread, client = _armed(regmap, n=n)
+    try:
+        _wait_running(client)
+        result: dict = {}
+        reader = threading.Thread(target=lambda: result.update(r=_read_window(regmap, thread.port, regmap.window.digital_id,
+                                                                               n - 10, 10)))
+        reader.start()
+        time.sleep(0.1)
+        client.write(capture_start=CaptureCommand.ABORT)
+        reader.join(10.0)
+        assert result["r"].isError() and result["r"].exception_code == 4
+    finally:
+        client.close()
+        thread.stop()
+
+
+def test_a_source_slower_than_real_time_holds_the_samples_back(regmap):
+    n = 1000  # 0.1 s of capture; the source takes 0.5 s
+
+    def slow(req):
+        time.sleep(0.5)
+        return synthetic_source(req)
+
+    thread, client = _armed(regmap, source=slow, n=n)
+    try:
+        _wait_running(client)
+        st = client.status()
+        assert st["capture_state"] == CaptureState.RUNNING and int(st["capture_count"]) == 0
+        client.wait(lambda s: s["capture_state"] == CaptureState.READY, 10.0, "capturing")
+        timing = thread.sim.captures[-1]
+        assert timing.ready >= timing.source_done >= timing.started + 0.5
+        assert timing.source_late_s > 0.0
+    finally:
+        client.close()
+        thread.stop()
+
+
+def test_without_realtime_the_capture_is_ready_when_computed(regmap):
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-FAST", register_map=regmap)) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap, timeout=5.0, retries=0))
+        client.connect()
+        client.set_point(DynoSetpoint(60.0, 1.0, iq=10.0))
+        client.capture(10000, RATE)  # 1 s of capture, computed in a few ms
+        timing = thread.sim.captures[-1]
+        assert timing.ready == pytest.approx(timing.source_done, abs=0.5)
+        words = thread.sim.buffer[regmap.window.digital_id]
+        assert len(words) == 10000 and np.any(words)
+        client.close()
+
+
+def test_the_client_reads_the_buffer_while_the_shaft_turns(regmap):
+    segments = [DynoSetpoint(60.0, 0.3, iq=10.0), DynoSetpoint(-60.0, 0.2, iq=-10.0)]
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-STREAM", register_map=regmap, realtime=True)) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
+        data, _ident = run_profile(client, segments, RATE)
+        sim = thread.sim
+        assert len(sim.captures) == 2
+        # most of each capture was read before it was ready: the last chunk is what is left then
+        assert all(c.early_reads > 0 and c.ready is not None for c in sim.captures)
+        last = sim.last_capture  # the reverse segment: what was streamed is the recording itself
+        np.testing.assert_array_equal(data[1].channels["torque"], last.channels["torque"].astype(np.float32))
+        np.testing.assert_array_equal(data[1].channels["hall"], last.channels["hall"])
+        assert [len(w.channels["torque"]) for w in data] == [3000, 2000]
+
+
+@pytest.mark.parametrize("fault", ["torque-sensor@read:3", "disconnect@read:4/3000"])
+def test_a_fault_while_streaming_stops_the_run_safely(regmap, fault):
+    from cli.dyno import parse_fault_plan
+
+    plan = parse_fault_plan(fault)
+    sim = DynoSim(synthetic_source, serial="M-FAULT", register_map=regmap, realtime=True, faults=[plan])
+    with DynoSimThread(sim) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap, timeout=0.3, retries=1, retry_delay=0.05))
+        with pytest.raises(DynoError):
+            run_profile(client, [DynoSetpoint(60.0, 0.5, iq=10.0)], RATE)
+        assert thread.sim.captures[0].early_reads >= 2  # it failed while streaming
+        if plan.kind.name == "TORQUE_SENSOR":
+            assert not thread.sim.enabled and thread.sim.setpoint == 0.0
+        assert not any(t.name == "dyno-stream" for t in threading.enumerate())

@@ -1,0 +1,53 @@
+"""The fault benchmark's targeted scenarios of classes 1, 6 and 7 (issue 23) in the suite:
+every member the benchmark tries (:mod:`eol_cal.fuzz.scenarios`: an output over an input through
+every writing option and setting, settings values, serials, mechanical parts, limit rows and
+ECU states that must be refused, refit's bad input), not only the ones the class tests pick.
+
+In process (``CliRunner``), so the whole set costs seconds: each must end exit 2 with one line
+starting ``error:``, no traceback, every file of the scenario unchanged, and no new file where an
+output would have gone over an input. ``bench/bench_faults.py --section scenarios`` runs the same
+set in child processes with a time and memory bound.
+"""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from click.testing import CliRunner
+
+from cli.main import cli
+from eol_cal import fuzz
+from eol_cal.fuzz import scenarios as S
+
+BASES = fuzz.base_files()
+CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind in ("paths", "refusals", "exits")
+         for s in S.BUILDERS[kind](BASES) if s.expect == "refuse"]
+
+
+def _env(extra: dict[str, str]) -> dict[str, str | None]:
+    env: dict[str, str | None] = {k: None for k in os.environ if k.startswith("EOL_CAL_") and k != "EOL_CAL_JAX_CACHE"}
+    env.update(extra)
+    return env
+
+
+@pytest.mark.parametrize("scenario", CASES)
+def test_every_scenario_that_must_be_refused_is_refused_and_changes_nothing(tmp_path, scenario):
+    d = tmp_path / "s"
+    scenario.lay_out(d)
+    before = scenario.digests(d)
+    res = CliRunner().invoke(cli, scenario.argv(d), input=scenario.stdin or None, env=_env(scenario.env))
+    assert "Traceback" not in res.output, res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
+    assert res.exit_code == 2, res.output
+    assert res.stderr.strip().splitlines()[-1].startswith("error:"), res.output
+    assert scenario.digests(d) == before
+
+
+def test_the_scenario_set_covers_the_classes():
+    """Each kind holds several members: a class is tried by more than its example."""
+    counts = {kind: sum(1 for _ in S.BUILDERS[kind](BASES)) for kind in ("paths", "refusals", "exits")}
+    assert counts["paths"] >= 20 and counts["refusals"] >= 40 and counts["exits"] >= 5, counts
+    assert any("station --lot" in s.name for s in S.BUILDERS["paths"](BASES))
+    assert any("--log-file" in s.name for s in S.BUILDERS["paths"](BASES))
+

@@ -1,0 +1,68 @@
+"""A signal while ``eol-cal run`` fits (inside JAX) or writes its record (issue 23, class 2): every
+time exit 2, the dyno in its safe state, the record kept, and nothing flashed after the signal
+(the ECU still boots the block the cycle prepared it with).
+
+Real processes: ``eol-cal run`` and ``eol-cal ecu-sim`` (python-can-remote on 127.0.0.1), the
+dyno simulator in this process (tests/test_station_kill.py's fixture)."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import pytest
+
+from test_station_kill import station  # noqa: F401 - the fixture
+
+from eol_cal.ecu.flash import active_block_from_file
+from eol_cal.firmware import block as B
+from eol_cal.station.records_query import query_records
+from eol_cal.station.spool import flush_spool
+
+
+def _wait_for(path_glob, tmp_path, timeout: float = 120.0) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if list((tmp_path / "reports").rglob(path_glob)):
+            return True
+        time.sleep(0.02)
+    return False
+
+
+@pytest.mark.parametrize("sig, delay_s", [(signal.SIGTERM, 0.1), (signal.SIGINT, 0.8), (signal.SIGTERM, 2.0)])
+def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s):  # noqa: F811
+    start, tmp_path, dyno = station
+    ecu, run = start()
+    assert _wait_for("before.mf4", tmp_path), "the calibration capture was never written"
+    time.sleep(delay_s)  # the fit: JAX traces and solves
+    flashed_before = list((tmp_path / "reports").rglob("block.bin"))
+    run.send_signal(sig)
+    _, err = run.communicate(timeout=120)
+    assert run.returncode == 2, err
+    assert "Traceback" not in err, err
+    (rec,) = query_records(tmp_path / "db.sqlite")
+    assert not dyno.enabled and dyno.speed == 0.0
+    if rec.verdict != "error":
+        # the cycle reached its verdict before the signal (the fit, worked on while the dyno
+        # turned, can end within delay_s of before.mf4, which is written beside it): the record
+        # keeps the verdict, and what was flashed was flashed before the signal
+        assert rec.verdict in ("pass", "fail") and rec.error is None, rec
+        return
+    assert sig.name in rec.error.message, rec.error
+    if not flashed_before:  # the calibrated block was not being written when the signal came
+        active = B.unpack(active_block_from_file(tmp_path / "ecu.flash"), "active")
+        assert active.sequence == 1 and not active.flags & B.FLAG_COMP_ENABLE, "flashed after the signal"
+
+
+def test_a_signal_while_the_record_is_written_keeps_the_record(station):  # noqa: F811
+    start, tmp_path, dyno = station
+    ecu, run = start()
+    assert _wait_for("after.mf4", tmp_path), "the compensated capture was never written"
+    time.sleep(0.3)  # the judging, the report, the record
+    run.send_signal(signal.SIGTERM)
+    _, err = run.communicate(timeout=120)
+    assert run.returncode == 2, err
+    assert "Traceback" not in err, err
+    flush_spool(tmp_path / "db.sqlite", tmp_path / "spool")
+    assert len(query_records(tmp_path / "db.sqlite")) == 1
+    assert not dyno.enabled and dyno.speed == 0.0

@@ -1,0 +1,28 @@
+"""A line's simulators at fixed addresses for many motors (eol_cal.station.demo.loopback_line)."""
+
+from __future__ import annotations
+
+from eol_cal.dyno.client import DynoClient, DynoConfig, parse_address
+from eol_cal.ecu.client import ecu_state
+from eol_cal.ecu.transport import open_bus
+from eol_cal.station.demo import loopback_line
+
+
+def test_each_motor_gets_a_fresh_ecu_behind_the_same_addresses(tmp_path):
+    with loopback_line(tmp_path, bitrate=500_000) as line:
+        seen = []
+        for serial, seed in (("LINE-1", 1), ("LINE-2", 2)):
+            flash = line.load(serial, seed)
+            bus = open_bus("remote", line.can_channel)
+            try:
+                state = ecu_state(bus)
+            finally:
+                bus.shutdown()
+            host, port = parse_address(line.dyno_address)
+            client = DynoClient(DynoConfig(host=host, port=port))
+            try:
+                ident = client.connect()
+            finally:
+                client.close()
+            seen.append((state.serial, state.bank, ident["dut_serial"], flash.name))
+        assert seen == [("LINE-1", None, "LINE-1", "LINE-1.flash"), ("LINE-2", None, "LINE-2", "LINE-2.flash")]
