@@ -267,7 +267,7 @@ def main() -> int:
     add_options(ap)
     args = ap.parse_args()
     print(f"# bench_faults: Python {platform.python_version()}, {os.cpu_count()} CPUs, load average "
-          f"{' '.join(open('/proc/loadavg').read().split()[:3])}")
+          f"{' '.join(Path('/proc/loadavg').read_text().split()[:3])}")
     ok = True
     for name in args.section or list(SECTIONS):
         ok &= SECTIONS[name](args)

@@ -219,7 +219,7 @@ class _Quiet:
         self.file = file
         self.failure: InputError | None = None
 
-    def __call__(self, func, *args):  # noqa: ANN001, ANN204 - the decode and its arguments
+    def __call__(self, func, *args):  # the decode and its arguments
         try:
             return func(*args)
         except InputError as exc:

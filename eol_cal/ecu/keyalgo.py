@@ -47,7 +47,7 @@ def _load(spec: str, field: str) -> tuple[Callable[..., object], str]:
     except Exception as exc:  # noqa: BLE001 - ImportError, or anything the module raises on import
         raise InputError(None, field, f"cannot load {spec!r}: {exc.__class__.__name__}: {exc}") from None
     where = getattr(module, "__file__", None) or module_name
-    algo = module
+    algo: object = module
     for part in func_name.split("."):  # an entry point may name an attribute path
         algo = getattr(algo, part, None)
     if not callable(algo):

@@ -127,7 +127,8 @@ def bus_config(interface: str | None, channel: str | None, bitrate: int | None =
     except (OSError, ValueError, configparser.Error, can.CanInterfaceNotImplementedError) as exc:
         raise InputError(can_config, "can-config", str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
     if not config.get("interface"):
-        raise InputError(can_config, "interface", "no CAN interface given (neither directly nor in a python-can configuration file)")
+        raise InputError(can_config, "interface",
+                         "no CAN interface given (neither directly nor in a python-can configuration file)")
     if config.get("interface") == "udp_multicast":
         # Its frames leave through the network card; the project never uses it.
         raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
@@ -136,11 +137,12 @@ def bus_config(interface: str | None, channel: str | None, bitrate: int | None =
     for key in ("bitrate", "data_bitrate"):
         if key in config:
             try:
-                config[key] = int(config[key])
+                rate = int(config[key])
             except (TypeError, ValueError):
                 raise InputError(can_config, key, f"{config[key]!r} is not a bit rate (bit/s)") from None
-            if not 10_000 <= config[key] <= 8_000_000:
-                raise InputError(can_config, key, f"{config[key]} bit/s outside 10000..8000000")
+            if not 10_000 <= rate <= 8_000_000:
+                raise InputError(can_config, key, f"{rate} bit/s outside 10000..8000000")
+            config[key] = rate
     return config
 
 

@@ -76,7 +76,8 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     one kernel (:func:`eol_cal.xla.configure_xla`, when JAX has not started yet), JAX's
     persistent compile cache switched on in
     ``cache_dir`` (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`; ``None``: off), the
-    fit's modules imported, one BLAS thread (:func:`eol_cal.blas.limit_blas_threads`), and the objects they made frozen out of the cyclic garbage
+    fit's modules imported, one BLAS thread (:func:`eol_cal.blas.limit_blas_threads`), and the objects
+    they made frozen out of the cyclic garbage
     collector (``gc.freeze``: JAX and the libraries of a fit are ~200 000 objects that a full
     collection would otherwise walk every time; none of them is garbage).
 

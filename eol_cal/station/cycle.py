@@ -12,6 +12,7 @@ the prepare step (nothing written to the ECU, nothing measured), else the config
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import sys
@@ -358,10 +359,8 @@ class StationCycle:
             verdict_rec = self.to_record()
             journal = self._journal(verdict_rec)
             if on_verdict is not None:
-                try:
+                with contextlib.suppress(Exception):  # a display that fails must not cost the record
                     on_verdict(verdict_rec)
-                except Exception:  # noqa: BLE001 - a display that fails must not cost the record
-                    pass
             try:
                 self.report_html = self._step("report", self.report)
             except Exception as exc:  # noqa: BLE001 - the record must still be written
@@ -538,7 +537,7 @@ class StationCycle:
 def _preload_writers() -> None:
     """Import what writes the captures (asammdf, pandas) and the record (the database library)
     while the dyno turns, not when the capture is in or the verdict is known."""
-    import eol_cal.capture.mdf4_io  # noqa: F401
+    import eol_cal.capture.mdf4_io
     import eol_cal.station.spool  # noqa: F401
 
 

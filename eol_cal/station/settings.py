@@ -213,7 +213,8 @@ def _check_values(settings: StationSettings) -> None:
         try:
             records_db(str(settings["db"]), "db", writing=True)
         except InputError as exc:
-            raise InputError(settings.where("db"), "db", exc.reason if exc.file is None else f"{exc.file}: {exc.reason}") from None
+            raise InputError(settings.where("db"), "db",
+                             exc.reason if exc.file is None else f"{exc.file}: {exc.reason}") from None
     if settings["can.config"] is not None:
         from eol_cal.ecu.transport import bus_config
 

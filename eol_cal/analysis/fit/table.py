@@ -126,9 +126,9 @@ def block_from_result(
             raise InputError(source, "segments", f"motor {serial!r}: every segment needs a number 'i_qo_a' (A)") from None
     if calibrated_at is None:
         calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
-    why = serial_problem(str(serial))
-    if why is not None:
-        raise InputError(source, "serial", f"{serial!r}: {why} (the block's serial field)")
+    problem = serial_problem(str(serial))
+    if problem is not None:
+        raise InputError(source, "serial", f"{serial!r}: {problem} (the block's serial field)")
     if layout not in (1, 2):
         raise InputError(source, "layout", f"{layout!r}: layout 1 or 2")
     flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | _options(options)
