@@ -164,6 +164,7 @@ def test_c_crc_table_is_iso_hdlc():
     assert B.crc32(b"123456789") == 0xCBF43926
 
 
+@pytest.mark.slow  # every other vector set computed: 105 s in the fast loop at load 7
 def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):
     import types
 

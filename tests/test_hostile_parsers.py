@@ -236,6 +236,7 @@ def test_mdf4_zero_records_is_refused_by_the_structure_check_naming_the_group(ba
     assert err.value.field.startswith("block ##CG")
 
 
+@pytest.mark.slow  # golden --check computes the vector sets first: 60-100 s
 def test_a_fifo_as_key_file_or_golden_vector_file_is_refused_unread(tmp_path):
     from eol_cal.firmware.example import example_block
 

@@ -115,6 +115,7 @@ def _settings(d: Path, dyno: str, channel: str, key_lines: str) -> Path:
     return path
 
 
+@pytest.mark.slow  # a whole cycle per case: 15-21 s
 @pytest.mark.parametrize("how", ["option", "settings"])
 def test_run_goes_through_the_cycle_with_the_oem_algorithm(plugin, tmp_path, how):
     with loopback_station("K-7", 7, tmp_path / "sim", source=synthetic_source) as st:
@@ -127,6 +128,7 @@ def test_run_goes_through_the_cycle_with_the_oem_algorithm(plugin, tmp_path, how
     assert rec["error"] is None and "calibrated" in {b["role"] for b in rec["blocks"]}, rec.get("error")
 
 
+@pytest.mark.slow  # a station cycle: 14 s
 def test_station_takes_it_from_its_settings(plugin, tmp_path):
     with loopback_station("K-8", 8, tmp_path / "sim", source=synthetic_source) as st:
         path = _settings(tmp_path, st.dyno_address, st.can_channel, 'key_algo = "oem-eps"')

@@ -194,6 +194,7 @@ def test_refit_takes_the_production_runs_of_a_reports_directory_unless_asked(tmp
     assert names(find_captures([str(tmp_path / "reports")], "simulated")) == ["B_run", "C_run"]
 
 
+@pytest.mark.slow  # a Dask scheduler and worker processes: 24 s
 def test_refit_on_a_running_scheduler_started_apart(lot: Path, tmp_path: Path):
     """`--scheduler`: a scheduler and a worker started as a plant would (the `dask` command line,
     their own processes, 127.0.0.1), not by eol-cal: the same rows as the local cluster's."""
