@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import tempfile
 import time
 from pathlib import Path
@@ -57,8 +58,8 @@ def main() -> None:
         ]
         for label, name, opts in cases:
             path = tmp / name
-            w = best_of(args.repeat, lambda: write_capture(capture, path, **opts))
-            r = best_of(args.repeat, lambda: read_capture(path))
+            w = best_of(args.repeat, functools.partial(write_capture, capture, path, **opts))
+            r = best_of(args.repeat, functools.partial(read_capture, path))
             print(f"{label:44s} {w:8.3f} {r:8.3f} {path.stat().st_size / 1e6:7.2f}")
         path = tmp / "c.csv"
         r = best_of(args.repeat, lambda: stdlib_csv(path))

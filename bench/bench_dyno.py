@@ -130,7 +130,7 @@ def main() -> int:
         dc.safe_state()
         dc.close()
 
-        print(f"eol-cal acquire --profile eol-default (8 segments, 7.7 s of capture at 10 kHz), whole process:")
+        print("eol-cal acquire --profile eol-default (8 segments, 7.7 s of capture at 10 kHz), whole process:")
         print(f"  synthetic source: {acquire_wall(host, port, env):.2f} s wall")
     finally:
         server.terminate()

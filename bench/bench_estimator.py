@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from eol_cal.firmware import estimator as E
+from eol_cal.firmware import estimator as est
 from eol_cal.firmware.kinematics import (draw_sensor_errors, electrical_angle, encoder_hall_signals,
                                          speed_profile_angle)
 from eol_cal.wrap import wrap_pi
@@ -83,8 +83,8 @@ def main() -> None:
         print("|---|---:|---:|---:|---:|")
         raw_done = False
         for name, flags in CONFIGS.items():
-            cfg = E.EstimatorConfig.paper(tick_hz=TICK_HZ, **flags)
-            out = E.run_jax(cfg, a, b, h)
+            cfg = est.EstimatorConfig.paper(tick_hz=TICK_HZ, **flags)
+            out = est.run_jax(cfg, a, b, h)
             rows = []
             if not raw_done:
                 rows.append(("(a) raw encoder angle", np.asarray(out.theta_enc)))
@@ -95,7 +95,7 @@ def main() -> None:
                 rms = np.sqrt(np.mean(e**2, axis=1))
                 print(f"| {label} | {rms.mean():.3f} | {rms.max():.3f} | {np.abs(e).max():.2f} | "
                       f"{e.mean():+.3f} |")
-        raw = _err_deg(np.asarray(E.run_jax(E.EstimatorConfig.paper(), a, b, h).theta_enc), truth)[:, score]
+        raw = _err_deg(np.asarray(est.run_jax(est.EstimatorConfig.paper(), a, b, h).theta_enc), truth)[:, score]
         print(f"\nraw encoder angle: standard deviation {raw.std(axis=1).mean():.2f} deg "
               f"(one pitch 16.875 deg / sqrt(12) = {16.875 / math.sqrt(12):.2f}), "
               f"mean {raw.mean():+.2f} deg (the staircase lags by half a pitch)")

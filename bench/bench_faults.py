@@ -179,7 +179,8 @@ def uds_section(args: argparse.Namespace) -> bool:
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import flash_block, hmac_seed_to_key, read_active_block
     from eol_cal.ecu.sim import Faults
-    from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
+    sys.path.insert(0, str(ROOT / "tests"))  # the virtual rig: a test fixture
+    from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
     from eol_cal.ecu.transport import TesterConnection
 
     from eol_cal.exchange_log import quiet
@@ -266,7 +267,7 @@ def main() -> int:
     add_options(ap)
     args = ap.parse_args()
     print(f"# bench_faults: Python {platform.python_version()}, {os.cpu_count()} CPUs, load average "
-          f"{' '.join(open('/proc/loadavg').read().split()[:3])}")
+          f"{' '.join(Path('/proc/loadavg').read_text().split()[:3])}")
     ok = True
     for name in args.section or list(SECTIONS):
         ok &= SECTIONS[name](args)

@@ -98,7 +98,7 @@ def main() -> None:
     # scipy on the same model and data
     sc_times, dk = [], []
     fast = fit_many(motors[: args.scipy], spec, mode="loop")
-    for m, f in zip(motors[: args.scipy], fast):
+    for m, f in zip(motors[: args.scipy], fast, strict=False):
         t0 = time.perf_counter()
         ref = fit_segments_scipy(m, spec)
         sc_times.append(time.perf_counter() - t0)

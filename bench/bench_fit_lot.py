@@ -17,9 +17,9 @@ docs/metrics.md). The fitted phases are, as ``eol-cal fit`` writes them,
 in the firmware estimator's frame; their errors are given against the truth in the plant's true
 angle frame (``phase_k6_err``) and in the frame of the plant's own estimator ``theta_hat``
 (``_fw``: what the compensation needs); ``_rec`` is the fit's own error before the frame shift,
-against the truth moved into the offline reconstruction's frame. The 64 PPR encoder has no index, so the absolute frame comes from the
-halls, whose switching points scatter by 2/3 electrical degree (sigma) in the plant: their mean
-error moves every frame, by about 0.3 deg (sigma), i.e. 1.6 deg of 6th-harmonic phase.
+against the truth moved into the offline reconstruction's frame. The 64 PPR encoder has no index,
+so the absolute frame comes from the halls, whose switching points scatter by 2/3 electrical
+degree (sigma) in the plant: their mean error moves every frame, by about 0.3 deg (sigma), i.e. 1.6 deg of 6th-harmonic phase.
 
 Two truths for k6. The plant's ``k6`` is the motor's own load-proportional 6th harmonic. The
 torque the motor makes on the bench also holds a 6th-order part of the ECU's own: its angle
@@ -166,7 +166,7 @@ def main() -> None:
                     rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
                     blocks_nom.append(block_from_record(rec_n, motor, options=opt, layout=1)
                                       if rec_n["status"] == "ok" else None)
-            for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean):
+            for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean, strict=True):
                 # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
                 # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
                 d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
@@ -216,12 +216,15 @@ def main() -> None:
             ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
             ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
             after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
-                                                blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000))) if ok_n else {}
-            ok_m = [i for i, b in enumerate(blocks_mech) if b is not None] if args.mech and opt & FLAG_EST_LEARN_PITCH_ERRORS else []
+                                                blocks=[blocks_nom[i] for i in ok_n], seed=first + 1000),
+                                 strict=True)) if ok_n else {}
+            with_mech = args.mech and opt & FLAG_EST_LEARN_PITCH_ERRORS
+            ok_m = [i for i, b in enumerate(blocks_mech) if b is not None] if with_mech else []
             after_mech = dict(zip(ok_m, simulate([plants[i] for i in ok_m], point, mode="compensated",
-                                                 blocks=[blocks_mech[i] for i in ok_m], seed=first + 1000))) if ok_m else {}
+                                                 blocks=[blocks_mech[i] for i in ok_m], seed=first + 1000),
+                                  strict=True)) if ok_m else {}
             t_sim += time.perf_counter() - t0
-            after_by = dict(zip(ok, after))
+            after_by = dict(zip(ok, after, strict=True))
             for j, i in enumerate(range(len(rows) - len(plants), len(rows))):
                 # the firmware's frame where the compensation works: its estimator (with the block's
                 # hall table: the compensated run's) at the operating point (steady 60 rpm after 0.2 s)
@@ -307,7 +310,8 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
               f"p95 {np.percentile(np.abs(eff), 95):.3g}, max {np.abs(eff).max():.3g}, "
               f"within 2: {int((np.abs(eff) <= 2.0).sum())}/{n}, mean {eff.mean():+.2f} %; "
               f"the interval holds it for {int((np.abs(eff) <= ci).sum())}/{n}")
-    print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
+    print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), "
+          f"phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
     print(f"hall table measured for {sum(r['hall_source'] == 'measured' for r in rows)}/{n} motors")
     _mech_summary(rows)
     for name in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct", "pp_after_nominal_halls_pct", "pp_true6_pct",
@@ -330,7 +334,8 @@ def _mech_summary(rows: list) -> None:
           + ("; ".join(sorted({"; ".join(r.get("mech_reasons", [])) for r in rows if r.get("mech_status") != "ok"})) or "none"))
     q = np.nanpercentile(marg, [0, 5, 50, 95, 100])
     print(f"predicted identification margin (cosine, one revolution at 300 rpm): min {q[0]:.3f}, p5 {q[1]:.3f}, "
-          f"median {q[2]:.3f}, p95 {q[3]:.3f}, max {q[4]:.3f}; score median {np.nanmedian([r.get('mech_score', np.nan) for r in rows]):.3f}")
+          f"median {q[2]:.3f}, p95 {q[3]:.3f}, max {q[4]:.3f}; "
+          f"score median {np.nanmedian([r.get('mech_score', np.nan) for r in rows]):.3f}")
     first = np.array([r.get("mech_active_first", np.nan) for r in rows], float)
     frac = np.array([r.get("mech_active_frac", np.nan) for r in rows], float)
     if np.isfinite(first).any():

@@ -46,7 +46,7 @@ def run(which: str) -> None:
     f = per_window_run_jax if which == "run_jax" else chunked
     for label in ("cold", "warm"):
         t0 = time.perf_counter()
-        for c, a in zip(caps, angles):
+        for c, a in zip(caps, angles, strict=True):
             f(c, a.theta_r)
         dt = time.perf_counter() - t0
         print(f"{which:>12} {label}: {dt:6.2f} s for {len(caps)} windows ({len(set(len(c.t) for c in caps))} lengths, "

@@ -97,7 +97,8 @@ def main() -> int:
             ids.append(rec.run_id)
             if i:
                 k6.append(value)
-            print(f"run {i:2d}{' (reference)' if i == 0 else ''}: {rec.kind} {rec.verdict:5s} k6 {value:.5f} mN*m/A  ({time.perf_counter() - t0:.0f} s)", flush=True)
+            print(f"run {i:2d}{' (reference)' if i == 0 else ''}: {rec.kind} {rec.verdict:5s} k6 {value:.5f} mN*m/A  "
+                  f"({time.perf_counter() - t0:.0f} s)", flush=True)
     wall = time.perf_counter() - t0
     cmd = ["msa", "type1", "--db", str(db), "--serial", SERIAL, "--reference-run", ids[0], "--reference",
            f"k6={k6_true!r}", "--json", "-o", str(out / "type1.html"), "--plots", str(out / "plots")]
@@ -112,7 +113,8 @@ def main() -> int:
         def f(x, d=4):
             return "-" if x is None else f"{x:.{d}g}"
         print(f"| {q['key']} | {q['unit']} | {q['n']} | {f(q['reference'])} | {f(q['mean'], 5)} | {f(q['sd'], 3)} | "
-              f"{f(q['bias'], 3)} | {f(q['p_value'], 2)} | {f(q['tolerance'])} | {f(q['cg'], 3) if q['cg'] is not None else q['cg_reason']} | "
+              f"{f(q['bias'], 3)} | {f(q['p_value'], 2)} | {f(q['tolerance'])} | "
+              f"{f(q['cg'], 3) if q['cg'] is not None else q['cg_reason']} | "
               f"{f(q['cgk'], 3) if q['cgk'] is not None else q['cgk_reason']} |")
     # the check: numpy / scipy from the records' k6, not through eol_cal.msa
     x = np.array([v for v in k6 if np.isfinite(v)])

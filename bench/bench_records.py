@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import functools
 import os
 import statistics
 import sys
@@ -34,13 +35,14 @@ import tempfile
 import time
 import uuid
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import sqlalchemy as sa
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 
-from _lot_records import lot_record  # noqa: E402
+from _lot_records import lot_record
 
 
 def _writer(args: tuple) -> list[str]:
@@ -179,7 +181,7 @@ def run(a: argparse.Namespace) -> None:
     for name, fn, repeat in (("columns", by_columns, a.repeat), ("records", by_records, a.repeat_records)):
         if repeat < 1:
             continue
-        times, docs[name] = timed(lambda: fn(db, "EPS-STD"), repeat)
+        times, docs[name] = timed(functools.partial(fn, db, "EPS-STD"), repeat)
         if docs[name]["runs"] != production or docs[name]["refusals"]["runs"] != n - production:
             raise SystemExit(f"{name}: {docs[name]['runs']} runs, expected {production}")
         print(f"  {name:<8} median {statistics.median(times):6.2f} s, best {min(times):6.2f} s  "

@@ -220,7 +220,7 @@ def main() -> None:
                 cpu[name] += res["cpu"]
                 if res["rows"]:
                     ref = ref or res["rows"]
-                    for x, y in zip(ref, res["rows"]):
+                    for x, y in zip(ref, res["rows"], strict=True):
                         if x["serial"] != y["serial"] or any(x[k] != y[k] for k in FIGURES):
                             raise RuntimeError(f"{name}: {y['serial']} differs from the first refit: {x} {y}")
                         phase_diff = max(phase_diff, abs(x["phase_k6"] - y["phase_k6"]))

@@ -183,7 +183,7 @@ def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile
                  rate_hz: int, first_seed: int) -> list[Motor]:
     """``motors`` + 1 motors through one `eol-cal station` process; the first one is not counted."""
     settings = settings_file(work, line, map_name, key, profile)
-    err = open(work / "station.stderr", "w")
+    err = open(work / "station.stderr", "w")  # noqa: SIM115 - the child's stderr; closed after its run
     proc = subprocess.Popen(eol_cal(code, "station", "--station", str(settings), "--operator", "bench"),
                             cwd=code, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err)
     screen = Screen(proc)

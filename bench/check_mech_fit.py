@@ -19,8 +19,9 @@ import argparse
 import math
 import sys
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +29,10 @@ from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fingerprint import _LOW_ORDERS, _POLY_DEGREE, _low_order_complement  # noqa: F401
 from eol_cal.analysis.fit import mech as M
 from eol_cal.analysis.motor_result import MechOrder, ValueCi
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.fit import FitSpec, MotorFit
+    from eol_cal.analysis.fit.capture import MotorInput
 from eol_cal.firmware.mech_params import ORDERS
 
 _Z95 = M._Z95
@@ -417,7 +422,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
         note("sigma", _rel(new.sigma, old.sigma))
         note("dirs, grid phase, offsets differ", float(new.dirs != old.dirs or new.grid_phase != old.grid_phase
                                                        or new.offsets != old.offsets))
-        for a, b in zip(new.scores, old.scores):
+        for a, b in zip(new.scores, old.scores, strict=True):
             if (a is None) != (b is None):
                 note("scores", math.inf)
             elif a is not None:
@@ -425,7 +430,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
         # the joint fit itself: the final one over the windows placed, and every trial of a window
         # against the reference window
         quarter = poles * math.pi / N / 4.0
-        placed = [(t, k + 4 * r) for w, r in zip(prints, old.offsets) if r is not None for t, k in w.stretches]
+        placed = [(t, k + 4 * r) for w, r in zip(prints, old.offsets, strict=True) if r is not None for t, k in w.stretches]
         for cov in (True, False):
             a, b = fpr._joint_fit(placed, N, quarter, cov), old_joint_fit(placed, N, quarter, cov)
             note("joint fit fp", _rel(a[0], b[0]))
@@ -450,7 +455,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
         if (oo is None) != (on is None):
             note("orders None differs", 1.0)
             continue
-        for a, b in zip(on or (), oo or ()):
+        for a, b in zip(on or (), oo or (), strict=False):
             note("order value", _rel(a.c.value, b.c.value))
             note("order ci95", _rel(a.c.ci95, b.c.ci95))
             note("order phase (rad)", abs(math.remainder(a.phase_c.value - b.phase_c.value, 2 * math.pi)))

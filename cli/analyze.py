@@ -25,7 +25,7 @@ def _ecu_text(ecu: dict | None) -> str:
 def _print_table(reports: list[dict]) -> None:
     from rich.table import Table
 
-    from eol_cal.analysis.report import TOP_ORDERS
+    from eol_cal.analysis.analyze import TOP_ORDERS
 
     table = Table(title="eol-cal analyze")
     table.add_column("", style="bold")
@@ -87,7 +87,7 @@ def analyze_cmd(captures: tuple[str, ...], map_file: str | None, as_json: bool, 
     whose ECU block changed during the acquisition is refused, one with no record is analysed
     with a warning.
     """
-    from eol_cal.analysis.report import analyze_capture
+    from eol_cal.analysis.analyze import analyze_capture
     from eol_cal.capture import load_channel_map, read_capture
     from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.windows import split_windows

@@ -24,12 +24,12 @@ BLOCK_CHECK_SCHEMA = "eol-cal/block-check/1"
 def block_report(path: str) -> tuple[dict[str, Any], Any]:
     """The ``block show --json`` document for a file, and the decoded block (None if undecodable)."""
     from eol_cal.errors import InputError
-    from eol_cal.firmware import block as pb
+    from eol_cal.firmware import block as B
 
-    data = pb.read_block_file(path)
-    res = pb.check(data)
+    data = B.read_block_file(path)
+    res = B.check(data)
     try:
-        blk = pb.unpack(data, path)
+        blk = B.unpack(data, path)
         decode_error = None
     except InputError as exc:
         blk, decode_error = None, str(exc)
@@ -136,12 +136,12 @@ def unsafe_reasons(data: bytes, file: str, motor_file: str | None) -> list[str]:
     The physical-sanity rules of :mod:`eol_cal.firmware.block_sanity` for the motor of
     ``motor_file`` (default the paper preset): finite values, currents within its rating, its type.
     """
-    from eol_cal.firmware import block as pb
+    from eol_cal.firmware import block as B
     from eol_cal.firmware.block_sanity import MotorType, sanity_problems, type_problems
     from eol_cal.motor import load_motor
 
     motor = load_motor("paper", motor_file)
-    blk = pb.unpack(data, file)
+    blk = B.unpack(data, file)
     problems = sanity_problems(blk, motor.i_max) + type_problems(blk, MotorType.of_motor(motor))
     return [f"{f}: {r}" for f, r in problems]
 
@@ -161,10 +161,10 @@ def check_cmd(file: str, as_json: bool, motor_file: str | None) -> None:
     """Apply the firmware's check routine, then the physical-sanity rules (finite values, currents
     within the motor's rating, the motor's type); exit 0 valid and safe, 1 invalid or unsafe, 2 unreadable."""
     from eol_cal.errors import CheckFailed
-    from eol_cal.firmware import block as pb
+    from eol_cal.firmware import block as B
 
-    data = pb.read_block_file(file)
-    res = pb.check(data)
+    data = B.read_block_file(file)
+    res = B.check(data)
     unsafe = unsafe_reasons(data, file, motor_file) if res.valid else []
     if as_json:
         print_json({"schema": BLOCK_CHECK_SCHEMA, "file": file, "valid": res.valid, "status": res.status,
@@ -191,22 +191,22 @@ def hex_cmd(file: str, bank: int, output: str, motor_file: str | None) -> None:
     Refuses an invalid or unsafe block (exit 1). Bytes after the block are not exported.
     """
     from eol_cal.errors import CheckFailed
-    from eol_cal.firmware import block as pb
+    from eol_cal.firmware import block as B
     from eol_cal.atomic import atomic_write
 
-    data = pb.read_block_file(file)
-    res = pb.check(data)
+    data = B.read_block_file(file)
+    res = B.check(data)
     if not res.valid:
         raise CheckFailed(f"{file}: refusing to export an invalid block: " + "; ".join(res.reasons))
     unsafe = unsafe_reasons(data, file, motor_file)
     if unsafe:
         raise CheckFailed(f"{file}: refusing to export an unsafe block: " + "; ".join(unsafe))
-    n = pb.unpack(data, file).table_len
-    text = pb.to_intel_hex(data[:pb.block_bytes(n)], bank)
+    n = B.unpack(data, file).table_len
+    text = B.to_intel_hex(data[:B.block_bytes(n)], bank)
     atomic_write(Path(output), text.encode("ascii"))
-    start = pb.BANK_BYTE_ADDR[bank]
-    click.echo(f"wrote {output}: {pb.block_bytes(n)} bytes at byte address 0x{start:x} "
-               f"(word address 0x{pb.BANK_WORD_ADDR[bank]:x}, bank {bank})")
+    start = B.BANK_BYTE_ADDR[bank]
+    click.echo(f"wrote {output}: {B.block_bytes(n)} bytes at byte address 0x{start:x} "
+               f"(word address 0x{B.BANK_WORD_ADDR[bank]:x}, bank {bank})")
 
 
 @block_group.command("a2l")
@@ -252,13 +252,13 @@ def uncompensated_cmd(serial: str, output: str, motor_file: str | None, estimato
     """
     from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.atomic import atomic_write
-    from eol_cal.firmware import block as pb
+    from eol_cal.firmware import block as B
     from eol_cal.motor import load_motor
 
     blk = uncompensated_block(serial, load_motor("paper", motor_file), options=estimator_bits(estimator))
-    data = pb.pack(blk)
+    data = B.pack(blk)
     atomic_write(Path(output), data)
-    click.echo(f"wrote {output}: {len(data)} bytes, flags {pb.flag_names(blk.flags)} (no compensation), "
+    click.echo(f"wrote {output}: {len(data)} bytes, flags {B.flag_names(blk.flags)} (no compensation), "
                f"serial {serial}")
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import click
+import contextlib
 
 from cli.common import CommandExit, console, handle_errors, print_json, styled
 from cli.paths import io_paths
@@ -49,10 +50,8 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
         "enc_b_rising_edges": rising_edges(capture["enc_b"]) if capture.has("enc_b") else None,
         "edges_per_electrical_rev": None,
     }
-    try:
+    with contextlib.suppress(KeyError, TypeError, ValueError, ZeroDivisionError):
         encoder["edges_per_electrical_rev"] = 2 * int(meta["encoder_ppr"]) / int(meta["poles"])
-    except (KeyError, TypeError, ValueError, ZeroDivisionError):
-        pass
     hall: dict[str, Any] = {"states_seen": None, "changes": None}
     if capture.has("hall"):
         values = np.asarray(capture["hall"])

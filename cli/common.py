@@ -9,7 +9,9 @@ import os
 import signal
 import sys
 import threading
-from typing import Any, Callable, Iterator
+from pathlib import Path
+from typing import Any
+from collections.abc import Callable, Iterator
 
 import click
 from rich.console import Console
@@ -146,7 +148,7 @@ class RecordsDb(click.ParamType):
 
     name = "PATH|URL"
 
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> "str | Path":
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str | Path:
         from eol_cal.address import records_db
         from eol_cal.errors import InputError
 

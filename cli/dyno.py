@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 import click
 
 from cli.common import console, err_console, exchange_log_options, handle_errors, print_json
-from cli.ecu import _bus_options, _open_bus
+from cli.ecu import bus_options, open_cli_bus
 from cli.paths import io_paths
 
 if TYPE_CHECKING:
@@ -59,7 +59,7 @@ def _quiet_pymodbus() -> None:
 @click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @register_map_option
-@_bus_options
+@bus_options
 @handle_errors
 @exchange_log_options
 @io_paths(inputs=("profile", "can_config"), outputs=("output",))
@@ -118,7 +118,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
             from eol_cal.ecu.client import ClientTiming
             from eol_cal.station.preflight import read_ecu_with
 
-            read_ecu = read_ecu_with(lambda: _open_bus(interface, channel, bitrate, can_config), ClientTiming())
+            read_ecu = read_ecu_with(lambda: open_cli_bus(interface, channel, bitrate, can_config), ClientTiming())
         capture, trace = acquire_traced(read_ecu, config, segments, output, serial=serial, rate_hz=rate_hz,
                                         channels=channels, progress=progress, reset_faults=reset_faults,
                                         extra_metadata={"comment": f"eol-cal acquire, profile {prof.name}"})

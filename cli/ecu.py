@@ -6,7 +6,8 @@ CAN, ISO-TP and UDS imports stay inside the commands so ``eol-cal --help`` stays
 from __future__ import annotations
 
 import functools
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import click
 
@@ -15,7 +16,7 @@ from cli.paths import io_paths
 from eol_cal.errors import InputError
 
 
-def _bus_options(func: Callable) -> Callable:
+def bus_options(func: Callable) -> Callable:
     """--interface/--channel/--bitrate/--can-config, as python-can understands them."""
 
     @click.option("--can-config", type=click.Path(dir_okay=False),
@@ -32,7 +33,7 @@ def _bus_options(func: Callable) -> Callable:
     return wrapper
 
 
-def _open_bus(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None) -> Any:
+def open_cli_bus(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None) -> Any:
     from eol_cal.ecu.transport import open_bus
     from eol_cal.exchange_log import quiet
 
@@ -43,7 +44,7 @@ def _open_bus(interface: str | None, channel: str | None, bitrate: int | None, c
     return open_bus(interface, channel, bitrate, can_config)
 
 
-def _seed_to_key(key_file: str | None, key_algo: str | None) -> Any:
+def key_from_options(key_file: str | None, key_algo: str | None) -> Any:
     from eol_cal.ecu.keyalgo import seed_to_key_from
 
     return seed_to_key_from(key_file, key_algo)
@@ -59,7 +60,7 @@ def key_algo_option(func: Callable) -> Callable:
 
 @click.command("flash")
 @click.argument("block_file", metavar="BLOCK", type=click.Path(dir_okay=False))
-@_bus_options
+@bus_options
 @click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
 @key_algo_option
 @click.option("--verify/--no-verify", default=True, show_default=True, help="Read the block back and compare.")
@@ -87,8 +88,8 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
 
     data = read_block_file(block_file)
     motor = load_motor("paper", motor_file)
-    seed_to_key = _seed_to_key(key_file, key_algo)
-    bus = _open_bus(interface, channel, bitrate, can_config)
+    seed_to_key = key_from_options(key_file, key_algo)
+    bus = open_cli_bus(interface, channel, bitrate, can_config)
     try:
         report = flash_block(bus, data, seed_to_key=seed_to_key, verify=verify, dry_run=dry_run,
                              force=force, source=block_file, motor=motor,
@@ -115,7 +116,7 @@ def ecu_group() -> None:
 
 
 @ecu_group.command("info")
-@_bus_options
+@bus_options
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 @handle_errors
 @exchange_log_options
@@ -125,7 +126,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
     """Serial, software version, supported layouts, active bank and sequence, and the active block."""
     from eol_cal.ecu.client import ecu_info
 
-    bus = _open_bus(interface, channel, bitrate, can_config)
+    bus = open_cli_bus(interface, channel, bitrate, can_config)
     try:
         info = ecu_info(bus)
     finally:
@@ -154,7 +155,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 
 
 @ecu_group.command("read-block")
-@_bus_options
+@bus_options
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block file to write (raw).")
 @click.option("--bank", default=None, metavar="0|1|previous", help="Read this bank instead of the active one.")
 @handle_errors
@@ -168,8 +169,8 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
     from eol_cal.ecu.restore import read_bank_block
     from eol_cal.firmware.block import check
 
-    which = _bank_choice(bank)
-    bus = _open_bus(interface, channel, bitrate, can_config)
+    which = bank_choice(bank)
+    bus = open_cli_bus(interface, channel, bitrate, can_config)
     try:
         data = read_active_block(bus) if which is None else read_bank_block(bus, which).data
     finally:
@@ -183,7 +184,7 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
     click.echo(f"wrote {len(data)} bytes to {output}")
 
 
-def _bank_choice(value: str | None) -> int | str | None:
+def bank_choice(value: str | None) -> int | str | None:
     from eol_cal.ecu.restore import PREVIOUS
 
     if value is None or value == PREVIOUS:

@@ -127,8 +127,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
     mechanics = mechanics_or_rigid(bench_name)
     caps = [read_capture(p, map_file) for p in captures]
-    traces = [trace_of(cap.metadata, path) for path, cap in zip(captures, caps)]
-    for path, trace, cap in zip(captures, traces, caps):  # every refusal before any fit starts
+    traces = [trace_of(cap.metadata, path) for path, cap in zip(captures, caps, strict=True)]
+    for path, trace, cap in zip(captures, traces, caps, strict=True):  # every refusal before any fit starts
         for warning in check_trace(trace, path, allow_untraced=allow_untraced, allow_compensated=allow_compensated,
                                    serial=cap.metadata.get("serial")):
             click.echo(f"warning: {warning}", err=True)
@@ -146,7 +146,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         from eol_cal.analysis.fit.plot import plot_fit, plot_residual_spectrum
 
         Path(plot_dir).mkdir(parents=True, exist_ok=True)
-        for mi, f in zip(res.inputs, res.fits):
+        for mi, f in zip(res.inputs, res.fits, strict=True):
             safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in mi.serial)
             plot_fit(Path(plot_dir) / f"{safe}_fit.png", mi, f, spec)
             plot_residual_spectrum(Path(plot_dir) / f"{safe}_residual.png", mi, f, spec)

@@ -31,14 +31,14 @@ def index_rows(poles: int, ppr: int, ppr_min: int, ppr_max: int) -> list[dict]:
     """
     from eol_cal.analysis.metrics import eta_percent
 
-    values = {2**k for k in range(0, 31) if ppr_min <= 2**k <= ppr_max}
+    values = {2**k for k in range(31) if ppr_min <= 2**k <= ppr_max}
     values |= {v for v in _ROUND_PPR if ppr_min <= v <= ppr_max}
     values.add(ppr)
     n = np.array(sorted(values))
     eta = eta_percent(n, poles)
     return [
         {"ppr": int(v), "deg_per_count": poles * 180.0 / int(v), "eta_pct": float(e), "selected": int(v) == ppr}
-        for v, e in zip(n, eta)
+        for v, e in zip(n, eta, strict=True)
     ]
 
 

@@ -10,7 +10,7 @@ from cli.common import RECORDS_DB, CommandExit, console, handle_errors, kind_opt
 from cli.paths import io_paths
 
 
-def _date(value: str | None, name: str):
+def parse_date(value: str | None, name: str):
     import datetime as dt
 
     from eol_cal.errors import InputError
@@ -29,7 +29,7 @@ def lot_group() -> None:
 
 
 def day_options(func):
-    """``--since`` and ``--until``: UTC days, inclusive (:func:`_date` checks them)."""
+    """``--since`` and ``--until``: UTC days, inclusive (:func:`parse_date` checks them)."""
     func = click.option("--until", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or earlier.")(func)
     return click.option("--since", default=None, metavar="YYYY-MM-DD", help="Only runs started on this UTC day or later.")(func)
 
@@ -68,11 +68,11 @@ def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, o
     statistics are of the production runs unless --kind says otherwise (docs/records.md, "Run kinds")."""
     from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
-    from eol_cal.report.lot import select_records, write_lot_page
+    from eol_cal.lot.page import select_records, write_lot_page
     from eol_cal.station.records import db_label
     from eol_cal.station.records_query import query_records
 
-    first, last = _date(since, "since"), _date(until, "until")
+    first, last = parse_date(since, "since"), parse_date(until, "until")
     baseline = None
     if baseline_name is not None:
         from eol_cal.lot.baseline import load
@@ -128,7 +128,7 @@ def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, 
             raise InputError(None, "--quantity", f"{key!r} is not one of {', '.join(keys)}")
     if judged and baseline_name is None:
         raise InputError(None, "--quantity", "judges against a baseline: give --baseline NAME")
-    first, last = _date(since, "since"), _date(until, "until")
+    first, last = parse_date(since, "since"), parse_date(until, "until")
     filters = dict(variant=variant, station=station, since=first and first.isoformat(),
                    until=last and last.isoformat())
     min_n = DEFAULT_MIN_N if min_n is None else min_n
@@ -218,7 +218,7 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
             t.add_column(col)
         for v in doc["violations"]:
             t.add_row(v["quantity"], v["variant"], v["station"], v["text"],
-                      ", ".join(f"{s} {str(a)[:16]}" for s, a in zip(v["serials"], v["started_at"])))
+                      ", ".join(f"{s} {str(a)[:16]}" for s, a in zip(v["serials"], v["started_at"], strict=True)))
         console.print(t)
         unjudged = [j for j in doc["judged"] if j["reason"]]
         for j in unjudged:
@@ -244,7 +244,7 @@ def baseline_cmd(db, name, since, until, variant, station, min_n, replace, as_js
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.station.records import db_label
 
-    first, last = _date(since, "since"), _date(until, "until")
+    first, last = parse_date(since, "since"), parse_date(until, "until")
     filters = dict(since=first and first.isoformat(), until=last and last.isoformat(), variant=variant, station=station)
     min_n = DEFAULT_MIN_N if min_n is None else min_n
     b = baseline_of_db(db, name, filters, min_n)

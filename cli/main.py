@@ -65,16 +65,15 @@ def _exit_at_once_on_a_signal() -> None:
     """From here on the outcome is decided and said: a signal (a second Ctrl-C while threads
     and atexit handlers finish) ends the process at once with exit 2, and during the teardown
     after the last atexit handler it is ignored; never the signal's own death (130)."""
+    import contextlib
     import os
     import signal
     import sys
 
     def now(signum: int, frame: object) -> None:
         for stream in (sys.stdout, sys.stderr):
-            try:
+            with contextlib.suppress(Exception):  # a closed pipe: nothing more can be said
                 stream.flush()
-            except Exception:  # noqa: BLE001 - a closed pipe: nothing more can be said
-                pass
         os._exit(2)
 
     for name in _ENDING_SIGNALS:

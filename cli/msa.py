@@ -67,7 +67,7 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     repeatability s, Cg = 0.2 T / (4 s) and Cgk = (0.1 T - |bias|) / (2 s) (docs/spc.md).
     Exit 1 unless every quantity with a tolerance is capable (Cg and Cgk >= 1.33)."""
     from cli.common import print_json
-    from cli.lot import _date
+    from cli.lot import parse_date
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.msa.study import document, read_runs, reference_of_run, studies
     from eol_cal.station.records import db_label
@@ -75,7 +75,7 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     min_n = DEFAULT_MIN_N if min_n is None else min_n
     refs = parse_pairs(references, "--reference")
     tols = parse_pairs(tolerances, "--tolerance", positive=True)
-    first, last = _date(since, "since"), _date(until, "until")
+    first, last = parse_date(since, "since"), parse_date(until, "until")
     sources = {key: "given" for key in refs}
     if reference_run is not None:
         of_run = reference_of_run(read_runs(db, run_id=reference_run), reference_run)
@@ -88,7 +88,7 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     if out is not None:
         from eol_cal.msa.page import write_page
 
-        titles = [f"{rid}, {str(t)[:19].replace('T', ' ')}" for rid, t in zip(lot.run_id, lot.started_at)]
+        titles = [f"{rid}, {str(t)[:19].replace('T', ' ')}" for rid, t in zip(lot.run_id, lot.started_at, strict=True)]
         write_page(out, doc, results, title=db_label(db), run_titles=titles)
     written = []
     if plots is not None:

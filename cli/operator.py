@@ -10,7 +10,7 @@ import click
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
 from cli.ecu import key_algo_option
 from cli.paths import check_more, io_paths
-from cli.station import DEMO_LIMITS, _flush_first, _quiet_logs, _StepProgress, given_options, results_table
+from cli.station import DEMO_LIMITS, flush_first, quiet_logs, StepProgress, given_options, results_table
 from eol_cal import interrupts
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
@@ -138,7 +138,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
 
     station = dict(cfg.station, operator=operator)
     if demo_dir is None:
-        with _StepProgress(serial) as progress:
+        with StepProgress(serial) as progress:
             return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.station.demo import loopback_station
@@ -150,7 +150,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
         mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
                          station=station)
-        with _StepProgress(serial) as progress:
+        with StepProgress(serial) as progress:
             return run_motor(mcfg, progress, on_verdict=_show_verdict)
 
 
@@ -227,7 +227,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
 
 def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
-    from eol_cal.report.lot import select_records, write_lot_page
+    from eol_cal.lot.page import select_records, write_lot_page
     from eol_cal.station.records import db_label, db_shown
     from eol_cal.station.records_query import query_records
 
@@ -235,7 +235,7 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     if tally.records:
         console.print(results_table(tally.records, f"eol-cal station {station_id}: this session"))
     console.print(f"session: {tally.summary()}")
-    for rec, report in zip(tally.records, tally.reports):
+    for rec, report in zip(tally.records, tally.reports, strict=True):
         what = f"refused ({', '.join(rec.refusal_codes)})" if rec.kind == "refusal" else rec.verdict
         console.print(f"  {rec.serial}: {what}, report {report or '-'}")
     for serial in tally.interrupted:
@@ -299,7 +299,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
                          seed_to_key=hmac_seed_to_key(P.DEV_SECRET) if demo else None)
     if demo and lot_file is None:
         lot_file = out_dir / "lot.html"
-    _quiet_logs()
+    quiet_logs()
     what = f"demo in {out_dir} (simulated ECU and dyno per motor)" if demo else f"settings {settings.source}"
     console.print(f"eol-cal station {cfg.station['id']}: {what}\n  limits {cfg.limits.source} ({cfg.limits.variant}), "
                   f"records {db_shown(cfg.db)}, reports {cfg.report_dir}")
@@ -312,7 +312,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
         console.print("no operator: the session ends")
         return
     if not demo:
-        _flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+        flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
     if cfg.master is not None:
         console.print(_master_status(cfg))
     err_console.print(f"operator {operator}; each motor takes about a quarter of a minute")

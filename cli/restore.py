@@ -11,7 +11,7 @@ from typing import Any
 import click
 
 from cli.common import RECORDS_DB, err_console, handle_errors, print_json
-from cli.ecu import _bank_choice, _bus_options, _open_bus, _seed_to_key, ecu_group, key_algo_option
+from cli.ecu import bank_choice, bus_options, open_cli_bus, key_from_options, ecu_group, key_algo_option
 from cli.paths import io_paths
 from eol_cal.errors import InputError
 
@@ -34,7 +34,7 @@ from eol_cal.errors import InputError
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Where the record waits when the database cannot be written (as for run).")
 @click.option("--force", is_flag=True, help="Restore a block without compensation, or a run's block that did not pass.")
-@_bus_options
+@bus_options
 @click.option("--key-file", type=click.Path(dir_okay=False), help="Security secret, 16 bytes as hex.")
 @key_algo_option
 @click.option("--save", "save_file", type=click.Path(dir_okay=False), default=None,
@@ -73,7 +73,7 @@ def restore_cmd(bank: str | None, from_file: str | None, calibration: str | None
     if (calibration or run_id) and db is None:
         raise InputError(None, "db", "--calibration and --run find the block in the run records: give --db")
     motor = load_motor("paper", motor_file)
-    seed_to_key = _seed_to_key(key_file, key_algo)
+    seed_to_key = key_from_options(key_file, key_algo)
     records = _serial_records(db, serial if not run_id else None) if db is not None else []
     restored_from = None
     if calibration or run_id:
@@ -118,7 +118,7 @@ def _from_records(records: list, serial: str | None, run_id: str | None, force: 
     from eol_cal.ecu.client import ecu_state
     from eol_cal.station.restore import find_calibration
 
-    bus = _open_bus(*bus_args)
+    bus = open_cli_bus(*bus_args)
     try:
         state = ecu_state(bus)
     finally:
@@ -141,9 +141,9 @@ def _from_bank_or_file(bank: str | None, from_file: str | None, save_file: str |
 
     if from_file is not None:
         return read_block_file(from_file), from_file
-    bus = _open_bus(*bus_args)
+    bus = open_cli_bus(*bus_args)
     try:
-        got = read_bank_block(bus, _bank_choice(bank))
+        got = read_bank_block(bus, bank_choice(bank))
     finally:
         bus.shutdown()  # a UDS session closes its link with it: the flash opens its own
     if got.is_active:
@@ -182,13 +182,13 @@ def _restore(data: bytes, source: str, serial: str | None, db: Any, report_dir: 
 
     progress = None if as_json else (lambda s: err_console.print(f"  {s}", style="dim"))
     if db is None:
-        bus = _open_bus(*bus_args)
+        bus = open_cli_bus(*bus_args)
         try:
             return restore_block(bus, data, source, seed_to_key=seed_to_key, motor=motor, progress=progress), None, None
         finally:
             bus.shutdown()
     report, rec, saved, failure = restore_run(
-        lambda: _open_bus(*bus_args), data, serial=serial or unpack(data, source).serial, report_dir=report_dir,
+        lambda: open_cli_bus(*bus_args), data, serial=serial or unpack(data, source).serial, report_dir=report_dir,
         seed_to_key=seed_to_key, timing=ClientTiming(), motor=motor, source=source, restored_from=restored_from,
         station=StationInfo(extra={"command": "ecu restore", "can": {"interface": bus_args[0], "channel": bus_args[1]}}),
         db=db, spool_dir=spool_dir, progress=progress)

@@ -14,13 +14,13 @@ _SUFFIXES = (".csv", ".mf4")
 
 
 def _read_block(path: str):
-    from eol_cal.firmware import block as pb
+    from eol_cal.firmware import block as B
 
-    data = pb.read_block_file(path)
-    res = pb.check(data)
+    data = B.read_block_file(path)
+    res = B.check(data)
     if not res.valid:
         raise InputError(path, "block", "invalid parameter block: " + "; ".join(res.reasons))
-    return pb.unpack(data, path)
+    return B.unpack(data, path)
 
 
 def _profile(profile: str | None, speed_rpm: float | None, torque_nm: float | None, iq: float | None,

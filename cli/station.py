@@ -18,7 +18,7 @@ from cli.paths import check_more, io_paths
 DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").read_text(encoding="utf-8")
 
 
-def _quiet_logs() -> None:
+def quiet_logs() -> None:
     from eol_cal.exchange_log import quiet
 
     # pymodbus, can-isotp, udsoncan log every retry and timeout; the run reports failures itself
@@ -26,7 +26,7 @@ def _quiet_logs() -> None:
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
 
 
-class _StepProgress:
+class StepProgress:
     """The cycle's steps as a rich progress display (one line per step, with its time)."""
 
     def __init__(self, serial: str, enabled: bool = True) -> None:
@@ -39,7 +39,7 @@ class _StepProgress:
                                  console=err_console, transient=True, disable=not enabled)
         self.tasks: dict[str, int] = {}
 
-    def __enter__(self) -> "_StepProgress":
+    def __enter__(self) -> StepProgress:
         self.progress.__enter__()
         return self
 
@@ -134,7 +134,7 @@ def _print_outcome(out, as_json: bool) -> None:
     console.print(f"  record {rec.run_id} -> {where}")
 
 
-def _flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
+def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
     from eol_cal.station.records import db_shown
     from eol_cal.station.spool import flush_spool
 
@@ -257,16 +257,16 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     check_more(*settings_paths(settings))  # the settings' paths against the options' (--log-file too)
     # switched on by the helper thread: importing JAX costs a second
     cfg = for_motor(station_config(settings, operator=operator, cache_dir=default_cache_dir()), serial)
-    _quiet_logs()
+    quiet_logs()
     # Records spooled earlier go into the database beside the cycle, not before it: the database
     # library loads and the inserts run while the cycle waits on the dyno and the ECU. (The
     # spool is listed as the flush starts: this run's record, spooled at its verdict, is not
     # among them.)
-    flush = threading.Thread(target=_flush_first, args=(cfg.db, cfg.spool_dir, cfg.db_timeout_s),
+    flush = threading.Thread(target=flush_first, args=(cfg.db, cfg.spool_dir, cfg.db_timeout_s),
                              name="spool-flush", daemon=True)
     flush.start()
     try:
-        with _StepProgress(serial, enabled=not as_json) as progress:
+        with StepProgress(serial, enabled=not as_json) as progress:
             out = run_motor(cfg, progress, on_verdict=None if as_json else _print_verdict)
     except KeyboardInterrupt:
         # run_motor has recorded the run as an error and commanded the dyno's safe state
@@ -319,7 +319,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     limits = load_limits(limits_path)
     regmap = load_map(register_map)
     db = out_dir / "results.sqlite" if db is None else db
-    _quiet_logs()
+    quiet_logs()
     cache_dir = enable_jax_cache()
     t0 = time.perf_counter()
     err_console.print(f"eol-cal demo: {motors} motor(s), profile {profile}, limits {limits_path} ({limits.variant}); "
@@ -336,14 +336,14 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
                 profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,
                 station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},
             )
-            with _StepProgress(serial) as progress:
+            with StepProgress(serial) as progress:
                 out = run_motor(cfg, progress)
         outcomes.append(out)
         rec = out.record
         err_console.print(f"{serial}: {rec.verdict}" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
     wall = time.perf_counter() - t0
     console.print(results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
-    from eol_cal.report.lot import write_lot_page
+    from eol_cal.lot.page import write_lot_page
     from eol_cal.station.records import db_label, db_shown
     from eol_cal.station.records_query import query_records
 

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import ipaddress
+import os
 import re
+import stat
 from pathlib import Path
 
 from eol_cal.errors import InputError
@@ -63,7 +65,8 @@ def parse_host_port(text: str, field: str = "address", any_port: bool = False,
         return text, default_port
     host, sep, port = text.rpartition(":")
     if not sep or not host:
-        example = "HOST or HOST:PORT, e.g. 192.0.2.10 or 127.0.0.1:5020" if default_port is not None else "HOST:PORT, e.g. 127.0.0.1:5020"
+        example = ("HOST or HOST:PORT, e.g. 192.0.2.10 or 127.0.0.1:5020" if default_port is not None
+                   else "HOST:PORT, e.g. 127.0.0.1:5020")
         raise InputError(None, field, f"expected {example}, got {text!r}")
     why = host_problem(host)
     if why is not None:
@@ -130,9 +133,6 @@ def records_db(text: str, field: str = "db", *, writing: bool = False) -> str | 
 
 
 def _db_path(text: str, field: str, writing: bool) -> Path:
-    import os
-    import stat
-
     if not text.strip():
         raise InputError(None, field, "empty: give a SQLite file path or a postgresql:// URL")
     path = Path(text)

@@ -6,7 +6,7 @@ import contextlib
 import os
 import tempfile
 from pathlib import Path
-from typing import Iterator
+from collections.abc import Iterator
 
 from eol_cal.errors import WriteError
 from eol_cal.inputs import refuse_overwriting_input

@@ -16,9 +16,11 @@ import contextlib
 import logging
 import os
 import time
-from typing import Iterator, Sequence, TextIO
+from typing import TextIO
+from collections.abc import Iterator, Sequence
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import refuse_overwriting_input
 
 #: logger of the dyno client's Modbus exchanges
 MODBUS_LOGGER = "eol_cal.modbus"
@@ -76,8 +78,6 @@ def exchange_logging(stream: TextIO | None = None, path: str | None = None) -> I
         # opened at the first exchange, after the command's checks of its outputs (the log file
         # named the block being flashed or the limits file, and was appended to); a file that
         # cannot be written is refused now
-        from eol_cal.inputs import refuse_overwriting_input
-
         refuse_overwriting_input(path)
         parent = os.path.dirname(os.path.abspath(path))
         if not (os.access(path, os.W_OK) if os.path.exists(path) else os.access(parent, os.W_OK)):

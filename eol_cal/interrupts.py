@@ -155,10 +155,8 @@ def emergency(action: Callable[[], None]) -> Iterator[None]:
 
 def _end_now(signum: int, grace_s: float) -> None:
     for action in list(reversed(_emergency)):
-        try:
+        with contextlib.suppress(BaseException):  # the process ends anyway; each action is best effort
             action()
-        except BaseException:  # noqa: BLE001 - the process ends anyway; each action is best effort
-            pass
     name = signal.Signals(signum).name
     try:
         sys.stderr.write(f"error: interrupted by {name}; the command did not answer it within {grace_s:g} s (blocked "

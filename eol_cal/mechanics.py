@@ -37,7 +37,7 @@ import math
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
@@ -47,8 +47,6 @@ from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
 from eol_cal.motor import MotorParams
 from eol_cal.wrap import wrap_2pi
 
-if TYPE_CHECKING:
-    from eol_cal.plant.params import PlantParams
 
 TWO_PI = 2.0 * math.pi
 
@@ -109,7 +107,8 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
             text = resources.files("eol_cal.benches").joinpath(f"{name_or_file}.toml").read_text()
         except FileNotFoundError:
             known = sorted(p.name[:-5] for p in resources.files("eol_cal.benches").iterdir() if p.name.endswith(".toml"))
-            raise InputError(None, "bench", f"unknown bench {name_or_file!r}; known: {', '.join(known)}, or a .toml file") from None
+            raise InputError(None, "bench",
+                             f"unknown bench {name_or_file!r}; known: {', '.join(known)}, or a .toml file") from None
     data = loads_toml(text, source)
     kwargs: dict = {}
     for key, value in data.items():
@@ -190,18 +189,42 @@ def shaft_response(omega: np.ndarray, motor: MotorParams, mechanics: BenchMechan
     return G / (1.0 + feedback)
 
 
-def shaft_torque(twist: Array, omega_m: Array, omega_d: Array, p: PlantParams) -> Array:
+class ShaftLine(Protocol):
+    """The shaft line's coefficients in the per-tick float32 form (a plant's parameters hold them)."""
+
+    @property
+    def J(self) -> Array: ...  # kg*m^2, rotor
+
+    @property
+    def B(self) -> Array: ...  # N*m*s/rad, rotor friction
+
+    @property
+    def J_dyno(self) -> Array: ...  # kg*m^2
+
+    @property
+    def K_shaft(self) -> Array: ...  # N*m/rad
+
+    @property
+    def D_shaft(self) -> Array: ...  # N*m*s/rad
+
+    @property
+    def Kp_dyno(self) -> Array: ...  # N*m*s/rad, dyno speed loop
+
+    @property
+    def Ki_dyno(self) -> Array: ...  # N*m/rad, dyno speed loop
+
+
+def shaft_torque(twist: Array, omega_m: Array, omega_d: Array, p: ShaftLine) -> Array:
     """Torque in the shaft (N*m) from its twist (rad) and the two speeds (rad/s, mechanical).
 
-    ``p`` holds ``K_shaft`` (N*m/rad) and ``D_shaft`` (N*m*s/rad), e.g.
-    :class:`eol_cal.plant.params.PlantParams`.
+    ``p`` holds ``K_shaft`` (N*m/rad) and ``D_shaft`` (N*m*s/rad).
     """
     return p.K_shaft * twist + p.D_shaft * (omega_m - omega_d)
 
 
 def mech_step(
     theta_m: Array, twist: Array, omega_m: Array, omega_d: Array, x_dyno: Array,
-    T_rotor: Array, omega_ref: Array, p: PlantParams, dt: float, xp: ArrayModule,
+    T_rotor: Array, omega_ref: Array, p: ShaftLine, dt: float, xp: ArrayModule,
 ) -> tuple[Array, Array, Array, Array, Array, Array]:
     """Advance the shaft line by one tick (semi-implicit Euler, see the module doc).
 
@@ -219,7 +242,7 @@ def mech_step(
         Electromagnetic torque minus ripple acting on the rotor (N*m).
     omega_ref : array
         Dyno speed reference (rad/s, signed).
-    p : PlantParams
+    p : ShaftLine
         ``J``, ``B``, ``J_dyno``, ``K_shaft``, ``D_shaft``, ``Kp_dyno``, ``Ki_dyno`` (the
         per-tick float32 form of the motor and its :class:`BenchMechanics`).
     dt : float

@@ -10,6 +10,7 @@ console errors, uncaught exceptions, log errors, and the URL of every request.
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import os
 import shutil
@@ -49,7 +50,7 @@ class Browser:
         self._events: list[dict[str, Any]] = []
 
     # ------------------------------------------------------------------ lifetime
-    def __enter__(self) -> "Browser":
+    def __enter__(self) -> Browser:
         exe = chromium_path()
         if exe is None:
             raise RuntimeError("chromium not found (Debian: apt-get install -y chromium)")
@@ -77,17 +78,13 @@ class Browser:
     def close(self) -> None:
         """End the browser's process group and wait for it; remove the profile directory."""
         if self.ws is not None:
-            try:
+            with contextlib.suppress(Exception):  # the browser goes next anyway
                 self.ws.close()
-            except Exception:  # noqa: BLE001 - the browser goes next anyway
-                pass
             self.ws = None
         if self.proc is not None:
             pgid = self.proc.pid  # start_new_session: the group id is the browser's pid
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(pgid, signal.SIGTERM)
-            except ProcessLookupError:
-                pass
             try:
                 self.proc.wait(timeout=10)
             except subprocess.TimeoutExpired:
@@ -233,4 +230,5 @@ def element_sizes(browser: Browser, selector: str) -> list[dict[str, Any]]:
     """``{id, w, h}`` of every element matching ``selector`` (getBoundingClientRect)."""
     return browser.evaluate(
         f"Array.from(document.querySelectorAll({json.dumps(selector)})).map(e => {{"
-        "const r = e.getBoundingClientRect(); return {id: e.id || (e.closest('[id]') || {}).id || '', w: r.width, h: r.height}; })")
+        "const r = e.getBoundingClientRect(); "
+        "return {id: e.id || (e.closest('[id]') || {}).id || '', w: r.width, h: r.height}; })")

@@ -12,7 +12,7 @@ from _records import make_record
 
 from eol_cal.station.record import RunRecord
 
-T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.timezone.utc)
+T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.UTC)
 #: what makes a failed run fail (values past the demo variant's limits), by ``i % 4``
 _FAILS = ({"pp_after": 2.5}, {"k6": 1.25e-3}, {"r2": 0.25}, {"pp_after": 2.2, "r2": 0.2})
 _STEPS = ("acquire", "flash", "fit")

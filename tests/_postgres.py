@@ -55,7 +55,7 @@ class PostgresServer:
     def _run(self, *args: str) -> None:
         subprocess.run([*self.prefix, *args], check=True, capture_output=True, timeout=120)
 
-    def start(self) -> "PostgresServer":
+    def start(self) -> PostgresServer:
         self._run(str(self.bindir / "initdb"), "-D", str(self.data), "-U", self.user, "-A", "trust",
                   "--no-sync", "-E", "UTF8")
         opts = f"-h 127.0.0.1 -p {self.port} -k {self.tmp} -c fsync=off -c max_connections=60"

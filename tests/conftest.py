@@ -1,7 +1,17 @@
-"""Shared fixtures: a real PostgreSQL server (session-scoped, started only when a test asks)."""
+"""Shared fixtures: a real PostgreSQL server (session-scoped, started only when a test asks), and
+the suite's own JAX cache directory.
+
+The suite runs in parallel (pytest-xdist, ``scripts/test``): each worker is its own process, so
+whatever a test writes goes under ``tmp_path`` or into a directory of its worker, never into the
+repository, the working directory or the user's home. The PostgreSQL server is one per worker
+(session scope), on a free port, each test in a database of its own.
+"""
 
 from __future__ import annotations
 
+import os
+import shutil
+import tempfile
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -9,6 +19,48 @@ from pathlib import Path
 import pytest
 
 from _postgres import PostgresServer
+
+# pytest-xdist gives its workers COLUMNS=80 (the controller's terminal): the CLI would print its
+# tables 80 wide there and LOG_WIDTH wide in a serial run, and a test reading a table would pass in
+# one and not the other. The workers see what a serial run sees; a test that wants a width sets it.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.pop("COLUMNS", None)
+
+_JAX_CACHE = "EOL_CAL_JAX_CACHE"
+_jax_cache_key = pytest.StashKey[str]()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Point the fit's caches (JAX's compilation cache, the serialized solvers) at a directory of
+    this worker unless the caller chose one: JAX writes its cache entries in place, so two
+    workers sharing ``~/.cache/eol-cal/jax`` could read each other's half-written entries; and the
+    tests stay out of the user's home. The processes a test starts inherit it."""
+    if os.environ.get(_JAX_CACHE):
+        return
+    worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
+    path = tempfile.mkdtemp(prefix=f"eol-cal-test-jax-{worker}-")
+    config.stash[_jax_cache_key] = path
+    os.environ[_JAX_CACHE] = path
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Also ``slow``, so that the fast loop (``-m "not slow"``) leaves them out: a test on the
+    PostgreSQL server (``records_db``'s ``postgresql`` parameter; SQLite stays in the fast loop),
+    and a test marked ``long`` (minutes: the mech branch's marker)."""
+    for item in items:
+        callspec = getattr(item, "callspec", None)
+        on_postgres = callspec is not None and callspec.params.get("records_db") == "postgresql"
+        if (on_postgres or item.get_closest_marker("long") is not None) and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.slow)
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    path = config.stash.get(_jax_cache_key, None)
+    if path is not None:
+        shutil.rmtree(path, ignore_errors=True)
+        if os.environ.get(_JAX_CACHE) == path:
+            del os.environ[_JAX_CACHE]
+
 
 
 @pytest.fixture(scope="session")

@@ -22,8 +22,8 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.ecu.testing import example_block
-from eol_cal.firmware import block as pb
+from _ecu_rig import example_block
+from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
 from eol_cal.firmware import gen_header
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
@@ -107,20 +107,20 @@ def _size(ch) -> int:
 
 def test_a_characteristic_per_field_and_per_named_flag_bit(parsed):
     _, _, _, _, chars, layout = parsed
-    fields = [f["name"] for f in pb.LAYOUTS[layout]["field"]]
+    fields = [f["name"] for f in B.LAYOUTS[layout]["field"]]
     bits = [f"flags.{name}" for name in C.FLAGS]
     assert sorted(chars) == sorted(fields + bits)
 
 
 def test_every_characteristic_has_the_layouts_address_size_type_and_unit(parsed):
     bank, n, _, _, chars, layout = parsed
-    base = 2 * pb.BANK_WORD_ADDR[bank]  # the contract's byte address of the bank
-    for f in pb.LAYOUTS[layout]["field"]:
+    base = 2 * B.BANK_WORD_ADDR[bank]  # the contract's byte address of the bank
+    for f in B.LAYOUTS[layout]["field"]:
         name = f["name"]
         ch = chars[name]
         asam, elem = ASAM_TYPE[f["type"]]
-        count = pb.field_count(name, n, layout)
-        assert ch.address == base + pb.field_offset(name, n, layout), name
+        count = B.field_count(name, n, layout)
+        assert ch.address == base + B.field_offset(name, n, layout), name
         assert ch.fnc_asam_dtype == asam, name
         assert ch.fnc_element_size == elem, name
         assert _size(ch) == elem * count, name
@@ -141,12 +141,12 @@ def test_every_characteristic_has_the_layouts_address_size_type_and_unit(parsed)
 
 def test_the_characteristics_tile_the_block(parsed):
     bank, n, _, _, chars, layout = parsed
-    spans = sorted((chars[f["name"]].address, _size(chars[f["name"]])) for f in pb.LAYOUTS[layout]["field"])
-    start = 2 * pb.BANK_WORD_ADDR[bank]
+    spans = sorted((chars[f["name"]].address, _size(chars[f["name"]])) for f in B.LAYOUTS[layout]["field"])
+    start = 2 * B.BANK_WORD_ADDR[bank]
     for addr, size in spans:
         assert addr == start
         start += size
-    assert start - 2 * pb.BANK_WORD_ADDR[bank] == pb.block_bytes(n, layout) == {1: 104, 2: 3248}[layout] + 8 * n
+    assert start - 2 * B.BANK_WORD_ADDR[bank] == B.block_bytes(n, layout) == {1: 104, 2: 3248}[layout] + 8 * n
 
 
 def test_flags_name_the_contracts_bits(parsed):
@@ -154,7 +154,7 @@ def test_flags_name_the_contracts_bits(parsed):
     flags = chars["flags"]
     verb = flags.compuMethod.tab_verb
     assert flags.compuMethod.conversionType == "TAB_VERB"
-    table = dict(zip(verb.in_values, verb.text_values))
+    table = dict(zip(verb.in_values, verb.text_values, strict=True))
     assert len(table) == 2 ** len(C.FLAGS)
     for name, flag in C.FLAGS.items():
         assert table[float(1 << flag.bit)] == name
@@ -168,8 +168,8 @@ def test_memory_segments_byte_order_and_version(parsed):
     _, n, path, session, _, layout = parsed
     segs = sorted(session.query(model.MemorySegment).all(), key=lambda s: s.address)
     assert [(s.name, s.address, s.size, s.prgType, s.memoryType) for s in segs] == [
-        (f"BANK{b}", 2 * w, pb.BANK_BYTES, "DATA", "FLASH") for b, w in enumerate(pb.BANK_WORD_ADDR)]
-    assert [2 * w for w in pb.BANK_WORD_ADDR] == [0x650000, 0x660000]
+        (f"BANK{b}", 2 * w, B.BANK_BYTES, "DATA", "FLASH") for b, w in enumerate(B.BANK_WORD_ADDR)]
+    assert [2 * w for w in B.BANK_WORD_ADDR] == [0x650000, 0x660000]
     assert session.query(model.ModCommon).one().byte_order.byteOrder == "MSB_LAST"
     version = session.query(model.Asap2Version).one()
     assert (version.versionNo, version.upgradeNo) == (1, 71)
@@ -182,15 +182,15 @@ def test_a_tool_reading_with_the_a2l_sees_the_blocks_values(parsed):
     with its type, the byte order and bit mask, equals the block's decoded fields."""
     bank, n, _, session, chars, layout = parsed
     # bit 0 set, bit 1 clear: the bit characteristics must tell them apart
-    blk = dataclasses.replace(pb.unpack(example_block(serial="EPS-A2L-7", table_len=n, sequence=5)),
+    blk = dataclasses.replace(B.unpack(example_block(serial="EPS-A2L-7", table_len=n, sequence=5)),
                               flags=C.FLAG_COMP_ENABLE)
     if layout == 2:
         blk = dataclasses.replace(blk, layout_version=2, mech=_mech_example(blk.encoder_ppr))
-    data = pb.pack(blk)
+    data = B.pack(blk)
     seg = {s.name: s for s in session.query(model.MemorySegment).all()}[f"BANK{bank}"]
     image = data + b"\xff" * (seg.size - len(data))
     order = {"MSB_LAST": "<", "MSB_FIRST": ">"}[session.query(model.ModCommon).one().byte_order.byteOrder]
-    expected = pb.unpack(data).to_dict() | {"reserved": 0, "crc32": pb.crc32(data[:-4])}
+    expected = B.unpack(data).to_dict() | {"reserved": 0, "crc32": B.crc32(data[:-4])}
     if layout == 2:
         mech = expected.pop("mech")
         fp = np.zeros(2 * FP_MAX)
@@ -249,6 +249,7 @@ def test_cli_refuses_bad_bank_and_table_len(tmp_path):
         assert not out.exists()
 
 
+@pytest.mark.slow
 def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path, monkeypatch):
     """gen_a2l reads the flag names from contract.FLAGS: a new bit there is a new characteristic
     and a new name in the flags word's verbal table, and the file still reads back."""
@@ -256,14 +257,15 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
     path = _write_a2l(tmp_path, 1, 16)
     session, chars = _import_a2l(path)
     bit = chars["flags.TEST_BIT_31"]
-    assert bit.bitMask == 1 << 31 and bit.address == 2 * pb.BANK_WORD_ADDR[1] + pb.field_offset("flags")
+    assert bit.bitMask == 1 << 31 and bit.address == 2 * B.BANK_WORD_ADDR[1] + B.field_offset("flags")
     verb = chars["flags"].compuMethod.tab_verb
     assert len(verb.in_values) == 2 ** len(C.FLAGS)
-    assert dict(zip(verb.in_values, verb.text_values))[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
+    verbs = dict(zip(verb.in_values, verb.text_values, strict=True))
+    assert verbs[float(1 << 31 | C.FLAG_COMP_ENABLE)] == "COMP_ENABLE|TEST_BIT_31"
     res = subprocess.run([_a2ltool(), str(path), "--strict", "--check"], capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stdout + res.stderr
 
 
-def test_pya2l_leaves_no_listener_on_other_engines(parsed):  # noqa: ARG001
+def test_pya2l_leaves_no_listener_on_other_engines(parsed):
     """Our own engines (the records' SQLite and PostgreSQL) never run pya2l's connect hook."""
     assert not event.contains(Engine, "connect", model.set_sqlite3_pragmas)

@@ -10,6 +10,7 @@ from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.errors import InputError
 
 
+@pytest.mark.slow
 def test_estimator_tracks_the_offline_angle_and_the_raw_angle_does_not():
     cap = synthetic_capture(rpm=60.0, seconds=0.6, theta_r0=0.5)
     d = firmware_angle_difference(cap, capture_angle(cap))

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
 
 from eol_cal.errors import InputError
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import compensator as comp
 from eol_cal.firmware import golden
 
@@ -100,7 +99,7 @@ def test_block_i_qc_respects_comp_enable():
     assert np.any(on != 0)
     import dataclasses
 
-    off = comp.block_i_qc(dataclasses.replace(b, flags=pb.FLAG_INTERP_ENABLE), theta, np.float32(100), np.float32(5))
+    off = comp.block_i_qc(dataclasses.replace(b, flags=B.FLAG_INTERP_ENABLE), theta, np.float32(100), np.float32(5))
     assert np.all(off == 0) and off.shape == on.shape
 
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import compensator as comp
 from eol_cal.firmware import golden, vectors
 
@@ -27,10 +27,12 @@ def sets():
     return golden.vector_sets()
 
 
+@pytest.mark.slow  # regenerates every golden vector set (the C harness tests check the files in the fast loop)
 def test_checked_in_golden_matches_reference(sets):
     assert golden.check_golden(GOLDEN, sets) == []
 
 
+@pytest.mark.slow  # regenerates every golden vector set (the C harness tests check the files in the fast loop)
 def test_manifest_format(sets):
     doc = json.loads((GOLDEN / "manifest.json").read_text())
     assert doc["layout_version"] == 1 and doc["float_encoding"] == "ieee754-binary32-hex"
@@ -47,6 +49,7 @@ def test_manifest_format(sets):
         assert all(re.fullmatch(r"[0-9a-f]{8}", r[c]) for c in ("theta_hat", "omega_hat", "i_qo", "i_qc"))
 
 
+@pytest.mark.slow  # regenerates every golden vector set (the C harness tests check the files in the fast loop)
 def test_golden_sets_cover_what_the_brief_asks(sets):
     blocks = golden.golden_blocks()
     assert len(blocks) >= 3 and len({b.table_len for _, b in blocks}) >= 3
@@ -62,6 +65,7 @@ def test_golden_sets_cover_what_the_brief_asks(sets):
     assert statuses == {"0", "1", "2"}
 
 
+@pytest.mark.slow  # regenerates every golden vector set (the C harness tests check the files in the fast loop)
 def test_check_reports_file_and_row(tmp_path, sets):
     mine = {k: v for k, v in sets.items() if k in ("blocks.csv", "block_checks.csv", "compensator.csv")}
     golden.write_golden(tmp_path, mine)
@@ -157,9 +161,10 @@ def test_c_crc_table_is_iso_hdlc():
         for _ in range(8):
             c = (c >> 1) ^ 0xEDB88320 if c & 1 else c >> 1
         assert v == c
-    assert pb.crc32(b"123456789") == 0xCBF43926
+    assert B.crc32(b"123456789") == 0xCBF43926
 
 
+@pytest.mark.slow  # every other vector set computed: 105 s in the fast loop at load 7
 def test_estimator_sets_are_taken_from_their_module(monkeypatch, tmp_path):
     import types
 

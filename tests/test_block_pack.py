@@ -14,20 +14,20 @@ import pytest
 from intelhex import IntelHex
 
 from eol_cal.errors import InputError
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import gen_header, golden
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _block(n: int = 64, **kw) -> pb.ParamBlock:
+def _block(n: int = 64, **kw) -> B.ParamBlock:
     x = 2 * np.pi * np.arange(n) / n
-    args = dict(sequence=5, flags=pb.FLAG_COMP_ENABLE, serial="SN-42", calibrated_at=1_700_000_000, poles=6,
+    args = dict(sequence=5, flags=B.FLAG_COMP_ENABLE, serial="SN-42", calibrated_at=1_700_000_000, poles=6,
                 encoder_ppr=64, tick_hz=20000.0, kt=0.04905, hall_angle=(1.0, 3.1, 2.0, 5.2, 0.0, 4.1),
                 c6=0.01, phase_c6=0.1, k6=0.002, phase_k6=-0.3, lead_s=8e-4, iqc_limit=5.0,
                 table_const=0.2 * np.sin(x), table_per_amp=0.03 * np.cos(x))
     args.update(kw)
-    return pb.ParamBlock(**args)
+    return B.ParamBlock(**args)
 
 
 # ---- layout -------------------------------------------------------------------------------
@@ -42,38 +42,38 @@ CONTRACT_OFFSETS = {  # firmware contract section 2, typed in independently of l
 
 @pytest.mark.parametrize("n", [16, 256, 1024])
 def test_layout_matches_contract_and_tiles_the_block(n):
-    assert set(pb.FIELDS) == set(CONTRACT_OFFSETS) | {"table_per_amp", "crc32"}
+    assert set(B.FIELDS) == set(CONTRACT_OFFSETS) | {"table_per_amp", "crc32"}
     for name, off in CONTRACT_OFFSETS.items():
-        assert pb.field_offset(name, n) == off, name
-    assert pb.field_offset("table_per_amp", n) == 100 + 4 * n
-    assert pb.field_offset("crc32", n) == 100 + 8 * n
+        assert B.field_offset(name, n) == off, name
+    assert B.field_offset("table_per_amp", n) == 100 + 4 * n
+    assert B.field_offset("crc32", n) == 100 + 8 * n
     # fields tile [0, block_bytes) without gap or overlap; 32-bit fields 4-aligned
-    spans = sorted((pb.field_offset(f, n), pb.field_count(f, n) * pb._SIZE[pb.FIELDS[f]["type"]], f)
-                   for f in pb.FIELDS)
+    spans = sorted((B.field_offset(f, n), B.field_count(f, n) * B._SIZE[B.FIELDS[f]["type"]], f)
+                   for f in B.FIELDS)
     pos = 0
     for off, size, name in spans:
         assert off == pos, name
-        if pb.FIELDS[name]["type"] in ("u32", "f32"):
+        if B.FIELDS[name]["type"] in ("u32", "f32"):
             assert off % 4 == 0, name
         pos += size
-    assert pos == pb.block_bytes(n) == 104 + 8 * n
+    assert pos == B.block_bytes(n) == 104 + 8 * n
 
 
 def test_constants():
-    assert (pb.MAGIC, pb.LAYOUT_VERSION, pb.SUPPORTED_LAYOUTS) == (0xEC6A, 1, (1, 2))
-    assert pb.BANK_WORD_ADDR == (0x328000, 0x330000)
-    assert (pb.BANK_WORDS, pb.BANK_BYTES) == (0x8000, 65536)
-    assert (pb.FLAG_COMP_ENABLE, pb.FLAG_INTERP_ENABLE) == (1, 2)
+    assert (B.MAGIC, B.LAYOUT_VERSION, B.SUPPORTED_LAYOUTS) == (0xEC6A, 1, (1, 2))
+    assert B.BANK_WORD_ADDR == (0x328000, 0x330000)
+    assert (B.BANK_WORDS, B.BANK_BYTES) == (0x8000, 65536)
+    assert (B.FLAG_COMP_ENABLE, B.FLAG_INTERP_ENABLE) == (1, 2)
 
 
 # ---- CRC ----------------------------------------------------------------------------------
 
 def test_crc32_check_value_and_zlib():
-    assert pb.crc32(b"123456789") == 0xCBF43926
+    assert B.crc32(b"123456789") == 0xCBF43926
     rng = np.random.default_rng(3)
     for size in (0, 1, 7, 1000):
         data = rng.integers(0, 256, size, dtype=np.uint8).tobytes()
-        assert pb.crc32(data) == zlib.crc32(data) & 0xFFFFFFFF
+        assert B.crc32(data) == zlib.crc32(data) & 0xFFFFFFFF
 
 
 # ---- pack / unpack --------------------------------------------------------------------------
@@ -81,12 +81,12 @@ def test_crc32_check_value_and_zlib():
 @pytest.mark.parametrize("n", [16, 64, 1024])
 def test_pack_unpack_round_trip(n):
     b = _block(n)
-    data = pb.pack(b)
-    assert len(data) == pb.block_bytes(n)
-    assert pb.check(data).valid
-    u = pb.unpack(data)
+    data = B.pack(b)
+    assert len(data) == B.block_bytes(n)
+    assert B.check(data).valid
+    u = B.unpack(data)
     assert u == b
-    assert pb.pack(u) == data
+    assert B.pack(u) == data
     assert u.table_const.dtype == np.float32 and u.table_len == n
     # bytes where the contract puts them, little-endian
     assert struct.unpack_from("<HHII", data, 0) == (0xEC6A, 1, 104 + 8 * n, 5)
@@ -107,9 +107,9 @@ def test_floats_held_as_binary32_and_equality_sees_changes():
 
 
 def test_sixteen_character_serial_has_no_nul():
-    data = pb.pack(_block(serial="ABCDEFGHIJKLMNOP"))
+    data = B.pack(_block(serial="ABCDEFGHIJKLMNOP"))
     assert data[16:32] == b"ABCDEFGHIJKLMNOP"
-    assert pb.unpack(data).serial == "ABCDEFGHIJKLMNOP"
+    assert B.unpack(data).serial == "ABCDEFGHIJKLMNOP"
 
 
 @pytest.mark.parametrize("change, field", [
@@ -133,7 +133,7 @@ def test_sixteen_character_serial_has_no_nul():
 def test_pack_refuses_what_would_not_be_valid(change, field):
     b = _block(**change)
     with pytest.raises(InputError) as err:
-        pb.pack(b)
+        B.pack(b)
     assert err.value.field == field
 
 
@@ -151,12 +151,12 @@ def test_construction_refuses_malformed_fields():
 def _patched(data: bytes, fmt: str, off: int, value: int, fix_crc: bool = True) -> bytes:
     buf = bytearray(data)
     struct.pack_into(fmt, buf, off, value)
-    return pb.with_crc(bytes(buf)) if fix_crc else bytes(buf)
+    return B.with_crc(bytes(buf)) if fix_crc else bytes(buf)
 
 
 def test_each_validity_rule_is_refused_with_its_status():
-    good = pb.pack(_block(16))
-    H, C = pb.STATUS_HEADER_INVALID, pb.STATUS_CRC_MISMATCH
+    good = B.pack(_block(16))
+    H, C = B.STATUS_HEADER_INVALID, B.STATUS_CRC_MISMATCH
     cases = {
         "magic": (_patched(good, "<H", 0, 0x6AEC), H, "magic"),
         "layout": (_patched(good, "<H", 2, 3), H, "layout_version"),
@@ -168,34 +168,34 @@ def test_each_validity_rule_is_refused_with_its_status():
         "sequence erased": (_patched(good, "<I", 8, 0xFFFFFFFF), H, "sequence"),
         "truncated block": (good[:-1], H, "truncated"),
         "truncated header": (good[:99], H, "truncated"),
-        "erased bank": (b"\xff" * pb.BANK_BYTES, H, "erased"),
+        "erased bank": (b"\xff" * B.BANK_BYTES, H, "erased"),
         "crc of edited header": (_patched(good, "<I", 8, 6, fix_crc=False), C, "CRC"),
         "crc field": (good[:-4] + bytes([good[-4] ^ 1]) + good[-3:], C, "CRC"),
     }
     for name, (data, status, word) in cases.items():
-        res = pb.check(data)
+        res = B.check(data)
         assert res.status == status and not res.valid, name
         assert any(word in r for r in res.reasons), (name, res.reasons)
     # every bit of the covered bytes is protected by the CRC
     for k in range(0, len(good) - 4, 37):
         flipped = bytearray(good)
         flipped[k] ^= 0x04
-        assert pb.check(bytes(flipped)).status in (H, C), k
+        assert B.check(bytes(flipped)).status in (H, C), k
 
 
 def test_valid_with_erased_tail_and_warnings_only_for_reserved_and_flags():
-    good = pb.pack(_block(16))
-    bank = good + b"\xff" * (pb.BANK_BYTES - len(good))
-    assert pb.check(bank).valid and pb.unpack(bank) == _block(16)
-    res = pb.check(_patched(good, "<H", 98, 1))
+    good = B.pack(_block(16))
+    bank = good + b"\xff" * (B.BANK_BYTES - len(good))
+    assert B.check(bank).valid and B.unpack(bank) == _block(16)
+    res = B.check(_patched(good, "<H", 98, 1))
     assert res.valid and "reserved" in res.warnings[0]
-    res = pb.check(_patched(good, "<I", 12, 0x100))
+    res = B.check(_patched(good, "<I", 12, 0x100))
     assert res.valid and "flags" in res.warnings[0]
 
 
 def test_golden_check_cases_agree_with_check():
     for cid, image, status in golden.check_cases(golden.golden_blocks()):
-        assert pb.check(image).status == status, cid
+        assert B.check(image).status == status, cid
     assert {s for _, _, s in golden.check_cases(golden.golden_blocks())} == {0, 1, 2}
 
 
@@ -205,21 +205,21 @@ def test_golden_check_cases_agree_with_check():
 ])
 def test_unpack_names_file_and_field(data, field):
     with pytest.raises(InputError) as err:
-        pb.unpack(data, "bank0.bin")
+        B.unpack(data, "bank0.bin")
     assert err.value.file == "bank0.bin" and err.value.field == field
 
 
 def test_unpack_refusals_after_magic():
-    good = pb.pack(_block(16))
+    good = B.pack(_block(16))
     for fmt, off, value, field in (("<H", 2, 7, "layout_version"), ("<H", 96, 12, "table_len"),
                                    ("<H", 96, 32, "block_bytes")):
         with pytest.raises(InputError) as err:
-            pb.unpack(_patched(good, fmt, off, value, fix_crc=False), "f.bin")
+            B.unpack(_patched(good, fmt, off, value, fix_crc=False), "f.bin")
         assert err.value.field == field
     bad_serial = bytearray(good)
     bad_serial[16] = 0xC3
     with pytest.raises(InputError) as err:
-        pb.unpack(bytes(bad_serial), "f.bin")
+        B.unpack(bytes(bad_serial), "f.bin")
     assert err.value.field == "serial"
 
 
@@ -227,28 +227,28 @@ def test_unpack_refusals_after_magic():
 
 @pytest.mark.parametrize("bank", [0, 1])
 def test_intel_hex_round_trip_at_bank_address(bank):
-    data = pb.pack(_block(256))
-    text = pb.to_intel_hex(data, bank)
+    data = B.pack(_block(256))
+    text = B.to_intel_hex(data, bank)
     ih = IntelHex()
     ih.loadhex(io.StringIO(text))
-    start = 2 * pb.BANK_WORD_ADDR[bank]
+    start = 2 * B.BANK_WORD_ADDR[bank]
     assert ih.minaddr() == start and ih.maxaddr() == start + len(data) - 1
     assert ih.tobinstr(start=start, size=len(data)) == data
-    assert pb.intel_hex_bank(text) == (bank, data)
-    assert pb.from_intel_hex(text, bank) == data
+    assert B.intel_hex_bank(text) == (bank, data)
+    assert B.from_intel_hex(text, bank) == data
     with pytest.raises(InputError):
-        pb.from_intel_hex(text, 1 - bank)
+        B.from_intel_hex(text, 1 - bank)
 
 
 def test_intel_hex_refusals():
     with pytest.raises(InputError, match="bank"):
-        pb.to_intel_hex(b"\0\0", 2)
+        B.to_intel_hex(b"\0\0", 2)
     with pytest.raises(InputError):
-        pb.to_intel_hex(b"\0" * (pb.BANK_BYTES + 2), 0)
+        B.to_intel_hex(b"\0" * (B.BANK_BYTES + 2), 0)
     with pytest.raises(InputError):
-        pb.to_intel_hex(b"\0" * 3, 0)
+        B.to_intel_hex(b"\0" * 3, 0)
     with pytest.raises(InputError):
-        pb.intel_hex_bank(":zz\n")
+        B.intel_hex_bank(":zz\n")
 
 
 # ---- generated and checked-in artefacts ----------------------------------------------------------
@@ -276,8 +276,8 @@ def test_header_check_detects_staleness(tmp_path):
 
 def test_paper_fixture_is_current():
     data = (ROOT / "fixtures" / "block_paper.bin").read_bytes()
-    assert pb.check(data).valid
-    assert data == pb.pack(golden.paper_block())
-    b = pb.unpack(data)
+    assert B.check(data).valid
+    assert data == B.pack(golden.paper_block())
+    b = B.unpack(data)
     assert (b.poles, b.encoder_ppr, b.table_len) == (6, 64, 256)
     assert b.hall_angle == tuple(float(np.float32(math.radians(a))) for a in (60, 180, 120, 300, 0, 240))

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 from _capture_helpers import assert_same_capture
 from click.testing import CliRunner
+import pytest
 
 from cli.main import cli
 from eol_cal.capture import read_capture
@@ -76,7 +77,8 @@ def test_convert_foreign_to_mdf4_events_and_back(tmp_path):
 
 
 def test_convert_refuses_events_for_csv_and_foreign_without_map(tmp_path):
-    r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "paper_60rpm.csv"), str(tmp_path / "x.csv"), "--digital", "events"])
+    r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "paper_60rpm.csv"), str(tmp_path / "x.csv"),
+                                 "--digital", "events"])
     assert r.exit_code == 2 and "--digital" in r.stderr
     r = CliRunner().invoke(cli, ["capture", "convert", str(FIXTURES / "daq_export_foreign.csv"), str(tmp_path / "x.mf4")])
     assert r.exit_code == 2 and "'Zeit'" in r.stderr and "--map" in r.stderr
@@ -85,6 +87,7 @@ def test_convert_refuses_events_for_csv_and_foreign_without_map(tmp_path):
     assert r.exit_code == 2 and "cannot write" in r.stderr and "x.mf4" in r.stderr
 
 
+@pytest.mark.slow
 def test_subprocess_info_and_bad_exit_code():
     ok = subprocess.run(
         [sys.executable, "-m", "cli.main", "capture", "info", str(FIXTURES / "paper_60rpm.csv"), "--json"],
@@ -100,6 +103,7 @@ def test_subprocess_info_and_bad_exit_code():
     assert "bad_hall_fault.csv" in bad.stderr and "'hall'" in bad.stderr and "hall state 7" in bad.stderr
 
 
+@pytest.mark.slow
 def test_fixtures_are_small_valid_and_regenerate_identically(tmp_path):
     for name in ("paper_60rpm.csv", "paper_60rpm.mf4", "daq_export_foreign.csv", "bad_hall_fault.csv"):
         assert (FIXTURES / name).stat().st_size < 3_000_000

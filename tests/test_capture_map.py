@@ -123,7 +123,7 @@ def test_map_and_header_units_must_agree(tmp_path):
     path = _map(tmp_path, '[channels]\nt = { name = "Zeit", unit = "s" }\n')
     with pytest.raises(InputError, match="file states unit 'ms' but map") as info:
         read_capture(FOREIGN, path)
-    assert info.value.file == str(FOREIGN) and "t (source channel 'Zeit')" == info.value.field
+    assert info.value.file == str(FOREIGN) and info.value.field == "t (source channel 'Zeit')"
 
 
 def test_hall_bit_line_not_binary(tmp_path):

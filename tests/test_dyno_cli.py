@@ -19,6 +19,8 @@ from eol_cal.capture import read_capture
 from eol_cal.dyno.registers import SimFault
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 PROFILE = """

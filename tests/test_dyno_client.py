@@ -100,6 +100,7 @@ def test_fault_during_capture_leaves_safe_state_and_no_file(tmp_path: Path, kind
     assert not out.exists() and not list(tmp_path.iterdir())
 
 
+@pytest.mark.slow
 def test_long_disconnect_fails_safe_and_no_file(tmp_path: Path, regmap):
     # the dyno drops off the network for longer than the client's retries: the client gives up,
     # and the dyno's communication watchdog stops the drive
@@ -134,7 +135,7 @@ def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path, regma
     back = read_capture(out)
     windows = split_windows(back)
     assert [len(w.t) for w in windows] == [int(round(s.seconds * 10000)) for s in PROFILE]
-    for w, seg in zip(windows, PROFILE):
+    for w, seg in zip(windows, PROFILE, strict=True):
         assert np.all(w["speed"] == seg.speed_rpm)
         ang = capture_angle(w)  # one continuous motion per window: the halls agree with the encoder
         assert np.degrees(ang.hall_residual_rms_rad) < 1.0
@@ -144,6 +145,7 @@ def test_split_windows_gives_one_capture_per_segment(dyno, tmp_path: Path, regma
     assert [len(w.t) for w in split_windows(no_meta)] == [len(w.t) for w in windows]
 
 
+@pytest.mark.slow
 def test_stuck_heartbeat_stops_the_run(tmp_path: Path, regmap):
     holder: dict = {}
 

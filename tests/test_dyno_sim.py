@@ -199,6 +199,7 @@ def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path, regmap):
     assert [r.capture_index for r, _ in seen] == [1, 2, 3, 4]
 
 
+@pytest.mark.slow
 def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
     """The plant behind the dyno runs the block the ECU's flash holds: raw without a valid bank,
     compensated with the block made from the motor's true ripple once it is programmed."""

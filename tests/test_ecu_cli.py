@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.sim import Faults
-from eol_cal.ecu.testing import example_block, virtual_rig
+from _ecu_rig import example_block, virtual_rig
 from eol_cal.firmware import block as B
 
 
@@ -43,6 +43,7 @@ def _stop(proc):
         proc.wait(5)
 
 
+@pytest.mark.slow
 def test_flash_across_processes_and_restart_sees_the_flash(files):
     tmp, key, block = files
     flash = tmp / "ecu.bin"

@@ -15,7 +15,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import Faults
-from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
+from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
 from eol_cal.firmware import block as B
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
@@ -68,6 +68,7 @@ STEP_CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("step,occurrence,expected", STEP_CASES, ids=[f"{s}{n}" for s, n, _ in STEP_CASES])
 def test_power_loss_at_every_step(base_flash, tmp_path, step, occurrence, expected):
     active, _ = _power_cut(base_flash, tmp_path, Faults(power_loss_step=step, power_loss_occurrence=occurrence))
@@ -75,6 +76,7 @@ def test_power_loss_at_every_step(base_flash, tmp_path, step, occurrence, expect
     assert active.crc32 == (B.check(OLD).crc_stored if expected[0] == "old" else active.crc32)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("offset", [0, 1, 99, 1000, 2148, 2151])
 def test_power_loss_at_byte_offsets_over_the_bus(base_flash, tmp_path, offset):
     active, _ = _power_cut(base_flash, tmp_path, Faults(power_loss_byte=offset, seed=offset))
@@ -102,6 +104,7 @@ def test_power_loss_at_every_word_of_the_program_step():
 
 # a seed whose drops miss the reset answer (a lost one is an error by design: the ECU may have reset);
 # the flash reads the active header (0x23) before the erase since issue 16, which moved seed 2's drops there
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [3])
 def test_one_percent_dropped_frames_complete_after_retries(base_flash, tmp_path, seed):
     path = tmp_path / "flash.bin"

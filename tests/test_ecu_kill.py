@@ -22,7 +22,9 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming, EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import Faults
-from eol_cal.ecu.testing import FAST_CLIENT, example_block, virtual_rig
+from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
+
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)
@@ -109,8 +111,8 @@ def test_ecu_killed_at_each_step(base, tmp_path_factory):
     old_bank = NorFlash(base / "base.bin").bank(0)
     dirs = [tmp_path_factory.mktemp(step) for step, _ in KILL_CASES]
     with ThreadPoolExecutor(4) as pool:
-        results = list(pool.map(lambda c: _kill_trial(base, c[1], c[0][0]), zip(KILL_CASES, dirs)))
-    for (step, boots), d, (rc, elapsed, err, booted) in zip(KILL_CASES, dirs, results):
+        results = list(pool.map(lambda c: _kill_trial(base, c[1], c[0][0]), zip(KILL_CASES, dirs, strict=True)))
+    for (step, boots), d, (rc, elapsed, err, booted) in zip(KILL_CASES, dirs, results, strict=True):
         line = _one_error_line(err)
         assert rc == 2 and elapsed < BOUND_S + START_S, (step, elapsed, err)
         assert "CAN link lost" in line, line
@@ -154,7 +156,7 @@ def test_signal_at_each_step(base, tmp_path_factory, sig):
 
     with ThreadPoolExecutor(4) as pool:
         results = list(pool.map(trial, SIGNAL_CASES))
-    for (step, shown), (rc, elapsed, err, booted) in zip(SIGNAL_CASES, results):
+    for (step, shown), (rc, elapsed, err, booted) in zip(SIGNAL_CASES, results, strict=True):
         line = _one_error_line(err)
         assert rc == 2 and elapsed < BOUND_S + START_S, (step, elapsed, err)
         assert f"interrupted by {sig.name} during flash ({shown})" in line, line

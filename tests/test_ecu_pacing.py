@@ -14,8 +14,9 @@ import pytest
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key
 from eol_cal.ecu.sim import SimConfig
-from eol_cal.ecu.testing import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
 from eol_cal.ecu.transport import PacedBus, frame_bits, isotp_min_frames, private_channel_name
+
+from _ecu_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 

@@ -13,7 +13,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.remote import serve_remote
 from eol_cal.ecu.sim import SimConfig
-from eol_cal.ecu.testing import example_block
+from _ecu_rig import example_block
 from eol_cal.firmware import block as B
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eol_cal.firmware import estimator as E
+from eol_cal.firmware import estimator as est
 from eol_cal.firmware import estimator_golden as G
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,14 +85,15 @@ def test_checked_in_vectors_are_the_python_reference(name):
     assert text == ",".join(columns) + "\n" + "".join(",".join(r) + "\n" for r in rows)
 
 
+@pytest.mark.slow
 def test_fast_numpy_loop_is_the_numpy_step():
-    """E.run's scalar fast path computes exactly what step(xp=numpy) computes."""
-    cfg = E.EstimatorConfig.all_improvements(standstill_s=0.05)
+    """est.run's scalar fast path computes exactly what step(xp=numpy) computes."""
+    cfg = est.EstimatorConfig.all_improvements(standstill_s=0.05)
     a, b, h = (x[:2500] for x in G.SCENARIOS["estimator_standstill_restart.csv"].signals())
-    ref = E.run(cfg, a, b, h)
-    s = E.init_state(cfg, h[0], a[0], b[0])
+    ref = est.run(cfg, a, b, h)
+    s = est.init_state(cfg, h[0], a[0], b[0])
     for i in range(len(a)):
-        s, o = E.step(cfg, s, a[i], b[i], h[i], xp=np)
+        s, o = est.step(cfg, s, a[i], b[i], h[i], xp=np)
         assert (o.theta_hat.view(np.uint32), o.omega_hat.view(np.uint32), int(o.status)) == \
                (ref.theta_hat[i:i + 1].view(np.uint32)[0], ref.omega_hat[i:i + 1].view(np.uint32)[0],
                 int(ref.status[i]))

@@ -10,7 +10,7 @@ import pytest
 jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
-from eol_cal.firmware import estimator as E  # noqa: E402
+from eol_cal.firmware import estimator as est  # noqa: E402
 from eol_cal.firmware import estimator_golden as G  # noqa: E402
 from eol_cal.firmware.kinematics import draw_sensor_errors, encoder_hall_signals  # noqa: E402
 
@@ -21,30 +21,31 @@ def _ang_diff(x, y):
 
 def test_numpy_and_jax_scan_agree_paper():
     # 3000 ticks of the edge-bounce scenario: start-up, anchoring, a bounce, steady tracking
-    cfg = E.EstimatorConfig.paper()
+    cfg = est.EstimatorConfig.paper()
     a, b, h = (x[:3000] for x in G.SCENARIOS["estimator_edge_bounce.csv"].signals())
-    ref = E.run(cfg, a, b, h)
-    out = E.run_jax(cfg, a, b, h)
+    ref = est.run(cfg, a, b, h)
+    out = est.run_jax(cfg, a, b, h)
     assert np.max(_ang_diff(out.theta_hat, ref.theta_hat)) < 1e-4
     assert np.max(_ang_diff(out.theta_enc, ref.theta_enc)) < 1e-4
     assert np.max(np.abs(np.asarray(out.omega_hat) - ref.omega_hat)) < 1e-3
     assert np.array_equal(np.asarray(out.status), ref.status)
 
 
+@pytest.mark.slow
 def test_best_under_jit_vmap_scan_with_the_jax_signal_model():
     # every improvement (learned tables in the scan carry), two motors batched with vmap, the
     # signals made by the signal model under jax.numpy inside the same jit
-    cfg = E.EstimatorConfig.all_improvements()
+    cfg = est.EstimatorConfig.all_improvements()
     errors = [draw_sensor_errors(np.random.default_rng(s), 64) for s in (1, 2)]
     t = np.arange(6000) / G.TICK_HZ
     theta_m = np.mod(0.3 + 8 * math.pi * t, 2 * math.pi)  # 240 rpm: learning starts after 0.25 s
 
     def one(err):
         a, b, h = encoder_hall_signals(jnp.asarray(theta_m, jnp.float32), 6, 64, err, xp=jnp)
-        s0 = E.init_state(cfg, h[0], a[0], b[0], xp=jnp)
+        s0 = est.init_state(cfg, h[0], a[0], b[0], xp=jnp)
 
         def body(s, x):
-            return E.step(cfg, s, x[0], x[1], x[2], xp=jnp)
+            return est.step(cfg, s, x[0], x[1], x[2], xp=jnp)
 
         return jax.lax.scan(body, s0, jnp.stack([a, b, h], axis=-1))[1]
 
@@ -53,7 +54,7 @@ def test_best_under_jit_vmap_scan_with_the_jax_signal_model():
     assert out.theta_hat.shape == (2, 6000) and out.theta_hat.dtype == jnp.float32
     for i, err in enumerate(errors):
         a, b, h = encoder_hall_signals(theta_m, 6, 64, err)
-        ref = E.run(cfg, a, b, h)
+        ref = est.run(cfg, a, b, h)
         assert np.max(_ang_diff(out.theta_hat[i], ref.theta_hat)) < 1e-4
         assert np.max(np.abs(np.asarray(out.omega_hat[i]) - ref.omega_hat)) < 1e-2
         assert np.array_equal(np.asarray(out.status[i]), ref.status)
@@ -64,7 +65,7 @@ def test_signal_model_numpy_and_jax_agree():
     theta_m = np.linspace(0.0, 2 * math.pi, 8001)[:-1]
     ref = encoder_hall_signals(theta_m, 6, 64, err)
     got = encoder_hall_signals(jnp.asarray(theta_m, jnp.float32), 6, 64, err, xp=jnp)
-    for r, g in zip(ref, got):
+    for r, g in zip(ref, got, strict=True):
         # float32 positions may flip a level on the sample nearest a switching point
         assert np.count_nonzero(np.asarray(g) != r) <= 4
 
@@ -72,19 +73,19 @@ def test_signal_model_numpy_and_jax_agree():
 def test_chunked_hall_table_is_a_dynamic_argument():
     # a calibrated hall table (two entries moved) runs in the nominal table's compiled program
     # and gives what the numpy reference gives with a config carrying that table
-    nominal = E.EstimatorConfig.paper()
-    skewed = list(E.NOMINAL_HALL_ANGLE)
+    nominal = est.EstimatorConfig.paper()
+    skewed = list(est.NOMINAL_HALL_ANGLE)
     skewed[0] += math.radians(4.0)
     skewed[3] -= math.radians(3.0)
-    cfg_skew = E.EstimatorConfig.paper(hall_angle=skewed)
+    cfg_skew = est.EstimatorConfig.paper(hall_angle=skewed)
     err = draw_sensor_errors(np.random.default_rng(3), 64)
     t = np.arange(6000) / G.TICK_HZ
     a, b, h = encoder_hall_signals(np.mod(0.3 + 4 * math.pi * t, 2 * math.pi), 6, 64, err)  # 120 rpm
-    ref = E.run(cfg_skew, a, b, h)
-    ref_nominal = E.run(nominal, a, b, h)
-    E._scan_chunk.cache_clear()
-    got_nominal = E.run_jax_chunked(nominal, a, b, h)
-    got = E.run_jax_chunked(nominal, a, b, h, hall_angle=skewed)
+    ref = est.run(cfg_skew, a, b, h)
+    ref_nominal = est.run(nominal, a, b, h)
+    est._scan_chunk.cache_clear()
+    got_nominal = est.run_jax_chunked(nominal, a, b, h)
+    got = est.run_jax_chunked(nominal, a, b, h, hall_angle=skewed)
     for out, r in ((got, ref), (got_nominal, ref_nominal)):
         assert np.max(_ang_diff(out.theta_hat, r.theta_hat)) < 1e-4
         assert np.max(_ang_diff(out.theta_enc, r.theta_enc)) < 1e-4
@@ -93,21 +94,22 @@ def test_chunked_hall_table_is_a_dynamic_argument():
     # the table matters (the moved entries shift the anchor by degrees) ...
     assert np.max(_ang_diff(got.theta_hat, got_nominal.theta_hat)) > math.radians(2.0)
     # ... and is not part of the program: one compiled scan for both tables and for cfg_skew's own
-    assert E.run_jax_chunked(cfg_skew, a, b, h).theta_hat == pytest.approx(got.theta_hat, abs=1e-6)
-    assert E._scan_chunk.cache_info().currsize == 1
-    assert E._scan_chunk(E._program_config(cfg_skew))._cache_size() == 1
+    assert est.run_jax_chunked(cfg_skew, a, b, h).theta_hat == pytest.approx(got.theta_hat, abs=1e-6)
+    assert est._scan_chunk.cache_info().currsize == 1
+    assert est._scan_chunk(est._program_config(cfg_skew))._cache_size() == 1
     # run_jax takes it the same way
-    out = E.run_jax(nominal, a[:3000], b[:3000], h[:3000], hall_angle=skewed)
+    out = est.run_jax(nominal, a[:3000], b[:3000], h[:3000], hall_angle=skewed)
     assert np.max(_ang_diff(out.theta_hat, ref.theta_hat[:3000])) < 1e-4
 
 
-@pytest.mark.parametrize("improvements", [{}, {"learn_pitch_errors": True, "accel_prediction": True}])
+@pytest.mark.parametrize("improvements", [
+    {}, pytest.param({"learn_pitch_errors": True, "accel_prediction": True}, marks=pytest.mark.slow)])
 def test_batch_is_each_capture_alone_bit_for_bit(improvements):
     # captures of different lengths, speeds and hall tables side by side in one batched scan give
     # exactly what each gives alone (the lanes share nothing); the learned-table option included,
     # whose table update is a select under JAX (a scatter once vmapped would leave the tick loop)
-    cfg = E.EstimatorConfig.paper(**improvements)
-    skewed = list(E.NOMINAL_HALL_ANGLE)
+    cfg = est.EstimatorConfig.paper(**improvements)
+    skewed = list(est.NOMINAL_HALL_ANGLE)
     skewed[2] += math.radians(3.0)
     signals, tables = [], []
     for k, (rpm, n) in enumerate([(120.0, 5000), (240.0, 7321), (-60.0, 4100)]):
@@ -115,17 +117,17 @@ def test_batch_is_each_capture_alone_bit_for_bit(improvements):
         t = np.arange(n) / G.TICK_HZ
         signals.append(encoder_hall_signals(np.mod(0.2 * k + rpm / 30.0 * math.pi * t, 2 * math.pi), 6, 64, err))
         tables.append(skewed if k == 1 else None)
-    batch = E.run_jax_batch(cfg, signals, tables, chunk=1024)
+    batch = est.run_jax_batch(cfg, signals, tables, chunk=1024)
     assert [len(o.theta_hat) for o in batch] == [5000, 7321, 4100]
-    for (a, b, h), table, got in zip(signals, tables, batch):
-        alone = E.run_jax_chunked(cfg, a, b, h, chunk=1024, hall_angle=table)
-        for x, y in zip(got, alone):
+    for (a, b, h), table, got in zip(signals, tables, batch, strict=True):
+        alone = est.run_jax_chunked(cfg, a, b, h, chunk=1024, hall_angle=table)
+        for x, y in zip(got, alone, strict=True):
             np.testing.assert_array_equal(x, y)
-        ref = E.run(E.EstimatorConfig.paper(hall_angle=table or E.NOMINAL_HALL_ANGLE, **improvements), a, b, h)
+        ref = est.run(est.EstimatorConfig.paper(hall_angle=table or est.NOMINAL_HALL_ANGLE, **improvements), a, b, h)
         assert np.array_equal(got.status, ref.status)
         assert np.max(_ang_diff(got.theta_hat, ref.theta_hat)) < 1e-4
     # more captures than the widest program: split into batches, the same figures
-    many = E.run_jax_batch(cfg, signals * 30, tables * 30, chunk=1024)
-    assert len(many) == 90 and E.JAX_LANES[-1] < 90
-    for got, alone in zip(many[-3:], batch):
+    many = est.run_jax_batch(cfg, signals * 30, tables * 30, chunk=1024)
+    assert len(many) == 90 and est.JAX_LANES[-1] < 90
+    for got, alone in zip(many[-3:], batch, strict=False):
         np.testing.assert_array_equal(got.theta_hat, alone.theta_hat)

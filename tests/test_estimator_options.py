@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from eol_cal.errors import InputError
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
-from eol_cal.firmware import estimator as E
+from eol_cal.firmware import estimator as est
 from eol_cal.firmware import estimator_golden as G
 from eol_cal.firmware import golden
 from eol_cal.firmware.options import option_names, options_label, parse_options
@@ -60,35 +60,35 @@ def test_labels_name_the_options():
     assert option_names(0x3E | 1) == list(C.ESTIMATOR_OPTIONS)
 
 
-def _block(flags: int) -> pb.ParamBlock:
+def _block(flags: int) -> B.ParamBlock:
     return dataclasses.replace(golden.golden_blocks()[1][1], flags=flags)
 
 
 def test_pack_carries_the_option_bits_and_unpack_reads_them_back():
     flags = C.FLAG_COMP_ENABLE | C.FLAG_INTERP_ENABLE | C.FLAGS_ESTIMATOR
-    data = pb.pack(_block(flags))
-    res = pb.check(data)
+    data = B.pack(_block(flags))
+    res = B.check(data)
     assert res.valid and res.warnings == ()
-    back = pb.unpack(data)
+    back = B.unpack(data)
     assert back.flags == flags
-    assert pb.flag_names(back.flags) == ("COMP_ENABLE|INTERP_ENABLE|EST_CLAMP_TO_NEXT_EDGE|EST_LEARN_GRID_OFFSET|"
+    assert B.flag_names(back.flags) == ("COMP_ENABLE|INTERP_ENABLE|EST_CLAMP_TO_NEXT_EDGE|EST_LEARN_GRID_OFFSET|"
                                          "EST_ACCEL_PREDICTION|EST_LEARN_PITCH_ERRORS")
-    assert E.EstimatorConfig.from_block(back) == E.EstimatorConfig.from_block(back, **{n: True for n in E.OPTION_FLAGS})
+    assert est.EstimatorConfig.from_block(back) == est.EstimatorConfig.from_block(back, **{n: True for n in est.OPTION_FLAGS})
 
 
 def test_an_option_without_interp_enable_is_valid_but_warned_about():
-    data = pb.pack(_block(C.FLAG_COMP_ENABLE | C.FLAG_EST_LEARN_PITCH_ERRORS))
-    res = pb.check(data)
+    data = B.pack(_block(C.FLAG_COMP_ENABLE | C.FLAG_EST_LEARN_PITCH_ERRORS))
+    res = B.check(data)
     assert res.valid
     assert len(res.warnings) == 1 and "EST_LEARN_PITCH_ERRORS without INTERP_ENABLE" in res.warnings[0]
     # and the estimator it gives is the paper's
-    assert E.EstimatorConfig.from_block(pb.unpack(data)).options == 0
+    assert est.EstimatorConfig.from_block(B.unpack(data)).options == 0
 
 
 def test_unknown_bits_are_named_as_a_number():
-    assert pb.flag_names(C.FLAG_COMP_ENABLE | 0x100) == "COMP_ENABLE|0x100"
+    assert B.flag_names(C.FLAG_COMP_ENABLE | 0x100) == "COMP_ENABLE|0x100"
     with pytest.raises(InputError, match="flags"):
-        pb.pack(_block(0x40))
+        B.pack(_block(0x40))
 
 
 ALONE = {
@@ -106,13 +106,14 @@ def test_golden_vectors_cover_each_option_alone_and_all_together():
     assert options["estimator_all_240rpm.csv"] == C.FLAGS_ESTIMATOR
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(ALONE))
 def test_each_option_alone_changes_the_estimate(name):
     # the scenario shows its option acting: the same signals under the paper estimator differ
     sc = G.SCENARIOS[name]
     a, b, h = sc.signals()
-    with_option = E.run(sc.cfg, a, b, h)
-    paper = E.run(E.EstimatorConfig.from_flags(C.FLAG_INTERP_ENABLE, tick_hz=G.TICK_HZ), a, b, h)
+    with_option = est.run(sc.cfg, a, b, h)
+    paper = est.run(est.EstimatorConfig.from_flags(C.FLAG_INTERP_ENABLE, tick_hz=G.TICK_HZ), a, b, h)
     assert not np.array_equal(with_option.theta_hat.view(np.uint32), paper.theta_hat.view(np.uint32))
 
 
@@ -129,7 +130,7 @@ def test_block_show_names_the_options_and_warns_without_interp(tmp_path):
     import json
 
     path = tmp_path / "b.bin"
-    path.write_bytes(pb.pack(_block(C.FLAG_COMP_ENABLE | C.FLAG_EST_LEARN_GRID_OFFSET)))
+    path.write_bytes(B.pack(_block(C.FLAG_COMP_ENABLE | C.FLAG_EST_LEARN_GRID_OFFSET)))
     res = _cli("block", "show", str(path))
     text = " ".join(res.output.split())
     assert res.exit_code == 0
@@ -137,7 +138,7 @@ def test_block_show_names_the_options_and_warns_without_interp(tmp_path):
     doc = json.loads(_cli("block", "show", str(path), "--json").output)
     assert doc["valid"] and any("EST_LEARN_GRID_OFFSET without INTERP_ENABLE" in w for w in doc["warnings"])
     # with INTERP_ENABLE: no warning
-    path.write_bytes(pb.pack(_block(C.FLAG_INTERP_ENABLE | C.FLAG_EST_LEARN_GRID_OFFSET)))
+    path.write_bytes(B.pack(_block(C.FLAG_INTERP_ENABLE | C.FLAG_EST_LEARN_GRID_OFFSET)))
     doc = json.loads(_cli("block", "show", str(path), "--json").output)
     assert doc["warnings"] == []
 
@@ -150,7 +151,7 @@ def test_block_uncompensated_carries_the_chosen_options(tmp_path, choice, flags)
     extra = [] if choice is None else ["--estimator", choice]
     res = _cli("block", "uncompensated", "--serial", "M-1", "-o", str(path), *extra)
     assert res.exit_code == 0, res.output
-    blk = pb.unpack(path.read_bytes())
+    blk = B.unpack(path.read_bytes())
     assert blk.flags == flags and not blk.flags & C.FLAG_COMP_ENABLE
 
 
@@ -192,6 +193,7 @@ def test_station_config_estimator_overrides_the_variant(tmp_path):
     assert cfg.estimator_options == C.FLAGS_ESTIMATOR
 
 
+@pytest.mark.slow
 def test_the_prepared_block_selects_the_same_estimator_in_the_rig():
     """The rig's plant runs what the ECU's active block selects: a prepared block with ``best``
     gives another angle estimate than one with ``paper`` (same motor, same noise)."""

@@ -6,12 +6,13 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.testing import example_block
+from _ecu_rig import example_block
 from tests.test_ecu_cli import _start_sim, _stop
 
 PROFILE = """
@@ -38,6 +39,7 @@ def _sent_service_ids(log: str) -> set[int]:
     return {int(m.group(1), 16) for m in re.finditer(r"Connection DEBUG Sending \d+ bytes : \[([0-9a-f]{2})", log)}
 
 
+@pytest.mark.slow
 def test_flash_log_file_holds_the_uds_exchanges(tmp_path: Path):
     key, block = _files(tmp_path)
     log = tmp_path / "flash.log"
@@ -56,6 +58,7 @@ def test_flash_log_file_holds_the_uds_exchanges(tmp_path: Path):
     assert "UdsClient" in text
 
 
+@pytest.mark.slow
 def test_ecu_info_verbose_writes_to_stderr_only(tmp_path: Path):
     proc, url = _start_sim(tmp_path / "ecu.bin")
     try:

@@ -65,13 +65,15 @@ def test_refit_bad_input_is_exit_2_before_any_cluster_starts(tmp_path, lot_dir, 
     assert not (tmp_path / "rows.jsonl").exists()
 
 
+@pytest.mark.slow  # waits out the connect timeout: 10 s
 def test_refit_with_a_scheduler_that_is_down_is_one_line_exit_2(tmp_path, lot_dir):
     res = CliRunner().invoke(cli, ["refit", str(lot_dir), "-o", str(tmp_path / "rows.jsonl"),
                                    "--scheduler", f"tcp://127.0.0.1:{_free_port()}"])
     _two(res, "scheduler", "cannot connect")
 
 
-@pytest.mark.parametrize("gap_s", [0.0, 0.3, 1.0, 2.5])
+# a station process each (6-8 s): the first gap stays in the fast loop
+@pytest.mark.parametrize("gap_s", [0.0] + [pytest.param(g, marks=pytest.mark.slow) for g in (0.3, 1.0, 2.5)])
 def test_a_second_signal_while_the_run_ends_is_still_exit_2(station, gap_s):  # noqa: F811 - the fixture
     """SIGINT during the flash, then SIGINT again ``gap_s`` later: while the run records its
     error, writes its report, or is already exiting (threads, atexit). Every time: exit 2, no

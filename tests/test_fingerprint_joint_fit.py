@@ -124,7 +124,7 @@ def test_the_joint_fit_of_one_half_or_both_is_the_dense_least_squares(drop_rever
     halves = (0, 1)
     if drop_reverse_pulse:  # the reverse half never sees pulse 5: left out, the forward half alone is fitted
         keep = [~((((k >> 1) & 1) == 1) & ((k >> 2) % N == 5)) for _, k in stretches]
-        stretches = [(t[m], k[m]) for (t, k), m in zip(stretches, keep)]
+        stretches = [(t[m], k[m]) for (t, k), m in zip(stretches, keep, strict=True)]
         halves = (0,)
     fp, var, rss, dirs, dof = fpr._joint_fit(stretches, N, QUARTER)
     fp_d, var_d, rss_d, dof_d = _dense(stretches, list(halves))

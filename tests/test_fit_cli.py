@@ -57,6 +57,7 @@ def fitted(files):
     return res, out
 
 
+@pytest.mark.slow
 def test_fit_recovers_the_generator_and_writes_the_schema(fitted, files):
     res, out = fitted
     assert res.exit_code == 0, res.output
@@ -98,9 +99,10 @@ def test_same_result_from_csv_and_mdf4(fitted, files):
     assert a["fit"]["n_samples"] == b["fit"]["n_samples"]
 
 
+@pytest.mark.slow
 def test_single_load_point_refused_with_exit_2(files, tmp_path):
     # +65 A and -65 A would be two load points (c6 + k6*i_qo takes two values): keep i_qo = +65 A only
-    one_load = [f for f, (_, iq) in zip(files["csv"], POINTS) if iq == 65.0]
+    one_load = [f for f, (_, iq) in zip(files["csv"], POINTS, strict=True) if iq == 65.0]
     res = CliRunner().invoke(cli, ["fit", *one_load, "-o", str(tmp_path / "r.json")])
     assert res.exit_code == 2
     assert "not identifiable from a single load point" in res.output
@@ -123,6 +125,7 @@ def test_single_load_point_refused_with_exit_2(files, tmp_path):
     assert m["c6"] == {"value": 0.0, "ci95": 0.0} and m["model"]["fit_c6"] is False
 
 
+@pytest.mark.slow
 def test_not_converged_exits_1_without_values_and_no_table(files, tmp_path):
     out = tmp_path / "r.json"
     res = CliRunner().invoke(cli, ["fit", *files["csv"], "-o", str(out), "--max-steps", "1"])
@@ -195,7 +198,8 @@ def test_table_estimator_options(fitted, tmp_path, choice, flags):
     blk = unpack(blk_path.read_bytes())
     assert blk.flags == flags
     text = " ".join(res.output.split())
-    assert f"flags {flag_names(flags)}" in text
+    # the console folds a long line at its width, inside a word too (where depends on the tmp path's length)
+    assert f"flags{flag_names(flags)}" in "".join(text.split())
     # the fit measured its frame under best: another choice is pointed out
     assert ("warning" in text) == (choice != "best")
 

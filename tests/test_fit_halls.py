@@ -88,6 +88,7 @@ def test_measured_table_brings_the_ecu_angle_closer(plant_motor):
     assert rms["measured"] < 0.85 * rms["nominal"], rms
 
 
+@pytest.mark.slow
 def test_record_and_block_carry_the_measured_table(plant_motor):
     from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit.table import block_from_record

@@ -16,7 +16,7 @@ from eol_cal.analysis.fit.table import block_from_record, mech_off_reasons, unco
 from eol_cal.analysis.metrics import capture_ripple_pp
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.capture.model import Capture
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
 from eol_cal.firmware.options import parse_options
 from eol_cal.motor import load_motor
@@ -67,9 +67,10 @@ def test_a_weak_fingerprint_switches_mech_off_with_the_reason(calibrated):
     assert any("too weak" in r for r in res.mech.reasons)
     blk = block_from_record(recs[1], MOTOR, options=BEST)
     assert blk.layout_version == 2 and not blk.flags & FLAG_MECH_COMP_ENABLE
-    assert mech_off_reasons(res, blk.flags) and pb.check(pb.pack(blk)).valid
+    assert mech_off_reasons(res, blk.flags) and B.check(B.pack(blk)).valid
 
 
+@pytest.mark.slow  # a compensated plant run; the fit tests keep the module in the fast loop
 def test_the_layout_2_block_identifies_in_the_pre_roll_and_cancels_order_1(calibrated):
     plants, _, recs = calibrated
     six = [block_from_record(r, MOTOR, options=BEST, layout=1) for r in recs]
@@ -113,6 +114,7 @@ def test_a_dyno_capture_of_windows_gives_the_same_frame_and_orders(calibrated):
     assert abs(mech.margin - ref.margin) < 0.1
 
 
+@pytest.mark.slow  # two plant runs
 def test_a_layout_1_block_runs_exactly_as_revision_1_1(calibrated):
     """The plant's ECU with a layout-1 block and with the same block as layout 2, MECH off: the
     identifier does not run and every sample is the same."""

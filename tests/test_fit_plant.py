@@ -6,6 +6,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_many
 from eol_cal.wrap import wrap_pi
@@ -21,6 +22,7 @@ from eol_cal.plant.ecu import true_block
 from eol_cal.plant.simulate import simulate
 
 
+@pytest.mark.slow
 def test_fit_table_and_compensated_plant_close_the_loop():
     spec = paper()
     # Both runs use the compensated controller (one compiled plant); zero tables = no i_qc.

@@ -12,6 +12,7 @@ from eol_cal.capture.synthetic import synthetic_capture
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 
 
+@pytest.mark.slow
 def test_plotted_curve_is_the_fitted_model_with_the_bench_response(tmp_path):
     caps = [synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=i, theta_r0=0.7 * i, serial="M-1",
                               k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)

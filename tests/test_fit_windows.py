@@ -68,6 +68,7 @@ def _fit(tmp: Path, name: str, files: list[Path]) -> dict:
     return m
 
 
+@pytest.mark.slow
 def test_fit_of_the_joined_capture_matches_the_fit_of_its_windows(joined: Path, tmp_path: Path):
     windows = sorted(joined.parent.glob("cap.w*.mf4"))
     assert len(windows) == 4
@@ -110,6 +111,7 @@ def test_window_spans_tolerate_the_rounded_starts_and_find_gaps():
     assert split_windows(continuous) == [continuous]
 
 
+@pytest.mark.slow
 def test_chunked_estimator_is_run_jax_with_one_program_for_every_length():
     from eol_cal.analysis.firmware_angle import firmware_config
     from eol_cal.firmware import estimator as est

@@ -12,6 +12,8 @@ import pytest
 
 from eol_cal import fuzz
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 SEED = 16
 PER_KIND = {"csv": 10, "mdf4": 14, "block": 8, "fitjson": 8, "block2": 8, "fitjson2": 8}
 BOUND_S = 30.0  # per command: far above a clean refusal (< 3 s), far below a hang

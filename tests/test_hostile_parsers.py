@@ -236,8 +236,9 @@ def test_mdf4_zero_records_is_refused_by_the_structure_check_naming_the_group(ba
     assert err.value.field.startswith("block ##CG")
 
 
+@pytest.mark.slow  # golden --check computes the vector sets first: 60-100 s
 def test_a_fifo_as_key_file_or_golden_vector_file_is_refused_unread(tmp_path):
-    from eol_cal.ecu.testing import example_block
+    from eol_cal.firmware.example import example_block
 
     block = tmp_path / "b.bin"
     block.write_bytes(example_block(serial="M-0007"))

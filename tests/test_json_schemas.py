@@ -47,6 +47,7 @@ def test_every_json_command_is_covered_here():
     assert options == len(JSON_COMMANDS)  # a new --json command: run it below and give it a schema file
 
 
+@pytest.mark.slow
 def test_files_and_plant_commands(tmp_path):
     seen = set()
     seen.add(_check(_json("index", "--json")))
@@ -67,6 +68,7 @@ def test_files_and_plant_commands(tmp_path):
                     "eol-cal/block-check/1", "eol-cal/table/1", "eol-cal/simulate/1", "eol-cal/fit-result/1"}
 
 
+@pytest.mark.slow
 def test_station_ecu_and_records_commands_and_every_record_kind(files, tmp_path):  # noqa: F811
     """run (pass, refusal), acquire, flash, ecu info, ecu restore (recorded: kind restore), records,
     lot stats and lot diff, on one loopback station and one database."""
@@ -107,7 +109,7 @@ def test_station_ecu_and_records_commands_and_every_record_kind(files, tmp_path)
     kinds.setdefault("fail", make_record("F-1", k6=2e-3).to_json())
     kinds["error"] = make_record("E-1", error_step="acquire").to_json()
     check = validator("run-record")
-    for kind, rec in kinds.items():
+    for rec in kinds.values():
         check.validate(rec)
     assert {r["kind"] for r in kinds.values()} == {"production", "refusal", "restore"}
     assert set(kinds) == {"pass", "fail", "error", "refusal", "restore"}

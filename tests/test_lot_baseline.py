@@ -97,7 +97,8 @@ def test_lot_baseline_command(records_db):
     validator("lot-baseline").validate(doc)
     assert doc["schema"] == "eol-cal/lot-baseline/1" and doc["runs"] == 80 and doc["min_n"] == 25
     k6 = {(x["variant"], x["station"]): x for x in doc["lines"] if x["quantity"] == "k6"}
-    assert n_none == 6 and k6[("EPS-STD", "(no station id)")]["reason"] == "n = 6 < 25" and k6[("EPS-STD", "(no station id)")]["ucl"] is None
+    none = k6[("EPS-STD", "(no station id)")]
+    assert n_none == 6 and none["reason"] == "n = 6 < 25" and none["ucl"] is None
     e0 = k6[("EPS-STD", "EOL-0")]
     assert e0["n"] >= 25 and e0["unit"] == "mN*m/A" and e0["ucl"] == pytest.approx(e0["center"] + 3 * e0["sigma"])
     assert 0.58 < e0["center"] < 0.70  # lot_record's k6: 0.64 +- 0.06 mN*m/A

@@ -20,8 +20,7 @@ from eol_cal.lot.columns import QUANTITIES, from_records, read_lot, time_order
 from eol_cal.lot.spc import CIRCULAR, circular_summary
 from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, summary
 from eol_cal.lot.summary import lot_summary
-from eol_cal.report.lot import run_time
-from eol_cal.report.motor import station_of
+from eol_cal.lot.page import run_time
 from eol_cal.schemas import validator
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records import SCHEMA_VERSION, engine, insert_records, migrate, row_values, runs
@@ -52,8 +51,8 @@ def by_definition(records: list[RunRecord], min_n: int = 25) -> dict:
         circ = circular_summary([r.value(q.key) for r in recs]) if q.key in CIRCULAR else None
         quantities[q.key] = (summary(x), by_variant, circ)
     control = {}
-    for st in sorted({station_of(r) for r in recs}):
-        rs = [r for r in recs if station_of(r) == st]
+    for st in sorted({r.station_label for r in recs}):
+        rs = [r for r in recs if r.station_label == st]
         control[st] = {}
         for key, scale in (("k6", 1e3), ("pp_after_pct", 1.0)):
             y = [r.value(key) * scale for r in rs]

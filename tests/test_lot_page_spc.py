@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from eol_cal.lot.baseline import group_lines, make_baseline
 from eol_cal.lot.columns import from_records
@@ -31,10 +32,11 @@ def _records():
     return recs
 
 
+@pytest.mark.slow
 def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     from _browser import Browser, element_sizes
 
-    from eol_cal.report.lot import write_lot_page
+    from eol_cal.lot.page import write_lot_page
 
     recs = _records()
     base_runs = [r for r in recs if r.started_at < "2026-11-22"]
@@ -47,11 +49,15 @@ def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     with Browser() as b:
         log = b.open(page.as_uri())
         text = b.evaluate("document.getElementById('baseline').textContent")
-        rows = b.evaluate("Array.from(document.querySelectorAll('tr.violation-row')).map(r => [r.dataset.rule, r.dataset.key, r.cells[3].textContent])")
-        ringed = b.evaluate("Array.from(document.querySelectorAll('[id=\"control-L1-S1-rule-k6\"] title')).map(t => t.textContent)")
+        rows = b.evaluate("Array.from(document.querySelectorAll('tr.violation-row'))"
+                          ".map(r => [r.dataset.rule, r.dataset.key, r.cells[3].textContent])")
+        ringed = b.evaluate("Array.from(document.querySelectorAll('[id=\"control-L1-S1-rule-k6\"] title'))"
+                            ".map(t => t.textContent)")
         frozen_ucl = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-cl-k6-ucl]').length")
-        phase = b.evaluate("Array.from(document.querySelector('tr.quantity-row[data-key=phase_c6]').cells).map(c => c.textContent)")
-        groups = b.evaluate("Array.from(document.querySelectorAll('tr.capability-row[data-key=k6]')).map(r => [r.dataset.station, r.querySelector('td.cpk').textContent])")
+        phase = b.evaluate("Array.from(document.querySelector('tr.quantity-row[data-key=phase_c6]').cells)"
+                           ".map(c => c.textContent)")
+        groups = b.evaluate("Array.from(document.querySelectorAll('tr.capability-row[data-key=k6]'))"
+                            ".map(r => [r.dataset.station, r.querySelector('td.cpk').textContent])")
         card = b.evaluate("document.getElementById('card-violations').textContent")
         polar = b.evaluate("document.querySelectorAll('[id=\"histograms-hist-phase_c6\"]').length")
         sizes = element_sizes(b, "svg.plot")

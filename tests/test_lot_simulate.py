@@ -92,6 +92,7 @@ def test_simulated_runs_stay_out_of_production_statistics(records_db, batch: lis
     assert {q["key"] for q in sim["quantities"] if q["count"] == 2} >= {"k6", "pp_after_pct"}
 
 
+@pytest.mark.slow  # two lots on a Dask cluster; the batch test keeps the module in the fast loop
 @pytest.mark.parametrize("records_db", ["sqlite"], indirect=True)
 def test_a_lot_is_resumed_without_a_motor_twice_and_refused_when_made_otherwise(records_db, files, tmp_path: Path):
     from distributed import Client
@@ -118,6 +119,7 @@ def test_a_lot_is_resumed_without_a_motor_twice_and_refused_when_made_otherwise(
     assert exc.value.field == "--lot" and "limits" in exc.value.reason
 
 
+@pytest.mark.slow  # two lots on a Dask cluster through the CLI
 @pytest.mark.parametrize("records_db", ["sqlite"], indirect=True)
 def test_cli_simulates_two_lots_and_compares_them(records_db, files, tmp_path: Path):
     runner = CliRunner()

@@ -18,7 +18,7 @@ from cli.main import cli
 from eol_cal.schemas import validator
 from eol_cal.station.records import insert_records
 
-T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.timezone.utc)
+T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.UTC)
 
 
 def rec(i: int, day: int, k6_mnm: float, station: str):

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 
 from click.testing import CliRunner
+import pytest
 
 from cli.main import cli
 from eol_cal.ecu.flash import active_block_from_file
@@ -31,6 +32,7 @@ def _run(files, tmp_path, serial: str, env: dict, as_json: bool = True):  # noqa
         return res, st.flash_file
 
 
+@pytest.mark.slow
 def test_master_gate_refuses_then_lets_through_then_refuses_after_a_failed_master(files, tmp_path):  # noqa: F811
     # no master run yet: refused before anything is touched, one line, exit 2
     res, flash = _run(files, tmp_path, "P-1", ENV, as_json=False)
@@ -80,6 +82,7 @@ def test_master_gate_refuses_then_lets_through_then_refuses_after_a_failed_maste
     assert json.loads(res.stdout)["runs"] == 2
 
 
+@pytest.mark.slow
 def test_the_operator_station_refuses_until_the_master_passed(tmp_path):
     """`eol-cal station --demo` on a pseudo-terminal with a [master] table in its settings: a
     production serial gets one line, the master runs, then the same serial runs."""

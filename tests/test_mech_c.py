@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import mech_golden as MG
 from eol_cal.firmware.mech import EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_FAULT, EV_RESET_FRACTION
 from eol_cal.firmware.vectors import iter_rows
@@ -74,12 +74,12 @@ def test_the_harness_sees_one_changed_bit(harness, tmp_path):
 
 
 def test_layout_2_blocks_check_and_decode():
-    for bid, blk in MG.golden_blocks_v2():
-        data = pb.pack(blk)
-        assert pb.check(data).valid and len(data) == 3248 + 8 * blk.table_len
-        assert pb.unpack(data) == blk and blk.layout_version == 2
+    for _bid, blk in MG.golden_blocks_v2():
+        data = B.pack(blk)
+        assert B.check(data).valid and len(data) == 3248 + 8 * blk.table_len
+        assert B.unpack(data) == blk and blk.layout_version == 2
     for cid, image, status in MG.check_cases():
-        assert pb.check(image).status == status, cid
+        assert B.check(image).status == status, cid
 
 
 def test_the_scenarios_show_what_their_descriptions_say():

@@ -100,6 +100,7 @@ def test_a_weak_fingerprint_fails_the_margin_and_is_never_applied_wrongly():
     np.testing.assert_array_equal(res.r_first[hit], res.truth[hit])
 
 
+@pytest.mark.slow  # every pole pair both ways
 def test_every_pole_pair_and_direction_reference():
     """The numpy reference (bit-exact with the C port) on the golden scenarios: the offset of the
     pole pair the rotor starts under, in either direction."""
@@ -120,6 +121,7 @@ def test_every_pole_pair_and_direction_reference():
         assert np.abs(out.i_qc[first:] - six[first:]).max() > 0.05, name
 
 
+@pytest.mark.slow  # revolutions of plant time; the weak fingerprint test keeps the module in the fast loop
 def test_a_slipped_pulse_is_withdrawn_within_a_revolution_and_identified_again():
     """120 rpm (a revolution is 0.5 s): identified, then the count slips a whole pulse unseen; the
     compensation is withdrawn within one revolution and identified again one pulse on."""

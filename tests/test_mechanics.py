@@ -75,9 +75,11 @@ def test_mechanical_response_matches_the_plants_shaft_line():
     g = np.abs(shaft_response(np.array([2 * math.pi * 18.0, 2 * math.pi * 108.0]), no_loop, bench))
     assert g[0] < 0.997 and g[1] > 1.01
     # reverse rotation: the conjugate
-    assert shaft_response(np.array([-w]), motor, bench)[0] == pytest.approx(np.conj(shaft_response(np.array([w]), motor, bench)[0]))
+    forward = shaft_response(np.array([w]), motor, bench)[0]
+    assert shaft_response(np.array([-w]), motor, bench)[0] == pytest.approx(np.conj(forward))
 
 
+@pytest.mark.slow
 def test_fit_on_the_plant_recovers_the_motors_own_k6_with_the_bench():
     """A clean plant motor (no noise, ideal sensors, no unbalance): with the bench divided out the
     fit's k6 is the motor's to 0.25 %; taking the shaft torque as the motor's (rigid coupling)

@@ -103,6 +103,7 @@ def test_analyze_with_a_channel_map_and_refusals(tmp_path):
     assert res.exit_code == 2 and "missing.csv" in res.stderr
 
 
+@pytest.mark.slow
 def test_analyze_and_index_as_subprocess():
     out = subprocess.run([sys.executable, "-m", "cli.main", "analyze", str(FIXTURES / "paper_60rpm.mf4"), "--json"],
                          capture_output=True, text=True)

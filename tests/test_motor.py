@@ -22,7 +22,8 @@ def test_toml_override(tmp_path):
     assert m.R_s == 0.03 and m.N_enc == 200 and m.poles == 6
 
 
-@pytest.mark.parametrize("text,field", [("R_s = -1\n", "R_s"), ("foo = 1\n", "foo"), ("poles = 5\n", "poles"), ("N_enc = 1.5\n", "N_enc")])
+@pytest.mark.parametrize("text,field", [("R_s = -1\n", "R_s"), ("foo = 1\n", "foo"), ("poles = 5\n", "poles"),
+                                        ("N_enc = 1.5\n", "N_enc")])
 def test_bad_override_names_file_and_field(tmp_path, text, field):
     f = tmp_path / "m.toml"
     f.write_text(text)

@@ -12,6 +12,7 @@ import pytest
 from click.testing import CliRunner
 
 from _records import make_record
+import cli.common as cli_common
 from cli.main import cli
 from eol_cal.msa.type1 import type1_study
 from eol_cal.schemas import validator
@@ -30,7 +31,7 @@ def rec(serial: str, i: int, k6_mnm: float, phase_deg: float = 179.5):
                        pp_before=3.0 + 0.01 * (i % 5), pp_after=0.9 + 0.01 * (i % 4))
 
 
-def test_msa_type1_of_a_master(records_db, tmp_path: Path):
+def test_msa_type1_of_a_master(records_db, tmp_path: Path, monkeypatch):
     master = [rec("MASTER-1", i, k, 179.5 if i % 2 else -179.5) for i, k in enumerate(K6)]
     declared = rec("MASTER-1", 100, 0.641, 179.0)  # the declared reference run (measured elsewhere, say)
     insert_records(records_db, master + [declared, rec("OTHER", 50, 0.9)])
@@ -70,7 +71,9 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path):
                                    "k6=0.640", "--sigmas", "6", "--json"])
     s26 = np.std(K6 + [0.641], ddof=1)
     assert json.loads(res.stdout)["quantities"][0]["cg"] == pytest.approx(0.2 / (6 * s26), rel=1e-6)
-    # fewer runs than the minimum: the table output and its exit code
+    # fewer runs than the minimum: the table output and its exit code (at the log width, whatever $COLUMNS
+    # the worker started with: a narrower table folds the reason across lines)
+    monkeypatch.setattr(cli_common.console, "width", cli_common.LOG_WIDTH)
     res = CliRunner().invoke(cli, ["msa", "type1", "--db", str(records_db), "--serial", "OTHER"])
     assert res.exit_code == 1 and "n = 1 < 25" in res.output and "NOT shown capable" in res.output
 
@@ -97,7 +100,8 @@ def _in_chromium(page: Path, plots: Path, doc: dict) -> None:
         log = b.open(page.as_uri())
         sizes = element_sizes(b, "svg.plot")
         verdict = b.evaluate("document.getElementById('verdict').textContent")
-        cells = b.evaluate("Array.from(document.querySelectorAll('tr.study-row')).map(r => [r.dataset.key, r.querySelector('td.cg').textContent])")
+        cells = b.evaluate("Array.from(document.querySelectorAll('tr.study-row'))"
+                           ".map(r => [r.dataset.key, r.querySelector('td.cg').textContent])")
         points = b.evaluate("document.querySelectorAll('[id=\"type1-k6-values-k6\"] title').length")
     assert log.console_errors == [] and set(log.requests) == {page.as_uri()}
     assert [s["id"] for s in sizes] == [f"fig-type1-{q['key'].replace('_', '-')}" for q in doc["quantities"]]

@@ -9,7 +9,7 @@ import pytest
 from eol_cal.errors import InputError
 from eol_cal.msa.master import MasterRun, check_master, master_due, master_settings, shift_start
 
-UTC = dt.timezone.utc
+UTC = dt.UTC
 BASE = {"master.serial": "MASTER-1", "master.reference.k6": 0.640, "master.tolerance.k6": 0.03,
         "master.reference.phase_k6": 179.0, "master.tolerance.phase_k6": 2.0, "master.every_h": 8.0}
 

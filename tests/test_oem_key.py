@@ -22,9 +22,10 @@ from eol_cal.dyno.sim import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.keyalgo import ENTRY_POINT_GROUP, oem_seed_to_key, seed_to_key_from
 from eol_cal.ecu.sim import SimConfig
-from eol_cal.ecu.testing import example_block, virtual_rig
 from eol_cal.errors import InputError
 from eol_cal.station.demo import loopback_station
+
+from _ecu_rig import example_block, virtual_rig
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 
@@ -114,6 +115,7 @@ def _settings(d: Path, dyno: str, channel: str, key_lines: str) -> Path:
     return path
 
 
+@pytest.mark.slow  # a whole cycle per case: 15-21 s
 @pytest.mark.parametrize("how", ["option", "settings"])
 def test_run_goes_through_the_cycle_with_the_oem_algorithm(plugin, tmp_path, how):
     with loopback_station("K-7", 7, tmp_path / "sim", source=synthetic_source) as st:
@@ -126,6 +128,7 @@ def test_run_goes_through_the_cycle_with_the_oem_algorithm(plugin, tmp_path, how
     assert rec["error"] is None and "calibrated" in {b["role"] for b in rec["blocks"]}, rec.get("error")
 
 
+@pytest.mark.slow  # a station cycle: 14 s
 def test_station_takes_it_from_its_settings(plugin, tmp_path):
     with loopback_station("K-8", 8, tmp_path / "sim", source=synthetic_source) as st:
         path = _settings(tmp_path, st.dyno_address, st.can_channel, 'key_algo = "oem-eps"')

@@ -19,7 +19,7 @@ from cli.main import cli
 from test_refused_inputs import _refused
 from eol_cal.atomic import atomic_write
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.testing import example_block
+from eol_cal.firmware.example import example_block
 from eol_cal.errors import InputError
 from eol_cal.inputs import command_inputs, read_bytes
 

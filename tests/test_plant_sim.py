@@ -174,13 +174,14 @@ def test_cli_runs_a_block_file(tmp_path):
     assert res.exit_code == 2 and "bad.bin" in res.output
 
 
+@pytest.mark.slow
 def test_batch_of_motors_with_different_hall_tables():
     # each motor's ECU anchors on its own block's hall_angle, all in one compiled program: a
     # batch gives every motor what it gets alone, and the moved entries do move theta_hat
     import dataclasses
     import math
 
-    from eol_cal.firmware import estimator as E
+    from eol_cal.firmware import estimator as est
     from eol_cal.plant.ecu import true_block
 
     spec = paper().replace(tq_noise_nm=0.0, i_noise_a=0.0)  # no noise: the batch position does not matter
@@ -212,11 +213,12 @@ def test_batch_of_motors_with_different_hall_tables():
         c = alone[n].capture
         start = np.flatnonzero(np.diff(c["hall"]) != 0)[1] + 1
         for m, blk in blocks.items():
-            ref = E.run(E.EstimatorConfig.from_block(blk), c["enc_a"], c["enc_b"], c["hall"])
+            ref = est.run(est.EstimatorConfig.from_block(blk), c["enc_a"], c["enc_b"], c["hall"])
             d = np.max(np.abs(np.angle(np.exp(1j * (ref.theta_hat[start:] - alone[n].theta_hat[start:])))))
             assert d < 1e-3 if m == n else d > math.radians(2.0), (n, m, d)
 
 
+@pytest.mark.slow  # plant runs of the ECU estimator; the block-flags test keeps it in the fast loop
 def test_ecu_estimator_what_if_improves_the_ecu_angle():
     """``ecu_estimator="best"`` runs the firmware reference's improvements in the ECU: after a
     revolution of learning its angle error is a fraction of the paper estimator's."""

@@ -16,6 +16,7 @@ import socket
 from pathlib import Path
 
 from click.testing import CliRunner
+import pytest
 
 from cli.main import cli
 from eol_cal.ecu.flash import NorFlash, select_active
@@ -24,6 +25,8 @@ from eol_cal.plant.presets import paper
 from eol_cal.station.demo import loopback_station
 from eol_cal.station.records_query import query_records
 from test_station_run import files, run_args, wait_stopped  # noqa: F401 - the module's fixtures
+
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 
 SERIAL = "W-0001"
 

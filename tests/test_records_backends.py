@@ -42,6 +42,7 @@ def test_insert_is_idempotent_and_columns_are_queryable(records_db):
     assert query_records(records_db, serial="A")[0] == recs[0]
 
 
+@pytest.mark.slow
 def test_concurrent_writers_lose_and_duplicate_nothing(records_db):
     insert_records(records_db, [])  # create the schema once, as `records migrate` would
     batches = [[record(f"W{w}-{i}") for i in range(25)] for w in range(4)]

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import uuid
 from pathlib import Path
 
 import pytest
@@ -40,6 +39,7 @@ def lot(tmp_path_factory) -> Path:
     return d
 
 
+@pytest.mark.slow
 def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot: Path, tmp_path: Path):
     (tmp_path / "X").mkdir()
     bad = tmp_path / "X" / "bad.mf4"
@@ -65,6 +65,7 @@ def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot:
     assert {r["capture"]: r["k6"] for r in read_rows(pq)} == {c: r["k6"] for c, r in rows.items()}
 
 
+@pytest.mark.slow  # a Dask cluster
 def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: Path, tmp_path: Path):
     """Many serials in one task (their firmware frames in one batched estimator run): each row is
     the row of that serial refitted alone, bit for bit, and a bad capture spoils only its own row."""
@@ -80,7 +81,7 @@ def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: P
     assert [r["serial"] for r in rows] == ["R-1", None, "R-2", "R-9", "R-3"]
     assert "bad.mf4" in rows[1]["error"] and "segment" in rows[3]["error"]
     assert rows[1]["verdict"] == rows[3]["verdict"] == "error"
-    for group, row in zip(mixed, rows):
+    for group, row in zip(mixed, rows, strict=True):
         assert row == refit_capture(group, bench="none")
 
 
@@ -93,6 +94,7 @@ def _worker_state() -> tuple[int, bool, int, str | None]:
             os.environ.get("MALLOC_TRIM_THRESHOLD_"))
 
 
+@pytest.mark.slow
 def test_a_killed_worker_loses_no_capture(lot: Path):
     from distributed import Client
 
@@ -192,6 +194,7 @@ def test_refit_takes_the_production_runs_of_a_reports_directory_unless_asked(tmp
     assert names(find_captures([str(tmp_path / "reports")], "simulated")) == ["B_run", "C_run"]
 
 
+@pytest.mark.slow  # a Dask scheduler and worker processes: 24 s
 def test_refit_on_a_running_scheduler_started_apart(lot: Path, tmp_path: Path):
     """`--scheduler`: a scheduler and a worker started as a plant would (the `dask` command line,
     their own processes, 127.0.0.1), not by eol-cal: the same rows as the local cluster's."""

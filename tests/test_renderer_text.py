@@ -62,6 +62,7 @@ def test_analyze_and_capture_info_take_a_hostile_serial_and_file_name(tmp_path, 
     assert text in res.stdout  # printed as written, not eaten as markup
 
 
+@pytest.mark.slow  # a plant simulation per case: 20 s
 @pytest.mark.parametrize("text", [r"$\foo{$", "[/]"])
 def test_simulate_plots_a_hostile_serial(tmp_path, text):
     png = tmp_path / "sim.png"
@@ -93,6 +94,7 @@ def _hostile_db(tmp_path: Path, report_dir: str) -> Path:
     return db
 
 
+@pytest.mark.slow  # a lot page: 13 s
 def test_lot_report_and_records_plot_take_hostile_records_and_link_only_files(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     # a directory that exists under the name a hostile record gives as its report_dir

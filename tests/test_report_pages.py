@@ -4,7 +4,6 @@ every limit is a row with its margin."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
@@ -86,6 +85,7 @@ def fitted():
     return mi, fit, spec, (before, after)
 
 
+@pytest.mark.slow
 def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
     from eol_cal.station.report import write_report
 
@@ -131,8 +131,8 @@ def lot_record(serial: str, started: str, verdict: str, k6: float = 1.0e-3, afte
 
 
 def test_records_plot_is_against_time_with_limits_and_error_runs():
-    from eol_cal.report.lot import timeline_figure
-    from eol_cal.report.svg import pyplot
+    from eol_cal.lot.page import timeline_figure
+    from eol_cal.figures import pyplot
 
     recs = [lot_record("A", "2026-11-22T09:00:00+00:00", "pass"),
             lot_record("B", "2026-11-22T12:00:00+00:00", "error"),
@@ -184,6 +184,7 @@ def lot_db(tmp_path_factory):
     return {"dir": d, "db": d / "lot.sqlite", "records": recs}
 
 
+@pytest.mark.slow
 def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
     from click.testing import CliRunner
 
@@ -207,17 +208,19 @@ def test_lot_report_cli_writes_the_same_page_twice_and_filters(lot_db):
     assert not (out / "x.html").exists()
 
 
+@pytest.mark.slow
 def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     from _browser import Browser, element_sizes, group_alive, not_blank
 
-    from eol_cal.report.lot import write_lot_page
+    from eol_cal.lot.page import write_lot_page
 
     page = write_lot_page(lot_db["records"], tmp_path / "lot.html", title="lot.sqlite", filters={"variant": None})
     with Browser() as b:
         log = b.open(page.as_uri())
         sizes = element_sizes(b, "svg.plot")
         # hover text: one <title> per drawn point, naming the serial
-        k6_titles = b.evaluate("Array.from(document.querySelectorAll('[id=\"timeline-runs-k6\"] use > title')).map(t => t.textContent)")
+        k6_titles = b.evaluate("Array.from(document.querySelectorAll('[id=\"timeline-runs-k6\"] use > title'))"
+                               ".map(t => t.textContent)")
         pass_rate = b.evaluate("document.getElementById('pass-rate').textContent")
         fpy = b.evaluate("document.getElementById('fpy').textContent")
         quantity_rows = b.evaluate("Array.from(document.querySelectorAll('tr.quantity-row')).map(r => r.dataset.key)")
@@ -232,7 +235,8 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
         # zoom: a wheel event on a chart narrows its viewBox, a double-click restores it
         zoom = b.evaluate("""(() => { const s = document.querySelector('#fig-timeline svg'); const r = s.getBoundingClientRect();
             const before = s.getAttribute('viewBox');
-            s.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, clientX: r.left + r.width / 2, clientY: r.top + r.height / 2, bubbles: true, cancelable: true}));
+            s.dispatchEvent(new WheelEvent('wheel', {deltaY: -100, clientX: r.left + r.width / 2,
+                                                     clientY: r.top + r.height / 2, bubbles: true, cancelable: true}));
             const zoomed = s.getAttribute('viewBox'); s.dispatchEvent(new MouseEvent('dblclick', {bubbles: true}));
             return [before, zoomed, s.getAttribute('viewBox')]; })()""")
         shot = b.screenshot(tmp_path / "lot.png")
@@ -246,7 +250,7 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     assert all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
     measured = [r for r in lot_db["records"] if r.kind == "production"]
     with_k6 = sorted((r for r in measured if r.fit), key=lambda r: r.started_at)
-    assert len(k6_titles) == len(with_k6) and all(t.startswith(r.serial) for t, r in zip(k6_titles, with_k6))
+    assert len(k6_titles) == len(with_k6) and all(t.startswith(r.serial) for t, r in zip(k6_titles, with_k6, strict=True))
     judged = [r for r in measured if r.verdict != "error"]
     assert pass_rate == f"{100 * sum(r.verdict == 'pass' for r in judged) / len(judged):.1f} %"
     first = {}
@@ -275,7 +279,8 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
     title, in the data's order, and a count that does not match is refused."""
     import re
 
-    from eol_cal.report.svg import figure_svg, pyplot
+    from eol_cal.figures import pyplot
+    from eol_cal.report.svg import figure_svg
 
     def fig():
         f, ax = pyplot().subplots(figsize=(3, 2))
@@ -291,8 +296,9 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
         figure_svg(fig(), "f", {"pts": ["only one"] * (n + 1)})
 
 
+@pytest.mark.slow
 def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, monkeypatch, tmp_path):
-    import eol_cal.report.lot as lot
+    import eol_cal.lot.page as lot
 
     monkeypatch.setattr(lot, "MAX_HOVER_POINTS", 5)
     html = lot.write_lot_page(lot_db["records"], tmp_path / "big.html", title="big", filters={}).read_text()
@@ -304,6 +310,7 @@ def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, mon
     assert "More than 5 runs: points without hover text" in html
 
 
+@pytest.mark.slow
 def test_a_plot_that_cannot_be_drawn_says_why_and_the_page_is_still_written(fitted, tmp_path):
     """Ripple data without angles (a caller that does not keep them): the angle plot says why,
     the other plots are drawn and the page is written."""

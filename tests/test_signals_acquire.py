@@ -12,6 +12,8 @@ import pytest
 
 from eol_cal.dyno import sim as ds
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_acquire_signalled_mid_profile(tmp_path, sig):

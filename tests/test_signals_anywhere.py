@@ -141,6 +141,7 @@ def test_a_main_thread_stuck_in_a_system_call_is_ended_by_the_watchdog(tmp_path)
     assert time.monotonic() - t0 >= 2.0  # the handler had its grace period first
 
 
+@pytest.mark.slow  # a process run past the watchdog's grace: 7.5 s
 def test_a_command_that_answers_in_time_is_not_touched_by_the_watchdog(tmp_path):
     proc = _script(tmp_path, """
         import time

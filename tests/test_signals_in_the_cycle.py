@@ -29,7 +29,10 @@ def _wait_for(path_glob, tmp_path, timeout: float = 120.0) -> bool:
     return False
 
 
-@pytest.mark.parametrize("sig, delay_s", [(signal.SIGTERM, 0.1), (signal.SIGINT, 0.8), (signal.SIGTERM, 2.0)])
+# a station process each (10-16 s): the first case stays in the fast loop
+@pytest.mark.parametrize("sig, delay_s", [(signal.SIGTERM, 0.1),
+                                          pytest.param(signal.SIGINT, 0.8, marks=pytest.mark.slow),
+                                          pytest.param(signal.SIGTERM, 2.0, marks=pytest.mark.slow)])
 def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s):  # noqa: F811
     start, tmp_path, dyno = station
     ecu, run = start()
@@ -54,6 +57,7 @@ def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s)
         assert active.sequence == 1 and not active.flags & B.FLAG_COMP_ENABLE, "flashed after the signal"
 
 
+@pytest.mark.slow  # a station process: 8 s
 def test_a_signal_while_the_record_is_written_keeps_the_record(station):  # noqa: F811
     start, tmp_path, dyno = station
     ecu, run = start()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import pytest
 
 from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 from eol_cal.capture import read_capture
@@ -22,6 +23,7 @@ def _no_times(doc):
     return {k: v for k, v in doc.items() if k not in ("created", "tool")}
 
 
+@pytest.mark.slow  # a capture and two fits: 14 s
 def test_a_fit_on_the_early_windows_equals_the_fit_of_the_capture_file(tmp_path):
     options = FitOptions(batch="loop")
     early = EarlyWindows(poles=6, encoder_ppr=64, estimator_options=options.estimator_options, n_windows=len(SEGMENTS))

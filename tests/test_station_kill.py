@@ -21,6 +21,8 @@ from eol_cal.ecu.client import ClientTiming
 from eol_cal.ecu.flash import NorFlash, active_block_from_file, select_active
 from eol_cal.station.records_query import query_records
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 BOUND_S = ClientTiming().dead_link_bound_s
 # process start, imports, the JAX warm-up the run waits for on its way out, and the slack a CPU hog
 # (load 8 on 2 cores) adds, s: a hang guard (bench/bench_faults_ecu.py measures the times)

@@ -29,6 +29,8 @@ from cli.station import DEMO_LIMITS
 from eol_cal.station.demo import demo_motor_spec
 from eol_cal.station.session import demo_seed
 
+pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
+
 ROOT = Path(__file__).resolve().parent.parent
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b\][^\x07]*\x07|\r")
 MOTOR_S = 180.0  # one motor's budget on a loaded shared machine (about 15 s alone)
@@ -142,7 +144,7 @@ def test_three_motors_one_failing_then_an_empty_line(tmp_path, terminal):
     t.type("")
     t.expect(r"session: 3 motor\(s\): 2 pass, 1 fail, 0 error", 30)
     assert t.exit_code() == 0, t.text[-3000:]
-    assert f"fail: k6 " in t.text and "max_k6" in t.text
+    assert "fail: k6 " in t.text and "max_k6" in t.text
     assert (out / "lot.html").is_file() and "lot page: " in t.text
     rows = _rows(out / "results.sqlite")
     assert [(r[0], r[1], r[2], r[3]) for r in rows] == [

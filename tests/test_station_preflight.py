@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 from click.testing import CliRunner
+import pytest
 
 from cli.main import cli
 from eol_cal.dyno.sim import synthetic_source
@@ -68,6 +69,7 @@ def assert_nothing_written(rec: dict, flash_before: bytes, flash_after: bytes, *
     assert rec["ecu_active"] == {"block": "unchanged", "sequence": None, "bank": None}
 
 
+@pytest.mark.slow
 def test_a_typo_in_the_dyno_address_costs_no_calibration(files, tmp_path):  # noqa: F811
     from eol_cal.schemas import validator
 
@@ -87,7 +89,7 @@ def test_a_typo_in_the_dyno_address_costs_no_calibration(files, tmp_path):  # no
     assert ecu["key_accepted"] is True and ecu["state"]["serial"] == "P-0001"
     assert "COMP_ENABLE" in ecu["state"]["flags"] and ecu["state"]["sequence"] == 1
     assert rec["preflight"]["dyno"] is None
-    assert wall < 20.0, wall  # the whole command, a dead dyno address included
+    assert wall < 60.0, wall  # a hang guard: the whole command, a dead dyno address included, at load 8
     validator("run-record").validate(rec)
     assert Path(rec["report_dir"], "report.json").exists()
 
@@ -179,6 +181,7 @@ def flash_while_acquiring(st, after_captures: int = 1):
     return source, done
 
 
+@pytest.mark.slow
 def test_the_ecu_state_changing_during_the_calibration_capture_ends_the_cycle(files, tmp_path):  # noqa: F811
     with loopback_station("C-1", 3, tmp_path / "sim", source=synthetic_source) as st:
         st.dyno.sim.source, flashed = flash_while_acquiring(st, after_captures=2)
@@ -221,6 +224,7 @@ seconds = 0.5
 """
 
 
+@pytest.mark.slow
 def test_acquire_records_the_ecu_state_and_fit_refuses_what_it_must(tmp_path):
     profile = tmp_path / "short.toml"
     profile.write_text(SHORT)

@@ -52,7 +52,7 @@ def test_database_is_wal_and_holds_every_column(tmp_path: Path):
     finally:
         con.close()
     assert tuple(cols) == COLUMN_NAMES
-    values = dict(zip(cols, row))
+    values = dict(zip(cols, row, strict=True))
     cal = r.block("calibrated")
     assert values["run_id"] == r.run_id and values["verdict"] == "pass" and values["variant"] == "EPS-STD"
     assert values["block_crc32"] == cal.crc32 and values["block_sequence"] == cal.sequence == 2
@@ -167,7 +167,8 @@ def test_records_cli_flush_json_and_plot(tmp_path: Path):
     holder = sqlite3.connect(db, isolation_level=None)
     holder.execute("BEGIN EXCLUSIVE")
     try:
-        assert save_record(record("B", "fail", "2026-11-22T10:00:00.000+00:00", after=4.0), db, spool, timeout_s=0.1).where == "spool"
+        saved = save_record(record("B", "fail", "2026-11-22T10:00:00.000+00:00", after=4.0), db, spool, timeout_s=0.1)
+        assert saved.where == "spool"
     finally:
         holder.execute("ROLLBACK")
         holder.close()

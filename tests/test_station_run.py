@@ -131,6 +131,7 @@ def full_run(files):
     return {"res": res, "doc": doc, "rec": doc["record"], "db": db, "sim_state": sim_state, "flash": flash}
 
 
+@pytest.mark.slow
 def test_full_run_end_to_end(full_run):
     rec, doc = full_run["rec"], full_run["doc"]
     assert full_run["res"].exit_code == 0, (rec["verdict"], rec["reasons"], rec.get("error"))
@@ -227,6 +228,7 @@ def test_full_run_end_to_end(full_run):
     assert full_run["sim_state"] == (False, 0.0, 0.0)
 
 
+@pytest.mark.slow
 def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     """The whole cycle on a dyno laid out otherwise (vendor B: CDAB, scaled integers, separate
     tables, its own codes): the simulator serves the map and ``run --register-map`` drives it."""
@@ -248,6 +250,7 @@ def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     assert rec["metrics"]["pp_after_pct"] < 0.5 * rec["metrics"]["pp_before_pct"]
 
 
+@pytest.mark.slow  # a whole station run; the operator loop test keeps the cycle in the fast loop
 def test_same_run_passes_one_variant_and_fails_another(full_run, files):
     rec = full_run["rec"]
     f = rec["fit"]
@@ -263,6 +266,7 @@ def test_same_run_passes_one_variant_and_fails_another(full_run, files):
     assert any("max_pp_after_pct" in r for r in reasons) and any("min_improvement_pct" in r for r in reasons)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("fault", "at_capture", "failed_step"), [
     (SimFault.OVER_SPEED, 2, "acquire"),
     (SimFault.TORQUE_SENSOR, 5, "acquire compensated"),  # 3 segments before, the 2nd of the compensated run
@@ -320,6 +324,7 @@ def test_dyno_fault_ends_in_safe_state_with_an_error_record_while_the_db_is_lock
     assert not Path(doc["saved"]["path"]).exists()
 
 
+@pytest.mark.slow
 def test_a_motor_of_another_type_on_the_dyno_is_refused_before_the_fit(files, tmp_path):
     # the station is set up for an 8-pole motor type; the dyno turns the paper's 6-pole motor
     motor = tmp_path / "eps8.toml"
@@ -344,7 +349,8 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
     base = ["run", "--dyno", "127.0.0.1:1", "--interface", "virtual", "--channel", "x", "--db", str(tmp_path / "r.sqlite"),
             "--serial", "S-1", "--key-file", str(files["key"]), "--report-dir", str(tmp_path / "rep")]
     bad = tmp_path / "bad.toml"
-    bad.write_text(LIMITS.replace("max_k6 = 0.0025\nmax_pp_before_pct = 25.0\nmax_pp_after_pct = 2.0", "max_pp_after_pct = 2.0", 1))
+    bad.write_text(LIMITS.replace("max_k6 = 0.0025\nmax_pp_before_pct = 25.0\nmax_pp_after_pct = 2.0",
+                                  "max_pp_after_pct = 2.0", 1))
     res = runner.invoke(cli, base + ["--limits", str(bad)])
     assert res.exit_code == 2 and "variant.TEST.max_k6" in res.output and str(bad) in res.output
     res = runner.invoke(cli, base + ["--limits", str(files["limits"]), "--variant", "NOPE"])
@@ -401,6 +407,7 @@ def test_a_wrong_key_is_an_error_before_the_dyno_turns_and_the_ecu_keeps_no_bloc
     assert [(r.kind, r.verdict) for r in query_records(db)] == [("refusal", "error")]
 
 
+@pytest.mark.slow
 def test_demo_one_motor_from_the_command_line(tmp_path):
     res = CliRunner().invoke(cli, ["demo", "--motors", "1", "--out", str(tmp_path / "demo")])
     assert res.exit_code == 0, res.output
@@ -433,13 +440,13 @@ def test_windows_split_where_the_rounded_segment_starts_say():
     assert "segment_starts" not in pieces[1].metadata and pieces[1].source == "dyno#2"
 
 
+@pytest.mark.slow
 def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     """The run's report.html in headless Chromium from file://, network off: nothing fetched
     but the file itself (and its inline data: images), no console error, every plot drawn,
     the verdict and every limit row there, at most two A4 pages printed."""
     from _browser import Browser, element_sizes, group_alive, not_blank, pdf_pages
 
-    from eol_cal.station.limits import LIMIT_KEYS
 
     rec = full_run["rec"]
     page = Path(rec["report_dir"]) / "report.html"
@@ -447,7 +454,8 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
         log = b.open(page.as_uri())
         sizes = element_sizes(b, "svg.plot")
         verdict_text = b.evaluate("document.getElementById('verdict').textContent")
-        rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row')).map(r => [r.dataset.key, r.lastElementChild.textContent])")
+        rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row'))"
+                          ".map(r => [r.dataset.key, r.lastElementChild.textContent])")
         b_ecu = b.evaluate("document.getElementById('ecu').textContent")
         residual_panels = b.evaluate("document.querySelectorAll('#fig-residual g[id^=residual-segment-]').length")
         shot = b.screenshot(tmp_path / "report.png")
@@ -470,6 +478,7 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     assert 1 <= pages <= 2
 
 
+@pytest.mark.slow
 def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, files, tmp_path):
     """StationCycle.to_record: the same keys and the run-record schema on pass, fail (at the fit) and refusal."""
     from eol_cal.schemas import validator
@@ -508,6 +517,7 @@ def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, fil
     assert err["kind"] == "refusal" and err["refusal_codes"] == ["key_refused"]
 
 
+@pytest.mark.slow  # a whole station run
 def test_records_json_matches_its_schema(full_run):
     from eol_cal.schemas import validator
 

@@ -123,8 +123,10 @@ def test_dyno_register_map_key_names_a_shipped_map_or_a_file_beside_the_settings
     assert register_map_of(s).word_order == "little"
     text = (Path(__file__).resolve().parents[1] / "eol_cal" / "dyno" / "maps" / "vendor-b.toml").read_text()
     (station_dir / "maps").mkdir()
-    (station_dir / "maps" / "rig3.toml").write_text(text.replace("scale = 0.1                 # 0.1 rpm", "scale = 0                   # 0.1 rpm"))
-    (station_dir / "station.toml").write_text(GOOD.replace('address = "127.0.0.1"', 'address = "127.0.0.1"\nregister_map = "maps/rig3.toml"'))
+    (station_dir / "maps" / "rig3.toml").write_text(
+        text.replace("scale = 0.1                 # 0.1 rpm", "scale = 0                   # 0.1 rpm"))
+    (station_dir / "station.toml").write_text(
+        GOOD.replace('address = "127.0.0.1"', 'address = "127.0.0.1"\nregister_map = "maps/rig3.toml"'))
     err = _refused(station_dir / "station.toml", check=True)
     assert err.field == "dyno.register_map" and "rig3.toml" in str(err) and "registers.speed.scale" in str(err)
 

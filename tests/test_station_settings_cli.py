@@ -12,6 +12,7 @@ import sqlite3
 from pathlib import Path
 
 from click.testing import CliRunner
+import pytest
 
 from cli.main import cli
 from eol_cal.dyno.sim import synthetic_source
@@ -48,6 +49,7 @@ def _env() -> dict[str, str | None]:
     return {k: None for k in os.environ if k.startswith("EOL_CAL_") and k != "EOL_CAL_JAX_CACHE"}
 
 
+@pytest.mark.slow
 def test_run_from_a_settings_file_with_an_option_and_a_variable_over_it(tmp_path):
     station_dir = tmp_path / "station"
     station_dir.mkdir()

@@ -20,6 +20,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from eol_cal.dyno.sim import synthetic_source
 from eol_cal.station.demo import loopback_station
 from eol_cal.station.records_query import query_records
@@ -54,6 +56,7 @@ def _wait_for(sink: list[str], pattern: str, timeout: float, proc: subprocess.Po
     raise AssertionError(f"{pattern!r} not seen (exit {proc.poll()}):\n{''.join(sink)[-3000:]}")
 
 
+@pytest.mark.slow  # a station process killed and run again: 21 s
 def test_a_station_killed_right_after_the_verdict_loses_no_record(tmp_path):
     out = tmp_path / "session"
     out.mkdir()

@@ -26,13 +26,15 @@ Steps
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
+from scipy.interpolate import PchipInterpolator
 
 from eol_cal.analysis.edges import boundary_state, debounce_edges, level_changes, quadrature_boundaries
 from eol_cal.capture.model import Capture
+from eol_cal.capture.windows import window_spans
 from eol_cal.errors import InputError
 from eol_cal.firmware.contract import HALL_FORWARD_SEQUENCE, NOMINAL_HALL_ANGLE
 from eol_cal.wrap import wrap_2pi, wrap_pi
@@ -179,8 +181,6 @@ def reconstruct_angle(
     -------
     AngleResult
     """
-    from scipy.interpolate import PchipInterpolator
-
     t = np.asarray(t, dtype=float)
     events = events or {}
     hall = np.asarray(hall).astype(np.int64)
@@ -310,7 +310,6 @@ def capture_angle(capture: Capture, hall_angles: Sequence[float] = NOMINAL_HALL_
     for key in ("poles", "encoder_ppr"):
         if key not in capture.metadata:
             raise InputError(capture.source, key, "missing metadata, needed for the angle")
-    from eol_cal.capture.windows import window_spans
 
     n_windows = len(window_spans(capture))
     if n_windows > 1:

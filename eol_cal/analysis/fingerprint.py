@@ -7,27 +7,31 @@ as the estimator decodes it (from the window's first sample), every A rising edg
 boundary found, and the edge errors fitted by least squares, per direction, over the steady
 stretches of the fit's segments: the boundary's nominal angle plus the edge's error is the rotor's
 smooth angle at the edge time (a cubic polynomial in time per stretch), the errors orthogonal to
-mechanical orders 0..2 (which the polynomials over a revolution or so would otherwise share). The window's grid phase is where its count boundary 0 sits in the
-firmware's electrical frame (the offline angle at its edges plus the firmware frame offset).
+mechanical orders 0..2 (which the polynomials over a revolution or so would otherwise share).
+The window's grid phase is where its count boundary 0 sits in the firmware's electrical frame
+(the offline angle at its edges plus the firmware frame offset).
 
 Windows are then put into one frame, that of the window with most edges (the block's): each other
 window's offset is found by the halls (its grid phase allows one offset per pole pair) and the
 fingerprint (the offset whose joint fit with the windows already placed leaves the least
-residual), and the errors are fitted over all placed windows' edges together. The margin the firmware will see after one revolution at the
-reference speed is predicted from the fingerprint, its uncertainty and the tick quantisation.
+residual), and the errors are fitted over all placed windows' edges together. The margin the
+firmware will see after one revolution at the reference speed is predicted from the fingerprint,
+its uncertainty and the tick quantisation.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 
 from eol_cal.firmware.estimator import quadrature_phase
+from eol_cal.firmware.mech_params import FP_FORWARD
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
@@ -192,7 +196,7 @@ class _Stats:
         allk = np.concatenate([k for _, k in stretches]) if stretches else np.zeros(0, np.int64)
         #: every edge per (half, pulse), whatever is kept: which halves the fit can keep
         self.seen = np.bincount(((allk >> 1) & 1) * N + (allk >> 2) % N, minlength=2 * N).reshape(2, N)
-        self._parts: dict[tuple[int, ...], tuple[list[tuple[np.ndarray, ...]], float, int]] = {}
+        self._parts: dict[tuple[int, ...], tuple[list[Any], float, int]] = {}
         self._normal: dict[tuple[tuple[int, ...], int], tuple[np.ndarray, np.ndarray, float, int]] = {}
 
     def part(self, halves: tuple[int, ...]) -> tuple[list[tuple[np.ndarray, ...]], float, int]:
@@ -277,8 +281,6 @@ def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, 
     :func:`_joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
     ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (a placement trial's figures are those of
     the full fit; ``cov`` adds the variances)."""
-    from eol_cal.firmware.mech_params import FP_FORWARD
-
     P = _low_order_complement(N)
     nF = P.shape[1]
     dof = n - ((_POLY_DEGREE + 1) * n_stretches + nF * len(halves))

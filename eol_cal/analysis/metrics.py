@@ -26,6 +26,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+from scipy.ndimage import median_filter
+from scipy.signal import butter, sosfiltfilt
 
 from eol_cal.analysis.angle import AngleResult, capture_angle
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
@@ -88,10 +91,6 @@ def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65
     spikes : ndarray of bool
         Which samples were replaced.
     """
-    from numpy.lib.stride_tricks import sliding_window_view
-
-    from scipy.ndimage import median_filter
-
     x = np.asarray(x, dtype=float)
     k = max(int(half_width), 1)
     mode = "mirror" if len(x) > k else "nearest"
@@ -136,8 +135,6 @@ def lowpass_zero_phase(x: np.ndarray, fs_hz: float, cutoff_hz: float, order: int
         Filtered signal (unit of ``x``); ``x`` unchanged when the cut-off is at or above
         0.9 times the Nyquist frequency (nothing to remove that the samples can hold).
     """
-    from scipy.signal import butter, sosfiltfilt
-
     if cutoff_hz >= 0.45 * fs_hz:
         return np.asarray(x, dtype=float).copy()
     sos = butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")

@@ -9,18 +9,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 from eol_cal.errors import ResultFormatError
+# the physical bounds a fit result is read against are the block's (a block holds what a fit gives)
+from eol_cal.firmware.contract import C6_MAX, DELAY_MAX, K6_MAX, KT_MAX, PHASE_MAX
 from eol_cal.firmware.mech_params import ORDERS
 
-#: Physical bounds an estimate must lie within (documented in docs/json.md). The paper's motor
-#: has k6 ~ 6e-4 N*m/A and c6 ~ 5e-3 N*m; anything past these is a corrupt file, not a motor.
-K6_MAX = 1.0  # N*m/A
-C6_MAX = 10.0  # N*m
-KT_MAX = 10.0  # N*m/A
-PHASE_MAX = 100.0  # rad (phases are wrapped to a few pi; 100 rad only catches garbage)
-DELAY_MAX = 1.0  # s
 ESTIMATE_KEYS = ("k6", "phase_k6", "c6", "phase_c6")
 
 
@@ -115,7 +111,7 @@ class MotorResult:
     operating_point: OperatingPoint
     segments: tuple[dict[str, Any], ...]
     sources: tuple[str, ...]
-    mech: "MechResult | None" = None
+    mech: MechResult | None = None
 
     @property
     def usable(self) -> bool:

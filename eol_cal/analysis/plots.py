@@ -13,26 +13,8 @@ import numpy as np
 
 from eol_cal.analysis.metrics import RipplePP, eta_percent, lowpass_zero_phase
 from eol_cal.analysis.spectrum import OrderSpectrum
-from eol_cal.atomic import atomic_path
-from eol_cal.errors import InputError
+from eol_cal.figures import pyplot, write_png
 from eol_cal.render import plain
-
-
-def _pyplot():
-    from eol_cal.render import pyplot
-
-    return pyplot()
-
-
-def _save(fig, path: str | Path) -> None:
-    from eol_cal.render import literal_texts
-
-    literal_texts(fig)
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", dpi=110)
-    except OSError as exc:
-        raise InputError(str(path), None, f"cannot write the plot: {exc.strerror or exc}") from None
 
 
 def plot_eta(path: str | Path, poles: int, ppr: int, ppr_min: int, ppr_max: int, table_ppr: np.ndarray) -> None:
@@ -51,7 +33,7 @@ def plot_eta(path: str | Path, poles: int, ppr: int, ppr_min: int, ppr_max: int,
     table_ppr : ndarray of int
         PPR values marked as points (the table's rows).
     """
-    plt = _pyplot()
+    plt = pyplot()
     n = np.unique(np.geomspace(ppr_min, ppr_max, 400).round().astype(int))
     fig, ax = plt.subplots(figsize=(7, 4.2))
     try:
@@ -67,7 +49,7 @@ def plot_eta(path: str | Path, poles: int, ppr: int, ppr_min: int, ppr_max: int,
         ax.grid(True, which="both", alpha=0.3)
         ax.legend()
         fig.tight_layout()
-        _save(fig, path)
+        write_png(fig, path)
     finally:
         plt.close(fig)
 
@@ -110,11 +92,11 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
     rows : list of CapturePlotData
         One entry per capture.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(len(rows), 2, figsize=(12, 3.4 * len(rows)), squeeze=False,
                              gridspec_kw={"width_ratios": [3, 2]})
     try:
-        for (ax_t, ax_s), row in zip(axes, rows):
+        for (ax_t, ax_s), row in zip(axes, rows, strict=True):
             r = row.ripple
             fs = (len(row.t) - 1) / (row.t[-1] - row.t[0])
             # one trace for the whole record: the windows' typical |speed| sets its cut-off
@@ -142,6 +124,6 @@ def plot_captures(path: str | Path, rows: list[CapturePlotData]) -> None:
             ax_s.set_title(f"order spectrum over {s.n_elec_revs} electrical revolutions", fontsize=9)
             ax_s.grid(alpha=0.3, which="both")
         fig.tight_layout()
-        _save(fig, path)
+        write_png(fig, path)
     finally:
         plt.close(fig)

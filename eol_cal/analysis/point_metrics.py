@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from eol_cal.analysis.metrics import ripple_pp
+from eol_cal.analysis.spectrum import order_spectrum
 from eol_cal.jsonsafe import json_safe
 
 if TYPE_CHECKING:
@@ -84,9 +86,6 @@ def point_ripple(capture: Capture, angle: AngleResult) -> PointRipple:
     angle : AngleResult
         Its reconstructed angle.
     """
-    from eol_cal.analysis.metrics import ripple_pp
-    from eol_cal.analysis.spectrum import order_spectrum
-
     t, torque, theta = capture.t, np.asarray(capture["torque"], float), angle.theta_r
     rp = ripple_pp(t, torque, theta, poles=capture.poles, i_qo=np.asarray(capture.iq_ref(), float),
                    source=capture.source)

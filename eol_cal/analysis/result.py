@@ -218,7 +218,7 @@ def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version
     """The whole result file."""
     return {
         "schema": SCHEMA,
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
         "tool": f"eol-cal {tool_version}",
         "limits": limits.to_dict(),
         "motors": motors,

@@ -13,10 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from eol_cal.analysis.angle import AngleResult, capture_angle
-from eol_cal.wrap import wrap_pi
+from eol_cal.analysis.edges import level_changes
 from eol_cal.analysis.metrics import eta_percent
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
+from eol_cal.wrap import wrap_pi
 
 TWO_PI = 2.0 * np.pi
 
@@ -204,8 +205,6 @@ def quantisation_figures(capture: Capture, angle: AngleResult | None = None) -> 
     -------
     QuantisationFigures
     """
-    from eol_cal.analysis.edges import level_changes
-
     if angle is None:
         angle = capture_angle(capture)
     P, N_enc = capture.poles, capture.encoder_ppr

@@ -29,7 +29,7 @@ def direction_pieces(omega_r: np.ndarray, min_fraction: float = 0.05) -> list[tu
     edges = np.flatnonzero(np.diff(s) != 0) + 1
     starts = np.concatenate([[0], edges])
     stops = np.concatenate([edges, [len(s)]])
-    return [(int(a), int(b)) for a, b in zip(starts, stops) if s[a] != 0 and b - a > 1]
+    return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True) if s[a] != 0 and b - a > 1]
 
 
 def revolution_bounds(theta_r: np.ndarray, per_rev: int = 1) -> np.ndarray:

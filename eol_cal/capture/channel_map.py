@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from collections.abc import Mapping
 
 from eol_cal.capture.columns import Column, combine_hall_bits
 from eol_cal.capture.metadata import MetaValue, coerce_value

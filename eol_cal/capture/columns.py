@@ -82,7 +82,7 @@ def is_change_list(times: np.ndarray, rows: list[np.ndarray]) -> bool:
 
 def combine_hall_bits(bits: list[Column], file: str, labels: list[str]) -> Column:
     """Hall state U + 2*V + 4*W from three 0/1 lines (each possibly on its own time base)."""
-    for column, label in zip(bits, labels):
+    for column, label in zip(bits, labels, strict=True):
         values = np.asarray(column.values, dtype=np.float64)
         bad = (values != 0) & (values != 1)
         if bad.any():

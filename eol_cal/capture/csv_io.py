@@ -154,8 +154,7 @@ def write_csv(capture: Capture, path: str | Path) -> None:
     lengths = {len(c) for c in columns}
     if len(lengths) != 1:
         raise InputError(file, None, "channels differ in length from t; cannot be written")
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write("\n".join(head))
-            fh.write("\n")
-            fh.writelines(",".join(row) + "\n" for row in zip(*columns))
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+        fh.write("\n".join(head))
+        fh.write("\n")
+        fh.writelines(",".join(row) + "\n" for row in zip(*columns, strict=True))

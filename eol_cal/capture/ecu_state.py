@@ -23,7 +23,8 @@ and the same under ``ecu_after.``. A capture with neither is *untraced*.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any
+from collections.abc import Mapping, Sequence
 
 from eol_cal.errors import InputError
 
@@ -161,7 +162,7 @@ class Trace:
         return self.before is not None and self.after is not None
 
     def to_dict(self) -> dict[str, Any]:
-        return {w: (None if s is None else s.to_dict()) for w, s in zip(WHEN, (self.before, self.after))}
+        return {w: (None if s is None else s.to_dict()) for w, s in zip(WHEN, (self.before, self.after), strict=True)}
 
     def describe(self) -> str:
         """One line for a report: what the ECU ran, or that it is not recorded."""
@@ -237,7 +238,7 @@ def check_trace(trace: Trace, file: str | None, *, allow_untraced: bool = False,
 def recorded_options(files: Sequence[str], traces: Sequence[Trace]) -> dict[str, int]:
     """The estimator option bits (contract flags bits 2-5) each capture's ECU ran, by file: the
     captures whose ``ecu_before`` records a block (the others ran no estimator or are untraced)."""
-    return {f: t.before.estimator_options() for f, t in zip(files, traces)
+    return {f: t.before.estimator_options() for f, t in zip(files, traces, strict=True)
             if t.before is not None and t.before.has_block}
 
 

@@ -98,7 +98,7 @@ _LINK_COUNT = {
     "RV": (0, 0), "RI": (0, 0),
 }
 #: data-type codes of fixed-size numbers in a record (unsigned/signed integers, floats, LE/BE)
-_NUMERIC_TYPES = range(0, 6)
+_NUMERIC_TYPES = range(6)
 _MAX_DATA_TYPE = 16
 
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 import mmap
 import struct
 import xml.etree.ElementTree as ET
-from typing import Callable, Union
+from collections.abc import Callable
 
 import numpy as np
 
@@ -42,7 +42,7 @@ from eol_cal.capture.mdf4_check import Block, Mdf4Layout
 Group = list[tuple[str, Callable[[], tuple[np.ndarray, str | None, np.ndarray]]]]
 
 #: the checked file's bytes (a read-only map of the file, or bytes)
-Data = Union[bytes, mmap.mmap]
+Data = bytes | mmap.mmap
 
 _CN = struct.Struct("<BBBBIIII")
 _CG = struct.Struct("<QQHHxxxxII")

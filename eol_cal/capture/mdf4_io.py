@@ -22,7 +22,8 @@ import sys
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, Literal
+from collections.abc import Callable
 
 import numpy as np
 
@@ -95,9 +96,9 @@ def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
 def _stored(values: np.ndarray, digital: bool) -> np.ndarray:
     """uint8 for digital levels that fit; anything else as float64, so that no value changes."""
     values = np.asarray(values)
-    if digital and values.size and np.all(np.isfinite(values)) and np.array_equal(values, np.round(values)):
-        if values.min() >= 0 and values.max() <= 255:
-            return values.astype(np.uint8)
+    if (digital and values.size and np.all(np.isfinite(values)) and np.array_equal(values, np.round(values))
+            and values.min() >= 0 and values.max() <= 255):
+        return values.astype(np.uint8)
     return values.astype(np.float64)
 
 
@@ -218,7 +219,7 @@ class _Quiet:
         self.file = file
         self.failure: InputError | None = None
 
-    def __call__(self, func, *args):  # noqa: ANN001, ANN204 - the decode and its arguments
+    def __call__(self, func, *args):  # the decode and its arguments
         try:
             return func(*args)
         except InputError as exc:

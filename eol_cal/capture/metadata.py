@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 import re
-from typing import Mapping
+from collections.abc import Mapping
 
 from eol_cal.capture.ecu_state import METADATA_TYPES as ECU_STATE_TYPES
 from eol_cal.capture.model import TRUTH_PREFIX

@@ -19,7 +19,7 @@ and kept in ``Capture.events``; the sampled levels are the zero-order hold of th
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

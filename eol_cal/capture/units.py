@@ -34,7 +34,7 @@ _EXTRA_DEFINITIONS = (
 
 
 @functools.lru_cache(maxsize=1)
-def unit_registry() -> "pint.UnitRegistry":
+def unit_registry() -> pint.UnitRegistry:
     """The process-wide pint registry (cached)."""
     import pint
 
@@ -45,11 +45,11 @@ def unit_registry() -> "pint.UnitRegistry":
 
 
 @functools.lru_cache(maxsize=256)
-def _parse_unit(unit: str) -> "pint.Unit":
+def _parse_unit(unit: str) -> pint.Unit:
     return unit_registry().Unit(unit)
 
 
-def parse_unit(unit: str, file: str | None, channel: str | None) -> "pint.Unit":
+def parse_unit(unit: str, file: str | None, channel: str | None) -> pint.Unit:
     """Parse a unit string, refusing unknown units with an :class:`InputError`.
 
     Parameters
@@ -64,7 +64,7 @@ def parse_unit(unit: str, file: str | None, channel: str | None) -> "pint.Unit":
                                         f"has at most {MAX_UNIT_CHARS}")
     try:
         return _parse_unit(unit.strip())
-    except Exception as exc:  # pint raises several unrelated types for bad strings
+    except Exception as exc:  # noqa: BLE001 - pint raises several unrelated types for bad strings
         raise InputError(file, channel, f"unknown unit {unit!r} ({exc.__class__.__name__}: {exc})") from None
 
 
@@ -113,9 +113,8 @@ def to_canonical(
         if unit in _DIMENSIONLESS_SPELLINGS:
             return values
         raise InputError(file, field, f"unit {unit!r} given for a digital channel; it takes no unit (0/1 levels, hall 0..7)")
-    if canonical == "1":
-        if unit in _DIMENSIONLESS_SPELLINGS:
-            return values
+    if canonical == "1" and unit in _DIMENSIONLESS_SPELLINGS:
+        return values
     source = parse_unit(unit, file, field)
     ureg = unit_registry()
     try:
@@ -124,7 +123,7 @@ def to_canonical(
             # an offset unit (degC) fails here already: it cannot be multiplied by a revolution
             quantity = quantity * ureg.revolution
         return np.asarray(quantity.to(canonical).magnitude, dtype=np.float64)
-    except Exception as exc:  # DimensionalityError, OffsetUnitCalculusError
+    except Exception as exc:  # noqa: BLE001 - DimensionalityError, OffsetUnitCalculusError, ...
         raise InputError(
             file, field, f"unit {unit!r} cannot be converted to {canonical!r} ({exc.__class__.__name__})"
         ) from None

@@ -251,7 +251,8 @@ def validate(capture: Capture) -> Capture:
     """Refuse a capture that cannot be trusted; return it unchanged when it can.
 
     Checks, in this order: channel names, presence and lengths; metadata (with its bounds);
-    finite values; values within :data:`PHYSICAL_BOUNDS`; strictly increasing time; digital ranges and hall faults (states 0 and 7); recorded events;
+    finite values; values within :data:`PHYSICAL_BOUNDS`; strictly increasing time; digital ranges
+    and hall faults (states 0 and 7); recorded events;
     encoders that never toggle; at least one full electrical revolution (see module docstring).
 
     Parameters

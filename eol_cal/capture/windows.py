@@ -85,7 +85,7 @@ def window_spans(capture: Capture) -> list[tuple[int, int]]:
                 if dt.max() > GAP_PERIODS * dt.min() else np.zeros(0, np.int64))
         idx = {0} | {int(i) + 1 for i in gaps if not _bridged(capture, int(i))}
     edges = sorted(i for i in idx if i < n) + [n]
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
 
 
 def split_windows(capture: Capture) -> list[Capture]:

@@ -10,11 +10,13 @@ differently, which the simulator can serve too).
 from __future__ import annotations
 
 import functools
+import itertools
 import math
 from importlib import resources
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 from eol_cal.dyno import regcodec as rc
 from eol_cal.dyno.regmap import Entry, RegisterMap, Window
@@ -281,7 +283,7 @@ def _no_overlap(c: _Checker, entries: list[Entry], window: Window, shared: bool)
     if shared:
         spans = [("shared", a, b, n) for _t, a, b, n in spans]
     spans.sort()
-    for (t0, _a0, e0, n0), (t1, a1, _e1, n1) in zip(spans, spans[1:]):
+    for (t0, _a0, e0, n0), (t1, a1, _e1, n1) in itertools.pairwise(spans):
         if t0 == t1 and a1 < e0:
             raise c.fail(f"{n1}.address" if n1 != "window" else "window.address", f"overlaps {n0}")
 

@@ -10,7 +10,7 @@ address ("ABCD", pymodbus ``word_order="big"``), ``little`` = the low word first
 from __future__ import annotations
 
 from types import MappingProxyType
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 

@@ -13,14 +13,15 @@ as NaN (a transducer that reports no measurement).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping, Sequence
 
 import numpy as np
 
+from eol_cal.capture.model import CANONICAL_CHANNELS
 from eol_cal.dyno import regcodec as rc
-from eol_cal.dyno.registers import GROUPS, ROLES, Role, channel_bit, pack_digital, unpack_digital
+from eol_cal.dyno.registers import GROUPS, Role, channel_bit, pack_digital, unpack_digital
 
 Value = float | int | str
 #: Modbus function code that reads each table
@@ -295,8 +296,6 @@ class RegisterMap:
     def markdown_table(self) -> str:
         """The map as Markdown tables, one per group, and the channel table (docs/dyno.md embeds
         the default map's)."""
-        from eol_cal.capture.model import CANONICAL_CHANNELS
-
         titles = {"identification": "Identification (read-only)", "control": "Control (read/write)",
                   "status": "Status (read-only)", "transfer": "Capture data transfer",
                   "sim": "Simulator only (fault injection)"}

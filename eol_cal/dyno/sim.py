@@ -33,7 +33,8 @@ import math
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, TypeVar
+from typing import TypeVar
+from collections.abc import Callable
 
 import numpy as np
 
@@ -508,7 +509,7 @@ class DynoSimThread:
         self._started = threading.Event()
         self._error: BaseException | None = None
 
-    def start(self) -> "DynoSimThread":
+    def start(self) -> DynoSimThread:
         def run() -> None:
             async def main() -> None:
                 self._task = asyncio.current_task()
@@ -544,7 +545,7 @@ class DynoSimThread:
             loop.call_soon_threadsafe(self._task.cancel)
             self._thread.join(10.0)
 
-    def __enter__(self) -> "DynoSimThread":
+    def __enter__(self) -> DynoSimThread:
         return self.start()
 
     def __exit__(self, *exc) -> None:

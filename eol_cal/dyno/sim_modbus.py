@@ -14,7 +14,8 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING
+from collections.abc import Callable
 
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.regmap import RegisterMap

@@ -18,11 +18,12 @@ then, as before.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -223,17 +224,15 @@ class Stream:
             raise TransferError(f"the buffer read did not finish within {timeout} s") from None
         except TransferError:
             raise
-        except Exception as exc:  # noqa: BLE001 - any failure of the read is the transfer's
+        except Exception as exc:  # any failure of the read is the transfer's
             raise TransferError(f"{type(exc).__name__}: {exc}") from exc
         return _decode(self._cfg.regmap, self.plan, words)
 
     def abandon(self, why: str) -> None:
         """Stop reading (the capture failed): the read ends within a request timeout."""
         self._fill.stop(why)
-        try:
+        with contextlib.suppress(Exception):  # the capture's own failure is what is reported
             self._job.result(self._cfg.timeout * (self._cfg.retries + 1) + 1.0)
-        except Exception:  # noqa: BLE001 - the capture's own failure is what is reported
-            pass
 
 
 class _Connections:

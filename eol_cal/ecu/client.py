@@ -21,6 +21,7 @@ from eol_cal.ecu.session import ClientTiming, EcuError, SeedToKey, UdsSession, V
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_sanity import header_field
+from eol_cal.inputs import read_text
 
 __all__ = ["ClientTiming", "EcuError", "EcuInfo", "FlashReport", "SeedToKey", "UdsSession", "VerifyFailed",
            "EcuCheck", "ecu_info", "ecu_state", "flash_block", "hmac_seed_to_key", "load_key_file", "preflight_ecu",
@@ -38,8 +39,6 @@ def hmac_seed_to_key(secret: bytes) -> SeedToKey:
 
 def load_key_file(path: str | Path) -> bytes:
     """Read a 16-byte security secret written as hex (whitespace and a ``0x`` prefix allowed)."""
-    from eol_cal.inputs import read_text
-
     text = read_text(path, "key", encoding="ascii", max_bytes=4096)  # a FIFO or a device: refused unread
     cleaned = "".join(text.split())
     cleaned = cleaned[2:] if cleaned.lower().startswith("0x") else cleaned

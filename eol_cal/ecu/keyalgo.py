@@ -17,6 +17,7 @@ import importlib
 from collections.abc import Callable
 from importlib.metadata import entry_points
 
+from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
 from eol_cal.errors import InputError
 
 SeedToKey = Callable[[bytes], bytes]
@@ -46,7 +47,7 @@ def _load(spec: str, field: str) -> tuple[Callable[..., object], str]:
     except Exception as exc:  # noqa: BLE001 - ImportError, or anything the module raises on import
         raise InputError(None, field, f"cannot load {spec!r}: {exc.__class__.__name__}: {exc}") from None
     where = getattr(module, "__file__", None) or module_name
-    algo = module
+    algo: object = module
     for part in func_name.split("."):  # an entry point may name an attribute path
         algo = getattr(algo, part, None)
     if not callable(algo):
@@ -89,8 +90,6 @@ def seed_to_key_from(key_file: str | None, key_algo: str | None, *, file_field: 
         Neither is given, the key file is unreadable or not 16 bytes of hex, or the algorithm is
         refused (:func:`oem_seed_to_key`).
     """
-    from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
-
     secret = load_key_file(key_file) if key_file else None
     if key_algo:
         return oem_seed_to_key(key_algo, secret, algo_field)

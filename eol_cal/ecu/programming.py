@@ -15,7 +15,8 @@ accepted block counter) and applies the contract's rules (revision 1.1) to the f
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Protocol
+from collections.abc import Callable
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import NorFlash, ProgramError, bank_at

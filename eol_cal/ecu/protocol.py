@@ -226,7 +226,7 @@ class ActiveBlock:
         return struct.pack(self.FORMAT, self.bank, self.sequence, self.layout_version, self.crc32)
 
     @classmethod
-    def unpack(cls, data: bytes) -> "ActiveBlock":
+    def unpack(cls, data: bytes) -> ActiveBlock:
         return cls(*struct.unpack(cls.FORMAT, bytes(data)))
 
     @classmethod

@@ -21,7 +21,7 @@ def import_can() -> ModuleType:
         return sys.modules["can"]
     masked = "asammdf" not in sys.modules
     if masked:
-        sys.modules["asammdf"] = None  # type: ignore[assignment] - "import asammdf" fails: python-can skips MF4
+        sys.modules["asammdf"] = None  # type: ignore[assignment]  # "import asammdf" fails: python-can skips MF4
     try:
         import can
     finally:

@@ -14,13 +14,14 @@ to the end of the flash. A flash that fails leaves the active block active and t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import can
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import read_bank
+from eol_cal.ecu.sequence import flash_block
 from eol_cal.ecu.session import ClientTiming, UdsSession
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
@@ -124,8 +125,6 @@ def restore_block(bus: can.BusABC, data: bytes, source: str, *, seed_to_key: Cal
     FlashReport
         As :func:`eol_cal.ecu.sequence.flash_block` (read-back verified).
     """
-    from eol_cal.ecu.sequence import flash_block
-
     check_restorable(data, source, motor)
     return flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source, timing=timing,
                        progress=progress, motor=motor)

@@ -18,7 +18,8 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import can
 
@@ -342,7 +343,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
                 body = image[:-TAIL_BYTES]
                 back = s.read_memory(base, len(body), prog.step("read-back before the CRC (23)"))
                 if back != body:
-                    first = next(i for i, (a, b) in enumerate(zip(back, body)) if a != b)
+                    first = next(i for i, (a, b) in enumerate(zip(back, body, strict=False)) if a != b)
                     raise VerifyFailed("read-back", f"bank {bank} differs from the block at byte {first}; "
                                                     "its CRC was not written")
                 report.verified = True

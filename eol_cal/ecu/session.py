@@ -24,7 +24,8 @@ import logging
 import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 import can
 import isotp
@@ -322,7 +323,7 @@ class UdsSession:
         """The link is dead, or the ECU has been silent for S3 (a living one has dropped the session)."""
         return self.link.lost is not None or self.silent_s >= self.timing.s3_s
 
-    def __enter__(self) -> "UdsSession":
+    def __enter__(self) -> UdsSession:
         self.client.open()
         self._keepalive = threading.Thread(target=self._keep_alive, name="tester-present", daemon=True)
         self._keepalive.start()

@@ -25,7 +25,7 @@ import random
 import struct
 import threading
 import time
-from typing import Callable
+from collections.abc import Callable
 
 import can
 from udsoncan import Request, Response, services
@@ -60,7 +60,7 @@ class _Pending:
     answer goes out under the same lock, so it can never overtake a 0x78.
     """
 
-    def __init__(self, sim: "EcuSimulator", service: type) -> None:
+    def __init__(self, sim: EcuSimulator, service: type) -> None:
         self._sim = sim
         self._payload = Response(service=service, code=P.NRC.RequestCorrectlyReceived_ResponsePending).get_payload()
         self._lock = threading.Lock()
@@ -166,7 +166,7 @@ class EcuSimulator:
         self.banks.forget()
         self._last_activity = time.monotonic()
 
-    def start(self) -> "EcuSimulator":
+    def start(self) -> EcuSimulator:
         """Start serving in a background thread."""
         self._stack.start()
         self._thread = threading.Thread(target=self._run, name="ecu-sim", daemon=True)
@@ -181,7 +181,7 @@ class EcuSimulator:
         if self._stack.started:
             self._stack.stop()
 
-    def __enter__(self) -> "EcuSimulator":
+    def __enter__(self) -> EcuSimulator:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

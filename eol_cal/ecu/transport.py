@@ -8,6 +8,7 @@ simulator's frames to a CAN bit rate.
 
 from __future__ import annotations
 
+import configparser
 import errno
 import itertools
 import logging
@@ -28,6 +29,7 @@ from udsoncan.exceptions import TimeoutException
 
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
+from eol_cal.inputs import read_text
 
 log = logging.getLogger(__name__)
 
@@ -111,13 +113,9 @@ def bus_config(interface: str | None, channel: str | None, bitrate: int | None =
         file was a ``MissingSectionHeaderError`` traceback), no interface, or one this tool
         does not drive.
     """
-    import configparser
-
     overrides = {k: v for k, v in (("interface", interface), ("channel", channel), ("bitrate", bitrate))
                  if v is not None}
     if can_config is not None:
-        from eol_cal.inputs import read_text
-
         parser = configparser.ConfigParser()
         try:  # read as python-can will, but through the one reader of input files (a FIFO is refused)
             parser.read_string(read_text(can_config, "can-config", max_bytes=1 << 20), source=can_config)
@@ -129,7 +127,8 @@ def bus_config(interface: str | None, channel: str | None, bitrate: int | None =
     except (OSError, ValueError, configparser.Error, can.CanInterfaceNotImplementedError) as exc:
         raise InputError(can_config, "can-config", str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
     if not config.get("interface"):
-        raise InputError(can_config, "interface", "no CAN interface given (neither directly nor in a python-can configuration file)")
+        raise InputError(can_config, "interface",
+                         "no CAN interface given (neither directly nor in a python-can configuration file)")
     if config.get("interface") == "udp_multicast":
         # Its frames leave through the network card; the project never uses it.
         raise InputError(can_config, "interface", "udp_multicast is not allowed; use virtual or remote")
@@ -138,16 +137,17 @@ def bus_config(interface: str | None, channel: str | None, bitrate: int | None =
     for key in ("bitrate", "data_bitrate"):
         if key in config:
             try:
-                config[key] = int(config[key])
+                rate = int(config[key])
             except (TypeError, ValueError):
                 raise InputError(can_config, key, f"{config[key]!r} is not a bit rate (bit/s)") from None
-            if not 10_000 <= config[key] <= 8_000_000:
-                raise InputError(can_config, key, f"{config[key]} bit/s outside 10000..8000000")
+            if not 10_000 <= rate <= 8_000_000:
+                raise InputError(can_config, key, f"{rate} bit/s outside 10000..8000000")
+            config[key] = rate
     return config
 
 
 def open_bus(interface: str | None, channel: str | None, bitrate: int | None = None,
-             can_config: str | None = None) -> "GuardedBus":
+             can_config: str | None = None) -> GuardedBus:
     """Open a python-can bus from command-line style options, wrapped in a :class:`GuardedBus`.
 
     Parameters
@@ -175,7 +175,7 @@ def open_bus(interface: str | None, channel: str | None, bitrate: int | None = N
     except (can.CanError, ValueError, OSError, TypeError) as exc:
         raise InputError(can_config, "interface",
                          f"cannot open {config.get('interface')} channel {config.get('channel')!r}: {exc}") from exc
-    except Exception as exc:  # noqa: BLE001 - a missing vendor driver fails in its own ways (kvaser: NameError)
+    except Exception as exc:
         raise InputError(can_config, "interface",
                          f"cannot open {config.get('interface')} channel {config.get('channel')!r}: its driver is "
                          f"missing or failed ({type(exc).__name__}: {exc})") from exc

@@ -7,8 +7,11 @@ import io
 import os
 from pathlib import Path
 
+from intelhex import IntelHex, IntelHexError
+
 from eol_cal.errors import InputError
 from eol_cal.firmware.block_layout import BANK_BYTE_ADDR, BANK_BYTES
+from eol_cal.inputs import read_bytes
 
 
 def to_intel_hex(data: bytes, bank: int) -> str:
@@ -18,8 +21,6 @@ def to_intel_hex(data: bytes, bank: int) -> str:
     address ``2 * BANK_WORD_ADDR[bank]`` (0x650000 for bank 0, 0x660000 for bank 1) with the
     low byte of each word first. This is eol-cal's choice, documented in firmware_params/README.md.
     """
-    from intelhex import IntelHex
-
     if bank not in (0, 1):
         raise InputError(None, "bank", f"{bank!r}: must be 0 or 1")
     if len(data) > BANK_BYTES:
@@ -47,8 +48,6 @@ def intel_hex_bank(text: str, source: str = "<hex>") -> tuple[int, bytes]:
 
 
 def _from_intel_hex(text: str, banks: tuple[int, ...], source: str) -> tuple[int, bytes]:
-    from intelhex import IntelHex, IntelHexError
-
     ih = IntelHex()
     try:
         ih.loadhex(io.StringIO(text))
@@ -92,8 +91,6 @@ def read_block_file(path: str | os.PathLike, source: str | None = None) -> bytes
     InputError
         The file cannot be read, or its Intel HEX is malformed or lies outside both banks.
     """
-    from eol_cal.inputs import read_bytes
-
     source = source or str(path)
     data = read_bytes(path, "file", max_bytes=4 * BANK_BYTES)  # no FIFO, no device, no gigabytes
     if data[:1] == b":" or Path(path).suffix.lower() in HEX_SUFFIXES:

@@ -31,9 +31,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.motor_result import C6_MAX, K6_MAX, KT_MAX, PHASE_MAX
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
+from eol_cal.firmware.contract import C6_MAX, K6_MAX, KT_MAX, PHASE_MAX
 from eol_cal.motor import MotorParams
 
 #: largest look-up lead (s) a block may carry

@@ -20,7 +20,7 @@ inside ``jit``/``vmap``/``lax.scan`` (the plant).
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -12,6 +12,17 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+# --- physical bounds ------------------------------------------------------------------------
+#: What a block's values (and a fit's estimates, which become them) must lie within; the block's
+#: sanity check (:mod:`eol_cal.firmware.block_sanity`) and the fit result reader share them.
+#: The paper's motor has k6 ~ 6e-4 N*m/A and c6 ~ 5e-3 N*m; anything past these is a corrupt
+#: file, not a motor (documented in docs/json.md).
+K6_MAX = 1.0  # N*m/A
+C6_MAX = 10.0  # N*m
+KT_MAX = 10.0  # N*m/A
+PHASE_MAX = 100.0  # rad (phases are wrapped to a few pi; 100 rad only catches garbage)
+DELAY_MAX = 1.0  # s
+
 # --- the parameter block (section 2) ----------------------------------------------------------
 MAGIC = 0xEC6A
 """Block marker, the block's first u16."""

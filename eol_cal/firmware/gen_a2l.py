@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from eol_cal.errors import InputError
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
 from eol_cal.firmware.block_layout import BANK_BYTE_ADDR, SIZE
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
@@ -75,7 +75,7 @@ def _q(text: str) -> str:
 def _limits(f: dict[str, Any]) -> tuple[str, str]:
     """Lower and upper limit of a field: the element type's range (the layout's for table_len)."""
     if f["name"] == "table_len":
-        return str(pb.TABLE_LEN_MIN), str(pb.TABLE_LEN_MAX)
+        return str(B.TABLE_LEN_MIN), str(B.TABLE_LEN_MAX)
     if f["type"] == "f32":
         return "-" + _F32_MAX, _F32_MAX
     return "0", str((1 << (8 * SIZE[f["type"]])) - 1)
@@ -87,16 +87,16 @@ def check_table_len(table_len: int) -> int:
         n = operator.index(table_len)
     except TypeError:
         n = -1
-    if isinstance(table_len, bool) or not pb.table_len_ok(n):
+    if isinstance(table_len, bool) or not B.table_len_ok(n):
         raise InputError(None, "table_len", f"{table_len!r}: needs a power of two in "
-                                            f"{pb.TABLE_LEN_MIN}..{pb.TABLE_LEN_MAX}")
+                                            f"{B.TABLE_LEN_MIN}..{B.TABLE_LEN_MAX}")
     return n
 
 
 def _characteristic(f: dict[str, Any], base: int, table_len: int, version: int = 1) -> list[str]:
     """The CHARACTERISTIC of one layout field at bank start ``base`` (byte address)."""
     name, type_ = f["name"], f["type"]
-    count = pb.field_count(name, table_len, version)
+    count = B.field_count(name, table_len, version)
     lower, upper = _limits(f)
     if name == "serial":
         kind, conversion = "ASCII", "NO_COMPU_METHOD"
@@ -105,7 +105,7 @@ def _characteristic(f: dict[str, Any], base: int, table_len: int, version: int =
         conversion = "CM_FLAGS" if name == "flags" else compu_method_name(f.get("unit", ""))
     lines = [
         f"    /begin CHARACTERISTIC {name} {_q(f['meaning'])}",
-        f"      {kind} 0x{base + pb.field_offset(name, table_len, version):X} {record_layout_name(type_)} 0 {conversion} "
+        f"      {kind} 0x{base + B.field_offset(name, table_len, version):X} {record_layout_name(type_)} 0 {conversion} "
         f"{lower} {upper}",
     ]
     if kind != "VALUE":
@@ -122,8 +122,8 @@ def _characteristic(f: dict[str, Any], base: int, table_len: int, version: int =
 
 def _flag_bit_characteristics(base: int) -> list[str]:
     """One CHARACTERISTIC per named bit of ``flags`` (BIT_MASK on the flags word, shown off/on)."""
-    addr = base + pb.field_offset("flags")
-    type_ = pb.FIELDS["flags"]["type"]
+    addr = base + B.field_offset("flags")
+    type_ = B.FIELDS["flags"]["type"]
     out = []
     for name, flag in C.FLAGS.items():
         out += [
@@ -141,7 +141,7 @@ def _flags_compu() -> list[str]:
     if len(bits) > _MAX_VERBAL_FLAG_BITS:
         raise ValueError(f"{len(bits)} named flag bits: the flags word's verbal table would have 2**{len(bits)} rows")
     values = sorted({sum(1 << b for i, b in enumerate(bits) if combo >> i & 1) for combo in range(1 << len(bits))})
-    rows = [f"      {v} {_q(pb.flag_names(v))}" for v in values]
+    rows = [f"      {v} {_q(B.flag_names(v))}" for v in values]
     return [
         f"    /begin COMPU_METHOD CM_FLAGS {_q('flags word: the named bits that are set')}",
         '      TAB_VERB "%10.0" ""',
@@ -164,11 +164,11 @@ def _flags_compu() -> list[str]:
 
 def _memory_segments() -> list[str]:
     out = []
-    for bank, word_addr in enumerate(pb.BANK_WORD_ADDR):
+    for bank, word_addr in enumerate(B.BANK_WORD_ADDR):
         out += [
             f"      /begin MEMORY_SEGMENT BANK{bank} "
-            f"{_q(f'parameter bank {bank}, word address 0x{word_addr:X}, {pb.BANK_WORDS:#x} words')}",
-            f"        DATA FLASH INTERN 0x{bank_byte_address(bank):X} 0x{pb.BANK_BYTES:X} -1 -1 -1 -1 -1",
+            f"{_q(f'parameter bank {bank}, word address 0x{word_addr:X}, {B.BANK_WORDS:#x} words')}",
+            f"        DATA FLASH INTERN 0x{bank_byte_address(bank):X} 0x{B.BANK_BYTES:X} -1 -1 -1 -1 -1",
             "      /end MEMORY_SEGMENT",
         ]
     return out
@@ -196,15 +196,15 @@ def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int =
     """
     base = bank_byte_address(bank)
     table_len = check_table_len(table_len)
-    if version not in pb.LAYOUTS:
-        raise InputError(None, "layout", f"{version!r}: known layouts {sorted(pb.LAYOUTS)}")
-    L = pb.LAYOUTS[version]
+    if version not in B.LAYOUTS:
+        raise InputError(None, "layout", f"{version!r}: known layouts {sorted(B.LAYOUTS)}")
+    L = B.LAYOUTS[version]
     units = sorted({f.get("unit", "") for f in L["field"] if f["name"] not in ("flags", "serial")})
     types = sorted({f["type"] for f in L["field"]}, key=list(DATATYPE).index)
     out = [
         f"/* eol_param_block.a2l: calibration parameter block, layout version {L['layout_version']},",
         f" * DESCRIBING bank {bank} (byte address 0x{base:X}) with table_len = {table_len}",
-        f" * (block_bytes = {pb.block_bytes(table_len, version)}).",
+        f" * (block_bytes = {B.block_bytes(table_len, version)}).",
         " *",
         f" * GENERATED by eol_cal.firmware.gen_a2l from eol_cal/firmware/layout_v{version}.toml"
         + (" (on layout_v1.toml)" if version != 1 else "") + " and",

@@ -21,13 +21,14 @@ import json
 import math
 import struct
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
 from eol_cal.atomic import atomic_write
 from eol_cal.errors import InputError
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import estimator_golden
 from eol_cal.firmware.compensator import i_qc, make_tables
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
@@ -48,7 +49,7 @@ COMPENSATOR_TOLERANCE = {"i_qc": {"abs": 1e-3, "unit": "A"}}
 _HALL_NOMINAL = NOMINAL_HALL_ANGLE
 
 
-def golden_blocks() -> list[tuple[str, pb.ParamBlock]]:
+def golden_blocks() -> list[tuple[str, B.ParamBlock]]:
     """The valid blocks of the golden set: three table lengths, harmonics, clamp limits that bite."""
     from eol_cal.motor import load_motor
 
@@ -62,15 +63,15 @@ def golden_blocks() -> list[tuple[str, pb.ParamBlock]]:
          7),
         ("fine_n1024", 1024, 0.008, 3.0, 0.0021, 2.2,
          ((12, 0.002, -0.4, 0.0004, 0.8), (18, 0.0007, 1.9, 0.0001, -2.5)), 2.5e-4, 3.0,
-         pb.FLAG_INTERP_ENABLE | pb.FLAGS_ESTIMATOR, "MOTOR-1024-XYZ-9",
+         B.FLAG_INTERP_ENABLE | B.FLAGS_ESTIMATOR, "MOTOR-1024-XYZ-9",
          0xFFFFFFFE),
     ]
-    hall_skewed = tuple(a + math.radians(d) for a, d in zip(_HALL_NOMINAL, (1.5, -0.7, 0.3, -1.9, 0.0, 1.1)))
+    hall_skewed = tuple(a + math.radians(d) for a, d in zip(_HALL_NOMINAL, (1.5, -0.7, 0.3, -1.9, 0.0, 1.1), strict=True))
     hall_skewed = tuple(float(wrap_2pi(a)) for a in hall_skewed)
     out = []
     for k, (bid, n, c6, pc6, k6, pk6, harm, lead, lim, flags, serial, seq) in enumerate(specs):
         tc, tp = make_tables(c6, pc6, k6, pk6, kt, n, harmonics=harm)
-        out.append((bid, pb.ParamBlock(
+        out.append((bid, B.ParamBlock(
             sequence=seq, flags=flags, serial=serial, calibrated_at=1_767_225_600 + 86_400 * k,
             poles=motor.poles, encoder_ppr=motor.N_enc, tick_hz=motor.f_pwm, kt=kt,
             hall_angle=_HALL_NOMINAL if k != 1 else hall_skewed,
@@ -84,16 +85,16 @@ _BLOCK_COLUMNS = ("id", "sequence", "flags", "serial", "calibrated_at", "poles",
                   "lead_s", "iqc_limit", "table_len", "block_bytes", "crc32", "image")
 
 
-def paper_block() -> pb.ParamBlock:
+def paper_block() -> B.ParamBlock:
     """The example block of ``fixtures/block_paper.bin``: paper motor, N = 256, both flags set."""
     return golden_blocks()[0][1]
 
 
-def _blocks_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
+def _blocks_set(blocks: Sequence[tuple[str, B.ParamBlock]]) -> VectorSet:
     rows = []
     for bid, b in blocks:
-        image = pb.pack(b)
-        crc = pb.check(image).crc_stored
+        image = B.pack(b)
+        crc = B.check(image).crc_stored
         rows.append([bid, str(b.sequence), str(b.flags), b.serial, str(b.calibrated_at), str(b.poles),
                      str(b.encoder_ppr), f32hex(b.tick_hz), f32hex(b.kt), *(f32hex(a) for a in b.hall_angle),
                      f32hex(b.c6), f32hex(b.phase_c6), f32hex(b.k6), f32hex(b.phase_k6), f32hex(b.lead_s),
@@ -105,33 +106,33 @@ def _blocks_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
 
 def _patch(image: bytes, name: str, value: int, n: int = 0, fix_crc: bool = True) -> bytes:
     buf = bytearray(image)
-    fmt = {"u16": "<H", "u32": "<I"}[pb.FIELDS[name]["type"]]
-    struct.pack_into(fmt, buf, pb.field_offset(name, n), value)
-    return pb.with_crc(bytes(buf)) if fix_crc else bytes(buf)
+    fmt = {"u16": "<H", "u32": "<I"}[B.FIELDS[name]["type"]]
+    struct.pack_into(fmt, buf, B.field_offset(name, n), value)
+    return B.with_crc(bytes(buf)) if fix_crc else bytes(buf)
 
 
-def check_cases(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> list[tuple[str, bytes, int]]:
+def check_cases(blocks: Sequence[tuple[str, B.ParamBlock]]) -> list[tuple[str, bytes, int]]:
     """(id, image, expected status) for the check routine: one case per validity rule and more.
 
     Header faults are made with the CRC recomputed, so each case breaks exactly one rule.
     """
     _, b0 = blocks[0]
-    img = pb.pack(b0)
+    img = B.pack(b0)
     n = b0.table_len
     _, b1 = blocks[1]
-    small = pb.pack(b1)
-    crc_at = pb.field_offset("crc32", n)
+    small = B.pack(b1)
+    crc_at = B.field_offset("crc32", n)
     flipped_table = bytearray(img)
-    flipped_table[pb.field_offset("table_per_amp", n) + 5] ^= 0x10
+    flipped_table[B.field_offset("table_per_amp", n) + 5] ^= 0x10
     flipped_crc = bytearray(img)
     flipped_crc[crc_at + 3] ^= 0x80
-    V, C, H = pb.STATUS_VALID, pb.STATUS_CRC_MISMATCH, pb.STATUS_HEADER_INVALID
-    cases = [(f"valid_{bid}", pb.pack(b), V) for bid, b in blocks]
+    V, C, H = B.STATUS_VALID, B.STATUS_CRC_MISMATCH, B.STATUS_HEADER_INVALID
+    cases = [(f"valid_{bid}", B.pack(b), V) for bid, b in blocks]
     cases += [
         ("valid_in_erased_bank_tail", small + b"\xff" * 512, V),
         ("valid_reserved_nonzero", _patch(small, "reserved", 0x1234), V),
         ("valid_unknown_flag_bit", _patch(small, "flags", 0x80000001), V),
-        ("valid_option_without_interp", _patch(small, "flags", pb.FLAG_COMP_ENABLE | pb.FLAGS_ESTIMATOR), V),
+        ("valid_option_without_interp", _patch(small, "flags", B.FLAG_COMP_ENABLE | B.FLAGS_ESTIMATOR), V),
         ("erased", b"\xff" * 256, H),
         ("all_zero", b"\x00" * 256, H),
         ("header_truncated", small[:60], H),
@@ -142,7 +143,7 @@ def check_cases(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> list[tuple[str, 
         ("table_len_2048", _patch(img + b"\xff" * (8 * 2048), "table_len", 2048), H),
         ("table_len_not_pow2", _patch(img, "table_len", 192), H),
         ("table_len_0", _patch(small, "table_len", 0), H),
-        ("block_bytes_mismatch", _patch(small, "block_bytes", pb.block_bytes(16) + 8), H),
+        ("block_bytes_mismatch", _patch(small, "block_bytes", B.block_bytes(16) + 8), H),
         ("block_bytes_zero", _patch(small, "block_bytes", 0), H),
         ("sequence_0", _patch(small, "sequence", 0), H),
         ("sequence_erased", _patch(small, "sequence", 0xFFFFFFFF), H),
@@ -155,10 +156,10 @@ def check_cases(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> list[tuple[str, 
     return cases
 
 
-def _checks_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
+def _checks_set(blocks: Sequence[tuple[str, B.ParamBlock]]) -> VectorSet:
     rows = []
     for cid, image, status in check_cases(blocks):
-        got = pb.check(image).status
+        got = B.check(image).status
         if got != status:  # the case list documents intent; the reference must agree with it
             raise AssertionError(f"check case {cid}: reference gives status {got}, case expects {status}")
         rows.append([cid, str(len(image)), str(status), image.hex()])
@@ -183,12 +184,12 @@ def compensator_inputs(seed: int = 20100) -> tuple[np.ndarray, np.ndarray, np.nd
     return allv[:, 0], allv[:, 1], allv[:, 2]
 
 
-def _compensator_set(blocks: Sequence[tuple[str, pb.ParamBlock]]) -> VectorSet:
+def _compensator_set(blocks: Sequence[tuple[str, B.ParamBlock]]) -> VectorSet:
     theta, omega, iq = compensator_inputs()
     rows = []
     for bid, b in blocks:
         out = i_qc(theta, omega, iq, b.table_const, b.table_per_amp, b.lead_s, b.iqc_limit)
-        for t, w, i, y in zip(theta, omega, iq, out):
+        for t, w, i, y in zip(theta, omega, iq, out, strict=True):
             rows.append([bid, f32hex(t), f32hex(w), f32hex(i), f32hex(y)])
     return VectorSet(("block_id", "theta_hat", "omega_hat", "i_qo", "i_qc"), rows,
                      "i_qc = eol_comp_iqc(theta_hat, omega_hat, i_qo, tables, table_len, lead_s, iqc_limit) "
@@ -240,8 +241,8 @@ def manifest(sets: dict[str, VectorSet], texts: dict[str, str]) -> dict[str, Any
 
     return {
         "format": "eol-cal golden vectors",
-        "layout_version": pb.LAYOUT_VERSION,
-        "layout_versions": list(pb.SUPPORTED_LAYOUTS),
+        "layout_version": B.LAYOUT_VERSION,
+        "layout_versions": list(B.SUPPORTED_LAYOUTS),
         "generator": GENERATOR,
         "generator_package_version": __version__,
         "float_encoding": FLOAT_ENCODING,
@@ -292,7 +293,7 @@ def check_golden(golden_dir: str | Path, sets: dict[str, VectorSet] | None = Non
     disk_files = {f.get("name"): f for f in on_disk.get("files", []) if isinstance(f, dict)}
     for extra in sorted(set(disk_files) - set(sets)):
         problems.append(f"{mpath}: lists {extra}, which the reference does not generate")
-    for name, vs in sets.items():
+    for name in sets:
         path = golden_dir / name
         entry = disk_files.get(name)
         exp_entry = next(f for f in expected["files"] if f["name"] == name)
@@ -321,10 +322,10 @@ def _diff_csv(path: Path, got: str, want: str, max_diffs: int) -> list[str]:
         out.append(f"{path}: header is {g_lines[:1]}, the reference gives {w_lines[:1]}")
         return out
     cols = w_lines[0].split(",")
-    for k, (g, w) in enumerate(zip(g_lines[1:], w_lines[1:]), start=1):
+    for k, (g, w) in enumerate(zip(g_lines[1:], w_lines[1:], strict=False), start=1):
         if g != w:
             gf, wf = g.split(","), w.split(",")
-            bad = [c for c, a, b in zip(cols, gf, wf) if a != b] or ["(field count)"]
+            bad = [c for c, a, b in zip(cols, gf, wf, strict=False) if a != b] or ["(field count)"]
             out.append(f"{path}: row {k} differs in {', '.join(bad)}"
                        + (f" (file {_short(gf, cols, bad[0])}, reference {_short(wf, cols, bad[0])})"
                           if bad[0] in cols else ""))

@@ -26,6 +26,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware.contract import NOMINAL_HALL_ANGLE
 
 
 class SensorErrors(NamedTuple):
@@ -180,8 +181,6 @@ _STATE_SWITCH = {5: (0, 0), 1: (2, 1), 3: (1, 0), 2: (0, 1), 6: (2, 0), 4: (1, 1
 def hall_angle_of(errors: SensorErrors) -> tuple[float, ...]:
     """The true ``hall_angle`` table of a motor's halls (rad electrical, entry s-1: where state s
     begins in forward rotation): the contract's nominal table plus each switching point's error."""
-    from eol_cal.firmware.contract import NOMINAL_HALL_ANGLE
-
     off = np.asarray(errors.hall_offset, dtype=float)
     return tuple(float(NOMINAL_HALL_ANGLE[s - 1] + off[_STATE_SWITCH[s]]) for s in range(1, 7))
 

@@ -19,23 +19,32 @@ frame), so each scenario's offset ``r`` is known (:func:`eol_cal.firmware.kinema
 
 from __future__ import annotations
 
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 
-from eol_cal.firmware import block as pb
+from eol_cal.firmware import block as B
 from eol_cal.firmware import compensator
 from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
 from eol_cal.firmware.estimator import EstimatorConfig
 from eol_cal.firmware.kinematics import (
-    SensorErrors, draw_sensor_errors, encoder_hall_signals, fingerprint_of, hall_angle_of, speed_profile_angle,
+    SensorErrors,
+    draw_sensor_errors,
+    encoder_hall_signals,
+    fingerprint_of,
+    hall_angle_of,
+    speed_profile_angle,
 )
 from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
 from eol_cal.firmware.mech_run import run_mech
 from eol_cal.firmware.vectors import VectorSet, f32hex
+from eol_cal.motor import load_motor
 
 TICK_HZ = 20000.0
 #: the flags of an identifying block: compensation, the interpolated angle, every estimator option, MECH_COMP_ENABLE
@@ -53,10 +62,8 @@ def sensors(block_id: str) -> SensorErrors:
     return err._replace(edge_error=np.asarray(err.edge_error) * scale)
 
 
-def golden_blocks_v2() -> list[tuple[str, pb.ParamBlock]]:
+def golden_blocks_v2() -> list[tuple[str, B.ParamBlock]]:
     """The valid layout-2 blocks: the true fingerprint of each drawn encoder, orders 1..3, thresholds."""
-    from eol_cal.motor import load_motor
-
     motor = load_motor("paper")
     out = []
     specs = [
@@ -79,7 +86,7 @@ def golden_blocks_v2() -> list[tuple[str, pb.ParamBlock]]:
         mech = unused_mech(motor.N_enc).replace(
             fp_dirs=dirs, grid_phase=gp, mech_c=c, mech_phase_c=pc, mech_k=kk, mech_phase_k=pk,
             mech_table_const=mtc, mech_table_per_amp=mtp, fingerprint=fp)
-        out.append((bid, pb.ParamBlock(
+        out.append((bid, B.ParamBlock(
             sequence=seq, flags=FLAGS_MECH, serial=f"EPS-MECH-{k}", calibrated_at=1_767_225_600 + 86_400 * k,
             poles=motor.poles, encoder_ppr=motor.N_enc, tick_hz=motor.f_pwm, kt=motor.kt,
             hall_angle=hall_angle_of(err), c6=0.004 + 0.002 * k, phase_c6=0.3 * k, k6=0.0006, phase_k6=-0.2,
@@ -88,7 +95,7 @@ def golden_blocks_v2() -> list[tuple[str, pb.ParamBlock]]:
     return out
 
 
-def golden_block(block_id: str) -> pb.ParamBlock:
+def golden_block(block_id: str) -> B.ParamBlock:
     return dict(golden_blocks_v2())[block_id]
 
 
@@ -237,11 +244,11 @@ def compensator_rows(seed: int = 1202) -> list[list[str]]:
 def block_rows() -> list[list[str]]:
     rows = []
     for bid, b in golden_blocks_v2():
-        image = pb.pack(b)
+        image = B.pack(b)
         m = b.mech
         rows.append([bid, str(b.sequence), str(b.flags), str(b.table_len), str(b.block_bytes), str(m.fp_len),
                      str(m.fp_dirs), f32hex(m.grid_phase), f32hex(m.id_min_score), f32hex(m.id_margin),
-                     f32hex(m.id_frac_tol), str(pb.check(image).crc_stored), image.hex()])
+                     f32hex(m.id_frac_tol), str(B.check(image).crc_stored), image.hex()])
     return rows
 
 
@@ -252,31 +259,31 @@ BLOCK_COLUMNS = ("id", "sequence", "flags", "table_len", "block_bytes", "fp_len"
 def check_cases() -> list[tuple[str, bytes, int]]:
     """(id, image, expected status) of the check routine on layout-2 images."""
     blocks = golden_blocks_v2()
-    img = pb.pack(blocks[0][1])
-    small = pb.pack(blocks[2][1])
+    img = B.pack(blocks[0][1])
+    small = B.pack(blocks[2][1])
     n_small = blocks[2][1].table_len
-    V, C, H = pb.STATUS_VALID, pb.STATUS_CRC_MISMATCH, pb.STATUS_HEADER_INVALID
+    V, C, H = B.STATUS_VALID, B.STATUS_CRC_MISMATCH, B.STATUS_HEADER_INVALID
 
     def patch(image: bytes, name: str, value: int, fix_crc: bool = True) -> bytes:
         buf = bytearray(image)
         n = int.from_bytes(image[96:98], "little")
-        fmt_size = {"u16": 2, "u32": 4}[pb.FIELDS_BY_VERSION[2][name]["type"]]
-        off = pb.field_offset(name, n, 2)
+        fmt_size = {"u16": 2, "u32": 4}[B.FIELDS_BY_VERSION[2][name]["type"]]
+        off = B.field_offset(name, n, 2)
         buf[off:off + fmt_size] = value.to_bytes(fmt_size, "little")
-        return pb.with_crc(bytes(buf), version=2) if fix_crc else bytes(buf)
+        return B.with_crc(bytes(buf), version=2) if fix_crc else bytes(buf)
 
     ext = bytearray(img)
-    ext[pb.field_offset("fingerprint", blocks[0][1].table_len, 2) + 9] ^= 0x04
+    ext[B.field_offset("fingerprint", blocks[0][1].table_len, 2) + 9] ^= 0x04
     crc_v1_place = bytearray(small)
-    v1_crc_at = pb.field_offset("crc32", n_small, 1)
-    crc_v1_place[v1_crc_at:v1_crc_at + 4] = pb.crc32(small[:v1_crc_at]).to_bytes(4, "little")
+    v1_crc_at = B.field_offset("crc32", n_small, 1)
+    crc_v1_place[v1_crc_at:v1_crc_at + 4] = B.crc32(small[:v1_crc_at]).to_bytes(4, "little")
     return [
         ("valid_mech_a", img, V),
         ("valid_mech_fwd_only_in_erased_tail", small + b"\xff" * 600, V),
         ("valid_reserved2_nonzero", patch(small, "reserved2", 7), V),
         ("valid_mech_table_len_other", patch(small, "mech_table_len", 64), V),
-        ("block_bytes_of_layout_1", patch(small, "block_bytes", pb.block_bytes(n_small, 1)), H),
-        ("layout_1_image_says_2", _as_layout_2(pb.pack(replace(blocks[2][1], mech=None, layout_version=1,
+        ("block_bytes_of_layout_1", patch(small, "block_bytes", B.block_bytes(n_small, 1)), H),
+        ("layout_1_image_says_2", _as_layout_2(B.pack(replace(blocks[2][1], mech=None, layout_version=1,
                                                                flags=FLAG_COMP_ENABLE))), H),
         ("extension_truncated", small[:-40], H),
         ("crc_extension_bit_flipped", bytes(ext), C),
@@ -309,12 +316,12 @@ def vector_sets() -> dict[str, VectorSet]:
 
 def _as_layout_2(image: bytes) -> bytes:
     """A layout-1 image whose header says layout 2 (its CRC recomputed where layout 1 has it)."""
-    return pb.with_crc(image[:2] + (2).to_bytes(2, "little") + image[4:], version=1)
+    return B.with_crc(image[:2] + (2).to_bytes(2, "little") + image[4:], version=1)
 
 
 def _checked(cases: list[tuple[str, bytes, int]]) -> list[tuple[str, bytes, int]]:
     for cid, image, status in cases:
-        got = pb.check(image).status
+        got = B.check(image).status
         if got != status:
             raise AssertionError(f"layout-2 check case {cid}: reference gives {got}, case expects {status}")
     return cases

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -109,7 +110,7 @@ class MechParams:
         """Pulses in the fingerprint (the block's ``fp_len``)."""
         return int(self.fingerprint.size // 2)
 
-    def replace(self, **changes: Any) -> "MechParams":
+    def replace(self, **changes: Any) -> MechParams:
         return replace(self, **changes)
 
     def __eq__(self, other: object) -> bool:
@@ -195,7 +196,7 @@ def make_mech_tables(c: Sequence[float], phase_c: Sequence[float], k: Sequence[f
     theta = 2.0 * np.pi * np.arange(n) / n
     tc = np.zeros(n)
     tp = np.zeros(n)
-    for h, ch, pc, kh, pk in zip(ORDERS, c, phase_c, k, phase_k):
+    for h, ch, pc, kh, pk in zip(ORDERS, c, phase_c, k, phase_k, strict=True):
         tc += ch * np.sin(h * theta + pc)
         tp += kh * np.sin(h * theta + pk)
     return (tc / kt).astype(np.float32), (tp / kt).astype(np.float32)

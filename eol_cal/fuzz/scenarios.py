@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from eol_cal.firmware.example import example_block
 from eol_cal.fuzz import hostile
 from eol_cal.fuzz.campaign import Counts
 
@@ -191,8 +192,6 @@ def capture_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
 
 
 def _block() -> bytes:
-    from eol_cal.ecu.testing import example_block
-
     return example_block(serial="M-0007")
 
 
@@ -206,8 +205,9 @@ def path_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("paths", f"flash --log-file {victim}", st, [*flash, "--log-file", f"{{d}}/{victim}"])
     yield Scenario("paths", "ecu restore --save key file", st, ["ecu", "restore", "--from", "{d}/block.bin", "-i", "virtual",
                                                                  "-c", "x", "--key-file", "{d}/ecu.key", "--save", "{d}/ecu.key"])
-    yield Scenario("paths", "acquire --log-file profile", st, ["acquire", "--dyno", "127.0.0.1:1", "--profile",
-                                                                "{d}/profile.toml", "-o", "{d}/new.mf4", "--log-file", "{d}/profile.toml"])
+    yield Scenario("paths", "acquire --log-file profile", st,
+                   ["acquire", "--dyno", "127.0.0.1:1", "--profile", "{d}/profile.toml", "-o", "{d}/new.mf4",
+                    "--log-file", "{d}/profile.toml"])
     yield Scenario("paths", "acquire --log-file = -o", st, ["acquire", "--dyno", "127.0.0.1:1", "-o", "{d}/cap.csv",
                                                              "--log-file", "{d}/cap.csv"])
     for victim in ("station.toml", "limits.toml", "ecu.key"):
@@ -259,7 +259,8 @@ def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("refusals", f"settings dyno.address {dyno}", files, RUN)
     for name, cfg in (("garbage", b"\x00\x01garbage [[[\n= = =\n"), ("bit rate", b"[default]\nbitrate = fast\n")):
         files = {**station_files(), "can.ini": cfg}
-        files["station.toml"] = files["station.toml"].replace(b'channel = "nobody"\n', b'channel = "nobody"\nconfig = "can.ini"\n')
+        files["station.toml"] = files["station.toml"].replace(b'channel = "nobody"\n',
+                                                              b'channel = "nobody"\nconfig = "can.ini"\n')
         yield Scenario("refusals", f"settings can.config {name}", files, RUN)
     from eol_cal.station.limits import LIMITS
 

@@ -20,17 +20,19 @@ from __future__ import annotations
 import contextlib
 import datetime as dt
 import math
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Mapping, Sequence
+from typing import Any
 
 import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.errors import InputError
-from eol_cal.lot.columns import NO_VARIANT
+from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line
+from eol_cal.station.records import DB_ERRORS, SchemaError, db_label, engine, is_url, one_line
 
 #: the layout of the baseline tables this code writes
 BASELINE_SCHEMA_VERSION = 1
@@ -106,7 +108,7 @@ def group_lines(values: Mapping[str, np.ndarray], variant: Sequence[Any], statio
     var = np.array([NO_VARIANT if v is None else str(v) for v in variant], dtype=object)
     sta = np.asarray(station, dtype=object)
     out: dict[tuple[str, str, str], ControlLine] = {}
-    groups = sorted({(str(a), str(b)) for a, b in zip(var.tolist(), sta.tolist())})
+    groups = sorted({(str(a), str(b)) for a, b in zip(var.tolist(), sta.tolist(), strict=True)})
     for v, s in groups:
         idx = np.flatnonzero((var == v) & (sta == s))
         for key, x in values.items():
@@ -119,7 +121,7 @@ def make_baseline(name: str, lines: dict[tuple[str, str, str], ControlLine], run
     """A :class:`Baseline` made now (UTC)."""
     if not name.strip():
         raise InputError(None, "name", "a baseline needs a name")
-    created = dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds")
+    created = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
     return Baseline(name, created, {k: filters.get(k) for k in ("since", "until", "variant", "station")}, min_n,
                     runs, dict(lines))
 
@@ -129,8 +131,6 @@ def baseline_of_db(db: str | Path, name: str, filters: Mapping[str, str | None],
     """The baseline of the runs a records database holds under ``filters`` (``since``, ``until``:
     UTC days; ``variant``, ``station``): every quantity of :data:`eol_cal.lot.columns.QUANTITIES`
     per variant and station, from the lot's columns (:func:`eol_cal.lot.columns.read_lot`)."""
-    from eol_cal.lot.columns import read_lot
-
     lot = read_lot(db, **{k: filters.get(k) for k in ("variant", "station", "since", "until")})
     if not len(lot):
         raise InputError(None, "baseline", "no runs selected: a baseline needs the runs of a period")
@@ -155,8 +155,6 @@ def line_document(line: ControlLine, scale: float) -> dict[str, Any]:
 
 def baseline_document(b: Baseline) -> dict[str, Any]:
     """The baseline as ``lot baseline --json`` prints it (display units; ``docs/json.md``)."""
-    from eol_cal.lot.columns import QUANTITIES
-
     unit = {q.key: (q.scale, q.unit) for q in QUANTITIES}
     lines = []
     for (key, variant, station), line in sorted(b.lines.items()):
@@ -178,8 +176,6 @@ def ensure_tables(con: Connection) -> tuple[int | None, int]:
     """The migration step of the baseline tables, inside the caller's transaction: create them
     at :data:`BASELINE_SCHEMA_VERSION` when absent; refuse a newer layout. Returns ``(version
     before, version now)`` (before None: created)."""
-    from eol_cal.station.records import SchemaError
-
     if con.dialect.name == "postgresql":
         con.execute(sa.text(f"SELECT pg_advisory_xact_lock({_LOCK})"))
     v = _version(con)
@@ -203,8 +199,6 @@ def migrate(db: str | Path) -> tuple[int | None, int]:
 def _connect(db: str | Path, readonly: bool, what: str) -> Iterator[Connection]:
     """A connection to an existing records database (a missing SQLite file is refused, not made);
     a database error inside is an :class:`InputError` saying what could not be done."""
-    from eol_cal.station.records import DB_ERRORS, db_label, engine, is_url, one_line
-
     if not is_url(db) and not Path(db).exists():
         raise InputError(str(db), None, "database not found")
     try:
@@ -222,8 +216,6 @@ def _connect(db: str | Path, readonly: bool, what: str) -> Iterator[Connection]:
 def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
     """Store a baseline in one transaction (the tables made first when absent). A baseline of
     that name already there is refused unless ``replace``."""
-    from eol_cal.station.records import db_label
-
     with _connect(db, False, "store the baseline") as con, con.begin():
         ensure_tables(con)
         exists = con.execute(sa.select(baselines.c.name).where(baselines.c.name == baseline.name)).first()
@@ -246,8 +238,6 @@ def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
 
 def load(db: str | Path, name: str) -> Baseline:
     """The baseline ``name``; :class:`InputError` naming the ones there are when it is not there."""
-    from eol_cal.station.records import db_label
-
     with _connect(db, True, "read the baseline") as con:
         if _version(con) is None:
             raise InputError(db_label(db), f"baseline {name!r}", "not found: the database holds no baselines "

@@ -16,7 +16,8 @@ from __future__ import annotations
 import contextlib
 import gc
 import os
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
+from collections.abc import Iterator
 
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -65,10 +66,9 @@ def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
     import dask
     from distributed import LocalCluster
 
-    with dask.config.set(REFIT_CONFIG):
-        with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None) as cluster:
-            yield cluster
+    with dask.config.set(REFIT_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
+                                                     host="127.0.0.1", dashboard_address=None) as cluster:
+        yield cluster
 
 
 def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
@@ -76,7 +76,8 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     one kernel (:func:`eol_cal.xla.configure_xla`, when JAX has not started yet), JAX's
     persistent compile cache switched on in
     ``cache_dir`` (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`; ``None``: off), the
-    fit's modules imported, one BLAS thread (:func:`eol_cal.blas.limit_blas_threads`), and the objects they made frozen out of the cyclic garbage
+    fit's modules imported, one BLAS thread (:func:`eol_cal.blas.limit_blas_threads`), and the objects
+    they made frozen out of the cyclic garbage
     collector (``gc.freeze``: JAX and the libraries of a fit are ~200 000 objects that a full
     collection would otherwise walk every time; none of them is garbage).
 
@@ -97,8 +98,8 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     # imported here on purpose: loading them is the work this function does ahead of the tasks
     import jax  # noqa: F401
 
-    import eol_cal.analysis.fit.motors  # noqa: F401
-    import eol_cal.capture.io  # noqa: F401
+    import eol_cal.analysis.fit.motors
+    import eol_cal.capture.io
     import eol_cal.station.limits  # noqa: F401
 
     gc.collect()

@@ -20,7 +20,8 @@ import math
 from dataclasses import dataclass
 from itertools import repeat
 from pathlib import Path
-from typing import Any, Iterable, NamedTuple, Sequence
+from typing import Any, NamedTuple
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from eol_cal.display import display_unit
 from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
 from eol_cal.station.limits import limit_on
-from eol_cal.station.record import MEASURED_KIND, RunRecord
+from eol_cal.station.record import MEASURED_KIND, NO_STATION, RunRecord
 
 
 class Quantity(NamedTuple):
@@ -217,7 +218,7 @@ def _utc(text: str) -> np.datetime64:
     except ValueError:
         raise InputError(None, "started_at", f"{text!r}: not an ISO 8601 time") from None
     if t.tzinfo is not None:
-        t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
+        t = t.astimezone(dt.UTC).replace(tzinfo=None)
     return np.datetime64(t, "us")
 
 
@@ -246,8 +247,6 @@ def time_order(started_at: Sequence[str], run_id: Sequence[str]) -> np.ndarray:
 def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | None]) -> Lot:
     """A :class:`Lot` of the ``runs`` columns :data:`LOT_COLUMNS` (any row order) and the runs'
     ``limits_json`` texts (each run's, or only the distinct ones)."""
-    from eol_cal.report.motor import NO_STATION
-
     order = time_order(cols["started_at"], cols["run_id"])
 
     def text(name: str) -> np.ndarray:

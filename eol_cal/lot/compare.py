@@ -9,11 +9,15 @@ and those whose verdict or failed limits differ are listed.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 from eol_cal.errors import InputError
+from eol_cal.lot.columns import from_records
+from eol_cal.lot.summary import lot_summary
 from eol_cal.station.record import RunRecord
+from eol_cal.station.records_query import query_records
 
 #: the schema of ``lot diff --lot A --lot B --json``
 LOT_COMPARE_SCHEMA = "eol-cal/lot-compare/1"
@@ -37,9 +41,6 @@ def _latest(records: Sequence[RunRecord]) -> dict[str, RunRecord]:
 
 
 def _lot_doc(station: str, records: Sequence[RunRecord]) -> dict[str, Any]:
-    from eol_cal.lot.columns import from_records
-    from eol_cal.lot.summary import lot_summary
-
     doc = lot_summary(from_records(records))
     v = doc["verdicts"]
     judged = v["pass"] + v["fail"]
@@ -54,13 +55,11 @@ def _lot_doc(station: str, records: Sequence[RunRecord]) -> dict[str, Any]:
 def compare_lots(db: str | Path, stations: Sequence[str], kind: str = "simulated") -> dict[str, Any]:
     """Two lots of ``db`` (their records' station, e.g. ``sim:A``) of ``kind``: each lot's figures
     and the motors whose verdict or failed limits differ (``docs/json.md``, lot-compare)."""
-    from eol_cal.station.records_query import query_records
-
     if len(stations) != 2:
         raise InputError(None, "--lot", f"give two lots to compare, got {len(stations)}")
     records = query_records(db, kind=kind)
     lots = [[r for r in records if r.station_name == s] for s in stations]
-    for s, recs in zip(stations, lots):
+    for s, recs in zip(stations, lots, strict=True):
         if not recs:
             raise InputError(str(db), "--lot", f"no {kind} runs of station {s!r} in the database")
     a, b = (_latest(recs) for recs in lots)
@@ -73,7 +72,7 @@ def compare_lots(db: str | Path, stations: Sequence[str], kind: str = "simulated
                             "newly_failing": [c for c in cb if c not in ca],
                             "no_longer_failing": [c for c in ca if c not in cb],
                             "pp_after_pct": [_num(ra.value("pp_after_pct")), _num(rb.value("pp_after_pct"))]})
-    return {"lots": [_lot_doc(s, recs) for s, recs in zip(stations, lots)], "compared": len(set(a) & set(b)),
+    return {"lots": [_lot_doc(s, recs) for s, recs in zip(stations, lots, strict=True)], "compared": len(set(a) & set(b)),
             "only_in_one": len(set(a) ^ set(b)), "changes": changes}
 
 

@@ -12,10 +12,12 @@ row that could not be fitted are counted, not compared.
 from __future__ import annotations
 
 import math
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from eol_cal.display import display_unit
 from eol_cal.station.record import MEASURED_KIND, RunRecord
+from eol_cal.station.records_query import latest_per_serial
 
 #: the schema of the document ``eol-cal lot diff --json`` prints
 LOT_DIFF_SCHEMA = "eol-cal/lot-diff/1"
@@ -53,8 +55,6 @@ def verdict_changes(records: Sequence[RunRecord], rows: Sequence[dict[str, Any]]
         ``refit`` (fit-stage verdicts), ``newly_failing``, ``no_longer_failing`` (limit keys),
         ``k6_recorded``, ``k6_refit`` (display unit), ``reasons`` (the refit's).
     """
-    from eol_cal.station.records_query import latest_per_serial
-
     latest = latest_per_serial(records, kind)
     out: list[dict[str, Any]] = []
     compared = errors = 0

@@ -19,7 +19,8 @@ from __future__ import annotations
 import glob
 import math
 from pathlib import Path
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any
+from collections.abc import Callable, Iterable, Sequence
 
 from eol_cal.errors import EolCalError, InputError
 
@@ -96,7 +97,8 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
 
     The fit is the station's (:func:`eol_cal.station.run.fit_motor`'s options: joint windows,
     firmware frame), with the dyno ``bench`` (a name or TOML file; ``"none"``: rigid coupling)
-    and ``motor`` preset the runs were made with (the record's ``station.bench``, ``station.motor``). ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
+    and ``motor`` preset the runs were made with (the record's ``station.bench``, ``station.motor``).
+    ``k6``, ``c6`` in N*m/A and N*m, ``phase_k6`` in rad,
     ``rms`` in N*m, as in the records; ``capture`` names the first file. ``cache_dir``: the fit's
     serialized solvers (:mod:`eol_cal.analysis.fit.cache`; ``None``: none).
 
@@ -117,7 +119,7 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
             _error(row, exc)
         return rows
     ready = []
-    for row, paths in zip(rows, groups):
+    for row, paths in zip(rows, groups, strict=True):
         try:
             ready.append((row, *setup.inputs(paths, row)))
         except _ERRORS as exc:
@@ -181,8 +183,8 @@ class _RefitSetup:
         row["serial"] = caps[0].serial
         # what fit refuses, a refit refuses (per serial): a block changed during the capture, another
         # motor's ECU, a capture under compensation; untraced captures (older runs) are refitted
-        traces = [trace_of(c.metadata, str(p)) for p, c in zip(paths, caps)]
-        for p, c, t in zip(paths, caps, traces):
+        traces = [trace_of(c.metadata, str(p)) for p, c in zip(paths, caps, strict=True)]
+        for p, c, t in zip(paths, caps, traces, strict=True):
             check_trace(t, str(p), allow_untraced=True, serial=c.metadata.get("serial"))
         ran = common_options(recorded_options([str(p) for p in paths], traces))
         common = dict(self.common)
@@ -243,7 +245,7 @@ def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | N
     keys = [f"refit-{k}-{paths[k][0].parent.name}" for k in starts]
     mapped = client.map(refit_serials, chunks, key=keys, retries=retries, pure=False, limits_file=limits_file,
                         variant=variant, bench=bench, motor=motor, cache_dir=None if cache_dir is None else str(cache_dir))
-    futures = {fut: k for fut, k in zip(mapped, starts)}
+    futures = {fut: k for fut, k in zip(mapped, starts, strict=True)}
     rows: list[dict[str, Any] | None] = [None] * len(paths)
     for fut in as_completed(futures):
         k = futures[fut]

@@ -22,14 +22,15 @@ batch: the same lot (name, spread, limits, seed, batch size) gives the same reco
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
 
-import numpy as np
 
 from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
@@ -138,7 +139,7 @@ def _windows(capture: Capture, profile: Any, f_tick: float) -> list[Capture]:
     from eol_cal.capture.model import Capture as Cap
 
     out = []
-    for k, ((a, b), seg) in enumerate(zip(profile.segment_bounds(f_tick), profile.segments), start=1):
+    for k, ((a, b), seg) in enumerate(zip(profile.segment_bounds(f_tick), profile.segments, strict=True), start=1):
         a = min(b - 1, a + int(round(seg.ramp_s * f_tick)))
         out.append(Cap(capture.t[a:b], {n: v[a:b] for n, v in capture.channels.items()}, dict(capture.metadata),
                        dict(capture.truth), {}, source=f"{capture.source}#{k}"))
@@ -219,18 +220,18 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
 
     # prepare ECU + acquire: the calibration capture of the whole batch under the uncompensated blocks
     prepared = [uncompensated_block(m.spec.serial, motor, calibrated_at=0, options=options) for m in motors]
-    for m, b in zip(motors, prepared):
+    for m, b in zip(motors, prepared, strict=True):
         m.blocks.append(_flashed(b, "prepare"))
     t0 = time.perf_counter()
     runs = simulate([m.spec for m in motors], profile, mode="estimated", blocks=prepared, seed=noise_seed)
     share = round((time.perf_counter() - t0) / len(motors), 4)
     from eol_cal.station.record import Step
 
-    for m, run in zip(motors, runs):
+    for m, run in zip(motors, runs, strict=True):
         m.steps += [Step("prepare ECU", 0.0, True), Step("acquire", share, True)]
         m.before = _windows(run.capture, profile, motor.f_pwm)
         # fit (its limits), table
-        fitted = step(m, "fit", lambda: fit_motor(m.before, lim, __version__, motor, mechanics, cache, options))
+        fitted = step(m, "fit", functools.partial(fit_motor, m.before, lim, __version__, motor, mechanics, cache, options))
         if fitted is None:
             continue
         _doc, m.result, extra = fitted
@@ -244,7 +245,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
             m.verdict, m.reasons = "fail", failed(m.judged["fit"])
             continue
         m.before = extra[0]  # the fit's windows and angles, for the ripple before
-        m.calibrated = step(m, "table", lambda: block_from_result(m.result, motor, calibrated_at=0,
+        m.calibrated = step(m, "table", functools.partial(block_from_result, m.result, motor, calibrated_at=0,
                                                                   source=f"<{m.spec.serial}>", options=options))
         if m.calibrated is not None:
             m.blocks.append(_flashed(m.calibrated, "calibrated"))
@@ -262,9 +263,9 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
         after = simulate([m.spec for m in group], constant(rpm, seconds, iq=iq), mode="compensated",
                          blocks=[m.calibrated for m in group], seed=noise_seed + 1)
         share = round((time.perf_counter() - t0) / len(group), 4)
-        for m, run in zip(group, after):
+        for m, run in zip(group, after, strict=True):
             m.steps.append(Step("acquire compensated", share, True))
-            step(m, "metrics", lambda: _judge_ripple(m, run.capture, lim))
+            step(m, "metrics", functools.partial(_judge_ripple, m, run.capture, lim))
     return [_record(plan, m, lim, __version__).to_json() for m in motors]
 
 
@@ -382,7 +383,7 @@ def simulate_lot(plan: LotPlan, db: str | Path, client: Any, on_done: Callable[[
     keys = [f"lot-simulate-{plan.name}-{b[0]}" for b in todo]
     mapped = client.map(simulate_batch, [plan] * len(todo), todo, key=keys, retries=retries, pure=False,
                         cache_dir=None if cache_dir is None else str(cache_dir))
-    futures = dict(zip(mapped, todo))
+    futures = dict(zip(mapped, todo, strict=True))
     now, failed_batches = 0, []
     for fut in as_completed(futures):
         batch = futures[fut]

@@ -15,7 +15,8 @@ Over a :class:`eol_cal.lot.columns.Lot` (display units), with the definitions of
 from __future__ import annotations
 
 import math
-from typing import Any, Iterable
+from typing import Any
+from collections.abc import Iterable
 
 import numpy as np
 

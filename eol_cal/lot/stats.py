@@ -25,7 +25,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Iterable, Sequence
+from typing import TYPE_CHECKING
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 
@@ -159,7 +160,7 @@ def first_pass_yield_of(serial: np.ndarray, verdict: np.ndarray) -> tuple[float,
         return math.nan, 0
     n = len(serial)
     # each serial's first run: built from the last run back, so the earliest index stays
-    first_of = dict(zip(np.asarray(serial)[::-1].tolist(), range(n - 1, -1, -1)))
+    first_of = dict(zip(np.asarray(serial)[::-1].tolist(), range(n - 1, -1, -1), strict=True))
     first = np.fromiter(first_of.values(), dtype=np.intp, count=len(first_of))
     return float(np.count_nonzero(np.asarray(verdict)[first] == "pass") / len(first)), len(first)
 

@@ -8,17 +8,24 @@ definitions) to the quantities :data:`eol_cal.lot.columns.QUANTITIES` in their d
 
 from __future__ import annotations
 
+import csv
+import io
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
+from eol_cal.atomic import atomic_write
+from eol_cal.lot import spc_stats
 from eol_cal.lot.baseline import Baseline
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
 from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, pareto_of, summary
+from eol_cal.station.records import COLUMN_NAMES, runs
+from eol_cal.station.records_query import read_rows, select_runs
 
 #: the ``schema`` of the document ``eol-cal lot stats --json`` prints
 LOT_STATS_SCHEMA = "eol-cal/lot-stats/2"
@@ -104,8 +111,6 @@ def lot_summary(lot: Lot, refusals: Lot | None = None, min_n: int = DEFAULT_MIN_
     (the refused runs of the same selection) ``refusals`` (:func:`refusal_summary`). Documented
     in ``docs/json.md``; the definitions in ``docs/spc.md``.
     """
-    from eol_cal.lot import spc_stats
-
     fpy, motors = first_pass_yield_of(lot.serial, lot.verdict)
     quantities = []
     for q in quantity_stats(lot):
@@ -152,13 +157,6 @@ def write_runs_csv(path: str | Path, db: str | Path, rules: dict[str, list[str]]
     the measured quantities are in their display units (:mod:`eol_cal.display`). With ``rules``
     (run id -> ``QUANTITY:RULE`` tags, :func:`eol_cal.lot.spc_stats.rules_by_run`) a last column
     ``rules`` lists the run rules each run is part of, ``;``-separated."""
-    import csv
-    import io
-
-    from eol_cal.atomic import atomic_write
-    from eol_cal.station.records import COLUMN_NAMES, runs
-    from eol_cal.station.records_query import read_rows, select_runs
-
     shown = {q.key: q for q in QUANTITIES}
     cols = [c for c in COLUMN_NAMES if c not in ("fit_json", "record_json")]
     rows = read_rows(db, select_runs(**filters).with_only_columns(*(runs.c[c] for c in cols)))

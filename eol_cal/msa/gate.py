@@ -11,11 +11,19 @@ once the spool is flushed into the database).
 from __future__ import annotations
 
 import datetime as dt
+import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping
+from typing import TYPE_CHECKING
 
-from eol_cal.errors import EolCalError
+import sqlalchemy as sa
+
+from eol_cal.errors import EolCalError, InputError
 from eol_cal.msa.master import MasterRun, MasterSettings, check_master, master_due
+from eol_cal.msa.study import quantity
+from eol_cal.station.record import Problem
+from eol_cal.station.records import runs
+from eol_cal.station.records_query import read_rows, select_runs
 
 if TYPE_CHECKING:
     from eol_cal.station.record import RunRecord
@@ -26,8 +34,6 @@ class MasterGateClosed(EolCalError):
     one failed. ``problems`` holds the refusal code and text (the cycle's refusal record)."""
 
     def __init__(self, code: str, text: str) -> None:
-        from eol_cal.station.record import Problem
-
         super().__init__(text)
         self.problems = (Problem(code, text),)
 
@@ -35,11 +41,6 @@ class MasterGateClosed(EolCalError):
 def latest_master_run(db: str | Path, m: MasterSettings, station: str | None,
                       timeout_s: float = 5.0) -> MasterRun | None:
     """The latest run of kind ``master`` of ``m.serial`` on ``station`` (any station when None)."""
-    import sqlalchemy as sa
-
-    from eol_cal.station.records import runs
-    from eol_cal.station.records_query import read_rows, select_runs
-
     if not str(db).count("://") and not Path(db).exists():
         return None  # a new station: no database yet, so no master run either
     q = (select_runs(serial=m.serial, station=station, kind="master")
@@ -51,7 +52,7 @@ def latest_master_run(db: str | Path, m: MasterSettings, station: str | None,
     r = rows[0]
     started = dt.datetime.fromisoformat(str(r["started_at"]))
     if started.tzinfo is None:
-        started = started.replace(tzinfo=dt.timezone.utc)
+        started = started.replace(tzinfo=dt.UTC)
     return MasterRun(started, r["verdict"] == "pass", str(r["run_id"]), str(r["verdict"]))
 
 
@@ -59,9 +60,7 @@ def check_gate(db: str | Path, m: MasterSettings, station: str | None, now: dt.d
                timeout_s: float = 5.0) -> MasterRun | None:
     """Raise :class:`MasterGateClosed` when production may not run now; else the master run
     that lets it (the latest, passed and within its period)."""
-    from eol_cal.errors import InputError
-
-    now = now or dt.datetime.now(dt.timezone.utc)
+    now = now or dt.datetime.now(dt.UTC)
     try:
         last = latest_master_run(db, m, station, timeout_s)
     except InputError as exc:
@@ -78,7 +77,7 @@ def check_gate(db: str | Path, m: MasterSettings, station: str | None, now: dt.d
 GATE_CODES = ("master_due", "master_failed")
 
 
-def gate_refusal(rec: "RunRecord") -> str | None:
+def gate_refusal(rec: RunRecord) -> str | None:
     """The one line that says why the gate refused a run (None: not a gate refusal)."""
     if rec.kind != "refusal" or not set(rec.refusal_codes) & set(GATE_CODES):
         return None
@@ -88,9 +87,5 @@ def gate_refusal(rec: "RunRecord") -> str | None:
 
 def judge_master(values: Mapping[str, float], m: MasterSettings) -> list[str]:
     """The reasons a master run's values (stored units: N*m/A, rad, N*m, %) fail its check."""
-    import math
-
-    from eol_cal.msa.study import quantity
-
     shown = {k: v * quantity(k).scale for k, v in values.items() if v is not None and math.isfinite(v)}
     return check_master(shown, m)[1]

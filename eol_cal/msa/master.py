@@ -27,8 +27,9 @@ from __future__ import annotations
 
 import datetime as dt
 import math
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from eol_cal.errors import InputError
 
@@ -119,8 +120,6 @@ def _master_settings(values: Mapping[str, object], at: Callable[[str], str]) -> 
 
 
 def _zone(name: str, where: str) -> dt.tzinfo:
-    from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
-
     try:
         return ZoneInfo(name)
     except (ZoneInfoNotFoundError, ValueError):
@@ -162,7 +161,7 @@ def master_due(now: dt.datetime, last: MasterRun | None, m: MasterSettings) -> s
     """
     if last is None:
         return f"master check due: no run of the master {m.serial} recorded"
-    when = last.started_at.astimezone(dt.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    when = last.started_at.astimezone(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     if not last.passed:
         return (f"master check failed: the last run of the master {m.serial} ({when}, "
                 f"{last.verdict or 'not passed'}) must be followed by a passing one")

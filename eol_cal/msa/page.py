@@ -5,13 +5,19 @@ style of the lot page (one self-contained HTML file) and the same figures as PNG
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from eol_cal.atomic import atomic_write
+from eol_cal.figures import pyplot, save_png
+from eol_cal.msa.study import quantity
 from eol_cal.msa.type1 import CAPABLE, Type1Study
-from eol_cal.report.svg import pyplot
+from eol_cal.report.motor import Figure
+from eol_cal.report.page import render
+from eol_cal.report.svg import figure_svg
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -55,7 +61,7 @@ def study_figure(st: Type1Study, title: str, run_titles: Sequence[str] = ()) -> 
         a.grid(alpha=0.3)
         a.tick_params(labelsize=7)
     fig.tight_layout()
-    titles = {f"values-{key}": [f"{t}: {v:.5g} {st.unit}" for t, v in zip(run_titles, x)]} if run_titles else {}
+    titles = {f"values-{key}": [f"{t}: {v:.5g} {st.unit}" for t, v in zip(run_titles, x, strict=True)]} if run_titles else {}
     return fig, titles
 
 
@@ -73,9 +79,6 @@ def line(st: Type1Study) -> str:
 
 def write_pngs(results: Sequence[tuple[Type1Study, str]], directory: str | Path) -> list[Path]:
     """One PNG per quantity, ``type1-KEY.png`` in ``directory`` (made when missing)."""
-    from eol_cal.msa.study import quantity
-    from eol_cal.report.lot import save_png
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     out = []
@@ -90,11 +93,6 @@ def render_page(doc: dict[str, Any], results: Sequence[tuple[Type1Study, str]], 
                 run_titles: Sequence[str]) -> str:
     """The study's page (self-contained HTML): the verdict, the convention, a table of the
     figures (each index or the reason it is not given) and each quantity's run chart."""
-    from eol_cal.msa.study import quantity
-    from eol_cal.report.motor import Figure
-    from eol_cal.report.page import render
-    from eol_cal.report.svg import figure_svg
-
     figures = []
     for st, _src in results:
         fig, titles = study_figure(st, quantity(st.quantity).title, run_titles)
@@ -115,8 +113,6 @@ def _fmt(x: float | None, digits: int = 4) -> str:
 def write_page(path: str | Path, doc: dict[str, Any], results: Sequence[tuple[Type1Study, str]], *, title: str,
                run_titles: Sequence[str]) -> Path:
     """Write the study's page to ``path`` (atomically); returns the path."""
-    from eol_cal.atomic import atomic_write
-
     path = Path(path)
     atomic_write(path, render_page(doc, results, title=title, run_titles=run_titles))
     return path

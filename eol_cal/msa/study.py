@@ -13,13 +13,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any
 
-from eol_cal.errors import InputError
-from eol_cal.lot.columns import QUANTITIES, Lot, Quantity
+from eol_cal.errors import InputError, naming
+from eol_cal.lot.columns import LOT_COLUMNS, QUANTITIES, Lot, Quantity, from_columns
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
 from eol_cal.msa.type1 import CAPABLE, K_DEFAULT, L_DEFAULT, Type1Study, type1_study
+from eol_cal.station.records import db_key, is_url, runs
+from eol_cal.station.records_query import read_columns, select_runs
 
 #: the quantities of a type-1 study of the ripple measurement
 TYPE1_QUANTITIES = ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct")
@@ -47,11 +50,6 @@ def read_runs(db: str | Path, serial: str | None = None, run_id: str | None = No
               kind: str | tuple[str, ...] | None = STUDY_KINDS) -> Lot:
     """The runs of one serial (or the one run ``run_id``, any kind; without the run ``exclude``)
     as a :class:`Lot`, time order."""
-    from eol_cal.errors import naming
-    from eol_cal.lot.columns import LOT_COLUMNS, from_columns
-    from eol_cal.station.records import db_key, is_url, runs
-    from eol_cal.station.records_query import read_columns, select_runs
-
     q = select_runs(serial=serial, since=since, until=until, kind=None if run_id else kind).order_by(None)
     if run_id is not None:
         q = q.where(runs.c.run_id == run_id)

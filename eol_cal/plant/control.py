@@ -20,13 +20,15 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from fractions import Fraction
-from typing import TYPE_CHECKING, Callable, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
-from eol_cal.plant import inverter
+from eol_cal.firmware import compensator
+from eol_cal.plant import inverter, sensors, transforms
 
 if TYPE_CHECKING:
     from eol_cal.plant.params import PlantParams
@@ -34,7 +36,7 @@ if TYPE_CHECKING:
 MODES = ("raw", "estimated", "compensated")
 
 
-class EcuState(NamedTuple):
+class ControllerState(NamedTuple):
     """Controller memory (float32 scalars per motor).
 
     x_d, x_q: PI integrators (V); u_d, u_q: held voltage reference in the controller's frame (V);
@@ -65,7 +67,7 @@ def rate_flags(n_ticks: int, f_tick: float, f_task: float, start: int = 0) -> np
 
 
 def pi_current_step(
-    st: EcuState, i_d_meas: Array, i_q_meas: Array, i_q_ref: Array, p: PlantParams, T_cc: float, xp: ArrayModule,
+    st: ControllerState, i_d_meas: Array, i_q_meas: Array, i_q_ref: Array, p: PlantParams, T_cc: float, xp: ArrayModule,
 ) -> tuple[Array, Array, Array, Array]:
     """One current-control update (all in the controller's dq frame).
 
@@ -89,10 +91,10 @@ def pi_current_step(
 
 
 def current_task(
-    st: EcuState, i_abc: tuple[Array, Array, Array], noise: Array, theta_hat: Array, omega_hat: Array,
+    st: ControllerState, i_abc: tuple[Array, Array, Array], noise: Array, theta_hat: Array, omega_hat: Array,
     i_qo_cmd: Array, cmd: Array, cos_c: Array, sin_c: Array, p: PlantParams, T_cc: float, compensate: bool,
     xp: ArrayModule, mech: Callable[[Array], tuple[Array, Array]] | None = None,
-) -> EcuState:
+) -> ControllerState:
     """One run of the 1.68 kHz current-control task (with the 420 Hz command task where ``cmd``).
 
     Takes over the command ``i_qo_cmd`` (A) and the estimator's speed ``omega_hat`` (rad/s) for
@@ -104,12 +106,9 @@ def current_task(
     :func:`eol_cal.firmware.mech.mech_sum`); and updates the PI (:func:`pi_current_step`). Returns
     the controller memory after the task.
     """
-    from eol_cal.firmware import compensator
-    from eol_cal.plant import sensors, transforms
-
     i_qo = xp.where(cmd, i_qo_cmd, st.i_qo)
     omega_c = xp.where(cmd, omega_hat, st.omega_c)
-    m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise)))
+    m_al, m_be = transforms.abc_to_alphabeta(*(sensors.current_reading(i, n, p, xp) for i, n in zip(i_abc, noise, strict=True)))
     i_d_meas, i_q_meas = cos_c * m_al + sin_c * m_be, cos_c * m_be - sin_c * m_al
     if compensate:
         mech_on, mech_sum = (None, None) if mech is None else mech(i_qo)
@@ -119,10 +118,10 @@ def current_task(
         i_qc = xp.zeros_like(i_qo)
     st = st._replace(i_qo=i_qo, omega_c=omega_c)
     x_d, x_q, u_d, u_q = pi_current_step(st, i_d_meas, i_q_meas, i_qo + i_qc, p, T_cc, xp)
-    return EcuState(x_d=x_d, x_q=x_q, u_d=u_d, u_q=u_q, i_qo=i_qo, omega_c=omega_c, i_qc=i_qc)
+    return ControllerState(x_d=x_d, x_q=x_q, u_d=u_d, u_q=u_q, i_qo=i_qo, omega_c=omega_c, i_qc=i_qc)
 
 
-def initial_ecu(i_qo: float, omega_r: float, p: PlantParams, xp: ArrayModule) -> EcuState:
+def initial_ecu(i_qo: float, omega_r: float, p: PlantParams, xp: ArrayModule) -> ControllerState:
     """Controller memory in steady state at ``i_qo`` (A) and ``omega_r`` (rad/s electrical)."""
     R = p.Ki_q / p.Kp_q * p.L_q_nom  # nominal R_s recovered from the tuning
     x_d = xp.zeros_like(p.Kp_d)
@@ -130,4 +129,4 @@ def initial_ecu(i_qo: float, omega_r: float, p: PlantParams, xp: ArrayModule) ->
     u_d = -omega_r * p.L_q_nom * i_qo
     u_q = x_q + omega_r * p.psi_f_nom
     z = xp.zeros_like(p.Kp_d)
-    return EcuState(x_d, x_q, u_d, u_q, z + i_qo, z + omega_r, z)
+    return ControllerState(x_d, x_q, u_d, u_q, z + i_qo, z + omega_r, z)

@@ -9,15 +9,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Sequence
+from collections.abc import Sequence
+
+import numpy as np
 
 from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import InputError
-from eol_cal.firmware import compensator
-from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock
+from eol_cal.firmware import compensator, estimator
+from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock, check, flag_names, pack
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, EstimatorConfig
-from eol_cal.plant.params import PlantSpec
+from eol_cal.firmware.kinematics import fingerprint_of
+from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
+from eol_cal.firmware.options import honoured_options, options_label, parse_options
+from eol_cal.plant.params import PlantSpec, sensor_errors, to_params
 
 
 def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: bool = False,
@@ -51,12 +57,6 @@ def true_mech(spec: PlantSpec):
     mechanical 0: the unbalance ``unb1 sin(theta_m + phase_unb1)`` is order 1 at phase
     ``phase_unb1 - shift`` there.
     """
-    import numpy as np
-
-    from eol_cal.firmware.kinematics import fingerprint_of
-    from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
-    from eol_cal.plant.params import sensor_errors, to_params
-
     m = spec.motor
     pp = m.poles // 2
     err = sensor_errors(to_params(spec, np.zeros(16), np.zeros(16), 0.0, 0.0))
@@ -87,8 +87,6 @@ def simulated_ecu_state(spec: PlantSpec, mode: str, block: ParamBlock | None) ->
     of a given block kept): the given block, else one from the plant's true ripple
     (:func:`true_block`); raw mode without a block is an ECU with no valid block.
     """
-    from eol_cal.firmware.block import check, flag_names, pack
-
     if block is None and mode == "raw":
         return EcuState(None)
     mode_bits = {"raw": 0, "estimated": FLAG_INTERP_ENABLE, "compensated": FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE}[mode]
@@ -105,9 +103,6 @@ def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, options: 
     are ``options`` when given, else those the block's flags select (none without a block: the
     paper's estimator).
     """
-    from eol_cal.firmware import estimator
-    from eol_cal.firmware.options import honoured_options
-
     m = spec.motor
     hall = block.hall_angle if block is not None else NOMINAL_HALL_ANGLE
     if options is None:
@@ -122,8 +117,6 @@ def batch_options(blocks: Sequence[ParamBlock | None], ecu_estimator: str | None
     flags select (none for a motor without a block). They are compiled into the scan, so every
     motor of a batch must run the same ones.
     """
-    from eol_cal.firmware.options import honoured_options, options_label, parse_options
-
     if ecu_estimator is not None:
         return parse_options(ecu_estimator, None, "ecu_estimator")
     found = {honoured_options(b.flags) if b is not None else 0 for b in blocks}
@@ -144,8 +137,6 @@ def learning_pre_roll_s(options: int, speed_rpm: float, identifies: bool = False
     other estimators (their first edges and hall transition). An ECU that identifies the rotor's
     mechanical angle (``identifies``, layout 2) gets :data:`IDENTIFY_REVS` revolutions (at most 10 s),
     so its compensation runs from the first recorded sample."""
-    from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
-
     if not options & FLAG_EST_LEARN_PITCH_ERRORS or speed_rpm == 0.0:
         return 0.3
     if identifies:

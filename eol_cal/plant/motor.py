@@ -13,12 +13,34 @@ L/R = 3 ms this is exact to well below the current sensors' resolution.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from eol_cal.arrays import Array, ArrayModule
 
-if TYPE_CHECKING:
-    from eol_cal.plant.params import PlantParams
+
+class MachineCoefficients(Protocol):
+    """The dq machine's coefficients (a plant's parameters hold them)."""
+
+    @property
+    def a_d(self) -> Array: ...  # 1, from rl_coefficients
+
+    @property
+    def b_d(self) -> Array: ...  # 1/ohm
+
+    @property
+    def a_q(self) -> Array: ...  # 1
+
+    @property
+    def b_q(self) -> Array: ...  # 1/ohm
+
+    @property
+    def L_d(self) -> Array: ...  # H
+
+    @property
+    def L_q(self) -> Array: ...  # H
+
+    @property
+    def psi_f(self) -> Array: ...  # V*s
 
 
 def rl_coefficients(R_s: Array, L: Array, dt: float, xp: ArrayModule) -> tuple[Array, Array]:
@@ -30,7 +52,7 @@ def rl_coefficients(R_s: Array, L: Array, dt: float, xp: ArrayModule) -> tuple[A
     return a, (1.0 - a) / R_s
 
 
-def current_step(i_d: Array, i_q: Array, v_d: Array, v_q: Array, omega_r: Array, p: PlantParams) -> tuple[Array, Array]:
+def current_step(i_d: Array, i_q: Array, v_d: Array, v_q: Array, omega_r: Array, p: MachineCoefficients) -> tuple[Array, Array]:
     """Advance the dq currents (A) by one tick under the dq voltages ``v_d, v_q`` (V).
 
     ``omega_r`` is the electrical speed (rad/s); ``p`` carries ``a_d, b_d, a_q, b_q`` from
@@ -41,6 +63,6 @@ def current_step(i_d: Array, i_q: Array, v_d: Array, v_q: Array, omega_r: Array,
     return i_d_next, i_q_next
 
 
-def electromagnetic_torque(i_d: Array, i_q: Array, p: PlantParams, poles: int) -> Array:
+def electromagnetic_torque(i_d: Array, i_q: Array, p: MachineCoefficients, poles: int) -> Array:
     """Seed eq. (3): ``3/2 * P/2 * (psi_f i_q + (L_d - L_q) i_d i_q)`` (N*m)."""
     return 0.75 * poles * (p.psi_f * i_q + (p.L_d - p.L_q) * i_d * i_q)

@@ -13,15 +13,19 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, NamedTuple, Sequence
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
+from eol_cal.firmware.kinematics import SensorErrors
+from eol_cal.firmware.mech import MechTables, mech_tables
 from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, speed_gains
 from eol_cal.motor import MotorParams, load_motor
-from eol_cal.plant import motor as motor_model, ripple
+from eol_cal.plant import motor as motor_model
+from eol_cal.plant import ripple
 
 if TYPE_CHECKING:
     from eol_cal.firmware.kinematics import SensorErrors
@@ -97,7 +101,7 @@ class PlantSpec:
     mechanics: BenchMechanics = field(default_factory=lambda: load_mechanics("paper"))
     dead_time_s: float = 0.0
 
-    def replace(self, **changes) -> "PlantSpec":
+    def replace(self, **changes) -> PlantSpec:
         return dataclasses.replace(self, **changes)
 
     @property
@@ -105,7 +109,7 @@ class PlantSpec:
         """Winding resistance during the test (ohm)."""
         return self.R_s_scale * self.motor.R_s_at(self.temp_degC)
 
-    def without_ripple(self) -> "PlantSpec":
+    def without_ripple(self) -> PlantSpec:
         """The same bench with every ripple source set to zero (for torque-balance checks)."""
         zero = {n: 0.0 for n in ("c6", "k6", "c12", "k12", "c18", "k18", "unb1")}
         return self.replace(**zero)
@@ -223,8 +227,6 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
     ``mech_tb`` the identifier's tables of a layout-2 block (:func:`eol_cal.firmware.mech.block_mech_tables`;
     disabled without one).
     """
-    from eol_cal.firmware.mech import mech_tables
-
     if mech_tb is None:
         mech_tb = mech_tables(None, lead_s, False, spec.motor.N_enc)
     m = spec.motor
@@ -253,7 +255,7 @@ def to_params(spec: PlantSpec, table_const: np.ndarray, table_per_amp: np.ndarra
         Kp_d=Kp_d, Kp_q=Kp_q, Ki_d=Ki_d, Ki_q=Ki_q,
         L_d_nom=m.L_d, L_q_nom=m.L_q, psi_f_nom=m.psi_f,
         table_const=table_const, table_per_amp=table_per_amp, lead_s=lead_s, iqc_limit=iqc_limit,
-        **dict(zip(("hall_start", "hall_width", "hall_mid"), hall_tables(hall_angle))),
+        **dict(zip(("hall_start", "hall_width", "hall_mid"), hall_tables(hall_angle), strict=True)),
         **{f"mech_{name}": getattr(mech_tb, name) for name in _MECH_FIELDS},
     )
     return PlantParams(**{k: np.asarray(v, dtype=np.float32) for k, v in values.items()})
@@ -266,8 +268,6 @@ _MECH_FIELDS = ("enabled", "dirs", "dF", "EF", "grid_phase", "id_min_score", "id
 
 def mech_tables_of(p: PlantParams) -> MechTables:
     """The identifier's tables of these parameters (one motor's, or traced under ``vmap``)."""
-    from eol_cal.firmware.mech import MechTables
-
     fields = {name: getattr(p, f"mech_{name}") for name in _MECH_FIELDS}
     fields["enabled"] = fields["enabled"].astype("int32")
     fields["dirs"] = fields["dirs"].astype("int32")
@@ -281,11 +281,9 @@ def estimator_tables(p: PlantParams) -> HallTables:
 
 def sensor_errors(p: PlantParams) -> SensorErrors:
     """The kinematic sensor model's error record of these parameters."""
-    from eol_cal.firmware.kinematics import SensorErrors
-
     return SensorErrors(p.edge_error, p.hall_offset, p.grid_offset)
 
 
 def stack_params(params: list[PlantParams]) -> PlantParams:
     """Stack the parameters of several motors along a new leading axis (a lot for ``vmap``)."""
-    return PlantParams(*(np.stack(fields) for fields in zip(*params)))
+    return PlantParams(*(np.stack(fields) for fields in zip(*params, strict=True)))

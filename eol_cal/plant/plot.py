@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from eol_cal.atomic import atomic_path
+from eol_cal.render import literal_texts, plain, pyplot
 
 
 def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None:
@@ -21,8 +22,6 @@ def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None
     path : path
         PNG file, written atomically.
     """
-    from eol_cal.render import literal_texts, plain, pyplot
-
     plt = pyplot()
 
     n = len(results)

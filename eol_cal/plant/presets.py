@@ -10,17 +10,15 @@ that the three peak-to-peak figures of ``eol_cal.analysis.metrics`` land on the 
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from eol_cal.errors import InputError
+from eol_cal.firmware.kinematics import draw_sensor_errors
 from eol_cal.motor import load_motor
 from eol_cal.plant.params import PlantSpec
 
 
 def _sensor_errors_deg(seed: int, N_enc: int) -> tuple[tuple[float, ...], tuple[float, ...], float]:
-    from eol_cal.firmware.kinematics import draw_sensor_errors
-
     err = draw_sensor_errors(np.random.default_rng(seed), N_enc)
     return (tuple(float(v) for v in np.degrees(err.edge_error)),
             tuple(float(v) for v in np.degrees(np.asarray(err.hall_offset).ravel())),

@@ -20,19 +20,109 @@ For speed the scan never calls ``sin`` per harmonic: ``c*sin(n*theta + phi)`` is
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from eol_cal.arrays import Array
 
-if TYPE_CHECKING:
-    from eol_cal.plant.params import PlantParams, PlantSpec
 
 #: Ripple harmonics of the electrical angle (orders) in the coefficient layout.
 ORDERS = (6, 12, 18)
 
 
-def coefficients(spec: PlantSpec) -> dict[str, float]:
-    """Sine/cosine coefficients of every ripple term of a PlantSpec (N*m and N*m/A).
+class RippleTruth(Protocol):
+    """A motor's ripple as built: amplitude and phase of each term (a plant spec holds them)."""
+
+    @property
+    def c6(self) -> float: ...  # N*m
+
+    @property
+    def phase_c6(self) -> float: ...  # rad
+
+    @property
+    def k6(self) -> float: ...  # N*m/A
+
+    @property
+    def phase_k6(self) -> float: ...  # rad
+
+    @property
+    def c12(self) -> float: ...  # N*m
+
+    @property
+    def phase_c12(self) -> float: ...  # rad
+
+    @property
+    def k12(self) -> float: ...  # N*m/A
+
+    @property
+    def phase_k12(self) -> float: ...  # rad
+
+    @property
+    def c18(self) -> float: ...  # N*m
+
+    @property
+    def phase_c18(self) -> float: ...  # rad
+
+    @property
+    def k18(self) -> float: ...  # N*m/A
+
+    @property
+    def phase_k18(self) -> float: ...  # rad
+
+    @property
+    def unb1(self) -> float: ...  # N*m
+
+    @property
+    def phase_unb1(self) -> float: ...  # rad
+
+
+class RippleCoefficients(Protocol):
+    """The sine/cosine coefficients of :func:`coefficients`, per tick (a plant's parameters hold them)."""
+
+    @property
+    def s6c(self) -> Array: ...  # N*m
+
+    @property
+    def c6c(self) -> Array: ...  # N*m
+
+    @property
+    def s6k(self) -> Array: ...  # N*m/A
+
+    @property
+    def c6k(self) -> Array: ...  # N*m/A
+
+    @property
+    def s12c(self) -> Array: ...  # N*m
+
+    @property
+    def c12c(self) -> Array: ...  # N*m
+
+    @property
+    def s12k(self) -> Array: ...  # N*m/A
+
+    @property
+    def c12k(self) -> Array: ...  # N*m/A
+
+    @property
+    def s18c(self) -> Array: ...  # N*m
+
+    @property
+    def c18c(self) -> Array: ...  # N*m
+
+    @property
+    def s18k(self) -> Array: ...  # N*m/A
+
+    @property
+    def c18k(self) -> Array: ...  # N*m/A
+
+    @property
+    def s1u(self) -> Array: ...  # N*m
+
+    @property
+    def c1u(self) -> Array: ...  # N*m
+
+
+def coefficients(spec: RippleTruth) -> dict[str, float]:
+    """Sine/cosine coefficients of every ripple term of a motor (N*m and N*m/A).
 
     Keys ``s6c, c6c`` (cogging: coefficient of sin and cos of 6*theta, N*m), ``s6k, c6k``
     (per ampere of i_q, N*m/A), likewise for 12 and 18, and ``s1u, c1u`` for the unbalance.
@@ -57,7 +147,7 @@ def harmonic_phasors(cos_r: Array, sin_r: Array) -> tuple[tuple[Array, Array], .
     return (c6, s6), (c12, s12), (c18, s18)
 
 
-def ripple_torque(cos_r: Array, sin_r: Array, cos_m: Array, sin_m: Array, i_q: Array, p: PlantParams) -> Array:
+def ripple_torque(cos_r: Array, sin_r: Array, cos_m: Array, sin_m: Array, i_q: Array, p: RippleCoefficients) -> Array:
     """Ripple torque to subtract from ``kt*i_q`` (N*m).
 
     Parameters
@@ -68,7 +158,7 @@ def ripple_torque(cos_r: Array, sin_r: Array, cos_m: Array, sin_m: Array, i_q: A
         Cosine and sine of the actual mechanical angle theta_m (order-1 unbalance).
     i_q : array
         Actual q-axis current (A).
-    p : PlantParams or mapping-like
+    p : RippleCoefficients
         The coefficients of :func:`coefficients` as attributes.
     """
     (c6, s6), (c12, s12), (c18, s18) = harmonic_phasors(cos_r, sin_r)

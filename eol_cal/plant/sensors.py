@@ -9,12 +9,28 @@ actual angle by :mod:`eol_cal.plant.simulate`.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from eol_cal.arrays import Array, ArrayModule
 
-if TYPE_CHECKING:
-    from eol_cal.plant.params import PlantParams
+
+class SensorCoefficients(Protocol):
+    """The transducers' coefficients (a plant's parameters hold them)."""
+
+    @property
+    def tq_gain(self) -> Array: ...  # 1, from lowpass_gain
+
+    @property
+    def tq_noise_nm(self) -> Array: ...  # N*m rms
+
+    @property
+    def tq_lsb_nm(self) -> Array: ...  # N*m
+
+    @property
+    def i_noise_a(self) -> Array: ...  # A rms
+
+    @property
+    def i_lsb_a(self) -> Array: ...  # A
 
 
 def lowpass_gain(bw_hz: Array, dt: float, xp: ArrayModule) -> Array:
@@ -27,13 +43,13 @@ def quantise(x: Array, lsb: Array, xp: ArrayModule) -> Array:
     return xp.round(x / lsb) * lsb
 
 
-def transducer_step(y: Array, T_shaft: Array, noise: Array, p: PlantParams, xp: ArrayModule) -> tuple[Array, Array]:
+def transducer_step(y: Array, T_shaft: Array, noise: Array, p: SensorCoefficients, xp: ArrayModule) -> tuple[Array, Array]:
     """Torque transducer: first-order bandwidth, additive noise, ADC resolution.
 
     Parameters
     ----------
     y : filtered state (N*m); T_shaft : shaft torque (N*m); noise : a standard normal draw;
-    p : PlantParams with ``tq_gain`` (from :func:`lowpass_gain`), ``tq_noise_nm`` (N*m rms),
+    p : SensorCoefficients with ``tq_gain`` (from :func:`lowpass_gain`), ``tq_noise_nm`` (N*m rms),
     ``tq_lsb_nm`` (N*m).
 
     Returns
@@ -44,7 +60,7 @@ def transducer_step(y: Array, T_shaft: Array, noise: Array, p: PlantParams, xp: 
     return y, quantise(y + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
 
 
-def current_reading(i_x: Array, noise: Array, p: PlantParams, xp: ArrayModule) -> Array:
+def current_reading(i_x: Array, noise: Array, p: SensorCoefficients, xp: ArrayModule) -> Array:
     """A phase-current sensor with noise ``i_noise_a`` (A rms) and ADC step ``i_lsb_a`` (A)."""
     return quantise(i_x + p.i_noise_a * noise, p.i_lsb_a, xp)
 

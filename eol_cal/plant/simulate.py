@@ -23,21 +23,30 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from eol_cal.capture.ecu_state import EcuState, with_ecu_state
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
+from eol_cal.firmware import estimator, kinematics
 from eol_cal.firmware.block import ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
 from eol_cal.mechanics import mech_step
 from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
 from eol_cal.plant.ecu import batch_options, estimator_config, learning_pre_roll_s, simulated_ecu_state, true_block
 from eol_cal.plant.params import (
-    PlantParams, PlantSpec, estimator_tables, mech_tables_of, sensor_errors, stack_params, to_params,
+    PlantParams,
+    PlantSpec,
+    estimator_tables,
+    mech_tables_of,
+    sensor_errors,
+    stack_params,
+    to_params,
 )
 from eol_cal.plant.profile import Profile
 from eol_cal.wrap import wrap_2pi
@@ -129,8 +138,6 @@ def _sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, me
     with ``cfg.mech`` the identifier's, from ``mech_state``: :attr:`Sensed.mech`)."""
     import jax.numpy as jnp
 
-    from eol_cal.firmware import estimator, kinematics
-
     enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
     # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
     if cfg.mech is None:
@@ -175,12 +182,10 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tu
 
     def mech_current(i_qo: Any) -> tuple[Any, Any]:
         """Layout 2: whether the mechanical orders are compensated, and their current (A)."""
-        from eol_cal.firmware.mech import mech_sum
-
         return mech_on, mech_sum(cfg.mech, mech_tables_of(p), sensed.mech.r, est_state.q, est.theta_hat,
                                  est.omega_hat, i_qo, xp=jnp)
 
-    def current_task(ecu: control.EcuState) -> control.EcuState:
+    def current_task(ecu: control.ControllerState) -> control.ControllerState:
         return control.current_task(ecu, (i_a, i_b, i_c), i_noise[cc_index], est.theta_hat, est.omega_hat,
                                     i_qo_prof, cmd_flag, cos_c, sin_c, p, T_cc, cfg.mode == "compensated", jnp,
                                     mech=None if cfg.mech is None else mech_current)
@@ -292,9 +297,6 @@ def _prime_fn(cfg: PlantSimConfig) -> Callable:
 def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m0: float,
                    omega_m0: float, i_qo0: float) -> tuple:
     """Steady state at the profile's first point: speed, current, shaft twist, controller memory."""
-
-    from eol_cal.firmware import estimator, kinematics
-
     m = spec.motor
     T0 = m.kt * i_qo0 - m.B * omega_m0
     f = np.float32
@@ -305,7 +307,7 @@ def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m
                        f(0.0), f(i_qo0), f(T0))
     est_state = estimator.init_state(cfg.estimator, int(hall0), int(a0), int(b0), xp=np)
     ecu = control.initial_ecu(f(i_qo0), f(cfg.poles // 2 * omega_m0), ps, np)
-    ecu = control.EcuState(*(np.asarray(v, dtype=np.float32) for v in ecu))
+    ecu = control.ControllerState(*(np.asarray(v, dtype=np.float32) for v in ecu))
     est_state = type(est_state)(*(np.asarray(v) for v in est_state))
     mech_state = None
     if cfg.mech is not None:
@@ -384,13 +386,11 @@ def simulate(
     if len(blocks) != len(specs):
         raise InputError(None, "blocks", f"{len(blocks)} blocks for {len(specs)} motors")
 
-    from eol_cal.firmware.mech import MechConsts, block_mech_tables
-
     params = []
     states = []
     effective = []
     identifies = False
-    for spec, block in zip(specs, blocks):
+    for spec, block in zip(specs, blocks, strict=True):
         states.append(simulated_ecu_state(spec, mode, block))
         if block is None:
             block = true_block(spec) if mode == "compensated" else None
@@ -437,7 +437,7 @@ def simulate(
 
     rng = np.random.default_rng(seed)
     carries = [_initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
-               for p, s in zip(params, specs)]
+               for p, s in zip(params, specs, strict=True)]
     carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
     keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
 

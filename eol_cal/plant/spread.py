@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import math
+import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -20,7 +21,10 @@ from typing import Any
 import numpy as np
 
 from eol_cal.errors import InputError
+from eol_cal.firmware.kinematics import draw_sensor_errors
+from eol_cal.inputs import load_toml
 from eol_cal.plant.params import PlantSpec
+from eol_cal.plant.presets import paper
 
 TWO_PI = 2.0 * math.pi
 
@@ -123,9 +127,6 @@ class Spread:
         serial : str, optional
             Serial; default ``SIM-<seed>``.
         """
-        from eol_cal.firmware.kinematics import draw_sensor_errors
-        from eol_cal.plant.presets import paper
-
         base = paper() if base is None else base
         rng = np.random.default_rng(seed)
         values = {name: self.params[name].draw(rng) for name in PARAMETERS if name in self.params}
@@ -231,8 +232,6 @@ def parse_spread(data: dict[str, Any], source: str, default_name: str) -> Spread
 
 def load_spread(name_or_file: str | Path = "default") -> Spread:
     """A production spread from a built-in name (``eol_cal/spreads/NAME.toml``) or a TOML file."""
-    from eol_cal.inputs import load_toml
-
     path = Path(name_or_file)
     if path.suffix == ".toml":
         return parse_spread(load_toml(path), str(path), path.stem)
@@ -241,8 +240,6 @@ def load_spread(name_or_file: str | Path = "default") -> Spread:
 
 @functools.lru_cache(maxsize=8)
 def _builtin(name: str) -> Spread:
-    import tomllib
-
     try:
         text = resources.files("eol_cal.spreads").joinpath(f"{name}.toml").read_text(encoding="utf-8")
     except (FileNotFoundError, IsADirectoryError):

@@ -12,13 +12,17 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from eol_cal.display import display_unit
+from eol_cal.figures import pyplot
 from eol_cal.render import plain
-from eol_cal.report.svg import figure_svg, pyplot
+from eol_cal.report.svg import figure_svg
+from eol_cal.station.record import NO_STATION
+from eol_cal.wrap import wrap_2pi
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
@@ -32,12 +36,10 @@ if TYPE_CHECKING:
 FitExtra = tuple["MotorInput", "MotorFit", "FitSpec"]
 #: the ripple at the operating point, before and compensated
 PointRipples = tuple["PointRipple", "PointRipple"]
-from eol_cal.wrap import wrap_2pi
 
 _MAX_POINTS = 3000  # points drawn per panel: enough to show the band, small enough to inline
 _ANGLE_BINS = 120  # 3 deg electrical per bin for the mean curve
 _MAX_ORDER = 24
-NO_STATION = "(no station id)"
 
 
 @dataclass(frozen=True)
@@ -103,11 +105,6 @@ def limit_rows(rec: RunRecord) -> list[LimitRow]:
         status = {True: "PASS", False: "FAIL"}.get(c.passed) or ("not measured" if math.isnan(c.value) else "not judged")
         rows.append(LimitRow(c.key, c.title, c.sense, c.value * factor, c.limit * factor, c.margin * factor, unit, status))
     return rows
-
-
-def station_of(rec: RunRecord) -> str:
-    """The station a run was made on: its id where the record has one."""
-    return rec.station_name or NO_STATION
 
 
 def _state_col(label: str, s: EcuState | None, verified: bool | None = None) -> dict[str, Any]:
@@ -223,7 +220,7 @@ def angle_figure(rec: RunRecord, point_ripple: PointRipples, fit_extra: FitExtra
         s = operating_segment(mi, float(op["speed_rpm"]), float(op["i_qo_a"]))
         grid = np.linspace(0.0, 2 * math.pi, 361)
         curve = (np.degrees(grid), fitted_ripple(mi, fit, spec, s, grid) - float(fit.t_avg[s]))
-    for ax, pr, label in zip(axes, point_ripple, ("before", "compensated")):
+    for ax, pr, label in zip(axes, point_ripple, ("before", "compensated"), strict=True):
         pole_pairs = max(1, int(pr.poles) // 2)
         y = _without_mech1(pr.theta_r, pr.torque, pr.spectrum, pole_pairs)
         deg = np.degrees(wrap_2pi(np.asarray(pr.theta_r, float)))
@@ -396,7 +393,7 @@ def render_motor_report(rec: RunRecord, figures: Sequence[Figure]) -> str:
         ("lead", f"{_fmt(cal.lead_s * 1e6 if cal is not None and cal.lead_s is not None else None)} us"),
         ("estimator options", _estimator_text(rec)),
     ]
-    name = station_of(rec)
+    name = rec.station_label
     return render("motor.html.j2", rec=rec, station=rec.station, figures=list(figures), limit_rows=limit_rows(rec),
                   ecu_states=ecu_states(rec), ecu_active=rec.ecu_active, values=values, fmt=_fmt, mech=mech_section(rec),
                   operator=rec.operator, station_name=name if name != NO_STATION else rec.station.extra.get("dyno"),

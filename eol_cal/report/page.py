@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import functools
 
 import jinja2
@@ -21,8 +22,6 @@ def environment() -> jinja2.Environment:
 
 def utc_text(stamp: str | None) -> str:
     """``2026-11-23T21:58:03.919+00:00`` as ``2026-11-23 21:58:03 UTC`` (``-`` for none)."""
-    import datetime as dt
-
     if not stamp:
         return "-"
     try:
@@ -30,7 +29,7 @@ def utc_text(stamp: str | None) -> str:
     except ValueError:
         return str(stamp)
     if t.tzinfo is not None:
-        t = t.astimezone(dt.timezone.utc)
+        t = t.astimezone(dt.UTC)
     return t.strftime("%Y-%m-%d %H:%M:%S UTC")
 
 

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import io
 import re
-from types import ModuleType
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING
+from collections.abc import Iterator, Sequence
 from xml.sax.saxutils import escape
+
+from eol_cal.figures import pyplot
+from eol_cal.render import literal_texts
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
@@ -21,13 +24,6 @@ _REF = re.compile(r'(url\(#|href="#)([^")]+)')
 #: what every SVG the reports inline is written with: fixed hash salt (clip path ids), glyphs as
 #: paths (no font needed where the page is opened), no date in the metadata
 RC = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
-
-
-def pyplot() -> ModuleType:
-    """matplotlib's pyplot (:func:`eol_cal.render.pyplot`: Agg, no LaTeX)."""
-    from eol_cal.render import pyplot as render_pyplot
-
-    return render_pyplot()
 
 
 def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
@@ -51,8 +47,6 @@ def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | Non
         ``<svg ...>...</svg>`` without the XML prolog, width 100 % of its container.
     """
     import matplotlib
-
-    from eol_cal.render import literal_texts
 
     buf = io.StringIO()
     literal_texts(fig)
@@ -114,7 +108,7 @@ def _add_titles(text: str, titles: dict[str, Sequence[str]]) -> str:
             raise ValueError(f"artist {gid!r}: {drawn} points drawn, {len(labels)} titles")
         it = iter(labels)
 
-        def one(m: re.Match) -> str:
+        def one(m: re.Match, it: Iterator[str] = it) -> str:  # bound here: called within this iteration
             return f"{m.group(0)[:-2]}><title>{escape(next(it))}</title></{m.group(1)}>"
 
         parts[::2] = [_POINT.sub(one, p) for p in parts[::2]]

@@ -13,9 +13,15 @@ the same, as not confirmed.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
 
+from eol_cal.atomic import atomic_path
+from eol_cal.ecu.client import flash_block
+from eol_cal.firmware import block as B
+from eol_cal.firmware.mech import mech_enabled
+from eol_cal.firmware.options import honoured_options, options_label
 from eol_cal.station.record import FlashedBlock, PreviousBlock
 
 if TYPE_CHECKING:
@@ -25,8 +31,6 @@ if TYPE_CHECKING:
 
 def write_archive(path: Path, image: bytes) -> str:
     """Write ``image`` to ``path`` atomically; returns its SHA-256 (hex)."""
-    from eol_cal.atomic import atomic_path
-
     with atomic_path(path) as tmp:
         tmp.write_bytes(image)
     return hashlib.sha256(image).hexdigest()
@@ -36,10 +40,6 @@ def block_fields(image: bytes) -> dict[str, Any]:
     """What the record says of a block's content: flags by name, the estimator options they
     select, table length, lead (s), current limit (A), layout, whether its mechanical
     compensation is on (layout 2)."""
-    from eol_cal.firmware import block as B
-    from eol_cal.firmware.mech import mech_enabled
-    from eol_cal.firmware.options import honoured_options, options_label
-
     blk = B.unpack(image, "<flashed block>")
     mech = None if blk.mech is None else ("on" if mech_enabled(blk.flags, blk.layout_version, blk.mech) else "off")
     return {"flags": B.flag_names(blk.flags), "estimator": options_label(honoured_options(blk.flags)),
@@ -66,9 +66,6 @@ def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path:
     An exception raised after the block's CRC went out carries ``flashed_block``: the archived
     image's record, ``confirmed`` False (the ECU boots it at its next reset, or may).
     """
-    from eol_cal.ecu.client import flash_block
-    from eol_cal.firmware import block as B
-
     bus = open_bus()
     try:
         report = flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source, timing=timing,

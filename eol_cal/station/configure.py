@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from eol_cal.errors import InputError
 from eol_cal.station.run import StationConfig
-from eol_cal.station.settings import StationSettings, _named, master_of, register_map_of, seed_to_key_of
+from eol_cal.station.settings import StationSettings, load_named, master_of, register_map_of, seed_to_key_of
 
 def station_record(settings: StationSettings, operator: str | None) -> dict[str, Any]:
     """The run record's ``station`` entries that the settings give (id, operator, addresses).
@@ -56,11 +57,11 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     from eol_cal.station.limits import load_limits
 
     regmap = register_map_of(settings)
-    limits = _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))
-    _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    limits = load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))
+    load_named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     motor_name = str(settings["motor"])
-    motor = _named(settings, "motor", lambda: load_motor("paper", None if motor_name == "paper" else motor_name))
-    mechanics = _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
+    motor = load_named(settings, "motor", lambda: load_motor("paper", None if motor_name == "paper" else motor_name))
+    mechanics = load_named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     if seed_to_key is None:  # the settings' algorithm, tried on a made-up seed before the dyno moves
         if settings["key_file"] is None and settings["key_algo"] is None:
             raise InputError(settings.source, "key_file", "required: the flash step needs the ECU's secret (or key_algo)")

@@ -12,6 +12,7 @@ the prepare step (nothing written to the ECU, nothing measured), else the config
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime as _dt
 import sys
@@ -21,7 +22,8 @@ import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
 
 from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_ripple, verify_segments
 from eol_cal.errors import EolCalError, InputError
@@ -57,7 +59,7 @@ class StepVerdict:
 
 def now_iso() -> str:
     """UTC now, ISO 8601 with milliseconds (the record's time stamps)."""
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def station_info(cfg: StationConfig, profile_name: str) -> StationInfo:
@@ -134,7 +136,7 @@ class StationCycle:
         check_config(cfg)
         profile = load_profile(cfg.profile)
         segments = dc.setpoints_from_profile(profile)
-        started = _dt.datetime.now(_dt.timezone.utc)
+        started = _dt.datetime.now(_dt.UTC)
         run_id = uuid.uuid4().hex
         sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
@@ -357,10 +359,8 @@ class StationCycle:
             verdict_rec = self.to_record()
             journal = self._journal(verdict_rec)
             if on_verdict is not None:
-                try:
+                with contextlib.suppress(Exception):  # a display that fails must not cost the record
                     on_verdict(verdict_rec)
-                except Exception:  # noqa: BLE001 - a display that fails must not cost the record
-                    pass
             try:
                 self.report_html = self._step("report", self.report)
             except Exception as exc:  # noqa: BLE001 - the record must still be written
@@ -537,7 +537,7 @@ class StationCycle:
 def _preload_writers() -> None:
     """Import what writes the captures (asammdf, pandas) and the record (the database library)
     while the dyno turns, not when the capture is in or the verdict is known."""
-    import eol_cal.capture.mdf4_io  # noqa: F401
+    import eol_cal.capture.mdf4_io
     import eol_cal.station.spool  # noqa: F401
 
 

@@ -3,7 +3,8 @@
 Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1, so the
 tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...`` would), and a
 dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
-comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind free ports and are shut down when the motor is done.
+comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind
+free ports and are shut down when the motor is done.
 
 :func:`loopback_line` keeps one dyno simulator and one ECU server at fixed addresses for many
 motors, as a line's station does (the benchmark drives ``eol-cal station`` against it): each
@@ -15,7 +16,8 @@ from __future__ import annotations
 import contextlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Iterator
+from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterator
 
 if TYPE_CHECKING:
     import can

@@ -20,7 +20,8 @@ from __future__ import annotations
 import os
 import re
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -111,7 +112,7 @@ class EarlyWindows(PreparedWindows):
 
         with Pool(max(1, min(FRAME_WORKERS, len(keys))), thread_name_prefix="early-frame") as pool:
             sums = list(pool.map(one, keys))
-        return {k: (table, ranges[k], *sn) for k, sn in zip(keys, sums)}
+        return {k: (table, ranges[k], *sn) for k, sn in zip(keys, sums, strict=True)}
 
     def _prepare(self, index: int, window: DynoWindow, t: np.ndarray) -> tuple[Capture, AngleResult, dict[str, Any]]:
         from eol_cal.analysis.angle import capture_angle
@@ -162,7 +163,7 @@ class EarlyWindows(PreparedWindows):
     def frame_offsets(self, jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
         out: list[tuple[complex, int] | None] = [self._early_frame(*job) for job in jobs]
         missing = [i for i, got in enumerate(out) if got is None]
-        for i, got in zip(missing, super().frame_offsets([jobs[i] for i in missing])):
+        for i, got in zip(missing, super().frame_offsets([jobs[i] for i in missing]), strict=True):
             out[i] = got
         return out  # type: ignore[return-value]
 

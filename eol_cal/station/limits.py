@@ -27,7 +27,8 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import TYPE_CHECKING, Any
+from collections.abc import Mapping
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
 
 from eol_cal.capture.ecu_state import EcuState, Trace, with_ecu_state
 from eol_cal.errors import EolCalError

@@ -19,7 +19,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
+from collections.abc import Mapping
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.station.limits import LimitCheck, VariantLimits
@@ -33,10 +34,13 @@ from eol_cal.station.record_parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REF
                                           RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
 from eol_cal.jsonsafe import json_safe
 
-__all__ = ["BLOCK_ROLES", "KINDS", "MEASURED_KIND", "REFUSAL_CODES", "SCHEMA", "SCHEMA_V1", "VERDICTS", "CaptureRef",
-           "DynoStatus", "EcuActive", "EcuFound", "ErrorInfo", "FlashedBlock", "PointFigures", "PreflightResult",
+__all__ = ["BLOCK_ROLES", "KINDS", "MEASURED_KIND", "NO_STATION", "REFUSAL_CODES", "SCHEMA", "SCHEMA_V1", "VERDICTS",
+           "CaptureRef", "DynoStatus", "EcuActive", "EcuFound", "ErrorInfo", "FlashedBlock", "PointFigures", "PreflightResult",
            "PreviousBlock", "Problem", "RecordFormatError", "RestoredFrom", "RippleMetrics", "RunRecord", "StationInfo",
            "Step", "record_kind"]
+
+#: the station label of a run whose record names no station (lots group such runs together)
+NO_STATION = "(no station id)"
 
 
 @dataclass(frozen=True)
@@ -83,6 +87,11 @@ class RunRecord:
     def station_name(self) -> str | None:
         """The station's id (None: the record has none)."""
         return self.station.id or None
+
+    @property
+    def station_label(self) -> str:
+        """The station a run was made on as lots group it: its id, or :data:`NO_STATION`."""
+        return self.station_name or NO_STATION
 
     @property
     def operator(self) -> str | None:

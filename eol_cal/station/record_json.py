@@ -10,14 +10,32 @@ in the record; ``to_json(from_json(doc)) == doc`` for every document ``to_json``
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.capture.ecu_state import EcuState
+from eol_cal.errors import ResultFormatError
 from eol_cal.station.limits import LimitCheck, VariantLimits
-from eol_cal.station.record_parts import (BLOCK_ROLES, VERDICTS, CaptureRef, DynoStatus, EcuActive, EcuFound,
-                                          ErrorInfo, FlashedBlock, PointFigures, PreflightResult, PreviousBlock, Problem,
-                                          RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
+from eol_cal.station.record_parts import (
+    BLOCK_ROLES,
+    VERDICTS,
+    CaptureRef,
+    DynoStatus,
+    EcuActive,
+    EcuFound,
+    ErrorInfo,
+    FlashedBlock,
+    PointFigures,
+    PreflightResult,
+    PreviousBlock,
+    Problem,
+    RecordFormatError,
+    RestoredFrom,
+    RippleMetrics,
+    StationInfo,
+    Step,
+)
 
 _MISSING = object()
 #: the station's typed keys, in the order they are written (its other keys go between settings and profile)
@@ -305,7 +323,6 @@ def preflight_from(r: Reader, d: dict[str, Any] | None, problems: tuple[Problem,
 def fit_from(r: Reader, x: Any) -> MotorResult | None:
     if x is None:
         return None
-    from eol_cal.errors import ResultFormatError
 
     try:
         return MotorResult.from_json(x, r.source, f"{r.where}fit.")

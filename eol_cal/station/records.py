@@ -30,7 +30,8 @@ import json
 import sqlite3
 import threading
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import sqlalchemy as sa
 from sqlalchemy import event
@@ -173,10 +174,7 @@ def _server_engine(url: str, timeout_s: float) -> Engine:
 
 
 def _sqlite_engine(db: Path, timeout_s: float, readonly: bool) -> Engine:
-    if readonly:
-        url = f"sqlite:///file:{db.resolve()}?mode=ro&uri=true"
-    else:
-        url = f"sqlite:///{db}"
+    url = f"sqlite:///file:{db.resolve()}?mode=ro&uri=true" if readonly else f"sqlite:///{db}"
     eng = sa.create_engine(url, poolclass=NullPool, connect_args={"timeout": timeout_s})
 
     @event.listens_for(eng, "connect")
@@ -322,7 +320,8 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
     ``operator``; version 2 gains ``limits_json``, ``error_step``, ``phase_c6``, ``fit_r2`` and
     ``fit_rms_nm``; version 3 gains ``kind`` and ``causes``. The new columns are filled from each
     row's record JSON, read as a :class:`~eol_cal.station.record.RunRecord` (a record of the first
-    schema migrated as it is read; a corrupt one refuses the migration, naming the run). Returns ``(version before, version now)``;
+    schema migrated as it is read; a corrupt one refuses the migration, naming the run). Returns
+    ``(version before, version now)``;
     ``before`` is None for a new database.
     """
     eng = engine(db, timeout_s)

@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import gc
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
+from collections.abc import Sequence
 
 import sqlalchemy as sa
 from sqlalchemy.engine import Connection
@@ -96,7 +97,8 @@ def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_
                 results = [_fetch(con, q) for q in queries]
         finally:
             dispose(eng, db)
-        return [dict(zip(names, list(zip(*rows)) if rows else [()] * len(names))) for names, rows in results]
+        return [dict(zip(names, list(zip(*rows, strict=True)) if rows else [()] * len(names), strict=True))
+                for names, rows in results]
     except DB_ERRORS as exc:
         raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
     finally:

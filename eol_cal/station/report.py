@@ -12,11 +12,23 @@ file in the same directory, fsync, rename):
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import TYPE_CHECKING
 
 from eol_cal.atomic import atomic_write
-from eol_cal.report.motor import Figure, FitExtra, PointRipples
+from eol_cal.figures import save_png
+from eol_cal.lot.page import timeline_figure
+from eol_cal.report.motor import (
+    Figure,
+    FitExtra,
+    PointRipples,
+    angle_figure,
+    drawn,
+    render_motor_report,
+    residual_figure,
+    spectrum_figure,
+)
 
 if TYPE_CHECKING:
     from eol_cal.station.record import RunRecord
@@ -37,8 +49,6 @@ def fit_plots(run_dir: str | Path, fit_extra: FitExtra) -> list[Figure]:
     fit_extra : (MotorInput, MotorFit, FitSpec)
         The motor's fit inputs, its fit and the model.
     """
-    from eol_cal.report.motor import drawn, residual_figure
-
     return [drawn("residual", lambda: residual_figure(fit_extra))]
 
 
@@ -62,8 +72,6 @@ def write_report(rec: RunRecord, run_dir: str | Path, *, figures: Sequence[Figur
     point_ripple : (PointRipple, PointRipple), optional
         Before and compensated ripple at the operating point (torque against angle, spectra).
     """
-    from eol_cal.report.motor import angle_figure, drawn, render_motor_report, spectrum_figure
-
     figures = list(figures or [])
     if fit_extra is not None and not any(f.name == "residual" for f in figures):
         figures += fit_plots(run_dir, fit_extra)
@@ -84,7 +92,7 @@ def write_record_json(rec: RunRecord, run_dir: str | Path) -> Path:
 
 def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> None:
     """k6 and p-p ripple (before, compensated) of every run against its start time, with the
-    variants' limits and the error runs, into one PNG (:func:`eol_cal.report.lot.timeline_figure`).
+    variants' limits and the error runs, into one PNG (:func:`eol_cal.lot.page.timeline_figure`).
 
     Parameters
     ----------
@@ -95,6 +103,4 @@ def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> Non
     title : str
         Figure title.
     """
-    from eol_cal.report.lot import save_png, timeline_figure
-
     save_png(timeline_figure(records, title), path)

@@ -19,7 +19,8 @@ import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
 
 from eol_cal.errors import InputError
 from eol_cal.station.record import (MEASURED_KIND, EcuActive, ErrorInfo, FlashedBlock, RestoredFrom, RunRecord,
@@ -171,7 +172,7 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
     from eol_cal.station.report import write_record_json
     from eol_cal.station.run import new_run_dir
 
-    started = _dt.datetime.now(_dt.timezone.utc)
+    started = _dt.datetime.now(_dt.UTC)
     run_id = uuid.uuid4().hex
     run_dir = new_run_dir(report_dir, serial, started, run_id)
     t0 = time.perf_counter()

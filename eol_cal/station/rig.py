@@ -11,14 +11,20 @@ the two simulators together with this source.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from eol_cal.capture.model import Capture
 from eol_cal.dyno.sim import CaptureRequest, CaptureSource, i_qo_of
-from eol_cal.firmware.block import ParamBlock
+from eol_cal.ecu.flash import active_block_from_file
+from eol_cal.firmware.block import ParamBlock, unpack
+from eol_cal.plant import variation
+from eol_cal.plant.ecu import mode_of_block
 from eol_cal.plant.params import PlantSpec
+from eol_cal.plant.presets import preset_spec
+from eol_cal.plant.profile import Profile, ProfileSegment
+from eol_cal.plant.simulate import simulate
 
 #: firmware mode without a valid parameter bank: the raw encoder angle, no compensation
 NO_BLOCK_MODE = "raw"
@@ -49,9 +55,6 @@ def active_calibration(flash_file: str | Path | None) -> ActiveCalibration:
     """
     if flash_file is None or not Path(flash_file).exists():
         return ActiveCalibration()
-    from eol_cal.ecu.flash import active_block_from_file
-    from eol_cal.firmware.block import unpack
-    from eol_cal.plant.ecu import mode_of_block
 
     data = active_block_from_file(flash_file)
     if data is None:
@@ -76,12 +79,9 @@ def with_ecu(flash_file: str | Path | None, capture: CalibratedCapture) -> Captu
 def default_plant_spec(req: CaptureRequest, preset: str = "paper") -> PlantSpec:
     """The motor on the dyno: the plant preset, or with a seed a motor drawn from production
     tolerances around it (:mod:`eol_cal.plant.variation`)."""
-    from eol_cal.plant.presets import preset_spec
-
     spec = preset_spec(preset, serial=req.serial)
     if req.seed is None:
         return spec
-    from eol_cal.plant import variation
 
     return variation.vary(spec, req.seed)
 
@@ -96,9 +96,6 @@ def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None)
     """
 
     def capture(req: CaptureRequest, cal: ActiveCalibration) -> Capture:
-        from eol_cal.plant.profile import Profile, ProfileSegment
-        from eol_cal.plant.simulate import simulate
-
         spec = (spec_for or default_plant_spec)(req)
         f_tick = spec.motor.f_pwm
         step = f_tick / req.rate_hz

@@ -1,8 +1,8 @@
 """The end-of-line cycle for one motor.
 
 pre-flight (dyno ready, ECU answering and accepting the key, serials agreeing; nothing written,
-:mod:`eol_cal.station.preflight`) -> prepare ECU (flash the uncompensated block: field estimator, no compensation) -> acquire (dyno,
-profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the compensation the
+:mod:`eol_cal.station.preflight`) -> prepare ECU (flash the uncompensated block: field estimator,
+no compensation) -> acquire (dyno, profile) -> fit -> table (lead auto) -> flash (ECU, key) -> acquire with the compensation the
 ECU now runs -> metrics -> verdict against the variant's limits -> report + record. The first
 flash makes the calibration capture independent of what the ECU ran before: a blank ECU would
 run the raw encoder angle (k6 about 1.7 % low and twice the scatter on the plant lot), and a
@@ -21,7 +21,8 @@ import datetime as _dt
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Callable
+from typing import TYPE_CHECKING, Any
+from collections.abc import Callable
 
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
@@ -30,6 +31,8 @@ from eol_cal.station.limits import VariantLimits
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import PreparedWindows
+    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.ecu.session import ClientTiming
     from eol_cal.msa.master import MasterSettings
     from eol_cal.station.spool import SaveResult
     from eol_cal.analysis.motor_result import MotorResult
@@ -105,11 +108,11 @@ class StationConfig:
     """
 
     serial: str
-    dyno: Any
+    dyno: DynoConfig
     open_bus: Callable[[], Any]
     seed_to_key: Callable[[bytes], bytes]
     limits: VariantLimits
-    db: "Path | str"
+    db: Path | str
     report_dir: Path
     profile: str = "eol-default"
     verify: str = "point"
@@ -117,7 +120,7 @@ class StationConfig:
     rate_hz: int = 10000
     db_timeout_s: float = 5.0
     station: dict[str, Any] = field(default_factory=dict)
-    ecu_timing: Any = None
+    ecu_timing: ClientTiming | None = None
     cache_dir: Path | None = None
     motor: MotorParams = field(default_factory=lambda: load_motor("paper"))
     mechanics: BenchMechanics | None = field(default_factory=lambda: load_mechanics("paper"))
@@ -159,7 +162,7 @@ def sha256_file(path: str | Path) -> str:
 
 
 def _now() -> str:
-    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _safe_name(text: str) -> str:
@@ -206,7 +209,8 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
         got = int(capture.metadata[key])
         if got != want:
             raise InputError(capture.source, key, f"the capture says {got}, the station's motor type "
-                             f"{motor.name!r} has {want}: wrong motor on the dyno, or the station is set up for another motor type")
+                             f"{motor.name!r} has {want}: wrong motor on the dyno, or the station is set up for "
+                             "another motor type")
 
 
 # --------------------------------------------------------------------------- the cycle

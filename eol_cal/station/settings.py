@@ -31,7 +31,8 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Callable, Collection, Mapping
+from typing import TYPE_CHECKING
+from collections.abc import Callable, Collection, Mapping
 
 import can
 
@@ -212,7 +213,8 @@ def _check_values(settings: StationSettings) -> None:
         try:
             records_db(str(settings["db"]), "db", writing=True)
         except InputError as exc:
-            raise InputError(settings.where("db"), "db", exc.reason if exc.file is None else f"{exc.file}: {exc.reason}") from None
+            raise InputError(settings.where("db"), "db",
+                             exc.reason if exc.file is None else f"{exc.file}: {exc.reason}") from None
     if settings["can.config"] is not None:
         from eol_cal.ecu.transport import bus_config
 
@@ -317,12 +319,12 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
     host, port = ("", 0) if values["dyno.address"] is None else \
         parse_dyno_address(str(values["dyno.address"]), settings.where("dyno.address"))
     settings = StationSettings(source, values, origin, host, port)
-    for name, check in (validators or {}).items():
+    for check in (validators or {}).values():
         check(settings)
     return settings
 
 
-def _named(settings: StationSettings, name: str, load: Callable[[], object]) -> object:
+def load_named(settings: StationSettings, name: str, load: Callable[[], object]) -> object:
     """Run ``load``; its InputError is re-said with the settings key it came from.
 
     A loader's own field may itself be a settings key (the limits file's ``variant``): then
@@ -346,12 +348,12 @@ def check_station(settings: StationSettings) -> None:
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.limits import load_limits
 
-    _named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
+    load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
     master_of(settings)
-    _named(settings, "profile", lambda: load_profile(str(settings["profile"])))
+    load_named(settings, "profile", lambda: load_profile(str(settings["profile"])))
     motor = str(settings["motor"])
-    _named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
-    _named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
+    load_named(settings, "motor", lambda: load_motor("paper", None if motor == "paper" else motor))
+    load_named(settings, "bench", lambda: mechanics_or_rigid(str(settings["bench"])))
     if settings["key_file"] is not None or settings["key_algo"] is not None:  # else the caller's own (the demo's)
         seed_to_key_of(settings)
     register_map_of(settings)
@@ -364,9 +366,9 @@ def seed_to_key_of(settings: StationSettings) -> Callable[[bytes], bytes]:
 
     key_file, key_algo = settings["key_file"], settings["key_algo"]
     name = "key_algo" if key_algo is not None else "key_file"
-    return _named(settings, name, lambda: seed_to_key_from(None if key_file is None else str(key_file),  # type: ignore[return-value]
-                                                           None if key_algo is None else str(key_algo),
-                                                           file_field="key_file", algo_field="key_algo"))
+    return load_named(settings, name, lambda: seed_to_key_from(None if key_file is None else str(key_file),  # type: ignore[return-value]
+                                                               None if key_algo is None else str(key_algo),
+                                                               file_field="key_file", algo_field="key_algo"))
 
 
 #: files SQLite writes beside a database file (WAL mode, and the rollback journal)
@@ -397,7 +399,7 @@ def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], lis
     return reads, writes, dirs
 
 
-def register_map_of(settings: StationSettings) -> "RegisterMap":
+def register_map_of(settings: StationSettings) -> RegisterMap:
     """The dyno's register map the settings name (``dyno.register_map``: a shipped map's name, or
     a map file, relative to the settings file); a bad map names the settings key."""
     from eol_cal.dyno.mapfile import load_register_map
@@ -405,10 +407,10 @@ def register_map_of(settings: StationSettings) -> "RegisterMap":
     spec = str(settings["dyno.register_map"])
     if (spec.endswith(".toml") or "/" in spec) and settings.source != "environment" and not Path(spec).is_absolute():
         spec = str(Path(settings.source).resolve().parent / spec)
-    return _named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
+    return load_named(settings, "dyno.register_map", lambda: load_register_map(spec))  # type: ignore[return-value]
 
 
-def master_of(settings: StationSettings) -> "MasterSettings | None":
+def master_of(settings: StationSettings) -> MasterSettings | None:
     """The station's master motor (keys ``master.*``), or None when ``master.serial`` is unset; a
     key that does not fit is refused naming the settings file (or variable) and the key."""
     from eol_cal.msa.master import master_settings

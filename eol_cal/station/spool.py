@@ -86,7 +86,7 @@ def save_record(record: RunRecord, db: str | Path, spool_dir: str | Path | None 
         why = f"{type(exc).__name__}: {one_line(exc)}"
     try:
         path = spool_record(record, db, spool_dir, why)
-    except Exception as exc:  # noqa: BLE001 - a full disk, or anything else: said with the database's reason
+    except Exception as exc:  # a full disk, or anything else: said with the database's reason
         raise RecordError(f"record {record.run_id} could not be written: database {db_shown(db)}: {why}; "
                           f"spool {spool_dir}: {exc}") from exc
     return SaveResult("spool", str(path), why)
@@ -107,8 +107,6 @@ class FlushResult:
 def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, str, RunRecord]], list[str]]:
     """Readable spooled records ``(file, database, record)``, and ``"file: reason"`` for every file
     that is not one (a record that does not read as one included: it is left alone, not lost)."""
-    from eol_cal.errors import InputError
-
     out, bad = [], []
     for path in sorted(spool_dir.glob("*.json")):
         try:  # the bounded loader: a FIFO, a 5000-digit number or deep nesting is one bad file

@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import os
-from typing import Callable
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import _DICT_KEYS, _as_dict, compress
+from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, compress, compressed_dict
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
-from eol_cal.analysis.fit.solver import _build, _solver, tau_grid
+from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
 
 
 def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None,
@@ -96,14 +97,12 @@ def fit_many(
     -------
     list of MotorFit
     """
-    from concurrent.futures import ThreadPoolExecutor
-
     import jax
 
     if mode == "auto":
         mode = pick_mode(len(motors))
     sources = sources or [None] * len(motors)
-    for seg, src in zip(motors, sources):
+    for seg, src in zip(motors, sources, strict=True):
         check_identifiable(seg, spec, src)
     S = max(m.n_segments for m in motors)
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
@@ -116,7 +115,8 @@ def fit_many(
         with jax.enable_x64(True):
             grid_j = jax.numpy.asarray(grid)
             exported = load_solver(cache_dir, spec, S, len(grid)) if mode == "loop" else None
-            solve = (lambda c, g, _steps: exported(c, g)) if exported else _solver(spec, S, "one" if mode == "loop" else mode)
+            solve = ((lambda c, g, _steps: exported(c, g)) if exported
+                     else cached_solver(spec, S, "one" if mode == "loop" else mode))
             save_export = mode == "loop" and exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
@@ -126,20 +126,20 @@ def fit_many(
                 else:
                     comps = [compress(m, spec, S) for m in block]
                 if mode == "loop":
-                    args = (_as_dict(comps[0]), grid_j)
+                    args = (compressed_dict(comps[0]), grid_j)
                     out = jax.device_get(solve(*args, spec.max_steps))
                     outs = [out]
                     if save_export:
                         save_export = False
-                        save_solver(cache_dir, jax.jit(lambda c, g: _build(spec, S)(c, g, spec.max_steps)), spec, S, len(grid),
-                                    args)
+                        save_solver(cache_dir, jax.jit(lambda c, g: build_solver(spec, S)(c, g, spec.max_steps)), spec, S,
+                                    len(grid), args)
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
-                    batch = {k: np.stack([getattr(c, k) for c in padded]) for k in _DICT_KEYS}
+                    batch = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
                     out = jax.device_get(solve(batch, grid_j, spec.max_steps))
                     outs = [{k: v[j] for k, v in out.items()} for j in range(len(block))]
-                for m, c, o in zip(block, comps, outs):
+                for m, c, o in zip(block, comps, outs, strict=True):
                     results.append(unpack(o, c, spec, m.n_segments))
                 if progress:
                     progress(len(results))

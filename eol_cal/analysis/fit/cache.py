@@ -13,7 +13,7 @@ import hashlib
 import os
 import re
 from pathlib import Path
-from typing import Callable, Mapping
+from collections.abc import Callable, Mapping
 
 from eol_cal.analysis.fit.model import FitSpec
 from eol_cal.atomic import atomic_write

@@ -12,7 +12,8 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -314,18 +315,18 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
     """
     prepared = prepared or PreparedWindows()
     jobs, owner = [], []
-    for k, (mi, options) in enumerate(zip(inputs, estimator_options)):
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         if not all(c.has("enc_b") for c in mi.captures):
             continue
-        for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles)):
-            ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment) if j == ci]
+        for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
+            ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment, strict=True) if j == ci]
             if ranges:
                 jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
                 owner.append(k)
     sums = prepared.frame_offsets(jobs)
-    for k, (mi, options) in enumerate(zip(inputs, estimator_options)):
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         fw_sum, fw_n = 0j, 0
-        for (s_, n_), o in zip(sums, owner):
+        for (s_, n_), o in zip(sums, owner, strict=True):
             if o == k:
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
         if fw_n:

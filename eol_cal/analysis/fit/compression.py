@@ -14,8 +14,10 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg.blas import dgemm
 
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix_t, path_gain
+
 
 @dataclass
 class Compressed:
@@ -78,8 +80,6 @@ def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_
 
     ``theta`` must be continuous (unwrapped), as :mod:`eol_cal.analysis.angle` returns it.
     """
-    from scipy.linalg.blas import dgemm
-
     theta = np.asarray(theta, dtype=float)
     t = np.asarray(t, dtype=float)
     y = np.asarray(torque, dtype=float)
@@ -125,8 +125,8 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
     return Compressed(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), **vec)
 
 
-_DICT_KEYS = ("R", "z", "n", "i_qo", "omega", "gain_re", "gain_im")
+COMPRESSED_KEYS = ("R", "z", "n", "i_qo", "omega", "gain_re", "gain_im")
 
 
-def _as_dict(c: Compressed) -> dict[str, np.ndarray]:
-    return {k: getattr(c, k) for k in _DICT_KEYS}
+def compressed_dict(c: Compressed) -> dict[str, np.ndarray]:
+    return {k: getattr(c, k) for k in COMPRESSED_KEYS}

@@ -23,8 +23,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult
-from eol_cal.analysis.motor_result import ValueCi
+from eol_cal.analysis.fit import path_gain
+from eol_cal.analysis.fit.model import legendre_rows
+from eol_cal.analysis.fit.plot import fitted_ripple
+from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ID_MARGIN, ID_MIN_SCORE, ORDERS
 
 if TYPE_CHECKING:
@@ -66,7 +68,7 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
 def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
     """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
     out = []
-    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles)):
+    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
         ranges = fingerprint_ranges(mi, ci)
         if not ranges or not cap.has("enc_b"):
             out.append(None)
@@ -80,10 +82,6 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
     """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
     the identified windows; None when no segment's window is identified."""
-    from eol_cal.analysis.fit.model import _legendre_rows
-    from eol_cal.analysis.fit.plot import fitted_ripple
-    from eol_cal.analysis.fit import path_gain
-
     seg = mi.segments
     pp = seg.pole_pairs
     H = len(ORDERS)
@@ -115,7 +113,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         t = np.asarray(seg.t[s], dtype=float)
         # columns: the drift's Legendre rows, the orders' (sin, cos) pairs, the torque
         W = np.empty((nd + 2 * H + 1, len(t)))
-        _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, W[:nd])
+        legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, W[:nd])
         # the ripple -c sin(h th + phase) = -(A sin(h th) + B cos(h th)), A = c cos phase, B = c sin phase,
         # through the response g: columns -|g| sin(h th + arg g), -|g| cos(...) = Im, Re of -g exp(i h th)
         e1 = np.exp(1j * th_m)
@@ -133,11 +131,11 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         rhs += Gs[nd:-1, -1] - B.T @ (D_inv @ Gs[:nd, -1])
         parts.append((W, D_inv))
     sol = np.linalg.solve(M, rhs)
-    res = []
+    res_parts = []
     for W, D_inv in parts:
         e = W[-1] - W[nd:-1].T @ sol     # the torque less the orders, then less its own best drift
-        res.append(e - W[:nd].T @ (D_inv @ (W[:nd] @ e)))
-    res = np.concatenate(res)
+        res_parts.append(e - W[:nd].T @ (D_inv @ (W[:nd] @ e)))
+    res = np.concatenate(res_parts)
     n_coef = nd * len(used) + 2 * H
     r1 = float(np.dot(res[1:], res[:-1]) / max(np.dot(res, res), 1e-300))
     inflate = (1.0 + r1) / max(1.0 - r1, 1e-3)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -212,7 +212,7 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
             )
 
 
-def _legendre_rows(x: np.ndarray, degree: int, out: np.ndarray) -> None:
+def legendre_rows(x: np.ndarray, degree: int, out: np.ndarray) -> None:
     """Legendre polynomials P_0..P_degree at x in [-1, 1], written into the rows of ``out``."""
     out[0] = 1.0
     if degree >= 1:
@@ -284,7 +284,7 @@ def design_matrix_t(
     tn = t - t_first
     tn *= 2.0 / (t_last - t_first)
     tn -= 1.0
-    _legendre_rows(tn, spec.drift_degree, XT[: q - 2])
+    legendre_rows(tn, spec.drift_degree, XT[: q - 2])
     # one exp(i theta_m) per sample: everything else is a power of it (exact to ~1e-14)
     e_m = np.exp(1j * (theta / pole_pairs))
     if mech:

@@ -3,6 +3,7 @@ unpacked from the solver's arrays with delta-method intervals."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -66,8 +67,6 @@ def shift_frame(fit: MotorFit, offset_rad: float) -> MotorFit:
     ``sin(h theta + phi) = sin(h theta' - h offset + phi)``: harmonic h's phases move by
     ``-h * offset_rad``; amplitudes and intervals are unchanged.
     """
-    import dataclasses
-
     harmonics = {
         h: {part: dataclasses.replace(e, phase=float(wrap_pi(e.phase - h * offset_rad))) for part, e in parts.items()}
         for h, parts in fit.harmonics.items()

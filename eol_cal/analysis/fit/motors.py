@@ -10,7 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
 from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
@@ -178,10 +179,10 @@ def fit_inputs(
 
     tick_hz = float((options.motor or load_motor("paper")).f_pwm)
     records = []
-    for mi, f in zip(inputs, fits):
+    for mi, f in zip(inputs, fits, strict=True):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
         if options.capture_metrics:
-            metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles)]
+            metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
         records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
                                                   solver_mode=mode, tick_hz=tick_hz)))
     return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)

@@ -75,9 +75,9 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
     mi, fit, spec
         The motor's inputs, its fit and the model it was fitted with.
     """
-    from eol_cal.analysis.plots import _pyplot, _save
+    from eol_cal.figures import pyplot, write_png
 
-    plt = _pyplot()
+    plt = pyplot()
     n = min(mi.segments.n_segments, _MAX_PANELS)
     cols = 2 if n > 1 else 1
     rows = math.ceil(n / cols)
@@ -105,17 +105,17 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
     axes[0][0].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"{plain(mi.serial)}: torque vs electrical angle (drift and mechanical order 1 removed)", fontsize=9)
     fig.tight_layout()
-    _save(fig, path)
+    write_png(fig, path)
     plt.close(fig)
 
 
 def plot_residual_spectrum(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec, max_order: int = 36) -> None:
     """Order spectrum of the fit's residual, one line per segment (N*m against electrical order)."""
-    from eol_cal.analysis.plots import _pyplot, _save
+    from eol_cal.figures import pyplot, write_png
     from eol_cal.analysis.spectrum import order_spectrum
     from eol_cal.errors import InputError
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(7, 3.2))
     seg = mi.segments
     for s in range(seg.n_segments):
@@ -134,5 +134,5 @@ def plot_residual_spectrum(path: str | Path, mi: MotorInput, fit: MotorFit, spec
     if seg.n_segments <= 10:
         ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
-    _save(fig, path)
+    write_png(fig, path)
     plt.close(fig)

@@ -39,12 +39,12 @@ def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None
     try:
         enable_compile_cache(cache_dir)
         # imported here on purpose: loading them is the work this function does ahead of time
-        import eol_cal.analysis.fit.capture  # noqa: F401
+        import eol_cal.analysis.fit.capture
         if plots:
             import eol_cal.analysis.fit.plot  # noqa: F401
-            from eol_cal.analysis.plots import _pyplot
+            from eol_cal.figures import pyplot
 
-            _pyplot()
+            pyplot()
         loads = tuple(20.0 + 10.0 * k for k in range(max(2, (n_segments + 3) // 4)))
         seg, _truth = synthetic_segments(np.random.default_rng(0), loads_a=loads, speeds_rpm=(60.0, 120.0),
                                          directions=(1, -1), seg_s=0.1, fs_hz=10000.0)

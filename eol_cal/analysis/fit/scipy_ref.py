@@ -9,6 +9,7 @@ segment's nuisance coefficients. Not used by the product.
 from __future__ import annotations
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from eol_cal.analysis.fit import TAU_SCALE, FitSpec, SteadySegments, design_matrix, path_gain
 
@@ -31,14 +32,12 @@ def fit_segments_scipy(seg: SteadySegments, spec: FitSpec, p0: np.ndarray | None
         ``harmonics`` {order: {"c": (amplitude N*m, phase rad), "k": (N*m/A, rad)}}, ``delay_s``,
         ``nfev``, ``cost`` (half the sum of squares, N*m^2), ``success``.
     """
-    from scipy.optimize import least_squares
-
     nh = len(spec.harmonics)
     q = spec.n_nuis
     n_tau = int(spec.fit_delay)
     G = spec.n_glob
     S = seg.n_segments
-    Xs = [design_matrix(np.unwrap(th), t, seg.pole_pairs, spec) for th, t in zip(seg.theta, seg.t)]
+    Xs = [design_matrix(np.unwrap(th), t, seg.pole_pairs, spec) for th, t in zip(seg.theta, seg.t, strict=True)]
     ys = [np.asarray(y, dtype=float) for y in seg.torque]
     H = np.asarray(spec.harmonics, dtype=float)
     gain = path_gain(seg, spec)

@@ -19,7 +19,7 @@ import numpy as np
 from eol_cal.analysis.fit.model import TAU_SCALE, FitSpec
 
 
-def _build(spec: FitSpec, S: int):
+def build_solver(spec: FitSpec, S: int):
     """The jitted one-motor solver on compressed data, for a given spec and segment count.
 
     The per-segment nuisance (drift polynomial, mechanical pair) enters linearly and unconstrained
@@ -156,13 +156,13 @@ _SOLVERS: dict = {}
 
 
 
-def _solver(spec: FitSpec, S: int, mode: str):
+def cached_solver(spec: FitSpec, S: int, mode: str):
     """Jitted solver, cached per (spec, S, mode)."""
     import jax
 
     key = (spec, S, mode)
     if key not in _SOLVERS:
-        solve = _build(spec, S)
+        solve = build_solver(spec, S)
         if mode == "one":
             fn = jax.jit(solve, static_argnums=(2,))
         elif mode == "vmap":

@@ -8,7 +8,7 @@ capture-level generator (encoder, halls, files) is :mod:`eol_cal.capture.synthet
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 

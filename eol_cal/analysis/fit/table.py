@@ -125,10 +125,10 @@ def block_from_result(
         except (KeyError, TypeError, ValueError):
             raise InputError(source, "segments", f"motor {serial!r}: every segment needs a number 'i_qo_a' (A)") from None
     if calibrated_at is None:
-        calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
-    why = serial_problem(str(serial))
-    if why is not None:
-        raise InputError(source, "serial", f"{serial!r}: {why} (the block's serial field)")
+        calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
+    problem = serial_problem(str(serial))
+    if problem is not None:
+        raise InputError(source, "serial", f"{serial!r}: {problem} (the block's serial field)")
     if layout not in (1, 2):
         raise InputError(source, "layout", f"{layout!r}: layout 1 or 2")
     flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | _options(options)
@@ -237,7 +237,7 @@ def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | No
     from eol_cal.firmware.block import FLAG_INTERP_ENABLE, ParamBlock
 
     if calibrated_at is None:
-        calibrated_at = int(_dt.datetime.now(_dt.timezone.utc).timestamp())
+        calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
     zeros = np.zeros(16, np.float32)
     return ParamBlock(
         sequence=1, flags=FLAG_INTERP_ENABLE | _options(options), serial=str(serial), calibrated_at=int(calibrated_at),

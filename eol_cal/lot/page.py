@@ -11,7 +11,8 @@ from __future__ import annotations
 import datetime as dt
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -21,9 +22,8 @@ from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary
 from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
+from eol_cal.figures import pyplot
 from eol_cal.render import file_link, plain
-from eol_cal.report.motor import station_of
-from eol_cal.report.svg import pyplot
 from eol_cal.station.limits import limit_on
 from eol_cal.station.record import MEASURED_KIND
 
@@ -44,7 +44,7 @@ def run_time(rec: RunRecord) -> dt.datetime:
     """The run's start as a naive UTC datetime (matplotlib's date axis)."""
     t = dt.datetime.fromisoformat(rec.started_at)
     if t.tzinfo is not None:
-        t = t.astimezone(dt.timezone.utc).replace(tzinfo=None)
+        t = t.astimezone(dt.UTC).replace(tzinfo=None)
     return t
 
 
@@ -90,8 +90,9 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
     Returns
     -------
     matplotlib.figure.Figure, dict of gid -> list of str
-        The figure, and the hover text of each point of its scatters. Artists with a ``gid``: ``runs-k6``, ``runs-before``, ``runs-after`` (one marker per
-        run that has the value), ``error-runs`` (one line per error run), ``limit-KEY``.
+        The figure, and the hover text of each point of its scatters. Artists with a ``gid``:
+        ``runs-k6``, ``runs-before``, ``runs-after`` (one marker per run that has the value),
+        ``error-runs`` (one line per error run), ``limit-KEY``.
     """
     plt = pyplot()
     recs = sorted(records, key=run_time)
@@ -103,26 +104,26 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
                    r.fit.estimates.k6.ci95 is not None else math.nan for r in recs]) * display_unit(_UNITS["k6"])[1]
     colours = [VERDICT_COLOUR.get(v, "k") for v in verdicts]
     ok = np.isfinite(k6)
-    t_ok = [t for t, o in zip(times, ok) if o]
+    t_ok = [t for t, o in zip(times, ok, strict=True) if o]
     dense = len(recs) > MAX_HOVER_POINTS
     ax_k.errorbar(t_ok, k6[ok], yerr=np.nan_to_num(ci[ok]), fmt="none", ecolor="0.6", lw=1, rasterized=dense)
-    ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok) if o], s=22, zorder=3, gid="runs-k6", rasterized=dense,
-                 label="k6 (green pass, orange fail)")
+    ax_k.scatter(t_ok, k6[ok], c=[c for c, o in zip(colours, ok, strict=True) if o], s=22, zorder=3, gid="runs-k6",
+                 rasterized=dense, label="k6 (green pass, orange fail)")
     _limit_steps(ax_k, times, recs, "k6", "tab:red")
     ax_k.set_ylabel(f"k6 ({display_unit(_UNITS['k6'])[0]})")
     for key, quantity, marker, colour in (("before", "pp_before_pct", "o", "tab:blue"),
                                           ("after", "pp_after_pct", "s", "tab:purple")):
         y = _display(recs, quantity)
         ok_y = np.isfinite(y)
-        t_y = [t for t, o in zip(times, ok_y) if o]
+        t_y = [t for t, o in zip(times, ok_y, strict=True) if o]
         ax_p.plot(t_y, y[ok_y], "-", color=colour, lw=0.6, alpha=0.6, rasterized=dense)
         ax_p.scatter(t_y, y[ok_y], marker=marker, s=18, zorder=3, facecolor=colour, rasterized=dense,
-                     edgecolor=[c for c, o in zip(colours, ok_y) if o], linewidth=1.2,
+                     edgecolor=[c for c, o in zip(colours, ok_y, strict=True) if o], linewidth=1.2,
                      label=f"p-p {'before' if key == 'before' else 'compensated'}", gid=f"runs-{key}")
     _limit_steps(ax_p, times, recs, "pp_before_pct", "tab:blue")
     _limit_steps(ax_p, times, recs, "pp_after_pct", "tab:purple")
     ax_p.set_ylabel("p-p ripple at the operating point (%)")
-    errors = [t for t, v in zip(times, verdicts) if v == "error"]
+    errors = [t for t, v in zip(times, verdicts, strict=True) if v == "error"]
     for ax in (ax_k, ax_p):
         for i, t in enumerate(errors):
             ax.axvline(t, color="tab:red", lw=1.0, ls=":", gid="error-runs" if ax is ax_p else None,
@@ -139,21 +140,11 @@ def timeline(records: list[RunRecord], title: str = "") -> tuple[MplFigure, dict
     if dense:
         return fig, {}
     titles = {"runs-k6": [point_title(r, f"k6 {v:.4g} {display_unit(_UNITS['k6'])[0]}")
-                          for r, v in zip(recs, k6) if math.isfinite(v)]}
+                          for r, v in zip(recs, k6, strict=True) if math.isfinite(v)]}
     for key, quantity in (("before", "pp_before_pct"), ("after", "pp_after_pct")):
-        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %") for r, v in zip(recs, _display(recs, quantity))
-                                 if math.isfinite(v)]
+        titles[f"runs-{key}"] = [point_title(r, f"p-p {key} {v:.3g} %")
+                                 for r, v in zip(recs, _display(recs, quantity), strict=True) if math.isfinite(v)]
     return fig, titles
-
-
-def save_png(fig: MplFigure, path: str | Path) -> None:
-    """Write a figure as PNG (atomically) and close it."""
-    from eol_cal.analysis.plots import _save
-
-    try:
-        _save(fig, path)
-    finally:
-        pyplot().close(fig)
 
 
 # --------------------------------------------------------------------------- the lot page
@@ -238,7 +229,7 @@ def control_figure(records: Sequence[RunRecord], station: str,
     q = {x.key: x for x in QUANTITIES}
     for col, key in enumerate(CHARTED):
         title, unit = q[key].title, q[key].unit
-        pts = [(run_time(r), v, r) for r, v in zip(recs, _display(recs, key))]
+        pts = [(run_time(r), v, r) for r, v in zip(recs, _display(recs, key), strict=True)]
         pts = [p for p in pts if math.isfinite(p[1])]
         t = [p[0] for p in pts]
         x = np.array([p[1] for p in pts])
@@ -254,7 +245,8 @@ def control_figure(records: Sequence[RunRecord], station: str,
             ax_m.plot(t[1:], mr, "-", color="0.6", lw=0.7, rasterized=dense)
             ax_m.scatter(t[1:], mr, s=10, zorder=3, color="tab:blue", gid=f"mr-{key}", rasterized=dense)
             if not dense:
-                titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}") for p, m in zip(pts[1:], mr)]
+                titles[f"mr-{key}"] = [point_title(p[2], f"moving range {m:.3g} {unit}")
+                                       for p, m in zip(pts[1:], mr, strict=True)]
         lim = (limits or {}).get(key)
         if lim is None and len(x) >= max(2, min_n):
             from eol_cal.lot.stats import imr_limits
@@ -336,7 +328,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
                 worst, rel = row, row.margin / abs(row.limit)
         link = file_link(Path(str(r.report_dir)) / "report.html", page_dir) if r.report_dir else None
         rows.append({"serial": r.serial, "verdict": r.verdict, "started_at": r.started_at,
-                     "station": station_of(r), "key": worst.key if worst else None,
+                     "station": r.station_label, "key": worst.key if worst else None,
                      "value": worst.value if worst else math.nan, "limit": worst.limit if worst else math.nan,
                      "margin": worst.margin if worst else math.nan, "unit": worst.unit if worst else "",
                      "reasons": list(r.reasons), "link": link, "_sort": (order.get(r.verdict, 3), rel)})
@@ -412,7 +404,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
                              "codes): not results of the motors", figure_svg(pareto_figure(refused), "refusals"))
     stations: dict[str, list[RunRecord]] = {}
     for r in recs:
-        stations.setdefault(station_of(r), []).append(r)
+        stations.setdefault(r.station_label, []).append(r)
     control = [_control(name, runs, doc, baseline, min_n) for name, runs in sorted(stations.items())]
     dates = [r.started_at[:19].replace("T", " ") for r in ordered]
     return render("lot.html.j2", title=title, summary=summary, figures=figures, control=control,
@@ -467,7 +459,7 @@ def select_records(records: Sequence[RunRecord], variant: str | None = None, sin
         day = run_time(r).date()
         if variant is not None and (r.limits is None or r.limits.variant != variant):
             continue
-        if station is not None and station_of(r) != station:
+        if station is not None and r.station_label != station:
             continue
         if (since is not None and day < since) or (until is not None and day > until):
             continue

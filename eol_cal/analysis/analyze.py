@@ -8,6 +8,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+from eol_cal.analysis.angle import capture_angle
+from eol_cal.analysis.metrics import capture_ripple_pp
+from eol_cal.analysis.plots import CapturePlotData
+from eol_cal.analysis.spectrum import capture_spectrum, quantisation_figures
 from eol_cal.jsonsafe import json_safe
 
 if TYPE_CHECKING:
@@ -36,13 +42,6 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
     plot_data : CapturePlotData
         What the figure draws for this capture.
     """
-    import numpy as np
-
-    from eol_cal.analysis.angle import capture_angle
-    from eol_cal.analysis.metrics import capture_ripple_pp
-    from eol_cal.analysis.plots import CapturePlotData
-    from eol_cal.analysis.spectrum import capture_spectrum, quantisation_figures
-
     angle = capture_angle(capture)
     ripple = capture_ripple_pp(capture, angle, **(ripple_options or {}))
     # The spectrum of the longest steady run: one operating point, whole revolutions.
@@ -53,7 +52,8 @@ def analyze_capture(capture: Capture, ripple_options: dict[str, Any] | None = No
 
     def order_entry(amp: float, phase: float) -> dict:
         pct = 100.0 * amp / abs(T_avg) if T_avg else float("nan")
-        return {"amplitude_nm": json_safe(float(amp)), "amplitude_pct": json_safe(float(pct)), "phase_rad": json_safe(float(phase))}
+        return {"amplitude_nm": json_safe(float(amp)), "amplitude_pct": json_safe(float(pct)),
+                "phase_rad": json_safe(float(phase))}
 
     top = {str(n): order_entry(spectrum.amplitude(n), spectrum.phase(n)) for n in TOP_ORDERS}
     top["mech1"] = order_entry(spectrum.mech1_amplitude_nm, spectrum.mech1_phase_rad)

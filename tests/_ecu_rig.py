@@ -1,5 +1,5 @@
-"""A simulated ECU and a tester on one python-can ``virtual`` channel, for tests, benchmarks
-and examples (not for production use).
+"""A simulated ECU and a tester on one python-can ``virtual`` channel, for the tests and the
+benchmarks (bench/ puts tests/ on its path to import it).
 """
 
 from __future__ import annotations
@@ -8,40 +8,25 @@ import contextlib
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from collections.abc import Iterator
 
 import can
-import numpy as np
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash
 from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, private_channel_name
-from eol_cal.firmware import block as B
-from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
+from eol_cal.firmware.example import example_block
 
 FAST_ISOTP = IsoTpTiming(n_bs_ms=500, n_cr_ms=500)
+__all__ = ["FAST_CLIENT", "FAST_ISOTP", "Rig", "Sniffer", "example_block", "virtual_rig"]
+
 FAST_CLIENT = ClientTiming(p2_s=0.5, p2_star_s=1.0, retries=3, tester_present_s=2.0, isotp=FAST_ISOTP)
 """Short timeouts for in-process tests: a dead ECU is detected in about two seconds. P2 and N_Bs
 are the production client's 0.5 s: with 0.15 s a CPU hog (load 8 on 2 cores) starved the
 simulator's thread past them and failed flashes that were not about timing."""
 
-
-
-def example_block(serial: str = "SIM-0001", table_len: int = 256, sequence: int = 1, seed: int = 0) -> bytes:
-    """A valid block with plausible values (paper motor, random smooth tables), packed."""
-    rng = np.random.default_rng(seed)
-    j = np.arange(table_len)
-    phase = rng.uniform(-np.pi, np.pi)
-    blk = B.ParamBlock(
-        sequence=sequence, flags=B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE, serial=serial,
-        calibrated_at=1_790_000_000 + seed, poles=6, encoder_ppr=64, tick_hz=20000.0, kt=0.049,
-        hall_angle=NOMINAL_HALL_ANGLE, c6=0.002, phase_c6=0.3,
-        k6=0.00062, phase_k6=phase, lead_s=1e-4, iqc_limit=5.0,
-        table_const=0.04 * np.sin(2 * np.pi * j / table_len + 0.3),
-        table_per_amp=0.0127 * np.sin(2 * np.pi * j / table_len + phase))
-    return B.pack(blk)
 
 
 @dataclass
