@@ -29,11 +29,11 @@ from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fingerprint import _LOW_ORDERS, _POLY_DEGREE, _low_order_complement  # noqa: F401
 from eol_cal.analysis.fit import mech as M
 from eol_cal.analysis.motor_result import MechOrder, ValueCi
+from eol_cal.firmware.mech_params import ORDERS
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.analysis.fit.capture import MotorInput
-from eol_cal.firmware.mech_params import ORDERS
 
 _Z95 = M._Z95
 WindowEdges = fpr.WindowEdges
@@ -253,7 +253,7 @@ def old_fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fp
                fp: fpr.Fingerprint) -> tuple[MechOrder, ...] | None:
     """Mechanical orders 1..3 (N*m, phase in the block's mechanical frame) from the segments of
     the identified windows; None when no segment's window is identified."""
-    from eol_cal.analysis.fit.model import _legendre_rows
+    from eol_cal.analysis.fit.model import legendre_rows
     from eol_cal.analysis.fit import path_gain
 
     seg = mi.segments
@@ -282,7 +282,7 @@ def old_fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fp
         t = np.asarray(seg.t[s], dtype=float)
         X = np.zeros((len(t), nb + 2 * H))
         legt = np.empty((deg + 1, len(t)))
-        _legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, legt)
+        legendre_rows((t - t[0]) * (2.0 / max(t[-1] - t[0], 1e-12)) - 1.0, deg, legt)
         X[:, j * (deg + 1):(j + 1) * (deg + 1)] = legt.T
         for i, h in enumerate(ORDERS):
             arg = h * th_m + np.angle(g[i])
@@ -356,36 +356,17 @@ def motor_inputs() -> list[tuple]:
     """The motors of tests/test_fit_mech.py (its fixture and its dyno windows), fitted the same way."""
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
-    from eol_cal.analysis.fit.table import uncompensated_block
-    from eol_cal.capture.model import Capture
-    from eol_cal.firmware.options import parse_options
-    from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
-    from eol_cal.plant.simulate import simulate
-    from eol_cal.plant.variation import draw_motor
 
-    best, motor = parse_options("best"), load_motor("paper")
-    weak = draw_motor(13)
-    weak = weak.replace(serial=weak.serial + "W", enc_edge_err_deg=tuple(v / 30.0 for v in weak.enc_edge_err_deg))
-    plants = [draw_motor(14), weak]
-    prep = [uncompensated_block(p.serial[:16], motor, calibrated_at=0, options=best) for p in plants]
-    prof = load_profile("eol-default")
-    runs = simulate(plants, prof, mode="estimated", blocks=prep, seed=14)
-    cap = runs[0].capture
-    keep = np.zeros(len(cap.t), bool)
-    starts, t0 = [], 0.0
-    for seg in prof.segments:
-        a, b = t0 + seg.ramp_s + 0.05, t0 + seg.seconds
-        keep |= (cap.t >= a) & (cap.t < b)
-        starts.append(float(cap.t[np.searchsorted(cap.t, a)]))
-        t0 += seg.seconds
-    md = dict(cap.metadata, segment_starts=",".join(f"{s:.6f}" for s in starts))
-    joined = Capture(t=cap.t[keep], channels={k: v[keep] for k, v in cap.channels.items()}, metadata=md,
-                     truth=cap.truth, source="<windows>")
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the test's motors
+    from _mech_motors import BEST, station_runs, station_windows
+
+    _, runs = station_runs()
+    joined = station_windows(runs[0].capture, load_profile("eol-default"))
 
     def run():
-        fit_motors([r.capture for r in runs], FitOptions(spec=FitSpec(), capture_metrics=False, estimator_options=best))
-        fit_motors([joined], FitOptions(capture_metrics=False, estimator_options=best))
+        fit_motors([r.capture for r in runs], FitOptions(spec=FitSpec(), capture_metrics=False, estimator_options=BEST))
+        fit_motors([joined], FitOptions(capture_metrics=False, estimator_options=BEST))
 
     return _recording(run)
 

@@ -12,33 +12,21 @@ import pytest
 
 from eol_cal.analysis.fit import FitSpec
 from eol_cal.analysis.fit.motors import FitOptions, fit_motors
-from eol_cal.analysis.fit.table import block_from_record, mech_off_reasons, uncompensated_block
+from eol_cal.analysis.fit.table import block_from_record, mech_off_reasons
 from eol_cal.analysis.metrics import capture_ripple_pp
 from eol_cal.analysis.motor_result import MotorResult
-from eol_cal.capture.model import Capture
 from eol_cal.firmware import block as B
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
-from eol_cal.firmware.options import parse_options
-from eol_cal.motor import load_motor
 from eol_cal.plant.profile import load_profile
 from eol_cal.plant.simulate import simulate
-from eol_cal.plant.variation import draw_motor
 
-BEST = parse_options("best")
-MOTOR = load_motor("paper")
-
-
-def _weak(spec):
-    """The same motor with an encoder 30 times better: its fingerprint is too weak to identify."""
-    return spec.replace(serial=spec.serial + "W", enc_edge_err_deg=tuple(v / 30.0 for v in spec.enc_edge_err_deg))
+from _mech_motors import BEST, MOTOR, station_runs, station_windows
 
 
 @pytest.fixture(scope="module")
 def calibrated():
     """Two plant motors calibrated as the station does (eol-default under the prepared block, fit)."""
-    plants = [draw_motor(14), _weak(draw_motor(13))]
-    prep = [uncompensated_block(p.serial[:16], MOTOR, calibrated_at=0, options=BEST) for p in plants]
-    runs = simulate(plants, load_profile("eol-default"), mode="estimated", blocks=prep, seed=14)
+    plants, runs = station_runs()
     fitted = fit_motors([r.capture for r in runs], FitOptions(spec=FitSpec(), capture_metrics=False,
                                                               estimator_options=BEST))
     return plants, runs, fitted.records
@@ -94,17 +82,7 @@ def test_a_dyno_capture_of_windows_gives_the_same_frame_and_orders(calibrated):
     windows are placed by the halls and the fingerprint; the orders agree with the continuous capture's."""
     _, runs, recs = calibrated
     cap = runs[0].capture
-    prof = load_profile("eol-default")
-    keep = np.zeros(len(cap.t), bool)
-    starts, t0 = [], 0.0
-    for seg in prof.segments:
-        a, b = t0 + seg.ramp_s + 0.05, t0 + seg.seconds
-        keep |= (cap.t >= a) & (cap.t < b)
-        starts.append(float(cap.t[np.searchsorted(cap.t, a)]))
-        t0 += seg.seconds
-    md = dict(cap.metadata, segment_starts=",".join(f"{s:.6f}" for s in starts))
-    joined = Capture(t=cap.t[keep], channels={k: v[keep] for k, v in cap.channels.items()}, metadata=md,
-                     truth=cap.truth, source="<windows>")
+    joined = station_windows(cap, load_profile("eol-default"))
     rec = fit_motors([joined], FitOptions(capture_metrics=False, estimator_options=BEST)).records[0]
     mech = MotorResult.from_json(rec).mech
     ref = MotorResult.from_json(recs[0]).mech
