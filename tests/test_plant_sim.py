@@ -59,6 +59,7 @@ def test_paper_figures_within_2_percent_of_the_20khz_plant(mode):
     assert pp.raw_pct == pytest.approx(raw, rel=0.02) and pp.filtered_pct == pytest.approx(filtered, rel=0.02)
 
 
+@pytest.mark.slow  # three plant runs; the paper figures keep the plant in the fast loop
 def test_noise_does_not_depend_on_the_chunk_length():
     a = simulate(paper(), constant(60.0, 0.25, iq=65.0), mode="estimated", seed=3, chunk_ticks=1000)[0]
     b = simulate(paper(), constant(60.0, 0.25, iq=65.0), mode="estimated", seed=3, chunk_ticks=3000)[0]

@@ -29,10 +29,11 @@ def _wait_for(path_glob, tmp_path, timeout: float = 120.0) -> bool:
     return False
 
 
-# a station process each (10-16 s): the first case stays in the fast loop
+# a station process each (10-16 s); test_signals_anywhere keeps the signal handling in the fast loop
+@pytest.mark.slow
 @pytest.mark.parametrize("sig, delay_s", [(signal.SIGTERM, 0.1),
-                                          pytest.param(signal.SIGINT, 0.8, marks=pytest.mark.slow),
-                                          pytest.param(signal.SIGTERM, 2.0, marks=pytest.mark.slow)])
+                                          (signal.SIGINT, 0.8),
+                                          (signal.SIGTERM, 2.0)])
 def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s):  # noqa: F811
     start, tmp_path, dyno = station
     ecu, run = start()

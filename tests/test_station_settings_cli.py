@@ -98,6 +98,7 @@ def test_run_without_a_file_takes_the_variables(tmp_path):
     assert path.is_file() and not (tmp_path / "r.sqlite").exists()
 
 
+@pytest.mark.slow  # a loopback station and a full cycle; the bad-key tests keep the module in the fast loop
 def test_the_operator_loop_on_a_settings_file(tmp_path):
     # the real station's path of `eol-cal station`: the dyno and the ECU from the file (here the
     # loopback station's), the operator asked, one motor, q; the lot page where --lot says
