@@ -84,7 +84,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
     from eol_cal.dyno import client as dc
     from eol_cal.errors import InputError, naming
     from eol_cal.plant.profile import load_profile
-    from eol_cal.station.preflight import acquire_traced
+    from eol_cal.station.acquisition import acquire_traced
 
     if output.suffix.lower() not in _SUFFIXES:
         raise InputError(str(output), None, f"unknown capture format {output.suffix!r}; use .csv or .mf4")
@@ -116,7 +116,7 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         read_ecu = None
         if interface is not None or can_config is not None:
             from eol_cal.ecu.client import ClientTiming
-            from eol_cal.station.preflight import read_ecu_with
+            from eol_cal.station.acquisition import read_ecu_with
 
             read_ecu = read_ecu_with(lambda: open_cli_bus(interface, channel, bitrate, can_config), ClientTiming())
         capture, trace = acquire_traced(read_ecu, config, segments, output, serial=serial, rate_hz=rate_hz,

@@ -7,7 +7,7 @@ A motor whose fit did not converge, or whose 95 % interval is wider than the lim
 
 from __future__ import annotations
 
-import datetime as _dt
+import datetime as dt
 import json
 import math
 from dataclasses import dataclass
@@ -218,7 +218,7 @@ def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version
     """The whole result file."""
     return {
         "schema": SCHEMA,
-        "created": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "tool": f"eol-cal {tool_version}",
         "limits": limits.to_dict(),
         "motors": motors,

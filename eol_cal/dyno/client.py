@@ -459,7 +459,7 @@ def run_profile(
     ``before_capture`` is called (and waited for) right before the first capture is armed, while
     the shaft ramps to the first segment; ``after_capture`` right after the last window was read
     and checked, before the stop: work of the caller's that must bracket the captures (the ECU's
-    state, :func:`eol_cal.station.preflight.acquire_traced`) runs alongside the ramps, not after them.
+    state, :func:`eol_cal.station.acquisition.acquire_traced`) runs alongside the ramps, not after them.
     An exception from either ends the run like any other (safe state first). ``on_window(i,
     window, t)`` is called with each window as soon as it is read and checked, ``t`` its sample
     times in the joined capture (:func:`window_times`): the caller's work on it can start while

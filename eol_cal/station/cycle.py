@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import datetime as _dt
+import datetime as dt
 import sys
 import time
 import traceback
@@ -59,7 +59,7 @@ class StepVerdict:
 
 def now_iso() -> str:
     """UTC now, ISO 8601 with milliseconds (the record's time stamps)."""
-    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+    return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
 
 
 def station_info(cfg: StationConfig, profile_name: str) -> StationInfo:
@@ -88,7 +88,7 @@ class StationCycle:
     cfg: StationConfig
     progress: ProgressFn | None
     run_id: str
-    started: _dt.datetime
+    started: dt.datetime
     run_dir: Path
     profile_name: str
     segments: list
@@ -136,7 +136,7 @@ class StationCycle:
         check_config(cfg)
         profile = load_profile(cfg.profile)
         segments = dc.setpoints_from_profile(profile)
-        started = _dt.datetime.now(_dt.UTC)
+        started = dt.datetime.now(dt.UTC)
         run_id = uuid.uuid4().hex
         sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None
         cycle = cls(cfg=cfg, progress=progress, run_id=run_id, started=started,
@@ -436,7 +436,7 @@ class StationCycle:
         flash does, before anything is written to the ECU)."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
-        from eol_cal.station.preflight import acquire_traced, expect_block, read_ecu_with
+        from eol_cal.station.acquisition import acquire_traced, expect_block, read_ecu_with
 
         path = self.run_dir / f"{which}.mf4"
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),

@@ -1,4 +1,4 @@
-"""Pre-flight of the station cycle, and the traced acquisition.
+"""Pre-flight of the station cycle.
 
 The pre-flight runs before anything is written to the ECU: a typo in the dyno's address, the
 wrong motor on the dyno or a wrong key must never cost the motor its calibration (the prepare
@@ -12,29 +12,21 @@ It checks, each within the existing timeouts (a dead dyno address ends within se
 - the ECU accepts the security key (27 01/02 in the extended session: no programming session,
   nothing erased or written).
 
-The traced acquisition (:func:`acquire_traced`) reads the ECU's active block right before the
-first capture and right after the last window (alongside the dyno's ramps), and writes both into the capture's metadata
-(:mod:`eol_cal.capture.ecu_state`).
+The acquisition with the ECU's state read around it is :mod:`eol_cal.station.acquisition`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Sequence
 
-from eol_cal.capture.ecu_state import EcuState, Trace, with_ecu_state
+from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import EolCalError
-from eol_cal.station.record import DynoStatus, EcuFound, FlashedBlock, PreflightResult, Problem
+from eol_cal.station.record import DynoStatus, EcuFound, PreflightResult, Problem
 
 if TYPE_CHECKING:
-    from eol_cal.capture.model import Capture
-    from eol_cal.dyno.client import DynoConfig, DynoSetpoint
+    from eol_cal.dyno.client import DynoConfig
     from eol_cal.ecu.client import ClientTiming, SeedToKey
-
-#: reads the ECU's state now (opens and closes its own bus)
-ReadEcu = Callable[[], EcuState]
 
 
 class PreflightFailed(EolCalError):
@@ -50,10 +42,6 @@ class PreflightFailed(EolCalError):
         super().__init__("; ".join(p.text for p in problems))
         self.problems = list(problems)
         self.reasons = [p.text for p in problems]
-
-
-class EcuStateMismatch(EolCalError):
-    """The ECU did not run the block the cycle expected during an acquisition (exit 2)."""
 
 
 def check_dyno(config: DynoConfig) -> tuple[DynoStatus | None, list[Problem]]:
@@ -134,68 +122,3 @@ def preflight(serial: str, dyno: DynoConfig, open_bus: Callable[[], Any], seed_t
     problems = dyno_problems + ecu_problems + serial_problems(
         serial, ecu.state, None if found_dyno is None else found_dyno.dut_serial)
     return PreflightResult(found_dyno, ecu, tuple(problems))
-
-
-def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
-    """A :data:`ReadEcu` that opens the bus, reads :func:`eol_cal.ecu.client.ecu_state` and closes it."""
-
-    def read() -> EcuState:
-        from eol_cal.ecu.client import ecu_state
-
-        bus = open_bus()
-        try:
-            return ecu_state(bus, timing=timing)
-        finally:
-            bus.shutdown()
-
-    return read
-
-
-def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Sequence[DynoSetpoint],
-                   out: str | Path | None, **acquire_kw: Any) -> tuple[Capture, Trace]:
-    """:func:`eol_cal.dyno.client.acquire` with the ECU's state read before and after, into the
-    capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads
-    (``out`` None: the caller writes it).
-
-    ``read_ecu`` None: no record of the ECU state (no ECU-state keys). The reads run alongside
-    the dyno's ramps (:func:`eol_cal.dyno.client.run_profile`): the one before while the shaft
-    ramps to the first segment, finished before the first capture is armed; the one after from
-    the last window on, while the shaft stops. A failed read before stops the dyno (safe state)
-    before any capture; a failed read after writes no capture.
-    """
-    from concurrent.futures import Future, ThreadPoolExecutor
-
-    from eol_cal.capture import write_capture
-    from eol_cal.dyno import client as dc
-
-    if read_ecu is None:
-        capture = dc.acquire(config, segments, None, **acquire_kw)
-        if out is not None:
-            write_capture(capture, out)
-        return capture, Trace(None, None)
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ecu-trace") as pool:
-        before_job = pool.submit(read_ecu)
-        after_job: list[Future] = []
-        capture = dc.acquire(config, segments, None, before_capture=before_job.result,
-                             after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
-        before, after = before_job.result(), after_job[0].result()
-    capture = dataclasses.replace(capture, metadata=with_ecu_state(capture.metadata, before, after))
-    if out is not None:
-        write_capture(capture, out)
-    return capture, Trace(before, after)
-
-
-def expect_block(trace: Trace, which: str, expected: FlashedBlock | None) -> None:
-    """Refuse a capture of the cycle whose ECU state changed, or is not the block the cycle flashed
-    (``expected``; None: any block)."""
-    before, after = trace.before, trace.after
-    if before is None or after is None:
-        raise EcuStateMismatch(f"{which}: no record of the ECU state")
-    if not before.same_block(after):
-        raise EcuStateMismatch(f"the ECU's active block changed during the {which} acquisition (before: "
-                               f"{before.describe()}; after: {after.describe()})")
-    if expected is not None and (before.bank, before.sequence, before.crc32) != (
-            expected.bank, expected.sequence, expected.crc32):
-        raise EcuStateMismatch(f"the ECU ran {before.describe()} during the {which} acquisition, not the block "
-                               f"this cycle flashed (bank {expected.bank}, sequence {expected.sequence}, "
-                               f"CRC {expected.crc32})")

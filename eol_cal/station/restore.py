@@ -14,7 +14,7 @@ records the run.
 
 from __future__ import annotations
 
-import datetime as _dt
+import datetime as dt
 import time
 import uuid
 from dataclasses import dataclass
@@ -172,7 +172,7 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
     from eol_cal.station.report import write_record_json
     from eol_cal.station.run import new_run_dir
 
-    started = _dt.datetime.now(_dt.UTC)
+    started = dt.datetime.now(dt.UTC)
     run_id = uuid.uuid4().hex
     run_dir = new_run_dir(report_dir, serial, started, run_id)
     t0 = time.perf_counter()

@@ -17,7 +17,7 @@ Exit codes (:attr:`RunOutcome.exit_code`): 0 pass, 1 fail, 2 error (a refusal to
 
 from __future__ import annotations
 
-import datetime as _dt
+import datetime as dt
 import hashlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -162,7 +162,7 @@ def sha256_file(path: str | Path) -> str:
 
 
 def _now() -> str:
-    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+    return dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
 
 
 def _safe_name(text: str) -> str:
@@ -214,7 +214,7 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
 
 
 # --------------------------------------------------------------------------- the cycle
-def new_run_dir(report_dir: Path, serial: str, started: _dt.datetime, run_id: str) -> Path:
+def new_run_dir(report_dir: Path, serial: str, started: dt.datetime, run_id: str) -> Path:
     stamp = started.strftime("%Y%m%dT%H%M%SZ")
     d = report_dir / f"{_safe_name(serial)}_{stamp}_{run_id[:8]}"
     d.mkdir(parents=True, exist_ok=False)

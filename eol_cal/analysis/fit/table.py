@@ -21,7 +21,7 @@ The tables come from :func:`eol_cal.firmware.compensator.make_tables`, the bytes
 
 from __future__ import annotations
 
-import datetime as _dt
+import datetime as dt
 import math
 from typing import TYPE_CHECKING, Any
 
@@ -125,7 +125,7 @@ def block_from_result(
         except (KeyError, TypeError, ValueError):
             raise InputError(source, "segments", f"motor {serial!r}: every segment needs a number 'i_qo_a' (A)") from None
     if calibrated_at is None:
-        calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
+        calibrated_at = int(dt.datetime.now(dt.UTC).timestamp())
     problem = serial_problem(str(serial))
     if problem is not None:
         raise InputError(source, "serial", f"{serial!r}: {problem} (the block's serial field)")
@@ -237,7 +237,7 @@ def uncompensated_block(serial: str, motor: MotorParams, calibrated_at: int | No
     from eol_cal.firmware.block import FLAG_INTERP_ENABLE, ParamBlock
 
     if calibrated_at is None:
-        calibrated_at = int(_dt.datetime.now(_dt.UTC).timestamp())
+        calibrated_at = int(dt.datetime.now(dt.UTC).timestamp())
     zeros = np.zeros(16, np.float32)
     return ParamBlock(
         sequence=1, flags=FLAG_INTERP_ENABLE | _options(options), serial=str(serial), calibrated_at=int(calibrated_at),
@@ -266,6 +266,6 @@ def _hall_angle(res: MotorResult, source: str) -> tuple[float, ...]:
 def created_unix(doc: dict[str, Any]) -> int | None:
     """The result's ``created`` time as Unix seconds, or None when absent/unreadable."""
     try:
-        return int(_dt.datetime.fromisoformat(doc["created"]).timestamp())
+        return int(dt.datetime.fromisoformat(doc["created"]).timestamp())
     except (KeyError, TypeError, ValueError):
         return None
