@@ -133,6 +133,35 @@ NRC_CASES = [
 ]
 
 
+def test_before_commit_runs_after_the_read_back_and_its_failure_leaves_the_crc_unwritten(tmp_path):
+    """The station's calibration capture is written beside the download: the flash waits for it
+    before the CRC; a failed write aborts there and the previous block stays active."""
+    from eol_cal.errors import EolCalError
+
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        good = _flash(rig, BLOCK_A).active_after
+        seen: list[str] = []
+        steps: list[str] = []
+
+        def capture_written() -> None:
+            seen.append(steps[-1])
+            raise EolCalError("the before capture was not written: No space left on device")
+
+        with pytest.raises(EolCalError) as exc:
+            _flash(rig, BLOCK_B, before_commit=capture_written, progress=steps.append)
+        assert seen == ["before the CRC"] and steps.index("read-back before the CRC (23)") < steps.index("before the CRC")
+        assert "CRC (36)" not in steps
+        assert "No space left" in str(exc.value) and "the previous block stays active" in str(exc.value)
+        assert exc.value.ecu_boots["boots"] == "previous"
+        assert rig.sim.active == good
+        # the new bank holds the block without its CRC: never a boot candidate
+        assert select_active(rig.sim.flash)[0] == good
+        assert B.check(rig.sim.flash.bank(1 - good.bank)).crc_stored == 0xFFFFFFFF  # the erased CRC field
+        # and without a failure the block counts as before
+        done = _flash(rig, BLOCK_B, before_commit=lambda: None)
+        assert done.active_after.sequence == good.sequence + 1
+
+
 def test_every_injected_nrc_fails_clearly_with_old_block_active(tmp_path):
     with virtual_rig(tmp_path / "f.bin") as rig:
         good = _flash(rig, BLOCK_A).active_after

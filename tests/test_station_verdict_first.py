@@ -98,8 +98,9 @@ def test_a_station_killed_right_after_the_verdict_loses_no_record(tmp_path):
 
 
 def test_a_calibration_capture_that_cannot_be_written_stops_the_cycle_before_the_flash(files, tmp_path, monkeypatch):  # noqa: F811
-    """The calibration capture is written beside the fit; the flash waits for the file, and a
-    write that failed ends the cycle there: nothing calibrated goes into the ECU."""
+    """The calibration capture is written beside the fit and the download; the flash waits for
+    the file before the block's CRC, and a write that failed ends the cycle there: the CRC is
+    never written, nothing calibrated counts in the ECU."""
     import eol_cal.capture as capture_io
     from test_station_preflight import run_cycle
 
@@ -115,6 +116,8 @@ def test_a_calibration_capture_that_cannot_be_written_stops_the_cycle_before_the
         res, _ = run_cycle(files, st, "W-1", tmp_path)
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
-    assert rec["verdict"] == "error" and rec["error"]["step"] in ("fit", "table", "flash")
+    assert rec["verdict"] == "error" and rec["error"]["step"] in ("fit", "table", "flash"), rec["reasons"]
     assert "before capture was not written" in rec["reasons"][0] and "No space left" in rec["reasons"][0]
     assert [b["role"] for b in rec["blocks"]] == ["prepare"]  # the calibrated block never went in
+    assert "the previous block stays active" in rec["reasons"][0]
+    assert rec["ecu_active"]["block"] == "uncompensated"

@@ -26,7 +26,7 @@ import can
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.session import (SESSION_LOST_NRCS, ClientTiming, EcuError, SeedToKey, UdsSession,
                                  VerifyFailed, shrink)
-from eol_cal.errors import InputError, Interrupted
+from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_sanity import MotorType, require_safe, type_problems
 from eol_cal.motor import MotorParams, load_motor
@@ -255,7 +255,8 @@ def _mark(exc: BaseException, prog: _Progress, word: str) -> None:
 def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
                 dry_run: bool = False, force: bool = False, source: str = "<block>",
                 timing: ClientTiming = ClientTiming(),
-                progress: Callable[[str], None] | None = None, motor: MotorParams | None = None) -> FlashReport:
+                progress: Callable[[str], None] | None = None, motor: MotorParams | None = None,
+                before_commit: Callable[[], None] | None = None) -> FlashReport:
     """Write a parameter block into the ECU's inactive bank (contract section 3).
 
     Parameters
@@ -280,6 +281,12 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
         File name for error messages.
     progress : callable or None
         Called with each step's name as it starts.
+    before_commit : callable or None
+        Called once the block is written and read back, before its CRC makes it a boot candidate:
+        what must be done before the block may count (the station's calibration capture on disk)
+        runs beside the download. An :class:`~eol_cal.errors.EolCalError` from it aborts the flash
+        before the CRC (the block never counts: the previous block stays active) and is raised
+        with that said.
 
     Raises
     ------
@@ -347,6 +354,15 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
                     raise VerifyFailed("read-back", f"bank {bank} differs from the block at byte {first}; "
                                                     "its CRC was not written")
                 report.verified = True
+            if before_commit is not None:
+                prog.step("before the CRC")
+                try:
+                    before_commit()
+                except EolCalError as exc:
+                    outcome, word = _aftermath(s, prog, base, rollback=True)
+                    exc.args = (f"{exc}; {outcome}",)
+                    _mark(exc, prog, word)
+                    raise
             prog.step("CRC (36)")
             prog.tail = "sent"
             _send(s, image[-TAIL_BYTES:], len(image) - TAIL_BYTES, TAIL_BYTES, bsc)

@@ -60,8 +60,10 @@ def flashed_block(role: str, path: Path, report: FlashReport) -> FlashedBlock:
 
 def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path: Path,
                    seed_to_key: Callable[[bytes], bytes], timing: Any, motor: MotorParams, source: str,
-                   progress: Callable[[str], None] | None = None) -> tuple[FlashReport, FlashedBlock]:
-    """Flash ``data`` (verified) on a bus of its own and archive the image as flashed at ``path``.
+                   progress: Callable[[str], None] | None = None,
+                   before_commit: Callable[[], None] | None = None) -> tuple[FlashReport, FlashedBlock]:
+    """Flash ``data`` (verified) on a bus of its own and archive the image as flashed at ``path``
+    (``before_commit``: :func:`eol_cal.ecu.client.flash_block`'s).
 
     An exception raised after the block's CRC went out carries ``flashed_block``: the archived
     image's record, ``confirmed`` False (the ECU boots it at its next reset, or may).
@@ -69,7 +71,8 @@ def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path:
     bus = open_bus()
     try:
         report = flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source, timing=timing,
-                             motor=motor, progress=progress)
+                             motor=motor, progress=progress,
+                             before_commit=before_commit)
     except BaseException as exc:
         image = getattr(exc, "flashed_image", None)
         boots = getattr(exc, "ecu_boots", None) or {}

@@ -225,12 +225,13 @@ class StationCycle:
                                             source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
     def flash(self) -> None:
-        """Write the calibrated block into the ECU's inactive bank (verified), once the calibration
-        capture's file is on disk."""
+        """Write the calibrated block into the ECU's inactive bank (verified); the calibration
+        capture's file, written beside the fit, must be on disk before the block's CRC makes it
+        count (a write that failed aborts the flash there: the CRC is never written, the previous
+        block stays active)."""
         from eol_cal.firmware.block import pack
 
-        self._settle_writes()
-        self._flash(pack(self.calibrated), "calibrated")
+        self._flash(pack(self.calibrated), "calibrated", before_commit=self._settle_writes)
 
     def acquire_compensated(self) -> None:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
@@ -432,8 +433,8 @@ class StationCycle:
         """One acquisition with the ECU's state before and after (in the capture and the record);
         the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
         the dyno client's hook for each window as it is read. ``write_aside``: the capture file is
-        written on a thread of its own, beside the fit; :meth:`_settle_writes` waits for it (the
-        flash does, before anything is written to the ECU)."""
+        written on a thread of its own, beside the fit and the download; :meth:`_settle_writes` waits
+        for it (the flash does, before the block's CRC makes it count)."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.acquisition import acquire_traced, expect_block, read_ecu_with
@@ -476,7 +477,7 @@ class StationCycle:
     def _last_block(self, role: str) -> FlashedBlock | None:
         return next((b for b in reversed(self.blocks) if b.role == role), None)
 
-    def _flash(self, data: bytes, role: str) -> None:
+    def _flash(self, data: bytes, role: str, before_commit: Callable[[], None] | None = None) -> None:
         """Flash a block of this run (verified) and archive it as it went in."""
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.archive import flash_archived
@@ -484,7 +485,8 @@ class StationCycle:
         try:
             _report, done = flash_archived(self.cfg.open_bus, data, role=role, path=self.run_dir / ARCHIVE_NAMES[role],
                                            seed_to_key=self.cfg.seed_to_key, timing=self.cfg.ecu_timing or ClientTiming(),
-                                           motor=self.cfg.motor, source=f"{role} block of run {self.run_id[:8]}")
+                                           motor=self.cfg.motor, source=f"{role} block of run {self.run_id[:8]}",
+                                           before_commit=before_commit)
         except BaseException as exc:
             if getattr(exc, "flashed_block", None) is not None:
                 self.blocks.append(exc.flashed_block)
