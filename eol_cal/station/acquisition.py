@@ -6,11 +6,15 @@ the ECU ran the block the cycle flashed all along."""
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Sequence
 
+from eol_cal.capture import write_capture
 from eol_cal.capture.ecu_state import EcuState, Trace, with_ecu_state
+from eol_cal.dyno import client as dc
+from eol_cal.ecu.client import ecu_state
 from eol_cal.errors import EolCalError
 from eol_cal.station.record import FlashedBlock
 
@@ -31,8 +35,6 @@ def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
     """A :data:`ReadEcu` that opens the bus, reads :func:`eol_cal.ecu.client.ecu_state` and closes it."""
 
     def read() -> EcuState:
-        from eol_cal.ecu.client import ecu_state
-
         bus = open_bus()
         try:
             return ecu_state(bus, timing=timing)
@@ -54,11 +56,6 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
     the last window on, while the shaft stops. A failed read before stops the dyno (safe state)
     before any capture; a failed read after writes no capture.
     """
-    from concurrent.futures import Future, ThreadPoolExecutor
-
-    from eol_cal.capture import write_capture
-    from eol_cal.dyno import client as dc
-
     if read_ecu is None:
         capture = dc.acquire(config, segments, None, **acquire_kw)
         if out is not None:
