@@ -47,12 +47,14 @@ def test_concurrent_writers_lose_and_duplicate_nothing(records_db):
     insert_records(records_db, [])  # create the schema once, as `records migrate` would
     batches = [[record(f"W{w}-{i}") for i in range(25)] for w in range(4)]
 
+    def insert(r: RunRecord) -> int:
+        # the lock wait is not what this test checks: 200 transactions of four threads on a loaded
+        # machine (load 9 on 2 cores) waited past the station's 5 s for SQLite's lock
+        return insert_records(records_db, [r], timeout_s=60.0)
+
     def write(batch: list[RunRecord]) -> int:
-        # one record per transaction, each written twice (a retried flush); the lock wait is not
-        # what this test checks: 200 transactions of four threads on a loaded machine (load 9 on
-        # 2 cores) waited past the station's 5 s for SQLite's lock
-        return sum(insert_records(records_db, [r], timeout_s=60.0) + insert_records(records_db, [r], timeout_s=60.0)
-                   for r in batch)
+        # one record per transaction, each written twice (a retried flush)
+        return sum(insert(r) + insert(r) for r in batch)
 
     with ThreadPoolExecutor(4) as pool:
         assert sum(pool.map(write, batches)) == 100

@@ -252,6 +252,14 @@ def _mark(exc: BaseException, prog: _Progress, word: str) -> None:
     exc.flashed_image = prog.image if prog.tail != "none" else None  # type: ignore[attr-defined]
 
 
+def _clean_up(s: UdsSession, prog: _Progress, base: int, exc: EolCalError) -> None:
+    """After a failure of the sequence: :func:`_aftermath` with the bank erased again where it
+    must be, what the ECU boots added to ``exc``'s message, and :func:`_mark`."""
+    outcome, word = _aftermath(s, prog, base, rollback=True)
+    exc.args = (f"{exc}; {outcome}",)
+    _mark(exc, prog, word)
+
+
 def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
                 dry_run: bool = False, force: bool = False, source: str = "<block>",
                 timing: ClientTiming = ClientTiming(),
@@ -358,10 +366,10 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
                 prog.step("before the CRC")
                 try:
                     before_commit()
+                except (EcuError, VerifyFailed):
+                    raise  # cleaned up below, once
                 except EolCalError as exc:
-                    outcome, word = _aftermath(s, prog, base, rollback=True)
-                    exc.args = (f"{exc}; {outcome}",)
-                    _mark(exc, prog, word)
+                    _clean_up(s, prog, base, exc)
                     raise
             prog.step("CRC (36)")
             prog.tail = "sent"
@@ -389,9 +397,7 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
             if after != expected:
                 raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
         except (EcuError, VerifyFailed) as exc:
-            outcome, word = _aftermath(s, prog, base, rollback=True)
-            exc.args = (f"{exc}; {outcome}",)
-            _mark(exc, prog, word)
+            _clean_up(s, prog, base, exc)
             raise
         except KeyboardInterrupt as exc:  # Interrupted (SIGINT/SIGTERM) or a bare Ctrl-C
             name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
