@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
+from eol_cal import interrupts
 from eol_cal.dyno.mapfile import default_register_map
 from eol_cal.dyno.regmap import READ_FC, RegisterMap
 from eol_cal.exchange_log import log_modbus
@@ -168,8 +169,24 @@ def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
         finally:
             conns.close()
 
-    words, reconnects = asyncio.run(once())
+    with asyncio.Runner(loop_factory=_new_loop) as runner:
+        words, reconnects = runner.run(once())
     return _decode(cfg.regmap, plan, words), reconnects
+
+
+def _new_loop() -> asyncio.AbstractEventLoop:
+    """A new event loop, built whole before a signal (:mod:`eol_cal.interrupts`) can stop it: a
+    loop cut off inside its constructor has no self-pipe, and collecting it later prints
+    "Exception ignored ... Traceback" over the command's one-line interruption."""
+    loop = None
+    try:
+        with interrupts.shielded():
+            loop = asyncio.new_event_loop()
+    except BaseException:
+        if loop is not None:
+            loop.close()
+        raise
+    return loop
 
 
 class BufferReader:
@@ -179,10 +196,15 @@ class BufferReader:
 
     def __init__(self, cfg: DynoConfig) -> None:
         self._cfg = cfg
-        self._loop = asyncio.new_event_loop()
+        self._loop = _new_loop()
         self._conns = _Connections(cfg)
         self._thread = threading.Thread(target=self._loop.run_forever, name="dyno-stream", daemon=True)
-        self._thread.start()
+        try:
+            with interrupts.shielded():  # a signal between the two leaves no loop without its thread
+                self._thread.start()
+        except BaseException:
+            self.close()
+            raise
 
     @property
     def reconnects(self) -> int:
