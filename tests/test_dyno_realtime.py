@@ -7,6 +7,7 @@ out), which a loaded machine can only make later, never fail.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -135,6 +136,66 @@ def test_a_source_slower_than_real_time_holds_the_samples_back(regmap):
         timing = thread.sim.captures[-1]
         assert timing.ready >= timing.source_done >= timing.started + 0.5
         assert timing.source_late_s > 0.0
+    finally:
+        client.close()
+        thread.stop()
+
+
+def _in_pieces(pieces: int, seconds_each: float):
+    """A source slower than real time that hands over its recording in ``pieces`` as it computes it."""
+
+    def source(req):
+        whole = synthetic_source(req)
+        n = len(whole.t)
+        for k in range(1, pieces):
+            time.sleep(seconds_each)
+            m = n * k // pieces
+            req.partial(dataclasses.replace(whole, t=whole.t[:m], channels={c: v[:m] for c, v in whole.channels.items()}))
+        time.sleep(seconds_each)
+        return whole
+
+    return source
+
+
+def test_a_source_slower_than_real_time_that_hands_over_pieces_is_read_as_they_come(regmap):
+    # 0.3 s of capture, computed in 0.6 s: what the source handed over is answered while it computes
+    # the rest, as the shaft turns it out, never earlier; the stream reads it then, not all at the end
+    segments = [DynoSetpoint(60.0, 0.3, iq=10.0)]
+    sim = DynoSim(_in_pieces(6, 0.1), serial="M-PIECES", register_map=regmap, realtime=True)
+    with DynoSimThread(sim) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
+        data, _ident = run_profile(client, segments, RATE)
+    (timing,) = sim.captures
+    assert timing.source_done >= timing.started + 0.6 and timing.ready >= timing.source_done
+    assert 0 < timing.computed < 3000
+    assert timing.early_reads > 0  # read before the source was done
+    last = sim.last_capture
+    np.testing.assert_array_equal(data[0].channels["torque"], last.channels["torque"].astype(np.float32))
+    np.testing.assert_array_equal(data[0].channels["hall"], last.channels["hall"])
+
+
+def test_a_piece_is_never_answered_before_the_shaft_turned_it_out(regmap):
+    n = 4000  # 0.4 s of capture; the source hands over the first half at once, the rest after 1 s
+
+    def source(req):
+        whole = synthetic_source(req)
+        req.partial(dataclasses.replace(whole, t=whole.t[:2000], channels={c: v[:2000] for c, v in whole.channels.items()}))
+        time.sleep(1.0)
+        return whole
+
+    thread, client = _armed(regmap, source=source, n=n)
+    try:
+        _wait_running(client)
+        timing = thread.sim.captures[-1]
+        counts = []
+        while time.monotonic() < timing.started + 0.9:
+            counts.append((time.monotonic(), int(client.status()["capture_count"])))
+            time.sleep(0.02)
+        # never more than the source handed over, nor more than the shaft turned out (the simulator
+        # dates the capture's start from its own clock a moment before it answers: 5 ms of slack)
+        ahead = [(t - timing.started, c) for t, c in counts if c > min(2000, (t - timing.started + 0.005) * RATE)]
+        assert ahead == []
+        assert counts[-1][1] == 2000 and thread.sim.captured() == 2000
     finally:
         client.close()
         thread.stop()

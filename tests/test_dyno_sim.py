@@ -3,6 +3,8 @@ it, and the ECU's flash file decides what the motor on the dyno runs."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 from pathlib import Path
 
@@ -235,6 +237,31 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
         compensated = sixth()
     assert raw > 0.03  # k6*i_qo = 0.040 N*m plus cogging
     assert compensated < 0.2 * raw
+
+
+@pytest.mark.slow  # a plant run (seconds on a quiet machine, a minute beside a CPU hog)
+def test_the_plant_hands_over_its_capture_in_pieces_that_are_the_capture():
+    """The rig's plant gives the dyno each recorded piece as it computes it (a real-time dyno
+    answers them while the rest is computed): every piece is the start of the capture it returns."""
+    from eol_cal.dyno.registers import DutCmdKind
+    from eol_cal.dyno.sim import CaptureRequest
+    from eol_cal.station.rig import ActiveCalibration, plant_capture
+
+    pieces = []
+    req = CaptureRequest(speed_rpm=60.0, dut_cmd_kind=DutCmdKind.IQ, dut_cmd=40.0, n_samples=5000, rate_hz=10000.0,
+                         serial="M-1", seed=3, capture_index=1, partial=pieces.append)
+    whole = plant_capture()(req, ActiveCalibration())
+    lengths = [len(p.t) for p in pieces]
+    assert len(whole.t) == 5000 and len(pieces) >= 2
+    assert lengths == sorted(set(lengths)) and 0 < lengths[0] and lengths[-1] < 5000
+    for p in pieces:
+        k = len(p.t)
+        assert set(p.channels) == set(whole.channels)
+        np.testing.assert_array_equal(p.t, whole.t[:k])
+        for name, v in p.channels.items():
+            np.testing.assert_array_equal(v, whole.channels[name][:k], err_msg=name)
+    no_hook = plant_capture()(dataclasses.replace(req, partial=None), ActiveCalibration())
+    np.testing.assert_array_equal(no_hook.channels["torque"], whole.channels["torque"])
 
 
 def test_the_dyno_package_knows_no_ecu_and_no_block():

@@ -32,7 +32,7 @@ import asyncio
 import math
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TypeVar
 from collections.abc import Callable
 
@@ -84,6 +84,12 @@ class CaptureRequest:
         Motor variation seed (the same motor for every capture of one simulator).
     capture_index : int
         1 for the first capture since start-up, 2 for the next, ...
+    partial : callable or None
+        A source that computes the recording in pieces may call it (from its own thread) with
+        each longer prefix of it (a :class:`Capture` of its first samples): in real time the
+        simulator answers those samples as the shaft turns them out, as a real dyno's buffer
+        fills, instead of holding the whole capture back until the source is done. Sources
+        that compute it at once ignore it.
     """
 
     speed_rpm: float
@@ -94,6 +100,7 @@ class CaptureRequest:
     serial: str
     seed: int | None
     capture_index: int
+    partial: Callable[[Capture], None] | None = field(default=None, compare=False, repr=False)
 
     @property
     def seconds(self) -> float:
@@ -123,6 +130,8 @@ class CaptureTiming:
         The capture became ready (None: not yet, or it failed or was aborted).
     early_reads : int
         Window reads answered while the capture was still running (a streaming client).
+    computed : int
+        Samples the source has handed over before it was done (:attr:`CaptureRequest.partial`).
     """
 
     index: int
@@ -131,6 +140,7 @@ class CaptureTiming:
     source_done: float | None = None
     ready: float | None = None
     early_reads: int = 0
+    computed: int = 0
 
     @property
     def source_late_s(self) -> float:
@@ -384,6 +394,13 @@ class DynoSim(ModbusFace):
     def _start_capture(self) -> None:
         self.captures_started += 1
         self.capture_state = CaptureState.RUNNING
+        self._capture_token += 1
+        token = self._capture_token
+        loop = self._serving_loop()
+
+        def partial(piece: Capture) -> None:  # from the source's thread
+            loop.call_soon_threadsafe(self._capture_partial, token, piece)
+
         request = CaptureRequest(
             speed_rpm=self._target(),
             dut_cmd_kind=self.dut_cmd_kind,
@@ -393,13 +410,12 @@ class DynoSim(ModbusFace):
             serial=self.serial,
             seed=self.seed,
             capture_index=self.captures_started,
+            partial=partial if self.realtime else None,
         )
         now = time.monotonic()
         self.captures.append(CaptureTiming(request.capture_index, now, now + request.seconds))
         self._recording = request
-        self._capture_token += 1
-        token = self._capture_token
-        job = self._serving_loop().run_in_executor(None, self.source, request)
+        job = loop.run_in_executor(None, self.source, request)
         job.add_done_callback(lambda f: self._capture_done(f, token, request))
         self._capture_job = job
         self._fire_plans("capture", self.captures_started)
@@ -424,6 +440,27 @@ class DynoSim(ModbusFace):
         if not self.realtime or self._recording_due(time.monotonic()):
             self._capture_ready()
 
+    def _capture_partial(self, token: int, piece: Capture) -> None:
+        """The first samples of the running capture, from a source still computing the rest: into
+        the buffer (the rest of it zeros until they come), counted in ``computed``."""
+        request, timing = self._recording, (self.captures[-1] if self.captures else None)
+        if (token != self._capture_token or self.capture_state != CaptureState.RUNNING or request is None
+                or timing is None or timing.source_done is not None):
+            return
+        k = min(len(piece.t), request.n_samples)
+        if k <= timing.computed:
+            return
+        try:
+            words = capture_to_buffer(piece, len(piece.t), self.regmap)
+        except ValueError as err:  # the whole capture will say it again, and fail the capture then
+            self.log.append((time.monotonic(), "capture_partial_error", str(err)))
+            return
+        for cid, w in words.items():
+            if cid not in self.buffer:
+                self.buffer[cid] = np.zeros(request.n_samples * self.regmap.regs_per_sample(cid), w.dtype)
+            self.buffer[cid][:len(w)] = w[:len(self.buffer[cid])]
+        timing.computed = k
+
     def _recording_due(self, now: float) -> bool:
         """Real time: the running capture's source is done and its physical time has passed."""
         timing = self.captures[-1] if self.captures else None
@@ -442,15 +479,15 @@ class DynoSim(ModbusFace):
 
     def captured(self, now: float | None = None) -> int:
         """Samples in the capture buffer now: all of a ready capture; in real time, those of a
-        running capture the shaft has turned out (and the source has computed); else 0."""
+        running capture the shaft has turned out and the source has computed; else 0."""
         if self.capture_state == CaptureState.READY:
             return self.buffer_count
         request, timing = self._recording, (self.captures[-1] if self.captures else None)
-        if (not self.realtime or self.capture_state != CaptureState.RUNNING or request is None or timing is None
-                or timing.source_done is None):
+        if not self.realtime or self.capture_state != CaptureState.RUNNING or request is None or timing is None:
             return 0
+        computed = request.n_samples if timing.source_done is not None else timing.computed
         now = time.monotonic() if now is None else now
-        return min(request.n_samples, max(0, int((now - timing.started) * request.rate_hz)))
+        return min(computed, max(0, int((now - timing.started) * request.rate_hz)))
 
     async def wait_recorded(self, samples: int) -> bool:
         """Real time: wait until the running capture holds ``samples`` samples (a window read of

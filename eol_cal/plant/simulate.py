@@ -328,6 +328,7 @@ def simulate(
     unroll: int = 1,
     progress: Callable[[float], None] | None = None,
     ecu_estimator: str | None = None,
+    recorded: Callable[[list[SimResult]], None] | None = None,
 ) -> list[SimResult]:
     """Simulate one motor or a lot of motors through a test profile.
 
@@ -362,6 +363,10 @@ def simulate(
         Overrides the blocks' estimator options: ``paper``, ``best``, option names joined by
         ``+`` or a hex mask (:func:`eol_cal.firmware.options.parse_options`); for runs without
         a block.
+    recorded : callable, optional
+        Called after each chunk that recorded ticks with the results so far: each motor's first
+        recorded ticks, final (views into the arrays the next chunks fill on; copy what is kept).
+        A real-time dyno simulator answers them while the rest is computed.
 
     Returns
     -------
@@ -453,6 +458,13 @@ def simulate(
     # The last chunk runs padded (its extra ticks are dropped with the carry after them).
     pad = -n_total % chunk_ticks
     inputs = tuple(np.pad(a, (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
+    t = np.arange(n_rec, dtype=np.float64) / m0.f_pwm
+    t.flags.writeable = False  # one time base shared by the lot's captures
+
+    def results(n: int) -> list[SimResult]:
+        return [_to_result(t[:n], {name: c[i, :n] for name, c in cols.items()}, specs[i], profile, mode, blocks[i],
+                           states[i]) for i in range(len(specs))]
+
     for start in range(0, n_total, chunk_ticks):
         stop = min(start + chunk_ticks, n_total)
         shared = tuple(a[start:start + chunk_ticks] for a in inputs)
@@ -463,12 +475,11 @@ def simulate(
             ys = np.asarray(ys)
             for k, name in enumerate(OUT_COLUMNS):
                 cols[name][:, lo - n_pre:stop - n_pre] = ys[:, k, lo - start:stop - start]
+            if recorded is not None and stop < n_total:
+                recorded(results(stop - n_pre))
         if progress is not None:
             progress(stop / n_total)
-    t = np.arange(n_rec, dtype=np.float64) / m0.f_pwm
-    t.flags.writeable = False  # one time base shared by the lot's captures
-    return [_to_result(t, {name: c[i] for name, c in cols.items()}, specs[i], profile, mode, blocks[i], states[i])
-            for i in range(len(specs))]
+    return results(n_rec)
 
 
 #: capture dtypes of the scan's outputs (float64 otherwise): digital levels as the readers give them

@@ -105,11 +105,20 @@ def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None)
         iq = i_qo_of(req, spec.motor.kt)
         profile = Profile("dyno", (ProfileSegment(speed_rpm=req.speed_rpm, seconds=req.n_samples * step / f_tick, iq=iq),))
         seed = (req.seed or 0) * 1000 + req.capture_index
-        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed)[0]
-        cap = result.capture
-        # the plant runs at the PWM tick; the dyno's DAQ keeps every step-th sample
-        channels = {k: v[::step][: req.n_samples] for k, v in cap.channels.items()}
-        return Capture(cap.t[::step][: req.n_samples], channels, dict(cap.metadata), dict(cap.truth), source="<plant>")
+
+        def daq(cap: Capture) -> Capture:
+            # the plant runs at the PWM tick; the dyno's DAQ keeps every step-th sample
+            channels = {k: v[::step][: req.n_samples] for k, v in cap.channels.items()}
+            return Capture(cap.t[::step][: req.n_samples], channels, dict(cap.metadata), dict(cap.truth),
+                           source="<plant>")
+
+        def recorded(so_far: list) -> None:
+            if req.partial is not None:  # each piece as it is computed: the dyno's buffer fills with it
+                req.partial(daq(so_far[0].capture))
+
+        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed,
+                          recorded=recorded if req.partial is not None else None)[0]
+        return daq(result.capture)
 
     return capture
 
