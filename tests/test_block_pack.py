@@ -193,6 +193,33 @@ def test_valid_with_erased_tail_and_warnings_only_for_reserved_and_flags():
     assert res.valid and "flags" in res.warnings[0]
 
 
+def test_layout2_extension_warnings_say_when_the_firmware_ignores_the_mechanical_part():
+    from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_MECH_NEEDS
+    from eol_cal.firmware.mech_params import unused_mech
+
+    base = _block(16)
+    plain = dataclasses.replace(base, layout_version=2, mech=unused_mech(base.encoder_ppr))
+    good = B.pack(plain)
+    assert B.check(good).valid and B.check(good).warnings == ()
+    x = B.field_offset("mech_table_len", 16, 2)  # the extension's start
+    cases = {
+        "mech_table_len": (_patched(good, "<H", x, 64), "mech_table_len is 64, not 128"),
+        "fp_len": (_patched(good, "<H", x + 2, 300), "fp_len is 300, more than the 256"),
+        "reserved2": (_patched(good, "<H", x + 6, 7), "reserved2 is 0x0007, not 0"),
+    }
+    for name, (data, text) in cases.items():
+        res = B.check(data)
+        assert res.valid and any(text in w for w in res.warnings), (name, res.warnings)
+    # MECH_COMP_ENABLE with everything it needs but no fingerprint, or fp_len not the encoder's
+    enabled = B.pack(dataclasses.replace(plain, flags=plain.flags | FLAGS_MECH_NEEDS | FLAG_MECH_COMP_ENABLE))
+    res = B.check(enabled)
+    assert res.valid and [w for w in res.warnings if "fp_dirs is 0" in w], res.warnings
+    res = B.check(_patched(enabled, "<H", x + 2, base.encoder_ppr - 1))
+    assert res.valid and [w for w in res.warnings if f"fp_len {base.encoder_ppr - 1} is not encoder_ppr" in w]
+    # a layout-1 block has no extension to read (its bytes there are the CRC and the erased tail)
+    assert B.check(B.pack(base) + b"\xff" * 64).warnings == ()
+
+
 def test_golden_check_cases_agree_with_check():
     for cid, image, status in golden.check_cases(golden.golden_blocks()):
         assert B.check(image).status == status, cid

@@ -27,6 +27,7 @@ from eol_cal.firmware.contract import (
     STATUS_HEADER_INVALID,
     STATUS_VALID,
 )
+from eol_cal.firmware.mech_params import FP_MAX, MECH_TABLE_LEN
 from eol_cal.firmware.options import ignored_options
 
 
@@ -97,6 +98,8 @@ def check(data: bytes) -> BlockCheck:
     if _get(data, "reserved", 0) != 0:
         warnings.append(f"reserved is 0x{_get(data, 'reserved', 0):04x}, not 0")
     warnings += flag_warnings(_get(data, "flags", 0), version)
+    if version >= 2 and n_ok and len(data) >= want:
+        warnings += mech_warnings(data, n)
     if reasons:
         return BlockCheck(STATUS_HEADER_INVALID, tuple(reasons), tuple(warnings))
     crc_at = field_offset("crc32", n, version)
@@ -109,6 +112,33 @@ def check(data: bytes) -> BlockCheck:
     return BlockCheck(STATUS_VALID, (), tuple(warnings), stored, computed)
 
 
+
+
+def mech_warnings(data: bytes, table_len: int) -> list[str]:
+    """What a layout-2 block's extension holds that the contract does not make invalid but a
+    reader should know (revision 1.2): a ``mech_table_len`` or ``fp_len`` the firmware cannot use
+    or a non-zero ``reserved2`` (it then ignores ``MECH_COMP_ENABLE``), and ``MECH_COMP_ENABLE``
+    without a fingerprint (``fp_dirs`` 0) or with ``fp_len`` not the encoder's pulses."""
+    def get(name: str) -> int:
+        return _get(data, name, table_len, 2)
+
+    warnings = []
+    if get("mech_table_len") != MECH_TABLE_LEN:
+        warnings.append(f"mech_table_len is {get('mech_table_len')}, not {MECH_TABLE_LEN}: the firmware "
+                        "ignores MECH_COMP_ENABLE")
+    if get("fp_len") > FP_MAX:
+        warnings.append(f"fp_len is {get('fp_len')}, more than the {FP_MAX} pulses the fingerprint holds: the "
+                        "firmware ignores MECH_COMP_ENABLE")
+    if get("reserved2") != 0:
+        warnings.append(f"reserved2 is 0x{get('reserved2'):04x}, not 0")
+    if get("flags") & FLAG_MECH_COMP_ENABLE:
+        if get("fp_dirs") == 0:
+            warnings.append("MECH_COMP_ENABLE is set but fp_dirs is 0 (no fingerprint measured): the firmware "
+                            "ignores it")
+        if get("fp_len") != get("encoder_ppr"):
+            warnings.append(f"MECH_COMP_ENABLE is set but fp_len {get('fp_len')} is not encoder_ppr "
+                            f"{get('encoder_ppr')}: the firmware ignores it")
+    return warnings
 
 
 def flag_warnings(flags: int, version: int = 1) -> list[str]:
