@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -140,7 +141,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
     if demo_dir is None:
         with StepProgress(serial) as progress:
             return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
-    from eol_cal.dyno.client import DynoConfig, parse_address
+    from eol_cal.dyno.client import parse_address
     from eol_cal.station.demo import loopback_station
     from eol_cal.station.session import demo_seed
 
@@ -148,7 +149,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
     with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap) as st:
         host, port = parse_address(st.dyno_address)
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
-        mcfg = for_motor(cfg, serial, dyno=DynoConfig(host=host, port=port, register_map=regmap), open_bus=st.open_bus,
+        mcfg = for_motor(cfg, serial, dyno=dataclasses.replace(cfg.dyno, host=host, port=port), open_bus=st.open_bus,
                          station=station)
         with StepProgress(serial) as progress:
             return run_motor(mcfg, progress, on_verdict=_show_verdict)

@@ -26,6 +26,13 @@ from _postgres import PostgresServer
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.pop("COLUMNS", None)
 
+# The station tests run the dyno simulator and its plant in the test's process (or beside it): on
+# a loaded machine (the hog runs of docs/benchmarks.md, "Test suite") the station's client can be
+# quiet for more than the dyno's 2 s communication watchdog while the plant computes a capture, and
+# the dyno stops the run. The watchdog is not what they test: they get 30 s (a test of the setting
+# itself passes its own environment; the dyno's own tests set DynoConfig.watchdog_ms).
+os.environ.setdefault("EOL_CAL_DYNO_WATCHDOG_MS", "30000")
+
 _JAX_CACHE = "EOL_CAL_JAX_CACHE"
 _jax_cache_key = pytest.StashKey[str]()
 

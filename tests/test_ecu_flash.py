@@ -357,3 +357,63 @@ def test_key_file(tmp_path):
     f.write_text("zz")
     with pytest.raises(InputError, match="not hex"):
         load_key_file(f)
+
+
+def test_erase_ahead_erases_an_empty_inactive_bank_and_keeps_an_earlier_block(tmp_path):
+    """The flash's first half without the block (the station runs it during the fit): an empty
+    inactive bank is erased then, and the write does not erase again; an inactive bank holding a
+    block (an earlier calibration `ecu restore` brings back) is left for the write to erase."""
+    from eol_cal.ecu.sequence import Programming
+
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        _flash(rig, BLOCK_A)  # bank 0 active, bank 1 empty
+        with UdsSession(rig.tester, seed_to_key=KEY, timing=FAST_CLIENT) as s:
+            flash = Programming(s)
+            ident = flash.identify()
+            assert (ident.bank, ident.previous.sequence) == (1, 1)
+            assert flash.erase_ahead() is True
+            steps_before_write = list(flash.prog.steps)
+            report = flash.write(B.unpack(BLOCK_B))
+        assert steps_before_write[-1] == "erase" and report.steps.count("erase") == 1
+        assert (report.bank, report.sequence, report.verified) == (1, 2, True)
+        assert rig.sim.active.sequence == 2
+        # now bank 0 holds BLOCK_A, the earlier calibration: not erased ahead
+        with UdsSession(rig.tester, seed_to_key=KEY, timing=FAST_CLIENT) as s:
+            flash = Programming(s)
+            assert flash.identify().bank == 0
+            assert flash.erase_ahead() is False
+            assert B.check(rig.sim.flash.bank(0)).valid  # still restorable
+            s.leave()
+        assert rig.sim.active.sequence == 2
+
+
+def test_flash_ahead_writes_like_flash_block_and_an_unused_one_leaves_the_ecu_as_it_was(tmp_path):
+    import can
+
+    from eol_cal.motor import load_motor
+    from eol_cal.station.flash_ahead import FlashAhead
+
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        first = _flash(rig, BLOCK_A)
+
+        def open_bus():
+            return can.Bus(interface="virtual", channel=rig.channel)
+
+        # opened and closed without a block (the fit failed the motor): the ECU boots what it booted
+        ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor())
+        ahead.close()
+        assert ahead.erased is True and rig.sim.active == first.active_after
+        assert B.check(rig.sim.flash.bank(1)).status == B.STATUS_HEADER_INVALID  # empty, as it was
+        # opened, then written: archived as the flash wrote it
+        ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor())
+        report, done = ahead.flash(BLOCK_B, role="calibrated", path=tmp_path / "block.bin", source="<test>")
+        assert (report.bank, report.sequence, report.verified, done.confirmed) == (1, 2, True, True)
+        assert (tmp_path / "block.bin").read_bytes() == bytes(rig.sim.flash.bank(1)[:len(report.image)])
+        assert rig.sim.active.sequence == 2
+        # a block the station's motor refuses is refused before the write; the session is left
+        ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor())
+        with pytest.raises(InputError):
+            ahead.flash(BLOCK_A[:-1] + bytes([BLOCK_A[-1] ^ 1]), role="calibrated", path=tmp_path / "x.bin",
+                        source="<bad>")
+        assert rig.sim.active.sequence == 2 and not (tmp_path / "x.bin").exists()
+        assert B.check(rig.sim.flash.bank(0)).valid  # BLOCK_A's bank held a block: not erased ahead

@@ -55,6 +55,18 @@ def test_environment_overrides_each_key(station_dir: Path) -> None:
     assert s.origin["rate_hz"] == "env"
 
 
+def test_the_dyno_watchdog_is_a_setting_the_cycle_uses(station_dir: Path) -> None:
+    from eol_cal.station.configure import station_config
+
+    s = load_settings(station_dir / "station.toml", {})
+    assert s["dyno.watchdog_ms"] == 2000 and s.origin["dyno.watchdog_ms"] == "default"
+    s = load_settings(station_dir / "station.toml", {env_name("dyno.watchdog_ms"): "5000"})
+    assert s["dyno.watchdog_ms"] == 5000
+    with pytest.raises(InputError, match="dyno.watchdog_ms"):
+        load_settings(station_dir / "station.toml", {env_name("dyno.watchdog_ms"): "70000"})
+    assert station_config(s).dyno.watchdog_ms == 5000
+
+
 def test_every_key_has_its_own_variable() -> None:
     names = [env_name(k.name) for k in KEYS]
     assert len(set(names)) == len(names)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import dataclasses
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 from collections.abc import Callable
 
 import can
@@ -28,6 +28,7 @@ from eol_cal.ecu.session import (SESSION_LOST_NRCS, ClientTiming, EcuError, Seed
                                  VerifyFailed, shrink)
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.firmware import block as B
+from eol_cal.firmware.block_layout import get_field
 from eol_cal.firmware.block_sanity import MotorType, require_safe, type_problems
 from eol_cal.motor import MotorParams, load_motor
 
@@ -37,6 +38,7 @@ ERASED_CRC = int.from_bytes(bytes([P.ERASED_BYTE]) * TAIL_BYTES, "little")
 """The CRC field of an erased bank."""
 MAX_RESTARTS = 5
 """Downloads started again from the erase after losses on the bus (smaller blocks each time)."""
+_T = TypeVar("_T")
 
 
 @dataclass
@@ -126,8 +128,9 @@ class _Progress:
         return self.steps[-1] if self.steps else "start"
 
 
-def _refuse(data: bytes, source: str, motor: MotorParams) -> B.ParamBlock:
-    """The block, when it is valid and physically sane for ``motor`` (before any session opens)."""
+def refuse_block(data: bytes, source: str, motor: MotorParams) -> B.ParamBlock:
+    """The block, when it is valid and physically sane for ``motor`` (checked before any session
+    opens); else an :class:`~eol_cal.errors.InputError`."""
     chk = B.check(data)
     if not chk.valid:
         raise InputError(source, "block", "invalid parameter block: " + "; ".join(chk.reasons))
@@ -169,8 +172,10 @@ def _send(s: UdsSession, data: bytes, start: int, limit: int, bsc: int) -> tuple
     return bsc, blocks
 
 
-def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, report: FlashReport) -> int:
-    """Erase, RequestDownload and every byte but the CRC; returns the next block counter.
+def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, report: FlashReport,
+                   erased: bool = False) -> int:
+    """Erase (unless the bank was ``erased`` just before, :meth:`Programming.erase_ahead`),
+    RequestDownload and every byte but the CRC; returns the next block counter.
 
     After losses on the bus the download starts again from the erase (revision 1.1: never
     resumed mid-bank) with a quarter the block size.
@@ -178,7 +183,8 @@ def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, repo
     body = image[:-TAIL_BYTES]
     limit: int | None = None
     for restart in range(MAX_RESTARTS + 1):
-        s.routine(prog.step("erase"), P.RID_ERASE, base, B.BANK_BYTES)
+        if restart or not erased:
+            s.routine(prog.step("erase"), P.RID_ERASE, base, B.BANK_BYTES)
         prog.step("download")
         try:
             max_payload = s.request_download(base, len(image))
@@ -313,101 +319,198 @@ def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, 
     died after its CRC was written).
     """
     t0 = time.perf_counter()
-    blk = _refuse(data, source, motor or load_motor())
-    prog = _Progress([], progress)
-    base = 0
+    blk = refuse_block(data, source, motor or load_motor())
     with UdsSession(bus, seed_to_key=seed_to_key, timing=timing) as s:
-        try:
-            prog.step("sessions")
-            s.session(P.SESSION_EXTENDED)
-            s.session(P.SESSION_PROGRAMMING)
-            prog.step("security access")
-            s.unlock()
-            prog.step("identification")
-            serial = s.read_did(P.DID_SERIAL)
-            layouts = tuple(s.read_did(P.DID_LAYOUTS))
-            previous = s.read_did(P.DID_ACTIVE_BLOCK)
-            if blk.layout_version not in layouts:
-                raise EcuError("identification", f"the ECU supports layout versions {list(layouts)}, "
-                                                 f"the block is layout {blk.layout_version}")
-            if blk.serial != serial and not force:
-                raise EcuError("identification", f"block serial {blk.serial!r} differs from the ECU's "
-                                                 f"{serial!r} (F18C); flash it anyway only on purpose (force)")
-            ecu_type, known_from = _ecu_motor_type(s, previous, motor or load_motor())
-            mismatch = type_problems(blk, ecu_type)
-            if mismatch:
-                raise EcuError("identification", f"the block is for another motor type than the ECU's ({ecu_type}, "
-                                                 f"from {known_from}): " + "; ".join(r for _, r in mismatch))
-            bank = 0 if not previous.has_bank else 1 - previous.bank
-            sequence = previous.sequence + 1 if previous.has_bank else 1
-            if sequence >= B.SEQUENCE_INVALID[1]:
-                raise EcuError("identification", f"active sequence {previous.sequence} cannot be incremented")
-            image = _image(blk, sequence)
-            crc = B.check(image).crc_stored or 0
-            report = FlashReport(serial=serial, bank=bank, sequence=sequence, crc32=crc,
-                                 block_bytes=len(image), previous=previous, dry_run=dry_run, steps=prog.steps,
-                                 image=b"" if dry_run else image)
-            base = B.BANK_WORD_ADDR[bank]
-            if dry_run:
-                s.leave()
-                report.seconds = time.perf_counter() - t0
-                return report
-            prog.bank, prog.sequence, prog.image = bank, sequence, image
-            bsc = _download_body(s, prog, base, image, report)
-            if verify:
-                body = image[:-TAIL_BYTES]
-                back = s.read_memory(base, len(body), prog.step("read-back before the CRC (23)"))
-                if back != body:
-                    first = next(i for i, (a, b) in enumerate(zip(back, body, strict=False)) if a != b)
-                    raise VerifyFailed("read-back", f"bank {bank} differs from the block at byte {first}; "
-                                                    "its CRC was not written")
-                report.verified = True
-            if before_commit is not None:
-                prog.step("before the CRC")
-                try:
-                    before_commit()
-                except (EcuError, VerifyFailed):
-                    raise  # cleaned up below, once
-                except EolCalError as exc:
-                    _clean_up(s, prog, base, exc)
-                    raise
-            prog.step("CRC (36)")
-            prog.tail = "sent"
-            _send(s, image[-TAIL_BYTES:], len(image) - TAIL_BYTES, TAIL_BYTES, bsc)
-            prog.tail = "written"
-            report.transfer_blocks += 1
-            prog.step("transfer exit (37)")
-            s.transfer_exit()
-            status = s.routine(prog.step("check routine (31 0202)"), P.RID_CHECK, base, len(image))
-            if not status or status[0] != P.STATUS_VALID:
-                code = status[0] if status else None
-                raise VerifyFailed("check routine", f"ECU reports bank {bank} "
-                                   f"{P.CHECK_STATUS_TEXT.get(code, f'status {code}')}")
-            prog.step("reset")
-            prog.reset_sent = True  # from here the ECU may have reset (no answer, an interruption)
+        flash = Programming(s, motor, progress)
+        flash.identify()
+        report = flash.write(blk, verify=verify, dry_run=dry_run, force=force, before_commit=before_commit)
+    report.seconds = time.perf_counter() - t0
+    return report
+
+
+@dataclass(frozen=True)
+class Identification:
+    """What steps 1-3 of the sequence read (the programming session open and unlocked).
+
+    Attributes
+    ----------
+    serial : str
+        F18C.
+    layouts : tuple of int
+        FD00: the layout versions the ECU supports.
+    previous : protocol.ActiveBlock
+        FD01: the active block before the flash.
+    ecu_type : MotorType
+        The motor type of the ECU (its active block's header, else the station's motor).
+    known_from : str
+        Where ``ecu_type`` comes from, for a message.
+    """
+
+    serial: str
+    layouts: tuple[int, ...]
+    previous: P.ActiveBlock
+    ecu_type: MotorType
+    known_from: str
+
+    @property
+    def bank(self) -> int:
+        """The inactive bank, the one written (bank 0 when none is active)."""
+        return 0 if not self.previous.has_bank else 1 - self.previous.bank
+
+
+class Programming:
+    """The flash sequence on an open :class:`UdsSession`, in the halves :func:`flash_block` runs
+    back to back: :meth:`identify` (sessions, security access, identification: nothing of the
+    block needed), optionally :meth:`erase_ahead` (the inactive bank's erase), and :meth:`write`
+    (the block's checks against the identification, then erase, download, read-back, CRC, check
+    routine, reset, confirm). The station identifies and erases while its fit computes the block.
+
+    A failure in any half is cleaned up as one sequence's (:func:`_clean_up`: what the ECU
+    boots is added to the message; a bank written past its CRC is erased again), and an
+    interruption likewise (raised as :class:`~eol_cal.errors.Interrupted`).
+    """
+
+    def __init__(self, s: UdsSession, motor: MotorParams | None = None,
+                 progress: Callable[[str], None] | None = None) -> None:
+        self.s = s
+        self.motor = motor or load_motor()
+        self.prog = _Progress([], progress)
+        self.base = 0
+        self.ident: Identification | None = None
+        self.erased = False
+
+    def identify(self) -> Identification:
+        """Steps 1-3: extended then programming session, security access, F18C, FD00, FD01 and
+        the ECU's motor type."""
+        return self._guarded(self._identify)
+
+    def erase_ahead(self) -> bool:
+        """Step 4 before the block is known, where nothing is lost by it: erase the inactive bank
+        unless its header is a block's (an earlier calibration, which ``eol-cal ecu restore``
+        brings back, stays until a block is written over it). The active bank is never touched:
+        the ECU boots what it booted. Returns whether it erased; :meth:`write` then downloads
+        without erasing again."""
+        return self._guarded(self._erase_ahead)
+
+    def write(self, blk: B.ParamBlock, *, verify: bool = True, dry_run: bool = False, force: bool = False,
+              before_commit: Callable[[], None] | None = None) -> FlashReport:
+        """The block's checks against the identification, then steps 4-10 (:func:`flash_block`)."""
+        report = self._guarded(lambda: self._write(blk, verify, dry_run, force, before_commit))
+        report.retries = self.s.retries_used
+        return report
+
+    def _identify(self) -> Identification:
+        s, prog = self.s, self.prog
+        prog.step("sessions")
+        s.session(P.SESSION_EXTENDED)
+        s.session(P.SESSION_PROGRAMMING)
+        prog.step("security access")
+        s.unlock()
+        prog.step("identification")
+        serial = s.read_did(P.DID_SERIAL)
+        layouts = tuple(s.read_did(P.DID_LAYOUTS))
+        previous = s.read_did(P.DID_ACTIVE_BLOCK)
+        ecu_type, known_from = _ecu_motor_type(s, previous, self.motor)
+        self.ident = Identification(serial, layouts, previous, ecu_type, known_from)
+        self.base = B.BANK_WORD_ADDR[self.ident.bank]
+        return self.ident
+
+    def _erase_ahead(self) -> bool:
+        if self.ident is None:
+            raise AssertionError("identify() comes first")
+        head = self.s.read_memory(self.base, B.HEADER_BYTES, "read the inactive bank's header (23)")
+        if get_field(head, "magic", 0) == B.MAGIC:
+            return False
+        self.s.routine(self.prog.step("erase"), P.RID_ERASE, self.base, B.BANK_BYTES)
+        self.erased = True
+        return True
+
+    def _write(self, blk: B.ParamBlock, verify: bool, dry_run: bool, force: bool,
+               before_commit: Callable[[], None] | None) -> FlashReport:
+        s, prog, ident = self.s, self.prog, self.ident
+        if ident is None:
+            raise AssertionError("identify() comes first")
+        if blk.layout_version not in ident.layouts:
+            raise EcuError("identification", f"the ECU supports layout versions {list(ident.layouts)}, "
+                                             f"the block is layout {blk.layout_version}")
+        if blk.serial != ident.serial and not force:
+            raise EcuError("identification", f"block serial {blk.serial!r} differs from the ECU's "
+                                             f"{ident.serial!r} (F18C); flash it anyway only on purpose (force)")
+        mismatch = type_problems(blk, ident.ecu_type)
+        if mismatch:
+            raise EcuError("identification", f"the block is for another motor type than the ECU's ({ident.ecu_type}, "
+                                             f"from {ident.known_from}): " + "; ".join(r for _, r in mismatch))
+        previous, bank, base = ident.previous, ident.bank, self.base
+        sequence = previous.sequence + 1 if previous.has_bank else 1
+        if sequence >= B.SEQUENCE_INVALID[1]:
+            raise EcuError("identification", f"active sequence {previous.sequence} cannot be incremented")
+        image = _image(blk, sequence)
+        crc = B.check(image).crc_stored or 0
+        report = FlashReport(serial=ident.serial, bank=bank, sequence=sequence, crc32=crc,
+                             block_bytes=len(image), previous=previous, dry_run=dry_run, steps=prog.steps,
+                             image=b"" if dry_run else image)
+        if dry_run:
+            s.leave()
+            return report
+        prog.bank, prog.sequence, prog.image = bank, sequence, image
+        bsc = _download_body(s, prog, base, image, report, erased=self.erased)
+        if verify:
+            body = image[:-TAIL_BYTES]
+            back = s.read_memory(base, len(body), prog.step("read-back before the CRC (23)"))
+            if back != body:
+                first = next(i for i, (a, b) in enumerate(zip(back, body, strict=False)) if a != b)
+                raise VerifyFailed("read-back", f"bank {bank} differs from the block at byte {first}; "
+                                                "its CRC was not written")
+            report.verified = True
+        if before_commit is not None:
+            prog.step("before the CRC")
             try:
-                s.reset()
-            except EcuError as exc:
-                prog.reset_sent = exc.nrc is None  # refused with an NRC: it did not reset
+                before_commit()
+            except (EcuError, VerifyFailed):
+                raise  # cleaned up by _guarded, once
+            except EolCalError as exc:
+                _clean_up(s, prog, base, exc)
                 raise
-            prog.step("confirm (22 FD01)")
-            after = s.read_did(P.DID_ACTIVE_BLOCK)
-            report.active_after = after
-            expected = P.ActiveBlock(bank, sequence, blk.layout_version, crc)
-            if after != expected:
-                raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
+        prog.step("CRC (36)")
+        prog.tail = "sent"
+        _send(s, image[-TAIL_BYTES:], len(image) - TAIL_BYTES, TAIL_BYTES, bsc)
+        prog.tail = "written"
+        report.transfer_blocks += 1
+        prog.step("transfer exit (37)")
+        s.transfer_exit()
+        status = s.routine(prog.step("check routine (31 0202)"), P.RID_CHECK, base, len(image))
+        if not status or status[0] != P.STATUS_VALID:
+            code = status[0] if status else None
+            raise VerifyFailed("check routine", f"ECU reports bank {bank} "
+                               f"{P.CHECK_STATUS_TEXT.get(code, f'status {code}')}")
+        prog.step("reset")
+        prog.reset_sent = True  # from here the ECU may have reset (no answer, an interruption)
+        try:
+            s.reset()
+        except EcuError as exc:
+            prog.reset_sent = exc.nrc is None  # refused with an NRC: it did not reset
+            raise
+        prog.step("confirm (22 FD01)")
+        after = s.read_did(P.DID_ACTIVE_BLOCK)
+        report.active_after = after
+        expected = P.ActiveBlock(bank, sequence, blk.layout_version, crc)
+        if after != expected:
+            raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
+        return report
+
+    def _guarded(self, step: Callable[[], _T]) -> _T:
+        s, prog = self.s, self.prog
+        try:
+            return step()
         except (EcuError, VerifyFailed) as exc:
-            _clean_up(s, prog, base, exc)
+            _clean_up(s, prog, self.base, exc)
             raise
         except KeyboardInterrupt as exc:  # Interrupted (SIGINT/SIGTERM) or a bare Ctrl-C
             name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
             try:
-                outcome, word = _aftermath(s, prog, base, rollback=True)
+                outcome, word = _aftermath(s, prog, self.base, rollback=True)
             except KeyboardInterrupt:  # a second signal: stop cleaning up
-                outcome, word = _aftermath(s, prog, base, rollback=False)
+                outcome, word = _aftermath(s, prog, self.base, rollback=False)
             interrupted = Interrupted(name, f"flash ({prog.current})", outcome)
             _mark(interrupted, prog, word)
             raise interrupted from None
-    report.seconds = time.perf_counter() - t0
-    report.retries = s.retries_used
-    return report

@@ -70,9 +70,18 @@ def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path:
     """
     bus = open_bus()
     try:
-        report = flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source, timing=timing,
-                             motor=motor, progress=progress,
-                             before_commit=before_commit)
+        return archived(role, path, lambda: flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source,
+                                                        timing=timing, motor=motor, progress=progress,
+                                                        before_commit=before_commit))
+    finally:
+        bus.shutdown()
+
+
+def archived(role: str, path: Path, flash: Callable[[], FlashReport]) -> tuple[FlashReport, FlashedBlock]:
+    """Run ``flash`` and archive the image it wrote at ``path`` (:func:`flash_archived`); an
+    exception after the CRC went out carries ``flashed_block``, not confirmed."""
+    try:
+        report = flash()
     except BaseException as exc:
         image = getattr(exc, "flashed_image", None)
         boots = getattr(exc, "ecu_boots", None) or {}
@@ -82,6 +91,4 @@ def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path:
                 bank=boots.get("bank"), sequence=boots.get("sequence"),
                 crc32=f"{B.check(image).crc_stored or 0:08x}", verified=True, confirmed=False, **block_fields(image))
         raise
-    finally:
-        bus.shutdown()
     return report, flashed_block(role, path, report)

@@ -70,7 +70,7 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     can = (settings["can.interface"], settings["can.channel"], settings["can.bitrate"], settings["can.config"])
     return StationConfig(
         serial="", dyno=DynoConfig(host=settings.dyno_host, port=settings.dyno_port, timeout=settings["dyno.timeout_s"],
-                                     register_map=regmap),
+                                     watchdog_ms=int(settings["dyno.watchdog_ms"]), register_map=regmap),
         open_bus=lambda: open_bus(*can), seed_to_key=seed_to_key, limits=limits, db=db if "://" in db else Path(db),
         report_dir=settings.path("report_dir"), profile=str(settings["profile"]), verify=str(settings["verify"]),
         spool_dir=settings.path("spool_dir"), rate_hz=int(settings["rate_hz"]), db_timeout_s=float(settings["db_timeout_s"]),

@@ -39,6 +39,7 @@ if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
     from eol_cal.firmware.block import ParamBlock
     from eol_cal.station.early import EarlyWindows
+    from eol_cal.station.flash_ahead import FlashAhead
     from eol_cal.station.spool import SaveResult
 
 #: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
@@ -125,6 +126,7 @@ class StationCycle:
     _early: EarlyWindows | None = None
     _verify: EarlyWindows | None = None
     _writes: dict[str, Future] = field(default_factory=dict)  # capture files being written aside
+    _ahead: FlashAhead | None = None  # the calibrated flash's first half, opened during the fit
     _pr_before: Future | None = None
 
     @classmethod
@@ -205,6 +207,7 @@ class StationCycle:
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(self.before, self.cfg.motor)
+        self._open_flash_ahead()
         self._prewarm.result()
         doc, res, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
                                     self.cfg.cache_dir, self.cfg.estimator_options, prepared=self._early)
@@ -231,7 +234,7 @@ class StationCycle:
         block stays active)."""
         from eol_cal.firmware.block import pack
 
-        self._flash(pack(self.calibrated), "calibrated", before_commit=self._settle_writes)
+        self._flash(pack(self.calibrated), "calibrated", before_commit=self._settle_writes, ahead=self._ahead)
 
     def acquire_compensated(self) -> None:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
@@ -349,6 +352,7 @@ class StationCycle:
             failure = exc
         # From here on a signal waits until the record is written (eol_cal.interrupts).
         with shielded():
+            self._close_flash_ahead()  # a cycle that ended before its flash: the session is left
             try:
                 self._settle_writes()  # the cycle ended before the flash waited for them
             except EolCalError as exc:
@@ -477,16 +481,36 @@ class StationCycle:
     def _last_block(self, role: str) -> FlashedBlock | None:
         return next((b for b in reversed(self.blocks) if b.role == role), None)
 
-    def _flash(self, data: bytes, role: str, before_commit: Callable[[], None] | None = None) -> None:
-        """Flash a block of this run (verified) and archive it as it went in."""
+    def _open_flash_ahead(self) -> None:
+        """The calibrated flash's first half (sessions, identification, the erase of an empty
+        inactive bank) on a thread of its own while the fit computes the block
+        (:mod:`eol_cal.station.flash_ahead`); closed by the flash or at the cycle's end."""
+        from eol_cal.ecu.client import ClientTiming
+        from eol_cal.station.flash_ahead import FlashAhead
+
+        self._ahead = FlashAhead(self.cfg.open_bus, seed_to_key=self.cfg.seed_to_key,
+                                 timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor)
+
+    def _close_flash_ahead(self) -> None:
+        if self._ahead is not None:
+            self._ahead.close()
+
+    def _flash(self, data: bytes, role: str, before_commit: Callable[[], None] | None = None,
+               ahead: FlashAhead | None = None) -> None:
+        """Flash a block of this run (verified), on a session of its own or the one opened
+        ``ahead``, and archive it as it went in."""
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.archive import flash_archived
 
+        path, source = self.run_dir / ARCHIVE_NAMES[role], f"{role} block of run {self.run_id[:8]}"
         try:
-            _report, done = flash_archived(self.cfg.open_bus, data, role=role, path=self.run_dir / ARCHIVE_NAMES[role],
-                                           seed_to_key=self.cfg.seed_to_key, timing=self.cfg.ecu_timing or ClientTiming(),
-                                           motor=self.cfg.motor, source=f"{role} block of run {self.run_id[:8]}",
-                                           before_commit=before_commit)
+            if ahead is not None:
+                _report, done = ahead.flash(data, role=role, path=path, source=source, before_commit=before_commit)
+            else:
+                _report, done = flash_archived(self.cfg.open_bus, data, role=role, path=path,
+                                               seed_to_key=self.cfg.seed_to_key,
+                                               timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor,
+                                               source=source, before_commit=before_commit)
         except BaseException as exc:
             if getattr(exc, "flashed_block", None) is not None:
                 self.blocks.append(exc.flashed_block)

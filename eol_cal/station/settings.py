@@ -92,6 +92,8 @@ KEYS: tuple[Key, ...] = (
     Key("dyno.address", str, required=True),
     Key("dyno.register_map", str, "default"),
     Key("dyno.timeout_s", float, 1.0, bounds=(0.01, 60.0)),
+    # the dyno stops by itself when the station is silent this long (its register is a u16 of ms)
+    Key("dyno.watchdog_ms", int, 2000, bounds=(100, 60_000)),
     Key("can.interface", str),
     Key("can.channel", str),
     Key("can.bitrate", int, bounds=(10_000, 8_000_000)),
