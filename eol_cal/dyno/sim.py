@@ -447,18 +447,20 @@ class DynoSim(ModbusFace):
         if (token != self._capture_token or self.capture_state != CaptureState.RUNNING or request is None
                 or timing is None or timing.source_done is not None):
             return
-        k = min(len(piece.t), request.n_samples)
-        if k <= timing.computed:
+        k0, k = timing.computed, min(len(piece.t), request.n_samples)
+        if k <= k0:
             return
+        new = Capture(piece.t[k0:k], {name: v[k0:k] for name, v in piece.channels.items()}, piece.metadata)
         try:
-            words = capture_to_buffer(piece, len(piece.t), self.regmap)
+            words = capture_to_buffer(new, k - k0, self.regmap)
         except ValueError as err:  # the whole capture will say it again, and fail the capture then
             self.log.append((time.monotonic(), "capture_partial_error", str(err)))
             return
         for cid, w in words.items():
             if cid not in self.buffer:
                 self.buffer[cid] = np.zeros(request.n_samples * self.regmap.regs_per_sample(cid), w.dtype)
-            self.buffer[cid][:len(w)] = w[:len(self.buffer[cid])]
+            first = k0 * self.regmap.regs_per_sample(cid)
+            self.buffer[cid][first:first + len(w)] = w
         timing.computed = k
 
     def _recording_due(self, now: float) -> bool:
