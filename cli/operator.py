@@ -157,11 +157,12 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
 
 def _show_verdict(rec) -> None:
     """The large verdict, the moment the cycle knows it (the record is already safe in the spool)."""
-    from eol_cal.msa.gate import gate_refusal
+    if rec.kind == "refusal":  # only a refusal can be the gate's (its module loads the database)
+        from eol_cal.msa.gate import gate_refusal
 
-    if (line := gate_refusal(rec)) is not None:  # the master gate: one line
-        console.print(verdict_panel(rec.serial, rec.verdict, [line]))
-        return
+        if (line := gate_refusal(rec)) is not None:  # the master gate: one line
+            console.print(verdict_panel(rec.serial, rec.verdict, [line]))
+            return
     lines = [f"{rec.verdict}: {r}" for r in rec.reasons]
     if rec.kind == "refusal":
         lines.append(f"refused ({', '.join(rec.refusal_codes)}): nothing was written to the ECU; not the motor's result")

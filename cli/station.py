@@ -95,10 +95,11 @@ RUN_SCHEMA = "eol-cal/run/1"
 
 def _print_verdict(rec) -> None:
     """The verdict as soon as the cycle knows it (the report and the database come after)."""
-    from eol_cal.msa.gate import gate_refusal
+    if rec.kind == "refusal":  # only a refusal can be the gate's (its module loads the database: 0.2 s)
+        from eol_cal.msa.gate import gate_refusal
 
-    if gate_refusal(rec) is not None:  # the master gate refused at once: its one line follows
-        return
+        if gate_refusal(rec) is not None:  # the master gate refused at once: its one line follows
+            return
     what = "REFUSED" if rec.kind == "refusal" else rec.verdict.upper()
     colour = {"pass": "green", "fail": "yellow"}.get(rec.verdict, "red")
     console.print(f"[bold {colour}]{rec.serial}: {what}[/]" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
