@@ -57,8 +57,11 @@ def station(tmp_path):
     procs = []
 
     def start(*ecu_fault: str) -> tuple[subprocess.Popen, subprocess.Popen]:
+        # the contract's S3 (5 s): `eol-cal run` keeps its session with TesterPresent every 2 s, so
+        # an ECU with a shorter S3 drops it in any pause longer than that S3 (a loaded machine's
+        # wait for the calibration capture's file before the CRC did, with S3 at 1 s)
         ecu = _cli("ecu-sim", "--flash-file", str(flash), "--listen", "127.0.0.1:0", "--serial", "K-1",
-                   "--s3-s", "1", *ecu_fault)
+                   "--s3-s", "5", *ecu_fault)
         procs.append(ecu)
         url = ecu.stdout.readline().strip()
         assert url.startswith("ws://"), ecu.stderr.read()
