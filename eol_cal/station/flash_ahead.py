@@ -61,7 +61,6 @@ class FlashAhead:
         self._open_bus, self._seed_to_key, self._timing = open_bus, seed_to_key, timing
         self._bus: Any = None
         self._session: UdsSession | None = None
-        self._programming: Programming | None = None
         self._lock = threading.Lock()
         self._closed = False
         self._opened: Future[Programming] = Future()
@@ -78,7 +77,6 @@ class FlashAhead:
             programming = Programming(self._session, self.motor)
             programming.identify()
             self.erased = programming.erase_ahead()
-            self._programming = programming
             self._opened.set_result(programming)
         except BaseException as exc:  # noqa: BLE001 - the flash step raises it
             self._opened.set_exception(exc)

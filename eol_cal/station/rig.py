@@ -112,12 +112,12 @@ def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None)
             return Capture(cap.t[::step][: req.n_samples], channels, dict(cap.metadata), dict(cap.truth),
                            source="<plant>")
 
-        def recorded(so_far: list) -> None:
-            if req.partial is not None:  # each piece as it is computed: the dyno's buffer fills with it
-                req.partial(daq(so_far[0].capture))
+        recorded = None
+        if (partial := req.partial) is not None:
+            def recorded(so_far: list) -> None:  # each piece as it is computed: the dyno's buffer fills with it
+                partial(daq(so_far[0].capture))
 
-        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed,
-                          recorded=recorded if req.partial is not None else None)[0]
+        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed, recorded=recorded)[0]
         return daq(result.capture)
 
     return capture
