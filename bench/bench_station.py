@@ -16,10 +16,12 @@ fresh, erased ECU and the next plant draw.
 - single run: one `eol-cal run` process per motor (process start included).
 
 Each setup (register map, bit rate) runs today's code (``--base DIR``: a worktree of the
-commit to compare with) and this checkout, alternated, in the same run.
+commit to compare with) and this checkout, alternated, in the same run; ``--read-back both`` adds
+this checkout with the station setting ``flash.read_back = "off"`` as a third column.
 
     python bench/bench_station.py [--base ../takt-base] [--motors 3] [--runs 3] \\
-        [--setups default@500000,default@1000000,vendor-b@500000] [--profile eol-default]
+        [--setups default@500000,default@1000000,vendor-b@500000] [--profile eol-default] \\
+        [--read-back on|off|both]
 """
 
 from __future__ import annotations
@@ -114,8 +116,8 @@ def eol_cal(code: Path, *args: str) -> list[str]:
     return [sys.executable, "-m", "cli.main", *args]
 
 
-def child_env() -> dict[str, str]:
-    env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160")
+def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
+    env = dict(os.environ, PYTHONUNBUFFERED="1", COLUMNS="160", **(extra or {}))
     env.pop("PYTHONPATH", None)  # each checkout imports its own eol_cal (the working directory comes first)
     return env
 
@@ -180,12 +182,12 @@ def plant_late(line) -> float:
 
 
 def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile: str, motors: int,
-                 rate_hz: int, first_seed: int) -> list[Motor]:
+                 rate_hz: int, first_seed: int, env: dict[str, str] | None = None) -> list[Motor]:
     """``motors`` + 1 motors through one `eol-cal station` process; the first one is not counted."""
     settings = settings_file(work, line, map_name, key, profile)
     err = open(work / "station.stderr", "w")  # noqa: SIM115 - the child's stderr; closed after its run
     proc = subprocess.Popen(eol_cal(code, "station", "--station", str(settings), "--operator", "bench"),
-                            cwd=code, env=child_env(), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err)
+                            cwd=code, env=child_env(env), stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=err)
     screen = Screen(proc)
     prompt = re.compile(r"Scan serial")
     out: list[Motor] = []
@@ -223,7 +225,7 @@ def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile
 
 
 def single_runs(code: Path, line, work: Path, map_name: str, key: Path, profile: str, runs: int,
-                rate_hz: int, first_seed: int) -> list[Motor]:
+                rate_hz: int, first_seed: int, env: dict[str, str] | None = None) -> list[Motor]:
     out: list[Motor] = []
     work.mkdir(parents=True, exist_ok=True)
     for k in range(runs):
@@ -236,7 +238,7 @@ def single_runs(code: Path, line, work: Path, map_name: str, key: Path, profile:
         load_text = load()
         t0, t0_wall = time.monotonic(), time.time()
         with open(work / f"{serial}.stderr", "w") as err:
-            proc = subprocess.Popen(cmd, cwd=code, env=child_env(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+            proc = subprocess.Popen(cmd, cwd=code, env=child_env(env), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                     stderr=err)
             screen = Screen(proc)
             try:
@@ -300,6 +302,9 @@ def main() -> int:
                     help="register map @ CAN bit rate, comma-separated")
     ap.add_argument("--modes", default="loop,run", help="loop, run or both")
     ap.add_argument("--profile", default="eol-default")
+    ap.add_argument("--read-back", choices=("on", "off", "both"), default="on",
+                    help="this checkout's station setting flash.read_back: before-crc (on, the default), off, or "
+                         "both as two columns")
     args = ap.parse_args()
 
     import logging
@@ -312,17 +317,22 @@ def main() -> int:
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
     enable_jax_cache()  # the simulators' plant in this process
-    codes = {"ours": ROOT}
+    # each column: a checkout and the environment its processes get (the settings' variables)
+    codes: dict[str, tuple[Path, dict[str, str]]] = {}
     if args.base is not None:
-        codes = {"today": args.base.resolve(), "ours": ROOT}
+        codes["today"] = (args.base.resolve(), {})
+    if args.read_back in ("on", "both"):
+        codes["ours"] = (ROOT, {})
+    if args.read_back in ("off", "both"):
+        codes["ours, no read-back"] = (ROOT, {"EOL_CAL_FLASH_READ_BACK": "off"})
     rev = {name: subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True).stdout.strip() for name, path in codes.items()}
+                                text=True).stdout.strip() for name, (path, _env) in codes.items()}
     print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
           f"profile {args.profile}, real-time dyno, load {load()}; code: "
-          + ", ".join(f"{n} {rev[n]} ({p})" for n, p in codes.items()), flush=True)
+          + ", ".join(f"{n} {rev[n]} ({p})" for n, (p, _env) in codes.items()), flush=True)
     modes = [m for m in args.modes.split(",") if m]
     results: dict[tuple[str, str, str], list[Motor]] = {}
-    warmed: set[str] = set()
+    warmed: set[Path] = set()
     with tempfile.TemporaryDirectory(prefix="bench-station-") as tmp:
         tmp = Path(tmp)
         key = tmp / "key.hex"
@@ -336,19 +346,20 @@ def main() -> int:
                       f"paced to {int(bitrate)} bit/s", flush=True)
                 for j, mode in enumerate(modes):
                     seed = 1 + 100 * (len(modes) * i + j)  # the same motors for both checkouts
-                    for name, code in codes.items():  # today, then ours: alternated within each mode
-                        work = tmp / f"{setup.replace('@', '-')}-{mode}-{name}"
+                    for name, (code, env) in codes.items():  # today, then ours: alternated within each mode
+                        work = tmp / f"{setup.replace('@', '-')}-{mode}-{name.replace(', ', '-').replace(' ', '_')}"
                         work.mkdir()
                         label = "station loop" if mode == "loop" else "eol-cal run"
-                        if mode == "run" and name not in warmed:  # JAX's and the OS's caches, not counted
+                        if mode == "run" and code not in warmed:  # JAX's and the OS's caches, not counted
                             print(f"  warm-up run, {name}:", flush=True)
-                            single_runs(code, line, work / "warm-up", map_name, key, args.profile, 1, 10000, 9000)
-                            warmed.add(name)
+                            single_runs(code, line, work / "warm-up", map_name, key, args.profile, 1, 10000, 9000, env)
+                            warmed.add(code)
                         print(f"  {label}, {name}:", flush=True)
                         if mode == "loop":
-                            got = station_loop(code, line, work, map_name, key, args.profile, args.motors, 10000, seed)
+                            got = station_loop(code, line, work, map_name, key, args.profile, args.motors, 10000, seed,
+                                               env)
                         else:
-                            got = single_runs(code, line, work, map_name, key, args.profile, args.runs, 10000, seed)
+                            got = single_runs(code, line, work, map_name, key, args.profile, args.runs, 10000, seed, env)
                         results[(setup, name, label)] = got
     report(results, list(codes))
     print(f"\n# load at the end {load()}")

@@ -417,3 +417,39 @@ def test_flash_ahead_writes_like_flash_block_and_an_unused_one_leaves_the_ecu_as
                         source="<bad>")
         assert rig.sim.active.sequence == 2 and not (tmp_path / "x.bin").exists()
         assert B.check(rig.sim.flash.bank(0)).valid  # BLOCK_A's bank held a block: not erased ahead
+
+
+def test_the_station_flash_without_read_back_leaves_the_check_to_the_ecus_crc(tmp_path):
+    """``flash.read_back = "off"`` (a line's takt choice): the station's flashes send no
+    ReadMemoryByAddress before the CRC, the record's block says ``verified`` false, and a worn
+    cell is still caught, by the ECU's CRC check: the bank is erased again, the previous block
+    stays active."""
+    import can
+
+    from eol_cal.motor import load_motor
+    from eol_cal.station.archive import flash_archived
+    from eol_cal.station.flash_ahead import FlashAhead
+
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        first = _flash(rig, BLOCK_A)
+
+        def open_bus():
+            return can.Bus(interface="virtual", channel=rig.channel)
+
+        ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor())
+        report, done = ahead.flash(BLOCK_B, role="calibrated", path=tmp_path / "b.bin", source="<test>",
+                                   read_back=False)
+        assert not any("read-back" in step for step in report.steps), report.steps
+        assert (report.verified, done.verified, done.confirmed) == (False, False, True)
+        assert rig.sim.active.sequence == first.active_after.sequence + 1
+        assert (tmp_path / "b.bin").read_bytes() == bytes(rig.sim.flash.bank(1)[:len(report.image)])
+
+        rig.sim.faults.corrupt_byte = next(i for i in range(500, 2000) if BLOCK_A[i] & 1)
+        with pytest.raises(VerifyFailed, match="CRC mismatch.*erased again") as exc:
+            flash_archived(open_bus, BLOCK_A, role="calibrated", path=tmp_path / "a.bin", seed_to_key=KEY,
+                           timing=FAST_CLIENT, motor=load_motor(), source="<test>", read_back=False)
+        assert rig.sim.active.sequence == first.active_after.sequence + 1  # BLOCK_B still boots
+        held = getattr(exc.value, "flashed_block", None)
+        assert held is None or (held.verified, held.confirmed) == (False, False)
+        rig.restart()
+        assert rig.sim.active.sequence == first.active_after.sequence + 1

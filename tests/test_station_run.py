@@ -231,7 +231,9 @@ def test_full_run_end_to_end(full_run):
 @pytest.mark.slow
 def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     """The whole cycle on a dyno laid out otherwise (vendor B: CDAB, scaled integers, separate
-    tables, its own codes): the simulator serves the map and ``run --register-map`` drives it."""
+    tables, its own codes): the simulator serves the map and ``run --register-map`` drives it.
+    With ``--read-back off`` (a line's takt setting): both blocks are flashed and confirmed
+    without a read-back, and the record says so."""
     from eol_cal.dyno.mapfile import load_register_map
 
     db = files["dir"] / "vendor-b.sqlite"
@@ -239,13 +241,15 @@ def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     with loopback_station("VB-0001", SEED, files["dir"] / "sim-b", spec_for=lambda req: paper("VB-0001"),
                           register_map=regmap) as st:
         res = CliRunner().invoke(cli, run_args(files, st, "VB-0001", db, files["dir"] / "reports-b",
-                                               "--register-map", "vendor-b"))
+                                               "--register-map", "vendor-b", "--read-back", "off"))
         wait_stopped(st.dyno.sim)
         assert (st.dyno.sim.enabled, st.dyno.sim.setpoint, st.dyno.sim.speed) == (False, 0.0, 0.0)
         assert st.dyno.sim.captures_started == 3 + 2 and st.dyno.sim.window_reads > 0  # 3 segments, 2 verifications
     rec = json.loads(res.stdout)["record"]
     assert res.exit_code == 0, (rec["verdict"], rec["reasons"], rec.get("error"))
     assert rec["verdict"] == "pass" and rec["station"]["dyno_register_map"] == regmap.name
+    assert [(b["role"], b["verified"], b["confirmed"]) for b in rec["blocks"]] == [
+        ("prepare", False, True), ("calibrated", False, True)]
     assert abs(rec["fit"]["k6"]["value"] - MOTOR.k6) < 0.05 * MOTOR.k6
     assert rec["metrics"]["pp_after_pct"] < 0.5 * rec["metrics"]["pp_before_pct"]
 

@@ -67,6 +67,23 @@ def test_the_dyno_watchdog_is_a_setting_the_cycle_uses(station_dir: Path) -> Non
     assert station_config(s).dyno.watchdog_ms == 5000
 
 
+def test_the_read_back_is_a_setting_the_cycle_uses(station_dir: Path) -> None:
+    from eol_cal.station.configure import station_config
+
+    s = load_settings(station_dir / "station.toml", {})
+    assert s["flash.read_back"] == "before-crc" and station_config(s).read_back is True
+    s = load_settings(station_dir / "station.toml", {env_name("flash.read_back"): "off"})
+    assert station_config(s).read_back is False
+    with pytest.raises(InputError, match="flash.read_back.*'after' is not one of before-crc, off"):
+        load_settings(station_dir / "station.toml", {env_name("flash.read_back"): "after"})
+    # `eol-cal run --read-back` offers the same choices (the CLI does not import the settings module)
+    from cli.station import OPTION_KEYS, run_cmd
+    from eol_cal.station.settings import READ_BACK_CHOICES
+
+    (option,) = [p for p in run_cmd.params if p.name == "read_back"]
+    assert tuple(option.type.choices) == READ_BACK_CHOICES and OPTION_KEYS["read_back"] == "flash.read_back"
+
+
 def test_every_key_has_its_own_variable() -> None:
     names = [env_name(k.name) for k in KEYS]
     assert len(set(names)) == len(names)

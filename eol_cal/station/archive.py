@@ -61,25 +61,29 @@ def flashed_block(role: str, path: Path, report: FlashReport) -> FlashedBlock:
 def flash_archived(open_bus: Callable[[], Any], data: bytes, *, role: str, path: Path,
                    seed_to_key: Callable[[bytes], bytes], timing: Any, motor: MotorParams, source: str,
                    progress: Callable[[str], None] | None = None,
-                   before_commit: Callable[[], None] | None = None) -> tuple[FlashReport, FlashedBlock]:
-    """Flash ``data`` (verified) on a bus of its own and archive the image as flashed at ``path``
-    (``before_commit``: :func:`eol_cal.ecu.client.flash_block`'s).
+                   before_commit: Callable[[], None] | None = None,
+                   read_back: bool = True) -> tuple[FlashReport, FlashedBlock]:
+    """Flash ``data`` on a bus of its own and archive the image as flashed at ``path``
+    (``before_commit``: :func:`eol_cal.ecu.client.flash_block`'s; ``read_back``: its ``verify``,
+    the block read back before its CRC is written).
 
     An exception raised after the block's CRC went out carries ``flashed_block``: the archived
     image's record, ``confirmed`` False (the ECU boots it at its next reset, or may).
     """
     bus = open_bus()
     try:
-        return archived(role, path, lambda: flash_block(bus, data, seed_to_key=seed_to_key, verify=True, source=source,
-                                                        timing=timing, motor=motor, progress=progress,
-                                                        before_commit=before_commit))
+        return archived(role, path, lambda: flash_block(bus, data, seed_to_key=seed_to_key, verify=read_back,
+                                                        source=source, timing=timing, motor=motor, progress=progress,
+                                                        before_commit=before_commit), read_back=read_back)
     finally:
         bus.shutdown()
 
 
-def archived(role: str, path: Path, flash: Callable[[], FlashReport]) -> tuple[FlashReport, FlashedBlock]:
+def archived(role: str, path: Path, flash: Callable[[], FlashReport],
+             read_back: bool = True) -> tuple[FlashReport, FlashedBlock]:
     """Run ``flash`` and archive the image it wrote at ``path`` (:func:`flash_archived`); an
-    exception after the CRC went out carries ``flashed_block``, not confirmed."""
+    exception after the CRC went out carries ``flashed_block``, not confirmed (``verified``: the
+    flash read the block back, ``read_back``, and the CRC goes out only after that)."""
     try:
         report = flash()
     except BaseException as exc:
@@ -89,6 +93,6 @@ def archived(role: str, path: Path, flash: Callable[[], FlashReport]) -> tuple[F
             exc.flashed_block = FlashedBlock(  # type: ignore[attr-defined]
                 role=role, path=str(path), sha256=write_archive(path, image), bytes=len(image),
                 bank=boots.get("bank"), sequence=boots.get("sequence"),
-                crc32=f"{B.check(image).crc_stored or 0:08x}", verified=True, confirmed=False, **block_fields(image))
+                crc32=f"{B.check(image).crc_stored or 0:08x}", verified=read_back, confirmed=False, **block_fields(image))
         raise
     return report, flashed_block(role, path, report)

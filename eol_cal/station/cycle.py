@@ -228,7 +228,8 @@ class StationCycle:
                                             source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
     def flash(self) -> None:
-        """Write the calibrated block into the ECU's inactive bank (verified); the calibration
+        """Write the calibrated block into the ECU's inactive bank (read back before its CRC unless
+        the settings say not, ``flash.read_back``); the calibration
         capture's file, written beside the fit, must be on disk before the block's CRC makes it
         count (a write that failed aborts the flash there: the CRC is never written, the previous
         block stays active)."""
@@ -497,20 +498,22 @@ class StationCycle:
 
     def _flash(self, data: bytes, role: str, before_commit: Callable[[], None] | None = None,
                ahead: FlashAhead | None = None) -> None:
-        """Flash a block of this run (verified), on a session of its own or the one opened
-        ``ahead``, and archive it as it went in."""
+        """Flash a block of this run (read back as ``cfg.read_back`` says), on a session of its own
+        or the one opened ``ahead``, and archive it as it went in."""
         from eol_cal.ecu.client import ClientTiming
         from eol_cal.station.archive import flash_archived
 
         path, source = self.run_dir / ARCHIVE_NAMES[role], f"{role} block of run {self.run_id[:8]}"
         try:
             if ahead is not None:
-                _report, done = ahead.flash(data, role=role, path=path, source=source, before_commit=before_commit)
+                _report, done = ahead.flash(data, role=role, path=path, source=source, before_commit=before_commit,
+                                            read_back=self.cfg.read_back)
             else:
                 _report, done = flash_archived(self.cfg.open_bus, data, role=role, path=path,
                                                seed_to_key=self.cfg.seed_to_key,
                                                timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor,
-                                               source=source, before_commit=before_commit)
+                                               source=source, before_commit=before_commit,
+                                               read_back=self.cfg.read_back)
         except BaseException as exc:
             if getattr(exc, "flashed_block", None) is not None:
                 self.blocks.append(exc.flashed_block)

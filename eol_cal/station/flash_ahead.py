@@ -83,8 +83,10 @@ class FlashAhead:
 
     def flash(self, data: bytes, *, role: str, path: Path, source: str,
               progress: Callable[[str], None] | None = None,
-              before_commit: Callable[[], None] | None = None) -> tuple[FlashReport, FlashedBlock]:
-        """Write ``data`` (verified, :meth:`Programming.write`) and archive it at ``path``
+              before_commit: Callable[[], None] | None = None,
+              read_back: bool = True) -> tuple[FlashReport, FlashedBlock]:
+        """Write ``data`` (:meth:`Programming.write`, read back before its CRC unless not
+        ``read_back``) and archive it at ``path``
         (:func:`~eol_cal.station.archive.archived`); the first half's failure is raised here.
         The session and the bus are closed in every case."""
         t0 = time.perf_counter()
@@ -94,11 +96,11 @@ class FlashAhead:
             programming.prog.callback = progress
 
             def write() -> FlashReport:
-                report = programming.write(blk, verify=True, before_commit=before_commit)
+                report = programming.write(blk, verify=read_back, before_commit=before_commit)
                 report.seconds = time.perf_counter() - t0
                 return report
 
-            return archived(role, path, write)
+            return archived(role, path, write, read_back=read_back)
         finally:
             self.close()
 

@@ -101,6 +101,10 @@ class StationConfig:
     kind : str
         The record's kind when the cycle gets past its pre-flight (``production`` on a line;
         :data:`eol_cal.station.record.KINDS`); a cycle that ends before is a ``refusal``.
+    read_back : bool
+        Read each block this cycle flashes back before its CRC is written (settings key
+        ``flash.read_back``: ``before-crc``); False leaves the check to the ECU's CRC routine
+        (the contract's read-back is optional; the record's blocks say ``verified`` false).
     master : MasterSettings or None
         The station's master motor (:mod:`eol_cal.msa.master`): a ``production`` run is refused
         while its check is due or last failed; a run of kind ``master`` is judged against its
@@ -127,6 +131,7 @@ class StationConfig:
     estimator: str | None = None
     kind: str = "production"
     master: MasterSettings | None = None
+    read_back: bool = True
 
     @property
     def estimator_options(self) -> int:

@@ -56,6 +56,10 @@ def env_name(key: str) -> str:
     return ENV_PREFIX + key.replace(".", "_").upper()
 
 
+#: ``flash.read_back``: read the block back before its CRC is written, or leave it to the ECU's check
+READ_BACK_CHOICES = ("before-crc", "off")
+
+
 @dataclass(frozen=True)
 class Key:
     """One settings key: its dotted name, its TOML type, and its default (``None``: required)."""
@@ -94,6 +98,9 @@ KEYS: tuple[Key, ...] = (
     Key("dyno.timeout_s", float, 1.0, bounds=(0.01, 60.0)),
     # the dyno stops by itself when the station is silent this long (its register is a u16 of ms)
     Key("dyno.watchdog_ms", int, 2000, bounds=(100, 60_000)),
+    # the block read back before its CRC is written (docs/flashing.md), or the ECU's CRC check alone
+    # (contract: the read-back is optional); a takt choice of the line's, recorded per block
+    Key("flash.read_back", str, "before-crc", choices=READ_BACK_CHOICES),
     Key("can.interface", str),
     Key("can.channel", str),
     Key("can.bitrate", int, bounds=(10_000, 8_000_000)),
