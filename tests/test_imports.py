@@ -218,9 +218,11 @@ def test_no_private_name_imported_across_modules():
 
 
 #: Imported inside functions on purpose: each costs a second or more, or brings a server's client
-#: (and what imports them at module level is heavy in turn).
+#: (and what imports them at module level is heavy in turn). scipy: its signal, interpolate and
+#: linalg modules, which the analysis uses, cost as much as asammdf together (`python -X importtime`,
+#: docs/benchmarks.md "Takt time"), and `eol-cal run` paid them before its cycle started.
 HEAVY = ("jax", "jaxlib", "matplotlib", "distributed", "dask", "asammdf", "optimistix", "equinox", "lineax",
-         "sqlalchemy")
+         "sqlalchemy", "scipy")
 
 #: Library modules that still import light modules inside functions. The branches in flight
 #: (station cycle and dyno; inputs and UDS) edit them: their imports move to the top after those
@@ -237,7 +239,7 @@ LAZY_LEFT = frozenset({
     "eol_cal.dyno.client", "eol_cal.dyno.sim", "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer",
     "eol_cal.firmware.golden", "eol_cal.fuzz.mutate", "eol_cal.fuzz.scenarios", "eol_cal.lot.baseline",
     "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.simulate",
-    "eol_cal.msa.type1", "eol_cal.plant.simulate", "eol_cal.report.motor", "eol_cal.schemas",
+    "eol_cal.plant.simulate", "eol_cal.report.motor", "eol_cal.schemas",
     "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.station.demo", "eol_cal.station.early",
     "eol_cal.station.limits", "eol_cal.station.preflight", "eol_cal.station.record", "eol_cal.station.records",
     "eol_cal.station.restore", "eol_cal.station.run", "eol_cal.station.settings", "eol_cal.station.spool",

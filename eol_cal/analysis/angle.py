@@ -30,7 +30,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.interpolate import PchipInterpolator
 
 from eol_cal.analysis.edges import boundary_state, debounce_edges, level_changes, quadrature_boundaries
 from eol_cal.capture.model import Capture
@@ -233,6 +232,8 @@ def reconstruct_angle(
     rel_u = np.bincount(inv, weights=rel) / np.bincount(inv)
     if len(t_u) < 2:
         raise InputError(source, "enc_a", "fewer than two distinct encoder edge times")
+    from scipy.interpolate import PchipInterpolator  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
     interp = PchipInterpolator(t_u, rel_u, extrapolate=False)
     slope = interp.derivative()
 

@@ -27,8 +27,6 @@ from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.ndimage import median_filter
-from scipy.signal import butter, sosfiltfilt
 
 from eol_cal.analysis.angle import AngleResult, capture_angle
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
@@ -91,6 +89,8 @@ def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65
     spikes : ndarray of bool
         Which samples were replaced.
     """
+    from scipy.ndimage import median_filter  # scipy's submodules are heavy (tests/test_imports.py)
+
     x = np.asarray(x, dtype=float)
     k = max(int(half_width), 1)
     mode = "mirror" if len(x) > k else "nearest"
@@ -137,6 +137,8 @@ def lowpass_zero_phase(x: np.ndarray, fs_hz: float, cutoff_hz: float, order: int
     """
     if cutoff_hz >= 0.45 * fs_hz:
         return np.asarray(x, dtype=float).copy()
+    from scipy.signal import butter, sosfiltfilt  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
     sos = butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")
     return sosfiltfilt(sos, x)
 

@@ -189,6 +189,7 @@ class StationCycle:
         from eol_cal.analysis.fit.prewarm import prewarm_fit
         from eol_cal.station.early import EarlyWindows
 
+        self._helper.submit(_preload_analysis)
         self._helper.submit(_preload_writers)
         # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
         self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir, False)
@@ -561,6 +562,16 @@ class StationCycle:
             active = EcuActive(what if boots["boots"] == "new" else f"{what} (if its CRC was written)",
                                boots["sequence"], boots["bank"])
         return active
+
+
+def _preload_analysis() -> None:
+    """Import what each window's angle and figures need (scipy's interpolate, signal, ndimage and
+    BLAS: heavy, so imported inside the functions) while the shaft ramps to the first segment,
+    not at `eol-cal run`'s start nor when the first window is in."""
+    import scipy.interpolate
+    import scipy.linalg.blas
+    import scipy.ndimage
+    import scipy.signal  # noqa: F401
 
 
 def _preload_writers() -> None:

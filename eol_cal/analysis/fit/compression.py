@@ -14,7 +14,6 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg.blas import dgemm
 
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix_t, path_gain
 
@@ -91,6 +90,8 @@ def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_
     # [X y]^T [X y] accumulated block by block: X^T X, X^T y and y^T y in one GEMM per block, on
     # the (n, m+1) Fortran view (numpy's ``A @ A.T`` dispatches to SYRK, which OpenBLAS runs 2x
     # slower for these narrow products)
+    from scipy.linalg.blas import dgemm  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
     G = np.zeros((m + 1, m + 1), order="F")
     for a in range(0, n, _BLOCK):
         b = min(a + _BLOCK, n)
