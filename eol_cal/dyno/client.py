@@ -3,9 +3,10 @@
 The sequence per segment: set the load command, direction and speed set point, enable, wait
 until the dyno reports "at speed", start a capture, poll until the buffer is ready, read every
 channel through the paged window and check it. Which registers those are, and how their values
-are encoded, is the dyno's register map (:mod:`.regmap`, from a map file: ``DynoConfig.register_map``). The segments are joined into
-one :class:`~eol_cal.capture.model.Capture` whose time axis keeps the real time between the
-segments' starts (so the gaps are visible: the windows are not one continuous recording).
+are encoded, is the dyno's register map (:mod:`.regmap`, from a map file: ``DynoConfig.register_map``).
+The segments are joined into one :class:`~eol_cal.capture.model.Capture` whose time axis keeps the
+real time between the segments' starts (so the gaps are visible: the windows are not one continuous
+recording).
 
 Safety: whatever goes wrong (timeout, lost connection, fault bit, bad data, Ctrl-C) the client
 sets the speed to zero and disables the drive in a ``finally`` and raises :class:`DynoError`;
@@ -251,7 +252,8 @@ class DynoClient:
         for table, address, count, run in self.regmap.read_runs(names):
             fc = READ_FC[table]
             read = self._client.read_input_registers if fc == 4 else self._client.read_holding_registers
-            r = self._call(f"read {','.join(run)}", lambda a=address, n=count, f=read: f(a, count=n, device_id=self.config.device_id),
+            r = self._call(f"read {','.join(run)}",
+                           lambda a=address, n=count, f=read: f(a, count=n, device_id=self.config.device_id),
                            (fc, address, count, None))
             try:
                 out.update(self.regmap.unpack(address, r.registers, run))
@@ -266,7 +268,8 @@ class DynoClient:
         except ValueError as exc:
             raise DynoError(f"{self.where}: cannot write {exc} (register map {self.regmap.source})") from None
         for address, words, names in runs:
-            self._call(f"write {','.join(names)}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id),
+            self._call(f"write {','.join(names)}",
+                       lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id),
                        (16, address, len(words), words))
 
     def status(self) -> dict[str, float | int | str]:
@@ -276,7 +279,8 @@ class DynoClient:
         if st["heartbeat"] != self._heartbeat[0]:
             self._heartbeat = (int(st["heartbeat"]), now)
         elif now - self._heartbeat[1] > HEARTBEAT_STALL_S:
-            raise DynoError(f"{self.where}: dyno controller not running (heartbeat stuck at {st['heartbeat']} for {now - self._heartbeat[1]:.1f} s)")
+            raise DynoError(f"{self.where}: dyno controller not running "
+                            f"(heartbeat stuck at {st['heartbeat']} for {now - self._heartbeat[1]:.1f} s)")
         return st
 
     def check_faults(self, st: dict, what: str) -> None:
@@ -310,7 +314,8 @@ class DynoClient:
         self.write(enable=Switch.ON, watchdog_ms=cfg.watchdog_ms)
         ramp_time = abs(seg.speed_rpm - float(st["speed"])) / seg.ramp_rpm_s
         if wait:
-            self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+            self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout,
+                      f"ramping to {seg.speed_rpm:g} rpm")
         return ramp_time
 
     def wait(self, cond: Callable[[dict], bool], timeout: float, what: str,
@@ -323,7 +328,8 @@ class DynoClient:
             if cond(st):
                 return st
             if time.monotonic() > end:
-                raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, drive state {DriveState(int(st['drive_state'])).name})")
+                raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, "
+                                f"drive state {DriveState(int(st['drive_state'])).name})")
             time.sleep(self.config.poll_interval if interval is None else interval(st))
 
     def wait_standstill(self, timeout: float, what: str, speed: float | None = None) -> dict:
@@ -475,7 +481,8 @@ def run_profile(
     for i, seg in enumerate(segments):
         # refuse a bad profile before the shaft turns
         if int(round(seg.seconds * rate_hz)) < 2:
-            raise InputError(None, f"segment {i + 1}", f"{seg.seconds:g} s of steady capture at {rate_hz} Hz is fewer than 2 samples")
+            raise InputError(None, f"segment {i + 1}",
+                             f"{seg.seconds:g} s of steady capture at {rate_hz} Hz is fewer than 2 samples")
         if seg.ramp_rpm_s <= 0 or not np.isfinite(seg.ramp_rpm_s):
             raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
     data: list[DynoWindow] = []

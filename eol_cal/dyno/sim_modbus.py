@@ -66,7 +66,8 @@ class ModbusFace:
             "capture_state": int(self.capture_state),
             "capture_count": self.captured(),
             "capture_channels": self.regmap.channel_mask(list(self.buffer)),
-            "heartbeat": self.heartbeat_frozen if self.heartbeat_frozen is not None else int((time.monotonic() - self._t0) * 100) & 0xFFFF,
+            "heartbeat": (self.heartbeat_frozen if self.heartbeat_frozen is not None
+                          else int((time.monotonic() - self._t0) * 100) & 0xFFFF),
             "capture_seq": self.capture_seq,
         }
 
