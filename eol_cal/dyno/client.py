@@ -15,11 +15,13 @@ the capture file is written (atomically) only after every segment was read and v
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -33,6 +35,9 @@ from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
 from eol_cal.dyno.transfer import BufferFill, BufferReader, DynoConfig, ProgressFn, Stream, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
+
+if TYPE_CHECKING:
+    from pymodbus.pdu import ModbusPDU
 
 #: channels read by default (the packed digital channel is always read); the others on request
 DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
@@ -183,7 +188,8 @@ class DynoClient:
     def where(self) -> str:
         return f"dyno {self.config.host}:{self.config.port}"
 
-    def _call(self, what: str, fn: Callable[[], object], request: tuple[int, int, int, list[int] | None]):
+    def _call(self, what: str, fn: Callable[[], ModbusPDU], request: tuple[int, int, int, list[int] | None]
+              ) -> ModbusPDU:
         """Run one request with :func:`eol_cal.retry.retry_call`: reconnect on lost connections
         and timeouts; a Modbus exception answer is a refusal, not retried.
 
@@ -194,7 +200,7 @@ class DynoClient:
         fc, address, count, written = request
         where = f"{self.config.host}:{self.config.port}"
 
-        def attempt(n: int):
+        def attempt(n: int) -> ModbusPDU:
             if not self._client.connected:
                 if n:
                     self._reconnects += 1
@@ -214,7 +220,7 @@ class DynoClient:
         if response.isError():
             code = getattr(response, "exception_code", None)
             log_modbus(where, fc, address, count, written, exception=code)
-            why = _EXCEPTION_MEANING.get(code, "")
+            why = _EXCEPTION_MEANING.get(code, "") if code is not None else ""
             raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
         log_modbus(where, fc, address, count, written if written is not None else getattr(response, "registers", None))
         return response
@@ -253,7 +259,7 @@ class DynoClient:
             fc = READ_FC[table]
             read = self._client.read_input_registers if fc == 4 else self._client.read_holding_registers
             r = self._call(f"read {','.join(run)}",
-                           lambda a=address, n=count, f=read: f(a, count=n, device_id=self.config.device_id),
+                           functools.partial(read, address, count=count, device_id=self.config.device_id),
                            (fc, address, count, None))
             try:
                 out.update(self.regmap.unpack(address, r.registers, run))
@@ -269,7 +275,7 @@ class DynoClient:
             raise DynoError(f"{self.where}: cannot write {exc} (register map {self.regmap.source})") from None
         for address, words, names in runs:
             self._call(f"write {','.join(names)}",
-                       lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id),
+                       functools.partial(self._client.write_registers, address, words, device_id=self.config.device_id),
                        (16, address, len(words), words))
 
     def status(self) -> dict[str, float | int | str]:
@@ -286,7 +292,7 @@ class DynoClient:
     def check_faults(self, st: dict, what: str) -> None:
         faults = int(st["faults"])
         if faults:
-            names = [f.name for f in Fault if f & faults]
+            names = [f.name or f"0x{int(f):04x}" for f in Fault if f & faults]  # iterating a Flag yields named members
             raise DynoError(f"{self.where}: fault {'+'.join(names)} while {what} (faults=0x{faults:04x})")
         if st["drive_state"] == DriveState.TRIPPED:
             raise DynoError(f"{self.where}: drive tripped while {what}")
@@ -387,6 +393,7 @@ class DynoClient:
                 raise DynoError(f"{self.where}: capture ended in the error state")
             count = int(s["capture_count"]) if state in (CaptureState.RUNNING, CaptureState.READY) else 0
             if reader is None and count > 0:
+                assert self._reader is not None  # opened above, before the wait
                 reader = self._reader.stream(self.recorded_channels(s, names), fill, rate_hz, progress)
             if state == CaptureState.READY and count != n_samples:
                 raise DynoError(f"{self.where}: capture holds {count} samples, {n_samples} requested")
@@ -401,6 +408,8 @@ class DynoClient:
         try:
             self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
                       interval)
+            # the wait ended on READY with n_samples (>= 1) samples recorded: recorded opened the stream
+            assert reader is not None
             return reader.result(cfg.capture_timeout)
         except TransferError as exc:
             raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
@@ -569,7 +578,8 @@ def assemble(
     if not data:
         raise DynoError("no segments captured")
     names = sorted(set.intersection(*(set(d.channels) for d in data)))
-    ts, chans = window_times(data), {n: [] for n in names}
+    ts = window_times(data)
+    chans: dict[str, list[np.ndarray]] = {n: [] for n in names}
     for d in data:
         for name in names:
             chans[name].append(d.channels[name])

@@ -23,7 +23,10 @@ from eol_cal.dyno.registers import CaptureState, Fault, Interlock, SimFault
 
 if TYPE_CHECKING:
     from pymodbus.constants import ExcCodes
+    from pymodbus.server import ModbusTcpServer
     from pymodbus.simulator import SimDevice
+
+    from eol_cal.dyno.sim import CaptureRequest
 
 _FC_READ = (3, 4)
 #: longest capture the buffer holds (samples)
@@ -36,7 +39,8 @@ class ModbusFace:
     """Registers of the simulated dyno (a mixin: the state lives in :class:`DynoSim`)."""
 
     _loop: asyncio.AbstractEventLoop | None
-    _server: object | None
+    _server: ModbusTcpServer | None
+    _recording: CaptureRequest | None  # the capture running now
     regmap: RegisterMap
     realtime: bool
     captures: list
