@@ -189,6 +189,7 @@ class StationCycle:
         from eol_cal.analysis.fit.prewarm import prewarm_fit
         from eol_cal.station.early import EarlyWindows
 
+        assert self._helper is not None  # start() made the pool
         self._helper.submit(_preload_writers)
         # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
         self._prewarm = self._helper.submit(prewarm_fit, len(self.segments), self.cfg.cache_dir, False)
@@ -208,6 +209,7 @@ class StationCycle:
         # are shared by the threads, and a cold start compiles the same solver in both
         check_motor(self.before, self.cfg.motor)
         self._open_flash_ahead()
+        assert self._prewarm is not None  # the acquire step, run before, started it
         self._prewarm.result()
         doc, res, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
                                     self.cfg.cache_dir, self.cfg.estimator_options, prepared=self._early)
@@ -238,6 +240,8 @@ class StationCycle:
 
     def acquire_compensated(self) -> None:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
+        # the steps run in order and stop at the first that fails: the fit gave a result, start() made the pool
+        assert self.result is not None and self._helper is not None
         op = self.result.operating_point
         segs = self.segments if self.cfg.verify == "full" else verify_segments(self.segments, op.speed_rpm, op.i_qo_a)
         # the before-capture's figures are computed meanwhile on the helper thread, and each
@@ -254,6 +258,9 @@ class StationCycle:
         """Ripple before and after at the operating point, judged against the ripple's limits."""
         from eol_cal.capture.windows import split_windows
 
+        # the steps before this one gave them (the cycle stops at the first step that fails)
+        assert self.result is not None and self.measured is not None
+        assert self._pr_before is not None and self._verify is not None
         op = self.result.operating_point
         before = self._pr_before.result()
         pieces = split_windows(self.after)
@@ -268,6 +275,7 @@ class StationCycle:
             from eol_cal.msa.gate import judge_master
 
             e = self.result.estimates
+            assert e is not None  # the fit step passed: its result is usable (it has estimates)
             reasons += judge_master({"k6": e.k6.value, "phase_k6": e.phase_k6.value, "c6": e.c6.value,
                                      "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct}, self.cfg.master)
         return StepVerdict("fail" if reasons else "pass", tuple(reasons))
@@ -375,6 +383,7 @@ class StationCycle:
                     self.verdict = "error"
                     self.reasons = self.reasons + [f"report: {exc}"]
             self.ended_at = now_iso()
+            assert self._helper is not None  # start() made the pool
             self._helper.shutdown(wait=True)
             rec = self.to_record()
             try:

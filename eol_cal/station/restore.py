@@ -188,6 +188,7 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
             blocks.append(exc.flashed_block)
     seconds = round(time.perf_counter() - t0, 4)
     if failure is None:
+        assert report is not None  # flash_archived returned (no failure): its report is set
         verdict, reasons, error = "pass", (), None
         active = EcuActive("restored", report.sequence, report.bank)
     else:
