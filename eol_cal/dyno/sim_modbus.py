@@ -22,6 +22,7 @@ from eol_cal.dyno.regmap import RegisterMap
 from eol_cal.dyno.registers import CaptureState, Fault, Interlock, SimFault
 
 if TYPE_CHECKING:
+    import numpy as np
     from pymodbus.constants import ExcCodes
     from pymodbus.server import ModbusTcpServer
     from pymodbus.simulator import SimDevice
@@ -41,6 +42,7 @@ class ModbusFace:
     _loop: asyncio.AbstractEventLoop | None
     _server: ModbusTcpServer | None
     _recording: CaptureRequest | None  # the capture running now
+    buffer: dict[int, np.ndarray]  # channel id -> register words (uint16)
     regmap: RegisterMap
     realtime: bool
     captures: list
@@ -168,7 +170,7 @@ class ModbusFace:
                 i = e.address - start
                 registers[i: i + e.count] = self.regmap.encode(name, value)
 
-    def _write(self, address: int, words: list[int], set_values):
+    def _write(self, address: int, words: list[int], set_values: list[int]) -> ExcCodes | None:
         from pymodbus.constants import ExcCodes
 
         end = address + len(words)
@@ -193,7 +195,7 @@ class ModbusFace:
                 set_values[i: i + m[name].count] = m.encode(name, 0)
         return None
 
-    def _apply(self, new: dict[str, float | int | str]):
+    def _apply(self, new: dict[str, float | int | str]) -> ExcCodes | None:
         """Validate a write as a whole, then apply it; a Modbus exception code on refusal."""
         from pymodbus.constants import ExcCodes
 
