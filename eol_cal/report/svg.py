@@ -18,12 +18,13 @@ from eol_cal.render import literal_texts
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
+    from matplotlib.typing import RcKeyType
 
 _ID = re.compile(r'\bid="([^"]+)"')
 _REF = re.compile(r'(url\(#|href="#)([^")]+)')
 #: what every SVG the reports inline is written with: fixed hash salt (clip path ids), glyphs as
 #: paths (no font needed where the page is opened), no date in the metadata
-RC = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
+RC: dict[RcKeyType, object] = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
 
 
 def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
