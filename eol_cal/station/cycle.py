@@ -157,6 +157,7 @@ class StationCycle:
         touched, while the master check is due or the last one failed (:mod:`eol_cal.msa.gate`)."""
         from eol_cal.msa.gate import check_gate
 
+        assert self.cfg.master is not None  # _run runs this step only on a station with a master motor
         check_gate(self.cfg.db, self.cfg.master, self.station.id, timeout_s=self.cfg.db_timeout_s)
 
     def pre_flight(self) -> None:
@@ -207,6 +208,7 @@ class StationCycle:
 
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
+        assert self.before is not None  # the acquire step, run before, captured it
         check_motor(self.before, self.cfg.motor)
         self._open_flash_ahead()
         assert self._prewarm is not None  # the acquire step, run before, started it
@@ -226,6 +228,7 @@ class StationCycle:
         """The calibrated block from the fit (lead automatic)."""
         from eol_cal.analysis.fit.table import block_from_result, created_unix
 
+        assert self.result is not None and self.fit_doc is not None  # the fit step, run before, passed
         self.calibrated = block_from_result(self.result, self.cfg.motor, calibrated_at=created_unix(self.fit_doc),
                                             source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
@@ -236,6 +239,7 @@ class StationCycle:
         block stays active)."""
         from eol_cal.firmware.block import pack
 
+        assert self.calibrated is not None  # the table step, run before, made it
         self._flash(pack(self.calibrated), "calibrated", before_commit=self._settle_writes, ahead=self._ahead)
 
     def acquire_compensated(self) -> None:
@@ -260,7 +264,7 @@ class StationCycle:
 
         # the steps before this one gave them (the cycle stops at the first step that fails)
         assert self.result is not None and self.measured is not None
-        assert self._pr_before is not None and self._verify is not None
+        assert self._pr_before is not None and self._verify is not None and self.after is not None
         op = self.result.operating_point
         before = self._pr_before.result()
         pieces = split_windows(self.after)
@@ -411,12 +415,15 @@ class StationCycle:
         from eol_cal.firmware.block import LAYOUT_VERSION
 
         lim = self.cfg.limits
+        layout = LAYOUT_VERSION
+        if self.calibrated is not None and self.calibrated.layout_version is not None:  # (never None once made)
+            layout = self.calibrated.layout_version
         return RunRecord(
             kind=self.kind, run_id=self.run_id, serial=self.cfg.serial,
             started_at=self.started.isoformat(timespec="milliseconds"), ended_at=self.ended_at, verdict=self.verdict,
             reasons=tuple(self.reasons), refusal_codes=self.refusal_codes if self.kind == "refusal" else (),
             error=self.error, tool_version=__version__, station=self.station,
-            layout_version=self.calibrated.layout_version if self.calibrated is not None else LAYOUT_VERSION,
+            layout_version=layout,
             limits=lim, limits_sha256=self.limits_sha256, checks=tuple(all_checks(self.judged, lim)),
             steps=tuple(self.steps), preflight=self.preflight, captures=dict(self.captures), fit=self.result,
             blocks=tuple(self.blocks), metrics=self.metrics, report_dir=str(self.run_dir), safe_state=self.safe_state,
@@ -521,8 +528,9 @@ class StationCycle:
                                                timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor,
                                                source=source, before_commit=before_commit)
         except BaseException as exc:
-            if getattr(exc, "flashed_block", None) is not None:
-                self.blocks.append(exc.flashed_block)
+            flashed = getattr(exc, "flashed_block", None)
+            if flashed is not None:
+                self.blocks.append(flashed)
             raise
         self.blocks.append(done)
 
