@@ -321,7 +321,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
     from eol_cal.station.records_query import latest_per_serial
 
     order = {"error": 0, "fail": 1, "pass": 2}
-    rows = []
+    rows: list[dict[str, Any]] = []  # the function's rows
     for r in latest_per_serial(records).values():
         worst, rel = None, math.inf
         for row in limit_rows(r):
