@@ -79,8 +79,9 @@ def main() -> int:
 
     host, port = "127.0.0.1", free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    server = subprocess.Popen([sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "synthetic"],
-                              stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+    server = subprocess.Popen(
+        [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "synthetic"],
+        stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
     try:
         server.stderr.readline()
         cfg = DynoConfig(host=host, port=port, timeout=2.0)
@@ -95,7 +96,8 @@ def main() -> int:
         total_regs = args.samples * regs_per_sample
         print(f"machine: {platform.machine()}, {os.cpu_count()} cores, load avg {os.getloadavg()[0]:.1f}; "
               f"python {platform.python_version()}")
-        print(f"capture: {args.samples} samples x ({', '.join(names)} as f32 + digital u16) = {regs_per_sample} registers/sample, "
+        print(f"capture: {args.samples} samples x ({', '.join(names)} as f32 + digital u16) = "
+              f"{regs_per_sample} registers/sample, "
               f"{total_regs} registers; dyno simulator in its own process on {host}")
         print(f"{'method':<34}{'median s':>10}{'registers/s':>14}{'samples/s':>12}{'x plain':>9}{'client CPU s':>13}")
         ref = None
@@ -124,7 +126,8 @@ def main() -> int:
             a, b, h = m.unpack_digital(ref[m.window.digital_id])
             np.testing.assert_array_equal(got["hall"], h)
             dk.close()
-            rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times), statistics.median(cpus)))
+            rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times),
+                         statistics.median(cpus)))
         for label, s, cpu in rows:
             print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}{cpu:>13.2f}")
         dc.safe_state()
@@ -137,8 +140,9 @@ def main() -> int:
         server.wait(10)
     if args.plant:
         port = free_port()
-        server = subprocess.Popen([sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "plant"],
-                                  stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+        server = subprocess.Popen(
+            [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "plant"],
+            stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
         try:
             server.stderr.readline()
             ready = server.stderr.readline().strip()  # "plant ready (N s)": compiled before the first capture

@@ -89,7 +89,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     for ch in s["channels"]:
         events = s["events"].get(ch["name"])
         table.add_row(
-            ch["name"], ch["unit"], _fmt(ch["min"]), _fmt(ch["max"]), str(ch["non_finite"]), "-" if events is None else str(events)
+            ch["name"], ch["unit"], _fmt(ch["min"]), _fmt(ch["max"]), str(ch["non_finite"]),
+            "-" if events is None else str(events)
         )
     console.print(table)
     meta = Table("metadata", "value")

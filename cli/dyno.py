@@ -46,17 +46,26 @@ def _quiet_pymodbus() -> None:
 
 
 @click.command("acquire")
-@click.option("--dyno", "address", required=True, metavar="HOST[:PORT]", help="Modbus TCP address of the dyno (port 502 when none is given).")
+@click.option("--dyno", "address", required=True, metavar="HOST[:PORT]",
+              help="Modbus TCP address of the dyno (port 502 when none is given).")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile name or a TOML profile file.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path), help="Capture file (.csv or .mf4), written atomically.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, path_type=Path),
+              help="Capture file (.csv or .mf4), written atomically.")
 @click.option("--serial", default=None, help="Motor serial (default: the serial the dyno reports).")
-@click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True, help="Capture sample rate (Hz).")
-@click.option("--timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request timeout (s).")
-@click.option("--retries", type=click.IntRange(0, 20), default=3, show_default=True, help="Retries per request (reconnecting in between).")
-@click.option("--connections", type=click.IntRange(1, 16), default=4, show_default=True, help="Parallel connections for the capture transfer.")
-@click.option("--all-channels", is_flag=True, help="Also read temperature and the dq and phase currents (temp, iq, id, ia, ib, ic).")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True,
+              help="Capture sample rate (Hz).")
+@click.option("--timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True,
+              help="Per-request timeout (s).")
+@click.option("--retries", type=click.IntRange(0, 20), default=3, show_default=True,
+              help="Retries per request (reconnecting in between).")
+@click.option("--connections", type=click.IntRange(1, 16), default=4, show_default=True,
+              help="Parallel connections for the capture transfer.")
+@click.option("--all-channels", is_flag=True,
+              help="Also read temperature and the dq and phase currents (temp, iq, id, ia, ib, ic).")
 @click.option("--reset-faults", is_flag=True, help="Clear faults latched on the dyno before the run.")
-@click.option("--split-windows", is_flag=True, help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed per window.")
+@click.option("--split-windows", is_flag=True,
+              help="Also write each segment's window as its own capture (OUT.wN.mf4): an angle must be reconstructed "
+                   "per window.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary instead of text.")
 @register_map_option
 @bus_options
@@ -176,12 +185,18 @@ def parse_fault_plan(text: str) -> FaultPlan:
 
 
 @click.command("dyno-sim")
-@click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT", help="Address to serve Modbus TCP on (port 0: any free port).")
-@click.option("--ecu-flash", type=click.Path(dir_okay=False, path_type=Path), default=None, help="The ECU simulator's flash file: its active bank sets the motor's compensation.")
-@click.option("--seed", type=click.IntRange(0), default=None, help="Draw the motor from the plant's production tolerances with this seed (default: the preset motor as is).")
+@click.option("--listen", default="127.0.0.1:5020", show_default=True, metavar="HOST:PORT",
+              help="Address to serve Modbus TCP on (port 0: any free port).")
+@click.option("--ecu-flash", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="The ECU simulator's flash file: its active bank sets the motor's compensation.")
+@click.option("--seed", type=click.IntRange(0), default=None,
+              help="Draw the motor from the plant's production tolerances with this seed (default: the preset motor as is).")
 @click.option("--serial", default="M-0001", show_default=True, help="Serial of the simulated motor.")
-@click.option("--source", type=click.Choice(["plant", "synthetic"]), default="plant", show_default=True, help="plant: the built-in JAX plant with the ECU's mode; synthetic: the analytic model (fast, no ECU).")
-@click.option("--fault", "faults", multiple=True, metavar="KIND[@capture:N|@read:N][/MS]", help="Inject a fault by itself: disconnect, over-speed or torque-sensor, at the N-th capture or window read (repeatable).")
+@click.option("--source", type=click.Choice(["plant", "synthetic"]), default="plant", show_default=True,
+              help="plant: the built-in JAX plant with the ECU's mode; synthetic: the analytic model (fast, no ECU).")
+@click.option("--fault", "faults", multiple=True, metavar="KIND[@capture:N|@read:N][/MS]",
+              help="Inject a fault by itself: disconnect, over-speed or torque-sensor, at the N-th capture or window read "
+                   "(repeatable).")
 @realtime_option
 @register_map_option
 @handle_errors
@@ -214,7 +229,8 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
             try:
                 import eol_cal.plant.variation  # noqa: F401
             except ImportError:
-                raise InputError(None, "--seed", "motor variation (eol_cal.plant.variation) is not available in this build") from None
+                raise InputError(None, "--seed",
+                                 "motor variation (eol_cal.plant.variation) is not available in this build") from None
 
         from eol_cal.station.rig import plant_source
 
@@ -226,7 +242,8 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
                      realtime=realtime)
 
     def started(bound: int) -> None:
-        err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP, register map {regmap.name!r}), motor {serial}, source {source}"
+        err_console.print(f"dyno simulator on {host}:{bound} (Modbus TCP, register map {regmap.name!r}), "
+                          f"motor {serial}, source {source}"
                           + (", real time" if realtime else "")
                           + (f", ECU flash {ecu_flash}" if ecu_flash else ""))
         if source == "plant":

@@ -72,13 +72,19 @@ def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple
 @click.option("--hall-angle", "hall_angle", type=click.Choice(["measured", "nominal"]), default="measured", show_default=True,
               help="Hall table for the block (and the frame of the phases): measured from the motor's own hall "
                    "transitions, or the contract's nominal one.")
-@click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5), help="Per-segment drift polynomial degree.")
-@click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0), help="Settling time dropped after each step (s).")
-@click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of k6, fraction of k6.")
-@click.option("--max-ci-phase", default=3.0, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % interval of phase_k6 (deg).")
-@click.option("--max-ci-c6", default=0.002, show_default=True, type=click.FloatRange(0.0), help="Widest 95 % cogging phasor error (N*m).")
+@click.option("--drift-degree", default=2, show_default=True, type=click.IntRange(0, 5),
+              help="Per-segment drift polynomial degree.")
+@click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0),
+              help="Settling time dropped after each step (s).")
+@click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0),
+              help="Widest 95 % interval of k6, fraction of k6.")
+@click.option("--max-ci-phase", default=3.0, show_default=True, type=click.FloatRange(0.0),
+              help="Widest 95 % interval of phase_k6 (deg).")
+@click.option("--max-ci-c6", default=0.002, show_default=True, type=click.FloatRange(0.0),
+              help="Widest 95 % cogging phasor error (N*m).")
 @click.option("--max-steps", default=64, show_default=True, type=click.IntRange(1), help="Solver step limit.")
-@click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True, help="Gauss-Newton or Levenberg-Marquardt.")
+@click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True,
+              help="Gauss-Newton or Levenberg-Marquardt.")
 @click.option("--batch", type=click.Choice(["auto", "loop", "vmap", "map"]), default="auto", show_default=True,
               help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
 @click.option("--allow-untraced", is_flag=True,

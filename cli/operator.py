@@ -260,10 +260,12 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
               help="Demo: directory for limits, database, reports, flash images [default: a new temporary directory].")
 @click.option("--operator", default=None, help="Operator for the records [default: asked at the start].")
 @click.option("--station-id", default=None, help="Station id for the records (settings key station_id).")
-@click.option("--limits", "limits_file", default=None, type=click.Path(dir_okay=False), help="Limits TOML (overrides the settings).")
+@click.option("--limits", "limits_file", default=None, type=click.Path(dir_okay=False),
+              help="Limits TOML (overrides the settings).")
 @click.option("--variant", default=None, help="Product variant in the limits file (overrides the settings).")
 @click.option("--db", default=None, type=RECORDS_DB, help="Records database (overrides the settings; demo: OUT/results.sqlite).")
-@click.option("--report-dir", default=None, type=click.Path(file_okay=False, path_type=Path), help="Reports (overrides the settings).")
+@click.option("--report-dir", default=None, type=click.Path(file_okay=False, path_type=Path),
+              help="Reports (overrides the settings).")
 @key_algo_option
 @click.option("--lot", "lot_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the station's lot page here at the end [demo default: OUT/lot.html].")

@@ -204,12 +204,15 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
 @click.command("run")
 @click.option("--station", "station_file", type=click.Path(dir_okay=False), default=None,
               help="Station settings TOML (docs/station.md, First real station); options given here override it.")
-@click.option("--dyno", "address", default=None, metavar="HOST[:PORT]", help="Modbus TCP address of the dyno (port 502 when none is given).")
-@click.option("--interface", "-i", default=None, help="python-can interface of the ECU's bus (socketcan, pcan, vector, remote...).")
+@click.option("--dyno", "address", default=None, metavar="HOST[:PORT]",
+              help="Modbus TCP address of the dyno (port 502 when none is given).")
+@click.option("--interface", "-i", default=None,
+              help="python-can interface of the ECU's bus (socketcan, pcan, vector, remote...).")
 @click.option("--channel", "-c", default=None, help="python-can channel (can0, PCAN_USBBUS1, ws://127.0.0.1:54701/...).")
 @click.option("--bitrate", type=int, default=None, help="CAN bit rate (bit/s).")
 @click.option("--can-config", type=click.Path(dir_okay=False), help="python-can configuration file; options given here win.")
-@click.option("--limits", "limits_file", default=None, type=click.Path(dir_okay=False), help="Limits TOML ([variant.NAME] tables).")
+@click.option("--limits", "limits_file", default=None, type=click.Path(dir_okay=False),
+              help="Limits TOML ([variant.NAME] tables).")
 @click.option("--variant", default=None, help="Product variant in the limits file (default: its default_variant or only one).")
 @click.option("--db", default=None, type=RECORDS_DB, help="Records database: a SQLite file (WAL) or postgresql://user@host:port/db.")
 @click.option("--serial", required=True, help="Serial of the motor on the dyno (1-16 ASCII characters).")
@@ -217,21 +220,28 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
 @click.option("--operator", default=None, help="Operator for the record.")
 @click.option("--profile", default="eol-default", show_default=True, help="Built-in test profile or a TOML profile file.")
 @click.option("--verify", type=click.Choice(["point", "full"]), default="point", show_default=True,
-              help="Compensated acquisition: the profile's segments at the operating point (both directions), or the full profile.")
+              help="Compensated acquisition: the profile's segments at the operating point (both directions), "
+                   "or the full profile.")
 @click.option("--key-file", type=click.Path(dir_okay=False),
               help="ECU security secret, 16 bytes hex (or $EOL_CAL_KEY_FILE).")
 @key_algo_option
 @click.option("--report-dir", default="reports", show_default=True, type=click.Path(file_okay=False, path_type=Path),
               help="Each run gets a directory here: captures, fit, block, plots, report.html/json.")
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Where records wait when the database cannot be written [default: $EOL_CAL_SPOOL or ~/.local/state/eol-cal/spool].")
-@click.option("--db-timeout", type=click.FloatRange(0.0, 600.0), default=5.0, show_default=True, help="Seconds to wait for a database lock before spooling.")
-@click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True, help="Capture sample rate (Hz).")
-@click.option("--dyno-timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True, help="Per-request Modbus timeout (s).")
+              help="Where records wait when the database cannot be written "
+                   "[default: $EOL_CAL_SPOOL or ~/.local/state/eol-cal/spool].")
+@click.option("--db-timeout", type=click.FloatRange(0.0, 600.0), default=5.0, show_default=True,
+              help="Seconds to wait for a database lock before spooling.")
+@click.option("--rate", "rate_hz", type=click.IntRange(1, 1_000_000), default=10000, show_default=True,
+              help="Capture sample rate (Hz).")
+@click.option("--dyno-timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True,
+              help="Per-request Modbus timeout (s).")
 @click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
-              help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm, current_bw_hz, ...): the motor type on the station.")
+              help="Motor TOML overriding the paper preset (poles, N_enc, f_pwm, current_bw_hz, ...): the motor type on "
+                   "the station.")
 @click.option("--bench", "bench_name", default="paper", show_default=True, metavar="NAME|FILE.toml",
-              help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; 'none' = rigid.")
+              help="The dyno bench (eol_cal/benches/NAME.toml or a TOML file) whose response the fit divides out; "
+                   "'none' = rigid.")
 @estimator_option("both blocks of the cycle carry them [default: the variant's, limits key estimator].",
                   default=None)
 @click.option("--read-back", type=click.Choice(["before-crc", "off"]), default=None,

@@ -25,11 +25,13 @@ def _lead(text: str) -> float | None:
 @click.argument("result", type=click.Path(dir_okay=False))
 @click.option("--serial", help="Motor to take from a result with several.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Block image to write (.bin).")
-@click.option("--table-len", default=DEFAULT_TABLE_LEN, show_default=True, type=int, help="Table entries N (power of two, 16..1024).")
+@click.option("--table-len", default=DEFAULT_TABLE_LEN, show_default=True, type=int,
+              help="Table entries N (power of two, 16..1024).")
 @click.option("--lead", "lead", default="auto", show_default=True,
               help="Look-up lead: 'auto' (current-loop lag at the operating speed) or seconds.")
 @click.option("--iqc-limit", type=click.FloatRange(0.0), help="Clamp of |i_qc| (A); default 10 % of the largest |i_qo| fitted.")
-@click.option("--motor", "motor_file", type=click.Path(dir_okay=False), help="Motor TOML overriding the paper preset (current_bw_hz, f_cc, f_pwm).")
+@click.option("--motor", "motor_file", type=click.Path(dir_okay=False),
+              help="Motor TOML overriding the paper preset (current_bw_hz, f_cc, f_pwm).")
 @click.option("--hex", "hex_file", type=click.Path(dir_okay=False), help="Also write Intel HEX at the bank's flash address.")
 @click.option("--bank", default=0, show_default=True, type=click.IntRange(0, 1), help="Bank address for --hex.")
 @estimator_option("the block's flags carry them (the ECU runs that estimator).")

@@ -54,8 +54,8 @@ def _free_port() -> int:
 def test_acquire_writes_a_capture(tmp_path: Path, profile: Path):
     out = tmp_path / "cap.csv"
     with DynoSimThread(DynoSim(synthetic_source, serial="M-CLI")) as th:
-        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(profile), "-o", str(out), "--json",
-                                     "--split-windows"])
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(profile), "-o", str(out),
+                                     "--json", "--split-windows"])
     assert r.exit_code == 0, r.output
     cap = read_capture(out)
     assert cap.metadata["serial"] == "M-CLI" and cap.metadata["segments"] == 2
@@ -85,7 +85,8 @@ def test_acquire_dyno_without_port_uses_modbus_502(tmp_path: Path, profile: Path
 def test_acquire_unreachable_dyno_exit_2_no_file(tmp_path: Path, profile: Path):
     out = tmp_path / "cap.mf4"
     port = _free_port()  # nothing listens there
-    r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile), "-o", str(out), "--retries", "1", "--timeout", "0.2"])
+    r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{port}", "--profile", str(profile), "-o", str(out),
+                                 "--retries", "1", "--timeout", "0.2"])
     assert r.exit_code == 2
     assert "failed after 2 attempts" in r.output and "safe state NOT confirmed" in r.output
     assert not list(tmp_path.glob("cap*")) and not list(tmp_path.glob(".cap*"))
@@ -145,7 +146,8 @@ def test_bad_register_map_is_one_line_naming_file_and_key(tmp_path: Path, profil
     for args in (["acquire", "--dyno", "127.0.0.1:1", "--profile", str(profile), "-o", str(tmp_path / "c.csv")],
                  ["dyno-sim", "--listen", "127.0.0.1:0"]):
         r = CliRunner().invoke(cli, args + ["--register-map", str(bad)])
-        assert r.exit_code == 2 and r.output.count("\n") == 1 and "rig.toml" in r.output and "window.registers" in r.output, r.output
+        assert (r.exit_code == 2 and r.output.count("\n") == 1 and "rig.toml" in r.output
+                and "window.registers" in r.output), r.output
         r = CliRunner().invoke(cli, args + ["--register-map", "vendor-z"])
         assert r.exit_code == 2 and "vendor-z" in r.output and "vendor-b" in r.output, r.output
 
@@ -155,6 +157,7 @@ def test_bad_profile_refused_before_the_shaft_turns(tmp_path: Path):
     prof.write_text("[[segment]]\nspeed_rpm = 60.0\niq = 10.0\nseconds = 0.2\nramp_s = 0.2\n")
     sim = DynoSim(synthetic_source)
     with DynoSimThread(sim) as th:
-        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(prof), "-o", str(tmp_path / "c.csv")])
+        r = CliRunner().invoke(cli, ["acquire", "--dyno", f"127.0.0.1:{th.port}", "--profile", str(prof),
+                                     "-o", str(tmp_path / "c.csv")])
     assert r.exit_code == 2 and "segment 1" in r.output and "fewer than 2 samples" in r.output
     assert "enable" not in [name for _, name, _ in sim.log] and sim.captures_started == 0

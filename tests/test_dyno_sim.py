@@ -70,7 +70,8 @@ def test_vendor_b_encoding_cdab_scaled_integers_and_codes():
     x = np.array([1.0, -2.5])
     assert list(m.analog_to_words(x)) == [0x0000, 0x3F80, 0x0000, 0xC020]
     # the two tables are separate spaces: mode and map_version both at 0
-    assert (m["mode"].table, m["mode"].address) == ("holding", 0) and (m["map_version"].table, m["map_version"].address) == ("input", 0)
+    assert ((m["mode"].table, m["mode"].address) == ("holding", 0)
+            and (m["map_version"].table, m["map_version"].address) == ("input", 0))
 
 
 def _client(port: int, regmap=None) -> DynoClient:

@@ -259,7 +259,7 @@ def reconstruct_angle(
     rel_h = np.where(in_span, interp(np.clip(t_h, t_u[0], t_u[-1])), np.interp(t_h, t, p))
     theta0 = float(np.angle(np.mean(np.exp(1j * (hall_theta - rel_h)))))
     resid = wrap_pi(hall_theta - rel_h - theta0)
-    theta0 = float(wrap_pi(theta0 + np.mean(resid)))
+    theta0 = float(wrap_pi(theta0 + float(np.mean(resid))))
     resid = wrap_pi(hall_theta - rel_h - theta0)
 
     steps = np.diff(boundary)
@@ -289,7 +289,7 @@ def reconstruct_angle(
         # only where the edges say the angle: an extrapolated one is up to a count off, which the
         # hall table measured from these (analysis.halls) must not average in
         hall_begins=begins[in_span].astype(np.int64),
-        hall_theta=wrap_2pi(rel_h + theta0)[in_span],
+        hall_theta=np.asarray(wrap_2pi(rel_h + theta0))[in_span],  # numpy in, numpy out
     )
 
 

@@ -40,6 +40,8 @@ REF_RPM = 300.0
 _POLY_DEGREE = 5
 #: mechanical orders taken out of the fitted errors (the spline shares them)
 _LOW_ORDERS = 2
+#: a joint fit of the edge errors: ``(fp (2N,), var (2N,), rss, dirs, dof)`` (:func:`_joint_fit`)
+_Fit = tuple[np.ndarray, np.ndarray, float, int, int]
 
 
 @dataclass(frozen=True)
@@ -276,7 +278,7 @@ class _Sums:
 
 
 def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, halves: tuple[int, ...],
-           N: int, cov: bool):
+           N: int, cov: bool) -> _Fit:
     """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
     :func:`_joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
     ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (a placement trial's figures are those of
@@ -336,7 +338,7 @@ class _Placed:
         for s in self._sums.values():
             s.add(w, shift)
 
-    def fit(self, extra: tuple[_Stats, int] | None = None, cov: bool = True):
+    def fit(self, extra: tuple[_Stats, int] | None = None, cov: bool = True) -> _Fit | None:
         """The joint fit of the windows placed, and ``extra`` (a window, its offset) if given;
         None when no half is covered."""
         seen = self.seen if extra is None else self.seen + np.roll(extra[0].seen, extra[1], axis=1)
@@ -351,7 +353,8 @@ class _Placed:
                       halves, self.N, cov)
 
 
-def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float, cov: bool = True):
+def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float,
+               cov: bool = True) -> _Fit | None:
     """Least squares of the edge errors shared by every stretch (each its own polynomial motion).
 
     ``stretches`` hold (times, A boundaries k in the common frame); edge ``k`` is fingerprint entry
@@ -407,24 +410,25 @@ def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min
     when it agrees with the halls' fraction within ``frac_tol`` and the next offset's residual is
     ``min_ratio`` times larger; otherwise the window is left out (its offset None).
     """
-    usable = [i for i, w in enumerate(windows) if w is not None]
+    present = {i: w for i, w in enumerate(windows) if w is not None}
+    usable = list(present)
     if not usable:
         return None
-    ref = max(usable, key=lambda i: windows[i].n_edges)
+    ref = max(usable, key=lambda i: present[i].n_edges)
     quarter = poles * math.pi / N / 4.0
     delta = 4 * quarter
     offsets: list[int | None] = [None] * len(windows)
     scores: list[tuple[float, float] | None] = [None] * len(windows)
     offsets[ref] = 0
-    stats = {i: _Stats(windows[i].stretches, N, quarter) for i in usable}
+    stats = {i: _Stats(present[i].stretches, N, quarter) for i in usable}
     placed = _Placed(N)
     placed.add(stats[ref], 0)
-    todo = [i for i in sorted(usable, key=lambda j: -windows[j].n_edges) if i != ref]
+    todo = [i for i in sorted(usable, key=lambda j: -present[j].n_edges) if i != ref]
     changed = True
     while todo and changed:  # a window that overlaps nothing placed yet may overlap what later windows add
         changed = False
         for i in list(todo):
-            r, score = _place(windows[i], stats[i], windows[ref].grid_phase, placed, poles, N, delta,
+            r, score = _place(present[i], stats[i], present[ref].grid_phase, placed, poles, N, delta,
                               min_ratio, frac_tol)
             scores[i] = score
             if r is not None:
@@ -442,11 +446,11 @@ def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min
             fp[d::2] -= fp[d::2].mean()
         else:
             fp[d::2], sigma[d::2] = 0.0, np.inf
-    return Fingerprint(fp, sigma, dirs, windows[ref].grid_phase, offsets, scores)
+    return Fingerprint(fp, sigma, dirs, present[ref].grid_phase, offsets, scores)
 
 
 def _place(w: WindowEdges, stats: _Stats, ref_phase: float, placed: _Placed, poles: int, N: int, delta: float,
-           min_ratio: float, frac_tol: float):
+           min_ratio: float, frac_tol: float) -> tuple[int | None, tuple[float, float]]:
     """Where window ``w`` (its sums ``stats``) goes in the frame of the windows ``placed``:
     ``(r or None, (fraction error rad, residual ratio))``.
 

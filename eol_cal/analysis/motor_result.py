@@ -7,6 +7,7 @@ reason; :meth:`MotorResult.to_json` writes the same entry back, key for key (``d
 
 from __future__ import annotations
 
+import builtins
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -224,7 +225,7 @@ class _Reader:
             raise self.error(key, f"expected a string, got {_kind(value)}")
         return value
 
-    def string_list(self, obj: Mapping[str, Any], key: str) -> list[str]:
+    def string_list(self, obj: Mapping[str, Any], key: str) -> builtins.list[str]:  # builtins: list is the method above here
         value = self.list(obj, key)
         if not all(isinstance(v, str) for v in value):
             raise self.error(key, "expected a list of strings")
@@ -372,7 +373,7 @@ class MechResult:
         if not all(w is None or (isinstance(w, int) and not isinstance(w, bool) and 0 <= w < encoder_ppr)
                    for w in windows):
             raise r.error("windows", f"expected offsets 0..{encoder_ppr - 1} or null")
-        orders = []
+        orders: list[MechOrder] = []
         for i, o in enumerate(r.list(obj, "orders")):
             osub = _Reader(source, f"{where}orders[{i}].")
             oo = r.obj(o, f"orders[{i}]")

@@ -66,9 +66,9 @@ class PointRipple:
                            "T_avg_nm": self.T_avg_nm, "amp6_nm": self.amp6_nm, "span_s": list(self.span_s)})
 
 
-def nearest_segment(pieces: list, speed_rpm: float, i_qo_a: float) -> int:
+def nearest_segment(pieces: list[Capture], speed_rpm: float, i_qo_a: float) -> int:
     """Index of the piece whose mean speed (rpm) and i_qo (A) are nearest the operating point."""
-    def distance(c) -> float:
+    def distance(c: Capture) -> float:
         iq = float(np.mean(c.iq_ref()))
         rpm = float(np.mean(c["speed"])) if c.has("speed") else speed_rpm
         return abs(iq - i_qo_a) / max(abs(i_qo_a), 1.0) + abs(rpm - speed_rpm) / max(abs(speed_rpm), 1.0)

@@ -148,7 +148,7 @@ def order_spectrum(
     amp = np.empty(len(orders))
     ph = np.empty(len(orders))
     for i, n in enumerate(orders):
-        amp[i], ph[i] = term(n * n_elec, float(n))
+        amp[i], ph[i] = term(int(n * n_elec), float(n))
     if n_mech >= 1:
         m_amp, m_ph = term(n_mech, 1.0 / pp)
     else:
@@ -245,7 +245,7 @@ def capture_spectrum(capture: Capture, angle: AngleResult | None = None, span_s:
         raise InputError(capture.source, "torque", "missing channel")
     if angle is None:
         angle = capture_angle(capture)
-    mask = slice(None)
+    mask: slice | np.ndarray = slice(None)
     if span_s is not None:
         mask = (capture.t >= span_s[0]) & (capture.t < span_s[1])
     return order_spectrum(angle.theta_r[mask], capture["torque"][mask], capture.poles, t=capture.t[mask],

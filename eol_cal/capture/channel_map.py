@@ -72,7 +72,7 @@ def _spec(name: str, entry: object, path: str) -> ChannelSpec:
             raise InputError(path, name, "bits takes neither name nor unit")
         if not (isinstance(bits, list) and len(bits) == 3 and all(isinstance(b, str) and b for b in bits)):
             raise InputError(path, name, "bits must list three source channel names: U, V, W")
-        return ChannelSpec(bits=tuple(bits))  # type: ignore[arg-type]
+        return ChannelSpec(bits=tuple(bits))
     source_name = entry.get("name")
     if not isinstance(source_name, str) or not source_name:
         raise InputError(path, name, "needs name = \"<source channel>\"")

@@ -166,11 +166,12 @@ class Trace:
 
     def describe(self) -> str:
         """One line for a report: what the ECU ran, or that it is not recorded."""
-        if not self.traced:
+        before, after = self.before, self.after
+        if before is None or after is None:  # not traced
             return "no record of the ECU state"
-        if self.before.same_block(self.after):
-            return f"ECU: {self.before.describe()}"
-        return f"ECU changed: before {self.before.describe()}; after {self.after.describe()}"
+        if before.same_block(after):
+            return f"ECU: {before.describe()}"
+        return f"ECU changed: before {before.describe()}; after {after.describe()}"
 
 
 def trace_of(metadata: Mapping[str, Any], file: str | None = None) -> Trace:
@@ -238,8 +239,9 @@ def check_trace(trace: Trace, file: str | None, *, allow_untraced: bool = False,
 def recorded_options(files: Sequence[str], traces: Sequence[Trace]) -> dict[str, int]:
     """The estimator option bits (contract flags bits 2-5) each capture's ECU ran, by file: the
     captures whose ``ecu_before`` records a block (the others ran no estimator or are untraced)."""
-    return {f: t.before.estimator_options() for f, t in zip(files, traces, strict=True)
-            if t.before is not None and t.before.has_block}
+    # estimator_options is None exactly when the state records no block
+    return {f: options for f, t in zip(files, traces, strict=True)
+            if t.before is not None and (options := t.before.estimator_options()) is not None}
 
 
 def common_options(recorded: Mapping[str, int]) -> int | None:

@@ -31,7 +31,7 @@ from __future__ import annotations
 import mmap
 import struct
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -140,7 +140,8 @@ def _records(data: Data, layout: Mdf4Layout, link: int) -> bytes:
 def _group(data: Data, layout: Mdf4Layout, dg: Block) -> Group:
     if data[dg.data_at] != 0:  # record ids
         raise _NotPlain
-    (cg,) = _chain(layout, dg.links[1], 0) or [None]
+    groups: Sequence[Block | None] = _chain(layout, dg.links[1], 0) or [None]
+    (cg,) = groups
     if cg is None or cg.links[0]:
         raise _NotPlain
     _, cycles, flags, _, record, invalid = _CG.unpack_from(data, cg.data_at)

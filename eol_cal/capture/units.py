@@ -38,7 +38,7 @@ def unit_registry() -> pint.UnitRegistry:
     """The process-wide pint registry (cached)."""
     import pint
 
-    ureg = pint.UnitRegistry(on_redefinition="ignore")
+    ureg: pint.UnitRegistry = pint.UnitRegistry(on_redefinition="ignore")
     for definition in _EXTRA_DEFINITIONS:
         ureg.define(definition)
     return ureg

@@ -74,7 +74,7 @@ def check_metadata(capture: Capture) -> None:
         if key.startswith(TRUTH_PREFIX):
             raise InputError(src, key, "simulator truth key found in metadata; truth.* belongs in Capture.truth")
     for key in REQUIRED_METADATA:
-        if key not in meta or (isinstance(meta[key], str) and not meta[key].strip()):
+        if key not in meta or (isinstance(value := meta[key], str) and not value.strip()):
             raise InputError(src, key, "required metadata missing")
     for key, want in METADATA_TYPES.items():
         if key not in meta:

@@ -36,7 +36,7 @@ def _bridged(capture: Capture, i: int) -> bool:
         return False
     lo, hi = max(0, i - _BRIDGE_CONTEXT), min(len(capture.t), i + 1 + _BRIDGE_CONTEXT)
     a, b = (np.asarray(capture[ch][lo:hi]).astype(np.int64) & 1 for ch in ("enc_a", "enc_b"))
-    pos = quadrature_phase(a, b)
+    pos = np.asarray(quadrature_phase(a, b))  # numpy in, numpy out: the array type for the checker
     k = i - lo
     step = (int(pos[k + 1]) - int(pos[k])) % 4
     if step == 2:

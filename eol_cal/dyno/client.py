@@ -3,9 +3,10 @@
 The sequence per segment: set the load command, direction and speed set point, enable, wait
 until the dyno reports "at speed", start a capture, poll until the buffer is ready, read every
 channel through the paged window and check it. Which registers those are, and how their values
-are encoded, is the dyno's register map (:mod:`.regmap`, from a map file: ``DynoConfig.register_map``). The segments are joined into
-one :class:`~eol_cal.capture.model.Capture` whose time axis keeps the real time between the
-segments' starts (so the gaps are visible: the windows are not one continuous recording).
+are encoded, is the dyno's register map (:mod:`.regmap`, from a map file: ``DynoConfig.register_map``).
+The segments are joined into one :class:`~eol_cal.capture.model.Capture` whose time axis keeps the
+real time between the segments' starts (so the gaps are visible: the windows are not one continuous
+recording).
 
 Safety: whatever goes wrong (timeout, lost connection, fault bit, bad data, Ctrl-C) the client
 sets the speed to zero and disables the drive in a ``finally`` and raises :class:`DynoError`;
@@ -14,11 +15,13 @@ the capture file is written (atomically) only after every segment was read and v
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,6 +35,9 @@ from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
 from eol_cal.dyno.transfer import BufferFill, BufferReader, DynoConfig, ProgressFn, Stream, TransferError, read_capture_buffer
 from eol_cal.retry import RetriesExhausted, retry_call
+
+if TYPE_CHECKING:
+    from pymodbus.pdu import ModbusPDU
 
 #: channels read by default (the packed digital channel is always read); the others on request
 DEFAULT_CHANNELS = ("torque", "iq_ref", "iqc", "speed")
@@ -182,7 +188,8 @@ class DynoClient:
     def where(self) -> str:
         return f"dyno {self.config.host}:{self.config.port}"
 
-    def _call(self, what: str, fn: Callable[[], object], request: tuple[int, int, int, list[int] | None]):
+    def _call(self, what: str, fn: Callable[[], ModbusPDU], request: tuple[int, int, int, list[int] | None]
+              ) -> ModbusPDU:
         """Run one request with :func:`eol_cal.retry.retry_call`: reconnect on lost connections
         and timeouts; a Modbus exception answer is a refusal, not retried.
 
@@ -193,7 +200,7 @@ class DynoClient:
         fc, address, count, written = request
         where = f"{self.config.host}:{self.config.port}"
 
-        def attempt(n: int):
+        def attempt(n: int) -> ModbusPDU:
             if not self._client.connected:
                 if n:
                     self._reconnects += 1
@@ -213,7 +220,7 @@ class DynoClient:
         if response.isError():
             code = getattr(response, "exception_code", None)
             log_modbus(where, fc, address, count, written, exception=code)
-            why = _EXCEPTION_MEANING.get(code, "")
+            why = _EXCEPTION_MEANING.get(code, "") if code is not None else ""
             raise DynoError(f"{self.where}: {what} refused (Modbus exception {code}{': ' + why if why else ''})")
         log_modbus(where, fc, address, count, written if written is not None else getattr(response, "registers", None))
         return response
@@ -251,7 +258,8 @@ class DynoClient:
         for table, address, count, run in self.regmap.read_runs(names):
             fc = READ_FC[table]
             read = self._client.read_input_registers if fc == 4 else self._client.read_holding_registers
-            r = self._call(f"read {','.join(run)}", lambda a=address, n=count, f=read: f(a, count=n, device_id=self.config.device_id),
+            r = self._call(f"read {','.join(run)}",
+                           functools.partial(read, address, count=count, device_id=self.config.device_id),
                            (fc, address, count, None))
             try:
                 out.update(self.regmap.unpack(address, r.registers, run))
@@ -266,7 +274,8 @@ class DynoClient:
         except ValueError as exc:
             raise DynoError(f"{self.where}: cannot write {exc} (register map {self.regmap.source})") from None
         for address, words, names in runs:
-            self._call(f"write {','.join(names)}", lambda a=address, w=words: self._client.write_registers(a, w, device_id=self.config.device_id),
+            self._call(f"write {','.join(names)}",
+                       functools.partial(self._client.write_registers, address, words, device_id=self.config.device_id),
                        (16, address, len(words), words))
 
     def status(self) -> dict[str, float | int | str]:
@@ -276,13 +285,14 @@ class DynoClient:
         if st["heartbeat"] != self._heartbeat[0]:
             self._heartbeat = (int(st["heartbeat"]), now)
         elif now - self._heartbeat[1] > HEARTBEAT_STALL_S:
-            raise DynoError(f"{self.where}: dyno controller not running (heartbeat stuck at {st['heartbeat']} for {now - self._heartbeat[1]:.1f} s)")
+            raise DynoError(f"{self.where}: dyno controller not running "
+                            f"(heartbeat stuck at {st['heartbeat']} for {now - self._heartbeat[1]:.1f} s)")
         return st
 
     def check_faults(self, st: dict, what: str) -> None:
         faults = int(st["faults"])
         if faults:
-            names = [f.name for f in Fault if f & faults]
+            names = [f.name or f"0x{int(f):04x}" for f in Fault if f & faults]  # iterating a Flag yields named members
             raise DynoError(f"{self.where}: fault {'+'.join(names)} while {what} (faults=0x{faults:04x})")
         if st["drive_state"] == DriveState.TRIPPED:
             raise DynoError(f"{self.where}: drive tripped while {what}")
@@ -310,7 +320,8 @@ class DynoClient:
         self.write(enable=Switch.ON, watchdog_ms=cfg.watchdog_ms)
         ramp_time = abs(seg.speed_rpm - float(st["speed"])) / seg.ramp_rpm_s
         if wait:
-            self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout, f"ramping to {seg.speed_rpm:g} rpm")
+            self.wait(lambda s: s["drive_state"] == DriveState.AT_SPEED, ramp_time + cfg.settle_timeout,
+                      f"ramping to {seg.speed_rpm:g} rpm")
         return ramp_time
 
     def wait(self, cond: Callable[[dict], bool], timeout: float, what: str,
@@ -323,7 +334,8 @@ class DynoClient:
             if cond(st):
                 return st
             if time.monotonic() > end:
-                raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, drive state {DriveState(int(st['drive_state'])).name})")
+                raise DynoError(f"{self.where}: timeout after {timeout:.1f} s {what} (speed {float(st['speed']):.1f} rpm, "
+                                f"drive state {DriveState(int(st['drive_state'])).name})")
             time.sleep(self.config.poll_interval if interval is None else interval(st))
 
     def wait_standstill(self, timeout: float, what: str, speed: float | None = None) -> dict:
@@ -381,6 +393,7 @@ class DynoClient:
                 raise DynoError(f"{self.where}: capture ended in the error state")
             count = int(s["capture_count"]) if state in (CaptureState.RUNNING, CaptureState.READY) else 0
             if reader is None and count > 0:
+                assert self._reader is not None  # opened above, before the wait
                 reader = self._reader.stream(self.recorded_channels(s, names), fill, rate_hz, progress)
             if state == CaptureState.READY and count != n_samples:
                 raise DynoError(f"{self.where}: capture holds {count} samples, {n_samples} requested")
@@ -395,6 +408,8 @@ class DynoClient:
         try:
             self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
                       interval)
+            # the wait ended on READY with n_samples (>= 1) samples recorded: recorded opened the stream
+            assert reader is not None
             return reader.result(cfg.capture_timeout)
         except TransferError as exc:
             raise DynoError(f"{self.where}: reading the capture buffer failed: {exc}") from None
@@ -475,7 +490,8 @@ def run_profile(
     for i, seg in enumerate(segments):
         # refuse a bad profile before the shaft turns
         if int(round(seg.seconds * rate_hz)) < 2:
-            raise InputError(None, f"segment {i + 1}", f"{seg.seconds:g} s of steady capture at {rate_hz} Hz is fewer than 2 samples")
+            raise InputError(None, f"segment {i + 1}",
+                             f"{seg.seconds:g} s of steady capture at {rate_hz} Hz is fewer than 2 samples")
         if seg.ramp_rpm_s <= 0 or not np.isfinite(seg.ramp_rpm_s):
             raise InputError(None, f"segment {i + 1}", f"ramp {seg.ramp_rpm_s} rpm/s must be positive")
     data: list[DynoWindow] = []
@@ -562,7 +578,8 @@ def assemble(
     if not data:
         raise DynoError("no segments captured")
     names = sorted(set.intersection(*(set(d.channels) for d in data)))
-    ts, chans = window_times(data), {n: [] for n in names}
+    ts = window_times(data)
+    chans: dict[str, list[np.ndarray]] = {n: [] for n in names}
     for d in data:
         for name in names:
             chans[name].append(d.channels[name])

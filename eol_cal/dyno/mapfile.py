@@ -211,7 +211,8 @@ def _entry(c: _Checker, role: Role, t: Any, where: str) -> Entry:
         raise c.fail(f"{where}.address", f"{count} registers from {address} run past 65535")
     table = c.choice(t, "table", f"{where}.table", TABLES)
     if role.writable and table != "holding":
-        raise c.fail(f"{where}.table", "the client writes this register: it must be a holding register (input registers are read-only)")
+        raise c.fail(f"{where}.table",
+                     "the client writes this register: it must be a holding register (input registers are read-only)")
     coded = role.codes is not None or role.bits is not None
     if coded and type_ not in rc.INTEGER_TYPES:
         raise c.fail(f"{where}.type", f"{type_} cannot hold codes or bits; use an integer type")

@@ -330,8 +330,11 @@ class RegisterMap:
         if e.role.codes is not None:
             meaning += ": " + ", ".join(f"{m.name.lower()} = {e.codes.get(int(m), int(m))}" for m in e.role.codes)
         if e.role.bits is not None:
-            flags = [m for m in e.role.bits if m.name and bin(int(m)).count("1") == 1]
-            meaning += ": " + ", ".join(f"bit {e.bits.get(int(m), int(m).bit_length() - 1)} {m.name.lower()}" for m in flags)
+            flags: list[str] = []
+            for m in e.role.bits:  # the named single-bit flags (a Flag member's name is None for an unnamed combination)
+                if m.name and bin(int(m)).count("1") == 1:
+                    flags.append(f"bit {e.bits.get(int(m), int(m).bit_length() - 1)} {m.name.lower()}")
+            meaning += ": " + ", ".join(flags)
         if e.invalid is not None:
             meaning += f"; raw {e.invalid} = no measurement (NaN)"
         return f"| {addr} | {e.table} | `{e.name}` | {e.type} | {e.count} | {e.role.unit} | {scaling} | {meaning} |"

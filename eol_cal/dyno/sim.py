@@ -471,6 +471,7 @@ class DynoSim(ModbusFace):
 
     def _capture_ready(self) -> None:
         request, self._recording = self._recording, None
+        assert request is not None  # called while a capture runs (RUNNING): _recording is set with that state
         self.buffer_count = request.n_samples
         self.captures[-1].ready = time.monotonic()
         capture = self.last_capture
@@ -501,6 +502,7 @@ class DynoSim(ModbusFace):
             if self.captured(now) >= samples or self.capture_state != CaptureState.RUNNING:
                 break
             timing, request = self.captures[-1], self._recording
+            assert request is not None  # still RUNNING (checked above): _recording is set with that state
             due = (timing.started + samples / request.rate_hz - now) if timing.source_done is not None else 0.005
             await asyncio.sleep(min(max(due, 0.0005), 0.05))
         return token == self._capture_token and self.capture_state in (CaptureState.READY, CaptureState.RUNNING)
@@ -587,7 +589,7 @@ class DynoSimThread:
     def __enter__(self) -> DynoSimThread:
         return self.start()
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.stop()
 
 

@@ -22,8 +22,12 @@ from eol_cal.dyno.regmap import RegisterMap
 from eol_cal.dyno.registers import CaptureState, Fault, Interlock, SimFault
 
 if TYPE_CHECKING:
+    import numpy as np
     from pymodbus.constants import ExcCodes
+    from pymodbus.server import ModbusTcpServer
     from pymodbus.simulator import SimDevice
+
+    from eol_cal.dyno.sim import CaptureRequest
 
 _FC_READ = (3, 4)
 #: longest capture the buffer holds (samples)
@@ -36,7 +40,9 @@ class ModbusFace:
     """Registers of the simulated dyno (a mixin: the state lives in :class:`DynoSim`)."""
 
     _loop: asyncio.AbstractEventLoop | None
-    _server: object | None
+    _server: ModbusTcpServer | None
+    _recording: CaptureRequest | None  # the capture running now
+    buffer: dict[int, np.ndarray]  # channel id -> register words (uint16)
     regmap: RegisterMap
     realtime: bool
     captures: list
@@ -66,7 +72,8 @@ class ModbusFace:
             "capture_state": int(self.capture_state),
             "capture_count": self.captured(),
             "capture_channels": self.regmap.channel_mask(list(self.buffer)),
-            "heartbeat": self.heartbeat_frozen if self.heartbeat_frozen is not None else int((time.monotonic() - self._t0) * 100) & 0xFFFF,
+            "heartbeat": (self.heartbeat_frozen if self.heartbeat_frozen is not None
+                          else int((time.monotonic() - self._t0) * 100) & 0xFFFF),
             "capture_seq": self.capture_seq,
         }
 
@@ -163,7 +170,7 @@ class ModbusFace:
                 i = e.address - start
                 registers[i: i + e.count] = self.regmap.encode(name, value)
 
-    def _write(self, address: int, words: list[int], set_values):
+    def _write(self, address: int, words: list[int], set_values: list[int]) -> ExcCodes | None:
         from pymodbus.constants import ExcCodes
 
         end = address + len(words)
@@ -188,7 +195,7 @@ class ModbusFace:
                 set_values[i: i + m[name].count] = m.encode(name, 0)
         return None
 
-    def _apply(self, new: dict[str, float | int | str]):
+    def _apply(self, new: dict[str, float | int | str]) -> ExcCodes | None:
         """Validate a write as a whole, then apply it; a Modbus exception code on refusal."""
         from pymodbus.constants import ExcCodes
 

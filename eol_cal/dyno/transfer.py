@@ -330,7 +330,8 @@ async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, 
                 log_modbus(where, fc, address, count, getattr(r, "registers", None),
                            exception=getattr(r, "exception_code", None) if r.isError() else None)
                 if r.isError():
-                    raise TransferError(f"read of {count} registers at 0x{address:04x} refused (Modbus exception {getattr(r, 'exception_code', None)})")
+                    raise TransferError(f"read of {count} registers at 0x{address:04x} refused "
+                                        f"(Modbus exception {getattr(r, 'exception_code', None)})")
                 if len(r.registers) != count:
                     raise ConnectionError(f"short read at 0x{address:04x}: {len(r.registers)} of {count} registers")
                 out[j] = r.registers
@@ -349,7 +350,8 @@ async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, 
                                      retry_on=(ModbusException, ConnectionError, OSError, asyncio.TimeoutError),
                                      before_retry=lambda _n, _exc: conns.close())
         except RetriesExhausted as exc:
-            raise TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} after {exc.attempts} attempts") from None
+            raise TransferError(f"channel {cid} at sample {first}: {exc.last or type(exc.last).__name__} "
+                                f"after {exc.attempts} attempts") from None
 
     n = fill.n_samples
     words: dict[int, list[np.ndarray]] = {cid: [] for _name, cid in plan}

@@ -150,6 +150,7 @@ def select_active(flash: NorFlash) -> tuple[P.ActiveBlock, bytes | None]:
         if not chk.valid:
             continue
         blk = B.unpack(image, f"bank {bank}")
+        assert blk.layout_version is not None  # a ParamBlock's layout is never None once made (__post_init__)
         data = image[:blk.block_bytes]
         if best is None or blk.sequence > best[0].sequence:
             best = (P.ActiveBlock(bank, blk.sequence, blk.layout_version, chk.crc_stored or 0), data)

@@ -21,7 +21,7 @@ import can
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import read_bank
-from eol_cal.ecu.sequence import flash_block
+from eol_cal.ecu.sequence import FlashReport, flash_block
 from eol_cal.ecu.session import ClientTiming, UdsSession
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
@@ -117,7 +117,7 @@ def check_restorable(data: bytes, source: str, motor: MotorParams) -> B.ParamBlo
 
 def restore_block(bus: can.BusABC, data: bytes, source: str, *, seed_to_key: Callable[[bytes], bytes],
                   motor: MotorParams, timing: ClientTiming = ClientTiming(),
-                  progress: Callable[[str], None] | None = None):
+                  progress: Callable[[str], None] | None = None) -> FlashReport:
     """Flash a checked earlier block again, with the ECU's active sequence + 1 (it becomes active).
 
     Returns

@@ -393,15 +393,15 @@ class UdsSession:
             last = exc.last
         except _SilentPastS3 as exc:
             last = exc.last
-        attempt = self.last_attempts
+        attempts = self.last_attempts
         if isinstance(last, TimeoutException):
-            reason = (f"no response from the ECU (P2 {self.timing.p2_s:g} s) after {attempt} attempt(s), "
+            reason = (f"no response from the ECU (P2 {self.timing.p2_s:g} s) after {attempts} attempt(s), "
                       f"silent for {self.silent_s:.1f} s: is it powered and on this bus at 0x7E0/0x7E8?")
         elif isinstance(last, isotp.errors.BlockingSendFailure):
-            reason = (f"ISO-TP send failed after {attempt} attempt(s) (no flow control from the ECU "
+            reason = (f"ISO-TP send failed after {attempts} attempt(s) (no flow control from the ECU "
                       f"within N_Bs {self.timing.isotp.n_bs_ms} ms)")
         else:
-            reason = f"unexpected response after {attempt} attempt(s): {last}"
+            reason = f"unexpected response after {attempts} attempt(s): {last}"
         raise EcuError(step, reason, cause="timeout")
 
     # --- the services, one line each ------------------------------------------------------------

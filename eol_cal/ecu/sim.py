@@ -271,6 +271,7 @@ class EcuSimulator:
 
     @staticmethod
     def _step_of(req: Request) -> str:
+        assert req.service is not None  # the caller answered a request of no known service before asking
         if req.service is services.RoutineControl:
             rid = int.from_bytes((req.data or b"")[:2], "big")
             return "erase" if rid == P.RID_ERASE else "check"

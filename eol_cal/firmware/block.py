@@ -326,6 +326,7 @@ def pack(block: ParamBlock) -> bytes:
         raise InputError(None, problems[0][0], "; ".join(f"{f}: {r}" for f, r in problems))
     n = block.table_len
     v = block.layout_version
+    assert v is not None  # __post_init__ sets the default layout, and pack_problems refused an unsupported one
     size = block_bytes(n, v)
     buf = bytearray(size)
     derived = {"block_bytes": size, "table_len": n}
@@ -343,6 +344,7 @@ def pack(block: ParamBlock) -> bytes:
         elif name == "serial":
             value = block.serial.encode("ascii").ljust(field_count("serial"), b"\0")
         elif name == "fingerprint":
+            assert mech is not None  # a layout-2 field, and pack_problems refused layout 2 without the mechanical part
             value = np.zeros(2 * FP_MAX, np.float32)
             value[:mech.fingerprint.size] = mech.fingerprint
         elif name in FIELDS:

@@ -56,7 +56,7 @@ LAYOUT_VERSION: int = LAYOUT["layout_version"]
 #: the mechanical-order layout of revision 1.2
 LAYOUT_VERSION_MECH: int = 2
 SUPPORTED_LAYOUTS: tuple[int, ...] = tuple(LAYOUTS)
-BANK_WORD_ADDR: tuple[int, int] = tuple(LAYOUT["bank_word_addr"])  # type: ignore[assignment]
+BANK_WORD_ADDR: tuple[int, int] = tuple(LAYOUT["bank_word_addr"])
 #: each bank's start as a byte address, 2 x its word address (the contract's Intel HEX and A2L rule)
 BANK_BYTE_ADDR: tuple[int, int] = tuple(2 * a for a in BANK_WORD_ADDR)  # type: ignore[assignment]
 BANK_WORDS: int = LAYOUT["bank_words"]

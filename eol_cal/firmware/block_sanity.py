@@ -34,6 +34,7 @@ import numpy as np
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware.contract import C6_MAX, K6_MAX, KT_MAX, PHASE_MAX
+from eol_cal.firmware.mech_params import MechParams
 from eol_cal.motor import MotorParams
 
 #: largest look-up lead (s) a block may carry
@@ -140,7 +141,7 @@ def sanity_problems(blk: B.ParamBlock, i_max: float) -> list[tuple[str, str]]:
     return problems
 
 
-def _mech_problems(mech) -> list[tuple[str, str]]:
+def _mech_problems(mech: MechParams) -> list[tuple[str, str]]:
     """The scalar bounds of a layout-2 block's mechanical part."""
     problems: list[tuple[str, str]] = []
     for name, amp_max, unit in (("mech_c", C6_MAX, "N*m"), ("mech_k", K6_MAX, "N*m/A")):

@@ -33,7 +33,8 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,6 +49,9 @@ from eol_cal.firmware.estimator_config import OPTION_FLAGS, options_from_flags
 from eol_cal.firmware.estimator_step import (
     SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
 )
+
+if TYPE_CHECKING:
+    import jax
 
 
 
@@ -196,7 +200,8 @@ JAX_LANES = (1, 2, 4, 8, 16, 24, 32, 48, 64)
 
 
 @functools.lru_cache(maxsize=16)
-def _scan_chunk(cfg: EstimatorConfig):
+def _scan_chunk(cfg: EstimatorConfig) -> Callable[[EstimatorState, np.ndarray | jax.Array, HallTables],
+                                                 tuple[EstimatorState, EstimatorOut]]:
     """The jitted scan over one chunk of ticks of a batch of captures, each lane with its own
     state and hall tables (one program per config and lane count; the hall tables are an
     argument, so call it with :func:`_program_config`): ``(state[B], abh[chunk, B, 3],
@@ -214,7 +219,7 @@ def _scan_chunk(cfg: EstimatorConfig):
 
 
 @functools.lru_cache(maxsize=16)
-def _init_batch(cfg: EstimatorConfig):
+def _init_batch(cfg: EstimatorConfig) -> Callable[[np.ndarray | jax.Array], EstimatorState]:
     """The jitted power-on state of a batch from its first ticks ``abh0[B, 3]``."""
     import jax
     import jax.numpy as jnp

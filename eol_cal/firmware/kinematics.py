@@ -128,7 +128,7 @@ def encoder_hall_signals(theta_m: Array, poles: int, N_enc: int,
     theta_e = theta_m * (poles / 2.0)
     off = xp.asarray(errors.hall_offset)
     two_pi = 2.0 * math.pi
-    hall = xp.zeros(theta_m.shape, xp.int32)
+    hall = xp.zeros(xp.shape(theta_m), xp.int32)  # theta_m is an array here (asarray above)
     for j in range(3):
         rise = j * (two_pi / 3.0) + off[j, 0]
         fall = j * (two_pi / 3.0) + math.pi + off[j, 1]

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -53,6 +53,9 @@ from eol_cal.firmware.estimator_config import (
 )
 from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
 from eol_cal.firmware.mech_params import FP_FORWARD, MECH_TABLE_LEN, MechParams
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.block import ParamBlock
 
 #: a pitch sample is accumulated only while its edge has fewer (the mean no longer moves; the
 #: binary32 sum keeps its resolution)
@@ -198,7 +201,7 @@ def mech_tables(mech: MechParams | None, lead_s: float, enabled: bool, N: int) -
                       table_const=np.asarray(tc, f32), table_per_amp=np.asarray(tp, f32))
 
 
-def block_mech_tables(block, N: int | None = None) -> MechTables:
+def block_mech_tables(block: ParamBlock, N: int | None = None) -> MechTables:
     """:func:`mech_tables` of a :class:`eol_cal.firmware.block.ParamBlock` (layout 1: disabled)."""
     N = int(block.encoder_ppr) if N is None else N
     mech = getattr(block, "mech", None)
@@ -222,7 +225,8 @@ def _set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
     return out
 
 
-def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, d: Array, xp: ArrayModule):
+def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, d: Array,
+              xp: ArrayModule) -> tuple[Array, Array, Array, Array, Array]:
     """One evaluation (MECH.md, "Evaluation"): (pass, r_best, score, margin, |e_best|, complete)."""
     f32, i32 = xp.float32, xp.int32
     N = mc.N

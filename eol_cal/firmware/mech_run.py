@@ -18,7 +18,7 @@ import numpy as np
 from eol_cal.arrays import Array, ArrayModule
 from eol_cal.firmware import compensator, estimator as est
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, ParamBlock
-from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorState, step_pitch
+from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, step_pitch
 from eol_cal.firmware.mech import (
     MechConsts, MechOut, MechState, MechTables, block_mech_tables, mech_init, mech_step, mech_sum,
 )
@@ -42,7 +42,8 @@ class MechRun(NamedTuple):
 
 def ecu_tick(cfg: est.EstimatorConfig, mc: MechConsts, tb: MechTables, block_tables: tuple[Array, Array, Array, Array],
              es: EstimatorState, ms: MechState, a: Array, b: Array, h: Array, i_qo: Array, comp_on: bool,
-             xp: ArrayModule = np, hall_tables: est.HallTables | None = None):
+             xp: ArrayModule = np, hall_tables: est.HallTables | None = None
+             ) -> tuple[EstimatorState, MechState, EstimatorOut, PitchSample, MechOut, Array]:
     """One tick: estimator (with its pitch sample), identifier, compensator (MECH.md, "Per tick").
 
     ``block_tables`` is ``(table_const, table_per_amp, lead_s, iqc_limit)``; ``comp_on`` (static)

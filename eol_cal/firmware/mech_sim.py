@@ -14,20 +14,22 @@ from __future__ import annotations
 # mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from eol_cal.firmware import estimator as est
 from eol_cal.firmware.contract import FLAG_INTERP_ENABLE, FLAGS_ESTIMATOR
-from eol_cal.firmware.estimator_step import init_state, step_pitch
+from eol_cal.firmware.estimator_step import EstimatorState, init_state, step_pitch
 from eol_cal.firmware.kinematics import SensorErrors, encoder_hall_signals, hall_angle_of, pulse_at
 from eol_cal.firmware.mech import (
     EV_RESET_EVAL,
     EV_RESET_FAULT,
     EV_RESET_FRACTION,
     MechConsts,
+    MechState,
     MechTables,
     mech_accumulate,
     mech_finish,
@@ -37,10 +39,16 @@ from eol_cal.firmware.mech import (
 )
 from eol_cal.firmware.mech_params import MechParams
 
+if TYPE_CHECKING:
+    import jax
+
 TICK_HZ = 20000.0
 #: ticks per compiled chunk of the scan
 CHUNK = 4000
 _RESETS = EV_RESET_FAULT | EV_RESET_FRACTION | EV_RESET_EVAL
+#: the compiled scan's carry over a batch: shaft angle, estimator and identifier states, and the
+#: tracking (first identifying tick, its r, ticks identified wrong, identifier resets)
+_Carry = tuple["jax.Array", EstimatorState, MechState, tuple["jax.Array", "jax.Array", "jax.Array", "jax.Array"]]
 
 
 @dataclass(frozen=True)
@@ -142,7 +150,8 @@ def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, fl
 
 
 @functools.lru_cache(maxsize=8)
-def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int):
+def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
+              ) -> Callable[[_Carry, tuple[jax.Array, ...], est.HallTables, MechTables, jax.Array, jax.Array], _Carry]:
     """The jitted scan over CHUNK ticks of a batch (one compile per configuration and batch shape)."""
     import jax
     import jax.numpy as jnp

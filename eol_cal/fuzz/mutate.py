@@ -27,7 +27,7 @@ _HOSTILE_META = {"poles": ("0", "-6", "7", "1e9", "x", "6.5", "99999999999999999
                  "kt": ("0", "-1", "nan", "inf", "1e308"),
                  "serial": ("", "\x00", "x" * 5000)}
 _HOSTILE_F32 = (float("nan"), float("inf"), float("-inf"), 3e38, -3e38, 0.0, -1.0, 1e-45, 1e30)
-_HOSTILE_JSON = (1e30, -5, True, False, "0.0006", None, [], {}, "NaN", 10**30, -1e-300, "")
+_HOSTILE_JSON: tuple[object, ...] = (1e30, -5, True, False, "0.0006", None, [], {}, "NaN", 10**30, -1e-300, "")
 _HOSTILE_JSON_TEXT = ("NaN", "Infinity", "-Infinity", "1e400", "-1e400", "9" * 5000, "1" + "0" * 100000)
 
 
@@ -310,6 +310,7 @@ def mutate_block(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
         return _truncate(rng, base)
     head = B.unpack(base)
     n, v = head.table_len, head.layout_version
+    assert v is not None  # a ParamBlock's layout is never None once made (__post_init__ sets the default)
     buf = bytearray(base)
     if op == 2:  # a float field
         floats = ["tick_hz", "kt", "c6", "phase_c6", "k6", "phase_k6", "lead_s", "iqc_limit", "hall_angle",

@@ -20,7 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -43,7 +43,7 @@ class Scenario:
 
     kind: str
     name: str
-    files: dict[str, bytes | None]
+    files: Mapping[str, bytes | None]
     args: list[str]
     expect: str = "refuse"
     env: dict[str, str] = field(default_factory=dict)
@@ -88,7 +88,7 @@ def _station(**keys: str) -> bytes:
     return (body + '[dyno]\naddress = "127.0.0.1:1"\n[can]\ninterface = "virtual"\nchannel = "nobody"\n').encode()
 
 
-def station_files(**keys: str) -> dict[str, bytes | None]:
+def station_files(**keys: str) -> dict[str, bytes]:
     """A station directory whose dyno and bus go nowhere: every scenario here ends before them."""
     return {"station.toml": _station(**keys), "ecu.key": _key(), "limits.toml": _text(FIXTURES / "limits.toml")}
 
@@ -109,13 +109,12 @@ def _toml_scenario(kind: str, name: str, data: bytes | None) -> Scenario:
     if kind == "settings":
         files = {**station_files(), target: data}
         return Scenario("toml", f"{kind}: {name}", files, ["run", "--station", f"{{d}}/{target}", "--serial", "M-1"])
-    files = station_files()
+    station = station_files()
     if kind == "register_map":
-        files["station.toml"] = files["station.toml"].replace(b"[dyno]\n", f'[dyno]\nregister_map = "{target}"\n'.encode())
+        station["station.toml"] = station["station.toml"].replace(b"[dyno]\n", f'[dyno]\nregister_map = "{target}"\n'.encode())
     else:
-        files["station.toml"] = _station(**{kind: f'"{target}"'})
-    files[target] = data
-    return Scenario("toml", f"{kind}: {name}", files, RUN)
+        station["station.toml"] = _station(**{kind: f'"{target}"'})
+    return Scenario("toml", f"{kind}: {name}", {**station, target: data}, RUN)
 
 
 def toml_scenarios() -> Iterator[Scenario]:
@@ -123,7 +122,13 @@ def toml_scenarios() -> Iterator[Scenario]:
     from eol_cal.inputs import MAX_TOML_BYTES
 
     for kind, source in _TOML_SOURCES.items():
-        valid = b"poles = 6\n" if kind == "motor" else (_station() if kind == "settings" else _text(source))
+        if kind == "motor":
+            valid = b"poles = 6\n"
+        elif kind == "settings":
+            valid = _station()
+        else:
+            assert source is not None  # only the motor and the settings have no source file
+            valid = _text(source)
         for name, line in hostile.TOML_LINES.items():
             yield _toml_scenario(kind, name, (line + "\n").encode() + valid)
         yield _toml_scenario(kind, f"{MAX_TOML_BYTES + 1024} bytes", b"#" * (MAX_TOML_BYTES + 1023) + b"\n" + valid)

@@ -99,7 +99,7 @@ class Baseline:
         return self.lines.get((quantity, variant if variant is not None else NO_VARIANT, station))
 
 
-def group_lines(values: Mapping[str, np.ndarray], variant: Sequence[Any], station: Sequence[str],
+def group_lines(values: Mapping[str, np.ndarray], variant: Sequence[Any] | np.ndarray, station: Sequence[str] | np.ndarray,
                 circular: frozenset[str] | set[str] = frozenset(), min_n: int = DEFAULT_MIN_N
                 ) -> dict[tuple[str, str, str], ControlLine]:
     """Per quantity (``values``: key -> values in time order), variant and station (each run's),

@@ -64,7 +64,7 @@ def verdict_changes(records: Sequence[RunRecord], rows: Sequence[dict[str, Any]]
             continue
         rec = latest.get(row.get("serial") or "")
         recorded, rec_failed = fit_stage(rec) if rec is not None else (None, set())
-        if recorded is None or row.get("verdict") is None:
+        if rec is None or recorded is None or row.get("verdict") is None:  # no record: recorded is None too
             continue
         compared += 1
         if row.get("failed_checks") is not None:

@@ -57,7 +57,8 @@ def limit_of(rec: RunRecord, quantity: str) -> float:
 def _limit_steps(ax: Any, times: list[dt.datetime], recs: list[RunRecord], quantity: str, colour: str) -> None:
     """A variant limit as a step line through the runs' times (a change of variant shows)."""
     lim = np.array([limit_of(r, quantity) for r in recs]) * display_unit(_UNITS[quantity])[1]
-    key = limit_on(quantity).key if limit_on(quantity) else quantity
+    limit = limit_on(quantity)
+    key = limit.key if limit else quantity
     if len(times) and np.isfinite(lim).any():
         ax.step(times, lim, where="post", color=colour, lw=1.0, ls="--", label=key, gid=f"limit-{key}")
 
@@ -320,7 +321,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
     from eol_cal.station.records_query import latest_per_serial
 
     order = {"error": 0, "fail": 1, "pass": 2}
-    rows = []
+    rows: list[dict[str, Any]] = []  # the function's rows
     for r in latest_per_serial(records).values():
         worst, rel = None, math.inf
         for row in limit_rows(r):

@@ -88,7 +88,7 @@ class ControlLimits:
     mr_center: float
     mr_ucl: float
 
-    def beyond(self, x: Sequence[float]) -> list[int]:
+    def beyond(self, x: Sequence[float] | np.ndarray) -> list[int]:
         """Indices of the individuals outside ``[lcl, ucl]``."""
         return [i for i, v in enumerate(x) if v > self.ucl or v < self.lcl]
 

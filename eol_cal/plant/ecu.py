@@ -21,7 +21,7 @@ from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
 from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, EstimatorConfig
 from eol_cal.firmware.kinematics import fingerprint_of
-from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
+from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, MechParams, make_mech_tables, unused_mech
 from eol_cal.firmware.options import honoured_options, options_label, parse_options
 from eol_cal.plant.params import PlantSpec, sensor_errors, to_params
 
@@ -48,7 +48,7 @@ def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: b
     )
 
 
-def true_mech(spec: PlantSpec):
+def true_mech(spec: PlantSpec) -> MechParams:
     """The layout-2 mechanical part a perfect end of line would write for this plant motor.
 
     The block's frame is the encoder model's pulse numbering (:func:`eol_cal.firmware.kinematics.fingerprint_of`);

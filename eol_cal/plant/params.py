@@ -15,7 +15,7 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -101,7 +101,7 @@ class PlantSpec:
     mechanics: BenchMechanics = field(default_factory=lambda: load_mechanics("paper"))
     dead_time_s: float = 0.0
 
-    def replace(self, **changes) -> PlantSpec:
+    def replace(self, **changes: Any) -> PlantSpec:
         return dataclasses.replace(self, **changes)
 
     @property

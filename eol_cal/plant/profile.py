@@ -48,7 +48,10 @@ class ProfileSegment:
 
     def i_qo(self, kt: float) -> float:
         """Nominal q current (A) of this segment for a motor of torque constant ``kt`` (N*m/A)."""
-        return self.iq if self.iq is not None else self.torque_nm / kt
+        if self.iq is not None:
+            return self.iq
+        assert self.torque_nm is not None  # a segment gives iq or torque_nm (_segment refuses neither)
+        return self.torque_nm / kt
 
 
 @dataclass(frozen=True)

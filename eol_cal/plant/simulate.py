@@ -376,8 +376,7 @@ def simulate(
 
     if mode not in control.MODES:
         raise InputError(None, "mode", f"unknown mode {mode!r}; known: {', '.join(control.MODES)}")
-    single = isinstance(specs, PlantSpec)
-    specs = [specs] if single else list(specs)
+    specs = [specs] if isinstance(specs, PlantSpec) else list(specs)
     if not specs:
         raise InputError(None, "motors", "no motor to simulate")
     m0 = specs[0].motor

@@ -102,7 +102,10 @@ def limit_rows(rec: RunRecord) -> list[LimitRow]:
     rows = []
     for c in rec.checks:
         unit, factor = display_unit(c.unit)
-        status = {True: "PASS", False: "FAIL"}.get(c.passed) or ("not measured" if math.isnan(c.value) else "not judged")
+        if c.passed is not None:
+            status = "PASS" if c.passed else "FAIL"
+        else:
+            status = "not measured" if math.isnan(c.value) else "not judged"
         rows.append(LimitRow(c.key, c.title, c.sense, c.value * factor, c.limit * factor, c.margin * factor, unit, status))
     return rows
 
@@ -366,7 +369,7 @@ def mech_section(rec: RunRecord) -> dict[str, Any] | None:
         amp = _estimate(o.c, "N*m")
         fitted = f"{amp}, phase {_estimate(o.phase_c, 'rad', 3)}"
         left = (f"{_fmt(after * 1e3, 3)} mN*m (uncompensated {_fmt(before * 1e3, 3)} mN*m)"
-                if o.order == 1 and after is not None else "-")
+                if o.order == 1 and after is not None and before is not None else "-")  # both None without metrics
         rows.append((o.order, fitted, left))
     return {"status": status, "rows": rows}
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import io
 import re
 from typing import TYPE_CHECKING
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from xml.sax.saxutils import escape
 
 from eol_cal.figures import pyplot
@@ -18,15 +18,16 @@ from eol_cal.render import literal_texts
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
+    from matplotlib.typing import RcKeyType
 
 _ID = re.compile(r'\bid="([^"]+)"')
 _REF = re.compile(r'(url\(#|href="#)([^")]+)')
 #: what every SVG the reports inline is written with: fixed hash salt (clip path ids), glyphs as
 #: paths (no font needed where the page is opened), no date in the metadata
-RC = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
+RC: dict[RcKeyType, object] = {"svg.hashsalt": "eol-cal", "svg.fonttype": "path", "svg.image_inline": True}
 
 
-def figure_svg(fig: MplFigure, name: str, titles: dict[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
+def figure_svg(fig: MplFigure, name: str, titles: Mapping[str, Sequence[str]] | None = None, css_class: str = "plot") -> str:
     """The figure as an ``<svg>`` element for inlining into HTML; closes the figure.
 
     Parameters
@@ -88,7 +89,7 @@ _G = re.compile(r"<g\b[^>]*>|</g>")
 _POINT = re.compile(r"<(use|path) [^>]*?/>")
 
 
-def _add_titles(text: str, titles: dict[str, Sequence[str]]) -> str:
+def _add_titles(text: str, titles: Mapping[str, Sequence[str]]) -> str:
     """Put a ``<title>`` into each point of the groups named in ``titles``.
 
     matplotlib draws a scatter's points in data order inside ``<g id="gid">``: as ``<use>`` of

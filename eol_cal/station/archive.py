@@ -41,6 +41,7 @@ def block_fields(image: bytes) -> dict[str, Any]:
     select, table length, lead (s), current limit (A), layout, whether its mechanical
     compensation is on (layout 2)."""
     blk = B.unpack(image, "<flashed block>")
+    assert blk.layout_version is not None  # a ParamBlock's layout is never None once made (__post_init__)
     mech = None if blk.mech is None else ("on" if mech_enabled(blk.flags, blk.layout_version, blk.mech) else "off")
     return {"flags": B.flag_names(blk.flags), "estimator": options_label(honoured_options(blk.flags)),
             "table_len": int(blk.table_len), "lead_s": float(blk.lead_s), "iqc_limit": float(blk.iqc_limit),

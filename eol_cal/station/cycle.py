@@ -157,6 +157,7 @@ class StationCycle:
         touched, while the master check is due or the last one failed (:mod:`eol_cal.msa.gate`)."""
         from eol_cal.msa.gate import check_gate
 
+        assert self.cfg.master is not None  # _run runs this step only on a station with a master motor
         check_gate(self.cfg.db, self.cfg.master, self.station.id, timeout_s=self.cfg.db_timeout_s)
 
     def pre_flight(self) -> None:
@@ -189,6 +190,7 @@ class StationCycle:
         from eol_cal.analysis.fit.prewarm import prewarm_fit
         from eol_cal.station.early import EarlyWindows
 
+        assert self._helper is not None  # start() made the pool
         self._helper.submit(_preload_analysis)
         self._helper.submit(_preload_writers)
         # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
@@ -207,8 +209,10 @@ class StationCycle:
 
         # never two fits at once: JAX tracing, the compilation cache and the fit's solver cache
         # are shared by the threads, and a cold start compiles the same solver in both
+        assert self.before is not None  # the acquire step, run before, captured it
         check_motor(self.before, self.cfg.motor)
         self._open_flash_ahead()
+        assert self._prewarm is not None  # the acquire step, run before, started it
         self._prewarm.result()
         doc, res, extra = fit_motor(self.before, self.cfg.limits, __version__, self.cfg.motor, self.cfg.mechanics,
                                     self.cfg.cache_dir, self.cfg.estimator_options, prepared=self._early)
@@ -225,6 +229,7 @@ class StationCycle:
         """The calibrated block from the fit (lead automatic)."""
         from eol_cal.analysis.fit.table import block_from_result, created_unix
 
+        assert self.result is not None and self.fit_doc is not None  # the fit step, run before, passed
         self.calibrated = block_from_result(self.result, self.cfg.motor, calibrated_at=created_unix(self.fit_doc),
                                             source=str(self.run_dir / "fit.json"), options=self.cfg.estimator_options)
 
@@ -236,10 +241,13 @@ class StationCycle:
         block stays active)."""
         from eol_cal.firmware.block import pack
 
+        assert self.calibrated is not None  # the table step, run before, made it
         self._flash(pack(self.calibrated), "calibrated", before_commit=self._settle_writes, ahead=self._ahead)
 
     def acquire_compensated(self) -> None:
         """The capture with the compensation the ECU now runs (the operating point, or everything)."""
+        # the steps run in order and stop at the first that fails: the fit gave a result, start() made the pool
+        assert self.result is not None and self._helper is not None
         op = self.result.operating_point
         segs = self.segments if self.cfg.verify == "full" else verify_segments(self.segments, op.speed_rpm, op.i_qo_a)
         # the before-capture's figures are computed meanwhile on the helper thread, and each
@@ -256,6 +264,9 @@ class StationCycle:
         """Ripple before and after at the operating point, judged against the ripple's limits."""
         from eol_cal.capture.windows import split_windows
 
+        # the steps before this one gave them (the cycle stops at the first step that fails)
+        assert self.result is not None and self.measured is not None
+        assert self._pr_before is not None and self._verify is not None and self.after is not None
         op = self.result.operating_point
         before = self._pr_before.result()
         pieces = split_windows(self.after)
@@ -270,6 +281,7 @@ class StationCycle:
             from eol_cal.msa.gate import judge_master
 
             e = self.result.estimates
+            assert e is not None  # the fit step passed: its result is usable (it has estimates)
             reasons += judge_master({"k6": e.k6.value, "phase_k6": e.phase_k6.value, "c6": e.c6.value,
                                      "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct}, self.cfg.master)
         return StepVerdict("fail" if reasons else "pass", tuple(reasons))
@@ -377,6 +389,7 @@ class StationCycle:
                     self.verdict = "error"
                     self.reasons = self.reasons + [f"report: {exc}"]
             self.ended_at = now_iso()
+            assert self._helper is not None  # start() made the pool
             self._helper.shutdown(wait=True)
             rec = self.to_record()
             try:
@@ -404,12 +417,15 @@ class StationCycle:
         from eol_cal.firmware.block import LAYOUT_VERSION
 
         lim = self.cfg.limits
+        layout = LAYOUT_VERSION
+        if self.calibrated is not None and self.calibrated.layout_version is not None:  # (never None once made)
+            layout = self.calibrated.layout_version
         return RunRecord(
             kind=self.kind, run_id=self.run_id, serial=self.cfg.serial,
             started_at=self.started.isoformat(timespec="milliseconds"), ended_at=self.ended_at, verdict=self.verdict,
             reasons=tuple(self.reasons), refusal_codes=self.refusal_codes if self.kind == "refusal" else (),
             error=self.error, tool_version=__version__, station=self.station,
-            layout_version=self.calibrated.layout_version if self.calibrated is not None else LAYOUT_VERSION,
+            layout_version=layout,
             limits=lim, limits_sha256=self.limits_sha256, checks=tuple(all_checks(self.judged, lim)),
             steps=tuple(self.steps), preflight=self.preflight, captures=dict(self.captures), fit=self.result,
             blocks=tuple(self.blocks), metrics=self.metrics, report_dir=str(self.run_dir), safe_state=self.safe_state,
@@ -516,8 +532,9 @@ class StationCycle:
                                                source=source, before_commit=before_commit,
                                                read_back=self.cfg.read_back)
         except BaseException as exc:
-            if getattr(exc, "flashed_block", None) is not None:
-                self.blocks.append(exc.flashed_block)
+            flashed = getattr(exc, "flashed_block", None)
+            if flashed is not None:
+                self.blocks.append(flashed)
             raise
         self.blocks.append(done)
 

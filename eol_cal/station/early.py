@@ -143,7 +143,8 @@ class EarlyWindows(PreparedWindows):
 
     def _early(self, capture: Capture) -> tuple[Capture, AngleResult, dict[str, Any]] | None:
         """The early work on ``capture`` when it holds exactly the samples worked on, else None."""
-        job = self._jobs.get(self._window(capture))
+        window = self._window(capture)
+        job = self._jobs.get(window) if window is not None else None
         if job is None or job.exception() is not None:
             return None
         cap, angle, metrics = job.result()

@@ -65,7 +65,7 @@ def check_dyno(config: DynoConfig) -> tuple[DynoStatus | None, list[Problem]]:
     where = f"dyno {client.config.host}:{client.config.port}"
     problems = []
     if found.faults:
-        names = "+".join(f.name for f in Fault if f & found.faults)
+        names = "+".join(f.name or f"0x{int(f):04x}" for f in Fault if f & found.faults)  # iterated members have names
         problems.append(Problem("dyno_fault", f"{where} has latched faults {names} (faults=0x{found.faults:04x}): "
                                               "clear them at the dyno"))
     if found.drive_state == DriveState.TRIPPED:
@@ -73,7 +73,7 @@ def check_dyno(config: DynoConfig) -> tuple[DynoStatus | None, list[Problem]]:
     missing = Interlock.ALL & ~Interlock(found.interlocks & Interlock.ALL)
     if missing:
         problems.append(Problem("dyno_interlocks", f"{where}: interlocks not met: "
-                                + "+".join(i.name for i in Interlock if i != Interlock.ALL and i & missing)))
+                                + "+".join(i.name or f"0x{int(i):04x}" for i in Interlock if i != Interlock.ALL and i & missing)))
     return found, problems
 
 

@@ -9,6 +9,7 @@ in the record; ``to_json(from_json(doc)) == doc`` for every document ``to_json``
 
 from __future__ import annotations
 
+import builtins
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -125,6 +126,8 @@ class Reader:
     """Typed getters over a decoded JSON object that raise :class:`RecordFormatError` naming the
     source and the field (``where`` is the path so far, e.g. ``blocks[1].``)."""
 
+    # the methods str and bool shadow the builtins in the annotations below them: builtins.str, builtins.bool
+
     def __init__(self, source: str, where: str = "") -> None:
         self.source = source
         self.where = where
@@ -155,44 +158,47 @@ class Reader:
     def str(self, d: Mapping[str, Any], key: str, *, null: bool = False, default: Any = _MISSING) -> Any:
         return self.value(d, key, lambda x: isinstance(x, str), "a string", null=null, default=default)
 
-    def int(self, d: Mapping[str, Any], key: str, *, null: bool = False, default: Any = _MISSING) -> Any:
+    def int(self, d: Mapping[builtins.str, Any], key: builtins.str, *, null: bool = False, default: Any = _MISSING) -> Any:
         return self.value(d, key, lambda x: isinstance(x, int) and not isinstance(x, bool), "an integer", null=null,
                           default=default)
 
-    def bool(self, d: Mapping[str, Any], key: str, *, null: bool = False, default: Any = _MISSING) -> Any:
+    def bool(self, d: Mapping[builtins.str, Any], key: builtins.str, *, null: bool = False, default: Any = _MISSING) -> Any:
         return self.value(d, key, lambda x: isinstance(x, bool), "true or false", null=null, default=default)
 
-    def num(self, d: Mapping[str, Any], key: str, *, nan: bool = False, default: Any = _MISSING) -> float:
+    def num(self, d: Mapping[builtins.str, Any], key: builtins.str, *, nan: builtins.bool = False,
+            default: Any = _MISSING) -> float:
         """A finite number; with ``nan`` null is NaN (a figure that was not measured)."""
         x = self.value(d, key, lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)
                        and math.isfinite(x), "a finite number", null=nan, default=default)
         return math.nan if x is None else float(x)
 
-    def opt_num(self, d: Mapping[str, Any], key: str, default: Any = _MISSING) -> float | None:
+    def opt_num(self, d: Mapping[builtins.str, Any], key: builtins.str, default: Any = _MISSING) -> float | None:
         x = self.value(d, key, lambda x: isinstance(x, (int, float)) and not isinstance(x, bool)
                        and math.isfinite(x), "a finite number", null=True, default=default)
         return None if x is None else float(x)
 
-    def obj(self, d: Mapping[str, Any], key: str, *, null: bool = False, default: Any = _MISSING) -> Any:
+    def obj(self, d: Mapping[builtins.str, Any], key: builtins.str, *, null: builtins.bool = False,
+            default: Any = _MISSING) -> Any:
         return self.value(d, key, lambda x: isinstance(x, dict), "an object", null=null, default=default)
 
-    def list(self, d: Mapping[str, Any], key: str, *, default: Any = _MISSING) -> list[Any]:
+    def list(self, d: Mapping[builtins.str, Any], key: builtins.str, *, default: Any = _MISSING) -> list[Any]:
         x = self.value(d, key, lambda x: isinstance(x, list), "a list", default=default)
         return [] if x is None else x
 
-    def strs(self, d: Mapping[str, Any], key: str, *, default: Any = _MISSING) -> tuple[str, ...]:
+    def strs(self, d: Mapping[builtins.str, Any], key: builtins.str, *, default: Any = _MISSING) -> tuple[builtins.str, ...]:
         x = self.list(d, key, default=default)
         if not all(isinstance(v, str) for v in x):
             raise self.error(key, "expected a list of strings")
         return tuple(x)
 
-    def choice(self, d: Mapping[str, Any], key: str, options: tuple[str, ...], *, default: Any = _MISSING) -> str:
+    def choice(self, d: Mapping[builtins.str, Any], key: builtins.str, options: tuple[builtins.str, ...], *,
+               default: Any = _MISSING) -> builtins.str:
         x = self.str(d, key, default=default)
         if x not in options:
             raise self.error(key, f"{x!r} is not one of {', '.join(options)}")
         return x
 
-    def items(self, d: Mapping[str, Any], key: str, read: Callable[[Reader, Any], Any], *,
+    def items(self, d: Mapping[builtins.str, Any], key: builtins.str, read: Callable[[Reader, Any], Any], *,
               default: Any = _MISSING) -> tuple[Any, ...]:
         """``read`` of each element of the list ``d[key]`` (``key[i].`` in errors)."""
         return tuple(read(self.at(f"{key}[{i}]."), x) for i, x in enumerate(self.list(d, key, default=default)))
@@ -287,9 +293,11 @@ def _figures_from(r: Reader, d: dict[str, Any]) -> PointFigures:
     span = r.list(d, "span_s")
     if len(span) != 2 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in span):
         raise r.error("span_s", "expected [start, end] in s")
-    return PointFigures(*(r.num(d, k, nan=True, default=None) for k in ("pp_pct", "pp_raw_pct", "pp_nm",
-                                                                        "pp_no_mech1_pct", "T_avg_nm", "amp6_nm")),
-                        span_s=(float(span[0]), float(span[1])), mech1_nm=r.num(d, "mech1_nm", nan=True, default=None))
+    def num(key: str) -> float:
+        return r.num(d, key, nan=True, default=None)
+
+    return PointFigures(num("pp_pct"), num("pp_raw_pct"), num("pp_nm"), num("pp_no_mech1_pct"), num("T_avg_nm"),
+                        num("amp6_nm"), span_s=(float(span[0]), float(span[1])), mech1_nm=num("mech1_nm"))
 
 
 def metrics_from(r: Reader, d: dict[str, Any] | None) -> RippleMetrics | None:

@@ -38,7 +38,7 @@ from sqlalchemy import event
 from sqlalchemy.dialects import postgresql as pg_dialect
 from sqlalchemy.dialects import sqlite as sqlite_dialect
 from sqlalchemy.engine import Connection, Engine
-from sqlalchemy.pool import NullPool
+from sqlalchemy.pool import ConnectionPoolEntry, NullPool
 
 from eol_cal.errors import EolCalError
 from eol_cal.station.record import KINDS, RunRecord
@@ -178,7 +178,7 @@ def _sqlite_engine(db: Path, timeout_s: float, readonly: bool) -> Engine:
     eng = sa.create_engine(url, poolclass=NullPool, connect_args={"timeout": timeout_s})
 
     @event.listens_for(eng, "connect")
-    def _connect(dbapi_con, _rec) -> None:
+    def _connect(dbapi_con: sqlite3.Connection, _rec: ConnectionPoolEntry) -> None:
         # explicit transactions: BEGIN IMMEDIATE takes the write lock up front, so a locked
         # database fails here after the timeout, not half-way through
         dbapi_con.isolation_level = None

@@ -114,14 +114,21 @@ def find_calibration(records: Sequence[RunRecord], serial: str | None, *, run_id
         raise InputError(None, "serial", "--calibration previous needs the motor's serial")
     passing = sorted((r for r in records if r.serial == serial and r.kind == MEASURED_KIND and r.verdict == "pass"
                       and r.block("calibrated") is not None), key=lambda r: (r.started_at, r.run_id))
-    candidates = [r for r in passing if not _same_block(r.block("calibrated"), active)]
+    candidates = [r for r in passing if not _same_block(_calibrated(r), active)]
     if not candidates:
         why = "no passing run with a calibrated block" if not passing else \
             f"only the calibration the ECU runs now (run {passing[-1].run_id})"
         raise InputError(None, "calibration", f"serial {serial}: the records hold {why}: nothing earlier to restore")
     rec = candidates[-1]
-    block = rec.block("calibrated")
+    block = _calibrated(rec)
     return Calibration(rec, block, read_archive(block, rec.run_id))
+
+
+def _calibrated(rec: RunRecord) -> FlashedBlock:
+    """The calibrated block of a record that holds one (as every record ``passing`` keeps)."""
+    block = rec.block("calibrated")
+    assert block is not None
+    return block
 
 
 def uncompensated(data: bytes) -> bool:
@@ -184,10 +191,13 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
         blocks.append(done)
     except BaseException as exc:  # noqa: BLE001 - recorded, then raised again by the caller
         failure = exc
-        if getattr(exc, "flashed_block", None) is not None:
-            blocks.append(exc.flashed_block)
+        flashed = getattr(exc, "flashed_block", None)
+        if flashed is not None:
+            blocks.append(flashed)
     seconds = round(time.perf_counter() - t0, 4)
+    reasons: tuple[str, ...]
     if failure is None:
+        assert report is not None  # flash_archived returned (no failure): its report is set
         verdict, reasons, error = "pass", (), None
         active = EcuActive("restored", report.sequence, report.bank)
     else:

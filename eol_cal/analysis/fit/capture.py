@@ -321,6 +321,8 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
         for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
             ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment, strict=True) if j == ci]
             if ranges:
+                # _segment_motor, the only maker of a MotorInput, always sets its hall table
+                assert mi.hall is not None
                 jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
                 owner.append(k)
     sums = prepared.frame_offsets(jobs)

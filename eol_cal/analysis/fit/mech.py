@@ -67,7 +67,7 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
 
 def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
     """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
-    out = []
+    out: list[fpr.WindowEdges | None] = []
     for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
         ranges = fingerprint_ranges(mi, ci)
         if not ranges or not cap.has("enc_b"):
@@ -102,8 +102,11 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         info = mi.info[s]
         theta = np.asarray(seg.theta[s], dtype=float)
         y = np.asarray(seg.torque[s], dtype=float) - fitted_ripple(mi, fit, spec, s, theta, gains6)
-        q = prints[ci].q[info.start:info.stop]
-        th_m = fpr.block_frame_mech_angle(q, fp.offsets[ci], fp.grid_phase, theta + mi.frame_offset_rad,
+        edges, offset = prints[ci], fp.offsets[ci]
+        # used: segments of windows placed in the fingerprint, and merge_windows places only windows with edges
+        assert edges is not None and offset is not None
+        q = edges.q[info.start:info.stop]
+        th_m = fpr.block_frame_mech_angle(q, offset, fp.grid_phase, theta + mi.frame_offset_rad,
                                           mi.poles, mi.encoder_ppr)
         w_m = seg.omega_e[s] / pp
         freqs = np.asarray(ORDERS, dtype=float) * w_m
@@ -171,7 +174,7 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     """
     N = mi.encoder_ppr
     reasons: list[str] = []
-    prints = window_prints(mi) if mi.frame == "firmware" else [None] * len(mi.captures)
+    prints: list[fpr.WindowEdges | None] = window_prints(mi) if mi.frame == "firmware" else [None] * len(mi.captures)
     if mi.frame != "firmware":
         reasons.append("no firmware frame (enc_b missing or the estimator never anchored): no fingerprint")
     fp = fpr.merge_windows(prints, mi.poles, N)

@@ -234,6 +234,7 @@ def _cpow(e: np.ndarray, n: int) -> np.ndarray:
         n >>= 1
         if n:
             e = e * e
+    assert out is not None  # n >= 1: at least one factor
     return out
 
 

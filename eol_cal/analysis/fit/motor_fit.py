@@ -114,7 +114,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         for ih, h in enumerate(spec.harmonics):
             i = n_tau + (ip * nh + ih) * 2
             harmonics[h][name] = _amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
-    if n_tau:
+    if spec.delay_s is None:  # the delay was fitted (n_tau = 1): p[0]
         delay, delay_ci = p[0] * TAU_SCALE, Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE
     else:
         delay, delay_ci = float(spec.delay_s), 0.0

@@ -163,7 +163,9 @@ def fit_inputs(
     from eol_cal.analysis.result import record_for_motor, result_document
 
     if tool_version is None:
-        from eol_cal import __version__ as tool_version
+        from eol_cal import __version__
+
+        tool_version = __version__
     prepared = prepared or PreparedWindows()
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(

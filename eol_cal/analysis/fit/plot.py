@@ -23,6 +23,7 @@ def segment_model(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int) -> tuple
     X = design_matrix(theta, seg.t[s], seg.pole_pairs, spec)
     mean = float(np.mean(seg.torque[s]))
     q = spec.n_nuis
+    assert fit.coef is not None  # unpack, which makes every MotorFit, sets it
     nuisance = X[:, 1:q] @ fit.coef[s, 1:q]  # drift above the constant, and the mechanical pair
     return mean + X @ fit.coef[s], nuisance
 
@@ -88,7 +89,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
         ax = axes[s // cols][s % cols]
         seg = mi.segments
         model, nuisance = segment_model(mi, fit, spec, s)
-        th = wrap_2pi(seg.theta[s])
+        th = np.asarray(wrap_2pi(seg.theta[s]))  # numpy in, numpy out
         y = seg.torque[s] - nuisance
         step = max(1, len(th) // _MAX_POINTS)
         ax.plot(np.degrees(th[::step]), y[::step], ".", ms=1.5, alpha=0.5, label="measured")

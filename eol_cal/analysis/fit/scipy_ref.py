@@ -75,7 +75,7 @@ def fit_segments_scipy(seg: SteadySegments, spec: FitSpec, p0: np.ndarray | None
             harmonics[h][name] = (float(np.hypot(p[i], p[i + 1])), float(np.arctan2(p[i + 1], p[i])))
     return {
         "harmonics": harmonics,
-        "delay_s": float(p[0] * TAU_SCALE) if n_tau else float(spec.delay_s),
+        "delay_s": float(p[0] * TAU_SCALE) if spec.delay_s is None else float(spec.delay_s),  # None: fitted, p[0]
         "nfev": int(sol.nfev),
         "cost": float(sol.cost),
         "success": bool(sol.success),

@@ -13,13 +13,23 @@ amplitude).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from eol_cal.analysis.fit.model import TAU_SCALE, FitSpec
 
+if TYPE_CHECKING:
+    import jax
+    import optimistix as optx
 
-def build_solver(spec: FitSpec, S: int):
+    #: a solver: the compressed data by name (one motor's, or a batch's stacked), the delay's start
+    #: grid and the step limit -> the solution by name (p, cov_unscaled, ssr_red, g, steps, converged)
+    Solver = Callable[[Mapping[str, np.ndarray | jax.Array], np.ndarray | jax.Array, int], dict[str, jax.Array]]
+
+
+def build_solver(spec: FitSpec, S: int) -> Solver:
     """The jitted one-motor solver on compressed data, for a given spec and segment count.
 
     The per-segment nuisance (drift polynomial, mechanical pair) enters linearly and unconstrained
@@ -104,7 +114,7 @@ def build_solver(spec: FitSpec, S: int):
         def residual_u(u, a):
             return residual(p0 + D * u, a)
 
-        sol = optx.least_squares(
+        sol: optx.Solution[jax.Array, None] = optx.least_squares(
             residual_u, _make_solver(spec), jnp.zeros_like(p0), args=args, max_steps=max_steps, throw=False
         )
         p = p0 + D * sol.value
@@ -122,7 +132,7 @@ def build_solver(spec: FitSpec, S: int):
     return solve
 
 
-def _make_solver(spec: FitSpec):
+def _make_solver(spec: FitSpec) -> optx.AbstractGaussNewton[jax.Array, jax.Array, None]:
     """Gauss-Newton (default) or Levenberg-Marquardt with a small initial damping.
 
     Measured on synthetic motors: optimistix's LM tests for termination only after an accepted
@@ -137,7 +147,7 @@ def _make_solver(spec: FitSpec):
 
     if spec.solver == "gn":
         return optx.GaussNewton(rtol=spec.rtol, atol=spec.atol)
-    solver = optx.LevenbergMarquardt(rtol=spec.rtol, atol=spec.atol)
+    solver: optx.LevenbergMarquardt[jax.Array, jax.Array, None] = optx.LevenbergMarquardt(rtol=spec.rtol, atol=spec.atol)
     try:  # private in optimistix 0.1: without it, the stock (slower-starting) LM still works
         from optimistix._solver.trust_region import _TrustRegionState
     except ImportError:  # pragma: no cover
@@ -152,11 +162,11 @@ def _make_solver(spec: FitSpec):
     return eqx.tree_at(lambda s: s.search, solver, _Region(init_step=spec.lm_init_step))
 
 
-_SOLVERS: dict = {}
+_SOLVERS: dict[tuple[FitSpec, int, str], Solver] = {}
 
 
 
-def cached_solver(spec: FitSpec, S: int, mode: str):
+def cached_solver(spec: FitSpec, S: int, mode: str) -> Solver:
     """Jitted solver, cached per (spec, S, mode)."""
     import jax
 

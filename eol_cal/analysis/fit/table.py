@@ -32,6 +32,7 @@ from eol_cal.motor import MotorParams
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult, ValueCi
     from eol_cal.firmware.block import ParamBlock
+    from eol_cal.firmware.mech_params import MechParams
 
 IQC_LIMIT_FRACTION = 0.10
 
@@ -175,7 +176,7 @@ def mech_off_reasons(res: MotorResult, flags: int) -> list[str]:
     return reasons
 
 
-def mech_params(res: MotorResult, kt: float):
+def mech_params(res: MotorResult, kt: float) -> MechParams:
     """The block's mechanical part from the result (an empty one without a mechanical result)."""
     import numpy as np
 
