@@ -39,7 +39,6 @@ def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s)
     ecu, run = start()
     assert _wait_for("before.mf4", tmp_path), "the calibration capture was never written"
     time.sleep(delay_s)  # the fit: JAX traces and solves
-    flashed_before = list((tmp_path / "reports").rglob("block.bin"))
     run.send_signal(sig)
     _, err = run.communicate(timeout=120)
     assert run.returncode == 2, err
@@ -53,7 +52,13 @@ def test_a_signal_during_the_fit_flashes_nothing_after_it(station, sig, delay_s)
         assert rec.verdict in ("pass", "fail") and rec.error is None, rec
         return
     assert sig.name in rec.error.message, rec.error
-    if not flashed_before:  # the calibrated block was not being written when the signal came
+    # The step the signal stopped says when it came: a step is only begun after the signals so far
+    # were looked at (eol_cal.interrupts). The capture's file, which the test waits for, is written
+    # beside the fit and the flash (the flash's CRC waits for it), so on a loaded machine the
+    # signal can come during the flash: then its first half went out before the signal, and the
+    # ECU boots either block (hog run: the CRC's commit finished, sequence 2 active).
+    assert rec.error.step in ("fit", "table", "flash", "acquire compensated", "metrics"), rec.error
+    if rec.error.step in ("fit", "table"):  # the flash never began: the ECU boots the prepared block
         active = B.unpack(active_block_from_file(tmp_path / "ecu.flash"), "active")
         assert active.sequence == 1 and not active.flags & B.FLAG_COMP_ENABLE, "flashed after the signal"
 
