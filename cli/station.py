@@ -102,7 +102,9 @@ def _print_verdict(rec) -> None:
             return
     what = "REFUSED" if rec.kind == "refusal" else rec.verdict.upper()
     colour = {"pass": "green", "fail": "yellow"}.get(rec.verdict, "red")
-    console.print(f"[bold {colour}]{rec.serial}: {what}[/]" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
+    # the console takes no markup (a serial or reason is printed as it is): the colour is a style
+    console.print(styled((f"{rec.serial}: {what}", f"bold {colour}"),
+                         f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
 
 
 def _print_outcome(out, as_json: bool) -> None:

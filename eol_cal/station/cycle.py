@@ -346,8 +346,6 @@ class StationCycle:
             sys.setswitchinterval(previous)
 
     def _run(self, on_verdict: Callable[[RunRecord], None] | None) -> RunOutcome:
-        from eol_cal.station.report import write_record_json
-
         failure: BaseException | None = None
         try:
             gate = (("master check", self.master_check),) if self.cfg.master and self.cfg.kind == "production" else ()
@@ -391,6 +389,10 @@ class StationCycle:
             self.ended_at = now_iso()
             assert self._helper is not None  # start() made the pool
             self._helper.shutdown(wait=True)
+            # imported after the verdict (the lot page's modules: 0.2 s at `eol-cal run`'s start),
+            # by the helper while the dyno turned (_preload_writers)
+            from eol_cal.station.report import write_record_json
+
             rec = self.to_record()
             try:
                 write_record_json(rec, self.run_dir)
@@ -592,9 +594,10 @@ def _preload_analysis() -> None:
 
 
 def _preload_writers() -> None:
-    """Import what writes the captures (asammdf, pandas) and the record (the database library)
-    while the dyno turns, not when the capture is in or the verdict is known."""
+    """Import what writes the captures (asammdf, pandas), the record (the database library) and
+    the report while the dyno turns, not when the capture is in or the verdict is known."""
     import eol_cal.capture.mdf4_io
+    import eol_cal.station.report
     import eol_cal.station.spool  # noqa: F401
 
 
