@@ -596,6 +596,8 @@ def _preload_analysis() -> None:
 def _preload_writers() -> None:
     """Import what writes the captures (asammdf, pandas), the record (the database library) and
     the report while the dyno turns, not when the capture is in or the verdict is known."""
+    import asammdf  # noqa: F401 - the MDF4 writer imports it where it writes (heavy): here, not beside the fit
+
     import eol_cal.capture.mdf4_io
     import eol_cal.station.report
     import eol_cal.station.spool  # noqa: F401
