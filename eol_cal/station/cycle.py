@@ -235,10 +235,9 @@ class StationCycle:
 
     def flash(self) -> None:
         """Write the calibrated block into the ECU's inactive bank (read back before its CRC unless
-        the settings say not, ``flash.read_back``); the calibration
-        capture's file, written beside the fit, must be on disk before the block's CRC makes it
-        count (a write that failed aborts the flash there: the CRC is never written, the previous
-        block stays active)."""
+        the settings say not, ``flash.read_back``); the calibration capture's file, written beside
+        the fit, must be on disk before the block's CRC makes it count (a write that failed aborts
+        the flash there: the CRC is never written, the previous block stays active)."""
         from eol_cal.firmware.block import pack
 
         assert self.calibrated is not None  # the table step, run before, made it
