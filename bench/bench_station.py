@@ -135,12 +135,14 @@ def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
 
     ran = {s["step"] for s in rec["steps"] if s["seconds"] is not None}
     segs = setpoints_from_profile(load_profile(rec["station"]["profile"]))
-    before = physical_seconds(segs, rate_hz) if "acquire" in ran else 0.0
+    # the lead-in the shaft turned for the ECU's settling after each reset (none before it was made)
+    lead = {k: float(c.get("lead_in_s", 0.0)) for k, c in (rec.get("captures") or {}).items()}
+    before = physical_seconds(segs, rate_hz, lead.get("before", 0.0)) if "acquire" in ran else 0.0
     after = 0.0
     if "acquire compensated" in ran:
         op = rec["fit"]["operating_point"]
         after_segs = segs if rec["station"]["verify"] == "full" else verify_segments(segs, op["speed_rpm"], op["i_qo_a"])
-        after = physical_seconds(after_segs, rate_hz)
+        after = physical_seconds(after_segs, rate_hz, lead.get("after", 0.0))
     return before, after
 
 

@@ -163,7 +163,7 @@ OPTION_KEYS = {
     "verify": "verify", "key_file": "key_file", "key_algo": "key_algo", "report_dir": "report_dir", "spool_dir": "spool_dir",
     "db_timeout": "db_timeout_s", "rate_hz": "rate_hz", "dyno_timeout": "dyno.timeout_s", "motor_file": "motor",
     "bench_name": "bench", "station_id": "station_id", "register_map": "dyno.register_map",
-    "estimator": "estimator", "read_back": "flash.read_back",
+    "estimator": "estimator", "read_back": "flash.read_back", "lead_in": "dyno.lead_in",
 }
 #: what `run` without --station needs, by option, for its one-line refusal
 REQUIRED_OPTIONS = {"address": "--dyno HOST:PORT", "limits_file": "--limits FILE", "db": "--db PATH|URL",
@@ -249,6 +249,9 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
 @click.option("--read-back", type=click.Choice(["before-crc", "off"]), default=None,
               help="Read each flashed block back before its CRC is written [default: before-crc, settings key "
                    "flash.read_back]; off leaves the check to the ECU's CRC routine (docs/station.md).")
+@click.option("--lead-in", type=click.Choice(["settle", "off"]), default=None,
+              help="Turn the shaft for the ECU's settling after each reset before its capture counts [default: "
+                   "settle, settings key dyno.lead_in]; off captures at once (docs/station.md, \"Lead-in\").")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @register_map_option
 @click.pass_context

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint, run_profile
+from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint, physical_seconds, run_profile
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import CaptureCommand, CaptureState
 from eol_cal.dyno.regmap import READ_FC
@@ -230,6 +230,43 @@ def test_the_client_reads_the_buffer_while_the_shaft_turns(regmap):
         np.testing.assert_array_equal(data[1].channels["torque"], last.channels["torque"].astype(np.float32))
         np.testing.assert_array_equal(data[1].channels["hall"], last.channels["hall"])
         assert [len(w.channels["torque"]) for w in data] == [3000, 2000]
+
+
+def test_a_lead_in_is_recorded_but_never_read(regmap):
+    """The lead-in (the ECU settling after its reset) is shaft time in front of the first capture:
+    the dyno records it, the client reads only the samples after it."""
+    segments = [DynoSetpoint(60.0, 0.2, iq=10.0), DynoSetpoint(-60.0, 0.2, iq=-10.0)]
+    lead = 2500  # 0.25 s at 10 kHz
+    captures = []
+    with DynoSimThread(DynoSim(lambda req: captures.append(synthetic_source(req)) or captures[-1], serial="M-LEAD",
+                               register_map=regmap, realtime=True)) as thread:
+        sim = thread.sim
+        reads: list[tuple[int, int, int]] = []  # (capture, first sample, last sample + 1) of each window read
+        window_words = sim.window_words
+
+        def logged(channel, offset, lo, hi):
+            per = regmap.regs_per_sample(channel)
+            reads.append((sim.captures_started, offset + lo // per, offset + -(-hi // per)))
+            return window_words(channel, offset, lo, hi)
+
+        sim.window_words = logged
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
+        data, _ident = run_profile(client, segments, RATE, lead_in_s=0.25)
+    first = captures[0]
+    assert len(first.t) == lead + 2000 and len(captures[1].t) == 2000  # only the first capture has one
+    timing = sim.captures[0]
+    assert timing.physical_end - timing.started == pytest.approx((lead + 2000) / RATE)
+    np.testing.assert_array_equal(data[0].channels["torque"], first.channels["torque"][lead:].astype(np.float32))
+    np.testing.assert_array_equal(data[0].channels["hall"], first.channels["hall"][lead:])
+    assert [len(w.channels["torque"]) for w in data] == [2000, 2000]
+    assert min(a for k, a, _b in reads if k == 1) == lead  # nothing of the lead-in crossed the wire
+    assert min(a for k, a, _b in reads if k == 2) == 0
+
+
+def test_physical_time_counts_the_lead_in():
+    segments = [DynoSetpoint(60.0, 1.0, iq=10.0)]
+    assert physical_seconds(segments, RATE, 0.25) - physical_seconds(segments, RATE) == pytest.approx(0.25)
+    assert physical_seconds([], RATE, 0.25) == 0.0
 
 
 @pytest.mark.parametrize("fault", ["torque-sensor@read:3", "disconnect@read:4/3000"])

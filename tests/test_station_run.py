@@ -201,6 +201,15 @@ def test_full_run_end_to_end(full_run):
         from eol_cal.capture.io import read_capture
 
         assert trace_of(read_capture(c["path"]).metadata).to_dict() == {k: c[k] for k in ("ecu_before", "ecu_after")}
+    # each flash reset the ECU: the shaft turned for its settling before the samples counted, the
+    # calibrated block's mechanical identification longer than the uncompensated block's pitch learning
+    from eol_cal.firmware.settling import block_settle_s
+
+    for which, ran in (("before", prep), ("after", cal)):
+        booted = B.unpack(Path(ran["path"]).read_bytes(), "archive")
+        assert rec["captures"][which]["lead_in_s"] == pytest.approx(block_settle_s(booted, 120.0), abs=1e-4)
+    assert rec["captures"]["after"]["lead_in_s"] == pytest.approx(2.0, abs=1e-4)  # 4 revolutions at 120 rpm
+    assert rec["captures"]["before"]["lead_in_s"] == pytest.approx(0.75, abs=1e-4)  # 1.5 revolutions
     # verification at the operating point only: 65 A at 120 rpm, forward and reverse
     assert rec["captures"]["before"]["segments"] == 3 and rec["captures"]["after"]["segments"] == 2
     assert rec["station"]["verify"] == "point"
@@ -232,8 +241,9 @@ def test_full_run_end_to_end(full_run):
 def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     """The whole cycle on a dyno laid out otherwise (vendor B: CDAB, scaled integers, separate
     tables, its own codes): the simulator serves the map and ``run --register-map`` drives it.
-    With ``--read-back off`` (a line's takt setting): both blocks are flashed and confirmed
-    without a read-back, and the record says so."""
+    With ``--read-back off`` and ``--lead-in off`` (a line's takt settings): both blocks are
+    flashed and confirmed without a read-back, every capture starts at speed, and the record
+    says so."""
     from eol_cal.dyno.mapfile import load_register_map
 
     db = files["dir"] / "vendor-b.sqlite"
@@ -241,7 +251,8 @@ def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     with loopback_station("VB-0001", SEED, files["dir"] / "sim-b", spec_for=lambda req: paper("VB-0001"),
                           register_map=regmap) as st:
         res = CliRunner().invoke(cli, run_args(files, st, "VB-0001", db, files["dir"] / "reports-b",
-                                               "--register-map", "vendor-b", "--read-back", "off"))
+                                               "--register-map", "vendor-b", "--read-back", "off",
+                                               "--lead-in", "off"))
         wait_stopped(st.dyno.sim)
         assert (st.dyno.sim.enabled, st.dyno.sim.setpoint, st.dyno.sim.speed) == (False, 0.0, 0.0)
         assert st.dyno.sim.captures_started == 3 + 2 and st.dyno.sim.window_reads > 0  # 3 segments, 2 verifications
@@ -250,6 +261,7 @@ def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     assert rec["verdict"] == "pass" and rec["station"]["dyno_register_map"] == regmap.name
     assert [(b["role"], b["verified"], b["confirmed"]) for b in rec["blocks"]] == [
         ("prepare", False, True), ("calibrated", False, True)]
+    assert [c["lead_in_s"] for c in rec["captures"].values()] == [0.0, 0.0]
     assert abs(rec["fit"]["k6"]["value"] - MOTOR.k6) < 0.05 * MOTOR.k6
     assert rec["metrics"]["pp_after_pct"] < 0.5 * rec["metrics"]["pp_before_pct"]
 

@@ -109,13 +109,14 @@ def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
     return out
 
 
-def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RATE_HZ) -> float:
+def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RATE_HZ, lead_in_s: float = 0.0) -> float:
     """How long the shaft must turn for ``segments`` (s), from standstill back to standstill: what
     no tool can take off a station's cycle.
 
     Each segment's ramp at its rate until the dyno reports at speed (within its tolerance), a
     reversal's stop at the previous ramp rate first, the capture's ``round(seconds * rate_hz)``
-    samples, and the stop at the end, as :func:`run_profile` commands them.
+    samples (the first segment's ``lead_in_samples(lead_in_s, rate_hz)`` more), and the stop at
+    the end, as :func:`run_profile` commands them.
     """
     from eol_cal.dyno.sim import SPEED_TOL_REL, SPEED_TOL_RPM
 
@@ -129,7 +130,13 @@ def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RA
         total += max(0.0, abs(seg.speed_rpm - speed) - tol) / ramp
         total += int(round(seg.seconds * rate_hz)) / rate_hz
         speed = seg.speed_rpm
+    total += lead_in_samples(lead_in_s, rate_hz) / rate_hz if segments else 0.0
     return total + max(0.0, abs(speed) - rm.STANDSTILL_RPM) / ramp
+
+
+def lead_in_samples(lead_in_s: float, rate_hz: float) -> int:
+    """Samples of a lead-in of ``lead_in_s`` (s) at ``rate_hz`` (Hz): captured and never read."""
+    return int(math.ceil(max(0.0, lead_in_s) * rate_hz - 1e-9))
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -370,14 +377,17 @@ class DynoClient:
         return st
 
     def record(self, n_samples: int, rate_hz: int, names: Sequence[str], progress: ProgressFn | None = None,
-               ramp_s: float = 0.0) -> dict[str, np.ndarray]:
+               ramp_s: float = 0.0, skip: int = 0) -> dict[str, np.ndarray]:
         """Arm a capture of ``n_samples`` at ``rate_hz`` (Hz) and read channels ``names`` (those the
         buffer holds; ``torque`` and ``iq_ref`` required) while it records (:class:`StreamReader`);
         return when every sample is read.
 
         The capture starts by itself once the shaft is at speed: ``ramp_s`` (s) is the ramp still
-        to go, added to the wait. Returns the channels as :meth:`read_buffer`.
+        to go, added to the wait. The first ``skip`` samples are recorded but never read (a
+        lead-in). Returns the channels as :meth:`read_buffer`, samples ``skip`` on.
         """
+        if not 0 <= skip < n_samples:
+            raise ValueError(f"skip {skip} of a capture of {n_samples} samples")
         cfg = self.config
         self.write(capture_rate=rate_hz, capture_length=n_samples)
         self.write(capture_start=CaptureCommand.ARM)
@@ -394,7 +404,7 @@ class DynoClient:
             count = int(s["capture_count"]) if state in (CaptureState.RUNNING, CaptureState.READY) else 0
             if reader is None and count > 0:
                 assert self._reader is not None  # opened above, before the wait
-                reader = self._reader.stream(self.recorded_channels(s, names), fill, rate_hz, progress)
+                reader = self._reader.stream(self.recorded_channels(s, names), fill, rate_hz, progress, skip)
             if state == CaptureState.READY and count != n_samples:
                 raise DynoError(f"{self.where}: capture holds {count} samples, {n_samples} requested")
             fill.update(count)
@@ -468,6 +478,7 @@ def run_profile(
     before_capture: Callable[[], object] | None = None,
     after_capture: Callable[[], object] | None = None,
     on_window: WindowHook | None = None,
+    lead_in_s: float = 0.0,
 ) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
 
@@ -475,7 +486,11 @@ def run_profile(
     the shaft ramps to the first segment; ``after_capture`` right after the last window was read
     and checked, before the stop: work of the caller's that must bracket the captures (the ECU's
     state, :func:`eol_cal.station.acquisition.acquire_traced`) runs alongside the ramps, not after them.
-    An exception from either ends the run like any other (safe state first). ``on_window(i,
+    An exception from either ends the run like any other (safe state first). The first capture
+    starts with a lead-in of ``lead_in_s`` (s) at the first segment's point, recorded by the dyno
+    and never read: the shaft turns while the ECU settles after its reset
+    (:func:`eol_cal.firmware.settling.settle_s`) without a wait between two captures (a dyno
+    starts a capture itself at speed; a sleep would add a poll's latency). ``on_window(i,
     window, t)`` is called with each window as soon as it is read and checked, ``t`` its sample
     times in the joined capture (:func:`window_times`): the caller's work on it can start while
     the shaft turns on (it should hand the work to another thread and return).
@@ -505,11 +520,12 @@ def run_profile(
             if progress:
                 progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
             n = int(round(seg.seconds * rate_hz))
+            lead = lead_in_samples(lead_in_s, rate_hz) if i == 0 else 0
             ramp_s = client.set_point(seg, wait=False)
             if i == 0 and before_capture is not None:
                 before_capture()
-            t_start = time.monotonic()
-            chans = client.record(n, rate_hz, channels, progress, ramp_s)
+            t_start = time.monotonic() + lead / rate_hz
+            chans = client.record(n + lead, rate_hz, channels, progress, ramp_s, skip=lead)
             st = client.status()
             client.check_faults(st, "reading the capture")
             if int(st["capture_state"]) != CaptureState.READY:
@@ -618,6 +634,7 @@ def acquire(
     before_capture: Callable[[], object] | None = None,
     after_capture: Callable[[], object] | None = None,
     on_window: WindowHook | None = None,
+    lead_in_s: float = 0.0,
 ) -> Capture:
     """Run a profile on the dyno, check the capture and write it atomically to ``out``.
 
@@ -640,6 +657,9 @@ def acquire(
         (:func:`run_profile`).
     on_window : callable, optional
         ``(index, window, t)`` for each window as soon as it is read (:func:`run_profile`).
+    lead_in_s : float
+        Time (s) the shaft turns at the first segment's point before its samples count
+        (:func:`run_profile`); recorded in the capture's metadata as ``lead_in_s``.
 
     Raises
     ------
@@ -652,8 +672,9 @@ def acquire(
         raise InputError(None, "profile", "no segments")
     client = DynoClient(config)
     data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults, before_capture, after_capture,
-                              on_window)
-    capture = assemble(data, ident, serial, extra_metadata)
+                              on_window, lead_in_s)
+    lead = lead_in_samples(lead_in_s, rate_hz) / rate_hz
+    capture = assemble(data, ident, serial, {**(extra_metadata or {}), "lead_in_s": lead} if lead else extra_metadata)
     from eol_cal.capture import validate, write_capture
 
     capture = validate(capture)

@@ -212,11 +212,13 @@ class BufferReader:
         return self._conns.reconnects
 
     def stream(self, names: Sequence[str], fill: BufferFill, rate_hz: float,
-               progress: ProgressFn | None = None) -> Stream:
-        """Start reading channels ``names`` (and the digital channel) of the capture ``fill`` follows."""
+               progress: ProgressFn | None = None, first: int = 0) -> Stream:
+        """Start reading channels ``names`` (and the digital channel) of the capture ``fill``
+        follows, from sample ``first`` on (the samples before it are never read)."""
         plan = channel_plan(self._cfg.regmap, names)
         chunk = (max(1, int(rate_hz * STREAM_CHUNK_S)), max(1, int(rate_hz * STREAM_TAIL_S)))
-        job = asyncio.run_coroutine_threadsafe(_transfer(self._cfg, self._conns, plan, fill, chunk, progress), self._loop)
+        job = asyncio.run_coroutine_threadsafe(_transfer(self._cfg, self._conns, plan, fill, chunk, progress, first),
+                                               self._loop)
         return Stream(self._cfg, plan, fill, job)
 
     def close(self) -> None:
@@ -292,7 +294,7 @@ class _Connections:
 
 
 async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, int]], fill: BufferFill,
-                    chunk: tuple[int, int], progress: ProgressFn | None) -> dict[int, list[np.ndarray]]:
+                    chunk: tuple[int, int], progress: ProgressFn | None, first: int = 0) -> dict[int, list[np.ndarray]]:
     """Read the buffer's channels ``plan`` as ``fill`` says samples are recorded, over the parallel
     connections ``conns``.
 
@@ -302,7 +304,8 @@ async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, 
     (``chunk[1]`` in the capture's last ``chunk[0]``; or the rest of the capture) are recorded:
     few requests while the capture runs, little left when it is ready. A lost connection or a
     timeout restarts the page on fresh connections (:func:`eol_cal.retry.retry_async`:
-    ``cfg.retries`` times, doubling delays). Returns each channel's words, page by page.
+    ``cfg.retries`` times, doubling delays). Returns each channel's words of samples ``first`` on,
+    page by page.
     """
     from pymodbus.exceptions import ModbusException
 
@@ -355,8 +358,8 @@ async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, 
 
     n = fill.n_samples
     words: dict[int, list[np.ndarray]] = {cid: [] for _name, cid in plan}
-    total = sum(regmap.regs_per_sample(cid) for _name, cid in plan) * n
-    done = 0
+    total = sum(regmap.regs_per_sample(cid) for _name, cid in plan) * (n - first)
+    done = first
     while done < n:
         if fill.stopped is not None:
             raise TransferError(f"stopped at sample {done} of {n}: {fill.stopped}")
@@ -370,5 +373,5 @@ async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, 
                 words[cid].append(await read_with_retry(*page))
         done = count
         if progress:
-            progress("transfer", total * done / n, total)
+            progress("transfer", total * (done - first) / (n - first), total)
     return words

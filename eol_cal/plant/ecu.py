@@ -18,7 +18,6 @@ from eol_cal.errors import InputError
 from eol_cal.firmware import compensator, estimator
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock, check, flag_names, pack
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
-from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, EstimatorConfig
 from eol_cal.firmware.kinematics import fingerprint_of
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, MechParams, make_mech_tables, unused_mech
@@ -125,20 +124,3 @@ def batch_options(blocks: Sequence[ParamBlock | None], ecu_estimator: str | None
                                          + ", ".join(sorted(options_label(o) for o in found)))
     return found.pop() if found else 0
 
-
-#: mechanical revolutions of pre-roll an identifying ECU gets: the identifier needs one revolution
-#: before the estimator measures pitches, one of samples and one more to confirm (firmware_params/MECH.md)
-IDENTIFY_REVS = 4.0
-
-
-def learning_pre_roll_s(options: int, speed_rpm: float, identifies: bool = False) -> float:
-    """Pre-roll (s) that lets pitch-error learning (``EST_LEARN_PITCH_ERRORS``) converge before
-    the recording: 1.5 mechanical revolutions at the first speed, within 0.3-2 s; 0.3 s for the
-    other estimators (their first edges and hall transition). An ECU that identifies the rotor's
-    mechanical angle (``identifies``, layout 2) gets :data:`IDENTIFY_REVS` revolutions (at most 10 s),
-    so its compensation runs from the first recorded sample."""
-    if not options & FLAG_EST_LEARN_PITCH_ERRORS or speed_rpm == 0.0:
-        return 0.3
-    if identifies:
-        return min(10.0, max(0.3, IDENTIFY_REVS * 60.0 / abs(speed_rpm)))
-    return min(2.0, max(0.3, 1.5 * 60.0 / abs(speed_rpm)))

@@ -36,9 +36,10 @@ from eol_cal.firmware import estimator, kinematics
 from eol_cal.firmware.block import ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
+from eol_cal.firmware.settling import settle_s
 from eol_cal.mechanics import mech_step
 from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
-from eol_cal.plant.ecu import batch_options, estimator_config, learning_pre_roll_s, simulated_ecu_state, true_block
+from eol_cal.plant.ecu import batch_options, estimator_config, simulated_ecu_state, true_block
 from eol_cal.plant.params import (
     PlantParams,
     PlantSpec,
@@ -351,7 +352,7 @@ def simulate(
     pre_roll_s : float, optional
         Time (s) simulated at the profile's first point before recording starts, so the
         estimator has seen its first edges and hall transition; default
-        :func:`learning_pre_roll_s` (longer when the estimator learns pitch errors).
+        :func:`eol_cal.firmware.settling.settle_s` (longer when the estimator learns pitch errors).
     chunk_ticks : int, optional
         Scan chunk length (ticks, a multiple of :data:`NOISE_BLOCK`; speed only): default
         :func:`chunk_ticks_for` the batch.
@@ -429,7 +430,7 @@ def simulate(
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
     if pre_roll_s is None:
-        pre_roll_s = learning_pre_roll_s(options, float(speed_rpm[0]), identifies)
+        pre_roll_s = settle_s(options, float(speed_rpm[0]), identifies)
     n_pre = int(round(pre_roll_s * m0.f_pwm))
     speed_rpm = np.concatenate([np.full(n_pre, speed_rpm[0]), speed_rpm])
     i_qo = np.concatenate([np.full(n_pre, i_qo[0]), i_qo])

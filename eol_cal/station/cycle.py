@@ -107,6 +107,7 @@ class StationCycle:
     fit_extra: Any = None
     measured: Measured | None = None
     judged: dict[str, list[LimitCheck]] = field(default_factory=dict)
+    uncompensated: ParamBlock | None = None  # what the prepare step flashes
     calibrated: ParamBlock | None = None
     after: Capture | None = None
     point_ripples: tuple[PointRipple, PointRipple] | None = None
@@ -180,8 +181,8 @@ class StationCycle:
         from eol_cal.firmware.block import pack
 
         self.touched = True
-        blk = uncompensated_block(self.cfg.serial, self.cfg.motor, options=self.cfg.estimator_options)
-        self._flash(pack(blk), "prepare")
+        self.uncompensated = uncompensated_block(self.cfg.serial, self.cfg.motor, options=self.cfg.estimator_options)
+        self._flash(pack(self.uncompensated), "prepare")
 
     def acquire(self) -> None:
         """The calibration capture over the whole profile; each window's angle and p-p figure are
@@ -457,16 +458,21 @@ class StationCycle:
         the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
         the dyno client's hook for each window as it is read. ``write_aside``: the capture file is
         written on a thread of its own, beside the fit and the download; :meth:`_settle_writes` waits
-        for it (the flash does, before the block's CRC makes it count)."""
+        for it (the flash does, before the block's CRC makes it count). The flash before reset
+        the ECU: the shaft turns for its settling first (the lead-in, ``cfg.lead_in``)."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
+        from eol_cal.firmware.settling import block_settle_s
         from eol_cal.station.acquisition import acquire_traced, expect_block, read_ecu_with
 
         path = self.run_dir / f"{which}.mf4"
+        booted = self.uncompensated if which == "before" else self.calibrated
+        lead_in_s = block_settle_s(booted, float(segs[0].speed_rpm)) if self.cfg.lead_in else 0.0
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
                                     self.cfg.dyno, segs, None, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
-                                                               f"profile {self.profile_name}"}, on_window=on_window)
+                                                               f"profile {self.profile_name}"}, on_window=on_window,
+                                    lead_in_s=lead_in_s)
         if write_aside:
             writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
             self._writes[which] = writer.submit(self._store, which, cap, trace, path, len(segs))
@@ -485,7 +491,7 @@ class StationCycle:
 
         write_capture(cap, path)
         self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), n_segments, trace.before,
-                                          trace.after)
+                                          trace.after, float(cap.metadata.get("lead_in_s", 0.0)))
 
     def _settle_writes(self) -> None:
         """Wait for the capture files written aside; a write that failed ends the cycle here."""

@@ -70,7 +70,8 @@ def check_json(c: LimitCheck) -> dict[str, Any]:
 
 def capture_json(c: CaptureRef) -> dict[str, Any]:
     return {"path": c.path, "sha256": c.sha256, "samples": c.samples, "segments": c.segments,
-            "ecu_before": ecu_state_json(c.ecu_before), "ecu_after": ecu_state_json(c.ecu_after)}
+            "ecu_before": ecu_state_json(c.ecu_before), "ecu_after": ecu_state_json(c.ecu_after),
+            **({} if c.lead_in_s is None else {"lead_in_s": c.lead_in_s})}
 
 
 def block_json(b: FlashedBlock) -> dict[str, Any]:
@@ -264,7 +265,8 @@ def capture_from(r: Reader, x: Any) -> CaptureRef:
     d = _need_obj(r, x)
     return CaptureRef(r.str(d, "path"), r.str(d, "sha256"), r.int(d, "samples"), r.int(d, "segments"),
                       ecu_state_from(r.at("ecu_before."), d.get("ecu_before")),
-                      ecu_state_from(r.at("ecu_after."), d.get("ecu_after")))
+                      ecu_state_from(r.at("ecu_after."), d.get("ecu_after")),
+                      r.num(d, "lead_in_s") if "lead_in_s" in d else None)  # none in records before the lead-in
 
 
 def previous_from(r: Reader, x: Any) -> PreviousBlock | None:

@@ -61,7 +61,9 @@ class StationInfo:
 
 @dataclass(frozen=True)
 class CaptureRef:
-    """A capture the run made: its file, SHA-256, size, and the ECU's state around it."""
+    """A capture the run made: its file, SHA-256, size, the ECU's state around it, and the lead-in
+    (s) the shaft turned before its samples (:func:`eol_cal.dyno.client.run_profile`; None in a
+    record written before the station turned one)."""
 
     path: str
     sha256: str
@@ -69,6 +71,7 @@ class CaptureRef:
     segments: int
     ecu_before: EcuState | None = None
     ecu_after: EcuState | None = None
+    lead_in_s: float | None = None
 
 
 @dataclass(frozen=True)

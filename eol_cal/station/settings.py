@@ -58,6 +58,9 @@ def env_name(key: str) -> str:
 
 #: ``flash.read_back``: read the block back before its CRC is written, or leave it to the ECU's check
 READ_BACK_CHOICES = ("before-crc", "off")
+#: ``dyno.lead_in``: turn the shaft for the ECU's settling after each reset before its capture
+#: (:func:`eol_cal.firmware.settling.block_settle_s`), or capture at once
+LEAD_IN_CHOICES = ("settle", "off")
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,10 @@ KEYS: tuple[Key, ...] = (
     Key("dyno.timeout_s", float, 1.0, bounds=(0.01, 60.0)),
     # the dyno stops by itself when the station is silent this long (its register is a u16 of ms)
     Key("dyno.watchdog_ms", int, 2000, bounds=(100, 60_000)),
+    # the shaft turns for the ECU's settling after each reset (pitch learning, the mechanical
+    # identification) before the capture counts (docs/station.md, "Lead-in"); off on a dyno that
+    # holds the motor at speed long enough by itself
+    Key("dyno.lead_in", str, "settle", choices=LEAD_IN_CHOICES),
     # the block read back before its CRC is written (docs/flashing.md), or the ECU's CRC check alone
     # (contract: the read-back is optional); a takt choice of the line's, recorded per block
     Key("flash.read_back", str, "before-crc", choices=READ_BACK_CHOICES),
