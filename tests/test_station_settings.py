@@ -84,6 +84,21 @@ def test_the_read_back_is_a_setting_the_cycle_uses(station_dir: Path) -> None:
     assert tuple(option.type.choices) == READ_BACK_CHOICES and OPTION_KEYS["read_back"] == "flash.read_back"
 
 
+def test_the_lead_in_is_a_setting_the_cycle_uses(station_dir: Path) -> None:
+    from cli.station import OPTION_KEYS, run_cmd
+    from eol_cal.station.configure import station_config
+    from eol_cal.station.settings import LEAD_IN_CHOICES
+
+    s = load_settings(station_dir / "station.toml", {})
+    assert s["dyno.lead_in"] == "settle" and station_config(s).lead_in is True
+    s = load_settings(station_dir / "station.toml", {env_name("dyno.lead_in"): "off"})
+    assert station_config(s).lead_in is False
+    with pytest.raises(InputError, match="dyno.lead_in.*'0' is not one of settle, off"):
+        load_settings(station_dir / "station.toml", {env_name("dyno.lead_in"): "0"})
+    (option,) = [p for p in run_cmd.params if p.name == "lead_in"]
+    assert tuple(option.type.choices) == LEAD_IN_CHOICES and OPTION_KEYS["lead_in"] == "dyno.lead_in"
+
+
 def test_every_key_has_its_own_variable() -> None:
     names = [env_name(k.name) for k in KEYS]
     assert len(set(names)) == len(names)
