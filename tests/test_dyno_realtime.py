@@ -263,6 +263,22 @@ def test_a_lead_in_is_recorded_but_never_read(regmap):
     assert min(a for k, a, _b in reads if k == 2) == 0
 
 
+def test_a_capture_says_how_long_the_shaft_turned_on_since_the_previous_one(regmap):
+    requests = []
+    segments = [DynoSetpoint(60.0, 0.1, iq=10.0), DynoSetpoint(-60.0, 0.1, iq=-10.0)]
+    with DynoSimThread(DynoSim(lambda req: requests.append(req) or synthetic_source(req), serial="M-GAP",
+                               register_map=regmap, realtime=True)) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
+        run_profile(client, segments, RATE)
+        run_profile(client, segments, RATE)  # the drive was disabled between the two runs
+        timings = thread.sim.captures
+    gaps = [r.gap_s for r in requests]
+    assert gaps[0] is None and gaps[2] is None
+    for k in (1, 3):  # the reversal: at least its stop and ramp at the profile's rate (120 rpm at 1000 rpm/s)
+        assert gaps[k] == pytest.approx(timings[k].started - timings[k - 1].physical_end, abs=0.02)
+        assert gaps[k] >= 0.1
+
+
 def test_physical_time_counts_the_lead_in():
     segments = [DynoSetpoint(60.0, 1.0, iq=10.0)]
     assert physical_seconds(segments, RATE, 0.25) - physical_seconds(segments, RATE) == pytest.approx(0.25)

@@ -265,6 +265,52 @@ def test_the_plant_hands_over_its_capture_in_pieces_that_are_the_capture():
     np.testing.assert_array_equal(no_hook.channels["torque"], whole.channels["torque"])
 
 
+@pytest.mark.slow  # plant runs (seconds on a quiet machine, a minute or two beside a CPU hog)
+def test_the_plant_goes_on_over_a_reversal_while_the_ecu_keeps_its_block(monkeypatch):
+    """In real time, a capture after the shaft turned on (a reversal) with the ECU not reset goes
+    on from the previous one: the ECU keeps its identification, no pre-roll is computed again, and
+    the recording is what a fresh start with the identification already done shows."""
+    from eol_cal.dyno.registers import DutCmdKind
+    from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
+    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.presets import preset_spec
+    from eol_cal.station import rig
+
+    spec = preset_spec("paper", serial="M-1")
+    flags = B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR | FLAG_MECH_COMP_ENABLE
+    cal = rig.ActiveCalibration("compensated", true_block(spec, flags=flags, mech=True))
+    runs = []
+    real = rig.simulate
+
+    def simulate(*args, **kw):  # the real plant; what it was asked to run is noted
+        runs.append((kw.get("resume") is not None, args[1].seconds))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(rig, "simulate", simulate)
+    fwd = CaptureRequest(speed_rpm=60.0, dut_cmd_kind=DutCmdKind.IQ, dut_cmd=65.0, n_samples=5000, rate_hz=10000.0,
+                         serial="M-1", seed=3, capture_index=1)
+    pieces = []
+    rev = dataclasses.replace(fwd, speed_rpm=-60.0, dut_cmd=-65.0, capture_index=2, gap_s=0.15, partial=pieces.append)
+    source = rig.plant_capture(lambda req: spec)
+    source(fwd, cal)
+    went_on = source(rev, cal)
+    assert runs[1] == (True, pytest.approx(1 / spec.motor.f_pwm + 0.15 + 0.3 + 0.5, abs=2e-4))
+    assert len(went_on.t) == 5000 and went_on.t[0] == 0.0 and np.allclose(np.diff(went_on.t), 1e-4)
+    for p in pieces:  # the dyno's pieces are the recording's start, never the ramp before it
+        np.testing.assert_array_equal(p.channels["torque"], went_on.channels["torque"][:len(p.t)])
+    fresh = rig.plant_capture(lambda req: spec)(dataclasses.replace(rev, gap_s=None, partial=None), cal)
+    assert runs[2][0] is False  # no gap (the first capture, a drive disabled since): from power-up
+    for c in (went_on, fresh):
+        assert np.mean(c.channels["speed"]) == pytest.approx(-60.0, rel=0.005)
+    assert np.ptp(went_on.channels["torque"]) == pytest.approx(np.ptp(fresh.channels["torque"]), rel=0.25)
+    # another block in the ECU (a flash reset it), or too long a gap: from power-up again
+    other = rig.ActiveCalibration("compensated", true_block(spec, flags=flags & ~FLAG_MECH_COMP_ENABLE, mech=True))
+    source(dataclasses.replace(rev, partial=None), other)
+    source(dataclasses.replace(rev, partial=None), other)
+    source(dataclasses.replace(rev, partial=None, gap_s=rig.MAX_RESUME_GAP_S + 0.1), other)
+    assert [r for r, _s in runs[3:]] == [False, True, False]
+
+
 def test_the_dyno_package_knows_no_ecu_and_no_block():
     """The rig (eol_cal.station.rig) wires the ECU in; the dyno package itself imports neither."""
     import subprocess

@@ -90,6 +90,11 @@ class CaptureRequest:
         simulator answers those samples as the shaft turns them out, as a real dyno's buffer
         fills, instead of holding the whole capture back until the source is done. Sources
         that compute it at once ignore it.
+    gap_s : float or None
+        In real time: the physical time (s) from the previous capture's end to this one's start,
+        while the drive stayed enabled (the shaft turned on between them: ramps, a reversal); a
+        source may go on from that capture (the rig's plant does). None for the first capture,
+        after a failed one, after the drive was disabled since, or not in real time.
     """
 
     speed_rpm: float
@@ -101,6 +106,7 @@ class CaptureRequest:
     seed: int | None
     capture_index: int
     partial: Callable[[Capture], None] | None = field(default=None, compare=False, repr=False)
+    gap_s: float | None = None
 
     @property
     def seconds(self) -> float:
@@ -283,6 +289,7 @@ class DynoSim(ModbusFace):
         self._t_last = self._t0
         self._last_request = self._t0
         self._capture_job: asyncio.Future | None = None
+        self._turning_on = False  # the drive stayed enabled since the last capture was ready
         self._capture_token = 0
         self._server = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -330,6 +337,8 @@ class DynoSim(ModbusFace):
         if self.stopping and self.speed == 0.0:
             self.stopping = False
             self.enabled = False
+        if not self.enabled:
+            self._turning_on = False
         if abs(self.speed) > self.max_speed:
             self._trip(Fault.OVER_SPEED)
         if self.watchdog_ms and self.enabled and now - self._last_request > self.watchdog_ms / 1000.0:
@@ -401,6 +410,11 @@ class DynoSim(ModbusFace):
         def partial(piece: Capture) -> None:  # from the source's thread
             loop.call_soon_threadsafe(self._capture_partial, token, piece)
 
+        now = time.monotonic()
+        previous = self.captures[-1] if self.captures else None
+        gap = (now - previous.physical_end if self.realtime and self._turning_on and previous is not None
+               and previous.ready is not None else None)
+        self._turning_on = False
         request = CaptureRequest(
             speed_rpm=self._target(),
             dut_cmd_kind=self.dut_cmd_kind,
@@ -411,8 +425,8 @@ class DynoSim(ModbusFace):
             seed=self.seed,
             capture_index=self.captures_started,
             partial=partial if self.realtime else None,
+            gap_s=None if gap is None else max(0.0, gap),
         )
-        now = time.monotonic()
         self.captures.append(CaptureTiming(request.capture_index, now, now + request.seconds))
         self._recording = request
         job = loop.run_in_executor(None, self.source, request)
@@ -479,6 +493,7 @@ class DynoSim(ModbusFace):
             self.temperature = float(np.mean(capture.channels["temp"]))
         self.capture_seq = (self.capture_seq + 1) & 0xFFFF
         self.capture_state = CaptureState.READY
+        self._turning_on = self.enabled
 
     def captured(self, now: float | None = None) -> int:
         """Samples in the capture buffer now: all of a ready capture; in real time, those of a

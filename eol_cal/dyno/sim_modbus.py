@@ -46,6 +46,7 @@ class ModbusFace:
     regmap: RegisterMap
     realtime: bool
     captures: list
+    _turning_on: bool  # the drive stayed enabled since the last capture was ready
 
     def _serving_loop(self) -> asyncio.AbstractEventLoop:
         """The server's event loop; a :class:`RuntimeError` before :meth:`serve` started."""
@@ -251,6 +252,7 @@ class ModbusFace:
         if "enable" in new:
             self.enabled = bool(new["enable"])
             self.stopping = False
+            self._turning_on = self._turning_on and self.enabled
             if not self.enabled and self.capture_state in (CaptureState.ARMED, CaptureState.RUNNING):
                 self._capture_failed()
         if new.get("stop") == 1:

@@ -77,6 +77,16 @@ class PlantSimConfig:
     mech: Any = None  # eol_cal.firmware.mech.MechConsts when a block of the batch identifies, else None
 
 
+@dataclass(frozen=True)
+class PlantCarry:
+    """Where a run of :func:`simulate` ended: the scan's state (plant, estimator, ECU, identifier;
+    every motor of the batch) and the configuration it was compiled for, to go on from
+    (``simulate(resume=...)``): the motor turns on and the ECU keeps what it learned."""
+
+    cfg: PlantSimConfig
+    state: Any
+
+
 class PlantState(NamedTuple):
     """Continuous states of motor, shaft and dyno (float32): rad, rad, rad/s, rad/s, N*m, A, A, N*m."""
 
@@ -330,6 +340,8 @@ def simulate(
     progress: Callable[[float], None] | None = None,
     ecu_estimator: str | None = None,
     recorded: Callable[[list[SimResult]], None] | None = None,
+    resume: PlantCarry | None = None,
+    carry_out: list[PlantCarry] | None = None,
 ) -> list[SimResult]:
     """Simulate one motor or a lot of motors through a test profile.
 
@@ -368,6 +380,14 @@ def simulate(
         Called after each chunk that recorded ticks with the results so far: each motor's first
         recorded ticks, final (views into the arrays the next chunks fill on; copy what is kept).
         A real-time dyno simulator answers them while the rest is computed.
+    resume : PlantCarry, optional
+        Go on from where an earlier run of the same batch, mode and blocks ended (its
+        ``carry_out``): no pre-roll, no fresh start; the profile's first tick follows that run's
+        last (the ECU's control-rate phase restarts, a glitch of one command period; use a ramp
+        first). Refused for another configuration.
+    carry_out : list, optional
+        The run's end state is appended to it (:class:`PlantCarry`), a few ticks into the last
+        chunk's padding.
 
     Returns
     -------
@@ -429,7 +449,11 @@ def simulate(
                     mech=MechConsts.of(est_cfg) if identifies else None)
 
     speed_rpm, i_qo = profile.ticks(m0.f_pwm, m0.kt)
-    if pre_roll_s is None:
+    if resume is not None:
+        if resume.cfg != cfg:
+            raise InputError(None, "resume", "the run to go on from was made for other motors, mode or blocks")
+        pre_roll_s = 0.0
+    elif pre_roll_s is None:
         pre_roll_s = settle_s(options, float(speed_rpm[0]), identifies)
     n_pre = int(round(pre_roll_s * m0.f_pwm))
     speed_rpm = np.concatenate([np.full(n_pre, speed_rpm[0]), speed_rpm])
@@ -440,10 +464,13 @@ def simulate(
     cc = control.rate_flags(n_total, m0.f_pwm, m0.f_cc)
     cmd = control.rate_flags(n_total, m0.f_pwm, m0.f_cmd)
 
-    rng = np.random.default_rng(seed)
-    carries = [_initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
-               for p, s in zip(params, specs, strict=True)]
-    carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
+    if resume is not None:
+        carry = resume.state
+    else:
+        rng = np.random.default_rng(seed)
+        carries = [_initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
+                   for p, s in zip(params, specs, strict=True)]
+        carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
     keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
 
     chunk_ticks = chunk_ticks_for(len(specs)) if chunk_ticks is None else int(chunk_ticks)
@@ -479,6 +506,8 @@ def simulate(
                 recorded(results(stop - n_pre))
         if progress is not None:
             progress(stop / n_total)
+    if carry_out is not None:
+        carry_out.append(PlantCarry(cfg, carry))
     return results(n_rec)
 
 

@@ -18,13 +18,14 @@ from pathlib import Path
 from eol_cal.capture.model import Capture
 from eol_cal.dyno.sim import CaptureRequest, CaptureSource, i_qo_of
 from eol_cal.ecu.flash import active_block_from_file
-from eol_cal.firmware.block import ParamBlock, unpack
+from eol_cal.firmware.block import ParamBlock, pack, unpack
+from eol_cal.firmware.settling import FIRST_EDGES_S
 from eol_cal.plant import variation
 from eol_cal.plant.ecu import mode_of_block
 from eol_cal.plant.params import PlantSpec
 from eol_cal.plant.presets import preset_spec
 from eol_cal.plant.profile import Profile, ProfileSegment
-from eol_cal.plant.simulate import simulate
+from eol_cal.plant.simulate import PlantCarry, simulate
 
 #: firmware mode without a valid parameter bank: the raw encoder angle, no compensation
 NO_BLOCK_MODE = "raw"
@@ -86,14 +87,39 @@ def default_plant_spec(req: CaptureRequest, preset: str = "paper") -> PlantSpec:
     return variation.vary(spec, req.seed)
 
 
+#: longest gap (s) between two captures the rig's plant goes on over (the shaft turning between
+#: them); a longer one starts afresh, with the pre-roll
+MAX_RESUME_GAP_S = 2.0
+
+
+@dataclass(frozen=True)
+class _Ended:
+    """Where the plant's previous capture ended: for whom, at which point, and its scan state."""
+
+    key: tuple
+    speed_rpm: float
+    i_qo: float
+    carry: PlantCarry
+
+
 def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None) -> CalibratedCapture:
     """The built-in plant (:func:`eol_cal.plant.simulate.simulate`) recording one capture.
+
+    Each capture is simulated from power-up with the ECU's pre-roll
+    (:func:`eol_cal.firmware.settling.settle_s`: what a real line's lead-in turns), except in real
+    time when the shaft turned on since the previous capture (:attr:`CaptureRequest.gap_s`, at
+    most :data:`MAX_RESUME_GAP_S`) for the same motor and the ECU runs the same block (not reset):
+    then the plant goes on from where that capture ended, ramping to the new point over the gap
+    and settling for :data:`~eol_cal.firmware.settling.FIRST_EDGES_S`, as a real ECU keeps what it
+    learned and identified (MECH.md: reversals do not withdraw). So the simulator computes a
+    verification's second direction in a fraction of its time, not an identification again.
 
     Parameters
     ----------
     spec_for : callable, optional
         ``request -> PlantSpec``: the motor on the dyno (default :func:`default_plant_spec`).
     """
+    ended: list[_Ended] = []  # the dyno asks for one capture at a time
 
     def capture(req: CaptureRequest, cal: ActiveCalibration) -> Capture:
         spec = (spec_for or default_plant_spec)(req)
@@ -103,21 +129,40 @@ def plant_capture(spec_for: Callable[[CaptureRequest], PlantSpec] | None = None)
             raise ValueError(f"capture rate {req.rate_hz} Hz does not divide the plant's {f_tick} Hz")
         step = int(round(step))
         iq = i_qo_of(req, spec.motor.kt)
-        profile = Profile("dyno", (ProfileSegment(speed_rpm=req.speed_rpm, seconds=req.n_samples * step / f_tick, iq=iq),))
+        seconds = req.n_samples * step / f_tick
         seed = (req.seed or 0) * 1000 + req.capture_index
+        key = (req.serial, req.seed, cal.mode, None if cal.block is None else pack(cal.block))
+        prev = ended.pop() if ended else None
+        resume = (prev if prev is not None and prev.key == key and req.gap_s is not None
+                  and req.gap_s <= MAX_RESUME_GAP_S else None)
+        skip = 0  # ticks simulated before the recording (a resumed run's ramp and settling)
+        if resume is None:
+            profile = Profile("dyno", (ProfileSegment(speed_rpm=req.speed_rpm, seconds=seconds, iq=iq),))
+        else:
+            assert req.gap_s is not None  # resume requires it
+            lead = int(round((req.gap_s + FIRST_EDGES_S) * f_tick / step)) * step  # on the DAQ's grid
+            skip = 1 + lead
+            profile = Profile("dyno", (
+                ProfileSegment(speed_rpm=resume.speed_rpm, seconds=1.0 / f_tick, iq=resume.i_qo),
+                ProfileSegment(speed_rpm=req.speed_rpm, seconds=(lead + req.n_samples * step) / f_tick, iq=iq,
+                               ramp_s=max(req.gap_s, 1.0 / f_tick))))
 
         def daq(cap: Capture) -> Capture:
             # the plant runs at the PWM tick; the dyno's DAQ keeps every step-th sample
-            channels = {k: v[::step][: req.n_samples] for k, v in cap.channels.items()}
-            return Capture(cap.t[::step][: req.n_samples], channels, dict(cap.metadata), dict(cap.truth),
-                           source="<plant>")
+            channels = {k: v[skip::step][: req.n_samples] for k, v in cap.channels.items()}
+            return Capture(cap.t[skip::step][: req.n_samples] - cap.t[skip] if len(cap.t) > skip else cap.t[:0],
+                           channels, dict(cap.metadata), dict(cap.truth), source="<plant>")
 
         recorded = None
         if (partial := req.partial) is not None:
             def recorded(so_far: list) -> None:  # each piece as it is computed: the dyno's buffer fills with it
-                partial(daq(so_far[0].capture))
+                if len(so_far[0].capture.t) > skip:
+                    partial(daq(so_far[0].capture))
 
-        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed, recorded=recorded)[0]
+        out: list[PlantCarry] = []
+        result = simulate(spec, profile, mode=cal.mode, blocks=cal.block, seed=seed, recorded=recorded,
+                          resume=None if resume is None else resume.carry, carry_out=out)[0]
+        ended.append(_Ended(key, req.speed_rpm, iq, out[0]))
         return daq(result.capture)
 
     return capture
