@@ -279,6 +279,21 @@ def test_a_capture_says_how_long_the_shaft_turned_on_since_the_previous_one(regm
         assert gaps[k] >= 0.1
 
 
+def test_between_two_segments_of_one_direction_only_the_speed_and_load_are_written(regmap):
+    segments = [DynoSetpoint(60.0, 0.05, iq=10.0), DynoSetpoint(120.0, 0.05, iq=20.0),
+                DynoSetpoint(-60.0, 0.05, iq=-10.0), DynoSetpoint(-60.0, 0.05, iq=-20.0)]
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-WRITES", register_map=regmap)) as thread:
+        client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
+        run_profile(client, segments, RATE)
+        run_profile(client, segments[:1], RATE)  # the drive was disabled at the end: enabled again
+        log = [(name, value) for _t, name, value in thread.sim.log]
+    names = [n for n, _v in log]
+    # once per direction: the start and the reversal (twice with the second run)
+    assert names.count("direction") == names.count("mode") == 3
+    assert [v for n, v in log if n == "enable"].count(1) == 3
+    assert names.count("speed_setpoint") >= 5 + 1  # every segment's, the reversal's stop and the ends' zeros
+
+
 def test_physical_time_counts_the_lead_in():
     segments = [DynoSetpoint(60.0, 1.0, iq=10.0)]
     assert physical_seconds(segments, RATE, 0.25) - physical_seconds(segments, RATE) == pytest.approx(0.25)
