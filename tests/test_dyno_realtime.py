@@ -294,6 +294,35 @@ def test_between_two_segments_of_one_direction_only_the_speed_and_load_are_writt
     assert names.count("speed_setpoint") >= 5 + 1  # every segment's, the reversal's stop and the ends' zeros
 
 
+def test_the_shaft_goes_on_to_the_next_point_while_the_last_samples_are_read(regmap):
+    """A ready capture's last chunk is read while the dyno ramps to the next point (or stops)."""
+    segments = [DynoSetpoint(60.0, 0.1, iq=10.0), DynoSetpoint(-60.0, 0.1, iq=-10.0)]
+    events = []
+
+    class Spy(DynoClient):
+        def record(self, *args, **kw):
+            events.append("record")
+            out = super().record(*args, **kw)
+            events.append("read")
+            return out
+
+        def set_point(self, seg, *args, **kw):
+            events.append(f"set {seg.speed_rpm:g}")
+            return super().set_point(seg, *args, **kw)
+
+        def write(self, **values):
+            if values.get("speed_setpoint") == 0.0:
+                events.append("stop")
+            return super().write(**values)
+
+    with DynoSimThread(DynoSim(synthetic_source, serial="M-PIPE", register_map=regmap, realtime=True)) as thread:
+        data, _ident = run_profile(Spy(DynoConfig(port=thread.port, register_map=regmap)), segments, RATE)
+    # the reversal stops the shaft first (a stop and the set point), all before the capture's read is done
+    # (and the safe state at the end writes speed 0 again)
+    assert events == ["set 60", "record", "set -60", "stop", "read", "record", "stop", "read", "stop"]
+    assert [len(w.channels["torque"]) for w in data] == [1000, 1000]
+
+
 def test_physical_time_counts_the_lead_in():
     segments = [DynoSetpoint(60.0, 1.0, iq=10.0)]
     assert physical_seconds(segments, RATE, 0.25) - physical_seconds(segments, RATE) == pytest.approx(0.25)

@@ -390,14 +390,18 @@ class DynoClient:
         return st
 
     def record(self, n_samples: int, rate_hz: int, names: Sequence[str], progress: ProgressFn | None = None,
-               ramp_s: float = 0.0, skip: int = 0) -> dict[str, np.ndarray]:
+               ramp_s: float = 0.0, skip: int = 0, on_ready: Callable[[dict], object] | None = None
+               ) -> dict[str, np.ndarray]:
         """Arm a capture of ``n_samples`` at ``rate_hz`` (Hz) and read channels ``names`` (those the
         buffer holds; ``torque`` and ``iq_ref`` required) while it records (:class:`StreamReader`);
         return when every sample is read.
 
         The capture starts by itself once the shaft is at speed: ``ramp_s`` (s) is the ramp still
         to go, added to the wait. The first ``skip`` samples are recorded but never read (a
-        lead-in). Returns the channels as :meth:`read_buffer`, samples ``skip`` on.
+        lead-in). ``on_ready(status)`` is called as soon as the capture is ready, while its last
+        samples are still read (the shaft may ramp to the next point meanwhile; nothing may arm
+        another capture before this returns). Returns the channels as :meth:`read_buffer`,
+        samples ``skip`` on.
         """
         if not 0 <= skip < n_samples:
             raise ValueError(f"skip {skip} of a capture of {n_samples} samples")
@@ -429,8 +433,10 @@ class DynoClient:
             return min(cfg.poll_interval, max(left - cfg.poll_interval / 2, READY_POLL_S))
 
         try:
-            self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
-                      interval)
+            st = self.wait(recorded, ramp_s + cfg.settle_timeout + n_samples / rate_hz + cfg.capture_timeout, "capturing",
+                           interval)
+            if on_ready is not None:
+                on_ready(st)
             # the wait ended on READY with n_samples (>= 1) samples recorded: recorded opened the stream
             assert reader is not None
             return reader.result(cfg.capture_timeout)
@@ -498,9 +504,11 @@ def run_profile(
 
     ``before_capture`` is called (and waited for) right before the first capture is armed, while
     the shaft ramps to the first segment; ``after_capture`` right after the last window was read
-    and checked, before the stop: work of the caller's that must bracket the captures (the ECU's
-    state, :func:`eol_cal.station.acquisition.acquire_traced`) runs alongside the ramps, not after them.
-    An exception from either ends the run like any other (safe state first). The first capture
+    and checked, while the shaft stops: work of the caller's that must bracket the captures (the
+    ECU's state, :func:`eol_cal.station.acquisition.acquire_traced`) runs alongside the ramps, not
+    after them. An exception from either ends the run like any other (safe state first). As soon
+    as a capture is ready the shaft goes on to the next point (or stops after the last), while the
+    capture's last samples are read: the next capture is armed once they are in. The first capture
     starts with a lead-in of ``lead_in_s`` (s) at the first segment's point, recorded by the dyno
     and never read: the shaft turns while the ECU settles after its reset
     (:func:`eol_cal.firmware.settling.settle_s`) without a wait between two captures (a dyno
@@ -530,17 +538,29 @@ def run_profile(
         ident = client.connect()
         if reset_faults:
             client.write(fault_reset=Command.EXECUTE)
-        st: dict | None = None  # the status read after the previous capture
+        ramp_s = client.set_point(segments[0], wait=False)
+        stopping = False
+
+        def next_point(i: int, st: dict) -> None:
+            # the capture is ready: the shaft goes on to the next point (or stops) while the
+            # buffer's last samples are read
+            nonlocal ramp_s, stopping
+            if i + 1 < len(segments):
+                ramp_s = client.set_point(segments[i + 1], wait=False, status=st)
+            else:
+                client.write(speed_setpoint=0.0)
+                stopping = True
+
         for i, seg in enumerate(segments):
             if progress:
                 progress(f"segment {i + 1}/{len(segments)}: {seg.speed_rpm:g} rpm", i, len(segments))
             n = int(round(seg.seconds * rate_hz))
             lead = lead_in_samples(lead_in_s, rate_hz) if i == 0 else 0
-            ramp_s = client.set_point(seg, wait=False, status=st)
             if i == 0 and before_capture is not None:
                 before_capture()
             t_start = time.monotonic() + lead / rate_hz
-            chans = client.record(n + lead, rate_hz, channels, progress, ramp_s, skip=lead)
+            chans = client.record(n + lead, rate_hz, channels, progress, ramp_s, skip=lead,
+                                  on_ready=functools.partial(next_point, i))
             st = client.status()
             client.check_faults(st, "reading the capture")
             if int(st["capture_state"]) != CaptureState.READY:
@@ -558,7 +578,8 @@ def run_profile(
             after_capture()
         if progress:
             progress("stopping", len(segments), len(segments))
-        client.write(speed_setpoint=0.0)
+        if not stopping:
+            client.write(speed_setpoint=0.0)
         client.wait_standstill(client.config.settle_timeout, "stopping")
     except BaseException as exc:
         why = client.safe_state()
