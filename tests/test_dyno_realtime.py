@@ -292,6 +292,9 @@ def test_between_two_segments_of_one_direction_only_the_speed_and_load_are_writt
     assert names.count("direction") == names.count("mode") == 3
     assert [v for n, v in log if n == "enable"].count(1) == 3
     assert names.count("speed_setpoint") >= 5 + 1  # every segment's, the reversal's stop and the ends' zeros
+    # a capture is armed in the request that sets its rate and length (both maps place them in a row)
+    arms = [t for t, name, value in thread.sim.log if name == "capture_start" and value == 1]
+    assert len(arms) == 5 and all(t in {t2 for t2, n, _v in thread.sim.log if n == "capture_length"} for t in arms)
 
 
 def test_the_shaft_goes_on_to_the_next_point_while_the_last_samples_are_read(regmap):

@@ -389,6 +389,21 @@ class DynoClient:
             raise DynoError(f"{self.where}: capture holds {st['capture_count']} samples, {n_samples} requested")
         return st
 
+    def arm(self, n_samples: int, rate_hz: int) -> None:
+        """Set the capture's rate (Hz) and length and arm it: one request where the map places the
+        start right after the other two (a request's registers are written in address order),
+        else the start in a request of its own after them."""
+        values = {"capture_rate": rate_hz, "capture_length": n_samples, "capture_start": CaptureCommand.ARM}
+        try:
+            runs = self.regmap.write_runs(values)
+        except ValueError:  # a register the map lacks: write() below says which
+            runs = []
+        if len(runs) == 1 and runs[0][2][-1] == "capture_start":
+            self.write(**values)
+        else:
+            self.write(capture_rate=rate_hz, capture_length=n_samples)
+            self.write(capture_start=CaptureCommand.ARM)
+
     def record(self, n_samples: int, rate_hz: int, names: Sequence[str], progress: ProgressFn | None = None,
                ramp_s: float = 0.0, skip: int = 0, on_ready: Callable[[dict], object] | None = None
                ) -> dict[str, np.ndarray]:
@@ -406,8 +421,7 @@ class DynoClient:
         if not 0 <= skip < n_samples:
             raise ValueError(f"skip {skip} of a capture of {n_samples} samples")
         cfg = self.config
-        self.write(capture_rate=rate_hz, capture_length=n_samples)
-        self.write(capture_start=CaptureCommand.ARM)
+        self.arm(n_samples, rate_hz)
         fill = BufferFill(n_samples)
         reader: Stream | None = None
         if self._reader is None:
