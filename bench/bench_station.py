@@ -3,7 +3,8 @@
 The critical path as users feel it: from the operator's scan (station loop) or the `run` start
 (single `eol-cal run` process) to the verdict on screen, minus the profile's physical time (the
 shaft turning: ramps, captures and stops, :func:`eol_cal.dyno.client.physical_seconds`, for the
-calibration profile and the compensated verification the run chose).
+calibration profile and the compensated verification the run chose, each with the lead-in its
+record says the shaft turned for the ECU's settling after the flash before it).
 
 The simulators run in this process on 127.0.0.1, at fixed addresses for many motors, as a line's
 dyno and ECU are other machines (:func:`eol_cal.station.demo.loopback_line`): the dyno simulator in
