@@ -194,3 +194,14 @@ def test_makefile_builds_and_checks(tmp_path):
                          text=True, timeout=120)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "PASS" in res.stdout and (tmp_path / "harness").exists()
+
+
+@pytest.mark.parametrize("files", [[{"size": 1}, {"name": "x.csv"}], 7, [3, None, {"name": 5}]])
+def test_a_malformed_manifest_is_reported_not_a_crash(tmp_path, files):
+    (tmp_path / "manifest.json").write_text(json.dumps({"files": files}))
+    problems = golden.check_golden(tmp_path, {})
+    if isinstance(files, list):
+        assert sum("a files entry without a name" in p for p in problems) == len(files) - (files[-1] == {"name": "x.csv"})
+    else:
+        assert any("files is not a list" in p for p in problems)
+    assert all(p.startswith(str(tmp_path / "manifest.json")) for p in problems)

@@ -482,7 +482,8 @@ class Programming:
         if not status or status[0] != P.STATUS_VALID:
             code = status[0] if status else None
             raise VerifyFailed("check routine", f"ECU reports bank {bank} "
-                               f"{P.CHECK_STATUS_TEXT.get(code, f'status {code}')}")
+                               + (P.CHECK_STATUS_TEXT.get(code, f"status {code}") if code is not None
+                                  else "no status (an empty routine answer)"))
         prog.step("reset")
         prog.reset_sent = True  # from here the ECU may have reset (no answer, an interruption)
         try:

@@ -290,7 +290,17 @@ def check_golden(golden_dir: str | Path, sets: dict[str, VectorSet] | None = Non
     for key in _MANIFEST_KEYS:
         if on_disk.get(key) != expected[key]:
             problems.append(f"{mpath}: {key} is {on_disk.get(key)!r}, the reference gives {expected[key]!r}")
-    disk_files = {f.get("name"): f for f in on_disk.get("files", []) if isinstance(f, dict)}
+    files = on_disk.get("files", [])
+    if not isinstance(files, list):
+        problems.append(f"{mpath}: files is not a list")
+        files = []
+    disk_files: dict[str, dict] = {}
+    for f in files:
+        name = f.get("name") if isinstance(f, dict) else None
+        if not isinstance(name, str):
+            problems.append(f"{mpath}: a files entry without a name: {str(f)[:60]}")
+            continue
+        disk_files[name] = f
     for extra in sorted(set(disk_files) - set(sets)):
         problems.append(f"{mpath}: lists {extra}, which the reference does not generate")
     for name in sets:
