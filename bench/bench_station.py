@@ -107,6 +107,7 @@ class Motor:
     plant_late: float
     load: str
     extra: dict[str, float] = field(default_factory=dict)
+    lead_in: float = 0.0  # of ``physical``: the shaft turned for the ECU's settling after each reset
 
     @property
     def critical(self) -> float:
@@ -126,6 +127,11 @@ def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
 def run_dir(reports: Path, serial: str) -> Path:
     (found,) = sorted(reports.glob(f"{serial}_*"))
     return found
+
+
+def lead_in_of(rec: dict) -> float:
+    """The seconds of lead-in the run's captures say the shaft turned (0 before the lead-in existed)."""
+    return sum(float(c.get("lead_in_s") or 0.0) for c in (rec.get("captures") or {}).values())
 
 
 def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
@@ -156,7 +162,8 @@ def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: f
     crit["acquire"] = crit.get("acquire", 0.0) - before
     crit["acquire compensated"] = crit.get("acquire compensated", 0.0) - after
     return Motor(serial, rec["verdict"], t_verdict_wall - t_start_wall, before + after, crit, started - t_start_wall,
-                 tail, plant_late, load_text, {"report": steps.get("report", 0.0), "record": steps.get("record", 0.0)})
+                 tail, plant_late, load_text, {"report": steps.get("report", 0.0), "record": steps.get("record", 0.0)},
+                 lead_in_of(rec))
 
 
 def settings_file(work: Path, line, map_name: str, key: Path, profile: str) -> Path:
@@ -282,6 +289,7 @@ def report(results: dict[tuple[str, str, str], list[Motor]], codes: list[str]) -
               f"{','.join(m.verdict for m in motors)}, load {motors[0].load} .. {motors[-1].load}")
         rows = [("scan/start -> verdict on screen", [m.wall for m in motors]),
                 ("physical time (shaft turning)", [m.physical for m in motors]),
+                ("  of which lead-in (ECU settling)", [m.lead_in for m in motors]),
                 ("critical path beyond physical", [m.critical for m in motors]),
                 ("  start -> cycle start", [m.before_cycle for m in motors])]
         for step in CRITICAL_STEPS:
