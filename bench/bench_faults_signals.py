@@ -4,12 +4,18 @@ its safe state, the record kept, and nothing flashed after it? (issue 23: the fa
 ``signals`` section, ``bench/bench_faults.py --section signals``.)
 
 Real processes on 127.0.0.1: ``eol-cal ecu-sim`` (python-can-remote) and ``eol-cal run`` each in
-their own process, the dyno simulator (synthetic captures) in this one. A trial waits for the
-capture that starts its window (``before.mf4``: the fit follows; ``after.mf4``: the writes
-follow), waits a seeded random time inside the window, sends SIGINT or SIGTERM, and judges:
+their own process, the dyno simulator (synthetic captures) in this one. A trial waits for what
+starts its window (the dyno's drive disabled after the calibration acquisition: the fit follows;
+the compensated capture's file ``after.mf4``: the writes follow), waits a seeded random time inside
+the window, sends SIGINT or SIGTERM, and judges:
 
 - ``ignored``: the run ended 0 or 1 (the signal was swallowed), or flashed the calibrated block
   after it (the block had not been started when the signal came, and the ECU boots it);
+- ``missed``: the run was over before the signal came: the process had exited (no signal sent),
+  or its record was in the database (the database file's last write) before the signal was sent,
+  and the process was only exiting: its exit code is the run's. Not a trial of the
+  signal: counted apart, so that a window longer than the run does not read as a swallowed signal;
+- ``stopped``: the step the record says the signal stopped (``error.step``);
 - ``lost``: no record in the database, nor in the spool;
 - ``unsafe``: the dyno simulator was left enabled or turning;
 - ``traceback``, ``hang`` (no exit within ``--cap`` s), ``crash`` (another exit code).
@@ -20,6 +26,8 @@ follow), waits a seeded random time inside the window, sends SIGINT or SIGTERM, 
 from __future__ import annotations
 
 import argparse
+import datetime as dt
+import json
 import os
 import random
 import signal
@@ -38,8 +46,12 @@ from eol_cal.dyno import sim as ds  # noqa: E402
 from bench_faults_ecu import LIMITS  # noqa: E402 - the same limits as the ECU trials
 from eol_cal.ecu import protocol as P  # noqa: E402
 
-#: (window, the file that opens it, the longest wait into it, s)
-WINDOWS = (("fit", "before.mf4", 3.0), ("writes", "after.mf4", 0.8))
+#: (window, what opens it, the longest wait into it, s). The fit starts as the calibration
+#: acquisition ends, when the client disables the dyno's drive (``FIRST_STOP``); the capture files
+#: are written beside the fit and the flash, so they no longer mark it. The fit is 0.1-0.3 s, then
+#: the flash: 0.3 s reaches into both.
+FIRST_STOP = "the dyno's drive disabled after the first acquisition"
+WINDOWS = (("fit", FIRST_STOP, 0.3), ("writes", "after.mf4", 0.8))
 
 
 @dataclass
@@ -53,6 +65,9 @@ class SignalTrial:
     ignored: bool
     lost: bool
     unsafe: bool
+    sent: bool = True
+    stopped: str = ""
+    after_end: bool = False  # sent, but after the record was in the database: the run was over
 
     @property
     def hang(self) -> bool:
@@ -64,7 +79,11 @@ class SignalTrial:
 
     @property
     def clean(self) -> bool:
-        return not (self.traceback or self.ignored or self.lost or self.unsafe or self.hang or self.crash)
+        return not (self.traceback or self.ignored or self.lost or self.unsafe or self.hang or self.crash or self.missed)
+
+    @property
+    def missed(self) -> bool:
+        return not self.sent or self.after_end
 
 
 def _cli(tree: Path, *args: str) -> subprocess.Popen:
@@ -104,19 +123,30 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
                        "--json")
             procs.append(run)
             end = time.monotonic() + cap
-            while not list((work / "reports").rglob(opens)) and time.monotonic() < end and run.poll() is None:
-                time.sleep(0.02)
+            was_enabled = False
+
+            def opened() -> bool:
+                nonlocal was_enabled
+                if opens != FIRST_STOP:
+                    return bool(list((work / "reports").rglob(opens)))
+                was_enabled = was_enabled or sim.enabled
+                return was_enabled and not sim.enabled
+
+            while not opened() and time.monotonic() < end and run.poll() is None:
+                time.sleep(0.005)
             time.sleep(delay_s)
             started_flash = bool(list((work / "reports").rglob("block.bin")))
             t0 = time.monotonic()
-            if run.poll() is None:
+            sent = run.poll() is None
+            sent_at = dt.datetime.now(dt.UTC)
+            if sent:
                 run.send_signal(sig)
             try:
-                _, err = run.communicate(timeout=cap)
+                out, err = run.communicate(timeout=cap)
                 rc: int | None = run.returncode
             except subprocess.TimeoutExpired:
                 run.kill()
-                _, err = run.communicate()
+                out, err = run.communicate()
                 rc = None
             seconds = time.monotonic() - t0
             unsafe = sim.enabled or sim.speed != 0.0
@@ -128,9 +158,31 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
     raw = active_block_from_file(work / "ecu.flash") if (work / "ecu.flash").exists() else None
     flashed_after = (not started_flash and raw is not None
                      and bool(B.unpack(raw, "active").flags & B.FLAG_COMP_ENABLE))
-    ignored = rc in (0, 1) or flashed_after
+    db_writes = [f.stat().st_mtime for f in work.glob("db.sqlite*")]  # before this process reads it
+    stopped = _stopped_step(work)
+    after_end = sent and bool(db_writes) and _records(work, tree) > 0 and max(db_writes) < sent_at.timestamp()
+    ignored = sent and not after_end and (rc in (0, 1) or flashed_after)
     return SignalTrial(window, sig.name, delay_s, rc, seconds, "Traceback" in err, ignored, _records(work, tree) < 1,
-                       unsafe)
+                       unsafe, sent, stopped, after_end)
+
+
+def _stopped_step(work: Path) -> str:
+    """The step the run's record names as failed ("" without a record or an error): the
+    database's record, else the spool's."""
+    from eol_cal.station.records_query import query_records
+
+    db = work / "db.sqlite"
+    recs = query_records(db) if db.exists() else []
+    if recs:
+        return recs[-1].error.step if recs[-1].error is not None else ""
+    for f in sorted((work / "spool").glob("*.json")):
+        try:
+            d = json.loads(f.read_text())
+            error = d.get("error")
+        except (ValueError, AttributeError):
+            continue
+        return str(error.get("step", "")) if isinstance(error, dict) else ""
+    return ""
 
 
 def signal_trials(trials: int, seed: int, tree: Path = ROOT, cap: float = 120.0) -> list[SignalTrial]:
@@ -146,16 +198,24 @@ def signal_trials(trials: int, seed: int, tree: Path = ROOT, cap: float = 120.0)
 
 
 def print_trials(title: str, trials: list[SignalTrial], show: int = 20) -> dict[str, int]:
-    counts = {"trials": len(trials), "exit 2": sum(t.rc == 2 for t in trials), "ignored": sum(t.ignored for t in trials),
+    counts = {"trials": len(trials), "missed (the run was over)": sum(t.missed for t in trials),
+              "exit 2": sum(t.rc == 2 for t in trials), "ignored": sum(t.ignored for t in trials),
               "records lost": sum(t.lost for t in trials), "dyno unsafe": sum(t.unsafe for t in trials),
               "tracebacks": sum(t.traceback for t in trials), "hangs": sum(t.hang for t in trials),
               "crashes": sum(t.crash for t in trials)}
     worst = max((t.seconds for t in trials if t.rc is not None), default=0.0)
     print(f"\n{title}")
     print("  ".join(f"{k} {v}" for k, v in counts.items()) + f"  worst s {worst:.1f}")
+    stopped: dict[str, int] = {}
+    for t in trials:
+        if not t.missed:
+            name = t.stopped or "(none: the verdict stands)"
+            stopped[name] = stopped.get(name, 0) + 1
+    print("  steps the signals stopped: " + ", ".join(f"{k} {v}" for k, v in sorted(stopped.items())))
     for t in [t for t in trials if not t.clean][:show]:
-        print(f"  {t.window} +{t.delay_s:.2f} s {t.signal_name}: rc {t.rc}, ignored {t.ignored}, lost {t.lost}, "
-              f"unsafe {t.unsafe}, traceback {t.traceback}")
+        print(f"  {t.window} +{t.delay_s:.2f} s {t.signal_name}: sent {t.sent}, after the end {t.after_end}, "
+              f"rc {t.rc}, ignored {t.ignored}, "
+              f"lost {t.lost}, unsafe {t.unsafe}, traceback {t.traceback}, stopped {t.stopped or '-'}")
     return counts
 
 
