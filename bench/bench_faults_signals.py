@@ -93,15 +93,6 @@ def _cli(tree: Path, *args: str) -> subprocess.Popen:
                             text=True, env=env, cwd=tree, start_new_session=True)
 
 
-def _records(work: Path, tree: Path) -> int:
-    """Records of the run in the database and the spool (read with this tree's code)."""
-    from eol_cal.station.records_query import query_records
-
-    db = work / "db.sqlite"
-    n = len(query_records(db)) if db.exists() else 0
-    return n + len(list((work / "spool").glob("*.json")))
-
-
 def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, sig: signal.Signals,
               cap: float) -> SignalTrial:
     from eol_cal.ecu.flash import active_block_from_file
@@ -158,31 +149,33 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
     raw = active_block_from_file(work / "ecu.flash") if (work / "ecu.flash").exists() else None
     flashed_after = (not started_flash and raw is not None
                      and bool(B.unpack(raw, "active").flags & B.FLAG_COMP_ENABLE))
-    db_writes = [f.stat().st_mtime for f in work.glob("db.sqlite*")]  # before this process reads it
-    stopped = _stopped_step(work)
-    after_end = sent and bool(db_writes) and _records(work, tree) > 0 and max(db_writes) < sent_at.timestamp()
+    n_records, stopped, db_written = _record_outcome(work)
+    after_end = sent and db_written is not None and db_written < sent_at.timestamp()
     ignored = sent and not after_end and (rc in (0, 1) or flashed_after)
-    return SignalTrial(window, sig.name, delay_s, rc, seconds, "Traceback" in err, ignored, _records(work, tree) < 1,
+    return SignalTrial(window, sig.name, delay_s, rc, seconds, "Traceback" in err, ignored, n_records < 1,
                        unsafe, sent, stopped, after_end)
 
 
-def _stopped_step(work: Path) -> str:
-    """The step the run's record names as failed ("" without a record or an error): the
-    database's record, else the spool's."""
+def _record_outcome(work: Path) -> tuple[int, str, float | None]:
+    """The run's records in the database and the spool, the step the record names as failed (""
+    without a record or an error: the database's record, else the spool's), and when the database
+    was last written (POSIX s; None without a record in it)."""
     from eol_cal.station.records_query import query_records
 
     db = work / "db.sqlite"
+    db_writes = [f.stat().st_mtime for f in work.glob("db.sqlite*")]  # before this process reads it
     recs = query_records(db) if db.exists() else []
+    spooled = sorted((work / "spool").glob("*.json"))
+    stopped = ""
     if recs:
-        return recs[-1].error.step if recs[-1].error is not None else ""
-    for f in sorted((work / "spool").glob("*.json")):
+        stopped = recs[-1].error.step if recs[-1].error is not None else ""
+    elif spooled:
         try:
-            d = json.loads(f.read_text())
-            error = d.get("error")
+            error = json.loads(spooled[0].read_text()).get("error")
         except (ValueError, AttributeError):
-            continue
-        return str(error.get("step", "")) if isinstance(error, dict) else ""
-    return ""
+            error = None
+        stopped = str(error.get("step", "")) if isinstance(error, dict) else ""
+    return len(recs) + len(spooled), stopped, (max(db_writes) if recs and db_writes else None)
 
 
 def signal_trials(trials: int, seed: int, tree: Path = ROOT, cap: float = 120.0) -> list[SignalTrial]:

@@ -129,9 +129,10 @@ def run_dir(reports: Path, serial: str) -> Path:
     return found
 
 
-def lead_in_of(rec: dict) -> float:
-    """The seconds of lead-in the run's captures say the shaft turned (0 before the lead-in existed)."""
-    return sum(float(c.get("lead_in_s") or 0.0) for c in (rec.get("captures") or {}).values())
+def leads_in(rec: dict) -> dict[str, float]:
+    """The lead-in (s) each of the run's captures says the shaft turned for the ECU's settling after
+    a reset (0 in records from before the lead-in)."""
+    return {k: float(c.get("lead_in_s") or 0.0) for k, c in (rec.get("captures") or {}).items()}
 
 
 def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
@@ -142,8 +143,7 @@ def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
 
     ran = {s["step"] for s in rec["steps"] if s["seconds"] is not None}
     segs = setpoints_from_profile(load_profile(rec["station"]["profile"]))
-    # the lead-in the shaft turned for the ECU's settling after each reset (none before it was made)
-    lead = {k: float(c.get("lead_in_s", 0.0)) for k, c in (rec.get("captures") or {}).items()}
+    lead = leads_in(rec)
     before = physical_seconds(segs, rate_hz, lead.get("before", 0.0)) if "acquire" in ran else 0.0
     after = 0.0
     if "acquire compensated" in ran:
@@ -163,7 +163,7 @@ def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: f
     crit["acquire compensated"] = crit.get("acquire compensated", 0.0) - after
     return Motor(serial, rec["verdict"], t_verdict_wall - t_start_wall, before + after, crit, started - t_start_wall,
                  tail, plant_late, load_text, {"report": steps.get("report", 0.0), "record": steps.get("record", 0.0)},
-                 lead_in_of(rec))
+                 sum(leads_in(rec).values()))
 
 
 def settings_file(work: Path, line, map_name: str, key: Path, profile: str) -> Path:
