@@ -51,6 +51,17 @@ def _cli(*args: str) -> subprocess.Popen:
 @pytest.fixture
 def station(tmp_path):
     """An ECU simulator process and a dyno simulator; yields a function that starts ``eol-cal run``."""
+    yield from _station(tmp_path, realtime=False)
+
+
+@pytest.fixture
+def station_realtime(tmp_path):
+    """As :func:`station`, with the dyno simulator in real time (a capture takes its physical
+    time), so the steps after a capture have a window a signal can be aimed at on any machine."""
+    yield from _station(tmp_path, realtime=True)
+
+
+def _station(tmp_path: Path, realtime: bool):
     (tmp_path / "limits.toml").write_text(LIMITS)
     (tmp_path / "key.hex").write_text(P.DEV_SECRET.hex())
     flash = tmp_path / "ecu.flash"
@@ -73,7 +84,7 @@ def station(tmp_path):
         procs.append(run)
         return ecu, run
 
-    sim = ds.DynoSim(ds.synthetic_source, serial="K-1")
+    sim = ds.DynoSim(ds.synthetic_source, serial="K-1", realtime=realtime)
     with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
         try:
             yield start, tmp_path, sim
