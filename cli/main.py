@@ -52,19 +52,38 @@ _register()
 _ENDING_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 
-def _ignore_signals() -> None:
-    # the last atexit handler: past it Python resets its handlers to the default, and a signal
-    # during the C-level teardown (XLA's threads) killed the process by the signal (exit -2)
-    import signal
+#: the process's exit status as :func:`main` decided it; :func:`_finish` ends the process with it
+_exit_status = 0
 
-    for name in _ENDING_SIGNALS:
-        signal.signal(getattr(signal, name), signal.SIG_IGN)
+
+def _status(code: object) -> int:
+    """The exit status Python gives ``SystemExit(code)``: None 0, an int itself, anything else 1."""
+    if code is None:
+        return 0
+    return code if isinstance(code, int) else 1
+
+
+def _finish() -> None:
+    # The last atexit handler ends the process with the decided status at once. Past it Python's
+    # own teardown (module finalization, XLA's threads and destructors) ran with the handlers
+    # reset: a signal there killed the process by the signal (exit -2) or, ignored, left the exit
+    # status the verdict although the signal came; no window is left now. Everything the command
+    # wrote is closed by then (atomic writes, committed records; the exchange log's handler
+    # flushes each line), and every other atexit handler was registered later, so it has run.
+    import contextlib
+    import os
+    import sys
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # a closed pipe: nothing more can be said
+            stream.flush()
+    os._exit(_exit_status)
 
 
 def _exit_at_once_on_a_signal() -> None:
     """From here on the outcome is decided and said: a signal (a second Ctrl-C while threads
-    and atexit handlers finish) ends the process at once with exit 2, and during the teardown
-    after the last atexit handler it is ignored; never the signal's own death (130)."""
+    and atexit handlers finish) ends the process at once with exit 2 until :func:`_finish` ends
+    it with the decided status; never the signal's own death (130)."""
     import contextlib
     import os
     import signal
@@ -85,16 +104,24 @@ def main() -> None:
 
     from eol_cal.blas import limit_blas_threads
 
-    atexit.register(_ignore_signals)  # registered first: runs last
+    global _exit_status
+    atexit.register(_finish)  # registered first: runs last
     limit_blas_threads()
     try:
-        cli(prog_name="eol-cal")
-    except KeyboardInterrupt:
-        # Ctrl-C before a command set its handlers (imports, option parsing): one line, exit 2
-        from eol_cal.errors import Interrupted
+        try:
+            cli(prog_name="eol-cal")
+        except KeyboardInterrupt:
+            # Ctrl-C before a command set its handlers (imports, option parsing): one line, exit 2
+            from eol_cal.errors import Interrupted
 
-        click.echo(f"error: {Interrupted()}", err=True)
-        raise SystemExit(Interrupted.exit_code) from None
+            click.echo(f"error: {Interrupted()}", err=True)
+            raise SystemExit(Interrupted.exit_code) from None
+    except SystemExit as exc:
+        _exit_status = _status(exc.code)
+        raise
+    except BaseException:  # a bug: Python prints its traceback before the atexit handlers run
+        _exit_status = 1
+        raise
     finally:
         _exit_at_once_on_a_signal()
 
