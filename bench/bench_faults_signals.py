@@ -10,12 +10,14 @@ the compensated capture's file ``after.mf4``: the writes follow), waits a seeded
 the window, sends SIGINT or SIGTERM, and judges:
 
 - ``ignored``: the run ended 0 or 1 (the signal was swallowed), or flashed the calibrated block
-  after it (the block had not been started when the signal came, and the ECU boots it);
+  after it: the ECU boots it although the record says the signal came before the block's CRC went
+  out (in the fit, the table, the flash before its CRC, or an acquisition before them);
 - ``missed``: the run was over before the signal came: the process had exited (no signal sent),
   or its record was in the database (the database file's last write) before the signal was sent,
   and the process was only exiting: its exit code is the run's. Not a trial of the
   signal: counted apart, so that a window longer than the run does not read as a swallowed signal;
-- ``stopped``: the step the record says the signal stopped (``error.step``);
+- ``stopped``: the step the record says the signal stopped (``error.step``; the flash's own step
+  from the error's message);
 - ``lost``: no record in the database, nor in the spool;
 - ``unsafe``: the dyno simulator was left enabled or turning;
 - ``traceback``, ``hang`` (no exit within ``--cap`` s), ``crash`` (another exit code).
@@ -126,7 +128,6 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
             while not opened() and time.monotonic() < end and run.poll() is None:
                 time.sleep(0.005)
             time.sleep(delay_s)
-            started_flash = bool(list((work / "reports").rglob("block.bin")))
             t0 = time.monotonic()
             sent = run.poll() is None
             sent_at = dt.datetime.now(dt.UTC)
@@ -147,35 +148,60 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
                 p.kill()
                 p.wait(10)
     raw = active_block_from_file(work / "ecu.flash") if (work / "ecu.flash").exists() else None
-    flashed_after = (not started_flash and raw is not None
-                     and bool(B.unpack(raw, "active").flags & B.FLAG_COMP_ENABLE))
-    n_records, stopped, db_written = _record_outcome(work)
+    n_records, stopped, message, db_written = _record_outcome(work)
+    flashed_after = (raw is not None and bool(B.unpack(raw, "active").flags & B.FLAG_COMP_ENABLE)
+                     and not _crc_out_before(stopped, message))
     after_end = sent and db_written is not None and db_written < sent_at.timestamp()
     ignored = sent and not after_end and (rc in (0, 1) or flashed_after)
     return SignalTrial(window, sig.name, delay_s, rc, seconds, "Traceback" in err, ignored, n_records < 1,
-                       unsafe, sent, stopped, after_end)
+                       unsafe, sent, f"flash ({_flash_step(message)})" if _flash_step(message) else stopped, after_end)
 
 
-def _record_outcome(work: Path) -> tuple[int, str, float | None]:
+#: the calibrated flash's steps from its CRC on (eol_cal.ecu.sequence): a signal there came after
+#: the whole block had gone out, and the ECU may boot it (the record says which)
+AFTER_THE_CRC = ("CRC (36)", "transfer exit (37)", "check routine (31 0202)", "reset", "confirm (22 FD01)")
+#: the cycle's steps after the calibrated flash ("": no error, the verdict stands)
+AFTER_THE_FLASH = ("acquire compensated", "metrics", "report", "")
+
+
+def _flash_step(message: str) -> str:
+    """The flash's own step an ``Interrupted`` message names ("... during flash (reset); ..."),
+    "" when none."""
+    _, found, rest = message.partition("during flash (")
+    text = rest.split(";", 1)[0].strip()
+    return text[:-1] if found and text.endswith(")") else ""
+
+
+def _crc_out_before(stopped: str, message: str) -> bool:
+    """Whether the calibrated block's CRC went out before the signal, by the step the record says
+    it stopped."""
+    if stopped == "flash":
+        return _flash_step(message) in AFTER_THE_CRC
+    return stopped in AFTER_THE_FLASH
+
+
+def _record_outcome(work: Path) -> tuple[int, str, str, float | None]:
     """The run's records in the database and the spool, the step the record names as failed (""
-    without a record or an error: the database's record, else the spool's), and when the database
-    was last written (POSIX s; None without a record in it)."""
+    without a record or an error: the database's record, else the spool's) and the error's message,
+    and when the database was last written (POSIX s; None without a record in it)."""
     from eol_cal.station.records_query import query_records
 
     db = work / "db.sqlite"
     db_writes = [f.stat().st_mtime for f in work.glob("db.sqlite*")]  # before this process reads it
     recs = query_records(db) if db.exists() else []
     spooled = sorted((work / "spool").glob("*.json"))
-    stopped = ""
+    stopped = message = ""
     if recs:
-        stopped = recs[-1].error.step if recs[-1].error is not None else ""
+        if recs[-1].error is not None:
+            stopped, message = recs[-1].error.step, recs[-1].error.message
     elif spooled:
         try:
             error = json.loads(spooled[0].read_text()).get("error")
         except (ValueError, AttributeError):
             error = None
-        stopped = str(error.get("step", "")) if isinstance(error, dict) else ""
-    return len(recs) + len(spooled), stopped, (max(db_writes) if recs and db_writes else None)
+        if isinstance(error, dict):
+            stopped, message = str(error.get("step", "")), str(error.get("message", ""))
+    return len(recs) + len(spooled), stopped, message, (max(db_writes) if recs and db_writes else None)
 
 
 def signal_trials(trials: int, seed: int, tree: Path = ROOT, cap: float = 120.0) -> list[SignalTrial]:
