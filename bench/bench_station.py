@@ -129,14 +129,30 @@ def run_dir(reports: Path, serial: str) -> Path:
     return found
 
 
-def leads_in(rec: dict) -> dict[str, float]:
-    """The lead-in (s) each of the run's captures says the shaft turned for the ECU's settling after
-    a reset (0 in records from before the lead-in)."""
-    return {k: float(c.get("lead_in_s") or 0.0) for k, c in (rec.get("captures") or {}).items()}
+def leads_in(rec: dict) -> dict[str, tuple[float, object]]:
+    """Each of the run's captures' lead-in for the ECU's settling after a reset: (s at its first
+    point, the point turned at first as a ``DynoSetpoint`` or None); (0, None) in records from
+    before the lead-in."""
+    from eol_cal.dyno.client import DynoSetpoint
+
+    out: dict[str, tuple[float, object]] = {}
+    for k, c in (rec.get("captures") or {}).items():
+        point = c.get("lead_in_point")
+        out[k] = (float(c.get("lead_in_s") or 0.0),
+                  None if not point else DynoSetpoint(point["speed_rpm"], point["seconds"]))
+    return out
 
 
-def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
-    """The physical seconds of the run's two acquisitions (0 for one that did not run)."""
+def _ramped(point: object, segs: list) -> object:
+    """The lead-in point at the first segment's ramp rate, as the cycle commands it."""
+    import dataclasses
+
+    return None if point is None or not segs else dataclasses.replace(point, ramp_rpm_s=segs[0].ramp_rpm_s)
+
+
+def physical_of(rec: dict, rate_hz: int) -> tuple[float, float, float]:
+    """The physical seconds of the run's two acquisitions (0 for one that did not run), and of
+    them the lead-ins' (the shaft's time with the lead-in less without it)."""
     from eol_cal.analysis.point_metrics import verify_segments
     from eol_cal.dyno.client import physical_seconds, setpoints_from_profile
     from eol_cal.plant.profile import load_profile
@@ -144,18 +160,23 @@ def physical_of(rec: dict, rate_hz: int) -> tuple[float, float]:
     ran = {s["step"] for s in rec["steps"] if s["seconds"] is not None}
     segs = setpoints_from_profile(load_profile(rec["station"]["profile"]))
     lead = leads_in(rec)
-    before = physical_seconds(segs, rate_hz, lead.get("before", 0.0)) if "acquire" in ran else 0.0
-    after = 0.0
+    before = after = lead_s = 0.0
+    if "acquire" in ran:
+        at_point, point = lead.get("before", (0.0, None))
+        before = physical_seconds(segs, rate_hz, at_point, _ramped(point, segs))
+        lead_s += before - physical_seconds(segs, rate_hz)
     if "acquire compensated" in ran:
         op = rec["fit"]["operating_point"]
         after_segs = segs if rec["station"]["verify"] == "full" else verify_segments(segs, op["speed_rpm"], op["i_qo_a"])
-        after = physical_seconds(after_segs, rate_hz, lead.get("after", 0.0))
-    return before, after
+        at_point, point = lead.get("after", (0.0, None))
+        after = physical_seconds(after_segs, rate_hz, at_point, _ramped(point, after_segs))
+        lead_s += after - physical_seconds(after_segs, rate_hz)
+    return before, after, lead_s
 
 
 def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: float, tail: float,
                   plant_late: float, load_text: str, rate_hz: int) -> Motor:
-    before, after = physical_of(rec, rate_hz)
+    before, after, lead_s = physical_of(rec, rate_hz)
     steps = {s["step"]: s["seconds"] for s in rec["steps"] if s["seconds"] is not None}
     started = dt.datetime.fromisoformat(rec["started_at"]).timestamp()
     crit = {k: v for k, v in steps.items() if k in CRITICAL_STEPS}
@@ -163,7 +184,7 @@ def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: f
     crit["acquire compensated"] = crit.get("acquire compensated", 0.0) - after
     return Motor(serial, rec["verdict"], t_verdict_wall - t_start_wall, before + after, crit, started - t_start_wall,
                  tail, plant_late, load_text, {"report": steps.get("report", 0.0), "record": steps.get("record", 0.0)},
-                 sum(leads_in(rec).values()))
+                 lead_s)
 
 
 def settings_file(work: Path, line, map_name: str, key: Path, profile: str) -> Path:

@@ -249,9 +249,10 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
 @click.option("--read-back", type=click.Choice(["before-crc", "off"]), default=None,
               help="Read each flashed block back before its CRC is written [default: before-crc, settings key "
                    "flash.read_back]; off leaves the check to the ECU's CRC routine (docs/station.md).")
-@click.option("--lead-in", type=click.Choice(["settle", "off"]), default=None,
+@click.option("--lead-in", type=click.Choice(["settle", "at-point", "off"]), default=None,
               help="Turn the shaft for the ECU's settling after each reset before its capture counts [default: "
-                   "settle, settings key dyno.lead_in]; off captures at once (docs/station.md, \"Lead-in\").")
+                   "settle, settings key dyno.lead_in: an identifying ECU at 200 rpm first]; at-point turns it all "
+                   "at the capture's first point; off captures at once (docs/station.md, \"Lead-in\").")
 @click.option("--json", "as_json", is_flag=True, help="Print the run record as JSON.")
 @register_map_option
 @click.pass_context

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint, physical_seconds, run_profile
+from eol_cal.dyno.client import (DynoClient, DynoConfig, DynoError, DynoSetpoint, lead_point_samples, physical_seconds,
+                                 run_profile)
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import CaptureCommand, CaptureState
 from eol_cal.dyno.regmap import READ_FC
@@ -263,6 +264,40 @@ def test_a_lead_in_is_recorded_but_never_read(regmap):
     assert min(a for k, a, _b in reads if k == 2) == 0
 
 
+def test_a_lead_in_point_is_turned_first_and_never_read(regmap):
+    """A lead-in at another speed (an identifying ECU at 200 rpm before a 60 rpm capture): the dyno
+    turns there first, records it as a capture of its own, and ramps on to the first point, where
+    the first capture's own lead-in follows; the client reads one sample of it, to close it."""
+    segments = [DynoSetpoint(60.0, 0.2, iq=10.0), DynoSetpoint(-60.0, 0.2, iq=-10.0)]
+    point = DynoSetpoint(200.0, 0.3, iq=10.0)
+    requests = []
+    with DynoSimThread(DynoSim(lambda req: requests.append(req) or synthetic_source(req), serial="M-POINT",
+                               register_map=regmap, realtime=True)) as thread:
+        sim = thread.sim
+        reads: list[tuple[int, int, int]] = []
+        window_words = sim.window_words
+
+        def logged(channel, offset, lo, hi):
+            per = regmap.regs_per_sample(channel)
+            reads.append((sim.captures_started, offset + lo // per, offset + -(-hi // per)))
+            return window_words(channel, offset, lo, hi)
+
+        sim.window_words = logged
+        t0 = time.monotonic()
+        data, _ident = run_profile(DynoClient(DynoConfig(port=thread.port, register_map=regmap)), segments, RATE,
+                                   lead_in_s=0.05, lead_in_point=point)
+        elapsed = time.monotonic() - t0
+    assert [r.speed_rpm for r in requests] == [200.0, 60.0, -60.0]
+    assert [r.n_samples for r in requests] == [lead_point_samples(point, RATE), 500 + 2000, 2000]
+    assert requests[1].gap_s is not None and requests[1].gap_s >= (200.0 - 60.0) / 1000.0 - 0.02  # the ramp down
+    assert [len(w.channels["torque"]) for w in data] == [2000, 2000]
+    assert max(b for k, _a, b in reads if k == 1) <= lead_point_samples(point, RATE)  # one read sample of it
+    assert min(a for k, a, _b in reads if k == 1) == lead_point_samples(point, RATE) - 1
+    assert min(a for k, a, _b in reads if k == 2) == 500
+    # the shaft turned at least its physical time, lead-in point and ramps included
+    assert elapsed >= physical_seconds(segments, RATE, 0.05, point) - 0.05
+
+
 def test_a_capture_says_how_long_the_shaft_turned_on_since_the_previous_one(regmap):
     requests = []
     segments = [DynoSetpoint(60.0, 0.1, iq=10.0), DynoSetpoint(-60.0, 0.1, iq=-10.0)]
@@ -330,6 +365,11 @@ def test_physical_time_counts_the_lead_in():
     segments = [DynoSetpoint(60.0, 1.0, iq=10.0)]
     assert physical_seconds(segments, RATE, 0.25) - physical_seconds(segments, RATE) == pytest.approx(0.25)
     assert physical_seconds([], RATE, 0.25) == 0.0
+    # a point at 200 rpm first: its samples, the ramp up to it instead of to 60 rpm, and the ramp down
+    point = DynoSetpoint(200.0, 1.2, iq=10.0)
+    extra = physical_seconds(segments, RATE, 0.3, point) - physical_seconds(segments, RATE)
+    assert extra == pytest.approx(lead_point_samples(point, RATE) / RATE + 0.3 + 2 * 140.0 / 1000.0, abs=2e-3)
+    assert physical_seconds([], RATE, 0.3, point) == 0.0
 
 
 @pytest.mark.parametrize("fault", ["torque-sensor@read:3", "disconnect@read:4/3000"])

@@ -202,14 +202,20 @@ def test_full_run_end_to_end(full_run):
 
         assert trace_of(read_capture(c["path"]).metadata).to_dict() == {k: c[k] for k in ("ecu_before", "ecu_after")}
     # each flash reset the ECU: the shaft turned for its settling before the samples counted, the
-    # calibrated block's mechanical identification longer than the uncompensated block's pitch learning
-    from eol_cal.firmware.settling import block_settle_s
+    # calibrated block's mechanical identification at 200 rpm first (then 0.3 s at 120 rpm), the
+    # uncompensated block's pitch learning at the capture's speed
+    from eol_cal.firmware.settling import lead_in_plan
 
     for which, ran in (("before", prep), ("after", cal)):
         booted = B.unpack(Path(ran["path"]).read_bytes(), "archive")
-        assert rec["captures"][which]["lead_in_s"] == pytest.approx(block_settle_s(booted, 120.0), abs=1e-4)
-    assert rec["captures"]["after"]["lead_in_s"] == pytest.approx(2.0, abs=1e-4)  # 4 revolutions at 120 rpm
+        point_rpm, point_s, at_speed_s = lead_in_plan(booted, 120.0)
+        assert rec["captures"][which]["lead_in_s"] == pytest.approx(at_speed_s, abs=1e-4)
+        assert rec["captures"][which].get("lead_in_point", {}).get("speed_rpm") == point_rpm
+    assert rec["captures"]["after"]["lead_in_s"] == pytest.approx(0.3, abs=1e-4)
+    # 4 revolutions at 200 rpm, and the sample that closes the lead-in's capture
+    assert rec["captures"]["after"]["lead_in_point"]["seconds"] == pytest.approx(1.2, abs=2e-4)
     assert rec["captures"]["before"]["lead_in_s"] == pytest.approx(0.75, abs=1e-4)  # 1.5 revolutions
+    assert "lead_in_point" not in rec["captures"]["before"]
     # verification at the operating point only: 65 A at 120 rpm, forward and reverse
     assert rec["captures"]["before"]["segments"] == 3 and rec["captures"]["after"]["segments"] == 2
     assert rec["station"]["verify"] == "point"

@@ -90,10 +90,11 @@ def test_the_lead_in_is_a_setting_the_cycle_uses(station_dir: Path) -> None:
     from eol_cal.station.settings import LEAD_IN_CHOICES
 
     s = load_settings(station_dir / "station.toml", {})
-    assert s["dyno.lead_in"] == "settle" and station_config(s).lead_in is True
-    s = load_settings(station_dir / "station.toml", {env_name("dyno.lead_in"): "off"})
-    assert station_config(s).lead_in is False
-    with pytest.raises(InputError, match="dyno.lead_in.*'0' is not one of settle, off"):
+    assert s["dyno.lead_in"] == "settle" and station_config(s).lead_in == "settle"
+    for choice in ("at-point", "off"):
+        s = load_settings(station_dir / "station.toml", {env_name("dyno.lead_in"): choice})
+        assert station_config(s).lead_in == choice
+    with pytest.raises(InputError, match="dyno.lead_in.*'0' is not one of settle, at-point, off"):
         load_settings(station_dir / "station.toml", {env_name("dyno.lead_in"): "0"})
     (option,) = [p for p in run_cmd.params if p.name == "lead_in"]
     assert tuple(option.type.choices) == LEAD_IN_CHOICES and OPTION_KEYS["lead_in"] == "dyno.lead_in"

@@ -109,26 +109,30 @@ def setpoints_from_profile(profile: Profile) -> list[DynoSetpoint]:
     return out
 
 
-def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RATE_HZ, lead_in_s: float = 0.0) -> float:
+def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RATE_HZ, lead_in_s: float = 0.0,
+                     lead_in_point: DynoSetpoint | None = None) -> float:
     """How long the shaft must turn for ``segments`` (s), from standstill back to standstill: what
     no tool can take off a station's cycle.
 
     Each segment's ramp at its rate until the dyno reports at speed (within its tolerance), a
     reversal's stop at the previous ramp rate first, the capture's ``round(seconds * rate_hz)``
-    samples (the first segment's ``lead_in_samples(lead_in_s, rate_hz)`` more), and the stop at
-    the end, as :func:`run_profile` commands them.
+    samples (the first segment's ``lead_in_samples(lead_in_s, rate_hz)`` more; a
+    ``lead_in_point`` first, with its :func:`lead_point_samples`), and the stop at the end, as
+    :func:`run_profile` commands them.
     """
     from eol_cal.dyno.sim import SPEED_TOL_REL, SPEED_TOL_RPM
 
+    points = [(lead_in_point, lead_point_samples(lead_in_point, rate_hz))] if lead_in_point and segments else []
+    points += [(seg, int(round(seg.seconds * rate_hz))) for seg in segments]
     total, speed, ramp = 0.0, 0.0, DEFAULT_RAMP_RPM_S
-    for seg in segments:
+    for seg, n in points:
         if abs(speed) > rm.STANDSTILL_RPM and (seg.speed_rpm < 0) != (speed < 0):
             total += (abs(speed) - rm.STANDSTILL_RPM) / ramp
             speed = math.copysign(rm.STANDSTILL_RPM, speed)
         ramp = seg.ramp_rpm_s
         tol = max(SPEED_TOL_RPM, SPEED_TOL_REL * abs(seg.speed_rpm))
         total += max(0.0, abs(seg.speed_rpm - speed) - tol) / ramp
-        total += int(round(seg.seconds * rate_hz)) / rate_hz
+        total += n / rate_hz
         speed = seg.speed_rpm
     total += lead_in_samples(lead_in_s, rate_hz) / rate_hz if segments else 0.0
     return total + max(0.0, abs(speed) - rm.STANDSTILL_RPM) / ramp
@@ -137,6 +141,12 @@ def physical_seconds(segments: Sequence[DynoSetpoint], rate_hz: int = DEFAULT_RA
 def lead_in_samples(lead_in_s: float, rate_hz: float) -> int:
     """Samples of a lead-in of ``lead_in_s`` (s) at ``rate_hz`` (Hz): captured and never read."""
     return int(math.ceil(max(0.0, lead_in_s) * rate_hz - 1e-9))
+
+
+def lead_point_samples(point: DynoSetpoint, rate_hz: float) -> int:
+    """Samples the dyno captures at a lead-in point (:func:`run_profile`): its ``seconds`` and the one
+    sample read to close the capture (a capture reads at least one)."""
+    return lead_in_samples(point.seconds, rate_hz) + 1
 
 
 def parse_address(text: str) -> tuple[str, int]:
@@ -513,6 +523,7 @@ def run_profile(
     after_capture: Callable[[], object] | None = None,
     on_window: WindowHook | None = None,
     lead_in_s: float = 0.0,
+    lead_in_point: DynoSetpoint | None = None,
 ) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
 
@@ -530,6 +541,12 @@ def run_profile(
     window, t)`` is called with each window as soon as it is read and checked, ``t`` its sample
     times in the joined capture (:func:`window_times`): the caller's work on it can start while
     the shaft turns on (it should hand the work to another thread and return).
+
+    ``lead_in_point``: where the ECU settles faster than at the first segment's point (its
+    identification at a higher speed, :func:`eol_cal.firmware.settling.lead_in_plan`), the shaft
+    turns there first, for the point's ``seconds``, as a capture of its own the dyno records and
+    the client does not read (:func:`lead_point_samples`; ``before_capture`` runs before it),
+    then ramps to the first point, where ``lead_in_s`` follows as above.
 
     Returns the segments' data and the dyno's identification registers.
     Raises :class:`DynoError` on any failure (after the safe state was commanded).
@@ -552,8 +569,12 @@ def run_profile(
         ident = client.connect()
         if reset_faults:
             client.write(fault_reset=Command.EXECUTE)
-        ramp_s = client.set_point(segments[0], wait=False)
+        ramp_s = client.set_point(segments[0] if lead_in_point is None else lead_in_point, wait=False)
         stopping = False
+
+        def to_first_point(st: dict) -> None:
+            nonlocal ramp_s
+            ramp_s = client.set_point(segments[0], wait=False, status=st)
 
         def next_point(i: int, st: dict) -> None:
             # the capture is ready: the shaft goes on to the next point (or stops) while the
@@ -572,6 +593,12 @@ def run_profile(
             lead = lead_in_samples(lead_in_s, rate_hz) if i == 0 else 0
             if i == 0 and before_capture is not None:
                 before_capture()
+            if i == 0 and lead_in_point is not None:
+                if progress:
+                    progress(f"lead-in: {lead_in_point.speed_rpm:g} rpm", 0, len(segments))
+                n_point = lead_point_samples(lead_in_point, rate_hz)
+                client.record(n_point, rate_hz, channels, None, ramp_s, skip=n_point - 1, on_ready=to_first_point)
+                client.check_faults(client.status(), "the lead-in")
             t_start = time.monotonic() + lead / rate_hz
             chans = client.record(n + lead, rate_hz, channels, progress, ramp_s, skip=lead,
                                   on_ready=functools.partial(next_point, i))
@@ -685,6 +712,7 @@ def acquire(
     after_capture: Callable[[], object] | None = None,
     on_window: WindowHook | None = None,
     lead_in_s: float = 0.0,
+    lead_in_point: DynoSetpoint | None = None,
 ) -> Capture:
     """Run a profile on the dyno, check the capture and write it atomically to ``out``.
 
@@ -710,6 +738,9 @@ def acquire(
     lead_in_s : float
         Time (s) the shaft turns at the first segment's point before its samples count
         (:func:`run_profile`); recorded in the capture's metadata as ``lead_in_s``.
+    lead_in_point : DynoSetpoint, optional
+        A point the shaft turns at first (:func:`run_profile`); recorded as ``lead_in_point_rpm``
+        and ``lead_in_point_s``.
 
     Raises
     ------
@@ -722,9 +753,13 @@ def acquire(
         raise InputError(None, "profile", "no segments")
     client = DynoClient(config)
     data, ident = run_profile(client, segments, rate_hz, channels, progress, reset_faults, before_capture, after_capture,
-                              on_window, lead_in_s)
+                              on_window, lead_in_s, lead_in_point)
     lead = lead_in_samples(lead_in_s, rate_hz) / rate_hz
-    capture = assemble(data, ident, serial, {**(extra_metadata or {}), "lead_in_s": lead} if lead else extra_metadata)
+    meta = {**(extra_metadata or {}), **({"lead_in_s": lead} if lead or lead_in_point else {})}
+    if lead_in_point is not None:
+        meta |= {"lead_in_point_rpm": float(lead_in_point.speed_rpm),
+                 "lead_in_point_s": lead_point_samples(lead_in_point, rate_hz) / rate_hz}
+    capture = assemble(data, ident, serial, meta if meta else extra_metadata)
     from eol_cal.capture import validate, write_capture
 
     capture = validate(capture)

@@ -76,7 +76,7 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
         spool_dir=settings.path("spool_dir"), rate_hz=int(settings["rate_hz"]), db_timeout_s=float(settings["db_timeout_s"]),
         station=station_record(settings, operator), cache_dir=cache_dir, motor=motor, mechanics=mechanics,
         estimator=None if settings["estimator"] is None else str(settings["estimator"]), master=master_of(settings),
-        read_back=settings["flash.read_back"] == "before-crc", lead_in=settings["dyno.lead_in"] == "settle",
+        read_back=settings["flash.read_back"] == "before-crc", lead_in=settings["dyno.lead_in"],
     )
 
 

@@ -462,17 +462,23 @@ class StationCycle:
         the ECU: the shaft turns for its settling first (the lead-in, ``cfg.lead_in``)."""
         from eol_cal.capture.ecu_state import check_trace
         from eol_cal.ecu.client import ClientTiming
-        from eol_cal.firmware.settling import block_settle_s
+        from eol_cal.firmware.settling import block_settle_s, lead_in_plan
         from eol_cal.station.acquisition import acquire_traced, expect_block, read_ecu_with
 
         path = self.run_dir / f"{which}.mf4"
         booted = self.uncompensated if which == "before" else self.calibrated
-        lead_in_s = block_settle_s(booted, float(segs[0].speed_rpm)) if self.cfg.lead_in else 0.0
+        speed, lead_point, lead_in_s = float(segs[0].speed_rpm), None, 0.0
+        if self.cfg.lead_in == "at-point":
+            lead_in_s = block_settle_s(booted, speed)
+        elif self.cfg.lead_in == "settle":
+            point_rpm, point_s, lead_in_s = lead_in_plan(booted, speed)
+            if point_rpm is not None:
+                lead_point = dataclasses.replace(segs[0], speed_rpm=point_rpm, seconds=point_s)
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
                                     self.cfg.dyno, segs, None, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
                                                                f"profile {self.profile_name}"}, on_window=on_window,
-                                    lead_in_s=lead_in_s)
+                                    lead_in_s=lead_in_s, lead_in_point=lead_point)
         if write_aside:
             writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
             self._writes[which] = writer.submit(self._store, which, cap, trace, path, len(segs))
@@ -490,8 +496,10 @@ class StationCycle:
         from eol_cal.capture import write_capture
 
         write_capture(cap, path)
+        point = ((float(cap.metadata["lead_in_point_rpm"]), float(cap.metadata["lead_in_point_s"]))
+                 if "lead_in_point_rpm" in cap.metadata else None)
         self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), n_segments, trace.before,
-                                          trace.after, float(cap.metadata.get("lead_in_s", 0.0)))
+                                          trace.after, float(cap.metadata.get("lead_in_s", 0.0)), point)
 
     def _settle_writes(self) -> None:
         """Wait for the capture files written aside; a write that failed ends the cycle here."""

@@ -71,7 +71,9 @@ def check_json(c: LimitCheck) -> dict[str, Any]:
 def capture_json(c: CaptureRef) -> dict[str, Any]:
     return {"path": c.path, "sha256": c.sha256, "samples": c.samples, "segments": c.segments,
             "ecu_before": ecu_state_json(c.ecu_before), "ecu_after": ecu_state_json(c.ecu_after),
-            **({} if c.lead_in_s is None else {"lead_in_s": c.lead_in_s})}
+            **({} if c.lead_in_s is None else {"lead_in_s": c.lead_in_s}),
+            **({} if c.lead_in_point is None else
+               {"lead_in_point": {"speed_rpm": c.lead_in_point[0], "seconds": c.lead_in_point[1]}})}
 
 
 def block_json(b: FlashedBlock) -> dict[str, Any]:
@@ -266,7 +268,13 @@ def capture_from(r: Reader, x: Any) -> CaptureRef:
     return CaptureRef(r.str(d, "path"), r.str(d, "sha256"), r.int(d, "samples"), r.int(d, "segments"),
                       ecu_state_from(r.at("ecu_before."), d.get("ecu_before")),
                       ecu_state_from(r.at("ecu_after."), d.get("ecu_after")),
-                      r.num(d, "lead_in_s") if "lead_in_s" in d else None)  # none in records before the lead-in
+                      r.num(d, "lead_in_s") if "lead_in_s" in d else None,  # none in records before the lead-in
+                      _lead_in_point(r.at("lead_in_point."), d["lead_in_point"]) if "lead_in_point" in d else None)
+
+
+def _lead_in_point(r: Reader, x: Any) -> tuple[float, float]:
+    d = _need_obj(r, x)
+    return r.num(d, "speed_rpm"), r.num(d, "seconds")
 
 
 def previous_from(r: Reader, x: Any) -> PreviousBlock | None:

@@ -62,8 +62,9 @@ class StationInfo:
 @dataclass(frozen=True)
 class CaptureRef:
     """A capture the run made: its file, SHA-256, size, the ECU's state around it, and the lead-in
-    (s) the shaft turned before its samples (:func:`eol_cal.dyno.client.run_profile`; None in a
-    record written before the station turned one)."""
+    (s) the shaft turned at its first point before its samples (:func:`eol_cal.dyno.client.run_profile`;
+    None in a record written before the station turned one), after ``lead_in_point`` (speed rpm,
+    s) when it turned at another speed first."""
 
     path: str
     sha256: str
@@ -72,6 +73,7 @@ class CaptureRef:
     ecu_before: EcuState | None = None
     ecu_after: EcuState | None = None
     lead_in_s: float | None = None
+    lead_in_point: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -105,11 +105,12 @@ class StationConfig:
         Read each block this cycle flashes back before its CRC is written (settings key
         ``flash.read_back``: ``before-crc``); False leaves the check to the ECU's CRC routine
         (the contract's read-back is optional; the record's blocks say ``verified`` false).
-    lead_in : bool
-        Turn the shaft at each acquisition's first point for the ECU's settling after the reset
-        before the capture counts (settings key ``dyno.lead_in``: ``settle``;
-        :func:`eol_cal.firmware.settling.block_settle_s` of the block the cycle flashed); False
-        captures at once.
+    lead_in : str
+        Turn the shaft for the ECU's settling after the reset before an acquisition's capture
+        counts (settings key ``dyno.lead_in``): ``settle``, as
+        :func:`eol_cal.firmware.settling.lead_in_plan` says for the block the cycle flashed (an
+        identifying ECU at its own speed first); ``at-point``, all of it at the acquisition's
+        first point; ``off``, capture at once.
     master : MasterSettings or None
         The station's master motor (:mod:`eol_cal.msa.master`): a ``production`` run is refused
         while its check is due or last failed; a run of kind ``master`` is judged against its
@@ -137,7 +138,7 @@ class StationConfig:
     kind: str = "production"
     master: MasterSettings | None = None
     read_back: bool = True
-    lead_in: bool = True
+    lead_in: str = "settle"
 
     @property
     def estimator_options(self) -> int:

@@ -59,8 +59,9 @@ def env_name(key: str) -> str:
 #: ``flash.read_back``: read the block back before its CRC is written, or leave it to the ECU's check
 READ_BACK_CHOICES = ("before-crc", "off")
 #: ``dyno.lead_in``: turn the shaft for the ECU's settling after each reset before its capture
-#: (:func:`eol_cal.firmware.settling.block_settle_s`), or capture at once
-LEAD_IN_CHOICES = ("settle", "off")
+#: (:func:`eol_cal.firmware.settling.lead_in_plan`: an identification at its own speed), all of it
+#: at the capture's first point (``at-point``), or capture at once
+LEAD_IN_CHOICES = ("settle", "at-point", "off")
 
 
 @dataclass(frozen=True)
