@@ -11,13 +11,15 @@ This bench asks the built-in plant (the firmware twin's estimator and identifier
 motors drawn with their encoder pitch errors and unbalance), for each lead-in speed: the motor
 compensated with its true layout-2 block (every order; ``--case calibration``: the cycle's
 uncompensated prepare block), the lead-in at that speed from power-up,
-a ramp to 60 rpm at 1000 rpm/s and 0.3 s of settling, then a 1.2 s capture at 60 rpm, 65 A.
-Against the station's lead-in (the same time, all at 60 rpm) it prints over the capture: the
+a ramp to 60 rpm at 1000 rpm/s and 0.3 s there (``--settle-s``; the station's
+:func:`eol_cal.firmware.settling.lead_in_plan`), then a 1.2 s capture at 60 rpm, 65 A.
+Against the lead-in all at 60 rpm (`dyno.lead_in = "at-point"`) it prints over the capture: the
 estimated angle's error (rms and worst, electrical degrees), the share of samples with the
 mechanical compensation identified and running, the compensated filtered p-p (% of the mean
 torque, docs/metrics.md), and the lead-in's shaft time.
 
     python bench/bench_lead_in.py [--motors 8] [--speeds 60,150,300,600] [--case verification|calibration]
+        [--settle-s 0.3]
 """
 
 from __future__ import annotations
@@ -45,10 +47,9 @@ CAPTURE_RPM = 60.0
 CAPTURE_S = 1.2
 I_QO_A = 65.0
 RAMP_RPM_S = 1000.0
-SETTLE_S = 0.0  # the dyno starts the capture once at speed: no settling of its own
 
 
-def one(spec: PlantSpec, block: ParamBlock, lead_rpm: float, mode: str) -> dict[str, float]:
+def one(spec: PlantSpec, block: ParamBlock, lead_rpm: float, mode: str, settle_at_point_s: float) -> dict[str, float]:
     """The capture at 60 rpm after a lead-in at ``lead_rpm``: its figures and the lead-in's time."""
     settle = block_settle_s(block, lead_rpm)
     if lead_rpm == CAPTURE_RPM:  # the station today: the lead-in is the pre-roll at the capture's point
@@ -57,7 +58,7 @@ def one(spec: PlantSpec, block: ParamBlock, lead_rpm: float, mode: str) -> dict[
         result = simulate(spec, profile, mode=mode, blocks=block, pre_roll_s=settle, seed=1)[0]
     else:
         ramp = abs(lead_rpm - CAPTURE_RPM) / RAMP_RPM_S
-        skip_s = ramp + SETTLE_S
+        skip_s = ramp + settle_at_point_s
         lead_s = settle + skip_s
         profile = Profile("lead-in", (ProfileSegment(lead_rpm, 1e-3, iq=I_QO_A),
                                       ProfileSegment(CAPTURE_RPM, skip_s + CAPTURE_S, iq=I_QO_A, ramp_s=ramp)))
@@ -77,6 +78,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--motors", type=int, default=8)
     parser.add_argument("--speeds", default="60,150,300,600")
+    parser.add_argument("--settle-s", type=float, default=FIRST_EDGES_S,
+                        help="s turned at 60 rpm after the ramp before the capture counts (the station's: "
+                             "eol_cal.firmware.settling.FIRST_EDGES_S)")
     parser.add_argument("--case", choices=("verification", "calibration"), default="verification",
                         help="verification: the true layout-2 block, compensated (four revolutions);"
                              " calibration: the cycle's prepare block (no compensation, 1.5 revolutions)")
@@ -91,7 +95,7 @@ def main() -> None:
         spec = variation.vary(preset_spec("paper", serial=f"L-{k}"), 100 + k)
         block = true_block(spec, flags=flags, mech=opts.case == "verification")
         for v in speeds:
-            rows[v].append(one(spec, block, v, mode))
+            rows[v].append(one(spec, block, v, mode, opts.settle_s))
     what = ("true layout-2 block, compensated" if opts.case == "verification"
             else "the prepare block: not compensated, so its p-p is the motor's own")
     print(f"{opts.case}: {opts.motors} motors (production draws, 'best' estimator, {what}), capture 60 rpm 65 A;"
@@ -103,8 +107,8 @@ def main() -> None:
         worst_pp = max(r["pp"] for r in rs)
         print(f"{v:7.0f} rpm {med['lead_s']:13.2f} {med['err_rms']:18.3f} {max(r['err_max'] for r in rs):10.2f}"
               f" {min(r['mech'] for r in rs):13.2f} {med['pp']:7.2f} ({worst_pp:.2f})")
-    print("lead-in at 60 rpm is the station's today (the pre-roll at the capture's point); the others add the"
-          f" ramp to 60 rpm at {RAMP_RPM_S:g} rpm/s and {FIRST_EDGES_S:g} s of settling to their shaft time")
+    print("lead-in at 60 rpm: all of it at the capture's point (at-point); the others add the"
+          f" ramp to 60 rpm at {RAMP_RPM_S:g} rpm/s and {opts.settle_s:g} s at 60 rpm to their shaft time")
     assert math.isfinite(sum(r["pp"] for rs in rows.values() for r in rs))
 
 
