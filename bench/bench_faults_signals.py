@@ -153,8 +153,9 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
                      and not _crc_out_before(stopped, message))
     after_end = sent and db_written is not None and db_written < sent_at.timestamp()
     ignored = sent and not after_end and (rc in (0, 1) or flashed_after)
+    flash_step = _flash_step(message)
     return SignalTrial(window, sig.name, delay_s, rc, seconds, "Traceback" in err, ignored, n_records < 1,
-                       unsafe, sent, f"flash ({_flash_step(message)})" if _flash_step(message) else stopped, after_end)
+                       unsafe, sent, f"flash ({flash_step})" if flash_step else stopped, after_end)
 
 
 #: the calibrated flash's steps from its CRC on (eol_cal.ecu.sequence): a signal there came after

@@ -54,15 +54,14 @@ def one(spec: PlantSpec, block: ParamBlock, lead_rpm: float, mode: str, settle_a
     settle = block_settle_s(block, lead_rpm)
     if lead_rpm == CAPTURE_RPM:  # the station today: the lead-in is the pre-roll at the capture's point
         profile = Profile("lead-in", (ProfileSegment(CAPTURE_RPM, CAPTURE_S, iq=I_QO_A),))
-        lead_s, skip_s = settle, 0.0
-        result = simulate(spec, profile, mode=mode, blocks=block, pre_roll_s=settle, seed=1)[0]
+        lead_s = settle
     else:
         ramp = abs(lead_rpm - CAPTURE_RPM) / RAMP_RPM_S
         skip_s = ramp + settle_at_point_s
         lead_s = settle + skip_s
         profile = Profile("lead-in", (ProfileSegment(lead_rpm, 1e-3, iq=I_QO_A),
                                       ProfileSegment(CAPTURE_RPM, skip_s + CAPTURE_S, iq=I_QO_A, ramp_s=ramp)))
-        result = simulate(spec, profile, mode=mode, blocks=block, pre_roll_s=settle, seed=1)[0]
+    result = simulate(spec, profile, mode=mode, blocks=block, pre_roll_s=settle, seed=1)[0]
     cap = result.capture
     keep = cap.t >= cap.t[-1] - CAPTURE_S + 0.5 / spec.motor.f_pwm
     err = np.degrees(wrap_pi(np.asarray(result.theta_hat)[keep] - np.asarray(result.theta_r)[keep]))

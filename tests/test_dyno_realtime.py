@@ -233,6 +233,21 @@ def test_the_client_reads_the_buffer_while_the_shaft_turns(regmap):
         assert [len(w.channels["torque"]) for w in data] == [3000, 2000]
 
 
+def _log_window_reads(sim: DynoSim, regmap) -> list[tuple[int, int, int]]:
+    """From now on, each window of samples the simulator answers: (capture, first sample, last
+    sample + 1), appended to the list returned."""
+    reads: list[tuple[int, int, int]] = []
+    window_words = sim.window_words
+
+    def logged(channel, offset, lo, hi):
+        per = regmap.regs_per_sample(channel)
+        reads.append((sim.captures_started, offset + lo // per, offset + -(-hi // per)))
+        return window_words(channel, offset, lo, hi)
+
+    sim.window_words = logged
+    return reads
+
+
 def test_a_lead_in_is_recorded_but_never_read(regmap):
     """The lead-in (the ECU settling after its reset) is shaft time in front of the first capture:
     the dyno records it, the client reads only the samples after it."""
@@ -242,15 +257,7 @@ def test_a_lead_in_is_recorded_but_never_read(regmap):
     with DynoSimThread(DynoSim(lambda req: captures.append(synthetic_source(req)) or captures[-1], serial="M-LEAD",
                                register_map=regmap, realtime=True)) as thread:
         sim = thread.sim
-        reads: list[tuple[int, int, int]] = []  # (capture, first sample, last sample + 1) of each window read
-        window_words = sim.window_words
-
-        def logged(channel, offset, lo, hi):
-            per = regmap.regs_per_sample(channel)
-            reads.append((sim.captures_started, offset + lo // per, offset + -(-hi // per)))
-            return window_words(channel, offset, lo, hi)
-
-        sim.window_words = logged
+        reads = _log_window_reads(sim, regmap)
         client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
         data, _ident = run_profile(client, segments, RATE, lead_in_s=0.25)
     first = captures[0]
@@ -274,15 +281,7 @@ def test_a_lead_in_point_is_turned_first_and_never_read(regmap):
     with DynoSimThread(DynoSim(lambda req: requests.append(req) or synthetic_source(req), serial="M-POINT",
                                register_map=regmap, realtime=True)) as thread:
         sim = thread.sim
-        reads: list[tuple[int, int, int]] = []
-        window_words = sim.window_words
-
-        def logged(channel, offset, lo, hi):
-            per = regmap.regs_per_sample(channel)
-            reads.append((sim.captures_started, offset + lo // per, offset + -(-hi // per)))
-            return window_words(channel, offset, lo, hi)
-
-        sim.window_words = logged
+        reads = _log_window_reads(sim, regmap)
         t0 = time.monotonic()
         data, _ident = run_profile(DynoClient(DynoConfig(port=thread.port, register_map=regmap)), segments, RATE,
                                    lead_in_s=0.05, lead_in_point=point)

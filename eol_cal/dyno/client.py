@@ -572,10 +572,6 @@ def run_profile(
         ramp_s = client.set_point(segments[0] if lead_in_point is None else lead_in_point, wait=False)
         stopping = False
 
-        def to_first_point(st: dict) -> None:
-            nonlocal ramp_s
-            ramp_s = client.set_point(segments[0], wait=False, status=st)
-
         def next_point(i: int, st: dict) -> None:
             # the capture is ready: the shaft goes on to the next point (or stops) while the
             # buffer's last samples are read
@@ -597,7 +593,8 @@ def run_profile(
                 if progress:
                     progress(f"lead-in: {lead_in_point.speed_rpm:g} rpm", 0, len(segments))
                 n_point = lead_point_samples(lead_in_point, rate_hz)
-                client.record(n_point, rate_hz, channels, None, ramp_s, skip=n_point - 1, on_ready=to_first_point)
+                client.record(n_point, rate_hz, channels, None, ramp_s, skip=n_point - 1,
+                              on_ready=functools.partial(next_point, -1))  # on to the first point
                 client.check_faults(client.status(), "the lead-in")
             t_start = time.monotonic() + lead / rate_hz
             chans = client.record(n + lead, rate_hz, channels, progress, ramp_s, skip=lead,
@@ -759,7 +756,7 @@ def acquire(
     if lead_in_point is not None:
         meta |= {"lead_in_point_rpm": float(lead_in_point.speed_rpm),
                  "lead_in_point_s": lead_point_samples(lead_in_point, rate_hz) / rate_hz}
-    capture = assemble(data, ident, serial, meta if meta else extra_metadata)
+    capture = assemble(data, ident, serial, meta)
     from eol_cal.capture import validate, write_capture
 
     capture = validate(capture)
