@@ -142,8 +142,10 @@ def test_a_source_slower_than_real_time_holds_the_samples_back(regmap):
         thread.stop()
 
 
-def _in_pieces(pieces: int, seconds_each: float):
-    """A source slower than real time that hands over its recording in ``pieces`` as it computes it."""
+def _in_pieces(pieces: int, seconds_each: float, before_last=lambda: None):
+    """A source slower than real time that hands over its recording in ``pieces`` as it computes it.
+
+    ``before_last`` is called before the source returns the whole recording."""
 
     def source(req):
         whole = synthetic_source(req)
@@ -153,6 +155,7 @@ def _in_pieces(pieces: int, seconds_each: float):
             m = n * k // pieces
             req.partial(dataclasses.replace(whole, t=whole.t[:m], channels={c: v[:m] for c, v in whole.channels.items()}))
         time.sleep(seconds_each)
+        before_last()
         return whole
 
     return source
@@ -162,7 +165,18 @@ def test_a_source_slower_than_real_time_that_hands_over_pieces_is_read_as_they_c
     # 0.3 s of capture, computed in 0.6 s: what the source handed over is answered while it computes
     # the rest, as the shaft turns it out, never earlier; the stream reads it then, not all at the end
     segments = [DynoSetpoint(60.0, 0.3, iq=10.0)]
-    sim = DynoSim(_in_pieces(6, 0.1), serial="M-PIECES", register_map=regmap, realtime=True)
+    sims: list[DynoSim] = []
+
+    def until_a_piece_was_read():
+        # what is checked is that the stream reads the pieces while the source computes; with a
+        # fixed 0.6 s that was a race with the machine's load (CI at load 10-16 saw no early read),
+        # so the source holds its last piece until a read came. The bound is only a hang guard.
+        end = time.monotonic() + 120.0
+        while sims[0].captures[-1].early_reads == 0 and time.monotonic() < end:
+            time.sleep(0.01)
+
+    sim = DynoSim(_in_pieces(6, 0.1, until_a_piece_was_read), serial="M-PIECES", register_map=regmap, realtime=True)
+    sims.append(sim)
     with DynoSimThread(sim) as thread:
         client = DynoClient(DynoConfig(port=thread.port, register_map=regmap))
         data, _ident = run_profile(client, segments, RATE)
