@@ -17,10 +17,9 @@ baseline, need no migration for it.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -32,7 +31,7 @@ from sqlalchemy.engine import Connection
 from eol_cal.errors import InputError
 from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line
-from eol_cal.station.records import DB_ERRORS, SchemaError, db_label, engine, is_url, one_line
+from eol_cal.station.records import SchemaError, connected, db_label
 
 #: the layout of the baseline tables this code writes
 BASELINE_SCHEMA_VERSION = 1
@@ -191,32 +190,14 @@ def ensure_tables(con: Connection) -> tuple[int | None, int]:
 
 def migrate(db: str | Path) -> tuple[int | None, int]:
     """Bring the baseline tables of a records database to :data:`BASELINE_SCHEMA_VERSION`."""
-    with _connect(db, False, "migrate the baseline tables") as con, con.begin():
+    with connected(db, False, "migrate the baseline tables") as con, con.begin():
         return ensure_tables(con)
-
-
-@contextlib.contextmanager
-def _connect(db: str | Path, readonly: bool, what: str) -> Iterator[Connection]:
-    """A connection to an existing records database (a missing SQLite file is refused, not made);
-    a database error inside is an :class:`InputError` saying what could not be done."""
-    if not is_url(db) and not Path(db).exists():
-        raise InputError(str(db), None, "database not found")
-    try:
-        eng = engine(db, readonly=readonly)
-        try:
-            with eng.connect() as con:
-                yield con
-        finally:
-            if not is_url(db):
-                eng.dispose()
-    except DB_ERRORS as exc:
-        raise InputError(db_label(db), None, f"cannot {what}: {one_line(exc)}") from None
 
 
 def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
     """Store a baseline in one transaction (the tables made first when absent). A baseline of
     that name already there is refused unless ``replace``."""
-    with _connect(db, False, "store the baseline") as con, con.begin():
+    with connected(db, False, "store the baseline") as con, con.begin():
         ensure_tables(con)
         exists = con.execute(sa.select(baselines.c.name).where(baselines.c.name == baseline.name)).first()
         if exists and not replace:
@@ -238,7 +219,7 @@ def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
 
 def load(db: str | Path, name: str) -> Baseline:
     """The baseline ``name``; :class:`InputError` naming the ones there are when it is not there."""
-    with _connect(db, True, "read the baseline") as con:
+    with connected(db, True, "read the baseline") as con:
         if _version(con) is None:
             raise InputError(db_label(db), f"baseline {name!r}", "not found: the database holds no baselines "
                                                                   "(eol-cal lot baseline makes one)")
@@ -256,7 +237,7 @@ def load(db: str | Path, name: str) -> Baseline:
 
 def list_baselines(db: str | Path) -> list[dict[str, Any]]:
     """The baselines of a database (name, created_at, filters, min_n, runs), by name."""
-    with _connect(db, True, "read the baselines") as con:
+    with connected(db, True, "read the baselines") as con:
         if _version(con) is None:
             return []
         return [dict(r) for r in con.execute(sa.select(baselines).order_by(baselines.c.name)).mappings()]
