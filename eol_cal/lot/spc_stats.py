@@ -8,8 +8,8 @@ Over a :class:`eol_cal.lot.columns.Lot` (display units), with the definitions of
 - :func:`circular_figures`: a phase's circular mean, circular sd and histogram on the circle.
 - :func:`control_limits`: the individuals / moving-range limits of the charted quantities per
   station, gated by the minimum n.
-- :func:`judge_lot`: each variant and station's runs against a frozen baseline: the Western
-  Electric rules that fire, with the runs, and the lines judged against.
+- :func:`judge_lot`: each variant and station's runs against a frozen baseline: Nelson's
+  rules that fire, with the runs, and the lines judged against.
 """
 
 from __future__ import annotations
@@ -131,7 +131,7 @@ def judge_lot(lot: Lot, baseline: Baseline, quantities: Iterable[Quantity]) -> t
                 judged.append({**head, "runs": n, **{f"baseline_{k}" if k == "n" else k: v for k, v in doc.items()}})
                 for v in judge(x, line, q.key):
                     pos = idx[list(v.runs)]
-                    violations.append({"rule": v.rule, "text": v.text, "side": "above" if v.side > 0 else "below",
+                    violations.append({"rule": v.rule, "text": v.text, "side": v.side_word,
                                        **head, "runs": lot.run_id[pos].tolist(), "serials": lot.serial[pos].tolist(),
                                        "started_at": lot.started_at[pos].tolist(),
                                        "values": [float(y) for y in lot.display(q)[pos]], "index": pos.tolist()})

@@ -76,7 +76,7 @@ def gate_in_force(db: str | Path, station: str | None, settings: MasterSettings 
     try:
         cur = current(db, station, timeout_s)
     except InputError as exc:
-        raise MasterGateClosed("master_due", f"master check of station {station}: {exc.reason}") from None
+        raise MasterGateClosed("master_due", f"master check of station {station}: {exc}") from None
     if cur is None:
         if settings is None:
             return None
@@ -86,7 +86,7 @@ def gate_in_force(db: str | Path, station: str | None, settings: MasterSettings 
             made = change(db, station, settings, set_by=f"settings {settings.source}",
                           note="the station's [master] settings, recorded by its first run")
         except InputError as exc:
-            raise MasterGateClosed("master_due", f"master check of station {station}: {exc.reason}") from None
+            raise MasterGateClosed("master_due", f"master check of station {station}: {exc}") from None
         return Gate(settings, made)
     if settings is not None and (cur.master is None or rules_document(cur.master) != rules_document(settings)):
         held = "no gate (cleared)" if cur.master is None else "other rules"
