@@ -191,3 +191,19 @@ def test_run_without_the_settings_file_cannot_skip_the_stations_gate(tmp_path):
     assert rec["kind"] == "refusal" and rec["refusal_codes"] == ["master_due"]
     assert [s["step"] for s in rec["steps"]][0] == "master check"
     assert rec["gate"]["seq"] == 1 and rec["gate"]["rules"]["serial"] == "M-MASTER" and rec["gate"]["master_run"] is None
+
+
+def test_a_failed_master_runs_report_shows_the_failed_check_beside_its_limits(tmp_path):
+    """A failed master's report showed every limit PASS under a FAIL verdict; now its checks
+    against the references are on it, the failing one FAIL."""
+    from eol_cal.report.motor import render_motor_report
+
+    rec = _master_run("2026-11-22T10:00:00.000+00:00", 1)
+    bad = MasterCheck("k6", "mN*m/A", 0.63, 0.90, 0.05, -0.27, False)
+    rec = dataclasses.replace(rec, verdict="fail", reasons=(str(bad.reason),),
+                              gate=dataclasses.replace(rec.gate, checks=(bad,)))
+    html = render_motor_report(rec, [])
+    assert 'id="master-checks"' in html and html.count('class="master-check-row"') == 1
+    row = html[html.index('class="master-check-row"'):]
+    assert "0.9" in row[:400] and "status-FAIL" in row[:600]
+    assert "rules #1 of station EOL-1" in html
