@@ -62,9 +62,11 @@ def test_gate_rules_are_set_changed_and_cleared_by_command_each_change_a_row(rec
 
 
 @pytest.mark.parametrize("extra", [
-    ("--every-h", "nan"), ("--every-h", "0"), ("--every-h", "1e9"), ("--shifts", "25:00"), ("--every-h", "8", "--shifts", "06:00"),
+    ("--every-h", "nan"), ("--every-h", "0"), ("--every-h", "1e9"), ("--shifts", "25:00"),
+    ("--every-h", "8", "--shifts", "06:00"),
     ("--every-h", "8", "--timezone", "Mars/Olympus"), ("--every-h", "8", "--tolerance", "c6=0.1"),
-    ("--every-h", "8", "--reference", "k6=-1"), ("--every-h", "8", "--reference", "phase_k6=10", "--tolerance", "phase_k6=200"),
+    ("--every-h", "8", "--reference", "k6=-1"),
+    ("--every-h", "8", "--reference", "phase_k6=10", "--tolerance", "phase_k6=200"),
     ("--every-h", "8", "--reference", "volts=3"), ("--every-h", "8", "--tolerance", "k6=-0.05"),
 ])
 def test_every_rule_value_is_checked_like_a_setting(tmp_path, extra):

@@ -156,7 +156,7 @@ def instant(text: str, name: str, end: bool = False) -> dt.datetime:
     return t.astimezone(dt.UTC)
 
 
-def _started(texts: Sequence[str]) -> np.ndarray:
+def _started(texts: Sequence[str] | np.ndarray) -> np.ndarray:
     """Start times as aware UTC instants (no offset: UTC, as the lot reads them)."""
     out = []
     for t in texts:
@@ -353,7 +353,7 @@ def _stored_number(x: Any, where: str, key: str, positive: bool = False) -> floa
     return float(x)
 
 
-def _line_of_row(r: Mapping[str, Any], where: str) -> ControlLine:
+def _line_of_row(r: Any, where: str) -> ControlLine:
     """A stored line, checked: a known quantity, n a count, centre, sigma > 0 and MRbar > 0 all
     there or all absent (then a reason says why), a phase flagged as one."""
     key = r["quantity"]
@@ -396,7 +396,7 @@ def _heads(v: int) -> sa.Select:
     return sa.select(*(c for c in baselines.c if c.name not in _ADDED[2]))
 
 
-def _head(row: Mapping[str, Any]) -> dict[str, Any]:
+def _head(row: Any) -> dict[str, Any]:
     """A ``baselines`` row with the columns of layout 2 as a layout-1 baseline means them
     (production runs; its one station, or all)."""
     head = dict(row)
