@@ -21,6 +21,7 @@ from eol_cal.msa.gate import Gate, MasterGateClosed, check_gate, gate_in_force
 from eol_cal.msa.master import MasterRun, master_due, master_settings
 from eol_cal.msa.rules import change, current, history
 from eol_cal.station.record import GateInfo, MasterCheck
+from eol_cal.schemas import SCHEMA_FILES, validator
 from eol_cal.station.records import engine, insert_records
 
 NOW = dt.datetime(2026, 11, 22, 12, 0, tzinfo=dt.UTC)
@@ -59,6 +60,14 @@ def test_gate_rules_are_set_changed_and_cleared_by_command_each_change_a_row(rec
     assert changes[0].note == "first rules" and changes[0].master == MASTER
     assert CliRunner().invoke(cli, ["gate", "show", "--db", str(records_db), "--station", "EOL-1"]).exit_code == 1
     assert current(records_db, "EOL-2") is None  # another station has no rules
+    # every --json document of the gate's commands as its schema says
+    for args in (["show", "--station", "EOL-1"], ["history"], ["admitted", "--serial", "M-MASTER"],
+                 ["clear", "--station", "EOL-2", "--by", "qe", "--note", "n"],
+                 ["set", "--station", "EOL-2", "--serial", "M-2", "--reference", "phase_k6=10", "--tolerance",
+                  "phase_k6=2", "--shifts", "06:00,14:00", "--timezone", "Europe/Berlin", "--by", "qe"]):
+        res = CliRunner().invoke(cli, ["gate", args[0], "--db", str(records_db), *args[1:], "--json"])
+        doc = json.loads(res.stdout)
+        validator(SCHEMA_FILES[doc["schema"]]).validate(doc)
 
 
 @pytest.mark.parametrize("extra", [

@@ -11,12 +11,17 @@ unknown kinds). Register with ``BUILDERS.update(GATE_BUILDERS)`` (bench/bench_fa
 
 from __future__ import annotations
 
+import json
 import sqlite3
 import tempfile
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from eol_cal.fuzz.scenarios import FIXTURES, Scenario
+from eol_cal.lot.baseline import baseline_of_db, store
+from eol_cal.station.record import RunRecord
+from eol_cal.station.records import insert_records, migrate
 
 _SET = ["gate", "set", "--db", "{d}/records.sqlite", "--station", "EOL-1", "--by", "qe"]
 _GOOD = {"--serial": "M-MASTER", "--reference": "k6=0.62", "--tolerance": "k6=0.05", "--every-h": "8"}
@@ -36,12 +41,6 @@ BAD_VALUES: dict[str, tuple[str, ...]] = {
 def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
     """A records database (``lot`` production runs of the demo's record on EOL-1, a baseline
     ``b`` of them), then ``statements`` run on it."""
-    import json
-    import uuid
-
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records, migrate
-
     doc = json.loads((FIXTURES / "run_record_demo.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.sqlite"
@@ -53,8 +52,6 @@ def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
             recs.append(RunRecord.from_json(d))
         insert_records(db, recs)
         if baseline:
-            from eol_cal.lot.baseline import baseline_of_db, store
-
             store(db, baseline_of_db(db, "b", {}, min_n=2))
         with sqlite3.connect(db) as con:
             for s in statements:

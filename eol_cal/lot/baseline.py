@@ -30,6 +30,7 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import loads_json
 from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line, natural_floor
 from eol_cal.station.record import MEASURED_KIND
@@ -329,8 +330,6 @@ def _opt_text(x: Any, where: str, key: str) -> str | None:
 def _stations(x: Any, where: str) -> list[str] | None:
     if x is None:
         return None
-    from eol_cal.inputs import loads_json
-
     got = loads_json(_text(x, where, "stations"), where, "stations")
     if not isinstance(got, list) or not got or not all(isinstance(s, str) for s in got):
         raise InputError(where, "stations", "not a JSON list of station ids")

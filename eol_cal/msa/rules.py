@@ -25,7 +25,9 @@ from typing import Any
 import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
+from eol_cal import __version__
 from eol_cal.errors import InputError
+from eol_cal.inputs import loads_json
 from eol_cal.msa.master import MASTER_QUANTITIES, MasterSettings, master_settings
 from eol_cal.station.records import DEFAULT_LOCK_TIMEOUT_S, SchemaError, connected, db_label, is_url
 
@@ -156,8 +158,6 @@ def change(db: str | Path, station: str, master: MasterSettings | None, set_by: 
 
         migrate_runs(db)  # a new database: the runs table too, as the first record would make it
     set_at = (now or dt.datetime.now(dt.UTC)).astimezone(dt.UTC).isoformat(timespec="milliseconds")
-    from eol_cal import __version__
-
     with connected(db, False, "change the gate rules") as con, con.begin():
         ensure_tables(con)
         last = con.execute(sa.select(sa.func.max(gate_rules.c.seq)).where(gate_rules.c.station == station)).scalar()
@@ -184,8 +184,6 @@ def _rules_of_row(db: str | Path, r: Any) -> GateRules:
         raise InputError(where, "set_at", f"{r['set_at']!r}: no UTC offset")
     master = None
     if r["action"] == "set":
-        from eol_cal.inputs import loads_json
-
         text = r["rules_json"]
         if not isinstance(text, str):
             raise InputError(where, "rules_json", "missing")
