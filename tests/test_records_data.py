@@ -145,3 +145,37 @@ def test_an_amplitudes_lcl_stops_at_the_natural_zero_and_says_so():
     assert line.center - 3 * line.sigma < 0 and line.lcl == 0.0 and "natural zero" in str(line.note)
     free = freeze_line(c6, min_n=25)  # a quantity without a natural bound keeps its LCL
     assert free.lcl < 0 and free.note is None
+
+
+def test_imr_charts_by_run_order_with_zone_lines_and_a_pareto_of_runs():
+    """The I-MR chart was drawn against clock time (runs close together stacked) without the
+    zones rules 5 and 6 count in; the Pareto counted codes on a fractional axis."""
+    from eol_cal.lot.page import control_figure, pareto_figure
+    from eol_cal.lot.stats import pareto_of
+
+    rng = np.random.default_rng(8)
+    # 30 runs within one second, then one a day later: by run order each is one step
+    times = [f"2026-11-02T08:00:00.{i:03d}+00:00" for i in range(30)] + ["2026-11-03T08:00:00.000+00:00"]
+    recs = [make_record(f"S-{i}", started=t, k6=float(6.2e-4 + 1e-5 * rng.standard_normal()))
+            for i, t in enumerate(times)]
+    fig, _titles = control_figure(recs, "EOL-1", None, min_n=25)
+    ax_i = fig.axes[0]
+    (points,) = [c for c in ax_i.collections if c.get_gid() == "i-k6"]
+    assert points.get_offsets()[:, 0].tolist() == list(range(1, 32))
+    gids = {line.get_gid() for line in ax_i.lines}
+    assert {"zone-k6-1+", "zone-k6-1-", "zone-k6-2+", "zone-k6-2-", "cl-k6-center", "cl-k6-ucl"} <= gids
+    # an amplitude whose centre - 3 sigma is below zero: the LCL at zero, said so, no zone below it
+    low = [make_record(f"L-{i}", started=t, pp_after=float(abs(0.05 + 0.08 * rng.standard_normal())) + 1e-3)
+           for i, t in enumerate(times)]
+    fig, _titles = control_figure(low, "EOL-1", None, min_n=25)
+    ax_pp = fig.axes[1]
+    lcl = [line.get_ydata()[0] for line in ax_pp.lines if line.get_gid() == "cl-pp_after_pct-lcl"]
+    assert lcl == [0.0] and any(t.get_gid() == "lcl-floor-pp_after_pct" for t in ax_pp.texts)
+    # Pareto by runs: a run naming two codes counts once in the cumulative share; whole runs on the axis
+    causes = pareto_of([["wrong_serial", "key_refused"], ["wrong_serial"], ["dyno_fault"]])
+    assert causes == [("wrong_serial", 2, pytest.approx(2 / 3)), ("dyno_fault", 1, pytest.approx(1.0)),
+                      ("key_refused", 1, pytest.approx(1.0))]
+    fig = pareto_figure(causes)
+    fig.canvas.draw()
+    ticks = [t for t in fig.axes[0].get_xticks() if t >= 0]
+    assert ticks and all(float(t).is_integer() for t in ticks)
