@@ -217,8 +217,8 @@ def master_due(now: dt.datetime, last: MasterRun | None, m: MasterSettings) -> s
     if m.every_h is not None:
         age_h = (now - last.started_at).total_seconds() / 3600.0
         if age_h > m.every_h:
-            return (f"master check due: the last passing run of {m.serial} was {duration(age_h)} ago ({when}; "
-                    f"every {duration(m.every_h)})")
+            period = f"{m.every_h:g} h" if m.every_h >= 1.0 else duration(m.every_h)
+            return f"master check due: the last passing run of {m.serial} was {duration(age_h)} ago ({when}; every {period})"
         return None
     start = shift_start(now, m)
     if last.started_at < start:
