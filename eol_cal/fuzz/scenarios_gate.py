@@ -47,8 +47,11 @@ def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
         migrate(db)
         recs = []
         for i in range(lot):
-            d = {**doc, "run_id": uuid.uuid4().hex, "serial": f"S-{i}", "started_at": f"2026-11-02T08:{i:02d}:00.000+00:00",
-                 "station": {**doc["station"], "id": "EOL-1"}}
+            d = json.loads(json.dumps(doc))  # each run its own copy, with a spread in k6 and the phases
+            d.update(run_id=uuid.uuid4().hex, serial=f"S-{i}", started_at=f"2026-11-02T08:{i:02d}:00.000+00:00",
+                     station={**doc["station"], "id": "EOL-1"})
+            for key, step in (("k6", 1e-5), ("phase_k6", 0.01), ("c6", 1e-5), ("phase_c6", 0.01)):
+                d["fit"][key]["value"] += step * ((i * 7) % 5 - 2)
             recs.append(RunRecord.from_json(d))
         insert_records(db, recs)
         if baseline:
@@ -159,7 +162,7 @@ def baseline_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         "wall time without offset": ["--since", "2026-11-02T08:00"], "not a time": ["--since", "yesterday"],
         "until before since": ["--since", "2026-11-03", "--until", "2026-11-01"],
         "empty period": ["--since", "2026-11-02T08:00Z", "--until", "2026-11-02T08:00Z"],
-        "no runs of the kind": ["--kind", "master"], "every kind": ["--kind", "all"], "unknown kind": ["--kind", "x"],
+        "no runs of the kind": ["--kind", "master"], "every kind": ["--kind", "all"],
         "unknown station": ["--station", "EOL-9"], "too few runs": ["--min-n", "1000"],
         "name blank": ["--name", " "], "name control": ["--name", "b\x1b[2J"],
         "day 31 Nov": ["--until", "2026-11-31"], "offset 25 h": ["--since", "2026-11-02T08:00+25:00"],

@@ -33,7 +33,7 @@ from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
 from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line, natural_floor
-from eol_cal.station.record import MEASURED_KIND
+from eol_cal.station.record import KINDS, MEASURED_KIND
 from eol_cal.station.records import SchemaError, connected, db_label
 
 #: the layout of the baseline tables this code writes (2: the run kind and the stations chosen)
@@ -312,8 +312,10 @@ def load(db: str | Path, name: str) -> Baseline:
     where = f"{db_label(db)}, baseline {name!r}"
     lines = {(r["quantity"], r["variant"], r["station"]): _line_of_row(r, where) for r in rows}
     filters: dict[str, Any] = {k: _opt_text(head[k], where, k) for k in FILTER_KEYS}
+    if filters["kind"] is not None and filters["kind"] not in KINDS:
+        raise InputError(where, "kind", f"{filters['kind']!r}: not a run kind ({', '.join(KINDS)})")
     filters["stations"] = _stations(head["stations"], where)
-    return Baseline(head["name"], _text(head["created_at"], where, "created_at"), filters,
+    return Baseline(head["name"], _time(head["created_at"], where, "created_at"), filters,
                     _count(head["min_n"], where, "min_n", 2), _count(head["runs"], where, "runs", 0), lines)
 
 
@@ -321,6 +323,17 @@ def _text(x: Any, where: str, key: str) -> str:
     if not isinstance(x, str):
         raise InputError(where, key, f"{x!r}: not a text")
     return x
+
+
+def _time(x: Any, where: str, key: str) -> str:
+    """A stored time: ISO 8601 with its UTC offset (as eol-cal writes it)."""
+    try:
+        t = dt.datetime.fromisoformat(_text(x, where, key))
+    except ValueError:
+        t = None
+    if t is None or t.tzinfo is None:
+        raise InputError(where, key, f"{x!r}: not an ISO 8601 time with its offset")
+    return str(x)
 
 
 def _opt_text(x: Any, where: str, key: str) -> str | None:
