@@ -30,6 +30,7 @@ from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
 from eol_cal.msa.master import MASTER_QUANTITIES, MasterSettings, master_settings
 from eol_cal.station.records import DEFAULT_LOCK_TIMEOUT_S, SchemaError, connected, db_label, is_url
+from eol_cal.station.records import migrate as migrate_runs
 
 #: the layout of the gate tables this code writes
 GATE_SCHEMA_VERSION = 1
@@ -154,9 +155,12 @@ def change(db: str | Path, station: str, master: MasterSettings | None, set_by: 
     the tables are made when absent (a new SQLite file too). Returns the change."""
     station = _station(station)
     if not is_url(db) and not Path(db).exists():
-        from eol_cal.station.records import migrate as migrate_runs
-
         migrate_runs(db)  # a new database: the runs table too, as the first record would make it
+    else:
+        with connected(db, True, "read the records database", DEFAULT_LOCK_TIMEOUT_S) as con:
+            empty = not sa.inspect(con).has_table("runs")
+        if empty:  # a new server database: likewise (an existing one is left at its version)
+            migrate_runs(db)
     set_at = (now or dt.datetime.now(dt.UTC)).astimezone(dt.UTC).isoformat(timespec="milliseconds")
     with connected(db, False, "change the gate rules") as con, con.begin():
         ensure_tables(con)
