@@ -201,10 +201,9 @@ def _circle_histogram(ax: Any, theta: np.ndarray) -> None:
 def control_figure(records: Sequence[RunRecord], station: str,
                    limits: dict[str, dict[str, float]] | None = None, min_n: int = DEFAULT_MIN_N,
                    marks: dict[str, dict[str, str]] | None = None) -> tuple[MplFigure, dict[str, list[str]]]:
-    """Individuals and moving-range charts of :data:`CHARTED` by run order (the station's runs in
-    time order, one step each: runs minutes apart do not stack up, runs days apart do not spread
-    out), for one station, with the centre line, the 3-sigma limits and the 1- and 2-sigma zone
-    lines Nelson's rules 5 and 6 count in (an amplitude's LCL held at zero, said so).
+    """Individuals and moving-range charts of :data:`CHARTED` by run order (one step a run: runs
+    seconds apart do not stack up), for one station, with the centre line, the 3-sigma limits and
+    the 1- and 2-sigma zone lines of Nelson's rules 5 and 6 (an amplitude's LCL held at zero).
 
     Parameters
     ----------
@@ -297,18 +296,16 @@ def control_figure(records: Sequence[RunRecord], station: str,
 
 
 def _zones(ax: Any, key: str, lim: dict[str, float], floor: float | None) -> None:
-    """The 1- and 2-sigma zone lines about the centre (sigma = (UCL - centre) / 3), where the
-    quantity can take them; an LCL held at the natural zero is labelled so."""
-    center, ucl, lcl = lim.get("center"), lim.get("ucl"), lim.get("lcl")
+    """The 1- and 2-sigma zone lines (sigma = (UCL - centre) / 3) the quantity can take; an LCL
+    held at the natural zero is labelled so."""
+    center, ucl = lim.get("center"), lim.get("ucl")
     if center is None or ucl is None or not (math.isfinite(center) and math.isfinite(ucl)):
         return
     sigma = (ucl - center) / 3.0
-    for k in (1, 2):
-        for side in (1, -1):
-            v = center + side * k * sigma
-            if floor is None or v >= floor:
-                ax.axhline(v, color="0.55", ls=":", lw=0.8, gid=f"zone-{key}-{k}{'+' if side > 0 else '-'}")
-    if floor is not None and lcl is not None and center - 3.0 * sigma < floor:
+    for k, side in ((1, 1), (1, -1), (2, 1), (2, -1)):
+        if floor is None or center + side * k * sigma >= floor:
+            ax.axhline(center + side * k * sigma, color="0.55", ls=":", lw=0.8, gid=f"zone-{key}-{k}{'+-'[side < 0]}")
+    if floor is not None and center - 3.0 * sigma < floor:
         ax.text(0.01, 0.03, "LCL at the natural zero (centre - 3 sigma < 0)", transform=ax.transAxes, fontsize=6,
                 color="tab:red", gid=f"lcl-floor-{key}")
 
@@ -477,25 +474,15 @@ def _control(name: str, runs: list[RunRecord], doc: dict[str, Any], baseline: Ba
 
 
 def _fmt(x: float | None, digits: int = 4) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return f"{float(x):.{digits}g}"
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{float(x):.{digits}g}"
 
 
 def select_records(records: Sequence[RunRecord], variant: str | None = None, since: dt.date | None = None,
                    until: dt.date | None = None, station: str | None = None) -> list[RunRecord]:
     """The records of one variant, station and UTC day range (``until`` inclusive)."""
-    out = []
-    for r in records:
-        day = run_time(r).date()
-        if variant is not None and (r.limits is None or r.limits.variant != variant):
-            continue
-        if station is not None and r.station_label != station:
-            continue
-        if (since is not None and day < since) or (until is not None and day > until):
-            continue
-        out.append(r)
-    return out
+    return [r for r in records if (variant is None or (r.limits is not None and r.limits.variant == variant))
+            and (station is None or r.station_label == station) and (since is None or run_time(r).date() >= since)
+            and (until is None or run_time(r).date() <= until)]
 
 
 def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str,
