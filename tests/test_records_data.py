@@ -179,3 +179,15 @@ def test_imr_charts_by_run_order_with_zone_lines_and_a_pareto_of_runs():
     fig.canvas.draw()
     ticks = [t for t in fig.axes[0].get_xticks() if t >= 0]
     assert ticks and all(float(t).is_integer() for t in ticks)
+
+
+def test_statistics_of_a_database_without_the_tables_are_refused_in_one_line(records_db, tmp_path):
+    """On PostgreSQL `lot baseline` of an empty database gave a psycopg traceback (SQLite: one line)."""
+    if "://" not in str(records_db):
+        import sqlite3
+
+        sqlite3.connect(records_db).close()  # an empty file
+    for args in (["lot", "baseline", "--name", "b"], ["lot", "stats"], ["msa", "type1", "--serial", "M"]):
+        res = CliRunner().invoke(cli, [*args[:2], "--db", str(records_db), *args[2:]])
+        assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
+        assert "Traceback" not in res.output and "no runs table" in res.output, res.output

@@ -93,7 +93,10 @@ def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_
                     con = con.execution_options(isolation_level="REPEATABLE READ")
                 refuse_foreign(con)
                 v = version_of(con)
-                if v is not None and v < min_version:
+                if v is None:  # the driver's own cursor below would meet a missing table with its own error
+                    raise InputError(db_label(db), None, "no records: the database has no runs table (eol-cal records "
+                                                         "migrate creates one)")
+                if v < min_version:
                     raise SchemaError(f"records database at schema version {v}, this needs version "
                                       f"{min_version}: migrate it first")
                 results = [_fetch(con, q) for q in queries]
