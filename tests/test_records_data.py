@@ -191,3 +191,20 @@ def test_statistics_of_a_database_without_the_tables_are_refused_in_one_line(rec
         res = CliRunner().invoke(cli, [*args[:2], "--db", str(records_db), *args[2:]])
         assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
         assert "Traceback" not in res.output and "no runs table" in res.output, res.output
+
+
+def test_a_layout_1_baseline_reads_as_production_of_its_station_and_migrates(records_db):
+    from eol_cal.lot.baseline import load
+
+    _lot(records_db, 30)
+    run = CliRunner().invoke
+    assert run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "b", "--station", "EOL-1"]).exit_code == 0
+    _exec(records_db, "ALTER TABLE baselines DROP COLUMN kind", "ALTER TABLE baselines DROP COLUMN stations",
+          "UPDATE baseline_schema_version SET version = 1")
+    old = load(records_db, "b")  # read as layout 1 meant it
+    assert old.filters["kind"] == "production" and old.filters["stations"] == ["EOL-1"]
+    res = run(cli, ["records", "migrate", "--db", str(records_db)])
+    assert res.exit_code == 0 and "baseline tables migrated from version 1 to layout version 2" in res.output, res.output
+    assert load(records_db, "b").filters == old.filters
+    res = run(cli, ["lot", "stats", "--db", str(records_db), "--baseline", "b", "--json"])
+    assert res.exit_code in (0, 1) and json.loads(res.stdout)["baseline"]["name"] == "b"
