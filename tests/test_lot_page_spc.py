@@ -1,6 +1,6 @@
 """The lot page with SPC in headless Chromium: n and the minimum n, capability per variant and
 station, the phases on the circle, a frozen baseline drawn on the control charts and the runs
-that break a Western Electric rule listed and ringed."""
+that break one of Nelson's rules listed and ringed."""
 
 from __future__ import annotations
 
