@@ -97,7 +97,7 @@ def _fmt(x, digits: int = 4) -> str:
 @lot_filters
 @min_n_option
 @click.option("--baseline", "baseline_name", default=None, metavar="NAME",
-              help="Judge the runs against this stored baseline (eol-cal lot baseline): Western Electric rules 1-4; "
+              help="Judge the runs against this stored baseline (eol-cal lot baseline): Nelson's rules 1, 2, 3, 5, 6; "
                    "exit 1 when one fires.")
 @click.option("--quantity", "judged", multiple=True, metavar="KEY",
               help="A quantity to judge against the baseline (repeat) [default: k6, pp_after_pct].")
@@ -213,7 +213,7 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
         b = doc["baseline"]
         console.print(f"baseline {b['name']!r} ({b['created_at'][:19]} UTC, {b['runs']} runs, "
                       f"{b['filters'].get('since') or 'any'} .. {b['filters'].get('until') or 'any'})")
-        t = Table(title="run rules against the baseline (Western Electric 1-4)")
+        t = Table(title="run rules against the baseline (Nelson 1, 2, 3, 5, 6)")
         for col in ("quantity", "variant", "station", "rule", "runs"):
             t.add_column(col)
         for v in doc["violations"]:
@@ -227,25 +227,37 @@ def _print_stats(label: str, doc: dict, kind: str) -> None:
 
 
 @lot_group.command("baseline")
-@lot_filters
+@click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @click.option("--name", required=True, help="The baseline's name (lot stats --baseline NAME).")
+@click.option("--since", default=None, metavar="TIME",
+              help="Only runs started at or after this instant: an ISO 8601 time with its offset "
+                   "(2026-11-22T06:00+01:00, ...Z) or a UTC day YYYY-MM-DD (from its start).")
+@click.option("--until", default=None, metavar="TIME",
+              help="Only runs started before this instant (a UTC day YYYY-MM-DD: to its end).")
+@click.option("--variant", default=None, help="Only this product variant.")
+@click.option("--station", "stations", multiple=True, help="Only this station (repeat for several) [default: all].")
+@kind_option("the runs the baseline is made of (simulated: a lot simulate's what-if lot, with --station sim:NAME).")
 @min_n_option
 @click.option("--replace", is_flag=True, help="Replace a baseline of that name.")
 @click.option("--json", "as_json", is_flag=True, help="Print the stored baseline as JSON.")
 @handle_errors
-def baseline_cmd(db, name, since, until, variant, station, min_n, replace, as_json) -> None:
+def baseline_cmd(db, name, since, until, variant, stations, kind, min_n, replace, as_json) -> None:
     """Freeze centre lines and control limits per quantity, variant and station from the runs of
-    a period, and store them in the database: later `lot stats --baseline NAME` judges new runs
-    against them (docs/spc.md). Groups with fewer than --min-n runs get no limits (the reason is
-    stored)."""
+    a period (instants, not only days), of one kind, of one or more stations, and store them in
+    the database: later `lot stats --baseline NAME` judges new runs against them (docs/spc.md).
+    Groups with fewer than --min-n runs get no limits, nor phases spread round the circle (the
+    reason is stored); an amplitude's LCL stops at zero (said so)."""
     from cli.common import print_json
     from eol_cal.errors import InputError
-    from eol_cal.lot.baseline import baseline_document, baseline_of_db, store
+    from eol_cal.lot.baseline import baseline_document, baseline_of_db, instant, store
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.station.records import db_label
 
-    first, last = parse_date(since, "since"), parse_date(until, "until")
-    filters = dict(since=first and first.isoformat(), until=last and last.isoformat(), variant=variant, station=station)
+    if kind == "all":
+        raise InputError(None, "--kind", "a baseline is of one kind of runs (production, master, simulated...)")
+    filters = dict(since=None if since is None else instant(since, "--since"),
+                   until=None if until is None else instant(until, "--until", end=True),
+                   variant=variant, stations=tuple(dict.fromkeys(stations)) or None, kind=kind)
     min_n = DEFAULT_MIN_N if min_n is None else min_n
     b = baseline_of_db(db, name, filters, min_n)
     if all(line.center is None for line in b.lines.values()):
@@ -258,12 +270,14 @@ def baseline_cmd(db, name, since, until, variant, station, min_n, replace, as_js
         return
     from rich.table import Table
 
-    t = Table(title=f"baseline {name}: {b.runs} run(s), min n {min_n}")
+    t = Table(title=f"baseline {name}: {b.runs} {kind} run(s), min n {min_n}")
     for col in ("quantity", "unit", "variant", "station", "n", "centre", "sigma", "LCL", "UCL"):
         t.add_column(col, justify="left" if col in ("quantity", "unit", "variant", "station") else "right")
     for line in doc["lines"]:
         figures = ([_fmt(line[k]) for k in ("center", "sigma", "lcl", "ucl")] if line["reason"] is None
                    else [line["reason"], "", "", ""])
+        if line["note"]:
+            figures[2] += " (0: natural zero)"
         t.add_row(line["quantity"], line["unit"], line["variant"], line["station"], str(line["n"]), *figures)
     console.print(t)
     console.print(f"stored in {db_label(db)} as {name!r}")

@@ -34,6 +34,7 @@ _COMMAND_MODULES: list[str] = [
     "dyno",
     "ecu",
     "fit",
+    "gate",
     "golden",
     "index",
     "lot",

@@ -78,11 +78,16 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     first, last = parse_date(since, "since"), parse_date(until, "until")
     sources = {key: "given" for key in refs}
     if reference_run is not None:
-        of_run = reference_of_run(read_runs(db, run_id=reference_run), reference_run)
+        of_run = reference_of_run(read_runs(db, run_id=reference_run), reference_run, serial)
         sources = {**{key: f"run {reference_run}" for key in of_run}, **sources}
         refs = {**of_run, **refs}
     lot = read_runs(db, serial=serial, since=first and first.isoformat(), until=last and last.isoformat(),
                     exclude=reference_run)
+    if not len(lot):
+        from eol_cal.errors import InputError
+
+        raise InputError(db_label(db), "--serial", f"no master or production run of {serial!r}"
+                         + (" in the days chosen" if since or until else "") + ": nothing to study")
     results = studies(lot, refs, tols, sources, l=l, min_n=min_n)
     doc = {**document(results, serial=serial, runs=lot, min_n=min_n), "db": db_label(db)}
     if out is not None:

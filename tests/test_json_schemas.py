@@ -21,10 +21,11 @@ from test_station_run import PROFILE, files, run_args, wait_stopped  # noqa: F40
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 #: the commands that take --json (cli/*.py), each run below
-#: (lot baseline needs 2 runs of a station at the least: validated in tests/test_lot_baseline.py)
+#: (lot baseline needs 2 runs of a station at the least: validated in tests/test_lot_baseline.py; the gate's
+#: commands: tests/test_gate_records.py)
 JSON_COMMANDS = {"index", "analyze", "fit", "table", "block show", "block check", "capture info", "simulate",
                  "acquire", "flash", "ecu info", "ecu restore", "run", "records", "lot stats", "lot diff",
-                 "lot baseline", "msa type1",
+                 "lot baseline", "msa type1", "gate set", "gate clear", "gate show", "gate history", "gate admitted",
                  "lot simulate"}  # lot simulate's and lot diff --lot's documents: tests/test_lot_simulate.py
 
 

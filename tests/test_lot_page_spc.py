@@ -1,6 +1,6 @@
 """The lot page with SPC in headless Chromium: n and the minimum n, capability per variant and
 station, the phases on the circle, a frozen baseline drawn on the control charts and the runs
-that break a Western Electric rule listed and ringed."""
+that break one of Nelson's rules listed and ringed."""
 
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     assert "nov-wk47" in text and "60 runs" in text and "k6, pp_after_pct" in text
     # station 1's drift breaks rules, station 2 breaks none
     assert rows and {st for _r, _k, st in rows} == {"L1-S1"} and {k for _r, k, _s in rows} == {"k6"}
-    assert "4" in {r for r, _k, _s in rows}
+    assert "2" in {r for r, _k, _s in rows}  # 9 in a row above: Nelson's rule 2
     assert ringed and all(t.startswith("M22") and "rule" in t for t in ringed)
     assert frozen_ucl == 2 and card == str(len(rows))
     # phase_c6 at -177.7 / +177.1 deg: circular mean near 180 deg, circular sd a few degrees

@@ -58,7 +58,7 @@ def test_baseline_judges_two_later_lot_stats_calls(records_db, tmp_path: Path):
     assert set(judged) == {"k6", "pp_after_pct"}
     assert judged["k6"]["center"] == pytest.approx(k6_line["center"]) and judged["k6"]["sigma"] == pytest.approx(k6_line["sigma"])
     assert judged["k6"]["runs"] == 20 and judged["k6"]["baseline_n"] == 40
-    # a drifting period: the 8th run on one side fires rule 4, a jump of 4 sigma rules 1-3
+    # a drifting period: the 9th run on one side fires Nelson's rule 2, a jump of 4 sigma rule 1
     drifting = [rec(i, 2, k6_line["center"] + (1.5 + 0.1 * (i % 2)) * k6_line["sigma"], "EOL-1") for i in range(8)]
     drifting.append(rec(8, 2, k6_line["center"] + 4.0 * k6_line["sigma"], "EOL-1"))
     insert_records(records_db, drifting)
@@ -73,17 +73,18 @@ def test_baseline_judges_two_later_lot_stats_calls(records_db, tmp_path: Path):
     fired = {(v["quantity"], v["rule"]): v for v in doc["violations"]}
     ids = [r.run_id for r in drifting]
     assert fired[("k6", 1)]["runs"] == [ids[8]] and fired[("k6", 1)]["side"] == "above"
-    assert fired[("k6", 4)]["runs"] == ids and fired[("k6", 4)]["station"] == "EOL-1"
-    assert fired[("k6", 3)]["runs"][:4] == ids[:4]  # 4 of 5 beyond 1 sigma from the first four on
-    assert ("k6", 2) not in fired  # 1.5-1.6 sigma, then one point at 4 sigma: never 2 of 3 beyond 2 sigma
-    assert fired[("k6", 4)]["serials"] == [r.serial for r in drifting] and fired[("k6", 4)]["values"][0] > k6_line["center"]
+    assert fired[("k6", 2)]["runs"] == ids and fired[("k6", 2)]["station"] == "EOL-1"
+    assert fired[("k6", 6)]["runs"][:4] == ids[:4]  # 4 of 5 beyond 1 sigma from the first four on
+    # 1.5-1.6 sigma, then one point at 4 sigma: never 2 of 3 beyond 2 sigma; alternating: no trend
+    assert ("k6", 5) not in fired and ("k6", 3) not in fired
+    assert fired[("k6", 2)]["serials"] == [r.serial for r in drifting] and fired[("k6", 2)]["values"][0] > k6_line["center"]
     with open(csv_path, newline="") as f:
         rows = {r["run_id"]: r for r in csv.DictReader(f)}
-    assert rows[ids[8]]["rules"] == "k6:1;k6:3;k6:4" and rows[quiet[0].run_id]["rules"] == ""
-    assert rows[ids[0]]["rules"] == "k6:3;k6:4"
+    assert rows[ids[8]]["rules"] == "k6:1;k6:2;k6:6" and rows[quiet[0].run_id]["rules"] == ""
+    assert rows[ids[0]]["rules"] == "k6:2;k6:6"
     # the table output names the rule and ends with exit 1
     res = run(cli, ["lot", "stats", "--db", str(records_db), "--since", "2026-11-04", "--baseline", "wk45"])
-    assert res.exit_code == 1 and "rule 4: 8 points in a row" in res.output and "rule violation(s) (exit 1)" in res.output
+    assert res.exit_code == 1 and "rule 2: 9 points in a row" in res.output and "rule violation(s) (exit 1)" in res.output
     # the lot page of the same period against the same baseline lists the same violations
     page = tmp_path / "lot.html"
     res = run(cli, ["lot", "report", "--db", str(records_db), "--since", "2026-11-03", "--baseline", "wk45", "-o", str(page)])

@@ -51,14 +51,27 @@ def test_master_gate_refuses_then_lets_through_then_refuses_after_a_failed_maste
     assert res.exit_code in (0, 1), res.output
     prod = json.loads(res.stdout)["record"]
     assert prod["kind"] == "production" and prod["steps"][0]["step"] == "master check"
-    # a master run outside its tolerance fails, and closes the gate
+    # the production run recorded the rules and the master run that admitted it
+    assert prod["gate"]["seq"] == 1 and prod["gate"]["master_run"] == master["run_id"]
+    assert master["gate"]["checks"][0]["quantity"] == "k6" and master["gate"]["checks"][0]["passed"]
+    res = CliRunner().invoke(cli, ["gate", "admitted", "--db", str(tmp_path / "r.sqlite"), "--serial", "P-1", "--json"])
+    assert res.exit_code == 0 and json.loads(res.stdout)["runs"][1]["gate"]["master_run"] == master["run_id"]
+    # settings that differ from the database's rules are refused; the rules change by command
     res, _ = _run(files, tmp_path, MASTER, {**ENV, "EOL_CAL_MASTER_REFERENCE_K6": "0.90"})
+    assert res.exit_code == 2 and "eol-cal gate set" in res.output
+    res = CliRunner().invoke(cli, ["gate", "set", "--db", str(tmp_path / "r.sqlite"), "--station", "EOL-7", "--serial",
+                                   MASTER, "--reference", "k6=0.90", "--tolerance", "k6=0.05", "--every-h", "8",
+                                   "--by", "qe"])
+    assert res.exit_code == 0, res.output
+    # a master run outside its tolerance fails, and closes the gate
+    env = {k: v for k, v in ENV.items() if not k.startswith("EOL_CAL_MASTER")}  # the database's rules alone
+    res, _ = _run(files, tmp_path, MASTER, env)
     assert res.exit_code == 1, res.output
     failed = json.loads(res.stdout)["record"]
     assert failed["kind"] == "master" and failed["verdict"] == "fail"
     assert any(r.startswith("master k6 = 0.6") and "from its reference 0.9 (tolerance +-0.05)" in r
                for r in failed["reasons"])
-    res, _ = _run(files, tmp_path, "P-1", ENV)
+    res, _ = _run(files, tmp_path, "P-1", env)
     assert res.exit_code == 2
     refused = json.loads(res.stdout)["record"]
     assert refused["kind"] == "refusal" and refused["refusal_codes"] == ["master_failed"]
@@ -70,13 +83,11 @@ def test_master_gate_refuses_then_lets_through_then_refuses_after_a_failed_maste
     recs = query_records(db, kind="all")
     assert [(r.serial, r.kind, r.verdict) for r in recs] == [
         ("P-1", "refusal", "error"), (MASTER, "master", "pass"), ("P-1", "production", prod["verdict"]),
-        (MASTER, "master", "fail"), ("P-1", "refusal", "error")]
-    assert [r.refusal_codes for r in recs if r.kind == "refusal"] == [("master_due",), ("master_failed",)]
+        (MASTER, "refusal", "error"), (MASTER, "master", "fail"), ("P-1", "refusal", "error")]
+    assert [r.refusal_codes for r in recs if r.kind == "refusal"] == [("master_due",), ("settings",), ("master_failed",)]
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(db), "--json", "--min-n", "2"])
     doc = json.loads(res.stdout)
-    assert doc["runs"] == 1 and doc["motors"] == 1 and doc["refusals"]["runs"] == 2
-    assert doc["refusals"]["pareto"] == [{"cause": "master_due", "runs": 1, "cumulative": 0.5},
-                                         {"cause": "master_failed", "runs": 1, "cumulative": 1.0}]
+    assert doc["runs"] == 1 and doc["motors"] == 1 and doc["refusals"]["runs"] == 3
     # the type-1 study of the master takes its master runs
     res = CliRunner().invoke(cli, ["msa", "type1", "--db", str(db), "--serial", MASTER, "--json"])
     assert json.loads(res.stdout)["runs"] == 2

@@ -63,7 +63,7 @@ def test_a_database_that_cannot_be_read_refuses_and_says_so(tmp_path: Path):
     db = tmp_path / "r.sqlite"
     db.write_bytes(b"not a database" * 100)
     exc = _closed(db)
-    assert exc.problems[0].code == "master_due" and "cannot read the last run of the master" in str(exc)
+    assert exc.problems[0].code == "master_due" and "cannot read the gate rules: file is not a database" in str(exc)
 
 
 def test_gate_refusal_is_one_line_for_a_gate_refusal_only():

@@ -83,12 +83,17 @@ def test_msa_type1_of_a_master(records_db, tmp_path: Path, monkeypatch):
     (["--tolerance", "k6=-1"], "positive"),
     (["--tolerance", "k6=x"], "not a number"),
     (["--reference-run", "nope"], "no such run"),
+    (["--serial", "NOBODY"], "no master or production run of 'NOBODY'"),  # exited 1, as if studied
 ])
 def test_msa_type1_refuses_bad_options(tmp_path: Path, args, message):
     db = tmp_path / "r.sqlite"
-    insert_records(db, [rec("M", 0, 0.64)])
+    other = rec("OTHER", 1, 0.9)
+    insert_records(db, [rec("M", 0, 0.64), other])
     res = CliRunner().invoke(cli, ["msa", "type1", "--db", str(db), "--serial", "M", *args])
     assert res.exit_code == 2 and message in res.output
+    # another motor's run is no reference of this one
+    res = CliRunner().invoke(cli, ["msa", "type1", "--db", str(db), "--serial", "M", "--reference-run", other.run_id])
+    assert res.exit_code == 2 and "is a run of OTHER, not of the master M" in res.output
 
 
 def _in_chromium(page: Path, plots: Path, doc: dict) -> None:

@@ -50,7 +50,7 @@ def test_master_due_every_n_hours():
     assert master_due(t(9), MasterRun(t(2), True), m) is None  # 7 h ago
     assert "9.0 h ago" in master_due(t(11), MasterRun(t(2), True), m)
     failed = master_due(t(3), MasterRun(t(2), False, verdict="fail"), m)
-    assert failed.startswith("master check failed") and "(2026-11-23 02:00 UTC, fail)" in failed
+    assert failed.startswith("master check failed") and "(2026-11-23 02:00:00 UTC, fail)" in failed
 
 
 def test_master_due_per_shift_in_the_plant_time_zone():

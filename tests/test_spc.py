@@ -1,5 +1,5 @@
 """SPC definitions against textbook answers: the minimum-n rule, circular statistics across the
-wrap in closed form, frozen control lines, and a series that fires each Western Electric rule
+wrap in closed form, frozen control lines, and a series that fires each of Nelson's rules judged
 1-4 (and one that fires none)."""
 
 from __future__ import annotations
@@ -126,38 +126,51 @@ def test_rule_1_one_point_beyond_3_sigma():
     assert fired(x) == [(1, -1, (3,))]
 
 
-def test_rule_2_two_of_three_beyond_2_sigma_on_one_side():
+def test_nelson_5_two_of_three_beyond_2_sigma_on_one_side():
     x = [0.5, -0.5, 2.5, 0.1, 2.2, -0.3, 0.4, -0.6]
-    assert fired(x) == [(2, 1, (2, 4))]
+    assert fired(x) == [(5, 1, (2, 4))]
     # on opposite sides it is not the pattern
     assert fired([0.5, -0.5, 2.5, 0.1, -2.2, -0.3]) == []
 
 
-def test_rule_3_four_of_five_beyond_1_sigma_on_one_side():
+def test_nelson_6_four_of_five_beyond_1_sigma_on_one_side():
     x = [0.5, -0.5, -1.5, -1.2, -0.5, -1.8, -1.1, 0.3, -0.4, 0.6]
-    assert fired(x) == [(3, -1, (2, 3, 5, 6))]
+    assert fired(x) == [(6, -1, (2, 3, 5, 6))]
 
 
-def test_rule_4_eight_in_a_row_on_one_side():
-    x = [-0.5, 0.3, 0.5, 0.1, 0.9, 0.2, 0.4, 0.6, 0.7, -0.2, 0.5]
-    assert fired(x) == [(4, 1, (1, 2, 3, 4, 5, 6, 7, 8))]
-    # seven in a row is not; a point on the centre line breaks the run
-    assert fired([-0.5, *[0.5] * 7, -0.5]) == []
-    assert fired([*[0.5] * 4, 0.0, *[0.5] * 4]) == []
+def test_nelson_2_nine_in_a_row_on_one_side():
+    x = [-0.5, 0.3, 0.5, 0.1, 0.9, 0.2, 0.4, 0.6, 0.7, 0.2, -0.5]
+    assert fired(x) == [(2, 1, (1, 2, 3, 4, 5, 6, 7, 8, 9))]
+    # eight in a row is not (the Western Electric rule 4 was: Nelson's needs nine); a point on the centre line breaks it
+    assert fired([-0.5, 0.5, 0.4, *[0.5, 0.4] * 3, -0.5]) == []
+    assert fired([*[0.5, 0.4] * 2, 0.0, *[0.5, 0.4] * 3]) == []
+
+
+def test_nelson_3_the_trend_six_rising_or_falling_in_a_row():
+    """A steady climb inside the limits is a trend from its sixth point: the rule the Western
+    Electric set had not (a 20-run climb showed only as '8 in a row' twice)."""
+    climb = np.linspace(-1.4, 1.4, 20)
+    got = fired(climb)
+    assert (3, 1, tuple(range(20))) in got
+    assert fired([0.1, 0.3, 0.2, 0.4, 0.5, 0.6, 0.7, 0.8, -0.5]) == [(3, 1, (2, 3, 4, 5, 6, 7))]
+    assert fired([0.5, 0.4, 0.3, 0.2, 0.1, 0.0, -0.1, 0.3]) == [(3, -1, (0, 1, 2, 3, 4, 5, 6))]
+    # five rising, or a tie inside the run, is not a trend
+    assert fired([0.1, 0.2, 0.3, 0.4, 0.5, -0.2]) == []
+    assert fired([0.1, 0.2, 0.3, 0.3, 0.4, 0.5, 0.6, -0.2]) == []
 
 
 def test_rules_against_a_frozen_centre_and_sigma_skip_missing_values():
     # centre 10, sigma 0.2: 11 is beyond 3 sigma; the NaN (a run without the value) is not a point
     x = [10.1, math.nan, 9.9, 11.0, 10.05]
     assert fired(x, 10.0, 0.2) == [(1, 1, (3,))]
-    # overlapping windows of one pattern are one violation: nine in a row above
-    long = [-0.5, *[0.5] * 9, -0.5]
-    assert fired(long) == [(4, 1, tuple(range(1, 10)))]
+    # overlapping windows of one pattern are one violation: ten in a row above
+    long = [-0.5, *[0.5, 0.4] * 5, -0.5]
+    assert fired(long) == [(2, 1, tuple(range(1, 11)))]
     # two points in a row beyond 3 sigma are one violation of rule 1; with one between, two
-    assert fired([0.1, 3.2, 3.5, 0.2]) == [(1, 1, (1, 2)), (2, 1, (1, 2))]
-    assert [v[:2] for v in fired([3.2, 0.1, 3.5])] == [(1, 1), (2, 1), (1, 1)]
+    assert fired([0.1, 3.2, 3.5, 0.2]) == [(1, 1, (1, 2)), (5, 1, (1, 2))]
+    assert [v[:2] for v in fired([3.2, 0.1, 3.5])] == [(1, 1), (5, 1), (1, 1)]
     v = run_rules(long, 0.0, 1.0, "pp_after_pct")[0]
-    assert v.quantity == "pp_after_pct" and v.text == "rule 4: " + RULES[4][3] + " (above)"
+    assert v.quantity == "pp_after_pct" and v.text == "rule 2: " + RULES[2][3] + " (above)"
     with pytest.raises(ValueError):
         run_rules(x, 10.0, 0.0)
 
@@ -167,5 +180,5 @@ def test_a_drift_is_flagged_against_the_baseline_and_not_against_its_own_limits(
     base = 1.0 + 0.05 * rng.standard_normal(40)
     line = freeze_line(base)
     drifting = 1.0 + 0.05 * rng.standard_normal(40) + np.linspace(0.0, 0.25, 40)
-    assert any(v.rule in (1, 2, 3, 4) for v in judge(drifting, line))
+    assert any(v.rule in RULES for v in judge(drifting, line))
     assert line.center == pytest.approx(float(base.mean()))

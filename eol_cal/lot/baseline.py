@@ -17,10 +17,10 @@ baseline, need no migration for it.
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
+import json
 import math
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,12 +30,16 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.errors import InputError
+from eol_cal.inputs import loads_json
 from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
-from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line
-from eol_cal.station.records import DB_ERRORS, SchemaError, db_label, engine, is_url, one_line
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line, natural_floor
+from eol_cal.station.record import KINDS, MEASURED_KIND
+from eol_cal.station.records import SchemaError, connected, db_label
 
-#: the layout of the baseline tables this code writes
-BASELINE_SCHEMA_VERSION = 1
+#: the layout of the baseline tables this code writes (2: the run kind and the stations chosen)
+BASELINE_SCHEMA_VERSION = 2
+#: the text filters a baseline keeps (``since``/``until``: UTC instants, ISO 8601)
+FILTER_KEYS = ("since", "until", "variant", "station", "kind")
 _LOCK = 7413002  # PostgreSQL advisory lock: two first baselines at once, one creates the tables
 
 _metadata = sa.MetaData()
@@ -50,7 +54,12 @@ baselines = sa.Table(
     sa.Column("min_n", sa.Integer, nullable=False),
     sa.Column("runs", sa.Integer, nullable=False),
     sa.Column("tool_version", sa.Text),
+    # version 2: the kind of the runs and every station chosen (a JSON list; station: the one, if one)
+    sa.Column("kind", sa.Text),
+    sa.Column("stations", sa.Text),
 )
+#: columns added by each layout version of ``baselines``
+_ADDED = {2: ("kind", "stations")}
 baseline_lines = sa.Table(
     "baseline_lines", _metadata,
     sa.Column("name", sa.Text, sa.ForeignKey("baselines.name", ondelete="CASCADE"), primary_key=True),
@@ -77,8 +86,10 @@ class Baseline:
         Its name (unique in the database).
     created_at : str
         When it was made (UTC ISO 8601).
-    filters : dict of str -> str or None
-        ``since``, ``until`` (UTC days), ``variant``, ``station``: what chose its runs.
+    filters : dict of str -> str or None or list
+        ``since``, ``until`` (UTC instants, ISO 8601), ``variant``, ``station`` (the one station
+        chosen), ``stations`` (every one chosen; None: all), ``kind`` (the runs' kind): what
+        chose its runs.
     min_n : int
         The minimum n its lines were made with.
     runs : int
@@ -89,7 +100,7 @@ class Baseline:
 
     name: str
     created_at: str
-    filters: dict[str, str | None]
+    filters: dict[str, Any]
     min_n: int
     runs: int
     lines: dict[tuple[str, str, str], ControlLine] = field(default_factory=dict)
@@ -112,30 +123,79 @@ def group_lines(values: Mapping[str, np.ndarray], variant: Sequence[Any] | np.nd
     for v, s in groups:
         idx = np.flatnonzero((var == v) & (sta == s))
         for key, x in values.items():
-            out[(key, v, s)] = freeze_line(np.asarray(x, dtype=float)[idx], key in circular, min_n)
+            out[(key, v, s)] = freeze_line(np.asarray(x, dtype=float)[idx], key in circular, min_n, natural_floor(key))
     return out
 
 
 def make_baseline(name: str, lines: dict[tuple[str, str, str], ControlLine], runs: int,
-                  filters: Mapping[str, str | None], min_n: int = DEFAULT_MIN_N) -> Baseline:
+                  filters: Mapping[str, Any], min_n: int = DEFAULT_MIN_N) -> Baseline:
     """A :class:`Baseline` made now (UTC)."""
-    if not name.strip():
-        raise InputError(None, "name", "a baseline needs a name")
+    if not name.strip() or not name.isprintable() or len(name) > 200:
+        raise InputError(None, "name", f"{name!r}: a baseline needs a name of 1 to 200 printable characters")
     created = dt.datetime.now(dt.UTC).isoformat(timespec="milliseconds")
-    return Baseline(name, created, {k: filters.get(k) for k in ("since", "until", "variant", "station")}, min_n,
-                    runs, dict(lines))
+    stations = filters.get("stations")
+    station = filters.get("station") or (stations[0] if stations and len(stations) == 1 else None)
+    return Baseline(name, created, {**{k: filters.get(k) for k in FILTER_KEYS}, "station": station,
+                                    "stations": None if not stations else list(stations),
+                                    "kind": filters.get("kind") or MEASURED_KIND}, min_n, runs, dict(lines))
 
 
-def baseline_of_db(db: str | Path, name: str, filters: Mapping[str, str | None], min_n: int = DEFAULT_MIN_N
-                   ) -> Baseline:
-    """The baseline of the runs a records database holds under ``filters`` (``since``, ``until``:
-    UTC days; ``variant``, ``station``): every quantity of :data:`eol_cal.lot.columns.QUANTITIES`
-    per variant and station, from the lot's columns (:func:`eol_cal.lot.columns.read_lot`)."""
-    lot = read_lot(db, **{k: filters.get(k) for k in ("variant", "station", "since", "until")})
-    if not len(lot):
+def instant(text: str, name: str, end: bool = False) -> dt.datetime:
+    """``--since``/``--until`` as an aware UTC instant: an ISO 8601 time with its offset
+    (``2026-11-22T06:00+01:00``, ``...Z``), or a UTC day (its start; ``end``: the start of the next
+    day, so the day is whole). A time without an offset is refused: which instant it is depends
+    on a zone it does not name."""
+    try:
+        if len(text) == 10:
+            day = dt.date.fromisoformat(text)
+            return dt.datetime.combine(day + dt.timedelta(days=1 if end else 0), dt.time(), tzinfo=dt.UTC)
+        t = dt.datetime.fromisoformat(text)
+    except ValueError:
+        raise InputError(None, name, f"{text!r}: expected YYYY-MM-DD or an ISO 8601 time with its offset") from None
+    if t.tzinfo is None:
+        raise InputError(None, name, f"{text!r}: give the time's UTC offset (Z, +01:00): an instant, not a wall time")
+    return t.astimezone(dt.UTC)
+
+
+def _started(texts: Sequence[str] | np.ndarray) -> np.ndarray:
+    """Start times as aware UTC instants (no offset: UTC, as the lot reads them)."""
+    out = []
+    for t in texts:
+        x = dt.datetime.fromisoformat(str(t))
+        out.append(x if x.tzinfo is not None else x.replace(tzinfo=dt.UTC))
+    return np.array(out, dtype=object)
+
+
+def baseline_of_db(db: str | Path, name: str, filters: Mapping[str, Any], min_n: int = DEFAULT_MIN_N) -> Baseline:
+    """The baseline of the runs a records database holds under ``filters``: ``since`` (inclusive)
+    and ``until`` (exclusive) as aware instants or None, ``variant``, ``stations`` (a sequence;
+    None: all), ``kind`` (default ``production``): every quantity of
+    :data:`eol_cal.lot.columns.QUANTITIES` per variant and station, from the lot's columns
+    (:func:`eol_cal.lot.columns.read_lot`). Times are compared as instants, never as text."""
+    since, until = filters.get("since"), filters.get("until")
+    if since is not None and until is not None and not since < until:
+        raise InputError(None, "until", f"{until.isoformat()} is not after --since {since.isoformat()}")
+    stations = filters.get("stations") or None
+    kind = filters.get("kind") or MEASURED_KIND
+    day = dt.timedelta(days=1)  # the day filter in SQL takes the UTC days around: offsets move a time's text day
+    lot = read_lot(db, variant=filters.get("variant"), station=stations[0] if stations and len(stations) == 1 else None,
+                   since=None if since is None else (since - day).date().isoformat(),
+                   until=None if until is None else (until + day).date().isoformat(), kind=kind)
+    t = _started(lot.started_at)
+    keep = np.ones(len(lot), dtype=bool)
+    if since is not None:
+        keep &= np.array([x >= since for x in t], dtype=bool)
+    if until is not None:
+        keep &= np.array([x < until for x in t], dtype=bool)
+    if stations:
+        keep &= np.isin(lot.station.astype(str), list(stations))
+    if not keep.any():
         raise InputError(None, "baseline", "no runs selected: a baseline needs the runs of a period")
-    lines = group_lines(lot.values, lot.variant, lot.station, CIRCULAR, min_n)
-    return make_baseline(name, lines, len(lot), filters, min_n)
+    idx = np.flatnonzero(keep)
+    lines = group_lines({k: v[idx] for k, v in lot.values.items()}, lot.variant[idx], lot.station[idx], CIRCULAR, min_n)
+    shown = {"since": None if since is None else since.isoformat(), "until": None if until is None else until.isoformat(),
+             "variant": filters.get("variant"), "stations": stations, "kind": kind}
+    return make_baseline(name, lines, len(idx), shown, min_n)
 
 
 #: the ``schema`` of ``eol-cal lot baseline --json``
@@ -150,7 +210,7 @@ def line_document(line: ControlLine, scale: float) -> dict[str, Any]:
 
     return {"n": line.n, "circular": line.circular, "center": d(line.center), "sigma": d(line.sigma),
             "lcl": d(line.lcl), "ucl": d(line.ucl), "mr_center": d(line.mr_center), "mr_ucl": d(line.mr_ucl),
-            "reason": line.reason}
+            "reason": line.reason, "note": line.note}
 
 
 def baseline_document(b: Baseline) -> dict[str, Any]:
@@ -186,37 +246,30 @@ def ensure_tables(con: Connection) -> tuple[int | None, int]:
     if v > BASELINE_SCHEMA_VERSION:
         raise SchemaError(f"baseline tables at layout version {v} are newer than this tool "
                           f"({BASELINE_SCHEMA_VERSION})")
+    added = [name for step in range(v + 1, BASELINE_SCHEMA_VERSION + 1) for name in _ADDED.get(step, ())]
+    for name in added:
+        con.exec_driver_sql(f"ALTER TABLE baselines ADD COLUMN {name} {baselines.c[name].type.compile(dialect=con.dialect)}")
+    if "kind" in added:  # a baseline of layout 1 was made of production runs, of its one station or all
+        con.execute(baselines.update().values(kind=MEASURED_KIND))
+        for name, station in con.execute(sa.select(baselines.c.name, baselines.c.station)).all():
+            if station is not None:
+                con.execute(baselines.update().where(baselines.c.name == name).values(stations=json.dumps([station])))
+    if added:
+        con.execute(baseline_version.delete())
+        con.execute(baseline_version.insert().values(version=BASELINE_SCHEMA_VERSION))
     return v, BASELINE_SCHEMA_VERSION
 
 
 def migrate(db: str | Path) -> tuple[int | None, int]:
     """Bring the baseline tables of a records database to :data:`BASELINE_SCHEMA_VERSION`."""
-    with _connect(db, False, "migrate the baseline tables") as con, con.begin():
+    with connected(db, False, "migrate the baseline tables") as con, con.begin():
         return ensure_tables(con)
-
-
-@contextlib.contextmanager
-def _connect(db: str | Path, readonly: bool, what: str) -> Iterator[Connection]:
-    """A connection to an existing records database (a missing SQLite file is refused, not made);
-    a database error inside is an :class:`InputError` saying what could not be done."""
-    if not is_url(db) and not Path(db).exists():
-        raise InputError(str(db), None, "database not found")
-    try:
-        eng = engine(db, readonly=readonly)
-        try:
-            with eng.connect() as con:
-                yield con
-        finally:
-            if not is_url(db):
-                eng.dispose()
-    except DB_ERRORS as exc:
-        raise InputError(db_label(db), None, f"cannot {what}: {one_line(exc)}") from None
 
 
 def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
     """Store a baseline in one transaction (the tables made first when absent). A baseline of
     that name already there is refused unless ``replace``."""
-    with _connect(db, False, "store the baseline") as con, con.begin():
+    with connected(db, False, "store the baseline") as con, con.begin():
         ensure_tables(con)
         exists = con.execute(sa.select(baselines.c.name).where(baselines.c.name == baseline.name)).first()
         if exists and not replace:
@@ -226,9 +279,11 @@ def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
             con.execute(baselines.delete().where(baselines.c.name == baseline.name))
         from eol_cal import __version__
 
+        stations = baseline.filters.get("stations")
         con.execute(baselines.insert().values(name=baseline.name, created_at=baseline.created_at,
                                               min_n=baseline.min_n, runs=baseline.runs, tool_version=__version__,
-                                              **baseline.filters))
+                                              **{k: baseline.filters.get(k) for k in FILTER_KEYS},
+                                              stations=None if stations is None else json.dumps(list(stations))))
         rows = [{"name": baseline.name, "quantity": q, "variant": v, "station": s, "circular": bool(line.circular),
                  "n": line.n, "center": line.center, "sigma": line.sigma, "mr_center": line.mr_center,
                  "reason": line.reason} for (q, v, s), line in sorted(baseline.lines.items())]
@@ -237,30 +292,127 @@ def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
 
 
 def load(db: str | Path, name: str) -> Baseline:
-    """The baseline ``name``; :class:`InputError` naming the ones there are when it is not there."""
-    with _connect(db, True, "read the baseline") as con:
-        if _version(con) is None:
+    """The baseline ``name``; :class:`InputError` naming the ones there are when it is not there.
+    Its stored rows are checked like any input (a newer layout is refused; a line with a sigma
+    that is not a positive number, a centre that is text...: refused naming the row)."""
+    with connected(db, True, "read the baseline") as con:
+        v = _version(con)
+        if v is None:
             raise InputError(db_label(db), f"baseline {name!r}", "not found: the database holds no baselines "
                                                                   "(eol-cal lot baseline makes one)")
-        head = con.execute(sa.select(baselines).where(baselines.c.name == name)).mappings().first()
-        if head is None:
+        if v > BASELINE_SCHEMA_VERSION:
+            raise InputError(db_label(db), "baseline_schema_version", f"layout version {v} is newer than this tool "
+                                                                      f"({BASELINE_SCHEMA_VERSION}): refused")
+        found = con.execute(_heads(v).where(baselines.c.name == name)).mappings().first()
+        if found is None:
             there = con.execute(sa.select(baselines.c.name).order_by(baselines.c.name)).scalars().all()
             raise InputError(db_label(db), f"baseline {name!r}", f"not found (there are: {', '.join(there) or 'none'})")
         rows = con.execute(sa.select(baseline_lines).where(baseline_lines.c.name == name)).mappings().all()
-    lines = {(r["quantity"], r["variant"], r["station"]):
-             ControlLine(int(r["n"]), _float(r["center"]), _float(r["sigma"]), _float(r["mr_center"]),
-                         bool(r["circular"]), r["reason"]) for r in rows}
-    return Baseline(head["name"], head["created_at"], {k: head[k] for k in ("since", "until", "variant", "station")},
-                    int(head["min_n"]), int(head["runs"]), lines)
+    head = _head(found)
+    where = f"{db_label(db)}, baseline {name!r}"
+    lines = {(r["quantity"], r["variant"], r["station"]): _line_of_row(r, where) for r in rows}
+    filters: dict[str, Any] = {k: _opt_text(head[k], where, k) for k in FILTER_KEYS}
+    if filters["kind"] is not None and filters["kind"] not in KINDS:
+        raise InputError(where, "kind", f"{filters['kind']!r}: not a run kind ({', '.join(KINDS)})")
+    filters["stations"] = _stations(head["stations"], where)
+    return Baseline(head["name"], _time(head["created_at"], where, "created_at"), filters,
+                    _count(head["min_n"], where, "min_n", 2), _count(head["runs"], where, "runs", 0), lines)
+
+
+def _text(x: Any, where: str, key: str) -> str:
+    if not isinstance(x, str):
+        raise InputError(where, key, f"{x!r}: not a text")
+    return x
+
+
+def _time(x: Any, where: str, key: str) -> str:
+    """A stored time: ISO 8601 with its UTC offset (as eol-cal writes it)."""
+    try:
+        t = dt.datetime.fromisoformat(_text(x, where, key))
+    except ValueError:
+        t = None
+    if t is None or t.tzinfo is None:
+        raise InputError(where, key, f"{x!r}: not an ISO 8601 time with its offset")
+    return str(x)
+
+
+def _opt_text(x: Any, where: str, key: str) -> str | None:
+    return None if x is None else _text(x, where, key)
+
+
+def _stations(x: Any, where: str) -> list[str] | None:
+    if x is None:
+        return None
+    got = loads_json(_text(x, where, "stations"), where, "stations")
+    if not isinstance(got, list) or not got or not all(isinstance(s, str) for s in got):
+        raise InputError(where, "stations", "not a JSON list of station ids")
+    return got
+
+
+def _count(x: Any, where: str, key: str, least: int) -> int:
+    if isinstance(x, bool) or not isinstance(x, int) or x < least:
+        raise InputError(where, key, f"{x!r}: not a whole number >= {least}")
+    return x
+
+
+def _stored_number(x: Any, where: str, key: str, positive: bool = False) -> float | None:
+    """A stored figure: None (not made), or a finite number (``positive``: > 0); text, NaN and
+    infinities are refused."""
+    if x is None:
+        return None
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)) or (positive and not x > 0):
+        raise InputError(where, key, f"{x!r}: not a {'positive' if positive else 'finite'} number")
+    return float(x)
+
+
+def _line_of_row(r: Any, where: str) -> ControlLine:
+    """A stored line, checked: a known quantity, n a count, centre, sigma > 0 and MRbar > 0 all
+    there or all absent (then a reason says why), a phase flagged as one."""
+    key = r["quantity"]
+    at = f"{where}, line {key!r} {r['variant']!r} {r['station']!r}"
+    if key not in {q.key for q in QUANTITIES}:
+        raise InputError(at, "quantity", f"{key!r}: not a quantity of the lot")
+    if not isinstance(r["variant"], str) or not isinstance(r["station"], str):
+        raise InputError(at, "variant", "variant and station must be texts")
+    circular = r["circular"]
+    if circular not in (True, False, 0, 1) or bool(circular) != (key in CIRCULAR):
+        raise InputError(at, "circular", f"{circular!r}: {key} is {'' if key in CIRCULAR else 'not '}a phase")
+    center = _stored_number(r["center"], at, "center")
+    sigma = _stored_number(r["sigma"], at, "sigma", positive=True)
+    mr = _stored_number(r["mr_center"], at, "mr_center", positive=True)
+    reason = _opt_text(r["reason"], at, "reason")
+    made = [x is not None for x in (center, sigma, mr)]
+    if any(made) and not all(made):
+        raise InputError(at, "sigma", "centre, sigma and MRbar are stored together or not at all")
+    if not any(made) and reason is None:
+        raise InputError(at, "reason", "a line without limits must say why")
+    if key in CIRCULAR and center is not None and not -math.pi <= center <= math.pi:
+        raise InputError(at, "center", f"{center!r} rad: a phase's centre lies in [-pi, pi]")
+    return ControlLine(_count(r["n"], at, "n", 0), center, sigma, mr, bool(circular), reason,
+                       lower_bound=natural_floor(key))
 
 
 def list_baselines(db: str | Path) -> list[dict[str, Any]]:
     """The baselines of a database (name, created_at, filters, min_n, runs), by name."""
-    with _connect(db, True, "read the baselines") as con:
+    with connected(db, True, "read the baselines") as con:
         if _version(con) is None:
             return []
-        return [dict(r) for r in con.execute(sa.select(baselines).order_by(baselines.c.name)).mappings()]
+        v = _version(con)
+        return [_head(r) for r in con.execute(_heads(v or BASELINE_SCHEMA_VERSION).order_by(baselines.c.name)).mappings()]
 
 
-def _float(x: Any) -> float | None:
-    return None if x is None or not math.isfinite(float(x)) else float(x)
+def _heads(v: int) -> sa.Select:
+    """The ``baselines`` columns layout ``v`` holds (:func:`_head` fills the later ones)."""
+    if v >= BASELINE_SCHEMA_VERSION:
+        return sa.select(baselines)
+    return sa.select(*(c for c in baselines.c if c.name not in _ADDED[2]))
+
+
+def _head(row: Any) -> dict[str, Any]:
+    """A ``baselines`` row with the columns of layout 2 as a layout-1 baseline means them
+    (production runs; its one station, or all)."""
+    head = dict(row)
+    if "kind" not in head:
+        station = head.get("station")
+        head.update(kind=MEASURED_KIND, stations=None if not isinstance(station, str) else json.dumps([station]))
+    return head

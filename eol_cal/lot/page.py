@@ -19,7 +19,7 @@ import numpy as np
 from eol_cal.display import display_unit
 from eol_cal.lot.baseline import Baseline
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
-from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary, natural_floor
 from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
 from eol_cal.figures import pyplot
@@ -201,7 +201,9 @@ def _circle_histogram(ax: Any, theta: np.ndarray) -> None:
 def control_figure(records: Sequence[RunRecord], station: str,
                    limits: dict[str, dict[str, float]] | None = None, min_n: int = DEFAULT_MIN_N,
                    marks: dict[str, dict[str, str]] | None = None) -> tuple[MplFigure, dict[str, list[str]]]:
-    """Individuals and moving-range charts of :data:`CHARTED` against time, for one station.
+    """Individuals and moving-range charts of :data:`CHARTED` by run order (one step a run: runs
+    seconds apart do not stack up), for one station, with the centre line, the 3-sigma limits and
+    the 1- and 2-sigma zone lines of Nelson's rules 5 and 6 (an amplitude's LCL held at zero).
 
     Parameters
     ----------
@@ -223,6 +225,8 @@ def control_figure(records: Sequence[RunRecord], station: str,
     figure, titles
         As :func:`timeline`; the points' gids are ``i-KEY`` and ``mr-KEY``.
     """
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
     recs = sorted(records, key=run_time)
     fig, axes = plt.subplots(2, len(CHARTED), figsize=(10, 4.4), sharex=True, squeeze=False)
@@ -230,7 +234,7 @@ def control_figure(records: Sequence[RunRecord], station: str,
     q = {x.key: x for x in QUANTITIES}
     for col, key in enumerate(CHARTED):
         title, unit = q[key].title, q[key].unit
-        pts = [(run_time(r), v, r) for r, v in zip(recs, _display(recs, key), strict=True)]
+        pts = [(k + 1, v, r) for k, (r, v) in enumerate(zip(recs, _display(recs, key), strict=True))]
         pts = [p for p in pts if math.isfinite(p[1])]
         t = [p[0] for p in pts]
         x = np.array([p[1] for p in pts])
@@ -253,7 +257,9 @@ def control_figure(records: Sequence[RunRecord], station: str,
             from eol_cal.lot.stats import imr_limits
 
             cl = imr_limits(x)
-            lim = {"center": cl.center, "ucl": cl.ucl, "lcl": cl.lcl, "mr_center": cl.mr_center, "mr_ucl": cl.mr_ucl}
+            floor = natural_floor(key)
+            lim = {"center": cl.center, "ucl": cl.ucl, "lcl": cl.lcl if floor is None else max(floor, cl.lcl),
+                   "mr_center": cl.mr_center, "mr_ucl": cl.mr_ucl}
             beyond = cl.beyond(x)
             if beyond:
                 ax_i.scatter([t[i] for i in beyond], x[beyond], s=70, facecolor="none", edgecolor="tab:red", lw=1.4,
@@ -270,6 +276,7 @@ def control_figure(records: Sequence[RunRecord], station: str,
             ax_i.text(0.01, 0.97, f"no control limits: n = {len(x)} < {min_n}", transform=ax_i.transAxes, va="top",
                       fontsize=7, color="0.3", gid=f"few-{key}")
         if lim:
+            _zones(ax_i, key, lim, natural_floor(key))
             for ax, names in ((ax_i, ("center", "ucl", "lcl")), (ax_m, ("mr_center", "mr_ucl"))):
                 for name in names:
                     v = lim.get(name)
@@ -279,28 +286,48 @@ def control_figure(records: Sequence[RunRecord], station: str,
                                    gid=f"cl-{key}-{name}")
         ax_i.set_title(f"{plain(station)}: {title} ({unit}), individuals", fontsize=8)
         ax_m.set_title("moving range", fontsize=8)
+        ax_m.set_xlabel("run (the station's, in time order)", fontsize=7)
         for ax in (ax_i, ax_m):
             ax.grid(alpha=0.3)
             ax.tick_params(labelsize=7)
-    fig.autofmt_xdate()
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.tight_layout()
     return fig, titles
 
 
+def _zones(ax: Any, key: str, lim: dict[str, float], floor: float | None) -> None:
+    """The 1- and 2-sigma zone lines (sigma = (UCL - centre) / 3) the quantity can take; an LCL
+    held at the natural zero is labelled so."""
+    center, ucl = lim.get("center"), lim.get("ucl")
+    if center is None or ucl is None or not (math.isfinite(center) and math.isfinite(ucl)):
+        return
+    sigma = (ucl - center) / 3.0
+    for k, side in ((1, 1), (1, -1), (2, 1), (2, -1)):
+        if floor is None or center + side * k * sigma >= floor:
+            ax.axhline(center + side * k * sigma, color="0.55", ls=":", lw=0.8, gid=f"zone-{key}-{k}{'+-'[side < 0]}")
+    if floor is not None and center - 3.0 * sigma < floor:
+        ax.text(0.01, 0.03, "LCL at the natural zero (centre - 3 sigma < 0)", transform=ax.transAxes, fontsize=6,
+                color="tab:red", gid=f"lcl-floor-{key}")
+
+
 def pareto_figure(causes: Sequence[tuple[str, int, float]]) -> MplFigure:
-    """Failure causes as bars, most frequent first, with the cumulative share as a line."""
+    """Failure causes as bars of runs (a run counted once per cause), most first, with the
+    cumulative share of the runs as a line (:func:`eol_cal.lot.stats.pareto_of`)."""
+    from matplotlib.ticker import MaxNLocator
+
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(10, 0.9 + 0.32 * max(1, len(causes))))
     names = [plain(c) for c, _n, _s in causes][::-1]
     counts = [n for _c, n, _s in causes][::-1]
     ax.barh(names, counts, color=["tab:red" if c.startswith("error") else "tab:orange" for c in names], gid="pareto-bars")
     ax.set_xlabel("runs", fontsize=8)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # runs are whole
     ax.tick_params(labelsize=7)
     ax.grid(alpha=0.3, axis="x")
     cum = ax.twiny()
     cum.plot([100 * s for _c, _n, s in causes][::-1], names, "o-", color="0.3", ms=3, lw=1)
     cum.set_xlim(0, 105)
-    cum.set_xlabel("cumulative share of the causes (%)", fontsize=8)
+    cum.set_xlabel("cumulative share of the runs (%)", fontsize=8)
     cum.tick_params(labelsize=7)
     fig.tight_layout()
     return fig
@@ -365,7 +392,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
         Fewest values that give a capability index or control limits (fewer: ``n = 7 < 25``).
     baseline : Baseline, optional
         Frozen control lines: the charts draw them and the runs are judged against them
-        (Western Electric rules 1-4, listed and ringed).
+        (Nelson's rules 1, 2, 3, 5, 6, listed and ringed).
     """
     from eol_cal.lot.stats import pareto_of
     from eol_cal.report.motor import Figure
@@ -422,15 +449,15 @@ def _control(name: str, runs: list[RunRecord], doc: dict[str, Any], baseline: Ba
     from eol_cal.report.svg import figure_svg
 
     limits = None
-    how = (f"centre line and control limits (mean +- 2.66 MRbar, MR: 3.267 MRbar) of the station's own runs from "
-           f"n = {min_n} on, points beyond them ringed red")
+    how = (f"by run order: centre line and control limits (mean +- 2.66 MRbar, MR: 3.267 MRbar; dotted: the 1- and "
+           f"2-sigma zones) of the station's own runs from n = {min_n} on, points beyond them ringed red")
     if baseline is not None:
         lines = {j["quantity"]: j for j in doc["judged"] if j["station"] == name and j["reason"] is None}
         variants = {j["variant"] for j in doc["judged"] if j["station"] == name}
         if len(variants) == 1 and lines:
             limits = {k: {f: j[f] for f in ("center", "ucl", "lcl", "mr_center", "mr_ucl")} for k, j in lines.items()}
-            how = (f"frozen centre line and limits (centre +- 3 sigma) of baseline {baseline.name!r}; runs that "
-                   "break a Western Electric rule ringed purple (hover: the rule)")
+            how = (f"by run order: frozen centre line and limits (centre +- 3 sigma; dotted: the 1- and 2-sigma zones) "
+                   f"of baseline {baseline.name!r}; runs that break one of Nelson's rules ringed purple (hover: the rule)")
         else:
             how = (f"baseline {baseline.name!r} has no lines for this station's variant(s) {', '.join(sorted(variants))}; "
                    + how)
@@ -447,25 +474,15 @@ def _control(name: str, runs: list[RunRecord], doc: dict[str, Any], baseline: Ba
 
 
 def _fmt(x: float | None, digits: int = 4) -> str:
-    if x is None or (isinstance(x, float) and not math.isfinite(x)):
-        return "-"
-    return f"{float(x):.{digits}g}"
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else f"{float(x):.{digits}g}"
 
 
 def select_records(records: Sequence[RunRecord], variant: str | None = None, since: dt.date | None = None,
                    until: dt.date | None = None, station: str | None = None) -> list[RunRecord]:
     """The records of one variant, station and UTC day range (``until`` inclusive)."""
-    out = []
-    for r in records:
-        day = run_time(r).date()
-        if variant is not None and (r.limits is None or r.limits.variant != variant):
-            continue
-        if station is not None and r.station_label != station:
-            continue
-        if (since is not None and day < since) or (until is not None and day > until):
-            continue
-        out.append(r)
-    return out
+    return [r for r in records if (variant is None or (r.limits is not None and r.limits.variant == variant))
+            and (station is None or r.station_label == station) and (since is None or run_time(r).date() >= since)
+            and (until is None or run_time(r).date() <= until)]
 
 
 def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str,

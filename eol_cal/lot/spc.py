@@ -1,5 +1,5 @@
 """Statistical process control that states its n: the minimum-n rule, circular statistics of
-phases, frozen control lines and the Western Electric run rules.
+phases, frozen control lines and Nelson's run rules.
 
 Pure functions, arrays in, numbers out; the definitions are written out in ``docs/spc.md``.
 
@@ -15,8 +15,8 @@ Pure functions, arrays in, numbers out; the definitions are written out in ``doc
   period (individuals chart: ``sigma = MRbar / d2``, d2 = 1.128; for a phase the moving ranges
   are of the wrapped differences and the centre is the circular mean) once, so later runs are
   judged against it and a drifting process cannot move its own limits.
-- **Run rules**: the Western Electric rules 1-4 (:data:`RULES`), each on one side of the centre
-  line. In Nelson's numbering they are rules 1, 5, 6 and (with nine points instead of eight) 2.
+- **Run rules**: Nelson's rules 1, 2, 3 (the trend), 5 and 6 (:data:`RULES`, his numbers),
+  each on one side of the centre line (the trend: rising or falling).
 """
 
 from __future__ import annotations
@@ -34,6 +34,18 @@ from eol_cal.wrap import wrap_pi
 DEFAULT_MIN_N = 25
 #: the lot's quantities that are angles (rad): circular statistics, frozen and judged on the circle
 CIRCULAR = frozenset({"phase_k6", "phase_c6"})
+#: the lot's quantities that are amplitudes (magnitudes, never below zero): an LCL below zero is
+#: drawn and judged at zero, and says so
+NATURAL_ZERO = frozenset({"k6", "c6", "pp_before_pct", "pp_after_pct", "fit_rms_nm"})
+#: the least mean resultant length R of a phase's baseline that gets control limits: below it the
+#: angles spread over so much of the circle (circular sd > 38 deg) that centre +- 3 sigma would
+#: wrap onto itself; the line says so instead of giving limits
+MIN_RESULTANT = 0.8
+
+
+def natural_floor(key: str) -> float | None:
+    """The natural lower bound of a lot quantity (0 for an amplitude; None: none)."""
+    return 0.0 if key in NATURAL_ZERO else None
 
 # --------------------------------------------------------------------------- minimum n
 
@@ -186,6 +198,9 @@ class ControlLine:
         The values are angles (rad): judged on the wrapped deviation from ``center``.
     reason : str or None
         Why there are no limits (``"n = 7 < 25"``, no spread).
+    lower_bound : float or None
+        The quantity's natural lower bound (0 for an amplitude, :data:`NATURAL_ZERO`): the LCL is
+        never below it (:attr:`note` says when it is held there).
     """
 
     n: int
@@ -194,6 +209,7 @@ class ControlLine:
     mr_center: float | None
     circular: bool = False
     reason: str | None = None
+    lower_bound: float | None = None
 
     @property
     def ucl(self) -> float | None:
@@ -202,8 +218,21 @@ class ControlLine:
 
     @property
     def lcl(self) -> float | None:
-        """``center - 3 sigma``."""
-        return None if self.center is None or self.sigma is None else self.center - 3.0 * self.sigma
+        """``center - 3 sigma``, held at the natural lower bound when it would lie below it."""
+        if self.center is None or self.sigma is None:
+            return None
+        x = self.center - 3.0 * self.sigma
+        return x if self.lower_bound is None else max(self.lower_bound, x)
+
+    @property
+    def note(self) -> str | None:
+        """What a reader must know about the limits (the LCL held at the natural zero), or None."""
+        if self.center is None or self.sigma is None or self.lower_bound is None:
+            return None
+        if self.center - 3.0 * self.sigma < self.lower_bound:
+            return (f"LCL at the natural zero: centre - 3 sigma = {self.center - 3.0 * self.sigma:.4g} lies below "
+                    f"{self.lower_bound:g}, which the quantity cannot take")
+        return None
 
     @property
     def mr_ucl(self) -> float | None:
@@ -219,38 +248,56 @@ class ControlLine:
         return np.asarray(x, dtype=float) - self.center
 
 
-def freeze_line(x: Sequence[float] | np.ndarray, circular: bool = False, min_n: int = DEFAULT_MIN_N) -> ControlLine:
+def freeze_line(x: Sequence[float] | np.ndarray, circular: bool = False, min_n: int = DEFAULT_MIN_N,
+                lower_bound: float | None = None) -> ControlLine:
     """The :class:`ControlLine` of the finite values of ``x`` (time order): centre the mean (a
     phase: the circular mean), ``sigma = MRbar / 1.128`` with the moving ranges ``|x[i] - x[i-1]|``
     (a phase: of the wrapped differences). Fewer than ``min_n`` values, or no spread, give a line
-    without limits and the reason."""
+    without limits and the reason; so does a phase whose angles spread round the circle (mean
+    resultant length below :data:`MIN_RESULTANT`, or ``3 sigma`` of 180 deg or more: the limits
+    would overlap on the circle). ``lower_bound``: the quantity's natural bound (the LCL's floor)."""
     a = _finite(x)
     n = int(len(a))
     reason = n_reason(n, min_n)
     if reason is None and n < 2:
         reason = f"n = {n}: no moving range"
     if reason is not None:
-        return ControlLine(n, None, None, None, circular, reason)
+        return ControlLine(n, None, None, None, circular, reason, lower_bound)
     d = np.diff(a)
     mr = np.abs(np.asarray(wrap_pi(d), dtype=float) if circular else d)
     mr_bar = float(mr.mean())
     if not mr_bar > 0.0:
-        return ControlLine(n, None, None, None, circular, "no spread (all values equal)")
+        return ControlLine(n, None, None, None, circular, "no spread (all values equal)", lower_bound)
     center = circular_mean(a) if circular else float(a.mean())
     if not math.isfinite(center):
-        return ControlLine(n, None, None, None, circular, "no circular mean (the angles cancel)")
-    return ControlLine(n, center, mr_bar / D2, mr_bar, circular)
+        return ControlLine(n, None, None, None, circular, "no circular mean (the angles cancel)", lower_bound)
+    if circular:
+        r = circular_summary(a).resultant
+        if r < MIN_RESULTANT:
+            return ControlLine(n, None, None, None, circular, f"the angles spread round the circle (R = {r:.2f} < "
+                                                              f"{MIN_RESULTANT}): no control limits", lower_bound)
+        if 3.0 * mr_bar / D2 >= math.pi:
+            return ControlLine(n, None, None, None, circular, f"3 sigma = {math.degrees(3 * mr_bar / D2):.0f} deg "
+                                                              ">= 180 deg: limits would overlap on the circle",
+                               lower_bound)
+    return ControlLine(n, center, mr_bar / D2, mr_bar, circular, None, lower_bound)
 
 
 # --------------------------------------------------------------------------- run rules
 
-#: rule -> (points that must lie beyond, window, beyond how many sigma, the rule in words)
+#: Nelson's rules judged (his numbers): rule -> (points that must lie beyond, window, beyond how
+#: many sigma, the rule in words). Rule 3 (the trend) has no zone: ``window`` points in a row
+#: each higher (or lower) than the one before.
 RULES: dict[int, tuple[int, int, float, str]] = {
     1: (1, 1, 3.0, "1 point beyond 3 sigma"),
-    2: (2, 3, 2.0, "2 of 3 points beyond 2 sigma on one side"),
-    3: (4, 5, 1.0, "4 of 5 points beyond 1 sigma on one side"),
-    4: (8, 8, 0.0, "8 points in a row on one side of the centre line"),
+    2: (9, 9, 0.0, "9 points in a row on one side of the centre line"),
+    3: (6, 6, math.nan, "6 points in a row steadily rising or falling (a trend)"),
+    5: (2, 3, 2.0, "2 of 3 points beyond 2 sigma on one side"),
+    6: (4, 5, 1.0, "4 of 5 points beyond 1 sigma on one side"),
 }
+#: the rules judged unless asked (all of :data:`RULES`)
+DEFAULT_RULES = tuple(RULES)
+TREND = 3
 
 
 @dataclass(frozen=True)
@@ -260,13 +307,14 @@ class Violation:
     Attributes
     ----------
     rule : int
-        Western Electric rule 1-4 (:data:`RULES`).
+        Nelson's rule (:data:`RULES`).
     side : int
-        +1 above the centre line, -1 below.
+        +1 above the centre line (the trend: rising), -1 below (falling).
     runs : tuple of int
         Indices (into the series judged) of the points that make the pattern: the points beyond
-        the rule's zone in every window where it fired, overlapping or adjacent windows merged
-        (two points in a row beyond 3 sigma are one violation of rule 1).
+        the rule's zone in every window where it fired (the trend: every point of the run),
+        overlapping or adjacent windows merged (two points in a row beyond 3 sigma are one
+        violation of rule 1).
     quantity : str or None
         What was judged.
     """
@@ -277,19 +325,44 @@ class Violation:
     quantity: str | None = None
 
     @property
+    def side_word(self) -> str:
+        """``above``/``below`` the centre line; the trend's ``rising``/``falling``."""
+        if self.rule == TREND:
+            return "rising" if self.side > 0 else "falling"
+        return "above" if self.side > 0 else "below"
+
+    @property
     def text(self) -> str:
         """The rule in words, with the side."""
-        return f"rule {self.rule}: {RULES[self.rule][3]} ({'above' if self.side > 0 else 'below'})"
+        return f"rule {self.rule}: {RULES[self.rule][3]} ({self.side_word})"
+
+
+def _windows(beyond: np.ndarray, need: int, window: int, span: int = 0) -> list[set[int]]:
+    """The points of each run of windows (``window`` long) holding ``need`` points ``beyond``,
+    overlapping or adjacent windows merged; ``span`` widens each window back (the trend's first
+    point, which starts the first rise)."""
+    counts = np.convolve(beyond.astype(np.intp), np.ones(window, dtype=np.intp), mode="valid")
+    ends = np.flatnonzero(counts >= need) + window - 1
+    groups: list[tuple[int, set[int]]] = []  # (last window end, points)
+    for e in ends.tolist():
+        pts = {int(i) for i in range(e - window + 1, e + 1) if beyond[i]}
+        pts |= {int(i) - k for i in pts for k in range(1, span + 1)}
+        if groups and e - window + 1 <= groups[-1][0] + 1:
+            groups[-1] = (e, groups[-1][1] | pts)
+        else:
+            groups.append((e, pts))
+    return [pts for _e, pts in groups]
 
 
 def run_rules(x: Sequence[float] | np.ndarray, center: float, sigma: float, quantity: str | None = None,
-              rules: Iterable[int] = (1, 2, 3, 4)) -> list[Violation]:
-    """The Western Electric rules that ``x`` (time order) breaks against a frozen centre line and
-    sigma (the values' units).
+              rules: Iterable[int] = DEFAULT_RULES) -> list[Violation]:
+    """Nelson's rules (:data:`RULES`) that ``x`` (time order) breaks against a frozen centre line
+    and sigma (the values' units).
 
     Non-finite values (runs without the quantity) are left out of the windows; the indices in
     each :class:`Violation` are positions in ``x``. A point exactly on a zone's edge is not
-    beyond it. Violations come sorted by first run, then rule.
+    beyond it; two equal points in a row break a trend. Violations come sorted by first run,
+    then rule.
     """
     if not (math.isfinite(center) and math.isfinite(sigma) and sigma > 0.0):
         raise ValueError(f"run rules need a finite centre and sigma > 0 (got {center}, {sigma})")
@@ -300,22 +373,17 @@ def run_rules(x: Sequence[float] | np.ndarray, center: float, sigma: float, quan
     for rule in rules:
         need, window, zone, _text = RULES[rule]
         for side in (1, -1):
-            beyond = side * z > zone
-            counts = np.convolve(beyond.astype(np.intp), np.ones(window, dtype=np.intp), mode="valid")
-            ends = np.flatnonzero(counts >= need) + window - 1
-            groups: list[tuple[int, set[int]]] = []  # (last window end, points)
-            for e in ends.tolist():
-                pts = {int(i) for i in range(e - window + 1, e + 1) if beyond[i]}
-                if groups and e - window + 1 <= groups[-1][0] + 1:
-                    groups[-1] = (e, groups[-1][1] | pts)
-                else:
-                    groups.append((e, pts))
-            out.extend(Violation(rule, side, tuple(int(where[i]) for i in sorted(pts)), quantity) for _e, pts in groups)
+            if rule == TREND:  # window - 1 steps in a row the same way: the points from the first
+                steps = np.concatenate(([False], side * np.diff(z) > 0))
+                groups = _windows(steps, window - 1, window - 1, span=1)
+            else:
+                groups = _windows(side * z > zone, need, window)
+            out.extend(Violation(rule, side, tuple(int(where[i]) for i in sorted(pts)), quantity) for pts in groups)
     return sorted(out, key=lambda v: (v.runs[0], v.rule, -v.side))
 
 
 def judge(x: Sequence[float] | np.ndarray, line: ControlLine, quantity: str | None = None,
-          rules: Iterable[int] = (1, 2, 3, 4)) -> list[Violation]:
+          rules: Iterable[int] = DEFAULT_RULES) -> list[Violation]:
     """:func:`run_rules` of ``x`` against a frozen :class:`ControlLine` (a phase on its wrapped
     deviation from the centre). A line without limits judges nothing (empty list)."""
     if line.center is None or line.sigma is None:

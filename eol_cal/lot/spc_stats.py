@@ -8,8 +8,8 @@ Over a :class:`eol_cal.lot.columns.Lot` (display units), with the definitions of
 - :func:`circular_figures`: a phase's circular mean, circular sd and histogram on the circle.
 - :func:`control_limits`: the individuals / moving-range limits of the charted quantities per
   station, gated by the minimum n.
-- :func:`judge_lot`: each variant and station's runs against a frozen baseline: the Western
-  Electric rules that fire, with the runs, and the lines judged against.
+- :func:`judge_lot`: each variant and station's runs against a frozen baseline: Nelson's
+  rules that fire, with the runs, and the lines judged against.
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ import numpy as np
 
 from eol_cal.lot.baseline import Baseline, line_document
 from eol_cal.lot.columns import Lot, Quantity
-from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, RULES, circular_histogram, circular_summary, gate, gated_capability, judge
+from eol_cal.lot.spc import (CIRCULAR, DEFAULT_MIN_N, RULES, circular_histogram, circular_summary, gate, gated_capability,
+                             judge, natural_floor)
 from eol_cal.lot.stats import imr_limits
 
 #: sectors of a phase's histogram on the circle (15 deg each)
@@ -85,7 +86,8 @@ def circular_figures(lot: Lot, q: Quantity, bins: int = CIRCLE_BINS) -> dict[str
 
 def control_limits(lot: Lot, charted: Iterable[Quantity], min_n: int = DEFAULT_MIN_N) -> dict[str, dict[str, Any]]:
     """Per station, per charted quantity: ``runs``, ``n`` (runs with the value) and the I-MR
-    limits of the station's own runs (None with ``reason`` when ``n < min_n``)."""
+    limits of the station's own runs (None with ``reason`` when ``n < min_n``); an amplitude's
+    LCL held at its natural zero, with the ``note`` that says so."""
     out: dict[str, dict[str, Any]] = {}
     charted = list(charted)
     for station, idx in lot.stations():
@@ -96,7 +98,11 @@ def control_limits(lot: Lot, charted: Iterable[Quantity], min_n: int = DEFAULT_M
             g = gate(0.0, len(x), min_n)
             cl = imr_limits(x)
             figures = {k: (getattr(cl, k) if g.reason is None else None) for k in ("center", "ucl", "lcl", "mr_center", "mr_ucl")}
-            out[station][q.key] = {"runs": len(idx), "n": len(x), **figures, "reason": g.reason}
+            floor = natural_floor(q.key)
+            note = None
+            if floor is not None and figures["lcl"] is not None and figures["lcl"] < floor:
+                figures["lcl"], note = floor, f"LCL at the natural zero (centre - 2.66 MRbar = {cl.lcl:.4g} {q.unit})"
+            out[station][q.key] = {"runs": len(idx), "n": len(x), **figures, "reason": g.reason, "note": note}
     return out
 
 
@@ -131,7 +137,7 @@ def judge_lot(lot: Lot, baseline: Baseline, quantities: Iterable[Quantity]) -> t
                 judged.append({**head, "runs": n, **{f"baseline_{k}" if k == "n" else k: v for k, v in doc.items()}})
                 for v in judge(x, line, q.key):
                     pos = idx[list(v.runs)]
-                    violations.append({"rule": v.rule, "text": v.text, "side": "above" if v.side > 0 else "below",
+                    violations.append({"rule": v.rule, "text": v.text, "side": v.side_word,
                                        **head, "runs": lot.run_id[pos].tolist(), "serials": lot.serial[pos].tolist(),
                                        "started_at": lot.started_at[pos].tolist(),
                                        "values": [float(y) for y in lot.display(q)[pos]], "index": pos.tolist()})

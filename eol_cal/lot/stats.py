@@ -171,14 +171,18 @@ def pareto(records: Sequence[RunRecord]) -> list[tuple[str, int, float]]:
 
 
 def pareto_of(causes: Iterable[Sequence[str]]) -> list[tuple[str, int, float]]:
-    """:func:`pareto` of the runs' causes (one list per run), ties by name."""
+    """A Pareto by runs of the runs' causes (one list per run): per cause the runs that name it
+    (a cause named twice by one run counts once), most first, ties by name; and the cumulative
+    share of the runs (with a cause) that the causes so far account for (a run that names two of
+    them counts once), so the last is 1.0 and each bar and the line are runs, not codes."""
+    runs = [set(c) for c in causes if c]
     counts: dict[str, int] = {}
-    for run in causes:
+    for run in runs:
         for c in run:
             counts[c] = counts.get(c, 0) + 1
-    total = sum(counts.values())
-    out, acc = [], 0
+    out = []
+    covered = [False] * len(runs)
     for cause, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])):
-        acc += n
-        out.append((cause, n, acc / total))
+        covered = [done or cause in run for done, run in zip(covered, runs, strict=True)]
+        out.append((cause, n, sum(covered) / len(runs)))
     return out

@@ -107,7 +107,7 @@ def lot_summary(lot: Lot, refusals: Lot | None = None, min_n: int = DEFAULT_MIN_
     ``capability`` per variant and station, each index None below ``min_n`` with its reason),
     ``pareto`` (cause, runs, cumulative share), ``control`` (per station, per charted quantity:
     the individuals / moving-range limits, None below ``min_n``), and with a ``baseline`` the
-    lines ``judged`` against and the Western Electric rules' ``violations``; with ``refusals``
+    lines ``judged`` against and Nelson's rules' ``violations``; with ``refusals``
     (the refused runs of the same selection) ``refusals`` (:func:`refusal_summary`). Documented
     in ``docs/json.md``; the definitions in ``docs/spc.md``.
     """

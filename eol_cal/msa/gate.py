@@ -1,11 +1,19 @@
-"""The master-motor gate on a station: the records' latest master run decides whether a
-production motor may run (:func:`check_gate`), and a master run is judged against its
-references (:func:`judge_master`). The rules are :mod:`eol_cal.msa.master`'s.
+"""The master-motor gate on a station: the rules in force (:func:`gate_in_force`: the records
+database's, :mod:`eol_cal.msa.rules`), the station's latest master run deciding whether a
+production motor may run (:func:`check_gate`), and a master run judged against its references
+(:func:`judge_master`). The rules themselves are :mod:`eol_cal.msa.master`'s.
 
-The latest master run is read from the records database: the station's (its ``station_id``)
-runs of kind ``master`` of the master serial. A database that cannot be read gives no answer,
-so production is refused until it can be (a master run made meanwhile is spooled and counts
-once the spool is flushed into the database).
+The rules live in the records database per station; a station's settings (``[master]``) that
+give rules where the database has none are recorded there as the station's first change, and
+settings that differ from the database's rules are refused (``eol-cal gate set`` changes them).
+So no run under a station id with rules can leave them out.
+
+The master run that counts is read from the records: a run of kind ``master`` of the master
+serial on this station exactly (a run without a station id only for a station without one),
+the latest by its start as an instant (never by its text) that is not after the station's
+clock, and judged against the change of rules in force. A database that cannot be read gives
+no answer, so production is refused until it can be (a master run made meanwhile is spooled
+and counts once the spool is flushed into the database).
 """
 
 from __future__ import annotations
@@ -13,17 +21,19 @@ from __future__ import annotations
 import datetime as dt
 import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import sqlalchemy as sa
 
 from eol_cal.errors import EolCalError, InputError
-from eol_cal.msa.master import MasterRun, MasterSettings, check_master, master_due
+from eol_cal.msa.master import MasterRun, MasterSettings, master_checks, master_due
+from eol_cal.msa.rules import GateRules, change, current, rules_document
 from eol_cal.msa.study import quantity
-from eol_cal.station.record import Problem
-from eol_cal.station.records import runs
-from eol_cal.station.records_query import read_rows, select_runs
+from eol_cal.station.record import GateInfo, MasterCheck, Problem
+from eol_cal.station.records import parse_record, runs
+from eol_cal.station.records_query import read_rows
 
 if TYPE_CHECKING:
     from eol_cal.station.record import RunRecord
@@ -38,39 +48,121 @@ class MasterGateClosed(EolCalError):
         self.problems = (Problem(code, text),)
 
 
-def latest_master_run(db: str | Path, m: MasterSettings, station: str | None,
-                      timeout_s: float = 5.0) -> MasterRun | None:
-    """The latest run of kind ``master`` of ``m.serial`` on ``station`` (any station when None)."""
-    if not str(db).count("://") and not Path(db).exists():
-        return None  # a new station: no database yet, so no master run either
-    q = (select_runs(serial=m.serial, station=station, kind="master")
-         .with_only_columns(runs.c.run_id, runs.c.started_at, runs.c.verdict)
-         .order_by(None).order_by(sa.desc(runs.c.started_at), sa.desc(runs.c.run_id)).limit(1))
-    rows = read_rows(db, q, timeout_s)
-    if not rows:
-        return None
-    r = rows[0]
-    started = dt.datetime.fromisoformat(str(r["started_at"]))
-    if started.tzinfo is None:
-        started = started.replace(tzinfo=dt.UTC)
-    return MasterRun(started, r["verdict"] == "pass", str(r["run_id"]), str(r["verdict"]))
+@dataclass(frozen=True)
+class Gate:
+    """The gate in force on a station: its rules, and the change in the records database that set
+    them (None: a station without an id, whose rules are its settings')."""
+
+    master: MasterSettings
+    change: GateRules | None
+
+    def info(self, **admitted: object) -> GateInfo:
+        """The record's ``gate`` (``admitted``: the master run's fields and checks)."""
+        c = self.change
+        return GateInfo(rules_document(self.master), "records database" if c else f"settings {self.master.source}",
+                        c.station if c else None, c.seq if c else None, c.set_at if c else None,
+                        **admitted)  # type: ignore[arg-type]
 
 
-def check_gate(db: str | Path, m: MasterSettings, station: str | None, now: dt.datetime | None = None,
-               timeout_s: float = 5.0) -> MasterRun | None:
-    """Raise :class:`MasterGateClosed` when production may not run now; else the master run
-    that lets it (the latest, passed and within its period)."""
-    now = now or dt.datetime.now(dt.UTC)
+def gate_in_force(db: str | Path, station: str | None, settings: MasterSettings | None, *, adopt: bool = True,
+                  timeout_s: float = 5.0) -> Gate | None:
+    """The gate of ``station``: the records database's rules; the settings' (``settings``) where
+    the database has none, recorded there as the station's first change (``adopt``); None where
+    neither has rules (or the latest change cleared them). Settings that differ from the
+    database's rules are refused (:class:`InputError`, naming both); a database that cannot be
+    read raises :class:`MasterGateClosed`."""
+    if station is None:
+        return None if settings is None else Gate(settings, None)
     try:
-        last = latest_master_run(db, m, station, timeout_s)
+        cur = current(db, station, timeout_s)
+    except InputError as exc:
+        raise MasterGateClosed("master_due", f"master check of station {station}: {exc}") from None
+    if cur is None:
+        if settings is None:
+            return None
+        if not adopt:
+            return Gate(settings, None)
+        try:
+            made = change(db, station, settings, set_by=f"settings {settings.source}",
+                          note="the station's [master] settings, recorded by its first run")
+        except InputError as exc:
+            raise MasterGateClosed("master_due", f"master check of station {station}: {exc}") from None
+        return Gate(settings, made)
+    if settings is not None and (cur.master is None or rules_document(cur.master) != rules_document(settings)):
+        held = "no gate (cleared)" if cur.master is None else "other rules"
+        raise InputError(settings.source, "master", f"the records database holds {held} for station {station} "
+                                                    f"({cur.label}); the database's rules are in force: change them "
+                                                    "with eol-cal gate set, or remove [master] from the settings")
+    return None if cur.master is None else Gate(cur.master, cur)
+
+
+def _instant(text: object, run_id: object) -> dt.datetime:
+    try:
+        t = dt.datetime.fromisoformat(str(text))
+    except ValueError:
+        raise InputError(None, f"run {run_id} started_at", f"{text!r}: not an ISO 8601 time") from None
+    return t if t.tzinfo is not None else t.replace(tzinfo=dt.UTC)  # no offset: UTC, as the lot reads it
+
+
+def latest_master_run(db: str | Path, m: MasterSettings, station: str | None, now: dt.datetime | None = None,
+                      timeout_s: float = 5.0) -> tuple[MasterRun | None, int]:
+    """The latest run of kind ``master`` of ``m.serial`` on ``station`` (None: the runs without a
+    station id) that started by ``now`` (an instant; default the clock), with its gate's rules
+    number and checks; and how many such runs are dated after ``now`` (they do not count)."""
+    now = now or dt.datetime.now(dt.UTC)
+    if "://" not in str(db) and not Path(db).exists():
+        return None, 0  # a new station: no database yet, so no master run either
+    where = [runs.c.kind == "master", runs.c.serial == m.serial,
+             runs.c.station == station if station is not None else runs.c.station.is_(None)]
+    rows = read_rows(db, sa.select(runs.c.run_id, runs.c.started_at).where(*where), timeout_s)
+    timed = [(_instant(r["started_at"], r["run_id"]), str(r["run_id"])) for r in rows]
+    past = [t for t in timed if t[0] <= now]
+    if not past:
+        return None, len(timed)
+    started, run_id = max(past)
+    (row,) = read_rows(db, sa.select(runs.c.record_json).where(runs.c.run_id == run_id), timeout_s)
+    rec = parse_record(db, run_id, row["record_json"])
+    g = rec.gate
+    return MasterRun(started, rec.verdict == "pass", run_id, rec.verdict, None if g is None else g.seq,
+                     () if g is None else g.checks), len(timed) - len(past)
+
+
+def check_gate(db: str | Path, gate: Gate | MasterSettings, station: str | None, now: dt.datetime | None = None,
+               timeout_s: float = 5.0) -> MasterRun | None:
+    """Raise :class:`MasterGateClosed` when production may not run now; else the master run that
+    lets it (the latest by ``now``, passed, judged against the rules in force, within its period).
+    ``gate`` as :func:`gate_in_force` gives it (a :class:`MasterSettings`: the database's rules
+    of ``station`` when it has them, else these, nothing recorded)."""
+    now = now or dt.datetime.now(dt.UTC)
+    if isinstance(gate, MasterSettings):
+        gate = gate_in_force(db, station, gate, adopt=False, timeout_s=timeout_s) or Gate(gate, None)
+    m = gate.master
+    try:
+        last, later = latest_master_run(db, m, station, now, timeout_s)
     except InputError as exc:
         raise MasterGateClosed("master_due", f"master check: cannot read the last run of the master {m.serial}: "
                                              f"{exc.reason}") from None
+    if last is None and later:
+        raise MasterGateClosed("master_due", f"master check due: no run of the master {m.serial} before the station's "
+                                             f"clock ({now.astimezone(dt.UTC):%Y-%m-%d %H:%M:%S} UTC; {later} dated "
+                                             f"after it do not count); run the master {m.serial} first")
+    if last is not None and gate.change is not None and last.rules_seq != gate.change.seq:
+        judged = "no gate rules" if last.rules_seq is None else f"rules #{last.rules_seq}"
+        raise MasterGateClosed("master_due", f"master check due: the last run of the master {m.serial} "
+                                             f"({last.started_at.astimezone(dt.UTC):%Y-%m-%d %H:%M:%S} UTC) was judged "
+                                             f"against {judged}, the station's {gate.change.label} are in force; "
+                                             f"run the master {m.serial} first")
     why = master_due(now, last, m)
     if why is not None:
         raise MasterGateClosed("master_failed" if why.startswith("master check failed") else "master_due",
                                f"{why}; run the master {m.serial} first")
     return last
+
+
+def admitted_info(gate: Gate, last: MasterRun) -> GateInfo:
+    """The record's ``gate`` of a production run the master run ``last`` admitted."""
+    return gate.info(master_run=last.run_id, master_started_at=last.started_at.isoformat(timespec="milliseconds"),
+                     master_verdict=last.verdict, checks=last.checks)
 
 
 #: the refusal codes of the gate
@@ -85,7 +177,8 @@ def gate_refusal(rec: RunRecord) -> str | None:
     return f"{rec.serial}: refused, {text} (record {rec.run_id[:8]}; nothing was touched)"
 
 
-def judge_master(values: Mapping[str, float], m: MasterSettings) -> list[str]:
-    """The reasons a master run's values (stored units: N*m/A, rad, N*m, %) fail its check."""
+def judge_master(values: Mapping[str, float], m: MasterSettings) -> list[MasterCheck]:
+    """A master run's checks of its values (stored units: N*m/A, rad, N*m, %) against the
+    references (display units); the failed ones' ``reason`` says why."""
     shown = {k: v * quantity(k).scale for k, v in values.items() if v is not None and math.isfinite(v)}
-    return check_master(shown, m)[1]
+    return master_checks(shown, m)

@@ -32,11 +32,15 @@ from dataclasses import dataclass, field
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from eol_cal.errors import InputError
+from eol_cal.firmware.block import serial_problem
+from eol_cal.station.record_parts import MasterCheck
 
 #: the quantities a master check may compare (display units: mN*m/A, deg, mN*m, %, %)
 MASTER_QUANTITIES = ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct")
 _UNITS = {"k6": "mN*m/A", "phase_k6": "deg", "c6": "mN*m", "pp_before_pct": "%", "pp_after_pct": "%"}
 _ANGLES = frozenset({"phase_k6"})
+#: the hours ``master.every_h`` may take (as the settings key)
+EVERY_H_BOUNDS = (0.01, 10_000.0)
 
 
 @dataclass(frozen=True)
@@ -62,6 +66,8 @@ class MasterRun:
     passed: bool
     run_id: str = ""
     verdict: str = ""
+    rules_seq: int | None = None  # the change of the station's gate rules it was judged against
+    checks: tuple[MasterCheck, ...] = ()  # its checks against the references
 
 
 def parse_shifts(text: str, where: str, key: str = "master.shifts") -> tuple[dt.time, ...]:
@@ -97,26 +103,54 @@ def _master_settings(values: Mapping[str, object], at: Callable[[str], str]) -> 
         if stray:
             raise InputError(where, stray[0], "set master.serial too (the master motor's serial)")
         return None
-    ref = {k: float(v) for k in MASTER_QUANTITIES if (v := values.get(f"master.reference.{k}")) is not None}  # type: ignore[arg-type]
-    tol = {k: float(v) for k in MASTER_QUANTITIES if (v := values.get(f"master.tolerance.{k}")) is not None}  # type: ignore[arg-type]
+    if not isinstance(serial, str) or (why := serial_problem(serial)) is not None:
+        raise InputError(where, "master.serial", f"{serial!r}: " + (why or "not a text"))
+    ref = {k: _number(values, f"master.reference.{k}", where) for k in MASTER_QUANTITIES
+           if values.get(f"master.reference.{k}") is not None}
+    tol = {k: _number(values, f"master.tolerance.{k}", where) for k in MASTER_QUANTITIES
+           if values.get(f"master.tolerance.{k}") is not None}
     if not ref:
         raise InputError(where, "master.reference", "no reference values: give at least master.reference.k6")
-    for k in ref:
+    for k, x in ref.items():
+        if k not in _ANGLES and x < 0.0:
+            raise InputError(where, f"master.reference.{k}", f"{x:g}: an amplitude is not negative")
+        if k in _ANGLES and not -360.0 <= x <= 360.0:
+            raise InputError(where, f"master.reference.{k}", f"{x:g} deg: a phase between -360 and 360 deg")
         if k not in tol:
             raise InputError(where, f"master.tolerance.{k}", f"required: master.reference.{k} is set")
-        if not (math.isfinite(tol[k]) and tol[k] > 0.0):
-            raise InputError(where, f"master.tolerance.{k}", f"{tol[k]} is not a positive number")
-    for k in tol:
+    for k, t in tol.items():
+        if not t > 0.0:
+            raise InputError(where, f"master.tolerance.{k}", f"{t:g} is not a positive number")
+        if k in _ANGLES and not t < 180.0:
+            raise InputError(where, f"master.tolerance.{k}", f"{t:g} deg: a phase's tolerance below 180 deg "
+                                                            "(wider takes every angle)")
         if k not in ref:
             raise InputError(where, f"master.reference.{k}", f"required: master.tolerance.{k} is set")
     every = values.get("master.every_h")
     shifts_text = values.get("master.shifts")
     if (every is None) == (shifts_text is None):
         raise InputError(where, "master.every_h", "set either master.every_h or master.shifts (how often the master runs)")
-    tz = str(values.get("master.timezone") or "UTC")
+    if every is not None:
+        every = _number(values, "master.every_h", where)
+        if not EVERY_H_BOUNDS[0] <= every <= EVERY_H_BOUNDS[1]:
+            raise InputError(where, "master.every_h", f"{every:g} h: between {EVERY_H_BOUNDS[0]:g} and "
+                                                      f"{EVERY_H_BOUNDS[1]:g} h")
+    tz = values.get("master.timezone") or "UTC"
+    if not isinstance(tz, str):
+        raise InputError(at("master.timezone"), "master.timezone", f"{tz!r}: not a text")
     _zone(tz, at("master.timezone"))
+    if shifts_text is not None and not isinstance(shifts_text, str):
+        raise InputError(where, "master.shifts", f"{shifts_text!r}: not a text")
     shifts = parse_shifts(str(shifts_text), where) if shifts_text is not None else ()
-    return MasterSettings(str(serial), ref, tol, None if every is None else float(every), shifts, tz, where)  # type: ignore[arg-type]
+    return MasterSettings(serial, ref, tol, every, shifts, tz, where)
+
+
+def _number(values: Mapping[str, object], key: str, where: str) -> float:
+    """A finite number of the settings (a bool or a text is not one), or an :class:`InputError`."""
+    x = values.get(key)
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(float(x)):
+        raise InputError(where, key, f"{x!r} is not a finite number")
+    return float(x)
 
 
 def _zone(name: str, where: str) -> dt.tzinfo:
@@ -126,23 +160,38 @@ def _zone(name: str, where: str) -> dt.tzinfo:
         raise InputError(where, "master.timezone", f"{name!r} is not a time zone (IANA name, e.g. Europe/Berlin)") from None
 
 
-def check_master(measured: Mapping[str, float], m: MasterSettings) -> tuple[bool, list[str]]:
-    """Whether a master run's values (display units) lie within the tolerances of their
-    references; the reasons of those that do not (a missing value does not pass)."""
-    reasons = []
+def master_checks(measured: Mapping[str, float], m: MasterSettings) -> list[MasterCheck]:
+    """Each quantity with a reference: the master run's value (display units) against it (a
+    missing or non-finite value does not pass)."""
+    out = []
     for key, ref in m.reference.items():
         x = measured.get(key)
-        unit = _UNITS[key]
         if x is None or not math.isfinite(x):
-            reasons.append(f"master {key}: not measured")
+            out.append(MasterCheck(key, _UNITS[key], None, ref, m.tolerance[key], None, False))
             continue
         dev = x - ref
         if key in _ANGLES:
             dev = (dev + 180.0) % 360.0 - 180.0
-        if abs(dev) > m.tolerance[key]:
-            reasons.append(f"master {key} = {x:.4g} {unit} deviates {dev:+.3g} from its reference {ref:.4g} "
-                           f"(tolerance +-{m.tolerance[key]:g})")
+        out.append(MasterCheck(key, _UNITS[key], float(x), ref, m.tolerance[key], dev, abs(dev) <= m.tolerance[key]))
+    return out
+
+
+def check_master(measured: Mapping[str, float], m: MasterSettings) -> tuple[bool, list[str]]:
+    """Whether a master run's values (display units) lie within the tolerances of their
+    references; the reasons of those that do not (a missing value does not pass)."""
+    reasons = [c.reason for c in master_checks(measured, m) if c.reason is not None]
     return not reasons, reasons
+
+
+def duration(hours: float) -> str:
+    """A span for people, never rounded to nothing: ``9.0 h`` from an hour up, ``1.2 min`` from
+    a minute, else seconds (``36 s``, ``0.4 s``)."""
+    if hours >= 1.0:
+        return f"{hours:.1f} h"
+    if hours * 60.0 >= 1.0:
+        return f"{hours * 60.0:.1f} min"
+    s = hours * 3600.0
+    return f"{s:.0f} s" if s >= 10.0 else f"{s:.2g} s"
 
 
 def shift_start(now: dt.datetime, m: MasterSettings) -> dt.datetime:
@@ -161,14 +210,15 @@ def master_due(now: dt.datetime, last: MasterRun | None, m: MasterSettings) -> s
     """
     if last is None:
         return f"master check due: no run of the master {m.serial} recorded"
-    when = last.started_at.astimezone(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    when = last.started_at.astimezone(dt.UTC).strftime("%Y-%m-%d %H:%M:%S UTC")
     if not last.passed:
         return (f"master check failed: the last run of the master {m.serial} ({when}, "
                 f"{last.verdict or 'not passed'}) must be followed by a passing one")
     if m.every_h is not None:
         age_h = (now - last.started_at).total_seconds() / 3600.0
         if age_h > m.every_h:
-            return f"master check due: the last passing run of {m.serial} was {age_h:.1f} h ago ({when}; every {m.every_h:g} h)"
+            period = f"{m.every_h:g} h" if m.every_h >= 1.0 else duration(m.every_h)
+            return f"master check due: the last passing run of {m.serial} was {duration(age_h)} ago ({when}; every {period})"
         return None
     start = shift_start(now, m)
     if last.started_at < start:

@@ -19,15 +19,13 @@ from typing import Any
 
 from eol_cal.errors import InputError, naming
 from eol_cal.lot.columns import LOT_COLUMNS, QUANTITIES, Lot, Quantity, from_columns
-from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
+from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, NATURAL_ZERO  # a magnitude: T = USL - 0
 from eol_cal.msa.type1 import CAPABLE, K_DEFAULT, L_DEFAULT, Type1Study, type1_study
 from eol_cal.station.records import db_key, is_url, runs
 from eol_cal.station.records_query import read_columns, select_runs
 
 #: the quantities of a type-1 study of the ripple measurement
 TYPE1_QUANTITIES = ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct")
-#: the quantities whose lower limit is a natural zero (a magnitude, a ripple): ``T = USL - 0``
-NATURAL_ZERO = frozenset({"k6", "c6", "pp_before_pct", "pp_after_pct"})
 #: the ``schema`` of ``eol-cal msa type1 --json``
 TYPE1_SCHEMA = "eol-cal/msa-type1/1"
 
@@ -61,10 +59,13 @@ def read_runs(db: str | Path, serial: str | None = None, run_id: str | None = No
         return from_columns(cols, limits["limits_json"])
 
 
-def reference_of_run(run: Lot, run_id: str) -> dict[str, float]:
-    """The display values of :data:`TYPE1_QUANTITIES` in the declared reference run."""
+def reference_of_run(run: Lot, run_id: str, serial: str | None = None) -> dict[str, float]:
+    """The display values of :data:`TYPE1_QUANTITIES` in the declared reference run (a run of
+    ``serial``: another motor's values are no reference of this one)."""
     if len(run) != 1:
         raise InputError(None, "--reference-run", f"{run_id}: no such run in the database")
+    if serial is not None and run.serial[0] != serial:
+        raise InputError(None, "--reference-run", f"{run_id} is a run of {run.serial[0]}, not of the master {serial}")
     out = {key: float(run.display(quantity(key))[0]) for key in TYPE1_QUANTITIES}
     missing = [k for k, v in out.items() if not math.isfinite(v)]
     if len(missing) == len(out):

@@ -35,6 +35,8 @@ SCHEMA_FILES: dict[str, str] = {
     "eol-cal/lot-diff/1": "lot-diff",
     "eol-cal/lot-simulate/1": "lot-simulate",
     "eol-cal/lot-compare/1": "lot-compare",
+    "eol-cal/gate/1": "gate",
+    "eol-cal/gate-admitted/1": "gate-admitted",
 }
 
 

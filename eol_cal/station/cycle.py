@@ -29,8 +29,8 @@ from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_r
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.interrupts import emergency, raise_if_received, shielded
 from eol_cal.station.limits import LimitCheck, Measured, all_checks, failed, judge
-from eol_cal.station.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, PointFigures, PreflightResult,
-                                    RippleMetrics, RunRecord, StationInfo, Step)
+from eol_cal.station.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, GateInfo, PointFigures,
+                                    PreflightResult, RippleMetrics, RunRecord, StationInfo, Step)
 from eol_cal.station.run import (EXIT, ProgressFn, RunOutcome, StationConfig, check_config, check_motor, fit_motor,
                                  new_run_dir, safe_state, sha256_file)
 
@@ -121,6 +121,8 @@ class StationCycle:
     report_html: Path | None = None
     report_error: str | None = None
     ended_at: str | None = None
+    gate: Any = None  # the master gate in force (eol_cal.msa.gate.Gate), None: none
+    gate_info: GateInfo | None = None  # the record's gate: rules, and the master run that admitted the run
     # work on the helper thread
     _helper: ThreadPoolExecutor | None = None
     _prewarm: Future | None = None
@@ -153,13 +155,41 @@ class StationCycle:
         return cycle
 
     # ------------------------------------------------------------------ the steps
-    def master_check(self) -> None:
-        """A production motor on a station with a master motor: refused, before anything is
-        touched, while the master check is due or the last one failed (:mod:`eol_cal.msa.gate`)."""
-        from eol_cal.msa.gate import check_gate
+    def gate_steps(self) -> tuple[tuple[str, Callable[[], Any]], ...]:
+        """The master gate of a production or master run: the station's rules in force (the records
+        database's, :func:`eol_cal.msa.gate.gate_in_force`), found before any step; the step
+        ``master check`` when there are rules (or they cannot be read: it refuses). The master
+        serial runs as kind ``master``, judged against the rules."""
+        if self.cfg.kind not in ("production", "master") or (self.cfg.master is None and not self.station.id):
+            return ()
+        from eol_cal.msa.gate import gate_in_force
 
-        assert self.cfg.master is not None  # _run runs this step only on a station with a master motor
-        check_gate(self.cfg.db, self.cfg.master, self.station.id, timeout_s=self.cfg.db_timeout_s)
+        try:
+            self.gate = gate_in_force(self.cfg.db, self.station.id, self.cfg.master, timeout_s=self.cfg.db_timeout_s)
+        except EolCalError as exc:
+            failure = exc
+
+            def refuse() -> None:
+                raise failure
+
+            return (("master check", refuse),)
+        if self.gate is None:
+            return ()
+        is_master = self.cfg.serial == self.gate.master.serial
+        self.cfg = dataclasses.replace(self.cfg, master=self.gate.master, kind="master" if is_master else "production")
+        self.gate_info = self.gate.info()  # a refusal records the rules it was refused under
+        return () if is_master else (("master check", self.master_check),)
+
+    def master_check(self) -> None:
+        """A production motor on a station with a master gate: refused, before anything is
+        touched, while the master check is due or the last one failed (:mod:`eol_cal.msa.gate`);
+        else the master run that admitted it goes into the record."""
+        from eol_cal.msa.gate import admitted_info, check_gate
+
+        assert self.gate is not None  # gate_steps runs this step only on a station with rules
+        last = check_gate(self.cfg.db, self.gate, self.station.id, timeout_s=self.cfg.db_timeout_s)
+        assert last is not None  # an open gate has its master run
+        self.gate_info = admitted_info(self.gate, last)
 
     def pre_flight(self) -> None:
         """The settings the cycle will flash with, then dyno ready, ECU answering and accepting the
@@ -282,8 +312,11 @@ class StationCycle:
 
             e = self.result.estimates
             assert e is not None  # the fit step passed: its result is usable (it has estimates)
-            reasons += judge_master({"k6": e.k6.value, "phase_k6": e.phase_k6.value, "c6": e.c6.value,
-                                     "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct}, self.cfg.master)
+            checks = judge_master({"k6": e.k6.value, "phase_k6": e.phase_k6.value, "c6": e.c6.value,
+                                   "pp_before_pct": before.pp_pct, "pp_after_pct": after.pp_pct}, self.cfg.master)
+            reasons += [c.reason for c in checks if c.reason is not None]
+            if self.gate_info is not None:
+                self.gate_info = dataclasses.replace(self.gate_info, checks=tuple(checks))
         return StepVerdict("fail" if reasons else "pass", tuple(reasons))
 
     def report(self) -> Path:
@@ -348,7 +381,7 @@ class StationCycle:
     def _run(self, on_verdict: Callable[[RunRecord], None] | None) -> RunOutcome:
         failure: BaseException | None = None
         try:
-            gate = (("master check", self.master_check),) if self.cfg.master and self.cfg.kind == "production" else ()
+            gate = self.gate_steps()
             for name, method in (*gate, ("pre-flight", self.pre_flight), ("prepare ECU", self.prepare_ecu),
                                  ("acquire", self.acquire), ("fit", self.fit), ("table", self.table), ("flash", self.flash),
                                  ("acquire compensated", self.acquire_compensated), ("metrics", self.judge)):
@@ -431,7 +464,7 @@ class StationCycle:
             limits=lim, limits_sha256=self.limits_sha256, checks=tuple(all_checks(self.judged, lim)),
             steps=tuple(self.steps), preflight=self.preflight, captures=dict(self.captures), fit=self.result,
             blocks=tuple(self.blocks), metrics=self.metrics, report_dir=str(self.run_dir), safe_state=self.safe_state,
-            ecu_active=self.ecu_active or self._ecu_active(None), report_error=self.report_error)
+            ecu_active=self.ecu_active or self._ecu_active(None), report_error=self.report_error, gate=self.gate_info)
 
     # ------------------------------------------------------------------ helpers
     def _progress(self, name: str, what: str) -> None:

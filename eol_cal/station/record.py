@@ -25,17 +25,20 @@ from collections.abc import Mapping
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.station.limits import LimitCheck, VariantLimits
 from eol_cal.station.record_json import (Reader, block_json, check_from, check_json, common_from, ecu_active_from,
-                                         limits_from, metrics_from, metrics_json, preflight_from, preflight_json,
+                                         gate_from, gate_json, limits_from, metrics_from, metrics_json, preflight_from,
+                                         preflight_json,
                                          restored_from, station_from, station_json, capture_json, block_from,
                                          limits_json, error_json, step_json, restored_json)
 from eol_cal.station.record_parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REFUSAL_CODES, SCHEMA, SCHEMA_V1,
                                           VERDICTS, CaptureRef, DynoStatus, EcuActive, EcuFound, ErrorInfo,
-                                          FlashedBlock, PointFigures, PreflightResult, PreviousBlock, Problem,
+                                          FlashedBlock, GateInfo, MasterCheck, PointFigures, PreflightResult,
+                                          PreviousBlock, Problem,
                                           RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
 from eol_cal.jsonsafe import json_safe
 
 __all__ = ["BLOCK_ROLES", "KINDS", "MEASURED_KIND", "NO_STATION", "REFUSAL_CODES", "SCHEMA", "SCHEMA_V1", "VERDICTS",
-           "CaptureRef", "DynoStatus", "EcuActive", "EcuFound", "ErrorInfo", "FlashedBlock", "PointFigures", "PreflightResult",
+           "CaptureRef", "DynoStatus", "EcuActive", "EcuFound", "ErrorInfo", "FlashedBlock", "GateInfo", "MasterCheck",
+           "PointFigures", "PreflightResult",
            "PreviousBlock", "Problem", "RecordFormatError", "RestoredFrom", "RippleMetrics", "RunRecord", "StationInfo",
            "Step", "record_kind"]
 
@@ -73,6 +76,7 @@ class RunRecord:
     ecu_active: EcuActive = EcuActive("unchanged")
     restored_from: RestoredFrom | None = None
     report_error: str | None = None
+    gate: GateInfo | None = None
 
     # ------------------------------------------------------------------ reading it
     def block(self, role: str) -> FlashedBlock | None:
@@ -149,6 +153,8 @@ class RunRecord:
             "ecu_active": {"block": self.ecu_active.block, "sequence": self.ecu_active.sequence,
                            "bank": self.ecu_active.bank},
             "restored_from": restored_json(self.restored_from), "report_error": self.report_error,
+            # written when the run went through the master gate (records before it have none)
+            **({"gate": gate_json(self.gate)} if self.gate is not None else {}),
         })
 
     @classmethod
@@ -176,7 +182,8 @@ class RunRecord:
             metrics=metrics_from(r.at("metrics."), r.obj(doc, "metrics", null=True)),
             ecu_active=ecu_active_from(r.at("ecu_active."), r.obj(doc, "ecu_active")),
             restored_from=restored_from(r.at("restored_from."), r.obj(doc, "restored_from", null=True)),
-            report_error=r.str(doc, "report_error", null=True), **common_from(r, doc))
+            report_error=r.str(doc, "report_error", null=True),
+            gate=gate_from(r.at("gate."), r.obj(doc, "gate", null=True, default=None)), **common_from(r, doc))
 
 
 def record_kind(doc: Any) -> str | None:

@@ -27,6 +27,8 @@ from eol_cal.station.record_parts import (
     EcuFound,
     ErrorInfo,
     FlashedBlock,
+    GateInfo,
+    MasterCheck,
     PointFigures,
     PreflightResult,
     PreviousBlock,
@@ -205,6 +207,30 @@ class Reader:
               default: Any = _MISSING) -> tuple[Any, ...]:
         """``read`` of each element of the list ``d[key]`` (``key[i].`` in errors)."""
         return tuple(read(self.at(f"{key}[{i}]."), x) for i, x in enumerate(self.list(d, key, default=default)))
+
+
+def gate_json(g: GateInfo | None) -> dict[str, Any] | None:
+    if g is None:
+        return None
+    return {"rules": dict(g.rules), "source": g.source, "station": g.station, "seq": g.seq, "set_at": g.set_at,
+            "master_run": g.master_run, "master_started_at": g.master_started_at, "master_verdict": g.master_verdict,
+            "checks": [{"quantity": c.quantity, "unit": c.unit, "value": c.value, "reference": c.reference,
+                        "tolerance": c.tolerance, "deviation": c.deviation, "passed": c.passed} for c in g.checks]}
+
+
+def _master_check_from(r: Reader, x: Any) -> MasterCheck:
+    d = _need_obj(r, x)
+    return MasterCheck(r.str(d, "quantity"), r.str(d, "unit"), r.opt_num(d, "value"), r.num(d, "reference"),
+                       r.num(d, "tolerance"), r.opt_num(d, "deviation"), r.bool(d, "passed"))
+
+
+def gate_from(r: Reader, d: dict[str, Any] | None) -> GateInfo | None:
+    if d is None:
+        return None
+    return GateInfo(r.obj(d, "rules"), r.str(d, "source"), r.str(d, "station", null=True), r.int(d, "seq", null=True),
+                    r.str(d, "set_at", null=True), r.str(d, "master_run", null=True),
+                    r.str(d, "master_started_at", null=True), r.str(d, "master_verdict", null=True),
+                    r.items(d, "checks", _master_check_from))
 
 
 def _need_obj(r: Reader, x: Any) -> dict[str, Any]:

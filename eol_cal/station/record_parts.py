@@ -261,3 +261,59 @@ class RestoredFrom:
     sha256: str | None
     sequence: int | None
     crc32: str | None
+
+
+@dataclass(frozen=True)
+class MasterCheck:
+    """One quantity of a master run against its reference (display units: mN*m/A, deg, mN*m, %):
+    the value measured (None: not measured), the reference, the tolerance (+-), the deviation
+    (a phase's on the circle) and whether it lies within."""
+
+    quantity: str
+    unit: str
+    value: float | None
+    reference: float
+    tolerance: float
+    deviation: float | None
+    passed: bool
+
+    @property
+    def reason(self) -> str | None:
+        """Why it failed (None: it passed)."""
+        if self.passed:
+            return None
+        if self.value is None or self.deviation is None:
+            return f"master {self.quantity}: not measured"
+        return (f"master {self.quantity} = {self.value:.4g} {self.unit} deviates {self.deviation:+.3g} from its "
+                f"reference {self.reference:.4g} (tolerance +-{self.tolerance:g})")
+
+
+@dataclass(frozen=True)
+class GateInfo:
+    """The master gate a run went through (the record's ``gate``).
+
+    Attributes
+    ----------
+    rules : mapping
+        The rules in force (``serial``, ``reference``, ``tolerance`` in display units,
+        ``every_h`` or ``shifts`` and ``timezone``).
+    source : str
+        Where they came from: ``records database`` (``eol-cal gate set``) or the settings.
+    station, seq, set_at : str or None, int or None, str or None
+        The change of the station's rules in the records database that set them (None: not there).
+    master_run, master_started_at, master_verdict : str or None
+        A production run: the master run that admitted it (its run id, start, verdict).
+    checks : tuple of MasterCheck
+        A master run: its own checks against the references; a production run: those of the
+        master run that admitted it.
+    """
+
+    rules: Mapping[str, Any]
+    source: str
+    station: str | None = None
+    seq: int | None = None
+    set_at: str | None = None
+    master_run: str | None = None
+    master_started_at: str | None = None
+    master_verdict: str | None = None
+    checks: tuple[MasterCheck, ...] = ()

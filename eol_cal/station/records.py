@@ -26,9 +26,11 @@ inserts nothing twice, and many writers at once neither lose nor duplicate a rec
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sqlite3
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 from collections.abc import Sequence
@@ -109,6 +111,11 @@ class RecordError(EolCalError):
 
 class SchemaError(EolCalError):
     """The database holds an older (or newer) layout than this code writes (exit code 2)."""
+
+
+class ForeignObjectError(SchemaError):
+    """The database holds stored objects this tool did not create (triggers, views, rules): they
+    would run inside its writes and reads, so it is refused, naming them (exit code 2)."""
 
 
 #: what a write may raise when the database is unavailable (the caller spools)
@@ -217,6 +224,29 @@ def dispose(eng: Engine, db: str | Path) -> None:
         eng.dispose()
 
 
+@contextlib.contextmanager
+def connected(db: str | Path, readonly: bool, what: str, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S
+              ) -> Iterator[Connection]:
+    """A connection to an existing records database (a missing SQLite file is refused, not made),
+    refused when it holds :func:`foreign_objects`; a database error inside is an
+    :class:`~eol_cal.errors.InputError` saying what could not be done (``what``: "read the baseline")."""
+    from eol_cal.errors import InputError
+
+    if not is_url(db) and not Path(db).exists():
+        raise InputError(str(db), None, "database not found")
+    try:
+        eng = engine(db, timeout_s, readonly=readonly)
+        try:
+            with eng.connect() as con:
+                refuse_foreign(con)
+                con.rollback()  # the check's read ends here: the caller begins its own transaction
+                yield con
+        finally:
+            dispose(eng, db)
+    except DB_ERRORS as exc:
+        raise InputError(db_label(db), None, f"cannot {what}: {one_line(exc)}") from None
+
+
 def version_of(con: Connection) -> int | None:
     """The layout of the database: None when empty, 1 for the table without schema_version."""
     insp = sa.inspect(con)
@@ -226,7 +256,34 @@ def version_of(con: Connection) -> int | None:
     return 1 if insp.has_table("runs") else None
 
 
+def foreign_objects(con: Connection) -> list[str]:
+    """The stored objects of the database that run code inside its statements and that this tool
+    never creates: every trigger and view (SQLite); on PostgreSQL the triggers, views, rules and
+    materialized views of the current schema and the event triggers, as ``"trigger NAME"``...
+    (sorted). Tables and indexes are data; this tool creates no trigger, view or rule."""
+    if con.dialect.name == "sqlite":
+        q = "SELECT type, name FROM sqlite_master WHERE type IN ('trigger', 'view')"
+    else:
+        q = ("SELECT 'trigger', t.tgname || ' on ' || c.relname FROM pg_trigger t JOIN pg_class c ON c.oid = t.tgrelid "
+             "WHERE NOT t.tgisinternal AND c.relnamespace = current_schema()::regnamespace "
+             "UNION ALL SELECT 'view', viewname FROM pg_views WHERE schemaname = current_schema() "
+             "UNION ALL SELECT 'materialized view', matviewname FROM pg_matviews WHERE schemaname = current_schema() "
+             "UNION ALL SELECT 'rule', rulename || ' on ' || tablename FROM pg_rules WHERE schemaname = current_schema() "
+             "UNION ALL SELECT 'event trigger', evtname FROM pg_event_trigger")
+    return sorted(f"{kind} {name}" for kind, name in con.exec_driver_sql(q).all())
+
+
+def refuse_foreign(con: Connection) -> None:
+    """Raise :class:`ForeignObjectError` naming the database's :func:`foreign_objects` (none: nothing)."""
+    found = foreign_objects(con)
+    if found:
+        more = f" and {len(found) - 8} more" if len(found) > 8 else ""
+        raise ForeignObjectError(f"the database holds objects eol-cal did not create, which would run inside its "
+                                 f"statements: {', '.join(found[:8])}{more}; drop them (or use another database)")
+
+
 def _ensure_schema(con: Connection) -> None:
+    refuse_foreign(con)
     v = version_of(con)
     if v is None and con.dialect.name == "postgresql":
         # two stations writing the first record of a new database at once: one creates
@@ -329,6 +386,7 @@ def migrate(db: str | Path, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> tuple[
         with eng.begin() as con:
             if con.dialect.name == "postgresql":
                 con.execute(sa.text("SELECT pg_advisory_xact_lock(7413001)"))
+            refuse_foreign(con)
             v = version_of(con)
             if v is None:
                 _metadata.create_all(con)

@@ -19,7 +19,7 @@ from sqlalchemy.engine import Connection
 from eol_cal.errors import InputError
 from eol_cal.station.record import KINDS, MEASURED_KIND, RunRecord
 from eol_cal.station.records import (DB_ERRORS, DEFAULT_LOCK_TIMEOUT_S, SCHEMA_VERSION, SchemaError, dispose,
-                                     version_of, db_label, engine, is_url, one_line, parse_record, runs)
+                                     version_of, db_label, engine, is_url, one_line, parse_record, refuse_foreign, runs)
 
 
 def kinds_of(kind: str | Sequence[str] | None) -> tuple[str, ...] | None:
@@ -63,6 +63,7 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
         eng = engine(db, timeout_s, readonly=True)
         try:
             with eng.connect() as con:
+                refuse_foreign(con)
                 return [dict(r._mapping) for r in con.execute(query)]
         finally:
             dispose(eng, db)
@@ -90,8 +91,12 @@ def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_
             with eng.connect() as con:
                 if con.dialect.name == "postgresql":
                     con = con.execution_options(isolation_level="REPEATABLE READ")
+                refuse_foreign(con)
                 v = version_of(con)
-                if v is not None and v < min_version:
+                if v is None:  # the driver's own cursor below would meet a missing table with its own error
+                    raise InputError(db_label(db), None, "no records: the database has no runs table (eol-cal records "
+                                                         "migrate creates one)")
+                if v < min_version:
                     raise SchemaError(f"records database at schema version {v}, this needs version "
                                       f"{min_version}: migrate it first")
                 results = [_fetch(con, q) for q in queries]
