@@ -37,7 +37,6 @@ result says which bench file it assumed.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import math
 from dataclasses import dataclass, field
@@ -124,8 +123,9 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
     """A bench's mechanics from a built-in name (``eol_cal/benches/NAME.toml``) or a TOML file.
 
     Every key of :data:`SHAFT_KEYS` must be given, those of :data:`TRANSDUCER_KEYS` may be (the
-    delay may be 0 or negative, within :data:`MAX_DELAY_S`), an ``[identification]`` table is kept for the reader; unknown keys and
-    non-positive values are refused (InputError naming the file and the key).
+    delay may be 0 or negative, within :data:`MAX_DELAY_S`), an ``[identification]`` table is
+    kept for the reader; unknown keys and non-positive values are refused (InputError naming the
+    file and the key).
     """
     path = Path(name_or_file)
     if path.suffix == ".toml":

@@ -38,14 +38,14 @@ def _points(bench: BenchMechanics, rpms, rel_noise: float = 0.003, seed: int = 0
     for s, rpm in enumerate(rpms):
         for h in (6, 12, 18):
             w = h * rpm * 3 * 2 * math.pi / 60
-            I = 1e-4 * rpm * np.exp(1j * (0.3 * h + rpm / 500))  # A: the ECU's current ripple
-            M = path_response(np.array([w]), MOTOR, bench)[0] * (Z[h] + KT * I)
+            i_q = 1e-4 * rpm * np.exp(1j * (0.3 * h + rpm / 500))  # A: the ECU's current ripple
+            M = path_response(np.array([w]), MOTOR, bench)[0] * (Z[h] + KT * i_q)
             if distort is not None:
                 M *= distort(w)
             se_M = rel_noise * 0.03 + 2e-5
             M += se_M * (rng.normal() + 1j * rng.normal())
-            se_I = 0.002
-            rows.append((w, h, s, rpm, 40.0, M, se_M, I + se_I * (rng.normal() + 1j * rng.normal()), se_I))
+            se_Iq = 0.002
+            rows.append((w, h, s, rpm, 40.0, M, se_M, i_q + se_Iq * (rng.normal() + 1j * rng.normal()), se_Iq))
     cols = list(zip(*rows, strict=True))
     return SweepPoints("MASTER-T", ["sweep.mf4"], KT, *(np.asarray(c) for c in cols))
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -38,6 +39,9 @@ from eol_cal.analysis.bench_id.sweep import SweepPoints
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, torsion_response, transducer_response
 from eol_cal.motor import MotorParams
+
+if TYPE_CHECKING:
+    from scipy.optimize import OptimizeResult
 
 TWO_PI = 2.0 * math.pi
 #: fewest distinct speeds a sweep must hold
@@ -148,16 +152,16 @@ def _inputs(points: SweepPoints, ripple: dict[int, np.ndarray]) -> np.ndarray:
     Z = np.zeros(len(points.M), dtype=complex)
     for h, (idx, cols) in _bases(points).items():
         Z[idx] = cols @ ripple[h]
-    return Z + points.kt * points.I
+    return Z + points.kt * points.Iq
 
 
 def _residual(H: np.ndarray, points: SweepPoints) -> tuple[np.ndarray, dict[int, np.ndarray], np.ndarray]:
     """Normalised complex residuals at a path ``H``, the ripple solved for, the points' sigmas."""
-    sigma = np.sqrt(points.se_M ** 2 + (np.abs(H) * points.kt * points.se_I) ** 2)
+    sigma = np.sqrt(points.se_M ** 2 + (np.abs(H) * points.kt * points.se_Iq) ** 2)
     r = np.empty(len(H), dtype=complex)
     ripple = {}
     for h, (idx, cols) in _bases(points).items():
-        y = (points.M[idx] - H[idx] * points.kt * points.I[idx]) / sigma[idx]
+        y = (points.M[idx] - H[idx] * points.kt * points.Iq[idx]) / sigma[idx]
         A = H[idx, None] * cols / sigma[idx, None]
         coef, *_ = np.linalg.lstsq(A, y, rcond=None)
         ripple[h] = coef
@@ -166,7 +170,7 @@ def _residual(H: np.ndarray, points: SweepPoints) -> tuple[np.ndarray, dict[int,
 
 
 def _fit(points: SweepPoints, motor: MotorParams, base: BenchMechanics, free: tuple[str, ...],
-         starts: list[np.ndarray]):
+         starts: list[np.ndarray]) -> OptimizeResult:
     from scipy.optimize import least_squares
 
     def fun(u):
@@ -186,7 +190,7 @@ def _fit(points: SweepPoints, motor: MotorParams, base: BenchMechanics, free: tu
         sol = least_squares(fun, u0, bounds=bounds, x_scale="jac", method="trf")
         if best is None or sol.cost < best.cost:
             best = sol
-    return best, fun
+    return best
 
 
 def _grid_starts(points: SweepPoints, motor: MotorParams, base: BenchMechanics, n_best: int = 3) -> list[np.ndarray]:
@@ -259,22 +263,22 @@ def identify_bench(points: SweepPoints, motor: MotorParams, base: BenchMechanics
     starts = _grid_starts(points, motor, base)
     free4 = ("ln_f_n", "ln_zeta", "tau_lp_ms", "delay_ms")
     dropped: list[str] = []
-    sol, fun = _fit(points, motor, base, free4, starts)
+    sol = _fit(points, motor, base, free4, starts)
     r = sol.fun[: len(points.M)] + 1j * sol.fun[len(points.M):]
     bad = np.abs(r) / math.sqrt(2) > OUTLIER_SIGMA * max(1.0, _birge(sol.fun, len(points.M), free4, points))
     if bad.any() and (~bad).sum() >= 0.8 * len(bad):
         dropped = [f"{points.speed_rpm[i]:.0f} rpm, harmonic {points.harmonic[i]} ({points.freq_hz[i]:.0f} Hz): "
                    f"residual {abs(r[i]) / math.sqrt(2):.1f} sigma" for i in np.flatnonzero(bad)]
         points = points.take(~bad)
-        sol, fun = _fit(points, motor, base, free4, [sol.x])
+        sol = _fit(points, motor, base, free4, [sol.x])
     # J_dyno: free when the sweep resolves it
-    free = free4 + ("ln_J_dyno",)
-    sol5, fun5 = _fit(points, motor, base, free, [np.append(sol.x, math.log(base.J_dyno))])
+    free: tuple[str, ...] = free4 + ("ln_J_dyno",)
+    sol5 = _fit(points, motor, base, free, [np.append(sol.x, math.log(base.J_dyno))])
     cov5 = _covariance(sol5, len(points.M), free, points)
     jd_rel = _Z95 * math.sqrt(max(cov5[-1, -1], 0.0))
     notes = []
     if math.isfinite(jd_rel) and jd_rel <= MAX_JDYNO_CI_REL:
-        sol, fun = sol5, fun5
+        sol = sol5
         cov = cov5
     else:
         free = free4
@@ -310,7 +314,7 @@ def _birge(f: np.ndarray, n: int, free: tuple[str, ...], points: SweepPoints) ->
     return math.sqrt(float(np.sum(f * f)) / dof)
 
 
-def _covariance(sol, n: int, free: tuple[str, ...], points: SweepPoints) -> np.ndarray:
+def _covariance(sol: OptimizeResult, n: int, free: tuple[str, ...], points: SweepPoints) -> np.ndarray:
     J = sol.jac
     cov = np.linalg.pinv(J.T @ J)
     return cov * max(1.0, _birge(sol.fun, n, free, points)) ** 2

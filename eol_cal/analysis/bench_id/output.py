@@ -18,6 +18,7 @@ import numpy as np
 
 from eol_cal.analysis.bench_id.identify import BenchIdentification
 from eol_cal.atomic import atomic_write
+from eol_cal.figures import pyplot, save_png
 from eol_cal.mechanics import SHAFT_KEYS, torsion_response
 
 #: the 95 % error bars' factor (normal)
@@ -94,12 +95,10 @@ def write_bench(res: BenchIdentification, path: str | Path, sweep_profile: str |
 
 def plot_bench(res: BenchIdentification, path: str | Path) -> None:
     """Measured gain and phase of the path at each point against the identified model and the base bench."""
-    from eol_cal.figures import pyplot, save_png
-
     plt = pyplot()
     pts = res.points
     measured = pts.M / res.inputs()
-    sigma = np.sqrt(pts.se_M ** 2 + (np.abs(res.response(pts.omega)) * pts.kt * pts.se_I) ** 2) / np.abs(res.inputs())
+    sigma = np.sqrt(pts.se_M ** 2 + (np.abs(res.response(pts.omega)) * pts.kt * pts.se_Iq) ** 2) / np.abs(res.inputs())
     f = pts.freq_hz
     grid = np.geomspace(max(f.min() / 1.5, 1.0), f.max() * 1.5, 400)
     w = 2 * np.pi * grid
@@ -107,20 +106,28 @@ def plot_bench(res: BenchIdentification, path: str | Path) -> None:
     base = torsion_response(w, res.motor.J, res.motor.B, res.base) * (res.response(w) / torsion_response(
         w, res.motor.J, res.motor.B, res.mechanics))
     fig, (ax_g, ax_p) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
+    # phases drawn continuous: the model's unwrapped, each point within half a turn of it
+    model_at = res.response(np.abs(pts.omega))
     for h, marker in zip((6, 12, 18), ("o", "s", "^"), strict=True):
         sel = (pts.harmonic == h) & np.isfinite(measured)
-        sign = np.sign(pts.omega[sel])
-        g = measured[sel]
-        g = np.where(sign < 0, np.conj(g), g)
-        ax_g.errorbar(f[sel], np.abs(g), yerr=_Z95_PLOT * sigma[sel], fmt=marker, ms=4, lw=0.8, label=f"harmonic {h}")
-        ax_p.errorbar(f[sel], np.degrees(np.angle(g)), yerr=np.degrees(_Z95_PLOT * sigma[sel] / np.abs(g)), fmt=marker,
-                      ms=4, lw=0.8)
+        g = np.where(pts.omega[sel] < 0, np.conj(measured[sel]), measured[sel])
+        # points whose 95 % bar spans more than the value carry no phase: drawn faint
+        weak = _Z95_PLOT * sigma[sel] > np.abs(g)
+        phase_model = np.interp(f[sel], grid, np.degrees(np.unwrap(np.angle(model))))
+        phase = phase_model + np.degrees(np.angle(g / model_at[sel]))
+        for part, alpha in ((~weak, 1.0), (weak, 0.25)):
+            ax_g.errorbar(f[sel][part], np.abs(g[part]), yerr=_Z95_PLOT * sigma[sel][part], fmt=marker, ms=4, lw=0.8,
+                          color=f"C{h // 6 - 1}", alpha=alpha, label=f"harmonic {h}" if alpha == 1.0 else None)
+            ax_p.errorbar(f[sel][part], phase[part],
+                          yerr=np.minimum(np.degrees(_Z95_PLOT * sigma[sel][part] / np.abs(g[part])), 180.0),
+                          fmt=marker, ms=4, lw=0.8, color=f"C{h // 6 - 1}", alpha=alpha)
     fn = res.estimates["f_n_hz"]
     ax_g.plot(grid, np.abs(model), "k-", lw=1.2, label=f"identified: {fn.value:.1f} ± {fn.ci95:.1f} Hz, "
                                                        f"zeta {res.mechanics.shaft_zeta:.3f}")
     ax_g.plot(grid, np.abs(base), "k--", lw=0.9, label=f"base bench {res.base.name} (same transducer)")
-    ax_p.plot(grid, np.degrees(np.angle(model)), "k-", lw=1.2)
-    ax_p.plot(grid, np.degrees(np.angle(base)), "k--", lw=0.9)
+    ax_p.plot(grid, np.degrees(np.unwrap(np.angle(model))), "k-", lw=1.2)
+    ax_p.plot(grid, np.degrees(np.unwrap(np.angle(base))), "k--", lw=0.9)
+    ax_g.set_ylim(max(float(np.abs(model).min()) / 3, 1e-4), None)
     ax_g.set_xscale("log")
     ax_g.set_yscale("log")
     ax_g.set_ylabel("gain |T_shaft / T_airgap| (1)")

@@ -57,7 +57,7 @@ class SweepPoints:
     M, se_M : ndarray
         Shaft torque phasor (N*m, complex; ``T = Re(M exp(i h theta))``) and its standard error
         (N*m, per real component).
-    I, se_I : ndarray
+    Iq, se_Iq : ndarray
         q-current phasor (A, complex) and its standard error (A).
     """
 
@@ -71,8 +71,8 @@ class SweepPoints:
     i_qo: np.ndarray
     M: np.ndarray
     se_M: np.ndarray
-    I: np.ndarray
-    se_I: np.ndarray
+    Iq: np.ndarray
+    se_Iq: np.ndarray
 
     @property
     def freq_hz(self) -> np.ndarray:
@@ -82,7 +82,7 @@ class SweepPoints:
     def take(self, keep: np.ndarray) -> SweepPoints:
         """The points where ``keep`` (bool) is true."""
         arrays = {name: getattr(self, name)[keep] for name in ("omega", "harmonic", "segment", "speed_rpm", "i_qo",
-                                                               "M", "se_M", "I", "se_I")}
+                                                               "M", "se_M", "Iq", "se_Iq")}
         return SweepPoints(self.serial, self.sources, self.kt, **arrays)
 
 
@@ -143,8 +143,8 @@ def sweep_points(captures: list[Capture], motor: MotorParams, settle_s: float = 
     (mi,) = inputs
     seg = mi.segments
     kt = float(mi.kt)
-    rows: dict[str, list] = {k: [] for k in ("omega", "harmonic", "segment", "speed_rpm", "i_qo", "M", "se_M", "I",
-                                            "se_I")}
+    rows: dict[str, list] = {k: [] for k in ("omega", "harmonic", "segment", "speed_rpm", "i_qo", "M", "se_M", "Iq",
+                                            "se_Iq")}
     for s, (theta, y, info) in enumerate(zip(seg.theta, seg.torque, mi.info, strict=True)):
         cap = mi.captures[mi.capture_of_segment[s]]
         iq = np.asarray(cap["iq"][info.start:info.stop], dtype=float)
@@ -157,7 +157,7 @@ def sweep_points(captures: list[Capture], motor: MotorParams, settle_s: float = 
             rows["i_qo"].append(float(seg.i_qo[s]))
             rows["M"].append(ph[j, 0])
             rows["se_M"].append(se[j, 0])
-            rows["I"].append(ph[j, 1])
-            rows["se_I"].append(se[j, 1])
+            rows["Iq"].append(ph[j, 1])
+            rows["se_Iq"].append(se[j, 1])
     arrays = {k: np.asarray(v) for k, v in rows.items()}
     return SweepPoints(mi.serial, mi.sources, kt, **arrays)
