@@ -232,7 +232,7 @@ def _check_mode(points: SweepPoints, f_n: float, f_n_ci: float) -> None:
         raise _refuse(points, "speed_rpm", f"the torsion mode (about {f_n:.0f} Hz) lies outside the sweep: "
                                            f"{above} measured point(s) above {1.2 * f_n:.0f} Hz (highest with signal: "
                                            f"{top:.0f} Hz), need {MIN_FLANK_POINTS}; extend the sweep to about "
-                                           f"{rpm:.0f} rpm")
+                                           f"{rpm:.0f} rpm, or measure with a transducer of more bandwidth")
     if below < MIN_FLANK_POINTS:
         raise _refuse(points, "speed_rpm", f"the torsion mode (about {f_n:.0f} Hz) lies below the sweep: {below} "
                                            f"point(s) under {0.8 * f_n:.0f} Hz, need {MIN_FLANK_POINTS}; start the "

@@ -160,4 +160,5 @@ def sweep_points(captures: list[Capture], motor: MotorParams, settle_s: float = 
             rows["Iq"].append(ph[j, 1])
             rows["se_Iq"].append(se[j, 1])
     arrays = {k: np.asarray(v) for k, v in rows.items()}
-    return SweepPoints(mi.serial, mi.sources, kt, **arrays)
+    # the files as given (their windows are named file#k)
+    return SweepPoints(mi.serial, list(dict.fromkeys(c.source for c in captures)), kt, **arrays)
