@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import click
 
-from cli.common import console, handle_errors
+from cli.common import console, err_console, handle_errors
 from cli.paths import io_paths
 
 
@@ -66,8 +66,12 @@ def identify_cmd(captures, output, plot_file, map_file, motor_file, base_bench, 
         console.print(f"  {key:<20} {e.value:.6g}{ci} {e.unit}{note}")
     for line in res.dropped:
         console.print(f"  dropped: {line}")
+    left_out = {f"left out: {line}" for line in points.skipped}
     for line in res.notes:
-        console.print(f"  note: {line}")
+        if line not in left_out:
+            console.print(f"  note: {line}")
+    for line in points.skipped:
+        err_console.print(f"warning: left out {line}")
     console.print(f"written: {output}" + (f", {plot_file}" if plot_file else ""))
 
 

@@ -223,6 +223,7 @@ def test_identify_the_plants_resonant_bench_and_fit_with_it(tmp_path):
     assert abs(ident["shaft_zeta"]["value"] - 0.101) <= ident["shaft_zeta"]["ci95"]
     assert abs(ident["transducer_bw_hz"]["value"] - 60.0) <= ident["transducer_bw_hz"]["ci95"]
     assert png.stat().st_size > 10_000
+    assert ident["speeds"] == len(sweep.segments) and "left out" not in res.output  # every speed used
     # a fit with the identified file records which bench it assumed
     files = []
     for i, (rpm, iq) in enumerate([(120.0, 20.0), (120.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]):

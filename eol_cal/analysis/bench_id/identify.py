@@ -276,7 +276,7 @@ def identify_bench(points: SweepPoints, motor: MotorParams, base: BenchMechanics
     sol5 = _fit(points, motor, base, free, [np.append(sol.x, math.log(base.J_dyno))])
     cov5 = _covariance(sol5, len(points.M), free, points)
     jd_rel = _Z95 * math.sqrt(max(cov5[-1, -1], 0.0))
-    notes = []
+    notes = [f"left out: {line}" for line in points.skipped]
     if math.isfinite(jd_rel) and jd_rel <= MAX_JDYNO_CI_REL:
         sol = sol5
         cov = cov5
@@ -286,7 +286,7 @@ def identify_bench(points: SweepPoints, motor: MotorParams, base: BenchMechanics
         notes.append(f"J_dyno held at the base bench's {base.J_dyno:g} kg*m^2: the sweep resolves it only to "
                      f"±{100 * jd_rel:.0f} % (95 %)")
     birge = _birge(sol.fun, len(points.M), free, points)
-    dof = 2 * len(points.M) - len(free) - 2 * sum(cols.shape[1] for _, cols in _bases(points).values())
+    dof = _dof(len(points.M), free, points)
     if birge > MAX_BIRGE:
         res = sol.fun[: len(points.M)] + 1j * sol.fun[len(points.M):]
         worst = np.argsort(-np.abs(res))[:3]
@@ -308,10 +308,14 @@ def identify_bench(points: SweepPoints, motor: MotorParams, base: BenchMechanics
     return BenchIdentification(final, est, base, points, dropped, birge, dof, ripple, motor, notes)
 
 
+def _dof(n: int, free: tuple[str, ...], points: SweepPoints) -> int:
+    """Degrees of freedom: two per point, less the path's parameters and the ripple's real ones."""
+    return 2 * n - len(free) - 2 * sum(cols.shape[1] for _, cols in _bases(points).values())
+
+
 def _birge(f: np.ndarray, n: int, free: tuple[str, ...], points: SweepPoints) -> float:
-    n_lin = 2 * sum(cols.shape[1] for _, cols in _bases(points).values())
-    dof = max(2 * n - len(free) - n_lin, 1)
-    return math.sqrt(float(np.sum(f * f)) / dof)
+    """sqrt(chi2 / dof) of the normalised residuals ``f``."""
+    return math.sqrt(float(np.sum(f * f)) / max(_dof(n, free, points), 1))
 
 
 def _covariance(sol: OptimizeResult, n: int, free: tuple[str, ...], points: SweepPoints) -> np.ndarray:

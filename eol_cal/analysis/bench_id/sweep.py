@@ -59,6 +59,8 @@ class SweepPoints:
         (N*m, per real component).
     Iq, se_Iq : ndarray
         q-current phasor (A, complex) and its standard error (A).
+    skipped : tuple of str
+        The capture windows that gave no steady segment (named, with the reason), none silently.
     """
 
     serial: str
@@ -73,6 +75,7 @@ class SweepPoints:
     se_M: np.ndarray
     Iq: np.ndarray
     se_Iq: np.ndarray
+    skipped: tuple[str, ...] = ()
 
     @property
     def freq_hz(self) -> np.ndarray:
@@ -83,7 +86,7 @@ class SweepPoints:
         """The points where ``keep`` (bool) is true."""
         arrays = {name: getattr(self, name)[keep] for name in ("omega", "harmonic", "segment", "speed_rpm", "i_qo",
                                                                "M", "se_M", "Iq", "se_Iq")}
-        return SweepPoints(self.serial, self.sources, self.kt, **arrays)
+        return SweepPoints(self.serial, self.sources, self.kt, **arrays, skipped=self.skipped)
 
 
 def segment_phasors(theta: np.ndarray, pole_pairs: int, signals: np.ndarray,
@@ -160,5 +163,8 @@ def sweep_points(captures: list[Capture], motor: MotorParams, settle_s: float = 
             rows["Iq"].append(ph[j, 1])
             rows["se_Iq"].append(se[j, 1])
     arrays = {k: np.asarray(v) for k, v in rows.items()}
+    used = set(mi.capture_of_segment)
+    skipped = tuple(f"{c.source}: no steady segment of a whole electrical revolution after {settle_s:g} s settling"
+                    for i, c in enumerate(mi.captures) if i not in used)
     # the files as given (their windows are named file#k)
-    return SweepPoints(mi.serial, list(dict.fromkeys(c.source for c in captures)), kt, **arrays)
+    return SweepPoints(mi.serial, list(dict.fromkeys(c.source for c in captures)), kt, **arrays, skipped=skipped)
