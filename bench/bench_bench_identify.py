@@ -78,7 +78,7 @@ def main() -> None:
     J, J_d = base.motor.J, truth.J_dyno
     f_true = math.sqrt(truth.K_shaft * (J + J_d) / (J * J_d)) / (2 * math.pi)
     print(f"plant bench {truth.name}: torsion mode {f_true:.1f} Hz, damping {truth.shaft_zeta:.3f}, "
-          f"K_shaft {truth.K_shaft:.2f} N*m/rad; transducer low-pass {base.tq_bw_hz:g} Hz (plant: no delay)")
+          f"K_shaft {truth.K_shaft:.2f} N*m/rad; transducer low-pass {base.tq_bw_hz:g} Hz")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     sweep = load_profile("bench-sweep")
@@ -87,7 +87,10 @@ def main() -> None:
           f"damping {z_eff:.4f}: the truth the identification is judged against")
     f_true = f_eff
     truths = {"f_n_hz": f_true, "shaft_zeta": z_eff, "K_shaft": (2 * math.pi * f_eff) ** 2 * J * J_d / (J + J_d),
-              "transducer_bw_hz": base.tq_bw_hz}
+              "transducer_bw_hz": base.tq_bw_hz,
+              # the plant's transducer is a discrete low-pass updated with the tick's shaft torque:
+              # a continuous one half a tick early
+              "transducer_delay_s": -0.5 / base.motor.f_pwm}
     rows = []
     for k in range(args.repeat):
         master = spread.draw(args.master_seed + k, base=base, serial=f"MASTER-{args.master_seed + k}")
@@ -116,7 +119,6 @@ def main() -> None:
             e = ident[key]
             ci = e.get("ci95")
             row[key] = (e["value"], ci, value, ci is not None and abs(e["value"] - value) <= ci)
-        row["delay_s"] = (ident["transducer_delay_s"]["value"], ident["transducer_delay_s"].get("ci95"), 0.0, None)
         rows.append(row)
         print(f"master {k} ({master.serial}): simulated {t_sim:.1f} s, identified {t_id:.1f} s, "
               f"Birge {ident['birge']:.2f}, {ident['points']} points, dropped {len(ident['dropped'])}")
