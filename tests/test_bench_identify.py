@@ -29,13 +29,18 @@ def _bench(f_n: float, zeta: float, bw: float | None = 60.0, delay: float = 20e-
                           shaft_zeta=zeta, dyno_bw_hz=5.0, dyno_zeta=0.8, transducer_bw_hz=bw, transducer_delay_s=delay)
 
 
-def _points(bench: BenchMechanics, rpms, rel_noise: float = 0.003, seed: int = 0, distort=None) -> SweepPoints:
-    """Points of a sweep through ``bench``: the motor's ripple Z_h plus kt times a current ripple
-    that grows with speed, through the path, with noise of known standard error."""
+def _points(bench: BenchMechanics, rpms, rel_noise: float = 0.003, seed: int = 0, distort=None,
+            loads=(40.0,)) -> SweepPoints:
+    """Points of a sweep through ``bench``: the motor's ripple Z_h (``c_h + k_h i_qo``) plus kt
+    times a current ripple that grows with speed, through the path, with noise of known standard
+    error; the segments take ``loads`` (A) in turn."""
     rng = np.random.default_rng(seed)
-    Z = {6: 0.028 * np.exp(1.6j), 12: 0.009 * np.exp(-2.1j), 18: 0.003 * np.exp(1.2j)}
+    c = {6: 0.004 * np.exp(0.6j), 12: 0.009 * np.exp(-2.1j), 18: 0.003 * np.exp(1.2j)}
+    k = {6: 0.00062 * np.exp(1.6j), 12: 0.0, 18: 0.0}
     rows = []
     for s, rpm in enumerate(rpms):
+        i_qo = loads[s % len(loads)]
+        Z = {h: c[h] + k[h] * i_qo for h in c}
         for h in (6, 12, 18):
             w = h * rpm * 3 * 2 * math.pi / 60
             i_q = 1e-4 * rpm * np.exp(1j * (0.3 * h + rpm / 500))  # A: the ECU's current ripple
@@ -45,7 +50,7 @@ def _points(bench: BenchMechanics, rpms, rel_noise: float = 0.003, seed: int = 0
             se_M = rel_noise * 0.03 + 2e-5
             M += se_M * (rng.normal() + 1j * rng.normal())
             se_Iq = 0.002
-            rows.append((w, h, s, rpm, 40.0, M, se_M, i_q + se_Iq * (rng.normal() + 1j * rng.normal()), se_Iq))
+            rows.append((w, h, s, rpm, i_qo, M, se_M, i_q + se_Iq * (rng.normal() + 1j * rng.normal()), se_Iq))
     cols = list(zip(*rows, strict=True))
     return SweepPoints("MASTER-T", ["sweep.mf4"], KT, *(np.asarray(c) for c in cols))
 
@@ -82,6 +87,17 @@ def test_identifies_the_torsion_mode_and_transducer_with_intervals():
     w = 2 * math.pi * np.array([18.0, 36.0, 108.0])
     g_id, g_true = (torsion_response(w, MOTOR.J, MOTOR.B, b) for b in (res.mechanics, truth))
     assert np.abs(g_id / g_true - 1).max() < 0.002
+
+
+def test_sweep_at_two_loads_fits_the_ripple_as_c_plus_k_i():
+    truth = _bench(300.0, 0.2)
+    pts = _points(truth, SWEEP, loads=(20.0, 65.0), seed=3)
+    res = identify_bench(pts, MOTOR, load_mechanics("paper"))
+    e = res.estimates
+    assert abs(e["f_n_hz"].value - 300.0) <= e["f_n_hz"].ci95 and abs(e["shaft_zeta"].value - 0.2) <= e["shaft_zeta"].ci95
+    # two loads: each harmonic's ripple is c + k i_qo, and k6 comes out as the motor's
+    assert all(v.shape == (2,) for v in res.ripple.values())
+    assert abs(res.ripple[6][1] - 0.00062 * np.exp(1.6j)) < 0.02 * 0.00062
 
 
 def test_too_few_speeds_refused():
