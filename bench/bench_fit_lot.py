@@ -118,6 +118,8 @@ def main() -> None:
                     help="the bench the fit divides out (eol-cal fit --bench; e.g. the file eol-cal bench identify wrote)")
     ap.add_argument("--plant-bench", default="paper", metavar="NAME|FILE.toml",
                     help="the bench the plant's motors run on (e.g. resonant-250: a torsion mode at 250 Hz, damping 0.1)")
+    ap.add_argument("--station-seed", type=int,
+                    help="run the lot on the default spread's [bench] draw for this station instead of --plant-bench")
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
@@ -148,6 +150,10 @@ def main() -> None:
     from eol_cal.plant.presets import paper
 
     plant_base = paper().replace(mechanics=load_mechanics(args.plant_bench))
+    if args.station_seed is not None:
+        from eol_cal.plant.spread import load_spread
+
+        plant_base = load_spread("default").draw_bench(args.station_seed, paper())
     print(f"plant bench {plant_base.mechanics.name} ({plant_base.mechanics.source}), fit bench {bench.name} "
           f"({bench.source})")
     rows = []
