@@ -137,7 +137,7 @@ def sweep_points(captures: list[Capture], motor: MotorParams, settle_s: float = 
     for c in captures:
         if not c.has("iq"):
             raise InputError(c.source, "iq", "missing channel: the identification needs the ECU's measured q current "
-                                             "(its ripple drives the torque path too)")
+                                             "(its ripple drives the torque path too): acquire with --all-channels")
     inputs = segment_motors(captures, motor, settle_s=settle_s, min_revs=1, hall_angle="nominal", mechanics=None)
     if len(inputs) != 1:
         raise InputError(", ".join(c.source for c in captures), "serial",
