@@ -7,7 +7,7 @@ or ``--station-seed N``: the default spread's ``[bench]`` draw for station N), t
 written as MDF4 and ``eol-cal bench identify`` runs on it as a station engineer would run it
 (subprocess; exit code, bench file, plot). Printed: each identified quantity against the truth
 and whether the 95 % interval holds it, over ``--repeat`` masters; the first master's bench file
-and plot stay in ``--out`` (default ``bench_identify_out``), the file to hand to
+and plot stay in ``--out`` (default ``out/bench_identify``), the file to hand to
 ``bench/bench_fit_lot.py --bench``.
 
     python bench/bench_bench_identify.py [--repeat 5] [--plant-bench resonant-250 | --station-seed 3]
@@ -59,7 +59,7 @@ def main() -> None:
     ap.add_argument("--station-seed", type=int, help="draw the bench from the default spread's [bench] instead")
     ap.add_argument("--master-seed", type=int, default=1001, help="the first master motor's plant seed")
     ap.add_argument("--repeat", type=int, default=1, help="masters (motor and noise seeds) identified one after another")
-    ap.add_argument("--out", default="bench_identify_out", help="directory for the captures, bench files and plots")
+    ap.add_argument("--out", default="out/bench_identify", help="directory for the captures, bench files and plots")
     args = ap.parse_args()
 
     from eol_cal.capture.io import write_capture
