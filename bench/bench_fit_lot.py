@@ -45,7 +45,12 @@ motor is measured under the uncompensated block carrying those options (as the s
 "prepare ECU" step flashes it), fitted with its firmware frame measured under that estimator, and
 its block carries them; the plant's ECU runs whatever the active block's flags select.
 
+Bench (issue 34): ``--plant-bench`` puts the lot on another bench (a torsion mode in the torque
+path), ``--bench`` is the bench file the fit divides out (``eol-cal bench identify``'s output, or
+the default ``paper`` assumed without identification).
+
     python bench/bench_fit_lot.py [--motors 100] [--batch 10] [--estimator paper,best]
+                                  [--plant-bench resonant-250 --bench identified.toml]
 """
 
 from __future__ import annotations
@@ -109,6 +114,12 @@ def main() -> None:
                     help="skip the noise-free run that measures the ECU's own 6th-order current ripple")
     ap.add_argument("--no-mech", dest="mech", action="store_false",
                     help="skip the run with the layout-2 block (mechanical orders identified and compensated)")
+    ap.add_argument("--bench", default="paper", metavar="NAME|FILE.toml",
+                    help="the bench the fit divides out (eol-cal fit --bench; e.g. the file eol-cal bench identify wrote)")
+    ap.add_argument("--plant-bench", default="paper", metavar="NAME|FILE.toml",
+                    help="the bench the plant's motors run on (e.g. resonant-250: a torsion mode at 250 Hz, damping 0.1)")
+    ap.add_argument("--station-seed", type=int,
+                    help="run the lot on the default spread's [bench] draw for this station instead of --plant-bench")
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
@@ -135,13 +146,22 @@ def main() -> None:
     point = load_profile("paper")
     spec = FitSpec()
     choices = [parse_options(c.strip(), None, "--estimator") for c in args.estimator.split(",")]
-    bench = load_mechanics("paper")  # eol-cal fit's default: the bench the plant models
+    bench = load_mechanics(args.bench)  # eol-cal fit's default paper: the bench the plant models by default
+    from eol_cal.plant.presets import paper
+
+    plant_base = paper().replace(mechanics=load_mechanics(args.plant_bench))
+    if args.station_seed is not None:
+        from eol_cal.plant.spread import load_spread
+
+        plant_base = load_spread("default").draw_bench(args.station_seed, paper())
+    print(f"plant bench {plant_base.mechanics.name} ({plant_base.mechanics.source}), fit bench {bench.name} "
+          f"({bench.source})")
     rows = []
     t_sim = t_fit = 0.0
     t_start = time.perf_counter()
     for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
         seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
-        plants = [draw_motor(s) for s in seeds]
+        plants = [draw_motor(s, base=plant_base) for s in seeds]
         for opt in choices:
             label = options_label(opt)
             # the ECU runs what its active block selects: measured under the uncompensated block with

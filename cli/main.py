@@ -29,6 +29,7 @@ def _register() -> None:
 # One line per command module; keep sorted.
 _COMMAND_MODULES: list[str] = [
     "analyze",
+    "bench",
     "block",
     "capture",
     "dyno",

@@ -27,14 +27,19 @@ paper bench). The twist is a state of its own so that float32 keeps it exact at 
 angle.
 
 A bench's mechanics are a TOML file (``eol_cal/benches/NAME.toml`` built in, or a file of the
-same keys); the name ``none`` means a rigid coupling (no response divided out).
+same keys); the name ``none`` means a rigid coupling (no response divided out). A file written by
+``eol-cal bench identify`` (:mod:`eol_cal.analysis.bench_id`) also gives the torque transducer
+(``transducer_bw_hz``, ``transducer_delay_s``) and an ``[identification]`` table (intervals, the
+sweep it came from), which is kept for the reader and not used by the model. Where a bench was
+read from is kept in :attr:`BenchMechanics.source` (and ``sha256`` of the text), so that a fit's
+result says which bench file it assumed.
 """
 
 from __future__ import annotations
 
-import dataclasses
+import hashlib
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
 from typing import Protocol
@@ -69,6 +74,17 @@ class BenchMechanics:
         Bandwidth of the dyno drive's PI speed loop (Hz).
     dyno_zeta : float
         Damping ratio the speed loop is tuned for (1).
+    transducer_bw_hz : float or None
+        The torque transducer's first-order bandwidth (Hz), where the bench file gives it (an
+        identified bench); None: not given (the fit estimates the transducer's lag per motor).
+    transducer_delay_s : float or None
+        The transducer chain's pure delay (s), where given: relative to the capture's sample
+        times, so a chain sampled ahead of the continuous model reads slightly negative.
+    source : str
+        Where the description was read from (``bench NAME`` for a built-in one, else the file);
+        not compared.
+    sha256 : str
+        SHA-256 of the file's text (empty when not read from a file); not compared.
     """
 
     name: str = "paper"
@@ -77,9 +93,21 @@ class BenchMechanics:
     shaft_zeta: float = 0.3
     dyno_bw_hz: float = 5.0
     dyno_zeta: float = 0.8
+    transducer_bw_hz: float | None = None
+    transducer_delay_s: float | None = None
+    source: str = field(default="", compare=False)
+    sha256: str = field(default="", compare=False)
 
 
-_FIELDS = {f.name: f.type for f in dataclasses.fields(BenchMechanics)}
+#: the keys every bench file must give (the shaft line's model)
+SHAFT_KEYS = ("J_dyno", "K_shaft", "shaft_zeta", "dyno_bw_hz", "dyno_zeta")
+#: the keys a bench file may give (an identified bench): the transducer
+TRANSDUCER_KEYS = ("transducer_bw_hz", "transducer_delay_s")
+#: the table an identified bench file carries for its reader (intervals, sweep); not part of the model
+IDENTIFICATION_TABLE = "identification"
+#: largest |transducer_delay_s| (s) a bench file may give
+MAX_DELAY_S = 0.1
+_KNOWN = ("name", *SHAFT_KEYS, *TRANSDUCER_KEYS, IDENTIFICATION_TABLE)
 
 
 #: the bench name that means a rigid coupling (no response divided out)
@@ -94,8 +122,10 @@ def mechanics_or_rigid(name_or_file: str | Path) -> BenchMechanics | None:
 def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
     """A bench's mechanics from a built-in name (``eol_cal/benches/NAME.toml``) or a TOML file.
 
-    Every key of :class:`BenchMechanics` must be given; unknown keys and non-positive values are
-    refused (InputError naming the file and the key).
+    Every key of :data:`SHAFT_KEYS` must be given, those of :data:`TRANSDUCER_KEYS` may be (the
+    delay may be 0 or negative, within :data:`MAX_DELAY_S`), an ``[identification]`` table is
+    kept for the reader; unknown keys and non-positive values are refused (InputError naming the
+    file and the key).
     """
     path = Path(name_or_file)
     if path.suffix == ".toml":
@@ -112,21 +142,31 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
     data = loads_toml(text, source)
     kwargs: dict = {}
     for key, value in data.items():
-        if key not in _FIELDS:
-            raise InputError(source, key, f"unknown bench parameter; known: {', '.join(sorted(_FIELDS))}")
+        if key not in _KNOWN:
+            raise InputError(source, key, f"unknown bench parameter; known: {', '.join(sorted(_KNOWN))}")
         if key == "name":
             if not isinstance(value, str):
                 raise InputError(source, key, "must be a string")
+        elif key == IDENTIFICATION_TABLE:
+            if not isinstance(value, dict):
+                raise InputError(source, key, "must be a table ([identification])")
+            continue
+        elif key == "transducer_delay_s":
+            # relative to the capture's sample times: a chain sampled ahead of its model leads (< 0)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not abs(value) <= MAX_DELAY_S:
+                raise InputError(source, key, f"must be a number of seconds within ±{MAX_DELAY_S:g}, got {value!r}")
+            value = float(value)
         elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
             raise InputError(source, key, f"must be a positive number, got {value!r}")
         else:
             value = float(value)
         kwargs[key] = value
-    missing = sorted(set(_FIELDS) - set(kwargs) - {"name"})
+    missing = [k for k in SHAFT_KEYS if k not in kwargs]
     if missing:
         raise InputError(source, missing[0], f"missing bench parameter(s): {', '.join(missing)}")
     kwargs.setdefault("name", path.stem)
-    return BenchMechanics(**kwargs)
+    digest = hashlib.sha256(text.encode()).hexdigest() if path.suffix == ".toml" else ""
+    return BenchMechanics(**kwargs, source=source, sha256=digest)
 
 
 def speed_gains(J_total: float, bw_hz: float, zeta: float = 0.8) -> tuple[float, float]:
@@ -176,17 +216,39 @@ def shaft_response(omega: np.ndarray, motor: MotorParams, mechanics: BenchMechan
         ``T_shaft / T_ripple`` (1) at each ``omega``.
     """
     s = 1j * np.asarray(omega, dtype=float)
-    J, B = motor.J, motor.B
+    G = torsion_response(omega, motor.J, motor.B, mechanics)
+    Z_m = motor.J * s + motor.B
+    _, _, Kp_q, Ki_q = motor.current_pi_gains()
+    Y = 1.0 / (motor.L_q * s + motor.R_s + Kp_q + Ki_q / s)
+    feedback = motor.kt * motor.psi_f * motor.pole_pairs * Y * (1.0 - G) / Z_m
+    return G / (1.0 + feedback)
+
+
+def torsion_response(omega: np.ndarray, J: float, B: float, mechanics: BenchMechanics) -> np.ndarray:
+    """The shaft line alone: ``G = T_shaft / T_airgap`` at angular frequencies ``omega`` (rad/s).
+
+    ``G = 1 / (1 + Z_m/Z_d + Z_m/Z_s)`` with the rotor ``Z_m = J s + B`` (``J`` kg*m^2, ``B``
+    N*m*s/rad), the dyno ``Z_d`` and the shaft ``Z_s`` of :func:`shaft_response`; the air-gap
+    torque includes the current loop's reaction (what :func:`shaft_response` closes on top), so
+    this is the transfer from a torque whose current part is measured (``eol-cal bench identify``).
+    """
+    s = 1j * np.asarray(omega, dtype=float)
     Kp, Ki = speed_gains(J + mechanics.J_dyno, mechanics.dyno_bw_hz, mechanics.dyno_zeta)
     D = shaft_damping(mechanics.K_shaft, J, mechanics.J_dyno, mechanics.shaft_zeta)
     Z_m = J * s + B
     Z_d = mechanics.J_dyno * s + Kp + Ki / s
     Z_s = mechanics.K_shaft / s + D
-    G = 1.0 / (1.0 + Z_m / Z_d + Z_m / Z_s)
-    _, _, Kp_q, Ki_q = motor.current_pi_gains()
-    Y = 1.0 / (motor.L_q * s + motor.R_s + Kp_q + Ki_q / s)
-    feedback = motor.kt * motor.psi_f * motor.pole_pairs * Y * (1.0 - G) / Z_m
-    return G / (1.0 + feedback)
+    return 1.0 / (1.0 + Z_m / Z_d + Z_m / Z_s)
+
+
+def transducer_response(omega: np.ndarray, bw_hz: float | None, delay_s: float | None) -> np.ndarray:
+    """The torque transducer: ``exp(-i omega delay) / (1 + i omega / (2 pi bw))`` at ``omega`` (rad/s).
+
+    ``bw_hz`` (Hz) None or infinite: no low-pass; ``delay_s`` (s) None: no delay.
+    """
+    w = np.asarray(omega, dtype=float)
+    lowpass = 1.0 if bw_hz is None or not math.isfinite(bw_hz) else 1.0 / (1.0 + 1j * w / (TWO_PI * bw_hz))
+    return lowpass * np.exp(-1j * w * (delay_s or 0.0))
 
 
 class ShaftLine(Protocol):

@@ -22,7 +22,7 @@ import numpy as np
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
 from eol_cal.firmware.kinematics import SensorErrors
 from eol_cal.firmware.mech import MechTables, mech_tables
-from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, speed_gains
+from eol_cal.mechanics import SHAFT_KEYS, BenchMechanics, load_mechanics, shaft_damping, speed_gains
 from eol_cal.motor import MotorParams, load_motor
 from eol_cal.plant import motor as motor_model
 from eol_cal.plant import ripple
@@ -127,7 +127,7 @@ class PlantSpec:
             if f.name in ("motor", "serial"):
                 continue
             if f.name == "mechanics":
-                out.update({k: float(v) for k, v in dataclasses.asdict(value).items() if k != "name"})
+                out.update({k: float(getattr(value, k)) for k in SHAFT_KEYS})
                 continue
             if isinstance(value, tuple):
                 out[f.name] = " ".join(f"{v:.6g}" for v in value)

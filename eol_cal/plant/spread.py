@@ -6,10 +6,18 @@ A :class:`Spread` draws one motor per seed (numpy's PCG64 ``default_rng(seed)``)
 in the fixed order of :data:`PARAMETERS`, then the position sensors
 (:func:`eol_cal.firmware.kinematics.draw_sensor_errors`): the default spread draws the motors the
 plant drew before it became data, seed for seed (``tests/test_plant_spread.py``).
+
+The bench is not the motor's: a station has one, and every motor of a lot tested there runs on it.
+The spread's ``[bench]`` table gives the distributions of its torque path's torsion mode
+(:data:`BENCH_PARAMETERS`: ``resonance_hz``, the undamped frequency with the nominal rotor, and
+``shaft_zeta``); :meth:`Spread.draw_bench` draws one bench per station (or lot) seed, from a
+stream of its own, and :meth:`Spread.draw` draws the motors on it. Motors drawn without it keep
+the base preset's bench, seed for seed as before.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import tomllib
@@ -44,6 +52,11 @@ _DISTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "rayleigh": (("scale",), ()),
     "fixed": (("value",), ()),
 }
+#: the [bench] table's parameters (the station's torque path), in the order they are drawn, and
+#: the range each one's draws must stay in: resonance_hz (Hz) and shaft_zeta (1)
+BENCH_PARAMETERS = {"resonance_hz": (10.0, 5000.0), "shaft_zeta": (0.01, 1.0)}
+#: the stream a bench is drawn from is default_rng([seed, BENCH_STREAM]): apart from the motors'
+BENCH_STREAM = 0xBE4C
 #: keys of the [sensors] table and their defaults (draw_sensor_errors' arguments)
 SENSOR_KEYS = {"edge_sigma_mech_deg": 0.1, "hall_sigma_elec_deg": 2.0 / 3.0, "hall_max_elec_deg": 2.0}
 
@@ -107,6 +120,8 @@ class Spread:
         :func:`eol_cal.firmware.kinematics.draw_sensor_errors`'s arguments (degrees).
     description : str
         Free text.
+    bench : dict[str, Dist]
+        :data:`BENCH_PARAMETERS` -> distribution (empty: no bench spread).
     """
 
     name: str
@@ -114,6 +129,27 @@ class Spread:
     params: dict[str, Dist]
     sensors: dict[str, float] = field(default_factory=lambda: dict(SENSOR_KEYS))
     description: str = ""
+    bench: dict[str, Dist] = field(default_factory=dict)
+
+    def draw_bench(self, seed: int, base: PlantSpec | None = None) -> PlantSpec:
+        """``base`` on a bench drawn for one station (or lot) from ``seed``: the same seed, the same bench.
+
+        The torsion mode's frequency (Hz, with the nominal rotor inertia ``base.motor.J``) and
+        damping are drawn from ``[bench]`` (parameters left out keep the base bench's), and
+        ``K_shaft = (2 pi f)^2 J J_dyno / (J + J_dyno)``; the dyno (``J_dyno``, its speed loop)
+        stays the base bench's. Draw the lot's motors with :meth:`draw` on the result.
+        """
+        base = paper() if base is None else base
+        mech = base.mechanics
+        J, J_d = base.motor.J, mech.J_dyno
+        J_eff = J * J_d / (J + J_d)
+        rng = np.random.default_rng([seed, BENCH_STREAM])
+        drawn = {name: self.bench[name].draw(rng) for name in BENCH_PARAMETERS if name in self.bench}
+        f_n = drawn.get("resonance_hz", math.sqrt(mech.K_shaft / J_eff) / TWO_PI)
+        bench = dataclasses.replace(
+            mech, name=f"{self.name}-bench-{seed}", K_shaft=(TWO_PI * f_n) ** 2 * J_eff,
+            shaft_zeta=drawn.get("shaft_zeta", mech.shaft_zeta), source=f"{self.source} [bench] seed {seed}", sha256="")
+        return base.replace(mechanics=bench)
 
     def draw(self, seed: int, base: PlantSpec | None = None, serial: str | None = None) -> PlantSpec:
         """One motor as built, from ``seed``: the same seed gives the same motor.
@@ -208,6 +244,24 @@ def _sensors(source: str, table: Any) -> dict[str, float]:
     return out
 
 
+def _bench(source: str, table: Any) -> dict[str, Dist]:
+    """The ``[bench]`` table: one distribution per :data:`BENCH_PARAMETERS` key, its draws in range."""
+    if not isinstance(table, dict):
+        raise InputError(source, "bench", "must be a table ([bench] with [bench.resonance_hz], [bench.shaft_zeta])")
+    out = {}
+    for key, value in table.items():
+        if key not in BENCH_PARAMETERS:
+            raise InputError(source, f"bench.{key}", f"unknown bench parameter; known: {', '.join(BENCH_PARAMETERS)}")
+        dist = _dist(source, f"bench.{key}", value)
+        lo, hi = dist.support()
+        low, high = BENCH_PARAMETERS[key]
+        if not (low <= lo and hi <= high):
+            raise InputError(source, f"bench.{key}", f"draws from {lo:.6g} to {hi:.6g} leave the range {low:g} .. "
+                                                     f"{high:g} this parameter takes")
+        out[key] = dist
+    return out
+
+
 def parse_spread(data: dict[str, Any], source: str, default_name: str) -> Spread:
     """A :class:`Spread` from a TOML document (a dict), every key checked (``InputError`` naming
     ``source``, the key and the reason)."""
@@ -217,17 +271,20 @@ def parse_spread(data: dict[str, Any], source: str, default_name: str) -> Spread
             raise InputError(source, key, f"must be a string, got {value!r}")
     params: dict[str, Dist] = {}
     sensors = dict(SENSOR_KEYS)
+    bench: dict[str, Dist] = {}
     for key, value in data.items():
         if key in ("name", "description"):
             continue
         if key == "sensors":
             sensors = _sensors(source, value)
+        elif key == "bench":
+            bench = _bench(source, value)
         elif key in PARAMETERS:
             params[key] = _dist(source, key, value)
         else:
-            raise InputError(source, key, f"unknown spread parameter; known: {', '.join(PARAMETERS)}, sensors, name, "
-                                          "description")
-    return Spread(name, source, params, sensors, description)
+            raise InputError(source, key, f"unknown spread parameter; known: {', '.join(PARAMETERS)}, sensors, bench, "
+                                          "name, description")
+    return Spread(name, source, params, sensors, description, bench)
 
 
 def load_spread(name_or_file: str | Path = "default") -> Spread:
