@@ -186,16 +186,27 @@ def _show(out) -> None:
         console.print(verdict_panel(rec.serial, rec.verdict, [f"{rec.verdict}: {r}" for r in rec.reasons]))
 
 
-def _master_status(cfg) -> str:
-    """One line: the station's master motor and whether production may run now."""
-    from eol_cal.msa.gate import MasterGateClosed, check_gate
+def _master_status(cfg) -> str | None:
+    """One line: the station's master gate (its settings' or the records database's rules) and
+    whether production may run now; None for a station without a gate."""
+    from eol_cal.errors import InputError
+    from eol_cal.msa.gate import MasterGateClosed, check_gate, gate_in_force
 
-    m = cfg.master
+    station = cfg.station.get("id")
+    try:
+        gate = gate_in_force(cfg.db, station, cfg.master, adopt=False, timeout_s=cfg.db_timeout_s)
+    except (MasterGateClosed, InputError) as exc:  # the cycle refuses each run with the same reason
+        return f"master gate: {exc}"
+    if gate is None:
+        return None
+    m = gate.master
     period = f"every {m.every_h:g} h" if m.every_h is not None else f"per shift ({m.timezone})"
     try:
-        last = check_gate(cfg.db, m, cfg.station.get("id"), timeout_s=cfg.db_timeout_s)
+        last = check_gate(cfg.db, gate, station, timeout_s=cfg.db_timeout_s)
     except MasterGateClosed as exc:
         return f"master {m.serial} ({period}): {exc}"
+    if last is None:  # no rule asks for a master run yet
+        return f"master {m.serial} ({period}): production may run"
     return f"master {m.serial} ({period}): passed {last.started_at:%Y-%m-%d %H:%M} UTC; production may run"
 
 
@@ -317,8 +328,8 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
         return
     if not demo:
         flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
-    if cfg.master is not None:
-        console.print(_master_status(cfg))
+    if (status := _master_status(cfg)) is not None:  # the database's rules too, not only [master]
+        console.print(status)
     err_console.print(f"operator {operator}; each motor takes about a quarter of a minute")
     tally = SessionTally()
     interrupted = False
