@@ -190,12 +190,15 @@ def test_a_source_slower_than_real_time_that_hands_over_pieces_is_read_as_they_c
 
 
 def test_a_piece_is_never_answered_before_the_shaft_turned_it_out(regmap):
-    n = 4000  # 0.4 s of capture; the source hands over the first half at once, the rest after 1 s
+    n = 4000  # 0.4 s of capture; the source hands over the first half at once, the rest when the test is done
+    release = threading.Event()
 
     def source(req):
         whole = synthetic_source(req)
         req.partial(dataclasses.replace(whole, t=whole.t[:2000], channels={c: v[:2000] for c, v in whole.channels.items()}))
-        time.sleep(1.0)
+        # the rest only after the test looked (a fixed 1 s sleep raced the polling loop on a
+        # loaded machine: the whole capture was in before the last look); 120 s is a hang guard
+        release.wait(120.0)
         return whole
 
     thread, client = _armed(regmap, source=source, n=n)
@@ -215,6 +218,7 @@ def test_a_piece_is_never_answered_before_the_shaft_turned_it_out(regmap):
         assert ahead == []
         assert counts[-1][1] == 2000 and thread.sim.captured() == 2000
     finally:
+        release.set()
         client.close()
         thread.stop()
 
