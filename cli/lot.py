@@ -59,7 +59,7 @@ def min_n_option(func):
 @click.option("-o", "--out", "out", default=Path("lot.html"), show_default=True,
               type=click.Path(dir_okay=False, path_type=Path), help="The page to write (one self-contained HTML file).")
 @handle_errors
-@io_paths(inputs=("db",), outputs=("out",))
+@io_paths(outputs=("out",), databases=("db",))
 def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, out) -> None:
     """Write the lot page: yield and counts, distributions with the limits (phases on the circle),
     capability per variant and station, control charts per station (against a frozen baseline
@@ -107,7 +107,7 @@ def _fmt(x, digits: int = 4) -> str:
               help="Also write the selected runs (one row each, the database's columns, units in the header; with "
                    "--baseline the rules each run is part of) as CSV.")
 @handle_errors
-@io_paths(inputs=("db",), outputs=("csv_file",))
+@io_paths(outputs=("csv_file",), databases=("db",))
 def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, kind, as_json, csv_file) -> None:
     """Lot statistics of the production runs (--kind for others): per quantity count, mean, sd,
     percentiles (phases on the circle), Cp/Cpk per variant and station against the variant's

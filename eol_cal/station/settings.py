@@ -388,17 +388,15 @@ def seed_to_key_of(settings: StationSettings) -> Callable[[bytes], bytes]:
                                                                file_field="key_file", algo_field="key_algo"))
 
 
-#: files SQLite writes beside a database file (WAL mode, and the rollback journal)
-SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
-
-
-def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], list[str]]:
+def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], list[str], list[str]]:
     """What the settings make a station read and write: (input files, output files, output
-    directories), for the check that no output is an input (``cli.paths.check_more``).
+    directories, records databases), for the check that no output is an input or a database
+    (``cli.paths.check_more``).
 
     Inputs: the settings file, limits, key file, CAN configuration, and the motor, bench,
-    profile and register map where they are files. Outputs: the records database (and the
-    files SQLite keeps beside it) unless an option gave it. Directories: reports and spool.
+    profile and register map where they are files. Outputs: none of their own (the database is
+    not an output: no output may land on it or the files SQLite keeps beside it, whichever
+    option, setting or default named it). Directories: reports and spool.
     """
     reads = [settings.source] if settings.source != "environment" else []
     reads += [str(settings[k]) for k in ("limits", "key_file", "can.config") if settings[k] is not None]
@@ -406,14 +404,9 @@ def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], lis
         value = settings[key]
         if value is not None and Path(str(value)).is_file():
             reads.append(str(value))
-    writes: list[str] = []
     db = settings["db"]
-    # a database given as an option is that option's output already (the same file twice is
-    # not two outputs); one from the file or a variable is the settings' own
-    if db is not None and "://" not in str(db) and settings.origin.get("db") != "given":
-        writes += [str(db), *(f"{db}{side}" for side in SQLITE_SIDE_FILES)]
     dirs = [str(settings[k]) for k in ("report_dir", "spool_dir") if settings[k] is not None]
-    return reads, writes, dirs
+    return reads, [], dirs, [str(db)] if db is not None else []
 
 
 def register_map_of(settings: StationSettings) -> RegisterMap:
