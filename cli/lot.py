@@ -384,24 +384,25 @@ def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profi
     that was stopped; no motor is recorded twice."""
     import contextlib
 
-    from distributed import Client
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from cli.common import CommandExit, err_console, print_json
+    from cli.refit import cluster_client, scheduler_address
     from eol_cal.analysis.fit.cache import default_cache_dir
-    from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
+    from eol_cal.lot.cluster import RefitWorkerSetup
     from eol_cal.lot.simulate import SIM_BATCH, LotPlan, check_plan, recorded_runs, simulate_lot
     from eol_cal.station.records import db_label
 
     plan = LotPlan(lot_name, spread, str(limits_file), variant, motors, seed, profile, "paper", bench,
                    batch or SIM_BATCH)
     check_plan(plan)
+    if scheduler is not None:
+        scheduler_address(scheduler)  # before the database is read
     before = len(recorded_runs(db, plan) & {plan.run_id(i) for i in range(motors)})
     cache_dir = default_cache_dir()
     t0 = __import__("time").perf_counter()
     with contextlib.ExitStack() as stack:
-        cluster = None if scheduler else stack.enter_context(local_cluster(workers))
-        client = stack.enter_context(Client(scheduler or cluster))
+        client = cluster_client(stack, scheduler, workers)
         # every worker: the plant's and estimator's tick loops in one kernel, JAX's compile cache,
         # the fit imported (eol_cal.lot.cluster)
         client.register_plugin(RefitWorkerSetup(cache_dir))

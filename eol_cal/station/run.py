@@ -229,7 +229,11 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
 def new_run_dir(report_dir: Path, serial: str, started: dt.datetime, run_id: str) -> Path:
     stamp = started.strftime("%Y%m%dT%H%M%SZ")
     d = report_dir / f"{_safe_name(serial)}_{stamp}_{run_id[:8]}"
-    d.mkdir(parents=True, exist_ok=False)
+    try:
+        d.mkdir(parents=True, exist_ok=False)
+    except (OSError, ValueError) as exc:  # /proc/self, a read-only mount, a name too long: before the dyno turns
+        raise InputError(str(report_dir), "report_dir", f"cannot make the run's directory there: "
+                                                        f"{getattr(exc, 'strerror', None) or exc}") from None
     return d
 
 

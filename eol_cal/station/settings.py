@@ -209,6 +209,16 @@ def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
         raise InputError(where, "dyno.address", exc.reason) from exc
 
 
+def _check_path(key: Key, value: object, where: str) -> object:
+    """A path-valued key (or a database file) that no file can have (a NUL, a name or path too
+    long) refused here, naming it, not as ValueError where it is first resolved or opened."""
+    from eol_cal.address import path_problem
+
+    if (key.is_path or key.name == "db") and (why := path_problem(str(value))) is not None:
+        raise InputError(where, key.name, why)
+    return value
+
+
 def _resolve(key: Key, value: object, base: Path) -> object:
     """A path-valued key relative to ``base``; so is a database that is a file, not a URL."""
     if key.is_path or (key.name == "db" and "://" not in str(value)):
@@ -312,7 +322,7 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
             if key.is_path and key.default is not None:
                 values[key.name] = str(base / str(key.default))
             continue
-        values[key.name] = _resolve(key, _check_value(key, value, where), root)
+        values[key.name] = _resolve(key, _check_path(key, _check_value(key, value, where), where), root)
     if values["key_file"] is None and values["key_algo"] is None and "key_file" not in optional:
         raise InputError(source, "key_file", f"required (in the file or as ${env_name('key_file')}), unless key_algo "
                                              "names an OEM algorithm that needs no secret")
