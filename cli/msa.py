@@ -68,6 +68,7 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     Exit 1 unless every quantity with a tolerance is capable (Cg and Cgk >= 1.33)."""
     from cli.common import print_json
     from cli.lot import parse_date
+    from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.msa.study import document, read_runs, reference_of_run, studies
     from eol_cal.station.records import db_label
@@ -78,11 +79,18 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     first, last = parse_date(since, "since"), parse_date(until, "until")
     sources = {key: "given" for key in refs}
     if reference_run is not None:
-        of_run = reference_of_run(read_runs(db, run_id=reference_run), reference_run)
+        ref_run = read_runs(db, run_id=reference_run)
+        if len(ref_run) == 1 and ref_run.serial[0] != serial:  # another motor's values are no reference of this one
+            raise InputError(None, "--reference-run", f"{reference_run}: a run of serial {ref_run.serial[0]!r}, not of "
+                                                      f"{serial!r}")
+        of_run = reference_of_run(ref_run, reference_run)
         sources = {**{key: f"run {reference_run}" for key in of_run}, **sources}
         refs = {**of_run, **refs}
     lot = read_runs(db, serial=serial, since=first and first.isoformat(), until=last and last.isoformat(),
                     exclude=reference_run)
+    if len(lot) == 0:  # nothing to study is bad input, not an incapable gauge (exit 1)
+        window = "" if first is None and last is None else f" from {since or 'the start'} until {until or 'now'}"
+        raise InputError(None, "--serial", f"{serial!r}: no recorded runs of this serial in {db_label(db)}{window}")
     results = studies(lot, refs, tols, sources, l=l, min_n=min_n)
     doc = {**document(results, serial=serial, runs=lot, min_n=min_n), "db": db_label(db)}
     if out is not None:
