@@ -10,7 +10,7 @@ import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
 from cli.ecu import key_algo_option
-from cli.paths import check_more, io_paths
+from cli.paths import check_io, check_more, io_paths
 from cli.station import StepProgress, flush_first, given_options, quiet_logs, results_table, write_demo_limits
 from eol_cal import interrupts
 
@@ -121,8 +121,10 @@ def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir:
     # directory unless given, and the station's EOL_CAL_* variables are not read
     given = {"db": str(out_dir / "results.sqlite"), "report_dir": str(out_dir / "reports"),
              "spool_dir": str(out_dir / "spool"), **given}
-    # the demo's own files against its database (given or its own), before the limits are written
-    check_more(outputs=(limits,) if lot_file is not None else (limits, out_dir / "lot.html"), databases=(given["db"],))
+    # the demo's own files (its limits: written, then read) against its database, given or its own,
+    # before the limits are written; the database against the outputs given (--lot, --log-file)
+    check_io((), (limits,) if lot_file is not None else (limits, out_dir / "lot.html"), databases=(given["db"],))
+    check_more(databases=(given["db"],))
     write_demo_limits(limits)
     return load_settings(station_file, environ={}, given=given, optional=DEMO_OWN_KEYS,
                          fallbacks={"limits": str(limits), "station_id": DEMO_STATION_ID})
@@ -196,13 +198,20 @@ def _master_status(cfg) -> str:
     return f"master {m.serial} ({period}): passed {last.started_at:%Y-%m-%d %H:%M} UTC; production may run"
 
 
+def _ended_by_operator() -> None:
+    """A signal at a prompt: Ctrl-C (SIGINT) is the operator ending the session (exit 0); SIGTERM
+    or SIGHUP (the station shut down, its terminal closed) stays an interruption (exit 2)."""
+    if interrupts.received() in (None, "SIGINT"):
+        interrupts.handled()
+
+
 def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
     """Motors until the operator ends the session; True when a motor was interrupted."""
     while True:
         try:
             serial = _next_serial()
         except KeyboardInterrupt:
-            interrupts.handled()  # the session's way to end, with exit 0
+            _ended_by_operator()  # Ctrl-C: the session's way to end, with exit 0
             console.print("\nCtrl-C between motors: the session ends")
             return False
         if serial is None:
@@ -220,7 +229,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             _show(out)
         except KeyboardInterrupt:
-            interrupts.handled()
+            _ended_by_operator()
             return False
 
 
@@ -308,7 +317,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:
-        interrupts.handled()
+        _ended_by_operator()
         operator = None
     if operator is None:
         console.print("no operator: the session ends")

@@ -12,7 +12,7 @@ from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator
                         handle_errors, kind_option, print_json, styled)
 from cli.dyno import load_map, realtime_option, register_map_option
 from cli.ecu import key_algo_option
-from cli.paths import check_more, io_paths
+from cli.paths import check_io, check_more, io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").read_text(encoding="utf-8")
@@ -347,9 +347,10 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
 
     limits_path = out_dir / "limits.toml"
     db = out_dir / "results.sqlite" if db is None else db
-    # what the demo writes by default, against its database (given or its own) before anything is written
-    check_more(outputs=(limits_path, out_dir / "lot.html"), output_dirs=(out_dir / "reports", out_dir / "spool",
-                                                                         out_dir / "sim"), databases=(db,))
+    # what the demo writes by default (its limits: written, then read), against its database, given
+    # or its own, before anything is written
+    check_io((), (limits_path, out_dir / "lot.html"), (out_dir / "reports", out_dir / "spool", out_dir / "sim"), (db,))
+    check_more(databases=(db,))
     write_demo_limits(limits_path)
     limits = load_limits(limits_path)
     regmap = load_map(register_map)
