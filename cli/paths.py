@@ -109,6 +109,12 @@ def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs:
     ins = [p for v in inputs for p in _paths(v)]
     outs = [p for v in outputs for p in _paths(v)]
     db_files = database_files(databases)
+    for db in db_files[::4]:  # SQLite would write into it: a database is no other input of the command
+        for inp in ins:
+            if _same(db, inp):
+                same = "" if os.path.normpath(db) == os.path.normpath(inp) else f" ({inp})"
+                raise InputError(db, None, f"output is also an input of this command{same}; the records database "
+                                           "would be written into it")
     for out in (*outs, *(p for v in output_dirs for p in _paths(v))):
         for k, db in enumerate(db_files):
             if _same(out, db):
