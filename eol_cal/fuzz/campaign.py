@@ -56,10 +56,12 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
-            root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None) -> tuple[int | None, str, str, float, int]:
+            root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None,
+            signal_at: tuple[int, float] | None = None) -> tuple[int | None, str, str, float, int]:
     """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit,
     with ``stdin`` as its input and ``env`` added to (the station's ``EOL_CAL_*`` variables removed from)
-    this process's environment.
+    this process's environment; with ``signal_at = (SIGNUM, S)`` the signal is sent ``S`` seconds
+    after the start unless the child ended before.
 
     Returns (exit code or None when it was killed for running past ``timeout_s``; a negative
     code is the signal that ended it), stdout, stderr, seconds, peak resident memory (KiB).
@@ -73,7 +75,14 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
                             preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
-        out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
+        if signal_at is not None:
+            try:  # the input goes in at once; the signal comes at its moment if the child still runs
+                out, err = proc.communicate(stdin.encode(), timeout=signal_at[1])
+            except subprocess.TimeoutExpired:
+                proc.send_signal(signal_at[0])
+                out, err = proc.communicate(timeout=timeout_s)
+        else:
+            out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
         rc: int | None = proc.returncode
     except subprocess.TimeoutExpired:
         os.killpg(proc.pid, 9)
