@@ -398,7 +398,7 @@ def run_scenario(scenario: Scenario, workdir: Path, timeout_s: float = 60.0, roo
     text = out + err
     crash = rc is not None and (rc not in (0, 1, 2) or "MemoryError" in text)
     last = (err.strip().splitlines() or [""])[-1]
-    refused = rc == 2 and last.startswith("error:")
+    refused = rc == 2 and last.startswith(("error:", "Error:"))  # ours, or click's usage error naming the option
     # a signal that came while the command ran must end it as a refusal; one after its end changes nothing
     signalled = scenario.signal_at is not None and seconds > scenario.signal_at[1]
     must_refuse = scenario.expect == "refuse" or signalled
