@@ -61,7 +61,7 @@ def msa_group() -> None:
 @click.option("--plots", default=None, type=click.Path(file_okay=False, path_type=Path),
               help="Write each quantity's run chart as PNG into this directory (type1-KEY.png).")
 @handle_errors
-@io_paths(inputs=("db",), outputs=("out",), output_dirs=("plots",))
+@io_paths(outputs=("out",), output_dirs=("plots",), databases=("db",))
 def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l, min_n, as_json, out, plots) -> None:
     """Type-1 gauge study of k6, phase_k6, c6 and the p-p figures over the master's runs: bias,
     repeatability s, Cg = 0.2 T / (4 s) and Cgk = (0.1 T - |bias|) / (2 s) (docs/spc.md).

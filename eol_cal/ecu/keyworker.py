@@ -25,6 +25,8 @@ def _reply(proto: BinaryIO, kind: str, text: str) -> None:
 
 
 def _why(exc: BaseException) -> str:
+    if isinstance(exc, MemoryError):  # its own allocation failed: said in words, it is not the tool's
+        return "ran out of memory"
     return f"{exc.__class__.__name__}: {exc}"[:500]
 
 
