@@ -51,6 +51,8 @@ class Scenario:
     protect: tuple[str, ...] | None = None
     #: (signal, seconds after the start): a signal that comes while the command runs must end it with exit 2
     signal_at: tuple[int, float] | None = None
+    #: the child's address-space limit (default CHILD_MEMORY_BYTES; a whole station cycle with JAX needs more)
+    memory_bytes: int | None = None
 
     def lay_out(self, d: Path) -> None:
         d.mkdir(parents=True, exist_ok=True)
@@ -391,16 +393,17 @@ def run_scenario(scenario: Scenario, workdir: Path, timeout_s: float = 60.0, roo
     d = workdir / uuid.uuid4().hex[:12]
     scenario.lay_out(d)
     before = scenario.digests(d)
-    rc, out, err, seconds, _rss = run_cli(scenario.argv(d), d, timeout_s, CHILD_MEMORY_BYTES, root,
+    rc, out, err, seconds, _rss = run_cli(scenario.argv(d), d, timeout_s, scenario.memory_bytes or CHILD_MEMORY_BYTES, root,
                                          stdin=scenario.stdin, env=scenario.env, signal_at=scenario.signal_at)
     after = scenario.digests(d)
     shutil.rmtree(d, ignore_errors=True)
     text = out + err
     crash = rc is not None and (rc not in (0, 1, 2) or "MemoryError" in text)
     last = (err.strip().splitlines() or [""])[-1]
-    refused = rc == 2 and last.startswith(("error:", "Error:"))  # ours, or click's usage error naming the option
-    # a signal that came while the command ran must end it as a refusal; one after its end changes nothing
+    # a signal that came while the command ran must end it with exit 2 (its own line says what was
+    # interrupted); one after its end changes nothing
     signalled = scenario.signal_at is not None and seconds > scenario.signal_at[1]
+    refused = rc == 2 and (signalled or last.startswith(("error:", "Error:")))  # ours, or click's usage error
     must_refuse = scenario.expect == "refuse" or signalled
     return ScenarioOutcome(scenario, rc, seconds, err[-2000:], "Traceback" in text, rc is None, crash, after != before,
                            must_refuse and rc is not None and not refused and not crash)
