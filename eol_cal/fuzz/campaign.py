@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -96,6 +97,11 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
             out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
         rc: int | None = proc.returncode
     except subprocess.TimeoutExpired:
+        # a hang: where it hangs, from the child's faulthandler (PYTHONFAULTHANDLER in env) on SIGABRT
+        with contextlib.suppress(ProcessLookupError, subprocess.TimeoutExpired):
+            if (env or {}).get("PYTHONFAULTHANDLER"):
+                proc.send_signal(6)
+                proc.wait(5)
         os.killpg(proc.pid, 9)
         out, err = proc.communicate()
         rc = None

@@ -245,7 +245,7 @@ def signal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
                 yield Scenario("signals", f"{name}: {sig.name} at {at:g} s", files, args, expect="any",
                                stdin="DEMO-0001\nq\n" if name == "station --demo" else "", signal_at=(int(sig), at),
                                protect=("r.sqlite", "station.toml", "limits.toml", "ecu.key", "cap.csv", "fit.json"),
-                               memory_bytes=SIGNALS_MEMORY_BYTES)
+                               memory_bytes=SIGNALS_MEMORY_BYTES, env={"PYTHONFAULTHANDLER": "1"})
 
 
 # ------------------------------------------------------------------------------------ class 9
