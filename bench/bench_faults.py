@@ -171,6 +171,8 @@ def scenarios_section(args: argparse.Namespace) -> bool:
         for o in total.bad[:args.show]:
             print(f"  {o.what:<22} {o.scenario.kind}: {o.scenario.name} rc {o.rc}: "
                   f"{(o.stderr.strip().splitlines() or [''])[-1][:140]}")
+            if o.hang:  # where it hung (the child's faulthandler dump, when the scenario asked for one)
+                print("    " + "\n    ".join(o.stderr.strip().splitlines()[-30:]))
         if args.before:
             with checkout(args.before) as tree:
                 theirs = run_scenarios(kinds, Path(tmp), bases, timeout_s=args.timeout * 3, root=tree)

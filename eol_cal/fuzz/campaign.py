@@ -102,7 +102,8 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
             if (env or {}).get("PYTHONFAULTHANDLER"):
                 proc.send_signal(6)
                 proc.wait(5)
-        os.killpg(proc.pid, 9)
+        with contextlib.suppress(ProcessLookupError):  # the abort above may have ended the group
+            os.killpg(proc.pid, 9)
         out, err = proc.communicate()
         rc = None
     seconds = time.perf_counter() - t0
