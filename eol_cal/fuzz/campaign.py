@@ -90,7 +90,10 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
             try:  # the input goes in at once; the signal comes at its moment if the child still runs
                 out, err = proc.communicate(stdin.encode(), timeout=signal_at[1])
             except subprocess.TimeoutExpired:
-                proc.send_signal(signal_at[0])
+                if proc.poll() is None:  # still running (not a zombie that ended a moment ago)
+                    proc.send_signal(signal_at[0])
+                else:  # it ended at its moment: no signal, and its seconds say so
+                    t0 = time.perf_counter() - signal_at[1]
                 out, err = proc.communicate(timeout=timeout_s)
             out = go.removeprefix(b"go\n") + out
         else:
