@@ -79,6 +79,7 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     # signalled: the moment counts from Python's start, just before the program's first instruction
     # (no code of the tool's runs before it; the interpreter's own start takes 0.05 to 0.3 s with load)
     program = ["-c", _GO_FIRST] if signal_at is not None else ["-m", "cli.main"]
+    ended_at_moment = False
     proc = subprocess.Popen([sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
                             preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
@@ -92,8 +93,8 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
             except subprocess.TimeoutExpired:
                 if proc.poll() is None:  # still running (not a zombie that ended a moment ago)
                     proc.send_signal(signal_at[0])
-                else:  # it ended at its moment: no signal, and its seconds say so
-                    t0 = time.perf_counter() - signal_at[1]
+                else:  # it ended at its moment: no signal, and its seconds say so (below)
+                    ended_at_moment = True
                 out, err = proc.communicate(timeout=timeout_s)
             out = go.removeprefix(b"go\n") + out
         else:
@@ -110,6 +111,8 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
         out, err = proc.communicate()
         rc = None
     seconds = time.perf_counter() - t0
+    if ended_at_moment:
+        seconds = min(seconds, signal_at[1] if signal_at is not None else seconds)
     # the largest resident set of any child waited for so far: an upper bound for this one
     rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss
