@@ -1,4 +1,5 @@
 /* eol_block.c: parameter block check and CRC-32, see eol_block.h. */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include "eol_block.h"
 
 static const uint32_t eol_crc32_table[256] = {

@@ -1,4 +1,5 @@
 /* eol_comp.c: see eol_comp.h and ../COMPENSATOR.md. One statement per rounding step. */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <math.h>
 
 #include "eol_comp.h"

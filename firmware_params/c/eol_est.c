@@ -1,6 +1,7 @@
 /* eol_est.c: rotor angle/speed estimator, see eol_est.h and ../ESTIMATOR.md.
  * Every float expression keeps the order of the Python reference (eol_cal/firmware/estimator.py)
  * so that the host build matches the golden vectors bit for bit. */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <math.h>
 
 #include "eol_est.h"

@@ -1,5 +1,6 @@
 /* eol_mech.c: see eol_mech.h and ../MECH.md. Every float expression keeps the order of the
  * Python reference (eol_cal/firmware/mech.py); sums run from element 0 up. */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <math.h>
 
 #include "eol_comp.h"

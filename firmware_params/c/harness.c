@@ -1,13 +1,18 @@
 /* harness.c: host test harness for the C reference against the golden vectors.
  *
- *   harness GOLDEN_DIR
+ *   harness GOLDEN_DIR [DIFF_CSV]
  *
  * Reads GOLDEN_DIR/manifest.json, and checks every file it lists with the checker registered for
- * the file's name (CHECKERS below), bit for bit. A listed file without a checker is a failure.
- * Exit 0 when every file passes, 1 on any mismatch, 2 on unreadable input.
+ * the file's name (CHECKERS below): each column within its tolerance class (bit for bit unless
+ * the file's "ulp" object in the manifest gives the column an ulp bound). A listed file without
+ * a checker is a failure. Prints per file the rows checked, the rows that differ and, per column,
+ * how many rows differ and by how much; writes every difference to DIFF_CSV (file, row, column,
+ * expected, got, ulp, bound, within/beyond) when given.
+ * Exit 0 when every file passes, 1 on any difference beyond its class, 2 on unreadable input.
  *
  * Host code: it may use stdio and large static buffers; the firmware sources (eol_*.c) may not.
  */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -22,7 +27,6 @@
 #define MAX_LINE (1L << 20)
 #define MAX_FIELDS 64
 #define MAX_IMAGE_BYTES (1L << 17)
-#define MAX_REPORTS 10
 
 typedef struct {
     FILE *fp;
@@ -166,16 +170,136 @@ static long image_words(const char *hex, uint16_t *w, long max_bytes)
 
 static uint16_t g_words[MAX_IMAGE_BYTES / 2 + 1];
 
+/* Tolerance classes (manifest.json, each file's "ulp" object): a column named there may differ by
+ * up to that many units in the last place (a target whose division and square root are estimates
+ * plus Newton steps, as the C28x's); every other column is exact. */
+#define MAX_COLS 64
+#define COL_NAME 48
+
 typedef struct {
-    long rows;
-    long failures;
+    char name[COL_NAME];
+    long rows;             /* rows in which this column differs (within its class or not) */
+    long beyond;           /* of those, rows beyond its class */
+    unsigned long max_ulp; /* largest difference in ulp (floats; integers count 1 per difference) */
+    unsigned long bound;   /* its class: 0 exact, else the ulp bound */
+} colstat_t;
+
+typedef struct {
+    const char *file;
+    long rows;        /* rows checked */
+    long rows_bad;    /* rows with a difference beyond its column's class */
+    long rows_differ; /* rows with any difference */
+    long last_bad, last_differ;
+    int ncols;
+    colstat_t col[MAX_COLS];
+    FILE *diff; /* every difference, one CSV line each (NULL: none written) */
 } result_t;
 
+static colstat_t *col_stat(result_t *r, const char *what)
+{
+    int k;
+    for (k = 0; k < r->ncols; ++k) {
+        if (strcmp(r->col[k].name, what) == 0) return &r->col[k];
+    }
+    if (r->ncols == MAX_COLS) return &r->col[MAX_COLS - 1]; /* the last slot gathers the rest */
+    snprintf(r->col[r->ncols].name, COL_NAME, "%s", what);
+    return &r->col[r->ncols++];
+}
+
+/* one difference of `ulp` units in column `what` (integers: ulp 1 and hex values as given) */
+static void differ(result_t *r, const csv_t *c, const char *what, unsigned long want, unsigned long got,
+                   unsigned long ulp)
+{
+    colstat_t *s = col_stat(r, what);
+    int beyond = ulp > s->bound;
+    s->rows++;
+    if (ulp > s->max_ulp) s->max_ulp = ulp;
+    if (r->last_differ != c->row) {
+        r->rows_differ++;
+        r->last_differ = c->row;
+    }
+    if (beyond) {
+        s->beyond++;
+        if (r->last_bad != c->row) {
+            r->rows_bad++;
+            r->last_bad = c->row;
+        }
+    }
+    if (r->diff != NULL) {
+        fprintf(r->diff, "%s,%ld,%s,%08lx,%08lx,%lu,%lu,%s\n", r->file, c->row, what, want, got, ulp, s->bound,
+                beyond ? "beyond" : "within");
+    }
+}
+
+/* an integer or bit-pattern column: exact */
 static void fail(result_t *r, const csv_t *c, const char *what, unsigned long want, unsigned long got)
 {
-    r->failures++;
-    if (r->failures <= MAX_REPORTS) {
-        fprintf(stderr, "%s: row %ld: %s: expected 0x%08lx, got 0x%08lx\n", c->path, c->row, what, want, got);
+    differ(r, c, what, want, got, 1ul);
+}
+
+/* distance in units in the last place between two binary32 bit patterns (ordered as integers) */
+static unsigned long ulp_distance(uint32_t a, uint32_t b)
+{
+    long long oa = (a & 0x80000000u) ? -(long long)(a & 0x7FFFFFFFu) : (long long)a;
+    long long ob = (b & 0x80000000u) ? -(long long)(b & 0x7FFFFFFFu) : (long long)b;
+    long long d = oa > ob ? oa - ob : ob - oa;
+    return d > 0xFFFFFFFFll ? 0xFFFFFFFFul : (unsigned long)d;
+}
+
+/* a float column against its expected bit pattern, within its class */
+static void chk_f32(result_t *r, const csv_t *c, const char *what, uint32_t want, float got)
+{
+    uint32_t g = f32_bits(got);
+    if (g != want) differ(r, c, what, want, g, ulp_distance(want, g));
+}
+
+/* the file's "ulp" object in its manifest entry (text from its "name" on, to the next entry) */
+static void read_classes(result_t *r, const char *entry, const char *entry_end)
+{
+    const char *p = strstr(entry, "\"ulp\": {");
+    const char *end;
+    if (p == NULL || (entry_end != NULL && p > entry_end)) return;
+    p += strlen("\"ulp\": {");
+    end = strchr(p, '}');
+    while (p != NULL && end != NULL && p < end) {
+        char name[COL_NAME];
+        const char *q = strchr(p, '"');
+        const char *q2;
+        size_t len;
+        if (q == NULL || q > end) break;
+        q2 = strchr(q + 1, '"');
+        if (q2 == NULL || q2 > end) break;
+        len = (size_t)(q2 - q - 1);
+        if (len >= COL_NAME) len = COL_NAME - 1;
+        memcpy(name, q + 1, len);
+        name[len] = '\0';
+        q = strchr(q2, ':');
+        if (q == NULL || q > end) break;
+        col_stat(r, name)->bound = strtoul(q + 1, NULL, 10);
+        p = strchr(q, ',');
+    }
+}
+
+static void report(const result_t *r)
+{
+    int k;
+    if (r->rows == 0 || r->rows_bad != 0) {
+        printf("%s: FAIL: %ld of %ld rows differ beyond their class\n", r->file, r->rows_bad, r->rows);
+    } else if (r->rows_differ != 0) {
+        printf("%s: %ld rows ok, %ld of them within their class\n", r->file, r->rows, r->rows_differ);
+    } else {
+        printf("%s: %ld rows ok\n", r->file, r->rows);
+    }
+    for (k = 0; k < r->ncols; ++k) {
+        const colstat_t *s = &r->col[k];
+        if (s->rows == 0) continue;
+        if (s->bound != 0u) {
+            printf("    %-14s %6ld rows differ, %ld beyond its class (ulp <= %lu); largest %lu ulp\n", s->name, s->rows,
+                   s->beyond, s->bound, s->max_ulp);
+        } else {
+            printf("    %-14s %6ld rows differ, %ld beyond its class (exact); largest %lu ulp\n", s->name, s->rows,
+                   s->beyond, s->max_ulp);
+        }
     }
 }
 
@@ -243,7 +367,7 @@ static int check_blocks(const char *dir, const char *file, result_t *r)
             unsigned long got;
             if (col == i_img || col == i_ser || strcmp(name, "id") == 0) continue;
 #define INT_FIELD(key, expr) else if (strcmp(name, key) == 0) { got = (unsigned long)(expr); if (got != want) fail(r, &c, key, want, got); }
-#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { want = hex_u32(v); got = f32_bits(expr); if (got != want) fail(r, &c, key, want, got); }
+#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { chk_f32(r, &c, key, hex_u32(v), expr); }
             if (0) {
             }
             INT_FIELD("sequence", EOL_PB_GET_SEQUENCE(g_words))
@@ -381,7 +505,7 @@ static int check_compensator(const char *dir, const char *file, result_t *r)
         r->rows++;
         y = eol_comp_iqc(hex_f32(c.f[i_th]), hex_f32(c.f[i_om]), hex_f32(c.f[i_iq]), b->table_const,
                          b->table_per_amp, b->n, b->lead_s, b->iqc_limit);
-        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+        chk_f32(r, &c, "i_qc", hex_u32(c.f[i_out]), y);
     }
     csv_close(&c);
     return rc < 0 ? -1 : 0;
@@ -447,7 +571,7 @@ static int est_config(const char *dir, const char *file, eol_est_config_t *cfg, 
             else if (strncmp(cn, "h_width_", 8) == 0) got = e.h_width[atoi(cn + 8)];
             else if (strncmp(cn, "h_mid_", 6) == 0) got = e.h_mid[atoi(cn + 6)];
             else continue;
-            if (f32_bits(got) != hex_u32(c.f[col])) fail(r, &c, cn, hex_u32(c.f[col]), f32_bits(got));
+            chk_f32(r, &c, cn, hex_u32(c.f[col]), got);
         }
     }
     csv_close(&c);
@@ -494,9 +618,9 @@ static int check_estimator(const char *dir, const char *file, result_t *r)
         }
         r->rows++;
         eol_est_step(&e, a, b, h, &o);
-        if (f32_bits(o.theta_hat) != hex_u32(c.f[i_th])) fail(r, &c, "theta_hat", hex_u32(c.f[i_th]), f32_bits(o.theta_hat));
-        if (f32_bits(o.omega_hat) != hex_u32(c.f[i_om])) fail(r, &c, "omega_hat", hex_u32(c.f[i_om]), f32_bits(o.omega_hat));
-        if (f32_bits(o.theta_enc) != hex_u32(c.f[i_te])) fail(r, &c, "theta_enc", hex_u32(c.f[i_te]), f32_bits(o.theta_enc));
+        chk_f32(r, &c, "theta_hat", hex_u32(c.f[i_th]), o.theta_hat);
+        chk_f32(r, &c, "omega_hat", hex_u32(c.f[i_om]), o.omega_hat);
+        chk_f32(r, &c, "theta_enc", hex_u32(c.f[i_te]), o.theta_enc);
         if ((unsigned long)o.status != want_st) fail(r, &c, "status", want_st, (unsigned long)o.status);
     }
     csv_close(&c);
@@ -584,7 +708,7 @@ static int check_blocks_v2(const char *dir, const char *file, result_t *r)
             unsigned long got;
             if (col == i_img || strcmp(name, "id") == 0) continue;
 #define INT_FIELD(key, expr) else if (strcmp(name, key) == 0) { got = (unsigned long)(expr); if (got != want) fail(r, &c, key, want, got); }
-#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { want = hex_u32(v); got = f32_bits(expr); if (got != want) fail(r, &c, key, want, got); }
+#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { chk_f32(r, &c, key, hex_u32(v), expr); }
             if (0) {
             }
             INT_FIELD("sequence", EOL_PB_GET_SEQUENCE(g_words))
@@ -650,7 +774,7 @@ static int mech_config(const char *dir, const char *file, const uint16_t **w, in
             else if (strcmp(cn, "EF_0") == 0) got = m.EF[0];
             else if (strcmp(cn, "EF_1") == 0) got = m.EF[1];
             else continue;
-            if (f32_bits(got) != hex_u32(c.f[col])) fail(r, &c, cn, hex_u32(c.f[col]), f32_bits(got));
+            chk_f32(r, &c, cn, hex_u32(c.f[col]), got);
         }
     }
     csv_close(&c);
@@ -729,9 +853,9 @@ static int check_mech(const char *dir, const char *file, result_t *r)
         if ((unsigned long)mo.active != strtoul(c.f[i_ac], NULL, 10)) fail(r, &c, "active", strtoul(c.f[i_ac], NULL, 10), (unsigned long)mo.active);
         if ((unsigned long)mo.r != strtoul(c.f[i_r], NULL, 10)) fail(r, &c, "r", strtoul(c.f[i_r], NULL, 10), (unsigned long)mo.r);
         if ((unsigned long)mo.events != strtoul(c.f[i_ev], NULL, 10)) fail(r, &c, "events", strtoul(c.f[i_ev], NULL, 10), (unsigned long)mo.events);
-        if (f32_bits(mo.score) != hex_u32(c.f[i_sc])) fail(r, &c, "score", hex_u32(c.f[i_sc]), f32_bits(mo.score));
-        if (f32_bits(mo.margin) != hex_u32(c.f[i_mg])) fail(r, &c, "margin", hex_u32(c.f[i_mg]), f32_bits(mo.margin));
-        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+        chk_f32(r, &c, "score", hex_u32(c.f[i_sc]), mo.score);
+        chk_f32(r, &c, "margin", hex_u32(c.f[i_mg]), mo.margin);
+        chk_f32(r, &c, "i_qc", hex_u32(c.f[i_out]), y);
     }
     csv_close(&c);
     return rc < 0 ? -1 : 0;
@@ -778,7 +902,7 @@ static int check_mech_compensator(const char *dir, const char *file, result_t *r
         iq = hex_f32(c.f[i_iq]);
         sm = eol_mech_sum(&m, (int32_t)strtol(c.f[i_r], NULL, 10), (int32_t)strtol(c.f[i_q], NULL, 10), th, om, iq);
         y = eol_comp_iqc_mech(th, om, iq, tc, tp, n, EOL_PB_GET_LEAD_S(w), EOL_PB_GET_IQC_LIMIT(w), 1, sm);
-        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+        chk_f32(r, &c, "i_qc", hex_u32(c.f[i_out]), y);
     }
     csv_close(&c);
     return rc < 0 ? -1 : 0;
@@ -820,12 +944,22 @@ int main(int argc, char **argv)
     const char *p;
     const char *key = "\"name\": \"";
     int files = 0, bad = 0;
+    FILE *diff = NULL;
+    static result_t r;
 
-    if (argc != 2) {
-        fprintf(stderr, "usage: %s GOLDEN_DIR\n", argv[0]);
+    if (argc != 2 && argc != 3) {
+        fprintf(stderr, "usage: %s GOLDEN_DIR [DIFF_CSV]\n", argv[0]);
         return 2;
     }
     dir = argv[1];
+    if (argc == 3) {
+        diff = fopen(argv[2], "w");
+        if (diff == NULL) {
+            fprintf(stderr, "%s: cannot write\n", argv[2]);
+            return 2;
+        }
+        fprintf(diff, "file,row,column,expected,got,ulp,bound,class\n");
+    }
     snprintf(path, sizeof path, "%s/manifest.json", dir);
     fp = fopen(path, "r");
     if (fp == NULL) {
@@ -842,7 +976,6 @@ int main(int argc, char **argv)
         const char *end;
         size_t k, nlen;
         const checker_t *chk = NULL;
-        result_t r = {0, 0};
         int rc;
         p += strlen(key);
         end = strchr(p, '"');
@@ -853,6 +986,11 @@ int main(int argc, char **argv)
         nlen = (size_t)(end - p);
         memcpy(file, p, nlen);
         file[nlen] = '\0';
+        memset(&r, 0, sizeof r);
+        r.file = file;
+        r.diff = diff;
+        r.last_bad = r.last_differ = -1;
+        read_classes(&r, end, strstr(end, key));
         for (k = 0; k < sizeof CHECKERS / sizeof CHECKERS[0]; ++k) {
             if (strncmp(file, CHECKERS[k].prefix, strlen(CHECKERS[k].prefix)) == 0) {
                 chk = &CHECKERS[k];
@@ -868,19 +1006,17 @@ int main(int argc, char **argv)
         rc = chk->fn(dir, file, &r);
         if (rc != 0) {
             fprintf(stderr, "%s: ERROR: cannot check\n", file);
+            if (diff != NULL) fclose(diff);
             return 2;
         }
-        if (r.rows == 0 || r.failures != 0) {
-            printf("%s: FAIL: %ld of %ld rows differ\n", file, r.failures, r.rows);
-            bad++;
-        } else {
-            printf("%s: %ld rows ok\n", file, r.rows);
-        }
+        report(&r);
+        if (r.rows == 0 || r.rows_bad != 0) bad++;
     }
     if (files == 0) {
         fprintf(stderr, "%s: lists no files\n", path);
         return 2;
     }
+    if (diff != NULL) fclose(diff);
     printf("%s: %d files, %d failed\n", bad ? "FAIL" : "PASS", files, bad);
     return bad ? 1 : 0;
 }
