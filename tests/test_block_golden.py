@@ -19,7 +19,7 @@ from eol_cal.firmware import golden, vectors
 ROOT = Path(__file__).resolve().parents[1]
 GOLDEN = ROOT / "firmware_params" / "golden"
 CDIR = ROOT / "firmware_params" / "c"
-CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off"]
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror"]
 
 
 @pytest.fixture(scope="module")

@@ -175,6 +175,7 @@ static uint16_t g_words[MAX_IMAGE_BYTES / 2 + 1];
  * plus Newton steps, as the C28x's); every other column is exact. */
 #define MAX_COLS 64
 #define COL_NAME 48
+#define SHOWN 5 /* differences per column shown on stderr */
 
 typedef struct {
     char name[COL_NAME];
@@ -224,6 +225,10 @@ static void differ(result_t *r, const csv_t *c, const char *what, unsigned long 
             r->rows_bad++;
             r->last_bad = c->row;
         }
+    }
+    if (s->rows <= SHOWN) { /* a glimpse on stderr, the first few per column; every one in the file */
+        fprintf(stderr, "%s: row %ld: %s: expected 0x%08lx, got 0x%08lx (%lu ulp, %s)\n", c->path, c->row, what, want,
+                got, ulp, beyond ? "beyond its class" : "within its class");
     }
     if (r->diff != NULL) {
         fprintf(r->diff, "%s,%ld,%s,%08lx,%08lx,%lu,%lu,%s\n", r->file, c->row, what, want, got, ulp, s->bound,
