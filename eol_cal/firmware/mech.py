@@ -39,12 +39,14 @@ from __future__ import annotations
 # mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware import fpu_c28x
 from eol_cal.firmware.compensator import lead_angle, table_sum
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_MECH_NEEDS
 from eol_cal.firmware.estimator_config import (
@@ -89,6 +91,8 @@ class MechConsts:
     N : pulses per revolution; PP : pole pairs (hypotheses); M : quadrature counts per revolution;
     DELTA, QUARTER : rad electrical of a pitch and a count; INV_DELTA = 1/DELTA; KM : mechanical
     table entries per rad of unwrapped electrical angle, ``MECH_TABLE_LEN / (P * pi)``.
+    fpu : "ieee" (division and square root correctly rounded: the golden vectors) or "c28x" (as the
+    F28335 computes them, :mod:`eol_cal.firmware.fpu_c28x`: what the vectors' ulp classes measure).
     """
 
     N: int
@@ -98,12 +102,29 @@ class MechConsts:
     QUARTER: np.float32
     INV_DELTA: np.float32
     KM: np.float32
+    fpu: str = "ieee"
 
     @classmethod
-    def of(cls, cfg: EstimatorConfig) -> MechConsts:
+    def of(cls, cfg: EstimatorConfig, fpu: str = "ieee") -> MechConsts:
         c = consts(cfg)
+        # power-on constants are correctly rounded on every target (MECH.md, "Init"): the model
+        # covers the divisions of every tick only
         return cls(N=cfg.N_enc, PP=cfg.poles // 2, M=c.M, DELTA=c.DELTA, QUARTER=c.QUARTER,
-                   INV_DELTA=F32(1.0) / c.DELTA, KM=F32(MECH_TABLE_LEN) / (F32(cfg.poles) * PI))
+                   INV_DELTA=F32(1.0) / c.DELTA, KM=F32(MECH_TABLE_LEN) / (F32(cfg.poles) * PI), fpu=fpu)
+
+
+def _divider(fpu: str, xp: ArrayModule) -> Callable[[Array, Array], Array]:
+    """The binary32 division of an FPU model (the C28x's only under numpy)."""
+    if fpu == "c28x":
+        if xp is not np:
+            raise ValueError("the C28x division model runs under numpy only")
+        return fpu_c28x.div
+    return lambda a, b: a / b
+
+
+def _sqrt_of(fpu: str, xp: ArrayModule) -> Callable[[Array], Array]:
+    """The binary32 square root of an FPU model."""
+    return fpu_c28x.sqrt if fpu == "c28x" else xp.sqrt
 
 
 class MechTables(NamedTuple):
@@ -234,12 +255,13 @@ def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     idx = I32(2) * m + d
     cnt_d = xp.take(ms.cnt, idx)
     complete = xp.min(cnt_d) >= I32(1)
-    a = xp.take(ms.acc, idx) / f32(xp.maximum(cnt_d, I32(1)))
+    div = _divider(mc.fpu, xp)
+    a = div(xp.take(ms.acc, idx), f32(xp.maximum(cnt_d, I32(1))))
     Ea = _seq_sum(a * a, xp)
-    mean_c = _seq_sum(xp.take(es.c_tab, idx), xp) / F32(N)
+    mean_c = div(_seq_sum(xp.take(es.c_tab, idx), xp), F32(N))
     dg = wrap((es.G + mean_c) - tb.grid_phase, xp)
     EF = xp.take(tb.EF, d)
-    den = xp.sqrt(Ea * EF)
+    den = _sqrt_of(mc.fpu, xp)(Ea * EF)
     best_rho = best_r = best_e = None
     rhos, rs = [], []
     for j in range(mc.PP):
@@ -247,7 +269,7 @@ def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
         r = xp.floor(x + F32(0.5)).astype(i32) % I32(N)
         e = wrap_pm(dg - f32(r) * mc.DELTA, xp)
         s = _seq_sum(a * xp.take(tb.dF, I32(2) * ((m + r) % I32(N)) + d), xp)
-        rho = xp.where(den > F32(0.0), s / xp.where(den > F32(0.0), den, F32(1.0)), F32(0.0))
+        rho = xp.where(den > F32(0.0), div(s, xp.where(den > F32(0.0), den, F32(1.0))), F32(0.0))
         if j == 0:
             best_rho, best_r, best_e, best_j = rho, r, e, xp.asarray(I32(0))
         else:
@@ -319,7 +341,7 @@ def mech_finish(mc: MechConsts, tb: MechTables, pre: MechPre, es: EstimatorState
     confirm = passed & (ms.active == 0) & (ms.cand == r_best)
     eval_bad = ev_eval & (ms.active != 0) & (~ok | (r_best != ms.r))
     # 3. revolution mark: the hall-to-encoder fraction of the identified offset
-    mean_c = _seq_sum(xp.take(es.c_tab, I32(2) * xp.arange(N, dtype=i32) + d), xp) / F32(N)
+    mean_c = _divider(mc.fpu, xp)(_seq_sum(xp.take(es.c_tab, I32(2) * xp.arange(N, dtype=i32) + d), xp), F32(N))
     e_now = wrap_pm(((es.G + mean_c) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
     frac_bad = mark & ~ev_eval & (xp.abs(e_now) > tb.id_frac_tol)
     reset = fault | eval_bad | frac_bad

@@ -1,7 +1,7 @@
 /* eol_est.h: rotor angle/speed estimator (seed paper eqs. 13-16 plus switchable improvements),
  * C99, float only, no heap. The algorithm is specified in ../ESTIMATOR.md; the Python reference
- * is eol_cal/firmware/estimator.py. Compile with -ffp-contract=off (no fused multiply-add) to
- * match the golden vectors bit for bit. All integer state is int32_t (int is 16 bits on C28x). */
+ * is eol_cal/firmware/estimator.py. The sources' floating-point contract (eol_fp.h, no fused
+ * multiply-add) makes any build match the golden vectors bit for bit. All integer state is int32_t (int is 16 bits on C28x). */
 #ifndef EOL_EST_H
 #define EOL_EST_H
 

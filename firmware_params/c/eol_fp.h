@@ -16,4 +16,11 @@
 #pragma STDC FP_CONTRACT OFF
 #endif
 
+/* Division and square root of the identification's evaluation (a background task): the target's
+ * own (the C28x: estimate + two Newton steps), within the golden vectors' ulp classes (the
+ * manifest's "ulp", docs/firmware-contract.md section 4). The host build is correctly rounded;
+ * built with -DEOL_FPU_C28X it models the C28x bit for bit as eol_cal/firmware/fpu_c28x.py does. */
+float eol_div(float a, float b);
+float eol_sqrt(float x);
+
 #endif /* EOL_FP_H */

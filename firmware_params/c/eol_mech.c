@@ -89,7 +89,7 @@ static float mean_c_of(const eol_mech_t *m, const eol_est_t *est, int32_t d)
     for (mm = 0; mm < m->N; ++mm) {
         s = s + est->c_tab[2 * mm + d];
     }
-    return s / (float)m->N;
+    return eol_div(s, (float)m->N);
 }
 
 /* one evaluation (MECH.md, "Evaluation"); returns 0 when the direction's edges are not all measured */
@@ -106,11 +106,11 @@ static int evaluate(const eol_mech_t *m, const eol_est_t *est, int32_t d, int32_
         }
     }
     for (mm = 0; mm < m->N; ++mm) {
-        a[mm] = m->acc[2 * mm + d] / (float)m->cnt[2 * mm + d];
+        a[mm] = eol_div(m->acc[2 * mm + d], (float)m->cnt[2 * mm + d]);
         Ea = Ea + a[mm] * a[mm];
     }
     dg = eol_est_wrap((est->G + mean_c_of(m, est, d)) - m->grid_phase);
-    den = sqrtf(Ea * m->EF[d]);
+    den = eol_sqrt(Ea * m->EF[d]);
     for (j = 0; j < m->PP; ++j) {
         float x = (dg + TWO_PI_F * (float)j) * m->INV_DELTA;
         int32_t r = (int32_t)floorf(x + 0.5f) % m->N;
@@ -120,7 +120,7 @@ static int evaluate(const eol_mech_t *m, const eol_est_t *est, int32_t d, int32_
         for (mm = 0; mm < m->N; ++mm) {
             s = s + a[mm] * m->dF[2 * ((mm + r) % m->N) + d];
         }
-        rho = den > 0.0f ? s / den : 0.0f;
+        rho = den > 0.0f ? eol_div(s, den) : 0.0f;
         rho_j[j] = rho;
         if (j == 0 || rho > best_rho) {
             best_rho = rho;

@@ -1,7 +1,8 @@
 /* eol_mech.h: the rotor's mechanical angle without an index pulse and the mechanical-order
  * compensation of a layout-2 block (firmware contract revision 1.2), C99, float only, no heap.
  * The algorithm is specified in ../MECH.md; the Python reference is eol_cal/firmware/mech.py.
- * Compile with -ffp-contract=off to match the golden vectors bit for bit. */
+ * The evaluation's divisions and square root go through eol_div/eol_sqrt (eol_fp.h): the target's
+ * own, within the scenario files' ulp classes. */
 #ifndef EOL_MECH_H
 #define EOL_MECH_H
 
