@@ -154,7 +154,7 @@ def test_firmware_sources_avoid_double_and_heap():
 
 def test_c_crc_table_is_iso_hdlc():
     text = (CDIR / "eol_block.c").read_text()
-    table = [int(x, 16) for x in re.findall(r"UINT32_C\(0x([0-9A-F]{8})\)", text)]
+    table = [int(x, 16) for x in re.findall(r"\b0x([0-9A-F]{8})u\b", text.split("eol_crc32_table[256]")[1].split("};")[0])]
     assert len(table) == 256
     for i, v in enumerate(table):
         c = i

@@ -25,12 +25,12 @@ extern "C" {
 #define EOL_MECH_RESET_STATUS (EOL_EST_ST_QEP_ERROR | EOL_EST_ST_MISSING_EDGE | EOL_EST_ST_HALL_FAULT | EOL_EST_ST_HALL_SEQ)
 
 /* eol_mech_out_t.events */
-#define EOL_MECH_EV_EVAL 0x01           /* an evaluation ran this tick */
-#define EOL_MECH_EV_PASS 0x02           /* its best hypothesis passed the three thresholds */
-#define EOL_MECH_EV_IDENTIFIED 0x04     /* confirmed: the mechanical compensation starts */
-#define EOL_MECH_EV_RESET_FAULT 0x08    /* a count or hall fault reset the identification */
-#define EOL_MECH_EV_RESET_FRACTION 0x10 /* identified, the hall fraction disagreed at a revolution mark */
-#define EOL_MECH_EV_RESET_EVAL 0x20     /* identified, an evaluation failed or gave another offset */
+#define EOL_MECH_EV_EVAL 0x01u           /* an evaluation ran this tick */
+#define EOL_MECH_EV_PASS 0x02u           /* its best hypothesis passed the three thresholds */
+#define EOL_MECH_EV_IDENTIFIED 0x04u     /* confirmed: the mechanical compensation starts */
+#define EOL_MECH_EV_RESET_FAULT 0x08u    /* a count or hall fault reset the identification */
+#define EOL_MECH_EV_RESET_FRACTION 0x10u /* identified, the hall fraction disagreed at a revolution mark */
+#define EOL_MECH_EV_RESET_EVAL 0x20u     /* identified, an evaluation failed or gave another offset */
 
 typedef struct {
     /* from the block and the estimator, derived at init (MECH.md, "Init") */
@@ -46,6 +46,8 @@ typedef struct {
     int32_t cnt[2 * EOL_EST_MAX_PPR];
     int32_t n_new, cand, active, r;
     float score, margin;
+    /* the evaluation's work buffer: each edge's mean pitch error (MECH.md, "Evaluation") */
+    float a[EOL_EST_MAX_PPR];
 } eol_mech_t;
 
 typedef struct {
