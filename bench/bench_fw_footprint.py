@@ -34,7 +34,8 @@ def struct_sizes(work: Path) -> dict[str, int]:
     """sizeof of each state struct (bytes, host)."""
     src = work / "sizes.c"
     body = "".join(f'    printf("{s} %zu\\n", sizeof({s}));\n' for s in STRUCTS)
-    src.write_text(f'#include <stdio.h>\n#include "eol_est.h"\n#include "eol_mech.h"\nint main(void)\n{{\n{body}    return 0;\n}}\n')
+    head = '#include <stdio.h>\n#include "eol_est.h"\n#include "eol_mech.h"\n'
+    src.write_text(f"{head}int main(void)\n{{\n{body}    return 0;\n}}\n")
     exe = work / "sizes"
     _run(["gcc", "-std=c99", f"-I{CDIR}", f"-I{CDIR.parent}", "-o", str(exe), str(src)], work)
     return {k: int(v) for k, v in (line.split() for line in _run([str(exe)], work).splitlines())}
