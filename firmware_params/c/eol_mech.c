@@ -3,6 +3,7 @@
 #include "eol_fp.h" /* first: the floating-point contract */
 #include <math.h>
 #include <stdbool.h>
+#include <string.h>
 
 #include "eol_comp.h"
 #include "eol_mech.h"
@@ -33,6 +34,8 @@ int eol_mech_init(eol_mech_t *m, const eol_est_t *est, const uint16_t *w)
 {
     int32_t i, d, mm;
     uint16_t n = EOL_PB_GET_TABLE_LEN(w);
+    /* everything 0 (0.0f is all-zero bits in binary32), then what is not */
+    (void)memset(m, 0, sizeof *m);
     m->N = est->cfg.n_enc;
     m->PP = est->cfg.poles / 2;
     m->M = est->M;
@@ -42,25 +45,6 @@ int eol_mech_init(eol_mech_t *m, const eol_est_t *est, const uint16_t *w)
     m->KM = (float)EOL_MECH_TABLE_LEN / ((float)est->cfg.poles * PI_F);
     m->enabled = mech_i32_of((eol_mech_enabled(w) != 0) && (m->PP <= EOL_MECH_MAX_PP));
     m->lead_s = EOL_PB_GET_LEAD_S(w);
-    m->dirs = 0;
-    m->grid_phase = 0.0f;
-    m->id_min_score = 0.0f;
-    m->id_margin = 0.0f;
-    m->id_frac_tol = 0.0f;
-    for (i = 0; i < EOL_MECH_TABLE_LEN; ++i) {
-        m->table_const[i] = 0.0f;
-        m->table_per_amp[i] = 0.0f;
-    }
-    for (i = 0; i < (2 * m->N); ++i) {
-        m->dF[i] = 0.0f;
-        m->acc[i] = 0.0f;
-        m->cnt[i] = 0;
-    }
-    for (i = 0; i < EOL_EST_MAX_PPR; ++i) {
-        m->a[i] = 0.0f;
-    }
-    m->EF[0] = 0.0f;
-    m->EF[1] = 0.0f;
     if (m->enabled != 0) {
         m->dirs = (int32_t)EOL_PB_V2_GET_FP_DIRS(w, n);
         m->grid_phase = EOL_PB_V2_GET_GRID_PHASE(w, n);
@@ -84,12 +68,11 @@ int eol_mech_init(eol_mech_t *m, const eol_est_t *est, const uint16_t *w)
             m->EF[d] = ef;
         }
     }
-    m->n_new = 0;
     m->cand = -1;
-    m->active = 0;
-    m->r = 0;
-    m->score = 0.0f;
-    m->margin = 0.0f;
+    m->miss[0] = m->N;
+    m->miss[1] = m->N;
+    /* the grid, the mean pitch errors 16 edges a slice, the norm, one per hypothesis, the verdict */
+    m->n_slices = 1 + ((m->N + (EOL_MECH_SLICE_EDGES - 1)) / EOL_MECH_SLICE_EDGES) + 1 + m->PP + 1;
     return (m->PP > EOL_MECH_MAX_PP) ? -1 : 0;
 }
 
@@ -104,69 +87,6 @@ static float mean_c_of(const eol_mech_t *m, const eol_est_t *est, int32_t d)
     return eol_div(s, (float)m->N);
 }
 
-typedef struct {
-    bool ok;      /* the best hypothesis passed the three thresholds */
-    int32_t r;    /* its offset */
-    float score;  /* its cosine */
-    float margin; /* over the next */
-} eval_t;
-
-/* whether every edge of direction d has a sample (an evaluation needs them all) */
-static bool complete(const eol_mech_t *m, int32_t d)
-{
-    bool all = true;
-    int32_t mm;
-    for (mm = 0; mm < m->N; ++mm) {
-        if (m->cnt[(2 * mm) + d] < 1) {
-            all = false;
-        }
-    }
-    return all;
-}
-
-/* one evaluation of a complete direction d (MECH.md, "Evaluation") */
-static eval_t evaluate(eol_mech_t *m, const eol_est_t *est, int32_t d)
-{
-    float Ea = 0.0f, dg, den, best_rho = 0.0f, best_e = 0.0f, second = 0.0f;
-    float rho_j[EOL_MECH_MAX_PP];
-    int32_t mm, j, best_j = 0, rb = 0;
-    eval_t out;
-    for (mm = 0; mm < m->N; ++mm) {
-        m->a[mm] = eol_div(m->acc[(2 * mm) + d], (float)m->cnt[(2 * mm) + d]);
-        Ea = Ea + (m->a[mm] * m->a[mm]);
-    }
-    dg = eol_est_wrap((est->G + mean_c_of(m, est, d)) - m->grid_phase);
-    den = eol_sqrt(Ea * m->EF[d]);
-    for (j = 0; j < m->PP; ++j) {
-        float x = (dg + (TWO_PI_F * (float)j)) * m->INV_DELTA;
-        int32_t r = (int32_t)floorf(x + 0.5f) % m->N;
-        float e = eol_est_wrap_pm(dg - ((float)r * m->DELTA));
-        float s = 0.0f;
-        float rho;
-        for (mm = 0; mm < m->N; ++mm) {
-            s = s + (m->a[mm] * m->dF[(2 * ((mm + r) % m->N)) + d]);
-        }
-        rho = (den > 0.0f) ? eol_div(s, den) : 0.0f;
-        rho_j[j] = rho;
-        if ((j == 0) || (rho > best_rho)) {
-            best_rho = rho;
-            rb = r;
-            best_e = e;
-            best_j = j;
-        }
-    }
-    for (j = 0; j < m->PP; ++j) {
-        if ((j != best_j) && (rho_j[j] > second)) {
-            second = rho_j[j];
-        }
-    }
-    out.margin = best_rho - second;
-    out.score = best_rho;
-    out.r = rb;
-    out.ok = (best_rho >= m->id_min_score) && (out.margin >= m->id_margin) && (fabsf(best_e) <= m->id_frac_tol);
-    return out;
-}
-
 static void withdraw(eol_mech_t *m)
 {
     int32_t i;
@@ -174,29 +94,35 @@ static void withdraw(eol_mech_t *m)
         m->acc[i] = 0.0f;
         m->cnt[i] = 0;
     }
+    m->miss[0] = m->N;
+    m->miss[1] = m->N;
     m->n_new = 0;
     m->cand = -1;
     m->active = 0;
+    m->busy = 0;
+    m->mk = 0;
 }
 
 void eol_mech_step(eol_mech_t *m, const eol_est_t *est, const eol_est_out_t *eo, eol_mech_out_t *out)
 {
     const bool enabled = m->enabled != 0;
-    const bool active = m->active != 0;
-    const bool reverse = est->dir_last < 0;
+    const bool done = m->busy == (m->n_slices + 1);
+    const bool ok = m->ev_ok != 0;
+    bool take, fault, passed, confirm, eval_bad, frac_bad, reset, due, mark;
     int32_t d = 0;
     uint32_t dir_bit = 1u;
-    bool take, fault, due, mark, ev_eval = false, passed, confirm, eval_bad, frac_bad = false;
-    eval_t ev = {false, 0, 0.0f, 0.0f};
     uint32_t events = 0u;
 
-    if (reverse) {
+    if (est->dir_last < 0) {
         d = 1;
         dir_bit = 2u;
     }
-    /* 1. accumulate this tick's pitch sample */
-    take = enabled && (eo->learn != 0) && (m->cnt[eo->learn_idx] < EOL_MECH_CNT_MAX);
+    /* 1. collect this tick's pitch sample (not while an evaluation reads the samples) */
+    take = enabled && (eo->learn != 0) && (m->cnt[eo->learn_idx] < EOL_MECH_CNT_MAX) && (m->busy == 0);
     if (take) {
+        if (m->cnt[eo->learn_idx] == 0) {
+            m->miss[eo->learn_idx % 2] -= 1;
+        }
         m->acc[eo->learn_idx] = m->acc[eo->learn_idx] + eo->pitch_err;
         m->cnt[eo->learn_idx] += 1;
         if (m->n_new < m->N) {
@@ -204,54 +130,139 @@ void eol_mech_step(eol_mech_t *m, const eol_est_t *est, const eol_est_out_t *eo,
         }
     }
     fault = enabled && (((uint32_t)eo->status & EOL_MECH_RESET_STATUS) != 0u);
-    /* 2. evaluation */
-    due = enabled && !fault && (est->anchored != 0) && (m->n_new >= m->N) && (((uint32_t)m->dirs & dir_bit) != 0u);
-    mark = (est->n == 0) && ((est->k_last / 4) == 0);
-    if (due && complete(m, d)) {
-        ev = evaluate(m, est, d);
-        ev_eval = true;
-    }
-    passed = ev_eval && ev.ok;
-    confirm = passed && !active && (m->cand == ev.r);
-    eval_bad = ev_eval && active && (!ev.ok || (ev.r != m->r));
-    /* 3. revolution mark: the hall-to-encoder fraction of the identified offset */
-    if (enabled && active && mark && !ev_eval) {
-        float e_now = eol_est_wrap_pm(((est->G + mean_c_of(m, est, d)) - m->grid_phase) - ((float)m->r * m->DELTA));
-        frac_bad = fabsf(e_now) > m->id_frac_tol;
-    }
-    if (ev_eval) {
+    /* 2. a finished evaluation, a finished mark check */
+    passed = done && ok;
+    confirm = passed && (m->active == 0) && (m->cand == m->ev_r);
+    eval_bad = done && (m->active != 0) && (!ok || (m->ev_r != m->r));
+    frac_bad = (m->mk == 2) && (m->active != 0) && (m->mk_bad != 0);
+    reset = fault || eval_bad || frac_bad;
+    if (done) {
         events |= EOL_MECH_EV_EVAL;
-        m->score = ev.score;
-        m->margin = ev.margin;
-        m->n_new = 0;
-        m->cand = ev.ok ? ev.r : -1;
+        m->score = m->ev_score;
+        m->margin = m->ev_margin;
+        m->cand = ok ? m->ev_r : -1;
+        m->busy = 0;
+    }
+    if (m->mk == 2) {
+        m->mk = 0;
     }
     if (passed) {
         events |= EOL_MECH_EV_PASS;
     }
-    if (fault || eval_bad || frac_bad) {
+    if (reset) {
         withdraw(m);
         if (fault) {
             events |= EOL_MECH_EV_RESET_FAULT;
-        }
-        if (frac_bad) {
+        } else if (frac_bad) {
             events |= EOL_MECH_EV_RESET_FRACTION;
+        } else {
+            /* an evaluation withdrew it */
         }
-        if (eval_bad) {
+        if (eval_bad && !fault) {
             events |= EOL_MECH_EV_RESET_EVAL;
         }
     } else if (confirm) {
         m->active = 1;
-        m->r = ev.r;
+        m->r = m->ev_r;
         events |= EOL_MECH_EV_IDENTIFIED;
     } else {
         /* the state stays */
+    }
+    /* 3. start an evaluation when a revolution of fresh samples is in */
+    due = enabled && !reset && (est->anchored != 0) && (m->n_new >= m->N) && (((uint32_t)m->dirs & dir_bit) != 0u) &&
+          (m->miss[d] == 0) && (m->busy == 0);
+    if (due) {
+        m->busy = 1;
+        m->ev_d = d;
+        m->ev_G = est->G;
+        m->n_new = 0;
+    }
+    /* 4. ask for the revolution mark's check: an A edge at the firmware's pulse 0 */
+    mark = enabled && (m->active != 0) && (est->n == 0) && ((est->k_last / 4) == 0) && (m->mk == 0);
+    if (mark) {
+        m->mk = 1;
+        m->mk_d = d;
+        m->mk_G = est->G;
     }
     out->active = m->active;
     out->r = m->r;
     out->events = (int32_t)events;
     out->score = m->score;
     out->margin = m->margin;
+}
+
+/* one hypothesis of the evaluation: pole pair j (MECH.md, "Evaluation") */
+static void hypothesis(eol_mech_t *m, int32_t j)
+{
+    const int32_t d = m->ev_d;
+    float x = (m->dg + (TWO_PI_F * (float)j)) * m->INV_DELTA;
+    int32_t r = (int32_t)floorf(x + 0.5f) % m->N;
+    float e = eol_est_wrap_pm(m->dg - ((float)r * m->DELTA));
+    float s = 0.0f;
+    float rho;
+    int32_t mm;
+    for (mm = 0; mm < m->N; ++mm) {
+        s = s + (m->a[mm] * m->dF[(2 * ((mm + r) % m->N)) + d]);
+    }
+    rho = (m->den > 0.0f) ? eol_div(s, m->den) : 0.0f;
+    m->rho_j[j] = rho;
+    if ((j == 0) || (rho > m->best_rho)) {
+        m->best_rho = rho;
+        m->ev_r = r;
+        m->best_e = e;
+        m->best_j = j;
+    }
+}
+
+/* the evaluation's verdict from its hypotheses */
+static void verdict(eol_mech_t *m)
+{
+    float second = 0.0f;
+    int32_t j;
+    for (j = 0; j < m->PP; ++j) {
+        if ((j != m->best_j) && (m->rho_j[j] > second)) {
+            second = m->rho_j[j];
+        }
+    }
+    m->ev_margin = m->best_rho - second;
+    m->ev_score = m->best_rho;
+    m->ev_ok = mech_i32_of((m->best_rho >= m->id_min_score) && (m->ev_margin >= m->id_margin) &&
+                           (fabsf(m->best_e) <= m->id_frac_tol));
+}
+
+void eol_mech_background(eol_mech_t *m, const eol_est_t *est)
+{
+    const int32_t n_chunks = (m->N + (EOL_MECH_SLICE_EDGES - 1)) / EOL_MECH_SLICE_EDGES;
+    const int32_t k = m->busy;
+    if ((k >= 1) && (k <= m->n_slices)) {
+        const int32_t d = m->ev_d;
+        if (k == 1) {
+            /* the firmware's mean grid against the block's; the samples' norm starts */
+            m->dg = eol_est_wrap((m->ev_G + mean_c_of(m, est, d)) - m->grid_phase);
+            m->Ea = 0.0f;
+        } else if (k <= (1 + n_chunks)) {
+            int32_t mm;
+            const int32_t m0 = (k - 2) * EOL_MECH_SLICE_EDGES;
+            for (mm = m0; (mm < (m0 + EOL_MECH_SLICE_EDGES)) && (mm < m->N); ++mm) {
+                m->a[mm] = eol_div(m->acc[(2 * mm) + d], (float)m->cnt[(2 * mm) + d]);
+                m->Ea = m->Ea + (m->a[mm] * m->a[mm]);
+            }
+        } else if (k == (2 + n_chunks)) {
+            m->den = eol_sqrt(m->Ea * m->EF[d]);
+        } else if (k < m->n_slices) {
+            hypothesis(m, k - (3 + n_chunks));
+        } else {
+            verdict(m);
+        }
+        m->busy = k + 1;
+    } else if (m->mk == 1) {
+        float e_now = eol_est_wrap_pm(((m->mk_G + mean_c_of(m, est, m->mk_d)) - m->grid_phase) -
+                                      ((float)m->r * m->DELTA));
+        m->mk_bad = mech_i32_of(fabsf(e_now) > m->id_frac_tol);
+        m->mk = 2;
+    } else {
+        /* nothing to do */
+    }
 }
 
 float eol_mech_sum(const eol_mech_t *m, int32_t r, int32_t q, float theta_hat, float omega_hat, float i_qo)

@@ -842,6 +842,7 @@ static int check_mech(const char *dir, const char *file, result_t *r)
         r->rows++;
         eol_est_step(&e, a, b, h, &o);
         eol_mech_step(&m, &e, &o, &mo);
+        eol_mech_background(&m, &e); /* the golden schedule: one background slice per tick */
         if (EOL_PB_GET_FLAGS(w) & EOL_PB_FLAG_COMP_ENABLE) {
             static float tc[EOL_PB_TABLE_LEN_MAX], tp[EOL_PB_TABLE_LEN_MAX];
             uint16_t j;
