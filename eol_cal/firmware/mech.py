@@ -169,6 +169,7 @@ class MechState(NamedTuple):
     ev_ok, ev_r, ev_score, ev_margin : its result (valid once finished).
     mk : i32 the revolution mark's check: 0 none, 1 asked (at a mark), 2 done.
     mk_d, mk_G, mk_bad : i32, f32, i32 its direction, G at the mark, and its verdict.
+    clr : i32 after a withdrawal, the background's clearing of the samples: 0 done, k its slice k next.
     """
 
     acc: Array
@@ -191,6 +192,7 @@ class MechState(NamedTuple):
     mk_d: Array
     mk_G: Array
     mk_bad: Array
+    clr: Array
 
 
 class MechOut(NamedTuple):
@@ -257,7 +259,7 @@ def mech_init(N: int, xp: ArrayModule = np) -> MechState:
     return MechState(acc=xp.zeros(2 * N, xp.float32), cnt=xp.zeros(2 * N, xp.int32), n_new=zi,
                      cand=xp.asarray(I32(-1)), active=zi, r=zi, score=zf, margin=zf,
                      miss=xp.full(2, N, dtype=xp.int32), busy=zi, ev_d=zi, ev_G=zf, ev_ok=zi, ev_r=zi, ev_score=zf,
-                     ev_margin=zf, mk=zi, mk_d=zi, mk_G=zf, mk_bad=zi)
+                     ev_margin=zf, mk=zi, mk_d=zi, mk_G=zf, mk_bad=zi, clr=zi)
 
 
 def n_slices(mc: MechConsts) -> int:

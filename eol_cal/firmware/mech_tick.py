@@ -24,17 +24,23 @@ from eol_cal.arrays import Array, ArrayModule
 from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
 from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
 from eol_cal.firmware.mech import (
-    CNT_MAX, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
+    CNT_MAX, SLICE_EDGES, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
     MechConsts, MechOut, MechState, MechTables, _evaluate, _set_add, f32_, mean_c_of, n_slices,
 )
 from eol_cal.firmware.mech_params import FP_FORWARD
 
 
+def n_clear_slices(mc: MechConsts) -> int:
+    """Background slices that clear the samples after a withdrawal (16 entries a slice)."""
+    return -(-2 * mc.N // SLICE_EDGES)
+
+
 def _withdrawn(ms: MechState, N: int, xp: ArrayModule) -> MechState:
-    """``ms`` after a withdrawal: nothing identified, accumulated or running (score and margin kept)."""
+    """``ms`` after a withdrawal: nothing identified, accumulated or running (score and margin kept);
+    the background clears the samples (``clr``), the tick takes none until it has."""
     z = I32(0) * ms.n_new
     return ms._replace(acc=xp.zeros_like(ms.acc), cnt=xp.zeros_like(ms.cnt), n_new=z, cand=I32(-1) + z, active=z,
-                       miss=xp.zeros_like(ms.miss) + I32(N), busy=z, mk=z)
+                       miss=xp.zeros_like(ms.miss) + I32(N), busy=z, mk=z, clr=z + I32(1))
 
 
 def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
@@ -47,7 +53,7 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     N, L = mc.N, n_slices(mc)
     enabled = tb.enabled != 0
     # 1. collect (not while an evaluation reads the samples)
-    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0)
+    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0) & (ms.clr == 0)
     first = take & (xp.take(ms.cnt, ps.index) == 0)
     acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
     cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
@@ -74,7 +80,7 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     d = i32(es.dir_last < 0)
     has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
     due = (enabled & ~reset & (es.anchored != 0) & (new.n_new >= I32(N)) & has_dir
-           & (xp.take(new.miss, d) == 0) & (new.busy == 0))
+           & (xp.take(new.miss, d) == 0) & (new.busy == 0) & (new.clr == 0))
     # 4. ask for the revolution mark's check: an A edge at the firmware's pulse 0
     mark = enabled & (new.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0) & (new.mk == 0)
     new = new._replace(busy=xp.where(due, I32(1), new.busy), ev_d=xp.where(due, d, new.ev_d),
@@ -89,7 +95,7 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
 
 def background_heavy(ms: MechState) -> Array:
     """Whether this background call computes something (an evaluation's first slice, a mark check)."""
-    return (ms.busy == 1) | (ms.mk == 1)
+    return ((ms.busy == 1) | (ms.mk == 1)) & (ms.clr == 0)
 
 
 def mech_background(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
@@ -97,14 +103,15 @@ def mech_background(mc: MechConsts, tb: MechTables, ms: MechState, es: Estimator
     """One background slice (MECH.md, "Background"): the running evaluation's next slice, else the
     revolution mark's check when one was asked. ``es`` is the estimator's state now."""
     L = n_slices(mc)
-    running = (ms.busy >= 1) & (ms.busy <= I32(L))
-    do_mark = (ms.mk == 1) & ~running
-    if xp is np and not (ms.busy == 1 or do_mark):
+    clearing = ms.clr != 0
+    running = (ms.busy >= 1) & (ms.busy <= I32(L)) & ~clearing
+    do_mark = (ms.mk == 1) & ~running & ~clearing
+    if xp is np and not ((ms.busy == 1 and not clearing) or do_mark):
         return mech_background_idle(mc, ms, xp)
     ok, r, score, margin = _evaluate(mc, tb, ms, es.c_tab, ms.ev_G, ms.ev_d, xp)
-    first = ms.busy == 1
+    first = (ms.busy == 1) & ~clearing
     e_now = wrap_pm(((ms.mk_G + mean_c_of(mc, es.c_tab, ms.mk_d, xp)) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
-    return ms._replace(
+    return mech_background_idle(mc, ms, xp)._replace(
         busy=xp.where(running, ms.busy + I32(1), ms.busy),
         ev_ok=xp.where(first, xp.int32(ok), ms.ev_ok), ev_r=xp.where(first, r, ms.ev_r),
         ev_score=xp.where(first, score, ms.ev_score), ev_margin=xp.where(first, margin, ms.ev_margin),
@@ -115,8 +122,10 @@ def mech_background(mc: MechConsts, tb: MechTables, ms: MechState, es: Estimator
 def mech_background_idle(mc: MechConsts, ms: MechState, xp: ArrayModule = np) -> MechState:
     """:func:`mech_background` when :func:`background_heavy` is false: a later slice of a running
     evaluation (its result is already held) or nothing, without the arithmetic."""
-    running = (ms.busy >= 1) & (ms.busy <= I32(n_slices(mc)))
-    return ms._replace(busy=xp.where(running, ms.busy + I32(1), ms.busy))
+    clearing = ms.clr != 0
+    running = (ms.busy >= 1) & (ms.busy <= I32(n_slices(mc))) & ~clearing
+    clr = xp.where(clearing, xp.where(ms.clr >= I32(n_clear_slices(mc)), I32(0), ms.clr + I32(1)), ms.clr)
+    return ms._replace(busy=xp.where(running, ms.busy + I32(1), ms.busy), clr=clr)
 
 
 def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,

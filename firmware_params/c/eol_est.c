@@ -46,7 +46,29 @@ static int32_t phase_of(int32_t a, int32_t b)
 /* signed quadrature counts from boundary k_last to count q, in [-M/2, M/2) */
 static int32_t dq_of(int32_t q, int32_t k_last, int32_t M)
 {
-    return ((((q - k_last) + M) + (M / 2)) % M) - (M / 2);
+    int32_t y = q - k_last; /* in (-M, M): no runtime modulo (the C28x has no divider) */
+    if (y >= (M / 2)) {
+        y -= M;
+    } else if (y < -(M / 2)) {
+        y += M;
+    } else {
+        /* already in [-M/2, M/2) */
+    }
+    return y;
+}
+
+/* x mod M for x in [-M, 2M): a count moved by less than a revolution (no runtime modulo) */
+static int32_t wrap_count(int32_t x, int32_t M)
+{
+    int32_t y = x;
+    if (y >= M) {
+        y -= M;
+    } else if (y < 0) {
+        y += M;
+    } else {
+        /* already in [0, M) */
+    }
+    return y;
 }
 
 static float fminf_(float x, float y)
@@ -176,7 +198,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
 
     /* 1. quadrature decoding (x4) */
     ph = phase_of(a, b);
-    d = ((ph - e->phase) + 4) % 4;
+    d = wrap_count(ph - e->phase, 4);
     if (d == 1) {
         stp = 1;
     } else if (d == 3) {
@@ -185,13 +207,13 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         stp = 0;
     }
     qep_err = (d == 2);
-    q = ((e->q + stp) + M) % M;
+    q = wrap_count(e->q + stp, M);
     a_rise = ((d == 1) && (ph == 1)) || ((d == 3) && (ph == 2));
     edir = -1;
     if (ph == 1) {
         edir = 1;
     }
-    k = (edir > 0) ? q : ((q + 1) % M);
+    k = (edir > 0) ? q : wrap_count(q + 1, M);
     against = (e->against != 0) || ((stp != 0) && (stp == -e->dir_last));
     n1 = imin(e->n + 1, S + 1);
 
@@ -199,7 +221,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     bounce = a_rise && (k == e->k_last) && (edir == e->dir_last);
     ev = a_rise && !bounce;
     same_dir = (edir == e->dir_last);
-    pitch_ok = (k == (((e->k_last + (4 * edir)) + M) % M));
+    pitch_ok = (k == wrap_count(e->k_last + (4 * edir), M));
     interval = ev && same_dir && pitch_ok && (n1 <= S);
     long_iv = interval && (e->nc_prev > 0) && ((2 * n1) > (3 * e->nc_prev));
     missing = long_iv && against;
@@ -214,8 +236,8 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     if (missing) {
         fix = 4 * edir;
     }
-    q = ((q + fix) + M) % M;
-    k = ((k + fix) + M) % M;
+    q = wrap_count(q + fix, M);
+    k = wrap_count(k + fix, M);
     speed_upd = measured || missing;
     run = e->run;
     if (learn_on) {

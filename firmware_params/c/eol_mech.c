@@ -73,6 +73,7 @@ int eol_mech_init(eol_mech_t *m, const eol_est_t *est, const uint16_t *w)
     m->miss[1] = m->N;
     /* the grid, the mean pitch errors 16 edges a slice, the norm, one per hypothesis, the verdict */
     m->n_slices = 1 + ((m->N + (EOL_MECH_SLICE_EDGES - 1)) / EOL_MECH_SLICE_EDGES) + 1 + m->PP + 1;
+    m->n_clear = ((2 * m->N) + (EOL_MECH_SLICE_EDGES - 1)) / EOL_MECH_SLICE_EDGES;
     return (m->PP > EOL_MECH_MAX_PP) ? -1 : 0;
 }
 
@@ -87,13 +88,10 @@ static float mean_c_of(const eol_mech_t *m, const eol_est_t *est, int32_t d)
     return eol_div(s, (float)m->N);
 }
 
+/* constant work: the samples are cleared by the background (clr), the tick takes none until then */
 static void withdraw(eol_mech_t *m)
 {
-    int32_t i;
-    for (i = 0; i < (2 * m->N); ++i) {
-        m->acc[i] = 0.0f;
-        m->cnt[i] = 0;
-    }
+    m->clr = 1;
     m->miss[0] = m->N;
     m->miss[1] = m->N;
     m->n_new = 0;
@@ -118,7 +116,7 @@ void eol_mech_step(eol_mech_t *m, const eol_est_t *est, const eol_est_out_t *eo,
         dir_bit = 2u;
     }
     /* 1. collect this tick's pitch sample (not while an evaluation reads the samples) */
-    take = enabled && (eo->learn != 0) && (m->cnt[eo->learn_idx] < EOL_MECH_CNT_MAX) && (m->busy == 0);
+    take = enabled && (m->clr == 0) && (m->busy == 0) && (eo->learn != 0) && (m->cnt[eo->learn_idx] < EOL_MECH_CNT_MAX);
     if (take) {
         if (m->cnt[eo->learn_idx] == 0) {
             m->miss[eo->learn_idx % 2] -= 1;
@@ -170,7 +168,7 @@ void eol_mech_step(eol_mech_t *m, const eol_est_t *est, const eol_est_out_t *eo,
     }
     /* 3. start an evaluation when a revolution of fresh samples is in */
     due = enabled && !reset && (est->anchored != 0) && (m->n_new >= m->N) && (((uint32_t)m->dirs & dir_bit) != 0u) &&
-          (m->miss[d] == 0) && (m->busy == 0);
+          (m->miss[d] == 0) && (m->busy == 0) && (m->clr == 0);
     if (due) {
         m->busy = 1;
         m->ev_d = d;
@@ -202,7 +200,11 @@ static void hypothesis(eol_mech_t *m, int32_t j)
     float rho;
     int32_t mm;
     for (mm = 0; mm < m->N; ++mm) {
-        s = s + (m->a[mm] * m->dF[(2 * ((mm + r) % m->N)) + d]);
+        int32_t i = mm + r; /* (mm + r) mod N without a runtime modulo */
+        if (i >= m->N) {
+            i -= m->N;
+        }
+        s = s + (m->a[mm] * m->dF[(2 * i) + d]);
     }
     rho = (m->den > 0.0f) ? eol_div(s, m->den) : 0.0f;
     m->rho_j[j] = rho;
@@ -234,7 +236,15 @@ void eol_mech_background(eol_mech_t *m, const eol_est_t *est)
 {
     const int32_t n_chunks = (m->N + (EOL_MECH_SLICE_EDGES - 1)) / EOL_MECH_SLICE_EDGES;
     const int32_t k = m->busy;
-    if ((k >= 1) && (k <= m->n_slices)) {
+    if (m->clr != 0) {
+        int32_t i;
+        const int32_t i0 = (m->clr - 1) * EOL_MECH_SLICE_EDGES;
+        for (i = i0; (i < (i0 + EOL_MECH_SLICE_EDGES)) && (i < (2 * m->N)); ++i) {
+            m->acc[i] = 0.0f;
+            m->cnt[i] = 0;
+        }
+        m->clr = (m->clr >= m->n_clear) ? 0 : (m->clr + 1);
+    } else if ((k >= 1) && (k <= m->n_slices)) {
         const int32_t d = m->ev_d;
         if (k == 1) {
             /* the firmware's mean grid against the block's; the samples' norm starts */
@@ -271,7 +281,10 @@ float eol_mech_sum(const eol_mech_t *m, int32_t r, int32_t q, float theta_hat, f
     int32_t k;
     a = omega_hat * m->lead_s;
     t = theta_hat + a;
-    k = (q + (4 * r)) % m->M;
+    k = q + (4 * r); /* mod M: both in [0, M) */
+    if (k >= m->M) {
+        k -= m->M;
+    }
     ek = m->grid_phase + ((float)k * m->QUARTER);
     e = ek + eol_est_wrap_pm(t - ek);
     return eol_comp_table_sum(e, i_qo, m->table_const, m->table_per_amp, EOL_MECH_TABLE_LEN, m->KM);

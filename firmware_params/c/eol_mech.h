@@ -61,6 +61,8 @@ typedef struct {
     /* the revolution mark's check: mk 0 none, 1 asked, 2 done (verdict mk_bad) */
     int32_t mk, mk_d, mk_bad;
     float mk_G;
+    /* after a withdrawal the background clears the samples, 16 entries a slice: 0 done, k slice k next */
+    int32_t clr, n_clear;
 } eol_mech_t;
 
 typedef struct {

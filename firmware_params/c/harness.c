@@ -22,6 +22,75 @@
 #include "eol_est.h" /* H4 */
 #include "eol_mech.h" /* revision 1.2 */
 
+/* ---------------------------------------------------- operation counts (cycle model) ---- */
+/* Built with -DEOL_COUNT_OPS against firmware sources whose LLVM IR counts every operation into
+ * eol_ops[class] (bench/bench_fw_cycles.py): each call is weighed with the cycles per class in
+ * EOL_OPS_WEIGHTS and the worst tick per function is printed per file ("CYCLES ..."). */
+#ifdef EOL_COUNT_OPS
+#define OPS_N 24
+uint64_t eol_ops[OPS_N];
+static double g_w[OPS_N];
+static uint64_t g_snap[OPS_N];
+enum { F_EST, F_MECH, F_BG, F_COMP, F_TICK, F_N };
+static double g_worst[F_N];
+static long g_worst_row[F_N];
+
+static void ops_mark(void)
+{
+    memcpy(g_snap, eol_ops, sizeof g_snap);
+}
+
+static double ops_cost(void)
+{
+    double c = 0.0;
+    int k;
+    for (k = 0; k < OPS_N; ++k) {
+        c += (double)(eol_ops[k] - g_snap[k]) * g_w[k];
+    }
+    ops_mark();
+    return c;
+}
+
+static void ops_worst(int f, double c, long row)
+{
+    if (c > g_worst[f]) {
+        g_worst[f] = c;
+        g_worst_row[f] = row;
+    }
+}
+
+static void ops_weights(void)
+{
+    const char *w = getenv("EOL_OPS_WEIGHTS");
+    int k = 0;
+    while (w != NULL && *w != '\0' && k < OPS_N) {
+        char *end;
+        g_w[k++] = strtod(w, &end);
+        w = (*end == ',') ? end + 1 : end;
+    }
+}
+
+static void ops_report(const char *file)
+{
+    static const char *names[F_N] = {"est", "mech_tick", "background", "comp", "tick"};
+    int f;
+    printf("CYCLES %s", file);
+    for (f = 0; f < F_N; ++f) {
+        printf(" %s=%.0f@%ld", names[f], g_worst[f], g_worst_row[f]);
+        g_worst[f] = 0.0;
+        g_worst_row[f] = 0;
+    }
+    printf("\n");
+}
+#define OPS_MARK() ops_mark()
+#define OPS_COST() ops_cost()
+#define OPS_WORST(f, c, row) ops_worst((f), (c), (row))
+#else
+#define OPS_MARK() ((void)0)
+#define OPS_COST() 0.0
+#define OPS_WORST(f, c, row) ((void)(c), (void)(row))
+#endif
+
 /* ---------------------------------------------------------------- CSV reading (shared) ---- */
 
 #define MAX_LINE (1L << 20)
@@ -622,7 +691,9 @@ static int check_estimator(const char *dir, const char *file, result_t *r)
             return -1;
         }
         r->rows++;
+        OPS_MARK();
         eol_est_step(&e, a, b, h, &o);
+        OPS_WORST(F_EST, OPS_COST(), c.row);
         chk_f32(r, &c, "theta_hat", hex_u32(c.f[i_th]), o.theta_hat);
         chk_f32(r, &c, "omega_hat", hex_u32(c.f[i_om]), o.omega_hat);
         chk_f32(r, &c, "theta_enc", hex_u32(c.f[i_te]), o.theta_enc);
@@ -835,14 +906,28 @@ static int check_mech(const char *dir, const char *file, result_t *r)
         int32_t h = (int32_t)strtol(c.f[i_h], NULL, 10);
         float iq = hex_f32(c.f[i_iq]);
         float sm, y = 0.0f;
+        double c_est, c_mech, c_comp = 0.0;
         if (c.row == 1 && (eol_est_init(&e, &cfg, h, a, b) != 0 || eol_mech_init(&m, &e, w) != 0)) {
             fprintf(stderr, "%s: configuration refused\n", c.path);
             return -1;
         }
         r->rows++;
+        OPS_MARK();
         eol_est_step(&e, a, b, h, &o);
+        c_est = OPS_COST();
         eol_mech_step(&m, &e, &o, &mo);
+        c_mech = OPS_COST();
+#ifdef EOL_EVAL_IN_TICK
+        /* the structure before the background: every slice of an evaluation inside this tick */
+        while ((m.busy >= 1) && (m.busy <= m.n_slices)) {
+            eol_mech_background(&m, &e);
+        }
+        eol_mech_background(&m, &e); /* a mark check */
+        c_mech += OPS_COST();
+#else
         eol_mech_background(&m, &e); /* the golden schedule: one background slice per tick */
+#endif
+        OPS_WORST(F_BG, OPS_COST(), c.row);
         if (EOL_PB_GET_FLAGS(w) & EOL_PB_FLAG_COMP_ENABLE) {
             static float tc[EOL_PB_TABLE_LEN_MAX], tp[EOL_PB_TABLE_LEN_MAX];
             uint16_t j;
@@ -850,10 +935,16 @@ static int check_mech(const char *dir, const char *file, result_t *r)
                 tc[j] = EOL_PB_GET_TABLE_CONST(w, n, j);
                 tp[j] = EOL_PB_GET_TABLE_PER_AMP(w, n, j);
             }
+            OPS_MARK();
             sm = eol_mech_sum(&m, mo.r, e.q, o.theta_hat, o.omega_hat, iq);
             y = eol_comp_iqc_mech(o.theta_hat, o.omega_hat, iq, tc, tp, n, EOL_PB_GET_LEAD_S(w),
                                   EOL_PB_GET_IQC_LIMIT(w), mo.active, sm);
+            c_comp = OPS_COST();
         }
+        OPS_WORST(F_EST, c_est, c.row);
+        OPS_WORST(F_MECH, c_mech, c.row);
+        OPS_WORST(F_COMP, c_comp, c.row);
+        OPS_WORST(F_TICK, c_est + c_mech + c_comp, c.row);
         if ((unsigned long)o.status != strtoul(c.f[i_st], NULL, 10)) fail(r, &c, "status", strtoul(c.f[i_st], NULL, 10), (unsigned long)o.status);
         if ((unsigned long)o.learn != strtoul(c.f[i_le], NULL, 10)) fail(r, &c, "learn", strtoul(c.f[i_le], NULL, 10), (unsigned long)o.learn);
         if ((unsigned long)mo.active != strtoul(c.f[i_ac], NULL, 10)) fail(r, &c, "active", strtoul(c.f[i_ac], NULL, 10), (unsigned long)mo.active);
@@ -958,6 +1049,9 @@ int main(int argc, char **argv)
         return 2;
     }
     dir = argv[1];
+#ifdef EOL_COUNT_OPS
+    ops_weights();
+#endif
     if (argc == 3) {
         diff = fopen(argv[2], "w");
         if (diff == NULL) {
@@ -1016,6 +1110,9 @@ int main(int argc, char **argv)
             return 2;
         }
         report(&r);
+#ifdef EOL_COUNT_OPS
+        ops_report(file);
+#endif
         if (r.rows == 0 || r.rows_bad != 0) bad++;
     }
     if (files == 0) {
