@@ -32,7 +32,15 @@ moments of ``eol-cal run``'s fit and writes: exit 2, signals ignored, records lo
 
 Sections are functions in :data:`SECTIONS` (name -> function(args) -> bool ok).
 
-    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs|ecu|scenarios|uds|signals]
+Section ``scenarios`` also runs issue 36's hostile scenarios (:mod:`eol_cal.fuzz.scenarios_harden`:
+``dbfiles``, ``selections``, ``oemkey``, ``dynoclear``, ``signals``, ``round3``) and those of any
+other ``eol_cal.fuzz.scenarios_*`` module present; ``--kinds`` runs some of them (in parts).
+
+Section ``oemkey`` (issue 36): what running an OEM's seed-to-key function in its own child process
+costs, beside calling it in this process (the code before): load and one key.
+
+    python bench/bench_faults.py [--seed 1] [--per-kind 125] [--before b46ce43] [--section inputs|ecu|scenarios|...]
+    python bench/bench_faults.py --section scenarios --kinds dbfiles selections   # some kinds only
 """
 
 from __future__ import annotations
@@ -145,11 +153,16 @@ def _print_scenarios(title: str, tallies: dict) -> object:
 
 
 def scenarios_section(args: argparse.Namespace) -> bool:
-    """The targeted scenarios of issue 23 through the CLI: ours, and (with --before) the older code's."""
-    from eol_cal.fuzz.scenarios import BUILDERS, run_scenarios
+    """The targeted scenarios (issue 23's, issue 36's, and any other ``eol_cal.fuzz.scenarios_*``
+    module's) through the CLI: ours, and (with --before) the older code's."""
+    from eol_cal.fuzz.scenarios import all_builders, run_scenarios
 
     bases = fuzz.base_files()
-    kinds = tuple(BUILDERS)
+    builders = all_builders()
+    unknown = sorted(set(args.kinds or ()) - set(builders))
+    if unknown:
+        raise SystemExit(f"--kinds: unknown {', '.join(unknown)}; known: {', '.join(builders)}")
+    kinds = tuple(args.kinds or builders)
     with tempfile.TemporaryDirectory(prefix="bench-scenarios-") as tmp:
         t0 = time.perf_counter()
         ours = run_scenarios(kinds, Path(tmp), bases, timeout_s=args.timeout * 3)
@@ -158,6 +171,8 @@ def scenarios_section(args: argparse.Namespace) -> bool:
         for o in total.bad[:args.show]:
             print(f"  {o.what:<22} {o.scenario.kind}: {o.scenario.name} rc {o.rc}: "
                   f"{(o.stderr.strip().splitlines() or [''])[-1][:140]}")
+            if o.hang:  # where it hung (the child's faulthandler dump, when the scenario asked for one)
+                print("    " + "\n    ".join(o.stderr.strip().splitlines()[-30:]))
         if args.before:
             with checkout(args.before) as tree:
                 theirs = run_scenarios(kinds, Path(tmp), bases, timeout_s=args.timeout * 3, root=tree)
@@ -239,10 +254,52 @@ def ecu_section(args: argparse.Namespace) -> bool:
     return bench_faults_ecu.ecu_section(args.repeat, args.before or args.ecu_before, args.cap)
 
 
+def oemkey_section(args: argparse.Namespace) -> bool:
+    """What containing an OEM's seed-to-key function costs (issue 36, class 6): loading it and one
+    key, in this process (the code before) and in its own child process (eol_cal.ecu.keychild)."""
+    import importlib
+    import statistics
+
+    from eol_cal.ecu import protocol as P
+    from eol_cal.ecu.keychild import ContainedKey
+
+    with tempfile.TemporaryDirectory(prefix="bench-oemkey-") as tmp:
+        Path(tmp, "oem_bench_key.py").write_text("import hashlib, hmac\n\ndef key(seed, secret):\n"
+                                                 "    return hmac.new(secret, seed, hashlib.sha256).digest()[:4]\n")
+        sys.path.insert(0, tmp)
+        rows = []
+        for label in ("in this process (before)", "in its own child process"):
+            t0 = time.perf_counter()
+            if label.startswith("in this"):
+                sys.modules.pop("oem_bench_key", None)
+                fn = importlib.import_module("oem_bench_key").key
+
+                def algo(seed: bytes, fn=fn) -> bytes:
+                    return fn(seed, P.DEV_SECRET)
+            else:
+                algo = ContainedKey("oem_bench_key", "key", "oem_bench_key:key", P.DEV_SECRET, "key-algo")
+            first = algo(b"\x12\x34\x56\x78")
+            load = time.perf_counter() - t0
+            calls = []
+            for k in range(args.key_calls):
+                t1 = time.perf_counter()
+                assert algo(k.to_bytes(4, "big")) == P.security_key(P.DEV_SECRET, k.to_bytes(4, "big"))
+                calls.append(time.perf_counter() - t1)
+            rows.append((label, load, statistics.median(calls), max(calls), first))
+            if hasattr(algo, "close"):
+                algo.close()
+        sys.path.remove(tmp)
+    print(f"\nOEM seed-to-key: load (start, import, first key) and one key ({args.key_calls} keys each)")
+    print(f"{'where':<28}{'load ms':>10}{'median key ms':>15}{'max key ms':>12}")
+    for label, load, med, worst, _ in rows:
+        print(f"{label:<28}{1e3 * load:>10.1f}{1e3 * med:>15.3f}{1e3 * worst:>12.3f}")
+    return rows[0][4] == rows[1][4]
+
+
 #: name -> section; each prints its figures and returns True when its must-be-zero counts are 0
 SECTIONS: dict[str, Callable[[argparse.Namespace], bool]] = {
     "inputs": inputs_section, "ecu": ecu_section, "scenarios": scenarios_section, "uds": uds_section,
-    "signals": signals_section,
+    "signals": signals_section, "oemkey": oemkey_section,
 }
 
 
@@ -259,6 +316,10 @@ def add_options(ap: argparse.ArgumentParser) -> None:
                     help="ECU trials: the older code's kill -9 reproduction (used when --before is not given)")
     ap.add_argument("--uds-flashes", type=int, default=10, help="flashes per tester in the uds section")
     ap.add_argument("--signal-trials", type=int, default=12, help="signalled runs in the signals section")
+    ap.add_argument("--kinds", nargs="+", metavar="KIND",
+                    help="scenarios section: only these kinds (issue 23: toml json captures paths refusals exits; "
+                         "issue 36: dbfiles selections oemkey dynoclear signals round3; others' modules add theirs)")
+    ap.add_argument("--key-calls", type=int, default=200, help="oemkey section: seed-to-key calls timed per way")
 
 
 def main() -> int:

@@ -57,7 +57,11 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
         values = np.asarray(capture["hall"])
         finite = values[np.isfinite(values)] if values.dtype.kind == "f" else values
         hall = {"states_seen": sorted(int(s) for s in np.unique(finite)), "changes": hall_changes(values)}
-    return {
+    from eol_cal.jsonsafe import json_safe
+
+    # a header's NaN kt or a NaN time stamp is what a bad capture holds: null in the document (the
+    # problem says why), never a ValueError from the JSON writer
+    return json_safe({
         "file": capture.source,
         "format": file_format,
         "samples": int(len(t)),
@@ -72,7 +76,7 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
         "hall": hall,
         "valid": problem is None,
         "problem": None if problem is None else {"file": problem.file, "field": problem.field, "reason": problem.reason},
-    }
+    })
 
 
 def _fmt(value: float | None) -> str:

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from cli.common import console, err_console, exchange_log_options, handle_errors, print_json
+from cli.common import CommandExit, console, err_console, exchange_log_options, handle_errors, print_json
 from cli.ecu import bus_options, open_cli_bus
 from cli.paths import io_paths
 
@@ -270,4 +270,57 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
         raise InputError(None, "--listen", f"cannot listen on {listen}: {exc}") from None
 
 
-COMMANDS = [acquire_cmd, dyno_sim_cmd]
+@click.command("dyno-clear")
+@click.option("--dyno", "address", required=True, metavar="HOST[:PORT]",
+              help="Modbus TCP address of the dyno (port 502 when none is given).")
+@click.option("--yes", is_flag=True, help="Confirmed beforehand (no question): clear whatever fault is latched.")
+@click.option("--timeout", type=click.FloatRange(0.01, 60.0), default=1.0, show_default=True,
+              help="Per-request Modbus timeout (s).")
+@register_map_option
+@handle_errors
+@exchange_log_options
+def dyno_clear_cmd(address, yes, timeout, register_map) -> None:
+    """Clear a fault latched on the dyno (its watchdog, over-speed, torque sensor) once the operator confirms.
+
+    Reads the faults first; with none latched nothing is written (exit 0). Otherwise it asks
+    (type yes; --yes answers beforehand), and only at standstill sets the speed to 0, disables
+    the drive and writes the register map's fault_reset (nothing is started). Exit 0 cleared,
+    1 a fault latched again (its cause persists: see the dyno), 2 not confirmed, unreachable,
+    or the shaft turns.
+    """
+    import sys
+
+    from eol_cal.dyno import client as dc
+    from eol_cal.dyno.recover import clear_faults, inspect_faults
+    from eol_cal.errors import InputError
+
+    host, port = dc.parse_address(address)
+    config = dc.DynoConfig(host=host, port=port, timeout=timeout, register_map=load_map(register_map))
+    _quiet_pymodbus()
+    before = inspect_faults(config)
+    if not before.latched:
+        _show_faults(address, before, None)
+        return
+    if not yes:
+        err_console.print(f"dyno {address}: {before.describe()}")
+        sys.stderr.write("Clear it? The drive stays disabled and nothing is started; check the dyno first. Type yes: ")
+        sys.stderr.flush()
+        answer = sys.stdin.readline().strip().lower()
+        if answer != "yes":
+            raise InputError(None, "confirmation", f"{answer!r}, not yes: nothing was written to the dyno")
+    before, after = clear_faults(config)
+    _show_faults(address, before, after)
+    if after.latched:
+        raise CommandExit(1)
+
+
+def _show_faults(address: str, before, after) -> None:
+    if after is None:
+        console.print(f"dyno {address}: no fault latched ({before.describe()}); nothing was written")
+    elif after.latched:
+        console.print(f"dyno {address}: still latched after the reset: {after.describe()}; its cause persists")
+    else:
+        console.print(f"dyno {address}: cleared (was {before.describe()}); the drive is disabled until the next run")
+
+
+COMMANDS = [acquire_cmd, dyno_sim_cmd, dyno_clear_cmd]

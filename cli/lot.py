@@ -59,7 +59,7 @@ def min_n_option(func):
 @click.option("-o", "--out", "out", default=Path("lot.html"), show_default=True,
               type=click.Path(dir_okay=False, path_type=Path), help="The page to write (one self-contained HTML file).")
 @handle_errors
-@io_paths(inputs=("db",), outputs=("out",))
+@io_paths(outputs=("out",), databases=("db",))
 def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, out) -> None:
     """Write the lot page: yield and counts, distributions with the limits (phases on the circle),
     capability per variant and station, control charts per station (against a frozen baseline
@@ -107,7 +107,7 @@ def _fmt(x, digits: int = 4) -> str:
               help="Also write the selected runs (one row each, the database's columns, units in the header; with "
                    "--baseline the rules each run is part of) as CSV.")
 @handle_errors
-@io_paths(inputs=("db",), outputs=("csv_file",))
+@io_paths(outputs=("csv_file",), databases=("db",))
 def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, kind, as_json, csv_file) -> None:
     """Lot statistics of the production runs (--kind for others): per quantity count, mean, sd,
     percentiles (phases on the circle), Cp/Cpk per variant and station against the variant's
@@ -398,24 +398,25 @@ def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profi
     that was stopped; no motor is recorded twice."""
     import contextlib
 
-    from distributed import Client
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from cli.common import CommandExit, err_console, print_json
+    from cli.refit import cluster_client, scheduler_address
     from eol_cal.analysis.fit.cache import default_cache_dir
-    from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
+    from eol_cal.lot.cluster import RefitWorkerSetup
     from eol_cal.lot.simulate import SIM_BATCH, LotPlan, check_plan, recorded_runs, simulate_lot
     from eol_cal.station.records import db_label
 
     plan = LotPlan(lot_name, spread, str(limits_file), variant, motors, seed, profile, "paper", bench,
                    batch or SIM_BATCH)
     check_plan(plan)
+    if scheduler is not None:
+        scheduler_address(scheduler)  # before the database is read
     before = len(recorded_runs(db, plan) & {plan.run_id(i) for i in range(motors)})
     cache_dir = default_cache_dir()
     t0 = __import__("time").perf_counter()
     with contextlib.ExitStack() as stack:
-        cluster = None if scheduler else stack.enter_context(local_cluster(workers))
-        client = stack.enter_context(Client(scheduler or cluster))
+        client = cluster_client(stack, scheduler, workers)
         # every worker: the plant's and estimator's tick loops in one kernel, JAX's compile cache,
         # the fit imported (eol_cal.lot.cluster)
         client.register_plugin(RefitWorkerSetup(cache_dir))

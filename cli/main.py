@@ -2,9 +2,35 @@
 
 from __future__ import annotations
 
-import click
+import os
+import signal
+import sys
 
-from eol_cal import __version__
+
+def _is_the_program() -> bool:
+    """Whether this process is the eol-cal program (``eol-cal ...`` or ``python -m cli.main``), not
+    a test importing the CLI nor a worker process that multiprocessing started from it."""
+    main_file = os.path.basename(getattr(sys.modules.get("__main__"), "__file__", None) or "")
+    if __name__ != "__main__" and main_file != "eol-cal":
+        return False
+    mp = sys.modules.get("multiprocessing")
+    return mp is None or mp.parent_process() is None
+
+
+def _end_while_starting(signum: int, frame: object) -> None:
+    # nothing has been done yet (imports, option parsing): one line and exit 2, as for every
+    # signal later; the command's own handlers (cli.common.signals_interrupt) replace this one
+    os.write(2, f"error: interrupted by {signal.Signals(signum).name} while starting; nothing was done\n".encode())
+    os._exit(2)
+
+
+if _is_the_program():  # the first instruction: from here on a signal ends the program with exit 2, never 143/129/130
+    for _name in ("SIGINT", "SIGTERM", "SIGHUP"):
+        signal.signal(getattr(signal, _name), _end_while_starting)
+
+import click  # noqa: E402 - after the signal handlers
+
+from eol_cal import __version__  # noqa: E402
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

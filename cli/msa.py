@@ -61,13 +61,14 @@ def msa_group() -> None:
 @click.option("--plots", default=None, type=click.Path(file_okay=False, path_type=Path),
               help="Write each quantity's run chart as PNG into this directory (type1-KEY.png).")
 @handle_errors
-@io_paths(inputs=("db",), outputs=("out",), output_dirs=("plots",))
+@io_paths(outputs=("out",), output_dirs=("plots",), databases=("db",))
 def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l, min_n, as_json, out, plots) -> None:
     """Type-1 gauge study of k6, phase_k6, c6 and the p-p figures over the master's runs: bias,
     repeatability s, Cg = 0.2 T / (4 s) and Cgk = (0.1 T - |bias|) / (2 s) (docs/spc.md).
     Exit 1 unless every quantity with a tolerance is capable (Cg and Cgk >= 1.33)."""
     from cli.common import print_json
     from cli.lot import parse_date
+    from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.msa.study import document, read_runs, reference_of_run, studies
     from eol_cal.station.records import db_label
@@ -83,11 +84,10 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
         refs = {**of_run, **refs}
     lot = read_runs(db, serial=serial, since=first and first.isoformat(), until=last and last.isoformat(),
                     exclude=reference_run)
-    if not len(lot):
-        from eol_cal.errors import InputError
-
-        raise InputError(db_label(db), "--serial", f"no master or production run of {serial!r}"
-                         + (" in the days chosen" if since or until else "") + ": nothing to study")
+    if len(lot) == 0:  # nothing to study is bad input, not an incapable gauge (exit 1)
+        window = "" if first is None and last is None else f" from {since or 'the start'} until {until or 'now'}"
+        raise InputError(None, "--serial", f"no master or production run of {serial!r} in {db_label(db)}{window}: "
+                                           "no recorded runs of this serial to study")
     results = studies(lot, refs, tols, sources, l=l, min_n=min_n)
     doc = {**document(results, serial=serial, runs=lot, min_n=min_n), "db": db_label(db)}
     if out is not None:

@@ -10,8 +10,8 @@ import click
 
 from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors, styled
 from cli.ecu import key_algo_option
-from cli.paths import check_more, io_paths
-from cli.station import DEMO_LIMITS, flush_first, quiet_logs, StepProgress, given_options, results_table
+from cli.paths import check_io, check_more, io_paths
+from cli.station import StepProgress, flush_first, given_options, quiet_logs, results_table, write_demo_limits
 from eol_cal import interrupts
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
@@ -108,7 +108,8 @@ def _next_serial() -> str | None:
             console.print(styled((f"not a serial: {exc.reason}", "red"), "; scan again"))
 
 
-def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir: Path | None, options: dict):
+def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir: Path | None, lot_file: Path | None,
+              options: dict):
     """The session's settings: file, environment, options; the demo's own where it runs on simulators."""
     from eol_cal.station.settings import load_settings
 
@@ -116,17 +117,15 @@ def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir:
     if not demo:
         return load_settings(station_file, given=given)
     limits = out_dir / "limits.toml"
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        limits.write_text(DEMO_LIMITS, encoding="utf-8")
-    except OSError as exc:
-        from eol_cal.errors import InputError
-
-        raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
     # simulated motors never go into a station's database: records and reports stay in the demo's
     # directory unless given, and the station's EOL_CAL_* variables are not read
     given = {"db": str(out_dir / "results.sqlite"), "report_dir": str(out_dir / "reports"),
              "spool_dir": str(out_dir / "spool"), **given}
+    # the demo's own files (its limits: written, then read) against its database, given or its own,
+    # before the limits are written; the database against the outputs given (--lot, --log-file)
+    check_io((), (limits,) if lot_file is not None else (limits, out_dir / "lot.html"), databases=(given["db"],))
+    check_more(databases=(given["db"],))
+    write_demo_limits(limits)
     return load_settings(station_file, environ={}, given=given, optional=DEMO_OWN_KEYS,
                          fallbacks={"limits": str(limits), "station_id": DEMO_STATION_ID})
 
@@ -210,13 +209,20 @@ def _master_status(cfg) -> str | None:
     return f"master {m.serial} ({period}): passed {last.started_at:%Y-%m-%d %H:%M} UTC; production may run"
 
 
+def _ended_by_operator() -> None:
+    """A signal at a prompt: Ctrl-C (SIGINT) is the operator ending the session (exit 0); SIGTERM
+    or SIGHUP (the station shut down, its terminal closed) stays an interruption (exit 2)."""
+    if interrupts.received() in (None, "SIGINT"):
+        interrupts.handled()
+
+
 def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
     """Motors until the operator ends the session; True when a motor was interrupted."""
     while True:
         try:
             serial = _next_serial()
         except KeyboardInterrupt:
-            interrupts.handled()  # the session's way to end, with exit 0
+            _ended_by_operator()  # Ctrl-C: the session's way to end, with exit 0
             console.print("\nCtrl-C between motors: the session ends")
             return False
         if serial is None:
@@ -234,7 +240,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             _show(out)
         except KeyboardInterrupt:
-            interrupts.handled()
+            _ended_by_operator()
             return False
 
 
@@ -283,7 +289,8 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
 @click.pass_context
 @handle_errors
 @exchange_log_options
-@io_paths(inputs=("station_file", "limits_file"), outputs=("db", "lot_file"), output_dirs=("out_dir", "report_dir"))
+@io_paths(inputs=("station_file", "limits_file"), outputs=("lot_file",), output_dirs=("out_dir", "report_dir"),
+          databases=("db",))
 def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options: Any) -> None:
     """The operator loop: scan a motor's serial, run the cycle, read the verdict, next motor.
 
@@ -306,7 +313,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
 
     if demo and out_dir is None:
         out_dir = Path(tempfile.mkdtemp(prefix="eol-cal-station-"))
-    settings = _settings(ctx, station_file, demo, out_dir, options)
+    settings = _settings(ctx, station_file, demo, out_dir, lot_file, options)
     from eol_cal.station.settings import settings_paths
 
     check_more(*settings_paths(settings))  # --lot and --log-file against the settings' database and files
@@ -321,7 +328,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:
-        interrupts.handled()
+        _ended_by_operator()
         operator = None
     if operator is None:
         console.print("no operator: the session ends")

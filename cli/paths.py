@@ -3,8 +3,10 @@ output may be a device, FIFO or socket.
 
 Every path a command writes counts, from any option, setting or default: the declared
 outputs, the ``--log-file`` (appended to: it named the block being flashed, and the next run
-failed), and, for ``run`` and ``station``, what the station settings name (:func:`check_more`:
-the records database is written, the lot page must not replace it). Files read and written at
+failed), and, for ``run`` and ``station``, what the station settings name (:func:`check_more`).
+Every records database is an input whether it exists yet or not: no output may be it or a
+file SQLite keeps beside it (``-wal``, ``-shm``, ``-journal``); ``station --demo --lot
+D/results.sqlite`` replaced the database it had just created with the lot page. Files read and written at
 run time are guarded by :func:`eol_cal.inputs.refuse_overwriting_input` (every atomic write).
 
 ``eol-cal fit X.mf4 -o X.mf4`` used to replace the capture with the result and exit 0. Every
@@ -75,8 +77,17 @@ def _special(path: str) -> str | None:
     return None
 
 
-def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs: Iterable[PathArg] = ()) -> None:
-    """Refuse outputs that are inputs, that repeat each other, or that are devices/FIFOs.
+def database_files(databases: Iterable[PathArg]) -> list[str]:
+    """The files of records databases: each SQLite file and the files SQLite keeps beside it (URLs left out)."""
+    from eol_cal.inputs import SQLITE_SIDE_FILES
+
+    return [f"{db}{side}" for v in databases for db in _paths(v) for side in ("", *SQLITE_SIDE_FILES)]
+
+
+def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs: Iterable[PathArg] = (),
+             databases: Iterable[PathArg] = ()) -> None:
+    """Refuse outputs that are inputs or files of a records database, that repeat each other, or
+    that are devices/FIFOs; output directories that are files of a database.
 
     Parameters
     ----------
@@ -86,6 +97,9 @@ def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs:
         Files it writes (replaced atomically).
     output_dirs : iterable of path
         Directories it writes into: refused when they exist as something else than a directory.
+    databases : iterable of path or URL
+        Records databases it reads or writes (through SQLite, never as an output): no output or
+        output directory may be one of their files, existing or not.
 
     Raises
     ------
@@ -94,6 +108,19 @@ def check_io(inputs: Iterable[PathArg], outputs: Iterable[PathArg], output_dirs:
     """
     ins = [p for v in inputs for p in _paths(v)]
     outs = [p for v in outputs for p in _paths(v)]
+    db_files = database_files(databases)
+    for db in db_files[::4]:  # SQLite would write into it: a database is no other input of the command
+        for inp in ins:
+            if _same(db, inp):
+                same = "" if os.path.normpath(db) == os.path.normpath(inp) else f" ({inp})"
+                raise InputError(db, None, f"output is also an input of this command{same}; the records database "
+                                           "would be written into it")
+    for out in (*outs, *(p for v in output_dirs for p in _paths(v))):
+        for k, db in enumerate(db_files):
+            if _same(out, db):
+                base = db_files[k - k % 4]  # each database's files: the file, then the three beside it
+                what = "the records database" if db == base else f"a file SQLite keeps beside the records database {base}"
+                raise InputError(out, None, f"output is {what}; it would be overwritten")
     for k, out in enumerate(outs):
         special = _special(out)
         if special is not None:
@@ -125,17 +152,18 @@ def _checked(ctx: Any) -> dict[str, Any]:
 
 
 def check_more(inputs: Sequence[PathArg] = (), outputs: Sequence[PathArg] = (),
-               output_dirs: Sequence[PathArg] = ()) -> None:
-    """:func:`check_io` on paths a command learns while it runs (its settings file's), together
-    with those it was given (its options, the log file), and each input noted for the run-time
-    guard.
+               output_dirs: Sequence[PathArg] = (), databases: Sequence[PathArg] = ()) -> None:
+    """:func:`check_io` on paths a command learns while it runs (its settings file's, its
+    defaults), together with those it was given (its options, the log file); each input and
+    database noted for the run-time guard (:func:`eol_cal.inputs.protect_database`: a file the
+    command creates later cannot take a database's place either).
 
     Raises
     ------
     InputError
         As :func:`check_io`.
     """
-    from eol_cal.inputs import register_input
+    from eol_cal.inputs import protect_database, register_input
 
     ctx = _context()
     seen = _checked(ctx)
@@ -146,16 +174,19 @@ def check_more(inputs: Sequence[PathArg] = (), outputs: Sequence[PathArg] = (),
         outs.append(log_file)
         seen["log"] = True
     dirs = [*seen["dirs"], *(p for v in output_dirs for p in _paths(v))]
-    check_io(ins, outs, dirs)
-    seen.update(inputs=ins, outputs=outs, dirs=dirs)
+    dbs = [*seen.get("databases", []), *(p for v in databases for p in _paths(v))]
+    check_io(ins, outs, dirs, dbs)
+    seen.update(inputs=ins, outputs=outs, dirs=dirs, databases=dbs)
     for path in ins:
         register_input(path)
+    for db in dbs:
+        protect_database(db)
 
 
-def io_paths(inputs: tuple[str, ...] = (), outputs: tuple[str, ...] = (),
-             output_dirs: tuple[str, ...] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+def io_paths(inputs: tuple[str, ...] = (), outputs: tuple[str, ...] = (), output_dirs: tuple[str, ...] = (),
+             databases: tuple[str, ...] = ()) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """Decorator of a command: :func:`check_io` on the named parameters (and the ``--log-file``)
-    before it runs.
+    before it runs; ``databases`` names its records database parameters (``--db``).
 
     Put it under :func:`cli.common.handle_errors` (and :func:`cli.common.exchange_log_options`),
     so that a refusal is one line and exit 2.
@@ -165,7 +196,7 @@ def io_paths(inputs: tuple[str, ...] = (), outputs: tuple[str, ...] = (),
         @functools.wraps(func)
         def wrapper(*args: Any, **kwargs: Any) -> Any:
             check_more([kwargs.get(n) for n in inputs], [kwargs.get(n) for n in outputs],
-                       [kwargs.get(n) for n in output_dirs])
+                       [kwargs.get(n) for n in output_dirs], [kwargs.get(n) for n in databases])
             return func(*args, **kwargs)
 
         return wrapper

@@ -30,6 +30,23 @@ def scheduler_address(text: str) -> str:
     return f"{scheme}://{host}:{port}"
 
 
+def cluster_client(stack: contextlib.ExitStack, scheduler: str | None, workers: int):
+    """A ``distributed`` client of ``scheduler`` (checked first; one that cannot be reached within
+    :data:`SCHEDULER_TIMEOUT_S` is exit 2 naming it, not distributed's traceback), else of a local
+    cluster of ``workers`` processes; closed with ``stack``."""
+    from distributed import Client
+
+    from eol_cal.errors import InputError
+    from eol_cal.lot.cluster import local_cluster
+
+    address = None if scheduler is None else scheduler_address(scheduler)
+    cluster = None if address else stack.enter_context(local_cluster(workers))
+    try:
+        return stack.enter_context(Client(address or cluster, timeout=SCHEDULER_TIMEOUT_S))
+    except (OSError, TimeoutError, ValueError) as exc:  # down, refusing, or not a scheduler
+        raise InputError(None, "scheduler", f"cannot connect to {address}: {exc}") from None
+
+
 def _check_lot_inputs(limits_file: str | None, variant: str | None, bench: str, motor: str) -> None:
     """What every task would read, read once here: a bad limits file, variant, bench or motor is
     bad input (exit 2) before the cluster starts, not an error row per capture (exit 1)."""
@@ -65,26 +82,22 @@ def _check_lot_inputs(limits_file: str | None, variant: str | None, bench: str, 
 def refit_cmd(captures, scheduler, workers, limits_file, variant, bench, motor, out, kind) -> None:
     """Refit every capture (directories of station runs: their before.mf4; files; globs) on a
     `distributed` cluster, a few motor runs per task, with the station's fit; rows keyed by serial."""
-    from distributed import Client
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.errors import InputError
-    from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
+    from eol_cal.lot.cluster import RefitWorkerSetup
     from eol_cal.lot.refit import find_captures, refit_lot, write_rows
 
     if out.suffix not in (".parquet", ".jsonl"):
         raise InputError(str(out), None, "results file must end in .jsonl or .parquet")
     paths = find_captures(captures, kind)
     _check_lot_inputs(limits_file, variant, bench, motor)
-    address = None if scheduler is None else scheduler_address(scheduler)
+    if scheduler is not None:
+        scheduler_address(scheduler)  # before the captures are read
     cache_dir = default_cache_dir()
     with contextlib.ExitStack() as stack:
-        cluster = None if address else stack.enter_context(local_cluster(workers))
-        try:
-            client = stack.enter_context(Client(address or cluster, timeout=SCHEDULER_TIMEOUT_S))
-        except (OSError, TimeoutError) as exc:  # down, refusing, or not a scheduler
-            raise InputError(None, "scheduler", f"cannot connect to {address}: {exc}") from None
+        client = cluster_client(stack, scheduler, workers)
         # every worker (one restarted after a crash too): JAX's persistent compile cache, the fit's
         # modules imported and frozen out of the garbage collector's walks
         client.register_plugin(RefitWorkerSetup(cache_dir))

@@ -45,7 +45,7 @@ from eol_cal.errors import InputError
 @click.option("--json", "as_json", is_flag=True, help="Print the flash report (and the record) as JSON.")
 @handle_errors
 @io_paths(inputs=("from_file", "key_file", "can_config", "motor_file"), outputs=("save_file",),
-          output_dirs=("report_dir", "spool_dir"))
+          output_dirs=("report_dir", "spool_dir"), databases=("db",))
 def restore_cmd(bank: str | None, from_file: str | None, calibration: str | None, run_id: str | None,
                 serial: str | None, db: Any, report_dir: Path, spool_dir: Path | None, force: bool,
                 interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,

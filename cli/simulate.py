@@ -98,6 +98,7 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     from eol_cal.plant import presets, variation
     from eol_cal.plant.ecu import mode_of_block
     from eol_cal.plant.simulate import simulate
+    from eol_cal.lot.simulate import SEED_MAX
     from eol_cal.plant.spread import load_spread
 
     if motors is None and output is None:
@@ -106,6 +107,9 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
         raise InputError(None, "--out-dir", "--motors N writes into --out-dir DIR (and takes no -o)")
     if output is not None:
         _check_target(output, "-o")
+    if seed is not None and not 0 <= seed <= SEED_MAX - (motors or 1):
+        raise InputError(None, "--seed", f"{seed}: 0 .. {SEED_MAX - (motors or 1)} (numpy's and JAX's seeds are 0 .. "
+                                         "2**63 - 1; with --motors N the seeds are SEED .. SEED + N - 1)")
     if plot_file is not None and Path(plot_file).suffix.lower() != ".png":
         raise InputError(plot_file, "--plot", "needs a .png file")
     prof = _profile(profile, speed_rpm, torque_nm, iq, seconds)

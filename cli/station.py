@@ -12,7 +12,7 @@ from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator
                         handle_errors, kind_option, print_json, styled)
 from cli.dyno import load_map, realtime_option, register_map_option
 from cli.ecu import key_algo_option
-from cli.paths import check_more, io_paths
+from cli.paths import check_io, check_more, io_paths
 
 # what `demo` writes to DIR/limits.toml and judges against (fixtures/limits.toml has more variants)
 DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").read_text(encoding="utf-8")
@@ -151,6 +151,18 @@ def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
                                   "yellow")))
 
 
+def write_demo_limits(path: Path) -> None:
+    """The demo's limits file (atomically: no output replaces an input or a database)."""
+    from eol_cal.atomic import atomic_write
+    from eol_cal.errors import InputError, WriteError
+
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, DEMO_LIMITS)
+    except (OSError, WriteError) as exc:
+        raise InputError(str(path.parent), None, f"cannot write: {exc}") from None
+
+
 #: the demo's dyno watchdog (ms): its dyno simulator and plant run in the demo's own process, whose
 #: client a loaded machine can hold up for longer than a real dyno's 2 s while the plant computes
 DEMO_WATCHDOG_MS = 30_000
@@ -258,8 +270,8 @@ def load_station(ctx: click.Context, station_file: str | None, values: dict, key
 @click.pass_context
 @handle_errors
 @exchange_log_options
-@io_paths(inputs=("station_file", "can_config", "limits_file", "key_file", "motor_file", "profile"), outputs=("db",),
-          output_dirs=("report_dir", "spool_dir"))
+@io_paths(inputs=("station_file", "can_config", "limits_file", "key_file", "motor_file", "profile"),
+          output_dirs=("report_dir", "spool_dir"), databases=("db",))
 def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     """Calibrate one motor: acquire, fit, table, flash, acquire compensated, judge, record, report.
 
@@ -313,7 +325,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
 @register_map_option
 @handle_errors
 @exchange_log_options
-@io_paths(inputs=("profile", "register_map"), outputs=("db",), output_dirs=("out_dir",))
+@io_paths(inputs=("profile", "register_map"), output_dirs=("out_dir",), databases=("db",))
 def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None:
     """Run the end-of-line line on simulators: no hardware, no arguments needed.
 
@@ -328,21 +340,20 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     from eol_cal.dyno.client import DynoConfig, parse_address
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
-    from eol_cal.errors import InputError
     from eol_cal.station.demo import loopback_station
     from eol_cal.station.limits import load_limits
     from eol_cal.station.cycle import run_motor
     from eol_cal.station.run import StationConfig
 
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-        limits_path = out_dir / "limits.toml"
-        limits_path.write_text(DEMO_LIMITS, encoding="utf-8")
-    except OSError as exc:
-        raise InputError(str(out_dir), None, f"cannot write: {exc}") from None
+    limits_path = out_dir / "limits.toml"
+    db = out_dir / "results.sqlite" if db is None else db
+    # what the demo writes by default (its limits: written, then read), against its database, given
+    # or its own, before anything is written
+    check_io((), (limits_path, out_dir / "lot.html"), (out_dir / "reports", out_dir / "spool", out_dir / "sim"), (db,))
+    check_more(databases=(db,))
+    write_demo_limits(limits_path)
     limits = load_limits(limits_path)
     regmap = load_map(register_map)
-    db = out_dir / "results.sqlite" if db is None else db
     quiet_logs()
     cache_dir = enable_jax_cache()
     t0 = time.perf_counter()
@@ -408,7 +419,7 @@ def _day(value: str | None) -> str | None:
 @click.option("--spool-dir", type=click.Path(file_okay=False, path_type=Path), default=None, help="Spool directory (as for run).")
 @click.pass_context
 @handle_errors
-@io_paths(inputs=("db",), outputs=("plot_file",), output_dirs=("spool_dir",))
+@io_paths(outputs=("plot_file",), output_dirs=("spool_dir",), databases=("db",))
 def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir) -> None:
     """Query run records: by serial, day and kind, the pass rate, and a plot across the lot.
 

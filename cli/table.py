@@ -66,7 +66,7 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     motor = load_motor("paper", motor_file)
     with naming(result):  # the tables' and the block's own checks see values; they came from RESULT
         blk = block_from_result(motor_result, motor, table_len=table_len, lead_s=lead_s, iqc_limit=iqc_limit,
-                                calibrated_at=created_unix(doc), source=result, options=options, layout=layout)
+                                calibrated_at=created_unix(doc, str(result)), source=result, options=options, layout=layout)
         data = pack(blk)
     res = check(data)
     if not res.valid:  # pack() refuses bad fields; this guards the layout code itself

@@ -132,9 +132,28 @@ def records_db(text: str, field: str = "db", *, writing: bool = False) -> str | 
     return text
 
 
+def path_problem(text: str) -> str | None:
+    """Why ``text`` cannot name a file on this system (a NUL, a name over NAME_MAX, a path over
+    PATH_MAX: ``os.stat`` raised ValueError or OSError deep in a command), or None."""
+    if "\x00" in text:
+        return "holds a NUL character"
+    if len(os.fsencode(text)) >= os.pathconf("/", "PC_PATH_MAX"):
+        return f"{len(text)} characters: longer than a path may be"
+    longest = max((len(os.fsencode(part)) for part in text.split("/")), default=0)
+    if longest > os.pathconf("/", "PC_NAME_MAX"):
+        return f"holds a name of {longest} bytes: longer than a file name may be"
+    return None
+
+
+def _shown(text: str, most: int = 80) -> str:
+    return text if len(text) <= most else f"{text[:most]}... ({len(text)} characters)"
+
+
 def _db_path(text: str, field: str, writing: bool) -> Path:
     if not text.strip():
         raise InputError(None, field, "empty: give a SQLite file path or a postgresql:// URL")
+    if (why := path_problem(text)) is not None:
+        raise InputError(None, field, f"{_shown(text)!r}: {why}")
     path = Path(text)
     try:
         mode = os.stat(path).st_mode

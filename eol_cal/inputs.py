@@ -37,6 +37,17 @@ def _kind(mode: int) -> str:
 
 _ledger: dict[tuple[int, int], str] | None = None
 _ledger_lock = threading.Lock()
+#: paths no output of the running command may land on, resolved, with what they are: the records
+#: database and the files SQLite keeps beside it, named before they exist (a database the command
+#: creates is not in the ledger of inodes when the command starts, and its journal never is)
+_guarded: dict[str, str] = {}
+
+#: the files SQLite keeps beside a database (``DB-wal``, ``DB-shm``, ``DB-journal``)
+SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
+#: how a file SQLite wrote starts: a database, a write-ahead log (two byte orders), a rollback journal
+_SQLITE_MAGIC = ((b"SQLite format 3\x00", "a SQLite database"), (b"\x37\x7f\x06\x82", "a SQLite write-ahead log"),
+                 (b"\x37\x7f\x06\x83", "a SQLite write-ahead log"),
+                 (b"\xd9\xd5\x05\xf9\x20\xa1\x63\xd7", "a SQLite rollback journal"))
 
 
 @contextlib.contextmanager
@@ -59,6 +70,38 @@ def command_inputs() -> Iterator[None]:
         if not outer:
             with _ledger_lock:
                 _ledger = None
+                _guarded.clear()
+
+
+def protect_database(db: str | os.PathLike) -> None:
+    """Note the records database ``db`` (a SQLite file; a URL is left out) and the files SQLite
+    keeps beside it as no output's place while the command runs, whether they exist yet or not
+    (:func:`refuse_overwriting_input`)."""
+    text = os.fspath(db)
+    if _ledger is None or "://" in text or not text:
+        return
+    register_input(text)
+    with _ledger_lock:
+        for side in ("", *SQLITE_SIDE_FILES):
+            _guarded.setdefault(os.path.realpath(text + side), "the records database" + (f" ({side[1:]} file)" if side else ""))
+
+
+def _sqlite_file(path: str | os.PathLike) -> str | None:
+    """What SQLite file ``path`` is (a database, its write-ahead log or journal, or the shared
+    memory beside a database), or None."""
+    try:
+        with open(path, "rb", opener=lambda p, f: os.open(p, f | os.O_NONBLOCK)) as fh:
+            head = fh.read(16)
+    except OSError:
+        return None
+    for magic, what in _SQLITE_MAGIC:
+        if head.startswith(magic):
+            return what
+    text = os.fspath(path)
+    for side in SQLITE_SIDE_FILES:  # DB-shm has no magic of its own: named by the database beside it
+        if text.endswith(side) and _sqlite_file(text[: -len(side)]) == "a SQLite database":
+            return f"the {side[1:]} file of a SQLite database"
+    return None
 
 
 def register_input(path: str | os.PathLike) -> None:
@@ -75,13 +118,20 @@ def register_input(path: str | os.PathLike) -> None:
 
 
 def refuse_overwriting_input(path: str | os.PathLike) -> None:
-    """Raise :class:`InputError` when ``path`` is a file the running command has read.
+    """Raise :class:`InputError` when ``path`` is a file the running command has read, its records
+    database or a file of it (:func:`protect_database`), or any SQLite database or journal.
 
     Raises
     ------
     InputError
         Naming ``path`` and the input it is (the same file by another name, a link, too).
     """
+    guarded = _guarded.get(os.path.realpath(os.fspath(path)))
+    if guarded is not None:
+        raise InputError(str(path), None, f"output is {guarded} of this command; it would be overwritten")
+    if os.path.isfile(path) and (what := _sqlite_file(path)) is not None:
+        # whichever database it is: no output of eol-cal replaces one (records, journals, baselines)
+        raise InputError(str(path), None, f"output is {what}; eol-cal never replaces a database with an output")
     ledger = _ledger
     if ledger is None:
         return

@@ -10,7 +10,8 @@ A signal must stop the command whatever the main thread is doing when it comes:
 
 - inside a finalizer or a garbage-collector callback (JAX's ``_xla_gc_callback``), an exception
   is not raised but printed ("Exception ignored in ...") and lost; the run went on, flashed and
-  exited 0. There :func:`deliver` raises nothing and sends the signal again a moment later,
+  exited 0; inside importlib's own code an exception can leave the import lock held (every later
+  import hangs). There :func:`deliver` raises nothing and sends the signal again a moment later,
   and every signal is remembered (:func:`received`): a command checks it before each step that
   writes (:func:`raise_if_received`), and the CLI ends a command that received one with exit 2
   whatever it returned;
@@ -95,10 +96,19 @@ def deliver(signal_name: str, frame: FrameType | None = None) -> None:
     if _depth:
         _pending = _pending or signal_name
         return
-    if _unraisable(frame):
+    if _unraisable(frame) or _in_import_machinery(frame):
         _redeliver(signum)
         return
     raise Interrupted(signal_name)
+
+
+def _in_import_machinery(frame: FrameType | None) -> bool:
+    """Whether the interrupted code is importlib's own (a lazy import in progress): an exception
+    raised between its ``_imp.acquire_lock()`` and the ``try`` that releases it left the import
+    lock held, and the next import in any thread waited for ever (a SIGTERM while ``run`` started:
+    its spool flush thread and the cycle both stuck). Raised a moment later, in the module's own
+    code or after the import, it unwinds through importlib's ``finally`` blocks."""
+    return frame is not None and frame.f_code.co_filename.startswith("<frozen importlib")
 
 
 def _redeliver(signum: int) -> None:

@@ -25,7 +25,7 @@
 #define EOL_PB_BANK_WORDS         UINT32_C(0x8000)
 #define EOL_PB_BANK0_WORD_ADDR    UINT32_C(0x328000)
 #define EOL_PB_BANK1_WORD_ADDR    UINT32_C(0x330000)
-#define EOL_PB_SEQUENCE_ERASED    UINT32_C(0xFFFFFFFF)
+#define EOL_PB_SEQUENCE_ERASED    0xFFFFFFFFu
 
 /* flags; bits 2-5 are the estimator options (revision 1.1), honoured only with INTERP_ENABLE;
  * bit 6 (revision 1.2) only in a layout-2 block with COMP_ENABLE, INTERP_ENABLE and EST_LEARN_PITCH_ERRORS */
@@ -192,7 +192,7 @@ static inline float eol_pb_f32(const uint16_t *w, uint32_t off)
 {
     uint32_t u = eol_pb_u32(w, off);
     float f;
-    memcpy(&f, &u, sizeof f); /* binary32 on both the C28x and the host */
+    (void)memcpy(&f, &u, sizeof f); /* binary32 on both the C28x and the host */
     return f;
 }
 

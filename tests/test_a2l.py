@@ -134,7 +134,7 @@ def test_every_characteristic_has_the_layouts_address_size_type_and_unit(parsed)
             assert ch.compuMethod.conversionType == "IDENTICAL", name
             assert ch.compuMethod.unit == f.get("unit", ""), name
         assert (ch.physUnit or "") == f.get("unit", ""), name
-        assert ch.readOnly == (f["role"] != "field"), name
+        assert ch.readOnly == (f["role"] != "field" or name == "layout_version"), name
     assert chars["hall_angle"].matrixDim.x == 6
     assert chars["table_const"].matrixDim.x == chars["table_per_amp"].matrixDim.x == n
 
@@ -269,3 +269,50 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
 def test_pya2l_leaves_no_listener_on_other_engines(parsed):
     """Our own engines (the records' SQLite and PostgreSQL) never run pya2l's connect hook."""
     assert not event.contains(Engine, "connect", model.set_sqlite3_pragmas)
+
+
+def _contract_bounds(layout: int, table_len: int, motor) -> dict[str, tuple[float, float]]:
+    """The contract's bounds table (docs/firmware-contract.md, "Bounds of each field"), read from
+    the page itself, for a layout, a table length and a motor (its symbols evaluated)."""
+    text = (ROOT / "docs" / "firmware-contract.md").read_text("utf-8")
+    section = text.split("### Bounds of each field", 1)[1].split("\n### ", 1)[0]
+    names = {"N": table_len, "P": motor.poles, "N_enc": motor.N_enc, "i_max": motor.i_max, "pi": math.pi}
+
+    def value(cell: str) -> float:
+        if "(layout 2: " in cell:
+            one, two = cell.split("(layout 2: ")
+            cell = two.rstrip(")") if layout == 2 else one
+        return float(eval(cell.strip(), {"__builtins__": {}}, names))  # our own page's table, no builtins
+
+    out = {}
+    for line in section.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) == 4 and cells[0].startswith("`"):
+            out[cells[0].strip("`")] = (value(cells[1]), value(cells[2]))
+    return out
+
+
+def test_every_characteristics_limits_are_the_contracts_bounds(parsed):
+    """Each field's LOWER/UPPER LIMIT as an independent reader sees it equals the bounds table of
+    the contract (the paper's motor, for which the files are written), both layouts."""
+    from eol_cal.motor import load_motor
+
+    _, n, _, _, chars, layout = parsed
+    bounds = _contract_bounds(layout, n, load_motor())
+    fields = B.FIELDS_BY_VERSION[layout]
+    assert set(fields) <= set(bounds), sorted(set(fields) - set(bounds))
+    for name in fields:
+        lo, hi = bounds[name]
+        ch = chars[name]
+        assert (ch.lowerLimit, ch.upperLimit) == pytest.approx((lo, hi), rel=1e-15, abs=0), name
+
+
+def test_texts_and_read_only_fields_are_the_layouts(parsed):
+    """The layout's own version and size in the texts; the version is not a tool's to change."""
+    _, n, _, _, chars, layout = parsed
+    assert chars["layout_version"].longIdentifier == f"layout version of this block ({layout})"
+    assert chars["layout_version"].readOnly
+    assert ("3248 + 8*N" if layout == 2 else "104 + 8*N") in chars["block_bytes"].longIdentifier
+    assert chars["block_bytes"].lowerLimit == B.block_bytes(n, layout)
+    for name, f in B.FIELDS_BY_VERSION[layout].items():
+        assert chars[name].readOnly == (f["role"] != "field" or name == "layout_version"), name

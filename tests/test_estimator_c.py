@@ -16,7 +16,7 @@ from eol_cal.firmware import estimator_golden as G
 ROOT = Path(__file__).resolve().parents[1]
 CDIR = ROOT / "firmware_params" / "c"
 GOLDEN = ROOT / "firmware_params" / "golden"
-CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off", "-O2"]
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2"]
 
 
 @pytest.fixture(scope="module")

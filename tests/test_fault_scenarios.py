@@ -51,3 +51,32 @@ def test_the_scenario_set_covers_the_classes():
     assert any("station --lot" in s.name for s in S.BUILDERS["paths"](BASES))
     assert any("--log-file" in s.name for s in S.BUILDERS["paths"](BASES))
 
+
+
+# issue 36: the dbfiles (class 1) and round3 (class 9) scenarios, in process as above (the oemkey,
+# signals and dynoclear ones need child processes and time bounds: bench/bench_faults.py runs them)
+from eol_cal.fuzz import scenarios_harden as H  # noqa: E402 - the second part of this module
+
+CASES_36 = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind in ("dbfiles", "round3")
+            for s in H.BUILDERS[kind](BASES) if s.expect == "refuse"]
+
+
+@pytest.mark.slow  # 120 commands in process: a minute
+@pytest.mark.parametrize("scenario", CASES_36)
+def test_every_issue_36_scenario_that_must_be_refused_is_refused_and_changes_nothing(tmp_path, scenario, monkeypatch):
+    d = tmp_path / "s"
+    scenario.lay_out(d)
+    monkeypatch.chdir(d)
+    before = scenario.digests(d)
+    res = CliRunner().invoke(cli, scenario.argv(d), input=scenario.stdin or None, env=_env(scenario.env))
+    assert "Traceback" not in res.output, res.output
+    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
+    assert res.exit_code == 2, res.output
+    assert res.stderr.strip().splitlines()[-1].startswith(("error:", "Error:")), res.output
+    assert scenario.digests(d) == before
+
+
+def test_the_issue_36_scenarios_cover_every_class_with_several_members():
+    counts = {kind: sum(1 for _ in build(BASES)) for kind, build in H.BUILDERS.items()}
+    assert sum(counts.values()) >= 300 and min(counts.values()) >= 10, counts
+    assert set(S.all_builders()) >= set(H.BUILDERS) | set(S.BUILDERS)

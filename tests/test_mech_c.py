@@ -20,7 +20,7 @@ from eol_cal.firmware.vectors import iter_rows
 ROOT = Path(__file__).resolve().parents[1]
 CDIR = ROOT / "firmware_params" / "c"
 GOLDEN = ROOT / "firmware_params" / "golden"
-CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-ffp-contract=off", "-O2"]
+CFLAGS = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-O2"]
 MECH_FILES = ["blocks_v2.csv", "block_checks_v2.csv", "mech_configs.csv", "mech_compensator.csv", *MG.SCENARIOS]
 
 

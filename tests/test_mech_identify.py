@@ -21,7 +21,7 @@ from eol_cal.firmware.compensator import i_qc
 from eol_cal.firmware import mech_golden as G
 from eol_cal.firmware.kinematics import draw_sensor_errors, fingerprint_of, pulse_at
 from eol_cal.firmware.mech import EV_IDENTIFIED, EV_RESET_FRACTION
-from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, ID_MARGIN, ID_MIN_SCORE, unused_mech
+from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, SWITCH_MARGIN, SWITCH_MIN_SCORE, unused_mech
 from eol_cal.firmware.mech_run import run_mech
 from eol_cal.firmware.mech_sim import PowerUp, simulate_powerups
 
@@ -43,7 +43,7 @@ def _motor(seed: int, edge_scale: float = 1.0):
 
 def _passes(mech) -> bool:
     score, margin = predicted_margin(mech.fingerprint, np.zeros(2 * N), mech.fp_dirs, POLES, N, 20000.0)
-    return margin >= ID_MARGIN and score >= ID_MIN_SCORE
+    return margin >= SWITCH_MARGIN and score >= SWITCH_MIN_SCORE  # what end of line switches on
 
 
 def _part(k: int) -> tuple[list[PowerUp], float, int]:

@@ -126,7 +126,7 @@ def test_station_lot_page_over_the_settings_database_is_refused_and_the_records_
     (d / "link.sqlite").symlink_to(d / "records.sqlite")
     res = CliRunner().invoke(cli, ["station", "--station", str(path), "--operator", "bob", "--db", str(d / "link.sqlite"),
                                    "--lot", str(d / "records.sqlite")], env=_env(), input="q\n")
-    _refused(res, "two outputs")
+    _refused(res, "records database")
 
 
 def test_an_output_named_at_run_time_over_an_input_is_refused(tmp_path):

@@ -142,7 +142,7 @@ def test_three_motors_one_failing_then_an_empty_line(tmp_path, terminal):
         t.expect(r"report: \S+report\.html", 10)
     t.expect(r"Scan serial", 10)
     t.type("")
-    t.expect(r"session: 3 motor\(s\): 2 pass, 1 fail, 0 error", 30)
+    t.expect(r"session: 3 run\(s\) of 3 motor\(s\): 2 pass, 1 fail, 0 error", 30)
     assert t.exit_code() == 0, t.text[-3000:]
     assert "fail: k6 " in t.text and "max_k6" in t.text
     assert (out / "lot.html").is_file() and "lot page: " in t.text
@@ -163,7 +163,7 @@ def test_ctrl_c_between_motors_ends_the_session_cleanly(tmp_path, terminal):
     time.sleep(0.3)  # waiting in the prompt
     t.interrupt()
     t.expect(r"Ctrl-C between motors: the session ends", 10)
-    t.expect(r"session: 1 motor\(s\): 1 pass, 0 fail, 0 error", 30)
+    t.expect(r"session: 1 run\(s\) of 1 motor\(s\): 1 pass, 0 fail, 0 error", 30)
     assert t.exit_code() == 0, t.text[-3000:]
     assert [(r[0], r[1], r[2], r[3]) for r in _rows(out / "results.sqlite")] == [(PASSING[0], "pass", "DEMO", "bob")]
 
@@ -177,7 +177,7 @@ def test_ctrl_c_during_a_motor_records_an_error_and_exits_2(tmp_path, terminal):
     time.sleep(0.5)
     t.interrupt()
     t.expect(rf"{PASSING[1]}: ERROR", 60)
-    t.expect(r"session: 1 motor\(s\): 0 pass, 0 fail, 1 error", 30)
+    t.expect(r"session: 1 run\(s\) of 1 motor\(s\): 0 pass, 0 fail, 1 error", 30)
     assert t.exit_code() == 2, t.text[-3000:]
     (row,) = _rows(out / "results.sqlite")
     assert row[:4] == (PASSING[1], "error", "DEMO", "carol") and "acquire" in row[4]

@@ -110,7 +110,7 @@ def test_the_operator_loop_on_a_settings_file(tmp_path):
                                        "--lot", str(tmp_path / "lot.html")],
                                  input="  eve \nS-8\nq\n", env=_env())
     assert res.exit_code == 0, res.output
-    assert "Operator: " in res.output and "S-8: " in res.output and "session: 1 motor(s)" in res.output
+    assert "Operator: " in res.output and "S-8: " in res.output and "session: 1 run(s) of 1 motor(s)" in res.output
     assert (tmp_path / "lot.html").is_file()
     with sqlite3.connect(station_dir / "records.sqlite") as con:
         assert con.execute("SELECT serial, station, operator FROM runs").fetchall() == [("S-8", "L3-EOL-02", "eve")]

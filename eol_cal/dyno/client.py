@@ -29,7 +29,8 @@ from eol_cal.address import parse_modbus_address
 from eol_cal.capture.model import Capture
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.regmap import READ_FC
-from eol_cal.dyno.registers import CaptureCommand, CaptureState, Command, Direction, DriveState, DutCmdKind, Fault, Mode, Switch
+from eol_cal.dyno.registers import (CaptureCommand, CaptureState, Command, Direction, DriveState, DutCmdKind, Mode, Switch,
+                                    fault_names)
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.exchange_log import log_modbus
 from eol_cal.plant.profile import Profile
@@ -312,8 +313,7 @@ class DynoClient:
     def check_faults(self, st: dict, what: str) -> None:
         faults = int(st["faults"])
         if faults:
-            names = [f.name or f"0x{int(f):04x}" for f in Fault if f & faults]  # iterating a Flag yields named members
-            raise DynoError(f"{self.where}: fault {'+'.join(names)} while {what} (faults=0x{faults:04x})")
+            raise DynoError(f"{self.where}: fault {'+'.join(fault_names(faults))} while {what} (faults=0x{faults:04x})")
         if st["drive_state"] == DriveState.TRIPPED:
             raise DynoError(f"{self.where}: drive tripped while {what}")
 

@@ -100,6 +100,13 @@ class Fault(enum.IntFlag):
     DRIVE = 1 << 5
 
 
+def fault_names(faults: int) -> list[str]:
+    """The names of the set bits of a ``faults`` register (bits this layout does not name, in hex)."""
+    names = [f.name or f"0x{int(f):04x}" for f in Fault if f & faults]  # iterating a Flag yields named members
+    unknown = faults & ~sum(int(f) for f in Fault)
+    return names + ([f"0x{unknown:04x}"] if unknown else [])
+
+
 class Interlock(enum.IntFlag):
     """``interlocks`` bits; 1 = condition met. The drive enables only with all of ``ALL``."""
 

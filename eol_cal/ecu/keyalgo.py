@@ -8,12 +8,13 @@ the Python path). Either way it is called as ``FUNC(seed: bytes, secret: bytes |
 bytes`` (``secret``: the key file's 16 bytes when one is given), and it is tried on a made-up
 seed when it is loaded, so a wrong one is refused before the dyno moves or a session opens;
 whatever it does wrong then or later is one line naming its file, never a traceback in the
-middle of a flash.
+middle of a flash. It runs in a child process (:mod:`eol_cal.ecu.keychild`): an algorithm that
+exits, raises ``BaseException``, hangs or returns 200 MB cannot decide the command's exit code
+or the ECU's fate; the command refuses (exit 2) within a bound and nothing is flashed.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from importlib.metadata import entry_points
 
@@ -28,8 +29,9 @@ ENTRY_POINT_GROUP = "eol_cal.seed_to_key"
 SEED_TRIAL = b"\x12\x34\x56\x78"
 
 
-def _load(spec: str, field: str) -> tuple[Callable[..., object], str]:
-    """The function ``spec`` names, and where it lives (for messages)."""
+def _resolve(spec: str, field: str) -> tuple[str, str, str]:
+    """(module, function, spec as shown) of ``spec``: an entry point's target (read from the
+    installed metadata; nothing of the plug-in runs here), or ``MODULE:FUNC``."""
     module_name, colon, func_name = spec.partition(":")
     if not colon:
         found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == spec]
@@ -42,39 +44,25 @@ def _load(spec: str, field: str) -> tuple[Callable[..., object], str]:
         spec = f"{spec} ({found[0].value})"
     if not module_name or not func_name:
         raise InputError(None, field, f"{spec!r}: expected MODULE:FUNC or an entry point name")
-    try:
-        module = importlib.import_module(module_name)
-    except Exception as exc:  # noqa: BLE001 - ImportError, or anything the module raises on import
-        raise InputError(None, field, f"cannot load {spec!r}: {exc.__class__.__name__}: {exc}") from None
-    where = getattr(module, "__file__", None) or module_name
-    algo: object = module
-    for part in func_name.split("."):  # an entry point may name an attribute path
-        algo = getattr(algo, part, None)
-    if not callable(algo):
-        raise InputError(where, field, f"{spec!r}: {module_name} has no function {func_name!r}")
-    return algo, where
+    return module_name, func_name, spec
 
 
 def oem_seed_to_key(spec: str, secret: bytes | None, field: str = "key-algo") -> SeedToKey:
-    """The seed-to-key function ``spec`` names (see the module docstring), tried once.
+    """The seed-to-key function ``spec`` names (see the module docstring), loaded in a child
+    process of its own (:class:`eol_cal.ecu.keychild.ContainedKey`) and tried once.
 
     Raises
     ------
     InputError
-        It cannot be found or loaded, it fails on the trial seed, or returns no bytes; names the
-        module's file (or the spec) and ``field``.
+        It cannot be found or loaded, it fails on the trial seed (raises anything, exits, hangs
+        past :data:`eol_cal.ecu.keychild.KEY_TIMEOUT_S`), or returns no key bytes (text, an empty
+        key, one over :data:`eol_cal.ecu.keychild.MAX_KEY_BYTES`); names the module's file (or the
+        spec) and ``field``.
     """
-    algo, where = _load(spec, field)
+    from eol_cal.ecu.keychild import ContainedKey
 
-    def seed_to_key(seed: bytes) -> bytes:
-        try:
-            key = algo(seed, secret)
-        except Exception as exc:  # noqa: BLE001 - a foreign algorithm fails in its own ways
-            raise InputError(where, field, f"{spec} failed on the seed: {exc.__class__.__name__}: {exc}") from None
-        if not isinstance(key, (bytes, bytearray, memoryview)):
-            raise InputError(where, field, f"{spec} returned {type(key).__name__}, not the key bytes")
-        return bytes(key)
-
+    module_name, func_name, shown = _resolve(spec, field)
+    seed_to_key = ContainedKey(module_name, func_name, shown, secret, field)
     seed_to_key(SEED_TRIAL)
     return seed_to_key
 

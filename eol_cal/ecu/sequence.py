@@ -28,6 +28,7 @@ from eol_cal.ecu.session import (SESSION_LOST_NRCS, ClientTiming, EcuError, Seed
                                  VerifyFailed, shrink)
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.firmware import block as B
+from eol_cal.interrupts import raise_if_received
 from eol_cal.firmware.block_layout import get_field
 from eol_cal.firmware.block_sanity import MotorType, require_safe, type_problems
 from eol_cal.motor import MotorParams, load_motor
@@ -105,6 +106,10 @@ class FlashReport:
         return d
 
 
+#: the steps that change the ECU's flash: none starts after the command received a signal
+WRITING_STEPS = frozenset({"erase", "download", "CRC (36)"})
+
+
 @dataclass
 class _Progress:
     """Where the sequence is, for the message of a failure."""
@@ -121,6 +126,10 @@ class _Progress:
         self.steps.append(name)
         if self.callback is not None:
             self.callback(name)
+        if name in WRITING_STEPS:
+            # a signal whose exception was swallowed (a finalizer, a thread of the command) still
+            # stops the flash before it erases or writes: the rollback of the caller runs
+            raise_if_received(f"flash ({name})")
         return name
 
     @property

@@ -34,8 +34,10 @@ def _load_layout(version: int) -> dict[str, Any]:
     if base_version is not None:
         base = _load_layout(base_version)
         own = {f["name"] for f in layout["field"]}
-        fields = [f for f in base["field"] if f["name"] not in own] + layout["field"]
-        layout = {**base, **layout, "field": fields}
+        # a shared field keeps its place and offset; only what it says about its value may differ
+        meaning = layout.pop("meaning", {})
+        fields = [{**f, "meaning": meaning.get(f["name"], f["meaning"])} for f in base["field"] if f["name"] not in own]
+        layout = {**base, **layout, "field": fields + layout["field"]}
     for f in layout["field"]:
         if f["name"] == "magic":
             f["value"] = MAGIC  # the layout says where the marker is, the contract what it is

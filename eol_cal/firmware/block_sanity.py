@@ -33,8 +33,9 @@ import numpy as np
 
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
-from eol_cal.firmware.contract import C6_MAX, K6_MAX, KT_MAX, PHASE_MAX
-from eol_cal.firmware.mech_params import MechParams
+from eol_cal.firmware.block_layout import FIELDS_BY_VERSION, SIZE
+from eol_cal.firmware.contract import C6_MAX, FLAGS, K6_MAX, KT_MAX, MAGIC, PHASE_MAX
+from eol_cal.firmware.mech_params import FP_MAX, MechParams
 from eol_cal.motor import MotorParams
 
 #: largest look-up lead (s) a block may carry
@@ -46,6 +47,44 @@ TICK_HZ_RANGE = (1e3, 1e6)
 POLES_MAX = 1000
 #: relative tolerance of a tick rate stored as binary32
 _TICK_RTOL = 1e-6
+
+
+def field_limits(name: str, version: int, table_len: int, motor: MotorParams) -> tuple[float, float]:
+    """The least and largest value field ``name`` of a layout-``version`` block may hold (closed
+    interval; docs/firmware-contract.md section 2, "Bounds"): the rules above, for ``motor``'s
+    rating ``i_max`` and its pitch where a bound depends on them, the element type's range where
+    nothing narrower holds. What the A2L gives calibration tools as each characteristic's limits.
+
+    Raises
+    ------
+    KeyError
+        ``name`` is not a field of the layout.
+    """
+    f = FIELDS_BY_VERSION[version][name]
+    half_pitch = motor.poles * math.pi / motor.N_enc / 2
+    named_flags = sum(1 << flag.bit for flag in FLAGS.values())
+    fixed = {"magic": MAGIC, "layout_version": version, "block_bytes": B.block_bytes(table_len, version),
+             "reserved": 0, "reserved2": 0, "mech_table_len": f.get("value", 0)}
+    if name in fixed:
+        return fixed[name], fixed[name]
+    bounds: dict[str, tuple[float, float]] = {
+        "sequence": (1, 0xFFFFFFFE), "flags": (0, named_flags), "serial": (0, 127), "poles": (2, POLES_MAX),
+        "encoder_ppr": (1, 0xFFFF), "tick_hz": TICK_HZ_RANGE, "kt": (0.0, KT_MAX), "c6": (0.0, C6_MAX),
+        "k6": (0.0, K6_MAX), "lead_s": (0.0, LEAD_MAX_S), "iqc_limit": (0.0, motor.i_max),
+        "table_len": (B.TABLE_LEN_MIN, B.TABLE_LEN_MAX), "table_const": (-motor.i_max, motor.i_max),
+        "table_per_amp": (-TABLE_PER_AMP_MAX, TABLE_PER_AMP_MAX),
+        "mech_table_const": (-motor.i_max, motor.i_max), "mech_table_per_amp": (-TABLE_PER_AMP_MAX, TABLE_PER_AMP_MAX),
+        "fp_len": (0, FP_MAX), "fp_dirs": (0, 3), "grid_phase": (0.0, 2 * math.pi), "id_min_score": (0.0, 1.0),
+        "id_margin": (0.0, 2.0), "id_frac_tol": (0.0, math.pi), "mech_c": (0.0, C6_MAX), "mech_k": (0.0, K6_MAX),
+        "fingerprint": (-half_pitch, half_pitch)}
+    if name in bounds:
+        return bounds[name]
+    if "phase" in name or name == "hall_angle":
+        return -PHASE_MAX, PHASE_MAX
+    if f["type"] == "f32":
+        big = float(np.finfo(np.float32).max)
+        return -big, big
+    return 0, (1 << (8 * SIZE[f["type"]])) - 1
 
 
 def header_field(head: bytes, name: str) -> int | float:

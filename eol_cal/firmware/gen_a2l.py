@@ -18,18 +18,17 @@ from __future__ import annotations
 import operator
 from typing import Any
 
-import numpy as np
 
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
-from eol_cal.firmware.block_layout import BANK_BYTE_ADDR, SIZE
+from eol_cal.firmware.block_layout import BANK_BYTE_ADDR
+from eol_cal.firmware.block_sanity import field_limits
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.motor import MotorParams, load_motor
 
 #: A2L data type of each layout element type
 DATATYPE: dict[str, str] = {"u8": "UBYTE", "u16": "UWORD", "u32": "ULONG", "f32": "FLOAT32_IEEE"}
-#: the binary32 range, the limits of a float field
-_F32_MAX = f"{float(np.finfo(np.float32).max):.17G}"
 #: more named flag bits than this would make the flags word's verbal table (2**bits rows) unwieldy
 _MAX_VERBAL_FLAG_BITS = 8
 
@@ -72,13 +71,20 @@ def _q(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '""') + '"'
 
 
-def _limits(f: dict[str, Any]) -> tuple[str, str]:
-    """Lower and upper limit of a field: the element type's range (the layout's for table_len)."""
-    if f["name"] == "table_len":
-        return str(B.TABLE_LEN_MIN), str(B.TABLE_LEN_MAX)
-    if f["type"] == "f32":
-        return "-" + _F32_MAX, _F32_MAX
-    return "0", str((1 << (8 * SIZE[f["type"]])) - 1)
+def _number(x: float) -> str:
+    """A limit as A2L text: an integer as is, a float with the digits that give it back."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 2**53 else repr(float(x))
+
+
+def _limits(f: dict[str, Any], table_len: int, version: int, motor: MotorParams) -> tuple[str, str]:
+    """Lower and upper limit of a field: the contract's bounds (:func:`block_sanity.field_limits`)."""
+    lo, hi = field_limits(f["name"], version, table_len, motor)
+    return _number(lo), _number(hi)
+
+
+#: fields a calibration tool must not change although pack takes them from the caller: the layout
+#: version is the file's own (another value makes it another layout, described by another file)
+READ_ONLY_FIELDS = frozenset({"layout_version"})
 
 
 def check_table_len(table_len: int) -> int:
@@ -93,11 +99,11 @@ def check_table_len(table_len: int) -> int:
     return n
 
 
-def _characteristic(f: dict[str, Any], base: int, table_len: int, version: int = 1) -> list[str]:
+def _characteristic(f: dict[str, Any], base: int, table_len: int, version: int, motor: MotorParams) -> list[str]:
     """The CHARACTERISTIC of one layout field at bank start ``base`` (byte address)."""
     name, type_ = f["name"], f["type"]
     count = B.field_count(name, table_len, version)
-    lower, upper = _limits(f)
+    lower, upper = _limits(f, table_len, version, motor)
     if name == "serial":
         kind, conversion = "ASCII", "NO_COMPU_METHOD"
     else:
@@ -114,8 +120,8 @@ def _characteristic(f: dict[str, Any], base: int, table_len: int, version: int =
         lines.append('      FORMAT "%10.0"')  # an integer: the unit's method shows decimals
     if f.get("unit"):
         lines.append(f"      PHYS_UNIT {_q(f['unit'])}")
-    if f["role"] != "field":
-        lines.append("      READ_ONLY")  # pack derives it or the contract fixes it
+    if f["role"] != "field" or name in READ_ONLY_FIELDS:
+        lines.append("      READ_ONLY")  # pack derives it, the contract fixes it, or it is the file's layout
     lines.append("    /end CHARACTERISTIC")
     return lines
 
@@ -174,7 +180,8 @@ def _memory_segments() -> list[str]:
     return out
 
 
-def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int = 1) -> str:
+def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int = 1,
+               motor: MotorParams | None = None) -> str:
     """The A2L text of the layout-``version`` block in ``bank`` with ``table_len`` table entries
     (deterministic).
 
@@ -188,6 +195,9 @@ def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int =
         CRC's address depend on it.
     version : int
         The layout (1, or 2 with the mechanical-order extension of revision 1.2).
+    motor : MotorParams, optional
+        Whose current rating ``i_max`` (A) and encoder pitch bound the tables, ``iqc_limit`` and
+        the fingerprint (the contract's bounds depend on them); the paper's motor by default.
 
     Raises
     ------
@@ -196,6 +206,7 @@ def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int =
     """
     base = bank_byte_address(bank)
     table_len = check_table_len(table_len)
+    motor = load_motor() if motor is None else motor
     if version not in B.LAYOUTS:
         raise InputError(None, "layout", f"{version!r}: known layouts {sorted(B.LAYOUTS)}")
     L = B.LAYOUTS[version]
@@ -215,6 +226,8 @@ def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int =
         " * the byte image is little-endian. table_const, table_per_amp and crc32 sit where a block",
         f" * of table_len = {table_len} puts them: a block with another table_len needs its own file.",
         " * Changing a value invalidates crc32: the firmware then refuses the block.",
+        " * Limits are the contract's bounds (docs/firmware-contract.md section 2, \"Bounds\") for a motor",
+        f" * of i_max = {_number(motor.i_max)} A, {motor.poles} poles, {motor.N_enc} PPR (tables, iqc_limit, fingerprint).",
         " */",
         "ASAP2_VERSION 1 71",
         f"/begin PROJECT EOL_CAL {_q('eol-cal end-of-line torque-ripple calibration')}",
@@ -243,7 +256,7 @@ def render_a2l(bank: int = 0, table_len: int = DEFAULT_TABLE_LEN, version: int =
                 "    /end COMPU_METHOD"]
     out += _flags_compu()
     for f in L["field"]:
-        out += _characteristic(f, base, table_len, version)
+        out += _characteristic(f, base, table_len, version, motor)
     out += _flag_bit_characteristics(base)
     out += ["  /end MODULE", "/end PROJECT", ""]
     return "\n".join(out)

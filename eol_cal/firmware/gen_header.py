@@ -78,7 +78,7 @@ def render_header() -> str:
     ]
     for i, addr in enumerate(L["bank_word_addr"]):
         out.append(f"#define EOL_PB_BANK{i}_WORD_ADDR    UINT32_C(0x{addr:06X})")
-    out += ["#define EOL_PB_SEQUENCE_ERASED    UINT32_C(0xFFFFFFFF)", ""]
+    out += ["#define EOL_PB_SEQUENCE_ERASED    0xFFFFFFFFu", ""]
     out.append("/* flags; bits 2-5 are the estimator options (revision 1.1), honoured only with INTERP_ENABLE;")
     out.append(" * bit 6 (revision 1.2) only in a layout-2 block with COMP_ENABLE, INTERP_ENABLE and EST_LEARN_PITCH_ERRORS */")
     out.append(f"#define EOL_PB_FLAGS_MECH_NEEDS UINT32_C(0x{C.FLAGS_MECH_NEEDS:02X})  /* the bits MECH_COMP_ENABLE needs */")
@@ -132,7 +132,7 @@ def render_header() -> str:
         "{",
         "    uint32_t u = eol_pb_u32(w, off);",
         "    float f;",
-        "    memcpy(&f, &u, sizeof f); /* binary32 on both the C28x and the host */",
+        "    (void)memcpy(&f, &u, sizeof f); /* binary32 on both the C28x and the host */",
         "    return f;",
         "}",
         "",

@@ -249,7 +249,8 @@ def manifest(sets: dict[str, VectorSet], texts: dict[str, str]) -> dict[str, Any
         "integer_encoding": "decimal",
         "tolerance": {name: vs.tolerance for name, vs in sets.items()},
         "files": [{"name": name, "rows": len(vs.rows), "sha256": hashlib.sha256(texts[name].encode()).hexdigest(),
-                   "columns": list(vs.columns), "description": vs.description} for name, vs in sets.items()],
+                   "columns": list(vs.columns), "description": vs.description,
+                   **({"ulp": dict(vs.ulp)} if vs.ulp else {})} for name, vs in sets.items()],
     }
 
 

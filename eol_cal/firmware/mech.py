@@ -39,20 +39,22 @@ from __future__ import annotations
 # mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware import fpu_c28x
 from eol_cal.firmware.compensator import lead_angle, table_sum
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_MECH_NEEDS
 from eol_cal.firmware.estimator_config import (
     F32, I32, PI, ST_HALL_FAULT, ST_HALL_SEQ, ST_MISSING_EDGE, ST_QEP_ERROR, TWO_PI, EstimatorConfig, consts,
     wrap, wrap_pm,
 )
-from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
-from eol_cal.firmware.mech_params import FP_FORWARD, MECH_TABLE_LEN, MechParams
+
+from eol_cal.firmware.mech_params import MECH_TABLE_LEN, MechParams
 
 if TYPE_CHECKING:
     from eol_cal.firmware.block import ParamBlock
@@ -62,6 +64,8 @@ if TYPE_CHECKING:
 CNT_MAX = 1024
 #: most pole pairs (hypotheses) the identifier evaluates (the C port's EOL_MECH_MAX_PP)
 MAX_PP = 64
+#: edges whose mean pitch error one background slice computes
+SLICE_EDGES = 16
 #: estimator status bits after which the count or the halls cannot be trusted: withdraw and start again
 RESET_STATUS = ST_QEP_ERROR | ST_MISSING_EDGE | ST_HALL_FAULT | ST_HALL_SEQ
 
@@ -89,6 +93,8 @@ class MechConsts:
     N : pulses per revolution; PP : pole pairs (hypotheses); M : quadrature counts per revolution;
     DELTA, QUARTER : rad electrical of a pitch and a count; INV_DELTA = 1/DELTA; KM : mechanical
     table entries per rad of unwrapped electrical angle, ``MECH_TABLE_LEN / (P * pi)``.
+    fpu : "ieee" (division and square root correctly rounded: the golden vectors) or "c28x" (as the
+    F28335 computes them, :mod:`eol_cal.firmware.fpu_c28x`: what the vectors' ulp classes measure).
     """
 
     N: int
@@ -98,12 +104,29 @@ class MechConsts:
     QUARTER: np.float32
     INV_DELTA: np.float32
     KM: np.float32
+    fpu: str = "ieee"
 
     @classmethod
-    def of(cls, cfg: EstimatorConfig) -> MechConsts:
+    def of(cls, cfg: EstimatorConfig, fpu: str = "ieee") -> MechConsts:
         c = consts(cfg)
+        # power-on constants are correctly rounded on every target (MECH.md, "Init"): the model
+        # covers the divisions of every tick only
         return cls(N=cfg.N_enc, PP=cfg.poles // 2, M=c.M, DELTA=c.DELTA, QUARTER=c.QUARTER,
-                   INV_DELTA=F32(1.0) / c.DELTA, KM=F32(MECH_TABLE_LEN) / (F32(cfg.poles) * PI))
+                   INV_DELTA=F32(1.0) / c.DELTA, KM=F32(MECH_TABLE_LEN) / (F32(cfg.poles) * PI), fpu=fpu)
+
+
+def _divider(fpu: str, xp: ArrayModule) -> Callable[[Array, Array], Array]:
+    """The binary32 division of an FPU model (the C28x's only under numpy)."""
+    if fpu == "c28x":
+        if xp is not np:
+            raise ValueError("the C28x division model runs under numpy only")
+        return fpu_c28x.div
+    return lambda a, b: a / b
+
+
+def _sqrt_of(fpu: str, xp: ArrayModule) -> Callable[[Array], Array]:
+    """The binary32 square root of an FPU model."""
+    return fpu_c28x.sqrt if fpu == "c28x" else xp.sqrt
 
 
 class MechTables(NamedTuple):
@@ -131,15 +154,22 @@ class MechTables(NamedTuple):
 
 
 class MechState(NamedTuple):
-    """The identifier's state (all zero at power-on but ``cand`` = -1).
+    """The identifier's state (all zero at power-on but ``cand`` = -1 and ``miss`` = N).
 
     acc : f32[2N] sum of the pitch samples per edge and direction (index ``2m + d``, d = 1 reverse).
     cnt : i32[2N] samples in ``acc``, saturating at CNT_MAX.
-    n_new : i32 samples since the last evaluation (saturating at N).
+    n_new : i32 samples since the last evaluation started (saturating at N).
     cand : i32 offset that passed the last evaluation (-1: none).
     active : i32 0/1 identified: the mechanical compensation runs.
     r : i32 the identified offset: firmware pulse m is the block's pulse (m + r) mod N.
     score, margin : f32 the last evaluation's best cosine and its margin over the next.
+    miss : i32[2] edges of each direction without a sample yet.
+    busy : i32 the background evaluation: 0 none, k = its k-th slice is next (1..L), L+1 finished.
+    ev_d, ev_G : i32, f32 its direction and the grid offset G when it started.
+    ev_ok, ev_r, ev_score, ev_margin : its result (valid once finished).
+    mk : i32 the revolution mark's check: 0 none, 1 asked (at a mark), 2 done.
+    mk_d, mk_G, mk_bad : i32, f32, i32 its direction, G at the mark, and its verdict.
+    clr : i32 after a withdrawal, the background's clearing of the samples: 0 done, k its slice k next.
     """
 
     acc: Array
@@ -150,6 +180,19 @@ class MechState(NamedTuple):
     r: Array
     score: Array
     margin: Array
+    miss: Array
+    busy: Array
+    ev_d: Array
+    ev_G: Array
+    ev_ok: Array
+    ev_r: Array
+    ev_score: Array
+    ev_margin: Array
+    mk: Array
+    mk_d: Array
+    mk_G: Array
+    mk_bad: Array
+    clr: Array
 
 
 class MechOut(NamedTuple):
@@ -214,7 +257,15 @@ def mech_init(N: int, xp: ArrayModule = np) -> MechState:
     zi = xp.asarray(I32(0))
     zf = xp.asarray(F32(0.0))
     return MechState(acc=xp.zeros(2 * N, xp.float32), cnt=xp.zeros(2 * N, xp.int32), n_new=zi,
-                     cand=xp.asarray(I32(-1)), active=zi, r=zi, score=zf, margin=zf)
+                     cand=xp.asarray(I32(-1)), active=zi, r=zi, score=zf, margin=zf,
+                     miss=xp.full(2, N, dtype=xp.int32), busy=zi, ev_d=zi, ev_G=zf, ev_ok=zi, ev_r=zi, ev_score=zf,
+                     ev_margin=zf, mk=zi, mk_d=zi, mk_G=zf, mk_bad=zi, clr=zi)
+
+
+def n_slices(mc: MechConsts) -> int:
+    """Background slices of one evaluation (MECH.md, "Background"): the grid (1), the mean pitch
+    errors 16 edges a slice, the norm (1), one per hypothesis, the verdict (1)."""
+    return 1 + -(-mc.N // SLICE_EDGES) + 1 + mc.PP + 1
 
 
 def _set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
@@ -225,21 +276,27 @@ def _set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
     return out
 
 
-def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, d: Array,
-              xp: ArrayModule) -> tuple[Array, Array, Array, Array, Array]:
-    """One evaluation (MECH.md, "Evaluation"): (pass, r_best, score, margin, |e_best|, complete)."""
+def mean_c_of(mc: MechConsts, c_tab: Array, d: Array, xp: ArrayModule) -> Array:
+    """The mean of the estimator's learned edge errors of direction ``d`` (rad)."""
+    idx = I32(2) * xp.arange(mc.N, dtype=xp.int32) + d
+    return _divider(mc.fpu, xp)(_seq_sum(xp.take(c_tab, idx), xp), F32(mc.N))
+
+
+def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, c_tab: Array, G: Array, d: Array,
+              xp: ArrayModule) -> tuple[Array, Array, Array, Array]:
+    """One evaluation (MECH.md, "Evaluation") on the frozen samples, the grid offset ``G`` when it
+    started and the estimator's ``c_tab`` now: (pass, r_best, score, margin)."""
     f32, i32 = xp.float32, xp.int32
     N = mc.N
     m = xp.arange(N, dtype=xp.int32)
     idx = I32(2) * m + d
     cnt_d = xp.take(ms.cnt, idx)
-    complete = xp.min(cnt_d) >= I32(1)
-    a = xp.take(ms.acc, idx) / f32(xp.maximum(cnt_d, I32(1)))
+    div = _divider(mc.fpu, xp)
+    dg = wrap((G + mean_c_of(mc, c_tab, d, xp)) - tb.grid_phase, xp)
+    a = div(xp.take(ms.acc, idx), f32(xp.maximum(cnt_d, I32(1))))
     Ea = _seq_sum(a * a, xp)
-    mean_c = _seq_sum(xp.take(es.c_tab, idx), xp) / F32(N)
-    dg = wrap((es.G + mean_c) - tb.grid_phase, xp)
     EF = xp.take(tb.EF, d)
-    den = xp.sqrt(Ea * EF)
+    den = _sqrt_of(mc.fpu, xp)(Ea * EF)
     best_rho = best_r = best_e = None
     rhos, rs = [], []
     for j in range(mc.PP):
@@ -247,7 +304,7 @@ def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
         r = xp.floor(x + F32(0.5)).astype(i32) % I32(N)
         e = wrap_pm(dg - f32(r) * mc.DELTA, xp)
         s = _seq_sum(a * xp.take(tb.dF, I32(2) * ((m + r) % I32(N)) + d), xp)
-        rho = xp.where(den > F32(0.0), s / xp.where(den > F32(0.0), den, F32(1.0)), F32(0.0))
+        rho = xp.where(den > F32(0.0), div(s, xp.where(den > F32(0.0), den, F32(1.0))), F32(0.0))
         if j == 0:
             best_rho, best_r, best_e, best_j = rho, r, e, xp.asarray(I32(0))
         else:
@@ -263,114 +320,7 @@ def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
         second = xp.where(best_j != I32(j), xp.maximum(second, rho), second)
     margin = best_rho - second
     ok = (best_rho >= tb.id_min_score) & (margin >= tb.id_margin) & (xp.abs(best_e) <= tb.id_frac_tol)
-    return ok, best_r, best_rho, margin, complete
-
-
-class MechPre(NamedTuple):
-    """The cheap first half of a tick (:func:`mech_accumulate`): the state with this tick's sample
-    accumulated, and whether a fault, an evaluation or a revolution mark check is due."""
-
-    ms: MechState
-    fault: Array
-    due: Array
-    mark: Array
-    d: Array
-
-
-def mech_accumulate(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
-                    ps: PitchSample, xp: ArrayModule = np) -> MechPre:
-    """Steps 1 and the conditions of 2 and 3 of a tick (MECH.md, "Per tick")."""
-    i32 = xp.int32
-    N = mc.N
-    enabled = tb.enabled != 0
-    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX))
-    acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
-    cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
-    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
-    ms = ms._replace(acc=acc, cnt=cnt, n_new=n_new)
-    fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
-    d = i32(es.dir_last < 0)
-    has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
-    due = enabled & ~fault & (es.anchored != 0) & (n_new >= I32(N)) & has_dir
-    mark = enabled & (ms.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0)
-    return MechPre(ms, fault, due, mark, d)
-
-
-def mech_idle(pre: MechPre, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
-    """The rest of a tick when neither an evaluation nor a mark check is due (only a fault can
-    change the state): what :func:`mech_finish` gives then, without its arithmetic."""
-    ms, fault = pre.ms, pre.fault
-    w = _withdrawn(ms, xp)
-    new = MechState(*(xp.where(fault, a, b) for a, b in zip(w, ms, strict=True)))
-    events = xp.where(fault, I32(EV_RESET_FAULT), I32(0))
-    return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
-
-
-def mech_finish(mc: MechConsts, tb: MechTables, pre: MechPre, es: EstimatorState,
-                xp: ArrayModule = np) -> tuple[MechState, MechOut]:
-    """Steps 2 to 4 of a tick: evaluation, revolution mark, the state's update (MECH.md, "Per tick")."""
-    i32 = xp.int32
-    N = mc.N
-    one = I32(1)
-    ms, fault, due, mark, d = pre
-    ok, r_best, score, margin, complete = _evaluate(mc, tb, ms, es, d, xp)
-    ev_eval = due & complete
-    passed = ev_eval & ok
-    confirm = passed & (ms.active == 0) & (ms.cand == r_best)
-    eval_bad = ev_eval & (ms.active != 0) & (~ok | (r_best != ms.r))
-    # 3. revolution mark: the hall-to-encoder fraction of the identified offset
-    mean_c = _seq_sum(xp.take(es.c_tab, I32(2) * xp.arange(N, dtype=i32) + d), xp) / F32(N)
-    e_now = wrap_pm(((es.G + mean_c) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
-    frac_bad = mark & ~ev_eval & (xp.abs(e_now) > tb.id_frac_tol)
-    reset = fault | eval_bad | frac_bad
-    active = xp.where(reset, I32(0), xp.where(confirm, one, ms.active))
-    r = xp.where(confirm, r_best, ms.r)
-    cand = xp.where(reset, I32(-1), xp.where(ev_eval, xp.where(ok, r_best, I32(-1)), ms.cand))
-    keep = ~reset
-    new = MechState(acc=xp.where(keep, ms.acc, F32(0.0)), cnt=xp.where(keep, ms.cnt, I32(0)),
-                    n_new=xp.where(keep & ~ev_eval, ms.n_new, I32(0)), cand=cand, active=active, r=r,
-                    score=xp.where(ev_eval, score, ms.score), margin=xp.where(ev_eval, margin, ms.margin))
-    events = (i32(ev_eval) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
-              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad) * I32(EV_RESET_FRACTION)
-              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
-    return new, MechOut(active=active, r=r, events=events, score=new.score, margin=new.margin)
-
-
-def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
-              ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
-    """One tick of the identifier after the estimator's (MECH.md, "Per tick").
-
-    Parameters
-    ----------
-    mc : MechConsts
-        Static.
-    tb : MechTables
-        The block's (:func:`mech_tables`).
-    ms : MechState
-    es : EstimatorState
-        The estimator's state AFTER this tick.
-    eo : EstimatorOut
-        This tick's estimator outputs (its status bits).
-    ps : PitchSample
-        This tick's pitch sample (:func:`eol_cal.firmware.estimator.step_pitch`).
-
-    Notes
-    -----
-    :func:`mech_accumulate` then :func:`mech_finish`; when neither an evaluation nor a mark check
-    is due, :func:`mech_idle` gives the same result without the arithmetic (numpy takes that
-    branch on the value; a JAX batch can take it with ``lax.cond`` when no motor needs more,
-    as :mod:`eol_cal.firmware.mech_sim` does).
-    """
-    pre = mech_accumulate(mc, tb, ms, es, eo, ps, xp)
-    if xp is np and not (pre.due or pre.mark):
-        return mech_idle(pre, xp)
-    return mech_finish(mc, tb, pre, es, xp)
-
-
-def _withdrawn(ms: MechState, xp: ArrayModule) -> MechState:
-    """``ms`` after a withdrawal: nothing identified, nothing accumulated (score and margin kept)."""
-    return ms._replace(acc=xp.zeros_like(ms.acc), cnt=xp.zeros_like(ms.cnt), n_new=I32(0) * ms.n_new,
-                       cand=I32(-1) + I32(0) * ms.cand, active=I32(0) * ms.active)
+    return ok, best_r, best_rho, margin
 
 
 def f32_(x: Array, xp: ArrayModule) -> Array:
@@ -403,3 +353,8 @@ def block_frame_angle(mc: MechConsts, grid_phase: float, r: Array, q: Array, the
     Ek = grid_phase + k * float(mc.QUARTER)
     E = Ek + (np.asarray(theta) - Ek + math.pi) % (2 * math.pi) - math.pi
     return np.mod(E / mc.PP, 2 * math.pi)
+
+
+# the tick and the background (MECH.md, "Per tick", "Background") live in mech_tick; re-exported here
+from eol_cal.firmware.mech_tick import mech_background, mech_step, mech_tick  # noqa: E402, F401
+

@@ -188,6 +188,12 @@ SCENARIOS: dict[str, MechScenario] = {
                                   "evaluated, never identified, no mechanical current"),
 }
 
+#: the scenario files' ulp classes: the identification's cosine and margin on a target whose
+#: division and square root are the C28x's (estimate + two Newton steps, :mod:`fpu_c28x`); the
+#: largest difference the twin measures over every scenario (``tests/test_fpu_classes.py``
+#: recomputes it); every other column exact (the decisions do not change, measured likewise)
+SCENARIO_ULP = {"score": 5, "margin": 5}
+
 SCENARIO_COLUMNS = ("tick", "enc_a", "enc_b", "hall", "i_qo", "status", "learn", "active", "r", "events",
                     "score", "margin", "i_qc")
 CONFIG_COLUMNS = ("file", "block_id", "standstill_ticks", "DELTA", "INV_DELTA", "KM", "EF_0", "EF_1")
@@ -310,7 +316,7 @@ def vector_sets() -> dict[str, VectorSet]:
                                           {"i_qc": {"abs": 1e-3, "unit": "A"}}),
     }
     for name, sc in SCENARIOS.items():
-        sets[name] = VectorSet(SCENARIO_COLUMNS, scenario_rows(sc), sc.description)
+        sets[name] = VectorSet(SCENARIO_COLUMNS, scenario_rows(sc), sc.description, ulp=SCENARIO_ULP)
     return sets
 
 

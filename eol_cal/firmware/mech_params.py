@@ -33,6 +33,17 @@ FP_REVERSE = 2
 ID_MIN_SCORE = 0.5
 ID_MARGIN = 0.25
 ID_FRAC_TOL = math.radians(2.0)
+#: the end of line's switch: ``MECH_COMP_ENABLE`` only when the margin predicted after a revolution
+#: at 300 rpm (``eol_cal.analysis.fingerprint.predicted_margin``) reaches it. Calibrated against the
+#: firmware twin's identification (``bench/bench_mech_margin.py``, firmware_params/MECH.md "The
+#: switch, calibrated"): every encoder predicted at 0.064 or more identified right on every power-up;
+#: 0.10 keeps a margin over that boundary. The firmware's own runtime threshold stays ID_MARGIN.
+SWITCH_MARGIN = 0.10
+#: and the least predicted cosine it asks for: none. The prediction's cosine is conservative (the
+#: twin identified every power-up of encoders predicted at a cosine of 0.245 and a margin over
+#: 0.064); the margin alone separates the encoders the twin identifies from those it does not.
+#: The firmware's own runtime least cosine stays ID_MIN_SCORE.
+SWITCH_MIN_SCORE = 0.0
 
 _SCALARS = ("grid_phase", "id_min_score", "id_margin", "id_frac_tol")
 _TRIPLES = ("mech_c", "mech_phase_c", "mech_k", "mech_phase_k")

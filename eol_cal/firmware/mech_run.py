@@ -66,7 +66,7 @@ def _scalars(state):
 
 
 def run_mech(block: ParamBlock, enc_a: Array, enc_b: Array, hall: Array, i_qo: Array = 0.0,
-             standstill_s: float = 1.0) -> MechRun:
+             standstill_s: float = 1.0, fpu: str = "ieee") -> MechRun:
     """Run the ECU a block configures over sampled signals (numpy, tick by tick, bit-exact).
 
     Parameters
@@ -81,7 +81,7 @@ def run_mech(block: ParamBlock, enc_a: Array, enc_b: Array, hall: Array, i_qo: A
         The estimator's standstill bound (s).
     """
     cfg = est.EstimatorConfig.from_block(block, standstill_s=standstill_s)
-    mc = MechConsts.of(cfg)
+    mc = MechConsts.of(cfg, fpu)
     tb = block_mech_tables(block)
     a = np.asarray(enc_a, np.int32)
     b = np.asarray(enc_b, np.int32)

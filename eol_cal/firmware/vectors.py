@@ -17,12 +17,16 @@ Rows = list[list[str]]
 
 @dataclasses.dataclass(frozen=True)
 class VectorSet:
-    """One CSV file: its columns, rows (strings as written), a description and its tolerance."""
+    """One CSV file: its columns, rows (strings as written), a description, its tolerance, and its
+    tolerance classes: ``ulp`` gives a float column the units in the last place a target may differ
+    by (its division and square root approximations, measured on the twin); a column not named
+    there is exact (the harness checks both, contract section 4, "Floating point")."""
 
     columns: tuple[str, ...]
     rows: Rows
     description: str = ""
     tolerance: dict[str, Any] | str = "exact"
+    ulp: dict[str, int] = dataclasses.field(default_factory=dict)
 
 
 def f32hex(x: float) -> str:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -51,15 +52,21 @@ def _limit_memory(limit: int) -> Callable[[], None]:
     return apply
 
 
+#: a signalled child: says "go" once Python is up, then runs the program as ``eol-cal`` does
+_GO_FIRST = ("import os, runpy, sys; os.write(1, b'go\\n'); sys.argv = ['eol-cal', *sys.argv[1:]]; "
+             "runpy.run_module('cli.main', run_name='__main__', alter_sys=True)")
+
 #: the checkout whose ``cli`` the children run (another one: the code before a change)
 ROOT = Path(__file__).resolve().parents[2]
 
 
 def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
-            root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None) -> tuple[int | None, str, str, float, int]:
+            root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None,
+            signal_at: tuple[int, float] | None = None) -> tuple[int | None, str, str, float, int]:
     """Run ``eol-cal ARGS`` (the ``cli`` of checkout ``root``) in a child under an address-space limit,
     with ``stdin`` as its input and ``env`` added to (the station's ``EOL_CAL_*`` variables removed from)
-    this process's environment.
+    this process's environment; with ``signal_at = (SIGNUM, S)`` the signal is sent ``S`` seconds
+    after the start unless the child ended before.
 
     Returns (exit code or None when it was killed for running past ``timeout_s``; a negative
     code is the signal that ended it), stdout, stderr, seconds, peak resident memory (KiB).
@@ -69,17 +76,43 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     child_env.setdefault("EOL_CAL_JAX_CACHE", "off")
     child_env.update(env or {})
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], cwd=cwd, stdin=subprocess.PIPE,
+    # signalled: the moment counts from Python's start, just before the program's first instruction
+    # (no code of the tool's runs before it; the interpreter's own start takes 0.05 to 0.3 s with load)
+    program = ["-c", _GO_FIRST] if signal_at is not None else ["-m", "cli.main"]
+    ended_at_moment = False
+    proc = subprocess.Popen([sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
                             preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
-        out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
+        if signal_at is not None:
+            assert proc.stdout is not None
+            go = proc.stdout.readline()  # the interpreter is up: eol-cal's first instruction comes next
+            t0 = time.perf_counter()  # the seconds of a signalled run count from here, as its moment does
+            try:  # the input goes in at once; the signal comes at its moment if the child still runs
+                out, err = proc.communicate(stdin.encode(), timeout=signal_at[1])
+            except subprocess.TimeoutExpired:
+                if proc.poll() is None:  # still running (not a zombie that ended a moment ago)
+                    proc.send_signal(signal_at[0])
+                else:  # it ended at its moment: no signal, and its seconds say so (below)
+                    ended_at_moment = True
+                out, err = proc.communicate(timeout=timeout_s)
+            out = go.removeprefix(b"go\n") + out
+        else:
+            out, err = proc.communicate(stdin.encode(), timeout=timeout_s)
         rc: int | None = proc.returncode
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, 9)
+        # a hang: where it hangs, from the child's faulthandler (PYTHONFAULTHANDLER in env) on SIGABRT
+        with contextlib.suppress(ProcessLookupError, subprocess.TimeoutExpired):
+            if (env or {}).get("PYTHONFAULTHANDLER"):
+                proc.send_signal(6)
+                proc.wait(5)
+        with contextlib.suppress(ProcessLookupError):  # the abort above may have ended the group
+            os.killpg(proc.pid, 9)
         out, err = proc.communicate()
         rc = None
     seconds = time.perf_counter() - t0
+    if ended_at_moment:
+        seconds = min(seconds, signal_at[1] if signal_at is not None else seconds)
     # the largest resident set of any child waited for so far: an upper bound for this one
     rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss

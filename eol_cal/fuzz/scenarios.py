@@ -49,6 +49,10 @@ class Scenario:
     env: dict[str, str] = field(default_factory=dict)
     stdin: str = ""
     protect: tuple[str, ...] | None = None
+    #: (signal, seconds after the start): a signal that comes while the command runs must end it with exit 2
+    signal_at: tuple[int, float] | None = None
+    #: the child's address-space limit (default CHILD_MEMORY_BYTES; a whole station cycle with JAX needs more)
+    memory_bytes: int | None = None
 
     def lay_out(self, d: Path) -> None:
         d.mkdir(parents=True, exist_ok=True)
@@ -389,16 +393,20 @@ def run_scenario(scenario: Scenario, workdir: Path, timeout_s: float = 60.0, roo
     d = workdir / uuid.uuid4().hex[:12]
     scenario.lay_out(d)
     before = scenario.digests(d)
-    rc, out, err, seconds, _rss = run_cli(scenario.argv(d), d, timeout_s, CHILD_MEMORY_BYTES, root,
-                                         stdin=scenario.stdin, env=scenario.env)
+    rc, out, err, seconds, _rss = run_cli(scenario.argv(d), d, timeout_s, scenario.memory_bytes or CHILD_MEMORY_BYTES, root,
+                                         stdin=scenario.stdin, env=scenario.env, signal_at=scenario.signal_at)
     after = scenario.digests(d)
     shutil.rmtree(d, ignore_errors=True)
     text = out + err
     crash = rc is not None and (rc not in (0, 1, 2) or "MemoryError" in text)
     last = (err.strip().splitlines() or [""])[-1]
-    refused = rc == 2 and last.startswith("error:")
+    # a signal that came while the command ran must end it with exit 2 (its own line says what was
+    # interrupted); one after its end changes nothing
+    signalled = scenario.signal_at is not None and seconds > scenario.signal_at[1]
+    refused = rc == 2 and (signalled or last.startswith(("error:", "Error:")))  # ours, or click's usage error
+    must_refuse = scenario.expect == "refuse" or signalled
     return ScenarioOutcome(scenario, rc, seconds, err[-2000:], "Traceback" in text, rc is None, crash, after != before,
-                           scenario.expect == "refuse" and rc is not None and not refused and not crash)
+                           must_refuse and rc is not None and not refused and not crash)
 
 
 @dataclass
@@ -423,13 +431,29 @@ class ScenarioTally(Counts):
             self.bad.append(o)
 
 
+def all_builders() -> dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]]:
+    """The builders of this module and of every other scenario module present
+    (``eol_cal.fuzz.scenarios_*``: each adds its own ``BUILDERS``; none is needed)."""
+    import importlib
+    import pkgutil
+
+    import eol_cal.fuzz as package
+
+    out = dict(BUILDERS)
+    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+        if info.name.startswith("scenarios_"):
+            out.update(getattr(importlib.import_module(f"eol_cal.fuzz.{info.name}"), "BUILDERS", {}))
+    return out
+
+
 def run_scenarios(kinds: tuple[str, ...], workdir: Path, bases: dict[str, bytes], timeout_s: float = 60.0,
                   root: Path = ROOT, progress: Callable[[str], None] | None = None) -> dict[str, ScenarioTally]:
-    """Every scenario of ``kinds``; a :class:`ScenarioTally` per kind."""
+    """Every scenario of ``kinds`` (of :func:`all_builders`); a :class:`ScenarioTally` per kind."""
+    builders = all_builders()
     tallies: dict[str, ScenarioTally] = {}
     for kind in kinds:
         tally = tallies.setdefault(kind, ScenarioTally())
-        for scenario in BUILDERS[kind](bases):
+        for scenario in builders[kind](bases):
             tally.add(run_scenario(scenario, workdir, timeout_s, root))
             if progress is not None:
                 progress(f"{kind}: {scenario.name}")

@@ -111,6 +111,10 @@ def _file_or_name(name: str) -> str:
     return name
 
 
+#: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
+SEED_MAX = 2**63 - 2
+
+
 def check_plan(plan: LotPlan) -> None:
     """Refuse a plan that cannot run, before anything is simulated (names the option)."""
     from eol_cal.plant.profile import load_profile
@@ -124,6 +128,9 @@ def check_plan(plan: LotPlan) -> None:
         raise InputError(None, "--motors", f"{plan.motors}: 1 .. 999999")
     if plan.batch < 1:
         raise InputError(None, "--batch", f"{plan.batch}: at least 1")
+    if not 0 <= plan.seed <= SEED_MAX - plan.motors:
+        raise InputError(None, "--seed", f"{plan.seed}: 0 .. {SEED_MAX - plan.motors} (motor i is drawn with seed "
+                                         f"SEED + i, and numpy's and JAX's seeds are 0 .. 2**63 - 1)")
     load_spread(plan.spread)
     load_limits(plan.limits_file, plan.variant)
     load_profile(plan.profile)

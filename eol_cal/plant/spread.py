@@ -72,7 +72,8 @@ class Dist:
     def draw(self, rng: np.random.Generator) -> float:
         a = self.args
         if self.kind == "normal":
-            sigma = a["sigma"] if "sigma" in a else a["sigma_rel"] * a["mean"]
+            # relative to the mean's size: a negative mean's sigma_rel is no negative sd (numpy refused it)
+            sigma = a["sigma"] if "sigma" in a else abs(a["sigma_rel"] * a["mean"])
             x = float(rng.normal(a["mean"], sigma))
             if "min" in a:
                 x = max(a["min"], x)
@@ -284,6 +285,8 @@ def parse_spread(data: dict[str, Any], source: str, default_name: str) -> Spread
         else:
             raise InputError(source, key, f"unknown spread parameter; known: {', '.join(PARAMETERS)}, sensors, bench, "
                                           "name, description")
+    if not params and "sensors" not in data and not bench:
+        raise InputError(source, None, f"varies nothing: give at least one of {', '.join(PARAMETERS)}, [sensors] or [bench]")
     return Spread(name, source, params, sensors, description, bench)
 
 

@@ -37,6 +37,7 @@ from eol_cal.station.run import (EXIT, ProgressFn, RunOutcome, StationConfig, ch
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.firmware.block import ParamBlock
     from eol_cal.station.early import EarlyWindows
     from eol_cal.station.flash_ahead import FlashAhead
@@ -405,6 +406,10 @@ class StationCycle:
             if failure is not None:
                 self._record_failure(failure)
             self.ecu_active = self._ecu_active(failure)
+            if failure is not None and self.ecu_active.block.startswith("uncompensated"):
+                # the calibration state is part of the outcome: said in the record, not only on screen
+                self.reasons = [*self.reasons, _uncalibrated(self.ecu_active, self.steps[-1].step if self.steps else "start",
+                                                             self.cfg.dyno)]
             self.ended_at = now_iso()
             verdict_rec = self.to_record()
             journal = self._journal(verdict_rec)
@@ -627,6 +632,15 @@ class StationCycle:
             active = EcuActive(what if boots["boots"] == "new" else f"{what} (if its CRC was written)",
                                boots["sequence"], boots["bank"])
         return active
+
+
+def _uncalibrated(active: EcuActive, step: str, dyno: DynoConfig) -> str:
+    """The record's reason for a motor left with the prepare step's uncompensated block (a dyno
+    fault after prepare, a failed fit...): what the ECU runs, why, and how it is recovered."""
+    return (f"motor not calibrated: the ECU boots the uncompensated block (sequence {active.sequence}, bank "
+            f"{active.bank}) since the cycle ended at {step}; run the motor again (a latched dyno fault: eol-cal "
+            f"dyno-clear --dyno {dyno.host}:{dyno.port} first), or bring back the block before it with eol-cal ecu "
+            "restore --bank previous")
 
 
 def _preload_analysis() -> None:

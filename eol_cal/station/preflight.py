@@ -50,7 +50,7 @@ def check_dyno(config: DynoConfig) -> tuple[DynoStatus | None, list[Problem]]:
     Returns ``(None, [why])`` when it does not answer: the client's timeout and retries bound the wait.
     """
     from eol_cal.dyno.client import DynoClient
-    from eol_cal.dyno.registers import DriveState, Fault, Interlock
+    from eol_cal.dyno.registers import DriveState, Interlock, fault_names
 
     client = DynoClient(config)
     try:
@@ -64,12 +64,12 @@ def check_dyno(config: DynoConfig) -> tuple[DynoStatus | None, list[Problem]]:
                        faults=int(st["faults"]), interlocks=int(st["interlocks"]), drive_state=int(st["drive_state"]))
     where = f"dyno {client.config.host}:{client.config.port}"
     problems = []
+    clear = f"check the dyno, then eol-cal dyno-clear --dyno {client.config.host}:{client.config.port}"
     if found.faults:
-        names = "+".join(f.name or f"0x{int(f):04x}" for f in Fault if f & found.faults)  # iterated members have names
-        problems.append(Problem("dyno_fault", f"{where} has latched faults {names} (faults=0x{found.faults:04x}): "
-                                              "clear them at the dyno"))
+        names = "+".join(fault_names(found.faults))
+        problems.append(Problem("dyno_fault", f"{where} has latched faults {names} (faults=0x{found.faults:04x}): {clear}"))
     if found.drive_state == DriveState.TRIPPED:
-        problems.append(Problem("dyno_tripped", f"{where}: drive tripped"))
+        problems.append(Problem("dyno_tripped", f"{where}: drive tripped: {clear}"))
     missing = Interlock.ALL & ~Interlock(found.interlocks & Interlock.ALL)
     if missing:
         problems.append(Problem("dyno_interlocks", f"{where}: interlocks not met: "

@@ -227,9 +227,15 @@ def check_motor(capture: Capture, motor: MotorParams) -> None:
 
 # --------------------------------------------------------------------------- the cycle
 def new_run_dir(report_dir: Path, serial: str, started: dt.datetime, run_id: str) -> Path:
+    """A new directory for one run under ``report_dir``, as an absolute path: records of every kind
+    (production, restore) keep where their files are whatever directory the command ran in."""
     stamp = started.strftime("%Y%m%dT%H%M%SZ")
-    d = report_dir / f"{_safe_name(serial)}_{stamp}_{run_id[:8]}"
-    d.mkdir(parents=True, exist_ok=False)
+    d = Path(report_dir).absolute() / f"{_safe_name(serial)}_{stamp}_{run_id[:8]}"
+    try:
+        d.mkdir(parents=True, exist_ok=False)
+    except (OSError, ValueError) as exc:  # /proc/self, a read-only mount, a name too long: before the dyno turns
+        raise InputError(str(report_dir), "report_dir", f"cannot make the run's directory there: "
+                                                        f"{getattr(exc, 'strerror', None) or exc}") from None
     return d
 
 

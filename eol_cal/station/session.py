@@ -74,9 +74,12 @@ class SessionTally:
         self.reports.append(report)
 
     def counts(self) -> dict[str, int]:
-        """Motors run, and how many ended pass, fail and error (an interrupted one is an error), and
-        how many of the runs were refused (nothing written to the ECU; counted in error as well)."""
-        out = {"motors": len(self.records) + len(self.interrupted), "pass": 0, "fail": 0,
+        """Runs, the motors they were (distinct serials: a re-test is a second run of one motor, the
+        master's runs are one motor), and how many runs ended pass, fail and error (an interrupted
+        one is an error), and how many were refused (nothing written to the ECU; counted in error
+        as well)."""
+        serials = {rec.serial for rec in self.records} | set(self.interrupted)
+        out = {"runs": len(self.records) + len(self.interrupted), "motors": len(serials), "pass": 0, "fail": 0,
                "error": len(self.interrupted), "refused": 0}
         for rec in self.records:
             out[rec.verdict] += 1
@@ -85,5 +88,5 @@ class SessionTally:
 
     def summary(self) -> str:
         c = self.counts()
-        text = f"{c['motors']} motor(s): {c['pass']} pass, {c['fail']} fail, {c['error']} error"
+        text = f"{c['runs']} run(s) of {c['motors']} motor(s): {c['pass']} pass, {c['fail']} fail, {c['error']} error"
         return text + (f" ({c['refused']} of them refused before anything was written)" if c["refused"] else "")

@@ -209,6 +209,16 @@ def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
         raise InputError(where, "dyno.address", exc.reason) from exc
 
 
+def _check_path(key: Key, value: object, where: str) -> object:
+    """A path-valued key (or a database file) that no file can have (a NUL, a name or path too
+    long) refused here, naming it, not as ValueError where it is first resolved or opened."""
+    from eol_cal.address import path_problem
+
+    if (key.is_path or key.name == "db") and (why := path_problem(str(value))) is not None:
+        raise InputError(where, key.name, why)
+    return value
+
+
 def _resolve(key: Key, value: object, base: Path) -> object:
     """A path-valued key relative to ``base``; so is a database that is a file, not a URL."""
     if key.is_path or (key.name == "db" and "://" not in str(value)):
@@ -312,7 +322,7 @@ def load_settings(path: str | Path | None, environ: Mapping[str, str] | None = N
             if key.is_path and key.default is not None:
                 values[key.name] = str(base / str(key.default))
             continue
-        values[key.name] = _resolve(key, _check_value(key, value, where), root)
+        values[key.name] = _resolve(key, _check_path(key, _check_value(key, value, where), where), root)
     if values["key_file"] is None and values["key_algo"] is None and "key_file" not in optional:
         raise InputError(source, "key_file", f"required (in the file or as ${env_name('key_file')}), unless key_algo "
                                              "names an OEM algorithm that needs no secret")
@@ -388,17 +398,15 @@ def seed_to_key_of(settings: StationSettings) -> Callable[[bytes], bytes]:
                                                                file_field="key_file", algo_field="key_algo"))
 
 
-#: files SQLite writes beside a database file (WAL mode, and the rollback journal)
-SQLITE_SIDE_FILES = ("-wal", "-shm", "-journal")
-
-
-def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], list[str]]:
+def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], list[str], list[str]]:
     """What the settings make a station read and write: (input files, output files, output
-    directories), for the check that no output is an input (``cli.paths.check_more``).
+    directories, records databases), for the check that no output is an input or a database
+    (``cli.paths.check_more``).
 
     Inputs: the settings file, limits, key file, CAN configuration, and the motor, bench,
-    profile and register map where they are files. Outputs: the records database (and the
-    files SQLite keeps beside it) unless an option gave it. Directories: reports and spool.
+    profile and register map where they are files. Outputs: none of their own (the database is
+    not an output: no output may land on it or the files SQLite keeps beside it, whichever
+    option, setting or default named it). Directories: reports and spool.
     """
     reads = [settings.source] if settings.source != "environment" else []
     reads += [str(settings[k]) for k in ("limits", "key_file", "can.config") if settings[k] is not None]
@@ -406,14 +414,9 @@ def settings_paths(settings: StationSettings) -> tuple[list[str], list[str], lis
         value = settings[key]
         if value is not None and Path(str(value)).is_file():
             reads.append(str(value))
-    writes: list[str] = []
     db = settings["db"]
-    # a database given as an option is that option's output already (the same file twice is
-    # not two outputs); one from the file or a variable is the settings' own
-    if db is not None and "://" not in str(db) and settings.origin.get("db") != "given":
-        writes += [str(db), *(f"{db}{side}" for side in SQLITE_SIDE_FILES)]
     dirs = [str(settings[k]) for k in ("report_dir", "spool_dir") if settings[k] is not None]
-    return reads, writes, dirs
+    return reads, [], dirs, [str(db)] if db is not None else []
 
 
 def register_map_of(settings: StationSettings) -> RegisterMap:

@@ -16,9 +16,9 @@ extern "C" {
 
 /* CRC-32/ISO-HDLC (zlib/PNG): reflected polynomial 0xEDB88320, init and final XOR 0xFFFFFFFF.
  * Start with crc = EOL_CRC32_INIT, feed bytes, finish with eol_crc32_final. */
-#define EOL_CRC32_INIT UINT32_C(0xFFFFFFFF)
+#define EOL_CRC32_INIT 0xFFFFFFFFu
 uint32_t eol_crc32_byte(uint32_t crc, uint16_t byte);
-static inline uint32_t eol_crc32_final(uint32_t crc) { return crc ^ UINT32_C(0xFFFFFFFF); }
+static inline uint32_t eol_crc32_final(uint32_t crc) { return crc ^ 0xFFFFFFFFu; }
 
 /* CRC-32 of the first nbytes bytes of the word image w (low byte of each word first). */
 uint32_t eol_crc32_words(const uint16_t *w, uint32_t nbytes);

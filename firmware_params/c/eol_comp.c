@@ -1,4 +1,5 @@
 /* eol_comp.c: see eol_comp.h and ../COMPENSATOR.md. One statement per rounding step. */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <math.h>
 
 #include "eol_comp.h"
@@ -14,28 +15,31 @@ float eol_comp_table_sum(float x, float i_qo, const float *table_const, const fl
 
     v = x * scale;
     q = floorf(v * recip_n);
-    u = v - q * n_f;           /* in [0, n]; n only by rounding of a tiny negative v */
+    u = v - (q * n_f);           /* in [0, n]; n only by rounding of a tiny negative v */
     g = floorf(u);
     f = u - g;
     j = (uint16_t)((uint16_t)g & mask);  /* g in [0, n]: j = n maps to entry 0 (f = 0) */
     j1 = (uint16_t)((uint16_t)(j + 1u) & mask);
     w = 1.0f - f;
     lc = w * table_const[j];
-    lc = lc + f * table_const[j1];
+    lc = lc + (f * table_const[j1]);
     lp = w * table_per_amp[j];
-    lp = lp + f * table_per_amp[j1];
+    lp = lp + (f * table_per_amp[j1]);
     m = i_qo * lp;
     return lc + m;
 }
 
 static float clamp_iqc(float s, float iqc_limit)
 {
+    float c = s;
     if (s > iqc_limit) {
-        s = iqc_limit;
+        c = iqc_limit;
     } else if (s < -iqc_limit) {
-        s = -iqc_limit;
+        c = -iqc_limit;
+    } else {
+        /* within the limit */
     }
-    return s;
+    return c;
 }
 
 float eol_comp_iqc(float theta_hat, float omega_hat, float i_qo,
@@ -56,7 +60,7 @@ float eol_comp_iqc_mech(float theta_hat, float omega_hat, float i_qo,
     a = omega_hat * lead_s;
     t = theta_hat + a;
     s = eol_comp_table_sum(t, i_qo, table_const, table_per_amp, n, scale);
-    if (mech_on) {
+    if (mech_on != 0) {
         s = s + mech_sum;
     }
     return clamp_iqc(s, iqc_limit);

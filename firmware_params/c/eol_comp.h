@@ -1,6 +1,6 @@
 /* eol_comp.h: torque-ripple compensator evaluation (firmware contract section 2), C99, float only.
- * The exact arithmetic is specified in ../COMPENSATOR.md; compile with -ffp-contract=off (no
- * fused multiply-add) to match the golden vectors bit for bit. */
+ * The exact arithmetic is specified in ../COMPENSATOR.md; the sources' floating-point contract
+ * (eol_fp.h: no fused multiply-add) makes any build match the golden vectors bit for bit. */
 #ifndef EOL_COMP_H
 #define EOL_COMP_H
 

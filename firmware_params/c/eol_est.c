@@ -1,7 +1,9 @@
 /* eol_est.c: rotor angle/speed estimator, see eol_est.h and ../ESTIMATOR.md.
  * Every float expression keeps the order of the Python reference (eol_cal/firmware/estimator.py)
  * so that the host build matches the golden vectors bit for bit. */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <math.h>
+#include <stdbool.h>
 
 #include "eol_est.h"
 
@@ -13,14 +15,14 @@
 #define K_ACC 0.125f
 #define K_PITCH 0.5f
 #define STEADY_TICKS 2
-#define TICK_MASK 0x3FFFFFFFUL
+#define TICK_MASK 0x3FFFFFFFu
 
 /* forward successor of hall state s (contract: 5 -> 1 -> 3 -> 2 -> 6 -> 4 -> 5) */
 static const int32_t HALL_NEXT[8] = EOL_PB_HALL_NEXT;
 
 float eol_est_wrap(float x)
 {
-    float r = x - TWO_PI_F * floorf(x * INV_TWO_PI_F);
+    float r = x - (TWO_PI_F * floorf(x * INV_TWO_PI_F));
     if (r >= TWO_PI_F) {
         r = r - TWO_PI_F;
     }
@@ -37,22 +39,69 @@ float eol_est_wrap_pm(float x)
 
 static int32_t phase_of(int32_t a, int32_t b)
 {
-    return 2 * b + (a ^ b);
+    const uint32_t x = (uint32_t)a ^ (uint32_t)b;
+    return (2 * b) + (int32_t)x;
 }
 
 /* signed quadrature counts from boundary k_last to count q, in [-M/2, M/2) */
 static int32_t dq_of(int32_t q, int32_t k_last, int32_t M)
 {
-    return (q - k_last + M + M / 2) % M - M / 2;
+    int32_t y = q - k_last; /* in (-M, M): no runtime modulo (the C28x has no divider) */
+    if (y >= (M / 2)) {
+        y -= M;
+    } else if (y < -(M / 2)) {
+        y += M;
+    } else {
+        /* already in [-M/2, M/2) */
+    }
+    return y;
 }
 
-static float fminf_(float x, float y) { return x < y ? x : y; }
-static float fmaxf_(float x, float y) { return x > y ? x : y; }
-static int32_t imin(int32_t x, int32_t y) { return x < y ? x : y; }
+/* x mod M for x in [-M, 2M): a count moved by less than a revolution (no runtime modulo) */
+static int32_t wrap_count(int32_t x, int32_t M)
+{
+    int32_t y = x;
+    if (y >= M) {
+        y -= M;
+    } else if (y < 0) {
+        y += M;
+    } else {
+        /* already in [0, M) */
+    }
+    return y;
+}
+
+static float fminf_(float x, float y)
+{
+    return (x < y) ? x : y;
+}
+
+static float fmaxf_(float x, float y)
+{
+    return (x > y) ? x : y;
+}
+
+static int32_t imin(int32_t x, int32_t y)
+{
+    return (x < y) ? x : y;
+}
+
+/* 1/0 of a condition, for the int32_t fields the contract's structs carry */
+static int32_t i32_of(bool x)
+{
+    return x ? 1 : 0;
+}
+
+/* the configuration refused by eol_est_init (ESTIMATOR.md, "Init") */
+static bool config_bad(const eol_est_config_t *cfg)
+{
+    return (cfg->poles < 2) || ((cfg->poles % 2) != 0) || (cfg->n_enc < 1) || (cfg->n_enc > EOL_EST_MAX_PPR) ||
+           !(cfg->tick_hz > 0.0f) || (cfg->standstill_ticks < 1) || (cfg->standstill_ticks >= 0x20000000L);
+}
 
 uint32_t eol_est_options(uint32_t block_flags)
 {
-    return (block_flags & EOL_PB_FLAG_INTERP_ENABLE) ? (block_flags & EOL_PB_FLAGS_ESTIMATOR) : 0u;
+    return ((block_flags & EOL_PB_FLAG_INTERP_ENABLE) != 0u) ? (block_flags & EOL_PB_FLAGS_ESTIMATOR) : 0u;
 }
 
 int eol_est_config_from_block(const uint16_t *w, int32_t standstill_ticks, eol_est_config_t *cfg)
@@ -66,18 +115,13 @@ int eol_est_config_from_block(const uint16_t *w, int32_t standstill_ticks, eol_e
     }
     cfg->standstill_ticks = standstill_ticks;
     cfg->flags = EOL_PB_GET_FLAGS(w);
-    if (cfg->poles < 2 || (cfg->poles % 2) != 0 || cfg->n_enc < 1 || cfg->n_enc > EOL_EST_MAX_PPR ||
-        !(cfg->tick_hz > 0.0f) || standstill_ticks < 1 || standstill_ticks >= 0x20000000L) {
-        return -1;
-    }
-    return 0;
+    return config_bad(cfg) ? -1 : 0;
 }
 
 int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int32_t a0, int32_t b0)
 {
-    int32_t s, i;
-    if (cfg->poles < 2 || (cfg->poles % 2) != 0 || cfg->n_enc < 1 || cfg->n_enc > EOL_EST_MAX_PPR ||
-        !(cfg->tick_hz > 0.0f) || cfg->standstill_ticks < 1 || cfg->standstill_ticks >= 0x20000000L) {
+    int32_t s, i, h0 = hall0;
+    if (config_bad(cfg)) {
         return -1;
     }
     est->cfg = *cfg;
@@ -103,10 +147,10 @@ int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int
     }
     for (s = 1; s <= 6; ++s) {
         est->h_width[s] = eol_est_wrap(est->h_start[HALL_NEXT[s]] - est->h_start[s]);
-        est->h_mid[s] = eol_est_wrap(est->h_start[s] + est->h_width[s] * 0.5f);
+        est->h_mid[s] = eol_est_wrap(est->h_start[s] + (est->h_width[s] * 0.5f));
     }
-    if (hall0 < 1 || hall0 > 6) {
-        hall0 = 0;
+    if ((h0 < 1) || (h0 > 6)) {
+        h0 = 0;
     }
     est->phase = phase_of(a0, b0);
     est->q = est->phase;
@@ -119,14 +163,14 @@ int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int
     est->alpha = 0.0f;
     est->adv = 0.0f;
     est->G = 0.0f;
-    est->hall_last = hall0;
-    est->sector = hall0;
+    est->hall_last = h0;
+    est->sector = h0;
     est->anchored = 0;
     est->n_anchor = 0;
     est->tick = 0;
     est->run = 0;
     est->R_prev = 0;
-    for (i = 0; i < 2 * EOL_EST_MAX_PPR; ++i) {
+    for (i = 0; i < (2 * EOL_EST_MAX_PPR); ++i) {
         est->c_tab[i] = 0.0f;
         est->ts[i] = 0;
     }
@@ -136,13 +180,15 @@ int eol_est_init(eol_est_t *est, const eol_est_config_t *cfg, int32_t hall0, int
 void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_t *out)
 {
     const uint32_t fl = e->opts;
+    const bool learn_on = (fl & EOL_PB_FLAG_EST_LEARN_PITCH_ERRORS) != 0u;
+    const bool accel_on = (fl & EOL_PB_FLAG_EST_ACCEL_PREDICTION) != 0u;
+    const bool clamp_on = (fl & EOL_PB_FLAG_EST_CLAMP_TO_NEXT_EDGE) != 0u;
     const int32_t M = e->M;
     const int32_t S = e->cfg.standstill_ticks;
-    int32_t ph, d, stp, qep_err, q, a_rise, edir, k, against, n1;
-    int32_t bounce, ev, same_dir, pitch_ok, interval, long_iv, missing, reject, measured, nc_eff;
-    int32_t fix, speed_upd, still, speed_ok, n, k_last, dir_last, nc_prev, run;
-    int32_t hv, hl, trans, fwd, rev, adj, jump, first, anchored_before, big, unanchored;
-    int32_t status;
+    int32_t ph, d, stp, q, edir, k, n1, nc_eff, fix, n, k_last, dir_last, nc_prev, run, hs, ha;
+    bool qep_err, a_rise, against, bounce, ev, same_dir, pitch_ok, interval, long_iv, missing, reject, measured;
+    bool speed_upd, still, speed_ok, hv, trans, fwd, rev, adj, jump, first, anchored_before, big, unanchored;
+    uint32_t status;
     float omega_new, omega, alpha, omega_pred, adv, adv_eff, hb, c_last, rel, theta_pred, err, g, G;
     float theta_enc, theta, start, width, dd, end, omega_out;
 
@@ -152,41 +198,58 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
 
     /* 1. quadrature decoding (x4) */
     ph = phase_of(a, b);
-    d = (ph - e->phase + 4) % 4;
-    stp = (d == 1) ? 1 : ((d == 3) ? -1 : 0);
+    d = wrap_count(ph - e->phase, 4);
+    if (d == 1) {
+        stp = 1;
+    } else if (d == 3) {
+        stp = -1;
+    } else {
+        stp = 0;
+    }
     qep_err = (d == 2);
-    q = (e->q + stp + M) % M;
-    a_rise = (d == 1 && ph == 1) || (d == 3 && ph == 2);
-    edir = (ph == 1) ? 1 : -1;
-    k = (edir > 0) ? q : (q + 1) % M;
-    against = e->against | (stp != 0 && stp == -e->dir_last);
+    q = wrap_count(e->q + stp, M);
+    a_rise = ((d == 1) && (ph == 1)) || ((d == 3) && (ph == 2));
+    edir = -1;
+    if (ph == 1) {
+        edir = 1;
+    }
+    k = (edir > 0) ? q : wrap_count(q + 1, M);
+    against = (e->against != 0) || ((stp != 0) && (stp == -e->dir_last));
     n1 = imin(e->n + 1, S + 1);
 
     /* 2. A edge event */
-    bounce = a_rise && k == e->k_last && edir == e->dir_last;
+    bounce = a_rise && (k == e->k_last) && (edir == e->dir_last);
     ev = a_rise && !bounce;
     same_dir = (edir == e->dir_last);
-    pitch_ok = (k == (e->k_last + 4 * edir + M) % M);
-    interval = ev && same_dir && pitch_ok && n1 <= S;
-    long_iv = interval && e->nc_prev > 0 && 2 * n1 > 3 * e->nc_prev;
-    missing = long_iv && against != 0;
-    reject = long_iv && against == 0;
+    pitch_ok = (k == wrap_count(e->k_last + (4 * edir), M));
+    interval = ev && same_dir && pitch_ok && (n1 <= S);
+    long_iv = interval && (e->nc_prev > 0) && ((2 * n1) > (3 * e->nc_prev));
+    missing = long_iv && against;
+    reject = long_iv && !against;
     measured = interval && !long_iv;
-    nc_eff = missing ? n1 / 2 : n1;
+    nc_eff = n1;
+    if (missing) {
+        nc_eff = n1 / 2;
+    }
     omega_new = (float)edir * (e->K_OMEGA / (float)nc_eff);
-    fix = missing ? 4 * edir : 0;
-    q = (q + fix + M) % M;
-    k = (k + fix + M) % M;
+    fix = 0;
+    if (missing) {
+        fix = 4 * edir;
+    }
+    q = wrap_count(q + fix, M);
+    k = wrap_count(k + fix, M);
     speed_upd = measured || missing;
     run = e->run;
-    if (fl & EOL_PB_FLAG_EST_LEARN_PITCH_ERRORS) {
-        int32_t tick = (int32_t)(((uint32_t)e->tick + 1u) & TICK_MASK);
-        int32_t i_new = k >> 1;
-        float c_old = e->c_tab[e->k_last >> 1];
+    if (learn_on) {
+        const uint32_t tick_u = ((uint32_t)e->tick + 1u) & TICK_MASK;
+        int32_t tick = (int32_t)tick_u;
+        int32_t i_new = k / 2;
+        float c_old = e->c_tab[e->k_last / 2];
         float c_new = e->c_tab[i_new];
-        int32_t R = (int32_t)(((uint32_t)tick - (uint32_t)e->ts[i_new]) & TICK_MASK);
+        const uint32_t R_u = (tick_u - (uint32_t)e->ts[i_new]) & TICK_MASK;
+        int32_t R = (int32_t)R_u;
         int32_t dR;
-        int32_t learn;
+        bool learn;
         if (R < 1) {
             R = 1;
         }
@@ -194,16 +257,16 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         if (dR < 0) {
             dR = -dR;
         }
-        learn = measured && e->run >= e->cfg.n_enc && dR <= STEADY_TICKS;
+        learn = measured && (e->run >= e->cfg.n_enc) && (dR <= STEADY_TICKS);
         if (learn) {
             float pitch = (float)n1 * (e->K_NDELTA / (float)R);
             float pitch_err = pitch - e->DELTA;
-            float target = c_old + (float)edir * pitch_err;
-            c_new = c_new + K_PITCH * (target - c_new);
+            float target = c_old + ((float)edir * pitch_err);
+            c_new = c_new + (K_PITCH * (target - c_new));
             out->pitch_err = pitch_err;
         }
-        out->learn = learn;
-        out->learn_idx = (edir > 0) ? i_new : (e->k_last >> 1);
+        out->learn = i32_of(learn);
+        out->learn_idx = (edir > 0) ? i_new : (e->k_last / 2);
         e->c_tab[i_new] = c_new;
         if (ev) {
             e->ts[i_new] = tick;
@@ -212,9 +275,11 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         if (measured) {
             e->R_prev = R;
             run = imin(e->run + 1, e->cfg.n_enc);
-            omega_new = (float)edir * (((e->DELTA + (float)edir * (c_new - c_old)) * e->TICK_HZ) / (float)n1);
+            omega_new = (float)edir * (((e->DELTA + ((float)edir * (c_new - c_old))) * e->TICK_HZ) / (float)n1);
         } else if (ev) {
             run = 0;
+        } else {
+            /* no edge: the run goes on */
         }
     }
     if (speed_upd) {
@@ -234,19 +299,22 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         nc_prev = e->nc_prev;
     }
     alpha = e->alpha;
-    if (fl & EOL_PB_FLAG_EST_ACCEL_PREDICTION) {
-        if (measured && e->nc_prev > 0) {
-            float alpha_raw = (omega_new - e->omega) * (e->TWO_TICK_HZ / (float)(n1 + e->nc_prev));
-            alpha = e->alpha + K_ACC * (alpha_raw - e->alpha);
+    if (accel_on) {
+        if (measured && (e->nc_prev > 0)) {
+            const int32_t n_two = n1 + e->nc_prev;
+            float alpha_raw = (omega_new - e->omega) * (e->TWO_TICK_HZ / (float)n_two);
+            alpha = e->alpha + (K_ACC * (alpha_raw - e->alpha));
         } else if (ev && !(missing || reject)) {
             alpha = 0.0f;
+        } else {
+            /* kept */
         }
     }
     n = ev ? 0 : n1;
     k_last = ev ? k : e->k_last;
     dir_last = ev ? edir : e->dir_last;
     if (ev) {
-        against = 0;
+        against = false;
     }
 
     /* 3. standstill and the prediction between edges (eq. 16) */
@@ -262,46 +330,47 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         run = 0;
         alpha = 0.0f;
     }
-    if (fl & EOL_PB_FLAG_EST_ACCEL_PREDICTION) {
-        float tau = ((float)nc_prev * 0.5f + (float)n) * e->T;
-        omega_pred = omega + alpha * tau;
+    if (accel_on) {
+        float tau = (((float)nc_prev * 0.5f) + (float)n) * e->T;
+        omega_pred = omega + (alpha * tau);
     } else {
         omega_pred = omega;
     }
-    adv = ev ? 0.0f : e->adv + omega_pred * e->T;
-    if ((fl & EOL_PB_FLAG_EST_CLAMP_TO_NEXT_EDGE) && against == 0) {
+    adv = ev ? 0.0f : (e->adv + (omega_pred * e->T));
+    if (clamp_on && !against) {
         float lo = (float)dq_of(q, k_last, M) * e->QUARTER;
         adv = fminf_(fmaxf_(adv, lo), lo + e->QUARTER);
     }
 
     /* 4. halls */
-    hv = hall >= 1 && hall <= 6;
-    hl = e->hall_last;
-    trans = hv && hall != hl && hl != 0;
-    fwd = trans && hall == HALL_NEXT[hl];
-    rev = trans && hl == HALL_NEXT[hv ? hall : 0];
+    hv = (hall >= 1) && (hall <= 6);
+    ha = hv ? hall : 0;
+    hs = e->hall_last;
+    trans = hv && (hall != hs) && (hs != 0);
+    fwd = trans && (hall == HALL_NEXT[hs]);
+    rev = trans && (hs == HALL_NEXT[ha]);
     adj = fwd || rev;
     jump = trans && !adj;
-    first = hv && hl == 0;
-    hb = fwd ? e->h_start[hv ? hall : 0] : e->h_start[hl];
-    anchored_before = e->anchored;
-    if (adj && anchored_before == 0 && dir_last == 0) {
+    first = hv && (hs == 0);
+    hb = fwd ? e->h_start[ha] : e->h_start[hs];
+    anchored_before = e->anchored != 0;
+    if (adj && !anchored_before && (dir_last == 0)) {
         k_last = q;
     }
-    c_last = (fl & EOL_PB_FLAG_EST_LEARN_PITCH_ERRORS) ? e->c_tab[k_last >> 1] : 0.0f;
-    rel = (float)k_last * e->QUARTER + c_last;
+    c_last = learn_on ? e->c_tab[k_last / 2] : 0.0f;
+    rel = ((float)k_last * e->QUARTER) + c_last;
     /* without a valid speed: the middle of the current quadrature count */
-    adv_eff = speed_ok ? adv : (float)dq_of(q, k_last, M) * e->QUARTER + e->HALF_QUARTER;
+    adv_eff = speed_ok ? adv : (((float)dq_of(q, k_last, M) * e->QUARTER) + e->HALF_QUARTER);
     theta_pred = eol_est_wrap(eol_est_wrap(e->G + rel) + adv_eff);
     err = eol_est_wrap_pm(hb - theta_pred);
     big = fabsf(err) > e->HALF_DELTA;
-    if (fl & EOL_PB_FLAG_EST_LEARN_GRID_OFFSET) {
+    if ((fl & EOL_PB_FLAG_EST_LEARN_GRID_OFFSET) != 0u) {
         float gain = 1.0f / (float)imin(e->n_anchor + 1, N_LEARN);
-        g = big ? err : err * gain;
+        g = big ? err : (err * gain);
     } else {
         g = err;
     }
-    if (adj && anchored_before != 0) {
+    if (adj && anchored_before) {
         G = eol_est_wrap(e->G + g);
     } else if (adj) {
         G = eol_est_wrap(hb - (rel + adv_eff));
@@ -310,10 +379,10 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     }
     if (adj) {
         e->anchored = 1;
-        e->n_anchor = (anchored_before == 0 || big) ? 1 : imin(e->n_anchor + 1, N_LEARN);
+        e->n_anchor = (!anchored_before || big) ? 1 : imin(e->n_anchor + 1, N_LEARN);
     }
-    status = 0;
-    if (adj && dir_last != 0 && (fwd ? 1 : -1) != dir_last) {
+    status = 0u;
+    if (adj && (dir_last != 0) && ((fwd ? 1 : -1) != dir_last)) {
         status |= EOL_EST_ST_DIR_MISMATCH;
     }
     if (hv) {
@@ -332,7 +401,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         dd = eol_est_wrap(theta - start);
         if (dd > width) {
             end = eol_est_wrap(start + width);
-            theta = (dd - width < TWO_PI_F - dd) ? end : start;
+            theta = ((dd - width) < (TWO_PI_F - dd)) ? end : start;
         }
     }
     unanchored = (e->anchored == 0);
@@ -341,19 +410,37 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
         theta_enc = e->h_mid[e->sector];
     }
     omega_out = omega_pred;
-    if ((fl & EOL_PB_FLAG_EST_CLAMP_TO_NEXT_EDGE) && n > 0) {
+    if (clamp_on && (n > 0)) {
         float bound = e->K_OMEGA / (float)n;
         omega_out = fminf_(fmaxf_(omega_out, -bound), bound);
     }
-    if (still) status |= EOL_EST_ST_STANDSTILL;
-    if (dir_last < 0) status |= EOL_EST_ST_REVERSE;
-    if (!hv) status |= EOL_EST_ST_HALL_FAULT;
-    if (jump) status |= EOL_EST_ST_HALL_SEQ;
-    if (unanchored) status |= EOL_EST_ST_NO_ANCHOR;
-    if (qep_err) status |= EOL_EST_ST_QEP_ERROR;
-    if (bounce || reject || (ev && !speed_upd)) status |= EOL_EST_ST_EDGE_REJECT;
-    if (missing) status |= EOL_EST_ST_MISSING_EDGE;
-    if (nc_prev == 0 && !speed_upd) status |= EOL_EST_ST_NO_SPEED;
+    if (still) {
+        status |= EOL_EST_ST_STANDSTILL;
+    }
+    if (dir_last < 0) {
+        status |= EOL_EST_ST_REVERSE;
+    }
+    if (!hv) {
+        status |= EOL_EST_ST_HALL_FAULT;
+    }
+    if (jump) {
+        status |= EOL_EST_ST_HALL_SEQ;
+    }
+    if (unanchored) {
+        status |= EOL_EST_ST_NO_ANCHOR;
+    }
+    if (qep_err) {
+        status |= EOL_EST_ST_QEP_ERROR;
+    }
+    if (bounce || reject || (ev && !speed_upd)) {
+        status |= EOL_EST_ST_EDGE_REJECT;
+    }
+    if (missing) {
+        status |= EOL_EST_ST_MISSING_EDGE;
+    }
+    if ((nc_prev == 0) && !speed_upd) {
+        status |= EOL_EST_ST_NO_SPEED;
+    }
 
     e->phase = ph;
     e->q = q;
@@ -361,7 +448,7 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     e->k_last = k_last;
     e->dir_last = dir_last;
     e->nc_prev = nc_prev;
-    e->against = against;
+    e->against = i32_of(against);
     e->omega = omega;
     e->alpha = alpha;
     e->adv = adv;
@@ -371,5 +458,5 @@ void eol_est_step(eol_est_t *e, int32_t a, int32_t b, int32_t hall, eol_est_out_
     out->theta_hat = theta;
     out->omega_hat = omega_out;
     out->theta_enc = theta_enc;
-    out->status = status;
+    out->status = (int32_t)status;
 }

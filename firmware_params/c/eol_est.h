@@ -1,7 +1,7 @@
 /* eol_est.h: rotor angle/speed estimator (seed paper eqs. 13-16 plus switchable improvements),
  * C99, float only, no heap. The algorithm is specified in ../ESTIMATOR.md; the Python reference
- * is eol_cal/firmware/estimator.py. Compile with -ffp-contract=off (no fused multiply-add) to
- * match the golden vectors bit for bit. All integer state is int32_t (int is 16 bits on C28x). */
+ * is eol_cal/firmware/estimator.py. The sources' floating-point contract (eol_fp.h, no fused
+ * multiply-add) makes any build match the golden vectors bit for bit. All integer state is int32_t (int is 16 bits on C28x). */
 #ifndef EOL_EST_H
 #define EOL_EST_H
 
@@ -23,16 +23,16 @@ extern "C" {
  * EOL_PB_FLAG_INTERP_ENABLE; eol_est_options() is the one place that says which count. */
 
 /* Status bits (eol_est_out_t.status), see ESTIMATOR.md */
-#define EOL_EST_ST_STANDSTILL 0x001
-#define EOL_EST_ST_REVERSE 0x002
-#define EOL_EST_ST_HALL_FAULT 0x004
-#define EOL_EST_ST_HALL_SEQ 0x008
-#define EOL_EST_ST_NO_ANCHOR 0x010
-#define EOL_EST_ST_QEP_ERROR 0x020
-#define EOL_EST_ST_EDGE_REJECT 0x040
-#define EOL_EST_ST_MISSING_EDGE 0x080
-#define EOL_EST_ST_DIR_MISMATCH 0x100
-#define EOL_EST_ST_NO_SPEED 0x200
+#define EOL_EST_ST_STANDSTILL 0x001u
+#define EOL_EST_ST_REVERSE 0x002u
+#define EOL_EST_ST_HALL_FAULT 0x004u
+#define EOL_EST_ST_HALL_SEQ 0x008u
+#define EOL_EST_ST_NO_ANCHOR 0x010u
+#define EOL_EST_ST_QEP_ERROR 0x020u
+#define EOL_EST_ST_EDGE_REJECT 0x040u
+#define EOL_EST_ST_MISSING_EDGE 0x080u
+#define EOL_EST_ST_DIR_MISMATCH 0x100u
+#define EOL_EST_ST_NO_SPEED 0x200u
 
 typedef struct {
     int32_t poles;            /* P, even, >= 2 */

@@ -1,13 +1,18 @@
 /* harness.c: host test harness for the C reference against the golden vectors.
  *
- *   harness GOLDEN_DIR
+ *   harness GOLDEN_DIR [DIFF_CSV]
  *
  * Reads GOLDEN_DIR/manifest.json, and checks every file it lists with the checker registered for
- * the file's name (CHECKERS below), bit for bit. A listed file without a checker is a failure.
- * Exit 0 when every file passes, 1 on any mismatch, 2 on unreadable input.
+ * the file's name (CHECKERS below): each column within its tolerance class (bit for bit unless
+ * the file's "ulp" object in the manifest gives the column an ulp bound). A listed file without
+ * a checker is a failure. Prints per file the rows checked, the rows that differ and, per column,
+ * how many rows differ and by how much; writes every difference to DIFF_CSV (file, row, column,
+ * expected, got, ulp, bound, within/beyond) when given.
+ * Exit 0 when every file passes, 1 on any difference beyond its class, 2 on unreadable input.
  *
  * Host code: it may use stdio and large static buffers; the firmware sources (eol_*.c) may not.
  */
+#include "eol_fp.h" /* first: the floating-point contract */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -17,12 +22,80 @@
 #include "eol_est.h" /* H4 */
 #include "eol_mech.h" /* revision 1.2 */
 
+/* ---------------------------------------------------- operation counts (cycle model) ---- */
+/* Built with -DEOL_COUNT_OPS against firmware sources whose LLVM IR counts every operation into
+ * eol_ops[class] (bench/bench_fw_cycles.py): each call is weighed with the cycles per class in
+ * EOL_OPS_WEIGHTS and the worst tick per function is printed per file ("CYCLES ..."). */
+#ifdef EOL_COUNT_OPS
+#define OPS_N 24
+uint64_t eol_ops[OPS_N];
+static double g_w[OPS_N];
+static uint64_t g_snap[OPS_N];
+enum { F_EST, F_MECH, F_BG, F_COMP, F_TICK, F_N };
+static double g_worst[F_N];
+static long g_worst_row[F_N];
+
+static void ops_mark(void)
+{
+    memcpy(g_snap, eol_ops, sizeof g_snap);
+}
+
+static double ops_cost(void)
+{
+    double c = 0.0;
+    int k;
+    for (k = 0; k < OPS_N; ++k) {
+        c += (double)(eol_ops[k] - g_snap[k]) * g_w[k];
+    }
+    ops_mark();
+    return c;
+}
+
+static void ops_worst(int f, double c, long row)
+{
+    if (c > g_worst[f]) {
+        g_worst[f] = c;
+        g_worst_row[f] = row;
+    }
+}
+
+static void ops_weights(void)
+{
+    const char *w = getenv("EOL_OPS_WEIGHTS");
+    int k = 0;
+    while (w != NULL && *w != '\0' && k < OPS_N) {
+        char *end;
+        g_w[k++] = strtod(w, &end);
+        w = (*end == ',') ? end + 1 : end;
+    }
+}
+
+static void ops_report(const char *file)
+{
+    static const char *names[F_N] = {"est", "mech_tick", "background", "comp", "tick"};
+    int f;
+    printf("CYCLES %s", file);
+    for (f = 0; f < F_N; ++f) {
+        printf(" %s=%.0f@%ld", names[f], g_worst[f], g_worst_row[f]);
+        g_worst[f] = 0.0;
+        g_worst_row[f] = 0;
+    }
+    printf("\n");
+}
+#define OPS_MARK() ops_mark()
+#define OPS_COST() ops_cost()
+#define OPS_WORST(f, c, row) ops_worst((f), (c), (row))
+#else
+#define OPS_MARK() ((void)0)
+#define OPS_COST() 0.0
+#define OPS_WORST(f, c, row) ((void)(c), (void)(row))
+#endif
+
 /* ---------------------------------------------------------------- CSV reading (shared) ---- */
 
 #define MAX_LINE (1L << 20)
 #define MAX_FIELDS 64
 #define MAX_IMAGE_BYTES (1L << 17)
-#define MAX_REPORTS 10
 
 typedef struct {
     FILE *fp;
@@ -166,16 +239,141 @@ static long image_words(const char *hex, uint16_t *w, long max_bytes)
 
 static uint16_t g_words[MAX_IMAGE_BYTES / 2 + 1];
 
+/* Tolerance classes (manifest.json, each file's "ulp" object): a column named there may differ by
+ * up to that many units in the last place (a target whose division and square root are estimates
+ * plus Newton steps, as the C28x's); every other column is exact. */
+#define MAX_COLS 64
+#define COL_NAME 48
+#define SHOWN 5 /* differences per column shown on stderr */
+
 typedef struct {
-    long rows;
-    long failures;
+    char name[COL_NAME];
+    long rows;             /* rows in which this column differs (within its class or not) */
+    long beyond;           /* of those, rows beyond its class */
+    unsigned long max_ulp; /* largest difference in ulp (floats; integers count 1 per difference) */
+    unsigned long bound;   /* its class: 0 exact, else the ulp bound */
+} colstat_t;
+
+typedef struct {
+    const char *file;
+    long rows;        /* rows checked */
+    long rows_bad;    /* rows with a difference beyond its column's class */
+    long rows_differ; /* rows with any difference */
+    long last_bad, last_differ;
+    int ncols;
+    colstat_t col[MAX_COLS];
+    FILE *diff; /* every difference, one CSV line each (NULL: none written) */
 } result_t;
 
+static colstat_t *col_stat(result_t *r, const char *what)
+{
+    int k;
+    for (k = 0; k < r->ncols; ++k) {
+        if (strcmp(r->col[k].name, what) == 0) return &r->col[k];
+    }
+    if (r->ncols == MAX_COLS) return &r->col[MAX_COLS - 1]; /* the last slot gathers the rest */
+    snprintf(r->col[r->ncols].name, COL_NAME, "%s", what);
+    return &r->col[r->ncols++];
+}
+
+/* one difference of `ulp` units in column `what` (integers: ulp 1 and hex values as given) */
+static void differ(result_t *r, const csv_t *c, const char *what, unsigned long want, unsigned long got,
+                   unsigned long ulp)
+{
+    colstat_t *s = col_stat(r, what);
+    int beyond = ulp > s->bound;
+    s->rows++;
+    if (ulp > s->max_ulp) s->max_ulp = ulp;
+    if (r->last_differ != c->row) {
+        r->rows_differ++;
+        r->last_differ = c->row;
+    }
+    if (beyond) {
+        s->beyond++;
+        if (r->last_bad != c->row) {
+            r->rows_bad++;
+            r->last_bad = c->row;
+        }
+    }
+    if (s->rows <= SHOWN) { /* a glimpse on stderr, the first few per column; every one in the file */
+        fprintf(stderr, "%s: row %ld: %s: expected 0x%08lx, got 0x%08lx (%lu ulp, %s)\n", c->path, c->row, what, want,
+                got, ulp, beyond ? "beyond its class" : "within its class");
+    }
+    if (r->diff != NULL) {
+        fprintf(r->diff, "%s,%ld,%s,%08lx,%08lx,%lu,%lu,%s\n", r->file, c->row, what, want, got, ulp, s->bound,
+                beyond ? "beyond" : "within");
+    }
+}
+
+/* an integer or bit-pattern column: exact */
 static void fail(result_t *r, const csv_t *c, const char *what, unsigned long want, unsigned long got)
 {
-    r->failures++;
-    if (r->failures <= MAX_REPORTS) {
-        fprintf(stderr, "%s: row %ld: %s: expected 0x%08lx, got 0x%08lx\n", c->path, c->row, what, want, got);
+    differ(r, c, what, want, got, 1ul);
+}
+
+/* distance in units in the last place between two binary32 bit patterns (ordered as integers) */
+static unsigned long ulp_distance(uint32_t a, uint32_t b)
+{
+    long long oa = (a & 0x80000000u) ? -(long long)(a & 0x7FFFFFFFu) : (long long)a;
+    long long ob = (b & 0x80000000u) ? -(long long)(b & 0x7FFFFFFFu) : (long long)b;
+    long long d = oa > ob ? oa - ob : ob - oa;
+    return d > 0xFFFFFFFFll ? 0xFFFFFFFFul : (unsigned long)d;
+}
+
+/* a float column against its expected bit pattern, within its class */
+static void chk_f32(result_t *r, const csv_t *c, const char *what, uint32_t want, float got)
+{
+    uint32_t g = f32_bits(got);
+    if (g != want) differ(r, c, what, want, g, ulp_distance(want, g));
+}
+
+/* the file's "ulp" object in its manifest entry (text from its "name" on, to the next entry) */
+static void read_classes(result_t *r, const char *entry, const char *entry_end)
+{
+    const char *p = strstr(entry, "\"ulp\": {");
+    const char *end;
+    if (p == NULL || (entry_end != NULL && p > entry_end)) return;
+    p += strlen("\"ulp\": {");
+    end = strchr(p, '}');
+    while (p != NULL && end != NULL && p < end) {
+        char name[COL_NAME];
+        const char *q = strchr(p, '"');
+        const char *q2;
+        size_t len;
+        if (q == NULL || q > end) break;
+        q2 = strchr(q + 1, '"');
+        if (q2 == NULL || q2 > end) break;
+        len = (size_t)(q2 - q - 1);
+        if (len >= COL_NAME) len = COL_NAME - 1;
+        memcpy(name, q + 1, len);
+        name[len] = '\0';
+        q = strchr(q2, ':');
+        if (q == NULL || q > end) break;
+        col_stat(r, name)->bound = strtoul(q + 1, NULL, 10);
+        p = strchr(q, ',');
+    }
+}
+
+static void report(const result_t *r)
+{
+    int k;
+    if (r->rows == 0 || r->rows_bad != 0) {
+        printf("%s: FAIL: %ld of %ld rows differ beyond their class\n", r->file, r->rows_bad, r->rows);
+    } else if (r->rows_differ != 0) {
+        printf("%s: %ld rows ok, %ld of them within their class\n", r->file, r->rows, r->rows_differ);
+    } else {
+        printf("%s: %ld rows ok\n", r->file, r->rows);
+    }
+    for (k = 0; k < r->ncols; ++k) {
+        const colstat_t *s = &r->col[k];
+        if (s->rows == 0) continue;
+        if (s->bound != 0u) {
+            printf("    %-14s %6ld rows differ, %ld beyond its class (ulp <= %lu); largest %lu ulp\n", s->name, s->rows,
+                   s->beyond, s->bound, s->max_ulp);
+        } else {
+            printf("    %-14s %6ld rows differ, %ld beyond its class (exact); largest %lu ulp\n", s->name, s->rows,
+                   s->beyond, s->max_ulp);
+        }
     }
 }
 
@@ -243,7 +441,7 @@ static int check_blocks(const char *dir, const char *file, result_t *r)
             unsigned long got;
             if (col == i_img || col == i_ser || strcmp(name, "id") == 0) continue;
 #define INT_FIELD(key, expr) else if (strcmp(name, key) == 0) { got = (unsigned long)(expr); if (got != want) fail(r, &c, key, want, got); }
-#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { want = hex_u32(v); got = f32_bits(expr); if (got != want) fail(r, &c, key, want, got); }
+#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { chk_f32(r, &c, key, hex_u32(v), expr); }
             if (0) {
             }
             INT_FIELD("sequence", EOL_PB_GET_SEQUENCE(g_words))
@@ -381,7 +579,7 @@ static int check_compensator(const char *dir, const char *file, result_t *r)
         r->rows++;
         y = eol_comp_iqc(hex_f32(c.f[i_th]), hex_f32(c.f[i_om]), hex_f32(c.f[i_iq]), b->table_const,
                          b->table_per_amp, b->n, b->lead_s, b->iqc_limit);
-        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+        chk_f32(r, &c, "i_qc", hex_u32(c.f[i_out]), y);
     }
     csv_close(&c);
     return rc < 0 ? -1 : 0;
@@ -447,7 +645,7 @@ static int est_config(const char *dir, const char *file, eol_est_config_t *cfg, 
             else if (strncmp(cn, "h_width_", 8) == 0) got = e.h_width[atoi(cn + 8)];
             else if (strncmp(cn, "h_mid_", 6) == 0) got = e.h_mid[atoi(cn + 6)];
             else continue;
-            if (f32_bits(got) != hex_u32(c.f[col])) fail(r, &c, cn, hex_u32(c.f[col]), f32_bits(got));
+            chk_f32(r, &c, cn, hex_u32(c.f[col]), got);
         }
     }
     csv_close(&c);
@@ -493,10 +691,12 @@ static int check_estimator(const char *dir, const char *file, result_t *r)
             return -1;
         }
         r->rows++;
+        OPS_MARK();
         eol_est_step(&e, a, b, h, &o);
-        if (f32_bits(o.theta_hat) != hex_u32(c.f[i_th])) fail(r, &c, "theta_hat", hex_u32(c.f[i_th]), f32_bits(o.theta_hat));
-        if (f32_bits(o.omega_hat) != hex_u32(c.f[i_om])) fail(r, &c, "omega_hat", hex_u32(c.f[i_om]), f32_bits(o.omega_hat));
-        if (f32_bits(o.theta_enc) != hex_u32(c.f[i_te])) fail(r, &c, "theta_enc", hex_u32(c.f[i_te]), f32_bits(o.theta_enc));
+        OPS_WORST(F_EST, OPS_COST(), c.row);
+        chk_f32(r, &c, "theta_hat", hex_u32(c.f[i_th]), o.theta_hat);
+        chk_f32(r, &c, "omega_hat", hex_u32(c.f[i_om]), o.omega_hat);
+        chk_f32(r, &c, "theta_enc", hex_u32(c.f[i_te]), o.theta_enc);
         if ((unsigned long)o.status != want_st) fail(r, &c, "status", want_st, (unsigned long)o.status);
     }
     csv_close(&c);
@@ -584,7 +784,7 @@ static int check_blocks_v2(const char *dir, const char *file, result_t *r)
             unsigned long got;
             if (col == i_img || strcmp(name, "id") == 0) continue;
 #define INT_FIELD(key, expr) else if (strcmp(name, key) == 0) { got = (unsigned long)(expr); if (got != want) fail(r, &c, key, want, got); }
-#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { want = hex_u32(v); got = f32_bits(expr); if (got != want) fail(r, &c, key, want, got); }
+#define F32_FIELD(key, expr) else if (strcmp(name, key) == 0) { chk_f32(r, &c, key, hex_u32(v), expr); }
             if (0) {
             }
             INT_FIELD("sequence", EOL_PB_GET_SEQUENCE(g_words))
@@ -650,7 +850,7 @@ static int mech_config(const char *dir, const char *file, const uint16_t **w, in
             else if (strcmp(cn, "EF_0") == 0) got = m.EF[0];
             else if (strcmp(cn, "EF_1") == 0) got = m.EF[1];
             else continue;
-            if (f32_bits(got) != hex_u32(c.f[col])) fail(r, &c, cn, hex_u32(c.f[col]), f32_bits(got));
+            chk_f32(r, &c, cn, hex_u32(c.f[col]), got);
         }
     }
     csv_close(&c);
@@ -706,13 +906,28 @@ static int check_mech(const char *dir, const char *file, result_t *r)
         int32_t h = (int32_t)strtol(c.f[i_h], NULL, 10);
         float iq = hex_f32(c.f[i_iq]);
         float sm, y = 0.0f;
+        double c_est, c_mech, c_comp = 0.0;
         if (c.row == 1 && (eol_est_init(&e, &cfg, h, a, b) != 0 || eol_mech_init(&m, &e, w) != 0)) {
             fprintf(stderr, "%s: configuration refused\n", c.path);
             return -1;
         }
         r->rows++;
+        OPS_MARK();
         eol_est_step(&e, a, b, h, &o);
+        c_est = OPS_COST();
         eol_mech_step(&m, &e, &o, &mo);
+        c_mech = OPS_COST();
+#ifdef EOL_EVAL_IN_TICK
+        /* the structure before the background: every slice of an evaluation inside this tick */
+        while ((m.busy >= 1) && (m.busy <= m.n_slices)) {
+            eol_mech_background(&m, &e);
+        }
+        eol_mech_background(&m, &e); /* a mark check */
+        c_mech += OPS_COST();
+#else
+        eol_mech_background(&m, &e); /* the golden schedule: one background slice per tick */
+#endif
+        OPS_WORST(F_BG, OPS_COST(), c.row);
         if (EOL_PB_GET_FLAGS(w) & EOL_PB_FLAG_COMP_ENABLE) {
             static float tc[EOL_PB_TABLE_LEN_MAX], tp[EOL_PB_TABLE_LEN_MAX];
             uint16_t j;
@@ -720,18 +935,24 @@ static int check_mech(const char *dir, const char *file, result_t *r)
                 tc[j] = EOL_PB_GET_TABLE_CONST(w, n, j);
                 tp[j] = EOL_PB_GET_TABLE_PER_AMP(w, n, j);
             }
+            OPS_MARK();
             sm = eol_mech_sum(&m, mo.r, e.q, o.theta_hat, o.omega_hat, iq);
             y = eol_comp_iqc_mech(o.theta_hat, o.omega_hat, iq, tc, tp, n, EOL_PB_GET_LEAD_S(w),
                                   EOL_PB_GET_IQC_LIMIT(w), mo.active, sm);
+            c_comp = OPS_COST();
         }
+        OPS_WORST(F_EST, c_est, c.row);
+        OPS_WORST(F_MECH, c_mech, c.row);
+        OPS_WORST(F_COMP, c_comp, c.row);
+        OPS_WORST(F_TICK, c_est + c_mech + c_comp, c.row);
         if ((unsigned long)o.status != strtoul(c.f[i_st], NULL, 10)) fail(r, &c, "status", strtoul(c.f[i_st], NULL, 10), (unsigned long)o.status);
         if ((unsigned long)o.learn != strtoul(c.f[i_le], NULL, 10)) fail(r, &c, "learn", strtoul(c.f[i_le], NULL, 10), (unsigned long)o.learn);
         if ((unsigned long)mo.active != strtoul(c.f[i_ac], NULL, 10)) fail(r, &c, "active", strtoul(c.f[i_ac], NULL, 10), (unsigned long)mo.active);
         if ((unsigned long)mo.r != strtoul(c.f[i_r], NULL, 10)) fail(r, &c, "r", strtoul(c.f[i_r], NULL, 10), (unsigned long)mo.r);
         if ((unsigned long)mo.events != strtoul(c.f[i_ev], NULL, 10)) fail(r, &c, "events", strtoul(c.f[i_ev], NULL, 10), (unsigned long)mo.events);
-        if (f32_bits(mo.score) != hex_u32(c.f[i_sc])) fail(r, &c, "score", hex_u32(c.f[i_sc]), f32_bits(mo.score));
-        if (f32_bits(mo.margin) != hex_u32(c.f[i_mg])) fail(r, &c, "margin", hex_u32(c.f[i_mg]), f32_bits(mo.margin));
-        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+        chk_f32(r, &c, "score", hex_u32(c.f[i_sc]), mo.score);
+        chk_f32(r, &c, "margin", hex_u32(c.f[i_mg]), mo.margin);
+        chk_f32(r, &c, "i_qc", hex_u32(c.f[i_out]), y);
     }
     csv_close(&c);
     return rc < 0 ? -1 : 0;
@@ -778,7 +999,7 @@ static int check_mech_compensator(const char *dir, const char *file, result_t *r
         iq = hex_f32(c.f[i_iq]);
         sm = eol_mech_sum(&m, (int32_t)strtol(c.f[i_r], NULL, 10), (int32_t)strtol(c.f[i_q], NULL, 10), th, om, iq);
         y = eol_comp_iqc_mech(th, om, iq, tc, tp, n, EOL_PB_GET_LEAD_S(w), EOL_PB_GET_IQC_LIMIT(w), 1, sm);
-        if (f32_bits(y) != hex_u32(c.f[i_out])) fail(r, &c, "i_qc", hex_u32(c.f[i_out]), f32_bits(y));
+        chk_f32(r, &c, "i_qc", hex_u32(c.f[i_out]), y);
     }
     csv_close(&c);
     return rc < 0 ? -1 : 0;
@@ -820,12 +1041,25 @@ int main(int argc, char **argv)
     const char *p;
     const char *key = "\"name\": \"";
     int files = 0, bad = 0;
+    FILE *diff = NULL;
+    static result_t r;
 
-    if (argc != 2) {
-        fprintf(stderr, "usage: %s GOLDEN_DIR\n", argv[0]);
+    if (argc != 2 && argc != 3) {
+        fprintf(stderr, "usage: %s GOLDEN_DIR [DIFF_CSV]\n", argv[0]);
         return 2;
     }
     dir = argv[1];
+#ifdef EOL_COUNT_OPS
+    ops_weights();
+#endif
+    if (argc == 3) {
+        diff = fopen(argv[2], "w");
+        if (diff == NULL) {
+            fprintf(stderr, "%s: cannot write\n", argv[2]);
+            return 2;
+        }
+        fprintf(diff, "file,row,column,expected,got,ulp,bound,class\n");
+    }
     snprintf(path, sizeof path, "%s/manifest.json", dir);
     fp = fopen(path, "r");
     if (fp == NULL) {
@@ -842,7 +1076,6 @@ int main(int argc, char **argv)
         const char *end;
         size_t k, nlen;
         const checker_t *chk = NULL;
-        result_t r = {0, 0};
         int rc;
         p += strlen(key);
         end = strchr(p, '"');
@@ -853,6 +1086,11 @@ int main(int argc, char **argv)
         nlen = (size_t)(end - p);
         memcpy(file, p, nlen);
         file[nlen] = '\0';
+        memset(&r, 0, sizeof r);
+        r.file = file;
+        r.diff = diff;
+        r.last_bad = r.last_differ = -1;
+        read_classes(&r, end, strstr(end, key));
         for (k = 0; k < sizeof CHECKERS / sizeof CHECKERS[0]; ++k) {
             if (strncmp(file, CHECKERS[k].prefix, strlen(CHECKERS[k].prefix)) == 0) {
                 chk = &CHECKERS[k];
@@ -868,19 +1106,20 @@ int main(int argc, char **argv)
         rc = chk->fn(dir, file, &r);
         if (rc != 0) {
             fprintf(stderr, "%s: ERROR: cannot check\n", file);
+            if (diff != NULL) fclose(diff);
             return 2;
         }
-        if (r.rows == 0 || r.failures != 0) {
-            printf("%s: FAIL: %ld of %ld rows differ\n", file, r.failures, r.rows);
-            bad++;
-        } else {
-            printf("%s: %ld rows ok\n", file, r.rows);
-        }
+        report(&r);
+#ifdef EOL_COUNT_OPS
+        ops_report(file);
+#endif
+        if (r.rows == 0 || r.rows_bad != 0) bad++;
     }
     if (files == 0) {
         fprintf(stderr, "%s: lists no files\n", path);
         return 2;
     }
+    if (diff != NULL) fclose(diff);
     printf("%s: %d files, %d failed\n", bad ? "FAIL" : "PASS", files, bad);
     return bad ? 1 : 0;
 }

@@ -27,7 +27,7 @@ from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.model import legendre_rows
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
-from eol_cal.firmware.mech_params import ID_MARGIN, ID_MIN_SCORE, ORDERS
+from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
@@ -158,8 +158,8 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     return tuple(out)
 
 
-def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, threshold: float = ID_MARGIN,
-             min_score: float = ID_MIN_SCORE) -> MechResult:
+def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, threshold: float = SWITCH_MARGIN,
+             min_score: float = SWITCH_MIN_SCORE) -> MechResult:
     """The mechanical result of one motor (fingerprint, margin, orders, the block's switch).
 
     Parameters

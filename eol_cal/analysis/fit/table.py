@@ -264,9 +264,27 @@ def _hall_angle(res: MotorResult, source: str) -> tuple[float, ...]:
     return values
 
 
-def created_unix(doc: dict[str, Any]) -> int | None:
-    """The result's ``created`` time as Unix seconds, or None when absent/unreadable."""
-    try:
-        return int(dt.datetime.fromisoformat(doc["created"]).timestamp())
-    except (KeyError, TypeError, ValueError):
+def created_unix(doc: dict[str, Any], source: str | None = None) -> int | None:
+    """The result's ``created`` time as Unix seconds (the block's ``calibrated_at``, u32), or None
+    when absent.
+
+    Raises
+    ------
+    InputError
+        ``created`` is there but not an ISO 8601 instant with its UTC offset, or one a block
+        cannot carry (before 1970 or after 2106): ``"yesterday"`` was taken as "now".
+    """
+    if doc.get("created") is None:
         return None
+    text = doc["created"]
+    try:
+        when = dt.datetime.fromisoformat(text) if isinstance(text, str) else None
+    except ValueError:
+        when = None
+    if when is None or when.utcoffset() is None:
+        raise InputError(source, "created", f"{str(text)[:60]!r}: expected an ISO 8601 instant with its UTC offset "
+                                            "(2026-11-24T00:23:36+00:00)")
+    seconds = int(when.timestamp())
+    if not 0 <= seconds < 2**32:
+        raise InputError(source, "created", f"{text!r}: outside what a block's calibrated_at carries (1970 .. 2106)")
+    return seconds

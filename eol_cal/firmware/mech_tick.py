@@ -1,0 +1,136 @@
+"""The identifier's two halves (contract revision 1.2, ``firmware_params/MECH.md`` "Per tick" and
+"Background"): :func:`mech_tick`, what the 20 kHz interrupt runs, constant work (collect the pitch
+sample, apply a finished evaluation or mark check, start the next); :func:`mech_background`, one
+bounded slice of the evaluation or of the revolution mark's check, what the background loop runs.
+
+The evaluation works on frozen data: while it runs the tick takes no pitch sample, and it uses the
+grid offset ``G`` of the tick that started it; only the estimator's learned edge errors are read
+when its first slice runs. Its result is applied by the first tick after its last slice. The
+reference (golden vectors, the plant) runs one background slice after every tick
+(:func:`mech_step`); here the whole evaluation is computed at its first slice and held for the
+others, which gives the C port's slice-by-slice result bit for bit (the later slices read only
+frozen data).
+"""
+
+from __future__ import annotations
+
+# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
+# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
+# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
+
+import numpy as np
+
+from eol_cal.arrays import Array, ArrayModule
+from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
+from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
+from eol_cal.firmware.mech import (
+    CNT_MAX, SLICE_EDGES, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
+    MechConsts, MechOut, MechState, MechTables, _evaluate, _set_add, f32_, mean_c_of, n_slices,
+)
+from eol_cal.firmware.mech_params import FP_FORWARD
+
+
+def n_clear_slices(mc: MechConsts) -> int:
+    """Background slices that clear the samples after a withdrawal (16 entries a slice)."""
+    return -(-2 * mc.N // SLICE_EDGES)
+
+
+def _withdrawn(ms: MechState, N: int, xp: ArrayModule) -> MechState:
+    """``ms`` after a withdrawal: nothing identified, accumulated or running (score and margin kept);
+    the background clears the samples (``clr``), the tick takes none until it has."""
+    z = I32(0) * ms.n_new
+    return ms._replace(acc=xp.zeros_like(ms.acc), cnt=xp.zeros_like(ms.cnt), n_new=z, cand=I32(-1) + z, active=z,
+                       miss=xp.zeros_like(ms.miss) + I32(N), busy=z, mk=z, clr=z + I32(1))
+
+
+def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
+              ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """The interrupt's part of a tick, after the estimator's (MECH.md, "Per tick"): constant work.
+
+    ``es`` is the estimator's state after this tick, ``eo`` its outputs, ``ps`` its pitch sample.
+    """
+    i32 = xp.int32
+    N, L = mc.N, n_slices(mc)
+    enabled = tb.enabled != 0
+    # 1. collect (not while an evaluation reads the samples)
+    take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0) & (ms.clr == 0)
+    first = take & (xp.take(ms.cnt, ps.index) == 0)
+    acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
+    cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
+    miss = _set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
+    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
+    fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
+    # 2. a finished evaluation, a finished mark check
+    done = ms.busy == I32(L + 1)
+    ok = ms.ev_ok != 0
+    passed = done & ok
+    confirm = passed & (ms.active == 0) & (ms.cand == ms.ev_r)
+    eval_bad = done & (ms.active != 0) & (~ok | (ms.ev_r != ms.r))
+    frac_bad = (ms.mk == 2) & (ms.active != 0) & (ms.mk_bad != 0)
+    reset = fault | eval_bad | frac_bad
+    kept = ms._replace(
+        acc=acc, cnt=cnt, miss=miss, n_new=n_new,
+        active=xp.where(confirm, I32(1), ms.active), r=xp.where(confirm & ~reset, ms.ev_r, ms.r),
+        cand=xp.where(done, xp.where(ok, ms.ev_r, I32(-1)), ms.cand),
+        score=xp.where(done, ms.ev_score, ms.score), margin=xp.where(done, ms.ev_margin, ms.margin),
+        busy=xp.where(done, I32(0), ms.busy), mk=xp.where(ms.mk == 2, I32(0), ms.mk))
+    gone = _withdrawn(kept, N, xp)
+    new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
+    # 3. start an evaluation when a revolution of fresh samples is in
+    d = i32(es.dir_last < 0)
+    has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
+    due = (enabled & ~reset & (es.anchored != 0) & (new.n_new >= I32(N)) & has_dir
+           & (xp.take(new.miss, d) == 0) & (new.busy == 0) & (new.clr == 0))
+    # 4. ask for the revolution mark's check: an A edge at the firmware's pulse 0
+    mark = enabled & (new.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0) & (new.mk == 0)
+    new = new._replace(busy=xp.where(due, I32(1), new.busy), ev_d=xp.where(due, d, new.ev_d),
+                       ev_G=xp.where(due, es.G, new.ev_G), n_new=xp.where(due, I32(0), new.n_new),
+                       mk=xp.where(mark, I32(1), new.mk), mk_d=xp.where(mark, d, new.mk_d),
+                       mk_G=xp.where(mark, es.G, new.mk_G))
+    events = (i32(done) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
+              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad & ~fault) * I32(EV_RESET_FRACTION)
+              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
+    return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
+
+
+def background_heavy(ms: MechState) -> Array:
+    """Whether this background call computes something (an evaluation's first slice, a mark check)."""
+    return ((ms.busy == 1) | (ms.mk == 1)) & (ms.clr == 0)
+
+
+def mech_background(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
+                    xp: ArrayModule = np) -> MechState:
+    """One background slice (MECH.md, "Background"): the running evaluation's next slice, else the
+    revolution mark's check when one was asked. ``es`` is the estimator's state now."""
+    L = n_slices(mc)
+    clearing = ms.clr != 0
+    running = (ms.busy >= 1) & (ms.busy <= I32(L)) & ~clearing
+    do_mark = (ms.mk == 1) & ~running & ~clearing
+    if xp is np and not ((ms.busy == 1 and not clearing) or do_mark):
+        return mech_background_idle(mc, ms, xp)
+    ok, r, score, margin = _evaluate(mc, tb, ms, es.c_tab, ms.ev_G, ms.ev_d, xp)
+    first = (ms.busy == 1) & ~clearing
+    e_now = wrap_pm(((ms.mk_G + mean_c_of(mc, es.c_tab, ms.mk_d, xp)) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
+    return mech_background_idle(mc, ms, xp)._replace(
+        busy=xp.where(running, ms.busy + I32(1), ms.busy),
+        ev_ok=xp.where(first, xp.int32(ok), ms.ev_ok), ev_r=xp.where(first, r, ms.ev_r),
+        ev_score=xp.where(first, score, ms.ev_score), ev_margin=xp.where(first, margin, ms.ev_margin),
+        mk=xp.where(do_mark, I32(2), ms.mk),
+        mk_bad=xp.where(do_mark, xp.int32(xp.abs(e_now) > tb.id_frac_tol), ms.mk_bad))
+
+
+def mech_background_idle(mc: MechConsts, ms: MechState, xp: ArrayModule = np) -> MechState:
+    """:func:`mech_background` when :func:`background_heavy` is false: a later slice of a running
+    evaluation (its result is already held) or nothing, without the arithmetic."""
+    clearing = ms.clr != 0
+    running = (ms.busy >= 1) & (ms.busy <= I32(n_slices(mc))) & ~clearing
+    clr = xp.where(clearing, xp.where(ms.clr >= I32(n_clear_slices(mc)), I32(0), ms.clr + I32(1)), ms.clr)
+    return ms._replace(busy=xp.where(running, ms.busy + I32(1), ms.busy), clr=clr)
+
+
+def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
+              ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+    """One tick of the identifier after the estimator's, then one background slice: the schedule the
+    golden vectors and the plant assume (MECH.md, "Background")."""
+    ms, mo = mech_tick(mc, tb, ms, es, eo, ps, xp)
+    return mech_background(mc, tb, ms, es, xp), mo
