@@ -23,6 +23,8 @@ def golden(out_dir: str | None, check_dir: str | None) -> None:
 
     if (out_dir is None) == (check_dir is None):
         raise InputError(None, "--out/--check", "give exactly one of --out DIR or --check [DIR]")
+    if check_dir is not None:
+        _readable_set(check_dir)  # at once: the vector sets take a minute to compute
     sets = vector_sets()
     if out_dir is not None:
         doc = write_golden(out_dir, sets)
@@ -40,3 +42,18 @@ def golden(out_dir: str | None, check_dir: str | None) -> None:
 
 
 COMMANDS = [golden]
+
+
+def _readable_set(check_dir: str) -> None:
+    """Refuse (exit 2) a --check directory that is missing or holds no readable manifest."""
+    from pathlib import Path
+
+    from eol_cal.errors import InputError
+    from eol_cal.inputs import read_text
+
+    where = Path(check_dir)
+    if not where.is_dir():
+        hint = " (the default is relative to the project's root: run there or give --check DIR)" if \
+            check_dir == _DEFAULT_DIR else ""
+        raise InputError(check_dir, "--check", f"no such directory{hint}")
+    read_text(where / "manifest.json")  # a missing, special or unreadable manifest is refused naming it
