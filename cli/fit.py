@@ -180,6 +180,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         )
     (err_console if as_json else console).print(table)
     for r in records:
+        for left in r.get("captures_left_out", []):
+            err_console.print(f"{r['serial']}: capture {left['source']} left out of the fit: {left['reason']}")
         for reason in r["reasons"]:
             err_console.print(f"{r['serial']}: {reason}")
     if as_json:

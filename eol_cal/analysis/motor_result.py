@@ -95,6 +95,9 @@ class MotorResult:
     mech : MechResult or None
         The mechanical orders and the encoder's fingerprint (contract revision 1.2,
         :class:`MechResult`); None for results without them.
+    left_out : tuple of (str, str), or None
+        Each capture window that gave the fit no segment: its source and why (None: a result
+        older than the field).
     """
 
     serial: str
@@ -113,6 +116,7 @@ class MotorResult:
     segments: tuple[dict[str, Any], ...]
     sources: tuple[str, ...]
     mech: MechResult | None = None
+    left_out: tuple[tuple[str, str], ...] | None = None
 
     @property
     def usable(self) -> bool:
@@ -138,6 +142,8 @@ class MotorResult:
         out["operating_point"] = {"speed_rpm": self.operating_point.speed_rpm, "i_qo_a": self.operating_point.i_qo_a}
         out["segments"] = [dict(s) for s in self.segments]
         out["sources"] = list(self.sources)
+        if self.left_out is not None:
+            out["captures_left_out"] = [{"source": src, "reason": why} for src, why in self.left_out]
         if self.mech is not None:
             out["mech"] = self.mech.to_json()
         return out
@@ -190,6 +196,7 @@ class MotorResult:
                                            r.number(op, "i_qo_a", None, "operating_point.")),
             segments=tuple(r.obj(s, f"segments[{i}]") for i, s in enumerate(r.list(obj, "segments"))),
             sources=tuple(r.string_list(obj, "sources")), mech=mech,
+            left_out=None if "captures_left_out" not in obj else r.left_out(obj),
         )
 
 
@@ -230,6 +237,14 @@ class _Reader:
         if not all(isinstance(v, str) for v in value):
             raise self.error(key, "expected a list of strings")
         return value
+
+    def left_out(self, obj: Mapping[str, Any]) -> tuple[tuple[str, str], ...]:
+        out = []
+        for i, entry in enumerate(self.list(obj, "captures_left_out")):
+            e = self.obj(entry, f"captures_left_out[{i}]")
+            sub = _Reader(self.source, f"{self.where}captures_left_out[{i}].")
+            out.append((sub.string(e, "source"), sub.string(e, "reason")))
+        return tuple(out)
 
     def integer(self, obj: Mapping[str, Any], key: str) -> int:
         value = self.need(obj, key)

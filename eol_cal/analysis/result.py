@@ -109,6 +109,7 @@ def motor_record(
     hall_angle: dict[str, Any] | None = None,
     frame_estimator: str | None = None,
     mech: Any = None,
+    left_out: list[tuple[str, str]] | None = None,
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
@@ -118,7 +119,8 @@ def motor_record(
     the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal);
     ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names);
     ``mech`` the mechanical result (:class:`eol_cal.analysis.motor_result.MechResult`, contract
-    revision 1.2), written only with a usable fit.
+    revision 1.2), written only with a usable fit; ``left_out`` the captures that gave no segment,
+    each with its reason.
     """
     status, reasons = judge(fit, spec, limits)
     six = fit.harmonics[6]
@@ -165,6 +167,7 @@ def motor_record(
         metrics=metrics, fit=fit_stats, model=model, hall_angle=hall_angle, poles=poles, encoder_ppr=encoder_ppr,
         operating_point=OperatingPoint(op["speed_rpm"], op["i_qo_a"]), segments=tuple(segments), sources=tuple(sources),
         mech=mech if status == STATUS_OK else None,
+        left_out=None if left_out is None else tuple(left_out),
     ).to_json()
 
 
@@ -202,6 +205,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
         frame_estimator=options_label(mi.frame_options) if mi.frame == "firmware" else None,
+        left_out=mi.left_out,
     )
 
 

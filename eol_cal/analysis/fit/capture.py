@@ -64,10 +64,55 @@ class MotorInput:
     mechanics: BenchMechanics | None = None
     hall: HallAngles | None = None
     frame_options: int = 0
+    #: (source, reason) of each capture window that gave the fit no segment
+    left_out: list[tuple[str, str]] = field(default_factory=list)
 
     @property
     def sources(self) -> list[str]:
         return [c.source for c in self.captures]
+
+
+@dataclass(frozen=True)
+class SteadyRun:
+    """One steady run of a capture (one load point, speed and direction) and what settling leaves.
+
+    ``start``, ``stop``: the sample range of the revolutions kept after settling (empty when none
+    is); ``kept``: how many whole electrical revolutions that is; ``revs``: the run's revolutions
+    before settling; ``rev_s``: one revolution's duration (s)."""
+
+    start: int
+    stop: int
+    kept: int
+    revs: int
+    rev_s: float
+
+
+def steady_runs_of(
+    t: np.ndarray,
+    theta_r: np.ndarray,
+    omega_r: np.ndarray,
+    i_qo: np.ndarray,
+    *,
+    settle_s: float = 0.1,
+    speed_tol: float = 0.02,
+    iq_tol_a: float = 0.5,
+    iq_tol_rel: float = 0.02,
+) -> list[SteadyRun]:
+    """Every steady run of whole electrical revolutions, with the revolutions settling leaves
+    (arguments as :func:`capture_segments`)."""
+    out: list[SteadyRun] = []
+    for a, b in direction_pieces(omega_r):
+        bounds = revolution_bounds(theta_r[a:b])
+        if len(bounds) < 2:
+            continue
+        tt = t[a:b]
+        for run in steady_runs(tt, bounds, i_qo[a:b], speed_tol, iq_tol_a, iq_tol_rel):
+            t0 = tt[bounds[run[0]]]
+            kept = [k for k in run if tt[bounds[k]] - t0 >= settle_s - 1e-12]
+            rev_s = float(tt[bounds[run[-1] + 1]] - t0) / len(run)
+            lo, hi = (a + int(bounds[kept[0]]), a + int(bounds[kept[-1] + 1])) if kept else (a, a)
+            out.append(SteadyRun(lo, hi, len(kept), len(run), rev_s))
+    return out
 
 
 def capture_segments(
@@ -106,18 +151,29 @@ def capture_segments(
     list of (start, stop)
         Half-open sample ranges.
     """
-    out: list[tuple[int, int]] = []
-    for a, b in direction_pieces(omega_r):
-        bounds = revolution_bounds(theta_r[a:b])
-        if len(bounds) < 2:
-            continue
-        tt = t[a:b]
-        for run in steady_runs(tt, bounds, i_qo[a:b], speed_tol, iq_tol_a, iq_tol_rel):
-            t0 = tt[bounds[run[0]]]
-            kept = [k for k in run if tt[bounds[k]] - t0 >= settle_s - 1e-12]
-            if len(kept) >= min_revs:
-                out.append((a + int(bounds[kept[0]]), a + int(bounds[kept[-1] + 1])))
-    return out
+    runs = steady_runs_of(t, theta_r, omega_r, i_qo, settle_s=settle_s, speed_tol=speed_tol, iq_tol_a=iq_tol_a,
+                          iq_tol_rel=iq_tol_rel)
+    return [(r.start, r.stop) for r in runs if r.kept >= max(min_revs, 1)]
+
+
+def left_out_reason(t: np.ndarray, theta_r: np.ndarray, omega_r: np.ndarray, i_qo: np.ndarray, pole_pairs: int, *,
+                    settle_s: float = 0.1, min_revs: int = 1) -> str:
+    """Why a capture gives the fit no segment (:func:`capture_segments` found none), in words
+    that name its real cause: no rotation, no steady run, or too short for settling plus
+    ``min_revs`` whole electrical revolutions at its speed."""
+    runs = steady_runs_of(t, theta_r, omega_r, i_qo, settle_s=settle_s)
+    if not direction_pieces(omega_r):
+        return "the shaft does not turn (speed below 5 % of its peak throughout)"
+    if not runs:
+        span = float(abs(theta_r[-1] - theta_r[0])) / (2 * math.pi)
+        what = "too short: less than" if span < 1.0 else "no steady run:"
+        return (f"{what} one whole electrical revolution at constant speed, direction and iq_ref "
+                f"({span:.2f} revolutions in {float(t[-1] - t[0]):.3g} s)")
+    best = max(runs, key=lambda r: (r.kept, r.revs))
+    rpm = 60.0 / (best.rev_s * pole_pairs)
+    return (f"too short: its longest steady run ({rpm:.4g} rpm) holds {best.revs} whole electrical revolution(s) of "
+            f"{best.rev_s:.3g} s, {best.kept} after the {settle_s:g} s settling, fewer than the {min_revs} a segment "
+            f"needs (capture at least {settle_s + (min_revs + 1) * best.rev_s:.3g} s at this speed)")
 
 
 def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
@@ -262,15 +318,26 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
         raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
     P = poles.pop()
     thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
-    for ci, c in enumerate(caps):
+    left_out: list[tuple[str, str]] = []
+    used: list[Capture] = []
+    for c in caps:
         if not c.has("torque"):
             raise InputError(c.source, "torque", "missing channel, needed for the fit")
         if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
             raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-        ang = prepared.angle_of(c)
+        try:
+            ang = prepared.angle_of(c)
+        except InputError as exc:  # its angle cannot be reconstructed (too short, no hall state seen...)
+            left_out.append((c.source, f"no angle: {exc.reason}"))
+            continue
+        ci = len(used)
+        used.append(c)
         angles.append(ang)
         i_qo = np.asarray(c.iq_ref(), dtype=float)
         ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
+        if not ranges:
+            left_out.append((c.source, left_out_reason(c.t, ang.theta_r, ang.omega_r, i_qo, P // 2, settle_s=settle_s,
+                                                       min_revs=min_revs)))
         for a, b in ranges:
             th = ang.theta_r[a:b]
             tt = c.t[a:b]
@@ -289,8 +356,10 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
             ", ".join(c.source for c in caps),
             "segments",
             f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
-            f"{settle_s} s settling (constant speed, direction and iq_ref)",
+            f"{settle_s} s settling (constant speed, direction and iq_ref): "
+            + "; ".join(f"{src}: {why}" for src, why in left_out),
         )
+    caps = used
     if hall_angle == "measured":
         hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
     else:
@@ -299,7 +368,7 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
     response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
     seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
     return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
-                      hall=hall)
+                      hall=hall, left_out=left_out)
 
 
 def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int],

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -170,7 +170,8 @@ def path_gain(seg: SteadySegments, spec: FitSpec) -> np.ndarray:
     return np.asarray(seg.path_response(freq), dtype=complex).reshape(freq.shape)
 
 
-def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None) -> None:
+def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None,
+                       left_out: Sequence[tuple[str, str]] = ()) -> None:
     """Refuse a request the data cannot answer (InputError naming what is missing).
 
     Parameters
@@ -181,9 +182,13 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
         The request.
     source : str, optional
         File(s) named in the error.
+    left_out : sequence of (str, str)
+        Captures that gave no segment and why: a refusal names them, since they are often its
+        real cause (a speed or a load point that is missing because its captures were too short).
     """
+    why_left = "".join(f"; {src} left out: {why}" for src, why in left_out)
     if seg.n_segments == 0:
-        raise InputError(source, "segments", "no usable segment (constant load, speed and direction) found")
+        raise InputError(source, "segments", "no usable segment (constant load, speed and direction) found" + why_left)
     if spec.harmonics[:1] != (6,) or any(h % 6 or h <= 0 for h in spec.harmonics):
         raise InputError(source, "harmonics", f"harmonics must start with 6 and be multiples of 6, got {spec.harmonics}")
     if not (spec.fit_c or spec.fit_k):
@@ -192,23 +197,25 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
     scale = max(float(i_abs.max()), 1e-9)
     loads = np.unique(np.round(seg.i_qo / (0.05 * scale)))
     if spec.fit_k and float(i_abs.max()) < 1e-6:
-        raise InputError(source, "iq_ref", "k6 needs a load: every segment has i_qo = 0")
+        raise InputError(source, "iq_ref", "k6 needs a load: every segment has i_qo = 0" + why_left)
     if spec.fit_c and spec.fit_k and len(loads) < 2:
         raise InputError(
             source,
             "iq_ref",
             f"c6 and k6 are not identifiable from a single load point (i_qo = {seg.i_qo[0]:.4g} A in all "
-            "segments): capture at two or more load points, or fit one of them only (c6 or k6 switched off)",
+            "segments): capture at two or more load points, or fit one of them only (c6 or k6 switched off)" + why_left,
         )
     if spec.fit_delay:
         w = seg.omega_e
         spread = float(w.max() - w.min())
         if spread < 0.1 * max(float(np.abs(w).max()), 1e-9):
+            rpm = sorted({round(float(x) / seg.pole_pairs * 60.0 / (2 * math.pi), 1) for x in w})
             raise InputError(
                 source,
                 "speed",
                 "the transducer delay is not identifiable from a single speed (it shifts the phase in "
-                "proportion to speed): capture at two speeds or in both directions, or give the transducer delay (s)",
+                f"proportion to speed; the segments are all at {', '.join(f'{r:g}' for r in rpm)} rpm): capture at two "
+                "speeds or in both directions, or give the transducer delay (s)" + why_left,
             )
 
 
