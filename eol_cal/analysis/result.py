@@ -110,6 +110,7 @@ def motor_record(
     frame_estimator: str | None = None,
     mech: Any = None,
     left_out: list[tuple[str, str]] | None = None,
+    angle_correction: str = "none",
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
@@ -120,7 +121,8 @@ def motor_record(
     ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names);
     ``mech`` the mechanical result (:class:`eol_cal.analysis.motor_result.MechResult`, contract
     revision 1.2), written only with a usable fit; ``left_out`` the captures that gave no segment,
-    each with its reason.
+    each with its reason; ``angle_correction`` how the fitted angle was corrected by the encoder's
+    fingerprint (:mod:`eol_cal.analysis.fit.fp_angle`), or why not.
     """
     status, reasons = judge(fit, spec, limits)
     six = fit.harmonics[6]
@@ -155,6 +157,8 @@ def motor_record(
         "transducer": spec.transducer,
         "drift_degree": spec.drift_degree,
         "mech_order1": spec.mech_order1,
+        "mech_orders": spec.mech_orders if spec.mech_order1 else 0,
+        "angle_correction": angle_correction,
         "angle_frame": frame,
         "frame_offset_deg": math.degrees(frame_offset_rad),
         "bench": bench if bench is not None else "rigid",
@@ -205,7 +209,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
         frame_estimator=options_label(mi.frame_options) if mi.frame == "firmware" else None,
-        left_out=mi.left_out,
+        left_out=mi.left_out, angle_correction=mi.angle_correction,
     )
 
 

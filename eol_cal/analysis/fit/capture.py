@@ -20,6 +20,7 @@ import numpy as np
 from eol_cal.analysis.angle import capture_angle
 from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
+from eol_cal.analysis.fit.fp_angle import measure_fingerprint
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
@@ -29,6 +30,7 @@ from eol_cal.motor import MotorParams, load_motor
 
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult
+    from eol_cal.analysis.fingerprint import Fingerprint, WindowEdges
 
 
 @dataclass
@@ -66,6 +68,11 @@ class MotorInput:
     frame_options: int = 0
     #: (source, reason) of each capture window that gave the fit no segment
     left_out: list[tuple[str, str]] = field(default_factory=list)
+    #: each window's edges and the fingerprint (:func:`eol_cal.analysis.fit.fp_angle.measure_fingerprint`)
+    prints: list[WindowEdges | None] | None = None
+    fingerprint: Fingerprint | None = None
+    #: how the segments' angle was corrected by the fingerprint, or why not
+    angle_correction: str = "none: not measured"
 
     @property
     def sources(self) -> list[str]:
@@ -380,7 +387,8 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
     ``estimator_options``: per motor, the options (contract flags bits 2-5) its ECU ran. A motor
     whose captures lack ``enc_b``, or whose estimator never anchored on a segment sample, keeps
     the offline frame (and says why). ``prepared``: where the captures' parts come from (default
-    computed here).
+    computed here). Then each motor's fingerprint is measured and its segments' angle corrected
+    by it (:func:`eol_cal.analysis.fit.fp_angle.measure_fingerprint`).
     """
     prepared = prepared or PreparedWindows()
     jobs, owner = [], []
@@ -405,3 +413,4 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
             mi.frame_options = options
         else:
             mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
+        measure_fingerprint(mi)

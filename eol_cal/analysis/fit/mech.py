@@ -24,6 +24,7 @@ import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
+from eol_cal.analysis.fit.fp_angle import window_prints
 from eol_cal.analysis.fit.model import legendre_rows
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
@@ -35,47 +36,6 @@ if TYPE_CHECKING:
 
 #: z of a two-sided 95 % interval
 _Z95 = 1.959963984540054
-
-
-#: a steady segment's stretch for the fingerprint extends while the speed stays within this
-#: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
-#: segments of eol-default settle slowly after their ramp)
-EXTEND_TOL = 0.1
-
-
-def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
-    """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
-    fit, extended both ways while the direction is the same and the speed within
-    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
-    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
-    out: list[tuple[int, int]] = []
-    for k, info in enumerate(mi.info):
-        if mi.capture_of_segment[k] != ci:
-            continue
-        ws = float(np.median(w[info.start:info.stop]))
-        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
-        before = np.flatnonzero(bad[:info.start])
-        after = np.flatnonzero(bad[info.stop:])
-        a = int(before[-1]) + 1 if len(before) else 0
-        b = info.stop + int(after[0]) if len(after) else len(w)
-        if out and a <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
-
-
-def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
-    """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
-    out: list[fpr.WindowEdges | None] = []
-    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
-        ranges = fingerprint_ranges(mi, ci)
-        if not ranges or not cap.has("enc_b"):
-            out.append(None)
-            continue
-        theta_fw = np.asarray(ang.theta_r, dtype=float) + mi.frame_offset_rad
-        out.append(fpr.window_edges(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
-    return out
 
 
 def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
@@ -174,10 +134,15 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     """
     N = mi.encoder_ppr
     reasons: list[str] = []
-    prints: list[fpr.WindowEdges | None] = window_prints(mi) if mi.frame == "firmware" else [None] * len(mi.captures)
+    prints: list[fpr.WindowEdges | None] = [None] * len(mi.captures)
+    fp = None
     if mi.frame != "firmware":
         reasons.append("no firmware frame (enc_b missing or the estimator never anchored): no fingerprint")
-    fp = fpr.merge_windows(prints, mi.poles, N)
+    elif mi.prints is not None:  # measured with the inputs (measure_firmware_frames)
+        prints, fp = mi.prints, mi.fingerprint
+    else:
+        prints = window_prints(mi)
+        fp = fpr.merge_windows(prints, mi.poles, N)
     if fp is None:
         if not reasons:
             reasons.append("no capture window holds a revolution and a half of steady edges: no fingerprint")

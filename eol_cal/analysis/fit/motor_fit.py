@@ -80,7 +80,7 @@ def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
     if amp == 0.0:
         return Estimate(0.0, float("inf"), 0.0, float("inf"))
     g_amp = np.array([a, b]) / amp
-    g_ph = np.array([-b, a]) / amp**2
+    g_ph = g_amp[::-1] * np.array([-1.0, 1.0]) / amp  # (-b, a) / amp^2 without overflowing amp^2
     var_amp = float(g_amp @ cov2 @ g_amp)
     var_ph = float(g_ph @ cov2 @ g_ph)
     return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), float(wrap_pi(math.atan2(b, a))), Z95 * math.sqrt(max(var_ph, 0.0)))

@@ -1,0 +1,127 @@
+"""The encoder's fingerprint measured before the ripple fit, and the fit's angle corrected by it.
+
+The offline angle (:mod:`eol_cal.analysis.angle`) runs through every quadrature edge at its
+nominal angle, so it carries the encoder's pitch errors: each edge fires where its magnet pole
+actually is, ``nominal + error``. Fitted on that angle, the 6th harmonic is modulated by the
+errors (sidebands the segments' finite length leaks back into k6). The fingerprint
+(:mod:`eol_cal.analysis.fingerprint`) measures the A edges' errors from the edge times alone,
+so before the fit every sample of an identified window gets ``theta + error`` at its position
+between edges: the fit then works on the rotor's own angle, in the same frame (the block's,
+layout 2) in which the mechanical orders are reported.
+
+What cannot be corrected: the errors' mechanical orders 0..2 (the fingerprint cannot tell them
+from the motion, :mod:`eol_cal.analysis.fingerprint`), and B's edges are taken to carry the
+error of the A edge of the same wheel transition a quarter pitch before (B reads the same wheel:
+``eol_cal.firmware.kinematics``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from eol_cal.analysis import fingerprint as fpr
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.fit.capture import MotorInput
+
+#: a steady segment's stretch for the fingerprint extends while the speed stays within this
+#: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
+#: segments of eol-default settle slowly after their ramp)
+EXTEND_TOL = 0.1
+
+
+def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
+    """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
+    fit, extended both ways while the direction is the same and the speed within
+    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
+    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
+    out: list[tuple[int, int]] = []
+    for k, info in enumerate(mi.info):
+        if mi.capture_of_segment[k] != ci:
+            continue
+        ws = float(np.median(w[info.start:info.stop]))
+        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        before = np.flatnonzero(bad[:info.start])
+        after = np.flatnonzero(bad[info.stop:])
+        a = int(before[-1]) + 1 if len(before) else 0
+        b = info.stop + int(after[0]) if len(after) else len(w)
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
+    """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
+    out: list[fpr.WindowEdges | None] = []
+    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
+        ranges = fingerprint_ranges(mi, ci)
+        if not ranges or not cap.has("enc_b"):
+            out.append(None)
+            continue
+        theta_fw = np.asarray(ang.theta_r, dtype=float) + mi.frame_offset_rad
+        out.append(fpr.window_edges(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
+    return out
+
+
+def boundary_errors(fp: np.ndarray, N: int) -> np.ndarray:
+    """The error of every quadrature boundary ``k`` of the frame (4N,), rad electrical, from the
+    fingerprint's A edges: ``4m+1`` (A rising forward) and ``4m+2`` (B, the same transition a
+    quarter pitch later) carry ``fp[2m]``, ``4m+3`` and ``4m+4`` carry ``fp[2m+1]``."""
+    f = np.asarray(fp, dtype=float).reshape(N, 2)
+    out = np.empty((N, 4))
+    out[:, 1] = out[:, 2] = f[:, 0]
+    out[:, 3] = f[:, 1]
+    out[:, 0] = np.roll(f[:, 1], 1)  # boundary 4m is 4(m-1)+4
+    return out.reshape(-1)
+
+
+def angle_correction(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, fp: np.ndarray, poles: int,
+                     N: int) -> np.ndarray:
+    """What to add to the offline angle (rad electrical) at samples with window counts ``q``, the
+    window's offset ``r`` into the frame, the firmware-frame angle ``theta_fw`` (rad): the
+    boundary errors (:func:`boundary_errors`) interpolated linearly at each sample's position
+    between its boundaries."""
+    M = 4 * N
+    quarter = poles * math.pi / N / 4.0
+    k = np.asarray(q, dtype=np.int64) + 4 * int(r)
+    Ek = grid_phase + k * quarter
+    x = k + np.remainder(np.asarray(theta_fw, dtype=float) - Ek + math.pi, 2 * math.pi) / quarter - math.pi / quarter
+    err = boundary_errors(fp, N)
+    return np.interp(np.mod(x, M), np.arange(M + 1), np.append(err, err[0]))
+
+
+def measure_fingerprint(mi: MotorInput) -> None:
+    """Measure the motor's fingerprint (set ``mi.prints``, ``mi.fingerprint``) and correct the
+    angle of every segment in a window it placed (``mi.segments.theta``; ``mi.angle_correction``
+    says what was done, or why not). Needs the firmware frame (:func:`measure_firmware_frames`)."""
+    if mi.frame != "firmware":
+        mi.angle_correction = "none: no firmware frame, no fingerprint"
+        return
+    prints = window_prints(mi)
+    fp = fpr.merge_windows(prints, mi.poles, mi.encoder_ppr)
+    mi.prints, mi.fingerprint = prints, fp
+    if fp is None:
+        mi.angle_correction = "none: no window holds a revolution and a half of steady edges"
+        return
+    if fp.dirs != 3:
+        # one half only: the other's boundaries would be corrected by zeros, half of each pitch wrong
+        mi.angle_correction = "none: the fingerprint holds one edge direction only"
+        return
+    seg = mi.segments
+    n = 0
+    for s, info in enumerate(mi.info):
+        ci = mi.capture_of_segment[s]
+        edges, offset = prints[ci], fp.offsets[ci]
+        if edges is None or offset is None:
+            continue
+        theta = np.asarray(seg.theta[s], dtype=float)
+        corr = angle_correction(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
+                                fp.fp, mi.poles, mi.encoder_ppr)
+        seg.theta[s] = theta + corr
+        n += 1
+    mi.angle_correction = f"fingerprint ({n} of {seg.n_segments} segments)"
