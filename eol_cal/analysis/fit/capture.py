@@ -73,6 +73,8 @@ class MotorInput:
     fingerprint: Fingerprint | None = None
     #: how the segments' angle was corrected by the fingerprint, or why not
     angle_correction: str = "none: not measured"
+    #: per capture window its part of the firmware frame offset (sum of exp(i (firmware - offline)), samples)
+    frame_parts: list[tuple[complex, int] | None] | None = None
 
     @property
     def sources(self) -> list[str]:
@@ -401,13 +403,15 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
                 # _segment_motor, the only maker of a MotorInput, always sets its hall table
                 assert mi.hall is not None
                 jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
-                owner.append(k)
+                owner.append((k, ci))
     sums = prepared.frame_offsets(jobs)
     for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         fw_sum, fw_n = 0j, 0
-        for (s_, n_), o in zip(sums, owner, strict=True):
+        mi.frame_parts = [None] * len(mi.captures)
+        for (s_, n_), (o, ci) in zip(sums, owner, strict=True):
             if o == k:
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
+                mi.frame_parts[ci] = (s_, n_)
         if fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
             mi.frame_options = options

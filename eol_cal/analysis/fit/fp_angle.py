@@ -113,15 +113,53 @@ def measure_fingerprint(mi: MotorInput) -> None:
         mi.angle_correction = "none: the fingerprint holds one edge direction only"
         return
     seg = mi.segments
+    # each window's angle is anchored on its own halls: windows of one dyno capture sit a
+    # fraction of a degree apart, which moves the 6th's phase from window to window. The count
+    # puts them in one frame: a placed window's grid phase is the block's plus its offset in
+    # pulses plus that fraction (``scores[w][0]``), which is taken out of its angle here (and out
+    # of its part of the firmware frame offset, measured against the angle before)
+    frac = [0.0 if sc is None or r is None else float(sc[0]) for sc, r in zip(fp.scores or [None] * len(prints),
+                                                                             fp.offsets, strict=True)]
     n = 0
     for s, info in enumerate(mi.info):
         ci = mi.capture_of_segment[s]
         edges, offset = prints[ci], fp.offsets[ci]
         if edges is None or offset is None:
             continue
-        theta = np.asarray(seg.theta[s], dtype=float)
+        theta = np.asarray(seg.theta[s], dtype=float) - frac[ci]
         corr = angle_correction(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
                                 fp.fp, mi.poles, mi.encoder_ppr)
         seg.theta[s] = theta + corr
         n += 1
-    mi.angle_correction = f"fingerprint ({n} of {seg.n_segments} segments)"
+    if mi.frame_parts is not None and any(frac):
+        total = sum(part[0] * np.exp(1j * frac[ci]) for ci, part in enumerate(mi.frame_parts) if part is not None)
+        mi.frame_offset_rad = float(np.angle(total))
+    aligned = sum(1 for f, r in zip(frac, fp.offsets, strict=True) if r is not None)
+    mi.angle_correction = f"fingerprint ({n} of {seg.n_segments} segments, {aligned} window(s) in one frame)"
+
+
+def edge_residual_correlation(fp: fpr.Fingerprint, prints: list[fpr.WindowEdges | None], poles: int, N: int) -> float:
+    """Lag-one correlation of the fingerprint fit's edge residuals, pooled over every stretch of the
+    placed windows (each stretch: the edges' nominal angles plus their fitted errors, less the
+    stretch's polynomial motion). The fit's standard errors take the residuals as independent;
+    the rotor's speed ripple within a stretch, which the polynomial cannot follow, makes
+    neighbouring edges' residuals alike."""
+    quarter = poles * math.pi / N / 4.0
+    num = den = 0.0
+    for w, r in zip(prints, fp.offsets, strict=True):
+        if w is None or r is None:
+            continue
+        for times, k in w.stretches:
+            kk = k + 4 * r
+            idx = 2 * ((kk >> 2) % N) + ((kk >> 1) & 1)
+            halves_ok = np.isfinite(fp.sigma[idx])
+            if halves_ok.sum() < 2 * (fpr._POLY_DEGREE + 2):
+                continue
+            t, kk, idx = times[halves_ok], kk[halves_ok], idx[halves_ok]
+            x = (t - t[0]) / max(t[-1] - t[0], 1e-12) * 2.0 - 1.0
+            Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, fpr._POLY_DEGREE))
+            y = (kk - kk[0]) * quarter + fp.fp[idx]
+            res = y - Q @ (Q.T @ y)
+            num += float(res[1:] @ res[:-1])
+            den += float(res @ res)
+    return num / den if den > 0 else 0.0
