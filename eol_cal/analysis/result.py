@@ -118,6 +118,7 @@ def motor_record(
     solver_mode: str,
     frame: str = "offline",
     frame_offset_rad: float = 0.0,
+    frame_offset_sd_rad: float = 0.0,
     bench: dict[str, Any] | None = None,
     hall_angle: dict[str, Any] | None = None,
     frame_estimator: str | None = None,
@@ -176,6 +177,7 @@ def motor_record(
         "angle_correction": angle_correction,
         "angle_frame": frame,
         "frame_offset_deg": math.degrees(frame_offset_rad),
+        "frame_offset_sd_deg": math.degrees(frame_offset_sd_rad),
         "bench": bench if bench is not None else "rigid",
     }
     if frame_estimator is not None:
@@ -222,9 +224,10 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         mech = fit_mech(mi, fit, spec, tick_hz)
     check = check_model(mi.segments, fit, spec, limits.model_p)
     return motor_record(
-        mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source, mech=mech,
+        mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
+        mech=mech,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
-        solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
+        solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad, frame_offset_sd_rad=mi.frame_sd_rad,
         bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
         frame_estimator=options_label(mi.frame_options) if mi.frame == "firmware" else None,

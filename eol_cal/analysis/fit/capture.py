@@ -20,7 +20,7 @@ import numpy as np
 from eol_cal.analysis.angle import capture_angle
 from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
-from eol_cal.analysis.fit.fp_angle import measure_fingerprint
+from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
@@ -75,6 +75,10 @@ class MotorInput:
     angle_correction: str = "none: not measured"
     #: per capture window its part of the firmware frame offset (sum of exp(i (firmware - offline)), samples)
     frame_parts: list[tuple[complex, int] | None] | None = None
+    #: per capture window the fraction (rad electrical) taken out of its angle to put it in the block's frame
+    window_frac: list[float] | None = None
+    #: standard error of ``frame_offset_rad`` (rad electrical; :func:`eol_cal.analysis.fit.fp_angle.frame_sd`)
+    frame_sd_rad: float = 0.0
 
     @property
     def sources(self) -> list[str]:
@@ -418,3 +422,5 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
         else:
             mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
         measure_fingerprint(mi)
+        if mi.frame == "firmware":
+            mi.frame_sd_rad = frame_sd(mi)

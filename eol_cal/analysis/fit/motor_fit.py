@@ -61,16 +61,18 @@ class MotorFit:
     birge: float = 1.0
 
 
-def shift_frame(fit: MotorFit, offset_rad: float) -> MotorFit:
+def shift_frame(fit: MotorFit, offset_rad: float, offset_sd_rad: float = 0.0) -> MotorFit:
     """The same fit with its phases in a frame ``theta' = theta + offset_rad`` (rad, electrical).
 
     ``sin(h theta + phi) = sin(h theta' - h offset + phi)``: harmonic h's phases move by
-    ``-h * offset_rad``; amplitudes and intervals are unchanged.
+    ``-h * offset_rad``; amplitudes are unchanged. ``offset_sd_rad``: the standard error of the
+    offset, added to each phase's interval (``h`` times it, in quadrature).
     """
-    harmonics = {
-        h: {part: dataclasses.replace(e, phase=float(wrap_pi(e.phase - h * offset_rad))) for part, e in parts.items()}
-        for h, parts in fit.harmonics.items()
-    }
+    def moved(h: int, e: Estimate) -> Estimate:
+        ci = math.hypot(e.phase_ci95, Z95 * h * offset_sd_rad) if offset_sd_rad else e.phase_ci95
+        return dataclasses.replace(e, phase=float(wrap_pi(e.phase - h * offset_rad)), phase_ci95=float(ci))
+
+    harmonics = {h: {part: moved(h, e) for part, e in parts.items()} for h, parts in fit.harmonics.items()}
     return dataclasses.replace(fit, harmonics=harmonics)
 
 
