@@ -118,14 +118,14 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         g = np.asarray(out["g"], dtype=float)
         r = comp.z[:, q:] - np.einsum("sij,sj->si", comp.R[:, q:, q:], g)
         r = r[valid]
-        parts = int(spec.fit_c) + int(spec.fit_k)
+        n_parts = int(spec.fit_c) + int(spec.fit_k)
         scale = np.ones(len(p))
         ratios = []
         for ih in range(nh):
-            dof_h = float(valid.sum()) * 2 - 2 * parts - n_tau / nh
+            dof_h = float(valid.sum()) * 2 - 2 * n_parts - n_tau / nh
             ratio = float((r[:, 2 * ih: 2 * ih + 2] ** 2).sum()) / dof_h / s2 if dof_h >= 1 and s2 > 0 else birge
             ratios.append(max(1.0, ratio))
-            for ip in range(parts):
+            for ip in range(n_parts):
                 i = n_tau + (ip * nh + ih) * 2
                 scale[i: i + 2] = math.sqrt(ratios[-1])
         if n_tau:
