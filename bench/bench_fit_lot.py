@@ -75,29 +75,6 @@ def _pp(capture) -> tuple[float, float]:
     return rp.filtered_pct, rp.no_mech1_pct
 
 
-def _current_k6(run, spec) -> complex:
-    """The load-proportional 6th harmonic (N*m/A phasor, plant's true angle frame) of ``kt * i_q``.
-
-    ``run`` is a noise-free run: its true q current ripples with the ECU's angle error, and that
-    ripple times kt is torque at the shaft like the motor's own. Fitted with the fit's own model
-    (same segments and harmonics; no transducer, no bench: i_q is the plant's own state).
-    """
-    import dataclasses
-
-    from eol_cal.analysis.fit import fit_many
-    from eol_cal.analysis.fit.capture import motor_inputs
-
-    (mi,) = motor_inputs([run.capture], frame="offline", hall_angle="nominal")
-    kt = float(run.capture.metadata["kt"])
-    iq = np.asarray(run.capture["iq"], dtype=float)
-    seg = dataclasses.replace(mi.segments, torque=[kt * iq[s.start:s.stop] for s in mi.info], path_response=None)
-    (f,) = fit_many([seg], dataclasses.replace(spec, delay_s=1e-9), mode="loop")
-    k = f.harmonics[6]["k"]
-    # the offline frame sits d_rec off the true angle: phase in the true frame = phase + 6 d_rec
-    d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
-    return k.value * np.exp(1j * (k.phase + 6 * d_rec))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--motors", type=int, default=100)
@@ -120,6 +97,8 @@ def main() -> None:
                     help="the bench the plant's motors run on (e.g. resonant-250: a torsion mode at 250 Hz, damping 0.1)")
     ap.add_argument("--station-seed", type=int,
                     help="run the lot on the default spread's [bench] draw for this station instead of --plant-bench")
+    ap.add_argument("--spread", default="default",
+                    help="production spread of the motors (mech23: mechanical orders 2-3 of 2-4 mN*m, issue 34)")
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
@@ -133,7 +112,9 @@ def main() -> None:
     from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
     from eol_cal.plant.ecu import true_block
     from eol_cal.plant.simulate import simulate
+    from eol_cal.plant.spread import load_spread
     from eol_cal.plant.variation import draw_motor
+    from bench_coverage import current_ripple, motor_rows
 
     from eol_cal.analysis.fit.table import mech_off_reasons, uncompensated_block
     from eol_cal.analysis.motor_result import MotorResult
@@ -156,12 +137,13 @@ def main() -> None:
         plant_base = load_spread("default").draw_bench(args.station_seed, paper())
     print(f"plant bench {plant_base.mechanics.name} ({plant_base.mechanics.source}), fit bench {bench.name} "
           f"({bench.source})")
+    spread = load_spread(args.spread)
     rows = []
     t_sim = t_fit = 0.0
     t_start = time.perf_counter()
     for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
         seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
-        plants = [draw_motor(s, base=plant_base) for s in seeds]
+        plants = [draw_motor(s, base=plant_base, spread=spread) for s in seeds]
         for opt in choices:
             label = options_label(opt)
             # the ECU runs what its active block selects: measured under the uncompensated block with
@@ -198,7 +180,7 @@ def main() -> None:
                 six = f_fw.harmonics[6]
                 k, c = six["k"], six["c"]
                 c_err = abs(c.value * np.exp(1j * c.phase) - p.c6 * np.exp(1j * p.phase_c6))
-                k_eff = abs(p.k6 * np.exp(1j * p.phase_k6) + (_current_k6(cl, spec) if cl is not None else 0.0))
+                k_eff = abs(p.k6 * np.exp(1j * p.phase_k6) + (current_ripple(cl, spec)["k"] if cl is not None else 0.0))
                 rows.append({
                     "seed": p.serial, "estimator": label, "status": rec["status"],
                     "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
@@ -227,6 +209,10 @@ def main() -> None:
                     "mech1_nm": next((o["c"]["value"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
                     "mech1_ci_nm": next((o["c"]["ci95"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
                 })
+                # the mechanical orders against the plant's, in the block's frame (bench_coverage.py)
+                for q in motor_rows(p, run, mi, rec, None):
+                    if q["quantity"].startswith(("mech", "phase_mech")):
+                        rows[-1][f"_{q['quantity']}"] = (q["value"], q["ci95"], q["truth"], q["err"])
                 truths.append(true_block(p, flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | opt))
             t0 = time.perf_counter()
             ok = [i for i, b in enumerate(blocks) if b is not None]
@@ -309,7 +295,8 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
     print(f"\n{n} motors (plant seeds {args.first_seed}..{args.first_seed + n - 1}), eol-default profile, "
           f"ECU estimator (block flags bits 2-5, calibration and operating point): {label}; "
           f"usable fits {usable}/{n}")
-    for name, unit, limit in (("k6_err_pct", "%", 2.0), ("phase_k6_err_deg", "deg", 2.0),
+    for name, unit, limit in (("k6_err_pct", "%", 0.5), ("k6_eff_err_pct", "%", 0.5), ("k6_err_pct", "%", 2.0),
+                              ("phase_k6_err_deg", "deg", 2.0),
                               ("phase_k6_err_rec_deg", "deg", 2.0), ("phase_k6_err_fw_deg", "deg", 2.0),
                               ("frame_rec_deg", "deg", None), ("frame_fw_deg", "deg", None),
                               ("c6_err_nm", "N*m", 0.002), ("c6_err_fw_nm", "N*m", 0.002),
@@ -361,6 +348,25 @@ def _mech_summary(rows: list) -> None:
     if np.isfinite(first).any():
         print(f"ECU identified within the pre-roll (compensating from the first recorded sample): "
               f"{int(np.nansum(first))}/{int(np.isfinite(first).sum())}; active over the capture: min {np.nanmin(frac):.3f}")
+    for h in (1, 2, 3):
+        got = [r[f"_mech{h}"] for r in rows if f"_mech{h}" in r]
+        if not got:
+            continue
+        present = [g for g in got if g[2] > 0]
+        absent = [g for g in got if g[2] == 0]
+        line = f"mechanical order {h}:"
+        if present:
+            rel = np.array([abs(g[3]) / g[2] for g in present])
+            ph = np.degrees([abs(r[f"_phase_mech{h}"][3]) for r in rows if f"_phase_mech{h}" in r])
+            line += (f" |amplitude error| median {100 * np.median(rel):.1f} %, max {100 * rel.max():.1f} %, within 10 %: "
+                     f"{int((rel <= 0.10).sum())}/{len(rel)}; |phase error| median {np.median(ph):.2f} deg, max "
+                     f"{ph.max():.2f} deg, within 3 deg: {int((ph <= 3.0).sum())}/{len(ph)}")
+        if absent:
+            amp = np.array([g[0] for g in absent]) * 1e3
+            zero = sum(g[0] <= g[1] for g in absent)
+            line += (f" absent: reported {np.median(amp):.3f} mN*m median (max {amp.max():.3f}), interval includes 0: "
+                     f"{zero}/{len(absent)}")
+        print(line)
     c1 = np.array([r.get("mech1_nm", np.nan) for r in rows], float)
     u1 = np.array([r.get("unb1_nm", np.nan) for r in rows], float)
     if np.isfinite(c1).any() and np.isfinite(u1).any():

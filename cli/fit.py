@@ -82,6 +82,8 @@ def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple
               help="Widest 95 % interval of phase_k6 (deg).")
 @click.option("--max-ci-c6", default=0.002, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % cogging phasor error (N*m).")
+@click.option("--min-model-p", default=0.001, show_default=True, type=click.FloatRange(0.0, 1.0),
+              help="Least p-value of the model check (k6 and c6 per speed band agree); below: status model_mismatch.")
 @click.option("--max-steps", default=64, show_default=True, type=click.IntRange(1), help="Solver step limit.")
 @click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True,
               help="Gauss-Newton or Levenberg-Marquardt.")
@@ -97,7 +99,7 @@ def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple
 @handle_errors
 @io_paths(inputs=("captures", "map_file", "bench_name"), outputs=("output",), output_dirs=("plot_dir",))
 def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay_s, transducer, bench_name, frame,
-            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, max_steps, solver, batch,
+            hall_angle, drift_degree, settle_s, max_ci_k6, max_ci_phase, max_ci_c6, min_model_p, max_steps, solver, batch,
             allow_untraced, allow_compensated, estimator, as_json):
     """Fit each motor's 6th-harmonic ripple (k6, c6, phases, delay) from its captures.
 
@@ -130,7 +132,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         max_steps=max_steps,
         solver=solver,
     )
-    limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6)
+    limits = CiLimits(k6_rel=max_ci_k6, phase_k6_deg=max_ci_phase, c6_nm=max_ci_c6, model_p=min_model_p)
     mechanics = mechanics_or_rigid(bench_name)
     caps = [read_capture(p, map_file) for p in captures]
     traces = [trace_of(cap.metadata, path) for path, cap in zip(captures, caps, strict=True)]
@@ -180,6 +182,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
         )
     (err_console if as_json else console).print(table)
     for r in records:
+        for left in r.get("captures_left_out", []):
+            err_console.print(f"{r['serial']}: capture {left['source']} left out of the fit: {left['reason']}")
         for reason in r["reasons"]:
             err_console.print(f"{r['serial']}: {reason}")
     if as_json:

@@ -42,6 +42,7 @@ def test_short_segment_pins_mechanical_pair():
     spec = fit.FitSpec()
     R, z, floor, sst, ymean, n, n_nuis = fit.compress_segment(seg.theta[0], seg.t[0], seg.torque[0], seg.pole_pairs, spec)
     q = spec.n_nuis
-    # less than one mechanical revolution: the pair is pinned (unit diagonal, no coupling)
-    np.testing.assert_array_equal(np.diag(R)[q - 2 : q], [1.0, 1.0])
-    assert n_nuis == q - 2 and n == len(seg.theta[0])
+    # less than one mechanical revolution: the pairs are pinned (unit diagonal, no coupling)
+    nm = 2 * spec.n_mech
+    np.testing.assert_array_equal(np.diag(R)[q - nm : q], np.ones(nm))
+    assert n_nuis == q - nm and n == len(seg.theta[0])

@@ -133,7 +133,9 @@ def test_non_convergence_is_reported_never_as_a_result():
 
 def test_interval_wider_than_limit_is_not_a_result():
     seg, _ = synthetic_segments(np.random.default_rng(4), seg_s=0.05, noise_nm=0.2, loads_a=LOADS)
-    spec = FitSpec()
+    # one mechanical pair per segment: with three (the default) these 0.05 s segments at 0.2 N*m
+    # noise no longer pin the delay, and the test is about judging the intervals of a fit that converged
+    spec = FitSpec(mech_orders=1)
     f = fit_segments(seg, spec)
     assert f.converged
     assert judge(f, spec, CiLimits(k6_rel=1.0, phase_k6_deg=180.0, c6_nm=1.0))[0] == STATUS_OK

@@ -48,7 +48,8 @@ def test_voltage_limit_keeps_angle():
 
 
 def test_ripple_phasor_form_matches_contract_formula():
-    spec = paper().replace(c18=0.003, phase_c18=0.7, k12=2e-5, phase_k12=-1.0)
+    spec = paper().replace(c18=0.003, phase_c18=0.7, k12=2e-5, phase_k12=-1.0, unb2=0.003, phase_unb2=2.1,
+                           unb3=0.0025, phase_unb3=-0.4)
     p = to_params(spec, np.zeros(16), np.zeros(16), 0.0, 0.0)
     p = p._replace(**{k: np.float64(v) for k, v in ripple.coefficients(spec).items()})
     th_m = np.linspace(0.0, 2.0 * math.pi, 997)
@@ -59,7 +60,8 @@ def test_ripple_phasor_form_matches_contract_formula():
     for n in (6, 12, 18):
         want += getattr(spec, f"c{n}") * np.sin(n * th_r + getattr(spec, f"phase_c{n}"))
         want += getattr(spec, f"k{n}") * i_q * np.sin(n * th_r + getattr(spec, f"phase_k{n}"))
-    want += spec.unb1 * np.sin(th_m + spec.phase_unb1)
+    for h in (1, 2, 3):
+        want += getattr(spec, f"unb{h}") * np.sin(h * th_m + getattr(spec, f"phase_unb{h}"))
     assert np.max(np.abs(got - want)) < 1e-12
 
 

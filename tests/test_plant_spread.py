@@ -49,6 +49,16 @@ def test_the_default_spread_draws_the_hard_coded_motors():
         assert draw_motor(seed) == _hard_coded(seed), seed
 
 
+def test_mech23_adds_orders_2_and_3_to_the_default_motors():
+    # issue 34: the orders are drawn after the sensors, so every earlier draw of a seed is kept
+    spread = load_spread("mech23")
+    for seed in (1, 2, 77):
+        a, b = draw_motor(seed), draw_motor(seed, spread=spread)
+        assert b.replace(unb2=0.0, phase_unb2=0.0, unb3=0.0, phase_unb3=0.0) == a
+        assert 0.002 <= b.unb2 <= 0.004 and 0.002 <= b.unb3 <= 0.004
+        assert a.unb2 == a.unb3 == 0.0
+
+
 def test_a_spread_file_varies_the_motors(tmp_path: Path):
     # the encoder supplier's pitch error doubled: only the pulse placement changes, twice as wide
     doubled = tmp_path / "pitch2x.toml"

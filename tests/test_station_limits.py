@@ -183,7 +183,7 @@ def test_one_table_judges_each_stage_and_keeps_every_check():
 
     lim = parse_limits(GOOD, "x.toml")["A"]
     fit = judge(MOTOR, lim, "fit")
-    assert [c.key for c in fit] == [row.key for row in LIMITS if row.stage == "fit"]
+    assert [c.key for c in fit] == [row.key for row in LIMITS if row.stage == "fit" and lim.value(row.key) is not None]
     # the ripple stage not reached: its checks are kept, not judged, in the table's order
     checks = all_checks({"fit": fit}, lim)
     assert [c.key for c in checks] == [row.key for row in LIMITS if lim.value(row.key) is not None]
@@ -214,3 +214,21 @@ def test_a_limit_is_one_row_of_the_table():
     finally:
         L.LIMITS = old
         del L.BY_KEY[row.key]
+
+
+def test_the_model_check_is_a_limit_and_the_fit_judges_it_when_off():
+    """Issue 34: a p-value of the speed bands' agreement under the limit fails with the key named;
+    left out of the file, the fit's own CiLimits keeps judging it (never a silent pass)."""
+    on = parse_limits(GOOD + "min_model_check_p = 0.01\n", "x.toml")["A"]
+    bad = Measured(**{**MOTOR.__dict__, "model_check_p": 1e-5, "model_check_note": "bands differ"})
+    from eol_cal.station.limits import failed, judge
+
+    reasons = failed(judge(bad, on, "fit"))
+    assert reasons == ["agreement of the speed bands (model check p-value) = 1e-05 below min_model_check_p = 0.01"]
+    assert failed(judge(Measured(**{**MOTOR.__dict__, "model_check_p": 0.3}), on, "fit")) == []
+    # not checked (one speed band): NaN never passes a limit that is set, and says why
+    (why,) = failed(judge(Measured(**{**MOTOR.__dict__, "model_check_note": "one speed band"}), on, "fit"))
+    assert why == "model not checked: one speed band"
+    assert on.ci_limits().model_p == 0.01
+    off = parse_limits(GOOD, "x.toml")["A"]
+    assert off.ci_limits().model_p == 0.001

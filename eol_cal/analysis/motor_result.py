@@ -78,7 +78,7 @@ class MotorResult:
     Attributes
     ----------
     serial, status, reasons
-        Motor serial, ``"ok"`` / ``"not_converged"`` / ``"ci_too_wide"``, why not usable.
+        Motor serial, ``"ok"`` / ``"not_converged"`` / ``"ci_too_wide"`` / ``"model_mismatch"``, why not usable.
     estimates : FitEstimates or None
         None when the fit is not usable (the file holds ``null`` in every estimate field).
     kt, kt_source
@@ -95,6 +95,12 @@ class MotorResult:
     mech : MechResult or None
         The mechanical orders and the encoder's fingerprint (contract revision 1.2,
         :class:`MechResult`); None for results without them.
+    left_out : tuple of (str, str), or None
+        Each capture window that gave the fit no segment: its source and why (None: a result
+        older than the field).
+    model_check : dict or None
+        The speed bands' agreement (:class:`eol_cal.analysis.fit.model_check.ModelCheck` as JSON;
+        None: a result older than it).
     """
 
     serial: str
@@ -113,6 +119,8 @@ class MotorResult:
     segments: tuple[dict[str, Any], ...]
     sources: tuple[str, ...]
     mech: MechResult | None = None
+    left_out: tuple[tuple[str, str], ...] | None = None
+    model_check: dict[str, Any] | None = None
 
     @property
     def usable(self) -> bool:
@@ -138,6 +146,10 @@ class MotorResult:
         out["operating_point"] = {"speed_rpm": self.operating_point.speed_rpm, "i_qo_a": self.operating_point.i_qo_a}
         out["segments"] = [dict(s) for s in self.segments]
         out["sources"] = list(self.sources)
+        if self.model_check is not None:
+            out["model_check"] = self.model_check
+        if self.left_out is not None:
+            out["captures_left_out"] = [{"source": src, "reason": why} for src, why in self.left_out]
         if self.mech is not None:
             out["mech"] = self.mech.to_json()
         return out
@@ -190,6 +202,8 @@ class MotorResult:
                                            r.number(op, "i_qo_a", None, "operating_point.")),
             segments=tuple(r.obj(s, f"segments[{i}]") for i, s in enumerate(r.list(obj, "segments"))),
             sources=tuple(r.string_list(obj, "sources")), mech=mech,
+            left_out=None if "captures_left_out" not in obj else r.left_out(obj),
+            model_check=None if obj.get("model_check") is None else r.model_check(obj["model_check"]),
         )
 
 
@@ -230,6 +244,25 @@ class _Reader:
         if not all(isinstance(v, str) for v in value):
             raise self.error(key, "expected a list of strings")
         return value
+
+    def model_check(self, value: Any) -> dict[str, Any]:
+        m = self.obj(value, "model_check")
+        sub = _Reader(self.source, f"{self.where}model_check.")
+        status = sub.string(m, "status")
+        if status not in ("ok", "mismatch", "not checked"):
+            raise sub.error("status", f"{status!r} is not ok, mismatch or not checked")
+        sub.string(m, "note")
+        sub.number(m, "p_value", (0.0, 1.0), nullable=True)
+        sub.list(m, "bands")
+        return m
+
+    def left_out(self, obj: Mapping[str, Any]) -> tuple[tuple[str, str], ...]:
+        out = []
+        for i, entry in enumerate(self.list(obj, "captures_left_out")):
+            e = self.obj(entry, f"captures_left_out[{i}]")
+            sub = _Reader(self.source, f"{self.where}captures_left_out[{i}].")
+            out.append((sub.string(e, "source"), sub.string(e, "reason")))
+        return tuple(out)
 
     def integer(self, obj: Mapping[str, Any], key: str) -> int:
         value = self.need(obj, key)

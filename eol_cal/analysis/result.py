@@ -23,11 +23,13 @@ from eol_cal.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import MotorInput
+    from eol_cal.analysis.fit.model_check import ModelCheck
 
 SCHEMA = "eol-cal/fit-result/1"
 STATUS_OK = "ok"
 STATUS_NOT_CONVERGED = "not_converged"
 STATUS_CI_TOO_WIDE = "ci_too_wide"
+STATUS_MODEL_MISMATCH = "model_mismatch"
 
 
 @dataclass(frozen=True)
@@ -42,18 +44,25 @@ class CiLimits:
         ci95(phase_k6) (deg).
     c6_nm : float
         Cogging phasor error bound max(ci95(c6), c6 * ci95(phase_c6)) (N*m); used when c6 is fitted.
+    model_p : float
+        The least p-value of the speed bands' agreement (:mod:`eol_cal.analysis.fit.model_check`):
+        below it the data contradict the model and the motor's status is ``model_mismatch``.
     """
 
     k6_rel: float = 0.05
     phase_k6_deg: float = 3.0
     c6_nm: float = 0.002
+    model_p: float = 0.001
 
     def to_dict(self) -> dict[str, float]:
-        return {"k6_rel": self.k6_rel, "phase_k6_deg": self.phase_k6_deg, "c6_nm": self.c6_nm}
+        return {"k6_rel": self.k6_rel, "phase_k6_deg": self.phase_k6_deg, "c6_nm": self.c6_nm, "model_p": self.model_p}
 
 
-def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits) -> tuple[str, list[str]]:
-    """Status of a fit and the reasons it is not usable (empty when ``"ok"``)."""
+def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelCheck | None = None
+          ) -> tuple[str, list[str]]:
+    """Status of a fit and the reasons it is not usable (empty when ``"ok"``); ``model_check`` the
+    speed bands' agreement (:func:`eol_cal.analysis.fit.model_check.check_model`), a mismatch
+    below ``limits.model_p`` makes the status ``model_mismatch``."""
     if not fit.converged:
         return STATUS_NOT_CONVERGED, [f"solver did not converge in {fit.steps} steps (or produced non-finite values)"]
     reasons = []
@@ -69,7 +78,11 @@ def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits) -> tuple[str, list[str
         bound = max(c.ci95, c.value * c.phase_ci95)
         if not (bound <= limits.c6_nm):
             reasons.append(f"c6 phasor ci95 = {bound:.3g} N*m exceeds {limits.c6_nm:g} N*m")
-    return (STATUS_CI_TOO_WIDE, reasons) if reasons else (STATUS_OK, [])
+    if reasons:
+        return STATUS_CI_TOO_WIDE, reasons
+    if model_check is not None and model_check.status == "mismatch" and model_check.p_value < limits.model_p:
+        return STATUS_MODEL_MISMATCH, [model_check.note]
+    return STATUS_OK, []
 
 
 def _vc(value: float, ci95: float) -> ValueCi:
@@ -105,10 +118,14 @@ def motor_record(
     solver_mode: str,
     frame: str = "offline",
     frame_offset_rad: float = 0.0,
+    frame_offset_sd_rad: float = 0.0,
     bench: dict[str, Any] | None = None,
     hall_angle: dict[str, Any] | None = None,
     frame_estimator: str | None = None,
     mech: Any = None,
+    left_out: list[tuple[str, str]] | None = None,
+    angle_correction: str = "none",
+    model_check: ModelCheck | None = None,
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
@@ -118,9 +135,12 @@ def motor_record(
     the hall table the phases' frame was measured with (``HallAngles.to_dict``; None: nominal);
     ``frame_estimator`` the estimator options of the firmware frame (``paper``, ``best`` or names);
     ``mech`` the mechanical result (:class:`eol_cal.analysis.motor_result.MechResult`, contract
-    revision 1.2), written only with a usable fit.
+    revision 1.2), written only with a usable fit; ``left_out`` the captures that gave no segment,
+    each with its reason; ``angle_correction`` how the fitted angle was corrected by the encoder's
+    fingerprint (:mod:`eol_cal.analysis.fit.fp_angle`), or why not; ``model_check`` the speed
+    bands' agreement (None: not run).
     """
-    status, reasons = judge(fit, spec, limits)
+    status, reasons = judge(fit, spec, limits, model_check)
     six = fit.harmonics[6]
     estimates = None
     if status == STATUS_OK:
@@ -153,8 +173,11 @@ def motor_record(
         "transducer": spec.transducer,
         "drift_degree": spec.drift_degree,
         "mech_order1": spec.mech_order1,
+        "mech_orders": spec.mech_orders if spec.mech_order1 else 0,
+        "angle_correction": angle_correction,
         "angle_frame": frame,
         "frame_offset_deg": math.degrees(frame_offset_rad),
+        "frame_offset_sd_deg": math.degrees(frame_offset_sd_rad),
         "bench": bench if bench is not None else "rigid",
     }
     if frame_estimator is not None:
@@ -165,6 +188,8 @@ def motor_record(
         metrics=metrics, fit=fit_stats, model=model, hall_angle=hall_angle, poles=poles, encoder_ppr=encoder_ppr,
         operating_point=OperatingPoint(op["speed_rpm"], op["i_qo_a"]), segments=tuple(segments), sources=tuple(sources),
         mech=mech if status == STATUS_OK else None,
+        left_out=None if left_out is None else tuple(left_out),
+        model_check=None if model_check is None else model_check.to_json(),
     ).to_json()
 
 
@@ -190,18 +215,23 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
          "shaft_phase_6_deg": math.degrees(float(np.angle(g6[k])))}
         for k, i in enumerate(mi.info)
     ]
+    from eol_cal.analysis.fit.model_check import check_model
+
     mech = None
     if tick_hz is not None and fit.converged:
         from eol_cal.analysis.fit.mech import fit_mech
 
         mech = fit_mech(mi, fit, spec, tick_hz)
+    check = check_model(mi.segments, fit, spec, limits.model_p)
     return motor_record(
-        mi.serial, shift_frame(fit, mi.frame_offset_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source, mech=mech,
+        mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
+        mech=mech,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
-        solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad,
+        solver_mode=solver_mode, frame=mi.frame, frame_offset_rad=mi.frame_offset_rad, frame_offset_sd_rad=mi.frame_sd_rad,
         bench=None if mi.mechanics is None else dataclasses.asdict(mi.mechanics),
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
         frame_estimator=options_label(mi.frame_options) if mi.frame == "firmware" else None,
+        left_out=mi.left_out, angle_correction=mi.angle_correction, model_check=check,
     )
 
 

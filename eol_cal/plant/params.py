@@ -54,6 +54,9 @@ class PlantSpec:
         Higher multiples of 6, same meaning (N*m, rad, N*m/A, rad).
     unb1, phase_unb1 : float
         Mechanical order-1 unbalance torque (N*m) and phase (rad, mechanical).
+    unb2, phase_unb2, unb3, phase_unb3 : float
+        Mechanical orders 2 and 3 (N*m, rad mechanical): ``unb_h sin(h theta_m + phase_unb_h)``
+        (eccentricity, magnet and stator-segment tolerances).
     enc_edge_err_deg : tuple of float
         Placement error of each of the ``N_enc`` encoder pulses (mechanical degrees); empty = 0.
     grid_offset_deg : float
@@ -90,6 +93,10 @@ class PlantSpec:
     phase_k18: float = 0.0
     unb1: float = 0.0
     phase_unb1: float = 0.0
+    unb2: float = 0.0
+    phase_unb2: float = 0.0
+    unb3: float = 0.0
+    phase_unb3: float = 0.0
     enc_edge_err_deg: tuple[float, ...] = ()
     grid_offset_deg: float = 0.0
     hall_err_deg: tuple[float, ...] = (0.0,) * 6
@@ -111,7 +118,7 @@ class PlantSpec:
 
     def without_ripple(self) -> PlantSpec:
         """The same bench with every ripple source set to zero (for torque-balance checks)."""
-        zero = {n: 0.0 for n in ("c6", "k6", "c12", "k12", "c18", "k18", "unb1")}
+        zero = {n: 0.0 for n in ("c6", "k6", "c12", "k12", "c18", "k18", "unb1", "unb2", "unb3")}
         return self.replace(**zero)
 
     def ripple_harmonics(self) -> tuple[tuple[int, float, float, float, float], ...]:
@@ -169,6 +176,10 @@ class PlantParams(NamedTuple):
     c18k: np.ndarray
     s1u: np.ndarray
     c1u: np.ndarray
+    s2u: np.ndarray
+    c2u: np.ndarray
+    s3u: np.ndarray
+    c3u: np.ndarray
     # sensors (eol_cal.firmware.kinematics.SensorErrors fields)
     edge_error: np.ndarray    # (N_enc,) rad mechanical
     hall_offset: np.ndarray   # (3, 2) rad electrical

@@ -5,7 +5,8 @@ The electromagnetic torque the rotor sees is ``kt*i_q - ripple`` with
     ripple = c6*sin(6*theta_r + phase_c6) + k6*i_q*sin(6*theta_r + phase_k6)
            + c12*sin(12*theta_r + phase_c12) + k12*i_q*sin(12*theta_r + phase_k12)
            + c18*sin(18*theta_r + phase_c18) + k18*i_q*sin(18*theta_r + phase_k18)
-           + unb1*sin(theta_m + phase_unb1)
+           + unb1*sin(theta_m + phase_unb1) + unb2*sin(2*theta_m + phase_unb2)
+           + unb3*sin(3*theta_m + phase_unb3)
 
 so that the measured torque reads ``T_avg - c6 sin(6θ+φc) - k6 i_qo sin(6θ+φk) - ...`` exactly as
 the contract's ripple model (seed eq. 17 with phases and a cogging term). The load-proportional
@@ -27,6 +28,8 @@ from eol_cal.arrays import Array
 
 #: Ripple harmonics of the electrical angle (orders) in the coefficient layout.
 ORDERS = (6, 12, 18)
+#: Orders of the mechanical angle (load-independent: unbalance, eccentricity, ...).
+MECH_ORDERS = (1, 2, 3)
 
 
 class RippleTruth(Protocol):
@@ -74,6 +77,18 @@ class RippleTruth(Protocol):
     @property
     def phase_unb1(self) -> float: ...  # rad
 
+    @property
+    def unb2(self) -> float: ...  # N*m
+
+    @property
+    def phase_unb2(self) -> float: ...  # rad
+
+    @property
+    def unb3(self) -> float: ...  # N*m
+
+    @property
+    def phase_unb3(self) -> float: ...  # rad
+
 
 class RippleCoefficients(Protocol):
     """The sine/cosine coefficients of :func:`coefficients`, per tick (a plant's parameters hold them)."""
@@ -120,12 +135,25 @@ class RippleCoefficients(Protocol):
     @property
     def c1u(self) -> Array: ...  # N*m
 
+    @property
+    def s2u(self) -> Array: ...  # N*m
+
+    @property
+    def c2u(self) -> Array: ...  # N*m
+
+    @property
+    def s3u(self) -> Array: ...  # N*m
+
+    @property
+    def c3u(self) -> Array: ...  # N*m
+
 
 def coefficients(spec: RippleTruth) -> dict[str, float]:
     """Sine/cosine coefficients of every ripple term of a motor (N*m and N*m/A).
 
     Keys ``s6c, c6c`` (cogging: coefficient of sin and cos of 6*theta, N*m), ``s6k, c6k``
-    (per ampere of i_q, N*m/A), likewise for 12 and 18, and ``s1u, c1u`` for the unbalance.
+    (per ampere of i_q, N*m/A), likewise for 12 and 18, and ``s1u, c1u`` .. ``s3u, c3u`` for the
+    mechanical orders 1..3 (unbalance, eccentricity, ...).
     """
     out: dict[str, float] = {}
     for n in ORDERS:
@@ -133,7 +161,9 @@ def coefficients(spec: RippleTruth) -> dict[str, float]:
         k, pk = getattr(spec, f"k{n}"), getattr(spec, f"phase_k{n}")
         out[f"s{n}c"], out[f"c{n}c"] = c * math.cos(pc), c * math.sin(pc)
         out[f"s{n}k"], out[f"c{n}k"] = k * math.cos(pk), k * math.sin(pk)
-    out["s1u"], out["c1u"] = spec.unb1 * math.cos(spec.phase_unb1), spec.unb1 * math.sin(spec.phase_unb1)
+    for h in MECH_ORDERS:
+        u, pu = getattr(spec, f"unb{h}"), getattr(spec, f"phase_unb{h}")
+        out[f"s{h}u"], out[f"c{h}u"] = u * math.cos(pu), u * math.sin(pu)
     return out
 
 
@@ -155,7 +185,7 @@ def ripple_torque(cos_r: Array, sin_r: Array, cos_m: Array, sin_m: Array, i_q: A
     cos_r, sin_r : array
         Cosine and sine of the actual electrical angle theta_r.
     cos_m, sin_m : array
-        Cosine and sine of the actual mechanical angle theta_m (order-1 unbalance).
+        Cosine and sine of the actual mechanical angle theta_m (mechanical orders 1..3).
     i_q : array
         Actual q-axis current (A).
     p : RippleCoefficients
@@ -165,4 +195,7 @@ def ripple_torque(cos_r: Array, sin_r: Array, cos_m: Array, sin_m: Array, i_q: A
     total = (p.s6c + p.s6k * i_q) * s6 + (p.c6c + p.c6k * i_q) * c6
     total = total + (p.s12c + p.s12k * i_q) * s12 + (p.c12c + p.c12k * i_q) * c12
     total = total + (p.s18c + p.s18k * i_q) * s18 + (p.c18c + p.c18k * i_q) * c18
-    return total + p.s1u * sin_m + p.c1u * cos_m
+    c2m, s2m = cos_m * cos_m - sin_m * sin_m, 2.0 * sin_m * cos_m
+    c3m, s3m = c2m * cos_m - s2m * sin_m, s2m * cos_m + c2m * sin_m
+    total = total + p.s1u * sin_m + p.c1u * cos_m
+    return total + p.s2u * s2m + p.c2u * c2m + p.s3u * s3m + p.c3u * c3m

@@ -36,11 +36,17 @@ from eol_cal.plant.presets import paper
 
 TWO_PI = 2.0 * math.pi
 
-#: the parameters a spread may vary (PlantSpec fields), in the order they are drawn
-PARAMETERS = ("k6", "phase_k6", "c6", "phase_c6", "c12", "phase_c12", "k12", "phase_k12", "c18", "phase_c18",
-              "k18", "phase_k18", "unb1", "phase_unb1", "R_s_scale", "temp_degC")
+#: the parameters drawn before the sensors (PlantSpec fields), in the order they are drawn
+_FIRST = ("k6", "phase_k6", "c6", "phase_c6", "c12", "phase_c12", "k12", "phase_k12", "c18", "phase_c18",
+          "k18", "phase_k18", "unb1", "phase_unb1", "R_s_scale", "temp_degC")
+#: the parameters added since (issue 34: mechanical orders 2 and 3), drawn after the sensors so
+#: that a seed still draws the motor it drew before, these added to it
+_LATER = ("unb2", "phase_unb2", "unb3", "phase_unb3")
+#: the parameters a spread may vary (PlantSpec fields), in the order they are drawn (the sensors
+#: between ``_FIRST`` and ``_LATER``)
+PARAMETERS = _FIRST + _LATER
 #: parameters that are amplitudes (N*m, N*m/A): their draws may never be negative
-_AMPLITUDES = frozenset({"k6", "c6", "c12", "k12", "c18", "k18", "unb1"})
+_AMPLITUDES = frozenset({"k6", "c6", "c12", "k12", "c18", "k18", "unb1", "unb2", "unb3"})
 #: the range a parameter's draws must stay in (beyond: refused on load), where it has one
 _RANGES = {"R_s_scale": (0.5, 2.0), "temp_degC": (-40.0, 180.0)}
 #: each distribution's keys: required, optional
@@ -166,10 +172,12 @@ class Spread:
         """
         base = paper() if base is None else base
         rng = np.random.default_rng(seed)
-        values = {name: self.params[name].draw(rng) for name in PARAMETERS if name in self.params}
+        values = {name: self.params[name].draw(rng) for name in _FIRST if name in self.params}
         spec = base.replace(serial=serial if serial is not None else f"SIM-{seed:06d}", **values)
         err = draw_sensor_errors(rng, base.motor.N_enc, **self.sensors)
+        later = {name: self.params[name].draw(rng) for name in _LATER if name in self.params}
         return spec.replace(
+            **later,
             enc_edge_err_deg=tuple(float(v) for v in np.degrees(err.edge_error)),
             hall_err_deg=tuple(float(v) for v in np.degrees(np.asarray(err.hall_offset).ravel())),
             grid_offset_deg=float(np.degrees(err.grid_offset)),
@@ -224,10 +232,10 @@ def _dist(source: str, name: str, table: Any) -> Dist:
     return dist
 
 
-def _sensors(source: str, table: Any) -> dict[str, float]:
+def _sensors(source: str, table: Any, start: dict[str, float]) -> dict[str, float]:
     if not isinstance(table, dict):
         raise InputError(source, "sensors", "must be a table ([sensors])")
-    out = dict(SENSOR_KEYS)
+    out = dict(start)
     for key, value in table.items():
         if key not in SENSOR_KEYS:
             raise InputError(source, f"sensors.{key}", f"unknown sensor key; known: {', '.join(SENSOR_KEYS)}")
@@ -267,24 +275,31 @@ def parse_spread(data: dict[str, Any], source: str, default_name: str) -> Spread
     """A :class:`Spread` from a TOML document (a dict), every key checked (``InputError`` naming
     ``source``, the key and the reason)."""
     name, description = data.get("name", default_name), data.get("description", "")
-    for key, value in (("name", name), ("description", description)):
+    base = data.get("base")
+    for key, value in (("name", name), ("description", description), ("base", base or "")):
         if not isinstance(value, str):
             raise InputError(source, key, f"must be a string, got {value!r}")
     params: dict[str, Dist] = {}
     sensors = dict(SENSOR_KEYS)
     bench: dict[str, Dist] = {}
+    if base is not None:
+        # a built-in spread this one starts from (by name only: no chain of files to follow)
+        if base == default_name or Path(base).suffix:
+            raise InputError(source, "base", f"must name another built-in spread, got {base!r}")
+        start = _builtin(base)
+        params, sensors, bench = dict(start.params), dict(start.sensors), dict(start.bench)
     for key, value in data.items():
-        if key in ("name", "description"):
+        if key in ("name", "description", "base"):
             continue
         if key == "sensors":
-            sensors = _sensors(source, value)
+            sensors = _sensors(source, value, sensors)
         elif key == "bench":
             bench = _bench(source, value)
         elif key in PARAMETERS:
             params[key] = _dist(source, key, value)
         else:
             raise InputError(source, key, f"unknown spread parameter; known: {', '.join(PARAMETERS)}, sensors, bench, "
-                                          "name, description")
+                                          "name, description, base")
     if not params and "sensors" not in data and not bench:
         raise InputError(source, None, f"varies nothing: give at least one of {', '.join(PARAMETERS)}, [sensors] or [bench]")
     return Spread(name, source, params, sensors, description, bench)

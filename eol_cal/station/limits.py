@@ -105,6 +105,10 @@ LIMITS: tuple[Limit, ...] = (
     # p-p above then judges every order); this judges what the compensation left of order 1
     Limit("max_mech1_after_nm", "mech1_after_nm", "mechanical order 1 left compensated", "N*m", "max", "ripple",
           (0.0, 10.0), default=None),
+    # issue 34: the fit checks its own model (k6/c6 per speed band); the fit judges it with its own
+    # CiLimits.model_p (0.001) when a limits file leaves this out, so a mismatch is never a silent ok
+    Limit("min_model_check_p", "model_check_p", "agreement of the speed bands (model check p-value)", "1", "min", "fit",
+          (0.0, 1.0), default=None, ci="model_p", missing="model not checked: {model_check_note}"),
 )
 BY_KEY: dict[str, Limit] = {lim.key: lim for lim in LIMITS}
 #: the limit keys, in table order
@@ -177,7 +181,8 @@ class VariantLimits:
         """The interval limits as the fit's own :class:`~eol_cal.analysis.result.CiLimits`."""
         from eol_cal.analysis.result import CiLimits
 
-        return CiLimits(**{lim.ci: self.values[lim.key] for lim in LIMITS if lim.ci})
+        # a limit that is off keeps the fit's own default (the model check's p-value: judged all the same)
+        return CiLimits(**{lim.ci: v for lim in LIMITS if lim.ci and (v := self.values[lim.key]) is not None})
 
 
 def parse_limits(text: str, file: str) -> dict[str, VariantLimits]:
@@ -278,6 +283,11 @@ class Measured:
         ``pp_after_pct`` with the mechanical order 1 (rotor unbalance) taken out (%).
     mech1_after_nm : float
         Amplitude of the mechanical order 1 in the compensated capture (N*m).
+    model_check_p : float
+        The fit's model check: p-value of the speed bands' agreement (1; NaN: not checked,
+        ``model_check_note`` says why).
+    model_check_note : str
+        The model check's note.
     """
 
     k6: float = math.nan
@@ -292,6 +302,8 @@ class Measured:
     hall_source: str = "not measured"
     pp_after_no_mech1_pct: float = math.nan
     mech1_after_nm: float = math.nan
+    model_check_p: float = math.nan
+    model_check_note: str = "not in the record"
 
     @property
     def improvement_pct(self) -> float:
@@ -326,6 +338,7 @@ class Measured:
             ci_c6_nm=ci_c6, fit_r2=float(res.fit["r2"]), fit_rms_nm=float(res.fit["rms"]),
             hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
             hall_source=str(hall["source"]),
+            **_model_check_of(res.model_check),
         )
 
     def with_ripple(self, pp_before_pct: float, pp_after_pct: float, pp_after_no_mech1_pct: float,
@@ -333,6 +346,14 @@ class Measured:
         """These values and the ripple at the operating point (%, the order-1 amplitude N*m)."""
         return dataclasses.replace(self, pp_before_pct=pp_before_pct, pp_after_pct=pp_after_pct,
                                    pp_after_no_mech1_pct=pp_after_no_mech1_pct, mech1_after_nm=mech1_after_nm)
+
+
+def _model_check_of(check: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``model_check_p`` and ``model_check_note`` of a fit's ``model_check`` object."""
+    if check is None:
+        return {}
+    p = check.get("p_value")
+    return {"model_check_p": math.nan if p is None else float(p), "model_check_note": str(check.get("note", ""))}
 
 
 @dataclass(frozen=True)

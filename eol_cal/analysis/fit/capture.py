@@ -20,6 +20,7 @@ import numpy as np
 from eol_cal.analysis.angle import capture_angle
 from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
+from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
@@ -29,6 +30,7 @@ from eol_cal.motor import MotorParams, load_motor
 
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult
+    from eol_cal.analysis.fingerprint import Fingerprint, WindowEdges
 
 
 @dataclass
@@ -64,10 +66,66 @@ class MotorInput:
     mechanics: BenchMechanics | None = None
     hall: HallAngles | None = None
     frame_options: int = 0
+    #: (source, reason) of each capture window that gave the fit no segment
+    left_out: list[tuple[str, str]] = field(default_factory=list)
+    #: each window's edges and the fingerprint (:func:`eol_cal.analysis.fit.fp_angle.measure_fingerprint`)
+    prints: list[WindowEdges | None] | None = None
+    fingerprint: Fingerprint | None = None
+    #: how the segments' angle was corrected by the fingerprint, or why not
+    angle_correction: str = "none: not measured"
+    #: per capture window its part of the firmware frame offset (sum of exp(i (firmware - offline)), samples)
+    frame_parts: list[tuple[complex, int] | None] | None = None
+    #: per capture window the fraction (rad electrical) taken out of its angle to put it in the block's frame
+    window_frac: list[float] | None = None
+    #: standard error of ``frame_offset_rad`` (rad electrical; :func:`eol_cal.analysis.fit.fp_angle.frame_sd`)
+    frame_sd_rad: float = 0.0
 
     @property
     def sources(self) -> list[str]:
         return [c.source for c in self.captures]
+
+
+@dataclass(frozen=True)
+class SteadyRun:
+    """One steady run of a capture (one load point, speed and direction) and what settling leaves.
+
+    ``start``, ``stop``: the sample range of the revolutions kept after settling (empty when none
+    is); ``kept``: how many whole electrical revolutions that is; ``revs``: the run's revolutions
+    before settling; ``rev_s``: one revolution's duration (s)."""
+
+    start: int
+    stop: int
+    kept: int
+    revs: int
+    rev_s: float
+
+
+def steady_runs_of(
+    t: np.ndarray,
+    theta_r: np.ndarray,
+    omega_r: np.ndarray,
+    i_qo: np.ndarray,
+    *,
+    settle_s: float = 0.1,
+    speed_tol: float = 0.02,
+    iq_tol_a: float = 0.5,
+    iq_tol_rel: float = 0.02,
+) -> list[SteadyRun]:
+    """Every steady run of whole electrical revolutions, with the revolutions settling leaves
+    (arguments as :func:`capture_segments`)."""
+    out: list[SteadyRun] = []
+    for a, b in direction_pieces(omega_r):
+        bounds = revolution_bounds(theta_r[a:b])
+        if len(bounds) < 2:
+            continue
+        tt = t[a:b]
+        for run in steady_runs(tt, bounds, i_qo[a:b], speed_tol, iq_tol_a, iq_tol_rel):
+            t0 = tt[bounds[run[0]]]
+            kept = [k for k in run if tt[bounds[k]] - t0 >= settle_s - 1e-12]
+            rev_s = float(tt[bounds[run[-1] + 1]] - t0) / len(run)
+            lo, hi = (a + int(bounds[kept[0]]), a + int(bounds[kept[-1] + 1])) if kept else (a, a)
+            out.append(SteadyRun(lo, hi, len(kept), len(run), rev_s))
+    return out
 
 
 def capture_segments(
@@ -106,18 +164,29 @@ def capture_segments(
     list of (start, stop)
         Half-open sample ranges.
     """
-    out: list[tuple[int, int]] = []
-    for a, b in direction_pieces(omega_r):
-        bounds = revolution_bounds(theta_r[a:b])
-        if len(bounds) < 2:
-            continue
-        tt = t[a:b]
-        for run in steady_runs(tt, bounds, i_qo[a:b], speed_tol, iq_tol_a, iq_tol_rel):
-            t0 = tt[bounds[run[0]]]
-            kept = [k for k in run if tt[bounds[k]] - t0 >= settle_s - 1e-12]
-            if len(kept) >= min_revs:
-                out.append((a + int(bounds[kept[0]]), a + int(bounds[kept[-1] + 1])))
-    return out
+    runs = steady_runs_of(t, theta_r, omega_r, i_qo, settle_s=settle_s, speed_tol=speed_tol, iq_tol_a=iq_tol_a,
+                          iq_tol_rel=iq_tol_rel)
+    return [(r.start, r.stop) for r in runs if r.kept >= max(min_revs, 1)]
+
+
+def left_out_reason(t: np.ndarray, theta_r: np.ndarray, omega_r: np.ndarray, i_qo: np.ndarray, pole_pairs: int, *,
+                    settle_s: float = 0.1, min_revs: int = 1) -> str:
+    """Why a capture gives the fit no segment (:func:`capture_segments` found none), in words
+    that name its real cause: no rotation, no steady run, or too short for settling plus
+    ``min_revs`` whole electrical revolutions at its speed."""
+    runs = steady_runs_of(t, theta_r, omega_r, i_qo, settle_s=settle_s)
+    if not direction_pieces(omega_r):
+        return "the shaft does not turn (speed below 5 % of its peak throughout)"
+    if not runs:
+        span = float(abs(theta_r[-1] - theta_r[0])) / (2 * math.pi)
+        what = "too short: less than" if span < 1.0 else "no steady run:"
+        return (f"{what} one whole electrical revolution at constant speed, direction and iq_ref "
+                f"({span:.2f} revolutions in {float(t[-1] - t[0]):.3g} s)")
+    best = max(runs, key=lambda r: (r.kept, r.revs))
+    rpm = 60.0 / (best.rev_s * pole_pairs)
+    return (f"too short: its longest steady run ({rpm:.4g} rpm) holds {best.revs} whole electrical revolution(s) of "
+            f"{best.rev_s:.3g} s, {best.kept} after the {settle_s:g} s settling, fewer than the {min_revs} a segment "
+            f"needs (capture at least {settle_s + (min_revs + 1) * best.rev_s:.3g} s at this speed)")
 
 
 def window_metrics(capture: Capture, angle: AngleResult) -> dict[str, Any]:
@@ -262,15 +331,26 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
         raise InputError(", ".join(c.source for c in caps), "poles", f"captures of {serial} disagree on poles/encoder_ppr")
     P = poles.pop()
     thetas, ts, ys, iqs, omegas, labels, infos, cap_idx, angles = [], [], [], [], [], [], [], [], []
-    for ci, c in enumerate(caps):
+    left_out: list[tuple[str, str]] = []
+    used: list[Capture] = []
+    for c in caps:
         if not c.has("torque"):
             raise InputError(c.source, "torque", "missing channel, needed for the fit")
         if "iq_ref" not in c.channels and "iq_ref" not in c.metadata:
             raise InputError(c.source, "iq_ref", "missing channel or metadata, needed for the fit (the load point)")
-        ang = prepared.angle_of(c)
+        try:
+            ang = prepared.angle_of(c)
+        except InputError as exc:  # its angle cannot be reconstructed (too short, no hall state seen...)
+            left_out.append((c.source, f"no angle: {exc.reason}"))
+            continue
+        ci = len(used)
+        used.append(c)
         angles.append(ang)
         i_qo = np.asarray(c.iq_ref(), dtype=float)
         ranges = capture_segments(c.t, ang.theta_r, ang.omega_r, i_qo, settle_s=settle_s, min_revs=min_revs)
+        if not ranges:
+            left_out.append((c.source, left_out_reason(c.t, ang.theta_r, ang.omega_r, i_qo, P // 2, settle_s=settle_s,
+                                                       min_revs=min_revs)))
         for a, b in ranges:
             th = ang.theta_r[a:b]
             tt = c.t[a:b]
@@ -289,8 +369,10 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
             ", ".join(c.source for c in caps),
             "segments",
             f"motor {serial}: no steady segment of at least {min_revs} electrical revolution(s) after "
-            f"{settle_s} s settling (constant speed, direction and iq_ref)",
+            f"{settle_s} s settling (constant speed, direction and iq_ref): "
+            + "; ".join(f"{src}: {why}" for src, why in left_out),
         )
+    caps = used
     if hall_angle == "measured":
         hall = measure_hall_angles([a.hall_begins for a in angles], [a.hall_theta for a in angles])
     else:
@@ -299,7 +381,7 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
     response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
     seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
     return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
-                      hall=hall)
+                      hall=hall, left_out=left_out)
 
 
 def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int],
@@ -311,7 +393,8 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
     ``estimator_options``: per motor, the options (contract flags bits 2-5) its ECU ran. A motor
     whose captures lack ``enc_b``, or whose estimator never anchored on a segment sample, keeps
     the offline frame (and says why). ``prepared``: where the captures' parts come from (default
-    computed here).
+    computed here). Then each motor's fingerprint is measured and its segments' angle corrected
+    by it (:func:`eol_cal.analysis.fit.fp_angle.measure_fingerprint`).
     """
     prepared = prepared or PreparedWindows()
     jobs, owner = [], []
@@ -324,15 +407,20 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
                 # _segment_motor, the only maker of a MotorInput, always sets its hall table
                 assert mi.hall is not None
                 jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
-                owner.append(k)
+                owner.append((k, ci))
     sums = prepared.frame_offsets(jobs)
     for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         fw_sum, fw_n = 0j, 0
-        for (s_, n_), o in zip(sums, owner, strict=True):
+        mi.frame_parts = [None] * len(mi.captures)
+        for (s_, n_), (o, ci) in zip(sums, owner, strict=True):
             if o == k:
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
+                mi.frame_parts[ci] = (s_, n_)
         if fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
             mi.frame_options = options
         else:
             mi.frame = "offline (firmware frame needs enc_b and an anchored estimator)"
+        measure_fingerprint(mi)
+        if mi.frame == "firmware":
+            mi.frame_sd_rad = frame_sd(mi)

@@ -9,13 +9,12 @@ covariance is the same too.
 
 from __future__ import annotations
 
-import math
 import threading
 from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix_t, path_gain
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix_t, mech_span, path_gain
 
 
 @dataclass
@@ -85,7 +84,7 @@ def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_
     n = len(y)
     m = spec.n_cols
     ymean = float(y.mean())
-    mech = spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs
+    mech = mech_span(theta, pole_pairs)
     buf = _block_buffer(m + 1)
     # [X y]^T [X y] accumulated block by block: X^T X, X^T y and y^T y in one GEMM per block, on
     # the (n, m+1) Fortran view (numpy's ``A @ A.T`` dispatches to SYRK, which OpenBLAS runs 2x

@@ -24,6 +24,7 @@ import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
+from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
 from eol_cal.analysis.fit.model import legendre_rows
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
@@ -35,47 +36,6 @@ if TYPE_CHECKING:
 
 #: z of a two-sided 95 % interval
 _Z95 = 1.959963984540054
-
-
-#: a steady segment's stretch for the fingerprint extends while the speed stays within this
-#: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
-#: segments of eol-default settle slowly after their ramp)
-EXTEND_TOL = 0.1
-
-
-def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
-    """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
-    fit, extended both ways while the direction is the same and the speed within
-    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
-    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
-    out: list[tuple[int, int]] = []
-    for k, info in enumerate(mi.info):
-        if mi.capture_of_segment[k] != ci:
-            continue
-        ws = float(np.median(w[info.start:info.stop]))
-        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
-        before = np.flatnonzero(bad[:info.start])
-        after = np.flatnonzero(bad[info.stop:])
-        a = int(before[-1]) + 1 if len(before) else 0
-        b = info.stop + int(after[0]) if len(after) else len(w)
-        if out and a <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
-        else:
-            out.append((a, b))
-    return out
-
-
-def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
-    """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
-    out: list[fpr.WindowEdges | None] = []
-    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
-        ranges = fingerprint_ranges(mi, ci)
-        if not ranges or not cap.has("enc_b"):
-            out.append(None)
-            continue
-        theta_fw = np.asarray(ang.theta_r, dtype=float) + mi.frame_offset_rad
-        out.append(fpr.window_edges(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
-    return out
 
 
 def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
@@ -95,6 +55,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     # of inv(X^T X) is the Schur complement): a (2H x 2H) system instead of one dense least squares
     # with (deg + 1) columns per segment; the same solution, residual and covariance.
     parts = []
+    shares: list[tuple[np.ndarray, np.ndarray]] = []
     M = np.zeros((2 * H, 2 * H))
     rhs = np.zeros(2 * H)
     for s in used:
@@ -130,9 +91,11 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         W[-1] = y
         Gs = W @ W.T
         D_inv, B = np.linalg.inv(Gs[:nd, :nd]), Gs[:nd, nd:-1]
-        M += Gs[nd:-1, nd:-1] - B.T @ D_inv @ B
-        rhs += Gs[nd:-1, -1] - B.T @ (D_inv @ Gs[:nd, -1])
+        Ms, rs = Gs[nd:-1, nd:-1] - B.T @ D_inv @ B, Gs[nd:-1, -1] - B.T @ (D_inv @ Gs[:nd, -1])
+        M += Ms
+        rhs += rs
         parts.append((W, D_inv))
+        shares.append((Ms, rs))
     sol = np.linalg.solve(M, rhs)
     res_parts = []
     for W, D_inv in parts:
@@ -143,7 +106,22 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     r1 = float(np.dot(res[1:], res[:-1]) / max(np.dot(res, res), 1e-300))
     inflate = (1.0 + r1) / max(1.0 - r1, 1e-3)
     s2 = float(res @ res) / max(1, len(res) - n_coef) * max(inflate, 1.0)
-    cov = s2 * np.linalg.inv(M)
+    M_inv = np.linalg.inv(M)
+    # lack of fit between segments (the main fit's Birge ratio, for the orders): each segment's
+    # share of the normal equations at the joint solution, g_s = r_s - M_s sol, has covariance
+    # s2 M_s when the model holds; more scatter than that widens the intervals by the ratio. The
+    # residual's own variance misses what differs from segment to segment and not from sample to
+    # sample (the drift polynomial's misfit to the dyno's speed loop, the ECU's current at each
+    # load point): over plant motors the least-squares intervals held the truth for a third of them.
+    chi2, dof = 0.0, -2 * H
+    for Ms, rs in shares:
+        g = rs - Ms @ sol
+        w, V = np.linalg.eigh(Ms)
+        keep = w > 1e-9 * max(float(w.max()), 1e-300)
+        chi2 += float(np.sum((V[:, keep].T @ g) ** 2 / w[keep]))
+        dof += int(keep.sum())
+    birge = chi2 / dof / s2 if dof >= 1 and s2 > 0 else 1.0
+    cov = s2 * max(1.0, birge) * M_inv
     out = []
     for i, h in enumerate(ORDERS):
         a, b = sol[2 * i], sol[2 * i + 1]
@@ -174,10 +152,15 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     """
     N = mi.encoder_ppr
     reasons: list[str] = []
-    prints: list[fpr.WindowEdges | None] = window_prints(mi) if mi.frame == "firmware" else [None] * len(mi.captures)
+    prints: list[fpr.WindowEdges | None] = [None] * len(mi.captures)
+    fp = None
     if mi.frame != "firmware":
         reasons.append("no firmware frame (enc_b missing or the estimator never anchored): no fingerprint")
-    fp = fpr.merge_windows(prints, mi.poles, N)
+    elif mi.prints is not None:  # measured with the inputs (measure_firmware_frames)
+        prints, fp = mi.prints, mi.fingerprint
+    else:
+        prints = window_prints(mi)
+        fp = fpr.merge_windows(prints, mi.poles, N)
     if fp is None:
         if not reasons:
             reasons.append("no capture window holds a revolution and a half of steady edges: no fingerprint")
@@ -191,7 +174,12 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     orders = fit_orders(mi, fit, spec, prints, fp) if fit.converged else None
     if orders is None:
         reasons.append("mechanical orders not fitted (no segment in an identified window, or the ripple fit did not converge)")
-    sigma = tuple(None if not math.isfinite(x) else float(x) for x in fp.sigma)
+    # the reported standard errors widened for the edges' correlated residuals (AR(1): the rotor's
+    # speed ripple within a stretch); the predicted margin above keeps the fit's own, which the
+    # identification threshold was calibrated on
+    r1 = edge_residual_correlation(fp, prints, mi.poles, N)
+    widen = math.sqrt(max(1.0, (1.0 + r1) / max(1.0 - r1, 1e-3)))
+    sigma = tuple(None if not math.isfinite(x) else float(x) * widen for x in fp.sigma)
     # a window that could not be placed is left out of the fingerprint and the orders, no reason to switch off
     return MechResult(
         status=MECH_OFF if reasons else MECH_OK, reasons=tuple(reasons),

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -52,7 +52,13 @@ class FitSpec:
     drift_degree : int
         Degree of the per-segment Legendre polynomial in time (0 = constant T_avg only).
     mech_order1 : bool
-        Include the mechanical order-1 term per segment.
+        Include the mechanical orders per segment (False: none).
+    mech_orders : int
+        How many mechanical orders (1..mech_orders) each segment carries as its own cos/sin pairs
+        (default 3, what the block compensates): in the segment's nuisance, so that a mechanical
+        order never leaks into the electrical harmonics; their phases are free per segment (the
+        halls do not tell the pole pair), their shared values are fitted afterwards in the
+        fingerprint's frame (:mod:`eol_cal.analysis.fit.mech`).
     delay_s : float or None
         Known transducer delay (s); ``None`` estimates it (needs two different signed speeds).
     delay_max_s : float or None
@@ -80,6 +86,7 @@ class FitSpec:
     fit_k: bool = True
     drift_degree: int = 2
     mech_order1: bool = True
+    mech_orders: int = 3
     delay_s: float | None = None
     delay_max_s: float | None = None
     transducer: str = "lowpass"
@@ -91,14 +98,19 @@ class FitSpec:
     lm_init_step: float = 1e3
 
     @property
+    def n_mech(self) -> int:
+        """Mechanical cos/sin pairs per segment (one pinned pair when switched off, as before)."""
+        return self.mech_orders if self.mech_order1 else 1
+
+    @property
     def n_cols(self) -> int:
-        """Columns per segment: Legendre terms, mechanical cos/sin, sin/cos per harmonic."""
-        return self.drift_degree + 3 + 2 * len(self.harmonics)
+        """Columns per segment: Legendre terms, mechanical cos/sin pairs, sin/cos per harmonic."""
+        return self.n_nuis + 2 * len(self.harmonics)
 
     @property
     def n_nuis(self) -> int:
-        """Nuisance parameters per segment (drift polynomial and mechanical pair)."""
-        return self.drift_degree + 3
+        """Nuisance parameters per segment (drift polynomial and mechanical pairs)."""
+        return self.drift_degree + 1 + 2 * self.n_mech
 
     @property
     def n_glob(self) -> int:
@@ -170,7 +182,8 @@ def path_gain(seg: SteadySegments, spec: FitSpec) -> np.ndarray:
     return np.asarray(seg.path_response(freq), dtype=complex).reshape(freq.shape)
 
 
-def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None) -> None:
+def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None,
+                       left_out: Sequence[tuple[str, str]] = ()) -> None:
     """Refuse a request the data cannot answer (InputError naming what is missing).
 
     Parameters
@@ -181,34 +194,42 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
         The request.
     source : str, optional
         File(s) named in the error.
+    left_out : sequence of (str, str)
+        Captures that gave no segment and why: a refusal names them, since they are often its
+        real cause (a speed or a load point that is missing because its captures were too short).
     """
+    why_left = "".join(f"; {src} left out: {why}" for src, why in left_out)
     if seg.n_segments == 0:
-        raise InputError(source, "segments", "no usable segment (constant load, speed and direction) found")
+        raise InputError(source, "segments", "no usable segment (constant load, speed and direction) found" + why_left)
     if spec.harmonics[:1] != (6,) or any(h % 6 or h <= 0 for h in spec.harmonics):
         raise InputError(source, "harmonics", f"harmonics must start with 6 and be multiples of 6, got {spec.harmonics}")
     if not (spec.fit_c or spec.fit_k):
         raise InputError(source, "model", "nothing to fit: both c6 and k6 switched off")
+    if not 1 <= spec.mech_orders <= 6:
+        raise InputError(source, "mech_orders", f"must be 1..6 mechanical orders, got {spec.mech_orders}")
     i_abs = np.abs(seg.i_qo)
     scale = max(float(i_abs.max()), 1e-9)
     loads = np.unique(np.round(seg.i_qo / (0.05 * scale)))
     if spec.fit_k and float(i_abs.max()) < 1e-6:
-        raise InputError(source, "iq_ref", "k6 needs a load: every segment has i_qo = 0")
+        raise InputError(source, "iq_ref", "k6 needs a load: every segment has i_qo = 0" + why_left)
     if spec.fit_c and spec.fit_k and len(loads) < 2:
         raise InputError(
             source,
             "iq_ref",
             f"c6 and k6 are not identifiable from a single load point (i_qo = {seg.i_qo[0]:.4g} A in all "
-            "segments): capture at two or more load points, or fit one of them only (c6 or k6 switched off)",
+            "segments): capture at two or more load points, or fit one of them only (c6 or k6 switched off)" + why_left,
         )
     if spec.fit_delay:
         w = seg.omega_e
         spread = float(w.max() - w.min())
         if spread < 0.1 * max(float(np.abs(w).max()), 1e-9):
+            rpm = sorted({round(float(x) / seg.pole_pairs * 60.0 / (2 * math.pi), 1) for x in w})
             raise InputError(
                 source,
                 "speed",
                 "the transducer delay is not identifiable from a single speed (it shifts the phase in "
-                "proportion to speed): capture at two speeds or in both directions, or give the transducer delay (s)",
+                f"proportion to speed; the segments are all at {', '.join(f'{r:g}' for r in rpm)} rpm): capture at two "
+                "speeds or in both directions, or give the transducer delay (s)" + why_left,
             )
 
 
@@ -238,16 +259,33 @@ def _cpow(e: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
+def mech_span(theta: np.ndarray, pole_pairs: int) -> float:
+    """A segment's length in mechanical revolutions (``theta`` electrical, rad)."""
+    return float(abs(theta[-1] - theta[0])) / (2 * math.pi * pole_pairs)
+
+
+#: periods of a mechanical order a segment must span to carry its pair (a shorter piece of a sine
+#: is all but the drift polynomial)
+MECH_MIN_PERIODS = 1.0
+
+
+def mech_resolved(spec: FitSpec, order: int, span: float) -> bool:
+    """Whether a segment of ``span`` mechanical revolutions carries mechanical order ``order``'s pair:
+    switched on and :data:`MECH_MIN_PERIODS` periods of it."""
+    return spec.mech_order1 and order <= spec.mech_orders and order * span >= MECH_MIN_PERIODS - 1e-9
+
+
 def design_matrix_t(
     theta: np.ndarray,
     t: np.ndarray,
     pole_pairs: int,
     spec: FitSpec,
     t_span: tuple[float, float] | None = None,
-    mech: bool | None = None,
+    mech: float | None = None,
     out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Columns of one segment, as rows: Legendre(t), cos/sin(theta_m), then sin/cos(h theta) per harmonic.
+    """Columns of one segment, as rows: Legendre(t), cos/sin(m theta_m) for m = 1..spec.n_mech, then
+    sin/cos(h theta) per harmonic.
 
     Parameters
     ----------
@@ -262,9 +300,10 @@ def design_matrix_t(
     t_span : (float, float), optional
         First and last sample time of the whole segment (s), when ``theta``, ``t`` are a block of
         it (the Legendre time axis spans the segment); default ``(t[0], t[-1])``.
-    mech : bool, optional
-        Whether the segment resolves the mechanical pair; default: ``spec.mech_order1`` and at
-        least one mechanical revolution in ``theta``.
+    mech : float, optional
+        The segment's length in mechanical revolutions (:func:`mech_span`; default: that of
+        ``theta``): order m's pair is a column where ``m`` times it is at least one
+        (:func:`mech_resolved`).
     out : ndarray, optional
         Array of at least ``spec.n_cols`` rows and ``len(theta)`` columns to fill (its first
         ``spec.n_cols`` rows are returned); default: a new one.
@@ -272,27 +311,32 @@ def design_matrix_t(
     Returns
     -------
     ndarray, shape (spec.n_cols, n)
-        The transposed design matrix (row-major, so X^T X is one contiguous product). A mechanical
-        pair the segment cannot resolve (less than one mechanical revolution, or switched off) is
-        left as zero rows; :func:`compress_segment` pins it.
+        The transposed design matrix (row-major, so X^T X is one contiguous product). Mechanical
+        pairs the segment cannot resolve (less than one mechanical revolution, or switched off) are
+        left as zero rows; :func:`compress_segment` pins them.
     """
     n = len(theta)
     q = spec.n_nuis
     XT = np.empty((spec.n_cols, n)) if out is None else out[: spec.n_cols]
     t_first, t_last = (t[0], t[-1]) if t_span is None else t_span
     if mech is None:
-        mech = spec.mech_order1 and abs(theta[-1] - theta[0]) >= 2 * math.pi * pole_pairs
+        mech = mech_span(theta, pole_pairs)
     tn = t - t_first
     tn *= 2.0 / (t_last - t_first)
     tn -= 1.0
-    legendre_rows(tn, spec.drift_degree, XT[: q - 2])
+    nm = 2 * spec.n_mech
+    legendre_rows(tn, spec.drift_degree, XT[: q - nm])
     # one exp(i theta_m) per sample: everything else is a power of it (exact to ~1e-14)
     e_m = np.exp(1j * (theta / pole_pairs))
-    if mech:
-        XT[q - 2] = e_m.real
-        XT[q - 1] = e_m.imag
-    else:
-        XT[q - 2 : q] = 0.0
+    e = e_m
+    for j in range(spec.n_mech):
+        if j:
+            e = e * e_m
+        if mech_resolved(spec, j + 1, mech):
+            XT[q - nm + 2 * j] = e.real
+            XT[q - nm + 2 * j + 1] = e.imag
+        else:
+            XT[q - nm + 2 * j : q - nm + 2 * j + 2] = 0.0
     e6 = _cpow(e_m, 6 * pole_pairs)
     e, order = e6, 6
     for i, h in enumerate(spec.harmonics):

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 from collections.abc import Callable
 
-from eol_cal.analysis.fit import FitSpec, MotorFit, pick_mode
+from eol_cal.analysis.fit import FitSpec, MotorFit, check_identifiable, pick_mode
 from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.model import Capture
@@ -167,6 +167,8 @@ def fit_inputs(
 
         tool_version = __version__
     prepared = prepared or PreparedWindows()
+    for m in inputs:  # fit_many checks again, without the captures left out that often explain a refusal
+        check_identifiable(m.segments, options.spec, ", ".join(m.sources), m.left_out)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
     fits = fit_many(
         [m.segments for m in inputs],

@@ -1,0 +1,230 @@
+"""Do the fit's 95 % intervals cover the truth 95 % of the time? A Monte Carlo over plant motors.
+
+Each motor is drawn from a production spread (default ``mech23``: the default spread with the
+mechanical orders 2 and 3 of 2-4 mN*m, issue 34), run through the ``eol-default`` profile on the
+plant under the ``best`` estimator (as the station's "prepare ECU" step flashes it), fitted as
+``eol-cal fit`` fits (``fit_motors``' path: firmware frame, fingerprint, corrected angle,
+mechanical orders), and every reported interval is judged against the plant's truth:
+
+- ``k6``, ``c6`` (amplitudes) and ``phase_k6``, ``phase_c6`` in the firmware estimator's frame: the
+  truth moved by the plant's own estimator's frame on the same run (``theta_hat - theta_r``).
+  Two truths, as in ``bench/bench_fit_lot.py``: the plant's parameter, and ``_eff``: the parameter
+  plus the ECU's own current ripple at that order (``kt * i_q`` of a noise-free run of the same
+  motor fitted with the same model): torque the motor really makes, which the compensation must
+  cancel and no fit of the torque can tell from the motor's own;
+- ``delay_s``: the transducer's time constant ``1 / (2 pi tq_bw_hz)``;
+- ``mech{h}`` and ``phase_mech{h}`` (h = 1..3): each order in the block's frame (the truth's
+  phase moved by the frame's mechanical angle against the plant's, measured per sample);
+- ``fingerprint``: every edge error against the plant's pulse placement in the block's
+  numbering, orders 0..2 taken out as the fit takes them out.
+
+Printed per quantity: n, the share covered with its binomial standard error, and the median of
+``|error| / ci95`` (1.0 at the interval's edge). A quantity covered in 95 +- 3 % passes.
+
+    python bench/bench_coverage.py [--motors 400] [--batch 20] [--first-seed 1001] [--spread mech23] [--json cov.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import time
+
+import numpy as np
+
+#: quantities whose value and truth are angles (rad): errors wrapped to (-pi, pi]
+PHASES = ("phase_k6", "phase_c6", "phase_k6_eff", "phase_c6_eff", "phase_mech1", "phase_mech2", "phase_mech3")
+
+
+def current_ripple(run, spec) -> dict[str, complex]:
+    """The 6th harmonic of ``kt * i_q`` of a noise-free run (plant's true angle frame): ``{"k": N*m/A
+    phasor, "c": N*m phasor}``, fitted with the fit's own model (no transducer, no bench)."""
+    import dataclasses
+
+    from eol_cal.analysis.fit import fit_many
+    from eol_cal.analysis.fit.capture import motor_inputs
+
+    (mi,) = motor_inputs([run.capture], frame="offline", hall_angle="nominal")
+    kt = float(run.capture.metadata["kt"])
+    iq = np.asarray(run.capture["iq"], dtype=float)
+    seg = dataclasses.replace(mi.segments, torque=[kt * iq[s.start:s.stop] for s in mi.info], path_response=None)
+    (f,) = fit_many([seg], dataclasses.replace(spec, delay_s=1e-9), mode="loop")
+    # the offline frame sits d_rec off the true angle: phase in the true frame = phase + 6 d_rec
+    d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
+    six = f.harmonics[6]
+    return {part: six[part].value * np.exp(1j * (six[part].phase + 6 * d_rec)) for part in ("k", "c")}
+
+
+def _circmean(x: np.ndarray) -> float:
+    return float(np.angle(np.mean(np.exp(1j * x))))
+
+
+def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
+    """Per reported interval of one motor: quantity, estimate, ci95, truth, error (rad wrapped for phases)."""
+    from eol_cal.analysis import fingerprint as fpr
+    from eol_cal.firmware.kinematics import fingerprint_of
+    from eol_cal.plant.params import sensor_errors, to_params
+    from eol_cal.wrap import wrap_pi
+
+    out: list[dict] = []
+    if rec["status"] != "ok":
+        return [{"quantity": "status", "value": rec["status"], "reasons": rec["reasons"]}]
+    seg = mi.segments
+    idx = np.concatenate([np.arange(o.start, o.stop) for o in mi.info])
+    # the firmware estimator's frame on this run, against the plant's true angle (rad electrical)
+    d_fw = _circmean(np.asarray(run.theta_hat)[idx] - np.asarray(run.theta_r)[idx])
+
+    def add(q, est, truth):
+        if est is None or est["value"] is None:
+            return
+        err = est["value"] - truth
+        if q in PHASES:
+            err = float(wrap_pi(err))
+        out.append({"quantity": q, "value": est["value"], "ci95": est["ci95"], "truth": float(truth), "err": float(err)})
+
+    # the fit's frame offset (firmware frame minus its own, fingerprint-corrected, angle) against
+    # the truth; no interval of its own: its error moves harmonic h's phases by -h times it
+    d_fit = _circmean(np.concatenate([np.asarray(seg.theta[s]) for s in range(seg.n_segments)])
+                      - np.asarray(run.theta_r)[idx])
+    out.append({"quantity": "frame_offset", "value": mi.frame_offset_rad, "ci95": None, "truth": d_fw - d_fit,
+                "err": float(wrap_pi(mi.frame_offset_rad - (d_fw - d_fit)))})
+    plant_ph = {"k": p.k6 * np.exp(1j * p.phase_k6), "c": p.c6 * np.exp(1j * p.phase_c6)}
+    for part in ("k", "c"):
+        z = plant_ph[part]
+        add(f"{part}6", rec[f"{part}6"], abs(z))
+        add(f"phase_{part}6", rec[f"phase_{part}6"], np.angle(z) - 6 * d_fw)
+        if cur is not None:
+            z = z + cur[part]
+            add(f"{part}6_eff", rec[f"{part}6"], abs(z))
+            add(f"phase_{part}6_eff", rec[f"phase_{part}6"], np.angle(z) - 6 * d_fw)
+    add("delay_s", rec["delay_s"], 1.0 / (2 * math.pi * p.tq_bw_hz))
+    mech = rec.get("mech")
+    fp = mi.fingerprint
+    if not mech or fp is None or mi.prints is None:
+        return out
+    # the block's mechanical angle against the plant's, over the segments of placed windows
+    diffs = []
+    for s, info in enumerate(mi.info):
+        ci = mi.capture_of_segment[s]
+        edges, offset = mi.prints[ci], fp.offsets[ci]
+        if edges is None or offset is None:
+            continue
+        th_b = fpr.block_frame_mech_angle(edges.q[info.start:info.stop], offset, fp.grid_phase,
+                                          np.asarray(seg.theta[s]) + mi.frame_offset_rad, mi.poles, mi.encoder_ppr)
+        diffs.append(th_b - np.asarray(run.theta_m)[info.start:info.stop])
+    delta = _circmean(np.concatenate(diffs))
+    for o in mech["orders"]:
+        h = o["order"]
+        add(f"mech{h}", o["c"], getattr(p, f"unb{h}"))
+        if getattr(p, f"unb{h}") > 0:
+            add(f"phase_mech{h}", o["phase_c"], getattr(p, f"phase_unb{h}") - h * delta)
+    # the fingerprint: the plant's edge errors in the block's numbering, orders 0..2 out per half
+    N = mi.encoder_ppr
+    true_fp, _ = fingerprint_of(sensor_errors(to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0)), mi.poles)
+    P = fpr._low_order_complement(N)
+    got = np.asarray(mech["fingerprint"], float)
+    sig = np.array([np.inf if s is None else s for s in mech["sigma"]], float)
+    best = None
+    for r in range(N):
+        cand = np.roll(true_fp, -2 * r).copy()
+        for d in (0, 1):
+            cand[d::2] = P @ (P.T @ cand[d::2])
+        score = float(got @ cand)
+        if best is None or score > best[0]:
+            best = (score, cand)
+    assert best is not None
+    for j in np.flatnonzero(np.isfinite(sig) & (sig > 0)):
+        out.append({"quantity": "fingerprint", "value": float(got[j]), "ci95": float(1.959963984540054 * sig[j]),
+                    "truth": float(best[1][j]), "err": float(got[j] - best[1][j])})
+    return out
+
+
+def summary(rows: list[dict]) -> list[tuple[str, int, float, float, float]]:
+    """Per quantity: (name, n, covered share, its standard error, median |err| / ci95)."""
+    names = list(dict.fromkeys(r["quantity"] for r in rows if r["quantity"] != "status" and r["ci95"] is not None))
+    out = []
+    for q in names:
+        sub = [r for r in rows if r["quantity"] == q]
+        ratio = np.array([abs(r["err"]) / r["ci95"] if r["ci95"] else np.inf for r in sub])
+        cov = float(np.mean(ratio <= 1.0))
+        out.append((q, len(sub), cov, math.sqrt(cov * (1 - cov) / len(sub)), float(np.median(ratio))))
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--motors", type=int, default=400)
+    ap.add_argument("--batch", type=int, default=20, help="motors simulated together (memory)")
+    ap.add_argument("--first-seed", type=int, default=1001)
+    ap.add_argument("--spread", default="mech23", help="production spread (built-in name or .toml file)")
+    ap.add_argument("--no-effective", dest="effective", action="store_false",
+                    help="skip the noise-free run per motor (the _eff truths of k6 and c6)")
+    ap.add_argument("--json", help="write every judged interval here")
+    args = ap.parse_args()
+
+    from rich.progress import Progress
+
+    from eol_cal.analysis.fit import FitSpec
+    from eol_cal.analysis.fit.motors import FitOptions, fit_inputs
+    from eol_cal.analysis.fit.capture import motor_inputs
+    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.firmware.options import parse_options
+    from eol_cal.mechanics import load_mechanics
+    from eol_cal.motor import load_motor
+    from eol_cal.plant.profile import load_profile
+    from eol_cal.plant.simulate import simulate
+    from eol_cal.plant.spread import load_spread
+    from eol_cal.plant.variation import draw_motor
+
+    print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}; spread {args.spread}, seeds "
+          f"{args.first_seed}..{args.first_seed + args.motors - 1}")
+    motor = load_motor("paper")
+    spread = load_spread(args.spread)
+    cal = load_profile("eol-default")
+    best = parse_options("best")
+    spec = FitSpec()
+    options = FitOptions(spec=spec, capture_metrics=False, estimator_options=best)
+    bench = load_mechanics("paper")
+    rows: list[dict] = []
+    t_start = time.perf_counter()
+    t_sim = 0.0
+    with Progress(transient=True) as progress:
+        task = progress.add_task("motors", total=args.motors)
+        for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
+            seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
+            plants = [draw_motor(s, spread=spread) for s in seeds]
+            prepared = [uncompensated_block(p.serial[:16], motor, calibrated_at=0, options=best) for p in plants]
+            t0 = time.perf_counter()
+            runs = simulate(plants, cal, mode="estimated", blocks=prepared, seed=first)
+            clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], cal, mode="estimated",
+                             blocks=prepared, seed=first) if args.effective else [None] * len(plants)
+            t_sim += time.perf_counter() - t0
+            inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
+            recs = fit_inputs(inputs, options).records
+            for p, run, cl, mi, rec in zip(plants, runs, clean, inputs, recs, strict=True):
+                cur = current_ripple(cl, spec) if cl is not None else None
+                for row in motor_rows(p, run, mi, rec, cur):
+                    rows.append({"seed": p.serial, **row})
+            progress.update(task, completed=len(seeds) + first - args.first_seed)
+    wall = time.perf_counter() - t_start
+    if args.json:
+        import json
+
+        with open(args.json, "w") as fh:
+            json.dump(rows, fh, indent=1)
+    bad = [r for r in rows if r["quantity"] == "status"]
+    print(f"{args.motors} motors, {len(bad)} fits not usable; wall {wall:.0f} s (simulation {t_sim:.0f} s), "
+          f"load {os.getloadavg()[0]:.2f}")
+    print(f"{'quantity':<16} {'n':>6} {'covered':>9} {'± se':>7}  {'median |err|/ci95':>18}  verdict (95 ± 3 %)")
+    for q, n, cov, se, med in summary(rows):
+        verdict = "ok" if abs(cov - 0.95) <= 0.03 else ("too narrow" if cov < 0.95 else "too wide")
+        print(f"{q:<16} {n:>6} {100 * cov:>8.1f}% {100 * se:>6.1f}%  {med:>18.2f}  {verdict}")
+    frame = np.degrees([r["err"] for r in rows if r["quantity"] == "frame_offset"])
+    if len(frame):
+        print(f"frame offset error (firmware frame, electrical deg; the phases' share is h times it): mean "
+              f"{frame.mean():+.3f}, sd {frame.std(ddof=1) if len(frame) > 1 else 0.0:.3f}, max |.| {np.abs(frame).max():.3f}")
+
+
+if __name__ == "__main__":
+    main()

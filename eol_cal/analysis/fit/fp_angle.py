@@ -1,0 +1,184 @@
+"""The encoder's fingerprint measured before the ripple fit, and the fit's angle corrected by it.
+
+The offline angle (:mod:`eol_cal.analysis.angle`) runs through every quadrature edge at its
+nominal angle, so it carries the encoder's pitch errors: each edge fires where its magnet pole
+actually is, ``nominal + error``. Fitted on that angle, the 6th harmonic is modulated by the
+errors (sidebands the segments' finite length leaks back into k6). The fingerprint
+(:mod:`eol_cal.analysis.fingerprint`) measures the A edges' errors from the edge times alone,
+so before the fit every sample of an identified window gets ``theta + error`` at its position
+between edges: the fit then works on the rotor's own angle, in the same frame (the block's,
+layout 2) in which the mechanical orders are reported.
+
+What cannot be corrected: the errors' mechanical orders 0..2 (the fingerprint cannot tell them
+from the motion, :mod:`eol_cal.analysis.fingerprint`), and B's edges are taken to carry the
+error of the A edge of the same wheel transition a quarter pitch before (B reads the same wheel:
+``eol_cal.firmware.kinematics``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from eol_cal.analysis import fingerprint as fpr
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.fit.capture import MotorInput
+
+#: a steady segment's stretch for the fingerprint extends while the speed stays within this
+#: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
+#: segments of eol-default settle slowly after their ramp)
+EXTEND_TOL = 0.1
+
+
+def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
+    """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
+    fit, extended both ways while the direction is the same and the speed within
+    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
+    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
+    out: list[tuple[int, int]] = []
+    for k, info in enumerate(mi.info):
+        if mi.capture_of_segment[k] != ci:
+            continue
+        ws = float(np.median(w[info.start:info.stop]))
+        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        before = np.flatnonzero(bad[:info.start])
+        after = np.flatnonzero(bad[info.stop:])
+        a = int(before[-1]) + 1 if len(before) else 0
+        b = info.stop + int(after[0]) if len(after) else len(w)
+        if out and a <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], b))
+        else:
+            out.append((a, b))
+    return out
+
+
+def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
+    """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
+    out: list[fpr.WindowEdges | None] = []
+    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
+        ranges = fingerprint_ranges(mi, ci)
+        if not ranges or not cap.has("enc_b"):
+            out.append(None)
+            continue
+        theta_fw = np.asarray(ang.theta_r, dtype=float) + mi.frame_offset_rad
+        out.append(fpr.window_edges(cap.t, cap["enc_a"], cap["enc_b"], theta_fw, mi.poles, mi.encoder_ppr, ranges))
+    return out
+
+
+def boundary_errors(fp: np.ndarray, N: int) -> np.ndarray:
+    """The error of every quadrature boundary ``k`` of the frame (4N,), rad electrical, from the
+    fingerprint's A edges: ``4m+1`` (A rising forward) and ``4m+2`` (B, the same transition a
+    quarter pitch later) carry ``fp[2m]``, ``4m+3`` and ``4m+4`` carry ``fp[2m+1]``."""
+    f = np.asarray(fp, dtype=float).reshape(N, 2)
+    out = np.empty((N, 4))
+    out[:, 1] = out[:, 2] = f[:, 0]
+    out[:, 3] = f[:, 1]
+    out[:, 0] = np.roll(f[:, 1], 1)  # boundary 4m is 4(m-1)+4
+    return out.reshape(-1)
+
+
+def angle_correction(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, fp: np.ndarray, poles: int,
+                     N: int) -> np.ndarray:
+    """What to add to the offline angle (rad electrical) at samples with window counts ``q``, the
+    window's offset ``r`` into the frame, the firmware-frame angle ``theta_fw`` (rad): the
+    boundary errors (:func:`boundary_errors`) interpolated linearly at each sample's position
+    between its boundaries."""
+    M = 4 * N
+    quarter = poles * math.pi / N / 4.0
+    k = np.asarray(q, dtype=np.int64) + 4 * int(r)
+    Ek = grid_phase + k * quarter
+    x = k + np.remainder(np.asarray(theta_fw, dtype=float) - Ek + math.pi, 2 * math.pi) / quarter - math.pi / quarter
+    err = boundary_errors(fp, N)
+    return np.interp(np.mod(x, M), np.arange(M + 1), np.append(err, err[0]))
+
+
+def measure_fingerprint(mi: MotorInput) -> None:
+    """Measure the motor's fingerprint (set ``mi.prints``, ``mi.fingerprint``) and correct the
+    angle of every segment in a window it placed (``mi.segments.theta``; ``mi.angle_correction``
+    says what was done, or why not). Needs the firmware frame (:func:`measure_firmware_frames`)."""
+    if mi.frame != "firmware":
+        mi.angle_correction = "none: no firmware frame, no fingerprint"
+        return
+    prints = window_prints(mi)
+    fp = fpr.merge_windows(prints, mi.poles, mi.encoder_ppr)
+    mi.prints, mi.fingerprint = prints, fp
+    if fp is None:
+        mi.angle_correction = "none: no window holds a revolution and a half of steady edges"
+        return
+    if fp.dirs != 3:
+        # one half only: the other's boundaries would be corrected by zeros, half of each pitch wrong
+        mi.angle_correction = "none: the fingerprint holds one edge direction only"
+        return
+    seg = mi.segments
+    # each window's angle is anchored on its own halls: windows of one dyno capture sit a
+    # fraction of a degree apart, which moves the 6th's phase from window to window. The count
+    # puts them in one frame: a placed window's grid phase is the block's plus its offset in
+    # pulses plus that fraction (``scores[w][0]``), which is taken out of its angle here (and out
+    # of its part of the firmware frame offset, measured against the angle before)
+    frac = [0.0 if sc is None or r is None else float(sc[0]) for sc, r in zip(fp.scores or [None] * len(prints),
+                                                                             fp.offsets, strict=True)]
+    n = 0
+    for s, info in enumerate(mi.info):
+        ci = mi.capture_of_segment[s]
+        edges, offset = prints[ci], fp.offsets[ci]
+        if edges is None or offset is None:
+            continue
+        theta = np.asarray(seg.theta[s], dtype=float) - frac[ci]
+        corr = angle_correction(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
+                                fp.fp, mi.poles, mi.encoder_ppr)
+        seg.theta[s] = theta + corr
+        n += 1
+    mi.window_frac = frac
+    if mi.frame_parts is not None and any(frac):
+        total = sum(part[0] * np.exp(1j * frac[ci]) for ci, part in enumerate(mi.frame_parts) if part is not None)
+        mi.frame_offset_rad = float(np.angle(total))
+    aligned = sum(1 for f, r in zip(frac, fp.offsets, strict=True) if r is not None)
+    mi.angle_correction = f"fingerprint ({n} of {seg.n_segments} segments, {aligned} window(s) in one frame)"
+
+
+def edge_residual_correlation(fp: fpr.Fingerprint, prints: list[fpr.WindowEdges | None], poles: int, N: int) -> float:
+    """Lag-one correlation of the fingerprint fit's edge residuals, pooled over every stretch of the
+    placed windows (each stretch: the edges' nominal angles plus their fitted errors, less the
+    stretch's polynomial motion). The fit's standard errors take the residuals as independent;
+    the rotor's speed ripple within a stretch, which the polynomial cannot follow, makes
+    neighbouring edges' residuals alike."""
+    quarter = poles * math.pi / N / 4.0
+    num = den = 0.0
+    for w, r in zip(prints, fp.offsets, strict=True):
+        if w is None or r is None:
+            continue
+        for times, k in w.stretches:
+            kk = k + 4 * r
+            idx = 2 * ((kk >> 2) % N) + ((kk >> 1) & 1)
+            halves_ok = np.isfinite(fp.sigma[idx])
+            if halves_ok.sum() < 2 * (fpr._POLY_DEGREE + 2):
+                continue
+            t, kk, idx = times[halves_ok], kk[halves_ok], idx[halves_ok]
+            x = (t - t[0]) / max(t[-1] - t[0], 1e-12) * 2.0 - 1.0
+            Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, fpr._POLY_DEGREE))
+            y = (kk - kk[0]) * quarter + fp.fp[idx]
+            res = y - Q @ (Q.T @ y)
+            num += float(res[1:] @ res[:-1])
+            den += float(res @ res)
+    return num / den if den > 0 else 0.0
+
+
+def frame_sd(mi: MotorInput) -> float:
+    """Standard error of the firmware frame offset (rad electrical) from its windows' scatter: each
+    window's own offset (its estimator against its angle, in the common frame when the windows
+    were put in one), weighted by its samples, over the effective number of windows; 0 with one
+    window (its scatter cannot be told: bench/bench_coverage.py measured 0.02 deg electrical, sd,
+    on continuous plant captures)."""
+    parts = [(ci, p) for ci, p in enumerate(mi.frame_parts or []) if p is not None and p[1] > 0]
+    if len(parts) < 2:
+        return 0.0
+    frac = mi.window_frac or [0.0] * len(mi.frame_parts or [])
+    n = np.array([p[1] for _, p in parts], dtype=float)
+    fo = np.array([np.angle(p[0]) + frac[ci] for ci, p in parts])
+    d = np.angle(np.exp(1j * (fo - mi.frame_offset_rad)))
+    n_eff = n.sum() ** 2 / float((n * n).sum())
+    var = float((n * d * d).sum() / n.sum()) * n_eff / max(n_eff - 1.0, 1.0)
+    return math.sqrt(var / n_eff)

@@ -1,0 +1,66 @@
+"""The fit checks its own model (issue 34, item 2): k6 and c6 fitted per speed band must agree; a
+torque path the bench file does not describe makes the status ``model_mismatch`` with the reason."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from eol_cal.analysis.fit import FitSpec, fit_segments
+from eol_cal.analysis.fit.model_check import check_model, speed_bands
+from eol_cal.analysis.fit.synth import synthetic_segments
+from eol_cal.analysis.result import STATUS_MODEL_MISMATCH, STATUS_OK, CiLimits, judge
+
+
+def _resonance(f0_hz: float, zeta: float):
+    """A torsional mode of the torque path: T_shaft / T_airgap at angular frequency omega (rad/s)."""
+    w0 = 2 * math.pi * f0_hz
+
+    def response(omega):
+        r = np.abs(np.asarray(omega, dtype=float)) / w0
+        g = 1.0 / (1.0 - r * r + 2j * zeta * r)
+        return np.where(np.asarray(omega) < 0, np.conj(g), g)
+
+    return response
+
+
+def _motor(path, seed=3):
+    return synthetic_segments(np.random.default_rng(seed), speeds_rpm=(300.0, 600.0), loads_a=(20.0, 60.0),
+                              directions=(1, -1), noise_nm=0.003, path_response=path)
+
+
+def test_speed_bands_group_by_absolute_speed():
+    bands = speed_bands(np.array([10.0, -10.5, 20.0, 30.0, -19.5]))
+    assert [list(b) for b in bands] == [[0, 1], [2, 4], [3]]
+
+
+def test_a_resonance_the_fit_does_not_know_is_a_model_mismatch():
+    spec = FitSpec()
+    seg, _ = _motor(_resonance(250.0, 0.1))
+    seg.path_response = None  # the fit assumes a rigid path: the bench file is wrong
+    fit = fit_segments(seg, spec)
+    assert fit.converged
+    check = check_model(seg, fit, spec, 0.001)
+    assert check.status == "mismatch" and check.p_value < 1e-6 and len(check.bands) == 2
+    assert "300 rpm" in check.note and "600 rpm" in check.note and "resonance" in check.note
+    status, reasons = judge(fit, spec, CiLimits(k6_rel=1.0, phase_k6_deg=180.0, c6_nm=1.0), check)
+    assert status == STATUS_MODEL_MISMATCH and reasons == [check.note]
+
+
+def test_the_right_bench_file_passes_the_check():
+    spec = FitSpec()
+    seg, _ = _motor(_resonance(250.0, 0.1))  # the path divided out: the model holds
+    fit = fit_segments(seg, spec)
+    check = check_model(seg, fit, spec, 0.001)
+    assert check.status == "ok" and check.p_value > 0.001
+    assert judge(fit, spec, CiLimits(k6_rel=1.0, phase_k6_deg=180.0, c6_nm=1.0), check)[0] == STATUS_OK
+
+
+def test_one_speed_is_not_checked_and_says_why():
+    spec = FitSpec(delay_s=1.5e-4)
+    seg, _ = synthetic_segments(np.random.default_rng(1), speeds_rpm=(300.0,), loads_a=(20.0, 60.0))
+    fit = fit_segments(seg, spec)
+    check = check_model(seg, fit, spec, 0.001)
+    assert check.status == "not checked" and "fewer than two speed bands" in check.note
+    assert check.to_json()["p_value"] is None
