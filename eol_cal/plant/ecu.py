@@ -32,8 +32,8 @@ def true_block(spec: PlantSpec, table_len: int = DEFAULT_TABLE_LEN, harmonics: b
     The paper's compensator cancels the 6th harmonic only; ``harmonics=True`` adds the true
     12th and 18th to the tables as well. The lead is the current loop's time constant
     ``1/(2*pi*current_bw_hz)``; ``iqc_limit`` is 10 % of 65 A. ``mech=True`` makes it a layout-2
-    block (:func:`true_mech`: the encoder's true fingerprint, the true unbalance as mechanical
-    order 1); ``flags`` then decides whether ``MECH_COMP_ENABLE`` is set.
+    block (:func:`true_mech`: the encoder's true fingerprint, the true mechanical orders 1-3);
+    ``flags`` then decides whether ``MECH_COMP_ENABLE`` is set.
     """
     m = spec.motor
     harm = spec.ripple_harmonics() if harmonics else ()
@@ -53,8 +53,8 @@ def true_mech(spec: PlantSpec) -> MechParams:
     The block's frame is the encoder model's pulse numbering (:func:`eol_cal.firmware.kinematics.fingerprint_of`);
     its mechanical angle 0 is electrical angle 0 under the pole pair that holds the frame's
     count boundary 0, which sits ``shift`` = 0 or one pole pitch (2*pi/pp) from the plant's
-    mechanical 0: the unbalance ``unb1 sin(theta_m + phase_unb1)`` is order 1 at phase
-    ``phase_unb1 - shift`` there.
+    mechanical 0: each mechanical order ``unb_h sin(h theta_m + phase_unb_h)`` (h = 1..3) is at
+    phase ``phase_unb_h - h shift`` there.
     """
     m = spec.motor
     pp = m.poles // 2
@@ -64,8 +64,8 @@ def true_mech(spec: PlantSpec) -> MechParams:
     e = np.asarray(spec.enc_edge_err_deg or np.zeros(m.N_enc), float)
     boundary0 = math.radians(spec.grid_offset_deg + float(e.mean())) - 2.0 * math.pi / m.N_enc / 4.0
     shift = gp / pp - boundary0  # 0 or a pole pitch: where the block frame's mechanical 0 lies
-    c = (spec.unb1, 0.0, 0.0)
-    ph = (float(spec.phase_unb1 - shift), 0.0, 0.0)
+    c = (spec.unb1, spec.unb2, spec.unb3)
+    ph = tuple(float(p - h * shift) for h, p in enumerate((spec.phase_unb1, spec.phase_unb2, spec.phase_unb3), 1))
     zeros = (0.0, 0.0, 0.0)
     tc, tp = make_mech_tables(c, ph, zeros, zeros, m.kt)
     return unused_mech(m.N_enc).replace(fp_dirs=FP_FORWARD | FP_REVERSE, grid_phase=gp, mech_c=c, mech_phase_c=ph,
