@@ -168,7 +168,7 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("station", ("eol_cal.station.**",)),
     ("what-if lots", ("eol_cal.lot.simulate",)),
     # a fault scenario builds a station's files (limits, a records database) to attack
-    ("fault scenarios", ("eol_cal.fuzz.scenarios", "eol_cal.fuzz.scenarios_gate")),
+    ("fault scenarios", ("eol_cal.fuzz.scenarios", "eol_cal.fuzz.scenarios_gate", "eol_cal.fuzz.scenarios_harden")),
     ("command line", ("cli", "cli.**")),
 ]
 

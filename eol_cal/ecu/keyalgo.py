@@ -19,6 +19,7 @@ from collections.abc import Callable
 from importlib.metadata import entry_points
 
 from eol_cal.ecu.client import hmac_seed_to_key, load_key_file
+from eol_cal.ecu.keychild import ContainedKey
 from eol_cal.errors import InputError
 
 SeedToKey = Callable[[bytes], bytes]
@@ -59,8 +60,6 @@ def oem_seed_to_key(spec: str, secret: bytes | None, field: str = "key-algo") ->
         key, one over :data:`eol_cal.ecu.keychild.MAX_KEY_BYTES`); names the module's file (or the
         spec) and ``field``.
     """
-    from eol_cal.ecu.keychild import ContainedKey
-
     module_name, func_name, shown = _resolve(spec, field)
     seed_to_key = ContainedKey(module_name, func_name, shown, secret, field)
     seed_to_key(SEED_TRIAL)

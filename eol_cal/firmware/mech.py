@@ -268,7 +268,7 @@ def n_slices(mc: MechConsts) -> int:
     return 1 + -(-mc.N // SLICE_EDGES) + 1 + mc.PP + 1
 
 
-def _set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
+def set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
     if hasattr(arr, "at"):
         return arr.at[idx].add(val)
     out = arr.copy()
@@ -282,7 +282,7 @@ def mean_c_of(mc: MechConsts, c_tab: Array, d: Array, xp: ArrayModule) -> Array:
     return _divider(mc.fpu, xp)(_seq_sum(xp.take(c_tab, idx), xp), F32(mc.N))
 
 
-def _evaluate(mc: MechConsts, tb: MechTables, ms: MechState, c_tab: Array, G: Array, d: Array,
+def evaluate(mc: MechConsts, tb: MechTables, ms: MechState, c_tab: Array, G: Array, d: Array,
               xp: ArrayModule) -> tuple[Array, Array, Array, Array]:
     """One evaluation (MECH.md, "Evaluation") on the frozen samples, the grid offset ``G`` when it
     started and the estimator's ``c_tab`` now: (pass, r_best, score, margin)."""
@@ -353,8 +353,3 @@ def block_frame_angle(mc: MechConsts, grid_phase: float, r: Array, q: Array, the
     Ek = grid_phase + k * float(mc.QUARTER)
     E = Ek + (np.asarray(theta) - Ek + math.pi) % (2 * math.pi) - math.pi
     return np.mod(E / mc.PP, 2 * math.pi)
-
-
-# the tick and the background (MECH.md, "Per tick", "Background") live in mech_tick; re-exported here
-from eol_cal.firmware.mech_tick import mech_background, mech_step, mech_tick  # noqa: E402, F401
-

@@ -20,8 +20,9 @@ from eol_cal.firmware import compensator, estimator as est
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, ParamBlock
 from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, step_pitch
 from eol_cal.firmware.mech import (
-    MechConsts, MechOut, MechState, MechTables, block_mech_tables, mech_init, mech_step, mech_sum,
+    MechConsts, MechOut, MechState, MechTables, block_mech_tables, mech_init, mech_sum,
 )
+from eol_cal.firmware.mech_tick import mech_step
 
 
 class MechRun(NamedTuple):

@@ -25,7 +25,7 @@ from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
 from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
 from eol_cal.firmware.mech import (
     CNT_MAX, SLICE_EDGES, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
-    MechConsts, MechOut, MechState, MechTables, _evaluate, _set_add, f32_, mean_c_of, n_slices,
+    MechConsts, MechOut, MechState, MechTables, evaluate, set_add, f32_, mean_c_of, n_slices,
 )
 from eol_cal.firmware.mech_params import FP_FORWARD
 
@@ -55,9 +55,9 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     # 1. collect (not while an evaluation reads the samples)
     take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0) & (ms.clr == 0)
     first = take & (xp.take(ms.cnt, ps.index) == 0)
-    acc = _set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
-    cnt = _set_add(ms.cnt, ps.index, i32(take), xp)
-    miss = _set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
+    acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
+    cnt = set_add(ms.cnt, ps.index, i32(take), xp)
+    miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
     n_new = xp.minimum(ms.n_new + i32(take), I32(N))
     fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
     # 2. a finished evaluation, a finished mark check
@@ -108,7 +108,7 @@ def mech_background(mc: MechConsts, tb: MechTables, ms: MechState, es: Estimator
     do_mark = (ms.mk == 1) & ~running & ~clearing
     if xp is np and not ((ms.busy == 1 and not clearing) or do_mark):
         return mech_background_idle(mc, ms, xp)
-    ok, r, score, margin = _evaluate(mc, tb, ms, es.c_tab, ms.ev_G, ms.ev_d, xp)
+    ok, r, score, margin = evaluate(mc, tb, ms, es.c_tab, ms.ev_G, ms.ev_d, xp)
     first = (ms.busy == 1) & ~clearing
     e_now = wrap_pm(((ms.mk_G + mean_c_of(mc, es.c_tab, ms.mk_d, xp)) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
     return mech_background_idle(mc, ms, xp)._replace(

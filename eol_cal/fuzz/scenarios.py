@@ -75,7 +75,8 @@ class Scenario:
 # ------------------------------------------------------------------------------------ the files
 
 
-def _text(path: Path) -> bytes:
+def file_bytes(path: Path) -> bytes:
+    """The bytes of a fixture file (a scenario's input as it is)."""
     return path.read_bytes()
 
 
@@ -85,7 +86,8 @@ def _key() -> bytes:
     return (P.DEV_SECRET.hex() + "\n").encode()
 
 
-def _station(**keys: str) -> bytes:
+def station_toml(**keys: str) -> bytes:
+    """A station settings file with these keys (TOML values as text) over a valid default."""
     values = {"station_id": '"L3"', "limits": '"limits.toml"', "db": '"records.sqlite"', "key_file": '"ecu.key"',
               "report_dir": '"reports"', "spool_dir": '"spool"', **keys}
     body = "".join(f"{k} = {v}\n" for k, v in values.items())
@@ -94,7 +96,7 @@ def _station(**keys: str) -> bytes:
 
 def station_files(**keys: str) -> dict[str, bytes]:
     """A station directory whose dyno and bus go nowhere: every scenario here ends before them."""
-    return {"station.toml": _station(**keys), "ecu.key": _key(), "limits.toml": _text(FIXTURES / "limits.toml")}
+    return {"station.toml": station_toml(**keys), "ecu.key": _key(), "limits.toml": file_bytes(FIXTURES / "limits.toml")}
 
 
 RUN = ["run", "--station", "{d}/station.toml", "--serial", "M-1"]
@@ -108,7 +110,7 @@ _TOML_SOURCES = {
 def _toml_scenario(kind: str, name: str, data: bytes | None) -> Scenario:
     target = f"hostile-{kind}.toml"
     if kind == "map":
-        return Scenario("toml", f"{kind}: {name}", {target: data, "daq.csv": _text(FIXTURES / "daq_export_foreign.csv")},
+        return Scenario("toml", f"{kind}: {name}", {target: data, "daq.csv": file_bytes(FIXTURES / "daq_export_foreign.csv")},
                         ["capture", "info", "--map", f"{{d}}/{target}", "{d}/daq.csv"])
     if kind == "settings":
         files = {**station_files(), target: data}
@@ -117,7 +119,7 @@ def _toml_scenario(kind: str, name: str, data: bytes | None) -> Scenario:
     if kind == "register_map":
         station["station.toml"] = station["station.toml"].replace(b"[dyno]\n", f'[dyno]\nregister_map = "{target}"\n'.encode())
     else:
-        station["station.toml"] = _station(**{kind: f'"{target}"'})
+        station["station.toml"] = station_toml(**{kind: f'"{target}"'})
     return Scenario("toml", f"{kind}: {name}", {**station, target: data}, RUN)
 
 
@@ -129,10 +131,10 @@ def toml_scenarios() -> Iterator[Scenario]:
         if kind == "motor":
             valid = b"poles = 6\n"
         elif kind == "settings":
-            valid = _station()
+            valid = station_toml()
         else:
             assert source is not None  # only the motor and the settings have no source file
-            valid = _text(source)
+            valid = file_bytes(source)
         for name, line in hostile.TOML_LINES.items():
             yield _toml_scenario(kind, name, (line + "\n").encode() + valid)
         yield _toml_scenario(kind, f"{MAX_TOML_BYTES + 1024} bytes", b"#" * (MAX_TOML_BYTES + 1023) + b"\n" + valid)
@@ -200,15 +202,16 @@ def capture_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
                        expect="any" if "nested" in name else "refuse")
 
 
-def _block() -> bytes:
+def example_block_bytes() -> bytes:
+    """A valid parameter block (the firmware's example, serial M-0007)."""
     return example_block(serial="M-0007")
 
 
 def path_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     """An output over an input through every writing option, setting and default."""
-    st = {**station_files(), "block.bin": _block(), "can.ini": b"[default]\ninterface = virtual\nchannel = x\n",
-          "motor.toml": b"poles = 6\n", "profile.toml": _text(ROOT / "eol_cal" / "profiles" / "paper.toml"),
-          "cap.csv": bases["csv"], "fit.json": _text(FIXTURES / "fit_paper.json"), "records.sqlite": _records_db()}
+    st = {**station_files(), "block.bin": example_block_bytes(), "can.ini": b"[default]\ninterface = virtual\nchannel = x\n",
+          "motor.toml": b"poles = 6\n", "profile.toml": file_bytes(ROOT / "eol_cal" / "profiles" / "paper.toml"),
+          "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"), "records.sqlite": _records_db()}
     flash = ["flash", "{d}/block.bin", "--can-config", "{d}/can.ini", "--key-file", "{d}/ecu.key", "--motor", "{d}/motor.toml"]
     for victim in ("block.bin", "ecu.key", "can.ini", "motor.toml"):
         yield Scenario("paths", f"flash --log-file {victim}", st, [*flash, "--log-file", f"{{d}}/{victim}"])
@@ -222,7 +225,7 @@ def path_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     for victim in ("station.toml", "limits.toml", "ecu.key"):
         yield Scenario("paths", f"run --log-file {victim}", st, [*RUN, "--log-file", f"{{d}}/{victim}"])
     for victim in ("ecu.key", "limits.toml", "station.toml"):
-        files = {**st, "station.toml": _station(db=f'"{victim}"')}
+        files = {**st, "station.toml": station_toml(db=f'"{victim}"')}
         yield Scenario("paths", f"settings db = {victim}", files, RUN)
         yield Scenario("paths", f"station settings db = {victim}", files,
                        ["station", "--station", "{d}/station.toml", "--operator", "bob"], stdin="q\n")
@@ -242,7 +245,7 @@ def path_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     yield Scenario("paths", "lot stats --csv database", st, ["lot", "stats", "--db", "{d}/records.sqlite", "--csv",
                                                               "{d}/records.sqlite"])
     yield Scenario("paths", "refit -o capture", st, ["refit", "{d}/cap.csv", "-o", "{d}/cap.csv"])
-    sim_dir = {"lot/SIM-000001.csv": _block()}
+    sim_dir = {"lot/SIM-000001.csv": example_block_bytes()}
     yield Scenario("paths", "simulate --out-dir over its --block (named at run time)", sim_dir,
                    ["simulate", "--motors", "2", "--out-dir", "{d}/lot", "--format", "csv", "--block", "{d}/lot/SIM-000001.csv",
                     "--mode", "compensated", "--seconds", "0.2", "--speed-rpm", "60", "--iq", "10", "--seed", "1"])
@@ -273,7 +276,7 @@ def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("refusals", f"settings can.config {name}", files, RUN)
     from eol_cal.station.limits import LIMITS
 
-    limits = _text(FIXTURES / "limits.toml")
+    limits = file_bytes(FIXTURES / "limits.toml")
     key = next(lim.key for lim in LIMITS if lim.quantity == "mech1_after_nm")  # revision 1.2's row
     for value in ("-0.001", "11.0", "nan", "inf", '"0.01"', "true", "[0.01]", "1" + "0" * 30):
         row = f"{key} = {value}\n".encode()
@@ -305,7 +308,7 @@ def _mech_scenarios() -> Iterator[Scenario]:
     """Fit results of revision 1.2 whose ``mech`` object must be refused by ``table`` (layout 2)."""
     from eol_cal.fuzz.mutate import fit_result_with_mech
 
-    base = fit_result_with_mech(_text(FIXTURES / "fit_paper.json"))
+    base = fit_result_with_mech(file_bytes(FIXTURES / "fit_paper.json"))
     for name, path, value in BAD_MECH:
         doc = json.loads(base)
         at = doc["motors"][0]["mech"]
@@ -338,7 +341,7 @@ def _ecu_state_scenarios() -> Iterator[Scenario]:
 
 def exit_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     """Bad input to refit: exit 2 before any cluster starts."""
-    files = {"lot/c.csv": bases["csv"], "limits.toml": _text(FIXTURES / "limits.toml"), "bad.toml": b"x = \n"}
+    files = {"lot/c.csv": bases["csv"], "limits.toml": file_bytes(FIXTURES / "limits.toml"), "bad.toml": b"x = \n"}
     base = ["refit", "{d}/lot", "-o", "{d}/rows.jsonl"]
     for name, extra in (("bad limits", ["--limits", "{d}/bad.toml"]), ("unknown variant", ["--limits", "{d}/limits.toml",
                         "--variant", "NOPE"]), ("variant without limits", ["--variant", "EPS-STD"]),

@@ -26,12 +26,15 @@ from __future__ import annotations
 import dataclasses
 import json
 import signal
+import sqlite3
 import tempfile
+import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from eol_cal.fuzz import hostile
-from eol_cal.fuzz.scenarios import FIXTURES, RUN, Scenario, _block, _station, _text, station_files
+from eol_cal.fuzz.scenarios import FIXTURES, RUN, Scenario, example_block_bytes, file_bytes, station_files, station_toml
+from eol_cal.station.record import RunRecord
 
 _SQLITE_WAL = b"\x37\x7f\x06\x82" + bytes(28)  # a write-ahead log's header: what SQLite writes beside a database
 _SQLITE_JOURNAL = b"\xd9\xd5\x05\xf9\x20\xa1\x63\xd7" + bytes(24)
@@ -40,10 +43,6 @@ _SQLITE_JOURNAL = b"\xd9\xd5\x05\xf9\x20\xa1\x63\xd7" + bytes(24)
 def _records(kind: str) -> list:
     """Records of one selection (``none``, ``one``, ``refused``, ``master``, ``simulated``,
     ``restore``, ``mixed``): the demo's record and the refusal fixture, re-keyed."""
-    import uuid
-
-    from eol_cal.station.record import RunRecord
-
     good = RunRecord.from_json(json.loads((FIXTURES / "run_record_demo.json").read_text()))
     refusal = RunRecord.from_json(json.loads((FIXTURES / "run_record_v1_refusal.json").read_text()))
 
@@ -64,8 +63,6 @@ def _records(kind: str) -> list:
 
 def _db(records: list) -> bytes:
     """A records database (one file, its log checkpointed) holding ``records``."""
-    import sqlite3
-
     from eol_cal.lot.baseline import migrate as migrate_baselines
     from eol_cal.station.records import insert_records, migrate
 
@@ -87,8 +84,8 @@ def dbfile_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     """No output lands on a records database or a file of it, by any route."""
     db = _db(_records("one"))
     files = {**station_files(), "r.sqlite": db, "o.sqlite": db, "o.sqlite-wal": _SQLITE_WAL,
-             "o.sqlite-journal": _SQLITE_JOURNAL, "cap.csv": bases["csv"], "fit.json": _text(FIXTURES / "fit_paper.json"),
-             "block.bin": _block(), "sub/keep": b""}
+             "o.sqlite-journal": _SQLITE_JOURNAL, "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"),
+             "block.bin": example_block_bytes(), "sub/keep": b""}
     with_db = {"records --plot": ["records", "--db", "{d}/r.sqlite", "--plot", "{v}"],
                "lot report -o": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{v}"],
                "lot stats --csv": ["lot", "stats", "--db", "{d}/r.sqlite", "--csv", "{v}"],
@@ -187,7 +184,7 @@ def oemkey_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     specs.update({name: f"oem_{k}:f" for k, name in enumerate(OEM_MODULES)})
     extra = {f"oem_{k}.py": body.encode() for k, body in enumerate(OEM_MODULES.values())}
     for name, spec in specs.items():
-        files = {**station_files(key_algo=f'"{spec}"'), "oem_evil.py": module, **extra, "block.bin": _block()}
+        files = {**station_files(key_algo=f'"{spec}"'), "oem_evil.py": module, **extra, "block.bin": example_block_bytes()}
         yield Scenario("oemkey", f"flash: {name}", files,
                        ["flash", "{d}/block.bin", "-i", "virtual", "-c", "nobody", "--key-algo", spec])
         yield Scenario("oemkey", f"ecu restore: {name}", files,
@@ -229,7 +226,7 @@ SIGNAL_AT_S = (0.2, 0.5, 1.0, 2.0)
 def signal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     """A signal at a moment of a command's start or run: exit 2 (never 130/143/129, never 0)."""
     files = {**station_files(), "r.sqlite": _db(_records("mixed")), "cap.csv": bases["csv"],
-             "fit.json": _text(FIXTURES / "fit_paper.json")}
+             "fit.json": file_bytes(FIXTURES / "fit_paper.json")}
     commands = {"run": RUN, "records": ["records", "--db", "{d}/r.sqlite"],
                 "lot report": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{d}/lot.html", "--kind", "all"],
                 "analyze": ["analyze", "{d}/cap.csv"], "table": ["table", "{d}/fit.json", "-o", "{d}/b.bin"],
@@ -259,7 +256,7 @@ def _mdf4_header(base: bytes, key: str, value: str) -> bytes:
 
 def round3_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
     """The rest of the list: refused with exit 2 before anything runs, one line."""
-    limits = _text(FIXTURES / "limits.toml")
+    limits = file_bytes(FIXTURES / "limits.toml")
     lot = ["lot", "simulate", "--motors", "2", "--limits", "{d}/limits.toml", "--db", "{d}/r.sqlite"]
     spreads = {"empty": b"", "names only": b'name = "x"\n',
                "negative sigma": b'[k6]\ndist = "normal"\nmean = 6e-4\nsigma = -1e-5\n',
@@ -299,7 +296,7 @@ def round3_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
                    ["msa", "type1", "--db", "{d}/r.sqlite", "--serial", "MASTER", "--since", "2030-01-01"])
     yield Scenario("round3", "msa type1 --reference-run of no run", {"r.sqlite": db},
                    ["msa", "type1", "--db", "{d}/r.sqlite", "--serial", "MASTER", "--reference-run", "f" * 32])
-    fit = json.loads(_text(FIXTURES / "fit_paper.json"))
+    fit = json.loads(file_bytes(FIXTURES / "fit_paper.json"))
     for created in ("yesterday", "2026-11-24T00:23:36", 20261124, "", "1969-12-31T23:59:59+00:00",
                     "2106-02-07T06:28:16+00:00", ["2026"], "2026-13-01T00:00:00+00:00"):
         doc = dict(fit, created=created)
@@ -311,7 +308,7 @@ def round3_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("round3", f"msa type1 --reference-run of {name}", {"r.sqlite": _db(records)},
                        ["msa", "type1", "--db", "{d}/r.sqlite", "--serial", "MASTER", "--reference-run", ref.run_id])
     yield Scenario("round3", "run settings of a station without a dyno map key", {**station_files(), "st2.toml":
-                   _station(db='"r.sqlite"').replace(b"[dyno]\n", b"[dyno]\nregister_map = \"\\u0000\"\n")},
+                   station_toml(db='"r.sqlite"').replace(b"[dyno]\n", b"[dyno]\nregister_map = \"\\u0000\"\n")},
                    ["run", "--station", "{d}/st2.toml", "--serial", "M-1"])
 
 

@@ -155,7 +155,7 @@ def _sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, me
         est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
                                         tables=estimator_tables(p))
     else:
-        from eol_cal.firmware.mech import mech_step
+        from eol_cal.firmware.mech_tick import mech_step
 
         est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
                                                      tables=estimator_tables(p))
