@@ -12,10 +12,10 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.fuzz.scenarios_gate import GATE_BUILDERS
+from eol_cal.fuzz.scenarios_gate import BUILDERS
 from test_fault_scenarios import _env
 
-CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind, build in GATE_BUILDERS.items() for s in build({})
+CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind, build in BUILDERS.items() for s in build({})
          if s.expect == "refuse"]
 
 
@@ -33,5 +33,5 @@ def test_every_gate_database_and_baseline_scenario_is_refused_and_changes_nothin
 
 
 def test_the_scenario_set_covers_the_classes():
-    counts = {kind: sum(1 for _ in build({})) for kind, build in GATE_BUILDERS.items()}
+    counts = {kind: sum(1 for _ in build({})) for kind, build in BUILDERS.items()}
     assert counts["gate"] >= 50 and counts["database"] >= 60 and counts["baseline"] >= 10, counts

@@ -6,7 +6,8 @@ Kinds: ``gate`` (every rule value of `eol-cal gate set` that must be refused; st
 that do not pass as settings), ``database`` (records databases holding triggers and views, on
 every reading and writing command; stored baseline lines that are not numbers; newer layouts)
 and ``baseline`` (selections of `lot baseline` that must be refused: wall times, empty periods,
-unknown kinds). Register with ``BUILDERS.update(GATE_BUILDERS)`` (bench/bench_faults.py).
+unknown kinds). Its ``BUILDERS`` are picked up by :func:`eol_cal.fuzz.scenarios.all_builders`
+(bench/bench_faults.py --section scenarios --kinds gate database baseline).
 """
 
 from __future__ import annotations
@@ -170,6 +171,6 @@ def baseline_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("baseline", name, {"records.sqlite": data}, [*base, *extra])
 
 
-GATE_BUILDERS: dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]] = {
+BUILDERS: dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]] = {
     "gate": gate_scenarios, "database": database_scenarios, "baseline": baseline_scenarios,
 }
