@@ -9,11 +9,9 @@ starting ``error:``, no traceback, every file of the scenario unchanged.
 from __future__ import annotations
 
 import pytest
-from click.testing import CliRunner
 
-from cli.main import cli
 from eol_cal.fuzz.scenarios_gate import BUILDERS
-from test_fault_scenarios import _env
+from test_fault_scenarios import refused_in_process
 
 CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind, build in BUILDERS.items() for s in build({})
          if s.expect == "refuse"]
@@ -21,15 +19,7 @@ CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind, build in BUILDERS.i
 
 @pytest.mark.parametrize("scenario", CASES)
 def test_every_gate_database_and_baseline_scenario_is_refused_and_changes_nothing(tmp_path, scenario):
-    d = tmp_path / "s"
-    scenario.lay_out(d)
-    before = scenario.digests(d)
-    res = CliRunner().invoke(cli, scenario.argv(d), input=scenario.stdin or None, env=_env(scenario.env))
-    assert "Traceback" not in res.output, res.output
-    assert res.exception is None or isinstance(res.exception, SystemExit), repr(res.exception)
-    assert res.exit_code == 2, res.output
-    assert res.stderr.strip().splitlines()[-1].startswith("error:"), res.output
-    assert scenario.digests(d) == before
+    refused_in_process(scenario, tmp_path / "s")
 
 
 def test_the_scenario_set_covers_the_classes():
