@@ -109,11 +109,14 @@ def test_single_load_point_refused_with_exit_2(files, tmp_path):
     assert not (tmp_path / "r.json").exists()
     # k6 alone (the paper's eq. 17) is a fair question for one load point, but the generator has
     # cogging (c6 = 10 % of k6 * 65 A) that then leaks into k6 differently at each speed: the
-    # between-segment lack of fit widens the interval past the default limit, so it is refused...
-    # (the generator has no transducer lag: --delay 0)
+    # between-segment lack of fit (birge about 2.3) widens the interval to about 5 % of k6, so
+    # within a 4 % limit it is refused... (the default 5 % sat within 1 % of the widened interval:
+    # the fit's mechanical orders since issue 34 took birge from 2.34 to 2.23 and it passed by a
+    # hair; the test is about the widening, not that margin) (the generator has no transducer
+    # lag: --delay 0)
     out = tmp_path / "r.json"
     args = ["fit", *one_load, "-o", str(out), "--no-c6", "--delay", "0"]
-    res = CliRunner().invoke(cli, args)
+    res = CliRunner().invoke(cli, [*args, "--max-ci-k6", "0.04"])
     assert res.exit_code == 1
     m = json.loads(out.read_text())["motors"][0]
     assert m["status"] == "ci_too_wide" and m["fit"]["birge"] > 2 and m["k6"] is None

@@ -34,7 +34,8 @@ def test_a_record_without_fit_renders_every_limit_as_not_measured():
     html = render_motor_report(rec, [])
     assert 'id="verdict" class="verdict error">ERROR<' in html
     assert html.count('class="limit-row"') == len(judged)
-    assert [r.key for r in limit_rows(error_record(max_pp_after_no_mech1_pct=1.0, max_mech1_after_nm=0.002))] == list(LIMIT_KEYS)
+    every_optional = {"max_pp_after_no_mech1_pct": 1.0, "max_mech1_after_nm": 0.002, "min_model_check_p": 0.001}
+    assert [r.key for r in limit_rows(error_record(**every_optional))] == list(LIMIT_KEYS)
     assert "simulated fault" in html and 'id="no-plots"' in html
     assert "operator</th><td>not recorded" in html
 

@@ -61,6 +61,10 @@ class MotorFit:
     birge: float = 1.0
 
 
+#: the least degrees of freedom of one harmonic's own lack of fit for it to widen that harmonic's
+#: intervals alone (fewer: the lack of fit pooled over every harmonic widens them)
+MIN_DOF_OWN_LACK_OF_FIT = 8.0
+
 def shift_frame(fit: MotorFit, offset_rad: float, offset_sd_rad: float = 0.0) -> MotorFit:
     """The same fit with its phases in a frame ``theta' = theta + offset_rad`` (rad, electrical).
 
@@ -123,7 +127,11 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         ratios = []
         for ih in range(nh):
             dof_h = float(valid.sum()) * 2 - 2 * n_parts - n_tau / nh
-            ratio = float((r[:, 2 * ih: 2 * ih + 2] ** 2).sum()) / dof_h / s2 if dof_h >= 1 and s2 > 0 else birge
+            # a ratio from a few segments is itself too uncertain to narrow an interval with (two
+            # segments of one load point: 2 dof, and the 6th's own ratio came out below the pool's
+            # while its k6 missed the truth by 1.4 intervals): there the pool's ratio stands
+            own = dof_h >= MIN_DOF_OWN_LACK_OF_FIT and s2 > 0
+            ratio = float((r[:, 2 * ih: 2 * ih + 2] ** 2).sum()) / dof_h / s2 if own else birge
             ratios.append(max(1.0, ratio))
             for ip in range(n_parts):
                 i = n_tau + (ip * nh + ih) * 2
