@@ -12,6 +12,11 @@
     [metadata]
     serial = "M-0001"                                 # fills or overrides file metadata
 
+    [file]
+    format = "text"                                   # what the file is, whatever its suffix
+    delimiter = "\t"                                  # (eol_cal.capture.file_options)
+    decimal = ","
+
 A unit in the map is the unit of the source channel. When the file states a unit too (CSV
 header ``Zeit [ms]``, MDF4 channel unit) the two must agree. Source channels that the map does
 not name are dropped, except those already carrying a canonical name.
@@ -24,6 +29,7 @@ from pathlib import Path
 from collections.abc import Mapping
 
 from eol_cal.capture.columns import Column, combine_hall_bits
+from eol_cal.capture.file_options import FileOptions, parse_file_options
 from eol_cal.capture.metadata import MetaValue, coerce_value
 from eol_cal.capture.model import CANONICAL_CHANNELS, TRUTH_PREFIX
 from eol_cal.capture.units import check_unit, parse_unit, to_canonical
@@ -49,11 +55,13 @@ class ChannelSpec:
 
 @dataclass(frozen=True)
 class ChannelMap:
-    """A parsed map file: canonical name -> :class:`ChannelSpec`, metadata overrides, its path."""
+    """A parsed map file: canonical name -> :class:`ChannelSpec`, metadata overrides, its path,
+    and what the file is (its ``[file]`` table, :class:`FileOptions`)."""
 
     channels: Mapping[str, ChannelSpec] = field(default_factory=dict)
     metadata: Mapping[str, MetaValue] = field(default_factory=dict)
     source: str = "<map>"
+    file: FileOptions = field(default_factory=FileOptions)
 
 
 def _spec(name: str, entry: object, path: str) -> ChannelSpec:
@@ -95,9 +103,9 @@ def load_channel_map(path: str | Path) -> ChannelMap:
     """
     path_s = str(path)
     data = load_toml(path)
-    unknown = set(data) - {"channels", "metadata"}
+    unknown = set(data) - {"channels", "metadata", "file"}
     if unknown:
-        raise InputError(path_s, sorted(unknown)[0], "unknown table; a map has [channels] and [metadata]")
+        raise InputError(path_s, sorted(unknown)[0], "unknown table; a map has [channels], [metadata] and [file]")
     raw_channels = data.get("channels", {})
     raw_meta = data.get("metadata", {})
     if not isinstance(raw_channels, dict) or not isinstance(raw_meta, dict):
@@ -114,7 +122,8 @@ def load_channel_map(path: str | Path) -> ChannelMap:
         if key.startswith(TRUTH_PREFIX):
             raise InputError(path_s, key, "truth.* keys are written by simulators only")
         metadata[key] = coerce_value(key, value, path_s)
-    return ChannelMap(channels=channels, metadata=metadata, source=path_s)
+    file = parse_file_options(data["file"], path_s) if "file" in data else FileOptions()
+    return ChannelMap(channels=channels, metadata=metadata, source=path_s, file=file)
 
 
 def _unit(spec_unit: str | None, file_unit: str | None, file: str, map_file: str, label: str) -> str | None:
@@ -187,11 +196,13 @@ def apply_channel_map(
                 )
             out[source_name] = _convert(source_name, column, column.unit, file, source_name)
         elif channel_map is None:
-            raise ForeignChannelError(
-                file,
-                source_name,
-                f"unknown channel name; canonical names are {', '.join(CANONICAL_CHANNELS)} "
-                "(a foreign file needs a channel map)",
-            )
+            raise foreign_channel(file, source_name)
     return out, meta
+
+
+def foreign_channel(file: str, name: str) -> ForeignChannelError:
+    """The refusal of a channel that is not a canonical name, in a file read without a map."""
+    return ForeignChannelError(
+        file, name, f"unknown channel name; canonical names are {', '.join(CANONICAL_CHANNELS)} "
+                    "(a foreign file needs a channel map)")
 

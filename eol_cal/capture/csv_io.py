@@ -8,7 +8,9 @@
     t [s],torque [N*m],enc_a,enc_b,hall,iq_ref [A]
     0.0,3.1875,1,0,5,65.0
 
-UTF-8 (a byte-order mark is tolerated), comma-separated, ``.`` as decimal mark. ``#`` lines
+UTF-8 (a byte-order mark is tolerated), comma-separated, ``.`` as decimal mark. A channel map's
+``[file]`` table reads other delimited text (tab or semicolon separated, a decimal comma, a
+units row, a preamble, another encoding; :mod:`eol_cal.capture.file_options`). ``#`` lines
 that do not read ``key: value`` are comments. Floats are written in their shortest exact form
 (Python ``repr``), so a write-read round trip returns the same float64 values. CSV cannot hold
 change events: digital channels are written as the levels at the sample times.
@@ -16,6 +18,7 @@ change events: digital channels are written as the levels at the sample times.
 
 from __future__ import annotations
 
+import codecs
 import re
 from pathlib import Path
 
@@ -24,6 +27,7 @@ import numpy as np
 from eol_cal.atomic import atomic_path
 from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble
+from eol_cal.capture.file_options import FileOptions
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, decode_value, encode_value, join_truth, split_truth
 from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
 from eol_cal.errors import InputError
@@ -42,10 +46,22 @@ def _split_cell(cell: str) -> tuple[str, str | None]:
     return cell[:opening].strip(), cell[opening + 1:-1].strip() or None
 
 
-def _parse_header(line: str, file: str) -> list[tuple[str, str | None]]:
+def _cells(line: str, delimiter: str) -> list[str]:
+    """A line's cells, blanks and one pair of surrounding double quotes taken off (``"Zeit [s]"``)."""
+    cells = line.split() if delimiter == " " else line.split(delimiter)
+    out = []
+    for cell in cells:
+        cell = cell.strip()
+        if len(cell) >= 2 and cell[0] == cell[-1] == '"':
+            cell = cell[1:-1].strip()
+        out.append(cell)
+    return out
+
+
+def _parse_header(line: str, file: str, delimiter: str = ",") -> list[tuple[str, str | None]]:
     cells = []
-    for position, cell in enumerate(line.split(","), start=1):
-        name, unit = _split_cell(cell.strip())
+    for position, cell in enumerate(_cells(line, delimiter), start=1):
+        name, unit = _split_cell(cell)
         if not name:
             raise InputError(file, f"column {position}", "empty channel name in the header line")
         cells.append((name, unit))
@@ -57,11 +73,33 @@ def _parse_header(line: str, file: str) -> list[tuple[str, str | None]]:
     return cells
 
 
-def _load_rows(lines: list[str], header: list[tuple[str, str | None]], first_line: int, file: str) -> np.ndarray:
+def _with_units_row(header: list[tuple[str, str | None]], line: str, line_no: int, file: str,
+                    delimiter: str) -> list[tuple[str, str | None]]:
+    """The header's names with the units of the units row (``[N*m]`` or ``N*m``; empty: none)."""
+    units = _cells(line, delimiter)
+    if delimiter == " " and len(units) < len(header):
+        raise InputError(file, None, f"units row (line {line_no}) holds {len(units)} units for {len(header)} channels; "
+                                     "with blank-separated columns every channel needs a unit (write 1 or -)")
+    if len(units) != len(header):
+        raise InputError(file, None, f"units row (line {line_no}) holds {len(units)} cells, the header {len(header)}")
+    out = []
+    for (name, stated), cell in zip(header, units, strict=True):
+        unit = cell[1:-1].strip() if cell.startswith("[") and cell.endswith("]") else cell
+        if stated is not None and unit and unit != stated:
+            raise InputError(file, name, f"header states unit {stated!r}, the units row (line {line_no}) {unit!r}")
+        out.append((name, stated or unit or None))
+    return out
+
+
+def _load_rows(lines: list[str], header: list[tuple[str, str | None]], first_line: int, file: str,
+               delimiter: str = ",", decimal: str = ".") -> np.ndarray:
     if not any(line.strip() and not line.lstrip().startswith("#") for line in lines):
         raise InputError(file, "t", "no data rows after the header line")
+    if decimal == ",":  # the delimiter is not a comma (file_options refuses that): the comma is the mark
+        lines = [line.replace(",", ".") for line in lines]
     try:
-        data = np.loadtxt(lines, delimiter=",", dtype=np.float64, ndmin=2, comments="#")
+        data = np.loadtxt(lines, delimiter=None if delimiter == " " else delimiter, dtype=np.float64, ndmin=2,
+                          comments="#")
     except ValueError as exc:
         message = str(exc)
         field = None
@@ -71,7 +109,9 @@ def _load_rows(lines: list[str], header: list[tuple[str, str | None]], first_lin
             field = header[int(col.group(1)) - 1][0]
         row = re.search(r"at row (\d+)", message)
         where = f" (data row {int(row.group(1)) + 1}, about line {first_line + int(row.group(1))})" if row else ""
-        hint = "; the decimal mark must be '.'" if "," in message.split("at row")[0] else ""
+        hint = ""
+        if decimal == "." and "," in message.split("at row")[0]:
+            hint = "; the decimal mark must be '.' (a channel map's [file] decimal = \",\" reads a decimal comma)"
         raise InputError(file, field, f"unreadable data{where}: {message}{hint}") from None
     if data.shape[0] == 0:
         raise InputError(file, "t", "no data rows after the header line")
@@ -80,19 +120,31 @@ def _load_rows(lines: list[str], header: list[tuple[str, str | None]], first_lin
     return data
 
 
-def read_csv_columns(path: str | Path) -> tuple[dict[str, Column], dict[str, MetaValue]]:
-    """Raw columns (source names, units as stated) and all ``# key: value`` properties of a CSV.
+def read_csv_columns(path: str | Path, options: FileOptions | None = None
+                     ) -> tuple[dict[str, Column], dict[str, MetaValue]]:
+    """Raw columns (source names, units as stated) and all ``# key: value`` properties of a CSV,
+    or of delimited text as a map's ``[file]`` table describes it.
+
+    Parameters
+    ----------
+    path : path
+        The file.
+    options : FileOptions, optional
+        Delimiter, decimal mark, units row, lines to skip, encoding (default: a capture-format CSV).
 
     Raises
     ------
     InputError
         Unreadable file, no header, malformed or duplicate metadata, non-numeric data.
     """
+    opts = options or FileOptions()
     file = str(path)
-    text = read_text(path, encoding="utf-8-sig")
-    lines = text.splitlines()
+    encoding = "utf-8-sig" if codecs.lookup(opts.encoding).name == "utf-8" else opts.encoding
+    lines = read_text(path, encoding=encoding).splitlines()
+    if opts.skip_lines >= len(lines):
+        raise InputError(file, None, f"{len(lines)} lines, and the map skips {opts.skip_lines} before the header")
     properties: dict[str, MetaValue] = {}
-    index = 0
+    index = opts.skip_lines
     while index < len(lines) and (not lines[index].strip() or lines[index].lstrip().startswith("#")):
         match = _META_LINE.match(lines[index].strip())
         if match and KEY_PATTERN.match(match.group(1)):
@@ -103,8 +155,13 @@ def read_csv_columns(path: str | Path) -> tuple[dict[str, Column], dict[str, Met
         index += 1
     if index == len(lines):
         raise InputError(file, None, "no header line of channel names")
-    header = _parse_header(lines[index], file)
-    data = _load_rows(lines[index + 1 :], header, index + 2, file)
+    header = _parse_header(lines[index], file, opts.delimiter)
+    if opts.units_row:
+        index += 1
+        if index == len(lines):
+            raise InputError(file, None, "no units row after the header line")
+        header = _with_units_row(header, lines[index], index + 1, file, opts.delimiter)
+    data = _load_rows(lines[index + 1 :], header, index + 2, file, opts.delimiter, opts.decimal)
     columns = {name: Column(data[:, k], unit) for k, (name, unit) in enumerate(header)}
     return columns, properties
 
@@ -117,10 +174,11 @@ def read_csv(path: str | Path, channel_map: ChannelMap | None = None) -> Capture
     path : path
         The CSV file.
     channel_map : ChannelMap, optional
-        Map for a foreign file's names and units.
+        Map for a foreign file's names and units, and its ``[file]`` table for delimited text
+        other than a capture-format CSV.
     """
     file = str(path)
-    columns, properties = read_csv_columns(path)
+    columns, properties = read_csv_columns(path, channel_map.file if channel_map is not None else None)
     metadata, truth = split_truth(properties)
     columns, metadata = apply_channel_map(columns, metadata, channel_map, file)
     if "t" not in columns:

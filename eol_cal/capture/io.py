@@ -1,4 +1,5 @@
-"""Reading and writing captures by file suffix: ``.csv`` and ``.mf4`` (capture format v1)."""
+"""Reading and writing captures by file suffix: ``.csv`` and ``.mf4`` (capture format v1), and
+reading NI TDMS (``.tdms``) and delimited text of any suffix when a channel map says what it is."""
 
 from __future__ import annotations
 
@@ -6,11 +7,12 @@ from pathlib import Path
 from typing import Any
 
 from eol_cal.capture.channel_map import ChannelMap, load_channel_map
+from eol_cal.capture.file_options import SUFFIX_FORMATS
 from eol_cal.capture.model import Capture
 from eol_cal.capture.validate import validate as _validate
 from eol_cal.errors import InputError, WriteError
 
-#: file suffixes the readers and writers take
+#: file suffixes the writers take (the readers take these and ``.tdms``, and any with a map's ``[file] format``)
 SUFFIXES = (".csv", ".mf4")
 
 
@@ -19,6 +21,29 @@ def _suffix(path: str | Path) -> str:
     if suffix not in SUFFIXES:
         raise InputError(str(path), None, f"unknown capture file type {suffix or '(none)'!r}; known: {', '.join(SUFFIXES)}")
     return suffix
+
+
+def capture_format(path: str | Path, channel_map: ChannelMap | None = None) -> str:
+    """What ``path`` is read as: ``"text"``, ``"tdms"`` or ``"mf4"``; the map's ``[file] format``,
+    else the suffix's.
+
+    Raises
+    ------
+    InputError
+        An unknown suffix and no format in the map; a map option of another format.
+    """
+    file = str(path)
+    fmt = channel_map.file.format if channel_map is not None else None
+    if fmt is None:
+        suffix = Path(path).suffix.lower()
+        fmt = SUFFIX_FORMATS.get(suffix)
+        if fmt is None:
+            raise InputError(file, None, f"unknown capture file type {suffix or '(none)'!r}; known: "
+                                         f"{', '.join(SUFFIX_FORMATS)} (a channel map's [file] format reads any "
+                                         "suffix: format = \"text\" for delimited text)")
+    if channel_map is not None:
+        channel_map.file.check_format(fmt, file, channel_map.source)
+    return fmt
 
 
 def read_capture(
@@ -31,9 +56,9 @@ def read_capture(
     Parameters
     ----------
     path : path
-        ``.csv`` or ``.mf4`` file.
+        ``.csv``, ``.mf4`` or ``.tdms`` file, or any file whose format the map's ``[file]`` names.
     channel_map : ChannelMap or path, optional
-        Channel map (or its TOML file) for a foreign file's channel names and units.
+        Channel map (or its TOML file) for a foreign file's channel names, units and format.
     validate : bool
         Refuse a capture that cannot be trusted (:func:`eol_cal.capture.validate.validate`).
         ``False`` only for tools that describe a file, never for analyses.
@@ -48,14 +73,18 @@ def read_capture(
     InputError
         Unknown suffix, unreadable file, a bad map, or a capture that fails validation.
     """
-    suffix = _suffix(path)
     if channel_map is not None and not isinstance(channel_map, ChannelMap):
         channel_map = load_channel_map(channel_map)
+    fmt = capture_format(path, channel_map)
     try:
-        if suffix == ".csv":
+        if fmt == "text":
             from eol_cal.capture.csv_io import read_csv
 
             capture = read_csv(path, channel_map)
+        elif fmt == "tdms":
+            from eol_cal.capture.tdms_io import read_tdms
+
+            capture = read_tdms(path, channel_map)
         else:
             from eol_cal.capture.mdf4_io import read_mdf4
 
