@@ -34,7 +34,8 @@ def _records():
 
 @pytest.mark.slow
 def test_lot_page_with_a_baseline_in_chromium(tmp_path):
-    from _browser import Browser, element_sizes
+    from _chromium import Chromium, element_sizes
+    from playwright.sync_api import expect
 
     from eol_cal.lot.page import write_lot_page
 
@@ -46,22 +47,22 @@ def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     judged = [r for r in recs if r.started_at >= "2026-11-22"]
     page = write_lot_page(judged, tmp_path / "lot.html", title="lot.sqlite", filters={"since": "2026-11-22"}, min_n=10,
                           baseline=baseline)
-    with Browser() as b:
+    with Chromium() as b:
         log = b.open(page.as_uri())
-        text = b.evaluate("document.getElementById('baseline').textContent")
-        rows = b.evaluate("Array.from(document.querySelectorAll('tr.violation-row'))"
-                          ".map(r => [r.dataset.rule, r.dataset.key, r.cells[3].textContent])")
-        ringed = b.evaluate("Array.from(document.querySelectorAll('[id=\"control-L1-S1-rule-k6\"] title'))"
-                            ".map(t => t.textContent)")
-        frozen_ucl = b.evaluate("document.querySelectorAll('[id^=control-L1-S][id$=-cl-k6-ucl]').length")
-        phase = b.evaluate("Array.from(document.querySelector('tr.quantity-row[data-key=phase_c6]').cells)"
-                           ".map(c => c.textContent)")
-        groups = b.evaluate("Array.from(document.querySelectorAll('tr.capability-row[data-key=k6]'))"
-                            ".map(r => [r.dataset.station, r.querySelector('td.cpk').textContent])")
-        card = b.evaluate("document.getElementById('card-violations').textContent")
-        polar = b.evaluate("document.querySelectorAll('[id=\"histograms-hist-phase_c6\"]').length")
-        sizes = element_sizes(b, "svg.plot")
-    assert log.console_errors == [] and set(log.requests) == {page.as_uri()}
+        p = b.page
+        expect(p.locator("#baseline")).to_contain_text("nov-wk47")
+        text = p.locator("#baseline").text_content()
+        rows = p.locator("tr.violation-row").evaluate_all(
+            "rs => rs.map(r => [r.dataset.rule, r.dataset.key, r.cells[3].textContent])")
+        ringed = p.locator('[id="control-L1-S1-rule-k6"] title').all_text_contents()
+        frozen_ucl = p.locator("[id^=control-L1-S][id$=-cl-k6-ucl]").count()
+        phase = p.locator("tr.quantity-row[data-key=phase_c6]").evaluate("r => Array.from(r.cells, c => c.textContent)")
+        groups = p.locator("tr.capability-row[data-key=k6]").evaluate_all(
+            "rs => rs.map(r => [r.dataset.station, r.querySelector('td.cpk').textContent])")
+        card = p.locator("#card-violations").text_content()
+        polar = p.locator('[id="histograms-hist-phase_c6"]').count()
+        sizes = element_sizes(b.page, "svg.plot")
+    assert log.console_errors == [] and set(log.requests) == {page.as_uri()} and b.left_behind == []
     assert "nov-wk47" in text and "60 runs" in text and "k6, pp_after_pct" in text
     # station 1's drift breaks rules, station 2 breaks none
     assert rows and {st for _r, _k, st in rows} == {"L1-S1"} and {k for _r, k, _s in rows} == {"k6"}

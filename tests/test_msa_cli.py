@@ -99,17 +99,19 @@ def test_msa_type1_refuses_bad_options(tmp_path: Path, args, message):
 def _in_chromium(page: Path, plots: Path, doc: dict) -> None:
     """The study's page offline in headless Chromium: five run charts with a point per run, the
     verdict, each index or its reason."""
-    from _browser import Browser, element_sizes
+    from _chromium import Chromium, element_sizes
+    from playwright.sync_api import expect
 
-    with Browser() as b:
+    with Chromium() as b:
         log = b.open(page.as_uri())
-        sizes = element_sizes(b, "svg.plot")
-        verdict = b.evaluate("document.getElementById('verdict').textContent")
-        cells = b.evaluate("Array.from(document.querySelectorAll('tr.study-row'))"
-                           ".map(r => [r.dataset.key, r.querySelector('td.cg').textContent])")
-        points = b.evaluate("document.querySelectorAll('[id=\"type1-k6-values-k6\"] title').length")
+        expect(b.page.locator("#verdict")).to_have_text("CAPABLE")
+        sizes = element_sizes(b.page, "svg.plot")
+        rows = b.page.locator("tr.study-row")
+        cells = {rows.nth(i).get_attribute("data-key"): rows.nth(i).locator("td.cg").text_content()
+                 for i in range(rows.count())}
+        expect(b.page.locator('[id="type1-k6-values-k6"] title')).to_have_count(25)
     assert log.console_errors == [] and set(log.requests) == {page.as_uri()}
+    assert b.left_behind == []
     assert [s["id"] for s in sizes] == [f"fig-type1-{q['key'].replace('_', '-')}" for q in doc["quantities"]]
-    assert all(s["w"] > 100 and s["h"] > 50 for s in sizes) and verdict == "CAPABLE"
-    assert dict(cells)["c6"] == "no tolerance" and float(dict(cells)["k6"]) == pytest.approx(doc["quantities"][0]["cg"], rel=1e-2)
-    assert points == 25
+    assert all(s["w"] > 100 and s["h"] > 50 for s in sizes)
+    assert cells["c6"] == "no tolerance" and float(cells["k6"]) == pytest.approx(doc["quantities"][0]["cg"], rel=1e-2)

@@ -467,26 +467,25 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
     """The run's report.html in headless Chromium from file://, network off: nothing fetched
     but the file itself (and its inline data: images), no console error, every plot drawn,
     the verdict and every limit row there, at most two A4 pages printed."""
-    from _browser import Browser, element_sizes, group_alive, not_blank, pdf_pages
-
+    from _chromium import Chromium, element_sizes, not_blank, pdf_pages
+    from playwright.sync_api import expect
 
     rec = full_run["rec"]
     page = Path(rec["report_dir"]) / "report.html"
-    with Browser() as b:
+    with Chromium() as b:
         log = b.open(page.as_uri())
-        sizes = element_sizes(b, "svg.plot")
-        verdict_text = b.evaluate("document.getElementById('verdict').textContent")
-        rows = b.evaluate("Array.from(document.querySelectorAll('tr.limit-row'))"
-                          ".map(r => [r.dataset.key, r.lastElementChild.textContent])")
-        b_ecu = b.evaluate("document.getElementById('ecu').textContent")
-        residual_panels = b.evaluate("document.querySelectorAll('#fig-residual g[id^=residual-segment-]').length")
+        p = b.page
+        expect(p.locator("#verdict")).to_have_text(rec["verdict"].upper())
+        sizes = element_sizes(p, "svg.plot")
+        rows = p.locator("tr.limit-row").evaluate_all("rs => rs.map(r => [r.dataset.key, r.lastElementChild.textContent])")
+        b_ecu = p.locator("#ecu").text_content()
+        residual_panels = p.locator("#fig-residual g[id^=residual-segment-]").count()
         shot = b.screenshot(tmp_path / "report.png")
         pages = pdf_pages(b.pdf())
-    assert not group_alive(b.pgid)
+    assert b.left_behind == []
     assert log.console_errors == []
     assert [u for u in log.requests if not u.startswith("data:")] == [page.as_uri()]
     assert len(sizes) == 3 and all(s["w"] > 100 and s["h"] > 100 for s in sizes), sizes
-    assert verdict_text == rec["verdict"].upper()
     assert [k for k, _ in rows] == [c["key"] for c in rec["checks"]]  # the record's checks; an optional limit left off is none
     assert all(status in ("PASS", "FAIL") for _, status in rows)
     # the ECU's state in the record is on the page: CRCs and flags of both blocks
