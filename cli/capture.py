@@ -129,17 +129,23 @@ def info(file: str, map_file: str | None, as_json: bool) -> None:
     Exit code 2 when the file cannot be read or the capture fails a check (the summary is
     still printed, the problem goes to stderr).
     """
-    from eol_cal.capture import read_capture
+    from eol_cal.capture import load_channel_map, read_capture
+    from eol_cal.capture.file_options import SUFFIX_FORMATS
+    from eol_cal.capture.io import capture_format
     from eol_cal.capture.validate import validate
     from eol_cal.errors import InputError
 
-    capture = read_capture(file, map_file, validate=False)
+    channel_map = load_channel_map(map_file) if map_file else None
+    capture = read_capture(file, channel_map, validate=False)
     problem = None
     try:
         validate(capture)
     except InputError as exc:
         problem = exc
-    summary = capture_summary(capture, Path(file).suffix.lower().lstrip("."), problem)
+    suffix = Path(file).suffix.lower()
+    # csv, mf4, tdms by their suffix; a file of another suffix as what its map says it is (text, ...)
+    file_format = suffix.lstrip(".") if suffix in SUFFIX_FORMATS else capture_format(file, channel_map)
+    summary = capture_summary(capture, file_format, problem)
     if as_json:
         print_json({"schema": "eol-cal/capture-info/1", **summary})
     else:

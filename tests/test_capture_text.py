@@ -154,5 +154,7 @@ def test_map_file_table_round_trip_and_cli_exit_codes(tmp_path):
     # three samples are no capture: `capture info` prints what it read and exits 2 naming the reason
     res = CliRunner().invoke(cli, ["capture", "info", str(data), "--map", str(map_file)])
     assert res.exit_code == 2 and "samples" in res.output and "error: invalid capture" in res.output
+    res = CliRunner().invoke(cli, ["capture", "info", str(data), "--map", str(map_file), "--json"])
+    assert res.exit_code == 2 and '"format": "text"' in res.stdout and '"samples": 3' in res.stdout
     res = CliRunner().invoke(cli, ["capture", "info", str(data)])
     assert res.exit_code == 2 and "unknown capture file type '.txt'" in res.output
