@@ -179,11 +179,12 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
     CRC; transfer:2 killed the prepare flash's CRC write): is the error record in the database
     and the report written?"""
     from eol_cal.dyno import sim as ds
+    from eol_cal.dyno.sim_capture import synthetic_source
     from eol_cal.station.records_query import query_records
 
     (work / "limits.toml").write_text(LIMITS)
     flash_file = work / "ecu.flash"
-    sim_dyno = ds.DynoSim(ds.synthetic_source, serial="K-1")
+    sim_dyno = ds.DynoSim(synthetic_source, serial="K-1")
     with ds.DynoSimThread(sim_dyno, "127.0.0.1", 0) as dyno:
         ecu = _cli(env, "ecu-sim", "--flash-file", str(flash_file), "--listen", "127.0.0.1:0", "--serial", "K-1",
                    "--die-at", die_at)

@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint
+from eol_cal.dyno.client import DynoClient, DynoError
+from eol_cal.dyno.setpoints import DynoSetpoint
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from cli.dyno import parse_fault_plan
-from eol_cal.dyno.sim import CaptureRequest, DynoSim, DynoSimThread, synthetic_source
+from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_capture import CaptureRequest, synthetic_source
 from eol_cal.firmware import block as B
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -245,7 +248,7 @@ def test_the_plant_hands_over_its_capture_in_pieces_that_are_the_capture():
     """The rig's plant gives the dyno each recorded piece as it computes it (a real-time dyno
     answers them while the rest is computed): every piece is the start of the capture it returns."""
     from eol_cal.dyno.registers import DutCmdKind
-    from eol_cal.dyno.sim import CaptureRequest
+    from eol_cal.dyno.sim_capture import CaptureRequest
     from eol_cal.station.rig import ActiveCalibration, plant_capture
 
     pieces = []
@@ -316,7 +319,8 @@ def test_the_dyno_package_knows_no_ecu_and_no_block():
     import subprocess
     import sys
 
-    code = ("import sys, eol_cal.dyno.sim, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, eol_cal.dyno.transfer; "
+    code = ("import sys, eol_cal.dyno.sim, eol_cal.dyno.sim_capture, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, "
+            "eol_cal.dyno.setpoints, eol_cal.dyno.profile_run, eol_cal.dyno.transfer; "
             "print(sorted(m for m in sys.modules if m.startswith(('eol_cal.ecu', 'eol_cal.firmware', 'eol_cal.station'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"

@@ -199,7 +199,7 @@ def test_the_prepared_block_selects_the_same_estimator_in_the_rig():
     gives another angle estimate than one with ``paper`` (same motor, same noise)."""
     from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.dyno.registers import DutCmdKind
-    from eol_cal.dyno.sim import CaptureRequest
+    from eol_cal.dyno.sim_capture import CaptureRequest
     from eol_cal.motor import load_motor
     from eol_cal.station.rig import ActiveCalibration, plant_capture
 

@@ -18,7 +18,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.dyno.sim import synthetic_source
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.keyalgo import ENTRY_POINT_GROUP, oem_seed_to_key, seed_to_key_from
 from eol_cal.ecu.sim import SimConfig

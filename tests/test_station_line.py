@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from eol_cal.dyno.client import DynoClient, DynoConfig, parse_address
+from eol_cal.dyno.client import DynoClient, parse_address
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.ecu.client import ecu_state
 from eol_cal.ecu.transport import open_bus
 from eol_cal.station.demo import loopback_line

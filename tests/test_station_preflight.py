@@ -18,7 +18,7 @@ from click.testing import CliRunner
 import pytest
 
 from cli.main import cli
-from eol_cal.dyno.sim import synthetic_source
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming, ecu_state, flash_block, hmac_seed_to_key
 from eol_cal.firmware import block as B

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from eol_cal.capture.model import Capture
-from eol_cal.dyno.sim import CaptureRequest, CaptureSource, i_qo_of
+from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource, i_qo_of
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware.block import ParamBlock, pack, unpack
 from eol_cal.firmware.settling import FIRST_EDGES_S
