@@ -30,14 +30,12 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # the virtual rig is a test fixture (tests/_ecu_rig.py)
+from eol_cal.ecu import protocol as P
+from eol_cal.ecu.client import ClientTiming, flash_block, hmac_seed_to_key
+from eol_cal.ecu.flash import NorFlash, select_active
+from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 
-from eol_cal.ecu import protocol as P  # noqa: E402
-from eol_cal.ecu.client import ClientTiming, flash_block, hmac_seed_to_key  # noqa: E402
-from eol_cal.ecu.flash import NorFlash, select_active  # noqa: E402
-from _ecu_rig import FAST_CLIENT, example_block, virtual_rig  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 BOUND_S = ClientTiming().dead_link_bound_s
 KILL_STEPS = ("session", "security", "read_did", "erase", "download", "transfer", "read_memory",

@@ -40,14 +40,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+from bench_faults_ecu import LIMITS  # the same limits as the ECU trials (beside this script: on its path)
+from eol_cal.dyno import sim as ds
+from eol_cal.dyno.sim_capture import synthetic_source
+from eol_cal.ecu import protocol as P
 
-from eol_cal.dyno import sim as ds  # noqa: E402
-from eol_cal.dyno.sim_capture import synthetic_source  # noqa: E402
-from bench_faults_ecu import LIMITS  # noqa: E402 - the same limits as the ECU trials
-from eol_cal.ecu import protocol as P  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: (window, what opens it, the longest wait into it, s). The fit starts as the calibration
 #: acquisition ends, when the client disables the dyno's drive (``FIRST_STOP``); the capture files

@@ -7,7 +7,7 @@ calibration profile and the compensated verification the run chose, each with th
 record says the shaft turned for the ECU's settling after the flash before it).
 
 The simulators run in this process on 127.0.0.1, at fixed addresses for many motors, as a line's
-dyno and ECU are other machines (:func:`eol_cal.station.demo.loopback_line`): the dyno simulator in
+dyno and ECU are other machines (:func:`eol_cal.sim.loopback.loopback_line`): the dyno simulator in
 real time (a capture takes its physical time, the buffer fills as the shaft turns) with the
 built-in plant, and the ECU simulator with its bus paced to the CAN bit rate. Each motor gets a
 fresh, erased ECU and the next plant draw.
@@ -344,7 +344,7 @@ def main() -> int:
     from cli.fit import enable_jax_cache
     from eol_cal.dyno.mapfile import load_register_map
     from eol_cal.ecu import protocol as P
-    from eol_cal.station.demo import loopback_line
+    from eol_cal.sim.loopback import loopback_line
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)

@@ -236,7 +236,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
                 raise InputError(None, "--seed",
                                  "motor variation (eol_cal.plant.variation) is not available in this build") from None
 
-        from eol_cal.station.rig import plant_source
+        from eol_cal.sim.rig import plant_source
 
         enable_jax_cache()
         capture_source = plant_source(ecu_flash)

@@ -21,7 +21,7 @@ from eol_cal.dyno.registers import DriveState, Fault, SimFault
 from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

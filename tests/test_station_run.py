@@ -25,7 +25,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 from eol_cal.station.limits import LIMIT_KEYS, Measured, load_limits, verdict
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records_query import query_records

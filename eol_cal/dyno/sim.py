@@ -4,7 +4,7 @@ reference layout by default, or any map file the client can drive).
 The simulated dyno holds a speed set point with a ramp, passes the load command to the motor
 under test and, when a capture is started, asks a *capture source* for the recording
 (:data:`CaptureSource`): the analytic model here (:func:`synthetic_source`), or what the rig
-wires in (:mod:`eol_cal.station.rig`: the built-in plant running the ECU simulator's active
+wires in (:mod:`eol_cal.sim.rig`: the built-in plant running the ECU simulator's active
 flash bank, so a flash changes what the next capture shows). The dyno knows no ECU and no
 parameter block; the motor's data (poles, encoder, torque constant, PWM clock) come from its
 :class:`~eol_cal.motor.MotorParams`.

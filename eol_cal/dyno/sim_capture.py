@@ -122,7 +122,7 @@ def synthetic_source(req: CaptureRequest) -> Capture:
     ``paper`` motor).
 
     It models quantisation ripple and the 6th harmonic but no ECU: a flash does not change what
-    it shows (the rig's plant source does, :func:`eol_cal.station.rig.plant_source`).
+    it shows (the rig's plant source does, :func:`eol_cal.sim.rig.plant_source`).
     """
     motor = load_motor("paper")
     return synthetic_capture(
