@@ -12,18 +12,16 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from eol_cal.firmware import compensator as comp
+from eol_cal.motor import load_motor
 
-from eol_cal.firmware import compensator as comp  # noqa: E402
-from eol_cal.motor import load_motor  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RIPPLE = dict(c6=0.012, phase_c6=0.35, k6=0.0015, phase_k6=-0.6)
 

@@ -122,7 +122,7 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
     # the fingerprint: the plant's edge errors in the block's numbering, orders 0..2 out per half
     N = mi.encoder_ppr
     true_fp, _ = fingerprint_of(sensor_errors(to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0)), mi.poles)
-    P = fpr._low_order_complement(N)
+    P = fpr.low_order_complement(N)
     got = np.asarray(mech["fingerprint"], float)
     sig = np.array([np.inf if s is None else s for s in mech["sigma"]], float)
     best = None

@@ -32,7 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoSetpoint
+from eol_cal.dyno.client import DynoClient
+from eol_cal.dyno.setpoints import DynoSetpoint
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import default_register_map
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,5 +1,5 @@
 """How long an ``eol-cal`` process lives after its last output: the process ends at its last
-atexit handler (``cli.main._finish``) against Python's own teardown after it, the alternative a
+atexit handler (``cli.main.end_process``) against Python's own teardown after it, the alternative a
 plain ``python -m`` entry point gets (module finalization, XLA's threads and destructors).
 
 A line that drives ``eol-cal run`` from its own sequencer waits for the process to end before it
@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = {
     "ends at the last atexit handler (main)": "from cli import main as m; m.main()",
-    "Python's own teardown after it": "from cli import main as m; m._finish = lambda: None; m.main()",
+    "Python's own teardown after it": "from cli import main as m; m.end_process = lambda: None; m.main()",
 }
 
 

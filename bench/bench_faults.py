@@ -1,7 +1,7 @@
 """Fault benchmark (issue 16): how the real CLI ends on hostile inputs, side by side with the
 code before this work.
 
-Section ``inputs``: a seeded campaign of bad inputs (:mod:`eol_cal.fuzz`: CSV and MDF4 captures,
+Section ``inputs``: a seeded campaign of bad inputs (:mod:`eol_cal.sim.fuzz`: CSV and MDF4 captures,
 parameter blocks, fit results), each run through the real CLI in a child process under an
 address-space limit. Per kind and in all it prints: bad inputs tried / accepted / refused
 cleanly (exit 1 or 2, one line naming the file) / refusals that do not name the file /
@@ -15,7 +15,7 @@ Section ``ecu``: the ECU-kill and signal trials of ``bench/bench_faults_ecu.py``
 simulator killed at each flashing step, SIGINT/SIGTERM during each, ``eol-cal run`` with the ECU
 killed in either flash): ECU-kill trials / ended within the bound / records kept.
 
-Section ``scenarios`` (issue 23): the targeted scenarios of :mod:`eol_cal.fuzz.scenarios`, every
+Section ``scenarios`` (issue 23): the targeted scenarios of :mod:`eol_cal.sim.fuzz.scenarios`, every
 member of each class the probe found: hostile TOML of every kind (numbers of thousands of
 digits, nesting thousands deep, oversized, a FIFO), JSON (fit results, refit rows, spool files,
 stored records with NaN), CSV header cells and MDF4 record counts, flags and header comments,
@@ -32,9 +32,9 @@ moments of ``eol-cal run``'s fit and writes: exit 2, signals ignored, records lo
 
 Sections are functions in :data:`SECTIONS` (name -> function(args) -> bool ok).
 
-Section ``scenarios`` also runs issue 36's hostile scenarios (:mod:`eol_cal.fuzz.scenarios_harden`:
+Section ``scenarios`` also runs issue 36's hostile scenarios (:mod:`eol_cal.sim.fuzz.scenarios_harden`:
 ``dbfiles``, ``selections``, ``oemkey``, ``dynoclear``, ``signals``, ``round3``) and those of any
-other ``eol_cal.fuzz.scenarios_*`` module present; ``--kinds`` runs some of them (in parts).
+other ``eol_cal.sim.fuzz.scenarios_*`` module present; ``--kinds`` runs some of them (in parts).
 
 Section ``oemkey`` (issue 36): what running an OEM's seed-to-key function in its own child process
 costs, beside calling it in this process (the code before): load and one key.
@@ -56,10 +56,9 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from eol_cal.sim import fuzz
 
-from eol_cal import fuzz  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 COLUMNS = ("tried", "accepted", "refused_cleanly", "unnamed", "tracebacks", "hangs", "crashes", "modified")
 
@@ -135,7 +134,7 @@ SCENARIO_COLUMNS = ("tried", "refused", "accepted", "should_refuse", "tracebacks
 
 
 def _print_scenarios(title: str, tallies: dict) -> object:
-    from eol_cal.fuzz.scenarios import ScenarioTally
+    from eol_cal.sim.fuzz.scenarios import ScenarioTally
 
     print(f"\n{title}")
     print(f"{'kind':<10}" + "  ".join(f"{c:>{max(len(c), 5)}}" for c in SCENARIO_COLUMNS) + "   max s")
@@ -153,9 +152,9 @@ def _print_scenarios(title: str, tallies: dict) -> object:
 
 
 def scenarios_section(args: argparse.Namespace) -> bool:
-    """The targeted scenarios (issue 23's, issue 36's, and any other ``eol_cal.fuzz.scenarios_*``
+    """The targeted scenarios (issue 23's, issue 36's, and any other ``eol_cal.sim.fuzz.scenarios_*``
     module's) through the CLI: ours, and (with --before) the older code's."""
-    from eol_cal.fuzz.scenarios import all_builders, run_scenarios
+    from eol_cal.sim.fuzz.scenarios import all_builders, run_scenarios
 
     bases = fuzz.base_files()
     builders = all_builders()
@@ -194,11 +193,9 @@ def uds_section(args: argparse.Namespace) -> bool:
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import flash_block, hmac_seed_to_key, read_active_block
     from eol_cal.ecu.sim import Faults
-    sys.path.insert(0, str(ROOT / "tests"))  # the virtual rig: a test fixture
-    from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
     from eol_cal.ecu.transport import TesterConnection
-
     from eol_cal.exchange_log import quiet
+    from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 
     quiet(("UdsClient", "isotp", "Connection", "can"))  # udsoncan logs each refused answer; counted below
     timing = dataclasses.replace(FAST_CLIENT, p2_s=0.5)
@@ -254,41 +251,53 @@ def ecu_section(args: argparse.Namespace) -> bool:
     return bench_faults_ecu.ecu_section(args.repeat, args.before or args.ecu_before, args.cap)
 
 
-def oemkey_section(args: argparse.Namespace) -> bool:
-    """What containing an OEM's seed-to-key function costs (issue 36, class 6): loading it and one
-    key, in this process (the code before) and in its own child process (eol_cal.ecu.keychild)."""
+def oemkey_rows(key_calls: int) -> list[tuple[str, float, float, float, str]]:
+    """(way, load s, median key s, max key s, first key in hex) of the plug-in ``oem_bench_key`` (a module on
+    PYTHONPATH, as a station names ``MODULE:FUNC``), in this process and in its own child."""
     import importlib
     import statistics
 
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.keychild import ContainedKey
 
+    rows = []
+    for label in ("in this process (before)", "in its own child process"):
+        t0 = time.perf_counter()
+        if label.startswith("in this"):
+            sys.modules.pop("oem_bench_key", None)
+            fn = importlib.import_module("oem_bench_key").key
+
+            def algo(seed: bytes, fn=fn) -> bytes:
+                return fn(seed, P.DEV_SECRET)
+        else:
+            algo = ContainedKey("oem_bench_key", "key", "oem_bench_key:key", P.DEV_SECRET, "key-algo")
+        first = algo(b"\x12\x34\x56\x78").hex()
+        load = time.perf_counter() - t0
+        calls = []
+        for k in range(key_calls):
+            t1 = time.perf_counter()
+            assert algo(k.to_bytes(4, "big")) == P.security_key(P.DEV_SECRET, k.to_bytes(4, "big"))
+            calls.append(time.perf_counter() - t1)
+        rows.append((label, load, statistics.median(calls), max(calls), first))
+        if hasattr(algo, "close"):
+            algo.close()
+    return rows
+
+
+def oemkey_section(args: argparse.Namespace) -> bool:
+    """What containing an OEM's seed-to-key function costs (issue 36, class 6): loading it and one
+    key, in this process (the code before) and in its own child process (eol_cal.ecu.keychild).
+    The plug-in is a module on PYTHONPATH, as a station's: this script measures in a child of its
+    own started with it (``--oemkey-rows``)."""
+    import json
+
     with tempfile.TemporaryDirectory(prefix="bench-oemkey-") as tmp:
         Path(tmp, "oem_bench_key.py").write_text("import hashlib, hmac\n\ndef key(seed, secret):\n"
                                                  "    return hmac.new(secret, seed, hashlib.sha256).digest()[:4]\n")
-        sys.path.insert(0, tmp)
-        rows = []
-        for label in ("in this process (before)", "in its own child process"):
-            t0 = time.perf_counter()
-            if label.startswith("in this"):
-                sys.modules.pop("oem_bench_key", None)
-                fn = importlib.import_module("oem_bench_key").key
-
-                def algo(seed: bytes, fn=fn) -> bytes:
-                    return fn(seed, P.DEV_SECRET)
-            else:
-                algo = ContainedKey("oem_bench_key", "key", "oem_bench_key:key", P.DEV_SECRET, "key-algo")
-            first = algo(b"\x12\x34\x56\x78")
-            load = time.perf_counter() - t0
-            calls = []
-            for k in range(args.key_calls):
-                t1 = time.perf_counter()
-                assert algo(k.to_bytes(4, "big")) == P.security_key(P.DEV_SECRET, k.to_bytes(4, "big"))
-                calls.append(time.perf_counter() - t1)
-            rows.append((label, load, statistics.median(calls), max(calls), first))
-            if hasattr(algo, "close"):
-                algo.close()
-        sys.path.remove(tmp)
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (tmp, os.environ.get("PYTHONPATH")))))
+        out = subprocess.run([sys.executable, __file__, "--oemkey-rows", "--key-calls", str(args.key_calls)],
+                             env=env, capture_output=True, text=True, check=True).stdout
+    rows = json.loads(out.splitlines()[-1])
     print(f"\nOEM seed-to-key: load (start, import, first key) and one key ({args.key_calls} keys each)")
     print(f"{'where':<28}{'load ms':>10}{'median key ms':>15}{'max key ms':>12}")
     for label, load, med, worst, _ in rows:
@@ -320,6 +329,7 @@ def add_options(ap: argparse.ArgumentParser) -> None:
                     help="scenarios section: only these kinds (issue 23: toml json captures paths refusals exits; "
                          "issue 36: dbfiles selections oemkey dynoclear signals round3; others' modules add theirs)")
     ap.add_argument("--key-calls", type=int, default=200, help="oemkey section: seed-to-key calls timed per way")
+    ap.add_argument("--oemkey-rows", action="store_true", help=argparse.SUPPRESS)  # the oemkey section's child
 
 
 def main() -> int:
@@ -327,6 +337,11 @@ def main() -> int:
     ap.add_argument("--section", action="append", choices=sorted(SECTIONS), help="run only these (default all)")
     add_options(ap)
     args = ap.parse_args()
+    if args.oemkey_rows:
+        import json
+
+        print(json.dumps(oemkey_rows(args.key_calls)))
+        return 0
     print(f"# bench_faults: Python {platform.python_version()}, {os.cpu_count()} CPUs, load average "
           f"{' '.join(Path('/proc/loadavg').read_text().split()[:3])}")
     ok = True

@@ -30,14 +30,12 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))  # the virtual rig is a test fixture (tests/_ecu_rig.py)
+from eol_cal.ecu import protocol as P
+from eol_cal.ecu.client import ClientTiming, flash_block, hmac_seed_to_key
+from eol_cal.ecu.flash import NorFlash, select_active
+from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 
-from eol_cal.ecu import protocol as P  # noqa: E402
-from eol_cal.ecu.client import ClientTiming, flash_block, hmac_seed_to_key  # noqa: E402
-from eol_cal.ecu.flash import NorFlash, select_active  # noqa: E402
-from _ecu_rig import FAST_CLIENT, example_block, virtual_rig  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 BOUND_S = ClientTiming().dead_link_bound_s
 KILL_STEPS = ("session", "security", "read_did", "erase", "download", "transfer", "read_memory",
@@ -179,11 +177,12 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
     CRC; transfer:2 killed the prepare flash's CRC write): is the error record in the database
     and the report written?"""
     from eol_cal.dyno import sim as ds
+    from eol_cal.dyno.sim_capture import synthetic_source
     from eol_cal.station.records_query import query_records
 
     (work / "limits.toml").write_text(LIMITS)
     flash_file = work / "ecu.flash"
-    sim_dyno = ds.DynoSim(ds.synthetic_source, serial="K-1")
+    sim_dyno = ds.DynoSim(synthetic_source, serial="K-1")
     with ds.DynoSimThread(sim_dyno, "127.0.0.1", 0) as dyno:
         ecu = _cli(env, "ecu-sim", "--flash-file", str(flash_file), "--listen", "127.0.0.1:0", "--serial", "K-1",
                    "--die-at", die_at)

@@ -40,13 +40,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "bench"))
+from bench_faults_ecu import LIMITS  # the same limits as the ECU trials (beside this script: on its path)
+from eol_cal.dyno import sim as ds
+from eol_cal.dyno.sim_capture import synthetic_source
+from eol_cal.ecu import protocol as P
 
-from eol_cal.dyno import sim as ds  # noqa: E402
-from bench_faults_ecu import LIMITS  # noqa: E402 - the same limits as the ECU trials
-from eol_cal.ecu import protocol as P  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 #: (window, what opens it, the longest wait into it, s). The fit starts as the calibration
 #: acquisition ends, when the client disables the dyno's drive (``FIRST_STOP``); the capture files
@@ -102,7 +101,7 @@ def one_trial(tree: Path, work: Path, window: str, opens: str, delay_s: float, s
 
     (work / "limits.toml").write_text(LIMITS)
     (work / "key.hex").write_text(P.DEV_SECRET.hex())
-    sim = ds.DynoSim(ds.synthetic_source, serial="K-1")
+    sim = ds.DynoSim(synthetic_source, serial="K-1")
     procs = []
     try:
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:

@@ -28,9 +28,7 @@ from eol_cal.ecu.sim import Faults, SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, frame_bits, isotp_min_frames
 from eol_cal.firmware import block as B
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the virtual rig: a test fixture
-
-from _ecu_rig import FAST_CLIENT, Sniffer, example_block, virtual_rig
+from eol_cal.sim.virtual_rig import FAST_CLIENT, Sniffer, example_block, virtual_rig
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)

@@ -53,7 +53,7 @@ def main() -> int:
     from cli.fit import enable_jax_cache
     from cli.station import DEMO_LIMITS
     from eol_cal.ecu import protocol as P
-    from eol_cal.station.demo import demo_motor_spec, loopback_station
+    from eol_cal.sim.loopback import demo_motor_spec, loopback_station
     from eol_cal.station.record import RunRecord
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):

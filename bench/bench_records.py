@@ -4,11 +4,11 @@ large lot in PostgreSQL, two ways.
     python bench/bench_records.py [--pg-url postgresql://USER@127.0.0.1:PORT/DB] [--writers 4 --per-writer 500]
         [--stats-records 100000] [--repeat 3] [--repeat-records 1]
 
-Without --pg-url the bench starts its own PostgreSQL server with tests/_postgres.py (the
+Without --pg-url the bench starts its own PostgreSQL server with eol_cal/sim/postgres.py (the
 machine's server binaries, a temporary directory, 127.0.0.1 on a free port, fsync off) and stops
 it at the end. The records are realistic: the real record of an `eol-cal demo` motor
 (fixtures/run_record_demo.json, about 9 kB of record JSON plus its 6 kB fit as stored) with
-values, verdicts, stations and times varied per run, 3 % of the runs refusals (tests/_lot_records.py).
+values, verdicts, stations and times varied per run, 3 % of the runs refusals (eol_cal/sim/lot_records.py).
 
 Each writer is a process that writes its records one transaction each (as stations do), through
 `eol_cal.station.records.insert_records`; afterwards the count and the set of run ids are
@@ -30,7 +30,6 @@ import multiprocessing as mp
 import functools
 import os
 import statistics
-import sys
 import tempfile
 import time
 import uuid
@@ -40,9 +39,7 @@ from collections.abc import Callable
 
 import sqlalchemy as sa
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
-from _lot_records import lot_record
+from eol_cal.sim.lot_records import lot_record
 
 
 def _writer(args: tuple) -> list[str]:
@@ -78,7 +75,7 @@ def concurrent(db, writers: int, per: int) -> tuple[float, int, int, int]:
 def fill(db, n: int, batch: int = 2000) -> tuple[float, float, int]:
     """Insert a lot of ``n`` realistic runs (95 % as many motors: the rest are re-tests; 3 %
     refusals); returns (seconds, mean bytes of record_json + fit_json per row, production runs)."""
-    from eol_cal.station.records import _row, engine, insert_records, runs
+    from eol_cal.station.records import record_row, engine, insert_records, runs
 
     insert_records(db, [])
     eng = engine(db)
@@ -88,7 +85,7 @@ def fill(db, n: int, batch: int = 2000) -> tuple[float, float, int]:
         for k in range(0, n, batch):
             recs = [lot_record(k + i, n - n // 20, refusals=True) for i in range(min(batch, n - k))]
             production += sum(r.kind == "production" for r in recs)
-            rows = [_row(r) for r in recs]
+            rows = [record_row(r) for r in recs]
             size += sum(len(r["record_json"]) + len(r["fit_json"] or "") for r in rows)
             con.execute(runs.insert(), rows)
     return time.perf_counter() - t0, size / max(1, n), production
@@ -134,7 +131,7 @@ def _load() -> str:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--pg-url", default=None, help="an EMPTY PostgreSQL server database's admin URL "
-                    "(default: start a server of its own with tests/_postgres.py)")
+                    "(default: start a server of its own with eol_cal/sim/postgres.py)")
     ap.add_argument("--writers", type=int, default=4, help="writer processes (0: no writers section)")
     ap.add_argument("--per-writer", type=int, default=500)
     ap.add_argument("--stats-records", type=int, default=100_000)
@@ -143,7 +140,7 @@ def main() -> None:
     a = ap.parse_args()
     server = None
     if a.pg_url is None:
-        from _postgres import PostgresServer
+        from eol_cal.sim.postgres import PostgresServer
 
         server = PostgresServer().start()
         a.pg_url = server.url()

@@ -2,12 +2,12 @@
 
 The critical path as users feel it: from the operator's scan (station loop) or the `run` start
 (single `eol-cal run` process) to the verdict on screen, minus the profile's physical time (the
-shaft turning: ramps, captures and stops, :func:`eol_cal.dyno.client.physical_seconds`, for the
+shaft turning: ramps, captures and stops, :func:`eol_cal.dyno.setpoints.physical_seconds`, for the
 calibration profile and the compensated verification the run chose, each with the lead-in its
 record says the shaft turned for the ECU's settling after the flash before it).
 
 The simulators run in this process on 127.0.0.1, at fixed addresses for many motors, as a line's
-dyno and ECU are other machines (:func:`eol_cal.station.demo.loopback_line`): the dyno simulator in
+dyno and ECU are other machines (:func:`eol_cal.sim.loopback.loopback_line`): the dyno simulator in
 real time (a capture takes its physical time, the buffer fills as the shaft turns) with the
 built-in plant, and the ECU simulator with its bus paced to the CAN bit rate. Each motor gets a
 fresh, erased ECU and the next plant draw.
@@ -133,7 +133,7 @@ def leads_in(rec: dict) -> dict[str, tuple[float, object]]:
     """Each of the run's captures' lead-in for the ECU's settling after a reset: (s at its first
     point, the point turned at first as a ``DynoSetpoint`` or None); (0, None) in records from
     before the lead-in."""
-    from eol_cal.dyno.client import DynoSetpoint
+    from eol_cal.dyno.setpoints import DynoSetpoint
 
     out: dict[str, tuple[float, object]] = {}
     for k, c in (rec.get("captures") or {}).items():
@@ -154,7 +154,7 @@ def physical_of(rec: dict, rate_hz: int) -> tuple[float, float, float]:
     """The physical seconds of the run's two acquisitions (0 for one that did not run), and of
     them the lead-ins' (the shaft's time with the lead-in less without it)."""
     from eol_cal.analysis.point_metrics import verify_segments
-    from eol_cal.dyno.client import physical_seconds, setpoints_from_profile
+    from eol_cal.dyno.setpoints import physical_seconds, setpoints_from_profile
     from eol_cal.plant.profile import load_profile
 
     ran = {s["step"] for s in rec["steps"] if s["seconds"] is not None}
@@ -344,7 +344,7 @@ def main() -> int:
     from cli.fit import enable_jax_cache
     from eol_cal.dyno.mapfile import load_register_map
     from eol_cal.ecu import protocol as P
-    from eol_cal.station.demo import loopback_line
+    from eol_cal.sim.loopback import loopback_line
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)

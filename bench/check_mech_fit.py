@@ -8,7 +8,7 @@ intervals) must agree to ``--tol`` (relative, default 1e-9).
 Inputs: ``fit_mech``'s arguments recorded while fitting the lot of ``bench/bench_refit.py``
 (``--serials`` serials) and the motors of tests/test_fit_mech.py (two plant motors on
 eol-default, and the first one's capture cut into windows, as a dyno records it). The code before
-(``_joint_fit`` as a per-stretch projection redone for every trial, ``fit_orders`` as one
+(``joint_fit`` as a per-stretch projection redone for every trial, ``fit_orders`` as one
 dense least squares, ``fitted_ripple`` one sine per part) is kept here, not in the library,
 only for this comparison.
 """
@@ -26,8 +26,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.fingerprint import _LOW_ORDERS, _POLY_DEGREE, _low_order_complement  # noqa: F401
+from eol_cal.analysis.fingerprint import LOW_ORDERS, POLY_DEGREE, low_order_complement  # noqa: F401
 from eol_cal.analysis.fit import mech as M
+from eol_cal.analysis.fit.model import Z95
 from eol_cal.analysis.motor_result import MechOrder, ValueCi
 from eol_cal.firmware.mech_params import ORDERS
 
@@ -35,7 +36,6 @@ if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.analysis.fit.capture import MotorInput
 
-_Z95 = M._Z95
 WindowEdges = fpr.WindowEdges
 
 # ------------------------------------------------------------------------------------------
@@ -58,7 +58,7 @@ def old_joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarte
     """
     from eol_cal.firmware.mech_params import FP_FORWARD
 
-    P = _low_order_complement(N)
+    P = low_order_complement(N)
     nF = P.shape[1]
     allk = np.concatenate([k for _, k in stretches]) if stretches else np.zeros(0, np.int64)
 
@@ -83,7 +83,7 @@ def old_joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarte
             continue
         n_rows += len(times)
         x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
-        Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, _POLY_DEGREE))
+        Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, POLY_DEGREE))
         phi = k * quarter
         phi_res = phi - Q @ (Q.T @ phi)
         idx = np.searchsorted(dirs, (k >> 1) & 1) * N + (k >> 2) % N
@@ -109,7 +109,7 @@ def old_joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarte
         e = err[idx]
         res = phi_res + e - Q @ (Q.T @ e)
         rss += float(res @ res)
-    dof = n_rows - ((_POLY_DEGREE + 1) * len(stretches) + nF * nd)
+    dof = n_rows - ((POLY_DEGREE + 1) * len(stretches) + nF * nd)
     fp = np.full(2 * N, np.nan)
     var = np.full(2 * N, np.nan)
     C = rss / max(1, dof) * G_inv if cov else None
@@ -310,7 +310,7 @@ def old_fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fp
         v = np.array([-math.sin(phase), math.cos(phase)])
         sd_c = math.sqrt(max(float(u @ C @ u), 0.0))
         sd_p = math.sqrt(max(float(v @ C @ v), 0.0)) / c if c > 0 else math.pi
-        out.append(MechOrder(h, ValueCi(c, _Z95 * sd_c), ValueCi(phase, min(_Z95 * sd_p, math.pi))))
+        out.append(MechOrder(h, ValueCi(c, Z95 * sd_c), ValueCi(phase, min(Z95 * sd_p, math.pi))))
     return tuple(out)
 
 
@@ -337,7 +337,6 @@ def _recording(run) -> list[tuple]:
 
 
 def lot_inputs(n: int) -> list[tuple]:
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from bench_refit import make_lot
 
     from eol_cal.lot import refit
@@ -358,8 +357,7 @@ def motor_inputs() -> list[tuple]:
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
     from eol_cal.plant.profile import load_profile
 
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))  # the test's motors
-    from _mech_motors import BEST, station_runs, station_windows
+    from eol_cal.sim.mech_motors import BEST, station_runs, station_windows
 
     _, runs = station_runs()
     joined = station_windows(runs[0].capture, load_profile("eol-default"))
@@ -413,7 +411,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
         quarter = poles * math.pi / N / 4.0
         placed = [(t, k + 4 * r) for w, r in zip(prints, old.offsets, strict=True) if r is not None for t, k in w.stretches]
         for cov in (True, False):
-            a, b = fpr._joint_fit(placed, N, quarter, cov), old_joint_fit(placed, N, quarter, cov)
+            a, b = fpr.joint_fit(placed, N, quarter, cov), old_joint_fit(placed, N, quarter, cov)
             note("joint fit fp", _rel(a[0], b[0]))
             note("joint fit var", _rel(a[1], b[1]))
             note("joint fit rss", _rel(a[2], b[2]))
@@ -424,7 +422,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
                 continue
             for r in range(0, N, max(1, N // (poles // 2))):
                 trial = list(prints[ref].stretches) + [(t, k + 4 * r) for t, k in w.stretches]
-                a, b = fpr._joint_fit(trial, N, quarter, False), old_joint_fit(trial, N, quarter, False)
+                a, b = fpr.joint_fit(trial, N, quarter, False), old_joint_fit(trial, N, quarter, False)
                 if (a is None) != (b is None):
                     note("trial rss", math.inf)
                 elif a is not None:

@@ -24,8 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import bench_station as bs  # the benchmark's line and helpers (this directory is not a package)
+import bench_station as bs  # the benchmark's line and helpers (beside this script: on the path of a script run)
 
 LINE = re.compile(r"(\S+)Z (\S+) (\S+) (.*)")
 
@@ -74,7 +73,7 @@ def main() -> int:
     from cli.fit import enable_jax_cache
     from eol_cal.dyno.mapfile import load_register_map
     from eol_cal.ecu import protocol as P
-    from eol_cal.station.demo import loopback_line
+    from eol_cal.sim.loopback import loopback_line
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)

@@ -90,7 +90,10 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
 
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-    from eol_cal.dyno import client as dc
+    from eol_cal.dyno.client import parse_address
+    from eol_cal.dyno.profile_run import DEFAULT_CHANNELS, EXTRA_CHANNELS
+    from eol_cal.dyno.setpoints import setpoints_from_profile
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.errors import InputError, naming
     from eol_cal.plant.profile import load_profile
     from eol_cal.station.acquisition import acquire_traced
@@ -99,14 +102,14 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
         raise InputError(str(output), None, f"unknown capture format {output.suffix!r}; use .csv or .mf4")
     if not output.parent.is_dir():
         raise InputError(str(output), None, "directory does not exist")
-    host, port = dc.parse_address(address)
+    host, port = parse_address(address)
     regmap = load_map(register_map)
     prof = load_profile(profile)
     with naming(profile if Path(profile).is_file() else None):  # a segment the dyno cannot run: the profile file named
-        segments = dc.setpoints_from_profile(prof)
-    channels = dc.DEFAULT_CHANNELS + (dc.EXTRA_CHANNELS if all_channels else ())
-    config = dc.DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections,
-                           register_map=regmap)
+        segments = setpoints_from_profile(prof)
+    channels = DEFAULT_CHANNELS + (EXTRA_CHANNELS if all_channels else ())
+    config = DynoConfig(host=host, port=port, timeout=timeout, retries=retries, connections=connections,
+                        register_map=regmap)
     _quiet_pymodbus()
     t0 = time.perf_counter()
     with Progress(
@@ -210,6 +213,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
     import time
 
     from eol_cal.dyno import sim as ds
+    from eol_cal.dyno.sim_capture import CaptureRequest, synthetic_source
     from eol_cal.dyno.registers import DutCmdKind
     from eol_cal.errors import InputError
     from eol_cal.motor import load_motor
@@ -232,12 +236,12 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
                 raise InputError(None, "--seed",
                                  "motor variation (eol_cal.plant.variation) is not available in this build") from None
 
-        from eol_cal.station.rig import plant_source
+        from eol_cal.sim.rig import plant_source
 
         enable_jax_cache()
         capture_source = plant_source(ecu_flash)
     else:
-        capture_source = ds.synthetic_source
+        capture_source = synthetic_source
     sim = ds.DynoSim(capture_source, serial=serial, motor=motor, seed=seed, faults=plans, register_map=regmap,
                      realtime=realtime)
 
@@ -253,7 +257,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
         # compile the plant now rather than in the first capture (the client's capture timeout)
         t0 = time.perf_counter()
         try:
-            capture_source(ds.CaptureRequest(60.0, DutCmdKind.IQ, 0.0, 100, 10000.0, serial, seed, 0))
+            capture_source(CaptureRequest(60.0, DutCmdKind.IQ, 0.0, 100, 10000.0, serial, seed, 0))
         except Exception as exc:  # noqa: BLE001 - the first real capture reports it properly
             err_console.print(f"plant warm-up failed: {exc}")
             return
@@ -290,12 +294,13 @@ def dyno_clear_cmd(address, yes, timeout, register_map) -> None:
     """
     import sys
 
-    from eol_cal.dyno import client as dc
+    from eol_cal.dyno.client import parse_address
     from eol_cal.dyno.recover import clear_faults, inspect_faults
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.errors import InputError
 
-    host, port = dc.parse_address(address)
-    config = dc.DynoConfig(host=host, port=port, timeout=timeout, register_map=load_map(register_map))
+    host, port = parse_address(address)
+    config = DynoConfig(host=host, port=port, timeout=timeout, register_map=load_map(register_map))
     _quiet_pymodbus()
     before = inspect_faults(config)
     if not before.latched:

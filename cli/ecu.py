@@ -228,7 +228,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
 
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import load_key_file
-    from eol_cal.ecu.remote import serve_remote
+    from eol_cal.sim.remote_ecu import serve_remote
     from eol_cal.ecu.sim import STEPS, Faults, SimConfig
 
     def step_arg(text: str, option: str, kind: type) -> tuple[str, Any]:

@@ -80,7 +80,7 @@ _register()
 _ENDING_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
 
 
-#: the process's exit status as :func:`main` decided it; :func:`_finish` ends the process with it
+#: the process's exit status as :func:`main` decided it; :func:`end_process` ends the process with it
 _exit_status = 0
 
 
@@ -91,7 +91,7 @@ def _status(code: object) -> int:
     return code if isinstance(code, int) else 1
 
 
-def _finish() -> None:
+def end_process() -> None:
     # The last atexit handler ends the process with the decided status at once. Past it Python's
     # own teardown (module finalization, XLA's threads and destructors) ran with the handlers
     # reset: a signal there killed the process by the signal (exit -2) or, ignored, left the exit
@@ -110,7 +110,7 @@ def _finish() -> None:
 
 def _exit_at_once_on_a_signal() -> None:
     """From here on the outcome is decided and said: a signal (a second Ctrl-C while threads
-    and atexit handlers finish) ends the process at once with exit 2 until :func:`_finish` ends
+    and atexit handlers finish) ends the process at once with exit 2 until :func:`end_process` ends
     it with the decided status; never the signal's own death (130)."""
     import contextlib
     import os
@@ -133,7 +133,7 @@ def main() -> None:
     from eol_cal.blas import limit_blas_threads
 
     global _exit_status
-    atexit.register(_finish)  # registered first: runs last
+    atexit.register(end_process)  # registered first: runs last
     limit_blas_threads()
     try:
         try:

@@ -141,7 +141,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
         with StepProgress(serial) as progress:
             return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
     from eol_cal.dyno.client import parse_address
-    from eol_cal.station.demo import loopback_station
+    from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.session import demo_seed
 
     regmap = cfg.dyno.regmap  # the settings' map: the demo's dyno simulator serves the same one

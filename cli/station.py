@@ -337,10 +337,11 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     import time
 
     from cli.fit import enable_jax_cache
-    from eol_cal.dyno.client import DynoConfig, parse_address
+    from eol_cal.dyno.client import parse_address
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
-    from eol_cal.station.demo import loopback_station
+    from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.limits import load_limits
     from eol_cal.station.cycle import run_motor
     from eol_cal.station.run import StationConfig

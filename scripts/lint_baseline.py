@@ -63,6 +63,8 @@ def ruff_findings() -> dict[str, set[str]]:
 
 def _module(path: str) -> str:
     parts = list(Path(path).with_suffix("").parts)
+    if parts[0] == "bench":  # a script: a top-level module of its directory
+        return parts[-1]
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
@@ -70,8 +72,8 @@ def _mypy(baseline: dict[str, set[str]], tmp: Path) -> dict[str, set[str]]:
     """mypy's findings with the listed baseline replaced by ``baseline``."""
     cfg = tmp / "pyproject.toml"  # mypy reads one config file: a copy with ``baseline`` as the list
     cfg.write_text(_replace(PYPROJECT.read_text("utf-8"), MYPY_BEGIN, MYPY_END, render_mypy(baseline)), "utf-8")
-    r = subprocess.run([sys.executable, "-m", "mypy", "--config-file", str(cfg), "--cache-dir", str(tmp / "cache"),
-                        "eol_cal"], cwd=ROOT, capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "mypy", "--config-file", str(cfg), "--cache-dir", str(tmp / "cache")],
+                       cwd=ROOT, capture_output=True, text=True)  # the files the configuration names
     found: dict[str, set[str]] = collections.defaultdict(set)
     for line in r.stdout.splitlines():
         m = MYPY_LINE.match(line)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from _postgres import PostgresServer
+from eol_cal.sim.postgres import PostgresServer
 
 # pytest-xdist gives its workers COLUMNS=80 (the controller's terminal): the CLI would print its
 # tables 80 wide there and LOG_WIDTH wide in a serial run, and a test reading a table would pass in

@@ -22,7 +22,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from _ecu_rig import example_block
+from eol_cal.sim.virtual_rig import example_block
 from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
 from eol_cal.firmware import gen_header

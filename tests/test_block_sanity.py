@@ -19,7 +19,7 @@ from cli.main import cli
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
-from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
+from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_sanity import MotorType, sanity_problems, type_problems

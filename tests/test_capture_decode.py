@@ -21,7 +21,7 @@ from eol_cal.capture.mdf4_decode import decode_checked
 from eol_cal.capture.mdf4_io import _columns, _decode, _quiet_asammdf, parse_header_comment
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.errors import InputError
-from eol_cal.fuzz.mutate import mdf4_blocks
+from eol_cal.sim.fuzz.mutate import mdf4_blocks
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 
@@ -164,7 +164,7 @@ def test_edited_files_decode_as_asammdf_decodes_them_or_are_left_to_it(tmp_path:
 
 
 def test_hostile_mutations_decode_as_asammdf_decodes_them_or_are_left_to_it(tmp_path: Path):
-    from eol_cal.fuzz.mutate import cases
+    from eol_cal.sim.fuzz.mutate import cases
 
     outcomes = [_taken(tmp_path / "m.mf4", case.data, case.how)
                 for case in cases(11, 150, {"mdf4": _base(tmp_path)}, kinds=("mdf4",))]

@@ -15,10 +15,14 @@ import numpy as np
 import pytest
 
 from eol_cal.capture import read_capture
-from eol_cal.dyno.client import DynoConfig, DynoError, DynoSetpoint, acquire
+from eol_cal.dyno.client import DynoError
+from eol_cal.dyno.profile_run import acquire
+from eol_cal.dyno.setpoints import DynoSetpoint
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import SimFault
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan, synthetic_source
+from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.motor import load_motor
 
 MOTOR = load_motor("paper")

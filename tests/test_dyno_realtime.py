@@ -16,12 +16,15 @@ import numpy as np
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from eol_cal.dyno.client import (DynoClient, DynoConfig, DynoError, DynoSetpoint, lead_point_samples, physical_seconds,
-                                 run_profile)
+from eol_cal.dyno.client import DynoClient, DynoError
+from eol_cal.dyno.profile_run import run_profile
+from eol_cal.dyno.setpoints import DynoSetpoint, lead_point_samples, physical_seconds
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import CaptureCommand, CaptureState
 from eol_cal.dyno.regmap import READ_FC
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
+from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_capture import synthetic_source
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 RATE = 10000

@@ -12,10 +12,13 @@ import numpy as np
 import pytest
 
 from eol_cal.dyno import registers as rm
-from eol_cal.dyno.client import DynoClient, DynoConfig, DynoError, DynoSetpoint
+from eol_cal.dyno.client import DynoClient, DynoError
+from eol_cal.dyno.setpoints import DynoSetpoint
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from cli.dyno import parse_fault_plan
-from eol_cal.dyno.sim import CaptureRequest, DynoSim, DynoSimThread, synthetic_source
+from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_capture import CaptureRequest, synthetic_source
 from eol_cal.firmware import block as B
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -168,7 +171,7 @@ def _block(flags: int, sequence: int) -> bytes:
 def test_ecu_flash_decides_the_mode_of_the_next_capture(tmp_path: Path, regmap):
     """The rig reads the ECU simulator's flash at every capture the dyno makes."""
     from eol_cal.ecu.flash import NorFlash
-    from eol_cal.station.rig import ActiveCalibration, with_ecu
+    from eol_cal.sim.rig import ActiveCalibration, with_ecu
 
     seen: list[tuple[CaptureRequest, ActiveCalibration]] = []
 
@@ -209,7 +212,7 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.analysis.spectrum import capture_spectrum
     from eol_cal.ecu.flash import NorFlash
-    from eol_cal.station.rig import plant_source
+    from eol_cal.sim.rig import plant_source
     from eol_cal.plant.presets import preset_spec
     from eol_cal.plant.ecu import true_block
 
@@ -245,8 +248,8 @@ def test_the_plant_hands_over_its_capture_in_pieces_that_are_the_capture():
     """The rig's plant gives the dyno each recorded piece as it computes it (a real-time dyno
     answers them while the rest is computed): every piece is the start of the capture it returns."""
     from eol_cal.dyno.registers import DutCmdKind
-    from eol_cal.dyno.sim import CaptureRequest
-    from eol_cal.station.rig import ActiveCalibration, plant_capture
+    from eol_cal.dyno.sim_capture import CaptureRequest
+    from eol_cal.sim.rig import ActiveCalibration, plant_capture
 
     pieces = []
     req = CaptureRequest(speed_rpm=60.0, dut_cmd_kind=DutCmdKind.IQ, dut_cmd=40.0, n_samples=5000, rate_hz=10000.0,
@@ -274,7 +277,7 @@ def test_the_plant_goes_on_over_a_reversal_while_the_ecu_keeps_its_block(monkeyp
     from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
     from eol_cal.plant.ecu import true_block
     from eol_cal.plant.presets import preset_spec
-    from eol_cal.station import rig
+    from eol_cal.sim import rig
 
     spec = preset_spec("paper", serial="M-1")
     flags = B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR | FLAG_MECH_COMP_ENABLE
@@ -312,11 +315,12 @@ def test_the_plant_goes_on_over_a_reversal_while_the_ecu_keeps_its_block(monkeyp
 
 
 def test_the_dyno_package_knows_no_ecu_and_no_block():
-    """The rig (eol_cal.station.rig) wires the ECU in; the dyno package itself imports neither."""
+    """The rig (eol_cal.sim.rig) wires the ECU in; the dyno package itself imports neither."""
     import subprocess
     import sys
 
-    code = ("import sys, eol_cal.dyno.sim, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, eol_cal.dyno.transfer; "
+    code = ("import sys, eol_cal.dyno.sim, eol_cal.dyno.sim_capture, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, "
+            "eol_cal.dyno.setpoints, eol_cal.dyno.profile_run, eol_cal.dyno.transfer; "
             "print(sorted(m for m in sys.modules if m.startswith(('eol_cal.ecu', 'eol_cal.firmware', 'eol_cal.station'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == "[]"

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.sim import Faults
-from _ecu_rig import example_block, virtual_rig
+from eol_cal.sim.virtual_rig import example_block, virtual_rig
 from eol_cal.firmware import block as B
 
 

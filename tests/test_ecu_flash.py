@@ -13,7 +13,7 @@ from eol_cal.ecu.client import (EcuError, UdsSession, VerifyFailed, ecu_info, fl
                                 hmac_seed_to_key, load_key_file, read_active_block)
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim import SimConfig
-from _ecu_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
+from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
 from eol_cal.ecu.transport import IsoTpTiming
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B

@@ -14,10 +14,10 @@ import pytest
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key, read_active_block
-from eol_cal.ecu.session import answers
+from eol_cal.ecu.matching import answers
 from eol_cal.ecu.sim import Faults
 
-from _ecu_rig import FAST_CLIENT, example_block, virtual_rig
+from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 # P2 as the fault tests have it (0.15 s); generous enough for a loaded machine, since a stale

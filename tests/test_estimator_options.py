@@ -199,9 +199,9 @@ def test_the_prepared_block_selects_the_same_estimator_in_the_rig():
     gives another angle estimate than one with ``paper`` (same motor, same noise)."""
     from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.dyno.registers import DutCmdKind
-    from eol_cal.dyno.sim import CaptureRequest
+    from eol_cal.dyno.sim_capture import CaptureRequest
     from eol_cal.motor import load_motor
-    from eol_cal.station.rig import ActiveCalibration, plant_capture
+    from eol_cal.sim.rig import ActiveCalibration, plant_capture
 
     motor = load_motor("paper")
     req = CaptureRequest(speed_rpm=120.0, dut_cmd_kind=DutCmdKind.IQ, dut_cmd=40.0, n_samples=2000,

@@ -10,9 +10,10 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
+from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
-from _ecu_rig import example_block
+from eol_cal.sim.virtual_rig import example_block
 from tests.test_ecu_cli import _start_sim, _stop
 
 PROFILE = """

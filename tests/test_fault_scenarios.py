@@ -1,5 +1,5 @@
 """The fault benchmark's targeted scenarios of classes 1, 6 and 7 (issue 23) in the suite:
-every member the benchmark tries (:mod:`eol_cal.fuzz.scenarios`: an output over an input through
+every member the benchmark tries (:mod:`eol_cal.sim.fuzz.scenarios`: an output over an input through
 every writing option and setting, settings values, serials, mechanical parts, limit rows and
 ECU states that must be refused, refit's bad input), not only the ones the class tests pick.
 
@@ -17,8 +17,8 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal import fuzz
-from eol_cal.fuzz import scenarios as S
+from eol_cal.sim import fuzz
+from eol_cal.sim.fuzz import scenarios as S
 
 BASES = fuzz.base_files()
 CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind in ("paths", "refusals", "exits")
@@ -60,7 +60,7 @@ def test_the_scenario_set_covers_the_classes():
 
 # issue 36: the dbfiles (class 1) and round3 (class 9) scenarios, in process as above (the oemkey,
 # signals and dynoclear ones need child processes and time bounds: bench/bench_faults.py runs them)
-from eol_cal.fuzz import scenarios_harden as H  # noqa: E402 - the second part of this module
+from eol_cal.sim.fuzz import scenarios_harden as H  # noqa: E402 - the second part of this module
 
 CASES_36 = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind in ("dbfiles", "round3")
             for s in H.BUILDERS[kind](BASES) if s.expect == "refuse"]

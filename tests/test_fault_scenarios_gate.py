@@ -1,5 +1,5 @@
 """The fault benchmark's scenarios of issue 36's classes 2-4 in the suite: every member
-:mod:`eol_cal.fuzz.scenarios_gate` declares (every bad value of every `gate set` option, stored
+:mod:`eol_cal.sim.fuzz.scenarios_gate` declares (every bad value of every `gate set` option, stored
 gate rows and baseline lines that are not what they claim, databases with triggers and views under
 every command that opens them, `lot baseline` selections to refuse), not only the ones the class
 tests pick. In process, as tests/test_fault_scenarios.py runs issue 23's: exit 2 with one line
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from eol_cal.fuzz.scenarios_gate import BUILDERS
+from eol_cal.sim.fuzz.scenarios_gate import BUILDERS
 from test_fault_scenarios import refused_in_process
 
 CASES = [pytest.param(s, id=f"{s.kind}: {s.name}") for kind, build in BUILDERS.items() for s in build({})

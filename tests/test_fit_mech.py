@@ -20,7 +20,7 @@ from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
 from eol_cal.plant.profile import load_profile
 from eol_cal.plant.simulate import simulate
 
-from _mech_motors import BEST, MOTOR, station_runs, station_windows
+from eol_cal.sim.mech_motors import BEST, MOTOR, station_runs, station_windows
 
 
 @pytest.fixture(scope="module")

@@ -1,5 +1,5 @@
 """Fuzz test (issue 16): seeded hostile CSV, MDF4, parameter blocks and fit results through the
-real CLI in child processes (:mod:`eol_cal.fuzz`), about half a minute in all.
+real CLI in child processes (:mod:`eol_cal.sim.fuzz`), about half a minute in all.
 
 For every input: exit code 0, 1 or 2 only (no signal), no traceback on stderr, the command ends
 within its bound, its address space stays under RLIMIT_AS, no input file changes, and a
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import pytest
 
-from eol_cal import fuzz
+from eol_cal.sim import fuzz
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 

@@ -15,7 +15,7 @@ import pytest
 import sqlalchemy as sa
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.msa.gate import Gate, MasterGateClosed, check_gate, gate_in_force
 from eol_cal.msa.master import MasterRun, master_due, master_settings

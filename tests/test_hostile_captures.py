@@ -19,7 +19,7 @@ from cli.main import cli
 from eol_cal.capture.io import read_capture, write_capture
 from eol_cal.capture.mdf4_check import MAX_DZ_RATIO, check_mdf4_file
 from eol_cal.errors import InputError
-from eol_cal.fuzz import mdf4_blocks, run_cli
+from eol_cal.sim.fuzz import mdf4_blocks, run_cli
 
 
 @pytest.fixture(scope="module")

@@ -20,7 +20,7 @@ from click.testing import CliRunner
 from _capture_helpers import small_capture
 from cli.main import cli
 from eol_cal.capture.io import write_capture
-from _ecu_rig import example_block
+from eol_cal.sim.virtual_rig import example_block
 
 ROOT = Path(__file__).resolve().parents[1]
 FIT = ROOT / "fixtures" / "fit_paper.json"

@@ -19,7 +19,7 @@ from cli.main import cli
 from test_hostile_files import _one_line_exit_2
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
-from eol_cal.fuzz import hostile
+from eol_cal.sim.fuzz import hostile
 from eol_cal.inputs import MAX_NESTING, MAX_TOML_BYTES, loads_json, loads_toml
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -193,7 +193,7 @@ def test_a_fifo_or_a_device_as_the_records_database_is_refused_not_opened(tmp_pa
 
 @pytest.fixture(scope="module")
 def bases(tmp_path_factory) -> dict[str, bytes]:
-    from eol_cal.fuzz import base_files
+    from eol_cal.sim.fuzz import base_files
 
     return base_files()
 
@@ -219,7 +219,7 @@ def test_mdf4_record_counts_and_flags_a_decoder_would_believe_are_refused(bases,
     """0 claimed records made asammdf split the data into empty records without end (2.6 GB and
     rising); a variable-length-data flag made it malloc a size from the record fields (abort).
     Run in a child under the fault benchmark's 2 GiB address-space limit."""
-    from eol_cal.fuzz import run_cli
+    from eol_cal.sim.fuzz import run_cli
 
     path = tmp_path / "hostile.mf4"
     path.write_bytes(hostile.mdf4_with_cg_field(bases["mdf4"], field, value))

@@ -19,9 +19,13 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("eol_cal", "cli")
+#: the benchmarks: scripts run from their directory (``python bench/bench_x.py``), so each is a
+#: top-level module by its file's name, and one imports another by that name
+BENCH = ROOT / "bench"
 
 
-def _modules() -> dict[str, Path]:
+def _modules(bench: bool = True) -> dict[str, Path]:
+    """module name -> file, of the packages and (``bench``) the benchmark scripts."""
     out = {}
     for pkg in PACKAGES:
         for path in sorted((ROOT / pkg).rglob("*.py")):
@@ -29,6 +33,8 @@ def _modules() -> dict[str, Path]:
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             out[".".join(parts)] = path
+    if bench:
+        out.update({path.stem: path for path in sorted(BENCH.glob("*.py"))})
     return out
 
 
@@ -141,7 +147,7 @@ def test_every_module_imports_first_in_a_fresh_interpreter():
         "print('\\n'.join(bad))\n"
         "sys.exit(1 if bad else 0)\n"
     )
-    mods = sorted(_modules())
+    mods = sorted(_modules(bench=False))  # a benchmark script runs when imported
     assert len(mods) > 100
     r = subprocess.run([sys.executable, "-c", code, *mods], capture_output=True, text=True, cwd=ROOT, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr[-3000:]
@@ -157,10 +163,15 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("firmware twin", ("eol_cal.firmware", "eol_cal.firmware.**")),
     ("capture", ("eol_cal.capture", "eol_cal.capture.**")),
     ("analysis and plant", ("eol_cal.analysis", "eol_cal.analysis.**", "eol_cal.plant", "eol_cal.plant.**")),
-    ("instruments", ("eol_cal.dyno", "eol_cal.dyno.**", "eol_cal.ecu", "eol_cal.ecu.**", "eol_cal.fuzz", "eol_cal.fuzz.campaign",
-                     "eol_cal.fuzz.hostile", "eol_cal.fuzz.mutate")),
+    ("instruments", ("eol_cal.dyno", "eol_cal.dyno.**", "eol_cal.ecu", "eol_cal.ecu.**")),
+    # what stands in for the plant floor: the rig, loopback stations, the ECU test rig, hostile inputs
+    ("simulators", ("eol_cal.sim", "eol_cal.sim.rig", "eol_cal.sim.loopback", "eol_cal.sim.remote_ecu",
+                    "eol_cal.sim.virtual_rig", "eol_cal.sim.postgres", "eol_cal.sim.mech_motors", "eol_cal.sim.fuzz",
+                    "eol_cal.sim.fuzz.campaign", "eol_cal.sim.fuzz.hostile", "eol_cal.sim.fuzz.mutate")),
     ("records", ("eol_cal.station", "eol_cal.station.record", "eol_cal.station.record_*", "eol_cal.station.records",
                  "eol_cal.station.records_query", "eol_cal.station.limits", "eol_cal.station.spool")),
+    # realistic run records and lots of them (the records a line would have written)
+    ("simulated records", ("eol_cal.sim.run_records", "eol_cal.sim.lot_records")),
     ("pages and statistics", ("eol_cal.report", "eol_cal.report.**", "eol_cal.msa", "eol_cal.msa.**", "eol_cal.lot",
                               "eol_cal.lot.baseline", "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.compare",
                               "eol_cal.lot.diff", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.spc",
@@ -168,8 +179,10 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("station", ("eol_cal.station.**",)),
     ("what-if lots", ("eol_cal.lot.simulate",)),
     # a fault scenario builds a station's files (limits, a records database) to attack
-    ("fault scenarios", ("eol_cal.fuzz.scenarios", "eol_cal.fuzz.scenarios_gate", "eol_cal.fuzz.scenarios_harden")),
+    ("fault scenarios", ("eol_cal.sim.fuzz.scenarios", "eol_cal.sim.fuzz.scenarios_gate", "eol_cal.sim.fuzz.scenarios_harden")),
     ("command line", ("cli", "cli.**")),
+    # bench/: the scripts use the library and the CLI as a user would, and nothing imports them
+    ("benchmarks", ("bench_*", "check_*", "trace_*")),
 ]
 
 
@@ -206,23 +219,71 @@ def test_imports_follow_the_layers():
     assert upward == []
 
 
+def _private(name: str) -> bool:
+    return name.startswith("_") and not name.startswith("__")
+
+
+def private_uses(module: str, path: Path) -> list[str]:
+    """``from x import _name`` of the project's modules, and ``alias._name`` on a module of the
+    project bound by an import (``from eol_cal.a import b as m; m._f()``)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    mods = _modules()
+    found, aliases = [], set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in PACKAGES + ("bench",):
+            found += [f"{module} (line {node.lineno}): from {node.module} import {a.name}" for a in node.names
+                      if _private(a.name)]
+            aliases |= {a.asname or a.name for a in node.names if f"{node.module}.{a.name}" in mods}
+        elif isinstance(node, ast.Import):
+            aliases |= {a.asname or a.name for a in node.names if a.name in mods and (a.asname or "." not in a.name)}
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and _private(node.attr) and isinstance(node.value, ast.Name)
+                and node.value.id in aliases):
+            found.append(f"{module} (line {node.lineno}): {node.value.id}.{node.attr}")
+    return found
+
+
 def test_no_private_name_imported_across_modules():
-    """``from x import _name`` between the project's modules: a private name is its module's own."""
-    found = []
-    for module, path in _modules().items():
-        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-            if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in PACKAGES:
-                found += [f"{module} (line {node.lineno}): from {node.module} import {a.name}" for a in node.names
-                          if a.name.startswith("_") and not a.name.startswith("__")]
+    """A private name (``_x``) is its module's own: no other module of the project, and no
+    benchmark, imports it or reaches it through the module."""
+    found = [use for module, path in _modules().items() for use in private_uses(module, path)]
     assert found == []
+
+
+def test_private_uses_are_found():
+    """The check above is not empty by mistake: an import and an attribute of a module alias."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        probe = Path(tmp, "probe.py")
+        probe.write_text("from eol_cal.analysis import fingerprint as fpr\nfrom eol_cal.errors import _x\n"
+                         "import eol_cal.ecu.session as session\nfpr._f(); session._g; fpr.public\n")
+        assert sorted(u.split(": ")[1] for u in private_uses("probe", probe)) == [
+            "fpr._f", "from eol_cal.errors import _x", "session._g"]
+
+
+def _sys_path_edits(path: Path) -> list[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    return [f"{path.relative_to(ROOT)} (line {node.lineno}): {ast.unparse(node)[:80]}" for node in ast.walk(tree)
+            if isinstance(node, (ast.Call, ast.Assign, ast.AugAssign))
+            and "sys.path" in ast.unparse(node.func if isinstance(node, ast.Call) else node)
+            and not (isinstance(node, ast.Call) and ast.unparse(node.func) in ("os.pathsep.join",))]
+
+
+def test_no_sys_path_edits_in_bench_or_tests():
+    """bench/ and tests/ import the library as a user would (``eol_cal.sim`` for what stands in for
+    the plant floor): nothing puts a directory on ``sys.path``."""
+    files = sorted(BENCH.glob("*.py")) + sorted((ROOT / "tests").glob("*.py"))
+    assert [e for f in files for e in _sys_path_edits(f)] == []
 
 
 #: Imported inside functions on purpose: each costs a second or more, or brings a server's client
 #: (and what imports them at module level is heavy in turn). scipy: its signal, interpolate and
 #: linalg modules, which the analysis uses, cost as much as asammdf together (`python -X importtime`,
-#: docs/benchmarks.md "Takt time"), and `eol-cal run` paid them before its cycle started.
+#: docs/benchmarks.md "Takt time"), and `eol-cal run` paid them before its cycle started. psycopg (the
+#: PostgreSQL driver, 1.4 s): only eol_cal.sim.postgres names it, SQLAlchemy loads it for a postgresql:// URL.
 HEAVY = ("jax", "jaxlib", "matplotlib", "distributed", "dask", "asammdf", "optimistix", "equinox", "lineax",
-         "sqlalchemy", "scipy")
+         "sqlalchemy", "psycopg", "scipy")
 
 #: Library modules that still import light modules inside functions. The branches in flight
 #: (station cycle and dyno; inputs and UDS) edit them: their imports move to the top after those
@@ -236,11 +297,11 @@ LAZY_LEFT = frozenset({
     "eol_cal.analysis.analyze", "eol_cal.analysis.fit.capture", "eol_cal.analysis.fit.motors",
     "eol_cal.analysis.fit.plot", "eol_cal.analysis.fit.prewarm", "eol_cal.analysis.fit.table",
     "eol_cal.analysis.result", "eol_cal.capture.ecu_state", "eol_cal.capture.io", "eol_cal.capture.units",
-    "eol_cal.dyno.client", "eol_cal.dyno.sim", "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer",
-    "eol_cal.firmware.golden", "eol_cal.fuzz.mutate", "eol_cal.fuzz.scenarios", "eol_cal.lot.baseline",
+    "eol_cal.dyno.client", "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer",
+    "eol_cal.firmware.golden", "eol_cal.sim.fuzz.mutate", "eol_cal.sim.fuzz.scenarios", "eol_cal.lot.baseline",
     "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.simulate",
     "eol_cal.plant.simulate", "eol_cal.report.motor", "eol_cal.schemas",
-    "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.station.demo", "eol_cal.station.early",
+    "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.sim.loopback", "eol_cal.station.early",
     "eol_cal.station.limits", "eol_cal.station.preflight", "eol_cal.station.record", "eol_cal.station.records",
     "eol_cal.station.restore", "eol_cal.station.run", "eol_cal.station.settings", "eol_cal.station.spool",
 })

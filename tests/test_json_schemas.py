@@ -12,11 +12,11 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from cli.main import cli
-from eol_cal.dyno.sim import synthetic_source
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.schemas import SCHEMA_FILES, validator
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 from test_station_run import PROFILE, files, run_args, wait_stopped  # noqa: F401 - the module's fixtures
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"

@@ -83,7 +83,7 @@ def test_lot_baseline_command(records_db):
 
     from click.testing import CliRunner
 
-    from _lot_records import lot_record
+    from eol_cal.sim.lot_records import lot_record
     from cli.main import cli
 
     recs = [lot_record(i, motors=60, stations=2) for i in range(80)]

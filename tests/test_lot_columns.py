@@ -13,7 +13,7 @@ import pytest
 import sqlalchemy as sa
 from click.testing import CliRunner
 
-from _lot_records import lot_record
+from eol_cal.sim.lot_records import lot_record
 from cli.main import cli
 from eol_cal.errors import InputError
 from eol_cal.lot.columns import QUANTITIES, from_records, read_lot, time_order

@@ -12,7 +12,7 @@ import pytest
 from eol_cal.lot.baseline import group_lines, make_baseline
 from eol_cal.lot.columns import from_records
 from eol_cal.lot.spc import CIRCULAR
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from test_report_pages import LIMITS
 
 

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, summary
 
 # x in time order; mean 2.6, sd (ddof 1) sqrt(5.2 / 4) = 1.140175, moving ranges 2 1 2 1 -> MRbar 1.5

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.schemas import validator
 from eol_cal.station.records import insert_records

@@ -13,7 +13,7 @@ import pytest
 from cli.main import cli
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.schemas import validator
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 from eol_cal.station.records_query import query_records
 from test_station_run import MOTOR, files, run_args  # noqa: F401 - files: the fixture
 
@@ -99,7 +99,7 @@ def test_the_operator_station_refuses_until_the_master_passed(tmp_path):
     production serial gets one line, the master runs, then the same serial runs."""
     import sqlite3
 
-    from eol_cal.station.demo import demo_motor_spec
+    from eol_cal.sim.loopback import demo_motor_spec
     from eol_cal.station.session import demo_seed
     from test_station_operator import MOTOR_S, PASSING, Terminal
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from eol_cal.msa.gate import MasterGateClosed, check_gate, gate_refusal
 from eol_cal.msa.master import MasterSettings
 from eol_cal.station.records import insert_records

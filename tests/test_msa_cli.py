@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 import cli.common as cli_common
 from cli.main import cli
 from eol_cal.msa.type1 import type1_study

@@ -18,14 +18,14 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.dyno.sim import synthetic_source
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.keyalgo import ENTRY_POINT_GROUP, oem_seed_to_key, seed_to_key_from
 from eol_cal.ecu.sim import SimConfig
 from eol_cal.errors import InputError
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 
-from _ecu_rig import example_block, virtual_rig
+from eol_cal.sim.virtual_rig import example_block, virtual_rig
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

@@ -19,7 +19,7 @@ from eol_cal.ecu.keyalgo import SEED_TRIAL, oem_seed_to_key
 from eol_cal.ecu.sim import SimConfig
 from eol_cal.errors import InputError
 
-from _ecu_rig import example_block, virtual_rig
+from eol_cal.sim.virtual_rig import example_block, virtual_rig
 
 # each function answers the trial seed the tool tries when it loads it like the contract's HMAC would,
 # and misbehaves on the ECU's real seed: what only the flash itself meets

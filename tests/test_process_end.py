@@ -3,7 +3,7 @@ status, and a signal up to the very end is exit 2.
 
 Python's teardown after the last atexit handler used to run with the signal handlers reset: a
 signal there was ignored and the status stayed the verdict (the fault bench's "missed" signals),
-or killed the process by the signal. ``cli.main._finish`` ends the process at the last atexit
+or killed the process by the signal. ``cli.main.end_process`` ends the process at the last atexit
 handler instead, so the teardown (where a module's finalizer would still run) never comes.
 
 Each case is a real process running ``cli.main.main`` with one extra command.

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from _records import make_record, v1_record
+from eol_cal.sim.run_records import make_record, v1_record
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records import SCHEMA_VERSION, SchemaError, db_key, engine, insert_records, migrate
 from eol_cal.station.records_query import query_records, read_rows, select_runs

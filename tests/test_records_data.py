@@ -19,7 +19,7 @@ import pytest
 import sqlalchemy as sa
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.lot.spc import freeze_line
 from eol_cal.station.records import engine, insert_records, migrate

@@ -124,7 +124,7 @@ def test_a_killed_worker_loses_no_capture(lot: Path):
 
 
 def test_lot_diff_compares_the_fit_stage_checks_of_each_serials_latest_measured_run(records_db, tmp_path: Path):
-    from _records import make_record
+    from eol_cal.sim.run_records import make_record
 
     t = "2026-11-22T{:02d}:00:00.000+00:00".format
     recs = [make_record("A", started=t(8)), make_record("B", started=t(8)),
@@ -179,7 +179,7 @@ def test_refit_takes_the_production_runs_of_a_reports_directory_unless_asked(tmp
     motor) is no motor of the lot; --kind all takes it."""
     import dataclasses
 
-    from _records import make_record
+    from eol_cal.sim.run_records import make_record
 
     for name, kind in (("A_run", "production"), ("B_run", "simulated"), ("C_run", None)):
         d = tmp_path / "reports" / name

@@ -19,11 +19,11 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from cli.main import cli
-from eol_cal.fuzz import hostile
-from eol_cal.fuzz.mutate import base_files
-from eol_cal.fuzz.scenarios import station_files
+from eol_cal.sim.fuzz import hostile
+from eol_cal.sim.fuzz.mutate import base_files
+from eol_cal.sim.fuzz.scenarios import station_files
 from eol_cal.station.records import insert_records, migrate
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"

@@ -19,7 +19,7 @@ from _capture_helpers import small_capture, with_metadata
 from cli.main import cli
 from eol_cal.capture.io import write_capture
 from eol_cal.ecu import protocol as P
-from eol_cal.fuzz import hostile, scenarios
+from eol_cal.sim.fuzz import hostile, scenarios
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "fixtures"
@@ -43,7 +43,7 @@ def _env() -> dict[str, str | None]:
 
 @pytest.fixture(scope="module")
 def mdf4_base() -> bytes:
-    from eol_cal.fuzz import base_files
+    from eol_cal.sim.fuzz import base_files
 
     return base_files()["mdf4"]
 
@@ -196,7 +196,7 @@ def test_a_fit_result_that_did_not_converge_is_never_a_result_whatever_its_statu
 def test_a_fit_result_whose_mechanical_part_is_out_of_bounds_is_refused_by_table(tmp_path, name, path, value):
     """The layout-2 block (table's default) is built from ``mech``; every member is refused with
     its field, nothing written (an order outside 1..3 or given twice was dropped or overwritten)."""
-    from eol_cal.fuzz.mutate import fit_result_with_mech
+    from eol_cal.sim.fuzz.mutate import fit_result_with_mech
 
     doc = json.loads(fit_result_with_mech((FIXTURES / "fit_paper.json").read_bytes()))
     at = doc["motors"][0]["mech"]
@@ -212,7 +212,7 @@ def test_a_fit_result_whose_mechanical_part_is_out_of_bounds_is_refused_by_table
 
 def test_the_valid_mechanical_part_gives_a_layout_2_block_with_mech_on(tmp_path):
     from eol_cal.firmware import block as B
-    from eol_cal.fuzz.mutate import fit_result_with_mech
+    from eol_cal.sim.fuzz.mutate import fit_result_with_mech
 
     good = tmp_path / "fit.json"
     good.write_bytes(fit_result_with_mech((FIXTURES / "fit_paper.json").read_bytes()))

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from eol_cal.station.limits import LIMIT_KEYS, VariantLimits
 
 LIMITS = VariantLimits.of("T", max_k6=0.0025, max_pp_before_pct=25.0, max_pp_after_pct=2.0,

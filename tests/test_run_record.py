@@ -118,7 +118,7 @@ def test_settings_that_cannot_be_flashed_are_a_refusal_with_its_code(tmp_path):
     bad value ends the run as a refusal (code settings), nothing touched, the record written."""
     import socket
 
-    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.station.cycle import run_motor
     from eol_cal.station.limits import load_limits
     from eol_cal.station.records_query import query_records

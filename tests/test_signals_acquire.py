@@ -11,13 +11,14 @@ import time
 import pytest
 
 from eol_cal.dyno import sim as ds
+from eol_cal.dyno.sim_capture import synthetic_source
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_acquire_signalled_mid_profile(tmp_path, sig):
-    sim = ds.DynoSim(ds.synthetic_source, serial="A-1")
+    sim = ds.DynoSim(synthetic_source, serial="A-1")
     out = tmp_path / "cap.mf4"
     with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
         proc = subprocess.Popen([sys.executable, "-m", "cli.main", "acquire", "--dyno", f"127.0.0.1:{dyno.port}",

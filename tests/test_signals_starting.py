@@ -24,9 +24,9 @@ from eol_cal import interrupts
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import Interrupted
-from eol_cal.fuzz.scenarios import station_files
+from eol_cal.sim.fuzz.scenarios import station_files
 
-from _ecu_rig import example_block, virtual_rig
+from eol_cal.sim.virtual_rig import example_block, virtual_rig
 
 ROOT = Path(__file__).resolve().parents[1]
 # the child says "go" once the interpreter and the cli package are up, then runs the program as

@@ -10,8 +10,11 @@ import pytest
 
 from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 from eol_cal.capture import read_capture
-from eol_cal.dyno.client import DynoConfig, DynoSetpoint, acquire
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, synthetic_source
+from eol_cal.dyno.profile_run import acquire
+from eol_cal.dyno.setpoints import DynoSetpoint
+from eol_cal.dyno.transfer import DynoConfig
+from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.station.early import EarlyWindows
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

@@ -16,6 +16,7 @@ from pathlib import Path
 import pytest
 
 from eol_cal.dyno import sim as ds
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming
 from eol_cal.ecu.flash import NorFlash, active_block_from_file, select_active
@@ -84,7 +85,7 @@ def _station(tmp_path: Path, realtime: bool):
         procs.append(run)
         return ecu, run
 
-    sim = ds.DynoSim(ds.synthetic_source, serial="K-1", realtime=realtime)
+    sim = ds.DynoSim(synthetic_source, serial="K-1", realtime=realtime)
     with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
         try:
             yield start, tmp_path, sim

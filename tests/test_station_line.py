@@ -1,11 +1,12 @@
-"""A line's simulators at fixed addresses for many motors (eol_cal.station.demo.loopback_line)."""
+"""A line's simulators at fixed addresses for many motors (eol_cal.sim.loopback.loopback_line)."""
 
 from __future__ import annotations
 
-from eol_cal.dyno.client import DynoClient, DynoConfig, parse_address
+from eol_cal.dyno.client import DynoClient, parse_address
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.ecu.client import ecu_state
 from eol_cal.ecu.transport import open_bus
-from eol_cal.station.demo import loopback_line
+from eol_cal.sim.loopback import loopback_line
 
 
 def test_each_motor_gets_a_fresh_ecu_behind_the_same_addresses(tmp_path):

@@ -26,7 +26,7 @@ from pathlib import Path
 import pytest
 
 from cli.station import DEMO_LIMITS
-from eol_cal.station.demo import demo_motor_spec
+from eol_cal.sim.loopback import demo_motor_spec
 from eol_cal.station.session import demo_seed
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop

@@ -18,11 +18,11 @@ from click.testing import CliRunner
 import pytest
 
 from cli.main import cli
-from eol_cal.dyno.sim import synthetic_source
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming, ecu_state, flash_block, hmac_seed_to_key
 from eol_cal.firmware import block as B
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 from test_station_run import files, run_args, wait_stopped  # noqa: F401 - the module's fixtures
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
@@ -278,7 +278,7 @@ def test_acquire_records_the_ecu_state_and_fit_refuses_what_it_must(tmp_path):
 
 
 def test_the_report_shows_what_the_ecu_ran_before_the_run_and_during_each_capture():
-    from _records import make_record
+    from eol_cal.sim.run_records import make_record
 
     from eol_cal.capture.ecu_state import EcuState
     from eol_cal.report.motor import ecu_states

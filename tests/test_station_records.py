@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from _records import make_record
+from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.errors import InputError
 from eol_cal.station.record import RunRecord

@@ -19,12 +19,13 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.dyno.registers import SimFault
-from eol_cal.dyno.sim import FaultPlan, synthetic_source
+from eol_cal.dyno.sim import FaultPlan
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 from eol_cal.station.limits import LIMIT_KEYS, Measured, load_limits, verdict
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records_query import query_records
@@ -396,7 +397,7 @@ def test_bad_inputs_refused_before_the_dyno_moves(files, tmp_path):
 
 
 def test_verification_segments_are_the_operating_point_in_both_directions():
-    from eol_cal.dyno.client import setpoints_from_profile
+    from eol_cal.dyno.setpoints import setpoints_from_profile
     from eol_cal.plant.profile import load_profile
     from eol_cal.analysis.point_metrics import verify_segments
 

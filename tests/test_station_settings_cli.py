@@ -15,9 +15,9 @@ from click.testing import CliRunner
 import pytest
 
 from cli.main import cli
-from eol_cal.dyno.sim import synthetic_source
+from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
-from eol_cal.station.demo import loopback_station
+from eol_cal.sim.loopback import loopback_station
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 

@@ -37,10 +37,10 @@ from eol_cal.firmware.mech_params import FP_FORWARD
 #: identification is tested over (noisier than slower speeds)
 REF_RPM = 300.0
 #: degree of each stretch's polynomial motion (Legendre in time)
-_POLY_DEGREE = 5
+POLY_DEGREE = 5
 #: mechanical orders taken out of the fitted errors (the spline shares them)
-_LOW_ORDERS = 2
-#: a joint fit of the edge errors: ``(fp (2N,), var (2N,), rss, dirs, dof)`` (:func:`_joint_fit`)
+LOW_ORDERS = 2
+#: a joint fit of the edge errors: ``(fp (2N,), var (2N,), rss, dirs, dof)`` (:func:`joint_fit`)
 _Fit = tuple[np.ndarray, np.ndarray, float, int, int]
 
 
@@ -118,11 +118,11 @@ def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, 
 
 
 @functools.lru_cache(maxsize=8)
-def _low_order_complement(N: int) -> np.ndarray:
-    """Orthonormal basis (N, N - 1 - 2*_LOW_ORDERS) of the errors without orders 0.._LOW_ORDERS."""
+def low_order_complement(N: int) -> np.ndarray:
+    """Orthonormal basis (N, N - 1 - 2*LOW_ORDERS) of the errors without orders 0..LOW_ORDERS."""
     m = np.arange(N)
     cols = [np.ones(N)]
-    for h in range(1, _LOW_ORDERS + 1):
+    for h in range(1, LOW_ORDERS + 1):
         cols += [np.cos(2 * np.pi * h * m / N), np.sin(2 * np.pi * h * m / N)]
     A = np.stack(cols, axis=1)
     q_full, _ = np.linalg.qr(np.concatenate([A, np.eye(N)], axis=1))
@@ -166,7 +166,7 @@ def window_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: 
     for a, b in ranges:
         for d in (1, -1):
             sel = (dirn == d) & (times >= t[a]) & (times <= t[b - 1])
-            if sel.sum() > 2 * (_POLY_DEGREE + 2):
+            if sel.sum() > 2 * (POLY_DEGREE + 2):
                 stretches.append((times[sel], k[sel]))
                 used |= sel
     if not stretches:
@@ -216,7 +216,7 @@ class _Stats:
                     continue
                 n += len(times)
                 x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
-                Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, _POLY_DEGREE))
+                Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, POLY_DEGREE))
                 phi = (k - k[0]) * self.quarter  # the constant is in the motion: small numbers, less rounding
                 phi_res = phi - Q @ (Q.T @ phi)
                 idx = ((k >> 1) & 1) * N + (k >> 2) % N
@@ -239,7 +239,7 @@ class _Stats:
         if (halves, shift) in self._normal:  # placed at the offset a trial computed
             return self._normal[halves, shift]
         per_half, ss, n = self.part(halves)
-        P = _low_order_complement(self.N)
+        P = low_order_complement(self.N)
         nF = P.shape[1]
         G = np.zeros((len(halves) * nF, len(halves) * nF))
         rhs = np.zeros(len(halves) * nF)
@@ -261,7 +261,7 @@ class _Sums:
     offsets, for the edges of ``halves``: ``G``, ``rhs``, ``|phi_res|^2``, edges and stretches."""
 
     def __init__(self, N: int, halves: tuple[int, ...]):
-        nF = _low_order_complement(N).shape[1]
+        nF = low_order_complement(N).shape[1]
         self.halves = halves
         self.G = np.zeros((len(halves) * nF, len(halves) * nF))
         self.rhs = np.zeros(len(halves) * nF)
@@ -280,12 +280,12 @@ class _Sums:
 def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, halves: tuple[int, ...],
            N: int, cov: bool) -> _Fit:
     """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
-    :func:`_joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
+    :func:`joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
     ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (a placement trial's figures are those of
     the full fit; ``cov`` adds the variances)."""
-    P = _low_order_complement(N)
+    P = low_order_complement(N)
     nF = P.shape[1]
-    dof = n - ((_POLY_DEGREE + 1) * n_stretches + nF * len(halves))
+    dof = n - ((POLY_DEGREE + 1) * n_stretches + nF * len(halves))
     L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
     if info == 0:
         z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
@@ -353,7 +353,7 @@ class _Placed:
                       halves, self.N, cov)
 
 
-def _joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float,
+def joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float,
                cov: bool = True) -> _Fit | None:
     """Least squares of the edge errors shared by every stretch (each its own polynomial motion).
 

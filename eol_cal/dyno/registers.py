@@ -28,6 +28,9 @@ import numpy as np
 
 #: |speed| at or below this counts as standstill (rpm): direction changes are allowed there
 STANDSTILL_RPM = 1.0
+#: the dyno reports "at speed" within max(SPEED_TOL_RPM, SPEED_TOL_REL * |set point|) (rpm)
+SPEED_TOL_RPM = 1.0
+SPEED_TOL_REL = 0.005
 
 
 class Mode(enum.IntEnum):

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.regmap import RegisterMap
 from eol_cal.dyno.registers import CaptureState, Fault, Interlock, SimFault
+from eol_cal.dyno.sim_capture import CaptureRequest
 
 if TYPE_CHECKING:
     import numpy as np
@@ -27,7 +28,6 @@ if TYPE_CHECKING:
     from pymodbus.server import ModbusTcpServer
     from pymodbus.simulator import SimDevice
 
-    from eol_cal.dyno.sim import CaptureRequest
 
 _FC_READ = (3, 4)
 #: longest capture the buffer holds (samples)

@@ -24,11 +24,11 @@ from collections.abc import Callable
 import can
 
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.session import (SESSION_LOST_NRCS, ClientTiming, EcuError, SeedToKey, UdsSession,
+from eol_cal.ecu.aftermath import FlashProgress, aftermath, clean_up, mark
+from eol_cal.ecu.session import (ClientTiming, EcuError, SeedToKey, UdsSession,
                                  VerifyFailed, shrink)
 from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.firmware import block as B
-from eol_cal.interrupts import raise_if_received
 from eol_cal.firmware.block_layout import get_field
 from eol_cal.firmware.block_sanity import MotorType, require_safe, type_problems
 from eol_cal.motor import MotorParams, load_motor
@@ -106,37 +106,6 @@ class FlashReport:
         return d
 
 
-#: the steps that change the ECU's flash: none starts after the command received a signal
-WRITING_STEPS = frozenset({"erase", "download", "CRC (36)"})
-
-
-@dataclass
-class _Progress:
-    """Where the sequence is, for the message of a failure."""
-
-    steps: list[str]
-    callback: Callable[[str], None] | None
-    bank: int | None = None
-    sequence: int = 0
-    tail: str = "none"  # none | sent | written
-    reset_sent: bool = False
-    image: bytes = b""  # the block with its sequence and CRC, once built
-
-    def step(self, name: str) -> str:
-        self.steps.append(name)
-        if self.callback is not None:
-            self.callback(name)
-        if name in WRITING_STEPS:
-            # a signal whose exception was swallowed (a finalizer, a thread of the command) still
-            # stops the flash before it erases or writes: the rollback of the caller runs
-            raise_if_received(f"flash ({name})")
-        return name
-
-    @property
-    def current(self) -> str:
-        return self.steps[-1] if self.steps else "start"
-
-
 def refuse_block(data: bytes, source: str, motor: MotorParams) -> B.ParamBlock:
     """The block, when it is valid and physically sane for ``motor`` (checked before any session
     opens); else an :class:`~eol_cal.errors.InputError`."""
@@ -181,7 +150,7 @@ def _send(s: UdsSession, data: bytes, start: int, limit: int, bsc: int) -> tuple
     return bsc, blocks
 
 
-def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, report: FlashReport,
+def _download_body(s: UdsSession, prog: FlashProgress, base: int, image: bytes, report: FlashReport,
                    erased: bool = False) -> int:
     """Erase (unless the bank was ``erased`` just before, :meth:`Programming.erase_ahead`),
     RequestDownload and every byte but the CRC; returns the next block counter.
@@ -208,71 +177,6 @@ def _download_body(s: UdsSession, prog: _Progress, base: int, image: bytes, repo
         report.transfer_blocks += blocks
         return bsc
     raise AssertionError("the loop returns or raises")
-
-
-def _rollback(s: UdsSession, base: int) -> str:
-    """Erase the bank just written, re-entering the programming session if it was lost.
-
-    Requests are repeated only while the ECU was heard less than S3 ago. Returns ``erased``,
-    ``refused`` (an NRC or a dead link: not erased) or ``unknown`` (the erase went out and
-    stayed unanswered: the ECU may still carry it out).
-    """
-    try:
-        try:
-            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES)
-        except EcuError as exc:
-            if exc.nrc not in SESSION_LOST_NRCS:
-                raise
-            s.enter_programming()
-            s.routine("erase again", P.RID_ERASE, base, B.BANK_BYTES)
-    except EcuError as exc:
-        return "unknown" if exc.cause == "timeout" and exc.step == "erase again" else "refused"
-    return "erased"
-
-
-def _aftermath(s: UdsSession, prog: _Progress, base: int, rollback: bool) -> tuple[str, str]:
-    """Clean up after a failure.
-
-    Returns what the ECU boots, for the message, and in one word: ``previous``, ``new`` or
-    ``maybe new`` (the exception's :attr:`ecu_boots`).
-    """
-    if prog.bank is None or prog.tail == "none":
-        if rollback:
-            s.leave()
-        return "the previous block stays active", "previous"
-    new = f"bank {prog.bank} (sequence {prog.sequence})"
-    if prog.reset_sent:
-        return f"the ECU was reset: it boots the new, checked block in {new}", "new"
-    erased = _rollback(s, base) if rollback and not s.ecu_gone else "refused"
-    if erased == "erased":
-        s.leave()
-        return f"{new} erased again: the previous block stays active", "previous"
-    if erased == "unknown":
-        return (f"{new} may still hold the complete new block, checked before its CRC was written (the erase "
-                "sent to remove it went unanswered): if so, the ECU boots it at its next reset"), "maybe new"
-    held = "holds" if prog.tail == "written" else "may hold"
-    return (f"{new} {held} the complete new block, checked before its CRC was written: "
-            "the ECU boots it at its next reset"), "new" if prog.tail == "written" else "maybe new"
-
-
-def _boots(prog: _Progress, word: str) -> dict[str, Any]:
-    """The :attr:`ecu_boots` an exception of :func:`flash_block` carries."""
-    return {"boots": word, "bank": prog.bank, "sequence": prog.sequence if prog.bank is not None else None}
-
-
-def _mark(exc: BaseException, prog: _Progress, word: str) -> None:
-    """What an exception of :func:`flash_block` carries: ``ecu_boots`` and, once the CRC went out
-    (the bank may hold the complete block), ``flashed_image``: the bytes it holds."""
-    exc.ecu_boots = _boots(prog, word)  # type: ignore[attr-defined]
-    exc.flashed_image = prog.image if prog.tail != "none" else None  # type: ignore[attr-defined]
-
-
-def _clean_up(s: UdsSession, prog: _Progress, base: int, exc: EolCalError) -> None:
-    """After a failure of the sequence: :func:`_aftermath` with the bank erased again where it
-    must be, what the ECU boots added to ``exc``'s message, and :func:`_mark`."""
-    outcome, word = _aftermath(s, prog, base, rollback=True)
-    exc.args = (f"{exc}; {outcome}",)
-    _mark(exc, prog, word)
 
 
 def flash_block(bus: can.BusABC, data: bytes, *, seed_to_key: SeedToKey | None, verify: bool = True,
@@ -374,7 +278,7 @@ class Programming:
     (the block's checks against the identification, then erase, download, read-back, CRC, check
     routine, reset, confirm). The station identifies and erases while its fit computes the block.
 
-    A failure in any half is cleaned up as one sequence's (:func:`_clean_up`: what the ECU
+    A failure in any half is cleaned up as one sequence's (:func:`~eol_cal.ecu.aftermath.clean_up`: what the ECU
     boots is added to the message; a bank written past its CRC is erased again), and an
     interruption likewise (raised as :class:`~eol_cal.errors.Interrupted`).
     """
@@ -383,7 +287,7 @@ class Programming:
                  progress: Callable[[str], None] | None = None) -> None:
         self.s = s
         self.motor = motor or load_motor()
-        self.prog = _Progress([], progress)
+        self.prog = FlashProgress([], progress)
         self.base = 0
         self.ident: Identification | None = None
         self.erased = False
@@ -478,7 +382,7 @@ class Programming:
             except (EcuError, VerifyFailed):
                 raise  # cleaned up by _guarded, once
             except EolCalError as exc:
-                _clean_up(s, prog, base, exc)
+                clean_up(s, prog, base, exc)
                 raise
         prog.step("CRC (36)")
         prog.tail = "sent"
@@ -513,14 +417,14 @@ class Programming:
         try:
             return step()
         except (EcuError, VerifyFailed) as exc:
-            _clean_up(s, prog, self.base, exc)
+            clean_up(s, prog, self.base, exc)
             raise
         except KeyboardInterrupt as exc:  # Interrupted (SIGINT/SIGTERM) or a bare Ctrl-C
             name = exc.signal_name if isinstance(exc, Interrupted) else "SIGINT"
             try:
-                outcome, word = _aftermath(s, prog, self.base, rollback=True)
+                outcome, word = aftermath(s, prog, self.base, rollback=True)
             except KeyboardInterrupt:  # a second signal: stop cleaning up
-                outcome, word = _aftermath(s, prog, self.base, rollback=False)
+                outcome, word = aftermath(s, prog, self.base, rollback=False)
             interrupted = Interrupted(name, f"flash ({prog.current})", outcome)
-            _mark(interrupted, prog, word)
+            mark(interrupted, prog, word)
             raise interrupted from None

@@ -7,7 +7,7 @@ identifier has found the rotor's mechanical frame (firmware_params/MECH.md: thre
 samples). A capture that starts earlier records the firmware still learning. The simulated rig
 gives its plant this time before each recording (:func:`eol_cal.plant.simulate.simulate`), and a
 station turns the shaft for it before the first capture after each reset (the *lead-in*,
-:func:`eol_cal.dyno.client.run_profile`): one rule for both.
+:func:`eol_cal.dyno.profile_run.run_profile`): one rule for both.
 """
 
 from __future__ import annotations

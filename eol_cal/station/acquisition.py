@@ -13,14 +13,15 @@ from collections.abc import Callable, Sequence
 
 from eol_cal.capture import write_capture
 from eol_cal.capture.ecu_state import EcuState, Trace, with_ecu_state
-from eol_cal.dyno import client as dc
+from eol_cal.dyno.profile_run import acquire
 from eol_cal.ecu.client import ecu_state
 from eol_cal.errors import EolCalError
 from eol_cal.station.record import FlashedBlock
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
-    from eol_cal.dyno.client import DynoConfig, DynoSetpoint
+    from eol_cal.dyno.setpoints import DynoSetpoint
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.client import ClientTiming
 
 #: reads the ECU's state now (opens and closes its own bus)
@@ -46,26 +47,26 @@ def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
 
 def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Sequence[DynoSetpoint],
                    out: str | Path | None, **acquire_kw: Any) -> tuple[Capture, Trace]:
-    """:func:`eol_cal.dyno.client.acquire` with the ECU's state read before and after, into the
+    """:func:`eol_cal.dyno.profile_run.acquire` with the ECU's state read before and after, into the
     capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads
     (``out`` None: the caller writes it).
 
     ``read_ecu`` None: no record of the ECU state (no ECU-state keys). The reads run alongside
-    the dyno's ramps (:func:`eol_cal.dyno.client.run_profile`): the one before while the shaft
+    the dyno's ramps (:func:`eol_cal.dyno.profile_run.run_profile`): the one before while the shaft
     ramps to the first segment, finished before the first capture is armed; the one after from
     the last window on, while the shaft stops. A failed read before stops the dyno (safe state)
     before any capture; a failed read after writes no capture.
     """
     if read_ecu is None:
-        capture = dc.acquire(config, segments, None, **acquire_kw)
+        capture = acquire(config, segments, None, **acquire_kw)
         if out is not None:
             write_capture(capture, out)
         return capture, Trace(None, None)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="ecu-trace") as pool:
         before_job = pool.submit(read_ecu)
         after_job: list[Future] = []
-        capture = dc.acquire(config, segments, None, before_capture=before_job.result,
-                             after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
+        capture = acquire(config, segments, None, before_capture=before_job.result,
+                          after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
         before, after = before_job.result(), after_job[0].result()
     capture = dataclasses.replace(capture, metadata=with_ecu_state(capture.metadata, before, after))
     if out is not None:

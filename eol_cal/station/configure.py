@@ -49,7 +49,7 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     InputError
         A key whose file or value cannot be used; names the settings file (or variable) and the key.
     """
-    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.transport import open_bus
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.motor import load_motor

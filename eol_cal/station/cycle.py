@@ -136,12 +136,12 @@ class StationCycle:
     @classmethod
     def start(cls, cfg: StationConfig, progress: ProgressFn | None = None) -> StationCycle:
         """Check the configuration, make the run directory, start the helper thread."""
-        from eol_cal.dyno import client as dc
+        from eol_cal.dyno.setpoints import setpoints_from_profile
         from eol_cal.plant.profile import load_profile
 
         check_config(cfg)
         profile = load_profile(cfg.profile)
-        segments = dc.setpoints_from_profile(profile)
+        segments = setpoints_from_profile(profile)
         started = dt.datetime.now(dt.UTC)
         run_id = uuid.uuid4().hex
         sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None

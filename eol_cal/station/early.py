@@ -3,7 +3,7 @@
 The fit needs each window's angle (:func:`eol_cal.analysis.angle.capture_angle`) and p-p figure
 (:func:`eol_cal.analysis.fit.capture.window_metrics`); neither depends on the other windows, so the
 station computes them on a thread of its own as soon as the dyno client has read a window
-(:func:`eol_cal.dyno.client.run_profile`, ``on_window``), and the first window also compiles the
+(:func:`eol_cal.dyno.profile_run.run_profile`, ``on_window``), and the first window also compiles the
 firmware estimator's scan for the frame offset. The firmware frame needs every window (the hall
 table is measured on all of them): it is computed as soon as the last window is in, on
 :data:`FRAME_WORKERS` threads, while the shaft stops and the ECU's state is read.
@@ -31,7 +31,7 @@ from eol_cal.capture.model import Capture
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult
     from eol_cal.analysis.firmware_angle import FrameJob
-    from eol_cal.dyno.client import DynoWindow
+    from eol_cal.dyno.profile_run import DynoWindow
 
 #: threads for the firmware frame at the end (one window each)
 FRAME_WORKERS = 4

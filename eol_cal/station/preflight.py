@@ -25,7 +25,7 @@ from eol_cal.errors import EolCalError
 from eol_cal.station.record import DynoStatus, EcuFound, PreflightResult, Problem
 
 if TYPE_CHECKING:
-    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.client import ClientTiming, SeedToKey
 
 

@@ -62,7 +62,7 @@ class StationInfo:
 @dataclass(frozen=True)
 class CaptureRef:
     """A capture the run made: its file, SHA-256, size, the ECU's state around it, and the lead-in
-    (s) the shaft turned at its first point before its samples (:func:`eol_cal.dyno.client.run_profile`;
+    (s) the shaft turned at its first point before its samples (:func:`eol_cal.dyno.profile_run.run_profile`;
     None in a record written before the station turned one), after ``lead_in_point`` (speed rpm,
     s) when it turned at another speed first."""
 

@@ -297,7 +297,7 @@ def _ensure_schema(con: Connection) -> None:
                           f"{SCHEMA_VERSION}: migrate it first")
 
 
-def _row(record: RunRecord) -> dict[str, Any]:
+def record_row(record: RunRecord) -> dict[str, Any]:
     """The ``runs`` row of a record: :func:`row_values` plus the record (and its fit) as JSON."""
     doc = record.to_json()
     fit = doc["fit"]
@@ -360,7 +360,7 @@ def insert_records(db: str | Path, records: Sequence[RunRecord], timeout_s: floa
     Returns the number of rows inserted. Raises one of :data:`DB_ERRORS` when the database
     cannot be written; the caller decides to spool.
     """
-    rows = [_row(r) for r in records]
+    rows = [record_row(r) for r in records]
     eng = engine(db, timeout_s)
     try:
         with eng.begin() as con:

@@ -31,7 +31,7 @@ from eol_cal.station.limits import VariantLimits
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import PreparedWindows
-    from eol_cal.dyno.client import DynoConfig
+    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.session import ClientTiming
     from eol_cal.msa.master import MasterSettings
     from eol_cal.station.spool import SaveResult

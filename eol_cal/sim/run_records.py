@@ -1,4 +1,4 @@
-"""Realistic run records for tests: the real record of an `eol-cal demo` motor
+"""Realistic run records for tests and benchmarks: the real record of an `eol-cal demo` motor
 (``fixtures/run_record_demo.json``) with its serial, time, station, values and kind changed, its
 checks judged by the limits table on the values it then holds (so verdict, checks and causes
 agree as the station's would).
@@ -9,13 +9,12 @@ from __future__ import annotations
 import dataclasses
 import json
 import uuid
-from pathlib import Path
 from typing import Any
 
+from eol_cal.sim import FIXTURES
 from eol_cal.station.limits import Measured, VariantLimits, all_checks, failed, judge
 from eol_cal.station.record import EcuActive, ErrorInfo, PreflightResult, Problem, RunRecord
 
-FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 TEMPLATE_JSON: dict[str, Any] = json.loads((FIXTURES / "run_record_demo.json").read_text())
 TEMPLATE = RunRecord.from_json(TEMPLATE_JSON, "run_record_demo.json")
 
@@ -36,14 +35,15 @@ def make_record(serial: str = "M-1", *, started: str = "2026-11-22T10:00:00.000+
     ``refused``: a refusal with these codes (nothing written or measured).
     """
     t = TEMPLATE
-    lim = VariantLimits(variant, {**t.limits.values, **(limits or {})}, t.limits.source, t.limits.estimator)
-    fit = t.fit
-    e = fit.estimates
+    fit, m, tl = t.fit, t.metrics, t.limits
+    e = fit.estimates if fit is not None else None
+    if fit is None or e is None or m is None or tl is None:
+        raise ValueError("the template record (fixtures/run_record_demo.json) has no fit, ripple or limits")
+    lim = VariantLimits(variant, {**tl.values, **(limits or {})}, tl.source, tl.estimator)
     est = dataclasses.replace(e, k6=_estimate(e.k6, k6), phase_k6=_estimate(e.phase_k6, phase_k6),
                               c6=_estimate(e.c6, c6), phase_c6=_estimate(e.phase_c6, phase_c6))
     quality = {**fit.fit, **({"r2": r2} if r2 is not None else {}), **({"rms": rms} if rms is not None else {})}
     fit = dataclasses.replace(fit, serial=serial, estimates=est, fit=quality)
-    m = t.metrics
     metrics = dataclasses.replace(m, before=dataclasses.replace(m.before, pp_pct=pp_before or m.before.pp_pct),
                                   after=dataclasses.replace(m.after, pp_pct=pp_after or m.after.pp_pct))
     st = dataclasses.replace(t.station, id=station, operator=operator)

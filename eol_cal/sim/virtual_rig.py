@@ -1,5 +1,5 @@
 """A simulated ECU and a tester on one python-can ``virtual`` channel, for the tests and the
-benchmarks (bench/ puts tests/ on its path to import it).
+benchmarks (``from eol_cal.sim.virtual_rig import virtual_rig``).
 """
 
 from __future__ import annotations

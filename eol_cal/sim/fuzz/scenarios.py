@@ -1,6 +1,6 @@
 """Targeted fault scenarios (issue 23): each one a set of files, one command of the real CLI, and
 what the tool must do with it, run in a child process like the mutation campaign
-(:mod:`eol_cal.fuzz.campaign`).
+(:mod:`eol_cal.sim.fuzz.campaign`).
 
 Kinds: ``toml`` (every TOML file the tool reads, with numbers of thousands of digits, nesting
 thousands deep, oversized, a FIFO), ``json`` (fit results, refit rows, spool files, stored
@@ -25,11 +25,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from eol_cal.firmware.example import example_block
-from eol_cal.fuzz import hostile
-from eol_cal.fuzz.campaign import Counts
+from eol_cal.sim import FIXTURES, ROOT
+from eol_cal.sim.fuzz import hostile
+from eol_cal.sim.fuzz.campaign import Counts
 
-ROOT = Path(__file__).resolve().parents[2]
-FIXTURES = ROOT / "fixtures"
 
 
 @dataclass
@@ -306,7 +305,7 @@ BAD_MECH: tuple[tuple[str, tuple, object], ...] = (
 
 def _mech_scenarios() -> Iterator[Scenario]:
     """Fit results of revision 1.2 whose ``mech`` object must be refused by ``table`` (layout 2)."""
-    from eol_cal.fuzz.mutate import fit_result_with_mech
+    from eol_cal.sim.fuzz.mutate import fit_result_with_mech
 
     base = fit_result_with_mech(file_bytes(FIXTURES / "fit_paper.json"))
     for name, path, value in BAD_MECH:
@@ -391,7 +390,7 @@ def run_scenario(scenario: Scenario, workdir: Path, timeout_s: float = 60.0, roo
     import shutil
     import uuid
 
-    from eol_cal.fuzz.campaign import CHILD_MEMORY_BYTES, run_cli
+    from eol_cal.sim.fuzz.campaign import CHILD_MEMORY_BYTES, run_cli
 
     d = workdir / uuid.uuid4().hex[:12]
     scenario.lay_out(d)
@@ -436,16 +435,16 @@ class ScenarioTally(Counts):
 
 def all_builders() -> dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]]:
     """The builders of this module and of every other scenario module present
-    (``eol_cal.fuzz.scenarios_*``: each adds its own ``BUILDERS``; none is needed)."""
+    (``eol_cal.sim.fuzz.scenarios_*``: each adds its own ``BUILDERS``; none is needed)."""
     import importlib
     import pkgutil
 
-    import eol_cal.fuzz as package
+    import eol_cal.sim.fuzz as package
 
     out = dict(BUILDERS)
     for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
         if info.name.startswith("scenarios_"):
-            out.update(getattr(importlib.import_module(f"eol_cal.fuzz.{info.name}"), "BUILDERS", {}))
+            out.update(getattr(importlib.import_module(f"eol_cal.sim.fuzz.{info.name}"), "BUILDERS", {}))
     return out
 
 

@@ -1,12 +1,12 @@
 """Hostile scenarios of the master gate, the database as data and the statistics (issue 36,
-classes 2-4), declared as :mod:`eol_cal.fuzz.scenarios` declares its own (a :class:`Scenario`:
+classes 2-4), declared as :mod:`eol_cal.sim.fuzz.scenarios` declares its own (a :class:`Scenario`:
 files, one command of the real CLI, what must come of it) and judged the same way.
 
 Kinds: ``gate`` (every rule value of `eol-cal gate set` that must be refused; stored gate rows
 that do not pass as settings), ``database`` (records databases holding triggers and views, on
 every reading and writing command; stored baseline lines that are not numbers; newer layouts)
 and ``baseline`` (selections of `lot baseline` that must be refused: wall times, empty periods,
-unknown kinds). Its ``BUILDERS`` are picked up by :func:`eol_cal.fuzz.scenarios.all_builders`
+unknown kinds). Its ``BUILDERS`` are picked up by :func:`eol_cal.sim.fuzz.scenarios.all_builders`
 (bench/bench_faults.py --section scenarios --kinds gate database baseline).
 """
 
@@ -19,7 +19,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from eol_cal.fuzz.scenarios import FIXTURES, Scenario
+from eol_cal.sim.fuzz.scenarios import FIXTURES, Scenario
 from eol_cal.lot.baseline import baseline_of_db, store
 from eol_cal.station.record import RunRecord
 from eol_cal.station.records import insert_records, migrate

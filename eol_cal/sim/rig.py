@@ -5,7 +5,7 @@ The dyno simulator (:mod:`eol_cal.dyno.sim`) knows no ECU: at every capture it a
 source for the recording. The rig's source reads the ECU simulator's flash file at that moment
 (:func:`active_calibration`: the active bank's parameter block and the mode its flags select)
 and runs the plant with it, so a flash changes what the next capture shows, as on a real line
-where the motor's ECU runs the block the tester wrote. :func:`eol_cal.station.demo.loopback_station` puts
+where the motor's ECU runs the block the tester wrote. :func:`eol_cal.sim.loopback.loopback_station` puts
 the two simulators together with this source.
 """
 
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from eol_cal.capture.model import Capture
-from eol_cal.dyno.sim import CaptureRequest, CaptureSource, i_qo_of
+from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource, i_qo_of
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware.block import ParamBlock, pack, unpack
 from eol_cal.firmware.settling import FIRST_EDGES_S

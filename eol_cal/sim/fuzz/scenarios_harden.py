@@ -1,4 +1,4 @@
-"""Hostile scenarios of issue 36 (hardening round 3), in the shape of :mod:`eol_cal.fuzz.scenarios`:
+"""Hostile scenarios of issue 36 (hardening round 3), in the shape of :mod:`eol_cal.sim.fuzz.scenarios`:
 each a set of files, one command of the real CLI in a child process, and what must come of it.
 
 Kinds, one per class of the issue:
@@ -16,7 +16,7 @@ Kinds, one per class of the issue:
   no file can have, NaN in a capture's header under ``--json``, ``msa type1`` without runs or
   with another serial's reference, a fit result's ``created``.
 
-Every scenario is judged as :func:`eol_cal.fuzz.scenarios.run_scenario` judges: no traceback, no
+Every scenario is judged as :func:`eol_cal.sim.fuzz.scenarios.run_scenario` judges: no traceback, no
 hang, no crash, no protected file changed or created, and a ``refuse`` scenario (or one a signal
 reached) ends with exit 2 and one ``error:`` line.
 """
@@ -32,8 +32,8 @@ import uuid
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from eol_cal.fuzz import hostile
-from eol_cal.fuzz.scenarios import FIXTURES, RUN, Scenario, example_block_bytes, file_bytes, station_files, station_toml
+from eol_cal.sim.fuzz import hostile
+from eol_cal.sim.fuzz.scenarios import FIXTURES, RUN, Scenario, example_block_bytes, file_bytes, station_files, station_toml
 from eol_cal.station.record import RunRecord
 
 _SQLITE_WAL = b"\x37\x7f\x06\x82" + bytes(28)  # a write-ahead log's header: what SQLite writes beside a database
@@ -312,7 +312,7 @@ def round3_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
                    ["run", "--station", "{d}/st2.toml", "--serial", "M-1"])
 
 
-#: kind -> builder(bases) of its scenarios (picked up by eol_cal.fuzz.scenarios.all_builders)
+#: kind -> builder(bases) of its scenarios (picked up by eol_cal.sim.fuzz.scenarios.all_builders)
 BUILDERS: dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]] = {
     "dbfiles": dbfile_scenarios, "selections": selection_scenarios, "oemkey": oemkey_scenarios,
     "dynoclear": dynoclear_scenarios, "signals": signal_scenarios, "round3": round3_scenarios,

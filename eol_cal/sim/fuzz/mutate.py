@@ -1,4 +1,4 @@
-"""Hostile inputs: seeded mutations of valid files the tool writes itself (see :mod:`eol_cal.fuzz`)."""
+"""Hostile inputs: seeded mutations of valid files the tool writes itself (see :mod:`eol_cal.sim.fuzz`)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from eol_cal.sim import FIXTURES
 
 #: ``block2`` and ``fitjson2``: a layout-2 block and a fit result with its ``mech`` object (contract
 #: revision 1.2), mutated the same ways plus their mechanical fields
@@ -63,7 +65,7 @@ def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
             out[kind] = path.read_bytes()
     out["block"] = example_block(serial="F-0001")
     out["block2"] = layout2_block(out["block"])
-    fit_result = fit_result or Path(__file__).resolve().parents[2] / "fixtures" / "fit_paper.json"
+    fit_result = fit_result or FIXTURES / "fit_paper.json"
     out["fitjson"] = fit_result.read_bytes()
     out["fitjson2"] = fit_result_with_mech(out["fitjson"])
     return out

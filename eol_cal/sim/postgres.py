@@ -1,4 +1,4 @@
-"""A real PostgreSQL server for the tests: the machine's server binaries, a temporary data
+"""A real PostgreSQL server for the tests and bench/bench_records.py: the machine's server binaries, a temporary data
 directory, 127.0.0.1 on a free port, the unix socket in the temporary directory.
 
 ``initdb`` refuses to run as root, so as root the server runs as the ``postgres`` user (or

@@ -3,7 +3,7 @@
 Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1, so the
 tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...`` would), and a
 dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
-comes from that same flash file (the rig's capture source, :mod:`eol_cal.station.rig`). Both bind
+comes from that same flash file (the rig's capture source, :mod:`eol_cal.sim.rig`). Both bind
 free ports and are shut down when the motor is done.
 
 :func:`loopback_line` keeps one dyno simulator and one ECU server at fixed addresses for many
@@ -23,8 +23,9 @@ if TYPE_CHECKING:
     import can
 
     from eol_cal.dyno.regmap import RegisterMap
-    from eol_cal.dyno.sim import CaptureRequest, CaptureSource, DynoSimThread, FaultPlan
-    from eol_cal.ecu.remote import RemoteEcu
+    from eol_cal.dyno.sim import DynoSimThread, FaultPlan
+    from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource
+    from eol_cal.sim.remote_ecu import RemoteEcu
     from eol_cal.plant.params import PlantSpec
 
 
@@ -74,7 +75,7 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     spec_for : callable, optional
         ``CaptureRequest -> PlantSpec`` for the rig's plant source (default :func:`demo_motor_spec`).
     source : callable, optional
-        A capture source instead of the rig's plant (e.g. ``eol_cal.dyno.sim.synthetic_source``,
+        A capture source instead of the rig's plant (e.g. ``eol_cal.dyno.sim_capture.synthetic_source``,
         which does not see the ECU).
     faults : tuple of FaultPlan
         Dyno faults that fire by themselves.
@@ -87,8 +88,8 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     """
     from eol_cal.dyno import sim as ds
     from eol_cal.exchange_log import quiet
-    from eol_cal.ecu.remote import serve_remote
-    from eol_cal.station.rig import plant_source
+    from eol_cal.sim.remote_ecu import serve_remote
+    from eol_cal.sim.rig import plant_source
     from eol_cal.ecu.sim import SimConfig
     from eol_cal.motor import load_motor
 
@@ -126,7 +127,7 @@ class LoopbackLine:
         """The next motor: drawn with ``seed`` on the dyno, a fresh (erased) ECU with ``serial``
         behind the same URL. Returns the ECU's flash file. Call between motors only."""
         from eol_cal.ecu.sim import SimConfig
-        from eol_cal.station.rig import plant_source
+        from eol_cal.sim.rig import plant_source
 
         flash_file = self.work_dir / f"{serial}.flash"
         flash_file.unlink(missing_ok=True)
@@ -147,7 +148,8 @@ def loopback_line(work_dir: str | Path, *, register_map: RegisterMap | None = No
     load each motor with :meth:`LoopbackLine.load` before its cycle. Arguments as
     :func:`loopback_station`."""
     from eol_cal.dyno import sim as ds
-    from eol_cal.ecu.remote import serve_remote
+    from eol_cal.dyno.sim_capture import synthetic_source
+    from eol_cal.sim.remote_ecu import serve_remote
     from eol_cal.ecu.sim import SimConfig
     from eol_cal.exchange_log import quiet
     from eol_cal.motor import load_motor
@@ -157,7 +159,7 @@ def loopback_line(work_dir: str | Path, *, register_map: RegisterMap | None = No
     work_dir.mkdir(parents=True, exist_ok=True)
     ecu = serve_remote(work_dir / "idle.flash", host="127.0.0.1", port=0, config=SimConfig(bitrate=bitrate))
     try:
-        sim = ds.DynoSim(ds.synthetic_source, serial="IDLE", motor=load_motor("paper"), register_map=register_map,
+        sim = ds.DynoSim(synthetic_source, serial="IDLE", motor=load_motor("paper"), register_map=register_map,
                          realtime=realtime)
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
             yield LoopbackLine(f"127.0.0.1:{dyno.port}", ecu.url, dyno, ecu, work_dir, bitrate)

@@ -1,5 +1,5 @@
 """Running hostile inputs through the real CLI in a child process and judging how it ended
-(see :mod:`eol_cal.fuzz`)."""
+(see :mod:`eol_cal.sim.fuzz`)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from eol_cal.fuzz.mutate import CHILD_MEMORY_BYTES, KINDS, Case, cases
+from eol_cal.sim import ROOT  # the checkout whose ``cli`` the children run (another one: the code before a change)
+from eol_cal.sim.fuzz.mutate import CHILD_MEMORY_BYTES, KINDS, Case, cases
 
 @dataclass
 class Outcome:
@@ -55,10 +56,6 @@ def _limit_memory(limit: int) -> Callable[[], None]:
 #: a signalled child: says "go" once Python is up, then runs the program as ``eol-cal`` does
 _GO_FIRST = ("import os, runpy, sys; os.write(1, b'go\\n'); sys.argv = ['eol-cal', *sys.argv[1:]]; "
              "runpy.run_module('cli.main', run_name='__main__', alter_sys=True)")
-
-#: the checkout whose ``cli`` the children run (another one: the code before a change)
-ROOT = Path(__file__).resolve().parents[2]
-
 
 def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CHILD_MEMORY_BYTES,
             root: Path = ROOT, stdin: str = "", env: dict[str, str] | None = None,

@@ -1,14 +1,14 @@
 """Hostile sizes and shapes (issue 23): numbers of thousands of digits, nesting thousands deep,
 cells and headers that make a parser backtrack, MDF4 header comments and record counts that a
 decoder believes. Each maker returns bytes; the fault benchmark and the tests place them in
-files of every kind the tool reads (see :mod:`eol_cal.fuzz`)."""
+files of every kind the tool reads (see :mod:`eol_cal.sim.fuzz`)."""
 
 from __future__ import annotations
 
 import struct
 
 from eol_cal.capture.mdf4_check import check_mdf4_bytes
-from eol_cal.fuzz.mutate import mdf4_blocks
+from eol_cal.sim.fuzz.mutate import mdf4_blocks
 
 #: hostile TOML lines, each placed at the top of an otherwise valid file of any TOML kind
 TOML_LINES: dict[str, str] = {

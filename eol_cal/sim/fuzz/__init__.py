@@ -23,8 +23,8 @@ Used by ``tests/test_fuzz.py`` (a small seeded campaign, ~30 s) and ``bench/benc
 (a bigger one).
 """
 
-from eol_cal.fuzz.campaign import ROOT, Outcome, Tally, campaign, judge, run_batch, run_case, run_cli
-from eol_cal.fuzz.mutate import (
+from eol_cal.sim.fuzz.campaign import ROOT, Outcome, Tally, campaign, judge, run_batch, run_case, run_cli
+from eol_cal.sim.fuzz.mutate import (
     CHILD_MEMORY_BYTES,
     KINDS,
     MUTATORS,
