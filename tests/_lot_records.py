@@ -10,7 +10,7 @@ import datetime as dt
 
 from _records import make_record
 
-from eol_cal.station.record import RunRecord
+from eol_cal.records.record import RunRecord
 
 T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.UTC)
 #: what makes a failed run fail (values past the demo variant's limits), by ``i % 4``

@@ -12,8 +12,8 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-from eol_cal.station.limits import Measured, VariantLimits, all_checks, failed, judge
-from eol_cal.station.record import EcuActive, ErrorInfo, PreflightResult, Problem, RunRecord
+from eol_cal.records.limits import Measured, VariantLimits, all_checks, failed, judge
+from eol_cal.records.record import EcuActive, ErrorInfo, PreflightResult, Problem, RunRecord
 
 FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 TEMPLATE_JSON: dict[str, Any] = json.loads((FIXTURES / "run_record_demo.json").read_text())
