@@ -178,7 +178,7 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
     and the report written?"""
     from eol_cal.dyno import sim as ds
     from eol_cal.dyno.sim_capture import synthetic_source
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.query import query_records
 
     (work / "limits.toml").write_text(LIMITS)
     flash_file = work / "ecu.flash"

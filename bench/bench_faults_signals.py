@@ -184,7 +184,7 @@ def _record_outcome(work: Path) -> tuple[int, str, str, float | None]:
     """The run's records in the database and the spool, the step the record names as failed (""
     without a record or an error: the database's record, else the spool's) and the error's message,
     and when the database was last written (POSIX s; None without a record in it)."""
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.query import query_records
 
     db = work / "db.sqlite"
     db_writes = [f.stat().st_mtime for f in work.glob("db.sqlite*")]  # before this process reads it

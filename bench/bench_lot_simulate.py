@@ -4,7 +4,7 @@ yield and compensated p-p against the 100-motor `bench/bench_fit_lot.py` result.
     python bench/bench_fit_lot.py --motors 100 --estimator best --no-nominal-halls --no-effective --json fitlot.json
     python bench/bench_lot_simulate.py --motors 1000 --fit-lot fitlot.json [--profile FILE] [--scaling 160]
 
-The lot runs as the command runs it (:func:`eol_cal.lot.simulate.simulate_lot` on the local
+The lot runs as the command runs it (:func:`eol_cal.station.whatif.simulate_lot` on the local
 cluster `eol-cal lot simulate` starts, records into a new SQLite file), with the limits of
 ``fixtures/limits.toml`` (variant EPS-STD) but ``max_pp_after_pct = 1.0``: bench_fit_lot's
 compensated p-p target, so the lot's yield and the fraction of bench_fit_lot's motors within
@@ -32,7 +32,7 @@ def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profil
 
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-    from eol_cal.lot.simulate import LotPlan, simulate_lot
+    from eol_cal.station.whatif import LotPlan, simulate_lot
 
     plan = LotPlan(name, "default", str(limits), "EPS-STD", motors, seed=seed, profile=profile)
     t0 = time.perf_counter()
@@ -65,7 +65,7 @@ def main() -> None:
     ap.add_argument("--fit-lot", type=Path, default=None, help="bench_fit_lot.py --json rows to compare with")
     ap.add_argument("--scaling", type=int, default=0, help="motors of the 1-against-2-workers runs (0: none)")
     a = ap.parse_args()
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.query import query_records
 
     with tempfile.TemporaryDirectory() as d:
         limits = Path(d) / "limits.toml"

@@ -54,7 +54,7 @@ def main() -> int:
     from cli.station import DEMO_LIMITS
     from eol_cal.ecu import protocol as P
     from eol_cal.sim.loopback import demo_motor_spec, loopback_station
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)

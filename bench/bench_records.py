@@ -11,7 +11,7 @@ it at the end. The records are realistic: the real record of an `eol-cal demo` m
 values, verdicts, stations and times varied per run, 3 % of the runs refusals (eol_cal/sim/lot_records.py).
 
 Each writer is a process that writes its records one transaction each (as stations do), through
-`eol_cal.station.records.insert_records`; afterwards the count and the set of run ids are
+`eol_cal.records.write.insert_records`; afterwards the count and the set of run ids are
 compared with what was sent (zero lost, zero duplicated). `lot stats` is timed end to end on a
 table of --stats-records runs, on the same table both ways:
 
@@ -45,7 +45,7 @@ from eol_cal.sim.lot_records import lot_record
 def _writer(args: tuple) -> list[str]:
     import dataclasses
 
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.write import insert_records
 
     db, w, n = args
     ids = []
@@ -58,8 +58,8 @@ def _writer(args: tuple) -> list[str]:
 
 
 def concurrent(db, writers: int, per: int) -> tuple[float, int, int, int]:
-    from eol_cal.station.records import migrate
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.migrations import migrate
+    from eol_cal.records.query import query_records
 
     migrate(db)
     t0 = time.perf_counter()
@@ -75,7 +75,10 @@ def concurrent(db, writers: int, per: int) -> tuple[float, int, int, int]:
 def fill(db, n: int, batch: int = 2000) -> tuple[float, float, int]:
     """Insert a lot of ``n`` realistic runs (95 % as many motors: the rest are re-tests; 3 %
     refusals); returns (seconds, mean bytes of record_json + fit_json per row, production runs)."""
-    from eol_cal.station.records import record_row, engine, insert_records, runs
+    from eol_cal.records.connect import engine
+    from eol_cal.records.rows import row_of
+    from eol_cal.records.tables import runs
+    from eol_cal.records.write import insert_records
 
     insert_records(db, [])
     eng = engine(db)
@@ -85,7 +88,7 @@ def fill(db, n: int, batch: int = 2000) -> tuple[float, float, int]:
         for k in range(0, n, batch):
             recs = [lot_record(k + i, n - n // 20, refusals=True) for i in range(min(batch, n - k))]
             production += sum(r.kind == "production" for r in recs)
-            rows = [record_row(r) for r in recs]
+            rows = [row_of(r) for r in recs]
             size += sum(len(r["record_json"]) + len(r["fit_json"] or "") for r in rows)
             con.execute(runs.insert(), rows)
     return time.perf_counter() - t0, size / max(1, n), production
@@ -103,8 +106,10 @@ def by_records(db, variant: str | None) -> dict[str, Any]:
     """The alternative: read and parse every run's record JSON, then the same statistics."""
     from eol_cal.lot.columns import from_records
     from eol_cal.lot.summary import lot_summary
-    from eol_cal.station.records import engine, parse_record, runs
-    from eol_cal.station.records_query import select_runs
+    from eol_cal.records.connect import engine
+    from eol_cal.records.rows import parse_record
+    from eol_cal.records.tables import runs
+    from eol_cal.records.query import select_runs
 
     q = select_runs(variant=variant).with_only_columns(runs.c.run_id, runs.c.record_json)
     recs = []

@@ -135,7 +135,7 @@ def _rules_text(r: dict) -> str:
 
 
 def _show(changes: list, as_json: bool, db) -> None:
-    from eol_cal.station.records import db_label
+    from eol_cal.records.connect import db_label
 
     docs = [change_json(c) for c in changes]
     if as_json:
@@ -158,9 +158,9 @@ def admitted_cmd(db, serial, as_json) -> None:
     the run records: what the station recorded when it ran). Exit 1 when a production run of the
     serial went through no gate."""
     from cli.common import CommandExit
-    from eol_cal.station.record_json import gate_json
-    from eol_cal.station.records import db_label
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.parts_json import gate_json
+    from eol_cal.records.connect import db_label
+    from eol_cal.records.query import query_records
 
     records = query_records(db, serial=serial, kind="all")
     rows = [{"run_id": r.run_id, "started_at": r.started_at, "kind": r.kind, "verdict": r.verdict,

@@ -69,8 +69,8 @@ def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, o
     from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.lot.page import select_records, write_lot_page
-    from eol_cal.station.records import db_label
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.connect import db_label
+    from eol_cal.records.query import query_records
 
     first, last = parse_date(since, "since"), parse_date(until, "until")
     baseline = None
@@ -120,7 +120,7 @@ def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, 
     from eol_cal.lot.columns import CHARTED, QUANTITIES, read_lots
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.lot.summary import LOT_STATS_SCHEMA, lot_summary, write_runs_csv
-    from eol_cal.station.records import db_label
+    from eol_cal.records.connect import db_label
 
     keys = [q.key for q in QUANTITIES]
     for key in judged:
@@ -251,7 +251,7 @@ def baseline_cmd(db, name, since, until, variant, stations, kind, min_n, replace
     from eol_cal.errors import InputError
     from eol_cal.lot.baseline import baseline_document, baseline_of_db, instant, store
     from eol_cal.lot.spc import DEFAULT_MIN_N
-    from eol_cal.station.records import db_label
+    from eol_cal.records.connect import db_label
 
     if kind == "all":
         raise InputError(None, "--kind", "a baseline is of one kind of runs (production, master, simulated...)")
@@ -308,7 +308,7 @@ def diff_cmd(db, results, kind, lots, as_json) -> None:
         raise InputError(None, "RESULTS", "give a refit's results file(s), or two --lot")
     from eol_cal.lot.diff import LOT_DIFF_SCHEMA, verdict_changes
     from eol_cal.lot.refit import read_rows
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.query import query_records
 
     rows = [r for path in results for r in read_rows(path)]
     doc = verdict_changes(query_records(db, kind=kind), rows, kind=kind)
@@ -404,8 +404,8 @@ def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profi
     from cli.refit import cluster_client, scheduler_address
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup
-    from eol_cal.lot.simulate import SIM_BATCH, LotPlan, check_plan, recorded_runs, simulate_lot
-    from eol_cal.station.records import db_label
+    from eol_cal.station.whatif import SIM_BATCH, LotPlan, check_plan, recorded_runs, simulate_lot
+    from eol_cal.records.connect import db_label
 
     plan = LotPlan(lot_name, spread, str(limits_file), variant, motors, seed, profile, "paper", bench,
                    batch or SIM_BATCH)

@@ -71,7 +71,7 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.msa.study import document, read_runs, reference_of_run, studies
-    from eol_cal.station.records import db_label
+    from eol_cal.records.connect import db_label
 
     min_n = DEFAULT_MIN_N if min_n is None else min_n
     refs = parse_pairs(references, "--reference")

@@ -247,8 +247,8 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
 def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
     from eol_cal.lot.page import select_records, write_lot_page
-    from eol_cal.station.records import db_label, db_shown
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.connect import db_label, db_shown
+    from eol_cal.records.query import query_records
 
     station_id = cfg.station.get("id")
     if tally.records:
@@ -308,7 +308,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.station.configure import station_config
-    from eol_cal.station.records import db_shown
+    from eol_cal.records.connect import db_shown
     from eol_cal.station.session import SessionTally, operator_name
 
     if demo and out_dir is None:

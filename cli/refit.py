@@ -53,7 +53,7 @@ def _check_lot_inputs(limits_file: str | None, variant: str | None, bench: str, 
     from eol_cal.errors import InputError
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.motor import load_motor
-    from eol_cal.station.limits import load_limits
+    from eol_cal.records.limits import load_limits
 
     if limits_file is not None:
         load_limits(limits_file, variant)

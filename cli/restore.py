@@ -105,8 +105,8 @@ def restore_cmd(bank: str | None, from_file: str | None, calibration: str | None
 
 def _serial_records(db: Any, serial: str | None) -> list:
     """The records of ``serial`` (every serial: None); none yet in a database file not created yet."""
-    from eol_cal.station.records import is_url
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.connect import is_url
+    from eol_cal.records.query import query_records
 
     if not is_url(db) and not Path(db).exists():
         return []
@@ -164,7 +164,7 @@ def _restored_from(source: str, data: bytes):
     import hashlib
 
     from eol_cal.firmware import block as B
-    from eol_cal.station.record import RestoredFrom
+    from eol_cal.records.record import RestoredFrom
 
     blk = B.unpack(data, source)
     return RestoredFrom(None, source, hashlib.sha256(data).hexdigest(), blk.sequence,
@@ -177,7 +177,7 @@ def _restore(data: bytes, source: str, serial: str | None, db: Any, report_dir: 
     from eol_cal.ecu.client import ClientTiming
     from eol_cal.ecu.restore import restore_block
     from eol_cal.firmware.block import unpack
-    from eol_cal.station.record import StationInfo
+    from eol_cal.records.record import StationInfo
     from eol_cal.station.restore import restore_run
 
     progress = None if as_json else (lambda s: err_console.print(f"  {s}", style="dim"))

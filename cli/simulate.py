@@ -98,7 +98,7 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
     from eol_cal.plant import presets, variation
     from eol_cal.plant.ecu import mode_of_block
     from eol_cal.plant.simulate import simulate
-    from eol_cal.lot.simulate import SEED_MAX
+    from eol_cal.station.whatif import SEED_MAX
     from eol_cal.plant.spread import load_spread
 
     if motors is None and output is None:

@@ -138,8 +138,8 @@ def _print_outcome(out, as_json: bool) -> None:
 
 
 def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
-    from eol_cal.station.records import db_shown
-    from eol_cal.station.spool import flush_spool
+    from eol_cal.records.connect import db_shown
+    from eol_cal.records.spool import flush_spool
 
     res = flush_spool(db, spool_dir, timeout)
     for bad in res.bad_files:
@@ -342,7 +342,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.sim.loopback import loopback_station
-    from eol_cal.station.limits import load_limits
+    from eol_cal.records.limits import load_limits
     from eol_cal.station.cycle import run_motor
     from eol_cal.station.run import StationConfig
 
@@ -381,8 +381,8 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     wall = time.perf_counter() - t0
     console.print(results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
     from eol_cal.lot.page import write_lot_page
-    from eol_cal.station.records import db_label, db_shown
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.connect import db_label, db_shown
+    from eol_cal.records.query import query_records
 
     lot_page = write_lot_page(query_records(db), out_dir / "lot.html", title=f"{db_label(db)} (eol-cal demo)",
                               filters={"variant": None, "since": None, "until": None, "station": None})
@@ -427,9 +427,9 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
     The summary counts the production runs (measured motors); refusals (nothing written,
     nothing measured), restores and other kinds are counted apart. `eol-cal records migrate
     --db DB` brings a database to this version's schema."""
-    from eol_cal.station.records import db_label
-    from eol_cal.station.records_query import query_records, summarise
-    from eol_cal.station.spool import flush_spool
+    from eol_cal.records.connect import db_label
+    from eol_cal.records.query import query_records, summarise
+    from eol_cal.records.spool import flush_spool
 
     if ctx.invoked_subcommand is not None:
         return
@@ -476,10 +476,11 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
 @click.option("--db", required=True, type=RECORDS_DB, help="Records database: a SQLite file or postgresql://user@host:port/db.")
 @handle_errors
 def migrate_cmd(db) -> None:
-    """Create the records tables, or bring an older database to this version's schema; the
-    baseline tables (eol-cal lot baseline) too."""
+    """Create the records tables (runs, baselines, gate rules), or bring an older database to this
+    version's schema, every table in one transaction."""
     from eol_cal.errors import InputError
-    from eol_cal.station.records import DB_ERRORS, db_label, migrate
+    from eol_cal.records.connect import DB_ERRORS, db_label
+    from eol_cal.records.migrations import migrate
 
     try:
         before, now = migrate(db)
@@ -487,11 +488,6 @@ def migrate_cmd(db) -> None:
         raise InputError(db_label(db), None, f"cannot migrate: {str(exc).splitlines()[0]}") from None
     what = "created" if before is None else ("already at" if before == now else f"migrated from version {before} to")
     console.print(f"{db_label(db)}: {what} schema version {now}")
-    from eol_cal.lot.baseline import migrate as migrate_baselines
-
-    before, now = migrate_baselines(db)
-    what = "created" if before is None else ("already at" if before == now else f"migrated from version {before} to")
-    console.print(f"{db_label(db)}: baseline tables {what} layout version {now}")
 
 
 #: the ``schema`` of ``eol-cal records --json``

@@ -91,7 +91,7 @@ def parse_modbus_address(text: str, field: str = "address") -> tuple[str, int]:
 
 
 #: URL schemes a records database may have: PostgreSQL, through psycopg 3 (``_sa_url`` in
-#: ``eol_cal.station.records`` maps the plain ones to it)
+#: ``eol_cal.records.connect`` maps the plain ones to it)
 DB_SCHEMES = ("postgresql", "postgres", "postgresql+psycopg")
 
 

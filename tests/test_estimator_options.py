@@ -165,7 +165,7 @@ VARIANT = "EPS-PREMIUM"
                                                 "EST_CLAMP_TO_NEXT_EDGE+EST_LEARN_PITCH_ERRORS", 0x24),
                                                ('estimator = "0x3c"', "best", 0x3C)])
 def test_limits_estimator_key(line, label, bits):
-    from eol_cal.station.limits import LIMIT_KEYS, parse_limits
+    from eol_cal.records.limits import LIMIT_KEYS, parse_limits
 
     lim = parse_limits(LIMITS + line + "\n", "lim.toml")[VARIANT]
     assert lim.estimator == label and lim.estimator_options == bits
@@ -174,7 +174,7 @@ def test_limits_estimator_key(line, label, bits):
 
 @pytest.mark.parametrize("value", ['"fancy"', '"0x40"', "12"])
 def test_limits_refuse_a_bad_estimator(value):
-    from eol_cal.station.limits import parse_limits
+    from eol_cal.records.limits import parse_limits
 
     with pytest.raises(InputError) as err:
         parse_limits(LIMITS + f"estimator = {value}\n", "lim.toml")
@@ -182,7 +182,7 @@ def test_limits_refuse_a_bad_estimator(value):
 
 
 def test_station_config_estimator_overrides_the_variant(tmp_path):
-    from eol_cal.station.limits import parse_limits
+    from eol_cal.records.limits import parse_limits
     from eol_cal.station.run import StationConfig
 
     lim = parse_limits(LIMITS + 'estimator = "paper"\n', "lim.toml")[VARIANT]

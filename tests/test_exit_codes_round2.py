@@ -15,7 +15,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from test_station_kill import _wait_for_erase, station  # noqa: F401 - the fixture: ECU simulator process, dyno simulator
 
-from eol_cal.station.records_query import query_records
+from eol_cal.records.query import query_records
 
 
 def _free_port() -> int:

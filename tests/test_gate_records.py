@@ -20,9 +20,10 @@ from cli.main import cli
 from eol_cal.msa.gate import Gate, MasterGateClosed, check_gate, gate_in_force
 from eol_cal.msa.master import MasterRun, master_due, master_settings
 from eol_cal.msa.rules import change, current, history
-from eol_cal.station.record import GateInfo, MasterCheck
+from eol_cal.records.record import GateInfo, MasterCheck
 from eol_cal.schemas import SCHEMA_FILES, validator
-from eol_cal.station.records import engine, insert_records
+from eol_cal.records.connect import engine
+from eol_cal.records.write import insert_records
 
 NOW = dt.datetime(2026, 11, 22, 12, 0, tzinfo=dt.UTC)
 RULES = {"master.serial": "M-MASTER", "master.reference.k6": 0.62, "master.tolerance.k6": 0.05, "master.every_h": 8.0}
@@ -116,14 +117,14 @@ def test_a_stored_rules_row_is_checked_as_input_and_closes_the_gate(records_db, 
     assert res.exit_code == 2 and "Traceback" not in res.output
 
 
-def test_a_newer_gate_layout_is_refused(records_db):
+def test_a_newer_layout_is_refused_by_the_gate(records_db):
     assert _set(records_db, "--every-h", "8").exit_code == 0
     eng = engine(records_db)
     with eng.begin() as con:
-        con.execute(sa.text("UPDATE gate_schema_version SET version = 99"))
+        con.execute(sa.text("UPDATE schema_version SET version = 99"))
     eng.dispose()
     res = CliRunner().invoke(cli, ["gate", "history", "--db", str(records_db)])
-    assert res.exit_code == 2 and "layout version 99 are newer than this tool" in res.output
+    assert res.exit_code == 2 and "schema version 99 is newer than this tool" in res.output
 
 
 def test_settings_rules_are_recorded_once_and_differing_ones_refused(tmp_path):

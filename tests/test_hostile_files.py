@@ -119,7 +119,7 @@ def test_wrong_key_algo_is_refused_before_the_bus_opens(files, algo, words):
 def test_a_corrupt_record_row_is_skipped_and_reported_the_others_kept(tmp_path):
     from test_station_records import record
 
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.write import insert_records
 
     db = tmp_path / "r.sqlite"
     recs = [record(serial, started=f"2026-11-22T0{k}:00:00.000+00:00") for k, serial in enumerate("ABC")]

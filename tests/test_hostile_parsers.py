@@ -126,8 +126,8 @@ def test_the_loader_keeps_valid_documents_and_names_the_path_of_a_bad_value():
     '{"serial": "M-1", "verdict": "pass", "k6": 1e999}',
 ])
 def test_lot_diff_refuses_a_hostile_refit_row_naming_the_file(tmp_path, line):
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.record import RunRecord
+    from eol_cal.records.write import insert_records
 
     db = tmp_path / "r.sqlite"
     insert_records(db, [RunRecord.from_json(json.loads((FIXTURES / "run_record_demo.json").read_text()))])
@@ -140,8 +140,8 @@ def test_lot_diff_refuses_a_hostile_refit_row_naming_the_file(tmp_path, line):
 def test_a_stored_record_holding_nan_is_skipped_and_named(tmp_path):
     """A record row written by another tool with NaN in it: ``records --json`` names the run and
     goes on with the others (it used to end in ``ValueError: Out of range float values``)."""
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.record import RunRecord
+    from eol_cal.records.write import insert_records
 
     db = tmp_path / "r.sqlite"
     rec = json.loads((FIXTURES / "run_record_demo.json").read_text())
@@ -158,7 +158,7 @@ def test_a_stored_record_holding_nan_is_skipped_and_named(tmp_path):
 
 
 def test_spool_files_are_read_with_the_bounded_loader(tmp_path):
-    from eol_cal.station.spool import flush_spool
+    from eol_cal.records.spool import flush_spool
 
     spool = tmp_path / "spool"
     spool.mkdir()

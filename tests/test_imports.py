@@ -130,6 +130,33 @@ def test_no_import_cycle():
         f"{a} (line {g[a][b]})" for a, b in itertools.pairwise(cycle)) + f" -> {cycle[-1]}"
 
 
+def package_of(module: str) -> str:
+    """``eol_cal.records`` for ``eol_cal.records.query``; ``eol_cal`` for a module at the root; ``cli``."""
+    parts = module.split(".")
+    if parts[0] != "eol_cal" or len(parts) < 2 or not (ROOT / "eol_cal" / parts[1]).is_dir():
+        return parts[0]
+    return ".".join(parts[:2])
+
+
+def test_no_import_cycle_between_packages():
+    """Folder by folder the arrows point one way (a reader follows them down): the graph of the
+    packages, every import that runs, has no cycle (records below report, lot and msa; the
+    station's cycle above them)."""
+    g = import_graph()
+    packages: dict[str, dict[str, int]] = {}
+    where: dict[tuple[str, str], str] = {}
+    for a, deps in g.items():
+        for b, line in deps.items():
+            pa, pb = package_of(a), package_of(b)
+            if pa != pb:
+                packages.setdefault(pa, {}).setdefault(pb, line)
+                packages.setdefault(pb, {})
+                where.setdefault((pa, pb), f"{a} (line {line}) imports {b}")
+    cycle = find_cycle(packages)
+    assert cycle is None, "package cycle: " + "; ".join(where[(a, b)] for a, b in itertools.pairwise(cycle))
+    assert "eol_cal.station" not in packages["eol_cal.records"] and "eol_cal.records" in packages["eol_cal.lot"]
+
+
 @pytest.mark.slow
 def test_every_module_imports_first_in_a_fresh_interpreter():
     """Each module imported as the first of the project's modules (the others dropped from
@@ -168,16 +195,12 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("simulators", ("eol_cal.sim", "eol_cal.sim.rig", "eol_cal.sim.loopback", "eol_cal.sim.remote_ecu",
                     "eol_cal.sim.virtual_rig", "eol_cal.sim.postgres", "eol_cal.sim.mech_motors", "eol_cal.sim.fuzz",
                     "eol_cal.sim.fuzz.campaign", "eol_cal.sim.fuzz.hostile", "eol_cal.sim.fuzz.mutate")),
-    ("records", ("eol_cal.station", "eol_cal.station.record", "eol_cal.station.record_*", "eol_cal.station.records",
-                 "eol_cal.station.records_query", "eol_cal.station.limits", "eol_cal.station.spool")),
+    ("records", ("eol_cal.records", "eol_cal.records.**")),
     # realistic run records and lots of them (the records a line would have written)
     ("simulated records", ("eol_cal.sim.run_records", "eol_cal.sim.lot_records")),
     ("pages and statistics", ("eol_cal.report", "eol_cal.report.**", "eol_cal.msa", "eol_cal.msa.**", "eol_cal.lot",
-                              "eol_cal.lot.baseline", "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.compare",
-                              "eol_cal.lot.diff", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.spc",
-                              "eol_cal.lot.spc_stats", "eol_cal.lot.stats", "eol_cal.lot.summary")),
-    ("station", ("eol_cal.station.**",)),
-    ("what-if lots", ("eol_cal.lot.simulate",)),
+                              "eol_cal.lot.**")),
+    ("station", ("eol_cal.station", "eol_cal.station.**")),
     # a fault scenario builds a station's files (limits, a records database) to attack
     ("fault scenarios", ("eol_cal.sim.fuzz.scenarios", "eol_cal.sim.fuzz.scenarios_gate", "eol_cal.sim.fuzz.scenarios_harden")),
     ("command line", ("cli", "cli.**")),
@@ -200,7 +223,7 @@ def layer_of(module: str) -> int:
 
 def test_every_module_has_a_layer():
     assert [m for m in _modules() if not _has_layer(m)] == []
-    assert layer_of("eol_cal.errors") == 0 and layer_of("eol_cal.station.cycle") > layer_of("eol_cal.station.record")
+    assert layer_of("eol_cal.errors") == 0 and layer_of("eol_cal.station.cycle") > layer_of("eol_cal.records.record")
 
 
 def _has_layer(module: str) -> bool:
@@ -298,12 +321,11 @@ LAZY_LEFT = frozenset({
     "eol_cal.analysis.fit.plot", "eol_cal.analysis.fit.prewarm", "eol_cal.analysis.fit.table",
     "eol_cal.analysis.result", "eol_cal.capture.ecu_state", "eol_cal.capture.io", "eol_cal.capture.units",
     "eol_cal.dyno.client", "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer",
-    "eol_cal.firmware.golden", "eol_cal.sim.fuzz.mutate", "eol_cal.sim.fuzz.scenarios", "eol_cal.lot.baseline",
-    "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.simulate",
-    "eol_cal.plant.simulate", "eol_cal.report.motor", "eol_cal.schemas",
-    "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.sim.loopback", "eol_cal.station.early",
-    "eol_cal.station.limits", "eol_cal.station.preflight", "eol_cal.station.record", "eol_cal.station.records",
-    "eol_cal.station.restore", "eol_cal.station.run", "eol_cal.station.settings", "eol_cal.station.spool",
+    "eol_cal.firmware.golden", "eol_cal.sim.fuzz.mutate", "eol_cal.sim.fuzz.scenarios", "eol_cal.lot.cluster",
+    "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.plant.simulate",
+    "eol_cal.records.limits", "eol_cal.report.motor", "eol_cal.schemas", "eol_cal.station.configure",
+    "eol_cal.station.cycle", "eol_cal.sim.loopback", "eol_cal.station.early", "eol_cal.station.preflight",
+    "eol_cal.station.restore", "eol_cal.station.run", "eol_cal.station.settings", "eol_cal.station.whatif",
 })
 
 

@@ -10,11 +10,12 @@ import pytest
 import sqlalchemy as sa
 
 from eol_cal.errors import InputError
-from eol_cal.lot.baseline import (BASELINE_SCHEMA_VERSION, NO_VARIANT, group_lines, list_baselines, load,
-                                  make_baseline, migrate, store)
+from eol_cal.lot.baseline import NO_VARIANT, group_lines, list_baselines, load, make_baseline, store
 from eol_cal.lot.spc import judge
 from eol_cal.schemas import validator
-from eol_cal.station.records import engine, insert_records, migrate as migrate_records
+from eol_cal.records.connect import engine
+from eol_cal.records.migrations import SCHEMA_VERSION, migrate as migrate_records
+from eol_cal.records.write import insert_records
 
 
 def _lines():
@@ -57,20 +58,21 @@ def test_baseline_stored_and_reused(records_db):
     assert load(records_db, "shift-1").lines == {} and [r["name"] for r in list_baselines(records_db)] == ["shift-1"]
     with pytest.raises(InputError, match=r"not found \(there are: shift-1\)"):
         load(records_db, "shift-9")
-    assert migrate(records_db) == (BASELINE_SCHEMA_VERSION, BASELINE_SCHEMA_VERSION)
+    assert migrate_records(records_db) == (SCHEMA_VERSION, SCHEMA_VERSION)
 
 
 def test_baseline_tables_refuse_a_newer_layout_and_a_missing_database(records_db, tmp_path):
-    insert_records(records_db, [])  # a records database without baseline tables
+    insert_records(records_db, [])  # a records database made by its first record: every table, no baseline
     assert list_baselines(records_db) == []
-    assert migrate(records_db) == (None, BASELINE_SCHEMA_VERSION)
     eng = engine(records_db)
     with eng.begin() as con:
-        con.execute(sa.text("UPDATE baseline_schema_version SET version = 99"))
+        con.execute(sa.text("UPDATE schema_version SET version = 99"))
     if not str(records_db).startswith("postgresql"):
         eng.dispose()
     with pytest.raises(InputError, match="newer than this tool"):
         store(records_db, make_baseline("b", {}, runs=0, filters={}))
+    with pytest.raises(InputError, match="newer than this tool"):
+        load(records_db, "b")
     with pytest.raises(InputError, match="database not found"):
         load(tmp_path / "none.sqlite", "b")
     with pytest.raises(InputError, match="holds no baselines"):

@@ -18,7 +18,7 @@ from cli.main import cli
 from eol_cal.errors import InputError
 from eol_cal.lot.compare import compare_lots, motor_key
 from eol_cal.schemas import validator
-from eol_cal.station.records import insert_records
+from eol_cal.records.write import insert_records
 
 
 def _lot(station: str, failing: set[str], *, serials: tuple[str, ...] = ("M-1", "M-2", "M-3")) -> list:

@@ -12,11 +12,11 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.errors import InputError
-from eol_cal.lot.simulate import LotPlan, recorded_runs, simulate_batch
+from eol_cal.station.whatif import LotPlan, recorded_runs, simulate_batch
 from eol_cal.schemas import validator
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records import insert_records
-from eol_cal.station.records_query import query_records
+from eol_cal.records.record import RunRecord
+from eol_cal.records.write import insert_records
+from eol_cal.records.query import query_records
 
 LIMITS = Path(__file__).resolve().parent.parent / "fixtures" / "limits.toml"
 # a short calibration profile: two loads forward and one reverse, enough for k6, c6 and the delay
@@ -98,7 +98,7 @@ def test_a_lot_is_resumed_without_a_motor_twice_and_refused_when_made_otherwise(
     from distributed import Client
 
     from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-    from eol_cal.lot.simulate import simulate_lot
+    from eol_cal.station.whatif import simulate_lot
 
     plan = _plan(files, "R")
     # a run stopped after its first batch: that batch's records are in the database

@@ -16,7 +16,7 @@ from click.testing import CliRunner
 from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.schemas import validator
-from eol_cal.station.records import insert_records
+from eol_cal.records.write import insert_records
 
 T0 = dt.datetime(2026, 11, 2, 6, 0, tzinfo=dt.UTC)
 

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from eol_cal.sim.run_records import make_record
 from cli.main import cli
-from eol_cal.station.records import insert_records
+from eol_cal.records.write import insert_records
 
 
 def rec(serial: str, hour: int, k6_mnm: float, station: str, verdict: str = "pass", variant="EPS-STD"):

@@ -14,7 +14,7 @@ from cli.main import cli
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.schemas import validator
 from eol_cal.sim.loopback import loopback_station
-from eol_cal.station.records_query import query_records
+from eol_cal.records.query import query_records
 from test_station_run import MOTOR, files, run_args  # noqa: F401 - files: the fixture
 
 MASTER = "M-MASTER"

@@ -13,7 +13,7 @@ import pytest
 from eol_cal.sim.run_records import make_record
 from eol_cal.msa.gate import MasterGateClosed, check_gate, gate_refusal
 from eol_cal.msa.master import MasterSettings
-from eol_cal.station.records import insert_records
+from eol_cal.records.write import insert_records
 
 MASTER = MasterSettings("M-MASTER", {"k6": 0.62}, {"k6": 0.05}, every_h=8.0)
 NOW = dt.datetime(2026, 11, 22, 12, 0, tzinfo=dt.UTC)

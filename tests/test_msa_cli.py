@@ -16,7 +16,7 @@ import cli.common as cli_common
 from cli.main import cli
 from eol_cal.msa.type1 import type1_study
 from eol_cal.schemas import validator
-from eol_cal.station.records import insert_records
+from eol_cal.records.write import insert_records
 
 # the master's k6 in mN*m/A, run by run: 8 x 0.640, 9 x 0.642, 8 x 0.644 (the hand-worked set of
 # test_msa_type1 scaled: x_ref 0.640, T = max_k6 - 0 = 1.0 -> Cg = 0.2 / (4 s), s = 0.002 sqrt(2/3))

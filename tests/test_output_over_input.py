@@ -108,9 +108,9 @@ def test_a_settings_output_over_a_settings_input_is_refused(station_dir, keys, w
 
 
 def test_station_lot_page_over_the_settings_database_is_refused_and_the_records_kept(station_dir):
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.record import RunRecord
+    from eol_cal.records.write import insert_records
+    from eol_cal.records.query import query_records
 
     d = station_dir
     path = _settings(d)

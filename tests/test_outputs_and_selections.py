@@ -24,7 +24,8 @@ from cli.main import cli
 from eol_cal.atomic import atomic_write
 from eol_cal.errors import InputError
 from eol_cal.inputs import command_inputs, protect_database
-from eol_cal.station.records import insert_records, migrate
+from eol_cal.records.migrations import migrate
+from eol_cal.records.write import insert_records
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

@@ -23,7 +23,7 @@ from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
 from eol_cal.sim.loopback import loopback_station
-from eol_cal.station.records_query import query_records
+from eol_cal.records.query import query_records
 from test_station_run import files, run_args, wait_stopped  # noqa: F401 - the module's fixtures
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop

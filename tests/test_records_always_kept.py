@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from eol_cal.station import spool as spool_module
-from eol_cal.station.record import RunRecord
-from eol_cal.station.spool import flush_spool, save_record
+from eol_cal.records import spool as spool_module
+from eol_cal.records.record import RunRecord
+from eol_cal.records.spool import flush_spool, save_record
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

@@ -15,10 +15,12 @@ import pytest
 import sqlalchemy as sa
 
 from eol_cal.sim.run_records import make_record, v1_record
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records import SCHEMA_VERSION, SchemaError, db_key, engine, insert_records, migrate
-from eol_cal.station.records_query import query_records, read_rows, select_runs
-from eol_cal.station.spool import flush_spool, save_record
+from eol_cal.records.record import RunRecord
+from eol_cal.records.connect import SchemaError, db_key, engine
+from eol_cal.records.migrations import SCHEMA_VERSION, migrate
+from eol_cal.records.write import insert_records
+from eol_cal.records.query import query_records, read_rows, select_runs
+from eol_cal.records.spool import flush_spool, save_record
 
 
 def record(serial: str = "M-1", verdict: str = "pass", started: str = "2026-11-22T10:00:00.000+00:00",

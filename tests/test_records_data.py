@@ -22,7 +22,9 @@ from click.testing import CliRunner
 from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.lot.spc import freeze_line
-from eol_cal.station.records import engine, insert_records, migrate
+from eol_cal.records.connect import engine
+from eol_cal.records.migrations import migrate
+from eol_cal.records.write import insert_records
 
 
 def _exec(db, *statements: str) -> None:
@@ -67,7 +69,7 @@ def test_a_database_with_foreign_objects_is_refused_by_reads_writes_and_migratio
         assert res.exit_code == 2, (args, res.output)
         assert named in res.output and "did not create" in res.output and "Traceback" not in res.output, res.output
     # a station's write is not made into it (its trigger would run): the record goes to the spool
-    from eol_cal.station.spool import save_record
+    from eol_cal.records.spool import save_record
 
     saved = save_record(make_record("S-new"), records_db, tmp_path / "spool")
     assert saved.where == "spool"
@@ -89,12 +91,12 @@ def test_stored_baseline_rows_are_checked_like_any_input(tmp_path, column, value
     assert "baseline 'b'" in res.output and named in res.output
 
 
-def test_a_newer_baseline_layout_is_refused_on_read(records_db):
+def test_a_newer_layout_is_refused_on_reading_a_baseline(records_db):
     _lot(records_db, 30)
     assert CliRunner().invoke(cli, ["lot", "baseline", "--db", str(records_db), "--name", "b"]).exit_code == 0
-    _exec(records_db, "UPDATE baseline_schema_version SET version = 7")
+    _exec(records_db, "UPDATE schema_version SET version = 7")
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(records_db), "--baseline", "b"])
-    assert res.exit_code == 2 and "layout version 7 is newer than this tool" in res.output, res.output
+    assert res.exit_code == 2 and "schema version 7 is newer than this tool" in res.output, res.output
 
 
 def test_lot_baseline_by_kind_stations_and_instants(records_db):
@@ -191,20 +193,3 @@ def test_statistics_of_a_database_without_the_tables_are_refused_in_one_line(rec
         res = CliRunner().invoke(cli, [*args[:2], "--db", str(records_db), *args[2:]])
         assert res.exit_code == 2 and isinstance(res.exception, SystemExit), res.output
         assert "Traceback" not in res.output and "no runs table" in res.output, res.output
-
-
-def test_a_layout_1_baseline_reads_as_production_of_its_station_and_migrates(records_db):
-    from eol_cal.lot.baseline import load
-
-    _lot(records_db, 30)
-    run = CliRunner().invoke
-    assert run(cli, ["lot", "baseline", "--db", str(records_db), "--name", "b", "--station", "EOL-1"]).exit_code == 0
-    _exec(records_db, "ALTER TABLE baselines DROP COLUMN kind", "ALTER TABLE baselines DROP COLUMN stations",
-          "UPDATE baseline_schema_version SET version = 1")
-    old = load(records_db, "b")  # read as layout 1 meant it
-    assert old.filters["kind"] == "production" and old.filters["stations"] == ["EOL-1"]
-    res = run(cli, ["records", "migrate", "--db", str(records_db)])
-    assert res.exit_code == 0 and "baseline tables migrated from version 1 to layout version 2" in res.output, res.output
-    assert load(records_db, "b").filters == old.filters
-    res = run(cli, ["lot", "stats", "--db", str(records_db), "--baseline", "b", "--json"])
-    assert res.exit_code in (0, 1) and json.loads(res.stdout)["baseline"]["name"] == "b"

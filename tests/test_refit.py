@@ -17,7 +17,7 @@ from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
 from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_lot, refit_serials
-from eol_cal.station.records import insert_records
+from eol_cal.records.write import insert_records
 
 SERIALS = ("R-1", "R-2", "R-3")
 # two speeds, two loads, and reverse: the delay, c6 and k6 are all identifiable

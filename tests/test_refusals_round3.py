@@ -24,7 +24,8 @@ from cli.main import cli
 from eol_cal.sim.fuzz import hostile
 from eol_cal.sim.fuzz.mutate import base_files
 from eol_cal.sim.fuzz.scenarios import station_files
-from eol_cal.station.records import insert_records, migrate
+from eol_cal.records.migrations import migrate
+from eol_cal.records.write import insert_records
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

@@ -73,8 +73,8 @@ def test_simulate_plots_a_hostile_serial(tmp_path, text):
 
 
 def _hostile_db(tmp_path: Path, report_dir: str) -> Path:
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.record import RunRecord
+    from eol_cal.records.write import insert_records
 
     base = json.loads((FIXTURES / "run_record_demo.json").read_text())
     recs = []

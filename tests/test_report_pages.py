@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from eol_cal.sim.run_records import make_record
-from eol_cal.station.limits import LIMIT_KEYS, VariantLimits
+from eol_cal.records.limits import LIMIT_KEYS, VariantLimits
 
 LIMITS = VariantLimits.of("T", max_k6=0.0025, max_pp_before_pct=25.0, max_pp_after_pct=2.0,
                           min_improvement_pct=40.0, min_r2=0.3, max_rms_nm=0.1, max_ci_k6_rel=0.05,
@@ -162,7 +162,7 @@ def test_records_plot_is_against_time_with_limits_and_error_runs():
 def lot_db(tmp_path_factory):
     """A records database of 24 production runs on two stations and 2 refusals; one motor's report page exists."""
     from eol_cal.report.motor import render_motor_report
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.write import insert_records
 
     d = tmp_path_factory.mktemp("lot")
     rng = np.random.default_rng(3)
@@ -337,7 +337,7 @@ def test_the_report_shows_the_mechanical_orders_and_the_identification_margin():
     from pathlib import Path
 
     from eol_cal.report.motor import mech_section, render_motor_report
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
     doc = json.loads((Path(__file__).resolve().parents[1] / "fixtures" / "run_record_demo.json").read_text())
     rec = RunRecord.from_json(doc, "run_record_demo.json")

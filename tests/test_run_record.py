@@ -14,8 +14,8 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.schemas import validator
-from eol_cal.station.limits import LIMIT_KEYS
-from eol_cal.station.record import RecordFormatError, RunRecord, record_kind
+from eol_cal.records.limits import LIMIT_KEYS
+from eol_cal.records.record import RecordFormatError, RunRecord, record_kind
 
 ROOT = Path(__file__).resolve().parent.parent
 FIXTURES = ROOT / "fixtures"
@@ -63,13 +63,13 @@ def test_a_version_3_database_written_before_reads_and_migrates(tmp_path):
     before RunRecord (schema version 3, records of schema 1)."""
     db = tmp_path / "records.sqlite"
     shutil.copy(FIXTURES / "records_v3.sqlite", db)
-    from eol_cal.station.records import migrate
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.migrations import SCHEMA_VERSION, migrate
+    from eol_cal.records.query import query_records
 
     assert [(r.serial, r.kind) for r in query_records(db)] == [("DEMO-0001", "production"), ("M-0007", "refusal")]
     res = CliRunner().invoke(cli, ["lot", "stats", "--db", str(db)])
     assert res.exit_code == 2 and "schema version 3" in res.output and "migrate" in res.output
-    assert migrate(db) == (3, 4)
+    assert migrate(db) == (3, SCHEMA_VERSION)
     doc = json.loads(CliRunner().invoke(cli, ["lot", "stats", "--db", str(db), "--json"]).stdout)
     assert (doc["runs"], doc["motors"], doc["first_pass_yield"]) == (1, 1, 1.0)
     assert doc["refusals"] == {"runs": 1, "serials": 1, "pareto": [{"cause": "wrong_serial", "runs": 1, "cumulative": 1.0}]}
@@ -101,11 +101,11 @@ def test_each_limit_key_is_spelled_once_in_the_library():
     for key in LIMIT_KEYS:
         where = [(p.relative_to(ROOT).as_posix(), n) for p in sources
                  for n in [len(re.findall(rf"\b{key}\b", p.read_text()))] if n]
-        assert where == [("eol_cal/station/limits.py", 1)], (key, where)
+        assert where == [("eol_cal/records/limits.py", 1)], (key, where)
 
 
 def test_no_module_outside_the_station_parses_a_record_by_hand():
-    """Records are read by RunRecord.from_json (eol_cal/station/record_json.py, record_v1.py); nothing else
+    """Records are read by RunRecord.from_json (eol_cal/records/parts_json.py, record_v1.py); nothing else
     takes a record document apart."""
     pattern = re.compile(r"""(rec|record)(\.get\(|\[)["'](fit|metrics|limits|block|verdict|captures|ecu_prepared)""")
     offenders = [p.relative_to(ROOT).as_posix() for d in ("eol_cal", "cli") for p in (ROOT / d).rglob("*.py")
@@ -120,8 +120,8 @@ def test_settings_that_cannot_be_flashed_are_a_refusal_with_its_code(tmp_path):
 
     from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.station.cycle import run_motor
-    from eol_cal.station.limits import load_limits
-    from eol_cal.station.records_query import query_records
+    from eol_cal.records.limits import load_limits
+    from eol_cal.records.query import query_records
     from eol_cal.station.run import StationConfig
 
     with socket.socket() as s:

@@ -16,8 +16,8 @@ from test_station_kill import station, station_realtime  # noqa: F401 - the fixt
 
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
-from eol_cal.station.records_query import query_records
-from eol_cal.station.spool import flush_spool
+from eol_cal.records.query import query_records
+from eol_cal.records.spool import flush_spool
 
 
 def _wait_for(path_glob, tmp_path, timeout: float = 120.0) -> bool:

@@ -20,7 +20,7 @@ from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming
 from eol_cal.ecu.flash import NorFlash, active_block_from_file, select_active
-from eol_cal.station.records_query import query_records
+from eol_cal.records.query import query_records
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from eol_cal.errors import InputError
-from eol_cal.station.limits import LIMIT_KEYS, Measured, load_limits, parse_limits, verdict
+from eol_cal.records.limits import LIMIT_KEYS, Measured, load_limits, parse_limits, verdict
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "fixtures" / "limits.toml"
@@ -135,7 +135,7 @@ def test_variant_choice(tmp_path: Path):
 
 
 def test_old_limits_file_without_the_newer_keys_loads_with_the_defaults(tmp_path: Path):
-    from eol_cal.station.limits import OPTIONAL_DEFAULTS
+    from eol_cal.records.limits import OPTIONAL_DEFAULTS
 
     old = tmp_path / "limits-2026-01.toml"  # written before max_hall_deviation_deg and the mech1 limit
     old.write_text(GOOD.replace("max_hall_deviation_deg = 3.0\n", ""))
@@ -155,7 +155,7 @@ def test_old_limits_file_without_the_newer_keys_loads_with_the_defaults(tmp_path
 
 
 def test_mech1_limit_judged_when_set():
-    from eol_cal.station.limits import judge
+    from eol_cal.records.limits import judge
 
     # MOTOR on EPS-STD passes; what is left after compensation is mostly the rotor's unbalance
     motor = Measured(**{**MOTOR.__dict__, "pp_after_no_mech1_pct": 0.6})
@@ -179,7 +179,7 @@ def test_mech1_limit_judged_when_set():
 
 
 def test_one_table_judges_each_stage_and_keeps_every_check():
-    from eol_cal.station.limits import LIMITS, all_checks, judge
+    from eol_cal.records.limits import LIMITS, all_checks, judge
 
     lim = parse_limits(GOOD, "x.toml")["A"]
     fit = judge(MOTOR, lim, "fit")
@@ -200,7 +200,7 @@ def test_a_limit_is_one_row_of_the_table():
     fit's interval limits and the checks all follow the table."""
     import dataclasses
 
-    from eol_cal.station import limits as L
+    from eol_cal.records import limits as L
 
     row = L.Limit("max_pp_raw_test_pct", "pp_after_pct", "test limit", "%", "max", "ripple", (0.0, 100.0), default=None)
     old = L.LIMITS
@@ -221,7 +221,7 @@ def test_the_model_check_is_a_limit_and_the_fit_judges_it_when_off():
     left out of the file, the fit's own CiLimits keeps judging it (never a silent pass)."""
     on = parse_limits(GOOD + "min_model_check_p = 0.01\n", "x.toml")["A"]
     bad = Measured(**{**MOTOR.__dict__, "model_check_p": 1e-5, "model_check_note": "bands differ"})
-    from eol_cal.station.limits import failed, judge
+    from eol_cal.records.limits import failed, judge
 
     reasons = failed(judge(bad, on, "fit"))
     assert reasons == ["agreement of the speed bands (model check p-value) = 1e-05 below min_model_check_p = 0.01"]

@@ -15,10 +15,12 @@ from click.testing import CliRunner
 from eol_cal.sim.run_records import make_record
 from cli.main import cli
 from eol_cal.errors import InputError
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records import COLUMN_NAMES, RecordError, insert_records
-from eol_cal.station.records_query import query_records, summarise
-from eol_cal.station.spool import flush_spool, save_record
+from eol_cal.records.record import RunRecord
+from eol_cal.records.connect import RecordError
+from eol_cal.records.tables import COLUMN_NAMES
+from eol_cal.records.write import insert_records
+from eol_cal.records.query import query_records, summarise
+from eol_cal.records.spool import flush_spool, save_record
 
 
 def record(serial: str = "M-1", verdict: str = "pass", started: str = "2026-11-22T10:00:00.000+00:00",

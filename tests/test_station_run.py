@@ -26,9 +26,9 @@ from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
 from eol_cal.sim.loopback import loopback_station
-from eol_cal.station.limits import LIMIT_KEYS, Measured, load_limits, verdict
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records_query import query_records
+from eol_cal.records.limits import LIMIT_KEYS, Measured, load_limits, verdict
+from eol_cal.records.record import RunRecord
+from eol_cal.records.query import query_records
 from eol_cal.station.run import sha256_file
 
 

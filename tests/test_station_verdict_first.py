@@ -24,7 +24,7 @@ import pytest
 
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.sim.loopback import loopback_station
-from eol_cal.station.records_query import query_records
+from eol_cal.records.query import query_records
 from test_station_run import files  # noqa: F401 - the module's fixture
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,7 +21,7 @@ def test_units_without_a_display_unit_are_shown_as_stored():
 
 
 def test_a_database_url_is_shown_as_typed_with_its_password_masked():
-    from eol_cal.station.records import db_label, db_shown
+    from eol_cal.records.connect import db_label, db_shown
 
     assert db_label("postgresql://eolcal:s3cret@db.plant:5432/eol") == "postgresql://eolcal:***@db.plant:5432/eol"
     assert db_shown("/var/lib/eol/results.sqlite") == "/var/lib/eol/results.sqlite"

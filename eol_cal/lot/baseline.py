@@ -2,17 +2,15 @@
 station, stored once (``eol-cal lot baseline``) and judged against later (``lot stats
 --baseline NAME``), so a drifting process cannot move its own limits.
 
-Two tables beside ``runs``, on SQLite and PostgreSQL through SQLAlchemy Core (the engines of
-:mod:`eol_cal.station.records`): ``baselines`` (one row per baseline: its name, when it was made,
+Two tables beside ``runs`` (:mod:`eol_cal.records.tables`, on SQLite and PostgreSQL through the
+engines of :mod:`eol_cal.records.connect`): ``baselines`` (one row per baseline: its name, when it was made,
 the filters that chose its runs, ``min_n``) and ``baseline_lines`` (one row per baseline,
 quantity, variant and station: n, centre, sigma, MRbar, or the reason there are no limits).
 Values are in the quantity's stored units (the ``runs`` column's: N*m/A, rad, %).
 
-The tables have their own layout version in ``baseline_schema_version``
-(:data:`BASELINE_SCHEMA_VERSION`), made the way ``schema_version`` is for ``runs``: created at
-the current version by the first baseline (or by ``eol-cal records migrate``), a newer layout
-refused. Keeping it apart from ``runs``'s version means the stations, which never write a
-baseline, need no migration for it.
+Their layout is the records database's one version (:mod:`eol_cal.records.migrations`): made
+with every other table by the first writer or ``eol-cal records migrate``; a database at another
+version is refused, naming it.
 """
 
 from __future__ import annotations
@@ -27,54 +25,19 @@ from typing import Any
 
 import numpy as np
 import sqlalchemy as sa
-from sqlalchemy.engine import Connection
 
+from eol_cal import __version__
 from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
 from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line, natural_floor
-from eol_cal.station.record import KINDS, MEASURED_KIND
-from eol_cal.station.records import SchemaError, connected, db_label
+from eol_cal.records.record import KINDS, MEASURED_KIND
+from eol_cal.records.connect import connected, db_label
+from eol_cal.records.migrations import ensure_schema, readable
+from eol_cal.records.tables import baseline_lines, baselines
 
-#: the layout of the baseline tables this code writes (2: the run kind and the stations chosen)
-BASELINE_SCHEMA_VERSION = 2
 #: the text filters a baseline keeps (``since``/``until``: UTC instants, ISO 8601)
 FILTER_KEYS = ("since", "until", "variant", "station", "kind")
-_LOCK = 7413002  # PostgreSQL advisory lock: two first baselines at once, one creates the tables
-
-_metadata = sa.MetaData()
-baselines = sa.Table(
-    "baselines", _metadata,
-    sa.Column("name", sa.Text, primary_key=True),
-    sa.Column("created_at", sa.Text, nullable=False),
-    sa.Column("since", sa.Text),
-    sa.Column("until", sa.Text),
-    sa.Column("variant", sa.Text),
-    sa.Column("station", sa.Text),
-    sa.Column("min_n", sa.Integer, nullable=False),
-    sa.Column("runs", sa.Integer, nullable=False),
-    sa.Column("tool_version", sa.Text),
-    # version 2: the kind of the runs and every station chosen (a JSON list; station: the one, if one)
-    sa.Column("kind", sa.Text),
-    sa.Column("stations", sa.Text),
-)
-#: columns added by each layout version of ``baselines``
-_ADDED = {2: ("kind", "stations")}
-baseline_lines = sa.Table(
-    "baseline_lines", _metadata,
-    sa.Column("name", sa.Text, sa.ForeignKey("baselines.name", ondelete="CASCADE"), primary_key=True),
-    sa.Column("quantity", sa.Text, primary_key=True),
-    sa.Column("variant", sa.Text, primary_key=True),
-    sa.Column("station", sa.Text, primary_key=True),
-    sa.Column("circular", sa.Boolean, nullable=False),
-    sa.Column("n", sa.Integer, nullable=False),
-    sa.Column("center", sa.Float),
-    sa.Column("sigma", sa.Float),
-    sa.Column("mr_center", sa.Float),
-    sa.Column("reason", sa.Text),
-)
-baseline_version = sa.Table("baseline_schema_version", _metadata, sa.Column("version", sa.Integer, nullable=False))
-
 
 @dataclass(frozen=True)
 class Baseline:
@@ -224,61 +187,17 @@ def baseline_document(b: Baseline) -> dict[str, Any]:
             "min_n": b.min_n, "runs": b.runs, "lines": lines}
 
 
-# --------------------------------------------------------------------------- the tables
-def _version(con: Connection) -> int | None:
-    if not sa.inspect(con).has_table("baseline_schema_version"):
-        return None
-    v = con.execute(sa.select(sa.func.max(baseline_version.c.version))).scalar()
-    return int(v) if v is not None else None
-
-
-def ensure_tables(con: Connection) -> tuple[int | None, int]:
-    """The migration step of the baseline tables, inside the caller's transaction: create them
-    at :data:`BASELINE_SCHEMA_VERSION` when absent; refuse a newer layout. Returns ``(version
-    before, version now)`` (before None: created)."""
-    if con.dialect.name == "postgresql":
-        con.execute(sa.text(f"SELECT pg_advisory_xact_lock({_LOCK})"))
-    v = _version(con)
-    if v is None:
-        _metadata.create_all(con)
-        con.execute(baseline_version.insert().values(version=BASELINE_SCHEMA_VERSION))
-        return None, BASELINE_SCHEMA_VERSION
-    if v > BASELINE_SCHEMA_VERSION:
-        raise SchemaError(f"baseline tables at layout version {v} are newer than this tool "
-                          f"({BASELINE_SCHEMA_VERSION})")
-    added = [name for step in range(v + 1, BASELINE_SCHEMA_VERSION + 1) for name in _ADDED.get(step, ())]
-    for name in added:
-        con.exec_driver_sql(f"ALTER TABLE baselines ADD COLUMN {name} {baselines.c[name].type.compile(dialect=con.dialect)}")
-    if "kind" in added:  # a baseline of layout 1 was made of production runs, of its one station or all
-        con.execute(baselines.update().values(kind=MEASURED_KIND))
-        for name, station in con.execute(sa.select(baselines.c.name, baselines.c.station)).all():
-            if station is not None:
-                con.execute(baselines.update().where(baselines.c.name == name).values(stations=json.dumps([station])))
-    if added:
-        con.execute(baseline_version.delete())
-        con.execute(baseline_version.insert().values(version=BASELINE_SCHEMA_VERSION))
-    return v, BASELINE_SCHEMA_VERSION
-
-
-def migrate(db: str | Path) -> tuple[int | None, int]:
-    """Bring the baseline tables of a records database to :data:`BASELINE_SCHEMA_VERSION`."""
-    with connected(db, False, "migrate the baseline tables") as con, con.begin():
-        return ensure_tables(con)
-
-
 def store(db: str | Path, baseline: Baseline, replace: bool = False) -> None:
-    """Store a baseline in one transaction (the tables made first when absent). A baseline of
-    that name already there is refused unless ``replace``."""
+    """Store a baseline in one transaction (every table made first in an empty database; one at
+    another version refused). A baseline of that name already there is refused unless ``replace``."""
     with connected(db, False, "store the baseline") as con, con.begin():
-        ensure_tables(con)
+        ensure_schema(con)
         exists = con.execute(sa.select(baselines.c.name).where(baselines.c.name == baseline.name)).first()
         if exists and not replace:
             raise InputError(db_label(db), f"baseline {baseline.name!r}", "exists already (--replace to make it anew)")
         if exists:
             con.execute(baseline_lines.delete().where(baseline_lines.c.name == baseline.name))
             con.execute(baselines.delete().where(baselines.c.name == baseline.name))
-        from eol_cal import __version__
-
         stations = baseline.filters.get("stations")
         con.execute(baselines.insert().values(name=baseline.name, created_at=baseline.created_at,
                                               min_n=baseline.min_n, runs=baseline.runs, tool_version=__version__,
@@ -296,19 +215,15 @@ def load(db: str | Path, name: str) -> Baseline:
     Its stored rows are checked like any input (a newer layout is refused; a line with a sigma
     that is not a positive number, a centre that is text...: refused naming the row)."""
     with connected(db, True, "read the baseline") as con:
-        v = _version(con)
-        if v is None:
-            raise InputError(db_label(db), f"baseline {name!r}", "not found: the database holds no baselines "
-                                                                  "(eol-cal lot baseline makes one)")
-        if v > BASELINE_SCHEMA_VERSION:
-            raise InputError(db_label(db), "baseline_schema_version", f"layout version {v} is newer than this tool "
-                                                                      f"({BASELINE_SCHEMA_VERSION}): refused")
-        found = con.execute(_heads(v).where(baselines.c.name == name)).mappings().first()
+        found = con.execute(sa.select(baselines).where(baselines.c.name == name)).mappings().first() \
+            if readable(con) else None
         if found is None:
-            there = con.execute(sa.select(baselines.c.name).order_by(baselines.c.name)).scalars().all()
-            raise InputError(db_label(db), f"baseline {name!r}", f"not found (there are: {', '.join(there) or 'none'})")
+            there = con.execute(sa.select(baselines.c.name).order_by(baselines.c.name)).scalars().all() \
+                if readable(con) else []
+            raise InputError(db_label(db), f"baseline {name!r}", f"not found (there are: {', '.join(there)})" if there
+                             else "not found: the database holds no baselines (eol-cal lot baseline makes one)")
         rows = con.execute(sa.select(baseline_lines).where(baseline_lines.c.name == name)).mappings().all()
-    head = _head(found)
+    head = dict(found)
     where = f"{db_label(db)}, baseline {name!r}"
     lines = {(r["quantity"], r["variant"], r["station"]): _line_of_row(r, where) for r in rows}
     filters: dict[str, Any] = {k: _opt_text(head[k], where, k) for k in FILTER_KEYS}
@@ -395,24 +310,6 @@ def _line_of_row(r: Any, where: str) -> ControlLine:
 def list_baselines(db: str | Path) -> list[dict[str, Any]]:
     """The baselines of a database (name, created_at, filters, min_n, runs), by name."""
     with connected(db, True, "read the baselines") as con:
-        if _version(con) is None:
+        if not readable(con):
             return []
-        v = _version(con)
-        return [_head(r) for r in con.execute(_heads(v or BASELINE_SCHEMA_VERSION).order_by(baselines.c.name)).mappings()]
-
-
-def _heads(v: int) -> sa.Select:
-    """The ``baselines`` columns layout ``v`` holds (:func:`_head` fills the later ones)."""
-    if v >= BASELINE_SCHEMA_VERSION:
-        return sa.select(baselines)
-    return sa.select(*(c for c in baselines.c if c.name not in _ADDED[2]))
-
-
-def _head(row: Any) -> dict[str, Any]:
-    """A ``baselines`` row with the columns of layout 2 as a layout-1 baseline means them
-    (production runs; its one station, or all)."""
-    head = dict(row)
-    if "kind" not in head:
-        station = head.get("station")
-        head.update(kind=MEASURED_KIND, stations=None if not isinstance(station, str) else json.dumps([station]))
-    return head
+        return [dict(r) for r in con.execute(sa.select(baselines).order_by(baselines.c.name)).mappings()]

@@ -100,7 +100,7 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
 
     import eol_cal.analysis.fit.motors
     import eol_cal.capture.io
-    import eol_cal.station.limits  # noqa: F401
+    import eol_cal.records.limits  # noqa: F401
 
     gc.collect()
     gc.freeze()

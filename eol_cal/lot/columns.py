@@ -3,7 +3,7 @@
 :class:`Lot` is built either from the records database's columns (:func:`read_lot`: no record
 JSON is parsed, only the few distinct ``limits_json`` texts) or from run records
 (:func:`from_records`: the lot page, tests). Both go through
-:func:`eol_cal.station.records.row_values`, the one mapping from a record to its columns (the
+:func:`eol_cal.records.rows.row_values`, the one mapping from a record to its columns (the
 insert and the migrations use it too), so both give the same lot and the same statistics. A lot
 holds the runs of one kind, ``production`` unless asked (``docs/records.md``, "Run kinds").
 
@@ -28,14 +28,14 @@ import numpy as np
 from eol_cal.display import display_unit
 from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
-from eol_cal.station.limits import limit_on
-from eol_cal.station.record import MEASURED_KIND, NO_STATION, RunRecord
+from eol_cal.records.limits import limit_on
+from eol_cal.records.record import MEASURED_KIND, NO_STATION, RunRecord
 
 
 class Quantity(NamedTuple):
     """A measured quantity of the lot: its column (``key``, :meth:`RunRecord.value`), its title and
     stored unit; its display unit and scale (:mod:`eol_cal.display`), and the limit on it
-    (:func:`eol_cal.station.limits.limit_on`) follow."""
+    (:func:`eol_cal.records.limits.limit_on`) follow."""
 
     key: str
     title: str
@@ -266,7 +266,7 @@ def from_columns(cols: dict[str, Sequence[Any]], limits_json: Iterable[str | Non
 def from_records(records: Sequence[RunRecord]) -> Lot:
     """A :class:`Lot` of run records (their columns as the database would hold them; every record
     given, whatever its kind: choose the kind before)."""
-    from eol_cal.station.records import row_values
+    from eol_cal.records.rows import row_values
 
     rows = [row_values(r) for r in records]
     return from_columns({name: [row[name] for row in rows] for name in LOT_COLUMNS},
@@ -276,7 +276,7 @@ def from_records(records: Sequence[RunRecord]) -> Lot:
 def read_lot(db: str | Path, variant: str | None = None, station: str | None = None, since: str | None = None,
              until: str | None = None, kind: str | Sequence[str] | None = MEASURED_KIND) -> Lot:
     """The selected runs of a records database as a :class:`Lot`, from its columns alone (schema
-    version 4). Filters as :func:`eol_cal.station.records_query.select_runs` (``kind``: production
+    version 4). Filters as :func:`eol_cal.records.query.select_runs` (``kind``: production
     runs unless asked)."""
     return read_lots(db, variant, station, since, until, kind)[0]
 
@@ -287,8 +287,9 @@ def read_lots(db: str | Path, variant: str | None = None, station: str | None = 
     """:func:`read_lot` and, from the same snapshot of the database, the lot of each kind in ``also``
     (the refusals beside the production runs)."""
     from eol_cal.errors import naming
-    from eol_cal.station.records import db_key, is_url, runs
-    from eol_cal.station.records_query import read_columns, select_runs
+    from eol_cal.records.connect import db_key, is_url
+    from eol_cal.records.tables import runs
+    from eol_cal.records.query import read_columns, select_runs
 
     queries = []
     for k in (kind, *also):
@@ -297,6 +298,6 @@ def read_lots(db: str | Path, variant: str | None = None, station: str | None = 
         # limits are few distinct texts, asked for as such (not 100 000 copies of them)
         queries += [q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
                     q.with_only_columns(runs.c.limits_json).distinct()]
-    got = read_columns(db, *queries, min_version=4)
+    got = read_columns(db, *queries)
     with naming(db_key(db) if is_url(db) else str(db)):
         return [from_columns(got[k], got[k + 1]["limits_json"]) for k in range(0, len(got), 2)]

@@ -16,8 +16,8 @@ from typing import Any
 from eol_cal.errors import InputError
 from eol_cal.lot.columns import from_records
 from eol_cal.lot.summary import lot_summary
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records_query import query_records
+from eol_cal.records.record import RunRecord
+from eol_cal.records.query import query_records
 
 #: the schema of ``lot diff --lot A --lot B --json``
 LOT_COMPARE_SCHEMA = "eol-cal/lot-compare/1"

@@ -1,7 +1,7 @@
 """``eol-cal lot diff``: which motors a refit judges otherwise than their latest recorded run.
 
 A refit (:mod:`eol_cal.lot.refit`) fits a run's calibration capture again and judges the fit's
-limits (the ``fit`` stage of :data:`eol_cal.station.limits.LIMITS`); it makes no compensated
+limits (the ``fit`` stage of :data:`eol_cal.records.limits.LIMITS`); it makes no compensated
 capture, so it judges no ripple limit. The comparison is therefore of like with like: the
 refit's verdict and failed limit keys against the *fit-stage checks the record carries* (read,
 never judged again here) of each serial's latest run of the kind asked (``production`` unless
@@ -16,8 +16,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from eol_cal.display import display_unit
-from eol_cal.station.record import MEASURED_KIND, RunRecord
-from eol_cal.station.records_query import latest_per_serial
+from eol_cal.records.record import MEASURED_KIND, RunRecord
+from eol_cal.records.query import latest_per_serial
 
 #: the schema of the document ``eol-cal lot diff --json`` prints
 LOT_DIFF_SCHEMA = "eol-cal/lot-diff/1"

@@ -24,13 +24,13 @@ from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
 from eol_cal.figures import pyplot
 from eol_cal.render import file_link, plain
-from eol_cal.station.limits import limit_on
-from eol_cal.station.record import MEASURED_KIND
+from eol_cal.records.limits import limit_on
+from eol_cal.records.record import MEASURED_KIND
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure
 
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 VERDICT_COLOUR = {"pass": "tab:green", "fail": "tab:orange", "error": "tab:red"}
 #: more points than this in one chart are drawn as an embedded image without hover text (each
@@ -345,7 +345,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
         when that file exists, else None).
     """
     from eol_cal.report.motor import limit_rows
-    from eol_cal.station.records_query import latest_per_serial
+    from eol_cal.records.query import latest_per_serial
 
     order = {"error": 0, "fail": 1, "pass": 2}
     rows: list[dict[str, Any]] = []  # the function's rows
@@ -398,7 +398,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
     from eol_cal.report.motor import Figure
     from eol_cal.report.page import render
     from eol_cal.report.svg import figure_svg
-    from eol_cal.station.records_query import summarise
+    from eol_cal.records.query import summarise
 
     ordered = sorted(records, key=lambda r: (run_time(r), r.run_id))
     recs = [r for r in ordered if (r.kind != "refusal" if kind == "all" else r.kind == kind)]

@@ -4,7 +4,7 @@ results keyed by serial and comparable with the run records.
 
 Each motor's captures are read and fitted as the station does (the options of
 :func:`eol_cal.station.run.fit_motor`, so the same k6 as the record of that run), and, with limits, judges the fit's
-part of them (:func:`eol_cal.station.limits.judge` of the fit stage: k6, the intervals, R^2, RMS, the
+part of them (:func:`eol_cal.records.limits.judge` of the fit stage: k6, the intervals, R^2, RMS, the
 hall table; the ripple limits need the compensated capture, which a refit does not make). A capture
 that cannot be read or fitted gives a row with ``error`` and no numbers; the lot goes on. So does
 a capture that ``eol-cal fit`` would refuse by its recorded ECU state (the block changed during
@@ -41,7 +41,7 @@ def find_captures(patterns: Sequence[str], kind: str | Sequence[str] | None = "p
     A station run directory whose record (``report.json``) is of another kind than ``kind``
     (default ``production``; ``all`` or None: every kind) is left out: a master motor's or a
     simulated run is not a motor of the lot unless asked for."""
-    from eol_cal.station.records_query import kinds_of
+    from eol_cal.records.query import kinds_of
 
     kinds = kinds_of(kind)
     out: set[Path] = set()
@@ -67,7 +67,7 @@ def find_captures(patterns: Sequence[str], kind: str | Sequence[str] | None = "p
 def _run_kind(run_dir: Path) -> str | None:
     """The kind of a station run directory's record (None: no readable record there)."""
     from eol_cal.inputs import load_json
-    from eol_cal.station.record import record_kind
+    from eol_cal.records.record import record_kind
 
     try:  # the bounded loader: a FIFO or a record nested 100 000 deep is no readable record
         return record_kind(load_json(run_dir / "report.json", max_bytes=64 << 20))
@@ -165,7 +165,7 @@ class _RefitSetup:
                  cache_dir: str | Path | None) -> None:
         from eol_cal.mechanics import mechanics_or_rigid
         from eol_cal.motor import load_motor
-        from eol_cal.station.limits import load_limits
+        from eol_cal.records.limits import load_limits
 
         self.lim = load_limits(limits_file, variant) if limits_file else None
         self.common: dict[str, Any] = dict(batch="loop", capture_metrics=False, mechanics=mechanics_or_rigid(bench),
@@ -211,7 +211,7 @@ class _RefitSetup:
         """Fill ``row`` from a motor's fit record (read typed, judged against the fit stage's limits);
         raises before touching the row when either cannot be done."""
         from eol_cal.analysis.motor_result import MotorResult
-        from eol_cal.station.limits import Measured, failed, judge
+        from eol_cal.records.limits import Measured, failed, judge
 
         result = MotorResult.from_json(rec, source, "motors[0].")
         checks = judge(Measured.of_fit(result), self.lim, "fit") if result.usable and self.lim is not None else None

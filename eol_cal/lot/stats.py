@@ -1,7 +1,7 @@
 """Lot statistics of run records: summaries, process capability, control limits, yield, Pareto.
 
 Pure functions over numbers in time order and over run records
-(:class:`~eol_cal.station.record.RunRecord`). Definitions (the usual ones of statistical process
+(:class:`~eol_cal.records.record.RunRecord`). Definitions (the usual ones of statistical process
 control, for individual measurements; the run kinds in ``docs/records.md``):
 
 - ``sd``: sample standard deviation (ddof 1); percentiles by linear interpolation.
@@ -30,10 +30,10 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from eol_cal.station.record import MEASURED_KIND
+from eol_cal.records.record import MEASURED_KIND
 
 if TYPE_CHECKING:
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 D2 = 1.128  # E[moving range of two] / sigma
 E2 = 3.0 / D2  # 2.66: individuals' limits from MRbar

@@ -24,8 +24,8 @@ from eol_cal.lot.baseline import Baseline
 from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
 from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, pareto_of, summary
-from eol_cal.station.records import COLUMN_NAMES, runs
-from eol_cal.station.records_query import read_rows, select_runs
+from eol_cal.records.tables import COLUMN_NAMES, runs
+from eol_cal.records.query import read_rows, select_runs
 
 #: the ``schema`` of the document ``eol-cal lot stats --json`` prints
 LOT_STATS_SCHEMA = "eol-cal/lot-stats/2"
@@ -153,7 +153,7 @@ def write_runs_csv(path: str | Path, db: str | Path, rules: dict[str, list[str]]
                    **filters: Any) -> int:
     """Write the selected runs' columns (the database's, without the JSON documents) as CSV,
     atomically, oldest first; returns the number of runs. ``filters`` as
-    :func:`eol_cal.station.records_query.select_runs`. Each header names its unit (``k6 [mN*m/A]``);
+    :func:`eol_cal.records.query.select_runs`. Each header names its unit (``k6 [mN*m/A]``);
     the measured quantities are in their display units (:mod:`eol_cal.display`). With ``rules``
     (run id -> ``QUANTITY:RULE`` tags, :func:`eol_cal.lot.spc_stats.rules_by_run`) a last column
     ``rules`` lists the run rules each run is part of, ``;``-separated."""

@@ -31,12 +31,13 @@ from eol_cal.errors import EolCalError, InputError
 from eol_cal.msa.master import MasterRun, MasterSettings, master_checks, master_due
 from eol_cal.msa.rules import GateRules, change, current, rules_document
 from eol_cal.msa.study import quantity
-from eol_cal.station.record import GateInfo, MasterCheck, Problem
-from eol_cal.station.records import parse_record, runs
-from eol_cal.station.records_query import read_rows
+from eol_cal.records.record import GateInfo, MasterCheck, Problem
+from eol_cal.records.rows import parse_record
+from eol_cal.records.tables import runs
+from eol_cal.records.query import read_rows
 
 if TYPE_CHECKING:
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 
 class MasterGateClosed(EolCalError):

@@ -33,7 +33,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.block import serial_problem
-from eol_cal.station.record_parts import MasterCheck
+from eol_cal.records.parts import MasterCheck
 
 #: the quantities a master check may compare (display units: mN*m/A, deg, mN*m, %, %)
 MASTER_QUANTITIES = ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct")

@@ -1,15 +1,15 @@
 """The master gate's rules as records: per station, in the records database, each change a row.
 
-Table ``gate_rules`` beside ``runs`` (SQLite and PostgreSQL through the engines of
-:mod:`eol_cal.station.records`): one row per change of a station's rules, numbered ``seq`` 1, 2,
+Table ``gate_rules`` beside ``runs`` (:mod:`eol_cal.records.tables`, on SQLite and PostgreSQL
+through the engines of :mod:`eol_cal.records.connect`): one row per change of a station's rules, numbered ``seq`` 1, 2,
 ... per station, with when (``set_at``, UTC), by whom (``set_by``) and why (``note``) it was
 made, and the rules themselves as JSON (``rules_json``: master serial, references, tolerances,
 period; :func:`rules_document`) or ``action = 'clear'`` (the station has no gate from then on).
 The latest row of a station is in force. Rows are never changed or deleted by this tool: the
 table is the gate's history (``eol-cal gate history``).
 
-Its layout version is in ``gate_schema_version`` (:data:`GATE_SCHEMA_VERSION`), kept apart from
-``runs``'s as the baselines' is: created by the first ``eol-cal gate set``; a newer layout is
+Its layout is the records database's one version (:mod:`eol_cal.records.migrations`): the first
+``eol-cal gate set`` on an empty database makes every table; a database at another version is
 refused. Every row read is checked as the settings are (:func:`eol_cal.msa.master.master_settings`):
 a stored row that would not pass as a setting refuses the gate, naming the row.
 """
@@ -23,34 +23,16 @@ from pathlib import Path
 from typing import Any
 
 import sqlalchemy as sa
-from sqlalchemy.engine import Connection
 
 from eol_cal import __version__
 from eol_cal.errors import InputError
 from eol_cal.inputs import loads_json
 from eol_cal.msa.master import MASTER_QUANTITIES, MasterSettings, master_settings
-from eol_cal.station.records import DEFAULT_LOCK_TIMEOUT_S, SchemaError, connected, db_label, is_url
-from eol_cal.station.records import migrate as migrate_runs
+from eol_cal.records.connect import DEFAULT_LOCK_TIMEOUT_S, connected, db_label, is_url
+from eol_cal.records.migrations import ensure_schema, lock, migrate, readable
+from eol_cal.records.tables import gate_rules
 
-#: the layout of the gate tables this code writes
-GATE_SCHEMA_VERSION = 1
-_LOCK = 7413003  # PostgreSQL advisory lock: two changes at once get consecutive numbers
 ACTIONS = ("set", "clear")
-
-_metadata = sa.MetaData()
-gate_rules = sa.Table(
-    "gate_rules", _metadata,
-    sa.Column("station", sa.Text, primary_key=True),
-    sa.Column("seq", sa.Integer, primary_key=True),
-    sa.Column("set_at", sa.Text, nullable=False),
-    sa.Column("set_by", sa.Text),
-    sa.Column("action", sa.Text, sa.CheckConstraint("action IN ('set', 'clear')"), nullable=False),
-    sa.Column("rules_json", sa.Text),
-    sa.Column("note", sa.Text),
-    sa.Column("tool_version", sa.Text),
-)
-gate_version = sa.Table("gate_schema_version", _metadata, sa.Column("version", sa.Integer, nullable=False))
-
 
 @dataclass(frozen=True)
 class GateRules:
@@ -110,39 +92,6 @@ def rules_from_document(doc: Any, where: str) -> MasterSettings:
     return m
 
 
-# --------------------------------------------------------------------------- the tables
-def _version(con: Connection) -> int | None:
-    if not sa.inspect(con).has_table("gate_schema_version"):
-        return None
-    v = con.execute(sa.select(sa.func.max(gate_version.c.version))).scalar()
-    return int(v) if v is not None else None
-
-
-def _check_version(v: int | None) -> None:
-    if v is not None and v > GATE_SCHEMA_VERSION:
-        raise SchemaError(f"gate tables at layout version {v} are newer than this tool ({GATE_SCHEMA_VERSION})")
-
-
-def ensure_tables(con: Connection) -> tuple[int | None, int]:
-    """The migration step of the gate tables, inside the caller's transaction: create them at
-    :data:`GATE_SCHEMA_VERSION` when absent; refuse a newer layout. ``(before, now)``."""
-    if con.dialect.name == "postgresql":
-        con.execute(sa.text(f"SELECT pg_advisory_xact_lock({_LOCK})"))
-    v = _version(con)
-    if v is None:
-        _metadata.create_all(con)
-        con.execute(gate_version.insert().values(version=GATE_SCHEMA_VERSION))
-        return None, GATE_SCHEMA_VERSION
-    _check_version(v)
-    return v, GATE_SCHEMA_VERSION
-
-
-def migrate(db: str | Path) -> tuple[int | None, int]:
-    """Bring the gate tables of a records database to :data:`GATE_SCHEMA_VERSION`."""
-    with connected(db, False, "migrate the gate tables") as con, con.begin():
-        return ensure_tables(con)
-
-
 def _station(station: str) -> str:
     if not isinstance(station, str) or not station.strip() or not station.isprintable() or len(station) > 64:
         raise InputError(None, "station", f"{station!r}: a station id of 1 to 64 printable characters")
@@ -155,15 +104,11 @@ def change(db: str | Path, station: str, master: MasterSettings | None, set_by: 
     the tables are made when absent (a new SQLite file too). Returns the change."""
     station = _station(station)
     if not is_url(db) and not Path(db).exists():
-        migrate_runs(db)  # a new database: the runs table too, as the first record would make it
-    else:
-        with connected(db, True, "read the records database", DEFAULT_LOCK_TIMEOUT_S) as con:
-            empty = not sa.inspect(con).has_table("runs")
-        if empty:  # a new server database: likewise (an existing one is left at its version)
-            migrate_runs(db)
+        migrate(db)  # a new file: every table, as the first record would make them
     set_at = (now or dt.datetime.now(dt.UTC)).astimezone(dt.UTC).isoformat(timespec="milliseconds")
     with connected(db, False, "change the gate rules") as con, con.begin():
-        ensure_tables(con)
+        ensure_schema(con)
+        lock(con)  # two changes at once get consecutive numbers
         last = con.execute(sa.select(sa.func.max(gate_rules.c.seq)).where(gate_rules.c.station == station)).scalar()
         seq = int(last or 0) + 1
         con.execute(gate_rules.insert().values(
@@ -198,10 +143,8 @@ def _rules_of_row(db: str | Path, r: Any) -> GateRules:
 def history(db: str | Path, station: str | None = None, timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[GateRules]:
     """Every change of ``station``'s rules (None: every station's), oldest first, each checked."""
     with connected(db, True, "read the gate rules", timeout_s) as con:
-        v = _version(con)
-        if v is None:
+        if not readable(con):
             return []
-        _check_version(v)
         q = sa.select(gate_rules).order_by(gate_rules.c.station, gate_rules.c.seq)
         if station is not None:
             q = q.where(gate_rules.c.station == station)
@@ -215,10 +158,8 @@ def current(db: str | Path, station: str | None, timeout_s: float = DEFAULT_LOCK
     if station is None or (not is_url(db) and not Path(db).exists()):
         return None
     with connected(db, True, "read the gate rules", timeout_s) as con:
-        v = _version(con)
-        if v is None:
+        if not readable(con):
             return None
-        _check_version(v)
         r = con.execute(sa.select(gate_rules).where(gate_rules.c.station == station)
                         .order_by(sa.desc(gate_rules.c.seq)).limit(1)).mappings().first()
     return None if r is None else _rules_of_row(db, r)

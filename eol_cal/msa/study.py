@@ -21,8 +21,9 @@ from eol_cal.errors import InputError, naming
 from eol_cal.lot.columns import LOT_COLUMNS, QUANTITIES, Lot, Quantity, from_columns
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, NATURAL_ZERO  # a magnitude: T = USL - 0
 from eol_cal.msa.type1 import CAPABLE, K_DEFAULT, L_DEFAULT, Type1Study, type1_study
-from eol_cal.station.records import db_key, is_url, runs
-from eol_cal.station.records_query import read_columns, select_runs
+from eol_cal.records.connect import db_key, is_url
+from eol_cal.records.tables import runs
+from eol_cal.records.query import read_columns, select_runs
 
 #: the quantities of a type-1 study of the ripple measurement
 TYPE1_QUANTITIES = ("k6", "phase_k6", "c6", "pp_before_pct", "pp_after_pct")
@@ -54,7 +55,7 @@ def read_runs(db: str | Path, serial: str | None = None, run_id: str | None = No
     if exclude is not None:
         q = q.where(runs.c.run_id != exclude)
     cols, limits = read_columns(db, q.with_only_columns(*(runs.c[name] for name in LOT_COLUMNS)),
-                                q.with_only_columns(runs.c.limits_json).distinct(), min_version=4)
+                                q.with_only_columns(runs.c.limits_json).distinct())
     with naming(db_key(db) if is_url(db) else str(db)):
         return from_columns(cols, limits["limits_json"])
 

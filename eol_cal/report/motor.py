@@ -21,13 +21,13 @@ from eol_cal.display import display_unit
 from eol_cal.figures import pyplot
 from eol_cal.render import plain
 from eol_cal.report.svg import figure_svg
-from eol_cal.station.record import NO_STATION
+from eol_cal.records.record import NO_STATION
 from eol_cal.wrap import wrap_2pi
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.capture.ecu_state import EcuState
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
     from eol_cal.analysis.fit.capture import MotorInput
     from eol_cal.analysis.spectrum import OrderSpectrum
     from eol_cal.analysis.point_metrics import PointRipple

@@ -8,10 +8,9 @@ from __future__ import annotations
 
 import datetime as dt
 
+from eol_cal.records.limits import LIMITS
+from eol_cal.records.record import RunRecord
 from eol_cal.sim.run_records import make_record
-
-from eol_cal.station.limits import LIMITS
-from eol_cal.station.record import RunRecord
 
 #: the key of k6's upper limit (spelled once, in the limits table)
 MAX_K6 = next(lim.key for lim in LIMITS if lim.quantity == "k6" and lim.sense == "max")

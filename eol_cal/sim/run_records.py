@@ -12,8 +12,8 @@ import uuid
 from typing import Any
 
 from eol_cal.sim import FIXTURES
-from eol_cal.station.limits import Measured, VariantLimits, all_checks, failed, judge
-from eol_cal.station.record import EcuActive, ErrorInfo, PreflightResult, Problem, RunRecord
+from eol_cal.records.limits import Measured, VariantLimits, all_checks, failed, judge
+from eol_cal.records.record import EcuActive, ErrorInfo, PreflightResult, Problem, RunRecord
 
 TEMPLATE_JSON: dict[str, Any] = json.loads((FIXTURES / "run_record_demo.json").read_text())
 TEMPLATE = RunRecord.from_json(TEMPLATE_JSON, "run_record_demo.json")

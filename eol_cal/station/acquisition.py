@@ -16,7 +16,7 @@ from eol_cal.capture.ecu_state import EcuState, Trace, with_ecu_state
 from eol_cal.dyno.profile_run import acquire
 from eol_cal.ecu.client import ecu_state
 from eol_cal.errors import EolCalError
-from eol_cal.station.record import FlashedBlock
+from eol_cal.records.record import FlashedBlock
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture

@@ -4,7 +4,7 @@ The flash gives a block the ECU's next sequence and the CRC over it
 (:func:`eol_cal.ecu.sequence.flash_block`), so the block a run builds is not the block the ECU
 holds. :func:`flash_archived` flashes a block and keeps the image the flash wrote (sequence and
 CRC set) in the run's directory, atomically, with its SHA-256 in the record
-(:class:`~eol_cal.station.record.FlashedBlock`): ``eol-cal block show`` of the file says what
+(:class:`~eol_cal.records.record.FlashedBlock`): ``eol-cal block show`` of the file says what
 ``eol-cal ecu info`` says after the run, and the file equals the bank's bytes. A flash that fails
 after the CRC went out (the ECU may boot the new block at its next reset) archives the image all
 the same, as not confirmed.
@@ -22,7 +22,7 @@ from eol_cal.ecu.client import flash_block
 from eol_cal.firmware import block as B
 from eol_cal.firmware.mech import mech_enabled
 from eol_cal.firmware.options import honoured_options, options_label
-from eol_cal.station.record import FlashedBlock, PreviousBlock
+from eol_cal.records.record import FlashedBlock, PreviousBlock
 
 if TYPE_CHECKING:
     from eol_cal.ecu.sequence import FlashReport

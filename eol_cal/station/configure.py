@@ -54,7 +54,7 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
-    from eol_cal.station.limits import load_limits
+    from eol_cal.records.limits import load_limits
 
     regmap = register_map_of(settings)
     limits = load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))

@@ -4,8 +4,8 @@
 compensated -> metrics (verdict) -> report -> record (see :mod:`eol_cal.station.run`). A step
 that finds the motor failing returns a :class:`StepVerdict` and the cycle stops there; an
 exception ends it with verdict ``error``. Each limit is judged once, at its stage
-(:func:`eol_cal.station.limits.judge`). Whatever happened, :meth:`StationCycle.to_record` builds
-the one :class:`~eol_cal.station.record.RunRecord`: kind ``refusal`` when the cycle ended before
+(:func:`eol_cal.records.limits.judge`). Whatever happened, :meth:`StationCycle.to_record` builds
+the one :class:`~eol_cal.records.record.RunRecord`: kind ``refusal`` when the cycle ended before
 the prepare step (nothing written to the ECU, nothing measured), else the configuration's kind
 (``production`` on a line).
 """
@@ -28,8 +28,8 @@ from collections.abc import Callable
 from eol_cal.analysis.point_metrics import PointRipple, nearest_segment, point_ripple, verify_segments
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.interrupts import emergency, raise_if_received, shielded
-from eol_cal.station.limits import LimitCheck, Measured, all_checks, failed, judge
-from eol_cal.station.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, GateInfo, PointFigures,
+from eol_cal.records.limits import LimitCheck, Measured, all_checks, failed, judge
+from eol_cal.records.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, GateInfo, PointFigures,
                                     PreflightResult, RippleMetrics, RunRecord, StationInfo, Step)
 from eol_cal.station.run import (EXIT, ProgressFn, RunOutcome, StationConfig, check_config, check_motor, fit_motor,
                                  new_run_dir, safe_state, sha256_file)
@@ -41,7 +41,7 @@ if TYPE_CHECKING:
     from eol_cal.firmware.block import ParamBlock
     from eol_cal.station.early import EarlyWindows
     from eol_cal.station.flash_ahead import FlashAhead
-    from eol_cal.station.spool import SaveResult
+    from eol_cal.records.spool import SaveResult
 
 #: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
 SWITCH_INTERVAL_S = 0.0005
@@ -331,7 +331,7 @@ class StationCycle:
     def _journal(self, rec: RunRecord) -> Path | None:
         """The record at the verdict, into the spool before anyone sees the verdict; None when the
         spool cannot be written (the database is tried all the same after the report)."""
-        from eol_cal.station.spool import default_spool_dir, spool_record
+        from eol_cal.records.spool import default_spool_dir, spool_record
 
         try:
             return spool_record(rec, self.cfg.db, self.cfg.spool_dir or default_spool_dir(),
@@ -342,7 +342,7 @@ class StationCycle:
 
     def _spool_now(self, rec: RunRecord) -> None:
         """The emergency path of :meth:`record` (the watchdog's thread): straight into the spool."""
-        from eol_cal.station.spool import default_spool_dir, spool_record
+        from eol_cal.records.spool import default_spool_dir, spool_record
 
         spool_record(rec, self.cfg.db, self.cfg.spool_dir or default_spool_dir(), "the process was ended by a signal "
                      "while it wrote the database")
@@ -353,7 +353,7 @@ class StationCycle:
 
     def record(self, rec: RunRecord) -> SaveResult:
         """Save the record: database, or the spool when the database cannot take it."""
-        from eol_cal.station.spool import save_record
+        from eol_cal.records.spool import save_record
 
         self._progress("record", "start")
         saved = save_record(rec, self.cfg.db, self.cfg.spool_dir, self.cfg.db_timeout_s)
@@ -660,7 +660,7 @@ def _preload_writers() -> None:
 
     import eol_cal.capture.mdf4_io
     import eol_cal.station.report
-    import eol_cal.station.spool  # noqa: F401
+    import eol_cal.records.spool  # noqa: F401
 
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
@@ -671,7 +671,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
     the report and the database (:meth:`StationCycle.run`).
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
-    :class:`~eol_cal.station.records.RecordError` if neither database nor spool can take the
+    :class:`~eol_cal.records.connect.RecordError` if neither database nor spool can take the
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """

@@ -33,7 +33,7 @@ if TYPE_CHECKING:
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.ecu.session import ClientTiming
     from eol_cal.motor import MotorParams
-    from eol_cal.station.record import FlashedBlock
+    from eol_cal.records.record import FlashedBlock
 
 #: seconds :meth:`FlashAhead.close` waits for the first half (its requests are bounded by the
 #: session's timeouts; a thread still blocked after it is a daemon and its bus is shut down)

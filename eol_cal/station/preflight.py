@@ -22,7 +22,7 @@ from collections.abc import Callable, Sequence
 
 from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import EolCalError
-from eol_cal.station.record import DynoStatus, EcuFound, PreflightResult, Problem
+from eol_cal.records.record import DynoStatus, EcuFound, PreflightResult, Problem
 
 if TYPE_CHECKING:
     from eol_cal.dyno.transfer import DynoConfig

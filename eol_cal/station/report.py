@@ -31,7 +31,7 @@ from eol_cal.report.motor import (
 )
 
 if TYPE_CHECKING:
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -23,14 +23,14 @@ from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Sequence
 
 from eol_cal.errors import InputError
-from eol_cal.station.record import (MEASURED_KIND, EcuActive, ErrorInfo, FlashedBlock, RestoredFrom, RunRecord,
+from eol_cal.records.record import (MEASURED_KIND, EcuActive, ErrorInfo, FlashedBlock, RestoredFrom, RunRecord,
                                     StationInfo, Step)
 
 if TYPE_CHECKING:
     from eol_cal.capture.ecu_state import EcuState
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.motor import MotorParams
-    from eol_cal.station.spool import SaveResult
+    from eol_cal.records.spool import SaveResult
 
 #: the archive file of a restore run's directory
 RESTORE_ARCHIVE = "block_restore.bin"
@@ -220,7 +220,7 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
         rec = dataclasses.replace(rec, report_error=f"report.json: {type(exc).__name__}: {exc}")
     saved = None
     if db is not None:
-        from eol_cal.station.spool import save_record
+        from eol_cal.records.spool import save_record
 
         saved = save_record(rec, db, spool_dir, db_timeout_s)
     return report, rec, saved, failure

@@ -27,17 +27,17 @@ from collections.abc import Callable
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, load_mechanics
 from eol_cal.motor import MotorParams, load_motor
-from eol_cal.station.limits import VariantLimits
+from eol_cal.records.limits import VariantLimits
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import PreparedWindows
     from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.session import ClientTiming
     from eol_cal.msa.master import MasterSettings
-    from eol_cal.station.spool import SaveResult
+    from eol_cal.records.spool import SaveResult
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
 ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
@@ -72,7 +72,7 @@ class StationConfig:
         profile again.
     spool_dir : path or None
         Where records go when the database cannot be written (default
-        :func:`eol_cal.station.spool.default_spool_dir`).
+        :func:`eol_cal.records.spool.default_spool_dir`).
     rate_hz : int
         Capture sample rate (Hz).
     db_timeout_s : float
@@ -100,7 +100,7 @@ class StationConfig:
         its frame under that estimator.
     kind : str
         The record's kind when the cycle gets past its pre-flight (``production`` on a line;
-        :data:`eol_cal.station.record.KINDS`); a cycle that ends before is a ``refusal``.
+        :data:`eol_cal.records.record.KINDS`); a cycle that ends before is a ``refusal``.
     read_back : bool
         Read each block this cycle flashes back before its CRC is written (settings key
         ``flash.read_back``: ``before-crc``); False leaves the check to the ECU's CRC routine

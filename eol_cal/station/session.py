@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 from eol_cal.errors import InputError
 
 if TYPE_CHECKING:
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 #: a serial as the block's serial field carries it (1-16 ASCII characters), restricted to what a
 #: label's barcode carries: letters, digits and - _ . (a scanner's stray control character or a

@@ -373,7 +373,7 @@ def check_station(settings: StationSettings) -> None:
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
-    from eol_cal.station.limits import load_limits
+    from eol_cal.records.limits import load_limits
 
     load_named(settings, "limits", lambda: load_limits(str(settings["limits"]), settings["variant"]))  # type: ignore[arg-type]
     master_of(settings)

@@ -166,8 +166,8 @@ def _records_db(token: str | None = None) -> bytes:
     import sqlite3
     import tempfile
 
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.record import RunRecord
+    from eol_cal.records.write import insert_records
 
     rec = json.loads((FIXTURES / "run_record_demo.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
@@ -273,7 +273,7 @@ def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         files["station.toml"] = files["station.toml"].replace(b'channel = "nobody"\n',
                                                               b'channel = "nobody"\nconfig = "can.ini"\n')
         yield Scenario("refusals", f"settings can.config {name}", files, RUN)
-    from eol_cal.station.limits import LIMITS
+    from eol_cal.records.limits import LIMITS
 
     limits = file_bytes(FIXTURES / "limits.toml")
     key = next(lim.key for lim in LIMITS if lim.quantity == "mech1_after_nm")  # revision 1.2's row

@@ -21,8 +21,9 @@ from pathlib import Path
 
 from eol_cal.sim.fuzz.scenarios import FIXTURES, Scenario
 from eol_cal.lot.baseline import baseline_of_db, store
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records import insert_records, migrate
+from eol_cal.records.record import RunRecord
+from eol_cal.records.migrations import migrate
+from eol_cal.records.write import insert_records
 
 _SET = ["gate", "set", "--db", "{d}/records.sqlite", "--station", "EOL-1", "--by", "qe"]
 _GOOD = {"--serial": "M-MASTER", "--reference": "k6=0.62", "--tolerance": "k6=0.05", "--every-h": "8"}
@@ -82,13 +83,13 @@ def gate_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
             "not json": "{", "a list": "[]", "unknown key": good.replace('"timezone"', '"volts": 1, "timezone"'),
             "NaN": good.replace("0.62", "NaN"), "no serial": good.replace('"M-MASTER"', "null"),
             "deep": "[" * 5000 + "]" * 5000}
-    create = ("CREATE TABLE gate_rules (station TEXT, seq INTEGER, set_at TEXT, set_by TEXT, action TEXT, "
-              "rules_json TEXT, note TEXT, tool_version TEXT, PRIMARY KEY (station, seq))")
-    version = ("CREATE TABLE gate_schema_version (version INTEGER)", "INSERT INTO gate_schema_version VALUES (1)")
+    # a hostile file's table need not hold eol-cal's constraints: made anew without them
+    create = ("DROP TABLE gate_rules", "CREATE TABLE gate_rules (station TEXT, seq INTEGER, set_at TEXT, set_by TEXT, "
+              "action TEXT, rules_json TEXT, note TEXT, tool_version TEXT, PRIMARY KEY (station, seq))")
     for name, text in rows.items():
         row = (f"INSERT INTO gate_rules VALUES ('EOL-1', 1, '2026-11-22T08:00:00.000+00:00', 'qe', 'set', '{text}', "
                "NULL, 'x')")
-        data = _db(create, *version, row)
+        data = _db(*create, row)
         yield Scenario("gate", f"stored gate row: {name}", {"records.sqlite": data},
                        ["gate", "show", "--db", "{d}/records.sqlite", "--station", "EOL-1"])
         yield Scenario("gate", f"stored gate row: {name}, run", {"records.sqlite": data, "ecu.key": b"00" * 16 + b"\n"},
@@ -100,10 +101,10 @@ def gate_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
                        ("set_at", "UPDATE gate_rules SET set_at = 'yesterday'")):
         row = (f"INSERT INTO gate_rules VALUES ('EOL-1', 1, '2026-11-22T08:00:00.000+00:00', 'qe', 'set', '{good}', "
                "NULL, 'x')")
-        yield Scenario("gate", f"stored gate row: {name}", {"records.sqlite": _db(create, *version, row, stmt)},
+        yield Scenario("gate", f"stored gate row: {name}", {"records.sqlite": _db(*create, row, stmt)},
                        ["gate", "history", "--db", "{d}/records.sqlite"])
-    newer = _db(create, version[0], "INSERT INTO gate_schema_version VALUES (99)")
-    yield Scenario("gate", "gate layout 99", {"records.sqlite": newer}, ["gate", "history", "--db", "{d}/records.sqlite"])
+    newer = _db("UPDATE schema_version SET version = 99")
+    yield Scenario("gate", "records layout 99", {"records.sqlite": newer}, ["gate", "history", "--db", "{d}/records.sqlite"])
 
 
 #: stored objects eol-cal never creates, each refused by every command that opens the database
@@ -150,8 +151,8 @@ def database_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("database", f"baseline {name}", {"records.sqlite": _db(f"UPDATE baselines SET {change}", lot=30,
                                                                                baseline=True)},
                        ["lot", "stats", "--db", "{d}/records.sqlite", "--baseline", "b"])
-    yield Scenario("database", "baseline layout 7", {"records.sqlite": _db("UPDATE baseline_schema_version SET version = 7",
-                                                                            lot=30, baseline=True)},
+    yield Scenario("database", "baseline, records layout 7", {"records.sqlite": _db("UPDATE schema_version SET version = 7",
+                                                                                    lot=30, baseline=True)},
                    ["lot", "stats", "--db", "{d}/records.sqlite", "--baseline", "b"])
 
 

@@ -34,7 +34,7 @@ from pathlib import Path
 
 from eol_cal.sim.fuzz import hostile
 from eol_cal.sim.fuzz.scenarios import FIXTURES, RUN, Scenario, example_block_bytes, file_bytes, station_files, station_toml
-from eol_cal.station.record import RunRecord
+from eol_cal.records.record import RunRecord
 
 _SQLITE_WAL = b"\x37\x7f\x06\x82" + bytes(28)  # a write-ahead log's header: what SQLite writes beside a database
 _SQLITE_JOURNAL = b"\xd9\xd5\x05\xf9\x20\xa1\x63\xd7" + bytes(24)
@@ -63,13 +63,12 @@ def _records(kind: str) -> list:
 
 def _db(records: list) -> bytes:
     """A records database (one file, its log checkpointed) holding ``records``."""
-    from eol_cal.lot.baseline import migrate as migrate_baselines
-    from eol_cal.station.records import insert_records, migrate
+    from eol_cal.records.migrations import migrate
+    from eol_cal.records.write import insert_records
 
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.sqlite"
         migrate(db)
-        migrate_baselines(db)
         if records:
             insert_records(db, records)
         with sqlite3.connect(db) as con:

@@ -1,6 +1,6 @@
-"""The parts of a run record (:class:`eol_cal.station.record.RunRecord`): the station, captures,
+"""The parts of a run record (:class:`eol_cal.records.record.RunRecord`): the station, captures,
 flashed blocks, pre-flight, ripple, steps, error, ECU state after the run, restore source, and
-the run kinds and refusal codes. Typed and frozen; their JSON is :mod:`eol_cal.station.record_json`.
+the run kinds and refusal codes. Typed and frozen; their JSON is :mod:`eol_cal.records.parts_json`.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Records written before :class:`~eol_cal.station.record.RunRecord` (schema ``eol-cal/run-record/1``),
+"""Records written before :class:`~eol_cal.records.record.RunRecord` (schema ``eol-cal/run-record/1``),
 read into one: the migration of a stored record, applied whenever one is read.
 
 What the first schema did not say is derived here, once, by fixed rules:
@@ -7,7 +7,7 @@ What the first schema did not say is derived here, once, by fixed rules:
   captured is a ``refusal``; every other run is ``production``. The refusal's codes come from the
   pre-flight's reasons as that version worded them (:data:`V1_PROBLEMS`).
 - **checks**: the first schema kept the limits and the values, not the checks. They are judged by
-  the limits table of :mod:`eol_cal.station.limits` on the values the record holds: the fit's
+  the limits table of :mod:`eol_cal.records.limits` on the values the record holds: the fit's
   limits when the fit was usable, the ripple's when the record has the ripple; the others are
   not judged. (The same rules the record's verdict came from, so the checks agree with it.)
 - **blocks**: ``ecu_prepared`` and ``block`` + ``flash`` become the flashed blocks ``prepare`` and
@@ -20,10 +20,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from eol_cal.station.limits import STAGES, Measured, all_checks, judge
-from eol_cal.station.record_json import (Reader, common_from, ecu_active_from, limits_from, metrics_from,
+from eol_cal.records.limits import STAGES, Measured, all_checks, judge
+from eol_cal.records.parts_json import (Reader, common_from, ecu_active_from, limits_from, metrics_from,
                                          preflight_from, previous_from, station_from)
-from eol_cal.station.record_parts import SCHEMA_V1, EcuActive, FlashedBlock, Problem, StationInfo
+from eol_cal.records.parts import SCHEMA_V1, EcuActive, FlashedBlock, Problem, StationInfo
 
 #: the pre-flight's reasons as schema 1 worded them -> refusal code (first match)
 V1_PROBLEMS = (
@@ -97,7 +97,7 @@ def _ecu_active(blocks: tuple[FlashedBlock, ...]) -> EcuActive:
 
 
 def fields_from_v1(r: Reader, doc: dict[str, Any]) -> dict[str, Any]:
-    """A schema-1 record's :class:`~eol_cal.station.record.RunRecord` fields (module doc)."""
+    """A schema-1 record's :class:`~eol_cal.records.record.RunRecord` fields (module doc)."""
     assert doc.get("schema") == SCHEMA_V1
     common = common_from(r, doc)
     kind = kind_v1(doc)

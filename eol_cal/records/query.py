@@ -1,9 +1,10 @@
 """Reading the records database: filtered queries, rows, columns for lot statistics, records.
 
-The reading side of :mod:`eol_cal.station.records` (same engines, same table). Filters are SQL
-(:func:`select_runs`: variant, station, serial, UTC day, run kind); the record documents are
-read as :class:`~eol_cal.station.record.RunRecord` (:func:`query_records`), the columns lot
-statistics need as arrays without any document (:func:`read_columns`).
+The reading side of the ``runs`` table (:mod:`eol_cal.records.tables`; the engines of
+:mod:`eol_cal.records.connect`). Filters are SQL (:func:`select_runs`: variant, station, serial,
+UTC day, run kind); the record documents are read as :class:`~eol_cal.records.record.RunRecord`
+(:func:`query_records`), the columns lot statistics need as arrays without any document
+(:func:`read_columns`).
 """
 
 from __future__ import annotations
@@ -17,9 +18,12 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.errors import InputError
-from eol_cal.station.record import KINDS, MEASURED_KIND, RunRecord
-from eol_cal.station.records import (DB_ERRORS, DEFAULT_LOCK_TIMEOUT_S, SCHEMA_VERSION, SchemaError, dispose,
-                                     version_of, db_label, engine, is_url, one_line, parse_record, refuse_foreign, runs)
+from eol_cal.records.record import KINDS, MEASURED_KIND, RunRecord
+from eol_cal.records.connect import (DB_ERRORS, DEFAULT_LOCK_TIMEOUT_S, SchemaError, db_label, dispose, engine, is_url,
+                                     one_line, refuse_foreign)
+from eol_cal.records.migrations import RUNS_VERSION, version_of
+from eol_cal.records.rows import parse_record
+from eol_cal.records.tables import runs
 
 
 def kinds_of(kind: str | Sequence[str] | None) -> tuple[str, ...] | None:
@@ -71,7 +75,7 @@ def read_rows(db: str | Path, query: sa.Select, timeout_s: float = DEFAULT_LOCK_
         raise InputError(db_label(db), None, f"cannot read the records: {one_line(exc)}") from None
 
 
-def read_columns(db: str | Path, *queries: sa.Select, min_version: int = SCHEMA_VERSION,
+def read_columns(db: str | Path, *queries: sa.Select, min_version: int = RUNS_VERSION,
                  timeout_s: float = DEFAULT_LOCK_TIMEOUT_S) -> list[dict[str, Sequence[Any]]]:
     """The results of ``queries`` column-wise, each ``{column name: values in row order}``, all
     from one snapshot of the database (one read transaction, repeatable read).

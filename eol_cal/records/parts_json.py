@@ -1,6 +1,6 @@
 """The JSON of a run record's parts (schema ``eol-cal/run-record/2``): one writer and one reader
-per part, used by :meth:`eol_cal.station.record.RunRecord.to_json` / ``from_json`` (which spell
-the record's top-level keys) and by :mod:`eol_cal.station.record_v1` (records of schema 1).
+per part, used by :meth:`eol_cal.records.record.RunRecord.to_json` / ``from_json`` (which spell
+the record's top-level keys) and by :mod:`eol_cal.records.v1` (records of schema 1).
 Together they are the one place the record's keys are spelled.
 
 Numbers that are not finite (a ripple that could not be measured) are ``null`` in JSON and NaN
@@ -17,8 +17,8 @@ from typing import Any
 from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import ResultFormatError
-from eol_cal.station.limits import LimitCheck, VariantLimits
-from eol_cal.station.record_parts import (
+from eol_cal.records.limits import LimitCheck, VariantLimits
+from eol_cal.records.parts import (
     BLOCK_ROLES,
     VERDICTS,
     CaptureRef,

@@ -7,7 +7,7 @@ profile, the fit (:func:`eol_cal.station.run.fit_motor`) judged by the fit stage
 calibrated block (:func:`eol_cal.analysis.fit.table.block_from_result`), the capture with the
 compensation at the fit's operating point, the ripple before and after
 (:func:`eol_cal.analysis.point_metrics.point_ripple`) judged by the ripple's limits, and the run
-record (:class:`~eol_cal.station.record.RunRecord`). The plant replaces the dyno and the ECU (the
+record (:class:`~eol_cal.records.record.RunRecord`). The plant replaces the dyno and the ECU (the
 ECU's estimator and compensator are the firmware reference's, run by the plant); no capture or
 block file is written.
 
@@ -37,7 +37,7 @@ from eol_cal.inputs import loads_json
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
-    from eol_cal.station.record import RunRecord
+    from eol_cal.records.record import RunRecord
 
 #: motors per task and per plant call: the plant's outputs of a batch over the default profile
 #: take ~25 MB a motor
@@ -59,7 +59,7 @@ class LotPlan:
     spread : str
         The production spread: a built-in name or a TOML file (:func:`eol_cal.plant.spread.load_spread`).
     limits_file, variant : str, str or None
-        The limits the runs are judged by (:func:`eol_cal.station.limits.load_limits`).
+        The limits the runs are judged by (:func:`eol_cal.records.limits.load_limits`).
     motors : int
         Motors in the lot.
     seed : int
@@ -119,7 +119,7 @@ def check_plan(plan: LotPlan) -> None:
     """Refuse a plan that cannot run, before anything is simulated (names the option)."""
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.spread import load_spread
-    from eol_cal.station.limits import load_limits
+    from eol_cal.records.limits import load_limits
 
     if not plan.name or any(c in plan.name for c in "/\\\x00") or len(plan.name) > 10:
         raise InputError(None, "--lot", f"{plan.name!r}: 1 to 10 characters, no slashes (the serials are NAME-000001 "
@@ -157,7 +157,7 @@ def _flashed(blk: Any, role: str) -> Any:
     """The record of a block the simulated ECU ran (nothing archived: no file)."""
     from eol_cal.firmware import block as B
     from eol_cal.station.archive import block_fields
-    from eol_cal.station.record import FlashedBlock
+    from eol_cal.records.record import FlashedBlock
 
     image = B.pack(blk)
     return FlashedBlock(role=role, path=None, sha256=hashlib.sha256(image).hexdigest(), bytes=len(image), bank=None,
@@ -201,7 +201,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.spread import load_spread
     from eol_cal.station.cycle import now_iso
-    from eol_cal.station.limits import Measured, failed, judge, load_limits
+    from eol_cal.records.limits import Measured, failed, judge, load_limits
     from eol_cal.station.run import fit_motor
 
     spread, lim = load_spread(plan.spread), load_limits(plan.limits_file, plan.variant)
@@ -213,7 +213,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
     cache = None if cache_dir is None else Path(cache_dir)
 
     def step(m: _Motor, name: str, fn: Callable[[], Any]) -> Any:
-        from eol_cal.station.record import Step
+        from eol_cal.records.record import Step
 
         t0 = time.perf_counter()
         try:
@@ -232,7 +232,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
     t0 = time.perf_counter()
     runs = simulate([m.spec for m in motors], profile, mode="estimated", blocks=prepared, seed=noise_seed)
     share = round((time.perf_counter() - t0) / len(motors), 4)
-    from eol_cal.station.record import Step
+    from eol_cal.records.record import Step
 
     for m, run in zip(motors, runs, strict=True):
         m.steps += [Step("prepare ECU", 0.0, True), Step("acquire", share, True)]
@@ -290,8 +290,8 @@ def _judge_ripple(m: _Motor, after: Capture, lim: Any) -> None:
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.analysis.point_metrics import nearest_segment, point_ripple
     from eol_cal.station.cycle import RIPPLE_DEFINITION, point_figures
-    from eol_cal.station.limits import failed, judge
-    from eol_cal.station.record import RippleMetrics
+    from eol_cal.records.limits import failed, judge
+    from eol_cal.records.record import RippleMetrics
 
     op = m.result.operating_point
     k = nearest_segment(m.before.captures, op.speed_rpm, op.i_qo_a)
@@ -308,8 +308,8 @@ def _judge_ripple(m: _Motor, after: Capture, lim: Any) -> None:
 def _record(plan: LotPlan, m: _Motor, lim: Any, version: str) -> RunRecord:
     from eol_cal.firmware.block import LAYOUT_VERSION
     from eol_cal.station.cycle import now_iso
-    from eol_cal.station.limits import all_checks
-    from eol_cal.station.record import EcuActive, ErrorInfo, RunRecord, StationInfo
+    from eol_cal.records.limits import all_checks
+    from eol_cal.records.record import EcuActive, ErrorInfo, RunRecord, StationInfo
 
     error = None
     verdict, reasons = m.verdict, list(m.reasons)
@@ -352,8 +352,9 @@ class LotOutcome:
 def recorded_runs(db: str | Path, plan: LotPlan) -> set[str]:
     """The run ids of the lot's motors the database holds already; refuses a lot of the same name
     made otherwise (another spread, limits, seed, profile or batch size)."""
-    from eol_cal.station.records import is_url, runs
-    from eol_cal.station.records_query import read_rows, select_runs
+    from eol_cal.records.connect import is_url
+    from eol_cal.records.tables import runs
+    from eol_cal.records.query import read_rows, select_runs
 
     if not is_url(db) and not Path(db).exists():
         return set()
@@ -380,8 +381,8 @@ def simulate_lot(plan: LotPlan, db: str | Path, client: Any, on_done: Callable[[
     every try is reported, not recorded (a rerun simulates it)."""
     from distributed import as_completed
 
-    from eol_cal.station.record import RunRecord
-    from eol_cal.station.records import insert_records
+    from eol_cal.records.record import RunRecord
+    from eol_cal.records.write import insert_records
 
     check_plan(plan)
     done = recorded_runs(db, plan)

@@ -4,7 +4,7 @@
 records database and the spool store, and what the reports, the lot page, ``lot stats``,
 ``lot diff`` and ``refit`` read. :meth:`RunRecord.to_json` writes schema ``eol-cal/run-record/2``
 (``eol_cal/schemas/run-record.schema.json``, keys in ``docs/json.md``); :meth:`RunRecord.from_json`
-reads it and, through :mod:`eol_cal.station.record_v1`, every record written before it
+reads it and, through :mod:`eol_cal.records.v1`, every record written before it
 (``eol-cal/run-record/1``): nothing else parses a record's JSON.
 
 Every run has a **kind** (:data:`KINDS`): ``production`` (a motor measured or its ECU written:
@@ -23,18 +23,19 @@ from typing import Any
 from collections.abc import Mapping
 
 from eol_cal.analysis.motor_result import MotorResult
-from eol_cal.station.limits import LimitCheck, VariantLimits
-from eol_cal.station.record_json import (Reader, block_json, check_from, check_json, common_from, ecu_active_from,
+from eol_cal.records.limits import LimitCheck, VariantLimits
+from eol_cal.records.parts_json import (Reader, block_json, check_from, check_json, common_from, ecu_active_from,
                                          gate_from, gate_json, limits_from, metrics_from, metrics_json, preflight_from,
                                          preflight_json,
                                          restored_from, station_from, station_json, capture_json, block_from,
                                          limits_json, error_json, step_json, restored_json)
-from eol_cal.station.record_parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REFUSAL_CODES, SCHEMA, SCHEMA_V1,
+from eol_cal.records.parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REFUSAL_CODES, SCHEMA, SCHEMA_V1,
                                           VERDICTS, CaptureRef, DynoStatus, EcuActive, EcuFound, ErrorInfo,
                                           FlashedBlock, GateInfo, MasterCheck, PointFigures, PreflightResult,
                                           PreviousBlock, Problem,
                                           RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
 from eol_cal.jsonsafe import json_safe
+from eol_cal.records.v1 import fields_from_v1, kind_v1
 
 __all__ = ["BLOCK_ROLES", "KINDS", "MEASURED_KIND", "NO_STATION", "REFUSAL_CODES", "SCHEMA", "SCHEMA_V1", "VERDICTS",
            "CaptureRef", "DynoStatus", "EcuActive", "EcuFound", "ErrorInfo", "FlashedBlock", "GateInfo", "MasterCheck",
@@ -160,15 +161,13 @@ class RunRecord:
     @classmethod
     def from_json(cls, doc: Any, source: str = "<record>") -> RunRecord:
         """A record of schema :data:`SCHEMA` or :data:`SCHEMA_V1` (migrated as it is read,
-        :mod:`eol_cal.station.record_v1`); :class:`RecordFormatError` names ``source``, the field and
+        :mod:`eol_cal.records.v1`); :class:`RecordFormatError` names ``source``, the field and
         the reason."""
         r = Reader(source)
         if not isinstance(doc, dict):
             raise RecordFormatError(source, None, f"expected a record object, got {type(doc).__name__}")
         schema = doc.get("schema")
         if schema == SCHEMA_V1:
-            from eol_cal.station.record_v1 import fields_from_v1
-
             return cls(**fields_from_v1(r, doc))
         if schema != SCHEMA:
             raise r.error("schema", f"{schema!r}: not a run record ({SCHEMA} or {SCHEMA_V1})")
@@ -194,7 +193,5 @@ def record_kind(doc: Any) -> str | None:
     if doc.get("schema") == SCHEMA:
         return doc.get("kind")
     if doc.get("schema") == SCHEMA_V1:
-        from eol_cal.station.record_v1 import kind_v1
-
         return kind_v1(doc)
     return None

@@ -3,7 +3,7 @@
 A record that cannot be inserted (database locked beyond the timeout, its share not mounted,
 the server down, read-only, corrupt) is written as one JSON file into the spool directory,
 atomically, and inserted later by :func:`flush_spool`. The insert is keyed by the record's
-``run_id`` (:func:`eol_cal.station.records.insert_records`), so a flush interrupted between the
+``run_id`` (:func:`eol_cal.records.write.insert_records`), so a flush interrupted between the
 insert and the file's removal inserts nothing twice.
 """
 
@@ -14,20 +14,15 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
+from eol_cal.atomic import atomic_write
 from eol_cal.errors import InputError
 from eol_cal.inputs import load_json
-from eol_cal.station.record import RunRecord
-from eol_cal.station.records import (
-    DEFAULT_LOCK_TIMEOUT_S,
-    SPOOL_SCHEMA,
-    RecordError,
-    db_key,
-    db_shown,
-    insert_records,
-    one_line,
-)
+from eol_cal.jsonsafe import json_safe
+from eol_cal.records.record import RunRecord
+from eol_cal.records.connect import DEFAULT_LOCK_TIMEOUT_S, RecordError, db_key, db_shown, one_line
+from eol_cal.records.write import insert_records
 
-
+SPOOL_SCHEMA = "eol-cal/spooled-record/1"
 #: largest spool file read back (one run record: ~20 KiB)
 MAX_SPOOL_FILE_BYTES = 16 << 20
 
@@ -48,12 +43,8 @@ def default_spool_dir() -> Path:
 
 def spool_record(record: RunRecord, db: str | Path, spool_dir: str | Path, why: str) -> Path:
     """Write ``record`` into the spool directory (atomically); returns the file."""
-    from eol_cal.atomic import atomic_write
-
     spool_dir = Path(spool_dir)
     spool_dir.mkdir(parents=True, exist_ok=True)
-    from eol_cal.jsonsafe import json_safe
-
     doc = {"schema": SPOOL_SCHEMA, "db": db_key(db), "why": why, "record": json_safe(record.to_json())}
     path = spool_dir / f"{record.run_id}.json"
     atomic_write(path, json.dumps(doc, indent=1, allow_nan=False) + "\n")
