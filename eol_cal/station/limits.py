@@ -334,7 +334,9 @@ class Measured:
         hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
         measured = hall["source"] == "measured"
         return cls(
-            k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
+            k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95),
+            # no phase interval (c6 left out on one load point, analysis.result.unseparated): unbounded
+            ci_phase_k6_deg=math.degrees(math.inf if e.phase_k6.ci95 is None else e.phase_k6.ci95),
             ci_c6_nm=ci_c6, fit_r2=float(res.fit["r2"]), fit_rms_nm=float(res.fit["rms"]),
             hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
             hall_source=str(hall["source"]),
