@@ -243,7 +243,8 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         from eol_cal.analysis.fit.mech import fit_mech
 
         mech = fit_mech(mi, fit, spec, tick_hz)
-    check = check_model(mi.segments, fit, spec, limits.model_p)
+    check = check_model(mi.segments, fit, spec, limits.model_p,
+                        bench_identified=mi.mechanics is not None and mi.mechanics.identified)
     return motor_record(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,
