@@ -186,6 +186,10 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
             err_console.print(f"{r['serial']}: capture {left['source']} left out of the fit: {left['reason']}")
         for reason in r["reasons"]:
             err_console.print(f"{r['serial']}: {reason}")
+        if (r.get("model_check") or {}).get("status") == "insensitive":
+            err_console.print(f"{r['serial']}: warning: model check insensitive: {r['model_check']['note']}")
+        if "unchecked" in r["model"]:
+            err_console.print(f"{r['serial']}: {r['model']['unchecked']}")
     if as_json:
         import json
 

@@ -85,6 +85,9 @@ class BenchMechanics:
         not compared.
     sha256 : str
         SHA-256 of the file's text (empty when not read from a file); not compared.
+    identified : bool
+        The file carries an ``[identification]`` table: ``eol-cal bench identify`` measured it on
+        the bench (a built-in or hand-written file is an assumption about the bench); not compared.
     """
 
     name: str = "paper"
@@ -97,6 +100,7 @@ class BenchMechanics:
     transducer_delay_s: float | None = None
     source: str = field(default="", compare=False)
     sha256: str = field(default="", compare=False)
+    identified: bool = field(default=False, compare=False)
 
 
 #: the keys every bench file must give (the shaft line's model)
@@ -166,7 +170,7 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
         raise InputError(source, missing[0], f"missing bench parameter(s): {', '.join(missing)}")
     kwargs.setdefault("name", path.stem)
     digest = hashlib.sha256(text.encode()).hexdigest() if path.suffix == ".toml" else ""
-    return BenchMechanics(**kwargs, source=source, sha256=digest)
+    return BenchMechanics(**kwargs, source=source, sha256=digest, identified=IDENTIFICATION_TABLE in data)
 
 
 def speed_gains(J_total: float, bw_hz: float, zeta: float = 0.8) -> tuple[float, float]:

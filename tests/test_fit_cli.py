@@ -126,6 +126,11 @@ def test_single_load_point_refused_with_exit_2(files, tmp_path):
     m = json.loads(out.read_text())["motors"][0]
     assert abs(m["k6"]["value"] - TRUTH["k6"]) < 0.15 * TRUTH["k6"]
     assert m["c6"] == {"value": 0.0, "ci95": 0.0} and m["model"]["fit_c6"] is False
+    # the c6 left out moves the k6 phasor identically in both segments: nothing in one load point
+    # sees it, so phase_k6 gets no interval (it was 0.378 +- 0.050 rad against 0.30), and says why
+    assert abs(wrap_pi(m["phase_k6"]["value"] - TRUTH["phase_k6"])) > 0.05
+    assert m["phase_k6"]["ci95"] is None and "one load point" in m["model"]["unchecked"]
+    assert "phase intervals of k not given" in res.stderr
 
 
 @pytest.mark.slow

@@ -6,9 +6,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_segments
-from eol_cal.analysis.fit.model_check import check_model, speed_bands
+from eol_cal.analysis.fit.model_check import RESONANCE_TOP_HZ, check_model, mode_gain, sees_up_to_hz, speed_bands
 from eol_cal.analysis.fit.synth import synthetic_segments
 from eol_cal.analysis.result import STATUS_MODEL_MISMATCH, STATUS_OK, CiLimits, judge
 
@@ -64,3 +65,37 @@ def test_one_speed_is_not_checked_and_says_why():
     check = check_model(seg, fit, spec, 0.001)
     assert check.status == "not checked" and "fewer than two speed bands" in check.note
     assert check.to_json()["p_value"] is None
+
+
+def test_at_60_and_120_rpm_a_resonance_is_not_seen_and_the_check_says_so_on_an_unidentified_bench():
+    # the calibration profile's speeds: a 250 Hz mode moves k6 by 1.5 % between the bands, inside
+    # their intervals; on a bench file nobody identified the status must not read "ok"
+    spec = FitSpec()
+    seg, _ = synthetic_segments(np.random.default_rng(5), speeds_rpm=(60.0, 120.0), loads_a=(20.0, 65.0),
+                                directions=(1, -1), noise_nm=0.003, path_response=_resonance(250.0, 0.1))
+    seg.path_response = None
+    fit = fit_segments(seg, spec)
+    check = check_model(seg, fit, spec, 0.001)
+    assert check.status == "insensitive" and check.p_value > 0.001
+    assert check.sees_up_to_hz < RESONANCE_TOP_HZ and "not identified" in check.note and "bench identify" in check.note
+    assert check.to_json()["sees_up_to_hz"] == check.sees_up_to_hz
+    # the same bands on a bench identified on the bench: the check vouches for what it can
+    assert check_model(seg, fit, spec, 0.001, bench_identified=True).status == "ok"
+
+
+def test_at_300_and_600_rpm_the_check_sees_the_modes_real_benches_have():
+    spec = FitSpec()
+    seg, _ = _motor(_resonance(250.0, 0.1))
+    fit = fit_segments(seg, spec)
+    check = check_model(seg, fit, spec, 0.001)
+    assert check.status == "ok" and check.sees_up_to_hz >= RESONANCE_TOP_HZ
+
+
+def test_the_sensitivity_follows_the_gain_of_the_mode():
+    f6 = np.array([18.0, 36.0])
+    info = np.array([4e4, 4e3])  # k6 to +-1 % and +-3 % (1 sigma) in the two bands
+    low = sees_up_to_hz(f6, info, 4, 0.001)
+    assert 20.0 < low < RESONANCE_TOP_HZ
+    # ten times the information: a mode a little higher is seen (the gain grows as (f/f0)^2)
+    assert sees_up_to_hz(f6, 10 * info, 4, 0.001) > low
+    assert mode_gain(np.array([36.0]), 250.0)[0] == pytest.approx(1.0 / (1.0 - (36 / 250) ** 2), rel=1e-3)

@@ -249,8 +249,8 @@ class _Reader:
         m = self.obj(value, "model_check")
         sub = _Reader(self.source, f"{self.where}model_check.")
         status = sub.string(m, "status")
-        if status not in ("ok", "mismatch", "not checked"):
-            raise sub.error("status", f"{status!r} is not ok, mismatch or not checked")
+        if status not in ("ok", "mismatch", "insensitive", "not checked"):
+            raise sub.error("status", f"{status!r} is not ok, mismatch, insensitive or not checked")
         sub.string(m, "note")
         sub.number(m, "p_value", (0.0, 1.0), nullable=True)
         sub.list(m, "bands")

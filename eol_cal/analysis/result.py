@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit
+from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit, load_points
 from eol_cal.analysis.motor_result import FitEstimates, Harmonic, MotorResult, OperatingPoint, ValueCi
 from eol_cal.errors import InputError
 from eol_cal.jsonsafe import json_safe
@@ -85,20 +85,36 @@ def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelChec
     return STATUS_OK, []
 
 
-def _vc(value: float, ci95: float) -> ValueCi:
+def unseparated(spec: FitSpec, i_qo: list[float]) -> str | None:
+    """Why the load-proportional phases get no interval, or None when they do.
+
+    With the load-independent part left out (``--no-c6``, the paper's eq. 17) on one load point,
+    the fitted k_h phasor is ``k_h + c_h / i_qo``: a cogging c_h the user told the fit to leave out
+    moves it identically in every segment, so no lack of fit can show it and no interval can
+    include it (a generator with c6 = 10 % of k6 * i_qo: phase_k6 0.378 +- 0.050 rad against 0.30).
+    The value stands as what the ripple at that load point says under that assumption."""
+    if spec.fit_c or not spec.fit_k or load_points(i_qo) >= 2:
+        return None
+    return (f"phase intervals of k not given: with c6 left out on one load point (i_qo = {i_qo[0]:.4g} A) a "
+            "cogging part would move the k phasors unseen; capture at two load points to have them")
+
+
+def _vc(value: float, ci95: float | None) -> ValueCi:
+    if ci95 is None:
+        return ValueCi(json_safe(float(value)), None)
     return ValueCi(json_safe(float(value)), json_safe(float(ci95)))
 
 
-def _pair(e: Estimate) -> tuple[ValueCi, ValueCi]:
-    """Amplitude and phase of one fitted part, each with its interval."""
-    return _vc(e.value, e.ci95), _vc(e.phase, e.phase_ci95)
+def _pair(e: Estimate, phase_ci: bool = True) -> tuple[ValueCi, ValueCi]:
+    """Amplitude and phase of one fitted part, each with its interval (the phase's only with ``phase_ci``)."""
+    return _vc(e.value, e.ci95), _vc(e.phase, e.phase_ci95 if phase_ci else None)
 
 
-def _harmonic(order: int, parts: dict[str, Estimate]) -> Harmonic:
+def _harmonic(order: int, parts: dict[str, Estimate], k_phase_ci: bool) -> Harmonic:
     kw: dict[str, ValueCi] = {}
     for p in ("c", "k"):
         if p in parts:
-            kw[p], kw[f"phase_{p}"] = _pair(parts[p])
+            kw[p], kw[f"phase_{p}"] = _pair(parts[p], p == "c" or k_phase_ci)
     return Harmonic(order, **kw)
 
 
@@ -145,13 +161,16 @@ def motor_record(
     status, reasons = judge(fit, spec, limits, model_check)
     six = fit.harmonics[6]
     estimates = None
+    no_phase_ci = unseparated(spec, [float(s["i_qo_a"]) for s in segments]) if segments else None
     if status == STATUS_OK:
         parts: dict[str, ValueCi] = {}
         for part, amp, phase in (("k", "k6", "phase_k6"), ("c", "c6", "phase_c6")):
             # a part not fitted is held at 0 by the model
-            parts[amp], parts[phase] = _pair(six[part]) if part in six else (ValueCi(0.0, 0.0), ValueCi(0.0, 0.0))
+            parts[amp], parts[phase] = (_pair(six[part], part == "c" or no_phase_ci is None) if part in six
+                                        else (ValueCi(0.0, 0.0), ValueCi(0.0, 0.0)))
         estimates = FitEstimates(delay_s=_vc(fit.delay_s, fit.delay_ci95), **parts,
-                                 harmonics=tuple(_harmonic(h, fit.harmonics[h]) for h in spec.harmonics[1:]))
+                                 harmonics=tuple(_harmonic(h, fit.harmonics[h], no_phase_ci is None)
+                                                 for h in spec.harmonics[1:]))
     if hall_angle is None:
         from eol_cal.analysis.halls import nominal_hall_angles
 
@@ -185,6 +204,8 @@ def motor_record(
     }
     if frame_estimator is not None:
         model["frame_estimator"] = frame_estimator
+    if no_phase_ci is not None:
+        model["unchecked"] = no_phase_ci
     op = operating_point(segments)
     return MotorResult(
         serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=float(kt), kt_source=kt_source,
@@ -225,7 +246,8 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         from eol_cal.analysis.fit.mech import fit_mech
 
         mech = fit_mech(mi, fit, spec, tick_hz)
-    check = check_model(mi.segments, fit, spec, limits.model_p)
+    check = check_model(mi.segments, fit, spec, limits.model_p,
+                        bench_identified=mi.mechanics is not None and mi.mechanics.identified)
     return motor_record(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,

@@ -8,15 +8,26 @@ import numpy as np
 
 TWO_PI = 2.0 * np.pi
 
-def direction_pieces(omega_r: np.ndarray, min_fraction: float = 0.05) -> list[tuple[int, int]]:
+#: Electrical speed (rad/s) below which the shaft counts as standing still: an absolute floor, not
+#: a fraction of the capture's top speed, so one continuous capture from 60 to 1500 rpm keeps its
+#: slow windows (the edge-interpolated speed of a 1500 rpm stretch peaks near 800 rad/s with the
+#: encoder's jitter, and 5 % of that took every window below ~125 rpm). 2 rad/s is 6.4 rpm with 3
+#: pole pairs, 19 rpm with one: well below the slowest test speed (60 rpm, 19 rad/s with 3 pole
+#: pairs, its 6th-harmonic speed ripple included), while a reversal or a stop still splits the
+#: pieces (their edge speeds pass through zero). Slower stretches yield no steady whole revolution
+#: within a capture window anyway.
+STANDSTILL_RAD_S = 2.0
+
+
+def direction_pieces(omega_r: np.ndarray, standstill_rad_s: float = STANDSTILL_RAD_S) -> list[tuple[int, int]]:
     """Sample ranges of constant direction of rotation.
 
     Parameters
     ----------
     omega_r : ndarray
         Electrical speed per sample (rad/s).
-    min_fraction : float
-        Speeds below this fraction of the largest |omega_r| count as standstill (no direction).
+    standstill_rad_s : float
+        Electrical speeds (rad/s) below this count as standstill (no direction).
 
     Returns
     -------
@@ -25,7 +36,7 @@ def direction_pieces(omega_r: np.ndarray, min_fraction: float = 0.05) -> list[tu
     """
     w = np.asarray(omega_r, dtype=float)
     s = np.sign(w)
-    s[np.abs(w) < min_fraction * max(float(np.abs(w).max()), 1e-12)] = 0
+    s[np.abs(w) < standstill_rad_s] = 0
     edges = np.flatnonzero(np.diff(s) != 0) + 1
     starts = np.concatenate([[0], edges])
     stops = np.concatenate([edges, [len(s)]])

@@ -334,7 +334,9 @@ class Measured:
         hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
         measured = hall["source"] == "measured"
         return cls(
-            k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95), ci_phase_k6_deg=math.degrees(float(e.phase_k6.ci95)),
+            k6=abs(float(e.k6.value)), ci_k6=float(e.k6.ci95),
+            # no phase interval (c6 left out on one load point, analysis.result.unseparated): unbounded
+            ci_phase_k6_deg=math.degrees(math.inf if e.phase_k6.ci95 is None else e.phase_k6.ci95),
             ci_c6_nm=ci_c6, fit_r2=float(res.fit["r2"]), fit_rms_nm=float(res.fit["rms"]),
             hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
             hall_source=str(hall["source"]),
@@ -353,7 +355,11 @@ def _model_check_of(check: Mapping[str, Any] | None) -> dict[str, Any]:
     if check is None:
         return {}
     p = check.get("p_value")
-    return {"model_check_p": math.nan if p is None else float(p), "model_check_note": str(check.get("note", ""))}
+    # bands that agree but could not have seen a resonance, on a bench file nobody identified: no
+    # p-value that a min_model_check_p limit could pass on (its message gives the note)
+    if p is None or check.get("status") == "insensitive":
+        return {"model_check_p": math.nan, "model_check_note": str(check.get("note", ""))}
+    return {"model_check_p": float(p), "model_check_note": str(check.get("note", ""))}
 
 
 @dataclass(frozen=True)

@@ -28,6 +28,7 @@ from eol_cal.analysis.fit.model import (
     check_identifiable,
     design_matrix,
     design_matrix_t,
+    load_points,
     path_gain,
 )
 from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit, shift_frame, unpack
@@ -49,6 +50,7 @@ __all__ = [
     "design_matrix_t",
     "fit_many",
     "fit_segments",
+    "load_points",
     "path_gain",
     "pick_mode",
     "shift_frame",

@@ -22,7 +22,7 @@ from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
-from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
+from eol_cal.analysis.steady import STANDSTILL_RAD_S, direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
 from eol_cal.mechanics import BenchMechanics, shaft_response
@@ -179,7 +179,7 @@ def left_out_reason(t: np.ndarray, theta_r: np.ndarray, omega_r: np.ndarray, i_q
     ``min_revs`` whole electrical revolutions at its speed."""
     runs = steady_runs_of(t, theta_r, omega_r, i_qo, settle_s=settle_s)
     if not direction_pieces(omega_r):
-        return "the shaft does not turn (speed below 5 % of its peak throughout)"
+        return f"the shaft does not turn (electrical speed below {STANDSTILL_RAD_S:g} rad/s throughout)"
     if not runs:
         span = float(abs(theta_r[-1] - theta_r[0])) / (2 * math.pi)
         what = "too short: less than" if span < 1.0 else "no steady run:"

@@ -218,12 +218,9 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
         raise InputError(source, "model", "nothing to fit: both c6 and k6 switched off")
     if not 1 <= spec.mech_orders <= 6:
         raise InputError(source, "mech_orders", f"must be 1..6 mechanical orders, got {spec.mech_orders}")
-    i_abs = np.abs(seg.i_qo)
-    scale = max(float(i_abs.max()), 1e-9)
-    loads = np.unique(np.round(seg.i_qo / (0.05 * scale)))
-    if spec.fit_k and float(i_abs.max()) < 1e-6:
+    if spec.fit_k and float(np.abs(seg.i_qo).max()) < 1e-6:
         raise InputError(source, "iq_ref", "k6 needs a load: every segment has i_qo = 0" + why_left)
-    if spec.fit_c and spec.fit_k and len(loads) < 2:
+    if spec.fit_c and spec.fit_k and load_points(seg.i_qo) < 2:
         raise InputError(
             source,
             "iq_ref",
@@ -242,6 +239,14 @@ def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = 
                 f"proportion to speed; the segments are all at {', '.join(f'{r:g}' for r in rpm)} rpm): capture at two "
                 "speeds or in both directions, or give the transducer delay (s)" + why_left,
             )
+
+
+def load_points(i_qo: Sequence[float] | np.ndarray) -> int:
+    """How many distinct load points the segments' i_qo (A) hold: values within 5 % of the largest
+    |i_qo| count as one. k6 and c6 are separable only from two or more."""
+    i = np.asarray(i_qo, dtype=float)
+    scale = max(float(np.abs(i).max()), 1e-9)
+    return len(np.unique(np.round(i / (0.05 * scale))))
 
 
 def legendre_rows(x: np.ndarray, degree: int, out: np.ndarray) -> None:

@@ -12,6 +12,14 @@ bands' k6 and c6 phasors are compared with their weighted mean: ``chi2 = sum_b (
 degrees of freedom each. A p-value below the
 limit (:class:`eol_cal.analysis.result.CiLimits` ``model_p``) makes the motor's status
 ``model_mismatch`` with the bands' figures as the reason.
+
+At low speed the check is nearly blind: below a torsion mode the path's gain rises only as
+``(f / f0)^2``, so the calibration profile's 60 and 120 rpm (the 6th at 18 and 36 Hz with 3 pole
+pairs) see a 250 Hz mode as a 1.5 % change of k6 between the bands, inside their +-1-2 %
+intervals. So the check also says how far it sees (:func:`sees_up_to_hz`: the highest mode it
+would find at least half the time), and where that is below the modes real torque paths have
+(:data:`RESONANCE_TOP_HZ`) and the bench file was not identified on the bench (``eol-cal bench
+identify``), its status is ``insensitive``: bands that agree then vouch for nothing.
 """
 
 from __future__ import annotations
@@ -29,16 +37,25 @@ from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit
 
 #: segments whose |speed| is within this fraction of each other share a band
 BAND_TOL = 0.1
+#: the highest torsion mode (Hz) of the torque paths real benches have (shaft, couplings and
+#: transducer: 150-400 Hz, issue 34; the plant's spread draws them there): a check that cannot see
+#: a mode this high cannot vouch for a bench file nobody identified
+RESONANCE_TOP_HZ = 400.0
+#: damping ratio of the mode the sensitivity assumes (below the mode the gain hardly depends on it)
+SENSITIVITY_ZETA = 0.1
 
 
 @dataclass(frozen=True)
 class ModelCheck:
     """The speed-band check of one motor's fit.
 
-    status : ``ok``, ``mismatch`` or ``not checked``; note : why not checked, or the mismatch in
-    words; p_value, chi2, dof : the test (NaN, 0 when not checked); bands : per band its speed
-    (rpm, mean |speed|), segments and ``k6``, ``phase_k6``, ``c6``, ``phase_c6`` (value, ci95;
-    offline frame: only their differences matter).
+    status : ``ok``, ``mismatch``, ``insensitive`` (the bands agree but could not have seen a
+    resonance of the range real torque paths have, on a bench file not identified) or ``not
+    checked``; note : why not checked, or the mismatch in words; p_value, chi2, dof : the test
+    (NaN, 0 when not checked); bands : per band its speed (rpm, mean |speed|), segments and
+    ``k6``, ``phase_k6``, ``c6``, ``phase_c6`` (value, ci95; offline frame: only their
+    differences matter); sees_up_to_hz : the highest torsion mode the test would find half the
+    time (Hz, :func:`sees_up_to_hz`; NaN when not checked).
     """
 
     status: str
@@ -47,12 +64,16 @@ class ModelCheck:
     chi2: float = math.nan
     dof: int = 0
     bands: tuple[dict[str, Any], ...] = ()
+    sees_up_to_hz: float = math.nan
 
     def to_json(self) -> dict[str, Any]:
         p = self.p_value if math.isfinite(self.p_value) else None
         chi2 = self.chi2 if math.isfinite(self.chi2) else None
-        return {"status": self.status, "note": self.note, "p_value": p, "chi2": chi2, "dof": self.dof,
-                "bands": [dict(b) for b in self.bands]}
+        out = {"status": self.status, "note": self.note, "p_value": p, "chi2": chi2, "dof": self.dof,
+               "bands": [dict(b) for b in self.bands]}
+        if math.isfinite(self.sees_up_to_hz):
+            out["sees_up_to_hz"] = self.sees_up_to_hz
+        return out
 
 
 def speed_bands(omega: np.ndarray, tol: float = BAND_TOL) -> list[np.ndarray]:
@@ -85,6 +106,46 @@ def _phasor(e: Estimate) -> tuple[np.ndarray, np.ndarray]:
     return e.value * u, sr * sr * np.outer(u, u) + st * st * np.outer(v, v)
 
 
+def mode_gain(f_hz: np.ndarray, f0_hz: float, zeta: float = SENSITIVITY_ZETA) -> np.ndarray:
+    """|T_shaft / T_airgap| of a torsion mode at ``f0_hz`` (Hz) with damping ``zeta``, at ``f_hz`` (Hz)."""
+    r = np.abs(np.asarray(f_hz, dtype=float)) / f0_hz
+    return np.abs(1.0 / (1.0 - r * r + 2j * zeta * r))
+
+
+def sees_up_to_hz(f6_hz: np.ndarray, info: np.ndarray, dof: int, p_min: float) -> float:
+    """The highest torsion mode (Hz, damping :data:`SENSITIVITY_ZETA`) an unmodelled one of which
+    the check would report as a mismatch at least half the time; 0 when none from 20 Hz up.
+
+    Parameters
+    ----------
+    f6_hz : ndarray
+        Each band's 6th-harmonic frequency (Hz).
+    info : ndarray
+        Each band's information on a common scaling of its phasors: ``sum_parts zbar^T C_b^-1 zbar``
+        (1; ``zbar`` the weighted mean phasor, ``C_b`` the band's covariance).
+    dof, p_min
+        The test's degrees of freedom and the p-value below which it reports a mismatch.
+
+    Notes
+    -----
+    The mode scales band b's phasors by its gain ``g_b``; what is left after the weighted mean
+    gain ``gbar`` gives the chi-square's noncentrality ``sum_b info_b (g_b / gbar - 1)^2``. The
+    mode's phase, nearly linear in frequency below it, is taken up by the fitted delay and
+    ignored here, and so is the delay's share of the gain: the figure errs towards blindness.
+    """
+    from scipy import stats
+
+    crit = float(stats.chi2.isf(p_min, dof))
+    seen = 0.0
+    for f0 in np.geomspace(20.0, 5000.0, 241):
+        g = mode_gain(f6_hz, float(f0))
+        gbar = float((info * g).sum() / info.sum())
+        lam = float((info * (g / gbar - 1.0) ** 2).sum())
+        if float(stats.ncx2.sf(crit, dof, lam)) >= 0.5:
+            seen = float(f0)
+    return seen
+
+
 def _widened(f: MotorFit, factor: float) -> MotorFit:
     """The same fit with every interval times ``factor``."""
     harmonics = {h: {part: dataclasses.replace(e, ci95=e.ci95 * factor, phase_ci95=e.phase_ci95 * factor)
@@ -92,7 +153,8 @@ def _widened(f: MotorFit, factor: float) -> MotorFit:
     return dataclasses.replace(f, harmonics=harmonics)
 
 
-def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float) -> ModelCheck:
+def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
+                bench_identified: bool = False) -> ModelCheck:
     """Fit each speed band alone and test that k6 and c6 agree between bands (module docstring).
 
     Parameters
@@ -101,6 +163,10 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float)
         The motor's segments, its joint fit and the model.
     p_min : float
         The least p-value of an agreement (below: ``mismatch``).
+    bench_identified : bool
+        The bench file was identified on the bench (:attr:`eol_cal.mechanics.BenchMechanics.identified`);
+        if not, bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give
+        ``insensitive``.
     """
     from scipy import stats
 
@@ -128,6 +194,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float)
     if not all(f.converged for f in fits):
         return ModelCheck("not checked", "a speed band's fit did not converge")
     chi2, dof, rows = 0.0, 0, []
+    info = np.zeros(len(fits))
     # the 6th only: the 12th and 18th would see the path nearer a resonance, but on the plant their
     # speed bands differed beyond their intervals on 4 of 40 motors of the paper bench (the ECU's
     # own current ripple at those orders changes with speed), a false alarm of the bench file
@@ -141,6 +208,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float)
             zbar = np.linalg.solve(sum(Ws), sum(W @ z for W, z in zip(Ws, zs, strict=True)))
             chi2 += float(sum((z - zbar) @ W @ (z - zbar) for W, z in zip(Ws, zs, strict=True)))
             dof += 2 * (len(fits) - 1)
+            info += np.array([float(zbar @ W @ zbar) for W in Ws])
     for (idx, rpm), f in zip(bands, fits, strict=True):
         row: dict[str, Any] = {"speed_rpm": rpm, "segments": len(idx)}
         for part in parts:
@@ -154,10 +222,19 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float)
             f"{part}6 {r[f'{part}6']['value'] * 1e3:.4g}±{r[f'{part}6']['ci95'] * 1e3:.2g} "
             f"at {math.degrees(r[f'phase_{part}6']['value']):.1f}±{math.degrees(r[f'phase_{part}6']['ci95']):.1f} deg"
             for part in parts) for r in rows)
+    agree = f"the speed bands agree (chi2 {chi2:.3g} on {dof} dof, p = {p:.3g})"
+    f6 = np.array([6.0 * rpm * seg.pole_pairs / 60.0 for _, rpm in bands])
+    seen = sees_up_to_hz(f6, info, dof, p_min)
+    if p >= p_min and not bench_identified and seen < RESONANCE_TOP_HZ:
+        note = (f"{agree}, but at these speeds (the 6th at {f6.min():.3g}-{f6.max():.3g} Hz) they would show a "
+                f"torque-path resonance only below {seen:.0f} Hz (real torque paths have them at up to "
+                f"{RESONANCE_TOP_HZ:.0f} Hz), and the bench file was not identified on this bench: a resonance it "
+                "does not describe would bias k6 unseen. Identify the bench (eol-cal bench identify, "
+                "docs/bench-identify.md)")
+        return ModelCheck("insensitive", note, p, chi2, dof, tuple(rows), seen)
     if p >= p_min:
-        return ModelCheck("ok", f"the speed bands agree (chi2 {chi2:.3g} on {dof} dof, p = {p:.3g})", p, chi2, dof,
-                          tuple(rows))
+        return ModelCheck("ok", agree, p, chi2, dof, tuple(rows), seen)
     note = (f"the ripple differs between speed bands beyond its intervals (chi2 {chi2:.3g} on {dof} dof, p = {p:.2g} < "
             f"{p_min:g}; {words}; mN*m/A and mN*m): the torque path is not what the bench file says (an unmodelled "
             f"resonance, a wrong bench file?)")
-    return ModelCheck("mismatch", note, p, chi2, dof, tuple(rows))
+    return ModelCheck("mismatch", note, p, chi2, dof, tuple(rows), seen)
