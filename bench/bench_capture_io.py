@@ -129,7 +129,7 @@ def main() -> None:
         print(f"{'stdlib csv module, numbers only':52s} {'':>8s} {r:8.3f} {path.stat().st_size / 1e6:7.2f}")
         r = best_of(args.repeat, lambda: np.genfromtxt(path, delimiter=",", skip_header=16))
         print(f"{'numpy.genfromtxt, numbers only':52s} {'':>8s} {r:8.3f} {path.stat().st_size / 1e6:7.2f}")
-        daq_rows(capture, tmp, args.repeat)
+        daq_rows(capture, Path(tmp), args.repeat)
 
 
 if __name__ == "__main__":
