@@ -158,3 +158,27 @@ def test_map_file_table_round_trip_and_cli_exit_codes(tmp_path):
     assert res.exit_code == 2 and '"format": "text"' in res.stdout and '"samples": 3' in res.stdout
     res = CliRunner().invoke(cli, ["capture", "info", str(data)])
     assert res.exit_code == 2 and "unknown capture file type '.txt'" in res.output
+
+
+def test_any_suffix_read_as_the_format_the_map_names(tmp_path):
+    """An MDF4 logger's ``.mdf`` and a TDMS file saved as ``.dat`` read once the map names their format."""
+    import dataclasses
+
+    from _capture_helpers import assert_same_capture, small_capture
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    from eol_cal.capture import write_capture
+
+    ref = small_capture()
+    write_capture(ref, tmp_path / "c.mf4")
+    (tmp_path / "c.mf4").rename(tmp_path / "c.mdf")
+    (tmp_path / "mf4.toml").write_text('[file]\nformat = "mf4"\n')
+    assert_same_capture(read_capture(tmp_path / "c.mdf", tmp_path / "mf4.toml"), ref, events=False)
+    with TdmsWriter(str(tmp_path / "c.dat")) as w:
+        w.write_segment([RootObject(properties=dict(ref.metadata)), GroupObject("g"), *(
+            ChannelObject("g", name, ref[name]) for name in ("t", *ref.channels))])
+    (tmp_path / "tdms.toml").write_text('[file]\nformat = "tdms"\n')
+    c = read_capture(tmp_path / "c.dat", tmp_path / "tdms.toml")
+    assert_same_capture(c, dataclasses.replace(ref, truth={}), events=False)  # no truth.* written
+    with pytest.raises(InputError, match=r"unknown capture file type '\.mdf'"):
+        read_capture(tmp_path / "c.mdf")
