@@ -175,6 +175,7 @@ def test_without_a_map_a_foreign_name_is_refused(daq):
         ("unit", "torque (source channel 'Messdaten/Drehmoment')", r"file states unit 'N\*cm' but map .* says 'N\*m'"),
         ("bad_unit", "torque (source channel 'Messdaten/Drehmoment')", "cannot be converted to 'N\\*m'"),
         ("increment", "DI0", "wf_increment -0.0002 is not a positive number of seconds"),
+        ("tiny_increment", "DI0", "wf_increment 1e-300 s is a rate above 1e[+]09 Hz"),
         ("hall_bit", "hall (bit line 'HV')", "a bit line takes 0 or 1"),
     ],
 )
@@ -191,6 +192,8 @@ def test_bad_channels_refused_naming_file_field_reason(tmp_path, ref, change, fi
         chans = _daq_channels(ref, torque_unit="V")
     elif change == "increment":
         chans[1] = ChannelObject(GROUP, "DI0", chans[1].data, properties={"wf_increment": -0.0002})
+    elif change == "tiny_increment":
+        chans[1] = ChannelObject(GROUP, "DI0", chans[1].data, properties={"wf_increment": 1e-300})
     elif change == "hall_bit":
         chans[4] = ChannelObject(GROUP, "HV", chans[4].data * 2, properties=chans[4].properties)
     path = _write(tmp_path / "c.tdms", chans, _root(ref))
