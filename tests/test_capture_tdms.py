@@ -272,3 +272,37 @@ def test_cli_reads_tdms_and_exits_2_on_a_bad_one(daq, tmp_path):
     res = CliRunner().invoke(cli, ["capture", "convert", str(bad), str(tmp_path / "x.csv"), "--map", str(daq[1])])
     assert res.exit_code == 2 and f"file {bad}: truncated or damaged TDMS file" in res.output
     assert not (tmp_path / "x.csv").exists()
+
+
+@pytest.mark.slow  # 300 files: a few seconds
+def test_mutated_files_read_or_refused_never_crash(tmp_path, ref, daq):
+    """Bit flips, 32/64-bit fields overwritten (counts, offsets, lengths), cuts and spliced-in copies of
+    a good file: each one reads as a capture or is refused as input, nothing else escapes."""
+    import random
+
+    good, rng = daq[0].read_bytes(), random.Random(38)
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(300):
+        data = bytearray(good)
+        how = rng.choice(["flip", "u32", "u64", "cut", "splice"])
+        if how == "flip":
+            for _ in range(rng.randint(1, 4)):
+                data[rng.randrange(len(data))] = rng.randrange(256)
+        elif how in ("u32", "u64"):
+            size, fmt = (4, "<I") if how == "u32" else (8, "<Q")
+            value = rng.choice([0, 1, (1 << (8 * size)) - 1, 1 << (8 * size - 1), rng.randrange(1 << (8 * size))])
+            struct.pack_into(fmt, data, rng.randrange(len(data) - size), value)
+        elif how == "cut":
+            data = data[:rng.randrange(len(data))]
+        else:
+            at = rng.randrange(len(data))
+            data = data[:at] + good[rng.randrange(len(good)):][:rng.randrange(1, 2000)] + data[at:]
+        bad = tmp_path / "m.tdms"
+        bad.write_bytes(bytes(data))
+        try:
+            read_capture(bad, daq[1])
+            outcomes["read"] += 1
+        except InputError as exc:
+            assert exc.file in (str(bad), str(daq[1])) and exc.reason, how
+            outcomes["refused"] += 1
+    assert outcomes["read"] > 0 and outcomes["refused"] > 100, outcomes
