@@ -66,6 +66,18 @@ def test_semicolon_quoted_header_units_in_brackets_cp1252_any_suffix(tmp_path):
     assert c["temp"].tolist() == [20.5, 20.75] and c.metadata["serial"] == "S-7"
 
 
+def test_every_line_ending_with_the_delimiter(tmp_path):
+    """Some DAQ software ends each line with the separator: no empty last column is read."""
+    text = "Zeit;Moment;A;Hall;\ns;N*m;;;\n0,0;3,5;0;3;\n0,001;3,25;1;2;\n"
+    mapping = CHANNELS + '[file]\nformat = "text"\ndelimiter = ";"\ndecimal = ","\nunits_row = true\n'
+    c = _read(*_files(tmp_path, text, mapping))
+    assert c.t.tolist() == [0.0, 0.001] and c["torque"].tolist() == [3.5, 3.25] and c["hall"].tolist() == [3, 2]
+    # a header that does not end with it keeps an empty last cell an error
+    text = "Zeit;Moment;A;Hall\n0,0;3,5;0;3;\n"
+    with pytest.raises(InputError, match="unreadable data"):
+        _read(*_files(tmp_path, text, mapping.replace("units_row = true", "units_row = false")))
+
+
 def test_blank_separated_columns(tmp_path):
     text = "Zeit Moment   A Hall\n0.0  3.5   0 3\n0.001 3.25 1   2\n"
     mapping = CHANNELS + '[file]\nformat = "text"\ndelimiter = " "\n'

@@ -58,6 +58,11 @@ def _cells(line: str, delimiter: str) -> list[str]:
     return out
 
 
+def _without_trailing(line: str, delimiter: str) -> str:
+    line = line.rstrip(" \r\n")
+    return line[: -len(delimiter)] if line.endswith(delimiter) else line
+
+
 def _parse_header(line: str, file: str, delimiter: str = ",") -> list[tuple[str, str | None]]:
     cells = []
     for position, cell in enumerate(_cells(line, delimiter), start=1):
@@ -155,6 +160,9 @@ def read_csv_columns(path: str | Path, options: FileOptions | None = None
         index += 1
     if index == len(lines):
         raise InputError(file, None, "no header line of channel names")
+    if opts.delimiter != " " and lines[index].rstrip(" \r\n").endswith(opts.delimiter):
+        # an export that ends every line with the delimiter ("1;2;3;"): no empty last column
+        lines = lines[:index] + [_without_trailing(line, opts.delimiter) for line in lines[index:]]
     header = _parse_header(lines[index], file, opts.delimiter)
     if opts.units_row:
         index += 1
