@@ -144,6 +144,7 @@ def test_map_file_options_refused(tmp_path, name, mapping, file_is, field, messa
          r"units row \(line 2\) holds 3 units for 4 channels; .*write 1 or -"),
         ("Vorspann\n", 'delimiter = "\\t"\nskip_lines = 5', None, "1 lines, and the map skips 5 before the header"),
         ("Zeit\tMoment\tA\tHall\n", 'delimiter = "\\t"', "t", "no data rows after the header line"),
+        ("", 'delimiter = "\\t"', None, "no header line of channel names"),
         ("Zeit\tMoment\tA\tHall\n0\t\xff\t0\t3\n", 'delimiter = "\\t"', None, r"not UTF-8 text \(byte 0xff at offset 21\)"),
     ],
 )

@@ -146,7 +146,7 @@ def read_csv_columns(path: str | Path, options: FileOptions | None = None
     file = str(path)
     encoding = "utf-8-sig" if codecs.lookup(opts.encoding).name == "utf-8" else opts.encoding
     lines = read_text(path, encoding=encoding).splitlines()
-    if opts.skip_lines >= len(lines):
+    if opts.skip_lines and opts.skip_lines >= len(lines):
         raise InputError(file, None, f"{len(lines)} lines, and the map skips {opts.skip_lines} before the header")
     properties: dict[str, MetaValue] = {}
     index = opts.skip_lines
