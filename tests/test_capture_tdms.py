@@ -306,3 +306,22 @@ def test_mutated_files_read_or_refused_never_crash(tmp_path, ref, daq):
             assert exc.file in (str(bad), str(daq[1])) and exc.reason, how
             outcomes["refused"] += 1
     assert outcomes["read"] > 0 and outcomes["refused"] > 100, outcomes
+
+
+def test_daqmx_fixture_reproduces_the_model():
+    """fixtures/daq_export_daqmx.tdms: two DAQmx tasks at 10 and 20 kHz, the digital one started 5 ms
+    later; through its map the capture starts at 5 ms on the analog clock, every level in place."""
+    from pathlib import Path
+
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    fixtures = Path(__file__).resolve().parent.parent / "fixtures"
+    c = read_capture(fixtures / "daq_export_daqmx.tdms", fixtures / "daq_export_daqmx.map.toml")
+    ref = synthetic_capture(rpm=60.0, i_qo=65.0, seconds=1.0, fs=20000.0, serial="M-0002", seed=4)
+    on_analog = slice(100, None, 2)  # 5 ms = 100 samples of 20 kHz; the analog task took every second one
+    assert c.t[0] == pytest.approx(0.005, abs=1e-12) and c.sample_rate == pytest.approx(10000.0)
+    assert len(c.t) == len(ref.t[on_analog])
+    assert np.allclose(c["torque"], ref["torque"][on_analog], rtol=1e-14, atol=0)
+    for name in ("enc_a", "enc_b", "hall"):
+        assert np.array_equal(c[name], ref[name][on_analog]), name
+    assert c.metadata["serial"] == "M-0002" and c.metadata["station"] == "EOL-3" and c.metadata["poles"] == 6

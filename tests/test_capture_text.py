@@ -195,3 +195,20 @@ def test_any_suffix_read_as_the_format_the_map_names(tmp_path):
     assert_same_capture(c, dataclasses.replace(ref, truth={}), events=False)  # no truth.* written
     with pytest.raises(InputError, match=r"unknown capture file type '\.mdf'"):
         read_capture(tmp_path / "c.mdf")
+
+
+def test_tab_export_fixture_reproduces_the_model():
+    """fixtures/daq_export_tab.txt (preamble, tabs, decimal comma, units row, °C, cp1252, CRLF) through its map."""
+    from pathlib import Path
+
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    fixtures = Path(__file__).resolve().parent.parent / "fixtures"
+    c = read_capture(fixtures / "daq_export_tab.txt", fixtures / "daq_export_tab.map.toml")
+    ref = synthetic_capture(rpm=60.0, i_qo=65.0, seconds=0.5, fs=10000.0, serial="M-0003", seed=5)
+    assert np.allclose(c.t, ref.t, rtol=0, atol=1e-12)
+    assert np.allclose(c["torque"], ref["torque"], rtol=0, atol=0.5e-6 + 1e-12)  # written to 6 decimals
+    for name in ("enc_a", "enc_b", "hall"):
+        assert np.array_equal(c[name], ref[name]), name
+    assert np.allclose(c["temp"], 21.5 + 0.25 * ref.t, atol=0.5e-3 + 1e-12)
+    assert c.metadata == {"serial": "M-0003", "poles": 6, "encoder_ppr": 64}
