@@ -105,6 +105,11 @@ def test_a_time_channel_gives_the_rows(tmp_path, ref):
     path = _write(tmp_path / "c.tdms", chans, _root(ref))
     (tmp_path / "m.toml").write_text(MAP.replace("Messdaten/", "g/") + 't = { name = "Zeit" }\n')
     _same_as(read_capture(path, tmp_path / "m.toml"), ref)
+    # a time channel the file lacks is the map's fault (not "no time base" of the waveforms)
+    (tmp_path / "n.toml").write_text(MAP.replace("Messdaten/", "g/") + 't = { name = "Uhrzeit" }\n')
+    with pytest.raises(InputError, match=r"source channel 'Uhrzeit' not found in .*c\.tdms") as info:
+        read_capture(path, tmp_path / "n.toml")
+    assert info.value.file == str(tmp_path / "n.toml") and info.value.field == "t"
     # a channel of another length than the time channel
     chans[3] = ChannelObject("g", "DI1", ref["enc_b"][:-5].astype(np.uint8))
     _write(path, chans, _root(ref))

@@ -30,7 +30,7 @@ import numpy as np
 from nptdms import TdmsFile
 from nptdms.log import log_manager
 
-from eol_cal.capture.channel_map import ChannelMap, apply_channel_map, foreign_channel
+from eol_cal.capture.channel_map import ChannelMap, apply_channel_map, foreign_channel, missing_source
 from eol_cal.capture.columns import Column, assemble
 from eol_cal.capture.file_options import MAX_SAMPLE_RATE
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, coerce_value, decode_value, split_truth
@@ -106,17 +106,17 @@ def _source_names(channels: list[Any], channel_map: ChannelMap | None, file: str
 
     out: dict[str, Any] = {}
     claimed: set[str] = set()
-    wanted = [] if channel_map is None else [
-        (canonical, src) for canonical, spec in channel_map.channels.items() for src in spec.sources()]
-    for canonical, src in wanted:
+    wanted = [] if channel_map is None else [(canonical, src, channel_map) for canonical, spec in
+                                              channel_map.channels.items() for src in spec.sources()]
+    for canonical, src, mapping in wanted:
         if src in by_path:
             out[src] = by_path[src]
         elif len(by_name.get(src, [])) == 1:
             out[src] = by_name[src][0]
         elif src in by_name:
-            raise ambiguous(src, by_name[src], channel_map.source, canonical)  # type: ignore[union-attr]
-        else:
-            continue  # apply_channel_map names the missing channel, the map and the file
+            raise ambiguous(src, by_name[src], mapping.source, canonical)
+        else:  # before any time base is looked for: a missing t is the map's fault, not the waveforms'
+            raise missing_source(mapping, canonical, src, file)
         claimed.add(f"{out[src].group_name}/{out[src].name}")
     for path, c in by_path.items():
         if path in claimed:
