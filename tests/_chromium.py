@@ -21,10 +21,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from playwright.sync_api import Browser, Page, Playwright, sync_playwright
+from playwright.sync_api import Browser, Page, Playwright, expect, sync_playwright
 
 #: environment variable that marks every process of one test browser (inherited by its helpers)
 MARKER = "EOL_CAL_TEST_BROWSER"
+
+#: a hang guard, not a speed test: an assertion on the page waits this long (Playwright's 5 s
+#: default is short for a browser on 2 cores at load 8)
+TIMEOUT_S = 30.0
+expect.set_options(timeout=TIMEOUT_S * 1000)
 
 
 def chromium_path() -> str | None:
@@ -58,7 +63,7 @@ def marked_processes(marker: str) -> list[int]:
 class Chromium:
     """``with Chromium() as b: log = b.open(url); b.page.locator(...)``; see the module doc."""
 
-    def __init__(self, width: int = 1200, height: int = 900, timeout_s: float = 30.0) -> None:
+    def __init__(self, width: int = 1200, height: int = 900, timeout_s: float = TIMEOUT_S) -> None:
         self.width, self.height, self.timeout_ms = width, height, timeout_s * 1000
         self.marker = uuid.uuid4().hex
         self.left_behind: list[int] = []

@@ -105,13 +105,15 @@ def test_subprocess_info_and_bad_exit_code():
 
 @pytest.mark.slow
 def test_fixtures_are_small_valid_and_regenerate_identically(tmp_path):
-    for name in ("paper_60rpm.csv", "paper_60rpm.mf4", "daq_export_foreign.csv", "bad_hall_fault.csv"):
+    for name in ("paper_60rpm.csv", "paper_60rpm.mf4", "daq_export_foreign.csv", "bad_hall_fault.csv",
+                 "daq_export_daqmx.tdms", "daq_export_tab.txt"):
         assert (FIXTURES / name).stat().st_size < 3_000_000
     out = subprocess.run(
         [sys.executable, str(FIXTURES / "make_fixtures.py"), "--out", str(tmp_path)], capture_output=True, text=True
     )
     assert out.returncode == 0, out.stderr
-    for name in ("paper_60rpm.csv", "daq_export_foreign.csv", "daq_export_foreign.map.toml", "bad_hall_fault.csv"):
+    for name in ("paper_60rpm.csv", "daq_export_foreign.csv", "daq_export_foreign.map.toml", "bad_hall_fault.csv",
+                 "daq_export_daqmx.tdms", "daq_export_daqmx.map.toml", "daq_export_tab.txt", "daq_export_tab.map.toml"):
         assert (tmp_path / name).read_bytes() == (FIXTURES / name).read_bytes(), name
     # MDF4 files carry their creation time: compare content
     assert_same_capture(read_capture(tmp_path / "paper_60rpm.mf4"), read_capture(FIXTURES / "paper_60rpm.mf4"))

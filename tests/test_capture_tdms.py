@@ -105,6 +105,11 @@ def test_a_time_channel_gives_the_rows(tmp_path, ref):
     path = _write(tmp_path / "c.tdms", chans, _root(ref))
     (tmp_path / "m.toml").write_text(MAP.replace("Messdaten/", "g/") + 't = { name = "Zeit" }\n')
     _same_as(read_capture(path, tmp_path / "m.toml"), ref)
+    # a time channel the file lacks is the map's fault (not "no time base" of the waveforms)
+    (tmp_path / "n.toml").write_text(MAP.replace("Messdaten/", "g/") + 't = { name = "Uhrzeit" }\n')
+    with pytest.raises(InputError, match=r"source channel 'Uhrzeit' not found in .*c\.tdms") as info:
+        read_capture(path, tmp_path / "n.toml")
+    assert info.value.file == str(tmp_path / "n.toml") and info.value.field == "t"
     # a channel of another length than the time channel
     chans[3] = ChannelObject("g", "DI1", ref["enc_b"][:-5].astype(np.uint8))
     _write(path, chans, _root(ref))
@@ -175,6 +180,7 @@ def test_without_a_map_a_foreign_name_is_refused(daq):
         ("unit", "torque (source channel 'Messdaten/Drehmoment')", r"file states unit 'N\*cm' but map .* says 'N\*m'"),
         ("bad_unit", "torque (source channel 'Messdaten/Drehmoment')", "cannot be converted to 'N\\*m'"),
         ("increment", "DI0", "wf_increment -0.0002 is not a positive number of seconds"),
+        ("tiny_increment", "DI0", "wf_increment 1e-300 s is a rate above 1e[+]09 Hz"),
         ("hall_bit", "hall (bit line 'HV')", "a bit line takes 0 or 1"),
     ],
 )
@@ -191,6 +197,8 @@ def test_bad_channels_refused_naming_file_field_reason(tmp_path, ref, change, fi
         chans = _daq_channels(ref, torque_unit="V")
     elif change == "increment":
         chans[1] = ChannelObject(GROUP, "DI0", chans[1].data, properties={"wf_increment": -0.0002})
+    elif change == "tiny_increment":
+        chans[1] = ChannelObject(GROUP, "DI0", chans[1].data, properties={"wf_increment": 1e-300})
     elif change == "hall_bit":
         chans[4] = ChannelObject(GROUP, "HV", chans[4].data * 2, properties=chans[4].properties)
     path = _write(tmp_path / "c.tdms", chans, _root(ref))
@@ -269,3 +277,56 @@ def test_cli_reads_tdms_and_exits_2_on_a_bad_one(daq, tmp_path):
     res = CliRunner().invoke(cli, ["capture", "convert", str(bad), str(tmp_path / "x.csv"), "--map", str(daq[1])])
     assert res.exit_code == 2 and f"file {bad}: truncated or damaged TDMS file" in res.output
     assert not (tmp_path / "x.csv").exists()
+
+
+@pytest.mark.slow  # 300 files: a few seconds
+def test_mutated_files_read_or_refused_never_crash(tmp_path, ref, daq):
+    """Bit flips, 32/64-bit fields overwritten (counts, offsets, lengths), cuts and spliced-in copies of
+    a good file: each one reads as a capture or is refused as input, nothing else escapes."""
+    import random
+
+    good, rng = daq[0].read_bytes(), random.Random(38)
+    outcomes = {"read": 0, "refused": 0}
+    for _ in range(300):
+        data = bytearray(good)
+        how = rng.choice(["flip", "u32", "u64", "cut", "splice"])
+        if how == "flip":
+            for _ in range(rng.randint(1, 4)):
+                data[rng.randrange(len(data))] = rng.randrange(256)
+        elif how in ("u32", "u64"):
+            size, fmt = (4, "<I") if how == "u32" else (8, "<Q")
+            value = rng.choice([0, 1, (1 << (8 * size)) - 1, 1 << (8 * size - 1), rng.randrange(1 << (8 * size))])
+            struct.pack_into(fmt, data, rng.randrange(len(data) - size), value)
+        elif how == "cut":
+            data = data[:rng.randrange(len(data))]
+        else:
+            at = rng.randrange(len(data))
+            data = data[:at] + good[rng.randrange(len(good)):][:rng.randrange(1, 2000)] + data[at:]
+        bad = tmp_path / "m.tdms"
+        bad.write_bytes(bytes(data))
+        try:
+            read_capture(bad, daq[1])
+            outcomes["read"] += 1
+        except InputError as exc:
+            assert exc.file in (str(bad), str(daq[1])) and exc.reason, how
+            outcomes["refused"] += 1
+    assert outcomes["read"] > 0 and outcomes["refused"] > 100, outcomes
+
+
+def test_daqmx_fixture_reproduces_the_model():
+    """fixtures/daq_export_daqmx.tdms: two DAQmx tasks at 10 and 20 kHz, the digital one started 5 ms
+    later; through its map the capture starts at 5 ms on the analog clock, every level in place."""
+    from pathlib import Path
+
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    fixtures = Path(__file__).resolve().parent.parent / "fixtures"
+    c = read_capture(fixtures / "daq_export_daqmx.tdms", fixtures / "daq_export_daqmx.map.toml")
+    ref = synthetic_capture(rpm=60.0, i_qo=65.0, seconds=1.0, fs=20000.0, serial="M-0002", seed=4)
+    on_analog = slice(100, None, 2)  # 5 ms = 100 samples of 20 kHz; the analog task took every second one
+    assert c.t[0] == pytest.approx(0.005, abs=1e-12) and c.sample_rate == pytest.approx(10000.0)
+    assert len(c.t) == len(ref.t[on_analog])
+    assert np.allclose(c["torque"], ref["torque"][on_analog], rtol=1e-14, atol=0)
+    for name in ("enc_a", "enc_b", "hall"):
+        assert np.array_equal(c[name], ref[name][on_analog]), name
+    assert c.metadata["serial"] == "M-0002" and c.metadata["station"] == "EOL-3" and c.metadata["poles"] == 6

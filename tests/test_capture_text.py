@@ -66,6 +66,18 @@ def test_semicolon_quoted_header_units_in_brackets_cp1252_any_suffix(tmp_path):
     assert c["temp"].tolist() == [20.5, 20.75] and c.metadata["serial"] == "S-7"
 
 
+def test_every_line_ending_with_the_delimiter(tmp_path):
+    """Some DAQ software ends each line with the separator: no empty last column is read."""
+    text = "Zeit;Moment;A;Hall;\ns;N*m;;;\n0,0;3,5;0;3;\n0,001;3,25;1;2;\n"
+    mapping = CHANNELS + '[file]\nformat = "text"\ndelimiter = ";"\ndecimal = ","\nunits_row = true\n'
+    c = _read(*_files(tmp_path, text, mapping))
+    assert c.t.tolist() == [0.0, 0.001] and c["torque"].tolist() == [3.5, 3.25] and c["hall"].tolist() == [3, 2]
+    # a header that does not end with it keeps an empty last cell an error
+    text = "Zeit;Moment;A;Hall\n0,0;3,5;0;3;\n"
+    with pytest.raises(InputError, match="unreadable data"):
+        _read(*_files(tmp_path, text, mapping.replace("units_row = true", "units_row = false")))
+
+
 def test_blank_separated_columns(tmp_path):
     text = "Zeit Moment   A Hall\n0.0  3.5   0 3\n0.001 3.25 1   2\n"
     mapping = CHANNELS + '[file]\nformat = "text"\ndelimiter = " "\n'
@@ -132,6 +144,7 @@ def test_map_file_options_refused(tmp_path, name, mapping, file_is, field, messa
          r"units row \(line 2\) holds 3 units for 4 channels; .*write 1 or -"),
         ("Vorspann\n", 'delimiter = "\\t"\nskip_lines = 5', None, "1 lines, and the map skips 5 before the header"),
         ("Zeit\tMoment\tA\tHall\n", 'delimiter = "\\t"', "t", "no data rows after the header line"),
+        ("", 'delimiter = "\\t"', None, "no header line of channel names"),
         ("Zeit\tMoment\tA\tHall\n0\t\xff\t0\t3\n", 'delimiter = "\\t"', None, r"not UTF-8 text \(byte 0xff at offset 21\)"),
     ],
 )
@@ -158,3 +171,44 @@ def test_map_file_table_round_trip_and_cli_exit_codes(tmp_path):
     assert res.exit_code == 2 and '"format": "text"' in res.stdout and '"samples": 3' in res.stdout
     res = CliRunner().invoke(cli, ["capture", "info", str(data)])
     assert res.exit_code == 2 and "unknown capture file type '.txt'" in res.output
+
+
+def test_any_suffix_read_as_the_format_the_map_names(tmp_path):
+    """An MDF4 logger's ``.mdf`` and a TDMS file saved as ``.dat`` read once the map names their format."""
+    import dataclasses
+
+    from _capture_helpers import assert_same_capture, small_capture
+    from nptdms import ChannelObject, GroupObject, RootObject, TdmsWriter
+
+    from eol_cal.capture import write_capture
+
+    ref = small_capture()
+    write_capture(ref, tmp_path / "c.mf4")
+    (tmp_path / "c.mf4").rename(tmp_path / "c.mdf")
+    (tmp_path / "mf4.toml").write_text('[file]\nformat = "mf4"\n')
+    assert_same_capture(read_capture(tmp_path / "c.mdf", tmp_path / "mf4.toml"), ref, events=False)
+    with TdmsWriter(str(tmp_path / "c.dat")) as w:
+        w.write_segment([RootObject(properties=dict(ref.metadata)), GroupObject("g"), *(
+            ChannelObject("g", name, ref[name]) for name in ("t", *ref.channels))])
+    (tmp_path / "tdms.toml").write_text('[file]\nformat = "tdms"\n')
+    c = read_capture(tmp_path / "c.dat", tmp_path / "tdms.toml")
+    assert_same_capture(c, dataclasses.replace(ref, truth={}), events=False)  # no truth.* written
+    with pytest.raises(InputError, match=r"unknown capture file type '\.mdf'"):
+        read_capture(tmp_path / "c.mdf")
+
+
+def test_tab_export_fixture_reproduces_the_model():
+    """fixtures/daq_export_tab.txt (preamble, tabs, decimal comma, units row, °C, cp1252, CRLF) through its map."""
+    from pathlib import Path
+
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    fixtures = Path(__file__).resolve().parent.parent / "fixtures"
+    c = read_capture(fixtures / "daq_export_tab.txt", fixtures / "daq_export_tab.map.toml")
+    ref = synthetic_capture(rpm=60.0, i_qo=65.0, seconds=0.5, fs=10000.0, serial="M-0003", seed=5)
+    assert np.allclose(c.t, ref.t, rtol=0, atol=1e-12)
+    assert np.allclose(c["torque"], ref["torque"], rtol=0, atol=0.5e-6 + 1e-12)  # written to 6 decimals
+    for name in ("enc_a", "enc_b", "hall"):
+        assert np.array_equal(c[name], ref[name]), name
+    assert np.allclose(c["temp"], 21.5 + 0.25 * ref.t, atol=0.5e-3 + 1e-12)
+    assert c.metadata == {"serial": "M-0003", "poles": 6, "encoder_ppr": 64}

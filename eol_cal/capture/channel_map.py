@@ -173,9 +173,7 @@ def apply_channel_map(
         for name, spec in channel_map.channels.items():
             missing = [s for s in spec.sources() if s not in columns]
             if missing:
-                raise InputError(
-                    channel_map.source, name, f"source channel {missing[0]!r} not found in {file}"
-                )
+                raise missing_source(channel_map, name, missing[0], file)
             claimed.update(spec.sources())
             if spec.bits is not None:
                 labels = [f"hall (bit line {b!r})" for b in spec.bits]
@@ -198,6 +196,11 @@ def apply_channel_map(
         elif channel_map is None:
             raise foreign_channel(file, source_name)
     return out, meta
+
+
+def missing_source(channel_map: ChannelMap, name: str, source: str, file: str) -> InputError:
+    """The refusal of a map whose channel ``name`` reads a ``source`` channel that ``file`` lacks."""
+    return InputError(channel_map.source, name, f"source channel {source!r} not found in {file}")
 
 
 def foreign_channel(file: str, name: str) -> ForeignChannelError:

@@ -58,6 +58,11 @@ def _cells(line: str, delimiter: str) -> list[str]:
     return out
 
 
+def _without_trailing(line: str, delimiter: str) -> str:
+    line = line.rstrip(" \r\n")
+    return line[: -len(delimiter)] if line.endswith(delimiter) else line
+
+
 def _parse_header(line: str, file: str, delimiter: str = ",") -> list[tuple[str, str | None]]:
     cells = []
     for position, cell in enumerate(_cells(line, delimiter), start=1):
@@ -141,7 +146,7 @@ def read_csv_columns(path: str | Path, options: FileOptions | None = None
     file = str(path)
     encoding = "utf-8-sig" if codecs.lookup(opts.encoding).name == "utf-8" else opts.encoding
     lines = read_text(path, encoding=encoding).splitlines()
-    if opts.skip_lines >= len(lines):
+    if opts.skip_lines and opts.skip_lines >= len(lines):
         raise InputError(file, None, f"{len(lines)} lines, and the map skips {opts.skip_lines} before the header")
     properties: dict[str, MetaValue] = {}
     index = opts.skip_lines
@@ -155,6 +160,9 @@ def read_csv_columns(path: str | Path, options: FileOptions | None = None
         index += 1
     if index == len(lines):
         raise InputError(file, None, "no header line of channel names")
+    if opts.delimiter != " " and lines[index].rstrip(" \r\n").endswith(opts.delimiter):
+        # an export that ends every line with the delimiter ("1;2;3;"): no empty last column
+        lines = lines[:index] + [_without_trailing(line, opts.delimiter) for line in lines[index:]]
     header = _parse_header(lines[index], file, opts.delimiter)
     if opts.units_row:
         index += 1

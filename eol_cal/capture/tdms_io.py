@@ -30,8 +30,9 @@ import numpy as np
 from nptdms import TdmsFile
 from nptdms.log import log_manager
 
-from eol_cal.capture.channel_map import ChannelMap, apply_channel_map, foreign_channel
+from eol_cal.capture.channel_map import ChannelMap, apply_channel_map, foreign_channel, missing_source
 from eol_cal.capture.columns import Column, assemble
+from eol_cal.capture.file_options import MAX_SAMPLE_RATE
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, coerce_value, decode_value, split_truth
 from eol_cal.capture.model import CANONICAL_CHANNELS, Capture
 from eol_cal.errors import InputError
@@ -105,17 +106,17 @@ def _source_names(channels: list[Any], channel_map: ChannelMap | None, file: str
 
     out: dict[str, Any] = {}
     claimed: set[str] = set()
-    wanted = [] if channel_map is None else [
-        (canonical, src) for canonical, spec in channel_map.channels.items() for src in spec.sources()]
-    for canonical, src in wanted:
+    wanted = [] if channel_map is None else [(canonical, src, channel_map) for canonical, spec in
+                                              channel_map.channels.items() for src in spec.sources()]
+    for canonical, src, mapping in wanted:
         if src in by_path:
             out[src] = by_path[src]
         elif len(by_name.get(src, [])) == 1:
             out[src] = by_name[src][0]
         elif src in by_name:
-            raise ambiguous(src, by_name[src], channel_map.source, canonical)  # type: ignore[union-attr]
-        else:
-            continue  # apply_channel_map names the missing channel, the map and the file
+            raise ambiguous(src, by_name[src], mapping.source, canonical)
+        else:  # before any time base is looked for: a missing t is the map's fault, not the waveforms'
+            raise missing_source(mapping, canonical, src, file)
         claimed.add(f"{out[src].group_name}/{out[src].name}")
     for path, c in by_path.items():
         if path in claimed:
@@ -154,6 +155,9 @@ def _increment(name: str, channel: Any, sample_rate: float | None, file: str, ma
     if isinstance(stated, (bool, np.bool_)) or not isinstance(stated, (int, float, np.integer, np.floating)) or not (
             math.isfinite(float(stated)) and float(stated) > 0):
         raise InputError(file, name, f"wf_increment {stated!r} is not a positive number of seconds")
+    if float(stated) < 1.0 / MAX_SAMPLE_RATE:
+        raise InputError(file, name, f"wf_increment {float(stated)!r} s is a rate above {MAX_SAMPLE_RATE:g} Hz; "
+                                     "no DAQ samples that fast")
     if sample_rate is not None and not math.isclose(float(stated) * sample_rate, 1.0, rel_tol=1e-9):
         raise InputError(file, name, f"wf_increment {float(stated)!r} s is not 1/sample_rate of map {map_file} "
                                      f"({sample_rate!r} Hz)")
@@ -170,7 +174,7 @@ def _start_offsets(used: dict[str, Any], file: str) -> dict[str, float]:
             raise InputError(file, name, f"wf_start_offset {offset!r} is not a finite number of seconds")
         offsets[name] = float(offset)
     starts = {name: c.properties.get("wf_start_time") for name, c in used.items()}
-    if starts and all(isinstance(s, np.datetime64) for s in starts.values()):
+    if starts and all(isinstance(s, np.datetime64) and not np.isnat(s) for s in starts.values()):
         first = min(starts.values())
         for name, start in starts.items():
             offsets[name] += float((start - first) / np.timedelta64(1, "ns")) * 1e-9
