@@ -298,13 +298,23 @@ LAZY_LEFT = frozenset({
     "eol_cal.analysis.fit.plot", "eol_cal.analysis.fit.prewarm", "eol_cal.analysis.fit.table",
     "eol_cal.analysis.result", "eol_cal.capture.ecu_state", "eol_cal.capture.io", "eol_cal.capture.units",
     "eol_cal.dyno.client", "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer",
-    "eol_cal.firmware.golden", "eol_cal.sim.fuzz.mutate", "eol_cal.sim.fuzz.scenarios", "eol_cal.lot.baseline",
+    "eol_cal.firmware.golden", "eol_cal.lot.baseline",
     "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.simulate",
     "eol_cal.plant.simulate", "eol_cal.report.motor", "eol_cal.schemas",
-    "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.sim.loopback", "eol_cal.station.early",
+    "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.station.early",
     "eol_cal.station.limits", "eol_cal.station.preflight", "eol_cal.station.record", "eol_cal.station.records",
     "eol_cal.station.restore", "eol_cal.station.run", "eol_cal.station.settings", "eol_cal.station.spool",
 })
+
+
+#: how many modules LAZY_LEFT holds. It only goes down: lower it with the list (the test below
+#: fails until you do); a module that would join the list imports at its top instead.
+LAZY_LEFT_COUNT = 34
+
+
+def test_lazy_left_only_shrinks():
+    assert len(LAZY_LEFT) <= LAZY_LEFT_COUNT, "LAZY_LEFT may only shrink: import at the module's top instead"
+    assert len(LAZY_LEFT) == LAZY_LEFT_COUNT, f"LAZY_LEFT shrank to {len(LAZY_LEFT)}: lower LAZY_LEFT_COUNT with it"
 
 
 def _in_function(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
