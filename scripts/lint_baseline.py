@@ -9,6 +9,12 @@ markers and are meant to shrink: fix a file, then run ``--write`` and commit the
     python scripts/lint_baseline.py --check    # exit 1 when an entry excuses what is no longer there
     python scripts/lint_baseline.py --write    # rewrite both lists from today's findings
 
+A module may also disable mypy error codes in its own header (``# mypy: disable-error-code=...``,
+with the reason above it: the firmware twin's array-generic modules). Those are counted here too
+(:func:`header_exemptions`), ``--check`` names a code a header disables that the module no longer
+needs, and the number they add up to is recorded in ``pyproject.toml`` (``HEADER_MARK``), which
+``tests/test_lint_counts.py`` holds it to: it only goes down.
+
 ``--write`` on code that gained findings silences them: use it only to shrink the lists, or for a
 merge of work written before the linters, and say so in the commit.
 """
@@ -22,6 +28,7 @@ import re
 import subprocess
 import sys
 import tempfile
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,6 +36,10 @@ PYPROJECT = ROOT / "pyproject.toml"
 RUFF_BEGIN, RUFF_END = "# lint-baseline: ruff begin", "# lint-baseline: ruff end"
 MYPY_BEGIN, MYPY_END = "# lint-baseline: mypy begin", "# lint-baseline: mypy end"
 MYPY_LINE = re.compile(r"^(?P<path>[^:]+\.py):\d+: error: .*\[(?P<code>[a-z-]+)\]$")
+#: a module's own exemption, in its header
+HEADER = re.compile(r'^# mypy: disable-error-code="(?P<codes>[^"]*)"$', re.M)
+#: the line of pyproject.toml that records how many error codes module headers disable
+HEADER_MARK = re.compile(r"^# lint-baseline: mypy headers disable (?P<n>\d+) error codes$", re.M)
 
 
 def _ruff(baseline: dict[str, set[str]]) -> dict[str, set[str]]:
@@ -96,6 +107,51 @@ def mypy_findings() -> dict[str, set[str]]:
             for module, codes in more.items():
                 found.setdefault(module, set()).update(codes)
     return found
+
+
+def mypy_files() -> list[Path]:
+    """The Python files mypy checks (``[tool.mypy] files`` of pyproject.toml)."""
+    files = tomllib.loads(PYPROJECT.read_text("utf-8"))["tool"]["mypy"]["files"]
+    return sorted(p for f in files for p in ((ROOT / f).rglob("*.py") if (ROOT / f).is_dir() else [ROOT / f]))
+
+
+def header_exemptions() -> dict[str, set[str]]:
+    """module -> the error codes its header disables (``# mypy: disable-error-code="..."``)."""
+    out = {}
+    for path in mypy_files():
+        m = HEADER.search(path.read_text("utf-8"))
+        if m:
+            out[_module(path.relative_to(ROOT).as_posix())] = {c.strip() for c in m["codes"].split(",") if c.strip()}
+    return out
+
+
+def header_findings() -> dict[str, set[str]]:
+    """module -> the error codes mypy finds in the modules with a header exemption when their
+    headers are left out (one run, each such file replaced by a copy without its header through
+    mypy's ``--shadow-file``): what the headers still have to disable."""
+    with tempfile.TemporaryDirectory() as tmp:
+        shadows = []
+        for path in mypy_files():
+            text = path.read_text("utf-8")
+            if HEADER.search(text):
+                shadow = Path(tmp) / f"{len(shadows)}.py"
+                shadow.write_text(HEADER.sub("", text), "utf-8")
+                shadows += ["--shadow-file", str(path), str(shadow)]
+        r = subprocess.run([sys.executable, "-m", "mypy", "--cache-dir", str(Path(tmp) / "cache"), *shadows],
+                           cwd=ROOT, capture_output=True, text=True)
+    found: dict[str, set[str]] = collections.defaultdict(set)
+    for line in r.stdout.splitlines():
+        m = MYPY_LINE.match(line)
+        if m:
+            found[_module(m["path"])].add(m["code"])
+    if r.returncode not in (0, 1):
+        raise SystemExit(f"mypy did not run: {r.stdout[-2000:]}{r.stderr[-2000:]}")
+    return dict(found)
+
+
+def recorded_header_count(text: str) -> int | None:
+    m = HEADER_MARK.search(text)
+    return int(m["n"]) if m else None
 
 
 def _replace(text: str, begin: str, end: str, body: str) -> str:
@@ -166,16 +222,23 @@ def main(argv: list[str] | None = None) -> int:
     text = PYPROJECT.read_text("utf-8")
     rf = ruff_findings()
     mf = {} if args.ruff_only else mypy_findings()
+    headers = header_exemptions()
+    n_headers = sum(len(c) for c in headers.values())
     if args.write:
         text = _replace(text, RUFF_BEGIN, RUFF_END, render_ruff(rf))
         if not args.ruff_only:
             text = _replace(text, MYPY_BEGIN, MYPY_END, render_mypy(mf))
+        text = HEADER_MARK.sub(f"# lint-baseline: mypy headers disable {n_headers} error codes", text)
         PYPROJECT.write_text(text, "utf-8")
     print(counts(rf, "ruff"))
     if not args.ruff_only:
         print(counts(mf, "mypy"))
+    print(counts(headers, "mypy module headers").replace("files excused", "modules disable")
+          + f"; {n_headers} error codes in all (recorded: {recorded_header_count(text)})")
     if args.check:
         bad = stale(listed_ruff(text), rf) + ([] if args.ruff_only else stale(listed_mypy(text), mf))
+        if not args.ruff_only:
+            bad += [f"header of {s}" for s in stale(headers, header_findings())]
         if bad:
             print("baseline excuses what is fixed (run python scripts/lint_baseline.py --write):\n  "
                   + "\n  ".join(bad))

@@ -27,7 +27,7 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.pop("COLUMNS", None)
 
 # The station tests run the dyno simulator and its plant in the test's process (or beside it): on
-# a loaded machine (the hog runs of docs/benchmarks.md, "Test suite") the station's client can be
+# a loaded machine (the hog runs of docs/history/benchmarks-journal.md, "Test suite") the station's client can be
 # quiet for more than the dyno's 2 s communication watchdog while the plant computes a capture, and
 # the dyno stops the run. The watchdog is not what they test: they get 30 s (a test of the setting
 # itself passes its own environment; the dyno's own tests set DynoConfig.watchdog_ms).

@@ -301,7 +301,7 @@ class DynoClient:
                ramp_s: float = 0.0, skip: int = 0, on_ready: Callable[[dict], object] | None = None
                ) -> dict[str, np.ndarray]:
         """Arm a capture of ``n_samples`` at ``rate_hz`` (Hz) and read channels ``names`` (those the
-        buffer holds; ``torque`` and ``iq_ref`` required) while it records (:class:`~eol_cal.dyno.transfer.Stream`);
+        buffer holds; ``torque`` and ``iq_ref`` required) while it records (:class:`~eol_cal.dyno.transfer.BufferReader`);
         return when every sample is read.
 
         The capture starts by itself once the shaft is at speed: ``ramp_s`` (s) is the ramp still

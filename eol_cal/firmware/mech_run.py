@@ -7,11 +7,7 @@
 
 from __future__ import annotations
 
-# One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
-# cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
-# mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
-
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -50,7 +46,8 @@ def ecu_tick(cfg: est.EstimatorConfig, mc: MechConsts, tb: MechTables, block_tab
     ``block_tables`` is ``(table_const, table_per_amp, lead_s, iqc_limit)``; ``comp_on`` (static)
     is the block's ``COMP_ENABLE``. Returns ``(es, ms, EstimatorOut, PitchSample, MechOut, i_qc)``.
     """
-    es, eo, ps = step_pitch(cfg, es, a, b, h, xp=SCALAR_NP if xp is np else xp, tables=hall_tables)
+    # numpy's scalars through SCALAR_NP, which stands in for the numpy module (binary32 scalar arithmetic)
+    es, eo, ps = step_pitch(cfg, es, a, b, h, xp=cast(ArrayModule, SCALAR_NP) if xp is np else xp, tables=hall_tables)
     ms, mo = mech_step(mc, tb, ms, es, eo, ps, xp=xp)
     if comp_on:
         tc, tp, lead, limit = block_tables
@@ -95,7 +92,9 @@ def run_mech(block: ParamBlock, enc_a: Array, enc_b: Array, hall: Array, i_qo: A
         return MechRun(**out)
     es = _scalars(est.init_state(cfg, h[0], a[0], b[0]))
     ms = _scalars(mech_init(mc.N))
-    bt = (block.table_const, block.table_per_amp, np.float32(block.lead_s), np.float32(block.iqc_limit))
+    # binary32 scalars, as the ECU holds them (a numpy scalar is none of Array's members to mypy)
+    bt = (block.table_const, block.table_per_amp, cast(Array, np.float32(block.lead_s)),
+          cast(Array, np.float32(block.iqc_limit)))
     comp_on = bool(block.flags & FLAG_COMP_ENABLE)
     for i in range(n):
         es, ms, eo, ps, mo, iqc = ecu_tick(cfg, mc, tb, bt, es, ms, a[i], b[i], h[i], iq[i], comp_on)

@@ -14,10 +14,20 @@ motors, as a line's station does (the benchmark drives ``eol-cal station`` again
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
-from collections.abc import Callable, Iterator
+
+from eol_cal.dyno import sim as ds
+from eol_cal.dyno.sim_capture import synthetic_source
+from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.transport import open_bus
+from eol_cal.exchange_log import quiet
+from eol_cal.motor import load_motor
+from eol_cal.plant.variation import draw_spec
+from eol_cal.sim.remote_ecu import serve_remote
+from eol_cal.sim.rig import plant_source
 
 if TYPE_CHECKING:
     import can
@@ -25,14 +35,13 @@ if TYPE_CHECKING:
     from eol_cal.dyno.regmap import RegisterMap
     from eol_cal.dyno.sim import DynoSimThread, FaultPlan
     from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource
-    from eol_cal.sim.remote_ecu import RemoteEcu
     from eol_cal.plant.params import PlantSpec
+    from eol_cal.sim.remote_ecu import RemoteEcu
 
 
 def demo_motor_spec(seed: int, serial: str) -> PlantSpec:
     """The demo's motor number ``seed``: the plant's production draw around the paper's bench
     (:func:`eol_cal.plant.variation.draw_spec`)."""
-    from eol_cal.plant.variation import draw_spec
 
     return draw_spec(seed, serial=serial)
 
@@ -50,7 +59,6 @@ class LoopbackStation:
 
     def open_bus(self) -> can.BusABC:
         """The tester's bus: python-can ``remote`` to the ECU simulator."""
-        from eol_cal.ecu.transport import open_bus
 
         return open_bus("remote", self.can_channel)
 
@@ -86,12 +94,6 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     bitrate : int or None
         Pace the ECU simulator's bus to this CAN bit rate (bit/s); None: unpaced.
     """
-    from eol_cal.dyno import sim as ds
-    from eol_cal.exchange_log import quiet
-    from eol_cal.sim.remote_ecu import serve_remote
-    from eol_cal.sim.rig import plant_source
-    from eol_cal.ecu.sim import SimConfig
-    from eol_cal.motor import load_motor
 
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))  # unless an exchange log is on
     work_dir = Path(work_dir)
@@ -126,8 +128,6 @@ class LoopbackLine:
     def load(self, serial: str, seed: int) -> Path:
         """The next motor: drawn with ``seed`` on the dyno, a fresh (erased) ECU with ``serial``
         behind the same URL. Returns the ECU's flash file. Call between motors only."""
-        from eol_cal.ecu.sim import SimConfig
-        from eol_cal.sim.rig import plant_source
 
         flash_file = self.work_dir / f"{serial}.flash"
         flash_file.unlink(missing_ok=True)
@@ -147,12 +147,6 @@ def loopback_line(work_dir: str | Path, *, register_map: RegisterMap | None = No
     """A dyno simulator and an ECU server on 127.0.0.1 (free ports) that stay for many motors;
     load each motor with :meth:`LoopbackLine.load` before its cycle. Arguments as
     :func:`loopback_station`."""
-    from eol_cal.dyno import sim as ds
-    from eol_cal.dyno.sim_capture import synthetic_source
-    from eol_cal.sim.remote_ecu import serve_remote
-    from eol_cal.ecu.sim import SimConfig
-    from eol_cal.exchange_log import quiet
-    from eol_cal.motor import load_motor
 
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
     work_dir = Path(work_dir)

@@ -6,12 +6,19 @@ import dataclasses
 import json
 import math
 import struct
+import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from eol_cal.capture.io import write_capture
+from eol_cal.capture.synthetic import synthetic_capture
+from eol_cal.firmware import block as B
+from eol_cal.firmware.block_layout import FIELDS_BY_VERSION
+from eol_cal.firmware.example import example_block
+from eol_cal.firmware.mech_params import make_mech_tables, unused_mech
 from eol_cal.sim import FIXTURES
 
 #: ``block2`` and ``fitjson2``: a layout-2 block and a fit result with its ``mech`` object (contract
@@ -50,11 +57,6 @@ class Case:
 
 def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
     """The valid files every mutation starts from: kind -> bytes (written by the tool itself)."""
-    import tempfile
-
-    from eol_cal.capture.io import write_capture
-    from eol_cal.capture.synthetic import synthetic_capture
-    from eol_cal.firmware.example import example_block
 
     capture = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
     out: dict[str, bytes] = {}
@@ -73,8 +75,6 @@ def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
 
 def layout2_block(base: bytes) -> bytes:
     """``base`` as a layout-2 block with a measured fingerprint and mechanical orders."""
-    from eol_cal.firmware import block as B
-    from eol_cal.firmware.mech_params import make_mech_tables, unused_mech
 
     blk = B.unpack(base)
     c, ph, zeros = (0.004, 0.001, 0.0005), (0.3, -1.0, 2.0), (0.0, 0.0, 0.0)
@@ -302,8 +302,6 @@ _MECH_F32 = ("grid_phase", "id_min_score", "id_margin", "id_frac_tol", "mech_c",
 
 def mutate_block(rng: np.random.Generator, base: bytes) -> tuple[bytes, str]:
     """One hostile parameter block; most keep a right CRC so that only a sanity check refuses them."""
-    from eol_cal.firmware import block as B
-    from eol_cal.firmware.block_layout import FIELDS_BY_VERSION
 
     op = int(rng.integers(0, 5))
     if op == 0:

@@ -18,17 +18,31 @@ scenario that ends 0 or 1 is an input accepted that should have been refused.
 from __future__ import annotations
 
 import hashlib
+import importlib
 import json
 import os
+import pkgutil
+import shutil
+import sqlite3
+import tempfile
+import uuid
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import eol_cal.sim.fuzz as fuzz_package
+from eol_cal.capture.io import write_capture
+from eol_cal.capture.synthetic import synthetic_capture
+from eol_cal.ecu import protocol as P
 from eol_cal.firmware.example import example_block
+from eol_cal.inputs import MAX_TOML_BYTES
 from eol_cal.sim import FIXTURES, ROOT
 from eol_cal.sim.fuzz import hostile
-from eol_cal.sim.fuzz.campaign import Counts
-
+from eol_cal.sim.fuzz.campaign import CHILD_MEMORY_BYTES, Counts, run_cli
+from eol_cal.sim.fuzz.mutate import fit_result_with_mech
+from eol_cal.records.limits import LIMITS
+from eol_cal.records.record import RunRecord
+from eol_cal.records.write import insert_records
 
 
 @dataclass
@@ -80,7 +94,6 @@ def file_bytes(path: Path) -> bytes:
 
 
 def _key() -> bytes:
-    from eol_cal.ecu import protocol as P
 
     return (P.DEV_SECRET.hex() + "\n").encode()
 
@@ -124,7 +137,6 @@ def _toml_scenario(kind: str, name: str, data: bytes | None) -> Scenario:
 
 def toml_scenarios() -> Iterator[Scenario]:
     """Every TOML kind with every hostile line, an oversized file and a FIFO."""
-    from eol_cal.inputs import MAX_TOML_BYTES
 
     for kind, source in _TOML_SOURCES.items():
         if kind == "motor":
@@ -163,11 +175,6 @@ def json_scenarios() -> Iterator[Scenario]:
 
 def _records_db(token: str | None = None) -> bytes:
     """A records database of one run (its record JSON holding ``token`` in a value)."""
-    import sqlite3
-    import tempfile
-
-    from eol_cal.records.record import RunRecord
-    from eol_cal.records.write import insert_records
 
     rec = json.loads((FIXTURES / "run_record_demo.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
@@ -273,7 +280,6 @@ def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         files["station.toml"] = files["station.toml"].replace(b'channel = "nobody"\n',
                                                               b'channel = "nobody"\nconfig = "can.ini"\n')
         yield Scenario("refusals", f"settings can.config {name}", files, RUN)
-    from eol_cal.records.limits import LIMITS
 
     limits = file_bytes(FIXTURES / "limits.toml")
     key = next(lim.key for lim in LIMITS if lim.quantity == "mech1_after_nm")  # revision 1.2's row
@@ -305,7 +311,6 @@ BAD_MECH: tuple[tuple[str, tuple, object], ...] = (
 
 def _mech_scenarios() -> Iterator[Scenario]:
     """Fit results of revision 1.2 whose ``mech`` object must be refused by ``table`` (layout 2)."""
-    from eol_cal.sim.fuzz.mutate import fit_result_with_mech
 
     base = fit_result_with_mech(file_bytes(FIXTURES / "fit_paper.json"))
     for name, path, value in BAD_MECH:
@@ -319,10 +324,7 @@ def _mech_scenarios() -> Iterator[Scenario]:
 
 
 def _ecu_state_scenarios() -> Iterator[Scenario]:
-    import tempfile
 
-    from eol_cal.capture.io import write_capture
-    from eol_cal.capture.synthetic import synthetic_capture
 
     for keep, drop in (("ecu_before", "ecu_after"), ("ecu_after", "ecu_before")):
         cap = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
@@ -387,10 +389,6 @@ class ScenarioOutcome:
 
 def run_scenario(scenario: Scenario, workdir: Path, timeout_s: float = 60.0, root: Path = ROOT) -> ScenarioOutcome:
     """Lay ``scenario`` out in a new directory under ``workdir``, run it, judge it."""
-    import shutil
-    import uuid
-
-    from eol_cal.sim.fuzz.campaign import CHILD_MEMORY_BYTES, run_cli
 
     d = workdir / uuid.uuid4().hex[:12]
     scenario.lay_out(d)
@@ -436,13 +434,9 @@ class ScenarioTally(Counts):
 def all_builders() -> dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]]:
     """The builders of this module and of every other scenario module present
     (``eol_cal.sim.fuzz.scenarios_*``: each adds its own ``BUILDERS``; none is needed)."""
-    import importlib
-    import pkgutil
-
-    import eol_cal.sim.fuzz as package
 
     out = dict(BUILDERS)
-    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+    for info in sorted(pkgutil.iter_modules(fuzz_package.__path__), key=lambda m: m.name):
         if info.name.startswith("scenarios_"):
             out.update(getattr(importlib.import_module(f"eol_cal.sim.fuzz.{info.name}"), "BUILDERS", {}))
     return out
