@@ -175,7 +175,7 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
     from eol_cal import __version__
     from eol_cal.firmware.block import LAYOUT_VERSION
     from eol_cal.station.archive import flash_archived
-    from eol_cal.station.cycle import now_iso
+    from eol_cal.station.context import now_iso
     from eol_cal.station.report import write_record_json
     from eol_cal.station.run import new_run_dir
 
