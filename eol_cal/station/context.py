@@ -29,15 +29,16 @@ from eol_cal.firmware.settling import block_settle_s, lead_in_plan
 from eol_cal.plant.profile import load_profile
 from eol_cal.records.limits import LimitCheck, Measured
 from eol_cal.records.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, GateInfo, PointFigures,
-                                    PreflightResult, RippleMetrics, StationInfo, Step)
+                                    PreflightResult, RestoredFrom, RippleMetrics, StationInfo, Step)
 from eol_cal.station.acquisition import acquire_traced, expect_block, read_ecu_with
-from eol_cal.station.archive import flash_archived
+from eol_cal.station.archive import flash_archived, keep_flashed
 from eol_cal.station.flash_ahead import FlashAhead
 from eol_cal.station.run import ProgressFn, StationConfig, check_config, new_run_dir, sha256_file
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.capture.model import Capture
+    from eol_cal.ecu.sequence import FlashReport
     from eol_cal.firmware.block import ParamBlock
     from eol_cal.station.early import EarlyWindows
 
@@ -125,6 +126,10 @@ class CycleContext:
     journal: Path | None = None  # the record at the verdict, in the spool until the database has it
 
     @property
+    def serial(self) -> str:
+        return self.cfg.serial
+
+    @property
     def kind(self) -> str:
         """``refusal`` when the cycle ended before the prepare step, else the configuration's kind."""
         return self.cfg.kind if self.touched else "refusal"
@@ -201,22 +206,38 @@ class CycleContext:
         """Flash a block of this run (read back as ``cfg.read_back`` says), on a session of its own
         or the one opened ``ahead``, and archive it as it went in."""
         path, source = self.run_dir / ARCHIVE_NAMES[role], f"{role} block of run {self.run_id[:8]}"
-        try:
-            if ahead is not None:
-                _report, done = ahead.flash(data, role=role, path=path, source=source, before_commit=before_commit,
-                                            read_back=self.cfg.read_back)
-            else:
-                _report, done = flash_archived(self.cfg.open_bus, data, role=role, path=path,
-                                               seed_to_key=self.cfg.seed_to_key,
-                                               timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor,
-                                               source=source, before_commit=before_commit,
-                                               read_back=self.cfg.read_back)
-        except BaseException as exc:
-            flashed = getattr(exc, "flashed_block", None)
-            if flashed is not None:
-                self.blocks.append(flashed)
-            raise
-        self.blocks.append(done)
+        if ahead is not None:
+            keep_flashed(self.blocks, lambda: ahead.flash(data, role=role, path=path, source=source,
+                                                          before_commit=before_commit, read_back=self.cfg.read_back))
+        else:
+            keep_flashed(self.blocks, lambda: flash_archived(
+                self.cfg.open_bus, data, role=role, path=path, seed_to_key=self.cfg.seed_to_key,
+                timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor, source=source,
+                before_commit=before_commit, read_back=self.cfg.read_back))
+
+
+@dataclass
+class RestoreContext:
+    """One ``ecu restore`` run (:func:`eol_cal.station.restore.restore_run`): an earlier block flashed
+    again as a new sequence, archived in the run's directory, recorded as a run of kind ``restore``."""
+
+    serial: str
+    run_id: str
+    started: dt.datetime
+    run_dir: Path
+    data: bytes  # the block's image, as it goes into the ECU
+    source: str
+    open_bus: Callable[[], Any]
+    seed_to_key: Callable[[bytes], bytes]
+    timing: Any
+    motor: Any
+    restored_from: RestoredFrom
+    station: StationInfo
+    progress: Callable[[str], None] | None = None
+    steps: list[Step] = field(default_factory=list)
+    blocks: list[FlashedBlock] = field(default_factory=list)
+    report: FlashReport | None = None
+    failure: BaseException | None = None
 
 
 def start_context(cfg: StationConfig) -> CycleContext:
@@ -238,5 +259,5 @@ def start_context(cfg: StationConfig) -> CycleContext:
     return ctx
 
 
-__all__ = ["ARCHIVE_NAMES", "CycleContext", "ProgressFn", "StepVerdict", "now_iso", "point_figures", "start_context",
-           "station_info"]
+__all__ = ["ARCHIVE_NAMES", "CycleContext", "ProgressFn", "RestoreContext", "StepVerdict", "now_iso", "point_figures",
+           "start_context", "station_info"]

@@ -1,4 +1,4 @@
-"""The one executor of the station cycle: runs a context's steps in order, times each into the
+"""The one executor of the station's runs: runs a context's steps in order, times each into the
 record's ``steps``, emits each step's start and end as a :class:`StepEvent` to its observers (the
 command's progress lines, an operator panel), stops at a step's ``fail``, turns an exception into
 the right record, holds signals off while the record is written, and ends with the one
@@ -6,7 +6,8 @@ the right record, holds signals off while the record is written, and ends with t
 
 The order: the plan's steps (on a line the master check, then
 :data:`eol_cal.station.steps.MEASURING`), then, whatever happened, the verdict (fixed, journaled
-into the spool and shown first), the report and the record (:mod:`eol_cal.station.steps`).
+into the spool and shown first), the report and the record (:mod:`eol_cal.station.steps`). An
+``ecu restore`` run is one step, ``restore`` (:func:`eol_cal.station.restore.restore_run`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from eol_cal.interrupts import raise_if_received, shielded
 from eol_cal.records.record import RunRecord, Step
@@ -26,6 +27,16 @@ from eol_cal.station.steps import decide_verdict, save_record, write_report
 
 #: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
 SWITCH_INTERVAL_S = 0.0005
+
+class RunContext(Protocol):
+    """What the executor needs of any run's context: the run, the serial, the record's steps."""
+
+    run_id: str
+    steps: list[Step]
+
+    @property
+    def serial(self) -> str: ...
+
 
 StepFn = Callable[[CycleContext], Any]
 Plan = Callable[[CycleContext], Sequence[tuple[str, StepFn]]]
@@ -70,13 +81,13 @@ class Executor:
     def subscribe(self, observer: Observer) -> None:
         self.observers.append(observer)
 
-    def _emit(self, ctx: CycleContext, step: str, what: str, fn: Callable, elapsed_s: float | None = None) -> None:
-        event = StepEvent(ctx.run_id, ctx.cfg.serial, step, what, getattr(fn, "__module__", "") or "", elapsed_s)
+    def _emit(self, ctx: RunContext, step: str, what: str, fn: Callable, elapsed_s: float | None = None) -> None:
+        event = StepEvent(ctx.run_id, ctx.serial, step, what, getattr(fn, "__module__", "") or "", elapsed_s)
         for observer in list(self.observers):
             with contextlib.suppress(Exception):
                 observer(event)
 
-    def timed(self, ctx: CycleContext, name: str, fn: StepFn) -> Any:
+    def timed(self, ctx: Any, name: str, fn: Callable[[Any], Any]) -> Any:
         """Run one step, timed into ``ctx.steps``; a returned :class:`StepVerdict` still counts as done."""
         self._emit(ctx, name, "start", fn)
         t0 = time.perf_counter()
@@ -91,7 +102,7 @@ class Executor:
         self._emit(ctx, name, "done", fn, ctx.steps[-1].seconds)
         return out
 
-    def untimed(self, ctx: CycleContext, name: str, fn: Callable[[], Any], module: Callable) -> Any:
+    def untimed(self, ctx: RunContext, name: str, fn: Callable[[], Any], module: Callable) -> Any:
         """Run a closing step that the record's ``steps`` do not list (its events only)."""
         self._emit(ctx, name, "start", module)
         t0 = time.perf_counter()

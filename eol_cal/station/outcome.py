@@ -1,6 +1,7 @@
-"""The one place a station cycle's record is built: from whatever its steps left in the
-:class:`~eol_cal.station.context.CycleContext`, the failure that ended it turned into the record's
-error, refusal codes and safe state, and which block the ECU boots afterwards.
+"""The one place a station run's record is built: from whatever its steps left in the
+:class:`~eol_cal.station.context.CycleContext` (an ``ecu restore`` run's: :func:`restore_record`),
+the failure that ended it turned into the record's error, refusal codes and safe state, and which
+block the ECU boots afterwards.
 
 Kind ``refusal`` when the cycle ended before the prepare step (nothing written to the ECU,
 nothing measured), else the configuration's kind (``production`` on a line). Each limit was
@@ -18,7 +19,7 @@ from eol_cal.errors import EolCalError, InputError
 from eol_cal.firmware.block import LAYOUT_VERSION
 from eol_cal.records.limits import all_checks
 from eol_cal.records.record import EcuActive, ErrorInfo, RunRecord
-from eol_cal.station.context import CycleContext
+from eol_cal.station.context import CycleContext, RestoreContext, now_iso
 from eol_cal.station.run import safe_state
 
 if TYPE_CHECKING:
@@ -96,3 +97,26 @@ def uncalibrated(active: EcuActive, step: str, dyno: DynoConfig) -> str:
             f"{active.bank}) since the cycle ended at {step}; run the motor again (a latched dyno fault: eol-cal "
             f"dyno-clear --dyno {dyno.host}:{dyno.port} first), or bring back the block before it with eol-cal ecu "
             "restore --bank previous")
+
+
+def restore_record(ctx: RestoreContext) -> RunRecord:
+    """The record of an ``ecu restore`` run (kind ``restore``): ``pass`` with the restored block
+    active, or ``error`` with what the ECU boots after the failed flash."""
+    failure = ctx.failure
+    reasons: tuple[str, ...]
+    if failure is None:
+        assert ctx.report is not None  # the restore step returned: its flash report is set
+        verdict, reasons, error = "pass", (), None
+        active = EcuActive("restored", ctx.report.sequence, ctx.report.bank)
+    else:
+        verdict, reasons = "error", (f"restore: {failure}",)
+        error = ErrorInfo("restore", type(failure).__name__, str(failure))
+        boots = getattr(failure, "ecu_boots", None) or {"boots": "previous"}
+        active = (EcuActive("unchanged") if boots["boots"] == "previous" else
+                  EcuActive("restored" if boots["boots"] == "new" else "restored (if its CRC was written)",
+                            boots.get("sequence"), boots.get("bank")))
+    return RunRecord(kind="restore", run_id=ctx.run_id, serial=ctx.serial,
+                     started_at=ctx.started.isoformat(timespec="milliseconds"), ended_at=now_iso(), verdict=verdict,
+                     reasons=reasons, tool_version=__version__, layout_version=LAYOUT_VERSION, station=ctx.station,
+                     error=error, steps=tuple(ctx.steps), blocks=tuple(ctx.blocks), report_dir=str(ctx.run_dir),
+                     ecu_active=active, restored_from=ctx.restored_from)
