@@ -267,7 +267,7 @@ def ecu_section(repeat: int, before: str | None, cap: float) -> bool:
           f"{sum(t.boots == 2 for t in kills)}, other {sum(t.boots not in (1, 2) for t in kills)}; "
           f"after a signal: old {sum(t.boots == 1 for t in signals)}, new {sum(t.boots == 2 for t in signals)}")
     # a run goes on after its flash step failed: the dyno's safe state, the report and the record,
-    # which waits for the fit's pre-warm thread (station/cycle.py: JAX imports and a solver trace,
+    # which waits for the fit's pre-warm thread (station/steps/acquire_before.py: JAX imports and a solver trace,
     # seconds under load); it is judged against --cap (a hang), not the link's bound
     for t in runs:
         print(f"{t.what:<34} exit {t.rc}  ended {t.seconds:.2f} s after the ECU died  traceback {t.traceback}  "

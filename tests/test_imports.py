@@ -373,14 +373,14 @@ LAZY_LEFT = frozenset({
     "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer", "eol_cal.firmware.golden", "eol_cal.lot.cluster",
     "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.plant.simulate",
     "eol_cal.records.limits", "eol_cal.report.motor", "eol_cal.schemas", "eol_cal.station.configure",
-    "eol_cal.station.cycle", "eol_cal.station.early", "eol_cal.station.preflight", "eol_cal.station.restore",
-    "eol_cal.station.run", "eol_cal.station.settings", "eol_cal.station.whatif",
+    "eol_cal.station.early", "eol_cal.station.preflight", "eol_cal.station.restore", "eol_cal.station.run",
+    "eol_cal.station.settings", "eol_cal.station.whatif",
 })
 
 
 #: how many modules LAZY_LEFT holds. It only goes down: lower it with the list (the test below
 #: fails until you do); a module that would join the list imports at its top instead.
-LAZY_LEFT_COUNT = 33
+LAZY_LEFT_COUNT = 28
 
 
 def test_lazy_left_only_shrinks():
@@ -415,7 +415,7 @@ def lazy_light_imports() -> dict[str, list[str]]:
                 ours = name.split(".")[0] in PACKAGES
                 target = next((".".join(name.split(".")[:i]) for i in range(name.count(".") + 1, 0, -1)
                                if ".".join(name.split(".")[:i]) in mods), None) if ours else name.split(".")[0]
-                if target is None:
+                if target is None or target == module:  # a package importing its own modules
                     continue
                 if _in_function(node, parents):
                     inside[module].append((node.lineno, target))

@@ -116,25 +116,11 @@ def test_no_module_outside_the_station_parses_a_record_by_hand():
 def test_settings_that_cannot_be_flashed_are_a_refusal_with_its_code(tmp_path):
     """The cycle checks the estimator options it will flash before its pre-flight: a library caller's
     bad value ends the run as a refusal (code settings), nothing touched, the record written."""
-    import socket
-
-    from eol_cal.dyno.transfer import DynoConfig
-    from eol_cal.station.cycle import run_motor
-    from eol_cal.records.limits import load_limits
+    from eol_cal.sim.run_records import settings_refused_config
     from eol_cal.records.query import query_records
-    from eol_cal.station.run import StationConfig
+    from eol_cal.station.cycle import run_motor
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-
-    def no_bus():
-        raise AssertionError("the ECU's bus was opened")
-
-    cfg = StationConfig(serial="S-1", dyno=DynoConfig(port=port, timeout=0.05, retries=0), open_bus=no_bus,
-                        seed_to_key=lambda seed: seed, limits=load_limits(FIXTURES / "limits.toml"),
-                        db=tmp_path / "r.sqlite", report_dir=tmp_path / "reports", spool_dir=tmp_path / "spool",
-                        estimator="bogus", cache_dir=None)
+    cfg = settings_refused_config(tmp_path)
     out = run_motor(cfg)
     rec = out.record
     assert (rec.kind, rec.verdict, rec.refusal_codes, out.exit_code) == ("refusal", "error", ("settings",), 2)

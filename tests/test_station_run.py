@@ -25,6 +25,8 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
+from eol_cal.station import cycle
+from eol_cal.station.cycle import run_motor
 from eol_cal.sim.loopback import loopback_station
 from eol_cal.records.limits import LIMIT_KEYS, Measured, load_limits, verdict
 from eol_cal.records.record import RunRecord
@@ -122,14 +124,22 @@ def wait_stopped(sim, timeout: float = 3.0) -> None:
 def full_run(files):
     """``eol-cal run`` once, end to end, on the plant."""
     db = files["dir"] / "results.sqlite"
-    with loopback_station(SERIAL, SEED, files["dir"] / "sim", spec_for=lambda req: MOTOR) as st:
+    events: list = []  # the executor's events of the run, as an operator panel would receive them
+
+    def with_observer(cfg, progress=None, on_verdict=None):
+        return run_motor(cfg, progress, on_verdict, observers=[events.append])
+
+    with (loopback_station(SERIAL, SEED, files["dir"] / "sim", spec_for=lambda req: MOTOR) as st,
+          pytest.MonkeyPatch.context() as mp):
+        mp.setattr(cycle, "run_motor", with_observer)
         res = CliRunner().invoke(cli, run_args(files, st, SERIAL, db, files["dir"] / "reports"))
         wait_stopped(st.dyno.sim)
         sim_state = (st.dyno.sim.enabled, st.dyno.sim.setpoint, st.dyno.sim.speed)
         flash = st.flash_file
     assert res.exit_code in (0, 1, 2), res.output
     doc = json.loads(res.stdout)
-    return {"res": res, "doc": doc, "rec": doc["record"], "db": db, "sim_state": sim_state, "flash": flash}
+    return {"res": res, "doc": doc, "rec": doc["record"], "db": db, "sim_state": sim_state, "flash": flash,
+            "events": events}
 
 
 @pytest.mark.slow
@@ -242,6 +252,25 @@ def test_full_run_end_to_end(full_run):
     assert rec["tool_version"] and rec["layout_version"] == 2  # the calibrated block: layout 2 (revision 1.2)
     # the dyno is left stopped and disabled
     assert full_run["sim_state"] == (False, 0.0, 0.0)
+
+
+@pytest.mark.slow
+def test_one_serial_from_scan_to_record_runs_through_each_step_module_in_order(full_run):
+    """The executor's events of the passing run: every step's start and end, in the cycle's order,
+    each from its own module of eol_cal/station/steps, all of this serial's run."""
+    rec = full_run["rec"]
+    assert rec["verdict"] == "pass", rec["reasons"]
+    events = full_run["events"]
+    assert {(e.serial, e.run_id) for e in events} == {(SERIAL, rec["run_id"])}
+    order = [("pre-flight", "check_ready"), ("prepare ECU", "prepare_ecu"), ("acquire", "acquire_before"),
+             ("fit", "fit_capture"), ("table", "make_table"), ("flash", "flash_calibrated"),
+             ("acquire compensated", "acquire_after"), ("metrics", "measure_ripple"), ("verdict", "decide_verdict"),
+             ("report", "write_report"), ("record", "save_record")]
+    assert [(e.step, e.what, e.module) for e in events] == [
+        (step, what, f"eol_cal.station.steps.{module}") for step, module in order for what in ("start", "done")]
+    # the timed steps' events carry the times the record keeps
+    times = {e.step: e.elapsed_s for e in events if e.what == "done"}
+    assert [times[s["step"]] for s in rec["steps"]] == [s["seconds"] for s in rec["steps"]]
 
 
 @pytest.mark.slow
@@ -502,7 +531,7 @@ def test_report_page_opens_offline_in_chromium(full_run, tmp_path):
 
 @pytest.mark.slow
 def test_one_record_shape_whether_the_cycle_passed_failed_or_erred(full_run, files, tmp_path):
-    """StationCycle.to_record: the same keys and the run-record schema on pass, fail (at the fit) and refusal."""
+    """eol_cal.station.outcome.to_record: the same keys and the run-record schema on pass, fail (at the fit) and refusal."""
     from eol_cal.schemas import validator
 
     check = validator("run-record")

@@ -97,3 +97,18 @@ def archived(role: str, path: Path, flash: Callable[[], FlashReport],
                 crc32=f"{B.check(image).crc_stored or 0:08x}", verified=read_back, confirmed=False, **block_fields(image))
         raise
     return report, flashed_block(role, path, report)
+
+
+def keep_flashed(blocks: list[FlashedBlock], flash: Callable[[], tuple[FlashReport, FlashedBlock]]) -> FlashReport:
+    """Run ``flash`` (:func:`flash_archived`, or the flash opened ahead) and append its block to the
+    run's ``blocks``; a flash that failed after the block's CRC went out appends the block its
+    exception carries (``flashed_block``: the ECU boots it, or may) and raises on."""
+    try:
+        report, done = flash()
+    except BaseException as exc:
+        flashed = getattr(exc, "flashed_block", None)
+        if flashed is not None:
+            blocks.append(flashed)
+        raise
+    blocks.append(done)
+    return report

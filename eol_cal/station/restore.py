@@ -14,8 +14,8 @@ records the run.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
-import time
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,18 +23,14 @@ from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Sequence
 
 from eol_cal.errors import InputError
-from eol_cal.records.record import (MEASURED_KIND, EcuActive, ErrorInfo, FlashedBlock, RestoredFrom, RunRecord,
-                                    StationInfo, Step)
+from eol_cal.records.record import MEASURED_KIND, FlashedBlock, RestoredFrom, RunRecord, StationInfo
 
 if TYPE_CHECKING:
     from eol_cal.capture.ecu_state import EcuState
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.motor import MotorParams
     from eol_cal.records.spool import SaveResult
-
-#: the archive file of a restore run's directory
-RESTORE_ARCHIVE = "block_restore.bin"
-
+    from eol_cal.station.executor import Observer
 
 @dataclass(frozen=True)
 class Calibration:
@@ -163,64 +159,44 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
                 seed_to_key: Callable[[bytes], bytes], timing: Any, motor: MotorParams, source: str,
                 restored_from: RestoredFrom, station: StationInfo, db: str | Path | None = None,
                 spool_dir: Path | None = None, db_timeout_s: float = 5.0,
-                progress: Callable[[str], None] | None = None
+                progress: Callable[[str], None] | None = None, observers: Sequence[Observer] = ()
                 ) -> tuple[FlashReport | None, RunRecord, SaveResult | None, BaseException | None]:
     """Flash ``data`` again (a new sequence: the ECU boots it), archive it as flashed in a new run
     directory under ``report_dir``, and record the run (kind ``restore``) in ``db`` (or its spool;
     None: the record is only the run directory's ``report.json``).
 
-    Returns the flash report (None when the flash failed), the record, where it was saved, and
-    the exception that ended the flash (None: restored); the caller re-raises it.
+    One step, ``restore`` (:mod:`eol_cal.station.steps.restore_block`), through the station's executor
+    (``observers`` get its start and end); the record is built by
+    :func:`eol_cal.station.outcome.restore_record`. Returns the flash report (None when the flash
+    failed), the record, where it was saved, and the exception that ended the flash (None:
+    restored); the caller re-raises it.
     """
-    from eol_cal import __version__
-    from eol_cal.firmware.block import LAYOUT_VERSION
-    from eol_cal.station.archive import flash_archived
-    from eol_cal.station.cycle import now_iso
+    # the station's context and executor load python-can: at the restore, not at the command's start
+    from eol_cal.station.context import RestoreContext
+    from eol_cal.station.executor import Executor
+    from eol_cal.station.outcome import restore_record
     from eol_cal.station.report import write_record_json
     from eol_cal.station.run import new_run_dir
+    from eol_cal.station.steps import restore_block
 
     started = dt.datetime.now(dt.UTC)
     run_id = uuid.uuid4().hex
     run_dir = new_run_dir(report_dir, serial, started, run_id)
-    t0 = time.perf_counter()
-    report, failure, blocks = None, None, []
+    ctx = RestoreContext(serial, run_id, started, run_dir, data, source, open_bus, seed_to_key, timing, motor,
+                         restored_from, station, progress)
     try:
-        report, done = flash_archived(open_bus, data, role="restore", path=run_dir / RESTORE_ARCHIVE,
-                                      seed_to_key=seed_to_key, timing=timing, motor=motor, source=source,
-                                      progress=progress)
-        blocks.append(done)
+        Executor(observers).timed(ctx, restore_block.NAME, restore_block.run)
     except BaseException as exc:  # noqa: BLE001 - recorded, then raised again by the caller
-        failure = exc
-        flashed = getattr(exc, "flashed_block", None)
-        if flashed is not None:
-            blocks.append(flashed)
-    seconds = round(time.perf_counter() - t0, 4)
-    reasons: tuple[str, ...]
-    if failure is None:
-        assert report is not None  # flash_archived returned (no failure): its report is set
-        verdict, reasons, error = "pass", (), None
-        active = EcuActive("restored", report.sequence, report.bank)
-    else:
-        verdict, reasons = "error", (f"restore: {failure}",)
-        error = ErrorInfo("restore", type(failure).__name__, str(failure))
-        boots = getattr(failure, "ecu_boots", None) or {"boots": "previous"}
-        active = (EcuActive("unchanged") if boots["boots"] == "previous" else
-                  EcuActive("restored" if boots["boots"] == "new" else "restored (if its CRC was written)",
-                            boots.get("sequence"), boots.get("bank")))
-    rec = RunRecord(kind="restore", run_id=run_id, serial=serial, started_at=started.isoformat(timespec="milliseconds"),
-                    ended_at=now_iso(), verdict=verdict, reasons=reasons, tool_version=__version__,
-                    layout_version=LAYOUT_VERSION, station=station, error=error,
-                    steps=(Step("restore", seconds, failure is None, None if failure is None else str(failure)),),
-                    blocks=tuple(blocks), report_dir=str(run_dir), ecu_active=active, restored_from=restored_from)
+        ctx.failure = exc
+        ctx.steps[-1] = dataclasses.replace(ctx.steps[-1], error=str(exc))
+    rec = restore_record(ctx)
     try:
         write_record_json(rec, run_dir)
     except OSError as exc:
-        import dataclasses
-
         rec = dataclasses.replace(rec, report_error=f"report.json: {type(exc).__name__}: {exc}")
     saved = None
     if db is not None:
         from eol_cal.records.spool import save_record
 
         saved = save_record(rec, db, spool_dir, db_timeout_s)
-    return report, rec, saved, failure
+    return ctx.report, rec, saved, ctx.failure

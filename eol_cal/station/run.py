@@ -41,7 +41,6 @@ if TYPE_CHECKING:
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}
 ProgressFn = Callable[[str, str], None]  # (step, "start" | "done" | "failed" | "skipped")
-STEPS = ("pre-flight", "prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics", "report", "record")
 
 
 @dataclass

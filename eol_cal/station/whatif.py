@@ -200,7 +200,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
     from eol_cal.plant.profile import constant, load_profile
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.spread import load_spread
-    from eol_cal.station.cycle import now_iso
+    from eol_cal.station.context import now_iso
     from eol_cal.records.limits import Measured, failed, judge, load_limits
     from eol_cal.station.run import fit_motor
 
@@ -289,7 +289,8 @@ def _point_seconds(profile: Any, rpm: float, iq: float) -> float:
 def _judge_ripple(m: _Motor, after: Capture, lim: Any) -> None:
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.analysis.point_metrics import nearest_segment, point_ripple
-    from eol_cal.station.cycle import RIPPLE_DEFINITION, point_figures
+    from eol_cal.station.context import point_figures
+    from eol_cal.station.steps.measure_ripple import RIPPLE_DEFINITION
     from eol_cal.records.limits import failed, judge
     from eol_cal.records.record import RippleMetrics
 
@@ -307,7 +308,7 @@ def _judge_ripple(m: _Motor, after: Capture, lim: Any) -> None:
 
 def _record(plan: LotPlan, m: _Motor, lim: Any, version: str) -> RunRecord:
     from eol_cal.firmware.block import LAYOUT_VERSION
-    from eol_cal.station.cycle import now_iso
+    from eol_cal.station.context import now_iso
     from eol_cal.records.limits import all_checks
     from eol_cal.records.record import EcuActive, ErrorInfo, RunRecord, StationInfo
 

@@ -1,0 +1,43 @@
+"""Step ``acquire``: the calibration capture over the whole profile; each window's angle and p-p
+figure are worked out on the helper thread as the dyno hands it over (:mod:`eol_cal.station.early`),
+behind the fit's pre-warming (imports, the solver's trace), while the shaft turns on."""
+
+from __future__ import annotations
+
+import eol_cal.capture.mdf4_io  # noqa: F401 - the MDF4 writer's module; asammdf, which it loads, on the helper
+from eol_cal.analysis.fit.prewarm import prewarm_fit
+from eol_cal.station.context import CycleContext
+
+NAME = "acquire"
+
+
+def run(ctx: CycleContext) -> None:
+    from eol_cal.station.early import EarlyWindows  # scipy: heavy, loaded when the step begins
+
+    assert ctx.helper is not None  # start_context made the pool
+    ctx.helper.submit(preload_analysis)
+    ctx.helper.submit(preload_writers)
+    # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
+    ctx.prewarm = ctx.helper.submit(prewarm_fit, len(ctx.segments), ctx.cfg.cache_dir, False)
+    ctx.early = EarlyWindows(ctx.cfg.motor.poles, ctx.cfg.motor.N_enc, ctx.cfg.estimator_options,
+                             pool=ctx.helper, cache_dir=ctx.cfg.cache_dir, n_windows=len(ctx.segments))
+    ctx.before = ctx.acquire("before", ctx.segments, on_window=ctx.early.on_window, write_aside=True)
+
+
+def preload_analysis() -> None:
+    """Import what each window's angle and figures need (scipy's interpolate, signal, ndimage and
+    BLAS: heavy, so imported inside the functions) while the shaft ramps to the first segment,
+    not at `eol-cal run`'s start nor when the first window is in."""
+    import scipy.interpolate
+    import scipy.linalg.blas
+    import scipy.ndimage
+    import scipy.signal  # noqa: F401
+
+
+def preload_writers() -> None:
+    """Import what writes the captures (asammdf, pandas), the record (the database library) and
+    the report while the dyno turns, not when the capture is in or the verdict is known."""
+    import asammdf  # noqa: F401 - the MDF4 writer imports it where it writes (heavy): here, not beside the fit
+
+    import eol_cal.station.report
+    import eol_cal.records.spool  # noqa: F401
