@@ -8,10 +8,10 @@ mechanical orders), and every reported interval is judged against the plant's tr
 
 - ``k6``, ``c6`` (amplitudes) and ``phase_k6``, ``phase_c6`` in the firmware estimator's frame: the
   truth moved by the plant's own estimator's frame on the same run (``theta_hat - theta_r``).
-  Two truths, as in ``bench/bench_fit_lot.py``: the plant's parameter, and ``_eff``: the parameter
-  plus the ECU's own current ripple at that order (``kt * i_q`` of a noise-free run of the same
-  motor fitted with the same model): torque the motor really makes, which the compensation must
-  cancel and no fit of the torque can tell from the motor's own;
+  Two truths, as in ``bench/bench_fit_lot.py``: the plant's parameter (what the fit reports since
+  it takes the ECU's own current ripple out with the ``iq`` channel, docs/fit.md), and ``_eff``:
+  the parameter plus that ripple at that order (``kt * i_q`` of a noise-free run of the same motor
+  fitted with the same model), what a fit of the torque alone measures;
 - ``delay_s``: the transducer's time constant ``1 / (2 pi tq_bw_hz)``;
 - ``mech{h}`` and ``phase_mech{h}`` (h = 1..3): each order in the block's frame (the truth's
   phase moved by the frame's mechanical angle against the plant's, measured per sample);

@@ -237,6 +237,7 @@ def main() -> None:
                 d_fw = float(np.angle(np.mean(np.exp(1j * (b.theta_hat[keep] - b.theta_r[keep])))))
                 r["frame_fw_deg"] = math.degrees(d_fw)
                 r["phase_k6_err_fw_deg"] = math.degrees(wrap_pi(r["_phase_k6"] - (p.phase_k6 - 6 * d_fw)))
+                r["phase_c6_err_fw_deg"] = math.degrees(wrap_pi(r["_phase_c6"] - (p.phase_c6 - 6 * d_fw)))
                 r["c6_err_fw_nm"] = abs(r["_c6"] * np.exp(1j * r["_phase_c6"]) - p.c6 * np.exp(1j * (p.phase_c6 - 6 * d_fw)))
                 nan = (float("nan"), float("nan"))
                 rows[i]["pp_before_pct"] = _pp(before[j].capture)[0]
@@ -297,7 +298,7 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
                               ("phase_k6_err_rec_deg", "deg", 2.0), ("phase_k6_err_fw_deg", "deg", 2.0),
                               ("frame_rec_deg", "deg", None), ("frame_fw_deg", "deg", None),
                               ("c6_err_nm", "N*m", 0.002), ("c6_err_fw_nm", "N*m", 0.002),
-                              ("phase_c6_err_deg", "deg", None)):
+                              ("phase_c6_err_deg", "deg", None), ("phase_c6_err_fw_deg", "deg", 2.0)):
         v = np.abs(col(name))
         within = "" if limit is None else f", within {limit:g}: {int((v <= limit).sum())}/{n}"
         print(f"|{name}| ({unit}): median {np.median(v):.3g}, p95 {np.percentile(v, 95):.3g}, max {v.max():.3g}{within}")
