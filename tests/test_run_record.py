@@ -116,7 +116,7 @@ def test_no_module_outside_the_station_parses_a_record_by_hand():
 def test_settings_that_cannot_be_flashed_are_a_refusal_with_its_code(tmp_path):
     """The cycle checks the estimator options it will flash before its pre-flight: a library caller's
     bad value ends the run as a refusal (code settings), nothing touched, the record written."""
-    from eol_cal.sim.run_records import settings_refused_config
+    from _station_configs import settings_refused_config
     from eol_cal.records.query import query_records
     from eol_cal.station.cycle import run_motor
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from eol_cal.sim.run_records import settings_refused_config
+from _station_configs import settings_refused_config
 from eol_cal.records.query import query_records
 from eol_cal.station import steps
 from eol_cal.station.cycle import run_motor
