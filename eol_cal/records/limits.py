@@ -356,7 +356,7 @@ def _model_check_of(check: Mapping[str, Any] | None) -> dict[str, Any]:
         return {}
     p = check.get("p_value")
     # bands that agree but could not have seen a resonance, on a bench file nobody identified: no
-    # p-value that a min_model_check_p limit could pass on (its message gives the note)
+    # p-value that the model check's minimum p-value limit could pass on (its message gives the note)
     if p is None or check.get("status") == "insensitive":
         return {"model_check_p": math.nan, "model_check_note": str(check.get("note", ""))}
     return {"model_check_p": float(p), "model_check_note": str(check.get("note", ""))}
