@@ -268,6 +268,16 @@ def test_imports_follow_the_layers():
     assert upward == []
 
 
+def test_the_library_does_not_import_its_simulators():
+    """What stands in for the plant floor (``eol_cal.sim``) is scaffolding: the library outside it
+    never imports it, type-only imports included; the CLI's simulator commands and bench/ do."""
+    g = import_graph(type_only=True)
+    found = [f"{a} (line {line}) imports {b}" for a, deps in sorted(g.items()) if a.startswith("eol_cal.")
+             and not (a + ".").startswith("eol_cal.sim.") for b, line in sorted(deps.items())
+             if (b + ".").startswith("eol_cal.sim.")]
+    assert found == []
+
+
 def _private(name: str) -> bool:
     return name.startswith("_") and not name.startswith("__")
 
