@@ -35,7 +35,8 @@ from eol_cal.errors import InputError
 from eol_cal.firmware import estimator, kinematics
 from eol_cal.firmware.block import ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
-from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
+from eol_cal.firmware import mech_tick
+from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_init, mech_sum
 from eol_cal.firmware.settling import settle_s
 from eol_cal.mechanics import mech_step
 from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
@@ -155,11 +156,9 @@ def _sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, me
         est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
                                         tables=estimator_tables(p))
     else:
-        from eol_cal.firmware.mech_tick import mech_step
-
         est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
                                                      tables=estimator_tables(p))
-        mech_state, _ = mech_step(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
+        mech_state, _ = mech_tick.mech_step(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
     theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
     return est_state, Sensed(enc_a, enc_b, hall, est, jnp.cos(theta_m), jnp.sin(theta_m), jnp.cos(theta_c),
                              jnp.sin(theta_c), mech_state)
@@ -322,8 +321,6 @@ def _initial_carry(cfg: PlantSimConfig, p: PlantParams, spec: PlantSpec, theta_m
     est_state = type(est_state)(*(np.asarray(v) for v in est_state))
     mech_state = None
     if cfg.mech is not None:
-        from eol_cal.firmware.mech import mech_init
-
         mech_state = type(mech_init(cfg.N_enc))(*(np.asarray(v) for v in mech_init(cfg.N_enc)))
     return plant, est_state, ecu, mech_state
 

@@ -8,7 +8,8 @@ fit (:mod:`.mech_motors`), and hostile inputs and fault scenarios (:mod:`.fuzz`)
 
 The simulators of the instruments themselves stay with their clients (:mod:`eol_cal.dyno.sim`,
 :mod:`eol_cal.ecu.sim`, the plant :mod:`eol_cal.plant`). Nothing in the product imports this
-package but the commands that serve a simulator (``eol-cal demo``, ``dyno-sim``, ``ecu-sim``).
+package but the commands that serve a simulator (``eol-cal demo``, ``station --demo``, ``dyno-sim``,
+``ecu-sim``): ``tests/test_imports.py`` checks it.
 """
 
 from pathlib import Path
