@@ -289,19 +289,14 @@ def _point_seconds(profile: Any, rpm: float, iq: float) -> float:
 def _judge_ripple(m: _Motor, after: Capture, lim: Any) -> None:
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.analysis.point_metrics import nearest_segment, point_ripple
-    from eol_cal.station.context import point_figures
-    from eol_cal.station.steps.measure_ripple import RIPPLE_DEFINITION
-    from eol_cal.records.limits import failed, judge
-    from eol_cal.records.record import RippleMetrics
+    from eol_cal.records.limits import failed
+    from eol_cal.station.steps.measure_ripple import judge_ripple
 
     op = m.result.operating_point
     k = nearest_segment(m.before.captures, op.speed_rpm, op.i_qo_a)
     before = point_ripple(m.before.captures[k], m.before.angles[k])
     after_pr = point_ripple(after, capture_angle(after))
-    m.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after_pr),
-                              RIPPLE_DEFINITION)
-    m.measured = m.measured.with_ripple(before.pp_pct, after_pr.pp_pct, after_pr.pp_no_mech1_pct)
-    m.judged["ripple"] = judge(m.measured, lim, "ripple")
+    m.metrics, m.measured, m.judged["ripple"] = judge_ripple(m.result, before, after_pr, m.measured, lim)
     reasons = failed(m.judged["ripple"])
     m.verdict, m.reasons = ("fail", reasons) if reasons else ("pass", [])
 
