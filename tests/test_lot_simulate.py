@@ -5,6 +5,7 @@ motor twice; two lots compared with `lot diff --lot`; on a real distributed.Loca
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -48,7 +49,9 @@ def files(tmp_path_factory) -> dict[str, Path]:
     (d / "short.toml").write_text(PROFILE)
     strict = d / "strict.toml"  # the compensated p-p limit at 0.5 %: most motors fail it
     strict.write_text(LIMITS.read_text().replace("max_pp_after_pct = 2.0", "max_pp_after_pct = 0.5", 1))
-    return {"profile": d / "short.toml", "strict": strict}
+    mech1 = d / "mech1.toml"  # the order-1 amplitude left compensated judged too, as a station judges it
+    mech1.write_text(LIMITS.read_text().replace("[variant.EPS-STD]\n", "[variant.EPS-STD]\nmax_mech1_after_nm = 1.0\n", 1))
+    return {"profile": d / "short.toml", "strict": strict, "mech1": mech1}
 
 
 def _plan(files: dict[str, Path], name: str = "T", limits: Path = LIMITS, motors: int = 3) -> LotPlan:
@@ -57,7 +60,7 @@ def _plan(files: dict[str, Path], name: str = "T", limits: Path = LIMITS, motors
 
 @pytest.fixture(scope="module")
 def batch(files) -> list[RunRecord]:
-    plan = _plan(files)
+    plan = _plan(files, limits=files["mech1"])
     return [RunRecord.from_json(d) for d in simulate_batch(plan, [0, 1])]
 
 
@@ -69,13 +72,16 @@ def test_a_batch_is_the_station_cycle_in_simulation(batch: list[RunRecord], file
                                              "metrics"]
         assert [b.role for b in r.blocks] == ["prepare", "calibrated"] and r.blocks[1].estimator == "best"
         assert {c.key for c in r.checks} >= {"max_k6", "max_pp_after_pct", "min_improvement_pct"}
+        # the ripple judged by the station's own step function: the order 1 left is measured, as on a line
+        (mech1,) = [c for c in r.checks if c.key == "max_mech1_after_nm"]
+        assert math.isfinite(mech1.value) and mech1.passed is True
         # the ripple before is the calibration capture's at the operating point, after with the block
         assert r.metrics.before.pp_pct > 1.5 > r.metrics.after.pp_pct > 0.0
         assert r.station.extra["simulated"]["spread_seed"] in (5, 6)
         # the fit finds the drawn motor's k6 (the truth is in the record)
         assert r.value("k6") == pytest.approx(r.station.extra["truth"]["k6"], rel=0.05)
     # the same batch again: the same records (run ids follow from the lot and the motor)
-    again = [RunRecord.from_json(d) for d in simulate_batch(_plan(files), [0, 1])]
+    again = [RunRecord.from_json(d) for d in simulate_batch(_plan(files, limits=files["mech1"]), [0, 1])]
     assert [r.run_id for r in again] == [r.run_id for r in batch]
     assert [r.value("k6") for r in again] == [r.value("k6") for r in batch]
 

@@ -1,1 +1,2 @@
-"""The end-of-line station: limits per variant, the cycle for one motor, records and reports."""
+"""The end-of-line station: the cycle for one motor as steps through one executor, its settings,
+reports, restores and what-if lots (the records it writes: :mod:`eol_cal.records`)."""

@@ -37,7 +37,6 @@ from eol_cal.inputs import loads_json
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
-    from eol_cal.records.record import RunRecord
 
 #: motors per task and per plant call: the plant's outputs of a batch over the default profile
 #: take ~25 MB a motor
@@ -166,8 +165,8 @@ def _flashed(blk: Any, role: str) -> Any:
 
 
 @dataclass
-class _Motor:
-    """One motor's run as the batch makes it."""
+class SimMotor:
+    """One motor's run as the batch makes it (its record: :func:`eol_cal.station.outcome.simulated_record`)."""
 
     i: int
     spec: Any
@@ -202,17 +201,18 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
     from eol_cal.plant.spread import load_spread
     from eol_cal.station.context import now_iso
     from eol_cal.records.limits import Measured, failed, judge, load_limits
+    from eol_cal.station.outcome import simulated_record
     from eol_cal.station.run import fit_motor
 
     spread, lim = load_spread(plan.spread), load_limits(plan.limits_file, plan.variant)
     profile, base = load_profile(plan.profile), preset_spec(plan.preset)
     motor, mechanics = base.motor, mechanics_or_rigid(plan.bench)
     options = lim.estimator_options
-    motors = [_Motor(i, spread.draw(plan.seed + i, base, serial=plan.serial(i)), now_iso()) for i in indices]
+    motors = [SimMotor(i, spread.draw(plan.seed + i, base, serial=plan.serial(i)), now_iso()) for i in indices]
     noise_seed = plan.seed + indices[0]
     cache = None if cache_dir is None else Path(cache_dir)
 
-    def step(m: _Motor, name: str, fn: Callable[[], Any]) -> Any:
+    def step(m: SimMotor, name: str, fn: Callable[[], Any]) -> Any:
         from eol_cal.records.record import Step
 
         t0 = time.perf_counter()
@@ -260,7 +260,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
 
     # acquire compensated: each operating point's motors in one batch
     todo = [m for m in motors if m.calibrated is not None]
-    by_point: dict[tuple[float, float], list[_Motor]] = {}
+    by_point: dict[tuple[float, float], list[SimMotor]] = {}
     for m in todo:
         op = m.result.operating_point
         by_point.setdefault((round(float(op.speed_rpm), 6), round(float(op.i_qo_a), 6)), []).append(m)
@@ -273,7 +273,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
         for m, run in zip(group, after, strict=True):
             m.steps.append(Step("acquire compensated", share, True))
             step(m, "metrics", functools.partial(_judge_ripple, m, run.capture, lim))
-    return [_record(plan, m, lim, __version__).to_json() for m in motors]
+    return [simulated_record(plan, m, lim).to_json() for m in motors]
 
 
 def _point_seconds(profile: Any, rpm: float, iq: float) -> float:
@@ -286,54 +286,19 @@ def _point_seconds(profile: Any, rpm: float, iq: float) -> float:
     return max(steady) if steady else max(s.seconds - s.ramp_s for s in profile.segments)
 
 
-def _judge_ripple(m: _Motor, after: Capture, lim: Any) -> None:
+def _judge_ripple(m: SimMotor, after: Capture, lim: Any) -> None:
     from eol_cal.analysis.angle import capture_angle
     from eol_cal.analysis.point_metrics import nearest_segment, point_ripple
-    from eol_cal.station.context import point_figures
-    from eol_cal.station.steps.measure_ripple import RIPPLE_DEFINITION
-    from eol_cal.records.limits import failed, judge
-    from eol_cal.records.record import RippleMetrics
+    from eol_cal.records.limits import failed
+    from eol_cal.station.steps.measure_ripple import judge_ripple
 
     op = m.result.operating_point
     k = nearest_segment(m.before.captures, op.speed_rpm, op.i_qo_a)
     before = point_ripple(m.before.captures[k], m.before.angles[k])
     after_pr = point_ripple(after, capture_angle(after))
-    m.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after_pr),
-                              RIPPLE_DEFINITION)
-    m.measured = m.measured.with_ripple(before.pp_pct, after_pr.pp_pct, after_pr.pp_no_mech1_pct)
-    m.judged["ripple"] = judge(m.measured, lim, "ripple")
+    m.metrics, m.measured, m.judged["ripple"] = judge_ripple(m.result, before, after_pr, m.measured, lim)
     reasons = failed(m.judged["ripple"])
     m.verdict, m.reasons = ("fail", reasons) if reasons else ("pass", [])
-
-
-def _record(plan: LotPlan, m: _Motor, lim: Any, version: str) -> RunRecord:
-    from eol_cal.firmware.block import LAYOUT_VERSION
-    from eol_cal.station.context import now_iso
-    from eol_cal.records.limits import all_checks
-    from eol_cal.records.record import EcuActive, ErrorInfo, RunRecord, StationInfo
-
-    error = None
-    verdict, reasons = m.verdict, list(m.reasons)
-    if m.failed_step is not None:
-        verdict = "error"
-        reasons = [f"{m.failed_step}: {m.error}"]
-        error = ErrorInfo(m.failed_step, type(m.error).__name__, str(m.error))
-    truth = {k: float(getattr(m.spec, k)) for k in ("k6", "phase_k6", "c6", "phase_c6", "unb1")}
-    station = StationInfo(id=plan.station, profile=plan.profile, verify="point", rate_hz=int(m.spec.motor.f_pwm),
-                          motor=m.spec.motor.name, bench=plan.bench,
-                          extra={"simulated": {**plan.fingerprint(), "motor": m.i, "spread_seed": plan.seed + m.i},
-                                 "truth": truth})
-    active = "calibrated" if m.calibrated is not None else "uncompensated"
-    return RunRecord(
-        kind="simulated", run_id=plan.run_id(m.i), serial=m.spec.serial, started_at=m.started, ended_at=now_iso(),
-        verdict=verdict, reasons=tuple(reasons), tool_version=version, layout_version=LAYOUT_VERSION, station=station,
-        error=error, limits=lim, limits_sha256=_sha(plan.limits_file), checks=tuple(all_checks(m.judged, lim)),
-        steps=tuple(m.steps), fit=m.result, blocks=tuple(m.blocks), metrics=m.metrics, ecu_active=EcuActive(active))
-
-
-def _sha(path: str) -> str | None:
-    p = Path(path)
-    return hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else None
 
 
 # ------------------------------------------------------------------------------------------

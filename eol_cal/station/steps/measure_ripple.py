@@ -5,12 +5,16 @@ references (:func:`eol_cal.msa.gate.judge_master`)."""
 from __future__ import annotations
 
 import dataclasses
+from typing import TYPE_CHECKING
 
-from eol_cal.analysis.point_metrics import nearest_segment
+from eol_cal.analysis.point_metrics import PointRipple, nearest_segment
 from eol_cal.capture.windows import split_windows
-from eol_cal.records.limits import failed, judge
+from eol_cal.records.limits import LimitCheck, Measured, VariantLimits, failed, judge
 from eol_cal.records.record import RippleMetrics
 from eol_cal.station.context import CycleContext, StepVerdict, point_figures
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult
 
 NAME = "metrics"
 RIPPLE_DEFINITION = ("filtered p-p % (docs/metrics.md), median over the steady windows of the operating point's "
@@ -26,10 +30,8 @@ def run(ctx: CycleContext) -> StepVerdict:
     pieces = split_windows(ctx.after)
     after = ctx.verify.measured(pieces[nearest_segment(pieces, op.speed_rpm, op.i_qo_a)])
     ctx.point_ripples = (before, after)
-    ctx.metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
-                                RIPPLE_DEFINITION)
-    ctx.measured = ctx.measured.with_ripple(before.pp_pct, after.pp_pct, after.pp_no_mech1_pct, after.mech1_nm)
-    ctx.judged["ripple"] = judge(ctx.measured, ctx.cfg.limits, "ripple")
+    ctx.metrics, ctx.measured, ctx.judged["ripple"] = judge_ripple(ctx.result, before, after, ctx.measured,
+                                                                   ctx.cfg.limits)
     reasons = failed(ctx.judged["ripple"])
     if ctx.cfg.kind == "master" and ctx.cfg.master is not None:  # the master check: within its references
         from eol_cal.msa.gate import judge_master  # the records database's library: loaded by a master run only
@@ -42,3 +44,15 @@ def run(ctx: CycleContext) -> StepVerdict:
         if ctx.gate_info is not None:
             ctx.gate_info = dataclasses.replace(ctx.gate_info, checks=tuple(checks))
     return StepVerdict("fail" if reasons else "pass", tuple(reasons))
+
+
+def judge_ripple(result: MotorResult, before: PointRipple, after: PointRipple, measured: Measured,
+                 limits: VariantLimits) -> tuple[RippleMetrics, Measured, list[LimitCheck]]:
+    """The record's ripple metrics at the fit's operating point, the measured values with the
+    ripple (the p-p figures in %, the order-1 amplitude left in N*m) and the ripple's limits
+    judged: the station's cycle and a what-if lot (:mod:`eol_cal.station.whatif`) judge alike."""
+    op = result.operating_point
+    metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
+                            RIPPLE_DEFINITION)
+    measured = measured.with_ripple(before.pp_pct, after.pp_pct, after.pp_no_mech1_pct, after.mech1_nm)
+    return metrics, measured, judge(measured, limits, "ripple")
