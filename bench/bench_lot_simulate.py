@@ -32,7 +32,8 @@ def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profil
 
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-    from eol_cal.station.whatif import LotPlan, simulate_lot
+    from eol_cal.station.whatif import simulate_lot
+    from eol_cal.station.whatif_plan import LotPlan
 
     plan = LotPlan(name, "default", str(limits), "EPS-STD", motors, seed=seed, profile=profile)
     t0 = time.perf_counter()

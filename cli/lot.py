@@ -404,7 +404,8 @@ def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profi
     from cli.refit import cluster_client, scheduler_address
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup
-    from eol_cal.station.whatif import SIM_BATCH, LotPlan, check_plan, recorded_runs, simulate_lot
+    from eol_cal.station.whatif import check_plan, recorded_runs, simulate_lot
+    from eol_cal.station.whatif_plan import SIM_BATCH, LotPlan
     from eol_cal.records.connect import db_label
 
     plan = LotPlan(lot_name, spread, str(limits_file), variant, motors, seed, profile, "paper", bench,

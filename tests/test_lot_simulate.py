@@ -13,7 +13,8 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.errors import InputError
-from eol_cal.station.whatif import LotPlan, recorded_runs, simulate_batch
+from eol_cal.station.whatif import recorded_runs, simulate_batch
+from eol_cal.station.whatif_plan import LotPlan
 from eol_cal.schemas import validator
 from eol_cal.records.record import RunRecord
 from eol_cal.records.write import insert_records

@@ -26,7 +26,7 @@ from eol_cal.station.run import safe_state, sha256_file
 
 if TYPE_CHECKING:
     from eol_cal.dyno.transfer import DynoConfig
-    from eol_cal.station.whatif import LotPlan, SimMotor
+    from eol_cal.station.whatif_plan import LotPlan, SimMotor
 
 
 def to_record(ctx: CycleContext) -> RunRecord:

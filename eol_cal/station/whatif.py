@@ -21,11 +21,9 @@ batch: the same lot (name, spread, limits, seed, batch size) gives the same reco
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import hashlib
 import time
-import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,82 +31,11 @@ from collections.abc import Callable, Sequence
 
 
 from eol_cal.errors import InputError
+from eol_cal.station.whatif_plan import LotPlan, SimMotor
 from eol_cal.inputs import loads_json
 
 if TYPE_CHECKING:
     from eol_cal.capture.model import Capture
-
-#: motors per task and per plant call: the plant's outputs of a batch over the default profile
-#: take ~25 MB a motor
-SIM_BATCH = 8
-#: the records' station of a lot is this prefix and the lot's name (``lot stats --station sim:NAME``)
-STATION_PREFIX = "sim:"
-#: namespace of the run ids of simulated runs (uuid5 of the lot's name and the motor's number)
-_RUN_NS = uuid.UUID("6f0c1b1e-25a5-4c1e-9d25-0000000000e5")
-
-
-@dataclass(frozen=True)
-class LotPlan:
-    """What a simulated lot is: everything a task needs, as plain values (sent to the workers).
-
-    Attributes
-    ----------
-    name : str
-        The lot's name (the records' station is ``sim:NAME``, serials ``NAME-000123``).
-    spread : str
-        The production spread: a built-in name or a TOML file (:func:`eol_cal.plant.spread.load_spread`).
-    limits_file, variant : str, str or None
-        The limits the runs are judged by (:func:`eol_cal.records.limits.load_limits`).
-    motors : int
-        Motors in the lot.
-    seed : int
-        Motor ``i`` is drawn with seed ``seed + i``.
-    profile : str
-        The calibration capture's test profile (built-in name or TOML file).
-    preset, bench : str
-        The plant preset the spread varies and the dyno bench the fit divides out (as the station's).
-    batch : int
-        Motors per batch (a task, and one plant call per capture).
-    """
-
-    name: str
-    spread: str
-    limits_file: str
-    variant: str | None
-    motors: int
-    seed: int = 0
-    profile: str = "eol-default"
-    preset: str = "paper"
-    bench: str = "paper"
-    batch: int = SIM_BATCH
-
-    @property
-    def station(self) -> str:
-        return STATION_PREFIX + self.name
-
-    def serial(self, i: int) -> str:
-        return f"{self.name}-{i:06d}"
-
-    def run_id(self, i: int) -> str:
-        return uuid.uuid5(_RUN_NS, f"{self.name}/{i}").hex
-
-    def batches(self) -> list[list[int]]:
-        return [list(range(k, min(k + self.batch, self.motors))) for k in range(0, self.motors, self.batch)]
-
-    def fingerprint(self) -> dict[str, Any]:
-        """What makes the lot's runs what they are (stored with each run; a resumed lot must match)."""
-        return {"lot": self.name, "spread": _file_or_name(self.spread), "limits": _file_or_name(self.limits_file),
-                "variant": self.variant, "seed": self.seed, "profile": _file_or_name(self.profile),
-                "preset": self.preset, "bench": self.bench, "batch": self.batch}
-
-
-def _file_or_name(name: str) -> str:
-    """A built-in name, or a file's name with the SHA-256 of its bytes (a changed file is another lot)."""
-    p = Path(name)
-    if p.suffix.lower() == ".toml" and p.is_file():
-        return f"{p.name} sha256:{hashlib.sha256(p.read_bytes()).hexdigest()[:16]}"
-    return name
-
 
 #: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
 SEED_MAX = 2**63 - 2
@@ -162,31 +89,6 @@ def _flashed(blk: Any, role: str) -> Any:
     return FlashedBlock(role=role, path=None, sha256=hashlib.sha256(image).hexdigest(), bytes=len(image), bank=None,
                         sequence=blk.sequence, crc32=f"{B.check(image).crc_stored or 0:08x}", verified=True,
                         confirmed=True, **block_fields(image))
-
-
-@dataclass
-class SimMotor:
-    """One motor's run as the batch makes it (its record: :func:`eol_cal.station.outcome.simulated_record`)."""
-
-    i: int
-    spec: Any
-    started: str
-    steps: list = dataclasses.field(default_factory=list)
-    result: Any = None
-    measured: Any = None
-    judged: dict = dataclasses.field(default_factory=dict)
-    blocks: list = dataclasses.field(default_factory=list)
-    calibrated: Any = None
-    before: Any = None
-    metrics: Any = None
-    verdict: str = "error"
-    reasons: list = dataclasses.field(default_factory=list)
-    error: Any = None
-    failed_step: str | None = None
-
-    @property
-    def open(self) -> bool:
-        return self.failed_step is None and self.verdict == "error"
 
 
 def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None = None) -> list[dict[str, Any]]:
