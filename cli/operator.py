@@ -148,8 +148,8 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
     with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap) as st:
         host, port = parse_address(st.dyno_address)
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
-        mcfg = for_motor(cfg, serial, dyno=dataclasses.replace(cfg.dyno, host=host, port=port), open_bus=st.open_bus,
-                         station=station)
+        dyno = dataclasses.replace(cfg.dyno, host=host, port=port, watchdog_ms=st.watchdog_ms)
+        mcfg = for_motor(cfg, serial, dyno=dyno, open_bus=st.open_bus, ecu_timing=st.ecu_timing, station=station)
         with StepProgress(serial) as progress:
             return run_motor(mcfg, progress, on_verdict=_show_verdict)
 

@@ -163,10 +163,6 @@ def write_demo_limits(path: Path) -> None:
         raise InputError(str(path.parent), None, f"cannot write: {exc}") from None
 
 
-#: the demo's dyno watchdog (ms): its dyno simulator and plant run in the demo's own process, whose
-#: client a loaded machine can hold up for longer than a real dyno's 2 s while the plant computes
-DEMO_WATCHDOG_MS = 30_000
-
 #: each `run` option's settings key (eol_cal.station.settings.KEYS); an option given on the command
 #: line overrides the settings file and the environment
 OPTION_KEYS = {
@@ -367,8 +363,8 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
             host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(
-                serial=serial, dyno=DynoConfig(host=host, port=port, register_map=regmap, watchdog_ms=DEMO_WATCHDOG_MS),
-                open_bus=st.open_bus,
+                serial=serial, dyno=DynoConfig(host=host, port=port, register_map=regmap, watchdog_ms=st.watchdog_ms),
+                open_bus=st.open_bus, ecu_timing=st.ecu_timing,
                 seed_to_key=hmac_seed_to_key(P.DEV_SECRET), limits=limits, db=db, report_dir=out_dir / "reports",
                 profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,
                 station={"dyno": st.dyno_address, "can": {"interface": "remote", "channel": st.can_channel}, "demo": True},

@@ -80,7 +80,7 @@ def test_a_second_signal_while_the_run_ends_is_still_exit_2(station, gap_s):  # 
     traceback, the record kept."""
     start, tmp_path, dyno = station
     ecu, run = start("--slow", "erase:3")
-    _wait_for_erase(tmp_path)  # the prepare flash has sent its erase
+    _wait_for_erase(tmp_path, run)  # the prepare flash has sent its erase
     time.sleep(1.0)  # inside the slowed erase
     run.send_signal(signal.SIGINT)
     time.sleep(gap_s)
