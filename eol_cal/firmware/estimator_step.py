@@ -116,16 +116,32 @@ def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
 class _ScalarNumpy:
     """numpy for one motor's scalars, minus the 0-d array round trips of ``np.where`` & co.
 
-    Selections and min/max pick one of their (already binary32) operands, so the arithmetic and
-    its results are those of ``xp=numpy`` exactly; :func:`run` uses it for speed only.
+    Selections and min/max pick one of their (already binary32) operands, ``take`` indexes and
+    ``asarray`` leaves a numpy scalar of the asked dtype as it is, so the arithmetic and its
+    results are those of ``xp=numpy`` exactly; the tick-by-tick references (:func:`run`,
+    :func:`eol_cal.firmware.mech_run.run_mech`) use it for speed only. ``numpy_of`` gives numpy
+    back where a step works on whole arrays (the identifier's evaluation).
     """
 
     int32 = np.int32
     float32 = np.float32
     floor = staticmethod(np.floor)
-    asarray = staticmethod(np.asarray)
     zeros = staticmethod(np.zeros)
     zeros_like = staticmethod(np.zeros_like)
+
+    @staticmethod
+    def asarray(x: Array, dtype: type[np.generic] | None = None) -> Array:
+        if isinstance(x, np.generic) and (dtype is None or x.dtype == dtype):
+            return x
+        return np.asarray(x, dtype)
+
+    @staticmethod
+    def take(a: np.ndarray, i: Array) -> Array:
+        return a[i]
+
+    @staticmethod
+    def bitwise_and(x: Array, y: Array) -> Array:
+        return x & y
 
     @staticmethod
     def where(c: Array, x: Array, y: Array) -> Array:
@@ -145,6 +161,17 @@ class _ScalarNumpy:
 
 
 SCALAR_NP = _ScalarNumpy()
+
+
+def numpy_of(xp: ArrayModule) -> ArrayModule:
+    """``xp`` for a step on whole arrays: numpy for :data:`SCALAR_NP`, else ``xp`` itself."""
+    return np if xp is SCALAR_NP else xp
+
+
+def scalar_of(xp: ArrayModule) -> ArrayModule:
+    """``xp`` for a step on one motor's scalars: :data:`SCALAR_NP` for numpy, else ``xp`` itself
+    (the tick-by-tick references pass numpy, the plant traces ``jax.numpy``)."""
+    return SCALAR_NP if xp is np else xp
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
