@@ -131,7 +131,8 @@ class _ScalarNumpy:
 
     @staticmethod
     def asarray(x: Array, dtype: type[np.generic] | None = None) -> Array:
-        if isinstance(x, np.generic) and (dtype is None or x.dtype == dtype):
+        has = getattr(x, "dtype", None)  # a numpy scalar or array: as it is when its dtype is the one asked
+        if has is not None and (dtype is None or has == dtype):
             return x
         return np.asarray(x, dtype)
 

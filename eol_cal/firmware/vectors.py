@@ -7,7 +7,9 @@ and the consumers (tests, firmware engineers' scripts).
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
 import os
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 from collections.abc import Callable, Iterable, Sequence
 
@@ -39,9 +41,6 @@ def scenario_rows_in_parallel(rows_of: Callable[[str], Rows], names: Sequence[st
     together. ``rows_of`` must be a module-level function (it is pickled by name). One core:
     computed here, one after the other.
     """
-    from concurrent.futures import ProcessPoolExecutor
-    import multiprocessing
-
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     workers = min(cores, len(names))
     if workers < 2:
