@@ -237,7 +237,7 @@ LAZY_LEFT = frozenset({
     "eol_cal.analysis.fit.plot", "eol_cal.analysis.fit.prewarm", "eol_cal.analysis.fit.table",
     "eol_cal.analysis.result", "eol_cal.capture.ecu_state", "eol_cal.capture.io", "eol_cal.capture.units",
     "eol_cal.dyno.client", "eol_cal.dyno.sim", "eol_cal.dyno.sim_modbus", "eol_cal.dyno.transfer",
-    "eol_cal.firmware.golden", "eol_cal.fuzz.mutate", "eol_cal.fuzz.scenarios", "eol_cal.lot.baseline",
+    "eol_cal.fuzz.mutate", "eol_cal.fuzz.scenarios", "eol_cal.lot.baseline",
     "eol_cal.lot.cluster", "eol_cal.lot.columns", "eol_cal.lot.page", "eol_cal.lot.refit", "eol_cal.lot.simulate",
     "eol_cal.plant.simulate", "eol_cal.report.motor", "eol_cal.schemas",
     "eol_cal.station.configure", "eol_cal.station.cycle", "eol_cal.station.demo", "eol_cal.station.early",

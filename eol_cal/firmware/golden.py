@@ -27,14 +27,16 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from eol_cal import __version__
 from eol_cal.atomic import atomic_write
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
-from eol_cal.firmware import estimator_golden
+from eol_cal.firmware import estimator_golden, mech_golden
 from eol_cal.firmware.compensator import i_qc, make_tables
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.firmware.vectors import VectorSet, csv_text, f32hex
 from eol_cal.inputs import loads_json, read_text
+from eol_cal.motor import load_motor
 from eol_cal.wrap import wrap_2pi
 
 GOLDEN_FORMAT = 1
@@ -52,8 +54,6 @@ _HALL_NOMINAL = NOMINAL_HALL_ANGLE
 
 def golden_blocks() -> list[tuple[str, B.ParamBlock]]:
     """The valid blocks of the golden set: three table lengths, harmonics, clamp limits that bite."""
-    from eol_cal.motor import load_motor
-
     motor = load_motor("paper")  # seed paper Table I: P, N_enc, PWM tick, kt = 3P/4 * psi_f
     kt = motor.kt
     specs = [
@@ -217,8 +217,6 @@ def _estimator_sets() -> dict[str, VectorSet]:
 @functools.cache
 def _mech_sets() -> dict[str, VectorSet]:
     # Cached like the estimator's: the identifier's scenarios run tick by tick in numpy.
-    from eol_cal.firmware import mech_golden
-
     return mech_golden.vector_sets()
 
 
@@ -241,8 +239,6 @@ def vector_sets(include_estimator: bool = True) -> dict[str, VectorSet]:
 
 def manifest(sets: dict[str, VectorSet], texts: dict[str, str]) -> dict[str, Any]:
     """The manifest document for the sets and their CSV texts."""
-    from eol_cal import __version__
-
     return {
         "format": "eol-cal golden vectors",
         "layout_version": B.LAYOUT_VERSION,
