@@ -43,10 +43,14 @@ def scenario_rows_in_parallel(rows_of: Callable[[str], Rows], names: Sequence[st
     """
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     workers = min(cores, len(names))
-    if workers < 2:
+    try:
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None
+    except (OSError, NotImplementedError):  # no process semaphores here (a sandbox): the same rows, serially
+        pool = None
+    if pool is None:
         return {n: rows_of(n) for n in names}
     order = sorted(names, key=seconds, reverse=True)
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+    with pool:
         done = dict(zip(order, pool.map(rows_of, order), strict=True))
     return {n: done[n] for n in names}
 
