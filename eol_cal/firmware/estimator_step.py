@@ -13,7 +13,7 @@ from __future__ import annotations
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
 # mypy: disable-error-code="arg-type,union-attr,index,operator,return-value,assignment,comparison-overlap,type-var,list-item"
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -113,6 +113,23 @@ def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
 
 
+_I32_ZERO, _I32_ONE = np.int32(0), np.int32(1)
+
+
+def _int32_of(x: Array, _bool: type = np.bool_, _i32: type = np.int32) -> Array:
+    """``np.int32(x)`` without numpy's construction for a flag or an int32 already (~20 a tick):
+    the same value and type. Also a dtype (``.dtype``), as ``np.int32`` is."""
+    t = type(x)
+    if t is _bool:
+        return _I32_ONE if x else _I32_ZERO
+    if t is _i32:
+        return x
+    return _i32(x)
+
+
+_int32_of.dtype = np.dtype(np.int32)  # type: ignore[attr-defined]
+
+
 class _ScalarNumpy:
     """numpy for one motor's scalars, minus the 0-d array round trips of ``np.where`` & co.
 
@@ -123,14 +140,16 @@ class _ScalarNumpy:
     back where a step works on whole arrays (the identifier's evaluation).
     """
 
-    int32 = np.int32
+    int32 = staticmethod(_int32_of)
     float32 = np.float32
     floor = staticmethod(np.floor)
     zeros = staticmethod(np.zeros)
     zeros_like = staticmethod(np.zeros_like)
 
     @staticmethod
-    def asarray(x: Array, dtype: type[np.generic] | None = None) -> Array:
+    def asarray(x: Array, dtype: Any = None) -> Array:
+        if dtype is not None and not isinstance(dtype, type):
+            dtype = dtype.dtype  # int32 above
         has = getattr(x, "dtype", None)  # a numpy scalar or array: as it is when its dtype is the one asked
         if has is not None and (dtype is None or has == dtype):
             return x
