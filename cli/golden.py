@@ -24,7 +24,7 @@ def golden(out_dir: str | None, check_dir: str | None) -> None:
     if (out_dir is None) == (check_dir is None):
         raise InputError(None, "--out/--check", "give exactly one of --out DIR or --check [DIR]")
     if check_dir is not None:
-        _readable_set(check_dir)  # at once: the vector sets take a minute to compute
+        _readable_set(check_dir)  # at once, before the vector sets are computed
     sets = vector_sets()
     if out_dir is not None:
         doc = write_golden(out_dir, sets)

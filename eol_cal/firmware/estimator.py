@@ -124,14 +124,14 @@ def run(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array) -> Estima
     EstimatorOut of numpy arrays (n,): float32 theta_hat (rad), omega_hat (rad/s), theta_enc
     (rad), int32 status.
     """
-    a = np.asarray(enc_a, dtype=I32)
-    b = np.asarray(enc_b, dtype=I32)
-    h = np.asarray(hall, dtype=I32)
+    a = np.asarray(enc_a, dtype=np.int32)
+    b = np.asarray(enc_b, dtype=np.int32)
+    h = np.asarray(hall, dtype=np.int32)
     n = len(a)
     th = np.empty(n, F32)
     om = np.empty(n, F32)
     te = np.empty(n, F32)
-    st = np.empty(n, I32)
+    st = np.empty(n, np.int32)
     if n == 0:
         return EstimatorOut(th, om, te, st)
     state = init_state(cfg, h[0], a[0], b[0])

@@ -36,7 +36,24 @@ if TYPE_CHECKING:
     from eol_cal.firmware.block import ParamBlock
 
 F32 = np.float32
-I32 = np.int32
+
+
+_INT32_SEEN: dict[object, np.int32] = {}
+
+
+def I32(x: object, _seen: dict[object, np.int32] = _INT32_SEEN, _new: type[np.int32] = np.int32) -> np.int32:
+    """``np.int32(x)``, one numpy scalar per integer constant: the tick-by-tick references build the
+    same ~50 constants every tick, a numpy construction each against a dict look-up here (same
+    value, same type). A constructor only: the dtype is ``np.int32``."""
+    try:
+        return _seen[x]  # an equal float or numpy integer finds it too
+    except (KeyError, TypeError):  # new, or unhashable (an array)
+        pass
+    v = _new(x)
+    if type(x) is int and len(_seen) < 4096:
+        _seen[x] = v
+    return v
+
 
 PI = F32(math.pi)
 """pi rounded to binary32 (0x40490fdb)."""
@@ -291,7 +308,7 @@ def hall_tables(hall_angle: Sequence[float]) -> HallTables:
         raise ValueError(f"hall_angle needs 6 entries, got shape {angles.shape}")
     start = np.zeros(8, F32)
     start[1:7] = angles
-    nxt = np.asarray(HALL_NEXT, I32)
+    nxt = np.asarray(HALL_NEXT, np.int32)
     width = np.zeros(8, F32)
     mid = np.zeros(8, F32)
     for s in range(1, 7):
@@ -308,7 +325,7 @@ def consts(cfg: EstimatorConfig) -> Consts:
     DELTA = (F32(cfg.poles) * PI) / F32(cfg.N_enc)
     QUARTER = DELTA * F32(0.25)
     start, width, mid = hall_tables(cfg.hall_angle)
-    nxt = np.asarray(HALL_NEXT, I32)
+    nxt = np.asarray(HALL_NEXT, np.int32)
     return Consts(T=T, DELTA=DELTA, QUARTER=QUARTER, HALF_QUARTER=QUARTER * HALF,
                   HALF_DELTA=DELTA * HALF, K_OMEGA=DELTA * tick_hz, TWO_TICK_HZ=tick_hz * F32(2.0),
                   TICK_HZ=tick_hz, K_NDELTA=F32(cfg.N_enc) * DELTA,

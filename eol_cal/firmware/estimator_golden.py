@@ -40,7 +40,7 @@ from eol_cal.firmware.contract import (
     FLAG_INTERP_ENABLE,
     FLAGS_ESTIMATOR,
 )
-from eol_cal.firmware.vectors import f32hex
+from eol_cal.firmware.vectors import f32hex, scenario_rows_in_parallel
 from eol_cal.firmware.kinematics import draw_sensor_errors, encoder_hall_signals, speed_profile_angle
 
 TICK_HZ = 20000.0
@@ -231,6 +231,12 @@ def vector_sets(names: list[str] | None = None) -> dict[str, tuple[tuple[str, ..
     chosen = list(SCENARIOS) if names is None else [n for n in SCENARIOS if n in names]
     sets: dict[str, tuple[tuple[str, ...], list[list[str]]]] = {
         "estimator_configs.csv": (CONFIG_COLUMNS, [config_row(n, SCENARIOS[n]) for n in chosen])}
+    rows = scenario_rows_in_parallel(_rows_of, chosen, lambda n: sum(s[0] for s in SCENARIOS[n].segments))
     for n in chosen:
-        sets[n] = (SCENARIO_COLUMNS, scenario_rows(SCENARIOS[n].cfg, *SCENARIOS[n].signals()))
+        sets[n] = (SCENARIO_COLUMNS, rows[n])
     return sets
+
+
+def _rows_of(name: str) -> list[list[str]]:
+    """:func:`scenario_rows` of scenario file ``name`` (a worker process's task)."""
+    return scenario_rows(SCENARIOS[name].cfg, *SCENARIOS[name].signals())

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 # One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
-# mypy: disable-error-code="arg-type,union-attr,index,operator,assignment,comparison-overlap"
+# mypy: disable-error-code="arg-type,union-attr,index,operator,assignment"
 
-from typing import NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 
@@ -113,19 +113,55 @@ def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
 
 
+_I32_ZERO, _I32_ONE = cast(Array, np.int32(0)), cast(Array, np.int32(1))
+
+
+def _int32_of(x: Array, _bool: type = np.bool_, _i32: type = np.int32) -> Array:
+    """``np.int32(x)`` without numpy's construction for a flag or an int32 already (~20 a tick):
+    the same value and type. Also a dtype (``.dtype``), as ``np.int32`` is."""
+    t = type(x)
+    if t is _bool:
+        return _I32_ONE if x else _I32_ZERO
+    if t is _i32:
+        return x
+    return _i32(x)
+
+
+_int32_of.dtype = np.dtype(np.int32)  # type: ignore[attr-defined]
+
+
 class _ScalarNumpy:
     """numpy for one motor's scalars, minus the 0-d array round trips of ``np.where`` & co.
 
-    Selections and min/max pick one of their (already binary32) operands, so the arithmetic and
-    its results are those of ``xp=numpy`` exactly; :func:`run` uses it for speed only.
+    Selections and min/max pick one of their (already binary32) operands, ``take`` indexes and
+    ``asarray`` leaves a numpy scalar of the asked dtype as it is, so the arithmetic and its
+    results are those of ``xp=numpy`` exactly; the tick-by-tick references (:func:`run`,
+    :func:`eol_cal.firmware.mech_run.run_mech`) use it for speed only. ``numpy_of`` gives numpy
+    back where a step works on whole arrays (the identifier's evaluation).
     """
 
-    int32 = np.int32
+    int32 = staticmethod(_int32_of)
     float32 = np.float32
     floor = staticmethod(np.floor)
-    asarray = staticmethod(np.asarray)
     zeros = staticmethod(np.zeros)
     zeros_like = staticmethod(np.zeros_like)
+
+    @staticmethod
+    def asarray(x: Array, dtype: Any = None) -> Array:
+        if dtype is not None and not isinstance(dtype, type):
+            dtype = dtype.dtype  # int32 above
+        has = getattr(x, "dtype", None)  # a numpy scalar or array: as it is when its dtype is the one asked
+        if has is not None and (dtype is None or has == dtype):
+            return x
+        return np.asarray(x, dtype)
+
+    @staticmethod
+    def take(a: np.ndarray, i: Array) -> Array:
+        return a[i]
+
+    @staticmethod
+    def bitwise_and(x: Array, y: Array) -> Array:
+        return x & y
 
     @staticmethod
     def where(c: Array, x: Array, y: Array) -> Array:
@@ -144,7 +180,19 @@ class _ScalarNumpy:
         return -x if x < 0 else x
 
 
-SCALAR_NP = _ScalarNumpy()
+#: typed as a module: it stands in for numpy wherever ``xp`` is
+SCALAR_NP = cast(ArrayModule, _ScalarNumpy())
+
+
+def numpy_of(xp: ArrayModule) -> ArrayModule:
+    """``xp`` for a step on whole arrays: numpy for :data:`SCALAR_NP`, else ``xp`` itself."""
+    return np if xp is SCALAR_NP else xp
+
+
+def scalar_of(xp: ArrayModule) -> ArrayModule:
+    """``xp`` for a step on one motor's scalars: :data:`SCALAR_NP` for numpy, else ``xp`` itself
+    (the tick-by-tick references pass numpy, the plant traces ``jax.numpy``)."""
+    return SCALAR_NP if xp is np else xp
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:

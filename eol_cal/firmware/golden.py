@@ -20,6 +20,7 @@ import hashlib
 import json
 import math
 import struct
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 from collections.abc import Sequence
@@ -226,7 +227,10 @@ def vector_sets(include_estimator: bool = True) -> dict[str, VectorSet]:
     sets = {"blocks.csv": _blocks_set(blocks), "block_checks.csv": _checks_set(blocks),
             "compensator.csv": _compensator_set(blocks)}
     if include_estimator:
-        for name, vs in {**_estimator_sets(), **_mech_sets()}.items():
+        with ThreadPoolExecutor(1) as side:  # both references' processes share the cores: no idle tail
+            mech = side.submit(_mech_sets)
+            heavy = {**_estimator_sets(), **mech.result()}
+        for name, vs in heavy.items():
             if name in sets or name == "manifest.json":
                 raise ValueError(f"vector set {name!r} clashes with another set")
             sets[name] = vs

@@ -43,7 +43,7 @@ from eol_cal.firmware.kinematics import (
 from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
 from eol_cal.firmware.mech_run import run_mech
-from eol_cal.firmware.vectors import VectorSet, f32hex
+from eol_cal.firmware.vectors import VectorSet, f32hex, scenario_rows_in_parallel
 from eol_cal.motor import load_motor
 
 TICK_HZ = 20000.0
@@ -315,9 +315,15 @@ def vector_sets() -> dict[str, VectorSet]:
                                           "part on at count q and offset r, tables of blocks_v2.csv row block_id",
                                           {"i_qc": {"abs": 1e-3, "unit": "A"}}),
     }
+    rows = scenario_rows_in_parallel(_rows_of, list(SCENARIOS), lambda n: sum(s[0] for s in SCENARIOS[n].segments))
     for name, sc in SCENARIOS.items():
-        sets[name] = VectorSet(SCENARIO_COLUMNS, scenario_rows(sc), sc.description, ulp=SCENARIO_ULP)
+        sets[name] = VectorSet(SCENARIO_COLUMNS, rows[name], sc.description, ulp=SCENARIO_ULP)
     return sets
+
+
+def _rows_of(name: str) -> list[list[str]]:
+    """:func:`scenario_rows` of scenario file ``name`` (a worker process's task)."""
+    return scenario_rows(SCENARIOS[name])
 
 
 def _as_layout_2(image: bytes) -> bytes:

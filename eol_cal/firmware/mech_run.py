@@ -14,7 +14,7 @@ import numpy as np
 from eol_cal.arrays import Array, ArrayModule
 from eol_cal.firmware import compensator, estimator as est
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, ParamBlock
-from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, step_pitch
+from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample, scalar_of, step_pitch
 from eol_cal.firmware.mech import (
     MechConsts, MechOut, MechState, MechTables, block_mech_tables, mech_init, mech_sum,
 )
@@ -45,9 +45,10 @@ def ecu_tick(cfg: est.EstimatorConfig, mc: MechConsts, tb: MechTables, block_tab
 
     ``block_tables`` is ``(table_const, table_per_amp, lead_s, iqc_limit)``; ``comp_on`` (static)
     is the block's ``COMP_ENABLE``. Returns ``(es, ms, EstimatorOut, PitchSample, MechOut, i_qc)``.
+    With ``xp=numpy`` the state and inputs are one motor's scalars (:func:`run_mech`).
     """
-    # numpy's scalars through SCALAR_NP, which stands in for the numpy module (binary32 scalar arithmetic)
-    es, eo, ps = step_pitch(cfg, es, a, b, h, xp=cast(ArrayModule, SCALAR_NP) if xp is np else xp, tables=hall_tables)
+    xp = scalar_of(xp)
+    es, eo, ps = step_pitch(cfg, es, a, b, h, xp=xp, tables=hall_tables)
     ms, mo = mech_step(mc, tb, ms, es, eo, ps, xp=xp)
     if comp_on:
         tc, tp, lead, limit = block_tables

@@ -22,7 +22,7 @@ import numpy as np
 
 from eol_cal.arrays import Array, ArrayModule
 from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
-from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
+from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, numpy_of
 from eol_cal.firmware.mech import (
     CNT_MAX, SLICE_EDGES, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
     MechConsts, MechOut, MechState, MechTables, evaluate, set_add, f32_, mean_c_of, n_slices,
@@ -74,8 +74,11 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
         cand=xp.where(done, xp.where(ok, ms.ev_r, I32(-1)), ms.cand),
         score=xp.where(done, ms.ev_score, ms.score), margin=xp.where(done, ms.ev_margin, ms.margin),
         busy=xp.where(done, I32(0), ms.busy), mk=xp.where(ms.mk == 2, I32(0), ms.mk))
-    gone = _withdrawn(kept, N, xp)
-    new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
+    if xp is SCALAR_NP:  # one motor: the state picked whole, the withdrawn one built only when taken
+        new = _withdrawn(kept, N, xp) if reset else kept
+    else:
+        gone = _withdrawn(kept, N, xp)
+        new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
     # 3. start an evaluation when a revolution of fresh samples is in
     d = i32(es.dir_last < 0)
     has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
@@ -106,11 +109,12 @@ def mech_background(mc: MechConsts, tb: MechTables, ms: MechState, es: Estimator
     clearing = ms.clr != 0
     running = (ms.busy >= 1) & (ms.busy <= I32(L)) & ~clearing
     do_mark = (ms.mk == 1) & ~running & ~clearing
-    if xp is np and not ((ms.busy == 1 and not clearing) or do_mark):
+    axp = numpy_of(xp)  # the evaluation works on whole arrays
+    if axp is np and not ((ms.busy == 1 and not clearing) or do_mark):
         return mech_background_idle(mc, ms, xp)
-    ok, r, score, margin = evaluate(mc, tb, ms, es.c_tab, ms.ev_G, ms.ev_d, xp)
+    ok, r, score, margin = evaluate(mc, tb, ms, es.c_tab, ms.ev_G, ms.ev_d, axp)
     first = (ms.busy == 1) & ~clearing
-    e_now = wrap_pm(((ms.mk_G + mean_c_of(mc, es.c_tab, ms.mk_d, xp)) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
+    e_now = wrap_pm(((ms.mk_G + mean_c_of(mc, es.c_tab, ms.mk_d, axp)) - tb.grid_phase) - f32_(ms.r, xp) * mc.DELTA, xp)
     return mech_background_idle(mc, ms, xp)._replace(
         busy=xp.where(running, ms.busy + I32(1), ms.busy),
         ev_ok=xp.where(first, xp.int32(ok), ms.ev_ok), ev_r=xp.where(first, r, ms.ev_r),

@@ -7,8 +7,11 @@ and the consumers (tests, firmware engineers' scripts).
 from __future__ import annotations
 
 import dataclasses
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
 from typing import Any
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -27,6 +30,29 @@ class VectorSet:
     description: str = ""
     tolerance: dict[str, Any] | str = "exact"
     ulp: dict[str, int] = dataclasses.field(default_factory=dict)
+
+
+def scenario_rows_in_parallel(rows_of: Callable[[str], Rows], names: Sequence[str],
+                              seconds: Callable[[str], float]) -> dict[str, Rows]:
+    """``{name: rows_of(name)}``, the scenarios computed in spawned processes, one a core.
+
+    The tick-by-tick references are independent per scenario and run for seconds each: the
+    longest (``seconds``, the scenario's simulated time) are handed out first so both cores end
+    together. ``rows_of`` must be a module-level function (it is pickled by name). One core:
+    computed here, one after the other.
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    workers = min(cores, len(names))
+    try:
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None
+    except (OSError, NotImplementedError):  # no process semaphores here (a sandbox): the same rows, serially
+        pool = None
+    if pool is None:
+        return {n: rows_of(n) for n in names}
+    order = sorted(names, key=seconds, reverse=True)
+    with pool:
+        done = dict(zip(order, pool.map(rows_of, order), strict=True))
+    return {n: done[n] for n in names}
 
 
 def f32hex(x: float) -> str:
