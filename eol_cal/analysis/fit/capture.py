@@ -25,7 +25,7 @@ from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, shaft_response
+from eol_cal.mechanics import BenchMechanics, shaft_response, torsion_response
 from eol_cal.motor import MotorParams, load_motor
 
 if TYPE_CHECKING:
@@ -381,11 +381,25 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
     else:
         hall = nominal_hall_angles("asked for")
     kt, kt_source = _kt_of(caps, motor)
-    response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
     kt_iq, current = current_torque(caps, infos, cap_idx, kt)
+    response = None if mechanics is None else bench_path(motor, mechanics, current_known=kt_iq is not None)
     seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response, kt_iq)
     return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
                       hall=hall, left_out=left_out, current_ripple=current)
+
+
+def bench_path(motor: MotorParams, mechanics: BenchMechanics, current_known: bool) -> functools.partial:
+    """The torque path the fit divides out (``SteadySegments.path_response``).
+
+    With the current known (``kt * i_q`` measured, :func:`current_torque`) the air-gap torque
+    already holds the current loop's reaction to the speed ripple: the path is the shaft line
+    alone (:func:`eol_cal.mechanics.torsion_response`). Without it that reaction is modelled on top
+    (:func:`eol_cal.mechanics.shaft_response`); taking both would count it twice (k6 +0.12 % on
+    the paper bench, noise-free plant motors).
+    """
+    if current_known:
+        return functools.partial(torsion_response, J=motor.J, B=motor.B, mechanics=mechanics)
+    return functools.partial(shaft_response, motor=motor, mechanics=mechanics)
 
 
 def current_torque(caps: list[Capture], infos: list[SteadySegmentOrigin], cap_idx: list[int],
