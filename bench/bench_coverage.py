@@ -8,10 +8,10 @@ mechanical orders), and every reported interval is judged against the plant's tr
 
 - ``k6``, ``c6`` (amplitudes) and ``phase_k6``, ``phase_c6`` in the firmware estimator's frame: the
   truth moved by the plant's own estimator's frame on the same run (``theta_hat - theta_r``).
-  Two truths, as in ``bench/bench_fit_lot.py``: the plant's parameter, and ``_eff``: the parameter
-  plus the ECU's own current ripple at that order (``kt * i_q`` of a noise-free run of the same
-  motor fitted with the same model): torque the motor really makes, which the compensation must
-  cancel and no fit of the torque can tell from the motor's own;
+  Two truths, as in ``bench/bench_fit_lot.py``: the plant's parameter (what the fit reports since
+  it takes the ECU's own current ripple out with the ``iq`` channel, docs/fit.md), and ``_eff``:
+  the parameter plus that ripple at that order (``kt * i_q`` of a noise-free run of the same motor
+  fitted with the same model), what a fit of the torque alone measures;
 - ``delay_s``: the lag of the sampled torque behind the capture's angle, as the first-order
   low-pass the fit models it (:func:`chain_delay_s`): the transducer's time constant
   ``1 / (2 pi tq_bw_hz)`` as the plant samples it, with the shaft line's semi-implicit Euler step and
@@ -52,7 +52,8 @@ def current_ripple(run, spec) -> dict[str, complex]:
     (mi,) = motor_inputs([run.capture], frame="offline", hall_angle="nominal")
     kt = float(run.capture.metadata["kt"])
     iq = np.asarray(run.capture["iq"], dtype=float)
-    seg = dataclasses.replace(mi.segments, torque=[kt * iq[s.start:s.stop] for s in mi.info], path_response=None)
+    seg = dataclasses.replace(mi.segments, torque=[kt * iq[s.start:s.stop] for s in mi.info], path_response=None,
+                              kt_iq=None)
     (f,) = fit_many([seg], dataclasses.replace(spec, delay_s=1e-9), mode="loop")
     # the offline frame sits d_rec off the true angle: phase in the true frame = phase + 6 d_rec
     d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
@@ -98,6 +99,24 @@ def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
         cont = torsion_response(np.array([w]), float(q.J), float(q.B), p.mechanics)[0] / (1 + 1j * w * tau)
         out.append(math.tan(math.atan(w * tau) - float(np.angle(h / cont))) / w)
     return float(np.mean(out))
+
+
+def prepared_runs(plants, profile, options: int, seed: int, effective: bool) -> tuple[list, list, list]:
+    """The lot's calibration runs as the station makes them: each motor under its uncompensated
+    block carrying ``options`` (the "prepare ECU" step), and, with ``effective``, the same motors
+    again without sensor noise (same start angles) for :func:`current_ripple`.
+
+    Returns ``(prepared blocks, runs, clean runs or None per motor)``."""
+    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.motor import load_motor
+    from eol_cal.plant.simulate import simulate
+
+    motor = load_motor("paper")
+    prepared = [uncompensated_block(p.serial[:16], motor, calibrated_at=0, options=options) for p in plants]
+    runs = simulate(plants, profile, mode="estimated", blocks=prepared, seed=seed)
+    clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], profile, mode="estimated",
+                     blocks=prepared, seed=seed) if effective else [None] * len(plants)
+    return prepared, runs, clean
 
 
 def _circmean(x: np.ndarray) -> float:
@@ -213,18 +232,14 @@ def main() -> None:
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit.motors import FitOptions, fit_inputs
     from eol_cal.analysis.fit.capture import motor_inputs
-    from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.firmware.options import parse_options
     from eol_cal.mechanics import load_mechanics
-    from eol_cal.motor import load_motor
     from eol_cal.plant.profile import load_profile
-    from eol_cal.plant.simulate import simulate
     from eol_cal.plant.spread import load_spread
     from eol_cal.plant.variation import draw_motor
 
     print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}; spread {args.spread}, seeds "
           f"{args.first_seed}..{args.first_seed + args.motors - 1}")
-    motor = load_motor("paper")
     spread = load_spread(args.spread)
     cal = load_profile("eol-default")
     best = parse_options("best")
@@ -239,11 +254,8 @@ def main() -> None:
         for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
             seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
             plants = [draw_motor(s, spread=spread) for s in seeds]
-            prepared = [uncompensated_block(p.serial[:16], motor, calibrated_at=0, options=best) for p in plants]
             t0 = time.perf_counter()
-            runs = simulate(plants, cal, mode="estimated", blocks=prepared, seed=first)
-            clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], cal, mode="estimated",
-                             blocks=prepared, seed=first) if args.effective else [None] * len(plants)
+            _, runs, clean = prepared_runs(plants, cal, best, first, args.effective)
             t_sim += time.perf_counter() - t0
             inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
             recs = fit_inputs(inputs, options).records

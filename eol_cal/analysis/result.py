@@ -142,6 +142,7 @@ def motor_record(
     left_out: list[tuple[str, str]] | None = None,
     angle_correction: str = "none",
     model_check: ModelCheck | None = None,
+    current_ripple: str = "not measured",
 ) -> dict[str, Any]:
     """One entry of ``motors`` (see ``docs/json.md``).
 
@@ -154,7 +155,8 @@ def motor_record(
     revision 1.2), written only with a usable fit; ``left_out`` the captures that gave no segment,
     each with its reason; ``angle_correction`` how the fitted angle was corrected by the encoder's
     fingerprint (:mod:`eol_cal.analysis.fit.fp_angle`), or why not; ``model_check`` the speed
-    bands' agreement (None: not run).
+    bands' agreement (None: not run); ``current_ripple`` how the ECU's own current ripple entered
+    the fit (:func:`eol_cal.analysis.fit.capture.current_torque`).
     """
     status, reasons = judge(fit, spec, limits, model_check)
     six = fit.harmonics[6]
@@ -194,6 +196,7 @@ def motor_record(
         "mech_order1": spec.mech_order1,
         "mech_orders": spec.mech_orders if spec.mech_order1 else 0,
         "angle_correction": angle_correction,
+        "current_ripple": current_ripple,
         "angle_frame": frame,
         "frame_offset_deg": math.degrees(frame_offset_rad),
         "frame_offset_sd_deg": math.degrees(frame_offset_sd_rad),
@@ -254,6 +257,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         hall_angle=None if mi.hall is None else mi.hall.to_dict(),
         frame_estimator=options_label(mi.frame_options) if mi.frame == "firmware" else None,
         left_out=mi.left_out, angle_correction=mi.angle_correction, model_check=check,
+        current_ripple=mi.current_ripple,
     )
 
 

@@ -25,7 +25,7 @@ from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall
 from eol_cal.analysis.steady import STANDSTILL_RAD_S, direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, shaft_response
+from eol_cal.mechanics import BenchMechanics, shaft_response, torsion_response
 from eol_cal.motor import MotorParams, load_motor
 
 if TYPE_CHECKING:
@@ -81,6 +81,9 @@ class MotorInput:
     window_frac: list[float] | None = None
     #: standard error of ``frame_offset_rad`` (rad electrical; :func:`eol_cal.analysis.fit.fp_angle.frame_sd`)
     frame_sd_rad: float = 0.0
+    #: how the ECU's own current ripple entered the fit (:func:`current_torque`): known from the
+    #: ``iq`` channel, or why it is fitted as part of the motor's ripple
+    current_ripple: str = "not measured"
 
     @property
     def sources(self) -> list[str]:
@@ -380,10 +383,44 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
     else:
         hall = nominal_hall_angles("asked for")
     kt, kt_source = _kt_of(caps, motor)
-    response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
-    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response)
+    kt_iq, current = current_torque(caps, infos, cap_idx, kt)
+    response = None if mechanics is None else bench_path(motor, mechanics, current_known=kt_iq is not None)
+    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response, kt_iq)
     return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
-                      hall=hall, left_out=left_out)
+                      hall=hall, left_out=left_out, current_ripple=current)
+
+
+def bench_path(motor: MotorParams, mechanics: BenchMechanics, current_known: bool) -> functools.partial:
+    """The torque path the fit divides out (``SteadySegments.path_response``).
+
+    With the current known (``kt * i_q`` measured, :func:`current_torque`) the air-gap torque
+    already holds the current loop's reaction to the speed ripple: the path is the shaft line
+    alone (:func:`eol_cal.mechanics.torsion_response`). Without it that reaction is modelled on top
+    (:func:`eol_cal.mechanics.shaft_response`); taking both would count it twice (k6 +0.12 % on
+    the paper bench, noise-free plant motors).
+    """
+    if current_known:
+        return functools.partial(torsion_response, J=motor.J, B=motor.B, mechanics=mechanics)
+    return functools.partial(shaft_response, motor=motor, mechanics=mechanics)
+
+
+def current_torque(caps: list[Capture], infos: list[SteadySegmentOrigin], cap_idx: list[int],
+                   kt: float) -> tuple[list[np.ndarray] | None, str]:
+    """Per segment ``kt * i_q`` (N*m) from the captures' ``iq`` channel (the ECU's measured q
+    current), and how the fit uses it (:attr:`eol_cal.analysis.fit.SteadySegments.kt_iq`).
+
+    The current loop leaves a 6th-order ripple of its own in ``i_q`` (its angle estimate's errors,
+    the back-EMF's reaction to the speed ripple): torque on the shaft that no fit of the torque
+    alone can tell from the motor's k6. Known from the current, it is taken out and k6 is the
+    motor's own. Without an ``iq`` channel in every capture the fit falls back to the torque
+    alone, and says so (the string, the result's ``model.current_ripple``).
+    """
+    missing = [c.source for c in caps if not c.has("iq")]
+    if missing:
+        return None, (f"fitted as the motor's: no iq channel in {', '.join(missing)} (the ECU's own current ripple "
+                      "is in c6/k6; acquire the iq channel to take it out)")
+    kt_iq = [kt * np.asarray(caps[ci]["iq"][o.start:o.stop], dtype=float) for o, ci in zip(infos, cap_idx, strict=True)]
+    return kt_iq, "taken out: kt * iq known from the iq channel (c6/k6 are the motor's own)"
 
 
 def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int],

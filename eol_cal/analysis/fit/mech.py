@@ -88,6 +88,8 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
             z = e[h] * -g[i]
             W[nd + 2 * i] = z.imag
             W[nd + 2 * i + 1] = z.real
+        if seg.kt_iq is not None:
+            y = y - current_orders(np.asarray(seg.kt_iq[s], dtype=float), W[:nd], e, g)
         W[-1] = y
         Gs = W @ W.T
         D_inv, B = np.linalg.inv(Gs[:nd, :nd]), Gs[:nd, nd:-1]
@@ -134,6 +136,26 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         sd_p = math.sqrt(max(float(v @ C @ v), 0.0)) / c if c > 0 else math.pi
         out.append(MechOrder(h, ValueCi(c, _Z95 * sd_c), ValueCi(phase, min(_Z95 * sd_p, math.pi))))
     return tuple(out)
+
+
+def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray], g: np.ndarray) -> np.ndarray:
+    """The mechanical orders of ``kt * i_q`` (N*m) as the transducer sees them: known air-gap torque.
+
+    The current loop answers the angle estimate's errors at the mechanical orders (the encoder's
+    pulse placement) with current, torque the motor's own orders (unbalance, eccentricity) must not
+    be credited with. Each order's air-gap phasor is fitted to ``kt_iq`` with the segment's drift
+    rows (``drift``) and ``e[h] = exp(i h theta_m)``, then taken through the path and transducer
+    response ``g`` (one complex per order, as the orders' own columns).
+    """
+    cols = [drift] + [np.stack([e[h].imag, e[h].real]) for h in ORDERS]
+    A = np.concatenate(cols).T
+    coef, *_ = np.linalg.lstsq(A, kt_iq, rcond=None)
+    nd = drift.shape[0]
+    out = np.zeros_like(kt_iq)
+    for i, h in enumerate(ORDERS):
+        a, b = coef[nd + 2 * i], coef[nd + 2 * i + 1]  # a sin + b cos = Re((b - i a) e^(i h theta_m))
+        out += (g[i] * (b - 1j * a) * e[h]).real
+    return out
 
 
 def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, threshold: float = SWITCH_MARGIN,

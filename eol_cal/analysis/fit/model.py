@@ -5,9 +5,12 @@ Model (firmware contract section 2, plus the measurement's nuisances), per sampl
     T = T_avg[s] + drift_s(t) + mech_s(theta_m)
         - sum_h [ c_h sin(h (theta - omega_s tau) + phase_c_h)
                   + k_h i_qo[s] sin(h (theta - omega_s tau) + phase_k_h) ]
+        + sum_h [ kt i_q ]_h (theta - omega_s tau)
 
 ``theta`` is the electrical angle (rad) in the frame the firmware uses, ``h`` runs over the
-requested harmonics (6, optionally 12 and 18), ``tau`` (s) is the torque transducer's delay: the
+requested harmonics (6, optionally 12 and 18), ``[kt i_q]_h`` the h-th harmonic of the torque
+the ECU's measured q current makes (known, where the captures carry it: ``SteadySegments.kt_iq``),
+``tau`` (s) is the torque transducer's delay: the
 measured torque lags, so harmonic h is seen at phase ``h (theta - omega_e tau)``, a shift that
 grows with the electrical speed ``omega_e`` (rad/s, signed). ``drift_s`` is a Legendre polynomial
 in time per segment (degree ``drift_degree``, its constant term is T_avg), ``mech_s`` a cos/sin pair
@@ -158,6 +161,13 @@ class SteadySegments:
         transducer sees, at angular frequencies (rad/s, signed): ``omega -> ndarray of complex``
         (:func:`eol_cal.mechanics.shaft_response` for a bench). The fitted ripple is the air-gap one;
         ``None`` takes the coupling as rigid (response 1).
+    kt_iq : list of ndarray, optional
+        Per segment, the air-gap torque the ECU's measured q current makes, ``kt * i_q`` (N*m),
+        sample for sample with ``torque``. Its ripple (the current loop's own: its angle
+        estimate's errors, the back-EMF's reaction to the speed ripple) is torque on the shaft
+        too; given, the fit takes it as known, through the same path and transducer as the
+        motor's ripple, so that ``c_h``, ``k_h`` are the motor's own (the paper's k6).
+        ``None``: no current channel, the current's ripple is fitted as part of ``c_h``, ``k_h``.
     """
 
     theta: list[np.ndarray]
@@ -168,6 +178,7 @@ class SteadySegments:
     pole_pairs: int
     labels: list[str] = field(default_factory=list)
     path_response: Callable[[np.ndarray], np.ndarray] | None = None
+    kt_iq: list[np.ndarray] | None = None
 
     @property
     def n_segments(self) -> int:

@@ -93,7 +93,8 @@ def speed_bands(omega: np.ndarray, tol: float = BAND_TOL) -> list[np.ndarray]:
 def _subset(seg: SteadySegments, idx: np.ndarray) -> SteadySegments:
     return dataclasses.replace(seg, theta=[seg.theta[i] for i in idx], t=[seg.t[i] for i in idx],
                                torque=[seg.torque[i] for i in idx], i_qo=seg.i_qo[idx], omega_e=seg.omega_e[idx],
-                               labels=[seg.labels[i] for i in idx] if seg.labels else [])
+                               labels=[seg.labels[i] for i in idx] if seg.labels else [],
+                               kt_iq=None if seg.kt_iq is None else [seg.kt_iq[i] for i in idx])
 
 
 def _phasor(e: Estimate) -> tuple[np.ndarray, np.ndarray]:

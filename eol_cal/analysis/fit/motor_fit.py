@@ -46,6 +46,10 @@ class MotorFit:
     coef : ndarray, (segments, spec.n_cols)
         Every segment's column coefficients (nuisance then harmonics) for
         :func:`design_matrix`; the model of segment s is ``mean(y_s) + design_matrix(...) @ coef[s]``.
+    current : ndarray, (segments, harmonics), complex, optional
+        The ripple of ``kt * i_q`` per segment as an air-gap phasor (N*m,
+        :func:`eol_cal.analysis.fit.compression.current_phasor`), known torque added to the fitted
+        ripple's; None when the segments carried no current.
     """
 
     harmonics: dict
@@ -59,6 +63,7 @@ class MotorFit:
     n_samples: int
     coef: np.ndarray | None = None
     birge: float = 1.0
+    current: np.ndarray | None = None
 
 
 #: the least degrees of freedom of one harmonic's own lack of fit for it to widen that harmonic's
@@ -178,4 +183,5 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         n_samples=int(n),
         coef=coef,
         birge=birge,
+        current=(comp.cur_re + 1j * comp.cur_im)[:S_valid] if np.any(comp.cur_re) or np.any(comp.cur_im) else None,
     )

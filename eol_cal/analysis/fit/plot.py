@@ -62,6 +62,8 @@ def fitted_ripple(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int, theta: n
             amp += parts["c"].value * np.exp(1j * parts["c"].phase)
         if "k" in parts:
             amp += parts["k"].value * seg.i_qo[s] * np.exp(1j * parts["k"].phase)
+        if fit.current is not None:  # the current's ripple, known air-gap torque
+            amp += fit.current[s, spec.harmonics.index(h)]
         curve -= abs(gain) * abs(amp) * np.sin(h * theta + (np.angle(gain) + np.angle(amp)))
     return curve
 

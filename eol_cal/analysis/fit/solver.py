@@ -49,7 +49,7 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
     G = spec.n_glob
     n_tau = int(spec.fit_delay)
 
-    def harm_coef(p, i_qo, omega, gre, gim):
+    def harm_coef(p, i_qo, omega, gre, gim, cre, cim):
         """Coefficients of the sin/cos(h theta) columns per segment, shape (S, 2 nh)."""
         tau = p[0] * TAU_SCALE if n_tau else spec.delay_s
         glob = p[n_tau : n_tau + G].reshape(-1, nh, 2)  # (part, harmonic, cos/sin)
@@ -63,6 +63,9 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
         if spec.fit_k:
             Zre = Zre + i_qo[:, None] * glob[part, :, 0][None]
             Zim = Zim + i_qo[:, None] * glob[part, :, 1][None]
+        # the ripple of kt * i_q (known; zero without a current channel) is air-gap torque too
+        Zre = Zre + cre
+        Zim = Zim + cim
         # air gap -> shaft (bench mechanics), then the transducer
         Zre, Zim = Zre * gre - Zim * gim, Zre * gim + Zim * gre
         a = H[None, :] * omega[:, None] * tau
@@ -79,8 +82,8 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
         return jnp.stack([-Rre, -Rim], axis=-1).reshape(S, 2 * nh)
 
     def residual(p, args):
-        Rhh, zh, i_qo, omega, gre, gim, valid = args
-        g = harm_coef(p, i_qo, omega, gre, gim)
+        Rhh, zh, i_qo, omega, gre, gim, cre, cim, valid = args
+        g = harm_coef(p, i_qo, omega, gre, gim, cre, cim)
         r = zh - jnp.einsum("sij,sj->si", Rhh, g)
         return (r * valid[:, None]).reshape(-1)
 
@@ -100,7 +103,8 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
         Rhh = comp["R"][:, q:, q:]
         zh = comp["z"][:, q:]
         valid = (comp["n"] > 0).astype(zh.dtype)
-        args = (Rhh, zh, comp["i_qo"], comp["omega"], comp["gain_re"], comp["gain_im"], valid)
+        paths = tuple(comp[k] for k in ("gain_re", "gain_im", "cur_re", "cur_im"))
+        args = (Rhh, zh, comp["i_qo"], comp["omega"], *paths, valid)
         if n_tau:
             starts, ssrs = jax.vmap(lambda tau: linear_start(args, tau))(tau_grid)
             p0 = starts[jnp.argmin(ssrs)]
@@ -124,7 +128,7 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
             "p": p,
             "cov_unscaled": jnp.linalg.inv(J.T @ J),
             "ssr_red": jnp.sum(r * r),
-            "g": harm_coef(p, comp["i_qo"], comp["omega"], comp["gain_re"], comp["gain_im"]),
+            "g": harm_coef(p, comp["i_qo"], comp["omega"], *paths),
             "steps": sol.stats["num_steps"],
             "converged": sol.result == optx.RESULTS.successful,
         }

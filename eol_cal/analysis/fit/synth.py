@@ -36,6 +36,7 @@ def synthetic_segments(
     extra: dict[int, tuple[float, float, float, float]] | None = None,
     transducer: str = "lowpass",
     path_response: Callable[[np.ndarray], np.ndarray] | None = None,
+    iq6: tuple[float, float] | None = None,
 ) -> tuple[SteadySegments, dict]:
     """One motor's segments: every load x speed x direction, each ``seg_s`` long.
 
@@ -72,6 +73,11 @@ def synthetic_segments(
     path_response : callable, optional
         The bench's air-gap-to-shaft response (:attr:`SteadySegments.path_response`), applied to
         every harmonic before the transducer and handed to the fit with the segments.
+    iq6 : (float, float), optional
+        The ECU's own 6th-order current ripple, ``(a, phase)`` (a in 1 / (rad/s) of electrical speed,
+        phase in rad): ``i_q = i_qo (1 + a |omega_e| sin(6 theta + phase))``, growing with load and
+        speed as the current loop's reaction does; air-gap torque ``kt i_q`` through the path and
+        the transducer like the motor's ripple. The segments then carry ``kt_iq``.
 
     Returns
     -------
@@ -80,7 +86,7 @@ def synthetic_segments(
     """
     terms = {6: (c6, phase_c6, k6, phase_k6)}
     terms.update(extra or {})
-    thetas, ts, ys, iqs, omegas, labels = [], [], [], [], [], []
+    thetas, ts, ys, iqs, omegas, labels, kt_iq = [], [], [], [], [], [], []
     t_start = 0.0
     n = int(round(seg_s * fs_hz))
     for direction in directions:
@@ -101,6 +107,10 @@ def synthetic_segments(
                     else:
                         arg, g = h * seen + np.angle(path), abs(path)
                     torque = torque - g * c * np.sin(arg + pc) - g * k * i_qo * np.sin(arg + pk)
+                    if h == 6 and iq6 is not None:
+                        torque = torque + g * kt * i_qo * iq6[0] * abs(omega_e) * np.sin(arg + iq6[1])
+                if iq6 is not None:
+                    kt_iq.append(kt * i_qo * (1.0 + iq6[0] * abs(omega_e) * np.sin(6 * theta + iq6[1])))
                 torque = torque + rng.normal(0.0, noise_nm, n)
                 thetas.append(theta)
                 ts.append(t)
@@ -109,7 +119,8 @@ def synthetic_segments(
                 omegas.append(omega_e)
                 labels.append(f"synthetic {direction:+d} {rpm:g} rpm {i_qo:g} A")
                 t_start = t[-1] + 1.0 / fs_hz
-    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels, path_response)
+    seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), pole_pairs, labels, path_response,
+                         kt_iq if iq6 is not None else None)
     truth = {"k6": k6, "phase_k6": phase_k6, "c6": c6, "phase_c6": phase_c6, "delay_s": delay_s,
              "transducer": transducer}
     return seg, truth
