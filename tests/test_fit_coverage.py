@@ -59,9 +59,7 @@ def test_every_reported_interval_covers_the_truth_on_plant_motors():
         assert n >= 15 and c >= 0.75, (q, n, c)
     n, c = cover["fingerprint"]
     assert n > 1000 and 0.90 <= c <= 0.995, c
-    # phase_k6 last: with the current's ripple known its interval shrank to the fit's own (+-0.2 deg),
-    # and the firmware frame's uncertainty (errors up to 0.5 deg) is not in it yet (issue 34's
-    # interval work); an expected failure until it is, then this passes as written
+    # phase_k6: with the current's ripple known its interval is the fit's own (+-0.2 deg) plus the
+    # firmware frame's uncertainty from the capture's segments (errors up to 0.5 deg)
     n, c = cover["phase_k6"]
-    if c < 0.75:
-        pytest.xfail(f"phase_k6 covers {c:.0%} of {n}: its interval lacks the firmware frame's uncertainty")
+    assert n >= 15 and c >= 0.75, ("phase_k6", n, c)
