@@ -12,7 +12,11 @@ mechanical orders), and every reported interval is judged against the plant's tr
   it takes the ECU's own current ripple out with the ``iq`` channel, docs/fit.md), and ``_eff``:
   the parameter plus that ripple at that order (``kt * i_q`` of a noise-free run of the same motor
   fitted with the same model), what a fit of the torque alone measures;
-- ``delay_s``: the transducer's time constant ``1 / (2 pi tq_bw_hz)``;
+- ``delay_s``: the lag of the sampled torque behind the capture's angle, as the first-order
+  low-pass the fit models it (:func:`chain_delay_s`): the transducer's time constant
+  ``1 / (2 pi tq_bw_hz)`` as the plant samples it, with the shaft line's semi-implicit Euler step and
+  the transducer's one-tick update, 27-34 us shorter on the plant's 20 kHz tick (a sampled chain
+  leads its continuous model; the fit measures the chain it is given);
 - ``mech{h}`` and ``phase_mech{h}`` (h = 1..3): each order in the block's frame (the truth's
   phase moved by the frame's mechanical angle against the plant's, measured per sample);
 - ``fingerprint``: every edge error against the plant's pulse placement in the block's
@@ -55,6 +59,46 @@ def current_ripple(run, spec) -> dict[str, complex]:
     d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
     six = f.harmonics[6]
     return {part: six[part].value * np.exp(1j * (six[part].phase + 6 * d_rec)) for part in ("k", "c")}
+
+
+def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
+    """The plant's sampled torque chain as the fit sees it: the time constant (s) of the first-order
+    low-pass that, behind the continuous shaft line the fit divides out, has the chain's phase,
+    averaged over ``freqs_hz`` (Hz, the 6th harmonic at the profile's speeds).
+
+    The chain is the plant's own tick (:func:`eol_cal.mechanics.mech_step`, then the transducer's
+    ``y += tq_gain (T_shaft - y)`` of :func:`eol_cal.plant.sensors.transducer_step`, recorded with
+    the tick's start time), linear in its state (twist, speeds, the dyno's integrator, the
+    transducer's state) about standstill, so its response is ``C (zI - A)^-1 b`` at ``z = e^{i w dt}``.
+    """
+    from types import SimpleNamespace
+
+    from eol_cal.mechanics import mech_step, torsion_response
+    from eol_cal.plant.params import to_params
+
+    q = to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0)
+    line = SimpleNamespace(**{k: float(getattr(q, k)) for k in ("J", "B", "J_dyno", "K_shaft", "D_shaft", "Kp_dyno",
+                                                                 "Ki_dyno")})
+    g, dt = float(q.tq_gain), 1.0 / p.motor.f_pwm
+
+    def tick(x: np.ndarray, u: float) -> tuple[np.ndarray, float]:
+        _, tw, om, od, xd, T_shaft = mech_step(0.0, x[0], x[1], x[2], x[3], u, 0.0, line, dt, np)
+        y = x[4] + g * (T_shaft - x[4])
+        return np.array([tw, om, od, xd, y]), y
+
+    cols = [tick(e, 0.0) for e in np.eye(5)]
+    A = np.column_stack([c[0] for c in cols])
+    C = np.array([c[1] for c in cols])
+    b, d = tick(np.zeros(5), 1.0)
+    tau = 1.0 / (2 * math.pi * p.tq_bw_hz)
+    out = []
+    for f in np.atleast_1d(freqs_hz):
+        w = 2 * math.pi * float(f)
+        z = np.exp(1j * w * dt)
+        h = C @ np.linalg.solve(z * np.eye(5) - A, b) + d
+        cont = torsion_response(np.array([w]), float(q.J), float(q.B), p.mechanics)[0] / (1 + 1j * w * tau)
+        out.append(math.tan(math.atan(w * tau) - float(np.angle(h / cont))) / w)
+    return float(np.mean(out))
 
 
 def prepared_runs(plants, profile, options: int, seed: int, effective: bool) -> tuple[list, list, list]:
@@ -117,7 +161,8 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
             z = z + cur[part]
             add(f"{part}6_eff", rec[f"{part}6"], abs(z))
             add(f"phase_{part}6_eff", rec[f"phase_{part}6"], np.angle(z) - 6 * d_fw)
-    add("delay_s", rec["delay_s"], 1.0 / (2 * math.pi * p.tq_bw_hz))
+    f6 = sorted({round(6 * abs(float(o.speed_rpm)) * mi.poles / 2 / 60.0, 3) for o in mi.info})
+    add("delay_s", rec["delay_s"], chain_delay_s(p, np.array(f6)))
     mech = rec.get("mech")
     fp = mi.fingerprint
     if not mech or fp is None or mi.prints is None:

@@ -51,6 +51,14 @@ the default ``paper`` assumed without identification).
 
     python bench/bench_fit_lot.py [--motors 100] [--batch 10] [--estimator paper,best]
                                   [--plant-bench resonant-250 --bench identified.toml]
+
+Issue 34's done-when runs (the bench file from ``bench/bench_bench_identify.py --repeat 1``)::
+
+    python bench/bench_fit_lot.py --estimator best --no-nominal-halls --no-effective \
+        --plant-bench resonant-250 --bench out/bench_identify/identified_0.toml
+    python bench/bench_fit_lot.py --estimator best --no-nominal-halls --no-effective --no-mech \
+        --plant-bench resonant-250 --bench paper
+    python bench/bench_fit_lot.py --estimator best --no-nominal-halls --spread mech23
 """
 
 from __future__ import annotations

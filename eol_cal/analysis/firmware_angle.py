@@ -56,7 +56,19 @@ def firmware_frame_offset(capture: Capture, theta_r: np.ndarray, ranges: list[tu
 
 
 def firmware_frame_offsets(jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
-    """:func:`firmware_frame_offset` of many captures, the estimator run over all of them at once.
+    """:func:`firmware_frame_offset` of many captures (:func:`firmware_frame_parts`, each capture's
+    ranges summed)."""
+    return [frame_total(parts) for parts in firmware_frame_parts(jobs)]
+
+
+def frame_total(parts: Sequence[tuple[complex, int]]) -> tuple[complex, int]:
+    """One capture's part of the frame from its ranges' parts: the sums and the samples added."""
+    return complex(sum(s for s, _ in parts)), int(sum(n for _, n in parts))
+
+
+def firmware_frame_parts(jobs: Sequence[FrameJob]) -> list[list[tuple[complex, int]]]:
+    """Per capture and per segment range, :func:`firmware_frame_offset`'s sum and samples, the
+    estimator run over all captures at once.
 
     The captures that share an estimator configuration (poles, encoder, tick rate, options) run
     side by side in one batched scan (:func:`eol_cal.firmware.estimator.run_jax_batch`), each as
@@ -70,31 +82,35 @@ def firmware_frame_offsets(jobs: Sequence[FrameJob]) -> list[tuple[complex, int]
 
     Returns
     -------
-    list of (complex, int)
-        Per job, as :func:`firmware_frame_offset`.
+    list of list of (complex, int)
+        Per job, per range of its ``ranges``, as :func:`firmware_frame_offset` of that range: the
+        ranges' scatter tells the frame's uncertainty (:func:`eol_cal.analysis.fit.fp_angle.frame_sd`).
     """
     by_cfg: dict[est.EstimatorConfig, list[int]] = {}
     for i, (capture, _, _, _, options) in enumerate(jobs):
         by_cfg.setdefault(firmware_config(capture, options), []).append(i)
-    out: list[tuple[complex, int]] = [(0j, 0)] * len(jobs)
+    out: list[list[tuple[complex, int]]] = [[] for _ in jobs]
     for cfg, idx in by_cfg.items():
         ends = [max((b for _, b in jobs[i][2]), default=1) for i in idx]
         signals = [tuple(np.asarray(jobs[i][0][name])[:m] for name in ("enc_a", "enc_b", "hall"))
                    for i, m in zip(idx, ends, strict=True)]
         runs = est.run_jax_batch(cfg, signals, [jobs[i][3] for i in idx])
         for i, run in zip(idx, runs, strict=True):
-            out[i] = _frame_sum(run, jobs[i][1], jobs[i][2])
+            out[i] = _frame_sums(run, jobs[i][1], jobs[i][2])
     return out
 
 
-def _frame_sum(out: est.EstimatorOut, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]]) -> tuple[complex, int]:
+def _frame_sums(out: est.EstimatorOut, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]]
+                ) -> list[tuple[complex, int]]:
     ok = (out.status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
-    in_seg = np.zeros(len(ok), bool)
+    theta_hat = np.asarray(out.theta_hat, float)
+    sums = []
     for a, b in ranges:
-        in_seg[a:b] = True
-    ok &= in_seg
-    d = np.asarray(out.theta_hat, float)[ok] - theta_r[: len(ok)][ok]
-    return complex(np.exp(1j * d).sum()), int(ok.sum())
+        b = min(b, len(ok))
+        sel = np.flatnonzero(ok[a:b]) + a
+        d = theta_hat[sel] - theta_r[sel]
+        sums.append((complex(np.exp(1j * d).sum()), int(len(sel))))
+    return sums
 
 
 @dataclass(frozen=True)

@@ -88,12 +88,12 @@ class EarlyWindows(PreparedWindows):
         if self.n_windows is not None and index + 1 == self.n_windows:
             self._frames = self._pool.submit(self._frame_offsets)
 
-    def _frame_offsets(self) -> dict[int, tuple[tuple, list, complex, int]]:
+    def _frame_offsets(self) -> dict[int, tuple[tuple, list, list[tuple[complex, int]]]]:
         """Every window's part of the firmware frame, as :func:`motor_inputs` will ask for it:
-        ``{window: (hall_angle, ranges, sum, n)}`` (empty when a window has no ``enc_b``)."""
+        ``{window: (hall_angle, ranges, [(sum, n) per range])}`` (empty when a window has no ``enc_b``)."""
         from concurrent.futures import ThreadPoolExecutor as Pool
 
-        from eol_cal.analysis.firmware_angle import firmware_frame_offset
+        from eol_cal.analysis.firmware_angle import firmware_frame_parts
         from eol_cal.analysis.halls import measure_hall_angles
 
         done = {k: job.result() for k, job in sorted(self._jobs.items())}
@@ -106,13 +106,13 @@ class EarlyWindows(PreparedWindows):
                                       settle_s=self.settle_s, min_revs=self.min_revs) for k, (cap, a, _m) in done.items()}
         keys = [k for k in done if ranges[k]]
 
-        def one(k: int) -> tuple[complex, int]:
+        def one(k: int) -> list[tuple[complex, int]]:
             cap, a, _m = done[k]
-            return firmware_frame_offset(cap, a.theta_r, ranges[k], table, self.estimator_options)
+            return firmware_frame_parts([(cap, a.theta_r, ranges[k], table, self.estimator_options)])[0]
 
         with Pool(max(1, min(FRAME_WORKERS, len(keys))), thread_name_prefix="early-frame") as pool:
             sums = list(pool.map(one, keys))
-        return {k: (table, ranges[k], *sn) for k, sn in zip(keys, sums, strict=True)}
+        return {k: (table, ranges[k], parts) for k, parts in zip(keys, sums, strict=True)}
 
     def _prepare(self, index: int, window: DynoWindow, t: np.ndarray) -> tuple[Capture, AngleResult, dict[str, Any]]:
         from eol_cal.analysis.angle import capture_angle
@@ -161,15 +161,15 @@ class EarlyWindows(PreparedWindows):
         self.used += 1
         return early[1]
 
-    def frame_offsets(self, jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
-        out: list[tuple[complex, int] | None] = [self._early_frame(*job) for job in jobs]
+    def frame_parts(self, jobs: Sequence[FrameJob]) -> list[list[tuple[complex, int]]]:
+        out: list[list[tuple[complex, int]] | None] = [self._early_frame(*job) for job in jobs]
         missing = [i for i, got in enumerate(out) if got is None]
-        for i, got in zip(missing, super().frame_offsets([jobs[i] for i in missing]), strict=True):
+        for i, got in zip(missing, super().frame_parts([jobs[i] for i in missing]), strict=True):
             out[i] = got
         return out  # type: ignore[return-value]
 
     def _early_frame(self, capture: Capture, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]],
-                     hall_angle: Sequence[float] | None, options: int) -> tuple[complex, int] | None:
+                     hall_angle: Sequence[float] | None, options: int) -> list[tuple[complex, int]] | None:
         """A window's part of the firmware frame computed when the last window came in, when it
         was computed from exactly these inputs; else None."""
         early = self._early(capture)
@@ -182,7 +182,7 @@ class EarlyWindows(PreparedWindows):
                 or options != self.estimator_options):
             return None
         self.frames_used += 1
-        return got[2], got[3]
+        return got[2]
 
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict[str, Any]:
         early = self._early(capture)

@@ -18,14 +18,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.analysis.angle import capture_angle
-from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_offsets
+from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_parts, frame_total
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import STANDSTILL_RAD_S, direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.model import Capture
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, shaft_response
+from eol_cal.mechanics import BenchMechanics, shaft_response, torsion_response
 from eol_cal.motor import MotorParams, load_motor
 
 if TYPE_CHECKING:
@@ -75,6 +75,8 @@ class MotorInput:
     angle_correction: str = "none: not measured"
     #: per capture window its part of the firmware frame offset (sum of exp(i (firmware - offline)), samples)
     frame_parts: list[tuple[complex, int] | None] | None = None
+    #: the same per segment of each window (None: the window gave no part)
+    frame_segment_parts: list[list[tuple[complex, int]] | None] | None = None
     #: per capture window the fraction (rad electrical) taken out of its angle to put it in the block's frame
     window_frac: list[float] | None = None
     #: standard error of ``frame_offset_rad`` (rad electrical; :func:`eol_cal.analysis.fit.fp_angle.frame_sd`)
@@ -220,9 +222,9 @@ class PreparedWindows:
         """A window's angle (:func:`capture_angle`)."""
         return capture_angle(capture)
 
-    def frame_offsets(self, jobs: Sequence[FrameJob]) -> list[tuple[complex, int]]:
-        """The windows' parts of the firmware frame offset (:func:`firmware_frame_offsets`)."""
-        return firmware_frame_offsets(jobs)
+    def frame_parts(self, jobs: Sequence[FrameJob]) -> list[list[tuple[complex, int]]]:
+        """The windows' parts of the firmware frame offset, per segment range (:func:`firmware_frame_parts`)."""
+        return firmware_frame_parts(jobs)
 
     def metrics_of(self, capture: Capture, angle: AngleResult) -> dict:
         """A window's p-p figures (:func:`window_metrics`)."""
@@ -381,11 +383,25 @@ def _segment_motor(serial: str, caps: list[Capture], motor: MotorParams, settle_
     else:
         hall = nominal_hall_angles("asked for")
     kt, kt_source = _kt_of(caps, motor)
-    response = None if mechanics is None else functools.partial(shaft_response, motor=motor, mechanics=mechanics)
     kt_iq, current = current_torque(caps, infos, cap_idx, kt)
+    response = None if mechanics is None else bench_path(motor, mechanics, current_known=kt_iq is not None)
     seg = SteadySegments(thetas, ts, ys, np.array(iqs), np.array(omegas), P // 2, labels, response, kt_iq)
     return MotorInput(serial, caps, angles, seg, infos, P, ppr.pop(), kt, kt_source, cap_idx, mechanics=mechanics,
                       hall=hall, left_out=left_out, current_ripple=current)
+
+
+def bench_path(motor: MotorParams, mechanics: BenchMechanics, current_known: bool) -> functools.partial:
+    """The torque path the fit divides out (``SteadySegments.path_response``).
+
+    With the current known (``kt * i_q`` measured, :func:`current_torque`) the air-gap torque
+    already holds the current loop's reaction to the speed ripple: the path is the shaft line
+    alone (:func:`eol_cal.mechanics.torsion_response`). Without it that reaction is modelled on top
+    (:func:`eol_cal.mechanics.shaft_response`); taking both would count it twice (k6 +0.12 % on
+    the paper bench, noise-free plant motors).
+    """
+    if current_known:
+        return functools.partial(torsion_response, J=motor.J, B=motor.B, mechanics=mechanics)
+    return functools.partial(shaft_response, motor=motor, mechanics=mechanics)
 
 
 def current_torque(caps: list[Capture], infos: list[SteadySegmentOrigin], cap_idx: list[int],
@@ -431,14 +447,17 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
                 assert mi.hall is not None
                 jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
                 owner.append((k, ci))
-    sums = prepared.frame_offsets(jobs)
+    parts = prepared.frame_parts(jobs)
     for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         fw_sum, fw_n = 0j, 0
         mi.frame_parts = [None] * len(mi.captures)
-        for (s_, n_), (o, ci) in zip(sums, owner, strict=True):
+        mi.frame_segment_parts = [None] * len(mi.captures)
+        for got, (o, ci) in zip(parts, owner, strict=True):
             if o == k:
+                s_, n_ = frame_total(got)
                 fw_sum, fw_n = fw_sum + s_, fw_n + n_
                 mi.frame_parts[ci] = (s_, n_)
+                mi.frame_segment_parts[ci] = got
         if fw_n:
             mi.frame, mi.frame_offset_rad = "firmware", float(np.angle(fw_sum))
             mi.frame_options = options

@@ -167,15 +167,23 @@ def edge_residual_correlation(fp: fpr.Fingerprint, prints: list[fpr.WindowEdges 
 
 
 def frame_sd(mi: MotorInput) -> float:
-    """Standard error of the firmware frame offset (rad electrical) from its windows' scatter: each
-    window's own offset (its estimator against its angle, in the common frame when the windows
-    were put in one), weighted by its samples, over the effective number of windows; 0 with one
-    window (its scatter cannot be told: bench/bench_coverage.py measured 0.02 deg electrical, sd,
-    on continuous plant captures)."""
+    """Standard error of the firmware frame offset (rad electrical) from the scatter of its parts:
+    each window's own offset (its estimator against its angle, in the common frame when the windows
+    were put in one), weighted by its samples, over the effective number of windows. With one
+    window its segments are the parts: the estimator's lag moves with speed, so its frame differs
+    from segment to segment (60 rpm against 120 rpm: +-0.1 deg electrical on plant motors), and
+    how far the offset recomputed from the capture sits from the ECU's own is as uncertain as
+    their scatter says (bench/bench_coverage.py: the frame's error 0.025 deg sd over 80 motors,
+    the segments' standard error 0.015-0.04; left out, phase_k6's interval covered 80 %). 0 with
+    one part."""
     parts = [(ci, p) for ci, p in enumerate(mi.frame_parts or []) if p is not None and p[1] > 0]
+    frac = mi.window_frac or [0.0] * len(mi.frame_parts or [])
+    if len(parts) == 1 and mi.frame_segment_parts is not None:
+        ci = parts[0][0]
+        # one window: its fraction moves every segment alike (no scatter of its own)
+        parts = [(ci, p) for p in mi.frame_segment_parts[ci] or [] if p[1] > 0]
     if len(parts) < 2:
         return 0.0
-    frac = mi.window_frac or [0.0] * len(mi.frame_parts or [])
     n = np.array([p[1] for _, p in parts], dtype=float)
     fo = np.array([np.angle(p[0]) + frac[ci] for ci, p in parts])
     d = np.angle(np.exp(1j * (fo - mi.frame_offset_rad)))

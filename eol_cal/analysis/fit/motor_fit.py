@@ -119,6 +119,8 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     birge = float(out["ssr_red"]) / dof_red / s2 if dof_red >= 1 and s2 > 0 else 1.0
     cov = s2 * np.asarray(out["cov_unscaled"], dtype=float)
     if spec.lack_of_fit:
+        from scipy import stats  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
         # per harmonic: the 6th's lack of fit is not the 12th's or the 18th's (pooled, the 6th's
         # intervals covered the truth for 85 % of plant motors, bench/bench_coverage.py); each
         # harmonic's parameters widened by the ratio of its own rows (R is upper triangular, the
@@ -129,7 +131,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         r = r[valid]
         n_parts = int(spec.fit_c) + int(spec.fit_k)
         scale = np.ones(len(p))
-        ratios = []
+        widen = []
         for ih in range(nh):
             dof_h = float(valid.sum()) * 2 - 2 * n_parts - n_tau / nh
             # a ratio from a few segments is itself too uncertain to narrow an interval with (two
@@ -137,12 +139,18 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
             # while its k6 missed the truth by 1.4 intervals): there the pool's ratio stands
             own = dof_h >= MIN_DOF_OWN_LACK_OF_FIT and s2 > 0
             ratio = float((r[:, 2 * ih: 2 * ih + 2] ** 2).sum()) / dof_h / s2 if own else birge
-            ratios.append(max(1.0, ratio))
+            dof = dof_h if own else dof_red
+            # the wider of two intervals: the noise's (s2 from thousands of samples: the normal's
+            # 1.96) and the lack of fit's, whose variance is estimated from the segments' few
+            # degrees of freedom (eol-default's 8 segments: 11.7), so its 95 % point is Student's t
+            # (2.18 there), not 1.96: with 1.96 k6 and c6 covered 92-94 % of plant motors
+            t95 = float(stats.t.ppf(0.975, dof)) if dof >= 1 else Z95  # no ratio below 1 dof (birge = 1)
+            widen.append(max(1.0, math.sqrt(max(ratio, 0.0)) * t95 / Z95))
             for ip in range(n_parts):
                 i = n_tau + (ip * nh + ih) * 2
-                scale[i: i + 2] = math.sqrt(ratios[-1])
+                scale[i: i + 2] = widen[-1]
         if n_tau:
-            scale[0] = math.sqrt(max(ratios))
+            scale[0] = max(widen)
         cov = cov * np.outer(scale, scale)
     harmonics: dict = {h: {} for h in spec.harmonics}
     parts = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
