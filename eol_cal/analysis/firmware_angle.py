@@ -5,7 +5,7 @@ from __future__ import annotations
 
 # One code path for numpy and jax.numpy (xp): arrays typed np.ndarray | jax.Array | float, a union mypy
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
-# mypy: disable-error-code="arg-type,operator,type-var"
+# mypy: disable-error-code="arg-type,operator"
 
 from dataclasses import dataclass
 from collections.abc import Sequence
@@ -102,7 +102,7 @@ def firmware_frame_parts(jobs: Sequence[FrameJob]) -> list[list[tuple[complex, i
 
 def _frame_sums(out: est.EstimatorOut, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]]
                 ) -> list[tuple[complex, int]]:
-    ok = (out.status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0
+    ok = np.asarray((out.status & (est.ST_NO_ANCHOR | est.ST_STANDSTILL | est.ST_NO_SPEED)) == 0)
     theta_hat = np.asarray(out.theta_hat, float)
     sums = []
     for a, b in ranges:
