@@ -189,6 +189,8 @@ def test_full_run_end_to_end(full_run):
                                                        "EST_LEARN_PITCH_ERRORS|MECH_COMP_ENABLE")
     assert cal["estimator"] == "best"
     assert rec["fit"]["model"]["frame_estimator"] == "best"
+    # the calibration capture carries the ECU's q current: the fit takes its ripple out (issue 34)
+    assert rec["fit"]["model"]["current_ripple"].startswith("taken out"), rec["fit"]["model"]["current_ripple"]
     assert f"{B.check(active).crc_stored:08x}" == cal["crc32"]
     assert blk.sequence == cal["sequence"] == 2 and cal["bank"] != prep["bank"]
     # the archive is the truth: each block in the run's directory is the bank's bytes as flashed

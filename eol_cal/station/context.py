@@ -22,6 +22,7 @@ from collections.abc import Callable
 from eol_cal.analysis.point_metrics import PointRipple
 from eol_cal import capture
 from eol_cal.capture.ecu_state import check_trace
+from eol_cal.dyno.profile_run import DEFAULT_CHANNELS
 from eol_cal.dyno.setpoints import setpoints_from_profile
 from eol_cal.ecu.session import ClientTiming
 from eol_cal.errors import EolCalError
@@ -151,8 +152,13 @@ class CycleContext:
             point_rpm, point_s, lead_in_s = lead_in_plan(booted, speed)
             if point_rpm is not None:
                 lead_point = dataclasses.replace(segs[0], speed_rpm=point_rpm, seconds=point_s)
+        # the calibration capture carries the ECU's measured q current where the dyno has it: the fit
+        # takes kt * iq as known torque, so the current loop's own ripple is not read as the motor's k6
+        regmap = self.cfg.dyno.regmap
+        channels = DEFAULT_CHANNELS + (("iq",) if which == "before" and "iq" in regmap.channels else ())
         cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
                                     self.cfg.dyno, segs, None, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
+                                    channels=channels,
                                     extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
                                                                f"profile {self.profile_name}"}, on_window=on_window,
                                     lead_in_s=lead_in_s, lead_in_point=lead_point)
