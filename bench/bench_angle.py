@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 from eol_cal.analysis.angle import reconstruct_angle
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.analysis.spectrum import order_spectrum
 from eol_cal.firmware import estimator as est
 from eol_cal.firmware.kinematics import draw_sensor_errors, encoder_hall_signals, ideal_sensor_errors

@@ -29,12 +29,12 @@ import numpy as np
 def discrete_mode(spec) -> tuple[float, float]:
     """The torsion mode (Hz, damping ratio) of the plant's shaft line as it integrates it.
 
-    :func:`eol_cal.mechanics.mech_step` linearised (one tick per column of its state), its
+    :func:`eol_cal.domain.bench_mechanics.mech_step` linearised (one tick per column of its state), its
     eigenvalues taken to continuous time: the pair of the largest frequency is the torsion mode.
     """
     from types import SimpleNamespace
 
-    from eol_cal.mechanics import mech_step, shaft_damping, speed_gains
+    from eol_cal.domain.bench_mechanics import mech_step, shaft_damping, speed_gains
 
     m, b = spec.motor, spec.mechanics
     Kp, Ki = speed_gains(m.J + b.J_dyno, b.dyno_bw_hz, b.dyno_zeta)
@@ -63,7 +63,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from eol_cal.capture.io import write_capture
-    from eol_cal.mechanics import load_mechanics, torsion_response
+    from eol_cal.domain.bench_mechanics import load_mechanics, torsion_response
     from eol_cal.plant.presets import paper
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate

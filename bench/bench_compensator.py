@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.firmware import compensator as comp
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -66,14 +66,14 @@ def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
     low-pass that, behind the continuous shaft line the fit divides out, has the chain's phase,
     averaged over ``freqs_hz`` (Hz, the 6th harmonic at the profile's speeds).
 
-    The chain is the plant's own tick (:func:`eol_cal.mechanics.mech_step`, then the transducer's
+    The chain is the plant's own tick (:func:`eol_cal.domain.bench_mechanics.mech_step`, then the transducer's
     ``y += tq_gain (T_shaft - y)`` of :func:`eol_cal.plant.sensors.transducer_step`, recorded with
     the tick's start time), linear in its state (twist, speeds, the dyno's integrator, the
     transducer's state) about standstill, so its response is ``C (zI - A)^-1 b`` at ``z = e^{i w dt}``.
     """
     from types import SimpleNamespace
 
-    from eol_cal.mechanics import mech_step, torsion_response
+    from eol_cal.domain.bench_mechanics import mech_step, torsion_response
     from eol_cal.plant.params import to_params
 
     q = to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0)
@@ -108,7 +108,7 @@ def prepared_runs(plants, profile, options: int, seed: int, effective: bool) -> 
 
     Returns ``(prepared blocks, runs, clean runs or None per motor)``."""
     from eol_cal.analysis.fit.table import uncompensated_block
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.simulate import simulate
 
     motor = load_motor("paper")
@@ -128,7 +128,7 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
     from eol_cal.analysis import fingerprint as fpr
     from eol_cal.firmware.kinematics import fingerprint_of
     from eol_cal.plant.params import sensor_errors, to_params
-    from eol_cal.wrap import wrap_pi
+    from eol_cal.numerics.wrap import wrap_pi
 
     out: list[dict] = []
     if rec["status"] != "ok":
@@ -233,7 +233,7 @@ def main() -> None:
     from eol_cal.analysis.fit.motors import FitOptions, fit_inputs
     from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.firmware.options import parse_options
-    from eol_cal.mechanics import load_mechanics
+    from eol_cal.domain.bench_mechanics import load_mechanics
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.spread import load_spread
     from eol_cal.plant.variation import draw_motor

@@ -26,7 +26,7 @@ import numpy as np
 from eol_cal.firmware import estimator as est
 from eol_cal.firmware.kinematics import (draw_sensor_errors, electrical_angle, encoder_hall_signals,
                                          speed_profile_angle)
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 TICK_HZ = 20000.0
 

@@ -192,9 +192,9 @@ def uds_section(args: argparse.Namespace) -> bool:
     import eol_cal.ecu.session as session
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import flash_block, hmac_seed_to_key, read_active_block
-    from eol_cal.ecu.sim import Faults
+    from eol_cal.ecu.sim_ecu import Faults
     from eol_cal.ecu.transport import TesterConnection
-    from eol_cal.exchange_log import quiet
+    from eol_cal.infra.exchange_log import quiet
     from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 
     quiet(("UdsClient", "isotp", "Connection", "can"))  # udsoncan logs each refused answer; counted below

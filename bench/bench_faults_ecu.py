@@ -176,7 +176,7 @@ def kill_run(env, base: Path, work: Path, die_at: str) -> Trial:
     calibrated block's flash: the prepare flash sends two TransferData, its body and, last, its
     CRC; transfer:2 killed the prepare flash's CRC write): is the error record in the database
     and the report written?"""
-    from eol_cal.dyno import sim as ds
+    from eol_cal.dyno import sim_dyno as ds
     from eol_cal.dyno.sim_capture import synthetic_source
     from eol_cal.records.query import query_records
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bench_faults_ecu import LIMITS  # the same limits as the ECU trials (beside this script: on its path)
-from eol_cal.dyno import sim as ds
+from eol_cal.dyno import sim_dyno as ds
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 

@@ -110,15 +110,15 @@ def main() -> None:
     args = ap.parse_args()
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
-    from eol_cal.wrap import wrap_pi
+    from eol_cal.numerics.wrap import wrap_pi
     from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.analysis.fit.table import block_from_record
     from eol_cal.analysis.result import CiLimits, record_for_motor
-    from eol_cal.mechanics import load_mechanics
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import load_mechanics
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
-    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.ecu_model import true_block
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.spread import load_spread
     from eol_cal.plant.variation import draw_motor

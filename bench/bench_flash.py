@@ -24,7 +24,7 @@ import can
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
-from eol_cal.ecu.sim import Faults, SimConfig
+from eol_cal.ecu.sim_ecu import Faults, SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, frame_bits, isotp_min_frames
 from eol_cal.firmware import block as B
 

@@ -36,12 +36,12 @@ from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG
 from eol_cal.firmware.options import parse_options
 from eol_cal.firmware.settling import FIRST_EDGES_S, block_settle_s
 from eol_cal.plant import variation
-from eol_cal.plant.ecu import true_block
+from eol_cal.plant.ecu_model import true_block
 from eol_cal.plant.presets import preset_spec
 from eol_cal.plant.profile import Profile, ProfileSegment
 from eol_cal.plant.simulate import simulate
 from eol_cal.plant.params import PlantSpec
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 CAPTURE_RPM = 60.0
 CAPTURE_S = 1.2

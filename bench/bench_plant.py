@@ -49,7 +49,7 @@ def _pin_one_core() -> int:
 
 def _loop_kernel() -> None:
     try:
-        from eol_cal.xla import configure_xla
+        from eol_cal.numerics.xla import configure_xla
     except ImportError:  # older checkouts kept it with the plant
         from eol_cal.plant.simulate import configure_xla
     configure_xla()
@@ -98,7 +98,7 @@ def bench_motulator(seconds: float) -> dict[str, float]:
     from motulator.drive import model
     from motulator.drive.utils import SynchronousMachinePars
 
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     m = load_motor("paper")
     out: dict[str, float] = {}

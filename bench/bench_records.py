@@ -96,7 +96,7 @@ def fill(db, n: int, batch: int = 2000) -> tuple[float, float, int]:
 
 def by_columns(db, variant: str | None) -> dict[str, Any]:
     """`eol-cal lot stats`: the columns of the production runs and the refusals, no record JSON."""
-    from eol_cal.lot.columns import read_lots
+    from eol_cal.lot.runs import read_lots
     from eol_cal.lot.summary import lot_summary
 
     return lot_summary(*read_lots(db, variant=variant, also=("refusal",)))
@@ -104,7 +104,7 @@ def by_columns(db, variant: str | None) -> dict[str, Any]:
 
 def by_records(db, variant: str | None) -> dict[str, Any]:
     """The alternative: read and parse every run's record JSON, then the same statistics."""
-    from eol_cal.lot.columns import from_records
+    from eol_cal.lot.runs import from_records
     from eol_cal.lot.summary import lot_summary
     from eol_cal.records.connect import engine
     from eol_cal.records.rows import parse_record

@@ -27,7 +27,7 @@ import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fingerprint import LOW_ORDERS, POLY_DEGREE, low_order_complement  # noqa: F401
-from eol_cal.analysis.fit import mech as M
+from eol_cal.analysis.fit import mech_orders as M
 from eol_cal.analysis.fit.model import Z95
 from eol_cal.analysis.motor_result import MechOrder, ValueCi
 from eol_cal.firmware.mech_params import ORDERS

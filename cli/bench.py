@@ -46,8 +46,8 @@ def identify_cmd(captures, output, plot_file, map_file, motor_file, base_bench, 
     from eol_cal.analysis.bench_id.output import plot_bench, write_bench
     from eol_cal.analysis.bench_id.sweep import sweep_points
     from eol_cal.capture.io import read_capture
-    from eol_cal.mechanics import load_mechanics
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import load_mechanics
+    from eol_cal.domain.motor_params import load_motor
 
     params = load_motor("paper", motor_file)
     base = load_mechanics(base_bench)

@@ -72,7 +72,7 @@ def _print_human(doc: dict[str, Any], blk: Any) -> None:
     table.add_column("field")
     table.add_column("value")
     table.add_column("unit")
-    from eol_cal.display import display_unit
+    from eol_cal.rendering.display import display_unit
     from eol_cal.firmware.block import FIELDS, flag_names
 
     for name, spec in FIELDS.items():
@@ -138,7 +138,7 @@ def unsafe_reasons(data: bytes, file: str, motor_file: str | None) -> list[str]:
     """
     from eol_cal.firmware import block as B
     from eol_cal.firmware.block_sanity import MotorType, sanity_problems, type_problems
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     motor = load_motor("paper", motor_file)
     blk = B.unpack(data, file)
@@ -192,7 +192,7 @@ def hex_cmd(file: str, bank: int, output: str, motor_file: str | None) -> None:
     """
     from eol_cal.errors import CheckFailed
     from eol_cal.firmware import block as B
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
 
     data = B.read_block_file(file)
     res = B.check(data)
@@ -226,7 +226,7 @@ def a2l_cmd(bank: int, output: str, table_len: int, layout: int) -> None:
     MEMORY_SEGMENTs are described. The tables' and the CRC's addresses depend on N: a block
     with another table length needs its own file.
     """
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
     from eol_cal.firmware.gen_a2l import bank_byte_address, render_a2l
 
     text = render_a2l(bank, table_len, layout)
@@ -251,9 +251,9 @@ def uncompensated_cmd(serial: str, output: str, motor_file: str | None, estimato
     calibrated one its old compensation.
     """
     from eol_cal.analysis.fit.table import uncompensated_block
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
     from eol_cal.firmware import block as B
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     blk = uncompensated_block(serial, load_motor("paper", motor_file), options=estimator_bits(estimator))
     data = B.pack(blk)

@@ -26,7 +26,7 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
     """The ``capture info --json`` document (keys documented in docs/capture.md)."""
     import numpy as np
 
-    from eol_cal.capture.model import CANONICAL_CHANNELS
+    from eol_cal.capture.data import CANONICAL_CHANNELS
     from eol_cal.capture.validate import hall_changes, rising_edges
 
     t = capture.t
@@ -57,7 +57,7 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
         values = np.asarray(capture["hall"])
         finite = values[np.isfinite(values)] if values.dtype.kind == "f" else values
         hall = {"states_seen": sorted(int(s) for s in np.unique(finite)), "changes": hall_changes(values)}
-    from eol_cal.jsonsafe import json_safe
+    from eol_cal.infra.jsonsafe import json_safe
 
     # a header's NaN kt or a NaN time stamp is what a bad capture holds: null in the document (the
     # problem says why), never a ValueError from the JSON writer

@@ -42,12 +42,12 @@ def signals_interrupt() -> Iterator[None]:
 
     SIGTERM's (and a closed terminal's SIGHUP's) default ends the process without cleanup (no
     safe state, no record); raised as an exception it unwinds through every ``finally`` like
-    Ctrl-C. Inside ``eol_cal.interrupts.shielded`` (a record being written) it waits for the end;
+    Ctrl-C. Inside ``eol_cal.infra.interrupts.shielded`` (a record being written) it waits for the end;
     inside a finalizer it comes again a moment later; a main thread stuck in a system call is
-    ended by the watchdog (``eol_cal.interrupts``). Outside the main thread (a test invoking the
+    ended by the watchdog (``eol_cal.infra.interrupts``). Outside the main thread (a test invoking the
     CLI from a worker) handlers cannot be set and nothing changes.
     """
-    from eol_cal import interrupts
+    from eol_cal.infra import interrupts
 
     interrupts.reset()
     if threading.current_thread() is not threading.main_thread():
@@ -101,8 +101,8 @@ def handle_errors(func: Callable) -> Callable:
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from eol_cal import interrupts
-        from eol_cal.inputs import command_inputs
+        from eol_cal.infra import interrupts
+        from eol_cal.infra.inputs import command_inputs
 
         try:
             with signals_interrupt(), command_inputs():
@@ -149,7 +149,7 @@ class RecordsDb(click.ParamType):
     name = "PATH|URL"
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str | Path:
-        from eol_cal.address import records_db
+        from eol_cal.infra.address import records_db
         from eol_cal.errors import InputError
 
         try:  # the one check of a database address (settings and variables take the same)
@@ -164,7 +164,7 @@ RECORDS_DB = RecordsDb()
 def exchange_log_options(func: Callable) -> Callable:
     """``--verbose`` and ``--log-file FILE`` for every command that talks to the ECU or the dyno.
 
-    Both write the timestamped UDS and Modbus exchanges (:mod:`eol_cal.exchange_log`): ``--verbose``
+    Both write the timestamped UDS and Modbus exchanges (:mod:`eol_cal.infra.exchange_log`): ``--verbose``
     on stderr, ``--log-file`` appended to FILE. Put it below :func:`handle_errors`, so a log file that
     cannot be opened is one line and exit 2::
 
@@ -180,7 +180,7 @@ def exchange_log_options(func: Callable) -> Callable:
     @functools.wraps(func)
     def wrapper(*args: Any, verbose: bool = False, log_file: str | None = None, **kwargs: Any) -> Any:
         from cli.paths import LOG_FILE, check_io
-        from eol_cal.exchange_log import exchange_logging
+        from eol_cal.infra.exchange_log import exchange_logging
 
         if log_file is not None:
             check_io((), (log_file,))  # not a directory, FIFO or device

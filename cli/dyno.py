@@ -12,7 +12,7 @@ from cli.ecu import bus_options, open_cli_bus
 from cli.paths import io_paths
 
 if TYPE_CHECKING:
-    from eol_cal.dyno.sim import FaultPlan
+    from eol_cal.dyno.sim_dyno import FaultPlan
 
 _SUFFIXES = (".csv", ".mf4")
 
@@ -39,7 +39,7 @@ def load_map(spec: str):
 
 
 def _quiet_pymodbus() -> None:
-    from eol_cal.exchange_log import quiet
+    from eol_cal.infra.exchange_log import quiet
 
     # pymodbus logs every retried request at ERROR; the command reports failures itself
     quiet(("pymodbus",))
@@ -165,10 +165,10 @@ def acquire_cmd(address, profile, output, serial, rate_hz, timeout, retries, con
 
 
 def parse_fault_plan(text: str) -> FaultPlan:
-    """``--fault KIND[@capture:N|@read:N][/MS]`` -> a dyno :class:`~eol_cal.dyno.sim.FaultPlan`
+    """``--fault KIND[@capture:N|@read:N][/MS]`` -> a dyno :class:`~eol_cal.dyno.sim_dyno.FaultPlan`
     (e.g. ``disconnect@read:5/300``)."""
     from eol_cal.dyno.registers import SimFault
-    from eol_cal.dyno.sim import FaultPlan
+    from eol_cal.dyno.sim_dyno import FaultPlan
     from eol_cal.errors import InputError
 
     names = {"disconnect": SimFault.DISCONNECT, "over-speed": SimFault.OVER_SPEED, "torque-sensor": SimFault.TORQUE_SENSOR}
@@ -212,13 +212,13 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
     import threading
     import time
 
-    from eol_cal.dyno import sim as ds
+    from eol_cal.dyno import sim_dyno as ds
     from eol_cal.dyno.sim_capture import CaptureRequest, synthetic_source
     from eol_cal.dyno.registers import DutCmdKind
     from eol_cal.errors import InputError
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
-    from eol_cal.address import parse_host_port
+    from eol_cal.infra.address import parse_host_port
 
     host, port = parse_host_port(listen, "listen", any_port=True)
     if not serial or len(serial.encode("ascii", "replace")) > 16:
@@ -267,7 +267,7 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
     try:
         asyncio.run(sim.serve(host, port, started))
     except KeyboardInterrupt:  # how a simulator is stopped: exit 0
-        from eol_cal import interrupts
+        from eol_cal.infra import interrupts
 
         interrupts.handled()
     except (OSError, RuntimeError) as exc:

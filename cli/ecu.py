@@ -35,7 +35,7 @@ def bus_options(func: Callable) -> Callable:
 
 def open_cli_bus(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None) -> Any:
     from eol_cal.ecu.transport import open_bus
-    from eol_cal.exchange_log import quiet
+    from eol_cal.infra.exchange_log import quiet
 
     # can-isotp and udsoncan log every lost frame and timeout; the error we raise says it once
     # (--verbose/--log-file open these loggers again).
@@ -84,7 +84,7 @@ def flash_cmd(block_file: str, interface: str | None, channel: str | None, bitra
     """
     from eol_cal.ecu.client import flash_block
     from eol_cal.firmware.block import read_block_file
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     data = read_block_file(block_file)
     motor = load_motor("paper", motor_file)
@@ -144,7 +144,7 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
     click.echo(f"active      bank {a['bank']} seq {a['sequence']} layout {a['layout_version']} crc {a['crc32']}")
     blk = doc["block"]
     if blk and blk["valid"]:
-        from eol_cal.display import to_display
+        from eol_cal.rendering.display import to_display
 
         click.echo(f"block       serial {blk['serial']} table_len {blk['table_len']} k6 {to_display(blk['k6'], 'N*m/A'):.6g} "
                    f"mN*m/A phase_k6 {to_display(blk['phase_k6'], 'rad'):.2f} deg c6 {to_display(blk['c6'], 'N*m'):.6g} "
@@ -164,9 +164,9 @@ def info_cmd(interface: str | None, channel: str | None, bitrate: int | None, ca
 def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | None, can_config: str | None,
                    output: str, bank: str | None) -> None:
     """Read the active block (or a bank's) back from the ECU into a file (written atomically)."""
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
     from eol_cal.ecu.client import read_active_block
-    from eol_cal.ecu.restore import read_bank_block
+    from eol_cal.ecu.reflash import read_bank_block
     from eol_cal.firmware.block import check
 
     which = bank_choice(bank)
@@ -185,7 +185,7 @@ def read_block_cmd(interface: str | None, channel: str | None, bitrate: int | No
 
 
 def bank_choice(value: str | None) -> int | str | None:
-    from eol_cal.ecu.restore import PREVIOUS
+    from eol_cal.ecu.reflash import PREVIOUS
 
     if value is None or value == PREVIOUS:
         return value
@@ -229,7 +229,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import load_key_file
     from eol_cal.sim.remote_ecu import serve_remote
-    from eol_cal.ecu.sim import STEPS, Faults, SimConfig
+    from eol_cal.ecu.sim_ecu import STEPS, Faults, SimConfig
 
     def step_arg(text: str, option: str, kind: type) -> tuple[str, Any]:
         step, _, value = text.partition(":")
@@ -246,7 +246,7 @@ def ecu_sim_cmd(flash_file: str, listen: str, serial: str, key_file: str | None,
     if slow:
         faults.slow_step = dict([step_arg(slow, "slow", float)])
 
-    from eol_cal.address import parse_host_port
+    from eol_cal.infra.address import parse_host_port
 
     host, port = parse_host_port(listen, "listen", any_port=True)
     try:

@@ -117,7 +117,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
     from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
-    from eol_cal.mechanics import mechanics_or_rigid
+    from eol_cal.domain.bench_mechanics import mechanics_or_rigid
     from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.io import read_capture
 

@@ -49,7 +49,7 @@ def _readable_set(check_dir: str) -> None:
     from pathlib import Path
 
     from eol_cal.errors import InputError
-    from eol_cal.inputs import read_text
+    from eol_cal.infra.inputs import read_text
 
     where = Path(check_dir)
     if not where.is_dir():

@@ -68,7 +68,7 @@ def report_cmd(db, variant, since, until, station, min_n, baseline_name, kind, o
     statistics are of the production runs unless --kind says otherwise (docs/records.md, "Run kinds")."""
     from eol_cal.errors import InputError
     from eol_cal.lot.spc import DEFAULT_MIN_N
-    from eol_cal.lot.page import select_records, write_lot_page
+    from eol_cal.lot.lot_page import select_records, write_lot_page
     from eol_cal.records.connect import db_label
     from eol_cal.records.query import query_records
 
@@ -117,7 +117,7 @@ def stats_cmd(db, variant, since, until, station, min_n, baseline_name, judged, 
     rule fires). Definitions: docs/spc.md."""
     from cli.common import print_json
     from eol_cal.errors import InputError
-    from eol_cal.lot.columns import CHARTED, QUANTITIES, read_lots
+    from eol_cal.lot.runs import CHARTED, QUANTITIES, read_lots
     from eol_cal.lot.spc import DEFAULT_MIN_N
     from eol_cal.lot.summary import LOT_STATS_SCHEMA, lot_summary, write_runs_csv
     from eol_cal.records.connect import db_label

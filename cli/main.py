@@ -130,7 +130,7 @@ def _exit_at_once_on_a_signal() -> None:
 def main() -> None:
     import atexit
 
-    from eol_cal.blas import limit_blas_threads
+    from eol_cal.numerics.blas import limit_blas_threads
 
     global _exit_status
     atexit.register(end_process)  # registered first: runs last

@@ -91,13 +91,13 @@ def type1_cmd(db, serial, since, until, references, reference_run, tolerances, l
     results = studies(lot, refs, tols, sources, l=l, min_n=min_n)
     doc = {**document(results, serial=serial, runs=lot, min_n=min_n), "db": db_label(db)}
     if out is not None:
-        from eol_cal.msa.page import write_page
+        from eol_cal.msa.type1_page import write_page
 
         titles = [f"{rid}, {str(t)[:19].replace('T', ' ')}" for rid, t in zip(lot.run_id, lot.started_at, strict=True)]
         write_page(out, doc, results, title=db_label(db), run_titles=titles)
     written = []
     if plots is not None:
-        from eol_cal.msa.page import write_pngs
+        from eol_cal.msa.type1_page import write_pngs
 
         written = write_pngs(results, plots)
     if as_json:

@@ -12,7 +12,7 @@ from cli.common import RECORDS_DB, CommandExit, console, err_console, exchange_l
 from cli.ecu import key_algo_option
 from cli.paths import check_io, check_more, io_paths
 from cli.station import StepProgress, flush_first, given_options, quiet_logs, results_table, write_demo_limits
-from eol_cal import interrupts
+from eol_cal.infra import interrupts
 
 #: `station` options by settings key (as `run`'s); given ones override the file and the environment
 STATION_OPTION_KEYS = {"limits_file": "limits", "variant": "variant", "db": "db", "report_dir": "report_dir",
@@ -81,7 +81,7 @@ def _ask(prompt: str) -> str | None:
 
 def _ask_operator() -> str | None:
     from eol_cal.errors import InputError
-    from eol_cal.station.session import operator_name
+    from eol_cal.station.operator_session import operator_name
 
     while True:
         line = _ask("Operator: ")
@@ -96,7 +96,7 @@ def _ask_operator() -> str | None:
 def _next_serial() -> str | None:
     """The next motor's serial, re-asked until it is one; None ends the session."""
     from eol_cal.errors import InputError
-    from eol_cal.station.session import scanned_serial
+    from eol_cal.station.operator_session import scanned_serial
 
     while True:
         line = _ask("Scan serial (Enter or q ends the session): ")
@@ -142,7 +142,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
             return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
     from eol_cal.dyno.client import parse_address
     from eol_cal.sim.loopback import loopback_station
-    from eol_cal.station.session import demo_seed
+    from eol_cal.station.operator_session import demo_seed
 
     regmap = cfg.dyno.regmap  # the settings' map: the demo's dyno simulator serves the same one
     with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap) as st:
@@ -246,7 +246,7 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
 
 def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
-    from eol_cal.lot.page import select_records, write_lot_page
+    from eol_cal.lot.lot_page import select_records, write_lot_page
     from eol_cal.records.connect import db_label, db_shown
     from eol_cal.records.query import query_records
 
@@ -309,7 +309,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.station.configure import station_config
     from eol_cal.records.connect import db_shown
-    from eol_cal.station.session import SessionTally, operator_name
+    from eol_cal.station.operator_session import SessionTally, operator_name
 
     if demo and out_dir is None:
         out_dir = Path(tempfile.mkdtemp(prefix="eol-cal-station-"))

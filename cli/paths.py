@@ -7,7 +7,7 @@ failed), and, for ``run`` and ``station``, what the station settings name (:func
 Every records database is an input whether it exists yet or not: no output may be it or a
 file SQLite keeps beside it (``-wal``, ``-shm``, ``-journal``); ``station --demo --lot
 D/results.sqlite`` replaced the database it had just created with the lot page. Files read and written at
-run time are guarded by :func:`eol_cal.inputs.refuse_overwriting_input` (every atomic write).
+run time are guarded by :func:`eol_cal.infra.inputs.refuse_overwriting_input` (every atomic write).
 
 ``eol-cal fit X.mf4 -o X.mf4`` used to replace the capture with the result and exit 0. Every
 command that writes declares its inputs and outputs with :func:`io_paths`; before it runs, each
@@ -79,7 +79,7 @@ def _special(path: str) -> str | None:
 
 def database_files(databases: Iterable[PathArg]) -> list[str]:
     """The files of records databases: each SQLite file and the files SQLite keeps beside it (URLs left out)."""
-    from eol_cal.inputs import SQLITE_SIDE_FILES
+    from eol_cal.infra.inputs import SQLITE_SIDE_FILES
 
     return [f"{db}{side}" for v in databases for db in _paths(v) for side in ("", *SQLITE_SIDE_FILES)]
 
@@ -155,7 +155,7 @@ def check_more(inputs: Sequence[PathArg] = (), outputs: Sequence[PathArg] = (),
                output_dirs: Sequence[PathArg] = (), databases: Sequence[PathArg] = ()) -> None:
     """:func:`check_io` on paths a command learns while it runs (its settings file's, its
     defaults), together with those it was given (its options, the log file); each input and
-    database noted for the run-time guard (:func:`eol_cal.inputs.protect_database`: a file the
+    database noted for the run-time guard (:func:`eol_cal.infra.inputs.protect_database`: a file the
     command creates later cannot take a database's place either).
 
     Raises
@@ -163,7 +163,7 @@ def check_more(inputs: Sequence[PathArg] = (), outputs: Sequence[PathArg] = (),
     InputError
         As :func:`check_io`.
     """
-    from eol_cal.inputs import protect_database, register_input
+    from eol_cal.infra.inputs import protect_database, register_input
 
     ctx = _context()
     seen = _checked(ctx)

@@ -18,7 +18,7 @@ SCHEDULER_TIMEOUT_S = 10
 def scheduler_address(text: str) -> str:
     """A Dask scheduler's address, ``tcp://HOST:PORT`` (``tls://`` too; a bare ``HOST:PORT`` is
     tcp): checked before any cluster is reached (a malformed one was a ValueError traceback)."""
-    from eol_cal.address import parse_host_port
+    from eol_cal.infra.address import parse_host_port
     from eol_cal.errors import InputError
 
     scheme, sep, rest = text.partition("://")
@@ -51,8 +51,8 @@ def _check_lot_inputs(limits_file: str | None, variant: str | None, bench: str, 
     """What every task would read, read once here: a bad limits file, variant, bench or motor is
     bad input (exit 2) before the cluster starts, not an error row per capture (exit 1)."""
     from eol_cal.errors import InputError
-    from eol_cal.mechanics import mechanics_or_rigid
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import mechanics_or_rigid
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.records.limits import load_limits
 
     if limits_file is not None:

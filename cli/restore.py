@@ -64,7 +64,7 @@ def restore_cmd(bank: str | None, from_file: str | None, calibration: str | None
     recorded as a run of kind restore. Exit 0 restored (or already active), 1 verification
     failed, 2 refused or error.
     """
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.station.restore import prepare_note, uncompensated
 
     chosen = [x for x in (bank, from_file, calibration, run_id) if x is not None]
@@ -135,8 +135,8 @@ def _from_bank_or_file(bank: str | None, from_file: str | None, save_file: str |
     """The block of ``--bank`` (kept in a file first) or ``--from``; None: the bank is active already."""
     import time
 
-    from eol_cal.atomic import atomic_write
-    from eol_cal.ecu.restore import check_restorable, read_bank_block
+    from eol_cal.infra.atomic import atomic_write
+    from eol_cal.ecu.reflash import check_restorable, read_bank_block
     from eol_cal.firmware.block import read_block_file
 
     if from_file is not None:
@@ -175,7 +175,7 @@ def _restore(data: bytes, source: str, serial: str | None, db: Any, report_dir: 
              seed_to_key: Any, motor: Any, restored_from: Any, bus_args: tuple, as_json: bool):
     """The flash: recorded (a run of kind restore) when a database is given, else as before."""
     from eol_cal.ecu.client import ClientTiming
-    from eol_cal.ecu.restore import restore_block
+    from eol_cal.ecu.reflash import restore_block
     from eol_cal.firmware.block import unpack
     from eol_cal.records.record import StationInfo
     from eol_cal.station.restore import restore_run

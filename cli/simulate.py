@@ -90,13 +90,13 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
 
     Captures carry the plant's truth as truth.* metadata (k6, phases, c6, sensor errors, R_s, ...).
     """
-    from eol_cal.xla import configure_xla
+    from eol_cal.numerics.xla import configure_xla
 
     configure_xla()  # before the first JAX computation of the process
     from cli.fit import enable_jax_cache
     from eol_cal.capture import write_capture
     from eol_cal.plant import presets, variation
-    from eol_cal.plant.ecu import mode_of_block
+    from eol_cal.plant.ecu_model import mode_of_block
     from eol_cal.plant.simulate import simulate
     from eol_cal.station.whatif import SEED_MAX
     from eol_cal.plant.spread import load_spread
@@ -128,7 +128,7 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
             result = simulate(spec, prof, mode=mode, blocks=block, seed=0 if seed is None else seed)[0]
         write_capture(result.capture, output)
         if plot_file:
-            from eol_cal.plant.plot import plot_runs
+            from eol_cal.plant.paper_figures import plot_runs
 
             plot_runs([result], plot_file)
         doc = _summary(result, mode, output)
@@ -161,7 +161,7 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
             write_capture(r.capture, path)
             docs.append(_summary(r, mode, str(path)))
     if plot_file:
-        from eol_cal.plant.plot import plot_runs
+        from eol_cal.plant.paper_figures import plot_runs
 
         plot_runs(results[:4], plot_file)
     if as_json:

@@ -19,7 +19,7 @@ DEMO_LIMITS = resources.files("eol_cal.station").joinpath("demo-limits.toml").re
 
 
 def quiet_logs() -> None:
-    from eol_cal.exchange_log import quiet
+    from eol_cal.infra.exchange_log import quiet
 
     # pymodbus, can-isotp, udsoncan log every retry and timeout; the run reports failures itself
     # (--verbose/--log-file open the exchange loggers again)
@@ -69,7 +69,7 @@ def results_table(records: list, title: str):
     from rich import box
     from rich.table import Table
 
-    from eol_cal.display import display_unit
+    from eol_cal.rendering.display import display_unit
 
     k6_unit, k6_scale = display_unit("N*m/A")
     table = Table(title=title, box=box.SIMPLE_HEAD, padding=(0, 1), pad_edge=False, show_edge=False)
@@ -153,7 +153,7 @@ def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
 
 def write_demo_limits(path: Path) -> None:
     """The demo's limits file (atomically: no output replaces an input or a database)."""
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
     from eol_cal.errors import InputError, WriteError
 
     try:
@@ -376,7 +376,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
         err_console.print(f"{serial}: {rec.verdict}" + (f" ({'; '.join(rec.reasons)})" if rec.reasons else ""))
     wall = time.perf_counter() - t0
     console.print(results_table([o.record for o in outcomes], f"eol-cal demo: {motors} motor(s) in {wall:.1f} s"))
-    from eol_cal.lot.page import write_lot_page
+    from eol_cal.lot.lot_page import write_lot_page
     from eol_cal.records.connect import db_label, db_shown
     from eol_cal.records.query import query_records
 
@@ -446,7 +446,7 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
         click.echo(f"error: {exc}; skipped", err=True)
     summary = summarise(records)
     if plot_file is not None:
-        from eol_cal.station.report import plot_lot
+        from eol_cal.station.report_files import plot_lot
 
         plot_lot(plot_file, [r for r in records if r.kind == "production"],
                  title=f"{db_label(db)}" + (f", serial {serial}" if serial else "") + (f", {day}" if day else ""))

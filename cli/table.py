@@ -51,12 +51,12 @@ def table_cmd(result, serial, output, table_len, lead, iqc_limit, motor_file, he
     from eol_cal.analysis.fit.table import block_from_result, created_unix, mech_off_reasons, select_motor
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.result import read_result
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
     from eol_cal.errors import naming
     from eol_cal.firmware.block import check, flag_names, pack, to_intel_hex
     from eol_cal.firmware.options import options_label
     from eol_cal.firmware.block_sanity import require_safe
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     lead_s = _lead(lead)
     options = estimator_bits(estimator)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 
 TWO_PI = 2.0 * np.pi
 

@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.capture.synthetic import synthetic_capture
 
 

@@ -295,7 +295,7 @@ def _contract_bounds(layout: int, table_len: int, motor) -> dict[str, tuple[floa
 def test_every_characteristics_limits_are_the_contracts_bounds(parsed):
     """Each field's LOWER/UPPER LIMIT as an independent reader sees it equals the bounds table of
     the contract (the paper's motor, for which the files are written), both layouts."""
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     _, n, _, _, chars, layout = parsed
     bounds = _contract_bounds(layout, n, load_motor())

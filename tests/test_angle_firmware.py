@@ -5,7 +5,7 @@ import pytest
 
 from eol_cal.analysis.angle import capture_angle
 from eol_cal.analysis.firmware_angle import firmware_angle_difference
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.errors import InputError
 

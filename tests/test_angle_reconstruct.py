@@ -10,8 +10,8 @@ from eol_cal.analysis.angle import (
     hall_transition_angles,
     reconstruct_angle,
 )
-from eol_cal.capture.model import Capture
-from eol_cal.wrap import wrap_pi
+from eol_cal.capture.data import Capture
+from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.errors import InputError
 
 FS = 20000.0

@@ -16,8 +16,8 @@ from eol_cal.analysis.bench_id.identify import identify_bench, path_response
 from eol_cal.analysis.bench_id.output import bench_toml, write_bench
 from eol_cal.analysis.bench_id.sweep import SweepPoints, segment_phasors
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, load_mechanics, torsion_response
-from eol_cal.motor import load_motor
+from eol_cal.domain.bench_mechanics import BenchMechanics, load_mechanics, torsion_response
+from eol_cal.domain.motor_params import load_motor
 
 MOTOR = load_motor("paper")
 KT = MOTOR.kt

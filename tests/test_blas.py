@@ -1,4 +1,4 @@
-"""One BLAS thread per eol-cal process unless the user sets a count (eol_cal/blas.py)."""
+"""One BLAS thread per eol-cal process unless the user sets a count (eol_cal/numerics/blas.py)."""
 
 from __future__ import annotations
 
@@ -6,11 +6,11 @@ import os
 import subprocess
 import sys
 
-from eol_cal.blas import THREAD_VARIABLES
+from eol_cal.numerics.blas import THREAD_VARIABLES
 
 PROBE = (
     "import numpy  # noqa: F401\n"
-    "from eol_cal.blas import limit_blas_threads\n"
+    "from eol_cal.numerics.blas import limit_blas_threads\n"
     "limit_blas_threads()\n"
     "import scipy.linalg  # noqa: F401 - scipy's own OpenBLAS, loaded after the limit\n"
     "from threadpoolctl import threadpool_info\n"

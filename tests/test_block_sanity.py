@@ -23,7 +23,7 @@ from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_sanity import MotorType, sanity_problems, type_problems
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY = hmac_seed_to_key(P.DEV_SECRET)

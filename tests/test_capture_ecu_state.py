@@ -83,7 +83,7 @@ def test_check_trace_refuses_and_allows():
 def test_simulated_captures_carry_the_state_they_simulate():
     from eol_cal.firmware import block as B
     from eol_cal.plant.presets import preset_spec
-    from eol_cal.plant.ecu import simulated_ecu_state, true_block
+    from eol_cal.plant.ecu_model import simulated_ecu_state, true_block
 
     spec = preset_spec("paper")
     assert simulated_ecu_state(spec, "raw", None) == EcuState(None)

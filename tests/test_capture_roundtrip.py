@@ -179,7 +179,7 @@ def test_zoh_holds_last_level():
 
 @pytest.mark.parametrize("suffix", [".csv", ".mf4"])
 def test_writes_are_atomic(capture, tmp_path, monkeypatch, suffix):
-    import eol_cal.atomic as atomic
+    import eol_cal.infra.atomic as atomic
 
     path = tmp_path / f"c{suffix}"
     path.write_bytes(b"old content\n")

@@ -8,7 +8,7 @@ import pytest
 from eol_cal.capture import validate
 from eol_cal.capture.columns import zoh
 from eol_cal.capture.synthetic import hall_state, synthetic_capture
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 KT = load_motor("paper").kt
 

@@ -18,7 +18,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import DriveState, Fault, SimFault
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread, FaultPlan
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.sim.loopback import loopback_station

@@ -17,7 +17,7 @@ from click.testing import CliRunner
 from cli.main import cli
 from eol_cal.capture import read_capture
 from eol_cal.dyno.registers import SimFault
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread, FaultPlan
 from eol_cal.dyno.sim_capture import synthetic_source
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop

@@ -21,9 +21,9 @@ from eol_cal.dyno.setpoints import DynoSetpoint
 from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import SimFault
-from eol_cal.dyno.sim import DynoSim, DynoSimThread, FaultPlan
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread, FaultPlan
 from eol_cal.dyno.sim_capture import synthetic_source
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 MOTOR = load_motor("paper")
 POLES, PPR = MOTOR.poles, MOTOR.N_enc

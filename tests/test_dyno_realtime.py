@@ -23,7 +23,7 @@ from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from eol_cal.dyno.registers import CaptureCommand, CaptureState
 from eol_cal.dyno.regmap import READ_FC
-from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread
 from eol_cal.dyno.sim_capture import synthetic_source
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

@@ -17,7 +17,7 @@ from eol_cal.dyno.setpoints import DynoSetpoint
 from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import load_register_map
 from cli.dyno import parse_fault_plan
-from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread
 from eol_cal.dyno.sim_capture import CaptureRequest, synthetic_source
 from eol_cal.firmware import block as B
 
@@ -159,7 +159,7 @@ def test_fault_plan_parsing():
 
 
 def _block(flags: int, sequence: int) -> bytes:
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     m = load_motor("paper")
     n = 16
@@ -217,7 +217,7 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
     from eol_cal.ecu.flash import NorFlash
     from eol_cal.sim.rig import plant_source
     from eol_cal.plant.presets import preset_spec
-    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.ecu_model import true_block
 
     flash_file = tmp_path / "ecu.flash"
     flash = NorFlash(flash_file)
@@ -233,7 +233,7 @@ def test_flash_changes_what_the_next_plant_capture_shows(tmp_path: Path):
         chans = c.read_buffer(["torque", "iq_ref"], n)
         c.safe_state()
         c.close()
-        from eol_cal.capture.model import Capture
+        from eol_cal.capture.data import Capture
 
         cap = Capture(np.arange(n) / 10000.0, chans, {"serial": "M-PLANT", "poles": 6, "encoder_ppr": 64})
         return capture_spectrum(cap, capture_angle(cap)).amplitude(6)
@@ -278,7 +278,7 @@ def test_the_plant_goes_on_over_a_reversal_while_the_ecu_keeps_its_block(monkeyp
     the recording is what a fresh start with the identification already done shows."""
     from eol_cal.dyno.registers import DutCmdKind
     from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
-    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.ecu_model import true_block
     from eol_cal.plant.presets import preset_spec
     from eol_cal.sim import rig
 
@@ -322,7 +322,7 @@ def test_the_dyno_package_knows_no_ecu_and_no_block():
     import subprocess
     import sys
 
-    code = ("import sys, eol_cal.dyno.sim, eol_cal.dyno.sim_capture, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, "
+    code = ("import sys, eol_cal.dyno.sim_dyno, eol_cal.dyno.sim_capture, eol_cal.dyno.sim_modbus, eol_cal.dyno.client, "
             "eol_cal.dyno.setpoints, eol_cal.dyno.profile_run, eol_cal.dyno.transfer; "
             "print(sorted(m for m in sys.modules if m.startswith(('eol_cal.ecu', 'eol_cal.firmware', 'eol_cal.station'))))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()

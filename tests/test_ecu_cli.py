@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.sim import Faults
+from eol_cal.ecu.sim_ecu import Faults
 from eol_cal.sim.virtual_rig import example_block, virtual_rig
 from eol_cal.firmware import block as B
 
@@ -121,7 +121,7 @@ def test_the_project_fixture_block_flashes_and_reads_back(tmp_path):
     """fixtures/block_paper.bin (made by the project's block tooling) goes in and comes back equal."""
     from pathlib import Path
 
-    from eol_cal.ecu.sim import SimConfig
+    from eol_cal.ecu.sim_ecu import SimConfig
 
     fixture = Path(__file__).resolve().parent.parent / "fixtures" / "block_paper.bin"
     key = tmp_path / "key.hex"

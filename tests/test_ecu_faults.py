@@ -14,7 +14,7 @@ import pytest
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
-from eol_cal.ecu.sim import Faults
+from eol_cal.ecu.sim_ecu import Faults
 from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 from eol_cal.firmware import block as B
 

@@ -12,7 +12,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import (EcuError, UdsSession, VerifyFailed, ecu_info, flash_block,
                                 hmac_seed_to_key, load_key_file, read_active_block)
 from eol_cal.ecu.flash import NorFlash, select_active
-from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
 from eol_cal.ecu.transport import IsoTpTiming
 from eol_cal.errors import InputError
@@ -394,7 +394,7 @@ def test_erase_ahead_erases_an_empty_inactive_bank_and_keeps_an_earlier_block(tm
 def test_flash_ahead_writes_like_flash_block_and_an_unused_one_leaves_the_ecu_as_it_was(tmp_path):
     import can
 
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.station.flash_ahead import FlashAhead
 
     with virtual_rig(tmp_path / "f.bin") as rig:
@@ -430,7 +430,7 @@ def test_the_station_flash_without_read_back_leaves_the_check_to_the_ecus_crc(tm
     stays active."""
     import can
 
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.station.archive import flash_archived
     from eol_cal.station.flash_ahead import FlashAhead
 

@@ -12,7 +12,7 @@ from cli.main import cli
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.sim.remote_ecu import serve_remote
-from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.sim.virtual_rig import example_block
 from eol_cal.firmware import block as B
 

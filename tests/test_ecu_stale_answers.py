@@ -15,7 +15,7 @@ import pytest
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key, read_active_block
 from eol_cal.ecu.matching import answers
-from eol_cal.ecu.sim import Faults
+from eol_cal.ecu.sim_ecu import Faults
 
 from eol_cal.sim.virtual_rig import FAST_CLIENT, example_block, virtual_rig
 

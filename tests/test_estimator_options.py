@@ -200,7 +200,7 @@ def test_the_prepared_block_selects_the_same_estimator_in_the_rig():
     from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.dyno.registers import DutCmdKind
     from eol_cal.dyno.sim_capture import CaptureRequest
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.sim.rig import ActiveCalibration, plant_capture
 
     motor = load_motor("paper")

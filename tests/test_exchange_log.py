@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.sim.virtual_rig import example_block

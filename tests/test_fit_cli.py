@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 
@@ -227,8 +227,8 @@ def test_table_refuses_a_bad_estimator_choice_with_one_line(fitted, tmp_path, ch
 def test_bench_response_divided_out(fitted, files, tmp_path):
     """With the paper bench the fit reports the motor's ripple: the measured one over the bench's
     shaft response at each segment's 6th (below 1 at 120 rpm, above 1 at 240 rpm: torsion mode)."""
-    from eol_cal.mechanics import load_mechanics, shaft_response
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import load_mechanics, shaft_response
+    from eol_cal.domain.motor_params import load_motor
 
     _, out_none = fitted
     out = tmp_path / "r_bench.json"

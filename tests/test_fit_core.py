@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.analysis.fit.synth import synthetic_segments
 from eol_cal.analysis.result import STATUS_CI_TOO_WIDE, STATUS_NOT_CONVERGED, STATUS_OK, CiLimits, judge, motor_record
 from eol_cal.errors import InputError

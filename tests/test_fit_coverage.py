@@ -30,8 +30,8 @@ def test_every_reported_interval_covers_the_truth_on_plant_motors():
     from eol_cal.analysis.fit.motors import FitOptions, fit_inputs
     from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.firmware.options import parse_options
-    from eol_cal.mechanics import load_mechanics
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import load_mechanics
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.spread import load_spread

@@ -15,9 +15,9 @@ import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_segments
 from eol_cal.analysis.fit.synth import synthetic_segments
-from eol_cal.mechanics import load_mechanics, shaft_response
-from eol_cal.motor import load_motor
-from eol_cal.wrap import wrap_pi
+from eol_cal.domain.bench_mechanics import load_mechanics, shaft_response
+from eol_cal.domain.motor_params import load_motor
+from eol_cal.numerics.wrap import wrap_pi
 
 LOADS = (20.0, 60.0)
 

@@ -44,7 +44,7 @@ def test_measure_recovers_offsets_and_refuses_what_it_cannot_measure():
 @pytest.fixture(scope="module")
 def plant_motor():
     from eol_cal.analysis.fit.capture import motor_inputs
-    from eol_cal.mechanics import load_mechanics
+    from eol_cal.domain.bench_mechanics import load_mechanics
     from eol_cal.plant.profile import load_profile
     from eol_cal.plant.simulate import simulate
     from eol_cal.plant.variation import draw_motor
@@ -93,7 +93,7 @@ def test_record_and_block_carry_the_measured_table(plant_motor):
     from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit.table import block_from_record
     from eol_cal.analysis.result import CiLimits, record_for_motor
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     _, _, mi = plant_motor
     (f,) = fit_many([mi.segments], FitSpec())

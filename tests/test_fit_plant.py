@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 
 from eol_cal.analysis.fit import FitSpec, fit_many
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.analysis.fit.capture import motor_inputs
 from eol_cal.analysis.fit.table import block_from_record
 from eol_cal.analysis.metrics import capture_ripple_pp
 from eol_cal.analysis.result import CiLimits, motor_record
 from eol_cal.firmware.block import check, pack
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 from eol_cal.plant.presets import paper
 from eol_cal.plant.profile import Profile, ProfileSegment
-from eol_cal.plant.ecu import true_block
+from eol_cal.plant.ecu_model import true_block
 from eol_cal.plant.simulate import simulate
 
 

@@ -6,7 +6,7 @@ import pytest
 from eol_cal.analysis.fit import FitSpec, fit_many, path_gain
 from eol_cal.analysis.fit.capture import motor_inputs
 from eol_cal.analysis.fit.plot import fitted_ripple, plot_fit, segment_model
-from eol_cal.mechanics import load_mechanics
+from eol_cal.domain.bench_mechanics import load_mechanics
 from eol_cal.capture.synthetic import synthetic_capture
 
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]

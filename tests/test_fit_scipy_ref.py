@@ -10,7 +10,7 @@ import pytest
 from eol_cal.analysis.fit import FitSpec
 from eol_cal.analysis.fit.scipy_ref import fit_segments_scipy
 from eol_cal.analysis.fit.synth import synthetic_segments
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 
 def test_the_scipy_reference_recovers_a_noiseless_motor():

@@ -12,10 +12,10 @@ import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.capture.windows import split_windows, window_spans
-from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread
 from eol_cal.dyno.sim_capture import synthetic_source
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

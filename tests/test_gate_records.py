@@ -208,7 +208,7 @@ def test_run_without_the_settings_file_cannot_skip_the_stations_gate(tmp_path):
 def test_a_failed_master_runs_report_shows_the_failed_check_beside_its_limits(tmp_path):
     """A failed master's report showed every limit PASS under a FAIL verdict; now its checks
     against the references are on it, the failing one FAIL."""
-    from eol_cal.report.motor import render_motor_report
+    from eol_cal.report.motor_page import render_motor_report
 
     rec = _master_run("2026-11-22T10:00:00.000+00:00", 1)
     bad = MasterCheck("k6", "mN*m/A", 0.63, 0.90, 0.05, -0.27, False)

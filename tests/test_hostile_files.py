@@ -96,7 +96,7 @@ def test_non_utf8_motor_and_bench_toml_name_the_file(files, tmp_path):
     res = CliRunner().invoke(cli, ["block", "uncompensated", "--serial", "X", "-o", str(tmp_path / "u.bin"),
                                    "--motor", str(bad)])
     _one_line_exit_2(res, str(bad), "not UTF-8")
-    from eol_cal.mechanics import load_mechanics
+    from eol_cal.domain.bench_mechanics import load_mechanics
     from eol_cal.errors import InputError
 
     with pytest.raises(InputError, match="not UTF-8") as info:  # what `fit --bench FILE` reads it with

@@ -1,6 +1,6 @@
 """Parsers with bounds (issue 23, class 4): every TOML file the tool reads (settings, limits,
 channel and register maps, motors, benches, profiles) and every JSON input (fit results, spool
-files, refit results, stored records) goes through one bounded loader (``eol_cal.inputs``).
+files, refit results, stored records) goes through one bounded loader (``eol_cal.infra.inputs``).
 A number of thousands of digits, nesting thousands deep, an oversized file or a FIFO ends in one
 line naming the file and exit 2, never a traceback or a hang; the CSV header and the MDF4
 record count are parsed within bounds too."""
@@ -20,7 +20,7 @@ from test_hostile_files import _one_line_exit_2
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
 from eol_cal.sim.fuzz import hostile
-from eol_cal.inputs import MAX_NESTING, MAX_TOML_BYTES, loads_json, loads_toml
+from eol_cal.infra.inputs import MAX_NESTING, MAX_TOML_BYTES, loads_json, loads_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "fixtures"

@@ -9,7 +9,7 @@ import pytest
 
 from eol_cal.ecu.client import ecu_state
 from eol_cal.ecu.session import ClientTiming, EcuError
-from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.ecu.simconfig import Faults
 from eol_cal.sim.loopback import SIM_ECU_TIMING, loopback_station
 

@@ -16,11 +16,11 @@ from click.testing import CliRunner
 from eol_cal.sim.lot_records import lot_record
 from cli.main import cli
 from eol_cal.errors import InputError
-from eol_cal.lot.columns import QUANTITIES, from_records, read_lot, time_order
+from eol_cal.lot.runs import QUANTITIES, from_records, read_lot, time_order
 from eol_cal.lot.spc import CIRCULAR, circular_summary
 from eol_cal.lot.stats import capability, first_pass_yield, imr_limits, pareto, summary
 from eol_cal.lot.summary import lot_summary
-from eol_cal.lot.page import run_time
+from eol_cal.lot.lot_page import run_time
 from eol_cal.schemas import validator
 from eol_cal.records.record import RunRecord
 from eol_cal.records.connect import engine

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from eol_cal.lot.baseline import group_lines, make_baseline
-from eol_cal.lot.columns import from_records
+from eol_cal.lot.runs import from_records
 from eol_cal.lot.spc import CIRCULAR
 from eol_cal.sim.run_records import make_record
 from test_report_pages import LIMITS
@@ -37,7 +37,7 @@ def test_lot_page_with_a_baseline_in_chromium(tmp_path):
     from _chromium import Chromium, element_sizes
     from playwright.sync_api import expect
 
-    from eol_cal.lot.page import write_lot_page
+    from eol_cal.lot.lot_page import write_lot_page
 
     recs = _records()
     base_runs = [r for r in recs if r.started_at < "2026-11-22"]

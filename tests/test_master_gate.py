@@ -100,7 +100,7 @@ def test_the_operator_station_refuses_until_the_master_passed(tmp_path):
     import sqlite3
 
     from eol_cal.sim.loopback import demo_motor_spec
-    from eol_cal.station.session import demo_seed
+    from eol_cal.station.operator_session import demo_seed
     from test_station_operator import MOTOR_S, PASSING, Terminal
 
     master, serial = PASSING

@@ -1,4 +1,4 @@
-"""The bench mechanics (eol_cal.mechanics): built-in descriptions, refusals, the response against the plant."""
+"""The bench mechanics (eol_cal.domain.bench_mechanics): built-in descriptions, refusals, the response against the plant."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from eol_cal.mechanics import BenchMechanics, load_mechanics, shaft_damping, shaft_response, speed_gains
+from eol_cal.domain.bench_mechanics import BenchMechanics, load_mechanics, shaft_damping, shaft_response, speed_gains
 from eol_cal.errors import InputError
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 
 def test_paper_bench_is_the_plants_default():
@@ -49,7 +49,7 @@ def test_mechanical_response_matches_the_plants_shaft_line():
     """The plant's own integrator (semi-implicit Euler at 20 kHz) driven by a sinusoidal air-gap
     torque: the shaft torque's amplitude and phase are the two-inertia response. The current-loop
     term is switched off here by an infinite current-loop impedance (a motor with huge L_q)."""
-    from eol_cal.mechanics import mech_step
+    from eol_cal.domain.bench_mechanics import mech_step
 
     motor = load_motor("paper")
     bench = load_mechanics("paper")

@@ -3,7 +3,7 @@ import math
 import pytest
 
 from eol_cal.errors import InputError
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 
 def test_paper_preset_is_table_one():

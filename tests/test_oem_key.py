@@ -21,7 +21,7 @@ from cli.main import cli
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.keyalgo import ENTRY_POINT_GROUP, oem_seed_to_key, seed_to_key_from
-from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.errors import InputError
 from eol_cal.sim.loopback import loopback_station
 

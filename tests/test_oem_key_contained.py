@@ -16,7 +16,7 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.ecu.keyalgo import SEED_TRIAL, oem_seed_to_key
-from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.errors import InputError
 
 from eol_cal.sim.virtual_rig import example_block, virtual_rig

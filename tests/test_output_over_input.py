@@ -17,11 +17,11 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from test_refused_inputs import _refused
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.ecu import protocol as P
 from eol_cal.firmware.example import example_block
 from eol_cal.errors import InputError
-from eol_cal.inputs import command_inputs, read_bytes
+from eol_cal.infra.inputs import command_inputs, read_bytes
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

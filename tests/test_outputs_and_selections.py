@@ -21,9 +21,9 @@ from click.testing import CliRunner
 
 from eol_cal.sim.run_records import make_record
 from cli.main import cli
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.errors import InputError
-from eol_cal.inputs import command_inputs, protect_database
+from eol_cal.infra.inputs import command_inputs, protect_database
 from eol_cal.records.migrations import migrate
 from eol_cal.records.write import insert_records
 
@@ -142,7 +142,7 @@ def test_the_lot_page_and_the_statistics_take_any_selection(tmp_path, selection,
 
 
 def test_the_session_counts_runs_and_motors_apart():
-    from eol_cal.station.session import SessionTally
+    from eol_cal.station.operator_session import SessionTally
 
     tally = SessionTally()
     for serial in ("M-1", "M-2", "M-3", "M-2"):  # three motors, one re-tested

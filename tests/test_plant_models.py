@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from eol_cal.motor import load_motor
-from eol_cal.mechanics import mech_step
-from eol_cal.plant import control, inverter, motor, ripple
+from eol_cal.domain.motor_params import load_motor
+from eol_cal.domain.bench_mechanics import mech_step
+from eol_cal.plant import control, inverter, machine, ripple
 from eol_cal.plant.params import PlantSpec, to_params
 from eol_cal.plant.presets import paper
 from eol_cal.plant.variation import draw_motor
@@ -26,7 +26,7 @@ def test_rate_flags_average_exactly_and_jitter_by_one_tick():
 def test_rl_step_is_exact_for_constant_voltage():
     m = load_motor("paper")
     dt = 1.0 / m.f_pwm
-    a, b = motor.rl_coefficients(m.R_s, m.L_q, dt, np)
+    a, b = machine.rl_coefficients(m.R_s, m.L_q, dt, np)
     i, v = 0.0, 1.5
     for _ in range(200):
         i = a * i + b * v
@@ -36,7 +36,7 @@ def test_rl_step_is_exact_for_constant_voltage():
 
 def test_torque_equation_of_spmsm():
     p = to_params(PlantSpec(), np.zeros(16), np.zeros(16), 0.0, 0.0)
-    assert float(motor.electromagnetic_torque(0.0, 65.0, p, 6)) == pytest.approx(load_motor("paper").kt * 65.0, rel=1e-6)
+    assert float(machine.electromagnetic_torque(0.0, 65.0, p, 6)) == pytest.approx(load_motor("paper").kt * 65.0, rel=1e-6)
 
 
 def test_voltage_limit_keeps_angle():

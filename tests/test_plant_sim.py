@@ -156,7 +156,7 @@ def test_cli_lot_with_plot(tmp_path):
 
 def test_cli_runs_a_block_file(tmp_path):
     from eol_cal.firmware.block import pack
-    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.ecu_model import true_block
 
     spec = paper()
     blk = true_block(spec).__class__(**{**true_block(spec).__dict__, "k6": 0.0005})
@@ -183,7 +183,7 @@ def test_batch_of_motors_with_different_hall_tables():
     import math
 
     from eol_cal.firmware import estimator as est
-    from eol_cal.plant.ecu import true_block
+    from eol_cal.plant.ecu_model import true_block
 
     spec = paper().replace(tq_noise_nm=0.0, i_noise_a=0.0)  # no noise: the batch position does not matter
     nominal = true_block(spec)
@@ -269,6 +269,6 @@ def test_the_block_flags_select_the_ecu_estimator():
 
 
 def simulate_options(blocks):
-    from eol_cal.plant.ecu import batch_options
+    from eol_cal.plant.ecu_model import batch_options
 
     return batch_options(blocks)

@@ -152,7 +152,7 @@ def test_an_amplitudes_lcl_stops_at_the_natural_zero_and_says_so():
 def test_imr_charts_by_run_order_with_zone_lines_and_a_pareto_of_runs():
     """The I-MR chart was drawn against clock time (runs close together stacked) without the
     zones rules 5 and 6 count in; the Pareto counted codes on a fractional axis."""
-    from eol_cal.lot.page import control_figure, pareto_figure
+    from eol_cal.lot.lot_page import control_figure, pareto_figure
     from eol_cal.lot.stats import pareto_of
 
     rng = np.random.default_rng(8)

@@ -54,7 +54,7 @@ def test_refit_on_two_workers_equals_the_fit_here_and_reports_a_bad_capture(lot:
         there = rows[str(group[0])]
         assert there["serial"] == here["serial"] and there["error"] is None
         assert there["k6"] == pytest.approx(here["k6"], rel=1e-9) and there["c6"] == pytest.approx(here["c6"], rel=1e-9)
-        # the workers run the estimator's tick loop in one kernel (eol_cal.xla), this process does
+        # the workers run the estimator's tick loop in one kernel (eol_cal.numerics.xla), this process does
         # not: float32 rounding of the firmware frame, nothing more
         assert there["phase_k6"] == pytest.approx(here["phase_k6"], abs=1e-6)
         assert there["r2"] == pytest.approx(here["r2"], rel=1e-9) and there["rms"] == pytest.approx(here["rms"], rel=1e-9)

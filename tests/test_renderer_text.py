@@ -17,7 +17,7 @@ from click.testing import CliRunner
 from _capture_helpers import small_capture
 from cli.main import cli
 from eol_cal.capture.io import write_capture
-from eol_cal.render import file_link, literal_texts, plain, pyplot
+from eol_cal.rendering.renderer import file_link, literal_texts, plain, pyplot
 
 FIXTURES = Path(__file__).resolve().parents[1] / "fixtures"
 

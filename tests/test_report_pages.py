@@ -23,7 +23,7 @@ def error_record(**limits):
 
 
 def test_a_record_without_fit_renders_every_limit_as_not_measured():
-    from eol_cal.report.motor import limit_rows, render_motor_report
+    from eol_cal.report.motor_page import limit_rows, render_motor_report
 
     rec = error_record()
     rows = limit_rows(rec)
@@ -41,7 +41,7 @@ def test_a_record_without_fit_renders_every_limit_as_not_measured():
 
 
 def test_limit_rows_show_the_records_checks_in_display_units():
-    from eol_cal.report.motor import limit_rows, render_motor_report
+    from eol_cal.report.motor_page import limit_rows, render_motor_report
 
     rec = make_record("F-1", variant="T", limits=dict(LIMITS.values), pp_before=5.0, pp_after=2.5, k6=0.0011)
     assert rec.verdict == "fail" and rec.reasons == ("p-p ripple compensated = 2.5 % exceeds max_pp_after_pct = 2 %",)
@@ -88,7 +88,7 @@ def fitted():
 
 @pytest.mark.slow
 def test_the_same_inputs_give_the_same_page_bytes(fitted, tmp_path):
-    from eol_cal.station.report import write_report
+    from eol_cal.station.report_files import write_report
 
     mi, fit, spec, pr = fitted
     rec = at_point(make_record("R-1", variant="T", limits=dict(LIMITS.values), pp_before=pr[0].pp_pct,
@@ -132,8 +132,8 @@ def lot_record(serial: str, started: str, verdict: str, k6: float = 1.0e-3, afte
 
 
 def test_records_plot_is_against_time_with_limits_and_error_runs():
-    from eol_cal.lot.page import timeline_figure
-    from eol_cal.figures import pyplot
+    from eol_cal.lot.lot_page import timeline_figure
+    from eol_cal.rendering.figures import pyplot
 
     recs = [lot_record("A", "2026-11-22T09:00:00+00:00", "pass"),
             lot_record("B", "2026-11-22T12:00:00+00:00", "error"),
@@ -161,7 +161,7 @@ def test_records_plot_is_against_time_with_limits_and_error_runs():
 @pytest.fixture(scope="module")
 def lot_db(tmp_path_factory):
     """A records database of 24 production runs on two stations and 2 refusals; one motor's report page exists."""
-    from eol_cal.report.motor import render_motor_report
+    from eol_cal.report.motor_page import render_motor_report
     from eol_cal.records.write import insert_records
 
     d = tmp_path_factory.mktemp("lot")
@@ -214,7 +214,7 @@ def test_lot_page_in_chromium_offline_hover_and_zoom(lot_db, tmp_path):
     from _chromium import Chromium, element_sizes, marked_processes, not_blank
     from playwright.sync_api import expect
 
-    from eol_cal.lot.page import write_lot_page
+    from eol_cal.lot.lot_page import write_lot_page
 
     page = write_lot_page(lot_db["records"], tmp_path / "lot.html", title="lot.sqlite", filters={"variant": None})
     with Chromium() as b:
@@ -283,7 +283,7 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
     title, in the data's order, and a count that does not match is refused."""
     import re
 
-    from eol_cal.figures import pyplot
+    from eol_cal.rendering.figures import pyplot
     from eol_cal.report.svg import figure_svg
 
     def fig():
@@ -302,7 +302,7 @@ def test_hover_titles_go_on_every_point_in_data_order(n):
 
 @pytest.mark.slow
 def test_a_large_lot_draws_its_points_as_an_image_without_hover_text(lot_db, monkeypatch, tmp_path):
-    import eol_cal.lot.page as lot
+    import eol_cal.lot.lot_page as lot
 
     monkeypatch.setattr(lot, "MAX_HOVER_POINTS", 5)
     html = lot.write_lot_page(lot_db["records"], tmp_path / "big.html", title="big", filters={}).read_text()
@@ -320,7 +320,7 @@ def test_a_plot_that_cannot_be_drawn_says_why_and_the_page_is_still_written(fitt
     the other plots are drawn and the page is written."""
     import dataclasses
 
-    from eol_cal.station.report import write_report
+    from eol_cal.station.report_files import write_report
 
     mi, fit, spec, pr = fitted
     broken = tuple(dataclasses.replace(p, theta_r=None) for p in pr)
@@ -336,7 +336,7 @@ def test_the_report_shows_the_mechanical_orders_and_the_identification_margin():
     import json
     from pathlib import Path
 
-    from eol_cal.report.motor import mech_section, render_motor_report
+    from eol_cal.report.motor_page import mech_section, render_motor_report
     from eol_cal.records.record import RunRecord
 
     doc = json.loads((Path(__file__).resolve().parents[1] / "fixtures" / "run_record_demo.json").read_text())

@@ -1,10 +1,10 @@
-"""The one retry-with-backoff rule (eol_cal.retry): attempts, doubling waits, what is not retried."""
+"""The one retry-with-backoff rule (eol_cal.infra.retry): attempts, doubling waits, what is not retried."""
 
 import asyncio
 
 import pytest
 
-from eol_cal.retry import RetriesExhausted, backoff_delays, retry_async, retry_call
+from eol_cal.infra.retry import RetriesExhausted, backoff_delays, retry_async, retry_call
 
 
 def test_retries_with_doubling_waits_then_succeeds():

@@ -11,8 +11,8 @@ from eol_cal.analysis.fit.table import uncompensated_block
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE
 from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
 from eol_cal.firmware.settling import IDENTIFY_REVS, IDENTIFY_RPM, block_settle_s, lead_in_plan, settle_s
-from eol_cal.motor import load_motor
-from eol_cal.plant.ecu import true_block
+from eol_cal.domain.motor_params import load_motor
+from eol_cal.plant.ecu_model import true_block
 from eol_cal.plant.presets import preset_spec
 
 

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from eol_cal.dyno import sim as ds
+from eol_cal.dyno import sim_dyno as ds
 from eol_cal.dyno.sim_capture import synthetic_source
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop

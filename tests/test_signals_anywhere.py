@@ -35,7 +35,7 @@ def test_a_signal_inside_a_gc_callback_is_not_lost(tmp_path, sig):
     proc = _script(tmp_path, """
         import gc, time
         from cli.common import handle_errors
-        from eol_cal import interrupts
+        from eol_cal.infra import interrupts
 
         def slow_callback(phase, info):  # as JAX's: Python code the collector runs
             if phase == "start":
@@ -69,7 +69,7 @@ def test_a_signal_dropped_where_no_finalizer_was_seen_is_sent_again(tmp_path, wh
     proc = _script(tmp_path, f"""
         import gc, time, weakref
         from cli.common import handle_errors
-        from eol_cal import interrupts
+        from eol_cal.infra import interrupts
 
         class Thing:
             pass
@@ -117,7 +117,7 @@ def test_a_main_thread_stuck_in_a_system_call_is_ended_by_the_watchdog(tmp_path)
     proc = _script(tmp_path, f"""
         import sqlite3
         from cli.common import handle_errors
-        from eol_cal import interrupts
+        from eol_cal.infra import interrupts
 
         interrupts.WATCHDOG_GRACE_S = 2.0
 
@@ -146,7 +146,7 @@ def test_a_command_that_answers_in_time_is_not_touched_by_the_watchdog(tmp_path)
     proc = _script(tmp_path, """
         import time
         from cli.common import handle_errors
-        from eol_cal import interrupts
+        from eol_cal.infra import interrupts
 
         # the grace is for the handler to start (a loaded machine, niced: over 1 s was seen);
         # the clean-up after it is longer still, and must not count

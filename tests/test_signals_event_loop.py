@@ -12,7 +12,7 @@ import threading
 
 import pytest
 
-from eol_cal import interrupts
+from eol_cal.infra import interrupts
 from eol_cal.dyno import transfer
 from eol_cal.errors import Interrupted
 

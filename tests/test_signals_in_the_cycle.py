@@ -61,7 +61,7 @@ def test_a_signal_during_the_fit_flashes_nothing_after_it(station_realtime, sig,
         return
     assert sig.name in rec.error.message, rec.error
     # The step the signal stopped says when it came: a step is only begun after the signals so far
-    # were looked at (eol_cal.interrupts). The capture's file, which the test waits for, is written
+    # were looked at (eol_cal.infra.interrupts). The capture's file, which the test waits for, is written
     # beside the fit and the flash (the flash's CRC waits for it), so on a loaded machine the
     # signal can come during the flash: then its first half went out before the signal, and the
     # ECU boots either block (hog run: the CRC's commit finished, sequence 2 active).

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from eol_cal import interrupts
+from eol_cal.infra import interrupts
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import Interrupted

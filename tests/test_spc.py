@@ -12,7 +12,7 @@ import scipy.stats
 
 from eol_cal.lot.spc import (RULES, circular_capability, circular_histogram, circular_summary, freeze_line, gate,
                              gated_capability, judge, n_reason, run_rules, wrapped_deviation)
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 DEG = math.pi / 180.0
 

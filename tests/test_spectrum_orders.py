@@ -5,7 +5,7 @@ import pytest
 from _analysis_motion import motion_capture
 
 from eol_cal.analysis.angle import capture_angle
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.analysis.spectrum import capture_spectrum, order_spectrum, quantisation_figures
 from eol_cal.errors import InputError
 

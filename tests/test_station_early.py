@@ -13,7 +13,7 @@ from eol_cal.capture import read_capture
 from eol_cal.dyno.profile_run import acquire
 from eol_cal.dyno.setpoints import DynoSetpoint
 from eol_cal.dyno.transfer import DynoConfig
-from eol_cal.dyno.sim import DynoSim, DynoSimThread
+from eol_cal.dyno.sim_dyno import DynoSim, DynoSimThread
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.station.early import EarlyWindows
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from eol_cal.dyno import sim as ds
+from eol_cal.dyno import sim_dyno as ds
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming

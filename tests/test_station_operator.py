@@ -27,7 +27,7 @@ import pytest
 
 from cli.station import DEMO_LIMITS
 from eol_cal.sim.loopback import demo_motor_spec
-from eol_cal.station.session import demo_seed
+from eol_cal.station.operator_session import demo_seed
 
 pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast loop
 
@@ -197,7 +197,7 @@ def test_end_of_input_at_the_operator_prompt_runs_nothing(tmp_path, terminal):
                                           ("Mé1", "'é' not allowed"), ("A" * 17, "17 characters")])
 def test_a_scanned_line_that_is_no_serial_is_refused_with_the_reason(line, reason):
     from eol_cal.errors import InputError
-    from eol_cal.station.session import scanned_serial
+    from eol_cal.station.operator_session import scanned_serial
 
     with pytest.raises(InputError) as info:
         scanned_serial(line)

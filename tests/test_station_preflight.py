@@ -281,7 +281,7 @@ def test_the_report_shows_what_the_ecu_ran_before_the_run_and_during_each_captur
     from eol_cal.sim.run_records import make_record
 
     from eol_cal.capture.ecu_state import EcuState
-    from eol_cal.report.motor import ecu_states
+    from eol_cal.report.motor_page import ecu_states
     from eol_cal.records.record import EcuFound, PreflightResult
 
     ran = EcuState(0, 1, "0badcafe", "INTERP_ENABLE", "R-1")

@@ -19,7 +19,7 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.dyno.registers import SimFault
-from eol_cal.dyno.sim import FaultPlan
+from eol_cal.dyno.sim_dyno import FaultPlan
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import active_block_from_file
@@ -480,7 +480,7 @@ def test_demo_one_motor_from_the_command_line(tmp_path):
 def test_windows_split_where_the_rounded_segment_starts_say():
     import numpy as np
 
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
     from eol_cal.capture.windows import split_windows as split_segments
 
     # the dyno writes segment_starts to the microsecond: 3.7975246 s is written 3.797525

@@ -60,9 +60,9 @@ def test_an_ecu_restore_runs_its_one_step_through_the_executor(tmp_path):
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.sim.remote_ecu import serve_remote
     from eol_cal.ecu.session import ClientTiming
-    from eol_cal.ecu.sim import SimConfig
+    from eol_cal.ecu.sim_ecu import SimConfig
     from eol_cal.ecu.transport import open_bus
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.records.record import RestoredFrom, StationInfo
     from eol_cal.station.restore import restore_run
 

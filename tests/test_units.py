@@ -1,4 +1,4 @@
-"""One display unit per quantity (eol_cal.display): each factor is pint's, and the places people
+"""One display unit per quantity (eol_cal.rendering.display): each factor is pint's, and the places people
 read a k6 (report, lot page, lot diff, CSV, tables) show it in mN*m/A."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from eol_cal.capture.units import unit_registry
-from eol_cal.display import DISPLAY, display_unit, to_display
+from eol_cal.rendering.display import DISPLAY, display_unit, to_display
 
 
 @pytest.mark.parametrize("stored", sorted(DISPLAY))

@@ -1,10 +1,10 @@
-"""The one angle-wrapping rule (eol_cal.wrap): ranges, exactness in range, numpy and JAX alike."""
+"""The one angle-wrapping rule (eol_cal.numerics.wrap): ranges, exactness in range, numpy and JAX alike."""
 
 import math
 
 import numpy as np
 
-from eol_cal.wrap import TWO_PI, wrap_2pi, wrap_pi
+from eol_cal.numerics.wrap import TWO_PI, wrap_2pi, wrap_pi
 
 
 def test_ranges_and_edges():

@@ -14,10 +14,10 @@ from eol_cal.analysis.angle import capture_angle
 from eol_cal.analysis.metrics import capture_ripple_pp
 from eol_cal.analysis.plots import CapturePlotData
 from eol_cal.analysis.spectrum import capture_spectrum, quantisation_figures
-from eol_cal.jsonsafe import json_safe
+from eol_cal.infra.jsonsafe import json_safe
 
 if TYPE_CHECKING:
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
 
 #: orders shown in the table (electrical); mechanical order 1 is added separately
 TOP_ORDERS = (6, 12, 18)

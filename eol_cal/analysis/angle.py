@@ -6,7 +6,7 @@ unlike the firmware's estimator (seed eqs. 13-16) that extrapolates from the las
 Frame (see ``docs/angle-frame.md``): theta_r = 0 rad electrical where hall U rises in forward
 rotation, i.e. where hall state 5 begins; forward rotation steps the halls 5, 1, 3, 2, 6, 4
 and channel A leads channel B (firmware contract, section 2, hall convention). The returned
-angle is unwrapped (continuous); take :func:`eol_cal.wrap.wrap_2pi` of it for the wrapped angle.
+angle is unwrapped (continuous); take :func:`eol_cal.numerics.wrap.wrap_2pi` of it for the wrapped angle.
 
 Steps
 -----
@@ -32,11 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.analysis.edges import boundary_state, debounce_edges, level_changes, quadrature_boundaries
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.capture.windows import window_spans
 from eol_cal.errors import InputError
 from eol_cal.firmware.contract import HALL_FORWARD_SEQUENCE, NOMINAL_HALL_ANGLE
-from eol_cal.wrap import wrap_2pi, wrap_pi
+from eol_cal.numerics.wrap import wrap_2pi, wrap_pi
 
 TWO_PI = 2.0 * np.pi
 
@@ -294,7 +294,7 @@ def reconstruct_angle(
 
 
 def capture_angle(capture: Capture, hall_angles: Sequence[float] = NOMINAL_HALL_ANGLES) -> AngleResult:
-    """:func:`reconstruct_angle` on a :class:`~eol_cal.capture.model.Capture`.
+    """:func:`reconstruct_angle` on a :class:`~eol_cal.capture.data.Capture`.
 
     Parameters
     ----------

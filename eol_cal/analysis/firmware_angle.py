@@ -13,11 +13,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.analysis.angle import AngleResult, capture_angle
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware import estimator as est
 from eol_cal.firmware.contract import FLAG_INTERP_ENABLE
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 def firmware_config(capture: Capture, options: int = 0) -> est.EstimatorConfig:
     """The firmware estimator's configuration at a capture's poles, encoder and sample rate.

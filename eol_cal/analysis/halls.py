@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
-from eol_cal.wrap import wrap_2pi, wrap_pi
+from eol_cal.numerics.wrap import wrap_2pi, wrap_pi
 
 @dataclass(frozen=True)
 class HallAngles:

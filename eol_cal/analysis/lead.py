@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 
-from eol_cal.motor import MotorParams
+from eol_cal.domain.motor_params import MotorParams
 
 
 def hold_delay_s(motor: MotorParams) -> float:

@@ -30,7 +30,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 
 from eol_cal.analysis.angle import AngleResult, capture_angle
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
 
 TWO_PI = 2.0 * np.pi
@@ -423,7 +423,7 @@ def ripple_pp(
 
 
 def capture_ripple_pp(capture: Capture, angle: AngleResult | None = None, **kwargs: Any) -> RipplePP:
-    """:func:`ripple_pp` on a :class:`~eol_cal.capture.model.Capture`.
+    """:func:`ripple_pp` on a :class:`~eol_cal.capture.data.Capture`.
 
     Parameters
     ----------

@@ -13,8 +13,8 @@ import numpy as np
 
 from eol_cal.analysis.metrics import RipplePP, eta_percent, lowpass_zero_phase
 from eol_cal.analysis.spectrum import OrderSpectrum
-from eol_cal.figures import pyplot, write_png
-from eol_cal.render import plain
+from eol_cal.rendering.figures import pyplot, write_png
+from eol_cal.rendering.renderer import plain
 
 
 def plot_eta(path: str | Path, poles: int, ppr: int, ppr_min: int, ppr_max: int, table_ppr: np.ndarray) -> None:

@@ -13,11 +13,11 @@ import numpy as np
 
 from eol_cal.analysis.metrics import ripple_pp
 from eol_cal.analysis.spectrum import order_spectrum
-from eol_cal.jsonsafe import json_safe
+from eol_cal.infra.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
 
 
 @dataclass(frozen=True)

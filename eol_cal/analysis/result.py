@@ -19,7 +19,7 @@ import numpy as np
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit, load_points
 from eol_cal.analysis.motor_result import FitEstimates, Harmonic, MotorResult, OperatingPoint, ValueCi
 from eol_cal.errors import InputError
-from eol_cal.jsonsafe import json_safe
+from eol_cal.infra.jsonsafe import json_safe
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import MotorInput
@@ -225,7 +225,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
     stays in the offline frame (the plots draw it against the offline angle). With ``tick_hz``
     (the firmware's tick, Hz) the mechanical part is measured too
-    (:func:`eol_cal.analysis.fit.mech.fit_mech`); None leaves it out.
+    (:func:`eol_cal.analysis.fit.mech_orders.fit_mech`); None leaves it out.
     """
     import dataclasses
 
@@ -243,7 +243,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
 
     mech = None
     if tick_hz is not None and fit.converged:
-        from eol_cal.analysis.fit.mech import fit_mech
+        from eol_cal.analysis.fit.mech_orders import fit_mech
 
         mech = fit_mech(mi, fit, spec, tick_hz)
     check = check_model(mi.segments, fit, spec, limits.model_p,
@@ -283,14 +283,14 @@ def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version
 
 def write_result(doc: dict[str, Any], path: str | Path) -> None:
     """Write the result JSON atomically (temp file in the same directory, fsync, os.replace)."""
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
 
     atomic_write(path, json.dumps(doc, indent=2, allow_nan=False) + "\n")
 
 
 def read_result(path: str | Path) -> dict[str, Any]:
     """Read and check a fit result file (schema, motors list)."""
-    from eol_cal.inputs import load_json
+    from eol_cal.infra.inputs import load_json
 
     path = Path(path)
     doc = load_json(path)  # a FIFO, non-UTF-8, deep nesting or a 5000-digit number: one line naming the file

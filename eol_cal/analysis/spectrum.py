@@ -15,9 +15,9 @@ import numpy as np
 from eol_cal.analysis.angle import AngleResult, capture_angle
 from eol_cal.analysis.edges import level_changes
 from eol_cal.analysis.metrics import eta_percent
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 TWO_PI = 2.0 * np.pi
 

@@ -1,1 +1,1 @@
-"""Built-in bench descriptions (``NAME.toml``), read by :func:`eol_cal.mechanics.load_mechanics`."""
+"""Built-in bench descriptions (``NAME.toml``), read by :func:`eol_cal.domain.bench_mechanics.load_mechanics`."""

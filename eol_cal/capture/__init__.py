@@ -2,7 +2,7 @@
 
 from eol_cal.capture.channel_map import ChannelMap, ChannelSpec, load_channel_map
 from eol_cal.capture.io import read_capture, write_capture
-from eol_cal.capture.model import CANONICAL_CHANNELS, Capture
+from eol_cal.capture.data import CANONICAL_CHANNELS, Capture
 from eol_cal.capture.validate import validate
 
 __all__ = [

@@ -31,10 +31,10 @@ from collections.abc import Mapping
 from eol_cal.capture.columns import Column, combine_hall_bits
 from eol_cal.capture.file_options import FileOptions, parse_file_options
 from eol_cal.capture.metadata import MetaValue, coerce_value
-from eol_cal.capture.model import CANONICAL_CHANNELS, TRUTH_PREFIX
+from eol_cal.capture.data import CANONICAL_CHANNELS, TRUTH_PREFIX
 from eol_cal.capture.units import check_unit, parse_unit, to_canonical
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_toml
+from eol_cal.infra.inputs import load_toml
 
 
 class ForeignChannelError(InputError):

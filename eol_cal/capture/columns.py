@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
+from eol_cal.capture.data import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
 from eol_cal.errors import InputError
 
 

@@ -24,14 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
-from eol_cal.atomic import atomic_path
+from eol_cal.infra.atomic import atomic_path
 from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble
 from eol_cal.capture.file_options import FileOptions
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, decode_value, encode_value, join_truth, split_truth
-from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
+from eol_cal.capture.data import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
 from eol_cal.errors import InputError
-from eol_cal.inputs import read_text
+from eol_cal.infra.inputs import read_text
 
 _META_LINE = re.compile(r"^#\s*([^:\s]+)\s*:\s?(.*)$")
 

@@ -8,7 +8,7 @@ from typing import Any
 
 from eol_cal.capture.channel_map import ChannelMap, load_channel_map
 from eol_cal.capture.file_options import SUFFIX_FORMATS
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.capture.validate import validate as _validate
 from eol_cal.errors import InputError, WriteError
 

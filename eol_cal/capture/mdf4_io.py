@@ -27,15 +27,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from eol_cal.atomic import atomic_path
+from eol_cal.infra.atomic import atomic_path
 from eol_cal.capture.channel_map import ChannelMap, apply_channel_map
 from eol_cal.capture.columns import Column, assemble, change_events, is_change_list
 from eol_cal.capture.metadata import MetaValue, decode_value, encode_value, join_truth, split_truth
-from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
+from eol_cal.capture.data import CANONICAL_CHANNELS, DIGITAL_CHANNELS, Capture
 from eol_cal.capture.mdf4_check import checked_mdf4
 from eol_cal.capture.mdf4_decode import Group, decode_checked
 from eol_cal.errors import InputError
-from eol_cal.inputs import check_regular
+from eol_cal.infra.inputs import check_regular
 
 _MDF_VERSION = "4.10"
 _DESCRIPTION = "eol-cal capture (capture format v1)"

@@ -19,7 +19,7 @@ import re
 from collections.abc import Mapping
 
 from eol_cal.capture.ecu_state import METADATA_TYPES as ECU_STATE_TYPES
-from eol_cal.capture.model import TRUTH_PREFIX
+from eol_cal.capture.data import TRUTH_PREFIX
 from eol_cal.errors import InputError
 
 MetaValue = str | int | float

@@ -25,8 +25,8 @@ import numpy as np
 
 from eol_cal.capture.columns import zoh
 from eol_cal.capture.ecu_state import EcuState, with_ecu_state
-from eol_cal.capture.model import Capture
-from eol_cal.motor import MotorParams, load_motor
+from eol_cal.capture.data import Capture
+from eol_cal.domain.motor_params import MotorParams, load_motor
 
 MODEL_NAME = "analytic-v1"
 

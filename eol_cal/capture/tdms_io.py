@@ -34,9 +34,9 @@ from eol_cal.capture.channel_map import ChannelMap, apply_channel_map, foreign_c
 from eol_cal.capture.columns import Column, assemble
 from eol_cal.capture.file_options import MAX_SAMPLE_RATE
 from eol_cal.capture.metadata import KEY_PATTERN, MetaValue, coerce_value, decode_value, split_truth
-from eol_cal.capture.model import CANONICAL_CHANNELS, Capture
+from eol_cal.capture.data import CANONICAL_CHANNELS, Capture
 from eol_cal.errors import InputError
-from eol_cal.inputs import check_regular
+from eol_cal.infra.inputs import check_regular
 
 
 #: bytes of a TDMS segment's lead-in (tag, flags, version, two offsets)

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from eol_cal.capture.model import CANONICAL_CHANNELS, DIGITAL_CHANNELS
+from eol_cal.capture.data import CANONICAL_CHANNELS, DIGITAL_CHANNELS
 from eol_cal.errors import InputError
 
 if TYPE_CHECKING:  # pragma: no cover

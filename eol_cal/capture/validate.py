@@ -18,7 +18,7 @@ import numpy as np
 
 from eol_cal.capture.ecu_state import trace_of
 from eol_cal.capture.metadata import METADATA_TYPES
-from eol_cal.capture.model import (
+from eol_cal.capture.data import (
     CANONICAL_CHANNELS,
     DIGITAL_CHANNELS,
     REQUIRED_METADATA,

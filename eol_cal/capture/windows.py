@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.firmware.estimator import quadrature_phase
 
 #: a step in ``t`` longer than this many median sample periods starts a new window, unless the

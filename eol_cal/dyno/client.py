@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from eol_cal.address import parse_modbus_address
+from eol_cal.infra.address import parse_modbus_address
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.regmap import READ_FC
 from eol_cal.dyno.registers import (CaptureCommand, CaptureState, Direction, DriveState, Mode, Switch,
@@ -30,8 +30,8 @@ from eol_cal.dyno.registers import (CaptureCommand, CaptureState, Direction, Dri
 from eol_cal.dyno.setpoints import DynoSetpoint
 from eol_cal.dyno.transfer import BufferFill, BufferReader, DynoConfig, ProgressFn, Stream, TransferError, read_capture_buffer
 from eol_cal.errors import EolCalError
-from eol_cal.exchange_log import log_modbus
-from eol_cal.retry import RetriesExhausted, retry_call
+from eol_cal.infra.exchange_log import log_modbus
+from eol_cal.infra.retry import RetriesExhausted, retry_call
 
 if TYPE_CHECKING:
     from pymodbus.pdu import ModbusPDU
@@ -93,7 +93,7 @@ class DynoClient:
 
     def _call(self, what: str, fn: Callable[[], ModbusPDU], request: tuple[int, int, int, list[int] | None]
               ) -> ModbusPDU:
-        """Run one request with :func:`eol_cal.retry.retry_call`: reconnect on lost connections
+        """Run one request with :func:`eol_cal.infra.retry.retry_call`: reconnect on lost connections
         and timeouts; a Modbus exception answer is a refusal, not retried.
 
         ``request`` is (function code, address, count, words written) for the exchange log.

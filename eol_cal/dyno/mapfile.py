@@ -22,7 +22,7 @@ from eol_cal.dyno import regcodec as rc
 from eol_cal.dyno.regmap import Entry, RegisterMap, Window
 from eol_cal.dyno.registers import ANALOG_NAMES, DIGITAL_FIELDS, ROLES, Role
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_toml
+from eol_cal.infra.inputs import load_toml
 
 DEFAULT_MAP = "default"
 TABLES = ("holding", "input")

@@ -1,5 +1,5 @@
 """A test profile run on the dyno: every segment's capture read while the shaft turns on
-(:func:`run_profile`), the windows joined into one :class:`~eol_cal.capture.model.Capture` whose
+(:func:`run_profile`), the windows joined into one :class:`~eol_cal.capture.data.Capture` whose
 time axis keeps the real time between the segments' starts (:func:`assemble`), and the whole as one
 call that checks the capture and writes it atomically (:func:`acquire`). The drive is left in the
 safe state in every case (:meth:`eol_cal.dyno.client.DynoClient.safe_state`).
@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from eol_cal.capture import validate, write_capture
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.dyno.client import DynoClient, DynoError
 from eol_cal.dyno.registers import CaptureState, Command
 from eol_cal.dyno.setpoints import DEFAULT_RATE_HZ, DynoSetpoint, lead_in_samples, lead_point_samples

@@ -19,7 +19,7 @@ from types import MappingProxyType
 
 import numpy as np
 
-from eol_cal.capture.model import CANONICAL_CHANNELS
+from eol_cal.capture.data import CANONICAL_CHANNELS
 from eol_cal.dyno import regcodec as rc
 from eol_cal.dyno.registers import GROUPS, Role, channel_bit, pack_digital, unpack_digital
 

@@ -1,4 +1,4 @@
-"""One capture of the simulated dyno (:mod:`eol_cal.dyno.sim`): what it asks its capture source to
+"""One capture of the simulated dyno (:mod:`eol_cal.dyno.sim_dyno`): what it asks its capture source to
 record (:class:`CaptureRequest`, :data:`CaptureSource`), the source without JAX
 (:func:`synthetic_source`; the rig's plant is :func:`eol_cal.sim.rig.plant_source`), the recording
 encoded as the capture buffer's register words (:func:`capture_to_buffer`), and when it happened
@@ -12,11 +12,11 @@ from collections.abc import Callable
 
 import numpy as np
 
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.dyno.registers import DutCmdKind
 from eol_cal.dyno.regmap import RegisterMap
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 
 @dataclass(frozen=True)

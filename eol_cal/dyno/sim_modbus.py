@@ -1,6 +1,6 @@
 """The dyno simulator's Modbus face: register values, the request hook, the TCP server.
 
-:class:`ModbusFace` is mixed into :class:`eol_cal.dyno.sim.DynoSim`; it turns the simulated
+:class:`ModbusFace` is mixed into :class:`eol_cal.dyno.sim_dyno.DynoSim`; it turns the simulated
 state into the registers of the dyno's :class:`~eol_cal.dyno.regmap.RegisterMap` (any map the
 client can drive: the reference layout, or a vendor's) and every accepted write back into state.
 The pymodbus 3.16 server is fed a :class:`pymodbus.simulator.SimDevice` (the datastore API 3.16

@@ -4,7 +4,7 @@ The buffer is read page by page through the register map's window (:mod:`.regmap
 channel and a first sample, then read the window in blocks of at most the map's
 ``max_read_registers``. pymodbus serves one request per connection at a time, so the blocks of a page are
 read over ``connections`` parallel connections; a lost connection or a timeout restarts the page
-on fresh connections through :func:`eol_cal.retry.retry_async` (the same back-off rule as every
+on fresh connections through :func:`eol_cal.infra.retry.retry_async` (the same back-off rule as every
 single request, :meth:`eol_cal.dyno.client.DynoClient._call`).
 
 The read is streamed (:class:`BufferReader`): it runs on an event loop in a thread of its own,
@@ -27,11 +27,11 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from eol_cal import interrupts
+from eol_cal.infra import interrupts
 from eol_cal.dyno.mapfile import default_register_map
 from eol_cal.dyno.regmap import READ_FC, RegisterMap
-from eol_cal.exchange_log import log_modbus
-from eol_cal.retry import RetriesExhausted, retry_async
+from eol_cal.infra.exchange_log import log_modbus
+from eol_cal.infra.retry import RetriesExhausted, retry_async
 
 ProgressFn = Callable[[str, float, float], None]  # (what, done, total)
 
@@ -175,7 +175,7 @@ def read_capture_buffer(cfg: DynoConfig, names: Sequence[str], n_samples: int,
 
 
 def _new_loop() -> asyncio.AbstractEventLoop:
-    """A new event loop, built whole before a signal (:mod:`eol_cal.interrupts`) can stop it: a
+    """A new event loop, built whole before a signal (:mod:`eol_cal.infra.interrupts`) can stop it: a
     loop cut off inside its constructor has no self-pipe, and collecting it later prints
     "Exception ignored ... Traceback" over the command's one-line interruption."""
     loop = None
@@ -303,7 +303,7 @@ async def _transfer(cfg: DynoConfig, conns: _Connections, plan: list[tuple[str, 
     selected, then its blocks are read in parallel. A read waits until ``chunk[0]`` samples more
     (``chunk[1]`` in the capture's last ``chunk[0]``; or the rest of the capture) are recorded:
     few requests while the capture runs, little left when it is ready. A lost connection or a
-    timeout restarts the page on fresh connections (:func:`eol_cal.retry.retry_async`:
+    timeout restarts the page on fresh connections (:func:`eol_cal.infra.retry.retry_async`:
     ``cfg.retries`` times, doubling delays). Returns each channel's words of samples ``first`` on,
     page by page.
     """

@@ -14,7 +14,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.session import SESSION_LOST_NRCS, EcuError, UdsSession
 from eol_cal.errors import EolCalError
 from eol_cal.firmware import block as B
-from eol_cal.interrupts import raise_if_received
+from eol_cal.infra.interrupts import raise_if_received
 
 
 #: the steps that change the ECU's flash: none starts after the command received a signal

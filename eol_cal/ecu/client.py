@@ -21,7 +21,7 @@ from eol_cal.ecu.session import ClientTiming, EcuError, SeedToKey, UdsSession, V
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_sanity import header_field
-from eol_cal.inputs import read_text
+from eol_cal.infra.inputs import read_text
 
 __all__ = ["ClientTiming", "EcuError", "EcuInfo", "FlashReport", "SeedToKey", "UdsSession", "VerifyFailed",
            "EcuCheck", "ecu_info", "ecu_state", "flash_block", "hmac_seed_to_key", "load_key_file", "preflight_ecu",

@@ -2,7 +2,7 @@
 
 The file is the raw image of both sectors (bank 0 then bank 1, 65536 bytes each, words
 little-endian). Every erase and program writes the whole image through atomically
-(:func:`eol_cal.atomic.atomic_path`), so a simulator started later on the same file
+(:func:`eol_cal.infra.atomic.atomic_path`), so a simulator started later on the same file
 (a "restart") sees exactly what the flash held, including the damage a power loss left behind.
 """
 
@@ -15,11 +15,11 @@ from pathlib import Path
 
 import numpy as np
 
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
-from eol_cal.inputs import read_bytes
+from eol_cal.infra.inputs import read_bytes
 
 N_BANKS = len(B.BANK_WORD_ADDR)
 ERASED = P.ERASED_BYTE

@@ -1,6 +1,6 @@
 """The simulated ECU's boot-loader side: erase, download, transfer, exit and check on the banks.
 
-The UDS services of :mod:`eol_cal.ecu.sim` parse requests and enforce sessions and security;
+The UDS services of :mod:`eol_cal.ecu.sim_ecu` parse requests and enforce sessions and security;
 this module keeps the programming state (which bank is erased, the open download, the last
 accepted block counter) and applies the contract's rules (revision 1.1) to the flash:
 
@@ -63,7 +63,7 @@ class _Download:
 
 
 class ProgramFaults(Protocol):
-    """The programming faults of :class:`eol_cal.ecu.sim.Faults` (byte offsets of the download)."""
+    """The programming faults of :class:`eol_cal.ecu.sim_ecu.Faults` (byte offsets of the download)."""
 
     power_loss_byte: int | None
     corrupt_byte: int | None

@@ -1,7 +1,7 @@
 """Firmware contract v1, section 3: every CAN/UDS constant and byte codec, spelled once.
 
 Both the flashing client (:mod:`eol_cal.ecu.client`) and the ECU simulator
-(:mod:`eol_cal.ecu.sim`) import from here, so a protocol byte can only disagree with
+(:mod:`eol_cal.ecu.sim_ecu`) import from here, so a protocol byte can only disagree with
 the contract in one place. Service IDs and NRC values come from udsoncan
 (``udsoncan.services`` / ``udsoncan.Response.Code``) rather than being restated.
 """

@@ -31,7 +31,7 @@ from eol_cal.errors import EolCalError, InputError, Interrupted
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_layout import get_field
 from eol_cal.firmware.block_sanity import MotorType, require_safe, type_problems
-from eol_cal.motor import MotorParams, load_motor
+from eol_cal.domain.motor_params import MotorParams, load_motor
 
 TAIL_BYTES = 4
 """The CRC: the last bytes of a block, written last (the block is valid only with them)."""

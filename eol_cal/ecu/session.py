@@ -40,7 +40,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.matching import MatchingConnection
 from eol_cal.ecu.transport import GuardedBus, IsoTpTiming, LinkLost, make_stack
 from eol_cal.errors import CheckFailed, EolCalError, InputError
-from eol_cal.retry import RetriesExhausted, retry_call
+from eol_cal.infra.retry import RetriesExhausted, retry_call
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ class ClientTiming:
     retries : int
         Extra attempts for a request that timed out (only where repeating is safe).
     retry_delay_s : float
-        Wait before the first retry, s; doubles for each further one (``eol_cal.retry``).
+        Wait before the first retry, s; doubles for each further one (``eol_cal.infra.retry``).
     tester_present_s : float
         Send TesterPresent when no request went out for this long, s (S3 is 5 s).
     request_s : float

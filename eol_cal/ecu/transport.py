@@ -29,7 +29,7 @@ from udsoncan.exceptions import TimeoutException
 
 from eol_cal.ecu import protocol as P
 from eol_cal.errors import InputError
-from eol_cal.inputs import read_text
+from eol_cal.infra.inputs import read_text
 
 log = logging.getLogger(__name__)
 

@@ -11,7 +11,7 @@ from intelhex import IntelHex, IntelHexError
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.block_layout import BANK_BYTE_ADDR, BANK_BYTES
-from eol_cal.inputs import read_bytes
+from eol_cal.infra.inputs import read_bytes
 
 
 def to_intel_hex(data: bytes, bank: int) -> str:

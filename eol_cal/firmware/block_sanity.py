@@ -36,7 +36,7 @@ from eol_cal.firmware import block as B
 from eol_cal.firmware.block_layout import FIELDS_BY_VERSION, SIZE
 from eol_cal.firmware.contract import C6_MAX, FLAGS, K6_MAX, KT_MAX, MAGIC, PHASE_MAX
 from eol_cal.firmware.mech_params import FP_MAX, MechParams
-from eol_cal.motor import MotorParams
+from eol_cal.domain.motor_params import MotorParams
 
 #: largest look-up lead (s) a block may carry
 LEAD_MAX_S = 0.1

@@ -25,7 +25,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.errors import InputError
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, TABLE_LEN_MAX, TABLE_LEN_MIN, ParamBlock, table_len_ok
 
 DEFAULT_TABLE_LEN = 256

@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from eol_cal.arrays import Array
+from eol_cal.numerics.arrays import Array
 from eol_cal.firmware.estimator_config import (
     F32, HALF, HALL_NEXT, I32, INV_TWO_PI, K_ACC, K_PITCH, N_LEARN, NOMINAL_HALL_ANGLE, PI,
     ST_DIR_MISMATCH, ST_EDGE_REJECT, ST_HALL_FAULT, ST_HALL_SEQ, ST_MISSING_EDGE, ST_NO_ANCHOR,

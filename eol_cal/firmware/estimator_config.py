@@ -19,7 +19,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.contract import (
     FLAG_EST_ACCEL_PREDICTION,
     FLAG_EST_CLAMP_TO_NEXT_EDGE,

@@ -17,7 +17,7 @@ from typing import Any, NamedTuple, cast
 
 import numpy as np
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.estimator_config import (
     F32, HALF, I32, K_ACC, K_PITCH, N_LEARN, ST_DIR_MISMATCH, ST_EDGE_REJECT, ST_HALL_FAULT, ST_HALL_SEQ,
     ST_MISSING_EDGE, ST_NO_ANCHOR, ST_NO_SPEED, ST_QEP_ERROR, ST_REVERSE, ST_STANDSTILL, STEADY_TICKS,

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.firmware import contract as C
 from eol_cal.firmware.block import LAYOUT
 from eol_cal.firmware.block_layout import FIELDS, LAYOUTS, SIZE

@@ -28,16 +28,16 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal import __version__
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware import estimator_golden, mech_golden
 from eol_cal.firmware.compensator import i_qc, make_tables
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.firmware.vectors import VectorSet, csv_text, f32hex
-from eol_cal.inputs import loads_json, read_text
-from eol_cal.motor import load_motor
-from eol_cal.wrap import wrap_2pi
+from eol_cal.infra.inputs import loads_json, read_text
+from eol_cal.domain.motor_params import load_motor
+from eol_cal.numerics.wrap import wrap_2pi
 
 GOLDEN_FORMAT = 1
 GENERATOR = f"eol_cal.firmware.golden format {GOLDEN_FORMAT}"

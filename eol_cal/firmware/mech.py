@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware import fpu_c28x
 from eol_cal.firmware.compensator import lead_angle, table_sum
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_MECH_NEEDS

@@ -44,7 +44,7 @@ from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_sum
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, make_mech_tables, unused_mech
 from eol_cal.firmware.mech_run import run_mech
 from eol_cal.firmware.vectors import VectorSet, f32hex, scenario_rows_in_parallel
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 
 TICK_HZ = 20000.0
 #: the flags of an identifying block: compensation, the interpolated angle, every estimator option, MECH_COMP_ENABLE

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
 from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, numpy_of
 from eol_cal.firmware.mech import (

@@ -28,8 +28,8 @@ import sqlalchemy as sa
 
 from eol_cal import __version__
 from eol_cal.errors import InputError
-from eol_cal.inputs import loads_json
-from eol_cal.lot.columns import NO_VARIANT, QUANTITIES, read_lot
+from eol_cal.infra.inputs import loads_json
+from eol_cal.lot.runs import NO_VARIANT, QUANTITIES, read_lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, ControlLine, freeze_line, natural_floor
 from eol_cal.records.record import KINDS, MEASURED_KIND
 from eol_cal.records.connect import connected, db_label
@@ -133,8 +133,8 @@ def baseline_of_db(db: str | Path, name: str, filters: Mapping[str, Any], min_n:
     """The baseline of the runs a records database holds under ``filters``: ``since`` (inclusive)
     and ``until`` (exclusive) as aware instants or None, ``variant``, ``stations`` (a sequence;
     None: all), ``kind`` (default ``production``): every quantity of
-    :data:`eol_cal.lot.columns.QUANTITIES` per variant and station, from the lot's columns
-    (:func:`eol_cal.lot.columns.read_lot`). Times are compared as instants, never as text."""
+    :data:`eol_cal.lot.runs.QUANTITIES` per variant and station, from the lot's columns
+    (:func:`eol_cal.lot.runs.read_lot`). Times are compared as instants, never as text."""
     since, until = filters.get("since"), filters.get("until")
     if since is not None and until is not None and not since < until:
         raise InputError(None, "until", f"{until.isoformat()} is not after --since {since.isoformat()}")

@@ -73,10 +73,10 @@ def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
 
 def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     """Make this process ready to fit motors: the firmware estimator's tick loop compiled into
-    one kernel (:func:`eol_cal.xla.configure_xla`, when JAX has not started yet), JAX's
+    one kernel (:func:`eol_cal.numerics.xla.configure_xla`, when JAX has not started yet), JAX's
     persistent compile cache switched on in
     ``cache_dir`` (:func:`eol_cal.analysis.fit.cache.enable_compile_cache`; ``None``: off), the
-    fit's modules imported, one BLAS thread (:func:`eol_cal.blas.limit_blas_threads`), and the objects
+    fit's modules imported, one BLAS thread (:func:`eol_cal.numerics.blas.limit_blas_threads`), and the objects
     they made frozen out of the cyclic garbage
     collector (``gc.freeze``: JAX and the libraries of a fit are ~200 000 objects that a full
     collection would otherwise walk every time; none of them is garbage).
@@ -86,8 +86,8 @@ def prepare_fit_process(cache_dir: str | os.PathLike[str] | None) -> None:
     ``bench/bench_refit.py``.
     """
     from eol_cal.analysis.fit.cache import enable_compile_cache
-    from eol_cal.blas import limit_blas_threads
-    from eol_cal.xla import configure_xla
+    from eol_cal.numerics.blas import limit_blas_threads
+    from eol_cal.numerics.xla import configure_xla
 
     # before JAX starts in this process: the firmware estimator's tick loop (the firmware frame of
     # every capture) in one kernel, ~3x less CPU per capture; the rows do not change

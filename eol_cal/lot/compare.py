@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from eol_cal.errors import InputError
-from eol_cal.lot.columns import from_records
+from eol_cal.lot.runs import from_records
 from eol_cal.lot.summary import lot_summary
 from eol_cal.records.record import RunRecord
 from eol_cal.records.query import query_records

@@ -15,7 +15,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-from eol_cal.display import display_unit
+from eol_cal.rendering.display import display_unit
 from eol_cal.records.record import MEASURED_KIND, RunRecord
 from eol_cal.records.query import latest_per_serial
 

@@ -66,7 +66,7 @@ def find_captures(patterns: Sequence[str], kind: str | Sequence[str] | None = "p
 
 def _run_kind(run_dir: Path) -> str | None:
     """The kind of a station run directory's record (None: no readable record there)."""
-    from eol_cal.inputs import load_json
+    from eol_cal.infra.inputs import load_json
     from eol_cal.records.record import record_kind
 
     try:  # the bounded loader: a FIFO or a record nested 100 000 deep is no readable record
@@ -163,8 +163,8 @@ class _RefitSetup:
 
     def __init__(self, limits_file: str | None, variant: str | None, bench: str, motor: str,
                  cache_dir: str | Path | None) -> None:
-        from eol_cal.mechanics import mechanics_or_rigid
-        from eol_cal.motor import load_motor
+        from eol_cal.domain.bench_mechanics import mechanics_or_rigid
+        from eol_cal.domain.motor_params import load_motor
         from eol_cal.records.limits import load_limits
 
         self.lim = load_limits(limits_file, variant) if limits_file else None
@@ -269,7 +269,7 @@ def write_rows(path: str | Path, rows: Iterable[dict[str, Any]]) -> Path:
     """Write rows as JSON Lines (``.jsonl``) or Parquet (``.parquet``), atomically."""
     import json
 
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
 
     path = Path(path)
     rows = list(rows)
@@ -292,7 +292,7 @@ def write_rows(path: str | Path, rows: Iterable[dict[str, Any]]) -> Path:
 
 def read_rows(path: str | Path) -> list[dict[str, Any]]:
     """Rows written by :func:`write_rows`."""
-    from eol_cal.inputs import check_regular, loads_json, read_text
+    from eol_cal.infra.inputs import check_regular, loads_json, read_text
 
     path = Path(path)
     file = str(path)

@@ -28,7 +28,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 
 from eol_cal.lot.stats import D2, D4, Capability, capability
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 #: the smallest n that gives a capability index or a control limit (``lot stats --min-n``)
 DEFAULT_MIN_N = 25

@@ -1,6 +1,6 @@
 """The SPC parts of a lot's statistics, as the ``lot stats`` document and the lot page show them.
 
-Over a :class:`eol_cal.lot.columns.Lot` (display units), with the definitions of
+Over a :class:`eol_cal.lot.runs.Lot` (display units), with the definitions of
 :mod:`eol_cal.lot.stats` and :mod:`eol_cal.lot.spc` (``docs/spc.md``):
 
 - :func:`capability_groups`: Cp/Cpk/Ppk per variant (all its stations) and per variant and
@@ -21,7 +21,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from eol_cal.lot.baseline import Baseline, line_document
-from eol_cal.lot.columns import Lot, Quantity
+from eol_cal.lot.runs import Lot, Quantity
 from eol_cal.lot.spc import (CIRCULAR, DEFAULT_MIN_N, RULES, circular_histogram, circular_summary, gate, gated_capability,
                              judge, natural_floor)
 from eol_cal.lot.stats import imr_limits

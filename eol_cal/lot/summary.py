@@ -1,9 +1,9 @@
 """The lot's statistics as one document: what ``eol-cal lot stats`` prints and writes as JSON.
 
 One definition for the command and the lot page: :func:`quantity_stats` and
-:func:`lot_summary` take a :class:`eol_cal.lot.columns.Lot` (the runs column-wise, from the
+:func:`lot_summary` take a :class:`eol_cal.lot.runs.Lot` (the runs column-wise, from the
 database's columns or from parsed records) and apply :mod:`eol_cal.lot.stats` (the
-definitions) to the quantities :data:`eol_cal.lot.columns.QUANTITIES` in their display units.
+definitions) to the quantities :data:`eol_cal.lot.runs.QUANTITIES` in their display units.
 """
 
 from __future__ import annotations
@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.lot import spc_stats
 from eol_cal.lot.baseline import Baseline
-from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot
+from eol_cal.lot.runs import CHARTED, QUANTITIES, Lot
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N
 from eol_cal.lot.stats import Capability, Summary, capability, first_pass_yield_of, pareto_of, summary
 from eol_cal.records.tables import COLUMN_NAMES, runs
@@ -154,7 +154,7 @@ def write_runs_csv(path: str | Path, db: str | Path, rules: dict[str, list[str]]
     """Write the selected runs' columns (the database's, without the JSON documents) as CSV,
     atomically, oldest first; returns the number of runs. ``filters`` as
     :func:`eol_cal.records.query.select_runs`. Each header names its unit (``k6 [mN*m/A]``);
-    the measured quantities are in their display units (:mod:`eol_cal.display`). With ``rules``
+    the measured quantities are in their display units (:mod:`eol_cal.rendering.display`). With ``rules``
     (run id -> ``QUANTITY:RULE`` tags, :func:`eol_cal.lot.spc_stats.rules_by_run`) a last column
     ``rules`` lists the run rules each run is part of, ``;``-separated."""
     shown = {q.key: q for q in QUANTITIES}

@@ -26,7 +26,7 @@ import sqlalchemy as sa
 
 from eol_cal import __version__
 from eol_cal.errors import InputError
-from eol_cal.inputs import loads_json
+from eol_cal.infra.inputs import loads_json
 from eol_cal.msa.master import MASTER_QUANTITIES, MasterSettings, master_settings
 from eol_cal.records.connect import DEFAULT_LOCK_TIMEOUT_S, connected, db_label, is_url
 from eol_cal.records.migrations import ensure_schema, lock, migrate, readable

@@ -2,7 +2,7 @@
 reference and tolerance, and the document ``eol-cal msa type1 --json`` prints.
 
 The runs are the master serial's in the records database (time order), read column-wise as a
-:class:`eol_cal.lot.columns.Lot`. The quantities are :data:`TYPE1_QUANTITIES` in their display
+:class:`eol_cal.lot.runs.Lot`. The quantities are :data:`TYPE1_QUANTITIES` in their display
 units (mN*m/A, deg, mN*m, %). The reference is given per quantity or taken from a declared run
 (which is then not one of the study's runs). The tolerance is given per quantity, or for a
 quantity with only an upper limit and a natural zero (k6, the p-p figures) ``T = limit - 0``
@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from eol_cal.errors import InputError, naming
-from eol_cal.lot.columns import LOT_COLUMNS, QUANTITIES, Lot, Quantity, from_columns
+from eol_cal.lot.runs import LOT_COLUMNS, QUANTITIES, Lot, Quantity, from_columns
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, NATURAL_ZERO  # a magnitude: T = USL - 0
 from eol_cal.msa.type1 import CAPABLE, K_DEFAULT, L_DEFAULT, Type1Study, type1_study
 from eol_cal.records.connect import db_key, is_url
@@ -32,7 +32,7 @@ TYPE1_SCHEMA = "eol-cal/msa-type1/1"
 
 
 def quantity(key: str) -> Quantity:
-    """The :data:`eol_cal.lot.columns.QUANTITIES` entry of ``key``."""
+    """The :data:`eol_cal.lot.runs.QUANTITIES` entry of ``key``."""
     for q in QUANTITIES:
         if q.key == key:
             return q

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 
 SQRT3 = math.sqrt(3.0)
 

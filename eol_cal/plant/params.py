@@ -3,8 +3,8 @@ bench's mechanics.
 
 :class:`PlantSpec` is the human-readable description (units in the names' docs); it is what a
 plant preset or :mod:`eol_cal.plant.variation` produces and what goes into a capture's
-``truth.*``. It holds the motor's data sheet (:class:`eol_cal.motor.MotorParams`) and the bench's
-mechanics (:class:`eol_cal.mechanics.BenchMechanics`) as objects of their own.
+``truth.*``. It holds the motor's data sheet (:class:`eol_cal.domain.motor_params.MotorParams`) and the bench's
+mechanics (:class:`eol_cal.domain.bench_mechanics.BenchMechanics`) as objects of their own.
 :class:`PlantParams` is the same as float32 arrays with the per-tick coefficients precomputed,
 the pytree the scan closes over (batched along a leading axis for a lot of motors).
 """
@@ -22,9 +22,9 @@ import numpy as np
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, HallTables, hall_tables
 from eol_cal.firmware.kinematics import SensorErrors
 from eol_cal.firmware.mech import MechTables, mech_tables
-from eol_cal.mechanics import SHAFT_KEYS, BenchMechanics, load_mechanics, shaft_damping, speed_gains
-from eol_cal.motor import MotorParams, load_motor
-from eol_cal.plant import motor as motor_model
+from eol_cal.domain.bench_mechanics import SHAFT_KEYS, BenchMechanics, load_mechanics, shaft_damping, speed_gains
+from eol_cal.domain.motor_params import MotorParams, load_motor
+from eol_cal.plant import machine as motor_model
 from eol_cal.plant import ripple
 
 if TYPE_CHECKING:

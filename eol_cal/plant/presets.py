@@ -14,7 +14,7 @@ import numpy as np
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.kinematics import draw_sensor_errors
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 from eol_cal.plant.params import PlantSpec
 
 

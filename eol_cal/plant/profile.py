@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.errors import InputError
-from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
+from eol_cal.infra.inputs import MAX_TOML_BYTES, loads_toml, read_text
 
 MAX_RPM = 6000.0
 MAX_IQ_A = 300.0

@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
-from eol_cal.arrays import Array
+from eol_cal.numerics.arrays import Array
 
 
 #: Ripple harmonics of the electrical angle (orders) in the coefficient layout.

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 
 
 class SensorCoefficients(Protocol):

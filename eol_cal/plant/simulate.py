@@ -30,7 +30,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from eol_cal.capture.ecu_state import EcuState, with_ecu_state
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
 from eol_cal.firmware import estimator, kinematics
 from eol_cal.firmware.block import ParamBlock
@@ -38,9 +38,9 @@ from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.firmware import mech_tick
 from eol_cal.firmware.mech import MechConsts, block_mech_tables, mech_init, mech_sum
 from eol_cal.firmware.settling import settle_s
-from eol_cal.mechanics import mech_step
-from eol_cal.plant import control, inverter, motor, ripple, sensors, transforms
-from eol_cal.plant.ecu import batch_options, estimator_config, simulated_ecu_state, true_block
+from eol_cal.domain.bench_mechanics import mech_step
+from eol_cal.plant import control, inverter, machine, ripple, sensors, transforms
+from eol_cal.plant.ecu_model import batch_options, estimator_config, simulated_ecu_state, true_block
 from eol_cal.plant.params import (
     PlantParams,
     PlantSpec,
@@ -51,8 +51,8 @@ from eol_cal.plant.params import (
     to_params,
 )
 from eol_cal.plant.profile import Profile
-from eol_cal.wrap import wrap_2pi
-from eol_cal.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
+from eol_cal.numerics.wrap import wrap_2pi
+from eol_cal.numerics.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
 TWO_PI = 2.0 * math.pi
 #: Per-tick outputs of the scan, in this order (float32 columns).
@@ -209,9 +209,9 @@ def _tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tu
         e_al, e_be = inverter.dead_time_error(i_a, i_b, i_c, p.u_dead, jnp)
         u_al, u_be = u_al + e_al, u_be + e_be
     v_d, v_q = _rotate(u_al, u_be, cos_r, -sin_r)
-    T_e = motor.electromagnetic_torque(plant.i_d, plant.i_q, p, cfg.poles)
+    T_e = machine.electromagnetic_torque(plant.i_d, plant.i_q, p, cfg.poles)
     T_rotor = T_e - ripple.ripple_torque(cos_r, sin_r, cos_m, sin_m, plant.i_q, p)
-    i_d, i_q = motor.current_step(plant.i_d, plant.i_q, v_d, v_q, omega_r, p)
+    i_d, i_q = machine.current_step(plant.i_d, plant.i_q, v_d, v_q, omega_r, p)
 
     # 5: shaft, dyno, transducer
     theta_m, twist, omega_m, omega_d, x_dyno, T_shaft = mech_step(

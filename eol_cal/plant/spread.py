@@ -30,7 +30,7 @@ import numpy as np
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.kinematics import draw_sensor_errors
-from eol_cal.inputs import load_toml
+from eol_cal.infra.inputs import load_toml
 from eol_cal.plant.params import PlantSpec
 from eol_cal.plant.presets import paper
 

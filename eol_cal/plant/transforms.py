@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 
 _SQRT3_2 = math.sqrt(3.0) / 2.0
 _INV_SQRT3 = 1.0 / math.sqrt(3.0)

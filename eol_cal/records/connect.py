@@ -23,7 +23,7 @@ from sqlalchemy.engine import Connection, Engine
 from sqlalchemy.pool import ConnectionPoolEntry, NullPool
 
 from eol_cal.errors import EolCalError, InputError
-from eol_cal.inputs import check_regular
+from eol_cal.infra.inputs import check_regular
 
 #: seconds a write waits for another connection's lock (or for the server) before spooling
 DEFAULT_LOCK_TIMEOUT_S = 5.0

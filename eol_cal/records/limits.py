@@ -32,7 +32,7 @@ from collections.abc import Mapping
 
 from eol_cal.errors import InputError
 from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options
-from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
+from eol_cal.infra.inputs import MAX_TOML_BYTES, loads_toml, read_text
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
@@ -56,7 +56,7 @@ class Limit:
     title : str
         What is judged, in words.
     unit : str
-        Unit of the quantity and the limit (stored units; people read :mod:`eol_cal.display`'s).
+        Unit of the quantity and the limit (stored units; people read :mod:`eol_cal.rendering.display`'s).
     sense : {"max", "min"}
         ``max``: the value must not exceed the limit; ``min``: it must not fall below it.
     stage : {"fit", "ripple"}
@@ -403,7 +403,7 @@ class LimitCheck:
 
 
 def _reason(lim: Limit, value: float, limit: float, m: Measured) -> str:
-    from eol_cal.display import display_unit
+    from eol_cal.rendering.display import display_unit
 
     if math.isnan(value):
         return lim.missing.format(title=lim.title, key=lim.key, **dataclasses.asdict(m))

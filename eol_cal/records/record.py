@@ -34,7 +34,7 @@ from eol_cal.records.parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REFUSAL_CO
                                           FlashedBlock, GateInfo, MasterCheck, PointFigures, PreflightResult,
                                           PreviousBlock, Problem,
                                           RecordFormatError, RestoredFrom, RippleMetrics, StationInfo, Step)
-from eol_cal.jsonsafe import json_safe
+from eol_cal.infra.jsonsafe import json_safe
 from eol_cal.records.v1 import fields_from_v1, kind_v1
 
 __all__ = ["BLOCK_ROLES", "KINDS", "MEASURED_KIND", "NO_STATION", "REFUSAL_CODES", "SCHEMA", "SCHEMA_V1", "VERDICTS",

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from eol_cal.inputs import loads_json
+from eol_cal.infra.inputs import loads_json
 from eol_cal.records.connect import db_key, is_url
 from eol_cal.records.record import RunRecord
 
@@ -28,7 +28,7 @@ def row_values(record: RunRecord) -> dict[str, Any]:
     """The columns of a record's row, except the JSON documents ``fit_json`` and ``record_json``.
 
     The one mapping from a record to its columns: the insert, the migrations and the lot
-    statistics of parsed records (:mod:`eol_cal.lot.columns`) all use it.
+    statistics of parsed records (:mod:`eol_cal.lot.runs`) all use it.
     """
     cal = record.block("calibrated")
     cap = record.captures

@@ -14,10 +14,10 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_json
-from eol_cal.jsonsafe import json_safe
+from eol_cal.infra.inputs import load_json
+from eol_cal.infra.jsonsafe import json_safe
 from eol_cal.records.record import RunRecord
 from eol_cal.records.connect import DEFAULT_LOCK_TIMEOUT_S, RecordError, db_key, db_shown, one_line
 from eol_cal.records.write import insert_records

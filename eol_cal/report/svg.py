@@ -13,8 +13,8 @@ from typing import TYPE_CHECKING
 from collections.abc import Iterator, Mapping, Sequence
 from xml.sax.saxutils import escape
 
-from eol_cal.figures import pyplot
-from eol_cal.render import literal_texts
+from eol_cal.rendering.figures import pyplot
+from eol_cal.rendering.renderer import literal_texts
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure as MplFigure

@@ -6,8 +6,8 @@ to other processes (:mod:`.remote_ecu`), a simulated ECU and a tester on one vir
 lots of them (:mod:`.run_records`, :mod:`.lot_records`), the plant motors of the mechanical-order
 fit (:mod:`.mech_motors`), and hostile inputs and fault scenarios (:mod:`.fuzz`).
 
-The simulators of the instruments themselves stay with their clients (:mod:`eol_cal.dyno.sim`,
-:mod:`eol_cal.ecu.sim`, the plant :mod:`eol_cal.plant`). Nothing in the product imports this
+The simulators of the instruments themselves stay with their clients (:mod:`eol_cal.dyno.sim_dyno`,
+:mod:`eol_cal.ecu.sim_ecu`, the plant :mod:`eol_cal.plant`). Nothing in the product imports this
 package but the commands that serve a simulator (``eol-cal demo``, ``station --demo``, ``dyno-sim``,
 ``ecu-sim``): ``tests/test_imports.py`` checks it.
 """

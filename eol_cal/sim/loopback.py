@@ -19,13 +19,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from eol_cal.dyno import sim as ds
+from eol_cal.dyno import sim_dyno as ds
 from eol_cal.dyno.sim_capture import synthetic_source
 from eol_cal.ecu.session import ClientTiming
-from eol_cal.ecu.sim import SimConfig
+from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, open_bus
-from eol_cal.exchange_log import quiet
-from eol_cal.motor import load_motor
+from eol_cal.infra.exchange_log import quiet
+from eol_cal.domain.motor_params import load_motor
 from eol_cal.plant.variation import draw_spec
 from eol_cal.sim.remote_ecu import serve_remote
 from eol_cal.sim.rig import plant_source
@@ -34,7 +34,7 @@ if TYPE_CHECKING:
     import can
 
     from eol_cal.dyno.regmap import RegisterMap
-    from eol_cal.dyno.sim import DynoSimThread, FaultPlan
+    from eol_cal.dyno.sim_dyno import DynoSimThread, FaultPlan
     from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource
     from eol_cal.plant.params import PlantSpec
     from eol_cal.sim.remote_ecu import RemoteEcu
@@ -105,7 +105,7 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     register_map : RegisterMap, optional
         The register layout the dyno simulator serves (default: the reference map).
     realtime : bool
-        The dyno simulator in real time: a capture takes its physical time (:class:`~eol_cal.dyno.sim.DynoSim`).
+        The dyno simulator in real time: a capture takes its physical time (:class:`~eol_cal.dyno.sim_dyno.DynoSim`).
     bitrate : int or None
         Pace the ECU simulator's bus to this CAN bit rate (bit/s); None: unpaced.
     """

@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 
 from eol_cal.analysis.fit.table import uncompensated_block
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.firmware.options import parse_options
-from eol_cal.motor import load_motor
+from eol_cal.domain.motor_params import load_motor
 from eol_cal.plant.profile import Profile, load_profile
 from eol_cal.plant.simulate import simulate
 from eol_cal.plant.variation import draw_motor

@@ -16,7 +16,7 @@ import can
 from can_remote import RemoteServer
 
 from eol_cal.ecu.flash import NorFlash
-from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
+from eol_cal.ecu.sim_ecu import EcuSimulator, Faults, SimConfig
 from eol_cal.ecu.transport import private_channel_name
 
 

@@ -1,7 +1,7 @@
 """The simulated rig: the built-in plant behind the dyno simulator, running what the ECU
 simulator's flash holds.
 
-The dyno simulator (:mod:`eol_cal.dyno.sim`) knows no ECU: at every capture it asks a capture
+The dyno simulator (:mod:`eol_cal.dyno.sim_dyno`) knows no ECU: at every capture it asks a capture
 source for the recording. The rig's source reads the ECU simulator's flash file at that moment
 (:func:`active_calibration`: the active bank's parameter block and the mode its flags select)
 and runs the plant with it, so a flash changes what the next capture shows, as on a real line
@@ -15,13 +15,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource, i_qo_of
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware.block import ParamBlock, pack, unpack
 from eol_cal.firmware.settling import FIRST_EDGES_S
 from eol_cal.plant import variation
-from eol_cal.plant.ecu import mode_of_block
+from eol_cal.plant.ecu_model import mode_of_block
 from eol_cal.plant.params import PlantSpec
 from eol_cal.plant.presets import preset_spec
 from eol_cal.plant.profile import Profile, ProfileSegment

@@ -15,7 +15,7 @@ import can
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import ClientTiming, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash
-from eol_cal.ecu.sim import EcuSimulator, Faults, SimConfig
+from eol_cal.ecu.sim_ecu import EcuSimulator, Faults, SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, private_channel_name
 from eol_cal.firmware.example import example_block
 

@@ -19,7 +19,7 @@ from eol_cal.errors import EolCalError
 from eol_cal.records.record import FlashedBlock
 
 if TYPE_CHECKING:
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
     from eol_cal.dyno.setpoints import DynoSetpoint
     from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.client import ClientTiming

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from eol_cal.atomic import atomic_path
+from eol_cal.infra.atomic import atomic_path
 from eol_cal.ecu.client import flash_block
 from eol_cal.firmware import block as B
 from eol_cal.firmware.mech import mech_enabled
@@ -26,7 +26,7 @@ from eol_cal.records.record import FlashedBlock, PreviousBlock
 
 if TYPE_CHECKING:
     from eol_cal.ecu.sequence import FlashReport
-    from eol_cal.motor import MotorParams
+    from eol_cal.domain.motor_params import MotorParams
 
 
 def write_archive(path: Path, image: bytes) -> str:

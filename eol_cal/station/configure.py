@@ -51,8 +51,8 @@ def station_config(settings: StationSettings, *, operator: str | None = None, ca
     """
     from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.transport import open_bus
-    from eol_cal.mechanics import mechanics_or_rigid
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import mechanics_or_rigid
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.records.limits import load_limits
 

@@ -38,7 +38,7 @@ from eol_cal.station.run import ProgressFn, StationConfig, check_config, new_run
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.firmware.block import ParamBlock
     from eol_cal.station.early import EarlyWindows

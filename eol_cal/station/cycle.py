@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 
-from eol_cal.interrupts import emergency
+from eol_cal.infra.interrupts import emergency
 from eol_cal.records.record import RunRecord
 from eol_cal.station.context import CycleContext, start_context
 from eol_cal.station.executor import Executor, Observer, StepEvent, StepFn

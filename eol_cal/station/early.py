@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from eol_cal.analysis.fit.capture import PreparedWindows, capture_segments, window_metrics
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from eol_cal.interrupts import raise_if_received, shielded
+from eol_cal.infra.interrupts import raise_if_received, shielded
 from eol_cal.records.record import RunRecord, Step
 from eol_cal.station.context import CycleContext, StepVerdict
 from eol_cal.station.run import EXIT, RunOutcome
@@ -132,7 +132,7 @@ class Executor:
         try:
             for name, fn in plan(ctx):
                 # a signal whose exception a finalizer swallowed (JAX's gc callback, during the
-                # fit) stops the cycle here: nothing is flashed after it (eol_cal.interrupts)
+                # fit) stops the cycle here: nothing is flashed after it (eol_cal.infra.interrupts)
                 raise_if_received(name)
                 found = self.timed(ctx, name, fn)
                 if isinstance(found, StepVerdict):
@@ -141,7 +141,7 @@ class Executor:
                         break
         except BaseException as exc:  # noqa: BLE001 - every failure becomes an error record
             ctx.failure = exc
-        # From here on a signal waits until the record is written (eol_cal.interrupts).
+        # From here on a signal waits until the record is written (eol_cal.infra.interrupts).
         with shielded():
             self.untimed(ctx, decide_verdict.NAME, lambda: decide_verdict.run(ctx, on_verdict), decide_verdict.run)
             try:

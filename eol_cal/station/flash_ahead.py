@@ -32,7 +32,7 @@ from eol_cal.station.archive import archived
 if TYPE_CHECKING:
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.ecu.session import ClientTiming
-    from eol_cal.motor import MotorParams
+    from eol_cal.domain.motor_params import MotorParams
     from eol_cal.records.record import FlashedBlock
 
 #: seconds :meth:`FlashAhead.close` waits for the first half (its requests are bounded by the

@@ -28,7 +28,7 @@ from eol_cal.records.record import MEASURED_KIND, FlashedBlock, RestoredFrom, Ru
 if TYPE_CHECKING:
     from eol_cal.capture.ecu_state import EcuState
     from eol_cal.ecu.sequence import FlashReport
-    from eol_cal.motor import MotorParams
+    from eol_cal.domain.motor_params import MotorParams
     from eol_cal.records.spool import SaveResult
     from eol_cal.station.executor import Observer
 
@@ -56,7 +56,7 @@ def read_archive(block: FlashedBlock, run_id: str) -> bytes:
     if not block.path:
         raise InputError(None, f"run {run_id} blocks", f"the {block.role} block has no archive file")
     from eol_cal.firmware.block_layout import BANK_BYTES
-    from eol_cal.inputs import read_bytes
+    from eol_cal.infra.inputs import read_bytes
 
     try:  # a path from a record: no FIFO, no device, no gigabytes
         data = read_bytes(block.path, None, max_bytes=4 * BANK_BYTES)
@@ -175,7 +175,7 @@ def restore_run(open_bus: Callable[[], Any], data: bytes, *, serial: str, report
     from eol_cal.station.context import RestoreContext
     from eol_cal.station.executor import Executor
     from eol_cal.station.outcome import restore_record
-    from eol_cal.station.report import write_record_json
+    from eol_cal.station.report_files import write_record_json
     from eol_cal.station.run import new_run_dir
     from eol_cal.station.steps import restore_block
 

@@ -25,8 +25,8 @@ from typing import TYPE_CHECKING, Any
 from collections.abc import Callable
 
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, load_mechanics
-from eol_cal.motor import MotorParams, load_motor
+from eol_cal.domain.bench_mechanics import BenchMechanics, load_mechanics
+from eol_cal.domain.motor_params import MotorParams, load_motor
 from eol_cal.records.limits import VariantLimits
 
 if TYPE_CHECKING:
@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from eol_cal.msa.master import MasterSettings
     from eol_cal.records.spool import SaveResult
     from eol_cal.analysis.motor_result import MotorResult
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
     from eol_cal.records.record import RunRecord
 
 EXIT = {"pass": 0, "fail": 1, "error": 2}

@@ -36,9 +36,9 @@ from collections.abc import Callable, Collection, Mapping
 
 import can
 
-from eol_cal.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
+from eol_cal.infra.address import MODBUS_PORT, parse_modbus_address  # noqa: F401 - MODBUS_PORT: the port a bare address gets
 from eol_cal.errors import InputError
-from eol_cal.inputs import check_regular, load_toml
+from eol_cal.infra.inputs import check_regular, load_toml
 from eol_cal.msa.master import MASTER_QUANTITIES
 
 if TYPE_CHECKING:
@@ -212,7 +212,7 @@ def parse_dyno_address(text: str, where: str) -> tuple[str, int]:
 def _check_path(key: Key, value: object, where: str) -> object:
     """A path-valued key (or a database file) that no file can have (a NUL, a name or path too
     long) refused here, naming it, not as ValueError where it is first resolved or opened."""
-    from eol_cal.address import path_problem
+    from eol_cal.infra.address import path_problem
 
     if (key.is_path or key.name == "db") and (why := path_problem(str(value))) is not None:
         raise InputError(where, key.name, why)
@@ -230,7 +230,7 @@ def _check_values(settings: StationSettings) -> None:
     """The keys whose values alone can be wrong, checked as the options are: the estimator, the
     database address, the CAN configuration file (a cycle started with ``estimator = "foo"``,
     ``db = "."`` or a garbage ``can.config`` and failed at its first use of them)."""
-    from eol_cal.address import records_db
+    from eol_cal.infra.address import records_db
 
     if settings["estimator"] is not None:
         from eol_cal.firmware.options import parse_options
@@ -370,8 +370,8 @@ def check_station(settings: StationSettings) -> None:
     Called by :func:`load_settings`'s callers before the dyno moves; a bad limits file or key
     file is refused here with the settings key named, not halfway through the first motor.
     """
-    from eol_cal.mechanics import mechanics_or_rigid
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.bench_mechanics import mechanics_or_rigid
+    from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.profile import load_profile
     from eol_cal.records.limits import load_limits
 

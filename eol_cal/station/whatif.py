@@ -32,10 +32,10 @@ from collections.abc import Callable, Sequence
 
 from eol_cal.errors import InputError
 from eol_cal.station.whatif_plan import LotPlan, SimMotor
-from eol_cal.inputs import loads_json
+from eol_cal.infra.inputs import loads_json
 
 if TYPE_CHECKING:
-    from eol_cal.capture.model import Capture
+    from eol_cal.capture.data import Capture
 
 #: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
 SEED_MAX = 2**63 - 2
@@ -69,7 +69,7 @@ def check_plan(plan: LotPlan) -> None:
 def _windows(capture: Capture, profile: Any, f_tick: float) -> list[Capture]:
     """The steady part of each profile segment (after its ramp) as a capture of its own: what the
     station's dyno delivers (one window per segment)."""
-    from eol_cal.capture.model import Capture as Cap
+    from eol_cal.capture.data import Capture as Cap
 
     out = []
     for k, ((a, b), seg) in enumerate(zip(profile.segment_bounds(f_tick), profile.segments, strict=True), start=1):
@@ -96,7 +96,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
     (a motor whose step fails is recorded with verdict ``error``, the step named)."""
     from eol_cal import __version__
     from eol_cal.analysis.fit.table import block_from_result, uncompensated_block
-    from eol_cal.mechanics import mechanics_or_rigid
+    from eol_cal.domain.bench_mechanics import mechanics_or_rigid
     from eol_cal.plant.presets import preset_spec
     from eol_cal.plant.profile import constant, load_profile
     from eol_cal.plant.simulate import simulate

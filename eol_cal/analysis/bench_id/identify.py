@@ -4,8 +4,8 @@ Model of a point (:class:`eol_cal.analysis.bench_id.sweep.SweepPoints`) at frequ
 
     M = H(omega) * (Z_h + kt * I),   H = G(omega; J_dyno, K_shaft, shaft_zeta, dyno loop) * T(omega)
 
-``G`` is the shaft line (:func:`eol_cal.mechanics.torsion_response`, with the master motor's rotor
-inertia from its data sheet), ``T`` the transducer (:func:`eol_cal.mechanics.transducer_response`:
+``G`` is the shaft line (:func:`eol_cal.domain.bench_mechanics.torsion_response`, with the master motor's rotor
+inertia from its data sheet), ``T`` the transducer (:func:`eol_cal.domain.bench_mechanics.transducer_response`:
 a first-order low-pass and a pure delay), ``Z_h`` the motor's own ripple at harmonic ``h`` (one
 complex value per harmonic, or ``c_h + k_h i_qo`` when the sweep holds several loads), ``I`` the
 measured q-current phasor. The ripple is not known in advance: it enters linearly and is
@@ -37,8 +37,8 @@ import numpy as np
 
 from eol_cal.analysis.bench_id.sweep import SweepPoints
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, torsion_response, transducer_response
-from eol_cal.motor import MotorParams
+from eol_cal.domain.bench_mechanics import BenchMechanics, torsion_response, transducer_response
+from eol_cal.domain.motor_params import MotorParams
 
 if TYPE_CHECKING:
     from scipy.optimize import OptimizeResult

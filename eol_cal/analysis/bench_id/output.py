@@ -1,10 +1,10 @@
 """An identified bench written out: the bench file the fit reads (TOML, atomically) and the plot of
 the measured path against the model (PNG).
 
-The file holds the keys of :data:`eol_cal.mechanics.SHAFT_KEYS` (held ones from the base bench,
+The file holds the keys of :data:`eol_cal.domain.bench_mechanics.SHAFT_KEYS` (held ones from the base bench,
 said so in the table), the transducer's bandwidth (only when resolved) and delay, and an
 ``[identification]`` table with every estimate's value, 95 % interval, unit and status, the
-sweep it came from and the fit's Birge ratio: what :func:`eol_cal.mechanics.load_mechanics` reads
+sweep it came from and the fit's Birge ratio: what :func:`eol_cal.domain.bench_mechanics.load_mechanics` reads
 back, plus what a station engineer reads.
 """
 
@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.analysis.bench_id.identify import BenchIdentification
-from eol_cal.atomic import atomic_write
-from eol_cal.figures import pyplot, save_png
-from eol_cal.mechanics import SHAFT_KEYS, torsion_response
+from eol_cal.infra.atomic import atomic_write
+from eol_cal.rendering.figures import pyplot, save_png
+from eol_cal.domain.bench_mechanics import SHAFT_KEYS, torsion_response
 
 #: the 95 % error bars' factor (normal)
 _Z95_PLOT = 1.96

@@ -22,9 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from eol_cal.analysis.fit.capture import segment_motors
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
-from eol_cal.motor import MotorParams
+from eol_cal.domain.motor_params import MotorParams
 
 #: the electrical harmonics whose phasors sample the path
 HARMONICS = (6, 12, 18)

@@ -16,7 +16,7 @@ from pathlib import Path
 from collections.abc import Callable, Mapping
 
 from eol_cal.analysis.fit.model import FitSpec
-from eol_cal.atomic import atomic_write
+from eol_cal.infra.atomic import atomic_write
 
 #: environment variable naming the cache directory (``off``: no cache)
 CACHE_ENV = "EOL_CAL_JAX_CACHE"

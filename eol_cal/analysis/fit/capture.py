@@ -23,10 +23,10 @@ from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.halls import HallAngles, measure_hall_angles, nominal_hall_angles
 from eol_cal.analysis.steady import STANDSTILL_RAD_S, direction_pieces, revolution_bounds, steady_runs
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
-from eol_cal.mechanics import BenchMechanics, shaft_response, torsion_response
-from eol_cal.motor import MotorParams, load_motor
+from eol_cal.domain.bench_mechanics import BenchMechanics, shaft_response, torsion_response
+from eol_cal.domain.motor_params import MotorParams, load_motor
 
 if TYPE_CHECKING:
     from eol_cal.analysis.angle import AngleResult
@@ -273,7 +273,7 @@ def motor_inputs(
         frame of :mod:`eol_cal.analysis.angle`).
     mechanics : BenchMechanics, optional
         The dyno bench the captures come from; the fit then divides its shaft response
-        (:func:`eol_cal.mechanics.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
+        (:func:`eol_cal.domain.bench_mechanics.shaft_response`) out of the measured ripple. ``None``: rigid coupling.
     hall_angle : {"measured", "nominal"}
         The hall table the block will carry (:mod:`eol_cal.analysis.halls`): ``measured`` from
         the motor's own transitions (nominal, with the reason, when they do not suffice). The
@@ -395,8 +395,8 @@ def bench_path(motor: MotorParams, mechanics: BenchMechanics, current_known: boo
 
     With the current known (``kt * i_q`` measured, :func:`current_torque`) the air-gap torque
     already holds the current loop's reaction to the speed ripple: the path is the shaft line
-    alone (:func:`eol_cal.mechanics.torsion_response`). Without it that reaction is modelled on top
-    (:func:`eol_cal.mechanics.shaft_response`); taking both would count it twice (k6 +0.12 % on
+    alone (:func:`eol_cal.domain.bench_mechanics.torsion_response`). Without it that reaction is modelled on top
+    (:func:`eol_cal.domain.bench_mechanics.shaft_response`); taking both would count it twice (k6 +0.12 % on
     the paper bench, noise-free plant motors).
     """
     if current_known:

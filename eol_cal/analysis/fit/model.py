@@ -61,7 +61,7 @@ class FitSpec:
         (default 3, what the block compensates): in the segment's nuisance, so that a mechanical
         order never leaks into the electrical harmonics; their phases are free per segment (the
         halls do not tell the pole pair), their shared values are fitted afterwards in the
-        fingerprint's frame (:mod:`eol_cal.analysis.fit.mech`).
+        fingerprint's frame (:mod:`eol_cal.analysis.fit.mech_orders`).
     delay_s : float or None
         Known transducer delay (s); ``None`` estimates it (needs two different signed speeds).
     delay_max_s : float or None
@@ -159,7 +159,7 @@ class SteadySegments:
     path_response : callable, optional
         Complex response of the path from the motor's air-gap torque to the shaft torque the
         transducer sees, at angular frequencies (rad/s, signed): ``omega -> ndarray of complex``
-        (:func:`eol_cal.mechanics.shaft_response` for a bench). The fitted ripple is the air-gap one;
+        (:func:`eol_cal.domain.bench_mechanics.shaft_response` for a bench). The fitted ripple is the air-gap one;
         ``None`` takes the coupling as rigid (response 1).
     kt_iq : list of ndarray, optional
         Per segment, the air-gap torque the ECU's measured q current makes, ``kt * i_q`` (N*m),

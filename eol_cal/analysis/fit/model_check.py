@@ -164,7 +164,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     p_min : float
         The least p-value of an agreement (below: ``mismatch``).
     bench_identified : bool
-        The bench file was identified on the bench (:attr:`eol_cal.mechanics.BenchMechanics.identified`);
+        The bench file was identified on the bench (:attr:`eol_cal.domain.bench_mechanics.BenchMechanics.identified`);
         if not, bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give
         ``insensitive``.
     """

@@ -11,7 +11,7 @@ import numpy as np
 
 from eol_cal.analysis.fit.compression import Compressed
 from eol_cal.analysis.fit.model import TAU_SCALE, Z95, FitSpec
-from eol_cal.wrap import wrap_pi
+from eol_cal.numerics.wrap import wrap_pi
 
 
 @dataclass

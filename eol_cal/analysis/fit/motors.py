@@ -16,11 +16,11 @@ from collections.abc import Callable
 from eol_cal.analysis.fit import FitSpec, MotorFit, check_identifiable, pick_mode
 from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
 from eol_cal.analysis.result import CiLimits
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
-from eol_cal.jsonsafe import json_safe
-from eol_cal.mechanics import BenchMechanics, load_mechanics
-from eol_cal.motor import MotorParams
+from eol_cal.infra.jsonsafe import json_safe
+from eol_cal.domain.bench_mechanics import BenchMechanics, load_mechanics
+from eol_cal.domain.motor_params import MotorParams
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class FitOptions:
     capture_metrics : bool
         Add each window's p-p ripple to the record's ``metrics.captures``.
     mechanics : BenchMechanics or None
-        The dyno bench of the captures (:mod:`eol_cal.mechanics`; default the built-in ``paper``
+        The dyno bench of the captures (:mod:`eol_cal.domain.bench_mechanics`; default the built-in ``paper``
         bench, which the plant and ``eol-cal dyno-sim`` model): its shaft response is divided out
         of the measured ripple. ``None``: rigid coupling (the measured ripple taken as the motor's).
     hall_angle : {"measured", "nominal"}
@@ -179,7 +179,7 @@ def fit_inputs(
         progress=progress,
         cache_dir=options.cache_dir,
     )
-    from eol_cal.motor import load_motor
+    from eol_cal.domain.motor_params import load_motor
 
     tick_hz = float((options.motor or load_motor("paper")).f_pwm)
     records = []

@@ -9,8 +9,8 @@ import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
 from eol_cal.analysis.fit.capture import MotorInput
-from eol_cal.render import plain
-from eol_cal.wrap import wrap_2pi
+from eol_cal.rendering.renderer import plain
+from eol_cal.numerics.wrap import wrap_2pi
 
 _MAX_PANELS = 8
 _MAX_POINTS = 4000
@@ -78,7 +78,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
     mi, fit, spec
         The motor's inputs, its fit and the model it was fitted with.
     """
-    from eol_cal.figures import pyplot, write_png
+    from eol_cal.rendering.figures import pyplot, write_png
 
     plt = pyplot()
     n = min(mi.segments.n_segments, _MAX_PANELS)
@@ -114,7 +114,7 @@ def plot_fit(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec) -> 
 
 def plot_residual_spectrum(path: str | Path, mi: MotorInput, fit: MotorFit, spec: FitSpec, max_order: int = 36) -> None:
     """Order spectrum of the fit's residual, one line per segment (N*m against electrical order)."""
-    from eol_cal.figures import pyplot, write_png
+    from eol_cal.rendering.figures import pyplot, write_png
     from eol_cal.analysis.spectrum import order_spectrum
     from eol_cal.errors import InputError
 

@@ -42,7 +42,7 @@ def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None
         import eol_cal.analysis.fit.capture
         if plots:
             import eol_cal.analysis.fit.plot  # noqa: F401
-            from eol_cal.figures import pyplot
+            from eol_cal.rendering.figures import pyplot
 
             pyplot()
         loads = tuple(20.0 + 10.0 * k for k in range(max(2, (n_segments + 3) // 4)))

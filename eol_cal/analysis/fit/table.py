@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 from eol_cal.errors import CheckFailed, InputError
 from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
-from eol_cal.motor import MotorParams
+from eol_cal.domain.motor_params import MotorParams
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult, ValueCi

@@ -35,7 +35,7 @@ from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.ecu import protocol as P
 from eol_cal.firmware.example import example_block
-from eol_cal.inputs import MAX_TOML_BYTES
+from eol_cal.infra.inputs import MAX_TOML_BYTES
 from eol_cal.sim import FIXTURES, ROOT
 from eol_cal.sim.fuzz import hostile
 from eol_cal.sim.fuzz.campaign import CHILD_MEMORY_BYTES, Counts, run_cli

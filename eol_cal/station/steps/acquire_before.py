@@ -39,5 +39,5 @@ def preload_writers() -> None:
     the report while the dyno turns, not when the capture is in or the verdict is known."""
     import asammdf  # noqa: F401 - the MDF4 writer imports it where it writes (heavy): here, not beside the fit
 
-    import eol_cal.station.report
+    import eol_cal.station.report_files
     import eol_cal.records.spool  # noqa: F401

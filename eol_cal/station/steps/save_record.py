@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING
 
-from eol_cal.interrupts import emergency
+from eol_cal.infra.interrupts import emergency
 from eol_cal.records.record import RunRecord
 from eol_cal.station.context import CycleContext, now_iso
 from eol_cal.station.outcome import to_record
@@ -27,7 +27,7 @@ def run(ctx: CycleContext) -> tuple[RunRecord, SaveResult]:
     # imported after the verdict (the lot page's modules: 0.2 s at `eol-cal run`'s start; the
     # database's library), by the helper while the dyno turned (acquire_before.preload_writers)
     from eol_cal.records.spool import default_spool_dir, save_record, spool_record
-    from eol_cal.station.report import write_record_json
+    from eol_cal.station.report_files import write_record_json
 
     rec = to_record(ctx)
     try:

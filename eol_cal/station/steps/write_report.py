@@ -14,7 +14,7 @@ NAME = "report"
 
 
 def run(ctx: CycleContext) -> Path:
-    from eol_cal.station.report import fit_plots, write_report  # matplotlib: after the verdict
+    from eol_cal.station.report_files import fit_plots, write_report  # matplotlib: after the verdict
 
     figures = fit_plots(ctx.run_dir, ctx.fit_extra) if ctx.fit_extra is not None else []
     return write_report(to_record(ctx), ctx.run_dir, figures=figures, fit_extra=ctx.fit_extra,

@@ -9,7 +9,7 @@ from importlib import resources
 from pathlib import Path
 
 from eol_cal.errors import InputError
-from eol_cal.inputs import load_toml, loads_toml
+from eol_cal.infra.inputs import load_toml, loads_toml
 
 
 @dataclass(frozen=True)

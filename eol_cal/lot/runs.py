@@ -25,16 +25,16 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from eol_cal.display import display_unit
+from eol_cal.rendering.display import display_unit
 from eol_cal.errors import InputError
-from eol_cal.inputs import loads_json
+from eol_cal.infra.inputs import loads_json
 from eol_cal.records.limits import limit_on
 from eol_cal.records.record import MEASURED_KIND, NO_STATION, RunRecord
 
 
 class Quantity(NamedTuple):
     """A measured quantity of the lot: its column (``key``, :meth:`RunRecord.value`), its title and
-    stored unit; its display unit and scale (:mod:`eol_cal.display`), and the limit on it
+    stored unit; its display unit and scale (:mod:`eol_cal.rendering.display`), and the limit on it
     (:func:`eol_cal.records.limits.limit_on`) follow."""
 
     key: str

@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 
 TWO_PI = 2.0 * math.pi
 

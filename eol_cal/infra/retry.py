@@ -12,7 +12,7 @@ the last error; the caller turns it into its own error with the device's name.
 
 How to use it for a new link (e.g. the UDS session)::
 
-    from eol_cal.retry import RetriesExhausted, retry_call
+    from eol_cal.infra.retry import RetriesExhausted, retry_call
 
     def attempt(n: int) -> Response:       # n = 0, 1, ... (0: first try)
         if not link.open:

@@ -26,7 +26,7 @@ from eol_cal.ecu.session import ClientTiming, UdsSession
 from eol_cal.errors import InputError
 from eol_cal.firmware import block as B
 from eol_cal.firmware.block_sanity import require_safe
-from eol_cal.motor import MotorParams
+from eol_cal.domain.motor_params import MotorParams
 
 #: ``which`` of :func:`read_bank_block` that means the bank that is not active
 PREVIOUS = "previous"

@@ -16,14 +16,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from eol_cal.display import display_unit
+from eol_cal.rendering.display import display_unit
 from eol_cal.lot.baseline import Baseline
-from eol_cal.lot.columns import CHARTED, QUANTITIES, Lot, from_records
+from eol_cal.lot.runs import CHARTED, QUANTITIES, Lot, from_records
 from eol_cal.lot.spc import CIRCULAR, DEFAULT_MIN_N, circular_histogram, circular_summary, natural_floor
 from eol_cal.lot.spc_stats import CIRCLE_BINS, gated_text, quantity_note
 from eol_cal.lot.summary import lot_summary
-from eol_cal.figures import pyplot
-from eol_cal.render import file_link, plain
+from eol_cal.rendering.figures import pyplot
+from eol_cal.rendering.renderer import file_link, plain
 from eol_cal.records.limits import limit_on
 from eol_cal.records.record import MEASURED_KIND
 
@@ -156,7 +156,7 @@ def histogram_figure(lot: Lot, notes: dict[str, str] | None = None) -> MplFigure
     Parameters
     ----------
     lot : Lot
-        The runs column-wise (:func:`eol_cal.lot.columns.from_records`).
+        The runs column-wise (:func:`eol_cal.lot.runs.from_records`).
     notes : dict of quantity key -> str, optional
         A line under each panel's title (the capability figures).
     """
@@ -344,7 +344,7 @@ def worst_motors(records: Sequence[RunRecord], page_dir: str | Path, n: int = 15
         ``margin``, ``unit``, ``reasons``, ``link`` (the run's report relative to ``page_dir``
         when that file exists, else None).
     """
-    from eol_cal.report.motor import limit_rows
+    from eol_cal.report.motor_page import limit_rows
     from eol_cal.records.query import latest_per_serial
 
     order = {"error": 0, "fail": 1, "pass": 2}
@@ -395,8 +395,8 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
         (Nelson's rules 1, 2, 3, 5, 6, listed and ringed).
     """
     from eol_cal.lot.stats import pareto_of
-    from eol_cal.report.motor import Figure
-    from eol_cal.report.page import render
+    from eol_cal.report.motor_page import Figure
+    from eol_cal.report.html import render
     from eol_cal.report.svg import figure_svg
     from eol_cal.records.query import summarise
 
@@ -445,7 +445,7 @@ def render_lot_page(records: Sequence[RunRecord], page_dir: str | Path, *, title
 def _control(name: str, runs: list[RunRecord], doc: dict[str, Any], baseline: Baseline | None, min_n: int) -> Any:
     """One station's control charts: against the baseline's lines of its variant when there is
     one (the runs breaking a rule ringed), else its own limits from ``min_n`` runs on."""
-    from eol_cal.report.motor import Figure
+    from eol_cal.report.motor_page import Figure
     from eol_cal.report.svg import figure_svg
 
     limits = None
@@ -491,7 +491,7 @@ def write_lot_page(records: Sequence[RunRecord], path: str | Path, *, title: str
     """Write the lot page to ``path`` (atomically); returns the path. ``min_n``, ``baseline``,
     ``kind``: as :func:`render_lot_page`."""
 
-    from eol_cal.atomic import atomic_write
+    from eol_cal.infra.atomic import atomic_write
 
     path = Path(path)
     atomic_write(path, render_lot_page(records, path.parent, title=title, filters=filters, min_n=min_n,

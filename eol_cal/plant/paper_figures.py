@@ -7,8 +7,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from eol_cal.atomic import atomic_path
-from eol_cal.render import literal_texts, plain, pyplot
+from eol_cal.infra.atomic import atomic_path
+from eol_cal.rendering.renderer import literal_texts, plain, pyplot
 
 
 def plot_runs(results: Sequence, path: str | Path, seconds: float = 0.5) -> None:

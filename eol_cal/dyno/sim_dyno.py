@@ -7,7 +7,7 @@ under test and, when a capture is started, asks a *capture source* for the recor
 wires in (:mod:`eol_cal.sim.rig`: the built-in plant running the ECU simulator's active
 flash bank, so a flash changes what the next capture shows). The dyno knows no ECU and no
 parameter block; the motor's data (poles, encoder, torque constant, PWM clock) come from its
-:class:`~eol_cal.motor.MotorParams`.
+:class:`~eol_cal.domain.motor_params.MotorParams`.
 
 In real-time mode (``realtime=True``, ``eol-cal dyno-sim --realtime``) a capture takes its
 physical time, as on a real dyno: the buffer fills at the capture rate from the moment the
@@ -38,7 +38,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from eol_cal.capture.model import Capture
+from eol_cal.capture.data import Capture
 from eol_cal.dyno.registers import (
     CaptureState,
     DriveState,
@@ -54,7 +54,7 @@ from eol_cal.dyno.mapfile import default_register_map
 from eol_cal.dyno.regmap import RegisterMap
 from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource, CaptureTiming, capture_to_buffer
 from eol_cal.dyno.sim_modbus import ModbusFace
-from eol_cal.motor import MotorParams, load_motor
+from eol_cal.domain.motor_params import MotorParams, load_motor
 
 T = TypeVar("T")
 

@@ -9,7 +9,7 @@ from pathlib import Path
 from collections.abc import Iterator
 
 from eol_cal.errors import WriteError
-from eol_cal.inputs import refuse_overwriting_input
+from eol_cal.infra.inputs import refuse_overwriting_input
 
 
 @contextlib.contextmanager
@@ -20,7 +20,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     the same directory, so the final rename is atomic. On an exception it is removed and
     ``path`` is left as it was; an :class:`OSError` (a full disk) becomes a
     :class:`~eol_cal.errors.WriteError` naming ``path``. A ``path`` that the running command
-    read is refused (:func:`eol_cal.inputs.refuse_overwriting_input`).
+    read is refused (:func:`eol_cal.infra.inputs.refuse_overwriting_input`).
     """
     path = Path(path)
     refuse_overwriting_input(path)  # whatever named it: an option, a setting, a default

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 
 
 class MachineCoefficients(Protocol):

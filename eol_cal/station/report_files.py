@@ -3,7 +3,7 @@
 Written into the run's own directory (next to its captures, fit and block), atomically (temp
 file in the same directory, fsync, rename):
 
-- ``report.html``: the page of :mod:`eol_cal.report.motor` (verdict, every limit, ECU state,
+- ``report.html``: the page of :mod:`eol_cal.report.motor_page` (verdict, every limit, ECU state,
   plots as inline SVG); it needs no file beside it and no network, so it can be mailed and
   archived with the motor
 - ``report.json``: the run record (the same document the database holds)
@@ -16,10 +16,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from eol_cal.atomic import atomic_write
-from eol_cal.figures import save_png
-from eol_cal.lot.page import timeline_figure
-from eol_cal.report.motor import (
+from eol_cal.infra.atomic import atomic_write
+from eol_cal.rendering.figures import save_png
+from eol_cal.lot.lot_page import timeline_figure
+from eol_cal.report.motor_page import (
     Figure,
     FitExtra,
     PointRipples,
@@ -92,7 +92,7 @@ def write_record_json(rec: RunRecord, run_dir: str | Path) -> Path:
 
 def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> None:
     """k6 and p-p ripple (before, compensated) of every run against its start time, with the
-    variants' limits and the error runs, into one PNG (:func:`eol_cal.lot.page.timeline_figure`).
+    variants' limits and the error runs, into one PNG (:func:`eol_cal.lot.lot_page.timeline_figure`).
 
     Parameters
     ----------

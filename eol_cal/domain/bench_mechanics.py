@@ -3,7 +3,7 @@
 One model of the mechanics for the whole library: :func:`shaft_response` is its frequency
 response (what the ripple fit divides out), :func:`mech_step` its time step (what the plant
 integrates at the PWM tick). The plant holds a :class:`BenchMechanics` as it holds the motor's
-:class:`eol_cal.motor.MotorParams`.
+:class:`eol_cal.domain.motor_params.MotorParams`.
 
 The transducer sits in the shaft between the motor's rotor (inertia ``J``) and the dyno (inertia
 ``J_dyno``, held at speed by its drive's PI loop). A ripple torque of the motor reaches the shaft
@@ -11,8 +11,8 @@ only in part: a share of it accelerates the rotor, near the torsion mode the sha
 and the speed ripple it causes moves the back-EMF, which the ECU's current loop does not fully
 reject, so the current (and with it the torque) ripples a little against it.
 :func:`shaft_response` is that transfer, ``T_shaft / T_ripple``, for the linear models the plant
-integrates (:func:`mech_step`, :mod:`eol_cal.plant.motor`, the PI of
-:meth:`eol_cal.motor.MotorParams.current_pi_gains`). The ripple fit divides it out, so that k6
+integrates (:func:`mech_step`, :mod:`eol_cal.plant.machine`, the PI of
+:meth:`eol_cal.domain.motor_params.MotorParams.current_pi_gains`). The ripple fit divides it out, so that k6
 and c6 are the motor's own at constant current (what the compensating current has to cancel),
 not the bench's view of them: on the paper bench the shaft sees 0.4 % less of the 6th at 60 rpm
 than the motor makes, and the current loop takes another 0.3 %.
@@ -46,11 +46,11 @@ from typing import Protocol
 
 import numpy as np
 
-from eol_cal.arrays import Array, ArrayModule
+from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.errors import InputError
-from eol_cal.inputs import MAX_TOML_BYTES, loads_toml, read_text
-from eol_cal.motor import MotorParams
-from eol_cal.wrap import wrap_2pi
+from eol_cal.infra.inputs import MAX_TOML_BYTES, loads_toml, read_text
+from eol_cal.domain.motor_params import MotorParams
+from eol_cal.numerics.wrap import wrap_2pi
 
 
 TWO_PI = 2.0 * math.pi

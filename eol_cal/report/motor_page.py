@@ -17,12 +17,12 @@ from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from eol_cal.display import display_unit
-from eol_cal.figures import pyplot
-from eol_cal.render import plain
+from eol_cal.rendering.display import display_unit
+from eol_cal.rendering.figures import pyplot
+from eol_cal.rendering.renderer import plain
 from eol_cal.report.svg import figure_svg
 from eol_cal.records.record import NO_STATION
-from eol_cal.wrap import wrap_2pi
+from eol_cal.numerics.wrap import wrap_2pi
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
@@ -79,7 +79,7 @@ def drawn(name: str, draw: Callable[[], Figure]) -> Figure:
 
 @dataclass(frozen=True)
 class LimitRow:
-    """A limit row of the report: the record's check in its display unit (:mod:`eol_cal.display`)
+    """A limit row of the report: the record's check in its display unit (:mod:`eol_cal.rendering.display`)
     and how it is shown (``PASS``, ``FAIL``, ``not measured``, ``not judged``)."""
 
     key: str
@@ -376,7 +376,7 @@ def mech_section(rec: RunRecord) -> dict[str, Any] | None:
 
 def render_motor_report(rec: RunRecord, figures: Sequence[Figure]) -> str:
     """The per-motor page (self-contained HTML) of a run record and its figures."""
-    from eol_cal.report.page import render
+    from eol_cal.report.html import render
 
     e = rec.fit.estimates if rec.fit is not None else None
     hall = (rec.fit.hall_angle if rec.fit is not None else None) or {}

@@ -11,12 +11,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from eol_cal.atomic import atomic_write
-from eol_cal.figures import pyplot, save_png
+from eol_cal.infra.atomic import atomic_write
+from eol_cal.rendering.figures import pyplot, save_png
 from eol_cal.msa.study import quantity
 from eol_cal.msa.type1 import CAPABLE, Type1Study
-from eol_cal.report.motor import Figure
-from eol_cal.report.page import render
+from eol_cal.report.motor_page import Figure
+from eol_cal.report.html import render
 from eol_cal.report.svg import figure_svg
 
 if TYPE_CHECKING:

@@ -2,7 +2,7 @@
 first use (it costs a second, and the commands that draw nothing never pay it), and PNG files
 written atomically, every text drawn literally where it does not parse as math text.
 
-The pyplot getter and the text rules are :mod:`eol_cal.render`'s (one place for what reaches a
+The pyplot getter and the text rules are :mod:`eol_cal.rendering.renderer`'s (one place for what reaches a
 renderer); this module writes the files.
 """
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from eol_cal.atomic import atomic_path
+from eol_cal.infra.atomic import atomic_path
 from eol_cal.errors import InputError
-from eol_cal.render import literal_texts, pyplot
+from eol_cal.rendering.renderer import literal_texts, pyplot
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -23,7 +23,7 @@ __all__ = ["pyplot", "save_png", "write_png"]
 
 def write_png(fig: Figure, path: str | Path) -> None:
     """Write ``fig`` as PNG at ``path``, atomically; the figure stays open. A text of the figure
-    that does not parse as math text is drawn as written (:func:`eol_cal.render.literal_texts`)."""
+    that does not parse as math text is drawn as written (:func:`eol_cal.rendering.renderer.literal_texts`)."""
     literal_texts(fig)
     try:
         with atomic_path(path) as tmp:

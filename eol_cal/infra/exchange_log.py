@@ -20,7 +20,7 @@ from typing import TextIO
 from collections.abc import Iterator, Sequence
 
 from eol_cal.errors import InputError
-from eol_cal.inputs import refuse_overwriting_input
+from eol_cal.infra.inputs import refuse_overwriting_input
 
 #: logger of the dyno client's Modbus exchanges
 MODBUS_LOGGER = "eol_cal.modbus"

@@ -1,0 +1,1 @@
+"""Numerics shared by numpy and JAX code: array type names, angle wrapping, BLAS threads, the XLA option."""
