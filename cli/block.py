@@ -9,7 +9,7 @@ import click
 
 from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json, styled
 from cli.paths import io_paths
-from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.firmware.contract import CHECK_STATUS
 
 #: the check routine's status codes as the contract words them

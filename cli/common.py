@@ -137,7 +137,7 @@ def print_json(obj: dict[str, Any]) -> None:
 def kind_option(what: str, default: str = "production") -> Callable:
     """``--kind KIND|all``: which run kinds (docs/records.md, "Run kinds") a command takes; ``what``
     ends its help."""
-    from eol_cal.records.record import KINDS
+    from eol_cal.records.kinds import KINDS
 
     return click.option("--kind", default=default, show_default=True, type=click.Choice([*KINDS, "all"]),
                         help=f"Run kind: {', '.join(KINDS)}, or all; {what}")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import click
-import numpy as np
 
 from cli.common import console, handle_errors, print_json
 from cli.paths import io_paths
@@ -29,6 +28,8 @@ def index_rows(poles: int, ppr: int, ppr_min: int, ppr_max: int) -> list[dict]:
         ``ppr``, ``deg_per_count`` (electrical deg per A pulse, P*180/N_enc), ``eta_pct`` (%),
         ``selected`` (bool), sorted by PPR.
     """
+    import numpy as np
+
     from eol_cal.analysis.metrics import eta_percent
 
     values = {2**k for k in range(31) if ppr_min <= 2**k <= ppr_max}
@@ -62,6 +63,8 @@ def index_cmd(poles: int, ppr: int, ppr_min: int, ppr_max: int, as_json: bool, p
     rows = index_rows(poles, ppr, ppr_min, ppr_max)
     selected = next(r for r in rows if r["selected"])
     if plot_file:
+        import numpy as np
+
         from eol_cal.analysis.plots import plot_eta
 
         plot_eta(plot_file, poles, ppr, min(ppr_min, ppr), max(ppr_max, ppr), np.array([r["ppr"] for r in rows]))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import signal
 import sys
+from collections.abc import Iterable, Sequence
 
 
 def _is_the_program() -> bool:
@@ -33,7 +34,22 @@ import click  # noqa: E402 - after the signal handlers
 from eol_cal import __version__  # noqa: E402
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Commands(click.Group):
+    """The command group, each command module imported when its command is asked for: ``eol-cal
+    capture info`` loads ``cli/capture.py`` alone (the other modules bring numpy, the records'
+    tables, ...); ``eol-cal --help`` lists them all and so imports them all."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        _load(_COMMAND_MODULES)
+        return super().list_commands(ctx)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.commands:
+            _load(modules_of(cmd_name))
+        return super().get_command(ctx, cmd_name)
+
+
+@click.group(cls=_Commands, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="eol-cal")
 def cli() -> None:
     """End-of-line torque-ripple calibration for EPS motors with a 64 PPR encoder.
@@ -42,17 +58,33 @@ def cli() -> None:
     """
 
 
-def _register() -> None:
-    # Each module adds its commands; heavy imports (JAX, CAN) stay inside the commands.
+_LOADED: set[str] = set()
+
+
+def modules_of(name: str) -> Sequence[str]:
+    """The command modules that build command ``name``: :data:`_COMMAND_HOME`'s, else the module
+    of its name; every module for a name of none (an unknown name then gets click's error)."""
+    if name in _COMMAND_HOME:
+        return _COMMAND_HOME[name]
+    return (name,) if name in _COMMAND_MODULES else _COMMAND_MODULES
+
+
+def _load(names: Iterable[str]) -> None:
+    """Import the command modules ``names`` (once) and add their commands to the group; heavy
+    imports (JAX, CAN) stay inside the commands."""
     import importlib
 
-    for name in _COMMAND_MODULES:
+    for name in names:
+        if name in _LOADED:
+            continue
+        _LOADED.add(name)
         module = importlib.import_module(f"cli.{name}")
         for command in module.COMMANDS:
             cli.add_command(command)
 
 
-# One line per command module; keep sorted.
+# One line per command module; keep sorted. A command is looked for in the module of its own name
+# unless _COMMAND_HOME names others.
 _COMMAND_MODULES: list[str] = [
     "analyze",
     "bench",
@@ -74,7 +106,21 @@ _COMMAND_MODULES: list[str] = [
     "table",
 ]
 
-_register()
+#: command -> the modules that build it, where that is not (only) the module of its name: the
+#: command lives elsewhere, or another module adds subcommands to its group
+#: (tests/test_cli_startup.py checks this against the commands of every module)
+_COMMAND_HOME: dict[str, tuple[str, ...]] = {
+    "acquire": ("dyno",),
+    "demo": ("station",),
+    "dyno-clear": ("dyno",),
+    "dyno-sim": ("dyno",),
+    "ecu": ("ecu", "restore"),
+    "ecu-sim": ("ecu",),
+    "flash": ("ecu",),
+    "records": ("station",),
+    "run": ("station",),
+    "station": ("operator",),
+}
 
 
 _ENDING_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")

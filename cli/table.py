@@ -6,7 +6,7 @@ import click
 
 from cli.common import console, estimator_bits, estimator_option, handle_errors, print_json, styled
 from cli.paths import io_paths
-from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 
 
 def _lead(text: str) -> float | None:

@@ -26,7 +26,7 @@ from eol_cal.sim.virtual_rig import example_block
 from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
 from eol_cal.firmware import gen_header
-from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_MAX, FP_REVERSE, MechParams, make_mech_tables, unused_mech
 
 import pya2l  # pya2ldb, in the test extra

@@ -193,6 +193,23 @@ def test_exported_solver_round_trip(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_corrupt_solver_file_costs_only_the_tracing(tmp_path):
+    """A cache entry that does not deserialize (a torn disk, another jax's file under the same key)
+    is passed over: the fit is the one without a cache, and the entry is written anew."""
+    from eol_cal.analysis.fit import cache
+
+    seg, _ = synthetic_segments(np.random.default_rng(9), seg_s=0.1, loads_a=(65.0,), c6=0.0, delay_s=0.0)
+    spec = FitSpec(fit_c=False, delay_s=0.0)
+    path = cache.solver_file(tmp_path, spec, seg.n_segments, 1)
+    path.write_bytes(b"\x00garbage" * 100)
+    assert cache.load_solver(tmp_path, spec, seg.n_segments, 1) is None
+    got = fit_segments(seg, spec, cache_dir=tmp_path)
+    plain = fit_segments(seg, spec)
+    assert got.harmonics[6]["k"].value == plain.harmonics[6]["k"].value and got.steps == plain.steps
+    assert path.read_bytes()[:9] != b"\x00garbage"  # replaced by a readable one
+
+
+@pytest.mark.slow
 def test_cache_directory_is_a_parameter(tmp_path):
     """The cache directory comes from the caller (default: one function of the environment), and a
     fit without one writes nothing."""

@@ -28,9 +28,6 @@ from eol_cal.errors import InputError
 from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, TABLE_LEN_MAX, TABLE_LEN_MIN, ParamBlock, table_len_ok
 
-DEFAULT_TABLE_LEN = 256
-"""Table length N that eol-cal builds when none is given (``eol-cal table``, the checked-in A2L)."""
-
 K_6_OVER_2PI = np.float32(6.0 / (2.0 * math.pi))
 """6/(2*pi) rounded to binary32 (bit pattern 0x3f747645): table entries per rad of electrical angle, per N."""
 

@@ -23,6 +23,9 @@ KT_MAX = 10.0  # N*m/A
 PHASE_MAX = 100.0  # rad (phases are wrapped to a few pi; 100 rad only catches garbage)
 DELAY_MAX = 1.0  # s
 
+DEFAULT_TABLE_LEN = 256
+"""Table length N that eol-cal builds when none is given (``eol-cal table``, the checked-in A2L)."""
+
 # --- the parameter block (section 2) ----------------------------------------------------------
 MAGIC = 0xEC6A
 """Block marker, the block's first u16."""

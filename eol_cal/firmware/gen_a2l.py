@@ -24,7 +24,7 @@ from eol_cal.firmware import block as B
 from eol_cal.firmware import contract as C
 from eol_cal.firmware.block_layout import BANK_BYTE_ADDR
 from eol_cal.firmware.block_sanity import field_limits
-from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.domain.motor_params import MotorParams, load_motor
 
 #: A2L data type of each layout element type

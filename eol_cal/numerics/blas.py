@@ -11,6 +11,7 @@ throughput"). Dask workers already get one thread from their environment
 from __future__ import annotations
 
 import os
+import sys
 
 #: the variables by which a user sets the BLAS thread count; any of them set: left as it is
 THREAD_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -24,7 +25,11 @@ def limit_blas_threads() -> None:
     # a BLAS loaded later reads its count when it loads: scipy's wheels bring an OpenBLAS of
     # their own, loaded with scipy.linalg (the fingerprint's Cholesky factors), after this call
     os.environ["OPENBLAS_NUM_THREADS"] = "1"
-    import numpy  # noqa: F401 - its BLAS must be loaded for threadpoolctl to find it
+    if "numpy" not in sys.modules:
+        # numpy's BLAS reads the variable when it loads too: nothing to import for a command that
+        # needs no numpy (``eol-cal --help`` stays quick); MKL's builds read theirs
+        os.environ["MKL_NUM_THREADS"] = "1"
+        return
     from threadpoolctl import threadpool_limits
 
     threadpool_limits(limits=1, user_api="blas")

@@ -17,7 +17,7 @@ from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import InputError
 from eol_cal.firmware import compensator, estimator
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock, check, flag_names, pack
-from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, EstimatorConfig
 from eol_cal.firmware.kinematics import fingerprint_of
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, MechParams, make_mech_tables, unused_mech

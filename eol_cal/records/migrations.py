@@ -25,7 +25,7 @@ import sqlalchemy as sa
 from sqlalchemy.engine import Connection
 
 from eol_cal.records.connect import DEFAULT_LOCK_TIMEOUT_S, SchemaError, dispose, engine, refuse_foreign
-from eol_cal.records.parts import MEASURED_KIND
+from eol_cal.records.kinds import MEASURED_KIND
 from eol_cal.records.rows import parse_record, row_values
 from eol_cal.records.tables import baselines, metadata, runs, schema_version
 

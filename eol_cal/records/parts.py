@@ -15,9 +15,6 @@ from eol_cal.errors import InputError
 
 SCHEMA = "eol-cal/run-record/2"
 SCHEMA_V1 = "eol-cal/run-record/1"
-KINDS = ("production", "refusal", "restore", "master", "simulated")
-#: the kind lot statistics, first-pass yield, latest status, ``lot diff`` and ``refit`` take by default
-MEASURED_KIND = "production"
 VERDICTS = ("pass", "fail", "error")
 #: why a run was refused (nothing written to the ECU, nothing measured): code -> meaning
 REFUSAL_CODES: dict[str, str] = {

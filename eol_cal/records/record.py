@@ -29,7 +29,8 @@ from eol_cal.records.parts_json import (Reader, block_json, check_from, check_js
                                          preflight_json,
                                          restored_from, station_from, station_json, capture_json, block_from,
                                          limits_json, error_json, step_json, restored_json)
-from eol_cal.records.parts import (BLOCK_ROLES, KINDS, MEASURED_KIND, REFUSAL_CODES, SCHEMA, SCHEMA_V1,
+from eol_cal.records.kinds import KINDS, MEASURED_KIND
+from eol_cal.records.parts import (BLOCK_ROLES, REFUSAL_CODES, SCHEMA, SCHEMA_V1,
                                           VERDICTS, CaptureRef, DynoStatus, EcuActive, EcuFound, ErrorInfo,
                                           FlashedBlock, GateInfo, MasterCheck, PointFigures, PreflightResult,
                                           PreviousBlock, Problem,

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import sqlalchemy as sa
 
-from eol_cal.records.parts import KINDS
+from eol_cal.records.kinds import KINDS
 
 metadata = sa.MetaData()
 runs = sa.Table(

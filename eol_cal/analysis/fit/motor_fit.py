@@ -119,7 +119,9 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     birge = float(out["ssr_red"]) / dof_red / s2 if dof_red >= 1 and s2 > 0 else 1.0
     cov = s2 * np.asarray(out["cov_unscaled"], dtype=float)
     if spec.lack_of_fit:
-        from scipy import stats  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+        # scipy.special alone: scipy.stats (whose t.ppf is this function) costs half a second of
+        # every `eol-cal fit` to import (issue 37)
+        from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
         # per harmonic: the 6th's lack of fit is not the 12th's or the 18th's (pooled, the 6th's
         # intervals covered the truth for 85 % of plant motors, bench/bench_coverage.py); each
@@ -144,7 +146,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
             # 1.96) and the lack of fit's, whose variance is estimated from the segments' few
             # degrees of freedom (eol-default's 8 segments: 11.7), so its 95 % point is Student's t
             # (2.18 there), not 1.96: with 1.96 k6 and c6 covered 92-94 % of plant motors
-            t95 = float(stats.t.ppf(0.975, dof)) if dof >= 1 else Z95  # no ratio below 1 dof (birge = 1)
+            t95 = float(stdtrit(dof, 0.975)) if dof >= 1 else Z95  # no ratio below 1 dof (birge = 1)
             widen.append(max(1.0, math.sqrt(max(ratio, 0.0)) * t95 / Z95))
             for ip in range(n_parts):
                 i = n_tau + (ip * nh + ih) * 2

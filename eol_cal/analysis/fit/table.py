@@ -26,7 +26,7 @@ import math
 from typing import TYPE_CHECKING, Any
 
 from eol_cal.errors import CheckFailed, InputError
-from eol_cal.firmware.compensator import DEFAULT_TABLE_LEN
+from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.domain.motor_params import MotorParams
 
 if TYPE_CHECKING:

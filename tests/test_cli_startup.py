@@ -1,0 +1,76 @@
+"""The command line starts without what it does not need (issue 37): ``eol-cal --help`` imports
+no numpy, ``eol-cal capture info`` no JAX, scipy or plotting; each command's module is imported
+when the command is asked for, so the table of where commands live must hold every command."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import click
+import pytest
+
+import cli.main as main
+from eol_cal.capture.io import write_capture
+from eol_cal.capture.synthetic import synthetic_capture
+
+#: what a command that reads no capture, or reads one without fitting it, has no use for
+HEAVY = ("jax", "jaxlib", "scipy", "matplotlib", "sqlalchemy", "pint", "asammdf", "optimistix", "can", "dask",
+         "distributed")
+
+_PROBE = """
+import contextlib, io, runpy, sys
+sys.argv = ["eol-cal", *sys.argv[1:]]
+out = io.StringIO()
+try:
+    with contextlib.redirect_stdout(out):
+        runpy.run_module("cli.main", run_name="__main__")
+except SystemExit as exc:
+    code = exc.code
+print(code, *sorted({m.split(".")[0] for m in sys.modules}), file=sys.stderr)
+"""
+
+
+def _top_modules(*args: str) -> tuple[object, set[str]]:
+    """(exit code, top-level packages imported) of ``eol-cal ARGS`` in a fresh interpreter."""
+    res = subprocess.run([sys.executable, "-c", _PROBE, *args], capture_output=True, text=True, timeout=300,
+                         env={k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_")})
+    code, *mods = res.stderr.strip().splitlines()[-1].split()
+    return code, set(mods)
+
+
+@pytest.mark.slow  # a process of its own
+def test_help_imports_no_numpy_nor_anything_heavy():
+    code, mods = _top_modules("--help")
+    assert code == "0"
+    assert mods & {"numpy", *HEAVY} == set()
+
+
+@pytest.mark.slow  # a process of its own
+def test_capture_info_imports_nothing_heavy(tmp_path):
+    path = tmp_path / "one.csv"
+    write_capture(synthetic_capture(rpm=600.0, i_qo=65.0, seconds=0.1, seed=1, serial="B-1"), path)
+    code, mods = _top_modules("capture", "info", str(path))
+    assert code == "0" and "numpy" in mods  # it did read the file
+    assert mods & set(HEAVY) == set()
+
+
+def _tree_modules(cmd: click.Command) -> set[str]:
+    """The command modules (``cli.x`` -> ``x``) of a command and every subcommand under it."""
+    module = cmd.callback.__module__ if cmd.callback is not None else ""
+    found = {module.removeprefix("cli.")} if module.startswith("cli.") else set()
+    for sub in (cmd.commands.values() if isinstance(cmd, click.Group) else ()):
+        found |= _tree_modules(sub)
+    return found
+
+
+def test_every_command_is_found_where_the_table_says():
+    """Every command of every module, its subcommands included, is built by the modules
+    :func:`cli.main.modules_of` imports for its name (a command moved to another module, or a
+    module that adds a subcommand to another's group, needs its line in ``_COMMAND_HOME``)."""
+    main._load(main._COMMAND_MODULES)
+    assert set(main.cli.commands) == set(main.cli.list_commands(click.Context(main.cli)))
+    for name, cmd in main.cli.commands.items():
+        assert _tree_modules(cmd) <= set(main.modules_of(name)), name
+    assert set(main._COMMAND_HOME) <= set(main.cli.commands)  # no stale line
