@@ -70,7 +70,8 @@ def static_routes(page: str, names: tuple[str, ...]) -> list[Route]:
     def serving(name: str) -> Callable[[Request], Response]:
         return lambda request: page_file(name)
 
-    return [Route("/", serving(page)), *(Route(f"/{n}", serving(n)) for n in names)]
+    return [Route("/", serving(page)), *(Route(f"/{n}", serving(n)) for n in names),
+            Route("/favicon.ico", lambda request: Response(status_code=204, headers=HEADERS))]  # none: no 404 in the log
 
 
 def live_routes(live: Live, closing: Callable[[], bool]) -> list[Route]:

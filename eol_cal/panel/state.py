@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from eol_cal.display import display_unit
 from eol_cal.msa.gate import GateStatus, gate_refusal
 from eol_cal.station.executor import StepEvent
 from eol_cal.station.steps import acquire_after, acquire_before
@@ -26,8 +27,9 @@ from eol_cal.station.steps import acquire_after, acquire_before
 if TYPE_CHECKING:
     from eol_cal.records.record import RunRecord
 
-#: the last motors the panel lists
+#: the last motors the panel lists, and the limits its verdict shows (every failed one, else the closest)
 LAST_MOTORS = 8
+MARGIN_ROWS = 4
 #: points of a torque trace sent to the page (the capture's samples, decimated)
 TRACE_POINTS = 600
 #: the acquisitions whose capture the panel draws: step name -> the context's field and its label
@@ -54,11 +56,25 @@ def _number(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
 
 
-def margins(rec: RunRecord) -> list[dict[str, Any]]:
-    """The record's judged limits: title, value, limit, unit, margin (inside the limit: positive), passed."""
-    return [{"key": c.key, "title": c.title, "unit": c.unit, "sense": c.sense, "value": _number(c.value),
-             "limit": _number(c.limit), "margin": _number(c.margin), "passed": c.passed}
-            for c in rec.checks if c.passed is not None]
+def margins(rec: RunRecord, rows: int = MARGIN_ROWS) -> tuple[list[dict[str, Any]], int]:
+    """The record's judged limits a person reads first: every failed one, then the closest to their
+    limit (margin / limit), at most ``rows``; values in display units (k6 in mN*m/A). Also how many
+    judged limits are left out (all met, with more margin)."""
+    judged = [c for c in rec.checks if c.passed is not None]
+
+    def closeness(c: Any) -> tuple[bool, float]:
+        rel = abs(c.margin / c.limit) if c.limit and math.isfinite(c.margin) else math.inf
+        return (c.passed is not False, rel)
+
+    ordered = sorted(judged, key=closeness)
+    shown = ordered[:max(rows, sum(c.passed is False for c in judged))]
+    out = []
+    for c in shown:
+        unit, factor = display_unit(c.unit)
+        out.append({"key": c.key, "title": c.title, "unit": "" if unit == "1" else unit, "sense": c.sense,
+                    "value": _number(c.value * factor), "limit": _number(c.limit * factor),
+                    "margin": _number(c.margin * factor), "passed": c.passed})
+    return out, len(judged) - len(out)
 
 
 def verdict_view(rec: RunRecord) -> dict[str, Any]:
@@ -73,8 +89,9 @@ def verdict_view(rec: RunRecord) -> dict[str, Any]:
         notes.append(f"dyno safe state: {rec.safe_state}")
     if rec.ecu_active is not None and rec.ecu_active.block == "uncompensated":
         notes.append("ECU: the uncompensated block is active: the motor is not calibrated")
+    shown, left = margins(rec)
     return {"serial": rec.serial, "run_id": rec.run_id, "verdict": rec.verdict, "kind": rec.kind, "reasons": reasons,
-            "notes": notes, "margins": margins(rec), "report": None, "record": "being written"}
+            "notes": notes, "margins": shown, "margins_left": left, "report": None, "record": "being written"}
 
 
 class PanelState:
@@ -176,7 +193,7 @@ class PanelState:
                 known["reasons"].insert(0, why)
             else:
                 known = {"serial": serial, "run_id": self._data["run_id"], "verdict": "error", "kind": "production",
-                         "reasons": [why], "margins": [], "notes": [], "report": None}
+                         "reasons": [why], "margins": [], "margins_left": 0, "notes": [], "report": None}
             known["notes"].append("the dyno was sent to its safe state and the run recorded (an error, unless it had ended)")
             known["record"] = "written"
             self._data["verdict"] = known

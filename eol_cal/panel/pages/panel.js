@@ -60,7 +60,14 @@ function renderVerdict(v) {
     const tr = el("tr", null, m.passed ? "in" : "out");
     tr.dataset.key = m.key;
     for (const t of [m.title, fmt(m.value) + " " + m.unit, (m.sense === "max" ? "\u2264 " : "\u2265 ") + fmt(m.limit) + " " + m.unit,
-                     fmt(m.margin, 3) + " " + m.unit]) tr.appendChild(el("td", t));
+                     (m.margin >= 0 ? "+" : "") + fmt(m.margin, 3) + " " + m.unit]) tr.appendChild(el("td", t));
+    body.appendChild(tr);
+  }
+  if (v && v.margins_left) {
+    const tr = el("tr", null, "more");
+    const td = el("td", `${v.margins_left} more limit(s) met with more margin (the report lists all)`);
+    td.colSpan = 4;
+    tr.appendChild(td);
     body.appendChild(tr);
   }
   $("verdict-where").textContent = v ? ("report: " + (v.report || "-") + "; record: " + v.record) : "";
@@ -120,7 +127,7 @@ function render(s) {
   const alarms = $("alarms");
   alarms.hidden = !s.alarms.length;
   alarms.replaceChildren(...s.alarms.map((a) => el("div", "ALARM: " + a)));
-  if (s.message) showMessage(s.message.level, s.message.text);
+  if (s.message) showMessage(s.message.level, s.message.text); else showMessage("", "");
   renderSteps(s);
   renderVerdict(s.verdict);
   renderTrace(s.traces);
