@@ -194,7 +194,7 @@ def test_a_session_through_the_panel_leaves_the_terminal_loops_records(tmp_path,
 
     _scan(page, PASSING[0])
     _verdict(page, "PASS", PASSING[0])
-    expect(page.locator("#trace-label")).to_have_text("calibration capture, compensated")
+    expect(page.locator("#trace-label")).to_have_text("compensated")  # the latest capture
     expect(page.locator("#counts")).to_have_text("2 run(s) of 2 motor(s): 1 pass, 1 fail, 0 error", timeout=60_000)
     expect(page.locator("#last li")).to_have_count(2)
     if SHOTS:
@@ -288,6 +288,10 @@ def test_the_line_view_shows_two_stations_on_postgresql_as_they_run(tmp_path, se
     expect(page.locator(".station")).to_have_count(2)
     expect(page.locator("#fpy")).to_have_text("50.0 %")
     expect(page.locator("#shifts tbody tr")).to_have_count(2)
+    # a quality engineer sets a master gate on L-A: its master check is due, the view raises the alarm
+    change(db, "L-A", MasterSettings("M-MASTER", {"k6": 0.62}, {"k6": 0.05}, every_h=8.0, source="test"), set_by="qe")
+    expect(page.locator('.station[data-station="L-A"]')).to_have_attribute("data-state", "blocked")
+    expect(page.locator("#alarms")).to_contain_text("ALARM: station L-A: master M-MASTER (every 8 h): master check due")
     if SHOTS:
         page.screenshot(path=str(Path(SHOTS) / "line-view.png"))
     assert log.console_errors == []

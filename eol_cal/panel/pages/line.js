@@ -19,7 +19,7 @@ function card(s) {
   box.appendChild(el("h2", s.station));
   box.appendChild(el("div", s.state.toUpperCase(), "state"));
   box.appendChild(el("div", `last run ${when(s.last_at)} UTC; ${s.runs} run(s), yield ${pct(s.yield)}, first pass ${pct(s.fpy)}`));
-  if (s.gate) box.appendChild(el("div", s.gate, "where"));
+  if (s.gate && s.state !== "blocked") box.appendChild(el("div", s.gate, "where"));
   for (const a of s.alarms) box.appendChild(el("div", "ALARM: " + a, "v-error"));
   const list = el("ol");
   for (const r of s.last) {
@@ -36,7 +36,7 @@ function card(s) {
 function render(s) {
   $("db").textContent = s.db;
   $("fpy").textContent = pct(s.fpy);
-  $("updated").textContent = s.read_at ? "read " + when(s.read_at) + " UTC" : "not read yet";
+  $("updated").textContent = s.read_at ? "read " + when(s.read_at).slice(11) + " UTC" : "not read yet";
   const err = $("error");
   err.hidden = !s.error;
   err.textContent = s.error || "";

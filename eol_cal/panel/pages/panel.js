@@ -70,15 +70,18 @@ function renderVerdict(v) {
     tr.appendChild(td);
     body.appendChild(tr);
   }
-  $("verdict-where").textContent = v ? ("report: " + (v.report || "-") + "; record: " + v.record) : "";
+  // the run's directory and where the record went (the whole paths are in the terminal's lines and the record)
+  const report = v && v.report ? v.report.split("/").slice(-2).join("/") : "-";
+  $("verdict-where").textContent = v ? ("report " + report + "; record: " + (v.record.startsWith("database") ? "in the database" : v.record)) : "";
 }
 
-function renderTrace(traces) {
+function renderTrace(all) {
+  const traces = all.slice(-1);  // the latest capture: each acquisition has its own clock
   const c = $("trace");
   const g = c.getContext("2d");
   g.fillStyle = "#0a0a0a";
   g.fillRect(0, 0, c.width, c.height);
-  $("trace-label").textContent = traces.map((t) => t.label).join(", ");
+  $("trace-label").textContent = traces.length ? traces[0].label : "";
   if (!traces.length) return;
   let lo = Infinity, hi = -Infinity, t0 = Infinity, t1 = -Infinity;
   for (const t of traces) {
