@@ -226,3 +226,29 @@ def test_the_line_view_has_no_action_and_says_when_it_cannot_read(tmp_path):
         assert _call(url, "scan", {"line": "M-1"})[0] in (404, 405)
         status, page = _call(url, "")
         assert status == 200 and "line.js" in page
+
+
+def test_a_baseline_rule_broken_by_the_latest_run_is_an_alarm_on_the_panel_and_the_line(tmp_path):
+    from eol_cal.lot.baseline import baseline_of_db, store
+    from eol_cal.panel.line import station_alarms
+
+    db = tmp_path / "line.sqlite"
+    now = dt.datetime.now(dt.UTC).replace(microsecond=0)
+    rng = np.random.default_rng(7)
+
+    def at(minutes: int) -> str:
+        return (now - dt.timedelta(minutes=minutes)).isoformat(timespec="milliseconds")
+
+    # 30 runs around k6 0.64 mN*m/A: the frozen line; then a motor inside the limit but far outside the line
+    insert_records(db, [make_record(f"A-{i}", started=at(200 - i), station="L-A", k6=0.64e-3 + 2e-6 * rng.standard_normal())
+                        for i in range(30)])
+    baseline = baseline_of_db(db, "week-48", {"stations": ["L-A"]})
+    store(db, baseline)
+    assert station_alarms(db, "L-A", baseline) == []
+    assert line_state(db, (dt.time(6),), baseline)["stations"][0]["state"] == "pass"
+    insert_records(db, [make_record("A-99", started=at(1), station="L-A", k6=0.70e-3)])
+    (alarm,) = station_alarms(db, "L-A", baseline)
+    assert "k6 breaks rule 1 of baseline 'week-48'" in alarm and "A-99" in alarm
+    doc = line_state(db, (dt.time(6),), baseline)
+    assert doc["stations"][0]["state"] == "alarm" and doc["alarms"] == [alarm]
+    assert station_alarms(db, "L-B", baseline) == []
