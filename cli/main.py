@@ -99,6 +99,7 @@ _COMMAND_MODULES: list[str] = [
     "lot",
     "msa",
     "operator",
+    "panel",
     "refit",
     "restore",
     "simulate",

@@ -130,16 +130,18 @@ def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir:
                          fallbacks={"limits": str(limits), "station_id": DEMO_STATION_ID})
 
 
-def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
+def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=None, observers=()):
     """The cycle of one motor (on its own loopback simulators in the demo); the verdict is shown
-    as soon as the cycle knows it, the report and the record's place after them."""
+    as soon as the cycle knows it (``on_verdict``, default the terminal's large verdict), the report
+    and the record's place after them; ``observers`` (the operator panel's) get each step's events."""
     from eol_cal.station.configure import for_motor
     from eol_cal.station.cycle import run_motor
 
     station = dict(cfg.station, operator=operator)
+    on_verdict = on_verdict or _show_verdict
     if demo_dir is None:
         with StepProgress(serial) as progress:
-            return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict=_show_verdict)
+            return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict, observers)
     from eol_cal.dyno.client import parse_address
     from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.operator_session import demo_seed
@@ -151,7 +153,7 @@ def _run_one(cfg, serial: str, operator: str, demo_dir: Path | None):
         dyno = dataclasses.replace(cfg.dyno, host=host, port=port, watchdog_ms=st.watchdog_ms)
         mcfg = for_motor(cfg, serial, dyno=dyno, open_bus=st.open_bus, ecu_timing=st.ecu_timing, station=station)
         with StepProgress(serial) as progress:
-            return run_motor(mcfg, progress, on_verdict=_show_verdict)
+            return run_motor(mcfg, progress, on_verdict, observers)
 
 
 def _show_verdict(rec) -> None:
@@ -188,28 +190,13 @@ def _show(out) -> None:
 def _master_status(cfg) -> str | None:
     """One line: the station's master gate (its settings' or the records database's rules) and
     whether production may run now; None for a station without a gate."""
-    from eol_cal.errors import InputError
-    from eol_cal.msa.gate import MasterGateClosed, check_gate, gate_in_force
+    from eol_cal.msa.gate import gate_status
 
-    station = cfg.station.get("id")
-    try:
-        gate = gate_in_force(cfg.db, station, cfg.master, adopt=False, timeout_s=cfg.db_timeout_s)
-    except (MasterGateClosed, InputError) as exc:  # the cycle refuses each run with the same reason
-        return f"master gate: {exc}"
-    if gate is None:
-        return None
-    m = gate.master
-    period = f"every {m.every_h:g} h" if m.every_h is not None else f"per shift ({m.timezone})"
-    try:
-        last = check_gate(cfg.db, gate, station, timeout_s=cfg.db_timeout_s)
-    except MasterGateClosed as exc:
-        return f"master {m.serial} ({period}): {exc}"
-    if last is None:  # no rule asks for a master run yet
-        return f"master {m.serial} ({period}): production may run"
-    return f"master {m.serial} ({period}): passed {last.started_at:%Y-%m-%d %H:%M} UTC; production may run"
+    status = gate_status(cfg.db, cfg.station.get("id"), cfg.master, timeout_s=cfg.db_timeout_s)
+    return None if status is None else status.line
 
 
-def _ended_by_operator() -> None:
+def ended_by_operator() -> None:
     """A signal at a prompt: Ctrl-C (SIGINT) is the operator ending the session (exit 0); SIGTERM
     or SIGHUP (the station shut down, its terminal closed) stays an interruption (exit 2)."""
     if interrupts.received() in (None, "SIGINT"):
@@ -222,13 +209,13 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             serial = _next_serial()
         except KeyboardInterrupt:
-            _ended_by_operator()  # Ctrl-C: the session's way to end, with exit 0
+            ended_by_operator()  # Ctrl-C: the session's way to end, with exit 0
             console.print("\nCtrl-C between motors: the session ends")
             return False
         if serial is None:
             return False
         try:
-            out = _run_one(cfg, serial, operator, demo_dir)
+            out = run_one(cfg, serial, operator, demo_dir)
         except KeyboardInterrupt:
             # the cycle has commanded the dyno's safe state and recorded the run as an error
             tally.interrupted.append(serial)
@@ -240,11 +227,11 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
         try:
             _show(out)
         except KeyboardInterrupt:
-            _ended_by_operator()
+            ended_by_operator()
             return False
 
 
-def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
+def finish_session(cfg, tally, lot_file: Path | None, min_n: int) -> None:
     """The session's summary, the per-motor reports, and the lot page."""
     from eol_cal.lot.lot_page import select_records, write_lot_page
     from eol_cal.records.connect import db_label, db_shown
@@ -286,20 +273,36 @@ def _finish(cfg, tally, lot_file: Path | None, min_n: int) -> None:
 @key_algo_option
 @click.option("--lot", "lot_file", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Write the station's lot page here at the end [demo default: OUT/lot.html].")
+@click.option("--panel", is_flag=True, help="Serve the session as a page (the operator panel, docs/station.md), not a prompt.")
+@click.option("--bind", default=None, metavar="HOST:PORT",
+              help="Panel: where to listen [default: 127.0.0.1:8080; port 0: a free one]; another host needs --credentials.")
+@click.option("--credentials", "credentials_file", type=click.Path(dir_okay=False), default=None,
+              help="Panel: TOML file with user and password (mode 600); every request needs them.")
+@click.option("--baseline", "baseline_name", default=None, metavar="NAME",
+              help="Panel: a stored baseline (eol-cal lot baseline); an alarm when the latest run breaks its rules.")
 @click.pass_context
 @handle_errors
 @exchange_log_options
 @io_paths(inputs=("station_file", "limits_file"), outputs=("lot_file",), output_dirs=("out_dir", "report_dir"),
           databases=("db",))
-def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options: Any) -> None:
+def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, panel, bind, credentials_file, baseline_name,
+                **options: Any) -> None:
     """The operator loop: scan a motor's serial, run the cycle, read the verdict, next motor.
 
     Every setting is checked before the first motor. An empty line, q or end of input ends the
     session (exit 0), as does Ctrl-C between motors; Ctrl-C during a motor leaves the dyno in its
     safe state, records the run as an error and ends the session with exit 2. At the end: the
-    session's summary, each motor's report, and the station's lot page.
+    session's summary, each motor's report, and the station's lot page. With --panel the same session
+    is served as a page (scan field, steps, verdict, stop button) on --bind.
     """
     import tempfile
+
+    if not panel and (bind, credentials_file, baseline_name) != (None, None, None):
+        from eol_cal.errors import InputError
+
+        given = next(o for o, v in (("--bind", bind), ("--credentials", credentials_file), ("--baseline", baseline_name))
+                     if v is not None)
+        raise InputError(None, given, "an option of the operator panel: give --panel too")
 
     from eol_cal.ecu.python_can import import_can
 
@@ -325,10 +328,22 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     what = f"demo in {out_dir} (simulated ECU and dyno per motor)" if demo else f"settings {settings.source}"
     console.print(f"eol-cal station {cfg.station['id']}: {what}\n  limits {cfg.limits.source} ({cfg.limits.variant}), "
                   f"records {db_shown(cfg.db)}, reports {cfg.report_dir}")
+    if panel:
+        from cli.panel import panel_session
+        from eol_cal.panel.serve import DEFAULT_BIND
+
+        if not demo:
+            flush_first(cfg.db, cfg.spool_dir, cfg.db_timeout_s)
+        tally, interrupted = panel_session(cfg, out_dir if demo else None, operator, bind or DEFAULT_BIND, credentials_file,
+                                           baseline_name, run_one, ended_by_operator)
+        finish_session(cfg, tally, lot_file, int(settings["min_n"]))
+        if interrupted:
+            raise CommandExit(2)
+        return
     try:
         operator = operator_name(operator) if operator is not None else _ask_operator()
     except KeyboardInterrupt:
-        _ended_by_operator()
+        ended_by_operator()
         operator = None
     if operator is None:
         console.print("no operator: the session ends")
@@ -343,7 +358,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, **options:
     try:
         interrupted = _loop(cfg, operator, out_dir if demo else None, tally)
     finally:
-        _finish(cfg, tally, lot_file, int(settings["min_n"]))
+        finish_session(cfg, tally, lot_file, int(settings["min_n"]))
     if interrupted:
         raise CommandExit(2)
 

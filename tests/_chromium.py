@@ -63,8 +63,9 @@ def marked_processes(marker: str) -> list[int]:
 class Chromium:
     """``with Chromium() as b: log = b.open(url); b.page.locator(...)``; see the module doc."""
 
-    def __init__(self, width: int = 1200, height: int = 900, timeout_s: float = TIMEOUT_S) -> None:
+    def __init__(self, width: int = 1200, height: int = 900, timeout_s: float = TIMEOUT_S, offline: bool = True) -> None:
         self.width, self.height, self.timeout_ms = width, height, timeout_s * 1000
+        self.offline = offline  # False: a page served on 127.0.0.1 (the operator panel)
         self.marker = uuid.uuid4().hex
         self.left_behind: list[int] = []
         self._pw: Playwright | None = None
@@ -81,7 +82,7 @@ class Chromium:
                 executable_path=exe, headless=True, timeout=self.timeout_ms,
                 args=["--disable-gpu", "--no-sandbox", "--disable-dev-shm-usage"],
                 env={**os.environ, MARKER: self.marker})
-            context = self._browser.new_context(offline=True, viewport={"width": self.width, "height": self.height})
+            context = self._browser.new_context(offline=self.offline, viewport={"width": self.width, "height": self.height})
             context.set_default_timeout(self.timeout_ms)
             self.page: Page = context.new_page()
         except BaseException:

@@ -183,3 +183,33 @@ def judge_master(values: Mapping[str, float], m: MasterSettings) -> list[MasterC
     references (display units); the failed ones' ``reason`` says why."""
     shown = {k: v * quantity(k).scale for k, v in values.items() if v is not None and math.isfinite(v)}
     return master_checks(shown, m)
+
+
+@dataclass(frozen=True)
+class GateStatus:
+    """A station's master gate now, for a person: whether production is blocked, and one line why."""
+
+    blocked: bool
+    line: str
+
+
+def gate_status(db: str | Path, station: str | None, settings: MasterSettings | None,
+                timeout_s: float = 5.0) -> GateStatus | None:
+    """The master gate of ``station`` (its settings' rules, or the records database's) and whether
+    production may run now; None for a station without a gate. Reads only (nothing adopted)."""
+    try:
+        gate = gate_in_force(db, station, settings, adopt=False, timeout_s=timeout_s)
+    except (MasterGateClosed, InputError) as exc:  # the cycle refuses each run with the same reason
+        return GateStatus(True, f"master gate: {exc}")
+    if gate is None:
+        return None
+    m = gate.master
+    period = f"every {m.every_h:g} h" if m.every_h is not None else f"per shift ({m.timezone})"
+    try:
+        last = check_gate(db, gate, station, timeout_s=timeout_s)
+    except MasterGateClosed as exc:
+        return GateStatus(True, f"master {m.serial} ({period}): {exc}")
+    if last is None:  # no rule asks for a master run yet
+        return GateStatus(False, f"master {m.serial} ({period}): production may run")
+    return GateStatus(False, f"master {m.serial} ({period}): passed {last.started_at:%Y-%m-%d %H:%M} UTC; "
+                             "production may run")

@@ -16,7 +16,7 @@ import contextlib
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from eol_cal.infra.interrupts import raise_if_received, shielded
@@ -58,6 +58,9 @@ class StepEvent:
         The module of the step's function (``eol_cal.station.steps.fit_capture``...).
     elapsed_s : float or None
         Seconds the step took (None at its start).
+    context : object or None
+        The run's context (:class:`~eol_cal.station.context.CycleContext`), for a display that shows
+        what a step produced (the operator panel's torque trace after the acquisition); read only.
     """
 
     run_id: str
@@ -66,6 +69,7 @@ class StepEvent:
     what: str
     module: str
     elapsed_s: float | None = None
+    context: Any = field(default=None, compare=False, repr=False)
 
 
 Observer = Callable[[StepEvent], None]
@@ -82,7 +86,7 @@ class Executor:
         self.observers.append(observer)
 
     def _emit(self, ctx: RunContext, step: str, what: str, fn: Callable, elapsed_s: float | None = None) -> None:
-        event = StepEvent(ctx.run_id, ctx.serial, step, what, getattr(fn, "__module__", "") or "", elapsed_s)
+        event = StepEvent(ctx.run_id, ctx.serial, step, what, getattr(fn, "__module__", "") or "", elapsed_s, ctx)
         for observer in list(self.observers):
             with contextlib.suppress(Exception):
                 observer(event)
