@@ -278,6 +278,15 @@ def test_every_module_has_a_layer():
     assert layer_of("eol_cal.errors") == 0 and layer_of("eol_cal.station.cycle") > layer_of("eol_cal.records.record")
 
 
+def test_the_architecture_page_draws_these_layers():
+    """docs/architecture.md draws the layers top first, one line each, as :data:`LAYERS` holds them."""
+    text = (ROOT / "docs" / "architecture.md").read_text(encoding="utf-8")
+    block = text[text.index("\n## Layers"):text.index("\n## Shared pieces")]
+    names = [name for name, _ in LAYERS]
+    drawn = [line[4:25].strip() for line in block.splitlines() if line.startswith("    ") and line[4:25].strip()]
+    assert drawn == names[::-1]
+
+
 def _has_layer(module: str) -> bool:
     try:
         layer_of(module)
