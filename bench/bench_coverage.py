@@ -126,6 +126,7 @@ def _circmean(x: np.ndarray) -> float:
 def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
     """Per reported interval of one motor: quantity, estimate, ci95, truth, error (rad wrapped for phases)."""
     from eol_cal.analysis import fingerprint as fpr
+    from eol_cal.analysis.fingerprint_fit import low_order_complement
     from eol_cal.firmware.kinematics import fingerprint_of
     from eol_cal.plant.params import sensor_errors, to_params
     from eol_cal.numerics.wrap import wrap_pi
@@ -186,7 +187,7 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
     # the fingerprint: the plant's edge errors in the block's numbering, orders 0..2 out per half
     N = mi.encoder_ppr
     true_fp, _ = fingerprint_of(sensor_errors(to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0)), mi.poles)
-    P = fpr.low_order_complement(N)
+    P = low_order_complement(N)
     got = np.asarray(mech["fingerprint"], float)
     sig = np.array([np.inf if s is None else s for s in mech["sigma"]], float)
     best = None

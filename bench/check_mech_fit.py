@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.fingerprint import LOW_ORDERS, POLY_DEGREE, low_order_complement  # noqa: F401
+from eol_cal.analysis.fingerprint_fit import LOW_ORDERS, POLY_DEGREE, joint_fit, low_order_complement  # noqa: F401
 from eol_cal.analysis.fit import mech_orders as M
 from eol_cal.analysis.fit.model import Z95
 from eol_cal.analysis.motor_result import MechOrder, ValueCi
@@ -34,7 +34,7 @@ from eol_cal.firmware.mech_params import ORDERS
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
-    from eol_cal.analysis.fit.capture import MotorInput
+    from eol_cal.analysis.fit.motor_input import MotorInput
 
 WindowEdges = fpr.WindowEdges
 
@@ -411,7 +411,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
         quarter = poles * math.pi / N / 4.0
         placed = [(t, k + 4 * r) for w, r in zip(prints, old.offsets, strict=True) if r is not None for t, k in w.stretches]
         for cov in (True, False):
-            a, b = fpr.joint_fit(placed, N, quarter, cov), old_joint_fit(placed, N, quarter, cov)
+            a, b = joint_fit(placed, N, quarter, cov), old_joint_fit(placed, N, quarter, cov)
             note("joint fit fp", _rel(a[0], b[0]))
             note("joint fit var", _rel(a[1], b[1]))
             note("joint fit rss", _rel(a[2], b[2]))
@@ -422,7 +422,7 @@ def compare(inputs: Sequence[tuple], worst: dict[str, float]) -> None:
                 continue
             for r in range(0, N, max(1, N // (poles // 2))):
                 trial = list(prints[ref].stretches) + [(t, k + 4 * r) for t, k in w.stretches]
-                a, b = fpr.joint_fit(trial, N, quarter, False), old_joint_fit(trial, N, quarter, False)
+                a, b = joint_fit(trial, N, quarter, False), old_joint_fit(trial, N, quarter, False)
                 if (a is None) != (b is None):
                     note("trial rss", math.inf)
                 elif a is not None:

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from eol_cal.analysis import fingerprint as fpr
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, joint_fit, low_order_complement
 from eol_cal.firmware.mech_params import FP_FORWARD
 
 N, POLES = 64, 8
@@ -39,9 +40,9 @@ def _stretches(rng: np.random.Generator, fp_true: np.ndarray, n: int, reverse: b
 
 def _dense(stretches: list, dirs: list[int]):
     """The joint fit as one dense least-squares problem (numpy lstsq on the full design matrix)."""
-    P = fpr.low_order_complement(N)
+    P = low_order_complement(N)
     nF = P.shape[1]
-    deg1 = fpr.POLY_DEGREE + 1
+    deg1 = POLY_DEGREE + 1
     nb = deg1 * len(stretches)
     col = {d: nb + i * nF for i, d in enumerate(dirs)}
     rows, rhs = [], []
@@ -51,7 +52,7 @@ def _dense(stretches: list, dirs: list[int]):
         half = (k >> 1) & 1
         x = (times - times[0]) / (times[-1] - times[0]) * 2.0 - 1.0
         A = np.zeros((len(times), nb + nF * len(dirs)))
-        A[:, g * deg1:(g + 1) * deg1] = np.polynomial.legendre.legvander(x, fpr.POLY_DEGREE)
+        A[:, g * deg1:(g + 1) * deg1] = np.polynomial.legendre.legvander(x, POLY_DEGREE)
         for d in dirs:
             sel = half == d
             A[sel, col[d]:col[d] + nF] = -P[(k[sel] >> 2) % N]
@@ -75,7 +76,7 @@ def test_the_joint_fit_equals_the_dense_least_squares(seed):
     rng = np.random.default_rng(seed)
     fp_true = rng.normal(0, 3e-3, 2 * N)
     stretches = _stretches(rng, fp_true, 3, False) + _stretches(rng, fp_true, 2, True)
-    fp, var, rss, dirs, dof = fpr.joint_fit(stretches, N, QUARTER)
+    fp, var, rss, dirs, dof = joint_fit(stretches, N, QUARTER)
     assert dirs == FP_FORWARD | (FP_FORWARD << 1)
     fp_d, var_d, rss_d, dof_d = _dense(stretches, [0, 1])
     assert dof == dof_d
@@ -83,19 +84,19 @@ def test_the_joint_fit_equals_the_dense_least_squares(seed):
     np.testing.assert_allclose(var, var_d, rtol=1e-6)
     assert rss == pytest.approx(rss_d, rel=1e-6)
     # and it finds the errors: the true ones less their orders 0..2, which the fit cannot see
-    P = fpr.low_order_complement(N)
+    P = low_order_complement(N)
     for d in (0, 1):
         seen = P @ (P.T @ fp_true[d::2])
         assert np.max(np.abs(fp[d::2] - seen)) < 2e-4
     # a placement trial needs only the residual
-    fp2, var2, rss2, _, _ = fpr.joint_fit(stretches, N, QUARTER, cov=False)
+    fp2, var2, rss2, _, _ = joint_fit(stretches, N, QUARTER, cov=False)
     np.testing.assert_array_equal(fp2, fp)
     assert np.isnan(var2).all() and rss2 == rss
 
 
 def _true_fingerprint(seed: int) -> np.ndarray:
     """(2N,) edge errors (rad electrical) without mechanical orders 0..2 in either half."""
-    P = fpr.low_order_complement(N)
+    P = low_order_complement(N)
     rng = np.random.default_rng(seed)
     fp = np.zeros(2 * N)
     for d in (0, 1):
@@ -126,13 +127,13 @@ def test_the_joint_fit_of_one_half_or_both_is_the_dense_least_squares(drop_rever
         keep = [~((((k >> 1) & 1) == 1) & ((k >> 2) % N == 5)) for _, k in stretches]
         stretches = [(t[m], k[m]) for (t, k), m in zip(stretches, keep, strict=True)]
         halves = (0,)
-    fp, var, rss, dirs, dof = fpr.joint_fit(stretches, N, QUARTER)
+    fp, var, rss, dirs, dof = joint_fit(stretches, N, QUARTER)
     fp_d, var_d, rss_d, dof_d = _dense(stretches, list(halves))
     assert dirs == sum(1 << h for h in halves) and dof == dof_d
     np.testing.assert_allclose(fp, fp_d, rtol=0, atol=1e-9 * np.nanmax(np.abs(fp_d)))
     np.testing.assert_allclose(var, var_d, rtol=1e-8)
     assert rss == pytest.approx(rss_d, rel=1e-8)
-    assert fpr.joint_fit(stretches, N, QUARTER, cov=False)[2] == pytest.approx(rss_d, rel=1e-8)
+    assert joint_fit(stretches, N, QUARTER, cov=False)[2] == pytest.approx(rss_d, rel=1e-8)
     # and the fit finds the fingerprint it was made with (edge time noise: 2 us)
     sigma = np.sqrt(var[halves[0]::2])
     assert np.all(np.abs(fp[halves[0]::2] - fp_true[halves[0]::2]) < 5 * sigma)
@@ -152,7 +153,7 @@ def test_windows_are_placed_by_the_fingerprint_among_the_pole_pair_offsets():
     assert merged.offsets == [0, 23, 41] and merged.dirs == 3
     ratios = [s[1] for s in merged.scores[1:]]
     assert all(x > 10 for x in ratios)  # the next offset leaves a residual many times larger
-    fp, var, *_ = fpr.joint_fit([s for s, _ in parts], N, QUARTER)
+    fp, var, *_ = joint_fit([s for s, _ in parts], N, QUARTER)
     for d in (0, 1):
         np.testing.assert_allclose(merged.fp[d::2], fp[d::2] - fp[d::2].mean(), rtol=0, atol=1e-12)
     np.testing.assert_allclose(merged.sigma, np.sqrt(var), rtol=1e-12)

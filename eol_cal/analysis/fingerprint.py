@@ -21,27 +21,18 @@ its uncertainty and the tick quantisation.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from eol_cal.firmware.estimator import quadrature_phase
-from eol_cal.firmware.mech_params import FP_FORWARD
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, PlacedWindows
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
 REF_RPM = 300.0
-#: degree of each stretch's polynomial motion (Legendre in time)
-POLY_DEGREE = 5
-#: mechanical orders taken out of the fitted errors (the spline shares them)
-LOW_ORDERS = 2
-#: a joint fit of the edge errors: ``(fp (2N,), var (2N,), rss, dirs, dof)`` (:func:`joint_fit`)
-_Fit = tuple[np.ndarray, np.ndarray, float, int, int]
 
 
 @dataclass(frozen=True)
@@ -117,20 +108,6 @@ def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, 
     return times, k, np.where(fwd, 1, -1)
 
 
-@functools.lru_cache(maxsize=8)
-def low_order_complement(N: int) -> np.ndarray:
-    """Orthonormal basis (N, N - 1 - 2*LOW_ORDERS) of the errors without orders 0..LOW_ORDERS."""
-    m = np.arange(N)
-    cols = [np.ones(N)]
-    for h in range(1, LOW_ORDERS + 1):
-        cols += [np.cos(2 * np.pi * h * m / N), np.sin(2 * np.pi * h * m / N)]
-    A = np.stack(cols, axis=1)
-    q_full, _ = np.linalg.qr(np.concatenate([A, np.eye(N)], axis=1))
-    basis = q_full[:, A.shape[1]:N]
-    basis.flags.writeable = False
-    return basis
-
-
 def window_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: np.ndarray,
                  poles: int, N: int, ranges: Sequence[tuple[int, int]]) -> WindowEdges | None:
     """One capture window's A edges over its steady stretches (the fit's segments) and its grid phase.
@@ -179,201 +156,6 @@ def window_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, theta_fw: 
     return WindowEdges(stretches, gp, q)
 
 
-class _Stats:
-    """One window's (or any list of stretches') share of the joint fit, by pulse: what a placement
-    trial and the final fit need of its edges, computed once (a trial only moves it).
-
-    For the edges of the halves kept, per stretch: ``Q`` the orthonormal basis of its polynomial
-    motion and ``phi_res`` the edges' nominal angles less their projection on it. The fit needs per
-    (half, pulse) the edge count, the sum of ``phi_res`` and the sum of ``Q``'s rows (the
-    stretches' columns side by side), and ``|phi_res|^2``: with ``err`` the errors per (half,
-    pulse), the residual is ``|phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2``. Moving the
-    window by ``r`` pulses (``k + 4r``: the same half, pulse ``m + r``; ``phi_res`` unchanged, the
-    constant is in the motion) moves these to pulse ``m + r``.
-    """
-
-    def __init__(self, stretches: Sequence[tuple[np.ndarray, np.ndarray]], N: int, quarter: float):
-        self.stretches = stretches
-        self.N, self.quarter = N, quarter
-        allk = np.concatenate([k for _, k in stretches]) if stretches else np.zeros(0, np.int64)
-        #: every edge per (half, pulse), whatever is kept: which halves the fit can keep
-        self.seen = np.bincount(((allk >> 1) & 1) * N + (allk >> 2) % N, minlength=2 * N).reshape(2, N)
-        self._parts: dict[tuple[int, ...], tuple[list[Any], float, int]] = {}
-        self._normal: dict[tuple[tuple[int, ...], int], tuple[np.ndarray, np.ndarray, float, int]] = {}
-
-    def part(self, halves: tuple[int, ...]) -> tuple[list[tuple[np.ndarray, ...]], float, int]:
-        """For the edges of ``halves``: per half, ``(pulses seen, counts, r, S rows)`` at those
-        pulses; ``|phi_res|^2``; the number of edges."""
-        if halves not in self._parts:
-            N = self.N
-            counts, r = np.zeros(2 * N), np.zeros(2 * N)
-            cols, ss, n = [np.zeros((2 * N, 0))], 0.0, 0
-            for times, k in self.stretches:
-                if len(halves) < 2:
-                    keep = ((k >> 1) & 1) == halves[0]
-                    times, k = times[keep], k[keep]
-                if not len(times):
-                    continue
-                n += len(times)
-                x = (times - times[0]) / max(times[-1] - times[0], 1e-12) * 2.0 - 1.0
-                Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, POLY_DEGREE))
-                phi = (k - k[0]) * self.quarter  # the constant is in the motion: small numbers, less rounding
-                phi_res = phi - Q @ (Q.T @ phi)
-                idx = ((k >> 1) & 1) * N + (k >> 2) % N
-                counts += np.bincount(idx, minlength=2 * N)
-                r += np.bincount(idx, weights=phi_res, minlength=2 * N)
-                cols.append(np.stack([np.bincount(idx, weights=Q[:, j], minlength=2 * N)
-                                      for j in range(Q.shape[1])], axis=1))
-                ss += float(phi_res @ phi_res)
-            S = np.concatenate(cols, axis=1)
-            per_half = []
-            for h in halves:
-                J = np.flatnonzero(counts[h * N:(h + 1) * N])
-                per_half.append((J, counts[h * N + J], r[h * N + J], S[h * N + J]))
-            self._parts[halves] = (per_half, ss, n)
-        return self._parts[halves]
-
-    def normal(self, halves: tuple[int, ...], shift: int) -> tuple[np.ndarray, np.ndarray, float, int]:
-        """This window's part of the normal equations in the errors' basis ``P`` (per half) for
-        the edges of ``halves``, moved by ``shift`` pulses: ``(G, rhs, |phi_res|^2, edges)``."""
-        if (halves, shift) in self._normal:  # placed at the offset a trial computed
-            return self._normal[halves, shift]
-        per_half, ss, n = self.part(halves)
-        P = low_order_complement(self.N)
-        nF = P.shape[1]
-        G = np.zeros((len(halves) * nF, len(halves) * nF))
-        rhs = np.zeros(len(halves) * nF)
-        Ts = []
-        for i, (J, counts, r, S) in enumerate(per_half):
-            PJ = P[(J + shift) % self.N]  # only the pulses the window saw
-            s = slice(i * nF, (i + 1) * nF)
-            G[s, s] = PJ.T @ (counts[:, None] * PJ)
-            rhs[s] = -PJ.T @ r
-            Ts.append(PJ.T @ S)
-        T = np.concatenate(Ts)
-        G -= T @ T.T
-        self._normal[halves, shift] = (G, rhs, ss, n)
-        return G, rhs, ss, n
-
-
-class _Sums:
-    """The joint fit's normal equations (errors' basis ``P`` per half) over windows at their
-    offsets, for the edges of ``halves``: ``G``, ``rhs``, ``|phi_res|^2``, edges and stretches."""
-
-    def __init__(self, N: int, halves: tuple[int, ...]):
-        nF = low_order_complement(N).shape[1]
-        self.halves = halves
-        self.G = np.zeros((len(halves) * nF, len(halves) * nF))
-        self.rhs = np.zeros(len(halves) * nF)
-        self.ss, self.n, self.n_stretches = 0.0, 0, 0
-
-    def add(self, w: _Stats, shift: int) -> None:
-        """Add window ``w`` moved by ``shift`` pulses."""
-        G, rhs, ss, n = w.normal(self.halves, shift)
-        self.G += G
-        self.rhs += rhs
-        self.ss += ss
-        self.n += n
-        self.n_stretches += len(w.stretches)
-
-
-def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, halves: tuple[int, ...],
-           N: int, cov: bool) -> _Fit:
-    """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
-    :func:`joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
-    ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (a placement trial's figures are those of
-    the full fit; ``cov`` adds the variances)."""
-    P = low_order_complement(N)
-    nF = P.shape[1]
-    dof = n - ((POLY_DEGREE + 1) * n_stretches + nF * len(halves))
-    L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
-    if info == 0:
-        z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
-    if info == 0:
-        sol = scipy.linalg.lapack.dtrtrs(L, z, lower=1, trans=1)[0]
-        rss = max(ss - float(z @ z), 0.0)
-        G_inv = scipy.linalg.cho_solve((L, True), np.eye(len(rhs)), check_finite=False) if cov else None
-    else:  # not positive definite (a pulse's errors not separable from the motions): least norm
-        G_inv = np.linalg.pinv(G)
-        sol = G_inv @ rhs
-        # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 over every edge = ss - 2 rhs.sol + sol^T G sol
-        rss = max(ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
-    fp = np.full(2 * N, np.nan)
-    var = np.full(2 * N, np.nan)
-    C = rss / max(1, dof) * G_inv if cov else None
-    for i, d in enumerate(halves):
-        s = slice(i * nF, (i + 1) * nF)
-        fp[d::2] = P @ sol[s]
-        if C is not None:
-            var[d::2] = np.sum((P @ C[s, s]) * P, axis=1)
-    return fp, var, rss, sum(FP_FORWARD << d for d in halves), dof
-
-
-def _halves(seen: np.ndarray, N: int) -> tuple[int, ...]:
-    """The halves the fit keeps: every pulse seen, and a revolution and a quarter of edges."""
-    return tuple(d for d in (0, 1) if seen[d].min() >= 1 and seen[d].sum() >= N + N // 4)
-
-
-class _Placed:
-    """The windows placed so far (each :class:`_Stats` at its offset) and their normal equations
-    per set of halves kept (built when first asked, kept up to date as windows are placed)."""
-
-    def __init__(self, N: int):
-        self.N = N
-        self.windows: list[tuple[_Stats, int]] = []
-        self.seen = np.zeros((2, N), np.int64)
-        self._sums: dict[tuple[int, ...], _Sums] = {}
-
-    def sums(self, halves: tuple[int, ...]) -> _Sums:
-        if halves not in self._sums:
-            s = _Sums(self.N, halves)
-            for w, shift in self.windows:
-                s.add(w, shift)
-            self._sums[halves] = s
-        return self._sums[halves]
-
-    def add(self, w: _Stats, shift: int) -> None:
-        self.windows.append((w, shift))
-        self.seen += np.roll(w.seen, shift, axis=1)
-        for s in self._sums.values():
-            s.add(w, shift)
-
-    def fit(self, extra: tuple[_Stats, int] | None = None, cov: bool = True) -> _Fit | None:
-        """The joint fit of the windows placed, and ``extra`` (a window, its offset) if given;
-        None when no half is covered."""
-        seen = self.seen if extra is None else self.seen + np.roll(extra[0].seen, extra[1], axis=1)
-        halves = _halves(seen, self.N)
-        if not halves:
-            return None
-        s = self.sums(halves)
-        if extra is None:
-            return _solve(s.G, s.rhs, s.ss, s.n, s.n_stretches, halves, self.N, cov)
-        G, rhs, ss, n = extra[0].normal(halves, extra[1])
-        return _solve(s.G + G, s.rhs + rhs, s.ss + ss, s.n + n, s.n_stretches + len(extra[0].stretches),
-                      halves, self.N, cov)
-
-
-def joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float,
-               cov: bool = True) -> _Fit | None:
-    """Least squares of the edge errors shared by every stretch (each its own polynomial motion).
-
-    ``stretches`` hold (times, A boundaries k in the common frame); edge ``k`` is fingerprint entry
-    ``(k >> 1) mod 2N``: forward half (``k = 4m + 1``) and reverse half (``4m + 3``). Returns
-    ``(fp (2N,), var (2N,), rss, dirs, dof)``; a half with a pulse never seen, or fewer than 1.25
-    revolutions of edges, is left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
-    ``cov=False`` skips the variances (NaN): a placement trial needs the residual only.
-
-    Each stretch's polynomial is projected out of its edges (Frisch-Waugh): the errors' normal
-    equations are then ``(nF * dirs)`` square, summed per pulse from the edges (:class:`_Stats`),
-    instead of a dense edges x unknowns least squares; the solution, the residual and the errors'
-    covariance are the same. :func:`merge_windows` keeps each window's sums, and the normal
-    equations of the windows placed, and moves the window it places to each offset it tries.
-    """
-    placed = _Placed(N)
-    placed.add(_Stats(stretches, N, quarter), 0)
-    return placed.fit(cov=cov)
-
-
 def pitch_errors(fp: np.ndarray, N: int) -> np.ndarray:
     """The fingerprint's pitch errors ``fp[2m+d] - fp[2((m-1) mod N)+d]`` (2N,), as the firmware forms them."""
     prev = np.roll(np.asarray(fp, dtype=float).reshape(N, 2), 1, axis=0).reshape(-1)
@@ -420,8 +202,8 @@ def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min
     offsets: list[int | None] = [None] * len(windows)
     scores: list[tuple[float, float] | None] = [None] * len(windows)
     offsets[ref] = 0
-    stats = {i: _Stats(present[i].stretches, N, quarter) for i in usable}
-    placed = _Placed(N)
+    stats = {i: EdgeSums(present[i].stretches, N, quarter) for i in usable}
+    placed = PlacedWindows(N)
     placed.add(stats[ref], 0)
     todo = [i for i in sorted(usable, key=lambda j: -present[j].n_edges) if i != ref]
     changed = True
@@ -449,7 +231,7 @@ def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min
     return Fingerprint(fp, sigma, dirs, present[ref].grid_phase, offsets, scores)
 
 
-def _place(w: WindowEdges, stats: _Stats, ref_phase: float, placed: _Placed, poles: int, N: int, delta: float,
+def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWindows, poles: int, N: int, delta: float,
            min_ratio: float, frac_tol: float) -> tuple[int | None, tuple[float, float]]:
     """Where window ``w`` (its sums ``stats``) goes in the frame of the windows ``placed``:
     ``(r or None, (fraction error rad, residual ratio))``.

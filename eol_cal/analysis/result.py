@@ -22,7 +22,7 @@ from eol_cal.errors import InputError
 from eol_cal.infra.jsonsafe import json_safe
 
 if TYPE_CHECKING:
-    from eol_cal.analysis.fit.capture import MotorInput
+    from eol_cal.analysis.fit.motor_input import MotorInput
     from eol_cal.analysis.fit.model_check import ModelCheck
 
 SCHEMA = "eol-cal/fit-result/1"

@@ -121,7 +121,8 @@ def current_task(
     return ControllerState(x_d=x_d, x_q=x_q, u_d=u_d, u_q=u_q, i_qo=i_qo, omega_c=omega_c, i_qc=i_qc)
 
 
-def initial_ecu(i_qo: float, omega_r: float, p: PlantParams, xp: ArrayModule) -> ControllerState:
+def initial_ecu(i_qo: float | np.floating, omega_r: float | np.floating, p: PlantParams, xp: ArrayModule
+                ) -> ControllerState:
     """Controller memory in steady state at ``i_qo`` (A) and ``omega_r`` (rad/s electrical)."""
     R = p.Ki_q / p.Kp_q * p.L_q_nom  # nominal R_s recovered from the tuning
     x_d = xp.zeros_like(p.Kp_d)

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.capture.ecu_state import EcuState
     from eol_cal.records.record import RunRecord
-    from eol_cal.analysis.fit.capture import MotorInput
+    from eol_cal.analysis.fit.motor_input import MotorInput
     from eol_cal.analysis.spectrum import OrderSpectrum
     from eol_cal.analysis.point_metrics import PointRipple
 

@@ -23,9 +23,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE
 
 if TYPE_CHECKING:
-    from eol_cal.analysis.fit.capture import MotorInput
+    from eol_cal.analysis.fit.motor_input import MotorInput
 
 #: a steady segment's stretch for the fingerprint extends while the speed stays within this
 #: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
@@ -154,11 +155,11 @@ def edge_residual_correlation(fp: fpr.Fingerprint, prints: list[fpr.WindowEdges 
             kk = k + 4 * r
             idx = 2 * ((kk >> 2) % N) + ((kk >> 1) & 1)
             halves_ok = np.isfinite(fp.sigma[idx])
-            if halves_ok.sum() < 2 * (fpr.POLY_DEGREE + 2):
+            if halves_ok.sum() < 2 * (POLY_DEGREE + 2):
                 continue
             t, kk, idx = times[halves_ok], kk[halves_ok], idx[halves_ok]
             x = (t - t[0]) / max(t[-1] - t[0], 1e-12) * 2.0 - 1.0
-            Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, fpr.POLY_DEGREE))
+            Q, _ = np.linalg.qr(np.polynomial.legendre.legvander(x, POLY_DEGREE))
             y = (kk - kk[0]) * quarter + fp.fp[idx]
             res = y - Q @ (Q.T @ y)
             num += float(res[1:] @ res[:-1])

@@ -32,7 +32,7 @@ from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
-    from eol_cal.analysis.fit.capture import MotorInput
+    from eol_cal.analysis.fit.motor_input import MotorInput
 
 #: z of a two-sided 95 % interval
 _Z95 = 1.959963984540054

@@ -14,7 +14,8 @@ from typing import Any
 from collections.abc import Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, check_identifiable, pick_mode
-from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
+from eol_cal.analysis.fit.capture import PreparedWindows
+from eol_cal.analysis.fit.motor_input import MotorInput
 from eol_cal.analysis.result import CiLimits
 from eol_cal.capture.data import Capture
 from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS

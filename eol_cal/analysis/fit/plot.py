@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
-from eol_cal.analysis.fit.capture import MotorInput
+from eol_cal.analysis.fit.motor_input import MotorInput
 from eol_cal.rendering.renderer import plain
 from eol_cal.numerics.wrap import wrap_2pi
 
