@@ -26,7 +26,7 @@ from eol_cal.lot.spc_stats import judge_lot
 from eol_cal.lot.stats import first_pass_yield_of
 from eol_cal.msa.gate import gate_status
 from eol_cal.records.connect import db_label
-from eol_cal.records.parts import MEASURED_KIND
+from eol_cal.records.kinds import MEASURED_KIND
 from eol_cal.records.query import read_rows, select_runs
 from eol_cal.records.record import NO_STATION
 from eol_cal.records.tables import runs
