@@ -261,8 +261,10 @@ def test_a_master_check_due_blocks_production(tmp_path, serve, browser):
     expect(page.locator("#verdict-serial")).to_have_text(f"{PASSING[0]} (refused)")
     expect(page.locator("#reasons")).to_contain_text("master check due")
     expect(page.locator("#last li")).to_contain_text("refused")
-    page.locator("#end").click()
-    assert panel.exit_code() == 0
+    expect(page.locator("#scan")).to_be_enabled()
+    os.killpg(panel.proc.pid, signal.SIGINT)  # Ctrl-C between motors ends the session, as at the terminal's prompt
+    assert panel.exit_code() == 0, panel.text[-3000:]
+    assert "session: 1 run(s) of 1 motor(s): 0 pass, 0 fail, 1 error (1 of them refused" in panel.text
     (rec,) = query_records(out / "results.sqlite")
     assert rec.kind == "refusal" and "master_due" in rec.refusal_codes and rec.steps[0].step == "master check"
 
