@@ -10,6 +10,7 @@ With ``EOL_CAL_DOC_SCREENSHOTS=DIR`` the tests write the screenshots docs/statio
 
 from __future__ import annotations
 
+import json
 import math
 import os
 import re
@@ -261,8 +262,10 @@ def test_a_master_check_due_blocks_production(tmp_path, serve, browser):
     expect(page.locator("#verdict-serial")).to_have_text(f"{PASSING[0]} (refused)")
     expect(page.locator("#reasons")).to_contain_text("master check due")
     expect(page.locator("#last li")).to_contain_text("refused")
-    page.locator("#end").click()
-    assert panel.exit_code() == 0
+    expect(page.locator("#scan")).to_be_enabled()
+    os.killpg(panel.proc.pid, signal.SIGINT)  # Ctrl-C between motors ends the session, as at the terminal's prompt
+    assert panel.exit_code() == 0, panel.text[-3000:]
+    assert "session: 1 run(s) of 1 motor(s): 0 pass, 0 fail, 1 error (1 of them refused" in panel.text
     (rec,) = query_records(out / "results.sqlite")
     assert rec.kind == "refusal" and "master_due" in rec.refusal_codes and rec.steps[0].step == "master check"
 
@@ -297,3 +300,37 @@ def test_the_line_view_shows_two_stations_on_postgresql_as_they_run(tmp_path, se
     assert log.console_errors == []
     os.killpg(view.proc.pid, signal.SIGINT)  # Ctrl-C ends the view
     assert view.exit_code(30) == 0
+
+
+def test_a_panel_killed_after_the_verdict_loses_no_record(tmp_path, serve, browser):
+    """The cycle's own guarantee through the panel: the record is in the spool from the verdict on; a
+    SIGKILL (no code runs) before the database has it loses nothing, and the next flush writes it in."""
+    out = tmp_path / "k"
+    db = out / "results.sqlite"
+    panel = serve(["station", "--demo", "--out", str(out), "--limits", str(_tight_limits(tmp_path)), "--operator", "erin",
+                   "--panel", "--bind", "127.0.0.1:0"], tmp_path)
+    page = browser.page
+    browser.open(panel.url)
+    _scan(page, FAILING)
+    expect(page.locator('#steps li[data-step="acquire"][data-what="start"]')).to_be_visible(timeout=MOTOR_S * 1000)
+    lock = sqlite3.connect(db, isolation_level=None)
+    lock.execute("BEGIN EXCLUSIVE")  # from here the database write waits: the kill comes before it
+    try:
+        expect(page.locator("#verdict-serial")).to_have_text(FAILING, timeout=MOTOR_S * 1000)
+        expect(page.locator("#verdict-where")).to_contain_text("record: being written")
+        shown = page.locator("#verdict-word").inner_text().lower()
+        os.killpg(panel.proc.pid, signal.SIGKILL)
+        panel.exit_code(30)
+    finally:
+        lock.rollback()
+        lock.close()
+    assert shown == "fail"
+    (spooled,) = list((out / "spool").glob("*.json"))
+    rec = json.loads(spooled.read_text())["record"]
+    assert (rec["serial"], rec["verdict"], rec["station"]["operator"]) == (FAILING, shown, "erin")
+    flush = subprocess.run([sys.executable, "-m", "cli.main", "records", "--db", str(db), "--flush", "--spool-dir",
+                            str(out / "spool"), "--json"], cwd=tmp_path, env=_env(), capture_output=True, text=True,
+                           timeout=120)
+    assert flush.returncode == 0, flush.stderr
+    (row,) = query_records(db)
+    assert (row.run_id, row.serial, row.verdict) == (rec["run_id"], FAILING, shown)
