@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
@@ -90,6 +91,7 @@ def _mismatches(a: dict, b: dict) -> list[str]:
     return sorted(out)
 
 
+@pytest.mark.slow  # two station cycles on the plant (about 20 s quiet); the batch test keeps lot simulate in the fast loop
 def test_lot_simulate_and_run_on_the_plant_give_the_same_record_but_for_its_kind(tmp_path: Path):
     (tmp_path / "short.toml").write_text(PROFILE)
     (tmp_path / "key.hex").write_text(P.DEV_SECRET.hex())
