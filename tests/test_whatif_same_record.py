@@ -97,7 +97,7 @@ def test_lot_simulate_and_run_on_the_plant_give_the_same_record_but_for_its_kind
     (tmp_path / "key.hex").write_text(P.DEV_SECRET.hex())
     plan = LotPlan("SAME", "default", str(LIMITS), "EPS-STD", 2, seed=11, profile=str(tmp_path / "short.toml"))
     i = 1
-    (lot_doc,) = simulate_batch(plan, [i])
+    (lot_doc,) = simulate_batch(plan, [i], loopback_station)
     # the same motor, drawn as the spread draws it, on the simulators `eol-cal demo` starts, through `eol-cal run`
     spec = load_spread("default").draw(plan.seed + i, preset_spec("paper"), serial=plan.serial(i))
     with loopback_station(plan.serial(i), plan.seed + i, tmp_path / "sim", spec_for=lambda req: spec) as st:

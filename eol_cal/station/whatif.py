@@ -3,10 +3,12 @@ the simulated plant, recorded as runs of kind ``simulated`` (``eol-cal lot simul
 
 Each motor runs the production steps (:func:`eol_cal.station.cycle.run_motor`: pre-flight,
 prepare, acquire, fit, table, flash, acquire compensated, metrics, verdict, report, record)
-through the one executor, against the simulators ``eol-cal run`` meets on loopback
-(:func:`eol_cal.sim.loopback.loopback_station`: the Modbus dyno simulator whose motor is the drawn
-one, the ECU simulator over python-can-remote, both on 127.0.0.1): the same instrument
-interfaces, the same judging, the same record builder as a motor on a line. The run's files
+through the one executor, against simulators reached through the instrument interfaces a line's
+station uses (a Modbus dyno, an ECU on a python-can bus): the caller hands in :data:`Simulators`,
+``eol-cal lot simulate`` those ``eol-cal run`` meets on loopback
+(:func:`eol_cal.sim.loopback.loopback_station`: the dyno simulator whose motor is the drawn one,
+the ECU simulator over python-can-remote, both on 127.0.0.1; the library does not import its
+simulators). The same steps, the same judging, the same record builder as a motor on a line. The run's files
 (captures, blocks, fit, report) and the cycle's own database go to a directory of the batch that
 is removed when the batch is done; the records go back to the lot.
 
@@ -21,14 +23,18 @@ limits, seed) gives the same records but for their times.
 from __future__ import annotations
 
 import tempfile
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 from collections.abc import Callable, Sequence
 
 from eol_cal.errors import InputError
 from eol_cal.station.whatif_plan import LotPlan
 from eol_cal.inputs import loads_json
+
+if TYPE_CHECKING:
+    from eol_cal.ecu.session import ClientTiming
 
 #: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
 SEED_MAX = 2**63 - 2
@@ -63,6 +69,24 @@ def check_plan(plan: LotPlan) -> None:
 # one batch: what a task runs
 
 
+class PlantStation(Protocol):
+    """One motor's simulated instruments as the cycle reaches them
+    (:class:`eol_cal.sim.loopback.LoopbackStation`): the dyno's Modbus address, the ECU's bus, and
+    the tester's settings for simulators in its own process."""
+
+    dyno_address: str
+    ecu_timing: ClientTiming
+    watchdog_ms: int
+
+    def open_bus(self) -> Any: ...
+
+
+#: ``(serial, seed, work_dir, spec_for=request -> PlantSpec)``: one motor's simulators, started
+#: for the block and stopped after it (:func:`eol_cal.sim.loopback.loopback_station`); sent to the
+#: workers by reference, so a module's function
+Simulators = Callable[..., AbstractContextManager[PlantStation]]
+
+
 def lot_motor(plan: LotPlan, i: int) -> Any:
     """Motor ``i`` of the lot: the spread's draw with seed ``plan.seed + i`` around the preset
     (a :class:`~eol_cal.plant.params.PlantSpec`; its serial the lot's)."""
@@ -80,9 +104,10 @@ def lot_station(plan: LotPlan, i: int, spec: Any) -> dict[str, Any]:
             "truth": truth}
 
 
-def simulate_motor(plan: LotPlan, i: int, work_dir: Path, cache_dir: Path | None = None) -> Any:
-    """Motor ``i`` through the station's cycle (:func:`eol_cal.station.cycle.run_motor`) on the
-    loopback simulators, its files under ``work_dir``; its :class:`~eol_cal.records.record.RunRecord`
+def simulate_motor(plan: LotPlan, i: int, work_dir: Path, simulators: Simulators,
+                   cache_dir: Path | None = None) -> Any:
+    """Motor ``i`` through the station's cycle (:func:`eol_cal.station.cycle.run_motor`) on its
+    ``simulators``, its files under ``work_dir``; its :class:`~eol_cal.records.record.RunRecord`
     (kind ``simulated``, run id :meth:`LotPlan.run_id`). A motor whose cycle erred is recorded so,
     the step named, as on a line."""
     from eol_cal.dyno.client import parse_address
@@ -92,12 +117,11 @@ def simulate_motor(plan: LotPlan, i: int, work_dir: Path, cache_dir: Path | None
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.plant.presets import preset_spec
     from eol_cal.records.limits import load_limits
-    from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.cycle import run_motor
     from eol_cal.station.run import StationConfig
 
     spec = lot_motor(plan, i)
-    with loopback_station(plan.serial(i), plan.seed + i, work_dir / "sim", spec_for=lambda req: spec) as st:
+    with simulators(plan.serial(i), plan.seed + i, work_dir / "sim", spec_for=lambda req: spec) as st:
         host, port = parse_address(st.dyno_address)
         cfg = StationConfig(
             serial=plan.serial(i), dyno=DynoConfig(host=host, port=port, watchdog_ms=st.watchdog_ms),
@@ -109,11 +133,13 @@ def simulate_motor(plan: LotPlan, i: int, work_dir: Path, cache_dir: Path | None
         return run_motor(cfg, run_id=plan.run_id(i)).record
 
 
-def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None = None) -> list[dict[str, Any]]:
+def simulate_batch(plan: LotPlan, indices: Sequence[int], simulators: Simulators,
+                   cache_dir: str | None = None) -> list[dict[str, Any]]:
     """The run records (JSON) of motors ``indices`` of the lot, one batch, each motor through the
-    station's cycle (:func:`simulate_motor`); the runs' files are removed afterwards."""
+    station's cycle on its ``simulators`` (:func:`simulate_motor`); the runs' files are removed
+    afterwards."""
     with tempfile.TemporaryDirectory(prefix=f"lot-{plan.name}-") as d:
-        return [simulate_motor(plan, i, Path(d), None if cache_dir is None else Path(cache_dir)).to_json()
+        return [simulate_motor(plan, i, Path(d), simulators, None if cache_dir is None else Path(cache_dir)).to_json()
                 for i in indices]
 
 
@@ -155,12 +181,14 @@ def recorded_runs(db: str | Path, plan: LotPlan) -> set[str]:
     return {row["run_id"] for row in rows}
 
 
-def simulate_lot(plan: LotPlan, db: str | Path, client: Any, on_done: Callable[[int], None] | None = None,
-                 cache_dir: str | Path | None = None, retries: int = 2) -> LotOutcome:
+def simulate_lot(plan: LotPlan, db: str | Path, client: Any, simulators: Simulators,
+                 on_done: Callable[[int], None] | None = None, cache_dir: str | Path | None = None,
+                 retries: int = 2) -> LotOutcome:
     """Simulate the lot's motors not yet recorded on ``client`` (a ``distributed.Client``), a batch
-    per task, and insert each batch's records into ``db`` as it comes back (``on_done(n)``: n more
-    motors recorded). A task whose worker died is run again (``retries``); a batch that failed on
-    every try is reported, not recorded (a rerun simulates it)."""
+    per task, each motor through the station's cycle on its ``simulators``, and insert each
+    batch's records into ``db`` as it comes back (``on_done(n)``: n more motors recorded). A task
+    whose worker died is run again (``retries``); a batch that failed on every try is reported,
+    not recorded (a rerun simulates it)."""
     from distributed import as_completed
 
     from eol_cal.records.record import RunRecord
@@ -171,8 +199,8 @@ def simulate_lot(plan: LotPlan, db: str | Path, client: Any, on_done: Callable[[
     todo = [b for b in plan.batches() if any(plan.run_id(i) not in done for i in b)]
     before = sum(1 for b in plan.batches() for i in b if plan.run_id(i) in done)
     keys = [f"lot-simulate-{plan.name}-{b[0]}" for b in todo]
-    mapped = client.map(simulate_batch, [plan] * len(todo), todo, key=keys, retries=retries, pure=False,
-                        cache_dir=None if cache_dir is None else str(cache_dir))
+    mapped = client.map(simulate_batch, [plan] * len(todo), todo, [simulators] * len(todo), key=keys,
+                        retries=retries, pure=False, cache_dir=None if cache_dir is None else str(cache_dir))
     futures = dict(zip(mapped, todo, strict=True))
     now, failed_batches = 0, []
     for fut in as_completed(futures):
