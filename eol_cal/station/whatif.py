@@ -36,7 +36,7 @@ from eol_cal.inputs import loads_json
 if TYPE_CHECKING:
     from eol_cal.ecu.session import ClientTiming
 
-#: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
+#: the largest seed a plant motor can be drawn with (``eol-cal simulate``'s): numpy's and JAX's int64, one spare
 SEED_MAX = 2**63 - 2
 #: the largest seed of a lot's motor: the dyno simulator seeds its captures' noise with
 #: ``seed * 1000 + capture`` (:func:`eol_cal.sim.rig.plant_capture`), an int64 too
