@@ -181,12 +181,11 @@ def _safe_name(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- fit
-def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
+def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
               estimator_options: int = 0, prepared: PreparedWindows | None = None) -> tuple[dict, MotorResult, Any]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
-    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame); ``capture`` may
-    also be the windows as separate captures (``eol-cal lot simulate``'s).
+    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
     ``motor`` (default the paper preset), ``mechanics`` (``None``: rigid coupling) and
     ``cache_dir`` (the serialized solvers; ``None``: none) and ``estimator_options`` (what the
@@ -205,7 +204,7 @@ def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_vers
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
                          estimator_options=estimator_options)
-    res = fit_motors(capture if isinstance(capture, list) else [capture], options, tool_version, prepared=prepared)
+    res = fit_motors([capture], options, tool_version, prepared=prepared)
     (rec,) = res.records
     return res.doc, MotorResult.from_json(rec, "<fit>", "motors[0]."), (res.inputs[0], res.fits[0], options.spec)
 
