@@ -1,8 +1,11 @@
-"""Fit results as JSON (schema ``eol-cal/fit-result/1``, keys in ``docs/json.md``).
+"""Fit results: a motor's fit judged into a typed :class:`~eol_cal.analysis.motor_result.MotorResult`,
+and the results as the JSON document at the file's edge (schema ``eol-cal/fit-result/1``, keys in
+``docs/json.md``).
 
 A motor whose fit did not converge, or whose 95 % interval is wider than the limits, gets a
-``status`` other than ``"ok"`` and ``null`` in every estimate field (``k6``, ``phase_k6``, ``c6``,
-``phase_c6``, ``delay_s``, ``harmonics``): such a fit is reported, never used.
+``status`` other than ``"ok"`` and no estimates (``null`` in every estimate field of the file:
+``k6``, ``phase_k6``, ``c6``, ``phase_c6``, ``delay_s``, ``harmonics``): such a fit is reported,
+never used.
 """
 
 from __future__ import annotations
@@ -11,13 +14,14 @@ import datetime as dt
 import json
 import math
 from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit, load_points
-from eol_cal.analysis.motor_result import FitEstimates, Harmonic, MotorResult, OperatingPoint, ValueCi
+from eol_cal.analysis.motor_result import FitEstimates, FitStatus, Harmonic, MotorResult, OperatingPoint, ValueCi
 from eol_cal.errors import InputError
 from eol_cal.jsonsafe import json_safe
 
@@ -26,10 +30,10 @@ if TYPE_CHECKING:
     from eol_cal.analysis.fit.model_check import ModelCheck
 
 SCHEMA = "eol-cal/fit-result/1"
-STATUS_OK = "ok"
-STATUS_NOT_CONVERGED = "not_converged"
-STATUS_CI_TOO_WIDE = "ci_too_wide"
-STATUS_MODEL_MISMATCH = "model_mismatch"
+STATUS_OK = FitStatus.OK
+STATUS_NOT_CONVERGED = FitStatus.NOT_CONVERGED
+STATUS_CI_TOO_WIDE = FitStatus.CI_TOO_WIDE
+STATUS_MODEL_MISMATCH = FitStatus.MODEL_MISMATCH
 
 
 @dataclass(frozen=True)
@@ -59,7 +63,7 @@ class CiLimits:
 
 
 def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelCheck | None = None
-          ) -> tuple[str, list[str]]:
+          ) -> tuple[FitStatus, list[str]]:
     """Status of a fit and the reasons it is not usable (empty when ``"ok"``); ``model_check`` the
     speed bands' agreement (:func:`eol_cal.analysis.fit.model_check.check_model`), a mismatch
     below ``limits.model_p`` makes the status ``model_mismatch``."""
@@ -118,7 +122,7 @@ def _harmonic(order: int, parts: dict[str, Estimate], k_phase_ci: bool) -> Harmo
     return Harmonic(order, **kw)
 
 
-def motor_record(
+def motor_result(
     serial: str,
     fit: MotorFit,
     spec: FitSpec,
@@ -143,8 +147,8 @@ def motor_record(
     angle_correction: str = "none",
     model_check: ModelCheck | None = None,
     current_ripple: str = "not measured",
-) -> dict[str, Any]:
-    """One entry of ``motors`` (see ``docs/json.md``).
+) -> MotorResult:
+    """One motor's judged result (an entry of the file's ``motors``, ``docs/json.md``).
 
     ``fit`` must already be in the frame named by ``frame`` (:func:`eol_cal.analysis.fit.shift_frame`);
     ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad); ``bench``
@@ -156,7 +160,9 @@ def motor_record(
     each with its reason; ``angle_correction`` how the fitted angle was corrected by the encoder's
     fingerprint (:mod:`eol_cal.analysis.fit.fp_angle`), or why not; ``model_check`` the speed
     bands' agreement (None: not run); ``current_ripple`` how the ECU's own current ripple entered
-    the fit (:func:`eol_cal.analysis.fit.capture.current_torque`).
+    the fit (:func:`eol_cal.analysis.fit.capture.current_torque`). Its objects hold what the file
+    holds (:func:`~eol_cal.jsonsafe.json_safe`: a non-finite number is None), so the result equals
+    the one :meth:`MotorResult.from_json` reads back from the file.
     """
     status, reasons = judge(fit, spec, limits, model_check)
     six = fit.harmonics[6]
@@ -208,18 +214,21 @@ def motor_record(
         model["unchecked"] = no_phase_ci
     op = operating_point(segments)
     return MotorResult(
-        serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=float(kt), kt_source=kt_source,
-        metrics=metrics, fit=fit_stats, model=model, hall_angle=hall_angle, poles=poles, encoder_ppr=encoder_ppr,
-        operating_point=OperatingPoint(op["speed_rpm"], op["i_qo_a"]), segments=tuple(segments), sources=tuple(sources),
+        serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=json_safe(float(kt)),
+        kt_source=kt_source, metrics=json_safe(metrics), fit=json_safe(fit_stats), model=json_safe(model),
+        hall_angle=json_safe(hall_angle), poles=int(poles), encoder_ppr=int(encoder_ppr),
+        operating_point=OperatingPoint(json_safe(op["speed_rpm"]), json_safe(op["i_qo_a"])),
+        segments=tuple(json_safe(segments)), sources=tuple(sources),
         mech=mech if status == STATUS_OK else None,
-        left_out=None if left_out is None else tuple(left_out),
-        model_check=None if model_check is None else model_check.to_json(),
-    ).to_json()
+        left_out=None if left_out is None else tuple((str(src), str(why)) for src, why in left_out),
+        model_check=None if model_check is None else json_safe(model_check.to_json()),
+        solver_result=fit.solver_result,
+    )
 
 
-def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
-                     solver_mode: str, tick_hz: float | None = 20000.0) -> dict[str, Any]:
-    """:func:`motor_record` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
+def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
+                     solver_mode: str, tick_hz: float | None = 20000.0) -> MotorResult:
+    """:func:`motor_result` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
 
     Moves the phases into the frame ``motor_inputs`` measured (the firmware's by default,
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
@@ -248,7 +257,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         mech = fit_mech(mi, fit, spec, tick_hz)
     check = check_model(mi.segments, fit, spec, limits.model_p,
                         bench_identified=mi.mechanics is not None and mi.mechanics.identified)
-    return motor_record(
+    return motor_result(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
@@ -270,14 +279,18 @@ def operating_point(segments: list[dict[str, Any]]) -> dict[str, float]:
     return {"speed_rpm": float(best["speed_rpm"]), "i_qo_a": float(best["i_qo_a"])}
 
 
-def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version: str) -> dict[str, Any]:
-    """The whole result file."""
+def result_document(results: Sequence[MotorResult], limits: CiLimits, tool_version: str,
+                    created: dt.datetime | None = None) -> dict[str, Any]:
+    """The whole result file: the document of ``results`` judged by ``limits`` (the file's edge:
+    the one place a fit's results become JSON). ``created``: when they were made (default now, UTC),
+    written to the second."""
+    created = created or dt.datetime.now(dt.UTC)
     return {
         "schema": SCHEMA,
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "created": created.isoformat(timespec="seconds"),
         "tool": f"eol-cal {tool_version}",
         "limits": limits.to_dict(),
-        "motors": motors,
+        "motors": [r.to_json() for r in results],
     }
 
 

@@ -143,7 +143,7 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], cache_dir: str | None 
         fitted = step(m, "fit", functools.partial(fit_motor, m.before, lim, __version__, motor, mechanics, cache, options))
         if fitted is None:
             continue
-        _doc, m.result, extra = fitted
+        _fitted, m.result, extra = fitted
         if not m.result.usable:
             m.verdict, m.reasons = "fail", [f"fit {m.result.status}: {r}" for r in m.result.reasons] or [
                 f"fit {m.result.status}"]
