@@ -10,6 +10,10 @@ import click
 
 from cli.common import CommandExit, console, err_console, estimator_bits, estimator_option, handle_errors, styled
 from cli.paths import io_paths
+from eol_cal.analysis.intervals import CiLimits
+
+#: the fit's own interval limits, the options' defaults
+_CI = CiLimits()
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import ValueCi
@@ -81,13 +85,13 @@ def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple
               help="Per-segment drift polynomial degree.")
 @click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0),
               help="Settling time dropped after each step (s).")
-@click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0),
+@click.option("--max-ci-k6", default=_CI.k6_rel, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % interval of k6, fraction of k6.")
-@click.option("--max-ci-phase", default=3.0, show_default=True, type=click.FloatRange(0.0),
+@click.option("--max-ci-phase", default=_CI.phase_k6_deg, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % interval of phase_k6 (deg).")
-@click.option("--max-ci-c6", default=0.002, show_default=True, type=click.FloatRange(0.0),
+@click.option("--max-ci-c6", default=_CI.c6_nm, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % cogging phasor error (N*m).")
-@click.option("--min-model-p", default=0.001, show_default=True, type=click.FloatRange(0.0, 1.0),
+@click.option("--min-model-p", default=_CI.model_p, show_default=True, type=click.FloatRange(0.0, 1.0),
               help="Least p-value of the model check (k6 and c6 per speed band agree); below: status model_mismatch.")
 @click.option("--max-steps", default=64, show_default=True, type=click.IntRange(1), help="Solver step limit.")
 @click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True,
@@ -121,7 +125,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
 
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
-    from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
+    from eol_cal.analysis.result import STATUS_OK, write_result
     from eol_cal.mechanics import mechanics_or_rigid
     from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.io import read_capture

@@ -13,7 +13,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-from dataclasses import dataclass
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit, load_points
+from eol_cal.analysis.intervals import CiLimits, ci_phasor, ci_rel, within
 from eol_cal.analysis.motor_result import FitEstimates, FitStatus, Harmonic, MotorResult, OperatingPoint, ValueCi
 from eol_cal.errors import InputError
 from eol_cal.jsonsafe import json_safe
@@ -36,32 +36,6 @@ STATUS_CI_TOO_WIDE = FitStatus.CI_TOO_WIDE
 STATUS_MODEL_MISMATCH = FitStatus.MODEL_MISMATCH
 
 
-@dataclass(frozen=True)
-class CiLimits:
-    """Widest 95 % intervals a usable fit may have.
-
-    Attributes
-    ----------
-    k6_rel : float
-        ci95(k6) / k6 (fraction).
-    phase_k6_deg : float
-        ci95(phase_k6) (deg).
-    c6_nm : float
-        Cogging phasor error bound max(ci95(c6), c6 * ci95(phase_c6)) (N*m); used when c6 is fitted.
-    model_p : float
-        The least p-value of the speed bands' agreement (:mod:`eol_cal.analysis.fit.model_check`):
-        below it the data contradict the model and the motor's status is ``model_mismatch``.
-    """
-
-    k6_rel: float = 0.05
-    phase_k6_deg: float = 3.0
-    c6_nm: float = 0.002
-    model_p: float = 0.001
-
-    def to_dict(self) -> dict[str, float]:
-        return {"k6_rel": self.k6_rel, "phase_k6_deg": self.phase_k6_deg, "c6_nm": self.c6_nm, "model_p": self.model_p}
-
-
 def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelCheck | None = None
           ) -> tuple[FitStatus, list[str]]:
     """Status of a fit and the reasons it is not usable (empty when ``"ok"``); ``model_check`` the
@@ -71,16 +45,17 @@ def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelChec
         return STATUS_NOT_CONVERGED, [f"solver did not converge in {fit.steps} steps (or produced non-finite values)"]
     reasons = []
     six = fit.harmonics[6]
+    # the interval quantities and their comparison are the limits table's (eol_cal.analysis.intervals)
     if spec.fit_k:
         k = six["k"]
-        if not (k.value > 0 and k.ci95 <= limits.k6_rel * k.value):
+        if not within(ci_rel(k.ci95, k.value), limits.k6_rel):
             reasons.append(f"ci95(k6) = {k.ci95:.3g} N*m/A exceeds {100 * limits.k6_rel:g} % of k6 = {k.value:.3g}")
-        if not (math.degrees(k.phase_ci95) <= limits.phase_k6_deg):
+        if not within(math.degrees(k.phase_ci95), limits.phase_k6_deg):
             reasons.append(f"ci95(phase_k6) = {math.degrees(k.phase_ci95):.3g} deg exceeds {limits.phase_k6_deg:g} deg")
     if spec.fit_c:
         c = six["c"]
-        bound = max(c.ci95, c.value * c.phase_ci95)
-        if not (bound <= limits.c6_nm):
+        bound = ci_phasor(c.ci95, c.value, c.phase_ci95)
+        if not within(bound, limits.c6_nm):
             reasons.append(f"c6 phasor ci95 = {bound:.3g} N*m exceeds {limits.c6_nm:g} N*m")
     if reasons:
         return STATUS_CI_TOO_WIDE, reasons

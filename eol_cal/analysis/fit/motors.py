@@ -19,7 +19,7 @@ from collections.abc import Callable
 from eol_cal.analysis.fit import FitSpec, MotorFit, check_identifiable, pick_mode
 from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
 from eol_cal.analysis.motor_result import MotorResult
-from eol_cal.analysis.result import CiLimits
+from eol_cal.analysis.intervals import CiLimits
 from eol_cal.capture.model import Capture
 from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
 from eol_cal.mechanics import BenchMechanics, load_mechanics
