@@ -186,6 +186,8 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
             err_console.print(f"{r.serial}: capture {source} left out of the fit: {why}")
         for reason in r.reasons:
             err_console.print(f"{r.serial}: {reason}")
+        if r.solver_result not in (None, "successful"):  # optimistix's name for how it ended
+            err_console.print(f"{r.serial}: the solver ended with {r.solver_result}")
         if (r.model_check or {}).get("status") == "insensitive":
             err_console.print(f"{r.serial}: warning: model check insensitive: {r.model_check['note']}")
         if "unchecked" in r.model:

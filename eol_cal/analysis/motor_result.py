@@ -121,8 +121,9 @@ class MotorResult:
         None: a result older than it).
     solver_result : str or None
         How the solver ended, the name of optimistix's ``RESULTS`` (``successful``,
-        ``max_steps_reached``, ...: :attr:`eol_cal.analysis.fit.MotorFit.solver_result`); None for a
-        result read from a file, which keeps only ``fit.converged``.
+        ``max_steps_reached``, ...: :attr:`eol_cal.analysis.fit.MotorFit.solver_result`; ``nonfinite``
+        also where its values or their variances are not finite): ``successful`` exactly when the
+        fit converged. None for a result read from a file, which keeps only ``fit.converged``.
     """
 
     serial: str

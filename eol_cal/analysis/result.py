@@ -197,7 +197,8 @@ def motor_result(
         mech=mech if status == STATUS_OK else None,
         left_out=None if left_out is None else tuple((str(src), str(why)) for src, why in left_out),
         model_check=None if model_check is None else json_safe(model_check.to_json()),
-        solver_result=fit.solver_result,
+        # values that are not finite: optimistix's own name for it, whatever the solver said
+        solver_result=fit.solver_result if fit.finite else "nonfinite",
     )
 
 
