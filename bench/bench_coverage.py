@@ -34,8 +34,12 @@ import argparse
 import math
 import os
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult, ValueCi
 
 #: quantities whose value and truth are angles (rad): errors wrapped to (-pi, pi]
 PHASES = ("phase_k6", "phase_c6", "phase_k6_eff", "phase_c6_eff", "phase_mech1", "phase_mech2", "phase_mech3")
@@ -123,8 +127,8 @@ def _circmean(x: np.ndarray) -> float:
     return float(np.angle(np.mean(np.exp(1j * x))))
 
 
-def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
-    """Per reported interval of one motor: quantity, estimate, ci95, truth, error (rad wrapped for phases)."""
+def motor_rows(p, run, mi, res: MotorResult, cur: dict[str, complex] | None) -> list[dict]:
+    """Per reported interval of one motor's result: quantity, estimate, ci95, truth, error (rad wrapped for phases)."""
     from eol_cal.analysis import fingerprint as fpr
     from eol_cal.analysis.fingerprint_fit import low_order_complement
     from eol_cal.firmware.kinematics import fingerprint_of
@@ -132,20 +136,21 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
     from eol_cal.numerics.wrap import wrap_pi
 
     out: list[dict] = []
-    if rec["status"] != "ok":
-        return [{"quantity": "status", "value": rec["status"], "reasons": rec["reasons"]}]
+    e = res.estimates
+    if not res.usable or e is None:
+        return [{"quantity": "status", "value": str(res.status), "reasons": list(res.reasons)}]
     seg = mi.segments
     idx = np.concatenate([np.arange(o.start, o.stop) for o in mi.info])
     # the firmware estimator's frame on this run, against the plant's true angle (rad electrical)
     d_fw = _circmean(np.asarray(run.theta_hat)[idx] - np.asarray(run.theta_r)[idx])
 
-    def add(q, est, truth):
-        if est is None or est["value"] is None:
+    def add(q: str, est: ValueCi, truth: float) -> None:
+        if est.value is None:
             return
-        err = est["value"] - truth
+        err = est.value - truth
         if q in PHASES:
             err = float(wrap_pi(err))
-        out.append({"quantity": q, "value": est["value"], "ci95": est["ci95"], "truth": float(truth), "err": float(err)})
+        out.append({"quantity": q, "value": est.value, "ci95": est.ci95, "truth": float(truth), "err": float(err)})
 
     # the fit's frame offset (firmware frame minus its own, fingerprint-corrected, angle) against
     # the truth; no interval of its own: its error moves harmonic h's phases by -h times it
@@ -156,15 +161,15 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
     plant_ph = {"k": p.k6 * np.exp(1j * p.phase_k6), "c": p.c6 * np.exp(1j * p.phase_c6)}
     for part in ("k", "c"):
         z = plant_ph[part]
-        add(f"{part}6", rec[f"{part}6"], abs(z))
-        add(f"phase_{part}6", rec[f"phase_{part}6"], np.angle(z) - 6 * d_fw)
+        add(f"{part}6", getattr(e, f"{part}6"), abs(z))
+        add(f"phase_{part}6", getattr(e, f"phase_{part}6"), np.angle(z) - 6 * d_fw)
         if cur is not None:
             z = z + cur[part]
-            add(f"{part}6_eff", rec[f"{part}6"], abs(z))
-            add(f"phase_{part}6_eff", rec[f"phase_{part}6"], np.angle(z) - 6 * d_fw)
+            add(f"{part}6_eff", getattr(e, f"{part}6"), abs(z))
+            add(f"phase_{part}6_eff", getattr(e, f"phase_{part}6"), np.angle(z) - 6 * d_fw)
     f6 = sorted({round(6 * abs(float(o.speed_rpm)) * mi.poles / 2 / 60.0, 3) for o in mi.info})
-    add("delay_s", rec["delay_s"], chain_delay_s(p, np.array(f6)))
-    mech = rec.get("mech")
+    add("delay_s", e.delay_s, chain_delay_s(p, np.array(f6)))
+    mech = res.mech
     fp = mi.fingerprint
     if not mech or fp is None or mi.prints is None:
         return out
@@ -179,17 +184,17 @@ def motor_rows(p, run, mi, rec, cur: dict[str, complex] | None) -> list[dict]:
                                           np.asarray(seg.theta[s]) + mi.frame_offset_rad, mi.poles, mi.encoder_ppr)
         diffs.append(th_b - np.asarray(run.theta_m)[info.start:info.stop])
     delta = _circmean(np.concatenate(diffs))
-    for o in mech["orders"]:
-        h = o["order"]
-        add(f"mech{h}", o["c"], getattr(p, f"unb{h}"))
+    for o in mech.orders:
+        h = o.order
+        add(f"mech{h}", o.c, getattr(p, f"unb{h}"))
         if getattr(p, f"unb{h}") > 0:
-            add(f"phase_mech{h}", o["phase_c"], getattr(p, f"phase_unb{h}") - h * delta)
+            add(f"phase_mech{h}", o.phase_c, getattr(p, f"phase_unb{h}") - h * delta)
     # the fingerprint: the plant's edge errors in the block's numbering, orders 0..2 out per half
     N = mi.encoder_ppr
     true_fp, _ = fingerprint_of(sensor_errors(to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0)), mi.poles)
     P = low_order_complement(N)
-    got = np.asarray(mech["fingerprint"], float)
-    sig = np.array([np.inf if s is None else s for s in mech["sigma"]], float)
+    got = np.asarray(mech.fingerprint, float)
+    sig = np.array([np.inf if s is None else s for s in mech.sigma], float)
     best = None
     for r in range(N):
         cand = np.roll(true_fp, -2 * r).copy()
@@ -259,10 +264,10 @@ def main() -> None:
             _, runs, clean = prepared_runs(plants, cal, best, first, args.effective)
             t_sim += time.perf_counter() - t0
             inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
-            recs = fit_inputs(inputs, options).records
-            for p, run, cl, mi, rec in zip(plants, runs, clean, inputs, recs, strict=True):
+            results = fit_inputs(inputs, options).results
+            for p, run, cl, mi, res in zip(plants, runs, clean, inputs, results, strict=True):
                 cur = current_ripple(cl, spec) if cl is not None else None
-                for row in motor_rows(p, run, mi, rec, cur):
+                for row in motor_rows(p, run, mi, res, cur):
                     rows.append({"seed": p.serial, **row})
             progress.update(task, completed=len(seeds) + first - args.first_seed)
     wall = time.perf_counter() - t_start

@@ -112,8 +112,8 @@ def main() -> None:
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
     from eol_cal.numerics.wrap import wrap_pi
     from eol_cal.analysis.fit.capture import motor_inputs
-    from eol_cal.analysis.fit.table import block_from_record
-    from eol_cal.analysis.result import CiLimits, record_for_motor
+    from eol_cal.analysis.fit.table import block_from_result
+    from eol_cal.analysis.result import CiLimits, result_for_motor
     from eol_cal.domain.bench_mechanics import load_mechanics
     from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.profile import load_profile
@@ -125,7 +125,6 @@ def main() -> None:
     from bench_coverage import current_ripple, motor_rows, prepared_runs
 
     from eol_cal.analysis.fit.table import mech_off_reasons
-    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.firmware.contract import FLAG_EST_LEARN_PITCH_ERRORS
     from eol_cal.firmware.options import options_label, parse_options
 
@@ -170,16 +169,15 @@ def main() -> None:
                 for r in runs:
                     (mi_n,) = motor_inputs([r.capture], mechanics=bench, hall_angle="nominal", estimator_options=opt)
                     (f_n,) = fit_many([mi_n.segments], spec, mode="loop")
-                    rec_n = record_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
-                    blocks_nom.append(block_from_record(rec_n, motor, options=opt, layout=1)
-                                      if rec_n["status"] == "ok" else None)
+                    res_n = result_for_motor(mi_n, f_n, spec, CiLimits(), metrics={}, solver_mode="loop")
+                    blocks_nom.append(block_from_result(res_n, motor, options=opt, layout=1) if res_n.usable else None)
             for p, mi, f, run, cl in zip(plants, inputs, fits, runs, clean, strict=True):
                 # frame offsets (rad, electrical): the reconstruction's and the firmware estimator's
                 # angle against the plant's true angle; a frame offset d moves the 6th's phase by -6 d
                 d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
                 # as eol-cal fit writes it (phases in the firmware estimator's frame, measured hall
                 # table); f_fw: the same phases with their uncertainty, also for an unusable fit
-                rec = record_for_motor(mi, f, spec, CiLimits(), metrics={}, solver_mode="loop")
+                res = result_for_motor(mi, f, spec, CiLimits(), metrics={}, solver_mode="loop")
                 f_fw = shift_frame(f, mi.frame_offset_rad)
                 k_rec = f.harmonics[6]["k"]
                 six = f_fw.harmonics[6]
@@ -187,7 +185,7 @@ def main() -> None:
                 c_err = abs(c.value * np.exp(1j * c.phase) - p.c6 * np.exp(1j * p.phase_c6))
                 k_eff = abs(p.k6 * np.exp(1j * p.phase_k6) + (current_ripple(cl, spec)["k"] if cl is not None else 0.0))
                 rows.append({
-                    "seed": p.serial, "estimator": label, "status": rec["status"],
+                    "seed": p.serial, "estimator": label, "status": str(res.status),
                     "k6_err_pct": 100 * (k.value - p.k6) / p.k6,
                     "k6_eff_err_pct": 100 * (k.value - k_eff) / k_eff,
                     "k6_current_pct": 100 * (k_eff - p.k6) / p.k6,
@@ -201,21 +199,23 @@ def main() -> None:
                     "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
                     "hall_source": mi.hall.source,
                 })
-                usable = rec["status"] == "ok"
-                blocks.append(block_from_record(rec, motor, options=opt, layout=1) if usable else None)
-                blocks_mech.append(block_from_record(rec, motor, options=opt) if usable else None)
-                mech = rec.get("mech") or {}
+                usable = res.usable
+                blocks.append(block_from_result(res, motor, options=opt, layout=1) if usable else None)
+                blocks_mech.append(block_from_result(res, motor, options=opt) if usable else None)
+                mech = res.mech
                 # the block's switch: the fit's mechanical status and the estimator options it needs
-                off = mech_off_reasons(MotorResult.from_json(rec), blocks_mech[-1].flags) if usable else ["fit not usable"]
+                block_mech = blocks_mech[-1]
+                off = mech_off_reasons(res, block_mech.flags) if block_mech is not None else ["fit not usable"]
+                order1 = next((o for o in mech.orders if o.order == 1), None) if mech is not None else None
                 rows[-1].update({
                     "mech_status": "ok" if not off else "off", "mech_reasons": off,
-                    "mech_margin": (mech.get("margin") or {}).get("predicted", float("nan")),
-                    "mech_score": (mech.get("margin") or {}).get("score", float("nan")),
-                    "mech1_nm": next((o["c"]["value"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
-                    "mech1_ci_nm": next((o["c"]["ci95"] for o in mech.get("orders", []) if o["order"] == 1), float("nan")),
+                    "mech_margin": mech.margin if mech is not None else float("nan"),
+                    "mech_score": mech.score if mech is not None else float("nan"),
+                    "mech1_nm": order1.c.value if order1 is not None else float("nan"),
+                    "mech1_ci_nm": order1.c.ci95 if order1 is not None else float("nan"),
                 })
                 # the mechanical orders against the plant's, in the block's frame (bench_coverage.py)
-                for q in motor_rows(p, run, mi, rec, None):
+                for q in motor_rows(p, run, mi, res, None):
                     if q["quantity"].startswith(("mech", "phase_mech")):
                         rows[-1][f"_{q['quantity']}"] = (q["value"], q["ci95"], q["truth"], q["err"])
                 truths.append(true_block(p, flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | opt))

@@ -2,12 +2,21 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
 from cli.common import CommandExit, console, err_console, estimator_bits, estimator_option, handle_errors, styled
 from cli.paths import io_paths
+from eol_cal.analysis.intervals import CiLimits
+
+#: the fit's own interval limits, the options' defaults
+_CI = CiLimits()
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import ValueCi
 
 
 def enable_jax_cache() -> Path | None:
@@ -76,13 +85,13 @@ def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple
               help="Per-segment drift polynomial degree.")
 @click.option("--settle", "settle_s", default=0.1, show_default=True, type=click.FloatRange(0.0),
               help="Settling time dropped after each step (s).")
-@click.option("--max-ci-k6", default=0.05, show_default=True, type=click.FloatRange(0.0),
+@click.option("--max-ci-k6", default=_CI.k6_rel, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % interval of k6, fraction of k6.")
-@click.option("--max-ci-phase", default=3.0, show_default=True, type=click.FloatRange(0.0),
+@click.option("--max-ci-phase", default=_CI.phase_k6_deg, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % interval of phase_k6 (deg).")
-@click.option("--max-ci-c6", default=0.002, show_default=True, type=click.FloatRange(0.0),
+@click.option("--max-ci-c6", default=_CI.c6_nm, show_default=True, type=click.FloatRange(0.0),
               help="Widest 95 % cogging phasor error (N*m).")
-@click.option("--min-model-p", default=0.001, show_default=True, type=click.FloatRange(0.0, 1.0),
+@click.option("--min-model-p", default=_CI.model_p, show_default=True, type=click.FloatRange(0.0, 1.0),
               help="Least p-value of the model check (k6 and c6 per speed band agree); below: status model_mismatch.")
 @click.option("--max-steps", default=64, show_default=True, type=click.IntRange(1), help="Solver step limit.")
 @click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True,
@@ -116,7 +125,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
 
     from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
-    from eol_cal.analysis.result import STATUS_OK, CiLimits, write_result
+    from eol_cal.analysis.result import STATUS_OK, write_result
     from eol_cal.domain.bench_mechanics import mechanics_or_rigid
     from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.io import read_capture
@@ -149,7 +158,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     with Progress(console=err_console, transient=True, disable=len(serials) < 2) as progress:
         task = progress.add_task("fitting", total=len(serials))
         res = fit_motors(caps, options, progress=lambda n: progress.update(task, completed=n))
-    doc, records = res.doc, res.records
+    results = res.results
     if plot_dir:
         from eol_cal.analysis.fit.plot import plot_fit, plot_residual_spectrum
 
@@ -158,44 +167,56 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
             safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in mi.serial)
             plot_fit(Path(plot_dir) / f"{safe}_fit.png", mi, f, spec)
             plot_residual_spectrum(Path(plot_dir) / f"{safe}_residual.png", mi, f, spec)
+    doc = res.to_json()
     write_result(doc, output)
 
-    table = Table(title=f"ripple fit, values ± 95 % ({len(records)} motor{'s' if len(records) != 1 else ''})")
+    table = Table(title=f"ripple fit, values ± 95 % ({len(results)} motor{'s' if len(results) != 1 else ''})")
     for col in ("serial", "status", "k6 mN*m/A", "φk6 deg", "c6 mN*m", "φc6 deg", "τ µs", "rms mN*m", "R²", "steps"):
         table.add_column(col, justify="right" if col not in ("serial", "status") else "left", no_wrap=col == "serial")
-    import math
-
-    def pm(e, scale, deg=False):
-        if e is None or e["value"] is None:
-            return "-"
-        f = (lambda v: math.degrees(v)) if deg else (lambda v: v * scale)
-        if e["ci95"] is None:
-            return f"{f(e['value']):.4g}"
-        ci = float(f"{f(e['ci95']):.2g}")  # two significant digits, written out ("100", not "1e+02")
-        return f"{f(e['value']):.4g}±{ci:g}"
-
-    for r in records:
+    for r in results:
+        e = r.estimates
         table.add_row(
-            r["serial"], r["status"] if r["status"] == STATUS_OK else styled((r["status"], "red")),
-            pm(r["k6"], 1e3), pm(r["phase_k6"], 1, True), pm(r["c6"], 1e3), pm(r["phase_c6"], 1, True),
-            pm(r["delay_s"], 1e6), f"{r['fit']['rms'] * 1e3:.3g}", f"{r['fit']['r2']:.3f}", str(r["fit"]["steps"]),
+            r.serial, r.status if r.status == STATUS_OK else styled((r.status, "red")),
+            *(_pm(None if e is None else getattr(e, key), scale, deg) for key, scale, deg in _ESTIMATE_COLUMNS),
+            f"{r.fit['rms'] * 1e3:.3g}", f"{r.fit['r2']:.3f}", str(r.fit["steps"]),
         )
     (err_console if as_json else console).print(table)
-    for r in records:
-        for left in r.get("captures_left_out", []):
-            err_console.print(f"{r['serial']}: capture {left['source']} left out of the fit: {left['reason']}")
-        for reason in r["reasons"]:
-            err_console.print(f"{r['serial']}: {reason}")
-        if (r.get("model_check") or {}).get("status") == "insensitive":
-            err_console.print(f"{r['serial']}: warning: model check insensitive: {r['model_check']['note']}")
-        if "unchecked" in r["model"]:
-            err_console.print(f"{r['serial']}: {r['model']['unchecked']}")
+    for r in results:
+        for source, why in r.left_out or ():
+            err_console.print(f"{r.serial}: capture {source} left out of the fit: {why}")
+        for reason in r.reasons:
+            err_console.print(f"{r.serial}: {reason}")
+        if r.solver_result not in (None, "successful"):  # optimistix's name for how it ended
+            err_console.print(f"{r.serial}: the solver ended with {r.solver_result}")
+        if (r.model_check or {}).get("status") == "insensitive":
+            err_console.print(f"{r.serial}: warning: model check insensitive: {r.model_check['note']}")
+        if "unchecked" in r.model:
+            err_console.print(f"{r.serial}: {r.model['unchecked']}")
     if as_json:
         import json
 
         click.echo(json.dumps(doc, indent=2, allow_nan=False))
-    if any(r["status"] != STATUS_OK for r in records):
+    if any(r.status != STATUS_OK for r in results):
         raise CommandExit(1)
+
+
+#: the table's estimate columns: the estimate, the factor to the unit shown, a phase shown in deg
+_ESTIMATE_COLUMNS = (("k6", 1e3, False), ("phase_k6", 1.0, True), ("c6", 1e3, False), ("phase_c6", 1.0, True),
+                     ("delay_s", 1e6, False))
+
+
+def _pm(e: ValueCi | None, scale: float, deg: bool = False) -> str:
+    """An estimate and its 95 % interval as the table shows them (``-``: none)."""
+    if e is None or e.value is None:
+        return "-"
+
+    def f(v: float) -> float:
+        return math.degrees(v) if deg else v * scale
+
+    if e.ci95 is None:
+        return f"{f(e.value):.4g}"
+    ci = float(f"{f(e.ci95):.2g}")  # two significant digits, written out ("100", not "1e+02")
+    return f"{f(e.value):.4g}±{ci:g}"
 
 
 COMMANDS = [fit_cmd]

@@ -140,6 +140,8 @@ def test_not_converged_exits_1_without_values_and_no_table(files, tmp_path):
     assert res.exit_code == 1
     m = json.loads(out.read_text())["motors"][0]
     assert m["status"] == "not_converged" and m["k6"] is None and m["phase_k6"] is None and m["reasons"]
+    # how the solver ended, by optimistix's name (the file keeps fit.converged only)
+    assert "M-0007: the solver ended with nonlinear_max_steps_reached" in res.stderr
     # and no table from it (ci_too_wide is judged the same way: tests/test_fit_core.py)
     res = CliRunner().invoke(cli, ["table", str(out), "-o", str(tmp_path / "b.bin")])
     assert res.exit_code == 1 and "not_converged" in res.output

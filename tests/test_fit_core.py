@@ -10,7 +10,7 @@ import pytest
 from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
 from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.analysis.fit.synth import synthetic_segments
-from eol_cal.analysis.result import STATUS_CI_TOO_WIDE, STATUS_NOT_CONVERGED, STATUS_OK, CiLimits, judge, motor_record
+from eol_cal.analysis.result import STATUS_CI_TOO_WIDE, STATUS_NOT_CONVERGED, STATUS_OK, CiLimits, judge, motor_result
 from eol_cal.errors import InputError
 
 # three load points: with two speeds (or two directions) six segments, one compiled shape for most tests
@@ -121,14 +121,17 @@ def test_non_convergence_is_reported_never_as_a_result():
     assert not f.converged and f.steps == 1
     status, reasons = judge(f, spec, CiLimits())
     assert status == STATUS_NOT_CONVERGED and reasons
-    rec = motor_record(
+    res = motor_result(
         "X", f, spec, CiLimits(), kt=0.049, kt_source="test", poles=6, encoder_ppr=64, sources=[],
         segments=[{"i_qo_a": 20.0, "speed_rpm": 300.0}], metrics={}, solver_mode="loop",
     )
-    assert rec["status"] == STATUS_NOT_CONVERGED
+    # the result keeps how the solver ended, not only that it failed
+    assert res.status == STATUS_NOT_CONVERGED and res.estimates is None and not res.usable
+    assert f.solver_result == res.solver_result != "successful"
+    rec = res.to_json()
     for key in ("k6", "phase_k6", "c6", "phase_c6", "delay_s", "harmonics"):
         assert rec[key] is None
-    assert rec["fit"]["converged"] is False
+    assert rec["status"] == "not_converged" and rec["fit"]["converged"] is False
 
 
 def test_interval_wider_than_limit_is_not_a_result():

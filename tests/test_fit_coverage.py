@@ -46,10 +46,10 @@ def test_every_reported_interval_covers_the_truth_on_plant_motors():
     clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], load_profile("eol-default"),
                      mode="estimated", blocks=prepared, seed=2001)
     inputs = [motor_inputs([r.capture], mechanics=load_mechanics("paper"), estimator_options=best)[0] for r in runs]
-    recs = fit_inputs(inputs, FitOptions(capture_metrics=False, estimator_options=best)).records
+    results = fit_inputs(inputs, FitOptions(capture_metrics=False, estimator_options=best)).results
     rows = []
-    for p, run, cl, mi, rec in zip(plants, runs, clean, inputs, recs, strict=True):
-        rows += bench.motor_rows(p, run, mi, rec, bench.current_ripple(cl, FitSpec()))
+    for p, run, cl, mi, res in zip(plants, runs, clean, inputs, results, strict=True):
+        rows += bench.motor_rows(p, run, mi, res, bench.current_ripple(cl, FitSpec()))
     assert sum(r["quantity"] == "status" for r in rows) <= 1  # a false model mismatch is rare
     cover = {q: (n, c) for q, n, c, _, _ in bench.summary(rows)}
     # k6 against the plant's own: the fit takes the ECU's current ripple out (the iq channel)

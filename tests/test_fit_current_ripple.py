@@ -131,11 +131,11 @@ def test_mechanical_orders_2_and_3_within_10_percent_and_3_deg():
     torque_only = [dataclasses.replace(mi, segments=dataclasses.replace(mi.segments, kt_iq=None)) for mi in inputs]
     worst = {}
     for name, ins in (("current known", inputs), ("torque only", torque_only)):
-        recs = fit_inputs(ins, FitOptions(capture_metrics=False, estimator_options=best)).records
+        results = fit_inputs(ins, FitOptions(capture_metrics=False, estimator_options=best)).results
         amp, phase = [], []
-        for p, run, mi, rec in zip(plants, runs, ins, recs, strict=True):
-            rows = {r["quantity"]: r for r in bench.motor_rows(p, run, mi, rec, None)}
-            assert rec["status"] == "ok", (name, p.serial, rec["reasons"])
+        for p, run, mi, res in zip(plants, runs, ins, results, strict=True):
+            rows = {r["quantity"]: r for r in bench.motor_rows(p, run, mi, res, None)}
+            assert res.status == "ok", (name, p.serial, res.reasons)
             for h in (2, 3):
                 amp.append(abs(rows[f"mech{h}"]["err"]) / rows[f"mech{h}"]["truth"])
                 phase.append(math.degrees(abs(rows[f"phase_mech{h}"]["err"])))

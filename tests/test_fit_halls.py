@@ -91,16 +91,16 @@ def test_measured_table_brings_the_ecu_angle_closer(plant_motor):
 @pytest.mark.slow
 def test_record_and_block_carry_the_measured_table(plant_motor):
     from eol_cal.analysis.fit import FitSpec, fit_many
-    from eol_cal.analysis.fit.table import block_from_record
-    from eol_cal.analysis.result import CiLimits, record_for_motor
+    from eol_cal.analysis.fit.table import block_from_result
+    from eol_cal.analysis.result import CiLimits, result_for_motor
     from eol_cal.domain.motor_params import load_motor
 
     _, _, mi = plant_motor
     (f,) = fit_many([mi.segments], FitSpec())
-    rec = record_for_motor(mi, f, FitSpec(), CiLimits(), metrics={}, solver_mode="loop")
-    assert rec["status"] == "ok", rec["reasons"]
-    assert rec["hall_angle"]["source"] == "measured"
-    block = block_from_record(rec, load_motor("paper"))
+    res = result_for_motor(mi, f, FitSpec(), CiLimits(), metrics={}, solver_mode="loop")
+    assert res.status == "ok", res.reasons
+    assert res.hall_angle is not None and res.hall_angle["source"] == "measured"
+    block = block_from_result(res, load_motor("paper"))
     assert np.allclose(block.hall_angle, mi.hall.hall_angle)
     assert not np.allclose(block.hall_angle, NOMINAL_HALL_ANGLE, atol=math.radians(0.2))
 

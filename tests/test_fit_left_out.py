@@ -44,14 +44,16 @@ def test_short_captures_at_two_speeds_are_refused_for_their_real_cause():
 def test_a_capture_left_out_is_named_in_the_result(tmp_path):
     caps = _caps([(120, 20), (120, 65), (-120, 65)], 0.6) + _caps([(60, 40)], 0.45)
     res = fit_motors(caps, FitOptions(capture_metrics=False, frame="offline"))
-    (rec,) = res.records
-    assert [e["source"] for e in rec["captures_left_out"]] == ["cap_60rpm_40A.csv"]
-    assert "too short" in rec["captures_left_out"][0]["reason"]
-    assert "cap_60rpm_40A.csv" not in {s["source"] for s in rec["segments"]}
-    validator("fit-result").validate(res.doc)
+    (result,) = res.results
+    assert result.left_out is not None and [src for src, _ in result.left_out] == ["cap_60rpm_40A.csv"]
+    assert "too short" in result.left_out[0][1]
+    assert "cap_60rpm_40A.csv" not in {s["source"] for s in result.segments}
+    doc = res.to_json()
+    validator("fit-result").validate(doc)
+    (rec,) = doc["motors"]
+    assert rec["captures_left_out"] == [{"source": "cap_60rpm_40A.csv", "reason": result.left_out[0][1]}]
     back = MotorResult.from_json(json.loads(json.dumps(rec)))
-    assert back.left_out == (("cap_60rpm_40A.csv", rec["captures_left_out"][0]["reason"]),)
-    assert back.to_json()["captures_left_out"] == rec["captures_left_out"]
+    assert back.left_out == result.left_out
 
 
 def test_fit_cli_names_the_left_out_capture_on_stderr(tmp_path):

@@ -12,9 +12,8 @@ import pytest
 
 from eol_cal.analysis.fit import FitSpec
 from eol_cal.analysis.fit.motors import FitOptions, fit_motors
-from eol_cal.analysis.fit.table import block_from_record, mech_off_reasons
+from eol_cal.analysis.fit.table import block_from_result, mech_off_reasons
 from eol_cal.analysis.metrics import capture_ripple_pp
-from eol_cal.analysis.motor_result import MotorResult
 from eol_cal.firmware import block as B
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
 from eol_cal.plant.profile import load_profile
@@ -29,15 +28,15 @@ def calibrated():
     plants, runs = station_runs()
     fitted = fit_motors([r.capture for r in runs], FitOptions(spec=FitSpec(), capture_metrics=False,
                                                               estimator_options=BEST))
-    return plants, runs, fitted.records
+    return plants, runs, fitted.results
 
 
 def test_the_fit_measures_the_fingerprint_and_the_orders(calibrated):
-    plants, _, recs = calibrated
-    rec = recs[0]
-    assert rec["status"] == "ok"
-    mech = MotorResult.from_json(rec).mech
-    assert mech.status == "ok" and mech.reasons == () and mech.dirs & 1
+    plants, _, results = calibrated
+    res = results[0]
+    assert res.status == "ok"
+    mech = res.mech
+    assert mech is not None and mech.status == "ok" and mech.reasons == () and mech.dirs & 1
     assert mech.margin >= mech.threshold and mech.windows == (0,)
     # order 1: the rotor's unbalance (plus what the encoder's placement makes of it), with an interval
     o1 = mech.orders[0]
@@ -49,20 +48,20 @@ def test_the_fit_measures_the_fingerprint_and_the_orders(calibrated):
 
 
 def test_a_weak_fingerprint_switches_mech_off_with_the_reason(calibrated):
-    _, _, recs = calibrated
-    res = MotorResult.from_json(recs[1])
-    assert res.status == "ok" and res.mech.status == "off"
+    _, _, results = calibrated
+    res = results[1]
+    assert res.status == "ok" and res.mech is not None and res.mech.status == "off"
     assert any("too weak" in r for r in res.mech.reasons)
-    blk = block_from_record(recs[1], MOTOR, options=BEST)
+    blk = block_from_result(res, MOTOR, options=BEST)
     assert blk.layout_version == 2 and not blk.flags & FLAG_MECH_COMP_ENABLE
     assert mech_off_reasons(res, blk.flags) and B.check(B.pack(blk)).valid
 
 
 @pytest.mark.slow  # a compensated plant run; the fit tests keep the module in the fast loop
 def test_the_layout_2_block_identifies_in_the_pre_roll_and_cancels_order_1(calibrated):
-    plants, _, recs = calibrated
-    six = [block_from_record(r, MOTOR, options=BEST, layout=1) for r in recs]
-    two = [block_from_record(r, MOTOR, options=BEST) for r in recs]
+    plants, _, results = calibrated
+    six = [block_from_result(r, MOTOR, options=BEST, layout=1) for r in results]
+    two = [block_from_result(r, MOTOR, options=BEST) for r in results]
     assert two[0].flags & FLAG_MECH_COMP_ENABLE
     point = load_profile("paper")
     a6 = simulate(plants, point, mode="compensated", blocks=six, seed=99)
@@ -80,13 +79,12 @@ def test_the_layout_2_block_identifies_in_the_pre_roll_and_cancels_order_1(calib
 def test_a_dyno_capture_of_windows_gives_the_same_frame_and_orders(calibrated):
     """The station's capture is one window per profile segment (the count lost between them): the
     windows are placed by the halls and the fingerprint; the orders agree with the continuous capture's."""
-    _, runs, recs = calibrated
+    _, runs, results = calibrated
     cap = runs[0].capture
     joined = station_windows(cap, load_profile("eol-default"))
-    rec = fit_motors([joined], FitOptions(capture_metrics=False, estimator_options=BEST)).records[0]
-    mech = MotorResult.from_json(rec).mech
-    ref = MotorResult.from_json(recs[0]).mech
-    assert mech.status == "ok" and sum(w is not None for w in mech.windows) >= 6
+    mech = fit_motors([joined], FitOptions(capture_metrics=False, estimator_options=BEST)).results[0].mech
+    ref = results[0].mech
+    assert mech is not None and ref is not None and mech.status == "ok" and sum(w is not None for w in mech.windows) >= 6
     o, r = mech.orders[0], ref.orders[0]
     assert abs(o.c.value - r.c.value) < 3 * (o.c.ci95 + r.c.ci95)
     assert abs(mech.margin - ref.margin) < 0.1
@@ -96,9 +94,9 @@ def test_a_dyno_capture_of_windows_gives_the_same_frame_and_orders(calibrated):
 def test_a_layout_1_block_runs_exactly_as_revision_1_1(calibrated):
     """The plant's ECU with a layout-1 block and with the same block as layout 2, MECH off: the
     identifier does not run and every sample is the same."""
-    plants, _, recs = calibrated
-    one = block_from_record(recs[0], MOTOR, options=BEST, layout=1)
-    off = dataclasses.replace(block_from_record(recs[0], MOTOR, options=BEST),
+    plants, _, results = calibrated
+    one = block_from_result(results[0], MOTOR, options=BEST, layout=1)
+    off = dataclasses.replace(block_from_result(results[0], MOTOR, options=BEST),
                               flags=one.flags)  # layout 2, MECH_COMP_ENABLE clear
     point = load_profile("paper")
     (r1,) = simulate(plants[0], point, mode="compensated", blocks=one, seed=5)

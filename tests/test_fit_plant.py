@@ -11,9 +11,9 @@ import pytest
 from eol_cal.analysis.fit import FitSpec, fit_many
 from eol_cal.numerics.wrap import wrap_pi
 from eol_cal.analysis.fit.capture import motor_inputs
-from eol_cal.analysis.fit.table import block_from_record
+from eol_cal.analysis.fit.table import block_from_result
 from eol_cal.analysis.metrics import capture_ripple_pp
-from eol_cal.analysis.result import CiLimits, motor_record
+from eol_cal.analysis.result import CiLimits, motor_result
 from eol_cal.firmware.block import check, pack
 from eol_cal.domain.motor_params import load_motor
 from eol_cal.plant.presets import paper
@@ -39,14 +39,15 @@ def test_fit_table_and_compensated_plant_close_the_loop():
     fs = FitSpec()
     (fit,) = fit_many([mi.segments], fs)
     segs = [{"i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm} for i in mi.info]
-    rec = motor_record(mi.serial, fit, fs, CiLimits(), kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
+    res = motor_result(mi.serial, fit, fs, CiLimits(), kt=mi.kt, kt_source=mi.kt_source, poles=mi.poles,
                        encoder_ppr=mi.encoder_ppr, sources=[], segments=segs, metrics={}, solver_mode="loop")
-    assert rec["status"] == "ok", rec["reasons"]
-    assert abs(rec["k6"]["value"] - spec.k6) < 0.05 * spec.k6
-    assert abs(wrap_pi(rec["phase_k6"]["value"] - spec.phase_k6)) < math.radians(3)
+    assert res.status == "ok" and res.estimates is not None, res.reasons
+    e = res.estimates
+    assert abs(e.k6.value - spec.k6) < 0.05 * spec.k6
+    assert abs(wrap_pi(e.phase_k6.value - spec.phase_k6)) < math.radians(3)
     # the plant's transducer is a first-order low-pass; the fit's time constant should match it
-    assert abs(rec["delay_s"]["value"] - 1 / (2 * math.pi * spec.tq_bw_hz)) < 0.2 / (2 * math.pi * spec.tq_bw_hz)
-    block = block_from_record(rec, load_motor("paper"))
+    assert abs(e.delay_s.value - 1 / (2 * math.pi * spec.tq_bw_hz)) < 0.2 / (2 * math.pi * spec.tq_bw_hz)
+    block = block_from_result(res, load_motor("paper"))
     assert check(pack(block)).valid
 
     point = Profile("check", (ProfileSegment(120.0, 0.6, iq=65.0),))

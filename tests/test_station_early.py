@@ -38,7 +38,7 @@ def test_a_fit_on_the_early_windows_equals_the_fit_of_the_capture_file(tmp_path)
     # every window's angle and part of the firmware frame came from the work done as it arrived
     assert early.used == early.frames_used == len(SEGMENTS)
     from_file = fit_motors([read_capture(tmp_path / "cap.mf4")], options, "t")
-    a, b = with_early.doc["motors"][0], from_file.doc["motors"][0]
+    a, b = with_early.results[0].to_json(), from_file.results[0].to_json()
     # everything but the capture's name (in memory "dyno", from the file its path) is the same
     for key in ("status", "reasons", "k6", "c6", "phase_k6", "phase_c6", "delay_s", "harmonics", "fit", "hall_angle",
                 "operating_point"):

@@ -1,8 +1,10 @@
 """One motor's fit result as a typed object: the one reader and writer of a ``motors`` entry.
 
-:meth:`MotorResult.from_json` checks an entry of an ``eol-cal/fit-result/1`` document strictly
-(types, finiteness, signs and physical bounds) and refuses with the file, the field and the
-reason; :meth:`MotorResult.to_json` writes the same entry back, key for key (``docs/json.md``).
+The fit builds :class:`MotorResult` directly (:func:`eol_cal.analysis.result.motor_result`);
+:meth:`MotorResult.to_json` writes it as an entry of an ``eol-cal/fit-result/1`` document, key for
+key (``docs/json.md``), where a file or stdout is written; :meth:`MotorResult.from_json` reads such
+an entry back from a file, checked strictly (types, finiteness, signs and physical bounds), and
+refuses with the file, the field and the reason.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import builtins
 import math
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any
 from collections.abc import Mapping
 
@@ -19,6 +22,18 @@ from eol_cal.firmware.contract import C6_MAX, DELAY_MAX, K6_MAX, KT_MAX, PHASE_M
 from eol_cal.firmware.mech_params import ORDERS
 
 ESTIMATE_KEYS = ("k6", "phase_k6", "c6", "phase_c6")
+
+
+class FitStatus(StrEnum):
+    """Whether a motor's fit is usable (``ok``) or why not; the value is the file's ``status``."""
+
+    OK = "ok"
+    #: the solver did not end successfully, or its values are not finite (``MotorResult.solver_result`` says how)
+    NOT_CONVERGED = "not_converged"
+    #: a 95 % interval wider than the limits
+    CI_TOO_WIDE = "ci_too_wide"
+    #: the speed bands contradict the model (the model check)
+    MODEL_MISMATCH = "model_mismatch"
 
 
 @dataclass(frozen=True)
@@ -77,8 +92,11 @@ class MotorResult:
 
     Attributes
     ----------
-    serial, status, reasons
-        Motor serial, ``"ok"`` / ``"not_converged"`` / ``"ci_too_wide"`` / ``"model_mismatch"``, why not usable.
+    serial : str
+    status : FitStatus
+        ``ok``, ``not_converged``, ``ci_too_wide`` or ``model_mismatch``.
+    reasons : tuple of str
+        Why the fit is not usable.
     estimates : FitEstimates or None
         None when the fit is not usable (the file holds ``null`` in every estimate field).
     kt, kt_source
@@ -101,10 +119,15 @@ class MotorResult:
     model_check : dict or None
         The speed bands' agreement (:class:`eol_cal.analysis.fit.model_check.ModelCheck` as JSON;
         None: a result older than it).
+    solver_result : str or None
+        How the solver ended, the name of optimistix's ``RESULTS`` (``successful``,
+        ``max_steps_reached``, ...: :attr:`eol_cal.analysis.fit.MotorFit.solver_result`; ``nonfinite``
+        also where its values or their variances are not finite): ``successful`` exactly when the
+        fit converged. None for a result read from a file, which keeps only ``fit.converged``.
     """
 
     serial: str
-    status: str
+    status: FitStatus
     reasons: tuple[str, ...]
     estimates: FitEstimates | None
     kt: float
@@ -121,15 +144,16 @@ class MotorResult:
     mech: MechResult | None = None
     left_out: tuple[tuple[str, str], ...] | None = None
     model_check: dict[str, Any] | None = None
+    solver_result: str | None = None
 
     @property
     def usable(self) -> bool:
-        return self.status == "ok" and self.estimates is not None
+        return self.status == FitStatus.OK and self.estimates is not None
 
     def to_json(self) -> dict[str, Any]:
         """The ``motors`` entry, keys in the order the fit writes them."""
         e = self.estimates
-        out: dict[str, Any] = {"serial": self.serial, "status": self.status, "reasons": list(self.reasons)}
+        out: dict[str, Any] = {"serial": self.serial, "status": str(self.status), "reasons": list(self.reasons)}
         for key in ESTIMATE_KEYS:
             out[key] = None if e is None else getattr(e, key).to_json()
         out["kt"] = self.kt
@@ -170,10 +194,10 @@ class MotorResult:
         r = _Reader(source, where)
         obj = r.obj(rec, "")
         serial = r.string(obj, "serial")
-        status = r.string(obj, "status")
+        status = r.status(obj)
         reasons = tuple(r.string_list(obj, "reasons"))
         estimates = None
-        if status == "ok":
+        if status == FitStatus.OK:
             amp = {"k6": K6_MAX, "c6": C6_MAX}
             vals = {k: r.value_ci(obj, k, (0.0, amp[k]) if k in amp else (-PHASE_MAX, PHASE_MAX)) for k in ESTIMATE_KEYS}
             delay = r.value_ci(obj, "delay_s", (-DELAY_MAX, DELAY_MAX))
@@ -182,9 +206,9 @@ class MotorResult:
         else:
             for k in (*ESTIMATE_KEYS, "delay_s", "harmonics"):
                 if obj.get(k, None) is not None:
-                    raise r.error(k, f"must be null when status is {status!r}")
+                    raise r.error(k, f"must be null when status is {status.value!r}")
         fit = r.obj(r.need(obj, "fit"), "fit")
-        if status == "ok" and fit.get("converged") is not True:
+        if status == FitStatus.OK and fit.get("converged") is not True:
             # a fit that did not converge is never a result, whatever its status says
             raise r.error("fit.converged", f"must be true when status is 'ok', got {fit.get('converged')!r}")
         op = r.obj(r.need(obj, "operating_point"), "operating_point")
@@ -238,6 +262,13 @@ class _Reader:
         if not isinstance(value, str):
             raise self.error(key, f"expected a string, got {_kind(value)}")
         return value
+
+    def status(self, obj: Mapping[str, Any]) -> FitStatus:
+        value = self.string(obj, "status")
+        try:
+            return FitStatus(value)
+        except ValueError:
+            raise self.error("status", f"{value!r} is not one of {', '.join(s.value for s in FitStatus)}") from None
 
     def string_list(self, obj: Mapping[str, Any], key: str) -> builtins.list[str]:  # builtins: list is the method above here
         value = self.list(obj, key)

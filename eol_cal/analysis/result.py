@@ -1,8 +1,11 @@
-"""Fit results as JSON (schema ``eol-cal/fit-result/1``, keys in ``docs/json.md``).
+"""Fit results: a motor's fit judged into a typed :class:`~eol_cal.analysis.motor_result.MotorResult`,
+and the results as the JSON document at the file's edge (schema ``eol-cal/fit-result/1``, keys in
+``docs/json.md``).
 
 A motor whose fit did not converge, or whose 95 % interval is wider than the limits, gets a
-``status`` other than ``"ok"`` and ``null`` in every estimate field (``k6``, ``phase_k6``, ``c6``,
-``phase_c6``, ``delay_s``, ``harmonics``): such a fit is reported, never used.
+``status`` other than ``"ok"`` and no estimates (``null`` in every estimate field of the file:
+``k6``, ``phase_k6``, ``c6``, ``phase_c6``, ``delay_s``, ``harmonics``): such a fit is reported,
+never used.
 """
 
 from __future__ import annotations
@@ -10,14 +13,15 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from eol_cal.analysis.fit import Estimate, FitSpec, MotorFit, load_points
-from eol_cal.analysis.motor_result import FitEstimates, Harmonic, MotorResult, OperatingPoint, ValueCi
+from eol_cal.analysis.intervals import CiLimits, ci_phasor, ci_rel, within
+from eol_cal.analysis.motor_result import FitEstimates, FitStatus, Harmonic, MotorResult, OperatingPoint, ValueCi
 from eol_cal.errors import InputError
 from eol_cal.infra.jsonsafe import json_safe
 
@@ -26,40 +30,14 @@ if TYPE_CHECKING:
     from eol_cal.analysis.fit.model_check import ModelCheck
 
 SCHEMA = "eol-cal/fit-result/1"
-STATUS_OK = "ok"
-STATUS_NOT_CONVERGED = "not_converged"
-STATUS_CI_TOO_WIDE = "ci_too_wide"
-STATUS_MODEL_MISMATCH = "model_mismatch"
-
-
-@dataclass(frozen=True)
-class CiLimits:
-    """Widest 95 % intervals a usable fit may have.
-
-    Attributes
-    ----------
-    k6_rel : float
-        ci95(k6) / k6 (fraction).
-    phase_k6_deg : float
-        ci95(phase_k6) (deg).
-    c6_nm : float
-        Cogging phasor error bound max(ci95(c6), c6 * ci95(phase_c6)) (N*m); used when c6 is fitted.
-    model_p : float
-        The least p-value of the speed bands' agreement (:mod:`eol_cal.analysis.fit.model_check`):
-        below it the data contradict the model and the motor's status is ``model_mismatch``.
-    """
-
-    k6_rel: float = 0.05
-    phase_k6_deg: float = 3.0
-    c6_nm: float = 0.002
-    model_p: float = 0.001
-
-    def to_dict(self) -> dict[str, float]:
-        return {"k6_rel": self.k6_rel, "phase_k6_deg": self.phase_k6_deg, "c6_nm": self.c6_nm, "model_p": self.model_p}
+STATUS_OK = FitStatus.OK
+STATUS_NOT_CONVERGED = FitStatus.NOT_CONVERGED
+STATUS_CI_TOO_WIDE = FitStatus.CI_TOO_WIDE
+STATUS_MODEL_MISMATCH = FitStatus.MODEL_MISMATCH
 
 
 def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelCheck | None = None
-          ) -> tuple[str, list[str]]:
+          ) -> tuple[FitStatus, list[str]]:
     """Status of a fit and the reasons it is not usable (empty when ``"ok"``); ``model_check`` the
     speed bands' agreement (:func:`eol_cal.analysis.fit.model_check.check_model`), a mismatch
     below ``limits.model_p`` makes the status ``model_mismatch``."""
@@ -67,16 +45,17 @@ def judge(fit: MotorFit, spec: FitSpec, limits: CiLimits, model_check: ModelChec
         return STATUS_NOT_CONVERGED, [f"solver did not converge in {fit.steps} steps (or produced non-finite values)"]
     reasons = []
     six = fit.harmonics[6]
+    # the interval quantities and their comparison are the limits table's (eol_cal.analysis.intervals)
     if spec.fit_k:
         k = six["k"]
-        if not (k.value > 0 and k.ci95 <= limits.k6_rel * k.value):
+        if not within(ci_rel(k.ci95, k.value), limits.k6_rel):
             reasons.append(f"ci95(k6) = {k.ci95:.3g} N*m/A exceeds {100 * limits.k6_rel:g} % of k6 = {k.value:.3g}")
-        if not (math.degrees(k.phase_ci95) <= limits.phase_k6_deg):
+        if not within(math.degrees(k.phase_ci95), limits.phase_k6_deg):
             reasons.append(f"ci95(phase_k6) = {math.degrees(k.phase_ci95):.3g} deg exceeds {limits.phase_k6_deg:g} deg")
     if spec.fit_c:
         c = six["c"]
-        bound = max(c.ci95, c.value * c.phase_ci95)
-        if not (bound <= limits.c6_nm):
+        bound = ci_phasor(c.ci95, c.value, c.phase_ci95)
+        if not within(bound, limits.c6_nm):
             reasons.append(f"c6 phasor ci95 = {bound:.3g} N*m exceeds {limits.c6_nm:g} N*m")
     if reasons:
         return STATUS_CI_TOO_WIDE, reasons
@@ -118,7 +97,7 @@ def _harmonic(order: int, parts: dict[str, Estimate], k_phase_ci: bool) -> Harmo
     return Harmonic(order, **kw)
 
 
-def motor_record(
+def motor_result(
     serial: str,
     fit: MotorFit,
     spec: FitSpec,
@@ -143,8 +122,8 @@ def motor_record(
     angle_correction: str = "none",
     model_check: ModelCheck | None = None,
     current_ripple: str = "not measured",
-) -> dict[str, Any]:
-    """One entry of ``motors`` (see ``docs/json.md``).
+) -> MotorResult:
+    """One motor's judged result (an entry of the file's ``motors``, ``docs/json.md``).
 
     ``fit`` must already be in the frame named by ``frame`` (:func:`eol_cal.analysis.fit.shift_frame`);
     ``frame_offset_rad`` is where that frame sits against the offline hall frame (rad); ``bench``
@@ -156,7 +135,9 @@ def motor_record(
     each with its reason; ``angle_correction`` how the fitted angle was corrected by the encoder's
     fingerprint (:mod:`eol_cal.analysis.fit.fp_angle`), or why not; ``model_check`` the speed
     bands' agreement (None: not run); ``current_ripple`` how the ECU's own current ripple entered
-    the fit (:func:`eol_cal.analysis.fit.capture.current_torque`).
+    the fit (:func:`eol_cal.analysis.fit.capture.current_torque`). Its objects hold what the file
+    holds (:func:`~eol_cal.infra.jsonsafe.json_safe`: a non-finite number is None), so the result equals
+    the one :meth:`MotorResult.from_json` reads back from the file.
     """
     status, reasons = judge(fit, spec, limits, model_check)
     six = fit.harmonics[6]
@@ -208,18 +189,22 @@ def motor_record(
         model["unchecked"] = no_phase_ci
     op = operating_point(segments)
     return MotorResult(
-        serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=float(kt), kt_source=kt_source,
-        metrics=metrics, fit=fit_stats, model=model, hall_angle=hall_angle, poles=poles, encoder_ppr=encoder_ppr,
-        operating_point=OperatingPoint(op["speed_rpm"], op["i_qo_a"]), segments=tuple(segments), sources=tuple(sources),
+        serial=serial, status=status, reasons=tuple(reasons), estimates=estimates, kt=json_safe(float(kt)),
+        kt_source=kt_source, metrics=json_safe(metrics), fit=json_safe(fit_stats), model=json_safe(model),
+        hall_angle=json_safe(hall_angle), poles=int(poles), encoder_ppr=int(encoder_ppr),
+        operating_point=OperatingPoint(json_safe(op["speed_rpm"]), json_safe(op["i_qo_a"])),
+        segments=tuple(json_safe(segments)), sources=tuple(sources),
         mech=mech if status == STATUS_OK else None,
-        left_out=None if left_out is None else tuple(left_out),
-        model_check=None if model_check is None else model_check.to_json(),
-    ).to_json()
+        left_out=None if left_out is None else tuple((str(src), str(why)) for src, why in left_out),
+        model_check=None if model_check is None else json_safe(model_check.to_json()),
+        # values that are not finite: optimistix's own name for it, whatever the solver said
+        solver_result=fit.solver_result if fit.finite else "nonfinite",
+    )
 
 
-def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
-                     solver_mode: str, tick_hz: float | None = 20000.0) -> dict[str, Any]:
-    """:func:`motor_record` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
+def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
+                     solver_mode: str, tick_hz: float | None = 20000.0) -> MotorResult:
+    """:func:`motor_result` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
 
     Moves the phases into the frame ``motor_inputs`` measured (the firmware's by default,
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
@@ -248,7 +233,7 @@ def record_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         mech = fit_mech(mi, fit, spec, tick_hz)
     check = check_model(mi.segments, fit, spec, limits.model_p,
                         bench_identified=mi.mechanics is not None and mi.mechanics.identified)
-    return motor_record(
+    return motor_result(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,
         poles=mi.poles, encoder_ppr=mi.encoder_ppr, sources=mi.sources, segments=segments, metrics=metrics,
@@ -270,14 +255,18 @@ def operating_point(segments: list[dict[str, Any]]) -> dict[str, float]:
     return {"speed_rpm": float(best["speed_rpm"]), "i_qo_a": float(best["i_qo_a"])}
 
 
-def result_document(motors: list[dict[str, Any]], limits: CiLimits, tool_version: str) -> dict[str, Any]:
-    """The whole result file."""
+def result_document(results: Sequence[MotorResult], limits: CiLimits, tool_version: str,
+                    created: dt.datetime | None = None) -> dict[str, Any]:
+    """The whole result file: the document of ``results`` judged by ``limits`` (the file's edge:
+    the one place a fit's results become JSON). ``created``: when they were made (default now, UTC),
+    written to the second."""
+    created = created or dt.datetime.now(dt.UTC)
     return {
         "schema": SCHEMA,
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "created": created.isoformat(timespec="seconds"),
         "tool": f"eol-cal {tool_version}",
         "limits": limits.to_dict(),
-        "motors": motors,
+        "motors": [r.to_json() for r in results],
     }
 
 

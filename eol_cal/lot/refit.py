@@ -19,10 +19,13 @@ from __future__ import annotations
 import glob
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Iterable, Sequence
 
 from eol_cal.errors import EolCalError, InputError
+
+if TYPE_CHECKING:
+    from eol_cal.analysis.motor_result import MotorResult
 
 CAPTURE_SUFFIXES = (".mf4", ".csv")
 #: the file a station run writes before compensation (eol_cal.station.cycle); a directory of runs
@@ -127,8 +130,8 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
     _frames(ready)
     for row, mi, opts in ready:
         try:
-            (rec,) = setup.fit(mi, opts)
-            setup.judge(row, rec, row["capture"])
+            (result,) = setup.fit(mi, opts)
+            setup.judge(row, result)
         except _ERRORS as exc:
             _error(row, exc)
     return rows
@@ -201,21 +204,19 @@ class _RefitSetup:
             raise InputError(str(paths[0]), "serial", f"the directory holds {len(inputs)} motors, expected one")
         return inputs[0], opts
 
-    def fit(self, mi: Any, opts: Any) -> list[dict[str, Any]]:
+    def fit(self, mi: Any, opts: Any) -> list[MotorResult]:
         from eol_cal import __version__
         from eol_cal.analysis.fit.motors import fit_inputs
 
-        return fit_inputs([mi], opts, __version__).records
+        return fit_inputs([mi], opts, __version__).results
 
-    def judge(self, row: dict[str, Any], rec: dict[str, Any], source: str) -> None:
-        """Fill ``row`` from a motor's fit record (read typed, judged against the fit stage's limits);
-        raises before touching the row when either cannot be done."""
-        from eol_cal.analysis.motor_result import MotorResult
+    def judge(self, row: dict[str, Any], result: MotorResult) -> None:
+        """Fill ``row`` from a motor's fit result (judged against the fit stage's limits); raises
+        before touching the row when it cannot be judged."""
         from eol_cal.records.limits import Measured, failed, judge
 
-        result = MotorResult.from_json(rec, source, "motors[0].")
         checks = judge(Measured.of_fit(result), self.lim, "fit") if result.usable and self.lim is not None else None
-        row["status"] = result.status
+        row["status"] = str(result.status)
         for key in ("k6", "phase_k6", "c6"):
             row[key] = None if result.estimates is None else getattr(result.estimates, key).value
         row["r2"], row["rms"] = result.fit.get("r2"), result.fit.get("rms")

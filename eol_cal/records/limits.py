@@ -30,13 +30,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from collections.abc import Mapping
 
+from eol_cal.analysis.intervals import CiLimits, ci_phasor, ci_rel, within
 from eol_cal.errors import InputError
 from eol_cal.firmware.options import DEFAULT_PRESET, options_label, parse_options
 from eol_cal.infra.inputs import MAX_TOML_BYTES, loads_toml, read_text
 
 if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult
-    from eol_cal.analysis.result import CiLimits
 
 #: a row's ``default`` when a limits file must set it
 REQUIRED = "required"
@@ -66,7 +66,8 @@ class Limit:
     default : float, None or REQUIRED
         Its value when a limits file leaves it out (None: off, not judged).
     ci : str or None
-        The fit's :class:`~eol_cal.analysis.result.CiLimits` field it also sets (the interval limits).
+        The fit's :class:`~eol_cal.analysis.intervals.CiLimits` field it also sets (the interval
+        limits: the fit's status judges the same quantity, :mod:`eol_cal.analysis.intervals`).
     missing : str
         The reason when the quantity was not measured (``str.format`` of the :class:`Measured` fields).
     """
@@ -178,9 +179,7 @@ class VariantLimits:
         return {"variant": self.variant, **self.values, "source": self.source, "estimator": self.estimator}
 
     def ci_limits(self) -> CiLimits:
-        """The interval limits as the fit's own :class:`~eol_cal.analysis.result.CiLimits`."""
-        from eol_cal.analysis.result import CiLimits
-
+        """The interval limits as the fit's own :class:`~eol_cal.analysis.intervals.CiLimits`."""
         # a limit that is off keeps the fit's own default (the model check's p-value: judged all the same)
         return CiLimits(**{lim.ci: v for lim in LIMITS if lim.ci and (v := self.values[lim.key]) is not None})
 
@@ -315,8 +314,7 @@ class Measured:
     @property
     def ci_k6_rel(self) -> float:
         """The 95 % interval of k6 as a fraction of k6 (1; infinite for k6 0)."""
-        k6 = abs(self.k6)
-        return self.ci_k6 / k6 if k6 > 0 else (math.nan if math.isnan(k6) else math.inf)
+        return ci_rel(self.ci_k6, self.k6)
 
     @classmethod
     def of_fit(cls, res: MotorResult) -> Measured:
@@ -330,7 +328,7 @@ class Measured:
         e = res.estimates
         if e is None:
             raise ValueError(f"motor {res.serial}: fit status {res.status!r} has no estimates")
-        ci_c6 = max(float(e.c6.ci95), abs(e.c6.value) * float(e.phase_c6.ci95))
+        ci_c6 = ci_phasor(float(e.c6.ci95), e.c6.value, float(e.phase_c6.ci95))
         hall = res.hall_angle or {"source": "not in the record", "deviation_deg": []}
         measured = hall["source"] == "measured"
         return cls(
@@ -418,7 +416,7 @@ def check(lim: Limit, limit: float, m: Measured | None) -> LimitCheck:
     if m is None:
         return LimitCheck(lim.key, lim.quantity, lim.title, lim.unit, lim.sense, lim.stage, math.nan, float(limit), None)
     value = float(getattr(m, lim.quantity))
-    ok = bool(value <= limit) if lim.sense == "max" else bool(value >= limit)
+    ok = within(value, limit, lim.sense)
     return LimitCheck(lim.key, lim.quantity, lim.title, lim.unit, lim.sense, lim.stage, value, float(limit), ok,
                       "" if ok else _reason(lim, value, limit, m))
 

@@ -37,7 +37,9 @@ from eol_cal.station.flash_ahead import FlashAhead
 from eol_cal.station.run import ProgressFn, StationConfig, check_config, new_run_dir, sha256_file
 
 if TYPE_CHECKING:
+    from eol_cal.analysis.fit.motors import MotorsFit
     from eol_cal.analysis.motor_result import MotorResult
+    from eol_cal.report.motor_page import FitExtra
     from eol_cal.capture.data import Capture
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.firmware.block import ParamBlock
@@ -94,9 +96,9 @@ class CycleContext:
     captures: dict[str, CaptureRef] = field(default_factory=dict)
     blocks: list[FlashedBlock] = field(default_factory=list)
     before: Capture | None = None
-    fit_doc: dict[str, Any] | None = None
+    fitted: MotorsFit | None = None
     result: MotorResult | None = None
-    fit_extra: Any = None
+    fit_extra: FitExtra | None = None
     measured: Measured | None = None
     judged: dict[str, list[LimitCheck]] = field(default_factory=dict)
     uncompensated: ParamBlock | None = None  # what the prepare step flashes

@@ -31,6 +31,8 @@ from eol_cal.records.limits import VariantLimits
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.capture import PreparedWindows
+    from eol_cal.analysis.fit.motors import MotorsFit
+    from eol_cal.report.motor_page import FitExtra
     from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu.session import ClientTiming
     from eol_cal.msa.master import MasterSettings
@@ -183,7 +185,8 @@ def _safe_name(text: str) -> str:
 # --------------------------------------------------------------------------- fit
 def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
-              estimator_options: int = 0, prepared: PreparedWindows | None = None) -> tuple[dict, MotorResult, Any]:
+              estimator_options: int = 0, prepared: PreparedWindows | None = None
+              ) -> tuple[MotorsFit, MotorResult, FitExtra]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
     ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
@@ -194,19 +197,18 @@ def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor:
 
     Returns
     -------
-    doc, result, extra
-        The result document (schema ``eol-cal/fit-result/1``), its one motor as a
-        :class:`~eol_cal.analysis.motor_result.MotorResult` (read once, here), and
+    fitted, result, extra
+        The fit (:class:`~eol_cal.analysis.fit.motors.MotorsFit`: its ``to_json`` is the result
+        file), its one motor's typed :class:`~eol_cal.analysis.motor_result.MotorResult`, and
         ``(MotorInput, MotorFit, FitSpec)`` for the plots.
     """
-    from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
                          estimator_options=estimator_options)
-    res = fit_motors([capture], options, tool_version, prepared=prepared)
-    (rec,) = res.records
-    return res.doc, MotorResult.from_json(rec, "<fit>", "motors[0]."), (res.inputs[0], res.fits[0], options.spec)
+    fitted = fit_motors([capture], options, tool_version, prepared=prepared)
+    (result,) = fitted.results
+    return fitted, result, (fitted.inputs[0], fitted.fits[0], options.spec)
 
 
 def check_motor(capture: Capture, motor: MotorParams) -> None:

@@ -205,6 +205,7 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     # a window that could not be placed is left out of the fingerprint and the orders, no reason to switch off
     return MechResult(
         status=MECH_OFF if reasons else MECH_OK, reasons=tuple(reasons),
-        fingerprint=tuple(float(x) for x in fp.fp), sigma=sigma, dirs=fp.dirs, grid_phase=float(fp.grid_phase),
-        windows=tuple(fp.offsets), score=float(score), margin=float(margin), threshold=threshold,
+        fingerprint=tuple(float(x) for x in fp.fp), sigma=sigma, dirs=int(fp.dirs), grid_phase=float(fp.grid_phase),
+        windows=tuple(None if w is None else int(w) for w in fp.offsets), score=float(score), margin=float(margin),
+        threshold=float(threshold),
         ref_rpm=fpr.REF_RPM, orders=orders or ())

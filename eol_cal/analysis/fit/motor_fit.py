@@ -11,6 +11,7 @@ import numpy as np
 
 from eol_cal.analysis.fit.compression import Compressed
 from eol_cal.analysis.fit.model import TAU_SCALE, Z95, FitSpec
+from eol_cal.analysis.fit.solver import solver_result
 from eol_cal.numerics.wrap import wrap_pi
 
 
@@ -40,7 +41,9 @@ class MotorFit:
         Residual RMS (N*m).
     r2 : float
         1 - SSR / sum of squares about each segment's mean: the share of the ripple explained.
-    converged : bool
+    solver_result : str
+        How the solver ended: the name of optimistix's ``RESULTS``
+        (:data:`~eol_cal.analysis.fit.solver.SOLVER_RESULTS`: ``successful``, ``max_steps_reached``, ...).
     steps : int
     n_samples : int
     coef : ndarray, (segments, spec.n_cols)
@@ -50,6 +53,8 @@ class MotorFit:
         The ripple of ``kt * i_q`` per segment as an air-gap phasor (N*m,
         :func:`eol_cal.analysis.fit.compression.current_phasor`), known torque added to the fitted
         ripple's; None when the segments carried no current.
+    finite : bool
+        The parameters and their variances are finite numbers.
     """
 
     harmonics: dict
@@ -58,12 +63,18 @@ class MotorFit:
     t_avg: np.ndarray
     rms: float
     r2: float
-    converged: bool
+    solver_result: str
     steps: int
     n_samples: int
     coef: np.ndarray | None = None
     birge: float = 1.0
     current: np.ndarray | None = None
+    finite: bool = True
+
+    @property
+    def converged(self) -> bool:
+        """The solver ended successfully with finite values: a fit that may be judged."""
+        return self.solver_result == "successful" and self.finite
 
 
 #: the least degrees of freedom of one harmonic's own lack of fit for it to widen that harmonic's
@@ -180,10 +191,11 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         t_avg=t_avg,
         rms=math.sqrt(max(ssr, 0.0) / n),
         r2=1.0 - ssr / sst if sst > 0 else float("nan"),
-        converged=bool(out["converged"]) and finite,
+        solver_result=solver_result(int(out["result"])),
         steps=int(out["steps"]),
         n_samples=int(n),
         coef=coef,
         birge=birge,
         current=(comp.cur_re + 1j * comp.cur_im)[:S_valid] if np.any(comp.cur_re) or np.any(comp.cur_im) else None,
+        finite=finite,
     )

@@ -1,25 +1,27 @@
-"""Captures -> fit-result document: the one path from captures to ``eol-cal/fit-result/1``.
+"""Captures -> judged motors: the one path from captures to typed fit results.
 
 ``eol-cal fit`` and the end-of-line station (:mod:`eol_cal.station.run`) both call
 :func:`fit_motors`: captures are split into their windows (:func:`eol_cal.capture.windows.split_windows`,
 a dyno capture's windows are one motor's captures), grouped by serial, segmented, fitted, and
-reported with the phases in the firmware estimator's angle frame unless told otherwise.
+judged into :class:`~eol_cal.analysis.motor_result.MotorResult` s with the phases in the firmware
+estimator's angle frame unless told otherwise. The ``eol-cal/fit-result/1`` document is made from
+them only where a file or stdout is written (:meth:`MotorsFit.to_json`).
 """
 
 from __future__ import annotations
 
+import datetime as dt
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from collections.abc import Callable
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, check_identifiable, pick_mode
-from eol_cal.analysis.fit.capture import PreparedWindows
-from eol_cal.analysis.fit.motor_input import MotorInput
-from eol_cal.analysis.result import CiLimits
+from eol_cal.analysis.fit.capture import MotorInput, PreparedWindows
+from eol_cal.analysis.motor_result import MotorResult
+from eol_cal.analysis.intervals import CiLimits
 from eol_cal.capture.data import Capture
 from eol_cal.firmware.options import DEFAULT_PRESET, PRESETS
-from eol_cal.infra.jsonsafe import json_safe
 from eol_cal.domain.bench_mechanics import BenchMechanics, load_mechanics
 from eol_cal.domain.motor_params import MotorParams
 
@@ -80,28 +82,41 @@ class FitOptions:
 
 @dataclass
 class MotorsFit:
-    """What :func:`fit_motors` returns: the result document and what the plots need.
+    """What :func:`fit_motors` returns: the motors' typed results and what the plots need.
 
     Attributes
     ----------
-    doc : dict
-        The result document (schema ``eol-cal/fit-result/1``, ``docs/json.md``), JSON-safe.
+    results : list of MotorResult
+        Per motor, its judged result (:class:`~eol_cal.analysis.motor_result.MotorResult`: status,
+        the solver's result, estimates); ``results[i].status`` says whether motor i is usable.
     inputs : list of MotorInput
-        Per motor, in the order of ``doc["motors"]``.
+        Per motor, in the order of ``results``.
     fits : list of MotorFit
         Per motor, in the offline angle frame (the plots draw them against the offline angle).
     solver_mode : str
         The batch mode used.
+    limits : CiLimits
+        The interval limits the results were judged by.
+    tool_version : str
+        This package's version (the document's ``tool``).
+    created : datetime
+        When the results were made (UTC, to the second): the document's ``created``, a block's
+        ``calibrated_at``.
     """
 
-    doc: dict[str, Any]
+    results: list[MotorResult]
     inputs: list[MotorInput]
     fits: list[MotorFit]
     solver_mode: str
+    limits: CiLimits
+    tool_version: str
+    created: dt.datetime
 
-    @property
-    def records(self) -> list[dict[str, Any]]:
-        return self.doc["motors"]
+    def to_json(self) -> dict[str, Any]:
+        """The result document (schema ``eol-cal/fit-result/1``, ``docs/json.md``), for a file or stdout."""
+        from eol_cal.analysis.result import result_document
+
+        return result_document(self.results, self.limits, self.tool_version, self.created)
 
 
 def fit_motors(
@@ -111,7 +126,7 @@ def fit_motors(
     progress: Callable[[int], None] | None = None,
     prepared: PreparedWindows | None = None,
 ) -> MotorsFit:
-    """Fit every motor of ``captures`` and build the result document.
+    """Fit every motor of ``captures`` and judge each into a typed result.
 
     Parameters
     ----------
@@ -131,7 +146,7 @@ def fit_motors(
     Returns
     -------
     MotorsFit
-        ``doc["motors"][i]["status"]`` says whether motor i is usable.
+        ``results[i].status`` says whether motor i is usable.
 
     Raises
     ------
@@ -156,12 +171,12 @@ def fit_inputs(
     """The part of :func:`fit_motors` after the inputs (:func:`eol_cal.analysis.fit.capture.motor_inputs`,
     or :func:`~eol_cal.analysis.fit.capture.segment_motors` and
     :func:`~eol_cal.analysis.fit.capture.measure_firmware_frames` for many motors' frames in one
-    batch): the fit and the result document. ``options``' segmentation and frame settings are
+    batch): the fit and the typed results. ``options``' segmentation and frame settings are
     those the inputs were made with; ``prepared`` (as for :func:`fit_motors`) gives the windows'
     p-p figures."""
     from eol_cal.analysis.fit import fit_many
     from eol_cal.analysis.metrics import eta_percent
-    from eol_cal.analysis.result import record_for_motor, result_document
+    from eol_cal.analysis.result import result_for_motor
 
     if tool_version is None:
         from eol_cal import __version__
@@ -183,11 +198,12 @@ def fit_inputs(
     from eol_cal.domain.motor_params import load_motor
 
     tick_hz = float((options.motor or load_motor("paper")).f_pwm)
-    records = []
+    results = []
     for mi, f in zip(inputs, fits, strict=True):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
         if options.capture_metrics:
             metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
-        records.append(json_safe(record_for_motor(mi, f, options.spec, options.limits, metrics=metrics,
-                                                  solver_mode=mode, tick_hz=tick_hz)))
-    return MotorsFit(result_document(records, options.limits, tool_version), inputs, fits, mode)
+        results.append(result_for_motor(mi, f, options.spec, options.limits, metrics=metrics, solver_mode=mode,
+                                        tick_hz=tick_hz))
+    created = dt.datetime.now(dt.UTC).replace(microsecond=0)
+    return MotorsFit(results, inputs, fits, mode, options.limits, tool_version, created)

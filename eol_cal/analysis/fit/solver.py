@@ -14,18 +14,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from eol_cal.analysis.fit.model import TAU_SCALE, FitSpec
+
+#: the names of optimistix's ``RESULTS`` a solve can end with; the solver returns the index of its
+#: result here (-1: a result this list does not name), :func:`solver_result` the name
+SOLVER_RESULTS = ("successful", "max_steps_reached", "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite",
+                  "singular", "breakdown", "stagnation", "conlim", "nonfinite_input")
+#: what :func:`solver_result` calls an index outside :data:`SOLVER_RESULTS`
+UNKNOWN_RESULT = "unknown"
 
 if TYPE_CHECKING:
     import jax
     import optimistix as optx
 
     #: a solver: the compressed data by name (one motor's, or a batch's stacked), the delay's start
-    #: grid and the step limit -> the solution by name (p, cov_unscaled, ssr_red, g, steps, converged)
+    #: grid and the step limit -> the solution by name (p, cov_unscaled, ssr_red, g, steps, result)
     Solver = Callable[[Mapping[str, np.ndarray | jax.Array], np.ndarray | jax.Array, int], dict[str, jax.Array]]
 
 
@@ -130,10 +137,30 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
             "ssr_red": jnp.sum(r * r),
             "g": harm_coef(p, comp["i_qo"], comp["omega"], *paths),
             "steps": sol.stats["num_steps"],
-            "converged": sol.result == optx.RESULTS.successful,
+            "result": result_index(sol.result),
         }
 
     return solve
+
+
+def result_index(result: Any) -> jax.Array:
+    """The index in :data:`SOLVER_RESULTS` of optimistix's ``result`` (traced; -1: not listed).
+
+    An optimistix result is an equinox enumeration item, compared by name (its integer is private):
+    a JAX array leaves the jitted, vmapped or exported solver where the item cannot."""
+    import jax.numpy as jnp
+    import optimistix as optx
+
+    index = jnp.asarray(-1, dtype=jnp.int32)
+    for i, name in enumerate(SOLVER_RESULTS):
+        if hasattr(optx.RESULTS, name):  # a name an older optimistix does not have stays -1
+            index = jnp.where(result == getattr(optx.RESULTS, name), i, index)
+    return index
+
+
+def solver_result(index: int) -> str:
+    """The optimistix ``RESULTS`` name of an index the solver returned (:data:`UNKNOWN_RESULT` if none)."""
+    return SOLVER_RESULTS[index] if 0 <= index < len(SOLVER_RESULTS) else UNKNOWN_RESULT
 
 
 def _make_solver(spec: FitSpec) -> optx.AbstractGaussNewton[jax.Array, jax.Array, None]:

@@ -51,13 +51,6 @@ def select_motor(doc: dict[str, Any], serial: str | None, source: str) -> dict[s
     raise InputError(source, "serial", f"{serial!r} not in the result ({', '.join(m['serial'] for m in motors)})")
 
 
-def block_from_record(rec: dict[str, Any], motor: MotorParams, *, source: str = "<result>", **kwargs: Any) -> ParamBlock:
-    """:func:`block_from_result` for one decoded ``motors`` entry, checked by :meth:`MotorResult.from_json`."""
-    from eol_cal.analysis.motor_result import MotorResult
-
-    return block_from_result(MotorResult.from_json(rec, source), motor, source=source, **kwargs)
-
-
 def block_from_result(
     res: MotorResult,
     motor: MotorParams,
@@ -284,7 +277,20 @@ def created_unix(doc: dict[str, Any], source: str | None = None) -> int | None:
     if when is None or when.utcoffset() is None:
         raise InputError(source, "created", f"{str(text)[:60]!r}: expected an ISO 8601 instant with its UTC offset "
                                             "(2026-11-24T00:23:36+00:00)")
+    return unix_seconds(when, source, text)
+
+
+def unix_seconds(when: dt.datetime, source: str | None = None, text: str | None = None) -> int:
+    """An instant with its UTC offset (a fit's ``created``; ``text`` as a file wrote it) as a
+    block's ``calibrated_at`` (Unix s, u32).
+
+    Raises
+    ------
+    InputError
+        The instant is before 1970 or after 2106 (``created`` of ``source`` named).
+    """
     seconds = int(when.timestamp())
     if not 0 <= seconds < 2**32:
-        raise InputError(source, "created", f"{text!r}: outside what a block's calibrated_at carries (1970 .. 2106)")
+        raise InputError(source, "created", f"{text or when.isoformat()!r}: outside what a block's calibrated_at "
+                                            "carries (1970 .. 2106)")
     return seconds

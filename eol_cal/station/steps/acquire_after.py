@@ -14,7 +14,7 @@ def run(ctx: CycleContext) -> None:
     from eol_cal.station.early import EarlyWindows  # scipy: heavy, loaded when the step begins
 
     # the steps run in order and stop at the first that fails: the fit gave a result, start_context made the pool
-    assert ctx.result is not None and ctx.helper is not None
+    assert ctx.result is not None and ctx.fit_extra is not None and ctx.helper is not None
     op = ctx.result.operating_point
     segs = ctx.segments if ctx.cfg.verify == "full" else verify_segments(ctx.segments, op.speed_rpm, op.i_qo_a)
     mi = ctx.fit_extra[0]

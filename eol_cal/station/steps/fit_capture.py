@@ -24,10 +24,10 @@ def run(ctx: CycleContext) -> StepVerdict | None:
     ctx.open_flash_ahead()
     assert ctx.prewarm is not None  # the acquire step, run before, started it
     ctx.prewarm.result()
-    doc, res, extra = fit_motor(ctx.before, ctx.cfg.limits, __version__, ctx.cfg.motor, ctx.cfg.mechanics,
-                                ctx.cfg.cache_dir, ctx.cfg.estimator_options, prepared=ctx.early)
-    write_result(doc, ctx.run_dir / "fit.json")
-    ctx.fit_doc, ctx.result, ctx.fit_extra = doc, res, extra
+    fitted, res, extra = fit_motor(ctx.before, ctx.cfg.limits, __version__, ctx.cfg.motor, ctx.cfg.mechanics,
+                                   ctx.cfg.cache_dir, ctx.cfg.estimator_options, prepared=ctx.early)
+    write_result(fitted.to_json(), ctx.run_dir / "fit.json")
+    ctx.fitted, ctx.result, ctx.fit_extra = fitted, res, extra
     if not res.usable:
         return StepVerdict("fail", tuple(f"fit {res.status}: {r}" for r in res.reasons) or (f"fit {res.status}",))
     ctx.measured = Measured.of_fit(res)
