@@ -6,6 +6,13 @@ write is scipy.optimize.least_squares on the same model over every sample
 (:mod:`eol_cal.analysis.fit.scipy_ref`); both run here on the same data, and the fits are compared.
 
     python bench/bench_fit.py [--captures 1000] [--scipy 5] [--cli] [--threads N]
+    python bench/bench_fit.py --startup [--rounds 5] [--baseline DIR]
+
+``--startup`` times the command line alone, from process start to its end: ``eol-cal --help``,
+``eol-cal capture info`` and ``eol-cal fit`` (warm: its cache filled by a first run) on one 1 s
+capture, wall and CPU (user + system) of each process, the rounds alternating this checkout and
+``--baseline DIR``'s (``git worktree add DIR COMMIT``; its ``eol_cal`` and ``cli`` imported instead),
+the median of the rounds; the fits' results must be the same (checked).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -34,7 +42,13 @@ def main() -> None:
     ap.add_argument("--cli", action="store_true", help="also time `eol-cal fit` on one capture file")
     ap.add_argument("--harmonics", default="6,12,18", help="orders fitted (eol-cal fit's default 6,12,18)")
     ap.add_argument("--threads", type=int, default=0, help="compression worker threads (fit_many's default 0: inline)")
+    ap.add_argument("--startup", action="store_true", help="only the command line's start-up (see above)")
+    ap.add_argument("--rounds", type=int, default=5, help="--startup: runs of each command per checkout")
+    ap.add_argument("--baseline", default=None, help="--startup: a checkout of older code, side by side")
     args = ap.parse_args()
+    if args.startup:
+        startup(args.rounds, args.baseline)
+        return
 
     import jax
 
@@ -126,6 +140,59 @@ def main() -> None:
                 walls.append(time.perf_counter() - t0)
             print(f"`eol-cal fit` one 1 s capture, process start to JSON: cold cache {walls[0]:.2f} s, "
                   f"warm cache {min(walls[1:]):.2f} s")
+
+
+def _run(code: str, args: list[str], env: dict[str, str]) -> tuple[float, float]:
+    """(wall s, CPU s) of ``python -m cli.main ARGS`` with the code of checkout ``code``."""
+    import resource
+
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    res = subprocess.run([sys.executable, "-m", "cli.main", *args], env=dict(env, PYTHONPATH=code), cwd=code,
+                         capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if res.returncode != 0:
+        raise SystemExit(f"{code}: eol-cal {' '.join(args)} failed ({res.returncode}):\n{res.stderr[-2000:]}")
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def startup(rounds: int, baseline: str | None) -> None:
+    """The command line's start-up, this checkout against ``baseline`` (module docstring)."""
+    import json
+
+    from eol_cal.capture.io import write_capture
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    codes = {"this": here, **({"baseline": os.path.abspath(baseline)} if baseline else {})}
+    with tempfile.TemporaryDirectory() as d:
+        path = os.path.join(d, "one.csv")
+        write_capture(synthetic_capture(rpm=600.0, i_qo=65.0, seconds=1.0, seed=1, serial="B-1"), path)
+        commands = {"--help": ["--help"], "capture info": ["capture", "info", path],
+                    "fit (warm)": ["fit", path, "--no-c6", "--delay", "0"]}
+        envs = {name: dict(os.environ, EOL_CAL_JAX_CACHE=os.path.join(d, f"cache-{name}")) for name in codes}
+        for name, code in codes.items():  # fill each checkout's cache, and compile its modules
+            for args in commands.values():
+                _run(code, [*args, "-o", os.path.join(d, f"{name}.json")] if args[0] == "fit" else args, envs[name])
+        print(f"cores: {len(os.sched_getaffinity(0))}, load at start {os.getloadavg()[0]:.1f}", flush=True)
+        got: dict[tuple[str, str], list[tuple[float, float]]] = {}
+        for _ in range(rounds):
+            for cmd, args in commands.items():
+                for name, code in codes.items():
+                    out = [*args, "-o", os.path.join(d, f"{name}.json")] if args[0] == "fit" else args
+                    got.setdefault((cmd, name), []).append(_run(code, out, envs[name]))
+        print(f"load at end {os.getloadavg()[0]:.1f}; median of {rounds} runs, process start to end")
+        print(f"{'command':<16}{'checkout':<10}{'wall s':>8}{'cpu s':>8}")
+        for (cmd, name), rows in got.items():
+            wall, cpu = statistics.median(r[0] for r in rows), statistics.median(r[1] for r in rows)
+            print(f"{cmd:<16}{name:<10}{wall:>8.2f}{cpu:>8.2f}")
+        if baseline:
+            docs = [json.loads(Path(d, f"{name}.json").read_text()) for name in codes]
+            same = docs[0]["motors"] == docs[1]["motors"]
+            print(f"the fits' motors identical: {same}")
+            if not same:
+                raise SystemExit("the fits differ")
 
 
 if __name__ == "__main__":

@@ -44,8 +44,9 @@ class _Commands(click.Group):
         return super().list_commands(ctx)
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
-        if cmd_name not in self.commands:
-            _load(modules_of(cmd_name))
+        # every module of the name, even when the command is there already: ``flash`` brought
+        # cli/ecu.py's ``ecu`` group, whose ``restore`` cli/restore.py adds
+        _load(modules_of(cmd_name))
         return super().get_command(ctx, cmd_name)
 
 

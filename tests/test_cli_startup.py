@@ -74,3 +74,13 @@ def test_every_command_is_found_where_the_table_says():
     for name, cmd in main.cli.commands.items():
         assert _tree_modules(cmd) <= set(main.modules_of(name)), name
     assert set(main._COMMAND_HOME) <= set(main.cli.commands)  # no stale line
+
+
+@pytest.mark.slow  # a process of its own: this one's commands may all be loaded already
+def test_a_group_is_whole_when_another_command_of_its_module_came_first():
+    probe = ("import click, cli.main as m\n"
+             "ctx = click.Context(m.cli)\n"
+             "m.cli.get_command(ctx, 'flash')  # cli/ecu.py: the ecu group, without cli/restore.py's subcommand\n"
+             "print(*sorted(m.cli.get_command(ctx, 'ecu').commands))")
+    res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, check=True)
+    assert "restore" in res.stdout.split()

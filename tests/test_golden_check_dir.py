@@ -3,9 +3,21 @@ vector sets (a minute of work; from outside the project the default directory is
 
 from __future__ import annotations
 
+import pytest
 from click.testing import CliRunner
 
 from cli.main import cli
+
+
+@pytest.fixture(autouse=True)
+def _no_vectors_computed(monkeypatch):
+    """A refusal comes before any vector set is computed: computing one fails these tests."""
+    from eol_cal.firmware import golden
+
+    def computed(*args, **kwargs):
+        raise AssertionError("the vector sets were computed before the directory was checked")
+
+    monkeypatch.setattr(golden, "vector_sets", computed)
 
 
 def _refused(args, *words):

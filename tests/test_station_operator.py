@@ -34,6 +34,9 @@ pytestmark = pytest.mark.slow  # process-level or multi-second: not in the fast 
 ROOT = Path(__file__).resolve().parent.parent
 ANSI = re.compile(r"\x1b\[[0-9;?]*[A-Za-z]|\x1b\][^\x07]*\x07|\r")
 MOTOR_S = 180.0  # one motor's budget on a loaded shared machine (about 15 s alone)
+#: a hang guard for every other line the session prints (a prompt, a report written, the summary):
+#: what is checked is what comes and in which order; 10 s was a race with the report step at load 16
+PROMPT_S = 120.0
 PASSING = ("M-0001", "M-0002")  # plant motors 1 and 2: k6 0.65 and 0.64 mN*m/A
 FAILING = "M-0003"  # plant motor 3: k6 0.81 mN*m/A
 
@@ -125,24 +128,24 @@ def test_three_motors_one_failing_then_an_empty_line(tmp_path, terminal):
     limits.write_text(re.sub(r"max_k6 = [0-9.]+", f"max_k6 = {max_k6:.6f}", DEMO_LIMITS))
     out = tmp_path / "session"
     t = terminal(["station", "--demo", "--out", str(out), "--limits", str(limits), "--station-id", "L1-TEST"], tmp_path)
-    t.expect(r"Operator: ", 60)
+    t.expect(r"Operator: ", PROMPT_S)
     t.type("alice")
-    t.expect(r"Scan serial \(Enter or q ends the session\): ", 30)
+    t.expect(r"Scan serial \(Enter or q ends the session\): ", PROMPT_S)
     t.type("  bad serial!  ")  # a space inside: refused, asked again
-    t.expect(r"not a serial: 'bad serial!': character ' ' not allowed", 10)
-    t.expect(r"Scan serial", 10)
+    t.expect(r"not a serial: 'bad serial!': character ' ' not allowed", PROMPT_S)
+    t.expect(r"Scan serial", PROMPT_S)
     t.type("X" * 17)
-    t.expect(r"17 characters, at most 16", 10)
+    t.expect(r"17 characters, at most 16", PROMPT_S)
     # a scanner's Enter is a CR (the terminal makes it a newline); some send CR LF: the LF, an
     # empty line, must not end the session
     for serial, word, enter in ((PASSING[0], "PASS", "\r"), (FAILING, "FAIL", "\r\n"), (PASSING[1], "PASS", "\r")):
-        t.expect(r"Scan serial", 10)
+        t.expect(r"Scan serial", PROMPT_S)
         t.type(f" {serial}\t", enter=enter)
         t.expect(rf"{serial}: {word}", MOTOR_S)
-        t.expect(r"report: \S+report\.html", 10)
-    t.expect(r"Scan serial", 10)
+        t.expect(r"report: \S+report\.html", PROMPT_S)
+    t.expect(r"Scan serial", PROMPT_S)
     t.type("")
-    t.expect(r"session: 3 run\(s\) of 3 motor\(s\): 2 pass, 1 fail, 0 error", 30)
+    t.expect(r"session: 3 run\(s\) of 3 motor\(s\): 2 pass, 1 fail, 0 error", PROMPT_S)
     assert t.exit_code() == 0, t.text[-3000:]
     assert "fail: k6 " in t.text and "max_k6" in t.text
     assert (out / "lot.html").is_file() and "lot page: " in t.text
@@ -156,14 +159,14 @@ def test_three_motors_one_failing_then_an_empty_line(tmp_path, terminal):
 def test_ctrl_c_between_motors_ends_the_session_cleanly(tmp_path, terminal):
     out = tmp_path / "session"
     t = terminal(["station", "--demo", "--out", str(out), "--operator", "bob"], tmp_path)
-    t.expect(r"Scan serial", 60)
+    t.expect(r"Scan serial", PROMPT_S)
     t.type(PASSING[0])
     t.expect(rf"{PASSING[0]}: PASS", MOTOR_S)
-    t.expect(r"Scan serial", 10)
+    t.expect(r"Scan serial", PROMPT_S)
     time.sleep(0.3)  # waiting in the prompt
     t.interrupt()
-    t.expect(r"Ctrl-C between motors: the session ends", 10)
-    t.expect(r"session: 1 run\(s\) of 1 motor\(s\): 1 pass, 0 fail, 0 error", 30)
+    t.expect(r"Ctrl-C between motors: the session ends", PROMPT_S)
+    t.expect(r"session: 1 run\(s\) of 1 motor\(s\): 1 pass, 0 fail, 0 error", PROMPT_S)
     assert t.exit_code() == 0, t.text[-3000:]
     assert [(r[0], r[1], r[2], r[3]) for r in _rows(out / "results.sqlite")] == [(PASSING[0], "pass", "DEMO", "bob")]
 
@@ -171,13 +174,13 @@ def test_ctrl_c_between_motors_ends_the_session_cleanly(tmp_path, terminal):
 def test_ctrl_c_during_a_motor_records_an_error_and_exits_2(tmp_path, terminal):
     out = tmp_path / "session"
     t = terminal(["station", "--demo", "--out", str(out), "--operator", "carol"], tmp_path)
-    t.expect(r"Scan serial", 60)
+    t.expect(r"Scan serial", PROMPT_S)
     t.type(PASSING[1])
     t.expect(rf"{PASSING[1]}: acquire", MOTOR_S)  # the dyno is turning
     time.sleep(0.5)
     t.interrupt()
-    t.expect(rf"{PASSING[1]}: ERROR", 60)
-    t.expect(r"session: 1 run\(s\) of 1 motor\(s\): 0 pass, 0 fail, 1 error", 30)
+    t.expect(rf"{PASSING[1]}: ERROR", PROMPT_S)
+    t.expect(r"session: 1 run\(s\) of 1 motor\(s\): 0 pass, 0 fail, 1 error", PROMPT_S)
     assert t.exit_code() == 2, t.text[-3000:]
     (row,) = _rows(out / "results.sqlite")
     assert row[:4] == (PASSING[1], "error", "DEMO", "carol") and "acquire" in row[4]
@@ -186,9 +189,9 @@ def test_ctrl_c_during_a_motor_records_an_error_and_exits_2(tmp_path, terminal):
 
 def test_end_of_input_at_the_operator_prompt_runs_nothing(tmp_path, terminal):
     t = terminal(["station", "--demo", "--out", str(tmp_path / "s")], tmp_path)
-    t.expect(r"Operator: ", 60)
+    t.expect(r"Operator: ", PROMPT_S)
     os.write(t.master, b"\x04")  # Ctrl-D: end of input
-    t.expect(r"no operator: the session ends", 10)
+    t.expect(r"no operator: the session ends", PROMPT_S)
     assert t.exit_code() == 0
     assert not (tmp_path / "s" / "results.sqlite").exists()
 
