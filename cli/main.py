@@ -119,6 +119,7 @@ _COMMAND_HOME: dict[str, tuple[str, ...]] = {
     "ecu": ("ecu", "restore"),
     "ecu-sim": ("ecu",),
     "flash": ("ecu",),
+    "line": ("panel",),
     "records": ("station",),
     "run": ("station",),
     "station": ("operator",),
