@@ -267,7 +267,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     # speed bands differed beyond their intervals on 4 of 40 motors of the paper bench (the ECU's
     # own current ripple at those orders changes with speed), a false alarm of the bench file
     zs = [np.concatenate([_pair(f.harmonics[6][part]) for part in ("c", "k") if part in parts]) for f in fits]
-    Ws = [np.linalg.pinv(f.cov6[np.ix_(sel, sel)]) for f in fits]
+    Ws = [np.linalg.pinv(np.asarray(f.cov6)[np.ix_(sel, sel)]) for f in fits]
     zbar = np.linalg.solve(sum(Ws), sum(W @ z for W, z in zip(Ws, zs, strict=True)))
     chi2 = float(sum((z - zbar) @ W @ (z - zbar) for W, z in zip(Ws, zs, strict=True)))
     dof = len(sel) * (len(fits) - 1)
