@@ -55,6 +55,13 @@ class MotorFit:
         ripple's; None when the segments carried no current.
     finite : bool
         The parameters and their variances are finite numbers.
+    cov6 : ndarray, (4, 4), optional
+        Covariance of the 6th harmonic's cos/sin pairs ``(c, k)`` in the order the solver holds
+        them (c's pair then k's, each ``(value cos(phase), value sin(phase))``; N*m and N*m/A),
+        with the intervals' widening; the pairs of a part not fitted are absent (2 x 2). The
+        amplitude/phase intervals of :attr:`harmonics` are its diagonal blocks; c6 and k6 of one
+        fit are correlated through the load points (a slope and an intercept), which the model
+        check needs (:mod:`eol_cal.analysis.fit.model_check`).
     """
 
     harmonics: dict
@@ -70,6 +77,7 @@ class MotorFit:
     birge: float = 1.0
     current: np.ndarray | None = None
     finite: bool = True
+    cov6: np.ndarray | None = None
 
     @property
     def converged(self) -> bool:
@@ -93,7 +101,18 @@ def shift_frame(fit: MotorFit, offset_rad: float, offset_sd_rad: float = 0.0) ->
         return dataclasses.replace(e, phase=float(wrap_pi(e.phase - h * offset_rad)), phase_ci95=float(ci))
 
     harmonics = {h: {part: moved(h, e) for part, e in parts.items()} for h, parts in fit.harmonics.items()}
-    return dataclasses.replace(fit, harmonics=harmonics)
+    cov6 = None
+    if fit.cov6 is not None:
+        # each cos/sin pair turns by -6 offset; the offset's own error turns them together
+        a = -6.0 * offset_rad
+        rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+        n_pairs = fit.cov6.shape[0] // 2
+        R = np.kron(np.eye(n_pairs), rot)
+        z = np.concatenate([[e.value * math.cos(e.phase), e.value * math.sin(e.phase)]
+                            for e in harmonics[6].values()]) if n_pairs == len(harmonics[6]) else np.zeros(2 * n_pairs)
+        turn = np.kron(np.eye(n_pairs), np.array([[0.0, -1.0], [1.0, 0.0]])) @ z * 6.0 * offset_sd_rad
+        cov6 = R @ fit.cov6 @ R.T + np.outer(turn, turn)
+    return dataclasses.replace(fit, harmonics=harmonics, cov6=cov6)
 
 
 def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
@@ -171,6 +190,8 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         for ih, h in enumerate(spec.harmonics):
             i = n_tau + (ip * nh + ih) * 2
             harmonics[h][name] = _amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
+    i6 = [n_tau + (ip * nh + spec.harmonics.index(6)) * 2 + j for ip in range(len(parts)) for j in (0, 1)]
+    cov6 = cov[np.ix_(i6, i6)]
     if spec.delay_s is None:  # the delay was fitted (n_tau = 1): p[0]
         delay, delay_ci = p[0] * TAU_SCALE, Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE
     else:
@@ -198,4 +219,5 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         birge=birge,
         current=(comp.cur_re + 1j * comp.cur_im)[:S_valid] if np.any(comp.cur_re) or np.any(comp.cur_im) else None,
         finite=finite,
+        cov6=cov6,
     )
