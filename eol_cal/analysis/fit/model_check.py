@@ -216,6 +216,12 @@ def sees_up_to_hz(f6_hz: np.ndarray, info: np.ndarray, dof: int, p_min: float) -
     return float(seen[-1]) if len(seen) else 0.0
 
 
+def _fitted_block(cov6: np.ndarray, sel: list[int]) -> np.ndarray:
+    """The block of ``cov6`` of the fitted parts ``sel`` (indices into c's pair then k's): a fit
+    without one part holds only the other's pair (2 x 2), already that block."""
+    return cov6 if cov6.shape[0] == len(sel) else cov6[np.ix_(sel, sel)]
+
+
 def _widened(f: MotorFit, factor: float) -> MotorFit:
     """The same fit with every interval times ``factor``."""
     harmonics = {h: {part: dataclasses.replace(e, ci95=e.ci95 * factor, phase_ci95=e.phase_ci95 * factor)
@@ -268,7 +274,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     # speed bands differed beyond their intervals on 4 of 40 motors of the paper bench (the ECU's
     # own current ripple at those orders changes with speed), a false alarm of the bench file
     zs = [np.concatenate([_pair(f.harmonics[6][part]) for part in ("c", "k") if part in parts]) for f in fits]
-    Ws = [np.linalg.pinv(np.asarray(f.cov6)[np.ix_(sel, sel)]) for f in fits]
+    Ws = [np.linalg.pinv(_fitted_block(np.asarray(f.cov6), sel)) for f in fits]
     zbar = np.linalg.solve(sum(Ws), sum(W @ z for W, z in zip(Ws, zs, strict=True)))
     chi2 = float(sum((z - zbar) @ W @ (z - zbar) for W, z in zip(Ws, zs, strict=True)))
     dof = len(sel) * (len(fits) - 1)
