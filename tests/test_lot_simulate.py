@@ -22,24 +22,7 @@ from eol_cal.records.write import insert_records
 from eol_cal.records.query import query_records
 
 LIMITS = Path(__file__).resolve().parent.parent / "fixtures" / "limits.toml"
-# a short calibration profile: two loads forward and one reverse, enough for k6, c6 and the delay
-PROFILE = """
-name = "short"
-[[segment]]
-speed_rpm = 60.0
-iq = 20.0
-seconds = 1.0
-[[segment]]
-speed_rpm = 60.0
-iq = 65.0
-seconds = 1.2
-ramp_s = 0.1
-[[segment]]
-speed_rpm = -60.0
-iq = -65.0
-seconds = 1.4
-ramp_s = 0.3
-"""
+PROFILE = Path(__file__).resolve().parent.parent / "fixtures" / "profile_short.toml"  # two loads forward, one reverse
 
 
 pytestmark = pytest.mark.usefixtures("no_jax_cache")  # the workers inherit it: the tests stay out of ~/.cache
@@ -48,12 +31,11 @@ pytestmark = pytest.mark.usefixtures("no_jax_cache")  # the workers inherit it: 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("lotsim")
-    (d / "short.toml").write_text(PROFILE)
     strict = d / "strict.toml"  # the compensated p-p limit at 0.5 %: most motors fail it
     strict.write_text(LIMITS.read_text().replace("max_pp_after_pct = 2.0", "max_pp_after_pct = 0.5", 1))
     mech1 = d / "mech1.toml"  # the order-1 amplitude left compensated judged too, as a station judges it
     mech1.write_text(LIMITS.read_text().replace("[variant.EPS-STD]\n", "[variant.EPS-STD]\nmax_mech1_after_nm = 1.0\n", 1))
-    return {"profile": d / "short.toml", "strict": strict, "mech1": mech1}
+    return {"profile": PROFILE, "strict": strict, "mech1": mech1}
 
 
 def _plan(files: dict[str, Path], name: str = "T", limits: Path = LIMITS, motors: int = 3) -> LotPlan:

@@ -20,23 +20,7 @@ from eol_cal.station.whatif import simulate_batch
 from eol_cal.station.whatif_plan import LotPlan
 
 LIMITS = Path(__file__).resolve().parent.parent / "fixtures" / "limits.toml"
-PROFILE = """
-name = "short"
-[[segment]]
-speed_rpm = 60.0
-iq = 20.0
-seconds = 1.0
-[[segment]]
-speed_rpm = 60.0
-iq = 65.0
-seconds = 1.2
-ramp_s = 0.1
-[[segment]]
-speed_rpm = -60.0
-iq = -65.0
-seconds = 1.4
-ramp_s = 0.3
-"""
+PROFILE = Path(__file__).resolve().parent.parent / "fixtures" / "profile_short.toml"  # two loads forward, one reverse
 
 #: what necessarily differs between the two runs of one motor (record paths; ``*``: any index or
 #: key), and why
@@ -93,9 +77,8 @@ def _mismatches(a: dict, b: dict) -> list[str]:
 
 @pytest.mark.slow  # two station cycles on the plant (about 20 s quiet); the batch test keeps lot simulate in the fast loop
 def test_lot_simulate_and_run_on_the_plant_give_the_same_record_but_for_its_kind(tmp_path: Path):
-    (tmp_path / "short.toml").write_text(PROFILE)
     (tmp_path / "key.hex").write_text(P.DEV_SECRET.hex())
-    plan = LotPlan("SAME", "default", str(LIMITS), "EPS-STD", 2, seed=11, profile=str(tmp_path / "short.toml"))
+    plan = LotPlan("SAME", "default", str(LIMITS), "EPS-STD", 2, seed=11, profile=str(PROFILE))
     i = 1
     (lot_doc,) = simulate_batch(plan, [i], loopback_station)
     # the same motor, drawn as the spread draws it, on the simulators `eol-cal demo` starts, through `eol-cal run`
@@ -104,7 +87,7 @@ def test_lot_simulate_and_run_on_the_plant_give_the_same_record_but_for_its_kind
         res = CliRunner().invoke(cli, [
             "run", "--dyno", st.dyno_address, "--interface", "remote", "--channel", st.can_channel,
             "--limits", str(LIMITS), "--variant", "EPS-STD", "--db", str(tmp_path / "runs.sqlite"),
-            "--serial", plan.serial(i), "--profile", str(tmp_path / "short.toml"), "--key-file",
+            "--serial", plan.serial(i), "--profile", str(PROFILE), "--key-file",
             str(tmp_path / "key.hex"), "--report-dir", str(tmp_path / "reports"), "--spool-dir",
             str(tmp_path / "spool"), "--json"])
     assert res.exit_code in (0, 1), res.output
