@@ -4,7 +4,8 @@ first pays the compilations, the rest are what a lot's motors cost.
 
     python bench/bench_whatif_motor.py --motors 5 [--profile bench/eol-default-1rev.toml]
 
-CPU, not wall: the machine is shared. Compare two versions side by side by running this with
+XLA set up as a lot's worker sets it (:func:`eol_cal.numerics.xla.configure_xla`: tick loops in one
+kernel). CPU, not wall: the machine is shared. Compare two versions side by side by running this with
 ``PYTHONPATH`` at each one's checkout, one after the other.
 """
 
@@ -30,6 +31,9 @@ def main() -> None:
     ap.add_argument("--motors", type=int, default=5)
     ap.add_argument("--profile", default=str(ROOT / "bench" / "eol-default-1rev.toml"))
     a = ap.parse_args()
+    from eol_cal.numerics.xla import configure_xla
+
+    configure_xla()  # as a lot's worker (eol_cal.lot.cluster.prepare_fit_process) and the CLI
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.whatif import simulate_motor
