@@ -61,16 +61,15 @@ class SimResult:
 
 _COMPILED: dict[tuple, Callable] = {}
 
-def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, outputs: bool = True) -> Callable:
+def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
     """Compiled ``(params, carry, shared_xs, keys, first_block) -> (carry, outputs)`` for a batch.
 
     ``keys`` holds one PRNG key per motor; the sensor noise of every block of :data:`NOISE_BLOCK`
     ticks is drawn from ``fold_in(key, block)`` (its torque-transducer draws, one a tick, and its
     current-sensor draws, three a current-control tick), so a run does not depend on how it is
-    cut into chunks. ``outputs=False``: the same scan returning ``(carry, None)``, for the
-    pre-roll, whose outputs nobody reads (XLA then drops the work only they need).
+    cut into chunks.
     """
-    key = (cfg, n_ticks, unroll, outputs)
+    key = (cfg, n_ticks, unroll)
     if key in _COMPILED:
         return _COMPILED[key]
     import jax
@@ -88,9 +87,6 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, outputs: bool = Tr
         tq_noise, i_noise = jax.vmap(block_noise, in_axes=(None, 0))(key, first_block + jnp.arange(n_blocks))
         xs = (*shared, tq_noise.reshape(-1))
         i_noise = i_noise.reshape(-1, 3)
-        if not outputs:
-            carry, _ = jax.lax.scan(lambda c, x: (tick(cfg, p, i_noise, c, x)[0], None), carry, xs, unroll=unroll)
-            return carry, None
         carry, ys = jax.lax.scan(lambda c, x: tick(cfg, p, i_noise, c, x), carry, xs, unroll=unroll)
         return carry, ys.T  # channel-major: the host converts contiguous rows
 
@@ -284,7 +280,6 @@ def simulate(
     if chunk_ticks < NOISE_BLOCK or chunk_ticks % NOISE_BLOCK:
         raise InputError(None, "chunk_ticks", f"{chunk_ticks}: needs a multiple of {NOISE_BLOCK}")
     fn = _chunk_fn(cfg, chunk_ticks, unroll)
-    fn_pre = _chunk_fn(cfg, chunk_ticks, unroll, outputs=False)
     n_cc = _cc_per_block(cfg)
     # the recorded ticks (after the pre-roll) go straight into the captures' arrays, converted to
     # their dtypes on the way (one pass over the outputs; no float32 copy of the whole run first)
@@ -304,10 +299,8 @@ def simulate(
         stop = min(start + chunk_ticks, n_total)
         shared = tuple(a[start:start + chunk_ticks] for a in inputs)
         shared += (_cc_index(shared[2], n_cc),)
+        carry, ys = fn(batch, carry, shared, keys, np.int32(start // NOISE_BLOCK))
         lo = max(start, n_pre)
-        # a chunk wholly in the pre-roll: only its end state counts (a resumed run's ramp, the
-        # settling: most of a capture's ticks)
-        carry, ys = (fn if lo < stop else fn_pre)(batch, carry, shared, keys, np.int32(start // NOISE_BLOCK))
         if lo < stop:
             ys = np.asarray(ys)
             for k, name in enumerate(OUT_COLUMNS):
