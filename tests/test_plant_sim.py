@@ -68,9 +68,9 @@ def test_noise_does_not_depend_on_the_chunk_length():
 
 
 @pytest.mark.parametrize("mode", ["estimated", "compensated"])
-def test_pre_roll_without_outputs_ends_where_the_recorded_run_is(mode):
-    """The pre-roll's chunks run a scan that returns no outputs: recording those ticks instead
-    (no pre-roll, a longer capture) reaches the same state, sample for sample after them."""
+def test_pre_roll_ends_where_the_recorded_run_is(mode):
+    """A pre-roll and recording those ticks instead (no pre-roll, a longer capture) reach the same
+    state: the captures agree sample for sample after them."""
     rolled = simulate(paper(), constant(60.0, 0.1, iq=65.0), mode=mode, seed=5, chunk_ticks=1000, pre_roll_s=0.3)[0]
     whole = simulate(paper(), constant(60.0, 0.4, iq=65.0), mode=mode, seed=5, chunk_ticks=1000, pre_roll_s=0.0)[0]
     n_pre = int(round(0.3 * paper().motor.f_pwm))
