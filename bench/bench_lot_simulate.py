@@ -32,7 +32,6 @@ def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profil
 
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-    from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.whatif import simulate_lot
     from eol_cal.station.whatif_plan import LotPlan
 
@@ -40,7 +39,7 @@ def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profil
     t0 = time.perf_counter()
     with local_cluster(workers) as cluster, Client(cluster) as client:
         client.register_plugin(RefitWorkerSetup(default_cache_dir()))
-        out = simulate_lot(plan, db, client, loopback_station, cache_dir=default_cache_dir())
+        out = simulate_lot(plan, db, client, cache_dir=default_cache_dir())
     if out.failed_batches:
         raise RuntimeError(out.failed_batches[0][1])
     return time.perf_counter() - t0

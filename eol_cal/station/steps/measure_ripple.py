@@ -50,7 +50,7 @@ def judge_ripple(result: MotorResult, before: PointRipple, after: PointRipple, m
                  limits: VariantLimits) -> tuple[RippleMetrics, Measured, list[LimitCheck]]:
     """The record's ripple metrics at the fit's operating point, the measured values with the
     ripple (the p-p figures in %, the order-1 amplitude left in N*m) and the ripple's limits
-    judged."""
+    judged: the station's cycle and a what-if lot (:mod:`eol_cal.station.whatif`) judge alike."""
     op = result.operating_point
     metrics = RippleMetrics(float(op.speed_rpm), float(op.i_qo_a), point_figures(before), point_figures(after),
                             RIPPLE_DEFINITION)
