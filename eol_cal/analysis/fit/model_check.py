@@ -216,12 +216,6 @@ def sees_up_to_hz(f6_hz: np.ndarray, info: np.ndarray, dof: int, p_min: float) -
     return float(seen[-1]) if len(seen) else 0.0
 
 
-def _fitted_block(cov6: np.ndarray, sel: list[int]) -> np.ndarray:
-    """The block of ``cov6`` of the fitted parts ``sel`` (indices into c's pair then k's): a fit
-    without one part holds only the other's pair (2 x 2), already that block."""
-    return cov6 if cov6.shape[0] == len(sel) else cov6[np.ix_(sel, sel)]
-
-
 def _widened(f: MotorFit, factor: float) -> MotorFit:
     """The same fit with every interval times ``factor``."""
     harmonics = {h: {part: dataclasses.replace(e, ci95=e.ci95 * factor, phase_ci95=e.phase_ci95 * factor)
@@ -269,19 +263,19 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     noise = [band_noise_ratio(seg, idx, spec, fit.delay_s) for idx, _ in bands]
     fits = [_widened(f, math.sqrt(max(r, 1e-12))) for f, (r, _) in zip(fits, noise, strict=True)]
     dof_noise = sum(d for _, d in noise)
-    sel = [i for i, part in enumerate(p for p in ("c", "k") for _ in (0, 1)) if part in parts]
+    n = 2 * len(parts)  # each band's phasors: the fitted parts' (cos, sin) pairs, c's then k's
     # the 6th only: the 12th and 18th would see the path nearer a resonance, but on the plant their
     # speed bands differed beyond their intervals on 4 of 40 motors of the paper bench (the ECU's
     # own current ripple at those orders changes with speed), a false alarm of the bench file
     zs = [np.concatenate([_pair(f.harmonics[6][part]) for part in ("c", "k") if part in parts]) for f in fits]
-    Ws = [np.linalg.pinv(_fitted_block(np.asarray(f.cov6), sel)) for f in fits]
+    Ws = [np.linalg.pinv(np.asarray(f.cov6)) for f in fits]  # cov6 holds the fitted parts' pairs, in zs' order
     zbar = np.linalg.solve(sum(Ws), sum(W @ z for W, z in zip(Ws, zs, strict=True)))
     chi2 = float(sum((z - zbar) @ W @ (z - zbar) for W, z in zip(Ws, zs, strict=True)))
-    dof = len(sel) * (len(fits) - 1)
+    dof = n * (len(fits) - 1)
     # the sensitivity on one common scaling of the bands' phasors, per part (each part's own share)
     rows: list[dict[str, Any]] = []
     info = np.zeros(len(fits))
-    for j in range(0, len(sel), 2):
+    for j in range(0, n, 2):
         info += np.array([float(zbar[j:j + 2] @ W[j:j + 2, j:j + 2] @ zbar[j:j + 2]) for W in Ws])
     for (idx, rpm), f in zip(bands, fits, strict=True):
         row: dict[str, Any] = {"speed_rpm": rpm, "segments": len(idx)}
