@@ -108,8 +108,9 @@ def shift_frame(fit: MotorFit, offset_rad: float, offset_sd_rad: float = 0.0) ->
         rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
         n_pairs = fit.cov6.shape[0] // 2
         R = np.kron(np.eye(n_pairs), rot)
+        # cov6 holds the fitted parts' pairs, as harmonics[6] holds their estimates (c's, then k's)
         z = np.concatenate([[e.value * math.cos(e.phase), e.value * math.sin(e.phase)]
-                            for e in harmonics[6].values()]) if n_pairs == len(harmonics[6]) else np.zeros(2 * n_pairs)
+                            for e in harmonics[6].values()])
         turn = np.kron(np.eye(n_pairs), np.array([[0.0, -1.0], [1.0, 0.0]])) @ z * 6.0 * offset_sd_rad
         cov6 = R @ fit.cov6 @ R.T + np.outer(turn, turn)
     return dataclasses.replace(fit, harmonics=harmonics, cov6=cov6)
