@@ -25,7 +25,7 @@ import numpy as np
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
-from eol_cal.analysis.fit.model import legendre_rows
+from eol_cal.analysis.fit.model import legendre_rows, transducer_gain
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
@@ -71,7 +71,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                                           mi.poles, mi.encoder_ppr)
         w_m = seg.omega_e[s] / pp
         freqs = np.asarray(ORDERS, dtype=float) * w_m
-        g = 1.0 / (1.0 + 1j * freqs * fit.delay_s) if spec.transducer == "lowpass" else np.exp(-1j * freqs * fit.delay_s)
+        g = transducer_gain(spec, fit.delay_s, freqs)
         if seg.path_response is not None:
             g = g * np.asarray(seg.path_response(freqs), dtype=complex)
         t = np.asarray(seg.t[s], dtype=float)

@@ -193,6 +193,16 @@ def path_gain(seg: SteadySegments, spec: FitSpec) -> np.ndarray:
     return np.asarray(seg.path_response(freq), dtype=complex).reshape(freq.shape)
 
 
+def transducer_gain(spec: FitSpec, tau_s: float, omega: np.ndarray | float) -> np.ndarray:
+    """The fit's transducer model (``spec.transducer``, time constant or delay ``tau_s`` in s) at
+    angular frequencies ``omega`` (rad/s, signed): complex gain, numpy (the plots, the mechanical
+    orders and the model check; the solver's JAX model spells it in its own columns)."""
+    omega = np.asarray(omega, dtype=float)
+    if spec.transducer == "lowpass":
+        return 1.0 / (1.0 + 1j * omega * tau_s)
+    return np.exp(-1j * omega * tau_s)
+
+
 def check_identifiable(seg: SteadySegments, spec: FitSpec, source: str | None = None,
                        left_out: Sequence[tuple[str, str]] = ()) -> None:
     """Refuse a request the data cannot answer (InputError naming what is missing).

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from eol_cal.analysis.fit.batch import fit_many
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix, transducer_gain
 from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit
 
 #: segments whose |speed| is within this fraction of each other share a band
@@ -114,13 +114,6 @@ def _subset(seg: SteadySegments, idx: np.ndarray) -> SteadySegments:
                                kt_iq=None if seg.kt_iq is None else [seg.kt_iq[i] for i in idx])
 
 
-def _transducer(spec: FitSpec, tau_s: float, omega: np.ndarray) -> np.ndarray:
-    """The fit's transducer model at angular frequencies ``omega`` (rad/s, signed): complex gain."""
-    if spec.transducer == "lowpass":
-        return 1.0 / (1.0 + 1j * omega * tau_s)
-    return np.exp(-1j * omega * tau_s)
-
-
 def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> tuple[float, float, int]:
     """The noise of segment ``s`` at its 6th harmonic's frequency, and at the residual's average.
 
@@ -157,7 +150,7 @@ def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> 
         omega = 6.0 * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
         path = np.ones(len(k), dtype=complex) if seg.path_response is None else np.asarray(
             seg.path_response(omega), dtype=complex)
-        e = e - path * _transducer(spec, tau_s, omega) * X[1]
+        e = e - path * transducer_gain(spec, tau_s, omega) * X[1]
     return float(np.mean(np.abs(e) ** 2)) / 2.0, 2.0 * s2 / n, 2 * len(k)
 
 

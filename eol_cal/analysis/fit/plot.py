@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from eol_cal.analysis.fit import FitSpec, MotorFit, design_matrix, path_gain
+from eol_cal.analysis.fit.model import transducer_gain
 from eol_cal.analysis.fit.motor_input import MotorInput
 from eol_cal.rendering.renderer import plain
 from eol_cal.numerics.wrap import wrap_2pi
@@ -53,8 +54,7 @@ def fitted_ripple(mi: MotorInput, fit: MotorFit, spec: FitSpec, s: int, theta: n
     gains = path_gain(seg, spec) if gains is None else gains
     curve = np.full_like(np.asarray(theta, dtype=float), fit.t_avg[s])
     for h, parts in fit.harmonics.items():
-        a = h * seg.omega_e[s] * fit.delay_s
-        gain = 1.0 / (1.0 + 1j * a) if spec.transducer == "lowpass" else np.exp(-1j * a)
+        gain = transducer_gain(spec, fit.delay_s, h * seg.omega_e[s])
         gain *= gains[s, spec.harmonics.index(h)]
         # c sin(x + phase_c) + k i_qo sin(x + phase_k) = Im(e^ix (c e^i phase_c + k i_qo e^i phase_k)): one sine
         amp = 0j
