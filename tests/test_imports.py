@@ -26,8 +26,10 @@ PACKAGES = ("eol_cal", "cli")
 BENCH = ROOT / "bench"
 
 
+@functools.cache
 def _modules(bench: bool = True) -> dict[str, Path]:
-    """module name -> file, of the packages and (``bench``) the benchmark scripts."""
+    """module name -> file, of the packages and (``bench``) the benchmark scripts (read, never changed:
+    every test here shares it)."""
     out = {}
     for pkg in PACKAGES:
         for path in sorted((ROOT / pkg).rglob("*.py")):
@@ -38,6 +40,25 @@ def _modules(bench: bool = True) -> dict[str, Path]:
     if bench:
         out.update({path.stem: path for path in sorted(BENCH.glob("*.py"))})
     return out
+
+
+@functools.cache
+def _parsed(path: Path) -> tuple[ast.Module, dict[ast.AST, ast.AST]]:
+    """A file's tree and each node's parent, parsed once for all the tests here (they walk every
+    module of the project several times)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    return tree, {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+
+
+def _dotted(node: ast.AST) -> str:
+    """``a.b.c`` for a name or an attribute chain on a name, else ``""`` (cheaper than ``ast.unparse``,
+    which the walk would call for every call in the project)."""
+    if isinstance(node, ast.Name):
+        return node.id
+    if isinstance(node, ast.Attribute):
+        base = _dotted(node.value)
+        return f"{base}.{node.attr}" if base else ""
+    return ""
 
 
 def _under_type_checking(node: ast.AST, parents: dict[ast.AST, ast.AST]) -> bool:
@@ -59,20 +80,20 @@ def _imported_names(node: ast.AST, module: str, is_pkg: bool, mods: dict[str, Pa
             pkg = pkg[: len(pkg) - (node.level - 1)]
             base = ".".join(pkg + ([base] if base else []))
         return [(base, True)] + [(f"{base}.{a.name}", True) for a in node.names if f"{base}.{a.name}" in mods]
-    if (isinstance(node, ast.Call) and ast.unparse(node.func) in ("importlib.import_module", "import_module")
+    if (isinstance(node, ast.Call) and _dotted(node.func) in ("importlib.import_module", "import_module")
             and node.args and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
         return [(node.args[0].value, True)]
     return []
 
 
+@functools.cache
 def import_graph(type_only: bool = False) -> dict[str, dict[str, int]]:
     """module -> {imported module of this project: first line}, every import that runs (and with
-    ``type_only`` those under ``if TYPE_CHECKING``)."""
+    ``type_only`` those under ``if TYPE_CHECKING``). Shared by the tests here: read it, never change it."""
     mods = _modules()
     graph: dict[str, dict[str, int]] = {m: {} for m in mods}
     for module, path in mods.items():
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+        tree, parents = _parsed(path)
         for node in ast.walk(tree):
             names = _imported_names(node, module, path.name == "__init__.py", mods)
             if not names or (_under_type_checking(node, parents) and not type_only):
@@ -263,10 +284,12 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
 ]
 
 
+@functools.cache
 def _pattern(p: str) -> re.Pattern[str]:
     return re.compile(re.escape(p).replace(r"\*\*", ".*").replace(r"\*", "[^.]*") + "$")
 
 
+@functools.cache
 def layer_of(module: str) -> int:
     packages = {f"eol_cal.{d.name}" for d in (ROOT / "eol_cal").iterdir() if (d / "__init__.py").exists()}
     for i, (_, patterns) in enumerate(LAYERS):
@@ -323,7 +346,7 @@ def _private(name: str) -> bool:
 def private_uses(module: str, path: Path) -> list[str]:
     """``from x import _name`` of the project's modules, and ``alias._name`` on a module of the
     project bound by an import (``from eol_cal.a import b as m; m._f()``)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
+    tree, _ = _parsed(path)
     mods = _modules()
     found, aliases = [], set()
     for node in ast.walk(tree):
@@ -360,7 +383,9 @@ def test_private_uses_are_found():
 
 
 def _sys_path_edits(path: Path) -> list[str]:
-    tree = ast.parse(path.read_text(encoding="utf-8"))
+    if "sys.path" not in path.read_text(encoding="utf-8"):
+        return []
+    tree, _ = _parsed(path)
     return [f"{path.relative_to(ROOT)} (line {node.lineno}): {ast.unparse(node)[:80]}" for node in ast.walk(tree)
             if isinstance(node, (ast.Call, ast.Assign, ast.AugAssign))
             and "sys.path" in ast.unparse(node.func if isinstance(node, ast.Call) else node)
@@ -428,8 +453,7 @@ def lazy_light_imports() -> dict[str, list[str]]:
     top_theirs: dict[str, set[str]] = {}
     inside: dict[str, list[tuple[int, str]]] = {}
     for module, path in mods.items():
-        tree = ast.parse(path.read_text(encoding="utf-8"))
-        parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+        tree, parents = _parsed(path)
         top_ours[module], top_theirs[module], inside[module] = set(), set(), []
         for node in ast.walk(tree):
             names = _imported_names(node, module, path.name == "__init__.py", mods)
