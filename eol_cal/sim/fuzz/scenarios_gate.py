@@ -12,6 +12,7 @@ unknown kinds). Its ``BUILDERS`` are picked up by :func:`eol_cal.sim.fuzz.scenar
 
 from __future__ import annotations
 
+import functools
 import json
 import sqlite3
 import tempfile
@@ -40,9 +41,11 @@ BAD_VALUES: dict[str, tuple[str, ...]] = {
 }
 
 
-def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
-    """A records database (``lot`` production runs of the demo's record on EOL-1, a baseline
-    ``b`` of them), then ``statements`` run on it."""
+@functools.cache
+def _base_db(lot: int, baseline: bool) -> bytes:
+    """A records database: ``lot`` production runs of the demo's record on EOL-1 and a baseline
+    ``b`` of them. Built once per shape: the scenarios differ only in the statements run on a copy
+    (building one costs a second; the suite collects them in every worker)."""
     doc = json.loads((FIXTURES / "run_record_demo.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.sqlite"
@@ -58,12 +61,25 @@ def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
         insert_records(db, recs)
         if baseline:
             store(db, baseline_of_db(db, "b", {}, min_n=2))
+        return _checkpointed(db)
+
+
+def _checkpointed(db: Path) -> bytes:
+    with sqlite3.connect(db) as con:
+        con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    return db.read_bytes()
+
+
+def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
+    """A records database (``lot`` production runs of the demo's record on EOL-1, a baseline
+    ``b`` of them), then ``statements`` run on it."""
+    with tempfile.TemporaryDirectory() as tmp:
+        db = Path(tmp) / "r.sqlite"
+        db.write_bytes(_base_db(lot, baseline))
         with sqlite3.connect(db) as con:
             for s in statements:
                 con.execute(s)
-        with sqlite3.connect(db) as con:
-            con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
-        return db.read_bytes()
+        return _checkpointed(db)
 
 
 def gate_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
