@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import tempfile
 import uuid
 from collections.abc import Iterator
@@ -25,6 +26,13 @@ from eol_cal.sim.postgres import PostgresServer
 # one and not the other. The workers see what a serial run sees; a test that wants a width sets it.
 if os.environ.get("PYTEST_XDIST_WORKER"):
     os.environ.pop("COLUMNS", None)
+
+# PYTHONDONTWRITEBYTECODE (some CI images and this project's dev machines set it) would make every
+# worker rewrite every test module's asserts and every CLI subprocess compile the project from its
+# source, on every run: ~5.5 CPU s a worker's collection and ~0.1 s a subprocess (2026-11-29). The
+# suite keeps Python's bytecode caches (``__pycache__``, ignored by git) whatever the environment says.
+sys.dont_write_bytecode = False
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 
 # The station tests run the dyno simulator and its plant in the test's process (or beside it): on
 # a loaded machine (the hog runs of docs/history/benchmarks-journal.md, "Test suite") the station's client can be
