@@ -11,15 +11,19 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import math
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from sqlalchemy import event
+from sqlalchemy.engine import Engine
 
 from cli.main import cli
 from eol_cal.sim.virtual_rig import example_block
@@ -29,20 +33,26 @@ from eol_cal.firmware import gen_header
 from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.firmware.mech_params import FP_FORWARD, FP_MAX, FP_REVERSE, MechParams, make_mech_tables, unused_mech
 
-import pya2l  # pya2ldb, in the test extra
-from pya2l import model
-from pya2l.api import inspect as a2l_inspect
-from sqlalchemy import event
-from sqlalchemy.engine import Engine
-
 # pya2l registers a "connect" listener on EVERY SQLAlchemy engine of the process (its SQLite
 # pragmas and REGEXP function; on a psycopg connection it raises): the records tests in the same
 # pytest process would open their databases through it. It is kept only while pya2l opens its own.
-event.remove(Engine, "connect", model.set_sqlite3_pragmas)
+
+
+@functools.cache
+def _pya2l() -> tuple[Any, Any, Any]:
+    """pya2l (pya2ldb, in the test extra), its model and its inspect API, imported at first use (1.9
+    CPU s: every test worker paid it at collection) with its listener taken off at once."""
+    import pya2l
+    from pya2l import model
+    from pya2l.api import inspect
+
+    event.remove(Engine, "connect", model.set_sqlite3_pragmas)
+    return pya2l, model, inspect
 
 
 @contextlib.contextmanager
 def _pya2l_connects():
+    model = _pya2l()[1]
     event.listen(Engine, "connect", model.set_sqlite3_pragmas)
     try:
         yield
@@ -52,6 +62,7 @@ def _pya2l_connects():
 
 def _import_a2l(path: Path):
     """pya2l's session of an A2L file, its inspected characteristics by name."""
+    pya2l, model, a2l_inspect = _pya2l()
     with _pya2l_connects():
         session = pya2l.import_a2l(str(path), in_memory=True, progress_bar=False, loglevel="ERROR")
         names = [c.name for c in session.query(model.Characteristic).all()]
@@ -166,6 +177,7 @@ def test_flags_name_the_contracts_bits(parsed):
 
 def test_memory_segments_byte_order_and_version(parsed):
     _, n, path, session, _, layout = parsed
+    model = _pya2l()[1]
     segs = sorted(session.query(model.MemorySegment).all(), key=lambda s: s.address)
     assert [(s.name, s.address, s.size, s.prgType, s.memoryType) for s in segs] == [
         (f"BANK{b}", 2 * w, B.BANK_BYTES, "DATA", "FLASH") for b, w in enumerate(B.BANK_WORD_ADDR)]
@@ -187,6 +199,7 @@ def test_a_tool_reading_with_the_a2l_sees_the_blocks_values(parsed):
     if layout == 2:
         blk = dataclasses.replace(blk, layout_version=2, mech=_mech_example(blk.encoder_ppr))
     data = B.pack(blk)
+    model = _pya2l()[1]
     seg = {s.name: s for s in session.query(model.MemorySegment).all()}[f"BANK{bank}"]
     image = data + b"\xff" * (seg.size - len(data))
     order = {"MSB_LAST": "<", "MSB_FIRST": ">"}[session.query(model.ModCommon).one().byte_order.byteOrder]
@@ -268,7 +281,7 @@ def test_a_bit_the_contract_adds_appears_without_touching_the_generator(tmp_path
 
 def test_pya2l_leaves_no_listener_on_other_engines(parsed):
     """Our own engines (the records' SQLite and PostgreSQL) never run pya2l's connect hook."""
-    assert not event.contains(Engine, "connect", model.set_sqlite3_pragmas)
+    assert not event.contains(Engine, "connect", _pya2l()[1].set_sqlite3_pragmas)
 
 
 def _contract_bounds(layout: int, table_len: int, motor) -> dict[str, tuple[float, float]]:
