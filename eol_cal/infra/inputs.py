@@ -13,6 +13,7 @@ import contextlib
 import json
 import math
 import os
+import re
 import stat
 import threading
 import tomllib
@@ -223,6 +224,15 @@ MAX_TOML_BYTES = 1 << 20
 #: TOML integers are 64-bit signed (TOML 1.0, "Integer"); JSON ones are held to the same range,
 #: so that no reader meets an integer that overflows a float or a C field
 INT_RANGE = (-(1 << 63), (1 << 63) - 1)
+#: a dotted key of more than MAX_NESTING parts (bare or quoted: TOML's ``a . "b" . c``) anywhere in
+#: the text. Python's TOML parser takes quadratic time in a dotted key's length (10 000 parts 4 s, a
+#: 1 MiB file of one key hours: measured 2026-11-29), so such a key is refused before parsing.
+#: Strings are not told apart: a value of 65 dot-joined words would be refused too (the tool's
+#: files hold none). Linear in practice: a match starts only where a part starts, and each part is
+#: taken whole (possessive), so no start rescans more than 64 parts.
+_DEEP_DOTTED_KEY = re.compile(
+    r"(?<![A-Za-z0-9_-])(?:(?:[A-Za-z0-9_-]++|\"[^\"\n]*+\"|'[^'\n]*+')[ \t]*+\.[ \t]*+)"
+    + f"{{{MAX_NESTING}}}")
 
 
 def _check_tree(doc: Any, source: str | None, field: str | None, finite: bool) -> None:
@@ -257,6 +267,9 @@ def loads_toml(text: str, source: str | None) -> dict[str, Any]:
     (a 5000-digit one is a ``ValueError`` in the parser, a 400-digit one overflows a float
     later). ``nan``/``inf`` are left to the reader's own check, which names the key.
     """
+    if text.count(".") > MAX_NESTING and _DEEP_DOTTED_KEY.search(text):
+        raise InputError(source, None, f"a dotted key of more than {MAX_NESTING} parts (nested deeper than "
+                                       f"{MAX_NESTING} levels)")
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
