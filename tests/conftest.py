@@ -46,14 +46,17 @@ _jax_cache_key = pytest.StashKey[str]()
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Point JAX's compilation cache and the fit's serialized solvers at a directory of this
-    worker unless the caller chose one (``EOL_CAL_JAX_CACHE``): JAX writes its cache entries in
-    place, so two workers sharing ``~/.cache/eol-cal/jax`` could read each other's half-written
-    entries; and the tests stay out of the user's home. The processes a test starts inherit it.
+    """Point JAX's compilation cache and the fit's serialized solvers at the suite's own directory
+    unless the caller chose one (``EOL_CAL_JAX_CACHE``): the tests stay out of the user's home.
+    The processes a test starts inherit it.
 
-    The directory is kept between runs (``.pytest_cache/eol-cal-jax/<worker>``), so the fast loop
-    run again compiles only what changed (about 25 s less on 2 cores);
-    ``EOL_CAL_TEST_JAX_CACHE=fresh`` takes a new one, removed at the end."""
+    The directory is kept between runs (``.pytest_cache/eol-cal-jax/shared``), so the fast loop
+    run again compiles only what changed (about 25 s less on 2 cores), and it is one for every
+    worker: pytest-xdist hands a test file to whichever worker is free, so a cache per worker
+    missed about half of it the next run. JAX writes its entries in place unless its cache has a
+    size limit, and then it reads and writes under a file lock (``filelock``): the limit set here
+    makes the workers' sharing safe. ``EOL_CAL_TEST_JAX_CACHE=fresh`` takes a new directory per
+    worker, removed at the end."""
     if os.environ.get(_JAX_CACHE):
         return
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
@@ -61,9 +64,10 @@ def pytest_configure(config: pytest.Config) -> None:
         path = tempfile.mkdtemp(prefix=f"eol-cal-test-jax-{worker}-")
         config.stash[_jax_cache_key] = path
     else:
-        keep = Path(config.rootpath) / ".pytest_cache" / "eol-cal-jax" / worker
+        keep = Path(config.rootpath) / ".pytest_cache" / "eol-cal-jax" / "shared"
         keep.mkdir(parents=True, exist_ok=True)
         path = str(keep)
+        os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
     os.environ[_JAX_CACHE] = path
     # every compilation of the worker (the plant's, the estimator's), not only the fit's, which
     # enables the cache itself: JAX reads these when it starts
