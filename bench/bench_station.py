@@ -129,6 +129,17 @@ def run_dir(reports: Path, serial: str) -> Path:
     return found
 
 
+def written(path: Path, timeout: float = 300.0) -> Path:
+    """``path`` once it exists: the loop writes a run's report and ``report.json`` on its report
+    thread after it asked for the next serial (the record itself is in the spool by then)."""
+    end = time.monotonic() + timeout
+    while not path.exists():
+        if time.monotonic() > end:
+            raise TimeoutError(f"{path} not written within {timeout} s")
+        time.sleep(0.05)
+    return path
+
+
 def leads_in(rec: dict) -> dict[str, tuple[float, object]]:
     """Each of the run's captures' lead-in for the ECU's settling after a reset: (s at its first
     point, the point turned at first as a ``DynoSetpoint`` or None); (0, None) in records from
@@ -237,7 +248,7 @@ def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile
             pos = m.end()
             t_next, m = screen.wait_for(prompt, pos)
             pos = m.end()
-            rec = json.loads((run_dir(work / "reports", serial) / "report.json").read_text())
+            rec = json.loads(written(run_dir(work / "reports", serial) / "report.json").read_text())
             fig = motor_figures(rec, serial, t_scan_wall, t_scan_wall + (t_verdict - t_scan), t_next - t_verdict,
                                 plant_late(line), load_text, rate_hz)
             print(f"    loop {serial}{' (warm-up)' if k == 0 else ''}: {fig.verdict}, scan->verdict {fig.wall:.2f} s, "
