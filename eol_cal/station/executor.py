@@ -156,12 +156,15 @@ class Executor:
         # From here on a signal waits until the record is written (eol_cal.infra.interrupts).
         with shielded():
             rec = self.untimed(ctx, decide_verdict.NAME, lambda: decide_verdict.run(ctx, on_verdict), decide_verdict.run)
-            # behind only with the record durable in the spool; a Ctrl-C ends the session: at once
-            if behind is None or ctx.journal is None or interrupted:
+            # behind only with the record durable in the spool; a Ctrl-C ends the session: at once;
+            # a master run's record is what the next motor's gate reads (eol_cal.msa.gate): at once
+            close_now = behind is None or ctx.journal is None or interrupted or ctx.kind == "master"
+            if close_now:
                 out = self._close(ctx)
         if interrupted:  # Ctrl-C: recorded; now end the process
             raise ctx.failure  # type: ignore[misc]
-        if behind is not None and ctx.journal is not None:
+        if not close_now:
+            assert behind is not None  # close_now otherwise
             from eol_cal.records.spool import SaveResult
 
             # the report thread's steps emit no events: the screen has moved on to the next motor
