@@ -210,7 +210,7 @@ def _written(jobs, tally) -> None:
     session's tally, and where they went on screen."""
     for job in jobs:
         out = job.result()  # a record that neither the database nor the spool took: said, as at once
-        tally.add(out.record, str(out.report_html) if out.report_html else None)
+        tally.written(out.record, str(out.report_html) if out.report_html else None)
         _show(out)
 
 
@@ -243,8 +243,8 @@ def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
                     "interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)",
                     f"report: under {cfg.report_dir}"]))
                 return True
-            if out.pending is None:  # written at once (the spool could not take the verdict's record)
-                tally.add(out.record, str(out.report_html) if out.report_html else None)
+            tally.add(out.record, str(out.report_html) if out.report_html else None)  # the verdict's, in order
+            if out.pending is None:  # written at once (a master run; a spool that could not take the record)
                 try:
                     _show(out)
                 except KeyboardInterrupt:
