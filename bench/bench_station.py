@@ -48,6 +48,10 @@ LIMITS = ROOT / "fixtures" / "limits.toml"
 CRITICAL_STEPS = ("pre-flight", "prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics")
 
 
+#: seconds between two readings of the station process's CPU time (the steps' CPU figures)
+SAMPLE_S = 0.02
+
+
 def load() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
@@ -61,7 +65,22 @@ class Screen:
         self.cpu: list[float] = []  # the child's CPU seconds at each event (user + system, all its threads)
         self._cond = threading.Condition()
         self._proc = proc
+        self.samples: list[tuple[float, float]] = []  # (wall time, the child's CPU seconds), every SAMPLE_S
         threading.Thread(target=self._read, daemon=True).start()
+        threading.Thread(target=self._sample, daemon=True).start()
+
+    def _sample(self) -> None:
+        while self._proc.poll() is None:
+            cpu = self.cpu_now()
+            self.samples.append((time.time(), cpu))
+            time.sleep(SAMPLE_S)
+
+    def cpu_over(self, t0: float, t1: float) -> float:
+        """The child's CPU seconds between wall times ``t0`` and ``t1`` (interpolated between samples)."""
+        import numpy as np
+
+        t, c = np.array(self.samples).T
+        return float(np.interp(t1, t, c) - np.interp(t0, t, c))
 
     def _read(self) -> None:
         fd = self._proc.stdout.fileno()
@@ -213,6 +232,19 @@ def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: f
                  lead_s)
 
 
+def step_cpu(rec: dict, screen: Screen) -> dict[str, float]:
+    """Each step's CPU seconds (the station process, all its threads), over the step's wall span:
+    the steps run one after the other from the record's start."""
+    t = dt.datetime.fromisoformat(rec["started_at"]).timestamp()
+    out: dict[str, float] = {}
+    for s in rec["steps"]:
+        if s["seconds"] is None:
+            continue
+        out[f"cpu {s['step']}"] = screen.cpu_over(t, t + s["seconds"])
+        t += s["seconds"]
+    return out
+
+
 def settings_file(work: Path, line, map_name: str, key: Path, profile: str) -> Path:
     path = work / "station.toml"
     path.write_text("\n".join([
@@ -267,7 +299,7 @@ def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile
             fig = motor_figures(rec, serial, t_scan_wall, t_scan_wall + (t_verdict - t_scan), t_next - t_verdict,
                                 plant_late(line), load_text, rate_hz)
             fig.extra.update(cpu_cycle=screen.cpu_at(t_verdict) - cpu_scan,
-                             cpu_tail=screen.cpu_at(t_next) - screen.cpu_at(t_verdict))
+                             cpu_tail=screen.cpu_at(t_next) - screen.cpu_at(t_verdict), **step_cpu(rec, screen))
             print(f"    loop {serial}{' (warm-up)' if k == 0 else ''}: {fig.verdict}, scan->verdict {fig.wall:.2f} s "
                   f"(CPU {fig.extra['cpu_cycle']:.2f} s), verdict->next scan CPU {fig.extra['cpu_tail']:.2f} s, "
                   f"physical {fig.physical:.2f}, critical {fig.critical:.2f}, verdict->next scan {fig.tail:.2f}, "
@@ -313,7 +345,8 @@ def single_runs(code: Path, line, work: Path, map_name: str, key: Path, profile:
         rec = json.loads((run_dir(work / "reports", serial) / "report.json").read_text())
         fig = motor_figures(rec, serial, t0_wall, t0_wall + (t_verdict - t0), t_exit - t_verdict, plant_late(line),
                             load_text, rate_hz)
-        fig.extra.update(cpu_cycle=screen.cpu_at(t_verdict), cpu_tail=screen.cpu[-1] - screen.cpu_at(t_verdict))
+        fig.extra.update(cpu_cycle=screen.cpu_at(t_verdict), cpu_tail=screen.cpu[-1] - screen.cpu_at(t_verdict),
+                         **step_cpu(rec, screen))
         print(f"    run {serial}: {fig.verdict}, start->verdict {fig.wall:.2f} s (CPU {fig.extra['cpu_cycle']:.2f} s), "
               f"verdict->exit CPU {fig.extra['cpu_tail']:.2f} s, physical {fig.physical:.2f}, "
               f"critical {fig.critical:.2f}, verdict->exit {fig.tail:.2f}, plant late {fig.plant_late:.2f}, "
@@ -355,6 +388,8 @@ def report(results: dict[tuple[str, str, str], list[Motor]], codes: list[str]) -
         if all("cpu_cycle" in m.extra for m in motors):
             rows.append(("CPU s, scan -> verdict (all threads)", [m.extra["cpu_cycle"] for m in motors]))
             rows.append(("CPU s, verdict -> next scan", [m.extra["cpu_tail"] for m in motors]))
+            for step in (*CRITICAL_STEPS, "report"):
+                rows.append((f"  CPU s, {step}", [m.extra.get(f"cpu {step}", 0.0) for m in motors]))
         for label, values in rows:
             print(f"{label:<40}{med(values)}")
 
