@@ -173,7 +173,8 @@ def _show_verdict(rec) -> None:
         lines.append(f"dyno safe state: {rec.safe_state}")
     if rec.ecu_active.block == "uncompensated":
         lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
-    lines.append("record: safe in the spool; the report and the database follow while the next motor runs")
+    lines.append("record: safe in the spool; the report and the database follow" + (
+        " before the next serial" if rec.kind == "master" else " while the next motor runs"))
     console.print(verdict_panel(rec.serial, rec.verdict, lines))
 
 
