@@ -48,6 +48,10 @@ LIMITS = ROOT / "fixtures" / "limits.toml"
 CRITICAL_STEPS = ("pre-flight", "prepare ECU", "acquire", "fit", "table", "flash", "acquire compensated", "metrics")
 
 
+#: seconds between two readings of the station process's CPU time (the steps' CPU figures)
+SAMPLE_S = 0.02
+
+
 def load() -> str:
     return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
@@ -58,16 +62,33 @@ class Screen:
     def __init__(self, proc: subprocess.Popen) -> None:
         self.text = ""
         self.events: list[tuple[float, int]] = []  # (monotonic time, length of text then)
+        self.cpu: list[float] = []  # the child's CPU seconds at each event (user + system, all its threads)
         self._cond = threading.Condition()
         self._proc = proc
+        self.samples: list[tuple[float, float]] = []  # (wall time, the child's CPU seconds), every SAMPLE_S
         threading.Thread(target=self._read, daemon=True).start()
+        threading.Thread(target=self._sample, daemon=True).start()
+
+    def _sample(self) -> None:
+        while self._proc.poll() is None:
+            cpu = self.cpu_now()
+            self.samples.append((time.time(), cpu))
+            time.sleep(SAMPLE_S)
+
+    def cpu_over(self, t0: float, t1: float) -> float:
+        """The child's CPU seconds between wall times ``t0`` and ``t1`` (interpolated between samples)."""
+        import numpy as np
+
+        t, c = np.array(self.samples).T
+        return float(np.interp(t1, t, c) - np.interp(t0, t, c))
 
     def _read(self) -> None:
         fd = self._proc.stdout.fileno()
         while True:
             chunk = os.read(fd, 65536)
-            now = time.monotonic()
+            now, cpu = time.monotonic(), self.cpu_now()
             with self._cond:
+                self.cpu.append(cpu)
                 if not chunk:
                     self.events.append((now, -1))
                     self._cond.notify_all()
@@ -75,6 +96,19 @@ class Screen:
                 self.text += chunk.decode("utf-8", "replace")
                 self.events.append((now, len(self.text)))
                 self._cond.notify_all()
+
+    def cpu_now(self) -> float:
+        """The child's CPU seconds so far (/proc; its last figure once it has ended)."""
+        try:
+            fields = Path(f"/proc/{self._proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            return self.cpu[-1] if self.cpu else float("nan")
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+    def cpu_at(self, t: float) -> float:
+        """The child's CPU seconds when the output of monotonic time ``t`` came."""
+        with self._cond:
+            return next(c for (te, _n), c in zip(self.events, self.cpu, strict=True) if te >= t)
 
     def wait_for(self, pattern: re.Pattern, start: int = 0, timeout: float = 300.0) -> tuple[float, re.Match]:
         """When ``pattern`` first appeared after text position ``start`` (monotonic s), and the match."""
@@ -127,6 +161,17 @@ def child_env(extra: dict[str, str] | None = None) -> dict[str, str]:
 def run_dir(reports: Path, serial: str) -> Path:
     (found,) = sorted(reports.glob(f"{serial}_*"))
     return found
+
+
+def written(path: Path, timeout: float = 300.0) -> Path:
+    """``path`` once it exists: the loop writes a run's report and ``report.json`` on its report
+    thread after it asked for the next serial (the record itself is in the spool by then)."""
+    end = time.monotonic() + timeout
+    while not path.exists():
+        if time.monotonic() > end:
+            raise TimeoutError(f"{path} not written within {timeout} s")
+        time.sleep(0.05)
+    return path
 
 
 def leads_in(rec: dict) -> dict[str, tuple[float, object]]:
@@ -187,6 +232,19 @@ def motor_figures(rec: dict, serial: str, t_start_wall: float, t_verdict_wall: f
                  lead_s)
 
 
+def step_cpu(rec: dict, screen: Screen) -> dict[str, float]:
+    """Each step's CPU seconds (the station process, all its threads), over the step's wall span:
+    the steps run one after the other from the record's start."""
+    t = dt.datetime.fromisoformat(rec["started_at"]).timestamp()
+    out: dict[str, float] = {}
+    for s in rec["steps"]:
+        if s["seconds"] is None:
+            continue
+        out[f"cpu {s['step']}"] = screen.cpu_over(t, t + s["seconds"])
+        t += s["seconds"]
+    return out
+
+
 def settings_file(work: Path, line, map_name: str, key: Path, profile: str) -> Path:
     path = work / "station.toml"
     path.write_text("\n".join([
@@ -230,17 +288,20 @@ def station_loop(code: Path, line, work: Path, map_name: str, key: Path, profile
             serial = f"L{first_seed + k:04d}"
             line.load(serial, first_seed + k)
             load_text = load()
-            t_scan, t_scan_wall = time.monotonic(), time.time()
+            t_scan, t_scan_wall, cpu_scan = time.monotonic(), time.time(), screen.cpu_now()
             proc.stdin.write(f"{serial}\n".encode())
             proc.stdin.flush()
             t_verdict, m = screen.wait_for(re.compile(rf"{serial}: (PASS|FAIL|ERROR)"), pos)
             pos = m.end()
             t_next, m = screen.wait_for(prompt, pos)
             pos = m.end()
-            rec = json.loads((run_dir(work / "reports", serial) / "report.json").read_text())
+            rec = json.loads(written(run_dir(work / "reports", serial) / "report.json").read_text())
             fig = motor_figures(rec, serial, t_scan_wall, t_scan_wall + (t_verdict - t_scan), t_next - t_verdict,
                                 plant_late(line), load_text, rate_hz)
-            print(f"    loop {serial}{' (warm-up)' if k == 0 else ''}: {fig.verdict}, scan->verdict {fig.wall:.2f} s, "
+            fig.extra.update(cpu_cycle=screen.cpu_at(t_verdict) - cpu_scan,
+                             cpu_tail=screen.cpu_at(t_next) - screen.cpu_at(t_verdict), **step_cpu(rec, screen))
+            print(f"    loop {serial}{' (warm-up)' if k == 0 else ''}: {fig.verdict}, scan->verdict {fig.wall:.2f} s "
+                  f"(CPU {fig.extra['cpu_cycle']:.2f} s), verdict->next scan CPU {fig.extra['cpu_tail']:.2f} s, "
                   f"physical {fig.physical:.2f}, critical {fig.critical:.2f}, verdict->next scan {fig.tail:.2f}, "
                   f"plant late {fig.plant_late:.2f}, load {load_text}", flush=True)
             if k:
@@ -284,7 +345,10 @@ def single_runs(code: Path, line, work: Path, map_name: str, key: Path, profile:
         rec = json.loads((run_dir(work / "reports", serial) / "report.json").read_text())
         fig = motor_figures(rec, serial, t0_wall, t0_wall + (t_verdict - t0), t_exit - t_verdict, plant_late(line),
                             load_text, rate_hz)
-        print(f"    run {serial}: {fig.verdict}, start->verdict {fig.wall:.2f} s, physical {fig.physical:.2f}, "
+        fig.extra.update(cpu_cycle=screen.cpu_at(t_verdict), cpu_tail=screen.cpu[-1] - screen.cpu_at(t_verdict),
+                         **step_cpu(rec, screen))
+        print(f"    run {serial}: {fig.verdict}, start->verdict {fig.wall:.2f} s (CPU {fig.extra['cpu_cycle']:.2f} s), "
+              f"verdict->exit CPU {fig.extra['cpu_tail']:.2f} s, physical {fig.physical:.2f}, "
               f"critical {fig.critical:.2f}, verdict->exit {fig.tail:.2f}, plant late {fig.plant_late:.2f}, "
               f"load {load_text}", flush=True)
         out.append(fig)
@@ -321,6 +385,11 @@ def report(results: dict[tuple[str, str, str], list[Motor]], codes: list[str]) -
         rows.append(("  (plant later than real time)", [m.plant_late for m in motors]))
         rows.append(("verdict -> next scan / exit", [m.tail for m in motors]))
         rows.append(("  report step (record)", [m.extra["report"] for m in motors]))
+        if all("cpu_cycle" in m.extra for m in motors):
+            rows.append(("CPU s, scan -> verdict (all threads)", [m.extra["cpu_cycle"] for m in motors]))
+            rows.append(("CPU s, verdict -> next scan", [m.extra["cpu_tail"] for m in motors]))
+            for step in (*CRITICAL_STEPS, "report"):
+                rows.append((f"  CPU s, {step}", [m.extra.get(f"cpu {step}", 0.0) for m in motors]))
         for label, values in rows:
             print(f"{label:<40}{med(values)}")
 

@@ -130,10 +130,12 @@ def _settings(ctx: click.Context, station_file: str | None, demo: bool, out_dir:
                          fallbacks={"limits": str(limits), "station_id": DEMO_STATION_ID})
 
 
-def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=None, observers=()):
+def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=None, observers=(), behind=None):
     """The cycle of one motor (on its own loopback simulators in the demo); the verdict is shown
     as soon as the cycle knows it (``on_verdict``, default the terminal's large verdict), the report
-    and the record's place after them; ``observers`` (the operator panel's) get each step's events."""
+    and the record's place after them; ``observers`` (the operator panel's) get each step's events.
+    ``behind`` (:class:`~eol_cal.station.report_behind.ReportsBehind`): the report and the database
+    follow on its thread, the outcome is the verdict's (``pending``)."""
     from eol_cal.station.configure import for_motor
     from eol_cal.station.cycle import run_motor
 
@@ -141,7 +143,7 @@ def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=N
     on_verdict = on_verdict or _show_verdict
     if demo_dir is None:
         with StepProgress(serial) as progress:
-            return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict, observers)
+            return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict, observers, behind)
     from eol_cal.dyno.client import parse_address
     from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.operator_session import demo_seed
@@ -153,7 +155,7 @@ def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=N
         dyno = dataclasses.replace(cfg.dyno, host=host, port=port, watchdog_ms=st.watchdog_ms)
         mcfg = for_motor(cfg, serial, dyno=dyno, open_bus=st.open_bus, ecu_timing=st.ecu_timing, station=station)
         with StepProgress(serial) as progress:
-            return run_motor(mcfg, progress, on_verdict, observers)
+            return run_motor(mcfg, progress, on_verdict, observers, behind)
 
 
 def _show_verdict(rec) -> None:
@@ -171,7 +173,8 @@ def _show_verdict(rec) -> None:
         lines.append(f"dyno safe state: {rec.safe_state}")
     if rec.ecu_active.block == "uncompensated":
         lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
-    lines.append("report and record: being written (the next serial is asked for when they are)")
+    lines.append("record: safe in the spool; the report and the database follow" + (
+        " before the next serial" if rec.kind == "master" else " while the next motor runs"))
     console.print(verdict_panel(rec.serial, rec.verdict, lines))
 
 
@@ -203,32 +206,56 @@ def ended_by_operator() -> None:
         interrupts.handled()
 
 
+def _written(jobs, tally) -> None:
+    """Runs whose report and record are written (:mod:`eol_cal.station.report_behind`): into the
+    session's tally, and where they went on screen."""
+    for job in jobs:
+        out = job.result()  # a record that neither the database nor the spool took: said, as at once
+        tally.written(out.record, str(out.report_html) if out.report_html else None)
+        _show(out)
+
+
 def _loop(cfg, operator: str, demo_dir: Path | None, tally) -> bool:
-    """Motors until the operator ends the session; True when a motor was interrupted."""
-    while True:
-        try:
-            serial = _next_serial()
-        except KeyboardInterrupt:
-            ended_by_operator()  # Ctrl-C: the session's way to end, with exit 0
-            console.print("\nCtrl-C between motors: the session ends")
-            return False
-        if serial is None:
-            return False
-        try:
-            out = run_one(cfg, serial, operator, demo_dir)
-        except KeyboardInterrupt:
-            # the cycle has commanded the dyno's safe state and recorded the run as an error
-            tally.interrupted.append(serial)
-            console.print(verdict_panel(serial, "error", [
-                "interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)",
-                f"report: under {cfg.report_dir}"]))
-            return True
-        tally.add(out.record, str(out.report_html) if out.report_html else None)
-        try:
-            _show(out)
-        except KeyboardInterrupt:
-            ended_by_operator()
-            return False
+    """Motors until the operator ends the session; True when a motor was interrupted.
+
+    The next serial is asked for once a motor's record is in the spool (its verdict); its report
+    and its database write follow on the report thread while the next motor runs, and are shown
+    when they are written. The session waits for them before it ends, whatever ends it."""
+    from eol_cal.station.report_behind import ReportsBehind
+
+    behind = ReportsBehind()
+    try:
+        while True:
+            try:
+                _written(behind.done(), tally)
+                serial = _next_serial()
+            except KeyboardInterrupt:
+                ended_by_operator()  # Ctrl-C: the session's way to end, with exit 0
+                console.print("\nCtrl-C between motors: the session ends")
+                return False
+            if serial is None:
+                return False
+            try:
+                out = run_one(cfg, serial, operator, demo_dir, behind=behind)
+            except KeyboardInterrupt:
+                # the cycle has commanded the dyno's safe state and recorded the run as an error
+                tally.interrupted.append(serial)
+                console.print(verdict_panel(serial, "error", [
+                    "interrupted: the dyno was sent to its safe state and the run recorded (an error, unless it had ended)",
+                    f"report: under {cfg.report_dir}"]))
+                return True
+            tally.add(out.record, str(out.report_html) if out.report_html else None)  # the verdict's, in order
+            if out.pending is None:  # written at once (a master run; a spool that could not take the record)
+                try:
+                    _show(out)
+                except KeyboardInterrupt:
+                    ended_by_operator()
+                    return False
+    finally:
+        # the reports still in flight are finished, signals held off (one that comes meanwhile is
+        # raised once they are in the tally): nothing is left half-written
+        with interrupts.shielded():
+            _written(behind.finish(), tally)
 
 
 def finish_session(cfg, tally, lot_file: Path | None, min_n: int) -> None:

@@ -8,6 +8,7 @@ database and nothing else.
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import click
@@ -23,42 +24,79 @@ def _alarm_lines(cfg, baseline) -> list[str]:
     return station_alarms(cfg.db, cfg.station.get("id"), baseline, timeout_s=cfg.db_timeout_s)
 
 
+def _where(out) -> str:
+    """Where a run's record went, in the panel's words."""
+    return f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
+
+
 def _panel_loop(cfg, state, controls, demo_dir: Path | None, tally, baseline, run_one, ended_by_operator) -> bool:
     """Motors until the session ends from the page (or a signal); True when a signal interrupted a motor.
-    ``run_one`` and ``ended_by_operator``: the terminal loop's (cli/operator.py)."""
+    ``run_one`` and ``ended_by_operator``: the terminal loop's (cli/operator.py).
+
+    As at the terminal, the next scan is taken once a motor's record is in the spool (its verdict);
+    its report and database write follow on the report thread, the page shows them as they are
+    written, and the session waits for them before it ends."""
     from eol_cal.msa.gate import gate_status
+    from eol_cal.station.report_behind import ReportsBehind
 
     def refresh() -> None:
         state.gate(gate_status(cfg.db, cfg.station.get("id"), cfg.master, timeout_s=cfg.db_timeout_s))
         state.alarms(_alarm_lines(cfg, baseline))
 
+    def shown_when_written(job) -> None:  # on the report thread: the page
+        if job.exception() is not None:
+            state.message("error", f"the record could not be written: {job.exception()}")
+            return
+        out = job.result()
+        state.written(out.record, str(out.report_html) if out.report_html else None, _where(out))
+        with contextlib.suppress(Exception):  # the alarms read the database, which has the run now
+            state.alarms(_alarm_lines(cfg, baseline))
+
+    def take_written(jobs) -> None:  # in the main thread: the session's tally
+        for job in jobs:
+            out = job.result()  # a record neither the database nor the spool took ends the session, as at once
+            tally.written(out.record, str(out.report_html) if out.report_html else None)
+        if jobs:
+            state.update(counts=tally.counts())
+
+    behind = ReportsBehind()
     refresh()
-    while True:
-        scan = None
-        try:
-            scan = controls.next_scan()
-            if scan is None:
-                return False
-            controls.started(scan)
-            out = run_one(cfg, scan.serial, scan.operator, demo_dir, on_verdict=state.verdict_known,
-                          observers=[state.observe])
-            tally.add(out.record, str(out.report_html) if out.report_html else None)
-            where = f"database {out.saved.path}" if out.saved.where == "db" else f"SPOOL {out.saved.path} ({out.saved.why})"
-            state.finished(out.record, str(out.report_html) if out.report_html else None, where, tally.counts())
-            refresh()
-        except KeyboardInterrupt:
-            if controls.took_stop():  # the stop button: the motor is recorded, the session goes on
-                interrupts.handled()
-                if scan is not None and state.get("phase") != "idle":
-                    tally.interrupted.append(scan.serial)
-                    state.interrupted(scan.serial, "stopped from the panel", tally.counts())
-                continue
-            if scan is None or state.get("phase") == "idle":  # a signal between motors: as at the prompt
-                ended_by_operator()
-                return False
-            tally.interrupted.append(scan.serial)
-            state.interrupted(scan.serial, f"interrupted by {interrupts.received() or 'a signal'}", tally.counts())
-            return True
+    try:
+        while True:
+            scan = None
+            try:
+                take_written(behind.done())
+                scan = controls.next_scan()
+                if scan is None:
+                    return False
+                controls.started(scan)
+                out = run_one(cfg, scan.serial, scan.operator, demo_dir, on_verdict=state.verdict_known,
+                              observers=[state.observe], behind=behind)
+                tally.add(out.record, str(out.report_html) if out.report_html else None)
+                if out.pending is None:
+                    state.finished(out.record, str(out.report_html) if out.report_html else None, _where(out),
+                                   tally.counts())
+                else:
+                    state.finished(out.record, None, "being written (safe in the spool; the report and the database follow)",
+                                   tally.counts())
+                    out.pending.add_done_callback(shown_when_written)
+                refresh()
+            except KeyboardInterrupt:
+                if controls.took_stop():  # the stop button: the motor is recorded, the session goes on
+                    interrupts.handled()
+                    if scan is not None and state.get("phase") != "idle":
+                        tally.interrupted.append(scan.serial)
+                        state.interrupted(scan.serial, "stopped from the panel", tally.counts())
+                    continue
+                if scan is None or state.get("phase") == "idle":  # a signal between motors: as at the prompt
+                    ended_by_operator()
+                    return False
+                tally.interrupted.append(scan.serial)
+                state.interrupted(scan.serial, f"interrupted by {interrupts.received() or 'a signal'}", tally.counts())
+                return True
+    finally:
+        with interrupts.shielded():  # the reports in flight finished, as at the terminal
+            take_written(behind.finish())
 
 
 def panel_session(cfg, demo_dir: Path | None, operator: str | None, bind: str, credentials_file: str | None,

@@ -137,11 +137,20 @@ def _print_outcome(out, as_json: bool) -> None:
     console.print(f"  record {rec.run_id} -> {where}")
 
 
+def rebuilt_pages(records) -> None:
+    """The pages of flushed runs whose station ended before it wrote them, rebuilt from their records."""
+    from eol_cal.station.report_files import rebuild_missing
+
+    for page in rebuild_missing(records):
+        err_console.print(f"report rebuilt from its record (no plots): {page}")
+
+
 def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
     from eol_cal.records.connect import db_shown
     from eol_cal.records.spool import flush_spool
 
     res = flush_spool(db, spool_dir, timeout)
+    rebuilt_pages(res.records)
     for bad in res.bad_files:
         err_console.print(styled((f"spool: {bad}; left alone", "yellow")))
     if res.flushed_files:
@@ -432,6 +441,7 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
     day = _day(day)
     if flush:
         res = flush_spool(db, spool_dir)
+        rebuilt_pages(res.records)
         msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db_label(db)}"
                + (f"; {res.remaining} still waiting: {res.error}" if res.remaining else "")
                + (f"; {res.other_db} spooled for other databases" if res.other_db else ""))

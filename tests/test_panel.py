@@ -181,6 +181,29 @@ def test_the_state_follows_the_cycles_events_with_the_captures_trace():
     assert max(trace["torque"]) == pytest.approx(1.01, abs=1e-4)  # the peaks stay at any length
 
 
+def test_a_report_written_after_the_next_scan_was_taken_updates_the_verdict_and_the_last_motors():
+    """The report thread's outcome (cli/panel.py): where the report and the record went, and a verdict a
+    failed report made an error, on the verdict still shown and in the last motors; a run no longer
+    shown changes only its line among the last motors."""
+    import dataclasses
+
+    state = PanelState("EOL-T", "alice")
+    state.begin("M-1")
+    shown = make_record("M-1", run_id="a" * 32, k6=0.65e-3)
+    state.verdict_known(shown)
+    state.finished(shown, None, "being written (safe in the spool; the report and the database follow)",
+                   {"runs": 1})
+    assert state.get("phase") == "idle" and state.get("verdict")["record"].startswith("being written")
+    final = dataclasses.replace(shown, verdict="error", reasons=("report: disk full",), report_error="OSError: disk full")
+    state.written(final, None, "database r.sqlite")
+    v = state.get("verdict")
+    assert (v["verdict"], v["record"], v["reasons"]) == ("error", "database r.sqlite", ["report: disk full"])
+    assert state.get("last")[0]["verdict"] == "error"
+    state.begin("M-2")  # the next motor: the first one's verdict put away, its line stays
+    state.written(dataclasses.replace(shown, verdict="fail"), "/r/report.html", "database r.sqlite")
+    assert state.get("verdict") is None and state.get("last")[0]["verdict"] == "fail"
+
+
 def test_trace_points_keep_short_captures_whole():
     t = np.arange(10.0)
     assert trace_points(t, t * 2)["torque"] == [float(x) for x in t * 2]

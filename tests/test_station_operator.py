@@ -138,14 +138,17 @@ def test_three_motors_one_failing_then_an_empty_line(tmp_path, terminal):
     t.expect(r"17 characters, at most 16", PROMPT_S)
     # a scanner's Enter is a CR (the terminal makes it a newline); some send CR LF: the LF, an
     # empty line, must not end the session
+    # the next serial is asked for at the verdict: each motor's report follows while the next one runs,
+    # and where it went is said at a later prompt (the last ones when the session ends)
     for serial, word, enter in ((PASSING[0], "PASS", "\r"), (FAILING, "FAIL", "\r\n"), (PASSING[1], "PASS", "\r")):
         t.expect(r"Scan serial", PROMPT_S)
         t.type(f" {serial}\t", enter=enter)
         t.expect(rf"{serial}: {word}", MOTOR_S)
-        t.expect(r"report: \S+report\.html", PROMPT_S)
     t.expect(r"Scan serial", PROMPT_S)
     t.type("")
     t.expect(r"session: 3 run\(s\) of 3 motor\(s\): 2 pass, 1 fail, 0 error", PROMPT_S)
+    reports = re.findall(r"(\S+) report: \S+report\.html", t.text)
+    assert reports == [PASSING[0], FAILING, PASSING[1]], t.text[-3000:]
     assert t.exit_code() == 0, t.text[-3000:]
     assert "fail: k6 " in t.text and "max_k6" in t.text
     assert (out / "lot.html").is_file() and "lot page: " in t.text

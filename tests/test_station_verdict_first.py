@@ -96,6 +96,9 @@ def test_a_station_killed_right_after_the_verdict_loses_no_record(tmp_path):
     (row,) = query_records(db)
     assert (row.run_id, row.serial, row.verdict) == (rec["run_id"], "DEMO-0001", shown)
     assert not list((out / "spool").glob("*.json"))
+    # the page, drawn on the report thread or, killed before it was, rebuilt from the record: whole
+    page = Path(rec["report_dir"]) / "report.html"
+    assert page.read_text().rstrip().endswith("</html>") and not list(page.parent.glob(".report.html.*"))
 
 
 def test_a_calibration_capture_that_cannot_be_written_stops_the_cycle_before_the_flash(files, tmp_path, monkeypatch):  # noqa: F811

@@ -184,6 +184,20 @@ class PanelState:
             self._data["version"] += 1
             self._changed.notify_all()
 
+    def written(self, rec: RunRecord, report: str | None, where: str) -> None:
+        """A motor's report and record written after the panel took the next scan (the report
+        thread's, :mod:`eol_cal.station.report_behind`): its verdict, where it is still shown, and
+        its line among the last motors, as the record ends (a failed report makes it an error)."""
+        with self._changed:
+            shown = self._data["verdict"]
+            if shown is not None and shown["run_id"] == rec.run_id:
+                self._data["verdict"] = verdict_view(rec) | {"report": report, "record": where}
+            for last in self._data["last"]:
+                if last["run_id"] == rec.run_id:
+                    last["verdict"] = rec.verdict
+            self._data["version"] += 1
+            self._changed.notify_all()
+
     def interrupted(self, serial: str, why: str, counts: dict[str, int]) -> None:
         """A motor stopped by the stop button or a signal: the dyno was sent to its safe state and
         the run recorded (an error, unless it had ended)."""

@@ -93,6 +93,8 @@ class FlushResult:
     other_db: int
     error: str | None = None
     bad_files: tuple[str, ...] = ()
+    #: the records written into the database (their pages may be missing: a station killed at its verdict)
+    records: tuple[RunRecord, ...] = ()
 
 
 def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, str, RunRecord]], list[str]]:
@@ -142,4 +144,4 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
         return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad))
     for path, _r in mine:
         path.unlink(missing_ok=True)
-    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad))
+    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad), records=tuple(r for _p, r in mine))

@@ -11,6 +11,7 @@ the cycle stops there; an exception ends it with verdict ``error``. Whatever hap
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 from eol_cal.infra.interrupts import emergency
 from eol_cal.records.record import RunRecord
@@ -19,6 +20,9 @@ from eol_cal.station.executor import Executor, Observer, StepEvent, StepFn
 from eol_cal.station.run import ProgressFn, RunOutcome, StationConfig, safe_state
 from eol_cal.station.steps import MEASURING
 from eol_cal.station.steps.check_master import gate_steps
+
+if TYPE_CHECKING:
+    from eol_cal.station.report_behind import ReportsBehind
 
 
 def production_plan(ctx: CycleContext) -> tuple[tuple[str, StepFn], ...]:
@@ -36,11 +40,13 @@ def progress_observer(progress: ProgressFn) -> Observer:
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
               on_verdict: Callable[[RunRecord], None] | None = None,
-              observers: Sequence[Observer] = ()) -> RunOutcome:
+              observers: Sequence[Observer] = (), behind: ReportsBehind | None = None) -> RunOutcome:
     """Run the whole cycle for one motor; see :mod:`eol_cal.station.run`.
 
     ``on_verdict(record)`` shows the verdict as soon as it is known and safe in the spool, before
     the report and the database; ``observers`` (and ``progress``) get each step's start and end.
+    ``behind``: an operator loop's report thread; the run returns at its verdict, with the record in
+    the spool, and the report and the database follow there (:meth:`RunOutcome.final`).
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.records.connect.RecordError` if neither database nor spool can take the
@@ -54,4 +60,4 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
         safe_state(ctx.cfg.dyno)
 
     with emergency(dyno_safe_now):
-        return executor.run(ctx, production_plan, on_verdict)
+        return executor.run(ctx, production_plan, on_verdict, behind)

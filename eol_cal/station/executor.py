@@ -17,13 +17,16 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from eol_cal.infra.interrupts import raise_if_received, shielded
 from eol_cal.records.record import RunRecord, Step
 from eol_cal.station.context import CycleContext, StepVerdict
 from eol_cal.station.run import EXIT, RunOutcome
 from eol_cal.station.steps import decide_verdict, save_record, write_report
+
+if TYPE_CHECKING:
+    from eol_cal.station.report_behind import ReportsBehind
 
 #: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
 SWITCH_INTERVAL_S = 0.0005
@@ -118,21 +121,25 @@ class Executor:
         self._emit(ctx, name, "done", module, round(time.perf_counter() - t0, 4))
         return out
 
-    def run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord], None] | None = None) -> RunOutcome:
+    def run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord], None] | None = None,
+            behind: ReportsBehind | None = None) -> RunOutcome:
         """Every step of ``plan(ctx)`` in order; the record is written whether the motor passed,
         failed or the cycle erred. ``on_verdict(record)`` shows the verdict as soon as it is safe
-        in the spool, before the report and the database."""
+        in the spool, before the report and the database. With ``behind`` the report and the
+        record follow on its thread (:mod:`eol_cal.station.report_behind`) once the verdict's
+        record is in the spool, and the outcome returned is the verdict's (``pending``)."""
         previous = sys.getswitchinterval()
         # The main thread waits on the dyno and the ECU (a status poll, a chunk of the buffer, a
         # frame) while the helper thread computes (imports, the windows, the frame): with
         # Python's default 5 ms turns each of those answers waited for the interpreter that long.
         sys.setswitchinterval(SWITCH_INTERVAL_S)
         try:
-            return self._run(ctx, plan, on_verdict)
+            return self._run(ctx, plan, on_verdict, behind)
         finally:
             sys.setswitchinterval(previous)
 
-    def _run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord], None] | None) -> RunOutcome:
+    def _run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord], None] | None,
+             behind: ReportsBehind | None) -> RunOutcome:
         try:
             for name, fn in plan(ctx):
                 # a signal whose exception a finalizer swallowed (JAX's gc callback, during the
@@ -145,14 +152,32 @@ class Executor:
                         break
         except BaseException as exc:  # noqa: BLE001 - every failure becomes an error record
             ctx.failure = exc
+        interrupted = ctx.failure is not None and not isinstance(ctx.failure, Exception)
         # From here on a signal waits until the record is written (eol_cal.infra.interrupts).
         with shielded():
-            self.untimed(ctx, decide_verdict.NAME, lambda: decide_verdict.run(ctx, on_verdict), decide_verdict.run)
-            try:
-                ctx.report_html = self.timed(ctx, write_report.NAME, write_report.run)
-            except Exception as exc:  # noqa: BLE001 - the record must still be written
-                write_report.failed(ctx, exc)
-            rec, saved = self.untimed(ctx, save_record.NAME, lambda: save_record.run(ctx), save_record.run)
-        if ctx.failure is not None and not isinstance(ctx.failure, Exception):  # Ctrl-C: recorded; now end the process
-            raise ctx.failure
+            rec = self.untimed(ctx, decide_verdict.NAME, lambda: decide_verdict.run(ctx, on_verdict), decide_verdict.run)
+            # behind only with the record durable in the spool; a Ctrl-C ends the session: at once;
+            # a master run's record is what the next motor's gate reads (eol_cal.msa.gate): at once
+            close_now = behind is None or ctx.journal is None or interrupted or ctx.kind == "master"
+            if close_now:
+                out = self._close(ctx)
+        if interrupted:  # Ctrl-C: recorded; now end the process
+            raise ctx.failure  # type: ignore[misc]
+        if not close_now:
+            assert behind is not None  # close_now otherwise
+            from eol_cal.records.spool import SaveResult
+
+            # the report thread's steps emit no events: the screen has moved on to the next motor
+            job = behind.submit(lambda: Executor()._close(ctx))
+            return RunOutcome(rec, SaveResult("spool", str(ctx.journal), "the record at the verdict; the report and "
+                                              "the database follow"), None, EXIT[rec.verdict], pending=job)
+        return out
+
+    def _close(self, ctx: CycleContext) -> RunOutcome:
+        """The run's report, then its record (``report.json``, the database or the spool)."""
+        try:
+            ctx.report_html = self.timed(ctx, write_report.NAME, write_report.run)
+        except Exception as exc:  # noqa: BLE001 - the record must still be written
+            write_report.failed(ctx, exc)
+        rec, saved = self.untimed(ctx, save_record.NAME, lambda: save_record.run(ctx), save_record.run)
         return RunOutcome(rec, saved, ctx.report_html, EXIT[rec.verdict])

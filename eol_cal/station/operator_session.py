@@ -73,6 +73,14 @@ class SessionTally:
         self.records.append(record)
         self.reports.append(report)
 
+    def written(self, record: RunRecord, report: str | None) -> None:
+        """A run added at its verdict, now with its report and final record (the report thread's)."""
+        for k, rec in enumerate(self.records):
+            if rec.run_id == record.run_id:
+                self.records[k], self.reports[k] = record, report
+                return
+        self.add(record, report)
+
     def counts(self) -> dict[str, int]:
         """Runs, the motors they were (distinct serials: a re-test is a second run of one motor, the
         master's runs are one motor), and how many runs ended pass, fail and error (an interrupted

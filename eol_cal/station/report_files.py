@@ -90,6 +90,38 @@ def write_record_json(rec: RunRecord, run_dir: str | Path) -> Path:
     return path
 
 
+#: what a page rebuilt from its record says in place of its plots
+REBUILT_NOTE = ("The page was rebuilt from the run record: the station ended before it had drawn it (the record "
+                "was safe in the spool). The plots need the run's fit: eol-cal fit on the captures beside this page.")
+
+
+def rebuild_missing(records: Sequence[RunRecord]) -> list[Path]:
+    """The pages of runs whose station ended before it wrote them (a SIGKILL or a power cut while
+    the report thread drew them), from their records: ``report.html`` without the plots (a note
+    says why) and ``report.json``, each only where it is missing, atomically. Only in the run's own
+    directory (a spooled record is a file anyone could have written: its ``report_dir`` must be a
+    directory the station made for this run, named after its run id); one gone or that cannot be
+    written is left as it is. Returns the pages written."""
+    written: list[Path] = []
+    for rec in records:
+        run_dir = Path(rec.report_dir) if rec.report_dir else None
+        if (run_dir is None or not run_dir.name.endswith(f"_{rec.run_id[:8]}") or run_dir.is_symlink()
+                or not run_dir.is_dir()):
+            continue
+        try:
+            if not (run_dir / "report.json").exists():
+                write_record_json(rec, run_dir)
+            html = run_dir / "report.html"
+            if not html.exists():
+                note = Figure("plots", "not drawn: the page was rebuilt from the record",
+                              f'<p class="plot-error">{REBUILT_NOTE}</p>')
+                _write_text(html, render_motor_report(rec, [note]))
+                written.append(html)
+        except Exception:  # noqa: BLE001 - one run's directory must not stop the others' (or the flush)
+            continue
+    return written
+
+
 def plot_lot(path: str | Path, records: list[RunRecord], title: str = "") -> None:
     """k6 and p-p ripple (before, compensated) of every run against its start time, with the
     variants' limits and the error runs, into one PNG (:func:`eol_cal.lot.lot_page.timeline_figure`).

@@ -30,6 +30,8 @@ from eol_cal.domain.motor_params import MotorParams, load_motor
 from eol_cal.records.limits import VariantLimits
 
 if TYPE_CHECKING:
+    from concurrent.futures import Future
+
     from eol_cal.analysis.fit.capture import PreparedWindows
     from eol_cal.analysis.fit.motors import MotorsFit
     from eol_cal.report.motor_page import FitExtra
@@ -153,16 +155,26 @@ class StationConfig:
 
 @dataclass
 class RunOutcome:
-    """What :func:`run_motor` returns: the record, where it went, and the exit code."""
+    """What :func:`run_motor` returns: the record, where it went, and the exit code.
+
+    ``pending``: the report and the record's database write still on the report thread
+    (:mod:`eol_cal.station.report_behind`); then ``record`` is the one journaled at the verdict,
+    ``saved`` its place in the spool, and :meth:`final` waits for the run's last outcome.
+    """
 
     record: RunRecord
     saved: SaveResult | None
     report_html: Path | None
     exit_code: int
+    pending: Future[RunOutcome] | None = None
 
     @property
     def verdict(self) -> str:
         return self.record.verdict
+
+    def final(self) -> RunOutcome:
+        """The outcome once the report and the record are written (raises what writing the record raised)."""
+        return self if self.pending is None else self.pending.result()
 
 
 def sha256_file(path: str | Path) -> str:
