@@ -16,6 +16,7 @@ from eol_cal.infra.interrupts import emergency
 from eol_cal.records.record import RunRecord
 from eol_cal.station.context import CycleContext, start_context
 from eol_cal.station.executor import Executor, Observer, StepEvent, StepFn
+from eol_cal.station.instruments import Instruments
 from eol_cal.station.run import ProgressFn, RunOutcome, StationConfig, safe_state
 from eol_cal.station.steps import MEASURING
 from eol_cal.station.steps.check_master import gate_steps
@@ -36,18 +37,20 @@ def progress_observer(progress: ProgressFn) -> Observer:
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
               on_verdict: Callable[[RunRecord], None] | None = None,
-              observers: Sequence[Observer] = ()) -> RunOutcome:
+              observers: Sequence[Observer] = (), instruments: Instruments | None = None) -> RunOutcome:
     """Run the whole cycle for one motor; see :mod:`eol_cal.station.run`.
 
     ``on_verdict(record)`` shows the verdict as soon as it is known and safe in the spool, before
     the report and the database; ``observers`` (and ``progress``) get each step's start and end.
+    ``instruments``: the dyno and ECU the steps call (default the configuration's Modbus dyno
+    and CAN ECU, :class:`~eol_cal.station.instruments.BenchInstruments`).
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.records.connect.RecordError` if neither database nor spool can take the
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """
-    ctx = start_context(cfg)
+    ctx = start_context(cfg, instruments)
     executor = Executor([*([progress_observer(progress)] if progress else []), *observers])
 
     def dyno_safe_now() -> None:  # the watchdog's last resort if the main thread is stuck: once
