@@ -238,14 +238,16 @@ class RestoreContext:
     failure: BaseException | None = None
 
 
-def start_context(cfg: StationConfig, instruments: Instruments | None = None) -> CycleContext:
+def start_context(cfg: StationConfig, instruments: Instruments | None = None, run_id: str | None = None
+                  ) -> CycleContext:
     """Check the configuration, make the run directory, start the helper thread. ``instruments``:
-    the dyno and ECU the steps call (default the configuration's, :func:`bench_instruments`)."""
+    the dyno and ECU the steps call (default the configuration's, :func:`bench_instruments`);
+    ``run_id``: the run's id when the caller names it (a what-if lot's motor), else a new one."""
     check_config(cfg)
     profile = load_profile(cfg.profile)
     segments = setpoints_from_profile(profile)
     started = dt.datetime.now(dt.UTC)
-    run_id = uuid.uuid4().hex
+    run_id = uuid.uuid4().hex if run_id is None else run_id
     sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None
     ctx = CycleContext(cfg=cfg, run_id=run_id, started=started,
                        run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,

@@ -37,20 +37,22 @@ def progress_observer(progress: ProgressFn) -> Observer:
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
               on_verdict: Callable[[RunRecord], None] | None = None,
-              observers: Sequence[Observer] = (), instruments: Instruments | None = None) -> RunOutcome:
+              observers: Sequence[Observer] = (), instruments: Instruments | None = None,
+              run_id: str | None = None) -> RunOutcome:
     """Run the whole cycle for one motor; see :mod:`eol_cal.station.run`.
 
     ``on_verdict(record)`` shows the verdict as soon as it is known and safe in the spool, before
     the report and the database; ``observers`` (and ``progress``) get each step's start and end.
     ``instruments``: the dyno and ECU the steps call (default the configuration's Modbus dyno
-    and CAN ECU, :class:`~eol_cal.station.instruments.BenchInstruments`).
+    and CAN ECU, :class:`~eol_cal.station.instruments.BenchInstruments`); ``run_id``: the run's id
+    when the caller names it (a what-if lot's motor), else a new one.
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.records.connect.RecordError` if neither database nor spool can take the
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """
-    ctx = start_context(cfg, instruments)
+    ctx = start_context(cfg, instruments, run_id)
     executor = Executor([*([progress_observer(progress)] if progress else []), *observers])
 
     def dyno_safe_now() -> None:  # the watchdog's last resort if the main thread is stuck: once

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager
 
 
 from eol_cal.errors import InputError
@@ -36,6 +37,8 @@ from eol_cal.infra.inputs import loads_json
 
 if TYPE_CHECKING:
     from eol_cal.capture.data import Capture
+    from eol_cal.records.record import RunRecord
+    from eol_cal.station.instruments import Instruments
 
 #: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
 SEED_MAX = 2**63 - 2
@@ -60,6 +63,65 @@ def check_plan(plan: LotPlan) -> None:
     load_spread(plan.spread)
     load_limits(plan.limits_file, plan.variant)
     load_profile(plan.profile)
+
+
+# ------------------------------------------------------------------------------------------
+# one motor through the production cycle, on instruments handed in
+
+
+#: ``(serial, seed, work_dir, spec_for, *, seed_to_key, timing, motor)`` -> a context manager of
+#: one motor's :class:`~eol_cal.station.instruments.Instruments` (the plant in-process:
+#: :func:`eol_cal.sim.plant_instruments.plant_instruments`); handed in, so the library below the
+#: simulators does not import them
+InstrumentsFor = Callable[..., AbstractContextManager["Instruments"]]
+
+
+def lot_motor(plan: LotPlan, i: int) -> Any:
+    """Motor ``i`` of the lot: the spread's draw with seed ``plan.seed + i`` around the preset
+    (a :class:`~eol_cal.plant.params.PlantSpec`; its serial the lot's)."""
+    from eol_cal.plant.presets import preset_spec
+    from eol_cal.plant.spread import load_spread
+
+    return load_spread(plan.spread).draw(plan.seed + i, preset_spec(plan.preset), serial=plan.serial(i))
+
+
+def lot_station(plan: LotPlan, i: int, spec: Any) -> dict[str, Any]:
+    """The record's station of motor ``i``: the lot's (``sim:NAME``), what makes the lot (a rerun
+    must match, :func:`recorded_runs`) and the drawn motor's truth."""
+    truth = {k: float(getattr(spec, k)) for k in ("k6", "phase_k6", "c6", "phase_c6", "unb1")}
+    return {"id": plan.station, "simulated": {**plan.fingerprint(), "motor": i, "spread_seed": plan.seed + i},
+            "truth": truth}
+
+
+def simulate_motor(plan: LotPlan, i: int, work_dir: Path, instruments: InstrumentsFor,
+                   cache_dir: Path | None = None) -> RunRecord:
+    """Motor ``i`` through the station's cycle (:func:`eol_cal.station.cycle.run_motor`, every
+    production step through the one executor) on its ``instruments``, its files under
+    ``work_dir``: its record (kind ``simulated``, run id :meth:`LotPlan.run_id`). A motor whose
+    cycle erred is recorded so, the step named, as on a line."""
+    from eol_cal.domain.bench_mechanics import mechanics_or_rigid
+    from eol_cal.dyno.transfer import DynoConfig
+    from eol_cal.ecu import protocol as P
+    from eol_cal.ecu.client import ClientTiming, hmac_seed_to_key
+    from eol_cal.plant.presets import preset_spec
+    from eol_cal.records.limits import load_limits
+    from eol_cal.station.cycle import run_motor
+    from eol_cal.station.run import StationConfig
+
+    spec = lot_motor(plan, i)
+    motor, key, timing = preset_spec(plan.preset).motor, hmac_seed_to_key(P.DEV_SECRET), ClientTiming()
+    cfg = StationConfig(
+        serial=plan.serial(i), dyno=DynoConfig(), open_bus=_no_bus, seed_to_key=key, ecu_timing=timing,
+        limits=load_limits(plan.limits_file, plan.variant), db=work_dir / "runs.sqlite",
+        report_dir=work_dir / "reports", profile=plan.profile, spool_dir=work_dir / "spool", cache_dir=cache_dir,
+        motor=motor, mechanics=mechanics_or_rigid(plan.bench), kind="simulated", station=lot_station(plan, i, spec))
+    with instruments(plan.serial(i), plan.seed + i, work_dir / "sim", lambda req: spec, seed_to_key=key,
+                     timing=timing, motor=motor) as inst:
+        return run_motor(cfg, instruments=inst, run_id=plan.run_id(i)).record
+
+
+def _no_bus() -> Any:
+    raise RuntimeError("a what-if motor reaches its ECU through its instruments only")
 
 
 # ------------------------------------------------------------------------------------------
