@@ -38,6 +38,7 @@ from eol_cal.infra.inputs import loads_json
 if TYPE_CHECKING:
     from eol_cal.capture.data import Capture
     from eol_cal.records.record import RunRecord
+    from eol_cal.station.executor import Observer
     from eol_cal.station.instruments import Instruments
 
 #: the largest seed a motor (and its batch's noise, seed + 1) can be drawn with: numpy's and JAX's int64
@@ -94,11 +95,12 @@ def lot_station(plan: LotPlan, i: int, spec: Any) -> dict[str, Any]:
 
 
 def simulate_motor(plan: LotPlan, i: int, work_dir: Path, instruments: InstrumentsFor,
-                   cache_dir: Path | None = None) -> RunRecord:
+                   cache_dir: Path | None = None, observers: Sequence[Observer] = ()) -> RunRecord:
     """Motor ``i`` through the station's cycle (:func:`eol_cal.station.cycle.run_motor`, every
     production step through the one executor) on its ``instruments``, its files under
     ``work_dir``: its record (kind ``simulated``, run id :meth:`LotPlan.run_id`). A motor whose
-    cycle erred is recorded so, the step named, as on a line."""
+    cycle erred is recorded so, the step named, as on a line. ``observers`` get each step's
+    start and end (:class:`~eol_cal.station.executor.StepEvent`)."""
     from eol_cal.domain.bench_mechanics import mechanics_or_rigid
     from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu import protocol as P
@@ -117,7 +119,7 @@ def simulate_motor(plan: LotPlan, i: int, work_dir: Path, instruments: Instrumen
         motor=motor, mechanics=mechanics_or_rigid(plan.bench), kind="simulated", station=lot_station(plan, i, spec))
     with instruments(plan.serial(i), plan.seed + i, work_dir / "sim", lambda req: spec, seed_to_key=key,
                      timing=timing, motor=motor) as inst:
-        return run_motor(cfg, instruments=inst, run_id=plan.run_id(i)).record
+        return run_motor(cfg, observers=observers, instruments=inst, run_id=plan.run_id(i)).record
 
 
 def _no_bus() -> Any:
