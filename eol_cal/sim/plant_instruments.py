@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import can
 import numpy as np
 
 from eol_cal.capture import validate
@@ -31,8 +32,12 @@ from eol_cal.dyno.profile_run import DynoWindow, assemble, window_times
 from eol_cal.dyno.registers import DriveState, Interlock
 from eol_cal.dyno.setpoints import lead_in_samples, lead_point_samples
 from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource, capture_to_buffer
+from eol_cal.ecu.flash import NorFlash
+from eol_cal.ecu.sim_ecu import EcuSimulator, SimConfig
+from eol_cal.ecu.transport import open_bus, private_channel_name
 from eol_cal.domain.motor_params import load_motor
 from eol_cal.records.record import DynoStatus, PreflightResult
+from eol_cal.sim.rig import plant_source
 from eol_cal.station.acquisition import read_ecu_with
 from eol_cal.station.archive import flash_archived
 from eol_cal.station.flash_ahead import FlashAhead
@@ -89,8 +94,9 @@ class PlantInstruments:
     def _ident(self) -> dict:
         """The identification registers as the client decodes them."""
         m = self.regmap
-        values: dict[str, float | int | str] = {"map_version": m.map_version or 0, "dut_serial": self.serial, "dut_poles": self.dyno_motor.poles,
-                  "dut_encoder_ppr": self.dyno_motor.N_enc, "dut_kt": self.dyno_motor.kt}
+        values: dict[str, float | int | str] = {
+            "map_version": m.map_version or 0, "dut_serial": self.serial, "dut_poles": self.dyno_motor.poles,
+            "dut_encoder_ppr": self.dyno_motor.N_enc, "dut_kt": self.dyno_motor.kt}
         return {k: m.decode(k, m.encode(k, v)) for k, v in values.items() if k in m}
 
     def preflight(self, serial: str) -> PreflightResult:
@@ -161,6 +167,10 @@ class PlantInstruments:
     def flash_ahead(self) -> OpenFlash:
         return FlashAhead(self.open_bus, seed_to_key=self.seed_to_key, timing=self.timing, motor=self.motor)
 
+    def safe_state(self) -> str:
+        # the in-process dyno turns only inside a capture's request: it stands between two
+        return "speed 0, drive disabled (confirmed)"
+
 
 @contextlib.contextmanager
 def plant_instruments(serial: str, seed: int, work_dir: str | Path, spec_for: Callable[[CaptureRequest], PlantSpec],
@@ -168,13 +178,6 @@ def plant_instruments(serial: str, seed: int, work_dir: str | Path, spec_for: Ca
                       ) -> Iterator[PlantInstruments]:
     """One motor's :class:`PlantInstruments`: the ECU simulator on a private virtual channel with its
     flash file in ``work_dir``, the rig's plant (``spec_for``) behind the dyno; stopped on exit."""
-    import can
-
-    from eol_cal.ecu.flash import NorFlash
-    from eol_cal.ecu.sim_ecu import EcuSimulator, SimConfig
-    from eol_cal.ecu.transport import open_bus, private_channel_name
-    from eol_cal.sim.rig import plant_source
-
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
     flash_file = work_dir / f"{serial}.flash"

@@ -17,7 +17,7 @@ from eol_cal.records.record import RunRecord
 from eol_cal.station.context import CycleContext, start_context
 from eol_cal.station.executor import Executor, Observer, StepEvent, StepFn
 from eol_cal.station.instruments import Instruments
-from eol_cal.station.run import ProgressFn, RunOutcome, StationConfig, safe_state
+from eol_cal.station.run import ProgressFn, RunOutcome, StationConfig
 from eol_cal.station.steps import MEASURING
 from eol_cal.station.steps.check_master import gate_steps
 
@@ -56,7 +56,7 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
     executor = Executor([*([progress_observer(progress)] if progress else []), *observers])
 
     def dyno_safe_now() -> None:  # the watchdog's last resort if the main thread is stuck: once
-        safe_state(ctx.cfg.dyno)
+        ctx.instruments.safe_state()
 
     with emergency(dyno_safe_now):
         return executor.run(ctx, production_plan, on_verdict)

@@ -1,5 +1,6 @@
 """The station's instruments as the cycle's steps call them: the dyno (the pre-flight's check, an
-acquisition of the profile's windows with the ECU's state read around it) and the ECU (a block
+acquisition of the profile's windows with the ECU's state read around it, the safe state after a
+failure) and the ECU (a block
 flashed, read back and archived; the calibrated flash's first half opened ahead).
 
 :class:`Instruments` is the seam: :class:`~eol_cal.station.context.CycleContext` holds one and its
@@ -20,6 +21,7 @@ from eol_cal.station.acquisition import acquire_traced, read_ecu_with
 from eol_cal.station.archive import flash_archived
 from eol_cal.station.flash_ahead import FlashAhead
 from eol_cal.station.preflight import preflight
+from eol_cal.station.run import safe_state
 
 if TYPE_CHECKING:
     from eol_cal.capture.data import Capture
@@ -73,6 +75,11 @@ class Instruments(Protocol):
         """Start a flash's first half now, on a thread of its own (:class:`FlashAhead`)."""
         ...
 
+    def safe_state(self) -> str:
+        """Command the dyno's safe state once more (best effort, after a failure or on a signal);
+        say whether it was confirmed (:func:`eol_cal.station.run.safe_state`)."""
+        ...
+
 
 class BenchInstruments:
     """The production instruments: the configuration's Modbus dyno and its ECU on the CAN bus."""
@@ -105,6 +112,9 @@ class BenchInstruments:
     def flash_ahead(self) -> OpenFlash:
         return FlashAhead(self.cfg.open_bus, seed_to_key=self.cfg.seed_to_key, timing=self.timing,
                           motor=self.cfg.motor)
+
+    def safe_state(self) -> str:
+        return safe_state(self.cfg.dyno)
 
 
 def bench_instruments(cfg: StationConfig) -> Instruments:
