@@ -11,6 +11,14 @@ compensated p-p target, so the lot's yield and the fraction of bench_fit_lot's m
 1.0 % are the same figure. bench_fit_lot's 95 % intervals: Wilson's for its fraction within
 1.0 %, the order statistics' for its median. ``--scaling N``: N motors with 1 and then 2 workers
 (alternated twice), the speed-up of the second.
+
+    python bench/bench_lot_simulate.py --per-motor 4 --profile bench/eol-default-1rev.toml
+
+``--per-motor N``: CPU seconds a warm motor costs in one process (XLA set up as a lot's worker): the
+production cycle on the plant in-process (:func:`eol_cal.station.whatif.simulate_motor` with
+:func:`eol_cal.sim.plant_instruments.plant_instruments`), N motors in a row after one that pays the
+compilations. CPU, not wall: the machine is shared. (At 12078a8 it ran the batched steps beside it:
+4.18 s against 4.33 s CPU a motor.)
 """
 
 from __future__ import annotations
@@ -18,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -32,6 +41,7 @@ def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profil
 
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
+    from eol_cal.sim.plant_instruments import plant_instruments
     from eol_cal.station.whatif import simulate_lot
     from eol_cal.station.whatif_plan import LotPlan
 
@@ -39,10 +49,36 @@ def run_lot(db: Path, name: str, motors: int, workers: int, limits: Path, profil
     t0 = time.perf_counter()
     with local_cluster(workers) as cluster, Client(cluster) as client:
         client.register_plugin(RefitWorkerSetup(default_cache_dir()))
-        out = simulate_lot(plan, db, client, cache_dir=default_cache_dir())
+        out = simulate_lot(plan, db, client, plant_instruments, cache_dir=default_cache_dir())
     if out.failed_batches:
         raise RuntimeError(out.failed_batches[0][1])
     return time.perf_counter() - t0
+
+
+def cpu_s() -> float:
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def per_motor(motors: int, limits: Path, profile: str, work: Path) -> None:
+    """``--per-motor``: the CPU seconds of a warm motor (module doc)."""
+    from eol_cal.numerics.xla import configure_xla
+
+    configure_xla()  # as a lot's worker (eol_cal.lot.cluster) and the CLI
+    from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.sim.plant_instruments import plant_instruments
+    from eol_cal.station.whatif import simulate_motor
+    from eol_cal.station.whatif_plan import LotPlan
+
+    plan = LotPlan("PM", "default", str(limits), "EPS-STD", motors + 1, seed=0, profile=profile, batch=motors)
+    cache = default_cache_dir()
+    simulate_motor(plan, 0, work / "m0", plant_instruments, cache)
+    c0, t0 = cpu_s(), time.perf_counter()
+    cycled = [simulate_motor(plan, i, work / f"m{i}", plant_instruments, cache) for i in range(1, motors + 1)]
+    cpu, wall = (cpu_s() - c0) / motors, (time.perf_counter() - t0) / motors
+    print(f"{motors} warm motors, profile {profile}: the production cycle on the plant in-process {cpu:.2f} s CPU "
+          f"a motor ({wall:.2f} s wall); verdicts {[r.verdict for r in cycled]}; load {os.getloadavg()[0]:.2f}",
+          flush=True)
 
 
 def intervals(pp: np.ndarray) -> dict[str, tuple[float, float, float]]:
@@ -65,6 +101,7 @@ def main() -> None:
     ap.add_argument("--profile", default="eol-default")
     ap.add_argument("--fit-lot", type=Path, default=None, help="bench_fit_lot.py --json rows to compare with")
     ap.add_argument("--scaling", type=int, default=0, help="motors of the 1-against-2-workers runs (0: none)")
+    ap.add_argument("--per-motor", type=int, default=0, help="CPU s of a warm motor, batched against the cycle (module doc)")
     a = ap.parse_args()
     from eol_cal.records.query import query_records
 
@@ -72,6 +109,9 @@ def main() -> None:
         limits = Path(d) / "limits.toml"
         limits.write_text((ROOT / "fixtures" / "limits.toml").read_text().replace(
             "max_pp_after_pct = 2.0", "max_pp_after_pct = 1.0", 1))
+        if a.per_motor:
+            per_motor(a.per_motor, limits, a.profile, Path(d))
+            return
         load0 = os.getloadavg()[0]
         db = Path(d) / "lot.sqlite"
         wall = run_lot(db, "LOT", a.motors, a.workers, limits, a.profile)

@@ -382,7 +382,7 @@ def _compare(db, lots, kind, as_json) -> None:
 @click.option("--profile", default="eol-default", show_default=True, help="Calibration capture's test profile.")
 @click.option("--bench", default="paper", show_default=True, metavar="NAME|FILE.toml", help="Dyno bench the fit divides out.")
 @click.option("--batch", type=click.IntRange(1, 256), default=None,
-              help="Motors per task and plant call (default 8; part of the lot's identity).")
+              help="Motors per task (default 8; part of the lot's identity).")
 @click.option("--scheduler", default=None, metavar="tcp://HOST:8786", help="A running Dask scheduler to use.")
 @click.option("--workers", type=click.IntRange(1, 256), default=2, show_default=True,
               help="Worker processes of the local cluster (127.0.0.1) when no --scheduler is given.")
@@ -391,9 +391,10 @@ def _compare(db, lots, kind, as_json) -> None:
 @io_paths(inputs=("limits_file", "spread", "profile", "bench"), outputs=())
 def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profile, bench, batch, scheduler, workers,
                  as_json) -> None:
-    """A what-if lot: MOTORS drawn from a production spread, each through the whole calibration in
-    simulation (prepare, calibration capture, fit, table, block, compensated capture, verdict),
-    recorded as runs of kind simulated (never in the production statistics unless asked:
+    """A what-if lot: MOTORS drawn from a production spread, each through the station's cycle (what
+    eol-cal run does: pre-flight, prepare, calibration capture, fit, table, flash, compensated
+    capture, verdict, report) on the plant and the ECU simulator in-process, recorded as runs of
+    kind simulated (never in the production statistics unless asked:
     lot stats/report --kind simulated --station sim:NAME). Resumable: run it again to finish a lot
     that was stopped; no motor is recorded twice."""
     import contextlib
@@ -404,6 +405,7 @@ def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profi
     from cli.refit import cluster_client, scheduler_address
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot.cluster import RefitWorkerSetup
+    from eol_cal.sim.plant_instruments import plant_instruments
     from eol_cal.station.whatif import check_plan, recorded_runs, simulate_lot
     from eol_cal.station.whatif_plan import SIM_BATCH, LotPlan
     from eol_cal.records.connect import db_label
@@ -424,7 +426,8 @@ def simulate_cmd(motors, spread, limits_file, variant, db, lot_name, seed, profi
         with Progress(TextColumn(f"lot {plan.name}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                       console=err_console, transient=False, refresh_per_second=2) as bar:
             task = bar.add_task("simulate", total=motors, completed=before)
-            out = simulate_lot(plan, db, client, on_done=lambda n: bar.advance(task, n), cache_dir=cache_dir)
+            out = simulate_lot(plan, db, client, plant_instruments, on_done=lambda n: bar.advance(task, n),
+                               cache_dir=cache_dir)
     seconds = __import__("time").perf_counter() - t0
     doc = {"lot": plan.name, "station": plan.station, "db": db_label(db), "motors": motors,
            "recorded_before": out.recorded_before, "recorded_now": out.recorded_now,

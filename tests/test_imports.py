@@ -274,6 +274,8 @@ LAYERS: list[tuple[str, tuple[str, ...]]] = [
     ("pages and statistics", ("eol_cal.report", "eol_cal.report.**", "eol_cal.msa", "eol_cal.msa.**", "eol_cal.lot",
                               "eol_cal.lot.**")),
     ("station", ("eol_cal.station", "eol_cal.station.**")),
+    # the station's instruments on the plant in-process (a what-if lot's motors): the seam's other side
+    ("what-if instruments", ("eol_cal.sim.plant_instruments",)),
     # the operator panel and the line view: the station's cycle and the records, served to a browser
     ("operator panel", ("eol_cal.panel", "eol_cal.panel.**")),
     # a fault scenario builds a station's files (limits, a records database) to attack

@@ -24,16 +24,15 @@ from eol_cal import capture
 from eol_cal.capture.ecu_state import check_trace
 from eol_cal.dyno.profile_run import DEFAULT_CHANNELS
 from eol_cal.dyno.setpoints import setpoints_from_profile
-from eol_cal.ecu.session import ClientTiming
 from eol_cal.errors import EolCalError
 from eol_cal.firmware.settling import block_settle_s, lead_in_plan
 from eol_cal.plant.profile import load_profile
 from eol_cal.records.limits import LimitCheck, Measured
 from eol_cal.records.record import (CaptureRef, EcuActive, ErrorInfo, FlashedBlock, GateInfo, PointFigures,
                                     PreflightResult, RestoredFrom, RippleMetrics, StationInfo, Step)
-from eol_cal.station.acquisition import acquire_traced, expect_block, read_ecu_with
-from eol_cal.station.archive import flash_archived, keep_flashed
-from eol_cal.station.flash_ahead import FlashAhead
+from eol_cal.station.acquisition import expect_block
+from eol_cal.station.archive import keep_flashed
+from eol_cal.station.instruments import Instruments, OpenFlash, bench_instruments
 from eol_cal.station.run import ProgressFn, StationConfig, check_config, new_run_dir, sha256_file
 
 if TYPE_CHECKING:
@@ -89,6 +88,7 @@ class CycleContext:
     segments: list
     station: StationInfo
     limits_sha256: str | None
+    instruments: Instruments  # the dyno and the ECU the steps call (eol_cal.station.instruments)
     # what the steps produced
     steps: list[Step] = field(default_factory=list)
     preflight: PreflightResult | None = None
@@ -124,7 +124,7 @@ class CycleContext:
     early: EarlyWindows | None = None
     verify: EarlyWindows | None = None
     writes: dict[str, Future] = field(default_factory=dict)  # capture files being written aside
-    ahead: FlashAhead | None = None  # the calibrated flash's first half, opened during the fit
+    ahead: OpenFlash | None = None  # the calibrated flash's first half, opened during the fit
     pr_before: Future | None = None
     journal: Path | None = None  # the record at the verdict, in the spool until the database has it
 
@@ -156,14 +156,10 @@ class CycleContext:
                 lead_point = dataclasses.replace(segs[0], speed_rpm=point_rpm, seconds=point_s)
         # the calibration capture carries the ECU's measured q current where the dyno has it: the fit
         # takes kt * iq as known torque, so the current loop's own ripple is not read as the motor's k6
-        regmap = self.cfg.dyno.regmap
-        channels = DEFAULT_CHANNELS + (("iq",) if which == "before" and "iq" in regmap.channels else ())
-        cap, trace = acquire_traced(read_ecu_with(self.cfg.open_bus, self.cfg.ecu_timing or ClientTiming()),
-                                    self.cfg.dyno, segs, None, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz,
-                                    channels=channels,
-                                    extra_metadata={"comment": f"eol-cal run {self.run_id}: {which}, "
-                                                               f"profile {self.profile_name}"}, on_window=on_window,
-                                    lead_in_s=lead_in_s, lead_in_point=lead_point)
+        channels = DEFAULT_CHANNELS + (("iq",) if which == "before" and "iq" in self.instruments.channels else ())
+        cap, trace = self.instruments.acquire(segs, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz, channels=channels,
+                                              comment=f"eol-cal run {self.run_id}: {which}, profile {self.profile_name}",
+                                              on_window=on_window, lead_in_s=lead_in_s, lead_in_point=lead_point)
         if write_aside:
             writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
             self.writes[which] = writer.submit(self.store, which, cap, trace, path, len(segs))
@@ -202,26 +198,20 @@ class CycleContext:
         """The calibrated flash's first half (sessions, identification, the erase of an empty
         inactive bank) on a thread of its own while the fit computes the block
         (:mod:`eol_cal.station.flash_ahead`); closed by the flash or at the cycle's end."""
-        self.ahead = FlashAhead(self.cfg.open_bus, seed_to_key=self.cfg.seed_to_key,
-                                timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor)
+        self.ahead = self.instruments.flash_ahead()
 
     def close_flash_ahead(self) -> None:
         if self.ahead is not None:
             self.ahead.close()
 
     def flash(self, data: bytes, role: str, before_commit: Callable[[], None] | None = None,
-              ahead: FlashAhead | None = None) -> None:
+              ahead: OpenFlash | None = None) -> None:
         """Flash a block of this run (read back as ``cfg.read_back`` says), on a session of its own
         or the one opened ``ahead``, and archive it as it went in."""
         path, source = self.run_dir / ARCHIVE_NAMES[role], f"{role} block of run {self.run_id[:8]}"
-        if ahead is not None:
-            keep_flashed(self.blocks, lambda: ahead.flash(data, role=role, path=path, source=source,
-                                                          before_commit=before_commit, read_back=self.cfg.read_back))
-        else:
-            keep_flashed(self.blocks, lambda: flash_archived(
-                self.cfg.open_bus, data, role=role, path=path, seed_to_key=self.cfg.seed_to_key,
-                timing=self.cfg.ecu_timing or ClientTiming(), motor=self.cfg.motor, source=source,
-                before_commit=before_commit, read_back=self.cfg.read_back))
+        flasher = ahead if ahead is not None else self.instruments
+        keep_flashed(self.blocks, lambda: flasher.flash(data, role=role, path=path, source=source,
+                                                        before_commit=before_commit, read_back=self.cfg.read_back))
 
 
 @dataclass
@@ -248,17 +238,21 @@ class RestoreContext:
     failure: BaseException | None = None
 
 
-def start_context(cfg: StationConfig) -> CycleContext:
-    """Check the configuration, make the run directory, start the helper thread."""
+def start_context(cfg: StationConfig, instruments: Instruments | None = None, run_id: str | None = None
+                  ) -> CycleContext:
+    """Check the configuration, make the run directory, start the helper thread. ``instruments``:
+    the dyno and ECU the steps call (default the configuration's, :func:`bench_instruments`);
+    ``run_id``: the run's id when the caller names it (a what-if lot's motor), else a new one."""
     check_config(cfg)
     profile = load_profile(cfg.profile)
     segments = setpoints_from_profile(profile)
     started = dt.datetime.now(dt.UTC)
-    run_id = uuid.uuid4().hex
+    run_id = uuid.uuid4().hex if run_id is None else run_id
     sha = sha256_file(cfg.limits.source) if Path(cfg.limits.source).is_file() else None
     ctx = CycleContext(cfg=cfg, run_id=run_id, started=started,
                        run_dir=new_run_dir(cfg.report_dir, cfg.serial, started, run_id), profile_name=profile.name,
-                       segments=segments, station=station_info(cfg, profile.name), limits_sha256=sha)
+                       segments=segments, station=station_info(cfg, profile.name), limits_sha256=sha,
+                       instruments=bench_instruments(cfg) if instruments is None else instruments)
     # One helper thread: while the dyno spins the first time it imports JAX and matplotlib,
     # traces the fit's solver and works on each window as it arrives; while it spins the second
     # time it measures the calibration capture at the operating point (the main thread mostly

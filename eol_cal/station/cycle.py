@@ -17,7 +17,8 @@ from eol_cal.infra.interrupts import emergency
 from eol_cal.records.record import RunRecord
 from eol_cal.station.context import CycleContext, start_context
 from eol_cal.station.executor import Executor, Observer, StepEvent, StepFn
-from eol_cal.station.run import ProgressFn, RunOutcome, StationConfig, safe_state
+from eol_cal.station.instruments import Instruments
+from eol_cal.station.run import ProgressFn, RunOutcome, StationConfig
 from eol_cal.station.steps import MEASURING
 from eol_cal.station.steps.check_master import gate_steps
 
@@ -40,24 +41,28 @@ def progress_observer(progress: ProgressFn) -> Observer:
 
 def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
               on_verdict: Callable[[RunRecord], None] | None = None,
-              observers: Sequence[Observer] = (), behind: ReportsBehind | None = None) -> RunOutcome:
+              observers: Sequence[Observer] = (), behind: ReportsBehind | None = None,
+              instruments: Instruments | None = None, run_id: str | None = None) -> RunOutcome:
     """Run the whole cycle for one motor; see :mod:`eol_cal.station.run`.
 
     ``on_verdict(record)`` shows the verdict as soon as it is known and safe in the spool, before
     the report and the database; ``observers`` (and ``progress``) get each step's start and end.
     ``behind``: an operator loop's report thread; the run returns at its verdict, with the record in
     the spool, and the report and the database follow there (:meth:`RunOutcome.final`).
+    ``instruments``: the dyno and ECU the steps call (default the configuration's Modbus dyno
+    and CAN ECU, :class:`~eol_cal.station.instruments.BenchInstruments`); ``run_id``: the run's id
+    when the caller names it (a what-if lot's motor), else a new one.
 
     Raises only :class:`InputError` for a configuration refused before anything ran (and
     :class:`~eol_cal.records.connect.RecordError` if neither database nor spool can take the
     record); every failure during the run is recorded (kind ``refusal`` before anything was
     written, else verdict ``error``).
     """
-    ctx = start_context(cfg)
+    ctx = start_context(cfg, instruments, run_id)
     executor = Executor([*([progress_observer(progress)] if progress else []), *observers])
 
     def dyno_safe_now() -> None:  # the watchdog's last resort if the main thread is stuck: once
-        safe_state(ctx.cfg.dyno)
+        ctx.instruments.safe_state()
 
     with emergency(dyno_safe_now):
         return executor.run(ctx, production_plan, on_verdict, behind)

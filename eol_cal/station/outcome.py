@@ -1,8 +1,8 @@
 """The one place a station run's record is built: from whatever its steps left in the
 :class:`~eol_cal.station.context.CycleContext` (:func:`to_record`), the failure that ended it
 turned into the record's error, refusal codes and safe state, and which block the ECU boots
-afterwards; an ``ecu restore`` run's (:func:`restore_record`) and a what-if lot's motor's
-(:func:`simulated_record`) beside it.
+afterwards; an ``ecu restore`` run's (:func:`restore_record`) beside it. A what-if lot's motor
+runs the cycle itself (:mod:`eol_cal.station.whatif`): its record is :func:`to_record`'s.
 
 Kind ``refusal`` when the cycle ended before the prepare step (nothing written to the ECU,
 nothing measured), else the configuration's kind (``production`` on a line). Each limit was
@@ -13,20 +13,17 @@ the record carries those checks.
 from __future__ import annotations
 
 import traceback
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from eol_cal import __version__
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.firmware.block import LAYOUT_VERSION
-from eol_cal.records.limits import VariantLimits, all_checks
-from eol_cal.records.record import EcuActive, ErrorInfo, RunRecord, StationInfo
+from eol_cal.records.limits import all_checks
+from eol_cal.records.record import EcuActive, ErrorInfo, RunRecord
 from eol_cal.station.context import CycleContext, RestoreContext, now_iso
-from eol_cal.station.run import safe_state, sha256_file
 
 if TYPE_CHECKING:
     from eol_cal.dyno.transfer import DynoConfig
-    from eol_cal.station.whatif_plan import LotPlan, SimMotor
 
 
 def to_record(ctx: CycleContext) -> RunRecord:
@@ -67,7 +64,7 @@ def record_failure(ctx: CycleContext, exc: BaseException) -> None:
     if ctx.preflight is not None and ctx.preflight.dyno is None and failed_step == "pre-flight":
         ctx.safe_state = "not commanded: the pre-flight did not reach the dyno (nothing was started on it)"
     else:
-        ctx.safe_state = safe_state(ctx.cfg.dyno)
+        ctx.safe_state = ctx.instruments.safe_state()
 
 
 def ecu_active_of(ctx: CycleContext, failure: BaseException | None) -> EcuActive:
@@ -123,26 +120,3 @@ def restore_record(ctx: RestoreContext) -> RunRecord:
                      reasons=reasons, tool_version=__version__, layout_version=LAYOUT_VERSION, station=ctx.station,
                      error=error, steps=tuple(ctx.steps), blocks=tuple(ctx.blocks), report_dir=str(ctx.run_dir),
                      ecu_active=active, restored_from=ctx.restored_from)
-
-
-def simulated_record(plan: LotPlan, m: SimMotor, lim: VariantLimits) -> RunRecord:
-    """The record of a what-if lot's motor (kind ``simulated``, :mod:`eol_cal.station.whatif`): its
-    steps as the batch ran them, the drawn motor's truth in the station's ``extra``."""
-    error = None
-    verdict, reasons = m.verdict, list(m.reasons)
-    if m.failed_step is not None:
-        verdict = "error"
-        reasons = [f"{m.failed_step}: {m.error}"]
-        error = ErrorInfo(m.failed_step, type(m.error).__name__, str(m.error))
-    truth = {k: float(getattr(m.spec, k)) for k in ("k6", "phase_k6", "c6", "phase_c6", "unb1")}
-    station = StationInfo(id=plan.station, profile=plan.profile, verify="point", rate_hz=int(m.spec.motor.f_pwm),
-                          motor=m.spec.motor.name, bench=plan.bench,
-                          extra={"simulated": {**plan.fingerprint(), "motor": m.i, "spread_seed": plan.seed + m.i},
-                                 "truth": truth})
-    active = "calibrated" if m.calibrated is not None else "uncompensated"
-    sha = sha256_file(plan.limits_file) if Path(plan.limits_file).is_file() else None
-    return RunRecord(
-        kind="simulated", run_id=plan.run_id(m.i), serial=m.spec.serial, started_at=m.started, ended_at=now_iso(),
-        verdict=verdict, reasons=tuple(reasons), tool_version=__version__, layout_version=LAYOUT_VERSION, station=station,
-        error=error, limits=lim, limits_sha256=sha, checks=tuple(all_checks(m.judged, lim)),
-        steps=tuple(m.steps), fit=m.result, blocks=tuple(m.blocks), metrics=m.metrics, ecu_active=EcuActive(active))

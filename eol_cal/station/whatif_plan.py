@@ -1,18 +1,15 @@
 """What a what-if lot is (:mod:`eol_cal.station.whatif`): its plan, sent to the workers as plain
-values, and one motor's run as a batch makes it (its record:
-:func:`eol_cal.station.outcome.simulated_record`)."""
+values."""
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-#: motors per task and per plant call: the plant's outputs of a batch over the default profile
-#: take ~25 MB a motor
+#: motors per task (each runs the station's cycle on the plant in-process, one after the other)
 SIM_BATCH = 8
 #: the records' station of a lot is this prefix and the lot's name (``lot stats --station sim:NAME``)
 STATION_PREFIX = "sim:"
@@ -41,7 +38,7 @@ class LotPlan:
     preset, bench : str
         The plant preset the spread varies and the dyno bench the fit divides out (as the station's).
     batch : int
-        Motors per batch (a task, and one plant call per capture).
+        Motors per batch (a task).
     """
 
     name: str
@@ -81,28 +78,3 @@ def _file_or_name(name: str) -> str:
     if p.suffix.lower() == ".toml" and p.is_file():
         return f"{p.name} sha256:{hashlib.sha256(p.read_bytes()).hexdigest()[:16]}"
     return name
-
-
-@dataclass
-class SimMotor:
-    """One motor's run as the batch makes it (its record: :func:`eol_cal.station.outcome.simulated_record`)."""
-
-    i: int
-    spec: Any
-    started: str
-    steps: list = dataclasses.field(default_factory=list)
-    result: Any = None
-    measured: Any = None
-    judged: dict = dataclasses.field(default_factory=dict)
-    blocks: list = dataclasses.field(default_factory=list)
-    calibrated: Any = None
-    before: Any = None
-    metrics: Any = None
-    verdict: str = "error"
-    reasons: list = dataclasses.field(default_factory=list)
-    error: Any = None
-    failed_step: str | None = None
-
-    @property
-    def open(self) -> bool:
-        return self.failed_step is None and self.verdict == "error"

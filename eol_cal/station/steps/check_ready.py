@@ -4,16 +4,14 @@ accepting the key, serials agreeing, before anything is written to the ECU
 
 from __future__ import annotations
 
-from eol_cal.ecu.session import ClientTiming
 from eol_cal.station.context import CycleContext
-from eol_cal.station.preflight import PreflightFailed, preflight
+from eol_cal.station.preflight import PreflightFailed
 
 NAME = "pre-flight"
 
 
 def run(ctx: CycleContext) -> None:
     ctx.cfg.estimator_options  # noqa: B018 - refuses options that cannot be flashed (a settings refusal)
-    ctx.preflight = preflight(ctx.cfg.serial, ctx.cfg.dyno, ctx.cfg.open_bus, ctx.cfg.seed_to_key,
-                              ctx.cfg.ecu_timing or ClientTiming())
+    ctx.preflight = ctx.instruments.preflight(ctx.cfg.serial)
     if ctx.preflight.problems:
         raise PreflightFailed(ctx.preflight.problems)
