@@ -6,7 +6,10 @@ Prints simulated seconds per second (x real time) for:
 - eol-cal's plant (JAX ``lax.scan`` at the 20 kHz PWM tick, float32, compensated mode of the
   paper preset: estimator + compensator + PI current control + SPMSM + shaft/dyno + transducer),
   one motor and a vmapped batch (default 64 motors drawn from the production spread), cold (first
-  call: trace + compile + run, no persistent cache) and warm (the next calls);
+  call: trace + compile + run, no persistent cache) and warm (the next calls), with the ideal
+  blocks of both layouts side by side: layout 1 (the paper's estimator, 6th-harmonic tables) and
+  layout 2 (contract revision 1.2: every estimator option and ``MECH_COMP_ENABLE``, the ECU's
+  identifier running every tick and the mechanical orders compensated once it has identified);
 - the same with ``--baseline DIR`` (a checkout of older code, e.g. ``git worktree add DIR
   COMMIT``): its ``eol_cal`` imported instead of this one, in a process of its own;
 - motulator (the package index's PMSM drive simulator, when installed: ``pip install -e .[bench]``)
@@ -39,6 +42,7 @@ from typing import Any
 
 HERE = Path(__file__).resolve()
 MODES = ("raw", "estimated", "compensated")
+LAYOUTS = (1, 2)
 
 
 def _pin_one_core() -> int:
@@ -55,8 +59,21 @@ def _loop_kernel() -> None:
     configure_xla()
 
 
+def layout_blocks(layout: int, specs: list[Any]) -> list[Any] | None:
+    """The ideal blocks of ``specs`` in a layout: None for layout 1 (the plant makes them from its
+    truth), layout-2 blocks that identify (every estimator option, ``MECH_COMP_ENABLE``) for 2."""
+    if layout == 1:
+        return None
+    from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
+    from eol_cal.plant.ecu_model import true_block
+
+    flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR | FLAG_MECH_COMP_ENABLE
+    return [true_block(s, flags=flags, mech=True) for s in specs]
+
+
 def bench_plant(seconds: float, batch: int, warm_runs: int) -> dict[str, float]:
-    """Cold and best warm wall and CPU times (s) of one motor and of ``batch`` motors."""
+    """Cold and best warm wall and CPU times (s) of one motor and of ``batch`` motors, per layout
+    (keys ``L<layout>/<motors>/<cold|warm>[/cpu]``)."""
     from eol_cal.plant.presets import paper
     from eol_cal.plant.profile import constant
     from eol_cal.plant.simulate import simulate
@@ -64,14 +81,16 @@ def bench_plant(seconds: float, batch: int, warm_runs: int) -> dict[str, float]:
 
     prof = constant(60.0, seconds, iq=65.0)
     out: dict[str, float] = {}
-    for label, specs in (("1", paper()), (str(batch), [draw_motor(s) for s in range(batch)])):
-        for k in range(1 + warm_runs):
-            t0, c0 = time.perf_counter(), time.process_time()
-            simulate(specs, prof, mode="compensated", pre_roll_s=0.0)
-            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
-            phase = "cold" if k == 0 else "warm"
-            out[f"{label}/{phase}"] = min(out.get(f"{label}/{phase}", math.inf), wall)
-            out[f"{label}/{phase}/cpu"] = min(out.get(f"{label}/{phase}/cpu", math.inf), cpu)
+    for layout in LAYOUTS:
+        for label, specs in (("1", [paper()]), (str(batch), [draw_motor(s) for s in range(batch)])):
+            blocks = layout_blocks(layout, specs)
+            for k in range(1 + warm_runs):
+                t0, c0 = time.perf_counter(), time.process_time()
+                simulate(specs, prof, mode="compensated", blocks=blocks, pre_roll_s=0.0)
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+                key = f"L{layout}/{label}/{'cold' if k == 0 else 'warm'}"
+                out[key] = min(out.get(key, math.inf), wall)
+                out[f"{key}/cpu"] = min(out.get(f"{key}/cpu", math.inf), cpu)
     return out
 
 
@@ -173,9 +192,11 @@ def main() -> None:
             res = run_child("plant", a, path)
             runs[name].append(res)
             b = a.batch
-            print(f"round {r + 1}: {name:<40} 1 motor {a.seconds / res['1/warm']:6.1f}x, batch {b} "
-                  f"{b * a.seconds / res[f'{b}/warm']:6.1f}x (wall), {b * a.seconds / res[f'{b}/warm/cpu']:6.1f}x "
-                  f"per CPU s; load {os.getloadavg()[0]:.2f}", flush=True)
+            for lay in LAYOUTS:
+                print(f"round {r + 1}: {name:<40} layout {lay}: 1 motor {a.seconds / res[f'L{lay}/1/warm/cpu']:6.1f}x, "
+                      f"batch {b} {b * a.seconds / res[f'L{lay}/{b}/warm']:6.1f}x (wall), "
+                      f"{b * a.seconds / res[f'L{lay}/{b}/warm/cpu']:6.1f}x per CPU s; load {os.getloadavg()[0]:.2f}",
+                      flush=True)
     try:
         import motulator  # noqa: F401
 
@@ -192,10 +213,12 @@ def main() -> None:
     for name, _ in versions:
         best[name] = {k: min(r[k] for r in runs[name]) for k in runs[name][0]}
         x = best[name]
-        for label, n in (("1", 1), (str(b), b)):
-            title = f"{name}: {'1 motor' if n == 1 else f'batch {b} (aggregate)'}"
-            print(f"{title:46s} {n * a.seconds / x[f'{label}/cold']:7.1f} {n * a.seconds / x[f'{label}/warm']:7.1f} "
-                  f"{n * a.seconds / x[f'{label}/warm/cpu']:9.1f}")
+        for lay in LAYOUTS:
+            for label, n in (("1", 1), (str(b), b)):
+                title = f"{name}: L{lay} {'1 motor' if n == 1 else f'batch {b} (aggregate)'}"
+                k = f"L{lay}/{label}"
+                print(f"{title:46s} {n * a.seconds / x[f'{k}/cold']:7.1f} {n * a.seconds / x[f'{k}/warm']:7.1f} "
+                      f"{n * a.seconds / x[f'{k}/warm/cpu']:9.1f}")
     if mot is not None:
         print(f"{'motulator PMSM current-vector control':46s} {a.motulator_seconds / mot['cold']:7.2f} "
               f"{a.motulator_seconds / mot['warm']:7.2f} {a.motulator_seconds / mot['warm/cpu']:9.2f}")
@@ -203,11 +226,15 @@ def main() -> None:
         print("motulator: not installed (pip install -e .[bench]); not compared")
     if a.baseline is not None:
         new, old = best["this checkout"], best[versions[0][0]]
-        for key, what in ((f"{b}/warm/cpu", f"batch {b} per CPU s"), (f"{b}/warm", f"batch {b} wall"),
-                          ("1/warm/cpu", "1 motor per CPU s")):
-            print(f"speed-up against the baseline, {what}: {old[key] / new[key]:.2f}x")
-    print(f"batch {b}: {b * a.seconds / best['this checkout'][f'{b}/warm/cpu']:.0f}x real time per CPU s "
-          "(target >= 300x on one core)")
+        for lay in LAYOUTS:
+            for key, what in ((f"{b}/warm/cpu", f"batch {b} per CPU s"), (f"{b}/warm", f"batch {b} wall"),
+                              ("1/warm/cpu", "1 motor per CPU s")):
+                print(f"speed-up against the baseline, layout {lay}, {what}: "
+                      f"{old[f'L{lay}/{key}'] / new[f'L{lay}/{key}']:.2f}x")
+    for lay in LAYOUTS:
+        x = best["this checkout"]
+        print(f"layout {lay}: batch {b} {b * a.seconds / x[f'L{lay}/{b}/warm/cpu']:.0f}x real time per CPU s "
+              f"(target >= 300x on one core), 1 motor {a.seconds / x[f'L{lay}/1/warm/cpu']:.0f}x (target >= 120x)")
 
     if a.pp_seeds:
         import numpy as np

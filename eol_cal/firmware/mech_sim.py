@@ -34,7 +34,7 @@ from eol_cal.firmware.mech import (
     mech_init,
     mech_tables,
 )
-from eol_cal.firmware.mech_tick import background_heavy, mech_background, mech_background_idle, mech_tick
+from eol_cal.firmware.mech_tick import batched_background, mech_tick
 from eol_cal.firmware.mech_params import MechParams
 
 if TYPE_CHECKING:
@@ -174,9 +174,7 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
             es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t))(es, a, b, h, tables)
             ms, mo = jax.vmap(lambda m, t, s, o, p: mech_tick(mc, t, m, s, o, p, xp=jnp))(ms, tb, es, eo, ps)
             # the background's arithmetic only on the ticks some power-up needs it (the same result)
-            ms = jax.lax.cond(jnp.any(jax.vmap(background_heavy)(ms)),
-                              lambda: jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(tb, ms, es),
-                              lambda: jax.vmap(lambda m: mech_background_idle(mc, m, xp=jnp))(ms))
+            ms = batched_background(mc, tb, ms, es)
             on = mo.active != 0
             new_first = (first < 0) & on
             first = jnp.where(new_first, start + i, first)

@@ -132,6 +132,22 @@ def mech_background_idle(mc: MechConsts, ms: MechState, xp: ArrayModule = np) ->
     return ms._replace(busy=xp.where(running, ms.busy + I32(1), ms.busy), clr=clr)
 
 
+def batched_background(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState) -> MechState:
+    """:func:`mech_background` of a batch of identifiers (JAX; every array's leading axis the
+    batch): the evaluation's arithmetic only on the ticks some member of the batch needs it.
+
+    The same result as the vmapped :func:`mech_background` (which otherwise runs whole every tick:
+    under ``vmap`` a branch on a per-member value computes both sides); the heavy ticks are an
+    evaluation's first slice and a revolution mark, a few per revolution and member.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    return jax.lax.cond(jnp.any(background_heavy(ms)),
+                        lambda: jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(tb, ms, es),
+                        lambda: mech_background_idle(mc, ms, xp=jnp))
+
+
 def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
               ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
     """One tick of the identifier after the estimator's, then one background slice: the schedule the

@@ -1,6 +1,7 @@
-"""The bench simulation: a ``lax.scan`` over 20 kHz PWM ticks, ``vmap`` over a lot of motors.
+"""The bench simulation: a ``lax.scan`` over 20 kHz PWM ticks of a lot of motors, the tick ``vmap``-ped.
 
-One tick is :mod:`eol_cal.plant.tick`'s (sensors, estimator, ECU, inverter, motor, shaft).
+One tick is :mod:`eol_cal.plant.tick`'s (sensors, estimator, ECU, inverter, motor, shaft), then the
+ECU identifier's background slice for the whole lot (:func:`eol_cal.plant.tick.background`).
 
 Everything runs in float32. The scan is cut into chunks of fixed length so that one compiled
 program serves any duration, and each chunk's outputs are copied to the host as they come.
@@ -26,7 +27,7 @@ from eol_cal.plant import control
 from eol_cal.plant.ecu_model import batch_options, estimator_config, simulated_ecu_state, true_block
 from eol_cal.plant.params import PlantSpec, stack_params, to_params
 from eol_cal.plant.profile import Profile
-from eol_cal.plant.tick import OUT_COLUMNS, TWO_PI, PlantSimConfig, initial_carry, sense, tick
+from eol_cal.plant.tick import OUT_COLUMNS, TWO_PI, PlantSimConfig, background, initial_carry, sense, tick
 from eol_cal.numerics.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
 #: ticks of one draw of sensor noise (and the unit of a chunk's length)
@@ -83,14 +84,25 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
         return (jax.random.normal(k_tq, (NOISE_BLOCK,), dtype=jnp.float32),
                 jax.random.normal(k_i, (n_cc, 3), dtype=jnp.float32))
 
-    def one_motor(p, carry, shared, key, first_block):
+    def motor_noise(key, first_block):
         tq_noise, i_noise = jax.vmap(block_noise, in_axes=(None, 0))(key, first_block + jnp.arange(n_blocks))
-        xs = (*shared, tq_noise.reshape(-1))
-        i_noise = i_noise.reshape(-1, 3)
-        carry, ys = jax.lax.scan(lambda c, x: tick(cfg, p, i_noise, c, x), carry, xs, unroll=unroll)
-        return carry, ys.T  # channel-major: the host converts contiguous rows
+        return tq_noise.reshape(-1), i_noise.reshape(-1, 3)
 
-    fn = jax.jit(jax.vmap(one_motor, in_axes=(0, 0, None, 0, None)))
+    # the scan over the batch's ticks, each tick vmapped over the motors: the identifier's
+    # background (tick.background) then branches once for the whole batch
+    one_tick = jax.vmap(lambda p, i_noise, c, x: tick(cfg, p, i_noise, c, x), in_axes=(0, 0, 0, (None,) * 5 + (0,)))
+
+    def chunk(p, carry, shared, keys, first_block):
+        tq_noise, i_noise = jax.vmap(motor_noise, in_axes=(0, None))(keys, first_block)
+
+        def body(c, x):
+            c, y = one_tick(p, i_noise, c, x)
+            return background(cfg, p, c), y
+
+        carry, ys = jax.lax.scan(body, carry, (*shared, tq_noise.T), unroll=unroll)
+        return carry, ys.transpose(1, 2, 0)  # motor- and channel-major: the host converts contiguous rows
+
+    fn = jax.jit(chunk)
     _COMPILED[key] = fn
     return fn
 
@@ -127,7 +139,7 @@ def _prime_fn(cfg: PlantSimConfig) -> Callable:
             est_state, sensed = sense(cfg, p, plant.theta_m, est_state, mech_state)
             return plant, est_state, ecu, sensed
 
-        _COMPILED[key] = jax.jit(jax.vmap(one_motor))
+        _COMPILED[key] = jax.jit(lambda p, carry: background(cfg, p, jax.vmap(one_motor)(p, carry)))
     return _COMPILED[key]
 
 

@@ -97,10 +97,26 @@ class Sensed(NamedTuple):
     mech: Any = None
 
 
+def background(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
+    """The identifier's background slice after a tick (:func:`eol_cal.firmware.mech_tick.mech_step`'s
+    second half) for a whole batch: ``p`` and ``carry`` batched as the scan holds them (leading axis
+    the motors). Nothing without ``cfg.mech``.
+
+    Run outside the per-motor ``vmap`` so that the evaluation's arithmetic runs only on the ticks
+    some motor needs it (:func:`eol_cal.firmware.mech_tick.batched_background`).
+    """
+    if cfg.mech is None:
+        return carry
+    plant, est_state, ecu, sensed = carry
+    ms = mech_tick.batched_background(cfg.mech, mech_tables_of(p), sensed.mech, est_state)
+    return plant, est_state, ecu, sensed._replace(mech=ms)
+
+
 def sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mech_state: Any = None
            ) -> tuple[Any, Sensed]:
     """Steps 1-2 of a tick at rotor angle ``theta_m`` (rad): the levels, the estimator's step (and
-    with ``cfg.mech`` the identifier's, from ``mech_state``: :attr:`Sensed.mech`)."""
+    with ``cfg.mech`` the identifier's interrupt part, from ``mech_state``: :attr:`Sensed.mech`;
+    :func:`background` then runs its background slice over the batch)."""
     import jax.numpy as jnp
 
     enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
@@ -111,7 +127,8 @@ def sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mec
     else:
         est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
                                                      tables=estimator_tables(p))
-        mech_state, _ = mech_tick.mech_step(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
+        # the interrupt's part; the background slice follows for the whole batch (:func:`background`)
+        mech_state, _ = mech_tick.mech_tick(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
     theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
     return est_state, Sensed(enc_a, enc_b, hall, est, jnp.cos(theta_m), jnp.sin(theta_m), jnp.cos(theta_c),
                              jnp.sin(theta_c), mech_state)
