@@ -196,16 +196,18 @@ def sees_up_to_hz(f6_hz: np.ndarray, info: np.ndarray, dof: int, p_min: float) -
     mode's phase, nearly linear in frequency below it, is taken up by the fitted delay and
     ignored here, and so is the delay's share of the gain: the figure errs towards blindness.
     """
-    from scipy import stats
+    # scipy.special, not scipy.stats: the same functions (chi2.isf is chdtri) without the 0.5-1 s
+    # scipy.stats costs to import in a one-capture `eol-cal fit`
+    from scipy.special import chdtri, chndtr
 
-    crit = float(stats.chi2.isf(p_min, dof))
+    crit = float(chdtri(dof, p_min))
     # every candidate mode at once (one column each): a refit calls this per motor
     f0 = np.geomspace(20.0, 5000.0, 241)
     info_b = np.asarray(info, dtype=float)[:, None]
     g = mode_gain(np.asarray(f6_hz, dtype=float)[:, None], f0[None, :])
     gbar = (info_b * g).sum(axis=0) / info_b.sum()
     lam = (info_b * (g / gbar - 1.0) ** 2).sum(axis=0)
-    seen = f0[stats.ncx2.sf(crit, dof, lam) >= 0.5]
+    seen = f0[chndtr(crit, dof, lam) <= 0.5]  # detected at least half the time: sf >= 0.5
     return float(seen[-1]) if len(seen) else 0.0
 
 
@@ -231,7 +233,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
         if not, bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give
         ``insensitive``.
     """
-    from scipy import stats
+    from scipy.special import fdtrc  # scipy.stats' f.sf (above)
 
     if not fit.converged:
         return ModelCheck("not checked", "the fit did not converge")
@@ -278,7 +280,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
             row[f"phase_{part}6"] = {"value": e.phase, "ci95": e.phase_ci95}
         rows.append(row)
     # the noise level is itself estimated (dof_noise): Snedecor's F, not the chi-square
-    p = float(stats.f.sf(chi2 / dof, dof, dof_noise))
+    p = float(fdtrc(dof, dof_noise, chi2 / dof))
     words = "; ".join(
         f"{r['speed_rpm']:.4g} rpm: " + ", ".join(
             f"{part}6 {r[f'{part}6']['value'] * 1e3:.4g}±{r[f'{part}6']['ci95'] * 1e3:.2g} "
