@@ -56,7 +56,8 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
     if capture.has("hall"):
         values = np.asarray(capture["hall"])
         finite = values[np.isfinite(values)] if values.dtype.kind == "f" else values
-        hall = {"states_seen": sorted(int(s) for s in np.unique(finite)), "changes": hall_changes(values)}
+        hall = {"states_seen": sorted({int(s) for s in finite.tolist()}),  # np.unique imports numpy.ma
+                "changes": hall_changes(values)}
     from eol_cal.infra.jsonsafe import json_safe
 
     # a header's NaN kt or a NaN time stamp is what a bad capture holds: null in the document (the
