@@ -239,8 +239,7 @@ def reconstruct_angle(
     p = np.empty_like(t)
     w = np.empty_like(t)
     inside = (t >= t_u[0]) & (t <= t_u[-1])
-    p[inside] = interp(t[inside])
-    w[inside] = slope(t[inside])
+    p[inside], w[inside] = interp.with_slope(t[inside])
     for mask, t_end, p_end in ((t < t_u[0], t_u[0], rel_u[0]), (t > t_u[-1], t_u[-1], rel_u[-1])):
         if mask.any():
             w_end = float(slope(t_end))

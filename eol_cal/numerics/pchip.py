@@ -57,19 +57,33 @@ class PiecewisePoly:
 
     def __call__(self, xq: np.ndarray | float) -> np.ndarray:
         """Values at ``xq`` (NaN outside the knots' span)."""
+        return self.with_slope(xq, slope=False)[0]
+
+    def with_slope(self, xq: np.ndarray | float, slope: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+        """Values and first derivative (:meth:`derivative`'s, bit for bit) at ``xq``, sharing the search
+        for the intervals (NaN outside the knots' span; ``None`` for the slope unless asked)."""
         xq = np.asarray(xq, dtype=float)
         flat = xq.reshape(-1)
-        i = np.clip(np.searchsorted(self.x, flat, side="right") - 1, 0, len(self.x) - 2)
+        i = np.searchsorted(self.x, flat, side="right") - 1
+        np.clip(i, 0, len(self.x) - 2, out=i)
         s = flat - self.x[i]
-        c = self.c[:, i]
+        rows = self.c.T[i]  # (points, k): one gather
         # scipy's evaluate_poly1: the constant term first, then each power of s times its coefficient
-        res = c[-1].copy()
-        z = np.ones_like(s)
-        for row in c[-2::-1]:
+        k = rows.shape[1]
+        res = rows[:, k - 1].copy()
+        der = rows[:, k - 2] * float(1) if slope and k > 1 else None
+        z = s
+        for j in range(k - 2, -1, -1):
+            res += rows[:, j] * z
+            if der is not None and j > 0:
+                der += (rows[:, j - 1] * float(k - j)) * z
             z = z * s
-            res = res + row * z
-        res[~((flat >= self.x[0]) & (flat <= self.x[-1]))] = np.nan
-        return res.reshape(xq.shape)
+        outside = (flat < self.x[0]) | (flat > self.x[-1])
+        if outside.any():
+            res[outside] = np.nan
+            if der is not None:
+                der[outside] = np.nan
+        return res.reshape(xq.shape), None if der is None else der.reshape(xq.shape)
 
     def derivative(self) -> PiecewisePoly:
         """The first derivative (scipy's ``PPoly.derivative``: the coefficients times the powers)."""

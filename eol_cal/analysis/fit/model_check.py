@@ -143,8 +143,7 @@ def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> 
     n, T = len(t), float(t[-1] - t[0])
     s2 = float(res[:, 0] @ res[:, 0]) / max(n - A.shape[1], 1)
     k = np.array([k for k in range(-NOISE_BINS, NOISE_BINS + 1) if abs(k) >= 2], dtype=float)
-    phase = 6.0 * (theta - theta[0])[:, None] + 2 * math.pi * np.outer(t - t[0], k) / T
-    X = (2.0 / n) * (res.T @ np.exp(-1j * phase))  # (signals, bins): the residual's phasor per bin
+    X = (2.0 / n) * (res.T @ bin_phasors(6.0 * (theta - theta[0]), 2 * math.pi * (t - t[0]) / T, k))
     e = X[0]
     if seg.kt_iq is not None:
         omega = 6.0 * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
@@ -152,6 +151,22 @@ def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> 
             seg.path_response(omega), dtype=complex)
         e = e - path * transducer_gain(spec, tau_s, omega) * X[1]
     return float(np.mean(np.abs(e) ** 2)) / 2.0, 2.0 * s2 / n, 2 * len(k)
+
+
+def bin_phasors(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``exp(-i (a + b k))`` (n, bins) for integer ``k`` (each at least 1 or at most -1): the residual's
+    phasor per bin is ``res @`` it. One complex exponential per sample and powers of ``exp(-i b)``
+    instead of one per sample and bin (a refit's model check spent 30 % of its time in them); the
+    same values within the rounding of the phase itself (4e-14 at a few hundred rad of ``a``)."""
+    step = np.exp(-1j * b)
+    top = int(np.max(np.abs(k)))
+    powers = np.empty((top + 1, len(b)), dtype=complex)  # step ** 0 .. step ** top
+    powers[0] = 1.0
+    for j in range(1, top + 1):
+        powers[j] = powers[j - 1] * step
+    ki = k.astype(int)
+    Wk = np.where(ki[None, :] > 0, powers[np.abs(ki)].T, np.conj(powers[np.abs(ki)].T))  # exp(-i b)^-k = conj
+    return np.exp(-1j * a)[:, None] * Wk
 
 
 def band_noise_ratio(seg: SteadySegments, idx: np.ndarray, spec: FitSpec, tau_s: float) -> tuple[float, int]:
