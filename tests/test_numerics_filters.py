@@ -5,10 +5,6 @@ recursion is evaluated in another order (the zero-phase Butterworth low-pass).""
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from numpy.lib.stride_tricks import sliding_window_view
@@ -17,8 +13,6 @@ from scipy.ndimage import median_filter
 from scipy.signal import butter, sosfiltfilt
 
 from eol_cal.analysis.metrics import hampel
-from eol_cal.capture.io import write_capture
-from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.numerics import iir
 from eol_cal.numerics.pchip import pchip
 
@@ -96,27 +90,3 @@ def test_the_hampel_filter_is_the_median_filters_bit_for_bit():
         y, s = hampel(x, k)
         y_ref, s_ref = _hampel_scipy(x, k)
         assert np.array_equal(y, y_ref) and np.array_equal(s, s_ref), (trial, n, k)
-
-
-_PROBE = """
-import runpy, sys
-sys.argv = ["eol-cal", *sys.argv[1:]]
-try:
-    runpy.run_module("cli.main", run_name="__main__")
-except SystemExit:
-    pass
-print(*sorted(m for m in sys.modules if m.startswith("scipy.")), file=sys.stderr)
-"""
-
-
-@pytest.mark.slow  # a process of its own
-def test_eol_cal_fit_imports_neither_scipy_signal_nor_stats_interpolate_ndimage(tmp_path):
-    path = tmp_path / "one.csv"
-    write_capture(synthetic_capture(rpm=600.0, i_qo=65.0, seconds=0.3, seed=1, serial="B-1"), path)
-    res = subprocess.run([sys.executable, "-c", _PROBE, "fit", str(path), "-o", str(tmp_path / "r.json"), "--no-c6",
-                          "--delay", "0"], capture_output=True, text=True, timeout=600,
-                         env=dict(os.environ, EOL_CAL_JAX_CACHE=str(tmp_path / "cache")))
-    assert (tmp_path / "r.json").exists(), res.stderr[-3000:]
-    mods = set(res.stderr.strip().splitlines()[-1].split())
-    assert "scipy.special" in mods  # the probe sees scipy's modules
-    assert {m.split(".")[1] for m in mods} & {"signal", "stats", "interpolate", "ndimage", "optimize"} == set()
