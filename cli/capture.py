@@ -27,7 +27,7 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
     import numpy as np
 
     from eol_cal.capture.data import CANONICAL_CHANNELS
-    from eol_cal.capture.validate import hall_changes, rising_edges
+    from eol_cal.capture.validate import hall_changes, rising_edges, states_seen
 
     t = capture.t
     duration = float(t[-1] - t[0]) if len(t) > 1 else 0.0
@@ -56,7 +56,7 @@ def capture_summary(capture: Any, file_format: str, problem: Any) -> dict[str, A
     if capture.has("hall"):
         values = np.asarray(capture["hall"])
         finite = values[np.isfinite(values)] if values.dtype.kind == "f" else values
-        hall = {"states_seen": sorted(int(s) for s in np.unique(finite)), "changes": hall_changes(values)}
+        hall = {"states_seen": states_seen(finite), "changes": hall_changes(values)}
     from eol_cal.infra.jsonsafe import json_safe
 
     # a header's NaN kt or a NaN time stamp is what a bad capture holds: null in the document (the

@@ -36,6 +36,7 @@ from eol_cal.capture.data import Capture
 from eol_cal.capture.windows import window_spans
 from eol_cal.errors import InputError
 from eol_cal.firmware.contract import HALL_FORWARD_SEQUENCE, NOMINAL_HALL_ANGLE
+from eol_cal.numerics.pchip import pchip
 from eol_cal.numerics.wrap import wrap_2pi, wrap_pi
 
 TWO_PI = 2.0 * np.pi
@@ -232,16 +233,13 @@ def reconstruct_angle(
     rel_u = np.bincount(inv, weights=rel) / np.bincount(inv)
     if len(t_u) < 2:
         raise InputError(source, "enc_a", "fewer than two distinct encoder edge times")
-    from scipy.interpolate import PchipInterpolator  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
-
-    interp = PchipInterpolator(t_u, rel_u, extrapolate=False)
+    interp = pchip(t_u, rel_u)  # scipy's PchipInterpolator(extrapolate=False), bit for bit
     slope = interp.derivative()
 
     p = np.empty_like(t)
     w = np.empty_like(t)
     inside = (t >= t_u[0]) & (t <= t_u[-1])
-    p[inside] = interp(t[inside])
-    w[inside] = slope(t[inside])
+    p[inside], w[inside] = interp.with_slope(t[inside])
     for mask, t_end, p_end in ((t < t_u[0], t_u[0], rel_u[0]), (t > t_u[-1], t_u[-1], rel_u[-1])):
         if mask.any():
             w_end = float(slope(t_end))

@@ -32,6 +32,7 @@ from eol_cal.analysis.angle import AngleResult, capture_angle
 from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
+from eol_cal.numerics.iir import lowpass_zero_phase
 
 TWO_PI = 2.0 * np.pi
 
@@ -89,58 +90,37 @@ def hampel(x: np.ndarray, half_width: int, n_sigma: float = 3.0, chunk: int = 65
     spikes : ndarray of bool
         Which samples were replaced.
     """
-    from scipy.ndimage import median_filter  # scipy's submodules are heavy (tests/test_imports.py)
-
     x = np.asarray(x, dtype=float)
     k = max(int(half_width), 1)
-    mode = "mirror" if len(x) > k else "nearest"
-    med = median_filter(x, size=2 * k + 1, mode=mode)
     d = np.abs(np.diff(x))
     step = float(d[d > 0].min()) if (d > 0).any() else 0.0
     floor = max(1.4826 * float(np.median(d)) / np.sqrt(2.0), step) if len(d) else 0.0
-    # Only a sample beyond n_sigma * floor can be a spike: the exact window MAD is needed
-    # for those candidates alone.
-    cand = np.flatnonzero(np.abs(x - med) > n_sigma * floor)
+    limit = n_sigma * floor
+    padded = np.pad(x, k, mode="reflect" if len(x) > k else "edge")  # scipy.ndimage's "mirror" / "nearest"
+    win = sliding_window_view(padded, 2 * k + 1)
+    # Only a sample beyond n_sigma * floor of its window median can be a spike, and the median
+    # m_i of 2k+1 values is below a (above b) exactly when at least k+1 of them are: counting
+    # those against x_i -/+ the limit (less a margin far above the rounding) finds every candidate
+    # without sorting each window; the exact median and MAD are taken for the candidates alone.
+    margin = 1e-9 * (limit + np.abs(x))
+    need = k + 1
+    lo, hi = x - limit + margin, x + limit - margin
+    below = np.zeros(len(x), dtype=np.intp)
+    above = np.zeros(len(x), dtype=np.intp)
+    for j in range(2 * k + 1):  # window offset j: contiguous slices, no (n, 2k+1) temporary
+        below += padded[j : j + len(x)] < lo
+        above += padded[j : j + len(x)] > hi
+    cand = np.flatnonzero((below >= need) | (above >= need))
     y = x.copy()
     spikes = np.zeros(len(x), dtype=bool)
-    if len(cand):
-        padded = np.pad(x, k, mode="reflect" if mode == "mirror" else "edge")
-        win = sliding_window_view(padded, 2 * k + 1)
-        for s in range(0, len(cand), chunk):
-            c = cand[s : s + chunk]
-            mad = np.median(np.abs(win[c] - med[c, None]), axis=1)
-            bad = c[np.abs(x[c] - med[c]) > n_sigma * np.maximum(1.4826 * mad, floor)]
-            y[bad] = med[bad]
-            spikes[bad] = True
+    for s in range(0, len(cand), chunk):
+        c = cand[s : s + chunk]
+        med = np.partition(win[c], k, axis=1)[:, k]  # the middle of 2k+1 values: the median exactly
+        mad = np.median(np.abs(win[c] - med[:, None]), axis=1)
+        is_bad = np.abs(x[c] - med) > n_sigma * np.maximum(1.4826 * mad, floor)
+        y[c[is_bad]] = med[is_bad]
+        spikes[c[is_bad]] = True
     return y, spikes
-
-
-def lowpass_zero_phase(x: np.ndarray, fs_hz: float, cutoff_hz: float, order: int = 6) -> np.ndarray:
-    """Zero-phase Butterworth low-pass (forward-backward, so the magnitude is squared).
-
-    Parameters
-    ----------
-    x : ndarray
-        Signal (any unit), sampled uniformly at ``fs_hz``.
-    fs_hz : float
-        Sample rate (Hz).
-    cutoff_hz : float
-        -3 dB frequency of one pass (Hz); the forward-backward response is -6 dB there.
-    order : int
-        Order of one pass.
-
-    Returns
-    -------
-    y : ndarray
-        Filtered signal (unit of ``x``); ``x`` unchanged when the cut-off is at or above
-        0.9 times the Nyquist frequency (nothing to remove that the samples can hold).
-    """
-    if cutoff_hz >= 0.45 * fs_hz:
-        return np.asarray(x, dtype=float).copy()
-    from scipy.signal import butter, sosfiltfilt  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
-
-    sos = butter(order, cutoff_hz, btype="low", fs=fs_hz, output="sos")
-    return sosfiltfilt(sos, x)
 
 
 @dataclass(frozen=True)

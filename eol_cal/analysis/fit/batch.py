@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -114,9 +116,11 @@ def fit_many(
         futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
         with jax.enable_x64(True):
             grid_j = jax.numpy.asarray(grid)
-            exported = load_solver(cache_dir, spec, S, len(grid)) if mode == "loop" else None
+            # a known delay reaches the solver in the grid: one program for every delay
+            program = spec if spec.fit_delay else dataclasses.replace(spec, delay_s=0.0)
+            exported = load_solver(cache_dir, program, S, len(grid)) if mode == "loop" else None
             solve = ((lambda c, g, _steps: exported(c, g)) if exported
-                     else cached_solver(spec, S, "one" if mode == "loop" else mode))
+                     else cached_solver(program, S, "one" if mode == "loop" else mode))
             save_export = mode == "loop" and exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
@@ -131,8 +135,8 @@ def fit_many(
                     outs = [out]
                     if save_export:
                         save_export = False
-                        save_solver(cache_dir, jax.jit(lambda c, g: build_solver(spec, S)(c, g, spec.max_steps)), spec, S,
-                                    len(grid), args)
+                        save_solver(cache_dir, jax.jit(lambda c, g: build_solver(program, S)(c, g, spec.max_steps)), program,
+                                    S, len(grid), args)
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps

@@ -56,9 +56,9 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
     G = spec.n_glob
     n_tau = int(spec.fit_delay)
 
-    def harm_coef(p, i_qo, omega, gre, gim, cre, cim):
+    def harm_coef(p, tau_known, i_qo, omega, gre, gim, cre, cim):
         """Coefficients of the sin/cos(h theta) columns per segment, shape (S, 2 nh)."""
-        tau = p[0] * TAU_SCALE if n_tau else spec.delay_s
+        tau = p[0] * TAU_SCALE if n_tau else tau_known
         glob = p[n_tau : n_tau + G].reshape(-1, nh, 2)  # (part, harmonic, cos/sin)
         Zre = jnp.zeros((S, nh))
         Zim = jnp.zeros((S, nh))
@@ -89,8 +89,8 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
         return jnp.stack([-Rre, -Rim], axis=-1).reshape(S, 2 * nh)
 
     def residual(p, args):
-        Rhh, zh, i_qo, omega, gre, gim, cre, cim, valid = args
-        g = harm_coef(p, i_qo, omega, gre, gim, cre, cim)
+        Rhh, zh, tau_known, i_qo, omega, gre, gim, cre, cim, valid = args
+        g = harm_coef(p, tau_known, i_qo, omega, gre, gim, cre, cim)
         r = zh - jnp.einsum("sij,sj->si", Rhh, g)
         return (r * valid[:, None]).reshape(-1)
 
@@ -111,7 +111,9 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
         zh = comp["z"][:, q:]
         valid = (comp["n"] > 0).astype(zh.dtype)
         paths = tuple(comp[k] for k in ("gain_re", "gain_im", "cur_re", "cur_im"))
-        args = (Rhh, zh, comp["i_qo"], comp["omega"], *paths, valid)
+        # a known delay is the grid's one point, an argument: not a constant of the trace, so that
+        # one compiled solver serves every delay (the model check fits each motor's bands at its own)
+        args = (Rhh, zh, tau_grid[0], comp["i_qo"], comp["omega"], *paths, valid)
         if n_tau:
             starts, ssrs = jax.vmap(lambda tau: linear_start(args, tau))(tau_grid)
             p0 = starts[jnp.argmin(ssrs)]
@@ -135,7 +137,7 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
             "p": p,
             "cov_unscaled": jnp.linalg.inv(J.T @ J),
             "ssr_red": jnp.sum(r * r),
-            "g": harm_coef(p, comp["i_qo"], comp["omega"], *paths),
+            "g": harm_coef(p, tau_grid[0], comp["i_qo"], comp["omega"], *paths),
             "steps": sol.stats["num_steps"],
             "result": result_index(sol.result),
         }
@@ -217,7 +219,7 @@ def cached_solver(spec: FitSpec, S: int, mode: str) -> Solver:
 
 
 def tau_grid(spec: FitSpec, omega_max: float) -> np.ndarray:
-    """Start grid for the delay (s) over [0, delay_max_s].
+    """Start grid for the delay (s) over [0, delay_max_s]; a known delay (``spec.delay_s``) alone.
 
     Spacing: the 6th harmonic at the highest speed moves at most 0.5 rad between grid points
     (8 to 64 points). With the low-pass model the phase ``atan(h omega tau)`` is monotone and
@@ -226,7 +228,7 @@ def tau_grid(spec: FitSpec, omega_max: float) -> np.ndarray:
     ``spec.delay_max``. Solver steps then refine every harmonic.
     """
     if not spec.fit_delay:
-        return np.zeros(1)
+        return np.array([float(spec.delay_s or 0.0)])  # the known delay, the solver's argument
     span = 6 * max(omega_max, 1.0) * spec.delay_max
     n = int(min(max(math.ceil(span / 0.5) + 1, 8), 64))
     # a power of two, so that nearby speeds share one compiled solver
