@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from eol_cal.numerics.blas import limit_blas_threads
 from eol_cal.sim.postgres import PostgresServer
 
 # pytest-xdist gives its workers COLUMNS=80 (the controller's terminal): the CLI would print its
@@ -33,6 +34,12 @@ if os.environ.get("PYTEST_XDIST_WORKER"):
 # suite keeps Python's bytecode caches (``__pycache__``, ignored by git) whatever the environment says.
 sys.dont_write_bytecode = False
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
+# The CLI runs the library on one BLAS thread (eol_cal.numerics.blas, at its start); a test that
+# calls the library in its own process does too. Two workers each with a multi-threaded OpenBLAS on
+# two cores wait for each other's threads: a small solve costs 100x its time on a loaded machine
+# (the fit's zero-phase filter 90 ms instead of 2 ms, 2026-11-29). A count the caller set stands.
+limit_blas_threads()
 
 # The station tests run the dyno simulator and its plant in the test's process (or beside it): on
 # a loaded machine (the hog runs of docs/history/benchmarks-journal.md, "Test suite") the station's client can be
