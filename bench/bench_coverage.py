@@ -253,6 +253,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, help="keep the simulated runs here (e.g. out/cov_cache) and read them "
                     "back: a refit of the same motors costs only the fit")
     ap.add_argument("--json", help="write every judged interval here")
+    ap.add_argument("--simulate-only", action="store_true", help="fill --cache, fit nothing")
     args = ap.parse_args()
 
     from rich.progress import Progress
@@ -286,6 +287,9 @@ def main() -> None:
             t0 = time.perf_counter()
             runs, simulated = cached_runs(plants, seeds, cal, best, first, spread, args.cache)
             (t_sim if simulated else t_load)[0] += time.perf_counter() - t0
+            if args.simulate_only:
+                progress.update(task, completed=len(seeds) + first - args.first_seed)
+                continue
             t0 = time.perf_counter()
             inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
             results = fit_inputs(inputs, options).results
