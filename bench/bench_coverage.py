@@ -42,7 +42,27 @@ if TYPE_CHECKING:
     from eol_cal.analysis.motor_result import MotorResult, ValueCi
 
 #: quantities whose value and truth are angles (rad): errors wrapped to (-pi, pi]
-PHASES = ("phase_k6", "phase_c6", "phase_mech1", "phase_mech2", "phase_mech3")
+PHASES = ("phase_k6", "phase_c6", "phase_k6_eff", "phase_c6_eff", "phase_mech1", "phase_mech2", "phase_mech3")
+
+
+def current_ripple(run, spec) -> dict[str, complex]:
+    """The 6th harmonic of ``kt * i_q`` of a noise-free run (plant's true angle frame): ``{"k": N*m/A
+    phasor, "c": N*m phasor}``, fitted with the fit's own model (no transducer, no bench)."""
+    import dataclasses
+
+    from eol_cal.analysis.fit import fit_many
+    from eol_cal.analysis.fit.capture import motor_inputs
+
+    (mi,) = motor_inputs([run.capture], frame="offline", hall_angle="nominal")
+    kt = float(run.capture.metadata["kt"])
+    iq = np.asarray(run.capture["iq"], dtype=float)
+    seg = dataclasses.replace(mi.segments, torque=[kt * iq[s.start:s.stop] for s in mi.info], path_response=None,
+                              kt_iq=None)
+    (f,) = fit_many([seg], dataclasses.replace(spec, delay_s=1e-9), mode="loop")
+    # the offline frame sits d_rec off the true angle: phase in the true frame = phase + 6 d_rec
+    d_rec = float(np.angle(np.mean(np.exp(1j * (mi.angles[0].theta_r - run.theta_r)))))
+    six = f.harmonics[6]
+    return {part: six[part].value * np.exp(1j * (six[part].phase + 6 * d_rec)) for part in ("k", "c")}
 
 
 def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
@@ -85,16 +105,22 @@ def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
     return float(np.mean(out))
 
 
-def prepared_runs(plants, profile, options: int, seed: int) -> list:
+def prepared_runs(plants, profile, options: int, seed: int, effective: bool = False) -> tuple[list, list, list]:
     """The lot's calibration runs as the station makes them: each motor under its uncompensated
-    block carrying ``options`` (the "prepare ECU" step); ``seed`` the batch's noise seed."""
+    block carrying ``options`` (the "prepare ECU" step), and, with ``effective``, the same motors
+    again without sensor noise (same start angles) for :func:`current_ripple` (bench_fit_lot.py's).
+
+    Returns ``(prepared blocks, runs, clean runs or None per motor)``."""
     from eol_cal.analysis.fit.table import uncompensated_block
     from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.simulate import simulate
 
     motor = load_motor("paper")
     prepared = [uncompensated_block(p.serial[:16], motor, calibrated_at=0, options=options) for p in plants]
-    return simulate(plants, profile, mode="estimated", blocks=prepared, seed=seed)
+    runs = simulate(plants, profile, mode="estimated", blocks=prepared, seed=seed)
+    clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], profile, mode="estimated",
+                     blocks=prepared, seed=seed) if effective else [None] * len(plants)
+    return prepared, runs, clean
 
 
 def cache_path(cache: Path, spread, seed: int, first: int, size: int) -> Path:
@@ -143,7 +169,7 @@ def cached_runs(plants, seeds: list[int], profile, options: int, first: int, spr
     paths = [cache_path(cache, spread, s, first, len(seeds)) for s in seeds] if cache is not None else []
     if paths and all(p.is_file() for p in paths):
         return [load_run(p) for p in paths], False
-    runs = prepared_runs(plants, profile, options, first)
+    _, runs, _ = prepared_runs(plants, profile, options, first)
     for path, run in zip(paths, runs, strict=False):
         save_run(path, run)
     return runs, True
@@ -153,8 +179,10 @@ def _circmean(x: np.ndarray) -> float:
     return float(np.angle(np.mean(np.exp(1j * x))))
 
 
-def motor_rows(p, run, mi, res: MotorResult) -> list[dict]:
-    """Per reported interval of one motor's result: quantity, estimate, ci95, truth, error (rad wrapped for phases)."""
+def motor_rows(p, run, mi, res: MotorResult, cur: dict[str, complex] | None = None) -> list[dict]:
+    """Per reported interval of one motor's result: quantity, estimate, ci95, truth, error (rad wrapped for phases);
+    with ``cur`` (:func:`current_ripple`, bench_fit_lot.py's) also k6 and c6 against the parameter plus the
+    ECU's current ripple (``_eff``), which this bench no longer judges: the fit takes that ripple out."""
     from eol_cal.analysis import fingerprint as fpr
     from eol_cal.analysis.fingerprint_fit import low_order_complement
     from eol_cal.firmware.kinematics import fingerprint_of
@@ -189,6 +217,10 @@ def motor_rows(p, run, mi, res: MotorResult) -> list[dict]:
         z = plant_ph[part]
         add(f"{part}6", getattr(e, f"{part}6"), abs(z))
         add(f"phase_{part}6", getattr(e, f"phase_{part}6"), np.angle(z) - 6 * d_fw)
+        if cur is not None:
+            z = z + cur[part]
+            add(f"{part}6_eff", getattr(e, f"{part}6"), abs(z))
+            add(f"phase_{part}6_eff", getattr(e, f"phase_{part}6"), np.angle(z) - 6 * d_fw)
     f6 = sorted({round(6 * abs(float(o.speed_rpm)) * mi.poles / 2 / 60.0, 3) for o in mi.info})
     add("delay_s", e.delay_s, chain_delay_s(p, np.array(f6)))
     mech = res.mech
