@@ -7,11 +7,9 @@ plant under the ``best`` estimator (as the station's "prepare ECU" step flashes 
 mechanical orders), and every reported interval is judged against the plant's truth:
 
 - ``k6``, ``c6`` (amplitudes) and ``phase_k6``, ``phase_c6`` in the firmware estimator's frame: the
-  truth moved by the plant's own estimator's frame on the same run (``theta_hat - theta_r``).
-  Two truths, as in ``bench/bench_fit_lot.py``: the plant's parameter (what the fit reports since
-  it takes the ECU's own current ripple out with the ``iq`` channel, docs/fit.md), and ``_eff``:
-  the parameter plus that ripple at that order (``kt * i_q`` of a noise-free run of the same motor
-  fitted with the same model), what a fit of the torque alone measures;
+  truth moved by the plant's own estimator's frame on the same run (``theta_hat - theta_r``),
+  against the plant's parameter (what the fit reports since it takes the ECU's own current ripple
+  out with the ``iq`` channel, docs/fit.md);
 - ``delay_s``: the lag of the sampled torque behind the capture's angle, as the first-order
   low-pass the fit models it (:func:`chain_delay_s`): the transducer's time constant
   ``1 / (2 pi tq_bw_hz)`` as the plant samples it, with the shaft line's semi-implicit Euler step and
@@ -26,6 +24,7 @@ Printed per quantity: n, the share covered with its binomial standard error, and
 ``|error| / ci95`` (1.0 at the interval's edge). A quantity covered in 95 +- 3 % passes.
 
     python bench/bench_coverage.py [--motors 400] [--batch 20] [--first-seed 1001] [--spread mech23] [--json cov.json]
+        [--cache out/cov_cache]
 """
 
 from __future__ import annotations
@@ -34,6 +33,7 @@ import argparse
 import math
 import os
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -105,10 +105,10 @@ def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
     return float(np.mean(out))
 
 
-def prepared_runs(plants, profile, options: int, seed: int, effective: bool) -> tuple[list, list, list]:
+def prepared_runs(plants, profile, options: int, seed: int, effective: bool = False) -> tuple[list, list, list]:
     """The lot's calibration runs as the station makes them: each motor under its uncompensated
     block carrying ``options`` (the "prepare ECU" step), and, with ``effective``, the same motors
-    again without sensor noise (same start angles) for :func:`current_ripple`.
+    again without sensor noise (same start angles) for :func:`current_ripple` (bench_fit_lot.py's).
 
     Returns ``(prepared blocks, runs, clean runs or None per motor)``."""
     from eol_cal.analysis.fit.table import uncompensated_block
@@ -123,12 +123,66 @@ def prepared_runs(plants, profile, options: int, seed: int, effective: bool) -> 
     return prepared, runs, clean
 
 
+def cache_path(cache: Path, spread, seed: int, first: int, size: int) -> Path:
+    """Where motor ``seed``'s run lies in ``cache``: one folder per spread (its name and a digest of
+    its distributions, so an edited spread file misses), one file per motor and noise draw (the
+    plant draws a batch's noise from the batch's seed ``first`` split over its ``size`` motors, so a
+    motor's run depends on both)."""
+    import hashlib
+
+    digest = hashlib.sha256(repr((spread.params, spread.sensors, spread.bench)).encode()).hexdigest()[:12]
+    name = "".join(c if c.isalnum() or c in "-_" else "_" for c in spread.name)
+    return cache / f"{name}-{digest}" / f"m{seed}_n{first}x{size}.npz"
+
+
+def save_run(path: Path, run) -> None:
+    """One simulated run (its capture and the angles only the plant knows) as a plain ``.npz``, written atomically."""
+    import json
+
+    from eol_cal.infra.atomic import atomic_path
+
+    cap = run.capture
+    arrays = {f"ch_{k}": v for k, v in cap.channels.items()}
+    arrays.update({k: getattr(run, k) for k in ("theta_r", "theta_hat", "theta_enc", "mech_active", "theta_m")})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.savez(fh, t=cap.t, meta=np.array(json.dumps({"metadata": cap.metadata, "truth": cap.truth})), **arrays)
+
+
+def load_run(path: Path):
+    """The run :func:`save_run` wrote (no pickles: arrays and a JSON string)."""
+    import json
+
+    from eol_cal.capture.data import Capture
+    from eol_cal.plant.simulate import SimResult
+
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["meta"]))
+        channels = {k[3:]: z[k] for k in z.files if k.startswith("ch_")}
+        cap = Capture(t=z["t"], channels=channels, metadata=meta["metadata"], truth=meta["truth"], source="<plant>")
+        return SimResult(cap, *(z[k] for k in ("theta_r", "theta_hat", "theta_enc", "mech_active", "theta_m")))
+
+
+def cached_runs(plants, seeds: list[int], profile, options: int, first: int, spread, cache: Path | None) -> tuple[list, bool]:
+    """The batch's runs from ``cache`` when every motor is there, else simulated (and stored when
+    ``cache`` is given). Returns ``(runs, simulated)``."""
+    paths = [cache_path(cache, spread, s, first, len(seeds)) for s in seeds] if cache is not None else []
+    if paths and all(p.is_file() for p in paths):
+        return [load_run(p) for p in paths], False
+    _, runs, _ = prepared_runs(plants, profile, options, first)
+    for path, run in zip(paths, runs, strict=False):
+        save_run(path, run)
+    return runs, True
+
+
 def _circmean(x: np.ndarray) -> float:
     return float(np.angle(np.mean(np.exp(1j * x))))
 
 
-def motor_rows(p, run, mi, res: MotorResult, cur: dict[str, complex] | None) -> list[dict]:
-    """Per reported interval of one motor's result: quantity, estimate, ci95, truth, error (rad wrapped for phases)."""
+def motor_rows(p, run, mi, res: MotorResult, cur: dict[str, complex] | None = None) -> list[dict]:
+    """Per reported interval of one motor's result: quantity, estimate, ci95, truth, error (rad wrapped for phases);
+    with ``cur`` (:func:`current_ripple`, bench_fit_lot.py's) also k6 and c6 against the parameter plus the
+    ECU's current ripple (``_eff``), which this bench no longer judges: the fit takes that ripple out."""
     from eol_cal.analysis import fingerprint as fpr
     from eol_cal.analysis.fingerprint_fit import low_order_complement
     from eol_cal.firmware.kinematics import fingerprint_of
@@ -228,9 +282,10 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=20, help="motors simulated together (memory)")
     ap.add_argument("--first-seed", type=int, default=1001)
     ap.add_argument("--spread", default="mech23", help="production spread (built-in name or .toml file)")
-    ap.add_argument("--no-effective", dest="effective", action="store_false",
-                    help="skip the noise-free run per motor (the _eff truths of k6 and c6)")
+    ap.add_argument("--cache", type=Path, help="keep the simulated runs here (e.g. out/cov_cache) and read them "
+                    "back: a refit of the same motors costs only the fit")
     ap.add_argument("--json", help="write every judged interval here")
+    ap.add_argument("--simulate-only", action="store_true", help="fill --cache, fit nothing")
     args = ap.parse_args()
 
     from rich.progress import Progress
@@ -254,20 +309,25 @@ def main() -> None:
     bench = load_mechanics("paper")
     rows: list[dict] = []
     t_start = time.perf_counter()
-    t_sim = 0.0
+    t_sim, t_load = [0.0], [0.0]
+    t_fit = 0.0
     with Progress(transient=True) as progress:
         task = progress.add_task("motors", total=args.motors)
         for first in range(args.first_seed, args.first_seed + args.motors, args.batch):
             seeds = list(range(first, min(first + args.batch, args.first_seed + args.motors)))
             plants = [draw_motor(s, spread=spread) for s in seeds]
             t0 = time.perf_counter()
-            _, runs, clean = prepared_runs(plants, cal, best, first, args.effective)
-            t_sim += time.perf_counter() - t0
+            runs, simulated = cached_runs(plants, seeds, cal, best, first, spread, args.cache)
+            (t_sim if simulated else t_load)[0] += time.perf_counter() - t0
+            if args.simulate_only:
+                progress.update(task, completed=len(seeds) + first - args.first_seed)
+                continue
+            t0 = time.perf_counter()
             inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
             results = fit_inputs(inputs, options).results
-            for p, run, cl, mi, res in zip(plants, runs, clean, inputs, results, strict=True):
-                cur = current_ripple(cl, spec) if cl is not None else None
-                for row in motor_rows(p, run, mi, res, cur):
+            t_fit += time.perf_counter() - t0
+            for p, run, mi, res in zip(plants, runs, inputs, results, strict=True):
+                for row in motor_rows(p, run, mi, res):
                     rows.append({"seed": p.serial, **row})
             progress.update(task, completed=len(seeds) + first - args.first_seed)
     wall = time.perf_counter() - t_start
@@ -277,7 +337,8 @@ def main() -> None:
         with open(args.json, "w") as fh:
             json.dump(rows, fh, indent=1)
     bad = [r for r in rows if r["quantity"] == "status"]
-    print(f"{args.motors} motors, {len(bad)} fits not usable; wall {wall:.0f} s (simulation {t_sim:.0f} s), "
+    print(f"{args.motors} motors, {len(bad)} fits not usable; wall {wall:.0f} s (simulation {t_sim[0]:.0f} s, "
+          f"cache reads {t_load[0]:.0f} s, fits {t_fit:.0f} s; {wall / args.motors:.2f} s a motor), "
           f"load {os.getloadavg()[0]:.2f}")
     print(f"{'quantity':<16} {'n':>6} {'covered':>9} {'± se':>7}  {'median |err|/ci95':>18}  verdict (95 ± 3 %)")
     for q, n, cov, se, med in summary(rows):

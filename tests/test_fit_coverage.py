@@ -2,7 +2,11 @@
 of the mech23 spread through eol-default, fitted as the station fits, every reported 95 % interval
 judged against the truth. 16 motors cannot tell 95 % from 90 %; they do tell the intervals 3-8 times
 too narrow that the mechanical orders had before (a third of them covered), at a false-alarm rate
-under 1 % per quantity (at least 12 of 16 when the coverage is 95 %)."""
+under 1 % per quantity (at least 12 of 16 when the coverage is 95 %), and the intervals 1.5-2.5x too
+wide they had next (400 of 400 motors covered, bench/bench_coverage.py): pooled over the six
+mechanical quantities (amplitude and phase of orders 1-3, 16 motors: 96 intervals), an interval that
+covers 95 % misses at least once with probability 1 - 0.95^96 = 99.3 % (0.7 % false alarms: the six
+of a motor share its data, so somewhat more), where the too-wide ones missed none in 2400."""
 
 from __future__ import annotations
 
@@ -25,7 +29,6 @@ def _bench():
 
 
 def test_every_reported_interval_covers_the_truth_on_plant_motors():
-    from eol_cal.analysis.fit import FitSpec
     from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.analysis.fit.motors import FitOptions, fit_inputs
     from eol_cal.analysis.fit.table import uncompensated_block
@@ -43,13 +46,11 @@ def test_every_reported_interval_covers_the_truth_on_plant_motors():
     plants = [draw_motor(s, spread=spread) for s in range(2001, 2017)]
     prepared = [uncompensated_block(p.serial[:16], load_motor("paper"), calibrated_at=0, options=best) for p in plants]
     runs = simulate(plants, load_profile("eol-default"), mode="estimated", blocks=prepared, seed=2001)
-    clean = simulate([p.replace(tq_noise_nm=0.0, i_noise_a=0.0) for p in plants], load_profile("eol-default"),
-                     mode="estimated", blocks=prepared, seed=2001)
     inputs = [motor_inputs([r.capture], mechanics=load_mechanics("paper"), estimator_options=best)[0] for r in runs]
     results = fit_inputs(inputs, FitOptions(capture_metrics=False, estimator_options=best)).results
     rows = []
-    for p, run, cl, mi, res in zip(plants, runs, clean, inputs, results, strict=True):
-        rows += bench.motor_rows(p, run, mi, res, bench.current_ripple(cl, FitSpec()))
+    for p, run, mi, res in zip(plants, runs, inputs, results, strict=True):
+        rows += bench.motor_rows(p, run, mi, res)
     assert sum(r["quantity"] == "status" for r in rows) <= 1  # a false model mismatch is rare
     cover = {q: (n, c) for q, n, c, _, _ in bench.summary(rows)}
     # k6 against the plant's own: the fit takes the ECU's current ripple out (the iq channel)
@@ -57,6 +58,9 @@ def test_every_reported_interval_covers_the_truth_on_plant_motors():
               "mech3", "phase_mech3"):
         n, c = cover[q]
         assert n >= 15 and c >= 0.75, (q, n, c)
+    # not too wide either: pooled, the mechanical intervals cover at most 99 % (see the docstring)
+    mech = [r for r in rows if "mech" in r["quantity"]]
+    assert len(mech) >= 90 and sum(abs(r["err"]) > r["ci95"] for r in mech) >= 1, len(mech)
     n, c = cover["fingerprint"]
     assert n > 1000 and 0.90 <= c <= 0.995, c
     # phase_k6: with the current's ripple known its interval is the fit's own (+-0.2 deg) plus the

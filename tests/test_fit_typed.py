@@ -5,7 +5,9 @@ and the files ``eol-cal fit`` writes are the ones it wrote before the results we
 ``fixtures/fit_typed/*.json`` were written by ``eol-cal fit --json`` at commit 662b4d7 (the
 document built as a dict, parsed back into ``MotorResult`` where the station needed one) over the
 captures :func:`write_captures` makes, and written again when the model check's test changed (issue
-34: the bands' covariance and the 6th's own noise; only ``model_check``'s figures moved); write
+34: the bands' covariance and the 6th's own noise; only ``model_check``'s figures moved), and when
+the mechanical orders' intervals changed (issue 34: the noise at each order and the segments'
+jackknife; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """

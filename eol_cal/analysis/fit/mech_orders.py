@@ -11,8 +11,10 @@ mechanical order h = 1..3 shared by all: each order seen through the bench's res
 transducer's lag at the segment's speed, as the ripple fit models them. The orders are
 load-independent (N*m; the plant's unbalance is); the block's per-ampere part is 0.
 
-Intervals: the least-squares covariance of the joint fit, the residual variance scaled by the
-residual's lag-one correlation ((1 + r1) / (1 - r1), the samples are not independent).
+Intervals: the joint fit's covariance at the noise each order actually has in each segment
+(:func:`order_noise`: the residual's phasors at the order's neighbouring frequencies, as the
+model check measures the 6th's), or per order the delete-one-segment jackknife's where wider (the
+segments' scatter: what differs from segment to segment and not from sample to sample).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResu
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.analysis.fit.motor_input import MotorInput
 
@@ -55,6 +59,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     # of inv(X^T X) is the Schur complement): a (2H x 2H) system instead of one dense least squares
     # with (deg + 1) columns per segment; the same solution, residual and covariance.
     parts = []
+    lines = []  # per segment: what order_noise needs
     shares: list[tuple[np.ndarray, np.ndarray]] = []
     M = np.zeros((2 * H, 2 * H))
     rhs = np.zeros(2 * H)
@@ -88,8 +93,11 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
             z = e[h] * -g[i]
             W[nd + 2 * i] = z.imag
             W[nd + 2 * i + 1] = z.real
+        cur_res = None
         if seg.kt_iq is not None:
-            y = y - current_orders(np.asarray(seg.kt_iq[s], dtype=float), W[:nd], e, g)
+            known, cur_res = current_orders(np.asarray(seg.kt_iq[s], dtype=float), W[:nd], e, g)
+            y = y - known
+        lines.append((th_m, t, float(w_m), cur_res, seg.path_response))
         W[-1] = y
         Gs = W @ W.T
         D_inv, B = np.linalg.inv(Gs[:nd, :nd]), Gs[:nd, nd:-1]
@@ -103,27 +111,34 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     for W, D_inv in parts:
         e = W[-1] - W[nd:-1].T @ sol     # the torque less the orders, then less its own best drift
         res_parts.append(e - W[:nd].T @ (D_inv @ (W[:nd] @ e)))
-    res = np.concatenate(res_parts)
-    n_coef = nd * len(used) + 2 * H
-    r1 = float(np.dot(res[1:], res[:-1]) / max(np.dot(res, res), 1e-300))
-    inflate = (1.0 + r1) / max(1.0 - r1, 1e-3)
-    s2 = float(res @ res) / max(1, len(res) - n_coef) * max(inflate, 1.0)
+    # the noise: each segment's share of the normal equations has covariance D_s M_s D_s, D_s the
+    # white-equivalent noise each order has there (per pair, order_noise) on the least squares' M_s
+    C = np.zeros_like(M)
+    for (Ms, _), e_s, (th_m, t, w_m, cur_res, path) in zip(shares, res_parts, lines, strict=True):
+        d = np.repeat(np.sqrt(order_noise(e_s, cur_res, th_m, t, w_m, spec, fit.delay_s, path)), 2)
+        C += d[:, None] * Ms * d[None, :]
     M_inv = np.linalg.inv(M)
-    # lack of fit between segments (the main fit's Birge ratio, for the orders): each segment's
-    # share of the normal equations at the joint solution, g_s = r_s - M_s sol, has covariance
-    # s2 M_s when the model holds; more scatter than that widens the intervals by the ratio. The
-    # residual's own variance misses what differs from segment to segment and not from sample to
-    # sample (the drift polynomial's misfit to the dyno's speed loop, the ECU's current at each
-    # load point): over plant motors the least-squares intervals held the truth for a third of them.
-    chi2, dof = 0.0, -2 * H
-    for Ms, rs in shares:
-        g = rs - Ms @ sol
-        w, V = np.linalg.eigh(Ms)
-        keep = w > 1e-9 * max(float(w.max()), 1e-300)
-        chi2 += float(np.sum((V[:, keep].T @ g) ** 2 / w[keep]))
-        dof += int(keep.sum())
-    birge = chi2 / dof / s2 if dof >= 1 and s2 > 0 else 1.0
-    cov = s2 * max(1.0, birge) * M_inv
+    cov = M_inv @ C @ M_inv
+    # What differs from segment to segment and not from sample to sample (the drift polynomial's
+    # misfit to the dyno's speed loop; the current's noise below the segment's resolution, which
+    # the path takes to the shaft otherwise than at the line) is not in that noise: over plant
+    # motors the errors of orders 1-2 were 1.3-1.8x its standard deviations. The segments' scatter
+    # measures it: the delete-one-segment jackknife, with Student's t of its S - 1 degrees of
+    # freedom (8 segments: 2.36, not 1.96). A Birge ratio of the segments' normal-equation shares
+    # measured it in their ill-determined directions (a third of a revolution of order 1 against
+    # the drift), where that noise is largest and matters least: it widened the intervals 3-5x,
+    # covering the truth for every motor
+    S = len(shares)
+    if S >= 2:
+        from scipy.special import stdtrit  # heavy: only where mechanical orders are fitted
+
+        loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
+        dev = loo - loo.mean(axis=0)
+        jk = (S - 1) / S * (dev.T @ dev) * (float(stdtrit(S - 1, 0.975)) / _Z95) ** 2
+        for i in range(H):  # per order the wider of the two (only each order's own pair is reported)
+            sl = slice(2 * i, 2 * i + 2)
+            if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
+                cov[sl, sl] = jk[sl, sl]
     out = []
     for i, h in enumerate(ORDERS):
         a, b = sol[2 * i], sol[2 * i + 1]
@@ -138,7 +153,8 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     return tuple(out)
 
 
-def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray], g: np.ndarray) -> np.ndarray:
+def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray],
+                   g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The mechanical orders of ``kt * i_q`` (N*m) as the transducer sees them: known air-gap torque.
 
     The current loop answers the angle estimate's errors at the mechanical orders (the encoder's
@@ -146,6 +162,14 @@ def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray
     be credited with. Each order's air-gap phasor is fitted to ``kt_iq`` with the segment's drift
     rows (``drift``) and ``e[h] = exp(i h theta_m)``, then taken through the path and transducer
     response ``g`` (one complex per order, as the orders' own columns).
+
+    Returns
+    -------
+    known : ndarray
+        The orders' torque at the transducer (N*m, per sample).
+    residual : ndarray
+        ``kt_iq`` less its fitted drift and orders (N*m, air gap): the current's noise, which the
+        subtraction carries onto the orders (:func:`order_noise`).
     """
     cols = [drift] + [np.stack([e[h].imag, e[h].real]) for h in ORDERS]
     A = np.concatenate(cols).T
@@ -155,6 +179,67 @@ def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray
     for i, h in enumerate(ORDERS):
         a, b = coef[nd + 2 * i], coef[nd + 2 * i + 1]  # a sin + b cos = Re((b - i a) e^(i h theta_m))
         out += (g[i] * (b - 1j * a) * e[h]).real
+    return out, kt_iq - A @ coef
+
+
+#: the neighbouring frequencies ``h f_m + k / T`` of a segment (T its length) an order's noise is
+#: measured on: 2 <= |k| <= NOISE_BINS, less those within NOISE_GAP / T of 0 Hz (the drift
+#: polynomial's band) or of an order's line (+-h f_m: its leakage)
+NOISE_BINS = 9
+NOISE_GAP = 1.5
+
+
+def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t: np.ndarray, w_m: float,
+                spec: FitSpec, tau_s: float, path: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
+    """The white-equivalent noise variance (N*m^2) at each mechanical order of one segment.
+
+    The residual's phasor ``(2 / n) sum e exp(-i (h theta_m + 2 pi k t / T))`` at the order's
+    neighbouring frequencies (:data:`NOISE_BINS`) has, per cos/sin coefficient, the variance
+    noise alone puts on the order's pair there; times ``n / 2`` it is the variance of white noise
+    that would do the same, which scales the pair's least-squares covariance. With the ECU's
+    current taken out (``cur_res``, its residual) its noise reaches the orders through the path
+    and transducer response: so here too, bin by bin (the current's noise that reaches the shaft
+    cancels, the current sensor's own does not), as the model check measures the 6th's.
+
+    Parameters
+    ----------
+    res : ndarray
+        The segment's torque residual after the joint fit (N*m).
+    cur_res : ndarray or None
+        ``kt * i_q`` less its drift and orders (N*m), :func:`current_orders`.
+    th_m, t : ndarray
+        Mechanical angle (rad, the block's frame) and time (s) per sample.
+    w_m : float
+        The segment's mechanical speed (rad/s, signed).
+    spec, tau_s, path
+        The fit's transducer model and time constant (s), and the bench's response (None: 1).
+
+    Returns
+    -------
+    ndarray, (len(ORDERS),)
+        Per order: ``n / 2`` times the mean variance of a coefficient over the bins (N*m^2); the
+        residual's own variance for an order without a usable bin.
+    """
+    n, T = len(t), float(t[-1] - t[0])
+    k = np.array([k for k in range(-NOISE_BINS, NOISE_BINS + 1) if abs(k) >= 2], dtype=float)
+    lines = np.concatenate([[0.0], np.outer(ORDERS, [w_m, -w_m]).ravel()])
+    sig = np.column_stack([res] if cur_res is None else [res, cur_res])
+    out = np.empty(len(ORDERS))
+    for i, h in enumerate(ORDERS):
+        omega = h * w_m + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
+        ok = np.min(np.abs(omega[:, None] - lines[None, :]), axis=1) >= 2 * math.pi * NOISE_GAP / T
+        if not ok.any():
+            out[i] = float(res @ res) / n
+            continue
+        phase = h * (th_m - th_m[0])[:, None] + 2 * math.pi * np.outer(t - t[0], k[ok]) / T
+        X = (2.0 / n) * (sig.T @ np.exp(-1j * phase))
+        e = X[0]
+        if cur_res is not None:
+            g = transducer_gain(spec, tau_s, omega[ok])
+            if path is not None:
+                g = g * np.asarray(path(omega[ok]), dtype=complex)
+            e = e - g * X[1]
+        out[i] = float(np.mean(np.abs(e) ** 2)) / 2.0 * n / 2.0
     return out
 
 
