@@ -93,7 +93,7 @@ def test_the_default_limits_fail_an_assumed_bench_at_the_fit_with_what_to_do():
 
 @pytest.fixture(scope="module")
 def captures(tmp_path_factory):
-    """Two speeds at two loads each, the captures written as files twice: as a real DAQ writes them
+    """Two speeds at two loads each and reverse, the captures written as files twice: as a real DAQ writes them
     (no claim) and with the claim of a plant that simulated a rigid coupling (``--bench none``)."""
     from eol_cal.capture.io import write_capture
     from eol_cal.capture.synthetic import synthetic_capture
@@ -102,7 +102,9 @@ def captures(tmp_path_factory):
     out: dict[str, list[str]] = {"real": [], "claimed": []}
     # the analytic generator writes the shaft torque straight from the ripple model: a rigid coupling
     digest = "none"
-    for i, (rpm, iq) in enumerate([(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0)]):
+    # tests/test_fit_cli.py's points: two speeds, two loads, and reverse
+    for i, (rpm, iq) in enumerate([(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0),
+                                   (-120.0, -65.0)]):
         c = synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=i, theta_r0=0.7 * i, serial="M-0009",
                               k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
         for kind in out:
