@@ -359,20 +359,20 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
 
 def _flag_summary(rows: list) -> None:
     """What the station would act on: model_mismatch (no block) and the default limits' flag on an
-    assumed bench file (max_bench_assumed), against the motors whose k6 is off by more than 0.5 %."""
+    assumed bench file (``bench_assumed``), against the motors whose k6 is off by more than 0.5 %."""
     n = len(rows)
     mism = [r for r in rows if r["status"] == "model_mismatch"]
     flagged = [r for r in rows if r["status"] != "ok" or r.get("bench_assumed")]
     over = [r for r in rows if abs(r["k6_err_pct"]) > 0.5]
     silent = [r for r in over if r["status"] == "ok" and not r.get("bench_assumed")]
-    checks = {}
-    for r in rows:
-        checks[f"{r.get('check')} ({r.get('check_bench')})"] = checks.get(f"{r.get('check')} ({r.get('check_bench')})", 0) + 1
+    from collections import Counter
+
+    checks = Counter(f"{r.get('check')} ({r.get('check_bench')})" for r in rows)
     p = np.array([r["check_p"] for r in rows if r.get("check_p") is not None], float)
-    print(f"model check: {checks}; p below 0.05 / 0.01 / 0.001: "
+    print(f"model check: {dict(checks)}; p below 0.05 / 0.01 / 0.001: "
           + (" / ".join(f"{int((p < q).sum())}" for q in (0.05, 0.01, 0.001)) + f" of {len(p)}" if len(p) else "none"))
     print(f"model_mismatch (no block): {len(mism)}/{n}; flagged at the fit stage by the default limits "
-          f"(model_mismatch or max_bench_assumed): {len(flagged)}/{n}; |k6 error| over 0.5 %: {len(over)}, of them "
+          f"(model_mismatch or an assumed bench file): {len(flagged)}/{n}; |k6 error| over 0.5 %: {len(over)}, of them "
           f"flagged {len(over) - len(silent)}, silently ok {len(silent)}")
 
 

@@ -121,7 +121,7 @@ LIMITS: tuple[Limit, ...] = (
           "fit", (0.0, 1.0), default=0.0,
           fails="the bench file {bench_source} is an assumption about this bench that the fit could not verify "
                 "({model_check_note}): identify the bench (eol-cal bench identify, docs/bench-identify.md) and "
-                "fit with the file it writes, or set max_bench_assumed = 1 to accept the assumption"),
+                "fit with the file it writes, or set {key} = 1 to accept the assumption"),
 )
 BY_KEY: dict[str, Limit] = {lim.key: lim for lim in LIMITS}
 #: the limit keys, in table order

@@ -40,7 +40,7 @@ plant and says it simulated exactly the torque path the file gives: the demo, CI
 simulated rig; a capture's own claim, which the result keeps visible) or ``assumed`` (the built-in
 ``paper`` or a hand-written file on a dyno nobody measured; a real dyno's captures make no claim).
 On an assumed file a check that is ``insensitive`` or ``not checked`` leaves the file unverified,
-which the station's limits judge by default (``max_bench_assumed``, :mod:`eol_cal.records.limits`).
+which the station's limits judge by default (the limit on ``bench_assumed``, :mod:`eol_cal.records.limits`).
 """
 
 from __future__ import annotations
@@ -54,7 +54,7 @@ import numpy as np
 
 from eol_cal.analysis.fit.batch import fit_many
 from eol_cal.capture.data import Capture
-from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY, BenchMechanics, model_digest
+from eol_cal.domain.bench_mechanics import RIGID, SIMULATED_BENCH_KEY, BenchMechanics, model_digest
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix, transducer_gain
 from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit
 
@@ -119,7 +119,7 @@ def bench_provenance(mechanics: BenchMechanics | None, captures: list[Capture]) 
     """
     if mechanics is not None and mechanics.identified:
         return "identified"
-    digest = "none" if mechanics is None else model_digest(mechanics)
+    digest = RIGID if mechanics is None else model_digest(mechanics)
     if captures and all(c.metadata.get(SIMULATED_BENCH_KEY) == digest for c in captures):
         return "simulated"
     return "assumed"
