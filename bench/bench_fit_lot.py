@@ -107,13 +107,24 @@ def main() -> None:
                     help="run the lot on the default spread's [bench] draw for this station instead of --plant-bench")
     ap.add_argument("--spread", default="default",
                     help="production spread of the motors (mech23: mechanical orders 2-3 of 2-4 mN*m, issue 34)")
+    ap.add_argument("--summary-of", metavar="JSON",
+                    help="print the figures of rows a run wrote (--json), also of a run stopped early; no simulation")
     args = ap.parse_args()
+    if args.summary_of:
+        import json
+
+        with open(args.summary_of) as fh:
+            done = json.load(fh)
+        for label in dict.fromkeys(r["estimator"] for r in done):
+            _summary([r for r in done if r["estimator"] == label], label, args)
+        return
 
     from eol_cal.analysis.fit import FitSpec, fit_many, shift_frame
     from eol_cal.numerics.wrap import wrap_pi
     from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.analysis.fit.table import block_from_result
     from eol_cal.analysis.result import CiLimits, result_for_motor
+    from eol_cal.records.limits import bench_assumed
     from eol_cal.domain.bench_mechanics import load_mechanics
     from eol_cal.domain.motor_params import load_motor
     from eol_cal.plant.profile import load_profile
@@ -198,6 +209,10 @@ def main() -> None:
                     "ci_k6_pct": 100 * k.ci95 / k.value,
                     "delay_ms": f.delay_s * 1e3, "steps": f.steps, "birge": f.birge,
                     "hall_source": mi.hall.source,
+                    # the fit's model check and whether the station's default limits flag the bench file
+                    "check": (res.model_check or {}).get("status"), "check_p": (res.model_check or {}).get("p_value"),
+                    "check_bench": (res.model_check or {}).get("bench"),
+                    "bench_assumed": bench_assumed(res.model_check),
                 })
                 usable = res.usable
                 blocks.append(block_from_result(res, motor, options=opt, layout=1) if usable else None)
@@ -259,12 +274,8 @@ def main() -> None:
                 rows[i]["mech_active_first"] = float(am.mech_active[0]) if am else float("nan")
                 rows[i]["mech_active_frac"] = float(np.mean(am.mech_active)) if am else float("nan")
             print(f"  {len(rows)} motor runs done ({label}), {time.perf_counter() - t_start:.0f} s", flush=True)
-
-    if args.json:
-        import json
-
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=1)
+            if args.json:  # after every batch: a run stopped early keeps what it measured
+                _write_rows(args.json, rows)
 
     labels = list(dict.fromkeys(r["estimator"] for r in rows))
     for label in labels:
@@ -289,6 +300,15 @@ def main() -> None:
             print(f"{label + '+mech':<10} {int(np.isfinite(pm).sum()):>4} {np.nanmedian(pm):>9.2f}% "
                   f"{np.nanpercentile(pm, 95):>5.2f}% {np.nanmax(pm):>5.2f}% {int((pm <= 1.0).sum()):>4}/{len(sub):<3} "
                   f"{np.nanmedian(nmm):>15.2f}% {np.nanmax(nmm):>5.2f}% {int((nmm <= 0.8).sum()):>4}/{len(sub):<3}")
+
+
+def _write_rows(path: str, rows: list) -> None:
+    """The per-motor rows as JSON, replaced whole (atomically: a reader never sees half a file)."""
+    import json
+
+    from eol_cal.infra.atomic import atomic_write
+
+    atomic_write(path, json.dumps(rows, indent=1))
 
 
 def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
@@ -326,6 +346,7 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
     print(f"k6 error mean {col('k6_err_pct').mean():+.2f} % (bias), "
           f"phase_k6 error mean {col('phase_k6_err_deg').mean():+.2f} deg")
     print(f"hall table measured for {sum(r['hall_source'] == 'measured' for r in rows)}/{n} motors")
+    _flag_summary(rows)
     _mech_summary(rows)
     for name in ("pp_before_pct", "pp_after_pct", "pp_after_no_mech1_pct", "pp_after_nominal_halls_pct", "pp_true6_pct",
                  "pp_after_mech_pct", "pp_after_mech_no_mech1_pct"):
@@ -334,6 +355,25 @@ def _summary(rows: list, label: str, args: argparse.Namespace) -> None:
             continue
         print(f"{name}: median {np.nanmedian(v):.2f} %, p95 {np.nanpercentile(v, 95):.2f} %, max {np.nanmax(v):.2f} %"
               + (f", <= 1.0 %: {int((v <= 1.0).sum())}/{n}" if name.startswith("pp_after") else ""))
+
+
+def _flag_summary(rows: list) -> None:
+    """What the station would act on: model_mismatch (no block) and the default limits' flag on an
+    assumed bench file (``bench_assumed``), against the motors whose k6 is off by more than 0.5 %."""
+    n = len(rows)
+    mism = [r for r in rows if r["status"] == "model_mismatch"]
+    flagged = [r for r in rows if r["status"] != "ok" or r.get("bench_assumed")]
+    over = [r for r in rows if abs(r["k6_err_pct"]) > 0.5]
+    silent = [r for r in over if r["status"] == "ok" and not r.get("bench_assumed")]
+    from collections import Counter
+
+    checks = Counter(f"{r.get('check')} ({r.get('check_bench')})" for r in rows)
+    p = np.array([r["check_p"] for r in rows if r.get("check_p") is not None], float)
+    print(f"model check: {dict(checks)}; p below 0.05 / 0.01 / 0.001: "
+          + (" / ".join(f"{int((p < q).sum())}" for q in (0.05, 0.01, 0.001)) + f" of {len(p)}" if len(p) else "none"))
+    print(f"model_mismatch (no block): {len(mism)}/{n}; flagged at the fit stage by the default limits "
+          f"(model_mismatch or an assumed bench file): {len(flagged)}/{n}; |k6 error| over 0.5 %: {len(over)}, of them "
+          f"flagged {len(over) - len(silent)}, silently ok {len(silent)}")
 
 
 def _mech_summary(rows: list) -> None:

@@ -129,6 +129,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     from eol_cal.domain.bench_mechanics import mechanics_or_rigid
     from eol_cal.capture.ecu_state import check_trace, trace_of
     from eol_cal.capture.io import read_capture
+    from eol_cal.records.limits import Measured, bench_assumed, check, limit_on
 
     cache_dir = enable_jax_cache()
     spec = FitSpec(
@@ -188,8 +189,11 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
             err_console.print(f"{r.serial}: {reason}")
         if r.solver_result not in (None, "successful"):  # optimistix's name for how it ended
             err_console.print(f"{r.serial}: the solver ended with {r.solver_result}")
-        if (r.model_check or {}).get("status") == "insensitive":
-            err_console.print(f"{r.serial}: warning: model check insensitive: {r.model_check['note']}")
+        if r.status == STATUS_OK and bench_assumed(r.model_check):
+            # what the station's default limits fail the motor with, in the same words
+            row = limit_on("bench_assumed")
+            assert row is not None and isinstance(row.default, float)
+            err_console.print(f"{r.serial}: warning: {check(row, row.default, Measured.of_fit(r)).reason}")
         if "unchecked" in r.model:
             err_console.print(f"{r.serial}: {r.model['unchecked']}")
     if as_json:

@@ -80,7 +80,7 @@ def test_at_60_and_120_rpm_a_resonance_is_not_seen_and_the_check_says_so_on_an_u
     assert check.sees_up_to_hz < RESONANCE_TOP_HZ and "not identified" in check.note and "bench identify" in check.note
     assert check.to_json()["sees_up_to_hz"] == check.sees_up_to_hz
     # the same bands on a bench identified on the bench: the check vouches for what it can
-    assert check_model(seg, fit, spec, 0.001, bench_identified=True).status == "ok"
+    assert check_model(seg, fit, spec, 0.001, bench="identified").status == "ok"
 
 
 def test_at_300_and_600_rpm_the_check_sees_the_modes_real_benches_have():
@@ -130,7 +130,7 @@ def test_right_model_under_noise_coloured_like_the_benchs_is_no_mismatch():
                                     directions=(1, -1), noise_nm=0.002)
         seg.torque = [y + 0.02 * signal.lfilter(b, a, rng.standard_normal(len(y))) for y in seg.torque]
         fit = fit_segments(seg, spec)
-        check = check_model(seg, fit, spec, 0.001, bench_identified=True)
+        check = check_model(seg, fit, spec, 0.001, bench="identified")
         assert check.status in ("ok", "mismatch")
         p_values.append(check.p_value)
     assert sum(p < 0.05 for p in p_values) <= 1, p_values

@@ -110,7 +110,8 @@ def _settings(d: Path, dyno: str, channel: str, key_lines: str) -> Path:
     (d / "limits.toml").write_bytes((FIXTURES / "limits.toml").read_bytes())
     path = d / "station.toml"
     path.write_text(f'station_id = "L3"\nlimits = "limits.toml"\ndb = "records.sqlite"\nreport_dir = "reports"\n'
-                    f'spool_dir = "spool"\n{key_lines}\n[dyno]\naddress = "{dyno}"\n[can]\ninterface = "remote"\n'
+                    # the analytic source's torque path is a rigid coupling: the bench file that is its own
+                    f'spool_dir = "spool"\nbench = "none"\n{key_lines}\n[dyno]\naddress = "{dyno}"\n[can]\ninterface = "remote"\n'
                     f'channel = "{channel}"\n')
     return path
 

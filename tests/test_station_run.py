@@ -162,8 +162,9 @@ def test_full_run_end_to_end(full_run):
     assert prep["verified"] and prep["sequence"] == 1
     assert prep["previous"]["bank"] is None  # a blank ECU
     assert all(s["ok"] and s["seconds"] > 0 for s in rec["steps"])
-    # the fit found the plant motor's ripple
+    # the fit found the plant motor's ripple, on the bench file of the bench the dyno simulator says it ran
     assert abs(rec["fit"]["k6"]["value"] - MOTOR.k6) < 0.05 * MOTOR.k6
+    assert rec["fit"]["model_check"]["bench"] == "simulated"
     # the compensation the ECU now runs took the 6th harmonic out and the p-p ripple down (what is
     # left is mostly the preset's 12th-harmonic cogging, which a 6th-harmonic table does not touch)
     m = rec["metrics"]
@@ -302,6 +303,29 @@ def test_full_run_passes_on_a_dyno_with_the_vendor_b_register_map(files):
     assert [c["lead_in_s"] for c in rec["captures"].values()] == [0.0, 0.0]
     assert abs(rec["fit"]["k6"]["value"] - MOTOR.k6) < 0.05 * MOTOR.k6
     assert rec["metrics"]["pp_after_pct"] < 0.5 * rec["metrics"]["pp_before_pct"]
+
+
+@pytest.mark.slow  # a station run up to the fit
+def test_a_bench_file_that_is_not_the_dyno_s_fails_at_the_fit_with_what_to_do(files, tmp_path):
+    """Issue 34 (b): the full run passes on the paper bench file because the simulated dyno says its
+    plant ran that bench (``sim_bench``); a bench file that is only an assumption about the dyno
+    (here ``resonant-250`` on the paper plant; on a real dyno the built-in ``paper``), which one
+    speed band cannot verify, fails the default limit ``max_bench_assumed`` at the fit: no
+    calibrated block, the reason says to identify the bench."""
+    db = tmp_path / "results.sqlite"
+    with loopback_station("BA-0001", SEED, tmp_path / "sim", spec_for=lambda req: paper("BA-0001")) as st:
+        res = CliRunner().invoke(cli, run_args(files, st, "BA-0001", db, tmp_path / "reports",
+                                               "--bench", "resonant-250"))
+        wait_stopped(st.dyno.sim)
+    rec = json.loads(res.stdout)["record"]
+    assert res.exit_code == 1, (rec["verdict"], rec["reasons"], rec.get("error"))
+    assert rec["verdict"] == "fail" and [s["step"] for s in rec["steps"]][-1] in ("fit", "report")
+    assert rec["fit"]["model_check"]["bench"] == "assumed"
+    (reason,) = rec["reasons"]
+    assert "max_bench_assumed" in reason and "eol-cal bench identify" in reason and "resonant-250" in reason
+    assert [b["role"] for b in rec["blocks"]] == ["prepare"]
+    check = next(c for c in rec["checks"] if c["key"] == "max_bench_assumed")
+    assert check["pass"] is False and check["stage"] == "fit"
 
 
 @pytest.mark.slow  # a whole station run; the operator loop test keeps the cycle in the fast loop

@@ -117,7 +117,8 @@ def test_a_calibration_capture_that_cannot_be_written_stops_the_cycle_before_the
 
     monkeypatch.setattr(capture_io, "write_capture", write)
     with loopback_station("W-1", 3, tmp_path / "sim", source=synthetic_source) as st:
-        res, _ = run_cycle(files, st, "W-1", tmp_path)
+        # the analytic source's torque path is a rigid coupling: the bench file that is its own
+        res, _ = run_cycle(files, st, "W-1", tmp_path, "--bench", "none")
     assert res.exit_code == 2, res.output
     rec = json.loads(res.stdout)["record"]
     assert rec["verdict"] == "error" and rec["error"]["step"] in ("fit", "table", "flash"), rec["reasons"]

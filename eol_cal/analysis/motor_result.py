@@ -285,6 +285,8 @@ class _Reader:
         sub.string(m, "note")
         sub.number(m, "p_value", (0.0, 1.0), nullable=True)
         sub.list(m, "bands")
+        if "bench" in m and m["bench"] not in ("identified", "simulated", "assumed"):  # absent before issue 34 (b)
+            raise sub.error("bench", f"{m['bench']!r} is not identified, simulated or assumed")
         return m
 
     def left_out(self, obj: Mapping[str, Any]) -> tuple[tuple[str, str], ...]:

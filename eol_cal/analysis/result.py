@@ -224,15 +224,14 @@ def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
          "shaft_phase_6_deg": math.degrees(float(np.angle(g6[k])))}
         for k, i in enumerate(mi.info)
     ]
-    from eol_cal.analysis.fit.model_check import check_model
+    from eol_cal.analysis.fit.model_check import bench_provenance, check_model
 
     mech = None
     if tick_hz is not None and fit.converged:
         from eol_cal.analysis.fit.mech_orders import fit_mech
 
         mech = fit_mech(mi, fit, spec, tick_hz)
-    check = check_model(mi.segments, fit, spec, limits.model_p,
-                        bench_identified=mi.mechanics is not None and mi.mechanics.identified)
+    check = check_model(mi.segments, fit, spec, limits.model_p, bench=bench_provenance(mi.mechanics, mi.captures))
     return motor_result(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,

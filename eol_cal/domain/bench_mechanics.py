@@ -173,6 +173,18 @@ def load_mechanics(name_or_file: str | Path = "paper") -> BenchMechanics:
     return BenchMechanics(**kwargs, source=source, sha256=digest, identified=IDENTIFICATION_TABLE in data)
 
 
+#: the capture metadata key under which the simulated plant records the bench it simulated
+#: (:func:`model_digest` of its mechanics)
+SIMULATED_BENCH_KEY = "simulated_bench"
+
+
+def model_digest(mech: BenchMechanics) -> str:
+    """A short digest of the model a bench description gives (its shaft and transducer keys, not its
+    name or file): two descriptions with the same digest make the same torque path."""
+    values = [getattr(mech, k) for k in (*SHAFT_KEYS, *TRANSDUCER_KEYS)]
+    return hashlib.sha256(repr(values).encode()).hexdigest()[:16]
+
+
 def speed_gains(J_total: float, bw_hz: float, zeta: float = 0.8) -> tuple[float, float]:
     """PI gains (N*m*s/rad, N*m/rad) placing the dyno's speed loop at ``bw_hz`` (Hz).
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from eol_cal.capture import validate, write_capture
 from eol_cal.capture.data import Capture
+from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY
 from eol_cal.dyno.client import DynoClient, DynoError
 from eol_cal.dyno.registers import CaptureState, Command
 from eol_cal.dyno.setpoints import DEFAULT_RATE_HZ, DynoSetpoint, lead_in_samples, lead_point_samples
@@ -146,6 +147,8 @@ def run_profile(
                 t_window = _window_time(data[-1], t_end)
                 t_end = float(t_window[-1])
                 on_window(i, data[-1], t_window)
+        if "sim_bench" in client.regmap:  # a simulator's claim of the path it simulated, known after a capture
+            ident.update(client.read(["sim_bench"]))
         if after_capture is not None:
             after_capture()
         if progress:
@@ -218,6 +221,8 @@ def assemble(
         "segments": len(data),
         "segment_starts": ",".join(f"{s:.6f}" for s in starts),
     }
+    if ident.get("sim_bench"):  # a simulated dyno: the torque path its plant ran (docs/fit.md, "Model check")
+        metadata[SIMULATED_BENCH_KEY] = str(ident["sim_bench"])
     metadata.update(extra_metadata or {})
     if not metadata["serial"]:
         raise InputError(None, "serial", "the dyno reports no DUT serial: give the motor's serial")

@@ -227,6 +227,10 @@ _ROLE_LIST: tuple[Role, ...] = (
     Role("capture_seq", "status", "", "number of captures completed since power-up (wraps); changes when a new buffer is ready"),
     Role("buf_channel", "transfer", "", "channel id of the window page (see the channel table)"),
     Role("buf_offset", "transfer", "samples", "sample index of the first sample in the window page"),
+    Role("sim_bench", "identification", "",
+         "simulator only: the torque path its plant simulated in the last capture (16 hex characters, "
+         "eol_cal.domain.bench_mechanics.model_digest; empty before one); a real dyno leaves it out", text=True,
+         required=False),
     Role("sim_fault", "sim", "", "simulator only: write a fault to inject", codes=SimFault, required=False),
     Role("sim_fault_arg", "sim", "ms", "simulator only: disconnect duration for sim_fault disconnect", required=False),
 )

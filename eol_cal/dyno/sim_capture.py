@@ -16,6 +16,7 @@ from eol_cal.capture.data import Capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.dyno.registers import DutCmdKind
 from eol_cal.dyno.regmap import RegisterMap
+from eol_cal.domain.bench_mechanics import RIGID, SIMULATED_BENCH_KEY
 from eol_cal.domain.motor_params import load_motor
 
 
@@ -125,7 +126,7 @@ def synthetic_source(req: CaptureRequest) -> Capture:
     it shows (the rig's plant source does, :func:`eol_cal.sim.rig.plant_source`).
     """
     motor = load_motor("paper")
-    return synthetic_capture(
+    cap = synthetic_capture(
         rpm=req.speed_rpm,
         i_qo=i_qo_of(req, motor.kt),
         seconds=req.n_samples / req.rate_hz,
@@ -134,6 +135,9 @@ def synthetic_source(req: CaptureRequest) -> Capture:
         theta_r0=0.7 * req.capture_index,
         serial=req.serial,
     )
+    # the shaft torque straight from the ripple model: the torque path it simulates is a rigid coupling
+    cap.metadata[SIMULATED_BENCH_KEY] = RIGID
+    return cap
 
 
 

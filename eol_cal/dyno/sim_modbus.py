@@ -17,6 +17,7 @@ import time
 from typing import TYPE_CHECKING
 from collections.abc import Callable
 
+from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.regmap import RegisterMap
 from eol_cal.dyno.registers import CaptureState, Fault, Interlock, SimFault
@@ -76,6 +77,9 @@ class ModbusFace:
             "heartbeat": (self.heartbeat_frozen if self.heartbeat_frozen is not None
                           else int((time.monotonic() - self._t0) * 100) & 0xFFFF),
             "capture_seq": self.capture_seq,
+            # the plant's own claim (its capture's metadata): a fit on the same bench file knows the path
+            "sim_bench": str((self.last_capture.metadata if self.last_capture is not None else {}).get(
+                SIMULATED_BENCH_KEY, "")),
         }
 
     def control_values(self) -> dict[str, float | int]:

@@ -19,6 +19,7 @@ import numpy as np
 from eol_cal.capture.ecu_state import EcuState, with_ecu_state
 from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
+from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY, model_digest
 from eol_cal.firmware.block import ParamBlock
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE
 from eol_cal.firmware.mech import MechConsts, block_mech_tables
@@ -340,6 +341,9 @@ def _to_result(t: np.ndarray, col: dict[str, np.ndarray], spec: PlantSpec, profi
     metadata: dict[str, str | int | float] = {
         "serial": spec.serial, "poles": m.poles, "encoder_ppr": m.N_enc, "kt": m.kt,
         "source": "plant", "comment": f"eol-cal plant, mode {mode}, profile {profile.name}",
+        # the bench the plant simulated: a fit whose bench file makes the same torque path knows it
+        # exactly (eol_cal.analysis.bench_provenance)
+        SIMULATED_BENCH_KEY: model_digest(spec.mechanics),
     }
     metadata = with_ecu_state(metadata, ecu, ecu)  # the simulated ECU runs one block all along
     truth = spec.truth()

@@ -70,6 +70,9 @@ class Limit:
         limits: the fit's status judges the same quantity, :mod:`eol_cal.analysis.intervals`).
     missing : str
         The reason when the quantity was not measured (``str.format`` of the :class:`Measured` fields).
+    fails : str or None
+        The reason when the limit is not met, where the value and the limit alone would not tell the
+        engineer what to do (``str.format`` of the :class:`Measured` fields); None: value against limit.
     """
 
     key: str
@@ -82,6 +85,7 @@ class Limit:
     default: float | None | str = REQUIRED
     ci: str | None = None
     missing: str = "{title} not measured ({key} is not met)"
+    fails: str | None = None
 
 
 #: the limits, in the order the report and the record list them
@@ -110,6 +114,14 @@ LIMITS: tuple[Limit, ...] = (
     # CiLimits.model_p (0.001) when a limits file leaves this out, so a mismatch is never a silent ok
     Limit("min_model_check_p", "model_check_p", "agreement of the speed bands (model check p-value)", "1", "min", "fit",
           (0.0, 1.0), default=None, ci="model_p", missing="model not checked: {model_check_note}"),
+    # issue 34: a bench file nobody identified on this dyno (the built-in paper) biases k6 by up to
+    # ~1 % unseen where the speed bands cannot see the torque path's resonance: judged by default (1
+    # accepts the assumption); the simulated plant's own bench and identified files are not assumed
+    Limit("max_bench_assumed", "bench_assumed", "bench file assumed (not identified on this bench)", "1", "max",
+          "fit", (0.0, 1.0), default=0.0,
+          fails="the bench file {bench_source} is an assumption about this bench that the fit could not verify "
+                "({model_check_note}): identify the bench (eol-cal bench identify, docs/bench-identify.md) and "
+                "fit with the file it writes, or set {key} = 1 to accept the assumption"),
 )
 BY_KEY: dict[str, Limit] = {lim.key: lim for lim in LIMITS}
 #: the limit keys, in table order
@@ -287,6 +299,11 @@ class Measured:
         ``model_check_note`` says why).
     model_check_note : str
         The model check's note.
+    bench_assumed : float
+        1 when the fit's bench file was an assumption the data could not verify
+        (:func:`bench_assumed`), else 0 (1).
+    bench_source : str
+        Where the fit's bench file was read from.
     """
 
     k6: float = math.nan
@@ -303,6 +320,8 @@ class Measured:
     mech1_after_nm: float = math.nan
     model_check_p: float = math.nan
     model_check_note: str = "not in the record"
+    bench_assumed: float = 0.0
+    bench_source: str = "not in the record"
 
     @property
     def improvement_pct(self) -> float:
@@ -339,6 +358,8 @@ class Measured:
             hall_deviation_deg=max(abs(float(d)) for d in hall["deviation_deg"]) if measured else math.nan,
             hall_source=str(hall["source"]),
             **_model_check_of(res.model_check),
+            bench_assumed=float(bench_assumed(res.model_check)),
+            bench_source=_bench_source(res.model.get("bench")),
         )
 
     def with_ripple(self, pp_before_pct: float, pp_after_pct: float, pp_after_no_mech1_pct: float,
@@ -358,6 +379,27 @@ def _model_check_of(check: Mapping[str, Any] | None) -> dict[str, Any]:
     if p is None or check.get("status") == "insensitive":
         return {"model_check_p": math.nan, "model_check_note": str(check.get("note", ""))}
     return {"model_check_p": float(p), "model_check_note": str(check.get("note", ""))}
+
+
+def bench_assumed(check: Mapping[str, Any] | None) -> bool:
+    """The fit's bench file was an assumption the data could not verify: neither identified on the
+    bench nor the simulated plant's own (the check's ``bench`` is ``assumed``,
+    :func:`eol_cal.analysis.fit.model_check.bench_provenance`), and the speed bands could not vouch
+    for it (``insensitive``, ``not checked``). A check without ``bench`` (results before it) counts
+    only when ``insensitive``."""
+    if check is None:
+        return False
+    status = check.get("status")
+    if "bench" not in check:
+        return status == "insensitive"
+    return check["bench"] == "assumed" and status in ("insensitive", "not checked")
+
+
+def _bench_source(bench: Any) -> str:
+    """Where the fit's bench file (its result's ``model.bench``) was read from, in words."""
+    if isinstance(bench, Mapping):
+        return str(bench.get("source") or bench.get("name") or "unnamed")
+    return "none (rigid coupling)" if bench == "rigid" else str(bench)
 
 
 @dataclass(frozen=True)
@@ -405,6 +447,8 @@ def _reason(lim: Limit, value: float, limit: float, m: Measured) -> str:
 
     if math.isnan(value):
         return lim.missing.format(title=lim.title, key=lim.key, **dataclasses.asdict(m))
+    if lim.fails is not None:
+        return lim.fails.format(title=lim.title, key=lim.key, **dataclasses.asdict(m))
     unit, factor = display_unit(lim.unit)
     unit_text = "" if unit == "1" else f" {unit}"
     word = "exceeds" if lim.sense == "max" else "below"

@@ -33,6 +33,14 @@ intervals. So the check also says how far it sees (:func:`sees_up_to_hz`: the hi
 would find at least half the time), and where that is below the modes real torque paths have
 (:data:`RESONANCE_TOP_HZ`) and the bench file was not identified on the bench (``eol-cal bench
 identify``), its status is ``insensitive``: bands that agree then vouch for nothing.
+
+Where the bench file came from (:func:`bench_provenance`, the check's ``bench``): ``identified``
+(``eol-cal bench identify`` measured it on the bench), ``simulated`` (every capture comes from the
+plant and says it simulated exactly the torque path the file gives: the demo, CI, the station's
+simulated rig; a capture's own claim, which the result keeps visible) or ``assumed`` (the built-in
+``paper`` or a hand-written file on a dyno nobody measured; a real dyno's captures make no claim).
+On an assumed file a check that is ``insensitive`` or ``not checked`` leaves the file unverified,
+which the station's limits judge by default (the limit on ``bench_assumed``, :mod:`eol_cal.records.limits`).
 """
 
 from __future__ import annotations
@@ -45,6 +53,8 @@ from typing import Any
 import numpy as np
 
 from eol_cal.analysis.fit.batch import fit_many
+from eol_cal.capture.data import Capture
+from eol_cal.domain.bench_mechanics import RIGID, SIMULATED_BENCH_KEY, BenchMechanics, model_digest
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix, transducer_gain
 from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit
 
@@ -60,6 +70,8 @@ SENSITIVITY_ZETA = 0.1
 #: 6th harmonic is measured on: 2 <= |k| <= NOISE_BINS (|k| = 1 would hold the leakage of the
 #: mechanical order 1's sidebands at 60 rpm, 1 Hz beside the 6th)
 NOISE_BINS = 9
+#: where the bench file the fit divided out came from (:func:`bench_provenance`)
+BENCH_SOURCES = ("identified", "simulated", "assumed")
 
 
 @dataclass(frozen=True)
@@ -72,7 +84,8 @@ class ModelCheck:
     (NaN, 0 when not checked); bands : per band its speed (rpm, mean |speed|), segments and
     ``k6``, ``phase_k6``, ``c6``, ``phase_c6`` (value, ci95; offline frame: only their
     differences matter); sees_up_to_hz : the highest torsion mode the test would find half the
-    time (Hz, :func:`sees_up_to_hz`; NaN when not checked).
+    time (Hz, :func:`sees_up_to_hz`; NaN when not checked); bench : where the bench file came
+    from (:data:`BENCH_SOURCES`, :func:`bench_provenance`).
     """
 
     status: str
@@ -82,15 +95,34 @@ class ModelCheck:
     dof: int = 0
     bands: tuple[dict[str, Any], ...] = ()
     sees_up_to_hz: float = math.nan
+    bench: str = "assumed"
 
     def to_json(self) -> dict[str, Any]:
         p = self.p_value if math.isfinite(self.p_value) else None
         chi2 = self.chi2 if math.isfinite(self.chi2) else None
         out = {"status": self.status, "note": self.note, "p_value": p, "chi2": chi2, "dof": self.dof,
-               "bands": [dict(b) for b in self.bands]}
+               "bands": [dict(b) for b in self.bands], "bench": self.bench}
         if math.isfinite(self.sees_up_to_hz):
             out["sees_up_to_hz"] = self.sees_up_to_hz
         return out
+
+
+def bench_provenance(mechanics: BenchMechanics | None, captures: list[Capture]) -> str:
+    """Where the bench file the fit divides out came from (:data:`BENCH_SOURCES`).
+
+    ``identified`` when ``eol-cal bench identify`` wrote it (its ``[identification]`` table);
+    ``simulated`` when every capture says it came from the plant (directly, or through the dyno
+    simulator's ``sim_bench`` register) simulating exactly the torque path the file gives
+    (metadata :data:`~eol_cal.domain.bench_mechanics.SIMULATED_BENCH_KEY`: its
+    :func:`~eol_cal.domain.bench_mechanics.model_digest`; ``none`` for no file, a rigid coupling);
+    else ``assumed``. The claim is the capture's own (untrusted): the result keeps it visible.
+    """
+    if mechanics is not None and mechanics.identified:
+        return "identified"
+    digest = RIGID if mechanics is None else model_digest(mechanics)
+    if captures and all(c.metadata.get(SIMULATED_BENCH_KEY) == digest for c in captures):
+        return "simulated"
+    return "assumed"
 
 
 def speed_bands(omega: np.ndarray, tol: float = BAND_TOL) -> list[np.ndarray]:
@@ -234,7 +266,7 @@ def _widened(f: MotorFit, factor: float) -> MotorFit:
 
 
 def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
-                bench_identified: bool = False) -> ModelCheck:
+                bench: str = "assumed") -> ModelCheck:
     """Fit each speed band alone and test that k6 and c6 agree between bands (module docstring).
 
     Parameters
@@ -243,15 +275,14 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
         The motor's segments, its joint fit and the model.
     p_min : float
         The least p-value of an agreement (below: ``mismatch``).
-    bench_identified : bool
-        The bench file was identified on the bench (:attr:`eol_cal.domain.bench_mechanics.BenchMechanics.identified`);
-        if not, bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give
-        ``insensitive``.
+    bench : str
+        Where the bench file came from (:func:`bench_provenance`): only on an ``assumed`` one do
+        bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give ``insensitive``.
     """
     from scipy.special import fdtrc  # scipy.stats' f.sf (above)
 
     if not fit.converged:
-        return ModelCheck("not checked", "the fit did not converge")
+        return ModelCheck("not checked", "the fit did not converge", bench=bench)
     parts = [p for p, on in (("k", spec.fit_k), ("c", spec.fit_c)) if on]
     bands, skipped = [], []
     for idx in speed_bands(seg.omega_e):
@@ -264,11 +295,11 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
         bands.append((idx, rpm))
     if len(bands) < 2:
         why = "fewer than two speed bands with two load points each"
-        return ModelCheck("not checked", why + (f": {', '.join(skipped)} left out" if skipped else ""))
+        return ModelCheck("not checked", why + (f": {', '.join(skipped)} left out" if skipped else ""), bench=bench)
     band_spec = dataclasses.replace(spec, delay_s=fit.delay_s, lack_of_fit=False)
     fits = fit_many([_subset(seg, idx) for idx, _ in bands], band_spec, mode="loop")
     if not all(f.converged and f.cov6 is not None for f in fits):
-        return ModelCheck("not checked", "a speed band's fit did not converge")
+        return ModelCheck("not checked", "a speed band's fit did not converge", bench=bench)
     # each band's covariance at the noise its 6th actually has (module docstring)
     noise = [band_noise_ratio(seg, idx, spec, fit.delay_s) for idx, _ in bands]
     fits = [_widened(f, math.sqrt(max(r, 1e-12))) for f, (r, _) in zip(fits, noise, strict=True)]
@@ -304,16 +335,16 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     agree = f"the speed bands agree (chi2 {chi2:.3g} on {dof} dof, p = {p:.3g})"
     f6 = np.array([6.0 * rpm * seg.pole_pairs / 60.0 for _, rpm in bands])
     seen = sees_up_to_hz(f6, info, dof, p_min)
-    if p >= p_min and not bench_identified and seen < RESONANCE_TOP_HZ:
+    if p >= p_min and bench == "assumed" and seen < RESONANCE_TOP_HZ:
         note = (f"{agree}, but at these speeds (the 6th at {f6.min():.3g}-{f6.max():.3g} Hz) they would show a "
                 f"torque-path resonance only below {seen:.0f} Hz (real torque paths have them at up to "
                 f"{RESONANCE_TOP_HZ:.0f} Hz), and the bench file was not identified on this bench: a resonance it "
                 "does not describe would bias k6 unseen. Identify the bench (eol-cal bench identify, "
                 "docs/bench-identify.md)")
-        return ModelCheck("insensitive", note, p, chi2, dof, tuple(rows), seen)
+        return ModelCheck("insensitive", note, p, chi2, dof, tuple(rows), seen, bench)
     if p >= p_min:
-        return ModelCheck("ok", agree, p, chi2, dof, tuple(rows), seen)
+        return ModelCheck("ok", agree, p, chi2, dof, tuple(rows), seen, bench)
     note = (f"the ripple differs between speed bands beyond its intervals (chi2 {chi2:.3g} on {dof} dof, p = {p:.2g} < "
             f"{p_min:g}; {words}; mN*m/A and mN*m): the torque path is not what the bench file says (an unmodelled "
             f"resonance, a wrong bench file?)")
-    return ModelCheck("mismatch", note, p, chi2, dof, tuple(rows), seen)
+    return ModelCheck("mismatch", note, p, chi2, dof, tuple(rows), seen, bench)
