@@ -101,6 +101,7 @@ _COMMAND_MODULES: list[str] = [
     "msa",
     "operator",
     "panel",
+    "records",
     "refit",
     "restore",
     "simulate",
@@ -120,7 +121,6 @@ _COMMAND_HOME: dict[str, tuple[str, ...]] = {
     "ecu-sim": ("ecu",),
     "flash": ("ecu",),
     "line": ("panel",),
-    "records": ("station",),
     "run": ("station",),
     "station": ("operator",),
 }
