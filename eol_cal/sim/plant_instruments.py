@@ -36,6 +36,7 @@ from eol_cal.ecu.flash import NorFlash
 from eol_cal.ecu.sim_ecu import EcuSimulator, SimConfig
 from eol_cal.ecu.transport import open_bus, private_channel_name
 from eol_cal.domain.motor_params import load_motor
+from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY
 from eol_cal.records.record import DynoStatus, PreflightResult
 from eol_cal.sim.rig import plant_source
 from eol_cal.station.acquisition import read_ecu_with
@@ -86,6 +87,7 @@ class PlantInstruments:
         self.regmap = default_register_map() if register_map is None else register_map
         self.dyno_motor = load_motor("paper")  # the dyno simulator's identification (loopback_station's)
         self.captures = 0  # captures started, as the dyno counts them (each capture's noise seed)
+        self.sim_bench = ""  # the last capture's claim of the torque path its plant ran (the simulator's register)
 
     @property
     def channels(self) -> frozenset[str]:
@@ -96,7 +98,7 @@ class PlantInstruments:
         m = self.regmap
         values: dict[str, float | int | str] = {
             "map_version": m.map_version or 0, "dut_serial": self.serial, "dut_poles": self.dyno_motor.poles,
-            "dut_encoder_ppr": self.dyno_motor.N_enc, "dut_kt": self.dyno_motor.kt}
+            "dut_encoder_ppr": self.dyno_motor.N_enc, "dut_kt": self.dyno_motor.kt, "sim_bench": self.sim_bench}
         return {k: m.decode(k, m.encode(k, v)) for k, v in values.items() if k in m}
 
     def preflight(self, serial: str) -> PreflightResult:
@@ -114,7 +116,9 @@ class PlantInstruments:
         req = CaptureRequest(speed_rpm=_f32(abs(seg.speed_rpm)) * (-1.0 if seg.speed_rpm < 0 else 1.0),
                              dut_cmd_kind=kind, dut_cmd=_f32(value), n_samples=n_samples, rate_hz=float(rate_hz),
                              serial=self.serial, seed=self.seed, capture_index=self.captures)
-        buffer = capture_to_buffer(self.source(req), n_samples, self.regmap)
+        recorded = self.source(req)
+        self.sim_bench = str(recorded.metadata.get(SIMULATED_BENCH_KEY, ""))
+        buffer = capture_to_buffer(recorded, n_samples, self.regmap)
         m = self.regmap
         out: dict[str, np.ndarray] = {}
         for name in names:
