@@ -78,6 +78,7 @@ def test_both_directions_one_speed_identify_the_delay():
     assert np.all(np.sign(f.t_avg) == np.sign(seg.i_qo))
 
 
+@pytest.mark.slow  # ~6 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_higher_harmonics():
     extra = {12: (0.002, 0.7, 0.0002, -2.0), 18: (0.001, 2.5, 0.0, 0.0)}
     seg, _ = synthetic_segments(np.random.default_rng(8), seg_s=0.15, noise_nm=0.003, extra=extra, loads_a=LOADS)
@@ -134,6 +135,7 @@ def test_non_convergence_is_reported_never_as_a_result():
     assert rec["status"] == "not_converged" and rec["fit"]["converged"] is False
 
 
+@pytest.mark.slow  # ~4 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_interval_wider_than_limit_is_not_a_result():
     seg, _ = synthetic_segments(np.random.default_rng(4), seg_s=0.05, noise_nm=0.2, loads_a=LOADS)
     # one mechanical pair per segment: with three (the default) these 0.05 s segments at 0.2 N*m

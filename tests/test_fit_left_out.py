@@ -56,6 +56,7 @@ def test_a_capture_left_out_is_named_in_the_result(tmp_path):
     assert back.left_out == result.left_out
 
 
+@pytest.mark.slow  # ~3 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_fit_cli_names_the_left_out_capture_on_stderr(tmp_path):
     paths = []
     for c in _caps([(120, 20), (120, 65), (-120, 65)], 0.6) + _caps([(60, 40)], 0.45):

@@ -114,6 +114,7 @@ def test_at_60_and_120_rpm_with_little_noise_the_same_resonance_is_a_mismatch():
     assert check.sees_up_to_hz > 250.0
 
 
+@pytest.mark.slow  # ~10 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_right_model_under_noise_coloured_like_the_benchs_is_no_mismatch():
     # the torque's noise on the plant is 4-11 times its white level at the 6th at 60-120 rpm (the
     # current loop's answer to the current's noise, below the transducer's bandwidth): band

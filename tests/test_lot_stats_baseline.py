@@ -39,6 +39,7 @@ def period(day: int, n: int, seed: int, shift: float = 0.0, drift_from: int | No
     return out
 
 
+@pytest.mark.slow  # ~3 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_baseline_judges_two_later_lot_stats_calls(records_db, tmp_path: Path):
     run = CliRunner().invoke
     insert_records(records_db, period(0, 40, 1))

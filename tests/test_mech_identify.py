@@ -87,6 +87,7 @@ def test_ten_thousand_powerups_identify_the_right_frame(part):
     assert res.active_end.all() and res.resets.sum() == 0
 
 
+@pytest.mark.slow  # ~2.3 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_a_weak_fingerprint_fails_the_margin_and_is_never_applied_wrongly():
     """Encoders 30 times better than the plant's: end of line predicts a failing margin (so their
     blocks leave MECH_COMP_ENABLE off); even a block that switched it on never applies a wrong

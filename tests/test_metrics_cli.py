@@ -42,6 +42,7 @@ def test_index_bad_usage_exits_2(args):
     assert "Traceback" not in res.output
 
 
+@pytest.mark.slow  # ~3.5 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_analyze_fixture_csv_and_mdf4_agree_and_print_pp_and_eta(tmp_path):
     files = [str(FIXTURES / "paper_60rpm.csv"), str(FIXTURES / "paper_60rpm.mf4")]
     res = CliRunner().invoke(cli, ["analyze", *files, "--json", "--plot", str(tmp_path / "a.png")])

@@ -31,6 +31,7 @@ def rec(serial: str, i: int, k6_mnm: float, phase_deg: float = 179.5):
                        pp_before=3.0 + 0.01 * (i % 5), pp_after=0.9 + 0.01 * (i % 4))
 
 
+@pytest.mark.slow  # ~9 s on a quiet machine (CONTRIBUTING.md, "Fast or slow")
 def test_msa_type1_of_a_master(records_db, tmp_path: Path, monkeypatch):
     master = [rec("MASTER-1", i, k, 179.5 if i % 2 else -179.5) for i, k in enumerate(K6)]
     declared = rec("MASTER-1", 100, 0.641, 179.0)  # the declared reference run (measured elsewhere, say)
