@@ -19,6 +19,7 @@ inside ``jit``/``vmap``/``lax.scan`` (the plant).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -119,6 +120,12 @@ def make_tables(c6: float, phase_c6: float, k6: float, phase_k6: float, kt: floa
     return i_const.astype(np.float32), i_per_amp.astype(np.float32)
 
 
+@functools.lru_cache(maxsize=16)
+def _lerp_consts(n: int) -> tuple[np.float32, np.float32, np.float32]:
+    """``(1/N, N, 1)`` in binary32 for tables of ``n`` entries: built once, not every tick."""
+    return np.float32(1.0 / n), np.float32(n), np.float32(1.0)
+
+
 def table_sum(x: Array, i_qo: Array, table_const: Array, table_per_amp: Array, scale: Array,
               xp: ArrayModule = np) -> Array:
     """The two tables read at angle ``x`` and summed, before the clamp (binary32, fixed order).
@@ -150,9 +157,7 @@ def table_sum(x: Array, i_qo: Array, table_const: Array, table_per_amp: Array, s
     n = int(tc.shape[0])  # static: the table shape, never a traced value
     if n & (n - 1) or n < 2 or tp.shape != tc.shape:
         raise InputError(None, "table_len", f"tables of shape {tc.shape}, {tp.shape}: need equal power-of-two lengths")
-    recip_n = f32(1.0 / n)
-    n_f = f32(n)
-    one = f32(1.0)
+    recip_n, n_f, one = _lerp_consts(n)
     v = xp.asarray(x, dtype=f32) * f32(scale)
     q = xp.floor(v * recip_n)
     u = v - q * n_f

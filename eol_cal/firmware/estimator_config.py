@@ -62,6 +62,7 @@ TWO_PI = F32(2.0 * math.pi)
 INV_TWO_PI = F32(1.0 / (2.0 * math.pi))
 """1/(2*pi) rounded to binary32 (0x3e22f983)."""
 HALF = F32(0.5)
+_F32_ZERO = F32(0.0)
 N_LEARN = 16
 """Improvement 2: the grid offset is the running mean of the first N_LEARN hall corrections,
 then a first-order filter with gain 1/N_LEARN per hall transition."""
@@ -265,7 +266,7 @@ def wrap(x: Array, xp: ArrayModule = np) -> Array:
     """Reduce an angle into [0, 2*pi) in binary32 (rad), exactly as the C port does."""
     r = x - TWO_PI * xp.floor(x * INV_TWO_PI)
     r = xp.where(r >= TWO_PI, r - TWO_PI, r)
-    return xp.where(r < F32(0.0), r + TWO_PI, r)
+    return xp.where(r < _F32_ZERO, r + TWO_PI, r)
 
 
 def wrap_pm(x: Array, xp: ArrayModule = np) -> Array:

@@ -115,6 +115,27 @@ def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
 
 _I32_ZERO, _I32_ONE = cast(Array, np.int32(0)), cast(Array, np.int32(1))
 
+# The step's constants built once (numpy int32/float32 scalars, the same under numpy and JAX).
+_I0 = I32(0)
+_I1 = I32(1)
+_I2 = I32(2)
+_I3 = I32(3)
+_I4 = I32(4)
+_I_ST_STANDSTILL = I32(ST_STANDSTILL)
+_I_ST_REVERSE = I32(ST_REVERSE)
+_I_ST_HALL_FAULT = I32(ST_HALL_FAULT)
+_I_ST_HALL_SEQ = I32(ST_HALL_SEQ)
+_I_ST_NO_ANCHOR = I32(ST_NO_ANCHOR)
+_I_ST_QEP_ERROR = I32(ST_QEP_ERROR)
+_I_ST_EDGE_REJECT = I32(ST_EDGE_REJECT)
+_I_ST_MISSING_EDGE = I32(ST_MISSING_EDGE)
+_I_ST_DIR_MISMATCH = I32(ST_DIR_MISMATCH)
+_I_ST_NO_SPEED = I32(ST_NO_SPEED)
+_I_TICK_MASK = I32(TICK_MASK)
+_I_N_LEARN = I32(N_LEARN)
+_I_STEADY_TICKS = I32(STEADY_TICKS)
+_F0, _F1 = F32(0.0), F32(1.0)
+
 
 def _int32_of(x: Array, _bool: type = np.bool_, _i32: type = np.int32) -> Array:
     """``np.int32(x)`` without numpy's construction for a flag or an int32 already (~20 a tick):
@@ -215,7 +236,7 @@ def _dq(q: Array, k_last: Array, M: int, xp: ArrayModule) -> Array:
 
 def quadrature_phase(enc_a: Array, enc_b: Array) -> Array:
     """Position of the encoder levels (0/1 integers) in one quadrature cycle, forward: 00 -> 10 -> 11 -> 01 is 0, 1, 2, 3."""
-    return I32(2) * enc_b + (enc_a ^ enc_b)
+    return _I2 * enc_b + (enc_a ^ enc_b)
 
 
 def init_state(cfg: EstimatorConfig, hall0: Array, enc_a0: Array = 0, enc_b0: Array = 0,
@@ -282,47 +303,48 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     ht = HallTables(c.H_START, c.H_WIDTH, c.H_MID) if tables is None else tables
     i32, f32 = xp.int32, xp.float32
     M, S = c.M, c.S
-    one = I32(1)
+    one = _I1
+    Mi, Si, S1i, Ni = I32(M), I32(S), I32(S + 1), I32(cfg.N_enc)
     s = state
 
     # 1. Quadrature decoding (x4). A rising edge: phase 0->1 forward, 3->2 reverse.
     a = i32(enc_a)
     b = i32(enc_b)
     ph = quadrature_phase(a, b)
-    d = (ph - s.phase + I32(4)) % I32(4)
-    stp = xp.where(d == 1, one, xp.where(d == 3, -one, I32(0)))
+    d = (ph - s.phase + _I4) % _I4
+    stp = xp.where(d == 1, one, xp.where(d == 3, -one, _I0))
     qep_err = d == 2
-    q = (s.q + stp + I32(M)) % I32(M)
+    q = (s.q + stp + Mi) % Mi
     a_rise = ((d == 1) & (ph == 1)) | ((d == 3) & (ph == 2))
     edir = xp.where(ph == 1, one, -one)
-    k = xp.where(edir > 0, q, (q + one) % I32(M))
+    k = xp.where(edir > 0, q, (q + one) % Mi)
     against = s.against | i32((stp != 0) & (stp == -s.dir_last))
-    n1 = xp.minimum(s.n + one, I32(S + 1))
+    n1 = xp.minimum(s.n + one, S1i)
 
     # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
     bounce = a_rise & (k == s.k_last) & (edir == s.dir_last)
     ev = a_rise & ~bounce
     same_dir = edir == s.dir_last
-    pitch_ok = k == (s.k_last + I32(4) * edir + I32(M)) % I32(M)
-    interval = ev & same_dir & pitch_ok & (n1 <= I32(S))
-    long_iv = interval & (s.nc_prev > 0) & (I32(2) * n1 > I32(3) * s.nc_prev)
+    pitch_ok = k == (s.k_last + _I4 * edir + Mi) % Mi
+    interval = ev & same_dir & pitch_ok & (n1 <= Si)
+    long_iv = interval & (s.nc_prev > 0) & (_I2 * n1 > _I3 * s.nc_prev)
     missing = long_iv & (against != 0)
     reject = long_iv & (against == 0)
     measured = interval & ~long_iv
-    nc_eff = xp.where(missing, n1 // I32(2), n1)
+    nc_eff = xp.where(missing, n1 // _I2, n1)
     omega_new = f32(edir) * (c.K_OMEGA / f32(nc_eff))
     # A lost A pulse leaves the count one pitch behind: put it back.
-    fix = xp.where(missing, I32(4) * edir, I32(0))
-    q = (q + fix + I32(M)) % I32(M)
-    k = (k + fix + I32(M)) % I32(M)
+    fix = xp.where(missing, _I4 * edir, _I0)
+    q = (q + fix + Mi) % Mi
+    k = (k + fix + Mi) % Mi
     speed_upd = measured | missing
     if cfg.learn_pitch_errors:
-        tick = (s.tick + one) & I32(TICK_MASK)
+        tick = (s.tick + one) & _I_TICK_MASK
         i_new = k >> one
         c_old = s.c_tab[s.k_last >> one]
         c_new = s.c_tab[i_new]
-        R = xp.maximum((tick - s.ts[i_new]) & I32(TICK_MASK), one)
-        learn = measured & (s.run >= I32(cfg.N_enc)) & (xp.abs(R - s.R_prev) <= I32(STEADY_TICKS))
+        R = xp.maximum((tick - s.ts[i_new]) & _I_TICK_MASK, one)
+        learn = measured & (s.run >= Ni) & (xp.abs(R - s.R_prev) <= _I_STEADY_TICKS)
         # At steady speed the same edge's revolution time gives the true speed, so this pitch's
         # real size is N_enc*DELTA * N_c / R; its edge sits that far from the previous one.
         pitch = f32(n1) * (c.K_NDELTA / f32(R))
@@ -332,47 +354,47 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
         c_tab = _set(s.c_tab, i_new, c_new, xp)
         ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
         R_prev = xp.where(measured, R, s.R_prev)
-        run = xp.where(measured, xp.minimum(s.run + one, I32(cfg.N_enc)),
-                       xp.where(ev, I32(0), s.run))
+        run = xp.where(measured, xp.minimum(s.run + one, Ni),
+                       xp.where(ev, _I0, s.run))
         omega_new = xp.where(measured, f32(edir)
                              * (((c.DELTA + f32(edir) * (c_new - c_old)) * c.TICK_HZ)
                                 / f32(n1)), omega_new)
         sample = PitchSample(learn=i32(learn), index=xp.where(edir > 0, i_new, s.k_last >> one),
-                             error=xp.where(learn, pitch_err, F32(0.0)))
+                             error=xp.where(learn, pitch_err, _F0))
     else:
         tick, run, R_prev, c_tab, ts = s.tick, s.run, s.R_prev, s.c_tab, s.ts
-        sample = PitchSample(learn=I32(0) * edir, index=I32(0) * edir, error=F32(0.0) * f32(edir))
+        sample = PitchSample(learn=_I0 * edir, index=_I0 * edir, error=_F0 * f32(edir))
     omega = xp.where(speed_upd, omega_new,
-                     xp.where(ev & ~same_dir, F32(0.0), s.omega))
+                     xp.where(ev & ~same_dir, _F0, s.omega))
     nc_prev = xp.where(speed_upd, nc_eff,
-                       xp.where(reject, n1, xp.where(ev, I32(0), s.nc_prev)))
+                       xp.where(reject, n1, xp.where(ev, _I0, s.nc_prev)))
     if cfg.accel_prediction:
         consecutive = measured & (s.nc_prev > 0)
         alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32(n1 + s.nc_prev))
         alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
-                         xp.where(ev & ~(missing | reject), F32(0.0), s.alpha))
+                         xp.where(ev & ~(missing | reject), _F0, s.alpha))
     else:
         alpha = s.alpha
-    n = xp.where(ev, I32(0), n1)
+    n = xp.where(ev, _I0, n1)
     k_last = xp.where(ev, k, s.k_last)
     dir_last = xp.where(ev, edir, s.dir_last)
-    against = xp.where(ev, I32(0), against)
+    against = xp.where(ev, _I0, against)
 
     # 3. Standstill and the prediction between edges (eq. 16).
-    still = n > I32(S)
-    nc_prev = xp.where(still, I32(0), nc_prev)
+    still = n > Si
+    nc_prev = xp.where(still, _I0, nc_prev)
     # omega_hat is valid exactly while nc_prev > 0 (a measured interval since the last break).
     speed_ok = nc_prev > 0
-    omega = xp.where(speed_ok, omega, F32(0.0))
-    run = xp.where(still, I32(0), run)
-    alpha = xp.where(still, F32(0.0), alpha)
+    omega = xp.where(speed_ok, omega, _F0)
+    run = xp.where(still, _I0, run)
+    alpha = xp.where(still, _F0, alpha)
     if cfg.accel_prediction:
         # omega from an interval is the mean over it: the speed at its middle, N_c/2 ticks back.
         tau = (f32(nc_prev) * HALF + f32(n)) * c.T
         omega_pred = omega + alpha * tau
     else:
         omega_pred = omega
-    adv = xp.where(ev, F32(0.0), s.adv + omega_pred * c.T)
+    adv = xp.where(ev, _F0, s.adv + omega_pred * c.T)
     if cfg.clamp_to_next_edge:
         # The rotor is inside the current quadrature count: the prediction never passes its far
         # boundary (so never the next edge) and catches up with its near one. Not after a step
@@ -386,15 +408,15 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     hl = s.hall_last
     trans = hv & (h != hl) & (hl != 0)
     fwd = trans & (h == _tab(c.NEXT, hl, xp))
-    rev = trans & (hl == _tab(c.NEXT, xp.where(hv, h, I32(0)), xp))
+    rev = trans & (hl == _tab(c.NEXT, xp.where(hv, h, _I0), xp))
     adj = fwd | rev
     jump = trans & ~adj
     first = hv & (hl == 0)
-    hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, I32(0)), xp), _tab(ht.start, hl, xp))
+    hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, _I0), xp), _tab(ht.start, hl, xp))
     # First anchor without an edge yet: the grid reference is the current count's middle.
     no_edge = dir_last == 0
     k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
-    c_last = c_tab[k_last >> one] if cfg.learn_pitch_errors else F32(0.0)
+    c_last = c_tab[k_last >> one] if cfg.learn_pitch_errors else _F0
     rel = f32(k_last) * c.QUARTER + c_last
     # Without a valid speed the best position is the middle of the current quadrature count.
     cell = f32(_dq(q, k_last, M, xp)) * c.QUARTER + c.HALF_QUARTER
@@ -405,7 +427,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     if cfg.learn_grid_offset:
         # Running mean of the corrections over the first N_LEARN transitions, then a first-order
         # filter; an error over half a pitch is a count slip and is taken whole.
-        gain = F32(1.0) / f32(xp.minimum(s.n_anchor + one, I32(N_LEARN)))
+        gain = _F1 / f32(xp.minimum(s.n_anchor + one, _I_N_LEARN))
         g = xp.where(big, e, e * gain)
     else:
         g = e
@@ -413,7 +435,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
                  xp.where(adj, wrap(hb - (rel + adv_eff), xp), s.G))
     anchored = xp.where(adj, one, s.anchored)
     n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
-                        xp.where(adj, xp.minimum(s.n_anchor + one, I32(N_LEARN)), s.n_anchor))
+                        xp.where(adj, xp.minimum(s.n_anchor + one, _I_N_LEARN), s.n_anchor))
     hdir = xp.where(fwd, one, -one)
     dir_mismatch = adj & (dir_last != 0) & (hdir != dir_last)
     hall_last = xp.where(hv, h, hl)
@@ -440,16 +462,16 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
         omega_out = xp.where(n > 0, xp.minimum(xp.maximum(omega_out, -bound), bound), omega_out)
     no_speed = (nc_prev == 0) & ~speed_upd
 
-    status = (i32(still) * I32(ST_STANDSTILL)
-              | i32(dir_last < 0) * I32(ST_REVERSE)
-              | i32(~hv) * I32(ST_HALL_FAULT)
-              | i32(jump) * I32(ST_HALL_SEQ)
-              | i32(unanchored) * I32(ST_NO_ANCHOR)
-              | i32(qep_err) * I32(ST_QEP_ERROR)
-              | i32(bounce | reject | (ev & ~speed_upd)) * I32(ST_EDGE_REJECT)
-              | i32(missing) * I32(ST_MISSING_EDGE)
-              | i32(dir_mismatch) * I32(ST_DIR_MISMATCH)
-              | i32(no_speed) * I32(ST_NO_SPEED))
+    status = (i32(still) * _I_ST_STANDSTILL
+              | i32(dir_last < 0) * _I_ST_REVERSE
+              | i32(~hv) * _I_ST_HALL_FAULT
+              | i32(jump) * _I_ST_HALL_SEQ
+              | i32(unanchored) * _I_ST_NO_ANCHOR
+              | i32(qep_err) * _I_ST_QEP_ERROR
+              | i32(bounce | reject | (ev & ~speed_upd)) * _I_ST_EDGE_REJECT
+              | i32(missing) * _I_ST_MISSING_EDGE
+              | i32(dir_mismatch) * _I_ST_DIR_MISMATCH
+              | i32(no_speed) * _I_ST_NO_SPEED)
 
     new = EstimatorState(phase=ph, q=q, n=n, k_last=k_last, dir_last=dir_last, nc_prev=nc_prev,
                          against=against, omega=omega, alpha=alpha, adv=adv, G=G,

@@ -214,12 +214,12 @@ def scenario_rows(sc: MechScenario) -> list[list[str]]:
     a, b, h = sc.signals()
     out = run_mech(golden_block(sc.block_id), a, b, h, I_QO, standstill_s=sc.standstill_s)
     iq = f32hex(I_QO)
-    sc_hex = out.score.view(np.uint32)
-    mg_hex = out.margin.view(np.uint32)
-    ic_hex = out.i_qc.view(np.uint32)
-    return [[str(i), str(int(a[i])), str(int(b[i])), str(int(h[i])), iq, str(int(out.status[i])), str(int(out.learn[i])),
-             str(int(out.active[i])), str(int(out.r[i])), str(int(out.events[i])), f"{int(sc_hex[i]):08x}",
-             f"{int(mg_hex[i]):08x}", f"{int(ic_hex[i]):08x}"] for i in range(len(a))]
+    # Python ints (tolist) formatted: the same text as numpy scalars', without a conversion per field
+    ints = [np.asarray(x).tolist() for x in (a, b, h, out.status, out.learn, out.active, out.r, out.events)]
+    bits = [x.view(np.uint32).tolist() for x in (out.score, out.margin, out.i_qc)]
+    return [[str(i), str(ai), str(bi), str(hi), iq, str(st), str(le), str(ac), str(r), str(ev), f"{sc:08x}", f"{mg:08x}",
+             f"{ic:08x}"]
+            for i, (ai, bi, hi, st, le, ac, r, ev, sc, mg, ic) in enumerate(zip(*ints, *bits, strict=True))]
 
 
 def compensator_rows(seed: int = 1202) -> list[list[str]]:

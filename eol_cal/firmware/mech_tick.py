@@ -29,6 +29,8 @@ from eol_cal.firmware.mech import (
 )
 from eol_cal.firmware.mech_params import FP_FORWARD
 
+_F0 = F32(0.0)
+
 
 def n_clear_slices(mc: MechConsts) -> int:
     """Background slices that clear the samples after a withdrawal (16 entries a slice)."""
@@ -55,9 +57,12 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     # 1. collect (not while an evaluation reads the samples)
     take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0) & (ms.clr == 0)
     first = take & (xp.take(ms.cnt, ps.index) == 0)
-    acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, F32(0.0)), xp)
-    cnt = set_add(ms.cnt, ps.index, i32(take), xp)
-    miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
+    if xp is SCALAR_NP and not take:  # one motor, no sample: adding 0 leaves the tables as they are
+        acc, cnt, miss = ms.acc, ms.cnt, ms.miss  # (acc never holds -0.0: sums of +0.0 and pitch errors)
+    else:
+        acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp)
+        cnt = set_add(ms.cnt, ps.index, i32(take), xp)
+        miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
     n_new = xp.minimum(ms.n_new + i32(take), I32(N))
     fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
     # 2. a finished evaluation, a finished mark check
@@ -128,6 +133,8 @@ def mech_background_idle(mc: MechConsts, ms: MechState, xp: ArrayModule = np) ->
     evaluation (its result is already held) or nothing, without the arithmetic."""
     clearing = ms.clr != 0
     running = (ms.busy >= 1) & (ms.busy <= I32(n_slices(mc))) & ~clearing
+    if xp is SCALAR_NP and not (running or clearing):  # one motor, nothing running: as it is
+        return ms
     clr = xp.where(clearing, xp.where(ms.clr >= I32(n_clear_slices(mc)), I32(0), ms.clr + I32(1)), ms.clr)
     return ms._replace(busy=xp.where(running, ms.busy + I32(1), ms.busy), clr=clr)
 
