@@ -17,20 +17,8 @@ from eol_cal.analysis.fit.model_check import bench_provenance
 from eol_cal.capture.data import Capture
 from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY, load_mechanics, model_digest
 from eol_cal.records.limits import BY_KEY, LIMIT_KEYS, Measured, bench_assumed, failed, judge, parse_limits
+from test_station_limits import GOOD  # a variant's limits, every key of the fit stage set
 
-LIMITS = """
-[variant.A]
-max_k6 = 0.002
-max_pp_before_pct = 10.0
-max_pp_after_pct = 1.0
-min_improvement_pct = 50.0
-min_r2 = 0.5
-max_rms_nm = 0.05
-max_ci_k6_rel = 0.05
-max_ci_phase_k6_deg = 3.0
-max_ci_c6_nm = 0.002
-max_hall_deviation_deg = 3.0
-"""
 
 MOTOR = Measured(k6=0.85e-3, ci_k6=8.8e-6, ci_phase_k6_deg=0.5, ci_c6_nm=4.6e-4, fit_r2=0.57, fit_rms_nm=0.021,
                  hall_deviation_deg=1.2, hall_source="measured")
@@ -78,7 +66,7 @@ def test_an_unverified_assumption_is_what_counts():
 
 
 def test_the_default_limits_fail_an_assumed_bench_at_the_fit_with_what_to_do():
-    lim = parse_limits(LIMITS, "x.toml")["A"]
+    lim = parse_limits(GOOD, "x.toml")["A"]
     assert "max_bench_assumed" in LIMIT_KEYS and BY_KEY["max_bench_assumed"].stage == "fit"
     assert lim.value("max_bench_assumed") == 0.0  # judged although the file leaves it out
     assert failed(judge(MOTOR, lim, "fit")) == []
@@ -87,7 +75,7 @@ def test_the_default_limits_fail_an_assumed_bench_at_the_fit_with_what_to_do():
     (reason,) = failed(judge(assumed, lim, "fit"))
     assert "bench paper" in reason and "eol-cal bench identify" in reason and "180 Hz" in reason
     # a line that accepts the assumption says so in its limits file
-    accept = parse_limits(LIMITS + "max_bench_assumed = 1\n", "x.toml")["A"]
+    accept = parse_limits(GOOD + "max_bench_assumed = 1\n", "x.toml")["A"]
     assert failed(judge(assumed, accept, "fit")) == []
 
 

@@ -22,24 +22,8 @@ from eol_cal.sim.loopback import loopback_station
 from eol_cal.station.cycle import run_motor
 from eol_cal.station.instruments import BenchInstruments
 from eol_cal.station.run import StationConfig
+from test_lot_simulate import PROFILE  # the short calibration profile both use
 
-PROFILE = """
-name = "short"
-[[segment]]
-speed_rpm = 60.0
-iq = 20.0
-seconds = 1.0
-[[segment]]
-speed_rpm = 60.0
-iq = 65.0
-seconds = 1.2
-ramp_s = 0.1
-[[segment]]
-speed_rpm = -60.0
-iq = -65.0
-seconds = 1.4
-ramp_s = 0.3
-"""
 
 
 class Counted:

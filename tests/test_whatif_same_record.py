@@ -21,25 +21,8 @@ from eol_cal.sim.loopback import loopback_station
 from eol_cal.sim.plant_instruments import plant_instruments
 from eol_cal.station.whatif import simulate_motor
 from eol_cal.station.whatif_plan import LotPlan
+from test_lot_simulate import LIMITS, PROFILE  # the short calibration profile both use
 
-LIMITS = Path(__file__).resolve().parent.parent / "fixtures" / "limits.toml"
-PROFILE = """
-name = "short"
-[[segment]]
-speed_rpm = 60.0
-iq = 20.0
-seconds = 1.0
-[[segment]]
-speed_rpm = 60.0
-iq = 65.0
-seconds = 1.2
-ramp_s = 0.1
-[[segment]]
-speed_rpm = -60.0
-iq = -65.0
-seconds = 1.4
-ramp_s = 0.3
-"""
 
 #: what necessarily differs between the two runs of one motor (record paths; ``*``: any index or
 #: key), and why
