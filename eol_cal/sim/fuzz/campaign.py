@@ -77,7 +77,7 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     # (no code of the tool's runs before it; the interpreter's own start takes 0.05 to 0.3 s with load)
     program = ["-c", _GO_FIRST] if signal_at is not None else ["-m", "cli.main"]
     ended_at_moment = False
-    proc = subprocess.Popen([sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
+    proc = _Measured([sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
                             preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
@@ -110,9 +110,28 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     seconds = time.perf_counter() - t0
     if ended_at_moment:
         seconds = min(seconds, signal_at[1] if signal_at is not None else seconds)
-    # the largest resident set of any child waited for so far: an upper bound for this one
-    rss = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    # this child's own peak resident set (wait4's); where poll() reaped it first, the largest of any
+    # child this process waited for so far: an upper bound (an earlier test's big child counts there)
+    rss = proc.maxrss_kb or resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss
+
+
+class _Measured(subprocess.Popen):
+    """A child whose own peak resident set (KiB) is kept when it is waited for: ``os.wait4`` in place
+    of the ``os.waitpid`` of CPython's ``Popen._try_wait`` (the path of ``wait`` and
+    ``communicate``). ``RUSAGE_CHILDREN`` holds the largest of every child the process ever waited
+    for, so in a test worker it was another test's child's."""
+
+    maxrss_kb = 0
+
+    def _try_wait(self, wait_flags: int) -> tuple[int, int]:
+        try:
+            pid, status, usage = os.wait4(self.pid, wait_flags)
+        except ChildProcessError:  # as CPython's: the child is gone, its status unknown
+            return self.pid, 0
+        if pid == self.pid:
+            self.maxrss_kb = usage.ru_maxrss
+        return pid, status
 
 
 def _digest(path: Path) -> str:
