@@ -27,7 +27,7 @@ import numpy as np
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
-from eol_cal.analysis.fit.model import legendre_rows, transducer_gain
+from eol_cal.analysis.fit.model import legendre_rows, line_noise, noise_bins, transducer_gain
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
@@ -182,10 +182,9 @@ def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray
     return out, kt_iq - A @ coef
 
 
-#: the neighbouring frequencies ``h f_m + k / T`` of a segment (T its length) an order's noise is
-#: measured on: 2 <= |k| <= NOISE_BINS, less those within NOISE_GAP / T of 0 Hz (the drift
-#: polynomial's band) or of an order's line (+-h f_m: its leakage)
-NOISE_BINS = 9
+#: an order's noise is measured on the neighbouring frequencies ``h f_m + k / T`` of a segment
+#: (T its length; :func:`eol_cal.analysis.fit.model.noise_bins`) less those within NOISE_GAP / T of
+#: 0 Hz (the drift polynomial's band) or of an order's line (+-h f_m: its leakage)
 NOISE_GAP = 1.5
 
 
@@ -194,7 +193,7 @@ def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t
     """The white-equivalent noise variance (N*m^2) at each mechanical order of one segment.
 
     The residual's phasor ``(2 / n) sum e exp(-i (h theta_m + 2 pi k t / T))`` at the order's
-    neighbouring frequencies (:data:`NOISE_BINS`) has, per cos/sin coefficient, the variance
+    neighbouring frequencies (:func:`~eol_cal.analysis.fit.model.noise_bins`) has, per cos/sin coefficient, the variance
     noise alone puts on the order's pair there; times ``n / 2`` it is the variance of white noise
     that would do the same, which scales the pair's least-squares covariance. With the ECU's
     current taken out (``cur_res``, its residual) its noise reaches the orders through the path
@@ -221,9 +220,8 @@ def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t
         residual's own variance for an order without a usable bin.
     """
     n, T = len(t), float(t[-1] - t[0])
-    k = np.array([k for k in range(-NOISE_BINS, NOISE_BINS + 1) if abs(k) >= 2], dtype=float)
+    k = noise_bins()
     lines = np.concatenate([[0.0], np.outer(ORDERS, [w_m, -w_m]).ravel()])
-    sig = np.column_stack([res] if cur_res is None else [res, cur_res])
     out = np.empty(len(ORDERS))
     for i, h in enumerate(ORDERS):
         omega = h * w_m + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
@@ -231,17 +229,9 @@ def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t
         if not ok.any():
             out[i] = float(res @ res) / n
             continue
-        phase = h * (th_m - th_m[0])[:, None] + 2 * math.pi * np.outer(t - t[0], k[ok]) / T
-        X = (2.0 / n) * (sig.T @ np.exp(-1j * phase))
-        e = X[0]
-        if cur_res is not None:
-            g = transducer_gain(spec, tau_s, omega[ok])
-            if path is not None:
-                g = g * np.asarray(path(omega[ok]), dtype=complex)
-            e = e - g * X[1]
-        out[i] = float(np.mean(np.abs(e) ** 2)) / 2.0 * n / 2.0
+        out[i] = line_noise(res, cur_res, h * (th_m - th_m[0]), 2 * math.pi * (t - t[0]) / T, k[ok], omega[ok],
+                            spec, tau_s, path) * n / 2.0
     return out
-
 
 def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, threshold: float = SWITCH_MARGIN,
              min_score: float = SWITCH_MIN_SCORE) -> MechResult:

@@ -55,7 +55,7 @@ import numpy as np
 from eol_cal.analysis.fit.batch import fit_many
 from eol_cal.capture.data import Capture
 from eol_cal.domain.bench_mechanics import RIGID, SIMULATED_BENCH_KEY, BenchMechanics, model_digest
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix, transducer_gain
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix, line_noise, noise_bins
 from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit
 
 #: segments whose |speed| is within this fraction of each other share a band
@@ -66,10 +66,6 @@ BAND_TOL = 0.1
 RESONANCE_TOP_HZ = 400.0
 #: damping ratio of the mode the sensitivity assumes (below the mode the gain hardly depends on it)
 SENSITIVITY_ZETA = 0.1
-#: the neighbouring frequencies ``6 f_e + k / T`` of a segment (T its length) its noise at the
-#: 6th harmonic is measured on: 2 <= |k| <= NOISE_BINS (|k| = 1 would hold the leakage of the
-#: mechanical order 1's sidebands at 60 rpm, 1 Hz beside the 6th)
-NOISE_BINS = 9
 #: where the bench file the fit divided out came from (:func:`bench_provenance`)
 BENCH_SOURCES = ("identified", "simulated", "assumed")
 
@@ -150,7 +146,7 @@ def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> 
     """The noise of segment ``s`` at its 6th harmonic's frequency, and at the residual's average.
 
     The segment is fitted alone on its columns (nuisance and harmonics); the residual's cos/sin
-    coefficients at ``6 f_e + k / T`` (``2 <= |k| <` :data:`NOISE_BINS`) are what noise alone puts
+    coefficients at ``6 f_e + k / T`` (``2 <= |k| <=`` :data:`~eol_cal.analysis.fit.model.NOISE_BINS`) are what noise alone puts
     on a harmonic's pair there. With the ECU's current (``seg.kt_iq``) the fit takes its ripple as
     known through the path and the transducer: so here too, bin by bin (the current's noise that
     reaches the shaft cancels, the current sensor's own does not).
@@ -174,31 +170,11 @@ def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> 
     res = Y - A @ np.linalg.lstsq(A, Y, rcond=None)[0]
     n, T = len(t), float(t[-1] - t[0])
     s2 = float(res[:, 0] @ res[:, 0]) / max(n - A.shape[1], 1)
-    k = np.array([k for k in range(-NOISE_BINS, NOISE_BINS + 1) if abs(k) >= 2], dtype=float)
-    X = (2.0 / n) * (res.T @ bin_phasors(6.0 * (theta - theta[0]), 2 * math.pi * (t - t[0]) / T, k))
-    e = X[0]
-    if seg.kt_iq is not None:
-        omega = 6.0 * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
-        path = np.ones(len(k), dtype=complex) if seg.path_response is None else np.asarray(
-            seg.path_response(omega), dtype=complex)
-        e = e - path * transducer_gain(spec, tau_s, omega) * X[1]
-    return float(np.mean(np.abs(e) ** 2)) / 2.0, 2.0 * s2 / n, 2 * len(k)
-
-
-def bin_phasors(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``exp(-i (a + b k))`` (n, bins) for integer ``k`` (each at least 1 or at most -1): the residual's
-    phasor per bin is ``res @`` it. One complex exponential per sample and powers of ``exp(-i b)``
-    instead of one per sample and bin (a refit's model check spent 30 % of its time in them); the
-    same values within the rounding of the phase itself (4e-14 at a few hundred rad of ``a``)."""
-    step = np.exp(-1j * b)
-    top = int(np.max(np.abs(k)))
-    powers = np.empty((top + 1, len(b)), dtype=complex)  # step ** 0 .. step ** top
-    powers[0] = 1.0
-    for j in range(1, top + 1):
-        powers[j] = powers[j - 1] * step
-    ki = k.astype(int)
-    Wk = np.where(ki[None, :] > 0, powers[np.abs(ki)].T, np.conj(powers[np.abs(ki)].T))  # exp(-i b)^-k = conj
-    return np.exp(-1j * a)[:, None] * Wk
+    k = noise_bins()
+    omega = 6.0 * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
+    var_pair = line_noise(res[:, 0], res[:, 1] if seg.kt_iq is not None else None, 6.0 * (theta - theta[0]),
+                          2 * math.pi * (t - t[0]) / T, k, omega, spec, tau_s, seg.path_response)
+    return var_pair, 2.0 * s2 / n, 2 * len(k)
 
 
 def band_noise_ratio(seg: SteadySegments, idx: np.ndarray, spec: FitSpec, tau_s: float) -> tuple[float, int]:
