@@ -113,11 +113,10 @@ def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
 
 
-_I32_ZERO, _I32_ONE = cast(Array, np.int32(0)), cast(Array, np.int32(1))
-
 # The step's constants built once (numpy int32/float32 scalars, the same under numpy and JAX).
 _I0 = I32(0)
 _I1 = I32(1)
+_I32_ZERO, _I32_ONE = cast(Array, _I0), cast(Array, _I1)  # the same scalars, typed as the step's arrays
 _I2 = I32(2)
 _I3 = I32(3)
 _I4 = I32(4)
