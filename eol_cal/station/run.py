@@ -195,13 +195,12 @@ def _safe_name(text: str) -> str:
 
 
 # --------------------------------------------------------------------------- fit
-def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
+def fit_motor(capture: Capture, limits: VariantLimits, tool_version: str, motor: MotorParams | None = None,
               mechanics: BenchMechanics | None = None, cache_dir: Path | None = None,
               estimator_options: int = 0, prepared: PreparedWindows | None = None
               ) -> tuple[MotorsFit, MotorResult, FitExtra]:
     """The ripple fit of one motor's capture: :func:`eol_cal.analysis.fit.motors.fit_motors`, as
-    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame); ``capture`` may
-    also be the windows as separate captures (``eol-cal lot simulate``'s).
+    ``eol-cal fit`` runs it (windows fitted jointly, phases in the firmware frame).
 
     ``motor`` (default the paper preset), ``mechanics`` (``None``: rigid coupling) and
     ``cache_dir`` (the serialized solvers; ``None``: none) and ``estimator_options`` (what the
@@ -219,7 +218,7 @@ def fit_motor(capture: Capture | list[Capture], limits: VariantLimits, tool_vers
 
     options = FitOptions(limits=limits.ci_limits(), batch="loop", mechanics=mechanics, motor=motor, cache_dir=cache_dir,
                          estimator_options=estimator_options)
-    fitted = fit_motors(capture if isinstance(capture, list) else [capture], options, tool_version, prepared=prepared)
+    fitted = fit_motors([capture], options, tool_version, prepared=prepared)
     (result,) = fitted.results
     return fitted, result, (fitted.inputs[0], fitted.fits[0], options.spec)
 
