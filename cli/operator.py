@@ -158,8 +158,9 @@ def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=N
             return run_motor(mcfg, progress, on_verdict, observers, behind)
 
 
-def _show_verdict(rec) -> None:
-    """The large verdict, the moment the cycle knows it (the record is already safe in the spool)."""
+def _show_verdict(rec, spooled: bool = True) -> None:
+    """The large verdict, the moment the cycle knows it (``spooled``: the record is already safe in
+    the spool; otherwise it is written before the next serial, and where it went is shown then)."""
     if rec.kind == "refusal":  # only a refusal can be the gate's (its module loads the database)
         from eol_cal.msa.gate import gate_refusal
 
@@ -173,8 +174,11 @@ def _show_verdict(rec) -> None:
         lines.append(f"dyno safe state: {rec.safe_state}")
     if rec.ecu_active.block == "uncompensated":
         lines.append("ECU: the uncompensated block is active: the motor is not calibrated")
-    lines.append("record: safe in the spool; the report and the database follow" + (
-        " before the next serial" if rec.kind == "master" else " while the next motor runs"))
+    if not spooled:
+        lines.append("record: NOT in the spool (it could not be written there): being written now, before the next serial")
+    else:
+        lines.append("record: safe in the spool; the report and the database follow" + (
+            " before the next serial" if rec.kind == "master" else " while the next motor runs"))
     console.print(verdict_panel(rec.serial, rec.verdict, lines))
 
 

@@ -93,7 +93,7 @@ def results_table(records: list, title: str):
 RUN_SCHEMA = "eol-cal/run/1"
 
 
-def _print_verdict(rec) -> None:
+def _print_verdict(rec, spooled: bool = True) -> None:
     """The verdict as soon as the cycle knows it (the report and the database come after)."""
     if rec.kind == "refusal":  # only a refusal can be the gate's (its module loads the database: 0.2 s)
         from eol_cal.msa.gate import gate_refusal

@@ -57,7 +57,7 @@ def test_the_record_is_durable_when_the_next_scan_is_asked_for_and_the_report_fo
     shown: list = []
     behind = ReportsBehind()
     try:
-        out = run_motor(cfg, on_verdict=shown.append, behind=behind)
+        out = run_motor(cfg, on_verdict=lambda rec, spooled: shown.append(rec), behind=behind)
         # returned at the verdict, the report still in flight: the record is in the spool (written
         # atomically, fsync'd), the same one the screen showed; the database does not have it yet
         assert started.wait(HANG_S) and out.pending is not None and not out.pending.done()
@@ -181,3 +181,26 @@ def test_a_page_the_station_never_wrote_is_rebuilt_from_the_record_when_the_spoo
     assert REBUILT_NOTE in page and out.record.serial in page and page.rstrip().endswith("</html>")
     assert json.loads((run_dir / "report.json").read_text()) == out.record.to_json()
     assert list(foreign.iterdir()) == []
+
+
+def test_a_spool_that_cannot_take_the_record_is_not_called_safe_and_the_record_is_written_at_once(tmp_path):
+    from cli.operator import _show_verdict, console
+
+    blocked = tmp_path / "spool-is-a-file"
+    blocked.write_text("not a directory")
+    cfg = dataclasses.replace(settings_refused_config(tmp_path), spool_dir=blocked)
+    shown: list = []
+    behind = ReportsBehind()
+    try:
+        out = run_motor(cfg, on_verdict=lambda rec, spooled: shown.append((rec, spooled)), behind=behind)
+    finally:
+        behind.finish()
+    # the screen was told the record was not in the spool, and the run did not go behind: the
+    # record is in the database before the next serial
+    assert [spooled for _, spooled in shown] == [False]
+    assert out.pending is None and out.saved.where == "db"
+    assert [r.run_id for r in query_records(cfg.db)] == [out.record.run_id]
+    with console.capture() as cap:
+        _show_verdict(shown[0][0], False)
+    text = " ".join(cap.get().split())
+    assert "NOT in the spool" in text and "safe in the spool" not in text

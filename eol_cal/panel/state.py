@@ -166,9 +166,13 @@ class PanelState:
             self._data["version"] += 1
             self._changed.notify_all()
 
-    def verdict_known(self, rec: RunRecord) -> None:
-        """The cycle's ``on_verdict``: the verdict the moment it is safe in the spool."""
-        self.update(verdict=verdict_view(rec))
+    def verdict_known(self, rec: RunRecord, spooled: bool = True) -> None:
+        """The cycle's ``on_verdict``: the verdict the moment it is known (``spooled``: the record
+        is safe in the spool; otherwise it is written before the next scan)."""
+        view = verdict_view(rec)
+        if not spooled:
+            view["record"] = "being written (the spool could not take it: not safe until written)"
+        self.update(verdict=view)
 
     def finished(self, rec: RunRecord, report: str | None, where: str, counts: dict[str, int]) -> None:
         """The motor's report and record are written (``where``: the database or the spool): it joins

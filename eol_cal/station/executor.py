@@ -121,11 +121,12 @@ class Executor:
         self._emit(ctx, name, "done", module, round(time.perf_counter() - t0, 4))
         return out
 
-    def run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord], None] | None = None,
+    def run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord, bool], None] | None = None,
             behind: ReportsBehind | None = None) -> RunOutcome:
         """Every step of ``plan(ctx)`` in order; the record is written whether the motor passed,
-        failed or the cycle erred. ``on_verdict(record)`` shows the verdict as soon as it is safe
-        in the spool, before the report and the database. With ``behind`` the report and the
+        failed or the cycle erred. ``on_verdict(record, spooled)`` shows the verdict as soon as it
+        is known, the record in the spool (``spooled`` False: the spool could not take it, and the
+        record is written at once, before the report thread or the next serial). With ``behind`` the report and the
         record follow on its thread (:mod:`eol_cal.station.report_behind`) once the verdict's
         record is in the spool, and the outcome returned is the verdict's (``pending``)."""
         previous = sys.getswitchinterval()
@@ -138,7 +139,7 @@ class Executor:
         finally:
             sys.setswitchinterval(previous)
 
-    def _run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord], None] | None,
+    def _run(self, ctx: CycleContext, plan: Plan, on_verdict: Callable[[RunRecord, bool], None] | None,
              behind: ReportsBehind | None) -> RunOutcome:
         try:
             for name, fn in plan(ctx):

@@ -3,7 +3,8 @@ report. The calibrated flash's session still open is left, the capture files wri
 waited for; a failure becomes the record's error (:func:`eol_cal.station.outcome.record_failure`),
 a motor left on the uncompensated block says so in its reasons; the record at the verdict goes
 into the spool (durable: a station killed from then on loses nothing, the next start writes it
-into the database) and only then is it shown (``on_verdict``). Not a step of the record's
+into the database) and only then is it shown (``on_verdict(record, spooled)``; ``spooled`` False
+when the spool could not take it: the record is written at once, before the next serial). Not a step of the record's
 ``steps``: the executor's events name it (what a live screen shows)."""
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from eol_cal.station.outcome import ecu_active_of, record_failure, to_record, un
 NAME = "verdict"
 
 
-def run(ctx: CycleContext, on_verdict: Callable[[RunRecord], None] | None = None) -> RunRecord:
+def run(ctx: CycleContext, on_verdict: Callable[[RunRecord, bool], None] | None = None) -> RunRecord:
     ctx.close_flash_ahead()  # a cycle that ended before its flash: the session is left
     try:
         ctx.settle_writes()  # the cycle ended before the flash waited for them
@@ -38,7 +39,7 @@ def run(ctx: CycleContext, on_verdict: Callable[[RunRecord], None] | None = None
     ctx.journal = journal(ctx, rec)
     if on_verdict is not None:
         with contextlib.suppress(Exception):  # a display that fails must not cost the record
-            on_verdict(rec)
+            on_verdict(rec, ctx.journal is not None)  # the screen says where the record is only if it is
     return rec
 
 
