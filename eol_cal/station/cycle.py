@@ -45,8 +45,9 @@ def run_motor(cfg: StationConfig, progress: ProgressFn | None = None,
               instruments: Instruments | None = None, run_id: str | None = None) -> RunOutcome:
     """Run the whole cycle for one motor; see :mod:`eol_cal.station.run`.
 
-    ``on_verdict(record, spooled)`` shows the verdict as soon as it is known (``spooled``: the
-    record is safe in the spool), before the report and the database; ``observers`` (and ``progress``) get each step's start and end.
+    ``on_verdict(record, spooled)`` shows the verdict as soon as it is known (``spooled``:
+    the record is safe in the spool), before the report and the database; ``observers`` (and
+    ``progress``) get each step's start and end.
     ``behind``: an operator loop's report thread; the run returns at its verdict, with the record in
     the spool, and the report and the database follow there (:meth:`RunOutcome.final`).
     ``instruments``: the dyno and ECU the steps call (default the configuration's Modbus dyno
