@@ -54,7 +54,8 @@ def records_cmd(ctx, db, serial, day, kind, as_json, plot_file, flush, spool_dir
         rebuilt_pages(res.records)
         msg = (f"flushed {res.flushed_files} spooled record(s) ({res.inserted} new) into {db_label(db)}"
                + (f"; {res.remaining} still waiting: {res.error}" if res.remaining else "")
-               + (f"; {res.other_db} spooled for other databases" if res.other_db else ""))
+               + (f"; {res.other_db} spooled for other databases" if res.other_db else "")
+               + (f"; {res.in_flight} still being written by a running station (left for it)" if res.in_flight else ""))
         err_console.print(msg)
         for bad in res.bad_files:
             err_console.print(f"spool: {bad}; left alone")

@@ -153,6 +153,8 @@ def flush_first(db: Path, spool_dir: Path | None, timeout: float) -> None:
     rebuilt_pages(res.records)
     for bad in res.bad_files:
         err_console.print(styled((f"spool: {bad}; left alone", "yellow")))
+    if res.in_flight:
+        err_console.print(f"{res.in_flight} spooled record(s) still being written by a running station: left for it")
     if res.flushed_files:
         err_console.print(f"flushed {res.flushed_files} spooled record(s) into {db_shown(db)}")
     elif res.remaining:

@@ -204,3 +204,51 @@ def test_a_spool_that_cannot_take_the_record_is_not_called_safe_and_the_record_i
         _show_verdict(shown[0][0], False)
     text = " ".join(cap.get().split())
     assert "NOT in the spool" in text and "safe in the spool" not in text
+
+
+def test_a_flush_from_another_process_leaves_a_record_whose_report_is_in_flight(tmp_path, held_report):
+    """`records --flush` (another process, the kernel's lock between them) while the report thread
+    draws the page: the journal is left for the station, whose final record (with its report step)
+    is the one the database keeps; once the station has let go, a flush takes what is left."""
+    import subprocess
+    import sys
+
+    started, release = held_report
+    cfg = settings_refused_config(tmp_path)
+    behind = ReportsBehind()
+    flush = [sys.executable, "-m", "cli.main", "records", "--db", str(cfg.db), "--flush",
+             "--spool-dir", str(tmp_path / "spool"), "--json"]
+    made = subprocess.run([sys.executable, "-m", "cli.main", "records", "migrate", "--db", str(cfg.db)],
+                          capture_output=True, text=True, timeout=300, check=False)
+    assert made.returncode == 0, made.stderr
+    try:
+        out = run_motor(cfg, behind=behind)
+        assert started.wait(HANG_S)
+        res = subprocess.run(flush, capture_output=True, text=True, timeout=300, check=False)
+        assert res.returncode == 0, res.stderr
+        assert "1 still being written by a running station" in " ".join(res.stderr.split())
+        assert len(_spooled(tmp_path / "spool")) == 1
+        assert query_records(cfg.db) == []
+        release.set()
+        final = out.final()
+    finally:
+        release.set()
+        behind.close()
+    (row,) = query_records(cfg.db)
+    assert row.run_id == final.record.run_id and [s.step for s in row.steps] == ["pre-flight", "report"]
+    assert _spooled(tmp_path / "spool") == [] and not any((tmp_path / "spool" / ".in-flight").iterdir())
+
+
+def test_a_journal_whose_process_was_killed_is_flushed(tmp_path):
+    """The lock is the kernel's: a journal left by a process that no longer runs (its lock file
+    still there, nobody holding it) is not in flight."""
+    from eol_cal.records.spool import IN_FLIGHT_DIR, flush_spool, in_flight, spool_record
+
+    rec = run_motor(settings_refused_config(tmp_path / "a")).record
+    spool, db = tmp_path / "spool", tmp_path / "r.sqlite"
+    path = spool_record(rec, db, spool, "written at the verdict")
+    (spool / IN_FLIGHT_DIR).mkdir()
+    (spool / IN_FLIGHT_DIR / f"{rec.run_id}.lock").write_text("")  # what a SIGKILL leaves
+    assert not in_flight(path)
+    res = flush_spool(db, spool)
+    assert (res.inserted, res.in_flight) == (1, 0) and [r.run_id for r in query_records(db)] == [rec.run_id]

@@ -5,10 +5,17 @@ the server down, read-only, corrupt) is written as one JSON file into the spool 
 atomically, and inserted later by :func:`flush_spool`. The insert is keyed by the record's
 ``run_id`` (:func:`eol_cal.records.write.insert_records`), so a flush interrupted between the
 insert and the file's removal inserts nothing twice.
+
+A record journaled at the verdict while its report is still being written (the operator loop's
+report thread) is *in flight*: its process holds a lock on ``.in-flight/RUN_ID.lock`` beside it
+until the final record is written, and a flush leaves it alone (an early insert would keep the
+verdict's version and refuse the final one, the same ``run_id``). The lock is the kernel's
+(``flock``): a process that is killed lets go of it, and the next flush takes its journal.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 from dataclasses import dataclass
@@ -39,6 +46,53 @@ def default_spool_dir() -> Path:
     state = os.environ.get("XDG_STATE_HOME") or str(Path.home() / ".local" / "state")
     return Path(state) / "eol-cal" / "spool"
 
+
+
+IN_FLIGHT_DIR = ".in-flight"
+
+
+class InFlight:
+    """The lock that keeps a flush off a journaled record until its process has written the final
+    one (:func:`hold_in_flight`); :meth:`release` when it has (into the database or the spool)."""
+
+    def __init__(self, path: Path, fd: int) -> None:
+        self.path, self._fd = path, fd
+
+    def release(self) -> None:
+        if self._fd < 0:
+            return
+        self.path.unlink(missing_ok=True)  # before the descriptor: a flush then finds no lock file
+        os.close(self._fd)
+        self._fd = -1
+
+
+def hold_in_flight(spool_dir: str | Path, run_id: str) -> InFlight:
+    """Take the in-flight lock of ``run_id``'s spool file (before the file is written, so a flush
+    never sees the journal unlocked while its process lives)."""
+    lock_dir = Path(spool_dir) / IN_FLIGHT_DIR
+    lock_dir.mkdir(parents=True, exist_ok=True)
+    path = lock_dir / f"{run_id}.lock"
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    fcntl.flock(fd, fcntl.LOCK_EX)  # a run id is new: nobody else holds it
+    return InFlight(path, fd)
+
+
+def in_flight(spool_file: Path) -> bool:
+    """Whether a live process still holds ``spool_file``'s in-flight lock; a lock file that nobody
+    holds (its process was killed) is removed."""
+    path = spool_file.parent / IN_FLIGHT_DIR / f"{spool_file.stem}.lock"
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    except OSError:  # none: not in flight (a missing file, or anything else that is not a lock file)
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    finally:
+        os.close(fd)
+    path.unlink(missing_ok=True)
+    return False
 
 
 def spool_record(record: RunRecord, db: str | Path, spool_dir: str | Path, why: str) -> Path:
@@ -95,6 +149,8 @@ class FlushResult:
     bad_files: tuple[str, ...] = ()
     #: the records written into the database (their pages may be missing: a station killed at its verdict)
     records: tuple[RunRecord, ...] = ()
+    #: journaled records whose process is still writing their final version: left for it
+    in_flight: int = 0
 
 
 def _spooled(spool_dir: Path) -> tuple[list[tuple[Path, str, RunRecord]], list[str]]:
@@ -129,19 +185,23 @@ def flush_spool(db: str | Path, spool_dir: str | Path | None = None,
     if not spool_dir.is_dir():
         return FlushResult(0, 0, 0, 0)
     target = db_key(db)
-    mine, others = [], 0
+    mine, others, busy = [], 0, 0
     spooled, bad = _spooled(spool_dir)
     for path, where, record in spooled:
-        if where == target:
-            mine.append((path, record))
-        else:
+        if where != target:
             others += 1
+        elif in_flight(path):
+            busy += 1
+        else:
+            mine.append((path, record))
     if not mine:
-        return FlushResult(0, 0, 0, others, bad_files=tuple(bad))
+        return FlushResult(0, 0, 0, others, bad_files=tuple(bad), in_flight=busy)
     try:
         n = insert_records(db, [r for _p, r in mine], timeout_s)
     except Exception as exc:  # noqa: BLE001 - still not writable, however: the records wait in the spool
-        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad))
+        return FlushResult(0, 0, len(mine), others, f"{type(exc).__name__}: {one_line(exc)}", tuple(bad),
+                           in_flight=busy)
     for path, _r in mine:
         path.unlink(missing_ok=True)
-    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad), records=tuple(r for _p, r in mine))
+    return FlushResult(n, len(mine), 0, others, bad_files=tuple(bad), records=tuple(r for _p, r in mine),
+                       in_flight=busy)

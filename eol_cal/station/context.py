@@ -42,6 +42,7 @@ if TYPE_CHECKING:
     from eol_cal.capture.data import Capture
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.firmware.block import ParamBlock
+    from eol_cal.records.spool import InFlight
     from eol_cal.station.early import EarlyWindows
 
 #: the archive files of a run's directory, by the block's role
@@ -127,6 +128,7 @@ class CycleContext:
     ahead: OpenFlash | None = None  # the calibrated flash's first half, opened during the fit
     pr_before: Future | None = None
     journal: Path | None = None  # the record at the verdict, in the spool until the database has it
+    journal_held: InFlight | None = None  # a flush leaves the journal alone while this is held
 
     @property
     def serial(self) -> str:

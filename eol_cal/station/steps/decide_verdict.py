@@ -46,11 +46,19 @@ def run(ctx: CycleContext, on_verdict: Callable[[RunRecord, bool], None] | None 
 def journal(ctx: CycleContext, rec: RunRecord) -> Path | None:
     """The record at the verdict, into the spool before anyone sees the verdict; None when the
     spool cannot be written (the database is tried all the same after the report)."""
-    from eol_cal.records.spool import default_spool_dir, spool_record  # SQLAlchemy: loaded on the helper meanwhile
+    # SQLAlchemy: loaded on the helper meanwhile
+    from eol_cal.records.spool import default_spool_dir, hold_in_flight, spool_record
 
+    spool_dir = ctx.cfg.spool_dir or default_spool_dir()
     try:
-        return spool_record(rec, ctx.cfg.db, ctx.cfg.spool_dir or default_spool_dir(),
+        # held until the final record is written (save_record): a flush from another process
+        # meanwhile would insert this version and the final one would be refused as a duplicate
+        ctx.journal_held = hold_in_flight(spool_dir, rec.run_id)
+        return spool_record(rec, ctx.cfg.db, spool_dir,
                             "written at the verdict, before the report; the run's process ended before "
                             "it wrote the record into the database")
     except OSError:
+        if ctx.journal_held is not None:
+            ctx.journal_held.release()
+            ctx.journal_held = None
         return None

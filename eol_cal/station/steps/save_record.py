@@ -39,8 +39,12 @@ def run(ctx: CycleContext) -> tuple[RunRecord, SaveResult]:
         spool_record(rec, ctx.cfg.db, ctx.cfg.spool_dir or default_spool_dir(), "the process was ended by a signal "
                      "while it wrote the database")
 
-    with emergency(spool_now):
-        saved = save_record(rec, ctx.cfg.db, ctx.cfg.spool_dir, ctx.cfg.db_timeout_s)
-    if ctx.journal is not None and saved.where == "db":
-        ctx.journal.unlink(missing_ok=True)
+    try:
+        with emergency(spool_now):
+            saved = save_record(rec, ctx.cfg.db, ctx.cfg.spool_dir, ctx.cfg.db_timeout_s)
+        if ctx.journal is not None and saved.where == "db":
+            ctx.journal.unlink(missing_ok=True)
+    finally:  # the final record is where it goes (or the journal is all there is): a flush may take it
+        if ctx.journal_held is not None:
+            ctx.journal_held.release()
     return rec, saved
