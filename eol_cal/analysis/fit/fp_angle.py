@@ -138,9 +138,10 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
 
     At each transition the encoder's angle (the offline angle, the fingerprint's correction added)
     less the boundary's nominal angle is the hall's switching error, the same every electrical
-    revolution (a constant per window, boundary and direction: hysteresis included), less the
-    encoder's low orders at that mechanical angle; least squares over both. The rotor's motion is
-    in neither reading. An order that is a multiple of the pole pairs repeats every electrical
+    revolution (a constant per boundary and direction: hysteresis included), less the encoder's
+    low orders at that mechanical angle; least squares over both, the windows together (each in
+    the block's frame: its hall-anchored fraction taken out, as for its segments), so that windows
+    shorter than a mechanical revolution add up to one. The rotor's motion is in neither reading. An order that is a multiple of the pole pairs repeats every electrical
     revolution like the halls' errors and cannot be told from them: left out.
 
     Returns ``(orders, coef, cov, n)``: ``coef`` (2 per order: cos, sin; rad electrical) such that
@@ -166,7 +167,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         y = np.interp(t_h, t, theta) + boundary_interp(x, fp.fp, N) - nominal
         xs.append(x)
         ys.append(y)
-        groups.append(ci * 12 + 2 * (begins - 1) + (direction < 0))
+        groups.append(2 * (begins - 1) + (direction < 0))
     if not xs:
         return "no placed window"
     x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(groups)
