@@ -141,8 +141,11 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
     revolution (a constant per boundary and direction: hysteresis included), less the encoder's
     low orders at that mechanical angle; least squares over both, the windows together (each in
     the block's frame: its hall-anchored fraction taken out, as for its segments), so that windows
-    shorter than a mechanical revolution add up to one. The rotor's motion is in neither reading. An order that is a multiple of the pole pairs repeats every electrical
-    revolution like the halls' errors and cannot be told from them: left out.
+    shorter than a mechanical revolution add up to one. The rotor's motion is in neither reading.
+    An order that is a multiple of the pole pairs repeats every electrical revolution like the
+    halls' errors and cannot be told from them: left out. Assumed: the halls' switching points
+    repeat every electrical revolution (the contract's hall table; a magnet's pole-to-pole
+    tolerance would put mechanical orders into them, which this would take for the encoder's).
 
     Returns ``(orders, coef, cov, n)``: ``coef`` (2 per order: cos, sin; rad electrical) such that
     ``order_columns(x) @ coef`` is what to subtract from the angle at positions ``x``, its
