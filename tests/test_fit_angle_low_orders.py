@@ -15,6 +15,7 @@ import pytest
 
 from eol_cal.analysis.fit import FitSpec
 from eol_cal.analysis.fit.capture import motor_inputs
+from eol_cal.analysis.fit.fp_angle import hall_low_orders
 from eol_cal.analysis.fit.motors import FitOptions, fit_motors
 from eol_cal.analysis.fit.table import uncompensated_block
 from eol_cal.analysis.result import STATUS_MODEL_MISMATCH, STATUS_OK
@@ -75,3 +76,21 @@ def test_a_wrong_bench_file_is_still_a_model_mismatch(eccentric):
                                                mechanics=wrong)).results[0]
     assert res.model_check["status"] == "mismatch" and res.model_check["p_value"] < 1e-6, res.model_check
     assert res.status == STATUS_MODEL_MISMATCH
+
+
+def test_hall_glitches_do_not_move_the_orders(eccentric):
+    run, mi = eccentric
+    clean = hall_low_orders(mi, mi.prints, mi.fingerprint)
+    assert not isinstance(clean, str)
+    cap = run.capture
+    hall = np.asarray(cap["hall"]).copy()
+    forward = {5: 1, 1: 3, 3: 2, 2: 6, 6: 4, 4: 5}
+    for i in np.linspace(len(hall) * 0.2, len(hall) * 0.8, 5).astype(int):
+        hall[i:i + 3] = forward[int(hall[i])]  # a neighbouring state for three samples, far from its boundary
+    glitched = dataclasses.replace(cap, channels=dict(cap.channels, hall=hall))
+    (mg,) = motor_inputs([glitched], mechanics=load_mechanics("paper"), estimator_options=BEST)
+    got = hall_low_orders(mg, mg.prints, mg.fingerprint)
+    assert not isinstance(got, str)
+    assert got[3] == clean[3]  # the ten glitch transitions dropped, the others kept
+    sd = np.sqrt(np.diag(clean[2]))
+    assert np.all(np.abs(got[1] - clean[1]) < 2 * sd)

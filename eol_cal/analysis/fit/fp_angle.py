@@ -48,6 +48,10 @@ HALL_ORDERS = tuple(range(1, LOW_ORDERS + 1))
 #: fewest hall transitions per fitted parameter for :func:`hall_low_orders`
 MIN_PER_PARAM = 4
 
+#: a hall transition whose residual is this many median absolute deviations out is dropped (a
+#: glitch to a neighbouring state); the timing noise of a clean one is bounded (a sample period)
+OUTLIER_MADS = 8.0
+
 
 def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
     """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
@@ -175,6 +179,24 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         return "no placed window"
     x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(groups)
     y = np.angle(np.exp(1j * (y - np.angle(np.mean(np.exp(1j * y))))))
+    got = _orders_lstsq(x, y, g, orders, N)
+    if isinstance(got, str):
+        return got
+    # a hall glitch to a neighbouring state is a transition far from its boundary: out, and again
+    res = got[2]
+    mad = float(np.median(np.abs(res - np.median(res))))
+    keep = np.abs(res) <= OUTLIER_MADS * max(mad, 1e-9)
+    if not keep.all():
+        got = _orders_lstsq(x[keep], y[keep], g[keep], orders, N)
+        if isinstance(got, str):
+            return got
+    return orders, got[0], got[1], len(got[2])
+
+
+def _orders_lstsq(x: np.ndarray, y: np.ndarray, g: np.ndarray, orders: tuple[int, ...], N: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
+    """:func:`hall_low_orders`' least squares: a constant per group ``g`` and the orders' columns at
+    ``x``; ``(the orders' coefficients, their covariance, the residuals)`` or why it cannot."""
     _, gi = np.unique(g, return_inverse=True)
     ng = int(gi.max()) + 1
     X = np.hstack([np.eye(ng)[gi], order_columns(x, orders, N)])
@@ -188,7 +210,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
     res = y - X @ beta
     Rinv = np.linalg.inv(R)
     cov = float(res @ res) / (n - p) * (Rinv @ Rinv.T)
-    return orders, beta[ng:], cov[ng:, ng:], n
+    return beta[ng:], cov[ng:, ng:], res
 
 
 def measure_fingerprint(mi: MotorInput) -> None:
