@@ -132,6 +132,54 @@ def hall_transition_angles(
     return np.where(direction != 0, angle, np.nan), direction
 
 
+def hall_transitions(
+    t: np.ndarray,
+    hall: np.ndarray,
+    events: tuple[np.ndarray, np.ndarray] | None = None,
+    hall_angles: Sequence[float] = NOMINAL_HALL_ANGLES,
+    source: str = "<memory>",
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every hall transition between neighbouring states (glitches that skip a state left out).
+
+    Parameters
+    ----------
+    t : ndarray
+        Sample times (s).
+    hall : ndarray
+        Hall states (1..6).
+    events : (ndarray, ndarray), optional
+        The hall channel's exact change events (``Capture.events["hall"]``).
+    hall_angles : sequence of 6 float
+        Angle (rad) at which hall state s begins in forward rotation, index s-1.
+    source : str
+        File name for error messages.
+
+    Returns
+    -------
+    t_h : ndarray
+        Transition times (s).
+    angle : ndarray
+        Electrical angle of the boundary crossed (rad).
+    direction : ndarray of int
+        +1 forward, -1 reverse.
+    begins : ndarray of int
+        The boundary crossed, named by the state that begins there in forward rotation (1..6).
+    """
+    hall = np.asarray(hall).astype(np.int64)
+    bad = (hall < 1) | (hall > 6)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(source, "hall", f"invalid hall state {hall[i]} at t = {t[i]:.6g} s (valid: 1..6)")
+    t_h, s_new = level_changes(t, hall, events)
+    s_old = np.concatenate(([hall[0]], s_new[:-1]))
+    if len(s_new) and ((s_new < 1) | (s_new > 6)).any():
+        raise InputError(source, "hall", "invalid hall state (0 or 7) in the change events")
+    angle, direction = hall_transition_angles(s_old, s_new, hall_angles)
+    good = direction != 0
+    begins = boundary_state(s_old, s_new, direction)[good]
+    return t_h[good], angle[good], direction[good], begins
+
+
 def _direction_at(t_query: np.ndarray, t_hall: np.ndarray, dir_hall: np.ndarray) -> np.ndarray:
     """Direction (+1/-1) of the hall transition nearest before each query time (first one before)."""
     idx = np.clip(np.searchsorted(t_hall, t_query, side="right") - 1, 0, len(t_hall) - 1)
@@ -183,19 +231,7 @@ def reconstruct_angle(
     """
     t = np.asarray(t, dtype=float)
     events = events or {}
-    hall = np.asarray(hall).astype(np.int64)
-    bad = (hall < 1) | (hall > 6)
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise InputError(source, "hall", f"invalid hall state {hall[i]} at t = {t[i]:.6g} s (valid: 1..6)")
-    t_h, s_new = level_changes(t, hall, events.get("hall"))
-    s_old = np.concatenate(([hall[0]], s_new[:-1]))
-    if len(s_new) and ((s_new < 1) | (s_new > 6)).any():
-        raise InputError(source, "hall", "invalid hall state (0 or 7) in the change events")
-    hall_theta, hall_dir = hall_transition_angles(s_old, s_new, hall_angles)
-    good = hall_dir != 0
-    begins = boundary_state(s_old, s_new, hall_dir)[good]
-    t_h, hall_theta, hall_dir = t_h[good], hall_theta[good], hall_dir[good]
+    t_h, hall_theta, hall_dir, begins = hall_transitions(t, hall, events.get("hall"), hall_angles, source)
     if len(t_h) < 2:
         raise InputError(source, "hall", "fewer than two hall transitions: no absolute angle reference")
 

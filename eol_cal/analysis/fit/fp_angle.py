@@ -9,10 +9,17 @@ so before the fit every sample of an identified window gets ``theta + error`` at
 between edges: the fit then works on the rotor's own angle, in the same frame (the block's,
 layout 2) in which the mechanical orders are reported.
 
-What cannot be corrected: the errors' mechanical orders 0..2 (the fingerprint cannot tell them
-from the motion, :mod:`eol_cal.analysis.fingerprint`), and B's edges are taken to carry the
-error of the A edge of the same wheel transition a quarter pitch before (B reads the same wheel:
-``eol_cal.firmware.kinematics``).
+The errors' mechanical orders 1..2, which the fingerprint cannot tell from the motion
+(:mod:`eol_cal.analysis.fingerprint`), are measured against the halls instead
+(:func:`hall_low_orders`): a hall transition and the encoder's angle at its instant are two
+position readings of the same rotor, so the motion drops out; the halls' own switching errors
+repeat every electrical revolution (one constant per boundary and direction), the encoder's orders
+1..2 do not (pole pairs >= 3). Left uncorrected, they move each segment's mean angle by up to
+0.1 electrical degree, as each segment covers a different part of a mechanical revolution, and
+the 6th's phase six times that: the speed bands and directions then disagree (the model check's
+false mismatches, issue 34). Order 0 is a frame offset, the same for every segment. B's edges are
+taken to carry the error of the A edge of the same wheel transition a quarter pitch before (B
+reads the same wheel: ``eol_cal.firmware.kinematics``).
 """
 
 from __future__ import annotations
@@ -23,7 +30,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.fingerprint_fit import POLY_DEGREE
+from eol_cal.analysis.angle import hall_transitions
+from eol_cal.analysis.fingerprint_fit import LOW_ORDERS, POLY_DEGREE
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.motor_input import MotorInput
@@ -32,6 +40,17 @@ if TYPE_CHECKING:
 #: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
 #: segments of eol-default settle slowly after their ramp)
 EXTEND_TOL = 0.1
+
+#: the encoder errors' mechanical orders measured against the halls: those the fingerprint leaves
+#: out but a frame offset (order 0)
+HALL_ORDERS = tuple(range(1, LOW_ORDERS + 1))
+
+#: fewest hall transitions per fitted parameter for :func:`hall_low_orders`
+MIN_PER_PARAM = 4
+
+#: a hall transition whose residual is this many median absolute deviations out is dropped (a
+#: glitch to a neighbouring state); the timing noise of a clean one is bounded (a sample period)
+OUTLIER_MADS = 8.0
 
 
 def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
@@ -87,13 +106,111 @@ def angle_correction(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndar
     window's offset ``r`` into the frame, the firmware-frame angle ``theta_fw`` (rad): the
     boundary errors (:func:`boundary_errors`) interpolated linearly at each sample's position
     between its boundaries."""
-    M = 4 * N
+    return boundary_interp(boundary_position(q, r, grid_phase, theta_fw, poles, N), fp, N)
+
+
+def boundary_position(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, poles: int, N: int
+                      ) -> np.ndarray:
+    """Each sample's position ``x`` in the block's frame, in quadrature boundaries (unwrapped:
+    boundary ``k`` at ``x = k``), from its window count ``q``, the window's offset ``r``, the
+    frame's grid phase (rad) and the firmware-frame angle ``theta_fw`` (rad electrical), which
+    places it between its boundaries."""
     quarter = poles * math.pi / N / 4.0
     k = np.asarray(q, dtype=np.int64) + 4 * int(r)
     Ek = grid_phase + k * quarter
-    x = k + np.remainder(np.asarray(theta_fw, dtype=float) - Ek + math.pi, 2 * math.pi) / quarter - math.pi / quarter
+    return k + np.remainder(np.asarray(theta_fw, dtype=float) - Ek + math.pi, 2 * math.pi) / quarter - math.pi / quarter
+
+
+def boundary_interp(x: np.ndarray, fp: np.ndarray, N: int) -> np.ndarray:
+    """The boundary errors (:func:`boundary_errors`, rad electrical) interpolated linearly at positions ``x``."""
+    M = 4 * N
     err = boundary_errors(fp, N)
     return np.interp(np.mod(x, M), np.arange(M + 1), np.append(err, err[0]))
+
+
+def order_columns(x: np.ndarray, orders: tuple[int, ...], N: int) -> np.ndarray:
+    """``cos(m phi), sin(m phi)`` per order ``m`` (columns, in that order) at positions ``x``
+    (quadrature boundaries), ``phi = 2 pi x / (4 N)`` the mechanical angle from boundary 0."""
+    phi = 2.0 * math.pi * np.asarray(x, dtype=float) / (4 * N)
+    return np.column_stack([f(m * phi) for m in orders for f in (np.cos, np.sin)]) if orders else np.zeros((len(phi), 0))
+
+
+def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fpr.Fingerprint
+                    ) -> tuple[tuple[int, ...], np.ndarray, np.ndarray, int] | str:
+    """The encoder errors' mechanical orders :data:`HALL_ORDERS` (those the fingerprint cannot see),
+    measured on the placed windows' hall transitions.
+
+    At each transition the encoder's angle (the offline angle, the fingerprint's correction added)
+    less the boundary's nominal angle is the hall's switching error, the same every electrical
+    revolution (a constant per boundary and direction: hysteresis included), less the encoder's
+    low orders at that mechanical angle; least squares over both, the windows together (each in
+    the block's frame: its hall-anchored fraction taken out, as for its segments), so that windows
+    shorter than a mechanical revolution add up to one. The rotor's motion is in neither reading.
+    An order that is a multiple of the pole pairs repeats every electrical revolution like the
+    halls' errors and cannot be told from them: left out. Assumed: the halls' switching points
+    repeat every electrical revolution (the contract's hall table; a magnet's pole-to-pole
+    tolerance would put mechanical orders into them, which this would take for the encoder's).
+
+    Returns ``(orders, coef, cov, n)``: ``coef`` (2 per order: cos, sin; rad electrical) such that
+    ``order_columns(x) @ coef`` is what to subtract from the angle at positions ``x``, its
+    covariance, and the transitions used; or, when it cannot be measured, why not.
+    """
+    pp = mi.poles // 2
+    orders = tuple(m for m in HALL_ORDERS if m % pp)
+    if not orders:
+        return f"orders {HALL_ORDERS} repeat every electrical revolution ({pp} pole pairs): not separable from the halls"
+    N = mi.encoder_ppr
+    xs, ys, groups = [], [], []
+    for ci, (cap, ang, edges, r) in enumerate(zip(mi.captures, mi.angles, prints, fp.offsets, strict=True)):
+        if edges is None or r is None:
+            continue
+        t = np.asarray(cap.t, dtype=float)
+        t_h, nominal, direction, begins = hall_transitions(t, cap["hall"], cap.events.get("hall"), source=cap.source)
+        inside = (t_h >= max(ang.t_span[0], t[0])) & (t_h <= min(ang.t_span[1], t[-1]))
+        t_h, nominal, direction, begins = t_h[inside], nominal[inside], direction[inside], begins[inside]
+        frac = mi.window_frac[ci] if mi.window_frac else 0.0
+        theta = np.asarray(ang.theta_r, dtype=float) - frac
+        x = np.interp(t_h, t, boundary_position(edges.q, r, fp.grid_phase, theta + mi.frame_offset_rad, mi.poles, N))
+        y = np.interp(t_h, t, theta) + boundary_interp(x, fp.fp, N) - nominal
+        xs.append(x)
+        ys.append(y)
+        groups.append(2 * (begins - 1) + (direction < 0))
+    if not xs:
+        return "no placed window"
+    x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(groups)
+    y = np.angle(np.exp(1j * (y - np.angle(np.mean(np.exp(1j * y))))))
+    got = _orders_lstsq(x, y, g, orders, N)
+    if isinstance(got, str):
+        return got
+    # a hall glitch to a neighbouring state is a transition far from its boundary: out, and again
+    res = got[2]
+    mad = float(np.median(np.abs(res - np.median(res))))
+    keep = np.abs(res) <= OUTLIER_MADS * max(mad, 1e-9)
+    if not keep.all():
+        got = _orders_lstsq(x[keep], y[keep], g[keep], orders, N)
+        if isinstance(got, str):
+            return got
+    return orders, got[0], got[1], len(got[2])
+
+
+def _orders_lstsq(x: np.ndarray, y: np.ndarray, g: np.ndarray, orders: tuple[int, ...], N: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
+    """:func:`hall_low_orders`' least squares: a constant per group ``g`` and the orders' columns at
+    ``x``; ``(the orders' coefficients, their covariance, the residuals)`` or why it cannot."""
+    _, gi = np.unique(g, return_inverse=True)
+    ng = int(gi.max()) + 1
+    X = np.hstack([np.eye(ng)[gi], order_columns(x, orders, N)])
+    n, p = X.shape
+    if n < MIN_PER_PARAM * p:
+        return f"{n} hall transitions for {p} parameters (at least {MIN_PER_PARAM} a parameter)"
+    Q, R = np.linalg.qr(X)
+    if np.linalg.matrix_rank(R) < p:
+        return f"the {n} hall transitions do not span the mechanical revolution"
+    beta = np.linalg.solve(R, Q.T @ y)
+    res = y - X @ beta
+    Rinv = np.linalg.inv(R)
+    cov = float(res @ res) / (n - p) * (Rinv @ Rinv.T)
+    return beta[ng:], cov[ng:, ng:], res
 
 
 def measure_fingerprint(mi: MotorInput) -> None:
@@ -121,6 +238,8 @@ def measure_fingerprint(mi: MotorInput) -> None:
     # of its part of the firmware frame offset, measured against the angle before)
     frac = [0.0 if sc is None or r is None else float(sc[0]) for sc, r in zip(fp.scores or [None] * len(prints),
                                                                              fp.offsets, strict=True)]
+    mi.window_frac = frac
+    low = hall_low_orders(mi, prints, fp)
     n = 0
     for s, info in enumerate(mi.info):
         ci = mi.capture_of_segment[s]
@@ -128,16 +247,26 @@ def measure_fingerprint(mi: MotorInput) -> None:
         if edges is None or offset is None:
             continue
         theta = np.asarray(seg.theta[s], dtype=float) - frac[ci]
-        corr = angle_correction(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
-                                fp.fp, mi.poles, mi.encoder_ppr)
+        x = boundary_position(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
+                              mi.poles, mi.encoder_ppr)
+        corr = boundary_interp(x, fp.fp, mi.encoder_ppr)
+        if not isinstance(low, str):
+            corr = corr - order_columns(x, low[0], mi.encoder_ppr) @ low[1]
         seg.theta[s] = theta + corr
         n += 1
-    mi.window_frac = frac
     if mi.frame_parts is not None and any(frac):
         total = sum(part[0] * np.exp(1j * frac[ci]) for ci, part in enumerate(mi.frame_parts) if part is not None)
         mi.frame_offset_rad = float(np.angle(total))
     aligned = sum(1 for f, r in zip(frac, fp.offsets, strict=True) if r is not None)
-    mi.angle_correction = f"fingerprint ({n} of {seg.n_segments} segments, {aligned} window(s) in one frame)"
+    if isinstance(low, str):
+        lows = f"its mechanical orders {', '.join(map(str, HALL_ORDERS))} not corrected: {low}"
+    else:
+        pp = mi.poles // 2
+        amp = ", ".join(f"{m}: {math.degrees(math.hypot(*low[1][2 * j:2 * j + 2])) / pp:.4f}"
+                        for j, m in enumerate(low[0]))
+        lows = f"its mechanical orders from {low[3]} hall transitions (mech deg {amp})"
+    mi.angle_correction = (f"fingerprint ({n} of {seg.n_segments} segments, {aligned} window(s) in one frame; "
+                           f"{lows})")
 
 
 def edge_residual_correlation(fp: fpr.Fingerprint, prints: list[fpr.WindowEdges | None], poles: int, N: int) -> float:
