@@ -269,7 +269,7 @@ def summary(rows: list[dict]) -> list[tuple[str, int, float, float, float]]:
     names = list(dict.fromkeys(r["quantity"] for r in rows if r["quantity"] != "status" and r["ci95"] is not None))
     out = []
     for q in names:
-        sub = [r for r in rows if r["quantity"] == q]
+        sub = [r for r in rows if r["quantity"] == q and r["ci95"] is not None]  # no interval: nothing to cover
         ratio = np.array([abs(r["err"]) / r["ci95"] if r["ci95"] else np.inf for r in sub])
         cov = float(np.mean(ratio <= 1.0))
         out.append((q, len(sub), cov, math.sqrt(cov * (1 - cov) / len(sub)), float(np.median(ratio))))

@@ -40,6 +40,11 @@ if TYPE_CHECKING:
 
 #: z of a two-sided 95 % interval
 _Z95 = 1.959963984540054
+#: the fewest segments whose scatter (the delete-one-segment jackknife, S - 1 degrees of freedom) an
+#: order's interval may rest on: the noise's interval alone does not cover (orders 1-2's errors
+#: 1.3-1.8x it on plant motors), and two segments give one degree of freedom (Student's t 12.7: order
+#: 1 +-54 N*m on the typed golden one_load), an interval that says nothing; fewer: no interval
+MIN_SEGMENTS = 3
 
 
 def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
@@ -129,16 +134,20 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     # the drift), where that noise is largest and matters least: it widened the intervals 3-5x,
     # covering the truth for every motor
     S = len(shares)
-    if S >= 2:
-        from scipy.special import stdtrit  # heavy: only where mechanical orders are fitted
+    if S < MIN_SEGMENTS:
+        why = (f"no interval: {S} segment{'s' if S != 1 else ''} in identified windows, the segments' scatter "
+               f"needs at least {MIN_SEGMENTS} (fit more load points or speeds)")
+        return tuple(MechOrder(h, ValueCi(math.hypot(sol[2 * i], sol[2 * i + 1]), None),
+                               ValueCi(math.atan2(sol[2 * i + 1], sol[2 * i]), None), why) for i, h in enumerate(ORDERS))
+    from scipy.special import stdtrit  # heavy: only where mechanical orders are fitted
 
-        loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
-        dev = loo - loo.mean(axis=0)
-        jk = (S - 1) / S * (dev.T @ dev) * (float(stdtrit(S - 1, 0.975)) / _Z95) ** 2
-        for i in range(H):  # per order the wider of the two (only each order's own pair is reported)
-            sl = slice(2 * i, 2 * i + 2)
-            if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
-                cov[sl, sl] = jk[sl, sl]
+    loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
+    dev = loo - loo.mean(axis=0)
+    jk = (S - 1) / S * (dev.T @ dev) * (float(stdtrit(S - 1, 0.975)) / _Z95) ** 2
+    for i in range(H):  # per order the wider of the two (only each order's own pair is reported)
+        sl = slice(2 * i, 2 * i + 2)
+        if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
+            cov[sl, sl] = jk[sl, sl]
     out = []
     for i, h in enumerate(ORDERS):
         a, b = sol[2 * i], sol[2 * i + 1]
