@@ -7,7 +7,9 @@ document built as a dict, parsed back into ``MotorResult`` where the station nee
 captures :func:`write_captures` makes, and written again when the model check's test changed (issue
 34: the bands' covariance and the 6th's own noise; only ``model_check``'s figures moved), and when
 the mechanical orders' intervals changed (issue 34: the noise at each order and the segments'
-jackknife; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved); write
+jackknife; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved), and when a fit of fewer than 3
+segments stopped giving the orders an interval (``one_load.json`` alone: null intervals and a
+``no_interval`` reason); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """
