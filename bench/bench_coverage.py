@@ -264,6 +264,15 @@ def motor_rows(p, run, mi, res: MotorResult, cur: dict[str, complex] | None = No
     return out
 
 
+def write_rows(path: Path, rows: list[dict]) -> None:
+    """Every judged interval as JSON, written atomically (a reader never sees half a file)."""
+    import json
+
+    from eol_cal.infra.atomic import atomic_write
+
+    atomic_write(path, json.dumps(rows, indent=1))
+
+
 def summary(rows: list[dict]) -> list[tuple[str, int, float, float, float]]:
     """Per quantity: (name, n, covered share, its standard error, median |err| / ci95)."""
     names = list(dict.fromkeys(r["quantity"] for r in rows if r["quantity"] != "status" and r["ci95"] is not None))
@@ -329,13 +338,12 @@ def main() -> None:
             for p, run, mi, res in zip(plants, runs, inputs, results, strict=True):
                 for row in motor_rows(p, run, mi, res):
                     rows.append({"seed": p.serial, **row})
-            progress.update(task, completed=len(seeds) + first - args.first_seed)
+            if args.json:  # after every batch: a run stopped early keeps the motors it fitted
+                write_rows(Path(args.json), rows)
+            done = len(seeds) + first - args.first_seed
+            progress.update(task, completed=done)
+            print(f"{done} motors fitted, {time.perf_counter() - t_start:.0f} s, load {os.getloadavg()[0]:.1f}", flush=True)
     wall = time.perf_counter() - t_start
-    if args.json:
-        import json
-
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=1)
     bad = [r for r in rows if r["quantity"] == "status"]
     print(f"{args.motors} motors, {len(bad)} fits not usable; wall {wall:.0f} s (simulation {t_sim[0]:.0f} s, "
           f"cache reads {t_load[0]:.0f} s, fits {t_fit:.0f} s; {wall / args.motors:.2f} s a motor), "
