@@ -295,6 +295,7 @@ def main() -> None:
                     "back: a refit of the same motors costs only the fit")
     ap.add_argument("--json", help="write every judged interval here")
     ap.add_argument("--simulate-only", action="store_true", help="fill --cache, fit nothing")
+    ap.add_argument("--fit-chunk", type=int, default=8, help="motors fitted together (the rows are written after each)")
     args = ap.parse_args()
 
     from rich.progress import Progress
@@ -331,18 +332,22 @@ def main() -> None:
             if args.simulate_only:
                 progress.update(task, completed=len(seeds) + first - args.first_seed)
                 continue
-            t0 = time.perf_counter()
-            inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
-            results = fit_inputs(inputs, options).results
-            t_fit += time.perf_counter() - t0
-            for p, run, mi, res in zip(plants, runs, inputs, results, strict=True):
-                for row in motor_rows(p, run, mi, res):
-                    rows.append({"seed": p.serial, **row})
-            if args.json:  # after every batch: a run stopped early keeps the motors it fitted
-                write_rows(Path(args.json), rows)
-            done = len(seeds) + first - args.first_seed
-            progress.update(task, completed=done)
-            print(f"{done} motors fitted, {time.perf_counter() - t_start:.0f} s, load {os.getloadavg()[0]:.1f}", flush=True)
+            # fitted a few at a time, the rows written after each: a run stopped early keeps what it fitted
+            for c in range(0, len(runs), args.fit_chunk):
+                chunk = slice(c, c + args.fit_chunk)
+                t0 = time.perf_counter()
+                inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs[chunk]]
+                results = fit_inputs(inputs, options).results
+                t_fit += time.perf_counter() - t0
+                for p, run, mi, res in zip(plants[chunk], runs[chunk], inputs, results, strict=True):
+                    for row in motor_rows(p, run, mi, res):
+                        rows.append({"seed": p.serial, **row})
+                if args.json:
+                    write_rows(Path(args.json), rows)
+                done = first - args.first_seed + min(c + args.fit_chunk, len(runs))
+                progress.update(task, completed=done)
+                print(f"{done} motors fitted, {time.perf_counter() - t_start:.0f} s, load {os.getloadavg()[0]:.1f}",
+                      flush=True)
     wall = time.perf_counter() - t_start
     bad = [r for r in rows if r["quantity"] == "status"]
     print(f"{args.motors} motors, {len(bad)} fits not usable; wall {wall:.0f} s (simulation {t_sim[0]:.0f} s, "
