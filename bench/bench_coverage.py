@@ -264,12 +264,21 @@ def motor_rows(p, run, mi, res: MotorResult, cur: dict[str, complex] | None = No
     return out
 
 
+def write_rows(path: Path, rows: list[dict]) -> None:
+    """Every judged interval as JSON, written atomically (a reader never sees half a file)."""
+    import json
+
+    from eol_cal.infra.atomic import atomic_write
+
+    atomic_write(path, json.dumps(rows, indent=1))
+
+
 def summary(rows: list[dict]) -> list[tuple[str, int, float, float, float]]:
     """Per quantity: (name, n, covered share, its standard error, median |err| / ci95)."""
     names = list(dict.fromkeys(r["quantity"] for r in rows if r["quantity"] != "status" and r["ci95"] is not None))
     out = []
     for q in names:
-        sub = [r for r in rows if r["quantity"] == q]
+        sub = [r for r in rows if r["quantity"] == q and r["ci95"] is not None]  # no interval: nothing to cover
         ratio = np.array([abs(r["err"]) / r["ci95"] if r["ci95"] else np.inf for r in sub])
         cov = float(np.mean(ratio <= 1.0))
         out.append((q, len(sub), cov, math.sqrt(cov * (1 - cov) / len(sub)), float(np.median(ratio))))
@@ -286,6 +295,7 @@ def main() -> None:
                     "back: a refit of the same motors costs only the fit")
     ap.add_argument("--json", help="write every judged interval here")
     ap.add_argument("--simulate-only", action="store_true", help="fill --cache, fit nothing")
+    ap.add_argument("--fit-chunk", type=int, default=8, help="motors fitted together (the rows are written after each)")
     args = ap.parse_args()
 
     from rich.progress import Progress
@@ -322,20 +332,23 @@ def main() -> None:
             if args.simulate_only:
                 progress.update(task, completed=len(seeds) + first - args.first_seed)
                 continue
-            t0 = time.perf_counter()
-            inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs]
-            results = fit_inputs(inputs, options).results
-            t_fit += time.perf_counter() - t0
-            for p, run, mi, res in zip(plants, runs, inputs, results, strict=True):
-                for row in motor_rows(p, run, mi, res):
-                    rows.append({"seed": p.serial, **row})
-            progress.update(task, completed=len(seeds) + first - args.first_seed)
+            # fitted a few at a time, the rows written after each: a run stopped early keeps what it fitted
+            for c in range(0, len(runs), args.fit_chunk):
+                chunk = slice(c, c + args.fit_chunk)
+                t0 = time.perf_counter()
+                inputs = [motor_inputs([r.capture], mechanics=bench, estimator_options=best)[0] for r in runs[chunk]]
+                results = fit_inputs(inputs, options).results
+                t_fit += time.perf_counter() - t0
+                for p, run, mi, res in zip(plants[chunk], runs[chunk], inputs, results, strict=True):
+                    for row in motor_rows(p, run, mi, res):
+                        rows.append({"seed": p.serial, **row})
+                if args.json:
+                    write_rows(Path(args.json), rows)
+                done = first - args.first_seed + min(c + args.fit_chunk, len(runs))
+                progress.update(task, completed=done)
+                print(f"{done} motors fitted, {time.perf_counter() - t_start:.0f} s, load {os.getloadavg()[0]:.1f}",
+                      flush=True)
     wall = time.perf_counter() - t_start
-    if args.json:
-        import json
-
-        with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=1)
     bad = [r for r in rows if r["quantity"] == "status"]
     print(f"{args.motors} motors, {len(bad)} fits not usable; wall {wall:.0f} s (simulation {t_sim[0]:.0f} s, "
           f"cache reads {t_load[0]:.0f} s, fits {t_fit:.0f} s; {wall / args.motors:.2f} s a motor), "

@@ -7,10 +7,12 @@ document built as a dict, parsed back into ``MotorResult`` where the station nee
 captures :func:`write_captures` makes, and written again when the model check's test changed (issue
 34: the bands' covariance and the 6th's own noise; only ``model_check``'s figures moved), and when
 the mechanical orders' intervals changed (issue 34: the noise at each order and the segments'
-jackknife; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved), and when the fit's angle
+jackknife; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved), when the fit's angle
 took out the encoder errors' mechanical orders 1-2 measured against the halls (issue 34: the
 model check's false mismatches; ``angle_correction`` says so, the estimates moved by the orders'
-noise on these ideal encoders, k6 by 1e-5 relative); write
+noise on these ideal encoders, k6 by 1e-5 relative), and when a fit of fewer than 3 segments
+stopped giving the orders an interval and the intervals took the segments' scatter from 7
+segments on (``one_load.json``: null intervals and a ``no_interval`` reason); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """

@@ -352,14 +352,20 @@ FP_MAX_RAD = 1.0
 @dataclass(frozen=True)
 class MechOrder:
     """One mechanical order: load-independent ripple ``c`` (N*m) and its phase (rad, the block's
-    mechanical frame), each with its 95 % interval."""
+    mechanical frame), each with its 95 % interval; ``no_interval`` says why both intervals are
+    None where the fit cannot give an honest one (JSON key ``no_interval``, written only then: a
+    document without it reads as before)."""
 
     order: int
     c: ValueCi
     phase_c: ValueCi
+    no_interval: str | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {"order": self.order, "c": self.c.to_json(), "phase_c": self.phase_c.to_json()}
+        out: dict[str, Any] = {"order": self.order, "c": self.c.to_json(), "phase_c": self.phase_c.to_json()}
+        if self.no_interval is not None:
+            out["no_interval"] = self.no_interval
+        return out
 
 
 @dataclass(frozen=True)
@@ -447,7 +453,8 @@ class MechResult:
             if order not in ORDERS or order in (o.order for o in orders):
                 raise osub.error("order", f"{order}: the block carries mechanical orders {ORDERS}, each once")
             orders.append(MechOrder(order, osub.value_ci(oo, "c", (0.0, C6_MAX)),
-                                    osub.value_ci(oo, "phase_c", (-PHASE_MAX, PHASE_MAX))))
+                                    osub.value_ci(oo, "phase_c", (-PHASE_MAX, PHASE_MAX)),
+                                    osub.string(oo, "no_interval") if "no_interval" in oo else None))
         return cls(status=status, reasons=tuple(r.string_list(obj, "reasons")), fingerprint=fps, sigma=sgs, dirs=dirs,
                    grid_phase=r.number(obj, "grid_phase", (0.0, 2 * math.pi)), windows=tuple(windows),
                    score=sub.number(m, "score", (-1.5, 1.5)), margin=sub.number(m, "predicted", (-3.0, 3.0)),

@@ -367,7 +367,7 @@ def mech_section(rec: RunRecord) -> dict[str, Any] | None:
     rows = []
     for o in m.orders:
         amp = _estimate(o.c, "N*m")
-        fitted = f"{amp}, phase {_estimate(o.phase_c, 'rad', 3)}"
+        fitted = f"{amp}, phase {_estimate(o.phase_c, 'rad', 3)}" + (f" ({o.no_interval})" if o.no_interval else "")
         left = (f"{_fmt(after * 1e3, 3)} mN*m (uncompensated {_fmt(before * 1e3, 3)} mN*m)"
                 if o.order == 1 and after is not None and before is not None else "-")  # both None without metrics
         rows.append((o.order, fitted, left))

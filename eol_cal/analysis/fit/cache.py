@@ -21,7 +21,7 @@ from eol_cal.infra.atomic import atomic_write
 #: environment variable naming the cache directory (``off``: no cache)
 CACHE_ENV = "EOL_CAL_JAX_CACHE"
 #: part of every solver file's key: bump it when the solver's program changes
-_EXPORT_TAG = "eol-cal-fit-solve-5"
+_EXPORT_TAG = "eol-cal-fit-solve-6"
 
 
 def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:

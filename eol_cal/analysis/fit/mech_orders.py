@@ -40,6 +40,11 @@ if TYPE_CHECKING:
 
 #: z of a two-sided 95 % interval
 _Z95 = 1.959963984540054
+#: the fewest segments whose scatter (the delete-one-segment jackknife, S - 1 degrees of freedom) an
+#: order's interval may rest on: the noise's interval alone does not cover (orders 1-2's errors
+#: 1.3-1.8x it on plant motors), and two segments give one degree of freedom (Student's t 12.7: order
+#: 1 +-54 N*m on the typed golden one_load), an interval that says nothing; fewer: no interval
+MIN_SEGMENTS = 3
 
 
 def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.WindowEdges | None],
@@ -115,7 +120,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     # white-equivalent noise each order has there (per pair, order_noise) on the least squares' M_s
     C = np.zeros_like(M)
     for (Ms, _), e_s, (th_m, t, w_m, cur_res, path) in zip(shares, res_parts, lines, strict=True):
-        d = np.repeat(np.sqrt(order_noise(e_s, cur_res, th_m, t, w_m, spec, fit.delay_s, path)), 2)
+        d = np.repeat(np.sqrt(order_noise(e_s, cur_res, th_m, t, w_m, spec, fit.delay_s, path, pp)), 2)
         C += d[:, None] * Ms * d[None, :]
     M_inv = np.linalg.inv(M)
     cov = M_inv @ C @ M_inv
@@ -129,16 +134,20 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
     # the drift), where that noise is largest and matters least: it widened the intervals 3-5x,
     # covering the truth for every motor
     S = len(shares)
-    if S >= 2:
-        from scipy.special import stdtrit  # heavy: only where mechanical orders are fitted
+    if S < MIN_SEGMENTS:
+        why = (f"no interval: {S} segment{'s' if S != 1 else ''} in identified windows, the segments' scatter "
+               f"needs at least {MIN_SEGMENTS} (fit more load points or speeds)")
+        return tuple(MechOrder(h, ValueCi(math.hypot(sol[2 * i], sol[2 * i + 1]), None),
+                               ValueCi(math.atan2(sol[2 * i + 1], sol[2 * i]), None), why) for i, h in enumerate(ORDERS))
+    from scipy.special import stdtrit  # heavy: only where mechanical orders are fitted
 
-        loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
-        dev = loo - loo.mean(axis=0)
-        jk = (S - 1) / S * (dev.T @ dev) * (float(stdtrit(S - 1, 0.975)) / _Z95) ** 2
-        for i in range(H):  # per order the wider of the two (only each order's own pair is reported)
-            sl = slice(2 * i, 2 * i + 2)
-            if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
-                cov[sl, sl] = jk[sl, sl]
+    loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
+    dev = loo - loo.mean(axis=0)
+    jk = (S - 1) / S * (dev.T @ dev) * (float(stdtrit(S - 1, 0.975)) / _Z95) ** 2
+    for i in range(H):  # per order the wider of the two (only each order's own pair is reported)
+        sl = slice(2 * i, 2 * i + 2)
+        if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
+            cov[sl, sl] = jk[sl, sl]
     out = []
     for i, h in enumerate(ORDERS):
         a, b = sol[2 * i], sol[2 * i + 1]
@@ -184,12 +193,14 @@ def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray
 
 #: an order's noise is measured on the neighbouring frequencies ``h f_m + k / T`` of a segment
 #: (T its length; :func:`eol_cal.analysis.fit.model.noise_bins`) less those within NOISE_GAP / T of
-#: 0 Hz (the drift polynomial's band) or of an order's line (+-h f_m: its leakage)
+#: 0 Hz (the drift polynomial's band), of an order's line (+-h f_m: its leakage) or of a fitted
+#: electrical harmonic's (its lack of fit)
 NOISE_GAP = 1.5
 
 
 def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t: np.ndarray, w_m: float,
-                spec: FitSpec, tau_s: float, path: Callable[[np.ndarray], np.ndarray] | None) -> np.ndarray:
+                spec: FitSpec, tau_s: float, path: Callable[[np.ndarray], np.ndarray] | None,
+                pole_pairs: int = 0) -> np.ndarray:
     """The white-equivalent noise variance (N*m^2) at each mechanical order of one segment.
 
     The residual's phasor ``(2 / n) sum e exp(-i (h theta_m + 2 pi k t / T))`` at the order's
@@ -212,6 +223,9 @@ def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t
         The segment's mechanical speed (rad/s, signed).
     spec, tau_s, path
         The fit's transducer model and time constant (s), and the bench's response (None: 1).
+    pole_pairs : int
+        P/2: the fitted electrical harmonics ``spec.harmonics`` sit at ``h P/2 w_m``; their lines
+        are no noise bins either (0: not excluded).
 
     Returns
     -------
@@ -221,7 +235,11 @@ def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t
     """
     n, T = len(t), float(t[-1] - t[0])
     k = noise_bins()
-    lines = np.concatenate([[0.0], np.outer(ORDERS, [w_m, -w_m]).ravel()])
+    # the fit's lines (the drift at 0, the orders, the electrical harmonics) hold its lack of fit, not
+    # noise: the 6th's, 4-11x the noise beside it on plant motors, sat in order 3's bins at 60 rpm
+    # (18 f_m = 3 f_m + 5 / T on eol-default's 1/3 s segments) and widened its interval beyond its errors
+    rates = list(ORDERS) + [h * pole_pairs for h in spec.harmonics if pole_pairs]
+    lines = np.concatenate([[0.0], np.outer(rates, [w_m, -w_m]).ravel()])
     out = np.empty(len(ORDERS))
     for i, h in enumerate(ORDERS):
         omega = h * w_m + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)

@@ -85,9 +85,11 @@ class MotorFit:
         return self.solver_result == "successful" and self.finite
 
 
-#: the least degrees of freedom of one harmonic's own lack of fit for it to widen that harmonic's
-#: intervals alone (fewer: the lack of fit pooled over every harmonic widens them)
-MIN_DOF_OWN_LACK_OF_FIT = 8.0
+#: the least segments whose scatter (:func:`segment_scatter`) gives the intervals: fewer leave the
+#: scatter's variance under 6 degrees of freedom (Student's t over 2.45) and the cluster estimate's
+#: own small-sample bias large; there the lack of fit pooled over every harmonic's rows widens
+#: every parameter alike
+MIN_SEGMENTS_SCATTER = 7
 
 def shift_frame(fit: MotorFit, offset_rad: float, offset_sd_rad: float = 0.0) -> MotorFit:
     """The same fit with its phases in a frame ``theta' = theta + offset_rad`` (rad, electrical).
@@ -128,11 +130,47 @@ def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
     return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), float(wrap_pi(math.atan2(b, a))), Z95 * math.sqrt(max(var_ph, 0.0)))
 
 
+def segment_scatter(out: dict, valid: np.ndarray) -> np.ndarray:
+    """The parameters' covariance from the segments' scatter (cluster-robust, each segment a cluster).
+
+    ``C (sum_s u_s u_s^T) C S / (S - 1)``, ``C = (J^T J)^-1`` and ``u_s = J_s^T r_s`` segment s's
+    share of the gradient (the solver's ``score``): what differs from segment to segment, in the
+    direction each parameter sees it. The noise at the harmonics is neither white (4-11x white
+    beside the 6th) nor alike in every segment (its load and speed), and the model errs between
+    segments (the path's and the transducer's gain against speed): a ratio of the residual rows to
+    the white noise, spread over every direction and segment alike, widened the phases and the
+    delay 1.2-1.8x beyond their errors (bench/bench_coverage.py).
+    """
+    u = np.asarray(out["score"], dtype=float)[valid]
+    S = u.shape[0]
+    C = np.asarray(out["cov_unscaled"], dtype=float)
+    return C @ (u.T @ u) @ C * (S / max(S - 1, 1))
+
+
+def _quantity_blocks(spec: FitSpec) -> list[slice]:
+    """The parameter blocks of the reported quantities: the delay, then each part's cos/sin pair per harmonic."""
+    n_tau = int(spec.fit_delay)
+    return [slice(0, n_tau)] * n_tau + [slice(i, i + 2) for i in range(n_tau, n_tau + spec.n_glob, 2)]
+
+
+def _wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slice]) -> np.ndarray:
+    """``scatter``, with each reported quantity's block (and its rows and columns) the noise's where that is wider."""
+    cov = scatter.copy()
+    for b in blocks:
+        if np.trace(noise[b, b]) > np.trace(scatter[b, b]):
+            cov[b, :], cov[:, b] = noise[b, :], noise[:, b]
+    return cov
+
+
 def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit:
     """Turn the solver's arrays for one motor into a :class:`MotorFit`.
 
-    The covariance is ``s^2 (J^T J)^-1`` with ``s^2 = SSR / (n - n_parameters)``, counting the
-    projected nuisance parameters; amplitude/phase intervals follow by the delta method.
+    The noise's covariance is ``s^2 (J^T J)^-1`` with ``s^2 = SSR / (n - n_parameters)``, counting
+    the projected nuisance parameters; with ``spec.lack_of_fit`` each reported quantity (the delay,
+    each part's pair per harmonic) gets the wider of it and the segments' scatter
+    (:func:`segment_scatter`, Student's t with S - 1 degrees of freedom) from
+    :data:`MIN_SEGMENTS_SCATTER` segments on, the noise's widened by the pooled lack of fit (Birge
+    ratio) below. Amplitude/phase intervals follow by the delta method.
     """
     p = np.asarray(out["p"], dtype=float)
     n_tau = int(spec.fit_delay)
@@ -154,37 +192,15 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         # every `eol-cal fit` to import (issue 37)
         from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
-        # per harmonic: the 6th's lack of fit is not the 12th's or the 18th's (pooled, the 6th's
-        # intervals covered the truth for 85 % of plant motors, bench/bench_coverage.py); each
-        # harmonic's parameters widened by the ratio of its own rows (R is upper triangular, the
-        # harmonics nearly orthogonal: its two rows per segment hold its lack of fit), the delay
-        # by the largest
-        g = np.asarray(out["g"], dtype=float)
-        r = comp.z[:, q:] - np.einsum("sij,sj->si", comp.R[:, q:, q:], g)
-        r = r[valid]
-        n_parts = int(spec.fit_c) + int(spec.fit_k)
-        scale = np.ones(len(p))
-        widen = []
-        for ih in range(nh):
-            dof_h = float(valid.sum()) * 2 - 2 * n_parts - n_tau / nh
-            # a ratio from a few segments is itself too uncertain to narrow an interval with (two
-            # segments of one load point: 2 dof, and the 6th's own ratio came out below the pool's
-            # while its k6 missed the truth by 1.4 intervals): there the pool's ratio stands
-            own = dof_h >= MIN_DOF_OWN_LACK_OF_FIT and s2 > 0
-            ratio = float((r[:, 2 * ih: 2 * ih + 2] ** 2).sum()) / dof_h / s2 if own else birge
-            dof = dof_h if own else dof_red
-            # the wider of two intervals: the noise's (s2 from thousands of samples: the normal's
-            # 1.96) and the lack of fit's, whose variance is estimated from the segments' few
-            # degrees of freedom (eol-default's 8 segments: 11.7), so its 95 % point is Student's t
-            # (2.18 there), not 1.96: with 1.96 k6 and c6 covered 92-94 % of plant motors
-            t95 = float(stdtrit(dof, 0.975)) if dof >= 1 else Z95  # no ratio below 1 dof (birge = 1)
-            widen.append(max(1.0, math.sqrt(max(ratio, 0.0)) * t95 / Z95))
-            for ip in range(n_parts):
-                i = n_tau + (ip * nh + ih) * 2
-                scale[i: i + 2] = widen[-1]
-        if n_tau:
-            scale[0] = max(widen)
-        cov = cov * np.outer(scale, scale)
+        S = int(valid.sum())
+        if S >= MIN_SEGMENTS_SCATTER:
+            cov = _wider_per_quantity(cov, segment_scatter(out, valid) * (float(stdtrit(S - 1, 0.975)) / Z95) ** 2,
+                                      _quantity_blocks(spec))
+        elif dof_red >= 1:
+            # the wider of two: the noise's (s2 from thousands of samples: the normal's 1.96) and the
+            # pooled lack of fit's, whose variance has the projected rows' few degrees of freedom
+            widen = max(1.0, math.sqrt(max(birge, 0.0)) * float(stdtrit(dof_red, 0.975)) / Z95)
+            cov = cov * widen * widen
     harmonics: dict = {h: {} for h in spec.harmonics}
     parts = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
     for ip, name in enumerate(parts):
