@@ -149,7 +149,7 @@ def simulate(
     profile: Profile,
     mode: str = "estimated",
     blocks: ParamBlock | Sequence[ParamBlock | None] | None = None,
-    seed: int | Sequence[int] = 0,
+    seed: int = 0,
     pre_roll_s: float | None = None,
     chunk_ticks: int | None = None,
     unroll: int = 1,
@@ -175,10 +175,8 @@ def simulate(
         its flags select (bits 2-5 with ``INTERP_ENABLE``) for the ECU's estimator in every mode
         (nominal table and the paper's estimator without a block). Motors of one batch may carry
         different tables but must select the same estimator options.
-    seed : int or sequence of int
-        Seed of the sensor noise (and of the rotors' angles at power-up): one for the batch, or
-        one per motor, each motor's noise then its own whatever the batch it runs in (a motor
-        with seed ``s`` runs as alone with ``seed=s``).
+    seed : int
+        Seed of the sensor noise.
     pre_roll_s : float, optional
         Time (s) simulated at the profile's first point before recording starts, so the
         estimator has seen its first edges and hall transition; default
@@ -285,10 +283,11 @@ def simulate(
     if resume is not None:
         carry = resume.state
     else:
-        carries = [initial_carry(cfg, p, s, angle, float(omega_ref[0]), float(i_qo[0]))
-                   for p, s, angle in zip(params, specs, _start_angles(seed, len(specs)), strict=True)]
+        rng = np.random.default_rng(seed)
+        carries = [initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
+                   for p, s in zip(params, specs, strict=True)]
         carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
-    keys = _noise_keys(seed, len(specs))
+    keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
 
     chunk_ticks = chunk_ticks_for(len(specs)) if chunk_ticks is None else int(chunk_ticks)
     if chunk_ticks < NOISE_BLOCK or chunk_ticks % NOISE_BLOCK:
@@ -326,36 +325,6 @@ def simulate(
     if carry_out is not None:
         carry_out.append(PlantCarry(cfg, carry))
     return results(n_rec)
-
-
-def _seeds(seed: int | Sequence[int], n: int) -> list[int] | None:
-    """The motors' own seeds (None: one seed for the batch); refuses a list of another length."""
-    if isinstance(seed, int | np.integer):
-        return None
-    seeds = [int(s) for s in seed]
-    if len(seeds) != n:
-        raise InputError(None, "seed", f"{len(seeds)} seeds for {n} motors")
-    return seeds
-
-
-def _start_angles(seed: int | Sequence[int], n: int) -> list[float]:
-    """The rotors' electrical angles (rad) at power-up: the batch seed's draws in turn, or each
-    motor's seed's first."""
-    seeds = _seeds(seed, n)
-    if seeds is None:
-        rng = np.random.default_rng(int(seed))  # type: ignore[arg-type]  # an int here (_seeds)
-        return [float(rng.uniform(0.0, TWO_PI)) for _ in range(n)]
-    return [float(np.random.default_rng(s).uniform(0.0, TWO_PI)) for s in seeds]
-
-
-def _noise_keys(seed: int | Sequence[int], n: int) -> Any:
-    """One PRNG key per motor: the batch seed's split, or each motor's seed's as a batch of one."""
-    import jax
-
-    seeds = _seeds(seed, n)
-    if seeds is None:
-        return jax.random.split(jax.random.PRNGKey(int(seed)), n)  # type: ignore[arg-type]
-    return np.stack([np.asarray(jax.random.split(jax.random.PRNGKey(s), 1)[0]) for s in seeds])
 
 
 #: capture dtypes of the scan's outputs (float64 otherwise): digital levels as the readers give them
