@@ -18,11 +18,11 @@ compensated p-p target, so the lot's yield and the fraction of bench_fit_lot's m
 :func:`eol_cal.lot.cluster.prepare_fit_process`): the production cycle on the plant in-process
 (:func:`eol_cal.station.whatif.simulate_motor` with
 :func:`eol_cal.sim.plant_instruments.plant_instruments`), N motors one after the other, then N
-motors as a lot's batch runs them (:func:`eol_cal.station.whatif.simulate_batch`: each in a thread
-of its own), after one motor that pays the compilations; and each step's CPU seconds (the
-process's, every thread's, between the executor's events) of the motors one after the other.
-CPU, not wall: the machine is shared. (At 12078a8 it ran the batched steps beside it: 4.18 s
-against 4.33 s CPU a motor.)
+motors as a lot's batch runs them (:func:`eol_cal.station.whatif.simulate_batch`: in threads),
+after one motor that pays the compilations; and each step's CPU seconds (the process's, every
+thread's, between the executor's events) of the motors one after the other. CPU, not wall: the
+machine is shared. (At 12078a8 it ran the batched steps beside it: 4.18 s against 4.33 s CPU a
+motor.)
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def per_motor(motors: int, limits: Path, profile: str, work: Path) -> None:
     prepare_fit_process(default_cache_dir())  # as a lot's worker
     from eol_cal.sim.plant_instruments import plant_instruments
     from eol_cal.station.executor import StepEvent
-    from eol_cal.station.whatif import simulate_batch, simulate_motor
+    from eol_cal.station.whatif import MOTOR_THREADS, simulate_batch, simulate_motor
     from eol_cal.station.whatif_plan import LotPlan
 
     plan = LotPlan("PM", "default", str(limits), "EPS-STD", 2 * motors + 1, seed=0, profile=profile, batch=motors)
@@ -99,8 +99,8 @@ def per_motor(motors: int, limits: Path, profile: str, work: Path) -> None:
     c0, t0 = cpu_s(), time.perf_counter()
     docs = simulate_batch(plan, range(motors + 1, 2 * motors + 1), plant_instruments, str(cache))
     cpu, wall = (cpu_s() - c0) / motors, (time.perf_counter() - t0) / motors
-    print(f"  as a batch of {motors} in threads: {cpu:.2f} s CPU a motor ({wall:.2f} s wall); verdicts "
-          f"{[d['verdict'] for d in docs]}; load {os.getloadavg()[0]:.2f}", flush=True)
+    print(f"  as a batch of {motors} ({MOTOR_THREADS} at a time, in threads): {cpu:.2f} s CPU a motor "
+          f"({wall:.2f} s wall); verdicts {[d['verdict'] for d in docs]}; load {os.getloadavg()[0]:.2f}", flush=True)
 
 
 def intervals(pp: np.ndarray) -> dict[str, tuple[float, float, float]]:

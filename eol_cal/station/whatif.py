@@ -8,13 +8,13 @@ handed in (:data:`InstrumentsFor`; the command and the benchmark hand in the pla
 the dyno's captures through its register map, no sockets): what ``eol-cal run`` records on the
 loopback simulators, but for its kind, run id, station and times (tests/test_whatif_same_record.py).
 
-Motors run in batches, a batch per task on a Dask cluster (:func:`simulate_lot`), each motor of a
-task in a thread of its own (:func:`simulate_batch`). A lot is named; its motors' serials and run
-ids follow from the name and the motor's number, so a killed run continues where it stopped: the
-batches whose records are all in the database are skipped, and a record written twice is kept
-once. Motor ``i`` is drawn from the
-spread with seed ``seed + i``, and the dyno's noise seeded with it: the same lot (name, spread,
-limits, seed) gives the same records, whatever the batch size.
+Motors run in batches, a batch per task on a Dask cluster (:func:`simulate_lot`), a task's motors
+in threads, :data:`MOTOR_THREADS` at a time (:func:`simulate_batch`). A lot is named; its motors'
+serials and run ids follow from the name and the motor's number, so a killed run continues where
+it stopped: the batches whose records are all in the database are skipped, and a record written
+twice is kept once. Motor ``i`` is drawn from the spread with seed ``seed + i``, and the dyno's
+noise seeded with it: the same lot (name, spread, limits, seed) gives the same records, whatever
+the batch size.
 """
 
 from __future__ import annotations
@@ -129,22 +129,31 @@ def _no_bus() -> Any:
 # one batch: what a task runs
 
 
+#: motors of a batch whose cycles run at once, each in a thread. 32 motors
+#: (bench/bench_lot_simulate.py, 2 workers, load 22): 1 thread 62 s wall / 44.3 CPU s, 2: 53.5 /
+#: 47.2, 3: 56.4 / 50.9, the whole batch of 8 (load 16-21): 80 / 95 (the cycles' Python contends for
+#: the interpreter's lock, switched every 0.5 ms by the executor). A batched plant call for the
+#: motors' captures is not made: XLA's float32 results depend on the call's width and a motor's place
+#: in it (1 ulp, grown to 0.1 % in some motors' currents), so a motor's record would depend on its batch
+MOTOR_THREADS = 2
+
+
 def simulate_batch(plan: LotPlan, indices: Sequence[int], instruments: InstrumentsFor,
                    cache_dir: str | None = None) -> list[dict[str, Any]]:
     """The run records (JSON) of motors ``indices`` of the lot, one batch, each motor through the
-    station's cycle on its ``instruments`` (:func:`simulate_motor`), every motor in a thread of
-    its own; the runs' files (captures, blocks, reports) are removed afterwards.
+    station's cycle on its ``instruments`` (:func:`simulate_motor`), :data:`MOTOR_THREADS` motors
+    at a time; the runs' files (captures, blocks, reports) are removed afterwards.
 
     The threads overlap one motor's waits (its ECU's answers, the flash) and its work outside
-    the interpreter's lock (the plant's and the fit's XLA programs) with the others' Python; each
-    motor's plant runs alone, so its record is the one it gets in any batch (XLA's float32
-    results depend on a batched call's width: tests/test_lot_simulate.py). A motor's exception
-    fails the batch once every motor has ended (as :func:`simulate_lot` reports it)."""
+    the interpreter's lock (the plant's and the fit's XLA programs) with another's Python; each
+    motor's plant runs alone, so its record is the one it gets in any batch
+    (tests/test_whatif_batch.py). A motor's exception fails the batch once every motor has ended
+    (as :func:`simulate_lot` reports it)."""
     cache = None if cache_dir is None else Path(cache_dir)
     switch = sys.getswitchinterval()  # each cycle's executor sets and restores it: concurrently, out of order
     try:
         with (tempfile.TemporaryDirectory(prefix=f"lot-{plan.name}-") as d,
-              ThreadPoolExecutor(max_workers=max(1, len(indices)), thread_name_prefix="lot-motor") as pool):
+              ThreadPoolExecutor(max_workers=MOTOR_THREADS, thread_name_prefix="lot-motor") as pool):
             jobs = [pool.submit(simulate_motor, plan, i, Path(d) / str(i), instruments, cache) for i in indices]
             return [job.result().to_json() for job in jobs]
     finally:
