@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import sys
 import tempfile
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -132,17 +133,23 @@ def _no_bus() -> Any:
 #: motors of a batch whose cycles run at once, each in a thread. 32 motors
 #: (bench/bench_lot_simulate.py, 2 workers, load 22): 1 thread 62 s wall / 44.3 CPU s, 2: 53.5 /
 #: 47.2, 3: 56.4 / 50.9, the whole batch of 8 (load 16-21): 80 / 95 (the cycles' Python contends for
-#: the interpreter's lock, switched every 0.5 ms by the executor). A batched plant call for the
-#: motors' captures is not made: XLA's float32 results depend on the call's width and a motor's place
-#: in it (1 ulp, grown to 0.1 % in some motors' currents), so a motor's record would depend on its batch
+#: the interpreter's lock, switched every 0.5 ms by the executor); 2 with the process's first motor
+#: alone (load 17-20): 66 / 48.0. A warm motor (load 21): 0.85 CPU s alone, 0.91 two at a time, its
+#: wall 2.20 -> 1.44 s. A batched plant call for the motors' captures is not made: XLA's float32
+#: results depend on the call's width and a motor's place in it (1 ulp, grown to 0.1 % in some
+#: motors' currents), so a motor's record would depend on its batch
 MOTOR_THREADS = 2
+#: set once this process's first what-if motor ended: that motor runs alone, as it traces and
+#: compiles the JAX programs every motor calls (two threads at it would each trace them)
+_TRACED = threading.Event()
 
 
 def simulate_batch(plan: LotPlan, indices: Sequence[int], instruments: InstrumentsFor,
                    cache_dir: str | None = None) -> list[dict[str, Any]]:
     """The run records (JSON) of motors ``indices`` of the lot, one batch, each motor through the
     station's cycle on its ``instruments`` (:func:`simulate_motor`), :data:`MOTOR_THREADS` motors
-    at a time; the runs' files (captures, blocks, reports) are removed afterwards.
+    at a time (the process's first alone, :data:`_TRACED`); the runs' files (captures, blocks,
+    reports) are removed afterwards.
 
     The threads overlap one motor's waits (its ECU's answers, the flash) and its work outside
     the interpreter's lock (the plant's and the fit's XLA programs) with another's Python; each
@@ -154,7 +161,14 @@ def simulate_batch(plan: LotPlan, indices: Sequence[int], instruments: Instrumen
     try:
         with (tempfile.TemporaryDirectory(prefix=f"lot-{plan.name}-") as d,
               ThreadPoolExecutor(max_workers=MOTOR_THREADS, thread_name_prefix="lot-motor") as pool):
-            jobs = [pool.submit(simulate_motor, plan, i, Path(d) / str(i), instruments, cache) for i in indices]
+            def run(i: int) -> RunRecord:
+                return simulate_motor(plan, i, Path(d) / str(i), instruments, cache)
+
+            jobs = [pool.submit(run, i) for i in indices[:1]]
+            if jobs and not _TRACED.is_set():
+                wait(jobs)
+                _TRACED.set()
+            jobs += [pool.submit(run, i) for i in indices[1:]]
             return [job.result().to_json() for job in jobs]
     finally:
         sys.setswitchinterval(switch)
