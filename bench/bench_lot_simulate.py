@@ -14,11 +14,15 @@ compensated p-p target, so the lot's yield and the fraction of bench_fit_lot's m
 
     python bench/bench_lot_simulate.py --per-motor 4 --profile bench/eol-default-1rev.toml
 
-``--per-motor N``: CPU seconds a warm motor costs in one process (XLA set up as a lot's worker): the
-production cycle on the plant in-process (:func:`eol_cal.station.whatif.simulate_motor` with
-:func:`eol_cal.sim.plant_instruments.plant_instruments`), N motors in a row after one that pays the
-compilations. CPU, not wall: the machine is shared. (At 12078a8 it ran the batched steps beside it:
-4.18 s against 4.33 s CPU a motor.)
+``--per-motor N``: CPU seconds a warm motor costs in one process (set up as a lot's worker,
+:func:`eol_cal.lot.cluster.prepare_fit_process`): the production cycle on the plant in-process
+(:func:`eol_cal.station.whatif.simulate_motor` with
+:func:`eol_cal.sim.plant_instruments.plant_instruments`), N motors one after the other, then N
+motors as a lot's batch runs them (:func:`eol_cal.station.whatif.simulate_batch`: in threads),
+after one motor that pays the compilations; and each step's CPU seconds (the process's, every
+thread's, between the executor's events) of the motors one after the other. CPU, not wall: the
+machine is shared. (At 12078a8 it ran the batched steps beside it: 4.18 s against 4.33 s CPU a
+motor.)
 """
 
 from __future__ import annotations
@@ -61,24 +65,42 @@ def cpu_s() -> float:
 
 
 def per_motor(motors: int, limits: Path, profile: str, work: Path) -> None:
-    """``--per-motor``: the CPU seconds of a warm motor (module doc)."""
-    from eol_cal.numerics.xla import configure_xla
-
-    configure_xla()  # as a lot's worker (eol_cal.lot.cluster) and the CLI
+    """``--per-motor``: the CPU seconds of a warm motor, one after the other and in a batch's
+    threads, and per step (module doc)."""
     from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.lot.cluster import prepare_fit_process
+
+    prepare_fit_process(default_cache_dir())  # as a lot's worker
     from eol_cal.sim.plant_instruments import plant_instruments
-    from eol_cal.station.whatif import simulate_motor
+    from eol_cal.station.executor import StepEvent
+    from eol_cal.station.whatif import MOTOR_THREADS, simulate_batch, simulate_motor
     from eol_cal.station.whatif_plan import LotPlan
 
-    plan = LotPlan("PM", "default", str(limits), "EPS-STD", motors + 1, seed=0, profile=profile, batch=motors)
+    plan = LotPlan("PM", "default", str(limits), "EPS-STD", 2 * motors + 1, seed=0, profile=profile, batch=motors)
     cache = default_cache_dir()
     simulate_motor(plan, 0, work / "m0", plant_instruments, cache)
+    steps: dict[str, float] = {}
+    started = [0.0]
+
+    def step_cpu(e: StepEvent) -> None:  # one motor at a time: the process's CPU is this step's
+        if e.what == "start":
+            started[0] = cpu_s()
+        else:
+            steps[e.step] = steps.get(e.step, 0.0) + cpu_s() - started[0]
+
     c0, t0 = cpu_s(), time.perf_counter()
-    cycled = [simulate_motor(plan, i, work / f"m{i}", plant_instruments, cache) for i in range(1, motors + 1)]
+    cycled = [simulate_motor(plan, i, work / f"m{i}", plant_instruments, cache, observers=[step_cpu])
+              for i in range(1, motors + 1)]
     cpu, wall = (cpu_s() - c0) / motors, (time.perf_counter() - t0) / motors
-    print(f"{motors} warm motors, profile {profile}: the production cycle on the plant in-process {cpu:.2f} s CPU "
-          f"a motor ({wall:.2f} s wall); verdicts {[r.verdict for r in cycled]}; load {os.getloadavg()[0]:.2f}",
-          flush=True)
+    print(f"{motors} warm motors, profile {profile}: the production cycle on the plant in-process, one after the "
+          f"other: {cpu:.2f} s CPU a motor ({wall:.2f} s wall); verdicts {[r.verdict for r in cycled]}; "
+          f"load {os.getloadavg()[0]:.2f}", flush=True)
+    print("  CPU s a motor by step: " + ", ".join(f"{k} {v / motors:.3f}" for k, v in steps.items()), flush=True)
+    c0, t0 = cpu_s(), time.perf_counter()
+    docs = simulate_batch(plan, range(motors + 1, 2 * motors + 1), plant_instruments, str(cache))
+    cpu, wall = (cpu_s() - c0) / motors, (time.perf_counter() - t0) / motors
+    print(f"  as a batch of {motors} ({MOTOR_THREADS} at a time, in threads): {cpu:.2f} s CPU a motor "
+          f"({wall:.2f} s wall); verdicts {[d['verdict'] for d in docs]}; load {os.getloadavg()[0]:.2f}", flush=True)
 
 
 def intervals(pp: np.ndarray) -> dict[str, tuple[float, float, float]]:
@@ -101,7 +123,7 @@ def main() -> None:
     ap.add_argument("--profile", default="eol-default")
     ap.add_argument("--fit-lot", type=Path, default=None, help="bench_fit_lot.py --json rows to compare with")
     ap.add_argument("--scaling", type=int, default=0, help="motors of the 1-against-2-workers runs (0: none)")
-    ap.add_argument("--per-motor", type=int, default=0, help="CPU s of a warm motor, batched against the cycle (module doc)")
+    ap.add_argument("--per-motor", type=int, default=0, help="CPU s of a warm motor, alone and in a batch's threads (module doc)")
     a = ap.parse_args()
     from eol_cal.records.query import query_records
 

@@ -139,8 +139,11 @@ class PlantInstruments:
         data: list[DynoWindow] = []
         t, speed = 0.0, 0.0  # the physical time (s) and the shaft's speed (rpm)
         if lead_in_point is not None:
+            # The lead-in point's capture is never read, and each capture's plant starts from
+            # power-up (the rig goes on from a capture only in real time): it is counted (its
+            # number seeds the next captures' noise), not simulated.
             n_point = lead_point_samples(lead_in_point, rate_hz)
-            self._record(lead_in_point, n_point, rate_hz, channels, n_point - 1)
+            self.captures += 1
             t += abs(lead_in_point.speed_rpm) / lead_in_point.ramp_rpm_s + n_point / rate_hz
             speed = lead_in_point.speed_rpm
         for i, seg in enumerate(segments):

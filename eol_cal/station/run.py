@@ -114,6 +114,10 @@ class StationConfig:
         :func:`eol_cal.firmware.settling.lead_in_plan` says for the block the cycle flashed (an
         identifying ECU at its own speed first); ``at-point``, all of it at the acquisition's
         first point; ``off``, capture at once.
+    report_plots : bool
+        Draw the report page's plots (residual, angle, spectrum); False: the page and
+        ``report.json`` without them (a what-if lot, whose run directories are removed when its
+        batch ends: the plots were half a motor's CPU and nobody saw them).
     master : MasterSettings or None
         The station's master motor (:mod:`eol_cal.msa.master`): a ``production`` run is refused
         while its check is due or last failed; a run of kind ``master`` is judged against its
@@ -142,6 +146,7 @@ class StationConfig:
     master: MasterSettings | None = None
     read_back: bool = True
     lead_in: str = "settle"
+    report_plots: bool = True
 
     @property
     def estimator_options(self) -> int:

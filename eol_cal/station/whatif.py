@@ -8,17 +8,21 @@ handed in (:data:`InstrumentsFor`; the command and the benchmark hand in the pla
 the dyno's captures through its register map, no sockets): what ``eol-cal run`` records on the
 loopback simulators, but for its kind, run id, station and times (tests/test_whatif_same_record.py).
 
-Motors run in batches, a batch per task on a Dask cluster (:func:`simulate_lot`), one motor after
-the other in a task. A lot is named; its motors' serials and run ids follow from the name and the
-motor's number, so a killed run continues where it stopped: the batches whose records are all in
-the database are skipped, and a record written twice is kept once. Motor ``i`` is drawn from the
-spread with seed ``seed + i``, and the dyno's noise seeded with it: the same lot (name, spread,
-limits, seed) gives the same records, whatever the batch size.
+Motors run in batches, a batch per task on a Dask cluster (:func:`simulate_lot`), a task's motors
+in threads, :data:`MOTOR_THREADS` at a time (:func:`simulate_batch`). A lot is named; its motors'
+serials and run ids follow from the name and the motor's number, so a killed run continues where
+it stopped: the batches whose records are all in the database are skipped, and a record written
+twice is kept once. Motor ``i`` is drawn from the spread with seed ``seed + i``, and the dyno's
+noise seeded with it: the same lot (name, spread, limits, seed) gives the same records, whatever
+the batch size.
 """
 
 from __future__ import annotations
 
+import sys
 import tempfile
+import threading
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -111,7 +115,8 @@ def simulate_motor(plan: LotPlan, i: int, work_dir: Path, instruments: Instrumen
         serial=plan.serial(i), dyno=DynoConfig(), open_bus=_no_bus, seed_to_key=key, ecu_timing=timing,
         limits=load_limits(plan.limits_file, plan.variant), db=work_dir / "runs.sqlite",
         report_dir=work_dir / "reports", profile=plan.profile, spool_dir=work_dir / "spool", cache_dir=cache_dir,
-        motor=motor, mechanics=mechanics_or_rigid(plan.bench), kind="simulated", station=lot_station(plan, i, spec))
+        motor=motor, mechanics=mechanics_or_rigid(plan.bench), kind="simulated", station=lot_station(plan, i, spec),
+        report_plots=False)  # the batch removes its runs' directories: plots nobody sees were half a motor's CPU
     with instruments(plan.serial(i), plan.seed + i, work_dir / "sim", lambda req: spec, seed_to_key=key,
                      timing=timing, motor=motor) as inst:
         return run_motor(cfg, observers=observers, instruments=inst, run_id=plan.run_id(i)).record
@@ -125,14 +130,48 @@ def _no_bus() -> Any:
 # one batch: what a task runs
 
 
+#: motors of a batch whose cycles run at once, each in a thread. 32 motors
+#: (bench/bench_lot_simulate.py, 2 workers, load 22): 1 thread 62 s wall / 44.3 CPU s, 2: 53.5 /
+#: 47.2, 3: 56.4 / 50.9, the whole batch of 8 (load 16-21): 80 / 95 (the cycles' Python contends for
+#: the interpreter's lock, switched every 0.5 ms by the executor); 2 with the process's first motor
+#: alone (load 17-20): 66 / 48.0. A warm motor (load 21): 0.85 CPU s alone, 0.91 two at a time, its
+#: wall 2.20 -> 1.44 s. A batched plant call for the motors' captures is not made: XLA's float32
+#: results depend on the call's width and a motor's place in it (1 ulp, grown to 0.1 % in some
+#: motors' currents), so a motor's record would depend on its batch
+MOTOR_THREADS = 2
+#: set once this process's first what-if motor ended: that motor runs alone, as it traces and
+#: compiles the JAX programs every motor calls (two threads at it would each trace them)
+_TRACED = threading.Event()
+
+
 def simulate_batch(plan: LotPlan, indices: Sequence[int], instruments: InstrumentsFor,
                    cache_dir: str | None = None) -> list[dict[str, Any]]:
     """The run records (JSON) of motors ``indices`` of the lot, one batch, each motor through the
-    station's cycle on its ``instruments`` (:func:`simulate_motor`), one after the other; the runs'
-    files (captures, blocks, reports) are removed afterwards."""
-    with tempfile.TemporaryDirectory(prefix=f"lot-{plan.name}-") as d:
-        return [simulate_motor(plan, i, Path(d) / str(i), instruments, None if cache_dir is None else Path(cache_dir))
-                .to_json() for i in indices]
+    station's cycle on its ``instruments`` (:func:`simulate_motor`), :data:`MOTOR_THREADS` motors
+    at a time (the process's first alone, :data:`_TRACED`); the runs' files (captures, blocks,
+    reports) are removed afterwards.
+
+    The threads overlap one motor's waits (its ECU's answers, the flash) and its work outside
+    the interpreter's lock (the plant's and the fit's XLA programs) with another's Python; each
+    motor's plant runs alone, so its record is the one it gets in any batch
+    (tests/test_whatif_batch.py). A motor's exception fails the batch once every motor has ended
+    (as :func:`simulate_lot` reports it)."""
+    cache = None if cache_dir is None else Path(cache_dir)
+    switch = sys.getswitchinterval()  # each cycle's executor sets and restores it: concurrently, out of order
+    try:
+        with (tempfile.TemporaryDirectory(prefix=f"lot-{plan.name}-") as d,
+              ThreadPoolExecutor(max_workers=MOTOR_THREADS, thread_name_prefix="lot-motor") as pool):
+            def run(i: int) -> RunRecord:
+                return simulate_motor(plan, i, Path(d) / str(i), instruments, cache)
+
+            jobs = [pool.submit(run, i) for i in indices[:1]]
+            if jobs and not _TRACED.is_set():
+                wait(jobs)
+                _TRACED.set()
+            jobs += [pool.submit(run, i) for i in indices[1:]]
+            return [job.result().to_json() for job in jobs]
+    finally:
+        sys.setswitchinterval(switch)
 
 
 # ------------------------------------------------------------------------------------------

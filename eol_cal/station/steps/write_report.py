@@ -16,6 +16,8 @@ NAME = "report"
 def run(ctx: CycleContext) -> Path:
     from eol_cal.station.report_files import fit_plots, write_report  # matplotlib: after the verdict
 
+    if not ctx.cfg.report_plots:  # the page without its plots (StationConfig.report_plots)
+        return write_report(to_record(ctx), ctx.run_dir, figures=[])
     figures = fit_plots(ctx.run_dir, ctx.fit_extra) if ctx.fit_extra is not None else []
     return write_report(to_record(ctx), ctx.run_dir, figures=figures, fit_extra=ctx.fit_extra,
                         point_ripple=ctx.point_ripples)
