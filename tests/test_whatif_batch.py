@@ -10,6 +10,7 @@ import pytest
 
 from eol_cal.records.record import RunRecord
 from eol_cal.sim.plant_instruments import plant_instruments
+from eol_cal.station import whatif
 from eol_cal.station.whatif import simulate_batch
 from eol_cal.station.whatif_plan import LotPlan
 from test_lot_simulate import LIMITS, PROFILE
@@ -19,7 +20,8 @@ pytestmark = pytest.mark.usefixtures("no_jax_cache")
 
 
 @pytest.mark.slow  # five station cycles on the plant (a batch of 4 in threads, one alone)
-def test_a_motor_in_a_batch_of_one_and_of_four_gives_the_same_record(tmp_path: Path):
+def test_a_motor_in_a_batch_of_one_and_of_four_gives_the_same_record(tmp_path: Path, monkeypatch):
+    monkeypatch.setattr(whatif, "MOTOR_THREADS", 3)  # the threaded path, whatever the default
     (tmp_path / "short.toml").write_text(PROFILE)
     plan = LotPlan("B", "default", str(LIMITS), "EPS-STD", 4, seed=21, profile=str(tmp_path / "short.toml"), batch=4)
     four = simulate_batch(plan, [0, 1, 2, 3], plant_instruments)
@@ -56,7 +58,8 @@ def _failing_second_motor(serial: str, *args, **kw):
 
 
 @pytest.mark.slow  # two station cycles on the plant
-def test_a_motor_that_errs_leaves_the_others_of_its_batch_as_they_are(tmp_path: Path):
+def test_a_motor_that_errs_leaves_the_others_of_its_batch_as_they_are(tmp_path: Path, monkeypatch):
+    monkeypatch.setattr(whatif, "MOTOR_THREADS", 2)
     (tmp_path / "short.toml").write_text(PROFILE)
     plan = LotPlan("E", "default", str(LIMITS), "EPS-STD", 2, seed=21, profile=str(tmp_path / "short.toml"), batch=2)
     ok, failed = (RunRecord.from_json(d) for d in simulate_batch(plan, [0, 1], _failing_second_motor))

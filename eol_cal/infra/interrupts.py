@@ -42,6 +42,10 @@ WATCHDOG_GRACE_S = 10.0
 REDELIVER_S = 0.05
 
 _depth = 0
+#: the shields' count is kept by every thread that runs a cycle (a what-if lot's motors in threads):
+#: ``+= 1`` is no atomic operation, and a lost update would hold signals off for good. The signal
+#: handler only reads the count (it must not wait on a lock its own thread may hold)
+_depth_lock = threading.Lock()
 _pending: str | None = None
 _received: str | None = None
 _handled: dict[int, int] = {}
@@ -142,11 +146,13 @@ def dropped_redelivered() -> Iterator[None]:
 def shielded() -> Iterator[None]:
     """Hold signals off for the block; one that arrived meanwhile is raised after it."""
     global _depth, _pending
-    _depth += 1
+    with _depth_lock:
+        _depth += 1
     try:
         yield
     finally:
-        _depth -= 1
+        with _depth_lock:
+            _depth -= 1
     if _depth == 0 and _pending is not None:
         name, _pending = _pending, None
         raise Interrupted(name)

@@ -137,8 +137,11 @@ def _no_bus() -> Any:
 #: alone (load 17-20): 66 / 48.0. A warm motor (load 21): 0.85 CPU s alone, 0.91 two at a time, its
 #: wall 2.20 -> 1.44 s. A batched plant call for the motors' captures is not made: XLA's float32
 #: results depend on the call's width and a motor's place in it (1 ulp, grown to 0.1 % in some
-#: motors' currents), so a motor's record would depend on its batch
-MOTOR_THREADS = 2
+#: motors' currents), so a motor's record would depend on its batch. One: a lot's workers already
+#: take the cores (a Dask worker per core), and one at a time costs the least CPU (no worse than the
+#: batched steps it replaced: 44.3 against 42.9 CPU s for the 32 motors); raise it for a lot on a
+#: machine with idle cores and few workers
+MOTOR_THREADS = 1
 #: set once this process's first what-if motor ended: that motor runs alone, as it traces and
 #: compiles the JAX programs every motor calls (two threads at it would each trace them)
 _TRACED = threading.Event()
