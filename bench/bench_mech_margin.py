@@ -32,8 +32,13 @@ import math
 import os
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from eol_cal.firmware.kinematics import SensorErrors
+    from eol_cal.firmware.mech_params import MechParams
 
 SCALES = (0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5, 0.7, 1.0)
 #: the end-to-end run's pitch-error scales (x nominal)
@@ -46,9 +51,10 @@ def run(encoders: int, per_encoder: int) -> list[tuple[float, float, float, int,
     from eol_cal.analysis.fingerprint import predicted_margin
     from eol_cal.firmware.kinematics import draw_sensor_errors, fingerprint_of
     from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, unused_mech
-    from eol_cal.firmware.mech_sim import PowerUp, simulate_powerups
+    from eol_cal.firmware.mech_sim import simulate_powerups
+    from eol_cal.sim.mech_motors import SWITCH_SECONDS, switch_powerups
 
-    N, P = 64, 6
+    N, P = N_ENC, POLES
     rows = []
     for s in SCALES:
         t0 = time.perf_counter()
@@ -58,10 +64,8 @@ def run(encoders: int, per_encoder: int) -> list[tuple[float, float, float, int,
             fp, gp = fingerprint_of(err, P)
             mech = unused_mech(N).replace(fp_dirs=FP_FORWARD | FP_REVERSE, grid_phase=gp, fingerprint=fp)
             preds.append(predicted_margin(np.asarray(fp), np.zeros(2 * N), FP_FORWARD | FP_REVERSE, P, N, 20000.0))
-            rng = np.random.default_rng(1000 * e + int(100 * s))
-            pus += [PowerUp(err, mech, float(rng.uniform(0, 2 * math.pi)), float(rng.choice([-1.0, 1.0]) * 300.0),
-                            jitter_deg=0.002) for _ in range(per_encoder)]
-        res = simulate_powerups(pus, 1.2, seed=int(100 * s))
+            pus += switch_powerups(err, mech, per_encoder, np.random.default_rng(1000 * e + int(100 * s)))
+        res = simulate_powerups(pus, SWITCH_SECONDS, seed=int(100 * s))
         ok = (np.isfinite(res.first_id_s) & (res.r_first == res.truth) & (res.wrong_ticks == 0)).reshape(encoders, -1)
         wrong = (res.wrong_ticks > 0).reshape(encoders, -1)
         for e in range(encoders):
@@ -73,46 +77,7 @@ def run(encoders: int, per_encoder: int) -> list[tuple[float, float, float, int,
     return rows
 
 
-def fitted_blocks(scale: float, seeds: list[int], spread: str = "mech23") -> list[dict]:
-    """Plant motors with pitch errors ``scale`` x nominal through end of line: eol-default under the
-    prepared block, ``fit_motors`` as ``eol-cal fit`` calls it, the layout-2 block of each usable
-    result. Per motor a dict: ``plant`` (PlantSpec), ``errors`` (its true SensorErrors), ``result``
-    (MotorResult), ``block`` (ParamBlock or None when the fit was not usable), ``frame_pulse``
-    (the model pulse that is the block's pulse 0: where the capture's count started)."""
-    import dataclasses
-
-    from eol_cal.analysis.fit import FitSpec
-    from eol_cal.analysis.fit.motors import FitOptions, fit_motors
-    from eol_cal.analysis.fit.table import block_from_result, uncompensated_block
-    from eol_cal.firmware.kinematics import pulse_at
-    from eol_cal.plant.params import sensor_errors, to_params
-    from eol_cal.plant.profile import load_profile
-    from eol_cal.plant.simulate import simulate
-    from eol_cal.plant.spread import load_spread
-    from eol_cal.sim.mech_motors import BEST, MOTOR
-
-    sp = load_spread(spread)
-    sp = dataclasses.replace(sp, sensors={**sp.sensors, "edge_sigma_mech_deg": sp.sensors["edge_sigma_mech_deg"] * scale})
-    plants = [sp.draw(seed) for seed in seeds]
-    prep = [uncompensated_block(p.serial[:16], MOTOR, calibrated_at=0, options=BEST) for p in plants]
-    runs = simulate(plants, load_profile("eol-default"), mode="estimated", blocks=prep, seed=seeds[0])
-    fitted = fit_motors([r.capture for r in runs], FitOptions(spec=FitSpec(), capture_metrics=False,
-                                                              estimator_options=BEST))
-    out = []
-    for p, run, res, mi in zip(plants, runs, fitted.results, fitted.inputs, strict=True):
-        err = sensor_errors(to_params(p, np.zeros(16), np.zeros(16), 0.0, 0.0))
-        err = err._replace(edge_error=np.asarray(err.edge_error, float), grid_offset=float(err.grid_offset))
-        cap = run.capture
-        usable = res.status == "ok" and res.mech is not None and res.mech.dirs != 0
-        if usable:  # one continuous capture: its only window is the block's frame, starting at sample 0
-            assert res.mech is not None and res.mech.windows == (0,), res.mech.windows
-        pw = pulse_at(float(run.theta_m[0]), err, int(cap["enc_a"][0]), int(cap["enc_b"][0]))
-        out.append(dict(plant=p, errors=err, result=res, frame_pulse=pw, prints=mi.prints, fingerprint=mi.fingerprint,
-                        block=block_from_result(res, MOTOR, options=BEST) if usable else None))
-    return out
-
-
-def fingerprint_check(errors, mech, frame_pulse: int) -> tuple[float, float]:
+def fingerprint_check(errors: SensorErrors, mech: MechParams, frame_pulse: int) -> tuple[float, float]:
     """How the block's fitted fingerprint matches the encoder's true one in the block's frame:
     (the least correlation of the two pitch-error sequences over the directions measured, the
     grid phase's difference in electrical degrees, ~0 when the frame is right)."""
@@ -129,50 +94,54 @@ def fingerprint_check(errors, mech, frame_pulse: int) -> tuple[float, float]:
     return corr, math.degrees(dg)
 
 
-def run_end_to_end(encoders: int, per_encoder: int, spread: str = "mech23", dump: str | None = None) -> list[dict]:
+def run_end_to_end(encoders: int, per_encoder: int, spread: str = "mech23", dump: str | None = None,
+                   seed0: int = 70_000) -> list[dict[str, Any]]:
     """Per motor (``encoders`` a scale of :data:`E2E_SCALES`): the switch end of line wrote, the
     predicted margin, the fitted fingerprint against the truth, and ``per_encoder`` twin power-ups
     of the true encoder on the block's fitted fingerprint (right, wrong frames applied). ``dump``: a
-    pickle of every motor's window edges and fingerprint (to study other rules on the same motors)."""
+    pickle of every motor's window edges and fingerprint (to study other rules on the same motors);
+    ``seed0``: the first motor's seed (the same seeds at every scale: the same motors, their pitch
+    errors scaled)."""
     from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
-    from eol_cal.firmware.mech_sim import PowerUp, simulate_powerups
+    from eol_cal.firmware.mech_sim import simulate_powerups
+    from eol_cal.sim.mech_motors import SWITCH_SECONDS, pitch_error_spread, switch_powerups, through_end_of_line
 
-    rows, kept = [], []
+    rows: list[dict[str, Any]] = []
+    kept = []
     for s in E2E_SCALES:
         t0 = time.perf_counter()
-        seeds = [70_000 + e for e in range(encoders)]
-        motors = fitted_blocks(s, seeds, spread)
+        seeds = [seed0 + e for e in range(encoders)]
+        sp = pitch_error_spread(s, spread)
+        motors = through_end_of_line([sp.draw(seed) for seed in seeds], seeds[0])
         t_fit = time.perf_counter() - t0
         pus, idx = [], []
         for e, m in enumerate(motors):
-            if m["block"] is None:
+            if m.block is None or m.block.mech is None:
                 continue
-            rng = np.random.default_rng(1000 * e + int(100 * s))
-            pus += [PowerUp(m["errors"], m["block"].mech, float(rng.uniform(0, 2 * math.pi)),
-                            float(rng.choice([-1.0, 1.0]) * 300.0), jitter_deg=0.002, frame_pulse=m["frame_pulse"])
-                    for _ in range(per_encoder)]
+            pus += switch_powerups(m.errors, m.block.mech, per_encoder, np.random.default_rng(1000 * e + int(100 * s)),
+                                   m.frame_pulse)
             idx.append(e)
-        res = simulate_powerups(pus, 1.2, seed=int(100 * s)) if pus else None
+        res = simulate_powerups(pus, SWITCH_SECONDS, seed=int(100 * s)) if pus else None
         for e, m in enumerate(motors):
-            mech = m["result"].mech
-            row = dict(scale=s, seed=seeds[e], fit=m["result"].status, on=False, margin=math.nan, score=math.nan,
+            mech = m.result.mech
+            row: dict[str, Any] = dict(scale=s, seed=seeds[e], fit=m.result.status, on=False, margin=math.nan, score=math.nan,
                        corr=math.nan, dgrid_deg=math.nan, right=0, of=0, wrong=0, field_margin_min=math.nan,
                        fp=None, sigma=None, dirs=0)
-            if m["block"] is not None:
-                assert res is not None and mech is not None
+            if e in idx:
+                assert res is not None and mech is not None and m.block is not None and m.block.mech is not None
                 k = idx.index(e)
                 sl = slice(k * per_encoder, (k + 1) * per_encoder)
                 ok = np.isfinite(res.first_id_s[sl]) & (res.r_first[sl] == res.truth[sl]) & (res.wrong_ticks[sl] == 0)
-                corr, dg = fingerprint_check(m["errors"], m["block"].mech, m["frame_pulse"])
+                corr, dg = fingerprint_check(m.errors, m.block.mech, m.frame_pulse)
                 done = res.margin[sl][np.asarray(res.active_end[sl]) != 0]
-                row.update(on=bool(m["block"].flags & FLAG_MECH_COMP_ENABLE), margin=mech.margin, score=mech.score,
+                row.update(on=bool(m.block.flags & FLAG_MECH_COMP_ENABLE), margin=mech.margin, score=mech.score,
                            corr=corr, dgrid_deg=dg, right=int(ok.sum()), of=per_encoder,
                            wrong=int((res.wrong_ticks[sl] > 0).sum()),
                            field_margin_min=float(done.min()) if done.size else math.nan,
                            fp=list(mech.fingerprint), sigma=[None if x is None else float(x) for x in mech.sigma],
                            dirs=mech.dirs)
             rows.append(row)
-            kept.append((s, seeds[e], m["frame_pulse"], m["prints"], m["fingerprint"]))
+            kept.append((s, seeds[e], m.frame_pulse, m.prints, m.fingerprint))
         if dump:
             import pickle
 
@@ -189,7 +158,7 @@ def run_end_to_end(encoders: int, per_encoder: int, spread: str = "mech23", dump
     return rows
 
 
-def report_end_to_end(rows: list[dict]) -> None:
+def report_end_to_end(rows: list[dict[str, Any]]) -> None:
     """The switch against the twin: per scale, on where the twin failed (must be none), off where it
     identified on every power-up."""
     print("\n| pitch errors (x nominal) | predicted margin min / median | on | power-ups right | motors right on "
@@ -210,7 +179,7 @@ def report_end_to_end(rows: list[dict]) -> None:
           + (f"; with none wrong the rate is at least {1 - 3.0 / n:.5f} with 95 % confidence" if n and n_ok == n else ""))
 
 
-def plot_end_to_end(rows: list[dict], path: str, threshold: float) -> None:
+def plot_end_to_end(rows: list[dict[str, Any]], path: str, threshold: float) -> None:
     """Predicted margin (x) against the twin's power-ups right (y) per motor, by scale."""
     import matplotlib
 
@@ -255,6 +224,7 @@ def main() -> None:
     ap.add_argument("--end-to-end", action="store_true",
                     help="plant motors through the fit and the block it writes, the twin on the fitted fingerprint")
     ap.add_argument("--spread", default="mech23", help="production spread of the end-to-end motors")
+    ap.add_argument("--seed0", type=int, default=70_000, help="end to end: the first motor's seed")
     ap.add_argument("--dump", help="end to end: pickle of the motors' window edges and fingerprints")
     ap.add_argument("--plot", help="end to end: PNG of the predicted margin against the twin's power-ups right")
     args = ap.parse_args()
@@ -262,7 +232,7 @@ def main() -> None:
         from eol_cal.firmware.mech_params import SWITCH_MARGIN
 
         print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}", flush=True)
-        rows_e = run_end_to_end(args.encoders, args.per_encoder, args.spread, args.dump)
+        rows_e = run_end_to_end(args.encoders, args.per_encoder, args.spread, args.dump, args.seed0)
         report_end_to_end(rows_e)
         if args.json:
             Path(args.json).write_text(json.dumps(rows_e))

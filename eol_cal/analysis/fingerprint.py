@@ -269,16 +269,20 @@ def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWind
 
 
 def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N: int, tick_hz: float,
-                     ref_rpm: float = REF_RPM) -> tuple[float, float]:
+                     ref_rpm: float = REF_RPM, noise: Sequence[float] | np.ndarray | None = None) -> tuple[float, float]:
     """The identification the firmware can expect after one revolution of samples at ``ref_rpm``.
 
     For each measured direction: the signal energy of the pitch errors ``S`` (their sum of squares
-    less the measurement's noise), the field's noise energy ``N_f`` (the tick quantisation of one
-    pitch, ``DELTA / sqrt(6) / ticks_per_pitch`` per sample); the true hypothesis' cosine
+    less the measurement's noise ``N_eol``), the field's noise energy ``N_f`` (the tick quantisation
+    of one pitch, ``DELTA / sqrt(6) / ticks_per_pitch`` per sample); the true hypothesis' cosine
     ``S / sqrt((S + N_eol) (S + N_f))``, each pole-pair neighbour's (lags L with
     ``|wrap(L*DELTA)| < DELTA``) its autocorrelation scaled alike, and three standard deviations
     of the noise's share taken off the margin. Returns ``(cosine, margin)`` of the worse direction;
     ``(0, 0)`` when nothing was measured.
+
+    ``N_eol`` (rad^2 electrical) is ``noise[d]`` where given and finite (:func:`split_noise`: the
+    error the pitch errors were measured with), else the sum of the pitch errors' variances from
+    ``sigma`` (the edges' standard errors, rad electrical; 0 for a true fingerprint).
     """
     delta = poles * math.pi / N
     ticks = tick_hz * 60.0 / (abs(ref_rpm) * N)
@@ -293,6 +297,8 @@ def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N
             continue
         x = dF[d::2]
         n_eol = float(var_dF[d::2].sum())
+        if noise is not None and math.isfinite(noise[d]):
+            n_eol = float(noise[d])
         S = max(float(x @ x) - n_eol, 0.0)
         Nf = N * sq * sq
         den = math.sqrt((S + n_eol) * (S + Nf))
@@ -300,10 +306,68 @@ def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N
             return 0.0, 0.0
         rho = S / den
         wrong = max((float(x @ np.roll(x, -L)) / den for L in lags), default=0.0)
-        noise = 3.0 * math.sqrt(2.0) * sq / math.sqrt(S + Nf)
-        cand = (rho - 3.0 * sq / math.sqrt(S + Nf), rho - max(wrong, 0.0) - noise)
+        share = 3.0 * math.sqrt(2.0) * sq / math.sqrt(S + Nf)  # three sd of the field noise's share
+        cand = (rho - 3.0 * sq / math.sqrt(S + Nf), rho - max(wrong, 0.0) - share)
         out = cand if out is None or cand[1] < out[1] else out
     return out if out is not None else (0.0, 0.0)
+
+
+#: at most this many ways of splitting the stretches in two (:func:`split_noise`)
+SPLITS = 32
+
+
+def split_noise(prints: Sequence[WindowEdges | None], fp: Fingerprint, poles: int, N: int) -> np.ndarray:
+    """The error energy of the fingerprint's pitch errors (rad^2 electrical, per direction, NaN
+    where it cannot be measured), measured from the edges themselves.
+
+    The stretches of the windows placed in ``fp`` are split into two halves of (about) equal
+    count, each half fitted alone in the block's frame. Whatever differs from stretch to stretch
+    (the tick quantisation, the motion a stretch's polynomial misses) differs between the halves;
+    each half carries about twice the whole fit's error variance, so the pitch errors' squared
+    difference over 4 is the whole fit's error energy (more where the halves are unequal). One
+    split's figure scatters by a factor of two (a few dozen degrees of freedom); the mean over up to
+    :data:`SPLITS` splits (every one for a few stretches, else drawn with a fixed seed) is steadier.
+    The edges' standard errors (``fp.sigma``) take the residual as white and of one size for every
+    stretch: a stretch whose motion the polynomial misses (a load step inside it) makes them tens
+    of times the fingerprint's actual error, which varies mostly slowly with the angle, where the
+    pitch errors hardly see it.
+    """
+    import itertools
+
+    quarter = poles * math.pi / N / 4.0
+    items = [(EdgeSums([st], N, quarter), fp.offsets[i]) for i, w in enumerate(prints)
+             if w is not None and fp.offsets[i] is not None for st in w.stretches]
+    n = len(items)
+    out = np.full(2, np.nan)
+    if n < 2:
+        return out
+    # the splits: subsets holding stretch 0 (a split and its mirror are one), n // 2 stretches each
+    firsts = [c for c in itertools.combinations(range(1, n), n // 2 - 1)]
+    if len(firsts) > SPLITS:
+        rng = np.random.default_rng(0)
+        firsts = [firsts[i] for i in sorted(rng.choice(len(firsts), SPLITS, replace=False))]
+    sums, counts = np.zeros(2), np.zeros(2)
+    for c in firsts:
+        one = {0, *c}
+        fits = []
+        for part in ([k for k in range(n) if k in one], [k for k in range(n) if k not in one]):
+            placed = PlacedWindows(N)
+            for k in part:
+                stats, r = items[k]
+                assert r is not None  # items hold placed windows only
+                placed.add(stats, r)
+            fits.append(placed.fit(cov=False))
+        a, b = fits
+        if a is None or b is None:
+            continue
+        for d in (0, 1):
+            if fp.dirs & a[3] & b[3] & (1 << d):
+                diff = pitch_errors(a[0], N)[d::2] - pitch_errors(b[0], N)[d::2]
+                sums[d] += float(diff @ diff) / 4.0
+                counts[d] += 1
+    ok = counts > 0
+    out[ok] = sums[ok] / counts[ok]
+    return out
 
 
 def block_frame_mech_angle(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, poles: int, N: int
