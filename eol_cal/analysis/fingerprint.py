@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.firmware.estimator import quadrature_phase
-from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, PlacedWindows
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, JointFit, PlacedWindows
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
@@ -322,11 +322,14 @@ def split_noise(prints: Sequence[WindowEdges | None], fp: Fingerprint, poles: in
 
     The stretches of the windows placed in ``fp`` are split into two halves of (about) equal
     count, each half fitted alone in the block's frame. Whatever differs from stretch to stretch
-    (the tick quantisation, the motion a stretch's polynomial misses) differs between the halves;
-    each half carries about twice the whole fit's error variance, so the pitch errors' squared
-    difference over 4 is the whole fit's error energy (more where the halves are unequal). One
-    split's figure scatters by a factor of two (a few dozen degrees of freedom); the mean over up to
-    :data:`SPLITS` splits (every one for a few stretches, else drawn with a fixed seed) is steadier.
+    (the tick quantisation, the motion a stretch's polynomial misses) differs between the halves:
+    their pitch errors' squared difference measures the noise's size, and the fits' normal
+    equations how much of it reaches each fit (the sum of the pitch errors' unit variances: the
+    whole fit's over the two halves', about 1/4 when the halves cover the pulses alike, far less
+    when a half barely does). One split's figure scatters by a factor of two (a few dozen degrees
+    of freedom); the sums over up to :data:`SPLITS` splits (every one for a few stretches, else
+    drawn with a fixed seed) are steadier.
+
     The edges' standard errors (``fp.sigma``) take the residual as white and of one size for every
     stretch: a stretch whose motion the polynomial misses (a load step inside it) makes them tens
     of times the fingerprint's actual error, which varies mostly slowly with the angle, where the
@@ -339,35 +342,47 @@ def split_noise(prints: Sequence[WindowEdges | None], fp: Fingerprint, poles: in
              if w is not None and fp.offsets[i] is not None for st in w.stretches]
     n = len(items)
     out = np.full(2, np.nan)
-    if n < 2:
+    whole = _fit_items(items, N)
+    if n < 2 or whole is None:
         return out
     # the splits: subsets holding stretch 0 (a split and its mirror are one), n // 2 stretches each
-    firsts = [c for c in itertools.combinations(range(1, n), n // 2 - 1)]
+    firsts = list(itertools.combinations(range(1, n), n // 2 - 1))
     if len(firsts) > SPLITS:
         rng = np.random.default_rng(0)
         firsts = [firsts[i] for i in sorted(rng.choice(len(firsts), SPLITS, replace=False))]
-    sums, counts = np.zeros(2), np.zeros(2)
+    diff2, unit2 = np.zeros(2), np.zeros(2)
     for c in firsts:
         one = {0, *c}
-        fits = []
-        for part in ([k for k in range(n) if k in one], [k for k in range(n) if k not in one]):
-            placed = PlacedWindows(N)
-            for k in part:
-                stats, r = items[k]
-                assert r is not None  # items hold placed windows only
-                placed.add(stats, r)
-            fits.append(placed.fit(cov=False))
-        a, b = fits
+        a = _fit_items([x for k, x in enumerate(items) if k in one], N)
+        b = _fit_items([x for k, x in enumerate(items) if k not in one], N)
         if a is None or b is None:
             continue
         for d in (0, 1):
-            if fp.dirs & a[3] & b[3] & (1 << d):
+            if fp.dirs & whole[3] & a[3] & b[3] & (1 << d):
                 diff = pitch_errors(a[0], N)[d::2] - pitch_errors(b[0], N)[d::2]
-                sums[d] += float(diff @ diff) / 4.0
-                counts[d] += 1
-    ok = counts > 0
-    out[ok] = sums[ok] / counts[ok]
+                diff2[d] += float(diff @ diff)
+                unit2[d] += _pitch_unit_var(a, N, d) + _pitch_unit_var(b, N, d)
+    ok = unit2 > 0
+    for d in np.flatnonzero(ok):
+        out[d] = diff2[d] / unit2[d] * _pitch_unit_var(whole, N, int(d))
     return out
+
+
+def _fit_items(items: Sequence[tuple[EdgeSums, int | None]], N: int) -> JointFit | None:
+    """The joint fit (with variances) of stretches at their offsets."""
+    placed = PlacedWindows(N)
+    for stats, r in items:
+        assert r is not None  # only stretches of placed windows
+        placed.add(stats, r)
+    return placed.fit(cov=True) if items else None
+
+
+def _pitch_unit_var(fit: JointFit, N: int, d: int) -> float:
+    """The sum over direction ``d``'s pitch errors of their variances at unit noise variance per
+    edge (the fit's variances over its residual variance; neighbours' covariance left out)."""
+    fp_, var, rss, _, dof = fit
+    v = var[d::2] / max(rss / max(dof, 1), 1e-300)
+    return float(np.sum(v + np.roll(v, 1)))
 
 
 def block_frame_mech_angle(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, poles: int, N: int
