@@ -362,9 +362,9 @@ def split_noise(prints: Sequence[WindowEdges | None], fp: Fingerprint, poles: in
                 diff = pitch_errors(a[0], N)[d::2] - pitch_errors(b[0], N)[d::2]
                 diff2[d] += float(diff @ diff)
                 unit2[d] += _pitch_unit_var(a, N, d) + _pitch_unit_var(b, N, d)
-    ok = unit2 > 0
-    for d in np.flatnonzero(ok):
-        out[d] = diff2[d] / unit2[d] * _pitch_unit_var(whole, N, int(d))
+    for k in (0, 1):
+        if unit2[k] > 0:
+            out[k] = diff2[k] / unit2[k] * _pitch_unit_var(whole, N, k)
     return out
 
 
