@@ -21,6 +21,7 @@ its uncertainty and the tick quantisation.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -335,8 +336,6 @@ def split_noise(prints: Sequence[WindowEdges | None], fp: Fingerprint, poles: in
     of times the fingerprint's actual error, which varies mostly slowly with the angle, where the
     pitch errors hardly see it.
     """
-    import itertools
-
     quarter = poles * math.pi / N / 4.0
     items = [(EdgeSums([st], N, quarter), fp.offsets[i]) for i, w in enumerate(prints)
              if w is not None and fp.offsets[i] is not None for st in w.stretches]
