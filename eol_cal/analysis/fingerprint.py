@@ -21,6 +21,7 @@ its uncertainty and the tick quantisation.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.firmware.estimator import quadrature_phase
-from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, PlacedWindows
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, JointFit, PlacedWindows
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
@@ -269,16 +270,20 @@ def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWind
 
 
 def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N: int, tick_hz: float,
-                     ref_rpm: float = REF_RPM) -> tuple[float, float]:
+                     ref_rpm: float = REF_RPM, noise: Sequence[float] | np.ndarray | None = None) -> tuple[float, float]:
     """The identification the firmware can expect after one revolution of samples at ``ref_rpm``.
 
     For each measured direction: the signal energy of the pitch errors ``S`` (their sum of squares
-    less the measurement's noise), the field's noise energy ``N_f`` (the tick quantisation of one
-    pitch, ``DELTA / sqrt(6) / ticks_per_pitch`` per sample); the true hypothesis' cosine
+    less the measurement's noise ``N_eol``), the field's noise energy ``N_f`` (the tick quantisation
+    of one pitch, ``DELTA / sqrt(6) / ticks_per_pitch`` per sample); the true hypothesis' cosine
     ``S / sqrt((S + N_eol) (S + N_f))``, each pole-pair neighbour's (lags L with
     ``|wrap(L*DELTA)| < DELTA``) its autocorrelation scaled alike, and three standard deviations
     of the noise's share taken off the margin. Returns ``(cosine, margin)`` of the worse direction;
     ``(0, 0)`` when nothing was measured.
+
+    ``N_eol`` (rad^2 electrical) is ``noise[d]`` where given and finite (:func:`split_noise`: the
+    error the pitch errors were measured with), else the sum of the pitch errors' variances from
+    ``sigma`` (the edges' standard errors, rad electrical; 0 for a true fingerprint).
     """
     delta = poles * math.pi / N
     ticks = tick_hz * 60.0 / (abs(ref_rpm) * N)
@@ -293,6 +298,8 @@ def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N
             continue
         x = dF[d::2]
         n_eol = float(var_dF[d::2].sum())
+        if noise is not None and math.isfinite(noise[d]):
+            n_eol = float(noise[d])
         S = max(float(x @ x) - n_eol, 0.0)
         Nf = N * sq * sq
         den = math.sqrt((S + n_eol) * (S + Nf))
@@ -300,10 +307,81 @@ def predicted_margin(fp: np.ndarray, sigma: np.ndarray, dirs: int, poles: int, N
             return 0.0, 0.0
         rho = S / den
         wrong = max((float(x @ np.roll(x, -L)) / den for L in lags), default=0.0)
-        noise = 3.0 * math.sqrt(2.0) * sq / math.sqrt(S + Nf)
-        cand = (rho - 3.0 * sq / math.sqrt(S + Nf), rho - max(wrong, 0.0) - noise)
+        share = 3.0 * math.sqrt(2.0) * sq / math.sqrt(S + Nf)  # three sd of the field noise's share
+        cand = (rho - 3.0 * sq / math.sqrt(S + Nf), rho - max(wrong, 0.0) - share)
         out = cand if out is None or cand[1] < out[1] else out
     return out if out is not None else (0.0, 0.0)
+
+
+#: at most this many ways of splitting the stretches in two (:func:`split_noise`)
+SPLITS = 32
+
+
+def split_noise(prints: Sequence[WindowEdges | None], fp: Fingerprint, poles: int, N: int) -> np.ndarray:
+    """The error energy of the fingerprint's pitch errors (rad^2 electrical, per direction, NaN
+    where it cannot be measured), measured from the edges themselves.
+
+    The stretches of the windows placed in ``fp`` are split into two halves of (about) equal
+    count, each half fitted alone in the block's frame. Whatever differs from stretch to stretch
+    (the tick quantisation, the motion a stretch's polynomial misses) differs between the halves:
+    their pitch errors' squared difference measures the noise's size, and the fits' normal
+    equations how much of it reaches each fit (the sum of the pitch errors' unit variances: the
+    whole fit's over the two halves', about 1/4 when the halves cover the pulses alike, far less
+    when a half barely does). One split's figure scatters by a factor of two (a few dozen degrees
+    of freedom); the sums over up to :data:`SPLITS` splits (every one for a few stretches, else
+    drawn with a fixed seed) are steadier.
+
+    The edges' standard errors (``fp.sigma``) take the residual as white and of one size for every
+    stretch: a stretch whose motion the polynomial misses (a load step inside it) makes them tens
+    of times the fingerprint's actual error, which varies mostly slowly with the angle, where the
+    pitch errors hardly see it.
+    """
+    quarter = poles * math.pi / N / 4.0
+    items = [(EdgeSums([st], N, quarter), fp.offsets[i]) for i, w in enumerate(prints)
+             if w is not None and fp.offsets[i] is not None for st in w.stretches]
+    n = len(items)
+    out = np.full(2, np.nan)
+    whole = _fit_items(items, N)
+    if n < 2 or whole is None:
+        return out
+    # the splits: subsets holding stretch 0 (a split and its mirror are one), n // 2 stretches each
+    firsts = list(itertools.combinations(range(1, n), n // 2 - 1))
+    if len(firsts) > SPLITS:
+        rng = np.random.default_rng(0)
+        firsts = [firsts[i] for i in sorted(rng.choice(len(firsts), SPLITS, replace=False))]
+    diff2, unit2 = np.zeros(2), np.zeros(2)
+    for c in firsts:
+        one = {0, *c}
+        a = _fit_items([x for k, x in enumerate(items) if k in one], N)
+        b = _fit_items([x for k, x in enumerate(items) if k not in one], N)
+        if a is None or b is None:
+            continue
+        for d in (0, 1):
+            if fp.dirs & whole[3] & a[3] & b[3] & (1 << d):
+                diff = pitch_errors(a[0], N)[d::2] - pitch_errors(b[0], N)[d::2]
+                diff2[d] += float(diff @ diff)
+                unit2[d] += _pitch_unit_var(a, N, d) + _pitch_unit_var(b, N, d)
+    for k in (0, 1):
+        if unit2[k] > 0:
+            out[k] = diff2[k] / unit2[k] * _pitch_unit_var(whole, N, k)
+    return out
+
+
+def _fit_items(items: Sequence[tuple[EdgeSums, int | None]], N: int) -> JointFit | None:
+    """The joint fit (with variances) of stretches at their offsets."""
+    placed = PlacedWindows(N)
+    for stats, r in items:
+        assert r is not None  # only stretches of placed windows
+        placed.add(stats, r)
+    return placed.fit(cov=True) if items else None
+
+
+def _pitch_unit_var(fit: JointFit, N: int, d: int) -> float:
+    """The sum over direction ``d``'s pitch errors of their variances at unit noise variance per
+    edge (the fit's variances over its residual variance; neighbours' covariance left out)."""
+    fp_, var, rss, _, dof = fit
+    v = var[d::2] / max(rss / max(dof, 1), 1e-300)
+    return float(np.sum(v + np.roll(v, 1)))
 
 
 def block_frame_mech_angle(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, poles: int, N: int

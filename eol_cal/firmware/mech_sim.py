@@ -57,7 +57,10 @@ class PowerUp:
     mech : the block's mechanical part (its fingerprint measured or true);
     theta0 : mechanical angle at power-on (rad); rpm0, rpm1 : speed at power-on and after the
     ramp (mechanical rpm, signed), the ramp over [ramp_s[0], ramp_s[1]] s;
-    jitter_deg : white noise on the angle the sensors see (mechanical degrees per tick).
+    jitter_deg : white noise on the angle the sensors see (mechanical degrees per tick);
+    frame_pulse : the model's pulse that is pulse 0 of the block's frame (0: the block's frame is the
+    model's pulse numbering, a true fingerprint; a fingerprint measured at end of line is in the
+    frame of its first capture window's count).
     """
 
     errors: SensorErrors
@@ -67,11 +70,13 @@ class PowerUp:
     rpm1: float | None = None
     ramp_s: tuple[float, float] = (0.0, 0.0)
     jitter_deg: float = 0.0
+    frame_pulse: int = 0
 
     def truth_r(self, poles: int) -> int:
-        """The offset the identifier must find: the block's frame is the model's pulse numbering."""
-        a, b, _ = encoder_hall_signals(np.float64(self.theta0), poles, len(self.errors.edge_error), self.errors)
-        return pulse_at(self.theta0, self.errors, int(a), int(b))
+        """The offset the identifier must find: firmware pulse 0 in the block's frame."""
+        N = len(self.errors.edge_error)
+        a, b, _ = encoder_hall_signals(np.float64(self.theta0), poles, N, self.errors)
+        return (pulse_at(self.theta0, self.errors, int(a), int(b)) - self.frame_pulse) % N
 
 
 @dataclass(frozen=True)

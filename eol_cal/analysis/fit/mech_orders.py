@@ -282,7 +282,10 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
         zeros = (0.0,) * (2 * N)
         return MechResult(MECH_OFF, tuple(reasons), zeros, (None,) * (2 * N), 0, 0.0,
                           tuple([None] * len(prints)), 0.0, 0.0, threshold, fpr.REF_RPM, ())
-    score, margin = fpr.predicted_margin(fp.fp, fp.sigma, fp.dirs, mi.poles, N, tick_hz)
+    # the fingerprint's error measured from a split of its edges, not its standard errors (white
+    # and pooled over stretches: tens of times its pitch errors' actual error; MECH.md "The switch")
+    score, margin = fpr.predicted_margin(fp.fp, fp.sigma, fp.dirs, mi.poles, N, tick_hz,
+                                         noise=fpr.split_noise(prints, fp, mi.poles, N))
     if margin < threshold or score < min_score:
         reasons.append(f"fingerprint too weak to identify: predicted margin {margin:.3f} (least {threshold:g}), "
                        f"cosine {score:.3f} (least {min_score:g}) after a revolution at {fpr.REF_RPM:g} rpm")
@@ -290,8 +293,7 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     if orders is None:
         reasons.append("mechanical orders not fitted (no segment in an identified window, or the ripple fit did not converge)")
     # the reported standard errors widened for the edges' correlated residuals (AR(1): the rotor's
-    # speed ripple within a stretch); the predicted margin above keeps the fit's own, which the
-    # identification threshold was calibrated on
+    # speed ripple within a stretch); the predicted margin above does not use them
     r1 = edge_residual_correlation(fp, prints, mi.poles, N)
     widen = math.sqrt(max(1.0, (1.0 + r1) / max(1.0 - r1, 1e-3)))
     sigma = tuple(None if not math.isfinite(x) else float(x) * widen for x in fp.sigma)

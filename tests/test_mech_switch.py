@@ -1,0 +1,80 @@
+"""The identification switch end to end (issue 34, item 6; firmware_params/MECH.md "The switch,
+calibrated"): a plant motor through end of line (eol-default, ``fit_motors``, the layout-2 block
+it writes) gets ``MECH_COMP_ENABLE`` from the margin predicted on its FITTED fingerprint, and the
+firmware twin, on the motor's true encoder under that block, agrees: on at 0.3x nominal pitch
+errors (identified right on every power-up), off at 0.1x (the twin cannot identify it).
+
+The fingerprint's own measurement error is measured by splitting its stretches
+(``split_noise``): the edges' standard errors alone make it tens of times too large and switched
+0.3x motors off where the twin identifies them every time (this test's 0.3x motor among them).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from eol_cal.analysis.fingerprint import predicted_margin, split_noise
+from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
+from eol_cal.firmware.mech_params import SWITCH_MARGIN
+from eol_cal.firmware.mech_sim import simulate_powerups
+from eol_cal.sim.mech_motors import SWITCH_SECONDS, pitch_error_spread, switch_powerups, through_end_of_line
+
+POLES, N = 6, 64
+#: a motor of the end-to-end calibration (its 0.3x margin near the median there, 0.23)
+SEED = 70_008
+POWERUPS = 8
+
+
+@pytest.fixture(scope="module")
+def motors():
+    plants = [pitch_error_spread(s).draw(SEED, serial=f"SIM-{SEED}-{s:g}x") for s in (0.3, 0.1)]
+    return through_end_of_line(plants, SEED)
+
+
+def _on(m) -> bool:
+    return m.block is not None and bool(m.block.flags & FLAG_MECH_COMP_ENABLE)
+
+
+@pytest.mark.slow  # two plant motors through eol-default and the fit, then the twin
+def test_the_switch_is_on_at_0_3x_and_off_at_0_1x_and_the_twin_agrees(motors):
+    strong, weak = motors
+    for m in motors:
+        assert m.result.status == "ok" and m.block is not None and m.block.layout_version == 2
+    assert strong.result.mech.margin >= SWITCH_MARGIN and _on(strong)
+    assert weak.result.mech.margin < SWITCH_MARGIN and not _on(weak)
+    assert any("too weak" in r for r in weak.result.mech.reasons)
+    pus = [p for i, m in enumerate(motors)
+           for p in switch_powerups(m.errors, m.block.mech, POWERUPS, np.random.default_rng(i), m.frame_pulse)]
+    res = simulate_powerups(pus, SWITCH_SECONDS, seed=3)
+    right = np.isfinite(res.first_id_s) & (res.r_first == res.truth) & (res.wrong_ticks == 0)
+    assert (res.wrong_ticks == 0).all()  # never a wrong frame applied, on or off
+    assert right[:POWERUPS].all()  # on: identified right on every power-up
+    assert right[POWERUPS:].sum() < POWERUPS // 2  # off: the twin mostly cannot identify it
+
+
+@pytest.mark.slow
+def test_the_split_measures_the_fingerprints_actual_error_not_its_standard_errors(motors):
+    """The fitted fingerprint's pitch errors against the true encoder's in the block's frame: the
+    split's error energy within a factor of 2.5 of the actual; the standard errors' over 5 times."""
+    from eol_cal.analysis.fingerprint import pitch_errors
+    from eol_cal.analysis.fingerprint_fit import low_order_complement
+    from eol_cal.firmware.kinematics import fingerprint_of
+
+    m = motors[0]
+    fp = m.fingerprint
+    true, _ = fingerprint_of(m.errors, POLES)
+    P = low_order_complement(N)  # the fit cannot see orders 0..2: compare without them
+    true = (P @ (P.T @ np.roll(true, -2 * m.frame_pulse).reshape(N, 2))).reshape(-1)
+    err = pitch_errors(fp.fp, N) - pitch_errors(true, N)
+    noise = split_noise(m.prints, fp, POLES, N)
+    s2 = fp.sigma ** 2
+    for d in (0, 1):
+        actual = float(err[d::2] @ err[d::2])
+        assert 0.4 < noise[d] / actual < 2.5
+        from_sigma = float((s2 + np.roll(s2.reshape(N, 2), 1, axis=0).reshape(-1))[d::2].sum())
+        assert from_sigma > 5 * actual
+    # the product's prediction is this one; from the standard errors it would have switched this motor off
+    score, margin = predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0, noise=noise)
+    assert margin == pytest.approx(m.result.mech.margin, abs=1e-12)
+    assert predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0)[1] < SWITCH_MARGIN
