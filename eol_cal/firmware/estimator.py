@@ -230,22 +230,13 @@ def _scan_chunk(cfg: EstimatorConfig) -> Callable[..., tuple[jax.Array, ...]]:
     return jax.jit(flat)
 
 
-@functools.lru_cache(maxsize=16)
-def _init_batch(cfg: EstimatorConfig) -> Callable[..., tuple[jax.Array, ...]]:
-    """The jitted power-on state of a batch from its first ticks ``abh0[B, 3]``, as a flat tuple."""
-    import jax
-    import jax.numpy as jnp
-
-    return jax.jit(lambda abh0: tuple(init_state(cfg, abh0[:, 2], abh0[:, 0], abh0[:, 1], xp=jnp)))
-
-
 #: the programs this process has read or traced, by kind, configuration, argument shapes and directory
 _PROGRAMS: dict[tuple, Callable[..., tuple[jax.Array, ...]]] = {}
 
 
 def _program(kind: str, cfg: EstimatorConfig, build: Callable[[EstimatorConfig], Callable[..., tuple]],
              args: tuple) -> Callable[..., tuple[jax.Array, ...]]:
-    """``build(cfg)`` (:func:`_scan_chunk`, :func:`_init_batch`) for ``args``, kept between processes.
+    """``build(cfg)`` (:func:`_scan_chunk`) for ``args``, kept between processes.
 
     With a cache directory (:func:`eol_cal.numerics.exported.set_cache_dir`, the CLI's and the
     station's), the program is read from there instead of traced, or exported there after its first
@@ -306,7 +297,7 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
     list of EstimatorOut
         numpy arrays, one entry per tick, one per capture.
     """
-    import jax.numpy as jnp
+    import jax
 
     if not signals:
         return []
@@ -333,9 +324,12 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
             made[table] = hall_tables(table)
         per_lane.append(made[table])
     per_lane += per_lane[:1] * (B - len(per_lane))
-    tables = HallTables(*(jnp.asarray(np.stack(t)) for t in zip(*per_lane, strict=True)))
+    # numpy in: a jnp.asarray here is a program of its own to look up (~0.03 s of a one-capture fit)
+    tables = HallTables(*(np.stack(t) for t in zip(*per_lane, strict=True)))
     pcfg = _program_config(cfg)
-    state = EstimatorState(*_program("init", pcfg, _init_batch, (abh[0],))(abh[0]))
+    # the power-on state is integer logic and zeros: numpy's is the program's, without a program;
+    # committed to the device as the scan's own states are (one program for both)
+    state = jax.device_put(init_state(pcfg, abh[0, :, 2], abh[0, :, 0], abh[0, :, 1]), jax.devices()[0])
     outs = []
     for k in range(0, len(abh), chunk):
         state, out = _scan(pcfg, state, abh[k:k + chunk], tables)

@@ -114,7 +114,8 @@ def fit_many(
         # every compression queued up front (a few kB of result per motor): the workers run ahead
         futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
         with jax.enable_x64(True):
-            grid_j = jax.numpy.asarray(grid)
+            # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
+            grid_j = np.asarray(grid, dtype=np.float64)
             # a known delay reaches the solver in the grid: one program for every delay
             program = spec if spec.fit_delay else dataclasses.replace(spec, delay_s=0.0)
             exported = load_solver(cache_dir, program, S, len(grid)) if mode == "loop" else None
