@@ -57,8 +57,10 @@ def _same(x: est.EstimatorOut, y: est.EstimatorOut) -> None:
 def test_a_second_process_reads_the_scan_instead_of_tracing_it_bit_for_bit(signals, export_dir, monkeypatch):
     plain = _traced(signals, monkeypatch)
     _new_process()
-    first = _run(signals)  # traced, then exported
+    first = _run(signals)  # traced, exported, and the program read back used (what the next process compiles)
     assert [p.name.split("-")[1] for p in export_dir.glob("est-*.jaxexport")] == ["scan"]
+    traced = est._scan_chunk(est._program_config(est.EstimatorConfig.paper()))
+    assert len(est._PROGRAMS) == 1 and next(iter(est._PROGRAMS.values())) is not traced
     _new_process()
     second = _run(signals)  # read back
     assert est._scan_chunk.cache_info().misses == 0  # nothing traced

@@ -253,7 +253,10 @@ def _program(kind: str, cfg: EstimatorConfig, build: Callable[[EstimatorConfig],
         fn = exported.load(directory, f"est-{kind}", key, args)
         if fn is None:
             fn = build(cfg)
-            exported.save(directory, f"est-{kind}", key, fn, args)
+            if exported.save(directory, f"est-{kind}", key, fn, args):
+                # the program read back, not the traced one, compiled now: the next process compiles
+                # nothing (the persistent compilation cache has this one, not the traced one's)
+                fn = exported.load(directory, f"est-{kind}", key, args) or fn
         _PROGRAMS[memo] = fn
     return _PROGRAMS[memo]
 
