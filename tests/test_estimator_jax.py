@@ -70,9 +70,12 @@ def test_signal_model_numpy_and_jax_agree():
         assert np.count_nonzero(np.asarray(g) != r) <= 4
 
 
-def test_chunked_hall_table_is_a_dynamic_argument():
+def test_chunked_hall_table_is_a_dynamic_argument(monkeypatch):
     # a calibrated hall table (two entries moved) runs in the nominal table's compiled program
     # and gives what the numpy reference gives with a config carrying that table
+    from eol_cal.numerics import exported
+
+    monkeypatch.setattr(exported, "_DIR", None)  # the traced programs counted, none read from a cache
     nominal = est.EstimatorConfig.paper()
     skewed = list(est.NOMINAL_HALL_ANGLE)
     skewed[0] += math.radians(4.0)

@@ -188,9 +188,10 @@ def test_exported_solver_round_trip(tmp_path):
 
     seg, _ = synthetic_segments(np.random.default_rng(9), seg_s=0.1, loads_a=(65.0,), c6=0.0, delay_s=0.0)
     spec = FitSpec(fit_c=False, delay_s=0.0)
-    first = fit_segments(seg, spec, cache_dir=tmp_path)  # jitted; saves the export
+    first = fit_segments(seg, spec, cache_dir=tmp_path)  # traced, exported, and the export read back used
     files = list(tmp_path.glob("fit-*.jaxexport"))
     assert len(files) == 1 and files[0].stat().st_size > 1000
+    assert files[0] in cache._LOADED  # the next process compiles nothing the first did not
     assert cache.load_solver(tmp_path, spec, seg.n_segments, 1) is not None
     second = fit_segments(seg, spec, cache_dir=tmp_path)  # deserialized
     assert second.harmonics[6]["k"].value == first.harmonics[6]["k"].value

@@ -113,9 +113,12 @@ def test_window_spans_tolerate_the_rounded_starts_and_find_gaps():
 
 
 @pytest.mark.slow
-def test_chunked_estimator_is_run_jax_with_one_program_for_every_length():
+def test_chunked_estimator_is_run_jax_with_one_program_for_every_length(monkeypatch):
     from eol_cal.analysis.firmware_angle import firmware_config
     from eol_cal.firmware import estimator as est
+    from eol_cal.numerics import exported
+
+    monkeypatch.setattr(exported, "_DIR", None)  # the traced programs counted, none read from a cache
 
     caps = [synthetic_capture(rpm=rpm, seconds=s, fs=10000.0, seed=k) for k, (rpm, s) in enumerate([(120.0, 0.3),
                                                                                                    (-60.0, 0.53)])]

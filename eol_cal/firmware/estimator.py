@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from eol_cal.numerics import exported
 from eol_cal.numerics.arrays import Array
 from eol_cal.firmware.estimator_config import (
     F32, HALF, HALL_NEXT, I32, INV_TWO_PI, K_ACC, K_PITCH, N_LEARN, NOMINAL_HALL_ANGLE, PI,
@@ -199,13 +200,17 @@ JAX_CHUNK = 1024
 JAX_LANES = (1, 2, 4, 8, 16, 24, 32, 48, 64)
 
 
+#: part of the key of the estimator's exported programs: bump it when :func:`step` or the programs change
+_EXPORT_TAG = "eol-cal-estimator-1"
+
+
 @functools.lru_cache(maxsize=16)
-def _scan_chunk(cfg: EstimatorConfig) -> Callable[[EstimatorState, np.ndarray | jax.Array, HallTables],
-                                                 tuple[EstimatorState, EstimatorOut]]:
+def _scan_chunk(cfg: EstimatorConfig) -> Callable[..., tuple[jax.Array, ...]]:
     """The jitted scan over one chunk of ticks of a batch of captures, each lane with its own
     state and hall tables (one program per config and lane count; the hall tables are an
-    argument, so call it with :func:`_program_config`): ``(state[B], abh[chunk, B, 3],
-    tables[B]) -> (state[B], out[chunk, B])``."""
+    argument, so call it with :func:`_program_config`), on flat arguments (an exported program
+    takes and gives plain tuples): ``(*state[B], abh[chunk, B, 3], *tables[B]) -> (*state[B],
+    *out[chunk, B])``; :func:`_scan` rebuilds the tuples."""
     import jax
     import jax.numpy as jnp
 
@@ -215,16 +220,54 @@ def _scan_chunk(cfg: EstimatorConfig) -> Callable[[EstimatorState, np.ndarray | 
 
         return jax.lax.scan(body, s, abh)
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 1, 0), out_axes=(0, 1)))
+    batched = jax.vmap(one, in_axes=(0, 1, 0), out_axes=(0, 1))
+    n_state = len(EstimatorState._fields)
+
+    def flat(*args):
+        state, out = batched(EstimatorState(*args[:n_state]), args[n_state], HallTables(*args[n_state + 1:]))
+        return (*state, *out)
+
+    return jax.jit(flat)
 
 
-@functools.lru_cache(maxsize=16)
-def _init_batch(cfg: EstimatorConfig) -> Callable[[np.ndarray | jax.Array], EstimatorState]:
-    """The jitted power-on state of a batch from its first ticks ``abh0[B, 3]``."""
-    import jax
-    import jax.numpy as jnp
+#: the programs this process has read or traced, by kind, configuration, argument shapes and directory
+_PROGRAMS: dict[tuple, Callable[..., tuple[jax.Array, ...]]] = {}
 
-    return jax.jit(lambda abh0: init_state(cfg, abh0[:, 2], abh0[:, 0], abh0[:, 1], xp=jnp))
+
+def _program(kind: str, cfg: EstimatorConfig, build: Callable[[EstimatorConfig], Callable[..., tuple]],
+             args: tuple) -> Callable[..., tuple[jax.Array, ...]]:
+    """``build(cfg)`` (:func:`_scan_chunk`) for ``args``, kept between processes.
+
+    With a cache directory (:func:`eol_cal.numerics.exported.set_cache_dir`, the CLI's and the
+    station's), the program is read from there instead of traced, or exported there after its first
+    trace; the key holds everything that changes the trace (the configuration, the argument shapes
+    and dtypes, :data:`_EXPORT_TAG`, the JAX version). The same program either way: its outputs are
+    bit for bit the traced one's (tests/test_estimator_export.py).
+    """
+    directory = exported.cache_dir()
+    if directory is None:
+        return build(cfg)
+    key = exported.key_text(_EXPORT_TAG, (kind, cfg, exported.signature(args)[1]))
+    memo = (directory, key)
+    if memo not in _PROGRAMS:
+        fn = exported.load(directory, f"est-{kind}", key, args)
+        if fn is None:
+            fn = build(cfg)
+            if exported.save(directory, f"est-{kind}", key, fn, args):
+                # the program read back, not the traced one, compiled now: the next process compiles
+                # nothing (the persistent compilation cache has this one, not the traced one's)
+                fn = exported.load(directory, f"est-{kind}", key, args) or fn
+        _PROGRAMS[memo] = fn
+    return _PROGRAMS[memo]
+
+
+def _scan(cfg: EstimatorConfig, state: EstimatorState, abh: np.ndarray, tables: HallTables
+          ) -> tuple[EstimatorState, EstimatorOut]:
+    """One chunk of the batched scan (:func:`_scan_chunk`, kept between processes: :func:`_program`)."""
+    args = (*state, abh, *tables)
+    res = _program("scan", cfg, _scan_chunk, args)(*args)
+    n_state = len(EstimatorState._fields)
+    return EstimatorState(*res[:n_state]), EstimatorOut(*res[n_state:])
 
 
 def _lanes(n: int) -> int:
@@ -257,7 +300,7 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
     list of EstimatorOut
         numpy arrays, one entry per tick, one per capture.
     """
-    import jax.numpy as jnp
+    import jax
 
     if not signals:
         return []
@@ -284,13 +327,15 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
             made[table] = hall_tables(table)
         per_lane.append(made[table])
     per_lane += per_lane[:1] * (B - len(per_lane))
-    tables = HallTables(*(jnp.asarray(np.stack(t)) for t in zip(*per_lane, strict=True)))
+    # numpy in: a jnp.asarray here is a program of its own to look up (~0.03 s of a one-capture fit)
+    tables = HallTables(*(np.stack(t) for t in zip(*per_lane, strict=True)))
     pcfg = _program_config(cfg)
-    scan = _scan_chunk(pcfg)
-    state = _init_batch(pcfg)(abh[0])
+    # the power-on state is integer logic and zeros: numpy's is the program's, without a program;
+    # committed to the device as the scan's own states are (one program for both)
+    state = jax.device_put(init_state(pcfg, abh[0, :, 2], abh[0, :, 0], abh[0, :, 1]), jax.devices()[0])
     outs = []
     for k in range(0, len(abh), chunk):
-        state, out = scan(state, abh[k:k + chunk], tables)
+        state, out = _scan(pcfg, state, abh[k:k + chunk], tables)
         outs.append(out)
     fields = [np.concatenate([np.asarray(o[f]) for o in outs]) for f in range(len(EstimatorOut._fields))]
     return [EstimatorOut(*(x[:m, i] for x in fields)) for i, m in enumerate(lengths)]

@@ -114,12 +114,12 @@ def fit_many(
         # every compression queued up front (a few kB of result per motor): the workers run ahead
         futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
         with jax.enable_x64(True):
-            grid_j = jax.numpy.asarray(grid)
+            # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
+            grid_j = np.asarray(grid, dtype=np.float64)
             # a known delay reaches the solver in the grid: one program for every delay
             program = spec if spec.fit_delay else dataclasses.replace(spec, delay_s=0.0)
             exported = load_solver(cache_dir, program, S, len(grid)) if mode == "loop" else None
-            solve = ((lambda c, g, _steps: exported(c, g)) if exported
-                     else cached_solver(program, S, "one" if mode == "loop" else mode))
+            solve = _taking_steps(exported) if exported else cached_solver(program, S, "one" if mode == "loop" else mode)
             save_export = mode == "loop" and exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
@@ -130,12 +130,18 @@ def fit_many(
                     comps = [compress(m, spec, S) for m in block]
                 if mode == "loop":
                     args = (compressed_dict(comps[0]), grid_j)
-                    out = jax.device_get(solve(*args, spec.max_steps))
-                    outs = [out]
                     if save_export:
                         save_export = False
                         save_solver(cache_dir, jax.jit(lambda c, g: build_solver(program, S)(c, g, spec.max_steps)), program,
                                     S, len(grid), args)
+                        # the solver read back, not the traced one, compiled and used from the first
+                        # motor on: the next process compiles nothing (the persistent compilation
+                        # cache holds this program), and every motor gets the same program
+                        exported = load_solver(cache_dir, program, S, len(grid))
+                        if exported:
+                            solve = _taking_steps(exported)
+                    out = jax.device_get(solve(*args, spec.max_steps))
+                    outs = [out]
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
@@ -150,3 +156,9 @@ def fit_many(
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
+
+
+def _taking_steps(exported: Callable) -> Callable:
+    """A deserialized solver ``(compressed, grid)`` called as the jitted ones are, with the step
+    limit (a constant of the exported program, part of its key: ignored)."""
+    return lambda comp, grid, _steps: exported(comp, grid)

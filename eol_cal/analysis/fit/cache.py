@@ -1,6 +1,7 @@
 """The fit's caches on disk: JAX's persistent compilation cache and serialized one-motor solvers.
 
-Both live in one directory, chosen by the caller (:func:`default_cache_dir` computes the default;
+Both live in one directory (the firmware estimator's exported scan too: :mod:`eol_cal.numerics.exported`,
+which reads and writes every serialized program), chosen by the caller (:func:`default_cache_dir` computes the default;
 the CLI and the station pass it on). JAX's compilation cache skips XLA compiling; the serialized
 (``jax.export``) solvers skip tracing the solver (and importing optimistix), about 2 s of a short
 run. Pre-warming a process (imports, one solver trace, matplotlib) sits beside this module:
@@ -9,14 +10,16 @@ run. Pre-warming a process (imports, one solver trace, matplotlib) sits beside t
 
 from __future__ import annotations
 
-import hashlib
 import os
-import re
 from pathlib import Path
 from collections.abc import Callable, Mapping
+from typing import Any
 
+import numpy as np
+
+from eol_cal.analysis.fit.compression import COMPRESSED_KEYS
 from eol_cal.analysis.fit.model import FitSpec
-from eol_cal.infra.atomic import atomic_write
+from eol_cal.numerics.exported import entry_path, key_text, load, save, set_cache_dir
 
 #: environment variable naming the cache directory (``off``: no cache)
 CACHE_ENV = "EOL_CAL_JAX_CACHE"
@@ -43,8 +46,10 @@ def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:
 def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | None:
     """Switch on JAX's persistent compilation cache in ``cache_dir`` (created if missing).
 
-    JAX's cache directory is a setting of the whole process (``jax.config``); the serialized
-    solvers are not: pass the returned directory to :func:`eol_cal.analysis.fit.fit_many`.
+    JAX's cache directory is a setting of the whole process (``jax.config``), and so is the
+    directory of the exported programs that are not the fit's (the firmware estimator's scan:
+    :func:`eol_cal.numerics.exported.set_cache_dir`, set here too; ``None`` unsets it); the
+    serialized solvers are not: pass the returned directory to :func:`eol_cal.analysis.fit.fit_many`.
 
     Returns
     -------
@@ -52,28 +57,53 @@ def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | Non
         ``cache_dir`` when it can be used; ``None`` when it is ``None`` or cannot be created (a
         read-only home only costs the compile time).
     """
+
     if cache_dir is None:
+        set_cache_dir(None)
         return None
     path = Path(cache_dir)
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError:
+        set_cache_dir(None)
         return None
     import jax  # a second to import: only for callers that fit or simulate
 
     jax.config.update("jax_compilation_cache_dir", str(path))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
+    set_cache_dir(path)  # the exported programs of eol_cal.numerics.exported (the firmware estimator's)
     return path
+
+
+def _solver_key(spec: FitSpec, S: int, n_grid: int) -> str:
+    import jax
+
+
+    with jax.enable_x64(True):  # the solver runs in float64 only (fit_many)
+        return key_text(_EXPORT_TAG, (spec, S, n_grid))
 
 
 def solver_file(cache_dir: str | os.PathLike[str], spec: FitSpec, S: int, n_grid: int) -> Path:
     """The file of the serialized solver for ``spec``, ``S`` segments and a delay grid of ``n_grid``
-    points (the key also holds the jax version: an entry is only read back on this installation)."""
+    points (:func:`eol_cal.numerics.exported.entry_path`: the key also holds the JAX version, the
+    backend and the float width: an entry is only read back on this installation)."""
+
+    return entry_path(cache_dir, "fit", _solver_key(spec, S, n_grid))
+
+
+def solver_args(spec: FitSpec, S: int, n_grid: int) -> tuple[dict[str, Any], Any]:
+    """The shapes and dtypes (``jax.ShapeDtypeStruct``) of the one-motor solver's arguments
+    ``(compressed, tau_grid)``: float64, as :func:`eol_cal.analysis.fit.compression.compressed_dict`
+    gives them."""
     import jax
 
-    key = repr((_EXPORT_TAG, jax.__version__, spec, S, n_grid))
-    return Path(cache_dir) / f"fit-{hashlib.sha256(key.encode()).hexdigest()[:20]}.jaxexport"
+    m, nh = spec.n_cols, len(spec.harmonics)
+    shapes = {"R": (S, m, m), "z": (S, m), "n": (S,), "i_qo": (S,), "omega": (S,), "gain_re": (S, nh),
+              "gain_im": (S, nh), "cur_re": (S, nh), "cur_im": (S, nh)}
+    assert set(shapes) == set(COMPRESSED_KEYS)
+    return ({k: jax.ShapeDtypeStruct(v, np.float64) for k, v in shapes.items()},
+            jax.ShapeDtypeStruct((n_grid,), np.float64))
 
 
 #: solvers this process has read, by file: a lot refit fits thousands of motors per process, and
@@ -83,21 +113,20 @@ _LOADED: dict[Path, Callable] = {}
 
 def load_solver(cache_dir: str | os.PathLike[str] | None, spec: FitSpec, S: int, n_grid: int) -> Callable | None:
     """A deserialized one-motor solver ``(compressed, tau_grid) -> outputs`` from ``cache_dir``, or
-    ``None`` (no cache, none yet, or unreadable); read once per process and file."""
+    ``None`` (no cache, none yet, or an entry that is not intact and this solver's:
+    :func:`eol_cal.numerics.exported.load`); read once per process and file."""
     if cache_dir is None:
         return None
+
     path = solver_file(cache_dir, spec, S, n_grid)
     if path in _LOADED:
         return _LOADED[path]
-    try:
-        blob = path.read_bytes()
-        import jax
-        from jax import export
+    import jax
 
-        solve = jax.jit(export.deserialize(bytearray(blob)).call)
-    except Exception:  # noqa: BLE001 - a missing or stale cache entry only costs the tracing
-        return None
-    _LOADED[path] = solve
+    with jax.enable_x64(True):
+        solve = load(cache_dir, "fit", _solver_key(spec, S, n_grid), solver_args(spec, S, n_grid))
+    if solve is not None:
+        _LOADED[path] = solve
     return solve
 
 
@@ -105,26 +134,6 @@ def save_solver(cache_dir: str | os.PathLike[str] | None, fn: Callable, spec: Fi
                 args: tuple) -> None:
     """Serialize the jitted one-motor solver ``fn`` (traced at ``args``) into ``cache_dir`` for the
     next process (best effort, atomic; nothing when ``cache_dir`` is ``None``)."""
-    if cache_dir is None:
-        return
-    try:
-        from jax import export
 
-        # The LAPACK custom calls carry no cross-version guarantee; the file name holds the jax
-        # version and the entry is only read back on this installation.
-        names: set[str] = set()
-        for _ in range(20):
-            try:
-                checks = [export.DisabledSafetyCheck.custom_call(n) for n in sorted(names)]
-                exp = export.export(fn, disabled_checks=checks)(*args)
-                break
-            except ValueError as exc:
-                new = set(re.findall(r"custom_call @(\w+)", str(exc))) - names
-                if not new:
-                    return
-                names |= new
-        else:
-            return
-        atomic_write(solver_file(cache_dir, spec, S, n_grid), bytes(exp.serialize()))
-    except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
-        return
+    if cache_dir is not None:
+        save(cache_dir, "fit", _solver_key(spec, S, n_grid), fn, args)

@@ -1,0 +1,158 @@
+"""Jitted programs kept between processes: ``jax.export`` files in the product's cache directory.
+
+Tracing a JAX program costs a short run more than computing with it (the fit's solver ~2 s with
+optimistix, the firmware estimator's scan ~0.1 s); JAX's persistent compilation cache skips only
+the compiling after it. A program exported here is read back by the next process instead of
+traced: :func:`load` returns it, :func:`save` writes it after the first trace.
+
+Every entry is untrusted input: it is read back only when its header says it is this program
+(the full key text: the caller's tag and options, the argument shapes and dtypes, the JAX version,
+the backend, the float width), its SHA-256 matches the key and the payload (a torn or corrupt
+file), it is not over :data:`MAX_ENTRY_BYTES`, and the deserialized program takes exactly the
+arguments the caller is about to pass. Anything else is ignored (the caller traces and the entry
+is written again); reading never raises. The digest guards against corruption and mix-ups, not
+against someone who can write the user's cache directory (they can write its Python too).
+
+The directory is a setting of the process, as JAX's own compilation cache directory is
+(:func:`set_cache_dir`; ``eol_cal.analysis.fit.cache.enable_compile_cache`` sets both).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eol_cal.infra.atomic import atomic_write
+
+#: the first bytes of every entry (bump the number when the layout below changes)
+MAGIC = b"eol-cal-exported/1\n"
+#: an entry larger than this is not read (the largest, the fit's solver, is ~0.3 MB)
+MAX_ENTRY_BYTES = 64 << 20
+
+_DIR: Path | None = None
+
+
+def set_cache_dir(path: str | os.PathLike[str] | None) -> None:
+    """Keep this process's exported programs in ``path`` (``None``: trace every program afresh)."""
+    global _DIR
+    _DIR = None if path is None else Path(path)
+
+
+def cache_dir() -> Path | None:
+    """The directory :func:`set_cache_dir` set (``None``: none)."""
+    return _DIR
+
+
+def key_text(tag: str, parts: object) -> str:
+    """The full key of a program: ``tag`` (the caller's name and version of its code), ``parts``
+    (everything else that changes the trace: options, shapes, dtypes; its ``repr`` must be
+    deterministic), JAX's version, the default backend and whether 64-bit floats are on."""
+    import jax
+
+    wide = jax.dtypes.canonicalize_dtype(np.float64) == np.float64  # jax.enable_x64 is thread-local
+    return repr((tag, jax.__version__, jax.default_backend(), wide, parts))
+
+
+def entry_path(directory: str | os.PathLike[str], name: str, key: str) -> Path:
+    """The file of the program ``name`` with key ``key`` (:func:`key_text`) in ``directory``."""
+    return Path(directory) / f"{name}-{hashlib.sha256(key.encode()).hexdigest()[:20]}.jaxexport"
+
+
+def _digest(key: bytes, payload: bytes) -> bytes:
+    return hashlib.sha256(len(key).to_bytes(8, "little") + key + payload).digest()
+
+
+def pack(key: str, payload: bytes) -> bytes:
+    """An entry's bytes: :data:`MAGIC`, the key's length (4 bytes), the SHA-256 of key and payload,
+    the key, the serialized program."""
+    k = key.encode()
+    return MAGIC + len(k).to_bytes(4, "little") + _digest(k, payload) + k + payload
+
+
+def unpack(blob: bytes, key: str) -> bytes | None:
+    """The serialized program in ``blob`` if it is an intact entry for ``key``, else ``None``."""
+    k = key.encode()
+    head = len(MAGIC) + 4 + 32
+    if len(blob) < head or not blob.startswith(MAGIC):
+        return None
+    n = int.from_bytes(blob[len(MAGIC):len(MAGIC) + 4], "little")
+    digest = blob[len(MAGIC) + 4:head]
+    if n != len(k) or blob[head:head + n] != k:
+        return None  # another program's entry under this name (or a damaged header)
+    payload = blob[head + n:]
+    return payload if _digest(k, payload) == digest else None
+
+
+def signature(args: Any) -> tuple:
+    """The argument structure and ``(shape, dtype)`` of every leaf, as JAX would trace them."""
+    import jax
+
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    shapes = tuple(tuple(x.shape) if hasattr(x, "shape") else np.shape(x) for x in leaves)
+    dtypes = tuple(jax.dtypes.canonicalize_dtype(x.dtype if hasattr(x, "dtype") else np.result_type(x)) for x in leaves)
+    return tree, tuple(zip(shapes, dtypes, strict=True))
+
+
+def load(directory: str | os.PathLike[str] | None, name: str, key: str, args: tuple) -> Callable | None:
+    """The program ``name`` with key ``key`` from ``directory``, jitted, if an intact entry holds it
+    and it takes the positional arguments ``args`` (arrays, or ``jax.ShapeDtypeStruct``, in the
+    structure of the call);
+    ``None`` otherwise (no directory, no entry, a damaged, foreign or oversized one). Never raises."""
+    if directory is None:
+        return None
+    try:
+        path = entry_path(directory, name, key)
+        with open(path, "rb") as fh:
+            if os.fstat(fh.fileno()).st_size > MAX_ENTRY_BYTES:
+                return None
+            blob = fh.read(MAX_ENTRY_BYTES + 1)
+        payload = unpack(blob, key)
+        if payload is None:
+            return None
+        import jax
+        from jax import export
+
+        exp = export.deserialize(bytearray(payload))
+        tree, avals = signature((tuple(args), {}))  # an export's inputs are (args, kwargs)
+        if exp.in_tree != tree or tuple((tuple(a.shape), a.dtype) for a in exp.in_avals) != avals:
+            return None
+        return jax.jit(exp.call)
+    except Exception:  # noqa: BLE001 - an unreadable entry only costs the tracing
+        return None
+
+
+def save(directory: str | os.PathLike[str] | None, name: str, key: str, fn: Any, args: tuple) -> bool:
+    """Export the jitted ``fn`` at ``args`` into ``directory`` as ``name`` with key ``key``
+    (atomically; best effort: False when not written, nothing when ``directory`` is ``None``).
+
+    Custom calls (LAPACK's) carry no compatibility guarantee across JAX versions; the key holds
+    the version, so an entry is only read back by the installation that wrote it.
+    """
+    if directory is None:
+        return False
+    try:
+        from jax import export
+
+        names: set[str] = set()
+        for _ in range(20):
+            try:
+                checks = [export.DisabledSafetyCheck.custom_call(n) for n in sorted(names)]
+                exp = export.export(fn, disabled_checks=checks)(*args)
+                break
+            except ValueError as exc:
+                new = set(re.findall(r"custom_call @(\w+)", str(exc))) - names
+                if not new:
+                    return False
+                names |= new
+        else:
+            return False
+        atomic_write(entry_path(directory, name, key), pack(key, bytes(exp.serialize())))
+        return True
+    except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
+        return False
