@@ -12,7 +12,9 @@ took out the encoder errors' mechanical orders 1-2 measured against the halls (i
 model check's false mismatches; ``angle_correction`` says so, the estimates moved by the orders'
 noise on these ideal encoders, k6 by 1e-5 relative), and when a fit of fewer than 3 segments
 stopped giving the orders an interval and the intervals took the segments' scatter from 7
-segments on (``one_load.json``: null intervals and a ``no_interval`` reason); write
+segments on (``one_load.json``: null intervals and a ``no_interval`` reason), and when the
+mechanical switch's margin took the fingerprint's measured error (threshold 0.03; ``mech.margin``
+and its reason only); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """
