@@ -54,10 +54,11 @@ def transducer_step(y: Array, T_shaft: Array, noise: Array, p: SensorCoefficient
 
     Returns
     -------
-    (new state, reading) both N*m.
+    (new state, reading) both N*m: the state after the tick under the shaft torque held over it,
+    the reading of the state at the tick's start (the ADC samples with the angle and the currents).
     """
-    y = y + p.tq_gain * (T_shaft - y)
-    return y, quantise(y + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
+    reading = quantise(y + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
+    return y + p.tq_gain * (T_shaft - y), reading
 
 
 def current_reading(i_x: Array, noise: Array, p: SensorCoefficients, xp: ArrayModule) -> Array:
