@@ -14,11 +14,11 @@ Each tick (see :mod:`eol_cal.plant.control` for the ECU's rates):
    controller updates the dq voltage reference;
 4. the voltage reference is rotated with the latest control angle, limited by the SVPWM inverter,
    and rotated into the rotor's true dq frame; the motor's currents advance exactly over the tick;
-5. torque ``kt*i_q`` minus the ripple sources (at the tick's middle angle: held over the tick,
-   that is their mean over it) drives the rotor; the shaft and the dyno advance and the torque
-   transducer's state follows the shaft. The recorded reading is the transducer's output at the
-   tick's start, the instant of every other recorded column (angle, currents): recorded after
-   its update it led them by a tick, with the ripple at the start angle the chain led its
+5. torque ``kt*i_q`` minus the ripple sources drives the rotor; the shaft and the dyno advance and
+   the torque transducer follows the shaft. The ripple held over the tick is its start angle's,
+   so the chain runs half a tick behind that angle: the reading recorded beside it is the
+   transducer's output half a tick on, the mean of its states at the tick's start and end
+   (:func:`eol_cal.plant.sensors.transducer_step`). Recorded at the tick's end it led its
    continuous model by 25 us, which a 60 Hz transducer's fitted gain turned into a k6 bias of
    -0.12 % (issue 34).
 
@@ -78,15 +78,6 @@ class PlantState(NamedTuple):
 def _rotate(x: Any, y: Any, c: Any, s: Any) -> tuple[Any, Any]:
     """Rotate the vector (x, y) by the angle whose cosine and sine are (c, s)."""
     return c * x - s * y, s * x + c * y
-
-
-def half_tick_angle(cos_m: Any, sin_m: Any, d_theta: Any) -> tuple[Any, Any]:
-    """Cosine and sine of ``theta_m + d_theta`` from those of ``theta_m`` for a small step
-    ``d_theta`` (rad; half a tick's travel: 3e-4 rad at 120 rpm, 0.02 rad at 7500 rpm), by the
-    rotation's Taylor series to third order (error ``d_theta^4 / 24``: no sine per tick)."""
-    d2 = d_theta * d_theta
-    c, s = 1.0 - 0.5 * d2, d_theta * (1.0 - d2 / 6.0)
-    return _rotate(cos_m, sin_m, c, s)
 
 
 class Sensed(NamedTuple):
@@ -198,13 +189,7 @@ def tick(cfg: PlantSimConfig, p: PlantParams, i_noise: Any, carry: tuple, x: tup
         u_al, u_be = u_al + e_al, u_be + e_be
     v_d, v_q = _rotate(u_al, u_be, cos_r, -sin_r)
     T_e = machine.electromagnetic_torque(plant.i_d, plant.i_q, p, cfg.poles)
-    # the ripple held over the tick is its value at the tick's middle angle (the tick's mean to
-    # O(dt^2)): at the start angle it would lag the rotor by half a tick (issue 34's k6 bias)
-    cos_h, sin_h = half_tick_angle(cos_m, sin_m, plant.omega_m * (0.5 * dt))
-    cos_hr, sin_hr = cos_h, sin_h
-    for _ in range(pp - 1):
-        cos_hr, sin_hr = _rotate(cos_hr, sin_hr, cos_h, sin_h)
-    T_rotor = T_e - ripple.ripple_torque(cos_hr, sin_hr, cos_h, sin_h, plant.i_q, p)
+    T_rotor = T_e - ripple.ripple_torque(cos_r, sin_r, cos_m, sin_m, plant.i_q, p)
     i_d, i_q = machine.current_step(plant.i_d, plant.i_q, v_d, v_q, omega_r, p)
 
     # 5: shaft, dyno, transducer
