@@ -12,9 +12,9 @@ mechanical orders), and every reported interval is judged against the plant's tr
   out with the ``iq`` channel, docs/fit.md);
 - ``delay_s``: the lag of the sampled torque behind the capture's angle, as the first-order
   low-pass the fit models it (:func:`chain_delay_s`): the transducer's time constant
-  ``1 / (2 pi tq_bw_hz)`` as the plant samples it, with the shaft line's semi-implicit Euler step and
-  the transducer's one-tick update, 27-34 us shorter on the plant's 20 kHz tick (a sampled chain
-  leads its continuous model; the fit measures the chain it is given);
+  ``1 / (2 pi tq_bw_hz)`` as the plant samples it, with the shaft line's semi-implicit Euler step
+  and the transducer's reading half a tick on (within 0.2 us of the time constant since issue 34's
+  fix of the plant's reading; 25 us short before);
 - ``mech{h}`` and ``phase_mech{h}`` (h = 1..3): each order in the block's frame (the truth's
   phase moved by the frame's mechanical angle against the plant's, measured per sample);
 - ``fingerprint``: every edge error against the plant's pulse placement in the block's
@@ -70,10 +70,11 @@ def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
     low-pass that, behind the continuous shaft line the fit divides out, has the chain's phase,
     averaged over ``freqs_hz`` (Hz, the 6th harmonic at the profile's speeds).
 
-    The chain is the plant's own tick (:func:`eol_cal.domain.bench_mechanics.mech_step`, then the transducer's
-    ``y += tq_gain (T_shaft - y)`` of :func:`eol_cal.plant.sensors.transducer_step`, recorded with
-    the tick's start time), linear in its state (twist, speeds, the dyno's integrator, the
-    transducer's state) about standstill, so its response is ``C (zI - A)^-1 b`` at ``z = e^{i w dt}``.
+    The chain is the plant's own tick (:func:`eol_cal.domain.bench_mechanics.mech_step`, then the
+    transducer's ``y += tq_gain (T_shaft - y)`` of :func:`eol_cal.plant.sensors.transducer_step`,
+    whose reading is the mean of its states at the tick's start and end), linear in its state
+    (twist, speeds, the dyno's integrator, the transducer's state) about standstill, so its
+    response is ``C (zI - A)^-1 b + d`` at ``z = e^{i w dt}``.
     """
     from types import SimpleNamespace
 
@@ -88,7 +89,7 @@ def chain_delay_s(p, freqs_hz: np.ndarray) -> float:
     def tick(x: np.ndarray, u: float) -> tuple[np.ndarray, float]:
         _, tw, om, od, xd, T_shaft = mech_step(0.0, x[0], x[1], x[2], x[3], u, 0.0, line, dt, np)
         y = x[4] + g * (T_shaft - x[4])
-        return np.array([tw, om, od, xd, y]), y
+        return np.array([tw, om, od, xd, y]), 0.5 * (x[4] + y)
 
     cols = [tick(e, 0.0) for e in np.eye(5)]
     A = np.column_stack([c[0] for c in cols])

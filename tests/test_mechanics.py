@@ -82,8 +82,9 @@ def test_mechanical_response_matches_the_plants_shaft_line():
 @pytest.mark.slow
 def test_fit_on_the_plant_recovers_the_motors_own_k6_with_the_bench():
     """A clean plant motor (no noise, ideal sensors, no unbalance): with the bench divided out the
-    fit's k6 is the motor's to 0.25 %; taking the shaft torque as the motor's (rigid coupling)
-    reads it 0.5 % or more low (rotor inertia share and the current loop's reaction)."""
+    fit's k6 is the motor's to 0.25 % (-0.03 %); taking the shaft torque as the motor's (rigid
+    coupling) reads it 0.3 % or more low (-0.39 %: rotor inertia share and the current loop's
+    reaction; -0.51 % before issue 34's fix of the plant's tick, whose sampled chain added -0.12 %)."""
     from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit.capture import motor_inputs
     from eol_cal.plant.presets import paper
@@ -101,4 +102,4 @@ def test_fit_on_the_plant_recovers_the_motors_own_k6_with_the_bench():
         assert f.converged
         errs[name] = f.harmonics[6]["k"].value / spec.k6 - 1
     assert abs(errs["bench"]) < 0.0025, errs
-    assert errs["rigid"] < -0.005, errs
+    assert errs["rigid"] < -0.003, errs

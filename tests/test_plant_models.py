@@ -102,3 +102,16 @@ def test_dead_time_opposes_phase_currents():
     # the lost voltage vector points against the current vector
     assert e_al * i_a + e_be * (i_b - i_c) / math.sqrt(3.0) < 0.0
     assert math.hypot(e_al, e_be) <= 2.0 / 3.0 * 0.1 * 2.0 + 1e-12
+
+
+def test_transducer_reading_is_its_output_half_a_tick_on():
+    # the tick holds the ripple of its start angle, half a tick behind the continuous chain: the
+    # reading beside that angle is the output half a tick on, the mean of the states at the tick's
+    # start and end; the end's state led the continuous chain by 25 us (issue 34's k6 bias,
+    # tests/test_fit_plant.py)
+    from eol_cal.plant import sensors
+
+    p = to_params(paper(), np.zeros(16), np.zeros(16), 0.0, 0.0)
+    y, reading = sensors.transducer_step(np.float32(1.0), np.float32(2.0), np.float32(0.0), p, np)
+    assert abs(y - (1.0 + float(p.tq_gain))) < 1e-6
+    assert abs(reading - (1.0 + 0.5 * float(p.tq_gain))) <= 0.5 * float(p.tq_lsb_nm) + 1e-6

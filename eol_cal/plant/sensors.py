@@ -54,10 +54,14 @@ def transducer_step(y: Array, T_shaft: Array, noise: Array, p: SensorCoefficient
 
     Returns
     -------
-    (new state, reading) both N*m.
+    (new state, reading) both N*m: the state after the tick under the shaft torque held over it,
+    and the reading of the output half a tick on, the mean of the states at the tick's start and
+    end (to O(dt^2)): the plant holds each tick's torque from the tick's start angle, half a tick
+    behind its continuous model, so this reading is in step with that angle (issue 34: the state
+    at the tick's end, a tick ahead, led the continuous chain by 25 us).
     """
-    y = y + p.tq_gain * (T_shaft - y)
-    return y, quantise(y + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
+    y_next = y + p.tq_gain * (T_shaft - y)
+    return y_next, quantise(0.5 * (y + y_next) + p.tq_noise_nm * noise, p.tq_lsb_nm, xp)
 
 
 def current_reading(i_x: Array, noise: Array, p: SensorCoefficients, xp: ArrayModule) -> Array:

@@ -15,7 +15,12 @@ Each tick (see :mod:`eol_cal.plant.control` for the ECU's rates):
 4. the voltage reference is rotated with the latest control angle, limited by the SVPWM inverter,
    and rotated into the rotor's true dq frame; the motor's currents advance exactly over the tick;
 5. torque ``kt*i_q`` minus the ripple sources drives the rotor; the shaft and the dyno advance and
-   the torque transducer samples the shaft.
+   the torque transducer follows the shaft. The ripple held over the tick is its start angle's,
+   so the chain runs half a tick behind that angle: the reading recorded beside it is the
+   transducer's output half a tick on, the mean of its states at the tick's start and end
+   (:func:`eol_cal.plant.sensors.transducer_step`). Recorded at the tick's end it led its
+   continuous model by 25 us, which a 60 Hz transducer's fitted gain turned into a k6 bias of
+   -0.12 % (issue 34).
 
 Everything runs in float32, on numpy arrays for the initial state and traced JAX arrays in the scan.
 """
