@@ -132,6 +132,22 @@ def test_an_oversized_entry_is_not_read(tmp_path, monkeypatch):
     assert exported.load(tmp_path, "t", key, args) is None
 
 
+def test_a_fifo_under_an_entrys_name_is_passed_over_unread(tmp_path):
+    """An open() of a FIFO waits for a writer: the entry is read through the bounded reader,
+    which refuses anything but a regular file."""
+    import os
+    import threading
+
+    args = (np.arange(4, dtype=np.int32),)
+    key = exported.key_text("t-1", "double")
+    os.mkfifo(exported.entry_path(tmp_path, "t", key))
+    got: dict = {}
+    reader = threading.Thread(target=lambda: got.update(fn=exported.load(tmp_path, "t", key, args)), daemon=True)
+    reader.start()
+    reader.join(60.0)  # milliseconds when refused; a hang guard, not a timing check
+    assert not reader.is_alive() and got == {"fn": None}
+
+
 def test_the_fit_cache_switch_sets_the_estimator_directory_too(tmp_path, monkeypatch):
     import jax
 

@@ -252,3 +252,22 @@ def test_a_journal_whose_process_was_killed_is_flushed(tmp_path):
     assert not in_flight(path)
     res = flush_spool(db, spool)
     assert (res.inserted, res.in_flight) == (1, 0) and [r.run_id for r in query_records(db)] == [rec.run_id]
+
+
+def test_a_lock_file_that_is_no_regular_file_holds_no_journal(tmp_path):
+    """A FIFO named as a run's lock (an open() of it waits for a writer) is no station's lock: the
+    flush takes the journal at once."""
+    import threading
+
+    from eol_cal.records.spool import IN_FLIGHT_DIR, flush_spool, spool_record
+
+    rec = run_motor(settings_refused_config(tmp_path / "a")).record
+    spool, db = tmp_path / "spool", tmp_path / "r.sqlite"
+    spool_record(rec, db, spool, "written at the verdict")
+    (spool / IN_FLIGHT_DIR).mkdir()
+    os.mkfifo(spool / IN_FLIGHT_DIR / f"{rec.run_id}.lock")
+    got: dict = {}
+    flusher = threading.Thread(target=lambda: got.update(res=flush_spool(db, spool)), daemon=True)
+    flusher.start()
+    flusher.join(HANG_S)
+    assert not flusher.is_alive() and (got["res"].inserted, got["res"].in_flight) == (1, 0)

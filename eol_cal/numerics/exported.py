@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from eol_cal.infra.atomic import atomic_write
+from eol_cal.infra.inputs import read_bytes
 
 #: the first bytes of every entry (bump the number when the layout below changes)
 MAGIC = b"eol-cal-exported/1\n"
@@ -107,11 +108,9 @@ def load(directory: str | os.PathLike[str] | None, name: str, key: str, args: tu
     if directory is None:
         return None
     try:
-        path = entry_path(directory, name, key)
-        with open(path, "rb") as fh:
-            if os.fstat(fh.fileno()).st_size > MAX_ENTRY_BYTES:
-                return None
-            blob = fh.read(MAX_ENTRY_BYTES + 1)
+        # the bounded reader: a FIFO or device under the entry's name is refused unread (an open()
+        # of a FIFO waits for a writer), an oversized file unread
+        blob = read_bytes(entry_path(directory, name, key), max_bytes=MAX_ENTRY_BYTES, register=False)
         payload = unpack(blob, key)
         if payload is None:
             return None

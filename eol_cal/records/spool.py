@@ -18,6 +18,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -81,12 +82,13 @@ def in_flight(spool_file: Path) -> bool:
     """Whether a live process still holds ``spool_file``'s in-flight lock; a lock file that nobody
     holds (its process was killed) is removed."""
     path = spool_file.parent / IN_FLIGHT_DIR / f"{spool_file.stem}.lock"
-    try:
-        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW)
+    try:  # non-blocking: an open() of a FIFO waits for a writer
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
     except OSError:  # none: not in flight (a missing file, or anything else that is not a lock file)
         return False
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        if stat.S_ISREG(os.fstat(fd).st_mode):  # anything else is no station's lock
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
         return True
     finally:
