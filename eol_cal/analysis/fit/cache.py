@@ -79,7 +79,6 @@ def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | Non
 def _solver_key(spec: FitSpec, S: int, n_grid: int) -> str:
     import jax
 
-
     with jax.enable_x64(True):  # the solver runs in float64 only (fit_many)
         return key_text(_EXPORT_TAG, (spec, S, n_grid))
 

@@ -100,15 +100,6 @@ def boundary_errors(fp: np.ndarray, N: int) -> np.ndarray:
     return out.reshape(-1)
 
 
-def angle_correction(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, fp: np.ndarray, poles: int,
-                     N: int) -> np.ndarray:
-    """What to add to the offline angle (rad electrical) at samples with window counts ``q``, the
-    window's offset ``r`` into the frame, the firmware-frame angle ``theta_fw`` (rad): the
-    boundary errors (:func:`boundary_errors`) interpolated linearly at each sample's position
-    between its boundaries."""
-    return boundary_interp(boundary_position(q, r, grid_phase, theta_fw, poles, N), fp, N)
-
-
 def boundary_position(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, poles: int, N: int
                       ) -> np.ndarray:
     """Each sample's position ``x`` in the block's frame, in quadrature boundaries (unwrapped:

@@ -150,7 +150,7 @@ def segment_scatter(out: dict, valid: np.ndarray) -> np.ndarray:
 def _quantity_blocks(spec: FitSpec) -> list[slice]:
     """The parameter blocks of the reported quantities: the delay, then each part's cos/sin pair per harmonic."""
     n_tau = int(spec.fit_delay)
-    return [slice(0, n_tau)] * n_tau + [slice(i, i + 2) for i in range(n_tau, n_tau + spec.n_glob, 2)]
+    return ([slice(0, 1)] if n_tau else []) + [slice(i, i + 2) for i in range(n_tau, n_tau + spec.n_glob, 2)]
 
 
 def _wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slice]) -> np.ndarray:

@@ -78,8 +78,8 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     program = ["-c", _GO_FIRST] if signal_at is not None else ["-m", "cli.main"]
     ended_at_moment = False
     proc = _Measured([sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
-                            preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
+                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
+                     preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
         if signal_at is not None:
             assert proc.stdout is not None
