@@ -66,7 +66,7 @@ def run(encoders: int, per_encoder: int) -> list[tuple[float, float, float, int,
             preds.append(predicted_margin(np.asarray(fp), np.zeros(2 * N), FP_FORWARD | FP_REVERSE, P, N, 20000.0))
             pus += switch_powerups(err, mech, per_encoder, np.random.default_rng(1000 * e + int(100 * s)))
         res = simulate_powerups(pus, SWITCH_SECONDS, seed=int(100 * s))
-        ok = (np.isfinite(res.first_id_s) & (res.r_first == res.truth) & (res.wrong_ticks == 0)).reshape(encoders, -1)
+        ok = res.right.reshape(encoders, -1)
         wrong = (res.wrong_ticks > 0).reshape(encoders, -1)
         for e in range(encoders):
             rows.append((s, preds[e][1], preds[e][0], int(ok[e].sum()), per_encoder, int(wrong[e].sum())))
@@ -131,7 +131,7 @@ def run_end_to_end(encoders: int, per_encoder: int, spread: str = "mech23", dump
                 assert res is not None and mech is not None and m.block is not None and m.block.mech is not None
                 k = idx.index(e)
                 sl = slice(k * per_encoder, (k + 1) * per_encoder)
-                ok = np.isfinite(res.first_id_s[sl]) & (res.r_first[sl] == res.truth[sl]) & (res.wrong_ticks[sl] == 0)
+                ok = res.right[sl]
                 corr, dg = fingerprint_check(m.errors, m.block.mech, m.frame_pulse)
                 done = res.margin[sl][np.asarray(res.active_end[sl]) != 0]
                 row.update(on=bool(m.block.flags & FLAG_MECH_COMP_ENABLE), margin=mech.margin, score=mech.score,

@@ -47,7 +47,7 @@ def test_the_switch_is_on_at_0_3x_and_off_at_0_1x_and_the_twin_agrees(motors):
     pus = [p for i, m in enumerate(motors)
            for p in switch_powerups(m.errors, m.block.mech, POWERUPS, np.random.default_rng(i), m.frame_pulse)]
     res = simulate_powerups(pus, SWITCH_SECONDS, seed=3)
-    right = np.isfinite(res.first_id_s) & (res.r_first == res.truth) & (res.wrong_ticks == 0)
+    right = res.right
     assert (res.wrong_ticks == 0).all()  # never a wrong frame applied, on or off
     assert right[:POWERUPS].all()  # on: identified right on every power-up
     assert right[POWERUPS:].sum() < POWERUPS // 2  # off: the twin mostly cannot identify it

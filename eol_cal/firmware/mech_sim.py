@@ -97,6 +97,12 @@ class PowerUpResult:
     score: np.ndarray
     margin: np.ndarray
 
+    @property
+    def right(self) -> np.ndarray:
+        """Per power-up: it identified the true frame and never applied a wrong one (the switch's
+        calibration counts these, firmware_params/MECH.md)."""
+        return np.isfinite(self.first_id_s) & (self.r_first == self.truth) & (self.wrong_ticks == 0)
+
 
 def _stack(items: Sequence) -> list:
     return [np.stack(x) for x in zip(*items, strict=True)]
