@@ -3,6 +3,8 @@ merely reading the same files, and against an older checkout of the code, over o
 (one directory of six captures per serial).
 
     python bench/bench_refit.py [--serials 400] [--rounds 2] [--baseline DIR]
+    python bench/bench_refit.py --stages [--serials 24]    # CPU a serial by stage, this process
+
 
 Every alternative runs in a fresh process of its own (``--child``), prepared as `eol-cal refit`
 prepares its workers (:func:`eol_cal.lot.cluster.prepare_fit_process`) and warm (a batch of
@@ -23,6 +25,12 @@ machine move much less than the wall time.
 
 All refits must give the same k6, c6, R^2 and RMS per serial (checked); the phases may differ
 by float32 rounding of the firmware frame (the largest difference is printed).
+
+``--stages``: the loop's CPU time a serial by stage (:data:`STAGES`: the library's functions
+wrapped with a process-time counter, so no profiler's overhead), over a batch outside the lot
+(the first in the process: it traces and loads the programs), the lot (a first pass) and the
+same lot again (a second pass). A stage indented under another is part of it. With
+``PYTHONPATH=DIR`` the code of another checkout is measured (this file's wrappers, its functions).
 """
 
 from __future__ import annotations
@@ -41,6 +49,24 @@ from typing import Any
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 HERE = Path(__file__).resolve()
 FIGURES = ("k6", "c6", "r2", "rms")
+#: the refit's stages (``--stages``): (label, module, function); the function is looked up in that
+#: module at call time by its callers (a lazy import, or a name of that module's own)
+STAGES = (
+    ("read and decode", "eol_cal.capture.io", "read_capture"),
+    ("segments (angle, halls)", "eol_cal.analysis.fit.capture", "segment_motors"),
+    ("firmware frame", "eol_cal.analysis.fit.capture", "measure_firmware_frames"),
+    ("  estimator", "eol_cal.analysis.fit.capture", "firmware_frame_parts"),
+    ("  fingerprint, angle correction", "eol_cal.analysis.fit.capture", "measure_fingerprint"),
+    ("joint fit (compression, solver)", "eol_cal.analysis.fit", "fit_many"),
+    ("model check", "eol_cal.analysis.fit.model_check", "check_model"),
+    ("  speed bands' fits", "eol_cal.analysis.fit.model_check", "fit_many"),
+    ("  noise at the 6th", "eol_cal.analysis.fit.model_check", "band_noise_ratio"),
+    ("  sees_up_to_hz", "eol_cal.analysis.fit.model_check", "sees_up_to_hz"),
+    ("mechanical fit", "eol_cal.analysis.fit.mech_orders", "fit_mech"),
+    ("  split_noise", "eol_cal.analysis.fingerprint", "split_noise"),
+    ("  orders", "eol_cal.analysis.fit.mech_orders", "fit_orders"),
+    ("result record (motor_result)", "eol_cal.analysis.result", "motor_result"),
+)
 
 
 def make_lot(d: Path, n: int, first: int = 0) -> list[list[Path]]:
@@ -162,6 +188,62 @@ def child(name: str, lot_dir: Path, warm_dir: Path, out: Path) -> None:
     out.write_text(json.dumps({"wall": wall, "cpu": cpu, "rows": figures}))
 
 
+def stages(serials: int) -> None:
+    """``--stages``: CPU ms a serial by stage (:data:`STAGES`), warm-up batch, first and second pass."""
+    import functools
+    import importlib
+
+    from eol_cal.analysis.fit.cache import default_cache_dir
+    from eol_cal.lot import refit
+    from eol_cal.lot.cluster import prepare_fit_process
+
+    cpu: dict[str, float] = {}
+
+    def counted(label: str, f: Any) -> Any:
+        @functools.wraps(f)
+        def w(*args: Any, **kw: Any) -> Any:
+            c = time.process_time()
+            try:
+                return f(*args, **kw)
+            finally:
+                cpu[label] = cpu.get(label, 0.0) + time.process_time() - c
+        return w
+
+    for label, module, name in STAGES:
+        m = importlib.import_module(module)
+        if hasattr(m, name):  # older code may lack a stage
+            setattr(m, name, counted(label, getattr(m, name)))
+    cache = default_cache_dir()
+    prepare_fit_process(cache)
+    with tempfile.TemporaryDirectory() as d:
+        (Path(d) / "lot").mkdir()
+        (Path(d) / "warm").mkdir()
+        make_lot(Path(d) / "lot", serials)
+        make_lot(Path(d) / "warm", refit.REFIT_BATCH, first=serials)
+        passes = [("warm-up batch", _groups(Path(d) / "warm")), ("first pass", _groups(Path(d) / "lot")),
+                  ("second pass", _groups(Path(d) / "lot"))]
+        table: dict[str, list[float]] = {label: [] for label, _, _ in STAGES}
+        totals, rows0 = [], None
+        for _, lot in passes:
+            cpu.clear()
+            c0 = time.process_time()
+            rows = _rows_of(refit, lot, bench="none", cache_dir=cache)
+            totals.append((time.process_time() - c0) / len(lot) * 1e3)
+            if any(r["error"] for r in rows):
+                raise RuntimeError(next(r["error"] for r in rows if r["error"]))
+            if lot is passes[1][1]:
+                rows0 = rows
+            elif rows0 is not None and rows != rows0:
+                raise RuntimeError("the second pass's rows differ from the first's")
+            for label in table:
+                table[label].append(cpu.get(label, 0.0) / len(lot) * 1e3)
+    print(f"CPU ms a serial by stage ({serials} serials x {len(POINTS)} captures, one process, {os.cpu_count()} cores, "
+          f"load {os.getloadavg()[0]:.2f}; {refit.__file__})")
+    print(f"{'':<34}" + "".join(f"{name:>16}" for name, _ in passes))
+    for label, vals in [("whole refit", totals), *table.items()]:
+        print(f"{label:<34}" + "".join(f"{v:>16.1f}" for v in vals))
+
+
 # ------------------------------------------------------------------------------------------
 # the parent: the lot, the rounds, the table
 
@@ -182,6 +264,7 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2, help="the alternatives run in turn, this many times")
     ap.add_argument("--baseline", type=Path, default=None,
                     help="a checkout of older code (e.g. a git worktree of main): its loop and 2-worker cluster too")
+    ap.add_argument("--stages", action="store_true", help="CPU a serial by stage, in this process (first and second pass)")
     ap.add_argument("--child", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--lot", type=Path, default=None, help=argparse.SUPPRESS)
     ap.add_argument("--warm", type=Path, default=None, help=argparse.SUPPRESS)
@@ -189,6 +272,9 @@ def main() -> None:
     a = ap.parse_args()
     if a.child:
         child(a.child, a.lot, a.warm, a.out)
+        return
+    if a.stages:
+        stages(a.serials)
         return
 
     runs: list[tuple[str, str, Path | None]] = [

@@ -238,3 +238,30 @@ def test_refit_on_a_running_scheduler_started_apart(lot: Path, tmp_path: Path):
                 p.wait(timeout=30)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_a_refit_leaves_out_the_mechanical_result_which_changes_nothing_it_reports(lot: Path):
+    """The refit skips the mechanical result (the fingerprint's margin and the block's orders,
+    ~40 % of its CPU): a row reads only the fit stage. Fitted with and without it, a motor's result
+    differs in ``mech`` alone, and the refit's row holds the same figures and verdict."""
+    import dataclasses
+
+    from eol_cal.analysis.fit.capture import measure_firmware_frames, segment_motors
+    from eol_cal.analysis.fit.motors import FitOptions, fit_inputs
+    from eol_cal.capture.io import read_capture
+
+    group = find_captures([str(lot)])[0]
+    results = {}
+    for mech in (True, False):
+        opts = FitOptions(batch="loop", capture_metrics=False, mechanics=None, mech=mech)
+        (mi,) = segment_motors([read_capture(p) for p in group], opts.motor, settle_s=opts.settle_s,
+                               min_revs=opts.min_revs, hall_angle=opts.hall_angle, mechanics=None)
+        measure_firmware_frames([mi], [opts.estimator_options])
+        (results[mech],) = fit_inputs([mi], opts).results
+    assert results[True].mech is not None and results[True].mech.fingerprint  # measured when asked
+    assert results[False].mech is None
+    assert dataclasses.replace(results[True], mech=None) == results[False]
+    row, e = refit_capture(group, bench="none"), results[True].estimates
+    assert e is not None and row["status"] == str(results[True].status) and row["verdict"] is None
+    assert (row["k6"], row["phase_k6"], row["c6"]) == (e.k6.value, e.phase_k6.value, e.c6.value)
+    assert (row["r2"], row["rms"]) == (results[True].fit["r2"], results[True].fit["rms"])

@@ -171,7 +171,10 @@ class _RefitSetup:
         from eol_cal.records.limits import load_limits
 
         self.lim = load_limits(limits_file, variant) if limits_file else None
-        self.common: dict[str, Any] = dict(batch="loop", capture_metrics=False, mechanics=mechanics_or_rigid(bench),
+        # no mechanical result (fit_mech: the fingerprint's margin and the block's orders, ~40 % of a
+        # refit's CPU): a row and its verdict read only the fit stage, and a refit writes no block
+        self.common: dict[str, Any] = dict(batch="loop", capture_metrics=False, mech=False,
+                                           mechanics=mechanics_or_rigid(bench),
                                            motor=load_motor(motor),
                                            cache_dir=None if cache_dir is None else Path(cache_dir))
 

@@ -64,6 +64,12 @@ class FitOptions:
         The estimator options (contract flags bits 2-5) the ECU ran during the captures, for the
         firmware frame (default the ``best`` choice of :mod:`eol_cal.firmware.options`, what the
         station measures under).
+    mech : bool
+        Measure each usable motor's mechanical result (its fingerprint's predicted margin, the
+        orders, the block's ``MECH_COMP_ENABLE``: :func:`eol_cal.analysis.fit.mech_orders.fit_mech`).
+        Off: ``MotorResult.mech`` is None and nothing else changes (the fingerprint that corrects
+        the angle is measured with the inputs either way); a refit, whose rows and verdicts never
+        read it and which writes no block, leaves it out (:mod:`eol_cal.lot.refit`).
     """
 
     spec: FitSpec = field(default_factory=FitSpec)
@@ -78,6 +84,7 @@ class FitOptions:
     motor: MotorParams | None = None
     cache_dir: Path | None = None
     estimator_options: int = field(default_factory=lambda: PRESETS[DEFAULT_PRESET])
+    mech: bool = True
 
 
 @dataclass
@@ -197,7 +204,7 @@ def fit_inputs(
     )
     from eol_cal.domain.motor_params import load_motor
 
-    tick_hz = float((options.motor or load_motor("paper")).f_pwm)
+    tick_hz = float((options.motor or load_motor("paper")).f_pwm) if options.mech else None
     results = []
     for mi, f in zip(inputs, fits, strict=True):
         metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
