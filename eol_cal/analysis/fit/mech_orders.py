@@ -14,7 +14,9 @@ load-independent (N*m; the plant's unbalance is); the block's per-ampere part is
 Intervals: the joint fit's covariance at the noise each order actually has in each segment
 (:func:`order_noise`: the residual's phasors at the order's neighbouring frequencies, as the
 model check measures the 6th's), or per order the delete-one-segment jackknife's where wider (the
-segments' scatter: what differs from segment to segment and not from sample to sample).
+segments' scatter: what differs from segment to segment and not from sample to sample). An
+order not resolved from zero (its phasor's 95 % region holds the origin) reports an amplitude
+interval that reaches zero and no phase bound (:func:`order_estimate`).
 """
 
 from __future__ import annotations
@@ -40,6 +42,8 @@ if TYPE_CHECKING:
 
 #: z of a two-sided 95 % interval
 _Z95 = 1.959963984540054
+#: chi-square with 2 degrees of freedom at 95 % (-2 ln 0.05): a phasor's 95 % region
+_CHI2_2_95 = -2.0 * math.log(0.05)
 #: the fewest segments whose scatter (the delete-one-segment jackknife, S - 1 degrees of freedom) an
 #: order's interval may rest on: the noise's interval alone does not cover (orders 1-2's errors
 #: 1.3-1.8x it on plant motors), and two segments give one degree of freedom (Student's t 12.7: order
@@ -148,18 +152,32 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
         sl = slice(2 * i, 2 * i + 2)
         if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
             cov[sl, sl] = jk[sl, sl]
-    out = []
-    for i, h in enumerate(ORDERS):
-        a, b = sol[2 * i], sol[2 * i + 1]
-        c = math.hypot(a, b)
-        phase = math.atan2(b, a)
-        C = cov[2 * i: 2 * i + 2, 2 * i: 2 * i + 2]
-        u = np.array([math.cos(phase), math.sin(phase)])
-        v = np.array([-math.sin(phase), math.cos(phase)])
-        sd_c = math.sqrt(max(float(u @ C @ u), 0.0))
-        sd_p = math.sqrt(max(float(v @ C @ v), 0.0)) / c if c > 0 else math.pi
-        out.append(MechOrder(h, ValueCi(c, _Z95 * sd_c), ValueCi(phase, min(_Z95 * sd_p, math.pi))))
-    return tuple(out)
+    return tuple(MechOrder(h, *order_estimate(sol[2 * i], sol[2 * i + 1], cov[2 * i: 2 * i + 2, 2 * i: 2 * i + 2]))
+                 for i, h in enumerate(ORDERS))
+
+
+def order_estimate(a: float, b: float, C: np.ndarray) -> tuple[ValueCi, ValueCi]:
+    """Amplitude (N*m) and phase (rad) of an order's phasor ``a cos + b sin`` with their 95 % intervals.
+
+    A phasor resolved from zero gets the normal approximation: the amplitude's interval from the
+    covariance ``C`` (N*m^2) along the phasor, the phase's across it. One whose own 95 % region (an
+    ellipse: chi-square with 2 degrees of freedom) holds the origin is not resolved from zero, and
+    there the approximation fails: an absent order's amplitude is Rayleigh-distributed, and
+    amplitude +- 1.96 sigma holds zero for only 85 % of them. Its amplitude's interval is that
+    region's reach instead (half-width its largest radius, so the interval holds zero and every
+    amplitude the region allows) and its phase gets no bound (+-180 deg).
+    """
+    c = math.hypot(a, b)
+    phase = math.atan2(b, a)
+    z = np.array([a, b])
+    if float(z @ np.linalg.pinv(C) @ z) <= _CHI2_2_95:
+        reach = math.sqrt(_CHI2_2_95 * max(float(np.linalg.eigvalsh(C)[-1]), 0.0))
+        return ValueCi(c, reach), ValueCi(phase, math.pi)
+    u = z / c
+    v = np.array([-u[1], u[0]])
+    sd_c = math.sqrt(max(float(u @ C @ u), 0.0))
+    sd_p = math.sqrt(max(float(v @ C @ v), 0.0)) / c
+    return ValueCi(c, _Z95 * sd_c), ValueCi(phase, min(_Z95 * sd_p, math.pi))
 
 
 def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray],
