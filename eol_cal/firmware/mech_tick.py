@@ -30,6 +30,8 @@ from eol_cal.firmware.mech import (
 from eol_cal.firmware.mech_params import FP_FORWARD
 
 _F0 = F32(0.0)
+_I0 = I32(0)
+_FALSE = np.False_
 
 
 def n_clear_slices(mc: MechConsts) -> int:
@@ -56,34 +58,42 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     enabled = tb.enabled != 0
     # 1. collect (not while an evaluation reads the samples)
     take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0) & (ms.clr == 0)
-    first = take & (xp.take(ms.cnt, ps.index) == 0)
-    if xp is SCALAR_NP and not take:  # one motor, no sample: adding 0 leaves the tables as they are
-        acc, cnt, miss = ms.acc, ms.cnt, ms.miss  # (acc never holds -0.0: sums of +0.0 and pitch errors)
-    else:
-        acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp)
-        cnt = set_add(ms.cnt, ps.index, i32(take), xp)
-        miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
-    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
     fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
-    # 2. a finished evaluation, a finished mark check
     done = ms.busy == I32(L + 1)
-    ok = ms.ev_ok != 0
-    passed = done & ok
-    confirm = passed & (ms.active == 0) & (ms.cand == ms.ev_r)
-    eval_bad = done & (ms.active != 0) & (~ok | (ms.ev_r != ms.r))
-    frac_bad = (ms.mk == 2) & (ms.active != 0) & (ms.mk_bad != 0)
-    reset = fault | eval_bad | frac_bad
-    kept = ms._replace(
-        acc=acc, cnt=cnt, miss=miss, n_new=n_new,
-        active=xp.where(confirm, I32(1), ms.active), r=xp.where(confirm & ~reset, ms.ev_r, ms.r),
-        cand=xp.where(done, xp.where(ok, ms.ev_r, I32(-1)), ms.cand),
-        score=xp.where(done, ms.ev_score, ms.score), margin=xp.where(done, ms.ev_margin, ms.margin),
-        busy=xp.where(done, I32(0), ms.busy), mk=xp.where(ms.mk == 2, I32(0), ms.mk))
-    if xp is SCALAR_NP:  # one motor: the state picked whole, the withdrawn one built only when taken
-        new = _withdrawn(kept, N, xp) if reset else kept
+    if xp is SCALAR_NP and not (take or fault or done or ms.mk == 2):
+        # one motor, a quiet tick (most): no sample, nothing finished or withdrawn: steps 1 and 2
+        # keep the state as it is (the values the selects below give), no event
+        new, reset, events = ms, _FALSE, _I0
     else:
-        gone = _withdrawn(kept, N, xp)
-        new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
+        first = take & (xp.take(ms.cnt, ps.index) == 0)
+        if xp is SCALAR_NP and not take:  # one motor, no sample: adding 0 leaves the tables as they are
+            acc, cnt, miss = ms.acc, ms.cnt, ms.miss  # (acc never holds -0.0: sums of +0.0 and pitch errors)
+        else:
+            acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp)
+            cnt = set_add(ms.cnt, ps.index, i32(take), xp)
+            miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
+        n_new = xp.minimum(ms.n_new + i32(take), I32(N))
+        # 2. a finished evaluation, a finished mark check
+        ok = ms.ev_ok != 0
+        passed = done & ok
+        confirm = passed & (ms.active == 0) & (ms.cand == ms.ev_r)
+        eval_bad = done & (ms.active != 0) & (~ok | (ms.ev_r != ms.r))
+        frac_bad = (ms.mk == 2) & (ms.active != 0) & (ms.mk_bad != 0)
+        reset = fault | eval_bad | frac_bad
+        kept = ms._replace(
+            acc=acc, cnt=cnt, miss=miss, n_new=n_new,
+            active=xp.where(confirm, I32(1), ms.active), r=xp.where(confirm & ~reset, ms.ev_r, ms.r),
+            cand=xp.where(done, xp.where(ok, ms.ev_r, I32(-1)), ms.cand),
+            score=xp.where(done, ms.ev_score, ms.score), margin=xp.where(done, ms.ev_margin, ms.margin),
+            busy=xp.where(done, I32(0), ms.busy), mk=xp.where(ms.mk == 2, I32(0), ms.mk))
+        if xp is SCALAR_NP:  # one motor: the state picked whole, the withdrawn one built only when taken
+            new = _withdrawn(kept, N, xp) if reset else kept
+        else:
+            gone = _withdrawn(kept, N, xp)
+            new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
+        events = (i32(done) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
+                  | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad & ~fault) * I32(EV_RESET_FRACTION)
+                  | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
     # 3. start an evaluation when a revolution of fresh samples is in
     d = i32(es.dir_last < 0)
     has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
@@ -91,13 +101,11 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
            & (xp.take(new.miss, d) == 0) & (new.busy == 0) & (new.clr == 0))
     # 4. ask for the revolution mark's check: an A edge at the firmware's pulse 0
     mark = enabled & (new.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0) & (new.mk == 0)
-    new = new._replace(busy=xp.where(due, I32(1), new.busy), ev_d=xp.where(due, d, new.ev_d),
-                       ev_G=xp.where(due, es.G, new.ev_G), n_new=xp.where(due, I32(0), new.n_new),
-                       mk=xp.where(mark, I32(1), new.mk), mk_d=xp.where(mark, d, new.mk_d),
-                       mk_G=xp.where(mark, es.G, new.mk_G))
-    events = (i32(done) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
-              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad & ~fault) * I32(EV_RESET_FRACTION)
-              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
+    if xp is not SCALAR_NP or due or mark:  # (one motor, neither: the selects keep the state)
+        new = new._replace(busy=xp.where(due, I32(1), new.busy), ev_d=xp.where(due, d, new.ev_d),
+                           ev_G=xp.where(due, es.G, new.ev_G), n_new=xp.where(due, I32(0), new.n_new),
+                           mk=xp.where(mark, I32(1), new.mk), mk_d=xp.where(mark, d, new.mk_d),
+                           mk_G=xp.where(mark, es.G, new.mk_G))
     return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
 
 
