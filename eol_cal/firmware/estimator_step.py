@@ -108,6 +108,31 @@ class EstimatorOut(NamedTuple):
     status: Array
 
 
+class _Edge(NamedTuple):
+    """What step 2 (the A edge event) of :func:`step_pitch` hands on."""
+
+    ev: Array
+    bounce: Array
+    missing: Array
+    reject: Array
+    speed_upd: Array
+    q: Array
+    k: Array
+    against: Array
+    n: Array
+    k_last: Array
+    dir_last: Array
+    omega: Array
+    nc_prev: Array
+    alpha: Array
+    tick: Array
+    run: Array
+    R_prev: Array
+    c_tab: Array
+    ts: Array
+    sample: PitchSample
+
+
 def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
     return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
@@ -269,15 +294,16 @@ def init_state(cfg: EstimatorConfig, hall0: Array, enc_a0: Array = 0, enc_b0: Ar
 
 
 def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
-         xp: ArrayModule = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
+         xp: ArrayModule = np, tables: HallTables | None = None, batch_axis: str | None = None
+         ) -> tuple[EstimatorState, EstimatorOut]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"): :func:`step_pitch` without its
     pitch sample."""
-    new, out, _ = step_pitch(cfg, state, enc_a, enc_b, hall, xp, tables)
+    new, out, _ = step_pitch(cfg, state, enc_a, enc_b, hall, xp, tables, batch_axis)
     return new, out
 
 
 def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
-               xp: ArrayModule = np, tables: HallTables | None = None
+               xp: ArrayModule = np, tables: HallTables | None = None, batch_axis: str | None = None
                ) -> tuple[EstimatorState, EstimatorOut, PitchSample]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"), with what improvement 4 measured.
 
@@ -294,6 +320,11 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     tables : HallTables, optional
         One motor's hall lookups (f32[8] each, rad; may be traced), used instead of those of
         ``cfg.hall_angle``: a calibrated table is data, not a reason to compile again.
+    batch_axis : str, optional
+        Under JAX, one member of a batch ``jax.vmap``-ped with this ``axis_name``: the A edge
+        event's arithmetic then runs on the ticks some member has an A edge, the hall re-anchor's
+        on those some member has an adjacent transition (a branch for the batch; under ``vmap`` a
+        branch on a member's value computes both sides), the same result.
 
     Returns
     -------
@@ -322,19 +353,19 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     n1 = xp.minimum(s.n + one, S1i)
 
     # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
-    if xp is SCALAR_NP and not a_rise:
-        # One motor, no A edge this tick (most ticks): every select below keeps the state, so
-        # they are not computed; the values are those the selects give, bit for bit.
-        ev = bounce = missing = reject = speed_upd = _FALSE
-        n, k_last, dir_last, omega, nc_prev, alpha = n1, s.k_last, s.dir_last, s.omega, s.nc_prev, s.alpha
-        run, R_prev, c_tab, ts = s.run, s.R_prev, s.c_tab, s.ts
+    def no_edge() -> _Edge:
+        # No A edge this tick (most ticks): every select of edge() keeps the state; the values
+        # those selects give, bit for bit, without computing them.
         if cfg.learn_pitch_errors:
             tick = (s.tick + one) & _I_TICK_MASK
             sample = PitchSample(learn=_I0, index=xp.where(edir > 0, k >> one, s.k_last >> one), error=_F0)
         else:
             tick = s.tick
             sample = PitchSample(learn=_I0 * edir, index=_I0 * edir, error=_F0 * f32(edir))
-    else:
+        return _Edge(_FALSE, _FALSE, _FALSE, _FALSE, _FALSE, q, k, against, n1, s.k_last, s.dir_last, s.omega,
+                     s.nc_prev, s.alpha, tick, s.run, s.R_prev, s.c_tab, s.ts, sample)
+
+    def edge() -> _Edge:
         bounce = a_rise & (k == s.k_last) & (edir == s.dir_last)
         ev = a_rise & ~bounce
         same_dir = edir == s.dir_last
@@ -348,12 +379,12 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
         omega_new = f32(edir) * (c.K_OMEGA / f32(nc_eff))
         # A lost A pulse leaves the count one pitch behind: put it back.
         fix = xp.where(missing, _I4 * edir, _I0)
-        q = (q + fix + Mi) % Mi
-        k = (k + fix + Mi) % Mi
+        q_fixed = (q + fix + Mi) % Mi
+        k_fixed = (k + fix + Mi) % Mi
         speed_upd = measured | missing
         if cfg.learn_pitch_errors:
             tick = (s.tick + one) & _I_TICK_MASK
-            i_new = k >> one
+            i_new = k_fixed >> one
             c_old = s.c_tab[s.k_last >> one]
             c_new = s.c_tab[i_new]
             R = xp.maximum((tick - s.ts[i_new]) & _I_TICK_MASK, one)
@@ -388,10 +419,20 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
                              xp.where(ev & ~(missing | reject), _F0, s.alpha))
         else:
             alpha = s.alpha
-        n = xp.where(ev, _I0, n1)
-        k_last = xp.where(ev, k, s.k_last)
-        dir_last = xp.where(ev, edir, s.dir_last)
-        against = xp.where(ev, _I0, against)
+        return _Edge(ev, bounce, missing, reject, speed_upd, q_fixed, k_fixed, xp.where(ev, _I0, against),
+                     xp.where(ev, _I0, n1), xp.where(ev, k_fixed, s.k_last), xp.where(ev, edir, s.dir_last), omega,
+                     nc_prev, alpha, tick, run, R_prev, c_tab, ts, sample)
+
+    if xp is SCALAR_NP:  # one motor: a Python branch
+        e2 = edge() if a_rise else no_edge()
+    elif batch_axis is not None:  # a batch: edge() on the ticks some member has an A edge
+        import jax
+
+        e2 = jax.lax.cond(jax.lax.psum(i32(a_rise), batch_axis) > 0, edge, no_edge)
+    else:
+        e2 = edge()
+    (ev, bounce, missing, reject, speed_upd, q, k, against, n, k_last, dir_last, omega, nc_prev, alpha, tick, run,
+     R_prev, c_tab, ts, sample) = e2
 
     # 3. Standstill and the prediction between edges (eq. 16).
     still = n > Si
@@ -436,10 +477,11 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     # Without a valid speed the best position is the middle of the current quadrature count.
     cell = f32(_dq(q, k_last, M, xp)) * c.QUARTER + c.HALF_QUARTER
     adv_eff = xp.where(speed_ok, adv, cell)
-    if xp is SCALAR_NP and not adj:
-        # one motor, no adjacent transition: the re-anchor's selects keep G and its counters
-        G, anchored, n_anchor, dir_mismatch = s.G, s.anchored, s.n_anchor, _FALSE
-    else:
+    def no_anchor() -> tuple[Array, Array, Array, Array]:
+        # no adjacent transition: the re-anchor's selects keep G and its counters
+        return s.G, s.anchored, s.n_anchor, _FALSE
+
+    def anchor() -> tuple[Array, Array, Array, Array]:
         hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, _I0), xp), _tab(ht.start, hl, xp))
         theta_pred = wrap(wrap(s.G + rel, xp) + adv_eff, xp)
         e = wrap_pm(hb - theta_pred, xp)
@@ -457,7 +499,16 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
         n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
                             xp.where(adj, xp.minimum(s.n_anchor + one, _I_N_LEARN), s.n_anchor))
         hdir = xp.where(fwd, one, -one)
-        dir_mismatch = adj & (dir_last != 0) & (hdir != dir_last)
+        return G, anchored, n_anchor, adj & (dir_last != 0) & (hdir != dir_last)
+
+    if xp is SCALAR_NP:  # one motor: a Python branch
+        G, anchored, n_anchor, dir_mismatch = anchor() if adj else no_anchor()
+    elif batch_axis is not None:  # a batch: anchor() on the ticks some member has an adjacent transition
+        import jax
+
+        G, anchored, n_anchor, dir_mismatch = jax.lax.cond(jax.lax.psum(i32(adj), batch_axis) > 0, anchor, no_anchor)
+    else:
+        G, anchored, n_anchor, dir_mismatch = anchor()
     hall_last = xp.where(hv, h, hl)
     sector = xp.where(adj | first, h, s.sector)
 

@@ -131,10 +131,10 @@ def sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mec
     # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
     if cfg.mech is None:
         est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
-                                        tables=estimator_tables(p))
+                                        tables=estimator_tables(p), batch_axis=BATCH_AXIS)
     else:
         est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
-                                                     tables=estimator_tables(p))
+                                                     tables=estimator_tables(p), batch_axis=BATCH_AXIS)
         # the interrupt's part, on the ticks some motor of the batch needs it; the background slice
         # follows for the whole batch (:func:`background`)
         mech_state, _ = mech_tick.batched_tick(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch,
