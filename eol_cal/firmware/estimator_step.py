@@ -159,7 +159,7 @@ _I_TICK_MASK = I32(TICK_MASK)
 _I_N_LEARN = I32(N_LEARN)
 _I_STEADY_TICKS = I32(STEADY_TICKS)
 _F0, _F1 = F32(0.0), F32(1.0)
-_FALSE = np.False_
+_FALSE = cast(Array, np.False_)  # a flag no member raises, typed as the step's arrays
 
 
 def _int32_of(x: Array, _bool: type = np.bool_, _i32: type = np.int32) -> Array:

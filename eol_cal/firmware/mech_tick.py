@@ -18,6 +18,8 @@ from __future__ import annotations
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
 # mypy: disable-error-code="arg-type,operator"
 
+from typing import cast
+
 import numpy as np
 
 from eol_cal.numerics.arrays import Array, ArrayModule
@@ -31,7 +33,7 @@ from eol_cal.firmware.mech_params import FP_FORWARD
 
 _F0 = F32(0.0)
 _I0 = I32(0)
-_FALSE = np.False_
+_FALSE = cast(Array, np.False_)  # typed as the step's arrays
 
 
 def n_clear_slices(mc: MechConsts) -> int:
