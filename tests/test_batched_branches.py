@@ -45,6 +45,7 @@ def _run(batched: bool, cfg, mc, tb, signals):
     return jax.tree_util.tree_map(np.asarray, (carry, outs))
 
 
+@pytest.mark.slow  # two scans of 14 000 ticks compiled, seconds on a quiet machine
 def test_the_batch_branches_give_the_plain_steps_bit_for_bit():
     names = ("mech_pole_pair_0.csv", "mech_pole_pair_1.csv", "mech_pole_pair_2.csv")
     block = G.golden_block(G.SCENARIOS[names[0]].block_id)
