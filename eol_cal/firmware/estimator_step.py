@@ -108,6 +108,31 @@ class EstimatorOut(NamedTuple):
     status: Array
 
 
+class _Edge(NamedTuple):
+    """What step 2 (the A edge event) of :func:`step_pitch` hands on."""
+
+    ev: Array
+    bounce: Array
+    missing: Array
+    reject: Array
+    speed_upd: Array
+    q: Array
+    k: Array
+    against: Array
+    n: Array
+    k_last: Array
+    dir_last: Array
+    omega: Array
+    nc_prev: Array
+    alpha: Array
+    tick: Array
+    run: Array
+    R_prev: Array
+    c_tab: Array
+    ts: Array
+    sample: PitchSample
+
+
 def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
     """``table[idx]`` for a constant or traced table and a (possibly traced) int32 index."""
     return table[idx] if xp is np or xp is SCALAR_NP else xp.asarray(table)[idx]
@@ -134,6 +159,7 @@ _I_TICK_MASK = I32(TICK_MASK)
 _I_N_LEARN = I32(N_LEARN)
 _I_STEADY_TICKS = I32(STEADY_TICKS)
 _F0, _F1 = F32(0.0), F32(1.0)
+_FALSE = cast(Array, np.False_)  # a flag no member raises, typed as the step's arrays
 
 
 def _int32_of(x: Array, _bool: type = np.bool_, _i32: type = np.int32) -> Array:
@@ -268,15 +294,16 @@ def init_state(cfg: EstimatorConfig, hall0: Array, enc_a0: Array = 0, enc_b0: Ar
 
 
 def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
-         xp: ArrayModule = np, tables: HallTables | None = None) -> tuple[EstimatorState, EstimatorOut]:
+         xp: ArrayModule = np, tables: HallTables | None = None, batch_axis: str | None = None
+         ) -> tuple[EstimatorState, EstimatorOut]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"): :func:`step_pitch` without its
     pitch sample."""
-    new, out, _ = step_pitch(cfg, state, enc_a, enc_b, hall, xp, tables)
+    new, out, _ = step_pitch(cfg, state, enc_a, enc_b, hall, xp, tables, batch_axis)
     return new, out
 
 
 def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
-               xp: ArrayModule = np, tables: HallTables | None = None
+               xp: ArrayModule = np, tables: HallTables | None = None, batch_axis: str | None = None
                ) -> tuple[EstimatorState, EstimatorOut, PitchSample]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"), with what improvement 4 measured.
 
@@ -293,6 +320,11 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     tables : HallTables, optional
         One motor's hall lookups (f32[8] each, rad; may be traced), used instead of those of
         ``cfg.hall_angle``: a calibrated table is data, not a reason to compile again.
+    batch_axis : str, optional
+        Under JAX, one member of a batch ``jax.vmap``-ped with this ``axis_name``: the A edge
+        event's arithmetic then runs on the ticks some member has an A edge, the hall re-anchor's
+        on those some member has an adjacent transition (a branch for the batch; under ``vmap`` a
+        branch on a member's value computes both sides), the same result.
 
     Returns
     -------
@@ -321,63 +353,86 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     n1 = xp.minimum(s.n + one, S1i)
 
     # 2. A edge event: bounce (same boundary again), measured interval, or re-reference only.
-    bounce = a_rise & (k == s.k_last) & (edir == s.dir_last)
-    ev = a_rise & ~bounce
-    same_dir = edir == s.dir_last
-    pitch_ok = k == (s.k_last + _I4 * edir + Mi) % Mi
-    interval = ev & same_dir & pitch_ok & (n1 <= Si)
-    long_iv = interval & (s.nc_prev > 0) & (_I2 * n1 > _I3 * s.nc_prev)
-    missing = long_iv & (against != 0)
-    reject = long_iv & (against == 0)
-    measured = interval & ~long_iv
-    nc_eff = xp.where(missing, n1 // _I2, n1)
-    omega_new = f32(edir) * (c.K_OMEGA / f32(nc_eff))
-    # A lost A pulse leaves the count one pitch behind: put it back.
-    fix = xp.where(missing, _I4 * edir, _I0)
-    q = (q + fix + Mi) % Mi
-    k = (k + fix + Mi) % Mi
-    speed_upd = measured | missing
-    if cfg.learn_pitch_errors:
-        tick = (s.tick + one) & _I_TICK_MASK
-        i_new = k >> one
-        c_old = s.c_tab[s.k_last >> one]
-        c_new = s.c_tab[i_new]
-        R = xp.maximum((tick - s.ts[i_new]) & _I_TICK_MASK, one)
-        learn = measured & (s.run >= Ni) & (xp.abs(R - s.R_prev) <= _I_STEADY_TICKS)
-        # At steady speed the same edge's revolution time gives the true speed, so this pitch's
-        # real size is N_enc*DELTA * N_c / R; its edge sits that far from the previous one.
-        pitch = f32(n1) * (c.K_NDELTA / f32(R))
-        pitch_err = pitch - c.DELTA
-        target = c_old + f32(edir) * pitch_err
-        c_new = xp.where(learn, c_new + K_PITCH * (target - c_new), c_new)
-        c_tab = _set(s.c_tab, i_new, c_new, xp)
-        ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
-        R_prev = xp.where(measured, R, s.R_prev)
-        run = xp.where(measured, xp.minimum(s.run + one, Ni),
-                       xp.where(ev, _I0, s.run))
-        omega_new = xp.where(measured, f32(edir)
-                             * (((c.DELTA + f32(edir) * (c_new - c_old)) * c.TICK_HZ)
-                                / f32(n1)), omega_new)
-        sample = PitchSample(learn=i32(learn), index=xp.where(edir > 0, i_new, s.k_last >> one),
-                             error=xp.where(learn, pitch_err, _F0))
+    def no_edge() -> _Edge:
+        # No A edge this tick (most ticks): every select of edge() keeps the state; the values
+        # those selects give, bit for bit, without computing them.
+        if cfg.learn_pitch_errors:
+            tick = (s.tick + one) & _I_TICK_MASK
+            sample = PitchSample(learn=_I0, index=xp.where(edir > 0, k >> one, s.k_last >> one), error=_F0)
+        else:
+            tick = s.tick
+            sample = PitchSample(learn=_I0 * edir, index=_I0 * edir, error=_F0 * f32(edir))
+        return _Edge(_FALSE, _FALSE, _FALSE, _FALSE, _FALSE, q, k, against, n1, s.k_last, s.dir_last, s.omega,
+                     s.nc_prev, s.alpha, tick, s.run, s.R_prev, s.c_tab, s.ts, sample)
+
+    def edge() -> _Edge:
+        bounce = a_rise & (k == s.k_last) & (edir == s.dir_last)
+        ev = a_rise & ~bounce
+        same_dir = edir == s.dir_last
+        pitch_ok = k == (s.k_last + _I4 * edir + Mi) % Mi
+        interval = ev & same_dir & pitch_ok & (n1 <= Si)
+        long_iv = interval & (s.nc_prev > 0) & (_I2 * n1 > _I3 * s.nc_prev)
+        missing = long_iv & (against != 0)
+        reject = long_iv & (against == 0)
+        measured = interval & ~long_iv
+        nc_eff = xp.where(missing, n1 // _I2, n1)
+        omega_new = f32(edir) * (c.K_OMEGA / f32(nc_eff))
+        # A lost A pulse leaves the count one pitch behind: put it back.
+        fix = xp.where(missing, _I4 * edir, _I0)
+        q_fixed = (q + fix + Mi) % Mi
+        k_fixed = (k + fix + Mi) % Mi
+        speed_upd = measured | missing
+        if cfg.learn_pitch_errors:
+            tick = (s.tick + one) & _I_TICK_MASK
+            i_new = k_fixed >> one
+            c_old = s.c_tab[s.k_last >> one]
+            c_new = s.c_tab[i_new]
+            R = xp.maximum((tick - s.ts[i_new]) & _I_TICK_MASK, one)
+            learn = measured & (s.run >= Ni) & (xp.abs(R - s.R_prev) <= _I_STEADY_TICKS)
+            # At steady speed the same edge's revolution time gives the true speed, so this pitch's
+            # real size is N_enc*DELTA * N_c / R; its edge sits that far from the previous one.
+            pitch = f32(n1) * (c.K_NDELTA / f32(R))
+            pitch_err = pitch - c.DELTA
+            target = c_old + f32(edir) * pitch_err
+            c_new = xp.where(learn, c_new + K_PITCH * (target - c_new), c_new)
+            c_tab = _set(s.c_tab, i_new, c_new, xp)
+            ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
+            R_prev = xp.where(measured, R, s.R_prev)
+            run = xp.where(measured, xp.minimum(s.run + one, Ni),
+                           xp.where(ev, _I0, s.run))
+            omega_new = xp.where(measured, f32(edir)
+                                 * (((c.DELTA + f32(edir) * (c_new - c_old)) * c.TICK_HZ)
+                                    / f32(n1)), omega_new)
+            sample = PitchSample(learn=i32(learn), index=xp.where(edir > 0, i_new, s.k_last >> one),
+                                 error=xp.where(learn, pitch_err, _F0))
+        else:
+            tick, run, R_prev, c_tab, ts = s.tick, s.run, s.R_prev, s.c_tab, s.ts
+            sample = PitchSample(learn=_I0 * edir, index=_I0 * edir, error=_F0 * f32(edir))
+        omega = xp.where(speed_upd, omega_new,
+                         xp.where(ev & ~same_dir, _F0, s.omega))
+        nc_prev = xp.where(speed_upd, nc_eff,
+                           xp.where(reject, n1, xp.where(ev, _I0, s.nc_prev)))
+        if cfg.accel_prediction:
+            consecutive = measured & (s.nc_prev > 0)
+            alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32(n1 + s.nc_prev))
+            alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
+                             xp.where(ev & ~(missing | reject), _F0, s.alpha))
+        else:
+            alpha = s.alpha
+        return _Edge(ev, bounce, missing, reject, speed_upd, q_fixed, k_fixed, xp.where(ev, _I0, against),
+                     xp.where(ev, _I0, n1), xp.where(ev, k_fixed, s.k_last), xp.where(ev, edir, s.dir_last), omega,
+                     nc_prev, alpha, tick, run, R_prev, c_tab, ts, sample)
+
+    if xp is SCALAR_NP:  # one motor: a Python branch
+        e2 = edge() if a_rise else no_edge()
+    elif batch_axis is not None:  # a batch: edge() on the ticks some member has an A edge
+        import jax
+
+        e2 = jax.lax.cond(jax.lax.psum(i32(a_rise), batch_axis) > 0, edge, no_edge)
     else:
-        tick, run, R_prev, c_tab, ts = s.tick, s.run, s.R_prev, s.c_tab, s.ts
-        sample = PitchSample(learn=_I0 * edir, index=_I0 * edir, error=_F0 * f32(edir))
-    omega = xp.where(speed_upd, omega_new,
-                     xp.where(ev & ~same_dir, _F0, s.omega))
-    nc_prev = xp.where(speed_upd, nc_eff,
-                       xp.where(reject, n1, xp.where(ev, _I0, s.nc_prev)))
-    if cfg.accel_prediction:
-        consecutive = measured & (s.nc_prev > 0)
-        alpha_raw = (omega_new - s.omega) * (c.TWO_TICK_HZ / f32(n1 + s.nc_prev))
-        alpha = xp.where(consecutive, s.alpha + K_ACC * (alpha_raw - s.alpha),
-                         xp.where(ev & ~(missing | reject), _F0, s.alpha))
-    else:
-        alpha = s.alpha
-    n = xp.where(ev, _I0, n1)
-    k_last = xp.where(ev, k, s.k_last)
-    dir_last = xp.where(ev, edir, s.dir_last)
-    against = xp.where(ev, _I0, against)
+        e2 = edge()
+    (ev, bounce, missing, reject, speed_upd, q, k, against, n, k_last, dir_last, omega, nc_prev, alpha, tick, run,
+     R_prev, c_tab, ts, sample) = e2
 
     # 3. Standstill and the prediction between edges (eq. 16).
     still = n > Si
@@ -406,12 +461,14 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     hv = (h >= 1) & (h <= 6)
     hl = s.hall_last
     trans = hv & (h != hl) & (hl != 0)
-    fwd = trans & (h == _tab(c.NEXT, hl, xp))
-    rev = trans & (hl == _tab(c.NEXT, xp.where(hv, h, _I0), xp))
-    adj = fwd | rev
-    jump = trans & ~adj
+    if xp is SCALAR_NP and not trans:  # one motor, no transition (most ticks): no lookups
+        fwd = adj = jump = _FALSE
+    else:
+        fwd = trans & (h == _tab(c.NEXT, hl, xp))
+        rev = trans & (hl == _tab(c.NEXT, xp.where(hv, h, _I0), xp))
+        adj = fwd | rev
+        jump = trans & ~adj
     first = hv & (hl == 0)
-    hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, _I0), xp), _tab(ht.start, hl, xp))
     # First anchor without an edge yet: the grid reference is the current count's middle.
     no_edge = dir_last == 0
     k_last = xp.where(adj & (s.anchored == 0) & no_edge, q, k_last)
@@ -420,23 +477,38 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
     # Without a valid speed the best position is the middle of the current quadrature count.
     cell = f32(_dq(q, k_last, M, xp)) * c.QUARTER + c.HALF_QUARTER
     adv_eff = xp.where(speed_ok, adv, cell)
-    theta_pred = wrap(wrap(s.G + rel, xp) + adv_eff, xp)
-    e = wrap_pm(hb - theta_pred, xp)
-    big = xp.abs(e) > c.HALF_DELTA
-    if cfg.learn_grid_offset:
-        # Running mean of the corrections over the first N_LEARN transitions, then a first-order
-        # filter; an error over half a pitch is a count slip and is taken whole.
-        gain = _F1 / f32(xp.minimum(s.n_anchor + one, _I_N_LEARN))
-        g = xp.where(big, e, e * gain)
+    def no_anchor() -> tuple[Array, Array, Array, Array]:
+        # no adjacent transition: the re-anchor's selects keep G and its counters
+        return s.G, s.anchored, s.n_anchor, _FALSE
+
+    def anchor() -> tuple[Array, Array, Array, Array]:
+        hb = xp.where(fwd, _tab(ht.start, xp.where(hv, h, _I0), xp), _tab(ht.start, hl, xp))
+        theta_pred = wrap(wrap(s.G + rel, xp) + adv_eff, xp)
+        e = wrap_pm(hb - theta_pred, xp)
+        big = xp.abs(e) > c.HALF_DELTA
+        if cfg.learn_grid_offset:
+            # Running mean of the corrections over the first N_LEARN transitions, then a first-order
+            # filter; an error over half a pitch is a count slip and is taken whole.
+            gain = _F1 / f32(xp.minimum(s.n_anchor + one, _I_N_LEARN))
+            g = xp.where(big, e, e * gain)
+        else:
+            g = e
+        G = xp.where(adj & (s.anchored != 0), wrap(s.G + g, xp),
+                     xp.where(adj, wrap(hb - (rel + adv_eff), xp), s.G))
+        anchored = xp.where(adj, one, s.anchored)
+        n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
+                            xp.where(adj, xp.minimum(s.n_anchor + one, _I_N_LEARN), s.n_anchor))
+        hdir = xp.where(fwd, one, -one)
+        return G, anchored, n_anchor, adj & (dir_last != 0) & (hdir != dir_last)
+
+    if xp is SCALAR_NP:  # one motor: a Python branch
+        G, anchored, n_anchor, dir_mismatch = anchor() if adj else no_anchor()
+    elif batch_axis is not None:  # a batch: anchor() on the ticks some member has an adjacent transition
+        import jax
+
+        G, anchored, n_anchor, dir_mismatch = jax.lax.cond(jax.lax.psum(i32(adj), batch_axis) > 0, anchor, no_anchor)
     else:
-        g = e
-    G = xp.where(adj & (s.anchored != 0), wrap(s.G + g, xp),
-                 xp.where(adj, wrap(hb - (rel + adv_eff), xp), s.G))
-    anchored = xp.where(adj, one, s.anchored)
-    n_anchor = xp.where(adj & ((s.anchored == 0) | big), one,
-                        xp.where(adj, xp.minimum(s.n_anchor + one, _I_N_LEARN), s.n_anchor))
-    hdir = xp.where(fwd, one, -one)
-    dir_mismatch = adj & (dir_last != 0) & (hdir != dir_last)
+        G, anchored, n_anchor, dir_mismatch = anchor()
     hall_last = xp.where(hv, h, hl)
     sector = xp.where(adj | first, h, s.sector)
 

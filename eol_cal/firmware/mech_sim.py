@@ -34,7 +34,7 @@ from eol_cal.firmware.mech import (
     mech_init,
     mech_tables,
 )
-from eol_cal.firmware.mech_tick import batched_background, mech_tick
+from eol_cal.firmware.mech_tick import batched_background, batched_tick
 from eol_cal.firmware.mech_params import MechParams
 
 if TYPE_CHECKING:
@@ -44,6 +44,8 @@ TICK_HZ = 20000.0
 #: ticks per compiled chunk of the scan
 CHUNK = 4000
 _RESETS = EV_RESET_FAULT | EV_RESET_FRACTION | EV_RESET_EVAL
+#: the power-ups' vmapped axis
+_AXIS = "powerups"
 #: the compiled scan's carry over a batch: shaft angle, estimator and identifier states, and the
 #: tracking (first identifying tick, its r, ticks identified wrong, identifier resets)
 _Carry = tuple["jax.Array", EstimatorState, MechState, tuple["jax.Array", "jax.Array", "jax.Array", "jax.Array"]]
@@ -182,8 +184,12 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
             th = jnp.mod(th + w * f32(1.0 / TICK_HZ), f32(2 * math.pi))
             ths = th + jit_ * jax.random.normal(jax.random.fold_in(key, i), th.shape, f32)
             a, b, h = jax.vmap(sig)(ths, E, H, G)
-            es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t))(es, a, b, h, tables)
-            ms, mo = jax.vmap(lambda m, t, s, o, p: mech_tick(mc, t, m, s, o, p, xp=jnp))(ms, tb, es, eo, ps)
+            # the edge event, the re-anchor and the identifier's interrupt part only on the ticks some
+            # power-up needs them (the same result: batch_axis, batched_tick)
+            es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t, batch_axis=_AXIS),
+                                  axis_name=_AXIS)(es, a, b, h, tables)
+            ms, mo = jax.vmap(lambda m, t, s, o, p: batched_tick(mc, t, m, s, o, p, _AXIS), axis_name=_AXIS)(
+                ms, tb, es, eo, ps)
             # the background's arithmetic only on the ticks some power-up needs it (the same result)
             ms = batched_background(mc, tb, ms, es)
             on = mo.active != 0

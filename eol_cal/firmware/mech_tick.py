@@ -18,6 +18,8 @@ from __future__ import annotations
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
 # mypy: disable-error-code="arg-type,operator"
 
+from typing import cast
+
 import numpy as np
 
 from eol_cal.numerics.arrays import Array, ArrayModule
@@ -30,6 +32,8 @@ from eol_cal.firmware.mech import (
 from eol_cal.firmware.mech_params import FP_FORWARD
 
 _F0 = F32(0.0)
+_I0 = I32(0)
+_FALSE = cast(Array, np.False_)  # typed as the step's arrays
 
 
 def n_clear_slices(mc: MechConsts) -> int:
@@ -52,53 +56,97 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
     ``es`` is the estimator's state after this tick, ``eo`` its outputs, ``ps`` its pitch sample.
     """
     i32 = xp.int32
-    N, L = mc.N, n_slices(mc)
+    N = mc.N
+    enabled, take, fault, done = _tick_flags(mc, tb, ms, eo, ps, xp)
+    if xp is SCALAR_NP and not (take or fault or done or ms.mk == 2):
+        # one motor, a quiet tick (most): no sample, nothing finished or withdrawn: steps 1 and 2
+        # keep the state as it is (the values the selects below give), no event
+        new, reset, events = ms, _FALSE, _I0
+    else:
+        # 1. collect (not while an evaluation reads the samples)
+        first = take & (xp.take(ms.cnt, ps.index) == 0)
+        if xp is SCALAR_NP and not take:  # one motor, no sample: adding 0 leaves the tables as they are
+            acc, cnt, miss = ms.acc, ms.cnt, ms.miss  # (acc never holds -0.0: sums of +0.0 and pitch errors)
+        else:
+            acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp)
+            cnt = set_add(ms.cnt, ps.index, i32(take), xp)
+            miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
+        n_new = xp.minimum(ms.n_new + i32(take), I32(N))
+        # 2. a finished evaluation, a finished mark check
+        ok = ms.ev_ok != 0
+        passed = done & ok
+        confirm = passed & (ms.active == 0) & (ms.cand == ms.ev_r)
+        eval_bad = done & (ms.active != 0) & (~ok | (ms.ev_r != ms.r))
+        frac_bad = (ms.mk == 2) & (ms.active != 0) & (ms.mk_bad != 0)
+        reset = fault | eval_bad | frac_bad
+        kept = ms._replace(
+            acc=acc, cnt=cnt, miss=miss, n_new=n_new,
+            active=xp.where(confirm, I32(1), ms.active), r=xp.where(confirm & ~reset, ms.ev_r, ms.r),
+            cand=xp.where(done, xp.where(ok, ms.ev_r, I32(-1)), ms.cand),
+            score=xp.where(done, ms.ev_score, ms.score), margin=xp.where(done, ms.ev_margin, ms.margin),
+            busy=xp.where(done, I32(0), ms.busy), mk=xp.where(ms.mk == 2, I32(0), ms.mk))
+        if xp is SCALAR_NP:  # one motor: the state picked whole, the withdrawn one built only when taken
+            new = _withdrawn(kept, N, xp) if reset else kept
+        else:
+            gone = _withdrawn(kept, N, xp)
+            new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
+        events = (i32(done) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
+                  | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad & ~fault) * I32(EV_RESET_FRACTION)
+                  | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
+    d, due, mark = _due_mark(mc, tb, new, es, enabled & ~reset, xp)
+    if xp is not SCALAR_NP or due or mark:  # (one motor, neither: the selects keep the state)
+        new = new._replace(busy=xp.where(due, I32(1), new.busy), ev_d=xp.where(due, d, new.ev_d),
+                           ev_G=xp.where(due, es.G, new.ev_G), n_new=xp.where(due, I32(0), new.n_new),
+                           mk=xp.where(mark, I32(1), new.mk), mk_d=xp.where(mark, d, new.mk_d),
+                           mk_G=xp.where(mark, es.G, new.mk_G))
+    return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
+
+
+def _tick_flags(mc: MechConsts, tb: MechTables, ms: MechState, eo: EstimatorOut, ps: PitchSample,
+                xp: ArrayModule) -> tuple[Array, Array, Array, Array]:
+    """(enabled, take: a pitch sample is collected, fault: the estimator's status withdraws,
+    done: an evaluation finished) of a tick (MECH.md, "Per tick", steps 1-2)."""
     enabled = tb.enabled != 0
-    # 1. collect (not while an evaluation reads the samples)
     take = enabled & (ps.learn != 0) & (xp.take(ms.cnt, ps.index) < I32(CNT_MAX)) & (ms.busy == 0) & (ms.clr == 0)
-    first = take & (xp.take(ms.cnt, ps.index) == 0)
-    if xp is SCALAR_NP and not take:  # one motor, no sample: adding 0 leaves the tables as they are
-        acc, cnt, miss = ms.acc, ms.cnt, ms.miss  # (acc never holds -0.0: sums of +0.0 and pitch errors)
-    else:
-        acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp)
-        cnt = set_add(ms.cnt, ps.index, i32(take), xp)
-        miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
-    n_new = xp.minimum(ms.n_new + i32(take), I32(N))
     fault = enabled & ((eo.status & I32(RESET_STATUS)) != 0)
-    # 2. a finished evaluation, a finished mark check
-    done = ms.busy == I32(L + 1)
-    ok = ms.ev_ok != 0
-    passed = done & ok
-    confirm = passed & (ms.active == 0) & (ms.cand == ms.ev_r)
-    eval_bad = done & (ms.active != 0) & (~ok | (ms.ev_r != ms.r))
-    frac_bad = (ms.mk == 2) & (ms.active != 0) & (ms.mk_bad != 0)
-    reset = fault | eval_bad | frac_bad
-    kept = ms._replace(
-        acc=acc, cnt=cnt, miss=miss, n_new=n_new,
-        active=xp.where(confirm, I32(1), ms.active), r=xp.where(confirm & ~reset, ms.ev_r, ms.r),
-        cand=xp.where(done, xp.where(ok, ms.ev_r, I32(-1)), ms.cand),
-        score=xp.where(done, ms.ev_score, ms.score), margin=xp.where(done, ms.ev_margin, ms.margin),
-        busy=xp.where(done, I32(0), ms.busy), mk=xp.where(ms.mk == 2, I32(0), ms.mk))
-    if xp is SCALAR_NP:  # one motor: the state picked whole, the withdrawn one built only when taken
-        new = _withdrawn(kept, N, xp) if reset else kept
-    else:
-        gone = _withdrawn(kept, N, xp)
-        new = MechState(*(xp.where(reset, g, k) for g, k in zip(gone, kept, strict=True)))
+    return enabled, take, fault, ms.busy == I32(n_slices(mc) + 1)
+
+
+def _due_mark(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, go: Array,
+              xp: ArrayModule) -> tuple[Array, Array, Array]:
+    """Steps 3-4 on the state after steps 1-2 (``go``: enabled and not withdrawn this tick):
+    (direction d, due: an evaluation starts, mark: the revolution mark's check is asked)."""
+    i32 = xp.int32
     # 3. start an evaluation when a revolution of fresh samples is in
     d = i32(es.dir_last < 0)
     has_dir = (tb.dirs & (I32(FP_FORWARD) << d)) != 0
-    due = (enabled & ~reset & (es.anchored != 0) & (new.n_new >= I32(N)) & has_dir
-           & (xp.take(new.miss, d) == 0) & (new.busy == 0) & (new.clr == 0))
+    due = (go & (es.anchored != 0) & (ms.n_new >= I32(mc.N)) & has_dir
+           & (xp.take(ms.miss, d) == 0) & (ms.busy == 0) & (ms.clr == 0))
     # 4. ask for the revolution mark's check: an A edge at the firmware's pulse 0
-    mark = enabled & (new.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0) & (new.mk == 0)
-    new = new._replace(busy=xp.where(due, I32(1), new.busy), ev_d=xp.where(due, d, new.ev_d),
-                       ev_G=xp.where(due, es.G, new.ev_G), n_new=xp.where(due, I32(0), new.n_new),
-                       mk=xp.where(mark, I32(1), new.mk), mk_d=xp.where(mark, d, new.mk_d),
-                       mk_G=xp.where(mark, es.G, new.mk_G))
-    events = (i32(done) * I32(EV_EVAL) | i32(passed) * I32(EV_PASS) | i32(confirm & ~reset) * I32(EV_IDENTIFIED)
-              | i32(fault) * I32(EV_RESET_FAULT) | i32(frac_bad & ~fault) * I32(EV_RESET_FRACTION)
-              | i32(eval_bad & ~fault) * I32(EV_RESET_EVAL))
-    return new, MechOut(active=new.active, r=new.r, events=events, score=new.score, margin=new.margin)
+    mark = (tb.enabled != 0) & (ms.active != 0) & (es.n == 0) & ((es.k_last >> I32(2)) == 0) & (ms.mk == 0)
+    return d, due, mark
+
+
+def batched_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
+                 ps: PitchSample, axis_name: str) -> tuple[MechState, MechOut]:
+    """:func:`mech_tick` of one member of a batch ``jax.vmap``-ped with ``axis_name`` (JAX): the
+    same result, its steps computed on the ticks some member of the batch needs them.
+
+    Most ticks nobody collects a sample, finishes, withdraws, starts an evaluation or reaches a
+    revolution mark; then every member's state stays as it is and no event is raised (the values
+    :func:`mech_tick`'s selects give), so the batch skips the steps (under ``vmap`` a branch on a
+    per-member value computes both sides; the batch's ``any`` is one value for all).
+    """
+    import jax
+    import jax.numpy as jnp
+
+    enabled, take, fault, done = _tick_flags(mc, tb, ms, eo, ps, jnp)
+    _, due, mark = _due_mark(mc, tb, ms, es, enabled, jnp)
+    need = take | fault | done | (ms.mk == 2) | due | mark
+    anyone = jax.lax.psum(need.astype(jnp.int32), axis_name) > 0
+    return jax.lax.cond(anyone, lambda: mech_tick(mc, tb, ms, es, eo, ps, xp=jnp),
+                        lambda: (ms, MechOut(active=ms.active, r=ms.r, events=jnp.zeros_like(ms.active),
+                                             score=ms.score, margin=ms.margin)))
 
 
 def background_heavy(ms: MechState) -> Array:

@@ -28,7 +28,9 @@ from eol_cal.plant import control
 from eol_cal.plant.ecu_model import batch_options, estimator_config, simulated_ecu_state, true_block
 from eol_cal.plant.params import PlantSpec, stack_params, to_params
 from eol_cal.plant.profile import Profile
-from eol_cal.plant.tick import OUT_COLUMNS, TWO_PI, PlantSimConfig, background, initial_carry, sense, tick
+from eol_cal.plant.tick import (
+    BATCH_AXIS, OUT_COLUMNS, TWO_PI, PlantSimConfig, background, initial_carry, sense, tick,
+)
 from eol_cal.numerics.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
 #: ticks of one draw of sensor noise (and the unit of a chunk's length)
@@ -91,7 +93,8 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
 
     # the scan over the batch's ticks, each tick vmapped over the motors: the identifier's
     # background (tick.background) then branches once for the whole batch
-    one_tick = jax.vmap(lambda p, i_noise, c, x: tick(cfg, p, i_noise, c, x), in_axes=(0, 0, 0, (None,) * 5 + (0,)))
+    one_tick = jax.vmap(lambda p, i_noise, c, x: tick(cfg, p, i_noise, c, x), in_axes=(0, 0, 0, (None,) * 5 + (0,)),
+                        axis_name=BATCH_AXIS)
 
     def chunk(p, carry, shared, keys, first_block):
         tq_noise, i_noise = jax.vmap(motor_noise, in_axes=(0, None))(keys, first_block)
@@ -140,7 +143,7 @@ def _prime_fn(cfg: PlantSimConfig) -> Callable:
             est_state, sensed = sense(cfg, p, plant.theta_m, est_state, mech_state)
             return plant, est_state, ecu, sensed
 
-        _COMPILED[key] = jax.jit(lambda p, carry: background(cfg, p, jax.vmap(one_motor)(p, carry)))
+        _COMPILED[key] = jax.jit(lambda p, carry: background(cfg, p, jax.vmap(one_motor, axis_name=BATCH_AXIS)(p, carry)))
     return _COMPILED[key]
 
 

@@ -44,6 +44,8 @@ TWO_PI = 2.0 * math.pi
 #: Per-tick outputs of the scan, in this order (float32 columns).
 OUT_COLUMNS = ("torque", "enc_a", "enc_b", "hall", "iq_ref", "iqc", "iq", "id", "ia", "ib", "ic",
                "speed", "theta_r", "theta_hat", "theta_enc", "mech_active", "theta_m")
+#: the name of the motors' axis: :func:`tick` and :func:`sense` run ``jax.vmap``-ped with it
+BATCH_AXIS = "motors"
 
 
 @dataclass(frozen=True)
@@ -121,19 +123,22 @@ def sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mec
            ) -> tuple[Any, Sensed]:
     """Steps 1-2 of a tick at rotor angle ``theta_m`` (rad): the levels, the estimator's step (and
     with ``cfg.mech`` the identifier's interrupt part, from ``mech_state``: :attr:`Sensed.mech`;
-    :func:`background` then runs its background slice over the batch)."""
+    :func:`background` then runs its background slice over the batch). One motor of a batch
+    ``jax.vmap``-ped over :data:`BATCH_AXIS`."""
     import jax.numpy as jnp
 
     enc_a, enc_b, hall = kinematics.encoder_hall_signals(theta_m, cfg.poles, cfg.N_enc, sensor_errors(p), xp=jnp)
     # the motor's own hall table (its block's, a traced parameter): cfg.estimator's stays unread
     if cfg.mech is None:
         est_state, est = estimator.step(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
-                                        tables=estimator_tables(p))
+                                        tables=estimator_tables(p), batch_axis=BATCH_AXIS)
     else:
         est_state, est, pitch = estimator.step_pitch(cfg.estimator, est_state, enc_a, enc_b, hall, xp=jnp,
-                                                     tables=estimator_tables(p))
-        # the interrupt's part; the background slice follows for the whole batch (:func:`background`)
-        mech_state, _ = mech_tick.mech_tick(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch, xp=jnp)
+                                                     tables=estimator_tables(p), batch_axis=BATCH_AXIS)
+        # the interrupt's part, on the ticks some motor of the batch needs it; the background slice
+        # follows for the whole batch (:func:`background`)
+        mech_state, _ = mech_tick.batched_tick(cfg.mech, mech_tables_of(p), mech_state, est_state, est, pitch,
+                                               BATCH_AXIS)
     theta_c = est.theta_enc if cfg.mode == "raw" else est.theta_hat
     return est_state, Sensed(enc_a, enc_b, hall, est, jnp.cos(theta_m), jnp.sin(theta_m), jnp.cos(theta_c),
                              jnp.sin(theta_c), mech_state)
