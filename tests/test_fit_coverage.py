@@ -141,7 +141,7 @@ def test_white_noise_keeps_the_noise_as_the_floor_of_the_scatter():
 
 
 def test_the_quantile_follows_the_scatters_excess_over_the_noise():
-    """Student's t of the Welch-Satterthwaite degrees of freedom (motor_fit._wider_per_quantity): a
+    """Student's t of the Welch-Satterthwaite degrees of freedom (motor_fit.wider_per_quantity): a
     scatter all excess over the noise takes t(S - 1); one barely over the noise the normal's 1.96,
     as the noise's own (t(7) on the whole scatter, before, made an interval 1.2x the noise's there
     and k6, c6 and the delay covered 98.25-98.75 % of 400 plant motors); the noise where wider."""
@@ -149,16 +149,16 @@ def test_the_quantile_follows_the_scatters_excess_over_the_noise():
     from scipy.special import stdtrit
 
     from eol_cal.analysis.fit.model import Z95
-    from eol_cal.analysis.fit.motor_fit import _wider_per_quantity
+    from eol_cal.analysis.fit.motor_fit import wider_per_quantity
 
     blocks = [slice(0, 1), slice(1, 3)]
     noise = np.diag([1.0, 1.0, 1.0])
     t7 = float(stdtrit(7, 0.975)) / Z95
-    cov = _wider_per_quantity(noise, np.diag([1e6, 1.01, 1.01]), blocks, 8)
+    cov = wider_per_quantity(noise, np.diag([1e6, 1.01, 1.01]), blocks, 8)
     assert cov[0, 0] / 1e6 == pytest.approx(t7 ** 2, rel=1e-5)  # all excess: t(7)
     assert np.sqrt(np.diag(cov)[1:]) == pytest.approx(np.sqrt(1.01), rel=1e-4)  # 1 % over: ~1.96
-    cov = _wider_per_quantity(noise, np.diag([0.5, 0.9, 0.9]), blocks, 8)
+    cov = wider_per_quantity(noise, np.diag([0.5, 0.9, 0.9]), blocks, 8)
     assert np.array_equal(cov, noise)  # the noise where it is the wider
     # the excess's share: V = 2 V_n gives nu = 4 (S - 1)
-    cov = _wider_per_quantity(noise, np.diag([2.0, 1.0, 1.0]), blocks, 8)
+    cov = wider_per_quantity(noise, np.diag([2.0, 1.0, 1.0]), blocks, 8)
     assert cov[0, 0] == pytest.approx(2.0 * (float(stdtrit(28, 0.975)) / Z95) ** 2, rel=1e-9)

@@ -16,7 +16,9 @@ segments on (``one_load.json``: null intervals and a ``no_interval`` reason), an
 mechanical switch's margin took the fingerprint's measured error (threshold 0.03; ``mech.margin``
 and its reason only), and when an order not resolved from zero got an amplitude interval that
 reaches it and no phase bound (issue 34: ``two_motors.json``'s synthetic captures have no
-mechanical orders; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved); write
+mechanical orders; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved), and when the
+orders' jackknife took the electrical quantities' Student's t (Welch-Satterthwaite; only
+``mech.orders[].c.ci95`` moved); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """

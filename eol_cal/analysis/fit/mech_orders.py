@@ -14,7 +14,9 @@ load-independent (N*m; the plant's unbalance is); the block's per-ampere part is
 Intervals: the joint fit's covariance at the noise each order actually has in each segment
 (:func:`order_noise`: the residual's phasors at the order's neighbouring frequencies, as the
 model check measures the 6th's), or per order the delete-one-segment jackknife's where wider (the
-segments' scatter: what differs from segment to segment and not from sample to sample). An
+segments' scatter: what differs from segment to segment and not from sample to sample), with
+Student's t of the noise plus the scatter's excess over it (Welch-Satterthwaite, as the electrical
+quantities': :func:`eol_cal.analysis.fit.motor_fit.wider_per_quantity`). An
 order not resolved from zero (its phasor's 95 % region holds the origin) reports an amplitude
 interval that reaches zero and no phase bound (:func:`order_estimate`).
 """
@@ -30,6 +32,7 @@ from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
 from eol_cal.analysis.fit.model import legendre_rows, line_noise, noise_bins, transducer_gain
+from eol_cal.analysis.fit.motor_fit import wider_per_quantity
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
@@ -143,15 +146,11 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                f"needs at least {MIN_SEGMENTS} (fit more load points or speeds)")
         return tuple(MechOrder(h, ValueCi(math.hypot(sol[2 * i], sol[2 * i + 1]), None),
                                ValueCi(math.atan2(sol[2 * i + 1], sol[2 * i]), None), why) for i, h in enumerate(ORDERS))
-    from scipy.special import stdtrit  # heavy: only where mechanical orders are fitted
-
     loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
     dev = loo - loo.mean(axis=0)
-    jk = (S - 1) / S * (dev.T @ dev) * (float(stdtrit(S - 1, 0.975)) / _Z95) ** 2
-    for i in range(H):  # per order the wider of the two (only each order's own pair is reported)
-        sl = slice(2 * i, 2 * i + 2)
-        if np.trace(jk[sl, sl]) > np.trace(cov[sl, sl]):
-            cov[sl, sl] = jk[sl, sl]
+    # per order the wider of the two, with Student's t of the noise plus the scatter's excess over it
+    # (the electrical quantities' rule; only each order's own pair is reported)
+    cov = wider_per_quantity(cov, (S - 1) / S * (dev.T @ dev), [slice(2 * i, 2 * i + 2) for i in range(H)], S)
     return tuple(MechOrder(h, *order_estimate(sol[2 * i], sol[2 * i + 1], cov[2 * i: 2 * i + 2, 2 * i: 2 * i + 2]))
                  for i, h in enumerate(ORDERS))
 

@@ -153,7 +153,7 @@ def _quantity_blocks(spec: FitSpec) -> list[slice]:
     return ([slice(0, 1)] if n_tau else []) + [slice(i, i + 2) for i in range(n_tau, n_tau + spec.n_glob, 2)]
 
 
-def _wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slice], S: int) -> np.ndarray:
+def wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slice], S: int) -> np.ndarray:
     """Each reported quantity's block (its rows and columns) from the wider of ``noise`` and ``scatter``,
     scaled to Student's t of its Welch-Satterthwaite degrees of freedom over the normal's 1.96.
 
@@ -187,7 +187,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     each part's pair per harmonic) gets the wider of it and the segments' scatter
     (:func:`segment_scatter`) from :data:`MIN_SEGMENTS_SCATTER` segments on, with Student's t of
     the Welch-Satterthwaite degrees of freedom of the noise plus the scatter's excess over it
-    (:func:`_wider_per_quantity`), the noise's widened by the pooled lack of fit (Birge ratio)
+    (:func:`wider_per_quantity`), the noise's widened by the pooled lack of fit (Birge ratio)
     below. Amplitude/phase intervals follow by the delta method.
     """
     p = np.asarray(out["p"], dtype=float)
@@ -212,7 +212,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
 
         S = int(valid.sum())
         if S >= MIN_SEGMENTS_SCATTER:
-            cov = _wider_per_quantity(cov, segment_scatter(out, valid), _quantity_blocks(spec), S)
+            cov = wider_per_quantity(cov, segment_scatter(out, valid), _quantity_blocks(spec), S)
         elif dof_red >= 1:
             # the wider of two: the noise's (s2 from thousands of samples: the normal's 1.96) and the
             # pooled lack of fit's, whose variance has the projected rows' few degrees of freedom
