@@ -5,8 +5,9 @@ firmware twin, on the motor's true encoder under that block, agrees: on at 0.3x 
 errors (identified right on every power-up), off at 0.1x (the twin cannot identify it).
 
 The fingerprint's own measurement error is measured by splitting its stretches
-(``split_noise``): the edges' standard errors alone make it tens of times too large and switched
-0.3x motors off where the twin identifies them every time (this test's 0.3x motor among them).
+(``split_noise``): the edges' standard errors alone make it several times too large (tens of times
+with a stretch across a load step, which switched 0.3x motors off where the twin identifies them
+every time), and a stretch never spans a load step (``fingerprint_ranges``).
 """
 
 from __future__ import annotations
@@ -61,7 +62,9 @@ def test_the_switch_is_on_at_0_3x_and_off_at_0_1x_and_the_twin_agrees(motors):
 @pytest.mark.slow
 def test_the_split_measures_the_fingerprints_actual_error_not_its_standard_errors(motors):
     """The fitted fingerprint's pitch errors against the true encoder's in the block's frame: the
-    split's error energy within a factor of 2.5 of the actual; the standard errors' over 5 times."""
+    split's error energy within a factor of 2.5 of the actual; the standard errors' over twice (3.8
+    times on this motor, whose stretches stop at the load steps; 10-60 times on motors with a
+    stretch across one, before the stretches stopped there)."""
     from eol_cal.analysis.fingerprint import pitch_errors
     from eol_cal.analysis.fingerprint_fit import low_order_complement
     from eol_cal.firmware.kinematics import fingerprint_of
@@ -78,11 +81,12 @@ def test_the_split_measures_the_fingerprints_actual_error_not_its_standard_error
         actual = float(err[d::2] @ err[d::2])
         assert 0.4 < noise[d] / actual < 2.5
         from_sigma = float((s2 + np.roll(s2.reshape(N, 2), 1, axis=0).reshape(-1))[d::2].sum())
-        assert from_sigma > 5 * actual
-    # the product's prediction is this one; from the standard errors it would have switched this motor off
+        assert from_sigma > 2 * actual
+    # the product's prediction is this one; the standard errors' is lower (on this motor 0.076: with
+    # a stretch across a load step they switched it off, before the stretches stopped there)
     score, margin = predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0, noise=noise)
     assert margin == pytest.approx(m.result.mech.margin, abs=1e-12)
-    assert predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0)[1] < SWITCH_MARGIN
+    assert predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0)[1] < margin - 0.05
 
 
 def test_a_fingerprint_stretch_never_spans_a_load_step():
