@@ -21,7 +21,8 @@ capture's count frame: the truth the identifier must find is moved by the model 
 started on). Per motor: the switch, power-ups right, wrong frames applied.
 
     python bench/bench_mech_margin.py [--encoders 32] [--per-encoder 128]
-    python bench/bench_mech_margin.py --end-to-end [--encoders 16] [--per-encoder 128] [--json F] [--plot F]
+    python bench/bench_mech_margin.py --end-to-end [--encoders 16] [--per-encoder 128] [--seed0 S]
+        [--scales 0.2,0.3] [--json F] [--plot F] [--dump F]
 """
 
 from __future__ import annotations
@@ -95,20 +96,20 @@ def fingerprint_check(errors: SensorErrors, mech: MechParams, frame_pulse: int) 
 
 
 def run_end_to_end(encoders: int, per_encoder: int, spread: str = "mech23", dump: str | None = None,
-                   seed0: int = 70_000) -> list[dict[str, Any]]:
+                   seed0: int = 70_000, scales: tuple[float, ...] = E2E_SCALES) -> list[dict[str, Any]]:
     """Per motor (``encoders`` a scale of :data:`E2E_SCALES`): the switch end of line wrote, the
     predicted margin, the fitted fingerprint against the truth, and ``per_encoder`` twin power-ups
     of the true encoder on the block's fitted fingerprint (right, wrong frames applied). ``dump``: a
     pickle of every motor's window edges and fingerprint (to study other rules on the same motors);
     ``seed0``: the first motor's seed (the same seeds at every scale: the same motors, their pitch
-    errors scaled)."""
+    errors scaled); ``scales``: the pitch-error scales run (x nominal)."""
     from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
     from eol_cal.firmware.mech_sim import simulate_powerups
     from eol_cal.sim.mech_motors import SWITCH_SECONDS, pitch_error_spread, switch_powerups, through_end_of_line
 
     rows: list[dict[str, Any]] = []
     kept = []
-    for s in E2E_SCALES:
+    for s in scales:
         t0 = time.perf_counter()
         seeds = [seed0 + e for e in range(encoders)]
         sp = pitch_error_spread(s, spread)
@@ -164,7 +165,7 @@ def report_end_to_end(rows: list[dict[str, Any]]) -> None:
     print("\n| pitch errors (x nominal) | predicted margin min / median | on | power-ups right | motors right on "
           "every power-up | on, twin not right on every power-up | off, twin right on every power-up |")
     print("|---|---|---|---|---|---|---|")
-    for s in E2E_SCALES:
+    for s in sorted({r["scale"] for r in rows}):
         sel = [r for r in rows if r["scale"] == s]
         allright = [r["of"] > 0 and r["right"] == r["of"] for r in sel]
         bad_on = sum(r["on"] and not a for r, a in zip(sel, allright, strict=True))
@@ -225,6 +226,8 @@ def main() -> None:
                     help="plant motors through the fit and the block it writes, the twin on the fitted fingerprint")
     ap.add_argument("--spread", default="mech23", help="production spread of the end-to-end motors")
     ap.add_argument("--seed0", type=int, default=70_000, help="end to end: the first motor's seed")
+    ap.add_argument("--scales", default=",".join(f"{s:g}" for s in E2E_SCALES),
+                    help="end to end: the pitch-error scales (x nominal), comma-separated")
     ap.add_argument("--dump", help="end to end: pickle of the motors' window edges and fingerprints")
     ap.add_argument("--plot", help="end to end: PNG of the predicted margin against the twin's power-ups right")
     args = ap.parse_args()
@@ -232,7 +235,8 @@ def main() -> None:
         from eol_cal.firmware.mech_params import SWITCH_MARGIN
 
         print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}", flush=True)
-        rows_e = run_end_to_end(args.encoders, args.per_encoder, args.spread, args.dump, args.seed0)
+        rows_e = run_end_to_end(args.encoders, args.per_encoder, args.spread, args.dump, args.seed0,
+                                tuple(float(x) for x in args.scales.split(",")))
         report_end_to_end(rows_e)
         if args.json:
             Path(args.json).write_text(json.dumps(rows_e))

@@ -5,16 +5,22 @@ firmware twin, on the motor's true encoder under that block, agrees: on at 0.3x 
 errors (identified right on every power-up), off at 0.1x (the twin cannot identify it).
 
 The fingerprint's own measurement error is measured by splitting its stretches
-(``split_noise``): the edges' standard errors alone make it tens of times too large and switched
-0.3x motors off where the twin identifies them every time (this test's 0.3x motor among them).
+(``split_noise``): the edges' standard errors alone make it several times too large (tens of times
+with a stretch across a load step, which switched 0.3x motors off where the twin identifies them
+every time), and a stretch never spans a load step (``fingerprint_ranges``).
 """
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from eol_cal.analysis.fingerprint import predicted_margin, split_noise
+from eol_cal.analysis.fit.fp_angle import fingerprint_ranges
+from eol_cal.analysis.fit.motor_input import MotorInput, SteadySegmentOrigin
+from eol_cal.capture.data import Capture
 from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE
 from eol_cal.firmware.mech_params import SWITCH_MARGIN
 from eol_cal.firmware.mech_sim import simulate_powerups
@@ -56,7 +62,9 @@ def test_the_switch_is_on_at_0_3x_and_off_at_0_1x_and_the_twin_agrees(motors):
 @pytest.mark.slow
 def test_the_split_measures_the_fingerprints_actual_error_not_its_standard_errors(motors):
     """The fitted fingerprint's pitch errors against the true encoder's in the block's frame: the
-    split's error energy within a factor of 2.5 of the actual; the standard errors' over 5 times."""
+    split's error energy within a factor of 2.5 of the actual; the standard errors' over twice (3.8
+    times on this motor, whose stretches stop at the load steps; 10-60 times on motors with a
+    stretch across one, before the stretches stopped there)."""
     from eol_cal.analysis.fingerprint import pitch_errors
     from eol_cal.analysis.fingerprint_fit import low_order_complement
     from eol_cal.firmware.kinematics import fingerprint_of
@@ -73,8 +81,37 @@ def test_the_split_measures_the_fingerprints_actual_error_not_its_standard_error
         actual = float(err[d::2] @ err[d::2])
         assert 0.4 < noise[d] / actual < 2.5
         from_sigma = float((s2 + np.roll(s2.reshape(N, 2), 1, axis=0).reshape(-1))[d::2].sum())
-        assert from_sigma > 5 * actual
-    # the product's prediction is this one; from the standard errors it would have switched this motor off
+        assert from_sigma > 2 * actual
+    # the product's prediction is this one; the standard errors' is lower (on this motor 0.076: with
+    # a stretch across a load step they switched it off, before the stretches stopped there)
     score, margin = predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0, noise=noise)
     assert margin == pytest.approx(m.result.mech.margin, abs=1e-12)
-    assert predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0)[1] < SWITCH_MARGIN
+    assert predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N, 20000.0)[1] < margin - 0.05
+
+
+def test_a_fingerprint_stretch_never_spans_a_load_step():
+    """Two steady segments at one speed with a load step between them (eol-default's load points),
+    the dyno holding the speed within the extension's tolerance through the step: each segment's
+    stretch stops at the step, both ways (merged across it, the step's motion, which no stretch
+    polynomial follows, went into the fingerprint: seed 90008 at 0.3x switched on, the twin right on
+    125 of 128 power-ups). Away from the step the stretches are extended as before."""
+    fs = 10_000.0
+    t = np.arange(int(3.0 * fs)) / fs
+    iq = np.where(t < 1.5, 65.0, 40.0)
+    ramp = (t >= 1.5) & (t < 1.6)
+    iq[ramp] = np.linspace(65.0, 40.0, int(ramp.sum()))  # the profile's ramp
+    # 120 rpm mechanical (6 Hz electrical), the step's speed transient under 10 %
+    w = 2 * np.pi * 6.0 * (1.0 + 0.05 * np.exp(-np.clip(t - 1.5, 0, None) / 0.1) * (t >= 1.5))
+    cap = Capture(t=t, channels={"iq_ref": iq}, metadata={}, source="<synthetic>")
+
+    def seg(a_s, b_s):
+        a, b = int(a_s * fs), int(b_s * fs)
+        return SteadySegmentOrigin("<synthetic>", a, b, a_s, b_s, float(iq[a]), 120.0)
+
+    mi = MotorInput("S", [cap], [SimpleNamespace(omega_r=w)], None, [seg(0.3, 1.2), seg(1.9, 2.8)],  # type: ignore[arg-type]
+                    6, 64, 0.1, "test", capture_of_segment=[0, 0])
+    r = fingerprint_ranges(mi, 0)
+    assert len(r) == 2
+    step, ramp_end = int(1.5 * fs), int(1.6 * fs)
+    assert r[0][0] == 0 and step < r[0][1] < step + 0.1 * (ramp_end - step)  # to the ramp's first 2 %
+    assert ramp_end - 0.1 * (ramp_end - step) < r[1][0] <= ramp_end and r[1][1] == t.size

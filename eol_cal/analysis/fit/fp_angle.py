@@ -41,6 +41,11 @@ if TYPE_CHECKING:
 #: segments of eol-default settle slowly after their ramp)
 EXTEND_TOL = 0.1
 
+#: ... nor while the load point ``iq_ref`` differs from the segment's by more than the steady
+#: segments' own tolerance (``max(0.5 A, 2 %)``, :func:`eol_cal.analysis.fit.capture.steady_runs_of`):
+#: a load step ends a stretch
+IQ_TOL_A, IQ_TOL_REL = 0.5, 0.02
+
 #: the encoder errors' mechanical orders measured against the halls: those the fingerprint leaves
 #: out but a frame offset (order 0)
 HALL_ORDERS = tuple(range(1, LOW_ORDERS + 1))
@@ -55,15 +60,23 @@ OUTLIER_MADS = 8.0
 
 def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
     """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
-    fit, extended both ways while the direction is the same and the speed within
-    :data:`EXTEND_TOL` of the segment's; overlapping stretches merged."""
+    fit, extended both ways while the direction and the load point (``iq_ref``) are the segment's
+    and the speed within :data:`EXTEND_TOL` of its; overlapping stretches merged.
+
+    A stretch never spans a load step: the step moves the rotor in a way no stretch's polynomial
+    follows, and where the dyno holds the speed within the tolerance through it the speed does not
+    show it (two of eol-default's segments merged across one made a fingerprint's error several
+    times the other motors', which the split of the stretches did not see: firmware_params/MECH.md).
+    """
     w = np.asarray(mi.angles[ci].omega_r, dtype=float)
+    iq = np.asarray(mi.captures[ci].iq_ref(), dtype=float)
     out: list[tuple[int, int]] = []
     for k, info in enumerate(mi.info):
         if mi.capture_of_segment[k] != ci:
             continue
         ws = float(np.median(w[info.start:info.stop]))
         bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        bad |= np.abs(iq - info.i_qo) > max(IQ_TOL_A, IQ_TOL_REL * abs(info.i_qo))
         before = np.flatnonzero(bad[:info.start])
         after = np.flatnonzero(bad[info.stop:])
         a = int(before[-1]) + 1 if len(before) else 0
