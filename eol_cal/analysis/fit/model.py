@@ -344,12 +344,19 @@ def mech_span(theta: np.ndarray, pole_pairs: int) -> float:
 #: periods of a mechanical order a segment must span to carry its pair (a shorter piece of a sine
 #: is all but the drift polynomial)
 MECH_MIN_PERIODS = 1.0
+#: how far short of :data:`MECH_MIN_PERIODS` a segment's span may fall and still count (periods): a
+#: segment cut to whole electrical revolutions spans them less one sample's travel, and its cut
+#: follows the edges under speed ripple (-3e-4 of a revolution on the plant). Without it an order
+#: whose whole period the segment covers (order 1 in 3 electrical revolutions, order 3 in 1, with 3
+#: pole pairs) was left to the drift polynomial on about every other segment, depending on the
+#: sample count, and moved that speed band's c6 by up to 9 % and k6 by up to 2 % (issue 34)
+MECH_SPAN_TOL = 0.01
 
 
 def mech_resolved(spec: FitSpec, order: int, span: float) -> bool:
     """Whether a segment of ``span`` mechanical revolutions carries mechanical order ``order``'s pair:
-    switched on and :data:`MECH_MIN_PERIODS` periods of it."""
-    return spec.mech_order1 and order <= spec.mech_orders and order * span >= MECH_MIN_PERIODS - 1e-9
+    switched on and :data:`MECH_MIN_PERIODS` periods of it (less :data:`MECH_SPAN_TOL`)."""
+    return spec.mech_order1 and order <= spec.mech_orders and order * span >= MECH_MIN_PERIODS - MECH_SPAN_TOL
 
 
 def design_matrix_t(
