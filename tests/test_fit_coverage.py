@@ -79,9 +79,7 @@ def test_the_intervals_follow_what_differs_from_segment_to_segment():
     the median of 200 is within +-0.05 of its value, so [0.25, 0.5] tells the two apart."""
     import numpy as np
 
-    from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit.synth import synthetic_segments
-    from eol_cal.numerics.wrap import wrap_pi
 
     rng = np.random.default_rng(7)
     segs, truths = [], []
@@ -94,14 +92,7 @@ def test_the_intervals_follow_what_differs_from_segment_to_segment():
                 seg.torque[s] = seg.torque[s] + abs(z) * np.sin(6 * seg.theta[s] + np.angle(z))
         segs.append(seg)
         truths.append(truth)
-    ratios: dict[str, list[float]] = {q: [] for q in ("k6", "phase_k6", "c6", "phase_c6", "delay_s")}
-    for f, t in zip(fit_many(segs, FitSpec(harmonics=(6,))), truths, strict=True):
-        six = f.harmonics[6]
-        for part in ("k", "c"):
-            ratios[f"{part}6"].append(abs(six[part].value - t[f"{part}6"]) / six[part].ci95)
-            ratios[f"phase_{part}6"].append(abs(float(wrap_pi(six[part].phase - t[f"phase_{part}6"]))) / six[part].phase_ci95)
-        ratios["delay_s"].append(abs(f.delay_s - t["delay_s"]) / f.delay_ci95)
-    for q, r in ratios.items():
+    for q, r in _error_ratios(segs, truths).items():
         med, cover = float(np.median(r)), float(np.mean(np.array(r) <= 1.0))
         assert 0.25 <= med <= 0.5 and cover >= 0.84, (q, med, cover)
 
@@ -118,9 +109,7 @@ def test_white_noise_keeps_the_noise_as_the_floor_of_the_scatter():
     83 % for the delay never reaches it (here 83.5 %, c6 86 %)."""
     import numpy as np
 
-    from eol_cal.analysis.fit import FitSpec, fit_many
     from eol_cal.analysis.fit.synth import synthetic_segments
-    from eol_cal.numerics.wrap import wrap_pi
 
     rng = np.random.default_rng(12)
     segs, truths = [], []
@@ -129,14 +118,7 @@ def test_white_noise_keeps_the_noise_as_the_floor_of_the_scatter():
                                         directions=(1, -1), mech_nm=0.0)
         segs.append(seg)
         truths.append(truth)
-    hits: dict[str, list[bool]] = {q: [] for q in ("k6", "phase_k6", "c6", "phase_c6", "delay_s")}
-    for f, t in zip(fit_many(segs, FitSpec(harmonics=(6,))), truths, strict=True):
-        six = f.harmonics[6]
-        for part in ("k", "c"):
-            hits[f"{part}6"].append(abs(six[part].value - t[f"{part}6"]) <= six[part].ci95)
-            hits[f"phase_{part}6"].append(abs(float(wrap_pi(six[part].phase - t[f"phase_{part}6"]))) <= six[part].phase_ci95)
-        hits["delay_s"].append(abs(f.delay_s - t["delay_s"]) <= f.delay_ci95)
-    cover = {q: float(np.mean(h)) for q, h in hits.items()}
+    cover = {q: float(np.mean(np.array(r) <= 1.0)) for q, r in _error_ratios(segs, truths).items()}
     assert all(0.90 <= c <= 0.99 for c in cover.values()), cover
 
 
@@ -162,3 +144,18 @@ def test_the_quantile_follows_the_scatters_excess_over_the_noise():
     # the excess's share: V = 2 V_n gives nu = 4 (S - 1)
     cov = wider_per_quantity(noise, np.diag([2.0, 1.0, 1.0]), blocks, 8)
     assert cov[0, 0] == pytest.approx(2.0 * (float(stdtrit(28, 0.975)) / Z95) ** 2, rel=1e-9)
+
+
+def _error_ratios(segs: list, truths: list[dict[str, float]]) -> dict[str, list[float]]:
+    """|error| / ci95 of k6, c6, their phases and the delay, fitted (6th only) on ``segs``."""
+    from eol_cal.analysis.fit import FitSpec, fit_many
+    from eol_cal.numerics.wrap import wrap_pi
+
+    ratios: dict[str, list[float]] = {q: [] for q in ("k6", "phase_k6", "c6", "phase_c6", "delay_s")}
+    for f, t in zip(fit_many(segs, FitSpec(harmonics=(6,))), truths, strict=True):
+        six = f.harmonics[6]
+        for part in ("k", "c"):
+            ratios[f"{part}6"].append(abs(six[part].value - t[f"{part}6"]) / six[part].ci95)
+            ratios[f"phase_{part}6"].append(abs(float(wrap_pi(six[part].phase - t[f"phase_{part}6"]))) / six[part].phase_ci95)
+        ratios["delay_s"].append(abs(f.delay_s - t["delay_s"]) / f.delay_ci95)
+    return ratios
