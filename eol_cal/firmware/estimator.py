@@ -48,8 +48,9 @@ from eol_cal.firmware.estimator_config import (
 )
 from eol_cal.firmware.estimator_config import OPTION_FLAGS, options_from_flags
 from eol_cal.firmware.estimator_step import (
-    SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
+    EstimatorOut, EstimatorState, PitchSample, init_state, quadrature_phase, step, step_pitch,
 )
+from eol_cal.firmware.scalar_numpy import SCALAR_NP
 
 if TYPE_CHECKING:
     import jax

@@ -13,11 +13,12 @@ from __future__ import annotations
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
 # mypy: disable-error-code="arg-type,union-attr,index,operator,assignment"
 
-from typing import Any, NamedTuple, cast
+from typing import NamedTuple, cast
 
 import numpy as np
 
 from eol_cal.numerics.arrays import Array, ArrayModule
+from eol_cal.firmware.scalar_numpy import SCALAR_NP
 from eol_cal.firmware.estimator_config import (
     F32, HALF, I32, K_ACC, K_PITCH, N_LEARN, ST_DIR_MISMATCH, ST_EDGE_REJECT, ST_HALL_FAULT, ST_HALL_SEQ,
     ST_MISSING_EDGE, ST_NO_ANCHOR, ST_NO_SPEED, ST_QEP_ERROR, ST_REVERSE, ST_STANDSTILL, STEADY_TICKS,
@@ -141,7 +142,6 @@ def _tab(table: np.ndarray, idx: Array, xp: ArrayModule) -> Array:
 # The step's constants built once (numpy int32/float32 scalars, the same under numpy and JAX).
 _I0 = I32(0)
 _I1 = I32(1)
-_I32_ZERO, _I32_ONE = cast(Array, _I0), cast(Array, _I1)  # the same scalars, typed as the step's arrays
 _I2 = I32(2)
 _I3 = I32(3)
 _I4 = I32(4)
@@ -160,85 +160,6 @@ _I_N_LEARN = I32(N_LEARN)
 _I_STEADY_TICKS = I32(STEADY_TICKS)
 _F0, _F1 = F32(0.0), F32(1.0)
 _FALSE = cast(Array, np.False_)  # a flag no member raises, typed as the step's arrays
-
-
-def _int32_of(x: Array, _bool: type = np.bool_, _i32: type = np.int32) -> Array:
-    """``np.int32(x)`` without numpy's construction for a flag or an int32 already (~20 a tick):
-    the same value and type. Also a dtype (``.dtype``), as ``np.int32`` is."""
-    t = type(x)
-    if t is _bool:
-        return _I32_ONE if x else _I32_ZERO
-    if t is _i32:
-        return x
-    return _i32(x)
-
-
-_int32_of.dtype = np.dtype(np.int32)  # type: ignore[attr-defined]
-
-
-class _ScalarNumpy:
-    """numpy for one motor's scalars, minus the 0-d array round trips of ``np.where`` & co.
-
-    Selections and min/max pick one of their (already binary32) operands, ``take`` indexes and
-    ``asarray`` leaves a numpy scalar of the asked dtype as it is, so the arithmetic and its
-    results are those of ``xp=numpy`` exactly; the tick-by-tick references (:func:`run`,
-    :func:`eol_cal.firmware.mech_run.run_mech`) use it for speed only. ``numpy_of`` gives numpy
-    back where a step works on whole arrays (the identifier's evaluation).
-    """
-
-    int32 = staticmethod(_int32_of)
-    float32 = np.float32
-    floor = staticmethod(np.floor)
-    zeros = staticmethod(np.zeros)
-    zeros_like = staticmethod(np.zeros_like)
-
-    @staticmethod
-    def asarray(x: Array, dtype: Any = None) -> Array:
-        if dtype is not None and not isinstance(dtype, type):
-            dtype = dtype.dtype  # int32 above
-        has = getattr(x, "dtype", None)  # a numpy scalar or array: as it is when its dtype is the one asked
-        if has is not None and (dtype is None or has == dtype):
-            return x
-        return np.asarray(x, dtype)
-
-    @staticmethod
-    def take(a: np.ndarray, i: Array) -> Array:
-        return a[i]
-
-    @staticmethod
-    def bitwise_and(x: Array, y: Array) -> Array:
-        return x & y
-
-    @staticmethod
-    def where(c: Array, x: Array, y: Array) -> Array:
-        return x if c else y
-
-    @staticmethod
-    def minimum(x: Array, y: Array) -> Array:
-        return x if x < y else y
-
-    @staticmethod
-    def maximum(x: Array, y: Array) -> Array:
-        return x if x > y else y
-
-    @staticmethod
-    def abs(x: Array) -> Array:
-        return -x if x < 0 else x
-
-
-#: typed as a module: it stands in for numpy wherever ``xp`` is
-SCALAR_NP = cast(ArrayModule, _ScalarNumpy())
-
-
-def numpy_of(xp: ArrayModule) -> ArrayModule:
-    """``xp`` for a step on whole arrays: numpy for :data:`SCALAR_NP`, else ``xp`` itself."""
-    return np if xp is SCALAR_NP else xp
-
-
-def scalar_of(xp: ArrayModule) -> ArrayModule:
-    """``xp`` for a step on one motor's scalars: :data:`SCALAR_NP` for numpy, else ``xp`` itself
-    (the tick-by-tick references pass numpy, the plant traces ``jax.numpy``)."""
-    return SCALAR_NP if xp is np else xp
 
 
 def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:

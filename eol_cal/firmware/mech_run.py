@@ -14,7 +14,8 @@ import numpy as np
 from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware import compensator, estimator as est
 from eol_cal.firmware.block import FLAG_COMP_ENABLE, ParamBlock
-from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, scalar_of, step_pitch
+from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample, step_pitch
+from eol_cal.firmware.scalar_numpy import SCALAR_NP, scalar_of
 from eol_cal.firmware.mech import (
     MechConsts, MechOut, MechState, MechTables, block_mech_tables, mech_init, mech_sum,
 )

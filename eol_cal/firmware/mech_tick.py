@@ -24,7 +24,8 @@ import numpy as np
 
 from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
-from eol_cal.firmware.estimator_step import SCALAR_NP, EstimatorOut, EstimatorState, PitchSample, numpy_of
+from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
+from eol_cal.firmware.scalar_numpy import SCALAR_NP, numpy_of
 from eol_cal.firmware.mech import (
     CNT_MAX, SLICE_EDGES, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
     MechConsts, MechOut, MechState, MechTables, evaluate, set_add, f32_, mean_c_of, n_slices,
