@@ -18,7 +18,7 @@ from typing import NamedTuple, cast
 import numpy as np
 
 from eol_cal.numerics.arrays import Array, ArrayModule
-from eol_cal.firmware.scalar_numpy import SCALAR_NP
+from eol_cal.firmware.scalar_numpy import SCALAR_NP, when
 from eol_cal.firmware.estimator_config import (
     F32, HALF, I32, K_ACC, K_PITCH, N_LEARN, ST_DIR_MISMATCH, ST_EDGE_REJECT, ST_HALL_FAULT, ST_HALL_SEQ,
     ST_MISSING_EDGE, ST_NO_ANCHOR, ST_NO_SPEED, ST_QEP_ERROR, ST_REVERSE, ST_STANDSTILL, STEADY_TICKS,
@@ -344,14 +344,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
                      xp.where(ev, _I0, n1), xp.where(ev, k_fixed, s.k_last), xp.where(ev, edir, s.dir_last), omega,
                      nc_prev, alpha, tick, run, R_prev, c_tab, ts, sample)
 
-    if xp is SCALAR_NP:  # one motor: a Python branch
-        e2 = edge() if a_rise else no_edge()
-    elif batch_axis is not None:  # a batch: edge() on the ticks some member has an A edge
-        import jax
-
-        e2 = jax.lax.cond(jax.lax.psum(i32(a_rise), batch_axis) > 0, edge, no_edge)
-    else:
-        e2 = edge()
+    e2 = when(a_rise, edge, no_edge, xp, batch_axis)
     (ev, bounce, missing, reject, speed_upd, q, k, against, n, k_last, dir_last, omega, nc_prev, alpha, tick, run,
      R_prev, c_tab, ts, sample) = e2
 
@@ -422,14 +415,7 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
         hdir = xp.where(fwd, one, -one)
         return G, anchored, n_anchor, adj & (dir_last != 0) & (hdir != dir_last)
 
-    if xp is SCALAR_NP:  # one motor: a Python branch
-        G, anchored, n_anchor, dir_mismatch = anchor() if adj else no_anchor()
-    elif batch_axis is not None:  # a batch: anchor() on the ticks some member has an adjacent transition
-        import jax
-
-        G, anchored, n_anchor, dir_mismatch = jax.lax.cond(jax.lax.psum(i32(adj), batch_axis) > 0, anchor, no_anchor)
-    else:
-        G, anchored, n_anchor, dir_mismatch = anchor()
+    G, anchored, n_anchor, dir_mismatch = when(adj, anchor, no_anchor, xp, batch_axis)
     hall_last = xp.where(hv, h, hl)
     sector = xp.where(adj | first, h, s.sector)
 

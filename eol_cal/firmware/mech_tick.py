@@ -25,7 +25,7 @@ import numpy as np
 from eol_cal.numerics.arrays import Array, ArrayModule
 from eol_cal.firmware.estimator_config import F32, I32, wrap_pm
 from eol_cal.firmware.estimator_step import EstimatorOut, EstimatorState, PitchSample
-from eol_cal.firmware.scalar_numpy import SCALAR_NP, numpy_of
+from eol_cal.firmware.scalar_numpy import SCALAR_NP, numpy_of, when
 from eol_cal.firmware.mech import (
     CNT_MAX, SLICE_EDGES, EV_EVAL, EV_IDENTIFIED, EV_PASS, EV_RESET_EVAL, EV_RESET_FAULT, EV_RESET_FRACTION, RESET_STATUS,
     MechConsts, MechOut, MechState, MechTables, evaluate, set_add, f32_, mean_c_of, n_slices,
@@ -138,16 +138,14 @@ def batched_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorSta
     :func:`mech_tick`'s selects give), so the batch skips the steps (under ``vmap`` a branch on a
     per-member value computes both sides; the batch's ``any`` is one value for all).
     """
-    import jax
     import jax.numpy as jnp
 
     enabled, take, fault, done = _tick_flags(mc, tb, ms, eo, ps, jnp)
     _, due, mark = _due_mark(mc, tb, ms, es, enabled, jnp)
     need = take | fault | done | (ms.mk == 2) | due | mark
-    anyone = jax.lax.psum(need.astype(jnp.int32), axis_name) > 0
-    return jax.lax.cond(anyone, lambda: mech_tick(mc, tb, ms, es, eo, ps, xp=jnp),
-                        lambda: (ms, MechOut(active=ms.active, r=ms.r, events=jnp.zeros_like(ms.active),
-                                             score=ms.score, margin=ms.margin)))
+    return when(need, lambda: mech_tick(mc, tb, ms, es, eo, ps, xp=jnp),
+                lambda: (ms, MechOut(active=ms.active, r=ms.r, events=jnp.zeros_like(ms.active),
+                                     score=ms.score, margin=ms.margin)), jnp, axis_name)
 
 
 def background_heavy(ms: MechState) -> Array:

@@ -8,12 +8,17 @@ computes (tests/test_mech_scalar.py), and a step may take a Python branch where 
 
 from __future__ import annotations
 
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, TypeVar, cast
 
 import numpy as np
 
 from eol_cal.firmware.estimator_config import I32
 from eol_cal.numerics.arrays import Array, ArrayModule
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+T = TypeVar("T")
 
 _I32_ZERO, _I32_ONE = cast(Array, I32(0)), cast(Array, I32(1))
 
@@ -95,3 +100,21 @@ def scalar_of(xp: ArrayModule) -> ArrayModule:
     """``xp`` for a step on one motor's scalars: :data:`SCALAR_NP` for numpy, else ``xp`` itself
     (the tick-by-tick references pass numpy, the plant traces ``jax.numpy``)."""
     return SCALAR_NP if xp is np else xp
+
+
+def when(flag: Array, yes: Callable[[], T], no: Callable[[], T], xp: ArrayModule, batch_axis: str | None) -> T:
+    """``yes()`` where ``flag``, else ``no()``, for a step whose ``no()`` gives, bit for bit, what
+    ``yes()``'s own selects would keep when ``flag`` is false (so the choice only saves work).
+
+    One motor's scalars (:data:`SCALAR_NP`): a Python branch. A member of a batch ``jax.vmap``-ped
+    with ``axis_name=batch_axis``: ``jax.lax.cond`` on whether any member's ``flag`` is set (a
+    branch on one member's value would compute both sides under ``vmap``). Otherwise ``yes()``.
+    """
+    if xp is SCALAR_NP:
+        return yes() if flag else no()
+    if batch_axis is None:
+        return yes()
+    import jax
+    import jax.numpy as jnp
+
+    return jax.lax.cond(jax.lax.psum(jnp.asarray(flag, jnp.int32), batch_axis) > 0, yes, no)
