@@ -105,6 +105,28 @@ def test_every_single_bit_flip_in_compressed_data_is_refused_naming_the_block(go
     assert refused == 12
 
 
+def test_the_inflated_blocks_are_zlibs_and_a_flip_in_the_checksum_is_refused(good, tmp_path):
+    """The checker inflates with ISA-L (isal, faster than zlib): the same bytes as zlib's, and the
+    stream's adler-32 trailer still checked (a flip in it leaves the data intact: only the
+    checksum can catch it)."""
+    import zlib
+
+    from eol_cal.capture.mdf4_check import check_mdf4_bytes
+
+    data = good[0].read_bytes()
+    dz, (_, length, links) = _block(data, b"##DZ")
+    at = dz + 24 + 8 * len(links)
+    original, compressed = struct.unpack_from("<QQ", data, at + 8)
+    assert check_mdf4_bytes(data).inflated[dz] == zlib.decompress(data[at + 24:at + 24 + compressed])
+    buf = bytearray(data)
+    buf[at + 24 + compressed - 1] ^= 0x01  # the adler-32's last byte
+    path = tmp_path / "adler.mf4"
+    path.write_bytes(bytes(buf))
+    with pytest.raises(InputError) as info:
+        read_capture(path)
+    assert info.value.field == f"block ##DZ at 0x{dz:x}" and "corrupt" in info.value.reason, info.value
+
+
 def test_one_bad_file_does_not_cost_the_others_results(good, tmp_path):
     data = good[0].read_bytes()
     dz, (_, _, links) = _block(data, b"##DZ")

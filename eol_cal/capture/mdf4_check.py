@@ -18,7 +18,7 @@ unless:
 - compressed data blocks (``##DZ``) use deflate (plain or transposed), claim an original
   length of at most :data:`MAX_DZ_RATIO` times their compressed length (deflate cannot do
   better than about 1032:1) and actually inflate to exactly that length (a bit flip is caught
-  here by zlib's own checksum, naming the block);
+  here by the stream's own checksum, adler-32, naming the block);
 - no channel group holds variable-length signal data (flag bit 0; its size fields mean
   something else, and asammdf trusted them into a ``malloc`` abort);
 - data lists (``##DL``) hold as many data links as they count; a channel group's records fit
@@ -43,6 +43,8 @@ import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from isal import isal_zlib
 
 from eol_cal.errors import InputError
 
@@ -331,11 +333,14 @@ def _check_dz(data: bytes | mmap.mmap, block: Block) -> bytes:
     if original > MAX_DECODED_BYTES:
         raise _Refusal(where, f"original length {original} bytes is over the memory bound of a capture "
                               f"({MAX_DECODED_BYTES} bytes)")
-    inflater = zlib.decompressobj()
+    # ISA-L's inflate (isal, asammdf's own dependency): zlib's stream format and checks (the
+    # adler-32 trailer included), the same bytes out, in under half zlib's time (the largest part
+    # of reading a capture)
+    inflater = isal_zlib.decompressobj()
     try:
         # one byte more than claimed, to notice data that inflates longer than it says
         out = inflater.decompress(bytes(data[at + 24:at + 24 + compressed]), original + 1)
-    except zlib.error as exc:
+    except (isal_zlib.error, zlib.error) as exc:
         raise _Refusal(where, f"compressed data is corrupt ({exc})") from None
     if len(out) != original or not inflater.eof:
         raise _Refusal(where, f"compressed data inflates to {len(out)}{'+' if not inflater.eof else ''} bytes, "
