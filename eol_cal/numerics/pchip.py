@@ -67,16 +67,18 @@ class PiecewisePoly:
         i = np.searchsorted(self.x, flat, side="right") - 1
         np.clip(i, 0, len(self.x) - 2, out=i)
         s = flat - self.x[i]
-        rows = self.c.T[i]  # (points, k): one gather
+        # one gather per coefficient: contiguous rows (a gather of c.T's rows leaves each column
+        # strided, ~1.5x the time of the arithmetic below; the same values either way)
+        k = len(self.c)
+        rows = [self.c[j][i] for j in range(k)]
         # scipy's evaluate_poly1: the constant term first, then each power of s times its coefficient
-        k = rows.shape[1]
-        res = rows[:, k - 1].copy()
-        der = rows[:, k - 2] * float(1) if slope and k > 1 else None
+        res = rows[k - 1]
+        der = rows[k - 2] * float(1) if slope and k > 1 else None
         z = s
         for j in range(k - 2, -1, -1):
-            res += rows[:, j] * z
+            res += rows[j] * z
             if der is not None and j > 0:
-                der += (rows[:, j - 1] * float(k - j)) * z
+                der += (rows[j - 1] * float(k - j)) * z
             z = z * s
         outside = (flat < self.x[0]) | (flat > self.x[-1])
         if outside.any():

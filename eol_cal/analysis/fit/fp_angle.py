@@ -25,6 +25,7 @@ reads the same wheel: ``eol_cal.firmware.kinematics``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -127,9 +128,24 @@ def boundary_position(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.nda
 
 def boundary_interp(x: np.ndarray, fp: np.ndarray, N: int) -> np.ndarray:
     """The boundary errors (:func:`boundary_errors`, rad electrical) interpolated linearly at positions ``x``."""
+    return _interp_table(fp, N)(x)
+
+
+def _interp_table(fp: np.ndarray, N: int) -> Callable[[np.ndarray], np.ndarray]:
+    """:func:`boundary_interp` of ``fp`` as a function of ``x``: the table built once for every
+    segment of a motor."""
     M = 4 * N
     err = boundary_errors(fp, N)
-    return np.interp(np.mod(x, M), np.arange(M + 1), np.append(err, err[0]))
+    xp, yp = np.arange(M + 1), np.append(err, err[0])
+    return lambda x: np.interp(np.mod(x, M), xp, yp)
+
+
+def _bracketing(t: np.ndarray, t_q: np.ndarray) -> np.ndarray:
+    """The samples of increasing ``t`` that ``np.interp(t_q, t, f)`` reads: the two around each of
+    ``t_q`` and both ends. ``np.interp(t_q, t[i], f[i])`` is then ``np.interp(t_q, t, f)`` bit for bit
+    (the same pair, the same arithmetic), with ``f`` computed at those samples only."""
+    j = np.clip(np.searchsorted(t, t_q, side="right") - 1, 0, len(t) - 1)
+    return np.unique(np.concatenate(([0, len(t) - 1], j, np.minimum(j + 1, len(t) - 1))))
 
 
 def order_columns(x: np.ndarray, orders: tuple[int, ...], N: int) -> np.ndarray:
@@ -173,9 +189,12 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         inside = (t_h >= max(ang.t_span[0], t[0])) & (t_h <= min(ang.t_span[1], t[-1]))
         t_h, nominal, direction, begins = t_h[inside], nominal[inside], direction[inside], begins[inside]
         frac = mi.window_frac[ci] if mi.window_frac else 0.0
-        theta = np.asarray(ang.theta_r, dtype=float) - frac
-        x = np.interp(t_h, t, boundary_position(edges.q, r, fp.grid_phase, theta + mi.frame_offset_rad, mi.poles, N))
-        y = np.interp(t_h, t, theta) + boundary_interp(x, fp.fp, N) - nominal
+        # the positions at the transitions only: from the samples around each (not the window's every sample)
+        i = _bracketing(t, t_h)
+        theta = np.asarray(ang.theta_r, dtype=float)[i] - frac
+        x = np.interp(t_h, t[i], boundary_position(edges.q[i], r, fp.grid_phase, theta + mi.frame_offset_rad,
+                                                   mi.poles, N))
+        y = np.interp(t_h, t[i], theta) + boundary_interp(x, fp.fp, N) - nominal
         xs.append(x)
         ys.append(y)
         groups.append(2 * (begins - 1) + (direction < 0))
@@ -244,6 +263,7 @@ def measure_fingerprint(mi: MotorInput) -> None:
                                                                              fp.offsets, strict=True)]
     mi.window_frac = frac
     low = hall_low_orders(mi, prints, fp)
+    interp = _interp_table(fp.fp, mi.encoder_ppr)
     n = 0
     for s, info in enumerate(mi.info):
         ci = mi.capture_of_segment[s]
@@ -253,7 +273,7 @@ def measure_fingerprint(mi: MotorInput) -> None:
         theta = np.asarray(seg.theta[s], dtype=float) - frac[ci]
         x = boundary_position(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
                               mi.poles, mi.encoder_ppr)
-        corr = boundary_interp(x, fp.fp, mi.encoder_ppr)
+        corr = interp(x)
         if not isinstance(low, str):
             corr = corr - order_columns(x, low[0], mi.encoder_ppr) @ low[1]
         seg.theta[s] = theta + corr
