@@ -140,7 +140,7 @@ def _interp_table(fp: np.ndarray, N: int) -> Callable[[np.ndarray], np.ndarray]:
     return lambda x: np.interp(np.mod(x, M), xp, yp)
 
 
-def _bracketing(t: np.ndarray, t_q: np.ndarray) -> np.ndarray:
+def bracketing_samples(t: np.ndarray, t_q: np.ndarray) -> np.ndarray:
     """The samples of increasing ``t`` that ``np.interp(t_q, t, f)`` reads: the two around each of
     ``t_q`` and both ends. ``np.interp(t_q, t[i], f[i])`` is then ``np.interp(t_q, t, f)`` bit for bit
     (the same pair, the same arithmetic), with ``f`` computed at those samples only."""
@@ -190,7 +190,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         t_h, nominal, direction, begins = t_h[inside], nominal[inside], direction[inside], begins[inside]
         frac = mi.window_frac[ci] if mi.window_frac else 0.0
         # the positions at the transitions only: from the samples around each (not the window's every sample)
-        i = _bracketing(t, t_h)
+        i = bracketing_samples(t, t_h)
         theta = np.asarray(ang.theta_r, dtype=float)[i] - frac
         x = np.interp(t_h, t[i], boundary_position(edges.q[i], r, fp.grid_phase, theta + mi.frame_offset_rad,
                                                    mi.poles, N))
