@@ -43,10 +43,14 @@ import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 from isal import isal_zlib
 
 from eol_cal.errors import InputError
+
+#: what a corrupt compressed block raises (isal's stub declares its error an instance, not a class)
+_INFLATE_ERRORS: tuple[type[BaseException], ...] = (cast(type[BaseException], isal_zlib.error), zlib.error)
 
 #: largest original/compressed length ratio a compressed data block may claim; deflate's own
 #: limit is about 1032:1 (a 258-byte match per 2 bits), so a larger claim is a lie about the size
@@ -340,7 +344,7 @@ def _check_dz(data: bytes | mmap.mmap, block: Block) -> bytes:
     try:
         # one byte more than claimed, to notice data that inflates longer than it says
         out = inflater.decompress(bytes(data[at + 24:at + 24 + compressed]), original + 1)
-    except (isal_zlib.error, zlib.error) as exc:
+    except _INFLATE_ERRORS as exc:
         raise _Refusal(where, f"compressed data is corrupt ({exc})") from None
     if len(out) != original or not inflater.eof:
         raise _Refusal(where, f"compressed data inflates to {len(out)}{'+' if not inflater.eof else ''} bytes, "
