@@ -9,8 +9,12 @@ covariance is the same too.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import threading
+from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -150,6 +154,27 @@ def current_phasor(coef: np.ndarray, spec: FitSpec) -> np.ndarray:
     return -(g[:, 0] + 1j * g[:, 1])
 
 
+#: the segment compressions of :func:`shared_compression`'s scope (None: none shared)
+_SHARED: contextvars.ContextVar[dict[tuple[Any, ...], Any] | None] = contextvars.ContextVar("compressions",
+                                                                                          default=None)
+
+
+@contextlib.contextmanager
+def shared_compression() -> Iterator[None]:
+    """Within it, each segment is compressed once: :func:`compress` of the same segment arrays (the
+    same objects) and the same columns (harmonics, drift degree, mechanical orders: all the
+    compression reads of a spec) gives the first call's figures again, bit for bit. The model
+    check's speed bands are fitted on the joint fit's own segments (:func:`eol_cal.analysis.fit.
+    model_check.check_model`): their compression is the joint fit's. The segments' arrays must not
+    change in place while it lasts (a changed array under the same object would be taken for the
+    one compressed); its compressions are dropped on leaving it."""
+    token = _SHARED.set({})
+    try:
+        yield
+    finally:
+        _SHARED.reset(token)
+
+
 def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) -> Compressed:
     """Compress every segment of one motor, padded to ``n_segments`` (padding: R = I, z = 0, n = 0)."""
     S = n_segments or seg.n_segments
@@ -158,10 +183,18 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
     z = np.zeros((S, m))
     vec = {k: np.zeros(S) for k in ("floor", "sst", "ymean", "n", "n_nuis", "i_qo", "omega")}
     current = np.zeros((S, len(spec.harmonics)), dtype=complex)
+    memo = _SHARED.get()
     for s in range(seg.n_segments):
         kt_iq = None if seg.kt_iq is None else seg.kt_iq[s]
-        (R[s], z[s], fl, sst, ym, n, nn), current[s] = _compress_one(seg.theta[s], seg.t[s], seg.torque[s], kt_iq,
-                                                                     seg.pole_pairs, spec)
+        arrays = (seg.theta[s], seg.t[s], seg.torque[s], kt_iq)
+        key = (*map(id, arrays), seg.pole_pairs, spec.harmonics, spec.drift_degree, spec.mech_order1, spec.mech_orders)
+        if memo is not None and key in memo:
+            one = memo[key][0]
+        else:
+            one = _compress_one(*arrays, seg.pole_pairs, spec)
+            if memo is not None:
+                memo[key] = (one, arrays)  # the arrays held: no id of the key is reused while it lasts
+        (R[s], z[s], fl, sst, ym, n, nn), current[s] = one
         vec["floor"][s], vec["sst"][s], vec["ymean"][s], vec["n"][s], vec["n_nuis"][s] = fl, sst, ym, n, nn
         vec["i_qo"][s], vec["omega"][s] = seg.i_qo[s], seg.omega_e[s]
     gain = np.ones((S, len(spec.harmonics)), dtype=complex)

@@ -182,6 +182,7 @@ def fit_inputs(
     those the inputs were made with; ``prepared`` (as for :func:`fit_motors`) gives the windows'
     p-p figures."""
     from eol_cal.analysis.fit import fit_many
+    from eol_cal.analysis.fit.compression import shared_compression
     from eol_cal.analysis.metrics import eta_percent
     from eol_cal.analysis.result import result_for_motor
 
@@ -193,24 +194,26 @@ def fit_inputs(
     for m in inputs:  # fit_many checks again, without the captures left out that often explain a refusal
         check_identifiable(m.segments, options.spec, ", ".join(m.sources), m.left_out)
     mode = options.batch if options.batch != "auto" else pick_mode(len(inputs))
-    fits = fit_many(
-        [m.segments for m in inputs],
-        options.spec,
-        mode=mode,
-        chunk=max(1, min(64, len(inputs))),
-        sources=[", ".join(m.sources) for m in inputs],
-        progress=progress,
-        cache_dir=options.cache_dir,
-    )
     from eol_cal.domain.motor_params import load_motor
 
     tick_hz = float((options.motor or load_motor("paper")).f_pwm) if options.mech else None
     results = []
-    for mi, f in zip(inputs, fits, strict=True):
-        metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
-        if options.capture_metrics:
-            metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
-        results.append(result_for_motor(mi, f, options.spec, options.limits, metrics=metrics, solver_mode=mode,
-                                        tick_hz=tick_hz))
+    # the model check fits its speed bands on the joint fit's segments: compressed once for both
+    with shared_compression():
+        fits = fit_many(
+            [m.segments for m in inputs],
+            options.spec,
+            mode=mode,
+            chunk=max(1, min(64, len(inputs))),
+            sources=[", ".join(m.sources) for m in inputs],
+            progress=progress,
+            cache_dir=options.cache_dir,
+        )
+        for mi, f in zip(inputs, fits, strict=True):
+            metrics: dict[str, Any] = {"eta_percent": float(eta_percent(mi.encoder_ppr, mi.poles))}
+            if options.capture_metrics:
+                metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
+            results.append(result_for_motor(mi, f, options.spec, options.limits, metrics=metrics, solver_mode=mode,
+                                            tick_hz=tick_hz))
     created = dt.datetime.now(dt.UTC).replace(microsecond=0)
     return MotorsFit(results, inputs, fits, mode, options.limits, tool_version, created)
