@@ -203,7 +203,8 @@ class CovarianceParts:
     dof_red: float
 
 
-def _intervals(parts: CovarianceParts, spec: FitSpec, row_var: np.ndarray | None) -> tuple[dict, np.ndarray, float, float, np.ndarray]:
+def _intervals(parts: CovarianceParts, spec: FitSpec,
+               row_var: np.ndarray | None) -> tuple[dict, np.ndarray, float, float, np.ndarray]:
     """The harmonics' estimates, cov6, the delay's half-width (s), the Birge ratio and the covariance.
 
     The noise's covariance is ``s^2 (J^T J)^-1`` with white noise, or with ``row_var`` (each reduced

@@ -75,8 +75,8 @@ def _clear_bins(bins: np.ndarray, f_line: float, drift_degree: int) -> np.ndarra
     """Which bins ``k`` (offsets from the line, in ``1 / T``) that hold the segment's noise: not within
     ``drift_degree + 2`` of zero frequency (the drift polynomial takes the residual there) nor within 2
     of the line (a bin below it at negative frequency mirrors the line), one bin a frequency.
-    ``f_line``: the line's frequency times T (signed: the angle's direction). On 0.05 s segments (the 6th at 90 Hz, bins 20 Hz apart)
-    those bins made white noise read 15 % low."""
+    ``f_line``: the line's frequency times T (signed: the angle's direction). On 0.05 s segments (the
+    6th at 90 Hz, bins 20 Hz apart) those bins made white noise read 15 % low."""
     f = np.abs(f_line + bins)
     keep = (f >= drift_degree + 2) & (np.abs(f - abs(f_line)) >= 2)
     _, first = np.unique(np.round(f * 2), return_index=True)
