@@ -139,9 +139,10 @@ def test_right_model_under_noise_coloured_like_the_benchs_is_no_mismatch():
 
 def test_the_noise_at_the_6th_is_measured_where_it_is():
     # white noise: the 6th's neighbourhood holds the residual's average level
-    from eol_cal.analysis.fit.model_check import harmonic_noise
+    from eol_cal.analysis.fit.segment_noise import segment_noise
 
     seg, _ = synthetic_segments(np.random.default_rng(2), speeds_rpm=(60.0,), loads_a=(20.0, 65.0), seg_s=1.0,
                                 noise_nm=0.01)
-    v, white, dof = harmonic_noise(seg, 0, FitSpec(), 1.5e-4)
-    assert dof == 32 and 0.45 < v / white < 2.0  # chi2 on 32 dof / 32: 99.9 % within
+    noise = segment_noise(seg, FitSpec(), 1.5e-4)
+    ratio = noise.var_pair / noise.var_white[:, None]
+    assert np.all(noise.dof == 32) and np.all((0.45 < ratio) & (ratio < 2.0))  # chi2 on 32 dof / 32: 99.9 % within

@@ -215,8 +215,15 @@ def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
     import dataclasses
 
     from eol_cal.analysis.fit import path_gain, shift_frame
+    from eol_cal.analysis.fit.motor_fit import at_line_noise
+    from eol_cal.analysis.fit.segment_noise import segment_noise
     from eol_cal.firmware.options import options_label
 
+    # the intervals at the noise each harmonic has at its own frequency, measured once for them and
+    # for the model check's speed bands
+    noise = segment_noise(mi.segments, spec, fit.delay_s) if fit.converged else None
+    if noise is not None:
+        fit = at_line_noise(fit, spec, noise.row_variance())
     g6 = path_gain(mi.segments, FitSpec(harmonics=(6,)))[:, 0]
     segments = [
         {"source": i.source, "t_start": i.t_start, "t_end": i.t_end, "i_qo_a": i.i_qo, "speed_rpm": i.speed_rpm,
@@ -231,7 +238,8 @@ def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
         from eol_cal.analysis.fit.mech_orders import fit_mech
 
         mech = fit_mech(mi, fit, spec, tick_hz)
-    check = check_model(mi.segments, fit, spec, limits.model_p, bench=bench_provenance(mi.mechanics, mi.captures))
+    check = check_model(mi.segments, fit, spec, limits.model_p, bench=bench_provenance(mi.mechanics, mi.captures),
+                        noise=noise)
     return motor_result(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,

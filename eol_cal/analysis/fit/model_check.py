@@ -13,7 +13,7 @@ band's full 4 x 4 covariance (c6 and k6 of one band are an intercept and a slope
 points, strongly correlated: summed as two independent tests, the statistic's tail was too heavy).
 
 The noise a band's covariance is scaled by is the noise at the 6th harmonic's own frequency, not
-the residual's average (:func:`harmonic_noise`): the torque's noise is far from white there (the
+the residual's average (:mod:`~eol_cal.analysis.fit.segment_noise`): the torque's noise is far from white there (the
 current loop's answer to the ECU's current noise reaches the shaft below the transducer's
 bandwidth; what the ECU's ``iq`` channel does not cancel of it stayed 4-11 times the white
 level at 18-36 Hz on the plant), so it is measured per segment on the residual's neighbouring
@@ -55,8 +55,9 @@ import numpy as np
 from eol_cal.analysis.fit.batch import fit_many
 from eol_cal.capture.data import Capture
 from eol_cal.domain.bench_mechanics import RIGID, SIMULATED_BENCH_KEY, BenchMechanics, model_digest
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix, line_noise, noise_bins
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments
 from eol_cal.analysis.fit.motor_fit import Estimate, MotorFit
+from eol_cal.analysis.fit.segment_noise import SegmentNoise, segment_noise
 
 #: segments whose |speed| is within this fraction of each other share a band
 BAND_TOL = 0.1
@@ -142,50 +143,6 @@ def _subset(seg: SteadySegments, idx: np.ndarray) -> SteadySegments:
                                kt_iq=None if seg.kt_iq is None else [seg.kt_iq[i] for i in idx])
 
 
-def harmonic_noise(seg: SteadySegments, s: int, spec: FitSpec, tau_s: float) -> tuple[float, float, int]:
-    """The noise of segment ``s`` at its 6th harmonic's frequency, and at the residual's average.
-
-    The segment is fitted alone on its columns (nuisance and harmonics); the residual's cos/sin
-    coefficients at ``6 f_e + k / T`` (``2 <= |k| <=`` :data:`~eol_cal.analysis.fit.model.NOISE_BINS`) are what noise alone puts
-    on a harmonic's pair there. With the ECU's current (``seg.kt_iq``) the fit takes its ripple as
-    known through the path and the transducer: so here too, bin by bin (the current's noise that
-    reaches the shaft cancels, the current sensor's own does not).
-
-    Returns
-    -------
-    var_pair : float
-        Variance of one coefficient of a cos/sin pair at the 6th (N*m^2), from the bins.
-    var_white : float
-        The same for white noise of the residual's variance, ``2 s^2 / n`` (N*m^2): what the
-        band fit's covariance assumes.
-    dof : int
-        Degrees of freedom of ``var_pair`` (two a bin).
-    """
-    theta, t = np.asarray(seg.theta[s], dtype=float), np.asarray(seg.t[s], dtype=float)
-    A = design_matrix(theta, t, seg.pole_pairs, spec)
-    y = [np.asarray(seg.torque[s], dtype=float)]
-    if seg.kt_iq is not None:
-        y.append(np.asarray(seg.kt_iq[s], dtype=float))
-    Y = np.column_stack(y)
-    res = Y - A @ np.linalg.lstsq(A, Y, rcond=None)[0]
-    n, T = len(t), float(t[-1] - t[0])
-    s2 = float(res[:, 0] @ res[:, 0]) / max(n - A.shape[1], 1)
-    k = noise_bins()
-    omega = 6.0 * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
-    var_pair = line_noise(res[:, 0], res[:, 1] if seg.kt_iq is not None else None, 6.0 * (theta - theta[0]),
-                          2 * math.pi * (t - t[0]) / T, k, omega, spec, tau_s, seg.path_response)
-    return var_pair, 2.0 * s2 / n, 2 * len(k)
-
-
-def band_noise_ratio(seg: SteadySegments, idx: np.ndarray, spec: FitSpec, tau_s: float) -> tuple[float, int]:
-    """How much the noise at the 6th exceeds the white level the band's covariance assumes
-    (:func:`harmonic_noise`, the band's segments weighted by their samples), and its degrees of freedom."""
-    got = [harmonic_noise(seg, int(s), spec, tau_s) for s in idx]
-    w = np.array([len(seg.t[int(s)]) for s in idx], dtype=float)
-    ratio = float(sum(wi * v / white for wi, (v, white, _) in zip(w, got, strict=True)) / w.sum())
-    return ratio, sum(d for _, _, d in got)
-
-
 def _pair(e: Estimate) -> np.ndarray:
     """The (cos, sin) pair of an amplitude/phase estimate: the solver's parameters."""
     return e.value * np.array([math.cos(e.phase), math.sin(e.phase)])
@@ -242,7 +199,7 @@ def _widened(f: MotorFit, factor: float) -> MotorFit:
 
 
 def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
-                bench: str = "assumed") -> ModelCheck:
+                bench: str = "assumed", noise: SegmentNoise | None = None) -> ModelCheck:
     """Fit each speed band alone and test that k6 and c6 agree between bands (module docstring).
 
     Parameters
@@ -254,6 +211,9 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     bench : str
         Where the bench file came from (:func:`bench_provenance`): only on an ``assumed`` one do
         bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give ``insensitive``.
+    noise : SegmentNoise, optional
+        The segments' noise at the 6th (:func:`~eol_cal.analysis.fit.segment_noise.segment_noise`
+        at the fit's delay), when the caller measured it already for the joint fit's intervals.
     """
     from scipy.special import fdtrc  # scipy.stats' f.sf (above)
 
@@ -277,9 +237,11 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
     if not all(f.converged and f.cov6 is not None for f in fits):
         return ModelCheck("not checked", "a speed band's fit did not converge", bench=bench)
     # each band's covariance at the noise its 6th actually has (module docstring)
-    noise = [band_noise_ratio(seg, idx, spec, fit.delay_s) for idx, _ in bands]
-    fits = [_widened(f, math.sqrt(max(r, 1e-12))) for f, (r, _) in zip(fits, noise, strict=True)]
-    dof_noise = sum(d for _, d in noise)
+    if noise is None:
+        noise = segment_noise(seg, spec, fit.delay_s)
+    ratios = [noise.ratio(idx) for idx, _ in bands]
+    fits = [_widened(f, math.sqrt(max(r, 1e-12))) for f, r in zip(fits, ratios, strict=True)]
+    dof_noise = int(sum(noise.dof[idx, noise.harmonics.index(6)].sum() for idx, _ in bands))
     n = 2 * len(parts)  # each band's phasors: the fitted parts' (cos, sin) pairs, c's then k's
     # the 6th only: the 12th and 18th would see the path nearer a resonance, but on the plant their
     # speed bands differed beyond their intervals on 4 of 40 motors of the paper bench (the ECU's

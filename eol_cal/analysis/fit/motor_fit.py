@@ -62,6 +62,8 @@ class MotorFit:
         amplitude/phase intervals of :attr:`harmonics` are its diagonal blocks; c6 and k6 of one
         fit are correlated through the load points (a slope and an intercept), which the model
         check needs (:mod:`eol_cal.analysis.fit.model_check`).
+    parts : CovarianceParts, optional
+        What the intervals are made of (:func:`at_line_noise` makes them again).
     """
 
     harmonics: dict
@@ -78,6 +80,7 @@ class MotorFit:
     current: np.ndarray | None = None
     finite: bool = True
     cov6: np.ndarray | None = None
+    parts: CovarianceParts | None = None
 
     @property
     def converged(self) -> bool:
@@ -179,16 +182,83 @@ def wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slic
     return cov * np.outer(scale, scale)
 
 
+@dataclass(frozen=True)
+class CovarianceParts:
+    """What a fit's intervals are made of, kept so that :func:`at_line_noise` can make them again at
+    the noise each harmonic has at its own frequency.
+
+    p : the solver's parameters (delay, then each part's cos/sin pair per harmonic); cov_unscaled :
+    ``(J^T J)^-1``; jac, res : each valid segment's reduced rows (one cos/sin pair a harmonic) and
+    their Jacobian (segments, rows, parameters); s2 : the residual's variance (N*m^2); scatter : the
+    segments' scatter (:func:`segment_scatter`; None below :data:`MIN_SEGMENTS_SCATTER` segments);
+    dof_red : degrees of freedom of the reduced rows.
+    """
+
+    p: np.ndarray
+    cov_unscaled: np.ndarray
+    jac: np.ndarray
+    res: np.ndarray
+    s2: float
+    scatter: np.ndarray | None
+    dof_red: float
+
+
+def _intervals(parts: CovarianceParts, spec: FitSpec,
+               row_var: np.ndarray | None) -> tuple[dict, np.ndarray, float, float, np.ndarray]:
+    """The harmonics' estimates, cov6, the delay's half-width (s), the Birge ratio and the covariance.
+
+    The noise's covariance is ``s^2 (J^T J)^-1`` with white noise, or with ``row_var`` (each reduced
+    row's variance, segments x rows) the sandwich ``C (sum_r row_var_r J_r^T J_r) C``; with
+    ``spec.lack_of_fit`` each reported quantity (the delay, each part's pair per harmonic) gets the
+    wider of it and the segments' scatter (:func:`wider_per_quantity`), below
+    :data:`MIN_SEGMENTS_SCATTER` segments the noise's widened by the pooled lack of fit (Birge ratio).
+    """
+    C = parts.cov_unscaled
+    n_tau = int(spec.fit_delay)
+    nh = len(spec.harmonics)
+    ssr_red = float(np.sum(parts.res * parts.res))
+    if row_var is None:
+        cov = parts.s2 * C
+        # Lack of fit between segments (Birge ratio): the projected rows hold only what the ripple
+        # model leaves unexplained from one segment to the next; with an exact model their mean
+        # square is s2. More than that widens the intervals by the ratio.
+        chi2_red = ssr_red / parts.s2 if parts.s2 > 0 else math.nan
+    else:
+        info = np.einsum("sr,srp,srq->pq", row_var, parts.jac, parts.jac)
+        cov = C @ info @ C
+        chi2_red = float(np.sum(parts.res * parts.res / np.maximum(row_var, 1e-300)))
+    birge = chi2_red / parts.dof_red if parts.dof_red >= 1 and math.isfinite(chi2_red) else 1.0
+    if spec.lack_of_fit:
+        # scipy.special alone: scipy.stats (whose t.ppf is this function) costs half a second of
+        # every `eol-cal fit` to import (issue 37)
+        from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
+        if parts.scatter is not None:
+            cov = wider_per_quantity(cov, parts.scatter, _quantity_blocks(spec), parts.jac.shape[0])
+        elif parts.dof_red >= 1:
+            # the wider of two: the noise's (from thousands of samples: the normal's 1.96) and the
+            # pooled lack of fit's, whose variance has the projected rows' few degrees of freedom
+            widen = max(1.0, math.sqrt(max(birge, 0.0)) * float(stdtrit(parts.dof_red, 0.975)) / Z95)
+            cov = cov * widen * widen
+    p = parts.p
+    harmonics: dict = {h: {} for h in spec.harmonics}
+    names = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
+    for ip, name in enumerate(names):
+        for ih, h in enumerate(spec.harmonics):
+            i = n_tau + (ip * nh + ih) * 2
+            harmonics[h][name] = _amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
+    i6 = [n_tau + (ip * nh + spec.harmonics.index(6)) * 2 + j for ip in range(len(names)) for j in (0, 1)]
+    delay_ci = Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE if spec.delay_s is None else 0.0
+    return harmonics, cov[np.ix_(i6, i6)], delay_ci, birge, cov
+
+
 def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit:
     """Turn the solver's arrays for one motor into a :class:`MotorFit`.
 
-    The noise's covariance is ``s^2 (J^T J)^-1`` with ``s^2 = SSR / (n - n_parameters)``, counting
-    the projected nuisance parameters; with ``spec.lack_of_fit`` each reported quantity (the delay,
-    each part's pair per harmonic) gets the wider of it and the segments' scatter
-    (:func:`segment_scatter`) from :data:`MIN_SEGMENTS_SCATTER` segments on, with Student's t of
-    the Welch-Satterthwaite degrees of freedom of the noise plus the scatter's excess over it
-    (:func:`wider_per_quantity`), the noise's widened by the pooled lack of fit (Birge ratio)
-    below. Amplitude/phase intervals follow by the delta method.
+    The intervals take the noise as white, ``s^2 = SSR / (n - n_parameters)`` counting the projected
+    nuisance parameters (:func:`_intervals`); :func:`at_line_noise` makes them again at the noise each
+    harmonic has at its own frequency, once it is measured. Amplitude/phase intervals follow by the
+    delta method.
     """
     p = np.asarray(out["p"], dtype=float)
     n_tau = int(spec.fit_delay)
@@ -198,38 +268,15 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     n = float(comp.n.sum())
     ssr = float(out["ssr_red"]) + float(comp.floor[valid].sum())
     n_par = n_tau + spec.n_glob + float(comp.n_nuis[valid].sum())
-    s2 = ssr / max(n - n_par, 1.0)
-    # Lack of fit between segments (Birge ratio): the projected rows hold only what the ripple
-    # model leaves unexplained from one segment to the next; with an exact model their mean
-    # square is s2. More than that widens the intervals by the ratio.
-    dof_red = float(valid.sum()) * 2 * nh - (n_tau + spec.n_glob)
-    birge = float(out["ssr_red"]) / dof_red / s2 if dof_red >= 1 and s2 > 0 else 1.0
-    cov = s2 * np.asarray(out["cov_unscaled"], dtype=float)
-    if spec.lack_of_fit:
-        # scipy.special alone: scipy.stats (whose t.ppf is this function) costs half a second of
-        # every `eol-cal fit` to import (issue 37)
-        from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
-
-        S = int(valid.sum())
-        if S >= MIN_SEGMENTS_SCATTER:
-            cov = wider_per_quantity(cov, segment_scatter(out, valid), _quantity_blocks(spec), S)
-        elif dof_red >= 1:
-            # the wider of two: the noise's (s2 from thousands of samples: the normal's 1.96) and the
-            # pooled lack of fit's, whose variance has the projected rows' few degrees of freedom
-            widen = max(1.0, math.sqrt(max(birge, 0.0)) * float(stdtrit(dof_red, 0.975)) / Z95)
-            cov = cov * widen * widen
-    harmonics: dict = {h: {} for h in spec.harmonics}
-    parts = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
-    for ip, name in enumerate(parts):
-        for ih, h in enumerate(spec.harmonics):
-            i = n_tau + (ip * nh + ih) * 2
-            harmonics[h][name] = _amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
-    i6 = [n_tau + (ip * nh + spec.harmonics.index(6)) * 2 + j for ip in range(len(parts)) for j in (0, 1)]
-    cov6 = cov[np.ix_(i6, i6)]
-    if spec.delay_s is None:  # the delay was fitted (n_tau = 1): p[0]
-        delay, delay_ci = p[0] * TAU_SCALE, Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE
-    else:
-        delay, delay_ci = float(spec.delay_s), 0.0
+    S = int(valid.sum())
+    parts = CovarianceParts(
+        p=p, cov_unscaled=np.asarray(out["cov_unscaled"], dtype=float),
+        jac=np.asarray(out["jac"], dtype=float)[valid], res=np.asarray(out["res"], dtype=float)[valid],
+        s2=ssr / max(n - n_par, 1.0),
+        scatter=segment_scatter(out, valid) if spec.lack_of_fit and S >= MIN_SEGMENTS_SCATTER else None,
+        dof_red=float(S) * 2 * nh - (n_tau + spec.n_glob))
+    harmonics, cov6, delay_ci, birge, cov = _intervals(parts, spec, None)
+    delay = p[0] * TAU_SCALE if spec.delay_s is None else float(spec.delay_s)  # fitted (n_tau = 1): p[0]
     # T_avg: back-substitute the projected nuisance (its first Legendre term is the mean offset)
     g = np.asarray(out["g"], dtype=float)[:S_valid]
     R = comp.R[:S_valid]
@@ -254,4 +301,23 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         current=(comp.cur_re + 1j * comp.cur_im)[:S_valid] if np.any(comp.cur_re) or np.any(comp.cur_im) else None,
         finite=finite,
         cov6=cov6,
+        parts=parts,
     )
+
+
+def at_line_noise(fit: MotorFit, spec: FitSpec, row_var: np.ndarray) -> MotorFit:
+    """The same fit with its intervals at the noise each harmonic has at its own frequency.
+
+    ``row_var`` (segments x reduced rows, N*m^2 * samples; :meth:`~eol_cal.analysis.fit.
+    segment_noise.SegmentNoise.row_variance`): the variance of each segment's rows of each harmonic,
+    measured on the residual beside the line. The residual's average, taken as white, is not what the
+    6th has: with the orders' leak gone it read the 6th's noise ~20 % high in variance, so the noise's
+    interval (the wider of the two on 192 of 200 motors) covered k6 98 % alone (bench/bench_coverage.py).
+    A fit without its :class:`CovarianceParts` (not converged) is returned as it is.
+    """
+    if fit.parts is None or not fit.converged or row_var.shape != fit.parts.res.shape:
+        return fit
+    harmonics, cov6, delay_ci, birge, cov = _intervals(fit.parts, spec, row_var)
+    if not np.all(np.isfinite(np.diag(cov))):
+        return fit
+    return dataclasses.replace(fit, harmonics=harmonics, cov6=cov6, delay_ci95=float(delay_ci), birge=birge)
