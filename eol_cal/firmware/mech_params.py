@@ -35,19 +35,19 @@ ID_MARGIN = 0.25
 ID_FRAC_TOL = math.radians(2.0)
 #: the end of line's switch: ``MECH_COMP_ENABLE`` only when the prediction after a revolution at
 #: 300 rpm (``eol_cal.analysis.fingerprint.predicted_margin``, the fingerprint's error measured by
-#: ``split_noise``) reaches both: a margin over the next hypothesis of at least SWITCH_MARGIN and a
-#: cosine of at least SWITCH_MIN_SCORE. Calibrated end to end (``bench/bench_mech_margin.py
-#: --end-to-end``, firmware_params/MECH.md "The switch, calibrated"): plant motors through the fit
-#: and the block it writes, the twin on the fitted fingerprint. Over six sets (512 motors) the
-#: cosine separates the motors the twin identifies on every power-up from those it does not where
-#: the margin cannot: every motor the twin missed was predicted at a cosine of 0.297 or less, while
-#: the margin of those motors reached 0.097 (a 0.2x motor switched on at the margin's 0.06, the
-#: twin right on 118 of 128). 0.32 keeps a margin over 0.297. The margin stays a gate at 0 (the
-#: hypotheses kept apart; no motor the twin identified was lost to it at 0.3x and up but one,
-#: predicted -0.009). The firmware's runtime thresholds stay ID_MIN_SCORE and ID_MARGIN.
-SWITCH_MARGIN = 0.0
+#: ``split_noise``'s jackknife over the stretches) reaches both a cosine of SWITCH_MIN_SCORE and a
+#: margin over the next hypothesis of SWITCH_MARGIN. Calibrated end to end
+#: (``bench/bench_mech_margin.py --end-to-end``, firmware_params/MECH.md "The switch, calibrated"):
+#: plant motors through the fit and the block it writes, the twin on the fitted fingerprint. Over
+#: five sets (480 motors) the cosine separates the motors the twin identifies on every power-up
+#: from those it does not where the margin cannot: every motor the twin missed was predicted at a
+#: cosine of 0.270 or less, while their margins reached 0.097 (a 0.2x motor switched on at the
+#: margin's former 0.06, the twin right on 118 of 128). 0.29 keeps a margin over 0.270. The margin
+#: is a floor below every motor the cosine switches on there (least -0.036): a neighbour hypothesis
+#: the cosine cannot see. The firmware's runtime thresholds stay ID_MIN_SCORE and ID_MARGIN.
+SWITCH_MARGIN = -0.05
 #: the least predicted cosine (see SWITCH_MARGIN)
-SWITCH_MIN_SCORE = 0.32
+SWITCH_MIN_SCORE = 0.29
 
 _SCALARS = ("grid_phase", "id_min_score", "id_margin", "id_frac_tol")
 _TRIPLES = ("mech_c", "mech_phase_c", "mech_k", "mech_phase_k")
