@@ -43,9 +43,11 @@ ID_FRAC_TOL = math.radians(2.0)
 #: from those it does not where the margin cannot: every motor the twin missed was predicted at a
 #: cosine of 0.270 or less, while their margins reached 0.097 (a 0.2x motor switched on at the
 #: margin's former 0.06, the twin right on 118 of 128). 0.29 keeps a margin over 0.270. The margin
-#: is a floor below every motor the cosine switches on there (least -0.036): a neighbour hypothesis
-#: the cosine cannot see. The firmware's runtime thresholds stay ID_MIN_SCORE and ID_MARGIN.
-SWITCH_MARGIN = -0.05
+#: stays a floor at 0 (a neighbour hypothesis the cosine cannot see; the result file's threshold
+#: is not negative): it turns off 3 of the 80 0.3x motors there that the twin identified (predicted
+#: -0.036 to -0.001), none the cosine would. The firmware's runtime thresholds stay ID_MIN_SCORE
+#: and ID_MARGIN.
+SWITCH_MARGIN = 0.0
 #: the least predicted cosine (see SWITCH_MARGIN)
 SWITCH_MIN_SCORE = 0.29
 
