@@ -217,6 +217,8 @@ def plot_end_to_end(rows: list[dict[str, Any]], path: str, threshold: float) -> 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for s in E2E_SCALES:
         sel = [r for r in rows if r["scale"] == s and r["of"]]
+        if not sel:  # a run of some scales only
+            continue
         ax.scatter([r["score"] for r in sel], [r["right"] / r["of"] for r in sel], s=14, label=f"{s:g}x")
     ax.axvline(threshold, color="k", ls="--", lw=1, label=f"switch {threshold:g}")
     ax.set_xlabel("predicted cosine (end of line, fitted fingerprint)")
