@@ -1,6 +1,6 @@
-"""Calibrate the identification margin's switch (issue 34, item 6): end of line writes
-``MECH_COMP_ENABLE`` when the predicted margin (``eol_cal.analysis.fingerprint.predicted_margin``)
-reaches a threshold; this bench finds the threshold from the firmware twin's own identification.
+"""Calibrate the identification switch (issue 34, item 6): end of line writes ``MECH_COMP_ENABLE``
+when the predicted cosine and margin (``eol_cal.analysis.fingerprint.predicted_margin``) reach their
+thresholds; this bench checks them against the firmware twin's own identification.
 
 Encoders drawn with production pitch errors scaled 0.1-1x of nominal (``draw_sensor_errors``,
 ``edge_sigma_mech_deg`` = 0.1 x scale), their true fingerprint in the block; per encoder, power-ups
@@ -23,6 +23,7 @@ started on). Per motor: the switch, power-ups right, wrong frames applied.
     python bench/bench_mech_margin.py [--encoders 32] [--per-encoder 128]
     python bench/bench_mech_margin.py --end-to-end [--encoders 16] [--per-encoder 128] [--seed0 S]
         [--scales 0.2,0.3] [--json F] [--plot F] [--dump F]
+    python bench/bench_mech_margin.py --end-to-end --rescore F.json F.pkl [--plot F]
 """
 
 from __future__ import annotations
@@ -159,18 +160,43 @@ def run_end_to_end(encoders: int, per_encoder: int, spread: str = "mech23", dump
     return rows
 
 
+def rescore(rows: list[dict[str, Any]], dump: str) -> list[dict[str, Any]]:
+    """The end-to-end rows (``--json``) with each motor's predicted cosine and margin recomputed by
+    the current library from the run's ``--dump`` (its window edges and fingerprint) and the switch
+    decided by the current thresholds; the twin's power-ups (run on every motor, on or off) stay."""
+    import pickle
+
+    from eol_cal.analysis.fingerprint import predicted_margin, split_noise
+    from eol_cal.firmware.mech_params import SWITCH_MARGIN, SWITCH_MIN_SCORE
+
+    kept = pickle.loads(Path(dump).read_bytes())
+    out = []
+    for r, (s, seed, _, prints, fp) in zip(rows, kept, strict=True):
+        if (r["scale"], r["seed"]) != (s, seed):
+            raise ValueError(f"{dump}: motor {seed} at {s:g}x where the rows have {r['seed']} at {r['scale']:g}x")
+        r = dict(r)
+        if fp is not None and r["of"]:
+            r["score"], r["margin"] = predicted_margin(fp.fp, fp.sigma, fp.dirs, POLES, N_ENC, 20000.0,
+                                                       noise=split_noise(prints, fp, POLES, N_ENC))
+            r["on"] = bool(r["margin"] >= SWITCH_MARGIN and r["score"] >= SWITCH_MIN_SCORE)
+        out.append(r)
+    return out
+
+
 def report_end_to_end(rows: list[dict[str, Any]]) -> None:
     """The switch against the twin: per scale, on where the twin failed (must be none), off where it
     identified on every power-up."""
-    print("\n| pitch errors (x nominal) | predicted margin min / median | on | power-ups right | motors right on "
+    print("\n| pitch errors (x nominal) | predicted cosine min / median | predicted margin min / median | on | "
+          "power-ups right | motors right on "
           "every power-up | on, twin not right on every power-up | off, twin right on every power-up |")
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for s in sorted({r["scale"] for r in rows}):
         sel = [r for r in rows if r["scale"] == s]
         allright = [r["of"] > 0 and r["right"] == r["of"] for r in sel]
         bad_on = sum(r["on"] and not a for r, a in zip(sel, allright, strict=True))
         bad_off = sum(a and not r["on"] for r, a in zip(sel, allright, strict=True))
-        print(f"| {s:.2f} | {np.nanmin([r['margin'] for r in sel]):.3f} / {np.nanmedian([r['margin'] for r in sel]):.3f} "
+        print(f"| {s:.2f} | {np.nanmin([r['score'] for r in sel]):.3f} / {np.nanmedian([r['score'] for r in sel]):.3f} "
+              f"| {np.nanmin([r['margin'] for r in sel]):.3f} / {np.nanmedian([r['margin'] for r in sel]):.3f} "
               f"| {sum(r['on'] for r in sel)} / {len(sel)} | {sum(r['right'] for r in sel)} / {sum(r['of'] for r in sel)} "
               f"| {sum(allright)} / {len(sel)} | {bad_on} | {bad_off} |")
     on = [r for r in rows if r["on"]]
@@ -181,7 +207,8 @@ def report_end_to_end(rows: list[dict[str, Any]]) -> None:
 
 
 def plot_end_to_end(rows: list[dict[str, Any]], path: str, threshold: float) -> None:
-    """Predicted margin (x) against the twin's power-ups right (y) per motor, by scale."""
+    """Predicted cosine (x: the switch's ``threshold`` on it) against the twin's power-ups right (y)
+    per motor, by scale."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -190,9 +217,11 @@ def plot_end_to_end(rows: list[dict[str, Any]], path: str, threshold: float) -> 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for s in E2E_SCALES:
         sel = [r for r in rows if r["scale"] == s and r["of"]]
-        ax.scatter([r["margin"] for r in sel], [r["right"] / r["of"] for r in sel], s=14, label=f"{s:g}x")
+        if not sel:  # a run of some scales only
+            continue
+        ax.scatter([r["score"] for r in sel], [r["right"] / r["of"] for r in sel], s=14, label=f"{s:g}x")
     ax.axvline(threshold, color="k", ls="--", lw=1, label=f"switch {threshold:g}")
-    ax.set_xlabel("predicted margin (end of line, fitted fingerprint)")
+    ax.set_xlabel("predicted cosine (end of line, fitted fingerprint)")
     ax.set_ylabel("twin power-ups identified right (fraction)")
     ax.set_title("End to end: the switch against the firmware twin (300 rpm)")
     ax.legend(fontsize=7, ncol=2)
@@ -229,19 +258,24 @@ def main() -> None:
     ap.add_argument("--scales", default=",".join(f"{s:g}" for s in E2E_SCALES),
                     help="end to end: the pitch-error scales (x nominal), comma-separated")
     ap.add_argument("--dump", help="end to end: pickle of the motors' window edges and fingerprints")
-    ap.add_argument("--plot", help="end to end: PNG of the predicted margin against the twin's power-ups right")
+    ap.add_argument("--plot", help="end to end: PNG of the predicted cosine against the twin's power-ups right")
+    ap.add_argument("--rescore", nargs=2, metavar=("JSON", "DUMP"),
+                    help="end to end: no run; an earlier run's rows and dump, the switch recomputed by the current code")
     args = ap.parse_args()
     if args.end_to_end:
-        from eol_cal.firmware.mech_params import SWITCH_MARGIN
+        from eol_cal.firmware.mech_params import SWITCH_MIN_SCORE
 
         print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}", flush=True)
-        rows_e = run_end_to_end(args.encoders, args.per_encoder, args.spread, args.dump, args.seed0,
-                                tuple(float(x) for x in args.scales.split(",")))
+        if args.rescore:
+            rows_e = rescore(json.loads(Path(args.rescore[0]).read_text()), args.rescore[1])
+        else:
+            rows_e = run_end_to_end(args.encoders, args.per_encoder, args.spread, args.dump, args.seed0,
+                                    tuple(float(x) for x in args.scales.split(",")))
         report_end_to_end(rows_e)
         if args.json:
             Path(args.json).write_text(json.dumps(rows_e))
         if args.plot:
-            plot_end_to_end(rows_e, args.plot, SWITCH_MARGIN)
+            plot_end_to_end(rows_e, args.plot, SWITCH_MIN_SCORE)
         print(f"load {os.getloadavg()[0]:.2f}")
         return
     rows = run(args.encoders, args.per_encoder)

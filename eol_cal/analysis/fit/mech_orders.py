@@ -299,8 +299,9 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
         zeros = (0.0,) * (2 * N)
         return MechResult(MECH_OFF, tuple(reasons), zeros, (None,) * (2 * N), 0, 0.0,
                           tuple([None] * len(prints)), 0.0, 0.0, threshold, fpr.REF_RPM, ())
-    # the fingerprint's error measured from a split of its edges, not its standard errors (white
-    # and pooled over stretches: tens of times its pitch errors' actual error; MECH.md "The switch")
+    # the fingerprint's error measured from its edges (a jackknife over the stretches), not its
+    # standard errors (white and pooled over stretches: tens of times its pitch errors' actual error;
+    # MECH.md "The switch")
     score, margin = fpr.predicted_margin(fp.fp, fp.sigma, fp.dirs, mi.poles, N, tick_hz,
                                          noise=fpr.split_noise(prints, fp, mi.poles, N))
     if margin < threshold or score < min_score:
