@@ -22,10 +22,8 @@ orders' jackknife took the electrical quantities' Student's t (Welch-Satterthwai
 short of a mechanical order's period, carried the order again (issue 34, ``model.MECH_SPAN_TOL``:
 the estimates moved, k6 by 0.1-0.3 %), and when the switch's fingerprint error became a jackknife
 over the stretches and the switch gated on the predicted cosine (0.29) over a margin of 0 (issue 34:
-``mech.margin`` and its reason only), and when the intervals took the noise each harmonic has at
-its own frequency in place of the residual's average (issue 34, ``motor_fit.at_line_noise``: the
-estimates' ``ci95``, ``phase_ci95`` and ``fit.birge`` moved; these captures' quantised angle puts
-torque far from the 6th, which the average counted); write
+``mech.margin`` and its reason only; the intervals at each harmonic's own noise, the same change,
+leave these fits of fewer than 7 segments as they were but for the last bit); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """

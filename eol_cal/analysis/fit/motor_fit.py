@@ -313,9 +313,15 @@ def at_line_noise(fit: MotorFit, spec: FitSpec, row_var: np.ndarray) -> MotorFit
     measured on the residual beside the line. The residual's average, taken as white, is not what the
     6th has: with the orders' leak gone it read the 6th's noise ~20 % high in variance, so the noise's
     interval (the wider of the two on 192 of 200 motors) covered k6 98 % alone (bench/bench_coverage.py).
-    A fit without its :class:`CovarianceParts` (not converged) is returned as it is.
+    A fit without its :class:`CovarianceParts` (not converged) is returned as it is, and so is one
+    of fewer than :data:`MIN_SEGMENTS_SCATTER` segments: there the lack of fit pooled over every
+    harmonic's rows (Birge ratio) widens the noise's interval, and a bin beside one harmonic can hold
+    another line (the 16th of a 64-PPR encoder's quantised angle on 4 pole pairs beside the 18th):
+    counted as that harmonic's noise it diluted the 6th's lack of fit in the pool (one load point,
+    two segments, cogging leaking into k6: Birge 2.16 -> 1.07, k6's interval 6.4 -> 4.0 % of k6 against
+    an error of 5.1 %; tests/test_fit_cli.py).
     """
-    if fit.parts is None or not fit.converged or row_var.shape != fit.parts.res.shape:
+    if fit.parts is None or not fit.converged or fit.parts.scatter is None or row_var.shape != fit.parts.res.shape:
         return fit
     harmonics, cov6, delay_ci, birge, cov = _intervals(fit.parts, spec, row_var)
     if not np.all(np.isfinite(np.diag(cov))):
