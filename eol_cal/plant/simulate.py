@@ -1,7 +1,9 @@
 """The bench simulation: a ``lax.scan`` over 20 kHz PWM ticks of a lot of motors, the tick ``vmap``-ped.
 
 One tick is :mod:`eol_cal.plant.tick`'s (sensors, estimator, ECU, inverter, motor, shaft), then the
-ECU identifier's background slice for the whole lot (:func:`eol_cal.plant.tick.background`).
+ECU identifier's background slice for the whole lot (:func:`eol_cal.plant.tick.background`); for a
+lot whose ECUs identify, the slices that evaluate run out of the tick loop
+(:func:`_identifying_ticks`), in the same order.
 
 Everything runs in float32. The scan is cut into chunks of fixed length so that one compiled
 program serves any duration, and each chunk's outputs are copied to the host as they come.
