@@ -129,9 +129,9 @@ def _identifying_ticks(cfg: PlantSimConfig, p: Any, one_tick: Callable, carry: A
     check: a few per revolution and motor), and the outer loop runs that slice for the batch
     (:func:`eol_cal.plant.tick.background_heavy`) before going on: every tick and slice in the
     scan's order, the same arithmetic. The evaluation's sums are library kernels of XLA's CPU
-    backend, which keep a loop around them from being compiled into one kernel
-    (:mod:`eol_cal.numerics.xla`); out of the inner loop, the ticks are (layout 2, batch of 64:
-    ~1.5x faster per tick with the loop kernel).
+    backend, which keep the loop around them from being compiled into one kernel
+    (:mod:`eol_cal.numerics.xla`); with them out of it, the inner loop is one (layout 2, batch of
+    64: ~1.5x faster per tick where the process enables the loop kernel). Runs unrolled 1.
     """
     import jax
     import jax.numpy as jnp
@@ -234,7 +234,8 @@ def simulate(
         Scan chunk length (ticks, a multiple of :data:`NOISE_BLOCK`; speed only): default
         :func:`chunk_ticks_for` the batch.
     unroll : int
-        Unroll factor of the scan (speed only).
+        Unroll factor of the scan (speed only; a lot whose ECUs identify runs its split loop,
+        :func:`_identifying_ticks`, unrolled 1).
     progress : callable, optional
         Called with the fraction done after each chunk.
     ecu_estimator : str, optional
