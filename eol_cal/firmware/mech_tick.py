@@ -197,9 +197,17 @@ def batched_background(mc: MechConsts, tb: MechTables, ms: MechState, es: Estima
     import jax
     import jax.numpy as jnp
 
-    return jax.lax.cond(jnp.any(background_heavy(ms)),
-                        lambda: jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(tb, ms, es),
+    return jax.lax.cond(jnp.any(background_heavy(ms)), lambda: batched_background_all(mc, tb, ms, es),
                         lambda: mech_background_idle(mc, ms, xp=jnp))
+
+
+def batched_background_all(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState) -> MechState:
+    """:func:`mech_background` of every member of a batch (JAX; leading axis the batch): the branch
+    :func:`batched_background` takes when some member's :func:`background_heavy` is true."""
+    import jax
+    import jax.numpy as jnp
+
+    return jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(tb, ms, es)
 
 
 def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,

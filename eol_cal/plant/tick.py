@@ -119,6 +119,29 @@ def background(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
     return plant, est_state, ecu, sensed._replace(mech=ms)
 
 
+def background_pending(carry: tuple) -> Any:
+    """Whether :func:`background` computes something after this tick for some motor of the batch
+    (an evaluation's first slice, a revolution mark's check: a few per revolution and motor)."""
+    import jax.numpy as jnp
+
+    return jnp.any(mech_tick.background_heavy(carry[3].mech))
+
+
+def background_idle(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
+    """:func:`background` where :func:`background_pending` is false, without the evaluation."""
+    import jax.numpy as jnp
+
+    plant, est_state, ecu, sensed = carry
+    return plant, est_state, ecu, sensed._replace(mech=mech_tick.mech_background_idle(cfg.mech, sensed.mech, xp=jnp))
+
+
+def background_heavy(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
+    """:func:`background` where :func:`background_pending` is true: every motor's slice."""
+    plant, est_state, ecu, sensed = carry
+    ms = mech_tick.batched_background_all(cfg.mech, mech_tables_of(p), sensed.mech, est_state)
+    return plant, est_state, ecu, sensed._replace(mech=ms)
+
+
 def sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mech_state: Any = None
            ) -> tuple[Any, Sensed]:
     """Steps 1-2 of a tick at rotor angle ``theta_m`` (rad): the levels, the estimator's step (and

@@ -1,0 +1,118 @@
+"""The plant's tick loop for a batch whose ECUs identify (layout 2): the identifier's background
+evaluation runs out of the inner tick loop (``simulate._identifying_ticks``), so XLA can compile
+that loop into one kernel. Every tick and background slice must be what the plain scan (tick, then
+the background slice, every tick) gives, bit for bit, through identifications, evaluations and
+revolution marks, across chunk boundaries; and the loop kernel must be compiled where the process
+asks for it."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+pytest.importorskip("jax")
+
+_COMPARE = textwrap.dedent("""
+    import json, sys
+    import jax
+    import numpy as np
+    from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
+    from eol_cal.plant import simulate as S
+    from eol_cal.plant.ecu_model import true_block
+    from eol_cal.plant.profile import constant
+    from eol_cal.plant.tick import background
+    from eol_cal.plant.variation import draw_motor
+
+    flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR | FLAG_MECH_COMP_ENABLE
+    specs = [draw_motor(s) for s in range(3)]
+    blocks = [true_block(s, flags=flags, mech=True) for s in specs]
+    prof = constant(200.0, 0.3, iq=40.0)  # pre-roll: four revolutions at 200 rpm (1.2 s), 6 chunks in all
+
+    def run():
+        S._COMPILED.clear()
+        carry = []
+        res = S.simulate(specs, prof, mode="compensated", blocks=blocks, seed=2, carry_out=carry)
+        arrays = [np.asarray(v) for r in res for v in (*r.capture.channels.values(), r.theta_r, r.theta_hat,
+                                                         r.theta_enc, r.mech_active, r.theta_m)]
+        return arrays + [np.asarray(x) for x in jax.tree_util.tree_leaves(carry[0].state)], res
+
+    new, res = run()
+
+    def plain(cfg, p, one_tick, carry, xs, n_ticks):  # the scan as it was: tick, then background
+        def body(c, x):
+            c, y = one_tick(c, x)
+            return background(cfg, p, c), y
+        return jax.lax.scan(body, carry, xs)
+
+    S._identifying_ticks = plain
+    old, _ = run()
+    same = len(new) == len(old) and all(a.dtype == b.dtype and a.tobytes() == b.tobytes() for a, b in zip(new, old))
+    print(json.dumps({"same": same, "arrays": len(new),
+                      "identified": [int(r.mech_active.min()) for r in res]}))
+""")
+
+
+def _run(script: str, env_flags: str) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if env_flags:
+        env["XLA_FLAGS"] = env_flags
+    out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=900,
+                         check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.slow  # two plant programs compiled and 1.5 s of three motors run, in a process of its own
+def test_the_split_loop_gives_the_plain_scan_bit_for_bit():
+    # a process of its own with XLA's defaults: the suite may have let the CLI switch the loop
+    # kernel on in this one (numerics.xla.configure_xla), where the plain scan keeps the library
+    # kernels in its loop and the split loop's ticks run as one kernel, rounding differently
+    got = _run(_COMPARE, "")
+    assert got["identified"] == [1, 1, 1]  # every motor identified before the recording, and stays so
+    assert got["arrays"] > 60
+    assert got["same"]
+
+
+_KERNEL = textwrap.dedent("""
+    import json
+    from eol_cal.numerics.xla import configure_xla
+    assert configure_xla()  # before the process's first JAX computation
+    import jax
+    from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
+    from eol_cal.plant import simulate as S
+    from eol_cal.plant.ecu_model import true_block
+    from eol_cal.plant.profile import constant
+    from eol_cal.plant.variation import draw_motor
+
+    flags = FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR | FLAG_MECH_COMP_ENABLE
+    specs = [draw_motor(s) for s in range(3)]
+    text = {}
+    jit = jax.jit
+
+    def spy(f, *a, **k):  # the chunk's program as XLA compiled it
+        j = jit(f, *a, **k)
+        def call(*args):
+            if getattr(f, "__name__", "") == "chunk":
+                text["hlo"] = j.lower(*args).compile().as_text()
+            return j(*args)
+        return call
+
+    jax.jit = spy
+    S.simulate(specs, constant(60.0, 0.05, iq=40.0), mode="compensated", pre_roll_s=0.0,
+               blocks=[true_block(s, flags=flags, mech=True) for s in specs])
+    n = S.chunk_ticks_for(len(specs))
+    ys = f"f32[{n},{len(specs)},{len(S.OUT_COLUMNS)}]"  # the ticks' outputs, carried by the tick loop
+    small = [line for line in text["hlo"].splitlines() if 'xla_cpu_small_call="true"' in line]
+    print(json.dumps({"tick_loop_one_kernel": any(ys in line for line in small)}))
+""")
+
+
+def test_the_tick_loop_of_an_identifying_batch_compiles_into_one_kernel():
+    # where the process lets XLA compile small loops into one kernel (numerics.xla.configure_xla),
+    # the tick loop of a layout-2 batch is one (no scatter, no library kernel inside): ~1.5x per tick
+    got = _run(_KERNEL, "")
+    assert got["tick_loop_one_kernel"]
