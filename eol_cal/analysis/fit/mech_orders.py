@@ -13,12 +13,13 @@ load-independent (N*m; the plant's unbalance is); the block's per-ampere part is
 
 Intervals: the joint fit's covariance at the noise each order actually has in each segment
 (:func:`order_noise`: the residual's phasors at the order's neighbouring frequencies, as the
-model check measures the 6th's), or per order the delete-one-segment jackknife's where wider (the
-segments' scatter: what differs from segment to segment and not from sample to sample), with
-Student's t of the noise plus the scatter's excess over it (Welch-Satterthwaite, as the electrical
-quantities': :func:`eol_cal.analysis.fit.motor_fit.wider_per_quantity`). An
-order not resolved from zero (its phasor's 95 % region holds the origin) reports an amplitude
-interval that reaches zero and no phase bound (:func:`order_estimate`).
+model check measures the 6th's) plus, direction by direction in each order's pair, the excess of the
+delete-one-segment jackknife's over it (the segments' scatter: what differs from segment to segment
+and not from sample to sample), with Student's t of the noise plus that excess (Welch-Satterthwaite,
+as the electrical quantities': :func:`eol_cal.analysis.fit.motor_fit.wider_per_quantity`;
+:func:`pair_covariance`). An order not resolved from zero (its phasor's 95 % region, Hotelling's
+T^2 at those degrees of freedom, holds the origin) reports an amplitude interval that reaches zero
+and no phase bound (:func:`order_estimate`).
 """
 
 from __future__ import annotations
@@ -147,8 +148,7 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                                ValueCi(math.atan2(sol[2 * i + 1], sol[2 * i]), None), why) for i, h in enumerate(ORDERS))
     loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
     dev = loo - loo.mean(axis=0)
-    # per order the wider of the two, with Student's t of the noise plus the scatter's excess over it
-    # (the electrical quantities' rule; only each order's own pair is reported)
+    # per order the noise plus the scatter's excess over it in each direction (only each order's own pair is reported)
     scatter = (S - 1) / S * (dev.T @ dev)
     out = []
     for i, h in enumerate(ORDERS):
