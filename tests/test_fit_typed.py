@@ -20,7 +20,9 @@ mechanical orders; only ``mech.orders[].c.ci95`` and ``phase_c.ci95`` moved), an
 orders' jackknife took the electrical quantities' Student's t (Welch-Satterthwaite; only
 ``mech.orders[].c.ci95`` moved), and when a segment of whole electrical revolutions, a sample
 short of a mechanical order's period, carried the order again (issue 34, ``model.MECH_SPAN_TOL``:
-the estimates moved, k6 by 0.1-0.3 %); write
+the estimates moved, k6 by 0.1-0.3 %), and when an order's pair covariance took the scatter's
+excess per direction and its region Hotelling's T^2 (issue 34: only ``two_motors.json``'s
+``mech.orders[].c.ci95`` moved, 13-15 % wider on M-0007, its orders not resolved); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """
