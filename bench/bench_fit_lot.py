@@ -410,8 +410,10 @@ def _mech_summary(rows: list) -> None:
         if absent:
             amp = np.array([g[0] for g in absent]) * 1e3
             zero = sum(g[0] <= g[1] for g in absent)
+            # a calibrated 95 % region holds zero for 95 % of absent orders (binomial standard error beside it)
             line += (f" absent: reported {np.median(amp):.3f} mN*m median (max {amp.max():.3f}), interval includes 0: "
-                     f"{zero}/{len(absent)}")
+                     f"{zero}/{len(absent)} (a calibrated region: {0.95 * len(absent):.0f} +- "
+                     f"{math.sqrt(0.95 * 0.05 * len(absent)):.1f})")
         print(line)
     c1 = np.array([r.get("mech1_nm", np.nan) for r in rows], float)
     u1 = np.array([r.get("unb1_nm", np.nan) for r in rows], float)

@@ -23,7 +23,10 @@ short of a mechanical order's period, carried the order again (issue 34, ``model
 the estimates moved, k6 by 0.1-0.3 %), and when the switch's fingerprint error became a jackknife
 over the stretches and the switch gated on the predicted cosine (0.29) over a margin of 0 (issue 34:
 ``mech.margin`` and its reason only; the intervals at each harmonic's own noise, the same change,
-leave these fits of fewer than 7 segments as they were but for the last bit); write
+leave these fits of fewer than 7 segments as they were but for the last bit), and when an order's
+pair covariance took the scatter's excess per direction and its region Hotelling's T^2 (issue 34:
+only ``two_motors.json``'s ``mech.orders[].c.ci95`` moved, 13-15 % wider on M-0007, its orders not
+resolved); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """

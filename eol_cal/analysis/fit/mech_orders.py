@@ -13,12 +13,13 @@ load-independent (N*m; the plant's unbalance is); the block's per-ampere part is
 
 Intervals: the joint fit's covariance at the noise each order actually has in each segment
 (:func:`order_noise`: the residual's phasors at the order's neighbouring frequencies, as the
-model check measures the 6th's), or per order the delete-one-segment jackknife's where wider (the
-segments' scatter: what differs from segment to segment and not from sample to sample), with
-Student's t of the noise plus the scatter's excess over it (Welch-Satterthwaite, as the electrical
-quantities': :func:`eol_cal.analysis.fit.motor_fit.wider_per_quantity`). An
-order not resolved from zero (its phasor's 95 % region holds the origin) reports an amplitude
-interval that reaches zero and no phase bound (:func:`order_estimate`).
+model check measures the 6th's) plus, direction by direction in each order's pair, the excess of the
+delete-one-segment jackknife's over it (the segments' scatter: what differs from segment to segment
+and not from sample to sample), with Student's t of the noise plus that excess (Welch-Satterthwaite,
+as the electrical quantities': :func:`eol_cal.analysis.fit.motor_fit.wider_per_quantity`;
+:func:`pair_covariance`). An order not resolved from zero (its phasor's 95 % region, Hotelling's
+T^2 at those degrees of freedom, holds the origin) reports an amplitude interval that reaches zero
+and no phase bound (:func:`order_estimate`).
 """
 
 from __future__ import annotations
@@ -32,7 +33,6 @@ from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
 from eol_cal.analysis.fit.model import legendre_rows, line_noise, noise_bins, transducer_gain
-from eol_cal.analysis.fit.motor_fit import wider_per_quantity
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
@@ -148,20 +148,70 @@ def fit_orders(mi: MotorInput, fit: MotorFit, spec: FitSpec, prints: list[fpr.Wi
                                ValueCi(math.atan2(sol[2 * i + 1], sol[2 * i]), None), why) for i, h in enumerate(ORDERS))
     loo = np.array([np.linalg.lstsq(M - Ms, rhs - rs, rcond=None)[0] for Ms, rs in shares])
     dev = loo - loo.mean(axis=0)
-    # per order the wider of the two, with Student's t of the noise plus the scatter's excess over it
-    # (the electrical quantities' rule; only each order's own pair is reported)
-    cov = wider_per_quantity(cov, (S - 1) / S * (dev.T @ dev), [slice(2 * i, 2 * i + 2) for i in range(H)], S)
-    return tuple(MechOrder(h, *order_estimate(sol[2 * i], sol[2 * i + 1], cov[2 * i: 2 * i + 2, 2 * i: 2 * i + 2]))
-                 for i, h in enumerate(ORDERS))
+    # per order the noise plus the scatter's excess over it in each direction (only each order's own pair is reported)
+    scatter = (S - 1) / S * (dev.T @ dev)
+    out = []
+    for i, h in enumerate(ORDERS):
+        b = slice(2 * i, 2 * i + 2)
+        C, dof = pair_covariance(cov[b, b], scatter[b, b], S)
+        out.append(MechOrder(h, *order_estimate(sol[2 * i], sol[2 * i + 1], C, dof)))
+    return tuple(out)
 
 
-def order_estimate(a: float, b: float, C: np.ndarray) -> tuple[ValueCi, ValueCi]:
+def pair_covariance(noise: np.ndarray, scatter: np.ndarray, S: int) -> tuple[np.ndarray, float]:
+    """An order's pair covariance (N*m^2) from the noise's and the segments' scatter, in every
+    direction the wider, and its degrees of freedom.
+
+    The noise's ``V_n`` plus the scatter's excess over it direction by direction, ``B = (V_s - V_n)_+``
+    (the positive part of the symmetric difference: its eigenvalues clipped at 0), so the result is at
+    least each of the two along any direction. The whole scatter where its trace is the larger
+    (:func:`~eol_cal.analysis.fit.motor_fit.wider_per_quantity`'s rule for the electrical quantities,
+    which report one amplitude) took the jackknife's narrow direction too, which 8 segments estimate
+    poorly: an order's region rests on both directions, and where an absent order's phasor lay along
+    that one its region left zero out at chi-square 12-21 (resonant 250 Hz lot, seeds 1 and 8).
+    Scaled by ``(t / 1.96)^2``, Student's t of the Welch-Satterthwaite degrees of freedom of the
+    noise (known) plus the excess (``S - 1``): ``(S - 1) ((v_n + b) / b)^2`` with ``v_n``, ``b``
+    the traces, infinite without excess.
+    """
+    from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
+    w, U = np.linalg.eigh(scatter - noise)
+    excess = (U * np.maximum(w, 0.0)) @ U.T
+    v_n, v_b = float(np.trace(noise)), float(np.trace(excess))
+    if v_b <= 0.0:
+        return noise, math.inf
+    dof = (S - 1) * ((v_n + v_b) / v_b) ** 2
+    return (noise + excess) * (float(stdtrit(dof, 0.975)) / _Z95) ** 2, dof
+
+
+def region_scale(dof: float) -> float:
+    """A phasor's 95 % region ``z^T C^-1 z <= region_scale(dof)`` on its covariance ``C`` as the fit
+    reports it (already scaled by ``(t(dof) / 1.96)^2`` for the one-dimensional intervals).
+
+    A covariance estimated with ``dof`` degrees of freedom makes ``z^T C^-1 z`` Hotelling's T^2, whose
+    95 % point for a pair is ``dof (0.05^(-2 / (dof - 1)) - 1)`` (``2 dof / (dof - 1) F(2, dof - 1)``;
+    the F quantile for 2 numerator degrees of freedom in closed form), not chi-square's 5.99 scaled by
+    the one-dimensional t: with 7 (8 segments' jackknife) 12.0 against 8.7, a region that left an absent
+    order out of its interval for 8.8 % of motors, not 5 % (tests/test_mech_order_estimate.py).
+    Infinite ``dof``: chi-square with 2 degrees of freedom, 5.99.
+    """
+    if not math.isfinite(dof):
+        return _CHI2_2_95
+    from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
+    t2 = dof * (0.05 ** (-2.0 / (dof - 1.0)) - 1.0)
+    return t2 * (_Z95 / float(stdtrit(dof, 0.975))) ** 2
+
+
+def order_estimate(a: float, b: float, C: np.ndarray, dof: float = math.inf) -> tuple[ValueCi, ValueCi]:
     """Amplitude (N*m) and phase (rad) of an order's phasor ``a cos + b sin`` with their 95 % intervals.
 
     A phasor resolved from zero gets the normal approximation: the amplitude's interval from the
-    covariance ``C`` (N*m^2) along the phasor, the phase's across it. One whose own 95 % region (an
-    ellipse: chi-square with 2 degrees of freedom) holds the origin is not resolved from zero, and
-    there the approximation fails: an absent order's amplitude is Rayleigh-distributed, and
+    covariance ``C`` (N*m^2, scaled for the one-dimensional intervals: 1.96 C's standard deviation is
+    the 95 % half-width) along the phasor, the phase's across it. One whose own 95 % region (an
+    ellipse: chi-square with 2 degrees of freedom, or Hotelling's T^2 where ``C`` is estimated with
+    ``dof`` degrees of freedom: :func:`region_scale`) holds the origin is not resolved from zero,
+    and there the approximation fails: an absent order's amplitude is Rayleigh-distributed, and
     amplitude +- 1.96 sigma holds zero for only 85 % of them. Its amplitude's interval is that
     region's reach instead (half-width its largest radius, so the interval holds zero and every
     amplitude the region allows) and its phase gets no bound (+-180 deg).
@@ -169,8 +219,9 @@ def order_estimate(a: float, b: float, C: np.ndarray) -> tuple[ValueCi, ValueCi]
     c = math.hypot(a, b)
     phase = math.atan2(b, a)
     z = np.array([a, b])
-    if float(z @ np.linalg.pinv(C) @ z) <= _CHI2_2_95:
-        reach = math.sqrt(_CHI2_2_95 * max(float(np.linalg.eigvalsh(C)[-1]), 0.0))
+    region = region_scale(dof)
+    if float(z @ np.linalg.pinv(C) @ z) <= region:
+        reach = math.sqrt(region * max(float(np.linalg.eigvalsh(C)[-1]), 0.0))
         return ValueCi(c, reach), ValueCi(phase, math.pi)
     u = z / c
     v = np.array([-u[1], u[0]])
