@@ -210,8 +210,11 @@ def stages(serials: int) -> None:
         return w
 
     for label, module, name in STAGES:
-        m = importlib.import_module(module)
-        if hasattr(m, name):  # older code may lack a stage
+        try:
+            m = importlib.import_module(module)
+        except ModuleNotFoundError:  # older code may lack a stage's module
+            continue
+        if hasattr(m, name):  # or its function
             setattr(m, name, counted(label, getattr(m, name)))
     cache = default_cache_dir()
     prepare_fit_process(cache)
