@@ -32,7 +32,8 @@ import numpy as np
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
-from eol_cal.analysis.fit.model import legendre_rows, line_noise, noise_bins, transducer_gain
+from eol_cal.analysis.fit.model import Z95, legendre_rows, line_noise, noise_bins, transducer_gain
+from eol_cal.analysis.fit.motor_fit import amp_phase
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
@@ -43,8 +44,6 @@ if TYPE_CHECKING:
     from eol_cal.analysis.fit import FitSpec, MotorFit
     from eol_cal.analysis.fit.motor_input import MotorInput
 
-#: z of a two-sided 95 % interval
-_Z95 = 1.959963984540054
 #: chi-square with 2 degrees of freedom at 95 % (-2 ln 0.05): a phasor's 95 % region
 _CHI2_2_95 = -2.0 * math.log(0.05)
 #: the fewest segments whose scatter (the delete-one-segment jackknife, S - 1 degrees of freedom) an
@@ -181,7 +180,7 @@ def pair_covariance(noise: np.ndarray, scatter: np.ndarray, S: int) -> tuple[np.
     if v_b <= 0.0:
         return noise, math.inf
     dof = (S - 1) * ((v_n + v_b) / v_b) ** 2
-    return (noise + excess) * (float(stdtrit(dof, 0.975)) / _Z95) ** 2, dof
+    return (noise + excess) * (float(stdtrit(dof, 0.975)) / Z95) ** 2, dof
 
 
 def region_scale(dof: float) -> float:
@@ -200,7 +199,7 @@ def region_scale(dof: float) -> float:
     from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
     t2 = dof * (0.05 ** (-2.0 / (dof - 1.0)) - 1.0)
-    return t2 * (_Z95 / float(stdtrit(dof, 0.975))) ** 2
+    return t2 * (Z95 / float(stdtrit(dof, 0.975))) ** 2
 
 
 def order_estimate(a: float, b: float, C: np.ndarray, dof: float = math.inf) -> tuple[ValueCi, ValueCi]:
@@ -223,11 +222,8 @@ def order_estimate(a: float, b: float, C: np.ndarray, dof: float = math.inf) -> 
     if float(z @ np.linalg.pinv(C) @ z) <= region:
         reach = math.sqrt(region * max(float(np.linalg.eigvalsh(C)[-1]), 0.0))
         return ValueCi(c, reach), ValueCi(phase, math.pi)
-    u = z / c
-    v = np.array([-u[1], u[0]])
-    sd_c = math.sqrt(max(float(u @ C @ u), 0.0))
-    sd_p = math.sqrt(max(float(v @ C @ v), 0.0)) / c
-    return ValueCi(c, _Z95 * sd_c), ValueCi(phase, min(_Z95 * sd_p, math.pi))
+    e = amp_phase(a, b, C)
+    return ValueCi(e.value, e.ci95), ValueCi(e.phase, min(e.phase_ci95, math.pi))
 
 
 def current_orders(kt_iq: np.ndarray, drift: np.ndarray, e: dict[int, np.ndarray],

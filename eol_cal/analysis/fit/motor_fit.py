@@ -121,8 +121,10 @@ def shift_frame(fit: MotorFit, offset_rad: float, offset_sd_rad: float = 0.0) ->
     return dataclasses.replace(fit, harmonics=harmonics, cov6=cov6)
 
 
-def _amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
-    """Amplitude/phase of a cos/sin pair (value*cos(phase), value*sin(phase)), delta method."""
+def amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
+    """Amplitude/phase of a cos/sin pair (value*cos(phase), value*sin(phase)) with 95 % half-widths from
+    its covariance ``cov2`` (2 x 2), by the delta method: the amplitude's along the phasor, the phase's
+    across it (rad; not capped: a caller that reports it caps it at pi)."""
     amp = math.hypot(a, b)
     if amp == 0.0:
         return Estimate(0.0, float("inf"), 0.0, float("inf"))
@@ -246,7 +248,7 @@ def _intervals(parts: CovarianceParts, spec: FitSpec,
     for ip, name in enumerate(names):
         for ih, h in enumerate(spec.harmonics):
             i = n_tau + (ip * nh + ih) * 2
-            harmonics[h][name] = _amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
+            harmonics[h][name] = amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
     i6 = [n_tau + (ip * nh + spec.harmonics.index(6)) * 2 + j for ip in range(len(names)) for j in (0, 1)]
     delay_ci = Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE if spec.delay_s is None else 0.0
     return harmonics, cov[np.ix_(i6, i6)], delay_ci, birge, cov
