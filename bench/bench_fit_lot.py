@@ -237,8 +237,9 @@ def main() -> None:
             t0 = time.perf_counter()
             ok = [i for i, b in enumerate(blocks) if b is not None]
             before = simulate(plants, point, mode="estimated", blocks=prepared, seed=first + 1000)
+            # a batch whose every motor is flagged (a bench file the data contradict) has no block to run
             after = simulate([plants[i] for i in ok], point, mode="compensated", blocks=[blocks[i] for i in ok],
-                             seed=first + 1000)
+                             seed=first + 1000) if ok else []
             ideal = simulate(plants, point, mode="compensated", blocks=truths, seed=first + 1000)
             ok_n = [i for i, b in enumerate(blocks_nom) if b is not None]
             after_nom = dict(zip(ok_n, simulate([plants[i] for i in ok_n], point, mode="compensated",
