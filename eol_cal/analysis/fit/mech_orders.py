@@ -34,7 +34,7 @@ from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
 from eol_cal.analysis.fit.model import Z95, legendre_rows, line_noise, noise_bins, transducer_gain
-from eol_cal.analysis.fit.motor_fit import amp_phase, wider_per_quantity
+from eol_cal.analysis.fit.motor_fit import amp_phase, excess_t, wider_per_quantity
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
 from eol_cal.firmware.mech_params import ORDERS, SWITCH_MARGIN, SWITCH_MIN_SCORE
@@ -176,18 +176,13 @@ def pair_covariance(noise: np.ndarray, scatter: np.ndarray, S: int) -> tuple[np.
     poorly: an order's region rests on both directions, and where an absent order's phasor lay along
     that one its region left zero out at chi-square 12-21 (resonant 250 Hz lot, seeds 1 and 8).
     Scaled by ``(t / 1.96)^2``, Student's t of the Welch-Satterthwaite degrees of freedom of the
-    noise (known) plus the excess (``S - 1``): ``(S - 1) ((v_n + b) / b)^2`` with ``v_n``, ``b``
-    the traces, infinite without excess.
+    noise (known) plus the excess (``S - 1``), the two's traces
+    (:func:`~eol_cal.analysis.fit.motor_fit.excess_t`; infinite without excess).
     """
-    from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
-
     w, U = np.linalg.eigh(scatter - noise)
     excess = (U * np.maximum(w, 0.0)) @ U.T
-    v_n, v_b = float(np.trace(noise)), float(np.trace(excess))
-    if v_b <= 0.0:
-        return noise, math.inf
-    dof = (S - 1) * ((v_n + v_b) / v_b) ** 2
-    return (noise + excess) * (float(stdtrit(dof, 0.975)) / Z95) ** 2, dof
+    t, dof = excess_t(float(np.trace(noise)), float(np.trace(excess)), S)
+    return (noise if math.isinf(dof) else (noise + excess) * t * t), dof
 
 
 def region_scale(dof: float) -> float:

@@ -170,8 +170,6 @@ def wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slic
     segments: over 400 plant motors k6, c6 and the delay covered 98.25-98.75 %, the scatter's errors
     where it was the wider beyond t(7) in 1.1-1.9 %, not 5 % (docs/fit.md).
     """
-    from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
-
     cov = scatter.copy()
     scale = np.ones(cov.shape[0])
     for b in blocks:
@@ -179,9 +177,23 @@ def wider_per_quantity(noise: np.ndarray, scatter: np.ndarray, blocks: list[slic
         if v_n >= v_s:
             cov[b, :], cov[:, b] = noise[b, :], noise[:, b]
         else:
-            nu = (S - 1) * (v_s / (v_s - v_n)) ** 2
-            scale[b] = float(stdtrit(nu, 0.975)) / Z95
+            scale[b] = excess_t(v_n, v_s - v_n, S)[0]
     return cov * np.outer(scale, scale)
+
+
+def excess_t(v_known: float, v_excess: float, S: int) -> tuple[float, float]:
+    """Student's t over the normal's 1.96 for a variance ``v_known`` (the noise's, from thousands of
+    samples: counted as known) plus ``v_excess`` (what the segments' scatter shows beyond it, from
+    its ``S - 1`` degrees of freedom), and their Welch-Satterthwaite degrees of freedom
+    ``nu = (S - 1) ((v_known + v_excess) / v_excess)^2``: ``(1, inf)`` without excess. The one rule
+    of the electrical quantities (:func:`wider_per_quantity`) and the mechanical orders
+    (:func:`eol_cal.analysis.fit.mech_orders.pair_covariance`)."""
+    if v_excess <= 0.0:
+        return 1.0, math.inf
+    from scipy.special import stdtrit  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+
+    nu = (S - 1) * ((v_known + v_excess) / v_excess) ** 2
+    return float(stdtrit(nu, 0.975)) / Z95, nu
 
 
 @dataclass(frozen=True)
