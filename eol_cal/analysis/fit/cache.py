@@ -24,7 +24,7 @@ from eol_cal.numerics.exported import entry_path, key_text, load, save, set_cach
 #: environment variable naming the cache directory (``off``: no cache)
 CACHE_ENV = "EOL_CAL_JAX_CACHE"
 #: part of every solver file's key: bump it when the solver's program changes
-_EXPORT_TAG = "eol-cal-fit-solve-8"
+_EXPORT_TAG = "eol-cal-fit-solve-9"
 
 
 def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:

@@ -135,20 +135,20 @@ def amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
     return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), float(wrap_pi(math.atan2(b, a))), Z95 * math.sqrt(max(var_ph, 0.0)))
 
 
-def segment_scatter(out: dict, valid: np.ndarray) -> np.ndarray:
+def segment_scatter(jac: np.ndarray, res: np.ndarray, C: np.ndarray) -> np.ndarray:
     """The parameters' covariance from the segments' scatter (cluster-robust, each segment a cluster).
 
     ``C (sum_s u_s u_s^T) C S / (S - 1)``, ``C = (J^T J)^-1`` and ``u_s = J_s^T r_s`` segment s's
-    share of the gradient (the solver's ``score``): what differs from segment to segment, in the
+    share of the gradient (``jac``, ``res``: each segment's reduced rows' Jacobian and residuals,
+    segments first): what differs from segment to segment, in the
     direction each parameter sees it. The noise at the harmonics is neither white (4-11x white
     beside the 6th) nor alike in every segment (its load and speed), and the model errs between
     segments (the path's and the transducer's gain against speed): a ratio of the residual rows to
     the white noise, spread over every direction and segment alike, widened the phases and the
     delay 1.2-1.8x beyond their errors (bench/bench_coverage.py).
     """
-    u = np.asarray(out["score"], dtype=float)[valid]
+    u = np.einsum("sk,skp->sp", res, jac)
     S = u.shape[0]
-    C = np.asarray(out["cov_unscaled"], dtype=float)
     return C @ (u.T @ u) @ C * (S / max(S - 1, 1))
 
 
@@ -283,11 +283,11 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     ssr = float(out["ssr_red"]) + float(comp.floor[valid].sum())
     n_par = n_tau + spec.n_glob + float(comp.n_nuis[valid].sum())
     S = int(valid.sum())
+    C = np.asarray(out["cov_unscaled"], dtype=float)
+    jac, res = np.asarray(out["jac"], dtype=float)[valid], np.asarray(out["res"], dtype=float)[valid]
     parts = CovarianceParts(
-        p=p, cov_unscaled=np.asarray(out["cov_unscaled"], dtype=float),
-        jac=np.asarray(out["jac"], dtype=float)[valid], res=np.asarray(out["res"], dtype=float)[valid],
-        s2=ssr / max(n - n_par, 1.0),
-        scatter=segment_scatter(out, valid) if spec.lack_of_fit and S >= MIN_SEGMENTS_SCATTER else None,
+        p=p, cov_unscaled=C, jac=jac, res=res, s2=ssr / max(n - n_par, 1.0),
+        scatter=segment_scatter(jac, res, C) if spec.lack_of_fit and S >= MIN_SEGMENTS_SCATTER else None,
         dof_red=float(S) * 2 * nh - (n_tau + spec.n_glob))
     harmonics, cov6, delay_ci, birge, cov = _intervals(parts, spec, None)
     delay = p[0] * TAU_SCALE if spec.delay_s is None else float(spec.delay_s)  # fitted (n_tau = 1): p[0]

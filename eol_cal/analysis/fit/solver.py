@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     import optimistix as optx
 
     #: a solver: the compressed data by name (one motor's, or a batch's stacked), the delay's start
-    #: grid and the step limit -> the solution by name (p, cov_unscaled, ssr_red, score, res, jac, g, steps, result)
+    #: grid and the step limit -> the solution by name (p, cov_unscaled, ssr_red, res, jac, g, steps, result)
     Solver = Callable[[Mapping[str, np.ndarray | jax.Array], np.ndarray | jax.Array, int], dict[str, jax.Array]]
 
 
@@ -137,10 +137,9 @@ def build_solver(spec: FitSpec, S: int) -> Solver:
             "p": p,
             "cov_unscaled": jnp.linalg.inv(J.T @ J),
             "ssr_red": jnp.sum(r * r),
-            # each segment's share of the gradient, J_s^T r_s: the segments' scatter (motor_fit.unpack)
-            "score": jnp.einsum("sk,skp->sp", r.reshape(S, -1), J.reshape(S, -1, J.shape[1])),
-            # each segment's reduced rows (one cos/sin pair a harmonic) and their Jacobian: the noise's
-            # covariance at each harmonic's own noise (motor_fit.at_line_noise)
+            # each segment's reduced rows (one cos/sin pair a harmonic) and their Jacobian: the segments'
+            # scatter (motor_fit.segment_scatter) and the noise's covariance at each harmonic's own
+            # noise (motor_fit.at_line_noise)
             "res": r.reshape(S, -1),
             "jac": J.reshape(S, -1, J.shape[1]),
             "g": harm_coef(p, tau_grid[0], comp["i_qo"], comp["omega"], *paths),
