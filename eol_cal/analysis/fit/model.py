@@ -214,11 +214,11 @@ def noise_bins() -> np.ndarray:
     return np.array([k for k in range(-NOISE_BINS, NOISE_BINS + 1) if abs(k) >= 2], dtype=float)
 
 
-def bin_phasors(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
-    """``exp(-i (a + b k))`` (n, bins) for integer ``k`` (each at least 1 or at most -1): the residual's
-    phasor per bin is ``res @`` it. One complex exponential per sample and powers of ``exp(-i b)``
-    instead of one per sample and bin (a refit's model check spent 30 % of its time in them); the
-    same values within the rounding of the phase itself (4e-14 at a few hundred rad of ``a``)."""
+def bin_steps(b: np.ndarray, k: np.ndarray) -> np.ndarray:
+    """``exp(-i b k)`` (n, bins) for integer ``k`` (each at least 1 or at most -1): a line's bins are
+    its turn ``exp(-i a)`` times them (:func:`line_noise`), the same for every line of a segment.
+    Powers of ``exp(-i b)`` instead of one complex exponential per sample and bin (a refit's model
+    check spent 30 % of its time in them); the same values within the rounding of the phase itself."""
     step = np.exp(-1j * b)
     top = int(np.max(np.abs(k)))
     powers = np.empty((top + 1, len(b)), dtype=complex)  # step ** 0 .. step ** top
@@ -226,8 +226,7 @@ def bin_phasors(a: np.ndarray, b: np.ndarray, k: np.ndarray) -> np.ndarray:
     for j in range(1, top + 1):
         powers[j] = powers[j - 1] * step
     ki = k.astype(int)
-    Wk = np.where(ki[None, :] > 0, powers[np.abs(ki)].T, np.conj(powers[np.abs(ki)].T))  # exp(-i b)^-k = conj
-    return np.exp(-1j * a)[:, None] * Wk
+    return np.where(ki[None, :] > 0, powers[np.abs(ki)].T, np.conj(powers[np.abs(ki)].T))  # exp(-i b)^-k = conj
 
 
 def line_noise(res: np.ndarray, cur_res: np.ndarray | None, a: np.ndarray, b: np.ndarray, k: np.ndarray,
@@ -245,12 +244,12 @@ def line_noise(res: np.ndarray, cur_res: np.ndarray | None, a: np.ndarray, b: np
     cancels, the current sensor's own does not). ``basis`` (n, p; orthonormal columns): the columns
     the residual was fitted on; each bin's power is divided by the share of it the fit left (a bin
     the drift polynomial or a fitted line half overlaps holds half the noise: read as it is, it made
-    white noise at the 6th 7 % low on 0.05 s segments). ``steps``: ``bin_phasors(0, b, k)``, when the
-    caller measures several lines of one segment (the same bins about each).
+    white noise at the 6th 7 % low on 0.05 s segments). ``steps``: :func:`bin_steps` of ``b`` and
+    ``k``, when the caller measures several lines of one segment (the same bins about each).
     """
     sig = res[:, None] if cur_res is None else np.column_stack([res, cur_res])
     if steps is None:
-        steps = bin_phasors(np.zeros_like(b), b, k)
+        steps = bin_steps(b, k)
     rot = np.exp(-1j * a)[:, None]  # exp(-i (a + b k)) = exp(-i a) exp(-i b k): the line's turn applied once
     X = (2.0 / len(res)) * ((sig * rot).T @ steps)
     e = X[0]

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bin_phasors, design_matrix, line_noise, noise_bins
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bin_steps, design_matrix, line_noise, noise_bins
 
 
 @dataclass(frozen=True)
@@ -112,7 +112,7 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float) -> SegmentNo
         res = Y - Q @ (Q.T @ Y)
         n, T = len(t), float(t[-1] - t[0])
         b = 2 * math.pi * (t - t[0]) / T
-        steps = bin_phasors(np.zeros_like(b), b, bins)  # every bin's exp(-i b k), shared by the lines
+        steps = bin_steps(b, bins)  # shared by the segment's lines
         cur = res[:, 1] if seg.kt_iq is not None else None
         for j, h in enumerate(spec.harmonics):
             keep = _clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)
