@@ -29,7 +29,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from eol_cal.analysis.angle import AngleResult, capture_angle
-from eol_cal.analysis.steady import direction_pieces, revolution_bounds, steady_runs
+from eol_cal.analysis.steady import IQ_TOL_A, IQ_TOL_REL, direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
 from eol_cal.numerics.iir import lowpass_zero_phase
@@ -245,8 +245,8 @@ def ripple_pp(
     window_revs: int | None = None,
     settle_s: float = 0.1,
     speed_tol: float = 0.02,
-    iq_tol_a: float = 0.5,
-    iq_tol_rel: float = 0.02,
+    iq_tol_a: float = IQ_TOL_A,
+    iq_tol_rel: float = IQ_TOL_REL,
     cutoff_order: float = 48.0,
     filter_order: int = 6,
     hampel_half_width_s: float = 0.5e-3,

@@ -18,6 +18,12 @@ TWO_PI = 2.0 * np.pi
 #: within a capture window anyway.
 STANDSTILL_RAD_S = 2.0
 
+#: a load point's tolerance (A; fraction): units whose ``i_qo`` is within ``max(IQ_TOL_A, IQ_TOL_REL *
+#: |i_qo|)`` of the run's first share a steady run (the defaults of the segments' and the metrics'
+#: windows); a load step beyond it also ends a fingerprint stretch (:mod:`eol_cal.analysis.fit.fp_angle`)
+IQ_TOL_A = 0.5
+IQ_TOL_REL = 0.02
+
 
 def direction_pieces(omega_r: np.ndarray, standstill_rad_s: float = STANDSTILL_RAD_S) -> list[tuple[int, int]]:
     """Sample ranges of constant direction of rotation.

@@ -23,7 +23,7 @@ from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.fit.motor_input import MotorInput, SteadySegmentOrigin
 from eol_cal.analysis.halls import measure_hall_angles, nominal_hall_angles
-from eol_cal.analysis.steady import STANDSTILL_RAD_S, direction_pieces, revolution_bounds, steady_runs
+from eol_cal.analysis.steady import IQ_TOL_A, IQ_TOL_REL, STANDSTILL_RAD_S, direction_pieces, revolution_bounds, steady_runs
 from eol_cal.capture.data import Capture
 from eol_cal.errors import InputError
 from eol_cal.domain.bench_mechanics import BenchMechanics, shaft_response, torsion_response
@@ -56,8 +56,8 @@ def steady_runs_of(
     *,
     settle_s: float = 0.1,
     speed_tol: float = 0.02,
-    iq_tol_a: float = 0.5,
-    iq_tol_rel: float = 0.02,
+    iq_tol_a: float = IQ_TOL_A,
+    iq_tol_rel: float = IQ_TOL_REL,
 ) -> list[SteadyRun]:
     """Every steady run of whole electrical revolutions, with the revolutions settling leaves
     (arguments as :func:`capture_segments`)."""
@@ -85,8 +85,8 @@ def capture_segments(
     settle_s: float = 0.1,
     min_revs: int = 1,
     speed_tol: float = 0.02,
-    iq_tol_a: float = 0.5,
-    iq_tol_rel: float = 0.02,
+    iq_tol_a: float = IQ_TOL_A,
+    iq_tol_rel: float = IQ_TOL_REL,
 ) -> list[tuple[int, int]]:
     """Sample ranges of one load point x speed x direction each, whole electrical revolutions.
 

@@ -33,6 +33,7 @@ import numpy as np
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.angle import hall_transitions
 from eol_cal.analysis.fingerprint_fit import LOW_ORDERS, POLY_DEGREE
+from eol_cal.analysis.steady import IQ_TOL_A, IQ_TOL_REL
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.motor_input import MotorInput
@@ -41,11 +42,6 @@ if TYPE_CHECKING:
 #: fraction of the segment's (the motion only needs to be smooth, not steady: the reverse
 #: segments of eol-default settle slowly after their ramp)
 EXTEND_TOL = 0.1
-
-#: ... nor while the load point ``iq_ref`` differs from the segment's by more than the steady
-#: segments' own tolerance (``max(0.5 A, 2 %)``, :func:`eol_cal.analysis.fit.capture.steady_runs_of`):
-#: a load step ends a stretch
-IQ_TOL_A, IQ_TOL_REL = 0.5, 0.02
 
 #: the encoder errors' mechanical orders measured against the halls: those the fingerprint leaves
 #: out but a frame offset (order 0)
@@ -77,6 +73,8 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
             continue
         ws = float(np.median(w[info.start:info.stop]))
         bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        # ... nor while the load point differs from the segment's beyond the steady segments' own
+        # tolerance: a load step ends a stretch
         bad |= np.abs(iq - info.i_qo) > max(IQ_TOL_A, IQ_TOL_REL * abs(info.i_qo))
         before = np.flatnonzero(bad[:info.start])
         after = np.flatnonzero(bad[info.stop:])
