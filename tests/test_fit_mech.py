@@ -57,6 +57,24 @@ def test_a_weak_fingerprint_switches_mech_off_with_the_reason(calibrated):
     assert mech_off_reasons(res, blk.flags) and B.check(B.pack(blk)).valid
 
 
+def test_the_block_carries_the_firmwares_runtime_thresholds_not_the_switchs(calibrated):
+    """The result's thresholds are end of line's switch on its prediction (a margin of 0, a cosine
+    of 0.29); the block's ``id_margin`` and ``id_min_score`` are what the ECU must measure itself
+    before it applies a frame (0.25, 0.5: docs/firmware-contract.md). The block once carried the
+    switch's margin of 0 as ``id_margin``: the firmware's margin check then passed whatever it measured."""
+    from eol_cal.firmware.mech_params import ID_MARGIN, ID_MIN_SCORE, SWITCH_MARGIN, SWITCH_MIN_SCORE
+
+    _, _, results = calibrated
+    mech = results[0].mech
+    assert mech is not None and mech.threshold == SWITCH_MARGIN and mech.min_score == SWITCH_MIN_SCORE
+    blk = block_from_result(results[0], MOTOR, options=BEST)
+    assert blk.mech is not None and blk.flags & FLAG_MECH_COMP_ENABLE
+    assert blk.mech.id_margin == np.float32(ID_MARGIN) and blk.mech.id_min_score == np.float32(ID_MIN_SCORE)
+    assert blk.mech.id_margin > mech.threshold
+    back = B.unpack(B.pack(blk))
+    assert back.mech is not None and back.mech.id_margin == np.float32(ID_MARGIN)
+
+
 @pytest.mark.slow  # a compensated plant run; the fit tests keep the module in the fast loop
 def test_the_layout_2_block_identifies_in_the_pre_roll_and_cancels_order_1(calibrated):
     plants, _, results = calibrated

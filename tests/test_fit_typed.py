@@ -26,7 +26,8 @@ over the stretches and the switch gated on the predicted cosine (0.29) over a ma
 leave these fits of fewer than 7 segments as they were but for the last bit), and when an order's
 pair covariance took the scatter's excess per direction and its region Hotelling's T^2 (issue 34:
 only ``two_motors.json``'s ``mech.orders[].c.ci95`` moved, 13-15 % wider on M-0007, its orders not
-resolved; a resolved order's amplitude and phase kept the pair's trace rule); write
+resolved; a resolved order's amplitude and phase kept the pair's trace rule), and when ``mech.margin``
+recorded the switch's least cosine beside its least margin (``min_score``, added; nothing moved); write
 them again only for a change that means to change the file (``python tests/test_fit_typed.py DIR``,
 then copy ``DIR/*.json``).
 """

@@ -342,7 +342,7 @@ def test_the_report_shows_the_mechanical_orders_and_the_identification_margin():
     doc = json.loads((Path(__file__).resolve().parents[1] / "fixtures" / "run_record_demo.json").read_text())
     rec = RunRecord.from_json(doc, "run_record_demo.json")
     sec = mech_section(rec)
-    assert sec["status"].startswith("MECH_COMP_ENABLE on: identification margin 0.8")
+    assert sec["status"].startswith("MECH_COMP_ENABLE on: predicted identification margin 0.8")
     assert [row[0] for row in sec["rows"]] == [1, 2, 3]
     assert "mN*m" in sec["rows"][0][1] and "uncompensated" in sec["rows"][0][2]
     html = render_motor_report(rec, [])

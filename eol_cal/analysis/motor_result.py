@@ -388,11 +388,16 @@ class MechResult:
     score, margin : float
         Predicted cosine of the true hypothesis and margin after one revolution at ``ref_rpm``.
     threshold : float
-        The identification margin the block requires (``id_margin``).
+        The least predicted margin end of line switches ``MECH_COMP_ENABLE`` on at
+        (``SWITCH_MARGIN``); the block's own ``id_margin``, the firmware's runtime threshold on the
+        margin it measures, is ``ID_MARGIN`` whatever this is.
     ref_rpm : float
         Speed the prediction is for (rpm).
     orders : tuple of MechOrder
         Mechanical orders 1..3 (empty when not fitted).
+    min_score : float or None
+        The least predicted cosine the switch requires (``SWITCH_MIN_SCORE``); None in a result
+        file written before it was recorded.
     """
 
     status: str
@@ -407,6 +412,7 @@ class MechResult:
     threshold: float
     ref_rpm: float
     orders: tuple[MechOrder, ...]
+    min_score: float | None = None
 
     @property
     def enabled(self) -> bool:
@@ -415,7 +421,8 @@ class MechResult:
     def to_json(self) -> dict[str, Any]:
         return {
             "status": self.status, "reasons": list(self.reasons), "dirs": self.dirs, "grid_phase": self.grid_phase,
-            "margin": {"predicted": self.margin, "score": self.score, "threshold": self.threshold, "ref_rpm": self.ref_rpm},
+            "margin": {"predicted": self.margin, "score": self.score, "threshold": self.threshold, "ref_rpm": self.ref_rpm,
+                       **({} if self.min_score is None else {"min_score": self.min_score})},
             "orders": [o.to_json() for o in self.orders],
             "windows": list(self.windows),
             "fingerprint": list(self.fingerprint), "sigma": list(self.sigma),
@@ -459,7 +466,8 @@ class MechResult:
                    grid_phase=r.number(obj, "grid_phase", (0.0, 2 * math.pi)), windows=tuple(windows),
                    score=sub.number(m, "score", (-1.5, 1.5)), margin=sub.number(m, "predicted", (-3.0, 3.0)),
                    threshold=sub.number(m, "threshold", (0.0, 2.0)), ref_rpm=sub.number(m, "ref_rpm", (0.0, 1e5)),
-                   orders=tuple(orders))
+                   orders=tuple(orders),
+                   min_score=sub.number(m, "min_score", (0.0, 1.0)) if "min_score" in m else None)
 
 
 def _num(r: _Reader, v: Any, field: str, bound: float, lo: float | None = None) -> float:

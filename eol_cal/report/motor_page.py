@@ -358,8 +358,9 @@ def mech_section(rec: RunRecord) -> dict[str, Any] | None:
         return None
     cal = rec.block("calibrated")
     switch = cal.mech if cal is not None and cal.mech is not None else ("written" if cal is None else "not in the block")
-    status = (f"MECH_COMP_ENABLE {switch}: identification margin {_fmt(m.margin, 3)} (threshold {_fmt(m.threshold, 3)}, "
-              f"cosine {_fmt(m.score, 3)}, one revolution at {_fmt(m.ref_rpm, 3)} rpm); fingerprint "
+    least_cos = "" if m.min_score is None else f" (least {_fmt(m.min_score, 3)})"
+    status = (f"MECH_COMP_ENABLE {switch}: predicted identification margin {_fmt(m.margin, 3)} (least {_fmt(m.threshold, 3)}), "
+              f"cosine {_fmt(m.score, 3)}{least_cos}, one revolution at {_fmt(m.ref_rpm, 3)} rpm; fingerprint "
               + {1: "forward", 2: "reverse", 3: "forward and reverse"}.get(m.dirs, "not measured")
               + ("" if not m.reasons else "; off: " + "; ".join(m.reasons)))
     before = rec.metrics.before.mech1_nm if rec.metrics is not None else None

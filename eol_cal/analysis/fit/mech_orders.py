@@ -332,8 +332,9 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
     tick_hz : float
         The firmware's tick rate (Hz), for the predicted margin.
     threshold, min_score : float
-        The identification margin and least cosine the block will require: below them the
-        block's ``MECH_COMP_ENABLE`` stays off.
+        The least predicted margin and cosine the switch requires: below them the block's
+        ``MECH_COMP_ENABLE`` stays off (the block's runtime ``id_margin`` and ``id_min_score`` are
+        the firmware's own, ``ID_MARGIN`` and ``ID_MIN_SCORE``).
     """
     N = mi.encoder_ppr
     reasons: list[str] = []
@@ -351,7 +352,7 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
             reasons.append("no capture window holds a revolution and a half of steady edges: no fingerprint")
         zeros = (0.0,) * (2 * N)
         return MechResult(MECH_OFF, tuple(reasons), zeros, (None,) * (2 * N), 0, 0.0,
-                          tuple([None] * len(prints)), 0.0, 0.0, threshold, fpr.REF_RPM, ())
+                          tuple([None] * len(prints)), 0.0, 0.0, threshold, fpr.REF_RPM, (), min_score)
     # the fingerprint's error measured from its edges (a jackknife over the stretches), not its
     # standard errors (white and pooled over stretches: tens of times its pitch errors' actual error;
     # MECH.md "The switch")
@@ -374,4 +375,4 @@ def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, thres
         fingerprint=tuple(float(x) for x in fp.fp), sigma=sigma, dirs=int(fp.dirs), grid_phase=float(fp.grid_phase),
         windows=tuple(None if w is None else int(w) for w in fp.offsets), score=float(score), margin=float(margin),
         threshold=float(threshold),
-        ref_rpm=fpr.REF_RPM, orders=orders or ())
+        ref_rpm=fpr.REF_RPM, orders=orders or (), min_score=float(min_score))

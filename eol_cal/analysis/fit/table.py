@@ -186,7 +186,10 @@ def mech_params(res: MotorResult, kt: float) -> MechParams:
             c[o.order - 1], ph[o.order - 1] = float(o.c.value), float(o.phase_c.value)
     zeros = [0.0] * len(ORDERS)
     tc, tp = make_mech_tables(c, ph, zeros, zeros, kt)
-    return base.replace(fp_dirs=m.dirs, grid_phase=m.grid_phase, id_margin=m.threshold, mech_c=tuple(c),
+    # id_margin and id_min_score stay the firmware's runtime thresholds (base's ID_MARGIN, ID_MIN_SCORE):
+    # the result's threshold is end of line's switch on its prediction (SWITCH_MARGIN, 0), not the
+    # margin the ECU must measure before it applies a frame
+    return base.replace(fp_dirs=m.dirs, grid_phase=m.grid_phase, mech_c=tuple(c),
                         mech_phase_c=tuple(ph), mech_table_const=tc, mech_table_per_amp=tp,
                         fingerprint=np.asarray(m.fingerprint, dtype=np.float32))
 
