@@ -10,6 +10,7 @@ import dataclasses
 import math
 import os
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -89,5 +90,5 @@ def _record(n_segments: int, points: Sequence[tuple[float, float]] | None) -> St
                                        if isinstance(getattr(seg, f.name), (list, np.ndarray))})
 
 
-def _take(values: list | np.ndarray, keep: list[int]) -> list | np.ndarray:
+def _take(values: Any, keep: list[int]) -> Any:
     return values[keep] if isinstance(values, np.ndarray) else [values[k] for k in keep]
