@@ -16,11 +16,12 @@ fresh, erased ECU and the next plant draw.
   at a time when it asks; the first motor is its warm-up and is not counted;
 - single run: one `eol-cal run` process per motor (process start included).
 
-Each setup (register map, bit rate) runs today's code (``--base DIR``: a worktree of the
-commit to compare with) and this checkout, alternated, in the same run; ``--read-back both`` adds
-this checkout with the station setting ``flash.read_back = "off"`` as a third column.
+Each setup (register map, bit rate) runs the code to compare with (``--base DIR``, a worktree
+of that commit; given more than once, each is a column named by its commit) and this checkout,
+alternated, in the same run; ``--read-back both`` adds this checkout with the station setting
+``flash.read_back = "off"`` as a further column.
 
-    python bench/bench_station.py [--base ../takt-base] [--motors 3] [--runs 3] \\
+    python bench/bench_station.py [--base ../takt-base [--base DIR2]] [--motors 3] [--runs 3] \\
         [--setups default@500000,default@1000000,vendor-b@500000] [--profile eol-default] \\
         [--read-back on|off|both]
 """
@@ -394,9 +395,16 @@ def report(results: dict[tuple[str, str, str], list[Motor]], codes: list[str]) -
             print(f"{label:<40}{med(values)}")
 
 
+def short_rev(path: Path) -> str:
+    """The checkout's commit, short."""
+    return subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--base", type=Path, default=None, help="checkout of today's code to compare with (a git worktree)")
+    ap.add_argument("--base", type=Path, action="append", default=[],
+                    help="checkout of the code to compare with (a git worktree); again for another column")
     ap.add_argument("--motors", type=int, default=3, help="counted motors per station loop (after one warm-up)")
     ap.add_argument("--runs", type=int, default=3, help="single `eol-cal run` processes per setup")
     ap.add_argument("--setups", default="default@500000,default@1000000,vendor-b@500000",
@@ -420,14 +428,13 @@ def main() -> int:
     enable_jax_cache()  # the simulators' plant in this process
     # each column: a checkout and the environment its processes get (the settings' variables)
     codes: dict[str, tuple[Path, dict[str, str]]] = {}
-    if args.base is not None:
-        codes["today"] = (args.base.resolve(), {})
+    for base in args.base:  # one base: "today", as before; several: each named by its commit
+        codes["today" if len(args.base) == 1 else f"base {short_rev(base)}"] = (base.resolve(), {})
     if args.read_back in ("on", "both"):
         codes["ours"] = (ROOT, {})
     if args.read_back in ("off", "both"):
         codes["ours, no read-back"] = (ROOT, {"EOL_CAL_FLASH_READ_BACK": "off"})
-    rev = {name: subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True).stdout.strip() for name, (path, _env) in codes.items()}
+    rev = {name: short_rev(path) for name, (path, _env) in codes.items()}
     print(f"# {platform.node()} {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
           f"profile {args.profile}, real-time dyno, load {load()}; code: "
           + ", ".join(f"{n} {rev[n]} ({p})" for n, (p, _env) in codes.items()), flush=True)

@@ -108,7 +108,7 @@ def main() -> int:
                     t_verdict, m = screen.wait_for(re.compile(rf"{serial}: (PASS|FAIL|ERROR)"), pos)
                     _, m = screen.wait_for(re.compile("Scan serial"), m.end())
                     pos = m.end()
-                    rec = json.loads((bs.run_dir(work / "reports", serial) / "report.json").read_text())
+                    rec = json.loads(bs.written(bs.run_dir(work / "reports", serial) / "report.json").read_text())
                     fig = bs.motor_figures(rec, serial, t_scan, t_scan + (t_verdict - t0), 0.0, bs.plant_late(line),
                                            bs.load(), 10000)
                     print(f"{serial}{' (warm-up)' if k == 0 else ''}: {fig.verdict}, critical path beyond physical "

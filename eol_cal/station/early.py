@@ -3,10 +3,14 @@
 The fit needs each window's angle (:func:`eol_cal.analysis.angle.capture_angle`) and p-p figure
 (:func:`eol_cal.analysis.fit.capture.window_metrics`); neither depends on the other windows, so the
 station computes them on a thread of its own as soon as the dyno client has read a window
-(:func:`eol_cal.dyno.profile_run.run_profile`, ``on_window``), and the first window also compiles the
-firmware estimator's scan for the frame offset. The firmware frame needs every window (the hall
-table is measured on all of them): it is computed as soon as the last window is in, on
-:data:`FRAME_WORKERS` threads, while the shaft stops and the ECU's state is read.
+(:func:`eol_cal.dyno.profile_run.run_profile`, ``on_window``), and the first window also readies
+the firmware estimator's scan for the frame offset (the program of as many lanes as the capture
+has windows). The firmware frame needs every window (the hall table is measured on all of them):
+it is computed as soon as the last window is in, every window in one batched scan
+(:func:`eol_cal.analysis.firmware_angle.firmware_frame_parts`), while the shaft stops and the ECU's
+state is read. (One window a thread, four threads, cost 5x the CPU of the batched scan on the
+station's 8 windows, 0.25-0.6 against 0.05 CPU s, and on two cores held the fit back: the same
+numbers, bit for bit.)
 What the fit itself does at the end is the hall table again and the joint solve.
 
 The fit asks for a window's figures with the window it cut from the joined capture
@@ -33,8 +37,6 @@ if TYPE_CHECKING:
     from eol_cal.analysis.firmware_angle import FrameJob
     from eol_cal.dyno.profile_run import DynoWindow
 
-#: threads for the firmware frame at the end (one window each)
-FRAME_WORKERS = 4
 _WINDOW_OF = re.compile(r"#(\d+)$")
 
 
@@ -91,8 +93,6 @@ class EarlyWindows(PreparedWindows):
     def _frame_offsets(self) -> dict[int, tuple[tuple, list, list[tuple[complex, int]]]]:
         """Every window's part of the firmware frame, as :func:`motor_inputs` will ask for it:
         ``{window: (hall_angle, ranges, [(sum, n) per range])}`` (empty when a window has no ``enc_b``)."""
-        from concurrent.futures import ThreadPoolExecutor as Pool
-
         from eol_cal.analysis.firmware_angle import firmware_frame_parts
         from eol_cal.analysis.halls import measure_hall_angles
 
@@ -105,13 +105,8 @@ class EarlyWindows(PreparedWindows):
         ranges = {k: capture_segments(cap.t, a.theta_r, a.omega_r, np.asarray(cap.iq_ref(), dtype=float),
                                       settle_s=self.settle_s, min_revs=self.min_revs) for k, (cap, a, _m) in done.items()}
         keys = [k for k in done if ranges[k]]
-
-        def one(k: int) -> list[tuple[complex, int]]:
-            cap, a, _m = done[k]
-            return firmware_frame_parts([(cap, a.theta_r, ranges[k], table, self.estimator_options)])[0]
-
-        with Pool(max(1, min(FRAME_WORKERS, len(keys))), thread_name_prefix="early-frame") as pool:
-            sums = list(pool.map(one, keys))
+        sums = firmware_frame_parts([(done[k][0], done[k][1].theta_r, ranges[k], table, self.estimator_options)
+                                     for k in keys])
         return {k: (table, ranges[k], parts) for k, parts in zip(keys, sums, strict=True)}
 
     def _prepare(self, index: int, window: DynoWindow, t: np.ndarray) -> tuple[Capture, AngleResult, dict[str, Any]]:
@@ -126,14 +121,16 @@ class EarlyWindows(PreparedWindows):
         return cap, angle, self.measure(cap, angle)
 
     def _compile_estimator(self, cap: Capture, angle: AngleResult) -> None:
-        """One throwaway run of the firmware estimator: the frame offset at the end then finds its
-        scan compiled (one program for every window length and hall table)."""
-        from eol_cal.analysis.firmware_angle import firmware_frame_offset
+        """One throwaway run of the firmware estimator, this window in each of the capture's lanes:
+        the frame at the end then finds its scan compiled (one program per lane count for every
+        window length and hall table)."""
+        from eol_cal.analysis.firmware_angle import firmware_frame_parts
         from eol_cal.analysis.fit.cache import enable_compile_cache
 
         try:
             enable_compile_cache(self.cache_dir)
-            firmware_frame_offset(cap, angle.theta_r, [(0, len(cap.t))], None, self.estimator_options)
+            job = (cap, angle.theta_r, [(0, len(cap.t))], None, self.estimator_options)
+            firmware_frame_parts([job] * max(1, self.n_windows or 1))
         except Exception:  # noqa: BLE001 - only a warm-up: the fit reports a real failure
             pass
 

@@ -18,7 +18,9 @@ def run(ctx: CycleContext) -> None:
     ctx.helper.submit(preload_analysis)
     ctx.helper.submit(preload_writers)
     # the plots are drawn after the verdict: matplotlib is not imported while the dyno turns
-    ctx.prewarm = ctx.helper.submit(prewarm_fit, len(ctx.segments), ctx.cfg.cache_dir, False)
+    # the profile's speeds and loads: the model check's band solver is traced for the capture's bands too
+    points = [(s.speed_rpm, float("nan") if s.iq is None else s.iq) for s in ctx.segments]
+    ctx.prewarm = ctx.helper.submit(prewarm_fit, len(ctx.segments), ctx.cfg.cache_dir, False, points)
     ctx.early = EarlyWindows(ctx.cfg.motor.poles, ctx.cfg.motor.N_enc, ctx.cfg.estimator_options,
                              pool=ctx.helper, cache_dir=ctx.cfg.cache_dir, n_windows=len(ctx.segments))
     ctx.before = ctx.acquire("before", ctx.segments, on_window=ctx.early.on_window, write_aside=True)
