@@ -69,3 +69,27 @@ def test_the_noise_is_measured_for_the_intervals_only_where_they_take_it():
     assert at_line_noise(fit_few, spec, row_var) is fit_few
     moved = at_line_noise(fit_many, spec, segment_noise(many, spec, fit_many.delay_s).row_variance())
     assert moved.harmonics[6]["k"].ci95 != fit_many.harmonics[6]["k"].ci95
+
+
+def test_the_orders_noise_shares_its_segments_bins_with_the_same_values():
+    # mech_orders.order_noise builds the segment's bins once for its orders: each order's figure is
+    # line_noise's with the bins built for that order alone (the code before), bit for bit
+    from eol_cal.analysis.fit.mech_orders import NOISE_GAP, ORDERS, order_noise
+    from eol_cal.analysis.fit.model import line_noise
+
+    rng = np.random.default_rng(3)
+    t = np.arange(6000) / 20000.0
+    w_m = 2 * math.pi * 2.0  # 120 rpm
+    th_m = w_m * t + 0.002 * np.sin(2 * math.pi * 37.0 * t)
+    res, cur = rng.normal(0.0, 0.01, len(t)), rng.normal(0.0, 0.004, len(t))
+    spec = FitSpec()
+    got = order_noise(res, cur, th_m, t, w_m, spec, 1.5e-4, _path, pole_pairs=3)
+    n, T, k = len(t), float(t[-1] - t[0]), noise_bins()
+    lines = np.concatenate([[0.0], np.outer(list(ORDERS) + [h * 3 for h in spec.harmonics], [w_m, -w_m]).ravel()])
+    for i, h in enumerate(ORDERS):
+        omega = h * w_m + 2 * math.pi * k / T
+        ok = np.min(np.abs(omega[:, None] - lines[None, :]), axis=1) >= 2 * math.pi * NOISE_GAP / T
+        assert ok.any()
+        alone = line_noise(res, cur, h * (th_m - th_m[0]), 2 * math.pi * (t - t[0]) / T, k[ok], omega[ok], spec,
+                           1.5e-4, _path) * n / 2.0
+        assert got[i] == alone
