@@ -215,13 +215,14 @@ def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
     import dataclasses
 
     from eol_cal.analysis.fit import path_gain, shift_frame
-    from eol_cal.analysis.fit.motor_fit import at_line_noise
+    from eol_cal.analysis.fit.motor_fit import at_line_noise, takes_line_noise
     from eol_cal.analysis.fit.segment_noise import segment_noise
     from eol_cal.firmware.options import options_label
 
     # the intervals at the noise each harmonic has at its own frequency, measured once for them and
-    # for the model check's speed bands
-    noise = segment_noise(mi.segments, spec, fit.delay_s) if fit.converged else None
+    # for the model check's speed bands; a fit whose intervals keep the white noise (fewer than 7
+    # segments) leaves the model check to measure the 6th's alone, when it gets that far
+    noise = segment_noise(mi.segments, spec, fit.delay_s) if takes_line_noise(fit) else None
     if noise is not None:
         fit = at_line_noise(fit, spec, noise.row_variance())
     g6 = path_gain(mi.segments, FitSpec(harmonics=(6,)))[:, 0]

@@ -33,7 +33,7 @@ import numpy as np
 from eol_cal.analysis import fingerprint as fpr
 from eol_cal.analysis.fit import path_gain
 from eol_cal.analysis.fit.fp_angle import edge_residual_correlation, window_prints
-from eol_cal.analysis.fit.model import Z95, legendre_rows, line_noise, noise_bins, transducer_gain
+from eol_cal.analysis.fit.model import Z95, bin_steps, legendre_rows, line_noise, noise_bins, transducer_gain
 from eol_cal.analysis.fit.motor_fit import amp_phase, excess_t, wider_per_quantity
 from eol_cal.analysis.fit.plot import fitted_ripple
 from eol_cal.analysis.motor_result import MECH_OFF, MECH_OK, MechOrder, MechResult, ValueCi
@@ -311,14 +311,16 @@ def order_noise(res: np.ndarray, cur_res: np.ndarray | None, th_m: np.ndarray, t
     rates = list(ORDERS) + [h * pole_pairs for h in spec.harmonics if pole_pairs]
     lines = np.concatenate([[0.0], np.outer(rates, [w_m, -w_m]).ravel()])
     out = np.empty(len(ORDERS))
+    b = 2 * math.pi * (t - t[0]) / T
+    rows = bin_steps(b, k).T  # (bins, n), shared by the orders: an order's bins are whole rows
     for i, h in enumerate(ORDERS):
         omega = h * w_m + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
         ok = np.min(np.abs(omega[:, None] - lines[None, :]), axis=1) >= 2 * math.pi * NOISE_GAP / T
         if not ok.any():
             out[i] = float(res @ res) / n
             continue
-        out[i] = line_noise(res, cur_res, h * (th_m - th_m[0]), 2 * math.pi * (t - t[0]) / T, k[ok], omega[ok],
-                            spec, tau_s, path) * n / 2.0
+        out[i] = line_noise(res, cur_res, h * (th_m - th_m[0]), b, k[ok], omega[ok], spec, tau_s, path,
+                            steps=rows[ok].T) * n / 2.0
     return out
 
 def fit_mech(mi: MotorInput, fit: MotorFit, spec: FitSpec, tick_hz: float, threshold: float = SWITCH_MARGIN,

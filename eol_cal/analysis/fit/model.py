@@ -218,15 +218,20 @@ def bin_steps(b: np.ndarray, k: np.ndarray) -> np.ndarray:
     """``exp(-i b k)`` (n, bins) for integer ``k`` (each at least 1 or at most -1): a line's bins are
     its turn ``exp(-i a)`` times them (:func:`line_noise`), the same for every line of a segment.
     Powers of ``exp(-i b)`` instead of one complex exponential per sample and bin (a refit's model
-    check spent 30 % of its time in them); the same values within the rounding of the phase itself."""
+    check spent 30 % of its time in them); the same values within the rounding of the phase itself.
+    Returned as the transpose of a contiguous (bins, n) array: a bin's column is one contiguous row
+    (``.T[keep].T`` picks bins by a copy of whole rows; gathering and conjugating the columns of an
+    (n, bins) array cost 8 ms of a 13 000-sample segment, 20x the products that read them)."""
     step = np.exp(-1j * b)
     top = int(np.max(np.abs(k)))
     powers = np.empty((top + 1, len(b)), dtype=complex)  # step ** 0 .. step ** top
     powers[0] = 1.0
     for j in range(1, top + 1):
-        powers[j] = powers[j - 1] * step
+        np.multiply(powers[j - 1], step, out=powers[j])
     ki = k.astype(int)
-    return np.where(ki[None, :] > 0, powers[np.abs(ki)].T, np.conj(powers[np.abs(ki)].T))  # exp(-i b)^-k = conj
+    rows = powers[np.abs(ki)]
+    np.conjugate(rows, out=rows, where=(ki < 0)[:, None])  # exp(-i b)^-k = conj
+    return rows.T
 
 
 def line_noise(res: np.ndarray, cur_res: np.ndarray | None, a: np.ndarray, b: np.ndarray, k: np.ndarray,

@@ -213,7 +213,8 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
         bands that agree but could not see a mode up to :data:`RESONANCE_TOP_HZ` give ``insensitive``.
     noise : SegmentNoise, optional
         The segments' noise at the 6th (:func:`~eol_cal.analysis.fit.segment_noise.segment_noise`
-        at the fit's delay), when the caller measured it already for the joint fit's intervals.
+        at the fit's delay), when the caller measured it already for the joint fit's intervals; else
+        the 6th's alone is measured here, once the bands' fits converged.
     """
     from scipy.special import fdtrc  # scipy.stats' f.sf (above)
 
@@ -238,7 +239,7 @@ def check_model(seg: SteadySegments, fit: MotorFit, spec: FitSpec, p_min: float,
         return ModelCheck("not checked", "a speed band's fit did not converge", bench=bench)
     # each band's covariance at the noise its 6th actually has (module docstring)
     if noise is None:
-        noise = segment_noise(seg, spec, fit.delay_s)
+        noise = segment_noise(seg, spec, fit.delay_s, harmonics=(6,))
     ratios = [noise.ratio(idx) for idx, _ in bands]
     fits = [_widened(f, math.sqrt(max(r, 1e-12))) for f, r in zip(fits, ratios, strict=True)]
     dof_noise = int(sum(noise.dof[idx, noise.harmonics.index(6)].sum() for idx, _ in bands))

@@ -335,9 +335,17 @@ def at_line_noise(fit: MotorFit, spec: FitSpec, row_var: np.ndarray) -> MotorFit
     two segments, cogging leaking into k6: Birge 2.16 -> 1.07, k6's interval 6.4 -> 4.0 % of k6 against
     an error of 5.1 %; tests/test_fit_cli.py).
     """
-    if fit.parts is None or not fit.converged or fit.parts.scatter is None or row_var.shape != fit.parts.res.shape:
+    if fit.parts is None or not takes_line_noise(fit) or row_var.shape != fit.parts.res.shape:
         return fit
     harmonics, cov6, delay_ci, birge, cov = _intervals(fit.parts, spec, row_var)
     if not np.all(np.isfinite(np.diag(cov))):
         return fit
     return dataclasses.replace(fit, harmonics=harmonics, cov6=cov6, delay_ci95=float(delay_ci), birge=birge)
+
+
+def takes_line_noise(fit: MotorFit) -> bool:
+    """Whether :func:`at_line_noise` makes ``fit``'s intervals again (else it returns the fit as it
+    is): a converged fit of at least :data:`MIN_SEGMENTS_SCATTER` segments. A caller measures the
+    noise at every harmonic only then (:func:`~eol_cal.analysis.fit.segment_noise.segment_noise`:
+    a refit's fits of six segments read the 6th's alone, in the model check)."""
+    return fit.parts is not None and fit.converged and fit.parts.scatter is not None

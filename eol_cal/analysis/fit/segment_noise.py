@@ -85,7 +85,8 @@ def _clear_bins(bins: np.ndarray, f_line: float, drift_degree: int) -> np.ndarra
     return keep & once
 
 
-def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float) -> SegmentNoise:
+def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
+                  harmonics: tuple[int, ...] | None = None) -> SegmentNoise:
     """Measure :class:`SegmentNoise` on every segment (module docstring).
 
     Parameters
@@ -96,9 +97,13 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float) -> SegmentNo
         The model: its columns, harmonics and transducer.
     tau_s : float
         The transducer's time constant or delay (s): the current's noise reaches the shaft through it.
+    harmonics : tuple of int, optional
+        The harmonics to measure (default ``spec.harmonics``; the model check reads the 6th alone).
+        Each is measured as it would be with the others: the segment is fitted on all the model's columns.
     """
+    harmonics = tuple(spec.harmonics) if harmonics is None else tuple(harmonics)
     bins = noise_bins()
-    S, H = seg.n_segments, len(spec.harmonics)
+    S, H = seg.n_segments, len(harmonics)
     var_pair, var_white, n_s = np.zeros((S, H)), np.zeros(S), np.zeros(S)
     dof = np.zeros((S, H), dtype=int)
     for s in range(S):
@@ -112,15 +117,15 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float) -> SegmentNo
         res = Y - Q @ (Q.T @ Y)
         n, T = len(t), float(t[-1] - t[0])
         b = 2 * math.pi * (t - t[0]) / T
-        steps = bin_steps(b, bins)  # shared by the segment's lines
+        rows = bin_steps(b, bins).T  # (bins, n), shared by the segment's lines: a line's bins are whole rows
         cur = res[:, 1] if seg.kt_iq is not None else None
-        for j, h in enumerate(spec.harmonics):
+        for j, h in enumerate(harmonics):
             keep = _clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)
             k = bins[keep]
             omega = h * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
             var_pair[s, j] = line_noise(res[:, 0], cur, h * (theta - theta[0]), b, k, omega, spec, tau_s,
-                                        seg.path_response, basis=Q, steps=steps[:, keep])
+                                        seg.path_response, basis=Q, steps=rows[keep].T)
             dof[s, j] = 2 * len(k)
         var_white[s] = 2.0 * float(res[:, 0] @ res[:, 0]) / max(n - A.shape[1], 1) / n
         n_s[s] = n
-    return SegmentNoise(tuple(spec.harmonics), var_pair, var_white, n_s, dof)
+    return SegmentNoise(harmonics, var_pair, var_white, n_s, dof)

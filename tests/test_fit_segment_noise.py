@@ -1,0 +1,95 @@
+"""The noise at the harmonics (analysis/fit/segment_noise.py) measured for less work, with the same
+numbers (issue 37 item 2): the bins' exponentials in whole rows, the 6th alone where only the model
+check reads it, and no measurement at all where the intervals keep the white noise."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from eol_cal.analysis.fit import FitSpec, fit_segments
+from eol_cal.analysis.fit.model import bin_steps, noise_bins
+from eol_cal.analysis.fit.motor_fit import MIN_SEGMENTS_SCATTER, at_line_noise, takes_line_noise
+from eol_cal.analysis.fit.segment_noise import segment_noise
+from eol_cal.analysis.fit.synth import synthetic_segments
+
+
+def _path(omega):
+    w0, zeta = 2 * math.pi * 250.0, 0.1
+    r = np.abs(np.asarray(omega, dtype=float)) / w0
+    g = 1.0 / (1.0 - r * r + 2j * zeta * r)
+    return np.where(np.asarray(omega) < 0, np.conj(g), g)
+
+
+def test_bin_steps_are_the_bins_exponentials_as_the_powers_spelled_them():
+    b = 2 * math.pi * np.linspace(0.0, 1.0, 1237)
+    k = noise_bins()
+    steps = bin_steps(b, k)
+    # the construction before (every bin's column gathered from the powers and conjugated in place)
+    step = np.exp(-1j * b)
+    powers = np.empty((10, len(b)), dtype=complex)
+    powers[0] = 1.0
+    for j in range(1, 10):
+        powers[j] = powers[j - 1] * step
+    ki = k.astype(int)
+    before = np.where(ki[None, :] > 0, powers[np.abs(ki)].T, np.conj(powers[np.abs(ki)].T))
+    assert steps.shape == (len(b), len(k)) and np.array_equal(steps, before)
+    assert np.allclose(steps, np.exp(-1j * np.outer(b, k)), rtol=0.0, atol=1e-12)
+
+
+def test_the_6th_alone_is_the_6th_of_every_harmonic():
+    # with the ECU's current (iq6) and a bench response: every branch of line_noise
+    seg, _ = synthetic_segments(np.random.default_rng(5), speeds_rpm=(300.0, 600.0), loads_a=(20.0, 60.0),
+                                seg_s=0.1, noise_nm=0.005, iq6=(0.02, 0.3), path_response=_path)
+    assert seg.kt_iq is not None
+    spec = FitSpec()
+    every = segment_noise(seg, spec, 1.5e-4)
+    sixth = segment_noise(seg, spec, 1.5e-4, harmonics=(6,))
+    assert every.harmonics == (6, 12, 18) and sixth.harmonics == (6,)
+    assert np.array_equal(sixth.var_pair[:, 0], every.var_pair[:, 0])
+    assert np.array_equal(sixth.dof[:, 0], every.dof[:, 0])
+    assert np.array_equal(sixth.var_white, every.var_white) and np.array_equal(sixth.n, every.n)
+    idx = np.arange(seg.n_segments)
+    assert sixth.ratio(idx) == every.ratio(idx)
+
+
+def test_the_noise_is_measured_for_the_intervals_only_where_they_take_it():
+    spec = FitSpec()
+    few, _ = synthetic_segments(np.random.default_rng(1), speeds_rpm=(300.0, 600.0), loads_a=(20.0, 60.0),
+                                seg_s=0.1, noise_nm=0.005)
+    many, _ = synthetic_segments(np.random.default_rng(1), speeds_rpm=(300.0, 600.0), loads_a=(20.0, 60.0),
+                                 directions=(1, -1), seg_s=0.1, noise_nm=0.005)
+    assert few.n_segments < MIN_SEGMENTS_SCATTER <= many.n_segments
+    fit_few, fit_many = fit_segments(few, spec), fit_segments(many, spec)
+    assert fit_few.converged and fit_many.converged
+    assert not takes_line_noise(fit_few) and takes_line_noise(fit_many)
+    # where it does not, the intervals stay the white noise's whatever the noise measured
+    row_var = segment_noise(few, spec, fit_few.delay_s).row_variance()
+    assert at_line_noise(fit_few, spec, row_var) is fit_few
+    moved = at_line_noise(fit_many, spec, segment_noise(many, spec, fit_many.delay_s).row_variance())
+    assert moved.harmonics[6]["k"].ci95 != fit_many.harmonics[6]["k"].ci95
+
+
+def test_the_orders_noise_shares_its_segments_bins_with_the_same_values():
+    # mech_orders.order_noise builds the segment's bins once for its orders: each order's figure is
+    # line_noise's with the bins built for that order alone (the code before), bit for bit
+    from eol_cal.analysis.fit.mech_orders import NOISE_GAP, ORDERS, order_noise
+    from eol_cal.analysis.fit.model import line_noise
+
+    rng = np.random.default_rng(3)
+    t = np.arange(6000) / 20000.0
+    w_m = 2 * math.pi * 2.0  # 120 rpm
+    th_m = w_m * t + 0.002 * np.sin(2 * math.pi * 37.0 * t)
+    res, cur = rng.normal(0.0, 0.01, len(t)), rng.normal(0.0, 0.004, len(t))
+    spec = FitSpec()
+    got = order_noise(res, cur, th_m, t, w_m, spec, 1.5e-4, _path, pole_pairs=3)
+    n, T, k = len(t), float(t[-1] - t[0]), noise_bins()
+    lines = np.concatenate([[0.0], np.outer(list(ORDERS) + [h * 3 for h in spec.harmonics], [w_m, -w_m]).ravel()])
+    for i, h in enumerate(ORDERS):
+        omega = h * w_m + 2 * math.pi * k / T
+        ok = np.min(np.abs(omega[:, None] - lines[None, :]), axis=1) >= 2 * math.pi * NOISE_GAP / T
+        assert ok.any()
+        alone = line_noise(res, cur, h * (th_m - th_m[0]), 2 * math.pi * (t - t[0]) / T, k[ok], omega[ok], spec,
+                           1.5e-4, _path) * n / 2.0
+        assert got[i] == alone
