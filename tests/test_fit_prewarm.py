@@ -64,3 +64,37 @@ def test_after_the_prewarm_on_the_profiles_points_the_fit_and_its_model_check_tr
     # without the profile's points the model check's band solver is traced by the fit (what an
     # `eol-cal run` process paid in its fit step): the count above can see a build
     assert _builds("grid")["built"] != []
+
+
+_CACHED = r"""
+import json, sys
+import numpy as np
+from eol_cal.analysis.fit import FitSpec, fit_many, solver
+from eol_cal.analysis.fit.model_check import check_model
+from eol_cal.analysis.fit.synth import synthetic_segments
+
+built = []
+build = solver.build_solver
+solver.build_solver = lambda spec, S: built.append(S) or build(spec, S)
+seg, _ = synthetic_segments(np.random.default_rng(int(sys.argv[2])), k6=0.0007, c6=0.003, loads_a=(20.0, 40.0),
+                            speeds_rpm=(60.0, 120.0), directions=(1,), seg_s=0.12, fs_hz=10000.0)
+(fit,) = fit_many([seg], FitSpec(), mode="loop", cache_dir=sys.argv[1])
+check = check_model(seg, fit, FitSpec(), 0.05, cache_dir=sys.argv[1])
+print(json.dumps({"built": built, "status": check.status}))
+"""
+
+
+@pytest.mark.slow  # two fresh interpreters that import JAX and trace or load the solvers: ~20 s
+def test_the_model_checks_band_solver_is_kept_in_the_fits_cache_between_processes(tmp_path):
+    """``eol-cal fit`` (no pre-warming) traced the speed bands' solver in every process: with the
+    fit's cache directory the second process, another capture, builds neither solver."""
+    def run(seed: int) -> dict:
+        out = subprocess.run([sys.executable, "-c", _CACHED, str(tmp_path), str(seed)], cwd=ROOT, capture_output=True,
+                             text=True, timeout=600, env=dict(os.environ, EOL_CAL_JAX_CACHE="off"))
+        assert out.returncode == 0, out.stderr[-3000:]
+        return json.loads(out.stdout.strip().splitlines()[-1])
+
+    first = run(1)
+    assert first["status"] != "not checked" and len(first["built"]) == 2  # the joint fit's and the bands'
+    second = run(2)
+    assert second["status"] != "not checked" and second["built"] == []

@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import math
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -203,14 +204,16 @@ def motor_result(
 
 
 def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLimits, *, metrics: dict[str, Any],
-                     solver_mode: str, tick_hz: float | None = 20000.0) -> MotorResult:
+                     solver_mode: str, tick_hz: float | None = 20000.0,
+                     cache_dir: str | os.PathLike[str] | None = None) -> MotorResult:
     """:func:`motor_result` for a :class:`~eol_cal.analysis.fit.capture.MotorInput` and its fit.
 
     Moves the phases into the frame ``motor_inputs`` measured (the firmware's by default,
     :func:`eol_cal.analysis.fit.shift_frame`) and fills the per-segment table; ``fit`` itself
     stays in the offline frame (the plots draw it against the offline angle). With ``tick_hz``
     (the firmware's tick, Hz) the mechanical part is measured too
-    (:func:`eol_cal.analysis.fit.mech_orders.fit_mech`); None leaves it out.
+    (:func:`eol_cal.analysis.fit.mech_orders.fit_mech`); None leaves it out. ``cache_dir``: the
+    fit's serialized solvers, for the model check's speed bands.
     """
     import dataclasses
 
@@ -240,7 +243,7 @@ def result_for_motor(mi: MotorInput, fit: MotorFit, spec: FitSpec, limits: CiLim
 
         mech = fit_mech(mi, fit, spec, tick_hz)
     check = check_model(mi.segments, fit, spec, limits.model_p, bench=bench_provenance(mi.mechanics, mi.captures),
-                        noise=noise)
+                        noise=noise, cache_dir=cache_dir)
     return motor_result(
         mi.serial, shift_frame(fit, mi.frame_offset_rad, mi.frame_sd_rad), spec, limits, kt=mi.kt, kt_source=mi.kt_source,
         mech=mech,

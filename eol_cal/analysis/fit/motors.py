@@ -214,6 +214,6 @@ def fit_inputs(
             if options.capture_metrics:
                 metrics["captures"] = [prepared.metrics_of(c, a) for c, a in zip(mi.captures, mi.angles, strict=True)]
             results.append(result_for_motor(mi, f, options.spec, options.limits, metrics=metrics, solver_mode=mode,
-                                            tick_hz=tick_hz))
+                                            tick_hz=tick_hz, cache_dir=options.cache_dir))
     created = dt.datetime.now(dt.UTC).replace(microsecond=0)
     return MotorsFit(results, inputs, fits, mode, options.limits, tool_version, created)

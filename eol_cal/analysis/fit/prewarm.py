@@ -64,7 +64,7 @@ def prewarm_fit(n_segments: int, cache_dir: str | os.PathLike[str] | None = None
         if points is not None:
             from eol_cal.analysis.fit.model_check import check_model
 
-            check_model(seg, fit, FitSpec(), _P_MIN)
+            check_model(seg, fit, FitSpec(), _P_MIN, cache_dir=cache_dir)
     except Exception:  # noqa: BLE001 - the step that needs it reports a real failure
         pass
 
