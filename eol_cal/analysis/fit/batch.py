@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, compress, compressed_dict
+from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, Compressed, compress_many, compressed_dict
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
@@ -85,10 +85,10 @@ def fit_many(
     progress : callable, optional
         Called with the number of motors finished after each chunk.
     threads : int
-        Worker threads that compress ahead of the solve (numpy releases the GIL in its kernels);
-        0 (default) compresses in this thread, chunk by chunk. On the 2-core machine of
-        docs/benchmarks.md 1 or 2 workers measured no faster than none: the kernels of an
-        8000-sample block are short and the threads mostly wait for the GIL between them.
+        Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
+        (their columns built by a few long numpy kernels and their products by BLAS, all outside the
+        GIL); 0 (default) compresses in this thread. Two workers beside the solve and the unpacking
+        keep both cores of a 2-core machine busy (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
@@ -111,8 +111,7 @@ def fit_many(
     results: list[MotorFit] = []
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     try:
-        # every compression queued up front (a few kB of result per motor): the workers run ahead
-        futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -124,10 +123,7 @@ def fit_many(
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
-                if futures:
-                    comps = [f.result() for f in futures[start : start + step]]
-                else:
-                    comps = [compress(m, spec, S) for m in block]
+                comps = [next(comps_in_order) for _ in block]
                 if mode == "loop":
                     args = (compressed_dict(comps[0]), grid_j)
                     if save_export:
@@ -156,6 +152,25 @@ def fit_many(
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
+
+
+#: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
+#: columns built side by side, one unit of work of the compression's threads
+COMPRESS_BLOCK = 16
+
+
+def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
+                  pool: ThreadPoolExecutor | None) -> Iterator[Compressed]:
+    """Each motor's compression, in order: ``block`` motors at a time, in this thread or queued on
+    ``pool`` all at once (a few kB of result a motor: the workers run ahead of the solve)."""
+    starts = range(0, len(motors), block)
+    if pool is None:
+        for a in starts:
+            yield from compress_many(motors[a : a + block], spec, S)
+        return
+    futures = [pool.submit(compress_many, motors[a : a + block], spec, S) for a in starts]
+    for f in futures:
+        yield from f.result()
 
 
 def _taking_steps(exported: Callable) -> Callable:
