@@ -66,8 +66,13 @@ class Compressed:
     cur_im: np.ndarray
 
 
-#: Samples per piece: a longer segment is compressed piece by piece, the pieces' products summed.
+#: Samples per piece at most: a longer segment is compressed piece by piece, the pieces' products
+#: summed (a piece is shorter where :data:`_SMALL_GEMM` asks).
 _BLOCK = 8000
+#: OpenBLAS's small-matrix GEMM (no packing of the operands) serves products of M*N*K up to 100^3:
+#: a piece's ``[X y]^T [X y]`` as two halves of rows (numpy's ``A @ A.T`` is SYRK, which packs) of at
+#: most this many multiplications each runs in 12 ns a sample against SYRK's 25 (16 columns).
+_SMALL_GEMM = 100**3
 #: Samples whose columns one numpy call builds: the pieces of several segments (of several motors)
 #: side by side in one buffer (a few long kernels instead of ~30 short ones a segment: the GIL is
 #: held between kernels only, so threads compress side by side), each piece's products one BLAS call.
@@ -109,14 +114,14 @@ def _segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, kt_iq: np.nda
                     pole_pairs, tuple(float(y.mean()) for y in signals), mech_span(theta, pole_pairs))
 
 
-def _groups(segs: list[_Segment]) -> Iterator[list[tuple[int, int, int]]]:
-    """The segments' pieces ``(segment, first, end)`` (at most :data:`_BLOCK` samples) in groups of at
+def _groups(segs: list[_Segment], piece: int) -> Iterator[list[tuple[int, int, int]]]:
+    """The segments' pieces ``(segment, first, end)`` (at most ``piece`` samples) in groups of at
     most :data:`_GROUP` samples (or one piece) of one pole-pair count."""
     group: list[tuple[int, int, int]] = []
     size = 0
     for i, sg in enumerate(segs):
-        for a in range(0, len(sg.theta), _BLOCK):
-            b = min(a + _BLOCK, len(sg.theta))
+        for a in range(0, len(sg.theta), piece):
+            b = min(a + piece, len(sg.theta))
             if group and (size + b - a > _GROUP or segs[group[0][0]].pole_pairs != sg.pole_pairs):
                 yield group
                 group, size = [], 0
@@ -131,7 +136,12 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
     the torque (and ``kt * i_q``, zeros where a segment has none) about their means."""
     m = spec.n_cols
     G = np.zeros((len(segs), m + k, m + k))
-    for group in _groups(segs):
+    Gp = np.empty((m + k, m + k))
+    h = (m + k + 1) // 2
+    # the pieces sized for the widest product (a current channel's row too), whatever this batch
+    # carries: a segment's figures do not depend on the motors compressed beside it
+    longest = max(1, min(_BLOCK, _SMALL_GEMM // ((m + 3) // 2 * (m + 2))))
+    for group in _groups(segs, longest):
         N = sum(b - a for _, a, b in group)
         buf, work = _work_buffers((m + k + 2) * N, N)
         XT = buf[: (m + k) * N].reshape(m + k, N)
@@ -154,9 +164,11 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
         for i, a, b in group:
             Xp = XT[:, o : o + b - a]
             unresolved_to_zero(Xp, spec, segs[i].mech)
-            # X^T X, X^T y and y^T y in one product (numpy's BLAS call releases the GIL; scipy's
-            # dgemm wrapper held it for ~40 % of a compression)
-            G[i] += Xp @ Xp.T
+            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`);
+            # numpy's BLAS call releases the GIL (scipy's dgemm wrapper held it)
+            np.matmul(Xp[:h], Xp.T, out=Gp[:h])
+            np.matmul(Xp[h:], Xp.T, out=Gp[h:])
+            G[i] += Gp
             o += b - a
     return G
 
