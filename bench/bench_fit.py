@@ -233,7 +233,8 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
         for _ in range(rounds):
             for name, code in codes.items():
                 out = os.path.join(d, f"{name}.json")
-                env = dict(os.environ, PYTHONPATH=code)
+                # bytecode under the run's own prefix: nothing is written into a checkout
+                env = dict(os.environ, PYTHONPATH=code, PYTHONPYCACHEPREFIX=os.path.join(d, f"pycache-{name}"))
                 subprocess.run([sys.executable, os.path.abspath(__file__), "--batch-worker", npz, out, "--chunk", str(chunk),
                                 "--harmonics", harmonics], env=env, check=True)
                 got.setdefault(name, []).append(json.loads(Path(out).read_text()))
