@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import os
 from collections.abc import Callable, Iterator
@@ -59,7 +60,7 @@ def fit_many(
     chunk: int = 64,
     sources: list[str | None] | None = None,
     progress: Callable[[int], None] | None = None,
-    threads: int = 0,
+    threads: int | None = None,
     cache_dir: str | os.PathLike[str] | None = None,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
@@ -84,11 +85,12 @@ def fit_many(
         Per motor, named in errors.
     progress : callable, optional
         Called with the number of motors finished after each chunk.
-    threads : int
+    threads : int, optional
         Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
         (their columns built by a few long numpy kernels and their products by BLAS, all outside the
-        GIL); 0 (default) compresses in this thread. Two workers beside the solve and the unpacking
-        keep both cores of a 2-core machine busy (docs/benchmarks.md).
+        GIL); 0 compresses in this thread. ``None`` (default): :func:`compression_threads`, two
+        workers for a batch of 32 motors or more on a machine of two cores or more, which keep
+        both cores of a 2-core machine busy beside the solve and the unpacking (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
@@ -109,6 +111,8 @@ def fit_many(
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
     grid = tau_grid(spec, omega_max)
     results: list[MotorFit] = []
+    if threads is None:
+        threads = compression_threads(len(motors))
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     try:
         comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool)
@@ -154,6 +158,16 @@ def fit_many(
     return results
 
 
+def compression_threads(n_motors: int) -> int:
+    """The compression's worker threads ``fit_many(threads=None)`` uses for ``n_motors``: 2 from two
+    :data:`COMPRESS_BLOCK` s of motors on where this process may run on two cores or more, else 0.
+
+    Two, not one: the compression is ~2/3 of a capture's CPU (docs/benchmarks.md), so one worker
+    would be the critical path while this thread's solve and unpacking wait for it."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 2 if cores >= 2 and n_motors >= 2 * COMPRESS_BLOCK else 0
+
+
 #: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
 #: columns built side by side, one unit of work of the compression's threads
 COMPRESS_BLOCK = 16
@@ -168,7 +182,8 @@ def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: in
         for a in starts:
             yield from compress_many(motors[a : a + block], spec, S)
         return
-    futures = [pool.submit(compress_many, motors[a : a + block], spec, S) for a in starts]
+    # each in this thread's context: a shared_compression scope's segments are shared with the workers
+    futures = [pool.submit(contextvars.copy_context().run, compress_many, motors[a : a + block], spec, S) for a in starts]
     for f in futures:
         yield from f.result()
 

@@ -440,7 +440,9 @@ def design_rows(theta: np.ndarray, tn: np.ndarray, pole_pairs: int, spec: FitSpe
             e_j = e
         out[q - nm + 2 * j] = e_j.real
         out[q - nm + 2 * j + 1] = e_j.imag
-    _cpow_into(e_m, 6 * pole_pairs, e, sq)  # e: exp(6 i theta)
+    # e: exp(6 i theta), a power of the highest mechanical order's (e_m^18 is e_3^6: 3 products, not 5)
+    top = spec.n_mech if (6 * pole_pairs) % spec.n_mech == 0 else 1
+    _cpow_into(e_j if top > 1 else e_m, 6 * pole_pairs // top, e, sq)
     cur, order = e, 6
     for i, h in enumerate(spec.harmonics):
         if h != order:
