@@ -12,6 +12,7 @@ relative (a short segment's Cholesky factor amplifies that rounding by its condi
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import numpy as np
 import pytest
@@ -81,8 +82,9 @@ def test_fits_with_compression_threads_equal_those_without():
     rng = np.random.default_rng(9)
     motors = [synthetic_segments(rng, seg_s=0.05, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0))[0] for _ in range(40)]
     spec = fit.FitSpec()
-    inline = fit.fit_many(motors, spec, mode="map", chunk=20)
-    threaded = fit.fit_many(motors, spec, mode="map", chunk=20, threads=2)
+    inline = fit.fit_many(motors, spec, mode="map", chunk=20, threads=0)
+    assert fit.batch.compression_threads(len(motors)) == (2 if len(os.sched_getaffinity(0)) >= 2 else 0)
+    threaded = fit.fit_many(motors, spec, mode="map", chunk=20)  # the default: two workers here
     for a, b in zip(inline, threaded, strict=True):
         assert a.harmonics[6]["k"].value == b.harmonics[6]["k"].value and a.delay_s == b.delay_s
         assert np.array_equal(a.coef, b.coef) and a.converged
@@ -113,3 +115,19 @@ def test_design_columns_are_the_plain_trigonometric_and_legendre_functions():
     mech = [f(j * theta / seg.pole_pairs) for j in range(1, spec.n_mech + 1) for f in (np.cos, np.sin)]
     harm = [f(h * theta) for h in spec.harmonics for f in (np.sin, np.cos)]
     np.testing.assert_allclose(X, np.column_stack([legendre, *mech, *harm]), rtol=0, atol=1e-12)
+
+
+def test_the_compression_threads_share_a_shared_compression_scope(monkeypatch):
+    """Within ``shared_compression`` the workers' compressions are the scope's: a segment the batch
+    compressed in a worker is not compressed again in this thread."""
+    rng = np.random.default_rng(10)
+    motors = [synthetic_segments(rng, seg_s=0.05, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0))[0] for _ in range(4)]
+    spec = fit.FitSpec()
+    calls = []
+    real = compression.mech_span
+    monkeypatch.setattr(compression, "mech_span", lambda *a, **kw: calls.append(1) or real(*a, **kw))
+    with compression.shared_compression():
+        fit.fit_many(motors, spec, mode="map", chunk=2, threads=2)
+        assert len(calls) == sum(m.n_segments for m in motors)
+        compress(motors[3], spec)
+        assert len(calls) == sum(m.n_segments for m in motors)  # the worker's figures, shared
