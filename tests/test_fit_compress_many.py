@@ -93,7 +93,7 @@ def test_fits_with_compression_threads_equal_those_without():
 def test_exp_i_is_numpys_complex_exponential_within_an_ulp():
     """The compression's exp(i x) (a table and the rest's series) against numpy's (glibc's sincos):
     within 2.5e-16 over angles up to 8e5 rad, negative ones, and the table's own steps."""
-    from eol_cal.analysis.fit.model import exp_i
+    from eol_cal.numerics.expi import exp_i
 
     rng = np.random.default_rng(3)
     x = np.concatenate([rng.uniform(-1, 1, 5000), rng.uniform(-8e5, 8e5, 5000), np.arange(-2048, 2048) * (np.pi / 512),
