@@ -118,11 +118,11 @@ def main() -> None:
     t0 = time.perf_counter()
     for m in motors[:200]:
         compress(m, spec)
-    print(f"compression alone (1 thread): {(time.perf_counter() - t0) / 200 * 1e3:.2f} ms per capture")
+    print(f"compression alone (1 thread): {(time.perf_counter() - t0) / len(motors[:200]) * 1e3:.2f} ms per capture")
     with ThreadPoolExecutor(2) as pool:
         t0 = time.perf_counter()
         list(pool.map(lambda m: compress(m, spec), motors[:400]))
-    print(f"compression alone (2 threads): {(time.perf_counter() - t0) / 400 * 1e3:.2f} ms per capture (wall)")
+    print(f"compression alone (2 threads): {(time.perf_counter() - t0) / len(motors[:400]) * 1e3:.2f} ms per capture (wall)")
 
     # scipy on the same model and data
     sc_times, dk = [], []
