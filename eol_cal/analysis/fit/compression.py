@@ -133,11 +133,13 @@ def _groups(segs: list[_Segment], piece: int) -> Iterator[list[tuple[int, int, i
 
 def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
     """Per segment ``[X y]^T [X y]`` (segments, m+k, m+k): the columns ``X`` (:func:`design_rows`),
-    the torque (and ``kt * i_q``, zeros where a segment has none) about their means."""
+    the torque (and ``kt * i_q``, zeros where a segment has none) about their means. Each segment's
+    products have its own width (``m + 1``, or ``m + 2`` with a current channel), whatever the
+    others carry: its figures do not depend on the motors compressed beside it."""
     m = spec.n_cols
     G = np.zeros((len(segs), m + k, m + k))
-    Gp = np.empty((m + k, m + k))
-    h = (m + k + 1) // 2
+    # per width, the piece's product (its lower left block stays zero: below) and its first half's rows
+    Gp = {w: (np.zeros((w, w)), (w + 1) // 2) for w in (m + 1, m + k)}
     # the pieces sized for the widest product (a current channel's row too), whatever this batch
     # carries: a segment's figures do not depend on the motors compressed beside it
     longest = max(1, min(_BLOCK, _SMALL_GEMM // ((m + 3) // 2 * (m + 2))))
@@ -155,21 +157,23 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
             np.subtract(sg.torque[a:b], sg.means[0], out=XT[m, piece])
             if sg.kt_iq is not None:
                 np.subtract(sg.kt_iq[a:b], sg.means[1], out=XT[m + 1, piece])
-            elif k > 1:
-                XT[m + 1, piece] = 0.0
             o += b - a
         tn -= 1.0
         design_rows(theta, tn, segs[group[0][0]].pole_pairs, spec, XT, work)
         o = 0
         for i, a, b in group:
-            Xp = XT[:, o : o + b - a]
+            w = m + 1 + (segs[i].kt_iq is not None)
+            Xp, (Gw, h) = XT[:w, o : o + b - a], Gp[w]
             unresolved_to_zero(Xp, spec, segs[i].mech)
-            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`);
+            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`),
+            # the lower half's upper triangle only (one column more: numpy's A @ A.T is SYRK);
             # numpy's BLAS call releases the GIL (scipy's dgemm wrapper held it)
-            np.matmul(Xp[:h], Xp.T, out=Gp[:h])
-            np.matmul(Xp[h:], Xp.T, out=Gp[h:])
-            G[i] += Gp
+            np.matmul(Xp[:h], Xp.T, out=Gw[:h])
+            np.matmul(Xp[h:], Xp[h - 1 :].T, out=Gw[h:, h - 1 :])
+            G[i, :w, :w] += Gw
             o += b - a
+    low, high = np.tril_indices(m + k, -1)
+    G[:, low, high] = G[:, high, low]  # the lower triangle from the upper (the kernel's products are symmetric)
     return G
 
 
