@@ -254,7 +254,7 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
 def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: int | None = None) -> list[Compressed]:
     """:func:`compress` of each motor, their segments' columns built side by side (a few long numpy
     kernels for them all: :data:`_GROUP`) and their small factorisations batched."""
-    S = n_segments or max(seg.n_segments for seg in motors)
+    S = n_segments or max((seg.n_segments for seg in motors), default=0)
     memo = _SHARED.get()
     todo: dict[tuple[Any, ...], int] = {}  # a segment's key -> its index in segs
     segs: list[_Segment] = []
