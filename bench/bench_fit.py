@@ -6,7 +6,15 @@ write is scipy.optimize.least_squares on the same model over every sample
 (:mod:`eol_cal.analysis.fit.scipy_ref`); both run here on the same data, and the fits are compared.
 
     python bench/bench_fit.py [--captures 1000] [--scipy 5] [--cli] [--threads N]
+    python bench/bench_fit.py --batch [--captures 400] [--chunk 100] [--rounds 1] [--baseline DIR ...]
     python bench/bench_fit.py --startup [--rounds 5] [--baseline DIR] [--same]
+
+``--batch`` times the batched fit alone: ``fit_many`` in each mode (loop, map, vmap; inline and with
+compression threads), captures/s (wall) and CPU ms a capture (user + system of every thread), and the
+compression alone; each checkout (this one, then each ``--baseline DIR``, alternating ``--rounds``
+times) in a process of its own on the same captures (generated here, handed over in a file), its
+``eol_cal`` imported from the checkout; the fits' k6, c6, their phases and the delay compared with
+this checkout's (largest relative difference).
 
 ``--startup`` times the command line alone, from process start to its end: ``eol-cal --help``,
 ``eol-cal capture info`` and ``eol-cal fit`` (warm: its cache filled by a first run) on one 1 s
@@ -31,6 +39,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,28 +53,33 @@ def main() -> None:
     ap.add_argument("--harmonics", default="6,12,18", help="orders fitted (eol-cal fit's default 6,12,18)")
     ap.add_argument("--threads", type=int, default=0, help="compression worker threads (fit_many's default 0: inline)")
     ap.add_argument("--startup", action="store_true", help="only the command line's start-up (see above)")
-    ap.add_argument("--rounds", type=int, default=5, help="--startup: runs of each command per checkout")
-    ap.add_argument("--baseline", default=None, help="--startup: a checkout of older code, side by side")
+    ap.add_argument("--rounds", type=int, default=None, help="runs of each checkout (--startup: of each command, "
+                    "default 5; --batch: default 1)")
+    ap.add_argument("--baseline", action="append", default=[], help="a checkout of older code, side by side "
+                    "(--startup: one; --batch: any number)")
+    ap.add_argument("--batch", action="store_true", help="only the batched fit, side by side (see above)")
+    ap.add_argument("--batch-worker", nargs=2, metavar=("NPZ", "JSON"), help=argparse.SUPPRESS)
     ap.add_argument("--same", action="store_true", help="--startup: fail unless the two checkouts' fits agree")
     args = ap.parse_args()
+    if args.batch_worker:
+        npz, out = args.batch_worker
+        batch_worker(npz, out, chunk=args.chunk, harmonics=args.harmonics)
+        return
     if args.startup:
-        startup(args.rounds, args.baseline, args.same)
+        startup(args.rounds or 5, args.baseline[0] if args.baseline else None, args.same)
+        return
+    if args.batch:
+        batch_side_by_side(args.captures, args.chunk, args.harmonics, args.rounds or 1, args.baseline)
         return
 
     import jax
 
     from eol_cal.analysis.fit import FitSpec, fit_many, fit_segments
     from eol_cal.analysis.fit.scipy_ref import fit_segments_scipy
-    from eol_cal.analysis.fit.synth import synthetic_segments
 
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}, {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}")
-    rng = np.random.default_rng(7)
     t0 = time.perf_counter()
-    motors = [
-        synthetic_segments(rng, seg_s=0.25, fs_hz=20000.0, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0),
-                           k6=rng.uniform(4e-4, 8e-4), phase_k6=rng.uniform(-3, 3), delay_s=rng.uniform(5e-5, 3e-4))[0]
-        for _ in range(args.captures)
-    ]
+    motors = _captures(args.captures)
     n_samples = sum(len(a) for a in motors[0].theta)
     print(f"{args.captures} captures x {n_samples} samples generated in {time.perf_counter() - t0:.1f} s")
     spec = FitSpec(harmonics=tuple(int(h) for h in args.harmonics.split(",")))
@@ -104,12 +118,11 @@ def main() -> None:
     t0 = time.perf_counter()
     for m in motors[:200]:
         compress(m, spec)
-    print(f"compression alone (1 thread): {(time.perf_counter() - t0) / 200 * 1e3:.2f} ms per capture")
+    print(f"compression alone (1 thread): {(time.perf_counter() - t0) / len(motors[:200]) * 1e3:.2f} ms per capture")
     with ThreadPoolExecutor(2) as pool:
         t0 = time.perf_counter()
         list(pool.map(lambda m: compress(m, spec), motors[:400]))
-    print(f"compression alone (2 threads): {(time.perf_counter() - t0) / 400 * 1e3:.2f} ms per capture "
-          "(the GIL between its short numpy kernels: no gain on this machine)")
+    print(f"compression alone (2 threads): {(time.perf_counter() - t0) / len(motors[:400]) * 1e3:.2f} ms per capture (wall)")
 
     # scipy on the same model and data
     sc_times, dk = [], []
@@ -142,6 +155,107 @@ def main() -> None:
                 walls.append(time.perf_counter() - t0)
             print(f"`eol-cal fit` one 1 s capture, process start to JSON: cold cache {walls[0]:.2f} s, "
                   f"warm cache {min(walls[1:]):.2f} s")
+
+
+#: the batched rows: (mode, compression threads)
+BATCH_ROWS = (("loop", 0), ("map", 0), ("vmap", 0), ("map", 1), ("map", 2), ("vmap", 2))
+#: what the checkouts' fits are compared on
+COMPARED = ("k6", "phase_k6", "c6", "phase_c6", "delay_s")
+
+
+def _captures(n: int) -> list:
+    """The batch's captures: 1 s at 20 kHz each, 2 loads x 2 speeds of 0.25 s, random k6, phase, delay."""
+    from eol_cal.analysis.fit.synth import synthetic_segments
+
+    rng = np.random.default_rng(7)
+    return [synthetic_segments(rng, seg_s=0.25, fs_hz=20000.0, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0),
+                               k6=rng.uniform(4e-4, 8e-4), phase_k6=rng.uniform(-3, 3), delay_s=rng.uniform(5e-5, 3e-4))[0]
+            for _ in range(n)]
+
+
+def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
+    """One checkout's batched rows on the captures of ``npz`` (written by :func:`batch_side_by_side`),
+    its figures and fits to ``out`` (JSON)."""
+    import json
+    import resource
+
+    import eol_cal
+    from eol_cal.analysis.fit import FitSpec, SteadySegments, compress, fit_many
+
+    data = np.load(npz)
+    motors = [SteadySegments(theta=[data[f"{i}.theta.{s}"] for s in range(4)], t=[data[f"{i}.t.{s}"] for s in range(4)],
+                             torque=[data[f"{i}.torque.{s}"] for s in range(4)], i_qo=data[f"{i}.i_qo"],
+                             omega_e=data[f"{i}.omega_e"], pole_pairs=int(data["pole_pairs"]))
+              for i in range(int(data["n"]))]
+    spec = FitSpec(harmonics=tuple(int(h) for h in harmonics.split(",")))
+
+    def cpu() -> float:
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        return r.ru_utime + r.ru_stime
+
+    rows, fits = [], None
+    for mode, th in BATCH_ROWS:
+        fit_many(motors[:chunk], spec, mode=mode, chunk=chunk, threads=th)  # compile this shape
+        c0, t0 = cpu(), time.perf_counter()
+        got = fit_many(motors, spec, mode=mode, chunk=chunk, threads=th)
+        wall, used = time.perf_counter() - t0, cpu() - c0
+        rows.append(dict(mode=mode, threads=th, rate=len(motors) / wall, cpu_ms=used / len(motors) * 1e3,
+                         converged=all(f.converged for f in got)))
+        fits = fits or [dict(k6=f.harmonics[6]["k"].value, phase_k6=f.harmonics[6]["k"].phase,
+                             c6=f.harmonics[6]["c"].value, phase_c6=f.harmonics[6]["c"].phase, delay_s=f.delay_s)
+                        for f in got]
+    c0, t0 = cpu(), time.perf_counter()
+    for m in motors:
+        compress(m, spec)
+    one = ((cpu() - c0) / len(motors) * 1e3, (time.perf_counter() - t0) / len(motors) * 1e3)
+    Path(out).write_text(json.dumps(dict(code=os.path.dirname(os.path.dirname(eol_cal.__file__)), rows=rows,
+                                         compress_ms=one, load=os.getloadavg()[0], fits=fits)))
+
+
+def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, baselines: list[str]) -> None:
+    """The batched fit of this checkout and each baseline's, alternating, each in its own process."""
+    import json
+
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    codes = {"this": here, **{f"base{i}": os.path.abspath(b) for i, b in enumerate(baselines)}}
+    with tempfile.TemporaryDirectory() as d:
+        npz = os.path.join(d, "captures.npz")
+        motors = _captures(captures)
+        arrays: dict[str, Any] = {"n": np.array(len(motors)), "pole_pairs": np.array(motors[0].pole_pairs)}
+        for i, m in enumerate(motors):
+            arrays.update({f"{i}.i_qo": m.i_qo, f"{i}.omega_e": m.omega_e})
+            for s in range(m.n_segments):
+                arrays.update({f"{i}.theta.{s}": m.theta[s], f"{i}.t.{s}": m.t[s], f"{i}.torque.{s}": m.torque[s]})
+        np.savez(npz, **arrays)
+        print(f"{captures} captures x 20000 samples, chunk {chunk}, harmonics {harmonics}; "
+              f"{len(os.sched_getaffinity(0))} cores, load at start {os.getloadavg()[0]:.1f}", flush=True)
+        got: dict[str, list[dict]] = {}
+        for _ in range(rounds):
+            for name, code in codes.items():
+                out = os.path.join(d, f"{name}.json")
+                # bytecode under the run's own prefix: nothing is written into a checkout
+                env = dict(os.environ, PYTHONPATH=code, PYTHONPYCACHEPREFIX=os.path.join(d, f"pycache-{name}"))
+                subprocess.run([sys.executable, os.path.abspath(__file__), "--batch-worker", npz, out, "--chunk", str(chunk),
+                                "--harmonics", harmonics], env=env, check=True)
+                got.setdefault(name, []).append(json.loads(Path(out).read_text()))
+        print(f"load at end {os.getloadavg()[0]:.1f}; best of {rounds} round(s) a row (captures/s wall; CPU ms a capture)")
+        print(f"{'row':<14}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>34}" for name, runs in got.items()))
+        for r, (mode, th) in enumerate(BATCH_ROWS):
+            cells = []
+            for runs in got.values():
+                best = max(runs, key=lambda x: x["rows"][r]["rate"])["rows"][r]
+                cells.append(f"{best['rate']:8.1f}/s {min(x['rows'][r]['cpu_ms'] for x in runs):6.3f} ms"
+                             + ("" if best["converged"] else " NOT CONVERGED"))
+            print(f"{mode + ', ' + str(th) + ' thr':<14}" + "".join(f"{c:>34}" for c in cells))
+        print(f"{'compress()':<14}" + "".join(
+            f"{min(x['compress_ms'][0] for x in runs):>22.3f} ms CPU a capture" for runs in got.values()))
+        ref = got["this"][0]["fits"]
+        for name, runs in got.items():
+            if name != "this":
+                worst = {k: max(abs(a[k] - b[k]) / max(abs(a[k]), 1e-300) for a, b in zip(ref, runs[0]["fits"], strict=True))
+                         for k in COMPARED}
+                print(f"fits of {name} against this: largest relative difference "
+                      + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
 
 
 def _run(code: str, args: list[str], env: dict[str, str]) -> tuple[float, float]:

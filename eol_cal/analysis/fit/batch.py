@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, compress, compressed_dict
+from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, Compressed, compress_many, compressed_dict
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
@@ -59,7 +60,7 @@ def fit_many(
     chunk: int = 64,
     sources: list[str | None] | None = None,
     progress: Callable[[int], None] | None = None,
-    threads: int = 0,
+    threads: int | None = None,
     cache_dir: str | os.PathLike[str] | None = None,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
@@ -84,11 +85,12 @@ def fit_many(
         Per motor, named in errors.
     progress : callable, optional
         Called with the number of motors finished after each chunk.
-    threads : int
-        Worker threads that compress ahead of the solve (numpy releases the GIL in its kernels);
-        0 (default) compresses in this thread, chunk by chunk. On the 2-core machine of
-        docs/benchmarks.md 1 or 2 workers measured no faster than none: the kernels of an
-        8000-sample block are short and the threads mostly wait for the GIL between them.
+    threads : int, optional
+        Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
+        (their columns built by a few long numpy kernels and their products by BLAS, all outside the
+        GIL); 0 compresses in this thread. ``None`` (default): :func:`compression_threads`, two
+        workers for a batch of 32 motors or more on a machine of two cores or more, which keep
+        both cores of a 2-core machine busy beside the solve and the unpacking (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
@@ -109,10 +111,11 @@ def fit_many(
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
     grid = tau_grid(spec, omega_max)
     results: list[MotorFit] = []
+    if threads is None:
+        threads = compression_threads(len(motors))
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     try:
-        # every compression queued up front (a few kB of result per motor): the workers run ahead
-        futures = [pool.submit(compress, m, spec, S) for m in motors] if pool else None
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -124,10 +127,7 @@ def fit_many(
             step = 1 if mode == "loop" else chunk
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
-                if futures:
-                    comps = [f.result() for f in futures[start : start + step]]
-                else:
-                    comps = [compress(m, spec, S) for m in block]
+                comps = [next(comps_in_order) for _ in block]
                 if mode == "loop":
                     args = (compressed_dict(comps[0]), grid_j)
                     if save_export:
@@ -156,6 +156,36 @@ def fit_many(
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
+
+
+def compression_threads(n_motors: int) -> int:
+    """The compression's worker threads ``fit_many(threads=None)`` uses for ``n_motors``: 2 from two
+    :data:`COMPRESS_BLOCK` s of motors on where this process may run on two cores or more, else 0.
+
+    Two, not one: the compression is ~2/3 of a capture's CPU (docs/benchmarks.md), so one worker
+    would be the critical path while this thread's solve and unpacking wait for it."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 2 if cores >= 2 and n_motors >= 2 * COMPRESS_BLOCK else 0
+
+
+#: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
+#: columns built side by side, one unit of work of the compression's threads
+COMPRESS_BLOCK = 16
+
+
+def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
+                  pool: ThreadPoolExecutor | None) -> Iterator[Compressed]:
+    """Each motor's compression, in order: ``block`` motors at a time, in this thread or queued on
+    ``pool`` all at once (a few kB of result a motor: the workers run ahead of the solve)."""
+    starts = range(0, len(motors), block)
+    if pool is None:
+        for a in starts:
+            yield from compress_many(motors[a : a + block], spec, S)
+        return
+    # each in this thread's context: a shared_compression scope's segments are shared with the workers
+    futures = [pool.submit(contextvars.copy_context().run, compress_many, motors[a : a + block], spec, S) for a in starts]
+    for f in futures:
+        yield from f.result()
 
 
 def _taking_steps(exported: Callable) -> Callable:

@@ -12,13 +12,13 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_matrix_t, mech_span, path_gain
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_rows, mech_span, path_gain, unresolved_to_zero
 
 
 @dataclass
@@ -66,50 +66,142 @@ class Compressed:
     cur_im: np.ndarray
 
 
-#: Samples per block of the compression. The design matrix of a block lives in one reused
-#: per-thread buffer and every temporary (complex: 16 B x 8000 = 125 KiB) stays under glibc's mmap
-#: threshold (128 KiB): whole-segment arrays were mmap'ed and page-faulted afresh on every call
-#: (about 700 faults and 1.5 ms per 20000-sample capture, more than the arithmetic).
+#: Samples per piece at most: a longer segment is compressed piece by piece, the pieces' products
+#: summed (a piece is shorter where :data:`_SMALL_GEMM` asks).
 _BLOCK = 8000
+#: OpenBLAS's small-matrix GEMM (no packing of the operands) serves products of M*N*K up to 100^3:
+#: a piece's ``[X y]^T [X y]`` as two halves of rows (numpy's ``A @ A.T`` is SYRK, which packs) of at
+#: most this many multiplications each runs in 12 ns a sample against SYRK's 25 (16 columns).
+_SMALL_GEMM = 100**3
+#: Samples whose columns one numpy call builds: the pieces of several segments (of several motors)
+#: side by side in one buffer (a few long kernels instead of ~30 short ones a segment: the GIL is
+#: held between kernels only, so threads compress side by side), each piece's products one BLAS call.
+_GROUP = 32768
 _WORK = threading.local()
 
 
-def _block_buffer(rows: int) -> np.ndarray:
-    """This thread's block buffer, at least ``rows * _BLOCK`` doubles (kept for the next call)."""
-    buf = getattr(_WORK, "buf", None)
-    if buf is None or buf.size < rows * _BLOCK:
-        buf = _WORK.buf = np.empty(rows * _BLOCK)
-    return buf
+def _work_buffers(size: int, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """This thread's work buffers: at least ``size`` doubles, and 4 complex rows of ``n`` (kept for
+    the next call: a fresh one of megabytes is mmap'ed and page-faulted afresh each time, ~2 us a
+    page on this VM, as much as the arithmetic)."""
+    buf, cbuf = getattr(_WORK, "buf", None), getattr(_WORK, "cbuf", None)
+    if buf is None or buf.size < size:
+        buf = _WORK.buf = np.empty(size)
+    if cbuf is None or cbuf.shape[1] < n:
+        cbuf = _WORK.cbuf = np.empty((4, n), dtype=complex)
+    return buf, cbuf
 
 
-def _normal_equations(theta: np.ndarray, t: np.ndarray, signals: list[np.ndarray], pole_pairs: int,
-                      spec: FitSpec) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``X^T X`` (columns without data pinned by a unit diagonal), ``X^T y`` and ``y^T y`` of each
-    signal about its mean, the signals' means, and which columns are empty: one pass over the samples."""
-    n = len(theta)
+@dataclass(frozen=True)
+class _Segment:
+    """One segment to compress: angle (rad), time (s), torque and ``kt * i_q`` (N*m, or None), its
+    signals' means and its span in mechanical revolutions."""
+
+    theta: np.ndarray
+    t: np.ndarray
+    torque: np.ndarray
+    kt_iq: np.ndarray | None
+    pole_pairs: int
+    means: tuple[float, ...]
+    mech: float
+
+
+def _segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, kt_iq: np.ndarray | None,
+             pole_pairs: int) -> _Segment:
+    theta = np.asarray(theta, dtype=float)
+    signals = [np.asarray(torque, dtype=float)] + ([] if kt_iq is None else [np.asarray(kt_iq, dtype=float)])
+    return _Segment(theta, np.asarray(t, dtype=float), signals[0], signals[1] if kt_iq is not None else None,
+                    pole_pairs, tuple(float(y.mean()) for y in signals), mech_span(theta, pole_pairs))
+
+
+def _groups(segs: list[_Segment], piece: int) -> Iterator[list[tuple[int, int, int]]]:
+    """The segments' pieces ``(segment, first, end)`` (at most ``piece`` samples) in groups of at
+    most :data:`_GROUP` samples (or one piece) of one pole-pair count."""
+    group: list[tuple[int, int, int]] = []
+    size = 0
+    for i, sg in enumerate(segs):
+        for a in range(0, len(sg.theta), piece):
+            b = min(a + piece, len(sg.theta))
+            if group and (size + b - a > _GROUP or segs[group[0][0]].pole_pairs != sg.pole_pairs):
+                yield group
+                group, size = [], 0
+            group.append((i, a, b))
+            size += b - a
+    if group:
+        yield group
+
+
+def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
+    """Per segment ``[X y]^T [X y]`` (segments, m+k, m+k): the columns ``X`` (:func:`design_rows`),
+    the torque (and ``kt * i_q``, zeros where a segment has none) about their means. Each segment's
+    products have its own width (``m + 1``, or ``m + 2`` with a current channel), whatever the
+    others carry: its figures do not depend on the motors compressed beside it."""
     m = spec.n_cols
-    k = len(signals)
-    means = np.array([float(y.mean()) for y in signals])
-    mech = mech_span(theta, pole_pairs)
-    buf = _block_buffer(m + k)
-    # [X y]^T [X y] accumulated block by block: X^T X, X^T y and y^T y in one GEMM per block, on
-    # the (n, m+k) Fortran view (numpy's ``A @ A.T`` dispatches to SYRK, which OpenBLAS runs 2x
-    # slower for these narrow products)
-    from scipy.linalg.blas import dgemm  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+    G = np.zeros((len(segs), m + k, m + k))
+    # per width, the piece's product (its lower left block stays zero: below) and its first half's rows
+    Gp = {w: (np.zeros((w, w)), (w + 1) // 2) for w in (m + 1, m + k)}
+    # the pieces sized for the widest product (a current channel's row too), whatever this batch
+    # carries: a segment's figures do not depend on the motors compressed beside it
+    longest = max(1, min(_BLOCK, _SMALL_GEMM // ((m + 3) // 2 * (m + 2))))
+    for group in _groups(segs, longest):
+        N = sum(b - a for _, a, b in group)
+        buf, work = _work_buffers((m + k + 2) * N, N)
+        XT = buf[: (m + k) * N].reshape(m + k, N)
+        theta, tn = buf[(m + k) * N : (m + k + 1) * N], buf[(m + k + 1) * N : (m + k + 2) * N]
+        o = 0
+        for i, a, b in group:
+            sg, piece = segs[i], slice(o, o + b - a)
+            theta[piece] = sg.theta[a:b]
+            np.subtract(sg.t[a:b], sg.t[0], out=tn[piece])
+            tn[piece] *= 2.0 / (sg.t[-1] - sg.t[0])
+            np.subtract(sg.torque[a:b], sg.means[0], out=XT[m, piece])
+            if sg.kt_iq is not None:
+                np.subtract(sg.kt_iq[a:b], sg.means[1], out=XT[m + 1, piece])
+            o += b - a
+        tn -= 1.0
+        design_rows(theta, tn, segs[group[0][0]].pole_pairs, spec, XT, work)
+        o = 0
+        for i, a, b in group:
+            w = m + 1 + (segs[i].kt_iq is not None)
+            Xp, (Gw, h) = XT[:w, o : o + b - a], Gp[w]
+            unresolved_to_zero(Xp, spec, segs[i].mech)
+            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`),
+            # the lower half's upper triangle only (one column more: numpy's A @ A.T is SYRK);
+            # numpy's BLAS call releases the GIL (scipy's dgemm wrapper held it)
+            np.matmul(Xp[:h], Xp.T, out=Gw[:h])
+            np.matmul(Xp[h:], Xp[h - 1 :].T, out=Gw[h:, h - 1 :])
+            G[i, :w, :w] += Gw
+            o += b - a
+    low, high = np.tril_indices(m + k, -1)
+    G[:, low, high] = G[:, high, low]  # the lower triangle from the upper (the kernel's products are symmetric)
+    return G
 
-    G = np.zeros((m + k, m + k), order="F")
-    for a in range(0, n, _BLOCK):
-        b = min(a + _BLOCK, n)
-        XTa = buf[: (m + k) * (b - a)].reshape(m + k, b - a)
-        design_matrix_t(theta[a:b], t[a:b], pole_pairs, spec, t_span=(t[0], t[-1]), mech=mech, out=XTa)
-        for j, y in enumerate(signals):
-            np.subtract(y[a:b], means[j], out=XTa[m + j])
-        G = dgemm(1.0, XTa.T, XTa.T, beta=1.0, c=G, trans_a=1, overwrite_c=True)
-    XtX = np.array(G[:m, :m], order="C")
-    empty = np.diag(XtX) == 0.0
+
+def _compress_all(segs: list[_Segment], spec: FitSpec) -> list[tuple[tuple[np.ndarray, np.ndarray, float, float, float, int, int],
+                                                                      np.ndarray]]:
+    """Each segment's normal-equation summary (R, z, floor, sst, ymean, n, n_nuis) and the current's
+    ripple phasor per harmonic (:func:`current_phasor`; zeros without ``kt_iq``); the small
+    factorisations batched over the segments."""
+    m = spec.n_cols
+    k = 2 if any(sg.kt_iq is not None for sg in segs) else 1
+    G = _products(segs, spec, k)
+    XtX = np.array(G[:, :m, :m])
+    empty = np.diagonal(XtX, axis1=1, axis2=2) == 0.0
     # a column without data is pinned to 0 by a unit diagonal: its residual row reads 0 - g_j
-    XtX[empty, empty] = 1.0
-    return XtX, np.array(G[:m, m:]), np.array(G[m:, m:]), means, empty
+    seg_i, col = np.nonzero(empty)
+    XtX[seg_i, col, col] = 1.0
+    Lc = np.linalg.cholesky(XtX)
+    z = np.linalg.solve(Lc, G[:, :m, m : m + 1])[..., 0]  # triangular, tiny
+    yy = G[:, m, m]
+    floor = yy - np.einsum("si,si->s", z, z)
+    phasor = np.zeros((len(segs), len(spec.harmonics)), dtype=complex)
+    cur = [i for i, sg in enumerate(segs) if sg.kt_iq is not None]
+    if cur:
+        coef = np.linalg.solve(XtX[cur], G[cur, :m, m + 1 : m + 2])[..., 0]
+        phasor[cur] = [current_phasor(c, spec) for c in coef]
+    n_nuis = spec.n_nuis - empty.sum(axis=1)
+    return [((Lc[i].T, z[i], float(floor[i]), float(yy[i]), sg.means[0], len(sg.theta), int(n_nuis[i])), phasor[i])
+            for i, sg in enumerate(segs)]
 
 
 def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_pairs: int,
@@ -118,28 +210,7 @@ def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_
 
     ``theta`` must be continuous (unwrapped), as :mod:`eol_cal.analysis.angle` returns it.
     """
-    summary, _ = _compress_one(theta, t, torque, None, pole_pairs, spec)
-    return summary
-
-
-def _compress_one(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, kt_iq: np.ndarray | None, pole_pairs: int,
-                  spec: FitSpec) -> tuple[tuple[np.ndarray, np.ndarray, float, float, float, int, int], np.ndarray]:
-    """:func:`compress_segment`, and the current's ripple phasor per harmonic (:func:`current_phasor`;
-    zeros without ``kt_iq``)."""
-    theta = np.asarray(theta, dtype=float)
-    t = np.asarray(t, dtype=float)
-    signals = [np.asarray(torque, dtype=float)]
-    if kt_iq is not None:
-        signals.append(np.asarray(kt_iq, dtype=float))
-    XtX, Xty, yy, means, empty = _normal_equations(theta, t, signals, pole_pairs, spec)
-    Lc = np.linalg.cholesky(XtX)
-    z = np.linalg.solve(Lc, Xty[:, 0])  # triangular, tiny
-    phasor = np.zeros(len(spec.harmonics), dtype=complex)
-    if kt_iq is not None:
-        phasor = current_phasor(np.linalg.solve(XtX, Xty[:, 1]), spec)
-    summary = (Lc.T, z, float(yy[0, 0]) - float(z @ z), float(yy[0, 0]), float(means[0]), len(theta),
-               spec.n_nuis - int(empty.sum()))
-    return summary, phasor
+    return _compress_all([_segment(theta, t, torque, None, pole_pairs)], spec)[0][0]
 
 
 def current_phasor(coef: np.ndarray, spec: FitSpec) -> np.ndarray:
@@ -177,26 +248,53 @@ def shared_compression() -> Iterator[None]:
 
 def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) -> Compressed:
     """Compress every segment of one motor, padded to ``n_segments`` (padding: R = I, z = 0, n = 0)."""
-    S = n_segments or seg.n_segments
+    return compress_many([seg], spec, n_segments)[0]
+
+
+def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: int | None = None) -> list[Compressed]:
+    """:func:`compress` of each motor, their segments' columns built side by side (a few long numpy
+    kernels for them all: :data:`_GROUP`) and their small factorisations batched."""
+    S = n_segments or max((seg.n_segments for seg in motors), default=0)
+    memo = _SHARED.get()
+    todo: dict[tuple[Any, ...], int] = {}  # a segment's key -> its index in segs
+    segs: list[_Segment] = []
+    held: list[tuple[Any, ...]] = []
+    where: list[list[tuple[Any, ...]]] = []  # per motor, its segments' keys
+    found: dict[tuple[Any, ...], Any] = {}
+    for seg in motors:
+        keys = []
+        for s in range(seg.n_segments):
+            kt_iq = None if seg.kt_iq is None else seg.kt_iq[s]
+            arrays = (seg.theta[s], seg.t[s], seg.torque[s], kt_iq)
+            # without a scope every segment is its own (the same arrays twice are compressed twice)
+            key = (*map(id, arrays), seg.pole_pairs, spec.harmonics, spec.drift_degree, spec.mech_order1,
+                   spec.mech_orders) if memo is not None else (len(segs),)
+            if memo is not None and key in memo:
+                found[key] = memo[key][0]
+            elif key not in todo:
+                todo[key] = len(segs)
+                segs.append(_segment(*arrays, seg.pole_pairs))
+                held.append(arrays)
+            keys.append(key)
+        where.append(keys)
+    for key, one, arrays in zip(todo, _compress_all(segs, spec) if segs else [], held, strict=True):
+        found[key] = one
+        if memo is not None:
+            memo[key] = (one, arrays)  # the arrays held: no id of the key is reused while it lasts
+    return [_assemble(seg, [found[key] for key in keys], spec, S) for seg, keys in zip(motors, where, strict=True)]
+
+
+def _assemble(seg: SteadySegments, ones: list[Any], spec: FitSpec, S: int) -> Compressed:
+    """One motor's :class:`Compressed` from its segments' summaries, padded to ``S`` segments."""
     m = spec.n_cols
     R = np.tile(np.eye(m), (S, 1, 1))
     z = np.zeros((S, m))
     vec = {k: np.zeros(S) for k in ("floor", "sst", "ymean", "n", "n_nuis", "i_qo", "omega")}
     current = np.zeros((S, len(spec.harmonics)), dtype=complex)
-    memo = _SHARED.get()
-    for s in range(seg.n_segments):
-        kt_iq = None if seg.kt_iq is None else seg.kt_iq[s]
-        arrays = (seg.theta[s], seg.t[s], seg.torque[s], kt_iq)
-        key = (*map(id, arrays), seg.pole_pairs, spec.harmonics, spec.drift_degree, spec.mech_order1, spec.mech_orders)
-        if memo is not None and key in memo:
-            one = memo[key][0]
-        else:
-            one = _compress_one(*arrays, seg.pole_pairs, spec)
-            if memo is not None:
-                memo[key] = (one, arrays)  # the arrays held: no id of the key is reused while it lasts
+    for s, one in enumerate(ones):
         (R[s], z[s], fl, sst, ym, n, nn), current[s] = one
         vec["floor"][s], vec["sst"][s], vec["ymean"][s], vec["n"][s], vec["n_nuis"][s] = fl, sst, ym, n, nn
-        vec["i_qo"][s], vec["omega"][s] = seg.i_qo[s], seg.omega_e[s]
+    vec["i_qo"][: seg.n_segments], vec["omega"][: seg.n_segments] = seg.i_qo, seg.omega_e
     gain = np.ones((S, len(spec.harmonics)), dtype=complex)
     gain[: seg.n_segments] = path_gain(seg, spec)
     return Compressed(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), cur_re=current.real.copy(),

@@ -32,6 +32,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from eol_cal.errors import InputError
+from eol_cal.numerics.expi import cpow_into, exp_i
 
 #: scale of the delay parameter inside the solver (s); keeps the parameter vector near O(1)
 TAU_SCALE = 1e-4
@@ -338,19 +339,6 @@ def legendre_rows(x: np.ndarray, degree: int, out: np.ndarray) -> None:
         row -= (n / (n + 1)) * out[n - 1]
 
 
-def _cpow(e: np.ndarray, n: int) -> np.ndarray:
-    """e**n for a complex array and a positive integer n, by repeated squaring."""
-    out = None
-    while n:
-        if n & 1:
-            out = e if out is None else out * e
-        n >>= 1
-        if n:
-            e = e * e
-    assert out is not None  # n >= 1: at least one factor
-    return out
-
-
 def mech_span(theta: np.ndarray, pole_pairs: int) -> float:
     """A segment's length in mechanical revolutions (``theta`` electrical, rad)."""
     return float(abs(theta[-1] - theta[0])) / (2 * math.pi * pole_pairs)
@@ -415,7 +403,6 @@ def design_matrix_t(
         left as zero rows; :func:`compress_segment` pins them.
     """
     n = len(theta)
-    q = spec.n_nuis
     XT = np.empty((spec.n_cols, n)) if out is None else out[: spec.n_cols]
     t_first, t_last = (t[0], t[-1]) if t_span is None else t_span
     if mech is None:
@@ -423,28 +410,60 @@ def design_matrix_t(
     tn = t - t_first
     tn *= 2.0 / (t_last - t_first)
     tn -= 1.0
+    design_rows(theta, tn, pole_pairs, spec, XT)
+    unresolved_to_zero(XT, spec, mech)
+    return XT
+
+
+def design_rows(theta: np.ndarray, tn: np.ndarray, pole_pairs: int, spec: FitSpec, out: np.ndarray,
+                work: np.ndarray | None = None) -> None:
+    """The columns of :func:`design_matrix_t` from the angle and the normalised time, every mechanical
+    pair filled (:func:`unresolved_to_zero` clears those a segment does not carry).
+
+    ``theta`` (rad, electrical, continuous) and ``tn`` (the segment's time mapped onto [-1, 1]) may
+    hold the samples of several segments side by side: every column is a function of the sample
+    alone, so one call builds them all (the batched compression's few long kernels).
+    ``out``: at least ``spec.n_cols`` rows of ``len(theta)`` samples. ``work``: complex, 4 rows of at
+    least ``len(theta)``, the powers' scratch (default: allocated; a caller that builds often keeps
+    one: a fresh complex array of half a megabyte is mmap'ed and page-faulted anew on each call).
+    """
+    n = len(theta)
+    q = spec.n_nuis
     nm = 2 * spec.n_mech
-    legendre_rows(tn, spec.drift_degree, XT[: q - nm])
-    # one exp(i theta_m) per sample: everything else is a power of it (exact to ~1e-14)
-    e_m = np.exp(1j * (theta / pole_pairs))
-    e = e_m
+    w = np.empty((4, n), dtype=complex) if work is None else work[:4, :n]
+    e_m, e, sq, spare = w
+    legendre_rows(tn, spec.drift_degree, out[: q - nm])
+    # one exp(i theta_m) per sample: everything else is a power of it (exact to ~1e-14); the first
+    # harmonic's row holds theta_m until the harmonics are written
+    np.divide(theta, pole_pairs, out=out[q])
+    exp_i(out[q], e_m, e, sq, spare)
+    e_j = e_m
     for j in range(spec.n_mech):
         if j:
-            e = e * e_m
-        if mech_resolved(spec, j + 1, mech):
-            XT[q - nm + 2 * j] = e.real
-            XT[q - nm + 2 * j + 1] = e.imag
-        else:
-            XT[q - nm + 2 * j : q - nm + 2 * j + 2] = 0.0
-    e6 = _cpow(e_m, 6 * pole_pairs)
-    e, order = e6, 6
+            np.multiply(e_j, e_m, out=e)
+            e_j = e
+        out[q - nm + 2 * j] = e_j.real
+        out[q - nm + 2 * j + 1] = e_j.imag
+    # e: exp(6 i theta), a power of the highest mechanical order's (e_m^18 is e_3^6: 3 products, not 5)
+    top = spec.n_mech if (6 * pole_pairs) % spec.n_mech == 0 else 1
+    cpow_into(e_j if top > 1 else e_m, 6 * pole_pairs // top, e, sq)
+    cur, order = e, 6
     for i, h in enumerate(spec.harmonics):
         if h != order:
-            e = e * _cpow(e6, (h - order) // 6)
-            order = h
-        XT[q + 2 * i] = e.imag
-        XT[q + 2 * i + 1] = e.real
-    return XT
+            step = e if h - order == 6 else cpow_into(e, (h - order) // 6, spare, e_m)
+            np.multiply(cur, step, out=sq)
+            cur, order = sq, h
+        out[q + 2 * i] = cur.imag
+        out[q + 2 * i + 1] = cur.real
+
+
+def unresolved_to_zero(XT: np.ndarray, spec: FitSpec, mech: float) -> None:
+    """Zero the mechanical pairs of :func:`design_rows`' ``XT`` (columns as rows) that a segment of
+    ``mech`` mechanical revolutions does not carry (:func:`mech_resolved`)."""
+    top = spec.n_nuis - 2 * spec.n_mech
+    for j in range(spec.n_mech):
+        if not mech_resolved(spec, j + 1, mech):
+            XT[top + 2 * j : top + 2 * j + 2] = 0.0
 
 
 def design_matrix(theta: np.ndarray, t: np.ndarray, pole_pairs: int, spec: FitSpec) -> np.ndarray:
