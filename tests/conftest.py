@@ -17,6 +17,7 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+import _cpu_report
 import pytest
 
 from eol_cal.numerics.blas import limit_blas_threads
@@ -64,6 +65,8 @@ def pytest_configure(config: pytest.Config) -> None:
     size limit, and then it reads and writes under a file lock (``filelock``): the limit set here
     makes the workers' sharing safe. ``EOL_CAL_TEST_JAX_CACHE=fresh`` takes a new directory per
     worker, removed at the end."""
+    # EOL_CAL_TEST_CPU=DIR: each test's CPU seconds, children's included (tests/_cpu_report.py)
+    _cpu_report.pytest_configure(config)
     if os.environ.get(_JAX_CACHE):
         return
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
@@ -110,17 +113,6 @@ def postgres_server() -> Iterator[PostgresServer]:
         yield server
     finally:
         server.stop()
-
-
-@pytest.fixture(scope="module")
-def no_jax_cache() -> Iterator[None]:
-    """JAX's persistent compile cache off for the module (Dask workers started meanwhile inherit
-    it): keeps the tests out of ~/.cache."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")
-    mp.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)  # the worker's: not for the cluster's processes
-    yield
-    mp.undo()
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])
