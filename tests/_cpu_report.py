@@ -5,6 +5,7 @@ The whole suite on a loaded machine is bounded by its CPU seconds, not its quiet
 
     EOL_CAL_TEST_CPU=DIR python -m pytest -q -n 2     # tests/conftest.py registers it
     python tests/_cpu_report.py DIR [TOP]          # per file, the largest first, and the totals
+    python tests/_cpu_report.py DIR --table        # tests/schedule_cpu.txt (tests/_schedule.py)
 
 Each worker (or the one process of a serial run) writes ``DIR/<worker>.json``: per test id the
 wall seconds and the CPU seconds (user + system) of the worker itself and of its children that
@@ -157,5 +158,26 @@ def summarise(out: Path, top: int = 40) -> str:
     return "\n".join(lines)
 
 
+def table(out: Path, least_s: float = 5.0) -> str:
+    """tests/schedule_cpu.txt from a whole run's figures: each scheduling unit's CPU seconds
+    (tests/_schedule.py), those of at least ``least_s``, the costliest first."""
+    from _schedule import unit
+
+    units: dict[str, float] = defaultdict(float)
+    for path in sorted(out.glob("*.json")):
+        for nodeid, (_wall, own, kids, *_more) in json.loads(path.read_text())["tests"].items():
+            units[unit(nodeid)] += own + kids
+    lines = [
+        "# CPU seconds of each scheduling unit of the whole suite (tests/_schedule.py), the costliest first;",
+        "# from: EOL_CAL_TEST_CPU=DIR python -m pytest -q -n 2; python tests/_cpu_report.py DIR --table",
+    ]
+    ranked = sorted(units.items(), key=lambda kv: (-kv[1], kv[0]))
+    lines += [f"{seconds:6.0f} {name}" for name, seconds in ranked if seconds >= least_s]
+    return "\n".join(lines) + "\n"
+
+
 if __name__ == "__main__":
-    print(summarise(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 40))
+    if "--table" in sys.argv:
+        sys.stdout.write(table(Path(sys.argv[1])))
+    else:
+        print(summarise(Path(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) > 2 else 40))

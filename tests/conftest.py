@@ -18,6 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import _cpu_report
+import _schedule
 import pytest
 
 from eol_cal.numerics.blas import limit_blas_threads
@@ -88,12 +89,22 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Also ``slow``, so that the fast loop (``-m "not slow"``) leaves them out: a test on the
     PostgreSQL server (``records_db``'s ``postgresql`` parameter; SQLite stays in the fast loop),
-    and a test marked ``long`` (minutes: the mech branch's marker)."""
+    and a test marked ``long`` (minutes: the mech branch's marker). Then the costliest files first."""
     for item in items:
         callspec = getattr(item, "callspec", None)
         on_postgres = callspec is not None and callspec.params.get("records_db") == "postgresql"
         if (on_postgres or item.get_closest_marker("long") is not None) and item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.slow)
+    # the costliest files first, so the two workers end together (tests/_schedule.py says why)
+    _schedule.costliest_first(items)
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: absent without it (-p no:xdist)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadfile`` (pyproject's addopts), with the 10 000 power-ups' parts on both workers."""
+    if config.getoption("dist") == "loadfile":
+        return _schedule.make_scheduler(config, log)
+    return None
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
