@@ -37,8 +37,9 @@ def unit(nodeid: str) -> str:
     return nodeid.split("::", 1)[0]
 
 
-def costs(path: Path = TABLE) -> dict[str, float]:
-    """The table's CPU seconds per unit (``seconds unit`` a line, ``#`` a comment)."""
+def costs(path: Path | None = None) -> dict[str, float]:
+    """The table's CPU seconds per unit (``seconds unit`` a line, ``#`` a comment; default :data:`TABLE`)."""
+    path = TABLE if path is None else path
     out: dict[str, float] = {}
     if not path.exists():
         return out
