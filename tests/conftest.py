@@ -17,6 +17,8 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+import _cpu_report
+import _schedule
 import pytest
 
 from eol_cal.numerics.blas import limit_blas_threads
@@ -54,8 +56,8 @@ _jax_cache_key = pytest.StashKey[str]()
 
 def pytest_configure(config: pytest.Config) -> None:
     """Point JAX's compilation cache and the fit's serialized solvers at the suite's own directory
-    unless the caller chose one (``EOL_CAL_JAX_CACHE``): the tests stay out of the user's home.
-    The processes a test starts inherit it.
+    unless the caller chose one (``EOL_CAL_JAX_CACHE``: a directory, both caches there; ``off``:
+    none): the tests stay out of the user's home. The processes a test starts inherit it.
 
     The directory is kept between runs (``.pytest_cache/eol-cal-jax/shared``), so the fast loop
     run again compiles only what changed (about 25 s less on 2 cores), and it is one for every
@@ -64,10 +66,20 @@ def pytest_configure(config: pytest.Config) -> None:
     size limit, and then it reads and writes under a file lock (``filelock``): the limit set here
     makes the workers' sharing safe. ``EOL_CAL_TEST_JAX_CACHE=fresh`` takes a new directory per
     worker, removed at the end."""
-    if os.environ.get(_JAX_CACHE):
+    # EOL_CAL_TEST_CPU=DIR: each test's CPU seconds, children's included (tests/_cpu_report.py)
+    _cpu_report.pytest_configure(config)
+    chosen = os.environ.get(_JAX_CACHE)
+    if chosen == "off":
         return
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
-    if os.environ.get("EOL_CAL_TEST_JAX_CACHE") == "fresh":
+    if chosen:
+        # the caller's (a CI cache kept between clones; the workers inherit the controller's): JAX's
+        # programs too, not only the fit's solvers. JAX's cache key is the program without its
+        # source locations, so a directory kept across checkouts is hit (test_fit_core.py and
+        # test_plant_sim.py: 67 CPU s with a cold cache, 21 warm; 2026-11-29)
+        path = chosen
+        os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
+    elif os.environ.get("EOL_CAL_TEST_JAX_CACHE") == "fresh":
         path = tempfile.mkdtemp(prefix=f"eol-cal-test-jax-{worker}-")
         config.stash[_jax_cache_key] = path
     else:
@@ -85,12 +97,22 @@ def pytest_configure(config: pytest.Config) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Also ``slow``, so that the fast loop (``-m "not slow"``) leaves them out: a test on the
     PostgreSQL server (``records_db``'s ``postgresql`` parameter; SQLite stays in the fast loop),
-    and a test marked ``long`` (minutes: the mech branch's marker)."""
+    and a test marked ``long`` (minutes: the mech branch's marker). Then the costliest files first."""
     for item in items:
         callspec = getattr(item, "callspec", None)
         on_postgres = callspec is not None and callspec.params.get("records_db") == "postgresql"
         if (on_postgres or item.get_closest_marker("long") is not None) and item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.slow)
+    # the costliest files first, so the two workers end together (tests/_schedule.py says why)
+    _schedule.costliest_first(items)
+
+
+@pytest.hookimpl(optionalhook=True)  # pytest-xdist's hook: absent without it (-p no:xdist)
+def pytest_xdist_make_scheduler(config: pytest.Config, log):
+    """``--dist loadfile`` (pyproject's addopts), with the 10 000 power-ups' parts on both workers."""
+    if config.getoption("dist") == "loadfile":
+        return _schedule.make_scheduler(config, log)
+    return None
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
@@ -110,17 +132,6 @@ def postgres_server() -> Iterator[PostgresServer]:
         yield server
     finally:
         server.stop()
-
-
-@pytest.fixture(scope="module")
-def no_jax_cache() -> Iterator[None]:
-    """JAX's persistent compile cache off for the module (Dask workers started meanwhile inherit
-    it): keeps the tests out of ~/.cache."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")
-    mp.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)  # the worker's: not for the cluster's processes
-    yield
-    mp.undo()
 
 
 @pytest.fixture(params=["sqlite", "postgresql"])

@@ -24,7 +24,8 @@ SERIALS = ("R-1", "R-2", "R-3")
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 
 
-pytestmark = pytest.mark.usefixtures("no_jax_cache")  # the workers inherit it: the tests stay out of ~/.cache
+# The Dask workers inherit the suite's JAX cache (tests/conftest.py: its own directory, never ~/.cache),
+# so they load the programs other tests compiled instead of compiling them again
 
 
 @pytest.fixture(scope="module")

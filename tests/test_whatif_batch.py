@@ -16,7 +16,8 @@ from eol_cal.station.whatif_plan import LotPlan
 from test_lot_simulate import LIMITS, PROFILE
 from test_whatif_same_record import _mismatches
 
-pytestmark = pytest.mark.usefixtures("no_jax_cache")
+# The Dask workers inherit the suite's JAX cache (tests/conftest.py: its own directory, never ~/.cache),
+# so they load the programs other tests compiled instead of compiling them again
 
 
 @pytest.mark.slow  # five station cycles on the plant (a batch of 4 in threads, one alone)
