@@ -62,6 +62,7 @@ def signals_interrupt() -> Iterator[None]:
         with interrupts.watchdog(), interrupts.dropped_redelivered():
             yield
     finally:
+        interrupts.stop_redelivery()
         for sig, handler in previous.items():
             signal.signal(sig, handler)
 

@@ -61,6 +61,40 @@ def test_a_signal_inside_a_gc_callback_is_not_lost(tmp_path, sig):
     assert f"interrupted by {sig.name}" in err, err
 
 
+def test_a_signal_sent_again_after_the_command_ended_does_not_kill_its_exit(tmp_path):
+    """The signal came inside a gc callback and was sent again 0.05 s later (``REDELIVER_S``); the
+    command had already raised it and was ending with exit 2, its handlers put back: the second
+    SIGTERM met the default handler and killed the process (-15) during a slow exit (a loaded
+    machine's teardown; here an atexit handler that takes 0.5 s)."""
+    proc = _script(tmp_path, """
+        import atexit, gc, time
+        from cli.common import handle_errors
+        from eol_cal.infra import interrupts
+
+        def slow_callback(phase, info):
+            if phase == "start":
+                time.sleep(0.2)
+
+        @handle_errors
+        def command():
+            gc.callbacks.append(slow_callback)
+            print("ready", flush=True)
+            for _ in range(300):
+                gc.collect()
+                interrupts.raise_if_received("the next step")
+            print("flashed", flush=True)
+
+        atexit.register(time.sleep, 0.5)
+        command()
+    """)
+    _wait_ready(proc)
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 2, (proc.returncode, out, err)
+    assert "interrupted by SIGTERM" in err, err
+
+
 @pytest.mark.parametrize("where", ["weakref", "generator"])
 def test_a_signal_dropped_where_no_finalizer_was_seen_is_sent_again(tmp_path, where):
     """Code Python runs where it drops exceptions but that is neither a ``__del__`` nor a gc

@@ -50,12 +50,27 @@ _pending: str | None = None
 _received: str | None = None
 _handled: dict[int, int] = {}
 _emergency: list[Callable[[], None]] = []
+#: whether a signal sent again (:func:`_redeliver`) may still go out: off once the command's
+#: handlers are put back, under the lock so that a timer cannot pass the check and then kill
+_redeliver_lock = threading.Lock()
+_redeliver_on = True
 
 
 def reset() -> None:
     """A new command: no signal received yet."""
-    global _pending, _received
+    global _pending, _received, _redeliver_on
     _pending = _received = None
+    with _redeliver_lock:
+        _redeliver_on = True
+
+
+def stop_redelivery() -> None:
+    """No signal is sent again from now on: call it before the command's handlers are put back.
+    The signal was received already (:func:`received`); sent again under the default handler, it
+    killed a process that was ending with exit 2 (a slow exit after a signal in a gc callback)."""
+    global _redeliver_on
+    with _redeliver_lock:
+        _redeliver_on = False
 
 
 def received() -> str | None:
@@ -116,7 +131,12 @@ def _in_import_machinery(frame: FrameType | None) -> bool:
 
 
 def _redeliver(signum: int) -> None:
-    timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
+    def send() -> None:
+        with _redeliver_lock:
+            if _redeliver_on:
+                os.kill(os.getpid(), signum)
+
+    timer = threading.Timer(REDELIVER_S, send)
     timer.daemon = True
     timer.start()
 
