@@ -24,7 +24,7 @@ machine move less than the wall time). The rounds alternate the code versions.
 60 rpm, 65 A, 1.5 s) in the three modes over N noise seeds with each code version: the means the
 speed-ups must keep (issue 25: within 2 %).
 
-    python bench/bench_plant.py [--seconds 2.0] [--batch 64] [--rounds 2] [--baseline DIR] [--pp-seeds 10]
+    python bench/bench_plant.py [--seconds 2.0] [--batch 64] [--rounds 2] [--baseline DIR ...] [--pp-seeds 10]
 """
 
 from __future__ import annotations
@@ -156,6 +156,7 @@ def run_child(kind: str, a: argparse.Namespace, baseline: Path | None) -> Any:
     env = dict(os.environ)
     if baseline is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(baseline), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+        env["PYTHONDONTWRITEBYTECODE"] = "1"  # another checkout is read, not written
     args = [sys.executable, str(HERE), "--child", kind, "--seconds", str(a.seconds), "--batch", str(a.batch),
             "--warm-runs", str(a.warm_runs), "--pp-seeds", str(a.pp_seeds), "--motulator-seconds",
             str(a.motulator_seconds)] + (["--no-loop-kernel"] if a.no_loop_kernel else [])
@@ -170,7 +171,8 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--warm-runs", type=int, default=2, help="warm calls per process (the best one counts)")
     ap.add_argument("--rounds", type=int, default=2, help="the code versions run in turn, this many times")
-    ap.add_argument("--baseline", type=Path, default=None, help="a checkout of older code to run side by side")
+    ap.add_argument("--baseline", type=Path, action="append", default=[],
+                    help="a checkout of older code to run side by side (repeat for several)")
     ap.add_argument("--pp-seeds", type=int, default=0, help="noise seeds of the p-p comparison (0: none)")
     ap.add_argument("--motulator-seconds", type=float, default=1.0, help="simulated seconds of motulator")
     ap.add_argument("--no-loop-kernel", action="store_true",
@@ -182,9 +184,8 @@ def main() -> None:
         child(a.child, a, a.out)
         return
 
-    versions: list[tuple[str, Path | None]] = [("this checkout", None)]
-    if a.baseline is not None:
-        versions.insert(0, (f"baseline {a.baseline}", a.baseline.resolve()))
+    versions: list[tuple[str, Path | None]] = [(f"baseline {b}", b.resolve()) for b in a.baseline]
+    versions.append(("this checkout", None))
     load0 = os.getloadavg()
     runs: dict[str, list[dict[str, float]]] = {name: [] for name, _ in versions}
     for r in range(a.rounds):
@@ -193,7 +194,8 @@ def main() -> None:
             runs[name].append(res)
             b = a.batch
             for lay in LAYOUTS:
-                print(f"round {r + 1}: {name:<40} layout {lay}: 1 motor {a.seconds / res[f'L{lay}/1/warm/cpu']:6.1f}x, "
+                print(f"round {r + 1}: {name:<40} layout {lay}: 1 motor {a.seconds / res[f'L{lay}/1/warm/cpu']:6.1f}x "
+                      f"per CPU s ({a.seconds / res[f'L{lay}/1/warm']:6.1f}x wall), "
                       f"batch {b} {b * a.seconds / res[f'L{lay}/{b}/warm']:6.1f}x (wall), "
                       f"{b * a.seconds / res[f'L{lay}/{b}/warm/cpu']:6.1f}x per CPU s; load {os.getloadavg()[0]:.2f}",
                       flush=True)
@@ -224,12 +226,12 @@ def main() -> None:
               f"{a.motulator_seconds / mot['warm']:7.2f} {a.motulator_seconds / mot['warm/cpu']:9.2f}")
     else:
         print("motulator: not installed (pip install -e .[bench]); not compared")
-    if a.baseline is not None:
-        new, old = best["this checkout"], best[versions[0][0]]
+    for name, _ in versions[:-1]:
+        new, old = best["this checkout"], best[name]
         for lay in LAYOUTS:
             for key, what in ((f"{b}/warm/cpu", f"batch {b} per CPU s"), (f"{b}/warm", f"batch {b} wall"),
-                              ("1/warm/cpu", "1 motor per CPU s")):
-                print(f"speed-up against the baseline, layout {lay}, {what}: "
+                              ("1/warm/cpu", "1 motor per CPU s"), ("1/warm", "1 motor wall")):
+                print(f"speed-up against {name}, layout {lay}, {what}: "
                       f"{old[f'L{lay}/{key}'] / new[f'L{lay}/{key}']:.2f}x")
     for lay in LAYOUTS:
         x = best["this checkout"]
@@ -247,9 +249,9 @@ def main() -> None:
             for name, _ in versions:
                 sd = np.std(np.array(pps[name][mode]), axis=0, ddof=1)
                 line += f"  {name}: raw {means[name][0]:.3f} (sd {sd[0]:.3f}), filtered {means[name][1]:.3f} (sd {sd[1]:.3f})"
-            if a.baseline is not None:
-                new, old = means["this checkout"], means[versions[0][0]]
-                line += f"  -> {100 * (new[0] / old[0] - 1):+.2f} %, {100 * (new[1] / old[1] - 1):+.2f} %"
+            for name, _ in versions[:-1]:
+                new, old = means["this checkout"], means[name]
+                line += f"  -> against {name}: {100 * (new[0] / old[0] - 1):+.2f} %, {100 * (new[1] / old[1] - 1):+.2f} %"
             print(line)
 
 

@@ -23,6 +23,20 @@ def test_rate_flags_average_exactly_and_jitter_by_one_tick():
     assert np.array_equal(control.rate_flags(5000, 20000.0, 1680.0, start=7000), cc[7000:12000])
 
 
+@pytest.mark.parametrize("f_task", [1680.0, 420.0, 1000.0, 333.3, 20000.0])
+@pytest.mark.parametrize("start,n", [(0, 0), (0, 1), (3, 249), (7000, 251), (123457, 20001)])
+def test_rate_flags_repeat_one_period_of_the_phase_accumulator(f_task, start, n):
+    # computed over one period (the ratio's denominator) and repeated: tick k fires where
+    # floor(k r) increases, as the accumulator over every tick gives it
+    from fractions import Fraction
+
+    r = Fraction(f_task).limit_denominator(10**6) / 20000
+    k = np.arange(start, start + n, dtype=np.int64)
+    direct = (k * r.numerator) // r.denominator > ((k - 1) * r.numerator) // r.denominator
+    got = control.rate_flags(n, 20000.0, f_task, start=start)
+    assert got.dtype == direct.dtype and np.array_equal(got, direct)
+
+
 def test_rl_step_is_exact_for_constant_voltage():
     m = load_motor("paper")
     dt = 1.0 / m.f_pwm

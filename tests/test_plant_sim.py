@@ -67,6 +67,19 @@ def test_noise_does_not_depend_on_the_chunk_length():
     np.testing.assert_array_equal(a.capture["hall"], b.capture["hall"])
 
 
+def test_the_motors_noise_keys_are_jax_random_s_for_every_seed():
+    # one compiled call in int32's range, the calls one by one beyond it: the keys of
+    # jax.random.split(jax.random.PRNGKey(seed), n) either way
+    import jax
+
+    from eol_cal.plant.simulate import _motor_keys
+
+    for seed in (0, 7, -1, 2**31 - 1, -2**31, 2**31, 2**40):
+        for n in (1, 3):
+            want = np.asarray(jax.random.split(jax.random.PRNGKey(seed), n))
+            assert np.array_equal(np.asarray(_motor_keys(seed, n)), want), (seed, n)
+
+
 @pytest.mark.parametrize("mode", ["estimated", "compensated"])
 def test_pre_roll_ends_where_the_recorded_run_is(mode):
     """A pre-roll and recording those ticks instead (no pre-roll, a longer capture) reach the same

@@ -25,8 +25,10 @@ def configure_xla() -> bool:
     to every ``while`` loop of the process without custom calls (LAPACK, ...): call it from
     entry points that mostly simulate or refit (the CLI, benchmarks, a refit worker:
     :func:`eol_cal.lot.cluster.prepare_fit_process`), not from library code. Tick loops give
-    results within float32 rounding of the default (XLA fuses the body differently); the fit's
-    solver loops hold LAPACK calls and are left as they are.
+    results within float32 rounding of the default (XLA fuses the body differently: a layout-2
+    plant run's i_qc within 0.02 A, its i_q within 0.05 A rms, the identification the same, as
+    tests/test_plant_identifying_loop.py checks); the fit's solver loops hold LAPACK calls and
+    are left as they are.
     """
     flags = os.environ.get("XLA_FLAGS", "")
     if _LOOP_OPTION in flags:

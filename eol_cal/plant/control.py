@@ -62,8 +62,11 @@ def rate_flags(n_ticks: int, f_tick: float, f_task: float, start: int = 0) -> np
     accumulator would shift the schedule over long runs.
     """
     r = Fraction(f_task).limit_denominator(10**6) / Fraction(f_tick).limit_denominator(10**6)
-    k = np.arange(start, start + n_ticks, dtype=np.int64)
-    return (k * r.numerator) // r.denominator > ((k - 1) * r.numerator) // r.denominator
+    # floor((k + den) num / den) = floor(k num / den) + num: the flags repeat every den ticks
+    # (20 kHz / 1.68 kHz: 250), one period computed and repeated from the run's phase
+    k = np.arange(start % r.denominator, start % r.denominator + min(n_ticks, r.denominator), dtype=np.int64)
+    period = (k * r.numerator) // r.denominator > ((k - 1) * r.numerator) // r.denominator
+    return np.resize(period, n_ticks)
 
 
 def pi_current_step(

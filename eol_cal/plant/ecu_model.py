@@ -91,7 +91,8 @@ def simulated_ecu_state(spec: PlantSpec, mode: str, block: ParamBlock | None) ->
     mode_bits = {"raw": 0, "estimated": FLAG_INTERP_ENABLE, "compensated": FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE}[mode]
     base = block if block is not None else true_block(spec)
     flags = (base.flags & ~(FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE)) | mode_bits
-    blk = dataclasses.replace(base, flags=flags)
+    # (the block itself when its flags select the mode already: a copy validates it again)
+    blk = base if flags == base.flags else dataclasses.replace(base, flags=flags)
     return EcuState(0, blk.sequence, f"{check(pack(blk)).crc_stored:08x}", flag_names(flags))
 
 

@@ -67,6 +67,7 @@ class SimResult:
 
 
 _COMPILED: dict[tuple, Callable] = {}
+_KEYS: dict[int, Callable] = {}  # the motors' noise keys of a seed, by the batch's size
 
 def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
     """Compiled ``(params, carry, shared_xs, keys, first_block) -> (carry, outputs)`` for a batch.
@@ -77,8 +78,9 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
     cut into chunks.
     """
     key = (cfg, n_ticks, unroll)
-    if key in _COMPILED:
-        return _COMPILED[key]
+    fn = _COMPILED.get(key)
+    if fn is not None:
+        return fn
     import jax
     import jax.numpy as jnp
 
@@ -144,7 +146,10 @@ def _identifying_ticks(cfg: PlantSimConfig, p: Any, one_tick: Callable, carry: A
         x = tuple(jax.lax.dynamic_index_in_dim(a, t, keepdims=False) for a in xs)
         c, y = one_tick(c, x)
         pending = background_pending(c)
-        c = jax.lax.cond(pending, lambda c: c, lambda c: background_idle(cfg, p, c), c)
+        # the idle slice's few counters by select, not a branch (a branch's operands, the whole
+        # carry, would be copied every tick); the selects keep every other value as it is
+        idle = background_idle(cfg, p, c)
+        c = jax.tree_util.tree_map(lambda k, i: jnp.where(pending, k, i), c, idle)
         return t + 1, c, jax.lax.dynamic_update_index_in_dim(ys, y, t, 0), pending
 
     def outer(state):
@@ -157,17 +162,33 @@ def _identifying_ticks(cfg: PlantSimConfig, p: Any, one_tick: Callable, carry: A
     return carry, ys
 
 
+def _motor_keys(seed: int, n_motors: int) -> Any:
+    """``jax.random.split(jax.random.PRNGKey(seed), n_motors)``: one compiled call for a seed in
+    int32's range (the same keys; the two calls one by one cost ~0.5 ms, a one-motor second's
+    twentieth), the calls one by one for another."""
+    import jax
+
+    if not -2**31 <= seed < 2**31:
+        return jax.random.split(jax.random.PRNGKey(seed), n_motors)
+    fn = _KEYS.get(n_motors)
+    if fn is None:
+        fn = _KEYS[n_motors] = jax.jit(lambda s: jax.random.split(jax.random.PRNGKey(s), n_motors))
+    return fn(seed)
+
+
 def _cc_per_block(cfg: PlantSimConfig) -> int:
     """Current-noise draws of a noise block: more than the current-control ticks it can hold."""
     return math.ceil(NOISE_BLOCK * cfg.f_cc / cfg.f_pwm) + 1
 
 
-def _cc_index(cc: np.ndarray, n_cc: int) -> np.ndarray:
-    """For each tick of a chunk (whole noise blocks), the current-noise draw a current-control
-    tick reads: its block's draws, in the order of the block's current-control ticks."""
+def _cc_index(cc: np.ndarray, n_cc: int, chunk_ticks: int) -> np.ndarray:
+    """For each tick of a run cut into chunks of ``chunk_ticks`` (whole noise blocks), the
+    current-noise draw a current-control tick reads in its chunk's draws: its block's, in the
+    order of the block's current-control ticks."""
     per_block = cc.reshape(-1, NOISE_BLOCK)
-    j = np.maximum(np.cumsum(per_block, axis=1) - 1, 0)
-    return (j + n_cc * np.arange(len(per_block))[:, None]).reshape(-1).astype(np.int32)
+    j = np.maximum(np.cumsum(per_block, axis=1, dtype=np.int32) - 1, 0)
+    block_in_chunk = np.arange(len(per_block), dtype=np.int32) % np.int32(chunk_ticks // NOISE_BLOCK)
+    return (j + np.int32(n_cc) * block_in_chunk[:, None]).reshape(-1)
 
 
 def chunk_ticks_for(n_motors: int) -> int:
@@ -181,7 +202,8 @@ def _prime_fn(cfg: PlantSimConfig) -> Callable:
     """Compiled ``(params, carry) -> carry`` that turns a batch's initial ``(plant, estimator state,
     ECU, identifier state)`` into the scan's carry with the first tick's :class:`eol_cal.plant.tick.Sensed`."""
     key = (cfg, "prime")
-    if key not in _COMPILED:
+    fn = _COMPILED.get(key)
+    if fn is None:
         import jax
 
         def one_motor(p, carry):
@@ -189,8 +211,15 @@ def _prime_fn(cfg: PlantSimConfig) -> Callable:
             est_state, sensed = sense(cfg, p, plant.theta_m, est_state, mech_state)
             return plant, est_state, ecu, sensed
 
-        _COMPILED[key] = jax.jit(lambda p, carry: background(cfg, p, jax.vmap(one_motor, axis_name=BATCH_AXIS)(p, carry)))
-    return _COMPILED[key]
+        def prime(p, carry):
+            carry = jax.vmap(one_motor, axis_name=BATCH_AXIS)(p, carry)
+            # From power-on the identifier's first slice computes nothing (no evaluation is due
+            # before a revolution of samples, no mark check before one identified): background's
+            # branch takes its idle side, which alone compiles and runs in a fraction of the time
+            return carry if cfg.mech is None else background_idle(cfg, p, carry)
+
+        fn = _COMPILED[key] = jax.jit(prime)
+    return fn
 
 
 def simulate(
@@ -337,7 +366,7 @@ def simulate(
         carries = [initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
                    for p, s in zip(params, specs, strict=True)]
         carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
-    keys = jax.random.split(jax.random.PRNGKey(seed), len(specs))
+    keys = _motor_keys(seed, len(specs))
 
     chunk_ticks = chunk_ticks_for(len(specs)) if chunk_ticks is None else int(chunk_ticks)
     if chunk_ticks < NOISE_BLOCK or chunk_ticks % NOISE_BLOCK:
@@ -351,6 +380,7 @@ def simulate(
     # The last chunk runs padded (its extra ticks are dropped with the carry after them).
     pad = -n_total % chunk_ticks
     inputs = tuple(np.pad(a, (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
+    inputs += (_cc_index(inputs[2], n_cc, chunk_ticks),)
     t = np.arange(n_rec, dtype=np.float64) / m0.f_pwm
     t.flags.writeable = False  # one time base shared by the lot's captures
 
@@ -361,7 +391,6 @@ def simulate(
     for start in range(0, n_total, chunk_ticks):
         stop = min(start + chunk_ticks, n_total)
         shared = tuple(a[start:start + chunk_ticks] for a in inputs)
-        shared += (_cc_index(shared[2], n_cc),)
         carry, ys = fn(batch, carry, shared, keys, np.int32(start // NOISE_BLOCK))
         lo = max(start, n_pre)
         if lo < stop:

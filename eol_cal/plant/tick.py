@@ -28,6 +28,7 @@ Everything runs in float32, on numpy arrays for the initial state and traced JAX
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -104,6 +105,12 @@ class Sensed(NamedTuple):
     mech: Any = None
 
 
+def _mech_replaced(carry: tuple, step: Callable[[Any, Any], Any]) -> tuple:
+    """``carry`` with its identifier state ``m`` replaced by ``step(m, estimator state)``."""
+    plant, est_state, ecu, sensed = carry
+    return plant, est_state, ecu, sensed._replace(mech=step(sensed.mech, est_state))
+
+
 def background(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
     """The identifier's background slice after a tick (:func:`eol_cal.firmware.mech_tick.mech_step`'s
     second half) for a whole batch: ``p`` and ``carry`` batched as the scan holds them (leading axis
@@ -114,9 +121,7 @@ def background(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
     """
     if cfg.mech is None:
         return carry
-    plant, est_state, ecu, sensed = carry
-    ms = mech_tick.batched_background(cfg.mech, mech_tables_of(p), sensed.mech, est_state)
-    return plant, est_state, ecu, sensed._replace(mech=ms)
+    return _mech_replaced(carry, lambda ms, es: mech_tick.batched_background(cfg.mech, mech_tables_of(p), ms, es))
 
 
 def background_pending(carry: tuple) -> Any:
@@ -131,15 +136,12 @@ def background_idle(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
     """:func:`background` where :func:`background_pending` is false, without the evaluation."""
     import jax.numpy as jnp
 
-    plant, est_state, ecu, sensed = carry
-    return plant, est_state, ecu, sensed._replace(mech=mech_tick.mech_background_idle(cfg.mech, sensed.mech, xp=jnp))
+    return _mech_replaced(carry, lambda ms, es: mech_tick.mech_background_idle(cfg.mech, ms, xp=jnp))
 
 
 def background_heavy(cfg: PlantSimConfig, p: PlantParams, carry: tuple) -> tuple:
     """:func:`background` where :func:`background_pending` is true: every motor's slice."""
-    plant, est_state, ecu, sensed = carry
-    ms = mech_tick.batched_background_all(cfg.mech, mech_tables_of(p), sensed.mech, est_state)
-    return plant, est_state, ecu, sensed._replace(mech=ms)
+    return _mech_replaced(carry, lambda ms, es: mech_tick.batched_background_all(cfg.mech, mech_tables_of(p), ms, es))
 
 
 def sense(cfg: PlantSimConfig, p: PlantParams, theta_m: Any, est_state: Any, mech_state: Any = None
