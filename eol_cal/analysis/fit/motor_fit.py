@@ -4,6 +4,7 @@ unpacked from the solver's arrays with delta-method intervals."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -144,9 +145,9 @@ def amp_phase_pairs(ab: np.ndarray, cov2: np.ndarray) -> list[Estimate]:
     var_ph = (g_ph[:, None, :] @ cov2 @ g_ph[:, :, None])[:, 0, 0]
     ci_amp = Z95 * np.sqrt(np.maximum(var_amp, 0.0))
     ci_ph = Z95 * np.sqrt(np.maximum(var_ph, 0.0))
-    return [Estimate(0.0, math.inf, 0.0, math.inf) if m == 0.0
-            else Estimate(m, float(ca), float(wrap_pi(math.atan2(b, a))), float(cp))
-            for (a, b), m, ca, cp in zip(ab.tolist(), amp.tolist(), ci_amp.tolist(), ci_ph.tolist(), strict=True)]
+    phase = np.asarray(wrap_pi(np.array([math.atan2(b, a) for a, b in ab.tolist()])))  # math's atan2, as before
+    return [Estimate(0.0, math.inf, 0.0, math.inf) if m == 0.0 else Estimate(m, ca, ph, cp)
+            for m, ca, ph, cp in zip(amp.tolist(), ci_amp.tolist(), phase.tolist(), ci_ph.tolist(), strict=True)]
 
 
 def segment_scatter(jac: np.ndarray, res: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -231,6 +232,18 @@ class CovarianceParts:
     dof_red: float
 
 
+@functools.cache
+def _pair_blocks(n_tau: int, n_pairs: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fancy index of the 2 x 2 diagonal blocks of ``n_pairs`` cos/sin pairs that lie one after
+    another from ``n_tau`` on (each part's harmonics in turn): ``cov[rows, cols]`` is (n_pairs, 2, 2).
+    The same few specs every call: built once (issue 37: the unpacking's per-motor numpy calls)."""
+    first = n_tau + 2 * np.arange(n_pairs)
+    pair = np.arange(2)
+    rows, cols = first[:, None, None] + pair[None, :, None], first[:, None, None] + pair[None, None, :]
+    rows.flags.writeable = cols.flags.writeable = False
+    return rows, cols
+
+
 def _intervals(parts: CovarianceParts, spec: FitSpec,
                row_var: np.ndarray | None) -> tuple[dict, np.ndarray, float, float, np.ndarray]:
     """The harmonics' estimates, cov6, the delay's half-width (s), the Birge ratio and the covariance.
@@ -271,11 +284,8 @@ def _intervals(parts: CovarianceParts, spec: FitSpec,
     p = parts.p
     harmonics: dict = {h: {} for h in spec.harmonics}
     names = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
-    # the pairs lie one after another from n_tau on, each part's harmonics in turn
-    first = n_tau + 2 * np.arange(len(names) * nh)
-    pair = np.arange(2)
-    estimates = amp_phase_pairs(p[n_tau : n_tau + 2 * len(names) * nh].reshape(-1, 2),
-                                cov[first[:, None, None] + pair[None, :, None], first[:, None, None] + pair[None, None, :]])
+    rows, cols = _pair_blocks(n_tau, len(names) * nh)
+    estimates = amp_phase_pairs(p[n_tau : n_tau + 2 * len(names) * nh].reshape(-1, 2), cov[rows, cols])
     for ip, name in enumerate(names):
         for ih, h in enumerate(spec.harmonics):
             harmonics[h][name] = estimates[ip * nh + ih]
