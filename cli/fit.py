@@ -118,7 +118,7 @@ def frame_estimator(choice: str | None, paths: list[str], traces: list) -> tuple
 @click.option("--solver", type=click.Choice(["gn", "lm"]), default="gn", show_default=True,
               help="Gauss-Newton or Levenberg-Marquardt.")
 @click.option("--batch", type=click.Choice(["auto", "loop", "vmap", "map"]), default="auto", show_default=True,
-              help="How many motors are solved in JAX (auto: map from 16 motors on, else loop).")
+              help="How many motors are solved in JAX (auto: vmap from 16 motors on, else loop).")
 @click.option("--allow-untraced", is_flag=True,
               help="Fit captures with no record of the ECU state (a foreign DAQ's): a warning instead of a refusal.")
 @click.option("--allow-compensated", is_flag=True,

@@ -4,6 +4,7 @@ unpacked from the solver's arrays with delta-method intervals."""
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from dataclasses import dataclass
 
@@ -125,14 +126,28 @@ def amp_phase(a: float, b: float, cov2: np.ndarray) -> Estimate:
     """Amplitude/phase of a cos/sin pair (value*cos(phase), value*sin(phase)) with 95 % half-widths from
     its covariance ``cov2`` (2 x 2), by the delta method: the amplitude's along the phasor, the phase's
     across it (rad; not capped: a caller that reports it caps it at pi)."""
-    amp = math.hypot(a, b)
-    if amp == 0.0:
-        return Estimate(0.0, float("inf"), 0.0, float("inf"))
-    g_amp = np.array([a, b]) / amp
-    g_ph = g_amp[::-1] * np.array([-1.0, 1.0]) / amp  # (-b, a) / amp^2 without overflowing amp^2
-    var_amp = float(g_amp @ cov2 @ g_amp)
-    var_ph = float(g_ph @ cov2 @ g_ph)
-    return Estimate(amp, Z95 * math.sqrt(max(var_amp, 0.0)), float(wrap_pi(math.atan2(b, a))), Z95 * math.sqrt(max(var_ph, 0.0)))
+    return amp_phase_pairs(np.array([[a, b]], dtype=float), np.asarray(cov2, dtype=float)[None])[0]
+
+
+def amp_phase_pairs(ab: np.ndarray, cov2: np.ndarray) -> list[Estimate]:
+    """:func:`amp_phase` of ``k`` pairs at once: ``ab`` (k, 2), their covariances ``cov2`` (k, 2, 2).
+
+    One stacked product for every pair of a fit, not two small products a pair: the per-pair numpy
+    calls were most of :func:`unpack`'s time (issue 37). The stacked matmul runs the same BLAS kernels
+    per pair as the single products did, so the results are the same bit for bit
+    (tests/test_fit_unpack.py); the amplitude is ``math.hypot``'s (``np.hypot`` rounds differently).
+    """
+    amp = np.array([math.hypot(a, b) for a, b in ab.tolist()])
+    some = np.where(amp == 0.0, 1.0, amp)  # a zero pair is answered below without its gradient
+    g_amp = ab / some[:, None]
+    g_ph = g_amp[:, ::-1] * np.array([-1.0, 1.0]) / some[:, None]  # (-b, a) / amp^2 without overflowing amp^2
+    var_amp = (g_amp[:, None, :] @ cov2 @ g_amp[:, :, None])[:, 0, 0]
+    var_ph = (g_ph[:, None, :] @ cov2 @ g_ph[:, :, None])[:, 0, 0]
+    ci_amp = Z95 * np.sqrt(np.maximum(var_amp, 0.0))
+    ci_ph = Z95 * np.sqrt(np.maximum(var_ph, 0.0))
+    phase = np.asarray(wrap_pi(np.array([math.atan2(b, a) for a, b in ab.tolist()])))  # math's atan2, as before
+    return [Estimate(0.0, math.inf, 0.0, math.inf) if m == 0.0 else Estimate(m, ca, ph, cp)
+            for m, ca, ph, cp in zip(amp.tolist(), ci_amp.tolist(), phase.tolist(), ci_ph.tolist(), strict=True)]
 
 
 def segment_scatter(jac: np.ndarray, res: np.ndarray, C: np.ndarray) -> np.ndarray:
@@ -217,6 +232,18 @@ class CovarianceParts:
     dof_red: float
 
 
+@functools.cache
+def _pair_blocks(n_tau: int, n_pairs: int) -> tuple[np.ndarray, np.ndarray]:
+    """The fancy index of the 2 x 2 diagonal blocks of ``n_pairs`` cos/sin pairs that lie one after
+    another from ``n_tau`` on (each part's harmonics in turn): ``cov[rows, cols]`` is (n_pairs, 2, 2).
+    The same few specs every call: built once (issue 37: the unpacking's per-motor numpy calls)."""
+    first = n_tau + 2 * np.arange(n_pairs)
+    pair = np.arange(2)
+    rows, cols = first[:, None, None] + pair[None, :, None], first[:, None, None] + pair[None, None, :]
+    rows.flags.writeable = cols.flags.writeable = False
+    return rows, cols
+
+
 def _intervals(parts: CovarianceParts, spec: FitSpec,
                row_var: np.ndarray | None) -> tuple[dict, np.ndarray, float, float, np.ndarray]:
     """The harmonics' estimates, cov6, the delay's half-width (s), the Birge ratio and the covariance.
@@ -257,13 +284,15 @@ def _intervals(parts: CovarianceParts, spec: FitSpec,
     p = parts.p
     harmonics: dict = {h: {} for h in spec.harmonics}
     names = [name for name, on in (("c", spec.fit_c), ("k", spec.fit_k)) if on]
+    rows, cols = _pair_blocks(n_tau, len(names) * nh)
+    estimates = amp_phase_pairs(p[n_tau : n_tau + 2 * len(names) * nh].reshape(-1, 2), cov[rows, cols])
     for ip, name in enumerate(names):
         for ih, h in enumerate(spec.harmonics):
-            i = n_tau + (ip * nh + ih) * 2
-            harmonics[h][name] = amp_phase(p[i], p[i + 1], cov[i : i + 2, i : i + 2])
+            harmonics[h][name] = estimates[ip * nh + ih]
     i6 = [n_tau + (ip * nh + spec.harmonics.index(6)) * 2 + j for ip in range(len(names)) for j in (0, 1)]
     delay_ci = Z95 * math.sqrt(max(cov[0, 0], 0.0)) * TAU_SCALE if spec.delay_s is None else 0.0
-    return harmonics, cov[np.ix_(i6, i6)], delay_ci, birge, cov
+    i6_rows = np.array(i6)
+    return harmonics, cov[i6_rows[:, None], i6_rows], delay_ci, birge, cov
 
 
 def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit:
@@ -299,7 +328,8 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
     t_avg = comp.ymean[:S_valid] + nuis[:, 0]
     coef = np.concatenate([nuis, g], axis=1)
     sst = float(comp.sst[valid].sum())
-    finite = bool(np.all(np.isfinite(p)) and np.all(np.isfinite(np.diag(cov))))
+    # the arrays' own methods: np.all/np.any's dispatch was a tenth of unpack's time (issue 37)
+    finite = bool(np.isfinite(p).all() and np.isfinite(np.diag(cov)).all())
     return MotorFit(
         harmonics=harmonics,
         delay_s=float(delay),
@@ -312,7 +342,7 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         n_samples=int(n),
         coef=coef,
         birge=birge,
-        current=(comp.cur_re + 1j * comp.cur_im)[:S_valid] if np.any(comp.cur_re) or np.any(comp.cur_im) else None,
+        current=(comp.cur_re + 1j * comp.cur_im)[:S_valid] if comp.cur_re.any() or comp.cur_im.any() else None,
         finite=finite,
         cov6=cov6,
         parts=parts,
