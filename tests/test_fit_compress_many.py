@@ -22,17 +22,12 @@ from eol_cal.analysis.fit import compression
 from eol_cal.analysis.fit.compression import compress, compress_many
 from eol_cal.analysis.fit.synth import synthetic_segments
 
+from _fit_reference import plain_normal_equations
+
 
 def _reference(theta, t, y, pole_pairs, spec):
-    """One segment's (R^T R, z, floor, phasor of a second signal or None), computed plainly."""
-    X = fit.design_matrix(theta, t, pole_pairs, spec)
-    yc = y - y.mean()
-    XtX = X.T @ X
-    empty = np.diag(XtX) == 0.0
-    XtX[empty, empty] = 1.0
-    L = np.linalg.cholesky(XtX)
-    z = np.linalg.solve(L, X.T @ yc)
-    return XtX, z, yc @ yc - z @ z, empty
+    XtX, _, z, floor, empty = plain_normal_equations(theta, t, y, pole_pairs, spec)
+    return XtX, z, floor, empty
 
 
 def _motors():
