@@ -49,6 +49,9 @@ from typing import Any
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 HERE = Path(__file__).resolve()
 FIGURES = ("k6", "c6", "r2", "rms")
+#: a baseline whose float path differs in the last bits (the batched compression's products, issue 37)
+#: agrees to this relative difference (tests/test_fit_typed.py's tolerance); a changed result does not
+SAME_REL = 1e-12
 #: the refit's stages (``--stages``): (label, module, function); the function is looked up in that
 #: module at call time by its callers (a lazy import, or a name of that module's own)
 STAGES = (
@@ -294,7 +297,7 @@ def main() -> None:
     cpu = dict(wall)
     load0 = os.getloadavg()
     ref: list[dict[str, Any]] | None = None
-    phase_diff = 0.0
+    phase_diff = worst = 0.0
     with tempfile.TemporaryDirectory() as d:
         from eol_cal.lot.refit import REFIT_BATCH
 
@@ -310,8 +313,10 @@ def main() -> None:
                 if res["rows"]:
                     ref = ref or res["rows"]
                     for x, y in zip(ref, res["rows"], strict=True):
-                        if x["serial"] != y["serial"] or any(x[k] != y[k] for k in FIGURES):
+                        rel = max(abs(x[k] - y[k]) / max(abs(x[k]), abs(y[k]), 1e-300) for k in FIGURES)
+                        if x["serial"] != y["serial"] or rel > SAME_REL:
                             raise RuntimeError(f"{name}: {y['serial']} differs from the first refit: {x} {y}")
+                        worst = max(worst, rel)
                         phase_diff = max(phase_diff, abs(x["phase_k6"] - y["phase_k6"]))
                 print(f"round {r + 1}: {name:<28} {a.serials / res['wall']:7.2f} serials/s  "
                       f"{res['cpu'] / a.serials * 1e3:6.1f} ms CPU/serial  load {os.getloadavg()[0]:.2f}", flush=True)
@@ -332,7 +337,8 @@ def main() -> None:
         for new, old in (("loop (1 process)", "baseline loop (1 process)"),
                          ("dask, 2 workers", "baseline dask, 2 workers")):
             print(f"{new}: {wall[old] / wall[new]:.2f}x the baseline's")
-    print(f"k6, c6, R^2, RMS identical in every refit; largest phase_k6 difference {phase_diff:.3g} rad")
+    print(f"k6, c6, R^2, RMS within {worst:.2g} relative in every refit (at most {SAME_REL:g}); largest phase_k6 "
+          f"difference {phase_diff:.3g} rad")
 
 
 if __name__ == "__main__":
