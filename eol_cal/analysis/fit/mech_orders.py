@@ -182,7 +182,7 @@ def pair_covariance(noise: np.ndarray, scatter: np.ndarray, S: int) -> tuple[np.
     w, U = np.linalg.eigh(scatter - noise)
     excess = (U * np.maximum(w, 0.0)) @ U.T
     t, dof = excess_t(float(np.trace(noise)), float(np.trace(excess)), S)
-    return (noise if math.isinf(dof) else (noise + excess) * t * t), dof
+    return (noise + excess) * t * t, dof  # without excess: t = 1 and the excess is zero
 
 
 def region_scale(dof: float) -> float:
