@@ -129,7 +129,11 @@ def _scan(page, text: str) -> None:
 
 def _verdict(page, word: str, serial: str) -> None:
     expect(page.locator("#verdict-serial")).to_contain_text(serial, timeout=MOTOR_S * 1000)
-    expect(page.locator("#verdict-word")).to_have_text(word, timeout=MOTOR_S * 1000)
+    try:
+        expect(page.locator("#verdict-word")).to_have_text(word, timeout=MOTOR_S * 1000)
+    except AssertionError as e:  # the panel's reasons say why: a bare ERROR tells nothing
+        raise AssertionError(f"{serial}: {page.locator('#verdict-word').inner_text()!r}, not {word!r}; reasons: "
+                             f"{page.locator('#reasons').inner_text()!r}") from e
 
 
 def _comparable(doc, key: str = ""):
