@@ -127,13 +127,14 @@ def _scan(page, text: str) -> None:
     page.keyboard.press("Enter")
 
 
-def _verdict(page, word: str, serial: str) -> None:
+def _verdict(page, word: str, serial: str, panel: Served | None = None) -> None:
     expect(page.locator("#verdict-serial")).to_contain_text(serial, timeout=MOTOR_S * 1000)
     try:
         expect(page.locator("#verdict-word")).to_have_text(word, timeout=MOTOR_S * 1000)
     except AssertionError as e:  # the panel's reasons say why: a bare ERROR tells nothing
+        said = f"; the panel's output:\n{panel.text[-3000:]}" if panel else ""
         raise AssertionError(f"{serial}: {page.locator('#verdict-word').inner_text()!r}, not {word!r}; reasons: "
-                             f"{page.locator('#reasons').inner_text()!r}") from e
+                             f"{page.locator('#reasons').inner_text()!r}{said}") from e
 
 
 def _comparable(doc, key: str = ""):
@@ -191,14 +192,14 @@ def test_a_session_through_the_panel_leaves_the_terminal_loops_records(tmp_path,
 
     _scan(page, FAILING)
     expect(page.locator('#steps li[data-step="acquire"]')).to_be_visible(timeout=MOTOR_S * 1000)
-    _verdict(page, "FAIL", FAILING)
+    _verdict(page, "FAIL", FAILING, panel)
     expect(page.locator("#reasons")).to_contain_text("max_k6")
     expect(page.locator('#margins tr[data-key="max_k6"]')).to_have_class("out")
     expect(page.locator("#trace-label")).to_contain_text("calibration capture")
     expect(page.locator("#verdict-where")).to_contain_text("report.html", timeout=60_000)
 
     _scan(page, PASSING[0])
-    _verdict(page, "PASS", PASSING[0])
+    _verdict(page, "PASS", PASSING[0], panel)
     expect(page.locator("#trace-label")).to_have_text("compensated")  # the latest capture
     expect(page.locator("#counts")).to_have_text("2 run(s) of 2 motor(s): 1 pass, 1 fail, 0 error", timeout=60_000)
     expect(page.locator("#last li")).to_have_count(2)
