@@ -235,8 +235,10 @@ class _RefitSetup:
             row["failed_checks"] = [c.key for c in checks if c.passed is False]
 
 
-#: threads of :func:`refit_in_process`: the machine's two cores (the fit's numpy and JAX kernels
-#: release the GIL: each thread refits a batch of its own while the other's kernels run)
+#: threads of :func:`refit_in_process`: the machine's two cores. They overlap only where the GIL
+#: is released (numpy's and BLAS's kernels on long arrays, JAX's programs): a refit holds it 68-73 %
+#: of its time (py-spy, docs/benchmarks.md "Lot refit throughput"), so two threads give at most
+#: ~1.4x one; :func:`refit_lot`'s worker processes share nothing and scale
 REFIT_THREADS = 2
 
 
