@@ -19,6 +19,9 @@ machine move much less than the wall time.
   what reading the files costs with the library alone;
 - ``loop``: the refit in one process (:func:`eol_cal.lot.refit.refit_serials`, batches of
   :data:`~eol_cal.lot.refit.REFIT_BATCH` serials);
+- ``threads``: the refit in one process on both cores (:func:`eol_cal.lot.refit.refit_in_process`:
+  the same batches on :data:`~eol_cal.lot.refit.REFIT_THREADS` threads); ``cores`` is its CPU time
+  over its wall time;
 - ``dask, N workers``: :func:`eol_cal.lot.refit.refit_lot` on the cluster `eol-cal refit` starts;
 - ``--baseline DIR``: the loop and the 2-worker cluster once more with the code of another
   checkout (``git worktree add DIR COMMIT``), its ``eol_cal`` imported instead of this one.
@@ -144,7 +147,7 @@ def _child_read(lot: list[list[Path]], plain_asammdf: bool) -> tuple[list[Any], 
     return [], time.perf_counter() - t0, _tree_cpu() - c0
 
 
-def _child_loop(lot: list[list[Path]], warm: list[list[Path]]) -> tuple[list[Any], float, float]:
+def _child_loop(lot: list[list[Path]], warm: list[list[Path]], threads: bool) -> tuple[list[Any], float, float]:
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot import refit
     from eol_cal.lot.cluster import prepare_fit_process
@@ -153,7 +156,10 @@ def _child_loop(lot: list[list[Path]], warm: list[list[Path]]) -> tuple[list[Any
     prepare_fit_process(cache)
     _rows_of(refit, warm, bench="none", cache_dir=cache)
     c0, t0 = _tree_cpu(), time.perf_counter()
-    rows = _rows_of(refit, lot, bench="none", cache_dir=cache)
+    if threads:
+        rows = refit.refit_in_process(lot, bench="none", cache_dir=cache)
+    else:
+        rows = _rows_of(refit, lot, bench="none", cache_dir=cache)
     return rows, time.perf_counter() - t0, _tree_cpu() - c0
 
 
@@ -180,8 +186,8 @@ def child(name: str, lot_dir: Path, warm_dir: Path, out: Path) -> None:
     lot, warm = _groups(lot_dir), _groups(warm_dir)
     if name in ("read_capture", "asammdf"):
         rows, wall, cpu = _child_read(lot, name == "asammdf")
-    elif name == "loop":
-        rows, wall, cpu = _child_loop(lot, warm)
+    elif name in ("loop", "threads"):
+        rows, wall, cpu = _child_loop(lot, warm, name == "threads")
     else:
         rows, wall, cpu = _child_dask(lot, warm, int(name.split("-")[1]))
     bad = [r["error"] for r in rows if r["error"]]
@@ -287,6 +293,7 @@ def main() -> None:
         ("read+decode (read_capture)", "read_capture", None),
         ("read+decode (asammdf)", "asammdf", None),
         ("loop (1 process)", "loop", None),
+        ("threads (1 process)", "threads", None),
         ("dask, 1 worker", "dask-1", None),
         ("dask, 2 workers", "dask-2", None),
     ]
@@ -324,17 +331,22 @@ def main() -> None:
     print(f"{a.serials} serials x {len(POINTS)} captures x {a.rounds} round(s), {os.cpu_count()} cores, "
           f"load average {load0[0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
     base_name = "baseline loop (1 process)" if a.baseline is not None else "loop (1 process)"
-    print(f"{'':<30}{'s':>8}{'serials/s':>11}{'vs ' + ('baseline' if a.baseline else 'loop'):>13}{'cpu/serial':>12}")
+    print(f"{'':<30}{'s':>8}{'serials/s':>11}{'vs ' + ('baseline' if a.baseline else 'loop'):>13}{'cpu/serial':>12}"
+          f"{'cores':>7}")
     for name, _, _ in runs:
         print(f"{name:<30}{wall[name]:>8.1f}{n / wall[name]:>11.2f}{wall[base_name] / wall[name]:>12.2f}x"
-              f"{cpu[name] / n * 1e3:>9.1f} ms")
-    loop, read = wall["loop (1 process)"], wall["read+decode (read_capture)"]
-    print(f"loop: {n / loop:.1f} serials/s (target >= 40), {loop / read:.2f}x the time to read and decode the files "
-          f"(target <= 3x; {loop / wall['read+decode (asammdf)']:.2f}x plain asammdf's)")
+              f"{cpu[name] / n * 1e3:>9.1f} ms{cpu[name] / wall[name]:>7.2f}")
+    read = wall["read+decode (read_capture)"]
+    for name in ("loop (1 process)", "threads (1 process)"):
+        one = wall[name]
+        print(f"{name}: {n / one:.1f} serials/s (target >= 40), {one / read:.2f}x the time to read and decode the "
+              f"files (target <= 3x; {one / wall['read+decode (asammdf)']:.2f}x plain asammdf's)")
     print(f"dask 2 workers: {wall['dask, 1 worker'] / wall['dask, 2 workers']:.2f}x 1 worker (target >= 1.8x), "
-          f"{loop / wall['dask, 2 workers']:.2f}x the loop")
+          f"{wall['loop (1 process)'] / wall['dask, 2 workers']:.2f}x the loop, "
+          f"{wall['threads (1 process)'] / wall['dask, 2 workers']:.2f}x the threads")
     if a.baseline is not None:
         for new, old in (("loop (1 process)", "baseline loop (1 process)"),
+                         ("threads (1 process)", "baseline loop (1 process)"),
                          ("dask, 2 workers", "baseline dask, 2 workers")):
             print(f"{new}: {wall[old] / wall[new]:.2f}x the baseline's")
     print(f"k6, c6, R^2, RMS within {worst:.2g} relative in every refit (at most {SAME_REL:g}); largest phase_k6 "

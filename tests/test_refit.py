@@ -16,7 +16,8 @@ from cli.main import cli
 from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.lot.cluster import RefitWorkerSetup, local_cluster
-from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_lot, refit_serials
+from eol_cal.lot import refit as refit_mod
+from eol_cal.lot.refit import find_captures, read_rows, refit_capture, refit_in_process, refit_lot, refit_serials
 from eol_cal.records.write import insert_records
 
 SERIALS = ("R-1", "R-2", "R-3")
@@ -84,6 +85,36 @@ def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: P
     assert rows[1]["verdict"] == rows[3]["verdict"] == "error"
     for group, row in zip(mixed, rows, strict=True):
         assert row == refit_capture(group, bench="none")
+
+
+def test_a_refit_in_threads_gives_the_rows_of_one_batch_after_the_other_and_isolates_a_failed_task(
+        lot: Path, tmp_path: Path, monkeypatch):
+    """Two threads of this process, a batch each (:func:`refit_in_process`): each row bit for bit
+    the row of its batch refitted alone, in the order of the groups; a bad capture spoils its own
+    row, a task that raises its own batch's rows (the other batches' rows are whole)."""
+    bad = tmp_path / "X" / "bad.mf4"
+    bad.parent.mkdir()
+    bad.write_bytes(b"not an mdf file")
+    groups = find_captures([str(lot)])
+    mixed = [groups[0], [bad], groups[1], groups[2], groups[0]]
+    done: list[dict] = []
+    rows = refit_in_process(mixed, bench="none", threads=2, batch=2, on_done=done.append)
+    assert done == rows and [r["serial"] for r in rows] == ["R-1", None, "R-2", "R-3", "R-1"]
+    assert "bad.mf4" in rows[1]["error"] and rows[1]["verdict"] == "error"
+    assert rows == [row for k in range(0, len(mixed), 2) for row in refit_serials(mixed[k:k + 2], bench="none")]
+
+    real = refit_mod.refit_serials
+
+    def broken_second_batch(groups, *args, **kw):
+        if groups[0] == mixed[2]:
+            raise RuntimeError("a worker's bug")
+        return real(groups, *args, **kw)
+
+    monkeypatch.setattr(refit_mod, "refit_serials", broken_second_batch)
+    again = refit_in_process(mixed, bench="none", threads=2, batch=2)
+    assert [r["error"] for r in again[2:4]] == ["RuntimeError: a worker's bug"] * 2
+    assert [r["capture"] for r in again[2:4]] == [str(groups[1][0]), str(groups[2][0])]
+    assert again[:2] + again[4:] == rows[:2] + rows[4:]
 
 
 def _worker_state() -> tuple[int, bool, int, str | None]:

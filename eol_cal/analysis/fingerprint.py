@@ -247,8 +247,8 @@ def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWind
     for j in range(poles // 2):
         r = int(math.floor((dg + 2 * math.pi * j) / delta + 0.5)) % N
         e = math.remainder(dg - r * delta, 2 * math.pi)
-        fit = placed.fit((stats, r), cov=False)
-        rss = fit[2] if fit is not None and fit[4] >= N // 2 else math.nan
+        fit = placed.trial(stats, r)
+        rss = fit[0] if fit is not None and fit[1] >= N // 2 else math.nan
         trials.append((rss, r, e))
     frac_ok = sorted((x for x in trials if abs(x[2]) <= frac_tol), key=lambda x: abs(x[2]))
     if not frac_ok:

@@ -142,32 +142,60 @@ def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, 
            N: int, cov: bool) -> JointFit:
     """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
     :func:`joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
-    ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (a placement trial's figures are those of
-    the full fit; ``cov`` adds the variances)."""
+    ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (``cov`` adds the variances)."""
     P = low_order_complement(N)
     nF = P.shape[1]
-    dof = n - ((POLY_DEGREE + 1) * n_stretches + nF * len(halves))
-    L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
-    if info == 0:
-        z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
-    if info == 0:
+    dof = _dof(n, n_stretches, halves, nF)
+    factor = _factor(G, rhs)
+    G_inv: np.ndarray | None
+    if factor is not None:
+        L, z = factor
         sol = scipy.linalg.lapack.dtrtrs(L, z, lower=1, trans=1)[0]
         rss = max(ss - float(z @ z), 0.0)
         G_inv = scipy.linalg.cho_solve((L, True), np.eye(len(rhs)), check_finite=False) if cov else None
-    else:  # not positive definite (a pulse's errors not separable from the motions): least norm
-        G_inv = np.linalg.pinv(G)
-        sol = G_inv @ rhs
-        # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 over every edge = ss - 2 rhs.sol + sol^T G sol
-        rss = max(ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
+    else:
+        G_inv, sol, rss = _least_norm(G, rhs, ss)
     fp = np.full(2 * N, np.nan)
     var = np.full(2 * N, np.nan)
-    C = rss / max(1, dof) * G_inv if cov else None
+    C = rss / max(1, dof) * G_inv if cov and G_inv is not None else None
     for i, d in enumerate(halves):
         s = slice(i * nF, (i + 1) * nF)
         fp[d::2] = P @ sol[s]
         if C is not None:
             var[d::2] = np.sum((P @ C[s, s]) * P, axis=1)
     return fp, var, rss, sum(FP_FORWARD << d for d in halves), dof
+
+
+def _residual(G: np.ndarray, rhs: np.ndarray, ss: float) -> float:
+    """:func:`_solve`'s residual alone (a placement trial's figure), the same bits: the errors
+    themselves are not solved for where the Cholesky factor exists."""
+    factor = _factor(G, rhs)
+    if factor is None:
+        return _least_norm(G, rhs, ss)[2]
+    z = factor[1]
+    return max(ss - float(z @ z), 0.0)
+
+
+def _dof(n: int, n_stretches: int, halves: tuple[int, ...], nF: int) -> int:
+    """Edges less unknowns: each stretch's polynomial, each half's errors."""
+    return n - ((POLY_DEGREE + 1) * n_stretches + nF * len(halves))
+
+
+def _factor(G: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(L, L^-1 rhs)`` of the Cholesky factor ``G = L L^T``; None where ``G`` is not positive definite."""
+    L, info = scipy.linalg.lapack.dpotrf(G, lower=1)
+    if info == 0:
+        z, info = scipy.linalg.lapack.dtrtrs(L, rhs, lower=1)
+    return (L, z) if info == 0 else None
+
+
+def _least_norm(G: np.ndarray, rhs: np.ndarray, ss: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """``(G^+, solution, residual)`` where ``G`` is not positive definite (a pulse's errors not
+    separable from the motions): the least-norm solution."""
+    G_inv = np.linalg.pinv(G)
+    sol = G_inv @ rhs
+    # |phi_res|^2 + 2 r.err + counts.err^2 - |S^T err|^2 over every edge = ss - 2 rhs.sol + sol^T G sol
+    return G_inv, sol, max(ss - 2.0 * float(rhs @ sol) + float(sol @ (G @ sol)), 0.0)
 
 
 def _halves(seen: np.ndarray, N: int) -> tuple[int, ...]:
@@ -199,19 +227,25 @@ class PlacedWindows:
         for s in self._sums.values():
             s.add(w, shift)
 
-    def fit(self, extra: tuple[EdgeSums, int] | None = None, cov: bool = True) -> JointFit | None:
-        """The joint fit of the windows placed, and ``extra`` (a window, its offset) if given;
-        None when no half is covered."""
-        seen = self.seen if extra is None else self.seen + np.roll(extra[0].seen, extra[1], axis=1)
-        halves = _halves(seen, self.N)
+    def fit(self, cov: bool = True) -> JointFit | None:
+        """The joint fit of the windows placed; None when no half is covered."""
+        halves = _halves(self.seen, self.N)
         if not halves:
             return None
         s = self.sums(halves)
-        if extra is None:
-            return _solve(s.G, s.rhs, s.ss, s.n, s.n_stretches, halves, self.N, cov)
-        G, rhs, ss, n = extra[0].normal(halves, extra[1])
-        return _solve(s.G + G, s.rhs + rhs, s.ss + ss, s.n + n, s.n_stretches + len(extra[0].stretches),
-                      halves, self.N, cov)
+        return _solve(s.G, s.rhs, s.ss, s.n, s.n_stretches, halves, self.N, cov)
+
+    def trial(self, w: EdgeSums, shift: int) -> tuple[float, int] | None:
+        """``(rss, dof)`` of the joint fit with window ``w`` added at offset ``shift``: what a
+        placement trial reads (the figures of that fit, bit for bit), the errors not solved for (a
+        refit's motor tries ~18 placements); None when no half is covered."""
+        halves = _halves(self.seen + np.roll(w.seen, shift, axis=1), self.N)
+        if not halves:
+            return None
+        s = self.sums(halves)
+        G, rhs, ss, n = w.normal(halves, shift)
+        nF = low_order_complement(self.N).shape[1]
+        return _residual(s.G + G, s.rhs + rhs, s.ss + ss), _dof(s.n + n, s.n_stretches + len(w.stretches), halves, nF)
 
 
 def joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float,
@@ -222,7 +256,7 @@ def joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: f
     ``(k >> 1) mod 2N``: forward half (``k = 4m + 1``) and reverse half (``4m + 3``). Returns
     ``(fp (2N,), var (2N,), rss, dirs, dof)``; a half with a pulse never seen, or fewer than 1.25
     revolutions of edges, is left out (NaN entries, not in ``dirs``); ``dof`` = edges - unknowns.
-    ``cov=False`` skips the variances (NaN): a placement trial needs the residual only.
+    ``cov=False`` skips the variances (NaN).
 
     Each stretch's polynomial is projected out of its edges (Frisch-Waugh): the errors' normal
     equations are then ``(nF * dirs)`` square, summed per pulse from the edges (:class:`EdgeSums`),

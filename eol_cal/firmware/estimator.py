@@ -262,13 +262,20 @@ def _program(kind: str, cfg: EstimatorConfig, build: Callable[[EstimatorConfig],
     return _PROGRAMS[memo]
 
 
-def _scan(cfg: EstimatorConfig, state: EstimatorState, abh: np.ndarray, tables: HallTables
+def _scan(program: Callable[..., tuple[jax.Array, ...]], state: EstimatorState, abh: np.ndarray, tables: HallTables
           ) -> tuple[EstimatorState, EstimatorOut]:
-    """One chunk of the batched scan (:func:`_scan_chunk`, kept between processes: :func:`_program`)."""
-    args = (*state, abh, *tables)
-    res = _program("scan", cfg, _scan_chunk, args)(*args)
+    """One chunk of the batched scan: ``program`` (:func:`_scan_program`) from ``state``."""
+    res = program(*state, abh, *tables)
     n_state = len(EstimatorState._fields)
     return EstimatorState(*res[:n_state]), EstimatorOut(*res[n_state:])
+
+
+def _scan_program(cfg: EstimatorConfig, state: EstimatorState, abh: np.ndarray, tables: HallTables
+                  ) -> Callable[..., tuple[jax.Array, ...]]:
+    """The compiled chunk of the batched scan (:func:`_scan_chunk`, kept between processes:
+    :func:`_program`) for every chunk of a run: its key (the configuration's text, the arguments'
+    shapes) built once a run, not once a chunk."""
+    return _program("scan", cfg, _scan_chunk, (*state, abh, *tables))
 
 
 def _lanes(n: int) -> int:
@@ -335,8 +342,9 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
     # committed to the device as the scan's own states are (one program for both)
     state = jax.device_put(init_state(pcfg, abh[0, :, 2], abh[0, :, 0], abh[0, :, 1]), jax.devices()[0])
     outs = []
+    program = _scan_program(pcfg, state, abh[:chunk], tables)  # every chunk has the first's shapes
     for k in range(0, len(abh), chunk):
-        state, out = _scan(pcfg, state, abh[k:k + chunk], tables)
+        state, out = _scan(program, state, abh[k:k + chunk], tables)
         outs.append(out)
     fields = [np.concatenate([np.asarray(o[f]) for o in outs]) for f in range(len(EstimatorOut._fields))]
     return [EstimatorOut(*(x[:m, i] for x in fields)) for i, m in enumerate(lengths)]

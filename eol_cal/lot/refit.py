@@ -110,11 +110,7 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
     (:func:`eol_cal.analysis.fit.capture.measure_firmware_frames`, the same figures as one motor
     at a time). The windows' p-p figures, which a row does not report, are not computed.
     """
-    rows: list[dict[str, Any]] = []
-    for paths in groups:
-        row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
-        row.update(capture=str(paths[0]), reasons=[], failed_checks=[])
-        rows.append(row)
+    rows = [_blank(paths) for paths in groups]
     try:
         setup = _RefitSetup(limits_file, variant, bench, motor, cache_dir)
     except _ERRORS as exc:
@@ -135,6 +131,13 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
         except _ERRORS as exc:
             _error(row, exc)
     return rows
+
+
+def _blank(group: Sequence[str | Path]) -> dict[str, Any]:
+    """A group's row before its refit: every key None, ``capture`` its first file."""
+    row: dict[str, Any] = dict.fromkeys(ROW_KEYS)
+    row.update(capture=str(group[0]), reasons=[], failed_checks=[])
+    return row
 
 
 def _error(row: dict[str, Any], exc: BaseException) -> None:
@@ -232,6 +235,52 @@ class _RefitSetup:
             row["failed_checks"] = [c.key for c in checks if c.passed is False]
 
 
+#: threads of :func:`refit_in_process`: the machine's two cores. They overlap only where the GIL
+#: is released (numpy's and BLAS's kernels on long arrays, JAX's programs): a refit holds it 68-73 %
+#: of its time (py-spy, docs/benchmarks.md "Lot refit throughput"), so two threads give at most
+#: ~1.4x one; :func:`refit_lot`'s worker processes share nothing and scale
+REFIT_THREADS = 2
+
+
+def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | None = None,
+                     variant: str | None = None, bench: str = "paper", motor: str = "paper",
+                     cache_dir: str | Path | None = None, threads: int = REFIT_THREADS, batch: int = REFIT_BATCH,
+                     on_done: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
+    """:func:`refit_serials` of every group in this process, ``batch`` groups a task on ``threads``
+    threads (no cluster); rows in the order of ``groups``, the same rows as one batch after the
+    other (the arguments as :func:`refit_serials`'; ``on_done`` is called in this thread, in order).
+
+    A task is pure (files in, rows out: each thread's batch has its own captures, inputs, fits and
+    compression scope, a context variable); what the threads share is the process's caches of
+    compiled programs, filled once (two threads that miss one at once each build it, the same
+    program). A task that raises gives each of its groups a row with ``error``, as on a cluster
+    (:func:`refit_lot`); a bad capture spoils only its own row (:func:`refit_serials`)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    starts = range(0, len(groups), max(1, batch))
+    rows: list[dict[str, Any]] = []
+    with ThreadPoolExecutor(max(1, threads), thread_name_prefix="refit") as pool:
+        futures = [pool.submit(refit_serials, groups[k:k + batch], limits_file, variant, bench, motor, cache_dir)
+                   for k in starts]
+        for k, fut in zip(starts, futures, strict=True):
+            try:
+                done = fut.result()
+            except Exception as exc:  # noqa: BLE001 - a task that failed: reported per group, the lot goes on
+                done = [_failed(group, exc) for group in groups[k:k + batch]]
+            for row in done:
+                rows.append(row)
+                if on_done is not None:
+                    on_done(row)
+    return rows
+
+
+def _failed(group: Sequence[str | Path], exc: BaseException) -> dict[str, Any]:
+    """The row of a group whose task failed as a whole."""
+    row = _blank(group)
+    _error(row, exc)
+    return row
+
+
 def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | None = None, variant: str | None = None,
               on_done: Callable[[dict[str, Any]], None] | None = None, retries: int = 2,
               bench: str = "paper", motor: str = "paper", cache_dir: str | Path | None = None,
@@ -256,12 +305,7 @@ def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | N
         try:
             done = fut.result()
         except Exception as exc:  # noqa: BLE001 - a task that failed on every retry: reported per capture
-            done = []
-            for group in paths[k:k + batch]:
-                row = dict.fromkeys(ROW_KEYS)
-                row.update(capture=str(group[0]), reasons=[], failed_checks=[])
-                _error(row, exc)
-                done.append(row)
+            done = [_failed(group, exc) for group in paths[k:k + batch]]
         for j, row in enumerate(done):
             rows[k + j] = row
             if on_done is not None:

@@ -117,14 +117,18 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
         res = Y - Q @ (Q.T @ Y)
         n, T = len(t), float(t[-1] - t[0])
         b = 2 * math.pi * (t - t[0]) / T
-        rows = bin_steps(b, bins).T  # (bins, n), shared by the segment's lines: a line's bins are whole rows
+        keeps = [_clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)
+                 for h in harmonics]
+        # the bins some line of the segment reads (the 6th's alone: half of them), each built once:
+        # (bins, n), shared by the segment's lines, a line's bins whole rows
+        need = np.any(keeps, axis=0)
+        rows = bin_steps(b, bins[need]).T if need.any() else np.zeros((0, n), dtype=complex)
         cur = res[:, 1] if seg.kt_iq is not None else None
-        for j, h in enumerate(harmonics):
-            keep = _clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)
+        for j, (h, keep) in enumerate(zip(harmonics, keeps, strict=True)):
             k = bins[keep]
             omega = h * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
             var_pair[s, j] = line_noise(res[:, 0], cur, h * (theta - theta[0]), b, k, omega, spec, tau_s,
-                                        seg.path_response, basis=Q, steps=rows[keep].T)
+                                        seg.path_response, basis=Q, steps=rows[keep[need]].T)
             dof[s, j] = 2 * len(k)
         var_white[s] = 2.0 * float(res[:, 0] @ res[:, 0]) / max(n - A.shape[1], 1) / n
         n_s[s] = n
