@@ -4,7 +4,9 @@ A jitted call costs about 1.3 us of dispatch per array it takes or gives (its bu
 an output array made for each); the plant's parameters and scan state are some 130 of them, about
 0.19 ms a call, more than half a millisecond of a one-motor simulated second at 4000 ticks a call.
 Packed, they are three arrays. Packing is exact: the leaves are laid side by side and cut out again
-(no conversion), so whatever a computation does with them is bit for bit the same.
+(no conversion). Under XLA's defaults a computation on them gives what it gave on the leaves, bit
+for bit; the one-kernel loops of :func:`eol_cal.numerics.xla.configure_xla` may round differently
+(LLVM contracts float operations across the loop's buffers, and where they lie moves with it).
 """
 
 from __future__ import annotations
