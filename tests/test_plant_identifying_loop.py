@@ -23,6 +23,7 @@ _COMPARE = textwrap.dedent("""
     import jax
     import numpy as np
     from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
+    from eol_cal.numerics.packing import unpack
     from eol_cal.plant import simulate as S
     from eol_cal.plant.ecu_model import true_block
     from eol_cal.plant.profile import constant
@@ -40,7 +41,8 @@ _COMPARE = textwrap.dedent("""
         res = S.simulate(specs, prof, mode="compensated", blocks=blocks, seed=2, carry_out=carry)
         arrays = [np.asarray(v) for r in res for v in (*r.capture.channels.values(), r.theta_r, r.theta_hat,
                                                          r.theta_enc, r.mech_active, r.theta_m)]
-        return arrays + [np.asarray(x) for x in jax.tree_util.tree_leaves(carry[0].state)], res
+        state = unpack(carry[0].packing, carry[0].state)  # the scan's state, leaf by leaf
+        return arrays + [np.asarray(x) for x in jax.tree_util.tree_leaves(state)], res
 
     new, res = run()
 

@@ -293,8 +293,3 @@ def estimator_tables(p: PlantParams) -> HallTables:
 def sensor_errors(p: PlantParams) -> SensorErrors:
     """The kinematic sensor model's error record of these parameters."""
     return SensorErrors(p.edge_error, p.hall_offset, p.grid_offset)
-
-
-def stack_params(params: list[PlantParams]) -> PlantParams:
-    """Stack the parameters of several motors along a new leading axis (a lot for ``vmap``)."""
-    return PlantParams(*(np.stack(fields) for fields in zip(*params, strict=True)))

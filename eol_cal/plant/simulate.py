@@ -28,12 +28,13 @@ from eol_cal.firmware.mech import MechConsts, block_mech_tables
 from eol_cal.firmware.settling import settle_s
 from eol_cal.plant import control
 from eol_cal.plant.ecu_model import batch_options, estimator_config, simulated_ecu_state, true_block
-from eol_cal.plant.params import PlantSpec, stack_params, to_params
+from eol_cal.plant.params import PlantSpec, to_params
 from eol_cal.plant.profile import Profile
 from eol_cal.plant.tick import (
     BATCH_AXIS, OUT_COLUMNS, TWO_PI, PlantSimConfig, background, background_heavy, background_idle, background_pending,
     initial_carry, sense, tick,
 )
+from eol_cal.numerics.packing import Packing, pack, pack_stacked, packing_of, unpack
 from eol_cal.numerics.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
 #: ticks of one draw of sensor noise (and the unit of a chunk's length)
@@ -43,11 +44,13 @@ NOISE_BLOCK = 1000
 @dataclass(frozen=True)
 class PlantCarry:
     """Where a run of :func:`simulate` ended: the scan's state (plant, estimator, ECU, identifier;
-    every motor of the batch) and the configuration it was compiled for, to go on from
-    (``simulate(resume=...)``): the motor turns on and the ECU keeps what it learned."""
+    every motor of the batch; packed, :mod:`eol_cal.numerics.packing`, as ``packing`` says) and the
+    configuration it was compiled for, to go on from (``simulate(resume=...)``): the motor turns
+    on and the ECU keeps what it learned."""
 
     cfg: PlantSimConfig
     state: Any
+    packing: Packing
 
 
 @dataclass(frozen=True)
@@ -66,18 +69,20 @@ class SimResult:
     theta_m: np.ndarray | None = None
 
 
-_COMPILED: dict[tuple, Callable] = {}
+_COMPILED: dict[tuple, Any] = {}  # compiled chunks, and primes with their carry's packing
 _KEYS: dict[int, Callable] = {}  # the motors' noise keys of a seed, by the batch's size
 
-def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
-    """Compiled ``(params, carry, shared_xs, keys, first_block) -> (carry, outputs)`` for a batch.
+def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c_pack: Packing) -> Callable:
+    """Compiled ``(params, carry, shared_xs, keys, first_block) -> (carry, outputs)`` for a batch,
+    its parameters and carry packed as ``p_pack`` and ``c_pack`` say (:mod:`eol_cal.numerics.packing`:
+    a few arrays to dispatch, not one per leaf).
 
     ``keys`` holds one PRNG key per motor; the sensor noise of every block of :data:`NOISE_BLOCK`
     ticks is drawn from ``fold_in(key, block)`` (its torque-transducer draws, one a tick, and its
     current-sensor draws, three a current-control tick), so a run does not depend on how it is
     cut into chunks.
     """
-    key = (cfg, n_ticks, unroll)
+    key = (cfg, n_ticks, unroll, p_pack, c_pack)
     fn = _COMPILED.get(key)
     if fn is not None:
         return fn
@@ -102,6 +107,7 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
                         axis_name=BATCH_AXIS)
 
     def chunk(p, carry, shared, keys, first_block):
+        p, carry = unpack(p_pack, p), unpack(c_pack, carry)
         tq_noise, i_noise = jax.vmap(motor_noise, in_axes=(0, None))(keys, first_block)
         xs = (*shared, tq_noise.T)
         if cfg.mech is None:
@@ -112,7 +118,7 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int) -> Callable:
             carry, ys = jax.lax.scan(body, carry, xs, unroll=unroll)
         else:
             carry, ys = _identifying_ticks(cfg, p, lambda c, x: one_tick(p, i_noise, c, x), carry, xs, n_ticks)
-        return carry, ys.transpose(1, 2, 0)  # motor- and channel-major: the host converts contiguous rows
+        return pack(c_pack, carry, jnp), ys.transpose(1, 2, 0)  # motor- and channel-major: the host converts contiguous rows
 
     fn = jax.jit(chunk)
     _COMPILED[key] = fn
@@ -198,28 +204,35 @@ def chunk_ticks_for(n_motors: int) -> int:
     return NOISE_BLOCK * max(1, min(4, 64 // max(1, n_motors)))
 
 
-def _prime_fn(cfg: PlantSimConfig) -> Callable:
+def _prime_fn(cfg: PlantSimConfig, p_pack: Packing, i_pack: Packing) -> tuple[Callable, Packing]:
     """Compiled ``(params, carry) -> carry`` that turns a batch's initial ``(plant, estimator state,
-    ECU, identifier state)`` into the scan's carry with the first tick's :class:`eol_cal.plant.tick.Sensed`."""
-    key = (cfg, "prime")
-    fn = _COMPILED.get(key)
-    if fn is None:
+    ECU, identifier state)`` (packed as ``i_pack`` says) into the scan's carry with the first
+    tick's :class:`eol_cal.plant.tick.Sensed`, packed; and that carry's packing."""
+    key = (cfg, "prime", p_pack, i_pack)
+    got = _COMPILED.get(key)
+    if got is None:
         import jax
+        import jax.numpy as jnp
 
         def one_motor(p, carry):
             plant, est_state, ecu, mech_state = carry
             est_state, sensed = sense(cfg, p, plant.theta_m, est_state, mech_state)
             return plant, est_state, ecu, sensed
 
-        def prime(p, carry):
+        def primed(p, carry):
+            p, carry = unpack(p_pack, p), unpack(i_pack, carry)
             carry = jax.vmap(one_motor, axis_name=BATCH_AXIS)(p, carry)
             # From power-on the identifier's first slice computes nothing (no evaluation is due
             # before a revolution of samples, no mark check before one identified): background's
             # branch takes its idle side, which alone compiles and runs in a fraction of the time
             return carry if cfg.mech is None else background_idle(cfg, p, carry)
 
-        fn = _COMPILED[key] = jax.jit(prime)
-    return fn
+        # the carry's layout, from one motor's shapes (tracing only)
+        shapes = [tuple(jax.ShapeDtypeStruct((1, n), d) for n, d in zip(pk.sizes, pk.dtypes, strict=True))
+                  for pk in (p_pack, i_pack)]
+        c_pack = packing_of(jax.eval_shape(primed, *shapes), lead=1)
+        got = _COMPILED[key] = (jax.jit(lambda p, carry: pack(c_pack, primed(p, carry), jnp)), c_pack)
+    return got
 
 
 def simulate(
@@ -288,8 +301,6 @@ def simulate(
     -------
     list of SimResult
     """
-    import jax
-
     if mode not in control.MODES:
         raise InputError(None, "mode", f"unknown mode {mode!r}; known: {', '.join(control.MODES)}")
     specs = [specs] if isinstance(specs, PlantSpec) else list(specs)
@@ -332,7 +343,9 @@ def simulate(
     lens = {len(p.table_const) for p in params}
     if len(lens) != 1:
         raise InputError(None, "blocks", "a batch must share one table length")
-    batch = stack_params(params)
+    # the lot's parameters as one array (a few arrays for the compiled calls to take, not one a leaf)
+    p_pack = packing_of(params[0])
+    batch = pack_stacked(p_pack, params)
     options = batch_options(effective, ecu_estimator)
 
     est_cfg = estimator_config(specs[0], options=options)
@@ -360,18 +373,20 @@ def simulate(
     cmd = control.rate_flags(n_total, m0.f_pwm, m0.f_cmd)
 
     if resume is not None:
-        carry = resume.state
+        carry, c_pack = resume.state, resume.packing
     else:
         rng = np.random.default_rng(seed)
         carries = [initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
                    for p, s in zip(params, specs, strict=True)]
-        carry = _prime_fn(cfg)(batch, jax.tree_util.tree_map(lambda *a: np.stack(a), *carries))
+        i_pack = packing_of(carries[0])
+        prime, c_pack = _prime_fn(cfg, p_pack, i_pack)
+        carry = prime(batch, pack_stacked(i_pack, carries))
     keys = _motor_keys(seed, len(specs))
 
     chunk_ticks = chunk_ticks_for(len(specs)) if chunk_ticks is None else int(chunk_ticks)
     if chunk_ticks < NOISE_BLOCK or chunk_ticks % NOISE_BLOCK:
         raise InputError(None, "chunk_ticks", f"{chunk_ticks}: needs a multiple of {NOISE_BLOCK}")
-    fn = _chunk_fn(cfg, chunk_ticks, unroll)
+    fn = _chunk_fn(cfg, chunk_ticks, unroll, p_pack, c_pack)
     n_cc = _cc_per_block(cfg)
     # the recorded ticks (after the pre-roll) go straight into the captures' arrays, converted to
     # their dtypes on the way (one pass over the outputs; no float32 copy of the whole run first)
@@ -402,7 +417,7 @@ def simulate(
         if progress is not None:
             progress(stop / n_total)
     if carry_out is not None:
-        carry_out.append(PlantCarry(cfg, carry))
+        carry_out.append(PlantCarry(cfg, carry, c_pack))
     return results(n_rec)
 
 
