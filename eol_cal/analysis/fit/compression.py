@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_rows, mech_span, path_gain, unresolved_to_zero
+from eol_cal.numerics.gemm import gram_halves
 
 
 @dataclass
@@ -138,8 +139,8 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
     others carry: its figures do not depend on the motors compressed beside it."""
     m = spec.n_cols
     G = np.zeros((len(segs), m + k, m + k))
-    # per width, the piece's product (its lower left block stays zero: below) and its first half's rows
-    Gp = {w: (np.zeros((w, w)), (w + 1) // 2) for w in (m + 1, m + k)}
+    # per width, the piece's product (its lower left block stays zero: below)
+    Gp = {w: np.zeros((w, w)) for w in (m + 1, m + k)}
     # the pieces sized for the widest product (a current channel's row too), whatever this batch
     # carries: a segment's figures do not depend on the motors compressed beside it
     longest = max(1, min(_BLOCK, _SMALL_GEMM // ((m + 3) // 2 * (m + 2))))
@@ -163,13 +164,11 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
         o = 0
         for i, a, b in group:
             w = m + 1 + (segs[i].kt_iq is not None)
-            Xp, (Gw, h) = XT[:w, o : o + b - a], Gp[w]
+            Xp, Gw = XT[:w, o : o + b - a], Gp[w]
             unresolved_to_zero(Xp, spec, segs[i].mech)
-            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`),
-            # the lower half's upper triangle only (one column more: numpy's A @ A.T is SYRK);
-            # numpy's BLAS call releases the GIL (scipy's dgemm wrapper held it)
-            np.matmul(Xp[:h], Xp.T, out=Gw[:h])
-            np.matmul(Xp[h:], Xp[h - 1 :].T, out=Gw[h:, h - 1 :])
+            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`), the
+            # GIL released (numpy's matmul held it: gram_halves' docstring)
+            gram_halves(Xp, Gw)
             G[i, :w, :w] += Gw
             o += b - a
     low, high = np.tril_indices(m + k, -1)
