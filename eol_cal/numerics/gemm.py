@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import functools
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -41,28 +42,35 @@ def _dgemm() -> Any | None:
     i64, f64, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
     fn.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int, i64, i64, i64, f64, ptr, i64, ptr, i64, f64, ptr, i64]
     fn.restype = None
-    probe = np.random.default_rng(0).standard_normal((7, 45))[:, 3:40]
-    got = _blas_halves(fn, probe, np.zeros((7, 7)))
-    return fn if np.array_equal(got, _numpy_halves(probe, np.zeros((7, 7)))) else None
+    # a probe of two spans of 7 and 5 rows, columns apart (the leading dimension beyond the width)
+    probe, spans = np.random.default_rng(0).standard_normal((7, 45))[:, 3:], [(0, 37, 7), (2, 30, 5)]
+    got, want = (halves(probe, spans, np.zeros((2, 7, 7))) for halves in (functools.partial(_blas_halves, fn),
+                                                                          _numpy_halves))
+    return fn if np.array_equal(got, want) else None
 
 
-def gram_halves(x: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """``x @ x.T``'s upper triangle into ``out``, as two products of half the rows each, with the GIL
-    released where numpy's BLAS is reachable (module docstring); bit for bit ``np.matmul``'s.
+def gram_halves(x: np.ndarray, spans: Sequence[tuple[int, int, int]], out: np.ndarray) -> np.ndarray:
+    """Each span's ``x[:w, first:end] @ x[:w, first:end].T``, its upper triangle, into ``out[j, :w, :w]``,
+    as two products of half the rows each, with the GIL released where numpy's BLAS is reachable
+    (module docstring); bit for bit ``np.matmul``'s.
 
     Two halves, not one product: numpy's ``x @ x.T`` is SYRK, which packs its operands; a half's
     product of at most 100^3 multiplications is OpenBLAS's small-matrix GEMM, which does not (12 ns
     a sample against 25 at 16 rows, :data:`eol_cal.analysis.fit.compression._SMALL_GEMM`). The
     second half's rows start one column left of the diagonal (``x[h:] @ x[h - 1:].T``): numpy sends
-    a product of the same rows on both sides to SYRK.
+    a product of the same rows on both sides to SYRK. Every span in one call: the arrays' addresses
+    are looked up once (a lookup costs as much as the call, and both hold the GIL).
 
     Parameters
     ----------
-    x : ndarray, (w, n)
-        float64 rows of unit stride (rows of a larger array are fine), ``w`` >= 4.
-    out : ndarray, (w, w)
-        float64 rows of unit stride, apart from ``x``. Written: the first ``h = (w + 1) // 2`` rows
-        whole, the others from column ``h - 1`` on; the rest (below the diagonal) left as it is.
+    x : ndarray, (rows, N)
+        float64, rows of unit stride (rows of a larger array are fine).
+    spans : sequence of (first, end, w)
+        Columns ``first:end`` of ``x``'s first ``w`` rows (``w`` >= 4) for ``out[j]``.
+    out : ndarray, (len(spans), W, W)
+        float64, C-contiguous, apart from ``x``, ``W`` >= every ``w``. Written: of ``out[j]``, the
+        first ``h = (w + 1) // 2`` rows up to column ``w`` and the others from column ``h - 1`` to
+        ``w``; the rest left as it is.
 
     Returns
     -------
@@ -70,30 +78,31 @@ def gram_halves(x: np.ndarray, out: np.ndarray) -> np.ndarray:
         ``out``.
     """
     fn = _dgemm()
-    w, n = x.shape
     # what numpy's matmul sends to gemm: matrices (no dimension of 1: those go to gemv or its own
     # loop), float64, unit strides along the rows, rows at least as far apart as they are long
-    plain = (fn is not None and w >= 4 and n >= 2 and x.dtype == out.dtype == np.float64
-             and x.strides[1] == out.strides[1] == 8 and x.strides[0] % 8 == 0 and out.strides[0] % 8 == 0
-             and x.strides[0] >= 8 * n and out.strides[0] >= 8 * w)
-    return _blas_halves(fn, x, out) if plain else _numpy_halves(x, out)
+    plain = (fn is not None and x.dtype == out.dtype == np.float64 and out.flags.c_contiguous
+             and x.strides[1] == 8 and x.strides[0] % 8 == 0 and x.strides[0] >= 8 * x.shape[1]
+             and all(w >= 4 and end - first >= 2 for first, end, w in spans))
+    return _blas_halves(fn, x, spans, out) if plain else _numpy_halves(x, spans, out)
 
 
-def _numpy_halves(x: np.ndarray, out: np.ndarray) -> np.ndarray:
-    h = (len(x) + 1) // 2
-    np.matmul(x[:h], x.T, out=out[:h])
-    np.matmul(x[h:], x[h - 1 :].T, out=out[h:, h - 1 :])
+def _blas_halves(fn: Any, x: np.ndarray, spans: Sequence[tuple[int, int, int]], out: np.ndarray) -> np.ndarray:
+    """:func:`_numpy_halves` by the calls numpy's matmul makes: row-major, the left rows as they are,
+    the right ones transposed, the leading dimensions the row strides (elements)."""
+    px, po = x.__array_interface__["data"][0], out.__array_interface__["data"][0]
+    ldx, ldo = x.strides[0] // 8, out.shape[2]
+    for j, (first, end, w) in enumerate(spans):
+        h, a, c = (w + 1) // 2, px + 8 * first, po + out.strides[0] * j
+        fn(_ROW_MAJOR, _NO_TRANS, _TRANS, h, w, end - first, 1.0, a, ldx, a, ldx, 0.0, c, ldo)
+        fn(_ROW_MAJOR, _NO_TRANS, _TRANS, w - h, w - h + 1, end - first, 1.0, a + 8 * h * ldx, ldx,
+           a + 8 * (h - 1) * ldx, ldx, 0.0, c + 8 * (h * ldo + h - 1), ldo)
     return out
 
 
-def _blas_halves(fn: Any, x: np.ndarray, out: np.ndarray) -> np.ndarray:
-    """:func:`_numpy_halves` by the calls numpy's matmul makes: row-major, the left rows as they are,
-    the right ones transposed, the leading dimensions the row strides (elements)."""
-    w, n = x.shape
-    h = (w + 1) // 2
-    px, po = x.__array_interface__["data"][0], out.__array_interface__["data"][0]
-    ldx, ldo = x.strides[0] // 8, out.strides[0] // 8
-    fn(_ROW_MAJOR, _NO_TRANS, _TRANS, h, w, n, 1.0, px, ldx, px, ldx, 0.0, po, ldo)
-    fn(_ROW_MAJOR, _NO_TRANS, _TRANS, w - h, w - h + 1, n, 1.0, px + 8 * h * ldx, ldx, px + 8 * (h - 1) * ldx, ldx,
-       0.0, po + 8 * (h * ldo + h - 1), ldo)
+def _numpy_halves(x: np.ndarray, spans: Sequence[tuple[int, int, int]], out: np.ndarray) -> np.ndarray:
+    """:func:`gram_halves` by ``np.matmul`` (the GIL held)."""
+    for j, (first, end, w) in enumerate(spans):
+        xs, h = x[:w, first:end], (w + 1) // 2
+        np.matmul(xs[:h], xs.T, out=out[j, :h, :w])
+        np.matmul(xs[h:], xs[h - 1 :].T, out=out[j, h:w, h - 1 : w])
     return out
