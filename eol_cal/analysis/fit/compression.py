@@ -171,8 +171,8 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
         # the GIL released (numpy's matmul held it: gram_halves' docstring); a narrower piece's
         # product (no current channel) zero beyond its width, and so below the second half's diagonal
         Gp = gram_halves(XT, spans, np.zeros((len(group), m + k, m + k)))
-        # summed in the pieces' order (ufunc.at: a segment's pieces one after the other)
-        np.add.at(G, [i for i, _, _ in group], Gp)
+        for (i, _, _), Gw in zip(group, Gp, strict=True):
+            G[i] += Gw  # in the pieces' order (np.add.at would, at 8x the time)
     low, high = np.tril_indices(m + k, -1)
     G[:, low, high] = G[:, high, low]  # the lower triangle from the upper (the kernel's products are symmetric)
     return G
