@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from numpy._core import _multiarray_umath  # type: ignore[attr-defined]
 
 #: CBLAS's enums: row-major order, no transpose, transpose
 _ROW_MAJOR, _NO_TRANS, _TRANS = 101, 111, 112
@@ -29,12 +30,10 @@ _SYMBOLS = ("scipy_cblas_dgemm64_", "cblas_dgemm64_")
 def _dgemm() -> Any | None:
     """numpy's ``cblas_dgemm`` as a ctypes function (the GIL released during the call), or None where
     it is not found or does not give ``np.matmul``'s products bit for bit on a probe."""
-    from numpy._core import _multiarray_umath
-
     try:
-        # the extension module's handle: dlsym searches the libraries it was linked with, numpy's BLAS
+        # numpy's extension module's handle: dlsym searches the libraries it was linked with, its BLAS
         lib = ctypes.CDLL(_multiarray_umath.__file__)
-    except OSError:
+    except (OSError, TypeError):
         return None
     fn = next((getattr(lib, name) for name in _SYMBOLS if hasattr(lib, name)), None)
     if fn is None:
