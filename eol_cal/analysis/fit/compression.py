@@ -76,7 +76,8 @@ _BLOCK = 8000
 _SMALL_GEMM = 100**3
 #: Samples whose columns one numpy call builds: the pieces of several segments (of several motors)
 #: side by side in one buffer (a few long kernels instead of ~30 short ones a segment: the GIL is
-#: held between kernels only, so threads compress side by side), each piece's products one BLAS call.
+#: held between kernels only, so threads compress side by side), every piece's products in one
+#: :func:`~eol_cal.numerics.gemm.gram_halves` call (BLAS, the GIL released).
 _GROUP = 32768
 _WORK = threading.local()
 
