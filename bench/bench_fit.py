@@ -12,7 +12,8 @@ write is scipy.optimize.least_squares on the same model over every sample
 ``--batch`` times the batched fit alone: ``fit_many`` in each mode (loop, map, vmap; inline and with
 compression threads), captures/s (wall), CPU ms a capture (user + system of every thread) and the cores
 used (CPU s / wall s), and the compression alone (``compress_many`` on 1 and 2 threads as ``fit_many``
-queues it, and ``compress()`` a motor at a time); each checkout (this one, then each ``--baseline DIR``, alternating ``--rounds``
+queues it, and ``compress()`` a motor at a time), with the cores two GIL-free threads get at the start and
+the end (:func:`free_cores`: whether two cores were free at all); each checkout (this one, then each ``--baseline DIR``, alternating ``--rounds``
 times) in a process of its own on the same captures (generated here, handed over in a file), its
 ``eol_cal`` imported from the checkout; the fits' k6, c6, their phases and the delay compared with
 this checkout's (largest relative difference).
@@ -252,7 +253,8 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                 arrays.update({f"{i}.theta.{s}": m.theta[s], f"{i}.t.{s}": m.t[s], f"{i}.torque.{s}": m.torque[s]})
         np.savez(npz, **arrays)
         print(f"{captures} captures x 20000 samples, chunk {chunk}, harmonics {harmonics}; "
-              f"{len(os.sched_getaffinity(0))} cores, load at start {os.getloadavg()[0]:.1f}", flush=True)
+              f"{len(os.sched_getaffinity(0))} cores, load at start {os.getloadavg()[0]:.1f}, "
+              f"two GIL-free threads get {free_cores():.2f} cores", flush=True)
         got: dict[str, list[dict]] = {}
         for _ in range(rounds):
             for name, code in codes.items():
@@ -262,8 +264,8 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                 subprocess.run([sys.executable, os.path.abspath(__file__), "--batch-worker", npz, out, "--chunk", str(chunk),
                                 "--harmonics", harmonics], env=env, check=True)
                 got.setdefault(name, []).append(json.loads(Path(out).read_text()))
-        print(f"load at end {os.getloadavg()[0]:.1f}; best of {rounds} round(s) a row (captures/s wall; CPU ms a "
-              "capture, the least; cores used: CPU s / wall s of the best round)")
+        print(f"load at end {os.getloadavg()[0]:.1f}, two GIL-free threads get {free_cores():.2f} cores; best of {rounds} "
+              "round(s) a row (captures/s wall; CPU ms a capture, the least; cores used: CPU s / wall s of the best round)")
         print(f"{'row':<16}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>42}" for name, runs in got.items()))
         for r, (mode, th) in enumerate(BATCH_ROWS):
             cells = [_cell([x["rows"][r] for x in runs]) for runs in got.values()]
@@ -281,6 +283,30 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                          for k in COMPARED}
                 print(f"fits of {name} against this: largest relative difference "
                       + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
+
+
+def free_cores(seconds: float = 0.5) -> float:
+    """The cores this process gets now: CPU s / wall s of two threads of a numpy kernel that releases
+    the GIL (``np.sin`` on 64k doubles). The load average does not say it: the kernel shares the
+    cores among sessions (autogroups), so at load 3 one busy session beside leaves this one core."""
+    import resource
+    import threading
+
+    x = np.linspace(0.0, 1.0, 1 << 16)
+
+    def spin() -> None:
+        out, end = np.empty_like(x), time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            np.sin(x, out=out)
+
+    r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    threads = [threading.Thread(target=spin) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    return (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (time.perf_counter() - t0)
 
 
 def _cell(runs: list[dict]) -> str:
