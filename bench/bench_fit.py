@@ -13,10 +13,10 @@ write is scipy.optimize.least_squares on the same model over every sample
 compression threads), captures/s (wall), CPU ms a capture (user + system of every thread) and the cores
 used (CPU s / wall s), and the compression alone (``compress_many`` on 1 and 2 threads as ``fit_many``
 queues it, and ``compress()`` a motor at a time), with the cores two GIL-free threads get at the start and
-the end (:func:`free_cores`: whether two cores were free at all); each checkout (this one, then each ``--baseline DIR``, alternating ``--rounds``
-times) in a process of its own on the same captures (generated here, handed over in a file), its
-``eol_cal`` imported from the checkout; the fits' k6, c6, their phases and the delay compared with
-this checkout's (largest relative difference).
+the end (:func:`free_cores`: whether two cores were free at all); each checkout (this one, then each
+``--baseline DIR``, alternating ``--rounds`` times) in a process of its own on the same captures
+(generated here, handed over in a file), its ``eol_cal`` imported from the checkout; the fits' k6, c6,
+their phases and the delay compared with this checkout's (largest relative difference).
 
 ``--startup`` times the command line alone, from process start to its end: ``eol-cal --help``,
 ``eol-cal capture info`` and ``eol-cal fit`` (warm: its cache filled by a first run) on one 1 s
