@@ -10,11 +10,13 @@ write is scipy.optimize.least_squares on the same model over every sample
     python bench/bench_fit.py --startup [--rounds 5] [--baseline DIR] [--same]
 
 ``--batch`` times the batched fit alone: ``fit_many`` in each mode (loop, map, vmap; inline and with
-compression threads), captures/s (wall) and CPU ms a capture (user + system of every thread), and the
-compression alone; each checkout (this one, then each ``--baseline DIR``, alternating ``--rounds``
-times) in a process of its own on the same captures (generated here, handed over in a file), its
-``eol_cal`` imported from the checkout; the fits' k6, c6, their phases and the delay compared with
-this checkout's (largest relative difference).
+compression threads), captures/s (wall), CPU ms a capture (user + system of every thread) and the cores
+used (CPU s / wall s), and the compression alone (``compress_many`` on 1 and 2 threads as ``fit_many``
+queues it, and ``compress()`` a motor at a time), with the cores two GIL-free threads get at the start and
+the end (:func:`free_cores`: whether two cores were free at all); each checkout (this one, then each
+``--baseline DIR``, alternating ``--rounds`` times) in a process of its own on the same captures
+(generated here, handed over in a file), its ``eol_cal`` imported from the checkout; the fits' k6, c6,
+their phases and the delay compared with this checkout's (largest relative difference).
 
 ``--startup`` times the command line alone, from process start to its end: ``eol-cal --help``,
 ``eol-cal capture info`` and ``eol-cal fit`` (warm: its cache filled by a first run) on one 1 s
@@ -209,7 +211,30 @@ def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
         compress(m, spec)
     one = ((cpu() - c0) / len(motors) * 1e3, (time.perf_counter() - t0) / len(motors) * 1e3)
     Path(out).write_text(json.dumps(dict(code=os.path.dirname(os.path.dirname(eol_cal.__file__)), rows=rows,
-                                         compress_ms=one, load=os.getloadavg()[0], fits=fits)))
+                                         compress_ms=one, compress_rows=compress_rows(motors, spec, cpu),
+                                         load=os.getloadavg()[0], fits=fits)))
+
+
+def compress_rows(motors: list, spec: Any, cpu: Any) -> list[dict] | None:
+    """The compression alone as ``fit_many`` queues it (16 motors a ``compress_many`` call), on 1 and
+    2 threads: captures/s (wall), CPU ms a capture; None for a checkout without ``compress_many``."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    try:
+        from eol_cal.analysis.fit.compression import compress_many
+    except ImportError:
+        return None
+    blocks = [motors[a : a + 16] for a in range(0, len(motors), 16)]
+    S = max(m.n_segments for m in motors)
+    rows = []
+    for threads in (1, 2):
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(lambda b: compress_many(b, spec, S), blocks[:threads]))  # each thread's buffers
+            c0, t0 = cpu(), time.perf_counter()
+            list(pool.map(lambda b: compress_many(b, spec, S), blocks))
+            wall, used = time.perf_counter() - t0, cpu() - c0
+        rows.append(dict(threads=threads, rate=len(motors) / wall, cpu_ms=used / len(motors) * 1e3))
+    return rows
 
 
 def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, baselines: list[str]) -> None:
@@ -228,7 +253,8 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                 arrays.update({f"{i}.theta.{s}": m.theta[s], f"{i}.t.{s}": m.t[s], f"{i}.torque.{s}": m.torque[s]})
         np.savez(npz, **arrays)
         print(f"{captures} captures x 20000 samples, chunk {chunk}, harmonics {harmonics}; "
-              f"{len(os.sched_getaffinity(0))} cores, load at start {os.getloadavg()[0]:.1f}", flush=True)
+              f"{len(os.sched_getaffinity(0))} cores, load at start {os.getloadavg()[0]:.1f}, "
+              f"two GIL-free threads get {free_cores():.2f} cores", flush=True)
         got: dict[str, list[dict]] = {}
         for _ in range(rounds):
             for name, code in codes.items():
@@ -238,17 +264,18 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                 subprocess.run([sys.executable, os.path.abspath(__file__), "--batch-worker", npz, out, "--chunk", str(chunk),
                                 "--harmonics", harmonics], env=env, check=True)
                 got.setdefault(name, []).append(json.loads(Path(out).read_text()))
-        print(f"load at end {os.getloadavg()[0]:.1f}; best of {rounds} round(s) a row (captures/s wall; CPU ms a capture)")
-        print(f"{'row':<14}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>34}" for name, runs in got.items()))
+        print(f"load at end {os.getloadavg()[0]:.1f}, two GIL-free threads get {free_cores():.2f} cores; best of {rounds} "
+              "round(s) a row (captures/s wall; CPU ms a capture, the least; cores used: CPU s / wall s of the best round)")
+        print(f"{'row':<16}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>42}" for name, runs in got.items()))
         for r, (mode, th) in enumerate(BATCH_ROWS):
-            cells = []
-            for runs in got.values():
-                best = max(runs, key=lambda x: x["rows"][r]["rate"])["rows"][r]
-                cells.append(f"{best['rate']:8.1f}/s {min(x['rows'][r]['cpu_ms'] for x in runs):6.3f} ms"
-                             + ("" if best["converged"] else " NOT CONVERGED"))
-            print(f"{mode + ', ' + str(th) + ' thr':<14}" + "".join(f"{c:>34}" for c in cells))
-        print(f"{'compress()':<14}" + "".join(
-            f"{min(x['compress_ms'][0] for x in runs):>22.3f} ms CPU a capture" for runs in got.values()))
+            cells = [_cell([x["rows"][r] for x in runs]) for runs in got.values()]
+            print(f"{mode + ', ' + str(th) + ' thr':<16}" + "".join(f"{c:>42}" for c in cells))
+        for r, th in enumerate((1, 2)):
+            cells = [_cell([x["compress_rows"][r] for x in runs]) if runs[0].get("compress_rows") else "-"
+                     for runs in got.values()]
+            print(f"{'compress, ' + str(th) + ' thr':<16}" + "".join(f"{c:>42}" for c in cells))
+        print(f"{'compress()':<16}" + "".join(
+            f"{min(x['compress_ms'][0] for x in runs):>30.3f} ms CPU a capture" for runs in got.values()))
         ref = got["this"][0]["fits"]
         for name, runs in got.items():
             if name != "this":
@@ -256,6 +283,38 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                          for k in COMPARED}
                 print(f"fits of {name} against this: largest relative difference "
                       + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
+
+
+def free_cores(seconds: float = 0.5) -> float:
+    """The cores this process gets now: CPU s / wall s of two threads of a numpy kernel that releases
+    the GIL (``np.sin`` on 64k doubles). The load average does not say it: the kernel shares the
+    cores among sessions (autogroups), so at load 3 one busy session beside leaves this one core."""
+    import resource
+    import threading
+
+    x = np.linspace(0.0, 1.0, 1 << 16)
+
+    def spin() -> None:
+        out, end = np.empty_like(x), time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            np.sin(x, out=out)
+
+    r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+    threads = [threading.Thread(target=spin) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    r1 = resource.getrusage(resource.RUSAGE_SELF)
+    return (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / (time.perf_counter() - t0)
+
+
+def _cell(runs: list[dict]) -> str:
+    """One checkout's figures of one row over its rounds: the best rate, the least CPU ms a capture,
+    the cores the best round used."""
+    best = max(runs, key=lambda x: x["rate"])
+    return (f"{best['rate']:8.1f}/s {min(x['cpu_ms'] for x in runs):6.3f} ms {best['rate'] * best['cpu_ms'] / 1e3:4.2f} cores"
+            + ("" if best.get("converged", True) else " NOT CONVERGED"))
 
 
 def _run(code: str, args: list[str], env: dict[str, str]) -> tuple[float, float]:

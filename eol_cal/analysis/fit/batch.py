@@ -90,10 +90,12 @@ def fit_many(
         Called with the number of motors finished after each chunk.
     threads : int, optional
         Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
-        (their columns built by a few long numpy kernels and their products by BLAS, all outside the
-        GIL); 0 compresses in this thread. ``None`` (default): :func:`compression_threads`, two
-        workers for a batch of 32 motors or more on a machine of two cores or more, which keep
-        both cores of a 2-core machine busy beside the solve and the unpacking (docs/benchmarks.md).
+        (their columns built by a few long numpy kernels and their products by BLAS called without
+        the GIL, :func:`~eol_cal.numerics.gemm.gram_halves`: a compression thread holds the GIL
+        about a quarter of its time, between kernels); 0 compresses in this thread. ``None``
+        (default): :func:`compression_threads`, two workers for a batch of 32 motors or more on a
+        machine of two cores or more, which keep both cores of a 2-core machine busy beside the
+        solve and the unpacking (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver

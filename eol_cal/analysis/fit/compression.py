@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_rows, mech_span, path_gain, unresolved_to_zero
+from eol_cal.numerics.gemm import gram_halves
 
 
 @dataclass
@@ -75,7 +76,8 @@ _BLOCK = 8000
 _SMALL_GEMM = 100**3
 #: Samples whose columns one numpy call builds: the pieces of several segments (of several motors)
 #: side by side in one buffer (a few long kernels instead of ~30 short ones a segment: the GIL is
-#: held between kernels only, so threads compress side by side), each piece's products one BLAS call.
+#: held between kernels only, so threads compress side by side), every piece's products in one
+#: :func:`~eol_cal.numerics.gemm.gram_halves` call (BLAS, the GIL released).
 _GROUP = 32768
 _WORK = threading.local()
 
@@ -110,8 +112,10 @@ def _segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, kt_iq: np.nda
              pole_pairs: int) -> _Segment:
     theta = np.asarray(theta, dtype=float)
     signals = [np.asarray(torque, dtype=float)] + ([] if kt_iq is None else [np.asarray(kt_iq, dtype=float)])
+    # the mean as ndarray.mean takes it (the sum over the count), without its Python wrapper: a
+    # twelfth of a compression thread's time under the GIL (py-spy --gil, issue 37)
     return _Segment(theta, np.asarray(t, dtype=float), signals[0], signals[1] if kt_iq is not None else None,
-                    pole_pairs, tuple(float(y.mean()) for y in signals), mech_span(theta, pole_pairs))
+                    pole_pairs, tuple(float(np.add.reduce(y) / len(y)) for y in signals), mech_span(theta, pole_pairs))
 
 
 def _groups(segs: list[_Segment], piece: int) -> Iterator[list[tuple[int, int, int]]]:
@@ -138,8 +142,6 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
     others carry: its figures do not depend on the motors compressed beside it."""
     m = spec.n_cols
     G = np.zeros((len(segs), m + k, m + k))
-    # per width, the piece's product (its lower left block stays zero: below) and its first half's rows
-    Gp = {w: (np.zeros((w, w)), (w + 1) // 2) for w in (m + 1, m + k)}
     # the pieces sized for the widest product (a current channel's row too), whatever this batch
     # carries: a segment's figures do not depend on the motors compressed beside it
     longest = max(1, min(_BLOCK, _SMALL_GEMM // ((m + 3) // 2 * (m + 2))))
@@ -152,26 +154,26 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
         for i, a, b in group:
             sg, piece = segs[i], slice(o, o + b - a)
             theta[piece] = sg.theta[a:b]
-            np.subtract(sg.t[a:b], sg.t[0], out=tn[piece])
-            tn[piece] *= 2.0 / (sg.t[-1] - sg.t[0])
+            tp = np.subtract(sg.t[a:b], sg.t[0], out=tn[piece])
+            tp *= 2.0 / (sg.t[-1] - sg.t[0])
             np.subtract(sg.torque[a:b], sg.means[0], out=XT[m, piece])
             if sg.kt_iq is not None:
                 np.subtract(sg.kt_iq[a:b], sg.means[1], out=XT[m + 1, piece])
             o += b - a
         tn -= 1.0
         design_rows(theta, tn, segs[group[0][0]].pole_pairs, spec, XT, work)
-        o = 0
+        spans, o = [], 0
         for i, a, b in group:
             w = m + 1 + (segs[i].kt_iq is not None)
-            Xp, (Gw, h) = XT[:w, o : o + b - a], Gp[w]
-            unresolved_to_zero(Xp, spec, segs[i].mech)
-            # X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`),
-            # the lower half's upper triangle only (one column more: numpy's A @ A.T is SYRK);
-            # numpy's BLAS call releases the GIL (scipy's dgemm wrapper held it)
-            np.matmul(Xp[:h], Xp.T, out=Gw[:h])
-            np.matmul(Xp[h:], Xp[h - 1 :].T, out=Gw[h:, h - 1 :])
-            G[i, :w, :w] += Gw
+            unresolved_to_zero(XT[:w, o : o + b - a], spec, segs[i].mech)
+            spans.append((o, o + b - a, w))
             o += b - a
+        # each piece's X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`),
+        # the GIL released (numpy's matmul held it: gram_halves' docstring); a narrower piece's
+        # product (no current channel) zero beyond its width, and so below the second half's diagonal
+        Gp = gram_halves(XT, spans, np.zeros((len(group), m + k, m + k)))
+        for (i, _, _), Gw in zip(group, Gp, strict=True):
+            G[i] += Gw  # in the pieces' order (np.add.at would, at 8x the time)
     low, high = np.tril_indices(m + k, -1)
     G[:, low, high] = G[:, high, low]  # the lower triangle from the upper (the kernel's products are symmetric)
     return G
