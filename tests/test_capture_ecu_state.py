@@ -92,6 +92,14 @@ def test_simulated_captures_carry_the_state_they_simulate():
     assert est.flags == "INTERP_ENABLE" and comp.flags == "COMP_ENABLE|INTERP_ENABLE" and est.bank == comp.bank == 0
     image = B.pack(true_block(spec))
     assert comp.crc32 == f"{B.check(image).crc_stored:08x}" and est.crc32 != comp.crc32
+    # a layout-2 block's state from its image, packed once and kept (the same CRC every time)
+    from eol_cal.firmware.contract import FLAG_MECH_COMP_ENABLE, FLAGS_ESTIMATOR
+
+    blk = true_block(spec, flags=B.FLAG_COMP_ENABLE | B.FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR | FLAG_MECH_COMP_ENABLE,
+                     mech=True)
+    want = f"{B.check(B.pack(blk)).crc_stored:08x}"
+    assert simulated_ecu_state(spec, "compensated", blk).crc32 == want == simulated_ecu_state(spec, "compensated", blk).crc32
+    assert blk.image == B.pack(blk) and simulated_ecu_state(spec, "estimated", blk).crc32 != want
     # the analytic model: the raw encoder angle, no block
     assert trace_of(small().metadata) == Trace(EcuState(None), EcuState(None))
 

@@ -16,6 +16,7 @@ block with ``mech`` (:class:`eol_cal.firmware.mech_params.MechParams`) is layout
 
 from __future__ import annotations
 
+import functools
 import math
 import operator
 import struct
@@ -191,6 +192,19 @@ class ParamBlock:
         if tables[0].shape != tables[1].shape:
             raise InputError(None, "table_per_amp",
                              f"length {tables[1].size} differs from table_const's {tables[0].size}")
+
+    @functools.cached_property
+    def image(self) -> bytes:
+        """The block's byte image, :func:`pack`'s, made once per block: the block cannot change
+        (frozen fields, read-only tables, a frozen mechanical part), and a simulated ECU reads its
+        CRC every run (a layout-2 block's image costs ~0.3 ms, a simulated second's 4 %)."""
+        return pack(self)
+
+    @property
+    def crc(self) -> int:
+        """The CRC32 its image stores (what :func:`check` reports as ``crc_stored``)."""
+        assert self.layout_version is not None  # __post_init__ sets it
+        return int(_get(self.image, "crc32", self.table_len, self.layout_version))
 
     @property
     def table_len(self) -> int:

@@ -16,7 +16,7 @@ import numpy as np
 from eol_cal.capture.ecu_state import EcuState
 from eol_cal.errors import InputError
 from eol_cal.firmware import compensator, estimator
-from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock, check, flag_names, pack
+from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, ParamBlock, flag_names
 from eol_cal.firmware.contract import DEFAULT_TABLE_LEN
 from eol_cal.firmware.estimator import NOMINAL_HALL_ANGLE, EstimatorConfig
 from eol_cal.firmware.kinematics import fingerprint_of
@@ -91,9 +91,10 @@ def simulated_ecu_state(spec: PlantSpec, mode: str, block: ParamBlock | None) ->
     mode_bits = {"raw": 0, "estimated": FLAG_INTERP_ENABLE, "compensated": FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE}[mode]
     base = block if block is not None else true_block(spec)
     flags = (base.flags & ~(FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE)) | mode_bits
-    # (the block itself when its flags select the mode already: a copy validates it again)
+    # (the block itself when its flags select the mode already: its image, packed once and valid
+    # by construction, holds the CRC; a copy packs its own)
     blk = base if flags == base.flags else dataclasses.replace(base, flags=flags)
-    return EcuState(0, blk.sequence, f"{check(pack(blk)).crc_stored:08x}", flag_names(flags))
+    return EcuState(0, blk.sequence, f"{blk.crc:08x}", flag_names(flags))
 
 
 def estimator_config(spec: PlantSpec, block: ParamBlock | None = None, options: int | None = None) -> EstimatorConfig:
