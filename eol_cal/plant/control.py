@@ -20,6 +20,7 @@ PWM-synchronous ISR does. The PI integrates with the nominal period 1/1.68 kHz.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from fractions import Fraction
 from typing import TYPE_CHECKING, NamedTuple
@@ -61,12 +62,22 @@ def rate_flags(n_ticks: int, f_tick: float, f_task: float, start: int = 0) -> np
     Integer arithmetic on the ratio: 1680/20000 is not float-exact and a drifting float
     accumulator would shift the schedule over long runs.
     """
+    period = _rate_period(f_tick, f_task)
+    phase = start % period.size
+    return np.resize(np.concatenate((period[phase:], period[:phase])), n_ticks)
+
+
+@functools.lru_cache(maxsize=16)
+def _rate_period(f_tick: float, f_task: float) -> np.ndarray:
+    """:func:`rate_flags`' ticks ``0 .. den - 1`` (read-only; kept: a run's two rates cost ~0.1 ms
+    to derive, 1 % of a one-motor simulated second)."""
     r = Fraction(f_task).limit_denominator(10**6) / Fraction(f_tick).limit_denominator(10**6)
     # floor((k + den) num / den) = floor(k num / den) + num: the flags repeat every den ticks
     # (20 kHz / 1.68 kHz: 250), one period computed and repeated from the run's phase
-    k = np.arange(start % r.denominator, start % r.denominator + min(n_ticks, r.denominator), dtype=np.int64)
+    k = np.arange(r.denominator, dtype=np.int64)
     period = (k * r.numerator) // r.denominator > ((k - 1) * r.numerator) // r.denominator
-    return np.resize(period, n_ticks)
+    period.setflags(write=False)
+    return period
 
 
 def pi_current_step(

@@ -74,11 +74,10 @@ class Profile:
         for seg in self.segments:
             n = max(1, int(round(seg.seconds * f_tick)))
             iq = seg.i_qo(kt)
-            t = np.arange(n) / f_tick
             if prev_speed is None or seg.ramp_s <= 0.0:
                 w = np.ones(n)
             else:
-                w = np.clip((t + 1.0 / f_tick) / seg.ramp_s, 0.0, 1.0)
+                w = np.clip((np.arange(n) / f_tick + 1.0 / f_tick) / seg.ramp_s, 0.0, 1.0)
             p_speed = seg.speed_rpm if prev_speed is None else prev_speed
             p_iq = iq if prev_iq is None else prev_iq
             speeds.append(p_speed + w * (seg.speed_rpm - p_speed))
