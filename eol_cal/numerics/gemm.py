@@ -18,7 +18,10 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from numpy._core import _multiarray_umath  # type: ignore[attr-defined]
+try:  # numpy 2's extension module; numpy 1.x (pyproject allows >= 1.26) names it numpy.core's: np.matmul then
+    from numpy._core import _multiarray_umath  # type: ignore[attr-defined]
+except ImportError:  # pragma: no cover - numpy 1.x
+    _multiarray_umath = None
 
 #: CBLAS's enums: row-major order, no transpose, transpose
 _ROW_MAJOR, _NO_TRANS, _TRANS = 101, 111, 112
@@ -33,7 +36,7 @@ def _dgemm() -> Any | None:
     try:
         # numpy's extension module's handle: dlsym searches the libraries it was linked with, its BLAS
         lib = ctypes.CDLL(_multiarray_umath.__file__)
-    except (OSError, TypeError):
+    except (OSError, TypeError, AttributeError):  # AttributeError: numpy 1.x, no module (np.matmul)
         return None
     fn = next((getattr(lib, name) for name in _SYMBOLS if hasattr(lib, name)), None)
     if fn is None:
