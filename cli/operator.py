@@ -144,15 +144,14 @@ def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=N
     if demo_dir is None:
         with StepProgress(serial) as progress:
             return run_motor(for_motor(cfg, serial, station=station), progress, on_verdict, observers, behind)
-    from eol_cal.dyno.client import parse_address
     from eol_cal.sim.loopback import loopback_station
     from eol_cal.station.operator_session import demo_seed
 
     regmap = cfg.dyno.regmap  # the settings' map: the demo's dyno simulator serves the same one
     with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap) as st:
-        host, port = parse_address(st.dyno_address)
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
-        dyno = dataclasses.replace(cfg.dyno, host=host, port=port, watchdog_ms=st.watchdog_ms)
+        sim = st.dyno_config()
+        dyno = dataclasses.replace(cfg.dyno, host=sim.host, port=sim.port, timeout=sim.timeout, watchdog_ms=sim.watchdog_ms)
         mcfg = for_motor(cfg, serial, dyno=dyno, open_bus=st.open_bus, ecu_timing=st.ecu_timing, station=station)
         with StepProgress(serial) as progress:
             return run_motor(mcfg, progress, on_verdict, observers, behind)

@@ -344,8 +344,6 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     import time
 
     from cli.fit import enable_jax_cache
-    from eol_cal.dyno.client import parse_address
-    from eol_cal.dyno.transfer import DynoConfig
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key
     from eol_cal.sim.loopback import loopback_station
@@ -371,10 +369,9 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
         with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap, realtime=realtime) as st:
-            host, port = parse_address(st.dyno_address)
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(
-                serial=serial, dyno=DynoConfig(host=host, port=port, register_map=regmap, watchdog_ms=st.watchdog_ms),
+                serial=serial, dyno=st.dyno_config(regmap),
                 open_bus=st.open_bus, ecu_timing=st.ecu_timing,
                 seed_to_key=hmac_seed_to_key(P.DEV_SECRET), limits=limits, db=db, report_dir=out_dir / "reports",
                 profile=profile, spool_dir=out_dir / "spool", cache_dir=cache_dir,

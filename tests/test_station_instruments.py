@@ -11,7 +11,6 @@ from typing import Any
 
 import pytest
 
-from eol_cal.dyno.client import parse_address
 from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import hmac_seed_to_key
@@ -64,9 +63,8 @@ def test_a_cycle_reaches_the_dyno_and_the_ecu_only_through_its_instruments(tmp_p
         raise AssertionError("a step opened the configuration's ECU bus, not the instruments'")
 
     with loopback_station("SEAM-1", 3, tmp_path / "sim", spec_for=lambda req: spec) as st:
-        host, port = parse_address(st.dyno_address)
         real = StationConfig(
-            serial="SEAM-1", dyno=DynoConfig(host=host, port=port, watchdog_ms=st.watchdog_ms), open_bus=st.open_bus,
+            serial="SEAM-1", dyno=st.dyno_config(), open_bus=st.open_bus,
             ecu_timing=st.ecu_timing, seed_to_key=hmac_seed_to_key(P.DEV_SECRET),
             limits=load_limits(FIXTURES / "limits.toml", "EPS-STD"), db=tmp_path / "r.sqlite",
             report_dir=tmp_path / "reports", profile=str(tmp_path / "short.toml"), spool_dir=tmp_path / "spool",

@@ -20,7 +20,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from eol_cal.dyno import sim_dyno as ds
+from eol_cal.dyno.client import parse_address
 from eol_cal.dyno.sim_capture import synthetic_source
+from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.ecu.session import ClientTiming
 from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.ecu.transport import IsoTpTiming, open_bus
@@ -47,6 +49,9 @@ if TYPE_CHECKING:
 #: misses in a row failed a demo motor's acquisition. 5 s (and 5 s between an answer's frames, N_Bs
 #: and N_Cr) still bounds a dead simulator.
 SIM_ECU_TIMING = ClientTiming(p2_s=5.0, isotp=IsoTpTiming(n_bs_ms=5000, n_cr_ms=5000))
+#: ... the tester's Modbus request time-out towards the dyno simulator (s), for the same reason (a real
+#: dyno's: ``dyno.timeout_s``, 1 s); four tries (``DynoConfig.retries``) still bound a dead simulator
+SIM_DYNO_TIMEOUT_S = 5.0
 #: ... and the dyno watchdog the tester sets on them (ms), for the same reason (a real dyno's: 2 s)
 SIM_WATCHDOG_MS = 30_000
 
@@ -60,8 +65,8 @@ def demo_motor_spec(seed: int, serial: str) -> PlantSpec:
 
 @dataclass
 class LoopbackStation:
-    """The simulators of one motor and how to reach them (``ecu_timing``, ``watchdog_ms``: the
-    tester's settings for simulators in its own process, :data:`SIM_ECU_TIMING`)."""
+    """The simulators of one motor and how to reach them (``ecu_timing``, ``dyno_timeout_s``,
+    ``watchdog_ms``: the tester's settings for simulators in its own process, :data:`SIM_ECU_TIMING`)."""
 
     serial: str
     dyno_address: str
@@ -70,12 +75,20 @@ class LoopbackStation:
     dyno: DynoSimThread
     ecu: RemoteEcu
     ecu_timing: ClientTiming = SIM_ECU_TIMING
+    dyno_timeout_s: float = SIM_DYNO_TIMEOUT_S
     watchdog_ms: int = SIM_WATCHDOG_MS
 
     def open_bus(self) -> can.BusABC:
         """The tester's bus: python-can ``remote`` to the ECU simulator."""
 
         return open_bus("remote", self.can_channel)
+
+    def dyno_config(self, register_map: RegisterMap | None = None) -> DynoConfig:
+        """The tester's dyno configuration towards this simulator (``register_map``: the one it serves)."""
+
+        host, port = parse_address(self.dyno_address)
+        return DynoConfig(host=host, port=port, timeout=self.dyno_timeout_s, watchdog_ms=self.watchdog_ms,
+                          register_map=register_map)
 
 
 @contextlib.contextmanager
