@@ -18,6 +18,9 @@ from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.ecu.simconfig import Faults
 from eol_cal.sim.loopback import SIM_DYNO_TIMEOUT_S, SIM_ECU_TIMING, loopback_station
 
+#: each test waits seconds for a late simulator (CONTRIBUTING.md, "Fast or slow")
+pytestmark = pytest.mark.slow
+
 LATE_S = 0.8  # each frame the simulator sends: what a host that did not run its process for 0.8 s gives
 #: each Modbus answer of the dyno simulator: later than a real dyno's 1 s time-out (``dyno.timeout_s``)
 DYNO_LATE_S = 1.3
