@@ -24,3 +24,19 @@ def test_interp_over_the_bracketing_samples_is_interp_over_every_sample():
     sub = np.interp(t_q, t[i], boundary_position(q[i], 3, 0.4, theta[i], 8, 64))
     assert np.array_equal(full, sub)
     assert np.array_equal(np.interp(t_q, t, theta), np.interp(t_q, t[i], theta[i]))
+
+
+def test_order_columns_are_the_orders_cos_and_sin_within_rounding():
+    # the angle correction's mechanical orders as powers of one exp(i phi) (issue 37): the cos and
+    # sin of each order within a few ulp over a window's positions (a few revolutions either way;
+    # far out cos(m phi) itself is only as exact as the rounding of m phi), in the orders' order
+    from eol_cal.analysis.fit.fp_angle import order_columns
+
+    N = 64
+    x = np.concatenate((np.random.default_rng(5).uniform(-4 * N * 3, 4 * N * 3, 2000), [0.0, 1.0, 4 * N]))
+    phi = 2 * np.pi * x / (4 * N)
+    for orders in ((1, 2), (2,), (1,), (1, 3), (2, 1)):
+        got = order_columns(x, orders, N)
+        want = np.column_stack([f(m * phi) for m in orders for f in (np.cos, np.sin)])
+        assert got.shape == want.shape and np.allclose(got, want, rtol=0.0, atol=1e-14)
+    assert order_columns(x, (), N).shape == (len(x), 0)

@@ -93,3 +93,44 @@ def test_the_orders_noise_shares_its_segments_bins_with_the_same_values():
         alone = line_noise(res, cur, h * (th_m - th_m[0]), 2 * math.pi * (t - t[0]) / T, k[ok], omega[ok], spec,
                            1.5e-4, _path) * n / 2.0
         assert got[i] == alone
+
+
+def _noise_by_definition(seg, spec, tau_s, h):
+    """The 6th's (or ``h``'s) var_pair of every segment as line_noise's docstring defines it: the
+    residual of an orthonormal basis (QR) of the segment's columns, each bin's phasor summed from its
+    own complex exponentials, the current's through the path and the transducer, each bin's power
+    over the share of it the fit left."""
+    from eol_cal.analysis.fit.model import design_matrix, transducer_gain
+    from eol_cal.analysis.fit.segment_noise import _clear_bins
+
+    out = []
+    for s in range(seg.n_segments):
+        theta, t = np.asarray(seg.theta[s]), np.asarray(seg.t[s])
+        A = design_matrix(theta, t, seg.pole_pairs, spec)
+        Q, _ = np.linalg.qr(A[:, np.any(A != 0.0, axis=0)])
+        Y = np.column_stack([seg.torque[s]] + ([] if seg.kt_iq is None else [seg.kt_iq[s]]))
+        res = Y - Q @ (Q.T @ Y)
+        n, T = len(t), float(t[-1] - t[0])
+        k = noise_bins()[_clear_bins(noise_bins(), h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)]
+        E = np.exp(-1j * (h * (theta - theta[0]))[:, None] - 1j * (2 * math.pi * (t - t[0]) / T)[:, None] * k[None, :])
+        X = 2.0 / n * (res.T @ E)
+        e = X[0]
+        if seg.kt_iq is not None:
+            omega = h * float(seg.omega_e[s]) + 2 * math.pi * k / T
+            e = e - transducer_gain(spec, tau_s, omega) * np.asarray(seg.path_response(omega)) * X[1]
+        left = 1.0 - np.sum(np.abs(Q.T @ E) ** 2, axis=0) / n
+        out.append(float(np.mean(np.abs(e) ** 2 / np.maximum(left, 0.1))) / 2.0)
+    return np.array(out)
+
+
+def test_the_noise_is_its_definition_within_rounding():
+    # segment_noise reads each bin's sums from the normal equations (no orthonormal basis of the
+    # samples, issue 37): the figures as defined, within 1e-9 relative (their differences: ~1e-11)
+    for seed, kw in ((2, dict(iq6=(0.02, 0.3), path_response=_path)), (4, {})):
+        seg, _ = synthetic_segments(np.random.default_rng(seed), speeds_rpm=(60.0, 300.0, 600.0), loads_a=(20.0, 60.0),
+                                    directions=(1, -1), seg_s=0.1, noise_nm=0.005, **kw)
+        spec = FitSpec()
+        got = segment_noise(seg, spec, 1.5e-4)
+        for j, h in enumerate(spec.harmonics):
+            want = _noise_by_definition(seg, spec, 1.5e-4, h)
+            assert np.allclose(got.var_pair[:, j], want, rtol=1e-9, atol=0.0)

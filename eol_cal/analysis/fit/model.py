@@ -237,7 +237,7 @@ def bin_steps(b: np.ndarray, k: np.ndarray) -> np.ndarray:
 
 def line_noise(res: np.ndarray, cur_res: np.ndarray | None, a: np.ndarray, b: np.ndarray, k: np.ndarray,
                omega: np.ndarray, spec: FitSpec, tau_s: float,
-               path: Callable[[np.ndarray], np.ndarray] | None, basis: np.ndarray | None = None,
+               path: Callable[[np.ndarray], np.ndarray] | None, basis: tuple[np.ndarray, np.ndarray] | None = None,
                steps: np.ndarray | None = None) -> float:
     """The variance (N*m^2) noise alone puts on one cos/sin coefficient of a line's pair in a segment.
 
@@ -247,26 +247,37 @@ def line_noise(res: np.ndarray, cur_res: np.ndarray | None, a: np.ndarray, b: np
     fit took as known, N*m) its noise reaches the shaft through the bench's response ``path``
     (None: 1) and the transducer (``spec``, ``tau_s`` in s) at the bins' rates ``omega`` (rad/s,
     signed): so it is taken out here too, bin by bin (the current's noise that reaches the shaft
-    cancels, the current sensor's own does not). ``basis`` (n, p; orthonormal columns): the columns
-    the residual was fitted on; each bin's power is divided by the share of it the fit left (a bin
-    the drift polynomial or a fitted line half overlaps holds half the noise: read as it is, it made
-    white noise at the 6th 7 % low on 0.05 s segments). ``steps``: :func:`bin_steps` of ``b`` and
-    ``k``, when the caller measures several lines of one segment (the same bins about each).
+    cancels, the current sensor's own does not). ``basis``: the columns the residual was fitted on,
+    as rows (p, n), and the inverse of their normal matrix (p, p); each bin's power is divided by
+    the share of it the fit left (a bin the drift polynomial or a fitted line half overlaps holds half
+    the noise: read as it is, it made white noise at the 6th 7 % low on 0.05 s segments).
+    ``steps``: :func:`bin_steps` of ``b`` and ``k``, when the caller measures several lines of one
+    segment (the same bins about each).
     """
-    sig = res[:, None] if cur_res is None else np.column_stack([res, cur_res])
+    n = len(res)
     if steps is None:
         steps = bin_steps(b, k)
-    rot = np.exp(-1j * a)[:, None]  # exp(-i (a + b k)) = exp(-i a) exp(-i b k): the line's turn applied once
-    X = (2.0 / len(res)) * ((sig * rot).T @ steps)
-    e = X[0]
+    # the line's bins exp(-i (a + b k)) = exp(-i a) exp(-i b k) as real rows (re of every bin, then
+    # im): every sum over the samples below is one real product (the signals' and the basis'),
+    # half the multiplications of complex ones on real operands, and the line's turn applied once
+    w = steps.T * np.exp(-1j * a)
+    wri = np.concatenate([w.real, w.imag])
+    nb = len(w)
+    sig = res[None, :] if cur_res is None else np.stack([res, cur_res])
+    X = (2.0 / n) * (sig @ wri.T)
+    e = X[0, :nb] + 1j * X[0, nb:]
     if cur_res is not None:
         g = transducer_gain(spec, tau_s, omega)
         if path is not None:
             g = g * np.asarray(path(omega), dtype=complex)
-        e = e - g * X[1]
+        e = e - g * (X[1, :nb] + 1j * X[1, nb:])
     power = np.abs(e) ** 2
     if basis is not None:
-        power = power / np.maximum(1.0 - np.sum(np.abs((basis * rot).T @ steps) ** 2, axis=0) / len(res), 0.1)
+        # |Q^T w|^2 of an orthonormal basis Q of the columns A: w^T A (A^T A)^-1 A^T w, re and im
+        cols, g_inv = basis
+        V = cols @ wri.T
+        share = np.sum(V * (g_inv @ V), axis=0)
+        power = power / np.maximum(1.0 - (share[:nb] + share[nb:]) / n, 0.1)
     return float(np.mean(power)) / 2.0
 
 

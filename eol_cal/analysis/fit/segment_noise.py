@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bin_steps, design_matrix, line_noise, noise_bins
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bin_steps, design_matrix_t, line_noise, noise_bins
+from eol_cal.numerics.gemm import gram_halves
 
 
 @dataclass(frozen=True)
@@ -60,15 +61,29 @@ class SegmentNoise:
         return np.repeat(self.var_pair * (self.n[:, None] / 2.0), 2, axis=1)
 
 
-def _orthonormal(A: np.ndarray) -> np.ndarray:
-    """Orthonormal columns spanning ``A``'s non-empty columns, from the normal equations' Cholesky
-    factor (``A R^-1``: the columns are well conditioned, and it costs a thirtieth of LAPACK's QR of
-    a 10 000 x 15 segment here)."""
-    from scipy.linalg import solve_triangular  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
+def _fitted(XT: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+    """The residual of ``Y`` (n, signals) fitted on the columns ``XT`` (as rows, (m, n), rows of unit
+    stride), and the basis :func:`~eol_cal.analysis.fit.model.line_noise` reads the fit's share of a
+    bin from: the non-empty columns (as rows) and the inverse of their normal matrix. From the normal
+    equations' Cholesky factor (the columns are well conditioned): no orthonormal basis of the
+    segment's samples is formed (a refit's model check spent a third of its noise in it), and the
+    normal matrix is two small GEMMs' upper triangle (:func:`~eol_cal.numerics.gemm.gram_halves`:
+    numpy's ``XT @ XT.T`` is SYRK, 2.5x their time on a 15 x 3333 segment)."""
+    from scipy.linalg.lapack import dpotrf, dtrtri  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
-    A = A[:, np.any(A != 0.0, axis=0)]
-    L = np.linalg.cholesky(A.T @ A)
-    return solve_triangular(L, A.T, lower=True, check_finite=False).T
+    m = len(XT)
+    G = gram_halves(XT, [(0, XT.shape[1], m)], np.zeros((1, m, m)))[0]  # the upper triangle
+    keep = np.diag(G) != 0.0  # an empty column (an unresolved mechanical pair) has a zero norm
+    if not keep.all():
+        XT, G = XT[keep], G[np.ix_(keep, keep)]
+    R, info = dpotrf(G, lower=0)  # G = R^T R from its upper triangle
+    if info == 0:
+        R_inv, info = dtrtri(R, lower=0)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"a segment's columns are not independent (LAPACK info {info})")
+    g_inv = R_inv @ R_inv.T
+    res = Y - XT.T @ (g_inv @ (XT @ Y))
+    return res, (XT, g_inv)
 
 
 def _clear_bins(bins: np.ndarray, f_line: float, drift_degree: int) -> np.ndarray:
@@ -108,13 +123,12 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
     dof = np.zeros((S, H), dtype=int)
     for s in range(S):
         theta, t = np.asarray(seg.theta[s], dtype=float), np.asarray(seg.t[s], dtype=float)
-        A = design_matrix(theta, t, seg.pole_pairs, spec)
+        XT = design_matrix_t(theta, t, seg.pole_pairs, spec)
         y = [np.asarray(seg.torque[s], dtype=float)]
         if seg.kt_iq is not None:
             y.append(np.asarray(seg.kt_iq[s], dtype=float))
         Y = np.column_stack(y)
-        Q = _orthonormal(A)
-        res = Y - Q @ (Q.T @ Y)
+        res, basis = _fitted(XT, Y)
         n, T = len(t), float(t[-1] - t[0])
         b = 2 * math.pi * (t - t[0]) / T
         keeps = [_clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)
@@ -128,8 +142,8 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
             k = bins[keep]
             omega = h * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
             var_pair[s, j] = line_noise(res[:, 0], cur, h * (theta - theta[0]), b, k, omega, spec, tau_s,
-                                        seg.path_response, basis=Q, steps=rows[keep[need]].T)
+                                        seg.path_response, basis=basis, steps=rows[keep[need]].T)
             dof[s, j] = 2 * len(k)
-        var_white[s] = 2.0 * float(res[:, 0] @ res[:, 0]) / max(n - A.shape[1], 1) / n
+        var_white[s] = 2.0 * float(res[:, 0] @ res[:, 0]) / max(n - XT.shape[0], 1) / n
         n_s[s] = n
     return SegmentNoise(harmonics, var_pair, var_white, n_s, dof)
