@@ -6,6 +6,7 @@ import contextvars
 import dataclasses
 import os
 from collections.abc import Callable, Iterator
+from typing import Any
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -130,6 +131,9 @@ def fit_many(
             solve = _taking_steps(exported) if exported else cached_solver(program, S, "one" if mode == "loop" else mode)
             save_export = mode == "loop" and exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
+            # one solve in flight: the next chunk's is dispatched (XLA runs it on its own threads)
+            # before this thread unpacks the last one's results, so the two overlap
+            pending: tuple[list[SteadySegments], list[Compressed], Any] | None = None
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
                 comps = [next(comps_in_order) for _ in block]
@@ -145,22 +149,35 @@ def fit_many(
                         exported = load_solver(cache_dir, program, S, len(grid))
                         if exported:
                             solve = _taking_steps(exported)
-                    out = jax.device_get(solve(*args, spec.max_steps))
-                    outs = [out]
+                    out = solve(*args, spec.max_steps)
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
                     batch = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
-                    out = jax.device_get(solve(batch, grid_j, spec.max_steps))
-                    outs = [{k: v[j] for k, v in out.items()} for j in range(len(block))]
-                for m, c, o in zip(block, comps, outs, strict=True):
-                    results.append(unpack(o, c, spec, m.n_segments))
-                if progress:
-                    progress(len(results))
+                    out = solve(batch, grid_j, spec.max_steps)
+                if pending:
+                    _unpack_into(results, *pending, spec, mode, progress)
+                pending = (block, comps, out)
+            if pending:
+                _unpack_into(results, *pending, spec, mode, progress)
     finally:
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
+
+
+def _unpack_into(results: list[MotorFit], block: list[SteadySegments], comps: list[Compressed], out: Any, spec: FitSpec,
+                 mode: str, progress: Callable[[int], None] | None) -> None:
+    """Append the fits of ``block`` to ``results`` from their solve's output ``out`` (one motor's
+    in ``loop`` mode, else the chunk's, fetched from XLA here: it waits for the solve)."""
+    import jax
+
+    got = jax.device_get(out)
+    outs = [got] if mode == "loop" else [{k: v[j] for k, v in got.items()} for j in range(len(block))]
+    for m, c, o in zip(block, comps, outs, strict=True):
+        results.append(unpack(o, c, spec, m.n_segments))
+    if progress:
+        progress(len(results))
 
 
 def compression_threads(n_motors: int) -> int:
