@@ -7,7 +7,8 @@ import dataclasses
 import os
 from collections.abc import Callable, Iterator
 from typing import Any
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
@@ -197,17 +198,79 @@ COMPRESS_BLOCK = 16
 
 def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
                   pool: ThreadPoolExecutor | None) -> Iterator[Compressed]:
-    """Each motor's compression, in order: ``block`` motors at a time, in this thread or queued on
-    ``pool`` all at once (a few kB of result a motor: the workers run ahead of the solve)."""
-    starts = range(0, len(motors), block)
+    """Each motor's compression, in order, ``block`` motors at a time: in this thread, or also on
+    ``pool``'s workers, which take the blocks in order and run ahead of the solve (a few kB of
+    result a motor). This thread compresses too rather than wait: the block it needs if no worker
+    has taken it, else the next free ones until the worker's is done. One worker beside it keeps
+    two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one."""
+    starts = list(range(0, len(motors), block))
+
+    def run(i: int) -> list[Compressed]:
+        return compress_many(motors[starts[i] : starts[i] + block], spec, S)
+
     if pool is None:
-        for a in starts:
-            yield from compress_many(motors[a : a + block], spec, S)
+        for i in range(len(starts)):
+            yield from run(i)
         return
+    claims = _Claims(len(starts))
+    done: list[Future[list[Compressed]]] = [Future() for _ in starts]
+
+    def work() -> None:
+        while (i := claims.next()) is not None:
+            _settle(done[i], run, i)
+
     # each in this thread's context: a shared_compression scope's segments are shared with the workers
-    futures = [pool.submit(contextvars.copy_context().run, compress_many, motors[a : a + block], spec, S) for a in starts]
-    for f in futures:
-        yield from f.result()
+    for _ in range(pool._max_workers):
+        pool.submit(contextvars.copy_context().run, work)
+    try:
+        for i, f in enumerate(done):
+            if claims.take(i):
+                _settle(f, run, i)
+            # a worker holds it: the next free block compressed here meanwhile, rather than waiting
+            while not f.done() and (j := claims.next()) is not None:
+                _settle(done[j], run, j)
+            yield from f.result()
+    finally:
+        claims.close()  # the workers take no further block (an error, or the caller stopped early)
+
+
+class _Claims:
+    """Which blocks have been taken, under a lock: the workers take the first free one in order
+    (:meth:`next`), the consuming thread the one it needs (:meth:`take`)."""
+
+    def __init__(self, n: int) -> None:
+        self._free = [True] * n
+        self._cursor = 0
+        self._lock = threading.Lock()
+
+    def next(self) -> int | None:
+        """The first block not yet taken, now taken; None when none is left (or after :meth:`close`)."""
+        with self._lock:
+            while self._cursor < len(self._free) and not self._free[self._cursor]:
+                self._cursor += 1
+            if self._cursor == len(self._free):
+                return None
+            self._free[self._cursor] = False
+            return self._cursor
+
+    def take(self, i: int) -> bool:
+        """Take block ``i`` if no one has: True if the caller now has it."""
+        with self._lock:
+            free, self._free[i] = self._free[i], False
+            return free
+
+    def close(self) -> None:
+        """Take every block left: the workers stop after the one they hold."""
+        with self._lock:
+            self._free = [False] * len(self._free)
+
+
+def _settle(f: Future[list[Compressed]], run: Callable[[int], list[Compressed]], i: int) -> None:
+    """``f`` set to ``run(i)``, or to the error it raised."""
+    try:
+        f.set_result(run(i))
+    except Exception as e:  # noqa: BLE001 - handed to the consumer, which raises it (as a worker's future did)
+        f.set_exception(e)
 
 
 def _taking_steps(exported: Callable) -> Callable:
