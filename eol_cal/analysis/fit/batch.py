@@ -15,7 +15,7 @@ import numpy as np
 from eol_cal.analysis.fit.cache import load_solver, save_solver
 from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, Compressed, compress_many, compressed_dict
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
-from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
+from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
 
 
@@ -134,7 +134,7 @@ def fit_many(
             step = 1 if mode == "loop" else chunk
             # one solve in flight: the next chunk's is dispatched (XLA runs it on its own threads)
             # before this thread unpacks the last one's results, so the two overlap
-            pending: tuple[list[SteadySegments], list[Compressed], Any] | None = None
+            pending: tuple[list[SteadySegments], list[Compressed], dict | None, Any] | None = None
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
                 comps = [next(comps_in_order) for _ in block]
@@ -150,33 +150,42 @@ def fit_many(
                         exported = load_solver(cache_dir, program, S, len(grid))
                         if exported:
                             solve = _taking_steps(exported)
-                    out = solve(*args, spec.max_steps)
+                    out, batch = solve(*args, spec.max_steps), None
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
                     batch = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
                     out = solve(batch, grid_j, spec.max_steps)
                 if pending:
-                    _unpack_into(results, *pending, spec, mode, progress)
-                pending = (block, comps, out)
+                    _unpack_into(results, *pending, spec, progress)
+                pending = (block, comps, batch, out)
             if pending:
-                _unpack_into(results, *pending, spec, mode, progress)
+                _unpack_into(results, *pending, spec, progress)
     finally:
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
 
 
-def _unpack_into(results: list[MotorFit], block: list[SteadySegments], comps: list[Compressed], out: Any, spec: FitSpec,
-                 mode: str, progress: Callable[[int], None] | None) -> None:
+def _unpack_into(results: list[MotorFit], block: list[SteadySegments], comps: list[Compressed], batch: dict | None,
+                 out: Any, spec: FitSpec, progress: Callable[[int], None] | None) -> None:
     """Append the fits of ``block`` to ``results`` from their solve's output ``out`` (one motor's
-    in ``loop`` mode, else the chunk's, fetched from XLA here: it waits for the solve)."""
+    with ``batch`` None, else the chunk's, whose input was ``batch``), fetched from XLA here: it
+    waits for the solve. A chunk's segment coefficients are made for all its motors at once."""
     import jax
 
     got = jax.device_get(out)
-    outs = [got] if mode == "loop" else [{k: v[j] for k, v in got.items()} for j in range(len(block))]
-    for m, c, o in zip(block, comps, outs, strict=True):
-        results.append(unpack(o, c, spec, m.n_segments))
+    if batch is None:
+        results.append(unpack(got, comps[0], spec, block[0].n_segments))
+    else:
+        B, (S, m) = len(block), batch["R"].shape[1:3]
+        t_avg, coef = segment_coefficients(batch["R"][:B].reshape(B * S, m, m), batch["z"][:B].reshape(B * S, m),
+                                           got["g"][:B].reshape(B * S, -1), np.concatenate([c.ymean for c in comps]),
+                                           spec.n_nuis)
+        t_avg, coef = t_avg.reshape(B, S), coef.reshape(B, S, m)
+        for j, (mot, c) in enumerate(zip(block, comps, strict=True)):
+            n = mot.n_segments
+            results.append(unpack({k: v[j] for k, v in got.items()}, c, spec, n, (t_avg[j, :n], coef[j, :n])))
     if progress:
         progress(len(results))
 
