@@ -80,3 +80,25 @@ def test_a_chunks_coefficients_are_each_motors_own():
         n, q = m.n_segments, spec.n_nuis
         t_avg, coef = segment_coefficients(c.R[:n], c.z[:n], f.coef[:, q:], c.ymean[:n], q)
         assert np.array_equal(t_avg, f.t_avg) and np.array_equal(coef, f.coef)
+
+
+def test_an_error_in_the_unpacking_stops_the_workers(monkeypatch):
+    """The workers take no further block once fit_many leaves with an error of its own."""
+    motors = _motors(32)
+    fit.fit_many(motors[:2], fit.FitSpec(), mode="vmap", chunk=2, threads=0)  # compiled: no compile beside the workers
+    calls: list[int] = []
+    real = batch.compress_many
+
+    def counted(block, *args):
+        calls.append(1)
+        time.sleep(0.05)
+        return real(block, *args)
+
+    def broken(*args, **kwargs):
+        raise ValueError("unpacking failed")
+
+    monkeypatch.setattr(batch, "compress_many", counted)
+    monkeypatch.setattr(batch, "unpack", broken)
+    with pytest.raises(ValueError, match="unpacking failed"):
+        fit.fit_many(motors, fit.FitSpec(), mode="vmap", chunk=2, threads=1)
+    assert len(calls) < 16  # of 16 blocks: the first chunks', and the one a worker held

@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from typing import Any
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -70,9 +70,9 @@ def fit_many(
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
 
-    With ``threads`` > 0 the compression of every motor is queued on a thread pool at once, so
-    the pool compresses the next chunks while this thread runs the JAX solve of the current one
-    (XLA and the numpy kernels release the GIL) and unpacks its results.
+    With ``threads`` > 0 worker threads compress the motors ahead, block after block, while this
+    thread unpacks the last chunk's results (XLA solves the next chunk meanwhile on its own
+    threads; XLA and the numpy kernels release the GIL) and compresses too rather than wait.
 
     Parameters
     ----------
@@ -94,10 +94,11 @@ def fit_many(
         Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
         (their columns built by a few long numpy kernels and their products by BLAS called without
         the GIL, :func:`~eol_cal.numerics.gemm.gram_halves`: a compression thread holds the GIL
-        about a quarter of its time, between kernels); 0 compresses in this thread. ``None``
-        (default): :func:`compression_threads`, two workers for a batch of 32 motors or more on a
-        machine of two cores or more, which keep both cores of a 2-core machine busy beside the
-        solve and the unpacking (docs/benchmarks.md).
+        about a quarter of its time, between kernels); this thread compresses beside them whenever
+        it would wait for them. 0 compresses in this thread alone. ``None`` (default):
+        :func:`compression_threads`, one worker for a batch of 32 motors or more on a machine of
+        two cores or more, which with this thread keeps both cores of a 2-core machine busy
+        (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
@@ -121,8 +122,9 @@ def fit_many(
     if threads is None:
         threads = compression_threads(len(motors))
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
+    comps_in_order = None
     try:
-        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool)
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -162,6 +164,8 @@ def fit_many(
             if pending:
                 _unpack_into(results, *pending, spec, progress)
     finally:
+        if comps_in_order is not None:
+            comps_in_order.close()  # its workers take no further block (an error here: they would compress them all)
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
@@ -191,13 +195,15 @@ def _unpack_into(results: list[MotorFit], block: list[SteadySegments], comps: li
 
 
 def compression_threads(n_motors: int) -> int:
-    """The compression's worker threads ``fit_many(threads=None)`` uses for ``n_motors``: 2 from two
+    """The compression's worker threads ``fit_many(threads=None)`` uses for ``n_motors``: 1 from two
     :data:`COMPRESS_BLOCK` s of motors on where this process may run on two cores or more, else 0.
 
-    Two, not one: the compression is ~2/3 of a capture's CPU (docs/benchmarks.md), so one worker
-    would be the critical path while this thread's solve and unpacking wait for it."""
+    One, not two: the calling thread compresses too whenever it would wait (:func:`_compressions`),
+    so one worker beside it keeps two cores busy (the solve runs on XLA's threads), and a second
+    worker only adds a third thread taking turns at the GIL: 0.1-0.2 ms more CPU a capture
+    (docs/benchmarks.md)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 2 if cores >= 2 and n_motors >= 2 * COMPRESS_BLOCK else 0
+    return 1 if cores >= 2 and n_motors >= 2 * COMPRESS_BLOCK else 0
 
 
 #: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
@@ -206,9 +212,9 @@ COMPRESS_BLOCK = 16
 
 
 def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
-                  pool: ThreadPoolExecutor | None) -> Iterator[Compressed]:
+                  pool: ThreadPoolExecutor | None, workers: int) -> Generator[Compressed, None, None]:
     """Each motor's compression, in order, ``block`` motors at a time: in this thread, or also on
-    ``pool``'s workers, which take the blocks in order and run ahead of the solve (a few kB of
+    ``pool``'s ``workers`` threads, which take the blocks in order and run ahead of the solve (a few kB of
     result a motor). This thread compresses too rather than wait: the block it needs if no worker
     has taken it, else the next free ones until the worker's is done. One worker beside it keeps
     two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one."""
@@ -229,7 +235,7 @@ def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: in
             _settle(done[i], run, i)
 
     # each in this thread's context: a shared_compression scope's segments are shared with the workers
-    for _ in range(pool._max_workers):
+    for _ in range(workers):
         pool.submit(contextvars.copy_context().run, work)
     try:
         for i, f in enumerate(done):
