@@ -336,10 +336,11 @@ def _assemble(motors: Sequence[SteadySegments], where: list[list[tuple[Any, int]
         vec["i_qo"][j, : seg.n_segments], vec["omega"][j, : seg.n_segments] = seg.i_qo, seg.omega_e
         if seg.path_response is not None:  # else path_gain's ones
             gain[j, : seg.n_segments] = path_gain(seg, spec)
-    for src, mj, ms, mi in by_source.values():
-        R[mj, ms], z[mj, ms], current[mj, ms] = src.R[mi], src.z[mi], src.current[mi]
+    for src, *lists in by_source.values():
+        at_j, at_s, row = (np.array(a, dtype=np.intp) for a in lists)  # once: a list is converted at each use
+        R[at_j, at_s], z[at_j, at_s], current[at_j, at_s] = src.R[row], src.z[row], src.current[row]
         for k in ("floor", "sst", "ymean", "n", "n_nuis"):
-            vec[k][mj, ms] = getattr(src, k)[mi]
+            vec[k][at_j, at_s] = getattr(src, k)[row]
     parts = dict(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), cur_re=current.real.copy(),
                  cur_im=current.imag.copy(), **vec)
     return [Compressed(**{k: v[j] for k, v in parts.items()}) for j in range(M)]
