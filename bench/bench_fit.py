@@ -160,7 +160,7 @@ def main() -> None:
 
 
 #: the batched rows: (mode, compression threads)
-BATCH_ROWS = (("loop", 0), ("map", 0), ("vmap", 0), ("map", 1), ("map", 2), ("vmap", 2))
+BATCH_ROWS = (("loop", 0), ("map", 0), ("vmap", 0), ("map", 1), ("map", 2), ("vmap", 1), ("vmap", 2))
 #: what the checkouts' fits are compared on
 COMPARED = ("k6", "phase_k6", "c6", "phase_c6", "delay_s")
 

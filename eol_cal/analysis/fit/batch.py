@@ -5,15 +5,17 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import os
-from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Generator
+from typing import Any
+import threading
+from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
 from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, Compressed, compress_many, compressed_dict
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
-from eol_cal.analysis.fit.motor_fit import MotorFit, unpack
+from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
 
 
@@ -68,9 +70,9 @@ def fit_many(
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
 
-    With ``threads`` > 0 the compression of every motor is queued on a thread pool at once, so
-    the pool compresses the next chunks while this thread runs the JAX solve of the current one
-    (XLA and the numpy kernels release the GIL) and unpacks its results.
+    With ``threads`` > 0 worker threads compress the motors ahead, block after block, while this
+    thread unpacks the last chunk's results (XLA solves the next chunk meanwhile on its own
+    threads; XLA and the numpy kernels release the GIL) and compresses too rather than wait.
 
     Parameters
     ----------
@@ -92,10 +94,11 @@ def fit_many(
         Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
         (their columns built by a few long numpy kernels and their products by BLAS called without
         the GIL, :func:`~eol_cal.numerics.gemm.gram_halves`: a compression thread holds the GIL
-        about a quarter of its time, between kernels); 0 compresses in this thread. ``None``
-        (default): :func:`compression_threads`, two workers for a batch of 32 motors or more on a
-        machine of two cores or more, which keep both cores of a 2-core machine busy beside the
-        solve and the unpacking (docs/benchmarks.md).
+        about a quarter of its time, between kernels); this thread compresses beside them whenever
+        it would wait for them. 0 compresses in this thread alone. ``None`` (default):
+        :func:`compression_threads`, one worker for a batch of 32 motors or more on a machine of
+        two cores or more, which with this thread keeps both cores of a 2-core machine busy
+        (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
@@ -119,8 +122,9 @@ def fit_many(
     if threads is None:
         threads = compression_threads(len(motors))
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
+    comps_in_order = None
     try:
-        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool)
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -130,6 +134,9 @@ def fit_many(
             solve = _taking_steps(exported) if exported else cached_solver(program, S, "one" if mode == "loop" else mode)
             save_export = mode == "loop" and exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
+            # one solve in flight: the next chunk's is dispatched (XLA runs it on its own threads)
+            # before this thread unpacks the last one's results, so the two overlap
+            pending: tuple[list[SteadySegments], list[Compressed], dict | None, Any] | None = None
             for start in range(0, len(motors), step):
                 block = motors[start : start + step]
                 comps = [next(comps_in_order) for _ in block]
@@ -145,32 +152,58 @@ def fit_many(
                         exported = load_solver(cache_dir, program, S, len(grid))
                         if exported:
                             solve = _taking_steps(exported)
-                    out = jax.device_get(solve(*args, spec.max_steps))
-                    outs = [out]
+                    out, batch = solve(*args, spec.max_steps), None
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
                     batch = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
-                    out = jax.device_get(solve(batch, grid_j, spec.max_steps))
-                    outs = [{k: v[j] for k, v in out.items()} for j in range(len(block))]
-                for m, c, o in zip(block, comps, outs, strict=True):
-                    results.append(unpack(o, c, spec, m.n_segments))
-                if progress:
-                    progress(len(results))
+                    out = solve(batch, grid_j, spec.max_steps)
+                if pending:
+                    _unpack_into(results, *pending, spec, progress)
+                pending = (block, comps, batch, out)
+            if pending:
+                _unpack_into(results, *pending, spec, progress)
     finally:
+        if comps_in_order is not None:
+            comps_in_order.close()  # its workers take no further block (an error here: they would compress them all)
         if pool:
             pool.shutdown(cancel_futures=True)
     return results
 
 
+def _unpack_into(results: list[MotorFit], block: list[SteadySegments], comps: list[Compressed], batch: dict | None,
+                 out: Any, spec: FitSpec, progress: Callable[[int], None] | None) -> None:
+    """Append the fits of ``block`` to ``results`` from their solve's output ``out`` (one motor's
+    with ``batch`` None, else the chunk's, whose input was ``batch``), fetched from XLA here: it
+    waits for the solve. A chunk's segment coefficients are made for all its motors at once."""
+    import jax
+
+    got = jax.device_get(out)
+    if batch is None:
+        results.append(unpack(got, comps[0], spec, block[0].n_segments))
+    else:
+        B, (S, m) = len(block), batch["R"].shape[1:3]
+        t_avg, coef = segment_coefficients(batch["R"][:B].reshape(B * S, m, m), batch["z"][:B].reshape(B * S, m),
+                                           got["g"][:B].reshape(B * S, -1), np.concatenate([c.ymean for c in comps]),
+                                           spec.n_nuis)
+        t_avg, coef = t_avg.reshape(B, S), coef.reshape(B, S, m)
+        for j, (mot, c) in enumerate(zip(block, comps, strict=True)):
+            n = mot.n_segments
+            results.append(unpack({k: v[j] for k, v in got.items()}, c, spec, n, (t_avg[j, :n], coef[j, :n])))
+    if progress:
+        progress(len(results))
+
+
 def compression_threads(n_motors: int) -> int:
-    """The compression's worker threads ``fit_many(threads=None)`` uses for ``n_motors``: 2 from two
+    """The compression's worker threads ``fit_many(threads=None)`` uses for ``n_motors``: 1 from two
     :data:`COMPRESS_BLOCK` s of motors on where this process may run on two cores or more, else 0.
 
-    Two, not one: the compression is ~2/3 of a capture's CPU (docs/benchmarks.md), so one worker
-    would be the critical path while this thread's solve and unpacking wait for it."""
+    One, not two: the calling thread compresses too whenever it would wait (:func:`_compressions`),
+    so one worker beside it keeps two cores busy (the solve runs on XLA's threads), and a second
+    worker only adds a third thread taking turns at the GIL: 0.1-0.2 ms more CPU a capture
+    (docs/benchmarks.md)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 2 if cores >= 2 and n_motors >= 2 * COMPRESS_BLOCK else 0
+    return 1 if cores >= 2 and n_motors >= 2 * COMPRESS_BLOCK else 0
 
 
 #: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
@@ -179,18 +212,80 @@ COMPRESS_BLOCK = 16
 
 
 def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
-                  pool: ThreadPoolExecutor | None) -> Iterator[Compressed]:
-    """Each motor's compression, in order: ``block`` motors at a time, in this thread or queued on
-    ``pool`` all at once (a few kB of result a motor: the workers run ahead of the solve)."""
-    starts = range(0, len(motors), block)
+                  pool: ThreadPoolExecutor | None, workers: int) -> Generator[Compressed, None, None]:
+    """Each motor's compression, in order, ``block`` motors at a time: in this thread, or also on
+    ``pool``'s ``workers`` threads, which take the blocks in order and run ahead of the solve (a few kB of
+    result a motor). This thread compresses too rather than wait: the block it needs if no worker
+    has taken it, else the next free ones until the worker's is done. One worker beside it keeps
+    two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one."""
+    starts = list(range(0, len(motors), block))
+
+    def run(i: int) -> list[Compressed]:
+        return compress_many(motors[starts[i] : starts[i] + block], spec, S)
+
     if pool is None:
-        for a in starts:
-            yield from compress_many(motors[a : a + block], spec, S)
+        for i in range(len(starts)):
+            yield from run(i)
         return
+    claims = _Claims(len(starts))
+    done: list[Future[list[Compressed]]] = [Future() for _ in starts]
+
+    def work() -> None:
+        while (i := claims.next()) is not None:
+            _settle(done[i], run, i)
+
     # each in this thread's context: a shared_compression scope's segments are shared with the workers
-    futures = [pool.submit(contextvars.copy_context().run, compress_many, motors[a : a + block], spec, S) for a in starts]
-    for f in futures:
-        yield from f.result()
+    for _ in range(workers):
+        pool.submit(contextvars.copy_context().run, work)
+    try:
+        for i, f in enumerate(done):
+            if claims.take(i):
+                _settle(f, run, i)
+            # a worker holds it: the next free block compressed here meanwhile, rather than waiting
+            while not f.done() and (j := claims.next()) is not None:
+                _settle(done[j], run, j)
+            yield from f.result()
+    finally:
+        claims.close()  # the workers take no further block (an error, or the caller stopped early)
+
+
+class _Claims:
+    """Which blocks have been taken, under a lock: the workers take the first free one in order
+    (:meth:`next`), the consuming thread the one it needs (:meth:`take`)."""
+
+    def __init__(self, n: int) -> None:
+        self._free = [True] * n
+        self._cursor = 0
+        self._lock = threading.Lock()
+
+    def next(self) -> int | None:
+        """The first block not yet taken, now taken; None when none is left (or after :meth:`close`)."""
+        with self._lock:
+            while self._cursor < len(self._free) and not self._free[self._cursor]:
+                self._cursor += 1
+            if self._cursor == len(self._free):
+                return None
+            self._free[self._cursor] = False
+            return self._cursor
+
+    def take(self, i: int) -> bool:
+        """Take block ``i`` if no one has: True if the caller now has it."""
+        with self._lock:
+            free, self._free[i] = self._free[i], False
+            return free
+
+    def close(self) -> None:
+        """Take every block left: the workers stop after the one they hold."""
+        with self._lock:
+            self._free = [False] * len(self._free)
+
+
+def _settle(f: Future[list[Compressed]], run: Callable[[int], list[Compressed]], i: int) -> None:
+    """``f`` set to ``run(i)``, or to the error it raised."""
+    try:
+        f.set_result(run(i))
+    except Exception as e:  # noqa: BLE001 - handed to the consumer, which raises it (as a worker's future did)
+        f.set_exception(e)
 
 
 def _taking_steps(exported: Callable) -> Callable:

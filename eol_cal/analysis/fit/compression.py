@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_rows, mech_span, path_gain, unresolved_to_zero
+from eol_cal.analysis.fit.model import (FitSpec, SteadySegments, design_rows, mech_resolved, mech_span, path_gain,
+                                        unresolved_to_zero)
 from eol_cal.numerics.gemm import gram_halves
 
 
@@ -106,16 +107,22 @@ class _Segment:
     pole_pairs: int
     means: tuple[float, ...]
     mech: float
+    #: every mechanical order's pair carried (:func:`unresolved_to_zero` clears nothing)
+    all_resolved: bool
 
 
 def _segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, kt_iq: np.ndarray | None,
-             pole_pairs: int) -> _Segment:
+             pole_pairs: int, spec: FitSpec) -> _Segment:
     theta = np.asarray(theta, dtype=float)
-    signals = [np.asarray(torque, dtype=float)] + ([] if kt_iq is None else [np.asarray(kt_iq, dtype=float)])
+    y = np.asarray(torque, dtype=float)
+    c = None if kt_iq is None else np.asarray(kt_iq, dtype=float)
     # the mean as ndarray.mean takes it (the sum over the count), without its Python wrapper: a
     # twelfth of a compression thread's time under the GIL (py-spy --gil, issue 37)
-    return _Segment(theta, np.asarray(t, dtype=float), signals[0], signals[1] if kt_iq is not None else None,
-                    pole_pairs, tuple(float(np.add.reduce(y) / len(y)) for y in signals), mech_span(theta, pole_pairs))
+    means = (float(np.add.reduce(y) / len(y)),) if c is None else (float(np.add.reduce(y) / len(y)),
+                                                                   float(np.add.reduce(c) / len(c)))
+    mech = mech_span(theta, pole_pairs)
+    # order 1 carried means every higher one is (mech_resolved: the span times the order)
+    return _Segment(theta, np.asarray(t, dtype=float), y, c, pole_pairs, means, mech, mech_resolved(spec, 1, mech))
 
 
 def _groups(segs: list[_Segment], piece: int) -> Iterator[list[tuple[int, int, int]]]:
@@ -165,7 +172,8 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
         spans, o = [], 0
         for i, a, b in group:
             w = m + 1 + (segs[i].kt_iq is not None)
-            unresolved_to_zero(XT[:w, o : o + b - a], spec, segs[i].mech)
+            if not segs[i].all_resolved:
+                unresolved_to_zero(XT[:w, o : o + b - a], spec, segs[i].mech)
             spans.append((o, o + b - a, w))
             o += b - a
         # each piece's X^T X, X^T y and y^T y in one product, as two halves of rows (:data:`_SMALL_GEMM`),
@@ -179,11 +187,25 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
     return G
 
 
-def _compress_all(segs: list[_Segment], spec: FitSpec) -> list[tuple[tuple[np.ndarray, np.ndarray, float, float, float, int, int],
-                                                                      np.ndarray]]:
-    """Each segment's normal-equation summary (R, z, floor, sst, ymean, n, n_nuis) and the current's
-    ripple phasor per harmonic (:func:`current_phasor`; zeros without ``kt_iq``); the small
-    factorisations batched over the segments."""
+@dataclass(frozen=True)
+class _Summaries:
+    """The normal-equation summaries of segments compressed together, one row a segment (the
+    fields of :class:`Compressed` of the same names; ``current``: :func:`current_phasor`, zeros
+    without ``kt_iq``)."""
+
+    R: np.ndarray
+    z: np.ndarray
+    floor: np.ndarray
+    sst: np.ndarray
+    ymean: np.ndarray
+    n: np.ndarray
+    n_nuis: np.ndarray
+    current: np.ndarray
+
+
+def _compress_all(segs: list[_Segment], spec: FitSpec) -> _Summaries:
+    """Each segment's normal-equation summary and the current's ripple phasor per harmonic, the
+    small factorisations batched over the segments."""
     m = spec.n_cols
     k = 2 if any(sg.kt_iq is not None for sg in segs) else 1
     G = _products(segs, spec, k)
@@ -201,9 +223,8 @@ def _compress_all(segs: list[_Segment], spec: FitSpec) -> list[tuple[tuple[np.nd
     if cur:
         coef = np.linalg.solve(XtX[cur], G[cur, :m, m + 1 : m + 2])[..., 0]
         phasor[cur] = [current_phasor(c, spec) for c in coef]
-    n_nuis = spec.n_nuis - empty.sum(axis=1)
-    return [((Lc[i].T, z[i], float(floor[i]), float(yy[i]), sg.means[0], len(sg.theta), int(n_nuis[i])), phasor[i])
-            for i, sg in enumerate(segs)]
+    return _Summaries(R=Lc.transpose(0, 2, 1), z=z, floor=floor, sst=yy, ymean=np.array([sg.means[0] for sg in segs]),
+                      n=np.array([len(sg.theta) for sg in segs]), n_nuis=spec.n_nuis - empty.sum(axis=1), current=phasor)
 
 
 def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_pairs: int,
@@ -212,7 +233,9 @@ def compress_segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, pole_
 
     ``theta`` must be continuous (unwrapped), as :mod:`eol_cal.analysis.angle` returns it.
     """
-    return _compress_all([_segment(theta, t, torque, None, pole_pairs)], spec)[0][0]
+    one = _compress_all([_segment(theta, t, torque, None, pole_pairs, spec)], spec)
+    return (one.R[0], one.z[0], float(one.floor[0]), float(one.sst[0]), float(one.ymean[0]), int(one.n[0]),
+            int(one.n_nuis[0]))
 
 
 def current_phasor(coef: np.ndarray, spec: FitSpec) -> np.ndarray:
@@ -255,52 +278,72 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
 
 def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: int | None = None) -> list[Compressed]:
     """:func:`compress` of each motor, their segments' columns built side by side (a few long numpy
-    kernels for them all: :data:`_GROUP`) and their small factorisations batched."""
+    kernels for them all: :data:`_GROUP`), their small factorisations batched and their results
+    laid out for all the motors at once (:func:`_assemble`)."""
     S = n_segments or max((seg.n_segments for seg in motors), default=0)
     memo = _SHARED.get()
-    todo: dict[tuple[Any, ...], int] = {}  # a segment's key -> its index in segs
+    fresh: dict[tuple[Any, ...], int] = {}  # a segment's key -> its index in segs (a scope's only)
     segs: list[_Segment] = []
-    held: list[tuple[Any, ...]] = []
-    where: list[list[tuple[Any, ...]]] = []  # per motor, its segments' keys
-    found: dict[tuple[Any, ...], Any] = {}
+    held: list[tuple[tuple[Any, ...], tuple[Any, ...]]] = []
+    # per motor, per segment: (the summaries holding it, None for this call's; its row there)
+    where: list[list[tuple[_Summaries | None, int]]] = []
     for seg in motors:
-        keys = []
+        rows: list[tuple[_Summaries | None, int]] = []
         for s in range(seg.n_segments):
             kt_iq = None if seg.kt_iq is None else seg.kt_iq[s]
             arrays = (seg.theta[s], seg.t[s], seg.torque[s], kt_iq)
-            # without a scope every segment is its own (the same arrays twice are compressed twice)
+            if memo is None:  # without a scope every segment is its own (the same arrays twice: twice)
+                rows.append((None, len(segs)))
+                segs.append(_segment(*arrays, seg.pole_pairs, spec))
+                continue
             key = (*map(id, arrays), seg.pole_pairs, spec.harmonics, spec.drift_degree, spec.mech_order1,
-                   spec.mech_orders) if memo is not None else (len(segs),)
-            if memo is not None and key in memo:
-                found[key] = memo[key][0]
-            elif key not in todo:
-                todo[key] = len(segs)
-                segs.append(_segment(*arrays, seg.pole_pairs))
-                held.append(arrays)
-            keys.append(key)
-        where.append(keys)
-    for key, one, arrays in zip(todo, _compress_all(segs, spec) if segs else [], held, strict=True):
-        found[key] = one
-        if memo is not None:
-            memo[key] = (one, arrays)  # the arrays held: no id of the key is reused while it lasts
-    return [_assemble(seg, [found[key] for key in keys], spec, S) for seg, keys in zip(motors, where, strict=True)]
+                   spec.mech_orders)
+            if key in memo:
+                rows.append(memo[key][0])
+            else:
+                if key not in fresh:
+                    fresh[key] = len(segs)
+                    segs.append(_segment(*arrays, seg.pole_pairs, spec))
+                    held.append((key, arrays))
+                rows.append((None, fresh[key]))
+        where.append(rows)
+    done = _compress_all(segs, spec) if segs else None
+    if memo is not None:
+        for key, arrays in held:
+            memo[key] = ((done, fresh[key]), arrays)  # the arrays held: no id of the key is reused while it lasts
+    return _assemble(motors, [[(src or done, i) for src, i in rows] for rows in where], spec, S)
 
 
-def _assemble(seg: SteadySegments, ones: list[Any], spec: FitSpec, S: int) -> Compressed:
-    """One motor's :class:`Compressed` from its segments' summaries, padded to ``S`` segments."""
-    m = spec.n_cols
-    R = np.tile(np.eye(m), (S, 1, 1))
-    z = np.zeros((S, m))
-    vec = {k: np.zeros(S) for k in ("floor", "sst", "ymean", "n", "n_nuis", "i_qo", "omega")}
-    current = np.zeros((S, len(spec.harmonics)), dtype=complex)
-    for s, one in enumerate(ones):
-        (R[s], z[s], fl, sst, ym, n, nn), current[s] = one
-        vec["floor"][s], vec["sst"][s], vec["ymean"][s], vec["n"][s], vec["n_nuis"][s] = fl, sst, ym, n, nn
-    vec["i_qo"][: seg.n_segments], vec["omega"][: seg.n_segments] = seg.i_qo, seg.omega_e
-    gain = np.ones((S, len(spec.harmonics)), dtype=complex)
-    gain[: seg.n_segments] = path_gain(seg, spec)
-    return Compressed(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), cur_re=current.real.copy(),
-                      cur_im=current.imag.copy(), **vec)
+def _assemble(motors: Sequence[SteadySegments], where: list[list[tuple[Any, int]]], spec: FitSpec,
+              S: int) -> list[Compressed]:
+    """Each motor's :class:`Compressed`, padded to ``S`` segments, from its segments' rows ``where``
+    (per motor, per segment: the :class:`_Summaries` and the row holding it): every field laid out
+    for all the motors in one array (each motor's :class:`Compressed` holds its slice), filled by
+    one indexed assignment per summaries, not by a few small ones per segment."""
+    M, m, H = len(motors), spec.n_cols, len(spec.harmonics)
+    R = np.tile(np.eye(m), (M, S, 1, 1))
+    z = np.zeros((M, S, m))
+    vec = {k: np.zeros((M, S)) for k in ("floor", "sst", "ymean", "n", "n_nuis", "i_qo", "omega")}
+    current = np.zeros((M, S, H), dtype=complex)
+    gain = np.ones((M, S, H), dtype=complex)
+    by_source: dict[int, tuple[_Summaries, list[int], list[int], list[int]]] = {}
+    for j, (seg, rows) in enumerate(zip(motors, where, strict=True)):
+        for s, (src, i) in enumerate(rows):
+            _, mj, ms, mi = by_source.setdefault(id(src), (src, [], [], []))
+            mj.append(j)
+            ms.append(s)
+            mi.append(i)
+        vec["i_qo"][j, : seg.n_segments], vec["omega"][j, : seg.n_segments] = seg.i_qo, seg.omega_e
+        if seg.path_response is not None:  # else path_gain's ones
+            gain[j, : seg.n_segments] = path_gain(seg, spec)
+    for src, *lists in by_source.values():
+        at_j, at_s, row = (np.array(a, dtype=np.intp) for a in lists)  # once: a list is converted at each use
+        R[at_j, at_s], z[at_j, at_s], current[at_j, at_s] = src.R[row], src.z[row], src.current[row]
+        for k in ("floor", "sst", "ymean", "n", "n_nuis"):
+            vec[k][at_j, at_s] = getattr(src, k)[row]
+    parts = dict(R=R, z=z, gain_re=gain.real.copy(), gain_im=gain.imag.copy(), cur_re=current.real.copy(),
+                 cur_im=current.imag.copy(), **vec)
+    return [Compressed(**{k: v[j] for k, v in parts.items()}) for j in range(M)]
 
 
 COMPRESSED_KEYS = ("R", "z", "n", "i_qo", "omega", "gain_re", "gain_im", "cur_re", "cur_im")

@@ -295,13 +295,28 @@ def _intervals(parts: CovarianceParts, spec: FitSpec,
     return harmonics, cov[i6_rows[:, None], i6_rows], delay_ci, birge, cov
 
 
-def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit:
+def segment_coefficients(R: np.ndarray, z: np.ndarray, g: np.ndarray, ymean: np.ndarray,
+                         q: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each segment's mean torque (N*m) and column coefficients (nuisance, then harmonics): the
+    projected nuisance back-substituted from the segment's compression (``R`` (segments, m, m),
+    ``z`` (segments, m), ``ymean`` (segments,) N*m: :class:`Compressed`'s) and its harmonics'
+    coefficients ``g`` (segments, m - q) (the solver's), ``q`` nuisance columns. Its first Legendre
+    term is the mean offset. The segments of one motor, or of a whole chunk's motors at once: each
+    segment's figures are its own (:func:`unpack`'s, bit for bit)."""
+    rhs = z[:, :q] - np.einsum("sij,sj->si", R[:, :q, q:], g)
+    nuis = np.linalg.solve(R[:, :q, :q], rhs[..., None])[..., 0]
+    return ymean + nuis[:, 0], np.concatenate([nuis, g], axis=1)
+
+
+def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int,
+           coefficients: tuple[np.ndarray, np.ndarray] | None = None) -> MotorFit:
     """Turn the solver's arrays for one motor into a :class:`MotorFit`.
 
     The intervals take the noise as white, ``s^2 = SSR / (n - n_parameters)`` counting the projected
     nuisance parameters (:func:`_intervals`); :func:`at_line_noise` makes them again at the noise each
     harmonic has at its own frequency, once it is measured. Amplitude/phase intervals follow by the
-    delta method.
+    delta method. ``coefficients``: the first ``S_valid`` segments' :func:`segment_coefficients`
+    where the caller made them for many motors at once (default: made here).
     """
     p = np.asarray(out["p"], dtype=float)
     n_tau = int(spec.fit_delay)
@@ -320,13 +335,8 @@ def unpack(out: dict, comp: Compressed, spec: FitSpec, S_valid: int) -> MotorFit
         dof_red=float(S) * 2 * nh - (n_tau + spec.n_glob))
     harmonics, cov6, delay_ci, birge, cov = _intervals(parts, spec, None)
     delay = p[0] * TAU_SCALE if spec.delay_s is None else float(spec.delay_s)  # fitted (n_tau = 1): p[0]
-    # T_avg: back-substitute the projected nuisance (its first Legendre term is the mean offset)
-    g = np.asarray(out["g"], dtype=float)[:S_valid]
-    R = comp.R[:S_valid]
-    rhs = comp.z[:S_valid, :q] - np.einsum("sij,sj->si", R[:, :q, q:], g)
-    nuis = np.linalg.solve(R[:, :q, :q], rhs[..., None])[..., 0]
-    t_avg = comp.ymean[:S_valid] + nuis[:, 0]
-    coef = np.concatenate([nuis, g], axis=1)
+    t_avg, coef = coefficients or segment_coefficients(comp.R[:S_valid], comp.z[:S_valid],
+                                                       np.asarray(out["g"], dtype=float)[:S_valid], comp.ymean[:S_valid], q)
     sst = float(comp.sst[valid].sum())
     # the arrays' own methods: np.all/np.any's dispatch was a tenth of unpack's time (issue 37)
     finite = bool(np.isfinite(p).all() and np.isfinite(np.diag(cov)).all())
