@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import functools
 import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -125,6 +126,7 @@ class CycleContext:
     early: EarlyWindows | None = None
     verify: EarlyWindows | None = None
     writes: dict[str, Future] = field(default_factory=dict)  # capture files being written aside
+    held: dict[str, Callable[[], None]] = field(default_factory=dict)  # writes :meth:`start_writes` starts
     ahead: OpenFlash | None = None  # the calibrated flash's first half, opened during the fit
     pr_before: Future | None = None
     journal: Path | None = None  # the record at the verdict, in the spool until the database has it
@@ -140,13 +142,15 @@ class CycleContext:
         return self.cfg.kind if self.touched else "refusal"
 
     # ------------------------------------------------------------------ acquisition
-    def acquire(self, which: str, segs: list, on_window: Callable | None = None, write_aside: bool = False) -> Capture:
+    def acquire(self, which: str, segs: list, on_window: Callable | None = None, write: str = "now") -> Capture:
         """One acquisition with the ECU's state before and after (in the capture and the record);
         the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
-        the dyno client's hook for each window as it is read. ``write_aside``: the capture file is
-        written on a thread of its own, beside the fit and the download; :meth:`settle_writes` waits
-        for it (the flash does, before the block's CRC makes it count). The flash before reset
-        the ECU: the shaft turns for its settling first (the lead-in, ``cfg.lead_in``)."""
+        the dyno client's hook for each window as it is read. ``write``: the capture file is
+        written ``now`` (before this returns), ``aside`` (on a thread of its own from now on) or
+        ``held`` (on a thread of its own from :meth:`start_writes` on: the fit's end, so that the
+        writer's ~0.1 CPU s is not the fit's competitor); :meth:`settle_writes` waits for it (the
+        flash does, before the block's CRC makes it count, and the verdict). The flash before
+        reset the ECU: the shaft turns for its settling first (the lead-in, ``cfg.lead_in``)."""
         path = self.run_dir / f"{which}.mf4"
         booted = self.uncompensated if which == "before" else self.calibrated
         speed, lead_point, lead_in_s = float(segs[0].speed_rpm), None, 0.0
@@ -162,12 +166,13 @@ class CycleContext:
         cap, trace = self.instruments.acquire(segs, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz, channels=channels,
                                               comment=f"eol-cal run {self.run_id}: {which}, profile {self.profile_name}",
                                               on_window=on_window, lead_in_s=lead_in_s, lead_in_point=lead_point)
-        if write_aside:
-            writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
-            self.writes[which] = writer.submit(self.store, which, cap, trace, path, len(segs))
-            writer.shutdown(wait=False)
-        else:
-            self.store(which, cap, trace, path, len(segs))
+        if write not in ("now", "aside", "held"):
+            raise ValueError(f"write {write!r}: one of now, aside, held")
+        self.held[which] = functools.partial(self.store, which, cap, trace, path, len(segs))
+        if write == "now":
+            self.held.pop(which)()
+        elif write == "aside":
+            self.start_writes()
         # a capture whose ECU state is not the expected one is kept all the same (its file and record)
         expect_block(trace, which, self.last_block("prepare" if which == "before" else "calibrated"))
         if which == "before":
@@ -182,8 +187,18 @@ class CycleContext:
         self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), n_segments, trace.before,
                                           trace.after, float(cap.metadata.get("lead_in_s", 0.0)), point)
 
+    def start_writes(self) -> None:
+        """Start writing the capture files held (:meth:`acquire`), each on a thread of its own."""
+        while self.held:
+            which, job = self.held.popitem()
+            writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
+            self.writes[which] = writer.submit(job)
+            writer.shutdown(wait=False)
+
     def settle_writes(self) -> None:
-        """Wait for the capture files written aside; a write that failed ends the cycle here."""
+        """Wait for the capture files written aside (those still held are started first); a write
+        that failed ends the cycle here."""
+        self.start_writes()
         while self.writes:
             which, job = self.writes.popitem()
             try:

@@ -1,8 +1,8 @@
 """Step ``flash``: write the calibrated block into the ECU's inactive bank (read back before its
 CRC unless the settings say not, ``flash.read_back``), on the session opened during the fit. The
-calibration capture's file, written beside the fit, must be on disk before the block's CRC makes
-it count: a write that failed aborts the flash there (the CRC is never written, the previous
-block stays active)."""
+calibration capture's file, written beside the flash (from the fit's end on), must be on disk
+before the block's CRC makes it count: a write that failed aborts the flash there (the CRC is
+never written, the previous block stays active)."""
 
 from __future__ import annotations
 
