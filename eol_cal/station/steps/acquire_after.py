@@ -21,5 +21,4 @@ def run(ctx: CycleContext) -> None:
     k = nearest_segment(mi.captures, op.speed_rpm, op.i_qo_a)
     ctx.pr_before = ctx.helper.submit(point_ripple, mi.captures[k], mi.angles[k])
     ctx.verify = EarlyWindows(ctx.cfg.motor.poles, ctx.cfg.motor.N_enc, pool=ctx.helper, measure=point_ripple)
-    # its file is written beside the metrics (the verdict waits for it: the record holds its hash)
-    ctx.after = ctx.acquire("after", segs, on_window=ctx.verify.on_window, write="aside")
+    ctx.after = ctx.acquire("after", segs, on_window=ctx.verify.on_window)

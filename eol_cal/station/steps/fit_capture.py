@@ -26,7 +26,6 @@ def run(ctx: CycleContext) -> StepVerdict | None:
     ctx.prewarm.result()
     fitted, res, extra = fit_motor(ctx.before, ctx.cfg.limits, __version__, ctx.cfg.motor, ctx.cfg.mechanics,
                                    ctx.cfg.cache_dir, ctx.cfg.estimator_options, prepared=ctx.early)
-    ctx.start_writes()  # the calibration capture's file, held while the fit computed: beside the flash now
     write_result(fitted.to_json(), ctx.run_dir / "fit.json")
     ctx.fitted, ctx.result, ctx.fit_extra = fitted, res, extra
     if not res.usable:
