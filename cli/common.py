@@ -209,3 +209,17 @@ def estimator_bits(text: str) -> int:
     from eol_cal.firmware.options import parse_options
 
     return parse_options(text, None, "--estimator")
+
+
+def station_loop_kernels() -> None:
+    """The station's firmware frame (the estimator's scan after the last window) as one XLA loop
+    kernel (:func:`eol_cal.numerics.xla.configure_xla`: ~10x less CPU, its output bit for bit the
+    same, tests/test_firmware_frame_chunk.py), in the `eol-cal` process only: a test that invokes
+    the command in its own process keeps XLA's defaults there (its in-process plant among them)."""
+    main = sys.modules.get("__main__")
+    spec = getattr(main, "__spec__", None)
+    if os.path.basename(sys.argv[0]) != "eol-cal" and getattr(spec, "name", None) != "cli.main":
+        return
+    from eol_cal.numerics.xla import configure_xla
+
+    configure_xla()  # before the process's first JAX computation

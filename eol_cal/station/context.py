@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import datetime as dt
+import functools
 import uuid
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -125,6 +126,7 @@ class CycleContext:
     early: EarlyWindows | None = None
     verify: EarlyWindows | None = None
     writes: dict[str, Future] = field(default_factory=dict)  # capture files being written aside
+    held: dict[str, Callable[[], None]] = field(default_factory=dict)  # writes :meth:`start_writes` starts
     ahead: OpenFlash | None = None  # the calibrated flash's first half, opened during the fit
     pr_before: Future | None = None
     journal: Path | None = None  # the record at the verdict, in the spool until the database has it
@@ -140,13 +142,15 @@ class CycleContext:
         return self.cfg.kind if self.touched else "refusal"
 
     # ------------------------------------------------------------------ acquisition
-    def acquire(self, which: str, segs: list, on_window: Callable | None = None, write_aside: bool = False) -> Capture:
+    def acquire(self, which: str, segs: list, on_window: Callable | None = None, hold_write: bool = False) -> Capture:
         """One acquisition with the ECU's state before and after (in the capture and the record);
         the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
-        the dyno client's hook for each window as it is read. ``write_aside``: the capture file is
-        written on a thread of its own, beside the fit and the download; :meth:`settle_writes` waits
-        for it (the flash does, before the block's CRC makes it count). The flash before reset
-        the ECU: the shaft turns for its settling first (the lead-in, ``cfg.lead_in``)."""
+        the dyno client's hook for each window as it is read. ``hold_write``: the capture file is
+        written on a thread of its own from :meth:`start_writes` on (the calibrated flash's
+        download: the writer's ~0.1 CPU s competes neither with the fit nor with the flash's first
+        half), not before this returns; :meth:`settle_writes` waits for it (the flash does, before
+        the block's CRC makes it count, and the verdict). The flash before reset the ECU: the shaft
+        turns for its settling first (the lead-in, ``cfg.lead_in``)."""
         path = self.run_dir / f"{which}.mf4"
         booted = self.uncompensated if which == "before" else self.calibrated
         speed, lead_point, lead_in_s = float(segs[0].speed_rpm), None, 0.0
@@ -162,10 +166,8 @@ class CycleContext:
         cap, trace = self.instruments.acquire(segs, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz, channels=channels,
                                               comment=f"eol-cal run {self.run_id}: {which}, profile {self.profile_name}",
                                               on_window=on_window, lead_in_s=lead_in_s, lead_in_point=lead_point)
-        if write_aside:
-            writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
-            self.writes[which] = writer.submit(self.store, which, cap, trace, path, len(segs))
-            writer.shutdown(wait=False)
+        if hold_write:
+            self.held[which] = functools.partial(self.store, which, cap, trace, path, len(segs))
         else:
             self.store(which, cap, trace, path, len(segs))
         # a capture whose ECU state is not the expected one is kept all the same (its file and record)
@@ -182,8 +184,18 @@ class CycleContext:
         self.captures[which] = CaptureRef(str(path), sha256_file(path), int(len(cap.t)), n_segments, trace.before,
                                           trace.after, float(cap.metadata.get("lead_in_s", 0.0)), point)
 
+    def start_writes(self) -> None:
+        """Start writing the capture files held (:meth:`acquire`), each on a thread of its own."""
+        while self.held:
+            which, job = self.held.popitem()
+            writer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="capture-writer")
+            self.writes[which] = writer.submit(job)
+            writer.shutdown(wait=False)
+
     def settle_writes(self) -> None:
-        """Wait for the capture files written aside; a write that failed ends the cycle here."""
+        """Wait for the capture files written aside (those still held are started first); a write
+        that failed ends the cycle here."""
+        self.start_writes()
         while self.writes:
             which, job = self.writes.popitem()
             try:
@@ -207,13 +219,25 @@ class CycleContext:
             self.ahead.close()
 
     def flash(self, data: bytes, role: str, before_commit: Callable[[], None] | None = None,
-              ahead: OpenFlash | None = None) -> None:
+              ahead: OpenFlash | None = None, writes_from: str | None = None) -> None:
         """Flash a block of this run (read back as ``cfg.read_back`` says), on a session of its own
-        or the one opened ``ahead``, and archive it as it went in."""
+        or the one opened ``ahead``, and archive it as it went in. ``writes_from``: the step of the
+        flash ahead (:class:`~eol_cal.ecu.aftermath.FlashProgress`'s names, ``download``) from which
+        the capture files held (:meth:`acquire`) are written; without a flash ahead, at once."""
         path, source = self.run_dir / ARCHIVE_NAMES[role], f"{role} block of run {self.run_id[:8]}"
-        flasher = ahead if ahead is not None else self.instruments
-        keep_flashed(self.blocks, lambda: flasher.flash(data, role=role, path=path, source=source,
-                                                        before_commit=before_commit, read_back=self.cfg.read_back))
+        if ahead is None:
+            if writes_from is not None:
+                self.start_writes()
+            keep_flashed(self.blocks, lambda: self.instruments.flash(
+                data, role=role, path=path, source=source, before_commit=before_commit, read_back=self.cfg.read_back))
+            return
+
+        def step(name: str) -> None:
+            if name == writes_from:
+                self.start_writes()
+
+        keep_flashed(self.blocks, lambda: ahead.flash(data, role=role, path=path, source=source, progress=step,
+                                                      before_commit=before_commit, read_back=self.cfg.read_back))
 
 
 @dataclass

@@ -28,8 +28,11 @@ from eol_cal.station.steps import decide_verdict, save_record, write_report
 if TYPE_CHECKING:
     from eol_cal.station.report_behind import ReportsBehind
 
-#: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005)
-SWITCH_INTERVAL_S = 0.0005
+#: the interpreter's thread switch interval while a cycle runs (s; Python's default 0.005): the
+#: calibrated flash's first half (sessions, identification, erase) runs its requests while the fit
+#: computes; at 0.5 ms its ten round trips took 0.14 s against the fit's 0.13, at 0.1 ms 0.11 s
+#: (the fit's CPU the same, issue 37 item 6)
+SWITCH_INTERVAL_S = 0.0001
 
 class RunContext(Protocol):
     """What the executor needs of any run's context: the run, the serial, the record's steps."""

@@ -40,6 +40,7 @@ class OpenFlash(Protocol):
     """A flash whose first half (sessions, identification, erase) is under way (:class:`FlashAhead`)."""
 
     def flash(self, data: bytes, *, role: str, path: Path, source: str,
+              progress: Callable[[str], None] | None = None,
               before_commit: Callable[[], None] | None = None, read_back: bool = True) -> Flashed: ...
 
     def close(self) -> None: ...

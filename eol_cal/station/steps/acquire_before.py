@@ -23,7 +23,7 @@ def run(ctx: CycleContext) -> None:
     ctx.prewarm = ctx.helper.submit(prewarm_fit, len(ctx.segments), ctx.cfg.cache_dir, False, points)
     ctx.early = EarlyWindows(ctx.cfg.motor.poles, ctx.cfg.motor.N_enc, ctx.cfg.estimator_options,
                              pool=ctx.helper, cache_dir=ctx.cfg.cache_dir, n_windows=len(ctx.segments))
-    ctx.before = ctx.acquire("before", ctx.segments, on_window=ctx.early.on_window, write_aside=True)
+    ctx.before = ctx.acquire("before", ctx.segments, on_window=ctx.early.on_window, hold_write=True)
 
 
 def preload_analysis() -> None:
