@@ -211,11 +211,12 @@ def estimator_bits(text: str) -> int:
     return parse_options(text, None, "--estimator")
 
 
-def station_loop_kernels() -> None:
-    """The station's firmware frame (the estimator's scan after the last window) as one XLA loop
-    kernel (:func:`eol_cal.numerics.xla.configure_xla`: ~10x less CPU, its output bit for bit the
-    same, tests/test_firmware_frame_chunk.py), in the `eol-cal` process only: a test that invokes
-    the command in its own process keeps XLA's defaults there (its in-process plant among them)."""
+def frame_loop_kernels() -> None:
+    """The fit's firmware frame (the estimator's scan after the last window) as one XLA loop kernel
+    (:func:`eol_cal.numerics.xla.configure_xla`: ~10x less CPU, its output bit for bit the same,
+    tests/test_firmware_frame_chunk.py) in `eol-cal fit`, `run` and `station` (not with its in-process
+    plant: --demo), in the `eol-cal` process only: a test that invokes the command in its own process
+    keeps XLA's defaults there (its in-process plant among them)."""
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     if os.path.basename(sys.argv[0]) != "eol-cal" and getattr(spec, "name", None) != "cli.main":

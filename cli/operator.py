@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors,
-                        station_loop_kernels, styled)
+                        frame_loop_kernels, styled)
 from cli.ecu import key_algo_option
 from cli.paths import check_io, check_more, io_paths
 from cli.station import StepProgress, flush_first, given_options, quiet_logs, results_table, write_demo_limits
@@ -338,7 +338,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, panel, bin
     from eol_cal.ecu.python_can import import_can
 
     if not demo:  # the demo's simulated plant runs in this process: its loops as they were
-        station_loop_kernels()
+        frame_loop_kernels()
     import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
-                        handle_errors, print_json, station_loop_kernels, styled)
+                        handle_errors, print_json, frame_loop_kernels, styled)
 from cli.dyno import load_map, realtime_option, register_map_option
 from cli.ecu import key_algo_option
 from cli.paths import check_io, check_more, io_paths
@@ -290,7 +290,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     """
     from eol_cal.ecu.python_can import import_can
 
-    station_loop_kernels()
+    frame_loop_kernels()
     import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config

@@ -24,8 +24,8 @@ def configure_xla() -> bool:
     happened already or when ``XLA_FLAGS`` sets backend options of its own. The option applies
     to every ``while`` loop of the process without custom calls (LAPACK, ...): call it from
     entry points that mostly simulate or refit (the CLI, benchmarks, a refit worker:
-    :func:`eol_cal.lot.cluster.prepare_fit_process`) and from the station's (`eol-cal run`,
-    `eol-cal station` without its in-process simulators), not from library code. The plant's tick
+    :func:`eol_cal.lot.cluster.prepare_fit_process`) and from the fit's and the station's (`eol-cal fit`,
+    `eol-cal run`, `eol-cal station` without its in-process simulators), not from library code. The plant's tick
     loops give results within float32 rounding of the default (XLA fuses the body differently: a
     layout-2 plant run's i_qc within 0.02 A, its i_q within 0.05 A rms, the identification the
     same, as tests/test_plant_identifying_loop.py checks); the firmware estimator's scan (the
