@@ -236,9 +236,9 @@ class _RefitSetup:
 
 
 #: threads of :func:`refit_in_process`: the machine's two cores. They overlap only where the GIL
-#: is released (numpy's and BLAS's kernels on long arrays, JAX's programs): a refit holds it 68-73 %
+#: is released (numpy's and BLAS's kernels on long arrays, JAX's programs): a refit holds it 60-73 %
 #: of its time (py-spy, docs/benchmarks.md "Lot refit throughput"), so two threads give at most
-#: ~1.4x one; :func:`refit_lot`'s worker processes share nothing and scale
+#: ~1.4-1.65x one; :func:`refit_lot`'s worker processes share nothing and scale
 REFIT_THREADS = 2
 
 

@@ -118,8 +118,8 @@ def _segment(theta: np.ndarray, t: np.ndarray, torque: np.ndarray, kt_iq: np.nda
     c = None if kt_iq is None else np.asarray(kt_iq, dtype=float)
     # the mean as ndarray.mean takes it (the sum over the count), without its Python wrapper: a
     # twelfth of a compression thread's time under the GIL (py-spy --gil, issue 37)
-    means = (float(np.add.reduce(y) / len(y)),) if c is None else (float(np.add.reduce(y) / len(y)),
-                                                                   float(np.add.reduce(c) / len(c)))
+    mean_y = float(np.add.reduce(y) / len(y))
+    means = (mean_y,) if c is None else (mean_y, float(np.add.reduce(c) / len(c)))
     mech = mech_span(theta, pole_pairs)
     # order 1 carried means every higher one is (mech_resolved: the span times the order)
     return _Segment(theta, np.asarray(t, dtype=float), y, c, pole_pairs, means, mech, mech_resolved(spec, 1, mech))
