@@ -126,6 +126,27 @@ def _worker_state() -> tuple[int, bool, int, str | None]:
             os.environ.get("MALLOC_TRIM_THRESHOLD_"))
 
 
+@pytest.mark.slow  # two clusters of one worker process each
+def test_two_refit_clusters_side_by_side_listen_on_loopback_only_without_a_port_clash():
+    import warnings
+
+    import psutil
+
+    def listening() -> set[tuple[str, int]]:
+        return {c.laddr[:2] for c in psutil.Process().net_connections(kind="inet") if c.status == psutil.CONN_LISTEN}
+
+    before = listening()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with local_cluster(1), local_cluster(1):
+            opened = listening() - before
+    # each cluster's scheduler: its TCP address and its HTTP server (health, metrics), both on 127.0.0.1;
+    # distributed's default 8787 would have gone to the first and made the second warn and move
+    assert len(opened) >= 4 and {host for host, _ in opened} == {"127.0.0.1"}, opened
+    assert 8787 not in {port for _, port in opened}
+    assert not [w for w in caught if "already in use" in str(w.message)], [str(w.message) for w in caught]
+
+
 @pytest.mark.slow
 def test_a_killed_worker_loses_no_capture(lot: Path):
     from distributed import Client

@@ -55,6 +55,10 @@ def worker_environ() -> dict[str, str]:
     return {k: os.environ.get(k, str(v)) for k, v in env.items() if v is not None}
 
 
+#: the scheduler's HTTP server (:func:`local_cluster`): loopback only, any free port
+SCHEDULER_HTTP = "127.0.0.1:0"
+
+
 @contextlib.contextmanager
 def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
     """A ``distributed.LocalCluster`` on 127.0.0.1 for a refit, closed on exit.
@@ -62,12 +66,17 @@ def local_cluster(n_workers: int) -> Iterator[LocalCluster]:
     ``n_workers`` worker processes of one thread each (a fit holds the GIL for much of its
     time: threads in one process would wait for each other), each under a nanny that restarts
     it if it dies; no dashboard; :data:`REFIT_CONFIG` for the cluster's lifetime.
+
+    The scheduler serves HTTP even without a dashboard (health and metrics routes): on
+    :data:`SCHEDULER_HTTP`, 127.0.0.1 at a port of the system's choosing, so clusters started side
+    by side (two refits, a test suite's workers) do not compete for distributed's default 8787.
     """
     import dask
     from distributed import LocalCluster
 
     with dask.config.set(REFIT_CONFIG), LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True,
-                                                     host="127.0.0.1", dashboard_address=None) as cluster:
+                                                     host="127.0.0.1", dashboard_address=None,
+                                                     scheduler_kwargs={"dashboard_address": SCHEDULER_HTTP}) as cluster:
         yield cluster
 
 
