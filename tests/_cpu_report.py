@@ -7,6 +7,10 @@ The whole suite on a loaded machine is bounded by its CPU seconds, not its quiet
     python tests/_cpu_report.py DIR [TOP]          # per file, the largest first, and the totals
     python tests/_cpu_report.py DIR --table        # tests/schedule_cpu.txt (tests/_schedule.py)
 
+``EOL_CAL_TEST_CPU_COMPILES=1`` beside it also counts XLA's compilations per program name (JAX's
+``jax_log_compiles``, read from its log in the workers): which programs a cold cache compiles, how
+often and how long; the summary lists the costliest.
+
 Each worker (or the one process of a serial run) writes ``DIR/<worker>.json``: per test id the
 wall seconds and the CPU seconds (user + system) of the worker itself and of its children that
 ended meanwhile (``RUSAGE_CHILDREN``: the CLI subprocesses, compilers, Chromium's driver and its
@@ -20,7 +24,9 @@ to its clients'.
 from __future__ import annotations
 
 import json
+import logging
 import os
+import re
 import resource
 import sys
 import time
@@ -31,6 +37,9 @@ from pathlib import Path
 import pytest
 
 _ENV = "EOL_CAL_TEST_CPU"
+_COMPILES_ENV = "EOL_CAL_TEST_CPU_COMPILES"
+#: JAX's log line for one compilation (jax._src.dispatch, with ``jax_log_compiles``)
+_COMPILED = re.compile(r"Finished XLA compilation of (.+) in ([0-9.eE+-]+) sec")
 _NAME = "eol-cal-cpu-report"
 
 
@@ -50,6 +59,8 @@ class _Recorder:
         self.started = time.monotonic()
         # JAX's own figures (wall seconds of tracing, lowering and compiling; persistent-cache hits)
         self.jax: dict[str, float] = defaultdict(float)
+        # per compiled program's name: [compilations, wall seconds] (EOL_CAL_TEST_CPU_COMPILES)
+        self.programs: dict[str, list[float]] = defaultdict(lambda: [0, 0.0])
 
     def _jax_duration(self, event: str, duration: float, **_kw: object) -> None:
         self.jax[event.rsplit("/", 1)[-1]] += duration
@@ -67,6 +78,11 @@ class _Recorder:
 
         jax.monitoring.register_event_duration_secs_listener(self._jax_duration)
         jax.monitoring.register_event_listener(self._jax_event)
+        if os.environ.get(_COMPILES_ENV):
+            import jax
+
+            jax.config.update("jax_log_compiles", True)
+            logging.getLogger("jax._src.dispatch").addHandler(_ProgramTally(self.programs))
 
     @pytest.hookimpl(hookwrapper=True)
     def pytest_runtest_protocol(self, item: pytest.Item) -> Generator[None, None, None]:
@@ -101,10 +117,26 @@ class _Recorder:
             "cpu_alive_children_s": alive,
             "collection_cpu_s": sum(self.collection),
             "tests": self.tests,
+            "programs": self.programs,
         }
         tmp = self.out / f".{self.worker}.json.tmp"
         tmp.write_text(json.dumps(report))
         tmp.replace(self.out / f"{self.worker}.json")
+
+
+class _ProgramTally(logging.Handler):
+    """Counts JAX's "Finished XLA compilation of NAME in S sec" lines per NAME."""
+
+    def __init__(self, programs: dict[str, list[float]]) -> None:
+        super().__init__(logging.DEBUG)
+        self.programs = programs
+
+    def emit(self, record: logging.LogRecord) -> None:
+        found = _COMPILED.search(record.getMessage())
+        if found:
+            tally = self.programs[found.group(1)]
+            tally[0] += 1
+            tally[1] += float(found.group(2))
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -119,6 +151,7 @@ def summarise(out: Path, top: int = 40) -> str:
     tests: list[tuple[float, str]] = []
     lines = []
     total_own = total_kids = total_alive = total_coll = total_jax = 0.0
+    programs: dict[str, list[float]] = defaultdict(lambda: [0, 0.0])
     for path in sorted(out.glob("*.json")):
         rep = json.loads(path.read_text())
         total_own += rep["cpu_own_s"]
@@ -130,6 +163,9 @@ def summarise(out: Path, top: int = 40) -> str:
             f"(collection {rep['collection_cpu_s']:.0f}), children {rep['cpu_children_s']:.0f} CPU s, "
             f"still running at the end {rep['cpu_alive_children_s']:.0f} CPU s"
         )
+        for name, (count, seconds) in rep.get("programs", {}).items():
+            programs[name][0] += count
+            programs[name][1] += seconds
         for nodeid, (wall, own, kids, *more) in rep["tests"].items():
             jax = more[0] if more else {}
             compile_s = sum(v for k, v in jax.items() if k.endswith("_duration"))
@@ -152,6 +188,13 @@ def summarise(out: Path, top: int = 40) -> str:
     rest = ranked[top:]
     if rest:
         lines.append(f"{len(rest)} files more: {sum(v[1] + v[2] for _, v in rest):.0f} CPU s")
+    if programs:
+        lines.append(
+            f"XLA compilations in the workers: {sum(c for c, _ in programs.values()):.0f}, "
+            f"{sum(t for _, t in programs.values()):.0f} s wall; the costliest programs:"
+        )
+        for name, (count, seconds) in sorted(programs.items(), key=lambda kv: -kv[1][1])[:10]:
+            lines.append(f"{seconds:7.1f} s {int(count):4d}x  {name}")
     lines.append("tests, the largest CPU first:")
     for cpu, nodeid in sorted(tests, reverse=True)[:top]:
         lines.append(f"{cpu:7.1f}  {nodeid}")
