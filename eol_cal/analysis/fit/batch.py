@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import os
-from collections.abc import Callable, Generator
+from collections.abc import Callable, Generator, Sequence
 from typing import Any
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -13,10 +13,15 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, Compressed, compress_many, compressed_dict
+from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, SegmentArrays, _Summaries, compress_many,
+                                              compressed_dict, summarise_segments)
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
+
+
+#: what summarises a block's segments (:func:`~eol_cal.analysis.fit.compression.summarise_segments`)
+Summarise = Callable[[Sequence[SegmentArrays], FitSpec], _Summaries]
 
 
 def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None,
@@ -67,6 +72,7 @@ def fit_many(
     progress: Callable[[int], None] | None = None,
     threads: int | None = None,
     cache_dir: str | os.PathLike[str] | None = None,
+    process: bool | None = None,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
 
@@ -103,6 +109,13 @@ def fit_many(
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
         from there instead of tracing it, or writes it there after tracing. ``None``: no cache.
+    process : bool, optional
+        The worker threads hand their blocks to a second process
+        (:mod:`~eol_cal.analysis.fit.compress_process`: its own GIL; started on first use, kept for
+        this process' life) instead of compressing them here. ``None`` (default): from
+        :data:`~eol_cal.analysis.fit.compress_process.PROCESS_MIN_MOTORS` motors on, where there is
+        a worker thread. Where the process cannot start, the workers compress here. The fits are the
+        same bit for bit.
 
     Returns
     -------
@@ -124,7 +137,8 @@ def fit_many(
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     comps_in_order = None
     try:
-        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads)
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads,
+                                       _worker_summarise(pool is not None, len(motors), process), sources)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -211,17 +225,38 @@ def compression_threads(n_motors: int) -> int:
 COMPRESS_BLOCK = 16
 
 
+def _worker_summarise(workers: bool, n_motors: int, process: bool | None) -> Summarise:
+    """What the compression's worker threads summarise segments with: the second process's
+    :meth:`~eol_cal.analysis.fit.compress_process.CompressProcess.summarise` where ``process`` (or,
+    None, a batch of ``PROCESS_MIN_MOTORS`` or more) asks for it and it runs, else in this process."""
+    if not workers or process is False:
+        return summarise_segments
+    from eol_cal.analysis.fit.compress_process import PROCESS_MIN_MOTORS, compress_process
+
+    if process is None and n_motors < PROCESS_MIN_MOTORS:
+        return summarise_segments
+    child = compress_process()
+    return child.summarise if child else summarise_segments
+
+
 def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
-                  pool: ThreadPoolExecutor | None, workers: int) -> Generator[Compressed, None, None]:
+                  pool: ThreadPoolExecutor | None, workers: int, summarise: Summarise = summarise_segments,
+                  sources: list[str | None] | None = None) -> Generator[Compressed, None, None]:
     """Each motor's compression, in order, ``block`` motors at a time: in this thread, or also on
     ``pool``'s ``workers`` threads, which take the blocks in order and run ahead of the solve (a few kB of
     result a motor). This thread compresses too rather than wait: the block it needs if no worker
     has taken it, else the next free ones until the worker's is done. One worker beside it keeps
-    two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one."""
+    two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one.
+    The workers summarise with ``summarise`` (another process's), this thread here. An error names
+    its capture (``sources``, else its index)."""
     starts = list(range(0, len(motors), block))
 
-    def run(i: int) -> list[Compressed]:
-        return compress_many(motors[starts[i] : starts[i] + block], spec, S)
+    def run(i: int, how: Summarise = summarise_segments) -> list[Compressed]:
+        try:
+            return compress_many(motors[starts[i] : starts[i] + block], spec, S, how)
+        except Exception as e:
+            _name_capture(e, motors, starts[i], block, spec, S, sources)
+            raise
 
     if pool is None:
         for i in range(len(starts)):
@@ -232,7 +267,7 @@ def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: in
 
     def work() -> None:
         while (i := claims.next()) is not None:
-            _settle(done[i], run, i)
+            _settle(done[i], lambda i: run(i, summarise), i)
 
     # each in this thread's context: a shared_compression scope's segments are shared with the workers
     for _ in range(workers):
@@ -286,6 +321,20 @@ def _settle(f: Future[list[Compressed]], run: Callable[[int], list[Compressed]],
         f.set_result(run(i))
     except Exception as e:  # noqa: BLE001 - handed to the consumer, which raises it (as a worker's future did)
         f.set_exception(e)
+
+
+def _name_capture(e: Exception, motors: list[SteadySegments], first: int, block: int, spec: FitSpec, S: int,
+                  sources: list[str | None] | None) -> None:
+    """A note on ``e``, the error of the block of ``motors`` from ``first``, naming the capture that
+    raises it compressed alone here (the first of the block's that does), else the block's."""
+    names = [sources[j] if sources and sources[j] else f"#{j}" for j in range(len(motors))]
+    for j in range(first, min(first + block, len(motors))):
+        try:
+            compress_many([motors[j]], spec, S)
+        except Exception:  # noqa: BLE001 - the capture found; the block's error is raised
+            e.add_note(f"in the compression of capture {names[j]}")
+            return
+    e.add_note(f"in the compression of captures {names[first]} to {names[min(first + block, len(motors)) - 1]}")
 
 
 def _taking_steps(exported: Callable) -> Callable:
