@@ -100,11 +100,12 @@ def fit_many(
         Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
         (their columns built by a few long numpy kernels and their products by BLAS called without
         the GIL, :func:`~eol_cal.numerics.gemm.gram_halves`: a compression thread holds the GIL
-        about a quarter of its time, between kernels); this thread compresses beside them whenever
-        it would wait for them. 0 compresses in this thread alone. ``None`` (default):
-        :func:`compression_threads`, one worker for a batch of 32 motors or more on a machine of
-        two cores or more, which with this thread keeps both cores of a 2-core machine busy
-        (docs/benchmarks.md).
+        about a quarter of its time, between kernels), or hand them to the compression process
+        (``process``) and wait; this thread compresses beside them whenever it would wait for them.
+        0 compresses in this thread alone. ``None`` (default): with the process, two (one block
+        copied in while it compresses another); else :func:`compression_threads`, one worker for a
+        batch of 32 motors or more on a machine of two cores or more, which with this thread keeps
+        both cores of a 2-core machine busy (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
@@ -132,13 +133,16 @@ def fit_many(
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
     grid = tau_grid(spec, omega_max)
     results: list[MotorFit] = []
+    workers = compression_threads(len(motors)) if threads is None else threads
+    summarise = _worker_summarise(workers > 0 and len(motors) > 1, len(motors), process)
     if threads is None:
-        threads = compression_threads(len(motors))
+        # feeding the process, a worker waits for it: one a request it takes at once
+        threads = workers if summarise is summarise_segments else _feeders()
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     comps_in_order = None
     try:
-        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads,
-                                       _worker_summarise(pool is not None, len(motors), process), sources)
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads, summarise,
+                                       sources)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -223,6 +227,14 @@ def compression_threads(n_motors: int) -> int:
 #: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
 #: columns built side by side, one unit of work of the compression's threads
 COMPRESS_BLOCK = 16
+
+
+def _feeders() -> int:
+    """The worker threads that feed the compression process by default: as many as it takes
+    requests at once (:data:`~eol_cal.analysis.fit.compress_process.SLOTS`)."""
+    from eol_cal.analysis.fit.compress_process import SLOTS
+
+    return SLOTS
 
 
 def _worker_summarise(workers: bool, n_motors: int, process: bool | None) -> Summarise:

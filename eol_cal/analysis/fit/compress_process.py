@@ -20,11 +20,13 @@ import atexit
 import contextlib
 import mmap
 import os
+import queue
 import socket
 import subprocess
 import sys
 import threading
 from collections.abc import Sequence
+from typing import Any
 from multiprocessing.connection import Connection
 
 import numpy as np
@@ -35,6 +37,8 @@ from eol_cal.analysis.fit.model import FitSpec
 #: ``fit_many`` compresses in the child from this many motors on: below, the child's start
 #: (a Python and numpy, ~0.2 s CPU, once a process) costs more than it saves
 PROCESS_MIN_MOTORS = 256
+#: requests in flight at most (a shared buffer each): fit_many's worker threads that feed the child
+SLOTS = 2
 #: one array's place in the shared buffer: (first double, length)
 _Span = tuple[int, int]
 
@@ -59,34 +63,76 @@ class CompressProcess:
             theirs.close()
         self._sock = ours
         self._conn = Connection(os.dup(ours.fileno()))
-        self._lock = threading.Lock()
-        self._buf: np.ndarray | None = None
+        # requests go out one at a time (a buffer's descriptor right behind its message) and the child
+        # answers them in order: a request's number says which answer is its
+        self._send = threading.Lock()
+        self._answers = threading.Condition()
+        self._sent = self._received = 0
+        self._receiving = False
+        self._got: dict[int, tuple[str, Any]] = {}
+        self._bufs: list[np.ndarray | None] = [None] * SLOTS
+        self._free: queue.SimpleQueue[int] = queue.SimpleQueue()
+        for slot in range(SLOTS):
+            self._free.put(slot)
         self.pid = os.getpid()
         self.broken = False
 
     def summarise(self, todo: Sequence[SegmentArrays], spec: FitSpec) -> _Summaries:
-        """The segments' summaries computed in the child (here, if it is gone: :attr:`broken`)."""
-        with self._lock:
+        """The segments' summaries computed in the child (here, if it is gone: :attr:`broken`). Up
+        to :data:`SLOTS` callers at once: one block is copied in and sent while the child
+        compresses another, so the child does not wait for this process's GIL between blocks."""
+        slot = self._free.get()
+        try:
             if not self.broken:
                 try:
-                    layout = self._copy_in(todo)
-                    self._conn.send(("work", layout, spec))
-                    kind, got = self._conn.recv()
+                    layout = self._copy_in(slot, todo)
+                    with self._send:
+                        self._conn.send(("work", slot, layout, spec))
+                        ticket = self._sent
+                        self._sent += 1
+                    answer = self._answer(ticket)
                 except (OSError, EOFError):  # the child is gone: this and every later block here
                     self.broken = True
+                    with self._answers:
+                        self._answers.notify_all()
                 else:
+                    kind, got = answer
                     if kind == "error":
                         raise got
                     return got
+        finally:
+            self._free.put(slot)
         return summarise_segments(todo, spec)
 
-    def _copy_in(self, todo: Sequence[SegmentArrays]) -> list[tuple[int, list[_Span | None]]]:
-        """The segments' arrays copied into the shared buffer (grown first if they do not fit):
-        per segment, its pole pairs and each array's span (None for a missing ``kt * i_q``)."""
+    def _answer(self, ticket: int) -> tuple[str, Any]:
+        """The child's answer to request ``ticket``: whichever caller is free reads the next answer
+        off the socket (the GIL released while it waits) and hands it to its caller."""
+        with self._answers:
+            while ticket not in self._got:
+                if self.broken:
+                    raise EOFError("the compression process is gone")
+                if self._receiving:
+                    self._answers.wait()
+                    continue
+                self._receiving = True
+                self._answers.release()
+                try:
+                    answer = self._conn.recv()
+                finally:
+                    self._answers.acquire()
+                    self._receiving = False
+                    self._answers.notify_all()
+                self._got[self._received] = answer
+                self._received += 1
+            return self._got.pop(ticket)
+
+    def _copy_in(self, slot: int, todo: Sequence[SegmentArrays]) -> list[tuple[int, list[_Span | None]]]:
+        """The segments' arrays copied into buffer ``slot`` (grown first if they do not fit): per
+        segment, its pole pairs and each array's span (None for a missing ``kt * i_q``)."""
         need = sum(len(a) for arrays in todo for a in arrays[:4] if a is not None)
-        if self._buf is None or self._buf.size < need:
-            self._grow(need)
-        assert self._buf is not None
+        buf = self._bufs[slot]
+        if buf is None or buf.size < need:
+            buf = self._bufs[slot] = self._grow(slot, need)
         layout, o = [], 0
         for *arrays, pole_pairs in todo:
             spans: list[_Span | None] = []
@@ -95,21 +141,22 @@ class CompressProcess:
                     spans.append(None)
                     continue
                 n = len(a)
-                self._buf[o : o + n] = a  # float64, as the compression's np.asarray(a, dtype=float)
+                buf[o : o + n] = a  # float64, as the compression's np.asarray(a, dtype=float)
                 spans.append((o, n))
                 o += n
             layout.append((pole_pairs, spans))
         return layout
 
-    def _grow(self, doubles: int) -> None:
-        """A new shared buffer of ``doubles`` (with a quarter to spare), handed to the child."""
+    def _grow(self, slot: int, doubles: int) -> np.ndarray:
+        """A new shared buffer of ``doubles`` (with a quarter to spare) for ``slot``, handed to the child."""
         size = 8 * (doubles + doubles // 4)
         fd = os.memfd_create("eol-cal-compress")
         try:
             os.ftruncate(fd, size)
-            self._conn.send(("buffer", size))
-            socket.send_fds(self._sock, [b"b"], [fd])
-            self._buf = np.frombuffer(mmap.mmap(fd, size), dtype=np.float64)
+            with self._send:
+                self._conn.send(("buffer", slot, size))
+                socket.send_fds(self._sock, [b"b"], [fd])
+            return np.frombuffer(mmap.mmap(fd, size), dtype=np.float64)
         finally:
             os.close(fd)  # the mapping (and the child's) keeps the memory
 
@@ -153,7 +200,7 @@ def serve() -> None:
     (or the parent is gone)."""
     sock = socket.socket(fileno=int(sys.argv[1]))
     conn = Connection(os.dup(sock.fileno()))
-    buf = np.empty(0)
+    bufs = [np.empty(0)] * SLOTS
     while True:
         try:
             msg = conn.recv()
@@ -163,10 +210,11 @@ def serve() -> None:
             return
         if msg[0] == "buffer":
             _, fds, _, _ = socket.recv_fds(sock, 1, 1)
-            buf = np.frombuffer(mmap.mmap(fds[0], msg[1]), dtype=np.float64)
+            bufs[msg[1]] = np.frombuffer(mmap.mmap(fds[0], msg[2]), dtype=np.float64)
             os.close(fds[0])
             continue
-        _, layout, spec = msg
+        _, slot, layout, spec = msg
+        buf = bufs[slot]
         try:
             todo = [(*(None if s is None else buf[s[0] : s[0] + s[1]] for s in spans), pole_pairs)
                     for pole_pairs, spans in layout]
