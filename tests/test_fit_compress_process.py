@@ -147,5 +147,5 @@ def test_the_child_imports_no_jax_and_ends_with_its_parent(tmp_path):
     assert res.returncode == 0, res.stderr
     pid, jax_mapped = res.stdout.split()
     assert jax_mapped == "False"
-    assert not os.path.exists(f"/proc/{pid}") or "zombie" in open(f"/proc/{pid}/status").read().lower()
+    assert not os.path.exists(f"/proc/{pid}")  # the parent waited for it at exit
     assert "leaked" not in res.stderr
