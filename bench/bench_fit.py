@@ -35,6 +35,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import contextlib
 import statistics
 import subprocess
 import sys
@@ -196,10 +197,8 @@ def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
     spec = FitSpec(harmonics=tuple(int(h) for h in harmonics.split(",")))
 
     child: Any = None
-    try:
+    with contextlib.suppress(ImportError):  # a checkout without the compression process: None
         from eol_cal.analysis.fit import compress_process as child
-    except ImportError:  # a checkout without the compression process
-        pass
 
     def cpu() -> float:
         """CPU s of this process and of its compression process (user + system)."""
@@ -207,10 +206,11 @@ def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
         return r.ru_utime + r.ru_stime + (_process_cpu(child._CHILD._proc.pid) if child and child._CHILD else 0.0)
 
     startup = None
-    if child:  # started before the rows: what the first large batch of a process pays (timed here)
+    if child:  # started before the rows (once a process; a batch does not wait for it): its start timed here
         c0, t0 = cpu(), time.perf_counter()
-        m = motors[0]
-        child.compress_process().summarise([(m.theta[0], m.t[0], m.torque[0], None, m.pole_pairs)], spec)
+        proc = child.compress_process()
+        while proc and not proc.ready():
+            time.sleep(0.001)
         startup = (time.perf_counter() - t0, cpu() - c0)
     rows, fits = [], []
     for mode, th, process in BATCH_ROWS:
@@ -304,7 +304,7 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
             f"{min(x['compress_ms'][0] for x in runs):>30.3f} ms CPU a capture" for runs in got.values()))
         for name, runs in got.items():
             if runs[0].get("startup"):
-                print(f"{name}: the compression process's start to its first summary (once a process): wall "
+                print(f"{name}: the compression process's start, to its imports done (once a process): wall "
                       + ", ".join(f"{x['startup'][0]:.3f}" for x in runs) + " s, CPU "
                       + ", ".join(f"{x['startup'][1]:.3f}" for x in runs) + " s (this and the child)")
         ref = got["this"][0]["fits"]

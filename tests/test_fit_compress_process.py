@@ -8,6 +8,7 @@ import os
 import subprocess
 import sys
 import textwrap
+import time
 
 import numpy as np
 import pytest
@@ -36,9 +37,18 @@ def _same(a: fit.MotorFit, b: fit.MotorFit) -> bool:
             and np.array_equal(a.t_avg, b.t_avg) and np.array_equal(a.cov6, b.cov6) and a.rms == b.rms)
 
 
+def _started(proc: compress_process.CompressProcess) -> compress_process.CompressProcess:
+    """``proc`` once its imports are done (until then its callers summarise here)."""
+    deadline = time.monotonic() + 60.0
+    while not proc.ready():
+        assert time.monotonic() < deadline and not proc.broken, "the compression process did not start"
+        time.sleep(0.01)
+    return proc
+
+
 @pytest.fixture(scope="module")
 def child():
-    proc = compress_process.CompressProcess()
+    proc = _started(compress_process.CompressProcess())
     yield proc
     proc.close()
 
@@ -67,6 +77,7 @@ def test_fits_through_the_process_equal_the_threads(monkeypatch):
     motors = _motors(40)
     spec = fit.FitSpec()
     threads = fit.fit_many(motors, spec, mode="vmap", chunk=8, threads=1, process=False)
+    _started(compress_process.compress_process())
     used: list[int] = []
     real = compress_process.compress_process
 
@@ -110,12 +121,27 @@ def test_an_error_in_the_child_is_raised_here_and_names_the_capture(child):
     assert "in the compression of capture serial-5" in getattr(caught.value, "__notes__", [])
 
 
+def test_a_starting_child_leaves_the_work_to_this_process():
+    """Until the child has started, its callers summarise here rather than wait for it."""
+    spec = fit.FitSpec()
+    m = _motors(1)[0]
+    todo = [(m.theta[s], m.t[s], m.torque[s], None, m.pole_pairs) for s in range(m.n_segments)]
+    proc = compress_process.CompressProcess()
+    try:
+        t0 = time.perf_counter()
+        here = proc.summarise(todo, spec)
+        assert not proc._ready and time.perf_counter() - t0 < 0.1  # before its imports: not waited for
+        assert _same_summaries(here, summarise_segments(todo, spec))
+    finally:
+        proc.close()
+
+
 def test_a_dead_child_leaves_the_work_to_this_process():
     """The child killed: its block is summarised here, and every later one."""
     spec = fit.FitSpec()
     m = _motors(1)[0]
     todo = [(m.theta[s], m.t[s], m.torque[s], None, m.pole_pairs) for s in range(m.n_segments)]
-    proc = compress_process.CompressProcess()
+    proc = _started(compress_process.CompressProcess())
     try:
         proc.summarise(todo, spec)
         proc._proc.kill()

@@ -74,6 +74,8 @@ class CompressProcess:
         self._free: queue.SimpleQueue[int] = queue.SimpleQueue()
         for slot in range(SLOTS):
             self._free.put(slot)
+        self._ready = False
+        self._ready_lock = threading.Lock()
         self.pid = os.getpid()
         self.broken = False
 
@@ -81,6 +83,8 @@ class CompressProcess:
         """The segments' summaries computed in the child (here, if it is gone: :attr:`broken`). Up
         to :data:`SLOTS` callers at once: one block is copied in and sent while the child
         compresses another, so the child does not wait for this process's GIL between blocks."""
+        if not self.ready():  # still starting: this block here, the caller does not wait for it
+            return summarise_segments(todo, spec)
         slot = self._free.get()
         try:
             if not self.broken:
@@ -103,6 +107,18 @@ class CompressProcess:
         finally:
             self._free.put(slot)
         return summarise_segments(todo, spec)
+
+    def ready(self) -> bool:
+        """Whether the child has started (its imports done: it said so); False while it starts."""
+        with self._ready_lock:
+            if not self._ready and not self.broken:
+                try:
+                    if self._conn.poll(0):
+                        self._ready = self._conn.recv() == "ready"
+                        self.broken = not self._ready
+                except (OSError, EOFError):
+                    self.broken = True
+            return self._ready
 
     def _answer(self, ticket: int) -> tuple[str, Any]:
         """The child's answer to request ``ticket``: whichever caller is free reads the next answer
@@ -201,6 +217,7 @@ def serve() -> None:
     sock = socket.socket(fileno=int(sys.argv[1]))
     conn = Connection(os.dup(sock.fileno()))
     bufs = [np.empty(0)] * SLOTS
+    conn.send("ready")
     while True:
         try:
             msg = conn.recv()
