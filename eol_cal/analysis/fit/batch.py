@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextvars
 import dataclasses
 import os
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator
 from typing import Any
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -13,15 +13,11 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, SegmentArrays, _Summaries, compress_many,
-                                              compressed_dict, summarise_segments)
+from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, Summarise, compress_many, compressed_dict,
+                                              summarise_segments)
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
-
-
-#: what summarises a block's segments (:func:`~eol_cal.analysis.fit.compression.summarise_segments`)
-Summarise = Callable[[Sequence[SegmentArrays], FitSpec], _Summaries]
 
 
 def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None,

@@ -31,7 +31,7 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
-from eol_cal.analysis.fit.compression import SegmentArrays, _Summaries, summarise_segments
+from eol_cal.analysis.fit.compression import SegmentArrays, Summaries, summarise_segments
 from eol_cal.analysis.fit.model import FitSpec
 
 #: ``fit_many`` compresses in the child from this many motors on: below, the child's start
@@ -79,7 +79,7 @@ class CompressProcess:
         self.pid = os.getpid()
         self.broken = False
 
-    def summarise(self, todo: Sequence[SegmentArrays], spec: FitSpec) -> _Summaries:
+    def summarise(self, todo: Sequence[SegmentArrays], spec: FitSpec) -> Summaries:
         """The segments' summaries computed in the child (here, if it is gone: :attr:`broken`). Up
         to :data:`SLOTS` callers at once: one block is copied in and sent while the child
         compresses another, so the child does not wait for this process's GIL between blocks."""
@@ -102,6 +102,7 @@ class CompressProcess:
                 else:
                     kind, got = answer
                     if kind == "error":
+                        got.add_note(f"(raised in the compression process, pid {self._proc.pid})")
                         raise got
                     return got
         finally:
@@ -177,7 +178,10 @@ class CompressProcess:
             os.close(fd)  # the mapping (and the child's) keeps the memory
 
     def close(self) -> None:
-        """Stop the child and wait for it (killed after 5 s)."""
+        """Stop the child and wait for it (killed after 5 s). Nothing in a forked copy of this
+        process: the child is its parent's."""
+        if os.getpid() != self.pid:
+            return
         with contextlib.suppress(OSError):  # the child gone already
             self._conn.send(None)
         try:

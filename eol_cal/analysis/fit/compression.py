@@ -281,6 +281,12 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
 SegmentArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int]
 
 
+#: the summaries of a block's segments, as :func:`summarise_segments` (or another process) returns them
+Summaries = _Summaries
+#: what computes them (:func:`summarise_segments`, or another process's)
+Summarise = Callable[[Sequence[SegmentArrays], FitSpec], _Summaries]
+
+
 def summarise_segments(todo: Sequence[SegmentArrays], spec: FitSpec) -> _Summaries:
     """The normal-equation summaries of the segments ``todo`` (:func:`_compress_all`): what
     :func:`compress_many` computes, here or in another process
@@ -289,8 +295,7 @@ def summarise_segments(todo: Sequence[SegmentArrays], spec: FitSpec) -> _Summari
 
 
 def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: int | None = None,
-                  summarise: Callable[[Sequence[SegmentArrays], FitSpec], _Summaries] = summarise_segments
-                  ) -> list[Compressed]:
+                  summarise: Summarise = summarise_segments) -> list[Compressed]:
     """:func:`compress` of each motor, their segments' columns built side by side (a few long numpy
     kernels for them all: :data:`_GROUP`), their small factorisations batched and their results
     laid out for all the motors at once (:func:`_assemble`). ``summarise``: what computes the
