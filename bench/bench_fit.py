@@ -203,7 +203,8 @@ def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
     def cpu() -> float:
         """CPU s of this process and of its compression process (user + system)."""
         r = resource.getrusage(resource.RUSAGE_SELF)
-        return r.ru_utime + r.ru_stime + (_process_cpu(child._CHILD._proc.pid) if child and child._CHILD else 0.0)
+        running = child.running() if child else None
+        return r.ru_utime + r.ru_stime + (_process_cpu(running.pid) if running else 0.0)
 
     startup = None
     if child:  # started before the rows (once a process; a batch does not wait for it): its start timed here

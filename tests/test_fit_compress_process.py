@@ -85,7 +85,7 @@ def test_fits_through_the_process_equal_the_threads(monkeypatch):
         used.append(1)
         return real()
 
-    monkeypatch.setattr(compress_process, "compress_process", counted)
+    monkeypatch.setattr(batch, "compress_process", counted)
     through = fit.fit_many(motors, spec, mode="vmap", chunk=8, threads=1, process=True)
     assert used and all(_same(a, b) for a, b in zip(threads, through, strict=True))
     fit.fit_many(motors, spec, mode="vmap", chunk=8, threads=1)  # 40 < PROCESS_MIN_MOTORS: not asked
@@ -164,7 +164,7 @@ def test_the_child_imports_no_jax_and_ends_with_its_parent(tmp_path):
         motors = [synthetic_segments(rng, seg_s=0.05, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0))[0]
                   for _ in range(40)]
         fit_many(motors, FitSpec(), mode="vmap", chunk=8, threads=1, process=True)
-        pid = compress_process._CHILD._proc.pid
+        pid = compress_process.running().pid
         maps = open(f"/proc/{pid}/maps").read()
         print(pid, "xla" in maps or "jaxlib" in maps)
     """)

@@ -13,6 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
+from eol_cal.analysis.fit.compress_process import PROCESS_MIN_MOTORS, SLOTS, compress_process
 from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, Summarise, compress_many, compressed_dict,
                                               summarise_segments)
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
@@ -228,8 +229,6 @@ COMPRESS_BLOCK = 16
 def _feeders() -> int:
     """The worker threads that feed the compression process by default: as many as it takes
     requests at once (:data:`~eol_cal.analysis.fit.compress_process.SLOTS`)."""
-    from eol_cal.analysis.fit.compress_process import SLOTS
-
     return SLOTS
 
 
@@ -239,8 +238,6 @@ def _worker_summarise(workers: bool, n_motors: int, process: bool | None) -> Sum
     None, a batch of ``PROCESS_MIN_MOTORS`` or more) asks for it and it runs, else in this process."""
     if not workers or process is False:
         return summarise_segments
-    from eol_cal.analysis.fit.compress_process import PROCESS_MIN_MOTORS, compress_process
-
     if process is None and n_motors < PROCESS_MIN_MOTORS:
         return summarise_segments
     child = compress_process()

@@ -76,7 +76,7 @@ class CompressProcess:
             self._free.put(slot)
         self._ready = False
         self._ready_lock = threading.Lock()
-        self.pid = os.getpid()
+        self._parent = os.getpid()
         self.broken = False
 
     def summarise(self, todo: Sequence[SegmentArrays], spec: FitSpec) -> Summaries:
@@ -108,6 +108,11 @@ class CompressProcess:
         finally:
             self._free.put(slot)
         return summarise_segments(todo, spec)
+
+    @property
+    def pid(self) -> int:
+        """The child's process id."""
+        return self._proc.pid
 
     def ready(self) -> bool:
         """Whether the child has started (its imports done: it said so); False while it starts."""
@@ -180,7 +185,7 @@ class CompressProcess:
     def close(self) -> None:
         """Stop the child and wait for it (killed after 5 s). Nothing in a forked copy of this
         process: the child is its parent's."""
-        if os.getpid() != self.pid:
+        if os.getpid() != self._parent:
             return
         with contextlib.suppress(OSError):  # the child gone already
             self._conn.send(None)
@@ -204,7 +209,7 @@ def compress_process() -> CompressProcess | None:
     global _CHILD
     with _START:
         # a forked copy of this process does not share its parent's child (the socket is the parent's)
-        if _CHILD is None or _CHILD.pid != os.getpid():
+        if _CHILD is None or _CHILD._parent != os.getpid():
             if not hasattr(os, "memfd_create") or not hasattr(socket, "send_fds"):
                 return None
             try:
@@ -213,6 +218,12 @@ def compress_process() -> CompressProcess | None:
                 return None
             atexit.register(_CHILD.close)
         return None if _CHILD.broken else _CHILD
+
+
+def running() -> CompressProcess | None:
+    """This process's compression child if one was started (and is this process's), else None."""
+    child = _CHILD
+    return child if child is not None and child._parent == os.getpid() else None
 
 
 def serve() -> None:
