@@ -160,12 +160,16 @@ def main() -> None:
                   f"warm cache {min(walls[1:]):.2f} s")
 
 
-#: the batched rows: (mode, compression threads, ``fit_many``'s ``process``: None its default, False the
-#: worker threads compressing in this process; a checkout without the argument runs its default)
-BATCH_ROWS = (("loop", 0, None), ("map", 0, None), ("vmap", 0, None), ("map", 1, None), ("map", 2, None),
-              ("vmap", 1, None), ("vmap", 2, None), ("vmap", 1, False))
+#: the batched rows: (mode, compression threads (None: fit_many's default), ``fit_many``'s ``process``:
+#: None its default, False the worker threads compressing in this process; a checkout without the
+#: argument runs its default)
+BATCH_ROWS: tuple[tuple[str, int | None, bool | None], ...] = (
+    ("loop", 0, None), ("map", 0, None), ("vmap", 0, None), ("map", 1, None), ("map", 2, None), ("vmap", 1, None),
+    ("vmap", 2, None), ("vmap", 1, False), ("vmap", None, None))
 #: the row whose fits are compared across checkouts (fit_many's default for a batch)
-DEFAULT_ROW = 5
+DEFAULT_ROW = 8
+#: the default row's mode and threads compressing in this process (this checkout's fits compared with it)
+NO_PROCESS_ROW = 7
 #: what the checkouts' fits are compared on
 COMPARED = ("k6", "phase_k6", "c6", "phase_c6", "delay_s")
 
@@ -232,7 +236,7 @@ def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
     Path(out).write_text(json.dumps(dict(code=os.path.dirname(os.path.dirname(eol_cal.__file__)), rows=rows,
                                          compress_ms=one, compress_rows=compress_rows(motors, spec, cpu),
                                          load=os.getloadavg()[0], fits=fits[DEFAULT_ROW], startup=startup,
-                                         threads_fits=fits[-1])))
+                                         threads_fits=fits[NO_PROCESS_ROW])))
 
 
 def _process_cpu(pid: int) -> float:
@@ -295,7 +299,7 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
         print(f"{'row':<22}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>42}" for name, runs in got.items()))
         for r, (mode, th, process) in enumerate(BATCH_ROWS):
             cells = [_cell([x["rows"][r] for x in runs]) for runs in got.values()]
-            name = f"{mode}, {th} thr" + (", no proc" if process is False else "")
+            name = f"{mode}, {'default' if th is None else th} thr" + (", no proc" if process is False else "")
             print(f"{name:<22}" + "".join(f"{c:>42}" for c in cells))
         for r, th in enumerate((1, 2)):
             cells = [_cell([x["compress_rows"][r] for x in runs]) if runs[0].get("compress_rows") else "-"
@@ -311,7 +315,7 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
         ref = got["this"][0]["fits"]
         worst = {k: max(abs(a[k] - b[k]) / max(abs(a[k]), 1e-300) for a, b in zip(ref, got["this"][0]["threads_fits"],
                                                                                   strict=True)) for k in COMPARED}
-        print("fits of this, the default row (vmap, 1 thr) against its no-process row: largest relative difference "
+        print("fits of this, the default row (vmap, default thr) against its no-process row: largest relative difference "
               + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
         for name, runs in got.items():
             if name != "this":
