@@ -90,6 +90,13 @@ def test_fits_through_the_process_equal_the_threads(monkeypatch):
     assert used and all(_same(a, b) for a, b in zip(threads, through, strict=True))
     fit.fit_many(motors, spec, mode="vmap", chunk=8, threads=1)  # 40 < PROCESS_MIN_MOTORS: not asked
     assert len(used) == 1
+    monkeypatch.setattr(batch, "running", lambda: None)  # none running: started from PROCESS_START_MOTORS
+    monkeypatch.setattr(batch, "PROCESS_MIN_MOTORS", 8)
+    fit.fit_many(motors, spec, mode="vmap", chunk=8, threads=1)
+    assert len(used) == 1
+    monkeypatch.setattr(batch, "PROCESS_START_MOTORS", 40)
+    fit.fit_many(motors, spec, mode="vmap", chunk=8, threads=1)
+    assert len(used) == 2
 
 
 @pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")

@@ -13,7 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compress_process import PROCESS_MIN_MOTORS, SLOTS, compress_process
+from eol_cal.analysis.fit.compress_process import PROCESS_MIN_MOTORS, PROCESS_START_MOTORS, SLOTS, compress_process, running
 from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, Summarise, compress_many, compressed_dict,
                                               summarise_segments)
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
@@ -110,10 +110,11 @@ def fit_many(
     process : bool, optional
         The worker threads hand their blocks to a second process
         (:mod:`~eol_cal.analysis.fit.compress_process`: its own GIL; started on first use, kept for
-        this process' life) instead of compressing them here. ``None`` (default): from
-        :data:`~eol_cal.analysis.fit.compress_process.PROCESS_MIN_MOTORS` motors on, where there is
-        a worker thread. Where the process cannot start, the workers compress here. The fits are the
-        same bit for bit.
+        this process' life) instead of compressing them here. ``None`` (default): where there is a
+        worker thread, for a batch of
+        :data:`~eol_cal.analysis.fit.compress_process.PROCESS_START_MOTORS` motors or more, or of
+        :data:`~eol_cal.analysis.fit.compress_process.PROCESS_MIN_MOTORS` or more once the process
+        runs. Where it cannot start, the workers compress here. The fits are the same bit for bit.
 
     Returns
     -------
@@ -235,10 +236,11 @@ def _feeders() -> int:
 def _worker_summarise(workers: bool, n_motors: int, process: bool | None) -> Summarise:
     """What the compression's worker threads summarise segments with: the second process's
     :meth:`~eol_cal.analysis.fit.compress_process.CompressProcess.summarise` where ``process`` (or,
-    None, a batch of ``PROCESS_MIN_MOTORS`` or more) asks for it and it runs, else in this process."""
+    None, a batch of ``PROCESS_START_MOTORS`` or more, or ``PROCESS_MIN_MOTORS`` once it runs) asks
+    for it and it runs, else in this process."""
     if not workers or process is False:
         return summarise_segments
-    if process is None and n_motors < PROCESS_MIN_MOTORS:
+    if process is None and n_motors < (PROCESS_MIN_MOTORS if running() else PROCESS_START_MOTORS):
         return summarise_segments
     child = compress_process()
     return child.summarise if child else summarise_segments

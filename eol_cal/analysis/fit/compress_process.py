@@ -6,7 +6,8 @@ its own has its own GIL: ``fit_many``'s worker thread hands it a block's segment
 released), while the calling thread compresses the other blocks and runs the solve.
 
 The child imports numpy and the compression only (no JAX). It is started on first use, from a
-batch of :data:`PROCESS_MIN_MOTORS` motors on, and kept for the process' life (closed at exit).
+batch of :data:`PROCESS_START_MOTORS` motors on, kept for the process' life (closed at exit) and
+used from :data:`PROCESS_MIN_MOTORS` on once it runs.
 The segments' arrays reach it through one shared buffer (an anonymous ``memfd``, its descriptor
 passed over the socket: no name that a crash could leave behind), the summaries (a few kB a
 motor) come back pickled. Linux only; where it cannot start (or dies), the worker thread
@@ -34,9 +35,14 @@ import numpy as np
 from eol_cal.analysis.fit.compression import SegmentArrays, Summaries, summarise_segments
 from eol_cal.analysis.fit.model import FitSpec
 
-#: ``fit_many`` compresses in the child from this many motors on: below, the child's start
-#: (a Python and numpy, ~0.2 s CPU, once a process) costs more than it saves
-PROCESS_MIN_MOTORS = 256
+#: ``fit_many`` starts the child for a batch of this many motors or more: its start (a Python, numpy
+#: and the compression imported: 0.10 s CPU, 0.12 s wall; its buffers' first pages) made a fresh
+#: process's first batch of 512 bench captures 3-11 % slower (0.39-0.42 s against 0.38), one of 1000
+#: 7-16 % faster (0.66-0.67 s against 0.72-0.79; quiet, docs/benchmarks.md)
+PROCESS_START_MOTORS = 1000
+#: once the child runs, ``fit_many`` hands it blocks from this many motors on (a batch of 64 bench
+#: captures: 57 ms against 64 ms without it; of 32: 35 against 33 ms; median of 5, quiet)
+PROCESS_MIN_MOTORS = 64
 #: requests in flight at most (a shared buffer each): fit_many's worker threads that feed the child
 SLOTS = 2
 #: one array's place in the shared buffer: (first double, length)
