@@ -5,6 +5,7 @@ a fallback to this process when it dies, and nothing left behind at exit."""
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -141,6 +142,16 @@ def test_a_starting_child_leaves_the_work_to_this_process():
         assert _same_summaries(here, summarise_segments(todo, spec))
     finally:
         proc.close()
+
+
+def test_the_child_outlives_a_ctrl_c(child):
+    """SIGINT (Ctrl-C reaches the terminal's process group) leaves the child serving."""
+    spec = fit.FitSpec()
+    m = _motors(1)[0]
+    todo = [(m.theta[s], m.t[s], m.torque[s], None, m.pole_pairs) for s in range(m.n_segments)]
+    os.kill(child.pid, signal.SIGINT)
+    time.sleep(0.2)
+    assert _same_summaries(child.summarise(todo, spec), summarise_segments(todo, spec)) and not child.broken
 
 
 def test_a_dead_child_leaves_the_work_to_this_process():

@@ -2,17 +2,19 @@
 
 The compression's threads share one GIL: each holds it between its numpy kernels, so two of them
 (and the thread that dispatches the solve and unpacks its results) take turns at it. A process of
-its own has its own GIL: ``fit_many``'s worker thread hands it a block's segments and waits (the GIL
+its own has its own GIL: ``fit_many``'s worker threads hand it blocks of segments and wait (the GIL
 released), while the calling thread compresses the other blocks and runs the solve.
 
 The child imports numpy and the compression only (no JAX). It is started on first use, from a
 batch of :data:`PROCESS_START_MOTORS` motors on, kept for the process' life (closed at exit) and
 used from :data:`PROCESS_MIN_MOTORS` on once it runs.
-The segments' arrays reach it through one shared buffer (an anonymous ``memfd``, its descriptor
-passed over the socket: no name that a crash could leave behind), the summaries (a few kB a
-motor) come back pickled. Linux only; where it cannot start (or dies), the worker thread
-compresses in this process, as without it. An error in the child is raised here as it was
-raised there (``fit_many`` names the capture).
+The segments' arrays reach it through shared buffers, one a request in flight (an anonymous
+``memfd``, its descriptor passed over a socket pair: no name that a crash could leave behind), the
+summaries (a few kB a motor) come back pickled. What a user sees: a second ``python`` process
+(``-c ... serve()``, 35-55 MB) from the first large batch until this process ends; it ignores
+Ctrl-C (it ends when this process closes it or is gone). Linux only; where it cannot start (or
+dies), the worker threads compress in this process, as without it. An error in the child is
+raised here as it was raised there (``fit_many`` names the capture).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import contextlib
 import mmap
 import os
 import queue
+import signal
 import socket
 import subprocess
 import sys
@@ -50,7 +53,7 @@ _Span = tuple[int, int]
 
 
 class CompressProcess:
-    """The child process and its shared buffer; :meth:`summarise` is
+    """The child process and its shared buffers; :meth:`summarise` is
     :func:`~eol_cal.analysis.fit.compression.summarise_segments` run there."""
 
     def __init__(self) -> None:
@@ -235,6 +238,8 @@ def running() -> CompressProcess | None:
 def serve() -> None:
     """The child's loop: a shared buffer, then blocks of segments to summarise, until told to stop
     (or the parent is gone)."""
+    # Ctrl-C reaches the terminal's whole process group: the parent decides, and closes this
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     sock = socket.socket(fileno=int(sys.argv[1]))
     conn = Connection(os.dup(sock.fileno()))
     bufs = [np.empty(0)] * SLOTS
