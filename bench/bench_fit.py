@@ -35,6 +35,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse
+import contextlib
 import statistics
 import subprocess
 import sys
@@ -159,8 +160,16 @@ def main() -> None:
                   f"warm cache {min(walls[1:]):.2f} s")
 
 
-#: the batched rows: (mode, compression threads)
-BATCH_ROWS = (("loop", 0), ("map", 0), ("vmap", 0), ("map", 1), ("map", 2), ("vmap", 1), ("vmap", 2))
+#: the batched rows: (mode, compression threads (None: fit_many's default), ``fit_many``'s ``process``:
+#: None its default, False the worker threads compressing in this process; a checkout without the
+#: argument runs its default)
+BATCH_ROWS: tuple[tuple[str, int | None, bool | None], ...] = (
+    ("loop", 0, None), ("map", 0, None), ("vmap", 0, None), ("map", 1, None), ("map", 2, None), ("vmap", 1, None),
+    ("vmap", 2, None), ("vmap", 1, False), ("vmap", None, None))
+#: the row whose fits are compared across checkouts (fit_many's default for a batch)
+DEFAULT_ROW = 8
+#: the default row's mode and threads compressing in this process (this checkout's fits compared with it)
+NO_PROCESS_ROW = 7
 #: what the checkouts' fits are compared on
 COMPARED = ("k6", "phase_k6", "c6", "phase_c6", "delay_s")
 
@@ -191,28 +200,49 @@ def batch_worker(npz: str, out: str, chunk: int, harmonics: str) -> None:
               for i in range(int(data["n"]))]
     spec = FitSpec(harmonics=tuple(int(h) for h in harmonics.split(",")))
 
-    def cpu() -> float:
-        r = resource.getrusage(resource.RUSAGE_SELF)
-        return r.ru_utime + r.ru_stime
+    child: Any = None
+    with contextlib.suppress(ImportError):  # a checkout without the compression process: None
+        from eol_cal.analysis.fit import compress_process as child
 
-    rows, fits = [], None
-    for mode, th in BATCH_ROWS:
-        fit_many(motors[:chunk], spec, mode=mode, chunk=chunk, threads=th)  # compile this shape
+    def cpu() -> float:
+        """CPU s of this process and of its compression process (user + system)."""
+        r = resource.getrusage(resource.RUSAGE_SELF)
+        running = child.running() if child else None
+        return r.ru_utime + r.ru_stime + (_process_cpu(running.pid) if running else 0.0)
+
+    startup = None
+    if child:  # started before the rows (once a process; a batch does not wait for it): its start timed here
         c0, t0 = cpu(), time.perf_counter()
-        got = fit_many(motors, spec, mode=mode, chunk=chunk, threads=th)
+        proc = child.compress_process()
+        while proc and not proc.ready():
+            time.sleep(0.001)
+        startup = (time.perf_counter() - t0, cpu() - c0)
+    rows, fits = [], []
+    for mode, th, process in BATCH_ROWS:
+        kw: dict[str, Any] = {} if child is None else dict(process=process)
+        fit_many(motors[:chunk], spec, mode=mode, chunk=chunk, threads=th, **kw)  # compile this shape
+        c0, t0 = cpu(), time.perf_counter()
+        got = fit_many(motors, spec, mode=mode, chunk=chunk, threads=th, **kw)
         wall, used = time.perf_counter() - t0, cpu() - c0
         rows.append(dict(mode=mode, threads=th, rate=len(motors) / wall, cpu_ms=used / len(motors) * 1e3,
                          converged=all(f.converged for f in got)))
-        fits = fits or [dict(k6=f.harmonics[6]["k"].value, phase_k6=f.harmonics[6]["k"].phase,
-                             c6=f.harmonics[6]["c"].value, phase_c6=f.harmonics[6]["c"].phase, delay_s=f.delay_s)
-                        for f in got]
+        fits.append([dict(k6=f.harmonics[6]["k"].value, phase_k6=f.harmonics[6]["k"].phase,
+                          c6=f.harmonics[6]["c"].value, phase_c6=f.harmonics[6]["c"].phase, delay_s=f.delay_s)
+                     for f in got])
     c0, t0 = cpu(), time.perf_counter()
     for m in motors:
         compress(m, spec)
     one = ((cpu() - c0) / len(motors) * 1e3, (time.perf_counter() - t0) / len(motors) * 1e3)
     Path(out).write_text(json.dumps(dict(code=os.path.dirname(os.path.dirname(eol_cal.__file__)), rows=rows,
                                          compress_ms=one, compress_rows=compress_rows(motors, spec, cpu),
-                                         load=os.getloadavg()[0], fits=fits)))
+                                         load=os.getloadavg()[0], fits=fits[DEFAULT_ROW], startup=startup,
+                                         threads_fits=fits[NO_PROCESS_ROW])))
+
+
+def _process_cpu(pid: int) -> float:
+    """CPU s (user + system) of process ``pid`` so far (Linux's /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def compress_rows(motors: list, spec: Any, cpu: Any) -> list[dict] | None:
@@ -266,17 +296,27 @@ def batch_side_by_side(captures: int, chunk: int, harmonics: str, rounds: int, b
                 got.setdefault(name, []).append(json.loads(Path(out).read_text()))
         print(f"load at end {os.getloadavg()[0]:.1f}, two GIL-free threads get {free_cores():.2f} cores; best of {rounds} "
               "round(s) a row (captures/s wall; CPU ms a capture, the least; cores used: CPU s / wall s of the best round)")
-        print(f"{'row':<16}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>42}" for name, runs in got.items()))
-        for r, (mode, th) in enumerate(BATCH_ROWS):
+        print(f"{'row':<22}" + "".join(f"{name + ' (' + runs[0]['code'][-14:] + ')':>42}" for name, runs in got.items()))
+        for r, (mode, th, process) in enumerate(BATCH_ROWS):
             cells = [_cell([x["rows"][r] for x in runs]) for runs in got.values()]
-            print(f"{mode + ', ' + str(th) + ' thr':<16}" + "".join(f"{c:>42}" for c in cells))
+            name = f"{mode}, {'default' if th is None else th} thr" + (", no proc" if process is False else "")
+            print(f"{name:<22}" + "".join(f"{c:>42}" for c in cells))
         for r, th in enumerate((1, 2)):
             cells = [_cell([x["compress_rows"][r] for x in runs]) if runs[0].get("compress_rows") else "-"
                      for runs in got.values()]
-            print(f"{'compress, ' + str(th) + ' thr':<16}" + "".join(f"{c:>42}" for c in cells))
-        print(f"{'compress()':<16}" + "".join(
+            print(f"{'compress, ' + str(th) + ' thr':<22}" + "".join(f"{c:>42}" for c in cells))
+        print(f"{'compress()':<22}" + "".join(
             f"{min(x['compress_ms'][0] for x in runs):>30.3f} ms CPU a capture" for runs in got.values()))
+        for name, runs in got.items():
+            if runs[0].get("startup"):
+                print(f"{name}: the compression process's start, to its imports done (once a process): wall "
+                      + ", ".join(f"{x['startup'][0]:.3f}" for x in runs) + " s, CPU "
+                      + ", ".join(f"{x['startup'][1]:.3f}" for x in runs) + " s (this and the child)")
         ref = got["this"][0]["fits"]
+        worst = {k: max(abs(a[k] - b[k]) / max(abs(a[k]), 1e-300) for a, b in zip(ref, got["this"][0]["threads_fits"],
+                                                                                  strict=True)) for k in COMPARED}
+        print("fits of this, the default row (vmap, default thr) against its no-process row: largest relative difference "
+              + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
         for name, runs in got.items():
             if name != "this":
                 worst = {k: max(abs(a[k] - b[k]) / max(abs(a[k]), 1e-300) for a, b in zip(ref, runs[0]["fits"], strict=True))

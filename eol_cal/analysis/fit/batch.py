@@ -13,7 +13,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 import numpy as np
 
 from eol_cal.analysis.fit.cache import load_solver, save_solver
-from eol_cal.analysis.fit.compression import COMPRESSED_KEYS, Compressed, compress_many, compressed_dict
+from eol_cal.analysis.fit.compress_process import PROCESS_MIN_MOTORS, PROCESS_START_MOTORS, SLOTS, compress_process, running
+from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, Summarise, compress_many, compressed_dict,
+                                              summarise_segments)
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
@@ -67,6 +69,7 @@ def fit_many(
     progress: Callable[[int], None] | None = None,
     threads: int | None = None,
     cache_dir: str | os.PathLike[str] | None = None,
+    process: bool | None = None,
 ) -> list[MotorFit]:
     """Fit many motors: compression in numpy, the nonlinear solve batched in JAX.
 
@@ -94,15 +97,24 @@ def fit_many(
         Worker threads that compress ahead of the solve, :data:`COMPRESS_BLOCK` motors at a time
         (their columns built by a few long numpy kernels and their products by BLAS called without
         the GIL, :func:`~eol_cal.numerics.gemm.gram_halves`: a compression thread holds the GIL
-        about a quarter of its time, between kernels); this thread compresses beside them whenever
-        it would wait for them. 0 compresses in this thread alone. ``None`` (default):
-        :func:`compression_threads`, one worker for a batch of 32 motors or more on a machine of
-        two cores or more, which with this thread keeps both cores of a 2-core machine busy
-        (docs/benchmarks.md).
+        about a quarter of its time, between kernels), or hand them to the compression process
+        (``process``) and wait; this thread compresses beside them whenever it would wait for them.
+        0 compresses in this thread alone. ``None`` (default): with the process, two (one block
+        copied in while it compresses another); else :func:`compression_threads`, one worker for a
+        batch of 32 motors or more on a machine of two cores or more, which with this thread keeps
+        both cores of a 2-core machine busy (docs/benchmarks.md).
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
         from there instead of tracing it, or writes it there after tracing. ``None``: no cache.
+    process : bool, optional
+        The worker threads hand their blocks to a second process
+        (:mod:`~eol_cal.analysis.fit.compress_process`: its own GIL; started on first use, kept for
+        this process' life) instead of compressing them here. ``None`` (default): where there is a
+        worker thread, for a batch of
+        :data:`~eol_cal.analysis.fit.compress_process.PROCESS_START_MOTORS` motors or more, or of
+        :data:`~eol_cal.analysis.fit.compress_process.PROCESS_MIN_MOTORS` or more once the process
+        runs. Where it cannot start, the workers compress here. The fits are the same bit for bit.
 
     Returns
     -------
@@ -119,12 +131,16 @@ def fit_many(
     omega_max = max(float(np.abs(m.omega_e).max()) for m in motors)
     grid = tau_grid(spec, omega_max)
     results: list[MotorFit] = []
+    workers = compression_threads(len(motors)) if threads is None else threads
+    summarise = _worker_summarise(workers > 0 and len(motors) > 1, len(motors), process)
     if threads is None:
-        threads = compression_threads(len(motors))
+        # feeding the process, a worker waits for it: one a request it takes at once
+        threads = workers if summarise is summarise_segments else _feeders()
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     comps_in_order = None
     try:
-        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads)
+        comps_in_order = _compressions(motors, spec, S, min(chunk, COMPRESS_BLOCK), pool, threads, summarise,
+                                       sources)
         with jax.enable_x64(True):
             # numpy in (float64): a jax.numpy.asarray here is a program of its own to look up
             grid_j = np.asarray(grid, dtype=np.float64)
@@ -211,17 +227,43 @@ def compression_threads(n_motors: int) -> int:
 COMPRESS_BLOCK = 16
 
 
+def _feeders() -> int:
+    """The worker threads that feed the compression process by default: as many as it takes
+    requests at once (:data:`~eol_cal.analysis.fit.compress_process.SLOTS`)."""
+    return SLOTS
+
+
+def _worker_summarise(workers: bool, n_motors: int, process: bool | None) -> Summarise:
+    """What the compression's worker threads summarise segments with: the second process's
+    :meth:`~eol_cal.analysis.fit.compress_process.CompressProcess.summarise` where ``process`` (or,
+    None, a batch of ``PROCESS_START_MOTORS`` or more, or ``PROCESS_MIN_MOTORS`` once it runs) asks
+    for it and it runs, else in this process."""
+    if not workers or process is False:
+        return summarise_segments
+    if process is None and n_motors < (PROCESS_MIN_MOTORS if running() else PROCESS_START_MOTORS):
+        return summarise_segments
+    child = compress_process()
+    return child.summarise if child else summarise_segments
+
+
 def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: int,
-                  pool: ThreadPoolExecutor | None, workers: int) -> Generator[Compressed, None, None]:
+                  pool: ThreadPoolExecutor | None, workers: int, summarise: Summarise = summarise_segments,
+                  sources: list[str | None] | None = None) -> Generator[Compressed, None, None]:
     """Each motor's compression, in order, ``block`` motors at a time: in this thread, or also on
     ``pool``'s ``workers`` threads, which take the blocks in order and run ahead of the solve (a few kB of
     result a motor). This thread compresses too rather than wait: the block it needs if no worker
     has taken it, else the next free ones until the worker's is done. One worker beside it keeps
-    two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one."""
+    two cores busy with fewer threads taking turns at the GIL than two workers beside a waiting one.
+    The workers summarise with ``summarise`` (another process's), this thread here. An error names
+    its capture (``sources``, else its index)."""
     starts = list(range(0, len(motors), block))
 
-    def run(i: int) -> list[Compressed]:
-        return compress_many(motors[starts[i] : starts[i] + block], spec, S)
+    def run(i: int, how: Summarise = summarise_segments) -> list[Compressed]:
+        try:
+            return compress_many(motors[starts[i] : starts[i] + block], spec, S, how)
+        except Exception as e:
+            _name_capture(e, motors, starts[i], block, spec, S, sources)
+            raise
 
     if pool is None:
         for i in range(len(starts)):
@@ -232,7 +274,7 @@ def _compressions(motors: list[SteadySegments], spec: FitSpec, S: int, block: in
 
     def work() -> None:
         while (i := claims.next()) is not None:
-            _settle(done[i], run, i)
+            _settle(done[i], lambda i: run(i, summarise), i)
 
     # each in this thread's context: a shared_compression scope's segments are shared with the workers
     for _ in range(workers):
@@ -286,6 +328,20 @@ def _settle(f: Future[list[Compressed]], run: Callable[[int], list[Compressed]],
         f.set_result(run(i))
     except Exception as e:  # noqa: BLE001 - handed to the consumer, which raises it (as a worker's future did)
         f.set_exception(e)
+
+
+def _name_capture(e: Exception, motors: list[SteadySegments], first: int, block: int, spec: FitSpec, S: int,
+                  sources: list[str | None] | None) -> None:
+    """A note on ``e``, the error of the block of ``motors`` from ``first``, naming the capture that
+    raises it compressed alone here (the first of the block's that does), else the block's."""
+    names = [sources[j] if sources and sources[j] else f"#{j}" for j in range(len(motors))]
+    for j in range(first, min(first + block, len(motors))):
+        try:
+            compress_many([motors[j]], spec, S)
+        except Exception:  # noqa: BLE001 - the capture found; the block's error is raised
+            e.add_note(f"in the compression of capture {names[j]}")
+            return
+    e.add_note(f"in the compression of captures {names[first]} to {names[min(first + block, len(motors)) - 1]}")
 
 
 def _taking_steps(exported: Callable) -> Callable:

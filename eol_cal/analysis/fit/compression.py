@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -276,14 +276,34 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
     return compress_many([seg], spec, n_segments)[0]
 
 
-def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: int | None = None) -> list[Compressed]:
+#: one segment's arrays as :func:`summarise_segments` takes them: angle (rad), time (s), torque and
+#: ``kt * i_q`` (N*m, or None), and the motor's pole pairs
+SegmentArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int]
+
+
+#: the summaries of a block's segments, as :func:`summarise_segments` (or another process) returns them
+Summaries = _Summaries
+#: what computes them (:func:`summarise_segments`, or another process's)
+Summarise = Callable[[Sequence[SegmentArrays], FitSpec], _Summaries]
+
+
+def summarise_segments(todo: Sequence[SegmentArrays], spec: FitSpec) -> _Summaries:
+    """The normal-equation summaries of the segments ``todo`` (:func:`_compress_all`): what
+    :func:`compress_many` computes, here or in another process
+    (:mod:`~eol_cal.analysis.fit.compress_process`)."""
+    return _compress_all([_segment(*arrays, spec) for arrays in todo], spec)
+
+
+def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: int | None = None,
+                  summarise: Summarise = summarise_segments) -> list[Compressed]:
     """:func:`compress` of each motor, their segments' columns built side by side (a few long numpy
     kernels for them all: :data:`_GROUP`), their small factorisations batched and their results
-    laid out for all the motors at once (:func:`_assemble`)."""
+    laid out for all the motors at once (:func:`_assemble`). ``summarise``: what computes the
+    segments' summaries (:func:`summarise_segments`, or another process's)."""
     S = n_segments or max((seg.n_segments for seg in motors), default=0)
     memo = _SHARED.get()
     fresh: dict[tuple[Any, ...], int] = {}  # a segment's key -> its index in segs (a scope's only)
-    segs: list[_Segment] = []
+    segs: list[SegmentArrays] = []
     held: list[tuple[tuple[Any, ...], tuple[Any, ...]]] = []
     # per motor, per segment: (the summaries holding it, None for this call's; its row there)
     where: list[list[tuple[_Summaries | None, int]]] = []
@@ -294,7 +314,7 @@ def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: i
             arrays = (seg.theta[s], seg.t[s], seg.torque[s], kt_iq)
             if memo is None:  # without a scope every segment is its own (the same arrays twice: twice)
                 rows.append((None, len(segs)))
-                segs.append(_segment(*arrays, seg.pole_pairs, spec))
+                segs.append((*arrays, seg.pole_pairs))
                 continue
             key = (*map(id, arrays), seg.pole_pairs, spec.harmonics, spec.drift_degree, spec.mech_order1,
                    spec.mech_orders)
@@ -303,11 +323,11 @@ def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: i
             else:
                 if key not in fresh:
                     fresh[key] = len(segs)
-                    segs.append(_segment(*arrays, seg.pole_pairs, spec))
+                    segs.append((*arrays, seg.pole_pairs))
                     held.append((key, arrays))
                 rows.append((None, fresh[key]))
         where.append(rows)
-    done = _compress_all(segs, spec) if segs else None
+    done = summarise(segs, spec) if segs else None
     if memo is not None:
         for key, arrays in held:
             memo[key] = ((done, fresh[key]), arrays)  # the arrays held: no id of the key is reused while it lasts
