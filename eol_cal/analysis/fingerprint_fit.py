@@ -104,9 +104,9 @@ class EdgeSums:
         """:meth:`normal` at each of ``shifts`` (pulses), the products of every shift stacked in one
         pass (a placement's trials: one per pole pair); each shift's figures are those of its own
         products, bit for bit (numpy's stacked matmul calls BLAS on each shift's matrices as on one
-        alone; tests/test_fingerprint_fit.py checks it)."""
+        alone; tests/test_fingerprint_joint_fit.py checks it)."""
         todo = [shift for shift in dict.fromkeys(shifts) if (halves, shift) not in self._normal]
-        if todo:  # not yet computed: a window is placed at the offset a trial computed
+        if todo:  # each offset once: the window is placed at an offset its trials computed
             per_half, ss, n = self.part(halves)
             P = low_order_complement(self.N)
             nF = P.shape[1]

@@ -236,7 +236,7 @@ class _RefitSetup:
 
 
 #: threads of :func:`refit_in_process`: one. Two threads on two cores were no faster than one
-#: (0.91-0.95x its serials a second, quiet; refit6 0.96x) for 1.35-1.4x its CPU: the threads overlap
+#: (0.91-0.95x its serials a second, quiet; 0.95-0.96x in refit6's runs) for 1.35-1.4x its CPU: the threads overlap
 #: only where the GIL is released (numpy's kernels, BLAS, JAX's programs), and each release with the
 #: other thread waiting hands the GIL over (6x the voluntary context switches, twice the system
 #: time), which costs more than the overlap gains (docs/benchmarks.md, "Lot refit throughput").
