@@ -11,7 +11,8 @@ prepares its workers (:func:`eol_cal.lot.cluster.prepare_fit_process`) and warm 
 serials outside the lot, on every worker, before the clock); the rounds alternate them, so a
 change in the machine's load falls on all of them. ``cpu/serial`` is the CPU time (user +
 system) of the child and everything it started (nannies, workers), which other jobs on the
-machine move much less than the wall time.
+machine move much less than the wall time; ``sys/serial`` its system part and ``switches/serial``
+the voluntary context switches (a thread that waits: for the GIL, for a lock, for the disk).
 
 - ``read_capture``: every capture read as the refit reads it (structure check, decode, channel
   map, validation), nothing else: the time to merely read and decode the files;
@@ -20,8 +21,10 @@ machine move much less than the wall time.
 - ``loop``: the refit in one process (:func:`eol_cal.lot.refit.refit_serials`, batches of
   :data:`~eol_cal.lot.refit.REFIT_BATCH` serials);
 - ``threads``: the refit in one process on both cores (:func:`eol_cal.lot.refit.refit_in_process`:
-  the same batches on :data:`~eol_cal.lot.refit.REFIT_THREADS` threads); ``cores`` is its CPU time
-  over its wall time;
+  the same batches on :data:`THREADS` threads, whatever its default); ``cores`` is its CPU time
+  over its wall time. The one-process figure (the targets' line) is the row of
+  :func:`~eol_cal.lot.refit.refit_in_process`'s default (:data:`~eol_cal.lot.refit.REFIT_THREADS`:
+  one thread, the loop's row);
 - ``dask, N workers``: :func:`eol_cal.lot.refit.refit_lot` on the cluster `eol-cal refit` starts;
 - ``--baseline DIR``: the loop and the 2-worker cluster once more with the code of another
   checkout (``git worktree add DIR COMMIT``), its ``eol_cal`` imported instead of this one.
@@ -52,9 +55,13 @@ from typing import Any
 POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
 HERE = Path(__file__).resolve()
 FIGURES = ("k6", "c6", "r2", "rms")
+#: threads of the ``threads`` alternative: the machine's two cores
+THREADS = 2
 #: a baseline whose float path differs in the last bits (the batched compression's products, issue 37)
 #: agrees to this relative difference (tests/test_fit_typed.py's tolerance); a changed result does not
 SAME_REL = 1e-12
+#: a child's CPU s (user + system), system CPU s and voluntary context switches (:func:`_tree_cpu`)
+Counters = tuple[float, float, float]
 #: the refit's stages (``--stages``): (label, module, function); the function is looked up in that
 #: module at call time by its callers (a lazy import, or a name of that module's own)
 STAGES = (
@@ -97,17 +104,31 @@ def _groups(d: Path) -> list[list[Path]]:
     return [sorted(p.glob("*.mf4")) for p in sorted(d.iterdir())]
 
 
-def _tree_cpu() -> float:
-    """CPU seconds (user + system) of this process and all its descendants alive now."""
+def _tree_cpu() -> Counters:
+    """CPU seconds (user + system), system CPU seconds and voluntary context switches of this
+    process (every thread it ran, ended ones too) and all its descendants alive now (their
+    threads alive now). A switch is a thread that waited: for the GIL, a lock, the disk."""
+    import resource
+
     import psutil
 
-    me = psutil.Process()
-    total = 0.0
-    for p in [me, *me.children(recursive=True)]:
-        with contextlib.suppress(psutil.Error):
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    total = [me.ru_utime + me.ru_stime, me.ru_stime, float(me.ru_nvcsw)]
+    for p in psutil.Process().children(recursive=True):
+        with contextlib.suppress(psutil.Error, OSError):
             t = p.cpu_times()
-            total += t.user + t.system
-    return total
+            total[0] += t.user + t.system
+            total[1] += t.system
+            for status in Path(f"/proc/{p.pid}/task").glob("*/status"):
+                line = next(x for x in status.read_text().splitlines() if x.startswith("voluntary_ctxt_switches"))
+                total[2] += float(line.split()[1])
+    return total[0], total[1], total[2]
+
+
+def _spent(c0: Counters) -> Counters:
+    """:func:`_tree_cpu`'s counters since ``c0``."""
+    c1 = _tree_cpu()
+    return c1[0] - c0[0], c1[1] - c0[1], c1[2] - c0[2]
 
 
 # ------------------------------------------------------------------------------------------
@@ -122,7 +143,7 @@ def _rows_of(refit: Any, groups: list[list[Path]], **kw: Any) -> list[dict[str, 
     return [refit.refit_capture(g, **kw) for g in groups]
 
 
-def _child_read(lot: list[list[Path]], plain_asammdf: bool) -> tuple[list[Any], float, float]:
+def _child_read(lot: list[list[Path]], plain_asammdf: bool) -> tuple[list[Any], float, Counters]:
     import eol_cal.analysis.fit.motors  # noqa: F401 - the same process as a refit's, JAX loaded
     from eol_cal.capture.io import read_capture
 
@@ -144,10 +165,10 @@ def _child_read(lot: list[list[Path]], plain_asammdf: bool) -> tuple[list[Any], 
     for g in lot:
         for p in g:
             read(p)
-    return [], time.perf_counter() - t0, _tree_cpu() - c0
+    return [], time.perf_counter() - t0, _spent(c0)
 
 
-def _child_loop(lot: list[list[Path]], warm: list[list[Path]], threads: bool) -> tuple[list[Any], float, float]:
+def _child_loop(lot: list[list[Path]], warm: list[list[Path]], threads: bool) -> tuple[list[Any], float, Counters]:
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.lot import refit
     from eol_cal.lot.cluster import prepare_fit_process
@@ -157,13 +178,13 @@ def _child_loop(lot: list[list[Path]], warm: list[list[Path]], threads: bool) ->
     _rows_of(refit, warm, bench="none", cache_dir=cache)
     c0, t0 = _tree_cpu(), time.perf_counter()
     if threads:
-        rows = refit.refit_in_process(lot, bench="none", cache_dir=cache)
+        rows = refit.refit_in_process(lot, bench="none", cache_dir=cache, threads=THREADS)
     else:
         rows = _rows_of(refit, lot, bench="none", cache_dir=cache)
-    return rows, time.perf_counter() - t0, _tree_cpu() - c0
+    return rows, time.perf_counter() - t0, _spent(c0)
 
 
-def _child_dask(lot: list[list[Path]], warm: list[list[Path]], n: int) -> tuple[list[Any], float, float]:
+def _child_dask(lot: list[list[Path]], warm: list[list[Path]], n: int) -> tuple[list[Any], float, Counters]:
     from distributed import Client, wait
 
     from eol_cal.analysis.fit.cache import default_cache_dir
@@ -179,7 +200,7 @@ def _child_dask(lot: list[list[Path]], warm: list[list[Path]], n: int) -> tuple[
                             allow_other_workers=False) for addr in client.scheduler_info()["workers"]])
         c0, t0 = _tree_cpu(), time.perf_counter()
         rows = refit.refit_lot(lot, client, bench="none", cache_dir=cache)
-        return rows, time.perf_counter() - t0, _tree_cpu() - c0
+        return rows, time.perf_counter() - t0, _spent(c0)
 
 
 def child(name: str, lot_dir: Path, warm_dir: Path, out: Path) -> None:
@@ -293,7 +314,7 @@ def main() -> None:
         ("read+decode (read_capture)", "read_capture", None),
         ("read+decode (asammdf)", "asammdf", None),
         ("loop (1 process)", "loop", None),
-        ("threads (1 process)", "threads", None),
+        (f"threads (1 process, {THREADS})", "threads", None),
         ("dask, 1 worker", "dask-1", None),
         ("dask, 2 workers", "dask-2", None),
     ]
@@ -301,12 +322,12 @@ def main() -> None:
         base = a.baseline.resolve()
         runs += [("baseline loop (1 process)", "loop", base), ("baseline dask, 2 workers", "dask-2", base)]
     wall = {name: 0.0 for name, _, _ in runs}
-    cpu = dict(wall)
+    cpu, sys_cpu, switches = dict(wall), dict(wall), dict(wall)
     load0 = os.getloadavg()
     ref: list[dict[str, Any]] | None = None
     phase_diff = worst = 0.0
     with tempfile.TemporaryDirectory() as d:
-        from eol_cal.lot.refit import REFIT_BATCH
+        from eol_cal.lot.refit import REFIT_BATCH, REFIT_THREADS
 
         (Path(d) / "lot").mkdir()
         (Path(d) / "warm").mkdir()
@@ -316,7 +337,9 @@ def main() -> None:
             for name, kind, baseline in runs:
                 res = run_child(kind, Path(d) / "lot", Path(d) / "warm", baseline)
                 wall[name] += res["wall"]
-                cpu[name] += res["cpu"]
+                cpu[name] += res["cpu"][0]
+                sys_cpu[name] += res["cpu"][1]
+                switches[name] += res["cpu"][2]
                 if res["rows"]:
                     ref = ref or res["rows"]
                     for x, y in zip(ref, res["rows"], strict=True):
@@ -326,27 +349,33 @@ def main() -> None:
                         worst = max(worst, rel)
                         phase_diff = max(phase_diff, abs(x["phase_k6"] - y["phase_k6"]))
                 print(f"round {r + 1}: {name:<28} {a.serials / res['wall']:7.2f} serials/s  "
-                      f"{res['cpu'] / a.serials * 1e3:6.1f} ms CPU/serial  load {os.getloadavg()[0]:.2f}", flush=True)
+                      f"{res['cpu'][0] / a.serials * 1e3:6.1f} ms CPU/serial  load {os.getloadavg()[0]:.2f}", flush=True)
     n = a.serials * a.rounds
     print(f"{a.serials} serials x {len(POINTS)} captures x {a.rounds} round(s), {os.cpu_count()} cores, "
           f"load average {load0[0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end")
     base_name = "baseline loop (1 process)" if a.baseline is not None else "loop (1 process)"
     print(f"{'':<30}{'s':>8}{'serials/s':>11}{'vs ' + ('baseline' if a.baseline else 'loop'):>13}{'cpu/serial':>12}"
-          f"{'cores':>7}")
+          f"{'cores':>7}{'sys/serial':>12}{'switches/serial':>17}")
     for name, _, _ in runs:
         print(f"{name:<30}{wall[name]:>8.1f}{n / wall[name]:>11.2f}{wall[base_name] / wall[name]:>12.2f}x"
-              f"{cpu[name] / n * 1e3:>9.1f} ms{cpu[name] / wall[name]:>7.2f}")
+              f"{cpu[name] / n * 1e3:>9.1f} ms{cpu[name] / wall[name]:>7.2f}{sys_cpu[name] / n * 1e3:>9.1f} ms"
+              f"{switches[name] / n:>17.0f}")
     read = wall["read+decode (read_capture)"]
-    for name in ("loop (1 process)", "threads (1 process)"):
+    threads = f"threads (1 process, {THREADS})"
+    for name in ("loop (1 process)", threads):
         one = wall[name]
         print(f"{name}: {n / one:.1f} serials/s (target >= 40), {one / read:.2f}x the time to read and decode the "
               f"files (target <= 3x; {one / wall['read+decode (asammdf)']:.2f}x plain asammdf's)")
+    # the one-process figure is what refit_in_process does by default: one thread is the loop's row
+    default = {1: "loop (1 process)", THREADS: threads}.get(REFIT_THREADS)
+    print(f"one process (refit_in_process's default, {REFIT_THREADS} thread(s)): "
+          + (f"{n / wall[default]:.1f} serials/s (the {default} row)" if default else "not measured"))
     print(f"dask 2 workers: {wall['dask, 1 worker'] / wall['dask, 2 workers']:.2f}x 1 worker (target >= 1.8x), "
           f"{wall['loop (1 process)'] / wall['dask, 2 workers']:.2f}x the loop, "
-          f"{wall['threads (1 process)'] / wall['dask, 2 workers']:.2f}x the threads")
+          f"{wall[threads] / wall['dask, 2 workers']:.2f}x the threads")
     if a.baseline is not None:
         for new, old in (("loop (1 process)", "baseline loop (1 process)"),
-                         ("threads (1 process)", "baseline loop (1 process)"),
+                         (threads, "baseline loop (1 process)"),
                          ("dask, 2 workers", "baseline dask, 2 workers")):
             print(f"{new}: {wall[old] / wall[new]:.2f}x the baseline's")
     print(f"k6, c6, R^2, RMS within {worst:.2g} relative in every refit (at most {SAME_REL:g}); largest phase_k6 "

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, joint_fit, low_order_complement
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, PlacedWindows, joint_fit, low_order_complement
 from eol_cal.firmware.mech_params import FP_FORWARD
 
 N, POLES = 64, 8
@@ -162,3 +162,39 @@ def test_windows_are_placed_by_the_fingerprint_among_the_pole_pair_offsets():
     other = fpr.WindowEdges([(t, k - 4 * 9)], (9 * DELTA) % (2 * math.pi), np.zeros(1, np.int64))
     merged = fpr.merge_windows([*windows, other], POLES, N)
     assert merged.offsets == [0, 23, 41, None] and merged.scores[3] is not None
+
+
+def test_a_placements_trials_in_one_pass_are_each_trial_alone_bit_for_bit():
+    """:meth:`PlacedWindows.trials` stacks a window's products at every offset it tries; each
+    offset's normal equations, residual and degrees of freedom are those of that offset alone
+    (a fresh window's sums each time, so no trial reads another's cached products)."""
+    fp_true = _true_fingerprint(5)
+    ref = EdgeSums([_stretch(fp_true, 1, 180, 120.0, 6)], N, QUARTER)
+    stretches = [_stretch(fp_true, 4 * 20 + 1, 100, 120.0, 7), _stretch(fp_true, 4 * 50 + 3, 90, 240.0, 8)]
+    placed = PlacedWindows(N)
+    placed.add(ref, 0)
+    shifts = [23, 0, 39, 55, 23]  # the true offset, others, a repeat
+    together = placed.trials(EdgeSums(stretches, N, QUARTER), shifts)
+    for shift, got in zip(shifts, together, strict=True):
+        (alone,) = placed.trials(EdgeSums(stretches, N, QUARTER), [shift])
+        assert got == alone and got is not None
+        w = EdgeSums(stretches, N, QUARTER)
+        for a, b in zip(w.normals((0, 1), [7, shift])[1], _normal_alone(w, shift), strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def _normal_alone(w: EdgeSums, shift: int) -> tuple:
+    """A window's normal equations at one offset by two-dimensional products (the code before
+    the trials were stacked): the reference the stacked products must equal bit for bit."""
+    per_half, ss, n = w.part((0, 1))
+    P = low_order_complement(N)
+    nF = P.shape[1]
+    G, rhs, Ts = np.zeros((2 * nF, 2 * nF)), np.zeros(2 * nF), []
+    for i, (J, counts, r, S) in enumerate(per_half):
+        PJ = P[(J + shift) % N]
+        s = slice(i * nF, (i + 1) * nF)
+        G[s, s] = PJ.T @ (counts[:, None] * PJ)
+        rhs[s] = -PJ.T @ r
+        Ts.append(PJ.T @ S)
+    T = np.concatenate(Ts)
+    return G - T @ T.T, rhs, ss, n

@@ -243,13 +243,9 @@ def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWind
     the pole pairs) need the fingerprint to prefer one by ``min_ratio``.
     """
     dg = (w.grid_phase - ref_phase) % (2 * math.pi)
-    trials = []
-    for j in range(poles // 2):
-        r = int(math.floor((dg + 2 * math.pi * j) / delta + 0.5)) % N
-        e = math.remainder(dg - r * delta, 2 * math.pi)
-        fit = placed.trial(stats, r)
-        rss = fit[0] if fit is not None and fit[1] >= N // 2 else math.nan
-        trials.append((rss, r, e))
+    rs = [int(math.floor((dg + 2 * math.pi * j) / delta + 0.5)) % N for j in range(poles // 2)]
+    trials = [(fit[0] if fit is not None and fit[1] >= N // 2 else math.nan, r, math.remainder(dg - r * delta, 2 * math.pi))
+              for r, fit in zip(rs, placed.trials(stats, rs), strict=True)]
     frac_ok = sorted((x for x in trials if abs(x[2]) <= frac_tol), key=lambda x: abs(x[2]))
     if not frac_ok:
         return None, (float(min(abs(x[2]) for x in trials)), math.nan)

@@ -97,24 +97,35 @@ class EdgeSums:
     def normal(self, halves: tuple[int, ...], shift: int) -> tuple[np.ndarray, np.ndarray, float, int]:
         """This window's part of the normal equations in the errors' basis ``P`` (per half) for
         the edges of ``halves``, moved by ``shift`` pulses: ``(G, rhs, |phi_res|^2, edges)``."""
-        if (halves, shift) in self._normal:  # placed at the offset a trial computed
-            return self._normal[halves, shift]
-        per_half, ss, n = self.part(halves)
-        P = low_order_complement(self.N)
-        nF = P.shape[1]
-        G = np.zeros((len(halves) * nF, len(halves) * nF))
-        rhs = np.zeros(len(halves) * nF)
-        Ts = []
-        for i, (J, counts, r, S) in enumerate(per_half):
-            PJ = P[(J + shift) % self.N]  # only the pulses the window saw
-            s = slice(i * nF, (i + 1) * nF)
-            G[s, s] = PJ.T @ (counts[:, None] * PJ)
-            rhs[s] = -PJ.T @ r
-            Ts.append(PJ.T @ S)
-        T = np.concatenate(Ts)
-        G -= T @ T.T
-        self._normal[halves, shift] = (G, rhs, ss, n)
-        return G, rhs, ss, n
+        return self.normals(halves, [shift])[0]
+
+    def normals(self, halves: tuple[int, ...], shifts: Sequence[int]
+                ) -> list[tuple[np.ndarray, np.ndarray, float, int]]:
+        """:meth:`normal` at each of ``shifts`` (pulses), the products of every shift stacked in one
+        pass (a placement's trials: one per pole pair); each shift's figures are those of its own
+        products, bit for bit (numpy's stacked matmul calls BLAS on each shift's matrices as on one
+        alone; tests/test_fingerprint_joint_fit.py checks it)."""
+        todo = [shift for shift in dict.fromkeys(shifts) if (halves, shift) not in self._normal]
+        if todo:  # each offset once: the window is placed at an offset its trials computed
+            per_half, ss, n = self.part(halves)
+            P = low_order_complement(self.N)
+            nF = P.shape[1]
+            G = np.zeros((len(todo), len(halves) * nF, len(halves) * nF))
+            rhs = np.zeros((len(todo), len(halves) * nF))
+            Ts = []
+            moved = np.asarray(todo)[:, None]
+            for i, (J, counts, r, S) in enumerate(per_half):
+                PJ = P[(J + moved) % self.N]  # (shifts, pulses the window saw, nF)
+                PJt = PJ.transpose(0, 2, 1)
+                s = slice(i * nF, (i + 1) * nF)
+                G[:, s, s] = PJt @ (counts[:, None] * PJ)
+                rhs[:, s] = -PJt @ r
+                Ts.append(PJt @ S)
+            T = np.concatenate(Ts, axis=1)
+            G -= T @ T.transpose(0, 2, 1)
+            for j, shift in enumerate(todo):
+                self._normal[halves, shift] = (G[j], rhs[j], ss, n)
+        return [self._normal[halves, shift] for shift in shifts]
 
 
 class NormalSums:
@@ -235,17 +246,21 @@ class PlacedWindows:
         s = self.sums(halves)
         return _solve(s.G, s.rhs, s.ss, s.n, s.n_stretches, halves, self.N, cov)
 
-    def trial(self, w: EdgeSums, shift: int) -> tuple[float, int] | None:
-        """``(rss, dof)`` of the joint fit with window ``w`` added at offset ``shift``: what a
-        placement trial reads (the figures of that fit, bit for bit), the errors not solved for (a
-        refit's motor tries ~18 placements); None when no half is covered."""
-        halves = _halves(self.seen + np.roll(w.seen, shift, axis=1), self.N)
-        if not halves:
-            return None
-        s = self.sums(halves)
-        G, rhs, ss, n = w.normal(halves, shift)
+    def trials(self, w: EdgeSums, shifts: Sequence[int]) -> list[tuple[float, int] | None]:
+        """``(rss, dof)`` of the joint fit with window ``w`` added at each offset of ``shifts``:
+        what a placement trial reads (the figures of that fit, bit for bit), the errors not solved
+        for (a refit's motor tries ~18 placements), the window's products at every offset in one
+        pass (:meth:`EdgeSums.normals`); None where no half is covered."""
+        kept = [_halves(self.seen + np.roll(w.seen, shift, axis=1), self.N) for shift in shifts]
         nF = low_order_complement(self.N).shape[1]
-        return _residual(s.G + G, s.rhs + rhs, s.ss + ss), _dof(s.n + n, s.n_stretches + len(w.stretches), halves, nF)
+        out: list[tuple[float, int] | None] = [None] * len(shifts)
+        for halves in dict.fromkeys(h for h in kept if h):
+            pick = [k for k, h in enumerate(kept) if h == halves]
+            s = self.sums(halves)
+            for k, (G, rhs, ss, n) in zip(pick, w.normals(halves, [shifts[k] for k in pick]), strict=True):
+                out[k] = (_residual(s.G + G, s.rhs + rhs, s.ss + ss),
+                          _dof(s.n + n, s.n_stretches + len(w.stretches), halves, nF))
+        return out
 
 
 def joint_fit(stretches: list[tuple[np.ndarray, np.ndarray]], N: int, quarter: float,

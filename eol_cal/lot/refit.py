@@ -235,11 +235,13 @@ class _RefitSetup:
             row["failed_checks"] = [c.key for c in checks if c.passed is False]
 
 
-#: threads of :func:`refit_in_process`: the machine's two cores. They overlap only where the GIL
-#: is released (numpy's and BLAS's kernels on long arrays, JAX's programs): a refit holds it 60-73 %
-#: of its time (py-spy, docs/benchmarks.md "Lot refit throughput"), so two threads give at most
-#: ~1.4-1.65x one; :func:`refit_lot`'s worker processes share nothing and scale
-REFIT_THREADS = 2
+#: threads of :func:`refit_in_process`: one. Two threads on two cores were no faster than one
+#: (0.91-0.95x its serials a second, quiet; 0.95-0.96x in refit6's runs) for 1.35-1.4x its CPU: the threads overlap
+#: only where the GIL is released (numpy's kernels, BLAS, JAX's programs), and each release with the
+#: other thread waiting hands the GIL over (6x the voluntary context switches, twice the system
+#: time), which costs more than the overlap gains (docs/benchmarks.md, "Lot refit throughput").
+#: :func:`refit_lot`'s worker processes share nothing and scale (~1.9x on two cores)
+REFIT_THREADS = 1
 
 
 def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | None = None,
@@ -247,8 +249,9 @@ def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | 
                      cache_dir: str | Path | None = None, threads: int = REFIT_THREADS, batch: int = REFIT_BATCH,
                      on_done: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
     """:func:`refit_serials` of every group in this process, ``batch`` groups a task on ``threads``
-    threads (no cluster); rows in the order of ``groups``, the same rows as one batch after the
-    other (the arguments as :func:`refit_serials`'; ``on_done`` is called in this thread, in order).
+    threads (no cluster; default :data:`REFIT_THREADS`, one: more are no faster); rows in the order of
+    ``groups``, the same rows as one batch after the other (the arguments as :func:`refit_serials`';
+    ``on_done`` is called in this thread, in order).
 
     A task is pure (files in, rows out: each thread's batch has its own captures, inputs, fits and
     compression scope, a context variable); what the threads share is the process's caches of
