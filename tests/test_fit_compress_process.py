@@ -136,9 +136,9 @@ def test_a_starting_child_leaves_the_work_to_this_process():
     todo = [(m.theta[s], m.t[s], m.torque[s], None, m.pole_pairs) for s in range(m.n_segments)]
     proc = compress_process.CompressProcess()
     try:
-        t0 = time.perf_counter()
         here = proc.summarise(todo, spec)
-        assert not proc._ready and time.perf_counter() - t0 < 0.1  # before its imports: not waited for
+        # summarised before the child said it had started (its imports take ~0.1 s of CPU): not waited for
+        assert not proc._ready
         assert _same_summaries(here, summarise_segments(todo, spec))
     finally:
         proc.close()
