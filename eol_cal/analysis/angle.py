@@ -85,6 +85,10 @@ class AngleResult:
     hall_theta : ndarray
         Reconstructed angle at those transitions (rad, [0, 2*pi)): where each boundary sits in
         this frame (:mod:`eol_cal.analysis.halls`).
+    hall_events : (ndarray, ndarray, ndarray), optional
+        Every hall transition of the capture, whatever the span: times (s), direction (+1/-1) and
+        the boundary crossed (1..6), as :func:`hall_transitions` found them for the angle, kept for
+        its other readers (:func:`nominal_transitions`: found once a capture, not twice).
     """
 
     theta_r: np.ndarray
@@ -102,6 +106,7 @@ class AngleResult:
     t_span: tuple[float, float]
     hall_begins: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     hall_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    hall_events: tuple[np.ndarray, np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
 
 def hall_transition_angles(
@@ -232,6 +237,7 @@ def reconstruct_angle(
     t = np.asarray(t, dtype=float)
     events = events or {}
     t_h, hall_theta, hall_dir, begins = hall_transitions(t, hall, events.get("hall"), hall_angles, source)
+    every = (t_h, hall_dir, begins)
     if len(t_h) < 2:
         raise InputError(source, "hall", "fewer than two hall transitions: no absolute angle reference")
 
@@ -270,15 +276,18 @@ def reconstruct_angle(
     if len(t_u) < 2:
         raise InputError(source, "enc_a", "fewer than two distinct encoder edge times")
     interp = pchip(t_u, rel_u)  # scipy's PchipInterpolator(extrapolate=False), bit for bit
-    slope = interp.derivative()
 
     p = np.empty_like(t)
     w = np.empty_like(t)
     inside = (t >= t_u[0]) & (t <= t_u[-1])
     p[inside], w[inside] = interp.with_slope(t[inside])
-    for mask, t_end, p_end in ((t < t_u[0], t_u[0], rel_u[0]), (t > t_u[-1], t_u[-1], rel_u[-1])):
+    before, after = t < t_u[0], t > t_u[-1]
+    # the slope at both ends in one evaluation (each end's value as alone: elementwise arithmetic)
+    w_ends = interp.derivative()(t_u[[0, -1]]) if before.any() or after.any() else None
+    for mask, t_end, p_end, e in ((before, t_u[0], rel_u[0], 0), (after, t_u[-1], rel_u[-1], 1)):
         if mask.any():
-            w_end = float(slope(t_end))
+            assert w_ends is not None  # set when either end has samples
+            w_end = float(w_ends[e])
             raw = p_end + w_end * (t[mask] - t_end)
             # The levels say the rotor is still inside the cell next to the end edge.
             p[mask] = np.clip(raw, p_end - delta, p_end + delta)
@@ -324,7 +333,19 @@ def reconstruct_angle(
         # hall table measured from these (analysis.halls) must not average in
         hall_begins=begins[in_span].astype(np.int64),
         hall_theta=np.asarray(wrap_2pi(rel_h + theta0))[in_span],  # numpy in, numpy out
+        hall_events=every,
     )
+
+
+def nominal_transitions(capture: Capture, angle: AngleResult) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`hall_transitions` of ``capture`` at the nominal hall angles, from what its ``angle``
+    kept (``hall_events``; found here when it kept none): ``(t_h, nominal angle, direction, begins)``.
+    The boundary crossed names the nominal angle (:func:`hall_transition_angles`), the same values."""
+    if angle.hall_events is None:
+        t = np.asarray(capture.t, dtype=float)
+        return hall_transitions(t, capture["hall"], capture.events.get("hall"), source=capture.source)
+    t_h, direction, begins = angle.hall_events
+    return t_h, np.asarray(NOMINAL_HALL_ANGLES, dtype=float)[begins - 1], direction, begins
 
 
 def capture_angle(capture: Capture, hall_angles: Sequence[float] = NOMINAL_HALL_ANGLES) -> AngleResult:

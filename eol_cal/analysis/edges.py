@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from eol_cal.numerics.median import median
+
+
 def level_changes(
     t: np.ndarray, levels: np.ndarray, events: tuple[np.ndarray, np.ndarray] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -133,7 +136,7 @@ def debounce_edges(times: np.ndarray, boundary: np.ndarray, bounce_frac: float =
     if bounce_frac <= 0 or len(times) < 3:
         return times, boundary
     gap = np.diff(times)
-    limit = bounce_frac * float(np.median(gap))
+    limit = bounce_frac * median(gap)
     linked = (np.diff(boundary) == 0) & (gap < limit)
     if not linked.any():
         return times, boundary

@@ -31,9 +31,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from eol_cal.analysis import fingerprint as fpr
-from eol_cal.analysis.angle import hall_transitions
+from eol_cal.analysis.angle import nominal_transitions
 from eol_cal.analysis.fingerprint_fit import LOW_ORDERS, POLY_DEGREE
 from eol_cal.analysis.steady import IQ_TOL_A, IQ_TOL_REL
+from eol_cal.numerics.median import median
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.motor_input import MotorInput
@@ -68,11 +69,12 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
     w = np.asarray(mi.angles[ci].omega_r, dtype=float)
     iq = np.asarray(mi.captures[ci].iq_ref(), dtype=float)
     out: list[tuple[int, int]] = []
+    sign_w = np.sign(w)  # the window's, once for all its segments
     for k, info in enumerate(mi.info):
         if mi.capture_of_segment[k] != ci:
             continue
-        ws = float(np.median(w[info.start:info.stop]))
-        bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+        ws = median(w[info.start:info.stop])
+        bad = ~((sign_w == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
         # ... nor while the load point differs from the segment's beyond the steady segments' own
         # tolerance: a load step ends a stretch
         bad |= np.abs(iq - info.i_qo) > max(IQ_TOL_A, IQ_TOL_REL * abs(info.i_qo))
@@ -196,7 +198,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         if edges is None or r is None:
             continue
         t = np.asarray(cap.t, dtype=float)
-        t_h, nominal, direction, begins = hall_transitions(t, cap["hall"], cap.events.get("hall"), source=cap.source)
+        t_h, nominal, direction, begins = nominal_transitions(cap, ang)
         inside = (t_h >= max(ang.t_span[0], t[0])) & (t_h <= min(ang.t_span[1], t[-1]))
         t_h, nominal, direction, begins = t_h[inside], nominal[inside], direction[inside], begins[inside]
         frac = mi.window_frac[ci] if mi.window_frac else 0.0
@@ -218,7 +220,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         return got
     # a hall glitch to a neighbouring state is a transition far from its boundary: out, and again
     res = got[2]
-    mad = float(np.median(np.abs(res - np.median(res))))
+    mad = median(np.abs(res - median(res)))
     keep = np.abs(res) <= OUTLIER_MADS * max(mad, 1e-9)
     if not keep.all():
         got = _orders_lstsq(x[keep], y[keep], g[keep], orders, N)
