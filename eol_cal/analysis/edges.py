@@ -86,7 +86,8 @@ def quadrature_boundaries(
     times = np.concatenate((times_a, times_b))
     chan = np.concatenate((np.zeros(len(times_a), np.int64), np.ones(len(times_b), np.int64)))
     lev = np.concatenate((levels_a, levels_b)).astype(np.int64)
-    if not np.isin(lev, (0, 1)).all() or {int(a0), int(b0)} - {0, 1}:
+    # two comparisons, not np.isin: its choice of algorithm cost 8x their time a capture
+    if not ((lev == 0) | (lev == 1)).all() or {int(a0), int(b0)} - {0, 1}:
         raise ValueError("encoder levels must be 0 or 1")
     order = np.lexsort((chan, times))
     times, chan, lev = times[order], chan[order], lev[order]

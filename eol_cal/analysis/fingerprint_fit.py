@@ -211,7 +211,14 @@ def _least_norm(G: np.ndarray, rhs: np.ndarray, ss: float) -> tuple[np.ndarray, 
 
 def _halves(seen: np.ndarray, N: int) -> tuple[int, ...]:
     """The halves the fit keeps: every pulse seen, and a revolution and a quarter of edges."""
-    return tuple(d for d in (0, 1) if seen[d].min() >= 1 and seen[d].sum() >= N + N // 4)
+    return _halves_each(seen[None], N)[0]
+
+
+def _halves_each(seen: np.ndarray, N: int) -> list[tuple[int, ...]]:
+    """:func:`_halves` of each of a stack of edge counts ``seen`` (trials, 2, N): two reductions
+    for all of them (a placement's trials, one per pole pair), not two a trial and a half."""
+    ok = (seen.min(axis=2) >= 1) & (seen.sum(axis=2) >= N + N // 4)
+    return [tuple(d for d in (0, 1) if row[d]) for row in ok.tolist()]
 
 
 class PlacedWindows:
@@ -251,7 +258,9 @@ class PlacedWindows:
         what a placement trial reads (the figures of that fit, bit for bit), the errors not solved
         for (a refit's motor tries ~18 placements), the window's products at every offset in one
         pass (:meth:`EdgeSums.normals`); None where no half is covered."""
-        kept = [_halves(self.seen + np.roll(w.seen, shift, axis=1), self.N) for shift in shifts]
+        # the window's counts moved by each shift (np.roll's pulse m + shift), the trials stacked
+        moved = (np.arange(self.N)[None, :] - np.asarray(shifts, dtype=np.int64)[:, None]) % self.N
+        kept = _halves_each(self.seen[None] + w.seen[:, moved].transpose(1, 0, 2), self.N)
         nF = low_order_complement(self.N).shape[1]
         out: list[tuple[float, int] | None] = [None] * len(shifts)
         for halves in dict.fromkeys(h for h in kept if h):
