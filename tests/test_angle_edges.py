@@ -70,3 +70,22 @@ def test_vectorised_decoding_is_the_edge_walk():
 def test_levels_other_than_0_and_1_are_refused():
     with pytest.raises(ValueError, match="0 or 1"):
         quadrature_boundaries(np.array([1.0]), np.array([2]), np.array([2.0]), np.array([1]), 0, 0)
+
+
+def test_edge_knots_as_np_unique_and_the_means():
+    """angle.edge_knots: sorted edges with no shared instant are their own knots, the values np.unique
+    and the means of one give, bit for bit; shared instants are merged at their mean angle."""
+    import numpy as np
+
+    from eol_cal.analysis.angle import edge_knots
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.exponential(1e-4, 4000))
+    rel = np.cumsum(rng.choice([-1.0, 1.0], 4000)) * (4 * np.pi / 2048)
+    for te in (t, np.repeat(t[:50], 2)):
+        u, inv = np.unique(te, return_inverse=True)
+        r = rel[:len(te)]
+        want = (u, np.bincount(inv, weights=r) / np.bincount(inv))
+        got = edge_knots(te, r)
+        assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
+        assert np.array_equal(np.signbit(got[1]), np.signbit(want[1]))

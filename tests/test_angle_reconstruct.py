@@ -161,3 +161,22 @@ def test_hall_table_inputs_only_where_the_edges_say_the_angle():
     assert res.n_hall_edges == 3
     assert list(res.hall_begins) == [3] and len(res.hall_theta) == 1
     assert np.rad2deg(res.hall_theta[0]) == pytest.approx(120.0, abs=0.5)
+
+
+def test_nominal_transitions_kept_by_the_angle_are_hall_transitions():
+    """angle.nominal_transitions: what capture_angle kept (AngleResult.hall_events) gives the hall
+    transitions at the nominal angles bit for bit, as hall_transitions finds them again (the
+    fingerprint's hall orders read them; issue 37: found once a capture, not twice)."""
+    import dataclasses
+
+    import numpy as np
+
+    from eol_cal.analysis.angle import capture_angle, hall_transitions, nominal_transitions
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    c = synthetic_capture(rpm=-120.0, i_qo=20.0, seconds=0.2, seed=3)
+    ang = capture_angle(c)
+    want = hall_transitions(np.asarray(c.t, dtype=float), c["hall"], c.events.get("hall"), source=c.source)
+    for a in (ang, dataclasses.replace(ang, hall_events=None)):  # kept, and found again where not kept
+        got = nominal_transitions(c, a)
+        assert all(np.array_equal(g, w) and g.dtype == w.dtype for g, w in zip(got, want, strict=True))

@@ -191,6 +191,19 @@ def _direction_at(t_query: np.ndarray, t_hall: np.ndarray, dir_hall: np.ndarray)
     return dir_hall[idx]
 
 
+def edge_knots(t_e: np.ndarray, rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The interpolant's knots from sorted edge times ``t_e`` (s) and their angles ``rel`` (rad):
+    two edges in one instant give one knot at their mean angle, so the knots stay unique.
+
+    The edges come sorted: where no two share an instant (the rule) they are the knots as they
+    are, the values ``np.unique`` and the means of one would give (tests/test_angle_edges.py),
+    without their sort."""
+    if np.all(t_e[1:] > t_e[:-1]):
+        return t_e, rel
+    t_u, inv = np.unique(t_e, return_inverse=True)
+    return t_u, np.bincount(inv, weights=rel) / np.bincount(inv)
+
+
 def reconstruct_angle(
     t: np.ndarray,
     enc_a: np.ndarray,
@@ -270,9 +283,7 @@ def reconstruct_angle(
     if len(t_e) < 2:
         raise InputError(source, "enc_a", "fewer than two encoder edges after removing bounces")
     rel = boundary.astype(float) * delta
-    # Two edges in one instant: keep one point at their mean angle so the knots stay unique.
-    t_u, inv = np.unique(t_e, return_inverse=True)
-    rel_u = np.bincount(inv, weights=rel) / np.bincount(inv)
+    t_u, rel_u = edge_knots(t_e, rel)
     if len(t_u) < 2:
         raise InputError(source, "enc_a", "fewer than two distinct encoder edge times")
     interp = pchip(t_u, rel_u)  # scipy's PchipInterpolator(extrapolate=False), bit for bit
