@@ -40,3 +40,49 @@ def test_order_columns_are_the_orders_cos_and_sin_within_rounding():
         want = np.column_stack([f(m * phi) for m in orders for f in (np.cos, np.sin)])
         assert got.shape == want.shape and np.allclose(got, want, rtol=0.0, atol=1e-14)
     assert order_columns(x, (), N).shape == (len(x), 0)
+
+
+def test_the_segments_corrected_in_one_pass_as_one_by_one(monkeypatch):
+    """fp_angle._correct_segments corrects every segment's angle in one pass over the serial's
+    samples (issue 37): each segment's corrected angle is the one the segment-by-segment loop gave,
+    bit for bit (the positions, the table and the orders' columns are elementwise; each segment's
+    product with the orders' coefficients is its own)."""
+    from eol_cal.analysis.fit import fp_angle
+    from eol_cal.analysis.fit.capture import motor_inputs
+    from eol_cal.capture.synthetic import synthetic_capture
+
+    def one_by_one(mi, prints, fp, frac, low):
+        out = []
+        for s, info in enumerate(mi.info):
+            ci = mi.capture_of_segment[s]
+            if prints[ci] is None or fp.offsets[ci] is None:
+                out.append(None)
+                continue
+            theta = np.asarray(mi.segments.theta[s], dtype=float) - frac[ci]
+            x = boundary_position(prints[ci].q[info.start:info.stop], fp.offsets[ci], fp.grid_phase,
+                                  theta + mi.frame_offset_rad, mi.poles, mi.encoder_ppr)
+            corr = fp_angle.boundary_interp(x, fp.fp, mi.encoder_ppr)
+            if low is not None:
+                corr = corr - fp_angle.order_columns(x, low[0], mi.encoder_ppr) @ low[1]
+            out.append(theta + corr)
+        return out
+
+    seen = []
+    batched = fp_angle._correct_segments
+
+    def both(mi, prints, fp, frac, low):
+        want = one_by_one(mi, prints, fp, frac, low)
+        n = batched(mi, prints, fp, frac, low)
+        seen.append((n, low is not None))
+        for s, w in enumerate(want):
+            if w is not None:
+                assert np.array_equal(mi.segments.theta[s], w)
+        assert n == sum(w is not None for w in want)
+        return n
+
+    monkeypatch.setattr(fp_angle, "_correct_segments", both)
+    points = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -20.0), (-120.0, -65.0)]
+    caps = [synthetic_capture(rpm=rpm, i_qo=iq, seconds=0.35, seed=40 + j, theta_r0=0.7 * j, serial="S1")
+            for j, (rpm, iq) in enumerate(points)]  # bench/bench_refit.py's serial
+    motor_inputs(caps)
+    assert seen == [(6, True)]  # every segment corrected, the orders measured

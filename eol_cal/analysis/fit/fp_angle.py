@@ -114,14 +114,14 @@ def boundary_errors(fp: np.ndarray, N: int) -> np.ndarray:
     return out.reshape(-1)
 
 
-def boundary_position(q: np.ndarray, r: int, grid_phase: float, theta_fw: np.ndarray, poles: int, N: int
-                      ) -> np.ndarray:
+def boundary_position(q: np.ndarray, r: int | np.ndarray, grid_phase: float, theta_fw: np.ndarray, poles: int,
+                      N: int) -> np.ndarray:
     """Each sample's position ``x`` in the block's frame, in quadrature boundaries (unwrapped:
-    boundary ``k`` at ``x = k``), from its window count ``q``, the window's offset ``r``, the
-    frame's grid phase (rad) and the firmware-frame angle ``theta_fw`` (rad electrical), which
-    places it between its boundaries."""
+    boundary ``k`` at ``x = k``), from its window count ``q``, the window's offset ``r`` (pulses;
+    or one per sample, the samples of several windows), the frame's grid phase (rad) and the
+    firmware-frame angle ``theta_fw`` (rad electrical), which places it between its boundaries."""
     quarter = poles * math.pi / N / 4.0
-    k = np.asarray(q, dtype=np.int64) + 4 * int(r)
+    k = np.asarray(q, dtype=np.int64) + 4 * np.asarray(r, dtype=np.int64)
     Ek = grid_phase + k * quarter
     return k + np.remainder(np.asarray(theta_fw, dtype=float) - Ek + math.pi, 2 * math.pi) / quarter - math.pi / quarter
 
@@ -276,21 +276,7 @@ def measure_fingerprint(mi: MotorInput) -> None:
                                                                              fp.offsets, strict=True)]
     mi.window_frac = frac
     low = hall_low_orders(mi, prints, fp)
-    interp = _interp_table(fp.fp, mi.encoder_ppr)
-    n = 0
-    for s, info in enumerate(mi.info):
-        ci = mi.capture_of_segment[s]
-        edges, offset = prints[ci], fp.offsets[ci]
-        if edges is None or offset is None:
-            continue
-        theta = np.asarray(seg.theta[s], dtype=float) - frac[ci]
-        x = boundary_position(edges.q[info.start:info.stop], offset, fp.grid_phase, theta + mi.frame_offset_rad,
-                              mi.poles, mi.encoder_ppr)
-        corr = interp(x)
-        if not isinstance(low, str):
-            corr = corr - order_columns(x, low[0], mi.encoder_ppr) @ low[1]
-        seg.theta[s] = theta + corr
-        n += 1
+    n = _correct_segments(mi, prints, fp, frac, None if isinstance(low, str) else low[:2])
     if mi.frame_parts is not None and any(frac):
         total = sum(part[0] * np.exp(1j * frac[ci]) for ci, part in enumerate(mi.frame_parts) if part is not None)
         mi.frame_offset_rad = float(np.angle(total))
@@ -304,6 +290,39 @@ def measure_fingerprint(mi: MotorInput) -> None:
         lows = f"its mechanical orders from {low[3]} hall transitions (mech deg {amp})"
     mi.angle_correction = (f"fingerprint ({n} of {seg.n_segments} segments, {aligned} window(s) in one frame; "
                            f"{lows})")
+
+
+def _correct_segments(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fpr.Fingerprint, frac: list[float],
+                      low: tuple[tuple[int, ...], np.ndarray] | None) -> int:
+    """Correct the angle of every segment in a placed window (``mi.segments.theta``, in place):
+    its window's fraction ``frac`` (rad) taken out, the fingerprint's boundary errors and the
+    orders ``low`` (orders, coefficients; None: not measured) at each sample's position added.
+    Returns how many segments it corrected.
+
+    The segments' samples in one pass (issue 37: one call of each step for the serial, not one a
+    segment; every step elementwise, so each sample's value is the one it had alone), but the
+    orders' product, one a segment on its own rows (a matrix product's last bits may depend on
+    its height)."""
+    seg = mi.segments
+    todo = [(s, info, mi.capture_of_segment[s]) for s, info in enumerate(mi.info)
+            if prints[mi.capture_of_segment[s]] is not None and fp.offsets[mi.capture_of_segment[s]] is not None]
+    if not todo:
+        return 0
+    thetas = [np.asarray(seg.theta[s], dtype=float) - frac[ci] for s, _, ci in todo]
+    sizes = [len(th) for th in thetas]
+    q = np.concatenate([prints[ci].q[info.start:info.stop] for _, info, ci in todo])  # type: ignore[union-attr]
+    r = np.repeat(np.array([fp.offsets[ci] for _, _, ci in todo], dtype=np.int64), sizes)
+    x = boundary_position(q, r, fp.grid_phase, np.concatenate(thetas) + mi.frame_offset_rad, mi.poles,
+                          mi.encoder_ppr)
+    corr = _interp_table(fp.fp, mi.encoder_ppr)(x)
+    cols = None if low is None else order_columns(x, low[0], mi.encoder_ppr)
+    ends = np.cumsum([0, *sizes]).tolist()
+    for j, (s, _, _) in enumerate(todo):
+        c = corr[ends[j]:ends[j + 1]]
+        if cols is not None and low is not None:
+            c = c - cols[ends[j]:ends[j + 1]] @ low[1]
+        seg.theta[s] = thetas[j] + c
+    return len(todo)
 
 
 def edge_residual_correlation(fp: fpr.Fingerprint, prints: list[fpr.WindowEdges | None], poles: int, N: int) -> float:
