@@ -98,3 +98,22 @@ def test_a_signal_inside_importlib_is_raised_a_moment_later(monkeypatch):
     with pytest.raises(Interrupted):
         interrupts.deliver("SIGTERM", sys._getframe())  # anywhere else: at once
     interrupts.reset()
+
+
+def test_a_signal_while_a_class_is_made_is_raised_after_it(monkeypatch):
+    """Raised inside a ``__set_name__`` (a dataclass's field while ``run`` imported the executor's
+    ``StepEvent``), Python 3.11 turned the exception into ``RuntimeError("Error calling __set_name__
+    ...")``: the run ended with exit 1 and a traceback instead of exit 2 (CI, 2026-11-30)."""
+    again = []
+    monkeypatch.setattr(interrupts, "_redeliver", again.append)
+    interrupts.reset()
+
+    class Signalled:
+        def __set_name__(self, owner, name):
+            interrupts.deliver("SIGHUP", sys._getframe())  # the handler's frame: inside __set_name__
+
+    class Made:  # made: nothing raised inside its __set_name__
+        field = Signalled()
+
+    assert Made.__name__ == "Made" and again == [signal.SIGHUP] and interrupts.received() == "SIGHUP"
+    interrupts.reset()

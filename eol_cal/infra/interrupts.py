@@ -11,7 +11,8 @@ A signal must stop the command whatever the main thread is doing when it comes:
 - inside a finalizer or a garbage-collector callback (JAX's ``_xla_gc_callback``), an exception
   is not raised but printed ("Exception ignored in ...") and lost; the run went on, flashed and
   exited 0; inside importlib's own code an exception can leave the import lock held (every later
-  import hangs). There :func:`deliver` raises nothing and sends the signal again a moment later,
+  import hangs); inside a ``__set_name__`` (a class being made) Python 3.11 wraps it in a
+  ``RuntimeError``. There :func:`deliver` raises nothing and sends the signal again a moment later,
   and every signal is remembered (:func:`received`): a command checks it before each step that
   writes (:func:`raise_if_received`), and the CLI ends a command that received one with exit 2
   whatever it returned;
@@ -115,10 +116,23 @@ def deliver(signal_name: str, frame: FrameType | None = None) -> None:
     if _depth:
         _pending = _pending or signal_name
         return
-    if _unraisable(frame) or _in_import_machinery(frame):
+    if _unraisable(frame) or _in_import_machinery(frame) or _in_set_name(frame):
         _redeliver(signum)
         return
     raise Interrupted(signal_name)
+
+
+def _in_set_name(frame: FrameType | None) -> bool:
+    """Whether the interrupted code runs inside a ``__set_name__`` (a class being made: a
+    dataclass's fields while a module is imported): Python 3.11 turns an exception raised there into
+    ``RuntimeError("Error calling __set_name__ ...")``, which no handler takes for an interruption
+    (a SIGHUP while ``run`` started ended it with exit 1 and a traceback). Raised a moment later,
+    after the class is made."""
+    while frame is not None:
+        if frame.f_code.co_name == "__set_name__":
+            return True
+        frame = frame.f_back
+    return False
 
 
 def _in_import_machinery(frame: FrameType | None) -> bool:
