@@ -65,6 +65,8 @@ def test_no_action_without_an_operator_and_names_checked_as_the_terminal_loop_do
     assert _call(panel.url, "stop", {})[0] == 403
     status, doc = _call(panel.url, "signin", {"name": "  "})
     assert status == 400 and "printable" in doc["error"]
+    # the answer and the state the page is sent say the same: the page shows whichever comes last
+    assert doc["error"] == panel.state.get("message")["text"]
     assert _call(panel.url, "signin", {"name": " alice "}) == (200, {"ok": True, "result": "alice"})
     assert panel.state.get("operator") == "alice"
 
@@ -73,7 +75,8 @@ def test_a_scan_is_checked_with_scanned_serial_and_a_markup_serial_is_refused_as
     _call(panel.url, "signin", {"name": "alice"})
     status, doc = _call(panel.url, "scan", {"line": "<b>M1</b>"})
     assert status == 400 and doc["error"].startswith("not a serial: ") and "'<' not allowed" in doc["error"]
-    assert panel.state.get("message")["level"] == "error"
+    message = panel.state.get("message")  # one text for the answer and the state: no race on the page
+    assert (message["level"], message["text"]) == ("error", doc["error"])
     status, doc = _call(panel.url, "scan", {"line": " M-0001\t\r"})
     assert (status, doc["result"]) == (200, "M-0001")
     assert panel.controls.next_scan() == Scan("M-0001", "alice")

@@ -61,8 +61,11 @@ class Controls:
         try:
             name = operator_name(text)
         except InputError as exc:
-            self.state.message("error", f"not an operator name: {exc.reason}")
-            raise Refused(400, exc.reason) from None
+            # one text for the page's state and the request's answer: the page shows whichever of
+            # the two comes last (its event stream and its request race)
+            text = f"not an operator name: {exc.reason}"
+            self.state.message("error", text)
+            raise Refused(400, text) from None
         with self._lock:
             if self.state.get("phase") != "idle":
                 raise Refused(409, "a motor is running: sign in once it is done")
@@ -81,8 +84,9 @@ class Controls:
         try:
             serial = scanned_serial(line)
         except InputError as exc:
-            self.state.message("error", f"not a serial: {exc.reason}; scan again")
-            raise Refused(400, f"not a serial: {exc.reason}") from None
+            text = f"not a serial: {exc.reason}; scan again"  # the state's and the answer's (sign_in says why)
+            self.state.message("error", text)
+            raise Refused(400, text) from None
         with self._lock:
             if self.state.get("ended"):
                 raise Refused(409, "the session has ended")
