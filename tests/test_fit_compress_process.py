@@ -16,7 +16,7 @@ import pytest
 
 from eol_cal.analysis import fit
 from eol_cal.analysis.fit import batch, compress_process
-from eol_cal.analysis.fit.compression import _Summaries, compress_many, summarise_segments
+from eol_cal.analysis.fit.compression import Summaries, compress_many, summarise_segments
 from eol_cal.analysis.fit.synth import synthetic_segments
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "memfd_create"), reason="the compression process is Linux's")
@@ -29,8 +29,8 @@ def _motors(n: int, seed: int = 21) -> list[fit.SteadySegments]:
     return [synthetic_segments(rng, seg_s=0.05, speeds_rpm=(300.0, 600.0), loads_a=(20.0, 65.0))[0] for _ in range(n)]
 
 
-def _same_summaries(a: _Summaries, b: _Summaries) -> bool:
-    return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in _Summaries.__dataclass_fields__)
+def _same_summaries(a: Summaries, b: Summaries) -> bool:
+    return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in Summaries.__dataclass_fields__)
 
 
 def _same(a: fit.MotorFit, b: fit.MotorFit) -> bool:

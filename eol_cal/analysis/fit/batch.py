@@ -134,8 +134,8 @@ def fit_many(
     workers = compression_threads(len(motors)) if threads is None else threads
     summarise = _worker_summarise(workers > 0 and len(motors) > 1, len(motors), process)
     if threads is None:
-        # feeding the process, a worker waits for it: one a request it takes at once
-        threads = workers if summarise is summarise_segments else _feeders()
+        # feeding the process, a worker waits for it: one a request it takes at once (its SLOTS)
+        threads = workers if summarise is summarise_segments else SLOTS
     pool = ThreadPoolExecutor(max_workers=threads) if threads > 0 and len(motors) > 1 else None
     comps_in_order = None
     try:
@@ -225,12 +225,6 @@ def compression_threads(n_motors: int) -> int:
 #: motors compressed together (:func:`~eol_cal.analysis.fit.compression.compress_many`): their
 #: columns built side by side, one unit of work of the compression's threads
 COMPRESS_BLOCK = 16
-
-
-def _feeders() -> int:
-    """The worker threads that feed the compression process by default: as many as it takes
-    requests at once (:data:`~eol_cal.analysis.fit.compress_process.SLOTS`)."""
-    return SLOTS
 
 
 def _worker_summarise(workers: bool, n_motors: int, process: bool | None) -> Summarise:

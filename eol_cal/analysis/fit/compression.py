@@ -188,7 +188,7 @@ def _products(segs: list[_Segment], spec: FitSpec, k: int) -> np.ndarray:
 
 
 @dataclass(frozen=True)
-class _Summaries:
+class Summaries:
     """The normal-equation summaries of segments compressed together, one row a segment (the
     fields of :class:`Compressed` of the same names; ``current``: :func:`current_phasor`, zeros
     without ``kt_iq``)."""
@@ -203,7 +203,7 @@ class _Summaries:
     current: np.ndarray
 
 
-def _compress_all(segs: list[_Segment], spec: FitSpec) -> _Summaries:
+def _compress_all(segs: list[_Segment], spec: FitSpec) -> Summaries:
     """Each segment's normal-equation summary and the current's ripple phasor per harmonic, the
     small factorisations batched over the segments."""
     m = spec.n_cols
@@ -223,7 +223,7 @@ def _compress_all(segs: list[_Segment], spec: FitSpec) -> _Summaries:
     if cur:
         coef = np.linalg.solve(XtX[cur], G[cur, :m, m + 1 : m + 2])[..., 0]
         phasor[cur] = [current_phasor(c, spec) for c in coef]
-    return _Summaries(R=Lc.transpose(0, 2, 1), z=z, floor=floor, sst=yy, ymean=np.array([sg.means[0] for sg in segs]),
+    return Summaries(R=Lc.transpose(0, 2, 1), z=z, floor=floor, sst=yy, ymean=np.array([sg.means[0] for sg in segs]),
                       n=np.array([len(sg.theta) for sg in segs]), n_nuis=spec.n_nuis - empty.sum(axis=1), current=phasor)
 
 
@@ -281,13 +281,11 @@ def compress(seg: SteadySegments, spec: FitSpec, n_segments: int | None = None) 
 SegmentArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, int]
 
 
-#: the summaries of a block's segments, as :func:`summarise_segments` (or another process) returns them
-Summaries = _Summaries
-#: what computes them (:func:`summarise_segments`, or another process's)
-Summarise = Callable[[Sequence[SegmentArrays], FitSpec], _Summaries]
+#: what computes a block's :class:`Summaries` (:func:`summarise_segments`, or another process's)
+Summarise = Callable[[Sequence[SegmentArrays], FitSpec], Summaries]
 
 
-def summarise_segments(todo: Sequence[SegmentArrays], spec: FitSpec) -> _Summaries:
+def summarise_segments(todo: Sequence[SegmentArrays], spec: FitSpec) -> Summaries:
     """The normal-equation summaries of the segments ``todo`` (:func:`_compress_all`): what
     :func:`compress_many` computes, here or in another process
     (:mod:`~eol_cal.analysis.fit.compress_process`)."""
@@ -306,9 +304,9 @@ def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: i
     segs: list[SegmentArrays] = []
     held: list[tuple[tuple[Any, ...], tuple[Any, ...]]] = []
     # per motor, per segment: (the summaries holding it, None for this call's; its row there)
-    where: list[list[tuple[_Summaries | None, int]]] = []
+    where: list[list[tuple[Summaries | None, int]]] = []
     for seg in motors:
-        rows: list[tuple[_Summaries | None, int]] = []
+        rows: list[tuple[Summaries | None, int]] = []
         for s in range(seg.n_segments):
             kt_iq = None if seg.kt_iq is None else seg.kt_iq[s]
             arrays = (seg.theta[s], seg.t[s], seg.torque[s], kt_iq)
@@ -337,7 +335,7 @@ def compress_many(motors: Sequence[SteadySegments], spec: FitSpec, n_segments: i
 def _assemble(motors: Sequence[SteadySegments], where: list[list[tuple[Any, int]]], spec: FitSpec,
               S: int) -> list[Compressed]:
     """Each motor's :class:`Compressed`, padded to ``S`` segments, from its segments' rows ``where``
-    (per motor, per segment: the :class:`_Summaries` and the row holding it): every field laid out
+    (per motor, per segment: the :class:`Summaries` and the row holding it): every field laid out
     for all the motors in one array (each motor's :class:`Compressed` holds its slice), filled by
     one indexed assignment per summaries, not by a few small ones per segment."""
     M, m, H = len(motors), spec.n_cols, len(spec.harmonics)
@@ -346,7 +344,7 @@ def _assemble(motors: Sequence[SteadySegments], where: list[list[tuple[Any, int]
     vec = {k: np.zeros((M, S)) for k in ("floor", "sst", "ymean", "n", "n_nuis", "i_qo", "omega")}
     current = np.zeros((M, S, H), dtype=complex)
     gain = np.ones((M, S, H), dtype=complex)
-    by_source: dict[int, tuple[_Summaries, list[int], list[int], list[int]]] = {}
+    by_source: dict[int, tuple[Summaries, list[int], list[int], list[int]]] = {}
     for j, (seg, rows) in enumerate(zip(motors, where, strict=True)):
         for s, (src, i) in enumerate(rows):
             _, mj, ms, mi = by_source.setdefault(id(src), (src, [], [], []))
