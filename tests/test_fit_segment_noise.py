@@ -134,3 +134,49 @@ def test_the_noise_is_its_definition_within_rounding():
         for j, h in enumerate(spec.harmonics):
             want = _noise_by_definition(seg, spec, 1.5e-4, h)
             assert np.allclose(got.var_pair[:, j], want, rtol=1e-9, atol=0.0)
+
+
+def _per_segment(seg, spec, tau_s, harmonics):
+    """segment_noise as it was built segment by segment (before noise_pass, issue 37 item 2): each
+    segment's columns, normal matrix, bins and turn on its own arrays, line_noise from them."""
+    from eol_cal.analysis.fit.model import design_matrix_t, line_noise
+    from eol_cal.analysis.fit.segment_noise import _clear_bins, _fitted
+    from eol_cal.numerics.gemm import gram_halves
+
+    bins = noise_bins()
+    var_pair, var_white = np.zeros((seg.n_segments, len(harmonics))), np.zeros(seg.n_segments)
+    for s in range(seg.n_segments):
+        theta, t = np.asarray(seg.theta[s], dtype=float), np.asarray(seg.t[s], dtype=float)
+        XT = design_matrix_t(theta, t, seg.pole_pairs, spec)
+        G = gram_halves(XT, [(0, XT.shape[1], len(XT))], np.zeros((1, len(XT), len(XT))))[0]
+        Y = np.column_stack([seg.torque[s]] + ([] if seg.kt_iq is None else [seg.kt_iq[s]]))
+        res, basis = _fitted(XT, Y, G)
+        n, T = len(t), float(t[-1] - t[0])
+        b = 2 * math.pi * (t - t[0]) / T
+        keeps = [_clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree) for h in harmonics]
+        need = np.any(keeps, axis=0)
+        rows = bin_steps(b, bins[need]).T
+        cur = res[:, 1] if seg.kt_iq is not None else None
+        for j, (h, keep) in enumerate(zip(harmonics, keeps, strict=True)):
+            k = bins[keep]
+            omega = h * float(seg.omega_e[s]) + 2 * math.pi * k / T
+            var_pair[s, j] = line_noise(res[:, 0], cur, h * (theta - theta[0]), b, k, omega, spec, tau_s,
+                                        seg.path_response, basis=basis, steps=rows[keep[need]].T)
+        var_white[s] = 2.0 * float(res[:, 0] @ res[:, 0]) / max(n - XT.shape[0], 1) / n
+    return var_pair, var_white
+
+
+def test_one_pass_over_the_segments_is_the_per_segment_construction_bit_for_bit():
+    # noise_pass builds the columns, the bins' powers and the lines' turns of every segment side by
+    # side (and one BLAS call makes every normal matrix): the same figures as segment by segment,
+    # bit for bit; the thread's buffers, reused by a smaller motor and then a larger one, change nothing
+    cases = [(2, dict(iq6=(0.02, 0.3), path_response=_path), (60.0, 300.0, 600.0), 0.1),
+             (4, {}, (120.0, 240.0), 0.35), (6, {}, (60.0, 300.0), 0.05)]
+    for seed, kw, speeds, seg_s in cases + cases[:1]:
+        seg, _ = synthetic_segments(np.random.default_rng(seed), speeds_rpm=speeds, loads_a=(20.0, 60.0),
+                                    directions=(1, -1), seg_s=seg_s, noise_nm=0.005, **kw)
+        spec = FitSpec()
+        for harmonics in (spec.harmonics, (6,)):
+            got = segment_noise(seg, spec, 1.5e-4, harmonics=harmonics)
+            var_pair, var_white = _per_segment(seg, spec, 1.5e-4, harmonics)
+            assert np.array_equal(got.var_pair, var_pair) and np.array_equal(got.var_white, var_white)

@@ -254,15 +254,22 @@ def line_noise(res: np.ndarray, cur_res: np.ndarray | None, a: np.ndarray, b: np
     ``steps``: :func:`bin_steps` of ``b`` and ``k``, when the caller measures several lines of one
     segment (the same bins about each).
     """
-    n = len(res)
     if steps is None:
         steps = bin_steps(b, k)
-    # the line's bins exp(-i (a + b k)) = exp(-i a) exp(-i b k) as real rows (re of every bin, then
-    # im): every sum over the samples below is one real product (the signals' and the basis'),
-    # half the multiplications of complex ones on real operands, and the line's turn applied once
+    # the line's bins exp(-i (a + b k)) = exp(-i a) exp(-i b k), the line's turn applied once
     w = steps.T * np.exp(-1j * a)
-    wri = np.concatenate([w.real, w.imag])
-    nb = len(w)
+    return bins_noise(res, cur_res, np.concatenate([w.real, w.imag]), omega, spec, tau_s, path, basis)
+
+
+def bins_noise(res: np.ndarray, cur_res: np.ndarray | None, wri: np.ndarray, omega: np.ndarray, spec: FitSpec,
+               tau_s: float, path: Callable[[np.ndarray], np.ndarray] | None,
+               basis: tuple[np.ndarray, np.ndarray] | None = None) -> float:
+    """:func:`line_noise` from the line's bins ``exp(-i (a + b k))`` as real rows ``wri`` (2 bins, n):
+    the real part of every bin, then the imaginary (every sum over the samples below is one real
+    product, the signals' and the basis', half the multiplications of complex ones on real operands).
+    The other arguments as :func:`line_noise`'s."""
+    n = len(res)
+    nb = len(wri) // 2
     sig = res[None, :] if cur_res is None else np.stack([res, cur_res])
     X = (2.0 / n) * (sig @ wri.T)
     e = X[0, :nb] + 1j * X[0, nb:]

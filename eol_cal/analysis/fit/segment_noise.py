@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bin_steps, design_matrix_t, line_noise, noise_bins
-from eol_cal.numerics.gemm import gram_halves
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bins_noise, noise_bins
+from eol_cal.analysis.fit.noise_pass import bin_powers, columns, layout, line_rows, line_turns
 
 
 @dataclass(frozen=True)
@@ -61,18 +61,16 @@ class SegmentNoise:
         return np.repeat(self.var_pair * (self.n[:, None] / 2.0), 2, axis=1)
 
 
-def _fitted(XT: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
+def _fitted(XT: np.ndarray, Y: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray]]:
     """The residual of ``Y`` (n, signals) fitted on the columns ``XT`` (as rows, (m, n), rows of unit
     stride), and the basis :func:`~eol_cal.analysis.fit.model.line_noise` reads the fit's share of a
     bin from: the non-empty columns (as rows) and the inverse of their normal matrix. From the normal
     equations' Cholesky factor (the columns are well conditioned): no orthonormal basis of the
-    segment's samples is formed (a refit's model check spent a third of its noise in it), and the
-    normal matrix is two small GEMMs' upper triangle (:func:`~eol_cal.numerics.gemm.gram_halves`:
-    numpy's ``XT @ XT.T`` is SYRK, 2.5x their time on a 15 x 3333 segment)."""
+    segment's samples is formed (a refit's model check spent a third of its noise in it). ``G``: the
+    normal matrix's upper triangle (:func:`_columns`: :func:`~eol_cal.numerics.gemm.gram_halves`,
+    numpy's ``XT @ XT.T`` is SYRK, 2.5x its time on a 15 x 3333 segment)."""
     from scipy.linalg.lapack import dpotrf, dtrtri  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
-    m = len(XT)
-    G = gram_halves(XT, [(0, XT.shape[1], m)], np.zeros((1, m, m)))[0]  # the upper triangle
     keep = np.diag(G) != 0.0  # an empty column (an unresolved mechanical pair) has a zero norm
     if not keep.all():
         XT, G = XT[keep], G[np.ix_(keep, keep)]
@@ -115,34 +113,41 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
     harmonics : tuple of int, optional
         The harmonics to measure (default ``spec.harmonics``; the model check reads the 6th alone).
         Each is measured as it would be with the others: the segment is fitted on all the model's columns.
+
+    Notes
+    -----
+    What is a function of the sample alone (the columns, the bins' exponentials, each line's turn)
+    is built for every segment in one pass over their samples side by side
+    (:mod:`~eol_cal.analysis.fit.noise_pass`: a few long numpy calls instead of ~60 short ones a
+    segment, in buffers kept for the next motor), and every segment's normal matrix in one BLAS call;
+    each segment's products are its own, as before: the same figures, bit for bit
+    (tests/test_fit_segment_noise.py).
     """
     harmonics = tuple(spec.harmonics) if harmonics is None else tuple(harmonics)
     bins = noise_bins()
     S, H = seg.n_segments, len(harmonics)
     var_pair, var_white, n_s = np.zeros((S, H)), np.zeros(S), np.zeros(S)
     dof = np.zeros((S, H), dtype=int)
+    lay = layout(seg)
+    keeps = [[_clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * lay.T[s], spec.drift_degree)
+              for h in harmonics] for s in range(S)]
+    top = max((int(np.max(np.abs(bins[keep]))) for ks in keeps for keep in ks if keep.any()), default=0)
+    XT, G = columns(seg, spec, lay)
+    powers = bin_powers(lay, top)
+    turns = line_turns(seg, lay, harmonics)
     for s in range(S):
-        theta, t = np.asarray(seg.theta[s], dtype=float), np.asarray(seg.t[s], dtype=float)
-        XT = design_matrix_t(theta, t, seg.pole_pairs, spec)
+        first, end = int(lay.offsets[s]), int(lay.offsets[s + 1])
         y = [np.asarray(seg.torque[s], dtype=float)]
         if seg.kt_iq is not None:
             y.append(np.asarray(seg.kt_iq[s], dtype=float))
-        Y = np.column_stack(y)
-        res, basis = _fitted(XT, Y)
-        n, T = len(t), float(t[-1] - t[0])
-        b = 2 * math.pi * (t - t[0]) / T
-        keeps = [_clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * T, spec.drift_degree)
-                 for h in harmonics]
-        # the bins some line of the segment reads (the 6th's alone: half of them), each built once:
-        # (bins, n), shared by the segment's lines, a line's bins whole rows
-        need = np.any(keeps, axis=0)
-        rows = bin_steps(b, bins[need]).T if need.any() else np.zeros((0, n), dtype=complex)
+        res, basis = _fitted(XT[:, first:end], np.column_stack(y), G[s])
+        n, T = end - first, float(lay.T[s])
         cur = res[:, 1] if seg.kt_iq is not None else None
-        for j, (h, keep) in enumerate(zip(harmonics, keeps, strict=True)):
+        for j, (h, keep) in enumerate(zip(harmonics, keeps[s], strict=True)):
             k = bins[keep]
             omega = h * float(seg.omega_e[s]) + 2 * math.pi * k / T  # each bin's rate (rad/s, signed)
-            var_pair[s, j] = line_noise(res[:, 0], cur, h * (theta - theta[0]), b, k, omega, spec, tau_s,
-                                        seg.path_response, basis=basis, steps=rows[keep[need]].T)
+            wri = line_rows(powers[:, first:end], k, turns[j, first:end])
+            var_pair[s, j] = bins_noise(res[:, 0], cur, wri, omega, spec, tau_s, seg.path_response, basis=basis)
             dof[s, j] = 2 * len(k)
         var_white[s] = 2.0 * float(res[:, 0] @ res[:, 0]) / max(n - XT.shape[0], 1) / n
         n_s[s] = n
