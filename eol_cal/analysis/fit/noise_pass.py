@@ -135,11 +135,15 @@ def line_rows(powers: np.ndarray, k: np.ndarray, turn: np.ndarray) -> np.ndarray
     segment's :func:`bin_powers` (up to ``max |k|``), ``k`` the bins (integers, none zero), ``turn``
     the segment's :func:`line_turns` of the line."""
     nb, n = len(k), len(turn)
-    ki = k.astype(int)
     w = _buffer("bins", nb * n, complex)[: nb * n].reshape(nb, n)
-    np.take(powers, np.abs(ki), axis=0, out=w, mode="clip")  # in range: "raise" buffers
-    np.conjugate(w, out=w, where=(ki < 0)[:, None])  # exp(-i b)^-k = conj
-    np.multiply(w, turn, out=w)
+    # bin by bin from the powers' rows (np.take copies a strided source whole first: a
+    # tenth of the noise's time)
+    for row, kj in zip(w, k.astype(int), strict=True):
+        if kj > 0:
+            np.multiply(powers[kj], turn, out=row)
+        else:
+            np.conjugate(powers[-kj], out=row)  # exp(-i b)^-k = conj
+            np.multiply(row, turn, out=row)
     wri = _buffer("rows", 2 * nb * n)[: 2 * nb * n].reshape(2 * nb, n)
     np.copyto(wri[:nb], w.real)
     np.copyto(wri[nb:], w.imag)
