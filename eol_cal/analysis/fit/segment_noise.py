@@ -84,18 +84,21 @@ def _fitted(XT: np.ndarray, Y: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, t
     return res, (XT, g_inv)
 
 
-def _clear_bins(bins: np.ndarray, f_line: float, drift_degree: int) -> np.ndarray:
+def _clear_bins(bins: np.ndarray, f_line: float | np.ndarray, drift_degree: int) -> np.ndarray:
     """Which bins ``k`` (offsets from the line, in ``1 / T``) that hold the segment's noise: not within
     ``drift_degree + 2`` of zero frequency (the drift polynomial takes the residual there) nor within 2
     of the line (a bin below it at negative frequency mirrors the line), one bin a frequency.
-    ``f_line``: the line's frequency times T (signed: the angle's direction). On 0.05 s segments (the
-    6th at 90 Hz, bins 20 Hz apart) those bins made white noise read 15 % low."""
+    ``f_line``: the line's frequency times T (signed: the angle's direction); an array of lines gives
+    one row of bins each (``f_line.shape + bins.shape``: every line of a motor in one call). On 0.05 s
+    segments (the 6th at 90 Hz, bins 20 Hz apart) those bins made white noise read 15 % low."""
+    f_line = np.asarray(f_line, dtype=float)[..., None]
     f = np.abs(f_line + bins)
-    keep = (f >= drift_degree + 2) & (np.abs(f - abs(f_line)) >= 2)
-    _, first = np.unique(np.round(f * 2), return_index=True)
-    once = np.zeros(len(bins), dtype=bool)
-    once[first] = True
-    return keep & once
+    keep = (f >= drift_degree + 2) & (np.abs(f - np.abs(f_line)) >= 2)
+    # one bin a frequency: the first of the bins of one half-integer frequency (np.unique's first)
+    twice = np.round(f * 2)
+    earlier = np.tri(len(bins), k=-1, dtype=bool)  # [j, i]: bin i comes before bin j
+    seen = ((twice[..., :, None] == twice[..., None, :]) & earlier).any(axis=-1)
+    return keep & ~seen
 
 
 def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
@@ -129,9 +132,10 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
     var_pair, var_white, n_s = np.zeros((S, H)), np.zeros(S), np.zeros(S)
     dof = np.zeros((S, H), dtype=int)
     lay = layout(seg)
-    keeps = [[_clear_bins(bins, h * float(seg.omega_e[s]) / (2 * math.pi) * lay.T[s], spec.drift_degree)
-              for h in harmonics] for s in range(S)]
-    top = max((int(np.max(np.abs(bins[keep]))) for ks in keeps for keep in ks if keep.any()), default=0)
+    # every segment's and harmonic's clear bins at once, (S, H, bins)
+    keeps = _clear_bins(bins, np.array([[h * float(seg.omega_e[s]) / (2 * math.pi) * lay.T[s] for h in harmonics]
+                                        for s in range(S)]).reshape(S, H), spec.drift_degree)
+    top = int(np.max(np.abs(bins) * keeps.any(axis=(0, 1)), initial=0))
     XT, G = columns(seg, spec, lay)
     powers = bin_powers(lay, top)
     turns = line_turns(seg, lay, harmonics)
