@@ -70,6 +70,10 @@ RESONANCE_TOP_HZ = 400.0
 SENSITIVITY_ZETA = 0.1
 #: where the bench file the fit divided out came from (:func:`bench_provenance`)
 BENCH_SOURCES = ("identified", "simulated", "assumed")
+#: the candidate modes :func:`sees_up_to_hz` tries (Hz), made once (np.geomspace per motor was a third
+#: of its time)
+_MODES_HZ = np.geomspace(20.0, 5000.0, 241)
+_MODES_HZ.flags.writeable = False
 
 
 @dataclass(frozen=True)
@@ -183,7 +187,7 @@ def sees_up_to_hz(f6_hz: np.ndarray, info: np.ndarray, dof: int, p_min: float) -
 
     crit = float(chdtri(dof, p_min))
     # every candidate mode at once (one column each): a refit calls this per motor
-    f0 = np.geomspace(20.0, 5000.0, 241)
+    f0 = _MODES_HZ
     info_b = np.asarray(info, dtype=float)[:, None]
     g = mode_gain(np.asarray(f6_hz, dtype=float)[:, None], f0[None, :])
     gbar = (info_b * g).sum(axis=0) / info_b.sum()
@@ -193,9 +197,9 @@ def sees_up_to_hz(f6_hz: np.ndarray, info: np.ndarray, dof: int, p_min: float) -
 
 
 def _widened(f: MotorFit, factor: float) -> MotorFit:
-    """The same fit with every interval times ``factor``."""
-    harmonics = {h: {part: dataclasses.replace(e, ci95=e.ci95 * factor, phase_ci95=e.phase_ci95 * factor)
-                     for part, e in parts.items()} for h, parts in f.harmonics.items()}
+    """The same fit with the 6th's intervals (the check reads no other) times ``factor``."""
+    harmonics = {**f.harmonics, 6: {part: dataclasses.replace(e, ci95=e.ci95 * factor, phase_ci95=e.phase_ci95 * factor)
+                                    for part, e in f.harmonics[6].items()}}
     return dataclasses.replace(f, harmonics=harmonics, cov6=None if f.cov6 is None else f.cov6 * factor * factor)
 
 
