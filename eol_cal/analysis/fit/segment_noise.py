@@ -67,8 +67,8 @@ def _fitted(XT: np.ndarray, Y: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, t
     bin from: the non-empty columns (as rows) and the inverse of their normal matrix. From the normal
     equations' Cholesky factor (the columns are well conditioned): no orthonormal basis of the
     segment's samples is formed (a refit's model check spent a third of its noise in it). ``G``: the
-    normal matrix's upper triangle (:func:`_columns`: :func:`~eol_cal.numerics.gemm.gram_halves`,
-    numpy's ``XT @ XT.T`` is SYRK, 2.5x its time on a 15 x 3333 segment)."""
+    normal matrix's upper triangle (:func:`~eol_cal.analysis.fit.noise_pass.columns`: :func:`~eol_cal.
+    numerics.gemm.gram_halves`, numpy's ``XT @ XT.T`` is SYRK, 2.5x its time on a 15 x 3333 segment)."""
     from scipy.linalg.lapack import dpotrf, dtrtri  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
     keep = np.diag(G) != 0.0  # an empty column (an unresolved mechanical pair) has a zero norm
@@ -123,7 +123,8 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
     is built for every segment in one pass over their samples side by side
     (:mod:`~eol_cal.analysis.fit.noise_pass`: a few long numpy calls instead of ~60 short ones a
     segment, in buffers kept for the next motor), and every segment's normal matrix in one BLAS call;
-    each segment's products are its own, as before: the same figures, bit for bit
+    each segment's products are its own, as before. The figures are the per-segment construction's
+    bit for bit with the same exponentials, within 1e-13 relative of numpy's complex ``exp``
     (tests/test_fit_segment_noise.py).
     """
     harmonics = tuple(spec.harmonics) if harmonics is None else tuple(harmonics)
@@ -138,7 +139,7 @@ def segment_noise(seg: SteadySegments, spec: FitSpec, tau_s: float,
     top = int(np.max(np.abs(bins) * keeps.any(axis=(0, 1)), initial=0))
     XT, G = columns(seg, spec, lay)
     powers = bin_powers(lay, top)
-    turns = line_turns(seg, lay, harmonics)
+    turns = line_turns(lay, harmonics)
     for s in range(S):
         first, end = int(lay.offsets[s]), int(lay.offsets[s + 1])
         y = [np.asarray(seg.torque[s], dtype=float)]
