@@ -15,8 +15,8 @@ was a fifth of the noise's time): the noise within 1e-13 relative of the per-seg
 
 The arrays are written into buffers this thread keeps for the next motor (a fresh array of
 megabytes is mmap'ed and page-faulted afresh on every call, ~2 us a page on this VM: as much as the
-arithmetic, the compression's reason too); what a function returns is valid until its next call in
-the same thread.
+arithmetic, the compression's reason too; up to :data:`KEEP_BYTES` each); what a function returns is
+valid until its next call in the same thread.
 """
 
 from __future__ import annotations
@@ -32,14 +32,20 @@ from eol_cal.numerics.expi import exp_i
 from eol_cal.numerics.gemm import gram_halves
 
 _BUFFERS = threading.local()
+#: the largest buffer a thread keeps (bytes): a refit's serial (six segments of 3333 samples) needs
+#: 3.2 MB at most; a station capture's motor (170 000 samples) gets fresh arrays, as segment by
+#: segment before, rather than ~80 MB held for the process' life
+KEEP_BYTES = 8 << 20
 
 
 def _buffer(name: str, size: int, dtype: type = float) -> np.ndarray:
-    """This thread's buffer ``name``: a flat array of at least ``size`` elements (grown, never shrunk)."""
+    """This thread's buffer ``name``: a flat array of at least ``size`` elements (grown, never shrunk;
+    a fresh one, not kept, above :data:`KEEP_BYTES`)."""
     buf = getattr(_BUFFERS, name, None)
     if buf is None or buf.size < size:
         buf = np.empty(max(size, 1), dtype=dtype)
-        setattr(_BUFFERS, name, buf)
+        if buf.nbytes <= KEEP_BYTES:
+            setattr(_BUFFERS, name, buf)
     return buf
 
 
