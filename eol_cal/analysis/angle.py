@@ -221,7 +221,7 @@ def reconstruct_angle(
     Parameters
     ----------
     t : ndarray
-        Sample times (s), increasing.
+        Sample times (s), increasing (the samples between two instants are one slice).
     enc_a : ndarray
         Encoder channel A levels (0/1).
     hall : ndarray
@@ -290,13 +290,14 @@ def reconstruct_angle(
 
     p = np.empty_like(t)
     w = np.empty_like(t)
-    inside = (t >= t_u[0]) & (t <= t_u[-1])
-    p[inside], w[inside] = interp.with_slope(t[inside])
-    before, after = t < t_u[0], t > t_u[-1]
+    # t increasing: the samples inside the edges' span are one slice, those before and after two
+    lo, hi = int(np.searchsorted(t, t_u[0], side="left")), int(np.searchsorted(t, t_u[-1], side="right"))
+    p[lo:hi], w[lo:hi] = interp.with_slope(t[lo:hi], sorted_inside=True)
+    before, after = slice(0, lo), slice(hi, len(t))
     # the slope at both ends in one evaluation (each end's value as alone: elementwise arithmetic)
-    w_ends = interp.derivative()(t_u[[0, -1]]) if before.any() or after.any() else None
+    w_ends = interp.derivative()(t_u[[0, -1]]) if lo > 0 or hi < len(t) else None
     for mask, t_end, p_end, e in ((before, t_u[0], rel_u[0], 0), (after, t_u[-1], rel_u[-1], 1)):
-        if mask.any():
+        if mask.stop > mask.start:
             assert w_ends is not None  # set when either end has samples
             w_end = float(w_ends[e])
             raw = p_end + w_end * (t[mask] - t_end)

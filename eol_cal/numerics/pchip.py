@@ -59,13 +59,22 @@ class PiecewisePoly:
         """Values at ``xq`` (NaN outside the knots' span)."""
         return self.with_slope(xq, slope=False)[0]
 
-    def with_slope(self, xq: np.ndarray | float, slope: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    def with_slope(self, xq: np.ndarray | float, slope: bool = True,
+                   sorted_inside: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """Values and first derivative (:meth:`derivative`'s, bit for bit) at ``xq``, sharing the search
-        for the intervals (NaN outside the knots' span; ``None`` for the slope unless asked)."""
+        for the intervals (NaN outside the knots' span; ``None`` for the slope unless asked).
+
+        ``sorted_inside``: the caller knows ``xq`` is increasing and inside the knots' span (a
+        capture's samples between its first and last edge): the intervals are then found by
+        placing the few knots among the many queries (:func:`sorted_intervals`), the same
+        intervals, and no sample is checked for the span."""
         xq = np.asarray(xq, dtype=float)
         flat = xq.reshape(-1)
-        i = np.searchsorted(self.x, flat, side="right") - 1
-        np.clip(i, 0, len(self.x) - 2, out=i)
+        if sorted_inside:
+            i = sorted_intervals(self.x, flat)
+        else:
+            i = np.searchsorted(self.x, flat, side="right") - 1
+            np.clip(i, 0, len(self.x) - 2, out=i)
         s = flat - self.x[i]
         # one gather per coefficient: contiguous rows (a gather of c.T's rows leaves each column
         # strided, ~1.5x the time of the arithmetic below; the same values either way)
@@ -80,8 +89,8 @@ class PiecewisePoly:
             if der is not None and j > 0:
                 der += (rows[j - 1] * float(k - j)) * z
             z = z * s
-        outside = (flat < self.x[0]) | (flat > self.x[-1])
-        if outside.any():
+        outside = None if sorted_inside else (flat < self.x[0]) | (flat > self.x[-1])
+        if outside is not None and outside.any():
             res[outside] = np.nan
             if der is not None:
                 der[outside] = np.nan
@@ -91,6 +100,17 @@ class PiecewisePoly:
         """The first derivative (scipy's ``PPoly.derivative``: the coefficients times the powers)."""
         k = len(self.c)
         return PiecewisePoly(self.c[:-1] * np.arange(k - 1, 0, -1, dtype=float)[:, None], self.x)
+
+
+def sorted_intervals(x: np.ndarray, xq: np.ndarray) -> np.ndarray:
+    """The interval ``i`` of knots ``x`` holding each of the increasing queries ``xq``, all within
+    ``[x[0], x[-1]]`` (the last interval closed on both sides): what
+    ``clip(searchsorted(x, xq, "right") - 1, 0, len(x) - 2)`` gives, from a search of the knots
+    among the queries (a capture: ~200 knots, 7000 samples; ~3x less time) and a running count of
+    the knots at or before each query."""
+    at = np.searchsorted(xq, x, side="left")  # the first query at or after each knot
+    i = np.cumsum(np.bincount(at, minlength=len(xq) + 1)[:len(xq)]) - 1
+    return np.minimum(i, len(x) - 2, out=i)
 
 
 def pchip(x: np.ndarray, y: np.ndarray) -> PiecewisePoly:
