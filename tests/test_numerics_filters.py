@@ -69,7 +69,7 @@ def test_pchip_at_sorted_queries_inside_is_the_searched_evaluation_bit_for_bit()
     # the angle's path (a capture's samples between its first and last edge): the intervals placed
     # by a count of the knots, not a search per query; queries on the knots, both ends included
     rng = np.random.default_rng(1)
-    for trial in range(100):
+    for _ in range(100):
         n = int(rng.integers(2, 400))
         x = np.cumsum(rng.uniform(1e-5, 1e-3, size=n)) + rng.uniform(-1, 1)
         f = pchip(x, np.cumsum(rng.normal(size=n)))
