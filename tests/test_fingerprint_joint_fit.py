@@ -198,3 +198,33 @@ def _normal_alone(w: EdgeSums, shift: int) -> tuple:
         Ts.append(PJ.T @ S)
     T = np.concatenate(Ts)
     return G - T @ T.T, rhs, ss, n
+
+
+def _counts_int64(enc_a, enc_b):
+    """quadrature_counts and a_edges as they were written, in int64 throughout (the reference)."""
+    from eol_cal.firmware.estimator import quadrature_phase
+
+    ph = np.asarray(quadrature_phase(np.asarray(enc_a).astype(np.int64) & 1, np.asarray(enc_b).astype(np.int64) & 1))
+    d = np.diff(ph) % 4
+    step = np.concatenate(([0], np.where(d == 1, 1, np.where(d == 3, -1, 0))))
+    return ph[0] + np.cumsum(step), step, int(np.sum(d == 2))
+
+
+@pytest.mark.parametrize("dtype", [np.int8, np.uint8, np.int64, float, bool])
+def test_the_quadrature_count_in_the_levels_own_integers_is_the_int64_one(dtype):
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        n = int(rng.integers(2, 2000))
+        # mostly single steps, some double ones and repeats
+        a, b = (rng.integers(0, 2, n).astype(dtype) for _ in range(2))
+        t = np.cumsum(rng.uniform(1e-4, 2e-4, n))
+        q, step, qep = fpr.quadrature_counts(a, b)
+        q0, step0, qep0 = _counts_int64(a, b)
+        assert qep == qep0 and q.dtype == step.dtype == np.int64
+        assert np.array_equal(q, q0) and np.array_equal(step, step0)
+        a_int = np.asarray(a).astype(np.int64) & 1
+        idx = np.flatnonzero(np.concatenate(([False], a_int[1:] != a_int[:-1])) & (step0 != 0))
+        times, k, dirn = fpr.a_edges(t, a, b, q, step)
+        assert np.array_equal(times, 0.5 * (t[idx - 1] + t[idx]))
+        assert np.array_equal(k, np.where(step0[idx] > 0, q0[idx], q0[idx] + 1))
+        assert np.array_equal(dirn, np.where(step0[idx] > 0, 1, -1))

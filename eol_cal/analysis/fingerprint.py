@@ -76,14 +76,28 @@ class Fingerprint:
 def quadrature_counts(enc_a: np.ndarray, enc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The estimator's quadrature count per sample, unwrapped, from the first sample's phase.
 
-    Returns ``(q, step, qep_errors)``: the count (int64), the step taken at each sample (+1, -1, 0)
-    and the number of double steps (not counted, as the estimator does).
+    Returns ``(q, step, qep_errors)``: the count (int64), the step taken at each sample (+1, -1, 0;
+    int64) and the number of double steps (not counted, as the estimator does).
     """
-    ph = np.asarray(quadrature_phase(np.asarray(enc_a).astype(np.int64) & 1, np.asarray(enc_b).astype(np.int64) & 1))
-    d = np.diff(ph) % 4
-    step = np.concatenate(([0], np.where(d == 1, 1, np.where(d == 3, -1, 0))))
-    q = ph[0] + np.cumsum(step)
-    return q, step, int(np.sum(d == 2))
+    # the phases and their changes in the levels' own small integers (a capture's int8): the same
+    # values as in int64 (0..3, a change mod 4 by its low two bits), an eighth of the memory
+    ph = quadrature_phase(_low_bit(enc_a), _low_bit(enc_b))
+    d = (ph[1:] - ph[:-1]) & 3
+    step = np.empty(len(ph), np.int64)
+    step[0] = 0
+    step[1:] = _STEP[d]
+    q = int(ph[0]) + np.cumsum(step)
+    return q, step, int(np.count_nonzero(d == 2))
+
+
+#: the step of a quadrature phase change (mod 4): none, forward, a double step (not counted), back
+_STEP = np.array([0, 1, 0, -1], dtype=np.int64)
+
+
+def _low_bit(levels: np.ndarray) -> np.ndarray:
+    """A digital channel's low bit (0/1), in its own integer type (int64 for any other)."""
+    x = np.asarray(levels)
+    return (x if x.dtype.kind in "iu" else x.astype(np.int64)) & 1
 
 
 def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, step: np.ndarray
@@ -97,11 +111,9 @@ def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, 
     ``4m + 1`` (A rising forward), its reverse fingerprint those at ``4m + 3`` (A rising in
     reverse): both are measured whichever way the motor turns (fingerprint index ``k >> 1``).
     """
-    a = np.asarray(enc_a).astype(np.int64) & 1
-    a_changed = np.concatenate(([False], a[1:] != a[:-1]))
-    moved = step != 0
-    idx = np.flatnonzero(a_changed & moved)
-    idx = idx[idx > 0]
+    a = _low_bit(enc_a)
+    # a change of A at a sample where the count moved (never the first sample)
+    idx = np.flatnonzero((a[1:] != a[:-1]) & (step[1:] != 0)) + 1
     times = 0.5 * (t[idx - 1] + t[idx])
     fwd = step[idx] > 0
     k = np.where(fwd, q[idx], q[idx] + 1)

@@ -17,13 +17,20 @@ import numpy as np
 
 
 def _edge_slope(h0: float, h1: float, m0: float, m1: float) -> float:
-    """One-sided three-point derivative at an end, kept shape-preserving."""
+    """One-sided three-point derivative at an end, kept shape-preserving (Python floats: the same
+    IEEE arithmetic as numpy's scalars, without their per-operation cost)."""
+    h0, h1, m0, m1 = float(h0), float(h1), float(m0), float(m1)
     d = ((2 * h0 + h1) * m0 - h0 * m1) / (h0 + h1)
-    if np.sign(d) != np.sign(m0):
+    if _sign(d) != _sign(m0):
         return 0.0
-    if np.sign(m0) != np.sign(m1) and abs(d) > 3.0 * abs(m0):
+    if _sign(m0) != _sign(m1) and abs(d) > 3.0 * abs(m0):
         return 3.0 * m0
     return d
+
+
+def _sign(v: float) -> float:
+    """``np.sign`` of a Python float: -1, 0 or +1, NaN for NaN."""
+    return v if v != v else float((v > 0) - (v < 0))
 
 
 def pchip_derivatives(x: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -69,17 +69,14 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
     w = np.asarray(mi.angles[ci].omega_r, dtype=float)
     iq = np.asarray(mi.captures[ci].iq_ref(), dtype=float)
     out: list[tuple[int, int]] = []
-    sign_w = np.sign(w)  # the window's, once for all its segments
     for k, info in enumerate(mi.info):
         if mi.capture_of_segment[k] != ci:
             continue
         ws = median(w[info.start:info.stop])
-        bad = ~((sign_w == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
-        # ... nor while the load point differs from the segment's beyond the steady segments' own
-        # tolerance: a load step ends a stretch
-        bad |= np.abs(iq - info.i_qo) > max(IQ_TOL_A, IQ_TOL_REL * abs(info.i_qo))
-        before = np.flatnonzero(bad[:info.start])
-        after = np.flatnonzero(bad[info.stop:])
+        iq_tol = max(IQ_TOL_A, IQ_TOL_REL * abs(info.i_qo))
+        # the samples outside the segment only: a stretch extends from it to the nearest that stops it
+        before = np.flatnonzero(_stops(w[:info.start], iq[:info.start], ws, info.i_qo, iq_tol))
+        after = np.flatnonzero(_stops(w[info.stop:], iq[info.stop:], ws, info.i_qo, iq_tol))
         a = int(before[-1]) + 1 if len(before) else 0
         b = info.stop + int(after[0]) if len(after) else len(w)
         if out and a <= out[-1][1]:
@@ -87,6 +84,17 @@ def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
         else:
             out.append((a, b))
     return out
+
+
+def _stops(w: np.ndarray, iq: np.ndarray, ws: float, i_qo: float, iq_tol: float) -> np.ndarray:
+    """Which samples end a fingerprint stretch (:func:`fingerprint_ranges`) of a segment of median
+    speed ``ws`` (rad/s) and load point ``i_qo`` (A): another direction, a speed beyond
+    :data:`EXTEND_TOL` of the segment's, or the load point beyond ``iq_tol`` (A) of its."""
+    bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
+    # ... nor while the load point differs from the segment's beyond the steady segments' own
+    # tolerance: a load step ends a stretch
+    bad |= np.abs(iq - i_qo) > iq_tol
+    return bad
 
 
 def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
