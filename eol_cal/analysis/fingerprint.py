@@ -81,7 +81,7 @@ def quadrature_counts(enc_a: np.ndarray, enc_b: np.ndarray) -> tuple[np.ndarray,
     """
     # the phases and their changes in the levels' own small integers (a capture's int8): the same
     # values as in int64 (0..3, a change mod 4 by its low two bits), an eighth of the memory
-    ph = quadrature_phase(_low_bit(enc_a), _low_bit(enc_b))
+    ph = np.asarray(quadrature_phase(_low_bit(enc_a), _low_bit(enc_b)))
     d = (ph[1:] - ph[:-1]) & 3
     step = np.empty(len(ph), np.int64)
     step[0] = 0
