@@ -201,7 +201,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
     if not orders:
         return f"orders {HALL_ORDERS} repeat every electrical revolution ({pp} pole pairs): not separable from the halls"
     N = mi.encoder_ppr
-    xs, ys, groups = [], [], []
+    xs, angles, nominals, groups = [], [], [], []
     for ci, (cap, ang, edges, r) in enumerate(zip(mi.captures, mi.angles, prints, fp.offsets, strict=True)):
         if edges is None or r is None:
             continue
@@ -215,13 +215,15 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         theta = np.asarray(ang.theta_r, dtype=float)[i] - frac
         x = np.interp(t_h, t[i], boundary_position(edges.q[i], r, fp.grid_phase, theta + mi.frame_offset_rad,
                                                    mi.poles, N))
-        y = np.interp(t_h, t[i], theta) + boundary_interp(x, fp.fp, N) - nominal
         xs.append(x)
-        ys.append(y)
+        angles.append(np.interp(t_h, t[i], theta))
+        nominals.append(nominal)
         groups.append(2 * (begins - 1) + (direction < 0))
     if not xs:
         return "no placed window"
-    x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(groups)
+    x, g = np.concatenate(xs), np.concatenate(groups)
+    # the fingerprint's correction at every window's transitions at once (elementwise: each value as alone)
+    y = np.concatenate(angles) + boundary_interp(x, fp.fp, N) - np.concatenate(nominals)
     y = np.angle(np.exp(1j * (y - np.angle(np.mean(np.exp(1j * y))))))
     got = _orders_lstsq(x, y, g, orders, N)
     if isinstance(got, str):
