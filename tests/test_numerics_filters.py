@@ -14,7 +14,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from eol_cal.analysis.metrics import hampel
 from eol_cal.numerics import iir
-from eol_cal.numerics.pchip import pchip, sorted_intervals
+from eol_cal.numerics.pchip import pchip, sorted_counts
 
 
 @pytest.mark.parametrize("order", range(1, 9))
@@ -66,8 +66,8 @@ def test_pchip_and_its_derivative_are_scipys_bit_for_bit():
 
 
 def test_pchip_at_sorted_queries_inside_is_the_searched_evaluation_bit_for_bit():
-    # the angle's path (a capture's samples between its first and last edge): the intervals placed
-    # by a count of the knots, not a search per query; queries on the knots, both ends included
+    # the angle's path (a capture's samples between its first and last edge): each interval's run of
+    # queries from a search of the knots, not a search per query; queries on the knots, both ends included
     rng = np.random.default_rng(1)
     for _ in range(100):
         n = int(rng.integers(2, 400))
@@ -75,7 +75,7 @@ def test_pchip_at_sorted_queries_inside_is_the_searched_evaluation_bit_for_bit()
         f = pchip(x, np.cumsum(rng.normal(size=n)))
         xq = np.sort(np.concatenate([rng.uniform(x[0], x[-1], int(rng.integers(0, 3000))), x[rng.integers(0, n, 5)],
                                      x[[0, -1]]]))
-        assert np.array_equal(sorted_intervals(x, xq),
+        assert np.array_equal(np.repeat(np.arange(n - 1), sorted_counts(x, xq)),
                               np.clip(np.searchsorted(x, xq, side="right") - 1, 0, n - 2))
         ours, ref = f.with_slope(xq, sorted_inside=True), f.with_slope(xq)
         assert np.array_equal(ours[0], ref[0]) and np.array_equal(ours[1], ref[1])

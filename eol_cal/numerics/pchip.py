@@ -72,30 +72,24 @@ class PiecewisePoly:
         for the intervals (NaN outside the knots' span; ``None`` for the slope unless asked).
 
         ``sorted_inside``: the caller knows ``xq`` is increasing and inside the knots' span (a
-        capture's samples between its first and last edge): the intervals are then found by
-        placing the few knots among the many queries (:func:`sorted_intervals`), the same
-        intervals, and no sample is checked for the span."""
+        capture's samples between its first and last edge): each interval's queries are then one
+        run (:func:`sorted_counts`), every coefficient repeated over its run (the values a gather
+        by interval gives, without an index per query), and no query is checked for the span."""
         xq = np.asarray(xq, dtype=float)
         flat = xq.reshape(-1)
+        k = len(self.c)
         if sorted_inside:
-            i = sorted_intervals(self.x, flat)
+            n = sorted_counts(self.x, flat)
+            s = flat - np.repeat(self.x[:-1], n)
+            rows = [np.repeat(self.c[j], n) for j in range(k)]
         else:
             i = np.searchsorted(self.x, flat, side="right") - 1
             np.clip(i, 0, len(self.x) - 2, out=i)
-        s = flat - self.x[i]
-        # one gather per coefficient: contiguous rows (a gather of c.T's rows leaves each column
-        # strided, ~1.5x the time of the arithmetic below; the same values either way)
-        k = len(self.c)
-        rows = [self.c[j][i] for j in range(k)]
-        # scipy's evaluate_poly1: the constant term first, then each power of s times its coefficient
-        res = rows[k - 1]
-        der = rows[k - 2] * float(1) if slope and k > 1 else None
-        z = s
-        for j in range(k - 2, -1, -1):
-            res += rows[j] * z
-            if der is not None and j > 0:
-                der += (rows[j - 1] * float(k - j)) * z
-            z = z * s
+            s = flat - self.x[i]
+            # one gather per coefficient: contiguous rows (a gather of c.T's rows leaves each column
+            # strided, ~1.5x the time of the arithmetic below; the same values either way)
+            rows = [self.c[j][i] for j in range(k)]
+        res, der = _evaluate(rows, s, slope)
         outside = None if sorted_inside else (flat < self.x[0]) | (flat > self.x[-1])
         if outside is not None and outside.any():
             res[outside] = np.nan
@@ -109,15 +103,34 @@ class PiecewisePoly:
         return PiecewisePoly(self.c[:-1] * np.arange(k - 1, 0, -1, dtype=float)[:, None], self.x)
 
 
-def sorted_intervals(x: np.ndarray, xq: np.ndarray) -> np.ndarray:
-    """The interval ``i`` of knots ``x`` holding each of the increasing queries ``xq``, all within
-    ``[x[0], x[-1]]`` (the last interval closed on both sides): what
-    ``clip(searchsorted(x, xq, "right") - 1, 0, len(x) - 2)`` gives, from a search of the knots
-    among the queries (a capture: ~200 knots, 7000 samples; ~3x less time) and a running count of
-    the knots at or before each query."""
-    at = np.searchsorted(xq, x, side="left")  # the first query at or after each knot
-    i = np.cumsum(np.bincount(at, minlength=len(xq) + 1)[:len(xq)]) - 1
-    return np.minimum(i, len(x) - 2, out=i)
+def _evaluate(rows: list[np.ndarray], s: np.ndarray, slope: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """scipy's evaluate_poly1 at offsets ``s`` from each query's knot, the coefficients ``rows``
+    (highest power first, one value a query; the constant row is overwritten by the result):
+    the constant term first, then each power of ``s`` times its coefficient; and the first
+    derivative alike (``derivative()``'s coefficients, times the powers) when ``slope``. The
+    products go through two buffers (the same operations, the same values, no new array each)."""
+    k = len(rows)
+    res = rows[k - 1]
+    der = rows[k - 2] * float(1) if slope and k > 1 else None
+    tmp = np.empty_like(s)
+    z = s
+    for j in range(k - 2, -1, -1):
+        res += np.multiply(rows[j], z, out=tmp)
+        if der is not None and j > 0:
+            np.multiply(rows[j - 1], float(k - j), out=tmp)
+            der += np.multiply(tmp, z, out=tmp)
+        if j > 0:  # the next power (the last one is not used)
+            z = np.multiply(z, s, out=None if z is s else z)
+    return res, der
+
+
+def sorted_counts(x: np.ndarray, xq: np.ndarray) -> np.ndarray:
+    """How many of the increasing queries ``xq``, all within ``[x[0], x[-1]]``, fall in each
+    interval of the knots ``x`` (the last interval closed on both sides): the run lengths of
+    ``clip(searchsorted(x, xq, "right") - 1, 0, len(x) - 2)``, from a search of the few knots among
+    the many queries (a capture: ~200 knots, 7000 samples)."""
+    at = np.searchsorted(xq, x[:-1], side="left")  # each interval's first query
+    return np.diff(at, append=len(xq))
 
 
 def pchip(x: np.ndarray, y: np.ndarray) -> PiecewisePoly:
