@@ -164,6 +164,29 @@ def test_windows_are_placed_by_the_fingerprint_among_the_pole_pair_offsets():
     assert merged.offsets == [0, 23, 41, None] and merged.scores[3] is not None
 
 
+@pytest.mark.parametrize("one_half", [False, True])
+def test_the_fingerprints_standard_errors_solved_when_asked_are_the_fits_own(one_half):
+    """merge_windows fits without the variances; ``sigma``, solved from the fit's normal equations
+    when first read, is the joint fit's with them (``cov=True``) bit for bit, inf where a half
+    was not measured."""
+    fp_true = _true_fingerprint(5)
+    stretches = [_stretch(fp_true, 1, 180, 120.0, 6), _stretch(fp_true, 4 * 20 + 1, 100, 120.0, 7)]
+    if one_half:  # the A edges at 4m + 1 only
+        stretches = [(t[(k >> 1) & 1 == 0], k[(k >> 1) & 1 == 0]) for t, k in stretches]
+    merged = fpr.merge_windows([fpr.WindowEdges(stretches, 0.0, np.zeros(1, np.int64))], POLES, N)
+    placed = PlacedWindows(N)
+    placed.add(EdgeSums(stretches, N, QUARTER), 0)
+    _, var, _, dirs, _ = placed.fit(cov=True)
+    want = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+    for d in (0, 1):
+        if not dirs & (1 << d):
+            want[d::2] = np.inf
+    assert merged.dirs == dirs == (1 if one_half else 3)
+    assert "sigma" not in vars(merged)  # not solved until read
+    np.testing.assert_array_equal(merged.sigma, want)
+    assert np.isinf(merged.sigma).any() == one_half
+
+
 def test_a_placements_trials_in_one_pass_are_each_trial_alone_bit_for_bit():
     """:meth:`PlacedWindows.trials` stacks a window's products at every offset it tries; each
     offset's normal equations, residual and degrees of freedom are those of that offset alone

@@ -21,6 +21,7 @@ its uncertainty and the tick quantisation.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.firmware.estimator import quadrature_phase
-from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, JointFit, PlacedWindows
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, JointFit, NormalEquations, PlacedWindows
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
@@ -58,19 +59,31 @@ class WindowEdges:
 class Fingerprint:
     """A motor's fingerprint in the block's frame (the first usable window's).
 
-    fp, sigma : (2N,) edge errors (rad electrical, mean 0 per direction, 0 where not measured) and
-    their standard errors; dirs : FP_FORWARD | FP_REVERSE measured; grid_phase : rad, [0, 2*pi);
-    offsets : per window, its offset r into the block's frame (None: not placed, not used);
-    scores : per window, (fraction error rad, residual ratio of the next offset; NaN when the
-    joint fit could not tell) of its placement.
+    fp : (2N,) edge errors (rad electrical, mean 0 per direction, 0 where not measured); dirs :
+    FP_FORWARD | FP_REVERSE measured; grid_phase : rad, [0, 2*pi); offsets : per window, its offset
+    r into the block's frame (None: not placed, not used); scores : per window, (fraction error
+    rad, residual ratio of the next offset; NaN when the joint fit could not tell) of its
+    placement; equations : the joint fit's normal equations, which :attr:`sigma` is solved from.
     """
 
     fp: np.ndarray
-    sigma: np.ndarray
     dirs: int
     grid_phase: float
     offsets: list[int | None]
     scores: list[tuple[float, float] | None] = field(default_factory=list)
+    equations: NormalEquations | None = field(default=None, repr=False)
+
+    @functools.cached_property
+    def sigma(self) -> np.ndarray:
+        """(2N,) the edge errors' standard errors (rad electrical; inf where not measured), solved
+        when first asked: the angle correction and a refit's row never read them (issue 37: the
+        covariance of ~120 unknowns a motor), the mechanical orders and the margin do."""
+        var = self.equations.variances() if self.equations is not None else np.full(len(self.fp), np.nan)
+        sigma = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+        for d in (0, 1):
+            if not self.dirs & (1 << d):
+                sigma[d::2] = np.inf
+        return sigma
 
 
 def quadrature_counts(enc_a: np.ndarray, enc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
@@ -230,17 +243,16 @@ def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min
                 placed.add(stats[i], r)
                 todo.remove(i)
                 changed = True
-    fit = placed.fit()
+    fit = placed.fit(cov=False)  # the variances when first asked (Fingerprint.sigma)
     if fit is None:
         return None
-    fp, var, _, dirs, _ = fit
-    sigma = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+    fp, _, _, dirs, _ = fit
     for d in (0, 1):
         if dirs & (1 << d):
             fp[d::2] -= fp[d::2].mean()
         else:
-            fp[d::2], sigma[d::2] = 0.0, np.inf
-    return Fingerprint(fp, sigma, dirs, present[ref].grid_phase, offsets, scores)
+            fp[d::2] = 0.0
+    return Fingerprint(fp, dirs, present[ref].grid_phase, offsets, scores, placed.equations())
 
 
 def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWindows, poles: int, N: int, delta: float,
