@@ -92,8 +92,8 @@ def quadrature_counts(enc_a: np.ndarray, enc_b: np.ndarray) -> tuple[np.ndarray,
     Returns ``(q, step, qep_errors)``: the count (int64), the step taken at each sample (+1, -1, 0;
     int64) and the number of double steps (not counted, as the estimator does).
     """
-    # the phases and their changes in the levels' own small integers (a capture's int8): the same
-    # values as in int64 (0..3, a change mod 4 by its low two bits), an eighth of the memory
+    # the levels in their own small integers (a capture's int8; the firmware's phase makes them
+    # int32), not converted to int64 first: the same phases 0..3, a change mod 4 its low two bits
     ph = np.asarray(quadrature_phase(_low_bit(enc_a), _low_bit(enc_b)))
     d = (ph[1:] - ph[:-1]) & 3
     step = np.empty(len(ph), np.int64)

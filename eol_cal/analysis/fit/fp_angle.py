@@ -100,7 +100,7 @@ def every_fingerprint_range(mi: MotorInput) -> list[list[tuple[int, int]]]:
     for k, (info, ci) in enumerate(segs):
         p, q = 2 * k, 2 * k + 1  # its pieces before and after
         a = int(stops[last[p]] - ends[p]) + 1 if last[p] >= 0 and stops[last[p]] >= ends[p] else 0
-        inside = first[q] < len(stops) and stops[min(first[q], len(stops) - 1)] < ends[q + 1]
+        inside = first[q] < len(stops) and stops[first[q]] < ends[q + 1]
         b = info.stop + int(stops[first[q]] - ends[q]) if inside else len(omega[ci])
         got = out[ci]
         if got and a <= got[-1][1]:
