@@ -89,3 +89,23 @@ def test_edge_knots_as_np_unique_and_the_means():
         got = edge_knots(te, r)
         assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1])
         assert np.array_equal(np.signbit(got[1]), np.signbit(want[1]))
+
+
+def test_level_changes_of_small_integer_levels_are_the_int64_ones():
+    # a capture's int8 channels are compared as they are: the same changes, the new levels int64
+    from eol_cal.analysis.edges import level_changes
+
+    rng = np.random.default_rng(3)
+    for _ in range(30):
+        n = int(rng.integers(2, 3000))
+        t = np.cumsum(rng.uniform(1e-4, 2e-4, n))
+        lev = rng.integers(0, 7, n) * (rng.uniform(size=n) < 0.9)
+        ref = level_changes(t, lev.astype(np.int64))
+        for dtype in (np.int8, np.uint8, np.int32, float):
+            got = level_changes(t, lev.astype(dtype))
+            assert got[1].dtype == np.int64
+            assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+        bits = lev.astype(bool)
+        got = level_changes(t, bits)
+        ref = level_changes(t, bits.astype(np.int64))
+        assert got[1].dtype == np.int64 and np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])

@@ -164,6 +164,29 @@ def test_windows_are_placed_by_the_fingerprint_among_the_pole_pair_offsets():
     assert merged.offsets == [0, 23, 41, None] and merged.scores[3] is not None
 
 
+@pytest.mark.parametrize("one_half", [False, True])
+def test_the_fingerprints_standard_errors_solved_when_asked_are_the_fits_own(one_half):
+    """merge_windows fits without the variances; ``sigma``, solved from the fit's normal equations
+    when first read, is the joint fit's with them (``cov=True``) bit for bit, inf where a half
+    was not measured."""
+    fp_true = _true_fingerprint(5)
+    stretches = [_stretch(fp_true, 1, 180, 120.0, 6), _stretch(fp_true, 4 * 20 + 1, 100, 120.0, 7)]
+    if one_half:  # the A edges at 4m + 1 only
+        stretches = [(t[(k >> 1) & 1 == 0], k[(k >> 1) & 1 == 0]) for t, k in stretches]
+    merged = fpr.merge_windows([fpr.WindowEdges(stretches, 0.0, np.zeros(1, np.int64))], POLES, N)
+    placed = PlacedWindows(N)
+    placed.add(EdgeSums(stretches, N, QUARTER), 0)
+    _, var, _, dirs, _ = placed.fit(cov=True)
+    want = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+    for d in (0, 1):
+        if not dirs & (1 << d):
+            want[d::2] = np.inf
+    assert merged.dirs == dirs == (1 if one_half else 3)
+    assert "sigma" not in vars(merged)  # not solved until read
+    np.testing.assert_array_equal(merged.sigma, want)
+    assert np.isinf(merged.sigma).any() == one_half
+
+
 def test_a_placements_trials_in_one_pass_are_each_trial_alone_bit_for_bit():
     """:meth:`PlacedWindows.trials` stacks a window's products at every offset it tries; each
     offset's normal equations, residual and degrees of freedom are those of that offset alone
@@ -198,3 +221,33 @@ def _normal_alone(w: EdgeSums, shift: int) -> tuple:
         Ts.append(PJ.T @ S)
     T = np.concatenate(Ts)
     return G - T @ T.T, rhs, ss, n
+
+
+def _counts_int64(enc_a, enc_b):
+    """quadrature_counts and a_edges as they were written, in int64 throughout (the reference)."""
+    from eol_cal.firmware.estimator import quadrature_phase
+
+    ph = np.asarray(quadrature_phase(np.asarray(enc_a).astype(np.int64) & 1, np.asarray(enc_b).astype(np.int64) & 1))
+    d = np.diff(ph) % 4
+    step = np.concatenate(([0], np.where(d == 1, 1, np.where(d == 3, -1, 0))))
+    return ph[0] + np.cumsum(step), step, int(np.sum(d == 2))
+
+
+@pytest.mark.parametrize("dtype", [np.int8, np.uint8, np.int64, float, bool])
+def test_the_quadrature_count_in_the_levels_own_integers_is_the_int64_one(dtype):
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        n = int(rng.integers(2, 2000))
+        # mostly single steps, some double ones and repeats
+        a, b = (rng.integers(0, 2, n).astype(dtype) for _ in range(2))
+        t = np.cumsum(rng.uniform(1e-4, 2e-4, n))
+        q, step, qep = fpr.quadrature_counts(a, b)
+        q0, step0, qep0 = _counts_int64(a, b)
+        assert qep == qep0 and q.dtype == step.dtype == np.int64
+        assert np.array_equal(q, q0) and np.array_equal(step, step0)
+        a_int = np.asarray(a).astype(np.int64) & 1
+        idx = np.flatnonzero(np.concatenate(([False], a_int[1:] != a_int[:-1])) & (step0 != 0))
+        times, k, dirn = fpr.a_edges(t, a, b, q, step)
+        assert np.array_equal(times, 0.5 * (t[idx - 1] + t[idx]))
+        assert np.array_equal(k, np.where(step0[idx] > 0, q0[idx], q0[idx] + 1))
+        assert np.array_equal(dirn, np.where(step0[idx] > 0, 1, -1))

@@ -14,7 +14,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from eol_cal.analysis.metrics import hampel
 from eol_cal.numerics import iir
-from eol_cal.numerics.pchip import pchip
+from eol_cal.numerics.pchip import pchip, sorted_counts
 
 
 @pytest.mark.parametrize("order", range(1, 9))
@@ -63,6 +63,22 @@ def test_pchip_and_its_derivative_are_scipys_bit_for_bit():
         assert np.array_equal(ours.derivative()(xq), ref.derivative()(xq), equal_nan=True)
     with pytest.raises(ValueError, match="strictly increasing"):
         pchip(np.array([0.0, 1.0, 1.0]), np.zeros(3))
+
+
+def test_pchip_at_sorted_queries_inside_is_the_searched_evaluation_bit_for_bit():
+    # the angle's path (a capture's samples between its first and last edge): each interval's run of
+    # queries from a search of the knots, not a search per query; queries on the knots, both ends included
+    rng = np.random.default_rng(1)
+    for _ in range(100):
+        n = int(rng.integers(2, 400))
+        x = np.cumsum(rng.uniform(1e-5, 1e-3, size=n)) + rng.uniform(-1, 1)
+        f = pchip(x, np.cumsum(rng.normal(size=n)))
+        xq = np.sort(np.concatenate([rng.uniform(x[0], x[-1], int(rng.integers(0, 3000))), x[rng.integers(0, n, 5)],
+                                     x[[0, -1]]]))
+        assert np.array_equal(np.repeat(np.arange(n - 1), sorted_counts(x, xq)),
+                              np.clip(np.searchsorted(x, xq, side="right") - 1, 0, n - 2))
+        ours, ref = f.with_slope(xq, sorted_inside=True), f.with_slope(xq)
+        assert np.array_equal(ours[0], ref[0]) and np.array_equal(ours[1], ref[1])
 
 
 def _hampel_scipy(x, k, n_sigma=3.0):

@@ -4,6 +4,7 @@ capture from 60 to 1500 rpm keeps its slow windows (issue 34's bug in ``directio
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from eol_cal.analysis.fit.capture import capture_angle, capture_segments
 from eol_cal.analysis.steady import direction_pieces
@@ -28,3 +29,17 @@ def test_standstill_and_reversal_still_split_the_pieces():
     # 0.2 s forward at 19 rad/s (60 rpm with 3 pole pairs), standstill, 0.2 s reverse at 800 rad/s
     w = np.concatenate([np.full(2000, 19.0), np.zeros(500), np.full(2000, -800.0)])
     assert direction_pieces(w) == [(0, 2000), (2500, 4500)]
+
+
+def test_the_units_spans_in_two_reductions_are_each_units_ptp():
+    from eol_cal.analysis.steady import _spans
+
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        x = rng.normal(size=int(rng.integers(10, 3000)))
+        b = np.unique(rng.integers(0, len(x) + 1, int(rng.integers(2, 40))))
+        if len(b) < 2:
+            continue
+        assert np.array_equal(_spans(x, b), np.array([np.ptp(x[b[k]:b[k + 1]]) for k in range(len(b) - 1)]))
+    with pytest.raises(ValueError):  # an empty unit, as np.ptp
+        _spans(np.arange(5.0), np.array([0, 2, 2, 4]))

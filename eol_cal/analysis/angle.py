@@ -170,13 +170,15 @@ def hall_transitions(
     begins : ndarray of int
         The boundary crossed, named by the state that begins there in forward rotation (1..6).
     """
-    hall = np.asarray(hall).astype(np.int64)
+    hall = np.asarray(hall)
+    if hall.dtype.kind not in "iu":  # integer states are checked as they are (a capture's int8)
+        hall = hall.astype(np.int64)
     bad = (hall < 1) | (hall > 6)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
         raise InputError(source, "hall", f"invalid hall state {hall[i]} at t = {t[i]:.6g} s (valid: 1..6)")
     t_h, s_new = level_changes(t, hall, events)
-    s_old = np.concatenate(([hall[0]], s_new[:-1]))
+    s_old = np.concatenate(([int(hall[0])], s_new[:-1]))
     if len(s_new) and ((s_new < 1) | (s_new > 6)).any():
         raise InputError(source, "hall", "invalid hall state (0 or 7) in the change events")
     angle, direction = hall_transition_angles(s_old, s_new, hall_angles)
@@ -221,7 +223,7 @@ def reconstruct_angle(
     Parameters
     ----------
     t : ndarray
-        Sample times (s), increasing.
+        Sample times (s), increasing (the samples between two instants are one slice).
     enc_a : ndarray
         Encoder channel A levels (0/1).
     hall : ndarray
@@ -290,13 +292,14 @@ def reconstruct_angle(
 
     p = np.empty_like(t)
     w = np.empty_like(t)
-    inside = (t >= t_u[0]) & (t <= t_u[-1])
-    p[inside], w[inside] = interp.with_slope(t[inside])
-    before, after = t < t_u[0], t > t_u[-1]
+    # t increasing: the samples inside the edges' span are one slice, those before and after two
+    lo, hi = int(np.searchsorted(t, t_u[0], side="left")), int(np.searchsorted(t, t_u[-1], side="right"))
+    p[lo:hi], w[lo:hi] = interp.with_slope(t[lo:hi], sorted_inside=True)
+    before, after = slice(0, lo), slice(hi, len(t))
     # the slope at both ends in one evaluation (each end's value as alone: elementwise arithmetic)
-    w_ends = interp.derivative()(t_u[[0, -1]]) if before.any() or after.any() else None
+    w_ends = interp.with_slope(t_u[[0, -1]], sorted_inside=True)[1] if lo > 0 or hi < len(t) else None
     for mask, t_end, p_end, e in ((before, t_u[0], rel_u[0], 0), (after, t_u[-1], rel_u[-1], 1)):
-        if mask.any():
+        if mask.stop > mask.start:
             assert w_ends is not None  # set when either end has samples
             w_end = float(w_ends[e])
             raw = p_end + w_end * (t[mask] - t_end)

@@ -31,17 +31,21 @@ def level_changes(
     new_levels : ndarray of int
         Level after each change.
     """
-    levels = np.asarray(levels).astype(np.int64)
+    # integer (or boolean) levels compared as they are (a capture's int8): the same changes as in
+    # int64 without converting every sample; only the changes' new levels are converted
+    levels = np.asarray(levels)
+    if levels.dtype.kind not in "iub":
+        levels = levels.astype(np.int64)
     if events is not None:
         ev_t = np.asarray(events[0], dtype=float)
         ev_v = np.asarray(events[1]).astype(np.int64)
         order = np.argsort(ev_t, kind="stable")
         ev_t, ev_v = ev_t[order], ev_v[order]
-        previous = np.concatenate(([levels[0]], ev_v[:-1]))
+        previous = np.concatenate(([int(levels[0])], ev_v[:-1]))
         keep = ev_v != previous
         return ev_t[keep], ev_v[keep]
     idx = np.flatnonzero(levels[1:] != levels[:-1]) + 1
-    return 0.5 * (t[idx - 1] + t[idx]), levels[idx]
+    return 0.5 * (t[idx - 1] + t[idx]), levels[idx].astype(np.int64)
 
 
 def boundary_state(old_states: np.ndarray, new_states: np.ndarray, direction: np.ndarray) -> np.ndarray:

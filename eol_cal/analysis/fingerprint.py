@@ -21,6 +21,7 @@ its uncertainty and the tick quantisation.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -28,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from eol_cal.firmware.estimator import quadrature_phase
-from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, JointFit, PlacedWindows
+from eol_cal.analysis.fingerprint_fit import POLY_DEGREE, EdgeSums, JointFit, NormalEquations, PlacedWindows
 
 #: speed (mechanical rpm) at which the field margin is predicted: the fastest of the range the
 #: identification is tested over (noisier than slower speeds)
@@ -58,32 +59,58 @@ class WindowEdges:
 class Fingerprint:
     """A motor's fingerprint in the block's frame (the first usable window's).
 
-    fp, sigma : (2N,) edge errors (rad electrical, mean 0 per direction, 0 where not measured) and
-    their standard errors; dirs : FP_FORWARD | FP_REVERSE measured; grid_phase : rad, [0, 2*pi);
-    offsets : per window, its offset r into the block's frame (None: not placed, not used);
-    scores : per window, (fraction error rad, residual ratio of the next offset; NaN when the
-    joint fit could not tell) of its placement.
+    fp : (2N,) edge errors (rad electrical, mean 0 per direction, 0 where not measured); dirs :
+    FP_FORWARD | FP_REVERSE measured; grid_phase : rad, [0, 2*pi); offsets : per window, its offset
+    r into the block's frame (None: not placed, not used); scores : per window, (fraction error
+    rad, residual ratio of the next offset; NaN when the joint fit could not tell) of its
+    placement; equations : the joint fit's normal equations, which :attr:`sigma` is solved from.
     """
 
     fp: np.ndarray
-    sigma: np.ndarray
     dirs: int
     grid_phase: float
     offsets: list[int | None]
     scores: list[tuple[float, float] | None] = field(default_factory=list)
+    equations: NormalEquations | None = field(default=None, repr=False)
+
+    @functools.cached_property
+    def sigma(self) -> np.ndarray:
+        """(2N,) the edge errors' standard errors (rad electrical; inf where not measured), solved
+        when first asked: the angle correction and a refit's row never read them (issue 37: the
+        covariance of ~120 unknowns a motor), the mechanical orders and the margin do."""
+        var = self.equations.variances() if self.equations is not None else np.full(len(self.fp), np.nan)
+        sigma = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+        for d in (0, 1):
+            if not self.dirs & (1 << d):
+                sigma[d::2] = np.inf
+        return sigma
 
 
 def quadrature_counts(enc_a: np.ndarray, enc_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The estimator's quadrature count per sample, unwrapped, from the first sample's phase.
 
-    Returns ``(q, step, qep_errors)``: the count (int64), the step taken at each sample (+1, -1, 0)
-    and the number of double steps (not counted, as the estimator does).
+    Returns ``(q, step, qep_errors)``: the count (int64), the step taken at each sample (+1, -1, 0;
+    int64) and the number of double steps (not counted, as the estimator does).
     """
-    ph = np.asarray(quadrature_phase(np.asarray(enc_a).astype(np.int64) & 1, np.asarray(enc_b).astype(np.int64) & 1))
-    d = np.diff(ph) % 4
-    step = np.concatenate(([0], np.where(d == 1, 1, np.where(d == 3, -1, 0))))
-    q = ph[0] + np.cumsum(step)
-    return q, step, int(np.sum(d == 2))
+    # the levels in their own small integers (a capture's int8; the firmware's phase makes them
+    # int32), not converted to int64 first: the same phases 0..3, a change mod 4 its low two bits
+    ph = np.asarray(quadrature_phase(_low_bit(enc_a), _low_bit(enc_b)))
+    d = (ph[1:] - ph[:-1]) & 3
+    step = np.empty(len(ph), np.int64)
+    step[0] = 0
+    step[1:] = _STEP[d]
+    q = int(ph[0]) + np.cumsum(step)
+    return q, step, int(np.count_nonzero(d == 2))
+
+
+#: the step of a quadrature phase change (mod 4): none, forward, a double step (not counted), back
+_STEP = np.array([0, 1, 0, -1], dtype=np.int64)
+
+
+def _low_bit(levels: np.ndarray) -> np.ndarray:
+    """A digital channel's low bit (0/1), in its own integer type (int64 for any other)."""
+    x = np.asarray(levels)
+    return (x if x.dtype.kind in "iu" else x.astype(np.int64)) & 1
 
 
 def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, step: np.ndarray
@@ -97,11 +124,9 @@ def a_edges(t: np.ndarray, enc_a: np.ndarray, enc_b: np.ndarray, q: np.ndarray, 
     ``4m + 1`` (A rising forward), its reverse fingerprint those at ``4m + 3`` (A rising in
     reverse): both are measured whichever way the motor turns (fingerprint index ``k >> 1``).
     """
-    a = np.asarray(enc_a).astype(np.int64) & 1
-    a_changed = np.concatenate(([False], a[1:] != a[:-1]))
-    moved = step != 0
-    idx = np.flatnonzero(a_changed & moved)
-    idx = idx[idx > 0]
+    a = _low_bit(enc_a)
+    # a change of A at a sample where the count moved (never the first sample)
+    idx = np.flatnonzero((a[1:] != a[:-1]) & (step[1:] != 0)) + 1
     times = 0.5 * (t[idx - 1] + t[idx])
     fwd = step[idx] > 0
     k = np.where(fwd, q[idx], q[idx] + 1)
@@ -218,17 +243,16 @@ def merge_windows(windows: Sequence[WindowEdges | None], poles: int, N: int, min
                 placed.add(stats[i], r)
                 todo.remove(i)
                 changed = True
-    fit = placed.fit()
+    fit = placed.fit(cov=False)  # the variances when first asked (Fingerprint.sigma)
     if fit is None:
         return None
-    fp, var, _, dirs, _ = fit
-    sigma = np.sqrt(np.where(np.isfinite(var), np.maximum(var, 0.0), np.inf))
+    fp, _, _, dirs, _ = fit
     for d in (0, 1):
         if dirs & (1 << d):
             fp[d::2] -= fp[d::2].mean()
         else:
-            fp[d::2], sigma[d::2] = 0.0, np.inf
-    return Fingerprint(fp, sigma, dirs, present[ref].grid_phase, offsets, scores)
+            fp[d::2] = 0.0
+    return Fingerprint(fp, dirs, present[ref].grid_phase, offsets, scores, placed.equations())
 
 
 def _place(w: WindowEdges, stats: EdgeSums, ref_phase: float, placed: PlacedWindows, poles: int, N: int, delta: float,

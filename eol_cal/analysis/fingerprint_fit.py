@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -221,6 +222,24 @@ def _halves_each(seen: np.ndarray, N: int) -> list[tuple[int, ...]]:
     return [tuple(d for d in (0, 1) if row[d]) for row in ok.tolist()]
 
 
+@dataclass(frozen=True)
+class NormalEquations:
+    """A joint fit's normal equations as they stood (:meth:`PlacedWindows.equations`): what its
+    variances are solved from when first asked (:meth:`variances`), not with every fit."""
+
+    G: np.ndarray
+    rhs: np.ndarray
+    ss: float
+    n: int
+    n_stretches: int
+    halves: tuple[int, ...]
+    N: int
+
+    def variances(self) -> np.ndarray:
+        """The errors' variances (2N,), rad^2 electrical: :func:`_solve`'s with ``cov``, the same bits."""
+        return _solve(self.G, self.rhs, self.ss, self.n, self.n_stretches, self.halves, self.N, True)[1]
+
+
 class PlacedWindows:
     """The windows placed so far (each :class:`EdgeSums` at its offset) and their normal equations
     per set of halves kept (built when first asked, kept up to date as windows are placed)."""
@@ -252,6 +271,15 @@ class PlacedWindows:
             return None
         s = self.sums(halves)
         return _solve(s.G, s.rhs, s.ss, s.n, s.n_stretches, halves, self.N, cov)
+
+    def equations(self) -> NormalEquations | None:
+        """The normal equations of :meth:`fit` (a copy: later windows do not move it); None where
+        :meth:`fit` is None."""
+        halves = _halves(self.seen, self.N)
+        if not halves:
+            return None
+        s = self.sums(halves)
+        return NormalEquations(s.G.copy(), s.rhs.copy(), s.ss, s.n, s.n_stretches, halves, self.N)
 
     def trials(self, w: EdgeSums, shifts: Sequence[int]) -> list[tuple[float, int] | None]:
         """``(rss, dof)`` of the joint fit with window ``w`` added at each offset of ``shifts``:

@@ -75,6 +75,17 @@ def revolution_bounds(theta_r: np.ndarray, per_rev: int = 1) -> np.ndarray:
     return np.searchsorted(reach, step * np.arange(n + 1) * (1 - 1e-12), side="left")
 
 
+def _spans(x: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """``np.ptp`` of each unit ``x[bounds[k]:bounds[k + 1]]`` (the unit of ``x``), two reductions for
+    all of them (a maximum and a minimum are exact: the same values); an empty unit raises as
+    ``np.ptp`` does."""
+    b = np.asarray(bounds)
+    if np.any(b[1:] <= b[:-1]):
+        return np.array([np.ptp(x[b[k]:b[k + 1]]) for k in range(len(b) - 1)])
+    x = x[:b[-1]]  # the last unit ends at the last bound
+    return np.maximum.reduceat(x, b[:-1]) - np.minimum.reduceat(x, b[:-1])
+
+
 def steady_runs(
     t: np.ndarray,
     bounds: np.ndarray,
@@ -109,7 +120,7 @@ def steady_runs(
     if i_qo is not None:
         seg = [i_qo[bounds[k] : bounds[k + 1]] for k in range(n_rev)]
         iq_mean = np.array([s.mean() for s in seg])
-        iq_span = np.array([np.ptp(s) for s in seg])
+        iq_span = _spans(np.asarray(i_qo), bounds) if n_rev else np.zeros(0)
     runs: list[list[int]] = []
     current: list[int] = []
     for k in range(n_rev):

@@ -59,41 +59,74 @@ OUTLIER_MADS = 8.0
 def fingerprint_ranges(mi: MotorInput, ci: int) -> list[tuple[int, int]]:
     """The stretches of window ``ci`` whose edges the fingerprint uses: each steady segment of the
     fit, extended both ways while the direction and the load point (``iq_ref``) are the segment's
-    and the speed within :data:`EXTEND_TOL` of its; overlapping stretches merged.
+    and the speed within :data:`EXTEND_TOL` of its; overlapping stretches merged
+    (:func:`every_fingerprint_range`'s for that window).
 
     A stretch never spans a load step: the step moves the rotor in a way no stretch's polynomial
     follows, and where the dyno holds the speed within the tolerance through it the speed does not
     show it (two of eol-default's segments merged across one made a fingerprint's error several
     times the other motors', which the split of the stretches did not see: firmware_params/MECH.md).
     """
-    w = np.asarray(mi.angles[ci].omega_r, dtype=float)
-    iq = np.asarray(mi.captures[ci].iq_ref(), dtype=float)
-    out: list[tuple[int, int]] = []
-    sign_w = np.sign(w)  # the window's, once for all its segments
-    for k, info in enumerate(mi.info):
-        if mi.capture_of_segment[k] != ci:
-            continue
-        ws = median(w[info.start:info.stop])
-        bad = ~((sign_w == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * abs(ws)))
-        # ... nor while the load point differs from the segment's beyond the steady segments' own
-        # tolerance: a load step ends a stretch
-        bad |= np.abs(iq - info.i_qo) > max(IQ_TOL_A, IQ_TOL_REL * abs(info.i_qo))
-        before = np.flatnonzero(bad[:info.start])
-        after = np.flatnonzero(bad[info.stop:])
-        a = int(before[-1]) + 1 if len(before) else 0
-        b = info.stop + int(after[0]) if len(after) else len(w)
-        if out and a <= out[-1][1]:
-            out[-1] = (out[-1][0], max(out[-1][1], b))
+    return every_fingerprint_range(mi)[ci]
+
+
+def every_fingerprint_range(mi: MotorInput) -> list[list[tuple[int, int]]]:
+    """:func:`fingerprint_ranges` of every window of ``mi`` (a list per window), the samples of all
+    of them judged in one pass (issue 37: not two passes a segment).
+
+    Only the samples outside each segment are judged (a stretch extends from its segment to the
+    nearest sample that stops it: :func:`_stops`), each against its own segment's median speed and
+    load point: the pieces before and after every segment side by side, each sample's verdict the
+    one it has alone (elementwise), the nearest stop of each piece found by two searches."""
+    omega = [np.asarray(ang.omega_r, dtype=float) for ang in mi.angles]
+    iqs = [np.asarray(cap.iq_ref(), dtype=float) for cap in mi.captures]
+    segs = list(zip(mi.info, mi.capture_of_segment, strict=True))
+    if not segs:
+        return [[] for _ in mi.angles]
+    ws = [median(omega[ci][info.start:info.stop]) for info, ci in segs]
+    # per segment its piece before (0 .. start) and its piece after (stop .. end of its window)
+    pieces = [(ci, lo, hi, k) for k, (info, ci) in enumerate(segs)
+              for lo, hi in ((0, info.start), (info.stop, len(omega[ci])))]
+    sizes = [hi - lo for _, lo, hi, _ in pieces]
+    per_piece = np.array([(ws[k], segs[k][0].i_qo, max(IQ_TOL_A, IQ_TOL_REL * abs(segs[k][0].i_qo)))
+                          for *_, k in pieces]).reshape(-1, 3)
+    at = [np.repeat(per_piece[:, j], sizes) for j in range(3)]
+    stops = np.flatnonzero(_stops(np.concatenate([omega[ci][lo:hi] for ci, lo, hi, _ in pieces]),
+                                  np.concatenate([iqs[ci][lo:hi] for ci, lo, hi, _ in pieces]), *at))
+    ends = np.cumsum([0, *sizes])
+    last = np.searchsorted(stops, ends[1:]) - 1  # each piece's last stop, if inside it
+    first = np.searchsorted(stops, ends[:-1])  # each piece's first stop, if inside it
+    out: list[list[tuple[int, int]]] = [[] for _ in mi.angles]
+    for k, (info, ci) in enumerate(segs):
+        p, q = 2 * k, 2 * k + 1  # its pieces before and after
+        a = int(stops[last[p]] - ends[p]) + 1 if last[p] >= 0 and stops[last[p]] >= ends[p] else 0
+        inside = first[q] < len(stops) and stops[first[q]] < ends[q + 1]
+        b = info.stop + int(stops[first[q]] - ends[q]) if inside else len(omega[ci])
+        got = out[ci]
+        if got and a <= got[-1][1]:
+            got[-1] = (got[-1][0], max(got[-1][1], b))
         else:
-            out.append((a, b))
+            got.append((a, b))
     return out
+
+
+def _stops(w: np.ndarray, iq: np.ndarray, ws: np.ndarray | float, i_qo: np.ndarray | float,
+           iq_tol: np.ndarray | float) -> np.ndarray:
+    """Which samples end a fingerprint stretch (:func:`fingerprint_ranges`) of a segment of median
+    speed ``ws`` (rad/s) and load point ``i_qo`` (A): another direction, a speed beyond
+    :data:`EXTEND_TOL` of the segment's, or the load point beyond ``iq_tol`` (A) of its (each a
+    value, or one a sample)."""
+    bad = ~((np.sign(w) == np.sign(ws)) & (np.abs(w - ws) <= EXTEND_TOL * np.abs(ws)))
+    # ... nor while the load point differs from the segment's beyond the steady segments' own
+    # tolerance: a load step ends a stretch
+    bad |= np.abs(iq - i_qo) > iq_tol
+    return bad
 
 
 def window_prints(mi: MotorInput) -> list[fpr.WindowEdges | None]:
     """Each capture window's edges over its fingerprint stretches (None: no usable one)."""
     out: list[fpr.WindowEdges | None] = []
-    for ci, (cap, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
-        ranges = fingerprint_ranges(mi, ci)
+    for cap, ang, ranges in zip(mi.captures, mi.angles, every_fingerprint_range(mi), strict=True):
         if not ranges or not cap.has("enc_b"):
             out.append(None)
             continue
@@ -193,7 +226,7 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
     if not orders:
         return f"orders {HALL_ORDERS} repeat every electrical revolution ({pp} pole pairs): not separable from the halls"
     N = mi.encoder_ppr
-    xs, ys, groups = [], [], []
+    xs, angles, nominals, groups = [], [], [], []
     for ci, (cap, ang, edges, r) in enumerate(zip(mi.captures, mi.angles, prints, fp.offsets, strict=True)):
         if edges is None or r is None:
             continue
@@ -207,13 +240,15 @@ def hall_low_orders(mi: MotorInput, prints: list[fpr.WindowEdges | None], fp: fp
         theta = np.asarray(ang.theta_r, dtype=float)[i] - frac
         x = np.interp(t_h, t[i], boundary_position(edges.q[i], r, fp.grid_phase, theta + mi.frame_offset_rad,
                                                    mi.poles, N))
-        y = np.interp(t_h, t[i], theta) + boundary_interp(x, fp.fp, N) - nominal
         xs.append(x)
-        ys.append(y)
+        angles.append(np.interp(t_h, t[i], theta))
+        nominals.append(nominal)
         groups.append(2 * (begins - 1) + (direction < 0))
     if not xs:
         return "no placed window"
-    x, y, g = np.concatenate(xs), np.concatenate(ys), np.concatenate(groups)
+    x, g = np.concatenate(xs), np.concatenate(groups)
+    # the fingerprint's correction at every window's transitions at once (elementwise: each value as alone)
+    y = np.concatenate(angles) + boundary_interp(x, fp.fp, N) - np.concatenate(nominals)
     y = np.angle(np.exp(1j * (y - np.angle(np.mean(np.exp(1j * y))))))
     got = _orders_lstsq(x, y, g, orders, N)
     if isinstance(got, str):
