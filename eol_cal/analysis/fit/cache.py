@@ -10,6 +10,7 @@ run. Pre-warming a process (imports, one solver trace, matplotlib) sits beside t
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 from collections.abc import Callable, Mapping
@@ -76,7 +77,11 @@ def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | Non
     return path
 
 
+@functools.cache
 def _solver_key(spec: FitSpec, S: int, n_grid: int) -> str:
+    """The solver's key (:func:`~eol_cal.numerics.exported.key_text`), made once per process for each
+    ``(spec, S, n_grid)``: the JAX version and backend it holds do not change in a process, and its
+    ``repr`` of the spec was ~0.1 ms of each fit's call (two a refit's serial, issue 37)."""
     import jax
 
     with jax.enable_x64(True):  # the solver runs in float64 only (fit_many)
@@ -88,6 +93,12 @@ def solver_file(cache_dir: str | os.PathLike[str], spec: FitSpec, S: int, n_grid
     points (:func:`eol_cal.numerics.exported.entry_path`: the key also holds the JAX version, the
     backend and the float width: an entry is only read back on this installation)."""
 
+    return _solver_path(os.fspath(cache_dir), spec, S, n_grid)
+
+
+@functools.cache
+def _solver_path(cache_dir: str, spec: FitSpec, S: int, n_grid: int) -> Path:
+    """:func:`solver_file`, made once per process for each directory and solver (its SHA-256 and path)."""
     return entry_path(cache_dir, "fit", _solver_key(spec, S, n_grid))
 
 
