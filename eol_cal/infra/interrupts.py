@@ -93,14 +93,22 @@ def raise_if_received(during: str | None = None) -> None:
         raise Interrupted(_received, during)
 
 
+#: the functions inside which an exception raised now does not reach the command as itself: a
+#: ``__del__`` prints and drops it; a ``__set_name__`` (a class being made: a dataclass's fields
+#: while a module is imported) Python 3.11 wraps in ``RuntimeError("Error calling __set_name__ ...")``,
+#: which no handler takes for an interruption (a SIGHUP while ``run`` started ended it with exit 1)
+_NOT_RAISED_IN = ("__del__", "__set_name__")
+
+
 def _unraisable(frame: FrameType | None) -> bool:
-    """Whether the interrupted code runs where an exception is printed and dropped: a
-    ``__del__`` or a garbage-collector callback (JAX registers one)."""
+    """Whether the interrupted code runs where an exception does not reach the command as itself:
+    a ``__del__``, a garbage-collector callback (JAX registers one: printed and dropped) or a
+    ``__set_name__`` (:data:`_NOT_RAISED_IN`)."""
     callbacks = {getattr(cb, "__code__", None) for cb in gc.callbacks}
     for _ in range(64):
         if frame is None:
             return False
-        if frame.f_code.co_name == "__del__" or frame.f_code in callbacks:
+        if frame.f_code.co_name in _NOT_RAISED_IN or frame.f_code in callbacks:
             return True
         frame = frame.f_back
     return False
@@ -116,23 +124,10 @@ def deliver(signal_name: str, frame: FrameType | None = None) -> None:
     if _depth:
         _pending = _pending or signal_name
         return
-    if _unraisable(frame) or _in_import_machinery(frame) or _in_set_name(frame):
+    if _unraisable(frame) or _in_import_machinery(frame):
         _redeliver(signum)
         return
     raise Interrupted(signal_name)
-
-
-def _in_set_name(frame: FrameType | None) -> bool:
-    """Whether the interrupted code runs inside a ``__set_name__`` (a class being made: a
-    dataclass's fields while a module is imported): Python 3.11 turns an exception raised there into
-    ``RuntimeError("Error calling __set_name__ ...")``, which no handler takes for an interruption
-    (a SIGHUP while ``run`` started ended it with exit 1 and a traceback). Raised a moment later,
-    after the class is made."""
-    while frame is not None:
-        if frame.f_code.co_name == "__set_name__":
-            return True
-        frame = frame.f_back
-    return False
 
 
 def _in_import_machinery(frame: FrameType | None) -> bool:
