@@ -100,3 +100,15 @@ def cpow_into(e: np.ndarray, n: int, out: np.ndarray, tmp: np.ndarray) -> np.nda
             np.multiply(src, src, out=tmp)
             src = tmp
     return out
+
+
+def step_powers(step: np.ndarray, top: int, out: np.ndarray | None = None) -> np.ndarray:
+    """``step ** j`` for ``j = 0..top`` (top + 1, n), complex, each power the one before times ``step``
+    (a segment's noise bins: :func:`eol_cal.analysis.fit.model.bin_steps`,
+    :func:`eol_cal.analysis.fit.noise_pass.bin_powers`). ``out``: an array of that shape to fill
+    (default: a new one). Returns the powers."""
+    powers = np.empty((top + 1, len(step)), dtype=complex) if out is None else out
+    powers[0] = 1.0
+    for j in range(1, top + 1):
+        np.multiply(powers[j - 1], step, out=powers[j])
+    return powers

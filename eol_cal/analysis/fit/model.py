@@ -32,7 +32,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from eol_cal.errors import InputError
-from eol_cal.numerics.expi import cpow_into, exp_i
+from eol_cal.numerics.expi import cpow_into, exp_i, step_powers
 
 #: scale of the delay parameter inside the solver (s); keeps the parameter vector near O(1)
 TAU_SCALE = 1e-4
@@ -223,12 +223,7 @@ def bin_steps(b: np.ndarray, k: np.ndarray) -> np.ndarray:
     Returned as the transpose of a contiguous (bins, n) array: a bin's column is one contiguous row
     (``.T[keep].T`` picks bins by a copy of whole rows; gathering and conjugating the columns of an
     (n, bins) array cost 8 ms of a 13 000-sample segment, 20x the products that read them)."""
-    step = np.exp(-1j * b)
-    top = int(np.max(np.abs(k)))
-    powers = np.empty((top + 1, len(b)), dtype=complex)  # step ** 0 .. step ** top
-    powers[0] = 1.0
-    for j in range(1, top + 1):
-        np.multiply(powers[j - 1], step, out=powers[j])
+    powers = step_powers(np.exp(-1j * b), int(np.max(np.abs(k))))
     ki = k.astype(int)
     rows = powers[np.abs(ki)]
     np.conjugate(rows, out=rows, where=(ki < 0)[:, None])  # exp(-i b)^-k = conj
@@ -425,12 +420,18 @@ def design_matrix_t(
     t_first, t_last = (t[0], t[-1]) if t_span is None else t_span
     if mech is None:
         mech = mech_span(theta, pole_pairs)
-    tn = t - t_first
-    tn *= 2.0 / (t_last - t_first)
-    tn -= 1.0
-    design_rows(theta, tn, pole_pairs, spec, XT)
+    design_rows(theta, unit_time(t, t_first, t_last), pole_pairs, spec, XT)
     unresolved_to_zero(XT, spec, mech)
     return XT
+
+
+def unit_time(t: np.ndarray, t_first: float, t_last: float, out: np.ndarray | None = None) -> np.ndarray:
+    """The Legendre columns' time axis: ``t`` (s) mapped to -1 at ``t_first`` and +1 at ``t_last``
+    (:func:`design_matrix_t`'s; ``out``: where to write it, default a new array)."""
+    tn = np.subtract(t, t_first, out=out)
+    tn *= 2.0 / (t_last - t_first)
+    tn -= 1.0
+    return tn
 
 
 def design_rows(theta: np.ndarray, tn: np.ndarray, pole_pairs: int, spec: FitSpec, out: np.ndarray,

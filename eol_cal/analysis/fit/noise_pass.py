@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_rows, mech_span, unresolved_to_zero
-from eol_cal.numerics.expi import exp_i
+from eol_cal.analysis.fit.model import FitSpec, SteadySegments, design_rows, mech_span, unit_time, unresolved_to_zero
+from eol_cal.numerics.expi import exp_i, step_powers
 from eol_cal.numerics.gemm import gram_halves
 
 _BUFFERS = threading.local()
@@ -92,10 +92,7 @@ def columns(seg: SteadySegments, spec: FitSpec, lay: Layout) -> tuple[np.ndarray
     pieces = lay.pieces()
     for th, t, piece in zip(lay.theta, lay.t, pieces, strict=True):
         theta[piece] = th
-        # design_matrix_t's time axis: (t - t[0]) * (2 / (t[-1] - t[0])) - 1, the last step below
-        tp = np.subtract(t, t[0], out=tn[piece])
-        tp *= 2.0 / (t[-1] - t[0])
-    tn -= 1.0
+        unit_time(t, t[0], t[-1], out=tn[piece])  # design_matrix_t's time axis, each segment its own
     design_rows(theta, tn, seg.pole_pairs, spec, XT, work)
     for th, piece in zip(lay.theta, pieces, strict=True):
         unresolved_to_zero(XT[:, piece], spec, mech_span(th, seg.pole_pairs))
@@ -114,24 +111,20 @@ def bin_powers(lay: Layout, top: int) -> np.ndarray:
         np.multiply(2 * math.pi, bp, out=bp)
         np.divide(bp, T, out=bp)
     step = _exp_minus_i(b, _buffer("step", N, complex)[:N])
-    powers = _buffer("powers", (top + 1) * N, complex)[: (top + 1) * N].reshape(top + 1, N)
-    powers[0] = 1.0
-    for j in range(1, top + 1):
-        np.multiply(powers[j - 1], step, out=powers[j])
-    return powers
+    return step_powers(step, top, _buffer("powers", (top + 1) * N, complex)[: (top + 1) * N].reshape(top + 1, N))
 
 
 def line_turns(lay: Layout, harmonics: tuple[int, ...]) -> np.ndarray:
     """Each harmonic's turn ``exp(-i h (theta - theta[0]))`` (harmonics, samples), complex, per segment
     (:func:`~eol_cal.analysis.fit.model.line_noise`'s ``exp(-i a)``)."""
     N = int(lay.offsets[-1])
-    a = _buffer("angle", N)[:N]
+    turned, a = _buffer("turned", N)[:N], _buffer("angle", N)[:N]
+    for th, piece in zip(lay.theta, lay.pieces(), strict=True):
+        np.subtract(th, th[0], out=turned[piece])  # once for every harmonic
     turns = _buffer("turns", len(harmonics) * N, complex)[: len(harmonics) * N].reshape(len(harmonics), N)
     for j, h in enumerate(harmonics):
-        for th, piece in zip(lay.theta, lay.pieces(), strict=True):
-            np.subtract(th, th[0], out=a[piece])
-        np.multiply(h, a, out=a)
-        _exp_minus_i(a, turns[j])
+        np.multiply(h, turned, out=a)
+        _exp_minus_i(a, turns[j])  # negates a in place: turned stays
     return turns
 
 
