@@ -7,11 +7,9 @@ import contextlib
 import hashlib
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,11 +44,45 @@ class Outcome:
 # running the CLI
 
 
-def _limit_memory(limit: int) -> Callable[[], None]:
-    def apply() -> None:
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-
-    return apply
+#: eol-cal's parent: a small interpreter that starts it under the address-space limit, passes on
+#: the signals sent to it, ends as it ended and reports its peak resident set (KiB) on a pipe.
+#: Linux counts in a child's ``ru_maxrss`` the image it was forked from (the high-water mark of the
+#: memory it had before exec), so eol-cal forked straight from a test worker of 2 GB reported 2 GB;
+#: forked from this ~10 MB process it reports its own.
+_LAUNCHER = """\
+import os, resource, signal, subprocess, sys
+limit, report = int(sys.argv[1]), int(sys.argv[2])
+resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+state = {"child": None, "pending": [], "reaped": False}
+def forward(signum, _frame):
+    if state["child"] is None:
+        state["pending"].append(signum)
+    elif not state["reaped"]:
+        try:
+            os.kill(state["child"].pid, signum)
+        except ProcessLookupError:  # reaped a moment ago
+            pass
+for name in ("SIGINT", "SIGTERM", "SIGHUP", "SIGQUIT", "SIGABRT", "SIGUSR1", "SIGUSR2", "SIGALRM"):
+    signal.signal(getattr(signal, name), forward)
+try:
+    state["child"] = subprocess.Popen(sys.argv[3:])
+except OSError as e:
+    sys.stderr.write(f"could not start {sys.argv[3]}: {e}\\n")
+    os._exit(127)
+for signum in state["pending"]:
+    os.kill(state["child"].pid, signum)
+_, status, usage = os.wait4(state["child"].pid, 0)
+state["reaped"] = True  # a late signal must not reach a reused pid
+os.write(report, str(usage.ru_maxrss).encode())
+if os.WIFSIGNALED(status):
+    signum = os.WTERMSIG(status)
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # eol-cal's end already dumped what it dumps
+    if signum not in (signal.SIGKILL, signal.SIGSTOP):
+        signal.signal(signum, signal.SIG_DFL)
+    os.kill(os.getpid(), signum)
+    os._exit(128 + signum)
+os._exit(os.WEXITSTATUS(status))
+"""
 
 
 #: a signalled child: says "go" once Python is up, then runs the program as ``eol-cal`` does
@@ -76,10 +108,24 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     # signalled: the moment counts from Python's start, just before the program's first instruction
     # (no code of the tool's runs before it; the interpreter's own start takes 0.05 to 0.3 s with load)
     program = ["-c", _GO_FIRST] if signal_at is not None else ["-m", "cli.main"]
+    report_r, report_w = os.pipe()
+    with open(report_r, "rb") as report:
+        try:
+            proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", _LAUNCHER, str(memory_bytes), str(report_w),
+                                     sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
+                                    pass_fds=(report_w,), start_new_session=True)
+        finally:
+            os.close(report_w)
+        rc, out, err, seconds = _ended(proc, stdin, timeout_s, env, signal_at, t0)
+        # eol-cal's own peak resident set; 0 where it was killed before its launcher could say
+        rss = int(report.read() or 0)
+    return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss
+
+
+def _ended(proc: subprocess.Popen, stdin: str, timeout_s: float, env: dict[str, str] | None,
+           signal_at: tuple[int, float] | None, t0: float) -> tuple[int | None, bytes, bytes, float]:
     ended_at_moment = False
-    proc = _Measured([sys.executable, *program, *args], cwd=cwd, stdin=subprocess.PIPE,
-                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=child_env,
-                     preexec_fn=_limit_memory(memory_bytes), start_new_session=True)
     try:
         if signal_at is not None:
             assert proc.stdout is not None
@@ -110,28 +156,7 @@ def run_cli(args: list[str], cwd: Path, timeout_s: float, memory_bytes: int = CH
     seconds = time.perf_counter() - t0
     if ended_at_moment:
         seconds = min(seconds, signal_at[1] if signal_at is not None else seconds)
-    # this child's own peak resident set (wait4's); where poll() reaped it first, the largest of any
-    # child this process waited for so far: an upper bound (an earlier test's big child counts there)
-    rss = proc.maxrss_kb or resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return rc, out.decode(errors="replace"), err.decode(errors="replace"), seconds, rss
-
-
-class _Measured(subprocess.Popen):
-    """A child whose own peak resident set (KiB) is kept when it is waited for: ``os.wait4`` in place
-    of the ``os.waitpid`` of CPython's ``Popen._try_wait`` (the path of ``wait`` and
-    ``communicate``). ``RUSAGE_CHILDREN`` holds the largest of every child the process ever waited
-    for, so in a test worker it was another test's child's."""
-
-    maxrss_kb = 0
-
-    def _try_wait(self, wait_flags: int) -> tuple[int, int]:
-        try:
-            pid, status, usage = os.wait4(self.pid, wait_flags)
-        except ChildProcessError:  # as CPython's: the child is gone, its status unknown
-            return self.pid, 0
-        if pid == self.pid:
-            self.maxrss_kb = usage.ru_maxrss
-        return pid, status
+    return rc, out, err, seconds
 
 
 def _digest(path: Path) -> str:
