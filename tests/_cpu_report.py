@@ -19,6 +19,9 @@ on the file's first test, its teardown on the last), plus the collection's CPU a
 what the processes still running under the worker had used. Not counted: a daemon that leaves the
 tree (the PostgreSQL server ``pg_ctl`` starts, reparented to init); its own figures are small next
 to its clients'.
+
+Memory: after each test the worker's peak resident set so far (``ru_maxrss``); the summary names
+the tests that raised a worker's peak the most (what a machine with less memory per worker meets).
 """
 
 from __future__ import annotations
@@ -90,7 +93,8 @@ class _Recorder:
         yield
         t1, (own1, kids1) = time.monotonic(), _cpu()
         jax = {k: v - jax0.get(k, 0.0) for k, v in self.jax.items() if v != jax0.get(k, 0.0)}
-        self.tests[item.nodeid] = [t1 - t0, own1 - own0, kids1 - kids0, jax]
+        peak_kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        self.tests[item.nodeid] = [t1 - t0, own1 - own0, kids1 - kids0, jax, peak_kb]
 
     def pytest_sessionfinish(self, session: pytest.Session) -> None:
         if self.worker == "main" and os.environ.get("PYTEST_XDIST_WORKER") is None and not self.tests:
@@ -152,22 +156,29 @@ def summarise(out: Path, top: int = 40) -> str:
     lines = []
     total_own = total_kids = total_alive = total_coll = total_jax = 0.0
     programs: dict[str, list[float]] = defaultdict(lambda: [0, 0.0])
+    raised: list[tuple[float, str]] = []  # (MiB the worker's peak rose in the test, test)
     for path in sorted(out.glob("*.json")):
         rep = json.loads(path.read_text())
+        peak_before = 0.0
         total_own += rep["cpu_own_s"]
         total_kids += rep["cpu_children_s"]
         total_alive += rep["cpu_alive_children_s"]
         total_coll += rep["collection_cpu_s"]
+        peaks = [t[4] for t in rep["tests"].values() if len(t) > 4]
         lines.append(
             f"{rep['worker']}: wall {rep['wall_s']:.0f} s, own {rep['cpu_own_s']:.0f} CPU s "
             f"(collection {rep['collection_cpu_s']:.0f}), children {rep['cpu_children_s']:.0f} CPU s, "
             f"still running at the end {rep['cpu_alive_children_s']:.0f} CPU s"
+            + (f", peak resident {max(peaks) / 1024:.0f} MiB" if peaks else "")
         )
         for name, (count, seconds) in rep.get("programs", {}).items():
             programs[name][0] += count
             programs[name][1] += seconds
         for nodeid, (wall, own, kids, *more) in rep["tests"].items():
             jax = more[0] if more else {}
+            if len(more) > 1:  # the worker's peak resident set after the test (KiB)
+                raised.append(((more[1] - peak_before) / 1024, nodeid))
+                peak_before = max(peak_before, more[1])
             compile_s = sum(v for k, v in jax.items() if k.endswith("_duration"))
             total_jax += compile_s
             f = files[nodeid.split("::")[0]]
@@ -195,6 +206,10 @@ def summarise(out: Path, top: int = 40) -> str:
         )
         for name, (count, seconds) in sorted(programs.items(), key=lambda kv: -kv[1][1])[:10]:
             lines.append(f"{seconds:7.1f} s {int(count):4d}x  {name}")
+    if raised:
+        lines.append("tests that raised their worker's peak resident set the most (MiB):")
+        for mib, nodeid in sorted(raised, reverse=True)[:10]:
+            lines.append(f"{mib:7.0f}  {nodeid}")
     lines.append("tests, the largest CPU first:")
     for cpu, nodeid in sorted(tests, reverse=True)[:top]:
         lines.append(f"{cpu:7.1f}  {nodeid}")
