@@ -159,32 +159,31 @@ def summarise(out: Path, top: int = 40) -> str:
     raised: list[tuple[float, str]] = []  # (MiB the worker's peak rose in the test, test)
     for path in sorted(out.glob("*.json")):
         rep = json.loads(path.read_text())
-        peak_before = 0.0
+        peak_kb = 0.0
         total_own += rep["cpu_own_s"]
         total_kids += rep["cpu_children_s"]
         total_alive += rep["cpu_alive_children_s"]
         total_coll += rep["collection_cpu_s"]
-        peaks = [t[4] for t in rep["tests"].values() if len(t) > 4]
-        lines.append(
-            f"{rep['worker']}: wall {rep['wall_s']:.0f} s, own {rep['cpu_own_s']:.0f} CPU s "
-            f"(collection {rep['collection_cpu_s']:.0f}), children {rep['cpu_children_s']:.0f} CPU s, "
-            f"still running at the end {rep['cpu_alive_children_s']:.0f} CPU s"
-            + (f", peak resident {max(peaks) / 1024:.0f} MiB" if peaks else "")
-        )
         for name, (count, seconds) in rep.get("programs", {}).items():
             programs[name][0] += count
             programs[name][1] += seconds
         for nodeid, (wall, own, kids, *more) in rep["tests"].items():
             jax = more[0] if more else {}
-            if len(more) > 1:  # the worker's peak resident set after the test (KiB)
-                raised.append(((more[1] - peak_before) / 1024, nodeid))
-                peak_before = max(peak_before, more[1])
+            if len(more) > 1:  # the worker's peak resident set after the test (KiB), so far
+                raised.append(((more[1] - peak_kb) / 1024, nodeid))
+                peak_kb = max(peak_kb, more[1])
             compile_s = sum(v for k, v in jax.items() if k.endswith("_duration"))
             total_jax += compile_s
             f = files[nodeid.split("::")[0]]
             for i, v in enumerate((wall, own, kids, compile_s, jax.get("cache_hits", 0.0), 1)):
                 f[i] += v
             tests.append((own + kids, nodeid))
+        lines.append(
+            f"{rep['worker']}: wall {rep['wall_s']:.0f} s, own {rep['cpu_own_s']:.0f} CPU s "
+            f"(collection {rep['collection_cpu_s']:.0f}), children {rep['cpu_children_s']:.0f} CPU s, "
+            f"still running at the end {rep['cpu_alive_children_s']:.0f} CPU s"
+            + (f", peak resident {peak_kb / 1024:.0f} MiB" if peak_kb else "")
+        )
     lines.append(
         f"total: {total_own + total_kids + total_alive:.0f} CPU s (workers {total_own:.0f}, of it collection "
         f"{total_coll:.0f}; children {total_kids + total_alive:.0f}); JAX tracing, lowering and "
