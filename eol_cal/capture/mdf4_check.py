@@ -217,69 +217,89 @@ def _check_identification(data: bytes | mmap.mmap) -> None:
         raise _Refusal("identification block", f"MDF version {version}; capture format v1 takes MDF 4")
 
 
-def _read_block(data: bytes | mmap.mmap, offset: int, where: str) -> Block:
+#: each known block id as stored (``b"##DG"``): its type, bytes of fixed fields and fewest and most
+#: links, found with one look-up of the raw id (the walk reads every block's header through it)
+_SPECS: dict[bytes, tuple[str, int, int, int]] = {
+    f"##{kind}".encode("ascii"): (kind, fixed, *_LINK_COUNT[kind]) for kind, fixed in _FIXED_DATA.items()
+}
+
+
+def _link_where(parent: Block | None, k: int) -> str:
+    """Where a link is, for a refusal: link ``k`` of ``parent``, or the header's own place."""
+    return "header block" if parent is None else f"{parent.where()}, link {k}"
+
+
+def _read_block(data: bytes | mmap.mmap, offset: int, parent: Block | None, k: int = 0) -> Block:
+    """The block at ``offset``, reached by link ``k`` of ``parent`` (``None``: the header block);
+    the refusal's place is put in words only when one is raised (the walk reads every block)."""
     size = len(data)
     if offset % 8 or offset < _ID_BYTES or offset + _HEADER.size > size:
-        raise _Refusal(where, f"links to 0x{offset:x}, not a block inside the file ({size} bytes, blocks 8-byte aligned)")
+        raise _Refusal(_link_where(parent, k),
+                       f"links to 0x{offset:x}, not a block inside the file ({size} bytes, blocks 8-byte aligned)")
     raw_id, _, length, count = _HEADER.unpack_from(data, offset)
-    if raw_id[:2] != b"##":
-        raise _Refusal(where, f"links to 0x{offset:x}, where no block starts (bytes {raw_id!r})")
-    kind = raw_id[2:].decode("ascii", "replace")
-    here = f"block ##{kind} at 0x{offset:x}"
-    if kind not in _FIXED_DATA:
-        raise _Refusal(here, "unknown block type")
-    lo, hi = _LINK_COUNT[kind]
+    spec = _SPECS.get(raw_id)
+    if spec is None:
+        if raw_id[:2] != b"##":
+            raise _Refusal(_link_where(parent, k), f"links to 0x{offset:x}, where no block starts (bytes {raw_id!r})")
+        raise _Refusal(f"block ##{raw_id[2:].decode('ascii', 'replace')} at 0x{offset:x}", "unknown block type")
+    kind, fixed, lo, hi = spec
     if not lo <= count <= hi:
-        raise _Refusal(here, f"{count} links; a ##{kind} block has {lo}" + (f"..{hi}" if hi != lo else ""))
-    need = _HEADER.size + 8 * count + _FIXED_DATA[kind]
+        raise _Refusal(f"block ##{kind} at 0x{offset:x}",
+                       f"{count} links; a ##{kind} block has {lo}" + (f"..{hi}" if hi != lo else ""))
+    need = _HEADER.size + 8 * count + fixed
     if length < need:
-        raise _Refusal(here, f"length {length} bytes cannot hold its {count} links and fixed fields ({need} bytes)")
+        raise _Refusal(f"block ##{kind} at 0x{offset:x}",
+                       f"length {length} bytes cannot hold its {count} links and fixed fields ({need} bytes)")
     if offset + length > size:
-        raise _Refusal(here, f"length {length} bytes runs past the end of the file ({size} bytes)")
-    links = struct.unpack_from(f"<{count}Q", data, offset + _HEADER.size)
+        raise _Refusal(f"block ##{kind} at 0x{offset:x}",
+                       f"length {length} bytes runs past the end of the file ({size} bytes)")
+    links = struct.unpack_from(f"<{count}Q", data, offset + _HEADER.size) if count else ()
     return Block(offset, kind, length, links)
 
 
 def _walk(data: bytes | mmap.mmap) -> dict[int, Block]:
     """Every block reachable from the header, each read once; refuses cycles and shared blocks."""
-    blocks: dict[int, Block] = {_ID_BYTES: _read_block(data, _ID_BYTES, "header block")}
-    if blocks[_ID_BYTES].kind != "HD":
-        raise _Refusal("header block", f"##{blocks[_ID_BYTES].kind} at 0x40 where ##HD must be")
-    linked_from: dict[int, str] = {}
-    # iterative depth-first walk: a link to a block still on the path is a cycle
+    header = _read_block(data, _ID_BYTES, None)
+    if header.kind != "HD":
+        raise _Refusal("header block", f"##{header.kind} at 0x40 where ##HD must be")
+    blocks: dict[int, Block] = {_ID_BYTES: header}
+    linked_from: dict[int, Block] = {}
+    # iterative depth-first walk: a link to a block still on the path is a cycle. A stack entry is
+    # a block and its next link; one block's links are taken in a loop until one leads to a block
+    # not seen yet (the block is put back to resume there, under the child)
     on_path: set[int] = {_ID_BYTES}
-    stack: list[tuple[Block, int]] = [(blocks[_ID_BYTES], 0)]
+    stack: list[tuple[Block, int]] = [(header, 0)]
     while stack:
-        block, k = stack[-1]
-        if k == len(block.links):
-            stack.pop()
-            on_path.discard(block.offset)
-            continue
-        stack[-1] = (block, k + 1)
-        target = block.links[k]
-        if not target:
-            continue
-        where = f"{block.where()}, link {k}"
-        if target in on_path:
-            what = "its own block" if target == block.offset else f"block 0x{target:x} that leads to it"
-            raise _Refusal(where, f"links back to {what} (a cycle)")
-        if target in blocks:
-            child = blocks[target]
-        else:
-            child = _read_block(data, target, where)
-            blocks[target] = child
+        block, k = stack.pop()
+        links = block.links
         allowed = _LINK_TARGETS.get(block.kind, ())
-        kinds = allowed[k] if k < len(allowed) else None
-        if kinds is not None and child.kind not in kinds:
-            raise _Refusal(where, f"links to a ##{child.kind} block where {'/'.join(sorted('##' + x for x in kinds))} "
-                                  "must be")
-        if target in linked_from:
-            if child.kind not in _SHAREABLE:
-                raise _Refusal(where, f"links to {child.where()}, already linked from {linked_from[target]}")
-            continue  # shared text or conversion: read and checked once
-        linked_from[target] = block.where()
-        on_path.add(target)
-        stack.append((child, 0))
+        while k < len(links):
+            target = links[k]
+            k += 1
+            if not target:
+                continue
+            if target in on_path:
+                what = "its own block" if target == block.offset else f"block 0x{target:x} that leads to it"
+                raise _Refusal(_link_where(block, k - 1), f"links back to {what} (a cycle)")
+            child = blocks.get(target)
+            if child is None:
+                child = blocks[target] = _read_block(data, target, block, k - 1)
+            kinds = allowed[k - 1] if k - 1 < len(allowed) else None
+            if kinds is not None and child.kind not in kinds:
+                raise _Refusal(_link_where(block, k - 1), f"links to a ##{child.kind} block where "
+                                                          f"{'/'.join(sorted('##' + x for x in kinds))} must be")
+            if target in linked_from:
+                if child.kind not in _SHAREABLE:
+                    raise _Refusal(_link_where(block, k - 1),
+                                   f"links to {child.where()}, already linked from {linked_from[target].where()}")
+                continue  # shared text or conversion: read and checked once
+            linked_from[target] = block
+            on_path.add(target)
+            stack.append((block, k))
+            stack.append((child, 0))
+            break
+        else:
+            on_path.discard(block.offset)
     return blocks
 
 
