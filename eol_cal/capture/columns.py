@@ -116,6 +116,16 @@ def _as_digital(values: np.ndarray) -> np.ndarray:
     return values
 
 
+def _on_time_base(times: np.ndarray, t: np.ndarray, seen: dict[int, tuple[np.ndarray, bool]]) -> bool:
+    """Whether a channel's ``times`` are the capture's time base ``t`` (s), each array compared
+    once: the channels of one channel group share their time stamps (one array). ``seen`` holds
+    the arrays compared (kept alive, so that an id is never another array's) and their answers."""
+    known = seen.get(id(times))
+    if known is None:
+        known = seen[id(times)] = (times, len(times) == len(t) and np.array_equal(times, t))
+    return known[1]
+
+
 def assemble(
     columns: dict[str, Column],
     metadata: dict,
@@ -154,16 +164,18 @@ def assemble(
             raise InputError(source, "t", f"the channels' time bases overlap on {int(keep.sum())} torque samples")
         t = t[keep]
         channels = {}
+        on_t: dict[int, tuple[np.ndarray, bool]] = {}
         for name, c in columns.items():
             times = np.asarray(c.times, dtype=np.float64)
+            same = _on_time_base(times, t, on_t)
             if name in DIGITAL_CHANNELS:
                 if c.events:
                     events[name] = change_events(times, _as_digital(c.values))
-                if len(times) == len(t) and np.array_equal(times, t):
+                if same:
                     channels[name] = c.values
                 else:
                     channels[name] = zoh(times, c.values, t)
-            elif len(times) == len(t) and np.array_equal(times, t):
+            elif same:
                 channels[name] = c.values
             else:
                 if np.any(np.diff(times) <= 0):

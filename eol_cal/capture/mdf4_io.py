@@ -311,7 +311,9 @@ def _columns(groups: list[Group], properties: dict[str, MetaValue]
             found.append((name, samples, unit, times))
         if not found:
             continue
-        events = all(np.array_equal(f[3], found[0][3]) for f in found) and is_change_list(
+        # a decoder's channels of one group share its time stamps (one array): each array compared once
+        bases = list({id(f[3]): f[3] for f in found}.values())
+        events = all(np.array_equal(b, bases[0]) for b in bases) and is_change_list(
             found[0][3], [np.asarray(f[1], dtype=np.float64) for f in found]
         )
         for name, samples, unit, times in found:
