@@ -65,14 +65,17 @@ def is_change_list(times: np.ndarray, rows: list[np.ndarray]) -> bool:
     """True when a group of integral channels holds change events rather than sampled levels.
 
     Every row after the first changes at least one channel (a sampled group repeats levels
-    between edges), or the times are irregular (more than 0.1 % spread of the step).
+    between edges), or the times are irregular (more than 0.1 % spread of the step). The rows
+    are compared as float64, each converted where it is looked at: a group whose first channel
+    is not integral (a torque) converts no other.
     """
     if len(times) < 2:
         return True
-    if not all(np.array_equal(v, np.round(v)) for v in rows):
+    if not all(np.array_equal(v, np.round(v)) for v in (np.asarray(r, dtype=np.float64) for r in rows)):
         return False
     changed = np.zeros(len(times) - 1, dtype=bool)
-    for v in rows:
+    for r in rows:
+        v = np.asarray(r, dtype=np.float64)
         changed |= v[1:] != v[:-1]
     if changed.all():
         return True

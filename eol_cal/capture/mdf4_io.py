@@ -314,7 +314,7 @@ def _columns(groups: list[Group], properties: dict[str, MetaValue]
         # a decoder's channels of one group share its time stamps (one array): each array compared once
         bases = list({id(f[3]): f[3] for f in found}.values())
         events = all(np.array_equal(b, bases[0]) for b in bases) and is_change_list(
-            found[0][3], [np.asarray(f[1], dtype=np.float64) for f in found]
+            found[0][3], [f[1] for f in found]
         )
         for name, samples, unit, times in found:
             columns[name] = Column(samples, unit, times, events)
