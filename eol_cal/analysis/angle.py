@@ -294,10 +294,16 @@ def reconstruct_angle(
     w = np.empty_like(t)
     # t increasing: the samples inside the edges' span are one slice, those before and after two
     lo, hi = int(np.searchsorted(t, t_u[0], side="left")), int(np.searchsorted(t, t_u[-1], side="right"))
-    p[lo:hi], w[lo:hi] = interp.with_slope(t[lo:hi], sorted_inside=True)
+    # the slope at both ends in the same evaluation, at the end knots around the slice (still
+    # increasing and inside; each query's value is its own elementwise arithmetic, as alone)
+    w_ends = None
+    if lo > 0 or hi < len(t):
+        p_q, w_q = interp.with_slope(np.concatenate((t_u[:1], t[lo:hi], t_u[-1:])), sorted_inside=True)
+        assert w_q is not None  # asked for (slope=True)
+        p[lo:hi], w[lo:hi], w_ends = p_q[1:-1], w_q[1:-1], w_q[[0, -1]]
+    else:
+        p[lo:hi], w[lo:hi] = interp.with_slope(t[lo:hi], sorted_inside=True)
     before, after = slice(0, lo), slice(hi, len(t))
-    # the slope at both ends in one evaluation (each end's value as alone: elementwise arithmetic)
-    w_ends = interp.with_slope(t_u[[0, -1]], sorted_inside=True)[1] if lo > 0 or hi < len(t) else None
     for mask, t_end, p_end, e in ((before, t_u[0], rel_u[0], 0), (after, t_u[-1], rel_u[-1], 1)):
         if mask.stop > mask.start:
             assert w_ends is not None  # set when either end has samples
