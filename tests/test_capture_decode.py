@@ -18,7 +18,7 @@ import pytest
 from eol_cal.capture.io import read_capture, write_capture
 from eol_cal.capture.mdf4_check import checked_mdf4
 from eol_cal.capture.mdf4_decode import decode_checked
-from eol_cal.capture.mdf4_io import _columns, _decode, _quiet_asammdf, parse_header_comment
+from eol_cal.capture.mdf4_io import _columns, _decode, _quiet_asammdf, header_properties, header_xml, parse_header_comment
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.errors import InputError
 from eol_cal.sim.fuzz.mutate import mdf4_blocks
@@ -28,11 +28,11 @@ FIXTURES = Path(__file__).resolve().parent.parent / "fixtures"
 
 def _direct(path: Path):
     with checked_mdf4(path) as (data, layout):
-        plain = decode_checked(data, layout)
-    if plain is None:
+        header = header_xml(layout.header_comment, str(path))
+        groups = decode_checked(data, layout, header)
+    if groups is None:
         return None
-    groups, comment = plain
-    return _columns(groups, parse_header_comment(comment, str(path)))
+    return _columns(groups, header_properties(header, str(path)))
 
 
 def _asammdf(path: Path):

@@ -57,12 +57,13 @@ class _NotPlain(Exception):
     """Something of the file is outside what this decoder takes: asammdf decodes it."""
 
 
-def decode_checked(data: Data, layout: Mdf4Layout) -> tuple[list[Group], str] | None:
-    """The channel groups and the header comment's XML of a checked MDF4 file, or ``None`` when
-    it is not plain (see the module docstring: the caller decodes it with asammdf)."""
+def decode_checked(data: Data, layout: Mdf4Layout, header: ET.Element | None) -> list[Group] | None:
+    """The channel groups of a checked MDF4 file, or ``None`` when it is not plain (see the module
+    docstring: the caller decodes it with asammdf). ``header``: the file's header comment as
+    parsed (:func:`eol_cal.capture.mdf4_io.header_xml`; ``None`` when it is not XML)."""
     try:
-        comment = _header_comment(data, layout)
-        return [_group(data, layout, dg) for dg in _chain(layout, layout.blocks[64].links[0], 0)], comment
+        _check_header(data, layout, header)
+        return [_group(data, layout, dg) for dg in _chain(layout, layout.blocks[64].links[0], 0)]
     except (_NotPlain, KeyError, IndexError, ValueError, struct.error):
         # a checked file holds together; whatever else is odd about it, asammdf decodes as before
         return None
@@ -92,15 +93,20 @@ def _text(data: Data, layout: Mdf4Layout, offset: int, kinds: tuple[str, ...] = 
         raise _NotPlain from None
 
 
-def _header_comment(data: Data, layout: Mdf4Layout) -> str:
+def _check_header(data: Data, layout: Mdf4Layout, root: ET.Element | None) -> None:
+    """The header comment is an ``##MD`` block of plain properties (the module docstring);
+    ``root`` its XML as parsed for the properties (the stored text; this text without blanks at
+    either end is the same document where that one parses)."""
     offset = layout.blocks[64].links[5]
     if not offset or layout.blocks[offset].kind != "MD":
         raise _NotPlain
-    text = _text(data, layout, offset, ("MD",))
-    try:
-        root = ET.fromstring(text)
-    except ET.ParseError:
-        raise _NotPlain from None
+    if root is None:
+        # not XML to the properties' reader (no "<" first: a byte order mark before it, say):
+        # the text judged on its own, as expat reads it
+        try:
+            root = ET.fromstring(_text(data, layout, offset, ("MD",)))
+        except ET.ParseError:
+            raise _NotPlain from None
     if root.tag != "HDcomment" or any("}" in str(e.tag) for e in root.iter()):
         raise _NotPlain
     names = set()
@@ -112,7 +118,6 @@ def _header_comment(data: Data, layout: Mdf4Layout) -> str:
                     or any(c in value for c in "\r\n\t"):
                 raise _NotPlain
             names.add(name)
-    return text
 
 
 def _records(data: Data, layout: Mdf4Layout, link: int) -> bytes:

@@ -64,28 +64,48 @@ def parse_header_comment(comment: str, file: str) -> dict[str, MetaValue]:
     surrounding blanks), two ``common_properties``, an ``e`` or a group without its ``name``
     (asammdf prints a traceback on stdout for that one).
     """
+    return header_properties(header_xml(comment, file), file)
+
+
+def header_xml(comment: str, file: str) -> ET.Element | None:
+    """The parsed ``<HDcomment>`` of :func:`parse_header_comment` (``None``: a comment that is not
+    XML, which holds no properties); :class:`InputError` for malformed XML. Parsed once a file:
+    the direct decoder judges the same tree (:func:`eol_cal.capture.mdf4_decode.decode_checked`)."""
     if not comment.strip().startswith("<"):
-        return {}
+        return None
     try:
-        root = ET.fromstring(comment)
+        return ET.fromstring(comment)
     except ET.ParseError as exc:
         raise InputError(file, "header comment", f"not valid XML: {exc}") from None
-    for element in root.iter():  # drop the ASAM namespace if the writer used one
-        if "}" in element.tag:
-            element.tag = element.tag.split("}", 1)[1]
+
+
+def _local(tag: str) -> str:
+    """An element's name without the ASAM namespace a writer may have used."""
+    return tag.split("}", 1)[1] if "}" in tag else tag
+
+
+def header_properties(root: ET.Element | None, file: str) -> dict[str, MetaValue]:
+    """The properties of a parsed header comment (:func:`header_xml`), refused as
+    :func:`parse_header_comment` says. The tree is left as it is (names read without their
+    namespace), for the decoder that judges it too."""
     properties: dict[str, MetaValue] = {}
-    commons = root.findall("common_properties")
+    if root is None:
+        return properties
+    commons = [element for element in root if _local(element.tag) == "common_properties"]
     if len(commons) > 1:
         raise InputError(file, "header comment", "common_properties given twice")
     if not commons:
         return properties
     for element in commons[0].iter():
-        if element.tag not in ("e", *_GROUPS) or element.tag == "li":
+        tag = _local(element.tag)
+        if tag not in ("e", *_GROUPS) or tag == "li":
             continue
         name = element.get("name")
         if name is None or not name.strip():
-            raise InputError(file, "header comment", f"a <{element.tag}> element without its name")
-    for element in commons[0].findall("e"):
+            raise InputError(file, "header comment", f"a <{tag}> element without its name")
+    for element in commons[0]:
+        if _local(element.tag) != "e":
+            continue
         key = element.get("name", "").strip()
         if key in properties:
             raise InputError(file, key, "metadata key given twice in the header comment")
@@ -202,12 +222,13 @@ def read_mdf4_columns(
     check_regular(path)
     # structure, sizes and compressed data, before anything trusts any of it
     with checked_mdf4(path) as (data, layout):
-        plain = decode_checked(data, layout)
-    # the comment as the file stores it, whichever decoder reads the data (asammdf's
-    # header.comment is rebuilt from a dict: a key given twice came back once)
-    properties = parse_header_comment(layout.header_comment, file)
-    if plain is not None:
-        groups, _comment = plain
+        # the comment as the file stores it, whichever decoder reads the data (asammdf's
+        # header.comment is rebuilt from a dict: a key given twice came back once); parsed once,
+        # for the direct decoder's judgement of it and for the properties
+        header = header_xml(layout.header_comment, file)
+        groups = decode_checked(data, layout, header)
+    properties = header_properties(header, file)
+    if groups is not None:
         return _columns(groups, properties)
     with _quiet_asammdf(file) as decode:
         columns, _none, bad = decode(_decode, path, file)
