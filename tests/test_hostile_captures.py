@@ -169,6 +169,24 @@ def test_structure_check_passes_the_tools_own_files(good):
     assert layout.decoded_bytes > 0
 
 
+def test_a_file_over_the_read_whole_size_is_mapped_and_reads_the_same(good, tmp_path, monkeypatch):
+    """Files up to READ_WHOLE_BYTES are read whole, larger ones mapped: the same capture, and the
+    same refusal of a bad file, either way."""
+    from eol_cal.capture import mdf4_check
+
+    bad = _patched(good[0], tmp_path / "len.mf4", _block(good[0].read_bytes(), b"##CN")[0] + 8, 2**62)
+    read = read_capture(good[0])
+    with pytest.raises(InputError) as whole:
+        read_capture(bad)
+    monkeypatch.setattr(mdf4_check, "READ_WHOLE_BYTES", 0)
+    mapped = read_capture(good[0])
+    with pytest.raises(InputError) as by_map:
+        read_capture(bad)
+    assert str(whole.value) == str(by_map.value)
+    assert np.array_equal(read.t, mapped.t) and list(read.channels) == list(mapped.channels)
+    assert all(np.array_equal(read[n], mapped[n]) for n in read.channels) and read.metadata == mapped.metadata
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".mf4"])
 def test_a_1e308_torque_sample_is_refused_at_validation(tmp_path, suffix):
     c = small_capture()
