@@ -163,9 +163,10 @@ def assemble(
         # the torque channel's group may read as change events (integral values): then it alone bounds the span
         hi = min((float(c.times[-1]) for c in columns.values() if not c.events and len(c.times)), default=float(t[-1]))
         keep = (t >= lo) & (t <= hi)
-        if keep.sum() < 2:
-            raise InputError(source, "t", f"the channels' time bases overlap on {int(keep.sum())} torque samples")
-        t = t[keep]
+        kept = int(keep.sum())
+        if kept < 2:
+            raise InputError(source, "t", f"the channels' time bases overlap on {kept} torque samples")
+        t = t.copy() if kept == len(t) else t[keep]  # the rule: every sample kept (no gather)
         channels = {}
         on_t: dict[int, tuple[np.ndarray, bool]] = {}
         for name, c in columns.items():

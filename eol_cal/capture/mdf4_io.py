@@ -195,10 +195,9 @@ def write_mdf4(
 
 
 def _numeric_1d(samples: np.ndarray) -> bool:
-    # real numbers only: a complex channel read as its real part was a current of 0 A and a warning
-    return samples.ndim == 1 and samples.dtype.names is None and (
-        np.issubdtype(samples.dtype, np.integer) or np.issubdtype(samples.dtype, np.floating) or samples.dtype == bool
-    )
+    # real numbers only: a complex channel read as its real part was a current of 0 A and a warning.
+    # By kind, one test a channel: booleans, integers (numpy counts timedelta64 among them) and floats
+    return samples.ndim == 1 and samples.dtype.names is None and samples.dtype.kind in "biufm"
 
 
 def read_mdf4_columns(
