@@ -71,11 +71,11 @@ def is_change_list(times: np.ndarray, rows: list[np.ndarray]) -> bool:
     """
     if len(times) < 2:
         return True
-    if not all(np.array_equal(v, np.round(v)) for v in (np.asarray(r, dtype=np.float64) for r in rows)):
-        return False
     changed = np.zeros(len(times) - 1, dtype=bool)
     for r in rows:
         v = np.asarray(r, dtype=np.float64)
+        if not np.array_equal(v, np.round(v)):
+            return False
         changed |= v[1:] != v[:-1]
     if changed.all():
         return True

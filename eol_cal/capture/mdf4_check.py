@@ -129,7 +129,12 @@ class Block(NamedTuple):
         return self.offset + 24 + 8 * len(self.links)
 
     def where(self) -> str:
-        return f"block ##{self.kind} at 0x{self.offset:x}"
+        return _block_where(self.kind, self.offset)
+
+
+def _block_where(kind: str, offset: int) -> str:
+    """A block's place in a refusal (``block ##DZ at 0x320``), also for one not read into a :class:`Block`."""
+    return f"block ##{kind} at 0x{offset:x}"
 
 
 @dataclass(frozen=True)
@@ -166,8 +171,8 @@ def check_mdf4_file(path: str | Path) -> Mdf4Layout:
 @contextlib.contextmanager
 def checked_mdf4(path: str | Path) -> Iterator[tuple[bytes | mmap.mmap, Mdf4Layout]]:
     """:func:`check_mdf4_file`, and the file's bytes with its layout for a decoder while the
-    context lasts: read whole up to :data:`READ_WHOLE_BYTES`, else mapped read-only (a file of
-    any size is checked without being read)."""
+    context lasts: read whole up to :data:`READ_WHOLE_BYTES`, else mapped read-only (a larger
+    file is checked without being read whole)."""
     file = str(path)
     with open(path, "rb") as fh:
         size = os.fstat(fh.fileno()).st_size
@@ -252,17 +257,17 @@ def _read_block(data: bytes | mmap.mmap, offset: int, parent: Block | None, k: i
     if spec is None:
         if raw_id[:2] != b"##":
             raise _Refusal(_link_where(parent, k), f"links to 0x{offset:x}, where no block starts (bytes {raw_id!r})")
-        raise _Refusal(f"block ##{raw_id[2:].decode('ascii', 'replace')} at 0x{offset:x}", "unknown block type")
+        raise _Refusal(_block_where(raw_id[2:].decode("ascii", "replace"), offset), "unknown block type")
     kind, fixed, lo, hi = spec
     if not lo <= count <= hi:
-        raise _Refusal(f"block ##{kind} at 0x{offset:x}",
+        raise _Refusal(_block_where(kind, offset),
                        f"{count} links; a ##{kind} block has {lo}" + (f"..{hi}" if hi != lo else ""))
     need = _HEADER.size + 8 * count + fixed
     if length < need:
-        raise _Refusal(f"block ##{kind} at 0x{offset:x}",
+        raise _Refusal(_block_where(kind, offset),
                        f"length {length} bytes cannot hold its {count} links and fixed fields ({need} bytes)")
     if offset + length > size:
-        raise _Refusal(f"block ##{kind} at 0x{offset:x}",
+        raise _Refusal(_block_where(kind, offset),
                        f"length {length} bytes runs past the end of the file ({size} bytes)")
     links = struct.unpack_from(f"<{count}Q", data, offset + _HEADER.size) if count else ()
     return Block(offset, kind, length, links)
