@@ -149,7 +149,8 @@ def run_one(cfg, serial: str, operator: str, demo_dir: Path | None, on_verdict=N
     from eol_cal.station.operator_session import demo_seed
 
     regmap = cfg.dyno.regmap  # the settings' map: the demo's dyno simulator serves the same one
-    with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap) as st:
+    with loopback_station(serial, demo_seed(serial), demo_dir / "sim", register_map=regmap,
+                          prepare=cfg.estimator_options) as st:
         station.update(dyno=st.dyno_address, can={"interface": "remote", "channel": st.can_channel}, demo=True)
         sim = st.dyno_config()
         dyno = dataclasses.replace(cfg.dyno, host=sim.host, port=sim.port, timeout=sim.timeout, watchdog_ms=sim.watchdog_ms)

@@ -369,7 +369,8 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     outcomes = []
     for k in range(motors):
         serial = f"DEMO-{seed + k:04d}"
-        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap, realtime=realtime) as st:
+        with loopback_station(serial, seed + k, out_dir / "sim", register_map=regmap, realtime=realtime,
+                              prepare=limits.estimator_options) as st:
             err_console.print(f"{serial}: dyno simulator on {st.dyno_address}, ECU simulator on {st.can_channel}")
             cfg = StationConfig(
                 serial=serial, dyno=st.dyno_config(regmap),

@@ -25,6 +25,7 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import active_block_from_file
 from eol_cal.firmware import block as B
 from eol_cal.plant.presets import paper
+from eol_cal.plant.simulate import _COMPILED as plant_programs
 from eol_cal.station import cycle
 from eol_cal.station.cycle import run_motor
 from eol_cal.sim.loopback import loopback_station
@@ -129,8 +130,10 @@ def full_run(files):
     def with_observer(cfg, progress=None, on_verdict=None):
         return run_motor(cfg, progress, on_verdict, observers=[events.append])
 
-    with (loopback_station(SERIAL, SEED, files["dir"] / "sim", spec_for=lambda req: MOTOR) as st,
+    options = load_limits(files["limits"]).estimator_options
+    with (loopback_station(SERIAL, SEED, files["dir"] / "sim", spec_for=lambda req: MOTOR, prepare=options) as st,
           pytest.MonkeyPatch.context() as mp):
+        prepared = set(plant_programs)
         mp.setattr(cycle, "run_motor", with_observer)
         res = CliRunner().invoke(cli, run_args(files, st, SERIAL, db, files["dir"] / "reports"))
         wait_stopped(st.dyno.sim)
@@ -139,7 +142,7 @@ def full_run(files):
     assert res.exit_code in (0, 1, 2), res.output
     doc = json.loads(res.stdout)
     return {"res": res, "doc": doc, "rec": doc["record"], "db": db, "sim_state": sim_state, "flash": flash,
-            "events": events}
+            "events": events, "compiled_in_cycle": set(plant_programs) - prepared}
 
 
 @pytest.mark.slow
@@ -149,6 +152,8 @@ def test_full_run_end_to_end(full_run):
     assert rec["verdict"] == "pass" and rec["reasons"] == []
     assert [s["step"] for s in rec["steps"]] == ["pre-flight", "prepare ECU", "acquire", "fit", "table", "flash",
                                                  "acquire compensated", "metrics", "report"]
+    # the dyno simulator's plant compiled before it served (prepare): none of its captures compiled
+    assert full_run["compiled_in_cycle"] == set()
     # the pre-flight found the blank ECU of this motor, the key accepted, the dyno ready
     pre = rec["preflight"]
     assert pre["problems"] == [] and pre["ecu"]["key_accepted"] is True and pre["ecu"]["state"]["bank"] is None

@@ -1,7 +1,8 @@
 """A station on loopback: ECU simulator + dyno simulator per motor, for ``eol-cal demo`` and tests.
 
-Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1, so the
-tester reaches it exactly as ``eol-cal run --interface remote --channel ws://...`` would), and a
+Per motor: an ECU simulator on its own flash file (python-can-remote server on 127.0.0.1 in a child
+process, :func:`eol_cal.sim.remote_ecu.spawn_remote`, so the tester reaches it exactly as
+``eol-cal run --interface remote --channel ws://...`` would, from a process of its own), and a
 dyno simulator (pymodbus on 127.0.0.1) whose motor is the built-in plant and whose compensation
 comes from that same flash file (the rig's capture source, :mod:`eol_cal.sim.rig`). Both bind
 free ports and are shut down when the motor is done.
@@ -29,8 +30,8 @@ from eol_cal.ecu.transport import IsoTpTiming, open_bus
 from eol_cal.infra.exchange_log import quiet
 from eol_cal.domain.motor_params import load_motor
 from eol_cal.plant.variation import draw_spec
-from eol_cal.sim.remote_ecu import serve_remote
-from eol_cal.sim.rig import plant_source
+from eol_cal.sim.remote_ecu import spawn_remote
+from eol_cal.sim.rig import plant_source, prepare_plant
 
 if TYPE_CHECKING:
     import can
@@ -39,12 +40,13 @@ if TYPE_CHECKING:
     from eol_cal.dyno.sim_dyno import DynoSimThread, FaultPlan
     from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource
     from eol_cal.plant.params import PlantSpec
-    from eol_cal.sim.remote_ecu import RemoteEcu
+    from eol_cal.sim.remote_ecu import RemoteEcuProcess
 
 
-#: the tester's timing towards these simulators. They answer from the tester's own process, where the
-#: plant computes too: a loaded machine holds an answer up for as long as it does not schedule that
-#: process, not the real ECU's P2 of 50 ms the tester's 0.5 s allows for. Beside a CPU hog at load
+#: the tester's timing towards these simulators. The dyno answers from the tester's own process, where
+#: the plant computes too, the ECU from a child beside it on the same cores: a loaded machine holds an
+#: answer up for as long as it does not schedule that process, not the real ECU's P2 of 50 ms the
+#: tester's 0.5 s allows for. Beside a CPU hog at load
 #: 19 on 2 cores 7 of 15 state reads (one try each) missed a 0.5 s P2, silent up to 1.4 s: four
 #: misses in a row failed a demo motor's acquisition. 5 s (and 5 s between an answer's frames, N_Bs
 #: and N_Cr) still bounds a dead simulator.
@@ -73,7 +75,7 @@ class LoopbackStation:
     can_channel: str
     flash_file: Path
     dyno: DynoSimThread
-    ecu: RemoteEcu
+    ecu: RemoteEcuProcess
     ecu_timing: ClientTiming = SIM_ECU_TIMING
     dyno_timeout_s: float = SIM_DYNO_TIMEOUT_S
     watchdog_ms: int = SIM_WATCHDOG_MS
@@ -97,7 +99,8 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
                      source: CaptureSource | None = None,
                      faults: tuple[FaultPlan, ...] = (),
                      register_map: RegisterMap | None = None,
-                     realtime: bool = False, bitrate: int | None = None) -> Iterator[LoopbackStation]:
+                     realtime: bool = False, bitrate: int | None = None,
+                     prepare: int | None = None) -> Iterator[LoopbackStation]:
     """Start the ECU and dyno simulators of one motor on 127.0.0.1; stop them on exit.
 
     Parameters
@@ -121,6 +124,11 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
         The dyno simulator in real time: a capture takes its physical time (:class:`~eol_cal.dyno.sim_dyno.DynoSim`).
     bitrate : int or None
         Pace the ECU simulator's bus to this CAN bit rate (bit/s); None: unpaced.
+    prepare : int or None
+        The estimator options (contract flags bits 2-5) of the blocks the cycle will flash: the rig's
+        plant compiles its programs for them before the dyno simulator serves
+        (:func:`~eol_cal.sim.rig.prepare_plant`), not inside a capture the tester times. None:
+        at the first capture that runs them. Without the rig's plant (``source`` given): ignored.
     """
 
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))  # unless an exchange log is on
@@ -128,11 +136,14 @@ def loopback_station(serial: str, seed: int, work_dir: str | Path, *,
     work_dir.mkdir(parents=True, exist_ok=True)
     flash_file = work_dir / f"{serial}.flash"
     motor = load_motor("paper")
-    if source is None:
-        spec = demo_motor_spec(seed, serial)
-        source = plant_source(flash_file, spec_for or (lambda req: spec))
-    ecu = serve_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial, bitrate=bitrate))
+    ecu = spawn_remote(flash_file, host="127.0.0.1", port=0, config=SimConfig(serial=serial, bitrate=bitrate))
     try:
+        if source is None:
+            spec = demo_motor_spec(seed, serial)
+            spec_of = spec_for or (lambda req: spec)
+            source = plant_source(flash_file, spec_of)
+            if prepare is not None:
+                prepare_plant(spec_of, prepare, serial, seed)
         sim = ds.DynoSim(source, serial=serial, motor=motor, seed=seed, faults=list(faults), register_map=register_map,
                          realtime=realtime)
         with ds.DynoSimThread(sim, "127.0.0.1", 0) as dyno:
@@ -148,7 +159,7 @@ class LoopbackLine:
     dyno_address: str
     can_channel: str
     dyno: DynoSimThread
-    ecu: RemoteEcu
+    ecu: RemoteEcuProcess
     work_dir: Path
     bitrate: int | None = None
     serial: str | None = None
@@ -179,7 +190,7 @@ def loopback_line(work_dir: str | Path, *, register_map: RegisterMap | None = No
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
-    ecu = serve_remote(work_dir / "idle.flash", host="127.0.0.1", port=0, config=SimConfig(bitrate=bitrate))
+    ecu = spawn_remote(work_dir / "idle.flash", host="127.0.0.1", port=0, config=SimConfig(bitrate=bitrate))
     try:
         sim = ds.DynoSim(synthetic_source, serial="IDLE", motor=load_motor("paper"), register_map=register_map,
                          realtime=realtime)

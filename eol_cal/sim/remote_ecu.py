@@ -3,14 +3,25 @@
 The simulator sits on a private ``virtual`` channel; ``can_remote.RemoteServer`` gives every
 connecting client its own bus on that channel, so a tester in another process reaches the
 ECU with ``--interface remote --channel ws://127.0.0.1:PORT/``.
+
+:func:`serve_remote` serves from this process (``eol-cal ecu-sim``); :func:`spawn_remote` from a
+child process of its own, as a real ECU answers from a device of its own: a tester working in
+this process then cannot starve the server of the interpreter. python-can-remote's client waits a
+fixed 5 s for the server's answer to its bus request; beside a CPU hog at load 15-22 on 2 cores
+a server thread in the tester's process (the dyno simulator and the cycle busy in it) missed it.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import pickle
+import subprocess
+import sys
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO, Any
 
 import can
 from can_remote import RemoteServer
@@ -73,3 +84,115 @@ def serve_remote(flash_path: str | Path, *, host: str = "127.0.0.1", port: int =
 
 def _start_sim(channel: str, flash_path: str | Path, config: SimConfig | None, faults: Faults | None) -> EcuSimulator:
     return EcuSimulator(can.Bus(interface="virtual", channel=channel), NorFlash(flash_path), config, faults).start()
+
+
+@dataclass
+class RemoteEcuProcess:
+    """A simulator and its python-can-remote server in a child process (:func:`spawn_remote`);
+    the same calls as :class:`RemoteEcu`. The child ends with :meth:`close`, or by itself when
+    this process goes (its command pipe closes)."""
+
+    process: subprocess.Popen
+    _url: str | None = field(default=None, repr=False)
+
+    @property
+    def url(self) -> str:
+        """The ``--channel`` a tester passes with ``--interface remote`` (waits for the child to listen)."""
+        if self._url is None:
+            self._url = str(self._reply())
+        return self._url
+
+    def replace(self, flash_path: str | Path, config: SimConfig | None = None, faults: Faults | None = None) -> None:
+        """As :meth:`RemoteEcu.replace`: the next motor's ECU behind the same URL."""
+        self.url  # noqa: B018 - the child's first reply is its URL: read it before the answer to this
+        self._send(("replace", (str(flash_path), config, faults)))
+        self._reply()
+
+    def close(self) -> None:
+        """Stop the server and the simulator and wait for the child (killed after 10 s); twice is once."""
+        if self.process.poll() is None:
+            try:
+                self._send(("close", ()))
+                self.process.wait(10.0)
+            except (OSError, subprocess.TimeoutExpired):
+                self.process.kill()
+                self.process.wait()
+        for pipe in (self.process.stdin, self.process.stdout):
+            if pipe is not None:
+                pipe.close()
+
+    def _send(self, command: tuple[str, tuple]) -> None:
+        assert self.process.stdin is not None  # spawn_remote opens both pipes
+        pickle.dump(command, self.process.stdin)
+        self.process.stdin.flush()
+
+    def _reply(self) -> Any:
+        assert self.process.stdout is not None  # spawn_remote opens both pipes
+        try:
+            status, value = pickle.load(self.process.stdout)
+        except EOFError:
+            raise RuntimeError(f"the ECU simulator's process ended (exit code {self.process.wait()}); "
+                               "its error is on standard error") from None
+        if status != "ok":
+            raise RuntimeError(f"ECU simulator process: {value}")
+        return value
+
+
+def spawn_remote(flash_path: str | Path, *, host: str = "127.0.0.1", port: int = 0,
+                 config: SimConfig | None = None, faults: Faults | None = None) -> RemoteEcuProcess:
+    """:func:`serve_remote` in a child process (``python -m eol_cal.sim.remote_ecu``).
+
+    Returns at once: the child imports and binds while the caller goes on; :attr:`RemoteEcuProcess.url`
+    waits for it. Commands and answers travel pickled over the child's standard input and output:
+    it is this package's own process on pipes no one else holds.
+    """
+    package_root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [package_root, os.environ.get("PYTHONPATH")])))
+    process = subprocess.Popen([sys.executable, "-m", "eol_cal.sim.remote_ecu"], stdin=subprocess.PIPE,
+                               stdout=subprocess.PIPE, env=env)
+    ecu = RemoteEcuProcess(process)
+    try:
+        ecu._send(("start", (str(flash_path), host, port, config, faults)))
+    except OSError:
+        ecu.close()
+        raise
+    return ecu
+
+
+def _answer(out: IO[bytes], status: str, value: object) -> None:
+    pickle.dump((status, value), out)
+    out.flush()
+
+
+def _child(inp: IO[bytes], out: IO[bytes]) -> None:
+    """The child of :func:`spawn_remote`: start, then replace or close as the parent says."""
+    _, (flash_path, host, port, config, faults) = pickle.load(inp)
+    try:
+        ecu = serve_remote(flash_path, host=host, port=port, config=config, faults=faults)
+    except Exception as exc:  # noqa: BLE001 - the parent raises it with its words
+        _answer(out, "error", f"cannot start on {flash_path} ({host}:{port}): {exc}")
+        return
+    try:
+        _answer(out, "ok", ecu.url)
+        while True:
+            try:
+                command, args = pickle.load(inp)
+            except EOFError:  # the parent is gone
+                return
+            if command == "close":
+                return
+            try:
+                ecu.replace(*args)
+            except Exception as exc:  # noqa: BLE001 - the parent raises it with its words
+                _answer(out, "error", f"cannot replace the ECU with {args[0]}: {exc}")
+            else:
+                _answer(out, "ok", None)
+    finally:
+        ecu.close()
+
+
+if __name__ == "__main__":
+    # the answers go on a descriptor of their own: a stray print on standard output lands on standard error
+    _out = os.fdopen(os.dup(sys.stdout.fileno()), "wb")
+    os.dup2(sys.stderr.fileno(), sys.stdout.fileno())
+    _child(sys.stdin.buffer, _out)

@@ -180,3 +180,38 @@ def plant_source(flash_file: str | Path | None,
         ``request -> PlantSpec`` (default :func:`default_plant_spec`).
     """
     return with_ecu(flash_file, plant_capture(spec_for))
+
+
+#: samples of each capture :func:`prepare_plant` records (the plant's programs do not depend on the length)
+PREPARE_SAMPLES = 100
+
+
+def prepare_plant(spec_for: Callable[[CaptureRequest], PlantSpec], options: int, serial: str, seed: int | None = None,
+                  rate_hz: float = 10_000.0) -> None:
+    """Compile (or load from JAX's cache) the plant's programs for the blocks an end-of-line cycle
+    flashes into the ECU of motor ``spec_for(request)`` (a capture of motor ``serial``, draw ``seed``, at
+    ``rate_hz`` Hz): the uncompensated block of estimator ``options``, then the
+    calibrated layout-2 block (``MECH_COMP_ENABLE`` where the options allow it), as
+    :func:`eol_cal.analysis.fit.table.uncompensated_block` and ``block_from_result`` make them.
+
+    A dyno simulator calls it before it serves, so its captures do not compile inside its
+    client's capture time-out, which is a real dyno's: the compensated program alone takes 12 CPU s
+    cold, more than that time-out of 60 s at load 16 on 2 cores. A calibration the cycle did not
+    foresee (a fit that leaves the mechanical part off) still compiles at its first capture.
+    """
+    from eol_cal.analysis.fit.table import uncompensated_block
+    from eol_cal.dyno.registers import DutCmdKind
+    from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_MECH_COMP_ENABLE
+    from eol_cal.firmware.contract import FLAGS_MECH_NEEDS
+    from eol_cal.plant.ecu_model import true_block
+
+    request = CaptureRequest(60.0, DutCmdKind.IQ, 0.0, PREPARE_SAMPLES, rate_hz, serial, seed, 0)
+    spec = spec_for(request)
+    measured = uncompensated_block(spec.serial[:16], spec.motor, calibrated_at=0, options=options)
+    flags = measured.flags | FLAG_COMP_ENABLE
+    if flags & FLAGS_MECH_NEEDS == FLAGS_MECH_NEEDS:
+        flags |= FLAG_MECH_COMP_ENABLE
+    calibrated = true_block(spec, flags=flags, mech=True)  # the tables' length block_from_result's
+    capture = plant_capture(spec_for)
+    for block in (measured, calibrated):
+        capture(request, ActiveCalibration(mode_of_block(block), block))
