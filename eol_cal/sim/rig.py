@@ -15,13 +15,16 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from eol_cal.analysis.fit.table import uncompensated_block
 from eol_cal.capture.data import Capture
+from eol_cal.dyno.registers import DutCmdKind
 from eol_cal.dyno.sim_capture import CaptureRequest, CaptureSource, i_qo_of
 from eol_cal.ecu.flash import active_block_from_file
-from eol_cal.firmware.block import ParamBlock, pack, unpack
+from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_MECH_COMP_ENABLE, ParamBlock, pack, unpack
+from eol_cal.firmware.contract import FLAGS_MECH_NEEDS
 from eol_cal.firmware.settling import FIRST_EDGES_S
 from eol_cal.plant import variation
-from eol_cal.plant.ecu_model import mode_of_block
+from eol_cal.plant.ecu_model import mode_of_block, true_block
 from eol_cal.plant.params import PlantSpec
 from eol_cal.plant.presets import preset_spec
 from eol_cal.plant.profile import Profile, ProfileSegment
@@ -199,12 +202,6 @@ def prepare_plant(spec_for: Callable[[CaptureRequest], PlantSpec], options: int,
     cold, more than that time-out of 60 s at load 16 on 2 cores. A calibration the cycle did not
     foresee (a fit that leaves the mechanical part off) still compiles at its first capture.
     """
-    from eol_cal.analysis.fit.table import uncompensated_block
-    from eol_cal.dyno.registers import DutCmdKind
-    from eol_cal.firmware.block import FLAG_COMP_ENABLE, FLAG_MECH_COMP_ENABLE
-    from eol_cal.firmware.contract import FLAGS_MECH_NEEDS
-    from eol_cal.plant.ecu_model import true_block
-
     request = CaptureRequest(60.0, DutCmdKind.IQ, 0.0, PREPARE_SAMPLES, rate_hz, serial, seed, 0)
     spec = spec_for(request)
     measured = uncompensated_block(spec.serial[:16], spec.motor, calibrated_at=0, options=options)
