@@ -46,10 +46,9 @@ if TYPE_CHECKING:
 #: the tester's timing towards these simulators. The dyno answers from the tester's own process, where
 #: the plant computes too, the ECU from a child beside it on the same cores: a loaded machine holds an
 #: answer up for as long as it does not schedule that process, not the real ECU's P2 of 50 ms the
-#: tester's 0.5 s allows for. Beside a CPU hog at load
-#: 19 on 2 cores 7 of 15 state reads (one try each) missed a 0.5 s P2, silent up to 1.4 s: four
-#: misses in a row failed a demo motor's acquisition. 5 s (and 5 s between an answer's frames, N_Bs
-#: and N_Cr) still bounds a dead simulator.
+#: tester's 0.5 s allows for. Beside a CPU hog at load 19 on 2 cores 7 of 15 state reads (one try
+#: each) missed a 0.5 s P2, silent up to 1.4 s: four misses in a row failed a demo motor's
+#: acquisition. 5 s (and 5 s between an answer's frames, N_Bs and N_Cr) still bounds a dead simulator.
 SIM_ECU_TIMING = ClientTiming(p2_s=5.0, isotp=IsoTpTiming(n_bs_ms=5000, n_cr_ms=5000))
 #: ... the tester's Modbus request time-out towards the dyno simulator (s), for the same reason (a real
 #: dyno's: ``dyno.timeout_s``, 1 s); four tries (``DynoConfig.retries``) still bound a dead simulator

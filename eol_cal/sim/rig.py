@@ -208,7 +208,7 @@ def prepare_plant(spec_for: Callable[[CaptureRequest], PlantSpec], options: int,
     flags = measured.flags | FLAG_COMP_ENABLE
     if flags & FLAGS_MECH_NEEDS == FLAGS_MECH_NEEDS:
         flags |= FLAG_MECH_COMP_ENABLE
-    calibrated = true_block(spec, flags=flags, mech=True)  # the tables' length block_from_result's
+    calibrated = true_block(spec, flags=flags, mech=True)  # block_from_result's table length: compiled into the scan
     capture = plant_capture(spec_for)
     for block in (measured, calibrated):
         capture(request, ActiveCalibration(mode_of_block(block), block))
