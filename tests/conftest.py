@@ -22,7 +22,7 @@ import _schedule
 import pytest
 
 from eol_cal.numerics.blas import limit_blas_threads
-from eol_cal.numerics.xla import configure_xla
+from eol_cal.numerics.xla import configure_xla, start_xla
 from eol_cal.sim.postgres import PostgresServer
 
 # pytest-xdist gives its workers COLUMNS=80 (the controller's terminal): the CLI would print its
@@ -52,6 +52,11 @@ limit_blas_threads()
 # cold caches, 2026-11-30); tests that need the defaults run them in a process of their own
 # (tests/test_plant_identifying_loop.py).
 configure_xla()
+# ... and XLA's CPU pool of one thread, as the product's entry points start it
+# (eol_cal.numerics.xla.start_xla): with XLA's default, every tick loop's second thread spun
+# beside the first, twice the CPU for no less wall, and three workers on two cores took it
+# from each other
+start_xla()
 
 # The station tests run the dyno simulator and its plant in the test's process (or beside it): on
 # a loaded machine (the hog runs of docs/history/benchmarks-journal.md, "Test suite") the station's client can be

@@ -1,11 +1,17 @@
-"""One process-wide XLA option: the CPU backend compiles a small-enough ``while`` loop into a
+"""Two process-wide XLA settings: the CPU backend compiles a small-enough ``while`` loop into a
 single kernel, and the tick loops of this package (the plant's, the firmware estimator's) are
-small enough once the threshold is raised."""
+small enough once the threshold is raised (:func:`configure_xla`); and the backend runs a
+program on one thread unless the user asks for more (:func:`start_xla`)."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import sys
+import threading
+from collections.abc import Mapping
+
+from eol_cal.errors import InputError
 
 #: XLA CPU compiles a while loop into one kernel when the bytes it accesses stay below this
 #: backend option (default 1024); above it, every fused kernel of the body is dispatched on its
@@ -48,3 +54,71 @@ def configure_xla() -> bool:
             return False
     os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_extra_options={_LOOP_OPTION}={_LOOP_BYTES}".strip()
     return True
+
+
+#: environment variable: how many threads XLA's CPU backend runs a program's operations on
+#: (default 1; ``all``: XLA's own choice, one per core the process may use)
+THREADS_ENV = "EOL_CAL_XLA_THREADS"
+
+
+def xla_threads(environ: Mapping[str, str] | None = None) -> int | None:
+    """The XLA CPU thread count asked for by :data:`THREADS_ENV` (``None``: XLA's own choice).
+
+    Raises
+    ------
+    InputError
+        The variable is neither a positive integer nor ``all`` (the message names it).
+    """
+
+    env = os.environ if environ is None else environ
+    text = env.get(THREADS_ENV, "").strip()
+    if not text:
+        return 1
+    if text == "all":
+        return None
+    if not text.isdigit() or int(text) < 1:
+        raise InputError(None, f"${THREADS_ENV}", f"{text!r} is not a positive number of threads or 'all'")
+    return int(text)
+
+
+def start_xla(threads: int | None = None) -> bool:
+    """Start JAX's CPU backend with ``threads`` threads for a program's operations (default
+    :func:`xla_threads`: one unless the user asked for more).
+
+    XLA's CPU client sizes its pool by the cores the process may use when the backend starts, and
+    offers no option for it. This package's programs are tick loops and small solves: a second
+    thread finds no work worth sharing and spins. The identifier's scan of 500 power-ups took
+    5.4 CPU s at 2.8 s wall on two threads and 2.5 CPU s at 2.5 s on one (2026-11-30, a 2-core
+    machine); on a machine whose other core is busy the spinning thread takes it from others.
+    So the calling thread's CPU affinity is narrowed while the backend starts, then every thread
+    started meanwhile (the pool's) and the caller get the process's cores back: the pool is one
+    thread that the kernel may run on any core.
+
+    Call it before the process's first JAX computation (it imports JAX, ~1 s); returns False and
+    changes nothing when the backend has started already, when ``threads`` is ``None`` or not
+    fewer than the cores, or where the platform has no CPU affinity (not Linux).
+    """
+    if threads is None:
+        threads = xla_threads()
+    if threads is None or not hasattr(os, "sched_setaffinity"):
+        return False
+    cpus = sorted(os.sched_getaffinity(0))
+    if threads >= len(cpus):
+        return False
+    from jax._src import xla_bridge
+
+    if xla_bridge.backends_are_initialized():
+        return False
+    before = _thread_ids()
+    os.sched_setaffinity(0, cpus[:threads])
+    try:
+        xla_bridge.backends()
+    finally:
+        for tid in (_thread_ids() - before) | {threading.get_native_id()}:
+            with contextlib.suppress(OSError):  # a thread that ended meanwhile
+                os.sched_setaffinity(tid, cpus)
+    return True
+
+
+def _thread_ids() -> set[int]:
+    return {int(name) for name in os.listdir("/proc/self/task")}

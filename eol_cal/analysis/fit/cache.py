@@ -21,6 +21,7 @@ import numpy as np
 from eol_cal.analysis.fit.compression import COMPRESSED_KEYS
 from eol_cal.analysis.fit.model import FitSpec
 from eol_cal.numerics.exported import entry_path, key_text, load, save, set_cache_dir
+from eol_cal.numerics.xla import start_xla
 
 #: environment variable naming the cache directory (``off``: no cache)
 CACHE_ENV = "EOL_CAL_JAX_CACHE"
@@ -47,6 +48,9 @@ def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:
 def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | None:
     """Switch on JAX's persistent compilation cache in ``cache_dir`` (created if missing).
 
+    Starts JAX's CPU backend first, on the threads :func:`eol_cal.numerics.xla.start_xla` gives it
+    (one unless ``$EOL_CAL_XLA_THREADS`` asks for more), where it has not started yet.
+
     JAX's cache directory is a setting of the whole process (``jax.config``), and so is the
     directory of the exported programs that are not the fit's (the firmware estimator's scan:
     :func:`eol_cal.numerics.exported.set_cache_dir`, set here too; ``None`` unsets it); the
@@ -59,6 +63,9 @@ def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | Non
         read-only home only costs the compile time).
     """
 
+    # every entry point that fits or simulates comes through here before computing: XLA's CPU
+    # pool of one thread (no spinning second one) unless the user asked for more
+    start_xla()
     if cache_dir is None:
         set_cache_dir(None)
         return None
