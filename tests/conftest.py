@@ -52,11 +52,6 @@ limit_blas_threads()
 # cold caches, 2026-11-30); tests that need the defaults run them in a process of their own
 # (tests/test_plant_identifying_loop.py).
 configure_xla()
-# ... and XLA's CPU pool of one thread, as the product's entry points start it
-# (eol_cal.numerics.xla.start_xla): with XLA's default, every tick loop's second thread spun
-# beside the first, twice the CPU for no less wall, and three workers on two cores took it
-# from each other
-start_xla()
 
 # The station tests run the dyno simulator and its plant in the test's process (or beside it): on
 # a loaded machine (the hog runs of docs/history/benchmarks-journal.md, "Test suite") the station's client can be
@@ -85,6 +80,7 @@ def pytest_configure(config: pytest.Config) -> None:
     _cpu_report.pytest_configure(config)
     chosen = os.environ.get(_JAX_CACHE)
     if chosen == "off":
+        _start_xla()
         return
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     if chosen:
@@ -107,6 +103,16 @@ def pytest_configure(config: pytest.Config) -> None:
     # enables the cache itself: JAX reads these when it starts
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    _start_xla()
+
+
+def _start_xla() -> None:
+    """XLA's CPU pool of one thread, as the product's entry points start it
+    (:func:`eol_cal.numerics.xla.start_xla`): with XLA's default every tick loop's second thread
+    spun beside the first, twice the CPU for no less wall, and three workers on two cores took it
+    from each other (the identifier's 10 000 power-ups: 229 -> 150 CPU s, 2026-11-30). After the
+    cache's variables: JAX reads them when it is imported, which this does."""
+    start_xla()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
