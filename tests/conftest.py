@@ -80,7 +80,7 @@ def pytest_configure(config: pytest.Config) -> None:
     _cpu_report.pytest_configure(config)
     chosen = os.environ.get(_JAX_CACHE)
     if chosen == "off":
-        _start_xla()
+        _start_xla(config)
         return
     worker = os.environ.get("PYTEST_XDIST_WORKER", "main")
     if chosen:
@@ -103,15 +103,18 @@ def pytest_configure(config: pytest.Config) -> None:
     # enables the cache itself: JAX reads these when it starts
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
-    _start_xla()
+    _start_xla(config)
 
 
-def _start_xla() -> None:
+def _start_xla(config: pytest.Config) -> None:
     """XLA's CPU pool of one thread, as the product's entry points start it
     (:func:`eol_cal.numerics.xla.start_xla`): with XLA's default every tick loop's second thread
     spun beside the first, twice the CPU for no less wall, and three workers on two cores took it
     from each other (the identifier's 10 000 power-ups: 229 -> 150 CPU s, 2026-11-30). After the
-    cache's variables: JAX reads them when it is imported, which this does."""
+    cache's variables: JAX reads them when it is imported, which this does. Not in
+    pytest-xdist's controller, which runs no test (and would import JAX for nothing)."""
+    if getattr(config.option, "numprocesses", None) and not hasattr(config, "workerinput"):
+        return
     start_xla()
 
 
