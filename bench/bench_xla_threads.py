@@ -19,12 +19,16 @@ the largest difference).
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+
+import numpy as np
 
 HERE = Path(__file__).resolve()
 ALTERNATIVES = {"one thread (eol-cal's default)": "1", "XLA's own (one a core)": "all"}
@@ -35,25 +39,21 @@ def _pool_threads() -> int:
                for t in os.listdir("/proc/self/task"))
 
 
-def _identifier():
+def _identifier() -> Callable[[float], np.ndarray]:
     sys.path.insert(0, str(HERE.parents[1] / "tests"))
-    import numpy as np
-
-    import test_mech_identify as T
+    T = importlib.import_module("test_mech_identify")  # its part 10: the test's own power-ups
     from eol_cal.firmware.mech_sim import simulate_powerups
 
     pus, _, _ = T._part(10)
 
-    def run(seconds: float):
+    def run(seconds: float) -> np.ndarray:
         res = simulate_powerups(pus, seconds, seed=10)
         return np.concatenate([res.first_id_s, res.wrong_ticks, res.r_first, res.score])
 
     return run
 
 
-def _plant():
-    import numpy as np
-
+def _plant() -> Callable[[float], np.ndarray]:
     from eol_cal.firmware.contract import FLAG_COMP_ENABLE, FLAG_INTERP_ENABLE, FLAGS_ESTIMATOR
     from eol_cal.plant.ecu_model import true_block
     from eol_cal.plant.presets import paper
@@ -64,7 +64,7 @@ def _plant():
     # layout 2, every estimator option: the identifying ECU (MECH_COMP_ENABLE where they allow it)
     block = true_block(spec, flags=FLAG_COMP_ENABLE | FLAG_INTERP_ENABLE | FLAGS_ESTIMATOR, mech=True)
 
-    def run(seconds: float):
+    def run(seconds: float) -> np.ndarray:
         (res,) = simulate(spec, constant(120.0, seconds, iq=20.0), "compensated", blocks=block, seed=1)
         return np.concatenate([np.asarray(v, float).ravel() for _, v in sorted(vars(res).items())
                                if isinstance(v, np.ndarray)])
@@ -88,8 +88,6 @@ def child(work: str) -> None:
     out = run(SECONDS[work])
     cpu, wall = time.process_time() - c0, time.perf_counter() - w0
     path = Path(os.environ["BENCH_OUT"])
-    import numpy as np
-
     np.save(path, out)
     print(json.dumps({"wall": wall, "cpu": cpu, "pool": _pool_threads()}))
 
@@ -104,8 +102,6 @@ def main() -> None:
         child(args.child)
         return
     import tempfile
-
-    import numpy as np
 
     print(f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.2f} at the start")
     with tempfile.TemporaryDirectory() as tmp:
