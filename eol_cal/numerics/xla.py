@@ -59,6 +59,8 @@ def configure_xla() -> bool:
 #: environment variable: how many threads XLA's CPU backend runs a program's operations on
 #: (default 1; ``all``: XLA's own choice, one per core the process may use)
 THREADS_ENV = "EOL_CAL_XLA_THREADS"
+#: the process's threads, one directory each (Linux)
+_TASKS = "/proc/self/task"
 
 
 def xla_threads(environ: Mapping[str, str] | None = None) -> int | None:
@@ -69,7 +71,6 @@ def xla_threads(environ: Mapping[str, str] | None = None) -> int | None:
     InputError
         The variable is neither a positive integer nor ``all`` (the message names it).
     """
-
     env = os.environ if environ is None else environ
     text = env.get(THREADS_ENV, "").strip()
     if not text:
@@ -96,11 +97,12 @@ def start_xla(threads: int | None = None) -> bool:
 
     Call it before the process's first JAX computation (it imports JAX, ~1 s); returns False and
     changes nothing when the backend has started already, when ``threads`` is ``None`` or not
-    fewer than the cores, or where the platform has no CPU affinity (not Linux).
+    fewer than the cores, or where the platform has no per-thread CPU affinity (not Linux, or no
+    ``/proc``).
     """
     if threads is None:
         threads = xla_threads()
-    if threads is None or not hasattr(os, "sched_setaffinity"):
+    if threads is None or not hasattr(os, "sched_setaffinity") or not os.path.isdir(_TASKS):
         return False
     cpus = sorted(os.sched_getaffinity(0))
     if threads >= len(cpus):
@@ -121,4 +123,4 @@ def start_xla(threads: int | None = None) -> bool:
 
 
 def _thread_ids() -> set[int]:
-    return {int(name) for name in os.listdir("/proc/self/task")}
+    return {int(name) for name in os.listdir(_TASKS)}
