@@ -4,8 +4,9 @@ XLA's own choice (one thread a core: ``EOL_CAL_XLA_THREADS=all``), on the packag
 Each alternative runs in a fresh process of its own, alternated ``--rounds`` times, and times
 one workload after a warm-up call (compiling is not counted):
 
-- ``identifier``: the firmware identifier's scan over 500 power-ups, 2 s of 20 kHz ticks
-  (:func:`eol_cal.firmware.mech_sim.simulate_powerups`, the 10 000 power-ups test's part 10);
+- ``identifier``: the firmware identifier's scan over 500 power-ups at 100-200 rpm, 2 s of 20 kHz
+  ticks (:func:`eol_cal.firmware.mech_sim.simulate_powerups`, drawn as ``bench/bench_mech_id.py``
+  draws a band);
 - ``plant``: the built-in plant, one motor (the paper's), 30 s at 120 rpm and 20 A, compensated
   with its true layout-2 block, every estimator option (:func:`eol_cal.plant.simulate.simulate`).
 
@@ -19,8 +20,8 @@ the largest difference).
 from __future__ import annotations
 
 import argparse
-import importlib
 import json
+import math
 import os
 import subprocess
 import sys
@@ -40,11 +41,21 @@ def _pool_threads() -> int:
 
 
 def _identifier() -> Callable[[float], np.ndarray]:
-    sys.path.insert(0, str(HERE.parents[1] / "tests"))
-    T = importlib.import_module("test_mech_identify")  # its part 10: the test's own power-ups
-    from eol_cal.firmware.mech_sim import simulate_powerups
+    from eol_cal.firmware.kinematics import draw_sensor_errors, fingerprint_of
+    from eol_cal.firmware.mech_params import FP_FORWARD, FP_REVERSE, unused_mech
+    from eol_cal.firmware.mech_sim import PowerUp, simulate_powerups
 
-    pus, _, _ = T._part(10)
+    # as bench/bench_mech_id.py draws its 100-200 rpm band: the plant's encoders, true fingerprints
+    N, P = 64, 6
+    rng = np.random.default_rng(22)
+    pus = []
+    for i in range(500):
+        err = draw_sensor_errors(np.random.default_rng(50_000 + i), N)
+        fp, gp = fingerprint_of(err, P)
+        mech = unused_mech(N).replace(fp_dirs=FP_FORWARD | FP_REVERSE, grid_phase=gp, fingerprint=fp)
+        pus.append(PowerUp(err, mech, float(rng.uniform(0, 2 * math.pi)),
+                           float(rng.choice([-1.0, 1.0]) * rng.uniform(100.0, 200.0)),
+                           jitter_deg=0.002 if i % 2 else 0.0))
 
     def run(seconds: float) -> np.ndarray:
         res = simulate_powerups(pus, seconds, seed=10)
