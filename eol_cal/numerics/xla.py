@@ -96,9 +96,9 @@ def start_xla(threads: int | None = None) -> bool:
     thread that the kernel may run on any core.
 
     Call it before the process's first JAX computation (it imports JAX, ~1 s); returns False and
-    changes nothing when the backend has started already, when ``threads`` is ``None`` or not
-    fewer than the cores, or where the platform has no per-thread CPU affinity (not Linux, or no
-    ``/proc``).
+    changes nothing when the backend has started already, when the count is XLA's own (``all``)
+    or not fewer than the cores, or where the platform has no per-thread CPU affinity (not Linux,
+    or no ``/proc``).
     """
     if threads is None:
         threads = xla_threads()
@@ -107,7 +107,7 @@ def start_xla(threads: int | None = None) -> bool:
     cpus = sorted(os.sched_getaffinity(0))
     if threads >= len(cpus):
         return False
-    from jax._src import xla_bridge
+    from jax._src import xla_bridge  # JAX's own: its public API cannot ask whether a backend started
 
     if xla_bridge.backends_are_initialized():
         return False
