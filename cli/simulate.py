@@ -90,10 +90,9 @@ def simulate_cmd(output, preset, mode, block_file, profile, speed_rpm, torque_nm
 
     Captures carry the plant's truth as truth.* metadata (k6, phases, c6, sensor errors, R_s, ...).
     """
-    from eol_cal.numerics.xla import configure_xla, start_xla
+    from eol_cal.numerics.xla import configure_xla
 
     configure_xla()  # before the first JAX computation of the process
-    start_xla()
     from cli.fit import enable_jax_cache
     from eol_cal.capture import write_capture
     from eol_cal.plant import presets, variation
