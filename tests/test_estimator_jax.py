@@ -129,6 +129,14 @@ def test_batch_is_each_capture_alone_bit_for_bit(improvements):
         ref = est.run(est.EstimatorConfig.paper(hall_angle=table or est.NOMINAL_HALL_ANGLE, **improvements), a, b, h)
         assert np.array_equal(got.status, ref.status)
         assert np.max(_ang_diff(got.theta_hat, ref.theta_hat)) < 1e-4
+    # the batch's A edge events and hall re-anchors run only on the ticks some lane has one
+    # (LANE_AXIS): what the plain vmapped scan, which runs them on every tick, gives, bit for bit
+    n = min(len(a) for a, _, _ in signals)
+    stacked = [np.stack([x[i][:n] for x in signals]) for i in range(3)]
+    plain = est.run_jax(cfg, *stacked)
+    for i, got in enumerate(est.run_jax_batch(cfg, [tuple(x[i] for x in stacked) for i in range(3)], chunk=1024)):
+        for x, y in zip(got, plain, strict=True):
+            np.testing.assert_array_equal(x, np.asarray(y)[i])
     # more captures than the widest program: split into batches, the same figures
     many = est.run_jax_batch(cfg, signals * 30, tables * 30, chunk=1024)
     assert len(many) == 90 and est.JAX_LANES[-1] < 90

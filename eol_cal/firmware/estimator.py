@@ -202,7 +202,11 @@ JAX_LANES = (1, 2, 4, 8, 16, 24, 32, 48, 64)
 
 
 #: part of the key of the estimator's exported programs: bump it when :func:`step` or the programs change
-_EXPORT_TAG = "eol-cal-estimator-1"
+_EXPORT_TAG = "eol-cal-estimator-2"
+
+#: ``axis_name`` of the batched scan's lanes: the step's A edge event and hall re-anchor run on the
+#: ticks some lane has one (:func:`~eol_cal.firmware.scalar_numpy.when`), not on every tick
+LANE_AXIS = "lanes"
 
 
 @functools.lru_cache(maxsize=16)
@@ -217,11 +221,11 @@ def _scan_chunk(cfg: EstimatorConfig) -> Callable[..., tuple[jax.Array, ...]]:
 
     def one(s, abh, tables):
         def body(s, x):
-            return step(cfg, s, x[0], x[1], x[2], xp=jnp, tables=tables)
+            return step(cfg, s, x[0], x[1], x[2], xp=jnp, tables=tables, batch_axis=LANE_AXIS)
 
         return jax.lax.scan(body, s, abh)
 
-    batched = jax.vmap(one, in_axes=(0, 1, 0), out_axes=(0, 1))
+    batched = jax.vmap(one, in_axes=(0, 1, 0), out_axes=(0, 1), axis_name=LANE_AXIS)
     n_state = len(EstimatorState._fields)
 
     def flat(*args):
