@@ -18,8 +18,10 @@ the voluntary context switches (a thread that waits: for the GIL, for a lock, fo
   map, validation), nothing else: the time to merely read and decode the files;
 - ``asammdf``: every capture decoded with plain asammdf (``MDF(path).select`` of every channel):
   what reading the files costs with the library alone;
-- ``loop``: the refit in one process (:func:`eol_cal.lot.refit.refit_serials`, batches of
-  :data:`~eol_cal.lot.refit.REFIT_BATCH` serials);
+- ``loop``: the refit in one process, one thread (:func:`eol_cal.lot.refit.refit_batches`, batches
+  of :data:`~eol_cal.lot.refit.REFIT_BATCH` serials, each read and its estimator runs started before
+  the batch ahead is fitted; an older checkout without it: :func:`~eol_cal.lot.refit.refit_serials`
+  of one batch after the other);
 - ``threads``: the refit in one process on both cores (:func:`eol_cal.lot.refit.refit_in_process`:
   the same batches on :data:`THREADS` threads, whatever its default); ``cores`` is its CPU time
   over its wall time. The one-process figure (the targets' line) is the row of
@@ -33,7 +35,9 @@ All refits must give the same k6, c6, R^2 and RMS per serial (checked); the phas
 by float32 rounding of the firmware frame (the largest difference is printed).
 
 ``--stages``: the loop's CPU time a serial by stage (:data:`STAGES`: the library's functions
-wrapped with a process-time counter, so no profiler's overhead), over a batch outside the lot
+wrapped with a counter of the calling thread's CPU time, so no profiler's overhead; what JAX's own
+thread computes meanwhile, the estimator's ticks started ahead, is in the whole refit's line, the
+process's CPU time, and in no stage), over a batch outside the lot
 (the first in the process: it traces and loads the programs), the lot (a first pass) and the
 same lot again (a second pass). A stage indented under another is part of it. With
 ``PYTHONPATH=DIR`` the code of another checkout is measured (this file's wrappers, its functions).
@@ -69,6 +73,7 @@ STAGES = (
     ("segments (angle, halls)", "eol_cal.analysis.fit.capture", "segment_motors"),
     ("firmware frame", "eol_cal.analysis.fit.capture", "measure_firmware_frames"),
     ("  estimator", "eol_cal.analysis.fit.capture", "firmware_frame_parts"),
+    ("estimator started ahead (its ticks on JAX's thread)", "eol_cal.analysis.fit.capture", "start_firmware_frames"),
     ("  fingerprint, angle correction", "eol_cal.analysis.fit.capture", "measure_fingerprint"),
     ("joint fit (compression, solver)", "eol_cal.analysis.fit", "fit_many"),
     ("noise at the harmonics (intervals, model check)", "eol_cal.analysis.fit.segment_noise", "segment_noise"),
@@ -136,7 +141,13 @@ def _spent(c0: Counters) -> Counters:
 
 
 def _rows_of(refit: Any, groups: list[list[Path]], **kw: Any) -> list[dict[str, Any]]:
-    """Rows of a lot in one process: batches where the code has them, else serial by serial."""
+    """Rows of a lot in one process, one thread: batches, each read and its estimator started
+    before the one ahead is fitted, where the code has it (:func:`eol_cal.lot.refit.refit_batches`);
+    else batches one after the other; else serial by serial."""
+    if hasattr(refit, "refit_batches"):
+        b = refit.REFIT_BATCH
+        return [r for rows in refit.refit_batches((groups[k:k + b] for k in range(0, len(groups), b)), **kw)
+                for r in rows]
     if hasattr(refit, "refit_serials"):
         b = refit.REFIT_BATCH
         return [r for k in range(0, len(groups), b) for r in refit.refit_serials(groups[k:k + b], **kw)]
@@ -232,11 +243,11 @@ def stages(serials: int) -> None:
     def counted(label: str, f: Any) -> Any:
         @functools.wraps(f)
         def w(*args: Any, **kw: Any) -> Any:
-            c = time.process_time()
+            c = time.thread_time()
             try:
                 return f(*args, **kw)
             finally:
-                cpu[label] = cpu.get(label, 0.0) + time.process_time() - c
+                cpu[label] = cpu.get(label, 0.0) + time.thread_time() - c
         return w
 
     for label, module, name in STAGES:

@@ -117,6 +117,61 @@ def test_a_refit_in_threads_gives_the_rows_of_one_batch_after_the_other_and_isol
     assert again[:2] + again[4:] == rows[:2] + rows[4:]
 
 
+def test_one_thread_starts_each_batchs_estimator_before_fitting_the_batch_ahead_the_same_rows(
+        lot: Path, tmp_path: Path, monkeypatch):
+    """One thread (:func:`refit_in_process`'s default, :func:`refit_batches`): a batch is read and
+    its firmware frames' estimator runs started (once, then taken by the frames) before the batch
+    ahead of it is fitted; each row bit for bit the row of its batch refitted alone; a batch that
+    raises, when started or when finished, gives its own groups error rows, the others are whole."""
+    from eol_cal.firmware import estimator as est
+
+    bad = tmp_path / "X" / "bad.mf4"
+    bad.parent.mkdir()
+    bad.write_bytes(b"not an mdf file")
+    groups = find_captures([str(lot)])
+    mixed = [groups[0], [bad], groups[1], groups[2], groups[0]]
+    events: list[str] = []
+    real_start, real_finish, real_run = refit_mod._start, refit_mod._finish, est.start_jax_batch
+
+    def start(setup, batch):
+        events.append(f"start {len(batch)}")
+        return real_start(setup, batch)
+
+    def finish(setup, batch):
+        events.append(f"finish {len(batch.rows)}")
+        return real_finish(setup, batch)
+
+    def run(*args, **kw):
+        events.append("estimator")
+        return real_run(*args, **kw)
+
+    monkeypatch.setattr(refit_mod, "_start", start)
+    monkeypatch.setattr(refit_mod, "_finish", finish)
+    monkeypatch.setattr(est, "start_jax_batch", run)
+    done: list[dict] = []
+    rows = refit_in_process(mixed, bench="none", batch=2, on_done=done.append)
+    assert events == ["start 2", "estimator", "start 2", "estimator", "finish 2",
+                      "start 1", "estimator", "finish 2", "finish 1"]
+    monkeypatch.undo()
+    assert done == rows and [r["serial"] for r in rows] == ["R-1", None, "R-2", "R-3", "R-1"]
+    assert rows == [row for k in range(0, len(mixed), 2) for row in refit_serials(mixed[k:k + 2], bench="none")]
+
+    for broken in ("_start", "_finish"):
+        real = getattr(refit_mod, broken)
+
+        def fails_on_the_second_batch(setup, batch, real=real, broken=broken):
+            first = batch[0] if broken == "_start" else batch.rows[0]["capture"]
+            if first in (mixed[2], str(mixed[2][0])):
+                raise RuntimeError("a bug")
+            return real(setup, batch)
+
+        monkeypatch.setattr(refit_mod, broken, fails_on_the_second_batch)
+        again = refit_in_process(mixed, bench="none", batch=2)
+        monkeypatch.undo()
+        assert [r["error"] for r in again[2:4]] == ["RuntimeError: a bug"] * 2, broken
+        assert again[:2] + again[4:] == rows[:2] + rows[4:]
+
+
 def _worker_state() -> tuple[int, bool, int, str | None]:
     import gc
 

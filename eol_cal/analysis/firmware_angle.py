@@ -103,18 +103,34 @@ def firmware_frame_parts(jobs: Sequence[FrameJob]) -> list[list[tuple[complex, i
         Per job, per range of its ``ranges``, as :func:`firmware_frame_offset` of that range: the
         ranges' scatter tells the frame's uncertainty (:func:`eol_cal.analysis.fit.fp_angle.frame_sd`).
     """
-    by_cfg: dict[est.EstimatorConfig, list[int]] = {}
-    for i, (capture, _, _, _, options) in enumerate(jobs):
-        by_cfg.setdefault(firmware_config(capture, options), []).append(i)
-    out: list[list[tuple[complex, int]]] = [[] for _ in jobs]
-    for cfg, idx in by_cfg.items():
-        ends = [max((b for _, b in jobs[i][2]), default=1) for i in idx]
-        signals = [tuple(np.asarray(jobs[i][0][name])[:m] for name in ("enc_a", "enc_b", "hall"))
-                   for i, m in zip(idx, ends, strict=True)]
-        runs = est.run_jax_batch(cfg, signals, [jobs[i][3] for i in idx], chunk=scan_chunk(max(ends)))
-        for i, run in zip(idx, runs, strict=True):
-            out[i] = _frame_sums(run, jobs[i][1], jobs[i][2])
-    return out
+    return StartedFrameParts(jobs).result()
+
+
+class StartedFrameParts:
+    """:func:`firmware_frame_parts` of ``jobs`` with the estimator's runs dispatched at once
+    (:func:`eol_cal.firmware.estimator.start_jax_batch`): JAX computes them on its own thread
+    until :meth:`result` is asked for (a lot refit reads and segments its next motors meanwhile)."""
+
+    def __init__(self, jobs: Sequence[FrameJob]) -> None:
+        self.jobs = list(jobs)
+        by_cfg: dict[est.EstimatorConfig, list[int]] = {}
+        for i, (capture, _, _, _, options) in enumerate(self.jobs):
+            by_cfg.setdefault(firmware_config(capture, options), []).append(i)
+        self._runs = []
+        for cfg, idx in by_cfg.items():
+            ends = [max((b for _, b in self.jobs[i][2]), default=1) for i in idx]
+            signals = [tuple(np.asarray(self.jobs[i][0][name])[:m] for name in ("enc_a", "enc_b", "hall"))
+                       for i, m in zip(idx, ends, strict=True)]
+            self._runs.append((idx, est.start_jax_batch(cfg, signals, [self.jobs[i][3] for i in idx],
+                                                        chunk=scan_chunk(max(ends)))))
+
+    def result(self) -> list[list[tuple[complex, int]]]:
+        """Per job, per range, the frame's sum and samples (:func:`firmware_frame_parts`')."""
+        out: list[list[tuple[complex, int]]] = [[] for _ in self.jobs]
+        for idx, started in self._runs:
+            for i, run in zip(idx, started.result(), strict=True):
+                out[i] = _frame_sums(run, self.jobs[i][1], self.jobs[i][2])
+        return out
 
 
 def _frame_sums(out: est.EstimatorOut, theta_r: np.ndarray, ranges: Sequence[tuple[int, int]]

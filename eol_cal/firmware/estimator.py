@@ -103,6 +103,8 @@ __all__ = [
     "run_jax",
     "run_jax_chunked",
     "run_jax_batch",
+    "start_jax_batch",
+    "StartedRun",
     "JAX_CHUNK",
     "JAX_LANES",
 ]
@@ -286,6 +288,22 @@ def _lanes(n: int) -> int:
     return next((b for b in JAX_LANES if b >= n), JAX_LANES[-1])
 
 
+class StartedRun:
+    """A :func:`start_jax_batch`'s runs, dispatched: JAX computes them on its own thread while the
+    caller goes on; :meth:`result` waits for them."""
+
+    def __init__(self, parts: list[tuple[list[EstimatorOut], list[int]]]) -> None:
+        self._parts = parts
+
+    def result(self) -> list[EstimatorOut]:
+        """Per capture, numpy arrays, one entry per tick (:func:`run_jax_batch`'s)."""
+        got = []
+        for outs, lengths in self._parts:
+            fields = [np.concatenate([np.asarray(o[f]) for o in outs]) for f in range(len(EstimatorOut._fields))]
+            got += [EstimatorOut(*(x[:m, i] for x in fields)) for i, m in enumerate(lengths)]
+        return got
+
+
 def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Array]],
                   hall_angles: Sequence[Sequence[float] | None] | None = None,
                   chunk: int = JAX_CHUNK) -> list[EstimatorOut]:
@@ -312,17 +330,25 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
     list of EstimatorOut
         numpy arrays, one entry per tick, one per capture.
     """
+    return start_jax_batch(cfg, signals, hall_angles, chunk).result()
+
+
+def start_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Array]],
+                    hall_angles: Sequence[Sequence[float] | None] | None = None,
+                    chunk: int = JAX_CHUNK) -> StartedRun:
+    """:func:`run_jax_batch` dispatched, not waited for (its arguments): a caller with other work
+    does it while JAX's thread computes (a lot refit reads its next motors meanwhile)."""
     import jax
 
     if not signals:
-        return []
+        return StartedRun([])
     hall_angles = list(hall_angles) if hall_angles is not None else [None] * len(signals)
     if len(hall_angles) != len(signals):
         raise ValueError(f"{len(hall_angles)} hall tables for {len(signals)} captures")
     B = _lanes(len(signals))
     if len(signals) > B:
-        return [o for k in range(0, len(signals), B)
-                for o in run_jax_batch(cfg, signals[k:k + B], hall_angles[k:k + B], chunk)]
+        return StartedRun([p for k in range(0, len(signals), B)
+                           for p in start_jax_batch(cfg, signals[k:k + B], hall_angles[k:k + B], chunk)._parts])
     lengths = [len(a) for a, _, _ in signals]
     n = max(lengths)
     abh = np.empty((n + (-n) % chunk, B, 3), np.int32)
@@ -350,8 +376,7 @@ def run_jax_batch(cfg: EstimatorConfig, signals: Sequence[tuple[Array, Array, Ar
     for k in range(0, len(abh), chunk):
         state, out = _scan(program, state, abh[k:k + chunk], tables)
         outs.append(out)
-    fields = [np.concatenate([np.asarray(o[f]) for o in outs]) for f in range(len(EstimatorOut._fields))]
-    return [EstimatorOut(*(x[:m, i] for x in fields)) for i, m in enumerate(lengths)]
+    return StartedRun([(outs, lengths)])
 
 
 def run_jax_chunked(cfg: EstimatorConfig, enc_a: Array, enc_b: Array, hall: Array, chunk: int = JAX_CHUNK,

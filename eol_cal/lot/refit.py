@@ -19,8 +19,8 @@ from __future__ import annotations
 import glob
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING, Any, NamedTuple
+from collections.abc import Callable, Iterable, Iterator, Sequence
 
 from eol_cal.errors import EolCalError, InputError
 
@@ -110,27 +110,88 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
     (:func:`eol_cal.analysis.fit.capture.measure_firmware_frames`, the same figures as one motor
     at a time). The windows' p-p figures, which a row does not report, are not computed.
     """
-    rows = [_blank(paths) for paths in groups]
     try:
         setup = _RefitSetup(limits_file, variant, bench, motor, cache_dir)
     except _ERRORS as exc:
-        for row in rows:
-            _error(row, exc)
-        return rows
+        return [_error(_blank(paths), exc) for paths in groups]
+    return _finish(setup, _start(setup, groups))
+
+
+class _Batch(NamedTuple):
+    """A batch of motors between its reading and its fits: the rows, the motors ready for their
+    fit (row, inputs, options) and their firmware frames' estimator runs, started (None: to be
+    measured motor by motor)."""
+
+    rows: list[dict[str, Any]]
+    ready: list[tuple[dict[str, Any], Any, Any]]
+    frames: Any
+
+
+def _start(setup: _RefitSetup, groups: Sequence[Sequence[str | Path]]) -> _Batch:
+    """Read and segment each motor of a batch, and start the estimator runs of their firmware frames."""
+    from eol_cal.analysis.fit.capture import start_firmware_frames
+
+    rows = [_blank(paths) for paths in groups]
     ready = []
     for row, paths in zip(rows, groups, strict=True):
         try:
             ready.append((row, *setup.inputs(paths, row)))
         except _ERRORS as exc:
             _error(row, exc)
-    _frames(ready)
+    try:
+        frames = start_firmware_frames([mi for _, mi, _ in ready], [o.estimator_options for _, _, o in ready])
+    except _ERRORS:
+        frames = None
+    return _Batch(rows, ready, frames)
+
+
+def _finish(setup: _RefitSetup, batch: _Batch) -> list[dict[str, Any]]:
+    """A started batch's frames (its estimator runs' results), fingerprints and fits: its rows."""
+    ready = list(batch.ready)
+    _frames(ready, batch.frames)
     for row, mi, opts in ready:
         try:
             (result,) = setup.fit(mi, opts)
             setup.judge(row, result)
         except _ERRORS as exc:
             _error(row, exc)
-    return rows
+    return batch.rows
+
+
+def refit_batches(batches: Iterable[Sequence[Sequence[str | Path]]], limits_file: str | None = None,
+                  variant: str | None = None, bench: str = "paper", motor: str = "paper",
+                  cache_dir: str | Path | None = None) -> Iterator[list[dict[str, Any]]]:
+    """:func:`refit_serials` of each batch, in order, one process, one thread: each batch is read,
+    segmented and its estimator runs started before the batch ahead of it is fitted, so that JAX
+    computes those runs on its own thread meanwhile. The same rows as :func:`refit_serials` of each
+    batch (test); a batch that raises gives each of its groups a row with ``error``."""
+    try:
+        setup = _RefitSetup(limits_file, variant, bench, motor, cache_dir)
+    except _ERRORS as exc:
+        for groups in batches:
+            yield [_error(_blank(paths), exc) for paths in groups]
+        return
+    ahead: tuple[Sequence[Sequence[str | Path]], _Batch | BaseException] | None = None
+    for groups in batches:
+        try:
+            started: _Batch | BaseException = _start(setup, groups)
+        except Exception as exc:  # noqa: BLE001 - a batch that failed: reported per group, the lot goes on
+            started = exc
+        if ahead is not None:
+            yield _finished(setup, *ahead)
+        ahead = (groups, started)
+    if ahead is not None:
+        yield _finished(setup, *ahead)
+
+
+def _finished(setup: _RefitSetup, groups: Sequence[Sequence[str | Path]], started: _Batch | BaseException
+              ) -> list[dict[str, Any]]:
+    if isinstance(started, BaseException):
+        return [_failed(group, started) for group in groups]
+    try:
+        return _finish(setup, started)
+    except Exception as exc:  # noqa: BLE001 - a batch that failed: reported per group, the lot goes on
+        return [_failed(group, exc) for group in groups]
 
 
 def _blank(group: Sequence[str | Path]) -> dict[str, Any]:
@@ -140,18 +201,20 @@ def _blank(group: Sequence[str | Path]) -> dict[str, Any]:
     return row
 
 
-def _error(row: dict[str, Any], exc: BaseException) -> None:
+def _error(row: dict[str, Any], exc: BaseException) -> dict[str, Any]:
     row["error"] = f"{type(exc).__name__}: {exc}"
     row["verdict"] = "error"
+    return row
 
 
-def _frames(ready: list[tuple[dict[str, Any], Any, Any]]) -> None:
-    """The firmware frames of every motor ready for its fit, in one batch; a batch that fails
-    is measured motor by motor, so only the motor at fault gets the error."""
+def _frames(ready: list[tuple[dict[str, Any], Any, Any]], started: Any = None) -> None:
+    """The firmware frames of every motor ready for its fit, in one batch (``started``: its
+    estimator runs, :func:`~eol_cal.analysis.fit.capture.start_firmware_frames`); a batch that fails
+    is measured motor by motor, so only the motor at fault gets the error (and leaves ``ready``)."""
     from eol_cal.analysis.fit.capture import measure_firmware_frames
 
     try:
-        measure_firmware_frames([mi for _, mi, _ in ready], [o.estimator_options for _, _, o in ready])
+        measure_firmware_frames([mi for _, mi, _ in ready], [o.estimator_options for _, _, o in ready], started)
         return
     except _ERRORS:
         pass
@@ -249,9 +312,11 @@ def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | 
                      cache_dir: str | Path | None = None, threads: int = REFIT_THREADS, batch: int = REFIT_BATCH,
                      on_done: Callable[[dict[str, Any]], None] | None = None) -> list[dict[str, Any]]:
     """:func:`refit_serials` of every group in this process, ``batch`` groups a task on ``threads``
-    threads (no cluster; default :data:`REFIT_THREADS`, one: more are no faster); rows in the order of
-    ``groups``, the same rows as one batch after the other (the arguments as :func:`refit_serials`';
-    ``on_done`` is called in this thread, in order).
+    threads (no cluster; default :data:`REFIT_THREADS`, one: more are no faster; one thread runs
+    the batches through :func:`refit_batches`, each batch's estimator computed by JAX's thread
+    while the batch ahead is fitted); rows in the order of ``groups``, the same rows as one batch
+    after the other (the arguments as :func:`refit_serials`'; ``on_done`` is called in this thread,
+    in order).
 
     A task is pure (files in, rows out: each thread's batch has its own captures, inputs, fits and
     compression scope, a context variable); what the threads share is the process's caches of
@@ -262,7 +327,18 @@ def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | 
 
     starts = range(0, len(groups), max(1, batch))
     rows: list[dict[str, Any]] = []
-    with ThreadPoolExecutor(max(1, threads), thread_name_prefix="refit") as pool:
+
+    def take(done: list[dict[str, Any]]) -> None:
+        for row in done:
+            rows.append(row)
+            if on_done is not None:
+                on_done(row)
+
+    if threads <= 1:
+        for done in refit_batches((groups[k:k + batch] for k in starts), limits_file, variant, bench, motor, cache_dir):
+            take(done)
+        return rows
+    with ThreadPoolExecutor(threads, thread_name_prefix="refit") as pool:
         futures = [pool.submit(refit_serials, groups[k:k + batch], limits_file, variant, bench, motor, cache_dir)
                    for k in starts]
         for k, fut in zip(starts, futures, strict=True):
@@ -270,10 +346,7 @@ def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | 
                 done = fut.result()
             except Exception as exc:  # noqa: BLE001 - a task that failed: reported per group, the lot goes on
                 done = [_failed(group, exc) for group in groups[k:k + batch]]
-            for row in done:
-                rows.append(row)
-                if on_done is not None:
-                    on_done(row)
+            take(done)
     return rows
 
 

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from eol_cal.analysis.angle import capture_angle
-from eol_cal.analysis.firmware_angle import FrameJob, firmware_frame_parts, frame_total
+from eol_cal.analysis.firmware_angle import FrameJob, StartedFrameParts, firmware_frame_parts, frame_total
 from eol_cal.analysis.fit import SteadySegments
 from eol_cal.analysis.fit.fp_angle import frame_sd, measure_fingerprint
 from eol_cal.analysis.fit.motor_input import MotorInput, SteadySegmentOrigin
@@ -366,6 +366,47 @@ def current_torque(caps: list[Capture], infos: list[SteadySegmentOrigin], cap_id
     return kt_iq, "taken out: kt * iq known from the iq channel (c6/k6 are the motor's own)"
 
 
+def frame_jobs(inputs: Sequence[MotorInput], estimator_options: Sequence[int]
+               ) -> tuple[list[FrameJob], list[tuple[int, int]]]:
+    """The firmware frame's estimator jobs of every motor's captures (:data:`FrameJob`: each
+    capture with a segment) and, per job, ``(motor, capture)`` it belongs to; a motor whose
+    captures lack ``enc_b`` has none."""
+    jobs: list[FrameJob] = []
+    owner: list[tuple[int, int]] = []
+    for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
+        if not all(c.has("enc_b") for c in mi.captures):
+            continue
+        for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
+            ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment, strict=True) if j == ci]
+            if ranges:
+                # _segment_motor, the only maker of a MotorInput, always sets its hall table
+                assert mi.hall is not None
+                jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
+                owner.append((k, ci))
+    return jobs, owner
+
+
+class StartedFrames(PreparedWindows):
+    """Windows whose firmware frame parts were started ahead (:func:`start_firmware_frames`):
+    :func:`measure_firmware_frames` of the same inputs takes them, and computes any other jobs."""
+
+    def __init__(self, started: StartedFrameParts) -> None:
+        self.started = started
+
+    def frame_parts(self, jobs: Sequence[FrameJob]) -> list[list[tuple[complex, int]]]:
+        ahead = self.started.jobs
+        same = len(jobs) == len(ahead) and all(
+            a[0] is b[0] and a[1] is b[1] and a[3] is b[3] and list(a[2]) == list(b[2]) and a[4] == b[4]
+            for a, b in zip(jobs, ahead, strict=True))
+        return self.started.result() if same else super().frame_parts(jobs)
+
+
+def start_firmware_frames(inputs: list[MotorInput], estimator_options: list[int]) -> StartedFrames:
+    """The estimator runs of :func:`measure_firmware_frames` for ``inputs`` dispatched now (JAX
+    computes them on its own thread); pass the result as its ``prepared`` to wait for them."""
+    return StartedFrames(StartedFrameParts(frame_jobs(inputs, estimator_options)[0]))
+
+
 def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[int],
                             prepared: PreparedWindows | None = None) -> None:
     """Measure every motor's firmware frame (:func:`firmware_frame_offsets`, all captures of all
@@ -379,17 +420,7 @@ def measure_firmware_frames(inputs: list[MotorInput], estimator_options: list[in
     by it (:func:`eol_cal.analysis.fit.fp_angle.measure_fingerprint`).
     """
     prepared = prepared or PreparedWindows()
-    jobs, owner = [], []
-    for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
-        if not all(c.has("enc_b") for c in mi.captures):
-            continue
-        for ci, (c, ang) in enumerate(zip(mi.captures, mi.angles, strict=True)):
-            ranges = [(o.start, o.stop) for o, j in zip(mi.info, mi.capture_of_segment, strict=True) if j == ci]
-            if ranges:
-                # _segment_motor, the only maker of a MotorInput, always sets its hall table
-                assert mi.hall is not None
-                jobs.append((c, ang.theta_r, ranges, mi.hall.hall_angle, options))
-                owner.append((k, ci))
+    jobs, owner = frame_jobs(inputs, estimator_options)
     parts = prepared.frame_parts(jobs)
     for k, (mi, options) in enumerate(zip(inputs, estimator_options, strict=True)):
         fw_sum, fw_n = 0j, 0
