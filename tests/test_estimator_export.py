@@ -27,13 +27,13 @@ def signals():
 def export_dir(tmp_path, monkeypatch):
     """A fresh cache directory for this test, and a process that has read or traced nothing yet."""
     monkeypatch.setattr(exported, "_DIR", tmp_path)
-    monkeypatch.setattr(est, "_PROGRAMS", {})
+    monkeypatch.setattr(exported, "_KEPT", {})
     return tmp_path
 
 
 def _new_process() -> None:
     """What a new process has: no program in memory (neither read nor traced)."""
-    est._PROGRAMS.clear()
+    exported._KEPT.clear()
     est._scan_chunk.cache_clear()
 
 
@@ -60,7 +60,7 @@ def test_a_second_process_reads_the_scan_instead_of_tracing_it_bit_for_bit(signa
     first = _run(signals)  # traced, exported, and the program read back used (what the next process compiles)
     assert [p.name.split("-")[1] for p in export_dir.glob("est-*.jaxexport")] == ["scan"]
     traced = est._scan_chunk(est._program_config(est.EstimatorConfig.paper()))
-    assert len(est._PROGRAMS) == 1 and next(iter(est._PROGRAMS.values())) is not traced
+    assert len(exported._KEPT) == 1 and next(iter(exported._KEPT.values())) is not traced
     _new_process()
     second = _run(signals)  # read back
     assert est._scan_chunk.cache_info().misses == 0  # nothing traced

@@ -237,35 +237,18 @@ def _scan_chunk(cfg: EstimatorConfig) -> Callable[..., tuple[jax.Array, ...]]:
     return jax.jit(flat)
 
 
-#: the programs this process has read or traced, by kind, configuration, argument shapes and directory
-_PROGRAMS: dict[tuple, Callable[..., tuple[jax.Array, ...]]] = {}
-
-
 def _program(kind: str, cfg: EstimatorConfig, build: Callable[[EstimatorConfig], Callable[..., tuple]],
              args: tuple) -> Callable[..., tuple[jax.Array, ...]]:
-    """``build(cfg)`` (:func:`_scan_chunk`) for ``args``, kept between processes.
-
-    With a cache directory (:func:`eol_cal.numerics.exported.set_cache_dir`, the CLI's and the
-    station's), the program is read from there instead of traced, or exported there after its first
-    trace; the key holds everything that changes the trace (the configuration, the argument shapes
-    and dtypes, :data:`_EXPORT_TAG`, the JAX version). The same program either way: its outputs are
+    """``build(cfg)`` (:func:`_scan_chunk`) for ``args``, kept between processes
+    (:func:`eol_cal.numerics.exported.kept`, when the CLI or the station set a cache directory):
+    the key holds everything that changes the trace (the configuration, the argument shapes and
+    dtypes, :data:`_EXPORT_TAG`, the JAX version). The same program either way: its outputs are
     bit for bit the traced one's (tests/test_estimator_export.py).
     """
-    directory = exported.cache_dir()
-    if directory is None:
+    if exported.cache_dir() is None:
         return build(cfg)
     key = exported.key_text(_EXPORT_TAG, (kind, cfg, exported.signature(args)[1]))
-    memo = (directory, key)
-    if memo not in _PROGRAMS:
-        fn = exported.load(directory, f"est-{kind}", key, args)
-        if fn is None:
-            fn = build(cfg)
-            if exported.save(directory, f"est-{kind}", key, fn, args):
-                # the program read back, not the traced one, compiled now: the next process compiles
-                # nothing (the persistent compilation cache has this one, not the traced one's)
-                fn = exported.load(directory, f"est-{kind}", key, args) or fn
-        _PROGRAMS[memo] = fn
-    return _PROGRAMS[memo]
+    return exported.kept(f"est-{kind}", key, lambda: build(cfg), args)
 
 
 def _scan(program: Callable[..., tuple[jax.Array, ...]], state: EstimatorState, abh: np.ndarray, tables: HallTables

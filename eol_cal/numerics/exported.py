@@ -19,6 +19,7 @@ The directory is a setting of the process, as JAX's own compilation cache direct
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import re
@@ -37,6 +38,8 @@ MAGIC = b"eol-cal-exported/1\n"
 MAX_ENTRY_BYTES = 64 << 20
 
 _DIR: Path | None = None
+#: the programs this process has read or traced (:func:`kept`), by directory, name and key
+_KEPT: dict[tuple[Path | None, str, str], Callable] = {}
 
 
 def set_cache_dir(path: str | os.PathLike[str] | None) -> None:
@@ -155,3 +158,40 @@ def save(directory: str | os.PathLike[str] | None, name: str, key: str, fn: Any,
         return True
     except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
         return False
+
+
+def kept(name: str, key: str, build: Callable[[], Callable], args: tuple) -> Callable:
+    """The jitted program ``build()`` for the positional arguments ``args``, kept between processes.
+
+    With a cache directory (:func:`set_cache_dir`) the program is read from there (:func:`load`)
+    instead of traced, or exported there (:func:`save`) after its first trace, under ``name`` and
+    ``key`` (:func:`key_text` of everything that changes the trace); without one, ``build()``. Kept
+    in this process too, by directory, name and key. The program read back, not the traced one,
+    is the one run after a save: the next process compiles nothing (JAX's persistent compilation
+    cache holds this one's compiled form).
+    """
+    directory = cache_dir()
+    memo = (directory, name, key)
+    fn = _KEPT.get(memo)
+    if fn is None:
+        fn = load(directory, name, key, args)
+        if fn is None:
+            fn = build()
+            if save(directory, name, key, fn, args):
+                fn = load(directory, name, key, args) or fn
+        _KEPT[memo] = fn
+    return fn
+
+
+@functools.lru_cache(maxsize=1)
+def code_digest() -> str:
+    """SHA-256 of every Python source of the ``eol_cal`` package (paths and bytes): part of the key
+    of a program whose trace reaches across many modules (the plant's tick: its physics and the
+    ECU's estimator, compensator and identifier), so that any change to the code traces it afresh
+    instead of reading back a program of other code."""
+    root = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        h.update(path.relative_to(root).as_posix().encode() + b"\0")
+        h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()

@@ -34,6 +34,7 @@ from eol_cal.plant.tick import (
     BATCH_AXIS, OUT_COLUMNS, TWO_PI, PlantSimConfig, background, background_heavy, background_idle, background_pending,
     initial_carry, sense, tick,
 )
+from eol_cal.numerics import exported
 from eol_cal.numerics.packing import Packing, pack, pack_stacked, packing_of, unpack
 from eol_cal.numerics.xla import configure_xla  # noqa: F401 - the CLI's and benchmarks' entry (was defined here)
 
@@ -70,6 +71,9 @@ class SimResult:
 
 
 _COMPILED: dict[tuple, Any] = {}  # compiled chunks, and primes with their carry's packing
+#: part of the key of the plant's exported programs (with the package's code digest: any change to
+#: the code traces them afresh)
+_EXPORT_TAG = "eol-cal-plant-1"
 _KEYS: dict[int, Callable] = {}  # the motors' noise keys of a seed, by the batch's size
 
 def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c_pack: Packing) -> Callable:
@@ -166,6 +170,18 @@ def _identifying_ticks(cfg: PlantSimConfig, p: Any, one_tick: Callable, carry: A
     state = (jnp.int32(0), carry, ys0, jnp.bool_(False))
     _, carry, ys, _ = jax.lax.while_loop(lambda s: s[0] < n_ticks, outer, state)
     return carry, ys
+
+
+def _kept(name: str, parts: tuple, build: Callable[[], Callable], args: tuple) -> Callable:
+    """``build()`` (a jitted program of the plant) for ``args``, kept between processes where a
+    cache directory is set (:func:`eol_cal.numerics.exported.kept`; a station's first motor then
+    reads its plant's programs instead of tracing them): keyed by ``parts`` (the static
+    configuration and packings), the argument shapes and the package's code
+    (:func:`~eol_cal.numerics.exported.code_digest`); bit for bit the traced program's (test)."""
+    if exported.cache_dir() is None:
+        return build()
+    key = exported.key_text(_EXPORT_TAG, (name, exported.code_digest(), parts, exported.signature(args)[1]))
+    return exported.kept(name, key, build, args)
 
 
 def _motor_keys(seed: int, n_motors: int) -> Any:
@@ -379,14 +395,15 @@ def simulate(
         carries = [initial_carry(cfg, p, s, float(rng.uniform(0.0, TWO_PI)), float(omega_ref[0]), float(i_qo[0]))
                    for p, s in zip(params, specs, strict=True)]
         i_pack = packing_of(carries[0])
-        prime, c_pack = _prime_fn(cfg, p_pack, i_pack)
-        carry = prime(batch, pack_stacked(i_pack, carries))
+        traced_prime, c_pack = _prime_fn(cfg, p_pack, i_pack)
+        initial = pack_stacked(i_pack, carries)
+        prime = _kept("plant-prime", (cfg, p_pack, i_pack), lambda: traced_prime, (batch, initial))
+        carry = prime(batch, initial)
     keys = _motor_keys(seed, len(specs))
 
     chunk_ticks = chunk_ticks_for(len(specs)) if chunk_ticks is None else int(chunk_ticks)
     if chunk_ticks < NOISE_BLOCK or chunk_ticks % NOISE_BLOCK:
         raise InputError(None, "chunk_ticks", f"{chunk_ticks}: needs a multiple of {NOISE_BLOCK}")
-    fn = _chunk_fn(cfg, chunk_ticks, unroll, p_pack, c_pack)
     n_cc = _cc_per_block(cfg)
     # the recorded ticks (after the pre-roll) go straight into the captures' arrays, converted to
     # their dtypes on the way (one pass over the outputs; no float32 copy of the whole run first)
@@ -396,6 +413,9 @@ def simulate(
     pad = -n_total % chunk_ticks
     inputs = tuple(np.pad(a, (0, pad), mode="edge") for a in (omega_ref, i_qo, cc, cmd))
     inputs += (_cc_index(inputs[2], n_cc, chunk_ticks),)
+    fn = _kept("plant-chunk", (cfg, chunk_ticks, unroll, p_pack, c_pack),
+               lambda: _chunk_fn(cfg, chunk_ticks, unroll, p_pack, c_pack),
+               (batch, carry, tuple(a[:chunk_ticks] for a in inputs), keys, np.int32(0)))
     t = np.arange(n_rec, dtype=np.float64) / m0.f_pwm
     t.flags.writeable = False  # one time base shared by the lot's captures
 

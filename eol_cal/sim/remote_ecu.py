@@ -23,6 +23,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+if __name__ == "__main__":
+    # The child (spawn_remote) writes no MDF4: python-can's MF4 logger, which `import can` loads,
+    # would import asammdf and pandas (~0.45 CPU s of each child's start); it takes their absence.
+    sys.modules.setdefault("asammdf", None)  # type: ignore[arg-type]
+
 import can
 from can_remote import RemoteServer
 
