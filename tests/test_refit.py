@@ -87,16 +87,22 @@ def test_a_batch_of_serials_gives_each_serials_row_and_isolates_a_bad_one(lot: P
         assert row == refit_capture(group, bench="none")
 
 
+def _mixed(lot: Path, tmp_path: Path) -> tuple[list, list]:
+    """The lot's groups, and five groups in batches of two: a motor, an unreadable file, two motors,
+    the first motor again."""
+    bad = tmp_path / "X" / "bad.mf4"
+    bad.parent.mkdir()
+    bad.write_bytes(b"not an mdf file")
+    groups = find_captures([str(lot)])
+    return groups, [groups[0], [bad], groups[1], groups[2], groups[0]]
+
+
 def test_a_refit_in_threads_gives_the_rows_of_one_batch_after_the_other_and_isolates_a_failed_task(
         lot: Path, tmp_path: Path, monkeypatch):
     """Two threads of this process, a batch each (:func:`refit_in_process`): each row bit for bit
     the row of its batch refitted alone, in the order of the groups; a bad capture spoils its own
     row, a task that raises its own batch's rows (the other batches' rows are whole)."""
-    bad = tmp_path / "X" / "bad.mf4"
-    bad.parent.mkdir()
-    bad.write_bytes(b"not an mdf file")
-    groups = find_captures([str(lot)])
-    mixed = [groups[0], [bad], groups[1], groups[2], groups[0]]
+    groups, mixed = _mixed(lot, tmp_path)
     done: list[dict] = []
     rows = refit_in_process(mixed, bench="none", threads=2, batch=2, on_done=done.append)
     assert done == rows and [r["serial"] for r in rows] == ["R-1", None, "R-2", "R-3", "R-1"]
@@ -125,11 +131,7 @@ def test_one_thread_starts_each_batchs_estimator_before_fitting_the_batch_ahead_
     raises, when started or when finished, gives its own groups error rows, the others are whole."""
     from eol_cal.firmware import estimator as est
 
-    bad = tmp_path / "X" / "bad.mf4"
-    bad.parent.mkdir()
-    bad.write_bytes(b"not an mdf file")
-    groups = find_captures([str(lot)])
-    mixed = [groups[0], [bad], groups[1], groups[2], groups[0]]
+    groups, mixed = _mixed(lot, tmp_path)
     events: list[str] = []
     real_start, real_finish, real_run = refit_mod._start, refit_mod._finish, est.start_jax_batch
 
