@@ -113,7 +113,7 @@ def refit_serials(groups: Sequence[Sequence[str | Path]], limits_file: str | Non
     try:
         setup = _RefitSetup(limits_file, variant, bench, motor, cache_dir)
     except _ERRORS as exc:
-        return [_error(_blank(paths), exc) for paths in groups]
+        return [_failed(paths, exc) for paths in groups]
     return _finish(setup, _start(setup, groups))
 
 
@@ -169,7 +169,7 @@ def refit_batches(batches: Iterable[Sequence[Sequence[str | Path]]], limits_file
         setup = _RefitSetup(limits_file, variant, bench, motor, cache_dir)
     except _ERRORS as exc:
         for groups in batches:
-            yield [_error(_blank(paths), exc) for paths in groups]
+            yield [_failed(paths, exc) for paths in groups]
         return
     ahead: tuple[Sequence[Sequence[str | Path]], _Batch | BaseException] | None = None
     for groups in batches:
@@ -351,10 +351,8 @@ def refit_in_process(groups: Sequence[Sequence[str | Path]], limits_file: str | 
 
 
 def _failed(group: Sequence[str | Path], exc: BaseException) -> dict[str, Any]:
-    """The row of a group whose task failed as a whole."""
-    row = _blank(group)
-    _error(row, exc)
-    return row
+    """The row of a group whose task (or whose refit's setup) failed as a whole."""
+    return _error(_blank(group), exc)
 
 
 def refit_lot(paths: Sequence[Sequence[Path]], client: Any, limits_file: str | None = None, variant: str | None = None,
