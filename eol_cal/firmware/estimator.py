@@ -245,10 +245,7 @@ def _program(kind: str, cfg: EstimatorConfig, build: Callable[[EstimatorConfig],
     dtypes, :data:`_EXPORT_TAG`, the JAX version). The same program either way: its outputs are
     bit for bit the traced one's (tests/test_estimator_export.py).
     """
-    if exported.cache_dir() is None:
-        return build(cfg)
-    key = exported.key_text(_EXPORT_TAG, (kind, cfg, exported.signature(args)[1]))
-    return exported.kept(f"est-{kind}", key, lambda: build(cfg), args)
+    return exported.kept(f"est-{kind}", _EXPORT_TAG, cfg, lambda: build(cfg), args)
 
 
 def _scan(program: Callable[..., tuple[jax.Array, ...]], state: EstimatorState, abh: np.ndarray, tables: HallTables

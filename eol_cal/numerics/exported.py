@@ -39,7 +39,7 @@ MAX_ENTRY_BYTES = 64 << 20
 
 _DIR: Path | None = None
 #: the programs this process has read or traced (:func:`kept`), by directory, name and key
-_KEPT: dict[tuple[Path | None, str, str], Callable] = {}
+_KEPT: dict[tuple[Path, str, str], Callable] = {}
 
 
 def set_cache_dir(path: str | os.PathLike[str] | None) -> None:
@@ -160,17 +160,21 @@ def save(directory: str | os.PathLike[str] | None, name: str, key: str, fn: Any,
         return False
 
 
-def kept(name: str, key: str, build: Callable[[], Callable], args: tuple) -> Callable:
+def kept(name: str, tag: str, parts: object, build: Callable[[], Callable], args: tuple) -> Callable:
     """The jitted program ``build()`` for the positional arguments ``args``, kept between processes.
 
     With a cache directory (:func:`set_cache_dir`) the program is read from there (:func:`load`)
-    instead of traced, or exported there (:func:`save`) after its first trace, under ``name`` and
-    ``key`` (:func:`key_text` of everything that changes the trace); without one, ``build()``. Kept
-    in this process too, by directory, name and key. The program read back, not the traced one,
-    is the one run after a save: the next process compiles nothing (JAX's persistent compilation
-    cache holds this one's compiled form).
+    instead of traced, or exported there (:func:`save`) after its first trace, as ``name`` under
+    the key :func:`key_text` makes of ``tag`` (the caller's code version), ``name``, ``parts``
+    (everything else that changes the trace: options, packings) and the arguments' shapes and
+    dtypes; kept in this process too, by directory and key. Without a directory: ``build()``. The
+    program read back, not the traced one, is the one run after a save: the next process compiles
+    nothing (JAX's persistent compilation cache holds this one's compiled form).
     """
     directory = cache_dir()
+    if directory is None:
+        return build()
+    key = key_text(tag, (name, parts, signature(args)[1]))
     memo = (directory, name, key)
     fn = _KEPT.get(memo)
     if fn is None:

@@ -178,10 +178,9 @@ def _kept(name: str, parts: tuple, build: Callable[[], Callable], args: tuple) -
     reads its plant's programs instead of tracing them): keyed by ``parts`` (the static
     configuration and packings), the argument shapes and the package's code
     (:func:`~eol_cal.numerics.exported.code_digest`); bit for bit the traced program's (test)."""
-    if exported.cache_dir() is None:
+    if exported.cache_dir() is None:  # no digest of the sources to make
         return build()
-    key = exported.key_text(_EXPORT_TAG, (name, exported.code_digest(), parts, exported.signature(args)[1]))
-    return exported.kept(name, key, build, args)
+    return exported.kept(name, _EXPORT_TAG, (exported.code_digest(), parts), build, args)
 
 
 def _motor_keys(seed: int, n_motors: int) -> Any:
