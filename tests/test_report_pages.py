@@ -348,3 +348,57 @@ def test_the_report_shows_the_mechanical_orders_and_the_identification_margin():
     html = render_motor_report(rec, [])
     assert 'id="mech"' in html and "Mechanical orders" in html
     assert "the mechanical orders are compensated too" in html
+
+
+def _drawn_texts(fig):
+    """Every visible, non-empty text of ``fig`` with its extent in pixels (the figure drawn once
+    on Agg), and the renderer."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
+
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    # an axis keeps tick labels beyond its view that it does not draw: only the drawn ones count
+    ticks = {id(t) for ax in fig.axes for axis in (ax.xaxis, ax.yaxis) for t in axis.get_ticklabels(which="both")}
+    drawn = {id(lab) for ax in fig.axes for axis in (ax.xaxis, ax.yaxis)
+             for tick in axis._update_ticks() for lab in (tick.label1, tick.label2)}
+    return [(t, t.get_window_extent(renderer)) for t in fig.findobj(Text)
+            if t.get_visible() and t.get_text().strip() and (id(t) not in ticks or id(t) in drawn)], renderer
+
+
+@pytest.mark.parametrize("draw", ["angle", "spectrum", "residual", "residual in rows"])
+def test_the_report_figures_fixed_margins_keep_every_label_on_the_figure_and_clear_of_the_panels(
+        fitted, draw, monkeypatch):
+    """The report's figures are laid out by fixed margins, not by measuring them (``tight_layout``
+    drew each once more): every label must still lie on the figure, and the axis labels clear of
+    the tick labels and panels beside them."""
+    from eol_cal.report import motor_page as mp
+
+    mi, fit, spec, pr = fitted
+    rec = at_point(make_record("R-1", variant="T", limits=dict(LIMITS.values), pp_before=pr[0].pp_pct,
+                               pp_after=pr[1].pp_pct), 120.0, 65.0)
+    figs = []
+    real = mp.figure_svg
+    monkeypatch.setattr(mp, "figure_svg", lambda fig, name, *a, **k: (figs.append(fig), real(fig, name, *a, **k))[1])
+    {"angle": lambda: mp.angle_figure(rec, pr, (mi, fit, spec)), "spectrum": lambda: mp.spectrum_figure(rec, pr),
+     "residual": lambda: mp.residual_figure((mi, fit, spec)),
+     "residual in rows": lambda: mp.residual_figure((mi, fit, spec), cols=2)}[draw]()
+    (fig,) = figs
+    page = fig.bbox
+    texts, renderer = _drawn_texts(fig)
+    assert texts
+    for t, box in texts:
+        assert page.x0 - 1 <= box.x0 and box.x1 <= page.x1 + 1 and page.y0 - 1 <= box.y0 and box.y1 <= page.y1 + 1, \
+            (t.get_text(), box, page)
+    # the y axis' label (or the figure's) left of every tick label, the x label below them
+    labels = [ax.yaxis.label for ax in fig.axes if ax.yaxis.label.get_text()] + \
+        ([fig._supylabel] if getattr(fig, "_supylabel", None) is not None else [])
+    ticks = [box for t, box in texts if t in {lab for ax in fig.axes for lab in ax.get_yticklabels()}]
+    for label in labels:
+        right = label.get_window_extent(renderer).x1
+        assert all(right <= box.x0 + 1 for box in ticks if box.x0 < page.x0 + page.width / 2), label.get_text()
+    # panels side by side do not overlap each other's tick labels
+    xticks = [box for t, box in texts if t in {lab for ax in fig.axes for lab in ax.get_xticklabels()}]
+    for i, a in enumerate(xticks):
+        for b in xticks[i + 1:]:
+            assert not a.overlaps(b), (a, b)
