@@ -397,8 +397,13 @@ def test_the_report_figures_fixed_margins_keep_every_label_on_the_figure_and_cle
     for label in labels:
         right = label.get_window_extent(renderer).x1
         assert all(right <= box.x0 + 1 for box in ticks if box.x0 < page.x0 + page.width / 2), label.get_text()
+    xlabels = [ax.xaxis.label for ax in fig.axes if ax.xaxis.label.get_text()] + \
+        ([fig._supxlabel] if getattr(fig, "_supxlabel", None) is not None else [])
+    below = [box for t, box in texts if t in {lab for ax in fig.axes for lab in ax.get_xticklabels()}]
+    for label in xlabels:
+        top = label.get_window_extent(renderer).y1
+        assert all(top <= box.y0 + 1 for box in below if box.y0 < page.y0 + page.height / 2), label.get_text()
     # panels side by side do not overlap each other's tick labels
-    xticks = [box for t, box in texts if t in {lab for ax in fig.axes for lab in ax.get_xticklabels()}]
-    for i, a in enumerate(xticks):
-        for b in xticks[i + 1:]:
+    for i, a in enumerate(below):
+        for b in below[i + 1:]:
             assert not a.overlaps(b), (a, b)

@@ -178,14 +178,15 @@ def _margins(fig: Any, *, left: float, right: float, bottom: float, top: float, 
                         wspace=wspace / panel_w, hspace=hspace / panel_h)
 
 
+#: digits and minus as superscripts (a decade's exponent, :func:`_log_tick`)
+_SUPERSCRIPT = str.maketrans("-0123456789", "\u207b\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079")
+
+
 def _log_tick(value: float, _pos: object = None) -> str:
     """A decade's label as 10 with a superscript exponent in plain text: matplotlib's default
     spells it as math text, whose parser cost 0.3 s a process for the spectrum's few labels."""
     exponent = round(math.log10(value)) if value > 0 else 0
     return "10" + str(exponent).translate(_SUPERSCRIPT)
-
-
-_SUPERSCRIPT = str.maketrans("-0123456789", "\u207b\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079")
 
 
 def _decimate(*arrays: np.ndarray, n: int = _MAX_POINTS) -> list[np.ndarray]:
