@@ -390,20 +390,18 @@ def test_the_report_figures_fixed_margins_keep_every_label_on_the_figure_and_cle
     for t, box in texts:
         assert page.x0 - 1 <= box.x0 and box.x1 <= page.x1 + 1 and page.y0 - 1 <= box.y0 and box.y1 <= page.y1 + 1, \
             (t.get_text(), box, page)
-    # the y axis' label (or the figure's) left of every tick label, the x label below them
-    labels = [ax.yaxis.label for ax in fig.axes if ax.yaxis.label.get_text()] + \
-        ([fig._supylabel] if getattr(fig, "_supylabel", None) is not None else [])
-    ticks = [box for t, box in texts if t in {lab for ax in fig.axes for lab in ax.get_yticklabels()}]
-    for label in labels:
-        right = label.get_window_extent(renderer).x1
-        assert all(right <= box.x0 + 1 for box in ticks if box.x0 < page.x0 + page.width / 2), label.get_text()
-    xlabels = [ax.xaxis.label for ax in fig.axes if ax.xaxis.label.get_text()] + \
-        ([fig._supxlabel] if getattr(fig, "_supxlabel", None) is not None else [])
-    below = [box for t, box in texts if t in {lab for ax in fig.axes for lab in ax.get_xticklabels()}]
-    for label in xlabels:
-        top = label.get_window_extent(renderer).y1
-        assert all(top <= box.y0 + 1 for box in below if box.y0 < page.y0 + page.height / 2), label.get_text()
+    # the y axis' labels (and the figure's) left of the tick labels in the left half, the x axis'
+    # labels below those in the bottom half: (x or y, the page's half, the label's far edge, the ticks' near edge)
+    ticks = {}
+    for xy, half, far, near in (("y", page.x0 + page.width / 2, "x1", "x0"), ("x", page.y0 + page.height / 2, "y1", "y0")):
+        axis, sup = f"{xy}axis", f"_sup{xy}label"
+        labels = [getattr(ax, axis).label for ax in fig.axes if getattr(ax, axis).label.get_text()] + \
+            ([getattr(fig, sup)] if getattr(fig, sup, None) is not None else [])
+        ticks[xy] = [box for t, box in texts if t in {lab for ax in fig.axes for lab in getattr(ax, axis).get_ticklabels()}]
+        for label in labels:
+            edge = getattr(label.get_window_extent(renderer), far)
+            assert all(edge <= getattr(box, near) + 1 for box in ticks[xy] if getattr(box, near) < half), label.get_text()
     # panels side by side do not overlap each other's tick labels
-    for i, a in enumerate(below):
-        for b in below[i + 1:]:
+    for i, a in enumerate(ticks["x"]):
+        for b in ticks["x"][i + 1:]:
             assert not a.overlaps(b), (a, b)
