@@ -423,6 +423,44 @@ def test_flash_ahead_writes_like_flash_block_and_an_unused_one_leaves_the_ecu_as
         assert B.check(rig.sim.flash.bank(0)).valid  # BLOCK_A's bank held a block: not erased ahead
 
 
+def test_a_traced_flash_ahead_reads_the_ecus_state_first_and_flashes_on_the_same_session(tmp_path):
+    """The station opens the calibrated flash ahead as the calibration capture's last window is in:
+    its first requests read what ``ecu_state`` reads (the capture's state after its windows), then
+    it goes on to program; an ECU that refuses the read fails the state and the flash alike."""
+    import can
+
+    from eol_cal.domain.motor_params import load_motor
+    from eol_cal.ecu.client import ecu_state
+    from eol_cal.ecu.simconfig import Faults
+    from eol_cal.station.flash_ahead import FlashAhead
+
+    with virtual_rig(tmp_path / "f.bin") as rig:
+        first = _flash(rig, BLOCK_A)
+
+        def open_bus():
+            return can.Bus(interface="virtual", channel=rig.channel)
+
+        bus = open_bus()
+        try:
+            alone = ecu_state(bus, timing=FAST_CLIENT)
+        finally:
+            bus.shutdown()
+        ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor(), traced=True)
+        assert ahead.state is not None and ahead.state.result(5.0) == alone
+        assert (alone.bank, alone.sequence) == (first.active_after.bank, first.active_after.sequence)
+        report, done = ahead.flash(BLOCK_B, role="calibrated", path=tmp_path / "block.bin", source="<test>")
+        assert (report.verified, done.confirmed) == (True, True) and rig.sim.active.sequence == alone.sequence + 1
+        assert FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor()).state is None
+
+        rig.restart(faults=Faults(nrc={0x22: 0x31}))  # ReadDataByIdentifier refused: RequestOutOfRange
+        ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor(), traced=True)
+        with pytest.raises(EcuError):
+            ahead.state.result(5.0)
+        with pytest.raises(EcuError):
+            ahead.flash(BLOCK_A, role="calibrated", path=tmp_path / "a.bin", source="<test>")
+        assert rig.sim.active.sequence == alone.sequence + 1 and not (tmp_path / "a.bin").exists()
+
+
 def test_the_station_flash_without_read_back_leaves_the_check_to_the_ecus_crc(tmp_path):
     """``flash.read_back = "off"`` (a line's takt choice): the station's flashes send no
     ReadMemoryByAddress before the CRC, the record's block says ``verified`` false, and a worn

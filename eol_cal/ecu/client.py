@@ -25,7 +25,7 @@ from eol_cal.infra.inputs import read_text
 
 __all__ = ["ClientTiming", "EcuError", "EcuInfo", "FlashReport", "SeedToKey", "UdsSession", "VerifyFailed",
            "EcuCheck", "ecu_info", "ecu_state", "flash_block", "hmac_seed_to_key", "load_key_file", "preflight_ecu",
-           "read_active_block"]
+           "read_active_block", "session_state"]
 
 log = logging.getLogger(__name__)
 
@@ -145,8 +145,14 @@ def ecu_state(bus: can.BusABC, *, timing: ClientTiming = ClientTiming()) -> EcuS
     """What the ECU runs now: its serial (F18C), active bank, sequence, CRC (FD01) and the block's
     flags. Extended session, no security access; nothing is written."""
     with UdsSession(bus, timing=timing) as s:
-        s.session(P.SESSION_EXTENDED)
-        return _active_state(s, s.read_did(P.DID_SERIAL))
+        return session_state(s)
+
+
+def session_state(s: UdsSession) -> EcuState:
+    """:func:`ecu_state` on a session already open, which stays open (the station's flash ahead reads
+    it first, as the calibration capture's state after its last window, then goes on to program)."""
+    s.session(P.SESSION_EXTENDED)
+    return _active_state(s, s.read_did(P.DID_SERIAL))
 
 
 @dataclass

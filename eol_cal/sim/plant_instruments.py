@@ -39,7 +39,7 @@ from eol_cal.domain.motor_params import load_motor
 from eol_cal.domain.bench_mechanics import SIMULATED_BENCH_KEY
 from eol_cal.records.record import DynoStatus, PreflightResult
 from eol_cal.sim.rig import plant_source
-from eol_cal.station.acquisition import read_ecu_with
+from eol_cal.station.acquisition import ReadAfter, read_ecu_with
 from eol_cal.station.archive import flash_archived
 from eol_cal.station.flash_ahead import FlashAhead
 from eol_cal.station.instruments import Flashed, OpenFlash
@@ -133,7 +133,8 @@ class PlantInstruments:
 
     def acquire(self, segments: Sequence[DynoSetpoint], *, serial: str, rate_hz: int, channels: Sequence[str],
                 comment: str, on_window: WindowHook | None = None, lead_in_s: float = 0.0,
-                lead_in_point: DynoSetpoint | None = None) -> tuple[Capture, Trace]:
+                lead_in_point: DynoSetpoint | None = None, read_after: ReadAfter | None = None
+                ) -> tuple[Capture, Trace]:
         read_ecu = read_ecu_with(self.open_bus, self.timing)
         before = read_ecu()
         data: list[DynoWindow] = []
@@ -155,7 +156,7 @@ class PlantInstruments:
             t, speed = t + n / rate_hz, seg.speed_rpm
             if on_window is not None:
                 on_window(i, data[-1], window_times(data)[-1])
-        after = read_ecu()
+        after = read_ecu() if read_after is None else read_after().result()
         lead_s = lead_in_samples(lead_in_s, rate_hz) / rate_hz
         meta: dict = {"comment": comment, **({"lead_in_s": lead_s} if lead_s or lead_in_point else {})}
         if lead_in_point is not None:
@@ -171,8 +172,9 @@ class PlantInstruments:
                               timing=self.timing, motor=self.motor, source=source, before_commit=before_commit,
                               read_back=read_back)
 
-    def flash_ahead(self) -> OpenFlash:
-        return FlashAhead(self.open_bus, seed_to_key=self.seed_to_key, timing=self.timing, motor=self.motor)
+    def flash_ahead(self, traced: bool = False) -> OpenFlash:
+        return FlashAhead(self.open_bus, seed_to_key=self.seed_to_key, timing=self.timing, motor=self.motor,
+                          traced=traced)
 
     def safe_state(self) -> str:
         # the in-process dyno turns only inside a capture's request: it stands between two

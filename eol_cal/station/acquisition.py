@@ -26,6 +26,9 @@ if TYPE_CHECKING:
 
 #: reads the ECU's state now (opens and closes its own bus)
 ReadEcu = Callable[[], EcuState]
+#: starts what reads the ECU's state after the last window, in place of a :data:`ReadEcu` of its own
+#: (the station's flash ahead, :class:`~eol_cal.station.flash_ahead.FlashAhead`'s ``state``)
+ReadAfter = Callable[[], "Future[EcuState]"]
 
 
 class EcuStateMismatch(EolCalError):
@@ -46,7 +49,8 @@ def read_ecu_with(open_bus: Callable[[], Any], timing: ClientTiming) -> ReadEcu:
 
 
 def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Sequence[DynoSetpoint],
-                   out: str | Path | None, **acquire_kw: Any) -> tuple[Capture, Trace]:
+                   out: str | Path | None, read_after: ReadAfter | None = None, **acquire_kw: Any
+                   ) -> tuple[Capture, Trace]:
     """:func:`eol_cal.dyno.profile_run.acquire` with the ECU's state read before and after, into the
     capture's metadata (``ecu_before.*``, ``ecu_after.*``); written to ``out`` after both reads
     (``out`` None: the caller writes it).
@@ -55,7 +59,8 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
     the dyno's ramps (:func:`eol_cal.dyno.profile_run.run_profile`): the one before while the shaft
     ramps to the first segment, finished before the first capture is armed; the one after from
     the last window on, while the shaft stops. A failed read before stops the dyno (safe state)
-    before any capture; a failed read after writes no capture.
+    before any capture; a failed read after writes no capture. ``read_after``: started after the
+    last window in place of ``read_ecu``'s read there.
     """
     if read_ecu is None:
         capture = acquire(config, segments, None, **acquire_kw)
@@ -66,7 +71,8 @@ def acquire_traced(read_ecu: ReadEcu | None, config: DynoConfig, segments: Seque
         before_job = pool.submit(read_ecu)
         after_job: list[Future] = []
         capture = acquire(config, segments, None, before_capture=before_job.result,
-                          after_capture=lambda: after_job.append(pool.submit(read_ecu)), **acquire_kw)
+                          after_capture=lambda: after_job.append(read_after() if read_after is not None
+                                                                 else pool.submit(read_ecu)), **acquire_kw)
         before, after = before_job.result(), after_job[0].result()
     capture = dataclasses.replace(capture, metadata=with_ecu_state(capture.metadata, before, after))
     if out is not None:

@@ -38,6 +38,7 @@ from eol_cal.station.run import ProgressFn, StationConfig, check_config, new_run
 
 if TYPE_CHECKING:
     from eol_cal.analysis.fit.motors import MotorsFit
+    from eol_cal.capture.ecu_state import EcuState
     from eol_cal.analysis.motor_result import MotorResult
     from eol_cal.report.motor_page import FitExtra
     from eol_cal.capture.data import Capture
@@ -142,7 +143,8 @@ class CycleContext:
         return self.cfg.kind if self.touched else "refusal"
 
     # ------------------------------------------------------------------ acquisition
-    def acquire(self, which: str, segs: list, on_window: Callable | None = None, hold_write: bool = False) -> Capture:
+    def acquire(self, which: str, segs: list, on_window: Callable | None = None, hold_write: bool = False,
+                flash_after: bool = False) -> Capture:
         """One acquisition with the ECU's state before and after (in the capture and the record);
         the ECU must have run the block this cycle flashed, unchanged, all along. ``on_window``:
         the dyno client's hook for each window as it is read. ``hold_write``: the capture file is
@@ -150,7 +152,9 @@ class CycleContext:
         download: the writer's ~0.1 CPU s competes neither with the fit nor with the flash's first
         half), not before this returns; :meth:`settle_writes` waits for it (the flash does, before
         the block's CRC makes it count, and the verdict). The flash before reset the ECU: the shaft
-        turns for its settling first (the lead-in, ``cfg.lead_in``)."""
+        turns for its settling first (the lead-in, ``cfg.lead_in``). ``flash_after``: the calibrated
+        flash's first half opens as the last window is in, its first requests the ECU's state after
+        it (:meth:`open_flash_ahead`)."""
         path = self.run_dir / f"{which}.mf4"
         booted = self.uncompensated if which == "before" else self.calibrated
         speed, lead_point, lead_in_s = float(segs[0].speed_rpm), None, 0.0
@@ -165,7 +169,8 @@ class CycleContext:
         channels = DEFAULT_CHANNELS + (("iq",) if which == "before" and "iq" in self.instruments.channels else ())
         cap, trace = self.instruments.acquire(segs, serial=self.cfg.serial, rate_hz=self.cfg.rate_hz, channels=channels,
                                               comment=f"eol-cal run {self.run_id}: {which}, profile {self.profile_name}",
-                                              on_window=on_window, lead_in_s=lead_in_s, lead_in_point=lead_point)
+                                              on_window=on_window, lead_in_s=lead_in_s, lead_in_point=lead_point,
+                                              read_after=self._flash_ahead_traced if flash_after else None)
         if hold_write:
             self.held[which] = functools.partial(self.store, which, cap, trace, path, len(segs))
         else:
@@ -211,8 +216,16 @@ class CycleContext:
     def open_flash_ahead(self) -> None:
         """The calibrated flash's first half (sessions, identification, the erase of an empty
         inactive bank) on a thread of its own while the fit computes the block
-        (:mod:`eol_cal.station.flash_ahead`); closed by the flash or at the cycle's end."""
-        self.ahead = self.instruments.flash_ahead()
+        (:mod:`eol_cal.station.flash_ahead`), unless the calibration capture opened it already;
+        closed by the flash or at the cycle's end."""
+        if self.ahead is None:
+            self.ahead = self.instruments.flash_ahead()
+
+    def _flash_ahead_traced(self) -> Future[EcuState]:
+        # the acquisition's read after its last window (acquire(flash_after=True))
+        self.ahead = self.instruments.flash_ahead(traced=True)
+        assert self.ahead.state is not None
+        return self.ahead.state
 
     def close_flash_ahead(self) -> None:
         if self.ahead is not None:

@@ -7,6 +7,12 @@ it would run after the fit; :class:`FlashAhead` runs it on a thread of its own f
 start, on a bus of its own, so the flash step starts at the download. The session stays open
 meanwhile (TesterPresent, :class:`~eol_cal.ecu.session.UdsSession`).
 
+Opened ``traced`` (the station opens it as the calibration capture's last window is in), its first
+requests read the ECU's state as :func:`~eol_cal.ecu.client.ecu_state` does (extended session, F18C,
+FD01, the active block's header): the capture's state after its windows (:attr:`FlashAhead.state`),
+read on the session the flash goes on with. A read of its own would hold the ECU until the flash
+ahead may start (two testers cannot share it): the first half's ~0.15 s began only after it.
+
 :meth:`FlashAhead.flash` writes the block (checked against the identification as
 :func:`~eol_cal.ecu.sequence.flash_block` checks it) and archives it as
 :func:`~eol_cal.station.archive.flash_archived` does; a cycle that ends without flashing (the fit
@@ -25,11 +31,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 from collections.abc import Callable
 
+from eol_cal.ecu.client import session_state
 from eol_cal.ecu.sequence import Programming, refuse_block
 from eol_cal.ecu.session import UdsSession
 from eol_cal.station.archive import archived
 
 if TYPE_CHECKING:
+    from eol_cal.capture.ecu_state import EcuState
     from eol_cal.ecu.sequence import FlashReport
     from eol_cal.ecu.session import ClientTiming
     from eol_cal.domain.motor_params import MotorParams
@@ -52,12 +60,16 @@ class FlashAhead:
     timing : ClientTiming
     motor : MotorParams
         The station's motor (the block's physical checks, the ECU's type without a block).
+    traced : bool
+        Read the ECU's state first (:attr:`state`; module doc).
     """
 
     def __init__(self, open_bus: Callable[[], Any], *, seed_to_key: Callable[[bytes], bytes], timing: ClientTiming,
-                 motor: MotorParams) -> None:
+                 motor: MotorParams, traced: bool = False) -> None:
         self.motor = motor
         self.erased: bool | None = None
+        #: the ECU's state read first (``traced``), else None; its failure is the first half's
+        self.state: Future[EcuState] | None = Future() if traced else None
         self._open_bus, self._seed_to_key, self._timing = open_bus, seed_to_key, timing
         self._bus: Any = None
         self._session: UdsSession | None = None
@@ -74,11 +86,15 @@ class FlashAhead:
                 self._bus = self._open_bus()
                 self._session = UdsSession(self._bus, seed_to_key=self._seed_to_key, timing=self._timing)
                 self._session.__enter__()
+            if self.state is not None:
+                self.state.set_result(session_state(self._session))
             programming = Programming(self._session, self.motor)
             programming.identify()
             self.erased = programming.erase_ahead()
             self._opened.set_result(programming)
         except BaseException as exc:  # noqa: BLE001 - the flash step raises it
+            if self.state is not None and not self.state.done():
+                self.state.set_exception(exc)
             self._opened.set_exception(exc)
 
     def flash(self, data: bytes, *, role: str, path: Path, source: str,

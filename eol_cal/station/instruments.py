@@ -17,14 +17,17 @@ from typing import TYPE_CHECKING, Protocol
 from collections.abc import Callable, Sequence
 
 from eol_cal.ecu.session import ClientTiming
-from eol_cal.station.acquisition import acquire_traced, read_ecu_with
+from eol_cal.station.acquisition import ReadAfter, acquire_traced, read_ecu_with
 from eol_cal.station.archive import flash_archived
 from eol_cal.station.flash_ahead import FlashAhead
 from eol_cal.station.preflight import preflight
 from eol_cal.station.run import safe_state
 
 if TYPE_CHECKING:
+    from concurrent.futures import Future
+
     from eol_cal.capture.data import Capture
+    from eol_cal.capture.ecu_state import EcuState
     from eol_cal.capture.ecu_state import Trace
     from eol_cal.dyno.profile_run import WindowHook
     from eol_cal.dyno.setpoints import DynoSetpoint
@@ -45,6 +48,11 @@ class OpenFlash(Protocol):
 
     def close(self) -> None: ...
 
+    @property
+    def state(self) -> Future[EcuState] | None:
+        """The ECU's state its first requests read (opened ``traced``), else None."""
+        ...
+
 
 class Instruments(Protocol):
     """The dyno and the ECU of one motor's cycle (module doc)."""
@@ -61,9 +69,11 @@ class Instruments(Protocol):
 
     def acquire(self, segments: Sequence[DynoSetpoint], *, serial: str, rate_hz: int, channels: Sequence[str],
                 comment: str, on_window: WindowHook | None = None, lead_in_s: float = 0.0,
-                lead_in_point: DynoSetpoint | None = None) -> tuple[Capture, Trace]:
+                lead_in_point: DynoSetpoint | None = None, read_after: ReadAfter | None = None
+                ) -> tuple[Capture, Trace]:
         """The profile's windows joined into one capture, the ECU's state read before the first
-        and after the last (:func:`eol_cal.station.acquisition.acquire_traced`); not written."""
+        and after the last (:func:`eol_cal.station.acquisition.acquire_traced`; ``read_after``
+        started for the read after); not written."""
         ...
 
     def flash(self, data: bytes, *, role: str, path: Path, source: str,
@@ -72,8 +82,9 @@ class Instruments(Protocol):
         (:func:`eol_cal.station.archive.flash_archived`)."""
         ...
 
-    def flash_ahead(self) -> OpenFlash:
-        """Start a flash's first half now, on a thread of its own (:class:`FlashAhead`)."""
+    def flash_ahead(self, traced: bool = False) -> OpenFlash:
+        """Start a flash's first half now, on a thread of its own (:class:`FlashAhead`; ``traced``:
+        its first requests read the ECU's state)."""
         ...
 
     def safe_state(self) -> str:
@@ -98,9 +109,10 @@ class BenchInstruments:
 
     def acquire(self, segments: Sequence[DynoSetpoint], *, serial: str, rate_hz: int, channels: Sequence[str],
                 comment: str, on_window: WindowHook | None = None, lead_in_s: float = 0.0,
-                lead_in_point: DynoSetpoint | None = None) -> tuple[Capture, Trace]:
+                lead_in_point: DynoSetpoint | None = None, read_after: ReadAfter | None = None
+                ) -> tuple[Capture, Trace]:
         return acquire_traced(read_ecu_with(self.cfg.open_bus, self.timing), self.cfg.dyno, segments, None,
-                              serial=serial, rate_hz=rate_hz, channels=tuple(channels),
+                              read_after, serial=serial, rate_hz=rate_hz, channels=tuple(channels),
                               extra_metadata={"comment": comment}, on_window=on_window, lead_in_s=lead_in_s,
                               lead_in_point=lead_in_point)
 
@@ -110,9 +122,9 @@ class BenchInstruments:
                               timing=self.timing, motor=self.cfg.motor, source=source, before_commit=before_commit,
                               read_back=read_back)
 
-    def flash_ahead(self) -> OpenFlash:
+    def flash_ahead(self, traced: bool = False) -> OpenFlash:
         return FlashAhead(self.cfg.open_bus, seed_to_key=self.cfg.seed_to_key, timing=self.timing,
-                          motor=self.cfg.motor)
+                          motor=self.cfg.motor, traced=traced)
 
     def safe_state(self) -> str:
         return safe_state(self.cfg.dyno)

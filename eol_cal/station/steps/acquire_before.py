@@ -1,6 +1,8 @@
 """Step ``acquire``: the calibration capture over the whole profile; each window's angle and p-p
 figure are worked out on the helper thread as the dyno hands it over (:mod:`eol_cal.station.early`),
-behind the fit's pre-warming (imports, the solver's trace), while the shaft turns on."""
+behind the fit's pre-warming (imports, the solver's trace), while the shaft turns on. The
+calibrated flash's first half opens as the last window is in, its first requests the ECU's state
+after the capture (:meth:`~eol_cal.station.context.CycleContext.acquire`, ``flash_after``)."""
 
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def run(ctx: CycleContext) -> None:
     ctx.prewarm = ctx.helper.submit(prewarm_fit, len(ctx.segments), ctx.cfg.cache_dir, False, points)
     ctx.early = EarlyWindows(ctx.cfg.motor.poles, ctx.cfg.motor.N_enc, ctx.cfg.estimator_options,
                              pool=ctx.helper, cache_dir=ctx.cfg.cache_dir, n_windows=len(ctx.segments))
-    ctx.before = ctx.acquire("before", ctx.segments, on_window=ctx.early.on_window, hold_write=True)
+    ctx.before = ctx.acquire("before", ctx.segments, on_window=ctx.early.on_window, hold_write=True, flash_after=True)
 
 
 def preload_analysis() -> None:

@@ -2,8 +2,8 @@
 fails the motor here (judged once, :func:`eol_cal.records.limits.judge`, stage ``fit``).
 
 What is left when the capture is in: the hall table, the firmware frame (on threads) and the
-joint solve (its solver traced during the capture). The calibrated flash's first half opens
-meanwhile (:meth:`~eol_cal.station.context.CycleContext.open_flash_ahead`)."""
+joint solve (its solver traced during the capture). The calibrated flash's first half runs
+meanwhile, opened by the acquire step (or here: :meth:`~eol_cal.station.context.CycleContext.open_flash_ahead`)."""
 
 from __future__ import annotations
 
