@@ -79,6 +79,9 @@ class EarlyWindows(PreparedWindows):
         self._own = pool is None
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="eol-cal-window") if pool is None else pool
         self._jobs: dict[int, Future] = {}
+        # the fit asks several times about one window's capture (its angle, its frame, its figures):
+        # compared once (the capture held, so that its id is not another's)
+        self._compared: dict[int, tuple[Capture, bool]] = {}
         self.used = 0
         """Windows whose early angle the fit took."""
         self.frames_used = 0
@@ -145,11 +148,15 @@ class EarlyWindows(PreparedWindows):
         if job is None or job.exception() is not None:
             return None
         cap, angle, metrics = job.result()
-        same = (capture.metadata.get("poles") == self.poles and capture.metadata.get("encoder_ppr") == self.encoder_ppr
-                and np.array_equal(capture.t, cap.t)
-                and all(name in capture.channels and np.array_equal(capture.channels[name], v)
-                        for name, v in cap.channels.items()))
-        return (cap, angle, metrics) if same else None
+        known = self._compared.get(id(capture))
+        if known is None or known[0] is not capture:
+            same = (capture.metadata.get("poles") == self.poles
+                    and capture.metadata.get("encoder_ppr") == self.encoder_ppr
+                    and np.array_equal(capture.t, cap.t)
+                    and all(name in capture.channels and np.array_equal(capture.channels[name], v)
+                            for name, v in cap.channels.items()))
+            known = self._compared[id(capture)] = (capture, same)
+        return (cap, angle, metrics) if known[1] else None
 
     def angle_of(self, capture: Capture) -> AngleResult:
         early = self._early(capture)
