@@ -162,16 +162,20 @@ _F0, _F1 = F32(0.0), F32(1.0)
 _FALSE = cast(Array, np.False_)  # a flag no member raises, typed as the step's arrays
 
 
-def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
+def _set(arr: Array, idx: Array, val: Array, xp: ArrayModule, scatter: bool = False) -> Array:
     """``arr`` with ``arr[idx] = val`` (a copy under numpy, a functional update under JAX).
 
     Under JAX a select against the position (``idx`` in range: the same array bit for bit):
     ``.at[idx].set`` becomes a scatter once the step is vmapped over motors or captures, which
-    XLA's CPU backend runs outside the compiled tick loop, ~20x slower per tick."""
+    XLA's CPU backend runs outside a tick loop compiled into its loop kernel, ~20x slower per
+    tick. ``scatter``: ``.at[idx].set`` all the same, for a scan that is a sequence of XLA's
+    operations anyway (:func:`step_pitch`'s ``scatter_tables``)."""
     if not hasattr(arr, "at"):
         out = arr.copy()
         out[idx] = val
         return out
+    if scatter:
+        return arr.at[idx].set(val)
     return xp.where(xp.arange(arr.shape[-1], dtype=xp.int32) == idx, val, arr)
 
 
@@ -224,8 +228,8 @@ def step(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array
 
 
 def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b: Array, hall: Array,
-               xp: ArrayModule = np, tables: HallTables | None = None, batch_axis: str | None = None
-               ) -> tuple[EstimatorState, EstimatorOut, PitchSample]:
+               xp: ArrayModule = np, tables: HallTables | None = None, batch_axis: str | None = None,
+               scatter_tables: bool = False) -> tuple[EstimatorState, EstimatorOut, PitchSample]:
     """One PWM tick of the estimator (ESTIMATOR.md, "Per tick"), with what improvement 4 measured.
 
     Parameters
@@ -246,6 +250,12 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
         event's arithmetic then runs on the ticks some member has an A edge, the hall re-anchor's
         on those some member has an adjacent transition (a branch for the batch; under ``vmap`` a
         branch on a member's value computes both sides), the same result.
+    scatter_tables : bool
+        Under JAX, an A edge writes its entry of the pitch tables (``c_tab``, ``ts``) by a scatter,
+        not by a select over every entry: the same arrays. Cheaper in a batch's scan of XLA's
+        operations whose edge branch some member takes on most ticks (the identifier's power-ups,
+        :mod:`eol_cal.firmware.mech_sim`: 430 -> 210 ns a power-up a tick, 500 power-ups); dearer in
+        a scan compiled into XLA's loop kernel (the plant's, :func:`_set`).
 
     Returns
     -------
@@ -316,8 +326,8 @@ def step_pitch(cfg: EstimatorConfig, state: EstimatorState, enc_a: Array, enc_b:
             pitch_err = pitch - c.DELTA
             target = c_old + f32(edir) * pitch_err
             c_new = xp.where(learn, c_new + K_PITCH * (target - c_new), c_new)
-            c_tab = _set(s.c_tab, i_new, c_new, xp)
-            ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp)
+            c_tab = _set(s.c_tab, i_new, c_new, xp, scatter_tables)
+            ts = _set(s.ts, i_new, xp.where(ev, tick, s.ts[i_new]), xp, scatter_tables)
             R_prev = xp.where(measured, R, s.R_prev)
             run = xp.where(measured, xp.minimum(s.run + one, Ni),
                            xp.where(ev, _I0, s.run))

@@ -185,8 +185,10 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
             ths = th + jit_ * jax.random.normal(jax.random.fold_in(key, i), th.shape, f32)
             a, b, h = jax.vmap(sig)(ths, E, H, G)
             # the edge event, the re-anchor and the identifier's interrupt part only on the ticks some
-            # power-up needs them (the same result: batch_axis, batched_tick)
-            es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t, batch_axis=_AXIS),
+            # power-up needs them (the same result: batch_axis, batched_tick); an edge's entry of the
+            # pitch tables written alone (scatter_tables: this scan is no loop kernel)
+            es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t, batch_axis=_AXIS,
+                                                                   scatter_tables=True),
                                   axis_name=_AXIS)(es, a, b, h, tables)
             ms, mo = jax.vmap(lambda m, t, s, o, p: batched_tick(mc, t, m, s, o, p, _AXIS), axis_name=_AXIS)(
                 ms, tb, es, eo, ps)

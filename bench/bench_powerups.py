@@ -1,0 +1,103 @@
+"""The identifier's power-ups simulated in JAX (``eol_cal.firmware.mech_sim.simulate_powerups``):
+CPU per power-up and tick, this checkout against older ones, the results compared bit for bit.
+
+The scan is what ``tests/test_mech_identify.py`` runs for its 10 000 power-ups (20 parts of 500,
+one speed band each from 30 to 300 rpm): the suite's largest single cost. Each checkout runs in a
+fresh process of its own (its ``eol_cal`` and the test's parts imported from it), on XLA's one
+thread; the rounds alternate the checkouts, so a change in the machine's load falls on all of
+them. The first call of a process compiles the scan and is not counted.
+
+    python bench/bench_powerups.py [--parts 0,5,10,19] [--seconds 1.0] [--rounds 2] [--baseline DIR]
+
+``--baseline DIR``: another checkout (``git worktree add DIR COMMIT``). Every part's results
+(first identification, offset, wrong ticks, resets, score, margin of every power-up) must be the
+same in every checkout (checked: a SHA-256 of them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+
+def child(parts: list[int], seconds: float, out: Path) -> None:
+    """In the checkout's process: each part's CPU s per power-up and tick, and its results' hash."""
+    sys.path.insert(0, str(Path.cwd() / "tests"))
+    from eol_cal.numerics.xla import start_xla
+
+    start_xla()
+    import numpy as np
+    import test_mech_identify as T  # type: ignore[import-not-found]  # the test's parts, of this checkout
+
+    from eol_cal.firmware.mech_sim import simulate_powerups
+
+    pus, _, _ = T._part(parts[0])
+    simulate_powerups(pus, 0.05, seed=0)  # the scan compiled for the batch's shape
+    rows = []
+    for part in parts:
+        pus, _, _ = T._part(part)
+        t0 = time.process_time()
+        res = simulate_powerups(pus, seconds, seed=part)
+        cpu = time.process_time() - t0
+        digest = hashlib.sha256()
+        for name in ("truth", "first_id_s", "r_first", "wrong_ticks", "active_end", "resets", "score", "margin"):
+            digest.update(np.ascontiguousarray(getattr(res, name)).tobytes())
+        rows.append({"part": part, "powerups": len(pus), "cpu_s": cpu,
+                     "ns_per_tick": 1e9 * cpu / (len(pus) * seconds * 20000.0), "sha256": digest.hexdigest()[:16]})
+    out.write_text(json.dumps(rows))
+
+
+def run(code: Path, parts: list[int], seconds: float) -> list[dict]:
+    env = dict(os.environ, PYTHONPATH=str(code))
+    with tempfile.NamedTemporaryFile(suffix=".json") as f:
+        subprocess.run([sys.executable, str(HERE / "bench_powerups.py"), "--child", "--parts",
+                        ",".join(map(str, parts)), "--seconds", str(seconds), "--out", f.name],
+                       check=True, env=env, cwd=code)
+        return json.loads(Path(f.name).read_text())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--parts", default="0,5,10,19", help="the test's parts (speed bands 0..19), comma-separated")
+    ap.add_argument("--seconds", type=float, default=1.0, help="simulated seconds of each part's 500 power-ups")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--baseline", action="append", default=[], type=Path, help="an older checkout (repeatable)")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--out", type=Path, help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    parts = [int(p) for p in args.parts.split(",")]
+    if args.child:
+        child(parts, args.seconds, args.out)
+        return
+    codes = {"this checkout": HERE.parent, **{str(b): b.resolve() for b in args.baseline}}
+    best: dict[str, dict[int, dict]] = {name: {} for name in codes}
+    print(f"{os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}; parts {parts}, {args.seconds:g} s simulated each")
+    for r in range(args.rounds):
+        for name, code in codes.items():
+            rows = run(code, parts, args.seconds)
+            print(f"round {r + 1}: {name:40s} " + "  ".join(f"part {x['part']} {x['ns_per_tick']:.0f} ns" for x in rows)
+                  + f"; load {os.getloadavg()[0]:.2f}", flush=True)
+            for x in rows:
+                kept = best[name].get(x["part"])
+                best[name][x["part"]] = x if kept is None or x["cpu_s"] < kept["cpu_s"] else kept
+    print("\nCPU ns per power-up and tick, best of the rounds (500 power-ups a part, XLA on one thread)")
+    print(f"{'part (speed band)':20s}" + "".join(f"{name[-28:]:>30s}" for name in codes))
+    for p in parts:
+        print(f"{p:<20d}" + "".join(f"{best[name][p]['ns_per_tick']:30.0f}" for name in codes))
+    same = all(len({best[name][p]["sha256"] for name in codes}) == 1 for p in parts)
+    print(f"results the same in every checkout: {'yes' if same else 'NO'}")
+    if not same:
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
