@@ -31,7 +31,6 @@ HERE = Path(__file__).resolve().parent
 
 def child(parts: list[int], seconds: float, out: Path) -> None:
     """In the checkout's process: each part's CPU s per power-up and tick, and its results' hash."""
-    sys.path.insert(0, str(Path.cwd() / "tests"))
     from eol_cal.numerics.xla import start_xla
 
     start_xla()
@@ -57,7 +56,7 @@ def child(parts: list[int], seconds: float, out: Path) -> None:
 
 
 def run(code: Path, parts: list[int], seconds: float) -> list[dict]:
-    env = dict(os.environ, PYTHONPATH=str(code))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(code), str(code / "tests")]))  # the test's parts too
     with tempfile.NamedTemporaryFile(suffix=".json") as f:
         subprocess.run([sys.executable, str(HERE / "bench_powerups.py"), "--child", "--parts",
                         ",".join(map(str, parts)), "--seconds", str(seconds), "--out", f.name],

@@ -31,6 +31,8 @@ DIFFERS = {
     "run_id": "the lot's (from its name and the motor's number) against a new one",
     "started_at": "the runs' times", "ended_at": "the runs' times", "steps.*.seconds": "the runs' times",
     "blocks.*.seconds": "the flashes' times",
+    "blocks.*.retries": "requests repeated after an answer came late or was lost: how busy the machine was (one "
+                        "repeat in a batch of four motors' threads, the suite beside it at load 8)",
     "station": "the lot's station (sim:NAME, what makes the lot, the drawn motor's truth) against the command "
                "line's (the simulators' addresses)",
     "report_dir": "each run's own directory", "captures.*.path": "in the run's directory",
