@@ -37,7 +37,7 @@ def child(parts: list[int], seconds: float, out: Path) -> None:
     import numpy as np
     import test_mech_identify as T  # type: ignore[import-not-found]  # the test's parts, of this checkout
 
-    from eol_cal.firmware.mech_sim import simulate_powerups
+    from eol_cal.firmware.mech_sim import TICK_HZ, simulate_powerups
 
     pus, _, _ = T._part(parts[0])
     simulate_powerups(pus, 0.05, seed=0)  # the scan compiled for the batch's shape
@@ -51,7 +51,7 @@ def child(parts: list[int], seconds: float, out: Path) -> None:
         for name in ("truth", "first_id_s", "r_first", "wrong_ticks", "active_end", "resets", "score", "margin"):
             digest.update(np.ascontiguousarray(getattr(res, name)).tobytes())
         rows.append({"part": part, "powerups": len(pus), "cpu_s": cpu,
-                     "ns_per_tick": 1e9 * cpu / (len(pus) * seconds * 20000.0), "sha256": digest.hexdigest()[:16]})
+                     "ns_per_tick": 1e9 * cpu / (len(pus) * seconds * TICK_HZ), "sha256": digest.hexdigest()[:16]})
     out.write_text(json.dumps(rows))
 
 

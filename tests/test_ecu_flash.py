@@ -450,7 +450,9 @@ def test_a_traced_flash_ahead_reads_the_ecus_state_first_and_flashes_on_the_same
         assert (alone.bank, alone.sequence) == (first.active_after.bank, first.active_after.sequence)
         report, done = ahead.flash(BLOCK_B, role="calibrated", path=tmp_path / "block.bin", source="<test>")
         assert (report.verified, done.confirmed) == (True, True) and rig.sim.active.sequence == alone.sequence + 1
-        assert FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor()).state is None
+        untraced = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor())
+        assert untraced.state is None
+        untraced.close()  # its session left before the ECU restarts below
 
         rig.restart(faults=Faults(nrc={0x22: 0x31}))  # ReadDataByIdentifier refused: RequestOutOfRange
         ahead = FlashAhead(open_bus, seed_to_key=KEY, timing=FAST_CLIENT, motor=load_motor(), traced=True)
