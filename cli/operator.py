@@ -336,11 +336,8 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, panel, bin
                      if v is not None)
         raise InputError(None, given, "an option of the operator panel: give --panel too")
 
-    from eol_cal.ecu.python_can import import_can
-
     if not demo:  # the demo's simulated plant runs in this process: its loops as they were
         frame_loop_kernels()
-    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key

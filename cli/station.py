@@ -288,10 +288,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     cannot be written the record goes to the spool and the next run (or `eol-cal records
     --flush`) writes it in.
     """
-    from eol_cal.ecu.python_can import import_can
-
     frame_loop_kernels()
-    import_can()  # first, before the settings import it with its MF4 logger (a second of imports)
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor

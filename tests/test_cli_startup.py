@@ -84,3 +84,28 @@ def test_a_group_is_whole_when_another_command_of_its_module_came_first():
              "print(*sorted(m.cli.get_command(ctx, 'ecu').commands))")
     res = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300, check=True)
     assert "restore" in res.stdout.split()
+
+
+_CAN_PROBE = """
+import sys
+{first}
+import eol_cal.ecu.client, can
+bus = can.Bus(interface="virtual", channel="probe", receive_own_messages=True)
+bus.send(can.Message(arbitration_id=0x7E0, data=b"\\x02\\x10\\x03", is_extended_id=False))
+got = bus.recv(1.0)
+bus.shutdown()
+import can.io.mf4 as mf4
+print(got.arbitration_id == 0x7E0, "pandas" in sys.modules, mf4.asammdf is not None)
+"""
+
+
+@pytest.mark.slow  # processes of their own
+def test_python_can_is_imported_without_its_mf4_logger_unless_asammdf_came_first():
+    """python-can imports asammdf (and pandas) for its MF4 logger, 0.6-0.7 CPU s a process that
+    opens the bus; eol-cal never logs CAN to MF4. ``import eol_cal`` masks it for python-can's first
+    import, from any module; the bus still works, and a process that imported asammdf before keeps
+    python-can's MF4 format."""
+    for first, expect in (("", "True False False"), ("import asammdf", "True True True")):
+        res = subprocess.run([sys.executable, "-c", _CAN_PROBE.format(first=first)], capture_output=True,
+                             text=True, timeout=300)
+        assert res.stdout.split()[-3:] == expect.split(), (first, res.stdout, res.stderr)
