@@ -11,7 +11,6 @@ from click.testing import CliRunner
 
 from cli.main import cli
 from eol_cal.firmware import block as B
-from eol_cal.firmware import golden
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "fixtures" / "block_paper.bin"
@@ -96,27 +95,6 @@ def test_hex_export_round_trip_and_refusal(tmp_path):
     res = _run("block", "hex", str(bad), "--bank", "0", "-o", str(tmp_path / "x.hex"))
     assert res.exit_code == 1 and not (tmp_path / "x.hex").exists()
     assert _run("block", "hex", str(PAPER), "--bank", "2", "-o", str(out)).exit_code == 2
-
-
-@pytest.mark.slow
-def test_golden_out_and_check(tmp_path):
-    out = tmp_path / "g"
-    res = _run("golden", "--out", str(out))
-    assert res.exit_code == 0, res.output
-    assert _run("golden", "--check", str(out)).exit_code == 0
-    (out / "blocks.csv").write_text((out / "blocks.csv").read_text().replace("EPS-0001", "EPS-0009"))
-    res = _run("golden", "--check", str(out))
-    assert res.exit_code == 1 and "blocks.csv: row 1 differs in serial" in res.output
-    assert _run("golden").exit_code == 2
-
-
-@pytest.mark.slow
-def test_golden_check_default_dir(monkeypatch):
-    monkeypatch.chdir(ROOT)
-    res = _run("golden", "--check")
-    assert res.exit_code == 0, res.output
-    n = len(golden.vector_sets())
-    assert f"{n} files" in res.output
 
 
 def test_uncompensated_block_for_the_calibration_capture(tmp_path):

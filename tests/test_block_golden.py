@@ -11,7 +11,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from cli.main import cli
 from eol_cal.firmware import block as B
 from eol_cal.firmware import compensator as comp
 from eol_cal.firmware import golden, vectors
@@ -205,3 +207,29 @@ def test_a_malformed_manifest_is_reported_not_a_crash(tmp_path, files):
     else:
         assert any("files is not a list" in p for p in problems)
     assert all(p.startswith(str(tmp_path / "manifest.json")) for p in problems)
+
+
+def _golden_cli(*args: str):
+    # in this module's process, where the sets fixture computed the vector sets once (golden's cache)
+    return CliRunner().invoke(cli, ["golden", *args], catch_exceptions=False)
+
+
+@pytest.mark.slow
+def test_golden_out_and_check(sets, tmp_path):
+    out = tmp_path / "g"
+    res = _golden_cli("--out", str(out))
+    assert res.exit_code == 0, res.output
+    assert _golden_cli("--check", str(out)).exit_code == 0
+    (out / "blocks.csv").write_text((out / "blocks.csv").read_text().replace("EPS-0001", "EPS-0009"))
+    res = _golden_cli("--check", str(out))
+    assert res.exit_code == 1 and "blocks.csv: row 1 differs in serial" in res.output
+    assert _golden_cli().exit_code == 2
+
+
+@pytest.mark.slow
+def test_golden_check_default_dir(sets, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    res = _golden_cli("--check")
+    assert res.exit_code == 0, res.output
+    n = len(sets)
+    assert f"{n} files" in res.output
