@@ -119,8 +119,6 @@ def test_uncompensated_block_for_the_calibration_capture(tmp_path):
 
 def test_one_rule_reads_every_block_file(tmp_path):
     """Intel HEX by content or by name, raw binary otherwise; the same bytes either way."""
-    import pytest
-
     from eol_cal.errors import InputError
 
     data = PAPER.read_bytes()
