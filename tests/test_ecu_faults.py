@@ -107,7 +107,7 @@ def test_power_loss_at_every_word_of_the_program_step():
     assert select_active(flash)[0].sequence == 2
 
 
-# a seed whose drops miss the reset answer (a lost one is an error by design: the ECU may have reset);
+# a seed whose drops miss the reset answer (a lost one is confirmed by FD01: tests/test_ecu_rev11.py);
 # the flash reads the active header (0x23) before the erase since issue 16, which moved seed 2's drops there
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", [3])

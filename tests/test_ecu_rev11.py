@@ -57,6 +57,17 @@ def test_lost_more_often_than_repeated_starts_again_from_the_erase_with_smaller_
         assert report.transfer_blocks == -(-2148 // 1020) + 1
 
 
+def test_a_lost_reset_answer_is_confirmed_by_the_active_block_it_booted(tmp_path):
+    """The ECU reset and booted the new block, but its answer to 11 01 never came (a busy bus; an
+    in-process simulator starved past P2 on a loaded machine did the same): FD01 shows the new block
+    active, so the flash is done. Before, a good flash ended in exit 2."""
+    with virtual_rig(tmp_path / "f.bin", faults=Faults(drop_response={"reset": 1})) as rig:
+        report = flash_block(rig.tester, BLOCK, seed_to_key=KEY, timing=FAST_CLIENT)
+        assert report.verified and report.active_after == P.ActiveBlock(0, 1, B.unpack(BLOCK).layout_version,
+                                                                        report.crc32)
+        assert rig.sim.steps_seen.count("reset") == 1 and rig.sim.active == report.active_after
+
+
 def test_check_routine_reports_and_the_active_bank_changes_only_at_boot(tmp_path):
     with virtual_rig(tmp_path / "f.bin", faults=Faults(power_loss_step="reset")) as rig:
         with pytest.raises(EcuError):

@@ -399,15 +399,29 @@ class Programming:
                                   else "no status (an empty routine answer)"))
         prog.step("reset")
         prog.reset_sent = True  # from here the ECU may have reset (no answer, an interruption)
+        expected = P.ActiveBlock(bank, sequence, blk.layout_version, crc)
         try:
             s.reset()
         except EcuError as exc:
             prog.reset_sent = exc.nrc is None  # refused with an NRC: it did not reset
-            raise
+            if exc.cause != "timeout":
+                raise
+            # No answer: the ECU may have reset before its answer got out, or the answer was lost (a
+            # busy bus, an ECU late to answer). FD01 tells: the new block active means it reset and
+            # booted it; anything else, or no answer again, is the reset's failure as it was.
+            prog.step("confirm (22 FD01)")
+            try:
+                after = s.read_did(P.DID_ACTIVE_BLOCK)
+            except EcuError:
+                raise exc from None
+            if after != expected:
+                raise exc from None
+            s.in_session = s.programming = False
+            report.active_after = after
+            return report
         prog.step("confirm (22 FD01)")
         after = s.read_did(P.DID_ACTIVE_BLOCK)
         report.active_after = after
-        expected = P.ActiveBlock(bank, sequence, blk.layout_version, crc)
         if after != expected:
             raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
         return report
