@@ -400,6 +400,7 @@ class Programming:
         prog.step("reset")
         prog.reset_sent = True  # from here the ECU may have reset (no answer, an interruption)
         expected = P.ActiveBlock(bank, sequence, blk.layout_version, crc)
+        unanswered: EcuError | None = None
         try:
             s.reset()
         except EcuError as exc:
@@ -409,18 +410,17 @@ class Programming:
             # No answer: the ECU may have reset before its answer got out, or the answer was lost (a
             # busy bus, an ECU late to answer). FD01 tells: the new block active means it reset and
             # booted it; anything else, or no answer again, is the reset's failure as it was.
-            prog.step("confirm (22 FD01)")
-            try:
-                after = s.read_did(P.DID_ACTIVE_BLOCK)
-            except EcuError:
-                raise exc from None
-            if after != expected:
-                raise exc from None
-            s.in_session = s.programming = False
-            report.active_after = after
-            return report
+            unanswered = exc
         prog.step("confirm (22 FD01)")
-        after = s.read_did(P.DID_ACTIVE_BLOCK)
+        try:
+            after = s.read_did(P.DID_ACTIVE_BLOCK)
+        except EcuError:
+            if unanswered is None:
+                raise
+            raise unanswered from None
+        if unanswered is not None and after != expected:
+            raise unanswered from None
+        s.in_session = s.programming = False  # the ECU reset: its answer says so, or FD01 after a lost one
         report.active_after = after
         if after != expected:
             raise VerifyFailed("confirm", f"after the reset FD01 reports {after}, expected {expected}")
