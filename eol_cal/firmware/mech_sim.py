@@ -114,7 +114,7 @@ def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, fl
                       seed: int = 0, lead_s: float = 0.0) -> PowerUpResult:
     """Run the power-ups for ``seconds`` each (one vmapped batch; every power-up's own sensors,
     block and motion). ``flags``: the block's flags word selecting the estimator (default every
-    option, which the identifier needs)."""
+    option, which the identifier needs); ``seed``: the jitter's draws (numpy's generator)."""
     import jax
     import jax.numpy as jnp
 
@@ -145,13 +145,18 @@ def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, fl
     es = jax.vmap(lambda h, a, b: init_state(cfg, h, a, b, xp=jnp))(h0, a0, b0)
     ms = jax.vmap(lambda _: mech_init(N, xp=jnp))(jnp.arange(B))
     track = (jnp.full(B, -1, jnp.int32), jnp.full(B, -1, jnp.int32), jnp.zeros(B, jnp.int32), jnp.zeros(B, jnp.int32))
-    consts = tuple(jnp.asarray(x, f32) for x in (w0, w1, r0, r1, jit)) + (jnp.asarray(truth), E, H, G)
+    consts = tuple(jnp.asarray(x, f32) for x in (w0, w1, r0, r1)) + (jnp.asarray(truth), E, H, G)
     chunk = _chunk_fn(cfg, mc, poles)
     carry = (jnp.asarray(th0, f32), es, ms, track)
-    key = jax.random.PRNGKey(seed)
+    noisy = np.flatnonzero(jit)
+    rng = np.random.default_rng(seed)
     n_chunks = int(math.ceil(seconds * TICK_HZ / CHUNK))
     for c in range(n_chunks):
-        carry = chunk(carry, consts, tables, tb, jnp.int32(c * CHUNK), jax.random.fold_in(key, c))
+        # the jitter drawn here, a chunk at a time, while XLA's thread runs the chunk before (JAX's
+        # threefry inside the scan was ~30 % of its CPU: rolled loops of small operations each tick)
+        noise = np.zeros((CHUNK, B), np.float32)
+        noise[:, noisy] = rng.standard_normal((CHUNK, noisy.size), np.float32) * jit[noisy].astype(np.float32)
+        carry = chunk(carry, consts, tables, tb, jnp.int32(c * CHUNK), noise)
     _, _, ms, (first, rfirst, wrong, resets) = carry
     first = np.asarray(first)
     return PowerUpResult(truth=truth, first_id_s=np.where(first >= 0, first / TICK_HZ, np.nan),
@@ -162,8 +167,9 @@ def simulate_powerups(pus: Sequence[PowerUp], seconds: float, poles: int = 6, fl
 
 @functools.lru_cache(maxsize=8)
 def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
-              ) -> Callable[[_Carry, tuple[jax.Array, ...], est.HallTables, MechTables, jax.Array, jax.Array], _Carry]:
-    """The jitted scan over CHUNK ticks of a batch (one compile per configuration and batch shape)."""
+              ) -> Callable[[_Carry, tuple[jax.Array, ...], est.HallTables, MechTables, jax.Array, np.ndarray], _Carry]:
+    """The jitted scan over CHUNK ticks of a batch (one compile per configuration and batch shape); its
+    last argument the chunk's jitter (CHUNK, power-ups), rad mechanical."""
     import jax
     import jax.numpy as jnp
 
@@ -174,15 +180,16 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
         return encoder_hall_signals(th, poles, N, SensorErrors(e, h, g), xp=jnp)
 
     @jax.jit
-    def chunk(carry, consts, tables, tb, start, key):
-        w0_, w1_, r0_, r1_, jit_, tr, E, H, G = consts
+    def chunk(carry, consts, tables, tb, start, noise):
+        w0_, w1_, r0_, r1_, tr, E, H, G = consts
 
-        def body(c, i):
+        def body(c, xs):
+            i, jitter = xs
             th, es, ms, (first, rfirst, wrong, resets) = c
             k = (start + i).astype(f32)
             w = w0_ + (w1_ - w0_) * jnp.clip((k - r0_) / (r1_ - r0_), 0.0, 1.0)
             th = jnp.mod(th + w * f32(1.0 / TICK_HZ), f32(2 * math.pi))
-            ths = th + jit_ * jax.random.normal(jax.random.fold_in(key, i), th.shape, f32)
+            ths = th + jitter
             a, b, h = jax.vmap(sig)(ths, E, H, G)
             # the edge event, the re-anchor and the identifier's interrupt part only on the ticks some
             # power-up needs them (the same result: batch_axis, batched_tick); an edge's entry of the
@@ -202,7 +209,7 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
             resets = resets + ((mo.events & _RESETS) != 0).astype(jnp.int32)
             return (th, es, ms, (first, rfirst, wrong, resets)), None
 
-        carry, _ = jax.lax.scan(body, carry, jnp.arange(CHUNK, dtype=jnp.int32))
+        carry, _ = jax.lax.scan(body, carry, (jnp.arange(CHUNK, dtype=jnp.int32), noise))
         return carry
 
     return chunk
