@@ -9,10 +9,14 @@ dyno would be another machine; it records one capture, then the same buffer is r
   over several TCP connections (``connections`` = 1, 2, 4, 8; 4 is the default).
 
 Both read the same pages (page select + window reads) and are checked to return identical words.
-Then the end-to-end time of ``eol-cal acquire`` on the default profile is taken, against the
-synthetic source and against the plant (compiled at simulator start-up).
+``client CPU s`` is this process's CPU for the read, ``dyno CPU s`` the simulator process's for
+serving it. Then the end-to-end time of ``eol-cal acquire`` on the default profile is taken,
+against the synthetic source and against the plant (compiled at simulator start-up).
 
-    python bench/bench_dyno.py [--samples 100000] [--repeat 3] [--no-plant]
+``--baseline DIR``: the same reads once more with the code of another checkout (``git worktree
+add DIR COMMIT``), its simulator and its ``eol_cal`` (this file run in a process of its own).
+
+    python bench/bench_dyno.py [--samples 100000] [--repeat 3] [--no-plant] [--baseline DIR]
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import psutil
 
 from eol_cal.dyno import registers as rm
 from eol_cal.dyno.client import DynoClient
@@ -38,6 +43,11 @@ from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import default_register_map
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def cpu_of(proc: psutil.Process) -> float:
+    t = proc.cpu_times()
+    return t.user + t.system
 
 
 def free_port() -> int:
@@ -76,14 +86,34 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=100_000, help="capture length (samples at 20 kHz)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-plant", dest="plant", action="store_false", help="skip the acquire against the plant-backed simulator")
+    ap.add_argument("--baseline", type=Path, help="another checkout: its reads too, in a process of its own")
+    ap.add_argument("--code", type=Path, default=ROOT, help=argparse.SUPPRESS)
     args = ap.parse_args()
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    import eol_cal
+
+    print(f"code: {Path(eol_cal.__file__).resolve().parents[1]}")
+    reads(args, args.code)
+    if args.plant:
+        plant_acquire(args.code)
+    if args.baseline is not None:
+        code = args.baseline.resolve()
+        print(f"\nbaseline {code}:", flush=True)
+        subprocess.run([sys.executable, __file__, "--samples", str(args.samples), "--repeat", str(args.repeat),
+                        "--no-plant", "--code", str(code)], check=True, cwd=code,
+                       env={**os.environ, "PYTHONPATH": str(code)})
+    return 0
+
+
+def reads(args: argparse.Namespace, root: Path) -> None:
+    """The buffer read the plain way and ours, on the synthetic simulator of the checkout ``root``."""
 
     host, port = "127.0.0.1", free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     server = subprocess.Popen(
         [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "synthetic"],
-        stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
+        stderr=subprocess.PIPE, text=True, env={**env, "PYTHONPATH": str(root)}, cwd=root)
+    dyno = psutil.Process(server.pid)
     try:
         server.stderr.readline()
         cfg = DynoConfig(host=host, port=port, timeout=2.0)
@@ -101,27 +131,30 @@ def main() -> int:
         print(f"capture: {args.samples} samples x ({', '.join(names)} as f32 + digital u16) = "
               f"{regs_per_sample} registers/sample, "
               f"{total_regs} registers; dyno simulator in its own process on {host}")
-        print(f"{'method':<34}{'median s':>10}{'registers/s':>14}{'samples/s':>12}{'x plain':>9}{'client CPU s':>13}")
+        print(f"{'method':<34}{'median s':>10}{'registers/s':>14}{'samples/s':>12}{'x plain':>9}{'client CPU s':>13}"
+              f"{'dyno CPU s':>11}")
         ref = None
         rows = []
-        times, cpus = [], []
+        times, cpus, served = [], [], []
         for _ in range(args.repeat):
-            t0, c0 = time.perf_counter(), time.process_time()
+            t0, c0, d0 = time.perf_counter(), time.process_time(), cpu_of(dyno)
             words, regs = plain_read(host, port, ids, args.samples)
             times.append(time.perf_counter() - t0)
             cpus.append(time.process_time() - c0)
+            served.append(cpu_of(dyno) - d0)
             assert regs == total_regs
         ref = words
         plain_s = statistics.median(times)
-        rows.append(("plain: 1 connection, sequential", plain_s, statistics.median(cpus)))
+        rows.append(("plain: 1 connection, sequential", plain_s, statistics.median(cpus), statistics.median(served)))
         for k in (1, 2, 4, 8):
             dk = DynoClient(DynoConfig(host=host, port=port, timeout=2.0, connections=k))
-            times, cpus = [], []
+            times, cpus, served = [], [], []
             for _ in range(args.repeat):
-                t0, c0 = time.perf_counter(), time.process_time()
+                t0, c0, d0 = time.perf_counter(), time.process_time(), cpu_of(dyno)
                 got = dk.read_buffer(names, args.samples)
                 times.append(time.perf_counter() - t0)
                 cpus.append(time.process_time() - c0)
+                served.append(cpu_of(dyno) - d0)
             for cid, name in m.analog_channels.items():
                 if name in names:
                     np.testing.assert_array_equal(got[name], m.words_to_analog(ref[cid]))
@@ -129,40 +162,44 @@ def main() -> int:
             np.testing.assert_array_equal(got["hall"], h)
             dk.close()
             rows.append((f"ours: {k} parallel connection{'s' if k > 1 else ''}", statistics.median(times),
-                         statistics.median(cpus)))
-        for label, s, cpu in rows:
-            print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}{cpu:>13.2f}")
+                         statistics.median(cpus), statistics.median(served)))
+        for label, s, cpu, dyno_cpu in rows:
+            print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}{cpu:>13.2f}"
+                  f"{dyno_cpu:>11.2f}")
         dc.safe_state()
         dc.close()
 
         print("eol-cal acquire --profile eol-default (8 segments, 7.7 s of capture at 10 kHz), whole process:")
-        print(f"  synthetic source: {acquire_wall(host, port, env):.2f} s wall")
+        print(f"  synthetic source: {acquire_wall(host, port, env, root):.2f} s wall", flush=True)
     finally:
         server.terminate()
         server.wait(10)
-    if args.plant:
-        port = free_port()
-        server = subprocess.Popen(
-            [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "plant"],
-            stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT)
-        try:
-            server.stderr.readline()
-            ready = server.stderr.readline().strip()  # "plant ready (N s)": compiled before the first capture
-            print(f"  plant source ({ready}): {acquire_wall(host, port, env):.2f} s wall, "
-                  f"again: {acquire_wall(host, port, env):.2f} s wall")
-        finally:
-            server.terminate()
-            server.wait(10)
-    return 0
 
 
-def acquire_wall(host: str, port: int, env: dict) -> float:
+def plant_acquire(root: Path) -> None:
+    """``eol-cal acquire`` against the plant-backed simulator."""
+    host, port = "127.0.0.1", free_port()
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    server = subprocess.Popen(
+        [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "plant"],
+        stderr=subprocess.PIPE, text=True, env=env, cwd=root)
+    try:
+        server.stderr.readline()
+        ready = server.stderr.readline().strip()  # "plant ready (N s)": compiled before the first capture
+        print(f"  plant source ({ready}): {acquire_wall(host, port, env, root):.2f} s wall, "
+              f"again: {acquire_wall(host, port, env, root):.2f} s wall")
+    finally:
+        server.terminate()
+        server.wait(10)
+
+
+def acquire_wall(host: str, port: int, env: dict, root: Path) -> float:
     """Wall time (s) of one ``eol-cal acquire`` process on the default profile."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "cap.mf4"
         t0 = time.perf_counter()
         r = subprocess.run([sys.executable, "-m", "cli.main", "acquire", "--dyno", f"{host}:{port}", "-o", str(out)],
-                           capture_output=True, text=True, env=env, cwd=ROOT)
+                           capture_output=True, text=True, env={**env, "PYTHONPATH": str(root)}, cwd=root)
         wall = time.perf_counter() - t0
         if r.returncode != 0:
             raise SystemExit(f"acquire failed: {r.stderr}")

@@ -75,9 +75,12 @@ class DynoClient:
     def __init__(self, config: DynoConfig) -> None:
         from pymodbus.client import ModbusTcpClient
 
+        from eol_cal.dyno.pdu import fast_reads
+
         self.config = config
         self.regmap = config.regmap
         self._client = ModbusTcpClient(config.host, port=config.port, timeout=config.timeout, retries=0, reconnect_delay=0)
+        fast_reads(self._client)
         self._reconnects = 0
         self._reader: BufferReader | None = None  # the streamed buffer reads, opened at the first capture
         self._heartbeat = (-1, time.monotonic())

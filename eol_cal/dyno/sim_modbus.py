@@ -284,8 +284,11 @@ class ModbusFace:
         """Run the Modbus TCP server until cancelled; ``started(port)`` once it listens."""
         from pymodbus.server import ModbusTcpServer
 
+        from eol_cal.dyno.pdu import SERVER_PDUS
+
         self._loop = asyncio.get_running_loop()
-        server = ModbusTcpServer(self.simdevice(), address=(host, port), trace_packet=self.trace_packet)
+        server = ModbusTcpServer(self.simdevice(), address=(host, port), trace_packet=self.trace_packet,
+                                 custom_pdu=SERVER_PDUS)
         self._server = server
         await server.serve_forever(background=True)
         bound = server.transport.sockets[0].getsockname()[1]

@@ -276,6 +276,8 @@ class _Connections:
     async def open(self) -> None:
         from pymodbus.client import AsyncModbusTcpClient
 
+        from eol_cal.dyno.pdu import fast_reads
+
         cfg = self.cfg
         self.close()
         if self._opened:
@@ -283,6 +285,7 @@ class _Connections:
         self._opened = True
         for _ in range(max(1, cfg.connections)):
             cl = AsyncModbusTcpClient(cfg.host, port=cfg.port, timeout=cfg.timeout, retries=0, reconnect_delay=0)
+            fast_reads(cl)
             self.clients.append(cl)
             if not await cl.connect():
                 raise ConnectionError("cannot connect")
