@@ -13,15 +13,18 @@ Both read the same pages (page select + window reads) and are checked to return 
 serving it. Then the end-to-end time of ``eol-cal acquire`` on the default profile is taken,
 against the synthetic source and against the plant (compiled at simulator start-up).
 
-``--baseline DIR``: the same reads once more with the code of another checkout (``git worktree
-add DIR COMMIT``), its simulator and its ``eol_cal`` (this file run in a process of its own).
+``--baseline DIR``: the reads with this checkout's code and with another checkout's (``git
+worktree add DIR COMMIT``: its simulator and its ``eol_cal``), each in a process of its own,
+alternated ``--rounds`` times (the machine's speed moves between runs); then the medians over
+the rounds side by side.
 
-    python bench/bench_dyno.py [--samples 100000] [--repeat 3] [--no-plant] [--baseline DIR]
+    python bench/bench_dyno.py [--samples 100000] [--repeat 3] [--no-plant] [--baseline DIR [--rounds 3]]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import platform
@@ -86,27 +89,52 @@ def main() -> int:
     ap.add_argument("--samples", type=int, default=100_000, help="capture length (samples at 20 kHz)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--no-plant", dest="plant", action="store_false", help="skip the acquire against the plant-backed simulator")
-    ap.add_argument("--baseline", type=Path, help="another checkout: its reads too, in a process of its own")
+    ap.add_argument("--baseline", type=Path, help="another checkout: its reads too, alternated with this one's")
+    ap.add_argument("--rounds", type=int, default=3, help="with --baseline: the alternations")
     ap.add_argument("--code", type=Path, default=ROOT, help=argparse.SUPPRESS)
+    ap.add_argument("--json", type=Path, help=argparse.SUPPRESS)
     args = ap.parse_args()
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     import eol_cal
 
     print(f"code: {Path(eol_cal.__file__).resolve().parents[1]}")
-    reads(args, args.code)
+    if args.baseline is None:
+        rows = reads(args, args.code)
+        if args.json is not None:
+            args.json.write_text(json.dumps(rows))
+    else:
+        compare(args)
     if args.plant:
         plant_acquire(args.code)
-    if args.baseline is not None:
-        code = args.baseline.resolve()
-        print(f"\nbaseline {code}:", flush=True)
-        subprocess.run([sys.executable, __file__, "--samples", str(args.samples), "--repeat", str(args.repeat),
-                        "--no-plant", "--code", str(code)], check=True, cwd=code,
-                       env={**os.environ, "PYTHONPATH": str(code)})
     return 0
 
 
-def reads(args: argparse.Namespace, root: Path) -> None:
-    """The buffer read the plain way and ours, on the synthetic simulator of the checkout ``root``."""
+def compare(args: argparse.Namespace) -> None:
+    """This checkout's reads and the baseline's, alternated; the medians side by side."""
+    codes = {"this checkout": ROOT, str(args.baseline): args.baseline.resolve()}
+    got: dict[str, list[list]] = {name: [] for name in codes}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "rows.json"
+        for r in range(args.rounds):
+            for name, code in codes.items():
+                print(f"\nround {r + 1}, {name}:", flush=True)
+                subprocess.run([sys.executable, __file__, "--samples", str(args.samples), "--repeat", str(args.repeat),
+                                "--no-plant", "--code", str(code), "--json", str(out)], check=True, cwd=code,
+                               env={**os.environ, "PYTHONPATH": str(code)})
+                got[name].append(json.loads(out.read_text()))
+    print(f"\nmedians of {args.rounds} alternated rounds: wall s / client CPU s / dyno CPU s")
+    print(f"{'method':<34}" + "".join(f"{name[-26:]:>28}" for name in codes))
+    for i, (label, *_) in enumerate(got["this checkout"][0]):
+        cells = []
+        for name in codes:
+            wall, cpu, dyno = (statistics.median(rounds[i][j] for rounds in got[name]) for j in (1, 2, 3))
+            cells.append(f"{wall:.2f} / {cpu:.2f} / {dyno:.2f}")
+        print(f"{label:<34}" + "".join(f"{c:>28}" for c in cells))
+
+
+def reads(args: argparse.Namespace, root: Path) -> list[tuple[str, float, float, float]]:
+    """The buffer read the plain way and ours, on the synthetic simulator of the checkout ``root``:
+    each method's (label, median wall s, client CPU s, dyno CPU s)."""
 
     host, port = "127.0.0.1", free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
@@ -169,11 +197,13 @@ def reads(args: argparse.Namespace, root: Path) -> None:
         dc.safe_state()
         dc.close()
 
-        print("eol-cal acquire --profile eol-default (8 segments, 7.7 s of capture at 10 kHz), whole process:")
-        print(f"  synthetic source: {acquire_wall(host, port, env, root):.2f} s wall", flush=True)
+        if args.json is None:
+            print("eol-cal acquire --profile eol-default (8 segments, 7.7 s of capture at 10 kHz), whole process:")
+            print(f"  synthetic source: {acquire_wall(host, port, env, root):.2f} s wall", flush=True)
     finally:
         server.terminate()
         server.wait(10)
+    return rows
 
 
 def plant_acquire(root: Path) -> None:

@@ -85,3 +85,8 @@ def test_the_simulator_answers_ours_and_pymodbus_s_plain_client_alike(name):
         dc.close()
     finally:
         thread.stop()
+
+
+def test_its_text_names_the_response_without_formatting_every_register():
+    r = HoldingResponse(registers=list(range(125)), dev_id=1, transaction_id=7)
+    assert str(r) == "HoldingResponse(dev_id=1, transaction_id=7, 125 registers)"

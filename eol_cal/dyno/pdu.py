@@ -1,7 +1,8 @@
 """Register reads (function codes 3 and 4) coded in one ``struct`` call, for pymodbus 3.16.
 
 pymodbus codes a read's registers one ``struct`` call each: the response's ``encode`` appends 125
-two-byte strings to a growing bytes object, its ``decode`` unpacks them one by one. A capture is
+two-byte strings to a growing bytes object, its ``decode`` unpacks them one by one (and formats
+all of them for a debug line, logged or not). A capture is
 ~9 500 such reads a motor, so this was about a third of the station's CPU a read and a fifth of
 the simulated dyno's (``bench/bench_dyno.py``). These subclasses give the same bytes and the same
 register lists (``tests/test_dyno_pdu.py``); they enter through pymodbus's own extension points:
@@ -29,6 +30,12 @@ if TYPE_CHECKING:
     from pymodbus.pdu import ModbusPDU
 
 
+def _text(pdu: ModbusPDU) -> str:
+    # pymodbus formats every decoded PDU for its debug log whether or not anyone listens; the
+    # registers' values are in its log's frame line just before
+    return f"{type(pdu).__name__}(dev_id={pdu.dev_id}, transaction_id={pdu.transaction_id}, {len(pdu.registers)} registers)"
+
+
 def _encode(registers: list[int]) -> bytes:
     return struct.pack(f">B{len(registers)}H", 2 * len(registers), *registers)
 
@@ -51,6 +58,9 @@ class HoldingResponse(ReadHoldingRegistersResponse):
     def decode(self, data: bytes) -> None:
         _decode(self, data)
 
+    def __str__(self) -> str:
+        return _text(self)
+
 
 class InputResponse(ReadInputRegistersResponse):
     """:class:`ReadInputRegistersResponse` coded in one ``struct`` call."""
@@ -60,6 +70,9 @@ class InputResponse(ReadInputRegistersResponse):
 
     def decode(self, data: bytes) -> None:
         _decode(self, data)
+
+    def __str__(self) -> str:
+        return _text(self)
 
 
 async def _answer(request: ModbusPDU, context: ModbusServerContext, device_id: int) -> ModbusPDU:
