@@ -2,9 +2,9 @@
 
 pymodbus codes a read's registers one ``struct`` call each: the response's ``encode`` appends 125
 two-byte strings to a growing bytes object, its ``decode`` unpacks them one by one (and formats
-all of them for a debug line, logged or not). A capture is
-~9 500 such reads a motor, so this was about a third of the station's CPU a read and a fifth of
-the simulated dyno's (``bench/bench_dyno.py``). These subclasses give the same bytes and the same
+all of them for a debug line, logged or not). A motor's captures are ~9 500 such reads; coded
+in one call the station's CPU for them fell by a fifth to a quarter and the simulated dyno's by
+up to a fifth (``bench/bench_dyno.py``, 2026-12-01). These subclasses give the same bytes and the same
 register lists (``tests/test_dyno_pdu.py``); they enter through pymodbus's own extension points:
 :func:`fast_reads` on a client (``register``), :data:`SERVER_PDUS` on a server (``custom_pdu``).
 """
@@ -12,6 +12,7 @@ register lists (``tests/test_dyno_pdu.py``); they enter through pymodbus's own e
 from __future__ import annotations
 
 import struct
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from pymodbus.constants import ExcCodes
@@ -30,49 +31,38 @@ if TYPE_CHECKING:
     from pymodbus.pdu import ModbusPDU
 
 
-def _text(pdu: ModbusPDU) -> str:
-    # pymodbus formats every decoded PDU for its debug log whether or not anyone listens; the
-    # registers' values are in its log's frame line just before
-    return f"{type(pdu).__name__}(dev_id={pdu.dev_id}, transaction_id={pdu.transaction_id}, {len(pdu.registers)} registers)"
+class _OneCall:
+    """A read response's coding in one ``struct`` call (mixed in before pymodbus's class)."""
+
+    registers: Sequence[int]
+    function_code: int
+    dev_id: int
+    transaction_id: int
+
+    def encode(self) -> bytes:
+        return struct.pack(f">B{len(self.registers)}H", 2 * len(self.registers), *self.registers)
+
+    def decode(self, data: bytes) -> None:
+        # pymodbus's checks: a byte count beyond the frame is refused (and an odd one, which its
+        # loop would read past)
+        n = int(data[0])
+        if n >= len(data) or n % 2:
+            raise ModbusIOException(f"byte_count {n} > length of packet {len(data)}", function_code=self.function_code)
+        self.registers = list(struct.unpack_from(f">{n // 2}H", data, 1))
+
+    def __str__(self) -> str:
+        # pymodbus formats every decoded PDU for its debug log whether or not anyone listens; the
+        # registers' values are in its log's frame line just before
+        return f"{type(self).__name__}(dev_id={self.dev_id}, transaction_id={self.transaction_id}, " \
+               f"{len(self.registers)} registers)"
 
 
-def _encode(registers: list[int]) -> bytes:
-    return struct.pack(f">B{len(registers)}H", 2 * len(registers), *registers)
-
-
-def _decode(pdu: ModbusPDU, data: bytes) -> None:
-    # pymodbus's checks: a byte count beyond the frame is refused (and an odd one, which its
-    # loop would read past)
-    n = int(data[0])
-    if n >= len(data) or n % 2:
-        raise ModbusIOException(f"byte_count {n} > length of packet {len(data)}", function_code=pdu.function_code)
-    pdu.registers = list(struct.unpack_from(f">{n // 2}H", data, 1))
-
-
-class HoldingResponse(ReadHoldingRegistersResponse):
+class HoldingResponse(_OneCall, ReadHoldingRegistersResponse):
     """:class:`ReadHoldingRegistersResponse` coded in one ``struct`` call."""
 
-    def encode(self) -> bytes:
-        return _encode(list(self.registers))
 
-    def decode(self, data: bytes) -> None:
-        _decode(self, data)
-
-    def __str__(self) -> str:
-        return _text(self)
-
-
-class InputResponse(ReadInputRegistersResponse):
+class InputResponse(_OneCall, ReadInputRegistersResponse):
     """:class:`ReadInputRegistersResponse` coded in one ``struct`` call."""
-
-    def encode(self) -> bytes:
-        return _encode(list(self.registers))
-
-    def decode(self, data: bytes) -> None:
-        _decode(self, data)
-
-    def __str__(self) -> str:
-        return _text(self)
 
 
 async def _answer(request: ModbusPDU, context: ModbusServerContext, device_id: int) -> ModbusPDU:
