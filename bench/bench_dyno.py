@@ -212,7 +212,7 @@ def plant_acquire(root: Path) -> None:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     server = subprocess.Popen(
         [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "plant"],
-        stderr=subprocess.PIPE, text=True, env=env, cwd=root)
+        stderr=subprocess.PIPE, text=True, env={**env, "PYTHONPATH": str(root)}, cwd=root)
     try:
         server.stderr.readline()
         ready = server.stderr.readline().strip()  # "plant ready (N s)": compiled before the first capture

@@ -65,28 +65,29 @@ class InputResponse(_OneCall, ReadInputRegistersResponse):
     """:class:`ReadInputRegistersResponse` coded in one ``struct`` call."""
 
 
-async def _answer(request: ModbusPDU, context: ModbusServerContext, device_id: int) -> ModbusPDU:
-    """pymodbus's ``datastore_update`` of a register read, answered with :class:`HoldingResponse`
-    or :class:`InputResponse`."""
-    values = await context.async_getValues(device_id, request.function_code, request.address, request.count)
-    if isinstance(values, ExcCodes):
-        return ExceptionResponse(request.function_code, values)
-    response = HoldingResponse if request.function_code == 3 else InputResponse
-    return response(registers=values, dev_id=device_id, transaction_id=request.transaction_id)
+class _Answered:
+    """A server's register read answered by :class:`HoldingResponse` or :class:`InputResponse`
+    (pymodbus's ``datastore_update`` but for the response's class; mixed in before its request)."""
+
+    function_code: int
+    address: int
+    count: int
+    transaction_id: int
+
+    async def datastore_update(self, context: ModbusServerContext, device_id: int) -> ModbusPDU:
+        values = await context.async_getValues(device_id, self.function_code, self.address, self.count)
+        if isinstance(values, ExcCodes):
+            return ExceptionResponse(self.function_code, values)
+        response = HoldingResponse if self.function_code == 3 else InputResponse
+        return response(registers=values, dev_id=device_id, transaction_id=self.transaction_id)
 
 
-class HoldingRequest(ReadHoldingRegistersRequest):
+class HoldingRequest(_Answered, ReadHoldingRegistersRequest):
     """A server's read of holding registers answered by :class:`HoldingResponse`."""
 
-    async def datastore_update(self, context: ModbusServerContext, device_id: int) -> ModbusPDU:
-        return await _answer(self, context, device_id)
 
-
-class InputRequest(ReadInputRegistersRequest):
+class InputRequest(_Answered, ReadInputRegistersRequest):
     """A server's read of input registers answered by :class:`InputResponse`."""
-
-    async def datastore_update(self, context: ModbusServerContext, device_id: int) -> ModbusPDU:
-        return await _answer(self, context, device_id)
 
 
 #: a pymodbus server's ``custom_pdu``: its register reads answered in one ``struct`` call each
