@@ -105,7 +105,17 @@ def main() -> int:
     else:
         compare(args)
     if args.plant:
-        plant_acquire(args.code)
+        codes = {"this checkout": args.code}
+        if args.baseline is not None:
+            codes[str(args.baseline)] = args.baseline.resolve()
+        sim_cpu: dict[str, list[float]] = {name: [] for name in codes}
+        for _ in range(args.rounds if args.baseline is not None else 1):
+            for name, code in codes.items():
+                print(f"{name}:", end="")
+                sim_cpu[name].append(plant_acquire(code))
+        if args.baseline is not None:
+            print("the plant-backed simulator's CPU s for two acquires, median of the rounds: "
+                  + ", ".join(f"{name} {statistics.median(v):.2f}" for name, v in sim_cpu.items()))
     return 0
 
 
@@ -206,18 +216,24 @@ def reads(args: argparse.Namespace, root: Path) -> list[tuple[str, float, float,
     return rows
 
 
-def plant_acquire(root: Path) -> None:
-    """``eol-cal acquire`` against the plant-backed simulator."""
+def plant_acquire(root: Path) -> float:
+    """``eol-cal acquire`` twice against the plant-backed simulator of the checkout ``root``; the
+    simulator's CPU s for the two (its start and the plant's compiling not counted)."""
     host, port = "127.0.0.1", free_port()
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     server = subprocess.Popen(
         [sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"{host}:{port}", "--source", "plant"],
         stderr=subprocess.PIPE, text=True, env={**env, "PYTHONPATH": str(root)}, cwd=root)
+    dyno = psutil.Process(server.pid)
     try:
         server.stderr.readline()
         ready = server.stderr.readline().strip()  # "plant ready (N s)": compiled before the first capture
-        print(f"  plant source ({ready}): {acquire_wall(host, port, env, root):.2f} s wall, "
-              f"again: {acquire_wall(host, port, env, root):.2f} s wall")
+        c0 = cpu_of(dyno)
+        walls = [acquire_wall(host, port, env, root) for _ in range(2)]
+        spent = cpu_of(dyno) - c0
+        print(f"  plant source ({ready}): {walls[0]:.2f} s wall, again: {walls[1]:.2f} s wall; "
+              f"the simulator {spent:.2f} CPU s", flush=True)
+        return spent
     finally:
         server.terminate()
         server.wait(10)

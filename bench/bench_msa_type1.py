@@ -58,6 +58,9 @@ def main() -> int:
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
+    from eol_cal.numerics.xla import configure_xla
+
+    configure_xla()  # the simulators' plant in this process, as `eol-cal dyno-sim` and the demo run it
     enable_jax_cache()
     with open("/proc/loadavg") as f:
         load = f.read().split()[:3]

@@ -425,6 +425,9 @@ def main() -> int:
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
+    from eol_cal.numerics.xla import configure_xla
+
+    configure_xla()  # the simulators' plant in this process, as `eol-cal dyno-sim` runs it
     enable_jax_cache()  # the simulators' plant in this process
     # each column: a checkout and the environment its processes get (the settings' variables)
     codes: dict[str, tuple[Path, dict[str, str]]] = {}

@@ -77,6 +77,9 @@ def main() -> int:
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
+    from eol_cal.numerics.xla import configure_xla
+
+    configure_xla()  # the simulators' plant in this process, as `eol-cal dyno-sim` and the demo run it
     enable_jax_cache()
     map_name, _, bitrate = args.setup.partition("@")
     with tempfile.TemporaryDirectory(prefix="trace-station-") as tmp_name:

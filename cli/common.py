@@ -211,12 +211,15 @@ def estimator_bits(text: str) -> int:
     return parse_options(text, None, "--estimator")
 
 
-def frame_loop_kernels() -> None:
-    """The fit's firmware frame (the estimator's scan after the last window) as one XLA loop kernel
-    (:func:`eol_cal.numerics.xla.configure_xla`: ~10x less CPU, its output bit for bit the same,
-    tests/test_firmware_frame_chunk.py) in `eol-cal fit`, `run` and `station` (not with its in-process
-    plant: --demo), in the `eol-cal` process only: a test that invokes the command in its own process
-    keeps XLA's defaults there (its in-process plant among them)."""
+def loop_kernels() -> None:
+    """The tick loops of this process as single XLA loop kernels
+    (:func:`eol_cal.numerics.xla.configure_xla`): the fit's firmware frame (the estimator's scan,
+    ~10x less CPU, bit for bit the same: tests/test_firmware_frame_chunk.py) in `eol-cal fit`,
+    `run` and `station`, and the built-in plant's where the process simulates it (`station --demo`,
+    `demo`, `dyno-sim --source plant`: a demo motor ~40 % less CPU, within float32 rounding of XLA's
+    defaults, the identification the same: tests/test_plant_identifying_loop.py), as `eol-cal
+    simulate`, the lot simulation's workers and the tests run it. In the `eol-cal` process only: a
+    command invoked by a test in the test's process (click's runner) leaves XLA's settings to it."""
     main = sys.modules.get("__main__")
     spec = getattr(main, "__spec__", None)
     if os.path.basename(sys.argv[0]) != "eol-cal" and getattr(spec, "name", None) != "cli.main":

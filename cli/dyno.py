@@ -7,7 +7,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from cli.common import CommandExit, console, err_console, exchange_log_options, handle_errors, print_json
+from cli.common import (CommandExit, console, err_console, exchange_log_options, handle_errors, loop_kernels,
+                        print_json)
 from cli.ecu import bus_options, open_cli_bus
 from cli.paths import io_paths
 
@@ -229,6 +230,8 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
     if source == "plant":
         from cli.fit import enable_jax_cache
 
+        loop_kernels()  # the plant's tick loop as one kernel, before its first computation
+
         if seed is not None:
             try:
                 import eol_cal.plant.variation  # noqa: F401
@@ -261,7 +264,10 @@ def dyno_sim_cmd(listen, ecu_flash, seed, serial, source, faults, realtime, regi
         except Exception as exc:  # noqa: BLE001 - the first real capture reports it properly
             err_console.print(f"plant warm-up failed: {exc}")
             return
-        err_console.print(f"plant ready ({time.perf_counter() - t0:.1f} s)")
+        from eol_cal.numerics.xla import loop_kernel_on
+
+        how = "its tick loop one XLA kernel" if loop_kernel_on() else "XLA's default loops"
+        err_console.print(f"plant ready ({time.perf_counter() - t0:.1f} s; {how})")
 
     _quiet_pymodbus()
     try:

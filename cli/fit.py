@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from cli.common import (CommandExit, console, err_console, estimator_bits, estimator_option, frame_loop_kernels,
+from cli.common import (CommandExit, console, err_console, estimator_bits, estimator_option, loop_kernels,
                         handle_errors, styled)
 from cli.paths import io_paths
 from eol_cal.analysis.intervals import CiLimits
@@ -142,7 +142,7 @@ def fit_cmd(captures, output, map_file, plot_dir, harmonics, no_c6, no_k6, delay
     record (--allow-untraced) or was taken under compensation (--allow-compensated).
     """
 
-    frame_loop_kernels()  # before the process's first JAX computation
+    loop_kernels()  # before the process's first JAX computation
     with loading_uncollected():
         from rich.progress import Progress
         from rich.table import Table

@@ -9,7 +9,7 @@ from typing import Any
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, exchange_log_options, handle_errors,
-                        frame_loop_kernels, styled)
+                        loop_kernels, styled)
 from cli.ecu import key_algo_option
 from cli.paths import check_io, check_more, io_paths
 from cli.station import StepProgress, flush_first, given_options, quiet_logs, results_table, write_demo_limits
@@ -336,8 +336,7 @@ def station_cmd(ctx, station_file, demo, out_dir, operator, lot_file, panel, bin
                      if v is not None)
         raise InputError(None, given, "an option of the operator panel: give --panel too")
 
-    if not demo:  # the demo's simulated plant runs in this process: its loops as they were
-        frame_loop_kernels()
+    loop_kernels()  # the fit's frame, and the demo's plant (in this process)
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from cli.common import (RECORDS_DB, CommandExit, console, err_console, estimator_option, exchange_log_options,
-                        handle_errors, print_json, frame_loop_kernels, styled)
+                        handle_errors, print_json, loop_kernels, styled)
 from cli.dyno import load_map, realtime_option, register_map_option
 from cli.ecu import key_algo_option
 from cli.paths import check_io, check_more, io_paths
@@ -288,7 +288,7 @@ def run_cmd(ctx, station_file, serial, operator, as_json, **options) -> None:
     cannot be written the record goes to the spool and the next run (or `eol-cal records
     --flush`) writes it in.
     """
-    frame_loop_kernels()
+    loop_kernels()
     from eol_cal.analysis.fit.cache import default_cache_dir
     from eol_cal.station.configure import for_motor, station_config
     from eol_cal.station.cycle import run_motor
@@ -341,6 +341,7 @@ def demo_cmd(motors, out_dir, profile, seed, db, realtime, register_map) -> None
     """
     import time
 
+    loop_kernels()  # the plant (in this process) and the fit's frame
     from cli.fit import enable_jax_cache
     from eol_cal.ecu import protocol as P
     from eol_cal.ecu.client import hmac_seed_to_key

@@ -141,6 +141,27 @@ def test_dyno_sim_and_acquire_as_processes(tmp_path: Path, profile: Path, regist
             server.wait()
 
 
+def test_the_plant_backed_simulator_runs_its_tick_loop_as_one_kernel():
+    # as `eol-cal simulate` and the station's fit: ~40 % less of the simulator's CPU a capture
+    # (docs/benchmarks.md), whatever XLA_FLAGS the caller's environment held (none here)
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    server = subprocess.Popen([sys.executable, "-m", "cli.main", "dyno-sim", "--listen", f"127.0.0.1:{_free_port()}",
+                               "--source", "plant"], stderr=subprocess.PIPE, text=True,
+                              env={**env, "PYTHONUNBUFFERED": "1"})
+    try:
+        assert "dyno simulator on 127.0.0.1" in server.stderr.readline()
+        ready = server.stderr.readline()
+        assert ready.startswith("plant ready") and "its tick loop one XLA kernel" in ready, ready
+    finally:
+        server.send_signal(signal.SIGINT)
+        try:
+            assert server.wait(30) == 0
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+            raise
+
+
 def test_bad_register_map_is_one_line_naming_file_and_key(tmp_path: Path, profile: Path):
     bad = tmp_path / "rig.toml"
     bad.write_text("[window]\naddress = 1\n")

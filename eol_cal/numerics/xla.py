@@ -30,8 +30,9 @@ def configure_xla() -> bool:
     happened already or when ``XLA_FLAGS`` sets backend options of its own. The option applies
     to every ``while`` loop of the process without custom calls (LAPACK, ...): call it from
     entry points that mostly simulate or refit (the CLI, benchmarks, a refit worker:
-    :func:`eol_cal.lot.cluster.prepare_fit_process`) and from the fit's and the station's (`eol-cal fit`,
-    `eol-cal run`, `eol-cal station` without its in-process simulators), not from library code. The plant's tick
+    :func:`eol_cal.lot.cluster.prepare_fit_process`), the fit's and the station's (`eol-cal fit`,
+    `eol-cal run`, `eol-cal station`) and the simulators' (`eol-cal dyno-sim --source plant`, the
+    demos' in-process plant: ``cli.common.loop_kernels``), not from library code. The plant's tick
     loops give results within float32 rounding of the default (XLA fuses the body differently: a
     layout-2 plant run's i_qc within 0.02 A, its i_q within 0.05 A rms, the identification the
     same, as tests/test_plant_identifying_loop.py checks); the firmware estimator's scan (the
@@ -54,6 +55,12 @@ def configure_xla() -> bool:
             return False
     os.environ["XLA_FLAGS"] = f"{flags} --xla_backend_extra_options={_LOOP_OPTION}={_LOOP_BYTES}".strip()
     return True
+
+
+def loop_kernel_on() -> bool:
+    """Whether this process's XLA compiles tick loops into one kernel (:func:`configure_xla` set
+    its option, or the caller's ``XLA_FLAGS`` did)."""
+    return _LOOP_OPTION in os.environ.get("XLA_FLAGS", "")
 
 
 #: environment variable: how many threads XLA's CPU backend runs a program's operations on
