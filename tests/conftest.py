@@ -104,6 +104,14 @@ def pytest_configure(config: pytest.Config) -> None:
     os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", path)
     os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
     _start_xla(config)
+    # the programs the product keeps between processes (the fit's solvers, the plant's tick loops:
+    # eol_cal.numerics.exported), kept there too, as the CLI keeps them in its cache directory: a
+    # worker reads what another traced, a run what the last one traced (the fast loop ~10 % less
+    # CPU, docs/benchmarks.md). Their keys hold the code they were traced from, so an edit is traced
+    # afresh; the export's own tests give it a directory of their own.
+    from eol_cal.numerics.exported import set_cache_dir
+
+    set_cache_dir(path)
 
 
 def _start_xla(config: pytest.Config) -> None:
@@ -147,6 +155,18 @@ def pytest_unconfigure(config: pytest.Config) -> None:
             if os.environ.get(name) == path:
                 del os.environ[name]
 
+
+
+@pytest.fixture(autouse=True)
+def _exported_dir_kept() -> Iterator[None]:
+    """The worker's directory of exported programs as it was before each test: a test that runs an
+    entry point in its process (the station's, a refit worker's: ``enable_compile_cache``) moves it
+    for the tests after it otherwise."""
+    from eol_cal.numerics import exported
+
+    before = exported.cache_dir()
+    yield
+    exported.set_cache_dir(before)
 
 
 @pytest.fixture(scope="session")

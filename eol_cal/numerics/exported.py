@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import importlib.util
 import os
 import re
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -198,4 +200,23 @@ def code_digest() -> str:
     for path in sorted(root.rglob("*.py")):
         h.update(path.relative_to(root).as_posix().encode() + b"\0")
         h.update(path.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=8)
+def sources_digest(*modules: str) -> str:
+    """SHA-256 of the Python sources of ``modules`` (names, in that order): part of the key of a
+    program whose trace reads only those modules' code (the fit's solver: its module and the model's
+    constants), so that a change to them traces it afresh while a change elsewhere in the package
+    keeps the entry (:func:`code_digest` for a program that reaches across the package)."""
+    h = hashlib.sha256()
+    for name in modules:
+        module = sys.modules.get(name)
+        path = getattr(module, "__file__", None)
+        if path is None:
+            spec = importlib.util.find_spec(name)
+            path = None if spec is None else spec.origin
+        if path is None:
+            raise ValueError(f"no source file for module {name!r}")
+        h.update(name.encode() + b"\0" + Path(path).read_bytes() + b"\0")
     return h.hexdigest()

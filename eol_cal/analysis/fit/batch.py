@@ -19,6 +19,7 @@ from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, Summa
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
 from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
+from eol_cal.numerics.exported import cache_dir as process_cache_dir
 
 
 def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | None = None,
@@ -34,7 +35,7 @@ def fit_segments(seg: SteadySegments, spec: FitSpec = FitSpec(), source: str | N
     source : str, optional
         Named in errors.
     cache_dir : path, optional
-        Directory of serialized solvers (:mod:`eol_cal.analysis.fit.cache`); ``None``: none.
+        Directory of serialized solvers (:mod:`eol_cal.analysis.fit.cache`); ``None``: as :func:`fit_many`.
 
     Returns
     -------
@@ -106,7 +107,9 @@ def fit_many(
     cache_dir : path, optional
         Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
         :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
-        from there instead of tracing it, or writes it there after tracing. ``None``: no cache.
+        from there instead of tracing it, or writes it there after tracing. ``None``: the process's
+        directory of exported programs (:func:`eol_cal.numerics.exported.cache_dir`, which
+        :func:`~eol_cal.analysis.fit.cache.enable_compile_cache` sets), none where it is unset.
     process : bool, optional
         The worker threads hand their blocks to a second process
         (:mod:`~eol_cal.analysis.fit.compress_process`: its own GIL; started on first use, kept for
@@ -124,6 +127,8 @@ def fit_many(
 
     if mode == "auto":
         mode = pick_mode(len(motors))
+    if cache_dir is None:
+        cache_dir = process_cache_dir()
     sources = sources or [None] * len(motors)
     for seg, src in zip(motors, sources, strict=True):
         check_identifiable(seg, spec, src)

@@ -20,13 +20,17 @@ import numpy as np
 
 from eol_cal.analysis.fit.compression import COMPRESSED_KEYS
 from eol_cal.analysis.fit.model import FitSpec
-from eol_cal.numerics.exported import entry_path, key_text, load, save, set_cache_dir
+from eol_cal.numerics.exported import entry_path, key_text, load, save, set_cache_dir, sources_digest
 from eol_cal.numerics.xla import start_xla
 
 #: environment variable naming the cache directory (``off``: no cache)
 CACHE_ENV = "EOL_CAL_JAX_CACHE"
-#: part of every solver file's key: bump it when the solver's program changes
+#: part of every solver file's key (with its modules' sources, :data:`SOLVER_MODULES`): bump it when
+#: the solver's program changes in another way (its arguments, what the entry holds)
 _EXPORT_TAG = "eol-cal-fit-solve-9"
+#: the modules whose code the solver's trace runs: their sources are in its key, so an edited
+#: solver or model is traced afresh, never read back from an entry of the code before
+SOLVER_MODULES = ("eol_cal.analysis.fit.solver", "eol_cal.analysis.fit.model")
 
 
 def default_cache_dir(environ: Mapping[str, str] | None = None) -> Path | None:
@@ -92,7 +96,7 @@ def _solver_key(spec: FitSpec, S: int, n_grid: int) -> str:
     import jax
 
     with jax.enable_x64(True):  # the solver runs in float64 only (fit_many)
-        return key_text(_EXPORT_TAG, (spec, S, n_grid))
+        return key_text(_EXPORT_TAG, (spec, S, n_grid, sources_digest(*SOLVER_MODULES)))
 
 
 def solver_file(cache_dir: str | os.PathLike[str], spec: FitSpec, S: int, n_grid: int) -> Path:

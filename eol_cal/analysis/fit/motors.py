@@ -59,7 +59,8 @@ class FitOptions:
         (default: the ``paper`` preset).
     cache_dir : Path or None
         Directory of the fit's serialized solvers (:mod:`eol_cal.analysis.fit.cache`); ``None``:
-        the solver is traced in every process.
+        the process's (:func:`~eol_cal.analysis.fit.batch.fit_many`), where none is set the solver
+        is traced in every process.
     estimator_options : int
         The estimator options (contract flags bits 2-5) the ECU ran during the captures, for the
         firmware frame (default the ``best`` choice of :mod:`eol_cal.firmware.options`, what the
