@@ -72,12 +72,26 @@ def test_solver_file_made_once_is_the_key_s_file(tmp_path) -> None:
     from eol_cal.analysis.fit.model import FitSpec
     import jax
 
-    from eol_cal.numerics.exported import entry_path, key_text
+    from eol_cal.numerics.exported import entry_path, key_text, sources_digest
 
     spec = FitSpec(fit_c=False, delay_s=0.0)
     with jax.enable_x64(True):
-        key = key_text(cache._EXPORT_TAG, (spec, 6, 1))
+        key = key_text(cache._EXPORT_TAG, (spec, 6, 1, sources_digest(*cache.SOLVER_MODULES)))
     assert cache.solver_file(tmp_path, spec, 6, 1) == entry_path(tmp_path, "fit", key)
     assert cache.solver_file(str(tmp_path), spec, 6, 1) == cache.solver_file(tmp_path, spec, 6, 1)
     assert cache.solver_file(tmp_path / "b", spec, 6, 1).parent == tmp_path / "b"
     assert cache.solver_file(tmp_path, spec, 7, 1) != cache.solver_file(tmp_path, spec, 6, 1)
+
+
+def test_an_edited_solver_source_is_another_key(tmp_path, monkeypatch) -> None:
+    """The solver's key holds its modules' sources: the entry of the code before an edit is never
+    read back for the code after it (a kept directory: the CLI's, the suite's)."""
+    from eol_cal.numerics.exported import sources_digest
+
+    (tmp_path / "edited_mod.py").write_text("X = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = sources_digest("edited_mod", "eol_cal.analysis.fit.model")
+    (tmp_path / "edited_mod.py").write_text("X = 2\n")
+    sources_digest.cache_clear()  # a process reads the sources once; the next one reads the edit
+    assert sources_digest("edited_mod", "eol_cal.analysis.fit.model") != before
+    assert sources_digest("eol_cal.analysis.fit.model", "edited_mod") != before  # the order is in it
