@@ -106,8 +106,8 @@ def pytest_configure(config: pytest.Config) -> None:
     _start_xla(config)
     # the programs the product keeps between processes (the fit's solvers, the plant's tick loops:
     # eol_cal.numerics.exported), kept there too, as the CLI keeps them in its cache directory: a
-    # worker reads what another traced, a run what the last one traced (the fast loop ~10 % less
-    # CPU, docs/benchmarks.md). Their keys hold the code they were traced from, so an edit is traced
+    # worker reads what another traced, a run what the last one traced (the fast loop a few per cent
+    # less CPU, docs/benchmarks.md). Their keys hold the code they were traced from, so an edit is traced
     # afresh; the export's own tests give it a directory of their own.
     from eol_cal.numerics.exported import set_cache_dir
 

@@ -24,8 +24,7 @@ import hashlib
 import importlib.util
 import os
 import re
-import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -196,9 +195,14 @@ def code_digest() -> str:
     ECU's estimator, compensator and identifier), so that any change to the code traces it afresh
     instead of reading back a program of other code."""
     root = Path(__file__).resolve().parents[1]
+    return _sources_sha256((path.relative_to(root).as_posix(), path) for path in sorted(root.rglob("*.py")))
+
+
+def _sources_sha256(sources: Iterable[tuple[str, Path]]) -> str:
+    """SHA-256 of ``(label, file)`` pairs in order: each label and the file's bytes, NUL-ended."""
     h = hashlib.sha256()
-    for path in sorted(root.rglob("*.py")):
-        h.update(path.relative_to(root).as_posix().encode() + b"\0")
+    for label, path in sources:
+        h.update(label.encode() + b"\0")
         h.update(path.read_bytes() + b"\0")
     return h.hexdigest()
 
@@ -209,14 +213,12 @@ def sources_digest(*modules: str) -> str:
     program whose trace reads only those modules' code (the fit's solver: its module and the model's
     constants), so that a change to them traces it afresh while a change elsewhere in the package
     keeps the entry (:func:`code_digest` for a program that reaches across the package)."""
-    h = hashlib.sha256()
-    for name in modules:
-        module = sys.modules.get(name)
-        path = getattr(module, "__file__", None)
-        if path is None:
-            spec = importlib.util.find_spec(name)
-            path = None if spec is None else spec.origin
-        if path is None:
-            raise ValueError(f"no source file for module {name!r}")
-        h.update(name.encode() + b"\0" + Path(path).read_bytes() + b"\0")
-    return h.hexdigest()
+    return _sources_sha256((name, _source_file(name)) for name in modules)
+
+
+def _source_file(name: str) -> Path:
+    """The source file of module ``name`` (imported or not)."""
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        raise ValueError(f"no source file for module {name!r}")
+    return Path(spec.origin)
