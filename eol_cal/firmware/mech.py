@@ -268,14 +268,19 @@ def n_slices(mc: MechConsts) -> int:
     return 1 + -(-mc.N // SLICE_EDGES) + 1 + mc.PP + 1
 
 
-def set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule) -> Array:
+def set_add(arr: Array, idx: Array, val: Array, xp: ArrayModule, scatter: bool = False) -> Array:
     """``arr`` with ``arr[idx] += val`` (a copy under numpy, a functional update under JAX).
 
     Under JAX a select against the position (``idx`` in range: the same sum at ``idx``, the same
     array bit for bit): ``.at[idx].add`` becomes a scatter once the tick is vmapped over motors,
     and a scatter keeps XLA's CPU backend from compiling the plant's tick loop into one kernel
-    (:mod:`eol_cal.numerics.xla`): layout 2's batch ran ~1.5x slower per tick for it."""
+    (:mod:`eol_cal.numerics.xla`): layout 2's batch ran ~1.5x slower per tick for it.
+    ``scatter``: ``.at[idx].add`` all the same, for a scan that is a sequence of XLA's operations
+    anyway (the power-ups', :mod:`eol_cal.firmware.mech_sim`: the select rewrote every entry of
+    every member's tables on each tick some member took a sample)."""
     if hasattr(arr, "at"):
+        if scatter:
+            return arr.at[idx].add(val)
         return xp.where(xp.arange(arr.shape[-1], dtype=xp.int32) == idx, arr + val, arr)
     out = arr.copy()
     out[idx] = out[idx] + val

@@ -34,7 +34,7 @@ from eol_cal.firmware.mech import (
     mech_init,
     mech_tables,
 )
-from eol_cal.firmware.mech_tick import batched_background, batched_tick
+from eol_cal.firmware.mech_tick import batched_background_few, batched_tick
 from eol_cal.firmware.mech_params import MechParams
 
 if TYPE_CHECKING:
@@ -46,6 +46,8 @@ CHUNK = 4000
 _RESETS = EV_RESET_FAULT | EV_RESET_FRACTION | EV_RESET_EVAL
 #: the power-ups' vmapped axis
 _AXIS = "powerups"
+#: power-ups whose background evaluation is computed together (a round; more rounds when more need it)
+_FEW = 8
 #: the compiled scan's carry over a batch: shaft angle, estimator and identifier states, and the
 #: tracking (first identifying tick, its r, ticks identified wrong, identifier resets)
 _Carry = tuple["jax.Array", EstimatorState, MechState, tuple["jax.Array", "jax.Array", "jax.Array", "jax.Array"]]
@@ -197,10 +199,10 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
             es, eo, ps = jax.vmap(lambda s, a, b, h, t: step_pitch(cfg, s, a, b, h, xp=jnp, tables=t, batch_axis=_AXIS,
                                                                    scatter_tables=True),
                                   axis_name=_AXIS)(es, a, b, h, tables)
-            ms, mo = jax.vmap(lambda m, t, s, o, p: batched_tick(mc, t, m, s, o, p, _AXIS), axis_name=_AXIS)(
+            ms, mo = jax.vmap(lambda m, t, s, o, p: batched_tick(mc, t, m, s, o, p, _AXIS, scatter=True), axis_name=_AXIS)(
                 ms, tb, es, eo, ps)
-            # the background's arithmetic only on the ticks some power-up needs it (the same result)
-            ms = batched_background(mc, tb, ms, es)
+            # the background's arithmetic only for the power-ups that need it (the same result)
+            ms = batched_background_few(mc, tb, ms, es, _FEW)
             on = mo.active != 0
             new_first = (first < 0) & on
             first = jnp.where(new_first, start + i, first)

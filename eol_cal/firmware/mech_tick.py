@@ -18,7 +18,7 @@ from __future__ import annotations
 # cannot narrow per backend; shapes and dtypes are the golden vectors' and the C reference's to check.
 # mypy: disable-error-code="arg-type,operator"
 
-from typing import cast
+from typing import TypeVar, cast
 
 import numpy as np
 
@@ -35,6 +35,7 @@ from eol_cal.firmware.mech_params import FP_FORWARD
 _F0 = F32(0.0)
 _I0 = I32(0)
 _FALSE = cast(Array, np.False_)  # typed as the step's arrays
+T = TypeVar("T")
 
 
 def n_clear_slices(mc: MechConsts) -> int:
@@ -51,10 +52,11 @@ def _withdrawn(ms: MechState, N: int, xp: ArrayModule) -> MechState:
 
 
 def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
-              ps: PitchSample, xp: ArrayModule = np) -> tuple[MechState, MechOut]:
+              ps: PitchSample, xp: ArrayModule = np, scatter: bool = False) -> tuple[MechState, MechOut]:
     """The interrupt's part of a tick, after the estimator's (MECH.md, "Per tick"): constant work.
 
-    ``es`` is the estimator's state after this tick, ``eo`` its outputs, ``ps`` its pitch sample.
+    ``es`` is the estimator's state after this tick, ``eo`` its outputs, ``ps`` its pitch sample;
+    ``scatter``: a sample's entry of the tables written alone (:func:`eol_cal.firmware.mech.set_add`).
     """
     i32 = xp.int32
     N = mc.N
@@ -69,9 +71,9 @@ def mech_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
         if xp is SCALAR_NP and not take:  # one motor, no sample: adding 0 leaves the tables as they are
             acc, cnt, miss = ms.acc, ms.cnt, ms.miss  # (acc never holds -0.0: sums of +0.0 and pitch errors)
         else:
-            acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp)
-            cnt = set_add(ms.cnt, ps.index, i32(take), xp)
-            miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp)
+            acc = set_add(ms.acc, ps.index, xp.where(take, ps.error, _F0), xp, scatter)
+            cnt = set_add(ms.cnt, ps.index, i32(take), xp, scatter)
+            miss = set_add(ms.miss, ps.index % I32(2), -i32(first), xp, scatter)
         n_new = xp.minimum(ms.n_new + i32(take), I32(N))
         # 2. a finished evaluation, a finished mark check
         ok = ms.ev_ok != 0
@@ -129,21 +131,22 @@ def _due_mark(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
 
 
 def batched_tick(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
-                 ps: PitchSample, axis_name: str) -> tuple[MechState, MechOut]:
+                 ps: PitchSample, axis_name: str, scatter: bool = False) -> tuple[MechState, MechOut]:
     """:func:`mech_tick` of one member of a batch ``jax.vmap``-ped with ``axis_name`` (JAX): the
     same result, its steps computed on the ticks some member of the batch needs them.
 
     Most ticks nobody collects a sample, finishes, withdraws, starts an evaluation or reaches a
     revolution mark; then every member's state stays as it is and no event is raised (the values
     :func:`mech_tick`'s selects give), so the batch skips the steps (under ``vmap`` a branch on a
-    per-member value computes both sides; the batch's ``any`` is one value for all).
+    per-member value computes both sides; the batch's ``any`` is one value for all). ``scatter``:
+    as :func:`mech_tick`'s.
     """
     import jax.numpy as jnp
 
     enabled, take, fault, done = _tick_flags(mc, tb, ms, eo, ps, jnp)
     _, due, mark = _due_mark(mc, tb, ms, es, enabled, jnp)
     need = take | fault | done | (ms.mk == 2) | due | mark
-    return when(need, lambda: mech_tick(mc, tb, ms, es, eo, ps, xp=jnp),
+    return when(need, lambda: mech_tick(mc, tb, ms, es, eo, ps, xp=jnp, scatter=scatter),
                 lambda: (ms, MechOut(active=ms.active, r=ms.r, events=jnp.zeros_like(ms.active),
                                      score=ms.score, margin=ms.margin)), jnp, axis_name)
 
@@ -208,6 +211,41 @@ def batched_background_all(mc: MechConsts, tb: MechTables, ms: MechState, es: Es
     import jax.numpy as jnp
 
     return jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(tb, ms, es)
+
+
+def batched_background_few(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState,
+                           width: int) -> MechState:
+    """:func:`mech_background` of a batch of identifiers (JAX; every array's leading axis the
+    batch): the evaluation's arithmetic only for the members that need it, ``width`` at a time.
+
+    The same result as :func:`batched_background`. A batch of hundreds (the power-ups') has some
+    member's heavy tick on a good part of its ticks, where :func:`batched_background` computes
+    every member's evaluation; here the members whose :func:`background_heavy` is true are
+    gathered, ``width`` a round (rarely more than one), computed and written back. Gathers and
+    scatters keep a loop from XLA's single kernel (:mod:`eol_cal.numerics.xla`): for a scan that is
+    a sequence of XLA's operations anyway.
+    """
+    import jax
+    import jax.numpy as jnp
+
+    size = jnp.shape(ms.active)[0]
+
+    def rows(tree: T, idx: jax.Array) -> T:
+        return jax.tree.map(lambda x: x.at[idx].get(mode="fill", fill_value=0), tree)
+
+    def round_(carry: tuple[MechState, jax.Array]) -> tuple[MechState, jax.Array]:
+        out, left = carry
+        idx = jnp.nonzero(left, size=width, fill_value=size)[0]  # past the end: read as 0, not written
+        new = jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(rows(tb, idx), rows(ms, idx), rows(es, idx))
+        # only the members' own numbers are written back: the samples' tables are the background's to read
+        out = MechState(*(o if jnp.ndim(o) > 1 else jnp.asarray(o).at[idx].set(n, mode="drop")
+                          for o, n in zip(out, new, strict=True)))
+        return out, left.at[idx].set(False, mode="drop")
+
+    heavy = background_heavy(ms)
+    idle = mech_background_idle(mc, ms, xp=jnp)
+    return jax.lax.cond(jnp.any(heavy), lambda: jax.lax.while_loop(lambda c: jnp.any(c[1]), round_, (idle, heavy))[0],
+                        lambda: idle)
 
 
 def mech_step(mc: MechConsts, tb: MechTables, ms: MechState, es: EstimatorState, eo: EstimatorOut,
