@@ -201,7 +201,8 @@ def _chunk_fn(cfg: est.EstimatorConfig, mc: MechConsts, poles: int
                                   axis_name=_AXIS)(es, a, b, h, tables)
             ms, mo = jax.vmap(lambda m, t, s, o, p: batched_tick(mc, t, m, s, o, p, _AXIS, scatter=True), axis_name=_AXIS)(
                 ms, tb, es, eo, ps)
-            # the background's arithmetic only for the power-ups that need it (the same result)
+            # the background's arithmetic only for the power-ups that need it (the same identification;
+            # the score and margin within a few units in the last place: batched_background_few)
             ms = batched_background_few(mc, tb, ms, es, _FEW)
             on = mo.active != 0
             new_first = (first < 0) & on

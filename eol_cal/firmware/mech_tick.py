@@ -218,7 +218,9 @@ def batched_background_few(mc: MechConsts, tb: MechTables, ms: MechState, es: Es
     """:func:`mech_background` of a batch of identifiers (JAX; every array's leading axis the
     batch): the evaluation's arithmetic only for the members that need it, ``width`` at a time.
 
-    The same result as :func:`batched_background`. A batch of hundreds (the power-ups') has some
+    The same result as :func:`batched_background`, but for the evaluation's score and margin: sums
+    over fewer rows, which XLA may add in another order (within a few units in the last place;
+    tests/test_mech_batched.py). A batch of hundreds (the power-ups') has some
     member's heavy tick on a good part of its ticks, where :func:`batched_background` computes
     every member's evaluation; here the members whose :func:`background_heavy` is true are
     gathered, ``width`` a round (rarely more than one), computed and written back. Gathers and
