@@ -74,15 +74,10 @@ def test_the_batch_branches_give_the_plain_steps_bit_for_bit():
         assert p.tobytes() == b.tobytes()
     # the power-ups' form: every integer (offsets, events, counts, states) the same, the sums' floats
     # within a few units in the last place
-    for path, p in jax.tree_util.tree_flatten_with_path(plain)[0]:
-        q = _at(powerups, path)
+    flat_q, tree_q = jax.tree_util.tree_flatten(powerups)
+    assert tree_q == tree_p
+    for (path, p), q in zip(jax.tree_util.tree_flatten_with_path(plain)[0], flat_q, strict=True):
         if p.dtype.kind == "f" and any(getattr(k, "name", None) in ("score", "margin", "ev_score", "ev_margin") for k in path):
             np.testing.assert_array_max_ulp(p, q, maxulp=16)
         else:
             assert p.tobytes() == q.tobytes(), jax.tree_util.keystr(path)
-
-
-def _at(tree, path):
-    for key in path:
-        tree = getattr(tree, key.name) if hasattr(key, "name") else tree[key.idx]
-    return tree

@@ -238,7 +238,7 @@ def batched_background_few(mc: MechConsts, tb: MechTables, ms: MechState, es: Es
     def round_(carry: tuple[MechState, jax.Array]) -> tuple[MechState, jax.Array]:
         out, left = carry
         idx = jnp.nonzero(left, size=width, fill_value=size)[0]  # past the end: read as 0, not written
-        new = jax.vmap(lambda t, m, s: mech_background(mc, t, m, s, xp=jnp))(rows(tb, idx), rows(ms, idx), rows(es, idx))
+        new = batched_background_all(mc, rows(tb, idx), rows(ms, idx), rows(es, idx))
         # only the members' own numbers are written back: the samples' tables are the background's to read
         out = MechState(*(o if jnp.ndim(o) > 1 else jnp.asarray(o).at[idx].set(n, mode="drop")
                           for o, n in zip(out, new, strict=True)))
