@@ -126,6 +126,52 @@ def test_server_enforces_the_map(regmap):
         c.close()
 
 
+def test_window_reads_served_from_the_buffer_are_the_datastores_registers(regmap):
+    """The simulator answers reads inside its capture window itself (eol_cal.dyno.pdu.server_pdus):
+    the registers and the exceptions are those its datastore and request hook give."""
+    import asyncio
+
+    from pymodbus.constants import ExcCodes
+
+    sim = DynoSim(synthetic_source, serial="M-WIN", register_map=regmap)
+    w = regmap.window
+    cid = next(iter(regmap.channels.values()))
+    sim.buffer = {cid: (np.arange(3000, dtype=np.uint32) * 7919 % 65536).astype(np.uint16)}
+    sim.buf_channel, sim.buf_offset = cid, 100
+    fc = 3 if w.table == "holding" or regmap.shared_tables else 4
+
+    def by_hook(address: int, count: int) -> list[int] | ExcCodes:
+        registers = [0] * (w.end + 8)
+        got = asyncio.run(sim.action(fc, 0, address, count, registers, None))
+        return got if got is not None else registers[address:address + count]
+
+    n = regmap.max_read_registers
+    reads = [(w.address, n), (w.address + 3, 60), (w.end - n, n), (w.address + 1000, 1)]
+    for address, count in reads:
+        direct = asyncio.run(sim.direct_read(fc, address, count))
+        assert direct == by_hook(address, count) and len(direct) == count
+    first = 100 * regmap.regs_per_sample(cid)
+    assert asyncio.run(sim.direct_read(fc, w.address, 5)) == sim.buffer[cid][first:first + 5].tolist()
+    # what the datastore answers: beyond the window, across its start, the other table
+    assert asyncio.run(sim.direct_read(fc, w.address - 1, 2)) is None
+    assert asyncio.run(sim.direct_read(fc, w.end - 1, 2)) is None
+    assert asyncio.run(sim.direct_read(6, w.address, 1)) is None
+    if not regmap.shared_tables:
+        assert asyncio.run(sim.direct_read(7 - fc, w.address, 1)) is None
+    # a connection being dropped: the same exception either way
+    import time
+    sim.disconnect_until = time.monotonic() + 60.0
+    assert asyncio.run(sim.direct_read(fc, w.address, 2)) == by_hook(w.address, 2) == ExcCodes.DEVICE_BUSY
+    sim.disconnect_until = 0.0
+    # over TCP
+    with DynoSimThread(sim) as dyno:
+        c = _client(dyno.port, regmap)
+        c.connect()
+        read = c._client.read_holding_registers if fc == 3 else c._client.read_input_registers
+        assert read(w.address, count=n, device_id=1).registers == sim.buffer[cid][first:first + n].tolist()
+        c.close()
+
+
 def test_fault_register_trips_and_reset_clears(regmap):
     with DynoSimThread(DynoSim(synthetic_source, serial="M-MAP", register_map=regmap)) as dyno:
         c = _client(dyno.port, regmap)

@@ -7,12 +7,17 @@ in one call the station's CPU for them fell by a fifth to a quarter and the simu
 up to a fifth (``bench/bench_dyno.py``, 2026-12-01). These subclasses give the same bytes and the same
 register lists (``tests/test_dyno_pdu.py``); they enter through pymodbus's own extension points:
 :func:`fast_reads` on a client (``register``), :data:`SERVER_PDUS` on a server (``custom_pdu``).
+
+A server may also answer some reads without its datastore (:func:`server_pdus`): the dyno
+simulator serves its capture window's pages from the buffer itself, where pymodbus's simulator
+datastore would check each of a read's 125 registers' flags in a Python loop, copy the page into
+its register list and out again.
 """
 
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from typing import TYPE_CHECKING
 
 from pymodbus.constants import ExcCodes
@@ -65,6 +70,11 @@ class InputResponse(_OneCall, ReadInputRegistersResponse):
     """:class:`ReadInputRegistersResponse` coded in one ``struct`` call."""
 
 
+#: ``read(function_code, address, count)``: a read's registers, an exception code, or None where the
+#: datastore answers it (:func:`server_pdus`)
+DirectRead = Callable[[int, int, int], Awaitable["list[int] | ExcCodes | None"]]
+
+
 class _Answered:
     """A server's register read answered by :class:`HoldingResponse` or :class:`InputResponse`
     (pymodbus's ``datastore_update`` but for the response's class; mixed in before its request)."""
@@ -73,9 +83,12 @@ class _Answered:
     address: int
     count: int
     transaction_id: int
+    direct: DirectRead | None = None
 
     async def datastore_update(self, context: ModbusServerContext, device_id: int) -> ModbusPDU:
-        values = await context.async_getValues(device_id, self.function_code, self.address, self.count)
+        direct = None if self.direct is None else await self.direct(self.function_code, self.address, self.count)
+        values = direct if direct is not None else \
+            await context.async_getValues(device_id, self.function_code, self.address, self.count)
         if isinstance(values, ExcCodes):
             return ExceptionResponse(self.function_code, values)
         response = HoldingResponse if self.function_code == 3 else InputResponse
@@ -92,6 +105,15 @@ class InputRequest(_Answered, ReadInputRegistersRequest):
 
 #: a pymodbus server's ``custom_pdu``: its register reads answered in one ``struct`` call each
 SERVER_PDUS: list[type[ModbusPDU]] = [HoldingRequest, InputRequest]
+
+
+def server_pdus(direct: DirectRead) -> list[type[ModbusPDU]]:
+    """:data:`SERVER_PDUS` whose reads ask ``direct`` first (one server's: bound to its classes).
+
+    ``direct(function_code, address, count)`` returns the registers, or an exception code, of the
+    reads it serves itself, and None for the others, which the server's datastore answers.
+    """
+    return [type(cls.__name__, (cls,), {"direct": staticmethod(direct)}) for cls in SERVER_PDUS]
 
 
 def fast_reads(client: ModbusBaseClient | ModbusBaseSyncClient) -> None:

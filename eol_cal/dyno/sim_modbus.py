@@ -135,8 +135,6 @@ class ModbusFace:
         set_values: list[int] | None,
     ) -> ExcCodes | None:
         """pymodbus hook, called for every request before it touches ``registers``."""
-        from pymodbus.constants import ExcCodes
-
         now = time.monotonic()
         self._last_request = now
         self.advance(now)
@@ -145,28 +143,51 @@ class ModbusFace:
         w = self.regmap.window
         if function_code in _FC_READ:
             if table in (None, w.table) and address < w.end and end > w.address:
-                self.window_reads += 1
-                self._fire_plans("read", self.window_reads)
-                if time.monotonic() < self.disconnect_until:
-                    return ExcCodes.DEVICE_BUSY  # the connection is being dropped anyway
                 lo = max(address, w.address) - w.address
                 hi = min(end, w.end) - w.address
-                channel, offset = self.buf_channel, self.buf_offset  # the page this read addresses
-                recorded = channel == w.digital_id or channel in self.regmap.analog_channels
-                if self.realtime and self.capture_state == CaptureState.RUNNING and recorded:
-                    per = self.regmap.regs_per_sample(channel)
-                    # as a real dyno: samples the shaft has not turned out yet are waited for
-                    if not await self.wait_recorded(offset + -(-hi // per)):
-                        return ExcCodes.DEVICE_FAILURE  # the capture failed or was aborted meanwhile
-                    self.captures[-1].early_reads += 1
+                words = await self._window_page(lo, hi)
+                if not isinstance(words, list):
+                    return words
                 base = w.address - start_address
-                registers[base + lo: base + hi] = self.window_words(channel, offset, lo, hi)
+                registers[base + lo: base + hi] = words
             if address < w.address or end > w.end or table not in (None, w.table):  # not a window-only read
                 self._refresh(registers, start_address, address, end, table, self.status_values())
             return None
         if set_values is None:
             return None
         return self._write(address, list(set_values), set_values) or None
+
+    async def _window_page(self, lo: int, hi: int) -> list[int] | ExcCodes:
+        """Registers ``lo:hi`` of the capture window (a read of them), or the exception to answer."""
+        from pymodbus.constants import ExcCodes
+
+        w = self.regmap.window
+        self.window_reads += 1
+        self._fire_plans("read", self.window_reads)
+        if time.monotonic() < self.disconnect_until:
+            return ExcCodes.DEVICE_BUSY  # the connection is being dropped anyway
+        channel, offset = self.buf_channel, self.buf_offset  # the page this read addresses
+        recorded = channel == w.digital_id or channel in self.regmap.channels.values()
+        if self.realtime and self.capture_state == CaptureState.RUNNING and recorded:
+            per = self.regmap.regs_per_sample(channel)
+            # as a real dyno: samples the shaft has not turned out yet are waited for
+            if not await self.wait_recorded(offset + -(-hi // per)):
+                return ExcCodes.DEVICE_FAILURE  # the capture failed or was aborted meanwhile
+            self.captures[-1].early_reads += 1
+        return self.window_words(channel, offset, lo, hi)
+
+    async def direct_read(self, function_code: int, address: int, count: int) -> list[int] | ExcCodes | None:
+        """A read that lies in the capture window, answered from the buffer without the datastore
+        (:func:`eol_cal.dyno.pdu.server_pdus`): what :meth:`action` makes of it, the same registers
+        or exception; None for any other read (the datastore's checks and :meth:`action`)."""
+        w = self.regmap.window
+        if (function_code not in _FC_READ or self._table_of(function_code) not in (None, w.table)
+                or count <= 0 or address < w.address or address + count > w.end):
+            return None
+        now = time.monotonic()
+        self._last_request = now
+        self.advance(now)
+        return await self._window_page(address - w.address, address + count - w.address)
 
     def _refresh(self, registers: list[int], start: int, lo: int, hi: int, table: str | None, values: dict) -> None:
         for name, value in values.items():
@@ -284,11 +305,11 @@ class ModbusFace:
         """Run the Modbus TCP server until cancelled; ``started(port)`` once it listens."""
         from pymodbus.server import ModbusTcpServer
 
-        from eol_cal.dyno.pdu import SERVER_PDUS
+        from eol_cal.dyno.pdu import server_pdus
 
         self._loop = asyncio.get_running_loop()
         server = ModbusTcpServer(self.simdevice(), address=(host, port), trace_packet=self.trace_packet,
-                                 custom_pdu=SERVER_PDUS)
+                                 custom_pdu=server_pdus(self.direct_read))
         self._server = server
         await server.serve_forever(background=True)
         bound = server.transport.sockets[0].getsockname()[1]
