@@ -88,6 +88,9 @@ class DynoClient:
         self.identified = False
         #: the direction this client last enabled the drive in (speed mode), while it ran since
         self._running_in: Direction | None = None
+        # the block reads of each set of registers read (the status poll's, ~100 a second, the same each time)
+        self._runs: dict[tuple[str, ...], list[tuple[str, int, int, tuple[str, ...]]]] = {}
+        self._status = self.regmap.group("status")
 
     # ------------------------------------------------------------ transport
     @property
@@ -162,7 +165,11 @@ class DynoClient:
     def read(self, names: Sequence[str]) -> dict[str, float | int | str]:
         """Read registers ``names`` (neighbours of one table in one request) and decode them."""
         out: dict[str, float | int | str] = {}
-        for table, address, count, run in self.regmap.read_runs(names):
+        key = tuple(names)
+        runs = self._runs.get(key)
+        if runs is None:
+            runs = self._runs[key] = self.regmap.read_runs(key)
+        for table, address, count, run in runs:
             fc = READ_FC[table]
             read = self._client.read_input_registers if fc == 4 else self._client.read_holding_registers
             r = self._call(f"read {','.join(run)}",
@@ -187,7 +194,7 @@ class DynoClient:
 
     def status(self) -> dict[str, float | int | str]:
         """The status registers; raises when the dyno's heartbeat stopped for ``HEARTBEAT_STALL_S``."""
-        st = self.read(self.regmap.group("status"))
+        st = self.read(self._status)
         now = time.monotonic()
         if st["heartbeat"] != self._heartbeat[0]:
             self._heartbeat = (int(st["heartbeat"]), now)

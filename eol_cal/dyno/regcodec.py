@@ -5,12 +5,18 @@ Modbus standard, high byte first) or ``little``. A 32-bit value (``u32``, ``i32`
 takes two registers; ``word_order`` says which comes first: ``big`` = the high word at the lower
 address ("ABCD", pymodbus ``word_order="big"``), ``little`` = the low word first ("CDAB").
 ``f32`` is IEEE-754 binary32; ``str`` is ASCII, two characters per register, NUL-padded.
+
+:func:`to_words` and :func:`from_words` code arrays (a capture's samples); :func:`value_words` and
+:func:`words_value` code one value (a register a status poll reads, a write), the same words
+and values bit for bit without numpy's per-call cost (a dyno client polls its status ~100
+times a second).
 """
 
 from __future__ import annotations
 
+import struct
 from types import MappingProxyType
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -63,6 +69,46 @@ def from_words(words: np.ndarray, type_: str, byte_order: str, word_order: str) 
     else:
         bits = w.astype(np.uint16)
     return np.ascontiguousarray(bits.astype(bits_dtype)).view(value_dtype)
+
+
+_F32 = struct.Struct(">f")
+_U32 = struct.Struct(">I")
+
+
+def _swap16(w: int) -> int:
+    return ((w >> 8) | (w << 8)) & 0xFFFF
+
+
+def value_words(raw: float | int, type_: str, byte_order: str, word_order: str) -> list[int]:
+    """One raw number of ``type_`` -> its register words: :func:`to_words` of that one value."""
+    try:
+        # binary32 rounding to nearest as numpy's cast; a finite value beyond its range raises
+        bits = _U32.unpack(_F32.pack(raw))[0] if type_ == "f32" else int(raw) & (0xFFFFFFFF if TYPE_REGS[type_] == 2 else 0xFFFF)
+    except OverflowError:  # numpy's cast makes it infinite
+        return [int(w) for w in to_words(np.asarray([raw]), type_, byte_order, word_order)]
+    if TYPE_REGS[type_] == 2:
+        words = [bits >> 16, bits & 0xFFFF] if word_order == "big" else [bits & 0xFFFF, bits >> 16]
+    else:
+        words = [bits]
+    return [_swap16(w) for w in words] if byte_order == "little" else words
+
+
+def words_value(words: Sequence[int], type_: str, byte_order: str, word_order: str) -> float | int:
+    """The raw number of ``type_`` in ``words`` (its :data:`TYPE_REGS` registers): :func:`from_words`'
+    one value, as a Python number."""
+    ws = [_swap16(int(w)) for w in words] if byte_order == "little" else [int(w) for w in words]
+    if TYPE_REGS[type_] == 2:
+        hi, lo = (ws[0], ws[1]) if word_order == "big" else (ws[1], ws[0])
+        bits = hi << 16 | lo
+    else:
+        bits = ws[0]
+    if type_ == "f32":
+        return float(_F32.unpack(_U32.pack(bits))[0])
+    if type_ == "i16":
+        return bits - 0x10000 if bits & 0x8000 else bits
+    if type_ == "i32":
+        return bits - 0x100000000 if bits & 0x80000000 else bits
+    return bits
 
 
 def text_to_words(text: str, count: int, byte_order: str) -> list[int]:

@@ -165,7 +165,7 @@ class RegisterMap:
             except UnicodeEncodeError:
                 raise ValueError(f"{name}: {value!r} is not ASCII") from None
         raw = self._raw(e, value)
-        return [int(w) for w in rc.to_words(np.asarray([raw]), e.type, self.byte_order, self.word_order)]
+        return rc.value_words(raw, e.type, self.byte_order, self.word_order)
 
     def _raw(self, e: Entry, value: Value) -> float | int:
         if e.role.codes is not None:
@@ -215,18 +215,16 @@ class RegisterMap:
             raise ValueError(f"{name}: expected {e.count} registers, got {len(words)}")
         if e.type == "str":
             return rc.words_to_text(list(words), self.byte_order)
-        raw = rc.from_words(np.asarray(words), e.type, self.byte_order, self.word_order)[0]
-        if e.type in rc.INTEGER_TYPES:
-            raw = int(raw)
-            if e.invalid is not None and raw == e.invalid:
-                return math.nan
+        raw = rc.words_value(words, e.type, self.byte_order, self.word_order)
+        if e.type in rc.INTEGER_TYPES and e.invalid is not None and raw == e.invalid:
+            return math.nan
         if e.role.codes is not None and e.codes:
             for semantic, code in e.codes.items():
                 if code == raw:
                     return semantic
             raise ValueError(f"{name}: raw value {raw} is not one of the map's codes")
         if e.role.bits is not None and e.bits:
-            return sum(flag for flag, bit in e.bits.items() if raw >> bit & 1)
+            return sum(flag for flag, bit in e.bits.items() if int(raw) >> bit & 1)  # an integer type (mapfile)
         if e.type in rc.INTEGER_TYPES and e.scale == 1.0 and e.offset == 0.0:
             return raw
         return float(raw) * e.scale + e.offset
