@@ -10,7 +10,9 @@ dyno would be another machine; it records one capture, then the same buffer is r
 
 Both read the same pages (page select + window reads) and are checked to return identical words.
 ``client CPU s`` is this process's CPU for the read, ``dyno CPU s`` the simulator process's for
-serving it. Then the end-to-end time of ``eol-cal acquire`` on the default profile is taken,
+serving it; the last row is
+:data:`STATUS_POLLS` status reads (:meth:`~eol_cal.dyno.client.DynoClient.status`, the station's poll while
+the shaft turns) one after the other. Then the end-to-end time of ``eol-cal acquire`` on the default profile is taken,
 against the synthetic source and against the plant (compiled at simulator start-up).
 
 ``--baseline DIR``: the reads with this checkout's code and with another checkout's (``git
@@ -46,6 +48,8 @@ from eol_cal.dyno.transfer import DynoConfig
 from eol_cal.dyno.mapfile import default_register_map
 
 ROOT = Path(__file__).resolve().parents[1]
+#: status reads timed one after the other (the table's last row)
+STATUS_POLLS = 2000
 
 
 def cpu_of(proc: psutil.Process) -> float:
@@ -204,6 +208,15 @@ def reads(args: argparse.Namespace, root: Path) -> list[tuple[str, float, float,
         for label, s, cpu, dyno_cpu in rows:
             print(f"{label:<34}{s:>10.3f}{total_regs / s:>14,.0f}{args.samples / s:>12,.0f}{plain_s / s:>9.2f}{cpu:>13.2f}"
                   f"{dyno_cpu:>11.2f}")
+        # what a station's client does ~100 times a second while the shaft turns: read the status block
+        for _ in range(100):
+            dc.status()
+        t0, c0, d0 = time.perf_counter(), time.process_time(), cpu_of(dyno)
+        for _ in range(STATUS_POLLS):
+            dc.status()
+        rows.append((f"status: {STATUS_POLLS} polls", time.perf_counter() - t0, time.process_time() - c0,
+                     cpu_of(dyno) - d0))
+        print(f"{rows[-1][0]:<34}{rows[-1][1]:>10.3f}{'':>44}{rows[-1][2]:>13.2f}{rows[-1][3]:>11.2f}")
         dc.safe_state()
         dc.close()
 
