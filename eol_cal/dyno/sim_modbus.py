@@ -135,9 +135,7 @@ class ModbusFace:
         set_values: list[int] | None,
     ) -> ExcCodes | None:
         """pymodbus hook, called for every request before it touches ``registers``."""
-        now = time.monotonic()
-        self._last_request = now
-        self.advance(now)
+        self._request_seen()
         end = address + count
         table = self._table_of(function_code)
         w = self.regmap.window
@@ -156,6 +154,12 @@ class ModbusFace:
         if set_values is None:
             return None
         return self._write(address, list(set_values), set_values) or None
+
+    def _request_seen(self) -> None:
+        """A request came: the watchdog's clock restarts and the simulated time moves to now."""
+        now = time.monotonic()
+        self._last_request = now
+        self.advance(now)
 
     async def _window_page(self, lo: int, hi: int) -> list[int] | ExcCodes:
         """Registers ``lo:hi`` of the capture window (a read of them), or the exception to answer."""
@@ -184,9 +188,7 @@ class ModbusFace:
         if (function_code not in _FC_READ or self._table_of(function_code) not in (None, w.table)
                 or count <= 0 or address < w.address or address + count > w.end):
             return None
-        now = time.monotonic()
-        self._last_request = now
-        self.advance(now)
+        self._request_seen()
         return await self._window_page(address - w.address, address + count - w.address)
 
     def _refresh(self, registers: list[int], start: int, lo: int, hi: int, table: str | None, values: dict) -> None:
