@@ -28,6 +28,7 @@ from udsoncan.connections import PythonIsoTpV2Connection
 from udsoncan.exceptions import TimeoutException
 
 from eol_cal.ecu import protocol as P
+from eol_cal.ecu.wire import wire_bits
 from eol_cal.errors import InputError
 from eol_cal.infra.inputs import read_text
 
@@ -252,8 +253,9 @@ class PacedBus(can.BusABC):
     """A bus wrapper that gives every frame, sent or received, its time on a CAN bus of
     ``bitrate`` (the ECU simulator's bus: a virtual bus carries frames as fast as the CPU allows).
 
-    Both directions share one medium: a frame occupies the bus for :func:`frame_bits` (worst-case
-    stuffing) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
+    Both directions share one medium: a frame occupies the bus for its own length in bits
+    (:func:`eol_cal.ecu.wire.wire_bits`: the stuff bits of its content, not the worst case of
+    :func:`frame_bits`) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
     frame goes into a transmit queue, as into a CAN controller's, and reaches the other side when
     its time on the bus is over (frames sent back to back follow each other at the bit rate, the
     sender's own sleeps not adding up); a received frame is handed on when its time is over.
@@ -283,7 +285,9 @@ class PacedBus(can.BusABC):
 
     def _slot(self, msg: can.Message, ready: float) -> float:
         """When ``msg``, ready to go at ``ready`` (monotonic s), has left the bus."""
-        seconds = frame_bits(msg.dlc) / self.bitrate
+        seconds = (frame_bits(msg.dlc) if msg.is_fd  # not modelled: CAN FD's data phase has a bit rate of its own
+                   else wire_bits(msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_remote_frame,
+                                  msg.dlc)) / self.bitrate
         with self._lock:
             done = max(ready, self._free_at) + seconds
             self._free_at = done
@@ -336,7 +340,9 @@ _channel_counter = itertools.count()
 
 
 def frame_bits(dlc: int = P.FRAME_BYTES, *, stuffing: bool = True) -> int:
-    """Bits on the wire for one classic CAN 2.0A data frame, interframe space included.
+    """Bits on the wire for one classic CAN 2.0A data frame, interframe space included, at most
+    (the bound a flash's bus time is estimated with; a frame's own length is
+    :func:`eol_cal.ecu.wire.wire_bits`).
 
     ``44 + 8*dlc`` frame bits (SOF, 11-bit ID, RTR, IDE, r0, DLC, CRC, delimiters, ACK, EOF)
     plus 3 bits of interframe space; with ``stuffing`` the worst-case stuff bits
