@@ -25,7 +25,8 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
 from eol_cal.ecu.sim_ecu import Faults, SimConfig
-from eol_cal.ecu.transport import IsoTpTiming, frame_bits, isotp_min_frames
+from eol_cal.ecu.transport import IsoTpTiming
+from eol_cal.ecu.wire import frame_bits, isotp_min_frames
 from eol_cal.firmware import block as B
 
 from eol_cal.sim.virtual_rig import FAST_CLIENT, Sniffer, example_block, virtual_rig

@@ -8,8 +8,7 @@ import random
 
 import pytest
 
-from eol_cal.ecu.transport import frame_bits
-from eol_cal.ecu.wire import crc15, frame_bitstream, stuff_count, wire_bits
+from eol_cal.ecu.wire import crc15, frame_bits, frame_bitstream, stuff_count, wire_bits
 
 
 def _bits(value: int, length: int) -> list[int]:

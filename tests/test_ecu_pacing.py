@@ -14,8 +14,8 @@ import pytest
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key
 from eol_cal.ecu.sim_ecu import SimConfig
-from eol_cal.ecu.transport import PacedBus, frame_bits, isotp_min_frames, private_channel_name
-from eol_cal.ecu.wire import wire_bits
+from eol_cal.ecu.transport import private_channel_name
+from eol_cal.ecu.wire import PacedBus, frame_bits, isotp_min_frames, wire_bits
 
 from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
 

@@ -34,7 +34,8 @@ from eol_cal.ecu import protocol as P
 from eol_cal.ecu.flash import NorFlash, SecurityMemory, select_active
 from eol_cal.ecu.programming import BankProgrammer, Nrc, PowerLoss, parse_location
 from eol_cal.ecu.simconfig import STEPS, Faults, SimConfig
-from eol_cal.ecu.transport import FaultyBus, PacedBus, make_stack
+from eol_cal.ecu.transport import FaultyBus, make_stack
+from eol_cal.ecu.wire import PacedBus
 
 __all__ = ["EcuSimulator", "Faults", "Nrc", "STEPS", "SimConfig"]
 

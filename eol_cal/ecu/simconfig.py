@@ -98,7 +98,7 @@ class SimConfig:
     isotp_timing : IsoTpTiming
     bitrate : int or None
         The CAN bit rate (bit/s) the simulator's bus is paced to, both directions
-        (:class:`~eol_cal.ecu.transport.PacedBus`); None: frames as fast as the virtual bus carries them.
+        (:class:`~eol_cal.ecu.wire.PacedBus`); None: frames as fast as the virtual bus carries them.
     """
 
     serial: str = "SIM-0001"

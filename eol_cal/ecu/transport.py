@@ -1,9 +1,9 @@
 """CAN bus and ISO-TP plumbing shared by the flashing client and the ECU simulator.
 
 python-can opens the bus (any interface, or python-can's own config file), can-isotp carries
-UDS messages with the contract's addressing and 0xCC padding, :class:`FaultyBus` injects
-dropped and delayed frames for the reliability tests, and :class:`PacedBus` holds the ECU
-simulator's frames to a CAN bit rate.
+UDS messages with the contract's addressing and 0xCC padding, and :class:`FaultyBus` injects
+dropped and delayed frames for the reliability tests (the ECU simulator's bus paced to a CAN bit
+rate is :class:`eol_cal.ecu.wire.PacedBus`).
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import errno
 import itertools
 import logging
 import os
-import queue
 import random
 import socket
 import threading
@@ -28,7 +27,6 @@ from udsoncan.connections import PythonIsoTpV2Connection
 from udsoncan.exceptions import TimeoutException
 
 from eol_cal.ecu import protocol as P
-from eol_cal.ecu.wire import wire_bits
 from eol_cal.errors import InputError
 from eol_cal.infra.inputs import read_text
 
@@ -249,121 +247,12 @@ class FaultyBus(can.BusABC):
         self.inner.shutdown()
 
 
-class PacedBus(can.BusABC):
-    """A bus wrapper that gives every frame, sent or received, its time on a CAN bus of
-    ``bitrate`` (the ECU simulator's bus: a virtual bus carries frames as fast as the CPU allows).
-
-    Both directions share one medium: a frame occupies the bus for its own length in bits
-    (:func:`eol_cal.ecu.wire.wire_bits`: the stuff bits of its content, not the worst case of
-    :func:`frame_bits`) / ``bitrate`` seconds after the previous one, sent or received, has left it. A sent
-    frame goes into a transmit queue, as into a CAN controller's, and reaches the other side when
-    its time on the bus is over (frames sent back to back follow each other at the bit rate, the
-    sender's own sleeps not adding up); a received frame is handed on when its time is over.
-
-    Parameters
-    ----------
-    inner : can.BusABC
-        The real (virtual) bus.
-    bitrate : int
-        bit/s (the contract's bus: 500000).
-    """
-
-    def __init__(self, inner: can.BusABC, bitrate: int) -> None:
-        if bitrate <= 0:
-            raise ValueError(f"bit rate {bitrate} must be positive")
-        self.inner = inner
-        self.bitrate = int(bitrate)
-        self._lock = threading.Lock()
-        self._free_at = 0.0
-        self.busy_s = 0.0
-        """Seconds the frames have occupied the bus so far."""
-        self._tx: queue.SimpleQueue[tuple[float, can.Message] | None] = queue.SimpleQueue()
-        self._tx_thread = threading.Thread(target=self._transmit, name="paced-bus-tx", daemon=True)
-        self._tx_thread.start()
-        super().__init__(channel=getattr(inner, "channel_info", "paced"))
-        self.channel_info = f"paced {self.bitrate} bit/s ({getattr(inner, 'channel_info', '')})"
-
-    def _slot(self, msg: can.Message, ready: float) -> float:
-        """When ``msg``, ready to go at ``ready`` (monotonic s), has left the bus."""
-        seconds = (frame_bits(msg.dlc) if msg.is_fd  # not modelled: CAN FD's data phase has a bit rate of its own
-                   else wire_bits(msg.arbitration_id, bytes(msg.data), msg.is_extended_id, msg.is_remote_frame,
-                                  msg.dlc)) / self.bitrate
-        with self._lock:
-            done = max(ready, self._free_at) + seconds
-            self._free_at = done
-            self.busy_s += seconds
-        return done
-
-    @staticmethod
-    def _sleep_until(t: float) -> None:
-        wait = t - time.monotonic()
-        if wait > 0:
-            time.sleep(wait)
-
-    def _transmit(self) -> None:
-        while True:
-            item = self._tx.get()
-            if item is None:
-                return
-            done, msg = item
-            self._sleep_until(done)
-            try:
-                self.inner.send(msg)
-            except Exception as exc:  # noqa: BLE001 - a closed bus: the frame is lost, as on a dead link
-                log.debug("paced bus: frame not sent: %s", exc)
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self._tx.put((self._slot(msg, time.monotonic()), msg))
-
-    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        msg = self.inner.recv(timeout)
-        if msg is not None:
-            # on the bus from when the sender handed it over, not from when this thread got to it
-            age = time.time() - msg.timestamp if msg.timestamp else 0.0
-            now = time.monotonic()
-            self._sleep_until(self._slot(msg, now - age if 0.0 <= age < 1.0 else now))
-        return msg, False
-
-    def shutdown(self) -> None:
-        super().shutdown()
-        self._tx.put(None)
-        self._tx_thread.join(1.0)
-        self.inner.shutdown()
-
-
 def private_channel_name(prefix: str = "ecu") -> str:
     """A python-can ``virtual`` channel name no other bus in this process uses by accident."""
     return f"{prefix}-{os.getpid()}-{next(_channel_counter)}-{uuid.uuid4().hex[:6]}"
 
 
 _channel_counter = itertools.count()
-
-
-def frame_bits(dlc: int = P.FRAME_BYTES, *, stuffing: bool = True) -> int:
-    """Bits on the wire for one classic CAN 2.0A data frame, interframe space included, at most
-    (the bound a flash's bus time is estimated with; a frame's own length is
-    :func:`eol_cal.ecu.wire.wire_bits`).
-
-    ``44 + 8*dlc`` frame bits (SOF, 11-bit ID, RTR, IDE, r0, DLC, CRC, delimiters, ACK, EOF)
-    plus 3 bits of interframe space; with ``stuffing`` the worst-case stuff bits
-    ``(34 + 8*dlc - 1) // 4`` of the 34 + 8*dlc stuffable bits (Davis et al., 2007), which
-    makes 135 bits for an 8-byte frame.
-    """
-    bits = 44 + 8 * dlc + 3
-    if stuffing:
-        bits += (34 + 8 * dlc - 1) // 4
-    return bits
-
-
-def isotp_min_frames(payload_bytes: int) -> int:
-    """Fewest CAN frames that carry one ISO-TP message of ``payload_bytes`` (classic CAN, normal addressing).
-
-    7 bytes fit a single frame; otherwise a first frame carries 6 and each consecutive frame 7,
-    plus the receiver's one flow-control frame (BS = 0).
-    """
-    if payload_bytes <= 7:
-        return 1
-    return 1 + -(-(payload_bytes - 6) // 7) + 1
 
 
 class LinkLost(Exception):
