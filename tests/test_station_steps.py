@@ -6,7 +6,10 @@ events on the loopback station: tests/test_station_run.py.)"""
 from __future__ import annotations
 
 import importlib
+import json
 import pkgutil
+import subprocess
+import sys
 
 from _station_configs import settings_refused_config
 from eol_cal.records.query import query_records
@@ -85,3 +88,18 @@ def test_an_ecu_restore_runs_its_one_step_through_the_executor(tmp_path):
         ("restore", what, "eol_cal.station.steps.restore_block") for what in ("start", "done")]
     assert events[-1].elapsed_s == rec.steps[0].seconds and events[-1].run_id == rec.run_id
     assert [r.run_id for r in query_records(tmp_path / "r.sqlite")] == [rec.run_id]
+
+
+def test_the_acquisitions_preload_imports_what_the_analysis_uses_and_nothing_it_does_not():
+    """While the shaft ramps, the cycle's helper imports the scipy the windows' work and the fit
+    import inside their functions (linalg, special), not signal, interpolate, ndimage or stats:
+    the analysis has numpy's own filter, PCHIP and median, and those cost ~1.5 CPU s of every
+    cycle beside the capture's stream (a whole station session loads linalg and special alone)."""
+    code = ("import json, sys; from eol_cal.station.steps.acquire_before import preload_analysis; "
+            "before = set(sys.modules); preload_analysis(); "
+            "print(json.dumps(sorted({m.split('.')[1] for m in set(sys.modules) - before "
+            "if m.startswith('scipy.') and sys.modules[m] is not None and not m.split('.')[1].startswith('_')})))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
+    loaded = set(json.loads(out.stdout))
+    assert {"linalg", "special"} <= loaded
+    assert loaded.isdisjoint({"signal", "interpolate", "ndimage", "stats", "optimize"}), loaded

@@ -29,13 +29,17 @@ def run(ctx: CycleContext) -> None:
 
 
 def preload_analysis() -> None:
-    """Import what each window's angle and figures need (scipy's interpolate, signal, ndimage and
-    BLAS: heavy, so imported inside the functions) while the shaft ramps to the first segment,
-    not at `eol-cal run`'s start nor when the first window is in."""
-    import scipy.interpolate
+    """Import the parts of scipy the windows' work and the fit import inside their functions
+    (heavy: not at `eol-cal run`'s start): linalg (the fingerprint's and the noise's factors, BLAS)
+    and special (the intervals' and the model check's distributions), while the shaft ramps to the
+    first segment, not when the first window is in. Not scipy's signal, interpolate, ndimage or
+    stats, which the analysis no longer uses (numpy's own filter, PCHIP and median:
+    :mod:`eol_cal.numerics`): they were ~1.5 CPU s of every cycle's start, beside the capture's
+    stream."""
+    import scipy.linalg
     import scipy.linalg.blas
-    import scipy.ndimage
-    import scipy.signal  # noqa: F401
+    import scipy.linalg.lapack
+    import scipy.special  # noqa: F401
 
 
 def preload_writers() -> None:
