@@ -41,7 +41,6 @@ def _crc_table() -> tuple[int, ...]:
     return tuple(out)
 
 
-
 def crc15(value: int, length: int) -> int:
     """The CRC-15 of the ``length`` bits of ``value`` (most significant first), register starting
     at 0: the bits before the last whole bytes one at a time, then a byte a step."""
@@ -104,7 +103,6 @@ def _stuff_table() -> dict[tuple[int, int], tuple[tuple[tuple[int, int], int], .
     return table
 
 
-
 def stuff_count(value: int, length: int) -> int:
     """Stuff bits a transmitter inserts into these ``length`` bits (most significant first): one of
     the other level after every five equal bits, the stuff bit counting towards the next five."""
@@ -134,14 +132,14 @@ def frame_bits(dlc: int = P.FRAME_BYTES, *, stuffing: bool = True) -> int:
     (the bound a flash's bus time is estimated with; a frame's own length is
     :func:`wire_bits`).
 
-    ``44 + 8*dlc`` frame bits (SOF, 11-bit ID, RTR, IDE, r0, DLC, CRC, delimiters, ACK, EOF)
-    plus 3 bits of interframe space; with ``stuffing`` the worst-case stuff bits
-    ``(34 + 8*dlc - 1) // 4`` of the 34 + 8*dlc stuffable bits (Davis et al., 2007), which
-    makes 135 bits for an 8-byte frame.
+    The ``34 + 8*dlc`` stuffable bits (SOF, 11-bit ID, RTR, IDE, r0, DLC, data, CRC) and the
+    :data:`TAIL_BITS`; with ``stuffing`` the worst-case stuff bits ``(34 + 8*dlc - 1) // 4``
+    (Davis et al., 2007), which makes 135 bits for an 8-byte frame.
     """
-    bits = 44 + 8 * dlc + 3
+    stuffable = 34 + 8 * dlc
+    bits = stuffable + TAIL_BITS
     if stuffing:
-        bits += (34 + 8 * dlc - 1) // 4
+        bits += (stuffable - 1) // 4
     return bits
 
 

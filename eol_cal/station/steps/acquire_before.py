@@ -36,9 +36,7 @@ def preload_analysis() -> None:
     stats, which the analysis no longer uses (numpy's own filter, PCHIP and median:
     :mod:`eol_cal.numerics`): they were ~1.5 CPU s of every cycle's start, beside the capture's
     stream."""
-    import scipy.linalg
-    import scipy.linalg.blas
-    import scipy.linalg.lapack
+    import scipy.linalg  # its blas and lapack with it
     import scipy.special  # noqa: F401
 
 
