@@ -6,13 +6,12 @@ from __future__ import annotations
 
 from eol_cal.analysis.point_metrics import nearest_segment, point_ripple, verify_segments
 from eol_cal.station.context import CycleContext
+from eol_cal.station.early import EarlyWindows
 
 NAME = "acquire compensated"
 
 
 def run(ctx: CycleContext) -> None:
-    from eol_cal.station.early import EarlyWindows  # scipy: heavy, loaded when the step begins
-
     # the steps run in order and stop at the first that fails: the fit gave a result, start_context made the pool
     assert ctx.result is not None and ctx.fit_extra is not None and ctx.helper is not None
     op = ctx.result.operating_point

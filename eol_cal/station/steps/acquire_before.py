@@ -9,13 +9,14 @@ from __future__ import annotations
 import eol_cal.capture.mdf4_io  # noqa: F401 - the MDF4 writer's module; asammdf, which it loads, on the helper
 from eol_cal.analysis.fit.prewarm import prewarm_fit
 from eol_cal.station.context import CycleContext
+# without scipy or JAX (the analysis imports them inside its functions): the shaft is not kept waiting
+# for them; the helper below imports them beside the stream (tests/test_station_steps.py)
+from eol_cal.station.early import EarlyWindows
 
 NAME = "acquire"
 
 
 def run(ctx: CycleContext) -> None:
-    from eol_cal.station.early import EarlyWindows  # scipy: heavy, loaded when the step begins
-
     assert ctx.helper is not None  # start_context made the pool
     ctx.helper.submit(preload_analysis)
     ctx.helper.submit(preload_writers)
