@@ -106,12 +106,12 @@ def test_the_acquisitions_preload_imports_what_the_analysis_uses_and_nothing_it_
 
 
 def test_the_acquire_step_starts_the_shaft_without_importing_scipy_or_jax():
-    """What the acquire step imports on the cycle's thread before the dyno turns (its module, then the
-    windows' early work: :mod:`eol_cal.station.early`) loads neither scipy nor JAX: `eol-cal run`'s
-    shaft started ~0.25 s later while the fingerprint's fit imported scipy.linalg at its top there;
-    the helper thread imports them beside the stream (the preload above)."""
-    code = ("import json, sys; import eol_cal.station.steps.acquire_before; "
-            "from eol_cal.station.early import EarlyWindows; "
+    """The cycle's step modules (the package imports every one) and the windows' early work the
+    acquire steps start with (:mod:`eol_cal.station.early`, named too: older steps imported it inside
+    ``run``) load neither scipy nor JAX: `eol-cal run`'s shaft started ~0.25 s later while the
+    fingerprint's fit imported scipy.linalg at its top there; the helper thread imports them beside
+    the stream (the preload above)."""
+    code = ("import json, sys; import eol_cal.station.steps; from eol_cal.station.early import EarlyWindows; "
             "print(json.dumps(sorted({m.split('.')[0] for m in sys.modules} & {'scipy', 'jax', 'jaxlib'})))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True)
     assert json.loads(out.stdout) == []

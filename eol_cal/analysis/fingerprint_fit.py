@@ -198,7 +198,7 @@ def _dof(n: int, n_stretches: int, halves: tuple[int, ...], nF: int) -> int:
 def _factor(G: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """``(L, L^-1 rhs)`` of the Cholesky factor ``G = L L^T``; None where ``G`` is not positive definite."""
     # heavy: not at `eol-cal run`'s start, where the acquire step imports the windows' work on the
-    # main thread before the shaft turns (tests/test_imports.py); the cycle's helper preloads it
+    # main thread before the shaft turns (tests/test_station_steps.py); the cycle's helper preloads it
     from scipy.linalg.lapack import dpotrf, dtrtrs
 
     L, info = dpotrf(G, lower=1)
