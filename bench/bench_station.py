@@ -22,7 +22,7 @@ alternated, in the same run; ``--read-back both`` adds this checkout with the st
 ``flash.read_back = "off"`` as a further column.
 
 An error run (a cycle that stopped early: a refused pre-flight takes 0.05 s) is printed with what
-its record says stopped it and left out of the figures; the bench then exits 1. Twice in twelve runs
+its record says stopped it and left out of the figures; the bench then exits 1. Twice in twenty runs
 on 2026-12-02 the later motors of a station stopped at pre-flight in 0.05 s, and their medians were
 printed as the loop's critical path (the one run seen whole: its first motor had stopped with an
 error while the simulated plant ran 1.8 s behind real time; the reasons were not kept then).
