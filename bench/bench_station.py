@@ -457,6 +457,7 @@ def main() -> int:
     from eol_cal.dyno.mapfile import load_register_map
     from eol_cal.ecu import protocol as P
     from eol_cal.sim.loopback import loopback_line
+    from eol_cal.records.limits import load_limits
 
     for name in ("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
@@ -486,8 +487,10 @@ def main() -> int:
         for i, setup in enumerate(args.setups.split(",")):
             map_name, _, bitrate = setup.partition("@")
             regmap = load_register_map(map_name)
+            # the plant's programs ready before the dyno simulator serves, as the demo's are (a real dyno's
+            # data is never late): its first motor's capture then holds no compile
             with loopback_line(tmp / f"sim-{map_name}-{bitrate}", register_map=regmap, realtime=True,
-                               bitrate=int(bitrate)) as line:
+                               bitrate=int(bitrate), prepare=load_limits(LIMITS).estimator_options) as line:
                 print(f"\n# setup {setup}: dyno {line.dyno_address} ({regmap.name}), ECU {line.can_channel} "
                       f"paced to {int(bitrate)} bit/s", flush=True)
                 for j, mode in enumerate(modes):

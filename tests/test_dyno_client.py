@@ -167,3 +167,29 @@ def test_stuck_heartbeat_stops_the_run(tmp_path: Path, regmap):
             acquire(config(th.port, regmap), PROFILE, out)
         _assert_safe(sim)
     assert not list(tmp_path.iterdir())
+
+
+def test_the_callers_work_before_the_first_capture_keeps_the_dyno_watchdog_fed(dyno, regmap):
+    """The caller's work before the first capture (the station reads the ECU's state there, while the
+    shaft ramps) takes three times the dyno's communication watchdog, as an ECU slow to answer would:
+    the client reads the dyno's status meanwhile, so the watchdog never stops the drive (it did, and
+    the fault it latched refused every later motor at pre-flight); the work's own error still ends the
+    run in the safe state."""
+    done = []
+
+    def slow() -> None:
+        time.sleep(1.5)
+        done.append(time.monotonic())
+
+    cap = acquire(config(dyno.port, regmap, watchdog_ms=500), PROFILE, None, rate_hz=10000, before_capture=slow)
+    assert done and len(cap.t) == sum(int(round(s.seconds * 10000)) for s in PROFILE)
+    assert int(dyno.sim.faults) == 0
+
+    def broken() -> None:
+        time.sleep(1.5)
+        raise RuntimeError("the ECU did not answer")
+
+    with pytest.raises(RuntimeError, match="the ECU did not answer"):
+        acquire(config(dyno.port, regmap, watchdog_ms=500), PROFILE, None, rate_hz=10000, before_capture=broken)
+    _assert_safe(dyno.sim)
+    assert int(dyno.sim.faults) == 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Sequence
@@ -62,8 +63,9 @@ def run_profile(
 ) -> tuple[list[DynoWindow], dict]:
     """Run every segment and read its capture; the drive is left in the safe state in every case.
 
-    ``before_capture`` is called (and waited for) right before the first capture is armed, while
-    the shaft ramps to the first segment; ``after_capture`` right after the last window was read
+    ``before_capture`` is called (and waited for, on a thread of its own while this one keeps the
+    dyno's communication watchdog fed: :func:`_while_fed`) right before the first capture is armed,
+    while the shaft ramps to the first segment; ``after_capture`` right after the last window was read
     and checked, while the shaft stops: work of the caller's that must bracket the captures (the
     ECU's state, :func:`eol_cal.station.acquisition.acquire_traced`) runs alongside the ramps, not
     after them. An exception from either ends the run like any other (safe state first). As soon
@@ -123,7 +125,7 @@ def run_profile(
             n = int(round(seg.seconds * rate_hz))
             lead = lead_in_samples(lead_in_s, rate_hz) if i == 0 else 0
             if i == 0 and before_capture is not None:
-                before_capture()
+                _while_fed(client, before_capture, "waiting to arm the first capture")
             if i == 0 and lead_in_point is not None:
                 if progress:
                     progress(f"lead-in: {lead_in_point.speed_rpm:g} rpm", 0, len(segments))
@@ -174,6 +176,30 @@ def run_profile(
     if why is not None:
         raise DynoError(f"could not disable the drive after the run: {why}")
     return data, ident
+
+
+def _while_fed(client: DynoClient, work: Callable[[], object], what: str) -> None:
+    """``work()`` on a thread of its own, while this one reads the dyno's status every quarter of
+    its communication watchdog and checks its faults.
+
+    The drive is enabled and ramping meanwhile: a dyno that gets no request for its watchdog's time
+    (a real one's: 2 s) stops and latches a fault, and every later motor's pre-flight refuses it until
+    someone clears it. The station's work here reads the ECU's state: seconds where the ECU is slow
+    to answer, or the station's process slow to start its bus. ``work``'s error is raised here as
+    its own (the caller's safe state follows).
+    """
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="before-capture")
+    try:
+        job = pool.submit(work)
+        period = max(client.config.watchdog_ms / 4000.0, 0.01)
+        while True:
+            try:
+                job.result(timeout=period)
+                return
+            except TimeoutError:  # concurrent.futures' since 3.11
+                client.check_faults(client.status(), what)
+    finally:
+        pool.shutdown(wait=False)  # a dyno fault does not wait for the work (the safe state first)
 
 
 def _window_time(d: DynoWindow, t_end: float) -> np.ndarray:

@@ -181,14 +181,19 @@ class LoopbackLine:
 
 @contextlib.contextmanager
 def loopback_line(work_dir: str | Path, *, register_map: RegisterMap | None = None, realtime: bool = False,
-                  bitrate: int | None = None) -> Iterator[LoopbackLine]:
+                  bitrate: int | None = None, prepare: int | None = None) -> Iterator[LoopbackLine]:
     """A dyno simulator and an ECU server on 127.0.0.1 (free ports) that stay for many motors;
     load each motor with :meth:`LoopbackLine.load` before its cycle. Arguments as
-    :func:`loopback_station`."""
+    :func:`loopback_station`; ``prepare``: the plant's programs for blocks of these estimator options
+    compiled (or loaded from JAX's cache) before the dyno simulator serves, not inside the first
+    motor's capture, which its tester times as a real dyno's (they depend on no motor's values)."""
 
     quiet(("pymodbus", "isotp", "UdsClient", "Connection", "can", "can_remote"))
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
+    if prepare is not None:
+        spec = demo_motor_spec(1, "PREPARE")
+        prepare_plant(lambda req: spec, prepare, spec.serial, 1)
     ecu = spawn_remote(work_dir / "idle.flash", host="127.0.0.1", port=0, config=SimConfig(bitrate=bitrate))
     try:
         sim = ds.DynoSim(synthetic_source, serial="IDLE", motor=load_motor("paper"), register_map=register_map,
