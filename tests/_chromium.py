@@ -30,6 +30,9 @@ MARKER = "EOL_CAL_TEST_BROWSER"
 #: default is short for a browser on 2 cores at load 8)
 TIMEOUT_S = 30.0
 expect.set_options(timeout=TIMEOUT_S * 1000)
+#: a hang guard for starting the browser, whatever the page's: at load 18 on 2 cores (fourteen busy
+#: loops beside the suite) a launch took more than 30 s and failed a lot page test (2026-12-02)
+LAUNCH_TIMEOUT_S = 180.0
 
 
 def chromium_path() -> str | None:
@@ -79,7 +82,7 @@ class Chromium:
         self._pw = sync_playwright().start()
         try:
             self._browser = self._pw.chromium.launch(
-                executable_path=exe, headless=True, timeout=self.timeout_ms,
+                executable_path=exe, headless=True, timeout=max(self.timeout_ms, LAUNCH_TIMEOUT_S * 1000),
                 args=["--disable-gpu", "--no-sandbox", "--disable-dev-shm-usage"],
                 env={**os.environ, MARKER: self.marker})
             context = self._browser.new_context(offline=self.offline, viewport={"width": self.width, "height": self.height})
