@@ -29,7 +29,7 @@ from eol_cal.ecu.transport import IsoTpTiming
 from eol_cal.ecu.wire import frame_bits, isotp_min_frames
 from eol_cal.firmware import block as B
 
-from eol_cal.sim.virtual_rig import FAST_CLIENT, Sniffer, example_block, virtual_rig
+from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_SIM, Sniffer, example_block, virtual_rig
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 OLD = example_block(seed=1)
@@ -38,7 +38,7 @@ NEW = example_block(seed=2)
 # FAST_CLIENT has since grown to 0.5 s for a loaded machine
 FAULT_ISOTP = IsoTpTiming(n_bs_ms=150, n_cr_ms=150)
 FAST_CLIENT = dataclasses.replace(FAST_CLIENT, p2_s=0.15, isotp=FAULT_ISOTP)
-FAULT_SIM = SimConfig(isotp_timing=FAULT_ISOTP)
+FAULT_SIM = dataclasses.replace(FAST_SIM, isotp_timing=FAULT_ISOTP)
 DYING = dataclasses.replace(FAST_CLIENT, p2_star_s=0.3, retries=1)  # P2 0.15 s: margin for a loaded machine
 STEP_CASES = [("session", 1), ("session", 2), ("security", 1), ("security", 2), ("read_did", 1),
               ("read_did", 2), ("read_did", 3), ("erase", 1), ("download", 1), ("transfer", 1),

@@ -6,6 +6,7 @@ Only lower bounds on time are asserted (a loaded machine can only be slower).
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import can
@@ -13,11 +14,10 @@ import pytest
 
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import flash_block, hmac_seed_to_key
-from eol_cal.ecu.sim_ecu import SimConfig
 from eol_cal.ecu.transport import private_channel_name
 from eol_cal.ecu.wire import PacedBus, frame_bits, isotp_min_frames, wire_bits
 
-from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
+from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_SIM, example_block, virtual_rig
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
 
@@ -52,7 +52,7 @@ def test_frames_take_their_time_on_the_bus_both_ways():
 @pytest.mark.parametrize("bitrate", [500_000, 1_000_000])
 def test_a_flash_on_a_paced_bus_takes_at_least_its_bus_time(tmp_path, bitrate):
     block = example_block(seed=3)
-    config = SimConfig(isotp_timing=FAST_ISOTP, bitrate=bitrate)
+    config = dataclasses.replace(FAST_SIM, bitrate=bitrate)
     with virtual_rig(tmp_path / "flash.bin", config=config) as rig:
         report = flash_block(rig.tester, block, seed_to_key=KEY, timing=FAST_CLIENT)
         assert report.verified and report.active_after.sequence == 1

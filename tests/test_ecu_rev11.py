@@ -12,8 +12,8 @@ import pytest
 from eol_cal.ecu import protocol as P
 from eol_cal.ecu.client import EcuError, UdsSession, flash_block, hmac_seed_to_key
 from eol_cal.ecu.flash import NorFlash, select_active
-from eol_cal.ecu.sim_ecu import Faults, SimConfig
-from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_ISOTP, example_block, virtual_rig
+from eol_cal.ecu.sim_ecu import Faults
+from eol_cal.sim.virtual_rig import FAST_CLIENT, FAST_SIM, example_block, virtual_rig
 from eol_cal.firmware import block as B
 
 KEY = hmac_seed_to_key(P.DEV_SECRET)
@@ -95,7 +95,7 @@ def test_lockout_survives_reset_and_power_cycle(tmp_path):
     # take up to 6 s more to get there (a 3 s delay left 1 s: at load 16 on 2 cores too little);
     # being late anywhere else only lets more of the delay pass, which the test waits for anyway
     lockout_s = 10.0
-    config = SimConfig(lockout_s=lockout_s, isotp_timing=FAST_ISOTP)
+    config = dataclasses.replace(FAST_SIM, lockout_s=lockout_s)
     with virtual_rig(tmp_path / "f.bin", config=config) as rig:
         def session(seed_to_key):
             s = UdsSession(rig.tester, seed_to_key=seed_to_key, timing=FAST_CLIENT)

@@ -74,7 +74,7 @@ class Faults:
                 raise ValueError(f"step {step!r} not one of {STEPS}")
 
 
-@dataclass
+@dataclass(frozen=True)
 class SimConfig:
     """What the simulated ECU is and how fast it runs.
 
