@@ -19,11 +19,9 @@ PROBE = (
 )
 
 
-def _threads(numpy_first: bool = True, flapack: bool = False, **env: str) -> int:
+def _threads(numpy_first: bool = True, **env: str) -> int:
     clean = {k: v for k, v in os.environ.items() if k not in THREAD_VARIABLES}
     probe = PROBE if numpy_first else PROBE.split("\n", 1)[1]
-    if flapack:  # the analysis's LAPACK, loaded without scipy.linalg's import (eol_cal/numerics/lapack.py)
-        probe = probe.replace("import scipy.linalg ", "from eol_cal.numerics.lapack import flapack; flapack() ")
     out = subprocess.run([sys.executable, "-c", probe], env={**clean, **env}, capture_output=True,
                          text=True, check=True, timeout=120)
     return int(out.stdout.strip())
@@ -45,8 +43,3 @@ def test_one_blas_thread_when_numpy_loads_after_the_limit():
 
 def test_a_count_the_user_set_stands():
     assert _threads(OPENBLAS_NUM_THREADS="2") == 2
-
-
-def test_one_blas_thread_for_the_lapack_loaded_without_scipy_linalg():
-    assert _threads(flapack=True) == 1
-    assert _threads(flapack=True, OPENBLAS_NUM_THREADS="2") == 2

@@ -17,7 +17,6 @@ from typing import Any
 import numpy as np
 
 from eol_cal.firmware.mech_params import FP_FORWARD
-from eol_cal.numerics.lapack import flapack
 
 #: degree of each stretch's polynomial motion (Legendre in time)
 POLY_DEGREE = 5
@@ -155,7 +154,9 @@ def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, 
     """The joint fit from its normal equations: ``(fp (2N,), var (2N,), rss, dirs, dof)`` as
     :func:`joint_fit`, by a Cholesky factor ``G = L L^T``: with ``z = L^-1 rhs`` the solution is
     ``L^-T z`` and the residual ``|phi_res|^2 - |z|^2`` (``cov`` adds the variances)."""
-    lapack = flapack()
+    from scipy.linalg import cho_solve
+    from scipy.linalg.lapack import dtrtrs
+
     P = low_order_complement(N)
     nF = P.shape[1]
     dof = _dof(n, n_stretches, halves, nF)
@@ -163,9 +164,9 @@ def _solve(G: np.ndarray, rhs: np.ndarray, ss: float, n: int, n_stretches: int, 
     G_inv: np.ndarray | None
     if factor is not None:
         L, z = factor
-        sol = lapack.dtrtrs(L, z, lower=1, trans=1)[0]
+        sol = dtrtrs(L, z, lower=1, trans=1)[0]
         rss = max(ss - float(z @ z), 0.0)
-        G_inv = _cho_inverse(lapack, L) if cov else None
+        G_inv = cho_solve((L, True), np.eye(len(rhs)), check_finite=False) if cov else None
     else:
         G_inv, sol, rss = _least_norm(G, rhs, ss)
     fp = np.full(2 * N, np.nan)
@@ -196,22 +197,14 @@ def _dof(n: int, n_stretches: int, halves: tuple[int, ...], nF: int) -> int:
 
 def _factor(G: np.ndarray, rhs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """``(L, L^-1 rhs)`` of the Cholesky factor ``G = L L^T``; None where ``G`` is not positive definite."""
-    # loaded here, not at `eol-cal run`'s start, where the acquire step imports the windows' work on
-    # the main thread before the shaft turns (tests/test_station_steps.py); the cycle's helper preloads it
-    lapack = flapack()
-    L, info = lapack.dpotrf(G, lower=1)
+    # heavy: not at `eol-cal run`'s start, where the acquire step imports the windows' work on the
+    # main thread before the shaft turns (tests/test_station_steps.py); the cycle's helper preloads it
+    from scipy.linalg.lapack import dpotrf, dtrtrs
+
+    L, info = dpotrf(G, lower=1)
     if info == 0:
-        z, info = lapack.dtrtrs(L, rhs, lower=1)
+        z, info = dtrtrs(L, rhs, lower=1)
     return (L, z) if info == 0 else None
-
-
-def _cho_inverse(lapack: Any, L: np.ndarray) -> np.ndarray:
-    """``G^-1`` from the Cholesky factor ``L`` of ``G = L L^T``: scipy's ``cho_solve((L, True), I)``
-    (the same LAPACK call, ``dpotrs``, without scipy.linalg's import: :mod:`eol_cal.numerics.lapack`)."""
-    x, info = lapack.dpotrs(L, np.eye(len(L)), lower=1)
-    if info != 0:
-        raise ValueError(f"illegal value in argument {-info} of LAPACK's dpotrs")
-    return x
 
 
 def _least_norm(G: np.ndarray, rhs: np.ndarray, ss: float) -> tuple[np.ndarray, np.ndarray, float]:

@@ -32,7 +32,6 @@ import numpy as np
 
 from eol_cal.infra.atomic import atomic_write
 from eol_cal.infra.inputs import read_bytes
-from eol_cal.numerics.lapack import preload_for_jax
 
 #: the first bytes of every entry (bump the number when the layout below changes)
 MAGIC = b"eol-cal-exported/1\n"
@@ -122,7 +121,6 @@ def load(directory: str | os.PathLike[str] | None, name: str, key: str, args: tu
         import jax
         from jax import export
 
-        preload_for_jax()  # calling any CPU export initialises LAPACK: not through scipy.linalg's import
         exp = export.deserialize(bytearray(payload))
         tree, avals = signature((tuple(args), {}))  # an export's inputs are (args, kwargs)
         if exp.in_tree != tree or tuple((tuple(a.shape), a.dtype) for a in exp.in_avals) != avals:

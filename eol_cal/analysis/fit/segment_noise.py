@@ -21,7 +21,6 @@ import numpy as np
 
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, bins_noise, noise_bins
 from eol_cal.analysis.fit.noise_pass import bin_powers, columns, layout, line_rows, line_turns
-from eol_cal.numerics.lapack import flapack
 
 
 @dataclass(frozen=True)
@@ -70,7 +69,7 @@ def _fitted(XT: np.ndarray, Y: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, t
     segment's samples is formed (a refit's model check spent a third of its noise in it). ``G``: the
     normal matrix's upper triangle (:func:`~eol_cal.analysis.fit.noise_pass.columns`: :func:`~eol_cal.
     numerics.gemm.gram_halves`, numpy's ``XT @ XT.T`` is SYRK, 2.5x its time on a 15 x 3333 segment)."""
-    dpotrf, dtrtri = flapack().dpotrf, flapack().dtrtri  # loaded here, not at `eol-cal run`'s start
+    from scipy.linalg.lapack import dpotrf, dtrtri  # heavy: not at `eol-cal run`'s start (tests/test_imports.py)
 
     keep = np.diag(G) != 0.0  # an empty column (an unresolved mechanical pair) has a zero norm
     if not keep.all():

@@ -12,7 +12,6 @@ from eol_cal.station.context import CycleContext
 # without scipy or JAX (the analysis imports them inside its functions): the shaft is not kept waiting
 # for them; the helper below imports them beside the stream (tests/test_station_steps.py)
 from eol_cal.station.early import EarlyWindows
-from eol_cal.numerics.lapack import flapack, preload_for_jax
 
 NAME = "acquire"
 
@@ -32,17 +31,14 @@ def run(ctx: CycleContext) -> None:
 
 def preload_analysis() -> None:
     """Import the parts of scipy the windows' work and the fit import inside their functions
-    (heavy: not at `eol-cal run`'s start): linalg's LAPACK (the fingerprint's and the noise's
-    factors, JAX's kernels; without the package's import: :mod:`eol_cal.numerics.lapack`) and special
-    (the intervals' and the model check's distributions), while the shaft ramps to the
+    (heavy: not at `eol-cal run`'s start): linalg (the fingerprint's and the noise's factors, BLAS)
+    and special (the intervals' and the model check's distributions), while the shaft ramps to the
     first segment, not when the first window is in. Not scipy's signal, interpolate, ndimage or
     stats, which the analysis no longer uses (numpy's own filter, PCHIP and median:
     :mod:`eol_cal.numerics`): they were ~1.5 CPU s of every cycle's start, beside the capture's
     stream."""
+    import scipy.linalg  # its blas and lapack with it
     import scipy.special  # noqa: F401
-
-    flapack()
-    preload_for_jax()
 
 
 def preload_writers() -> None:
