@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 
 from eol_cal.analysis.fit import FitSpec
-from eol_cal.analysis.fit.scipy_ref import fit_segments_scipy
 from eol_cal.analysis.fit.synth import synthetic_segments
 from eol_cal.numerics.wrap import wrap_pi
 
 
 def test_the_scipy_reference_recovers_a_noiseless_motor():
+    # scipy.optimize: ~1 s to import, in the test, not in every worker's collection
+    from eol_cal.analysis.fit.scipy_ref import fit_segments_scipy
+
     # no noise, drift or mechanical orders: the model is the signal, so the optimum is the truth
     seg, truth = synthetic_segments(np.random.default_rng(7), seg_s=0.01, noise_nm=0.0, drift_nm_per_s=0.0,
                                     mech_nm=0.0, speeds_rpm=(600.0, 1200.0), loads_a=(20.0, 65.0))

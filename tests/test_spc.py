@@ -8,7 +8,6 @@ import math
 
 import numpy as np
 import pytest
-import scipy.stats
 
 from eol_cal.lot.spc import (RULES, circular_capability, circular_histogram, circular_summary, freeze_line, gate,
                              gated_capability, judge, n_reason, run_rules, wrapped_deviation)
@@ -52,6 +51,8 @@ def test_circular_mean_and_sd_across_the_wrap_in_closed_form():
     assert s.sd / DEG == pytest.approx(15.895, abs=1e-3)  # the linear sd of the same numbers: 190.6 deg
     assert np.std(theta / DEG, ddof=1) == pytest.approx(190.6, abs=0.1)
     # the same definitions as scipy's (circstd is sqrt(-2 ln R))
+    import scipy.stats  # ~1 s to import: in the test, not in every worker's collection
+
     assert abs(wrap_pi(s.mean - scipy.stats.circmean(theta, high=math.pi, low=-math.pi))) < 1e-12
     assert s.sd == pytest.approx(scipy.stats.circstd(theta, high=math.pi, low=-math.pi), rel=1e-12)
     # three angles: 170, 180, -170 deg -> mean pi, R = (1 + 2 cos 10 deg) / 3

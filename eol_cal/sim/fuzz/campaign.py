@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -265,7 +266,7 @@ class Tally(Counts):
         self.max_rss_kb = max([self.max_rss_kb, *(o.maxrss_kb for o in outcomes)])
 
 
-def campaign(seed: int, per_kind: int, workdir: Path, bases: dict[str, bytes], kinds: tuple[str, ...] = KINDS,
+def campaign(seed: int, per_kind: int, workdir: Path, bases: Mapping[str, bytes], kinds: tuple[str, ...] = KINDS,
              batch: int = 10, timeout_s: float = 20.0, memory_bytes: int = CHILD_MEMORY_BYTES,
              root: Path = ROOT) -> dict[str, Tally]:
     """Run a seeded campaign; a :class:`Tally` per kind."""

@@ -7,7 +7,7 @@ import json
 import math
 import struct
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,22 +55,47 @@ class Case:
 # valid base files
 
 
-def base_files(fit_result: Path | None = None) -> dict[str, bytes]:
-    """The valid files every mutation starts from: kind -> bytes (written by the tool itself)."""
+def base_files(fit_result: Path | None = None) -> BaseFiles:
+    """The valid files every mutation starts from: kind (:data:`KINDS`) -> bytes, written by the tool
+    itself, each when first read (:class:`BaseFiles`)."""
+    return BaseFiles(fit_result or FIXTURES / "fit_paper.json")
 
-    capture = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
-    out: dict[str, bytes] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for kind, suffix in (("csv", ".csv"), ("mdf4", ".mf4")):
-            path = Path(tmp) / f"base{suffix}"
-            write_capture(capture, path)
-            out[kind] = path.read_bytes()
-    out["block"] = example_block(serial="F-0001")
-    out["block2"] = layout2_block(out["block"])
-    fit_result = fit_result or FIXTURES / "fit_paper.json"
-    out["fitjson"] = fit_result.read_bytes()
-    out["fitjson2"] = fit_result_with_mech(out["fitjson"])
-    return out
+
+class BaseFiles(Mapping[str, bytes]):
+    """:func:`base_files`: each kind's file made when first read, then kept. The MDF4 one imports
+    asammdf (~1 s), and a test suite collects the scenarios, which read the CSV alone, in every worker."""
+
+    def __init__(self, fit_result: Path) -> None:
+        self._fit_result = fit_result
+        self._made: dict[str, bytes] = {}
+
+    def __getitem__(self, kind: str) -> bytes:
+        if kind not in KINDS:
+            raise KeyError(kind)
+        if kind not in self._made:
+            self._made[kind] = self._make(kind)
+        return self._made[kind]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(KINDS)
+
+    def __len__(self) -> int:
+        return len(KINDS)
+
+    def _make(self, kind: str) -> bytes:
+        if kind in ("csv", "mdf4"):
+            capture = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
+            with tempfile.TemporaryDirectory() as tmp:
+                path = Path(tmp) / f"base.{'csv' if kind == 'csv' else 'mf4'}"
+                write_capture(capture, path)
+                return path.read_bytes()
+        if kind == "block":
+            return example_block(serial="F-0001")
+        if kind == "block2":
+            return layout2_block(self["block"])
+        if kind == "fitjson":
+            return self._fit_result.read_bytes()
+        return fit_result_with_mech(self["fitjson"])  # fitjson2
 
 
 def layout2_block(base: bytes) -> bytes:
@@ -401,7 +426,7 @@ MUTATORS: dict[str, Callable[[np.random.Generator, bytes], tuple[bytes, str]]] =
 SUFFIX = {"csv": ".csv", "mdf4": ".mf4", "block": ".bin", "fitjson": ".json", "block2": ".bin", "fitjson2": ".json"}
 
 
-def cases(seed: int, per_kind: int, bases: dict[str, bytes], kinds: tuple[str, ...] = KINDS) -> list[Case]:
+def cases(seed: int, per_kind: int, bases: Mapping[str, bytes], kinds: tuple[str, ...] = KINDS) -> list[Case]:
     """``per_kind`` hostile inputs of each kind, the same for the same seed."""
     out = []
     for k, kind in enumerate(kinds):

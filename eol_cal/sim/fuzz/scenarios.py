@@ -17,6 +17,7 @@ scenario that ends 0 or 1 is an input accepted that should have been refused.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import json
@@ -45,18 +46,23 @@ from eol_cal.records.record import RunRecord
 from eol_cal.records.write import insert_records
 
 
+#: a scenario's file: its bytes, a function that makes them when it is laid out, or None (a FIFO)
+FileData = bytes | Callable[[], bytes] | None
+
+
 @dataclass
 class Scenario:
     """Files to lay out in an empty directory, one command, and what must come of it.
 
-    ``files`` maps a relative name to bytes, or to ``None`` for a FIFO. ``args`` may use
-    ``{d}`` for the scenario's directory. ``protect`` names the files that must not change
-    (default: all of them).
+    ``files`` maps a relative name to bytes, to a function that makes them when the scenario is
+    laid out (a database, an MDF4 capture: a test suite collects every scenario by its name in every
+    worker, and runs each once), or to ``None`` for a FIFO. ``args`` may use ``{d}`` for the
+    scenario's directory. ``protect`` names the files that must not change (default: all of them).
     """
 
     kind: str
     name: str
-    files: Mapping[str, bytes | None]
+    files: Mapping[str, FileData]
     args: list[str]
     expect: str = "refuse"
     env: dict[str, str] = field(default_factory=dict)
@@ -75,7 +81,7 @@ class Scenario:
             if data is None:
                 os.mkfifo(path)
             else:
-                path.write_bytes(data)
+                path.write_bytes(data() if callable(data) else data)
 
     def digests(self, d: Path) -> dict[str, str]:
         names = self.protect if self.protect is not None else tuple(k for k, v in self.files.items() if v is not None)
@@ -161,20 +167,22 @@ def json_scenarios() -> Iterator[Scenario]:
         data = json.dumps(doc).replace('"@@"', token).encode()
         yield Scenario("json", f"fit result: {name}", {"fit.json": data}, ["table", "{d}/fit.json", "-o", "{d}/b.bin"])
         yield Scenario("json", f"refit row: {name}", {"rows.jsonl": f'{{"serial": "M-1", "k6": {token}}}\n'.encode(),
-                                                       "records.sqlite": _records_db()},
+                                                       "records.sqlite": _records_db},
                        ["lot", "diff", "--db", "{d}/records.sqlite", "{d}/rows.jsonl"])
         yield Scenario("json", f"spool file: {name}", {"spool/x.json": f'{{"schema": {token}}}'.encode(),
-                                                        "records.sqlite": _records_db()},
+                                                        "records.sqlite": _records_db},
                        ["records", "--db", "{d}/records.sqlite", "--flush", "--spool-dir", "{d}/spool"], expect="any")
-    yield Scenario("json", "spool file: a FIFO", {"spool/x.json": None, "records.sqlite": _records_db()},
+    yield Scenario("json", "spool file: a FIFO", {"spool/x.json": None, "records.sqlite": _records_db},
                    ["records", "--db", "{d}/records.sqlite", "--flush", "--spool-dir", "{d}/spool"], expect="any")
     for name, token in (("NaN", "NaN"), ("Infinity", "Infinity"), ("arrays 100000 deep", "[" * 100000 + "]" * 100000)):
-        yield Scenario("json", f"stored record: {name}", {"records.sqlite": _records_db(token)},
+        yield Scenario("json", f"stored record: {name}", {"records.sqlite": functools.partial(_records_db, token)},
                        ["records", "--db", "{d}/records.sqlite", "--json"], expect="any")
 
 
+@functools.cache
 def _records_db(token: str | None = None) -> bytes:
-    """A records database of one run (its record JSON holding ``token`` in a value)."""
+    """A records database of one run (its record JSON holding ``token`` in a value); a scenario
+    names it (``functools.partial(_records_db, token)``) and gets it made when laid out."""
 
     rec = json.loads((FIXTURES / "run_record_demo.json").read_text())
     with tempfile.TemporaryDirectory() as tmp:
@@ -190,7 +198,7 @@ def _records_db(token: str | None = None) -> bytes:
         return db.read_bytes()
 
 
-def capture_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def capture_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """CSV header cells and metadata lines; MDF4 record counts, flags, header comments."""
     for name, cell in hostile.CSV_HEADER_CELLS.items():
         yield Scenario("csv", f"header cell {name}", {"c.csv": hostile.csv_with_header_cell(bases["csv"], cell)},
@@ -213,11 +221,12 @@ def example_block_bytes() -> bytes:
     return example_block(serial="M-0007")
 
 
-def path_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def path_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """An output over an input through every writing option, setting and default."""
-    st = {**station_files(), "block.bin": example_block_bytes(), "can.ini": b"[default]\ninterface = virtual\nchannel = x\n",
-          "motor.toml": b"poles = 6\n", "profile.toml": file_bytes(ROOT / "eol_cal" / "profiles" / "paper.toml"),
-          "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"), "records.sqlite": _records_db()}
+    st: dict[str, FileData] = {
+        **station_files(), "block.bin": example_block_bytes(), "can.ini": b"[default]\ninterface = virtual\nchannel = x\n",
+        "motor.toml": b"poles = 6\n", "profile.toml": file_bytes(ROOT / "eol_cal" / "profiles" / "paper.toml"),
+        "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"), "records.sqlite": _records_db}
     flash = ["flash", "{d}/block.bin", "--can-config", "{d}/can.ini", "--key-file", "{d}/ecu.key", "--motor", "{d}/motor.toml"]
     for victim in ("block.bin", "ecu.key", "can.ini", "motor.toml"):
         yield Scenario("paths", f"flash --log-file {victim}", st, [*flash, "--log-file", f"{{d}}/{victim}"])
@@ -267,7 +276,7 @@ BAD_SETTINGS: tuple[tuple[str, dict[str, str]], ...] = (
 BAD_DYNO = ("a b", "http://192.0.2.10", "http://dyno:502", "dyno_3", "[zz]:502")
 
 
-def refusal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def refusal_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Values that must be refused before anything runs."""
     for name, keys in BAD_SETTINGS:
         yield Scenario("refusals", f"settings {name}", station_files(**keys), RUN)
@@ -326,21 +335,27 @@ def _mech_scenarios() -> Iterator[Scenario]:
 def _ecu_state_scenarios() -> Iterator[Scenario]:
 
 
-    for keep, drop in (("ecu_before", "ecu_after"), ("ecu_after", "ecu_before")):
-        cap = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
-        cap.metadata.pop(f"{drop}.bank", None)
-        cap.metadata.update({f"{keep}.bank": "1", f"{keep}.sequence": 2, f"{keep}.crc32": "5be1c0a7",
-                             f"{keep}.flags": "INTERP_ENABLE"})
+    for keep in ("ecu_before", "ecu_after"):
         for suffix in (".csv", ".mf4"):
-            with tempfile.TemporaryDirectory() as tmp:
-                path = Path(tmp) / f"c{suffix}"
-                write_capture(cap, path)
-                data = path.read_bytes()
-            yield Scenario("refusals", f"ECU state only {keep} ({suffix})", {f"c{suffix}": data},
+            yield Scenario("refusals", f"ECU state only {keep} ({suffix})",
+                           {f"c{suffix}": functools.partial(_one_ecu_state, keep, suffix)},
                            ["capture", "info", f"{{d}}/c{suffix}"])
 
 
-def exit_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def _one_ecu_state(keep: str, suffix: str) -> bytes:
+    """A capture whose metadata hold the ECU's state ``keep`` (``ecu_before`` or ``ecu_after``) alone."""
+    drop = "ecu_after" if keep == "ecu_before" else "ecu_before"
+    cap = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
+    cap.metadata.pop(f"{drop}.bank", None)
+    cap.metadata.update({f"{keep}.bank": "1", f"{keep}.sequence": 2, f"{keep}.crc32": "5be1c0a7",
+                         f"{keep}.flags": "INTERP_ENABLE"})
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / f"c{suffix}"
+        write_capture(cap, path)
+        return path.read_bytes()
+
+
+def exit_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Bad input to refit: exit 2 before any cluster starts."""
     files = {"lot/c.csv": bases["csv"], "limits.toml": file_bytes(FIXTURES / "limits.toml"), "bad.toml": b"x = \n"}
     base = ["refit", "{d}/lot", "-o", "{d}/rows.jsonl"]
@@ -352,7 +367,7 @@ def exit_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
 
 
 #: kind -> builder(bases) of its scenarios
-BUILDERS: dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]] = {
+BUILDERS: dict[str, Callable[[Mapping[str, bytes]], Iterator[Scenario]]] = {
     "toml": lambda bases: toml_scenarios(), "json": lambda bases: json_scenarios(), "captures": capture_scenarios,
     "paths": path_scenarios, "refusals": refusal_scenarios, "exits": exit_scenarios,
 }
@@ -431,7 +446,7 @@ class ScenarioTally(Counts):
             self.bad.append(o)
 
 
-def all_builders() -> dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]]:
+def all_builders() -> dict[str, Callable[[Mapping[str, bytes]], Iterator[Scenario]]]:
     """The builders of this module and of every other scenario module present
     (``eol_cal.sim.fuzz.scenarios_*``: each adds its own ``BUILDERS``; none is needed)."""
 
@@ -442,7 +457,7 @@ def all_builders() -> dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]
     return out
 
 
-def run_scenarios(kinds: tuple[str, ...], workdir: Path, bases: dict[str, bytes], timeout_s: float = 60.0,
+def run_scenarios(kinds: tuple[str, ...], workdir: Path, bases: Mapping[str, bytes], timeout_s: float = 60.0,
                   root: Path = ROOT, progress: Callable[[str], None] | None = None) -> dict[str, ScenarioTally]:
     """Every scenario of ``kinds`` (of :func:`all_builders`); a :class:`ScenarioTally` per kind."""
     builders = all_builders()

@@ -17,7 +17,7 @@ import json
 import sqlite3
 import tempfile
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from eol_cal.sim.fuzz.scenarios import FIXTURES, Scenario
@@ -70,9 +70,15 @@ def _checkpointed(db: Path) -> bytes:
     return db.read_bytes()
 
 
-def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
+def _db(*statements: str, lot: int = 0, baseline: bool = False) -> Callable[[], bytes]:
     """A records database (``lot`` production runs of the demo's record on EOL-1, a baseline
-    ``b`` of them), then ``statements`` run on it."""
+    ``b`` of them), then ``statements`` run on it: made when a scenario is laid out, once a process
+    (a suite collects the scenarios by name in every worker)."""
+    return functools.partial(_db_bytes, statements, lot, baseline)
+
+
+@functools.cache
+def _db_bytes(statements: tuple[str, ...], lot: int, baseline: bool) -> bytes:
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.sqlite"
         db.write_bytes(_base_db(lot, baseline))
@@ -82,7 +88,7 @@ def _db(*statements: str, lot: int = 0, baseline: bool = False) -> bytes:
         return _checkpointed(db)
 
 
-def gate_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def gate_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Each bad value of each `gate set` option; stored gate rows that would not pass as settings."""
     full = {"--station": "EOL-1", "--by": "qe", **_GOOD}
     for option, values in BAD_VALUES.items():
@@ -144,7 +150,7 @@ _READERS: dict[str, list[str]] = {
 }
 
 
-def database_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def database_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Every foreign object under every command; stored baseline lines that are not numbers; newer layouts."""
     for obj, stmt in FOREIGN.items():
         data = _db(stmt, lot=3)
@@ -172,7 +178,7 @@ def database_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
                    ["lot", "stats", "--db", "{d}/records.sqlite", "--baseline", "b"])
 
 
-def baseline_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def baseline_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Selections `lot baseline` must refuse."""
     data = _db(lot=30)
     base = ["lot", "baseline", "--db", "{d}/records.sqlite", "--name", "b", "--min-n", "2"]
@@ -188,6 +194,6 @@ def baseline_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
         yield Scenario("baseline", name, {"records.sqlite": data}, [*base, *extra])
 
 
-BUILDERS: dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]] = {
+BUILDERS: dict[str, Callable[[Mapping[str, bytes]], Iterator[Scenario]]] = {
     "gate": gate_scenarios, "database": database_scenarios, "baseline": baseline_scenarios,
 }

@@ -29,7 +29,7 @@ import signal
 import sqlite3
 import tempfile
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from eol_cal.sim.fuzz import hostile
@@ -79,7 +79,7 @@ def _db(records: list) -> bytes:
 # ------------------------------------------------------------------------------------ class 1
 
 
-def dbfile_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def dbfile_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """No output lands on a records database or a file of it, by any route."""
     db = _db(_records("one"))
     files = {**station_files(), "r.sqlite": db, "o.sqlite": db, "o.sqlite-wal": _SQLITE_WAL,
@@ -132,7 +132,7 @@ def dbfile_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
 SELECTIONS = ("none", "one", "refused", "master", "simulated", "restore", "mixed")
 
 
-def selection_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def selection_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Every page and statistic of every odd selection: 0, 1 or 2, never a traceback."""
     commands = {"lot report": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{d}/lot.html"],
                 "lot report --kind all": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{d}/lot.html", "--kind", "all"],
@@ -176,7 +176,7 @@ def _oem_module() -> bytes:
     return ("\n".join(lines) + "\n").encode()
 
 
-def oemkey_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def oemkey_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """Each misbehaving function through flash, ecu restore and run: refused with exit 2, bounded."""
     module = _oem_module()
     specs = {name: f"oem_evil:f{k}" for k, name in enumerate(OEM_FUNCTIONS)}
@@ -199,7 +199,7 @@ def oemkey_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
 # ------------------------------------------------------------------------------------ class 7
 
 
-def dynoclear_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def dynoclear_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """dyno-clear refuses what it cannot do: one line, exit 2, nothing written."""
     for address in ("a b", "http://127.0.0.1:1", "127.0.0.1:99999", "[zz]:502", "", "127.0.0.1:1"):
         for answer in ("yes\n", "no\n"):
@@ -222,7 +222,7 @@ SIGNALS_MEMORY_BYTES = 16 * 1024**3
 SIGNAL_AT_S = (0.2, 0.5, 1.0, 2.0)
 
 
-def signal_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def signal_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """A signal at a moment of a command's start or run: exit 2 (never 130/143/129, never 0)."""
     files = {**station_files(), "r.sqlite": _db(_records("mixed")), "cap.csv": bases["csv"],
              "fit.json": file_bytes(FIXTURES / "fit_paper.json")}
@@ -253,7 +253,7 @@ def _mdf4_header(base: bytes, key: str, value: str) -> bytes:
     return hostile.mdf4_with_header_comment(base, xml[:start] + value + xml[xml.index("</e>", start):])
 
 
-def round3_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
+def round3_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """The rest of the list: refused with exit 2 before anything runs, one line."""
     limits = file_bytes(FIXTURES / "limits.toml")
     lot = ["lot", "simulate", "--motors", "2", "--limits", "{d}/limits.toml", "--db", "{d}/r.sqlite"]
@@ -312,7 +312,7 @@ def round3_scenarios(bases: dict[str, bytes]) -> Iterator[Scenario]:
 
 
 #: kind -> builder(bases) of its scenarios (picked up by eol_cal.sim.fuzz.scenarios.all_builders)
-BUILDERS: dict[str, Callable[[dict[str, bytes]], Iterator[Scenario]]] = {
+BUILDERS: dict[str, Callable[[Mapping[str, bytes]], Iterator[Scenario]]] = {
     "dbfiles": dbfile_scenarios, "selections": selection_scenarios, "oemkey": oemkey_scenarios,
     "dynoclear": dynoclear_scenarios, "signals": signal_scenarios, "round3": round3_scenarios,
 }
