@@ -8,9 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.interpolate import PchipInterpolator
-from scipy.ndimage import median_filter
-from scipy.signal import butter, sosfiltfilt
+# scipy's signal, ndimage and interpolate (the references) are imported in the tests that use them:
+# ~2 s of imports, not in every worker's collection
 
 from eol_cal.analysis.metrics import hampel
 from eol_cal.numerics import iir
@@ -19,6 +18,8 @@ from eol_cal.numerics.pchip import pchip, sorted_counts
 
 @pytest.mark.parametrize("order", range(1, 9))
 def test_the_sections_are_scipys_butter(order):
+    from scipy.signal import butter
+
     for fc in (5.0, 96.0, 1920.0, 7000.0):
         assert np.allclose(iir.butter_lowpass_sos(order, fc, 20000.0), butter(order, fc, fs=20000.0, output="sos"),
                            rtol=1e-13, atol=1e-15)
@@ -29,6 +30,8 @@ def test_the_zero_phase_lowpass_is_scipys_sosfiltfilt_within_1e_10_of_the_range(
     capture holds a whole revolution at; there the difference stays under 1e-10 of the signal's
     range (measured: up to 4e-11 near 2e-3 with order 8, ~1e-14 above 5e-2; the typed fit
     goldens, p-p figures included, hold to 1e-12 relative)."""
+    from scipy.signal import butter, sosfiltfilt
+
     rng = np.random.default_rng(1)
     worst = 0.0
     for _ in range(60):
@@ -43,6 +46,8 @@ def test_the_zero_phase_lowpass_is_scipys_sosfiltfilt_within_1e_10_of_the_range(
 
 
 def test_a_signal_no_longer_than_the_padding_is_refused_as_by_scipy():
+    from scipy.signal import sosfiltfilt
+
     sos = iir.butter_lowpass_sos(6, 100.0, 1000.0)
     with pytest.raises(ValueError, match="padlen, which is 21"):
         iir.sosfiltfilt(sos, np.ones(21))
@@ -52,6 +57,8 @@ def test_a_signal_no_longer_than_the_padding_is_refused_as_by_scipy():
 
 
 def test_pchip_and_its_derivative_are_scipys_bit_for_bit():
+    from scipy.interpolate import PchipInterpolator
+
     rng = np.random.default_rng(0)
     for trial in range(150):
         n = int(rng.integers(2, 2000))
@@ -83,6 +90,8 @@ def test_pchip_at_sorted_queries_inside_is_the_searched_evaluation_bit_for_bit()
 
 def _hampel_scipy(x, k, n_sigma=3.0):
     """The Hampel filter as it was written on scipy.ndimage's median filter (every window's median)."""
+    from scipy.ndimage import median_filter
+
     mode = "mirror" if len(x) > k else "nearest"
     med = median_filter(x, size=2 * k + 1, mode=mode)
     d = np.abs(np.diff(x))

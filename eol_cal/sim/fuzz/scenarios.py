@@ -30,6 +30,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import eol_cal.sim.fuzz as fuzz_package
 from eol_cal.capture.io import write_capture
@@ -48,6 +49,11 @@ from eol_cal.records.write import insert_records
 
 #: a scenario's file: its bytes, a function that makes them when it is laid out, or None (a FIFO)
 FileData = bytes | Callable[[], bytes] | None
+
+
+def made_later(make: Callable[..., bytes], *args: Any) -> Callable[[], bytes]:
+    """``make(*args)`` as a scenario's file: made when a scenario holding it is first laid out, then kept."""
+    return functools.cache(functools.partial(make, *args))
 
 
 @dataclass

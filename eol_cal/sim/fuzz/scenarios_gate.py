@@ -20,7 +20,7 @@ import uuid
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
-from eol_cal.sim.fuzz.scenarios import FIXTURES, Scenario
+from eol_cal.sim.fuzz.scenarios import FIXTURES, Scenario, made_later
 from eol_cal.lot.baseline import baseline_of_db, store
 from eol_cal.records.record import RunRecord
 from eol_cal.records.migrations import migrate
@@ -74,7 +74,7 @@ def _db(*statements: str, lot: int = 0, baseline: bool = False) -> Callable[[], 
     """A records database (``lot`` production runs of the demo's record on EOL-1, a baseline
     ``b`` of them), then ``statements`` run on it: made when a scenario is laid out, once a process
     (a suite collects the scenarios by name in every worker)."""
-    return functools.partial(_db_bytes, statements, lot, baseline)
+    return made_later(_db_bytes, statements, lot, baseline)
 
 
 @functools.cache

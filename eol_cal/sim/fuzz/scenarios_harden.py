@@ -33,7 +33,8 @@ from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
 
 from eol_cal.sim.fuzz import hostile
-from eol_cal.sim.fuzz.scenarios import FIXTURES, RUN, Scenario, example_block_bytes, file_bytes, station_files, station_toml
+from eol_cal.sim.fuzz.scenarios import (FIXTURES, RUN, FileData, Scenario, example_block_bytes, file_bytes, made_later,
+                                        station_files, station_toml)
 from eol_cal.records.record import RunRecord
 
 _SQLITE_WAL = b"\x37\x7f\x06\x82" + bytes(28)  # a write-ahead log's header: what SQLite writes beside a database
@@ -61,8 +62,13 @@ def _records(kind: str) -> list:
     }[kind]
 
 
-def _db(records: list) -> bytes:
-    """A records database (one file, its log checkpointed) holding ``records``."""
+def _db(records: list) -> Callable[[], bytes]:
+    """A records database (one file, its log checkpointed) holding ``records``, made when a scenario
+    holding it is laid out (a suite collects the scenarios by name in every worker)."""
+    return made_later(_db_bytes, records)
+
+
+def _db_bytes(records: list) -> bytes:
     from eol_cal.records.migrations import migrate
     from eol_cal.records.write import insert_records
 
@@ -82,7 +88,7 @@ def _db(records: list) -> bytes:
 def dbfile_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """No output lands on a records database or a file of it, by any route."""
     db = _db(_records("one"))
-    files = {**station_files(), "r.sqlite": db, "o.sqlite": db, "o.sqlite-wal": _SQLITE_WAL,
+    files: dict[str, FileData] = {**station_files(), "r.sqlite": db, "o.sqlite": db, "o.sqlite-wal": _SQLITE_WAL,
              "o.sqlite-journal": _SQLITE_JOURNAL, "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"),
              "block.bin": example_block_bytes(), "sub/keep": b""}
     with_db = {"records --plot": ["records", "--db", "{d}/r.sqlite", "--plot", "{v}"],
@@ -224,7 +230,7 @@ SIGNAL_AT_S = (0.2, 0.5, 1.0, 2.0)
 
 def signal_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """A signal at a moment of a command's start or run: exit 2 (never 130/143/129, never 0)."""
-    files = {**station_files(), "r.sqlite": _db(_records("mixed")), "cap.csv": bases["csv"],
+    files: dict[str, FileData] = {**station_files(), "r.sqlite": _db(_records("mixed")), "cap.csv": bases["csv"],
              "fit.json": file_bytes(FIXTURES / "fit_paper.json")}
     commands = {"run": RUN, "records": ["records", "--db", "{d}/r.sqlite"],
                 "lot report": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{d}/lot.html", "--kind", "all"],
@@ -245,6 +251,11 @@ def signal_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
 
 
 # ------------------------------------------------------------------------------------ class 9
+
+
+def _base_mdf4_header(bases: Mapping[str, bytes], key: str, value: str) -> bytes:
+    """The base MDF4 capture with its header's ``key`` set to ``value`` (text)."""
+    return _mdf4_header(bases["mdf4"], key, value)
 
 
 def _mdf4_header(base: bytes, key: str, value: str) -> bytes:
@@ -283,7 +294,8 @@ def round3_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     for key in ("kt", "poles", "encoder_ppr"):
         for value in ("nan", "inf", "-inf", "1e999"):
             yield Scenario("round3", f"capture info --json, MDF4 header {key} = {value}",
-                           {"c.mf4": _mdf4_header(bases["mdf4"], key, value)}, ["capture", "info", "--json", "{d}/c.mf4"])
+                           {"c.mf4": made_later(_base_mdf4_header, bases, key, value)},
+                           ["capture", "info", "--json", "{d}/c.mf4"])
     for value in ("nan", "inf"):
         yield Scenario("round3", f"capture info --json, CSV kt = {value}",
                        {"c.csv": hostile.csv_with_meta_line(bases["csv"], f"# kt: {value}")},
