@@ -96,3 +96,19 @@ def test_a_fault_after_prepare_records_the_motor_uncalibrated_and_dyno_clear_let
     codes = json.loads(refused.stdout)["record"]["refusal_codes"]
     assert "dyno_fault" in codes or "dyno_tripped" in codes, refused.output
     assert cleared.exit_code == 0 and faults == Fault(0), cleared.output
+
+
+def test_the_watchdog_counts_the_clients_silence_not_a_stall_of_the_simulator():
+    """The simulator updates itself every 10 ms while it serves. A step of 3 s is a stall of its own
+    (its thread starved on a loaded machine, the client's requests waiting in its socket): no trip,
+    where it tripped the watchdog of a client that kept asking (bench_station.py beside a busy
+    loop). 0.6 s of its own steps without a request is the client's silence: a trip."""
+    sim = DynoSim(synthetic_source)
+    sim.watchdog_ms = 500
+    sim.enabled = True
+    t0 = sim._t_last
+    sim.advance(t0 + 3.0)
+    assert not sim.faults & Fault.COMM_WATCHDOG and sim.enabled
+    for k in range(1, 61):
+        sim.advance(t0 + 3.0 + 0.01 * k)
+    assert sim.faults & Fault.COMM_WATCHDOG and not sim.enabled

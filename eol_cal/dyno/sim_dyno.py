@@ -63,6 +63,9 @@ _TRIPPING = Fault.OVER_SPEED | Fault.TORQUE_SENSOR | Fault.COMM_WATCHDOG | Fault
 
 #: deceleration of a disabled or tripped drive (rpm/s)
 COAST_DECEL = 2000.0
+#: the longest step between two of the simulator's own updates that counts whole as the client's
+#: silence (s): it updates every 10 ms while it serves; a longer step is a stall of its own
+LIVE_STEP_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -173,6 +176,7 @@ class DynoSim(ModbusFace):
         self.heartbeat_frozen: int | None = None
         self._t_last = self._t0
         self._last_request = self._t0
+        self._silent_s = 0.0  # the client's silence while this simulator ran (advance)
         self._capture_job: asyncio.Future | None = None
         self._turning_on = False  # the drive stayed enabled since the last capture was ready
         self._capture_token = 0
@@ -214,6 +218,15 @@ class DynoSim(ModbusFace):
         """Move the simulated time forward to ``now`` (monotonic s)."""
         now = time.monotonic() if now is None else now
         dt = max(0.0, now - self._t_last)
+        # The watchdog counts the client's silence while this simulator ran. Over a stall of its own
+        # (its thread starved of the CPU or the GIL on a loaded machine) the client's requests wait in
+        # its socket unseen: counted whole, the stall tripped the watchdog of a client that kept
+        # asking (bench_station.py beside a busy loop, the first motor). A real dyno's controller
+        # does not stall.
+        if self._last_request > self._t_last:  # a request came since the last step
+            self._silent_s = now - self._last_request
+        else:
+            self._silent_s += min(dt, LIVE_STEP_S)
         self._t_last = now
         target = self._target()
         rate = self.ramp if (self.enabled and not self._tripped()) else max(self.ramp, COAST_DECEL)
@@ -226,7 +239,7 @@ class DynoSim(ModbusFace):
             self._turning_on = False
         if abs(self.speed) > self.max_speed:
             self._trip(Fault.OVER_SPEED)
-        if self.watchdog_ms and self.enabled and now - self._last_request > self.watchdog_ms / 1000.0:
+        if self.watchdog_ms and self.enabled and self._silent_s > self.watchdog_ms / 1000.0:
             self._trip(Fault.COMM_WATCHDOG)
         if self.capture_state == CaptureState.RUNNING and self._recording_due(now):
             self._capture_ready()
