@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 import struct
@@ -13,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from eol_cal.capture.data import Capture
 from eol_cal.capture.io import write_capture
 from eol_cal.capture.synthetic import synthetic_capture
 from eol_cal.firmware import block as B
@@ -82,12 +84,15 @@ class BaseFiles(Mapping[str, bytes]):
     def __len__(self) -> int:
         return len(KINDS)
 
+    @functools.cached_property
+    def _capture(self) -> Capture:
+        return synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
+
     def _make(self, kind: str) -> bytes:
         if kind in ("csv", "mdf4"):
-            capture = synthetic_capture(rpm=60.0, seconds=0.5, fs=5000.0, serial="F-0001", seed=7)
             with tempfile.TemporaryDirectory() as tmp:
-                path = Path(tmp) / f"base.{'csv' if kind == 'csv' else 'mf4'}"
-                write_capture(capture, path)
+                path = Path(tmp) / f"base{SUFFIX[kind]}"
+                write_capture(self._capture, path)
                 return path.read_bytes()
         if kind == "block":
             return example_block(serial="F-0001")

@@ -77,7 +77,6 @@ def _db(*statements: str, lot: int = 0, baseline: bool = False) -> Callable[[], 
     return made_later(_db_bytes, statements, lot, baseline)
 
 
-@functools.cache
 def _db_bytes(statements: tuple[str, ...], lot: int, baseline: bool) -> bytes:
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "r.sqlite"

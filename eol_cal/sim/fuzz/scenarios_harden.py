@@ -88,9 +88,10 @@ def _db_bytes(records: list) -> bytes:
 def dbfile_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """No output lands on a records database or a file of it, by any route."""
     db = _db(_records("one"))
-    files: dict[str, FileData] = {**station_files(), "r.sqlite": db, "o.sqlite": db, "o.sqlite-wal": _SQLITE_WAL,
-             "o.sqlite-journal": _SQLITE_JOURNAL, "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"),
-             "block.bin": example_block_bytes(), "sub/keep": b""}
+    files: dict[str, FileData] = {
+        **station_files(), "r.sqlite": db, "o.sqlite": db, "o.sqlite-wal": _SQLITE_WAL, "o.sqlite-journal": _SQLITE_JOURNAL,
+        "cap.csv": bases["csv"], "fit.json": file_bytes(FIXTURES / "fit_paper.json"), "block.bin": example_block_bytes(),
+        "sub/keep": b""}
     with_db = {"records --plot": ["records", "--db", "{d}/r.sqlite", "--plot", "{v}"],
                "lot report -o": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{v}"],
                "lot stats --csv": ["lot", "stats", "--db", "{d}/r.sqlite", "--csv", "{v}"],
@@ -231,7 +232,7 @@ SIGNAL_AT_S = (0.2, 0.5, 1.0, 2.0)
 def signal_scenarios(bases: Mapping[str, bytes]) -> Iterator[Scenario]:
     """A signal at a moment of a command's start or run: exit 2 (never 130/143/129, never 0)."""
     files: dict[str, FileData] = {**station_files(), "r.sqlite": _db(_records("mixed")), "cap.csv": bases["csv"],
-             "fit.json": file_bytes(FIXTURES / "fit_paper.json")}
+                                  "fit.json": file_bytes(FIXTURES / "fit_paper.json")}
     commands = {"run": RUN, "records": ["records", "--db", "{d}/r.sqlite"],
                 "lot report": ["lot", "report", "--db", "{d}/r.sqlite", "-o", "{d}/lot.html", "--kind", "all"],
                 "analyze": ["analyze", "{d}/cap.csv"], "table": ["table", "{d}/fit.json", "-o", "{d}/b.bin"],
