@@ -19,10 +19,12 @@ The directory is a setting of the process, as JAX's own compilation cache direct
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib.util
 import os
+import platform
 import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
@@ -67,6 +69,32 @@ def key_text(tag: str, parts: object) -> str:
 def entry_path(directory: str | os.PathLike[str], name: str, key: str) -> Path:
     """The file of the program ``name`` with key ``key`` (:func:`key_text`) in ``directory``."""
     return Path(directory) / f"{name}-{hashlib.sha256(key.encode()).hexdigest()[:20]}.jaxexport"
+
+
+def executable_path(directory: str | os.PathLike[str], name: str, key: str) -> Path:
+    """The file of the compiled executable of program ``name`` with key ``key`` (its entry's key
+    and the machine's: :func:`executable`) in ``directory``."""
+    return entry_path(directory, name, key).with_suffix(".xlaexec")
+
+
+@functools.lru_cache(maxsize=1)
+def _machine() -> str:
+    """What a compiled executable is valid for beyond its entry's key: jaxlib's version, the
+    backend's platform and version, the processor's architecture and features (machine code for
+    one CPU may use instructions another lacks: a cache directory in a home shared between
+    machines)."""
+    import jax
+    import jaxlib
+
+    client = jax.devices()[0].client
+    flags = ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text(errors="replace").splitlines():
+            if line.startswith(("flags", "Features")):
+                flags = line.partition(":")[2].strip()
+                break
+    return repr((jaxlib.__version__, client.platform, client.platform_version, platform.machine(),
+                 platform.processor(), hashlib.sha256(flags.encode()).hexdigest()))
 
 
 def _digest(key: bytes, payload: bytes) -> bytes:
@@ -125,8 +153,82 @@ def load(directory: str | os.PathLike[str] | None, name: str, key: str, args: tu
         tree, avals = signature((tuple(args), {}))  # an export's inputs are (args, kwargs)
         if exp.in_tree != tree or tuple((tuple(a.shape), a.dtype) for a in exp.in_avals) != avals:
             return None
-        return jax.jit(exp.call)
+        fn = jax.jit(_kept_call(exp))
     except Exception:  # noqa: BLE001 - an unreadable entry only costs the tracing
+        return None
+    return executable(directory, name, key, fn, args, tree, exp.out_tree, exp.platforms) or fn
+
+
+def _kept_call(exp: Any) -> Callable:
+    """``exp.call`` under a name of its own (JAX's compiled programs are named after the function),
+    so that its compiled program is not the one JAX's compilation cache holds from before the
+    executables were kept (``jit_call``): that one could not be written (:func:`executable`)."""
+
+    def kept_program(*args: Any) -> Any:
+        return exp.call(*args)
+
+    return kept_program
+
+
+def executable(directory: str | os.PathLike[str], name: str, key: str, fn: Any, args: tuple, in_tree: Any,
+               out_tree: Any, platforms: tuple[str, ...]) -> Callable | None:
+    """``fn`` (the jitted program of entry ``name``/``key``) compiled for ``args``, its executable kept
+    in ``directory`` beside the entry (:func:`executable_path`): read back when an intact one was
+    written for this key on this machine, else compiled and written. ``None`` when neither works
+    (the caller runs ``fn``: the same program). Never raises.
+
+    A compiled program is called without lowering: the jitted call lowers the exported module
+    again in every process (the firmware estimator's scan ~0.1 s of a warm ``eol-cal fit`` on a
+    2-core machine, issue 37) before JAX's compilation cache can even be asked. It takes exactly
+    ``args``' shapes and dtypes (what :func:`load` checked); anything else raises.
+
+    Only a fresh compile is written, and only once its copy has run: an executable that XLA's CPU
+    client read from JAX's compilation cache serializes without its kernels (jaxlib 0.10.2: the
+    copy fails when run, "Function wrapped_broadcast not found", and would fail every later
+    process), so a compile that JAX's cache answered is not written, and the copy is deserialized
+    and run once on zeros of ``args``' shapes before the file is written.
+
+    Before one is read, the process is made ready for it as ``jax.export`` makes it ready for an
+    exported program on ``platforms`` (its lowering links LAPACK's routines into XLA's CPU
+    kernels; an executable read without it crashed the process in its first Cholesky factor).
+
+    Loading one runs its machine code, as JAX's own compilation cache in the same directory does:
+    the directory is as trusted as the installation (:mod:`eol_cal.numerics.exported`).
+    """
+    try:
+        import jax
+        from jax._src.lax.linalg import initialize_lapack  # what jax.export's call runs (no public name)
+        from jax.experimental import serialize_executable as se
+
+        if "cpu" in platforms:
+            initialize_lapack()
+        ekey = key + "\n" + _machine()
+        path = executable_path(directory, name, ekey)
+        payload = None
+        with contextlib.suppress(Exception):  # none yet, not a regular file, oversized: compiled instead
+            payload = unpack(read_bytes(path, max_bytes=MAX_ENTRY_BYTES, register=False), ekey)
+        if payload is not None:
+            with contextlib.suppress(Exception):
+                return se.deserialize_and_load(payload, in_tree, out_tree)
+        hits: list[str] = []
+
+        def heard(event: str, **_: object) -> None:
+            if event == "/jax/compilation_cache/cache_hits":
+                hits.append(event)
+
+        jax.monitoring.register_event_listener(heard)
+        try:
+            compiled = fn.lower(*args).compile()
+        finally:
+            jax.monitoring.unregister_event_listener(heard)
+        if not hits:  # another thread's hit meanwhile is counted too: not written, only the time lost
+            with contextlib.suppress(Exception):
+                blob = se.serialize(compiled)[0]
+                zeros = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, a.dtype), args)
+                jax.block_until_ready(se.deserialize_and_load(blob, in_tree, out_tree)(*zeros))
+                atomic_write(path, pack(ekey, blob))
+        return compiled
+    except Exception:  # noqa: BLE001 - the executable is an optimisation, never a failure
         return None
 
 
