@@ -63,16 +63,10 @@ def test_a_new_process_runs_the_executable_it_reads_bit_for_bit_and_only_a_fresh
     assert second["ran"] == "Compiled"
     assert first["out"] == plain and second["out"] == plain
 
-    # the compile cache answers the next compile: its executable would lack its kernels, not written
-    exe.unlink()
-    third = _step("kept", kept, cc)
-    assert third["out"] == plain and not list(kept.glob("t-*.xlaexec"))
-
-    # written again by a fresh compile; a damaged copy is passed over (compiled again)
-    _step("kept", kept, "off")
-    [exe] = kept.glob("t-*.xlaexec")
+    # a damaged executable is passed over and compiled again; JAX's compilation cache answers that
+    # compile, and a copy of its executable would lack its kernels: not written (the damaged file stays)
     good = exe.read_bytes()
-    exe.write_bytes(good[:-100] + bytes([good[-100] ^ 1]) + good[-99:])
+    damaged = good[:-100] + bytes([good[-100] ^ 1]) + good[-99:]
+    exe.write_bytes(damaged)
     assert _step("kept", kept, cc)["out"] == plain
-    exe.write_bytes(good[: len(good) // 2])
-    assert _step("kept", kept, cc)["out"] == plain
+    assert exe.read_bytes() == damaged
