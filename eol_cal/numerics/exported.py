@@ -3,7 +3,9 @@
 Tracing a JAX program costs a short run more than computing with it (the fit's solver ~2 s with
 optimistix, the firmware estimator's scan ~0.1 s); JAX's persistent compilation cache skips only
 the compiling after it. A program exported here is read back by the next process instead of
-traced: :func:`load` returns it, :func:`save` writes it after the first trace.
+traced: :func:`load` returns it, :func:`save` writes it after the first trace. Beside it the
+program's compiled executable is kept (:func:`executable`): the next process runs that without
+lowering the program again, which JAX's compilation cache needs before it can answer.
 
 Every entry is untrusted input: it is read back only when its header says it is this program
 (the full key text: the caller's tag and options, the argument shapes and dtypes, the JAX version,
