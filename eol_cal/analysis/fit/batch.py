@@ -105,9 +105,10 @@ def fit_many(
         batch of 32 motors or more on a machine of two cores or more, which with this thread keeps
         both cores of a 2-core machine busy (docs/benchmarks.md).
     cache_dir : path, optional
-        Directory of serialized one-motor solvers (:mod:`eol_cal.analysis.fit.cache`, usually
-        :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): ``loop`` mode reads the solver
-        from there instead of tracing it, or writes it there after tracing. ``None``: the process's
+        Directory of serialized solvers (:mod:`eol_cal.analysis.fit.cache`, usually
+        :func:`~eol_cal.analysis.fit.cache.default_cache_dir`): the solver of the mode (one motor's,
+        or a chunk's of the chunk's size) is read from there instead of traced, or written there
+        after tracing. ``None``: the process's
         directory of exported programs (:func:`eol_cal.numerics.exported.cache_dir`, which
         :func:`~eol_cal.analysis.fit.cache.enable_compile_cache` sets), none where it is unset.
     process : bool, optional
@@ -151,9 +152,11 @@ def fit_many(
             grid_j = np.asarray(grid, dtype=np.float64)
             # a known delay reaches the solver in the grid: one program for every delay
             program = spec if spec.fit_delay else dataclasses.replace(spec, delay_s=0.0)
-            exported = load_solver(cache_dir, program, S, len(grid)) if mode == "loop" else None
+            # a chunk's motors: the chunk size, or every motor where they are fewer (one compiled shape)
+            batch = None if mode == "loop" else (mode, chunk if len(motors) > chunk else len(motors))
+            exported = load_solver(cache_dir, program, S, len(grid), batch)
             solve = _taking_steps(exported) if exported else cached_solver(program, S, "one" if mode == "loop" else mode)
-            save_export = mode == "loop" and exported is None and cache_dir is not None
+            save_export = exported is None and cache_dir is not None
             step = 1 if mode == "loop" else chunk
             # one solve in flight: the next chunk's is dispatched (XLA runs it on its own threads)
             # before this thread unpacks the last one's results, so the two overlap
@@ -162,26 +165,27 @@ def fit_many(
                 block = motors[start : start + step]
                 comps = [next(comps_in_order) for _ in block]
                 if mode == "loop":
-                    args = (compressed_dict(comps[0]), grid_j)
-                    if save_export:
-                        save_export = False
-                        save_solver(cache_dir, jax.jit(lambda c, g: build_solver(program, S)(c, g, spec.max_steps)), program,
-                                    S, len(grid), args)
-                        # the solver read back, not the traced one, compiled and used from the first
-                        # motor on: the next process compiles nothing (the persistent compilation
-                        # cache holds this program), and every motor gets the same program
-                        exported = load_solver(cache_dir, program, S, len(grid))
-                        if exported:
-                            solve = _taking_steps(exported)
-                    out, batch = solve(*args, spec.max_steps), None
+                    args: tuple = (compressed_dict(comps[0]), grid_j)
+                    stacked = None
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
-                    batch = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
-                    out = solve(batch, grid_j, spec.max_steps)
+                    stacked = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
+                    args = (stacked, grid_j)
+                if save_export:
+                    save_export = False
+                    save_solver(cache_dir, jax.jit(_solver_program(program, S, mode, spec.max_steps)), program, S,
+                                len(grid), args, batch)
+                    # the solver read back, not the traced one, compiled and used from the first
+                    # motor on: the next process compiles nothing (the persistent compilation
+                    # cache holds this program), and every motor gets the same program
+                    exported = load_solver(cache_dir, program, S, len(grid), batch)
+                    if exported:
+                        solve = _taking_steps(exported)
+                out = solve(*args, spec.max_steps)
                 if pending:
                     _unpack_into(results, *pending, spec, progress)
-                pending = (block, comps, batch, out)
+                pending = (block, comps, stacked, out)
             if pending:
                 _unpack_into(results, *pending, spec, progress)
     finally:
@@ -347,6 +351,21 @@ def _name_capture(e: Exception, motors: list[SteadySegments], first: int, block:
             e.add_note(f"in the compression of capture {names[j]}")
             return
     e.add_note(f"in the compression of captures {names[first]} to {names[min(first + block, len(motors)) - 1]}")
+
+
+def _solver_program(spec: FitSpec, S: int, mode: str, steps: int) -> Callable:
+    """The solver of ``mode`` (:func:`fit_many`'s: one motor, or a chunk's by ``vmap`` or
+    ``jax.lax.map``) as ``(compressed, tau_grid) -> outputs``, ``steps`` its step limit: what is
+    exported (:func:`~eol_cal.analysis.fit.cache.save_solver`), the program
+    :func:`~eol_cal.analysis.fit.solver.cached_solver` jits for that mode."""
+    import jax
+
+    solve = build_solver(spec, S)
+    if mode == "loop":
+        return lambda c, g: solve(c, g, steps)
+    if mode == "vmap":
+        return lambda c, g: jax.vmap(solve, in_axes=(0, None, None))(c, g, steps)
+    return lambda c, g: jax.lax.map(lambda one: solve(one, g, steps), c)
 
 
 def _taking_steps(exported: Callable) -> Callable:

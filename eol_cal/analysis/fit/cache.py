@@ -1,4 +1,5 @@
-"""The fit's caches on disk: JAX's persistent compilation cache and serialized one-motor solvers.
+"""The fit's caches on disk: JAX's persistent compilation cache and serialized solvers (one motor's,
+and a batched fit's per chunk size).
 
 Both live in one directory (the firmware estimator's exported scan too: :mod:`eol_cal.numerics.exported`,
 which reads and writes every serialized program), chosen by the caller (:func:`default_cache_dir` computes the default;
@@ -88,42 +89,54 @@ def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | Non
     return path
 
 
+#: a batched solver: ``(mode, motors)``, the batch mode of :func:`eol_cal.analysis.fit.fit_many`
+#: (``vmap`` or ``map``) and the motors of its chunk; ``None``: the one-motor solver
+Batch = tuple[str, int] | None
+
+
 @functools.cache
-def _solver_key(spec: FitSpec, S: int, n_grid: int) -> str:
+def _solver_key(spec: FitSpec, S: int, n_grid: int, batch: Batch = None) -> str:
     """The solver's key (:func:`~eol_cal.numerics.exported.key_text`), made once per process for each
-    ``(spec, S, n_grid)``: the JAX version and backend it holds do not change in a process, and its
-    ``repr`` of the spec was ~0.1 ms of each fit's call (two a refit's serial, issue 37)."""
+    ``(spec, S, n_grid, batch)``: the JAX version and backend it holds do not change in a process, and
+    its ``repr`` of the spec was ~0.1 ms of each fit's call (two a refit's serial, issue 37)."""
     import jax
 
+    parts = (spec, S, n_grid, sources_digest(*SOLVER_MODULES)) + ((batch,) if batch else ())
     with jax.enable_x64(True):  # the solver runs in float64 only (fit_many)
-        return key_text(_EXPORT_TAG, (spec, S, n_grid, sources_digest(*SOLVER_MODULES)))
+        return key_text(_EXPORT_TAG, parts)
 
 
-def solver_file(cache_dir: str | os.PathLike[str], spec: FitSpec, S: int, n_grid: int) -> Path:
+def _entry_name(batch: Batch) -> str:
+    return "fit" if batch is None else f"fit-{batch[0]}"
+
+
+def solver_file(cache_dir: str | os.PathLike[str], spec: FitSpec, S: int, n_grid: int, batch: Batch = None) -> Path:
     """The file of the serialized solver for ``spec``, ``S`` segments and a delay grid of ``n_grid``
-    points (:func:`eol_cal.numerics.exported.entry_path`: the key also holds the JAX version, the
-    backend and the float width: an entry is only read back on this installation)."""
+    points, of one motor or of a chunk (``batch``: :data:`Batch`)
+    (:func:`eol_cal.numerics.exported.entry_path`: the key also holds the JAX version, the backend
+    and the float width: an entry is only read back on this installation)."""
 
-    return _solver_path(os.fspath(cache_dir), spec, S, n_grid)
+    return _solver_path(os.fspath(cache_dir), spec, S, n_grid, batch)
 
 
 @functools.cache
-def _solver_path(cache_dir: str, spec: FitSpec, S: int, n_grid: int) -> Path:
+def _solver_path(cache_dir: str, spec: FitSpec, S: int, n_grid: int, batch: Batch = None) -> Path:
     """:func:`solver_file`, made once per process for each directory and solver (its SHA-256 and path)."""
-    return entry_path(cache_dir, "fit", _solver_key(spec, S, n_grid))
+    return entry_path(cache_dir, _entry_name(batch), _solver_key(spec, S, n_grid, batch))
 
 
-def solver_args(spec: FitSpec, S: int, n_grid: int) -> tuple[dict[str, Any], Any]:
-    """The shapes and dtypes (``jax.ShapeDtypeStruct``) of the one-motor solver's arguments
+def solver_args(spec: FitSpec, S: int, n_grid: int, batch: Batch = None) -> tuple[dict[str, Any], Any]:
+    """The shapes and dtypes (``jax.ShapeDtypeStruct``) of the solver's arguments
     ``(compressed, tau_grid)``: float64, as :func:`eol_cal.analysis.fit.compression.compressed_dict`
-    gives them."""
+    gives them (a chunk's, ``batch``: each stacked, the motors first)."""
     import jax
 
     m, nh = spec.n_cols, len(spec.harmonics)
+    lead = () if batch is None else (batch[1],)
     shapes = {"R": (S, m, m), "z": (S, m), "n": (S,), "i_qo": (S,), "omega": (S,), "gain_re": (S, nh),
               "gain_im": (S, nh), "cur_re": (S, nh), "cur_im": (S, nh)}
     assert set(shapes) == set(COMPRESSED_KEYS)
-    return ({k: jax.ShapeDtypeStruct(v, np.float64) for k, v in shapes.items()},
+    return ({k: jax.ShapeDtypeStruct(lead + v, np.float64) for k, v in shapes.items()},
             jax.ShapeDtypeStruct((n_grid,), np.float64))
 
 
@@ -132,29 +145,31 @@ def solver_args(spec: FitSpec, S: int, n_grid: int) -> tuple[dict[str, Any], Any
 _LOADED: dict[Path, Callable] = {}
 
 
-def load_solver(cache_dir: str | os.PathLike[str] | None, spec: FitSpec, S: int, n_grid: int) -> Callable | None:
-    """A deserialized one-motor solver ``(compressed, tau_grid) -> outputs`` from ``cache_dir``, or
-    ``None`` (no cache, none yet, or an entry that is not intact and this solver's:
-    :func:`eol_cal.numerics.exported.load`); read once per process and file."""
+def load_solver(cache_dir: str | os.PathLike[str] | None, spec: FitSpec, S: int, n_grid: int,
+                batch: Batch = None) -> Callable | None:
+    """A deserialized solver ``(compressed, tau_grid) -> outputs`` (one motor's, or a chunk's:
+    ``batch``) from ``cache_dir``, or ``None`` (no cache, none yet, or an entry that is not intact
+    and this solver's: :func:`eol_cal.numerics.exported.load`); read once per process and file."""
     if cache_dir is None:
         return None
 
-    path = solver_file(cache_dir, spec, S, n_grid)
+    path = solver_file(cache_dir, spec, S, n_grid, batch)
     if path in _LOADED:
         return _LOADED[path]
     import jax
 
     with jax.enable_x64(True):
-        solve = load(cache_dir, "fit", _solver_key(spec, S, n_grid), solver_args(spec, S, n_grid))
+        solve = load(cache_dir, _entry_name(batch), _solver_key(spec, S, n_grid, batch),
+                     solver_args(spec, S, n_grid, batch))
     if solve is not None:
         _LOADED[path] = solve
     return solve
 
 
 def save_solver(cache_dir: str | os.PathLike[str] | None, fn: Callable, spec: FitSpec, S: int, n_grid: int,
-                args: tuple) -> None:
-    """Serialize the jitted one-motor solver ``fn`` (traced at ``args``) into ``cache_dir`` for the
-    next process (best effort, atomic; nothing when ``cache_dir`` is ``None``)."""
+                args: tuple, batch: Batch = None) -> None:
+    """Serialize the jitted solver ``fn`` (one motor's, or a chunk's: ``batch``; traced at ``args``)
+    into ``cache_dir`` for the next process (best effort, atomic; nothing when ``cache_dir`` is ``None``)."""
 
     if cache_dir is not None:
-        save(cache_dir, "fit", _solver_key(spec, S, n_grid), fn, args)
+        save(cache_dir, _entry_name(batch), _solver_key(spec, S, n_grid, batch), fn, args)
