@@ -104,12 +104,11 @@ def captures(tmp_path_factory):
     return out
 
 
-def test_eol_cal_fit_warns_on_an_assumed_bench_and_not_on_the_plant_s_own(captures, tmp_path, monkeypatch):
+def test_eol_cal_fit_warns_on_an_assumed_bench_and_not_on_the_plant_s_own(captures, tmp_path):
     import json
 
     from cli.main import cli
 
-    monkeypatch.setenv("EOL_CAL_JAX_CACHE", "off")
     runner = CliRunner()
     for kind, warned in (("real", True), ("claimed", False)):
         out = tmp_path / f"{kind}.json"

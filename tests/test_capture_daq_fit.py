@@ -108,8 +108,7 @@ def _fit(inputs, out, map_file=None):
     return motor
 
 
-def test_tdms_and_tab_separated_decimal_comma_fit_as_the_csv(files, monkeypatch):
-    monkeypatch.setenv("EOL_CAL_JAX_CACHE", "off")  # keep the tests out of ~/.cache
+def test_tdms_and_tab_separated_decimal_comma_fit_as_the_csv(files):
     d = files["dir"]
     a = _fit(files["csv"], d / "csv.json")
     assert a["status"] == "ok" and abs(a["k6"]["value"] - TRUTH["k6"]) < 0.02 * TRUTH["k6"]

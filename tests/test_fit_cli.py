@@ -20,16 +20,6 @@ POINTS = [(120.0, 20.0), (120.0, 65.0), (240.0, 20.0), (240.0, 65.0), (-120.0, -
 TRUTH = dict(k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _no_jax_cache():
-    # the CLI turns on JAX's persistent caches (writing them costs time; tests/test_fit_core.py
-    # covers the exported solver); keep the tests out of ~/.cache too
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")
-    yield
-    mp.undo()
-
-
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     d = tmp_path_factory.mktemp("fitcli")

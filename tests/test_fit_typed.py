@@ -124,7 +124,6 @@ def test_eol_cal_fit_writes_the_file_it_wrote_before_the_results_were_typed(gold
     from cli.main import cli
 
     monkeypatch.chdir(captures)  # the sources as the golden files name them
-    monkeypatch.setenv("EOL_CAL_JAX_CACHE", "off")  # the CLI's caches: not in ~/.cache
     out = tmp_path / golden
     res = CliRunner().invoke(cli, fit_args(golden, str(out)), catch_exceptions=False)
     assert res.exit_code in (0, 1), res.output

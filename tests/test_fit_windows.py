@@ -63,7 +63,7 @@ def _fit(tmp: Path, name: str, files: list[Path]) -> dict:
     # 0.6 s windows: intervals a little wider than the production limits; acquired without the
     # ECU's bus (the dyno's synthetic source runs no ECU): untraced on purpose
     r = CliRunner().invoke(cli, ["fit", *map(str, files), "-o", str(out), "--max-ci-k6", "0.1", "--max-ci-phase", "6",
-                                 "--allow-untraced"], env={"EOL_CAL_JAX_CACHE": "off"})
+                                 "--allow-untraced"])
     assert r.exit_code == 0, r.output
     (m,) = json.loads(out.read_text())["motors"]
     return m

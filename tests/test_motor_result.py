@@ -22,8 +22,6 @@ TRUTH = dict(k6=0.00062, phase_k6=0.3, c6=0.004, phase_c6=1.1)
 @pytest.fixture(scope="module")
 def results(tmp_path_factory):
     """Real fit output: one usable result and one that did not converge."""
-    mp = pytest.MonkeyPatch()
-    mp.setenv("EOL_CAL_JAX_CACHE", "off")
     d = tmp_path_factory.mktemp("motor_result")
     files = []
     for i, (rpm, iq) in enumerate(POINTS):
@@ -33,7 +31,6 @@ def results(tmp_path_factory):
     ok, bad = d / "ok.json", d / "not_converged.json"
     assert CliRunner().invoke(cli, ["fit", *files, "-o", str(ok), "--bench", "none"]).exit_code == 0
     assert CliRunner().invoke(cli, ["fit", *files, "-o", str(bad), "--bench", "none", "--max-steps", "1"]).exit_code == 1
-    mp.undo()
     return ok, bad
 
 
