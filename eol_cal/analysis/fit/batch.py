@@ -165,13 +165,12 @@ def fit_many(
                 block = motors[start : start + step]
                 comps = [next(comps_in_order) for _ in block]
                 if mode == "loop":
-                    args: tuple = (compressed_dict(comps[0]), grid_j)
-                    stacked = None
+                    comp, stacked = compressed_dict(comps[0]), None
                 else:
                     # pad the last chunk to the chunk size: one compiled shape
                     padded = comps + [comps[-1]] * (chunk - len(comps)) if len(motors) > chunk else comps
-                    stacked = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
-                    args = (stacked, grid_j)
+                    comp = stacked = {k: np.stack([getattr(c, k) for c in padded]) for k in COMPRESSED_KEYS}
+                args = (comp, grid_j)
                 if save_export:
                     save_export = False
                     save_solver(cache_dir, jax.jit(_solver_program(program, S, mode, spec.max_steps)), program, S,
@@ -182,7 +181,7 @@ def fit_many(
                     exported = load_solver(cache_dir, program, S, len(grid), batch)
                     if exported:
                         solve = _taking_steps(exported)
-                out = solve(*args, spec.max_steps)
+                out = solve(comp, grid_j, spec.max_steps)
                 if pending:
                     _unpack_into(results, *pending, spec, progress)
                 pending = (block, comps, stacked, out)
