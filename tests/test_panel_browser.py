@@ -43,7 +43,8 @@ SHOTS = os.environ.get("EOL_CAL_DOC_SCREENSHOTS")
 
 
 def _env() -> dict[str, str]:
-    env = {k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_")}
+    # the suite's cache directory kept (its programs, not the user's ~/.cache), the rest of ours not
+    env = {k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_") or k == "EOL_CAL_JAX_CACHE"}
     env.update(PYTHONPATH=str(ROOT), COLUMNS="160")
     return env
 

@@ -47,7 +47,9 @@ class Terminal:
     def __init__(self, args: list[str], cwd: Path) -> None:
         self.master, slave = pty.openpty()
         fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 50, 160, 0, 0))
-        env = {k: v for k, v in os.environ.items() if not k.startswith("EOL_CAL_") and k != "COLUMNS"}
+        # the suite's cache directory kept (its programs, not the user's ~/.cache), the rest of ours not
+        env = {k: v for k, v in os.environ.items()
+               if (not k.startswith("EOL_CAL_") or k == "EOL_CAL_JAX_CACHE") and k != "COLUMNS"}
         env.update(PYTHONPATH=str(ROOT), TERM="xterm-256color")
         self.proc = subprocess.Popen([sys.executable, "-m", "cli.main", *args], stdin=slave, stdout=slave,
                                      stderr=slave, cwd=cwd, env=env, start_new_session=True, close_fds=True)
