@@ -99,6 +99,16 @@ def _machine() -> str:
                  platform.processor(), hashlib.sha256(flags.encode()).hexdigest()))
 
 
+def _read_entry(path: Path, key: str) -> bytes | None:
+    """The payload of the entry at ``path`` if it is an intact entry for ``key`` (:func:`unpack`);
+    ``None`` for anything else: none there, not a regular file (the bounded reader refuses a FIFO or
+    a device unread: an open() of a FIFO waits for a writer), over :data:`MAX_ENTRY_BYTES`."""
+    try:
+        return unpack(read_bytes(path, max_bytes=MAX_ENTRY_BYTES, register=False), key)
+    except Exception:  # noqa: BLE001 - an unreadable entry only costs the tracing or the compile
+        return None
+
+
 def _digest(key: bytes, payload: bytes) -> bytes:
     return hashlib.sha256(len(key).to_bytes(8, "little") + key + payload).digest()
 
@@ -141,13 +151,10 @@ def load(directory: str | os.PathLike[str] | None, name: str, key: str, args: tu
     ``None`` otherwise (no directory, no entry, a damaged, foreign or oversized one). Never raises."""
     if directory is None:
         return None
+    payload = _read_entry(entry_path(directory, name, key), key)
+    if payload is None:
+        return None
     try:
-        # the bounded reader: a FIFO or device under the entry's name is refused unread (an open()
-        # of a FIFO waits for a writer), an oversized file unread
-        blob = read_bytes(entry_path(directory, name, key), max_bytes=MAX_ENTRY_BYTES, register=False)
-        payload = unpack(blob, key)
-        if payload is None:
-            return None
         import jax
         from jax import export
 
@@ -206,9 +213,7 @@ def executable(directory: str | os.PathLike[str], name: str, key: str, fn: Any, 
             initialize_lapack()
         ekey = key + "\n" + _machine()
         path = executable_path(directory, name, ekey)
-        payload = None
-        with contextlib.suppress(Exception):  # none yet, not a regular file, oversized: compiled instead
-            payload = unpack(read_bytes(path, max_bytes=MAX_ENTRY_BYTES, register=False), ekey)
+        payload = _read_entry(path, ekey)
         if payload is not None:
             with contextlib.suppress(Exception):
                 return se.deserialize_and_load(payload, in_tree, out_tree)

@@ -18,7 +18,7 @@ from eol_cal.analysis.fit.compression import (COMPRESSED_KEYS, Compressed, Summa
                                               summarise_segments)
 from eol_cal.analysis.fit.model import FitSpec, SteadySegments, check_identifiable
 from eol_cal.analysis.fit.motor_fit import MotorFit, segment_coefficients, unpack
-from eol_cal.analysis.fit.solver import build_solver, cached_solver, tau_grid
+from eol_cal.analysis.fit.solver import build_solver, cached_solver, mode_solver, tau_grid
 from eol_cal.numerics.exported import cache_dir as process_cache_dir
 
 
@@ -354,17 +354,11 @@ def _name_capture(e: Exception, motors: list[SteadySegments], first: int, block:
 
 def _solver_program(spec: FitSpec, S: int, mode: str, steps: int) -> Callable:
     """The solver of ``mode`` (:func:`fit_many`'s: one motor, or a chunk's by ``vmap`` or
-    ``jax.lax.map``) as ``(compressed, tau_grid) -> outputs``, ``steps`` its step limit: what is
-    exported (:func:`~eol_cal.analysis.fit.cache.save_solver`), the program
-    :func:`~eol_cal.analysis.fit.solver.cached_solver` jits for that mode."""
-    import jax
-
-    solve = build_solver(spec, S)
-    if mode == "loop":
-        return lambda c, g: solve(c, g, steps)
-    if mode == "vmap":
-        return lambda c, g: jax.vmap(solve, in_axes=(0, None, None))(c, g, steps)
-    return lambda c, g: jax.lax.map(lambda one: solve(one, g, steps), c)
+    ``jax.lax.map``: :func:`~eol_cal.analysis.fit.solver.mode_solver`) as
+    ``(compressed, tau_grid) -> outputs``, ``steps`` its step limit: what is exported
+    (:func:`~eol_cal.analysis.fit.cache.save_solver`)."""
+    solve = mode_solver(build_solver(spec, S), "one" if mode == "loop" else mode)
+    return lambda c, g: solve(c, g, steps)
 
 
 def _taking_steps(exported: Callable) -> Callable:

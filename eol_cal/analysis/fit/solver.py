@@ -204,22 +204,28 @@ _SOLVERS: dict[tuple[FitSpec, int, str], Solver] = {}
 
 
 
+def mode_solver(solve: Solver, mode: str) -> Solver:
+    """The one-motor ``solve`` (:func:`build_solver`) for batch mode ``mode``: ``one`` itself,
+    ``vmap`` vectorised over a chunk's motors, ``map`` by ``jax.lax.map`` over them (not jitted: the
+    program :func:`cached_solver` jits and :func:`eol_cal.analysis.fit.fit_many` exports)."""
+    import jax
+
+    if mode == "one":
+        return solve
+    if mode == "vmap":
+        return jax.vmap(solve, in_axes=(0, None, None))
+    if mode == "map":
+        return lambda comp, grid, steps: jax.lax.map(lambda c: solve(c, grid, steps), comp)
+    raise ValueError(f"unknown batch mode {mode!r}")
+
+
 def cached_solver(spec: FitSpec, S: int, mode: str) -> Solver:
     """Jitted solver, cached per (spec, S, mode)."""
     import jax
 
     key = (spec, S, mode)
     if key not in _SOLVERS:
-        solve = build_solver(spec, S)
-        if mode == "one":
-            fn = jax.jit(solve, static_argnums=(2,))
-        elif mode == "vmap":
-            fn = jax.jit(jax.vmap(solve, in_axes=(0, None, None)), static_argnums=(2,))
-        elif mode == "map":
-            fn = jax.jit(lambda comp, grid, steps: jax.lax.map(lambda c: solve(c, grid, steps), comp), static_argnums=(2,))
-        else:
-            raise ValueError(f"unknown batch mode {mode!r}")
-        _SOLVERS[key] = fn
+        _SOLVERS[key] = jax.jit(mode_solver(build_solver(spec, S), mode), static_argnums=(2,))
     return _SOLVERS[key]
 
 
