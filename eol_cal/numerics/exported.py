@@ -16,19 +16,23 @@ is written again); reading never raises. The digest guards against corruption an
 against someone who can write the user's cache directory (they can write its Python too).
 
 The directory is a setting of the process, as JAX's own compilation cache directory is
-(:func:`set_cache_dir`; ``eol_cal.analysis.fit.cache.enable_compile_cache`` sets both).
+(:func:`set_cache_dir`; ``eol_cal.analysis.fit.cache.enable_compile_cache`` sets both). Processes
+that share it trace and compile a program once between them (:func:`one_at_a_time`).
 """
 
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import functools
 import hashlib
 import importlib.util
 import os
 import platform
 import re
-from collections.abc import Callable, Iterable
+import stat
+import time
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +45,9 @@ from eol_cal.infra.inputs import read_bytes
 MAGIC = b"eol-cal-exported/1\n"
 #: an entry larger than this is not read (the largest, the fit's solver, is ~0.3 MB)
 MAX_ENTRY_BYTES = 64 << 20
+#: the longest a process waits for another one tracing or compiling the same program (s); then it
+#: does the work itself (a duplicate costs only time)
+LOCK_WAIT_S = 300.0
 
 _DIR: Path | None = None
 #: the programs this process has read or traced (:func:`kept`), by directory, name and key
@@ -97,6 +104,39 @@ def _machine() -> str:
                 break
     return repr((jaxlib.__version__, client.platform, client.platform_version, platform.machine(),
                  platform.processor(), hashlib.sha256(flags.encode()).hexdigest()))
+
+
+@contextlib.contextmanager
+def one_at_a_time(path: Path) -> Iterator[bool]:
+    """Hold the lock file ``path`` (the kernel's ``flock``: it goes with its process, killed or not)
+    for the block, waiting up to :data:`LOCK_WAIT_S` for another process (or thread) that holds it;
+    yields whether it is held. Around a program's tracing and compiling, so that processes starting
+    together (the test workers, a refit's Dask workers, two stations on one PC) do the work once
+    and the others read what it wrote: three test workers on a cold cache compiled ~30 of the
+    suite's ~130 kept programs twice (docs/benchmarks.md). Best effort: without a lock (an
+    unwritable directory, a path that is no regular file, the wait over) the work goes on unlocked.
+    """
+    fd = -1
+    with contextlib.suppress(OSError):  # non-blocking: an open() of a FIFO waits for a writer
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o644)
+    held = False
+    try:
+        if fd >= 0 and stat.S_ISREG(os.fstat(fd).st_mode):
+            deadline = time.monotonic() + LOCK_WAIT_S
+            while not held:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                    held = True
+                except BlockingIOError:
+                    if time.monotonic() > deadline:
+                        break
+                    time.sleep(0.02)
+                except OSError:
+                    break
+        yield held
+    finally:
+        if fd >= 0:
+            os.close(fd)  # the lock goes with the descriptor
 
 
 def _read_entry(path: Path, key: str) -> bytes | None:
@@ -205,38 +245,59 @@ def executable(directory: str | os.PathLike[str], name: str, key: str, fn: Any, 
     the directory is as trusted as the installation (:mod:`eol_cal.numerics.exported`).
     """
     try:
-        import jax
         from jax._src.lax.linalg import initialize_lapack  # what jax.export's call runs (no public name)
-        from jax.experimental import serialize_executable as se
 
         if "cpu" in platforms:
             initialize_lapack()
         ekey = key + "\n" + _machine()
         path = executable_path(directory, name, ekey)
-        payload = _read_entry(path, ekey)
-        if payload is not None:
-            with contextlib.suppress(Exception):
-                return se.deserialize_and_load(payload, in_tree, out_tree)
-        hits: list[str] = []
-
-        def heard(event: str, **_: object) -> None:
-            if event == "/jax/compilation_cache/cache_hits":
-                hits.append(event)
-
-        jax.monitoring.register_event_listener(heard)
-        try:
-            compiled = fn.lower(*args).compile()
-        finally:
-            jax.monitoring.unregister_event_listener(heard)
-        if not hits:  # another thread's hit meanwhile is counted too: not written, only the time lost
-            with contextlib.suppress(Exception):
-                blob = se.serialize(compiled)[0]
-                zeros = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, a.dtype), args)
-                jax.block_until_ready(se.deserialize_and_load(blob, in_tree, out_tree)(*zeros))
-                atomic_write(path, pack(ekey, blob))
-        return compiled
+        read = _read_executable(path, ekey, in_tree, out_tree)
+        if read is not None:
+            return read
+        with one_at_a_time(path.with_suffix(".lock")):
+            read = _read_executable(path, ekey, in_tree, out_tree)  # written meanwhile by the lock's holder
+            return read if read is not None else _compile_and_keep(fn, args, in_tree, out_tree, path, ekey)
     except Exception:  # noqa: BLE001 - the executable is an optimisation, never a failure
         return None
+
+
+def _read_executable(path: Path, ekey: str, in_tree: Any, out_tree: Any) -> Any:
+    """The executable kept at ``path`` for ``ekey``, loaded; ``None`` when there is none intact."""
+    from jax.experimental import serialize_executable as se
+
+    payload = _read_entry(path, ekey)
+    if payload is None:
+        return None
+    try:
+        return se.deserialize_and_load(payload, in_tree, out_tree)
+    except Exception:  # noqa: BLE001 - compiled afresh instead
+        return None
+
+
+def _compile_and_keep(fn: Any, args: tuple, in_tree: Any, out_tree: Any, path: Path, ekey: str) -> Any:
+    """``fn`` compiled for ``args``; its executable written to ``path`` when the compile was fresh
+    and its copy runs (:func:`executable`)."""
+    import jax
+    from jax.experimental import serialize_executable as se
+
+    hits: list[str] = []
+
+    def heard(event: str, **_: object) -> None:
+        if event == "/jax/compilation_cache/cache_hits":
+            hits.append(event)
+
+    jax.monitoring.register_event_listener(heard)
+    try:
+        compiled = fn.lower(*args).compile()
+    finally:
+        jax.monitoring.unregister_event_listener(heard)
+    if not hits:  # another thread's hit meanwhile is counted too: not written, only the time lost
+        with contextlib.suppress(Exception):
+            blob = se.serialize(compiled)[0]
+            zeros = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, a.dtype), args)
+            jax.block_until_ready(se.deserialize_and_load(blob, in_tree, out_tree)(*zeros))
+            atomic_write(path, pack(ekey, blob))
+    return compiled
 
 
 def save(directory: str | os.PathLike[str] | None, name: str, key: str, fn: Any, args: tuple) -> bool:
@@ -290,9 +351,12 @@ def kept(name: str, tag: str, parts: object, build: Callable[[], Callable], args
     if fn is None:
         fn = load(directory, name, key, args)
         if fn is None:
-            fn = build()
-            if save(directory, name, key, fn, args):
-                fn = load(directory, name, key, args) or fn
+            with one_at_a_time(entry_path(directory, name, key).with_suffix(".lock")):
+                fn = load(directory, name, key, args)  # written meanwhile by the process that held the lock
+                if fn is None:
+                    fn = build()
+                    if save(directory, name, key, fn, args):
+                        fn = load(directory, name, key, args) or fn
         _KEPT[memo] = fn
     return fn
 
