@@ -17,7 +17,8 @@ against someone who can write the user's cache directory (they can write its Pyt
 
 The directory is a setting of the process, as JAX's own compilation cache directory is
 (:func:`set_cache_dir`; ``eol_cal.analysis.fit.cache.enable_compile_cache`` sets both). Processes
-that share it trace and compile a program once between them (:func:`one_at_a_time`).
+that share it trace and compile a program once between them (:func:`one_at_a_time`); its kept files
+are held to a size, the least recently used removed first (:mod:`eol_cal.numerics.cache_size`).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from eol_cal.infra.atomic import atomic_write
+from eol_cal.numerics.cache_size import prune, used
 from eol_cal.infra.inputs import read_bytes
 
 #: the first bytes of every entry (bump the number when the layout below changes)
@@ -144,9 +146,12 @@ def _read_entry(path: Path, key: str) -> bytes | None:
     ``None`` for anything else: none there, not a regular file (the bounded reader refuses a FIFO or
     a device unread: an open() of a FIFO waits for a writer), over :data:`MAX_ENTRY_BYTES`."""
     try:
-        return unpack(read_bytes(path, max_bytes=MAX_ENTRY_BYTES, register=False), key)
+        payload = unpack(read_bytes(path, max_bytes=MAX_ENTRY_BYTES, register=False), key)
     except Exception:  # noqa: BLE001 - an unreadable entry only costs the tracing or the compile
         return None
+    if payload is not None:
+        used(path)  # the directory's bound removes the least recently used first
+    return payload
 
 
 def _digest(key: bytes, payload: bytes) -> bytes:
@@ -297,6 +302,7 @@ def _compile_and_keep(fn: Any, args: tuple, in_tree: Any, out_tree: Any, path: P
             zeros = jax.tree_util.tree_map(lambda a: np.zeros(a.shape, a.dtype), args)
             jax.block_until_ready(se.deserialize_and_load(blob, in_tree, out_tree)(*zeros))
             atomic_write(path, pack(ekey, blob))
+            prune(path.parent, keep=path)
     return compiled
 
 
@@ -325,7 +331,9 @@ def save(directory: str | os.PathLike[str] | None, name: str, key: str, fn: Any,
                 names |= new
         else:
             return False
-        atomic_write(entry_path(directory, name, key), pack(key, bytes(exp.serialize())))
+        path = entry_path(directory, name, key)
+        atomic_write(path, pack(key, bytes(exp.serialize())))
+        prune(path.parent, keep=path)
         return True
     except Exception:  # noqa: BLE001 - the cache is an optimisation, never a failure
         return False

@@ -12,6 +12,7 @@ run. Pre-warming a process (imports, one solver trace, matplotlib) sits beside t
 from __future__ import annotations
 
 import functools
+import importlib.util
 import os
 from pathlib import Path
 from collections.abc import Callable, Mapping
@@ -21,6 +22,7 @@ import numpy as np
 
 from eol_cal.analysis.fit.compression import COMPRESSED_KEYS
 from eol_cal.analysis.fit.model import FitSpec
+from eol_cal.numerics.cache_size import MAX_JAX_CACHE_BYTES, time_jax_entries
 from eol_cal.numerics.exported import entry_path, key_text, load, save, set_cache_dir, sources_digest
 from eol_cal.numerics.xla import start_xla
 
@@ -83,6 +85,12 @@ def enable_compile_cache(cache_dir: str | os.PathLike[str] | None) -> Path | Non
     import jax  # a second to import: only for callers that fit or simulate
 
     jax.config.update("jax_compilation_cache_dir", str(path))
+    if "JAX_COMPILATION_CACHE_MAX_SIZE" not in os.environ and importlib.util.find_spec("filelock") is not None:
+        # JAX's cache held to a size, the least recently used entries evicted (eol_cal.numerics.cache_size);
+        # its eviction needs filelock, without which JAX would refuse the cache at the first compile,
+        # and a use time beside every entry, which a cache filled without a bound lacks
+        time_jax_entries(path)
+        jax.config.update("jax_compilation_cache_max_size", MAX_JAX_CACHE_BYTES)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", -1)
     set_cache_dir(path)  # the exported programs of eol_cal.numerics.exported (the firmware estimator's)
