@@ -31,6 +31,12 @@ _JAX_ENTRY, _JAX_USED = "-cache", "-atime"
 KEPT_SUFFIXES = (".jaxexport", ".xlaexec")
 
 
+def lock_of(path: Path) -> Path:
+    """The lock file of the kept file ``path`` (:func:`eol_cal.numerics.exported.one_at_a_time`):
+    held while it is traced or compiled, removed with it (:func:`prune`)."""
+    return Path(path).with_suffix(".lock")
+
+
 def used(path: Path) -> None:
     """Mark the kept file ``path`` used now (best effort: a read-only directory keeps its times)."""
     with contextlib.suppress(OSError):
@@ -75,7 +81,7 @@ def prune(directory: Path, max_bytes: int | None = None, keep: Path | None = Non
         except OSError:
             continue
         with contextlib.suppress(OSError):
-            path.with_suffix(".lock").unlink()  # its lock (exported.one_at_a_time) goes with it
+            lock_of(path).unlink()
         total -= size
         removed.append(path)
     return removed
@@ -95,12 +101,12 @@ def time_jax_entries(directory: Path) -> int:
         return 0
     given = 0
     for name, e in names.items():
-        if not name.endswith(_JAX_ENTRY) or name[: -len(_JAX_ENTRY)] + _JAX_USED in names:
+        used_name = name.removesuffix(_JAX_ENTRY) + _JAX_USED
+        if not name.endswith(_JAX_ENTRY) or used_name in names:
             continue
         with contextlib.suppress(OSError):
             st = e.stat(follow_symlinks=False)
             if stat.S_ISREG(st.st_mode):
-                used_at = Path(directory) / (name[: -len(_JAX_ENTRY)] + _JAX_USED)
-                used_at.write_bytes(st.st_mtime_ns.to_bytes(8, "little"))
+                (Path(directory) / used_name).write_bytes(st.st_mtime_ns.to_bytes(8, "little"))
                 given += 1
     return given
