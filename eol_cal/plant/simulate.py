@@ -12,6 +12,7 @@ program serves any duration, and each chunk's outputs are copied to the host as 
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -71,6 +72,11 @@ class SimResult:
 
 
 _COMPILED: dict[tuple, Any] = {}  # compiled chunks, and primes with their carry's packing
+# held while a program of _COMPILED is built: a what-if batch's motor threads asked for the same
+# program at once, and each traced and compiled its own (three compiles of the prime where one does:
+# 0.7 CPU s alone, 2.2-2.5 s each beside the others, 2026-12-02); one jitted function called from
+# several threads compiles once (JAX waits)
+_BUILDING = threading.Lock()
 #: part of the key of the plant's exported programs (with the package's code digest: any change to
 #: the code traces them afresh)
 _EXPORT_TAG = "eol-cal-plant-1"
@@ -87,9 +93,14 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c
     cut into chunks.
     """
     key = (cfg, n_ticks, unroll, p_pack, c_pack)
-    fn = _COMPILED.get(key)
-    if fn is not None:
-        return fn
+    with _BUILDING:
+        fn = _COMPILED.get(key)
+        if fn is None:
+            fn = _COMPILED[key] = _build_chunk(cfg, n_ticks, unroll, p_pack, c_pack)
+    return fn
+
+
+def _build_chunk(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c_pack: Packing) -> Callable:
     import jax
     import jax.numpy as jnp
 
@@ -124,9 +135,7 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c
             carry, ys = _identifying_ticks(cfg, p, lambda c, x: one_tick(p, i_noise, c, x), carry, xs, n_ticks)
         return pack(c_pack, carry, jnp), ys.transpose(1, 2, 0)  # motor- and channel-major: the host converts contiguous rows
 
-    fn = jax.jit(chunk)
-    _COMPILED[key] = fn
-    return fn
+    return jax.jit(chunk)
 
 
 def _identifying_ticks(cfg: PlantSimConfig, p: Any, one_tick: Callable, carry: Any, xs: tuple, n_ticks: int
@@ -191,9 +200,10 @@ def _motor_keys(seed: int, n_motors: int) -> Any:
 
     if not -2**31 <= seed < 2**31:
         return jax.random.split(jax.random.PRNGKey(seed), n_motors)
-    fn = _KEYS.get(n_motors)
-    if fn is None:
-        fn = _KEYS[n_motors] = jax.jit(lambda s: jax.random.split(jax.random.PRNGKey(s), n_motors))
+    with _BUILDING:
+        fn = _KEYS.get(n_motors)
+        if fn is None:
+            fn = _KEYS[n_motors] = jax.jit(lambda s: jax.random.split(jax.random.PRNGKey(s), n_motors))
     return fn(seed)
 
 
@@ -224,30 +234,35 @@ def _prime_fn(cfg: PlantSimConfig, p_pack: Packing, i_pack: Packing) -> tuple[Ca
     ECU, identifier state)`` (packed as ``i_pack`` says) into the scan's carry with the first
     tick's :class:`eol_cal.plant.tick.Sensed`, packed; and that carry's packing."""
     key = (cfg, "prime", p_pack, i_pack)
-    got = _COMPILED.get(key)
-    if got is None:
-        import jax
-        import jax.numpy as jnp
-
-        def one_motor(p, carry):
-            plant, est_state, ecu, mech_state = carry
-            est_state, sensed = sense(cfg, p, plant.theta_m, est_state, mech_state)
-            return plant, est_state, ecu, sensed
-
-        def primed(p, carry):
-            p, carry = unpack(p_pack, p), unpack(i_pack, carry)
-            carry = jax.vmap(one_motor, axis_name=BATCH_AXIS)(p, carry)
-            # From power-on the identifier's first slice computes nothing (no evaluation is due
-            # before a revolution of samples, no mark check before one identified): background's
-            # branch takes its idle side, which alone compiles and runs in a fraction of the time
-            return carry if cfg.mech is None else background_idle(cfg, p, carry)
-
-        # the carry's layout, from one motor's shapes (tracing only)
-        shapes = [tuple(jax.ShapeDtypeStruct((1, n), d) for n, d in zip(pk.sizes, pk.dtypes, strict=True))
-                  for pk in (p_pack, i_pack)]
-        c_pack = packing_of(jax.eval_shape(primed, *shapes), lead=1)
-        got = _COMPILED[key] = (jax.jit(lambda p, carry: pack(c_pack, primed(p, carry), jnp)), c_pack)
+    with _BUILDING:
+        got = _COMPILED.get(key)
+        if got is None:
+            got = _COMPILED[key] = _build_prime(cfg, p_pack, i_pack)
     return got
+
+
+def _build_prime(cfg: PlantSimConfig, p_pack: Packing, i_pack: Packing) -> tuple[Callable, Packing]:
+    import jax
+    import jax.numpy as jnp
+
+    def one_motor(p, carry):
+        plant, est_state, ecu, mech_state = carry
+        est_state, sensed = sense(cfg, p, plant.theta_m, est_state, mech_state)
+        return plant, est_state, ecu, sensed
+
+    def primed(p, carry):
+        p, carry = unpack(p_pack, p), unpack(i_pack, carry)
+        carry = jax.vmap(one_motor, axis_name=BATCH_AXIS)(p, carry)
+        # From power-on the identifier's first slice computes nothing (no evaluation is due
+        # before a revolution of samples, no mark check before one identified): background's
+        # branch takes its idle side, which alone compiles and runs in a fraction of the time
+        return carry if cfg.mech is None else background_idle(cfg, p, carry)
+
+    # the carry's layout, from one motor's shapes (tracing only)
+    shapes = [tuple(jax.ShapeDtypeStruct((1, n), d) for n, d in zip(pk.sizes, pk.dtypes, strict=True))
+              for pk in (p_pack, i_pack)]
+    c_pack = packing_of(jax.eval_shape(primed, *shapes), lead=1)
+    return jax.jit(lambda p, carry: pack(c_pack, primed(p, carry), jnp)), c_pack
 
 
 def simulate(

@@ -224,9 +224,12 @@ def cached_solver(spec: FitSpec, S: int, mode: str) -> Solver:
     import jax
 
     key = (spec, S, mode)
-    if key not in _SOLVERS:
-        _SOLVERS[key] = jax.jit(mode_solver(build_solver(spec, S), mode), static_argnums=(2,))
-    return _SOLVERS[key]
+    fn = _SOLVERS.get(key)
+    if fn is None:
+        # setdefault: threads that miss at once share the first one's (one jitted function compiles
+        # once however many threads call it; two would compile twice)
+        fn = _SOLVERS.setdefault(key, jax.jit(mode_solver(build_solver(spec, S), mode), static_argnums=(2,)))
+    return fn
 
 
 def tau_grid(spec: FitSpec, omega_max: float) -> np.ndarray:
