@@ -81,6 +81,7 @@ def test_a_program_read_back_counts_as_used_and_outlives_one_that_was_not(tmp_pa
         exported._KEPT.clear()
 
 
+@pytest.mark.slow  # processes of their own, each importing JAX (CONTRIBUTING.md, "Fast or slow")
 def test_jax_cache_gets_a_bound_unless_the_user_set_one_and_an_unbounded_cache_stays_writable(tmp_path):
     # a cache JAX filled without a bound: entries without use times, which its eviction reads
     (tmp_path / "jit_old-0123-cache").write_bytes(b"an entry of an earlier run")

@@ -53,6 +53,7 @@ def _step(mode: str, directory, compile_cache) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # four processes, each importing JAX and compiling (CONTRIBUTING.md, "Fast or slow")
 def test_a_new_process_runs_the_executable_it_reads_bit_for_bit_and_only_a_fresh_compile_is_written(tmp_path):
     plain = _step("traced", tmp_path / "unused", "off")["out"]
     kept, cc = tmp_path / "kept", tmp_path / "xla"

@@ -64,6 +64,7 @@ def _result(proc: subprocess.Popen) -> dict:
     return json.loads(out.strip().splitlines()[-1])
 
 
+@pytest.mark.slow  # two processes, each importing JAX (CONTRIBUTING.md, "Fast or slow")
 def test_two_processes_asking_at_once_trace_and_compile_once(tmp_path):
     kept, flags = tmp_path / "kept", tmp_path / "flags"
     kept.mkdir()

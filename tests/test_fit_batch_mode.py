@@ -35,6 +35,7 @@ def test_auto_batch_fits_equal_map_and_loop_within_1e9() -> None:
         np.testing.assert_allclose(a.t_avg, b.t_avg, rtol=1e-12)
 
 
+@pytest.mark.slow  # a batched solver traced, exported and read back (2-6 s quiet; CONTRIBUTING.md, "Fast or slow")
 @pytest.mark.parametrize("mode", ["vmap", "map"])
 def test_a_batched_solver_is_read_back_in_the_next_process_instead_of_traced(tmp_path, monkeypatch, mode) -> None:
     """A batched fit keeps its chunk's solver as the one-motor fit keeps its own (issue 37: a fit of

@@ -170,6 +170,7 @@ def test_a_dead_child_leaves_the_work_to_this_process():
         proc.close()
 
 
+@pytest.mark.slow  # a parent process of its own with its child (CONTRIBUTING.md, "Fast or slow")
 def test_the_child_imports_no_jax_and_ends_with_its_parent(tmp_path):
     """A process that fits through the child: no JAX library mapped in the child, and when the
     parent ends, no child left (its buffers are memfds: no name under /dev/shm to leak, their memory

@@ -114,6 +114,7 @@ _KERNEL = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # a process of its own that compiles a plant program (CONTRIBUTING.md, "Fast or slow")
 def test_the_tick_loop_of_an_identifying_batch_compiles_into_one_kernel():
     # where the process lets XLA compile small loops into one kernel (numerics.xla.configure_xla),
     # the tick loop of a layout-2 batch is one (no scatter, no library kernel inside): ~1.5x per tick
