@@ -40,8 +40,8 @@ from typing import Any
 import numpy as np
 
 from eol_cal.infra.atomic import atomic_write
-from eol_cal.numerics.cache_size import lock_of, prune, used
 from eol_cal.infra.inputs import read_bytes
+from eol_cal.numerics.cache_size import lock_of, prune, used
 
 #: the first bytes of every entry (bump the number when the layout below changes)
 MAGIC = b"eol-cal-exported/1\n"

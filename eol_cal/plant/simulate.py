@@ -77,6 +77,16 @@ _COMPILED: dict[tuple, Any] = {}  # compiled chunks, and primes with their carry
 # 0.7 CPU s alone, 2.2-2.5 s each beside the others, 2026-12-02); one jitted function called from
 # several threads compiles once (JAX waits)
 _BUILDING = threading.Lock()
+
+
+def _built(cache: dict, key: Any, build: Callable[[], Any]) -> Any:
+    """``cache[key]``, made by ``build()`` under :data:`_BUILDING` when it is not there yet."""
+    with _BUILDING:
+        got = cache.get(key)
+        if got is None:
+            got = cache[key] = build()
+    return got
+
 #: part of the key of the plant's exported programs (with the package's code digest: any change to
 #: the code traces them afresh)
 _EXPORT_TAG = "eol-cal-plant-1"
@@ -92,12 +102,8 @@ def _chunk_fn(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c
     current-sensor draws, three a current-control tick), so a run does not depend on how it is
     cut into chunks.
     """
-    key = (cfg, n_ticks, unroll, p_pack, c_pack)
-    with _BUILDING:
-        fn = _COMPILED.get(key)
-        if fn is None:
-            fn = _COMPILED[key] = _build_chunk(cfg, n_ticks, unroll, p_pack, c_pack)
-    return fn
+    return _built(_COMPILED, (cfg, n_ticks, unroll, p_pack, c_pack),
+                  lambda: _build_chunk(cfg, n_ticks, unroll, p_pack, c_pack))
 
 
 def _build_chunk(cfg: PlantSimConfig, n_ticks: int, unroll: int, p_pack: Packing, c_pack: Packing) -> Callable:
@@ -200,10 +206,7 @@ def _motor_keys(seed: int, n_motors: int) -> Any:
 
     if not -2**31 <= seed < 2**31:
         return jax.random.split(jax.random.PRNGKey(seed), n_motors)
-    with _BUILDING:
-        fn = _KEYS.get(n_motors)
-        if fn is None:
-            fn = _KEYS[n_motors] = jax.jit(lambda s: jax.random.split(jax.random.PRNGKey(s), n_motors))
+    fn = _built(_KEYS, n_motors, lambda: jax.jit(lambda s: jax.random.split(jax.random.PRNGKey(s), n_motors)))
     return fn(seed)
 
 
@@ -233,12 +236,7 @@ def _prime_fn(cfg: PlantSimConfig, p_pack: Packing, i_pack: Packing) -> tuple[Ca
     """Compiled ``(params, carry) -> carry`` that turns a batch's initial ``(plant, estimator state,
     ECU, identifier state)`` (packed as ``i_pack`` says) into the scan's carry with the first
     tick's :class:`eol_cal.plant.tick.Sensed`, packed; and that carry's packing."""
-    key = (cfg, "prime", p_pack, i_pack)
-    with _BUILDING:
-        got = _COMPILED.get(key)
-        if got is None:
-            got = _COMPILED[key] = _build_prime(cfg, p_pack, i_pack)
-    return got
+    return _built(_COMPILED, (cfg, "prime", p_pack, i_pack), lambda: _build_prime(cfg, p_pack, i_pack))
 
 
 def _build_prime(cfg: PlantSimConfig, p_pack: Packing, i_pack: Packing) -> tuple[Callable, Packing]:
