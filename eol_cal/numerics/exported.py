@@ -31,7 +31,6 @@ import importlib.util
 import os
 import platform
 import re
-import stat
 import time
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -41,6 +40,7 @@ import numpy as np
 
 from eol_cal.infra.atomic import atomic_write
 from eol_cal.infra.inputs import read_bytes
+from eol_cal.infra.lockfile import open_lock_file
 from eol_cal.numerics.cache_size import lock_of, prune, used
 
 #: the first bytes of every entry (bump the number when the layout below changes)
@@ -119,11 +119,11 @@ def one_at_a_time(path: Path) -> Iterator[bool]:
     unwritable directory, a path that is no regular file, the wait over) the work goes on unlocked.
     """
     fd = -1
-    with contextlib.suppress(OSError):  # non-blocking: an open() of a FIFO waits for a writer
-        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC, 0o644)
+    with contextlib.suppress(OSError):  # a link, a FIFO, a directory: no lock (the work goes on)
+        fd = open_lock_file(path)
     held = False
     try:
-        if fd >= 0 and stat.S_ISREG(os.fstat(fd).st_mode):
+        if fd >= 0:
             deadline = time.monotonic() + LOCK_WAIT_S
             while not held:
                 try:

@@ -33,6 +33,7 @@ from starlette.types import ASGIApp
 from eol_cal.infra.address import parse_host_port
 from eol_cal.errors import EolCalError, InputError
 from eol_cal.infra.inputs import load_toml
+from eol_cal.infra.lockfile import open_lock_file, refusal
 
 DEFAULT_BIND = "127.0.0.1:8080"
 #: the shortest password a credentials file may hold
@@ -99,7 +100,10 @@ def station_lock(lock_dir: Path, station: str | None, what: str) -> Iterator[Pat
     when another process holds it. ``what`` (its address) is written into the file for the refusal."""
     lock_dir.mkdir(parents=True, exist_ok=True)
     path = lock_dir / f"panel-{station or 'station'}.lock"
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fd = open_lock_file(path)
+    except OSError as exc:
+        raise InputError(str(path), "lock file", refusal(exc)) from None
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -26,6 +26,7 @@ from eol_cal.infra.atomic import atomic_write
 from eol_cal.errors import InputError
 from eol_cal.infra.inputs import load_json
 from eol_cal.infra.jsonsafe import json_safe
+from eol_cal.infra.lockfile import open_lock_file
 from eol_cal.records.record import RunRecord
 from eol_cal.records.connect import DEFAULT_LOCK_TIMEOUT_S, RecordError, db_key, db_shown, one_line
 from eol_cal.records.write import insert_records
@@ -73,7 +74,8 @@ def hold_in_flight(spool_dir: str | Path, run_id: str) -> InFlight:
     lock_dir = Path(spool_dir) / IN_FLIGHT_DIR
     lock_dir.mkdir(parents=True, exist_ok=True)
     path = lock_dir / f"{run_id}.lock"
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    # OSError for a link, a FIFO or anything else at the path (the caller journals without the lock)
+    fd = open_lock_file(path)
     fcntl.flock(fd, fcntl.LOCK_EX)  # a run id is new: nobody else holds it
     return InFlight(path, fd)
 
