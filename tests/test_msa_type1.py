@@ -77,3 +77,37 @@ def test_type1_of_a_phase_across_the_wrap():
     s = np.std([179.5] * 13 + [180.5] * 12, ddof=1)
     assert st.sd / deg == pytest.approx(s)
     assert st.cg.value == pytest.approx(0.2 * 20.0 / (4 * s), rel=1e-9)
+
+
+class _Runs:
+    """What the study's document reads of its runs: how many, and when the first and last began."""
+
+    def __init__(self, n: int) -> None:
+        self.started_at = np.array([f"2026-11-01T08:{i:02d}:00" for i in range(n)], dtype=object)
+
+    def __len__(self) -> int:
+        return len(self.started_at)
+
+
+def test_the_study_page_and_plots_show_each_quantity_against_its_band(tmp_path):
+    """The page and the PNGs of `eol-cal msa type1 --out/--plots` (eol_cal/msa/type1_page.py), without a
+    database: a capable k6 with its reference and band, a c6 without a reference (no band, no ref line)."""
+    from eol_cal.msa.study import document
+    from eol_cal.msa.type1_page import line, write_page, write_pngs
+
+    capable = type1_study(X, 10.0, 0.1, quantity="k6", unit="mN*m/A")
+    no_ref = type1_study(list(np.linspace(3.0, 3.2, 25)), None, None, quantity="c6", unit="mN*m")
+    results = [(capable, "limits"), (no_ref, "none")]
+    titles = [f"R{i:03d}" for i in range(25)]
+    doc = document(results, serial="M-42", runs=_Runs(25), min_n=10)
+    page = write_page(tmp_path / "study.html", doc, results, title="eol.db", run_titles=titles).read_text()
+    assert "master M-42" in page and "CAPABLE" in page and "NOT SHOWN" not in page
+    # k6's chart: its points (hover: the run and its value), the reference, the band and the mean
+    for gid in ("values-k6", "ref-k6", "band-k6", "mean-k6", "values-c6", "mean-c6"):
+        assert gid in page, gid
+    assert "ref-c6" not in page and "band-c6" not in page  # nothing to draw them from
+    assert "R024: 10.004 mN*m/A" in page
+    assert line(capable) == "n = 25, s = 0.00163, bias = 0.002, Cg 3.06, Cgk 2.45"
+    pngs = write_pngs(results, tmp_path / "plots")
+    assert [p.name for p in pngs] == ["type1-k6.png", "type1-c6.png"]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and p.stat().st_size > 5000 for p in pngs)
