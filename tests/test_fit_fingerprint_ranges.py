@@ -1,6 +1,8 @@
-"""The fingerprint's stretches of every window in one pass (``fp_angle.every_fingerprint_range``)
+"""The fingerprint's stretches of every window judged together (``fp_angle.every_fingerprint_range``)
 against the loop it replaced, segment by segment: the same ranges, on random windows with load
-steps, reversals, speed changes and segments at either end of their window."""
+steps, reversals, speed changes and segments at either end of their window; with the samples
+next to each segment judged in rounds of growing spans (from 1 sample on: many rounds) and in one
+(a span beyond every window)."""
 
 from __future__ import annotations
 
@@ -9,6 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from eol_cal.analysis.fit import fp_angle
 from eol_cal.analysis.fit.fp_angle import EXTEND_TOL, every_fingerprint_range, fingerprint_ranges
 from eol_cal.analysis.steady import IQ_TOL_A, IQ_TOL_REL
 
@@ -55,8 +58,10 @@ def _motor(rng):
     return SimpleNamespace(angles=angles, captures=captures, info=info, capture_of_segment=owner)
 
 
+@pytest.mark.parametrize("first_span", [1, 7, fp_angle.FIRST_SPAN, 1 << 20])
 @pytest.mark.parametrize("seed", range(4))
-def test_every_windows_stretches_in_one_pass_are_the_segment_by_segment_ones(seed):
+def test_every_windows_stretches_in_one_pass_are_the_segment_by_segment_ones(seed, first_span, monkeypatch):
+    monkeypatch.setattr(fp_angle, "FIRST_SPAN", first_span)
     rng = np.random.default_rng(seed)
     for _ in range(50):
         mi = _motor(rng)
