@@ -106,9 +106,9 @@ def every_fingerprint_range(mi: MotorInput) -> list[list[tuple[int, int]]]:
         sizes = [abs(far - edge) for _, _, edge, _, far in chunks]
         per = np.array([judge[k] for k, *_ in chunks]).reshape(-1, 3)
         at = [np.repeat(per[:, j], sizes) for j in range(3)]
-        ci_of = [segs[k][1] for k, *_ in chunks]
-        stops = np.flatnonzero(_stops(np.concatenate([omega[c][lo:lo + n] for c, lo, n in zip(ci_of, los, sizes)]),
-                                      np.concatenate([iqs[c][lo:lo + n] for c, lo, n in zip(ci_of, los, sizes)]), *at))
+        where = [(segs[k][1], lo, lo + n) for (k, *_), lo, n in zip(chunks, los, sizes, strict=True)]
+        stops = np.flatnonzero(_stops(np.concatenate([omega[c][lo:hi] for c, lo, hi in where]),
+                                      np.concatenate([iqs[c][lo:hi] for c, lo, hi in where]), *at))
         ends = np.cumsum([0, *sizes])
         last = np.searchsorted(stops, ends[1:]) - 1  # each chunk's last stop, if inside it
         first = np.searchsorted(stops, ends[:-1])  # each chunk's first stop, if inside it
