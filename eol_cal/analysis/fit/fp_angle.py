@@ -113,7 +113,7 @@ def every_fingerprint_range(mi: MotorInput) -> list[list[tuple[int, int]]]:
         last = np.searchsorted(stops, ends[1:]) - 1  # each chunk's last stop, if inside it
         first = np.searchsorted(stops, ends[:-1])  # each chunk's first stop, if inside it
         sides = []
-        for j, (k, d, edge, bound, far) in enumerate(chunks):
+        for j, (k, d, _, bound, far) in enumerate(chunks):
             if d < 0 and last[j] >= 0 and stops[last[j]] >= ends[j]:
                 found[k, d] = los[j] + int(stops[last[j]] - ends[j]) + 1
             elif d > 0 and first[j] < len(stops) and stops[first[j]] < ends[j + 1]:
