@@ -90,8 +90,8 @@ def main() -> int:
         key.write_text(P.DEV_SECRET.hex())
         with loopback_line(tmp / "sim", register_map=load_register_map(map_name), realtime=True,
                            bitrate=int(bitrate)) as line:
-            work = tmp / "work"
-            work.mkdir()
+            work = out / "work"  # the station's records, reports and captures: kept with --out
+            work.mkdir(exist_ok=True)
             settings = bs.settings_file(work, line, map_name, key, args.profile)
             log = out / "exchanges.log"
             proc = subprocess.Popen(bs.eol_cal(bs.ROOT, "station", "--station", str(settings), "--operator", "bench",
