@@ -52,4 +52,3 @@ def refusal(exc: OSError) -> str:
     if exc.errno == errno.EISDIR:
         return "is a directory: remove it"
     return f"cannot be opened ({exc.strerror or exc})"
-

@@ -84,8 +84,9 @@ def every_fingerprint_range(mi: MotorInput) -> list[list[tuple[int, int]]]:
     it has alone. Only the samples next to each segment are judged, in rounds: :data:`FIRST_SPAN`
     on either side of every segment side by side, then, for the sides not stopped yet, four times
     as many beyond, and so on (each round's nearest stop found by two searches). A long window of
-    many segments is judged near its segments, not once for each of them (a station capture's 24
-    segments judged its 172 000 samples 24 times: 13 ms of the fit's critical path)."""
+    many segments is judged near its segments, not once for each of them (the 24 segments of one
+    continuous 172 000-sample ``eol-cal simulate`` capture judged all its samples 24 times: 13 ms of
+    its fit)."""
     omega = [np.asarray(ang.omega_r, dtype=float) for ang in mi.angles]
     iqs = [np.asarray(cap.iq_ref(), dtype=float) for cap in mi.captures]
     segs = list(zip(mi.info, mi.capture_of_segment, strict=True))
